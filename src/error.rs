@@ -1,0 +1,66 @@
+//! The engine's error type: every public entry point validates its input and returns one of these.
+
+use thiserror::Error;
+
+/// Errors from parsing, validating and computing products.
+#[derive(Debug, Error, Clone, PartialEq)]
+#[non_exhaustive]
+pub enum Error {
+    /// A parameter lies outside its allowed range.
+    #[error("{field} = {value} is out of range: allowed {allowed}")]
+    OutOfRange {
+        field: String,
+        value: String,
+        allowed: String,
+    },
+    /// A parameter is malformed or inconsistent with others.
+    #[error("{field}: {reason}")]
+    Invalid { field: String, reason: String },
+    /// A request exceeds a resource limit (table size, wavelength count, memory).
+    #[error("{field}: {reason} (limit {limit})")]
+    TooLarge {
+        field: String,
+        reason: String,
+        limit: String,
+    },
+}
+
+impl Error {
+    /// Shorthand for [`Error::OutOfRange`].
+    pub fn out_of_range(field: &str, value: impl ToString, allowed: impl ToString) -> Self {
+        Error::OutOfRange {
+            field: field.to_string(),
+            value: value.to_string(),
+            allowed: allowed.to_string(),
+        }
+    }
+
+    /// Shorthand for [`Error::Invalid`].
+    pub fn invalid(field: &str, reason: impl ToString) -> Self {
+        Error::Invalid {
+            field: field.to_string(),
+            reason: reason.to_string(),
+        }
+    }
+
+    /// Shorthand for [`Error::TooLarge`].
+    pub fn too_large(field: &str, reason: impl ToString, limit: impl ToString) -> Self {
+        Error::TooLarge {
+            field: field.to_string(),
+            reason: reason.to_string(),
+            limit: limit.to_string(),
+        }
+    }
+
+    /// The name of the offending parameter.
+    pub fn field(&self) -> &str {
+        match self {
+            Error::OutOfRange { field, .. }
+            | Error::Invalid { field, .. }
+            | Error::TooLarge { field, .. } => field,
+        }
+    }
+}
+
+/// Result alias for the engine.
+pub type Result<T, E = Error> = std::result::Result<T, E>;

@@ -1,0 +1,8 @@
+//! skybake: a spectral atmosphere-and-sky precomputation engine.
+//!
+//! The engine is pure computation (no I/O): parse a request into a validated spec, run it, get a
+//! product. Only [`store`] touches the disk. See `ARCHITECTURE.md` for the map.
+
+pub mod error;
+
+pub use error::{Error, Result};

@@ -1,0 +1,3 @@
+fn main() {
+    println!("skybake {}", env!("CARGO_PKG_VERSION"));
+}
