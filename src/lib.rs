@@ -3,6 +3,7 @@
 //! The engine is pure computation (no I/O): parse a request into a validated spec, run it, get a
 //! product. Only [`store`] touches the disk. See `ARCHITECTURE.md` for the map.
 
+pub mod cloud;
 pub mod error;
 
 pub use error::{Error, Result};
