@@ -3,8 +3,10 @@
 //! The engine is pure computation (no I/O): parse a request into a validated spec, run it, get a
 //! product. Only [`store`] touches the disk. See `ARCHITECTURE.md` for the map.
 
+pub mod atmosphere;
 pub mod cloud;
 pub mod error;
+pub mod phase;
 pub mod spectrum;
 
 pub use error::{Error, Result};
