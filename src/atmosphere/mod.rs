@@ -2,9 +2,15 @@
 //! multiple scattering, and the products built on them (sun, sky, ground, aerial).
 
 pub mod geometry;
+pub mod integrate;
 pub mod medium;
+pub mod multiple_fast;
+pub mod multiple_precise;
 pub mod params;
 pub mod presets;
+pub mod quadrature;
+pub mod shared;
+pub mod sky;
 pub mod transmittance;
 
 pub use medium::Medium;

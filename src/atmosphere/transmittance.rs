@@ -20,7 +20,13 @@ pub struct DensityIntegralTable {
 
 /// Integrates ρ_k along the ray (r, mu) over `[0, length]` with `steps` intervals, midpoint rule
 /// in u with t = length·u² (dense at the start, where an upward ray is densest).
-pub fn density_integrals(medium: &Medium, r: f64, mu: f64, length: f64, steps: usize) -> [f64; CONSTITUENTS] {
+pub fn density_integrals(
+    medium: &Medium,
+    r: f64,
+    mu: f64,
+    length: f64,
+    steps: usize,
+) -> [f64; CONSTITUENTS] {
     let mut d = [0.0; CONSTITUENTS];
     if length <= 0.0 {
         return d;
@@ -120,7 +126,12 @@ mod tests {
 
     #[test]
     fn table_matches_direct_integration_everywhere() {
-        let m = Medium::new(&preset("earth").unwrap(), &Wavelengths::parse("550").unwrap(), None).unwrap();
+        let m = Medium::new(
+            &preset("earth").unwrap(),
+            &Wavelengths::parse("550").unwrap(),
+            None,
+        )
+        .unwrap();
         let table = DensityIntegralTable::new(&m, 64, 256, 2000);
         for &h in &[0.0, 10.0, 1500.0, 12_000.0, 60_000.0, 99_999.0] {
             let r = m.bottom_radius_m + h;
@@ -133,7 +144,10 @@ mod tests {
                 let tau_g = m.optical_depth(0, &got);
                 // Transmittance error, the quantity that matters: within 0.5 % (or absolute 1e-4).
                 let (te, tg) = ((-tau_e).exp(), (-tau_g).exp());
-                assert!((te - tg).abs() <= 0.005 * te + 1e-4, "h {h} mu {mu}: {te} vs {tg}");
+                assert!(
+                    (te - tg).abs() <= 0.005 * te + 1e-4,
+                    "h {h} mu {mu}: {te} vs {tg}"
+                );
             }
         }
     }

@@ -1,0 +1,237 @@
+//! Integration of the radiative transfer equation along one view ray (seed 001 eq 1–2, with
+//! aerosol, ozone, multiple scattering and ground reflection): radiance
+//! L = ∫ T(x, y) J(y) ds + T(x, g) · (a/π) E(g), all per unit extraterrestrial solar irradiance.
+//!
+//! Samples are placed by a midpoint rule in u with t = u² mapping each sub-segment towards its
+//! lowest (densest) end; a ray passing its perigee inside the atmosphere is split there. This
+//! keeps 1.2 km aerosol layers resolved on 1000 km grazing rays with a few dozen samples.
+
+use super::geometry::{atmosphere_segment, clamp_cos, radius_at, Segment};
+use super::medium::{Medium, CONSTITUENTS, MIE, RAYLEIGH};
+use super::transmittance::DensityIntegralTable;
+use crate::phase::Phase;
+
+/// A sample point along a ray, with everything a scattering source may need.
+#[derive(Debug, Clone, Copy)]
+pub struct RaySample {
+    /// Distance from the ray origin, m.
+    pub t: f64,
+    /// Quadrature weight, m.
+    pub weight: f64,
+    /// Radius, m.
+    pub r: f64,
+    /// Cosine of the local zenith angle of the ray direction.
+    pub mu: f64,
+    /// Cosine of the local sun zenith angle.
+    pub mu_s: f64,
+    /// Cosine of the angle between ray direction and sun direction (constant along the ray).
+    pub nu: f64,
+}
+
+/// Scattering sources beyond single scattering, and the sky part of ground irradiance.
+pub trait Source: Sync {
+    /// Adds the in-scattered radiance per unit length (m⁻¹ sr⁻¹, per unit solar irradiance) at
+    /// `s` towards the viewer into `out[λ]`.
+    fn add_scattering(&self, s: &RaySample, out: &mut [f64]);
+    /// Adds the diffuse (sky) irradiance on the ground per unit solar irradiance into `out[λ]`,
+    /// for a ground point where the sun's zenith cosine is `mu_s`.
+    fn add_ground_sky_irradiance(&self, mu_s: f64, out: &mut [f64]);
+}
+
+/// No source beyond what the integrator computes itself.
+pub struct NoSource;
+
+impl Source for NoSource {
+    fn add_scattering(&self, _: &RaySample, _: &mut [f64]) {}
+    fn add_ground_sky_irradiance(&self, _: f64, _: &mut [f64]) {}
+}
+
+/// What to integrate along a ray.
+#[derive(Clone, Copy)]
+pub struct Terms {
+    /// Exact single scattering of direct sunlight.
+    pub single: bool,
+    /// Direct sunlight reflected by the ground at the ray's end.
+    pub ground_direct: bool,
+}
+
+/// Samples of a ray inside the atmosphere, in order of increasing `t`.
+pub fn ray_samples(
+    medium: &Medium,
+    r: f64,
+    mu: f64,
+    mu_s: f64,
+    nu: f64,
+    steps: usize,
+) -> (Option<Segment>, Vec<RaySample>) {
+    let (bottom, top) = (medium.bottom_radius_m, medium.top_radius_m);
+    let Some(seg) = atmosphere_segment(r, mu, bottom, top) else {
+        return (None, Vec::new());
+    };
+    let r0 = r.max(bottom);
+    let mut out = Vec::with_capacity(steps * 2);
+    let perigee = -r0 * mu;
+    let mut push_piece = |a: f64, b: f64, dense_at_start: bool, n: usize| {
+        if b <= a {
+            return;
+        }
+        let len = b - a;
+        let mut piece: Vec<RaySample> = (0..n)
+            .map(|i| {
+                let u = (i as f64 + 0.5) / n as f64;
+                let off = len * u * u;
+                let t = if dense_at_start { a + off } else { b - off };
+                let rr = radius_at(r0, mu, t).max(bottom);
+                RaySample {
+                    t,
+                    weight: 2.0 * len * u / n as f64,
+                    r: rr,
+                    mu: clamp_cos((r0 * mu + t) / rr),
+                    mu_s: clamp_cos((r0 * mu_s + t * nu) / rr),
+                    nu,
+                }
+            })
+            .collect();
+        if !dense_at_start {
+            piece.reverse();
+        }
+        out.extend(piece);
+    };
+    if perigee > seg.t_start && perigee < seg.t_end {
+        push_piece(seg.t_start, perigee, false, steps);
+        push_piece(perigee, seg.t_end, true, steps);
+    } else if perigee <= seg.t_start {
+        push_piece(seg.t_start, seg.t_end, true, steps);
+    } else {
+        push_piece(seg.t_start, seg.t_end, false, steps);
+    }
+    (Some(seg), out)
+}
+
+/// Per-ray scratch buffers (one per thread), so the hot loop does not allocate.
+pub struct Scratch {
+    j: Vec<f64>,
+    e: Vec<f64>,
+}
+
+impl Scratch {
+    pub fn new(n: usize) -> Self {
+        Self {
+            j: vec![0.0; n],
+            e: vec![0.0; n],
+        }
+    }
+}
+
+/// Optional recording of partial results at increasing distances (aerial perspective).
+pub struct Recorder<'a> {
+    /// Distances from the ray origin, m, ascending.
+    pub distances_m: &'a [f64],
+    /// Output transmittance, `[distance][λ]` flattened.
+    pub transmittance: &'a mut [f32],
+    /// Output in-scattered radiance per unit solar irradiance, `[distance][λ]` flattened.
+    pub inscatter: &'a mut [f32],
+}
+
+/// Integrates radiance along the view ray from radius `r` with zenith cosine `mu`, for a sun at
+/// zenith cosine `mu_s` and view-sun cosine `nu`. Writes radiance per unit solar irradiance to
+/// `radiance[λ]` and the total transmittance of the ray to `transmittance[λ]`.
+#[allow(clippy::too_many_arguments)]
+pub fn integrate_ray(
+    medium: &Medium,
+    table: &DensityIntegralTable,
+    source: &dyn Source,
+    terms: Terms,
+    r: f64,
+    mu: f64,
+    mu_s: f64,
+    nu: f64,
+    steps: usize,
+    scratch: &mut Scratch,
+    radiance: &mut [f64],
+    transmittance: &mut [f64],
+    mut recorder: Option<&mut Recorder>,
+) {
+    let n = medium.len();
+    radiance.fill(0.0);
+    transmittance.fill(1.0);
+    let (seg, samples) = ray_samples(medium, r, mu, mu_s, nu, steps);
+    let mut next_record = 0usize;
+    let mut record_until = |t_limit: f64,
+                            d_view: &[f64; CONSTITUENTS],
+                            radiance: &[f64],
+                            rec: &mut Option<&mut Recorder>| {
+        if let Some(rec) = rec.as_deref_mut() {
+            while next_record < rec.distances_m.len() && rec.distances_m[next_record] <= t_limit {
+                for i in 0..n {
+                    rec.transmittance[next_record * n + i] =
+                        (-medium.optical_depth(i, d_view)).exp() as f32;
+                    rec.inscatter[next_record * n + i] = radiance[i] as f32;
+                }
+                next_record += 1;
+            }
+        }
+    };
+    let Some(seg) = seg else {
+        record_until(f64::INFINITY, &[0.0; CONSTITUENTS], radiance, &mut recorder);
+        return;
+    };
+    let phase_r = Phase::Rayleigh.eval(nu);
+    let phase_m = medium.mie_phase.eval(nu);
+    let mut d_view = [0.0f64; CONSTITUENTS];
+    for s in &samples {
+        record_until(s.t - 0.5 * s.weight, &d_view, radiance, &mut recorder);
+        let rho = medium.densities(s.r);
+        // Density integral from the viewer to the sample's midpoint.
+        let mut d_mid = d_view;
+        for k in 0..CONSTITUENTS {
+            d_mid[k] += 0.5 * rho[k] * s.weight;
+            d_view[k] += rho[k] * s.weight;
+        }
+        scratch.j.fill(0.0);
+        source.add_scattering(s, &mut scratch.j);
+        let (d_sun, vis) = if terms.single {
+            let vis = table.sun_visibility(s.r, s.mu_s, medium.sun_angular_radius_rad);
+            (table.lookup(s.r, s.mu_s), vis)
+        } else {
+            ([0.0; CONSTITUENTS], 0.0)
+        };
+        for i in 0..n {
+            let tau_view = medium.optical_depth(i, &d_mid);
+            let mut j = scratch.j[i];
+            if vis > 0.0 {
+                let single = medium.rayleigh_scattering_per_m[i] * rho[RAYLEIGH] * phase_r
+                    + medium.mie_scattering_per_m[i] * rho[MIE] * phase_m;
+                j += single * (-medium.optical_depth(i, &d_sun)).exp() * vis;
+            }
+            radiance[i] += (-tau_view).exp() * j * s.weight;
+        }
+    }
+    record_until(seg.t_end, &d_view, radiance, &mut recorder);
+    for (i, t) in transmittance.iter_mut().enumerate() {
+        *t = (-medium.optical_depth(i, &d_view)).exp();
+    }
+    if seg.hits_ground {
+        // Lambertian ground at the end of the ray: (a/π)(E_direct + E_sky), attenuated.
+        let r_g = medium.bottom_radius_m;
+        let r0 = r.max(r_g);
+        let mu_s_g =
+            clamp_cos((r0 * mu_s + seg.t_end * nu) / radius_at(r0, mu, seg.t_end).max(r_g));
+        scratch.e.fill(0.0);
+        source.add_ground_sky_irradiance(mu_s_g, &mut scratch.e);
+        if terms.ground_direct && mu_s_g > -0.02 {
+            let vis = table.sun_visibility(r_g, mu_s_g, medium.sun_angular_radius_rad);
+            if vis > 0.0 {
+                let d_sun = table.lookup(r_g, mu_s_g);
+                for i in 0..n {
+                    scratch.e[i] +=
+                        mu_s_g.max(0.0) * (-medium.optical_depth(i, &d_sun)).exp() * vis;
+                }
+            }
+        }
+        for i in 0..n {
+            radiance[i] +=
+                transmittance[i] * medium.ground_albedo[i] / std::f64::consts::PI * scratch.e[i];
+        }
+    }
+}

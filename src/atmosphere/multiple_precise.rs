@@ -1,0 +1,411 @@
+//! Precise multiple scattering by successive orders on the spherical planet (the method of
+//! Bruneton & Neyret 2008 / Bruneton 2017, reorganised for CPUs), with ground bounce.
+//!
+//! Fields live on a regular grid over (r, θ_s, θ, φ): radius, sun zenith, view zenith and view
+//! azimuth relative to the sun (φ ∈ [0, π] by symmetry). For order n:
+//!
+//! - L_n(x, ω) = ∫ T(x, y) J_n(y, ω) ds + T(x, g)(a/π) E_{n−1}(g) along the ray (L_1 is exact single
+//!   scattering plus the ground's reflection of direct sun, E_0 = direct irradiance);
+//! - E_n = ∫ L_n(ground, ω) cosθ dω, the sky irradiance on the ground;
+//! - J_{n+1}(x, ω) = Σ_c σ_c(x) ∫ p_c(ω·ω′) L_n(x, ω′) dω′ — at fixed (r, θ_s) this is a matrix
+//!   product with a phase matrix whose entries are the phase function integrated over each
+//!   direction cell (rows normalised to exactly 1, so the angular quadrature conserves energy).
+//!
+//! Orders are added until the last one contributes less than `tolerance` (0.1 %) of the total
+//! radiance. Products integrate J_ms = Σ_{n≥2} J_n along their own rays at full resolution,
+//! beside exact single scattering, so the table only has to resolve the smooth multiple part.
+
+use super::geometry::{horizon_mu, safe_sqrt};
+use super::integrate::{integrate_ray, NoSource, RaySample, Scratch, Source, Terms};
+use super::medium::{Medium, MIE, RAYLEIGH};
+use super::quadrature::grid_pos;
+use super::transmittance::DensityIntegralTable;
+use crate::phase::Phase;
+use rayon::prelude::*;
+use std::f64::consts::PI;
+
+/// Resolution and convergence settings of the precise method.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct PreciseSettings {
+    pub n_r: usize,
+    pub n_mu_s: usize,
+    pub n_mu: usize,
+    pub n_phi: usize,
+    /// Samples per ray segment when integrating J along table rays.
+    pub steps: usize,
+    /// Stop when the last order adds less than this fraction of the total.
+    pub tolerance: f64,
+    /// Never compute more orders than this.
+    pub max_orders: usize,
+}
+
+impl Default for PreciseSettings {
+    fn default() -> Self {
+        Self {
+            n_r: 20,
+            n_mu_s: 28,
+            n_mu: 32,
+            n_phi: 12,
+            steps: 20,
+            tolerance: 1e-3,
+            max_orders: 60,
+        }
+    }
+}
+
+/// Convergence record of one precise computation.
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct Convergence {
+    /// Number of scattering orders computed (including the first).
+    pub orders: usize,
+    /// Fraction of the total that the last order added.
+    pub last_order_fraction: f64,
+    /// Fraction each order added, in order.
+    pub order_fractions: Vec<f64>,
+}
+
+/// The converged multiple-scattering source J_ms = Σ_{n≥2} J_n and ground sky irradiance.
+pub struct PreciseMultipleScattering {
+    grid: Grid,
+    n_l: usize,
+    /// `[cell][λ]`, scattering source of orders ≥ 2, m⁻¹ sr⁻¹ per unit solar irradiance.
+    j_ms: Vec<f64>,
+    /// `[i_mu_s][λ]`, sky irradiance on the ground per unit solar irradiance.
+    ground_sky: Vec<f64>,
+    pub convergence: Convergence,
+}
+
+#[derive(Debug, Clone, Copy)]
+struct Grid {
+    s: PreciseSettings,
+    bottom: f64,
+    top: f64,
+    theta_s_max: f64,
+}
+
+impl Grid {
+    fn dirs(&self) -> usize {
+        self.s.n_mu * self.s.n_phi
+    }
+    fn cells(&self) -> usize {
+        self.s.n_r * self.s.n_mu_s * self.dirs()
+    }
+    fn r(&self, i: usize) -> f64 {
+        let h = safe_sqrt(self.top * self.top - self.bottom * self.bottom);
+        let rho = h * i as f64 / (self.s.n_r - 1) as f64;
+        safe_sqrt(rho * rho + self.bottom * self.bottom)
+    }
+    fn x_r(&self, r: f64) -> f64 {
+        let h = safe_sqrt(self.top * self.top - self.bottom * self.bottom);
+        safe_sqrt(r * r - self.bottom * self.bottom) / h
+    }
+    fn theta_s(&self, j: usize) -> f64 {
+        self.theta_s_max * j as f64 / (self.s.n_mu_s - 1) as f64
+    }
+    /// View zenith of direction node `k` (cell centres, uniform in angle).
+    fn theta(&self, k: usize) -> f64 {
+        PI * (k as f64 + 0.5) / self.s.n_mu as f64
+    }
+    fn phi(&self, l: usize) -> f64 {
+        PI * (l as f64 + 0.5) / self.s.n_phi as f64
+    }
+    /// Interpolation position on a cell-centred grid of `n` nodes over [0, π].
+    fn centred_pos(angle: f64, n: usize) -> (usize, f64) {
+        let f = (angle / PI * n as f64 - 0.5).clamp(0.0, (n - 1) as f64);
+        let i = (f.floor() as usize).min(n.saturating_sub(2));
+        (i, f - i as f64)
+    }
+}
+
+/// Phase matrices for the Rayleigh and Mie components, `[o][i]`: ∫_{cell i and its mirror}
+/// p(ω_o·ω) dω, rows normalised to sum to 1.
+fn phase_matrices(grid: &Grid, mie: Phase) -> [Vec<f64>; 2] {
+    let d = grid.dirs();
+    let (n_mu, n_phi) = (grid.s.n_mu, grid.s.n_phi);
+    let dir = |theta: f64, phi: f64| {
+        let s = theta.sin();
+        [s * phi.cos(), s * phi.sin(), theta.cos()]
+    };
+    let sub = 6;
+    [Phase::Rayleigh, mie].map(|phase| {
+        let mut m: Vec<f64> = (0..d * d)
+            .into_par_iter()
+            .map(|oi| {
+                let (o, i) = (oi / d, oi % d);
+                let wo = dir(grid.theta(o / n_phi), grid.phi(o % n_phi));
+                let (k, l) = (i / n_phi, i % n_phi);
+                let (t0, t1) = (
+                    PI * k as f64 / n_mu as f64,
+                    PI * (k + 1) as f64 / n_mu as f64,
+                );
+                let (p0, p1) = (
+                    PI * l as f64 / n_phi as f64,
+                    PI * (l + 1) as f64 / n_phi as f64,
+                );
+                let mut sum = 0.0;
+                for a in 0..sub {
+                    let th = t0 + (t1 - t0) * (a as f64 + 0.5) / sub as f64;
+                    let w = th.sin() * (t1 - t0) / sub as f64 * (p1 - p0) / sub as f64;
+                    for b in 0..sub {
+                        let ph = p0 + (p1 - p0) * (b as f64 + 0.5) / sub as f64;
+                        for sign in [1.0, -1.0] {
+                            let wi = dir(th, sign * ph);
+                            let c = wo[0] * wi[0] + wo[1] * wi[1] + wo[2] * wi[2];
+                            sum += phase.eval(c) * w;
+                        }
+                    }
+                }
+                sum
+            })
+            .collect();
+        for row in m.chunks_mut(d) {
+            let s: f64 = row.iter().sum();
+            if s > 0.0 {
+                row.iter_mut().for_each(|v| *v /= s);
+            }
+        }
+        m
+    })
+}
+
+/// Solid angle × cosθ of each upward direction cell (both mirror halves), for E = ∫ L cosθ dω.
+fn upward_cosine_weights(grid: &Grid) -> Vec<f64> {
+    let (n_mu, n_phi) = (grid.s.n_mu, grid.s.n_phi);
+    let dphi = PI / n_phi as f64;
+    let mut w = vec![0.0; grid.dirs()];
+    for k in 0..n_mu {
+        let (t0, t1) = (
+            PI * k as f64 / n_mu as f64,
+            (PI * (k + 1) as f64 / n_mu as f64).min(PI / 2.0),
+        );
+        if t1 <= t0 {
+            continue;
+        }
+        // ∫ cosθ sinθ dθ = (sin²t1 − sin²t0)/2, times 2Δφ for the cell and its mirror.
+        let v = (t1.sin().powi(2) - t0.sin().powi(2)) * dphi;
+        for l in 0..n_phi {
+            w[k * n_phi + l] = v;
+        }
+    }
+    w
+}
+
+/// A source made of one order's J table and the previous order's ground irradiance.
+struct OrderSource<'a> {
+    grid: &'a Grid,
+    n_l: usize,
+    j: &'a [f64],
+    ground: &'a [f64],
+}
+
+fn lookup_j(grid: &Grid, n_l: usize, j: &[f64], s: &RaySample, out: &mut [f64]) {
+    let theta_s = s.mu_s.clamp(-1.0, 1.0).acos();
+    if theta_s > grid.theta_s_max {
+        return;
+    }
+    let (ir, fr) = grid_pos(grid.x_r(s.r), grid.s.n_r);
+    let (is, fs) = grid_pos(theta_s / grid.theta_s_max, grid.s.n_mu_s);
+    let theta = s.mu.clamp(-1.0, 1.0).acos();
+    let (im, fm) = Grid::centred_pos(theta, grid.s.n_mu);
+    let denom = safe_sqrt(1.0 - s.mu * s.mu) * safe_sqrt(1.0 - s.mu_s * s.mu_s);
+    let cos_phi = if denom > 1e-9 {
+        ((s.nu - s.mu * s.mu_s) / denom).clamp(-1.0, 1.0)
+    } else {
+        1.0
+    };
+    let (ip, fp) = Grid::centred_pos(cos_phi.acos(), grid.s.n_phi);
+    let (n_mu_s, n_mu, n_phi) = (grid.s.n_mu_s, grid.s.n_mu, grid.s.n_phi);
+    for (a, wa) in [(ir, 1.0 - fr), (ir + 1, fr)] {
+        for (b, wb) in [(is, 1.0 - fs), (is + 1, fs)] {
+            for (c, wc) in [(im, 1.0 - fm), (im + 1, fm)] {
+                for (e, we) in [(ip, 1.0 - fp), (ip + 1, fp)] {
+                    let w = wa * wb * wc * we;
+                    if w == 0.0 {
+                        continue;
+                    }
+                    let base = (((a * n_mu_s + b) * n_mu + c) * n_phi + e) * n_l;
+                    for i in 0..n_l {
+                        out[i] += w * j[base + i];
+                    }
+                }
+            }
+        }
+    }
+}
+
+fn lookup_ground(grid: &Grid, n_l: usize, table: &[f64], mu_s: f64, out: &mut [f64]) {
+    let theta_s = mu_s.clamp(-1.0, 1.0).acos();
+    if theta_s > grid.theta_s_max {
+        return;
+    }
+    let (is, fs) = grid_pos(theta_s / grid.theta_s_max, grid.s.n_mu_s);
+    for i in 0..n_l {
+        out[i] += table[is * n_l + i] * (1.0 - fs) + table[(is + 1) * n_l + i] * fs;
+    }
+}
+
+impl Source for OrderSource<'_> {
+    fn add_scattering(&self, s: &RaySample, out: &mut [f64]) {
+        lookup_j(self.grid, self.n_l, self.j, s, out);
+    }
+    fn add_ground_sky_irradiance(&self, mu_s: f64, out: &mut [f64]) {
+        lookup_ground(self.grid, self.n_l, self.ground, mu_s, out);
+    }
+}
+
+impl PreciseMultipleScattering {
+    /// Computes orders of scattering until convergence.
+    pub fn new(medium: &Medium, table: &DensityIntegralTable, s: PreciseSettings) -> Self {
+        let (bottom, top) = (medium.bottom_radius_m, medium.top_radius_m);
+        // Beyond 12° below the top's horizon no point of the atmosphere sees any light worth
+        // tabulating.
+        let theta_s_max = (horizon_mu(top, bottom).acos() + 12f64.to_radians()).min(PI);
+        let grid = Grid {
+            s,
+            bottom,
+            top,
+            theta_s_max,
+        };
+        let n_l = medium.len();
+        let dirs = grid.dirs();
+        let slab = dirs * n_l;
+        let phase = phase_matrices(&grid, medium.mie_phase);
+        let up_w = upward_cosine_weights(&grid);
+
+        // Radiance of one order on every cell, given a source and which direct terms to include.
+        let compute_l = |source: &dyn Source, terms: Terms| -> Vec<f64> {
+            let mut l = vec![0.0; grid.cells() * n_l];
+            l.par_chunks_mut(n_l).enumerate().for_each_init(
+                || (Scratch::new(n_l), vec![0.0; n_l]),
+                |(scratch, tr), (cell, out)| {
+                    let e = cell % dirs;
+                    let rs = cell / dirs;
+                    let (ir, is) = (rs / s.n_mu_s, rs % s.n_mu_s);
+                    let r = grid.r(ir);
+                    let (ts, th, ph) = (
+                        grid.theta_s(is),
+                        grid.theta(e / s.n_phi),
+                        grid.phi(e % s.n_phi),
+                    );
+                    let (mu_s, mu) = (ts.cos(), th.cos());
+                    let nu = mu * mu_s + th.sin() * ts.sin() * ph.cos();
+                    integrate_ray(
+                        medium, table, source, terms, r, mu, mu_s, nu, s.steps, scratch, out, tr,
+                        None,
+                    );
+                },
+            );
+            l
+        };
+        // Sky irradiance on the ground from one order's radiance at r = bottom.
+        let ground_of = |l: &[f64]| -> Vec<f64> {
+            let mut e = vec![0.0; s.n_mu_s * n_l];
+            for is in 0..s.n_mu_s {
+                let base = is * slab;
+                for (d, w) in up_w.iter().enumerate() {
+                    if *w == 0.0 {
+                        continue;
+                    }
+                    for i in 0..n_l {
+                        e[is * n_l + i] += w * l[base + d * n_l + i];
+                    }
+                }
+            }
+            e
+        };
+        // J of the next order from one order's radiance: per (r, θ_s) slab, a matrix product.
+        let compute_j = |l: &[f64]| -> Vec<f64> {
+            let mut j = vec![0.0; grid.cells() * n_l];
+            j.par_chunks_mut(slab).enumerate().for_each_init(
+                || vec![0.0; 2 * n_l],
+                |acc, (rs, out)| {
+                    let ir = rs / s.n_mu_s;
+                    let rho = medium.densities(grid.r(ir));
+                    let lin = &l[rs * slab..(rs + 1) * slab];
+                    for o in 0..dirs {
+                        acc.fill(0.0);
+                        let (pr, pm) = (
+                            &phase[0][o * dirs..(o + 1) * dirs],
+                            &phase[1][o * dirs..(o + 1) * dirs],
+                        );
+                        for d in 0..dirs {
+                            let (wr, wm) = (pr[d], pm[d]);
+                            let src = &lin[d * n_l..(d + 1) * n_l];
+                            for i in 0..n_l {
+                                acc[i] += wr * src[i];
+                                acc[n_l + i] += wm * src[i];
+                            }
+                        }
+                        for i in 0..n_l {
+                            out[o * n_l + i] =
+                                medium.rayleigh_scattering_per_m[i] * rho[RAYLEIGH] * acc[i]
+                                    + medium.mie_scattering_per_m[i] * rho[MIE] * acc[n_l + i];
+                        }
+                    }
+                },
+            );
+            j
+        };
+
+        let mut l_n = compute_l(
+            &NoSource,
+            Terms {
+                single: true,
+                ground_direct: true,
+            },
+        );
+        let mut total: f64 = l_n.iter().sum();
+        let mut e_n = ground_of(&l_n);
+        let mut ground_sky = e_n.clone();
+        let mut j_ms = vec![0.0; grid.cells() * n_l];
+        let mut fractions = vec![1.0];
+        let mut orders = 1;
+        while orders < s.max_orders {
+            let j_n = compute_j(&l_n);
+            let source = OrderSource {
+                grid: &grid,
+                n_l,
+                j: &j_n,
+                ground: &e_n,
+            };
+            l_n = compute_l(
+                &source,
+                Terms {
+                    single: false,
+                    ground_direct: false,
+                },
+            );
+            e_n = ground_of(&l_n);
+            j_ms.par_iter_mut().zip(&j_n).for_each(|(a, b)| *a += b);
+            ground_sky.iter_mut().zip(&e_n).for_each(|(a, b)| *a += b);
+            let added: f64 = l_n.iter().sum();
+            total += added;
+            orders += 1;
+            let fraction = if total > 0.0 { added / total } else { 0.0 };
+            fractions.push(fraction);
+            if fraction < s.tolerance {
+                break;
+            }
+        }
+        Self {
+            grid,
+            n_l,
+            j_ms,
+            ground_sky,
+            convergence: Convergence {
+                orders,
+                last_order_fraction: *fractions.last().unwrap_or(&0.0),
+                order_fractions: fractions,
+            },
+        }
+    }
+}
+
+impl Source for PreciseMultipleScattering {
+    fn add_scattering(&self, s: &RaySample, out: &mut [f64]) {
+        lookup_j(&self.grid, self.n_l, &self.j_ms, s, out);
+    }
+    fn add_ground_sky_irradiance(&self, mu_s: f64, out: &mut [f64]) {
+        lookup_ground(&self.grid, self.n_l, &self.ground_sky, mu_s, out);
+    }
+}

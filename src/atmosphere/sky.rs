@@ -1,0 +1,179 @@
+//! Radiance in any direction for an observer, and tables of it over the view sphere: the sky
+//! dome (`sky`), the lower hemisphere of ground-reflected upward skylight (`ground`, seed 000
+//! §3.5), both from the same integrator so they join seamlessly at the horizon.
+
+use super::integrate::{integrate_ray, NoSource, Scratch, Source, Terms};
+use super::shared::SharedTables;
+use rayon::prelude::*;
+use serde::{Deserialize, Serialize};
+
+/// How orders of scattering ≥ 2 are computed.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum MsMethod {
+    /// Successive orders on the spherical planet until the next adds < 0.1 %.
+    Precise,
+    /// Hillaire 2020 isotropic multiple-scattering table.
+    Fast,
+    /// Single scattering only (for references and diagnostics).
+    None,
+}
+
+impl MsMethod {
+    pub fn parse(s: &str) -> crate::Result<Self> {
+        match s {
+            "precise" => Ok(Self::Precise),
+            "fast" => Ok(Self::Fast),
+            "none" | "single" => Ok(Self::None),
+            _ => Err(crate::Error::invalid(
+                "method",
+                format!("'{s}' is not one of precise, fast, none"),
+            )),
+        }
+    }
+}
+
+/// Where the observer is and where the sun is.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Observer {
+    /// Altitude above the ground, m.
+    pub altitude_m: f64,
+    /// Sun elevation above the observer's horizontal plane, radians.
+    pub sun_elevation_rad: f64,
+}
+
+/// Evaluates radiance for one observer (W m⁻² sr⁻¹ nm⁻¹ per wavelength).
+pub struct RadianceEvaluator<'a> {
+    shared: &'a SharedTables,
+    source: &'a dyn Source,
+    r: f64,
+    mu_s: f64,
+    steps: usize,
+}
+
+impl<'a> RadianceEvaluator<'a> {
+    /// Prepares evaluation (builds the multiple-scattering table on first use).
+    pub fn new(
+        shared: &'a SharedTables,
+        method: MsMethod,
+        observer: Observer,
+        steps: usize,
+    ) -> Self {
+        let source: &dyn Source = match method {
+            MsMethod::Precise => shared.precise(),
+            MsMethod::Fast => shared.fast(),
+            MsMethod::None => &NoSource,
+        };
+        Self {
+            shared,
+            source,
+            r: shared.medium.bottom_radius_m + observer.altitude_m,
+            mu_s: observer.sun_elevation_rad.sin(),
+            steps,
+        }
+    }
+
+    /// Radiance arriving from view zenith `theta` and azimuth `phi` (relative to the sun),
+    /// radians, written to `out` in W m⁻² sr⁻¹ nm⁻¹; also the path transmittance to `tr`.
+    pub fn eval(
+        &self,
+        theta: f64,
+        phi: f64,
+        scratch: &mut Scratch,
+        out: &mut [f64],
+        tr: &mut [f64],
+    ) {
+        let mu = theta.cos();
+        let sin_s = (1.0 - self.mu_s * self.mu_s).max(0.0).sqrt();
+        let nu = (mu * self.mu_s + theta.sin() * sin_s * phi.cos()).clamp(-1.0, 1.0);
+        let terms = Terms {
+            single: true,
+            ground_direct: true,
+        };
+        let m = &self.shared.medium;
+        integrate_ray(
+            m,
+            &self.shared.density,
+            self.source,
+            terms,
+            self.r,
+            mu,
+            self.mu_s,
+            nu,
+            self.steps,
+            scratch,
+            out,
+            tr,
+            None,
+        );
+        for (o, e) in out.iter_mut().zip(&m.solar_irradiance) {
+            *o *= e;
+        }
+    }
+}
+
+/// View elevations (degrees) from `lo_deg` to `hi_deg`, `n` nodes, concentrated quadratically
+/// at the horizon (0°), which is a node whenever the range contains it and `n` allows.
+pub fn horizon_axis_deg(n: usize, lo_deg: f64, hi_deg: f64) -> Vec<f64> {
+    let x_lo = if lo_deg < 0.0 { -1.0 } else { 0.0 };
+    let x_hi = if hi_deg > 0.0 { 1.0 } else { 0.0 };
+    (0..n)
+        .map(|k| {
+            let x = if n == 1 {
+                0.0
+            } else {
+                x_lo + (x_hi - x_lo) * k as f64 / (n - 1) as f64
+            };
+            let scale = if x < 0.0 { -lo_deg } else { hi_deg };
+            x.signum() * x * x * scale
+        })
+        .collect()
+}
+
+/// A table of radiance over view elevation × azimuth (relative to the sun, 0–180°).
+#[derive(Debug, Clone, PartialEq)]
+pub struct DomeTable {
+    pub wavelengths_nm: Vec<f64>,
+    /// Row coordinates: view elevation above the horizontal, degrees (view zenith = 90 − this).
+    pub elevation_deg: Vec<f64>,
+    /// Column coordinates: view azimuth relative to the sun, degrees (0 = towards the sun).
+    pub azimuth_deg: Vec<f64>,
+    /// Radiance, W m⁻² sr⁻¹ nm⁻¹, `[row][col][λ]`.
+    pub radiance: Vec<f32>,
+}
+
+/// Computes a dome table (parallel over directions).
+pub fn dome_table(
+    eval: &RadianceEvaluator,
+    elevation_deg: Vec<f64>,
+    n_azimuth: usize,
+) -> DomeTable {
+    let n_l = eval.shared.medium.len();
+    let azimuth_deg: Vec<f64> = (0..n_azimuth)
+        .map(|k| {
+            if n_azimuth == 1 {
+                0.0
+            } else {
+                180.0 * k as f64 / (n_azimuth - 1) as f64
+            }
+        })
+        .collect();
+    let mut radiance = vec![0.0f32; elevation_deg.len() * n_azimuth * n_l];
+    radiance.par_chunks_mut(n_l).enumerate().for_each_init(
+        || (Scratch::new(n_l), vec![0.0; n_l], vec![0.0; n_l]),
+        |(scratch, out, tr), (idx, dst)| {
+            let (row, col) = (idx / n_azimuth, idx % n_azimuth);
+            let theta = (90.0 - elevation_deg[row]).to_radians();
+            eval.eval(theta, azimuth_deg[col].to_radians(), scratch, out, tr);
+            for (d, v) in dst.iter_mut().zip(out.iter()) {
+                *d = *v as f32;
+            }
+        },
+    );
+    DomeTable {
+        wavelengths_nm: eval.shared.medium.wavelengths_nm.clone(),
+        elevation_deg,
+        azimuth_deg,
+        radiance,
+    }
+}
