@@ -4,9 +4,15 @@
 //! product. Only [`store`] touches the disk. See `ARCHITECTURE.md` for the map.
 
 pub mod atmosphere;
+pub mod bench;
 pub mod cloud;
+pub mod engine;
 pub mod error;
+pub mod export;
+pub mod output;
 pub mod phase;
+pub mod solar;
+pub mod spec;
 pub mod spectrum;
 
 pub use error::{Error, Result};

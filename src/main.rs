@@ -1,3 +1,342 @@
-fn main() {
-    println!("skybake {}", env!("CARGO_PKG_VERSION"));
+//! `skybake`: command-line front end. Parses flags, calls the library, prints JSON or writes files.
+
+use clap::{Args, Parser, Subcommand, ValueEnum};
+use skybake::engine::{DomeShape, Engine};
+use skybake::output::{dome_png, AerialJson, DomeJson, Projection};
+use skybake::spec::{parse_probes, parse_usize, CommonSpec, RequestParams};
+use skybake::{Error, Result};
+use std::path::{Path, PathBuf};
+use std::process::ExitCode;
+
+#[derive(Parser)]
+#[command(name = "skybake", version, about = "Spectral atmosphere and sky precomputation", long_about = None)]
+struct Cli {
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Subcommand)]
+enum Command {
+    /// Sun attenuation: transmittance, direct normal, diffuse and global horizontal irradiance.
+    ///
+    /// Example: skybake sun --sun-elevation-deg 30 --wavelengths 440,550,680
+    Sun(CommonArgs),
+    /// Sky-dome radiance table (view elevation −90…90°, azimuth 0…180° from the sun).
+    ///
+    /// Example: skybake sky --sun-elevation-deg 10 -o sky.exr
+    Sky(DomeArgs),
+    /// Ground-reflected upward skylight at the observer (view zenith 90…180°).
+    ///
+    /// Example: skybake ground --observer-altitude-m 3000 --probe 120:0,180:0
+    Ground(DomeArgs),
+    /// Aerial perspective: transmittance and in-scattered radiance against distance.
+    ///
+    /// Example: skybake aerial --distance-count 32 --max-distance-m 50000
+    Aerial(AerialArgs),
+    /// Atmosphere presets: list them, or print one's resolved JSON to start from.
+    Atmosphere {
+        /// Print this preset's JSON.
+        #[arg(long, value_name = "PRESET")]
+        print: Option<String>,
+        /// List preset names.
+        #[arg(long)]
+        list: bool,
+    },
+    /// Run named benchmarks in-process and print median times.
+    ///
+    /// Example: skybake bench sky-fast sun --format json
+    Bench {
+        /// Benchmarks to run (default: all). Known: sun, sky-fast, sky-precise.
+        names: Vec<String>,
+        #[arg(long, value_enum, default_value_t = Format::Text)]
+        format: Format,
+        /// Cold repetitions (shared tables built each time).
+        #[arg(long, default_value_t = 1)]
+        cold_runs: usize,
+        /// Warm repetitions (shared tables reused).
+        #[arg(long, default_value_t = 5)]
+        warm_runs: usize,
+    },
+}
+
+#[derive(Clone, Copy, PartialEq, Eq, ValueEnum)]
+enum Format {
+    Json,
+    Text,
+}
+
+#[derive(Args, Clone)]
+struct CommonArgs {
+    /// Sun elevation above the horizon, degrees (sun: −10…90, others: −18…90) [default: 30].
+    #[arg(long, allow_hyphen_values = true)]
+    sun_elevation_deg: Option<String>,
+    /// Latitude, degrees (with --longitude and --time instead of --sun-elevation-deg).
+    #[arg(long, allow_hyphen_values = true)]
+    latitude: Option<String>,
+    /// Longitude, degrees east.
+    #[arg(long, allow_hyphen_values = true)]
+    longitude: Option<String>,
+    /// UTC time, RFC 3339 (e.g. 2026-06-21T12:00:00Z).
+    #[arg(long)]
+    time: Option<String>,
+    /// Observer altitude above the ground, m [default: 0].
+    #[arg(long)]
+    observer_altitude_m: Option<String>,
+    /// Wavelengths in nm, comma-separated, 1–64 values in 360–830 [default: 380,405,…,755].
+    #[arg(long)]
+    wavelengths: Option<String>,
+    /// Atmosphere: a preset name (earth, earth-hazy, rayleigh-only, mars) or a JSON file path.
+    #[arg(long)]
+    atmosphere: Option<String>,
+    /// Ground albedo 0–1, overriding the atmosphere's.
+    #[arg(long)]
+    ground_albedo: Option<String>,
+    /// Multiple scattering: precise, fast or none [default: precise].
+    #[arg(long)]
+    method: Option<String>,
+    /// Quality: draft, standard, high, reference [default: standard].
+    #[arg(long)]
+    quality: Option<String>,
+    /// Print JSON to stdout.
+    #[arg(long, value_enum)]
+    format: Option<Format>,
+}
+
+#[derive(Args, Clone)]
+struct DomeArgs {
+    #[command(flatten)]
+    common: CommonArgs,
+    /// Directions to evaluate exactly, VZ:VA pairs in degrees (view zenith, azimuth from the sun).
+    #[arg(long, allow_hyphen_values = true)]
+    probe: Option<String>,
+    /// Table rows (view elevations, concentrated at the horizon) [default: 129, ground 65].
+    #[arg(long)]
+    elevation_count: Option<String>,
+    /// Table columns (azimuths 0…180°) [default: 64].
+    #[arg(long)]
+    azimuth_count: Option<String>,
+    /// Write the table: .png (preview) or .exr (spectral).
+    #[arg(short = 'o', long = "output")]
+    output: Option<PathBuf>,
+    /// PNG projection.
+    #[arg(long, value_enum, default_value_t = ProjectionArg::Fisheye)]
+    projection: ProjectionArg,
+    /// PNG size in pixels (height).
+    #[arg(long, default_value_t = 512)]
+    size: usize,
+}
+
+#[derive(Args, Clone)]
+struct AerialArgs {
+    #[command(flatten)]
+    common: CommonArgs,
+    /// Rows (view elevations) [default: 33].
+    #[arg(long)]
+    elevation_count: Option<String>,
+    /// Columns (azimuths 0…180°) [default: 16].
+    #[arg(long)]
+    azimuth_count: Option<String>,
+    /// Distances per ray [default: 32].
+    #[arg(long)]
+    distance_count: Option<String>,
+    /// Largest distance, m [default: 100000].
+    #[arg(long)]
+    max_distance_m: Option<String>,
+}
+
+#[derive(Clone, Copy, PartialEq, Eq, ValueEnum)]
+enum ProjectionArg {
+    Fisheye,
+    Latlong,
+}
+
+fn request_params(c: &CommonArgs) -> Result<RequestParams> {
+    // `--atmosphere` may name a file: read it here (the library does no I/O).
+    let atmosphere = match &c.atmosphere {
+        Some(a) if Path::new(a).is_file() => Some(
+            std::fs::read_to_string(a)
+                .map_err(|e| Error::invalid("atmosphere", format!("cannot read {a}: {e}")))?,
+        ),
+        other => other.clone(),
+    };
+    Ok(RequestParams {
+        sun_elevation_deg: c.sun_elevation_deg.clone(),
+        latitude_deg: c.latitude.clone(),
+        longitude_deg: c.longitude.clone(),
+        time: c.time.clone(),
+        observer_altitude_m: c.observer_altitude_m.clone(),
+        wavelengths: c.wavelengths.clone(),
+        atmosphere,
+        ground_albedo: c.ground_albedo.clone(),
+        method: c.method.clone(),
+        quality: c.quality.clone(),
+        ..Default::default()
+    })
+}
+
+fn print_json<T: serde::Serialize>(value: &T) -> Result<()> {
+    let text =
+        serde_json::to_string_pretty(value).map_err(|e| Error::invalid("format", e.to_string()))?;
+    println!("{text}");
+    Ok(())
+}
+
+fn write_file(path: &Path, bytes: &[u8]) -> Result<()> {
+    std::fs::write(path, bytes)
+        .map_err(|e| Error::invalid("output", format!("cannot write {}: {e}", path.display())))
+}
+
+fn run_dome(args: &DomeArgs, ground: bool) -> Result<()> {
+    let params = request_params(&args.common)?;
+    let spec = CommonSpec::from_params(&params, -18.0)?;
+    let shape = DomeShape {
+        elevation_count: match &args.elevation_count {
+            Some(v) => parse_usize("elevation_count", v, 2, 4096)?,
+            None if ground => 65,
+            None => 129,
+        },
+        azimuth_count: match &args.azimuth_count {
+            Some(v) => parse_usize("azimuth_count", v, 1, 4096)?,
+            None => 64,
+        },
+    };
+    let probes = args
+        .probe
+        .as_deref()
+        .map(parse_probes)
+        .transpose()?
+        .unwrap_or_default();
+    let engine = Engine::new();
+    let product = if ground {
+        engine.ground(&spec, shape, &probes)?
+    } else {
+        engine.sky(&spec, shape, &probes)?
+    };
+    if let Some(path) = &args.output {
+        let ext = path
+            .extension()
+            .and_then(|e| e.to_str())
+            .unwrap_or("")
+            .to_ascii_lowercase();
+        match ext.as_str() {
+            "png" => {
+                let projection = match args.projection {
+                    ProjectionArg::Fisheye => Projection::Fisheye,
+                    ProjectionArg::Latlong => Projection::LatLong,
+                };
+                write_file(path, &dome_png(&product.table, projection, args.size)?)?;
+            }
+            "exr" => write_file(
+                path,
+                &skybake::export::dome_exr(&product, &spec, if ground { "ground" } else { "sky" })?,
+            )?,
+            _ => {
+                return Err(Error::invalid(
+                    "output",
+                    format!("'{}': use a .exr or .png file name", path.display()),
+                ))
+            }
+        }
+    }
+    if args.output.is_none() || args.common.format == Some(Format::Json) {
+        print_json(&DomeJson::new(
+            if ground { "ground" } else { "sky" },
+            &product,
+            &spec,
+        ))?;
+    }
+    Ok(())
+}
+
+fn run(cli: Cli) -> Result<()> {
+    match cli.command {
+        Command::Sun(c) => {
+            let spec = CommonSpec::from_params(&request_params(&c)?, -10.0)?;
+            print_json(&Engine::new().sun(&spec)?)
+        }
+        Command::Sky(a) => run_dome(&a, false),
+        Command::Ground(a) => run_dome(&a, true),
+        Command::Aerial(a) => {
+            let spec = CommonSpec::from_params(&request_params(&a.common)?, -18.0)?;
+            let shape = DomeShape {
+                elevation_count: a
+                    .elevation_count
+                    .as_deref()
+                    .map(|v| parse_usize("elevation_count", v, 2, 4096))
+                    .transpose()?
+                    .unwrap_or(33),
+                azimuth_count: a
+                    .azimuth_count
+                    .as_deref()
+                    .map(|v| parse_usize("azimuth_count", v, 1, 4096))
+                    .transpose()?
+                    .unwrap_or(16),
+            };
+            let n_d = a
+                .distance_count
+                .as_deref()
+                .map(|v| parse_usize("distance_count", v, 1, 4096))
+                .transpose()?
+                .unwrap_or(32);
+            let max_d = a
+                .max_distance_m
+                .as_deref()
+                .map(|v| skybake::spec::parse_f64("max_distance_m", v, 1.0, 1.0e7, "m"))
+                .transpose()?
+                .unwrap_or(100_000.0);
+            let product = Engine::new().aerial(&spec, shape, n_d, max_d)?;
+            print_json(&AerialJson::new(&product, &spec))
+        }
+        Command::Atmosphere { print, list } => {
+            if let Some(name) = print {
+                print_json(&skybake::atmosphere::presets::preset(&name)?)
+            } else if list {
+                for name in skybake::atmosphere::presets::preset_names() {
+                    println!("{name}");
+                }
+                Ok(())
+            } else {
+                Err(Error::invalid("atmosphere", "use --print PRESET or --list"))
+            }
+        }
+        Command::Bench {
+            names,
+            format,
+            cold_runs,
+            warm_runs,
+        } => {
+            let results = skybake::bench::run(&names, cold_runs.max(1), warm_runs.max(1))?;
+            if format == Format::Json {
+                print_json(&serde_json::json!({
+                    "threads": rayon::current_num_threads(),
+                    "benchmarks": results,
+                }))
+            } else {
+                for r in results {
+                    println!(
+                        "{:<14} {:<5} median {:>10.2} ms  min {:>10.2} ms  ({} runs)  {}",
+                        r.name, r.variant, r.median_ms, r.min_ms, r.runs, r.description
+                    );
+                }
+                Ok(())
+            }
+        }
+    }
+}
+
+fn main() -> ExitCode {
+    tracing_subscriber::fmt()
+        .with_writer(std::io::stderr)
+        .with_env_filter(
+            tracing_subscriber::EnvFilter::try_from_env("SKYBAKE_LOG")
+                .unwrap_or_else(|_| "warn".into()),
+        )
+        .init();
+    match run(Cli::parse()) {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("error: {e}");
+            ExitCode::from(2)
+        }
+    }
 }

@@ -112,6 +112,45 @@ impl<'a> RadianceEvaluator<'a> {
     }
 }
 
+impl RadianceEvaluator<'_> {
+    /// Integrates one ray with partial results recorded at distances (per unit solar
+    /// irradiance; the caller scales in-scattered radiance by the solar spectrum).
+    #[allow(clippy::too_many_arguments)]
+    pub fn integrate_with_recorder(
+        &self,
+        r: f64,
+        mu: f64,
+        mu_s: f64,
+        nu: f64,
+        steps: usize,
+        scratch: &mut Scratch,
+        out: &mut [f64],
+        tr: &mut [f64],
+        rec: &mut super::integrate::Recorder,
+    ) {
+        let terms = Terms {
+            single: true,
+            ground_direct: true,
+        };
+        let m = &self.shared.medium;
+        integrate_ray(
+            m,
+            &self.shared.density,
+            self.source,
+            terms,
+            r,
+            mu,
+            mu_s,
+            nu,
+            steps,
+            scratch,
+            out,
+            tr,
+            Some(rec),
+        );
+    }
+}
+
 /// View elevations (degrees) from `lo_deg` to `hi_deg`, `n` nodes, concentrated quadratically
 /// at the horizon (0°), which is a node whenever the range contains it and `n` allows.
 pub fn horizon_axis_deg(n: usize, lo_deg: f64, hi_deg: f64) -> Vec<f64> {
