@@ -282,17 +282,39 @@ impl PreciseMultipleScattering {
                     let rs = cell / dirs;
                     let (ir, is) = (rs / s.n_mu_s, rs % s.n_mu_s);
                     let r = grid.r(ir);
-                    let (ts, th, ph) = (
-                        grid.theta_s(is),
-                        grid.theta(e / s.n_phi),
-                        grid.phi(e % s.n_phi),
-                    );
-                    let (mu_s, mu) = (ts.cos(), th.cos());
-                    let nu = mu * mu_s + th.sin() * ts.sin() * ph.cos();
-                    integrate_ray(
-                        medium, table, source, terms, r, mu, mu_s, nu, s.steps, scratch, out, tr,
-                        None,
-                    );
+                    let k = e / s.n_phi;
+                    let (ts, th, ph) = (grid.theta_s(is), grid.theta(k), grid.phi(e % s.n_phi));
+                    let mu_s = ts.cos();
+                    let ray = |theta: f64, scratch: &mut Scratch, out: &mut [f64], tr: &mut [f64]| {
+                        let mu = theta.cos();
+                        let nu = mu * mu_s + theta.sin() * ts.sin() * ph.cos();
+                        integrate_ray(medium, table, source, terms, r, mu, mu_s, nu, s.steps, scratch, out, tr, None);
+                    };
+                    // A cell the horizon cuts holds ground on one side and sky on the other: its
+                    // value is the solid-angle average of sub-rays on both sides, not the centre's.
+                    let (t0, t1) = (PI * k as f64 / s.n_mu as f64, PI * (k + 1) as f64 / s.n_mu as f64);
+                    let theta_h = horizon_mu(r, bottom).acos();
+                    if theta_h > t0 + 1e-9 && theta_h < t1 - 1e-9 {
+                        let sub = 4;
+                        let mut acc = vec![0.0; n_l];
+                        let mut wsum = 0.0;
+                        for (a, b) in [(t0, theta_h), (theta_h, t1)] {
+                            for q in 0..sub {
+                                let theta = a + (b - a) * (q as f64 + 0.5) / sub as f64;
+                                let w = theta.sin() * (b - a);
+                                ray(theta, scratch, out, tr);
+                                for i in 0..n_l {
+                                    acc[i] += w * out[i];
+                                }
+                                wsum += w;
+                            }
+                        }
+                        for i in 0..n_l {
+                            out[i] = acc[i] / wsum;
+                        }
+                    } else {
+                        ray(th, scratch, out, tr);
+                    }
                 },
             );
             l
