@@ -40,16 +40,32 @@ const ALTITUDES: [&str; 4] = ["0", "99999", "100000", "400000"];
 #[test]
 fn every_output_is_finite_and_non_negative_at_extremes() {
     let engine = Engine::new();
-    let shape = DomeShape { elevation_count: 33, azimuth_count: 9 };
+    let shape = DomeShape {
+        elevation_count: 33,
+        azimuth_count: 9,
+    };
     // Exactly horizontal, just above and below, straight up and down.
-    let probes = [(90.0, 0.0), (89.99, 0.0), (90.01, 180.0), (0.0, 0.0), (180.0, 0.0), (90.0, 90.0)];
+    let probes = [
+        (90.0, 0.0),
+        (89.99, 0.0),
+        (90.01, 180.0),
+        (0.0, 0.0),
+        (180.0, 0.0),
+        (90.0, 90.0),
+    ];
     for sun in SUN {
         for alt in ALTITUDES {
             let s = spec(&[("sun_elevation_deg", sun), ("observer_altitude_m", alt)]);
             let sky = engine.sky(&s, shape, &probes).unwrap();
-            assert_valid(sky.table.radiance.iter().map(|&v| v as f64), &format!("sky sun {sun} alt {alt}"));
+            assert_valid(
+                sky.table.radiance.iter().map(|&v| v as f64),
+                &format!("sky sun {sun} alt {alt}"),
+            );
             for p in &sky.probes {
-                assert_valid(p.radiance_w_m2_sr_nm.iter().copied(), &format!("probe {p:?}"));
+                assert_valid(
+                    p.radiance_w_m2_sr_nm.iter().copied(),
+                    &format!("probe {p:?}"),
+                );
             }
             let ground = engine.ground(&s, shape, &[]).unwrap();
             assert_valid(ground.table.radiance.iter().map(|&v| v as f64), "ground");
@@ -57,8 +73,14 @@ fn every_output_is_finite_and_non_negative_at_extremes() {
                 let sun_p = engine.sun(&CommonSpec { ..s.clone() }).unwrap();
                 assert_valid(sun_p.transmittance.iter().copied(), "transmittance");
                 assert!(sun_p.transmittance.iter().all(|&t| t <= 1.0));
-                assert_valid(sun_p.global_horizontal_irradiance_w_m2_nm.iter().copied(), "ghi");
-                assert_valid(sun_p.diffuse_horizontal_irradiance_w_m2_nm.iter().copied(), "dhi");
+                assert_valid(
+                    sun_p.global_horizontal_irradiance_w_m2_nm.iter().copied(),
+                    "ghi",
+                );
+                assert_valid(
+                    sun_p.diffuse_horizontal_irradiance_w_m2_nm.iter().copied(),
+                    "dhi",
+                );
             }
         }
     }
@@ -66,12 +88,26 @@ fn every_output_is_finite_and_non_negative_at_extremes() {
 
 #[test]
 fn thick_aerosol_stays_finite_with_both_methods() {
-    let atmosphere = include_str!("../config/atmospheres/earth-hazy.json").replace("\"value\": 1.0", "\"value\": 10.0");
+    let atmosphere = include_str!("../config/atmospheres/earth-hazy.json")
+        .replace("\"value\": 1.0", "\"value\": 10.0");
     let engine = Engine::new();
     for method in ["fast", "precise"] {
         for sun in ["-18", "0", "45"] {
-            let s = spec(&[("atmosphere", &atmosphere), ("method", method), ("sun_elevation_deg", sun)]);
-            let sky = engine.sky(&s, DomeShape { elevation_count: 17, azimuth_count: 5 }, &[(90.0, 0.0)]).unwrap();
+            let s = spec(&[
+                ("atmosphere", &atmosphere),
+                ("method", method),
+                ("sun_elevation_deg", sun),
+            ]);
+            let sky = engine
+                .sky(
+                    &s,
+                    DomeShape {
+                        elevation_count: 17,
+                        azimuth_count: 5,
+                    },
+                    &[(90.0, 0.0)],
+                )
+                .unwrap();
             assert_valid(sky.table.radiance.iter().map(|&v| v as f64), "aod 10");
         }
     }
@@ -81,17 +117,30 @@ fn thick_aerosol_stays_finite_with_both_methods() {
 #[test]
 fn sunset_is_continuous() {
     let engine = Engine::new();
-    let shape = DomeShape { elevation_count: 3, azimuth_count: 1 };
+    let shape = DomeShape {
+        elevation_count: 3,
+        azimuth_count: 1,
+    };
     let mut last: Option<Vec<f64>> = None;
     for k in -20..=20 {
         let elev = k as f64 * 0.02; // −0.4° … 0.4° in 0.02° steps
-        let s = spec(&[("sun_elevation_deg", &elev.to_string()), ("wavelengths", "550")]);
+        let s = spec(&[
+            ("sun_elevation_deg", &elev.to_string()),
+            ("wavelengths", "550"),
+        ]);
         let sky = engine.sky(&s, shape, &[(80.0, 0.0), (0.0, 0.0)]).unwrap();
-        let now: Vec<f64> = sky.probes.iter().map(|p| p.radiance_w_m2_sr_nm[0]).collect();
+        let now: Vec<f64> = sky
+            .probes
+            .iter()
+            .map(|p| p.radiance_w_m2_sr_nm[0])
+            .collect();
         if let Some(prev) = &last {
             for (a, b) in prev.iter().zip(&now) {
                 // 0.02° of sun motion changes sky radiance by far less than 5 %.
-                assert!((a - b).abs() <= 0.05 * a.max(*b) + 1e-9, "jump at {elev}°: {a} -> {b}");
+                assert!(
+                    (a - b).abs() <= 0.05 * a.max(*b) + 1e-9,
+                    "jump at {elev}°: {a} -> {b}"
+                );
             }
         }
         last = Some(now);
@@ -102,16 +151,33 @@ fn sunset_is_continuous() {
 #[test]
 fn climbing_into_space_is_continuous() {
     let engine = Engine::new();
-    let shape = DomeShape { elevation_count: 3, azimuth_count: 1 };
+    let shape = DomeShape {
+        elevation_count: 3,
+        azimuth_count: 1,
+    };
     let probes = [(120.0, 0.0), (100.0, 90.0), (170.0, 180.0)];
     let at = |alt: &str| -> Vec<f64> {
-        let s = spec(&[("observer_altitude_m", alt), ("sun_elevation_deg", "20"), ("wavelengths", "550")]);
-        engine.sky(&s, shape, &probes).unwrap().probes.iter().map(|p| p.radiance_w_m2_sr_nm[0]).collect()
+        let s = spec(&[
+            ("observer_altitude_m", alt),
+            ("sun_elevation_deg", "20"),
+            ("wavelengths", "550"),
+        ]);
+        engine
+            .sky(&s, shape, &probes)
+            .unwrap()
+            .probes
+            .iter()
+            .map(|p| p.radiance_w_m2_sr_nm[0])
+            .collect()
     };
     let (below, top, above) = (at("99999"), at("100000"), at("100001"));
     for i in 0..probes.len() {
         for (a, b) in [(below[i], top[i]), (top[i], above[i])] {
-            assert!((a - b).abs() <= 1e-3 * a.max(b), "probe {:?}: {a} vs {b}", probes[i]);
+            assert!(
+                (a - b).abs() <= 1e-3 * a.max(b),
+                "probe {:?}: {a} vs {b}",
+                probes[i]
+            );
         }
     }
 }
@@ -120,8 +186,15 @@ fn climbing_into_space_is_continuous() {
 #[test]
 fn horizon_rows_are_smooth() {
     let engine = Engine::new();
-    let s = spec(&[("sun_elevation_deg", "5"), ("wavelengths", "550"), ("quality", "standard")]);
-    let shape = DomeShape { elevation_count: 129, azimuth_count: 3 };
+    let s = spec(&[
+        ("sun_elevation_deg", "5"),
+        ("wavelengths", "550"),
+        ("quality", "standard"),
+    ]);
+    let shape = DomeShape {
+        elevation_count: 129,
+        azimuth_count: 3,
+    };
     let sky = engine.sky(&s, shape, &[]).unwrap();
     let t = &sky.table;
     for col in 0..3 {

@@ -37,6 +37,10 @@ pub struct PreciseSettings {
     pub tolerance: f64,
     /// Never compute more orders than this.
     pub max_orders: usize,
+    /// Cells whose centre lies within this angle of the local horizon are averaged over sub-rays.
+    pub horizon_band_rad: f64,
+    /// Sub-rays per cell (per side of the horizon) in that band.
+    pub horizon_subrays: usize,
 }
 
 impl Default for PreciseSettings {
@@ -49,6 +53,8 @@ impl Default for PreciseSettings {
             steps: 20,
             tolerance: 1e-3,
             max_orders: 60,
+            horizon_band_rad: 20f64.to_radians(),
+            horizon_subrays: 4,
         }
     }
 }
@@ -285,20 +291,37 @@ impl PreciseMultipleScattering {
                     let k = e / s.n_phi;
                     let (ts, th, ph) = (grid.theta_s(is), grid.theta(k), grid.phi(e % s.n_phi));
                     let mu_s = ts.cos();
-                    let ray = |theta: f64, scratch: &mut Scratch, out: &mut [f64], tr: &mut [f64]| {
-                        let mu = theta.cos();
-                        let nu = mu * mu_s + theta.sin() * ts.sin() * ph.cos();
-                        integrate_ray(medium, table, source, terms, r, mu, mu_s, nu, s.steps, scratch, out, tr, None);
-                    };
+                    let ray =
+                        |theta: f64, scratch: &mut Scratch, out: &mut [f64], tr: &mut [f64]| {
+                            let mu = theta.cos();
+                            let nu = mu * mu_s + theta.sin() * ts.sin() * ph.cos();
+                            integrate_ray(
+                                medium, table, source, terms, r, mu, mu_s, nu, s.steps, scratch,
+                                out, tr, None,
+                            );
+                        };
                     // A cell the horizon cuts holds ground on one side and sky on the other: its
                     // value is the solid-angle average of sub-rays on both sides, not the centre's.
-                    let (t0, t1) = (PI * k as f64 / s.n_mu as f64, PI * (k + 1) as f64 / s.n_mu as f64);
+                    let (t0, t1) = (
+                        PI * k as f64 / s.n_mu as f64,
+                        PI * (k + 1) as f64 / s.n_mu as f64,
+                    );
                     let theta_h = horizon_mu(r, bottom).acos();
-                    if theta_h > t0 + 1e-9 && theta_h < t1 - 1e-9 {
-                        let sub = 4;
+                    // Near the local horizon, L changes fast (long grazing paths on both sides,
+                    // ground on one): the cell value is the solid-angle average of sub-rays,
+                    // split at the horizon, instead of the value at the cell centre.
+                    let straddles = theta_h > t0 + 1e-9 && theta_h < t1 - 1e-9;
+                    let near = (th - theta_h).abs() < s.horizon_band_rad;
+                    if straddles || near {
+                        let pieces: &[(f64, f64)] = if straddles {
+                            &[(t0, theta_h), (theta_h, t1)]
+                        } else {
+                            &[(t0, t1)]
+                        };
+                        let sub = s.horizon_subrays;
                         let mut acc = vec![0.0; n_l];
                         let mut wsum = 0.0;
-                        for (a, b) in [(t0, theta_h), (theta_h, t1)] {
+                        for &(a, b) in pieces {
                             for q in 0..sub {
                                 let theta = a + (b - a) * (q as f64 + 0.5) / sub as f64;
                                 let w = theta.sin() * (b - a);
