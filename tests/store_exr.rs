@@ -40,7 +40,9 @@ fn plane(width: usize, height: usize, seed: u32) -> Vec<f32> {
             if i % 7 == 0 {
                 specials[(i as usize / 7 + seed as usize) % specials.len()]
             } else {
-                let h = i.wrapping_mul(2_654_435_761).wrapping_add(seed.wrapping_mul(40_503));
+                let h = i
+                    .wrapping_mul(2_654_435_761)
+                    .wrapping_add(seed.wrapping_mul(40_503));
                 f32::from_bits(h % 0x7f00_0000) * if h & 1 == 0 { 1.0 } else { -1.0 }
             }
         })
@@ -55,7 +57,11 @@ fn sample_image(width: usize, height: usize) -> SpectralImage {
     image.add_layer(EMISSIVE_LAYER, planes(1)).unwrap();
     image.add_layer(TRANSMITTANCE_LAYER, planes(10)).unwrap();
     image
-        .set_rgb([plane(width, height, 20), plane(width, height, 21), plane(width, height, 22)])
+        .set_rgb([
+            plane(width, height, 20),
+            plane(width, height, 21),
+            plane(width, height, 22),
+        ])
         .unwrap();
     image
         .set_attribute(ATTR_SPEC_JSON, r#"{"product":"aerial","name":"Zürich ☀"}"#)
@@ -72,7 +78,12 @@ fn sample_image(width: usize, height: usize) -> SpectralImage {
 fn assert_bit_identical(a: &SpectralImage, b: &SpectralImage) {
     let bits = |p: &[f32]| p.iter().map(|v| v.to_bits()).collect::<Vec<_>>();
     assert_eq!((a.width(), a.height()), (b.width(), b.height()));
-    let wl_bits = |i: &SpectralImage| i.wavelengths_nm().iter().map(|w| w.to_bits()).collect::<Vec<_>>();
+    let wl_bits = |i: &SpectralImage| {
+        i.wavelengths_nm()
+            .iter()
+            .map(|w| w.to_bits())
+            .collect::<Vec<_>>()
+    };
     assert_eq!(wl_bits(a), wl_bits(b));
     assert_eq!(a.layers().len(), b.layers().len());
     for (la, lb) in a.layers().iter().zip(b.layers()) {
@@ -123,7 +134,9 @@ fn header_follows_the_spectral_layout_and_is_tiled() {
     image
         .add_layer(TRANSMITTANCE_LAYER, vec![vec![0.5; 6], vec![0.25; 6]])
         .unwrap();
-    image.set_rgb([vec![0.1; 6], vec![0.2; 6], vec![0.3; 6]]).unwrap();
+    image
+        .set_rgb([vec![0.1; 6], vec![0.2; 6], vec![0.3; 6]])
+        .unwrap();
     let bytes = encode_exr(&image).unwrap();
 
     let meta = MetaData::read_from_buffered(std::io::Cursor::new(&bytes), true).unwrap();
@@ -159,7 +172,11 @@ fn header_follows_the_spectral_layout_and_is_tiled() {
         other => panic!("not tiled: {other:?}"),
     }
     assert_eq!(header.compression, Compression::ZIP16);
-    let text = |name: &str| match header.own_attributes.other.get(&exr::prelude::Text::from(name)) {
+    let text = |name: &str| match header
+        .own_attributes
+        .other
+        .get(&exr::prelude::Text::from(name))
+    {
         Some(exr::prelude::AttributeValue::Text(t)) => t.to_string(),
         other => panic!("{name}: {other:?}"),
     };
@@ -185,7 +202,10 @@ fn transmittance_only_image_has_no_emissive_units() {
 fn image_without_layers_is_refused() {
     let image = SpectralImage::new(2, 2, &[500.0]).unwrap();
     let err = encode_exr(&image).unwrap_err();
-    assert!(matches!(err, StoreError::Invalid(ref e) if e.field() == "image"), "{err}");
+    assert!(
+        matches!(err, StoreError::Invalid(ref e) if e.field() == "image"),
+        "{err}"
+    );
 }
 
 #[test]
@@ -212,18 +232,32 @@ fn garbage_is_an_error_not_a_panic() {
 }
 
 fn arb_image() -> impl Strategy<Value = SpectralImage> {
-    (1usize..=70, 1usize..=70, prop::collection::btree_set(360_000_000u64..=830_000_000, 1..=3))
+    (
+        1usize..=70,
+        1usize..=70,
+        prop::collection::btree_set(360_000_000u64..=830_000_000, 1..=3),
+    )
         .prop_flat_map(|(width, height, wavelengths)| {
             let wavelengths_nm: Vec<f64> = wavelengths.iter().map(|&w| w as f64 / 1.0e6).collect();
             let n = width * height;
             let count = wavelengths_nm.len();
             let finite = any::<u32>().prop_map(|bits| {
                 let v = f32::from_bits(bits);
-                if v.is_finite() { v } else { f32::from_bits(bits & 0x807f_ffff) }
+                if v.is_finite() {
+                    v
+                } else {
+                    f32::from_bits(bits & 0x807f_ffff)
+                }
             });
             let planes = prop::collection::vec(prop::collection::vec(finite.clone(), n), count);
             let rgb = prop::option::of(prop::collection::vec(prop::collection::vec(finite, n), 3));
-            (Just((width, height, wavelengths_nm)), planes.clone(), prop::option::of(planes), rgb, ".{0,40}")
+            (
+                Just((width, height, wavelengths_nm)),
+                planes.clone(),
+                prop::option::of(planes),
+                rgb,
+                ".{0,40}",
+            )
         })
         .prop_map(|((width, height, wavelengths_nm), s0, t, rgb, text)| {
             let mut image = SpectralImage::new(width, height, &wavelengths_nm).unwrap();
@@ -289,7 +323,10 @@ fn reference_pattern_image() -> SpectralImage {
         ])
         .unwrap();
     image
-        .set_attribute(ATTR_SPEC_JSON, r#"{"product":"aerial","wavelengths_nm":[400,550.5,700.25]}"#)
+        .set_attribute(
+            ATTR_SPEC_JSON,
+            r#"{"product":"aerial","wavelengths_nm":[400,550.5,700.25]}"#,
+        )
         .unwrap();
     image.set_attribute(ATTR_ENGINE_VERSION, "0.1.0").unwrap();
     image

@@ -19,9 +19,9 @@ static COUNTER: AtomicU64 = AtomicU64::new(0);
 /// Writes `bytes` to `path` atomically and durably. Creates the parent directory if missing.
 pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<(), StoreError> {
     let parent = parent_dir(path);
-    let file_name = path
-        .file_name()
-        .ok_or_else(|| crate::Error::invalid("path", format!("{} has no file name", path.display())))?;
+    let file_name = path.file_name().ok_or_else(|| {
+        crate::Error::invalid("path", format!("{} has no file name", path.display()))
+    })?;
     if !parent.is_dir() {
         fs::create_dir_all(&parent).map_err(|e| StoreError::io(&parent, e))?;
         // Make the new directory entry itself durable.
@@ -121,7 +121,10 @@ mod tests {
         // Renaming a file over a non-empty directory fails; the old content must survive elsewhere.
         let blocked = dir.join("blocked");
         fs::create_dir_all(blocked.join("inner")).unwrap();
-        assert!(matches!(write_atomic(&blocked, b"x"), Err(StoreError::Io { .. })));
+        assert!(matches!(
+            write_atomic(&blocked, b"x"),
+            Err(StoreError::Io { .. })
+        ));
         assert_eq!(fs::read(&path).unwrap(), b"keep");
         let leftovers = fs::read_dir(&dir)
             .unwrap()

@@ -147,7 +147,8 @@ impl Cache {
         let mut found: Vec<(SystemTime, String, u64)> = Vec::new();
         for shard in read_dir(&config.dir)? {
             let shard_name = shard.file_name().to_string_lossy().into_owned();
-            let is_shard = shard_name.len() == 2 && shard_name.bytes().all(|b| b.is_ascii_hexdigit());
+            let is_shard =
+                shard_name.len() == 2 && shard_name.bytes().all(|b| b.is_ascii_hexdigit());
             if !is_shard || !shard.path().is_dir() {
                 continue;
             }
@@ -164,7 +165,9 @@ impl Cache {
                 if !is_valid_key(key) || key[..2] != shard_name {
                     continue;
                 }
-                let meta = file.metadata().map_err(|e| StoreError::io(file.path(), e))?;
+                let meta = file
+                    .metadata()
+                    .map_err(|e| StoreError::io(file.path(), e))?;
                 if !meta.is_file() {
                     continue;
                 }
@@ -425,7 +428,9 @@ impl Cache {
     /// Locks the state; a panic elsewhere while holding the lock leaves the index usable (every
     /// update keeps it consistent), so poisoning is ignored.
     fn lock(&self) -> MutexGuard<'_, State> {
-        self.state.lock().unwrap_or_else(|poisoned| poisoned.into_inner())
+        self.state
+            .lock()
+            .unwrap_or_else(|poisoned| poisoned.into_inner())
     }
 }
 

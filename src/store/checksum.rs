@@ -96,7 +96,10 @@ mod tests {
             assert!(verify(&damaged).is_err(), "flip at {index} not detected");
         }
         for len in 0..bytes.len() {
-            assert!(verify(&bytes[..len]).is_err(), "truncation to {len} not detected");
+            assert!(
+                verify(&bytes[..len]).is_err(),
+                "truncation to {len} not detected"
+            );
         }
     }
 

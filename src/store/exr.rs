@@ -61,9 +61,7 @@ pub fn encode_exr(image: &SpectralImage) -> Result<Vec<u8>, StoreError> {
     }
 
     let mut attributes = LayerAttributes {
-        software_name: Some(Text::from(
-            concat!("skybake ", env!("CARGO_PKG_VERSION")),
-        )),
+        software_name: Some(Text::from(concat!("skybake ", env!("CARGO_PKG_VERSION")))),
         ..LayerAttributes::default()
     };
     let mut set = |name: &str, value: &[u8]| {
@@ -72,7 +70,10 @@ pub fn encode_exr(image: &SpectralImage) -> Result<Vec<u8>, StoreError> {
             AttributeValue::Text(Text::from_slice_unchecked(value)),
         );
     };
-    set(ATTR_SPECTRAL_LAYOUT_VERSION, SPECTRAL_LAYOUT_VERSION.as_bytes());
+    set(
+        ATTR_SPECTRAL_LAYOUT_VERSION,
+        SPECTRAL_LAYOUT_VERSION.as_bytes(),
+    );
     if image.layer(EMISSIVE_LAYER).is_some() {
         set(ATTR_EMISSIVE_UNITS, EMISSIVE_UNITS.as_bytes());
     }
@@ -147,7 +148,9 @@ pub fn decode_exr(bytes: &[u8]) -> Result<SpectralImage, StoreError> {
         let name = String::from_utf8(channel.name.bytes().to_vec())
             .map_err(|_| StoreError::Exr("channel name is not UTF-8".into()))?;
         let FlatSamples::F32(values) = &channel.sample_data else {
-            return Err(StoreError::Exr(format!("channel {name} is not 32-bit float")));
+            return Err(StoreError::Exr(format!(
+                "channel {name} is not 32-bit float"
+            )));
         };
         if let Some(index) = RGB_CHANNELS.iter().position(|c| *c == name) {
             rgb[index] = Some(values.clone());
@@ -258,11 +261,16 @@ fn check_header(bytes: &[u8]) -> Result<(usize, usize, usize), StoreError> {
     }
     let (width, height) = (header.layer_size.width(), header.layer_size.height());
     if width == 0 || height == 0 || width > MAX_DIMENSION || height > MAX_DIMENSION {
-        return Err(StoreError::Exr(format!("image size {width}x{height} out of range")));
+        return Err(StoreError::Exr(format!(
+            "image size {width}x{height} out of range"
+        )));
     }
     let channels = &header.channels.list;
     if channels.len() > MAX_LAYERS * MAX_WAVELENGTHS + RGB_CHANNELS.len() {
-        return Err(StoreError::Exr(format!("{} channels is too many", channels.len())));
+        return Err(StoreError::Exr(format!(
+            "{} channels is too many",
+            channels.len()
+        )));
     }
     if channels.iter().any(|c| c.sample_type != SampleType::F32) {
         return Err(StoreError::Exr("all channels must be 32-bit float".into()));

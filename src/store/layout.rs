@@ -217,7 +217,10 @@ mod tests {
             Some(("T", 550.5))
         );
         // Other decimal counts are part of the layout too.
-        assert_eq!(parse_spectral_channel_name("S0.550,5nm"), Some(("S0", 550.5)));
+        assert_eq!(
+            parse_spectral_channel_name("S0.550,5nm"),
+            Some(("S0", 550.5))
+        );
         assert_eq!(parse_spectral_channel_name("S0.550nm"), Some(("S0", 550.0)));
         for bad in [
             "R",
@@ -236,7 +239,14 @@ mod tests {
 
     #[test]
     fn canonical_wavelengths_survive_the_channel_name() {
-        for wavelength_nm in [360.0, 550.5, 412.123_456_7, 829.999_999_9, 0.001, 123_456.789_012_3] {
+        for wavelength_nm in [
+            360.0,
+            550.5,
+            412.123_456_7,
+            829.999_999_9,
+            0.001,
+            123_456.789_012_3,
+        ] {
             let canonical = canonical_wavelength_nm(wavelength_nm);
             let name = spectral_channel_name("S0", canonical);
             let (_, parsed) = parse_spectral_channel_name(&name).expect("parses");
@@ -248,7 +258,16 @@ mod tests {
     #[test]
     fn attribute_names_are_checked() {
         assert!(validate_attribute_name(ATTR_SPEC_JSON).is_ok());
-        for bad in ["", "owner", "channels", ATTR_FILE_CHECKSUM, "a b", "1x", "a.b", "x".repeat(32).as_str()] {
+        for bad in [
+            "",
+            "owner",
+            "channels",
+            ATTR_FILE_CHECKSUM,
+            "a b",
+            "1x",
+            "a.b",
+            "x".repeat(32).as_str(),
+        ] {
             assert!(validate_attribute_name(bad).is_err(), "{bad:?}");
         }
         assert!(validate_layer_name("S0").is_ok());

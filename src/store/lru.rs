@@ -111,8 +111,14 @@ mod tests {
         assert_eq!(lru.total_bytes(), 45);
         assert_eq!(lru.peek("b"), Some(&22));
         // Order of use is now c, a, b.
-        assert_eq!(lru.pop_oldest_unpinned(|k| k == "c"), Some(("a".into(), 10, 1)));
-        assert_eq!(lru.pop_oldest_unpinned(|_| false), Some(("c".into(), 30, 3)));
+        assert_eq!(
+            lru.pop_oldest_unpinned(|k| k == "c"),
+            Some(("a".into(), 10, 1))
+        );
+        assert_eq!(
+            lru.pop_oldest_unpinned(|_| false),
+            Some(("c".into(), 30, 3))
+        );
         assert_eq!(lru.len(), 1);
         assert_eq!(lru.remove("b"), Some((5, 22)));
         assert_eq!(lru.pop_oldest_unpinned(|_| false), None);

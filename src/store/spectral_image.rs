@@ -67,10 +67,18 @@ impl SpectralImage {
     /// (see [`super::layout::canonical_wavelength_nm`]) and must then be strictly increasing.
     pub fn new(width: usize, height: usize, wavelengths_nm: &[f64]) -> Result<Self> {
         if width == 0 || width > MAX_DIMENSION {
-            return Err(Error::out_of_range("width", width, format!("1..={MAX_DIMENSION}")));
+            return Err(Error::out_of_range(
+                "width",
+                width,
+                format!("1..={MAX_DIMENSION}"),
+            ));
         }
         if height == 0 || height > MAX_DIMENSION {
-            return Err(Error::out_of_range("height", height, format!("1..={MAX_DIMENSION}")));
+            return Err(Error::out_of_range(
+                "height",
+                height,
+                format!("1..={MAX_DIMENSION}"),
+            ));
         }
         if wavelengths_nm.is_empty() || wavelengths_nm.len() > MAX_WAVELENGTHS {
             return Err(Error::out_of_range(
@@ -81,7 +89,9 @@ impl SpectralImage {
         }
         let mut canonical = Vec::with_capacity(wavelengths_nm.len());
         for &wavelength_nm in wavelengths_nm {
-            if !(wavelength_nm.is_finite() && wavelength_nm > 0.0 && wavelength_nm < MAX_WAVELENGTH_NM)
+            if !(wavelength_nm.is_finite()
+                && wavelength_nm > 0.0
+                && wavelength_nm < MAX_WAVELENGTH_NM)
             {
                 return Err(Error::out_of_range(
                     "wavelengths_nm",
@@ -127,10 +137,17 @@ impl SpectralImage {
     pub fn add_layer(&mut self, name: &str, planes: Vec<Vec<f32>>) -> Result<()> {
         validate_layer_name(name)?;
         if self.layers.len() >= MAX_LAYERS {
-            return Err(Error::too_large("layer", "too many spectral layers", MAX_LAYERS));
+            return Err(Error::too_large(
+                "layer",
+                "too many spectral layers",
+                MAX_LAYERS,
+            ));
         }
         if self.layer(name).is_some() {
-            return Err(Error::invalid("layer", format!("layer {name:?} already exists")));
+            return Err(Error::invalid(
+                "layer",
+                format!("layer {name:?} already exists"),
+            ));
         }
         if planes.len() != self.wavelengths_nm.len() {
             return Err(Error::invalid(
@@ -146,7 +163,9 @@ impl SpectralImage {
         for plane in &planes {
             self.check_plane("layer", name, plane)?;
         }
-        let position = self.layers.partition_point(|layer| layer.name.as_str() < name);
+        let position = self
+            .layers
+            .partition_point(|layer| layer.name.as_str() < name);
         self.layers.insert(
             position,
             SpectralLayer {
@@ -181,7 +200,11 @@ impl SpectralImage {
             ));
         }
         if !self.attributes.contains_key(name) && self.attributes.len() >= MAX_ATTRIBUTES {
-            return Err(Error::too_large("attribute", "too many attributes", MAX_ATTRIBUTES));
+            return Err(Error::too_large(
+                "attribute",
+                "too many attributes",
+                MAX_ATTRIBUTES,
+            ));
         }
         self.attributes.insert(name.to_string(), value);
         Ok(())
@@ -284,14 +307,22 @@ mod tests {
 
     #[test]
     fn validates_sizes_and_values() {
-        assert_eq!(SpectralImage::new(0, 4, &[550.0]).unwrap_err().field(), "width");
-        assert_eq!(SpectralImage::new(4, 0, &[550.0]).unwrap_err().field(), "height");
+        assert_eq!(
+            SpectralImage::new(0, 4, &[550.0]).unwrap_err().field(),
+            "width"
+        );
+        assert_eq!(
+            SpectralImage::new(4, 0, &[550.0]).unwrap_err().field(),
+            "height"
+        );
         assert_eq!(
             SpectralImage::new(4, 4, &[]).unwrap_err().field(),
             "wavelengths_nm"
         );
         assert_eq!(
-            SpectralImage::new(4, 4, &[550.0, 440.0]).unwrap_err().field(),
+            SpectralImage::new(4, 4, &[550.0, 440.0])
+                .unwrap_err()
+                .field(),
             "wavelengths_nm"
         );
         assert_eq!(
@@ -307,14 +338,19 @@ mod tests {
         );
 
         let mut image = SpectralImage::new(2, 2, &[440.0, 550.0]).unwrap();
-        let err = image.add_layer(EMISSIVE_LAYER, vec![vec![0.0; 4]]).unwrap_err();
+        let err = image
+            .add_layer(EMISSIVE_LAYER, vec![vec![0.0; 4]])
+            .unwrap_err();
         assert_eq!(err.field(), "layer");
         let err = image
             .add_layer(EMISSIVE_LAYER, vec![vec![0.0; 4], vec![0.0; 3]])
             .unwrap_err();
         assert_eq!(err.field(), "layer");
         let err = image
-            .add_layer(EMISSIVE_LAYER, vec![vec![0.0; 4], vec![0.0, f32::INFINITY, 0.0, 0.0]])
+            .add_layer(
+                EMISSIVE_LAYER,
+                vec![vec![0.0; 4], vec![0.0, f32::INFINITY, 0.0, 0.0]],
+            )
             .unwrap_err();
         assert!(err.to_string().contains("pixel (1, 0)"), "{err}");
         image
@@ -323,12 +359,19 @@ mod tests {
         image
             .add_layer(TRANSMITTANCE_LAYER, vec![vec![0.5; 4], vec![0.25; 4]])
             .unwrap();
-        assert!(image.add_layer(EMISSIVE_LAYER, vec![vec![1.0; 4]; 2]).is_err());
-        assert!(image.set_rgb([vec![0.0; 4], vec![0.0; 4], vec![0.0; 5]]).is_err());
+        assert!(image
+            .add_layer(EMISSIVE_LAYER, vec![vec![1.0; 4]; 2])
+            .is_err());
+        assert!(image
+            .set_rgb([vec![0.0; 4], vec![0.0; 4], vec![0.0; 5]])
+            .is_err());
         assert!(image.set_attribute("owner", "x").is_err());
         image.set_attribute("skybakeSpec", "{}").unwrap();
         assert_eq!(image.plane_count(), 4);
-        assert_eq!(image.layer(TRANSMITTANCE_LAYER).unwrap().plane(1), Some(&[0.25f32; 4][..]));
+        assert_eq!(
+            image.layer(TRANSMITTANCE_LAYER).unwrap().plane(1),
+            Some(&[0.25f32; 4][..])
+        );
     }
 
     #[test]
