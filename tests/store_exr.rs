@@ -10,7 +10,8 @@ use skybake::store::layout::{
     EMISSIVE_LAYER, TRANSMITTANCE_LAYER,
 };
 use skybake::store::{
-    decode_exr, encode_exr, read_exr_file, write_exr_file, SpectralImage, StoreError,
+    decode_exr, encode_exr, encode_exr_with, read_exr_file, write_atomic, write_exr_file,
+    ExrCompression, SpectralImage, StoreError,
 };
 
 /// A scratch directory removed on drop.
@@ -280,8 +281,15 @@ proptest! {
     #![proptest_config(ProptestConfig::with_cases(48))]
 
     #[test]
-    fn any_small_image_round_trips_bit_exactly(image in arb_image()) {
-        let back = decode_exr(&encode_exr(&image).unwrap()).unwrap();
+    fn any_small_image_round_trips_bit_exactly(
+        image in arb_image(),
+        compression in prop::sample::select(vec![
+            ExrCompression::Zip,
+            ExrCompression::Piz,
+            ExrCompression::None,
+        ]),
+    ) {
+        let back = decode_exr(&encode_exr_with(&image, compression).unwrap()).unwrap();
         assert_bit_identical(&image, &back);
     }
 
@@ -336,15 +344,27 @@ fn reference_pattern_image() -> SpectralImage {
     image
 }
 
-/// Writes the reference pattern to `$SKYBAKE_EXR_SAMPLE` when set (for `tools/check_exr.py`),
-/// otherwise to a scratch directory, and checks that it reads back bit for bit.
+/// Writes the reference pattern, once per compression, to `$SKYBAKE_EXR_SAMPLE_DIR` when set (for
+/// `tools/check_exr.py`), otherwise to a scratch directory, and checks that each reads back bit for
+/// bit.
 #[test]
 fn reference_pattern_file_round_trips() {
     let scratch = Scratch::new("exr-sample");
-    let path = std::env::var_os("SKYBAKE_EXR_SAMPLE")
+    let dir = std::env::var_os("SKYBAKE_EXR_SAMPLE_DIR")
         .map(PathBuf::from)
-        .unwrap_or_else(|| scratch.0.join("sample.exr"));
+        .unwrap_or_else(|| scratch.0.clone());
     let image = reference_pattern_image();
-    write_exr_file(&path, &image).unwrap();
-    assert_bit_identical(&image, &read_exr_file(&path).unwrap());
+    for (name, compression) in [
+        ("zip", ExrCompression::Zip),
+        ("piz", ExrCompression::Piz),
+        ("none", ExrCompression::None),
+    ] {
+        let path = dir.join(format!("pattern_{name}.exr"));
+        if compression == ExrCompression::Zip {
+            write_exr_file(&path, &image).unwrap();
+        } else {
+            write_atomic(&path, &encode_exr_with(&image, compression).unwrap()).unwrap();
+        }
+        assert_bit_identical(&image, &read_exr_file(&path).unwrap());
+    }
 }

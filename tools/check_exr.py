@@ -9,8 +9,9 @@ OpenEXR 3.x), prints its header and channels, and checks: single part, tiled 64x
 With `--pattern` it also compares every pixel with the analytic pattern that the Rust test
 `reference_pattern_file_round_trips` (tests/store_exr.rs) writes:
 
-    SKYBAKE_EXR_SAMPLE=/tmp/sample.exr cargo test --test store_exr reference_pattern
-    python tools/check_exr.py --pattern /tmp/sample.exr
+    mkdir -p /tmp/skybake-exr
+    SKYBAKE_EXR_SAMPLE_DIR=/tmp/skybake-exr cargo test --test store_exr reference_pattern
+    python tools/check_exr.py --pattern /tmp/skybake-exr/pattern_*.exr
 
 Exit status 0 when every check passes.
 """
@@ -36,7 +37,7 @@ def check_layout(path):
         fail(f"{len(exr.parts)} parts, expected 1")
     header = exr.header()
     channels = exr.channels()
-    print(f"OpenEXR library {OpenEXR.OPENEXR_VERSION}: opened {path}")
+    print(f"OpenEXR library {OpenEXR.OPENEXR_VERSION}: opened {path}, compression {header['compression']}")
     for key in sorted(header):
         value = header[key]
         text = repr(value)
@@ -112,13 +113,14 @@ def check_pattern(header, channels):
 
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("path")
+    parser.add_argument("paths", nargs="+")
     parser.add_argument("--pattern", action="store_true", help="compare with the test pattern")
     args = parser.parse_args()
-    header, channels = check_layout(args.path)
-    if args.pattern:
-        check_pattern(header, channels)
-    print("OK")
+    for path in args.paths:
+        header, channels = check_layout(path)
+        if args.pattern:
+            check_pattern(header, channels)
+        print(f"OK {path}")
 
 
 if __name__ == "__main__":

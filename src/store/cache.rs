@@ -23,7 +23,7 @@ use std::time::SystemTime;
 use serde::Serialize;
 
 use super::atomic::{is_temp_file_name, write_atomic};
-use super::exr::{decode_exr, encode_exr, read_bounded};
+use super::exr::{decode_exr, encode_exr_with, read_bounded, ExrCompression};
 use super::lru::LruIndex;
 use super::{checksum, SpectralImage, StoreError};
 
@@ -70,15 +70,18 @@ pub struct CacheConfig {
     pub disk_budget_bytes: u64,
     /// Most bytes of file contents held in memory (0 disables the memory tier).
     pub memory_budget_bytes: u64,
+    /// Compression of files written by [`Cache::put_image`].
+    pub compression: ExrCompression,
 }
 
 impl CacheConfig {
-    /// A configuration with the given directory and budgets.
+    /// A configuration with the given directory and budgets, and ZIP compression.
     pub fn new(dir: impl Into<PathBuf>, disk_budget_bytes: u64, memory_budget_bytes: u64) -> Self {
         Self {
             dir: dir.into(),
             disk_budget_bytes,
             memory_budget_bytes,
+            compression: ExrCompression::Zip,
         }
     }
 }
@@ -301,15 +304,16 @@ impl Cache {
         }
     }
 
-    /// Encodes `image` and stores it under `key`; returns the file bytes (ready to serve).
+    /// Encodes `image` (with the configured compression) and stores it under `key`; returns the file
+    /// bytes (ready to serve).
     pub fn put_image(&self, key: &str, image: &SpectralImage) -> Result<Arc<[u8]>, StoreError> {
         check_key(key)?;
-        let bytes: Arc<[u8]> = encode_exr(image)?.into();
+        let bytes: Arc<[u8]> = encode_exr_with(image, self.config.compression)?.into();
         self.store(key, &bytes)?;
         Ok(bytes)
     }
 
-    /// Stores EXR file bytes produced by [`encode_exr`] under `key` after decoding them in full, so
+    /// Stores EXR file bytes produced by [`super::encode_exr`] under `key` after decoding them in full, so
     /// only valid files enter the cache.
     pub fn put_bytes(&self, key: &str, bytes: Vec<u8>) -> Result<Arc<[u8]>, StoreError> {
         check_key(key)?;

@@ -1,6 +1,7 @@
 //! Tiled spectral OpenEXR encoding and decoding of a [`SpectralImage`].
 //!
-//! Files are single-part, tiled 64×64, 32-bit float, ZIP-compressed (lossless), with channels named
+//! Files are single-part, tiled 64×64, 32-bit float, losslessly compressed (ZIP by default, see
+//! [`ExrCompression`]), with channels named
 //! per the spectral layout of Fichet, Pacanowski & Wilkie (JCGT 10(3) 2021, see [`super::layout`]):
 //! `S0.550,000000nm`, `T.550,000000nm`, … plus optional `R`, `G`, `B`. Header attributes:
 //! `spectralLayoutVersion = "1.0"`, `emissiveUnits = "W.m^-2.sr^-1"` when an `S0` layer is present,
@@ -17,6 +18,8 @@ use exr::prelude::{
     Image, Layer, LayerAttributes, LineOrder, MetaData, ReadChannels, ReadLayers, SampleType,
     SmallVec, Text, Vec2, WritableImage,
 };
+
+use serde::{Deserialize, Serialize};
 
 use super::checksum::{self, PLACEHOLDER};
 use super::layout::{
@@ -39,8 +42,43 @@ const PARALLEL_MIN_SAMPLES: usize = 1 << 20;
 /// Largest file `read_exr_file` reads: the largest image plus generous room for the header.
 pub const MAX_FILE_BYTES: u64 = (MAX_TOTAL_SAMPLES as u64) * 4 + (64 << 20);
 
-/// Encodes `image` as a tiled spectral OpenEXR file in memory, with its checksum embedded.
+/// Lossless compression of the pixel data. All three are bit-exact for f32 in the `exr` crate
+/// (tested) and readable by the reference OpenEXR library. Measured on a 512×256×32 f32 image
+/// (2 shared cores): `None` encodes in ~0.05 s at full size, `Zip` in ~2 s at 80–95 % of the size,
+/// `Piz` in ~2.5 s at 70–90 %, decoding 6× slower than `Zip`.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum ExrCompression {
+    /// No compression: fastest, largest.
+    None,
+    /// zlib per tile (OpenEXR `ZIP_COMPRESSION`); the default.
+    #[default]
+    Zip,
+    /// Wavelet + Huffman (OpenEXR `PIZ_COMPRESSION`): smallest, slowest to decode.
+    Piz,
+}
+
+impl ExrCompression {
+    fn to_exr(self) -> Compression {
+        match self {
+            ExrCompression::None => Compression::Uncompressed,
+            ExrCompression::Zip => Compression::ZIP16,
+            ExrCompression::Piz => Compression::PIZ,
+        }
+    }
+}
+
+/// Encodes `image` as a tiled spectral OpenEXR file in memory with ZIP compression and the
+/// checksum embedded.
 pub fn encode_exr(image: &SpectralImage) -> Result<Vec<u8>, StoreError> {
+    encode_exr_with(image, ExrCompression::Zip)
+}
+
+/// [`encode_exr`] with a choice of compression.
+pub fn encode_exr_with(
+    image: &SpectralImage,
+    compression: ExrCompression,
+) -> Result<Vec<u8>, StoreError> {
     if image.layers().is_empty() {
         return Err(crate::Error::invalid("image", "has no spectral layer to write").into());
     }
@@ -83,7 +121,7 @@ pub fn encode_exr(image: &SpectralImage) -> Result<Vec<u8>, StoreError> {
     }
 
     let encoding = Encoding {
-        compression: Compression::ZIP16,
+        compression: compression.to_exr(),
         blocks: Blocks::Tiles(Vec2(TILE_SIZE, TILE_SIZE)),
         line_order: LineOrder::Increasing,
     };

@@ -18,6 +18,7 @@
 //! ```
 
 pub mod atomic;
+pub mod bench;
 pub mod cache;
 pub mod checksum;
 mod error;
@@ -27,7 +28,10 @@ mod lru;
 pub mod spectral_image;
 
 pub use atomic::write_atomic;
+pub use bench::{bench_store, StoreBench};
 pub use cache::{cache_key, Cache, CacheConfig, CacheStats};
 pub use error::StoreError;
-pub use exr::{decode_exr, encode_exr, read_exr_file, write_exr_file};
+pub use exr::{
+    decode_exr, encode_exr, encode_exr_with, read_exr_file, write_exr_file, ExrCompression,
+};
 pub use spectral_image::{SpectralImage, SpectralLayer};
