@@ -387,3 +387,12 @@ fn concurrent_gets_and_puts_stay_consistent() {
     let on_disk: u64 = files.iter().map(|f| fs::metadata(f).unwrap().len()).sum();
     assert_eq!(on_disk, stats.bytes_on_disk);
 }
+
+#[test]
+fn cache_can_be_shared_across_threads_and_tasks() {
+    fn assert_send_sync<T: Send + Sync + 'static>() {}
+    assert_send_sync::<Cache>();
+    assert_send_sync::<Arc<[u8]>>();
+    assert_send_sync::<SpectralImage>();
+    assert_send_sync::<StoreError>();
+}

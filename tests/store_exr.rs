@@ -333,7 +333,7 @@ fn reference_pattern_image() -> SpectralImage {
     image
         .set_attribute(
             ATTR_SPEC_JSON,
-            r#"{"product":"aerial","wavelengths_nm":[400,550.5,700.25]}"#,
+            r#"{"product":"aerial","site":"Zürich","wavelengths_nm":[400,550.5,700.25]}"#,
         )
         .unwrap();
     image.set_attribute(ATTR_ENGINE_VERSION, "0.1.0").unwrap();

@@ -13,6 +13,10 @@ With `--pattern` it also compares every pixel with the analytic pattern that the
     SKYBAKE_EXR_SAMPLE_DIR=/tmp/skybake-exr cargo test --test store_exr reference_pattern
     python tools/check_exr.py --pattern /tmp/skybake-exr/pattern_*.exr
 
+When the `blake3` package is installed it also recomputes the whole-file checksum
+(src/store/checksum.rs): blake3 of the file with the 64 hex digits of `skybakeFileBlake3` replaced by
+ASCII zeros.
+
 Exit status 0 when every check passes.
 """
 
@@ -22,6 +26,11 @@ import sys
 
 import numpy as np
 import OpenEXR
+
+try:  # optional: `pip install blake3` to recompute the embedded whole-file checksum
+    import blake3
+except ImportError:
+    blake3 = None
 
 CHANNEL_RE = re.compile(r"^([A-Za-z][A-Za-z0-9_]*)\.(\d+)(?:,(\d+))?nm$")
 
@@ -75,8 +84,25 @@ def check_layout(path):
     checksum = header.get("skybakeFileBlake3", "")
     if not re.fullmatch(r"[0-9a-f]{64}", checksum):
         fail(f"skybakeFileBlake3 = {checksum!r}")
+    if blake3 is not None:
+        verify_checksum(path, checksum)
     print(f"  layers: { {k: sorted(v) for k, v in spectral.items()} }")
     return header, channels
+
+
+def verify_checksum(path, stored):
+    """Recompute the embedded blake3 independently of the Rust code."""
+    data = bytearray(open(path, "rb").read())
+    prefix = b"skybakeFileBlake3\0string\0" + (64).to_bytes(4, "little")
+    start = data.find(prefix)
+    if start < 0:
+        fail("checksum attribute not found in the raw bytes")
+    offset = start + len(prefix)
+    data[offset : offset + 64] = b"0" * 64
+    actual = blake3.blake3(bytes(data)).hexdigest()
+    if actual != stored:
+        fail(f"blake3 {actual} != stored {stored}")
+    print(f"  blake3 checksum verified: {actual}")
 
 
 def check_pattern(header, channels):
@@ -100,7 +126,7 @@ def check_pattern(header, channels):
         if not np.array_equal(got.view(np.uint32), want.astype(np.float32).view(np.uint32)):
             fail(f"channel {name}: pixel values differ from the pattern")
     attributes = {
-        "skybakeSpec": '{"product":"aerial","wavelengths_nm":[400,550.5,700.25]}',
+        "skybakeSpec": '{"product":"aerial","site":"Z\u00fcrich","wavelengths_nm":[400,550.5,700.25]}',
         "skybakeEngineVersion": "0.1.0",
         "skybakeErrorEstimate": '{"max_rel_error":0.01}',
         "skybakeComputeTimeMs": "12.5",

@@ -5,7 +5,8 @@
 use std::collections::BTreeMap;
 
 use super::layout::{
-    canonical_wavelength_nm, validate_attribute_name, validate_layer_name, MAX_WAVELENGTH_NM,
+    canonical_wavelength_nm, validate_attribute_name, validate_layer_name, ATTR_COMPUTE_TIME_MS,
+    ATTR_ENGINE_VERSION, ATTR_ERROR_ESTIMATE_JSON, ATTR_SPEC_JSON, MAX_WAVELENGTH_NM,
 };
 use crate::{Error, Result};
 
@@ -210,6 +211,28 @@ impl SpectralImage {
         Ok(())
     }
 
+    /// Sets the product attributes every cached product carries (DESIGN.md "Storage"): the canonical
+    /// spec JSON, the engine version, the error estimate JSON and the compute time in milliseconds.
+    pub fn set_product_metadata(
+        &mut self,
+        canonical_spec_json: &str,
+        engine_version: &str,
+        error_estimate_json: &str,
+        compute_time_ms: f64,
+    ) -> Result<()> {
+        if !(compute_time_ms.is_finite() && compute_time_ms >= 0.0) {
+            return Err(Error::out_of_range(
+                "compute_time_ms",
+                compute_time_ms,
+                "finite, >= 0",
+            ));
+        }
+        self.set_attribute(ATTR_SPEC_JSON, canonical_spec_json)?;
+        self.set_attribute(ATTR_ENGINE_VERSION, engine_version)?;
+        self.set_attribute(ATTR_ERROR_ESTIMATE_JSON, error_estimate_json)?;
+        self.set_attribute(ATTR_COMPUTE_TIME_MS, compute_time_ms.to_string())
+    }
+
     /// Width in pixels.
     pub fn width(&self) -> usize {
         self.width
@@ -372,6 +395,25 @@ mod tests {
             image.layer(TRANSMITTANCE_LAYER).unwrap().plane(1),
             Some(&[0.25f32; 4][..])
         );
+    }
+
+    #[test]
+    fn product_metadata_lands_in_named_attributes() {
+        let mut image = SpectralImage::new(1, 1, &[550.0]).unwrap();
+        image
+            .set_product_metadata(r#"{"product":"sun"}"#, "0.1.0", "{}", 12.5)
+            .unwrap();
+        assert_eq!(
+            image.attribute(ATTR_SPEC_JSON),
+            Some(r#"{"product":"sun"}"#)
+        );
+        assert_eq!(image.attribute(ATTR_ENGINE_VERSION), Some("0.1.0"));
+        assert_eq!(image.attribute(ATTR_ERROR_ESTIMATE_JSON), Some("{}"));
+        assert_eq!(image.attribute(ATTR_COMPUTE_TIME_MS), Some("12.5"));
+        let err = image
+            .set_product_metadata("{}", "0.1.0", "{}", f64::NAN)
+            .unwrap_err();
+        assert_eq!(err.field(), "compute_time_ms");
     }
 
     #[test]
