@@ -257,7 +257,7 @@ fn arb_image() -> impl Strategy<Value = SpectralImage> {
                 planes.clone(),
                 prop::option::of(planes),
                 rgb,
-                ".{0,40}",
+                "[^\\x00]{0,40}",
             )
         })
         .prop_map(|((width, height, wavelengths_nm), s0, t, rgb, text)| {

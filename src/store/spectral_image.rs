@@ -189,7 +189,8 @@ impl SpectralImage {
         Ok(())
     }
 
-    /// Sets a text attribute (stored as an OpenEXR `string` attribute of the same name).
+    /// Sets a text attribute (stored as an OpenEXR `string` attribute of the same name): any UTF-8
+    /// without NUL, at most [`MAX_ATTRIBUTE_VALUE_BYTES`].
     pub fn set_attribute(&mut self, name: &str, value: impl Into<String>) -> Result<()> {
         validate_attribute_name(name)?;
         let value = value.into();
@@ -198,6 +199,13 @@ impl SpectralImage {
                 name,
                 "attribute value too long",
                 format!("{MAX_ATTRIBUTE_VALUE_BYTES} bytes"),
+            ));
+        }
+        if value.contains('\0') {
+            // Keeps the checksum attribute's byte pattern (which contains NULs) unique in a header.
+            return Err(Error::invalid(
+                name,
+                "attribute value must not contain NUL characters",
             ));
         }
         if !self.attributes.contains_key(name) && self.attributes.len() >= MAX_ATTRIBUTES {
@@ -389,6 +397,13 @@ mod tests {
             .set_rgb([vec![0.0; 4], vec![0.0; 4], vec![0.0; 5]])
             .is_err());
         assert!(image.set_attribute("owner", "x").is_err());
+        assert_eq!(
+            image
+                .set_attribute("skybakeSpec", "a\0b")
+                .unwrap_err()
+                .field(),
+            "skybakeSpec"
+        );
         image.set_attribute("skybakeSpec", "{}").unwrap();
         assert_eq!(image.plane_count(), 4);
         assert_eq!(
