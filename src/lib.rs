@@ -14,5 +14,6 @@ pub mod phase;
 pub mod solar;
 pub mod spec;
 pub mod spectrum;
+pub mod store;
 
 pub use error::{Error, Result};
