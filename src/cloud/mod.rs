@@ -4,3 +4,6 @@
 pub mod grid;
 
 pub use grid::DensityGrid;
+pub mod marching_cubes;
+pub mod metaballs;
+pub mod wyvill;
