@@ -137,7 +137,11 @@ impl DensityGrid {
 /// Voxel count for `dims`, refusing empty or oversized grids before any allocation.
 pub fn checked_voxel_count(dims: [usize; 3]) -> Result<usize> {
     if dims.contains(&0) {
-        return Err(Error::out_of_range("dims", format!("{dims:?}"), "each >= 1"));
+        return Err(Error::out_of_range(
+            "dims",
+            format!("{dims:?}"),
+            "each >= 1",
+        ));
     }
     dims.iter()
         .try_fold(1usize, |acc, &d| acc.checked_mul(d))

@@ -40,7 +40,10 @@ pub struct Metaball {
 /// Checks every ball (finite, in range) and the count, naming the offending entry.
 pub fn validate_balls(balls: &[Metaball]) -> Result<()> {
     if balls.is_empty() {
-        return Err(Error::invalid("balls", "must contain at least one metaball"));
+        return Err(Error::invalid(
+            "balls",
+            "must contain at least one metaball",
+        ));
     }
     if balls.len() > MAX_BALLS {
         return Err(Error::too_large(
@@ -136,7 +139,9 @@ impl MetaballField {
         };
         let bin_count = bin_dims[0] * bin_dims[1] * bin_dims[2];
         let mut counts = vec![0u32; bin_count + 1];
-        for_each_bin(&balls, min_m, bin_size_m, bin_dims, |_, bin| counts[bin] += 1);
+        for_each_bin(&balls, min_m, bin_size_m, bin_dims, |_, bin| {
+            counts[bin] += 1
+        });
         let mut bin_start = Vec::with_capacity(bin_count + 1);
         let mut acc = 0u32;
         for c in &counts[..bin_count] {
@@ -235,7 +240,11 @@ impl MetaballField {
     /// `voxel_size_m`, centring the box on the support. Validates the voxel count first.
     pub fn voxelize(&self, voxel_size_m: f64, margin_m: f64) -> Result<DensityGrid> {
         if !(margin_m.is_finite() && margin_m >= 0.0) {
-            return Err(Error::out_of_range("margin_m", margin_m, "a finite value >= 0"));
+            return Err(Error::out_of_range(
+                "margin_m",
+                margin_m,
+                "a finite value >= 0",
+            ));
         }
         let (lo, hi) = (self.min_m - margin_m, self.max_m + margin_m);
         let (dims, origin_m) = box_dims(lo, hi, voxel_size_m)?;
@@ -307,7 +316,10 @@ fn bin_range(b: &Metaball, origin: DVec3, size: f64, dims: [usize; 3]) -> [[usiz
     let mut r = [[0usize; 2]; 3];
     for a in 0..3 {
         let max = (dims[a] - 1) as f64;
-        r[a] = [lo[a].clamp(0.0, max) as usize, hi[a].clamp(0.0, max) as usize];
+        r[a] = [
+            lo[a].clamp(0.0, max) as usize,
+            hi[a].clamp(0.0, max) as usize,
+        ];
     }
     r
 }

@@ -4,6 +4,7 @@
 pub mod grid;
 
 pub use grid::DensityGrid;
+pub mod fractal;
 pub mod marching_cubes;
 pub mod metaballs;
 pub mod wyvill;

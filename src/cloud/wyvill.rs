@@ -188,7 +188,10 @@ mod tests {
                 .sum::<f64>()
                 * step;
             let exact = column_integral_m(d, radius_m);
-            assert!((numeric - exact).abs() < 1e-6, "d = {d}: {numeric} vs {exact}");
+            assert!(
+                (numeric - exact).abs() < 1e-6,
+                "d = {d}: {numeric} vs {exact}"
+            );
         }
         assert_eq!(column_integral_m(4.0, radius_m), 0.0);
         assert!((column_integral_m(0.0, 1.0) - 2.0 * 472.0 / 945.0).abs() < 1e-12);
