@@ -7,4 +7,5 @@ pub use grid::DensityGrid;
 pub mod fractal;
 pub mod marching_cubes;
 pub mod metaballs;
+pub mod satellite;
 pub mod wyvill;
