@@ -5,6 +5,7 @@ pub mod grid;
 
 pub use grid::DensityGrid;
 pub mod fractal;
+pub mod import;
 pub mod marching_cubes;
 pub mod metaballs;
 pub mod satellite;
