@@ -9,4 +9,5 @@ pub mod import;
 pub mod marching_cubes;
 pub mod metaballs;
 pub mod satellite;
+pub mod scene;
 pub mod wyvill;
