@@ -20,7 +20,9 @@ use std::f64::consts::PI;
 /// Most growth levels.
 pub const MAX_LEVELS: u32 = 6;
 /// Most triangles one marching-cubes pass may produce.
-pub const MAX_TRIANGLES: usize = 8_000_000;
+pub const MAX_TRIANGLES: usize = 2_000_000;
+/// Most voxels of one marching-cubes pass (256³).
+pub const MAX_MC_VOXELS: usize = 1 << 24;
 
 /// Parameters of fractal growth (the `"fractal"` cloud source). Defaults in brackets.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -65,7 +67,7 @@ pub struct FractalParams {
     #[serde(default = "default_max_balls")]
     pub max_balls: usize,
     /// Most voxels of a marching-cubes pass; the pass voxel (a quarter of the previous level's radius)
-    /// is enlarged to fit, 8..=134 217 728 [2 097 152].
+    /// is enlarged to fit, 8..=16 777 216 [2 097 152].
     #[serde(default = "default_max_mc_voxels")]
     pub max_mc_voxels: usize,
 }
@@ -171,11 +173,11 @@ impl FractalParams {
                 self.max_balls,
             ));
         }
-        if !(8..=super::grid::MAX_VOXELS).contains(&self.max_mc_voxels) {
+        if !(8..=MAX_MC_VOXELS).contains(&self.max_mc_voxels) {
             return Err(Error::out_of_range(
                 "max_mc_voxels",
                 self.max_mc_voxels,
-                format!("8..={}", super::grid::MAX_VOXELS),
+                format!("8..={MAX_MC_VOXELS}"),
             ));
         }
         Ok(())

@@ -14,7 +14,7 @@
 //! plane (`cloud_base_m`), giving flat bases, and its centre density is set so the column density
 //! of the 3-D cloud reproduces the fitted image times `column_density_m`.
 
-use super::metaballs::{validate_balls, Metaball, MetaballField, MAX_BALLS};
+use super::metaballs::{validate_balls, Metaball, MetaballField};
 use super::wyvill;
 use super::DensityGrid;
 use crate::{Error, Result};
@@ -22,7 +22,9 @@ use glam::DVec3;
 use serde::{Deserialize, Serialize};
 
 /// Largest accepted image side, pixels.
-pub const MAX_IMAGE_SIDE: usize = 4096;
+pub const MAX_IMAGE_SIDE: usize = 2048;
+/// Most metaballs one fit may place (bounds the fitting time).
+pub const MAX_FIT_BALLS: usize = 20_000;
 
 /// A grey-level image, row-major with row 0 at the top (north), values in [0, 1].
 #[derive(Debug, Clone, PartialEq)]
@@ -135,13 +137,13 @@ pub struct SatelliteParams {
     /// Stop when the relative L2 image error falls below this, in (0, 1] [0.1].
     #[serde(default = "default_error_threshold")]
     pub error_threshold: f64,
-    /// Most metaballs, 1..=1 000 000 [4000].
+    /// Most metaballs, 1..=20 000 [4000].
     #[serde(default = "default_max_balls")]
     pub max_balls: usize,
     /// Smallest ball radius, pixels, in [0.5, max_radius_px] [1].
     #[serde(default = "default_min_radius_px")]
     pub min_radius_px: f64,
-    /// Largest ball radius, pixels, in [min_radius_px, 512] [24].
+    /// Largest ball radius, pixels, in [min_radius_px, 64] [24] (bounds the fitting time).
     #[serde(default = "default_max_radius_px")]
     pub max_radius_px: f64,
 }
@@ -206,11 +208,11 @@ impl SatelliteParams {
         check("cloud_threshold", t, (0.0..1.0).contains(&t), "[0, 1)")?;
         let e = self.error_threshold;
         check("error_threshold", e, e > 0.0 && e <= 1.0, "(0, 1]")?;
-        if !(1..=MAX_BALLS).contains(&self.max_balls) {
+        if !(1..=MAX_FIT_BALLS).contains(&self.max_balls) {
             return Err(Error::out_of_range(
                 "max_balls",
                 self.max_balls,
-                format!("1..={MAX_BALLS}"),
+                format!("1..={MAX_FIT_BALLS}"),
             ));
         }
         let (lo, hi) = (self.min_radius_px, self.max_radius_px);
@@ -220,7 +222,7 @@ impl SatelliteParams {
             lo >= 0.5 && lo <= hi,
             "[0.5, max_radius_px]",
         )?;
-        check("max_radius_px", hi, hi <= 512.0, "[min_radius_px, 512]")?;
+        check("max_radius_px", hi, hi <= 64.0, "[min_radius_px, 64]")?;
         Ok(())
     }
 }
@@ -246,7 +248,8 @@ pub struct FitResult {
     /// Final relative L2 error `‖T − M‖ / ‖T‖` of the approximated image `M` against the masked
     /// image `T`.
     pub error: f64,
-    /// The error before the first blob and after each blob; strictly decreasing.
+    /// The error before the first blob and after each blob (with its amplitude refit; the last
+    /// entry after the final refit); strictly decreasing.
     pub error_history: Vec<f64>,
     /// Whether the error fell below `error_threshold`.
     pub converged: bool,
@@ -288,21 +291,6 @@ fn window(img: &GrayImage, x: usize, y: usize, r: f64) -> (usize, usize, usize, 
     )
 }
 
-/// Least-squares amplitude and error reduction of a blob of radius `r` at (x, y) against `res`.
-fn score(img: &GrayImage, res: &[f64], x: usize, y: usize, r: f64) -> (f64, f64) {
-    let blob = Blob {
-        x_px: x,
-        y_px: y,
-        radius_px: r,
-        amplitude: 0.0,
-    };
-    let (rg, gg) = correlate(img, res, &blob);
-    if rg <= 0.0 || gg <= 0.0 {
-        return (0.0, 0.0);
-    }
-    (rg / gg, rg * rg / gg)
-}
-
 /// The approximated image of `blobs` on a `width × height` raster (sum of projected profiles).
 pub fn approximated_image(width: usize, height: usize, blobs: &[Blob]) -> Result<Vec<f64>> {
     check_dims(width, height)?;
@@ -331,15 +319,6 @@ fn correlate(img: &GrayImage, res: &[f64], blob: &Blob) -> (f64, f64) {
     (rg, gg)
 }
 
-/// Changes a blob's amplitude, updating the residual.
-fn set_amplitude(img: &GrayImage, res: &mut [f64], blob: &mut Blob, amplitude: f64) {
-    let delta = amplitude - blob.amplitude;
-    if delta != 0.0 {
-        for_disc(img, blob, |i, g| res[i] -= delta * g);
-        blob.amplitude = amplitude;
-    }
-}
-
 /// Calls `f(pixel index, profile)` for every pixel inside the blob's disc.
 fn for_disc(img: &GrayImage, blob: &Blob, mut f: impl FnMut(usize, f64)) {
     let (x0, x1, y0, y1) = window(img, blob.x_px, blob.y_px, blob.radius_px);
@@ -356,7 +335,127 @@ fn for_disc(img: &GrayImage, blob: &Blob, mut f: impl FnMut(usize, f64)) {
     }
 }
 
+/// Edge of the tiles over which the residual's maximum is cached, pixels.
+const TILE_PX: usize = 32;
+
+/// The residual image `T − M`, its squared norm (tracked incrementally) and the maximum over
+/// the cloud pixels of each tile (refreshed lazily), so a fitting step costs in proportion to
+/// the pixels it touches rather than to the image.
+struct Residual<'a> {
+    img: &'a GrayImage,
+    cloud: Vec<bool>,
+    res: Vec<f64>,
+    err2: f64,
+    tiles_x: usize,
+    tile_max: Vec<Option<(f64, usize)>>,
+    dirty: Vec<bool>,
+}
+
+impl<'a> Residual<'a> {
+    fn new(img: &'a GrayImage, target: Vec<f64>) -> Self {
+        let tiles_x = img.width.div_ceil(TILE_PX);
+        let tiles = tiles_x * img.height.div_ceil(TILE_PX);
+        Self {
+            img,
+            cloud: target.iter().map(|&t| t > 0.0).collect(),
+            err2: target.iter().map(|t| t * t).sum(),
+            res: target,
+            tiles_x,
+            tile_max: vec![None; tiles],
+            dirty: vec![true; tiles],
+        }
+    }
+
+    /// Changes a blob's amplitude, updating the residual, its norm and the dirty tiles.
+    fn set_amplitude(&mut self, blob: &mut Blob, amplitude: f64) {
+        let delta = amplitude - blob.amplitude;
+        if delta == 0.0 {
+            return;
+        }
+        let (res, err2) = (&mut self.res, &mut self.err2);
+        for_disc(self.img, blob, |i, g| {
+            let old = res[i];
+            let new = old - delta * g;
+            *err2 += new * new - old * old;
+            res[i] = new;
+        });
+        blob.amplitude = amplitude;
+        let (x0, x1, y0, y1) = window(self.img, blob.x_px, blob.y_px, blob.radius_px);
+        for ty in y0 / TILE_PX..=(y1 - 1) / TILE_PX {
+            for tx in x0 / TILE_PX..=(x1 - 1) / TILE_PX {
+                self.dirty[ty * self.tiles_x + tx] = true;
+            }
+        }
+    }
+
+    /// Least-squares coordinate step on one blob's amplitude, kept non-negative.
+    fn refit(&mut self, blob: &mut Blob) {
+        let (rg, gg) = correlate(self.img, &self.res, blob);
+        if gg > 0.0 {
+            self.set_amplitude(blob, (blob.amplitude + rg / gg).max(0.0));
+        }
+    }
+
+    /// Recomputes the squared norm exactly (removes accumulated rounding).
+    fn resum(&mut self) {
+        self.err2 = self.res.iter().map(|r| r * r).sum();
+    }
+
+    /// The cloud pixel with the largest residual, as (index, residual).
+    fn brightest(&mut self) -> Option<(usize, f64)> {
+        let w = self.img.width;
+        for t in 0..self.tile_max.len() {
+            if !self.dirty[t] {
+                continue;
+            }
+            let (tx, ty) = (t % self.tiles_x, t / self.tiles_x);
+            let mut best: Option<(f64, usize)> = None;
+            for y in ty * TILE_PX..((ty + 1) * TILE_PX).min(self.img.height) {
+                for x in tx * TILE_PX..((tx + 1) * TILE_PX).min(w) {
+                    let i = y * w + x;
+                    if self.cloud[i] && best.is_none_or(|(v, _)| self.res[i] > v) {
+                        best = Some((self.res[i], i));
+                    }
+                }
+            }
+            self.tile_max[t] = best;
+            self.dirty[t] = false;
+        }
+        self.tile_max
+            .iter()
+            .flatten()
+            .max_by(|a, b| a.0.total_cmp(&b.0).then(b.1.cmp(&a.1)))
+            .map(|&(v, i)| (i, v))
+    }
+}
+
+/// Least-squares amplitude and error reduction of a blob of radius `r` at (x, y) against `res`.
+fn score(img: &GrayImage, res: &[f64], x: usize, y: usize, r: f64) -> (f64, f64) {
+    let blob = Blob {
+        x_px: x,
+        y_px: y,
+        radius_px: r,
+        amplitude: 0.0,
+    };
+    let (rg, gg) = correlate(img, res, &blob);
+    if rg <= 0.0 || gg <= 0.0 {
+        return (0.0, 0.0);
+    }
+    (rg / gg, rg * rg / gg)
+}
+
+/// Whether the discs' windows of two blobs overlap.
+fn overlaps(a: &Blob, b: &Blob) -> bool {
+    let reach = a.radius_px + b.radius_px + 1.0;
+    (a.x_px as f64 - b.x_px as f64).abs() <= reach && (a.y_px as f64 - b.y_px as f64).abs() <= reach
+}
+
 /// Fits metaballs to the image (seed 001 §3.1); see the module docs.
+///
+/// After each new ball, the centre densities of the balls overlapping it are re-optimised by
+/// non-negative coordinate descent (each update is the exact minimiser along its coordinate, so
+/// the error never rises and earlier balls that now overshoot are turned down); all balls are
+/// refitted whenever the count reaches a power of two and once at the end.
 pub fn fit(img: &GrayImage, params: &SatelliteParams) -> Result<FitResult> {
     params.validate()?;
     let threshold = params.cloud_threshold as f32;
@@ -372,26 +471,24 @@ pub fn fit(img: &GrayImage, params: &SatelliteParams) -> Result<FitResult> {
             format!("no pixel is brighter than {threshold}, so the image holds no cloud"),
         ));
     }
-    let mut res = target.clone();
-    let mut err2 = norm2;
+    let mut r = Residual::new(img, target);
     let mut history = vec![1.0];
-    let mut blobs = Vec::new();
+    let mut blobs: Vec<Blob> = Vec::new();
     let (rmin, rmax) = (params.min_radius_px, params.max_radius_px);
+    let full_refit = |r: &mut Residual, blobs: &mut Vec<Blob>| {
+        for blob in blobs.iter_mut() {
+            r.refit(blob);
+        }
+        r.resum();
+    };
     let converged = loop {
-        let error = (err2 / norm2).max(0.0).sqrt();
-        if error < params.error_threshold {
+        if (r.err2 / norm2).max(0.0).sqrt() < params.error_threshold {
             break true;
         }
         if blobs.len() >= params.max_balls {
             break false;
         }
-        // The brightest unexplained cloud pixel.
-        let Some((best, &peak)) = res
-            .iter()
-            .enumerate()
-            .filter(|(i, _)| target[*i] > 0.0)
-            .max_by(|a, b| a.1.total_cmp(b.1))
-        else {
+        let Some((best, peak)) = r.brightest() else {
             break false;
         };
         if peak <= 0.0 {
@@ -404,68 +501,67 @@ pub fn fit(img: &GrayImage, params: &SatelliteParams) -> Result<FitResult> {
         let mut best_i = 0;
         let mut best_gain = -1.0;
         for i in 0..=steps {
-            let gain = score(img, &res, x, y, rmin * ratio.powi(i)).1;
+            let gain = score(img, &r.res, x, y, rmin * ratio.powi(i)).1;
             if gain > best_gain {
                 best_gain = gain;
                 best_i = i;
             }
         }
         let (mut lo, mut hi) = (
-            (rmin * ratio.powi(best_i as i32 - 1)).max(rmin).ln(),
-            (rmin * ratio.powi(best_i as i32 + 1)).min(rmax).ln(),
+            (rmin * ratio.powi(best_i - 1)).max(rmin).ln(),
+            (rmin * ratio.powi(best_i + 1)).min(rmax).ln(),
         );
         let phi = 0.5 * (5f64.sqrt() - 1.0);
         for _ in 0..12 {
             let a = hi - phi * (hi - lo);
             let b = lo + phi * (hi - lo);
-            if score(img, &res, x, y, a.exp()).1 > score(img, &res, x, y, b.exp()).1 {
+            if score(img, &r.res, x, y, a.exp()).1 > score(img, &r.res, x, y, b.exp()).1 {
                 hi = b;
             } else {
                 lo = a;
             }
         }
         let mut radius = (0.5 * (lo + hi)).exp();
-        let (mut amplitude, mut gain) = score(img, &res, x, y, radius);
-        let scanned = rmin * ratio.powi(best_i as i32);
+        let (mut amplitude, mut gain) = score(img, &r.res, x, y, radius);
         if best_gain > gain {
-            radius = scanned;
-            (amplitude, gain) = score(img, &res, x, y, radius);
+            radius = rmin * ratio.powi(best_i);
+            (amplitude, gain) = score(img, &r.res, x, y, radius);
         }
-        if !(gain > 1e-12 * norm2) {
+        if gain.is_nan() || gain <= 1e-12 * norm2 {
             break false;
         }
-        blobs.push(Blob {
+        let before = r.err2;
+        let mut blob = Blob {
             x_px: x,
             y_px: y,
             radius_px: radius,
             amplitude: 0.0,
-        });
-        let last = blobs.len() - 1;
-        set_amplitude(img, &mut res, &mut blobs[last], amplitude);
-        // Re-optimise all centre densities (non-negative coordinate descent): each update is
-        // the exact minimiser along its coordinate, so the error never rises, and earlier
-        // balls that now overshoot are turned down.
-        for blob in blobs.iter_mut() {
-            let (rg, gg) = correlate(img, &res, blob);
-            if gg > 0.0 {
-                let a = (blob.amplitude + rg / gg).max(0.0);
-                set_amplitude(img, &mut res, blob, a);
-            }
+        };
+        r.set_amplitude(&mut blob, amplitude);
+        for other in blobs.iter_mut().filter(|b| overlaps(b, &blob)) {
+            r.refit(other);
         }
-        // The error is recomputed from the residual (not the predicted gains) so rounding
-        // cannot accumulate.
-        let new_err2: f64 = res.iter().map(|r| r * r).sum();
-        if new_err2 >= err2 {
+        r.refit(&mut blob);
+        blobs.push(blob);
+        if blobs.len().is_power_of_two() {
+            full_refit(&mut r, &mut blobs);
+        }
+        if r.err2 >= before {
             break false;
         }
-        err2 = new_err2;
-        history.push((err2 / norm2).sqrt());
+        history.push((r.err2.max(0.0) / norm2).sqrt());
     };
+    // A last pass over every ball can only lower the error; it refines the last entry.
+    full_refit(&mut r, &mut blobs);
+    let error = (r.err2.max(0.0) / norm2).sqrt();
+    if let Some(last) = history.last_mut() {
+        *last = last.min(error);
+    }
     Ok(FitResult {
         blobs,
-        error: (err2 / norm2).sqrt(),
+        error: history.last().copied().unwrap_or(error),
         error_history: history,
-        converged,
+        converged: converged || error < params.error_threshold,
     })
 }
 

@@ -93,9 +93,9 @@ pub fn column_integral_m(d_m: f64, radius_m: f64) -> f64 {
     let mut total = 0.0;
     for (n, cn) in C.iter().enumerate() {
         let mut term = 0.0;
-        for k in 0..=n {
+        for (k, binom) in BINOM[n].iter().enumerate().take(n + 1) {
             let l_pow = half.powi(2 * k as i32 + 1);
-            term += BINOM[n][k] * u2.powi((n - k) as i32) * l_pow / (2 * k + 1) as f64;
+            term += binom * u2.powi((n - k) as i32) * l_pow / (2 * k + 1) as f64;
         }
         total += cn * 2.0 * term;
     }
