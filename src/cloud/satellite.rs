@@ -677,3 +677,47 @@ pub fn synthetic_cloud_field(side_px: usize, seed: u64) -> Result<GrayImage> {
         .collect();
     GrayImage::new(side_px, side_px, data)
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn profile_table_matches_closed_form() {
+        let p0 = wyvill::column_integral_m(0.0, 1.0);
+        for i in 0..=1000 {
+            let u = i as f64 / 1000.0;
+            let exact = wyvill::column_integral_m(u, 1.0) / p0;
+            assert!((profile(u * u) - exact).abs() < 1e-6, "u = {u}");
+        }
+        assert_eq!(profile(1.0), 0.0);
+        assert_eq!(profile(0.0), 1.0);
+    }
+
+    #[test]
+    fn tiled_maximum_tracks_the_residual() {
+        let img = synthetic_cloud_field(70, 9).unwrap();
+        let target: Vec<f64> = img.data.iter().map(|&v| v as f64).collect();
+        let mut r = Residual::new(&img, target);
+        let mut blob = Blob {
+            x_px: 33,
+            y_px: 40,
+            radius_px: 9.5,
+            amplitude: 0.0,
+        };
+        for step in 0..5 {
+            r.set_amplitude(&mut blob, 0.3 * step as f64);
+            let brute = r
+                .res
+                .iter()
+                .enumerate()
+                .filter(|(i, _)| r.cloud[*i])
+                .map(|(_, v)| *v)
+                .fold(f64::NEG_INFINITY, f64::max);
+            assert_eq!(r.brightest().unwrap().1, brute);
+            let exact: f64 = r.res.iter().map(|v| v * v).sum();
+            assert!((r.err2 - exact).abs() < 1e-9 * exact);
+            blob.x_px += 7;
+        }
+    }
+}
