@@ -93,6 +93,34 @@ fn base_stays_flat_no_ball_reaches_below_the_base_plane() {
     );
 }
 
+/// The paper's own mechanism, without the base-plane guard: triangles facing down do not grow.
+#[test]
+fn downward_facing_surface_does_not_grow() {
+    let mut p = params();
+    p.flat_base = false;
+    p.levels = 1;
+    let zc = p.balls.iter().map(|b| b.centre_m.z).sum::<f64>() / p.balls.len() as f64;
+    let below = |min_normal_z: f64| {
+        let mut q = p.clone();
+        q.min_normal_z = min_normal_z;
+        let cloud = grow(&q).unwrap();
+        let base_z = cloud.base_z_m.unwrap();
+        let added = &cloud.balls[q.balls.len()..];
+        let near_base = added
+            .iter()
+            .filter(|b| b.centre_m.z < base_z + 0.1 * (zc - base_z))
+            .count();
+        (added.len(), near_base)
+    };
+    let (all_free, base_free) = below(-1.0);
+    let (all_limited, base_limited) = below(-0.25);
+    let (all_none, _) = below(1.0);
+    assert!(base_free > 0, "unrestricted growth reaches the base");
+    assert_eq!(base_limited, 0, "no growth on the flat underside");
+    assert!(all_limited < all_free);
+    assert_eq!(all_none, 0);
+}
+
 #[test]
 fn ball_budget_and_parameters_are_checked() {
     let mut p = params();
@@ -104,4 +132,31 @@ fn ball_budget_and_parameters_are_checked() {
     let mut p = params();
     p.levels = 99;
     assert_eq!(grow(&p).unwrap_err().field(), "levels");
+}
+
+proptest::proptest! {
+    #![proptest_config(proptest::prelude::ProptestConfig::with_cases(12))]
+
+    /// For any seed and growth settings, no new ball reaches below the base plane and every
+    /// new ball is smaller than the level's largest allowed radius.
+    #[test]
+    fn flat_base_holds_for_any_seed(
+        seed in proptest::prelude::any::<u64>(),
+        ratio in 0.3f64..0.6,
+        coverage in 0.5f64..3.0,
+        min_normal_z in -0.6f64..0.0,
+    ) {
+        let mut p = params();
+        p.seed = seed;
+        p.radius_ratio = ratio;
+        p.coverage = coverage;
+        p.min_normal_z = min_normal_z;
+        let cloud = grow(&p).unwrap();
+        let base_z = cloud.base_z_m.unwrap();
+        let mean_base_r = p.balls.iter().map(|b| b.radius_m).sum::<f64>() / p.balls.len() as f64;
+        for b in &cloud.balls[p.balls.len()..] {
+            proptest::prop_assert!(b.centre_m.z - b.radius_m >= base_z - 1e-9);
+            proptest::prop_assert!(b.radius_m <= mean_base_r * ratio * (1.0 + p.radius_jitter) + 1e-9);
+        }
+    }
 }
