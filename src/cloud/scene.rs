@@ -1,0 +1,260 @@
+//! The cloud part of the scene JSON: which density source to build and at what voxel size.
+//!
+//! ```json
+//! {"voxel_size_m": 25.0,
+//!  "source": {"type": "metaballs",
+//!             "balls": [{"centre_m": [0, 0, 1500], "radius_m": 400, "density": 1.0}]}}
+//! ```
+//!
+//! `source.type` is one of `"metaballs"`, `"fractal"`, `"satellite"` and `"grid"`; each variant's
+//! fields, units, ranges and defaults are documented on its parameter struct. File paths inside a
+//! source (`image`, `path`, `header`) are passed verbatim to the caller's loader, which resolves
+//! them (normally relative to the scene file) and enforces its own size limit, so this module
+//! does no I/O.
+
+use super::fractal::{self, FractalParams};
+use super::grid::{checked_voxel_count, MAX_VOXELS};
+use super::import;
+use super::metaballs::{box_dims, Metaball, MetaballField};
+use super::satellite::{self, SatelliteParams};
+use super::DensityGrid;
+use crate::{Error, Result};
+use glam::DVec3;
+use serde::{Deserialize, Serialize};
+
+/// Largest grid file a loader needs to accept: the largest grid in float64 plus a header.
+pub const MAX_GRID_FILE_BYTES: usize = MAX_VOXELS * 8 + import::MAX_HEADER_BYTES + 12;
+
+/// Smallest and largest accepted voxel edge, metres.
+pub const VOXEL_SIZE_RANGE_M: (f64, f64) = (0.01, 10_000.0);
+
+/// The cloud section of a scene. Defaults in brackets.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct CloudSection {
+    /// Edge of the voxels the renderer uses, metres, in [0.01, 10 000] [50].
+    #[serde(default = "default_voxel_size_m")]
+    pub voxel_size_m: f64,
+    /// Where the density comes from.
+    pub source: CloudSource,
+}
+
+fn default_voxel_size_m() -> f64 {
+    50.0
+}
+
+/// A cloud density source, tagged by `"type"`. Extend by adding a variant and its arm in
+/// [`voxelize`] (the cellular automaton and sphere hierarchy join as `Automaton(AutomatonParams)`
+/// and `Spheres(SpheresParams)`).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(tag = "type", rename_all = "snake_case")]
+#[non_exhaustive]
+pub enum CloudSource {
+    /// Explicit metaballs (seed 001 eq 3).
+    Metaballs(MetaballsParams),
+    /// Metaballs grown fractally on their isosurface (seed 000 §4).
+    Fractal(FractalParams),
+    /// Metaballs fitted to a satellite image (seed 001 §3.1).
+    Satellite(SatelliteParams),
+    /// A density grid from a `.npy` or raw f32 file.
+    Grid(GridParams),
+}
+
+/// Parameters of the `"metaballs"` source.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct MetaballsParams {
+    /// The balls: `centre_m` [x, y, z] in metres (z up), `radius_m` > 0, `density` at the
+    /// centre >= 0.
+    pub balls: Vec<Metaball>,
+}
+
+/// File format of a `"grid"` source.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum GridFormat {
+    /// NumPy `.npy`, float32 or float64, C order, shape (nz, ny, nx).
+    Npy,
+    /// Little-endian float32, x fastest, described by a JSON header
+    /// (`{"dims": [nx, ny, nz], "voxel_size_m": …, "origin_m": [x, y, z]}`).
+    RawF32,
+}
+
+/// Parameters of the `"grid"` source. Defaults in brackets.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct GridParams {
+    /// Path of the data file.
+    pub path: String,
+    /// Format [from the extension: `.npy` is `npy`, anything else `raw_f32`].
+    #[serde(default)]
+    pub format: Option<GridFormat>,
+    /// Raw only: path of the JSON header [`path` with its extension replaced by `.json`].
+    #[serde(default)]
+    pub header: Option<String>,
+    /// `.npy` only (the file has no geometry): voxel edge of the file, metres [the section's
+    /// `voxel_size_m`].
+    #[serde(default)]
+    pub file_voxel_size_m: Option<f64>,
+    /// `.npy` only: minimum corner of the box, metres [[0, 0, 0]].
+    #[serde(default)]
+    pub origin_m: Option<[f64; 3]>,
+    /// Multiplies every density, in [0, 1e6] [1].
+    #[serde(default = "default_scale")]
+    pub density_scale: f64,
+}
+
+fn default_scale() -> f64 {
+    1.0
+}
+
+impl GridParams {
+    fn format(&self) -> GridFormat {
+        self.format.unwrap_or_else(|| {
+            if self.path.to_ascii_lowercase().ends_with(".npy") {
+                GridFormat::Npy
+            } else {
+                GridFormat::RawF32
+            }
+        })
+    }
+
+    fn header_path(&self) -> String {
+        self.header.clone().unwrap_or_else(|| {
+            let stem = match self.path.rfind('.') {
+                Some(dot) if !self.path[dot..].contains('/') => &self.path[..dot],
+                _ => self.path.as_str(),
+            };
+            format!("{stem}.json")
+        })
+    }
+}
+
+/// Parses the cloud section of a scene, mapping JSON errors to [`Error::Invalid`] on `cloud`,
+/// and validates every parameter.
+pub fn parse_cloud_section(json: &[u8]) -> Result<CloudSection> {
+    let section: CloudSection = serde_json::from_slice(json)
+        .map_err(|e| Error::invalid("cloud", format!("invalid cloud section: {e}")))?;
+    section.validate()?;
+    Ok(section)
+}
+
+impl CloudSection {
+    /// Checks the voxel size and the source's parameters.
+    pub fn validate(&self) -> Result<()> {
+        check_voxel_size(self.voxel_size_m)?;
+        validate_source(&self.source)
+    }
+
+    /// Builds the density grid (see [`voxelize`]).
+    pub fn voxelize(&self, loader: &dyn Fn(&str) -> Result<Vec<u8>>) -> Result<DensityGrid> {
+        voxelize(&self.source, self.voxel_size_m, loader)
+    }
+}
+
+fn check_voxel_size(v: f64) -> Result<()> {
+    let (lo, hi) = VOXEL_SIZE_RANGE_M;
+    if !(v.is_finite() && (lo..=hi).contains(&v)) {
+        return Err(Error::out_of_range(
+            "voxel_size_m",
+            v,
+            format!("[{lo}, {hi}] m"),
+        ));
+    }
+    Ok(())
+}
+
+/// Validates a source's parameters without loading any file.
+pub fn validate_source(source: &CloudSource) -> Result<()> {
+    match source {
+        CloudSource::Metaballs(p) => super::metaballs::validate_balls(&p.balls),
+        CloudSource::Fractal(p) => p.validate(),
+        CloudSource::Satellite(p) => p.validate(),
+        CloudSource::Grid(p) => {
+            if let Some(v) = p.file_voxel_size_m {
+                check_voxel_size(v).map_err(|_| {
+                    Error::out_of_range(
+                        "file_voxel_size_m",
+                        v,
+                        format!("[{}, {}] m", VOXEL_SIZE_RANGE_M.0, VOXEL_SIZE_RANGE_M.1),
+                    )
+                })?;
+            }
+            if let Some(o) = p.origin_m {
+                if !o.iter().all(|c| c.is_finite()) {
+                    return Err(Error::invalid("origin_m", "must be finite"));
+                }
+            }
+            let s = p.density_scale;
+            if !(s.is_finite() && (0.0..=1e6).contains(&s)) {
+                return Err(Error::out_of_range("density_scale", s, "[0, 1e6]"));
+            }
+            Ok(())
+        }
+    }
+}
+
+/// Builds the density grid of `source` at `voxel_size_m`, reading files through `loader`
+/// (given a path from the scene, it returns the file's bytes). Imported grids at another voxel
+/// size are resampled trilinearly over the same box.
+pub fn voxelize(
+    source: &CloudSource,
+    voxel_size_m: f64,
+    loader: &dyn Fn(&str) -> Result<Vec<u8>>,
+) -> Result<DensityGrid> {
+    check_voxel_size(voxel_size_m)?;
+    validate_source(source)?;
+    match source {
+        CloudSource::Metaballs(p) => {
+            MetaballField::new(p.balls.clone())?.voxelize(voxel_size_m, voxel_size_m)
+        }
+        CloudSource::Fractal(p) => fractal::voxelize(p, voxel_size_m),
+        CloudSource::Satellite(p) => {
+            let png = loader(&p.image)?;
+            satellite::voxelize(&png, p, voxel_size_m)
+        }
+        CloudSource::Grid(p) => {
+            let bytes = loader(&p.path)?;
+            let mut grid = match p.format() {
+                GridFormat::Npy => import::from_npy_bytes(
+                    &bytes,
+                    p.file_voxel_size_m.unwrap_or(voxel_size_m),
+                    DVec3::from_array(p.origin_m.unwrap_or([0.0; 3])),
+                )?,
+                GridFormat::RawF32 => {
+                    let header = import::parse_raw_header(&loader(&p.header_path())?)?;
+                    import::from_raw_f32(&header, &bytes)?
+                }
+            };
+            if p.density_scale != 1.0 {
+                let s = p.density_scale as f32;
+                grid.data.iter_mut().for_each(|v| *v *= s);
+            }
+            resample(&grid, voxel_size_m)
+        }
+    }
+}
+
+/// The grid resampled (trilinear, cell-centred) at `voxel_size_m` over the same box; the grid
+/// itself when the size already matches.
+pub fn resample(grid: &DensityGrid, voxel_size_m: f64) -> Result<DensityGrid> {
+    if (grid.voxel_size_m - voxel_size_m).abs() <= 1e-9 * voxel_size_m {
+        return Ok(grid.clone());
+    }
+    let (dims, origin_m) = box_dims(grid.origin_m, grid.max_corner_m(), voxel_size_m)?;
+    checked_voxel_count(dims)?;
+    let mut out = DensityGrid::zeros(dims, voxel_size_m, origin_m)?;
+    use rayon::prelude::*;
+    let [nx, ny, _] = dims;
+    out.data
+        .par_chunks_mut(nx * ny)
+        .enumerate()
+        .for_each(|(z, slice)| {
+            for (i, v) in slice.iter_mut().enumerate() {
+                let (x, y) = (i % nx, i / nx);
+                let p = origin_m + (DVec3::new(x as f64, y as f64, z as f64) + 0.5) * voxel_size_m;
+                *v = grid.sample(p);
+            }
+        });
+    Ok(out)
+}
