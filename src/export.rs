@@ -1,13 +1,95 @@
-//! Products → spectral OpenEXR bytes (layout of DESIGN.md "Storage"), via `store::exr`.
+//! Products → spectral images (DESIGN.md "Storage"): one emissive channel per wavelength
+//! (`S0.<λ>nm`), linear sRGB for viewers, and the canonical spec, engine version, error
+//! estimate, timing and table axes as header attributes. Encoding only; `store` writes.
 
-use crate::engine::DomeProduct;
+use crate::engine::{AerialProduct, DomeProduct, ProductMeta};
+use crate::output::rgb_planes;
 use crate::spec::CommonSpec;
+use crate::store::{layout, SpectralImage, StoreError};
 use crate::{Error, Result};
 
+fn store_err(e: StoreError) -> Error {
+    match e {
+        StoreError::Invalid(e) => e,
+        other => Error::invalid("output", other.to_string()),
+    }
+}
+
+fn set_meta(
+    img: &mut SpectralImage,
+    spec: &CommonSpec,
+    meta: &ProductMeta,
+    product: &str,
+) -> Result<()> {
+    let spec_json = serde_json::json!({ "product": product, "spec": spec }).to_string();
+    let error_json = serde_json::to_string(&meta.error_estimate).unwrap_or_default();
+    img.set_product_metadata(&spec_json, meta.engine_version, &error_json, meta.timing_ms)?;
+    let plan_json = serde_json::to_string(&meta.stages).unwrap_or_default();
+    img.set_attribute(layout::ATTR_PLAN_JSON, plan_json)
+}
+
+/// A sky or ground table as a spectral image: rows are view elevations from the highest (top
+/// row) down, columns azimuths 0…180° from the sun; attribute `skybakeAxes` lists both.
+pub fn dome_image(p: &DomeProduct, spec: &CommonSpec, product: &str) -> Result<SpectralImage> {
+    let t = &p.table;
+    let (w, h, n_l) = (
+        t.azimuth_deg.len(),
+        t.elevation_deg.len(),
+        t.wavelengths_nm.len(),
+    );
+    let mut planes = vec![vec![0f32; w * h]; n_l];
+    let mut flipped = vec![0f32; w * h * n_l];
+    for row in 0..h {
+        let src_row = h - 1 - row;
+        for col in 0..w {
+            for (i, plane) in planes.iter_mut().enumerate() {
+                let v = t.radiance[(src_row * w + col) * n_l + i];
+                plane[row * w + col] = v;
+                flipped[(row * w + col) * n_l + i] = v;
+            }
+        }
+    }
+    let mut img = SpectralImage::emissive(w, h, &t.wavelengths_nm, planes)?;
+    img.set_rgb(rgb_planes(&t.wavelengths_nm, &flipped))?;
+    set_meta(&mut img, spec, &p.meta, product)?;
+    let mut rows = t.elevation_deg.clone();
+    rows.reverse();
+    let axes = serde_json::json!({ "rows_view_elevation_deg": rows, "columns_view_azimuth_deg": t.azimuth_deg });
+    img.set_attribute("skybakeAxes", axes.to_string())?;
+    Ok(img)
+}
+
 /// Encodes a sky or ground table as a tiled spectral EXR.
-pub fn dome_exr(_p: &DomeProduct, _spec: &CommonSpec, product: &str) -> Result<Vec<u8>> {
-    Err(Error::invalid(
-        "output",
-        format!("{product}: EXR output arrives with the store module"),
-    ))
+pub fn dome_exr(p: &DomeProduct, spec: &CommonSpec, product: &str) -> Result<Vec<u8>> {
+    crate::store::encode_exr(&dome_image(p, spec, product)?).map_err(store_err)
+}
+
+/// An aerial-perspective table as a spectral image: one row per direction (elevation-major,
+/// then azimuth), one column per distance; layer `S0` holds in-scattered radiance and layer
+/// `T` transmittance.
+pub fn aerial_image(p: &AerialProduct, spec: &CommonSpec) -> Result<SpectralImage> {
+    let (n_d, n_l) = (p.distance_m.len(), p.wavelengths_nm.len());
+    let h = p.elevation_deg.len() * p.azimuth_deg.len();
+    let to_planes = |v: &[f32]| -> Vec<Vec<f32>> {
+        (0..n_l)
+            .map(|i| (0..h * n_d).map(|px| v[px * n_l + i]).collect())
+            .collect()
+    };
+    let mut img = SpectralImage::emissive(n_d, h, &p.wavelengths_nm, to_planes(&p.inscatter))?;
+    img.add_layer(layout::TRANSMITTANCE_LAYER, to_planes(&p.transmittance))?;
+    img.set_rgb(rgb_planes(&p.wavelengths_nm, &p.inscatter))?;
+    set_meta(&mut img, spec, &p.meta, "aerial")?;
+    let axes = serde_json::json!({
+        "rows": "elevation-major, then azimuth",
+        "view_elevation_deg": p.elevation_deg,
+        "view_azimuth_deg": p.azimuth_deg,
+        "columns_distance_m": p.distance_m,
+    });
+    img.set_attribute("skybakeAxes", axes.to_string())?;
+    Ok(img)
+}
+
+/// Encodes an aerial-perspective table as a tiled spectral EXR.
+pub fn aerial_exr(p: &AerialProduct, spec: &CommonSpec) -> Result<Vec<u8>> {
+    crate::store::encode_exr(&aerial_image(p, spec)?).map_err(store_err)
 }

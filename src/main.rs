@@ -142,6 +142,9 @@ struct AerialArgs {
     /// Largest distance, m [default: 100000].
     #[arg(long)]
     max_distance_m: Option<String>,
+    /// Write the table as a spectral EXR (layers S0 = in-scattered radiance, T = transmittance).
+    #[arg(short = 'o', long = "output")]
+    output: Option<PathBuf>,
 }
 
 #[derive(Clone, Copy, PartialEq, Eq, ValueEnum)]
@@ -285,7 +288,25 @@ fn run(cli: Cli) -> Result<()> {
                 .transpose()?
                 .unwrap_or(100_000.0);
             let product = Engine::new().aerial(&spec, shape, n_d, max_d)?;
-            print_json(&AerialJson::new(&product, &spec))
+            if let Some(path) = &a.output {
+                if path
+                    .extension()
+                    .and_then(|e| e.to_str())
+                    .map(str::to_ascii_lowercase)
+                    .as_deref()
+                    != Some("exr")
+                {
+                    return Err(Error::invalid(
+                        "output",
+                        format!("'{}': aerial tables are written as .exr", path.display()),
+                    ));
+                }
+                write_file(path, &skybake::export::aerial_exr(&product, &spec)?)?;
+            }
+            if a.output.is_none() || a.common.format == Some(Format::Json) {
+                print_json(&AerialJson::new(&product, &spec))?;
+            }
+            Ok(())
         }
         Command::Atmosphere { print, list } => {
             if let Some(name) = print {

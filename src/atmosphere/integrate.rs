@@ -157,36 +157,59 @@ pub fn integrate_ray(
     transmittance.fill(1.0);
     let (seg, samples) = ray_samples(medium, r, mu, mu_s, nu, steps);
     let mut next_record = 0usize;
-    let mut record_until = |t_limit: f64,
-                            d_view: &[f64; CONSTITUENTS],
-                            radiance: &[f64],
-                            rec: &mut Option<&mut Recorder>| {
-        if let Some(rec) = rec.as_deref_mut() {
-            while next_record < rec.distances_m.len() && rec.distances_m[next_record] <= t_limit {
-                for i in 0..n {
-                    rec.transmittance[next_record * n + i] =
-                        (-medium.optical_depth(i, d_view)).exp() as f32;
-                    rec.inscatter[next_record * n + i] = radiance[i] as f32;
-                }
-                next_record += 1;
+    // Records the partial transmittance and radiance at every recorder distance below `t_limit`:
+    // inside a sample's cell [cell_start, cell_start + w) the density integral grows linearly
+    // and the radiance by the same fraction of the cell's contribution `delta`.
+    let mut record = |t_limit: f64,
+                      cell_start: f64,
+                      w: f64,
+                      d_view: &[f64; CONSTITUENTS],
+                      rho: &[f64; CONSTITUENTS],
+                      radiance: &[f64],
+                      delta: &[f64],
+                      rec: &mut Option<&mut Recorder>| {
+        let Some(rec) = rec.as_deref_mut() else {
+            return;
+        };
+        while next_record < rec.distances_m.len() && rec.distances_m[next_record] < t_limit {
+            let x = (rec.distances_m[next_record] - cell_start).clamp(0.0, w);
+            let frac = if w > 0.0 { x / w } else { 0.0 };
+            let d = [0, 1, 2].map(|k| d_view[k] + rho[k] * x);
+            for i in 0..n {
+                rec.transmittance[next_record * n + i] =
+                    (-medium.optical_depth(i, &d)).exp() as f32;
+                rec.inscatter[next_record * n + i] = (radiance[i] + frac * delta[i]) as f32;
             }
+            next_record += 1;
         }
     };
+    let zeros = [0.0; CONSTITUENTS];
     let Some(seg) = seg else {
-        record_until(f64::INFINITY, &[0.0; CONSTITUENTS], radiance, &mut recorder);
+        let none = vec![0.0; n];
+        record(
+            f64::INFINITY,
+            0.0,
+            0.0,
+            &zeros,
+            &zeros,
+            radiance,
+            &none,
+            &mut recorder,
+        );
         return;
     };
     let phase_r = Phase::Rayleigh.eval(nu);
     let phase_m = medium.mie_phase.eval(nu);
     let mut d_view = [0.0f64; CONSTITUENTS];
+    // The sample weights tile the segment exactly (cell lengths of the u² map), so their
+    // running sum is the start of each sample's cell.
+    let mut cell_start = seg.t_start;
     for s in &samples {
-        record_until(s.t - 0.5 * s.weight, &d_view, radiance, &mut recorder);
         let rho = medium.densities(s.r);
         // Density integral from the viewer to the sample's midpoint.
         let mut d_mid = d_view;
         for k in 0..CONSTITUENTS {
             d_mid[k] += 0.5 * rho[k] * s.weight;
-            d_view[k] += rho[k] * s.weight;
         }
         scratch.j.fill(0.0);
         source.add_scattering(s, &mut scratch.j);
@@ -196,6 +219,7 @@ pub fn integrate_ray(
         } else {
             ([0.0; CONSTITUENTS], 0.0)
         };
+        // Turn the source into this cell's radiance contribution, in place.
         for i in 0..n {
             let tau_view = medium.optical_depth(i, &d_mid);
             let mut j = scratch.j[i];
@@ -204,10 +228,37 @@ pub fn integrate_ray(
                     + medium.mie_scattering_per_m[i] * rho[MIE] * phase_m;
                 j += single * (-medium.optical_depth(i, &d_sun)).exp() * vis;
             }
-            radiance[i] += (-tau_view).exp() * j * s.weight;
+            scratch.j[i] = (-tau_view).exp() * j * s.weight;
         }
+        record(
+            cell_start + s.weight,
+            cell_start,
+            s.weight,
+            &d_view,
+            &rho,
+            radiance,
+            &scratch.j,
+            &mut recorder,
+        );
+        for i in 0..n {
+            radiance[i] += scratch.j[i];
+        }
+        for k in 0..CONSTITUENTS {
+            d_view[k] += rho[k] * s.weight;
+        }
+        cell_start += s.weight;
     }
-    record_until(seg.t_end, &d_view, radiance, &mut recorder);
+    scratch.e.fill(0.0);
+    record(
+        f64::INFINITY,
+        cell_start,
+        0.0,
+        &d_view,
+        &zeros,
+        radiance,
+        &scratch.e,
+        &mut recorder,
+    );
     for (i, t) in transmittance.iter_mut().enumerate() {
         *t = (-medium.optical_depth(i, &d_view)).exp();
     }

@@ -1,0 +1,169 @@
+//! The products' contracts: field names, consistency between products, aerial perspective
+//! against Beer-Lambert, and spectral EXR round trips.
+
+use skybake::engine::{DomeShape, Engine};
+use skybake::spec::{CommonSpec, RequestParams};
+
+fn spec(method: &str, wavelengths: &str, atmosphere: &str, sun: &str, alt: &str) -> CommonSpec {
+    let p = RequestParams {
+        method: Some(method.into()),
+        wavelengths: Some(wavelengths.into()),
+        atmosphere: Some(atmosphere.into()),
+        sun_elevation_deg: Some(sun.into()),
+        observer_altitude_m: Some(alt.into()),
+        ..Default::default()
+    };
+    CommonSpec::from_params(&p, -18.0).unwrap()
+}
+
+#[test]
+fn sun_json_has_the_contract_fields_and_consistent_irradiances() {
+    let engine = Engine::new();
+    let s = spec("fast", "440,550,680", "earth", "35", "0");
+    let sun = engine.sun(&s).unwrap();
+    let json = serde_json::to_value(&sun).unwrap();
+    for field in [
+        "wavelengths_nm",
+        "solar_irradiance_w_m2_nm",
+        "transmittance",
+        "direct_normal_irradiance_w_m2_nm",
+        "diffuse_horizontal_irradiance_w_m2_nm",
+        "global_horizontal_irradiance_w_m2_nm",
+        "error_estimate",
+        "timing_ms",
+    ] {
+        assert!(json.get(field).is_some(), "missing {field}");
+    }
+    let mu = 35f64.to_radians().sin();
+    for i in 0..3 {
+        let ghi = sun.direct_normal_irradiance_w_m2_nm[i] * mu
+            + sun.diffuse_horizontal_irradiance_w_m2_nm[i];
+        assert!((ghi - sun.global_horizontal_irradiance_w_m2_nm[i]).abs() < 1e-12);
+        assert!(
+            (sun.direct_normal_irradiance_w_m2_nm[i]
+                - sun.transmittance[i] * sun.solar_irradiance_w_m2_nm[i])
+                .abs()
+                < 1e-12
+        );
+    }
+    // Blue sky: more diffuse light at 440 nm than at 680 nm relative to the direct beam.
+    let ratio = |i: usize| {
+        sun.diffuse_horizontal_irradiance_w_m2_nm[i] / sun.direct_normal_irradiance_w_m2_nm[i]
+    };
+    assert!(ratio(0) > 2.0 * ratio(2));
+    // Above the atmosphere the sun is unattenuated and there is no diffuse light from above.
+    let space = engine
+        .sun(&spec("fast", "440,550,680", "earth", "35", "400000"))
+        .unwrap();
+    assert!(space.transmittance.iter().all(|&t| t == 1.0));
+    assert!(space
+        .diffuse_horizontal_irradiance_w_m2_nm
+        .iter()
+        .all(|&d| d < 1e-6));
+}
+
+#[test]
+fn aerial_perspective_follows_beer_lambert_and_ends_at_the_sky() {
+    let engine = Engine::new();
+    let s = spec("fast", "550", "rayleigh-only", "20", "0");
+    let shape = DomeShape {
+        elevation_count: 33,
+        azimuth_count: 3,
+    };
+    let a = engine.aerial(&s, shape, 16, 20_000.0).unwrap();
+    let row = a.elevation_deg.iter().position(|&e| e == 0.0).unwrap();
+    let beta = 1.3558e-5;
+    for (k, &d) in a.distance_m.iter().enumerate() {
+        let idx = ((row * 3) * a.distance_m.len() + k) * 1;
+        let t = a.transmittance[idx] as f64;
+        // Horizontal ray at the ground: the density is uniform to 0.1 % over 20 km.
+        assert!((t - (-beta * d).exp()).abs() < 2e-3, "d {d}: {t}");
+        if k > 0 {
+            assert!(a.transmittance[idx] <= a.transmittance[idx - 1]);
+            assert!(a.inscatter[idx] >= a.inscatter[idx - 1]);
+        }
+    }
+    // At a distance beyond the atmosphere, in-scattered radiance is the sky's radiance.
+    let far = engine
+        .aerial(
+            &s,
+            DomeShape {
+                elevation_count: 3,
+                azimuth_count: 1,
+            },
+            2,
+            5.0e6,
+        )
+        .unwrap();
+    let sky = engine
+        .sky(
+            &s,
+            DomeShape {
+                elevation_count: 3,
+                azimuth_count: 1,
+            },
+            &[(0.0, 0.0)],
+        )
+        .unwrap();
+    let zenith_far = far.inscatter[(2 * 1) * 2 + 1] as f64;
+    let zenith_sky = sky.probes[0].radiance_w_m2_sr_nm[0];
+    assert!(
+        (zenith_far / zenith_sky - 1.0).abs() < 1e-3,
+        "{zenith_far} vs {zenith_sky}"
+    );
+}
+
+#[test]
+fn ground_product_looks_down_and_joins_the_sky_table() {
+    let engine = Engine::new();
+    let s = spec("fast", "450,550,650", "earth", "30", "3000");
+    let shape = DomeShape {
+        elevation_count: 17,
+        azimuth_count: 5,
+    };
+    let g = engine
+        .ground(&s, shape, &[(180.0, 0.0), (120.0, 90.0)])
+        .unwrap();
+    assert!(g.table.elevation_deg.iter().all(|&e| e <= 0.0));
+    assert!(engine.ground(&s, shape, &[(45.0, 0.0)]).is_err());
+    let sky = engine
+        .sky(&s, shape, &[(180.0, 0.0), (120.0, 90.0)])
+        .unwrap();
+    assert_eq!(g.probes, sky.probes);
+    assert!(g.probes[0].radiance_w_m2_sr_nm.iter().all(|&v| v > 0.0));
+}
+
+#[test]
+fn sky_exr_round_trips_through_the_store() {
+    let engine = Engine::new();
+    let s = spec("fast", "400,500,600,700", "earth", "10", "0");
+    let p = engine
+        .sky(
+            &s,
+            DomeShape {
+                elevation_count: 9,
+                azimuth_count: 7,
+            },
+            &[],
+        )
+        .unwrap();
+    let bytes = skybake::export::dome_exr(&p, &s, "sky").unwrap();
+    let img = skybake::store::decode_exr(&bytes).unwrap();
+    assert_eq!((img.width(), img.height()), (7, 9));
+    assert_eq!(img.wavelengths_nm(), &[400.0, 500.0, 600.0, 700.0]);
+    let layer = img.layer("S0").unwrap();
+    // Top image row = highest elevation = last table row.
+    for col in 0..7 {
+        for i in 0..4 {
+            assert_eq!(
+                layer.plane(i).unwrap()[col],
+                p.table.radiance[(8 * 7 + col) * 4 + i]
+            );
+        }
+    }
+    assert!(img
+        .attribute("skybakeSpec")
+        .unwrap()
+        .contains("\"product\":\"sky\""));
+    assert!(img.rgb().is_some());
+}
