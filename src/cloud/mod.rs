@@ -4,3 +4,4 @@
 pub mod grid;
 
 pub use grid::DensityGrid;
+pub mod automaton;

@@ -1,0 +1,449 @@
+//! What the animator controls (seed 003 §4.3, §4.5, §6): the height-dependent wind, ellipsoids that
+//! set the vapour / activation / extinction probabilities, and obstacles (terrain) that cannot hold
+//! cloud.
+
+use super::random::quantise;
+use crate::{Error, Result};
+use serde::{Deserialize, Serialize};
+
+/// Largest accepted wind speed, cells per step.
+pub const MAX_WIND_CELLS_PER_STEP: f64 = 4096.0;
+/// Largest accepted number of ellipsoids.
+pub const MAX_ELLIPSOIDS: usize = 10_000;
+
+/// One knot of the piecewise-linear wind profile v(z) (seed 003 §4.3).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct WindKnot {
+    /// Height of the knot, in cells above the bottom of the simulation space.
+    pub height_cells: f64,
+    /// Wind speed along +x, cells per step (rounded to an integer per cell layer).
+    pub velocity_cells_per_step: f64,
+}
+
+/// Integer wind velocity per cell layer, from a piecewise-linear profile (seed 003 eqs 8–10).
+#[derive(Debug, Clone, PartialEq)]
+pub struct WindProfile {
+    velocity: Vec<i32>,
+}
+
+impl WindProfile {
+    /// Evaluates the profile at each layer's centre height `k + ½`, clamping beyond the end knots,
+    /// and rounds to the nearest integer. No knots means calm.
+    pub fn new(knots: &[WindKnot], nz: usize) -> Result<Self> {
+        for w in knots.windows(2) {
+            if !(w[1].height_cells > w[0].height_cells) {
+                return Err(Error::invalid(
+                    "wind",
+                    "knot heights must be strictly increasing",
+                ));
+            }
+        }
+        for k in knots {
+            if !k.height_cells.is_finite() {
+                return Err(Error::invalid("wind.height_cells", "must be finite"));
+            }
+            if !(k.velocity_cells_per_step.abs() <= MAX_WIND_CELLS_PER_STEP) {
+                return Err(Error::out_of_range(
+                    "wind.velocity_cells_per_step",
+                    k.velocity_cells_per_step,
+                    format!("-{MAX_WIND_CELLS_PER_STEP}..={MAX_WIND_CELLS_PER_STEP}"),
+                ));
+            }
+        }
+        let velocity = (0..nz)
+            .map(|k| piecewise_linear(knots, k as f64 + 0.5).round() as i32)
+            .collect();
+        Ok(Self { velocity })
+    }
+
+    /// Integer velocity v(z_k) of layer `k`, cells per step along +x.
+    #[inline]
+    pub fn velocity_cells(&self, k: usize) -> i32 {
+        self.velocity[k]
+    }
+}
+
+fn piecewise_linear(knots: &[WindKnot], z: f64) -> f64 {
+    match knots {
+        [] => 0.0,
+        [only] => only.velocity_cells_per_step,
+        _ => {
+            let first = knots[0];
+            let last = knots[knots.len() - 1];
+            if z <= first.height_cells {
+                return first.velocity_cells_per_step;
+            }
+            if z >= last.height_cells {
+                return last.velocity_cells_per_step;
+            }
+            let i = knots.partition_point(|k| k.height_cells <= z);
+            let (a, b) = (knots[i - 1], knots[i]);
+            let t = (z - a.height_cells) / (b.height_cells - a.height_cells);
+            a.velocity_cells_per_step + t * (b.velocity_cells_per_step - a.velocity_cells_per_step)
+        }
+    }
+}
+
+/// Probabilities of the three stochastic rules (seed 003 eqs 5–7), each in [0, 1].
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct RuleProbabilities {
+    /// Vapour supply probability p_hum (eq 6).
+    pub hum: f64,
+    /// Activation supply probability p_act (eq 7).
+    pub act: f64,
+    /// Cloud extinction probability p_ext (eq 5).
+    pub ext: f64,
+}
+
+impl RuleProbabilities {
+    fn validate(&self, field: &str) -> Result<()> {
+        for (name, p) in [("hum", self.hum), ("act", self.act), ("ext", self.ext)] {
+            if !(0.0..=1.0).contains(&p) {
+                return Err(Error::out_of_range(&format!("{field}.{name}"), p, "0..=1"));
+            }
+        }
+        Ok(())
+    }
+}
+
+/// An air parcel controlling the probabilities (seed 003 §4.5). Inside it, with ρ the normalised
+/// ellipsoidal radius, p_hum = hum·(1−ρ²), p_act = act·(1−ρ²) and
+/// p_ext = ext_centre + (ext_edge − ext_centre)·ρ²: vapour and activation highest at the centre,
+/// extinction lowest there (the paper gives no profile; 1−ρ² is the simplest smooth one).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Ellipsoid {
+    /// Centre, in cells (cell (i, j, k) is centred at (i+½, j+½, k+½)).
+    pub centre_cells: [f64; 3],
+    /// Semi-axes along x, y, z, in cells (each > 0).
+    pub semi_axes_cells: [f64; 3],
+    /// Probabilities at the centre.
+    pub centre: RuleProbabilities,
+    /// Extinction probability at the edge.
+    pub ext_edge: f64,
+}
+
+impl Ellipsoid {
+    fn validate(&self, field: &str) -> Result<()> {
+        if !self.centre_cells.iter().all(|c| c.is_finite()) {
+            return Err(Error::invalid(
+                &format!("{field}.centre_cells"),
+                "must be finite",
+            ));
+        }
+        if !self
+            .semi_axes_cells
+            .iter()
+            .all(|a| a.is_finite() && *a > 0.0 && *a <= 1e6)
+        {
+            return Err(Error::out_of_range(
+                &format!("{field}.semi_axes_cells"),
+                format!("{:?}", self.semi_axes_cells),
+                "each finite, > 0 and <= 1e6",
+            ));
+        }
+        self.centre.validate(&format!("{field}.centre"))?;
+        if !(0.0..=1.0).contains(&self.ext_edge) {
+            return Err(Error::out_of_range(
+                &format!("{field}.ext_edge"),
+                self.ext_edge,
+                "0..=1",
+            ));
+        }
+        Ok(())
+    }
+}
+
+/// Ellipsoids placed with uniform random numbers (seed 003 §6, Fig. 8).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct RandomEllipsoids {
+    /// How many.
+    pub count: usize,
+    /// Smallest semi-axes, cells.
+    pub semi_axes_min_cells: [f64; 3],
+    /// Largest semi-axes, cells.
+    pub semi_axes_max_cells: [f64; 3],
+    /// Range of centre heights, cells (x and y are uniform over the whole space).
+    pub centre_height_range_cells: [f64; 2],
+    /// Probabilities at each centre.
+    pub centre: RuleProbabilities,
+    /// Extinction probability at the edges.
+    pub ext_edge: f64,
+}
+
+/// Terrain that cannot hold cloud: cell (i, j, k) is solid when its centre height k+½ lies below the
+/// terrain height at the column centre (seed 003 §6, Fig. 9).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(tag = "kind", rename_all = "snake_case", deny_unknown_fields)]
+pub enum Obstacle {
+    /// Heights in cells for every column, row-major `[y][x]` (`nx · ny` values).
+    Heightmap { heights_cells: Vec<f64> },
+    /// Gaussian hills: height(x, y) = max over hills of h·exp(−d²/(2σ²)).
+    Hills { hills: Vec<Hill> },
+}
+
+/// One Gaussian hill of an [`Obstacle::Hills`] terrain.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Hill {
+    /// Summit position (x, y), cells.
+    pub centre_cells: [f64; 2],
+    /// Summit height, cells.
+    pub height_cells: f64,
+    /// Gaussian width σ, cells (> 0).
+    pub sigma_cells: f64,
+}
+
+impl Obstacle {
+    /// Terrain height (cells) of every column, row-major `[y][x]`.
+    pub fn column_heights(&self, nx: usize, ny: usize) -> Result<Vec<f64>> {
+        match self {
+            Obstacle::Heightmap { heights_cells } => {
+                if heights_cells.len() != nx * ny {
+                    return Err(Error::invalid(
+                        "obstacle.heights_cells",
+                        format!("has {} values, nx·ny = {}", heights_cells.len(), nx * ny),
+                    ));
+                }
+                if heights_cells.iter().any(|h| !h.is_finite()) {
+                    return Err(Error::invalid("obstacle.heights_cells", "must be finite"));
+                }
+                Ok(heights_cells.clone())
+            }
+            Obstacle::Hills { hills } => {
+                if hills.len() > MAX_ELLIPSOIDS {
+                    return Err(Error::too_large(
+                        "obstacle.hills",
+                        format!("{} hills", hills.len()),
+                        MAX_ELLIPSOIDS,
+                    ));
+                }
+                for h in hills {
+                    let ok = h.centre_cells.iter().all(|c| c.is_finite())
+                        && h.height_cells.is_finite()
+                        && h.sigma_cells.is_finite()
+                        && h.sigma_cells > 0.0;
+                    if !ok {
+                        return Err(Error::invalid(
+                            "obstacle.hills",
+                            "centre and height must be finite and sigma_cells > 0",
+                        ));
+                    }
+                }
+                let mut out = vec![0.0; nx * ny];
+                for y in 0..ny {
+                    for x in 0..nx {
+                        let (px, py) = (x as f64 + 0.5, y as f64 + 0.5);
+                        out[y * nx + x] = hills
+                            .iter()
+                            .map(|h| {
+                                let d2 = (px - h.centre_cells[0]).powi(2)
+                                    + (py - h.centre_cells[1]).powi(2);
+                                h.height_cells * (-d2 / (2.0 * h.sigma_cells.powi(2))).exp()
+                            })
+                            .fold(0.0, f64::max);
+                    }
+                }
+                Ok(out)
+            }
+        }
+    }
+}
+
+/// The probability fields: per cell, the quantised levels `int(p·n_p)` of p_hum, p_act and p_ext
+/// (seed 003 eqs A.4–A.6), from the background and the ellipsoids, which drift with the wind.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ProbabilityControl {
+    dims: [usize; 3],
+    levels: usize,
+    background: RuleProbabilities,
+    ellipsoids: Vec<Ellipsoid>,
+}
+
+/// Index of the three rules in level triples: `[HUM, ACT, EXT]`.
+pub const HUM: usize = 0;
+/// Activation rule index in level triples.
+pub const ACT: usize = 1;
+/// Extinction rule index in level triples.
+pub const EXT: usize = 2;
+
+impl ProbabilityControl {
+    /// Validates and stores the background probabilities (outside every ellipsoid) and ellipsoids.
+    pub fn new(
+        dims: [usize; 3],
+        levels: usize,
+        background: RuleProbabilities,
+        ellipsoids: Vec<Ellipsoid>,
+    ) -> Result<Self> {
+        background.validate("background")?;
+        if ellipsoids.len() > MAX_ELLIPSOIDS {
+            return Err(Error::too_large(
+                "ellipsoids",
+                format!("{} ellipsoids", ellipsoids.len()),
+                MAX_ELLIPSOIDS,
+            ));
+        }
+        for (i, e) in ellipsoids.iter().enumerate() {
+            e.validate(&format!("ellipsoids[{i}]"))?;
+        }
+        Ok(Self {
+            dims,
+            levels,
+            background,
+            ellipsoids,
+        })
+    }
+
+    /// The ellipsoids at their current positions.
+    pub fn ellipsoids(&self) -> &[Ellipsoid] {
+        &self.ellipsoids
+    }
+
+    /// Moves each ellipsoid by the integer wind velocity at its centre layer (§4.5: "ellipsoids
+    /// also move in the direction of the wind"). One that has left the space downwind re-enters
+    /// upwind, so a long animation keeps its parcels.
+    pub fn advect(&mut self, wind: &WindProfile) {
+        let nx = self.dims[0] as f64;
+        let nz = self.dims[2];
+        for e in &mut self.ellipsoids {
+            let k = (e.centre_cells[2].floor().max(0.0) as usize).min(nz - 1);
+            let v = wind.velocity_cells(k) as f64;
+            let a = e.semi_axes_cells[0];
+            e.centre_cells[0] += v;
+            if v > 0.0 && e.centre_cells[0] - a >= nx {
+                e.centre_cells[0] -= nx + 2.0 * a;
+            } else if v < 0.0 && e.centre_cells[0] + a <= 0.0 {
+                e.centre_cells[0] += nx + 2.0 * a;
+            }
+        }
+    }
+
+    /// Levels `[hum, act, ext]` of every cell in row (j, k), written to `out[x]` (`nx` entries).
+    pub fn fill_row(&self, j: usize, k: usize, out: &mut [[u16; 3]]) {
+        let nx = self.dims[0];
+        let (py, pz) = (j as f64 + 0.5, k as f64 + 0.5);
+        let bg = self.background;
+        // Inside at least one ellipsoid: max of hum/act, min of ext over the containing ones.
+        let mut hum = vec![bg.hum; 0];
+        let mut act = vec![bg.act; 0];
+        let mut ext: Vec<f64> = Vec::new();
+        let mut touched = false;
+        for e in &self.ellipsoids {
+            let dy = (py - e.centre_cells[1]) / e.semi_axes_cells[1];
+            let dz = (pz - e.centre_cells[2]) / e.semi_axes_cells[2];
+            let q = dy * dy + dz * dz;
+            if q >= 1.0 {
+                continue;
+            }
+            if !touched {
+                hum = vec![bg.hum; nx];
+                act = vec![bg.act; nx];
+                ext = vec![f64::NAN; nx];
+                touched = true;
+            }
+            let half = ((1.0 - q).sqrt() * e.semi_axes_cells[0]).ceil() + 1.0;
+            let lo = (e.centre_cells[0] - half).floor().max(0.0) as usize;
+            let hi = ((e.centre_cells[0] + half).ceil().max(0.0) as usize).min(nx);
+            for x in lo..hi {
+                let dx = (x as f64 + 0.5 - e.centre_cells[0]) / e.semi_axes_cells[0];
+                let rho2 = q + dx * dx;
+                if rho2 >= 1.0 {
+                    continue;
+                }
+                let w = 1.0 - rho2;
+                hum[x] = hum[x].max(e.centre.hum * w);
+                act[x] = act[x].max(e.centre.act * w);
+                let pe = e.centre.ext + (e.ext_edge - e.centre.ext) * rho2;
+                ext[x] = if ext[x].is_nan() { pe } else { ext[x].min(pe) };
+            }
+        }
+        let n = self.levels;
+        if !touched {
+            out[..nx].fill([quantise(bg.hum, n), quantise(bg.act, n), quantise(bg.ext, n)]);
+            return;
+        }
+        for x in 0..nx {
+            let e = if ext[x].is_nan() { bg.ext } else { ext[x] };
+            out[x] = [quantise(hum[x], n), quantise(act[x], n), quantise(e, n)];
+        }
+    }
+
+    /// Levels `[hum, act, ext]` of cell (x, y, z) (the same values [`Self::fill_row`] writes).
+    pub fn levels_at(&self, x: usize, y: usize, z: usize) -> [u16; 3] {
+        let mut row = vec![[0u16; 3]; self.dims[0]];
+        self.fill_row(y, z, &mut row);
+        row[x]
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn knot(h: f64, v: f64) -> WindKnot {
+        WindKnot {
+            height_cells: h,
+            velocity_cells_per_step: v,
+        }
+    }
+
+    #[test]
+    fn wind_is_piecewise_linear_and_rounded() {
+        let w = WindProfile::new(&[knot(0.0, 0.0), knot(10.0, 4.0)], 12).unwrap();
+        // Layer 4 centre z = 4.5 → 1.8 → 2; clamped above the last knot.
+        assert_eq!(w.velocity_cells(4), 2);
+        assert_eq!(w.velocity_cells(0), 0);
+        assert_eq!(w.velocity_cells(11), 4);
+        assert!(WindProfile::new(&[knot(1.0, 0.0), knot(1.0, 1.0)], 3).is_err());
+        let e = WindProfile::new(&[knot(0.0, 1e9)], 3).unwrap_err();
+        assert_eq!(e.field(), "wind.velocity_cells_per_step");
+    }
+
+    #[test]
+    fn ellipsoid_sets_centre_and_background_levels() {
+        let bg = RuleProbabilities {
+            hum: 0.0,
+            act: 0.0,
+            ext: 0.5,
+        };
+        let e = Ellipsoid {
+            centre_cells: [8.5, 8.5, 4.5],
+            semi_axes_cells: [4.0, 3.0, 2.0],
+            centre: RuleProbabilities {
+                hum: 0.1,
+                act: 0.001,
+                ext: 0.1,
+            },
+            ext_edge: 0.3,
+        };
+        let c = ProbabilityControl::new([20, 16, 8], 1000, bg, vec![e]).unwrap();
+        assert_eq!(c.levels_at(8, 8, 4), [100, 1, 100]);
+        assert_eq!(c.levels_at(0, 0, 0), [0, 0, 500]);
+        // Two cells from the centre along x: ρ² = 1/4 → hum 0.075, ext 0.15.
+        assert_eq!(c.levels_at(10, 8, 4), [75, 0, 150]);
+    }
+
+    #[test]
+    fn hills_mark_columns_below_their_height() {
+        let o = Obstacle::Hills {
+            hills: vec![Hill {
+                centre_cells: [2.5, 2.5],
+                height_cells: 3.0,
+                sigma_cells: 1.0,
+            }],
+        };
+        let h = o.column_heights(5, 5).unwrap();
+        assert_eq!(h[2 * 5 + 2], 3.0);
+        assert!(h[0] < 0.1);
+        let bad = Obstacle::Heightmap {
+            heights_cells: vec![0.0; 3],
+        };
+        assert_eq!(
+            bad.column_heights(2, 2).unwrap_err().field(),
+            "obstacle.heights_cells"
+        );
+    }
+}

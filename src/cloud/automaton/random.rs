@@ -1,0 +1,194 @@
+//! The random-bit look-up table of seed 003 appendix A (eqs A.4–A.6) and the per-slice random
+//! streams that index it.
+//!
+//! Row `(level, sequence)` of the table is a 64-bit word whose bits are set independently with
+//! probability `level / levels` (`p[i][j]` in the paper, `i = 0..=n_p`, `j = 1..=n_i`). A rule with
+//! probability `p` at a cell takes bit `x mod 64` of row `(int(p·n_p), int(rnd·n_i))`, where one
+//! `rnd` is drawn per 64-cell word and rule. This turns 64 Bernoulli draws into one table load.
+
+use crate::{Error, Result};
+use rand::{Rng, RngCore, SeedableRng};
+use rand_pcg::Pcg64Mcg;
+
+/// Largest accepted number of probability levels `n_p`.
+pub const MAX_PROBABILITY_LEVELS: usize = 65_534;
+/// Largest accepted table size, in 64-bit words (32 MiB).
+pub const MAX_TABLE_WORDS: usize = 1 << 22;
+
+/// Look-up table of random bit sequences, `p[level][sequence]` (seed 003 app. A).
+#[derive(Debug, Clone, PartialEq)]
+pub struct RandomBitTable {
+    levels: usize,
+    sequences: usize,
+    words: Vec<u64>,
+}
+
+impl RandomBitTable {
+    /// Builds the table for `levels` probability steps (`n_p`) and `sequences` rows per level
+    /// (`n_i`). Bit `b` of row `(i, j)` is 1 with probability exactly `i / levels` (an integer draw
+    /// below `i` out of `levels`), so level 0 rows are all zeros and level `levels` rows all ones.
+    pub fn new(levels: usize, sequences: usize, seed: u64) -> Result<Self> {
+        if !(1..=MAX_PROBABILITY_LEVELS).contains(&levels) {
+            return Err(Error::out_of_range(
+                "probability_levels",
+                levels,
+                format!("1..={MAX_PROBABILITY_LEVELS}"),
+            ));
+        }
+        if sequences == 0 {
+            return Err(Error::out_of_range("random_sequences", sequences, ">= 1"));
+        }
+        let count = (levels + 1)
+            .checked_mul(sequences)
+            .filter(|&c| c <= MAX_TABLE_WORDS)
+            .ok_or_else(|| {
+                Error::too_large(
+                    "random_sequences",
+                    format!("(probability_levels + 1) x random_sequences = {levels}+1 x {sequences} words"),
+                    format!("{MAX_TABLE_WORDS} words"),
+                )
+            })?;
+        let mut rng = Pcg64Mcg::seed_from_u64(mix(seed, TABLE_TAG, 0));
+        let mut words = Vec::with_capacity(count);
+        for level in 0..=levels {
+            for _ in 0..sequences {
+                let mut w = 0u64;
+                for b in 0..64 {
+                    if rng.random_range(0..levels) < level {
+                        w |= 1 << b;
+                    }
+                }
+                words.push(w);
+            }
+        }
+        Ok(Self {
+            levels,
+            sequences,
+            words,
+        })
+    }
+
+    /// Number of probability levels `n_p`.
+    pub fn levels(&self) -> usize {
+        self.levels
+    }
+
+    /// Number of sequences per level `n_i`.
+    pub fn sequences(&self) -> usize {
+        self.sequences
+    }
+
+    /// Quantised level of a probability: `int(p · n_p)` (eqs A.4–A.6), clamped to `0..=n_p`.
+    #[inline]
+    pub fn level_of(&self, probability: f64) -> u16 {
+        quantise(probability, self.levels)
+    }
+
+    /// The sequence row chosen by one uniform 32-bit draw: `int(rnd · n_i)` with `rnd = draw / 2³²`.
+    #[inline]
+    pub fn sequence_of(&self, draw: u32) -> usize {
+        ((draw as u64 * self.sequences as u64) >> 32) as usize
+    }
+
+    /// Row `(level, sequence)` of the table.
+    #[inline]
+    pub fn word(&self, level: u16, sequence: usize) -> u64 {
+        self.words[level as usize * self.sequences + sequence]
+    }
+
+    /// Bit `bit` (0..64) of row `(level, sequence)`.
+    #[inline]
+    pub fn bit(&self, level: u16, sequence: usize, bit: usize) -> bool {
+        (self.word(level, sequence) >> bit) & 1 == 1
+    }
+}
+
+/// `int(p · n_p)` clamped to `0..=n_p` (NaN maps to 0).
+#[inline]
+pub fn quantise(probability: f64, levels: usize) -> u16 {
+    let l = (probability * levels as f64).floor();
+    if l >= levels as f64 {
+        levels as u16
+    } else if l >= 0.0 {
+        l as u16
+    } else {
+        0
+    }
+}
+
+/// The random stream of slice `k` at step `step`: each step draws, for every row `j` (ascending)
+/// and every word along x (ascending), three `u32` values in the order extinction, vapour,
+/// activation (eqs 5, 6, 7). One stream per slice keeps the run independent of thread count.
+pub fn slice_rng(seed: u64, step: u64, k: usize) -> Pcg64Mcg {
+    Pcg64Mcg::seed_from_u64(mix(seed, step.wrapping_add(STEP_TAG), k as u64))
+}
+
+/// The stream used for the initial state and for randomly placed ellipsoids (`purpose` 0 and 1).
+pub fn setup_rng(seed: u64, purpose: u64) -> Pcg64Mcg {
+    Pcg64Mcg::seed_from_u64(mix(seed, INIT_TAG, purpose))
+}
+
+/// Draws the next `u32` (a thin wrapper so callers need not import `RngCore`).
+#[inline]
+pub fn draw(rng: &mut Pcg64Mcg) -> u32 {
+    rng.next_u32()
+}
+
+const TABLE_TAG: u64 = 0x7461_626c_6500_0001;
+const INIT_TAG: u64 = 0x696e_6974_0000_0002;
+const STEP_TAG: u64 = 0x7374_6570_0000_0003;
+
+/// SplitMix64-style mixing of three words into one seed.
+fn mix(a: u64, b: u64, c: u64) -> u64 {
+    let mut z = a ^ b.rotate_left(21) ^ c.rotate_left(42) ^ 0x9e37_79b9_7f4a_7c15;
+    for _ in 0..2 {
+        z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
+        z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
+        z ^= z >> 31;
+    }
+    z
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn extreme_levels_are_all_zero_and_all_one() {
+        let t = RandomBitTable::new(10, 4, 1).unwrap();
+        for j in 0..4 {
+            assert_eq!(t.word(0, j), 0);
+            assert_eq!(t.word(10, j), u64::MAX);
+        }
+    }
+
+    #[test]
+    fn bit_frequency_matches_level_probability() {
+        // 64 * 256 bits per level: the binomial standard deviation of the mean is < 0.4 %.
+        let t = RandomBitTable::new(8, 256, 7).unwrap();
+        for level in 1..8u16 {
+            let ones: u32 = (0..256).map(|j| t.word(level, j).count_ones()).sum();
+            let p = ones as f64 / (256.0 * 64.0);
+            assert!((p - level as f64 / 8.0).abs() < 0.02, "level {level}: {p}");
+        }
+    }
+
+    #[test]
+    fn quantise_follows_integer_part() {
+        assert_eq!(quantise(0.001, 1000), 1);
+        assert_eq!(quantise(0.0999, 10), 0);
+        assert_eq!(quantise(1.5, 10), 10);
+        assert_eq!(quantise(-0.2, 10), 0);
+        assert_eq!(quantise(f64::NAN, 10), 0);
+        let t = RandomBitTable::new(4, 8, 0).unwrap();
+        assert_eq!(t.sequence_of(0), 0);
+        assert_eq!(t.sequence_of(u32::MAX), 7);
+    }
+
+    #[test]
+    fn oversized_table_is_refused() {
+        let e = RandomBitTable::new(60_000, 1000, 0).unwrap_err();
+        assert_eq!(e.field(), "random_sequences");
+        assert_eq!(RandomBitTable::new(0, 4, 0).unwrap_err().field(), "probability_levels");
+    }
+}
