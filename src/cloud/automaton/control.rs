@@ -255,12 +255,24 @@ impl Obstacle {
 
 /// The probability fields: per cell, the quantised levels `int(p·n_p)` of p_hum, p_act and p_ext
 /// (seed 003 eqs A.4–A.6), from the background and the ellipsoids, which drift with the wind.
+///
+/// Ellipsoids move only along x and by whole cells, so each one's levels are computed once, as a
+/// stamp of row segments, and pasted at its current integer offset. Quantisation is monotone, so
+/// combining quantised stamps (max for hum and act, min for ext) equals quantising the combined
+/// probabilities.
 #[derive(Debug, Clone, PartialEq)]
 pub struct ProbabilityControl {
     dims: [usize; 3],
-    levels: usize,
-    background: RuleProbabilities,
+    background: [u16; 3],
     ellipsoids: Vec<Ellipsoid>,
+    /// Whole cells each ellipsoid has drifted since its stamp was made.
+    offsets: Vec<i64>,
+    /// floor(initial centre x) of each ellipsoid, the stamps' reference.
+    bases: Vec<i64>,
+    /// Stamp segments: (ellipsoid, first x relative to floor(initial centre x), levels).
+    segments: Vec<(usize, i64, Vec<[u16; 3]>)>,
+    /// Per row `k·ny + j`: indices into `segments`.
+    row_segments: Vec<Vec<usize>>,
 }
 
 /// Index of the three rules in level triples: `[HUM, ACT, EXT]`.
@@ -271,7 +283,8 @@ pub const ACT: usize = 1;
 pub const EXT: usize = 2;
 
 impl ProbabilityControl {
-    /// Validates and stores the background probabilities (outside every ellipsoid) and ellipsoids.
+    /// Validates and stores the background probabilities (outside every ellipsoid) and ellipsoids,
+    /// quantised to `levels` steps.
     pub fn new(
         dims: [usize; 3],
         levels: usize,
@@ -289,11 +302,64 @@ impl ProbabilityControl {
         for (i, e) in ellipsoids.iter().enumerate() {
             e.validate(&format!("ellipsoids[{i}]"))?;
         }
+        let [_, ny, nz] = dims;
+        let q = |p: f64| quantise(p, levels);
+        let mut segments = Vec::new();
+        let mut row_segments = vec![Vec::new(); ny * nz];
+        for (ei, e) in ellipsoids.iter().enumerate() {
+            let [cx, cy, cz] = e.centre_cells;
+            let [ax, ay, az] = e.semi_axes_cells;
+            let base = cx.floor();
+            let frac = cx - base;
+            let k_lo = (cz - az).floor().max(0.0) as usize;
+            let k_hi = ((cz + az).ceil().max(0.0) as usize).min(nz);
+            let j_lo = (cy - ay).floor().max(0.0) as usize;
+            let j_hi = ((cy + ay).ceil().max(0.0) as usize).min(ny);
+            // The stamp may cover at most the row width plus the ellipsoid on either side.
+            let half = ax.ceil() as i64 + 1;
+            let (rel_lo, rel_hi) = (-half, half);
+            for k in k_lo..k_hi {
+                for j in j_lo..j_hi {
+                    let dy = (j as f64 + 0.5 - cy) / ay;
+                    let dz = (k as f64 + 0.5 - cz) / az;
+                    let qyz = dy * dy + dz * dz;
+                    if qyz >= 1.0 {
+                        continue;
+                    }
+                    let mut first = None;
+                    let mut cells = Vec::new();
+                    for rel in rel_lo..=rel_hi {
+                        let dx = (rel as f64 + 0.5 - frac) / ax;
+                        let rho2 = qyz + dx * dx;
+                        if rho2 >= 1.0 {
+                            if first.is_some() {
+                                break;
+                            }
+                            continue;
+                        }
+                        first.get_or_insert(rel);
+                        let w = 1.0 - rho2;
+                        let pe = e.centre.ext + (e.ext_edge - e.centre.ext) * rho2;
+                        cells.push([q(e.centre.hum * w), q(e.centre.act * w), q(pe)]);
+                    }
+                    if let Some(first) = first {
+                        row_segments[k * ny + j].push(segments.len());
+                        segments.push((ei, first, cells));
+                    }
+                }
+            }
+        }
         Ok(Self {
             dims,
-            levels,
-            background,
+            background: [q(background.hum), q(background.act), q(background.ext)],
+            offsets: vec![0; ellipsoids.len()],
+            bases: ellipsoids
+                .iter()
+                .map(|e| e.centre_cells[0].floor() as i64)
+                .collect(),
             ellipsoids,
+            segments,
+            row_segments,
         })
     }
 
@@ -302,73 +368,77 @@ impl ProbabilityControl {
         &self.ellipsoids
     }
 
+    /// Whether row (j, k) is touched by any ellipsoid (otherwise it is uniform background).
+    pub fn row_has_ellipsoids(&self, j: usize, k: usize) -> bool {
+        !self.row_segments[k * self.dims[1] + j].is_empty()
+    }
+
     /// Moves each ellipsoid by the integer wind velocity at its centre layer (§4.5: "ellipsoids
     /// also move in the direction of the wind"). One that has left the space downwind re-enters
-    /// upwind, so a long animation keeps its parcels.
-    pub fn advect(&mut self, wind: &WindProfile) {
-        let nx = self.dims[0] as f64;
+    /// upwind (a whole-cell jump of nx + 2·ceil(a)), so a long animation keeps its parcels.
+    /// Returns whether any ellipsoid moved.
+    pub fn advect(&mut self, wind: &WindProfile) -> bool {
+        let nx = self.dims[0] as i64;
         let nz = self.dims[2];
-        for e in &mut self.ellipsoids {
+        let mut moved = false;
+        for (e, off) in self.ellipsoids.iter_mut().zip(&mut self.offsets) {
             let k = (e.centre_cells[2].floor().max(0.0) as usize).min(nz - 1);
-            let v = wind.velocity_cells(k) as f64;
+            let mut v = wind.velocity_cells(k) as i64;
             let a = e.semi_axes_cells[0];
-            e.centre_cells[0] += v;
-            if v > 0.0 && e.centre_cells[0] - a >= nx {
-                e.centre_cells[0] -= nx + 2.0 * a;
-            } else if v < 0.0 && e.centre_cells[0] + a <= 0.0 {
-                e.centre_cells[0] += nx + 2.0 * a;
+            let x = e.centre_cells[0] + v as f64;
+            let span = nx + 2 * a.ceil() as i64;
+            if v > 0 && x - a >= nx as f64 {
+                v -= span;
+            } else if v < 0 && x + a <= 0.0 {
+                v += span;
+            }
+            if v != 0 {
+                moved = true;
+                *off += v;
+                e.centre_cells[0] += v as f64;
             }
         }
+        moved
     }
 
     /// Levels `[hum, act, ext]` of every cell in row (j, k), written to `out[x]` (`nx` entries).
-    pub fn fill_row(&self, j: usize, k: usize, out: &mut [[u16; 3]]) {
+    /// Returns the range of cells any ellipsoid covers (empty when none does).
+    pub fn fill_row(&self, j: usize, k: usize, out: &mut [[u16; 3]]) -> std::ops::Range<usize> {
         let nx = self.dims[0];
-        let (py, pz) = (j as f64 + 0.5, k as f64 + 0.5);
-        let bg = self.background;
-        // Inside at least one ellipsoid: max of hum/act, min of ext over the containing ones.
-        let mut hum = vec![bg.hum; 0];
-        let mut act = vec![bg.act; 0];
-        let mut ext: Vec<f64> = Vec::new();
-        let mut touched = false;
-        for e in &self.ellipsoids {
-            let dy = (py - e.centre_cells[1]) / e.semi_axes_cells[1];
-            let dz = (pz - e.centre_cells[2]) / e.semi_axes_cells[2];
-            let q = dy * dy + dz * dz;
-            if q >= 1.0 {
-                continue;
+        let segs = &self.row_segments[k * self.dims[1] + j];
+        out[..nx].fill(self.background);
+        let clip = |s: usize| {
+            let (e, first, cells) = &self.segments[s];
+            let x0 = self.bases[*e] + self.offsets[*e] + first;
+            let lo = x0.clamp(0, nx as i64) as usize;
+            let hi = (x0 + cells.len() as i64).clamp(0, nx as i64) as usize;
+            if lo >= hi {
+                return (0, 0, &cells[..0]);
             }
-            if !touched {
-                hum = vec![bg.hum; nx];
-                act = vec![bg.act; nx];
-                ext = vec![f64::NAN; nx];
-                touched = true;
+            (lo, hi, &cells[(lo as i64 - x0) as usize..])
+        };
+        // Covered cells: ext starts from "unset" so it becomes the min over the ellipsoids
+        // containing the cell; hum and act take the max with the background.
+        let (mut lo_all, mut hi_all) = (nx, 0);
+        for &s in segs {
+            let (lo, hi, _) = clip(s);
+            for o in &mut out[lo..hi] {
+                o[EXT] = u16::MAX;
             }
-            let half = ((1.0 - q).sqrt() * e.semi_axes_cells[0]).ceil() + 1.0;
-            let lo = (e.centre_cells[0] - half).floor().max(0.0) as usize;
-            let hi = ((e.centre_cells[0] + half).ceil().max(0.0) as usize).min(nx);
-            for x in lo..hi {
-                let dx = (x as f64 + 0.5 - e.centre_cells[0]) / e.semi_axes_cells[0];
-                let rho2 = q + dx * dx;
-                if rho2 >= 1.0 {
-                    continue;
-                }
-                let w = 1.0 - rho2;
-                hum[x] = hum[x].max(e.centre.hum * w);
-                act[x] = act[x].max(e.centre.act * w);
-                let pe = e.centre.ext + (e.ext_edge - e.centre.ext) * rho2;
-                ext[x] = if ext[x].is_nan() { pe } else { ext[x].min(pe) };
+            if lo < hi {
+                lo_all = lo_all.min(lo);
+                hi_all = hi_all.max(hi);
             }
         }
-        let n = self.levels;
-        if !touched {
-            out[..nx].fill([quantise(bg.hum, n), quantise(bg.act, n), quantise(bg.ext, n)]);
-            return;
+        for &s in segs {
+            let (lo, hi, cells) = clip(s);
+            for (o, lv) in out[lo..hi].iter_mut().zip(cells) {
+                o[HUM] = o[HUM].max(lv[HUM]);
+                o[ACT] = o[ACT].max(lv[ACT]);
+                o[EXT] = o[EXT].min(lv[EXT]);
+            }
         }
-        for x in 0..nx {
-            let e = if ext[x].is_nan() { bg.ext } else { ext[x] };
-            out[x] = [quantise(hum[x], n), quantise(act[x], n), quantise(e, n)];
-        }
+        lo_all..hi_all.max(lo_all)
     }
 
     /// Levels `[hum, act, ext]` of cell (x, y, z) (the same values [`Self::fill_row`] writes).

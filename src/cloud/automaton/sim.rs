@@ -126,7 +126,7 @@ impl Automaton {
             state,
             steps_done: 0,
         };
-        sim.rasterise_levels();
+        sim.rasterise_levels(true);
         Ok(sim)
     }
 
@@ -240,21 +240,8 @@ impl Automaton {
         std::mem::swap(&mut self.state, &mut next);
         self.next = next;
         self.steps_done += 1;
-        let before: Vec<f64> = self
-            .control
-            .ellipsoids()
-            .iter()
-            .map(|e| e.centre_cells[0])
-            .collect();
-        self.control.advect(&self.wind);
-        let moved = self
-            .control
-            .ellipsoids()
-            .iter()
-            .zip(&before)
-            .any(|(e, x)| e.centre_cells[0] != *x);
-        if moved {
-            self.rasterise_levels();
+        if self.control.advect(&self.wind) {
+            self.rasterise_levels(false);
         }
     }
 
@@ -306,20 +293,16 @@ impl Automaton {
                 for nb in neighbours.iter().flatten() {
                     f |= s.act[nb + w];
                 }
-                let mut h1 = h0 & !a0; // eq 1
-                let mut c1 = c0 | a0; // eq 2
-                let mut a1 = !a0 & h0 & f; // eq 3
+                let h1 = h0 & !a0; // eq 1
+                let c1 = c0 | a0; // eq 2
+                let a1 = !a0 & h0 & f; // eq 3
                 let seq_ext = self.table.sequence_of(draw(&mut rng));
                 let seq_hum = self.table.sequence_of(draw(&mut rng));
                 let seq_act = self.table.sequence_of(draw(&mut rng));
-                c1 &= !self.rule_bits(EXT, base, w, seq_ext); // eq 5
-                if supply {
-                    h1 |= self.rule_bits(HUM, base, w, seq_hum); // eq 6
-                    a1 |= self.rule_bits(ACT, base, w, seq_act); // eq 7
-                }
-                th[w] = h1;
-                ta[w] = a1;
-                tc[w] = c1;
+                let bits = self.rule_bits(base, w, [seq_hum, seq_act, seq_ext], supply);
+                th[w] = h1 | bits[HUM]; // eq 6 (bits zero unless a supply step)
+                ta[w] = a1 | bits[ACT]; // eq 7
+                tc[w] = c1 & !bits[EXT]; // eq 5
             }
             th[m - 1] &= pad;
             ta[m - 1] &= pad;
@@ -337,40 +320,48 @@ impl Automaton {
         }
     }
 
-    /// Bits where `rnd < p` for `rule` in word `w` of the row starting at word `base`: bit `x % 64`
-    /// of table row `(level(x), seq)` for each cell x of the word (eqs A.4–A.6).
+    /// Bits where `rnd < p` for the three rules `[hum, act, ext]` in word `w` of the row starting
+    /// at word `base`: bit `x % 64` of table row `(level(x), seq)` for each cell x of the word
+    /// (eqs A.4–A.6). Words whose cells share a level need one table load per rule.
     #[inline]
-    fn rule_bits(&self, rule: usize, base: usize, w: usize, seq: usize) -> u64 {
-        let shared = self.word_levels[base + w][rule];
-        if shared != MIXED {
-            return if shared == 0 {
-                0
-            } else {
-                self.table.word(shared, seq)
-            };
+    fn rule_bits(&self, base: usize, w: usize, seq: [usize; 3], supply: bool) -> [u64; 3] {
+        let shared = self.word_levels[base + w];
+        let mut out = [0u64; 3];
+        let mut mixed = false;
+        for rule in 0..3 {
+            if !supply && rule != EXT {
+                continue;
+            }
+            match shared[rule] {
+                MIXED => mixed = true,
+                0 => {}
+                l => out[rule] = self.table.word(l, seq[rule]),
+            }
+        }
+        if !mixed {
+            return out;
         }
         let nx = self.dims[0];
         let row = base / self.words_per_row;
         let x0 = w * 64;
         let n = (nx - x0).min(64);
         let cells = &self.levels[row * nx + x0..row * nx + x0 + n];
-        let mut out = 0u64;
-        let mut b = 0;
-        while b < n {
-            let level = cells[b][rule];
-            let start = b;
-            while b < n && cells[b][rule] == level {
-                b += 1;
+        for rule in 0..3 {
+            if shared[rule] != MIXED || (!supply && rule != EXT) {
+                continue;
             }
-            if level != 0 {
-                out |= self.table.word(level, seq) & run_mask(start, b);
+            let mut bits = 0u64;
+            for (b, c) in cells.iter().enumerate() {
+                bits |= self.table.word(c[rule], seq[rule]) & (1 << b);
             }
+            out[rule] = bits;
         }
         out
     }
 
-    /// Recomputes the per-cell and per-word probability levels from the current ellipsoids.
-    fn rasterise_levels(&mut self) {
+    /// Recomputes the per-cell and per-word probability levels from the current ellipsoids: every
+    /// row when `all`, else only rows that ellipsoids touch (the others stay background).
+    fn rasterise_levels(&mut self, all: bool) {
         let [nx, ny, _] = self.dims;
         let m = self.words_per_row;
         let control = &self.control;
@@ -380,16 +371,29 @@ impl Automaton {
             .enumerate()
             .for_each(|(k, (cells, words))| {
                 for j in 0..ny {
+                    if !all && !control.row_has_ellipsoids(j, k) {
+                        continue;
+                    }
                     let row = &mut cells[j * nx..(j + 1) * nx];
-                    control.fill_row(j, k, row);
+                    let covered = control.fill_row(j, k, row);
                     for w in 0..m {
-                        let chunk = &row[w * 64..((w + 1) * 64).min(nx)];
-                        let mut shared = chunk[0];
-                        for rule in 0..3 {
-                            if chunk.iter().any(|c| c[rule] != chunk[0][rule]) {
-                                shared[rule] = MIXED;
+                        let (x0, x1) = (w * 64, ((w + 1) * 64).min(nx));
+                        let shared = if x1 <= covered.start || x0 >= covered.end {
+                            // Untouched by ellipsoids: the background, like row[x0].
+                            row[x0]
+                        } else {
+                            let chunk = &row[x0..x1];
+                            let first = chunk[0];
+                            let mut shared = first;
+                            for c in &chunk[1..] {
+                                for rule in 0..3 {
+                                    if c[rule] != first[rule] {
+                                        shared[rule] = MIXED;
+                                    }
+                                }
                             }
-                        }
+                            shared
+                        };
                         words[j * m + w] = shared;
                     }
                 }
@@ -421,17 +425,6 @@ fn last_word_mask(nx: usize) -> u64 {
         0 => u64::MAX,
         r => (1u64 << r) - 1,
     }
-}
-
-/// Bits `start..end` set (end ≤ 64).
-#[inline]
-fn run_mask(start: usize, end: usize) -> u64 {
-    let hi = if end >= 64 {
-        u64::MAX
-    } else {
-        (1u64 << end) - 1
-    };
-    hi & !((1u64 << start) - 1)
 }
 
 /// dst(x) = src(x − v), zero where x − v falls outside the row (eqs 8–10, either direction).
@@ -480,8 +473,6 @@ mod tests {
 
     #[test]
     fn masks() {
-        assert_eq!(run_mask(0, 64), u64::MAX);
-        assert_eq!(run_mask(3, 5), 0b11000);
         assert_eq!(last_word_mask(64), u64::MAX);
         assert_eq!(last_word_mask(65), 1);
     }
