@@ -5,3 +5,4 @@ pub mod grid;
 
 pub use grid::DensityGrid;
 pub mod automaton;
+pub mod spheres;
