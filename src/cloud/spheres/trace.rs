@@ -57,9 +57,9 @@ impl Lod {
     /// Whether a sphere of radius `r` centred at `c` is too small to split: 2·asin(r/dist) below
     /// the threshold, i.e. r/dist < sin(min_angle/2). Never true with the eye inside the sphere.
     #[inline]
-    fn stops(&self, c: DVec3, r: f64) -> bool {
-        let dist = c.distance(self.eye_m);
-        dist > r && r < dist * (0.5 * self.min_angle_rad).sin()
+    fn stops(&self, c: DVec3, r: f64, sin2_half: f64) -> bool {
+        let dist2 = c.distance_squared(self.eye_m);
+        dist2 > r * r && r * r < dist2 * sin2_half
     }
 }
 
@@ -118,24 +118,29 @@ impl SphereCloud {
         let sigma = self.extinction_per_m();
         let base = self.centre_m();
         let k_max = self.max_level();
+        let sin2_half = lod.map_or(0.0, |l| (0.5 * l.min_angle_rad).sin().powi(2));
         let mut t = 1.0;
         // Depth-first stack of (level, index); children pushed in reverse so they pop in order.
-        let mut stack: Vec<(u32, usize)> = Vec::with_capacity(8 * (k_max as usize + 1));
-        stack.push((0, 0));
-        while let Some((k, i)) = stack.pop() {
-            let s: &Sphere = &self.level(k)[i];
+        // Depth ≤ MAX_LEVELS and at most four siblings wait per level, so 64 entries suffice.
+        let mut stack = [(0u32, 0u32); 64];
+        let mut sp = 1;
+        while sp > 0 {
+            sp -= 1;
+            let (k, i) = stack[sp];
+            let s: &Sphere = &self.level(k)[i as usize];
             let c = base + s.centre_m();
             let r = s.radius as f64;
             stats.spheres_tested += 1;
-            let leaf = k == k_max || lod.is_some_and(|l| l.stops(c, r));
+            let leaf = k == k_max || lod.is_some_and(|l| l.stops(c, r, sin2_half));
             if leaf {
                 if let Some(f) = factor(ray, c, r, sigma) {
                     t *= f;
                     stats.spheres_used += 1;
                 }
             } else if bound_hit(ray, c, r) {
-                for j in (0..CHILDREN).rev() {
-                    stack.push((k + 1, i * CHILDREN + j));
+                for j in (0..CHILDREN as u32).rev() {
+                    stack[sp] = (k + 1, i * CHILDREN as u32 + j);
+                    sp += 1;
                 }
             }
         }
