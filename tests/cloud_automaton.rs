@@ -390,3 +390,23 @@ fn bad_parameters_are_refused_with_their_name() {
         "times_steps"
     );
 }
+
+#[test]
+fn example_scene_parses_runs_and_documents_every_parameter() {
+    let scene: serde_json::Value =
+        serde_json::from_str(include_str!("../config/scenes/automaton-field.json")).unwrap();
+    assert_eq!(scene["source"]["kind"], "automaton");
+    let block = &scene["source"]["params"];
+    let params: AutomatonParams = serde_json::from_value(block.clone()).unwrap();
+    params.validate().unwrap();
+    let doc = scene["doc"].as_object().unwrap();
+    for key in block.as_object().unwrap().keys() {
+        assert!(doc.contains_key(key), "parameter {key} is not documented");
+    }
+    let mut sim = Automaton::new(&params).unwrap();
+    for _ in 0..60 {
+        sim.step();
+    }
+    assert!(sim.cloud_cover() > 0.001, "cover {}", sim.cloud_cover());
+    assert!(!sim.is_open(170, 64, 0), "the mountain is solid at its foot");
+}

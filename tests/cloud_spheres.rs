@@ -250,3 +250,22 @@ fn bad_parameters_are_refused_with_their_name() {
     };
     assert_eq!(cloud.render_transmittance(&cam, None).unwrap_err().field(), "fov_y_deg");
 }
+
+#[test]
+fn example_scene_parses_builds_and_documents_every_parameter() {
+    let scene: serde_json::Value =
+        serde_json::from_str(include_str!("../config/scenes/sphere-cloud.json")).unwrap();
+    assert_eq!(scene["source"]["kind"], "spheres");
+    let block = &scene["source"]["params"];
+    let params: SphereCloudParams = serde_json::from_value(block.clone()).unwrap();
+    let doc = scene["doc"].as_object().unwrap();
+    for key in block.as_object().unwrap().keys() {
+        assert!(doc.contains_key(key), "parameter {key} is not documented");
+    }
+    assert!(doc.contains_key("voxel_size_m"));
+    let cloud = SphereCloud::new(&params).unwrap();
+    assert_eq!(cloud.leaves().len(), 15_625);
+    let voxel = scene["source"]["voxel_size_m"].as_f64().unwrap();
+    let grid = cloud.voxelize(voxel, None).unwrap();
+    assert!(grid.max_density() > 0.5);
+}
