@@ -193,9 +193,21 @@ fn assert_same(sim: &Automaton, r: &Reference, step: u64) {
             for x in 0..nx {
                 let (w, b) = sim.word_bit(x, y, z);
                 let i = r.idx(x, y, z);
-                assert_eq!((s.hum[w] >> b) & 1 == 1, r.hum[i], "hum ({x},{y},{z}) step {step}");
-                assert_eq!((s.act[w] >> b) & 1 == 1, r.act[i], "act ({x},{y},{z}) step {step}");
-                assert_eq!((s.cld[w] >> b) & 1 == 1, r.cld[i], "cld ({x},{y},{z}) step {step}");
+                assert_eq!(
+                    (s.hum[w] >> b) & 1 == 1,
+                    r.hum[i],
+                    "hum ({x},{y},{z}) step {step}"
+                );
+                assert_eq!(
+                    (s.act[w] >> b) & 1 == 1,
+                    r.act[i],
+                    "act ({x},{y},{z}) step {step}"
+                );
+                assert_eq!(
+                    (s.cld[w] >> b) & 1 == 1,
+                    r.cld[i],
+                    "cld ({x},{y},{z}) step {step}"
+                );
             }
         }
         // Padding bits beyond nx stay clear.
@@ -259,10 +271,10 @@ fn wind_moves_each_layer_by_its_velocity_per_step() {
     for _ in 0..3 {
         let before = sim.clone();
         sim.step();
-        for z in 0..5 {
+        for (z, vz) in v.iter().enumerate() {
             for y in 0..3 {
                 for x in 0..150 {
-                    let src = x as i64 - v[z] as i64;
+                    let src = x as i64 - *vz as i64;
                     let expect = (0..150).contains(&src) && hum(&before, src as usize, y, z);
                     assert_eq!(hum(&sim, x, y, z), expect, "({x},{y},{z})");
                 }
@@ -285,12 +297,7 @@ fn obstacles_never_hold_cloud_and_clouds_form_around_them() {
             sigma_cells: 8.0,
         }],
     });
-    let heights = p
-        .obstacle
-        .as_ref()
-        .unwrap()
-        .column_heights(96, 32)
-        .unwrap();
+    let heights = p.obstacle.as_ref().unwrap().column_heights(96, 32).unwrap();
     let mut sim = Automaton::new(&p).unwrap();
     let mut solid = 0;
     for step in 0..50 {
@@ -376,7 +383,10 @@ fn bad_parameters_are_refused_with_their_name() {
     };
     assert_eq!(field(&|q| q.dims = [100_000, 100_000, 100]), "dims");
     assert_eq!(field(&|q| q.dims = [0, 4, 4]), "dims");
-    assert_eq!(field(&|q| q.metaball_radius_cells = 0.0), "metaball_radius_cells");
+    assert_eq!(
+        field(&|q| q.metaball_radius_cells = 0.0),
+        "metaball_radius_cells"
+    );
     assert_eq!(field(&|q| q.cell_size_m = -1.0), "cell_size_m");
     assert_eq!(field(&|q| q.smoothing.t0 = 1000), "smoothing.t0");
     assert_eq!(field(&|q| q.background.ext = 1.5), "background.ext");
@@ -408,5 +418,8 @@ fn example_scene_parses_runs_and_documents_every_parameter() {
         sim.step();
     }
     assert!(sim.cloud_cover() > 0.001, "cover {}", sim.cloud_cover());
-    assert!(!sim.is_open(170, 64, 0), "the mountain is solid at its foot");
+    assert!(
+        !sim.is_open(170, 64, 0),
+        "the mountain is solid at its foot"
+    );
 }

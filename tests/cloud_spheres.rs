@@ -97,7 +97,8 @@ fn traversal_equals_brute_force_over_all_leaves() {
     for i in 0..400 {
         // Rays from a ring around the cloud towards jittered points inside it.
         let a = i as f64 * 0.7;
-        let origin = centre + DVec3::new(2500.0 * a.cos(), 2500.0 * a.sin(), 300.0 * (a * 3.1).sin());
+        let origin =
+            centre + DVec3::new(2500.0 * a.cos(), 2500.0 * a.sin(), 300.0 * (a * 3.1).sin());
         let target = centre
             + DVec3::new(
                 600.0 * (a * 1.3).sin(),
@@ -133,7 +134,12 @@ fn single_sphere_transmittance_is_two_percent_over_one_mor() {
     assert!((t - 0.02).abs() < 1e-12, "{t}");
     // Offset by half the radius: chord 2·√(r² − d²), weight f = 1/2.
     let d = 125.0;
-    let ray = Ray::new(c - DVec3::X * 1000.0 + DVec3::Z * d, DVec3::X, f64::INFINITY).unwrap();
+    let ray = Ray::new(
+        c - DVec3::X * 1000.0 + DVec3::Z * d,
+        DVec3::X,
+        f64::INFINITY,
+    )
+    .unwrap();
     let chord = 2.0 * (250.0f64 * 250.0 - d * d).sqrt();
     let expect = 0.5 * 0.02f64.powf(chord / 500.0) + 0.5;
     let t = cloud.transmittance(&ray, None, &mut TraceStats::default());
@@ -173,7 +179,10 @@ fn level_of_detail_saves_work_and_changes_the_image_little() {
     // Work: at least 15 % fewer sphere tests (the hierarchy already prunes most of the tree).
     assert!(s_lod.spheres_tested * 100 < s_full.spheres_tested * 85);
     // Image: the cloud's total opacity within 5 %, per-pixel change under 0.05 on average.
-    assert!((o_lod - o_full).abs() < 0.05 * o_full, "{o_full} vs {o_lod}");
+    assert!(
+        (o_lod - o_full).abs() < 0.05 * o_full,
+        "{o_full} vs {o_lod}"
+    );
     assert!(mean_diff < 0.05, "mean |dT| = {mean_diff}");
 }
 
@@ -191,10 +200,15 @@ fn same_seed_same_cloud_and_animation_endpoints() {
     assert!((m.radius - 0.5 * (x.radius + y.radius)).abs() < 1e-3);
     let other_k = SphereCloud::new(&flat_cloud(3, 2)).unwrap();
     assert_eq!(
-        SphereCloud::interpolate(&a, &other_k, 0.5).unwrap_err().field(),
+        SphereCloud::interpolate(&a, &other_k, 0.5)
+            .unwrap_err()
+            .field(),
         "levels"
     );
-    assert_eq!(SphereCloud::interpolate(&a, &c, 1.5).unwrap_err().field(), "tau");
+    assert_eq!(
+        SphereCloud::interpolate(&a, &c, 1.5).unwrap_err().field(),
+        "tau"
+    );
 }
 
 #[test]
@@ -204,14 +218,22 @@ fn voxel_density_is_the_sum_of_leaf_edge_functions() {
     assert!(grid.max_density() > 0.5);
     let base = cloud.centre_m();
     let [nx, ny, nz] = grid.dims;
-    for (x, y, z) in [(nx / 2, ny / 2, nz / 2), (nx / 3, ny / 2, nz / 2), (0, 0, 0), (nx - 1, ny / 3, nz / 4)] {
+    for (x, y, z) in [
+        (nx / 2, ny / 2, nz / 2),
+        (nx / 3, ny / 2, nz / 2),
+        (0, 0, 0),
+        (nx - 1, ny / 3, nz / 4),
+    ] {
         let p = grid.voxel_centre(x, y, z);
         let brute: f64 = cloud
             .leaves()
             .iter()
             .map(|s| edge_weight(p.distance(base + s.centre_m()), s.radius as f64))
             .sum();
-        assert!((grid.at(x, y, z) as f64 - brute).abs() < 1e-5, "({x},{y},{z})");
+        assert!(
+            (grid.at(x, y, z) as f64 - brute).abs() < 1e-5,
+            "({x},{y},{z})"
+        );
     }
     // The box is the leaves' bounding box.
     let lo = cloud
@@ -220,8 +242,14 @@ fn voxel_density_is_the_sum_of_leaf_edge_functions() {
         .map(|s| s.centre[0] as f64 - s.radius as f64)
         .fold(f64::INFINITY, f64::min);
     assert!((grid.origin_m.x - (base.x + lo)).abs() < 1e-6);
-    assert_eq!(cloud.voxelize(0.001, None).unwrap_err().field(), "voxel_size_m");
-    assert_eq!(cloud.voxelize(-1.0, None).unwrap_err().field(), "voxel_size_m");
+    assert_eq!(
+        cloud.voxelize(0.001, None).unwrap_err().field(),
+        "voxel_size_m"
+    );
+    assert_eq!(
+        cloud.voxelize(-1.0, None).unwrap_err().field(),
+        "voxel_size_m"
+    );
     assert_eq!(cloud.voxelize(10.0, Some(9)).unwrap_err().field(), "level");
 }
 
@@ -236,8 +264,14 @@ fn bad_parameters_are_refused_with_their_name() {
     assert_eq!(field(&|q| q.levels = MAX_LEVELS + 1), "levels");
     assert_eq!(field(&|q| q.mor_m = 0.0), "mor_m");
     assert_eq!(field(&|q| q.size_m = [1.0, f64::NAN, 1.0]), "size_m");
-    assert_eq!(field(&|q| q.radius_factor_range = [0.5, 1.2]), "radius_factor_range");
-    assert_eq!(field(&|q| q.offset_factor_range = [0.9, 0.8]), "offset_factor_range");
+    assert_eq!(
+        field(&|q| q.radius_factor_range = [0.5, 1.2]),
+        "radius_factor_range"
+    );
+    assert_eq!(
+        field(&|q| q.offset_factor_range = [0.9, 0.8]),
+        "offset_factor_range"
+    );
     assert!(Ray::new(DVec3::ZERO, DVec3::ZERO, 1.0).is_err());
     let cloud = SphereCloud::new(&p).unwrap();
     let cam = Camera {
@@ -248,7 +282,10 @@ fn bad_parameters_are_refused_with_their_name() {
         width: 4,
         height: 4,
     };
-    assert_eq!(cloud.render_transmittance(&cam, None).unwrap_err().field(), "fov_y_deg");
+    assert_eq!(
+        cloud.render_transmittance(&cam, None).unwrap_err().field(),
+        "fov_y_deg"
+    );
 }
 
 #[test]

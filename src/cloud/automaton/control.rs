@@ -32,7 +32,9 @@ impl WindProfile {
     /// and rounds to the nearest integer. No knots means calm.
     pub fn new(knots: &[WindKnot], nz: usize) -> Result<Self> {
         for w in knots.windows(2) {
-            if !(w[1].height_cells > w[0].height_cells) {
+            if w[1].height_cells.partial_cmp(&w[0].height_cells)
+                != Some(std::cmp::Ordering::Greater)
+            {
                 return Err(Error::invalid(
                     "wind",
                     "knot heights must be strictly increasing",
@@ -43,7 +45,8 @@ impl WindProfile {
             if !k.height_cells.is_finite() {
                 return Err(Error::invalid("wind.height_cells", "must be finite"));
             }
-            if !(k.velocity_cells_per_step.abs() <= MAX_WIND_CELLS_PER_STEP) {
+            let v = k.velocity_cells_per_step;
+            if !(v.is_finite() && v.abs() <= MAX_WIND_CELLS_PER_STEP) {
                 return Err(Error::out_of_range(
                     "wind.velocity_cells_per_step",
                     k.velocity_cells_per_step,

@@ -46,11 +46,7 @@ impl Smoothing {
             ("smoothing.t0", self.t0),
         ] {
             if v > MAX_SMOOTHING {
-                return Err(Error::out_of_range(
-                    name,
-                    v,
-                    format!("0..={MAX_SMOOTHING}"),
-                ));
+                return Err(Error::out_of_range(name, v, format!("0..={MAX_SMOOTHING}")));
             }
         }
         Ok(())
@@ -238,7 +234,7 @@ mod tests {
     #[test]
     fn full_cloud_gives_unit_fraction_and_density_inside() {
         let dims = [70, 6, 6];
-        let words = vec![u64::MAX, (1u64 << 6) - 1].repeat(36);
+        let words = [u64::MAX, (1u64 << 6) - 1].repeat(36);
         let s = Smoothing::default();
         let frames = [words.as_slice(); 3];
         let q = smoothed_fraction(&frames, dims, 2, &s);

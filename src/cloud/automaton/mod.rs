@@ -18,8 +18,8 @@ pub mod random;
 pub mod sim;
 
 pub use control::{
-    Ellipsoid, Hill, Obstacle, ProbabilityControl, RandomEllipsoids, RuleProbabilities,
-    WindKnot, WindProfile,
+    Ellipsoid, Hill, Obstacle, ProbabilityControl, RandomEllipsoids, RuleProbabilities, WindKnot,
+    WindProfile,
 };
 pub use density::{MetaballKernel, Smoothing};
 pub use random::RandomBitTable;
@@ -246,7 +246,10 @@ pub fn automaton_frames(params: &AutomatonParams, times_steps: &[f64]) -> Result
     params.validate()?;
     let cells = sim::checked_cells(params.dims)?;
     if times_steps.is_empty() {
-        return Err(Error::invalid("times_steps", "at least one frame time is needed"));
+        return Err(Error::invalid(
+            "times_steps",
+            "at least one frame time is needed",
+        ));
     }
     let total = cells.checked_mul(times_steps.len());
     if total.is_none_or(|t| t > crate::cloud::grid::MAX_VOXELS) {
@@ -321,7 +324,12 @@ pub fn automaton_frames(params: &AutomatonParams, times_steps: &[f64]) -> Result
         } else {
             a
         };
-        frames[idx] = Some(DensityGrid::from_data(dims, params.cell_size_m, origin, data)?);
+        frames[idx] = Some(DensityGrid::from_data(
+            dims,
+            params.cell_size_m,
+            origin,
+            data,
+        )?);
     }
     Ok(frames.into_iter().flatten().collect())
 }

@@ -189,6 +189,9 @@ mod tests {
     fn oversized_table_is_refused() {
         let e = RandomBitTable::new(60_000, 1000, 0).unwrap_err();
         assert_eq!(e.field(), "random_sequences");
-        assert_eq!(RandomBitTable::new(0, 4, 0).unwrap_err().field(), "probability_levels");
+        assert_eq!(
+            RandomBitTable::new(0, 4, 0).unwrap_err().field(),
+            "probability_levels"
+        );
     }
 }

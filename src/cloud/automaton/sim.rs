@@ -404,7 +404,11 @@ impl Automaton {
 /// Cell count of `dims`, refusing empty or oversized spaces before allocating.
 pub fn checked_cells(dims: [usize; 3]) -> Result<usize> {
     if dims.contains(&0) {
-        return Err(Error::out_of_range("dims", format!("{dims:?}"), "each >= 1"));
+        return Err(Error::out_of_range(
+            "dims",
+            format!("{dims:?}"),
+            "each >= 1",
+        ));
     }
     dims.iter()
         .try_fold(1usize, |acc, &d| acc.checked_mul(d))

@@ -84,7 +84,11 @@ impl SphereCloudParams {
             return Err(Error::invalid("centre_m", "must be finite"));
         }
         if !(self.mor_m.is_finite() && self.mor_m > 0.0) {
-            return Err(Error::out_of_range("mor_m", self.mor_m, "a finite value > 0"));
+            return Err(Error::out_of_range(
+                "mor_m",
+                self.mor_m,
+                "a finite value > 0",
+            ));
         }
         let [i0, i1] = self.radius_factor_range;
         if !(i0 > 0.0 && i0 <= i1 && i1 < 1.0) {

@@ -30,9 +30,12 @@ impl Ray {
     pub fn new(origin_m: DVec3, dir: DVec3, t_max_m: f64) -> Result<Self> {
         let dir = dir.normalize_or_zero();
         if dir == DVec3::ZERO || !dir.is_finite() || !origin_m.is_finite() {
-            return Err(Error::invalid("ray", "origin must be finite, direction non-zero"));
+            return Err(Error::invalid(
+                "ray",
+                "origin must be finite, direction non-zero",
+            ));
         }
-        if !(t_max_m >= 0.0) {
+        if t_max_m.is_nan() || t_max_m < 0.0 {
             return Err(Error::out_of_range("t_max_m", t_max_m, ">= 0"));
         }
         Ok(Self {
@@ -181,9 +184,13 @@ pub const MAX_PIXELS: usize = 16_777_216;
 impl Camera {
     fn validate(&self) -> Result<()> {
         if !(self.fov_y_deg > 0.0 && self.fov_y_deg < 180.0) {
-            return Err(Error::out_of_range("fov_y_deg", self.fov_y_deg, "0 < fov < 180"));
+            return Err(Error::out_of_range(
+                "fov_y_deg",
+                self.fov_y_deg,
+                "0 < fov < 180",
+            ));
         }
-        let pixels = self.width.checked_mul(self.height).unwrap_or(usize::MAX);
+        let pixels = self.width.saturating_mul(self.height);
         if self.width == 0 || self.height == 0 || pixels > MAX_PIXELS {
             return Err(Error::too_large(
                 "width",

@@ -58,7 +58,7 @@ impl SphereCloud {
             hi = hi.max(c + s.radius as f64);
         }
         let extent = (hi - lo) / voxel_size_m;
-        if !(extent.max_element() < 1e7) {
+        if !extent.is_finite() || extent.max_element() >= 1e7 {
             return Err(Error::too_large(
                 "voxel_size_m",
                 format!("{voxel_size_m} m voxels over a {:?} m box", hi - lo),
