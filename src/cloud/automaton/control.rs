@@ -272,8 +272,8 @@ pub struct ProbabilityControl {
     offsets: Vec<i64>,
     /// floor(initial centre x) of each ellipsoid, the stamps' reference.
     bases: Vec<i64>,
-    /// Stamp segments: (ellipsoid, first x relative to floor(initial centre x), levels).
-    segments: Vec<(usize, i64, Vec<[u16; 3]>)>,
+    /// Stamp segments: (ellipsoid, first x relative to floor(initial centre x), levels per rule).
+    segments: Vec<(usize, i64, [Vec<u16>; 3])>,
     /// Per row `k·ny + j`: indices into `segments`.
     row_segments: Vec<Vec<usize>>,
 }
@@ -330,7 +330,7 @@ impl ProbabilityControl {
                         continue;
                     }
                     let mut first = None;
-                    let mut cells = Vec::new();
+                    let mut cells: [Vec<u16>; 3] = Default::default();
                     for rel in rel_lo..=rel_hi {
                         let dx = (rel as f64 + 0.5 - frac) / ax;
                         let rho2 = qyz + dx * dx;
@@ -343,7 +343,9 @@ impl ProbabilityControl {
                         first.get_or_insert(rel);
                         let w = 1.0 - rho2;
                         let pe = e.centre.ext + (e.ext_edge - e.centre.ext) * rho2;
-                        cells.push([q(e.centre.hum * w), q(e.centre.act * w), q(pe)]);
+                        cells[HUM].push(q(e.centre.hum * w));
+                        cells[ACT].push(q(e.centre.act * w));
+                        cells[EXT].push(q(pe));
                     }
                     if let Some(first) = first {
                         row_segments[k * ny + j].push(segments.len());
@@ -404,44 +406,88 @@ impl ProbabilityControl {
         moved
     }
 
-    /// Levels `[hum, act, ext]` of every cell in row (j, k), written to `out[x]` (`nx` entries).
-    /// Returns the range of cells any ellipsoid covers (empty when none does).
-    pub fn fill_row(&self, j: usize, k: usize, out: &mut [[u16; 3]]) -> std::ops::Range<usize> {
+    /// The quantised background levels `[hum, act, ext]`.
+    pub fn background_levels(&self) -> [u16; 3] {
+        self.background
+    }
+
+    /// Levels of row (j, k) in the 64-cell words that ellipsoids touch, written per rule into
+    /// `hum`, `act`, `ext` (each `64 · ceil(nx/64)` long, index x). Returns the range of words
+    /// written; cells outside it are background and left untouched.
+    pub fn fill_row_words(
+        &self,
+        j: usize,
+        k: usize,
+        hum: &mut [u16],
+        act: &mut [u16],
+        ext: &mut [u16],
+    ) -> std::ops::Range<usize> {
         let nx = self.dims[0];
         let segs = &self.row_segments[k * self.dims[1] + j];
-        out[..nx].fill(self.background);
-        let clip = |s: usize| {
+        // Clipped placement of each segment: (first cell, last cell + 1, offset into the stamp).
+        let place = |s: usize| {
             let (e, first, cells) = &self.segments[s];
             let x0 = self.bases[*e] + self.offsets[*e] + first;
             let lo = x0.clamp(0, nx as i64) as usize;
-            let hi = (x0 + cells.len() as i64).clamp(0, nx as i64) as usize;
-            if lo >= hi {
-                return (0, 0, &cells[..0]);
-            }
-            (lo, hi, &cells[(lo as i64 - x0) as usize..])
+            let hi = (x0 + cells[HUM].len() as i64).clamp(0, nx as i64) as usize;
+            (lo, hi, (lo as i64 - x0).max(0) as usize)
         };
-        // Covered cells: ext starts from "unset" so it becomes the min over the ellipsoids
-        // containing the cell; hum and act take the max with the background.
         let (mut lo_all, mut hi_all) = (nx, 0);
         for &s in segs {
-            let (lo, hi, _) = clip(s);
-            for o in &mut out[lo..hi] {
-                o[EXT] = u16::MAX;
-            }
+            let (lo, hi, _) = place(s);
             if lo < hi {
                 lo_all = lo_all.min(lo);
                 hi_all = hi_all.max(hi);
             }
         }
+        if lo_all >= hi_all {
+            return 0..0;
+        }
+        let words = lo_all / 64..hi_all.div_ceil(64);
+        let cells = words.start * 64..words.end * 64;
+        let [bh, ba, be] = self.background;
+        hum[cells.clone()].fill(bh);
+        act[cells.clone()].fill(ba);
+        // Ext starts "unset" so it becomes the min over the ellipsoids containing the cell.
+        ext[cells.clone()].fill(u16::MAX);
         for &s in segs {
-            let (lo, hi, cells) = clip(s);
-            for (o, lv) in out[lo..hi].iter_mut().zip(cells) {
-                o[HUM] = o[HUM].max(lv[HUM]);
-                o[ACT] = o[ACT].max(lv[ACT]);
-                o[EXT] = o[EXT].min(lv[EXT]);
+            let (lo, hi, off) = place(s);
+            if lo >= hi {
+                continue;
+            }
+            let st = &self.segments[s].2;
+            let n = hi - lo;
+            for (o, l) in hum[lo..hi].iter_mut().zip(&st[HUM][off..off + n]) {
+                *o = (*o).max(*l);
+            }
+            for (o, l) in act[lo..hi].iter_mut().zip(&st[ACT][off..off + n]) {
+                *o = (*o).max(*l);
+            }
+            for (o, l) in ext[lo..hi].iter_mut().zip(&st[EXT][off..off + n]) {
+                *o = (*o).min(*l);
             }
         }
-        lo_all..hi_all.max(lo_all)
+        for e in &mut ext[cells] {
+            if *e == u16::MAX {
+                *e = be;
+            }
+        }
+        words
+    }
+
+    /// Levels `[hum, act, ext]` of every cell in row (j, k), written to `out[x]` (`nx` entries).
+    pub fn fill_row(&self, j: usize, k: usize, out: &mut [[u16; 3]]) {
+        let nx = self.dims[0];
+        let len = nx.div_ceil(64) * 64;
+        let (mut h, mut a, mut e) = (vec![0u16; len], vec![0u16; len], vec![0u16; len]);
+        let words = self.fill_row_words(j, k, &mut h, &mut a, &mut e);
+        for (x, o) in out[..nx].iter_mut().enumerate() {
+            *o = if words.contains(&(x / 64)) {
+                [h[x], a[x], e[x]]
+            } else {
+                self.background
+            };
+        }
     }
 
     /// Levels `[hum, act, ext]` of cell (x, y, z) (the same values [`Self::fill_row`] writes).

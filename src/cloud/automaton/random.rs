@@ -5,6 +5,11 @@
 //! probability `level / levels` (`p[i][j]` in the paper, `i = 0..=n_p`, `j = 1..=n_i`). A rule with
 //! probability `p` at a cell takes bit `x mod 64` of row `(int(p·n_p), int(rnd·n_i))`, where one
 //! `rnd` is drawn per 64-cell word and rule. This turns 64 Bernoulli draws into one table load.
+//!
+//! The rows of one sequence are nested: each sequence holds 64 uniform integers `u_b` in
+//! `0..n_p` and bit `b` of row `(i, j)` is `u_b < i`, which is 1 with probability exactly `i/n_p`.
+//! A word whose 64 cells have different levels then needs only 64 small-integer comparisons
+//! against one sequence instead of 64 loads from different rows.
 
 use crate::{Error, Result};
 use rand::{Rng, RngCore, SeedableRng};
@@ -20,13 +25,15 @@ pub const MAX_TABLE_WORDS: usize = 1 << 22;
 pub struct RandomBitTable {
     levels: usize,
     sequences: usize,
+    /// `sequences × 64` uniform integers in `0..levels`.
+    uniforms: Vec<u16>,
     words: Vec<u64>,
 }
 
 impl RandomBitTable {
     /// Builds the table for `levels` probability steps (`n_p`) and `sequences` rows per level
-    /// (`n_i`). Bit `b` of row `(i, j)` is 1 with probability exactly `i / levels` (an integer draw
-    /// below `i` out of `levels`), so level 0 rows are all zeros and level `levels` rows all ones.
+    /// (`n_i`). Bit `b` of row `(i, j)` is `u[j][b] < i` with `u` uniform in `0..levels`, so it is 1
+    /// with probability exactly `i / levels`; level 0 rows are all zeros, level `levels` all ones.
     pub fn new(levels: usize, sequences: usize, seed: u64) -> Result<Self> {
         if !(1..=MAX_PROBABILITY_LEVELS).contains(&levels) {
             return Err(Error::out_of_range(
@@ -49,21 +56,20 @@ impl RandomBitTable {
                 )
             })?;
         let mut rng = Pcg64Mcg::seed_from_u64(mix(seed, TABLE_TAG, 0));
+        let uniforms: Vec<u16> = (0..sequences * 64)
+            .map(|_| rng.random_range(0..levels) as u16)
+            .collect();
         let mut words = Vec::with_capacity(count);
         for level in 0..=levels {
-            for _ in 0..sequences {
-                let mut w = 0u64;
-                for b in 0..64 {
-                    if rng.random_range(0..levels) < level {
-                        w |= 1 << b;
-                    }
-                }
-                words.push(w);
+            for j in 0..sequences {
+                let u = &uniforms[j * 64..(j + 1) * 64];
+                words.push(below(u, |_| level as u16));
             }
         }
         Ok(Self {
             levels,
             sequences,
+            uniforms,
             words,
         })
     }
@@ -96,11 +102,29 @@ impl RandomBitTable {
         self.words[level as usize * self.sequences + sequence]
     }
 
+    /// Bits `b` where cell `b` of a word draws below its own level: bit `b` of row
+    /// `(levels[b], sequence)` for every `b`, as one comparison pass over the sequence.
+    #[inline]
+    pub fn bits_below(&self, sequence: usize, levels: &[u16; 64]) -> u64 {
+        let u = &self.uniforms[sequence * 64..(sequence + 1) * 64];
+        below(u, |b| levels[b])
+    }
+
     /// Bit `bit` (0..64) of row `(level, sequence)`.
     #[inline]
     pub fn bit(&self, level: u16, sequence: usize, bit: usize) -> bool {
         (self.word(level, sequence) >> bit) & 1 == 1
     }
+}
+
+/// Mask of the bits `b` with `u[b] < level(b)`.
+#[inline]
+fn below(u: &[u16], level: impl Fn(usize) -> u16) -> u64 {
+    let mut bits = 0u64;
+    for (b, &ub) in u.iter().enumerate().take(64) {
+        bits |= ((ub < level(b)) as u64) << b;
+    }
+    bits
 }
 
 /// `int(p · n_p)` clamped to `0..=n_p` (NaN maps to 0).
@@ -170,6 +194,18 @@ mod tests {
             let ones: u32 = (0..256).map(|j| t.word(level, j).count_ones()).sum();
             let p = ones as f64 / (256.0 * 64.0);
             assert!((p - level as f64 / 8.0).abs() < 0.02, "level {level}: {p}");
+        }
+    }
+
+    #[test]
+    fn mixed_word_bits_are_the_rows_of_each_cells_level() {
+        let t = RandomBitTable::new(100, 8, 3).unwrap();
+        let levels: [u16; 64] = std::array::from_fn(|b| (b as u16 * 7) % 101);
+        for j in 0..8 {
+            let bits = t.bits_below(j, &levels);
+            for (b, &l) in levels.iter().enumerate() {
+                assert_eq!((bits >> b) & 1 == 1, t.bit(l, j, b));
+            }
         }
     }
 

@@ -38,8 +38,9 @@ pub struct Automaton {
     wind: WindProfile,
     /// Per word: cells that may hold anything (inside the space and not solid).
     valid: Vec<u64>,
-    /// Per cell `[hum, act, ext]` levels, index `(k·ny + j)·nx + x`.
-    levels: Vec<[u16; 3]>,
+    /// Per rule `[hum, act, ext]`, per cell levels, 64 per word (padding cells at level 0), index
+    /// `word · 64 + x % 64`.
+    levels: [Vec<u16>; 3],
     /// Per word `[hum, act, ext]`: the shared level of its cells, or `MIXED`.
     word_levels: Vec<[u16; 3]>,
     state: CaState,
@@ -54,7 +55,7 @@ impl Automaton {
     /// hum then one for act.
     pub fn new(params: &AutomatonParams) -> Result<Self> {
         let [nx, ny, nz] = params.dims;
-        let cells = checked_cells(params.dims)?;
+        checked_cells(params.dims)?;
         let words_per_row = nx.div_ceil(64);
         let table = RandomBitTable::new(
             params.probability_levels,
@@ -120,7 +121,7 @@ impl Automaton {
             control,
             wind,
             valid,
-            levels: vec![[0; 3]; cells],
+            levels: std::array::from_fn(|_| vec![0; words * 64]),
             word_levels: vec![[0; 3]; words],
             next: state.clone(),
             state,
@@ -341,20 +342,15 @@ impl Automaton {
         if !mixed {
             return out;
         }
-        let nx = self.dims[0];
-        let row = base / self.words_per_row;
-        let x0 = w * 64;
-        let n = (nx - x0).min(64);
-        let cells = &self.levels[row * nx + x0..row * nx + x0 + n];
+        let at = (base + w) * 64;
         for rule in 0..3 {
             if shared[rule] != MIXED || (!supply && rule != EXT) {
                 continue;
             }
-            let mut bits = 0u64;
-            for (b, c) in cells.iter().enumerate() {
-                bits |= self.table.word(c[rule], seq[rule]) & (1 << b);
-            }
-            out[rule] = bits;
+            let cells: &[u16; 64] = self.levels[rule][at..at + 64]
+                .try_into()
+                .expect("64 levels per word");
+            out[rule] = self.table.bits_below(seq[rule], cells);
         }
         out
     }
@@ -362,40 +358,25 @@ impl Automaton {
     /// Recomputes the per-cell and per-word probability levels from the current ellipsoids: every
     /// row when `all`, else only rows that ellipsoids touch (the others stay background).
     fn rasterise_levels(&mut self, all: bool) {
-        let [nx, ny, _] = self.dims;
+        let ny = self.dims[1];
         let m = self.words_per_row;
         let control = &self.control;
-        self.levels
-            .par_chunks_mut(nx * ny)
-            .zip(self.word_levels.par_chunks_mut(m * ny))
+        let bg = control.background_levels();
+        let [lh, la, le] = &mut self.levels;
+        lh.par_chunks_mut(m * 64)
+            .zip(la.par_chunks_mut(m * 64))
+            .zip(le.par_chunks_mut(m * 64))
+            .zip(self.word_levels.par_chunks_mut(m))
             .enumerate()
-            .for_each(|(k, (cells, words))| {
-                for j in 0..ny {
-                    if !all && !control.row_has_ellipsoids(j, k) {
-                        continue;
-                    }
-                    let row = &mut cells[j * nx..(j + 1) * nx];
-                    let covered = control.fill_row(j, k, row);
-                    for w in 0..m {
-                        let (x0, x1) = (w * 64, ((w + 1) * 64).min(nx));
-                        let shared = if x1 <= covered.start || x0 >= covered.end {
-                            // Untouched by ellipsoids: the background, like row[x0].
-                            row[x0]
-                        } else {
-                            let chunk = &row[x0..x1];
-                            let first = chunk[0];
-                            let mut shared = first;
-                            for c in &chunk[1..] {
-                                for rule in 0..3 {
-                                    if c[rule] != first[rule] {
-                                        shared[rule] = MIXED;
-                                    }
-                                }
-                            }
-                            shared
-                        };
-                        words[j * m + w] = shared;
-                    }
+            .for_each(|(row, (((hum, act), ext), words))| {
+                let (j, k) = (row % ny, row / ny);
+                if !all && !control.row_has_ellipsoids(j, k) {
+                    return;
+                }
+                // Words an ellipsoid touches take the per-cell path; the others are background.
+                let touched = control.fill_row_words(j, k, hum, act, ext);
+                for (w, shared) in words.iter_mut().enumerate() {
+                    *shared = if touched.contains(&w) { [MIXED; 3] } else { bg };
                 }
             });
     }
