@@ -11,9 +11,6 @@ use rayon::prelude::*;
 /// Largest simulation space accepted, in cells (the per-cell probability levels take 6 bytes each).
 pub const MAX_CELLS: usize = 1 << 25;
 
-/// Level entry marking a word whose 64 cells do not share one level.
-const MIXED: u16 = u16::MAX;
-
 /// Bit-packed state: bit `x % 64` of word `(k·ny + j)·words_per_row + x / 64` is cell (x, j, k).
 /// Bits beyond `nx` in the last word of a row are always zero.
 #[derive(Debug, Clone, PartialEq)]
@@ -38,11 +35,6 @@ pub struct Automaton {
     wind: WindProfile,
     /// Per word: cells that may hold anything (inside the space and not solid).
     valid: Vec<u64>,
-    /// Per rule `[hum, act, ext]`, per cell levels, 64 per word (padding cells at level 0), index
-    /// `word · 64 + x % 64`.
-    levels: [Vec<u16>; 3],
-    /// Per word `[hum, act, ext]`: the shared level of its cells, or `MIXED`.
-    word_levels: Vec<[u16; 3]>,
     state: CaState,
     next: CaState,
     steps_done: u64,
@@ -112,7 +104,7 @@ impl Automaton {
             state.hum[i] &= v;
             state.act[i] &= v;
         }
-        let mut sim = Self {
+        Ok(Self {
             dims: params.dims,
             words_per_row,
             seed: params.seed,
@@ -121,14 +113,10 @@ impl Automaton {
             control,
             wind,
             valid,
-            levels: std::array::from_fn(|_| vec![0; words * 64]),
-            word_levels: vec![[0; 3]; words],
             next: state.clone(),
             state,
             steps_done: 0,
-        };
-        sim.rasterise_levels(true);
-        Ok(sim)
+        })
     }
 
     /// Cells along x, y, z.
@@ -216,7 +204,8 @@ impl Automaton {
     /// 5. cells in obstacles are cleared.
     ///
     /// The sequence rows come from [`slice_rng`]`(seed, step, k)` (three draws per word, see
-    /// there). Afterwards the ellipsoids drift with the wind and the levels are re-rasterised.
+    /// there). The probability levels of each row are rebuilt from the ellipsoid stamps into a
+    /// small per-thread buffer just before the row is updated; afterwards the ellipsoids drift.
     pub fn step(&mut self) {
         let [_, ny, _] = self.dims;
         let m = self.words_per_row;
@@ -241,9 +230,7 @@ impl Automaton {
         std::mem::swap(&mut self.state, &mut next);
         self.next = next;
         self.steps_done += 1;
-        if self.control.advect(&self.wind) {
-            self.rasterise_levels(false);
-        }
+        self.control.advect(&self.wind);
     }
 
     fn step_slice(
@@ -263,6 +250,7 @@ impl Automaton {
         let mut th = vec![0u64; m];
         let mut ta = vec![0u64; m];
         let mut tc = vec![0u64; m];
+        let mut row_levels: [Vec<u16>; 3] = std::array::from_fn(|_| vec![0u16; m * 64]);
         let row_base = |j: isize, kk: isize| -> Option<usize> {
             (j >= 0 && (j as usize) < ny && kk >= 0 && (kk as usize) < nz)
                 .then(|| (kk as usize * ny + j as usize) * m)
@@ -270,6 +258,8 @@ impl Automaton {
         let v = self.wind.velocity_cells(k);
         for j in 0..ny {
             let base = (k * ny + j) * m;
+            let [lh, la, le] = &mut row_levels;
+            let touched = self.control.fill_row_words(j, k, lh, la, le);
             let (ji, ki) = (j as isize, k as isize);
             let neighbours = [
                 row_base(ji + 1, ki),
@@ -300,7 +290,8 @@ impl Automaton {
                 let seq_ext = self.table.sequence_of(draw(&mut rng));
                 let seq_hum = self.table.sequence_of(draw(&mut rng));
                 let seq_act = self.table.sequence_of(draw(&mut rng));
-                let bits = self.rule_bits(base, w, [seq_hum, seq_act, seq_ext], supply);
+                let seqs = [seq_hum, seq_act, seq_ext];
+                let bits = self.rule_bits(w, seqs, supply, &touched, &row_levels);
                 th[w] = h1 | bits[HUM]; // eq 6 (bits zero unless a supply step)
                 ta[w] = a1 | bits[ACT]; // eq 7
                 tc[w] = c1 & !bits[EXT]; // eq 5
@@ -321,64 +312,37 @@ impl Automaton {
         }
     }
 
-    /// Bits where `rnd < p` for the three rules `[hum, act, ext]` in word `w` of the row starting
-    /// at word `base`: bit `x % 64` of table row `(level(x), seq)` for each cell x of the word
-    /// (eqs A.4–A.6). Words whose cells share a level need one table load per rule.
+    /// Bits where `rnd < p` for the three rules `[hum, act, ext]` in word `w` (eqs A.4–A.6): bit
+    /// `x % 64` of table row `(level(x), seq)` for each cell x. Words no ellipsoid touches share
+    /// the background levels and need one table load per rule; the others compare the cells'
+    /// levels (from `row_levels`) against the sequence's uniforms.
     #[inline]
-    fn rule_bits(&self, base: usize, w: usize, seq: [usize; 3], supply: bool) -> [u64; 3] {
-        let shared = self.word_levels[base + w];
+    fn rule_bits(
+        &self,
+        w: usize,
+        seq: [usize; 3],
+        supply: bool,
+        touched: &std::ops::Range<usize>,
+        row_levels: &[Vec<u16>; 3],
+    ) -> [u64; 3] {
         let mut out = [0u64; 3];
-        let mut mixed = false;
-        for rule in 0..3 {
-            if !supply && rule != EXT {
-                continue;
+        let rules: &[usize] = if supply { &[HUM, ACT, EXT] } else { &[EXT] };
+        if touched.contains(&w) {
+            for &rule in rules {
+                let cells: &[u16; 64] = row_levels[rule][w * 64..w * 64 + 64]
+                    .try_into()
+                    .expect("64 levels per word");
+                out[rule] = self.table.bits_below(seq[rule], cells);
             }
-            match shared[rule] {
-                MIXED => mixed = true,
-                0 => {}
-                l => out[rule] = self.table.word(l, seq[rule]),
+        } else {
+            let bg = self.control.background_levels();
+            for &rule in rules {
+                if bg[rule] != 0 {
+                    out[rule] = self.table.word(bg[rule], seq[rule]);
+                }
             }
-        }
-        if !mixed {
-            return out;
-        }
-        let at = (base + w) * 64;
-        for rule in 0..3 {
-            if shared[rule] != MIXED || (!supply && rule != EXT) {
-                continue;
-            }
-            let cells: &[u16; 64] = self.levels[rule][at..at + 64]
-                .try_into()
-                .expect("64 levels per word");
-            out[rule] = self.table.bits_below(seq[rule], cells);
         }
         out
-    }
-
-    /// Recomputes the per-cell and per-word probability levels from the current ellipsoids: every
-    /// row when `all`, else only rows that ellipsoids touch (the others stay background).
-    fn rasterise_levels(&mut self, all: bool) {
-        let ny = self.dims[1];
-        let m = self.words_per_row;
-        let control = &self.control;
-        let bg = control.background_levels();
-        let [lh, la, le] = &mut self.levels;
-        lh.par_chunks_mut(m * 64)
-            .zip(la.par_chunks_mut(m * 64))
-            .zip(le.par_chunks_mut(m * 64))
-            .zip(self.word_levels.par_chunks_mut(m))
-            .enumerate()
-            .for_each(|(row, (((hum, act), ext), words))| {
-                let (j, k) = (row % ny, row / ny);
-                if !all && !control.row_has_ellipsoids(j, k) {
-                    return;
-                }
-                // Words an ellipsoid touches take the per-cell path; the others are background.
-                let touched = control.fill_row_words(j, k, hum, act, ext);
-                for (w, shared) in words.iter_mut().enumerate() {
-                    *shared = if touched.contains(&w) { [MIXED; 3] } else { bg };
-                }
-            });
     }
 }
 
