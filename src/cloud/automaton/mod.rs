@@ -299,11 +299,11 @@ pub fn automaton_frames(params: &AutomatonParams, times_steps: &[f64]) -> Result
             let window: Vec<&[u64]> = (0..=2 * t0)
                 .map(|d| {
                     let s = (step + d).saturating_sub(t0);
-                    history
-                        .iter()
-                        .find(|(hs, _)| *hs == s)
-                        .map(|(_, w)| w.as_slice())
-                        .unwrap_or(history[0].1.as_slice())
+                    let found = history.iter().find(|(hs, _)| *hs == s);
+                    // Frames are visited in time order and the history keeps 2·t0 + 2 steps, so
+                    // the window is always present.
+                    debug_assert!(found.is_some(), "step {s} missing from the history");
+                    found.map_or(history[0].1.as_slice(), |(_, w)| w.as_slice())
                 })
                 .collect();
             let q = density::smoothed_fraction(&window, dims, m, &params.smoothing);

@@ -249,6 +249,24 @@ impl SphereCloud {
         &self.levels[k as usize]
     }
 
+    /// Level of detail for a resolution (seed 004 conclusion: "choosing the desired level of
+    /// detail, taking into account the angular resolution"): the deepest level whose mean sphere
+    /// diameter is still at least `resolution_m` (a voxel size, or a pixel's footprint at the
+    /// cloud's distance); level 0 if even the base sphere is smaller.
+    pub fn level_for_resolution(&self, resolution_m: f64) -> u32 {
+        let mut best = 0;
+        for (k, level) in self.levels.iter().enumerate() {
+            let mean_d =
+                2.0 * level.iter().map(|s| s.radius as f64).sum::<f64>() / level.len() as f64;
+            if mean_d >= resolution_m {
+                best = k as u32;
+            } else {
+                break;
+            }
+        }
+        best
+    }
+
     /// The leaves (level K).
     pub fn leaves(&self) -> &[Sphere] {
         &self.levels[self.levels.len() - 1]
@@ -317,6 +335,21 @@ mod tests {
         let d5 = 1000.0 - ch[4].radius as f64;
         assert!((ch[4].centre[1] as f64).abs() <= 0.6 * d5 + 1e-3);
         assert!((ch[4].centre[1] as f64).abs() >= 0.6 * 0.9 * d5 - 1e-3);
+    }
+
+    #[test]
+    fn resolution_picks_the_deepest_resolved_level() {
+        let c = SphereCloud::new(&SphereCloudParams::cumulus(6, 2)).unwrap();
+        assert_eq!(c.level_for_resolution(1e-3), 6);
+        assert_eq!(c.level_for_resolution(1e6), 0);
+        // Mean radii shrink by about (0.26 + 0.76)/2 = 0.51 per level: at 100 m resolution the
+        // level with ~130 m mean radius (k = 3) is the deepest still resolved.
+        let k = c.level_for_resolution(100.0);
+        let mean = |k: u32| {
+            let l = c.level(k);
+            2.0 * l.iter().map(|s| s.radius as f64).sum::<f64>() / l.len() as f64
+        };
+        assert!(mean(k) >= 100.0 && mean(k + 1) < 100.0, "k = {k}");
     }
 
     #[test]
