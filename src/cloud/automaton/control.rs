@@ -256,6 +256,29 @@ impl Obstacle {
     }
 }
 
+/// Scratch for the levels of one row: per rule, one level per cell (64 per word), and which
+/// words ellipsoids touch.
+#[derive(Debug, Clone, PartialEq)]
+pub struct RowLevels {
+    /// `[hum, act, ext]` levels, index x (length 64 · words).
+    pub levels: [Vec<u16>; 3],
+    /// Per word: whether any ellipsoid touches it (its levels are then in `levels`).
+    pub touched: Vec<bool>,
+    places: Vec<(usize, usize, usize, usize)>,
+}
+
+impl RowLevels {
+    /// Scratch for rows of `nx` cells.
+    pub fn new(nx: usize) -> Self {
+        let m = nx.div_ceil(64);
+        Self {
+            levels: std::array::from_fn(|_| vec![0; m * 64]),
+            touched: vec![false; m],
+            places: Vec::new(),
+        }
+    }
+}
+
 /// The probability fields: per cell, the quantised levels `int(p·n_p)` of p_hum, p_act and p_ext
 /// (seed 003 eqs A.4–A.6), from the background and the ellipsoids, which drift with the wind.
 ///
@@ -412,49 +435,37 @@ impl ProbabilityControl {
     }
 
     /// Levels of row (j, k) in the 64-cell words that ellipsoids touch, written per rule into
-    /// `hum`, `act`, `ext` (each `64 · ceil(nx/64)` long, index x). Returns the range of words
-    /// written; cells outside it are background and left untouched.
-    pub fn fill_row_words(
-        &self,
-        j: usize,
-        k: usize,
-        hum: &mut [u16],
-        act: &mut [u16],
-        ext: &mut [u16],
-    ) -> std::ops::Range<usize> {
+    /// `row.levels` (index x) with `row.touched[w]` set for those words; the other words are
+    /// background and their levels are left stale.
+    pub fn fill_row_words(&self, j: usize, k: usize, row: &mut RowLevels) {
         let nx = self.dims[0];
         let segs = &self.row_segments[k * self.dims[1] + j];
-        // Clipped placement of each segment: (first cell, last cell + 1, offset into the stamp).
-        let place = |s: usize| {
+        row.touched.fill(false);
+        row.places.clear();
+        for &s in segs {
             let (e, first, cells) = &self.segments[s];
             let x0 = self.bases[*e] + self.offsets[*e] + first;
             let lo = x0.clamp(0, nx as i64) as usize;
             let hi = (x0 + cells[HUM].len() as i64).clamp(0, nx as i64) as usize;
-            (lo, hi, (lo as i64 - x0).max(0) as usize)
-        };
-        let (mut lo_all, mut hi_all) = (nx, 0);
-        for &s in segs {
-            let (lo, hi, _) = place(s);
             if lo < hi {
-                lo_all = lo_all.min(lo);
-                hi_all = hi_all.max(hi);
+                row.places.push((s, lo, hi, (lo as i64 - x0) as usize));
             }
         }
-        if lo_all >= hi_all {
-            return 0..0;
-        }
-        let words = lo_all / 64..hi_all.div_ceil(64);
-        let cells = words.start * 64..words.end * 64;
         let [bh, ba, be] = self.background;
-        hum[cells.clone()].fill(bh);
-        act[cells.clone()].fill(ba);
-        // Ext starts "unset" so it becomes the min over the ellipsoids containing the cell.
-        ext[cells.clone()].fill(u16::MAX);
-        for &s in segs {
-            let (lo, hi, off) = place(s);
-            if lo >= hi {
-                continue;
+        let [hum, act, ext] = &mut row.levels;
+        for &(_, lo, hi, _) in &row.places {
+            for w in lo / 64..hi.div_ceil(64) {
+                if !row.touched[w] {
+                    row.touched[w] = true;
+                    let cells = w * 64..w * 64 + 64;
+                    hum[cells.clone()].fill(bh);
+                    act[cells.clone()].fill(ba);
+                    // Ext starts "unset" so it becomes the min over the containing ellipsoids.
+                    ext[cells].fill(u16::MAX);
+                }
             }
+        }
+        for &(s, lo, hi, off) in &row.places {
             let st = &self.segments[s].2;
             let n = hi - lo;
             for (o, l) in hum[lo..hi].iter_mut().zip(&st[HUM][off..off + n]) {
@@ -467,23 +478,22 @@ impl ProbabilityControl {
                 *o = (*o).min(*l);
             }
         }
-        for e in &mut ext[cells] {
-            if *e == u16::MAX {
-                *e = be;
+        for (w, _) in row.touched.iter().enumerate().filter(|(_, t)| **t) {
+            for e in &mut ext[w * 64..w * 64 + 64] {
+                // Unconditional store of a select, so the loop vectorises.
+                *e = if *e == u16::MAX { be } else { *e };
             }
         }
-        words
     }
 
     /// Levels `[hum, act, ext]` of every cell in row (j, k), written to `out[x]` (`nx` entries).
     pub fn fill_row(&self, j: usize, k: usize, out: &mut [[u16; 3]]) {
         let nx = self.dims[0];
-        let len = nx.div_ceil(64) * 64;
-        let (mut h, mut a, mut e) = (vec![0u16; len], vec![0u16; len], vec![0u16; len]);
-        let words = self.fill_row_words(j, k, &mut h, &mut a, &mut e);
+        let mut row = RowLevels::new(nx);
+        self.fill_row_words(j, k, &mut row);
         for (x, o) in out[..nx].iter_mut().enumerate() {
-            *o = if words.contains(&(x / 64)) {
-                [h[x], a[x], e[x]]
+            *o = if row.touched[x / 64] {
+                [row.levels[HUM][x], row.levels[ACT][x], row.levels[EXT][x]]
             } else {
                 self.background
             };

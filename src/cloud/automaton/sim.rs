@@ -1,7 +1,7 @@
 //! The bit-packed cellular automaton (seed 003 §4.1–4.4 and appendix A): hum / act / cld stored one
 //! bit per cell, 64 cells of a row along x per `u64` word, so every rule updates 64 cells at once.
 
-use super::control::{ProbabilityControl, WindProfile, ACT, EXT, HUM};
+use super::control::{ProbabilityControl, RowLevels, WindProfile, ACT, EXT, HUM};
 use super::random::{draw, setup_rng, slice_rng, RandomBitTable};
 use super::AutomatonParams;
 use crate::{Error, Result};
@@ -250,7 +250,7 @@ impl Automaton {
         let mut th = vec![0u64; m];
         let mut ta = vec![0u64; m];
         let mut tc = vec![0u64; m];
-        let mut row_levels: [Vec<u16>; 3] = std::array::from_fn(|_| vec![0u16; m * 64]);
+        let mut row_levels = RowLevels::new(nx);
         let row_base = |j: isize, kk: isize| -> Option<usize> {
             (j >= 0 && (j as usize) < ny && kk >= 0 && (kk as usize) < nz)
                 .then(|| (kk as usize * ny + j as usize) * m)
@@ -258,8 +258,7 @@ impl Automaton {
         let v = self.wind.velocity_cells(k);
         for j in 0..ny {
             let base = (k * ny + j) * m;
-            let [lh, la, le] = &mut row_levels;
-            let touched = self.control.fill_row_words(j, k, lh, la, le);
+            self.control.fill_row_words(j, k, &mut row_levels);
             let (ji, ki) = (j as isize, k as isize);
             let neighbours = [
                 row_base(ji + 1, ki),
@@ -291,7 +290,7 @@ impl Automaton {
                 let seq_hum = self.table.sequence_of(draw(&mut rng));
                 let seq_act = self.table.sequence_of(draw(&mut rng));
                 let seqs = [seq_hum, seq_act, seq_ext];
-                let bits = self.rule_bits(w, seqs, supply, &touched, &row_levels);
+                let bits = self.rule_bits(w, seqs, supply, &row_levels);
                 th[w] = h1 | bits[HUM]; // eq 6 (bits zero unless a supply step)
                 ta[w] = a1 | bits[ACT]; // eq 7
                 tc[w] = c1 & !bits[EXT]; // eq 5
@@ -315,21 +314,14 @@ impl Automaton {
     /// Bits where `rnd < p` for the three rules `[hum, act, ext]` in word `w` (eqs A.4–A.6): bit
     /// `x % 64` of table row `(level(x), seq)` for each cell x. Words no ellipsoid touches share
     /// the background levels and need one table load per rule; the others compare the cells'
-    /// levels (from `row_levels`) against the sequence's uniforms.
+    /// levels (from `row`) against the sequence's uniforms.
     #[inline]
-    fn rule_bits(
-        &self,
-        w: usize,
-        seq: [usize; 3],
-        supply: bool,
-        touched: &std::ops::Range<usize>,
-        row_levels: &[Vec<u16>; 3],
-    ) -> [u64; 3] {
+    fn rule_bits(&self, w: usize, seq: [usize; 3], supply: bool, row: &RowLevels) -> [u64; 3] {
         let mut out = [0u64; 3];
         let rules: &[usize] = if supply { &[HUM, ACT, EXT] } else { &[EXT] };
-        if touched.contains(&w) {
+        if row.touched[w] {
             for &rule in rules {
-                let cells: &[u16; 64] = row_levels[rule][w * 64..w * 64 + 64]
+                let cells: &[u16; 64] = row.levels[rule][w * 64..w * 64 + 64]
                     .try_into()
                     .expect("64 levels per word");
                 out[rule] = self.table.bits_below(seq[rule], cells);
