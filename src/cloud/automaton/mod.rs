@@ -5,6 +5,21 @@
 //! turn binary cloud into a [`DensityGrid`]. Everything is deterministic for a seed and
 //! independent of the number of threads.
 //!
+//! Where this departs from the paper, and why:
+//! - Eq A.4 as printed keeps cloud where the p_ext row has a 1 (probability p_ext), the opposite
+//!   of eq 5; A.5–A.6 print `c` and `∧` for `h ∨` and `a ∨`. The rules follow eqs 5–7.
+//! - Appendix A indexes the table with one probability per word; here every cell has its own
+//!   level. Rows of one sequence are nested (see [`random`]), so a word whose cells differ needs
+//!   one comparison pass rather than 64 loads, and the result is still bit `x % 64` of row
+//!   `(level(x), seq)`.
+//! - Eq 11's weight is w ≡ 1 (a box average); eq B.2's printed constant 748πR/405 equals neither
+//!   ∫h dr nor ∫h dV, so the metaball kernel is normalised by its own lattice sum (density 1 in
+//!   solid cloud).
+//! - §4.5 gives no probability profile inside an ellipsoid; 1 − ρ² is used (see [`Ellipsoid`]).
+//! - Inside obstacles all three states are cleared (the paper zeroes the probabilities, which
+//!   leaves growth by eq 3 free to enter the mountain).
+//! - Wind blows along ±x only; other directions rotate the simulation space (§4.3).
+//!
 //! ```no_run
 //! # use skybake::cloud::automaton::{automaton_density, AutomatonParams};
 //! let params = AutomatonParams::example([256, 128, 20], 7);

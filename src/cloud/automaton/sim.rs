@@ -197,9 +197,9 @@ impl Automaton {
 
     /// One time step t_i → t_{i+1}. For each word, in this order:
     /// 1. growth, eqs 1–4 (A.1–A.3), from the state at t_i;
-    /// 2. extinction, eq 5: cld ∧ ¬p[ext level][seq] (the table row holds the bits where
+    /// 2. extinction, eq 5: `cld ∧ ¬p[ext level][seq]` (the table row holds the bits where
     ///    rnd < p_ext, so its complement is IS(rnd > p_ext));
-    /// 3. on supply steps, vapour and activation supply, eqs 6–7: hum ∨ p[..], act ∨ p[..];
+    /// 3. on supply steps, vapour and activation supply, eqs 6–7: `hum ∨ p[..]`, `act ∨ p[..]`;
     /// 4. wind, eqs 8–10: the row shifts by v(z_k) cells along x, zeros entering;
     /// 5. cells in obstacles are cleared.
     ///
