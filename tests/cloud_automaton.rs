@@ -391,6 +391,11 @@ fn bad_parameters_are_refused_with_their_name() {
     assert_eq!(field(&|q| q.smoothing.t0 = 1000), "smoothing.t0");
     assert_eq!(field(&|q| q.background.ext = 1.5), "background.ext");
     assert_eq!(field(&|q| q.random_sequences = 0), "random_sequences");
+    // Huge parcels would need unbounded stamps.
+    assert_eq!(
+        field(&|q| q.random_ellipsoids.as_mut().unwrap().semi_axes_max_cells = [1e6; 3]),
+        "ellipsoids"
+    );
     assert_eq!(
         automaton_density(&p, -1.0).unwrap_err().field(),
         "times_steps"

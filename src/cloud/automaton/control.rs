@@ -10,6 +10,10 @@ use serde::{Deserialize, Serialize};
 pub const MAX_WIND_CELLS_PER_STEP: f64 = 4096.0;
 /// Largest accepted number of ellipsoids.
 pub const MAX_ELLIPSOIDS: usize = 10_000;
+/// Largest accepted number of hills.
+pub const MAX_HILLS: usize = 256;
+/// Largest accepted total size of the ellipsoid stamps, in cells (6 bytes each).
+pub const MAX_STAMP_CELLS: usize = 1 << 25;
 
 /// One knot of the piecewise-linear wind profile v(z) (seed 003 §4.3).
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
@@ -217,11 +221,11 @@ impl Obstacle {
                 Ok(heights_cells.clone())
             }
             Obstacle::Hills { hills } => {
-                if hills.len() > MAX_ELLIPSOIDS {
+                if hills.len() > MAX_HILLS {
                     return Err(Error::too_large(
                         "obstacle.hills",
                         format!("{} hills", hills.len()),
-                        MAX_ELLIPSOIDS,
+                        MAX_HILLS,
                     ));
                 }
                 for h in hills {
@@ -330,6 +334,25 @@ impl ProbabilityControl {
         }
         let [_, ny, nz] = dims;
         let q = |p: f64| quantise(p, levels);
+        // Bound the stamps before building them: rows inside the space times the x extent.
+        let mut stamp_cells = 0usize;
+        for e in &ellipsoids {
+            let [_, cy, cz] = e.centre_cells;
+            let [ax, ay, az] = e.semi_axes_cells;
+            let rows_j = ((cy + ay).ceil().clamp(0.0, ny as f64)
+                - (cy - ay).floor().clamp(0.0, ny as f64)) as usize;
+            let rows_k = ((cz + az).ceil().clamp(0.0, nz as f64)
+                - (cz - az).floor().clamp(0.0, nz as f64)) as usize;
+            let per_row = 2 * ax.ceil() as usize + 3;
+            stamp_cells = stamp_cells.saturating_add(rows_j * rows_k * per_row);
+        }
+        if stamp_cells > MAX_STAMP_CELLS {
+            return Err(Error::too_large(
+                "ellipsoids",
+                format!("the ellipsoids cover {stamp_cells} cells in total"),
+                format!("{MAX_STAMP_CELLS} cells"),
+            ));
+        }
         let mut segments = Vec::new();
         let mut row_segments = vec![Vec::new(); ny * nz];
         for (ei, e) in ellipsoids.iter().enumerate() {
