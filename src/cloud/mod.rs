@@ -19,3 +19,5 @@ pub mod scene;
 pub mod wyvill;
 
 pub use grid::DensityGrid;
+pub mod automaton;
+pub mod spheres;

@@ -1,0 +1,25 @@
+//! Times the cellular automaton on the paper's 256×256×20 space (seed 003 §6: 0.5 s per step).
+//! Run: `cargo run --example ca_bench [nx ny nz steps]`.
+
+fn main() -> Result<(), skybake::Error> {
+    let args: Vec<usize> = std::env::args()
+        .skip(1)
+        .filter_map(|a| a.parse().ok())
+        .collect();
+    let [nx, ny, nz, steps] = match args.as_slice() {
+        [a, b, c, d] => [*a, *b, *c, *d],
+        _ => [256, 256, 20, 200],
+    };
+    let b = skybake::cloud::automaton::bench_ca_step(nx, ny, nz, steps)?;
+    println!(
+        "ca-step {}x{}x{}: mean {:.3} ms, min {:.3} ms over {} steps, cloud cover {:.3}",
+        nx,
+        ny,
+        nz,
+        b.mean_step.as_secs_f64() * 1e3,
+        b.min_step.as_secs_f64() * 1e3,
+        b.steps,
+        b.cloud_cover
+    );
+    Ok(())
+}
