@@ -5,5 +5,6 @@
 
 pub mod cloud;
 pub mod error;
+pub mod solar_position;
 
 pub use error::{Error, Result};
