@@ -12,6 +12,7 @@ pub mod export;
 pub mod output;
 pub mod phase;
 pub mod solar;
+pub mod solar_position;
 pub mod spec;
 pub mod spectrum;
 pub mod store;
