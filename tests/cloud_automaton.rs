@@ -8,6 +8,7 @@ use skybake::cloud::automaton::{
     automaton_density, automaton_frames, Automaton, AutomatonParams, Ellipsoid, Hill, Obstacle,
     RandomEllipsoids, RuleProbabilities, Smoothing, WindKnot,
 };
+use skybake::cloud::scene::{parse_scene_file, voxelize, AutomatonSource, CloudSource};
 
 /// Plain reference: one bool per cell, index (z·ny + y)·nx + x.
 struct Reference {
@@ -408,17 +409,24 @@ fn bad_parameters_are_refused_with_their_name() {
 
 #[test]
 fn example_scene_parses_runs_and_documents_every_parameter() {
-    let scene: serde_json::Value =
-        serde_json::from_str(include_str!("../config/scenes/automaton-field.json")).unwrap();
-    assert_eq!(scene["source"]["kind"], "automaton");
-    let block = &scene["source"]["params"];
-    let params: AutomatonParams = serde_json::from_value(block.clone()).unwrap();
-    params.validate().unwrap();
+    let text = include_str!("../config/scenes/automaton-field.json");
+    let section = parse_scene_file(text.as_bytes()).unwrap();
+    let CloudSource::Automaton(source) = &section.source else {
+        panic!("automaton-field.json is not an automaton scene")
+    };
+    assert_eq!(source.frame_time_steps, 150.5);
+    let params = &source.params;
+    assert_eq!(section.voxel_size_m, params.cell_size_m);
+    let scene: serde_json::Value = serde_json::from_str(text).unwrap();
+    let block = &scene["cloud"]["source"]["params"];
     let doc = scene["doc"].as_object().unwrap();
     for key in block.as_object().unwrap().keys() {
         assert!(doc.contains_key(key), "parameter {key} is not documented");
     }
-    let mut sim = Automaton::new(&params).unwrap();
+    for key in ["voxel_size_m", "frame_time_steps"] {
+        assert!(doc.contains_key(key), "{key} is not documented");
+    }
+    let mut sim = Automaton::new(params).unwrap();
     for _ in 0..60 {
         sim.step();
     }
@@ -427,4 +435,39 @@ fn example_scene_parses_runs_and_documents_every_parameter() {
         !sim.is_open(170, 64, 0),
         "the mountain is solid at its foot"
     );
+}
+
+/// The scene source at another voxel size resamples the automaton's own grid over the same box,
+/// and bad frame times are refused naming the field.
+#[test]
+fn scene_source_resamples_and_checks_the_frame_time() {
+    let mut params = busy_params([64, 32, 8], 5);
+    params.cell_size_m = 100.0;
+    let direct = automaton_density(&params, 12.25).unwrap();
+    let source = |t: f64| {
+        CloudSource::Automaton(AutomatonSource {
+            frame_time_steps: t,
+            params: params.clone(),
+        })
+    };
+    let no_files = |path: &str| -> skybake::Result<Vec<u8>> {
+        Err(skybake::Error::invalid("path", format!("no file {path}")))
+    };
+    let same = voxelize(&source(12.25), 100.0, &no_files).unwrap();
+    assert_eq!(same, direct);
+    let coarse = voxelize(&source(12.25), 200.0, &no_files).unwrap();
+    assert_eq!(coarse.dims, [32, 16, 4]);
+    assert_eq!(coarse.origin_m, direct.origin_m);
+    // A coarse voxel centre sits on a corner shared by 2×2×2 fine cells: their mean.
+    let mut mean = 0.0;
+    for (dx, dy, dz) in (0..8).map(|i| (i & 1, (i >> 1) & 1, i >> 2)) {
+        mean += direct.at(10 + dx, 6 + dy, 2 + dz) as f64 / 8.0;
+    }
+    assert!((coarse.at(5, 3, 1) as f64 - mean).abs() < 1e-5);
+    for t in [-0.5, 2e6, f64::NAN] {
+        assert_eq!(
+            voxelize(&source(t), 100.0, &no_files).unwrap_err().field(),
+            "frame_time_steps"
+        );
+    }
 }

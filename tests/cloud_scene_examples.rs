@@ -5,7 +5,9 @@
 
 use glam::DVec3;
 use skybake::cloud::satellite::{synthetic_cloud_field, GrayImage};
-use skybake::cloud::scene::{parse_cloud_section, voxelize, CloudSource, GridParams};
+use skybake::cloud::scene::{
+    parse_cloud_section, parse_scene_file, voxelize, CloudSource, GridParams,
+};
 use skybake::{Error, Result};
 use std::path::Path;
 
@@ -21,8 +23,89 @@ fn loader(path: &str) -> Result<Vec<u8>> {
 
 fn section(name: &str) -> skybake::cloud::scene::CloudSection {
     let text = std::fs::read(Path::new(SCENES).join(name)).unwrap();
-    let scene: serde_json::Value = serde_json::from_slice(&text).unwrap();
-    parse_cloud_section(scene["cloud"].to_string().as_bytes()).unwrap()
+    parse_scene_file(&text).unwrap()
+}
+
+/// Every `.json` file in `config/scenes/` is a scene that voxelises through the one scene API
+/// (files it names are read relative to `config/scenes/`), and together they cover every source
+/// that needs no external grid file.
+#[test]
+fn every_scene_file_voxelises_through_the_scene_api() {
+    let mut kinds = Vec::new();
+    let mut names: Vec<_> = std::fs::read_dir(SCENES)
+        .unwrap()
+        .map(|e| e.unwrap().path())
+        .filter(|p| p.extension().is_some_and(|e| e == "json"))
+        .collect();
+    names.sort();
+    for path in &names {
+        let name = path.file_name().unwrap().to_string_lossy();
+        let text = std::fs::read(path).unwrap();
+        let scene: serde_json::Value = serde_json::from_slice(&text).unwrap();
+        assert!(scene["name"].is_string(), "{name}: no name");
+        assert!(scene["description"].is_string(), "{name}: no description");
+        let section = parse_scene_file(&text).unwrap_or_else(|e| panic!("{name}: {e}"));
+        let grid = section
+            .voxelize(&loader)
+            .unwrap_or_else(|e| panic!("{name}: {e}"));
+        assert_eq!(grid.voxel_size_m, section.voxel_size_m, "{name}");
+        assert_eq!(
+            grid.data.len(),
+            grid.dims.iter().product::<usize>(),
+            "{name}"
+        );
+        assert!(
+            grid.data.iter().all(|v| v.is_finite() && *v >= 0.0),
+            "{name}: densities must be finite and >= 0"
+        );
+        let cloudy = grid.data.iter().filter(|v| **v > 0.01).count();
+        assert!(
+            grid.max_density() > 0.1 && cloudy >= 1000,
+            "{name}: max {} and {cloudy} cloudy voxels",
+            grid.max_density()
+        );
+        kinds.push(section.source.kind());
+    }
+    kinds.sort();
+    assert_eq!(
+        kinds,
+        ["automaton", "fractal", "metaballs", "satellite", "spheres"],
+        "one example scene per source"
+    );
+}
+
+#[test]
+fn scene_files_without_a_valid_cloud_section_are_refused() {
+    let field = |json: &str| {
+        parse_scene_file(json.as_bytes())
+            .unwrap_err()
+            .field()
+            .to_string()
+    };
+    assert_eq!(field("not json"), "scene");
+    assert_eq!(field(r#"{"name": "x"}"#), "cloud");
+    assert_eq!(
+        field(r#"{"cloud": {"source": {"type": "metaballs"}}}"#),
+        "cloud"
+    );
+    assert_eq!(
+        field(
+            r#"{"cloud": {"source": {"type": "spheres", "level": 7, "params": {"levels": 2, "size_m": [1, 1, 1], "mor_m": 5, "seed": 1}}}}"#
+        ),
+        "level"
+    );
+    assert_eq!(
+        field(
+            r#"{"cloud": {"source": {"type": "automaton", "frame_time_steps": -1, "params": {"dims": [8, 8, 8], "cell_size_m": 10, "seed": 1, "background": {"hum": 0, "act": 0, "ext": 0}}}}}"#
+        ),
+        "frame_time_steps"
+    );
+    assert_eq!(
+        field(
+            r#"{"cloud": {"source": {"type": "automaton", "frame_time_steps": 1, "params": {"dims": [8, 0, 8], "cell_size_m": 10, "seed": 1, "background": {"hum": 0, "act": 0, "ext": 0}}}}}"#
+        ),
+        "dims"
+    );
 }
 
 /// The example PNG is the 8-bit quantisation of `synthetic_cloud_field(128, 2026)`.
@@ -86,6 +169,8 @@ fn sources_round_trip_through_json() {
         "cumulus-metaballs.json",
         "cumulus-fractal.json",
         "satellite-field.json",
+        "automaton-field.json",
+        "sphere-cloud.json",
     ] {
         let s = section(name);
         let again = parse_cloud_section(&serde_json::to_vec(&s).unwrap()).unwrap();

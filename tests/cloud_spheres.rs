@@ -3,6 +3,7 @@
 
 use glam::DVec3;
 use proptest::prelude::*;
+use skybake::cloud::scene::{parse_scene_file, voxelize, CloudSource, SpheresSource};
 use skybake::cloud::spheres::{
     edge_weight, Camera, Ray, SphereCloud, SphereCloudParams, TraceStats, MAX_LEVELS,
 };
@@ -290,19 +291,54 @@ fn bad_parameters_are_refused_with_their_name() {
 
 #[test]
 fn example_scene_parses_builds_and_documents_every_parameter() {
-    let scene: serde_json::Value =
-        serde_json::from_str(include_str!("../config/scenes/sphere-cloud.json")).unwrap();
-    assert_eq!(scene["source"]["kind"], "spheres");
-    let block = &scene["source"]["params"];
-    let params: SphereCloudParams = serde_json::from_value(block.clone()).unwrap();
+    let text = include_str!("../config/scenes/sphere-cloud.json");
+    let section = parse_scene_file(text.as_bytes()).unwrap();
+    let CloudSource::Spheres(source) = &section.source else {
+        panic!("sphere-cloud.json is not a spheres scene")
+    };
+    assert_eq!(source.level, None);
+    let scene: serde_json::Value = serde_json::from_str(text).unwrap();
+    let block = &scene["cloud"]["source"]["params"];
     let doc = scene["doc"].as_object().unwrap();
     for key in block.as_object().unwrap().keys() {
         assert!(doc.contains_key(key), "parameter {key} is not documented");
     }
-    assert!(doc.contains_key("voxel_size_m"));
-    let cloud = SphereCloud::new(&params).unwrap();
+    for key in ["voxel_size_m", "level"] {
+        assert!(doc.contains_key(key), "{key} is not documented");
+    }
+    let cloud = SphereCloud::new(&source.params).unwrap();
     assert_eq!(cloud.leaves().len(), 15_625);
-    let voxel = scene["source"]["voxel_size_m"].as_f64().unwrap();
-    let grid = cloud.voxelize(voxel, None).unwrap();
+    // The scene API gives the same grid as the model's own voxeliser.
+    let no_files = |path: &str| -> skybake::Result<Vec<u8>> {
+        Err(skybake::Error::invalid("path", format!("no file {path}")))
+    };
+    let grid = section.voxelize(&no_files).unwrap();
+    assert_eq!(grid, cloud.voxelize(section.voxel_size_m, None).unwrap());
     assert!(grid.max_density() > 0.5);
+}
+
+/// `level` picks a coarser level of the same hierarchy; a level above K is refused by name.
+#[test]
+fn scene_source_level_selects_the_summed_spheres() {
+    let params = SphereCloudParams::cumulus(3, 9);
+    let cloud = SphereCloud::new(&params).unwrap();
+    let no_files = |path: &str| -> skybake::Result<Vec<u8>> {
+        Err(skybake::Error::invalid("path", format!("no file {path}")))
+    };
+    let source = |level: Option<u32>| {
+        CloudSource::Spheres(SpheresSource {
+            level,
+            params: params.clone(),
+        })
+    };
+    let coarse = voxelize(&source(Some(1)), 100.0, &no_files).unwrap();
+    assert_eq!(coarse, cloud.voxelize(100.0, Some(1)).unwrap());
+    let p = coarse.voxel_centre(coarse.dims[0] / 2, coarse.dims[1] / 2, coarse.dims[2] / 2);
+    assert!((coarse.sample(p) as f64 - cloud.density_at(p, 1)).abs() < 1e-5);
+    assert_eq!(
+        voxelize(&source(Some(4)), 100.0, &no_files)
+            .unwrap_err()
+            .field(),
+        "level"
+    );
 }

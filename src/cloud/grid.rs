@@ -72,6 +72,31 @@ impl DensityGrid {
         Ok(grid)
     }
 
+    /// A grid holding `density(p)` at every voxel centre `p` (metres), evaluated in parallel over
+    /// z-slices; dimensions and memory are validated before allocating.
+    pub fn from_fn(
+        dims: [usize; 3],
+        voxel_size_m: f64,
+        origin_m: DVec3,
+        density: impl Fn(DVec3) -> f32 + Sync,
+    ) -> Result<Self> {
+        use rayon::prelude::*;
+        let mut grid = Self::zeros(dims, voxel_size_m, origin_m)?;
+        let [nx, ny, _] = dims;
+        grid.data
+            .par_chunks_mut(nx * ny)
+            .enumerate()
+            .for_each(|(z, slice)| {
+                for (i, v) in slice.iter_mut().enumerate() {
+                    let (x, y) = (i % nx, i / nx);
+                    let p =
+                        origin_m + (DVec3::new(x as f64, y as f64, z as f64) + 0.5) * voxel_size_m;
+                    *v = density(p);
+                }
+            });
+        Ok(grid)
+    }
+
     /// Linear index of voxel (x, y, z).
     #[inline]
     pub fn index(&self, x: usize, y: usize, z: usize) -> usize {
@@ -136,6 +161,12 @@ impl DensityGrid {
 
 /// Voxel count for `dims`, refusing empty or oversized grids before any allocation.
 pub fn checked_voxel_count(dims: [usize; 3]) -> Result<usize> {
+    checked_count(dims, MAX_VOXELS, "voxels")
+}
+
+/// `nx·ny·nz` for `dims`, refusing a zero dimension (out of range on `dims`) or a product above
+/// `limit` (too large on `dims`, counted in `unit`) before anything is allocated.
+pub fn checked_count(dims: [usize; 3], limit: usize, unit: &str) -> Result<usize> {
     if dims.contains(&0) {
         return Err(Error::out_of_range(
             "dims",
@@ -145,12 +176,12 @@ pub fn checked_voxel_count(dims: [usize; 3]) -> Result<usize> {
     }
     dims.iter()
         .try_fold(1usize, |acc, &d| acc.checked_mul(d))
-        .filter(|&c| c <= MAX_VOXELS)
+        .filter(|&c| c <= limit)
         .ok_or_else(|| {
             Error::too_large(
                 "dims",
-                format!("{dims:?} is too many voxels"),
-                format!("{MAX_VOXELS} voxels"),
+                format!("{dims:?} is too many {unit}"),
+                format!("{limit} {unit}"),
             )
         })
 }

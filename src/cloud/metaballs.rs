@@ -9,7 +9,6 @@ use super::grid::{checked_voxel_count, DensityGrid, MAX_VOXELS};
 use super::wyvill;
 use crate::{Error, Result};
 use glam::DVec3;
-use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
 /// Most metaballs accepted in one field.
@@ -258,23 +257,7 @@ impl MetaballField {
         voxel_size_m: f64,
         origin_m: DVec3,
     ) -> Result<DensityGrid> {
-        let mut grid = DensityGrid::zeros(dims, voxel_size_m, origin_m)?;
-        let [nx, ny, _] = dims;
-        grid.data
-            .par_chunks_mut(nx * ny)
-            .enumerate()
-            .for_each(|(z, slice)| {
-                let pz = origin_m.z + (z as f64 + 0.5) * voxel_size_m;
-                for y in 0..ny {
-                    let py = origin_m.y + (y as f64 + 0.5) * voxel_size_m;
-                    let row = &mut slice[y * nx..(y + 1) * nx];
-                    for (x, v) in row.iter_mut().enumerate() {
-                        let px = origin_m.x + (x as f64 + 0.5) * voxel_size_m;
-                        *v = self.density(DVec3::new(px, py, pz)) as f32;
-                    }
-                }
-            });
-        Ok(grid)
+        DensityGrid::from_fn(dims, voxel_size_m, origin_m, |p| self.density(p) as f32)
     }
 }
 

@@ -6,17 +6,21 @@
 //!             "balls": [{"centre_m": [0, 0, 1500], "radius_m": 400, "density": 1.0}]}}
 //! ```
 //!
-//! `source.type` is one of `"metaballs"`, `"fractal"`, `"satellite"` and `"grid"`; each variant's
-//! fields, units, ranges and defaults are documented on its parameter struct. File paths inside a
-//! source (`image`, `path`, `header`) are passed verbatim to the caller's loader, which resolves
-//! them (normally relative to the scene file) and enforces its own size limit, so this module
-//! does no I/O.
+//! `source.type` is one of `"metaballs"`, `"fractal"`, `"satellite"`, `"grid"`, `"automaton"` and
+//! `"spheres"`; each variant's fields, units, ranges and defaults are documented on its parameter
+//! struct. A scene file (see `config/scenes/`) is an object whose `cloud` member is this section;
+//! its other members (`name`, `description`, `doc`, …) are ignored here ([`parse_scene_file`]).
+//! File paths inside a source (`image`, `path`, `header`) are passed verbatim to the caller's
+//! loader, which resolves them (normally relative to the scene file) and enforces its own size
+//! limit ([`MAX_GRID_FILE_BYTES`]), so this module does no I/O.
 
+use super::automaton::{self, AutomatonParams};
 use super::fractal::{self, FractalParams};
 use super::grid::{checked_voxel_count, MAX_VOXELS};
 use super::import;
 use super::metaballs::{box_dims, Metaball, MetaballField};
 use super::satellite::{self, SatelliteParams};
+use super::spheres::{SphereCloud, SphereCloudParams};
 use super::DensityGrid;
 use crate::{Error, Result};
 use glam::DVec3;
@@ -24,6 +28,9 @@ use serde::{Deserialize, Serialize};
 
 /// Largest grid file a loader needs to accept: the largest grid in float64 plus a header.
 pub const MAX_GRID_FILE_BYTES: usize = MAX_VOXELS * 8 + import::MAX_HEADER_BYTES + 12;
+
+/// Largest scene file a caller needs to read (an automaton height map of 2048² cells in JSON fits).
+pub const MAX_SCENE_FILE_BYTES: usize = 64 << 20;
 
 /// Smallest and largest accepted voxel edge, metres.
 pub const VOXEL_SIZE_RANGE_M: (f64, f64) = (0.01, 10_000.0);
@@ -43,9 +50,8 @@ fn default_voxel_size_m() -> f64 {
     50.0
 }
 
-/// A cloud density source, tagged by `"type"`. Extend by adding a variant and its arm in
-/// [`voxelize`] (the cellular automaton and sphere hierarchy join as `Automaton(AutomatonParams)`
-/// and `Spheres(SpheresParams)`).
+/// A cloud density source, tagged by `"type"`. Extend by adding a variant, its arm in
+/// [`validate_source`] and [`voxelize`], and its name in [`CloudSource::kind`].
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(tag = "type", rename_all = "snake_case")]
 #[non_exhaustive]
@@ -58,6 +64,56 @@ pub enum CloudSource {
     Satellite(SatelliteParams),
     /// A density grid from a `.npy` or raw f32 file.
     Grid(GridParams),
+    /// One frame of the cellular-automaton cloud animation (seed 003 §4–5.1).
+    Automaton(AutomatonSource),
+    /// A hierarchy of spheres (seed 004) sampled into voxels.
+    Spheres(SpheresSource),
+}
+
+impl CloudSource {
+    /// The `"type"` tag of the source.
+    pub fn kind(&self) -> &'static str {
+        match self {
+            CloudSource::Metaballs(_) => "metaballs",
+            CloudSource::Fractal(_) => "fractal",
+            CloudSource::Satellite(_) => "satellite",
+            CloudSource::Grid(_) => "grid",
+            CloudSource::Automaton(_) => "automaton",
+            CloudSource::Spheres(_) => "spheres",
+        }
+    }
+}
+
+/// Parameters of the `"automaton"` source: the simulation and the time of the frame.
+///
+/// ```json
+/// {"type": "automaton", "frame_time_steps": 150.5, "params": {"dims": [256, 128, 20], …}}
+/// ```
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct AutomatonSource {
+    /// Time of the frame in automaton steps, in [0, 1e6]; fractional times interpolate linearly
+    /// between the densities of the neighbouring steps (seed 003 §5.1).
+    pub frame_time_steps: f64,
+    /// The simulation (documented on [`AutomatonParams`]). Its grid has one voxel per cell
+    /// (`cell_size_m`); at another `voxel_size_m` it is resampled trilinearly over the same box.
+    pub params: AutomatonParams,
+}
+
+/// Parameters of the `"spheres"` source.
+///
+/// ```json
+/// {"type": "spheres", "level": null, "params": {"levels": 6, "size_m": [2000, 1200, 1000], …}}
+/// ```
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SpheresSource {
+    /// Level whose spheres are summed into the voxels, in 0..=`params.levels` [`params.levels`,
+    /// the leaves]. A coarser level gives a smoother, cheaper cloud.
+    #[serde(default)]
+    pub level: Option<u32>,
+    /// The hierarchy (documented on [`SphereCloudParams`]).
+    pub params: SphereCloudParams,
 }
 
 /// Parameters of the `"metaballs"` source.
@@ -139,6 +195,27 @@ pub fn parse_cloud_section(json: &[u8]) -> Result<CloudSection> {
     Ok(section)
 }
 
+/// Parses a whole scene file (`{"name", "description", "cloud": {…}, …}`) and returns its
+/// validated cloud section; members other than `cloud` are not read here.
+pub fn parse_scene_file(json: &[u8]) -> Result<CloudSection> {
+    if json.len() > MAX_SCENE_FILE_BYTES {
+        return Err(Error::too_large(
+            "scene",
+            format!("{} bytes", json.len()),
+            format!("{MAX_SCENE_FILE_BYTES} bytes"),
+        ));
+    }
+    let scene: serde_json::Value = serde_json::from_slice(json)
+        .map_err(|e| Error::invalid("scene", format!("invalid scene JSON: {e}")))?;
+    let cloud = scene
+        .get("cloud")
+        .ok_or_else(|| Error::invalid("cloud", "the scene has no \"cloud\" section"))?;
+    let section: CloudSection = CloudSection::deserialize(cloud)
+        .map_err(|e| Error::invalid("cloud", format!("invalid cloud section: {e}")))?;
+    section.validate()?;
+    Ok(section)
+}
+
 impl CloudSection {
     /// Checks the voxel size and the source's parameters.
     pub fn validate(&self) -> Result<()> {
@@ -191,6 +268,30 @@ pub fn validate_source(source: &CloudSource) -> Result<()> {
             }
             Ok(())
         }
+        CloudSource::Automaton(a) => {
+            let t = a.frame_time_steps;
+            if !(0.0..=automaton::MAX_STEPS).contains(&t) {
+                return Err(Error::out_of_range(
+                    "frame_time_steps",
+                    t,
+                    format!("[0, {}]", automaton::MAX_STEPS),
+                ));
+            }
+            a.params.validate()?;
+            // Draws the random parcels and checks them (no simulation, no large allocation).
+            a.params.all_ellipsoids().map(drop)
+        }
+        CloudSource::Spheres(s) => {
+            s.params.validate()?;
+            match s.level {
+                Some(k) if k > s.params.levels => Err(Error::out_of_range(
+                    "level",
+                    k,
+                    format!("0..={} (params.levels)", s.params.levels),
+                )),
+                _ => Ok(()),
+            }
+        }
     }
 }
 
@@ -230,31 +331,37 @@ pub fn voxelize(
                 let s = p.density_scale as f32;
                 grid.data.iter_mut().for_each(|v| *v *= s);
             }
-            resample(&grid, voxel_size_m)
+            at_voxel_size(grid, voxel_size_m)
         }
+        CloudSource::Automaton(a) => at_voxel_size(
+            automaton::automaton_density(&a.params, a.frame_time_steps)?,
+            voxel_size_m,
+        ),
+        CloudSource::Spheres(s) => SphereCloud::new(&s.params)?.voxelize(voxel_size_m, s.level),
     }
+}
+
+/// `grid` itself when its voxel size is `voxel_size_m`, else [`resample`]d (no copy in the common
+/// case of matching sizes).
+fn at_voxel_size(grid: DensityGrid, voxel_size_m: f64) -> Result<DensityGrid> {
+    if same_size(grid.voxel_size_m, voxel_size_m) {
+        Ok(grid)
+    } else {
+        resample(&grid, voxel_size_m)
+    }
+}
+
+fn same_size(a_m: f64, b_m: f64) -> bool {
+    (a_m - b_m).abs() <= 1e-9 * b_m
 }
 
 /// The grid resampled (trilinear, cell-centred) at `voxel_size_m` over the same box; the grid
 /// itself when the size already matches.
 pub fn resample(grid: &DensityGrid, voxel_size_m: f64) -> Result<DensityGrid> {
-    if (grid.voxel_size_m - voxel_size_m).abs() <= 1e-9 * voxel_size_m {
+    if same_size(grid.voxel_size_m, voxel_size_m) {
         return Ok(grid.clone());
     }
     let (dims, origin_m) = box_dims(grid.origin_m, grid.max_corner_m(), voxel_size_m)?;
     checked_voxel_count(dims)?;
-    let mut out = DensityGrid::zeros(dims, voxel_size_m, origin_m)?;
-    use rayon::prelude::*;
-    let [nx, ny, _] = dims;
-    out.data
-        .par_chunks_mut(nx * ny)
-        .enumerate()
-        .for_each(|(z, slice)| {
-            for (i, v) in slice.iter_mut().enumerate() {
-                let (x, y) = (i % nx, i / nx);
-                let p = origin_m + (DVec3::new(x as f64, y as f64, z as f64) + 0.5) * voxel_size_m;
-                *v = grid.sample(p);
-            }
-        });
-    Ok(out)
+    DensityGrid::from_fn(dims, voxel_size_m, origin_m, |p| grid.sample(p))
 }

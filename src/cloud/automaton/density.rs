@@ -1,6 +1,7 @@
 //! From binary cloud to continuous density (seed 003 §5.1): space-time smoothing of cld (eq 11),
 //! then a sum of metaballs with Wyvill's field function (eq 12, appendix B eq B.1).
 
+use crate::cloud::wyvill;
 use crate::{Error, Result};
 use glam::DVec3;
 use rayon::prelude::*;
@@ -51,17 +52,6 @@ impl Smoothing {
         }
         Ok(())
     }
-}
-
-/// Wyvill's field function h(r) for effective radius `radius` (seed 003 eq B.1).
-// dedupe with cloud::wyvill when merged
-#[inline]
-fn wyvill_field(r: f64, radius: f64) -> f64 {
-    if r > radius {
-        return 0.0;
-    }
-    let a2 = (r / radius).powi(2);
-    ((-4.0 / 9.0 * a2 + 17.0 / 9.0) * a2 - 22.0 / 9.0) * a2 + 1.0
 }
 
 /// Smoothed cloud fraction q (seed 003 eq 11) at one step, with w ≡ 1, so q is the mean of cld
@@ -155,7 +145,7 @@ impl MetaballKernel {
             for dj in -n..=n {
                 for di in -n..=n {
                     let r = ((di * di + dj * dj + dk * dk) as f64).sqrt();
-                    let h = wyvill_field(r, radius_cells);
+                    let h = wyvill::h(r, radius_cells);
                     if h > 0.0 {
                         raw.push(([di, dj, dk], h));
                     }
@@ -208,7 +198,7 @@ impl MetaballKernel {
             for j in lo.y as usize..=(hi.y.max(0.0) as usize).min(ny - 1) {
                 for i in lo.x as usize..=(hi.x.max(0.0) as usize).min(nx - 1) {
                     let c = DVec3::new(i as f64, j as f64, k as f64) + 0.5;
-                    let h = wyvill_field(c.distance(p_cells), r);
+                    let h = wyvill::h(c.distance(p_cells), r);
                     sum += h * q[(k * ny + j) * nx + i] as f64;
                 }
             }
@@ -221,14 +211,19 @@ impl MetaballKernel {
 mod tests {
     use super::*;
 
+    /// The kernel weights are eq B.1 at the lattice offsets, normalised to sum to 1.
     #[test]
-    fn wyvill_field_ends() {
-        assert_eq!(wyvill_field(0.0, 2.0), 1.0);
-        assert!(wyvill_field(2.0, 2.0).abs() < 1e-15);
-        assert_eq!(wyvill_field(2.5, 2.0), 0.0);
-        // Half radius: a² = 1/4 → −4/9/64 + 17/9/16 − 22/9/4 + 1.
+    fn kernel_weights_are_wyvill_field_at_lattice_offsets() {
+        let kernel = MetaballKernel::new(2.0).unwrap();
+        let sum: f64 = kernel.offsets.iter().map(|(_, w)| *w as f64).sum();
+        assert!((sum - 1.0).abs() < 1e-6);
+        // Half radius: a² = 1/4 → −4/9/64 + 17/9/16 − 22/9/4 + 1, relative to the centre's 1.
         let expect = -4.0 / 9.0 / 64.0 + 17.0 / 9.0 / 16.0 - 22.0 / 9.0 / 4.0 + 1.0;
-        assert!((wyvill_field(1.0, 2.0) - expect).abs() < 1e-15);
+        let weight = |d: [isize; 3]| kernel.offsets.iter().find(|(o, _)| *o == d).unwrap().1;
+        let ratio = weight([1, 0, 0]) as f64 / weight([0, 0, 0]) as f64;
+        assert!((ratio - expect).abs() < 1e-6);
+        // Offsets at or beyond R carry no weight: (2, 0, 0) lies on the rim.
+        assert!(kernel.offsets.iter().all(|(o, _)| *o != [2, 0, 0]));
     }
 
     #[test]

@@ -4,7 +4,7 @@
 use super::control::{ProbabilityControl, RowLevels, WindProfile, ACT, EXT, HUM};
 use super::random::{draw, setup_rng, slice_rng, RandomBitTable};
 use super::AutomatonParams;
-use crate::{Error, Result};
+use crate::Result;
 use rand::Rng;
 use rayon::prelude::*;
 
@@ -340,23 +340,7 @@ impl Automaton {
 
 /// Cell count of `dims`, refusing empty or oversized spaces before allocating.
 pub fn checked_cells(dims: [usize; 3]) -> Result<usize> {
-    if dims.contains(&0) {
-        return Err(Error::out_of_range(
-            "dims",
-            format!("{dims:?}"),
-            "each >= 1",
-        ));
-    }
-    dims.iter()
-        .try_fold(1usize, |acc, &d| acc.checked_mul(d))
-        .filter(|&c| c <= MAX_CELLS)
-        .ok_or_else(|| {
-            Error::too_large(
-                "dims",
-                format!("{dims:?} is too many cells"),
-                format!("{MAX_CELLS} cells"),
-            )
-        })
+    crate::cloud::grid::checked_count(dims, MAX_CELLS, "cells")
 }
 
 /// Mask of the valid bits in the last word of a row of `nx` cells.

@@ -6,7 +6,6 @@ use crate::cloud::grid::checked_voxel_count;
 use crate::cloud::DensityGrid;
 use crate::{Error, Result};
 use glam::DVec3;
-use rayon::prelude::*;
 
 impl SphereCloud {
     /// Density at a point: Σ over the spheres of level `level` containing it of f(d, r) (seed 004
@@ -79,20 +78,8 @@ impl SphereCloud {
             other => other,
         })?;
         let origin = self.centre_m() + lo;
-        let mut grid = DensityGrid::zeros(dims, voxel_size_m, origin)?;
-        let [nx, ny, _] = dims;
-        grid.data
-            .par_chunks_mut(nx * ny)
-            .enumerate()
-            .for_each(|(z, slice)| {
-                for y in 0..ny {
-                    for x in 0..nx {
-                        let p = origin
-                            + (DVec3::new(x as f64, y as f64, z as f64) + 0.5) * voxel_size_m;
-                        slice[y * nx + x] = self.density_at(p, level) as f32;
-                    }
-                }
-            });
-        Ok(grid)
+        DensityGrid::from_fn(dims, voxel_size_m, origin, |p| {
+            self.density_at(p, level) as f32
+        })
     }
 }
