@@ -366,6 +366,8 @@ pub struct CaBench {
     pub steps: usize,
     /// Mean wall time of one step (growth, stochastic rules, wind, obstacles, ellipsoid drift).
     pub mean_step: Duration,
+    /// Median single step.
+    pub median_step: Duration,
     /// Fastest single step.
     pub min_step: Duration,
     /// Cloud cover (fraction of cells) after the run, a sanity check that something happened.
@@ -385,20 +387,21 @@ pub fn bench_ca_step(nx: usize, ny: usize, nz: usize, steps: usize) -> Result<Ca
     for _ in 0..20 {
         sim.step();
     }
-    let mut total = Duration::ZERO;
-    let mut min_step = Duration::MAX;
-    for _ in 0..steps {
-        let start = Instant::now();
-        sim.step();
-        let d = start.elapsed();
-        total += d;
-        min_step = min_step.min(d);
-    }
+    let mut times: Vec<Duration> = (0..steps)
+        .map(|_| {
+            let start = Instant::now();
+            sim.step();
+            start.elapsed()
+        })
+        .collect();
+    let total: Duration = times.iter().sum();
+    times.sort_unstable();
     Ok(CaBench {
         dims: [nx, ny, nz],
         steps,
         mean_step: total / steps as u32,
-        min_step,
+        median_step: times[steps / 2],
+        min_step: times[0],
         cloud_cover: sim.cloud_cover(),
     })
 }
