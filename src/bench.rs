@@ -109,7 +109,9 @@ fn spec(method: &str) -> Result<CommonSpec> {
     CommonSpec::from_params(&p, -18.0)
 }
 
-/// Runs the named benchmarks (all when `names` is empty); `cold_runs`/`warm_runs` repetitions.
+/// Runs the named benchmarks (all when `names` is empty). The atmosphere products run `cold_runs`
+/// times on fresh engines and `warm_runs` times on a warm one; every other benchmark runs
+/// `warm_runs` times (`ca-step` always times 100 steps).
 pub fn run(names: &[String], cold_runs: usize, warm_runs: usize) -> Result<Vec<BenchResult>> {
     let known: Vec<&str> = BENCHMARKS.iter().map(|(n, _)| *n).collect();
     let selected: Vec<&str> = if names.is_empty() {
@@ -171,7 +173,7 @@ pub fn run(names: &[String], cold_runs: usize, warm_runs: usize) -> Result<Vec<B
             "spheres" => {
                 let (w, h) = SPHERES_IMAGE;
                 for (levels, variant, paper_ms) in SPHERES_LEVELS {
-                    let runs: Vec<_> = (0..cold_runs)
+                    let runs: Vec<_> = (0..warm_runs)
                         .map(|_| bench_spheres(levels, w, h))
                         .collect::<Result<_>>()?;
                     let pick = |f: fn(&SpheresBench) -> Duration| {
@@ -180,7 +182,7 @@ pub fn run(names: &[String], cold_runs: usize, warm_runs: usize) -> Result<Vec<B
                     let last = &runs[runs.len() - 1];
                     out.push(entry(
                         variant,
-                        cold_runs,
+                        warm_runs,
                         runs.iter().map(|b| ms(b.render)).collect(),
                         json!({
                             "levels": levels,
@@ -294,7 +296,8 @@ fn bench_store_stages(
         "payload_bytes": last.payload_bytes,
         "file_bytes": last.file_bytes,
     });
-    let stages: [(&'static str, fn(&store::StoreBench) -> f64); 6] = [
+    type Stage = (&'static str, fn(&store::StoreBench) -> f64);
+    let stages: [Stage; 6] = [
         ("encode", |b| b.encode_ms),
         ("decode", |b| b.decode_ms),
         ("verify", |b| b.verify_ms),
@@ -363,4 +366,57 @@ fn atmosphere(
         details: None,
     });
     Ok(out)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn unknown_names_are_refused_listing_the_known_ones() {
+        let err = run(&["ca_step".to_string()], 1, 1).unwrap_err();
+        assert_eq!(err.field(), "name");
+        assert!(err.to_string().contains("ca-step"), "{err}");
+    }
+
+    /// Each selected benchmark reports timed runs and its own figures; the store benchmark
+    /// reports every stage and leaves no scratch directory behind.
+    #[test]
+    fn cloud_and_store_benchmarks_report_runs_and_figures() {
+        let names: Vec<String> = ["fractal", "satellite", "store"]
+            .iter()
+            .map(|s| s.to_string())
+            .collect();
+        let results = run(&names, 1, 2).unwrap();
+        let variants: Vec<(&str, &str)> = results
+            .iter()
+            .map(|r| (r.name.as_str(), r.variant))
+            .collect();
+        assert_eq!(
+            variants,
+            [
+                ("fractal", "run"),
+                ("satellite", "run"),
+                ("store", "encode"),
+                ("store", "decode"),
+                ("store", "verify"),
+                ("store", "cache-put"),
+                ("store", "cache-disk-get"),
+                ("store", "cache-memory-get"),
+            ]
+        );
+        for r in &results {
+            assert_eq!(r.runs, 2);
+            assert!(r.min_ms > 0.0 && r.min_ms <= r.median_ms, "{r:?}");
+            assert!(r.details.is_some());
+        }
+        let fractal = results[0].details.as_ref().unwrap();
+        assert!(fractal["balls"].as_u64().unwrap() > 5);
+        let fit_error = results[1].details.as_ref().unwrap()["error"]
+            .as_f64()
+            .unwrap();
+        assert!((0.0..1.0).contains(&fit_error));
+        let scratch = std::env::temp_dir().join(format!("skybake-bench-{}", std::process::id()));
+        assert!(!scratch.exists());
+    }
 }

@@ -60,7 +60,8 @@ enum Command {
     ///
     /// Example: skybake bench sky-fast sun --format json
     Bench {
-        /// Benchmarks to run (default: all). Known: sun, sky-fast, sky-precise.
+        /// Benchmarks to run (default: all). Known: sun, sky-fast, sky-precise, ca-step, spheres,
+        /// metaballs, fractal, satellite, solar-position, store.
         names: Vec<String>,
         #[arg(long, value_enum, default_value_t = Format::Text)]
         format: Format,

@@ -445,10 +445,10 @@ fn scene_source_resamples_and_checks_the_frame_time() {
     params.cell_size_m = 100.0;
     let direct = automaton_density(&params, 12.25).unwrap();
     let source = |t: f64| {
-        CloudSource::Automaton(AutomatonSource {
+        CloudSource::Automaton(Box::new(AutomatonSource {
             frame_time_steps: t,
             params: params.clone(),
-        })
+        }))
     };
     let no_files = |path: &str| -> skybake::Result<Vec<u8>> {
         Err(skybake::Error::invalid("path", format!("no file {path}")))

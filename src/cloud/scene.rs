@@ -64,8 +64,9 @@ pub enum CloudSource {
     Satellite(SatelliteParams),
     /// A density grid from a `.npy` or raw f32 file.
     Grid(GridParams),
-    /// One frame of the cellular-automaton cloud animation (seed 003 §4–5.1).
-    Automaton(AutomatonSource),
+    /// One frame of the cellular-automaton cloud animation (seed 003 §4–5.1). Boxed: its
+    /// parameters are much larger than the other variants'.
+    Automaton(Box<AutomatonSource>),
     /// A hierarchy of spheres (seed 004) sampled into voxels.
     Spheres(SpheresSource),
 }
