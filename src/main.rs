@@ -419,7 +419,7 @@ fn run_clouds(scene: &Path, voxels: Option<&Path>, format: Format) -> Result<()>
     let loader =
         |name: &str| read_limited(&dir.join(name), "path", cloud_scene::MAX_GRID_FILE_BYTES);
     let parsed = Instant::now();
-    let grid = section.voxelize(&loader)?;
+    let (grid, report) = section.voxelize_with_report(&loader)?;
     let voxelized = Instant::now();
     let npy_bytes = match voxels {
         Some(out) => {
@@ -440,6 +440,7 @@ fn run_clouds(scene: &Path, voxels: Option<&Path>, format: Format) -> Result<()>
         "nonzero_voxels": grid.data.iter().filter(|v| **v > 0.0).count(),
         "voxels": voxels.map(|p| p.display().to_string()),
         "npy_bytes": npy_bytes,
+        "report": report,
         "timing_ms": {
             "read_parse": ms(start, parsed),
             "voxelize": ms(parsed, voxelized),

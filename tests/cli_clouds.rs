@@ -3,7 +3,8 @@
 //! bad input with exit code 2 and the offending field named.
 
 use glam::DVec3;
-use skybake::cloud::scene::{parse_scene_file, MAX_GRID_FILE_BYTES};
+use skybake::cloud::satellite::{self, GrayImage};
+use skybake::cloud::scene::{parse_scene_file, CloudSource, MAX_GRID_FILE_BYTES};
 use skybake::cloud::{import, DensityGrid};
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
@@ -94,6 +95,40 @@ fn metaballs_example_writes_a_npy_that_round_trips() {
     assert!(summary["timing_ms"]["voxelize"].as_f64().unwrap() >= 0.0);
     // Writing the same grid again through the library gives the same bytes.
     assert_eq!(import::to_npy_bytes(&expected), bytes);
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// The satellite example reads its PNG next to the scene and reports the fit's final error, the
+/// same as the library's fit of that image.
+#[test]
+fn satellite_example_reports_the_final_fit_error() {
+    let dir = scratch("satellite");
+    let scene = Path::new(SCENES).join("satellite-field.json");
+    let out = skybake(&["clouds", scene.to_str().unwrap()], &dir);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let summary: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    let section = parse_scene_file(&std::fs::read(&scene).unwrap()).unwrap();
+    let CloudSource::Satellite(params) = &section.source else {
+        panic!("satellite-field.json is not a satellite scene")
+    };
+    let png = std::fs::read(Path::new(SCENES).join(&params.image)).unwrap();
+    let fit = satellite::fit(&GrayImage::from_png_bytes(&png).unwrap(), params).unwrap();
+    assert_eq!(summary["source"], "satellite");
+    // serde_json's default float parsing may differ from the printed value in the last bit.
+    let printed = summary["report"]["fit_error"].as_f64().unwrap();
+    assert!(
+        (printed - fit.error).abs() <= 1e-14,
+        "{printed} vs {}",
+        fit.error
+    );
+    assert_eq!(summary["report"]["fit_converged"], fit.converged);
+    assert_eq!(summary["report"]["fit_balls"], fit.blobs.len());
+    assert!(fit.error < 1.0);
+    assert!(summary["voxels"].is_null() && summary["npy_bytes"].is_null());
     let _ = std::fs::remove_dir_all(&dir);
 }
 

@@ -603,10 +603,20 @@ pub fn voxelize(
     params: &SatelliteParams,
     voxel_size_m: f64,
 ) -> Result<DensityGrid> {
+    voxelize_with_fit(png_bytes, params, voxel_size_m).map(|(grid, _)| grid)
+}
+
+/// [`voxelize`], also returning the fit (final error, blobs, convergence) so callers can report it.
+pub fn voxelize_with_fit(
+    png_bytes: &[u8],
+    params: &SatelliteParams,
+    voxel_size_m: f64,
+) -> Result<(DensityGrid, FitResult)> {
     let img = GrayImage::from_png_bytes(png_bytes)?;
     let fitted = fit(&img, params)?;
     let balls = to_metaballs(&img, &fitted, params)?;
-    MetaballField::new(balls)?.voxelize(voxel_size_m, voxel_size_m)
+    let grid = MetaballField::new(balls)?.voxelize(voxel_size_m, voxel_size_m)?;
+    Ok((grid, fitted))
 }
 
 /// Timing of one fit, for `skybake bench satellite_fit`.

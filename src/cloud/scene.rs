@@ -228,6 +228,14 @@ impl CloudSection {
     pub fn voxelize(&self, loader: &dyn Fn(&str) -> Result<Vec<u8>>) -> Result<DensityGrid> {
         voxelize(&self.source, self.voxel_size_m, loader)
     }
+
+    /// Builds the density grid and the source's report (see [`voxelize_with_report`]).
+    pub fn voxelize_with_report(
+        &self,
+        loader: &dyn Fn(&str) -> Result<Vec<u8>>,
+    ) -> Result<(DensityGrid, SourceReport)> {
+        voxelize_with_report(&self.source, self.voxel_size_m, loader)
+    }
 }
 
 fn check_voxel_size(v: f64) -> Result<()> {
@@ -296,24 +304,53 @@ pub fn validate_source(source: &CloudSource) -> Result<()> {
     }
 }
 
+/// What building a source's grid found out besides the grid (printed by `skybake clouds`).
+#[derive(Debug, Clone, Default, PartialEq, Serialize)]
+pub struct SourceReport {
+    /// Satellite: final relative image error of the fit, `‖T − M‖ / ‖T‖` (seed 001 §3.1).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub fit_error: Option<f64>,
+    /// Satellite: whether the error fell below `error_threshold` (else `max_balls` stopped it).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub fit_converged: Option<bool>,
+    /// Satellite: metaballs placed by the fit.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub fit_balls: Option<usize>,
+}
+
 /// Builds the density grid of `source` at `voxel_size_m`, reading files through `loader`
-/// (given a path from the scene, it returns the file's bytes). Imported grids at another voxel
-/// size are resampled trilinearly over the same box.
+/// (given a path from the scene, it returns the file's bytes). Imported grids and automaton
+/// frames at another voxel size are resampled trilinearly over the same box.
 pub fn voxelize(
     source: &CloudSource,
     voxel_size_m: f64,
     loader: &dyn Fn(&str) -> Result<Vec<u8>>,
 ) -> Result<DensityGrid> {
+    voxelize_with_report(source, voxel_size_m, loader).map(|(grid, _)| grid)
+}
+
+/// [`voxelize`], also returning the source's [`SourceReport`] (the satellite fit's final error).
+pub fn voxelize_with_report(
+    source: &CloudSource,
+    voxel_size_m: f64,
+    loader: &dyn Fn(&str) -> Result<Vec<u8>>,
+) -> Result<(DensityGrid, SourceReport)> {
     check_voxel_size(voxel_size_m)?;
     validate_source(source)?;
-    match source {
+    let grid = match source {
         CloudSource::Metaballs(p) => {
             MetaballField::new(p.balls.clone())?.voxelize(voxel_size_m, voxel_size_m)
         }
         CloudSource::Fractal(p) => fractal::voxelize(p, voxel_size_m),
         CloudSource::Satellite(p) => {
             let png = loader(&p.image)?;
-            satellite::voxelize(&png, p, voxel_size_m)
+            let (grid, fit) = satellite::voxelize_with_fit(&png, p, voxel_size_m)?;
+            let report = SourceReport {
+                fit_error: Some(fit.error),
+                fit_converged: Some(fit.converged),
+                fit_balls: Some(fit.blobs.len()),
+            };
+            return Ok((grid, report));
         }
         CloudSource::Grid(p) => {
             let bytes = loader(&p.path)?;
@@ -339,7 +376,8 @@ pub fn voxelize(
             voxel_size_m,
         ),
         CloudSource::Spheres(s) => SphereCloud::new(&s.params)?.voxelize(voxel_size_m, s.level),
-    }
+    }?;
+    Ok((grid, SourceReport::default()))
 }
 
 /// `grid` itself when its voxel size is `voxel_size_m`, else [`resample`]d (no copy in the common
