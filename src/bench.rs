@@ -199,14 +199,15 @@ pub fn run(names: &[String], cold_runs: usize, warm_runs: usize) -> Result<Vec<B
                 }
             }
             "metaballs" => {
-                let runs: Vec<_> = (0..warm_runs)
-                    .map(|_| bench_metaball_voxelize(1000, 20.0))
-                    .collect::<Result<_>>()?;
-                let last = &runs[runs.len() - 1];
+                let (times, last) = repeat(
+                    warm_runs,
+                    || bench_metaball_voxelize(1000, 20.0),
+                    |b| b.seconds,
+                )?;
                 out.push(entry(
                     "run",
                     warm_runs,
-                    runs.iter().map(|b| b.seconds * 1e3).collect(),
+                    times,
                     json!({
                         "balls": last.balls,
                         "voxels": last.voxels,
@@ -215,26 +216,20 @@ pub fn run(names: &[String], cold_runs: usize, warm_runs: usize) -> Result<Vec<B
                 ));
             }
             "fractal" => {
-                let runs: Vec<_> = (0..warm_runs)
-                    .map(|_| bench_fractal_grow(3))
-                    .collect::<Result<_>>()?;
-                let last = &runs[runs.len() - 1];
+                let (times, last) = repeat(warm_runs, || bench_fractal_grow(3), |b| b.seconds)?;
                 out.push(entry(
                     "run",
                     warm_runs,
-                    runs.iter().map(|b| b.seconds * 1e3).collect(),
+                    times,
                     json!({"levels": 3, "balls": last.balls, "triangles": last.triangles}),
                 ));
             }
             "satellite" => {
-                let runs: Vec<_> = (0..warm_runs)
-                    .map(|_| bench_satellite_fit(128))
-                    .collect::<Result<_>>()?;
-                let last = &runs[runs.len() - 1];
+                let (times, last) = repeat(warm_runs, || bench_satellite_fit(128), |b| b.seconds)?;
                 out.push(entry(
                     "run",
                     warm_runs,
-                    runs.iter().map(|b| b.seconds * 1e3).collect(),
+                    times,
                     json!({"side_px": last.side_px, "balls": last.balls, "error": last.error}),
                 ));
             }
@@ -265,6 +260,23 @@ pub fn run(names: &[String], cold_runs: usize, warm_runs: usize) -> Result<Vec<B
         }
     }
     Ok(out)
+}
+
+/// Calls `bench` `runs` (>= 1) times: the times in ms (from each result's own `seconds`, which
+/// leaves out building the inputs) and the last result.
+fn repeat<B>(
+    runs: usize,
+    bench: impl Fn() -> Result<B>,
+    seconds: impl Fn(&B) -> f64,
+) -> Result<(Vec<f64>, B)> {
+    let mut times = Vec::with_capacity(runs);
+    let mut last = bench()?;
+    times.push(seconds(&last) * 1e3);
+    for _ in 1..runs {
+        last = bench()?;
+        times.push(seconds(&last) * 1e3);
+    }
+    Ok((times, last))
 }
 
 /// Milliseconds in a duration.
