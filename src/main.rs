@@ -461,6 +461,12 @@ fn run_clouds(scene: &Path, voxels: Option<&Path>, format: Format) -> Result<()>
                 summary["nonzero_voxels"],
                 ms(parsed, voxelized),
             );
+            if let Some(error) = summary["report"]["fit_error"].as_f64() {
+                println!(
+                    "satellite fit: final relative error {error:.4}, {} balls, converged {}",
+                    summary["report"]["fit_balls"], summary["report"]["fit_converged"]
+                );
+            }
             Ok(())
         }
     }
