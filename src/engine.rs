@@ -31,7 +31,7 @@ const SHARED_CAPACITY: usize = 8;
 pub fn stated_relative_error(method: MsMethod) -> f64 {
     match method {
         MsMethod::Precise => 0.02,
-        MsMethod::Fast => 0.11,
+        MsMethod::Fast => 0.06,
         MsMethod::None => 0.5,
     }
 }

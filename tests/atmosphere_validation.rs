@@ -166,7 +166,10 @@ fn earth_rayleigh_optical_depth_matches_bodhaine_1999() {
         let m = Medium::new(&earth, &Wavelengths::new(vec![nm]).unwrap(), None).unwrap();
         let ours = m.vertical_optical_depth(0)[RAYLEIGH];
         let reference = f(&row["optical_depth_eq30"]);
-        eprintln!("Bodhaine {nm} nm: ours {ours:.5}, eq. 30 {reference:.5} ({:+.2} %)", 100.0 * (ours / reference - 1.0));
+        eprintln!(
+            "Bodhaine {nm} nm: ours {ours:.5}, eq. 30 {reference:.5} ({:+.2} %)",
+            100.0 * (ours / reference - 1.0)
+        );
         assert!(
             (ours / reference - 1.0).abs() < 0.02,
             "{nm} nm: {ours} vs {reference}"
