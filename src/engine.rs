@@ -7,7 +7,7 @@ use crate::atmosphere::multiple_precise::PreciseSettings;
 use crate::atmosphere::quadrature::gauss_legendre;
 use crate::atmosphere::shared::SharedTables;
 use crate::atmosphere::sky::{
-    dome_table, horizon_axis_deg, DomeTable, MsMethod, Observer, RadianceEvaluator,
+    dome_table, horizon_axis_deg, horizon_dip_deg, DomeTable, MsMethod, Observer, RadianceEvaluator,
 };
 use crate::atmosphere::transmittance::density_integrals;
 use crate::atmosphere::{geometry, Medium};
@@ -358,7 +358,12 @@ impl Engine {
         let (eval, warm) = self.evaluator(&shared, spec);
         let table = dome_table(
             &eval,
-            horizon_axis_deg(shape.elevation_count, lo, hi),
+            horizon_axis_deg(
+                shape.elevation_count,
+                lo,
+                hi,
+                -horizon_dip_deg(shared.medium.bottom_radius_m, spec.observer_altitude_m),
+            ),
             shape.azimuth_count,
         );
         let probes = evaluate_probes(&eval, shared.medium.len(), probes);
@@ -394,7 +399,12 @@ impl Engine {
         let (eval, warm) = self.evaluator(&shared, spec);
         let m = &shared.medium;
         let n_l = m.len();
-        let elevation_deg = horizon_axis_deg(shape.elevation_count, -90.0, 90.0);
+        let elevation_deg = horizon_axis_deg(
+            shape.elevation_count,
+            -90.0,
+            90.0,
+            -horizon_dip_deg(m.bottom_radius_m, spec.observer_altitude_m),
+        );
         let azimuth_deg: Vec<f64> = (0..shape.azimuth_count)
             .map(|k| {
                 if shape.azimuth_count == 1 {

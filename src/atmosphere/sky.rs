@@ -152,10 +152,12 @@ impl RadianceEvaluator<'_> {
 }
 
 /// View elevations (degrees) from `lo_deg` to `hi_deg`, `n` nodes, concentrated quadratically
-/// at the horizon (0°), which is a node whenever the range contains it and `n` allows.
-pub fn horizon_axis_deg(n: usize, lo_deg: f64, hi_deg: f64) -> Vec<f64> {
-    let x_lo = if lo_deg < 0.0 { -1.0 } else { 0.0 };
-    let x_hi = if hi_deg > 0.0 { 1.0 } else { 0.0 };
+/// at `centre_deg` (the observer's geometric horizon: 0° on the ground, below 0° aloft), which is
+/// a node whenever it lies inside the range and `n` allows.
+pub fn horizon_axis_deg(n: usize, lo_deg: f64, hi_deg: f64, centre_deg: f64) -> Vec<f64> {
+    let centre = centre_deg.clamp(lo_deg, hi_deg);
+    let x_lo = if lo_deg < centre { -1.0 } else { 0.0 };
+    let x_hi = if hi_deg > centre { 1.0 } else { 0.0 };
     (0..n)
         .map(|k| {
             let x = if n == 1 {
@@ -163,10 +165,23 @@ pub fn horizon_axis_deg(n: usize, lo_deg: f64, hi_deg: f64) -> Vec<f64> {
             } else {
                 x_lo + (x_hi - x_lo) * k as f64 / (n - 1) as f64
             };
-            let scale = if x < 0.0 { -lo_deg } else { hi_deg };
-            x.signum() * x * x * scale
+            let scale = if x < 0.0 {
+                centre - lo_deg
+            } else {
+                hi_deg - centre
+            };
+            centre + x.signum() * x * x * scale
         })
         .collect()
+}
+
+/// Depression of the geometric horizon below the horizontal for an observer at `altitude_m`
+/// above a sphere of radius `radius_m`, degrees (0 on the ground).
+pub fn horizon_dip_deg(radius_m: f64, altitude_m: f64) -> f64 {
+    (radius_m / (radius_m + altitude_m.max(0.0)))
+        .clamp(-1.0, 1.0)
+        .acos()
+        .to_degrees()
 }
 
 /// A table of radiance over view elevation × azimuth (relative to the sun, 0–180°).
