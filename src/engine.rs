@@ -427,8 +427,6 @@ impl Engine {
         let per_dir = distance_count * n_l;
         let mut transmittance = vec![0f32; shape.elevation_count * shape.azimuth_count * per_dir];
         let mut inscatter = vec![0f32; transmittance.len()];
-        let r = m.bottom_radius_m + spec.observer_altitude_m;
-        let mu_s = spec.sun.sun_elevation_deg.to_radians().sin();
         let steps = spec.quality.steps() * 2;
         transmittance
             .par_chunks_mut(per_dir)
@@ -439,20 +437,13 @@ impl Engine {
                 |(scratch, out, tr), (idx, (t_dst, s_dst))| {
                     let (row, col) = (idx / shape.azimuth_count, idx % shape.azimuth_count);
                     let theta = (90.0 - elevation_deg[row]).to_radians();
-                    let phi = azimuth_deg[col].to_radians();
-                    let mu = theta.cos();
-                    let nu = (mu * mu_s
-                        + theta.sin() * (1.0 - mu_s * mu_s).max(0.0).sqrt() * phi.cos())
-                    .clamp(-1.0, 1.0);
-                    // Sample each ray densely enough that recorded distances fall between samples.
+                    let (mu, nu) = eval.direction(theta, azimuth_deg[col].to_radians());
                     let mut rec = Recorder {
                         distances_m: &distance_m,
                         transmittance: t_dst,
                         inscatter: s_dst,
                     };
-                    eval.integrate_with_recorder(
-                        r, mu, mu_s, nu, steps, scratch, out, tr, &mut rec,
-                    );
+                    eval.trace(mu, nu, steps, scratch, out, tr, Some(&mut rec));
                     for (k, v) in s_dst.iter_mut().enumerate() {
                         *v *= m.solar_irradiance[k % n_l] as f32;
                     }

@@ -2,7 +2,7 @@
 //! dome (`sky`), the lower hemisphere of ground-reflected upward skylight (`ground`, seed 000
 //! §3.5), both from the same integrator so they join seamlessly at the horizon.
 
-use super::integrate::{integrate_ray, NoSource, Scratch, Source, Terms};
+use super::integrate::{integrate_ray, NoSource, Recorder, Scratch, Source, Terms};
 use super::shared::SharedTables;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
@@ -73,19 +73,31 @@ impl<'a> RadianceEvaluator<'a> {
         }
     }
 
-    /// Radiance arriving from view zenith `theta` and azimuth `phi` (relative to the sun),
-    /// radians, written to `out` in W m⁻² sr⁻¹ nm⁻¹; also the path transmittance to `tr`.
-    pub fn eval(
+    /// Zenith cosine μ and view-sun cosine ν of the view direction with zenith `theta` and
+    /// azimuth `phi` (relative to the sun), radians.
+    pub fn direction(&self, theta: f64, phi: f64) -> (f64, f64) {
+        let mu = theta.cos();
+        let sin_s = (1.0 - self.mu_s * self.mu_s).max(0.0).sqrt();
+        (
+            mu,
+            (mu * self.mu_s + theta.sin() * sin_s * phi.cos()).clamp(-1.0, 1.0),
+        )
+    }
+
+    /// Integrates the view ray (μ, ν) from the observer with `steps` samples per segment:
+    /// radiance per unit solar irradiance to `out`, transmittance to `tr`, and partial results
+    /// at the recorder's distances if one is given.
+    #[allow(clippy::too_many_arguments)]
+    pub fn trace(
         &self,
-        theta: f64,
-        phi: f64,
+        mu: f64,
+        nu: f64,
+        steps: usize,
         scratch: &mut Scratch,
         out: &mut [f64],
         tr: &mut [f64],
+        rec: Option<&mut Recorder>,
     ) {
-        let mu = theta.cos();
-        let sin_s = (1.0 - self.mu_s * self.mu_s).max(0.0).sqrt();
-        let nu = (mu * self.mu_s + theta.sin() * sin_s * phi.cos()).clamp(-1.0, 1.0);
         let terms = Terms {
             single: true,
             ground_direct: true,
@@ -100,54 +112,29 @@ impl<'a> RadianceEvaluator<'a> {
             mu,
             self.mu_s,
             nu,
-            self.steps,
-            scratch,
-            out,
-            tr,
-            None,
-        );
-        for (o, e) in out.iter_mut().zip(&m.solar_irradiance) {
-            *o *= e;
-        }
-    }
-}
-
-impl RadianceEvaluator<'_> {
-    /// Integrates one ray with partial results recorded at distances (per unit solar
-    /// irradiance; the caller scales in-scattered radiance by the solar spectrum).
-    #[allow(clippy::too_many_arguments)]
-    pub fn integrate_with_recorder(
-        &self,
-        r: f64,
-        mu: f64,
-        mu_s: f64,
-        nu: f64,
-        steps: usize,
-        scratch: &mut Scratch,
-        out: &mut [f64],
-        tr: &mut [f64],
-        rec: &mut super::integrate::Recorder,
-    ) {
-        let terms = Terms {
-            single: true,
-            ground_direct: true,
-        };
-        let m = &self.shared.medium;
-        integrate_ray(
-            m,
-            &self.shared.density,
-            self.source,
-            terms,
-            r,
-            mu,
-            mu_s,
-            nu,
             steps,
             scratch,
             out,
             tr,
-            Some(rec),
+            rec,
         );
+    }
+
+    /// Radiance arriving from view zenith `theta` and azimuth `phi` (relative to the sun),
+    /// radians, written to `out` in W m⁻² sr⁻¹ nm⁻¹; also the path transmittance to `tr`.
+    pub fn eval(
+        &self,
+        theta: f64,
+        phi: f64,
+        scratch: &mut Scratch,
+        out: &mut [f64],
+        tr: &mut [f64],
+    ) {
+        let (mu, nu) = self.direction(theta, phi);
+        self.trace(mu, nu, self.steps, scratch, out, tr, None);
+        for (o, e) in out.iter_mut().zip(&self.shared.medium.solar_irradiance) {
+            *o *= e;
+        }
     }
 }
 
