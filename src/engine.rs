@@ -50,6 +50,11 @@ pub struct ErrorEstimate {
     pub last_order_fraction: Option<f64>,
     /// Where `relative_error` comes from.
     pub basis: &'static str,
+    /// Whether this request lies inside the validated range (sun elevation ≥ 30°); outside it
+    /// `relative_error` is the validated figure, not a bound, and `caveat` says why.
+    pub validated: bool,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub caveat: Option<&'static str>,
 }
 
 /// Stages that ran and stages left out, with the reason (DESIGN.md "Leaving out").
@@ -227,6 +232,17 @@ impl Engine {
             "wavelength sampling too coarse for accurate colour (needs 400–700 nm with gaps ≤ 40 nm); RGB is indicative".to_string()
         });
         let _ = m;
+        let validated = spec.sun.sun_elevation_deg >= 30.0 && spec.method != MsMethod::None;
+        let caveat = match (spec.method, spec.sun.sun_elevation_deg) {
+            (MsMethod::Fast, e) if e < 0.0 => Some(
+                "twilight: the fast method's isotropic table under-resolves light scattered from the lit upper atmosphere; it reads 2–3x low at −6° and far lower in deep twilight; use method=precise",
+            ),
+            (MsMethod::None, _) => Some("single scattering only: multiple scattering is left out"),
+            (_, e) if e < 30.0 => Some(
+                "outside the DISORT-validated range (sun elevation ≥ 30°); energy conservation is verified for all sun positions",
+            ),
+            _ => None,
+        };
         ProductMeta {
             engine_version: ENGINE_VERSION,
             error_estimate: ErrorEstimate {
@@ -235,6 +251,8 @@ impl Engine {
                 scattering_orders: orders,
                 last_order_fraction: last,
                 basis: "max relative deviation from DISORT (Rayleigh, sun zenith 0–60°, view zenith 0–60°, albedo 0 and 0.3), tests/atmosphere_validation.rs",
+                validated,
+                caveat,
             },
             stages,
             timing_ms: start.elapsed().as_secs_f64() * 1e3,
