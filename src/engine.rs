@@ -7,7 +7,7 @@ use crate::atmosphere::multiple_precise::PreciseSettings;
 use crate::atmosphere::quadrature::gauss_legendre;
 use crate::atmosphere::shared::SharedTables;
 use crate::atmosphere::sky::{
-    dome_table, horizon_axis_deg, DomeTable, MsMethod, Observer, RadianceEvaluator,
+    dome_table, horizon_axis_deg, horizon_dip_deg, DomeTable, MsMethod, Observer, RadianceEvaluator,
 };
 use crate::atmosphere::transmittance::density_integrals;
 use crate::atmosphere::{geometry, Medium};
@@ -31,7 +31,7 @@ const SHARED_CAPACITY: usize = 8;
 pub fn stated_relative_error(method: MsMethod) -> f64 {
     match method {
         MsMethod::Precise => 0.02,
-        MsMethod::Fast => 0.11,
+        MsMethod::Fast => 0.06,
         MsMethod::None => 0.5,
     }
 }
@@ -50,6 +50,11 @@ pub struct ErrorEstimate {
     pub last_order_fraction: Option<f64>,
     /// Where `relative_error` comes from.
     pub basis: &'static str,
+    /// Whether this request lies inside the validated range (sun elevation ≥ 30°); outside it
+    /// `relative_error` is the validated figure, not a bound, and `caveat` says why.
+    pub validated: bool,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub caveat: Option<&'static str>,
 }
 
 /// Stages that ran and stages left out, with the reason (DESIGN.md "Leaving out").
@@ -227,6 +232,17 @@ impl Engine {
             "wavelength sampling too coarse for accurate colour (needs 400–700 nm with gaps ≤ 40 nm); RGB is indicative".to_string()
         });
         let _ = m;
+        let validated = spec.sun.sun_elevation_deg >= 30.0 && spec.method != MsMethod::None;
+        let caveat = match (spec.method, spec.sun.sun_elevation_deg) {
+            (MsMethod::Fast, e) if e < 0.0 => Some(
+                "twilight: the fast method's isotropic table under-resolves light scattered from the lit upper atmosphere; it reads 2–3x low at −6° and far lower in deep twilight; use method=precise",
+            ),
+            (MsMethod::None, _) => Some("single scattering only: multiple scattering is left out"),
+            (_, e) if e < 30.0 => Some(
+                "outside the DISORT-validated range (sun elevation ≥ 30°); energy conservation is verified for all sun positions",
+            ),
+            _ => None,
+        };
         ProductMeta {
             engine_version: ENGINE_VERSION,
             error_estimate: ErrorEstimate {
@@ -235,6 +251,8 @@ impl Engine {
                 scattering_orders: orders,
                 last_order_fraction: last,
                 basis: "max relative deviation from DISORT (Rayleigh, sun zenith 0–60°, view zenith 0–60°, albedo 0 and 0.3), tests/atmosphere_validation.rs",
+                validated,
+                caveat,
             },
             stages,
             timing_ms: start.elapsed().as_secs_f64() * 1e3,
@@ -358,7 +376,12 @@ impl Engine {
         let (eval, warm) = self.evaluator(&shared, spec);
         let table = dome_table(
             &eval,
-            horizon_axis_deg(shape.elevation_count, lo, hi),
+            horizon_axis_deg(
+                shape.elevation_count,
+                lo,
+                hi,
+                -horizon_dip_deg(shared.medium.bottom_radius_m, spec.observer_altitude_m),
+            ),
             shape.azimuth_count,
         );
         let probes = evaluate_probes(&eval, shared.medium.len(), probes);
@@ -394,7 +417,12 @@ impl Engine {
         let (eval, warm) = self.evaluator(&shared, spec);
         let m = &shared.medium;
         let n_l = m.len();
-        let elevation_deg = horizon_axis_deg(shape.elevation_count, -90.0, 90.0);
+        let elevation_deg = horizon_axis_deg(
+            shape.elevation_count,
+            -90.0,
+            90.0,
+            -horizon_dip_deg(m.bottom_radius_m, spec.observer_altitude_m),
+        );
         let azimuth_deg: Vec<f64> = (0..shape.azimuth_count)
             .map(|k| {
                 if shape.azimuth_count == 1 {
@@ -417,8 +445,6 @@ impl Engine {
         let per_dir = distance_count * n_l;
         let mut transmittance = vec![0f32; shape.elevation_count * shape.azimuth_count * per_dir];
         let mut inscatter = vec![0f32; transmittance.len()];
-        let r = m.bottom_radius_m + spec.observer_altitude_m;
-        let mu_s = spec.sun.sun_elevation_deg.to_radians().sin();
         let steps = spec.quality.steps() * 2;
         transmittance
             .par_chunks_mut(per_dir)
@@ -429,20 +455,13 @@ impl Engine {
                 |(scratch, out, tr), (idx, (t_dst, s_dst))| {
                     let (row, col) = (idx / shape.azimuth_count, idx % shape.azimuth_count);
                     let theta = (90.0 - elevation_deg[row]).to_radians();
-                    let phi = azimuth_deg[col].to_radians();
-                    let mu = theta.cos();
-                    let nu = (mu * mu_s
-                        + theta.sin() * (1.0 - mu_s * mu_s).max(0.0).sqrt() * phi.cos())
-                    .clamp(-1.0, 1.0);
-                    // Sample each ray densely enough that recorded distances fall between samples.
+                    let (mu, nu) = eval.direction(theta, azimuth_deg[col].to_radians());
                     let mut rec = Recorder {
                         distances_m: &distance_m,
                         transmittance: t_dst,
                         inscatter: s_dst,
                     };
-                    eval.integrate_with_recorder(
-                        r, mu, mu_s, nu, steps, scratch, out, tr, &mut rec,
-                    );
+                    eval.trace(mu, nu, steps, scratch, out, tr, Some(&mut rec));
                     for (k, v) in s_dst.iter_mut().enumerate() {
                         *v *= m.solar_irradiance[k % n_l] as f32;
                     }

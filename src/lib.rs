@@ -3,6 +3,9 @@
 //! The engine is pure computation (no I/O): parse a request into a validated spec, run it, get a
 //! product. Only [`store`] touches the disk. See `ARCHITECTURE.md` for the map.
 
+// Numeric kernels index several parallel per-wavelength arrays in one loop; an index is clearer.
+#![allow(clippy::needless_range_loop)]
+
 pub mod atmosphere;
 pub mod bench;
 pub mod cloud;

@@ -95,16 +95,16 @@ struct CommonArgs {
     #[arg(long)]
     time: Option<String>,
     /// Observer altitude above the ground, m [default: 0].
-    #[arg(long)]
+    #[arg(long, allow_hyphen_values = true)]
     observer_altitude_m: Option<String>,
     /// Wavelengths in nm, comma-separated, 1–64 values in 360–830 [default: 380,405,…,755].
-    #[arg(long)]
+    #[arg(long, allow_hyphen_values = true)]
     wavelengths: Option<String>,
     /// Atmosphere: a preset name (earth, earth-hazy, rayleigh-only, mars) or a JSON file path.
     #[arg(long)]
     atmosphere: Option<String>,
     /// Ground albedo 0–1, overriding the atmosphere's.
-    #[arg(long)]
+    #[arg(long, allow_hyphen_values = true)]
     ground_albedo: Option<String>,
     /// Multiple scattering: precise, fast or none [default: precise].
     #[arg(long)]
@@ -125,10 +125,10 @@ struct DomeArgs {
     #[arg(long, allow_hyphen_values = true)]
     probe: Option<String>,
     /// Table rows (view elevations, concentrated at the horizon) [default: 129, ground 65].
-    #[arg(long)]
+    #[arg(long, allow_hyphen_values = true)]
     elevation_count: Option<String>,
     /// Table columns (azimuths 0…180°) [default: 64].
-    #[arg(long)]
+    #[arg(long, allow_hyphen_values = true)]
     azimuth_count: Option<String>,
     /// Write the table: .png (preview) or .exr (spectral).
     #[arg(short = 'o', long = "output")]
@@ -146,16 +146,16 @@ struct AerialArgs {
     #[command(flatten)]
     common: CommonArgs,
     /// Rows (view elevations) [default: 33].
-    #[arg(long)]
+    #[arg(long, allow_hyphen_values = true)]
     elevation_count: Option<String>,
     /// Columns (azimuths 0…180°) [default: 16].
-    #[arg(long)]
+    #[arg(long, allow_hyphen_values = true)]
     azimuth_count: Option<String>,
     /// Distances per ray [default: 32].
-    #[arg(long)]
+    #[arg(long, allow_hyphen_values = true)]
     distance_count: Option<String>,
     /// Largest distance, m [default: 100000].
-    #[arg(long)]
+    #[arg(long, allow_hyphen_values = true)]
     max_distance_m: Option<String>,
     /// Write the table as a spectral EXR (layers S0 = in-scattered radiance, T = transmittance).
     #[arg(short = 'o', long = "output")]

@@ -78,7 +78,7 @@ pub struct AerialJson<'a> {
     pub spec: &'a CommonSpec,
 }
 
-fn nest4<'a>(v: &'a [f32], n_az: usize, n_d: usize, n_l: usize) -> Vec<Vec<Vec<&'a [f32]>>> {
+fn nest4(v: &[f32], n_az: usize, n_d: usize, n_l: usize) -> Vec<Vec<Vec<&[f32]>>> {
     v.chunks(n_az * n_d * n_l)
         .map(|row| {
             row.chunks(n_d * n_l)
@@ -200,6 +200,8 @@ pub fn dome_png(t: &DomeTable, projection: Projection, size: usize) -> Result<Ve
             rgb[y * width + x] = crate::spectrum::xyz_to_linear_srgb(xyz);
         }
     }
+    // Expose on the lit part of the view (space around a planet seen from orbit is black).
+    lum.retain(|&y| y > 0.0);
     lum.sort_by(f64::total_cmp);
     let mid = lum.get(lum.len() / 2).copied().unwrap_or(1.0);
     let exposure = if mid > 0.0 { 0.18 / mid } else { 1.0 };

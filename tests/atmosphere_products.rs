@@ -74,7 +74,7 @@ fn aerial_perspective_follows_beer_lambert_and_ends_at_the_sky() {
     let row = a.elevation_deg.iter().position(|&e| e == 0.0).unwrap();
     let beta = 1.3558e-5;
     for (k, &d) in a.distance_m.iter().enumerate() {
-        let idx = ((row * 3) * a.distance_m.len() + k) * 1;
+        let idx = (row * 3) * a.distance_m.len() + k; // one wavelength
         let t = a.transmittance[idx] as f64;
         // Horizontal ray at the ground: the density is uniform to 0.1 % over 20 km.
         assert!((t - (-beta * d).exp()).abs() < 2e-3, "d {d}: {t}");
@@ -105,7 +105,8 @@ fn aerial_perspective_follows_beer_lambert_and_ends_at_the_sky() {
             &[(0.0, 0.0)],
         )
         .unwrap();
-    let zenith_far = far.inscatter[(2 * 1) * 2 + 1] as f64;
+    // Row 2 (zenith), the only azimuth, the second (far) distance.
+    let zenith_far = far.inscatter[2 * 2 + 1] as f64;
     let zenith_sky = sky.probes[0].radiance_w_m2_sr_nm[0];
     assert!(
         (zenith_far / zenith_sky - 1.0).abs() < 1e-3,

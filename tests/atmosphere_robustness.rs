@@ -212,3 +212,29 @@ fn horizon_rows_are_smooth() {
         assert!(sign_changes <= 1, "column {col}: {column:?}");
     }
 }
+
+/// Twilight fades monotonically to nothing: no glow is left once the sun is 18° down.
+#[test]
+fn twilight_fades_without_leftover_glow() {
+    let engine = Engine::new();
+    let shape = DomeShape {
+        elevation_count: 3,
+        azimuth_count: 1,
+    };
+    let zenith = |sun: f64| -> f64 {
+        let s = spec(&[
+            ("sun_elevation_deg", &sun.to_string()),
+            ("method", "precise"),
+            ("wavelengths", "550"),
+        ]);
+        engine.sky(&s, shape, &[(0.0, 0.0)]).unwrap().probes[0].radiance_w_m2_sr_nm[0]
+    };
+    let day = zenith(30.0);
+    let mut last = day;
+    for sun in [0.0, -3.0, -6.0, -9.0, -12.0, -15.0, -18.0] {
+        let l = zenith(sun);
+        assert!(l > 0.0 && l < last, "sun {sun}: {l} after {last}");
+        last = l;
+    }
+    assert!(last < 1e-5 * day, "{last} vs day {day}");
+}

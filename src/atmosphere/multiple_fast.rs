@@ -68,71 +68,74 @@ impl FastMultipleScattering {
         let n_l = medium.len();
         let (bottom, top) = (medium.bottom_radius_m, medium.top_radius_m);
         let (gx, gw) = gauss_legendre(s.directions_mu);
-        let psi: Vec<f64> = (0..s.n_r * s.n_mu_s)
-            .into_par_iter()
-            .flat_map_iter(|idx| {
-                let r = r_of((idx / s.n_mu_s) as f64 / (s.n_r - 1) as f64, bottom, top);
-                let mu_s = -1.0 + 2.0 * (idx % s.n_mu_s) as f64 / (s.n_mu_s - 1) as f64;
-                let mut scratch = Scratch::new(n_l);
-                let mut l1 = vec![0.0; n_l];
-                let mut tr = vec![0.0; n_l];
-                let mut l2 = vec![0.0; n_l];
-                let mut fms = vec![0.0; n_l];
-                let sin_s = safe_sqrt(1.0 - mu_s * mu_s);
-                for (a, &mu) in gx.iter().enumerate() {
-                    let sin_v = safe_sqrt(1.0 - mu * mu);
-                    for b in 0..s.directions_phi {
-                        let phi = 2.0 * PI * (b as f64 + 0.5) / s.directions_phi as f64;
-                        // Solid-angle weight of this direction, times the isotropic phase 1/(4π).
-                        let w = gw[a] * 2.0 * PI / s.directions_phi as f64 / (4.0 * PI);
-                        // Light arriving from direction ω travels along −ω: integrate the ray
-                        // looking towards ω (mu, nu as seen by the viewer).
-                        let nu = mu * mu_s + sin_v * sin_s * phi.cos();
-                        let terms = Terms {
-                            single: true,
-                            ground_direct: true,
-                        };
-                        integrate_ray(
-                            medium,
-                            table,
-                            &NoSource,
-                            terms,
-                            r,
-                            mu,
-                            mu_s,
-                            nu,
-                            s.steps,
-                            &mut scratch,
-                            &mut l1,
-                            &mut tr,
-                            None,
-                        );
-                        let (_, samples) = ray_samples(medium, r, mu, mu_s, nu, s.steps);
-                        let mut d_view = [0.0; CONSTITUENTS];
-                        for smp in &samples {
-                            let rho = medium.densities(smp.r);
-                            let mut d_mid = d_view;
-                            for k in 0..CONSTITUENTS {
-                                d_mid[k] += 0.5 * rho[k] * smp.weight;
-                                d_view[k] += rho[k] * smp.weight;
+        let compute_psi = |ground: &dyn Source| -> Vec<f64> {
+            (0..s.n_r * s.n_mu_s)
+                .into_par_iter()
+                .flat_map_iter(|idx| {
+                    let r = r_of((idx / s.n_mu_s) as f64 / (s.n_r - 1) as f64, bottom, top);
+                    let mu_s = -1.0 + 2.0 * (idx % s.n_mu_s) as f64 / (s.n_mu_s - 1) as f64;
+                    let mut scratch = Scratch::new(n_l);
+                    let mut l1 = vec![0.0; n_l];
+                    let mut tr = vec![0.0; n_l];
+                    let mut l2 = vec![0.0; n_l];
+                    let mut fms = vec![0.0; n_l];
+                    let sin_s = safe_sqrt(1.0 - mu_s * mu_s);
+                    for (a, &mu) in gx.iter().enumerate() {
+                        let sin_v = safe_sqrt(1.0 - mu * mu);
+                        for b in 0..s.directions_phi {
+                            let phi = 2.0 * PI * (b as f64 + 0.5) / s.directions_phi as f64;
+                            // Solid-angle weight of this direction, times the isotropic phase 1/(4π).
+                            let w = gw[a] * 2.0 * PI / s.directions_phi as f64 / (4.0 * PI);
+                            // Light arriving from direction ω travels along −ω: integrate the ray
+                            // looking towards ω (mu, nu as seen by the viewer).
+                            let nu = mu * mu_s + sin_v * sin_s * phi.cos();
+                            let terms = Terms {
+                                single: true,
+                                ground_direct: true,
+                            };
+                            integrate_ray(
+                                medium,
+                                table,
+                                ground,
+                                terms,
+                                r,
+                                mu,
+                                mu_s,
+                                nu,
+                                s.steps,
+                                &mut scratch,
+                                &mut l1,
+                                &mut tr,
+                                None,
+                            );
+                            let (_, samples) = ray_samples(medium, r, mu, mu_s, nu, s.steps);
+                            let mut d_view = [0.0; CONSTITUENTS];
+                            for smp in &samples {
+                                let rho = medium.densities(smp.r);
+                                let mut d_mid = d_view;
+                                for k in 0..CONSTITUENTS {
+                                    d_mid[k] += 0.5 * rho[k] * smp.weight;
+                                    d_view[k] += rho[k] * smp.weight;
+                                }
+                                for i in 0..n_l {
+                                    let sigma_s = medium.rayleigh_scattering_per_m[i]
+                                        * rho[RAYLEIGH]
+                                        + medium.mie_scattering_per_m[i] * rho[MIE];
+                                    fms[i] += w
+                                        * (-medium.optical_depth(i, &d_mid)).exp()
+                                        * sigma_s
+                                        * smp.weight;
+                                }
                             }
                             for i in 0..n_l {
-                                let sigma_s = medium.rayleigh_scattering_per_m[i] * rho[RAYLEIGH]
-                                    + medium.mie_scattering_per_m[i] * rho[MIE];
-                                fms[i] += w
-                                    * (-medium.optical_depth(i, &d_mid)).exp()
-                                    * sigma_s
-                                    * smp.weight;
+                                l2[i] += w * l1[i];
                             }
                         }
-                        for i in 0..n_l {
-                            l2[i] += w * l1[i];
-                        }
                     }
-                }
-                (0..n_l).map(move |i| l2[i] / (1.0 - fms[i].min(0.999)))
-            })
-            .collect();
+                    (0..n_l).map(move |i| l2[i] / (1.0 - fms[i].min(0.999)))
+                })
+                .collect()
+        };
         let mut fast = Self {
             n_r: s.n_r,
             n_mu_s: s.n_mu_s,
@@ -144,12 +147,40 @@ impl FastMultipleScattering {
                 medium.mie_scattering_per_m.clone(),
             ],
             profiles: medium.profiles,
-            psi,
+            psi: compute_psi(&NoSource),
             ground_sky: vec![0.0; s.n_mu_s * n_l],
         };
         fast.ground_sky =
             ground_sky_irradiance(medium, table, &fast, s.n_mu_s, 16, 16, s.steps * 2);
+        // Hillaire's transfer factor leaves out light that the ground sends back up. A second
+        // pass adds the ground's reflection of the first pass's skylight to L′, then recomputes
+        // the skylight: one more bounce between ground and sky, where most of that light is.
+        if medium.ground_albedo.iter().any(|&a| a > 0.0) {
+            let ground = GroundSky {
+                table: &fast.ground_sky,
+                n_mu_s: s.n_mu_s,
+                n_l,
+            };
+            let psi = compute_psi(&ground);
+            fast.psi = psi;
+            fast.ground_sky =
+                ground_sky_irradiance(medium, table, &fast, s.n_mu_s, 16, 16, s.steps * 2);
+        }
         fast
+    }
+}
+
+/// Sky irradiance on the ground only (no scattering source): the ground term of L′.
+struct GroundSky<'a> {
+    table: &'a [f64],
+    n_mu_s: usize,
+    n_l: usize,
+}
+
+impl Source for GroundSky<'_> {
+    fn add_scattering(&self, _: &RaySample, _: &mut [f64]) {}
+    fn add_ground_sky_irradiance(&self, mu_s: f64, out: &mut [f64]) {
+        interp_mu_s_table(self.table, self.n_mu_s, self.n_l, mu_s, out);
     }
 }
 

@@ -53,8 +53,8 @@ impl Default for PreciseSettings {
             steps: 20,
             tolerance: 1e-3,
             max_orders: 60,
-            horizon_band_rad: 20f64.to_radians(),
-            horizon_subrays: 4,
+            horizon_band_rad: 10f64.to_radians(),
+            horizon_subrays: 3,
         }
     }
 }
@@ -406,7 +406,10 @@ impl PreciseMultipleScattering {
         let mut fractions = vec![1.0];
         let mut orders = 1;
         while orders < s.max_orders {
+            let t_j = std::time::Instant::now();
             let j_n = compute_j(&l_n);
+            let j_ms_elapsed = t_j.elapsed().as_secs_f64() * 1e3;
+            let t_l = std::time::Instant::now();
             let source = OrderSource {
                 grid: &grid,
                 n_l,
@@ -427,6 +430,13 @@ impl PreciseMultipleScattering {
             total += added;
             orders += 1;
             let fraction = if total > 0.0 { added / total } else { 0.0 };
+            tracing::debug!(
+                order = orders,
+                fraction,
+                scattering_density_ms = j_ms_elapsed,
+                radiance_ms = t_l.elapsed().as_secs_f64() * 1e3,
+                "precise multiple scattering order"
+            );
             fractions.push(fraction);
             if fraction < s.tolerance {
                 break;

@@ -2,7 +2,7 @@
 //! dome (`sky`), the lower hemisphere of ground-reflected upward skylight (`ground`, seed 000
 //! §3.5), both from the same integrator so they join seamlessly at the horizon.
 
-use super::integrate::{integrate_ray, NoSource, Scratch, Source, Terms};
+use super::integrate::{integrate_ray, NoSource, Recorder, Scratch, Source, Terms};
 use super::shared::SharedTables;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
@@ -73,19 +73,31 @@ impl<'a> RadianceEvaluator<'a> {
         }
     }
 
-    /// Radiance arriving from view zenith `theta` and azimuth `phi` (relative to the sun),
-    /// radians, written to `out` in W m⁻² sr⁻¹ nm⁻¹; also the path transmittance to `tr`.
-    pub fn eval(
+    /// Zenith cosine μ and view-sun cosine ν of the view direction with zenith `theta` and
+    /// azimuth `phi` (relative to the sun), radians.
+    pub fn direction(&self, theta: f64, phi: f64) -> (f64, f64) {
+        let mu = theta.cos();
+        let sin_s = (1.0 - self.mu_s * self.mu_s).max(0.0).sqrt();
+        (
+            mu,
+            (mu * self.mu_s + theta.sin() * sin_s * phi.cos()).clamp(-1.0, 1.0),
+        )
+    }
+
+    /// Integrates the view ray (μ, ν) from the observer with `steps` samples per segment:
+    /// radiance per unit solar irradiance to `out`, transmittance to `tr`, and partial results
+    /// at the recorder's distances if one is given.
+    #[allow(clippy::too_many_arguments)]
+    pub fn trace(
         &self,
-        theta: f64,
-        phi: f64,
+        mu: f64,
+        nu: f64,
+        steps: usize,
         scratch: &mut Scratch,
         out: &mut [f64],
         tr: &mut [f64],
+        rec: Option<&mut Recorder>,
     ) {
-        let mu = theta.cos();
-        let sin_s = (1.0 - self.mu_s * self.mu_s).max(0.0).sqrt();
-        let nu = (mu * self.mu_s + theta.sin() * sin_s * phi.cos()).clamp(-1.0, 1.0);
         let terms = Terms {
             single: true,
             ground_direct: true,
@@ -100,62 +112,39 @@ impl<'a> RadianceEvaluator<'a> {
             mu,
             self.mu_s,
             nu,
-            self.steps,
+            steps,
             scratch,
             out,
             tr,
-            None,
+            rec,
         );
-        for (o, e) in out.iter_mut().zip(&m.solar_irradiance) {
+    }
+
+    /// Radiance arriving from view zenith `theta` and azimuth `phi` (relative to the sun),
+    /// radians, written to `out` in W m⁻² sr⁻¹ nm⁻¹; also the path transmittance to `tr`.
+    pub fn eval(
+        &self,
+        theta: f64,
+        phi: f64,
+        scratch: &mut Scratch,
+        out: &mut [f64],
+        tr: &mut [f64],
+    ) {
+        let (mu, nu) = self.direction(theta, phi);
+        self.trace(mu, nu, self.steps, scratch, out, tr, None);
+        for (o, e) in out.iter_mut().zip(&self.shared.medium.solar_irradiance) {
             *o *= e;
         }
     }
 }
 
-impl RadianceEvaluator<'_> {
-    /// Integrates one ray with partial results recorded at distances (per unit solar
-    /// irradiance; the caller scales in-scattered radiance by the solar spectrum).
-    #[allow(clippy::too_many_arguments)]
-    pub fn integrate_with_recorder(
-        &self,
-        r: f64,
-        mu: f64,
-        mu_s: f64,
-        nu: f64,
-        steps: usize,
-        scratch: &mut Scratch,
-        out: &mut [f64],
-        tr: &mut [f64],
-        rec: &mut super::integrate::Recorder,
-    ) {
-        let terms = Terms {
-            single: true,
-            ground_direct: true,
-        };
-        let m = &self.shared.medium;
-        integrate_ray(
-            m,
-            &self.shared.density,
-            self.source,
-            terms,
-            r,
-            mu,
-            mu_s,
-            nu,
-            steps,
-            scratch,
-            out,
-            tr,
-            Some(rec),
-        );
-    }
-}
-
 /// View elevations (degrees) from `lo_deg` to `hi_deg`, `n` nodes, concentrated quadratically
-/// at the horizon (0°), which is a node whenever the range contains it and `n` allows.
-pub fn horizon_axis_deg(n: usize, lo_deg: f64, hi_deg: f64) -> Vec<f64> {
-    let x_lo = if lo_deg < 0.0 { -1.0 } else { 0.0 };
-    let x_hi = if hi_deg > 0.0 { 1.0 } else { 0.0 };
+/// at `centre_deg` (the observer's geometric horizon: 0° on the ground, below 0° aloft), which is
+/// a node whenever it lies inside the range and `n` allows.
+pub fn horizon_axis_deg(n: usize, lo_deg: f64, hi_deg: f64, centre_deg: f64) -> Vec<f64> {
+    let centre = centre_deg.clamp(lo_deg, hi_deg);
+    let x_lo = if lo_deg < centre { -1.0 } else { 0.0 };
+    let x_hi = if hi_deg > centre { 1.0 } else { 0.0 };
     (0..n)
         .map(|k| {
             let x = if n == 1 {
@@ -163,10 +152,23 @@ pub fn horizon_axis_deg(n: usize, lo_deg: f64, hi_deg: f64) -> Vec<f64> {
             } else {
                 x_lo + (x_hi - x_lo) * k as f64 / (n - 1) as f64
             };
-            let scale = if x < 0.0 { -lo_deg } else { hi_deg };
-            x.signum() * x * x * scale
+            let scale = if x < 0.0 {
+                centre - lo_deg
+            } else {
+                hi_deg - centre
+            };
+            centre + x.signum() * x * x * scale
         })
         .collect()
+}
+
+/// Depression of the geometric horizon below the horizontal for an observer at `altitude_m`
+/// above a sphere of radius `radius_m`, degrees (0 on the ground).
+pub fn horizon_dip_deg(radius_m: f64, altitude_m: f64) -> f64 {
+    (radius_m / (radius_m + altitude_m.max(0.0)))
+        .clamp(-1.0, 1.0)
+        .acos()
+        .to_degrees()
 }
 
 /// A table of radiance over view elevation × azimuth (relative to the sun, 0–180°).

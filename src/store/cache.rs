@@ -125,6 +125,19 @@ struct State {
     writing: HashMap<String, usize>,
     next_generation: u64,
     stats: CacheStats,
+    /// Last access stamp written as a file mtime: strictly increasing, so the access order
+    /// survives a restart even when the file system's own clock ticks coarsely.
+    last_stamp: SystemTime,
+}
+
+impl State {
+    /// A strictly increasing wall-clock stamp (at least 1 µs after the previous one).
+    fn next_stamp(&mut self) -> SystemTime {
+        let now = SystemTime::now();
+        let min = self.last_stamp + std::time::Duration::from_micros(1);
+        self.last_stamp = if now > min { now } else { min };
+        self.last_stamp
+    }
 }
 
 /// The content-addressed, size-bounded, verified product cache. See the module documentation.
@@ -186,8 +199,10 @@ impl Cache {
             writing: HashMap::new(),
             next_generation: 0,
             stats: CacheStats::default(),
+            last_stamp: SystemTime::UNIX_EPOCH,
         };
-        for (_, key, size_bytes) in found {
+        for (mtime, key, size_bytes) in found {
+            state.last_stamp = state.last_stamp.max(mtime);
             state.next_generation += 1;
             state.disk.insert(&key, size_bytes, state.next_generation);
         }
@@ -265,7 +280,7 @@ impl Cache {
         }
 
         let bytes: Arc<[u8]> = bytes.into();
-        {
+        let stamp = {
             let mut state = self.lock();
             state.stats.hits += 1;
             state.stats.disk_hits += 1;
@@ -273,9 +288,10 @@ impl Cache {
                 self.remember_in_memory(&mut state, key, &bytes);
             }
             self.refresh_sizes(&mut state);
-        }
+            state.next_stamp()
+        };
         // Best effort: the mtime only carries the access order across restarts.
-        let _ = fs::File::open(&path).and_then(|f| f.set_modified(SystemTime::now()));
+        let _ = fs::File::open(&path).and_then(|f| f.set_modified(stamp));
         Ok(Some(bytes))
     }
 
@@ -360,6 +376,8 @@ impl Cache {
             }
         }
         written?;
+        let stamp = state.next_stamp();
+        let _ = fs::File::open(&path).and_then(|f| f.set_modified(stamp));
         state.next_generation += 1;
         let generation = state.next_generation;
         state.disk.insert(key, bytes.len() as u64, generation);
