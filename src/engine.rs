@@ -220,7 +220,6 @@ impl Engine {
         start: Instant,
         stages: Stages,
     ) -> ProductMeta {
-        let m = &shared.medium;
         let (orders, last) = match spec.method {
             MsMethod::Precise => {
                 let c = &shared.precise().convergence;
@@ -231,7 +230,6 @@ impl Engine {
         let colour_note = (!spec.wavelengths_nm.adequate_for_colour()).then(|| {
             "wavelength sampling too coarse for accurate colour (needs 400–700 nm with gaps ≤ 40 nm); RGB is indicative".to_string()
         });
-        let _ = m;
         let validated = spec.sun.sun_elevation_deg >= 30.0 && spec.method != MsMethod::None;
         let caveat = match (spec.method, spec.sun.sun_elevation_deg) {
             (MsMethod::Fast, e) if e < 0.0 => Some(
