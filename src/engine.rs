@@ -264,9 +264,9 @@ impl Engine {
         let mut st = Stages::default();
         let m = &shared.medium;
         st.ran.push("transmittance: density-integral table".into());
-        if spec.sun.sun_elevation_deg < -(m.sun_angular_radius_rad.to_degrees()) - 15.0 {
+        if spec.sun.sun_elevation_deg < -m.sun_angular_radius_rad.to_degrees() {
             st.ran.push(
-                "single scattering: only where the high atmosphere still sees the sun".into(),
+                "single scattering: exact ray marching, lit only where the atmosphere still sees the sun (twilight)".into(),
             );
         } else {
             st.ran.push("single scattering: exact ray marching".into());
