@@ -6,11 +6,13 @@
 pub mod atmosphere;
 pub mod bench;
 pub mod cloud;
+pub mod config;
 pub mod engine;
 pub mod error;
 pub mod export;
 pub mod output;
 pub mod phase;
+pub mod service;
 pub mod solar;
 pub mod spec;
 pub mod spectrum;

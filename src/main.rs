@@ -57,6 +57,42 @@ enum Command {
         #[arg(long, default_value_t = 5)]
         warm_runs: usize,
     },
+    /// Run the HTTP service (settings: config/default.toml ← --config FILE ← SKYBAKE_* ← flags).
+    ///
+    /// Example: skybake serve --bind 127.0.0.1:8080 --cache-dir /var/cache/skybake
+    Serve(ServeArgs),
+    /// Run a bake job file offline (the POST /v1/jobs format); resumable.
+    ///
+    /// Example: skybake bake job.json --out baked/
+    Bake {
+        /// Job file (JSON: {"products": [...], "grids": [...]}).
+        job: PathBuf,
+        /// Output directory (EXR per product + manifest.json); a rerun reuses finished files.
+        #[arg(long)]
+        out: PathBuf,
+        /// Settings file (defaults for wavelengths and quality, job size limit).
+        #[arg(long)]
+        config: Option<PathBuf>,
+    },
+    /// Exit 0 when the service at ADDR answers GET /healthz with 200 (for container HEALTHCHECK).
+    Healthcheck {
+        /// Service address [default: the configured bind address].
+        #[arg(long)]
+        addr: Option<String>,
+    },
+}
+
+#[derive(Args, Clone)]
+struct ServeArgs {
+    /// Address to listen on (overrides SKYBAKE_BIND and the config).
+    #[arg(long)]
+    bind: Option<String>,
+    /// Cache directory (overrides SKYBAKE_CACHE_DIR and the config).
+    #[arg(long)]
+    cache_dir: Option<PathBuf>,
+    /// Settings file (TOML, any subset of config/default.toml).
+    #[arg(long)]
+    config: Option<PathBuf>,
 }
 
 #[derive(Clone, Copy, PartialEq, Eq, ValueEnum)]
@@ -251,8 +287,62 @@ fn run_dome(args: &DomeArgs, ground: bool) -> Result<()> {
     Ok(())
 }
 
+fn load_settings(config: Option<&Path>) -> Result<skybake::config::Settings> {
+    skybake::config::Settings::load(config)
+}
+
+fn serve(args: ServeArgs) -> Result<()> {
+    let mut settings = load_settings(args.config.as_deref())?;
+    if let Some(bind) = args.bind {
+        settings.server.bind = bind;
+    }
+    if let Some(dir) = args.cache_dir {
+        settings.cache.dir = dir;
+    }
+    settings.validate()?;
+    skybake::service::server::run(settings).map_err(|e| Error::invalid("serve", e))
+}
+
+fn bake(job: &Path, out: &Path, config: Option<&Path>) -> Result<()> {
+    let settings = load_settings(config)?;
+    let body = std::fs::read(job)
+        .map_err(|e| Error::invalid("job", format!("cannot read {}: {e}", job.display())))?;
+    let start = std::time::Instant::now();
+    let summary = skybake::service::jobs::bake(&body, out, &settings, |done, total, what| {
+        eprintln!(
+            "[{done}/{total}] {what} ({:.1} s)",
+            start.elapsed().as_secs_f64()
+        );
+    })
+    .map_err(|e| Error::invalid("bake", e))?;
+    print_json(&summary)?;
+    if summary.failed > 0 {
+        return Err(Error::invalid(
+            "bake",
+            format!(
+                "{} of {} products failed (see manifest.json)",
+                summary.failed, summary.total
+            ),
+        ));
+    }
+    Ok(())
+}
+
 fn run(cli: Cli) -> Result<()> {
     match cli.command {
+        Command::Serve(args) => serve(args),
+        Command::Bake { job, out, config } => bake(&job, &out, config.as_deref()),
+        Command::Healthcheck { addr } => {
+            let addr = match addr {
+                Some(a) => a,
+                None => load_settings(None)?.server.bind,
+            };
+            let addr = addr
+                .parse()
+                .map_err(|_| Error::invalid("addr", format!("'{addr}' is not HOST:PORT")))?;
+            skybake::service::server::healthcheck(addr)
+                .map_err(|e| Error::invalid("healthcheck", e))
+        }
         Command::Sun(c) => {
             let spec = CommonSpec::from_params(&request_params(&c)?, -10.0)?;
             print_json(&Engine::new().sun(&spec)?)
