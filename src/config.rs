@@ -108,11 +108,15 @@ fn merge(base: &mut toml::Value, over: toml::Value) {
 /// An environment value typed like the default it replaces.
 fn env_value(var: &str, text: &str, like: Option<&toml::Value>) -> Result<toml::Value> {
     Ok(match like {
-        Some(toml::Value::Integer(_)) => toml::Value::Integer(
-            text.trim()
-                .parse()
-                .map_err(|_| config_err(var, format!("'{text}' is not a whole number")))?,
-        ),
+        Some(toml::Value::Integer(_)) => match text.trim().parse::<i64>() {
+            Ok(v) => toml::Value::Integer(v),
+            // A float where a whole number is expected is refused by the typed check below.
+            Err(_) => toml::Value::Float(
+                text.trim()
+                    .parse()
+                    .map_err(|_| config_err(var, format!("'{text}' is not a whole number")))?,
+            ),
+        },
         Some(toml::Value::Float(_)) => toml::Value::Float(
             text.trim()
                 .parse()

@@ -3,9 +3,9 @@
 //!
 //! Job body: `{"products": [{"product": "sky", params…}, …], "grids": [{"product": "sun", params…,
 //! "sweep": {"sun_elevation_deg": {"from": -10, "to": 90, "step": 1}, "observer_altitude_m": [0, 1000]}}]}`.
-//! Items are numbered products first, then each grid in order with its last sweep axis varying
-//! fastest. Items are generated from the index on demand, so a 100 000-item job holds no per-item
-//! state but its error list.
+//! Items are numbered products first, then each grid in order; a grid's sweep axes are taken in
+//! alphabetical order of their parameter names, the last varying fastest. Items are generated from
+//! the index on demand, so a 100 000-item job holds no per-item state but its error list.
 //!
 //! Persistence (under `<cache dir>/jobs/<id>/`): `job.json` is the body as submitted, `status.json`
 //! the progress (state, next item, counts, errors), both written atomically. Finished items are in
@@ -925,6 +925,7 @@ mod tests {
             (k, first.sun_elevation_deg.as_deref()),
             (ProductKind::Sun, Some("5"))
         );
+        // Sweep axes in name order (JSON objects are read as sorted maps); the last varies fastest.
         let (k, a, _) = p.item(1).unwrap();
         assert_eq!(k, ProductKind::Sky);
         assert_eq!(
@@ -940,10 +941,16 @@ mod tests {
                 b.sun_elevation_deg.as_deref(),
                 b.observer_altitude_m.as_deref()
             ),
-            (Some("-10"), Some("1000"))
+            (Some("-9.9"), Some("0"))
         );
-        let (_, c, _) = p.item(1 + 2 * 3).unwrap();
-        assert_eq!(c.sun_elevation_deg.as_deref(), Some("-9.7"));
+        let (_, c, _) = p.item(1 + 103 + 3).unwrap();
+        assert_eq!(
+            (
+                c.sun_elevation_deg.as_deref(),
+                c.observer_altitude_m.as_deref()
+            ),
+            (Some("-9.7"), Some("1000"))
+        );
         let (_, last, _) = p.item(p.len() - 1).unwrap();
         assert_eq!(last.sun_elevation_deg.as_deref(), Some("0.2"));
         assert_eq!(last.method.as_deref(), Some("fast"));
