@@ -406,7 +406,10 @@ pub fn app(state: AppState) -> Router {
                 handle_overload(s.clone(), err)
             }))
             .load_shed()
-            .concurrency_limit(settings.server.concurrency_limit)
+            // Global: one semaphore for all limited routes (a per-route limit would multiply it).
+            .layer(tower::limit::GlobalConcurrencyLimitLayer::new(
+                settings.server.concurrency_limit,
+            ))
             .timeout(timeout),
     );
     limited

@@ -95,10 +95,10 @@ fn number_text(v: f64) -> String {
     format!("{r}")
 }
 
-fn axis_values(field: &str, v: &Value) -> Result<Vec<String>, Error> {
+fn axis_values(field: &str, v: &Value, max_products: usize) -> Result<Vec<String>, Error> {
     match v {
         Value::Array(items) => {
-            if items.is_empty() || items.len() > MAX_AXIS_VALUES {
+            if items.is_empty() || items.len() > MAX_AXIS_VALUES.min(max_products) {
                 return Err(Error::out_of_range(
                     field,
                     items.len(),
@@ -140,11 +140,12 @@ fn axis_values(field: &str, v: &Value) -> Result<Vec<String>, Error> {
                 ));
             }
             let n = ((to - from) / step + 1e-9).floor() + 1.0;
-            if !(n <= MAX_AXIS_VALUES as f64) {
+            let limit = max_products.min(MAX_AXIS_VALUES);
+            if !(n <= limit as f64) {
                 return Err(Error::too_large(
-                    field,
-                    format!("{n} values in the range"),
-                    MAX_AXIS_VALUES,
+                    "products",
+                    format!("{field} spans {n} values"),
+                    limit,
                 ));
             }
             Ok((0..n as usize)
@@ -248,7 +249,7 @@ impl JobPlan {
                     }
                     Some(None) => {}
                 }
-                let vals = axis_values(&field, values)?;
+                let vals = axis_values(&field, values, max_products)?;
                 len = len
                     .checked_mul(vals.len())
                     .filter(|&n| n <= max_products)

@@ -36,7 +36,7 @@ use std::sync::atomic::Ordering;
 use std::sync::{Arc, Mutex};
 use tokio::sync::{OnceCell, Semaphore};
 
-pub use handlers::app;
+pub use handlers::{app, params_from_object, parse_query};
 
 type Flight = Arc<OnceCell<Result<Arc<[u8]>, ApiError>>>;
 
