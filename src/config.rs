@@ -304,7 +304,8 @@ mod tests {
 
     #[test]
     fn invalid_settings_name_themselves() {
-        let cases: [(Option<&str>, Vec<(String, String)>, &str); 6] = [
+        type Case<'a> = (Option<&'a str>, Vec<(String, String)>, &'a str);
+        let cases: [Case; 6] = [
             (
                 Some("[server]\nbind = \"nowhere\"\n"),
                 vec![],

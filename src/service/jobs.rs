@@ -141,7 +141,7 @@ fn axis_values(field: &str, v: &Value, max_products: usize) -> Result<Vec<String
             }
             let n = ((to - from) / step + 1e-9).floor() + 1.0;
             let limit = max_products.min(MAX_AXIS_VALUES);
-            if !(n <= limit as f64) {
+            if n.is_nan() || n > limit as f64 {
                 return Err(Error::too_large(
                     "products",
                     format!("{field} spans {n} values"),
