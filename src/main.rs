@@ -1,9 +1,13 @@
 //! `skybake`: command-line front end. Parses flags, calls the library, prints JSON or writes files.
 
 use clap::{Args, Parser, Subcommand, ValueEnum};
-use skybake::engine::{DomeShape, Engine};
+use skybake::engine::Engine;
 use skybake::output::{dome_png, AerialJson, DomeJson, Projection};
-use skybake::spec::{parse_probes, parse_usize, CommonSpec, RequestParams};
+use skybake::service::products::{
+    ProductKind, ProductRequest, AERIAL_DISTANCE_COUNT, AERIAL_MAX_DISTANCE_M, AERIAL_SHAPE,
+    GROUND_SHAPE, SKY_SHAPE,
+};
+use skybake::spec::RequestParams;
 use skybake::{Error, Result};
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
@@ -226,30 +230,28 @@ fn write_file(path: &Path, bytes: &[u8]) -> Result<()> {
 }
 
 fn run_dome(args: &DomeArgs, ground: bool) -> Result<()> {
-    let params = request_params(&args.common)?;
-    let spec = CommonSpec::from_params(&params, -18.0)?;
-    let shape = DomeShape {
-        elevation_count: match &args.elevation_count {
-            Some(v) => parse_usize("elevation_count", v, 2, 4096)?,
-            None if ground => 65,
-            None => 129,
-        },
-        azimuth_count: match &args.azimuth_count {
-            Some(v) => parse_usize("azimuth_count", v, 1, 4096)?,
-            None => 64,
-        },
+    // Same request → product path as the HTTP service (defaults, limits, validation).
+    let params = RequestParams {
+        elevation_count: args.elevation_count.clone(),
+        azimuth_count: args.azimuth_count.clone(),
+        probe: args.probe.clone(),
+        ..request_params(&args.common)?
     };
-    let probes = args
-        .probe
-        .as_deref()
-        .map(parse_probes)
-        .transpose()?
-        .unwrap_or_default();
+    let kind = if ground {
+        ProductKind::Ground
+    } else {
+        ProductKind::Sky
+    };
+    let req = ProductRequest::from_params(kind, &params)?;
+    let (spec, probes) = (&req.spec, &req.probes);
+    let shape = req
+        .shape
+        .unwrap_or(if ground { GROUND_SHAPE } else { SKY_SHAPE });
     let engine = Engine::new();
     let product = if ground {
-        engine.ground(&spec, shape, &probes)?
+        engine.ground(spec, shape, probes)?
     } else {
-        engine.sky(&spec, shape, &probes)?
+        engine.sky(spec, shape, probes)?
     };
     if let Some(path) = &args.output {
         let ext = path
@@ -267,7 +269,7 @@ fn run_dome(args: &DomeArgs, ground: bool) -> Result<()> {
             }
             "exr" => write_file(
                 path,
-                &skybake::export::dome_exr(&product, &spec, if ground { "ground" } else { "sky" })?,
+                &skybake::export::dome_exr(&product, spec, if ground { "ground" } else { "sky" })?,
             )?,
             _ => {
                 return Err(Error::invalid(
@@ -281,7 +283,7 @@ fn run_dome(args: &DomeArgs, ground: bool) -> Result<()> {
         print_json(&DomeJson::new(
             if ground { "ground" } else { "sky" },
             &product,
-            &spec,
+            spec,
         ))?;
     }
     Ok(())
@@ -344,39 +346,24 @@ fn run(cli: Cli) -> Result<()> {
                 .map_err(|e| Error::invalid("healthcheck", e))
         }
         Command::Sun(c) => {
-            let spec = CommonSpec::from_params(&request_params(&c)?, -10.0)?;
-            print_json(&Engine::new().sun(&spec)?)
+            let req = ProductRequest::from_params(ProductKind::Sun, &request_params(&c)?)?;
+            print_json(&Engine::new().sun(&req.spec)?)
         }
         Command::Sky(a) => run_dome(&a, false),
         Command::Ground(a) => run_dome(&a, true),
         Command::Aerial(a) => {
-            let spec = CommonSpec::from_params(&request_params(&a.common)?, -18.0)?;
-            let shape = DomeShape {
-                elevation_count: a
-                    .elevation_count
-                    .as_deref()
-                    .map(|v| parse_usize("elevation_count", v, 2, 4096))
-                    .transpose()?
-                    .unwrap_or(33),
-                azimuth_count: a
-                    .azimuth_count
-                    .as_deref()
-                    .map(|v| parse_usize("azimuth_count", v, 1, 4096))
-                    .transpose()?
-                    .unwrap_or(16),
+            let params = RequestParams {
+                elevation_count: a.elevation_count.clone(),
+                azimuth_count: a.azimuth_count.clone(),
+                distance_count: a.distance_count.clone(),
+                max_distance_m: a.max_distance_m.clone(),
+                ..request_params(&a.common)?
             };
-            let n_d = a
-                .distance_count
-                .as_deref()
-                .map(|v| parse_usize("distance_count", v, 1, 4096))
-                .transpose()?
-                .unwrap_or(32);
-            let max_d = a
-                .max_distance_m
-                .as_deref()
-                .map(|v| skybake::spec::parse_f64("max_distance_m", v, 1.0, 1.0e7, "m"))
-                .transpose()?
-                .unwrap_or(100_000.0);
+            let req = ProductRequest::from_params(ProductKind::Aerial, &params)?;
+            let spec = req.spec.clone();
+            let shape = req.shape.unwrap_or(AERIAL_SHAPE);
+            let n_d = req.distance_count.unwrap_or(AERIAL_DISTANCE_COUNT);
+            let max_d = req.max_distance_m.unwrap_or(AERIAL_MAX_DISTANCE_M);
             let product = Engine::new().aerial(&spec, shape, n_d, max_d)?;
             if let Some(path) = &a.output {
                 if path

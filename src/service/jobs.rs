@@ -332,6 +332,7 @@ impl JobPlan {
             ApiError::NotFound(format!("no item {i} (the job has {})", self.total))
         })?;
         ProductRequest::from_params(product, &defaults(params))
+            .and_then(|r| r.check_cacheable().map(|()| r))
             .map_err(|e| prefixed(e, &prefix).into())
     }
 }

@@ -262,9 +262,8 @@ impl AppState {
         product: ProductKind,
         p: crate::spec::RequestParams,
     ) -> Result<ProductRequest, ApiError> {
-        Ok(ProductRequest::from_params(
-            product,
-            &self.with_defaults(p),
-        )?)
+        let req = ProductRequest::from_params(product, &self.with_defaults(p))?;
+        req.check_cacheable()?;
+        Ok(req)
     }
 }

@@ -251,15 +251,6 @@ impl ProductRequest {
                         ));
                     }
                 }
-                // The JSON envelope (probes included) must fit one EXR attribute.
-                let probe_values = req.probes.len() * req.spec.wavelengths_nm.len();
-                if probe_values > MAX_PROBE_VALUES {
-                    return Err(Error::too_large(
-                        "probe",
-                        format!("{probe_values} values (directions × wavelengths)"),
-                        MAX_PROBE_VALUES,
-                    ));
-                }
             }
             ProductKind::Aerial => {
                 if p.probe.is_some() {
@@ -309,6 +300,20 @@ impl ProductRequest {
             ));
         }
         Ok(req)
+    }
+
+    /// Checks that the product fits one cache artifact: its JSON envelope (probes included) must
+    /// fit one EXR attribute. The service calls this; the CLI, which writes no artifact, need not.
+    pub fn check_cacheable(&self) -> Result<()> {
+        let probe_values = self.probes.len() * self.spec.wavelengths_nm.len();
+        if probe_values > MAX_PROBE_VALUES {
+            return Err(Error::too_large(
+                "probe",
+                format!("{probe_values} values (directions × wavelengths)"),
+                MAX_PROBE_VALUES,
+            ));
+        }
+        Ok(())
     }
 
     fn pixel_count(&self) -> usize {
