@@ -118,6 +118,18 @@ pub fn params_from_object(
     }
 }
 
+/// Refuses any query parameter (routes that take none).
+pub fn no_query(query: Option<&str>) -> Result<(), ApiError> {
+    let names: Vec<String> = form_urlencoded::parse(query.unwrap_or("").as_bytes())
+        .map(|(k, _)| k.into_owned())
+        .collect();
+    if names.is_empty() {
+        Ok(())
+    } else {
+        Err(ApiError::UnknownParameters(names))
+    }
+}
+
 /// Parses a JSON object body.
 pub fn json_object(body: &[u8]) -> Result<Map<String, Value>, ApiError> {
     match serde_json::from_slice::<Value>(body) {
@@ -178,8 +190,10 @@ fn product_route(kind: ProductKind) -> axum::routing::MethodRouter<AppState> {
 /// out, and why), without computing the product.
 async fn plan(
     State(state): State<AppState>,
+    axum::extract::RawQuery(q): axum::extract::RawQuery,
     body: Result<bytes::Bytes, axum::extract::rejection::BytesRejection>,
 ) -> Result<Response, ApiError> {
+    no_query(q.as_deref())?;
     let obj = json_object(&body_bytes(body)?)?;
     let kind = match obj.get("product") {
         Some(Value::String(s)) => ProductKind::parse(s)?,

@@ -685,8 +685,10 @@ fn status_json(state: &AppState, job: &Job, offset: usize, limit: usize) -> Valu
 /// `POST /v1/jobs`.
 pub async fn submit(
     State(state): State<AppState>,
+    RawQuery(q): RawQuery,
     body: Result<bytes::Bytes, axum::extract::rejection::BytesRejection>,
 ) -> Result<Response, ApiError> {
+    super::handlers::no_query(q.as_deref())?;
     let body = body_bytes(body)?;
     let s = state.clone();
     let job = AppState::blocking(move || {
@@ -742,7 +744,9 @@ pub async fn status(
 pub async fn cancel(
     State(state): State<AppState>,
     UrlPath(id): UrlPath<String>,
+    RawQuery(q): RawQuery,
 ) -> Result<Response, ApiError> {
+    super::handlers::no_query(q.as_deref())?;
     let job = job_or_404(&state, &id)?;
     job.cancel.store(true, Ordering::Relaxed);
     let queued = {
