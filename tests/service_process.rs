@@ -229,3 +229,25 @@ fn bake_writes_artifacts_and_resumes() {
     );
     skybake::store::read_exr_file(&out.join(&files[3])).unwrap();
 }
+
+#[test]
+fn invalid_configuration_is_refused_at_start_up() {
+    let dir = Scratch::new("badconfig");
+    let file = dir.path().join("bad.toml");
+    std::fs::write(&file, "[server]\nconcurrency_limit = 0\n").unwrap();
+    let o = Command::new(BIN)
+        .args(["serve", "--bind", "127.0.0.1:0", "--config"])
+        .arg(&file)
+        .output()
+        .unwrap();
+    assert_eq!(o.status.code(), Some(2));
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(err.contains("server.concurrency_limit"), "{err}");
+    let o = Command::new(BIN)
+        .args(["serve", "--bind", "127.0.0.1:0"])
+        .env("SKYBAKE_REQUEST_TIMEOUT_S", "soon")
+        .output()
+        .unwrap();
+    assert_eq!(o.status.code(), Some(2));
+    assert!(String::from_utf8_lossy(&o.stderr).contains("SKYBAKE_REQUEST_TIMEOUT_S"));
+}

@@ -55,7 +55,7 @@ pub fn run(settings: Settings) -> Result<(), String> {
     let rt = rt
         .build()
         .map_err(|e| format!("cannot start the runtime: {e}"))?;
-    rt.block_on(async move {
+    let result = rt.block_on(async move {
         let state = AppState::new(settings).map_err(|e| format!("cannot open the cache: {e}"))?;
         let listener = tokio::net::TcpListener::bind(addr)
             .await
@@ -65,8 +65,15 @@ pub fn run(settings: Settings) -> Result<(), String> {
         serve_on(listener, state, shutdown_signal())
             .await
             .map_err(|e| format!("server error: {e}"))
-    })
+    });
+    // Requests have drained; a job item still computing on a blocking thread is abandoned after a
+    // grace period (its job resumes from the persisted progress at the next start).
+    rt.shutdown_timeout(SHUTDOWN_GRACE);
+    result
 }
+
+/// How long shutdown waits for engine computations still running on blocking threads.
+pub const SHUTDOWN_GRACE: Duration = Duration::from_secs(10);
 
 /// `skybake healthcheck`: `GET /healthz` on `addr` (0.0.0.0 is asked as 127.0.0.1); Ok when 200.
 pub fn healthcheck(addr: SocketAddr) -> Result<(), String> {
