@@ -737,7 +737,10 @@ pub async fn status(
 ) -> Result<Response, ApiError> {
     let (offset, limit) = page(q.as_deref())?;
     let job = job_or_404(&state, &id)?;
-    Ok(axum::Json(status_json(&state, &job, offset, limit)).into_response())
+    // Listing up to MAX_PAGE artifacts validates and hashes each item: keep it off the executor.
+    let s = state.clone();
+    let doc = AppState::blocking(move || Ok(status_json(&s, &job, offset, limit))).await?;
+    Ok(axum::Json(doc).into_response())
 }
 
 /// `DELETE /v1/jobs/{id}`: stops a queued or running job after its current item.

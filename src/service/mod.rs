@@ -34,11 +34,12 @@ use responses::ResponseCache;
 use std::collections::HashMap;
 use std::sync::atomic::Ordering;
 use std::sync::{Arc, Mutex};
-use tokio::sync::{OnceCell, Semaphore};
+use tokio::sync::Semaphore;
 
 pub use handlers::{app, params_from_object, parse_query};
 
-type Flight = Arc<OnceCell<Result<Arc<[u8]>, ApiError>>>;
+/// A computation in flight: its result, once published.
+type Flight = tokio::sync::watch::Receiver<Option<Result<Arc<[u8]>, ApiError>>>;
 
 /// Where a response's artifact came from.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -156,65 +157,69 @@ impl AppState {
         if let Some(bytes) = lookup {
             return Ok((bytes, Source::Cache));
         }
-        let flight: Flight = {
+        // Join the computation in flight for this key, or start one. The computation runs on a
+        // task of its own that publishes its result and leaves the map, so a waiter that times out
+        // or disconnects neither cancels it nor causes a second one.
+        let (mut rx, leader) = {
             let mut flights = self.inner.flights.lock().unwrap_or_else(|e| e.into_inner());
-            flights.entry(key.to_string()).or_default().clone()
+            match flights.get(key) {
+                Some(rx) => (rx.clone(), false),
+                None => {
+                    let (tx, rx) = tokio::sync::watch::channel(None);
+                    flights.insert(key.to_string(), rx.clone());
+                    let (state, req, key) = (self.clone(), req.clone(), key.to_string());
+                    tokio::spawn(async move {
+                        let result = state.compute(req, key.clone()).await;
+                        // Publish, then leave the map (the product is already in the cache).
+                        let _ = tx.send(Some(result));
+                        let mut flights = state
+                            .inner
+                            .flights
+                            .lock()
+                            .unwrap_or_else(|e| e.into_inner());
+                        flights.remove(&key);
+                    });
+                    (rx, true)
+                }
+            }
         };
-        let mut initialised_here = false;
-        let result = flight
-            .get_or_init(|| {
-                initialised_here = true;
-                self.compute_detached(req.clone(), key.to_string())
-            })
-            .await
-            .clone();
-        if !initialised_here {
+        if !leader {
             self.inner
                 .metrics
                 .single_flight_joins
                 .fetch_add(1, Ordering::Relaxed);
         }
-        {
-            let mut flights = self.inner.flights.lock().unwrap_or_else(|e| e.into_inner());
-            if flights.get(key).is_some_and(|f| Arc::ptr_eq(f, &flight)) {
-                flights.remove(key);
-            }
-        }
+        let result = rx
+            .wait_for(Option::is_some)
+            .await
+            .map_err(|_| ApiError::Internal("computation task ended without a result".into()))?
+            .clone()
+            .unwrap_or_else(|| Err(ApiError::Internal("no result".into())));
         result.map(|b| (b, Source::Computed))
     }
 
-    /// Computes and stores `req` on a task of its own, so a request that times out or disconnects
-    /// does not waste the work: the product still lands in the cache.
-    async fn compute_detached(
-        &self,
-        req: ProductRequest,
-        key: String,
-    ) -> Result<Arc<[u8]>, ApiError> {
-        let state = self.clone();
-        let task = tokio::spawn(async move {
-            let _permit = state
-                .inner
-                .compute
-                .acquire()
-                .await
-                .map_err(|_| ApiError::Unavailable("shutting down".into()))?;
-            let s = state.clone();
-            Self::blocking(move || {
-                // Another flight may have finished between our cache miss and joining the map.
-                if let Some(bytes) = s.inner.cache.get(&key)? {
-                    return Ok(bytes);
-                }
-                let m = &s.inner.metrics;
-                m.computed(req.product.name());
-                m.compute_in_flight.fetch_add(1, Ordering::Relaxed);
-                let image = req.compute(&s.inner.engine);
-                m.compute_in_flight.fetch_sub(1, Ordering::Relaxed);
-                Ok(s.inner.cache.put_image(&key, &image?)?)
-            })
+    /// Computes `req` (behind the compute semaphore, on a blocking thread) and stores it.
+    async fn compute(&self, req: ProductRequest, key: String) -> Result<Arc<[u8]>, ApiError> {
+        let _permit = self
+            .inner
+            .compute
+            .acquire()
             .await
-        });
-        task.await
-            .map_err(|e| ApiError::Internal(format!("computation failed: {e}")))?
+            .map_err(|_| ApiError::Unavailable("shutting down".into()))?;
+        let s = self.clone();
+        Self::blocking(move || {
+            // Another flight may have finished between our cache miss and starting this one.
+            if let Some(bytes) = s.inner.cache.get(&key)? {
+                return Ok(bytes);
+            }
+            let m = &s.inner.metrics;
+            m.computed(req.product.name());
+            m.compute_in_flight.fetch_add(1, Ordering::Relaxed);
+            let image = req.compute(&s.inner.engine);
+            m.compute_in_flight.fetch_sub(1, Ordering::Relaxed);
+            Ok(s.inner.cache.put_image(&key, &image?)?)
+        })
+        .await
     }
 
     /// The response body of `req` in its format, and where it came from.
