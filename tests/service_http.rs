@@ -351,6 +351,9 @@ async fn excess_load_is_shed_and_slow_requests_time_out() {
     assert_eq!(first.json()["type"], "urn:skybake:problem:timeout");
     // Health checks are not limited.
     assert_eq!(srv.get("/healthz").await.status, 200);
+    // A retry while the computation runs joins it instead of starting another.
+    let retry = srv.get(slow).await;
+    assert_eq!(retry.status, 503, "{}", retry.text());
     // The timed-out computation still finishes and lands in the cache.
     let key = {
         let p = skybake::service::parse_query(Some(&slow[slow.find('?').unwrap() + 1..])).unwrap();
@@ -368,6 +371,13 @@ async fn excess_load_is_shed_and_slow_requests_time_out() {
         tokio::time::sleep(Duration::from_millis(100)).await;
     }
     assert!(cached, "detached computation should land in the cache");
+    assert_eq!(srv.state.metrics().computations("sky"), 1);
+    let joins = srv
+        .state
+        .metrics()
+        .single_flight_joins
+        .load(std::sync::atomic::Ordering::Relaxed);
+    assert_eq!(joins, 1, "the retry joined the computation in flight");
     let m = srv.get("/metrics").await.text();
     assert!(metric(&m, "skybake_load_shed_total").unwrap() >= 1.0);
     assert!(metric(&m, "skybake_request_timeouts_total").unwrap() >= 1.0);
