@@ -209,8 +209,11 @@ impl AppState {
         let s = self.clone();
         Self::blocking(move || {
             // Another flight may have finished between our cache miss and starting this one.
-            if let Some(bytes) = s.inner.cache.get(&key)? {
-                return Ok(bytes);
+            // (`contains` first, so the common case does not count a second miss.)
+            if s.inner.cache.contains(&key) {
+                if let Some(bytes) = s.inner.cache.get(&key)? {
+                    return Ok(bytes);
+                }
             }
             let m = &s.inner.metrics;
             m.computed(req.product.name());
