@@ -9,11 +9,13 @@
 pub mod atmosphere;
 pub mod bench;
 pub mod cloud;
+pub mod config;
 pub mod engine;
 pub mod error;
 pub mod export;
 pub mod output;
 pub mod phase;
+pub mod service;
 pub mod solar;
 pub mod solar_position;
 pub mod spec;

@@ -1,9 +1,13 @@
 //! `skybake`: command-line front end. Parses flags, calls the library, prints JSON or writes files.
 
 use clap::{Args, Parser, Subcommand, ValueEnum};
-use skybake::engine::{DomeShape, Engine};
+use skybake::engine::Engine;
 use skybake::output::{dome_png, AerialJson, DomeJson, Projection};
-use skybake::spec::{parse_probes, parse_usize, CommonSpec, RequestParams};
+use skybake::service::products::{
+    ProductKind, ProductRequest, AERIAL_DISTANCE_COUNT, AERIAL_MAX_DISTANCE_M, AERIAL_SHAPE,
+    GROUND_SHAPE, SKY_SHAPE,
+};
+use skybake::spec::RequestParams;
 use skybake::{Error, Result};
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
@@ -72,6 +76,42 @@ enum Command {
         #[arg(long, default_value_t = 5)]
         warm_runs: usize,
     },
+    /// Run the HTTP service (settings: config/default.toml ← --config FILE ← SKYBAKE_* ← flags).
+    ///
+    /// Example: skybake serve --bind 127.0.0.1:8080 --cache-dir /var/cache/skybake
+    Serve(ServeArgs),
+    /// Run a bake job file offline (the POST /v1/jobs format); resumable.
+    ///
+    /// Example: skybake bake job.json --out baked/
+    Bake {
+        /// Job file (JSON: {"products": [...], "grids": [...]}).
+        job: PathBuf,
+        /// Output directory (EXR per product + manifest.json); a rerun reuses finished files.
+        #[arg(long)]
+        out: PathBuf,
+        /// Settings file (defaults for wavelengths and quality, job size limit).
+        #[arg(long)]
+        config: Option<PathBuf>,
+    },
+    /// Exit 0 when the service at ADDR answers GET /healthz with 200 (for container HEALTHCHECK).
+    Healthcheck {
+        /// Service address [default: the configured bind address].
+        #[arg(long)]
+        addr: Option<String>,
+    },
+}
+
+#[derive(Args, Clone)]
+struct ServeArgs {
+    /// Address to listen on (overrides SKYBAKE_BIND and the config).
+    #[arg(long)]
+    bind: Option<String>,
+    /// Cache directory (overrides SKYBAKE_CACHE_DIR and the config).
+    #[arg(long)]
+    cache_dir: Option<PathBuf>,
+    /// Settings file (TOML, any subset of config/default.toml).
+    #[arg(long)]
+    config: Option<PathBuf>,
 }
 
 #[derive(Clone, Copy, PartialEq, Eq, ValueEnum)]
@@ -205,30 +245,28 @@ fn write_file(path: &Path, bytes: &[u8]) -> Result<()> {
 }
 
 fn run_dome(args: &DomeArgs, ground: bool) -> Result<()> {
-    let params = request_params(&args.common)?;
-    let spec = CommonSpec::from_params(&params, -18.0)?;
-    let shape = DomeShape {
-        elevation_count: match &args.elevation_count {
-            Some(v) => parse_usize("elevation_count", v, 2, 4096)?,
-            None if ground => 65,
-            None => 129,
-        },
-        azimuth_count: match &args.azimuth_count {
-            Some(v) => parse_usize("azimuth_count", v, 1, 4096)?,
-            None => 64,
-        },
+    // Same request → product path as the HTTP service (defaults, limits, validation).
+    let params = RequestParams {
+        elevation_count: args.elevation_count.clone(),
+        azimuth_count: args.azimuth_count.clone(),
+        probe: args.probe.clone(),
+        ..request_params(&args.common)?
     };
-    let probes = args
-        .probe
-        .as_deref()
-        .map(parse_probes)
-        .transpose()?
-        .unwrap_or_default();
+    let kind = if ground {
+        ProductKind::Ground
+    } else {
+        ProductKind::Sky
+    };
+    let req = ProductRequest::from_params(kind, &params)?;
+    let (spec, probes) = (&req.spec, &req.probes);
+    let shape = req
+        .shape
+        .unwrap_or(if ground { GROUND_SHAPE } else { SKY_SHAPE });
     let engine = Engine::new();
     let product = if ground {
-        engine.ground(&spec, shape, &probes)?
+        engine.ground(spec, shape, probes)?
     } else {
-        engine.sky(&spec, shape, &probes)?
+        engine.sky(spec, shape, probes)?
     };
     if let Some(path) = &args.output {
         let ext = path
@@ -246,7 +284,7 @@ fn run_dome(args: &DomeArgs, ground: bool) -> Result<()> {
             }
             "exr" => write_file(
                 path,
-                &skybake::export::dome_exr(&product, &spec, if ground { "ground" } else { "sky" })?,
+                &skybake::export::dome_exr(&product, spec, if ground { "ground" } else { "sky" })?,
             )?,
             _ => {
                 return Err(Error::invalid(
@@ -260,48 +298,87 @@ fn run_dome(args: &DomeArgs, ground: bool) -> Result<()> {
         print_json(&DomeJson::new(
             if ground { "ground" } else { "sky" },
             &product,
-            &spec,
+            spec,
         ))?;
+    }
+    Ok(())
+}
+
+fn load_settings(config: Option<&Path>) -> Result<skybake::config::Settings> {
+    skybake::config::Settings::load(config)
+}
+
+fn serve(args: ServeArgs) -> Result<()> {
+    let mut settings = load_settings(args.config.as_deref())?;
+    if let Some(bind) = args.bind {
+        settings.server.bind = bind;
+    }
+    if let Some(dir) = args.cache_dir {
+        settings.cache.dir = dir;
+    }
+    settings.validate()?;
+    skybake::service::server::run(settings).map_err(|e| Error::invalid("serve", e))
+}
+
+fn bake(job: &Path, out: &Path, config: Option<&Path>) -> Result<()> {
+    let settings = load_settings(config)?;
+    let body = std::fs::read(job)
+        .map_err(|e| Error::invalid("job", format!("cannot read {}: {e}", job.display())))?;
+    let start = std::time::Instant::now();
+    let summary = skybake::service::jobs::bake(&body, out, &settings, |done, total, what| {
+        eprintln!(
+            "[{done}/{total}] {what} ({:.1} s)",
+            start.elapsed().as_secs_f64()
+        );
+    })
+    .map_err(|e| Error::invalid("bake", e))?;
+    print_json(&summary)?;
+    if summary.failed > 0 {
+        return Err(Error::invalid(
+            "bake",
+            format!(
+                "{} of {} products failed (see manifest.json)",
+                summary.failed, summary.total
+            ),
+        ));
     }
     Ok(())
 }
 
 fn run(cli: Cli) -> Result<()> {
     match cli.command {
+        Command::Serve(args) => serve(args),
+        Command::Bake { job, out, config } => bake(&job, &out, config.as_deref()),
+        Command::Healthcheck { addr } => {
+            let addr = match addr {
+                Some(a) => a,
+                None => load_settings(None)?.server.bind,
+            };
+            let addr = addr
+                .parse()
+                .map_err(|_| Error::invalid("addr", format!("'{addr}' is not HOST:PORT")))?;
+            skybake::service::server::healthcheck(addr)
+                .map_err(|e| Error::invalid("healthcheck", e))
+        }
         Command::Sun(c) => {
-            let spec = CommonSpec::from_params(&request_params(&c)?, -10.0)?;
-            print_json(&Engine::new().sun(&spec)?)
+            let req = ProductRequest::from_params(ProductKind::Sun, &request_params(&c)?)?;
+            print_json(&Engine::new().sun(&req.spec)?)
         }
         Command::Sky(a) => run_dome(&a, false),
         Command::Ground(a) => run_dome(&a, true),
         Command::Aerial(a) => {
-            let spec = CommonSpec::from_params(&request_params(&a.common)?, -18.0)?;
-            let shape = DomeShape {
-                elevation_count: a
-                    .elevation_count
-                    .as_deref()
-                    .map(|v| parse_usize("elevation_count", v, 2, 4096))
-                    .transpose()?
-                    .unwrap_or(33),
-                azimuth_count: a
-                    .azimuth_count
-                    .as_deref()
-                    .map(|v| parse_usize("azimuth_count", v, 1, 4096))
-                    .transpose()?
-                    .unwrap_or(16),
+            let params = RequestParams {
+                elevation_count: a.elevation_count.clone(),
+                azimuth_count: a.azimuth_count.clone(),
+                distance_count: a.distance_count.clone(),
+                max_distance_m: a.max_distance_m.clone(),
+                ..request_params(&a.common)?
             };
-            let n_d = a
-                .distance_count
-                .as_deref()
-                .map(|v| parse_usize("distance_count", v, 1, 4096))
-                .transpose()?
-                .unwrap_or(32);
-            let max_d = a
-                .max_distance_m
-                .as_deref()
-                .map(|v| skybake::spec::parse_f64("max_distance_m", v, 1.0, 1.0e7, "m"))
-                .transpose()?
-                .unwrap_or(100_000.0);
+            let req = ProductRequest::from_params(ProductKind::Aerial, &params)?;
+            let spec = req.spec.clone();
+            let shape = req.shape.unwrap_or(AERIAL_SHAPE);
+            let n_d = req.distance_count.unwrap_or(AERIAL_DISTANCE_COUNT);
+            let max_d = req.max_distance_m.unwrap_or(AERIAL_MAX_DISTANCE_M);
             let product = Engine::new().aerial(&spec, shape, n_d, max_d)?;
             if let Some(path) = &a.output {
                 if path

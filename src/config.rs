@@ -1,0 +1,337 @@
+//! Service settings: `config/default.toml` embedded as the defaults, then a `--config FILE` (TOML,
+//! any subset of the same keys), then `SKYBAKE_*` environment variables, then command-line flags.
+//! Everything is validated once at start-up; an invalid setting is refused with a message naming it.
+
+use crate::{Error, Result};
+use serde::{Deserialize, Serialize};
+use std::net::SocketAddr;
+use std::path::{Path, PathBuf};
+
+/// The embedded defaults.
+pub const DEFAULT_TOML: &str = include_str!("../config/default.toml");
+
+/// All settings.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Settings {
+    pub server: ServerSettings,
+    pub cache: CacheSettings,
+    pub jobs: JobSettings,
+    pub defaults: DefaultSettings,
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ServerSettings {
+    pub bind: String,
+    pub worker_threads: usize,
+    pub compute_threads: usize,
+    pub request_timeout_s: f64,
+    pub concurrency_limit: usize,
+    pub body_limit_bytes: usize,
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct CacheSettings {
+    pub dir: PathBuf,
+    pub disk_budget_bytes: u64,
+    pub memory_budget_bytes: u64,
+    pub response_budget_bytes: u64,
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct JobSettings {
+    pub workers: usize,
+    pub max_products: usize,
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct DefaultSettings {
+    /// Empty = the engine's default set.
+    pub wavelengths: String,
+    pub quality: String,
+}
+
+/// Environment variables read by [`Settings::load`]: (variable, section, key).
+pub const ENV_VARS: &[(&str, &str, &str)] = &[
+    ("SKYBAKE_BIND", "server", "bind"),
+    ("SKYBAKE_WORKER_THREADS", "server", "worker_threads"),
+    ("SKYBAKE_COMPUTE_THREADS", "server", "compute_threads"),
+    ("SKYBAKE_REQUEST_TIMEOUT_S", "server", "request_timeout_s"),
+    ("SKYBAKE_CONCURRENCY_LIMIT", "server", "concurrency_limit"),
+    ("SKYBAKE_BODY_LIMIT_BYTES", "server", "body_limit_bytes"),
+    ("SKYBAKE_CACHE_DIR", "cache", "dir"),
+    ("SKYBAKE_DISK_BUDGET_BYTES", "cache", "disk_budget_bytes"),
+    (
+        "SKYBAKE_MEMORY_BUDGET_BYTES",
+        "cache",
+        "memory_budget_bytes",
+    ),
+    (
+        "SKYBAKE_RESPONSE_BUDGET_BYTES",
+        "cache",
+        "response_budget_bytes",
+    ),
+    ("SKYBAKE_JOB_WORKERS", "jobs", "workers"),
+    ("SKYBAKE_MAX_JOB_PRODUCTS", "jobs", "max_products"),
+    ("SKYBAKE_DEFAULT_WAVELENGTHS", "defaults", "wavelengths"),
+    ("SKYBAKE_DEFAULT_QUALITY", "defaults", "quality"),
+];
+
+/// Most products a job may hold, whatever the configuration says.
+pub const MAX_JOB_PRODUCTS_LIMIT: usize = 1_000_000;
+
+fn config_err(field: &str, reason: impl ToString) -> Error {
+    Error::invalid(&format!("config: {field}"), reason)
+}
+
+/// Merges `over` into `base` (tables recursively; other values replace).
+fn merge(base: &mut toml::Value, over: toml::Value) {
+    match (base, over) {
+        (toml::Value::Table(b), toml::Value::Table(o)) => {
+            for (k, v) in o {
+                match b.get_mut(&k) {
+                    Some(slot) => merge(slot, v),
+                    None => {
+                        b.insert(k, v);
+                    }
+                }
+            }
+        }
+        (slot, v) => *slot = v,
+    }
+}
+
+/// An environment value typed like the default it replaces.
+fn env_value(var: &str, text: &str, like: Option<&toml::Value>) -> Result<toml::Value> {
+    Ok(match like {
+        Some(toml::Value::Integer(_)) => match text.trim().parse::<i64>() {
+            Ok(v) => toml::Value::Integer(v),
+            // A float where a whole number is expected is refused by the typed check below.
+            Err(_) => toml::Value::Float(
+                text.trim()
+                    .parse()
+                    .map_err(|_| config_err(var, format!("'{text}' is not a whole number")))?,
+            ),
+        },
+        Some(toml::Value::Float(_)) => toml::Value::Float(
+            text.trim()
+                .parse()
+                .map_err(|_| config_err(var, format!("'{text}' is not a number")))?,
+        ),
+        _ => toml::Value::String(text.to_string()),
+    })
+}
+
+impl Settings {
+    /// The embedded defaults alone.
+    pub fn defaults() -> Self {
+        // The embedded file is checked by a unit test; fall back to parsing errors never happening.
+        Self::from_layers(None, &[]).unwrap_or_else(|e| panic!("embedded config/default.toml: {e}"))
+    }
+
+    /// Defaults ← `file` ← the process environment's `SKYBAKE_*` variables.
+    pub fn load(file: Option<&Path>) -> Result<Self> {
+        let text = file
+            .map(|p| {
+                std::fs::read_to_string(p).map_err(|e| {
+                    config_err("--config", format!("cannot read {}: {e}", p.display()))
+                })
+            })
+            .transpose()?;
+        let env: Vec<(String, String)> = ENV_VARS
+            .iter()
+            .filter_map(|(var, _, _)| std::env::var(var).ok().map(|v| (var.to_string(), v)))
+            .collect();
+        Self::from_layers(text.as_deref(), &env)
+    }
+
+    /// Defaults ← `file_text` (TOML) ← `env` (variable, value) pairs, validated.
+    pub fn from_layers(file_text: Option<&str>, env: &[(String, String)]) -> Result<Self> {
+        let mut value: toml::Value =
+            toml::from_str(DEFAULT_TOML).map_err(|e| config_err("default.toml", e.to_string()))?;
+        if let Some(text) = file_text {
+            let over: toml::Value =
+                toml::from_str(text).map_err(|e| config_err("--config", e.to_string()))?;
+            merge(&mut value, over);
+        }
+        for (var, text) in env {
+            let Some((_, section, key)) = ENV_VARS.iter().find(|(v, _, _)| v == var) else {
+                return Err(config_err(var, "not a known SKYBAKE_* setting"));
+            };
+            let like = value.get(section).and_then(|s| s.get(key));
+            let v = env_value(var, text, like)?;
+            if let Some(toml::Value::Table(t)) = value.get_mut(section) {
+                t.insert(key.to_string(), v);
+            }
+        }
+        let settings: Settings = value
+            .try_into()
+            .map_err(|e: toml::de::Error| config_err("settings", e.message()))?;
+        settings.validate()?;
+        Ok(settings)
+    }
+
+    /// Checks every value; errors name the setting.
+    pub fn validate(&self) -> Result<()> {
+        self.bind_addr()?;
+        let s = &self.server;
+        if s.worker_threads > 1024 {
+            return Err(Error::out_of_range(
+                "server.worker_threads",
+                s.worker_threads,
+                "0 (one per core) to 1024",
+            ));
+        }
+        if s.compute_threads > 1024 {
+            return Err(Error::out_of_range(
+                "server.compute_threads",
+                s.compute_threads,
+                "0 (one per core) to 1024",
+            ));
+        }
+        if !(s.request_timeout_s.is_finite()
+            && s.request_timeout_s > 0.0
+            && s.request_timeout_s <= 86_400.0)
+        {
+            return Err(Error::out_of_range(
+                "server.request_timeout_s",
+                s.request_timeout_s,
+                "above 0 to 86400 s",
+            ));
+        }
+        if !(1..=1_000_000).contains(&s.concurrency_limit) {
+            return Err(Error::out_of_range(
+                "server.concurrency_limit",
+                s.concurrency_limit,
+                "1 to 1000000",
+            ));
+        }
+        if !(1024..=1 << 30).contains(&s.body_limit_bytes) {
+            return Err(Error::out_of_range(
+                "server.body_limit_bytes",
+                s.body_limit_bytes,
+                "1024 to 1073741824",
+            ));
+        }
+        if self.cache.dir.as_os_str().is_empty() {
+            return Err(Error::invalid("cache.dir", "must not be empty"));
+        }
+        if self.cache.disk_budget_bytes < 1 << 20 {
+            return Err(Error::out_of_range(
+                "cache.disk_budget_bytes",
+                self.cache.disk_budget_bytes,
+                "at least 1048576",
+            ));
+        }
+        if !(1..=256).contains(&self.jobs.workers) {
+            return Err(Error::out_of_range(
+                "jobs.workers",
+                self.jobs.workers,
+                "1 to 256",
+            ));
+        }
+        if !(1..=MAX_JOB_PRODUCTS_LIMIT).contains(&self.jobs.max_products) {
+            return Err(Error::out_of_range(
+                "jobs.max_products",
+                self.jobs.max_products,
+                format!("1 to {MAX_JOB_PRODUCTS_LIMIT}"),
+            ));
+        }
+        if !self.defaults.wavelengths.trim().is_empty() {
+            crate::spectrum::Wavelengths::parse(&self.defaults.wavelengths)
+                .map_err(|e| Error::invalid("defaults.wavelengths", e.to_string()))?;
+        }
+        crate::spec::Quality::parse(&self.defaults.quality)
+            .map_err(|e| Error::invalid("defaults.quality", e.to_string()))?;
+        Ok(())
+    }
+
+    /// The parsed bind address.
+    pub fn bind_addr(&self) -> Result<SocketAddr> {
+        self.server.bind.parse().map_err(|_| {
+            Error::invalid(
+                "server.bind",
+                format!(
+                    "'{}' is not an address like 127.0.0.1:8080",
+                    self.server.bind
+                ),
+            )
+        })
+    }
+
+    /// Engine computations at once (resolved: 0 = cores).
+    pub fn compute_threads(&self) -> usize {
+        match self.server.compute_threads {
+            0 => std::thread::available_parallelism()
+                .map(|n| n.get())
+                .unwrap_or(1),
+            n => n,
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn embedded_defaults_are_valid() {
+        let s = Settings::from_layers(None, &[]).unwrap();
+        assert_eq!(s.server.bind, "127.0.0.1:8080");
+        assert_eq!(s.defaults.quality, "standard");
+    }
+
+    #[test]
+    fn file_then_env_override() {
+        let s = Settings::from_layers(
+            Some("[server]\nbind = \"0.0.0.0:9000\"\nconcurrency_limit = 7\n"),
+            &[
+                ("SKYBAKE_CONCURRENCY_LIMIT".into(), "9".into()),
+                ("SKYBAKE_CACHE_DIR".into(), "/tmp/x".into()),
+                ("SKYBAKE_REQUEST_TIMEOUT_S".into(), "2.5".into()),
+            ],
+        )
+        .unwrap();
+        assert_eq!(s.server.bind, "0.0.0.0:9000");
+        assert_eq!(s.server.concurrency_limit, 9);
+        assert_eq!(s.cache.dir, PathBuf::from("/tmp/x"));
+        assert_eq!(s.server.request_timeout_s, 2.5);
+    }
+
+    #[test]
+    fn invalid_settings_name_themselves() {
+        type Case<'a> = (Option<&'a str>, Vec<(String, String)>, &'a str);
+        let cases: [Case; 6] = [
+            (
+                Some("[server]\nbind = \"nowhere\"\n"),
+                vec![],
+                "server.bind",
+            ),
+            (Some("[server]\nspeed = 3\n"), vec![], "config: settings"),
+            (
+                None,
+                vec![("SKYBAKE_CONCURRENCY_LIMIT".into(), "lots".into())],
+                "config: SKYBAKE_CONCURRENCY_LIMIT",
+            ),
+            (
+                None,
+                vec![("SKYBAKE_CONCURRENCY_LIMIT".into(), "0".into())],
+                "server.concurrency_limit",
+            ),
+            (
+                None,
+                vec![("SKYBAKE_DEFAULT_QUALITY".into(), "ultra".into())],
+                "defaults.quality",
+            ),
+            (Some("[jobs]\nworkers = 0\n"), vec![], "jobs.workers"),
+        ];
+        for (file, env, field) in cases {
+            let e = Settings::from_layers(file, &env).unwrap_err();
+            assert_eq!(e.field(), field, "{e}");
+        }
+    }
+}

@@ -1,0 +1,207 @@
+//! The route table (the router is built from it) and the OpenAPI 3.1 document generated from it, so
+//! `/openapi.json` lists exactly the routes the router serves (a test checks both directions).
+
+use serde_json::{json, Map, Value};
+
+/// One route of the service.
+#[derive(Debug, Clone, Copy)]
+pub struct Route {
+    /// HTTP method (upper case).
+    pub method: &'static str,
+    /// Path in axum syntax (`{id}` captures), identical to OpenAPI path templating.
+    pub path: &'static str,
+    pub summary: &'static str,
+    /// Behind the load-shedding, concurrency and timeout layers.
+    pub limited: bool,
+    /// Takes the product query parameters (which products' formats apply).
+    pub product: Option<&'static str>,
+    /// Takes a JSON body.
+    pub body: Option<&'static str>,
+    /// Media types of a success response.
+    pub produces: &'static [&'static str],
+}
+
+const JSON: &[&str] = &["application/json"];
+
+/// Every route the router serves.
+pub const ROUTES: &[Route] = &[
+    Route { method: "GET", path: "/v1/sun", summary: "Sun attenuation: spectral transmittance, direct normal, diffuse and global horizontal irradiance", limited: true, product: Some("sun"), body: None, produces: JSON },
+    Route { method: "GET", path: "/v1/sky", summary: "Sky-dome radiance table (view elevation −90…90°, azimuth 0…180° from the sun) or probes", limited: true, product: Some("sky"), body: None, produces: &["application/json", "image/x-exr", "image/png"] },
+    Route { method: "GET", path: "/v1/ground", summary: "Ground-reflected upward skylight at the observer (view zenith 90…180°) or probes", limited: true, product: Some("ground"), body: None, produces: &["application/json", "image/x-exr", "image/png"] },
+    Route { method: "GET", path: "/v1/aerial", summary: "Aerial perspective: transmittance and in-scattered radiance against distance", limited: true, product: Some("aerial"), body: None, produces: &["application/json", "image/x-exr"] },
+    Route { method: "POST", path: "/v1/plan", summary: "What would run for a product (stages run and left out, cache key), without computing it", limited: true, product: None, body: Some("PlanRequest"), produces: JSON },
+    Route { method: "POST", path: "/v1/jobs", summary: "Submit a bake job (product list and/or grids); 202 with the job id", limited: true, product: None, body: Some("JobRequest"), produces: JSON },
+    Route { method: "GET", path: "/v1/jobs/{id}", summary: "Job state, progress, errors and artifacts (offset/limit page the artifact list)", limited: true, product: None, body: None, produces: JSON },
+    Route { method: "DELETE", path: "/v1/jobs/{id}", summary: "Cancel a job (finished products stay cached)", limited: true, product: None, body: None, produces: JSON },
+    Route { method: "GET", path: "/v1/jobs/{id}/artifacts/{n}", summary: "The n-th product of a job (format=exr default, json, png)", limited: true, product: None, body: None, produces: &["image/x-exr", "application/json", "image/png"] },
+    Route { method: "GET", path: "/healthz", summary: "Liveness", limited: false, product: None, body: None, produces: JSON },
+    Route { method: "GET", path: "/metrics", summary: "Prometheus metrics", limited: false, product: None, body: None, produces: &["text/plain"] },
+    Route { method: "GET", path: "/openapi.json", summary: "This document", limited: false, product: None, body: None, produces: JSON },
+];
+
+/// (name, description) of the product query parameters.
+pub const PRODUCT_PARAMETERS: [(&str, &str); 16] = [
+    (
+        "sun_elevation_deg",
+        "Sun elevation, degrees (sun −10…90, others −18…90; default 30)",
+    ),
+    (
+        "latitude_deg",
+        "Latitude, degrees (with longitude_deg and time instead of sun_elevation_deg)",
+    ),
+    ("longitude_deg", "Longitude, degrees east"),
+    ("time", "UTC time, RFC 3339"),
+    (
+        "observer_altitude_m",
+        "Observer altitude, m (0…4e7; default 0)",
+    ),
+    (
+        "wavelengths",
+        "Wavelengths, nm, comma-separated, 1–64 values in 360–830",
+    ),
+    (
+        "atmosphere",
+        "Preset name (earth, earth-hazy, rayleigh-only, mars) or inline JSON",
+    ),
+    (
+        "ground_albedo",
+        "Ground albedo 0–1 (overrides the atmosphere's)",
+    ),
+    ("method", "Multiple scattering: precise, fast, none"),
+    ("quality", "draft, standard, high, reference"),
+    (
+        "elevation_count",
+        "Table rows (sky 129, ground 65, aerial 33)",
+    ),
+    ("azimuth_count", "Table columns (sky/ground 64, aerial 16)"),
+    ("distance_count", "Aerial: distances per ray (32)"),
+    ("max_distance_m", "Aerial: largest distance, m (100000)"),
+    (
+        "probe",
+        "Sky/ground: exact directions VZ:VA,VZ:VA in degrees",
+    ),
+    (
+        "format",
+        "json (default), exr (sky, ground, aerial), png (sky, ground)",
+    ),
+];
+
+fn problem_response(description: &str) -> Value {
+    json!({
+        "description": description,
+        "content": {"application/problem+json": {"schema": {"$ref": "#/components/schemas/Problem"}}}
+    })
+}
+
+fn operation(route: &Route) -> Value {
+    let mut op = Map::new();
+    op.insert("summary".into(), json!(route.summary));
+    let mut parameters = Vec::new();
+    for seg in route.path.split('/') {
+        if let Some(name) = seg.strip_prefix('{').and_then(|s| s.strip_suffix('}')) {
+            parameters.push(
+                json!({"name": name, "in": "path", "required": true, "schema": {"type": "string"}}),
+            );
+        }
+    }
+    if route.product.is_some() {
+        for (name, description) in PRODUCT_PARAMETERS {
+            parameters.push(json!({"name": name, "in": "query", "required": false, "description": description, "schema": {"type": "string"}}));
+        }
+    }
+    if route.path == "/v1/jobs/{id}" && route.method == "GET" {
+        for name in ["offset", "limit"] {
+            parameters.push(json!({"name": name, "in": "query", "required": false, "schema": {"type": "integer", "minimum": 0}}));
+        }
+    }
+    if route.path.ends_with("/artifacts/{n}") {
+        parameters.push(json!({"name": "format", "in": "query", "required": false, "schema": {"type": "string", "enum": ["exr", "json", "png"]}}));
+    }
+    if !parameters.is_empty() {
+        op.insert("parameters".into(), Value::Array(parameters));
+    }
+    if let Some(schema) = route.body {
+        op.insert(
+            "requestBody".into(),
+            json!({"required": true, "content": {"application/json": {"schema": {"$ref": format!("#/components/schemas/{schema}")}}}}),
+        );
+    }
+    let content: Map<String, Value> = route
+        .produces
+        .iter()
+        .map(|t| (t.to_string(), json!({})))
+        .collect();
+    let ok = if route.path == "/v1/jobs" {
+        "202"
+    } else {
+        "200"
+    };
+    let mut responses = Map::new();
+    responses.insert(
+        ok.into(),
+        json!({"description": "success", "content": content}),
+    );
+    if route.limited {
+        responses.insert(
+            "400".into(),
+            problem_response("parameter out of range or unknown parameter"),
+        );
+        responses.insert("404".into(), problem_response("no such job or artifact"));
+        responses.insert(
+            "413".into(),
+            problem_response("request exceeds a size limit (named)"),
+        );
+        responses.insert("422".into(), problem_response("invalid parameter (named)"));
+        responses.insert(
+            "503".into(),
+            problem_response("overloaded or timed out; see Retry-After"),
+        );
+    }
+    op.insert("responses".into(), Value::Object(responses));
+    Value::Object(op)
+}
+
+/// The OpenAPI 3.1 document of [`ROUTES`].
+pub fn openapi_json() -> String {
+    let mut paths: Map<String, Value> = Map::new();
+    for route in ROUTES {
+        let entry = paths
+            .entry(route.path.to_string())
+            .or_insert_with(|| json!({}));
+        if let Value::Object(m) = entry {
+            m.insert(route.method.to_ascii_lowercase(), operation(route));
+        }
+    }
+    let params: Map<String, Value> = PRODUCT_PARAMETERS
+        .iter()
+        .map(|(n, d)| {
+            (
+                n.to_string(),
+                json!({"type": ["string", "number"], "description": d}),
+            )
+        })
+        .collect();
+    let mut plan_props = params.clone();
+    plan_props.insert(
+        "product".into(),
+        json!({"type": "string", "enum": ["sun", "sky", "ground", "aerial"]}),
+    );
+    let doc = json!({
+        "openapi": "3.1.0",
+        "info": {"title": "skybake", "version": env!("CARGO_PKG_VERSION"),
+                 "description": "Spectral atmosphere and sky precomputation service"},
+        "paths": paths,
+        "components": {"schemas": {
+            "Problem": {"type": "object", "required": ["type", "title", "status", "detail"], "properties": {
+                "type": {"type": "string"}, "title": {"type": "string"}, "status": {"type": "integer"},
+                "detail": {"type": "string"}, "parameter": {"type": "string"}}},
+            "PlanRequest": {"type": "object", "required": ["product"], "properties": plan_props, "additionalProperties": false},
+            "JobRequest": {"type": "object", "additionalProperties": false, "properties": {
+                "products": {"type": "array", "items": {"$ref": "#/components/schemas/PlanRequest"}},
+                "grids": {"type": "array", "items": {"type": "object", "required": ["product", "sweep"],
+                    "description": "A product with base parameters and a sweep: each sweep member is a list of values or {from, to, step}",
+                    "properties": {"product": {"type": "string"}, "sweep": {"type": "object"}}}}}}
+        }}
+    });
+    doc.to_string()
+}
