@@ -325,13 +325,32 @@ fn bake(job: &Path, out: &Path, config: Option<&Path>) -> Result<()> {
     let body = std::fs::read(job)
         .map_err(|e| Error::invalid("job", format!("cannot read {}: {e}", job.display())))?;
     let start = std::time::Instant::now();
-    let summary = skybake::service::jobs::bake(&body, out, &settings, |done, total, what| {
-        eprintln!(
-            "[{done}/{total}] {what} ({:.1} s)",
-            start.elapsed().as_secs_f64()
-        );
-    })
-    .map_err(|e| Error::invalid("bake", e))?;
+    // A progress bar on a terminal; plain progress lines in logs and pipes.
+    let bar = std::io::IsTerminal::is_terminal(&std::io::stderr()).then(|| {
+        let bar = indicatif::ProgressBar::new(0);
+        if let Ok(style) = indicatif::ProgressStyle::with_template(
+            "{elapsed_precise} [{bar:40}] {pos}/{len} ({eta} left) {msg}",
+        ) {
+            bar.set_style(style.progress_chars("=> "));
+        }
+        bar
+    });
+    let summary =
+        skybake::service::jobs::bake(&body, out, &settings, |done, total, what| match &bar {
+            Some(bar) => {
+                bar.set_length(total as u64);
+                bar.set_position(done as u64);
+                bar.set_message(what.to_string());
+            }
+            None => eprintln!(
+                "[{done}/{total}] {what} ({:.1} s)",
+                start.elapsed().as_secs_f64()
+            ),
+        })
+        .map_err(|e| Error::invalid("bake", e))?;
+    if let Some(bar) = &bar {
+        bar.finish_and_clear();
+    }
     print_json(&summary)?;
     if summary.failed > 0 {
         return Err(Error::invalid(
