@@ -52,6 +52,34 @@ impl Error {
         }
     }
 
+    /// The same error with `prefix` put before the parameter name (e.g. `products[3].`).
+    pub fn prefixed(self, prefix: &str) -> Self {
+        match self {
+            Error::OutOfRange {
+                field,
+                value,
+                allowed,
+            } => Error::OutOfRange {
+                field: format!("{prefix}{field}"),
+                value,
+                allowed,
+            },
+            Error::Invalid { field, reason } => Error::Invalid {
+                field: format!("{prefix}{field}"),
+                reason,
+            },
+            Error::TooLarge {
+                field,
+                reason,
+                limit,
+            } => Error::TooLarge {
+                field: format!("{prefix}{field}"),
+                reason,
+                limit,
+            },
+        }
+    }
+
     /// The name of the offending parameter.
     pub fn field(&self) -> &str {
         match self {

@@ -78,7 +78,8 @@ pub struct AerialJson<'a> {
     pub spec: &'a CommonSpec,
 }
 
-fn nest4(v: &[f32], n_az: usize, n_d: usize, n_l: usize) -> Vec<Vec<Vec<&[f32]>>> {
+/// Views a flat `[row][azimuth][distance][λ]` array as nested slices for JSON.
+pub fn nest4(v: &[f32], n_az: usize, n_d: usize, n_l: usize) -> Vec<Vec<Vec<&[f32]>>> {
     v.chunks(n_az * n_d * n_l)
         .map(|row| {
             row.chunks(n_d * n_l)

@@ -61,33 +61,6 @@ pub struct JobPlan {
     total: usize,
 }
 
-fn prefixed(e: Error, prefix: &str) -> Error {
-    match e {
-        Error::OutOfRange {
-            field,
-            value,
-            allowed,
-        } => Error::OutOfRange {
-            field: format!("{prefix}{field}"),
-            value,
-            allowed,
-        },
-        Error::Invalid { field, reason } => Error::Invalid {
-            field: format!("{prefix}{field}"),
-            reason,
-        },
-        Error::TooLarge {
-            field,
-            reason,
-            limit,
-        } => Error::TooLarge {
-            field: format!("{prefix}{field}"),
-            reason,
-            limit,
-        },
-    }
-}
-
 fn number_text(v: f64) -> String {
     // Nine decimals remove the binary residue of from + k·step (0.30000000000000004 → 0.3).
     let r = (v * 1e9).round() / 1e9;
@@ -161,7 +134,7 @@ fn axis_values(field: &str, v: &Value, max_products: usize) -> Result<Vec<String
 
 fn product_of(obj: &Map<String, Value>, prefix: &str) -> Result<ProductKind, ApiError> {
     match obj.get("product") {
-        Some(Value::String(s)) => Ok(ProductKind::parse(s).map_err(|e| prefixed(e, prefix))?),
+        Some(Value::String(s)) => Ok(ProductKind::parse(s).map_err(|e| e.prefixed(prefix))?),
         _ => Err(Error::invalid(
             &format!("{prefix}product"),
             "missing or not a string: one of sun, sky, ground, aerial",
@@ -333,7 +306,7 @@ impl JobPlan {
         })?;
         ProductRequest::from_params(product, &defaults(params))
             .and_then(|r| r.check_cacheable().map(|()| r))
-            .map_err(|e| prefixed(e, &prefix).into())
+            .map_err(|e| e.prefixed(&prefix).into())
     }
 }
 

@@ -486,16 +486,6 @@ struct Body<'a> {
     inscatter_w_m2_sr_nm: Option<Vec<Vec<Vec<&'a [f32]>>>>,
 }
 
-fn nest4(v: &[f32], n_az: usize, n_d: usize, n_l: usize) -> Vec<Vec<Vec<&[f32]>>> {
-    v.chunks(n_az * n_d * n_l)
-        .map(|row| {
-            row.chunks(n_d * n_l)
-                .map(|dir| dir.chunks(n_l).collect())
-                .collect()
-        })
-        .collect()
-}
-
 /// Renders a response body in `format` from the artifact `image` of a `product`.
 pub fn render(product: ProductKind, format: Format, image: &SpectralImage) -> Result<Vec<u8>> {
     let env = envelope(image)?;
@@ -543,8 +533,8 @@ pub fn render(product: ProductKind, format: Format, image: &SpectralImage) -> Re
             }
             let s0 = interleaved(image, layout::EMISSIVE_LAYER)?;
             let t = interleaved(image, layout::TRANSMITTANCE_LAYER)?;
-            body.transmittance = Some(nest4(&t, n_az, n_d, n_l));
-            body.inscatter_w_m2_sr_nm = Some(nest4(&s0, n_az, n_d, n_l));
+            body.transmittance = Some(crate::output::nest4(&t, n_az, n_d, n_l));
+            body.inscatter_w_m2_sr_nm = Some(crate::output::nest4(&s0, n_az, n_d, n_l));
             json(&body)
         }
         (_, Format::Exr) => {
