@@ -259,10 +259,10 @@ impl Engine {
         }
     }
 
-    /// Stages for a spec (what runs and what is left out, and why).
-    pub fn plan(&self, spec: &CommonSpec, shared: &SharedTables) -> Stages {
+    /// Stages for a spec (what runs and what is left out, and why); needs only the resolved
+    /// medium, so planning costs no table builds.
+    pub fn plan(spec: &CommonSpec, m: &Medium) -> Stages {
         let mut st = Stages::default();
-        let m = &shared.medium;
         st.ran.push("transmittance: density-integral table".into());
         if spec.sun.sun_elevation_deg < -m.sun_angular_radius_rad.to_degrees() {
             st.ran.push(
@@ -316,7 +316,7 @@ impl Engine {
             .zip(&dhi)
             .map(|(d, h)| d * mu_s.max(0.0) + h)
             .collect();
-        let stages = self.plan(spec, &shared);
+        let stages = Self::plan(spec, &shared.medium);
         let meta = self.meta(&shared, spec, warm, start, stages);
         Ok(SunProduct {
             wavelengths_nm: m.wavelengths_nm.clone(),
@@ -383,7 +383,7 @@ impl Engine {
             shape.azimuth_count,
         );
         let probes = evaluate_probes(&eval, shared.medium.len(), probes);
-        let stages = self.plan(spec, &shared);
+        let stages = Self::plan(spec, &shared.medium);
         let meta = self.meta(&shared, spec, warm, start, stages);
         Ok(DomeProduct {
             table,
@@ -465,7 +465,7 @@ impl Engine {
                     }
                 },
             );
-        let stages = self.plan(spec, &shared);
+        let stages = Self::plan(spec, &shared.medium);
         let meta = self.meta(&shared, spec, warm, start, stages);
         Ok(AerialProduct {
             wavelengths_nm: m.wavelengths_nm.clone(),

@@ -209,20 +209,11 @@ async fn plan(
     let req = state.request(kind, params_from_object(&obj, &["product"], "")?)?;
     let key = req.cache_key();
     let cached = state.cache().contains(&key);
-    let s = state.clone();
-    let spec = req.spec.clone();
-    // The stages depend on the medium only (density tables; cheap, and kept for the real request).
-    let _permit = state
-        .inner
-        .compute
-        .acquire()
-        .await
-        .map_err(|_| ApiError::Unavailable("shutting down".into()))?;
-    let stages = AppState::blocking(move || {
-        let shared = s.engine().shared(&spec)?;
-        Ok(s.engine().plan(&spec, &shared))
-    })
-    .await?;
+    // The stages depend on the resolved medium only: no tables are built.
+    let spec = &req.spec;
+    let medium =
+        crate::atmosphere::Medium::new(&spec.atmosphere, &spec.wavelengths_nm, spec.ground_albedo)?;
+    let stages = crate::engine::Engine::plan(spec, &medium);
     let canonical: Value = serde_json::from_str(&req.canonical_json()).unwrap_or(Value::Null);
     Ok(axum::Json(json!({
         "product": kind.name(),
