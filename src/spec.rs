@@ -11,12 +11,14 @@ use serde::{Deserialize, Serialize};
 
 /// Highest observer altitude accepted, m (geostationary orbit and a bit).
 pub const MAX_OBSERVER_ALTITUDE_M: f64 = 40_000_000.0;
-/// Most table cells (rows × columns) in one sky/ground table.
-pub const MAX_TABLE_CELLS: usize = 1024 * 1024;
+/// Most table cells (rows × columns) in one sky/ground table: with 64 wavelengths, 64 MiB of
+/// radiance, so no single request can take a large share of the machine's memory.
+pub const MAX_TABLE_CELLS: usize = 512 * 512;
 /// Most probe directions in one request.
 pub const MAX_PROBES: usize = 4096;
-/// Most aerial-perspective cells (azimuths × elevations × distances).
-pub const MAX_AERIAL_CELLS: usize = 2 * 1024 * 1024;
+/// Most aerial-perspective cells (azimuths × elevations × distances): with 64 wavelengths and
+/// two layers (transmittance, in-scattered radiance), 128 MiB.
+pub const MAX_AERIAL_CELLS: usize = 256 * 1024;
 
 /// Request parameters as they arrive (all optional strings; missing ones take defaults).
 #[derive(Debug, Clone, Default, Deserialize, Serialize)]
