@@ -131,10 +131,15 @@ pub struct DomeShape {
     pub azimuth_count: usize,
 }
 
+/// A shared-tables slot, filled by the first request that needs it.
+type SharedSlot = Arc<std::sync::OnceLock<Arc<SharedTables>>>;
+
 /// The engine with its cache of shared tables.
 #[derive(Default)]
 pub struct Engine {
-    shared: Mutex<Vec<(String, Arc<SharedTables>)>>,
+    /// Most recently used last. Each slot is filled once, outside the lock, so concurrent requests
+    /// for the same medium wait for one build instead of each building their own.
+    shared: Mutex<Vec<(String, SharedSlot)>>,
     counters: Mutex<HashMap<&'static str, u64>>,
 }
 
@@ -167,23 +172,24 @@ impl Engine {
             spec.quality,
         ))
         .unwrap_or_default();
-        let mut cache = self.shared.lock().unwrap_or_else(|e| e.into_inner());
-        if let Some(pos) = cache.iter().position(|(k, _)| *k == key) {
-            let entry = cache.remove(pos);
-            let tables = entry.1.clone();
-            cache.push(entry);
-            return Ok(tables);
-        }
-        drop(cache);
-        self.count("density");
-        let (fast, precise) = settings_for(spec.quality);
-        let tables = Arc::new(SharedTables::new(medium, fast, precise));
-        let mut cache = self.shared.lock().unwrap_or_else(|e| e.into_inner());
-        cache.push((key, tables.clone()));
-        if cache.len() > SHARED_CAPACITY {
-            cache.remove(0);
-        }
-        Ok(tables)
+        let slot = {
+            let mut cache = self.shared.lock().unwrap_or_else(|e| e.into_inner());
+            let slot = match cache.iter().position(|(k, _)| *k == key) {
+                Some(pos) => cache.remove(pos).1,
+                None => SharedSlot::default(),
+            };
+            cache.push((key, slot.clone()));
+            if cache.len() > SHARED_CAPACITY {
+                cache.remove(0);
+            }
+            slot
+        };
+        let tables = slot.get_or_init(|| {
+            self.count("density");
+            let (fast, precise) = settings_for(spec.quality);
+            Arc::new(SharedTables::new(medium, fast, precise))
+        });
+        Ok(tables.clone())
     }
 
     fn evaluator<'a>(
@@ -659,4 +665,28 @@ fn evaluate_probes(eval: &RadianceEvaluator, n_l: usize, probes: &[(f64, f64)]) 
             },
         )
         .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::spec::RequestParams;
+
+    #[test]
+    fn concurrent_requests_for_one_medium_build_its_tables_once() {
+        let engine = Engine::new();
+        let p = RequestParams {
+            wavelengths: Some("550".into()),
+            ..Default::default()
+        };
+        let spec = CommonSpec::from_params(&p, -18.0).unwrap();
+        let tables: Vec<Arc<SharedTables>> = std::thread::scope(|s| {
+            let handles: Vec<_> = (0..4)
+                .map(|_| s.spawn(|| engine.shared(&spec).unwrap()))
+                .collect();
+            handles.into_iter().map(|h| h.join().unwrap()).collect()
+        });
+        assert_eq!(engine.build_count("density"), 1);
+        assert!(tables.iter().all(|t| Arc::ptr_eq(t, &tables[0])));
+    }
 }
