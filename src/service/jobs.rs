@@ -354,6 +354,23 @@ pub struct JobStatus {
     pub updated: String,
 }
 
+impl JobStatus {
+    /// A queued job of `total` items, nothing done yet.
+    fn queued(total: usize) -> Self {
+        let t = now();
+        Self {
+            state: JobState::Queued,
+            next: 0,
+            done: 0,
+            failed: 0,
+            total,
+            errors: Vec::new(),
+            created: t.clone(),
+            updated: t,
+        }
+    }
+}
+
 /// A job in memory.
 pub struct Job {
     pub id: String,
@@ -466,20 +483,10 @@ impl Jobs {
         let id = format!("{:016x}", rand::random::<u64>());
         let dir = self.dir.join(&id);
         write_atomic(&dir.join("job.json"), body)?;
-        let t = now();
         let job = Arc::new(Job {
             id: id.clone(),
             dir,
-            status: Mutex::new(JobStatus {
-                state: JobState::Queued,
-                next: 0,
-                done: 0,
-                failed: 0,
-                total: plan.len(),
-                errors: Vec::new(),
-                created: t.clone(),
-                updated: t,
-            }),
+            status: Mutex::new(JobStatus::queued(plan.len())),
             plan,
             cancel: AtomicBool::new(false),
         });
@@ -523,16 +530,7 @@ fn load_job(dir: &Path, id: &str) -> Result<Job, String> {
         JobPlan::parse(&obj, crate::config::MAX_JOB_PRODUCTS_LIMIT).map_err(|e| e.to_string())?;
     let status: JobStatus = match std::fs::read(dir.join("status.json")) {
         Ok(bytes) => serde_json::from_slice(&bytes).map_err(|e| e.to_string())?,
-        Err(_) => JobStatus {
-            state: JobState::Queued,
-            next: 0,
-            done: 0,
-            failed: 0,
-            total: plan.len(),
-            errors: Vec::new(),
-            created: now(),
-            updated: now(),
-        },
+        Err(_) => JobStatus::queued(plan.len()),
     };
     if status.total != plan.len() {
         return Err("status does not match the job".into());
