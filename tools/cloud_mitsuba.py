@@ -454,15 +454,37 @@ def cmd_collect(case, name, max_depth):
 
 
 def cmd_sum(a, b, name):
-    """Image of two lights together from the separate renders (radiance is linear in the sources)."""
-    da = load_json()["cases"]
-    ia = np.load(os.path.join(DATA, f"cloud_mitsuba_{a}.npy")).astype(np.float64)
-    ib = np.load(os.path.join(DATA, f"cloud_mitsuba_{b}.npy")).astype(np.float64)
-    sa = np.load(os.path.join(DATA, f"cloud_mitsuba_{a}_stderr.npy")).astype(np.float64)
-    sb = np.load(os.path.join(DATA, f"cloud_mitsuba_{b}_stderr.npy")).astype(np.float64)
-    np.save(os.path.join(DATA, f"cloud_mitsuba_{name}.npy"), (ia + ib).astype(np.float32))
-    np.save(os.path.join(DATA, f"cloud_mitsuba_{name}_stderr.npy"), np.hypot(sa, sb).astype(np.float32))
-    return da
+    """Image of two lights together from the separate renders (radiance is linear in the sources), with
+    the stderr images added in quadrature. Block noise from the pixel stderr, pixels taken as independent
+    (they are: every pass samples each pixel independently)."""
+    mask = np.load(os.path.join(DATA, "cloud_mitsuba_mask.npy")).astype(bool)
+    ia, ib = (np.load(os.path.join(DATA, f"cloud_mitsuba_{x}.npy")).astype(np.float64) for x in (a, b))
+    sa, sb = (np.load(os.path.join(DATA, f"cloud_mitsuba_{x}_stderr.npy")).astype(np.float64) for x in (a, b))
+    img, se = ia + ib, np.hypot(sa, sb)
+    np.save(os.path.join(DATA, f"cloud_mitsuba_{name}.npy"), img.astype(np.float32))
+    np.save(os.path.join(DATA, f"cloud_mitsuba_{name}_stderr.npy"), se.astype(np.float32))
+    m = img[mask].mean()
+    cb = cloud_blocks(mask)
+    bse = np.sqrt(blocks(se**2) / BLOCK**2)
+    data = load_json()
+    ca, cbb = data["cases"][a], data["cases"][b]
+    data["cases"][name] = {
+        "image": f"cloud_mitsuba_{name}.npy", "stderr_image": f"cloud_mitsuba_{name}_stderr.npy",
+        "scene": "validation-cloud-sunsky.json", "sum_of": [a, b], "spp_total": [ca["spp_total"], cbb["spp_total"]],
+        "cloud_mean": float(m),
+        "noise": {
+            "pixel_rms_rel_stderr": float(np.sqrt(np.mean(se[mask] ** 2)) / m),
+            "block_rms_rel_stderr": float(np.sqrt(np.mean(bse[cb] ** 2)) / m),
+            "block_max_rel_stderr": float(bse[cb].max() / m),
+            "cloud_mean_rel_stderr": float(math.hypot(ca["noise"]["cloud_mean_rel_stderr"] * ca["cloud_mean"],
+                                                      cbb["noise"]["cloud_mean_rel_stderr"] * cbb["cloud_mean"]) / m),
+        },
+    }
+    if "sunsky" in data["cases"] and name != "sunsky":
+        direct = np.load(os.path.join(DATA, "cloud_mitsuba_sunsky.npy")).astype(np.float64)
+        data["cases"][name]["vs_direct_sunsky_render"] = compare(direct, img, mask)
+    save_json(data)
+    print(name, data["cases"][name])
 
 
 def cmd_convergence(case="sun", spps=(4, 16, 64, 256), repeats=2):
