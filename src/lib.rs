@@ -8,6 +8,7 @@
 
 pub mod atmosphere;
 pub mod bench;
+pub mod camera;
 pub mod cloud;
 pub mod config;
 pub mod engine;
