@@ -90,32 +90,31 @@ pub fn sun_density_integrals(grid: &DensityGrid, sun_dir: DVec3) -> Vec<f32> {
                 let m = p + s * (0.5 * step);
                 let seg = step / 6.0 * (rho_p + 4.0 * grid.sample(m) as f64 + grid.sample(q) as f64);
                 let beyond = match prev {
-                    None => {
-                        // First layer: the step reaches past the box face; density is clamped
-                        // to the face, so Simpson over the half step inside the box.
-                        0.0
-                    }
+                    // First layer: marched directly below.
+                    None => 0.0,
                     Some(_) => {
-                        // Bilinear in the previous layer at the shifted position (voxel units).
+                        // Bilinear in the previous layer at the shifted position (voxel units);
+                        // between the outermost centres and the box face, or outside, march the
+                        // short rest of the way instead of clamping.
                         let fb = ib as f64 + shift_b;
                         let fc = ic as f64 + shift_c;
-                        let lb = (p[b] + s[b] * step - grid.origin_m[b]) / h;
-                        let lc = (p[c] + s[c] * step - grid.origin_m[c]) / h;
-                        if lb < 0.0 || lc < 0.0 || lb > n[b] as f64 || lc > n[c] as f64 {
-                            0.0
+                        if fb < 0.0 || fc < 0.0 || fb > (n[b] - 1) as f64 || fc > (n[c] - 1) as f64 {
+                            march_to_exit(grid, q, s)
                         } else {
-                            let cb = fb.clamp(0.0, (n[b] - 1) as f64);
-                            let cc = fc.clamp(0.0, (n[c] - 1) as f64);
-                            let (b0, c0) = (cb.floor() as usize, cc.floor() as usize);
+                            let (b0, c0) = (fb.floor() as usize, fc.floor() as usize);
                             let (b1, c1) = ((b0 + 1).min(n[b] - 1), (c0 + 1).min(n[c] - 1));
-                            let (tb, tc) = (cb - b0 as f64, cc - c0 as f64);
+                            let (tb, tc) = (fb - b0 as f64, fc - c0 as f64);
                             let g = |x: usize, y: usize| layer_vals[x * n[c] + y];
                             (g(b0, c0) * (1.0 - tb) + g(b1, c0) * tb) * (1.0 - tc)
                                 + (g(b0, c1) * (1.0 - tb) + g(b1, c1) * tb) * tc
                         }
                     }
                 };
-                let seg = if prev.is_none() { 0.5 * step * rho_p } else { seg };
+                let (seg, beyond) = if prev.is_none() {
+                    (0.0, march_to_exit(grid, p, s))
+                } else {
+                    (seg, beyond)
+                };
                 let d = beyond + seg;
                 next_vals[ib * n[c] + ic] = d;
                 out[idx(ia, ib, ic)] = d as f32;
@@ -125,6 +124,19 @@ pub fn sun_density_integrals(grid: &DensityGrid, sun_dir: DVec3) -> Vec<f32> {
         prev = Some(ia);
     }
     out
+}
+
+/// Density integral from `p` along `s` to the box exit (midpoint rule, quarter-voxel steps).
+fn march_to_exit(grid: &DensityGrid, p: DVec3, s: DVec3) -> f64 {
+    let Some((t0, t1)) = super::camera::box_interval(p, s, grid.origin_m, grid.max_corner_m()) else {
+        return 0.0;
+    };
+    let step = 0.25 * grid.voxel_size_m;
+    let n = ((t1 - t0) / step).ceil().max(1.0) as usize;
+    let dt = (t1 - t0) / n as f64;
+    (0..n)
+        .map(|i| grid.sample(p + s * (t0 + (i as f64 + 0.5) * dt)) as f64 * dt)
+        .sum()
 }
 
 /// Density integral from each voxel centre to the box along lattice direction `e` (components

@@ -422,8 +422,6 @@ impl<'a> Prepared<'a> {
         let mut sum = vec![0.0; n_l];
         let mut sum2 = vec![0.0; n_l];
         let mut px = vec![0.0; n_l];
-        let ones = vec![1.0; n_l];
-        let zeros = vec![0.0; n_l];
         let centre = super::camera::primary_ray(&self.scene.camera, x as f64 + 0.5, y as f64 + 0.5);
         let front = centre
             .as_ref()
@@ -437,7 +435,6 @@ impl<'a> Prepared<'a> {
             let s = pt.sample(&ray, &mut rng);
             // Composite each sample so the variance covers the background term too.
             self.composite(&ray, &s.radiance, &s.transmitted, front, &mut px);
-            let _ = (&ones, &zeros);
             for l in 0..n_l {
                 sum[l] += px[l];
                 sum2[l] += px[l] * px[l];

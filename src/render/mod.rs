@@ -89,6 +89,8 @@ pub struct RenderSettings {
     pub shaft_steps: usize,
     /// Seed of every random stream.
     pub seed: u64,
+    /// Path tracer: scattering orders counted (`usize::MAX`: all), for measuring orders.
+    pub max_orders: usize,
 }
 
 impl RenderSettings {
@@ -107,12 +109,15 @@ impl RenderSettings {
                 env_photons: env,
                 max_coarse_dim: coarse,
                 seed: 0x5EED,
+                flux_weight: 1.0,
+                similarity: true,
             },
             sky_quadrature: quad,
             sky_table: table,
             spp,
             shaft_steps: 16,
             seed: 0x5EED,
+            max_orders: usize::MAX,
         }
     }
 
@@ -274,7 +279,8 @@ pub fn render_tile(
     let mut variance = vec![0f32; tile.width * tile.height * n_l];
     let rows_done = AtomicUsize::new(0);
     let cancelled = std::sync::atomic::AtomicBool::new(false);
-    let pt = pathtracer::PathTracer::new(&p.vol, &p.scene.optics, p.lighting, p.settings.seed);
+    let mut pt = pathtracer::PathTracer::new(&p.vol, &p.scene.optics, p.lighting, p.settings.seed);
+    pt.max_orders = p.settings.max_orders;
     radiance
         .par_chunks_mut(tile.width * n_l)
         .zip(transmittance.par_chunks_mut(tile.width))

@@ -37,6 +37,10 @@ pub struct PhotonSettings {
     pub max_coarse_dim: usize,
     /// Seed of the random streams.
     pub seed: u64,
+    /// Weight of the flux term in the P1 reconstruction (1 = P1, 0 = isotropic).
+    pub flux_weight: f64,
+    /// Similarity-scaled isotropic transport after the first scattering (else the true phase).
+    pub similarity: bool,
 }
 
 /// Φ and F on the coarse grid, per wavelength.
@@ -50,6 +54,7 @@ pub struct MsField {
     pub data: Vec<f32>,
     /// Mean cosine of the phase function per wavelength.
     pub g1: Vec<f64>,
+    flux_weight: f64,
 }
 
 /// A coarse, piecewise-constant copy of the density grid.
@@ -127,6 +132,7 @@ impl MsField {
             let albedo = optics.albedo[l0];
             let phase = optics.phase[l0];
             let g = g1[l0];
+            let g = if s.similarity { g } else { 0.0 };
             let scale = 1.0 - albedo * g;
             let albedo_scaled = if scale > 0.0 { albedo * (1.0 - g) / scale } else { 0.0 };
             let sun_w: Vec<f64> = group.iter().map(|&l| lighting.sun_irradiance[l] * disc_area).collect();
@@ -177,7 +183,7 @@ impl MsField {
                                     for x in w.iter_mut() {
                                         *x *= a;
                                     }
-                                    ph.dir = if ph.scattered {
+                                    ph.dir = if ph.scattered && s.similarity {
                                         uniform_sphere(rng.random(), rng.random())
                                     } else {
                                         let mut more = || rng.random::<f64>();
@@ -220,6 +226,7 @@ impl MsField {
             n_l,
             data,
             g1,
+            flux_weight: s.flux_weight,
         }
     }
 
@@ -252,7 +259,7 @@ impl MsField {
                 let b = (c * self.n_l + l) * 4;
                 let v = &self.data[b..b + 4];
                 let fd = v[1] as f64 * d.x + v[2] as f64 * d.y + v[3] as f64 * d.z;
-                out[l] += w * (v[0] as f64 - 3.0 * self.g1[l] * fd);
+                out[l] += w * (v[0] as f64 - 3.0 * self.flux_weight * self.g1[l] * fd);
             }
         }
         for o in out.iter_mut() {

@@ -39,6 +39,9 @@ pub struct PathTracer<'a> {
     pub lighting: &'a Lighting,
     pub groups: Vec<Vec<usize>>,
     pub seed: u64,
+    /// Largest number of scattering events counted (cloud and ground); `usize::MAX` for all
+    /// orders. Lower values measure the contribution of orders 1..=N.
+    pub max_orders: usize,
 }
 
 impl<'a> PathTracer<'a> {
@@ -49,6 +52,7 @@ impl<'a> PathTracer<'a> {
             lighting,
             groups: optics.groups(),
             seed,
+            max_orders: usize::MAX,
         }
     }
 
@@ -70,10 +74,6 @@ impl<'a> PathTracer<'a> {
             radiance,
             transmitted,
         }
-    }
-
-    fn sigma_max(&self, l: usize) -> f64 {
-        self.optics.extinction_per_density_m[l] * self.vol.rho_max
     }
 
     /// Delta tracking from `o` along `d` within the box: distance to a real collision, or None.
@@ -145,11 +145,13 @@ impl<'a> PathTracer<'a> {
         let mut dir = ray.dir;
         let mut depth = 0usize;
         let ground_light = lt.ground.as_ref().is_some_and(|g| g.explicit) && !lt.below.is_zero();
-        let _ = self.sigma_max(l0);
         loop {
             match self.free_path(pos, dir, k, rng) {
                 Some(t) => {
                     pos += dir * t;
+                    if depth >= self.max_orders {
+                        return;
+                    }
                     for x in thr.iter_mut() {
                         *x *= albedo;
                     }
@@ -192,7 +194,7 @@ impl<'a> PathTracer<'a> {
                         return;
                     }
                     if let Some(tg) = self.ground_hit(pos, dir) {
-                        if !ground_light {
+                        if !ground_light || depth >= self.max_orders {
                             return;
                         }
                         // Lambertian reflection at the ground: sun by NEE, then a cosine-weighted
