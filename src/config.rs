@@ -81,6 +81,23 @@ pub const ENV_VARS: &[(&str, &str, &str)] = &[
     ("SKYBAKE_DEFAULT_QUALITY", "defaults", "quality"),
 ];
 
+/// `SKYBAKE_*` variables that are not settings and so are not refused at start-up: the log filter,
+/// and switches read only by the test suite.
+pub const NON_SETTING_ENV_VARS: &[&str] = &[
+    "SKYBAKE_LOG",
+    "SKYBAKE_EXR_SAMPLE_DIR",
+    "SKYBAKE_REGENERATE_EXAMPLES",
+];
+
+/// The known setting variables, comma-separated, for error messages.
+fn known_env_vars() -> String {
+    ENV_VARS
+        .iter()
+        .map(|(var, _, _)| *var)
+        .collect::<Vec<_>>()
+        .join(", ")
+}
+
 /// Most products a job may hold, whatever the configuration says.
 pub const MAX_JOB_PRODUCTS_LIMIT: usize = 1_000_000;
 
@@ -142,10 +159,18 @@ impl Settings {
                 })
             })
             .transpose()?;
-        let env: Vec<(String, String)> = ENV_VARS
-            .iter()
-            .filter_map(|(var, _, _)| std::env::var(var).ok().map(|v| (var.to_string(), v)))
-            .collect();
+        // Every SKYBAKE_* variable is taken, so a mistyped one is refused instead of ignored.
+        let mut env: Vec<(String, String)> = Vec::new();
+        for (name, value) in std::env::vars_os() {
+            let Some(name) = name.to_str() else { continue };
+            if !name.starts_with("SKYBAKE_") || NON_SETTING_ENV_VARS.contains(&name) {
+                continue;
+            }
+            let value = value
+                .into_string()
+                .map_err(|_| config_err(name, "not valid UTF-8"))?;
+            env.push((name.to_string(), value));
+        }
         Self::from_layers(text.as_deref(), &env)
     }
 
@@ -160,7 +185,13 @@ impl Settings {
         }
         for (var, text) in env {
             let Some((_, section, key)) = ENV_VARS.iter().find(|(v, _, _)| v == var) else {
-                return Err(config_err(var, "not a known SKYBAKE_* setting"));
+                return Err(config_err(
+                    var,
+                    format!(
+                        "not a known SKYBAKE_* setting (known: {})",
+                        known_env_vars()
+                    ),
+                ));
             };
             let like = value.get(section).and_then(|s| s.get(key));
             let v = env_value(var, text, like)?;
