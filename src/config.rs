@@ -29,6 +29,13 @@ pub struct ServerSettings {
     pub request_timeout_s: f64,
     pub concurrency_limit: usize,
     pub body_limit_bytes: usize,
+    /// Longest wait for a request's headers, seconds; on a kept-alive connection the wait for the
+    /// next request counts too, so this is also the idle timeout.
+    pub header_read_timeout_s: f64,
+    /// Most open client connections; more are closed as soon as they are accepted.
+    pub max_connections: usize,
+    /// Longest a shutdown waits for open connections and computations, seconds.
+    pub shutdown_grace_s: f64,
 }
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -63,6 +70,13 @@ pub const ENV_VARS: &[(&str, &str, &str)] = &[
     ("SKYBAKE_REQUEST_TIMEOUT_S", "server", "request_timeout_s"),
     ("SKYBAKE_CONCURRENCY_LIMIT", "server", "concurrency_limit"),
     ("SKYBAKE_BODY_LIMIT_BYTES", "server", "body_limit_bytes"),
+    (
+        "SKYBAKE_HEADER_READ_TIMEOUT_S",
+        "server",
+        "header_read_timeout_s",
+    ),
+    ("SKYBAKE_MAX_CONNECTIONS", "server", "max_connections"),
+    ("SKYBAKE_SHUTDOWN_GRACE_S", "server", "shutdown_grace_s"),
     ("SKYBAKE_CACHE_DIR", "cache", "dir"),
     ("SKYBAKE_DISK_BUDGET_BYTES", "cache", "disk_budget_bytes"),
     (
@@ -246,6 +260,21 @@ impl Settings {
                 "server.body_limit_bytes",
                 s.body_limit_bytes,
                 "1024 to 1073741824",
+            ));
+        }
+        for (name, value) in [
+            ("server.header_read_timeout_s", s.header_read_timeout_s),
+            ("server.shutdown_grace_s", s.shutdown_grace_s),
+        ] {
+            if !(value.is_finite() && value > 0.0 && value <= 3600.0) {
+                return Err(Error::out_of_range(name, value, "above 0 to 3600 s"));
+            }
+        }
+        if !(1..=1_000_000).contains(&s.max_connections) {
+            return Err(Error::out_of_range(
+                "server.max_connections",
+                s.max_connections,
+                "1 to 1000000",
             ));
         }
         if self.cache.dir.as_os_str().is_empty() {
