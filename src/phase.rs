@@ -185,7 +185,11 @@ mod tests {
                 .sum::<f64>()
                 * 2.0
                 * PI;
-            assert!((p.mean_cosine() - m).abs() < 2e-3, "{p:?}: {} vs {m}", p.mean_cosine());
+            assert!(
+                (p.mean_cosine() - m).abs() < 2e-3,
+                "{p:?}: {} vs {m}",
+                p.mean_cosine()
+            );
         }
         // Henyey-Greenstein's mean cosine is g exactly; Cornette-Shanks' is below g (seed 000 eq 5).
         assert!(Phase::CornetteShanks { g: 0.85 }.mean_cosine() < 0.85);

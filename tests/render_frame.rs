@@ -35,7 +35,14 @@ fn parse(v: &Value) -> FrameScene {
 fn ball(c: DVec3, r: f64, h: f64) -> DensityGrid {
     let n = (2.0 * r / h).ceil() as usize + 2;
     let origin = c - DVec3::splat(0.5 * n as f64 * h);
-    DensityGrid::from_fn([n, n, n], h, origin, |p| if (p - c).length() < r { 1.0 } else { 0.0 }).unwrap()
+    DensityGrid::from_fn([n, n, n], h, origin, |p| {
+        if (p - c).length() < r {
+            1.0
+        } else {
+            0.0
+        }
+    })
+    .unwrap()
 }
 
 fn render(scene: &FrameScene, grid: &DensityGrid, method: Method, spp: usize) -> Frame {
@@ -46,7 +53,10 @@ fn render(scene: &FrameScene, grid: &DensityGrid, method: Method, spp: usize) ->
 }
 
 fn field_of(v: Value) -> String {
-    FrameScene::parse(v.to_string().as_bytes()).unwrap_err().field().to_string()
+    FrameScene::parse(v.to_string().as_bytes())
+        .unwrap_err()
+        .field()
+        .to_string()
 }
 
 #[test]
@@ -125,7 +135,9 @@ fn azimuth_convention_east_is_plus_x() {
     v["optics"]["extinction_per_density_m"] = json!(0.03);
     let scene = parse(&v);
     let s = scene.sun.direction();
-    assert!((s - DVec3::new(10f64.to_radians().cos(), 0.0, 10f64.to_radians().sin())).length() < 1e-12);
+    assert!(
+        (s - DVec3::new(10f64.to_radians().cos(), 0.0, 10f64.to_radians().sin())).length() < 1e-12
+    );
     assert!((scene.camera.right - DVec3::X).length() < 1e-12);
     let grid = ball(DVec3::new(0.0, 0.0, 1000.0), 300.0, 20.0);
     for method in [Method::Fast, Method::Reference] {
@@ -180,7 +192,10 @@ fn thin_slab_matches_analytic_single_scattering() {
         let f = render(&scene, &grid, method, spp);
         let mean = f.radiance.iter().map(|&x| x as f64).sum::<f64>() / f.radiance.len() as f64;
         let rel = (mean - expected) / expected;
-        println!("{method:?}: {mean:.6e} vs {expected:.6e} ({:+.3} %)", rel * 100.0);
+        println!(
+            "{method:?}: {mean:.6e} vs {expected:.6e} ({:+.3} %)",
+            rel * 100.0
+        );
         assert!(rel.abs() < 0.02, "{method:?}: {mean} vs {expected}");
     }
 }
@@ -200,7 +215,11 @@ fn energy_is_conserved_with_albedo_one() {
                          "phase": {"henyey_greenstein": {"g": 0.0}}});
     let ortho = |dir: DVec3| {
         let cam = c + dir * 2000.0;
-        let up = if dir.z.abs() > 0.9 { [0.0, 1.0, 0.0] } else { [0.0, 0.0, 1.0] };
+        let up = if dir.z.abs() > 0.9 {
+            [0.0, 1.0, 0.0]
+        } else {
+            [0.0, 0.0, 1.0]
+        };
         json!({"type": "orthographic", "position_m": [cam.x, cam.y, cam.z], "look_at_m": [c.x, c.y, c.z],
                "up": up, "view_width_m": width_m, "width": px, "height": px})
     };
@@ -249,7 +268,11 @@ fn fast_method_tracks_the_path_tracer() {
     let fast = render(&scene, &grid, Method::Fast, 1);
     let mask: Vec<bool> = reference.transmittance.iter().map(|&t| t < 0.99).collect();
     let e = image_errors(&fast.radiance, &reference.radiance, &mask, 48, 1);
-    let noise = reference.meta.error_estimate.path_tracer_relative_noise.unwrap();
+    let noise = reference
+        .meta
+        .error_estimate
+        .path_tracer_relative_noise
+        .unwrap();
     println!("fast vs path tracer: {e:?}, path tracer noise {noise:.4}");
     assert!(e.mean_bias.abs() < 0.15, "{e:?}");
     assert!(e.nrmse_blocks < 0.25, "{e:?}");
@@ -259,38 +282,58 @@ fn fast_method_tracks_the_path_tracer() {
 fn robust_to_extreme_scenes() {
     let c = DVec3::new(0.0, 0.0, 1000.0);
     let cases: Vec<(&str, Value, DensityGrid)> = vec![
-        ("empty grid", base_scene(), DensityGrid::zeros([8, 8, 8], 20.0, c).unwrap()),
+        (
+            "empty grid",
+            base_scene(),
+            DensityGrid::zeros([8, 8, 8], 20.0, c).unwrap(),
+        ),
         ("single voxel", base_scene(), {
             let mut g = DensityGrid::zeros([1, 1, 1], 200.0, c - DVec3::splat(100.0)).unwrap();
             g.data[0] = 1.0;
             g
         }),
-        ("tau 1000", {
-            let mut v = base_scene();
-            v["optics"]["extinction_per_density_m"] = json!(1.7);
-            v
-        }, ball(c, 300.0, 30.0)),
-        ("g 0.99", {
-            let mut v = base_scene();
-            v["optics"]["phase"] = json!({"henyey_greenstein": {"g": 0.99}});
-            v
-        }, ball(c, 300.0, 30.0)),
-        ("g -0.9", {
-            let mut v = base_scene();
-            v["optics"]["phase"] = json!({"cornette_shanks": {"g": -0.9}});
-            v
-        }, ball(c, 300.0, 30.0)),
-        ("camera inside", {
-            let mut v = base_scene();
-            v["camera"]["position_m"] = json!([0, 0, 1000]);
-            v["camera"]["look_at_m"] = json!([0, 100, 1000]);
-            v["camera"]["type"] = json!("fisheye");
-            v["camera"]["fov_deg"] = json!(180);
-            v["sky"] = json!({"constant_radiance_w_m2_sr_nm": {"440": 0.2, "680": 0.05}});
-            v["wavelengths_nm"] = json!([440, 680]);
-            v["ground"] = json!({"albedo": 0.3, "height_m": 0});
-            v
-        }, ball(c, 300.0, 30.0)),
+        (
+            "tau 1000",
+            {
+                let mut v = base_scene();
+                v["optics"]["extinction_per_density_m"] = json!(1.7);
+                v
+            },
+            ball(c, 300.0, 30.0),
+        ),
+        (
+            "g 0.99",
+            {
+                let mut v = base_scene();
+                v["optics"]["phase"] = json!({"henyey_greenstein": {"g": 0.99}});
+                v
+            },
+            ball(c, 300.0, 30.0),
+        ),
+        (
+            "g -0.9",
+            {
+                let mut v = base_scene();
+                v["optics"]["phase"] = json!({"cornette_shanks": {"g": -0.9}});
+                v
+            },
+            ball(c, 300.0, 30.0),
+        ),
+        (
+            "camera inside",
+            {
+                let mut v = base_scene();
+                v["camera"]["position_m"] = json!([0, 0, 1000]);
+                v["camera"]["look_at_m"] = json!([0, 100, 1000]);
+                v["camera"]["type"] = json!("fisheye");
+                v["camera"]["fov_deg"] = json!(180);
+                v["sky"] = json!({"constant_radiance_w_m2_sr_nm": {"440": 0.2, "680": 0.05}});
+                v["wavelengths_nm"] = json!([440, 680]);
+                v["ground"] = json!({"albedo": 0.3, "height_m": 0});
+                v
+            },
+            ball(c, 300.0, 30.0),
+        ),
     ];
     for (name, v, grid) in cases {
         let scene = parse(&v);
@@ -316,11 +359,21 @@ fn tiles_match_the_whole_frame() {
         let mut s = RenderSettings::for_quality(scene.quality, method);
         s.spp = 4;
         let whole = render_frame(&scene, &grid, &lighting, &s, None, &|_| {}, &|| false).unwrap();
-        let tile = skybake::render::Tile { x0: 8, y0: 4, width: 16, height: 8 };
-        let part = render_frame(&scene, &grid, &lighting, &s, Some(tile), &|_| {}, &|| false).unwrap();
+        let tile = skybake::render::Tile {
+            x0: 8,
+            y0: 4,
+            width: 16,
+            height: 8,
+        };
+        let part =
+            render_frame(&scene, &grid, &lighting, &s, Some(tile), &|_| {}, &|| false).unwrap();
         for y in 0..8 {
             for x in 0..16 {
-                assert_eq!(part.radiance[y * 16 + x], whole.radiance[(y + 4) * 32 + x + 8], "{method:?}");
+                assert_eq!(
+                    part.radiance[y * 16 + x],
+                    whole.radiance[(y + 4) * 32 + x + 8],
+                    "{method:?}"
+                );
             }
         }
     }

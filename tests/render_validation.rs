@@ -25,7 +25,9 @@ fn npy(name: &str) -> Vec<f32> {
     let header = String::from_utf8_lossy(&b[start..start + hl]).to_string();
     let data = &b[start + hl..];
     if header.contains("<f4") {
-        data.chunks_exact(4).map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]])).collect()
+        data.chunks_exact(4)
+            .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]))
+            .collect()
     } else if header.contains("u1") {
         data.iter().map(|&v| v as f32).collect()
     } else {
@@ -36,7 +38,13 @@ fn npy(name: &str) -> Vec<f32> {
 /// tests/data/README.md's statistics over a region: cloud blocks are 8×8 blocks aligned at pixel
 /// (0, 0) whose pixels are all in the mask; block NRMSE and pixel NRMSE relative to the
 /// reference's cloud mean; bias = test mean / reference mean − 1.
-fn stats(test: &[f32], reference: &[f32], mask: &[bool], width: usize, height: usize) -> (f64, f64, f64) {
+fn stats(
+    test: &[f32],
+    reference: &[f32],
+    mask: &[bool],
+    width: usize,
+    height: usize,
+) -> (f64, f64, f64) {
     let (mut st, mut sr, mut se2, mut n) = (0.0, 0.0, 0.0, 0usize);
     for i in 0..mask.len() {
         if mask[i] {
@@ -51,7 +59,9 @@ fn stats(test: &[f32], reference: &[f32], mask: &[bool], width: usize, height: u
     let (mut be2, mut nb) = (0.0, 0usize);
     for by in 0..height / 8 {
         for bx in 0..width / 8 {
-            let idx: Vec<usize> = (0..64).map(|k| (by * 8 + k / 8) * width + bx * 8 + k % 8).collect();
+            let idx: Vec<usize> = (0..64)
+                .map(|k| (by * 8 + k / 8) * width + bx * 8 + k % 8)
+                .collect();
             if idx.iter().all(|&i| mask[i]) {
                 let a: f64 = idx.iter().map(|&i| test[i] as f64).sum::<f64>() / 64.0;
                 let b: f64 = idx.iter().map(|&i| reference[i] as f64).sum::<f64>() / 64.0;
@@ -61,7 +71,11 @@ fn stats(test: &[f32], reference: &[f32], mask: &[bool], width: usize, height: u
         }
     }
     assert!(nb > 0, "no cloud blocks");
-    ((be2 / nb as f64).sqrt() / mean_r, (se2 / n as f64).sqrt() / mean_r, st / sr - 1.0)
+    (
+        (be2 / nb as f64).sqrt() / mean_r,
+        (se2 / n as f64).sqrt() / mean_r,
+        st / sr - 1.0,
+    )
 }
 
 fn settings(scene: &FrameScene, method: Method, spp: usize) -> RenderSettings {
@@ -78,9 +92,21 @@ fn settings(scene: &FrameScene, method: Method, spp: usize) -> RenderSettings {
 /// cannot resolve a 4-voxel-thick slab).
 #[test]
 fn slab_reflection_matches_disort() {
-    let data: Value = serde_json::from_slice(&std::fs::read(format!("{DATA}/cloud_slab_disort.json")).unwrap()).unwrap();
-    let views = data["view_zenith_deg"].as_array().unwrap().iter().map(|v| v.as_f64().unwrap()).collect::<Vec<_>>();
-    let azs = data["relative_azimuth_deg"].as_array().unwrap().iter().map(|v| v.as_f64().unwrap()).collect::<Vec<_>>();
+    let data: Value =
+        serde_json::from_slice(&std::fs::read(format!("{DATA}/cloud_slab_disort.json")).unwrap())
+            .unwrap();
+    let views = data["view_zenith_deg"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|v| v.as_f64().unwrap())
+        .collect::<Vec<_>>();
+    let azs = data["relative_azimuth_deg"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|v| v.as_f64().unwrap())
+        .collect::<Vec<_>>();
     let (h, nxy, nz) = (25.0, 160usize, 4usize);
     let thickness = nz as f64 * h;
     let origin = DVec3::new(-0.5 * nxy as f64 * h, -0.5 * nxy as f64 * h, 1000.0);
@@ -93,7 +119,11 @@ fn slab_reflection_matches_disort() {
             .as_array()
             .unwrap()
             .iter()
-            .find(|c| c["optical_thickness"] == json!(tau) && c["single_scattering_albedo"] == json!(albedo) && c["mu0"] == json!(mu0))
+            .find(|c| {
+                c["optical_thickness"] == json!(tau)
+                    && c["single_scattering_albedo"] == json!(albedo)
+                    && c["mu0"] == json!(mu0)
+            })
             .unwrap_or_else(|| panic!("no DISORT case {tau} {albedo} {mu0}"));
         for (vi, ai) in [(0usize, 0usize), (2, 0), (2, 2)] {
             let (vz, raz) = (views[vi].to_radians(), azs[ai]);
@@ -102,7 +132,11 @@ fn slab_reflection_matches_disort() {
             let prop = DVec3::new(vz.sin() * a.sin(), vz.sin() * a.cos(), vz.cos());
             let target = DVec3::new(0.0, 0.0, 1000.0 + thickness);
             let cam = target + prop * 300.0;
-            let up = if vi == 0 { [0.0, 1.0, 0.0] } else { [0.0, 0.0, 1.0] };
+            let up = if vi == 0 {
+                [0.0, 1.0, 0.0]
+            } else {
+                [0.0, 0.0, 1.0]
+            };
             let v = json!({
                 "cloud": {"voxel_size_m": h, "source": {"type": "metaballs", "balls": [{"centre_m": [0, 0, 1000], "radius_m": 100, "density": 1}]}},
                 "optics": {"extinction_per_density_m": tau / thickness, "single_scattering_albedo": albedo,
@@ -114,12 +148,37 @@ fn slab_reflection_matches_disort() {
             });
             let scene = FrameScene::parse(v.to_string().as_bytes()).unwrap();
             let lighting = lighting_for(&scene, &grid, &Engine::new()).unwrap();
-            let mean = |f: &skybake::render::Frame| f.radiance.iter().map(|&x| x as f64).sum::<f64>() / f.radiance.len() as f64;
+            let mean = |f: &skybake::render::Frame| {
+                f.radiance.iter().map(|&x| x as f64).sum::<f64>() / f.radiance.len() as f64
+            };
             let spp = if tau < 2.0 { 16384 } else { 4096 };
-            let pt = render_frame(&scene, &grid, &lighting, &settings(&scene, Method::Reference, spp), None, &|_| {}, &|| false).unwrap();
+            let pt = render_frame(
+                &scene,
+                &grid,
+                &lighting,
+                &settings(&scene, Method::Reference, spp),
+                None,
+                &|_| {},
+                &|| false,
+            )
+            .unwrap();
             // Noise of the 16-pixel mean (the metadata's figure is per pixel).
-            let sigma = pt.meta.error_estimate.path_tracer_relative_noise.unwrap_or(0.0) / 4.0;
-            let fast = render_frame(&scene, &grid, &lighting, &settings(&scene, Method::Fast, 1), None, &|_| {}, &|| false).unwrap();
+            let sigma = pt
+                .meta
+                .error_estimate
+                .path_tracer_relative_noise
+                .unwrap_or(0.0)
+                / 4.0;
+            let fast = render_frame(
+                &scene,
+                &grid,
+                &lighting,
+                &settings(&scene, Method::Fast, 1),
+                None,
+                &|_| {},
+                &|| false,
+            )
+            .unwrap();
             let (rp, rf) = (mean(&pt) / expected - 1.0, mean(&fast) / expected - 1.0);
             println!(
                 "tau {tau} albedo {albedo} mu0 {mu0} vz {} raz {raz}: DISORT {expected:.5} path tracer {:+.2} % (noise {:.2} %) fast {:+.1} %",
@@ -136,7 +195,10 @@ fn slab_reflection_matches_disort() {
     }
     println!("fast method: worst |deviation| {:.1} %", worst_fast * 100.0);
     for (rp, sigma) in worst_pt {
-        assert!(rp.abs() < 0.02 + 3.0 * sigma, "path tracer {rp} (noise {sigma})");
+        assert!(
+            rp.abs() < 0.02 + 3.0 * sigma,
+            "path tracer {rp} (noise {sigma})"
+        );
     }
 }
 
@@ -147,20 +209,38 @@ fn slab_reflection_matches_disort() {
 /// whole-frame figures are printed.
 #[test]
 fn cloud_matches_mitsuba() {
-    let mask_full: Vec<bool> = npy("cloud_mitsuba_mask.npy").iter().map(|&m| m > 0.0).collect();
-    for (case, nrmse_bound) in [("sky", 0.03), ("sun", (0.03f64.powi(2) + 0.027f64.powi(2)).sqrt())] {
+    let mask_full: Vec<bool> = npy("cloud_mitsuba_mask.npy")
+        .iter()
+        .map(|&m| m > 0.0)
+        .collect();
+    for (case, nrmse_bound) in [
+        ("sky", 0.03),
+        ("sun", (0.03f64.powi(2) + 0.027f64.powi(2)).sqrt()),
+    ] {
         let bytes = std::fs::read(format!("{DATA}/validation-cloud-{case}.json")).unwrap();
         let scene = FrameScene::parse(&bytes).unwrap();
         let grid = scene
             .cloud
-            .voxelize(&|p: &str| std::fs::read(format!("{DATA}/{p}")).map_err(|e| skybake::Error::invalid("path", e)))
+            .voxelize(&|p: &str| {
+                std::fs::read(format!("{DATA}/{p}")).map_err(|e| skybake::Error::invalid("path", e))
+            })
             .unwrap();
         let reference = npy(&format!("cloud_mitsuba_{case}.npy"));
         assert_eq!(reference.len(), 160 * 120);
         let tile = if case == "sun" {
-            Tile { x0: 64, y0: 40, width: 32, height: 32 }
+            Tile {
+                x0: 64,
+                y0: 40,
+                width: 32,
+                height: 32,
+            }
         } else {
-            Tile { x0: 48, y0: 32, width: 64, height: 48 }
+            Tile {
+                x0: 48,
+                y0: 32,
+                width: 64,
+                height: 48,
+            }
         };
         let spp = if case == "sun" { 512 } else { 96 };
         let crop = |img: &[f32]| -> Vec<f32> {
@@ -175,9 +255,27 @@ fn cloud_matches_mitsuba() {
             .map(|(y, x)| mask_full[(tile.y0 + y) * 160 + tile.x0 + x])
             .collect();
         let lighting = lighting_for(&scene, &grid, &Engine::new()).unwrap();
-        let pt = render_frame(&scene, &grid, &lighting, &settings(&scene, Method::Reference, spp), Some(tile), &|_| {}, &|| false).unwrap();
+        let pt = render_frame(
+            &scene,
+            &grid,
+            &lighting,
+            &settings(&scene, Method::Reference, spp),
+            Some(tile),
+            &|_| {},
+            &|| false,
+        )
+        .unwrap();
         let t = std::time::Instant::now();
-        let fast = render_frame(&scene, &grid, &lighting, &settings(&scene, Method::Fast, 1), None, &|_| {}, &|| false).unwrap();
+        let fast = render_frame(
+            &scene,
+            &grid,
+            &lighting,
+            &settings(&scene, Method::Fast, 1),
+            None,
+            &|_| {},
+            &|| false,
+        )
+        .unwrap();
         let fast_ms = t.elapsed().as_secs_f64() * 1e3;
         let (bn, pn, bias) = stats(&pt.radiance, &ref_tile, &mask, tile.width, tile.height);
         println!(
@@ -194,7 +292,13 @@ fn cloud_matches_mitsuba() {
             fp * 100.0,
             fbias * 100.0
         );
-        assert!(bn < nrmse_bound && bias.abs() < 0.02, "{case}: path tracer block NRMSE {bn}, bias {bias}");
-        assert!(fbias.abs() < 0.5, "{case}: fast method far off Mitsuba: {fbias}");
+        assert!(
+            bn < nrmse_bound && bias.abs() < 0.02,
+            "{case}: path tracer block NRMSE {bn}, bias {bias}"
+        );
+        assert!(
+            fbias.abs() < 0.5,
+            "{case}: fast method far off Mitsuba: {fbias}"
+        );
     }
 }

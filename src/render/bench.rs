@@ -86,12 +86,16 @@ pub fn bench_frame(width: usize, height: usize) -> Result<FrameBench> {
     let t = Instant::now();
     let lighting = lighting_for(&scene, &grid, &engine)?;
     let lighting_cold_ms = t.elapsed().as_secs_f64() * 1e3;
-    render_frame(&scene, &grid, &lighting, &settings, None, &|_| {}, &|| false)?;
+    render_frame(&scene, &grid, &lighting, &settings, None, &|_| {}, &|| {
+        false
+    })?;
     let cold_ms = t.elapsed().as_secs_f64() * 1e3;
     let t = Instant::now();
     let lighting = lighting_for(&scene, &grid, &engine)?;
     let lighting_warm_ms = t.elapsed().as_secs_f64() * 1e3;
-    let frame = render_frame(&scene, &grid, &lighting, &settings, None, &|_| {}, &|| false)?;
+    let frame = render_frame(&scene, &grid, &lighting, &settings, None, &|_| {}, &|| {
+        false
+    })?;
     let warm_ms = t.elapsed().as_secs_f64() * 1e3;
     Ok(FrameBench {
         cold_ms,
@@ -119,9 +123,17 @@ pub struct ImageErrors {
 }
 
 /// Compares spectral images `[px][λ]` over the pixels where `mask` is true (cloud pixels).
-pub fn image_errors(test: &[f32], reference: &[f32], mask: &[bool], width: usize, n_l: usize) -> ImageErrors {
+pub fn image_errors(
+    test: &[f32],
+    reference: &[f32],
+    mask: &[bool],
+    width: usize,
+    n_l: usize,
+) -> ImageErrors {
     let height = mask.len() / width.max(1);
-    let px = |img: &[f32], i: usize| -> f64 { (0..n_l).map(|l| img[i * n_l + l] as f64).sum::<f64>() / n_l as f64 };
+    let px = |img: &[f32], i: usize| -> f64 {
+        (0..n_l).map(|l| img[i * n_l + l] as f64).sum::<f64>() / n_l as f64
+    };
     let (mut st, mut sr, mut se2, mut n) = (0.0, 0.0, 0.0, 0usize);
     for i in 0..mask.len() {
         if mask[i] {
@@ -156,7 +168,11 @@ pub fn image_errors(test: &[f32], reference: &[f32], mask: &[bool], width: usize
         }
     }
     ImageErrors {
-        nrmse_blocks: if nb > 0 { (be2 / nb as f64).sqrt() / mean_r } else { 0.0 },
+        nrmse_blocks: if nb > 0 {
+            (be2 / nb as f64).sqrt() / mean_r
+        } else {
+            0.0
+        },
         nrmse_pixels: (se2 / n as f64).sqrt() / mean_r,
         mean_bias: (st - sr) / sr,
         cloud_pixels: n,
@@ -164,25 +180,55 @@ pub fn image_errors(test: &[f32], reference: &[f32], mask: &[bool], width: usize
 }
 
 /// Fast method against the path tracer (`spp` samples) on the bench scene at `width`×`height`.
-pub fn bench_frame_accuracy(width: usize, height: usize, spp: usize) -> Result<(ImageErrors, f64, f64, f64)> {
+pub fn bench_frame_accuracy(
+    width: usize,
+    height: usize,
+    spp: usize,
+) -> Result<(ImageErrors, f64, f64, f64)> {
     let grid = bench_cumulus()?;
     let scene = bench_scene(width, height)?;
     let engine = Engine::new();
     let lighting = lighting_for(&scene, &grid, &engine)?;
     let fast_settings = RenderSettings::for_quality(scene.quality, Method::Fast);
     let t = Instant::now();
-    let fast = render_frame(&scene, &grid, &lighting, &fast_settings, None, &|_| {}, &|| false)?;
+    let fast = render_frame(
+        &scene,
+        &grid,
+        &lighting,
+        &fast_settings,
+        None,
+        &|_| {},
+        &|| false,
+    )?;
     let fast_ms = t.elapsed().as_secs_f64() * 1e3;
     let mut ref_settings = RenderSettings::for_quality(scene.quality, Method::Reference);
     ref_settings.spp = spp;
     let t = Instant::now();
-    let reference = render_frame(&scene, &grid, &lighting, &ref_settings, None, &|_| {}, &|| false)?;
+    let reference = render_frame(
+        &scene,
+        &grid,
+        &lighting,
+        &ref_settings,
+        None,
+        &|_| {},
+        &|| false,
+    )?;
     let ref_ms = t.elapsed().as_secs_f64() * 1e3;
     let mask: Vec<bool> = reference.transmittance.iter().map(|&t| t < 0.99).collect();
-    let e = image_errors(&fast.radiance, &reference.radiance, &mask, width, fast.wavelengths_nm.len());
+    let e = image_errors(
+        &fast.radiance,
+        &reference.radiance,
+        &mask,
+        width,
+        fast.wavelengths_nm.len(),
+    );
     Ok((
         e,
-        reference.meta.error_estimate.path_tracer_relative_noise.unwrap_or(0.0),
+        reference
+            .meta
+            .error_estimate
+            .path_tracer_relative_noise
+            .unwrap_or(0.0),
         fast_ms,
         ref_ms,
     ))

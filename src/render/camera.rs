@@ -31,7 +31,11 @@ pub fn primary_ray(c: &CameraSpec, px: f64, py: f64) -> Option<Ray> {
                 return None;
             }
             let (s, co) = theta.sin_cos();
-            let (cx, cy) = if r > 0.0 { (dx / r, dy / r) } else { (0.0, 0.0) };
+            let (cx, cy) = if r > 0.0 {
+                (dx / r, dy / r)
+            } else {
+                (0.0, 0.0)
+            };
             Some(Ray {
                 origin_m: c.position_m,
                 dir: (c.forward * co + (c.right * cx + c.up * cy) * s).normalize(),

@@ -88,7 +88,8 @@ pub fn sun_density_integrals(grid: &DensityGrid, sun_dir: DVec3) -> Vec<f32> {
                 let rho_p = grid.at(v[0], v[1], v[2]) as f64;
                 let q = p + s * step;
                 let m = p + s * (0.5 * step);
-                let seg = step / 6.0 * (rho_p + 4.0 * grid.sample(m) as f64 + grid.sample(q) as f64);
+                let seg =
+                    step / 6.0 * (rho_p + 4.0 * grid.sample(m) as f64 + grid.sample(q) as f64);
                 let beyond = match prev {
                     // First layer: marched directly below.
                     None => 0.0,
@@ -98,7 +99,8 @@ pub fn sun_density_integrals(grid: &DensityGrid, sun_dir: DVec3) -> Vec<f32> {
                         // short rest of the way instead of clamping.
                         let fb = ib as f64 + shift_b;
                         let fc = ic as f64 + shift_c;
-                        if fb < 0.0 || fc < 0.0 || fb > (n[b] - 1) as f64 || fc > (n[c] - 1) as f64 {
+                        if fb < 0.0 || fc < 0.0 || fb > (n[b] - 1) as f64 || fc > (n[c] - 1) as f64
+                        {
                             march_to_exit(grid, q, s)
                         } else {
                             let (b0, c0) = (fb.floor() as usize, fc.floor() as usize);
@@ -128,7 +130,8 @@ pub fn sun_density_integrals(grid: &DensityGrid, sun_dir: DVec3) -> Vec<f32> {
 
 /// Density integral from `p` along `s` to the box exit (midpoint rule, quarter-voxel steps).
 fn march_to_exit(grid: &DensityGrid, p: DVec3, s: DVec3) -> f64 {
-    let Some((t0, t1)) = super::camera::box_interval(p, s, grid.origin_m, grid.max_corner_m()) else {
+    let Some((t0, t1)) = super::camera::box_interval(p, s, grid.origin_m, grid.max_corner_m())
+    else {
         return 0.0;
     };
     let step = 0.25 * grid.voxel_size_m;
@@ -158,7 +161,11 @@ pub fn lattice_density_integrals(grid: &DensityGrid, e: [i32; 3]) -> Vec<f32> {
         for &y in &ys {
             for &x in &xs {
                 let rho = grid.at(x, y, z) as f64;
-                let (qx, qy, qz) = (x as i64 + e[0] as i64, y as i64 + e[1] as i64, z as i64 + e[2] as i64);
+                let (qx, qy, qz) = (
+                    x as i64 + e[0] as i64,
+                    y as i64 + e[1] as i64,
+                    z as i64 + e[2] as i64,
+                );
                 let inside = qx >= 0
                     && qy >= 0
                     && qz >= 0
@@ -167,7 +174,8 @@ pub fn lattice_density_integrals(grid: &DensityGrid, e: [i32; 3]) -> Vec<f32> {
                     && (qz as usize) < nz;
                 let d = if inside {
                     let (qx, qy, qz) = (qx as usize, qy as usize, qz as usize);
-                    out[grid.index(qx, qy, qz)] as f64 + 0.5 * len * (rho + grid.at(qx, qy, qz) as f64)
+                    out[grid.index(qx, qy, qz)] as f64
+                        + 0.5 * len * (rho + grid.at(qx, qy, qz) as f64)
                 } else {
                     // To the box face: half a step at the clamped density.
                     0.5 * len * rho
@@ -194,7 +202,13 @@ pub struct SkyElements {
 impl SkyElements {
     /// Quadrature over `quad_points` Fibonacci directions; each belongs to the sun cap if within
     /// [`SUN_CAP_DEG`] of the sun, else to the nearest lattice direction.
-    pub fn new(lighting: &Lighting, phases: &[Phase], quad_points: usize, n_elev: usize, n_az: usize) -> Self {
+    pub fn new(
+        lighting: &Lighting,
+        phases: &[Phase],
+        quad_points: usize,
+        n_elev: usize,
+        n_az: usize,
+    ) -> Self {
         let n_l = phases.len();
         let elements = LATTICE.len() + 1;
         let dirs: Vec<DVec3> = LATTICE

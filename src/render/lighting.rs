@@ -257,7 +257,9 @@ impl Lighting {
             let below = match (&ground, sw.ground_light) {
                 (Some(g), true) => Hemisphere::Constant(
                     (0..n_l)
-                        .map(|l| g.albedo[l] / PI * (sun_irradiance[l] * mu_s + g.diffuse_horizontal[l]))
+                        .map(|l| {
+                            g.albedo[l] / PI * (sun_irradiance[l] * mu_s + g.diffuse_horizontal[l])
+                        })
                         .collect(),
                 ),
                 _ => Hemisphere::Zero,
@@ -309,7 +311,10 @@ impl Lighting {
         let sky = match (&scene.sky, sw.sky_light) {
             (SkySpec::Atmosphere, true) => {
                 let t = engine.sky(&cloud_spec, shape, &[])?;
-                notes.push(format!("sky product at {:.0} m", cloud_spec.observer_altitude_m));
+                notes.push(format!(
+                    "sky product at {:.0} m",
+                    cloud_spec.observer_altitude_m
+                ));
                 Hemisphere::Table(Arc::new(DirTable::from_dome(&t.table, az)))
             }
             (SkySpec::Constant(v), true) => Hemisphere::Constant(v.clone()),
@@ -317,7 +322,10 @@ impl Lighting {
         };
         let below = if sw.ground_light && !matches!(scene.sky, SkySpec::None) {
             let t = engine.ground(&cloud_spec, shape, &[])?;
-            notes.push(format!("ground product at {:.0} m", cloud_spec.observer_altitude_m));
+            notes.push(format!(
+                "ground product at {:.0} m",
+                cloud_spec.observer_altitude_m
+            ));
             Hemisphere::Table(Arc::new(DirTable::from_dome(&t.table, az)))
         } else {
             Hemisphere::Zero

@@ -77,14 +77,22 @@ impl ShadowMap {
         let q = p + sun * ((self.z_m - p.z) / sun.z);
         let u = (q.x - self.origin_xy[0]) / self.cell_m;
         let v = (q.y - self.origin_xy[1]) / self.cell_m;
-        if !(u >= 0.0 && v >= 0.0 && u <= (self.dims[0] - 1) as f64 && v <= (self.dims[1] - 1) as f64) {
+        if !(u >= 0.0
+            && v >= 0.0
+            && u <= (self.dims[0] - 1) as f64
+            && v <= (self.dims[1] - 1) as f64)
+        {
             return 0.0;
         }
         let (i0, j0) = (u.floor() as usize, v.floor() as usize);
-        let (i1, j1) = ((i0 + 1).min(self.dims[0] - 1), (j0 + 1).min(self.dims[1] - 1));
+        let (i1, j1) = (
+            (i0 + 1).min(self.dims[0] - 1),
+            (j0 + 1).min(self.dims[1] - 1),
+        );
         let (fu, fv) = (u - i0 as f64, v - j0 as f64);
         let g = |i: usize, j: usize| self.d[j * self.dims[0] + i] as f64;
-        (g(i0, j0) * (1.0 - fu) + g(i1, j0) * fu) * (1.0 - fv) + (g(i0, j1) * (1.0 - fu) + g(i1, j1) * fu) * fv
+        (g(i0, j0) * (1.0 - fu) + g(i1, j0) * fu) * (1.0 - fv)
+            + (g(i0, j1) * (1.0 - fu) + g(i1, j1) * fu) * fv
     }
 }
 
@@ -139,9 +147,13 @@ impl<'a> Prepared<'a> {
                 for (v, s) in vox.chunks_mut(stride).zip(&d) {
                     v[0] = *s;
                 }
-                stages.ran.push("sun optical path per voxel (cumulative, seed 000 §3.2)".into());
+                stages
+                    .ran
+                    .push("sun optical path per voxel (cumulative, seed 000 §3.2)".into());
             } else {
-                stages.skipped.push("direct sun: the sun gives no light at the cloud".into());
+                stages
+                    .skipped
+                    .push("direct sun: the sun gives no light at the cloud".into());
             }
             lap("sun_paths", &mut timing_ms);
             check(cancel)?;
@@ -167,26 +179,31 @@ impl<'a> Prepared<'a> {
                 check(cancel)?;
                 let k = &optics.extinction_per_density_m;
                 let [nx, ny, _] = grid.dims;
-                vox.par_chunks_mut(nx * ny * stride).enumerate().for_each(|(z, slab)| {
-                    let mut il = vec![0.0; elements.elements * n_l];
-                    for (i, v) in slab.chunks_mut(stride).enumerate() {
-                        let idx = z * nx * ny + i;
-                        if !mask[idx] {
-                            continue;
-                        }
-                        let p = grid.voxel_centre(i % nx, i / nx, z);
-                        elements.lookup(view(p), &mut il);
-                        let d_sun = v[0] as f64;
-                        for l in 0..n_l {
-                            let mut q = il[l] * (-k[l] * d_sun).exp();
-                            for (e, path) in paths.iter().enumerate() {
-                                q += il[(e + 1) * n_l + l] * (-k[l] * path[idx] as f64).exp();
+                vox.par_chunks_mut(nx * ny * stride)
+                    .enumerate()
+                    .for_each(|(z, slab)| {
+                        let mut il = vec![0.0; elements.elements * n_l];
+                        for (i, v) in slab.chunks_mut(stride).enumerate() {
+                            let idx = z * nx * ny + i;
+                            if !mask[idx] {
+                                continue;
                             }
-                            v[1 + l] += q as f32;
+                            let p = grid.voxel_centre(i % nx, i / nx, z);
+                            elements.lookup(view(p), &mut il);
+                            let d_sun = v[0] as f64;
+                            for l in 0..n_l {
+                                let mut q = il[l] * (-k[l] * d_sun).exp();
+                                for (e, path) in paths.iter().enumerate() {
+                                    q += il[(e + 1) * n_l + l] * (-k[l] * path[idx] as f64).exp();
+                                }
+                                v[1 + l] += q as f32;
+                            }
                         }
-                    }
-                });
-                let what = match (sw.sky_light && !lighting.sky.is_zero(), sw.ground_light && !lighting.below.is_zero()) {
+                    });
+                let what = match (
+                    sw.sky_light && !lighting.sky.is_zero(),
+                    sw.ground_light && !lighting.below.is_zero(),
+                ) {
                     (true, true) => "sky and ground light",
                     (true, false) => "sky light",
                     _ => "ground light",
@@ -196,27 +213,34 @@ impl<'a> Prepared<'a> {
                     elements.elements
                 ));
             } else {
-                stages.skipped.push("sky and ground light: none in this scene (or switched off)".into());
+                stages
+                    .skipped
+                    .push("sky and ground light: none in this scene (or switched off)".into());
             }
             lap("sky_light", &mut timing_ms);
             check(cancel)?;
-            if sw.multiple_scattering && optics.albedo.iter().any(|&a| a > 0.0) && (sun_on || env_on) {
+            if sw.multiple_scattering
+                && optics.albedo.iter().any(|&a| a > 0.0)
+                && (sun_on || env_on)
+            {
                 let field = MsField::compute(grid, optics, lighting, &settings.photons);
                 lap("multiple_scattering", &mut timing_ms);
                 let [nx, ny, _] = grid.dims;
-                vox.par_chunks_mut(nx * ny * stride).enumerate().for_each(|(z, slab)| {
-                    let mut j = vec![0.0; n_l];
-                    for (i, v) in slab.chunks_mut(stride).enumerate() {
-                        if !mask[z * nx * ny + i] {
-                            continue;
+                vox.par_chunks_mut(nx * ny * stride)
+                    .enumerate()
+                    .for_each(|(z, slab)| {
+                        let mut j = vec![0.0; n_l];
+                        for (i, v) in slab.chunks_mut(stride).enumerate() {
+                            if !mask[z * nx * ny + i] {
+                                continue;
+                            }
+                            let p = grid.voxel_centre(i % nx, i / nx, z);
+                            field.inscatter(p, view(p), &mut j);
+                            for l in 0..n_l {
+                                v[1 + l] += j[l] as f32;
+                            }
                         }
-                        let p = grid.voxel_centre(i % nx, i / nx, z);
-                        field.inscatter(p, view(p), &mut j);
-                        for l in 0..n_l {
-                            v[1 + l] += j[l] as f32;
-                        }
-                    }
-                });
+                    });
                 stages.ran.push(format!(
                     "multiple scattering, all orders: photon transport on a {}x{}x{} grid, similarity-scaled after the first scattering, P1 angular reconstruction",
                     field.dims[0], field.dims[1], field.dims[2]
@@ -224,7 +248,9 @@ impl<'a> Prepared<'a> {
                 ms = Some(field);
                 lap("ms_to_voxels", &mut timing_ms);
             } else {
-                stages.skipped.push("multiple scattering: switched off, albedo 0 or no light".into());
+                stages
+                    .skipped
+                    .push("multiple scattering: switched off, albedo 0 or no light".into());
             }
         } else if settings.method == Method::Reference {
             stages.ran.push(format!(
@@ -242,16 +268,24 @@ impl<'a> Prepared<'a> {
             None
         };
         if shadow.is_some() {
-            stages.ran.push("sun shadow map (cloud shadows, shafts of light)".into());
+            stages
+                .ran
+                .push("sun shadow map (cloud shadows, shafts of light)".into());
         }
         lap("shadow_map", &mut timing_ms);
         if lighting.aerial.is_some() {
-            stages.ran.push("aerial perspective between camera and cloud".into());
+            stages
+                .ran
+                .push("aerial perspective between camera and cloud".into());
             if sw.shafts_of_light && shadow.is_some() {
-                stages.ran.push("shafts of light below the cloud base (seed 003 eq 13-14)".into());
+                stages
+                    .ran
+                    .push("shafts of light below the cloud base (seed 003 eq 13-14)".into());
             }
         } else {
-            stages.skipped.push("aerial perspective: vacuum or switched off".into());
+            stages
+                .skipped
+                .push("aerial perspective: vacuum or switched off".into());
         }
         Ok(Self {
             scene,
@@ -350,7 +384,14 @@ impl<'a> Prepared<'a> {
     /// Pixel radiance from the cloud terms: background or ground behind, aerial perspective and
     /// shafts in front: L = S_eff(t_a) + T(t_a)·I_a + T_c·(B − S(t_a)) (seed 000 eq 3 with the
     /// atmosphere between cloud and viewer; seed 003 eq 14 for S_eff).
-    pub fn composite(&self, ray: &Ray, ia: &[f64], tc: &[f64], front: Option<f64>, out: &mut [f64]) {
+    pub fn composite(
+        &self,
+        ray: &Ray,
+        ia: &[f64],
+        tc: &[f64],
+        front: Option<f64>,
+        out: &mut [f64],
+    ) {
         let n_l = out.len();
         let lt = self.lighting;
         let sw = self.scene.lighting;
@@ -368,8 +409,13 @@ impl<'a> Prepared<'a> {
                 let p = o + d * tg;
                 let mu_s = lt.sun_dir.z.max(0.0);
                 for l in 0..n_l {
-                    let vis = if sw.cloud_shadows { self.sun_visibility(p, l) } else { 1.0 };
-                    b[l] = g.albedo[l] / PI * (g.sun_normal_irradiance[l] * mu_s * vis + g.diffuse_horizontal[l]);
+                    let vis = if sw.cloud_shadows {
+                        self.sun_visibility(p, l)
+                    } else {
+                        1.0
+                    };
+                    b[l] = g.albedo[l] / PI
+                        * (g.sun_normal_irradiance[l] * mu_s * vis + g.diffuse_horizontal[l]);
                 }
                 if let Some(a) = &lt.aerial {
                     a.eval(d, tg, &mut ta, &mut sa);
@@ -415,7 +461,14 @@ impl<'a> Prepared<'a> {
 
     /// Reference method for one pixel: `spp` path-traced samples (jittered over the pixel),
     /// composited like the fast method; returns the mean and the variance of the mean.
-    pub fn path_trace_pixel(&self, pt: &PathTracer, x: usize, y: usize, out: &mut [f64], var: &mut [f64]) {
+    pub fn path_trace_pixel(
+        &self,
+        pt: &PathTracer,
+        x: usize,
+        y: usize,
+        out: &mut [f64],
+        var: &mut [f64],
+    ) {
         let n_l = out.len();
         let spp = self.settings.spp.max(1);
         let mut rng = pt.rng(x, y, 0);
@@ -423,13 +476,16 @@ impl<'a> Prepared<'a> {
         let mut sum2 = vec![0.0; n_l];
         let mut px = vec![0.0; n_l];
         let centre = super::camera::primary_ray(&self.scene.camera, x as f64 + 0.5, y as f64 + 0.5);
-        let front = centre
-            .as_ref()
-            .and_then(|r| self.vol.first_occupied(r.origin_m, r.dir, 0.5 * self.vol.grid.voxel_size_m));
+        let front = centre.as_ref().and_then(|r| {
+            self.vol
+                .first_occupied(r.origin_m, r.dir, 0.5 * self.vol.grid.voxel_size_m)
+        });
         for _ in 0..spp {
             use rand::Rng;
             let (jx, jy) = (rng.random::<f64>(), rng.random::<f64>());
-            let Some(ray) = super::camera::primary_ray(&self.scene.camera, x as f64 + jx, y as f64 + jy) else {
+            let Some(ray) =
+                super::camera::primary_ray(&self.scene.camera, x as f64 + jx, y as f64 + jy)
+            else {
                 continue;
             };
             let s = pt.sample(&ray, &mut rng);

@@ -66,7 +66,10 @@ impl Method {
         match s {
             "fast" => Ok(Self::Fast),
             "reference" => Ok(Self::Reference),
-            _ => Err(Error::invalid("method", format!("'{s}' is not one of fast, reference"))),
+            _ => Err(Error::invalid(
+                "method",
+                format!("'{s}' is not one of fast, reference"),
+            )),
         }
     }
 }
@@ -123,23 +126,42 @@ impl RenderSettings {
 
     fn validate(&self) -> Result<()> {
         if !(self.step_voxels.is_finite() && (0.05..=4.0).contains(&self.step_voxels)) {
-            return Err(Error::out_of_range("step_voxels", self.step_voxels, "0.05 to 4"));
+            return Err(Error::out_of_range(
+                "step_voxels",
+                self.step_voxels,
+                "0.05 to 4",
+            ));
         }
         if !(1..=1 << 16).contains(&self.spp) {
             return Err(Error::out_of_range("spp", self.spp, "1 to 65536"));
         }
         let p = &self.photons;
-        if p.sun_photons > 1 << 26 || p.env_photons > 1 << 26 || !(2..=256).contains(&p.max_coarse_dim) {
-            return Err(Error::out_of_range("photons", "settings", "photons <= 2^26, coarse dim 2 to 256"));
+        if p.sun_photons > 1 << 26
+            || p.env_photons > 1 << 26
+            || !(2..=256).contains(&p.max_coarse_dim)
+        {
+            return Err(Error::out_of_range(
+                "photons",
+                "settings",
+                "photons <= 2^26, coarse dim 2 to 256",
+            ));
         }
         if !(64..=1 << 16).contains(&self.sky_quadrature)
             || !(4..=512).contains(&self.sky_table[0])
             || !(4..=1024).contains(&self.sky_table[1])
         {
-            return Err(Error::out_of_range("sky_quadrature", self.sky_quadrature, "64 to 65536 (table 4..512 x 4..1024)"));
+            return Err(Error::out_of_range(
+                "sky_quadrature",
+                self.sky_quadrature,
+                "64 to 65536 (table 4..512 x 4..1024)",
+            ));
         }
         if !(1..=1024).contains(&self.shaft_steps) {
-            return Err(Error::out_of_range("shaft_steps", self.shaft_steps, "1 to 1024"));
+            return Err(Error::out_of_range(
+                "shaft_steps",
+                self.shaft_steps,
+                "1 to 1024",
+            ));
         }
         Ok(())
     }
@@ -213,7 +235,12 @@ pub fn lighting_for(scene: &FrameScene, grid: &DensityGrid, engine: &Engine) -> 
         .as_ref()
         .map(|g| 20.0 * (cam.z - g.height_m).max(100.0))
         .unwrap_or(0.0);
-    Lighting::from_scene(scene, engine, centre.z, far.max(ground_far).max(1000.0) * 1.05)
+    Lighting::from_scene(
+        scene,
+        engine,
+        centre.z,
+        far.max(ground_far).max(1000.0) * 1.05,
+    )
 }
 
 /// Checks the grid against the renderer's limits before anything is allocated.
@@ -300,7 +327,8 @@ pub fn render_tile(
                 let x = tile.x0 + col;
                 match p.settings.method {
                     Method::Fast => {
-                        let Some(ray) = camera::primary_ray(cam, x as f64 + 0.5, y as f64 + 0.5) else {
+                        let Some(ray) = camera::primary_ray(cam, x as f64 + 0.5, y as f64 + 0.5)
+                        else {
                             continue;
                         };
                         let front = p.march(&ray, &mut ia, &mut tc);
@@ -312,9 +340,20 @@ pub fn render_tile(
                         for l in 0..n_l {
                             var[col * n_l + l] = v[l] as f32;
                         }
-                        if let Some(ray) = camera::primary_ray(cam, x as f64 + 0.5, y as f64 + 0.5) {
-                            let tau = p.vol.density_integral(ray.origin_m, ray.dir, 0.5 * p.vol.grid.voxel_size_m);
-                            tr[col] = (p.scene.optics.extinction_per_density_m.iter().map(|k| (-k * tau).exp()).sum::<f64>()
+                        if let Some(ray) = camera::primary_ray(cam, x as f64 + 0.5, y as f64 + 0.5)
+                        {
+                            let tau = p.vol.density_integral(
+                                ray.origin_m,
+                                ray.dir,
+                                0.5 * p.vol.grid.voxel_size_m,
+                            );
+                            tr[col] = (p
+                                .scene
+                                .optics
+                                .extinction_per_density_m
+                                .iter()
+                                .map(|k| (-k * tau).exp())
+                                .sum::<f64>()
                                 / n_l as f64) as f32;
                         }
                     }
@@ -331,7 +370,8 @@ pub fn render_tile(
     }
     let mut timing_ms = p.timing_ms.clone();
     timing_ms.push(("pixels".into(), start.elapsed().as_secs_f64() * 1e3));
-    let noise = (p.settings.method == Method::Reference).then(|| relative_noise(&radiance, &variance, &transmittance, n_l));
+    let noise = (p.settings.method == Method::Reference)
+        .then(|| relative_noise(&radiance, &variance, &transmittance, n_l));
     Ok(Frame {
         tile,
         image_width: cam.width,

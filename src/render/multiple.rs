@@ -67,7 +67,13 @@ struct Coarse {
 
 impl Coarse {
     fn new(grid: &DensityGrid, max_dim: usize) -> Self {
-        let f = grid.dims.iter().map(|&d| d.div_ceil(max_dim.max(1))).max().unwrap_or(1).max(1);
+        let f = grid
+            .dims
+            .iter()
+            .map(|&d| d.div_ceil(max_dim.max(1)))
+            .max()
+            .unwrap_or(1)
+            .max(1);
         let dims = [
             grid.dims[0].div_ceil(f),
             grid.dims[1].div_ceil(f),
@@ -101,7 +107,11 @@ impl Coarse {
 
     fn hi(&self) -> DVec3 {
         self.origin_m
-            + DVec3::new(self.dims[0] as f64, self.dims[1] as f64, self.dims[2] as f64) * self.cell_m
+            + DVec3::new(
+                self.dims[0] as f64,
+                self.dims[1] as f64,
+                self.dims[2] as f64,
+            ) * self.cell_m
     }
 }
 
@@ -114,7 +124,12 @@ struct Photon {
 
 impl MsField {
     /// Runs the photon pass for every group of wavelengths with identical optics.
-    pub fn compute(grid: &DensityGrid, optics: &Optics, lighting: &Lighting, s: &PhotonSettings) -> Self {
+    pub fn compute(
+        grid: &DensityGrid,
+        optics: &Optics,
+        lighting: &Lighting,
+        s: &PhotonSettings,
+    ) -> Self {
         let coarse = Coarse::new(grid, s.max_coarse_dim);
         let n_l = optics.albedo.len();
         let cells = coarse.rho.len();
@@ -134,9 +149,17 @@ impl MsField {
             let g = g1[l0];
             let g = if s.similarity { g } else { 0.0 };
             let scale = 1.0 - albedo * g;
-            let albedo_scaled = if scale > 0.0 { albedo * (1.0 - g) / scale } else { 0.0 };
-            let sun_w: Vec<f64> = group.iter().map(|&l| lighting.sun_irradiance[l] * disc_area).collect();
-            let sun_on = lighting.sun_dir.is_finite() && sun_w.iter().any(|&w| w > 0.0) && s.sun_photons > 0;
+            let albedo_scaled = if scale > 0.0 {
+                albedo * (1.0 - g) / scale
+            } else {
+                0.0
+            };
+            let sun_w: Vec<f64> = group
+                .iter()
+                .map(|&l| lighting.sun_irradiance[l] * disc_area)
+                .collect();
+            let sun_on =
+                lighting.sun_dir.is_finite() && sun_w.iter().any(|&w| w > 0.0) && s.sun_photons > 0;
             let n_sun = if sun_on { s.sun_photons } else { 0 };
             let n_env = s.env_photons;
             let total = n_sun + n_env;
@@ -146,11 +169,18 @@ impl MsField {
                 .into_par_iter()
                 .map(|ci| {
                     let mut acc = vec![0f64; cells * group.len() * 4];
-                    let mut rng = Pcg64::seed_from_u64(s.seed ^ (ci as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15) ^ (l0 as u64) << 56);
+                    let mut rng = Pcg64::seed_from_u64(
+                        s.seed
+                            ^ (ci as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15)
+                            ^ (l0 as u64) << 56,
+                    );
                     let mut env = vec![0.0; n_l];
                     for i in ci * chunk..((ci + 1) * chunk).min(total) {
                         let (dir_in, weights): (DVec3, Vec<f64>) = if i < n_sun {
-                            (-lighting.sun_dir, sun_w.iter().map(|w| w / n_sun as f64).collect())
+                            (
+                                -lighting.sun_dir,
+                                sun_w.iter().map(|w| w / n_sun as f64).collect(),
+                            )
                         } else {
                             // Uniform over the sphere of incoming directions.
                             let w = uniform_sphere(rng.random(), rng.random());
@@ -165,7 +195,8 @@ impl MsField {
                         let (t, b) = orthonormal_basis(dir_in);
                         let r = radius * rng.random::<f64>().sqrt();
                         let phi = 2.0 * PI * rng.random::<f64>();
-                        let start = centre + (t * phi.cos() + b * phi.sin()) * r - dir_in * (2.0 * radius);
+                        let start =
+                            centre + (t * phi.cos() + b * phi.sin()) * r - dir_in * (2.0 * radius);
                         let mut ph = Photon {
                             pos: start,
                             dir: dir_in,
@@ -176,7 +207,18 @@ impl MsField {
                         loop {
                             let sigma_scale = if ph.scattered { scale } else { 1.0 };
                             let tau = -(1.0 - rng.random::<f64>()).ln();
-                            match fly(&coarse, lo, hi, &mut ph, tau, k * sigma_scale, cell_volume, &w, &mut acc, group.len()) {
+                            match fly(
+                                &coarse,
+                                lo,
+                                hi,
+                                &mut ph,
+                                tau,
+                                k * sigma_scale,
+                                cell_volume,
+                                &w,
+                                &mut acc,
+                                group.len(),
+                            ) {
                                 false => break,
                                 true => {
                                     let a = if ph.scattered { albedo_scaled } else { albedo };

@@ -45,7 +45,12 @@ pub struct PathTracer<'a> {
 }
 
 impl<'a> PathTracer<'a> {
-    pub fn new(vol: &'a CloudVolume<'a>, optics: &'a Optics, lighting: &'a Lighting, seed: u64) -> Self {
+    pub fn new(
+        vol: &'a CloudVolume<'a>,
+        optics: &'a Optics,
+        lighting: &'a Lighting,
+        seed: u64,
+    ) -> Self {
         Self {
             vol,
             optics,
@@ -59,7 +64,11 @@ impl<'a> PathTracer<'a> {
     /// A random stream for pixel (x, y), sample batch `batch`.
     pub fn rng(&self, x: usize, y: usize, batch: u64) -> Pcg64 {
         let key = (y as u64) << 32 | x as u64;
-        Pcg64::seed_from_u64(self.seed ^ key.wrapping_mul(0x9E37_79B9_7F4A_7C15) ^ batch.wrapping_mul(0xD1B5_4A32_D192_ED03))
+        Pcg64::seed_from_u64(
+            self.seed
+                ^ key.wrapping_mul(0x9E37_79B9_7F4A_7C15)
+                ^ batch.wrapping_mul(0xD1B5_4A32_D192_ED03),
+        )
     }
 
     /// Traces one primary ray for every wavelength group.
@@ -132,7 +141,14 @@ impl<'a> PathTracer<'a> {
         Some((g.height_m - o.z) / d.z)
     }
 
-    fn trace(&self, ray: &Ray, group: &[usize], rng: &mut Pcg64, radiance: &mut [f64], transmitted: &mut [f64]) {
+    fn trace(
+        &self,
+        ray: &Ray,
+        group: &[usize],
+        rng: &mut Pcg64,
+        radiance: &mut [f64],
+        transmitted: &mut [f64],
+    ) {
         let l0 = group[0];
         let k = self.optics.extinction_per_density_m[l0];
         let albedo = self.optics.albedo[l0];
@@ -199,7 +215,11 @@ impl<'a> PathTracer<'a> {
                         }
                         // Lambertian reflection at the ground: sun by NEE, then a cosine-weighted
                         // bounce (the pdf cancels the BRDF's cosine and 1/π).
-                        let g = lt.ground.as_ref().map(|g| g.albedo.clone()).unwrap_or_default();
+                        let g = lt
+                            .ground
+                            .as_ref()
+                            .map(|g| g.albedo.clone())
+                            .unwrap_or_default();
                         pos += dir * tg;
                         pos.z += 1e-6;
                         for (gi, &l) in group.iter().enumerate() {
@@ -208,14 +228,18 @@ impl<'a> PathTracer<'a> {
                         if sun_on && lt.sun_dir.z > 0.0 {
                             let tr = self.transmittance(pos, lt.sun_dir, k, rng);
                             for (gi, &l) in group.iter().enumerate() {
-                                radiance[l] += thr[gi] * lt.sun_irradiance[l] * lt.sun_dir.z / PI * tr;
+                                radiance[l] +=
+                                    thr[gi] * lt.sun_irradiance[l] * lt.sun_dir.z / PI * tr;
                             }
                         }
                         let (u1, u2) = (rng.random::<f64>(), rng.random::<f64>());
                         let r = u1.sqrt();
                         let phi = 2.0 * PI * u2;
                         let (t, b) = orthonormal_basis(DVec3::Z);
-                        dir = (t * (r * phi.cos()) + b * (r * phi.sin()) + DVec3::Z * (1.0 - u1).max(0.0).sqrt()).normalize();
+                        dir = (t * (r * phi.cos())
+                            + b * (r * phi.sin())
+                            + DVec3::Z * (1.0 - u1).max(0.0).sqrt())
+                        .normalize();
                         depth += 1;
                         if thr.iter().all(|&x| x <= 0.0) {
                             return;

@@ -52,7 +52,13 @@ pub enum Spectral {
 
 impl Spectral {
     /// The value at each wavelength, each checked to lie in `[lo, hi]` (named `field`).
-    pub fn resolve(&self, field: &str, wavelengths_nm: &[f64], lo: f64, hi: f64) -> Result<Vec<f64>> {
+    pub fn resolve(
+        &self,
+        field: &str,
+        wavelengths_nm: &[f64],
+        lo: f64,
+        hi: f64,
+    ) -> Result<Vec<f64>> {
         let check = |v: f64| -> Result<f64> {
             if v.is_finite() && v >= lo && v <= hi {
                 Ok(v)
@@ -67,7 +73,10 @@ impl Spectral {
             }
             Spectral::Table(t) => {
                 if t.is_empty() || t.len() > 1000 {
-                    return Err(Error::invalid(field, "a wavelength table needs 1 to 1000 entries"));
+                    return Err(Error::invalid(
+                        field,
+                        "a wavelength table needs 1 to 1000 entries",
+                    ));
                 }
                 let mut pts = Vec::with_capacity(t.len());
                 for (k, v) in t {
@@ -75,7 +84,10 @@ impl Spectral {
                         Error::invalid(field, format!("table key '{k}' is not a wavelength in nm"))
                     })?;
                     if !(nm.is_finite() && nm > 0.0) {
-                        return Err(Error::invalid(field, format!("table key '{k}' is not a wavelength in nm")));
+                        return Err(Error::invalid(
+                            field,
+                            format!("table key '{k}' is not a wavelength in nm"),
+                        ));
                     }
                     pts.push((nm, check(*v)?));
                 }
@@ -196,9 +208,18 @@ fn z_up() -> [f64; 3] {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(untagged)]
 pub enum SunJson {
-    Collimated { collimated: CollimatedSun },
-    Direction { elevation_deg: f64, azimuth_deg: f64 },
-    Place { latitude_deg: f64, longitude_deg: f64, time: String },
+    Collimated {
+        collimated: CollimatedSun,
+    },
+    Direction {
+        elevation_deg: f64,
+        azimuth_deg: f64,
+    },
+    Place {
+        latitude_deg: f64,
+        longitude_deg: f64,
+        time: String,
+    },
 }
 
 /// A collimated beam.
@@ -475,7 +496,9 @@ impl FrameScene {
         let camera = resolve_camera(&s.camera, wl.len())?;
         let atmosphere = match &s.atmosphere {
             Value::Null => None,
-            Value::String(name) => Some(presets::preset(name).map_err(|e| e.prefixed("atmosphere."))?),
+            Value::String(name) => {
+                Some(presets::preset(name).map_err(|e| e.prefixed("atmosphere."))?)
+            }
             v @ Value::Object(_) => Some(presets::parse_json("atmosphere", &v.to_string())?),
             _ => {
                 return Err(Error::invalid(
@@ -514,7 +537,11 @@ impl FrameScene {
                 let g: GroundJson = serde_json::from_value(v.clone())
                     .map_err(|e| Error::invalid("ground", format!("{e}")))?;
                 if !(g.height_m.is_finite() && (-500.0..=10_000.0).contains(&g.height_m)) {
-                    return Err(Error::out_of_range("ground.height_m", g.height_m, "-500 to 10000 m"));
+                    return Err(Error::out_of_range(
+                        "ground.height_m",
+                        g.height_m,
+                        "-500 to 10000 m",
+                    ));
                 }
                 Some(GroundSpec {
                     albedo: g.albedo.resolve("ground.albedo", &wl, 0.0, 1.0)?,
@@ -544,12 +571,12 @@ fn section<T: serde::de::DeserializeOwned>(raw: &Value, key: &str) -> Result<T> 
 }
 
 fn resolve_optics(o: &OpticsJson, wl: &[f64]) -> Result<Optics> {
-    let k = o
-        .extinction_per_density_m
-        .resolve("optics.extinction_per_density_m", wl, 0.0, 1000.0)?;
-    let albedo = o
-        .single_scattering_albedo
-        .resolve("optics.single_scattering_albedo", wl, 0.0, 1.0)?;
+    let k =
+        o.extinction_per_density_m
+            .resolve("optics.extinction_per_density_m", wl, 0.0, 1000.0)?;
+    let albedo =
+        o.single_scattering_albedo
+            .resolve("optics.single_scattering_albedo", wl, 0.0, 1.0)?;
     let g_range = |g: &Spectral| g.resolve("optics.phase.g", wl, -MAX_ABS_G, MAX_ABS_G);
     let phase = match &o.phase {
         PhaseJson::HenyeyGreenstein { g } => g_range(g)?
@@ -566,7 +593,11 @@ fn resolve_optics(o: &OpticsJson, wl: &[f64]) -> Result<Optics> {
         } => {
             let f = *rayleigh_fraction;
             if !(f.is_finite() && (0.0..=1.0).contains(&f)) {
-                return Err(Error::out_of_range("optics.phase.rayleigh_fraction", f, "0 to 1"));
+                return Err(Error::out_of_range(
+                    "optics.phase.rayleigh_fraction",
+                    f,
+                    "0 to 1",
+                ));
             }
             g_range(g)?
                 .into_iter()
@@ -587,7 +618,11 @@ fn resolve_optics(o: &OpticsJson, wl: &[f64]) -> Result<Optics> {
 fn vec3(field: &str, v: [f64; 3]) -> Result<DVec3> {
     let d = DVec3::from_array(v);
     if !d.is_finite() || d.abs().max_element() > 1e8 {
-        return Err(Error::out_of_range(field, format!("{v:?}"), "finite coordinates within ±1e8 m"));
+        return Err(Error::out_of_range(
+            field,
+            format!("{v:?}"),
+            "finite coordinates within ±1e8 m",
+        ));
     }
     Ok(d)
 }
@@ -665,7 +700,11 @@ fn resolve_camera(c: &CameraJson, n_wavelengths: usize) -> Result<CameraSpec> {
             fov_deg, fov_axis, ..
         } => {
             if !(fov_deg.is_finite() && *fov_deg > 0.0 && *fov_deg <= 179.0) {
-                return Err(Error::out_of_range("camera.fov_deg", fov_deg, "0 < fov <= 179 deg"));
+                return Err(Error::out_of_range(
+                    "camera.fov_deg",
+                    fov_deg,
+                    "0 < fov <= 179 deg",
+                ));
             }
             let t = (0.5 * fov_deg.to_radians()).tan();
             match fov_axis {
@@ -694,7 +733,11 @@ fn resolve_camera(c: &CameraJson, n_wavelengths: usize) -> Result<CameraSpec> {
         }
         CameraJson::Fisheye { fov_deg, .. } => {
             if !(fov_deg.is_finite() && *fov_deg > 0.0 && *fov_deg <= 360.0) {
-                return Err(Error::out_of_range("camera.fov_deg", fov_deg, "0 < fov <= 360 deg"));
+                return Err(Error::out_of_range(
+                    "camera.fov_deg",
+                    fov_deg,
+                    "0 < fov <= 360 deg",
+                ));
             }
             Projection::Fisheye {
                 rad_per_px: fov_deg.to_radians() / width.min(height) as f64,
@@ -717,7 +760,11 @@ fn resolve_sun(s: &SunJson, wl: &[f64], has_atmosphere: bool) -> Result<SunSpec>
         if a.is_finite() && a.abs() <= 3600.0 {
             Ok(a.rem_euclid(360.0))
         } else {
-            Err(Error::out_of_range(field, a, "finite degrees (|a| <= 3600)"))
+            Err(Error::out_of_range(
+                field,
+                a,
+                "finite degrees (|a| <= 3600)",
+            ))
         }
     };
     match s {
@@ -764,13 +811,22 @@ fn resolve_sun(s: &SunJson, wl: &[f64], has_atmosphere: bool) -> Result<SunSpec>
             time,
         } => {
             if !(latitude_deg.is_finite() && latitude_deg.abs() <= 90.0) {
-                return Err(Error::out_of_range("sun.latitude_deg", latitude_deg, "-90 to 90 deg"));
+                return Err(Error::out_of_range(
+                    "sun.latitude_deg",
+                    latitude_deg,
+                    "-90 to 90 deg",
+                ));
             }
             if !(longitude_deg.is_finite() && longitude_deg.abs() <= 180.0) {
-                return Err(Error::out_of_range("sun.longitude_deg", longitude_deg, "-180 to 180 deg"));
+                return Err(Error::out_of_range(
+                    "sun.longitude_deg",
+                    longitude_deg,
+                    "-180 to 180 deg",
+                ));
             }
-            let (e, a) = crate::solar::sun_elevation_azimuth_deg(*latitude_deg, *longitude_deg, time)
-                .map_err(|e| e.prefixed("sun."))?;
+            let (e, a) =
+                crate::solar::sun_elevation_azimuth_deg(*latitude_deg, *longitude_deg, time)
+                    .map_err(|e| e.prefixed("sun."))?;
             if has_atmosphere && e < -18.0 {
                 return Err(Error::out_of_range(
                     "sun.time",

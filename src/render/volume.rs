@@ -34,7 +34,8 @@ impl<'a> CloudVolume<'a> {
                     // A voxel's value reaches one voxel into its neighbours' blocks.
                     for bz in (z.saturating_sub(1) / BLOCK)..=((z + 1).min(nz - 1) / BLOCK) {
                         for by in (y.saturating_sub(1) / BLOCK)..=((y + 1).min(ny - 1) / BLOCK) {
-                            for bx in (x.saturating_sub(1) / BLOCK)..=((x + 1).min(nx - 1) / BLOCK) {
+                            for bx in (x.saturating_sub(1) / BLOCK)..=((x + 1).min(nx - 1) / BLOCK)
+                            {
                                 let b = (bz * bd[1] + by) * bd[0] + bx;
                                 block_max[b] = block_max[b].max(v);
                             }
