@@ -93,3 +93,45 @@ pub fn aerial_image(p: &AerialProduct, spec: &CommonSpec) -> Result<SpectralImag
 pub fn aerial_exr(p: &AerialProduct, spec: &CommonSpec) -> Result<Vec<u8>> {
     crate::store::encode_exr(&aerial_image(p, spec)?).map_err(store_err)
 }
+
+/// A rendered cloud frame as a spectral image (width × height of the camera): layer `S0` holds
+/// the spectral radiance of each pixel, layer `T` the cloud's transmittance along the pixel's ray
+/// (mean over wavelengths, repeated per wavelength), plus linear sRGB. `spec_json` is the
+/// canonical frame request; the frame's stages, timings and error estimate go in the attributes.
+pub fn frame_image(frame: &crate::render::Frame, spec_json: &str) -> Result<SpectralImage> {
+    let (w, h, n_l) = (
+        frame.tile.width,
+        frame.tile.height,
+        frame.wavelengths_nm.len(),
+    );
+    let mut planes = vec![vec![0f32; w * h]; n_l];
+    for (p, spectrum) in frame.radiance.chunks(n_l).enumerate() {
+        for (plane, v) in planes.iter_mut().zip(spectrum) {
+            plane[p] = *v;
+        }
+    }
+    let mut img = SpectralImage::emissive(w, h, &frame.wavelengths_nm, planes)?;
+    img.add_layer(
+        layout::TRANSMITTANCE_LAYER,
+        vec![frame.transmittance.clone(); n_l],
+    )?;
+    img.set_rgb(rgb_planes(&frame.wavelengths_nm, &frame.radiance))?;
+    let meta = &frame.meta;
+    let error_json = serde_json::to_string(&meta.error_estimate).unwrap_or_default();
+    let total_ms: f64 = meta.timing_ms.iter().map(|(_, ms)| ms).sum();
+    img.set_product_metadata(
+        spec_json,
+        crate::engine::ENGINE_VERSION,
+        &error_json,
+        total_ms,
+    )?;
+    img.set_attribute(
+        layout::ATTR_PLAN_JSON,
+        serde_json::to_string(&meta.stages).unwrap_or_default(),
+    )?;
+    img.set_attribute(
+        "skybakeFrameMeta",
+        serde_json::to_string(meta).unwrap_or_default(),
+    )?;
+    Ok(img)
+}

@@ -60,6 +60,23 @@ enum Command {
         #[arg(long, value_enum, default_value_t = Format::Json)]
         format: Format,
     },
+    /// Render a lit cloud frame of a scene (sun, sky and ground light, multiple scattering).
+    ///
+    /// Example: skybake render config/scenes/cumulus-frame.json -o frame.png
+    Render {
+        /// Frame scene JSON (see config/scenes/*-frame.json); files it names are read relative to
+        /// the scene's directory.
+        scene: PathBuf,
+        /// Write the frame: .exr (spectral + RGB, the cached artifact) or .png (tone-mapped).
+        #[arg(short = 'o', long = "output", value_name = "FILE")]
+        output: Option<PathBuf>,
+        /// fast (per-voxel light + multiple-scattering field + ray march) or reference (path tracer).
+        #[arg(long, default_value = "fast")]
+        method: String,
+        /// Summary format.
+        #[arg(long, value_enum, default_value_t = Format::Json)]
+        format: Format,
+    },
     /// Run named benchmarks in-process and print median times.
     ///
     /// Example: skybake bench sky-fast sun --format json
@@ -235,8 +252,16 @@ fn request_params(c: &CommonArgs) -> Result<RequestParams> {
 fn print_json<T: serde::Serialize>(value: &T) -> Result<()> {
     let text =
         serde_json::to_string_pretty(value).map_err(|e| Error::invalid("format", e.to_string()))?;
-    println!("{text}");
-    Ok(())
+    // A closed pipe (`| head`) ends the output quietly instead of panicking.
+    use std::io::Write;
+    let mut out = std::io::stdout().lock();
+    match writeln!(out, "{text}") {
+        Err(e) if e.kind() != std::io::ErrorKind::BrokenPipe => Err(Error::invalid(
+            "output",
+            format!("cannot write to stdout: {e}"),
+        )),
+        _ => Ok(()),
+    }
 }
 
 fn write_file(path: &Path, bytes: &[u8]) -> Result<()> {
@@ -436,6 +461,12 @@ fn run(cli: Cli) -> Result<()> {
             voxels,
             format,
         } => run_clouds(&scene, voxels.as_deref(), format),
+        Command::Render {
+            scene,
+            output,
+            method,
+            format,
+        } => run_render(&scene, output.as_deref(), &method, format),
         Command::Bench {
             names,
             format,
@@ -486,6 +517,100 @@ fn read_limited(path: &Path, field: &str, limit: usize) -> Result<Vec<u8>> {
         return Err(too_large(bytes.len() as u64));
     }
     Ok(bytes)
+}
+
+/// `skybake render`: reads the scene (the library does no I/O), renders it through the frame
+/// product (the same path as `POST /v1/render`), writes the EXR or PNG and prints a summary.
+fn run_render(scene: &Path, output: Option<&Path>, method: &str, format: Format) -> Result<()> {
+    use skybake::cloud::scene as cloud_scene;
+    use skybake::render::{FrameRequest, Method};
+    let method = Method::parse(method)?;
+    let ext = output
+        .and_then(|o| o.extension())
+        .and_then(|e| e.to_str())
+        .map(str::to_ascii_lowercase);
+    if let (Some(out), Some(ext)) = (output, ext.as_deref()) {
+        if ext != "exr" && ext != "png" {
+            return Err(Error::invalid(
+                "output",
+                format!("'{}': a frame is written as .exr or .png", out.display()),
+            ));
+        }
+    } else if let Some(out) = output {
+        return Err(Error::invalid(
+            "output",
+            format!("'{}': a frame is written as .exr or .png", out.display()),
+        ));
+    }
+    let text = read_limited(scene, "scene", cloud_scene::MAX_SCENE_FILE_BYTES)?;
+    let request = FrameRequest::parse(&text, method)?;
+    let dir = scene.parent().unwrap_or(Path::new("."));
+    let loader =
+        |name: &str| read_limited(&dir.join(name), "path", cloud_scene::MAX_GRID_FILE_BYTES);
+    let bar = std::io::IsTerminal::is_terminal(&std::io::stderr()).then(|| {
+        let bar = indicatif::ProgressBar::new(1000);
+        if let Ok(style) = indicatif::ProgressStyle::with_template(
+            "{elapsed_precise} [{bar:40}] {percent}% ({eta} left)",
+        ) {
+            bar.set_style(style.progress_chars("=> "));
+        }
+        bar
+    });
+    let progress = |f: f64| {
+        if let Some(bar) = &bar {
+            bar.set_position((f * 1000.0) as u64);
+        }
+    };
+    let image = request.compute(&Engine::new(), &loader, &progress, &|| false)?;
+    if let Some(bar) = &bar {
+        bar.finish_and_clear();
+    }
+    match (output, ext.as_deref()) {
+        (Some(out), Some("png")) => {
+            let rgb = image
+                .rgb()
+                .ok_or_else(|| Error::invalid("frame", "has no RGB planes"))?;
+            let bytes = skybake::output::frame_png(image.width(), image.height(), rgb)?;
+            write_file(out, &bytes)?;
+        }
+        (Some(out), _) => {
+            let bytes = skybake::store::encode_exr(&image)
+                .map_err(|e| Error::invalid("output", e.to_string()))?;
+            write_file(out, &bytes)?;
+        }
+        (None, _) => {}
+    }
+    let attr = |name: &str| -> serde_json::Value {
+        image
+            .attribute(name)
+            .and_then(|t| serde_json::from_str(t).ok())
+            .unwrap_or(serde_json::Value::Null)
+    };
+    let summary = serde_json::json!({
+        "scene": scene.display().to_string(),
+        "method": method,
+        "width": image.width(),
+        "height": image.height(),
+        "wavelengths_nm": image.wavelengths_nm(),
+        "output": output.map(|p| p.display().to_string()),
+        "cache_key": request.cache_key(),
+        "meta": attr("skybakeFrameMeta"),
+    });
+    if format == Format::Json {
+        print_json(&summary)
+    } else {
+        println!(
+            "{} {}x{} ({:?}) -> {}",
+            scene.display(),
+            image.width(),
+            image.height(),
+            method,
+            output
+                .map(|p| p.display().to_string())
+                .unwrap_or_else(|| "-".into())
+        );
+        Ok(())
+    }
 }
 
 /// `skybake clouds`: reads the scene (the library does no I/O), voxelises its cloud section with

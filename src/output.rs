@@ -232,3 +232,36 @@ fn axis_pos(axis: &[f64], x: f64) -> (usize, f64) {
     let i = axis.partition_point(|&v| v <= x) - 1;
     (i, (x - axis[i]) / (axis[i + 1] - axis[i]))
 }
+
+/// PNG of a rendered frame from its linear sRGB planes (the frame's `R`, `G`, `B`): exposed so
+/// that the median luminance of the lit pixels maps to 0.18 (photographic middle grey; bright
+/// cloud tops may clip), then sRGB-encoded to 8 bits. Pixels are row-major, top row first.
+pub fn frame_png(width: usize, height: usize, rgb: &[Vec<f32>; 3]) -> Result<Vec<u8>> {
+    let n = width * height;
+    if n == 0 || rgb.iter().any(|p| p.len() != n) {
+        return Err(Error::invalid(
+            "frame",
+            "RGB planes do not match the image size",
+        ));
+    }
+    let lum = |i: usize| {
+        0.2126 * rgb[0][i] as f64 + 0.7152 * rgb[1][i] as f64 + 0.0722 * rgb[2][i] as f64
+    };
+    let mut lit: Vec<f64> = (0..n).map(lum).filter(|&y| y > 0.0).collect();
+    lit.sort_by(f64::total_cmp);
+    let mid = lit.get(lit.len() / 2).copied().unwrap_or(1.0);
+    let exposure = if mid > 0.0 { 0.18 / mid } else { 1.0 };
+    let mut img = image::RgbImage::new(width as u32, height as u32);
+    for (i, px) in img.pixels_mut().enumerate() {
+        let c = [rgb[0][i], rgb[1][i], rgb[2][i]]
+            .map(|v| (srgb_encode(v as f64 * exposure) * 255.0).round() as u8);
+        *px = image::Rgb(c);
+    }
+    let mut bytes = Vec::new();
+    img.write_to(
+        &mut std::io::Cursor::new(&mut bytes),
+        image::ImageFormat::Png,
+    )
+    .map_err(|e| Error::invalid("format", format!("PNG encoding failed: {e}")))?;
+    Ok(bytes)
+}

@@ -393,6 +393,8 @@ fn method_router(route: &Route) -> axum::routing::MethodRouter<AppState> {
         ("GET", "/v1/jobs/{id}") => get(jobs::status),
         ("DELETE", "/v1/jobs/{id}") => delete(jobs::cancel),
         ("GET", "/v1/jobs/{id}/artifacts/{n}") => get(jobs::artifact),
+        ("GET", "/") => get(super::viewer::index),
+        ("GET", "/assets/{file}") => get(super::viewer::asset),
         ("GET", "/healthz") => get(healthz),
         ("GET", "/metrics") => get(metrics),
         ("GET", "/openapi.json") => get(openapi),

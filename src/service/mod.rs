@@ -19,6 +19,7 @@ pub mod openapi;
 pub mod problem;
 pub mod products;
 pub mod server;
+pub mod viewer;
 
 mod handlers;
 mod responses;

@@ -34,6 +34,8 @@ pub const ROUTES: &[Route] = &[
     Route { method: "GET", path: "/v1/jobs/{id}", summary: "Job state, progress, errors and artifacts (offset/limit page the artifact list)", limited: true, product: None, body: None, produces: JSON },
     Route { method: "DELETE", path: "/v1/jobs/{id}", summary: "Cancel a job (finished products stay cached)", limited: true, product: None, body: None, produces: JSON },
     Route { method: "GET", path: "/v1/jobs/{id}/artifacts/{n}", summary: "The n-th product of a job (format=exr default, json, png)", limited: true, product: None, body: None, produces: &["image/x-exr", "application/json", "image/png"] },
+    Route { method: "GET", path: "/", summary: "The web viewer (HTML page; uses this API)", limited: false, product: None, body: None, produces: &["text/html"] },
+    Route { method: "GET", path: "/assets/{file}", summary: "The viewer's script and style sheet", limited: false, product: None, body: None, produces: &["text/javascript", "text/css"] },
     Route { method: "GET", path: "/healthz", summary: "Liveness", limited: false, product: None, body: None, produces: JSON },
     Route { method: "GET", path: "/metrics", summary: "Prometheus metrics", limited: false, product: None, body: None, produces: &["text/plain"] },
     Route { method: "GET", path: "/openapi.json", summary: "This document", limited: false, product: None, body: None, produces: JSON },
@@ -82,7 +84,7 @@ pub const PRODUCT_PARAMETERS: [(&str, &str); 16] = [
     ),
     (
         "format",
-        "json (default), exr (sky, ground, aerial), png (sky, ground)",
+        "json (default), exr (sky, ground, aerial), png (fisheye preview; sky, ground), png_latlong (panorama preview; sky, ground)",
     ),
 ];
 
@@ -115,7 +117,7 @@ fn operation(route: &Route) -> Value {
         }
     }
     if route.path.ends_with("/artifacts/{n}") {
-        parameters.push(json!({"name": "format", "in": "query", "required": false, "schema": {"type": "string", "enum": ["exr", "json", "png"]}}));
+        parameters.push(json!({"name": "format", "in": "query", "required": false, "schema": {"type": "string", "enum": ["exr", "json", "png", "png_latlong"]}}));
     }
     if !parameters.is_empty() {
         op.insert("parameters".into(), Value::Array(parameters));

@@ -97,7 +97,10 @@ impl ProductKind {
 pub enum Format {
     Json,
     Exr,
+    /// Fisheye preview (zenith or nadir at the centre, the sun at the top).
     Png,
+    /// Latitude-longitude panorama preview (azimuth −180…180° across).
+    PngLatlong,
 }
 
 impl Format {
@@ -105,7 +108,7 @@ impl Format {
         match self {
             Self::Json => "application/json",
             Self::Exr => "image/x-exr",
-            Self::Png => "image/png",
+            Self::Png | Self::PngLatlong => "image/png",
         }
     }
 
@@ -114,6 +117,7 @@ impl Format {
             Self::Json => "json",
             Self::Exr => "exr",
             Self::Png => "png",
+            Self::PngLatlong => "png_latlong",
         }
     }
 }
@@ -154,11 +158,14 @@ impl ProductRequest {
             None | Some("json") => Format::Json,
             Some("exr") if product != ProductKind::Sun => Format::Exr,
             Some("png") if matches!(product, ProductKind::Sky | ProductKind::Ground) => Format::Png,
+            Some("png_latlong") if matches!(product, ProductKind::Sky | ProductKind::Ground) => {
+                Format::PngLatlong
+            }
             Some(other) => {
                 let allowed = match product {
                     ProductKind::Sun => "json",
                     ProductKind::Aerial => "json, exr",
-                    _ => "json, exr, png",
+                    _ => "json, exr, png, png_latlong",
                 };
                 return Err(Error::invalid(
                     "format",
@@ -515,14 +522,19 @@ pub fn render(product: ProductKind, format: Format, image: &SpectralImage) -> Re
             body.radiance_w_m2_sr_nm = Some(rows);
             json(&body)
         }
-        (ProductKind::Sky | ProductKind::Ground, Format::Png) => {
+        (ProductKind::Sky | ProductKind::Ground, Format::Png | Format::PngLatlong) => {
             if !env.contains_key("elevation_deg") {
                 return Err(Error::invalid(
                     "format",
                     "png needs the table: leave out probe for a PNG preview",
                 ));
             }
-            dome_png(&dome_table(image, &env)?, Projection::Fisheye, PNG_SIZE)
+            let projection = if format == Format::Png {
+                Projection::Fisheye
+            } else {
+                Projection::LatLong
+            };
+            dome_png(&dome_table(image, &env)?, projection, PNG_SIZE)
         }
         (ProductKind::Aerial, Format::Json) => {
             let n_az = f64_array(&env, "azimuth_deg")?.len();
