@@ -1,7 +1,7 @@
 //! Running the service: bind, serve until SIGTERM or ctrl-c (graceful: in-flight requests finish,
 //! job progress is already persisted), and the tiny HTTP client behind `skybake healthcheck`.
 
-use super::{app, jobs, AppState};
+use super::{app, AppState};
 use crate::config::Settings;
 use std::future::Future;
 use std::io::{Read, Write};
@@ -14,7 +14,7 @@ pub async fn serve_on(
     state: AppState,
     shutdown: impl Future<Output = ()> + Send + 'static,
 ) -> std::io::Result<()> {
-    jobs::start_workers(&state);
+    state.start_job_workers();
     axum::serve(listener, app(state))
         .with_graceful_shutdown(shutdown)
         .await
