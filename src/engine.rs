@@ -59,6 +59,14 @@ pub struct ErrorEstimate {
     pub caveat: Option<&'static str>,
 }
 
+/// Stages that ran and stages left out, as prose: the cloud frame's list (`render/`) until the
+/// frame joins the typed [`Plan`] as a product.
+#[derive(Debug, Clone, Default, PartialEq, Serialize)]
+pub struct Stages {
+    pub ran: Vec<String>,
+    pub skipped: Vec<String>,
+}
+
 /// Metadata common to all atmosphere products.
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct ProductMeta {

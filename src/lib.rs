@@ -8,6 +8,7 @@
 
 pub mod atmosphere;
 pub mod bench;
+pub mod camera;
 pub mod cloud;
 pub mod config;
 pub mod engine;
@@ -18,6 +19,7 @@ pub mod output;
 pub mod phase;
 pub mod plan;
 pub mod product;
+pub mod render;
 pub mod service;
 pub mod solar;
 pub mod solar_position;
