@@ -63,6 +63,9 @@ impl ProductRequest {
         image.set_attribute(layout::ATTR_PLAN_JSON, to_json(&meta.plan)?)?;
         image.set_attribute(ATTR_TABLES_WARM, meta.shared_tables_warm.to_string())?;
         image.set_attribute(ATTR_RESPONSE_JSON, Value::Object(envelope).to_string())?;
+        // The artifact carries its cache key wherever it is written (CLI, service, bake), so the
+        // cache can tell a file under another key's name (store::Cache::get).
+        image.set_attribute(layout::ATTR_CACHE_KEY, self.cache_key())?;
         Ok(image)
     }
 }
