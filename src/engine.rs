@@ -12,6 +12,8 @@ use crate::atmosphere::sky::{
 use crate::atmosphere::transmittance::density_integrals;
 use crate::atmosphere::{geometry, Medium};
 use crate::spec::{CommonSpec, Quality};
+use crate::spectrum::colour::XyzWeights;
+use crate::spectrum::photometry::{correlated_colour_temperature, illuminance_lux};
 use crate::Result;
 use rayon::prelude::*;
 use serde::Serialize;
@@ -89,6 +91,16 @@ pub struct SunProduct {
     pub direct_normal_irradiance_w_m2_nm: Vec<f64>,
     pub diffuse_horizontal_irradiance_w_m2_nm: Vec<f64>,
     pub global_horizontal_irradiance_w_m2_nm: Vec<f64>,
+    /// Photopic illuminance on a horizontal surface from the whole sky and sun, lux (CIE,
+    /// K_m = 683 lm/W; integrated over the requested wavelengths, see `meta.colour_note`).
+    pub global_horizontal_illuminance_lux: f64,
+    /// The sky's part of it (diffuse), lux.
+    pub diffuse_horizontal_illuminance_lux: f64,
+    /// Correlated colour temperature of the global horizontal light, K (CIE 015:2018 §9.5;
+    /// `null` when it is dark or farther than Duv 0.05 from the Planckian locus).
+    pub global_correlated_colour_temperature_k: Option<f64>,
+    /// Signed distance of that light from the Planckian locus in CIE 1960 (u, v).
+    pub global_duv: Option<f64>,
     pub error_estimate: ErrorEstimate,
     pub timing_ms: f64,
     pub meta: ProductMeta,
@@ -324,7 +336,13 @@ impl Engine {
             .collect();
         let stages = Self::plan(spec, &shared.medium);
         let meta = self.meta(&shared, spec, warm, start, stages);
+        let nm = &m.wavelengths_nm;
+        let cct = correlated_colour_temperature(XyzWeights::new(nm).xyz(&ghi));
         Ok(SunProduct {
+            global_horizontal_illuminance_lux: illuminance_lux(nm, &ghi),
+            diffuse_horizontal_illuminance_lux: illuminance_lux(nm, &dhi),
+            global_correlated_colour_temperature_k: cct.map(|c| c.kelvin),
+            global_duv: cct.map(|c| c.duv),
             wavelengths_nm: m.wavelengths_nm.clone(),
             sun_elevation_deg: spec.sun.sun_elevation_deg,
             observer_altitude_m: spec.observer_altitude_m,

@@ -122,7 +122,7 @@ enum Format {
 
 #[derive(Args, Clone)]
 struct CommonArgs {
-    /// Sun elevation above the horizon, degrees (sun: −10…90, others: −18…90) [default: 30].
+    /// Sun elevation above the horizon, degrees (−18…90) [default: 30].
     #[arg(long, allow_hyphen_values = true)]
     sun_elevation_deg: Option<String>,
     /// Latitude, degrees (with --longitude and --time instead of --sun-elevation-deg).

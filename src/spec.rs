@@ -151,7 +151,7 @@ pub type SolarPositionFn = fn(f64, f64, &str) -> Result<(f64, f64)>;
 
 impl CommonSpec {
     /// Builds the common spec; `min_sun_elevation_deg` is the product's lower limit
-    /// (−10° for `sun`, −18° for the others).
+    /// (−18° for every product).
     pub fn from_params(p: &RequestParams, min_sun_elevation_deg: f64) -> Result<Self> {
         let atmosphere = resolve_atmosphere(p.atmosphere.as_deref())?;
         let wavelengths_nm = match &p.wavelengths {

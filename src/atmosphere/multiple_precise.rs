@@ -14,6 +14,8 @@
 //! Orders are added until the last one contributes less than `tolerance` (0.1 %) of the total
 //! radiance. Products integrate J_ms = Σ_{n≥2} J_n along their own rays at full resolution,
 //! beside exact single scattering, so the table only has to resolve the smooth multiple part.
+//! Tables are interpolated in ln J, Catmull–Rom in sun zenith, so that the steep fall of J across
+//! the terminator is followed in twilight (issue 14; see [`lookup_j`]).
 
 use super::geometry::{horizon_mu, safe_sqrt};
 use super::integrate::{integrate_ray, NoSource, RaySample, Scratch, Source, Terms};
@@ -74,10 +76,11 @@ pub struct Convergence {
 pub struct PreciseMultipleScattering {
     grid: Grid,
     n_l: usize,
-    /// `[cell][λ]`, scattering source of orders ≥ 2, m⁻¹ sr⁻¹ per unit solar irradiance.
-    j_ms: Vec<f64>,
-    /// `[i_mu_s][λ]`, sky irradiance on the ground per unit solar irradiance.
-    ground_sky: Vec<f64>,
+    /// `[cell][λ]`, ln of the scattering source of orders ≥ 2, m⁻¹ sr⁻¹ per unit solar
+    /// irradiance (−∞ where it is zero).
+    ln_j_ms: Vec<f64>,
+    /// `[i_mu_s][λ]`, ln of the sky irradiance on the ground per unit solar irradiance.
+    ln_ground_sky: Vec<f64>,
     pub convergence: Convergence,
 }
 
@@ -196,15 +199,48 @@ fn upward_cosine_weights(grid: &Grid) -> Vec<f64> {
     w
 }
 
-/// A source made of one order's J table and the previous order's ground irradiance.
+/// A source made of one order's J table and the previous order's ground irradiance, both as ln.
 struct OrderSource<'a> {
     grid: &'a Grid,
     n_l: usize,
-    j: &'a [f64],
-    ground: &'a [f64],
+    ln_j: &'a [f64],
+    ln_ground: &'a [f64],
 }
 
-fn lookup_j(grid: &Grid, n_l: usize, j: &[f64], s: &RaySample, out: &mut [f64]) {
+/// Catmull–Rom weights and node indices for position `(i, f)` on a grid of `n` nodes (end
+/// nodes repeated at the edges).
+fn catmull_rom(i: usize, f: f64, n: usize) -> ([usize; 4], [f64; 4]) {
+    let (f2, f3) = (f * f, f * f * f);
+    (
+        [i.saturating_sub(1), i, (i + 1).min(n - 1), (i + 2).min(n - 1)],
+        [
+            0.5 * (-f3 + 2.0 * f2 - f),
+            0.5 * (3.0 * f3 - 5.0 * f2 + 2.0),
+            0.5 * (-3.0 * f3 + 4.0 * f2 + f),
+            0.5 * (f3 - f2),
+        ],
+    )
+}
+
+/// Natural logarithm of every table entry (−∞ for zeros): the tables are interpolated in
+/// ln J (see [`lookup_j`]).
+fn ln_table(j: &[f64]) -> Vec<f64> {
+    j.par_iter()
+        .map(|&v| if v > 0.0 { v.ln() } else { f64::NEG_INFINITY })
+        .collect()
+}
+
+/// Interpolates a J table stored as ln J at a ray sample, adding J to `out[λ]`.
+///
+/// Across the terminator J falls by about an order of magnitude per table step in sun zenith
+/// (the lower atmosphere then sees only light scattered from the lit air above and towards the
+/// sun), so linear interpolation of J overestimates it between nodes: by 30–100 % in the sky
+/// away from the sun at −2° to −9° (issue 14). ln J is smooth through the terminator and close to
+/// linear beyond it, so the table is interpolated in ln J: Catmull–Rom in sun zenith (exact for
+/// an exponential decay, third order where ln J bends at the terminator), multilinear in radius
+/// and direction (where ln J is close to linear too: J ∝ air density in r). Where a corner is
+/// zero (deep twilight, ln J = −∞) the interpolation falls back to multilinear in J.
+fn lookup_j(grid: &Grid, n_l: usize, ln_j: &[f64], s: &RaySample, out: &mut [f64]) {
     let theta_s = s.mu_s.clamp(-1.0, 1.0).acos();
     if theta_s > grid.theta_s_max {
         return;
@@ -221,41 +257,77 @@ fn lookup_j(grid: &Grid, n_l: usize, j: &[f64], s: &RaySample, out: &mut [f64]) 
     };
     let (ip, fp) = Grid::centred_pos(cos_phi.acos(), grid.s.n_phi);
     let (n_mu_s, n_mu, n_phi) = (grid.s.n_mu_s, grid.s.n_mu, grid.s.n_phi);
+    let (nodes_s, w_s) = catmull_rom(is, fs, n_mu_s);
+    let mut acc = [0.0f64; crate::spectrum::wavelengths::MAX_WAVELENGTHS];
+    let acc = &mut acc[..n_l];
+    let mut corners = [(0usize, 0.0f64); 8];
+    let mut k = 0;
     for (a, wa) in [(ir, 1.0 - fr), (ir + 1, fr)] {
-        for (b, wb) in [(is, 1.0 - fs), (is + 1, fs)] {
-            for (c, wc) in [(im, 1.0 - fm), (im + 1, fm)] {
-                for (e, we) in [(ip, 1.0 - fp), (ip + 1, fp)] {
-                    let w = wa * wb * wc * we;
-                    if w == 0.0 {
-                        continue;
-                    }
-                    let base = (((a * n_mu_s + b) * n_mu + c) * n_phi + e) * n_l;
-                    for i in 0..n_l {
-                        out[i] += w * j[base + i];
-                    }
+        for (c, wc) in [(im, 1.0 - fm), (im + 1, fm)] {
+            for (e, we) in [(ip, 1.0 - fp), (ip + 1, fp)] {
+                corners[k] = ((a * n_mu_s * n_mu + c) * n_phi + e, wa * wc * we);
+                k += 1;
+            }
+        }
+    }
+    // Stride of one sun-zenith node in the flat index.
+    let stride_s = n_mu * n_phi;
+    for &(base, w) in &corners {
+        if w == 0.0 {
+            continue;
+        }
+        for (&b, &ws) in nodes_s.iter().zip(&w_s) {
+            if ws == 0.0 {
+                continue;
+            }
+            let row = &ln_j[(base + b * stride_s) * n_l..][..n_l];
+            for (a, v) in acc.iter_mut().zip(row) {
+                *a += w * ws * v;
+            }
+        }
+    }
+    for i in 0..n_l {
+        if acc[i].is_finite() {
+            out[i] += acc[i].exp();
+        } else {
+            // A zero corner: multilinear in J.
+            for &(base, w) in &corners {
+                if w == 0.0 {
+                    continue;
+                }
+                for (b, wb) in [(is, 1.0 - fs), (is + 1, fs)] {
+                    out[i] += w * wb * ln_j[(base + b * stride_s) * n_l + i].exp();
                 }
             }
         }
     }
 }
 
-fn lookup_ground(grid: &Grid, n_l: usize, table: &[f64], mu_s: f64, out: &mut [f64]) {
+/// Sky irradiance on the ground from a table stored as ln E over sun zenith (Catmull–Rom in
+/// ln E, as [`lookup_j`]; linear in E where a node is zero).
+fn lookup_ground(grid: &Grid, n_l: usize, ln_table: &[f64], mu_s: f64, out: &mut [f64]) {
     let theta_s = mu_s.clamp(-1.0, 1.0).acos();
     if theta_s > grid.theta_s_max {
         return;
     }
     let (is, fs) = grid_pos(theta_s / grid.theta_s_max, grid.s.n_mu_s);
+    let (nodes, w) = catmull_rom(is, fs, grid.s.n_mu_s);
     for i in 0..n_l {
-        out[i] += table[is * n_l + i] * (1.0 - fs) + table[(is + 1) * n_l + i] * fs;
+        let v: f64 = (0..4).map(|q| w[q] * ln_table[nodes[q] * n_l + i]).sum();
+        out[i] += if v.is_finite() {
+            v.exp()
+        } else {
+            ln_table[is * n_l + i].exp() * (1.0 - fs) + ln_table[(is + 1) * n_l + i].exp() * fs
+        };
     }
 }
 
 impl Source for OrderSource<'_> {
     fn add_scattering(&self, s: &RaySample, out: &mut [f64]) {
-        lookup_j(self.grid, self.n_l, self.j, s, out);
+        lookup_j(self.grid, self.n_l, self.ln_j, s, out);
     }
     fn add_ground_sky_irradiance(&self, mu_s: f64, out: &mut [f64]) {
-        lookup_ground(self.grid, self.n_l, self.ground, mu_s, out);
+        lookup_ground(self.grid, self.n_l, self.ln_ground, mu_s, out);
     }
 }
 
@@ -410,11 +482,12 @@ impl PreciseMultipleScattering {
             let j_n = compute_j(&l_n);
             let j_ms_elapsed = t_j.elapsed().as_secs_f64() * 1e3;
             let t_l = std::time::Instant::now();
+            let (ln_jn, ln_en) = (ln_table(&j_n), ln_table(&e_n));
             let source = OrderSource {
                 grid: &grid,
                 n_l,
-                j: &j_n,
-                ground: &e_n,
+                ln_j: &ln_jn,
+                ln_ground: &ln_en,
             };
             l_n = compute_l(
                 &source,
@@ -445,8 +518,8 @@ impl PreciseMultipleScattering {
         Self {
             grid,
             n_l,
-            j_ms,
-            ground_sky,
+            ln_j_ms: ln_table(&j_ms),
+            ln_ground_sky: ln_table(&ground_sky),
             convergence: Convergence {
                 orders,
                 last_order_fraction: *fractions.last().unwrap_or(&0.0),
@@ -458,9 +531,9 @@ impl PreciseMultipleScattering {
 
 impl Source for PreciseMultipleScattering {
     fn add_scattering(&self, s: &RaySample, out: &mut [f64]) {
-        lookup_j(&self.grid, self.n_l, &self.j_ms, s, out);
+        lookup_j(&self.grid, self.n_l, &self.ln_j_ms, s, out);
     }
     fn add_ground_sky_irradiance(&self, mu_s: f64, out: &mut [f64]) {
-        lookup_ground(&self.grid, self.n_l, &self.ground_sky, mu_s, out);
+        lookup_ground(&self.grid, self.n_l, &self.ln_ground_sky, mu_s, out);
     }
 }
