@@ -38,6 +38,41 @@ pub fn stated_relative_error(method: MsMethod) -> f64 {
     }
 }
 
+/// Sun elevation below which a `fast` request is computed with the precise tables instead: the
+/// fast method's measured error against the spherical Monte Carlo exceeds 10 % there (−6°: up to
+/// 54 % low, −9°: 81 %, −12°: 96 %; tests/atmosphere_twilight.rs), issue 14 point 3.
+pub const FAST_TWILIGHT_LIMIT_DEG: f64 = -4.0;
+
+/// Bound on the relative sky-radiance error of `method` at `sun_elevation_deg`, measured against
+/// DISORT (sun ≥ 30°, tests/atmosphere_validation.rs) and the spherical-shell Monte Carlo
+/// (sun 10° to −12°, observers at 0, 10 and 400 km, 440–680 nm, albedo 0 and 0.3,
+/// tests/atmosphere_twilight.rs); keep these in step with those tests. Below −12° nothing is
+/// validated and the −12° figure is given.
+pub fn stated_twilight_error(method: MsMethod, sun_elevation_deg: f64) -> f64 {
+    let e = sun_elevation_deg;
+    match method {
+        MsMethod::Precise if e >= 0.0 => 0.02,
+        MsMethod::Precise if e >= -6.0 => 0.04,
+        MsMethod::Precise => 0.10,
+        MsMethod::Fast if e >= 30.0 => stated_relative_error(MsMethod::Fast),
+        MsMethod::Fast if e >= 0.0 => 0.10,
+        MsMethod::Fast if e >= FAST_TWILIGHT_LIMIT_DEG => 0.11,
+        // Computed with the precise tables (see [`effective_method`]).
+        MsMethod::Fast => stated_twilight_error(MsMethod::Precise, e),
+        MsMethod::None => 1.0,
+    }
+}
+
+/// The multiple-scattering method a spec is computed with: `fast` below
+/// [`FAST_TWILIGHT_LIMIT_DEG`] runs on the precise tables, where the fast method's measured error
+/// exceeds 10 %; otherwise the requested one.
+pub fn effective_method(spec: &CommonSpec) -> MsMethod {
+    match spec.method {
+        MsMethod::Fast if spec.sun.sun_elevation_deg < FAST_TWILIGHT_LIMIT_DEG => MsMethod::Precise,
+        m => m,
+    }
+}
+
 /// Error estimate attached to every product.
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct ErrorEstimate {
@@ -52,8 +87,9 @@ pub struct ErrorEstimate {
     pub last_order_fraction: Option<f64>,
     /// Where `relative_error` comes from.
     pub basis: &'static str,
-    /// Whether this request lies inside the validated range (sun elevation ≥ 30°); outside it
-    /// `relative_error` is the validated figure, not a bound, and `caveat` says why.
+    /// Whether this request lies inside the validated range (sun elevation ≥ −12°: spherical
+    /// Monte Carlo to 10°, DISORT from 30°); outside it `relative_error` is the nearest validated
+    /// figure, not a bound, and `caveat` says why.
     pub validated: bool,
     #[serde(skip_serializing_if = "Option::is_none")]
     pub caveat: Option<&'static str>,
@@ -209,13 +245,14 @@ impl Engine {
         shared: &'a SharedTables,
         spec: &CommonSpec,
     ) -> (RadianceEvaluator<'a>, bool) {
-        let warm = match spec.method {
+        let method = effective_method(spec);
+        let warm = match method {
             MsMethod::Precise => shared.has_precise(),
             MsMethod::Fast => shared.has_fast(),
             MsMethod::None => true,
         };
         if !warm {
-            self.count(match spec.method {
+            self.count(match method {
                 MsMethod::Precise => "precise",
                 _ => "fast",
             });
@@ -225,7 +262,7 @@ impl Engine {
             sun_elevation_rad: spec.sun.sun_elevation_deg.to_radians(),
         };
         (
-            RadianceEvaluator::new(shared, spec.method, observer, spec.quality.steps()),
+            RadianceEvaluator::new(shared, method, observer, spec.quality.steps()),
             warm,
         )
     }
@@ -238,7 +275,8 @@ impl Engine {
         start: Instant,
         stages: Stages,
     ) -> ProductMeta {
-        let (orders, last) = match spec.method {
+        let method = effective_method(spec);
+        let (orders, last) = match method {
             MsMethod::Precise => {
                 let c = &shared.precise().convergence;
                 (Some(c.orders), Some(c.last_order_fraction))
@@ -248,25 +286,35 @@ impl Engine {
         let colour_note = (!spec.wavelengths_nm.adequate_for_colour()).then(|| {
             "wavelength sampling too coarse for accurate colour (needs 400–700 nm with gaps ≤ 40 nm); RGB is indicative".to_string()
         });
-        let validated = spec.sun.sun_elevation_deg >= 30.0 && spec.method != MsMethod::None;
-        let caveat = match (spec.method, spec.sun.sun_elevation_deg) {
-            (MsMethod::Fast, e) if e < 0.0 => Some(
-                "twilight: the fast method's isotropic table under-resolves light scattered from the lit upper atmosphere; it reads 2–3x low at −6° and far lower in deep twilight; use method=precise",
-            ),
+        let e = spec.sun.sun_elevation_deg;
+        let validated = e >= -12.0 && spec.method != MsMethod::None;
+        let caveat = match (method, e) {
             (MsMethod::None, _) => Some("single scattering only: multiple scattering is left out"),
-            (_, e) if e < 30.0 => Some(
-                "outside the DISORT-validated range (sun elevation ≥ 30°); energy conservation is verified for all sun positions",
+            (_, e) if e < -12.0 => Some(
+                "deep twilight (sun below −12°): validated down to −12° only; energy conservation is verified for all sun positions",
+            ),
+            (_, e) if e < 30.0 && e > 10.0 => Some(
+                "between the validated ranges (spherical Monte Carlo to 10°, DISORT from 30°)",
             ),
             _ => None,
+        };
+        let basis = if e >= 30.0 {
+            "max relative deviation from DISORT (Rayleigh, sun zenith 0–60°, view zenith 0–60°, albedo 0 and 0.3), tests/atmosphere_validation.rs"
+        } else {
+            "max relative deviation from the spherical-shell Monte Carlo in this sun-elevation band (Rayleigh, 440–680 nm, albedo 0 and 0.3, observers at 0, 10 and 400 km), tests/atmosphere_twilight.rs"
         };
         ProductMeta {
             engine_version: ENGINE_VERSION,
             error_estimate: ErrorEstimate {
-                method: spec.method,
-                relative_error: stated_relative_error(spec.method),
+                method,
+                relative_error: if e >= 30.0 {
+                    stated_relative_error(method)
+                } else {
+                    stated_twilight_error(method, e)
+                },
                 scattering_orders: orders,
                 last_order_fraction: last,
-                basis: "max relative deviation from DISORT (Rayleigh, sun zenith 0–60°, view zenith 0–60°, albedo 0 and 0.3), tests/atmosphere_validation.rs",
+                basis,
                 validated,
                 caveat,
             },
@@ -289,7 +337,10 @@ impl Engine {
         } else {
             st.ran.push("single scattering: exact ray marching".into());
         }
-        match spec.method {
+        match effective_method(spec) {
+            MsMethod::Precise if spec.method == MsMethod::Fast => st.ran.push(format!(
+                "multiple scattering: successive orders (precise) in place of the requested fast method: below {FAST_TWILIGHT_LIMIT_DEG}° sun elevation the fast method's measured error exceeds 10 % (up to 54 % low at −6°)"
+            )),
             MsMethod::Precise => st
                 .ran
                 .push("multiple scattering: successive orders (precise)".into()),
