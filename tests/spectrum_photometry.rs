@@ -28,7 +28,10 @@ fn illuminance_and_cct_match_colour_science() {
         // Same rule, same CMFs: agreement to rounding (the CMF tables agree to 5e-7).
         let lux = illuminance_lux(&nm, &e);
         let reference = case["illuminance_lux"].as_f64().unwrap();
-        assert!((lux / reference - 1.0).abs() < 1e-5, "{name}: {lux} vs {reference}");
+        assert!(
+            (lux / reference - 1.0).abs() < 1e-5,
+            "{name}: {lux} vs {reference}"
+        );
         // Ohno 2013 in colour-science is a cascade over a tabulated locus, accurate to ~0.1 K at
         // these temperatures (its own 1-nm Planckian cases come back within 0.15 K); ours
         // minimises the distance to the locus directly.
@@ -39,7 +42,13 @@ fn illuminance_and_cct_match_colour_science() {
             "{name}: {lux:.3} lx, CCT {:.2} K (colour-science {t_ref:.2} K), Duv {:.5} ({duv_ref:.5})",
             cct.kelvin, cct.duv
         );
-        assert!((cct.kelvin / t_ref - 1.0).abs() < 1e-4, "{name}: {cct:?} vs {t_ref}");
-        assert!((cct.duv - duv_ref).abs() < 1e-4, "{name}: {cct:?} vs {duv_ref}");
+        assert!(
+            (cct.kelvin / t_ref - 1.0).abs() < 1e-4,
+            "{name}: {cct:?} vs {t_ref}"
+        );
+        assert!(
+            (cct.duv - duv_ref).abs() < 1e-4,
+            "{name}: {cct:?} vs {duv_ref}"
+        );
     }
 }

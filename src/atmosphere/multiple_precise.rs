@@ -212,7 +212,12 @@ struct OrderSource<'a> {
 fn catmull_rom(i: usize, f: f64, n: usize) -> ([usize; 4], [f64; 4]) {
     let (f2, f3) = (f * f, f * f * f);
     (
-        [i.saturating_sub(1), i, (i + 1).min(n - 1), (i + 2).min(n - 1)],
+        [
+            i.saturating_sub(1),
+            i,
+            (i + 1).min(n - 1),
+            (i + 2).min(n - 1),
+        ],
         [
             0.5 * (-f3 + 2.0 * f2 - f),
             0.5 * (3.0 * f3 - 5.0 * f2 + 2.0),
