@@ -16,15 +16,15 @@ Estimator (backward path tracing from the observer along the line of sight d):
   * the segment of the ray inside the shell [t0, t1] is found analytically; the optical depth along
     it is tabulated by the trapezoid rule on 2 x NODES nodes placed quadratically dense towards the
     ray's lowest point (split at the perigee when it lies on the segment);
-  * forced collision: the path always scatters inside the segment with weight x (1 - T(t0, t1)), at
-    a distance drawn from sigma(t) T(t0, t) / (1 - T(t0, t1)) by inverting the tabulated optical
-    depth (only when the segment ends on a reflecting ground does it choose the ground with
-    probability T(t0, t1) instead);
-  * next-event estimation towards a point drawn uniformly on the sun's disk at every scattering
-    vertex: weight x p(d . s) x T_sun x [sun ray misses the ground], T_sun by 48-point
-    Gauss-Legendre per piece (split at the perigee);
-  * at the ground: next-event estimation (a/pi) mu_s T_sun, then a cosine-distributed new direction
-    with weight x a;
+  * single scattering of sunlight along the whole segment is integrated by Q_NODES stratified
+    (jittered, hence unbiased) samples: sigma(t) T(t0, t) p(d . s) T_sun(t), with s drawn uniformly
+    on the sun's disk, T_sun by GL_NODES-point Gauss-Legendre per side of the perigee, and zero when
+    the ground blocks the sun; where the segment ends on a reflecting ground, the ground's reflection
+    of direct sunlight T(t0, t1) (a/pi) mu_s T_sun is added;
+  * the path continues (diffuse light) by a forced collision inside the segment, weight
+    x (1 - T(t0, t1)), distance drawn from sigma(t) T(t0, t) / (1 - T(t0, t1)) by inverting the
+    tabulated optical depth; where the segment ends on a reflecting ground it reaches the ground with
+    probability T(t0, t1) instead and bounces into a cosine-distributed direction with weight x a;
   * new directions from the Rayleigh phase function (exact inverse CDF); Russian roulette below
     weight 0.05; at most 200 orders.
 Every estimate carries its standard error (standard deviation of the per-path totals / sqrt(N)).
