@@ -55,47 +55,57 @@ pub struct Terms {
     pub ground_direct: bool,
 }
 
-/// Samples of a ray inside the atmosphere, in order of increasing `t`.
-pub fn ray_samples(
+/// A point of a ray's quadrature, independent of the sun: what every cell sharing this ray's
+/// origin and direction reuses.
+#[derive(Debug, Clone, Copy)]
+pub struct RayPoint {
+    /// Distance from the ray origin, m.
+    pub t: f64,
+    /// Quadrature weight, m.
+    pub weight: f64,
+    /// Radius, m.
+    pub r: f64,
+    /// Cosine of the local zenith angle of the ray direction.
+    pub mu: f64,
+}
+
+/// Quadrature points of the ray (r, mu) inside the atmosphere, in order of increasing `t`,
+/// written to `out` (cleared first): a midpoint rule in u with t = u² towards the densest end of
+/// each piece, the ray split at its perigee when that lies inside the atmosphere.
+pub fn ray_points(
     medium: &Medium,
     r: f64,
     mu: f64,
-    mu_s: f64,
-    nu: f64,
     steps: usize,
-) -> (Option<Segment>, Vec<RaySample>) {
+    out: &mut Vec<RayPoint>,
+) -> Option<Segment> {
+    out.clear();
     let (bottom, top) = (medium.bottom_radius_m, medium.top_radius_m);
-    let Some(seg) = atmosphere_segment(r, mu, bottom, top) else {
-        return (None, Vec::new());
-    };
+    let seg = atmosphere_segment(r, mu, bottom, top)?;
     let r0 = r.max(bottom);
-    let mut out = Vec::with_capacity(steps * 2);
     let perigee = -r0 * mu;
     let mut push_piece = |a: f64, b: f64, dense_at_start: bool, n: usize| {
         if b <= a {
             return;
         }
         let len = b - a;
-        let mut piece: Vec<RaySample> = (0..n)
-            .map(|i| {
-                let u = (i as f64 + 0.5) / n as f64;
-                let off = len * u * u;
-                let t = if dense_at_start { a + off } else { b - off };
-                let rr = radius_at(r0, mu, t).max(bottom);
-                RaySample {
-                    t,
-                    weight: 2.0 * len * u / n as f64,
-                    r: rr,
-                    mu: clamp_cos((r0 * mu + t) / rr),
-                    mu_s: clamp_cos((r0 * mu_s + t * nu) / rr),
-                    nu,
-                }
-            })
-            .collect();
-        if !dense_at_start {
-            piece.reverse();
+        let point = |i: usize| {
+            let u = (i as f64 + 0.5) / n as f64;
+            let off = len * u * u;
+            let t = if dense_at_start { a + off } else { b - off };
+            let rr = radius_at(r0, mu, t).max(bottom);
+            RayPoint {
+                t,
+                weight: 2.0 * len * u / n as f64,
+                r: rr,
+                mu: clamp_cos((r0 * mu + t) / rr),
+            }
+        };
+        if dense_at_start {
+            out.extend((0..n).map(point));
+        } else {
+            out.extend((0..n).rev().map(point));
         }
-        out.extend(piece);
     };
     if perigee > seg.t_start && perigee < seg.t_end {
         push_piece(seg.t_start, perigee, false, steps);
@@ -105,7 +115,33 @@ pub fn ray_samples(
     } else {
         push_piece(seg.t_start, seg.t_end, false, steps);
     }
-    (Some(seg), out)
+    Some(seg)
+}
+
+/// Samples of a ray inside the atmosphere, in order of increasing `t`.
+pub fn ray_samples(
+    medium: &Medium,
+    r: f64,
+    mu: f64,
+    mu_s: f64,
+    nu: f64,
+    steps: usize,
+) -> (Option<Segment>, Vec<RaySample>) {
+    let mut points = Vec::with_capacity(steps * 2);
+    let seg = ray_points(medium, r, mu, steps, &mut points);
+    let r0 = r.max(medium.bottom_radius_m);
+    let samples = points
+        .iter()
+        .map(|p| RaySample {
+            t: p.t,
+            weight: p.weight,
+            r: p.r,
+            mu: p.mu,
+            mu_s: clamp_cos((r0 * mu_s + p.t * nu) / p.r),
+            nu,
+        })
+        .collect();
+    (seg, samples)
 }
 
 /// Per-ray scratch buffers (one per thread), so the hot loop does not allocate.

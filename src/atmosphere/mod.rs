@@ -3,6 +3,7 @@
 
 pub mod geometry;
 pub mod integrate;
+pub mod kernels;
 pub mod medium;
 pub mod multiple_fast;
 pub mod multiple_precise;

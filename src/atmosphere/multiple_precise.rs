@@ -1,7 +1,7 @@
 //! Precise multiple scattering by successive orders on the spherical planet (the method of
 //! Bruneton & Neyret 2008 / Bruneton 2017, reorganised for CPUs), with ground bounce.
 //!
-//! Fields live on a regular grid over (r, θ_s, θ, φ): radius, sun zenith, view zenith and view
+//! Fields live on a regular grid over (r, θ, θ_s, φ): radius, view zenith, sun zenith and view
 //! azimuth relative to the sun (φ ∈ [0, π] by symmetry). For order n:
 //!
 //! - L_n(x, ω) = ∫ T(x, y) J_n(y, ω) ds + T(x, g)(a/π) E_{n−1}(g) along the ray (L_1 is exact single
@@ -11,15 +11,29 @@
 //!   product with a phase matrix whose entries are the phase function integrated over each
 //!   direction cell (rows normalised to exactly 1, so the angular quadrature conserves energy).
 //!
-//! Orders are added until the last one contributes less than `tolerance` (0.1 %) of the total
-//! radiance. Products integrate J_ms = Σ_{n≥2} J_n along their own rays at full resolution,
-//! beside exact single scattering, so the table only has to resolve the smooth multiple part.
-//! Tables are interpolated in ln J, Catmull–Rom in sun zenith, so that the steep fall of J across
-//! the terminator is followed in twilight (issue 14; see [`lookup_j`]).
+//! Speed comes from the layout, not from coarser physics:
+//!
+//! - All cells with the same (r, θ) share one ray: its points, densities and viewer-to-point
+//!   transmittance T(λ) are computed once per order for the n_θs × n_φ cells of that "ray
+//!   family" (only the sun-dependent lookup differs), and J_n is first interpolated in (r, θ) at
+//!   each point into a (θ_s, φ) slice, so each cell's lookup is bilinear instead of 16-corner;
+//! - the J pass is a dense matrix product over directions, in f32 with f64 sums of orders;
+//! - inner loops run over wavelengths and are compiled for AVX2 + FMA when the CPU has them, with
+//!   a polynomial `exp` (optical depth itself stays f64);
+//! - the series Σ L_n settles to a geometric one (ratio q ≈ 0.46 on `earth`, ≈ 0.69 hazy): once
+//!   the ratio per (sun zenith, λ) is stable, the tail J_n q/(1 − q) is added in closed form
+//!   (Aitken-style geometric extrapolation) instead of marching on. Orders stop when the last
+//!   order adds less than `tolerance` (0.1 %) of the total, or earlier when the estimated error
+//!   of the extrapolated tail (tail × 2|Δq|/(1 − q)) is below it; the tail's size and error
+//!   estimate are reported in [`Convergence`].
+//!
+//! Products integrate J_ms = Σ_{n≥2} J_n along their own rays at full resolution, beside exact
+//! single scattering, so the table only has to resolve the smooth multiple part.
 
-use super::geometry::{horizon_mu, safe_sqrt};
-use super::integrate::{integrate_ray, NoSource, RaySample, Scratch, Source, Terms};
-use super::medium::{Medium, MIE, RAYLEIGH};
+use super::geometry::{horizon_mu, radius_at, safe_sqrt};
+use super::integrate::{ray_points, RayPoint, RaySample, Source};
+use super::kernels::{acos_fast, exp_fast};
+use super::medium::{Medium, CONSTITUENTS, MIE, RAYLEIGH};
 use super::quadrature::grid_pos;
 use super::transmittance::DensityIntegralTable;
 use crate::phase::Phase;
@@ -27,7 +41,7 @@ use rayon::prelude::*;
 use std::f64::consts::PI;
 
 /// Resolution and convergence settings of the precise method.
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
 pub struct PreciseSettings {
     pub n_r: usize,
     pub n_mu_s: usize,
@@ -35,7 +49,8 @@ pub struct PreciseSettings {
     pub n_phi: usize,
     /// Samples per ray segment when integrating J along table rays.
     pub steps: usize,
-    /// Stop when the last order adds less than this fraction of the total.
+    /// Stop when the last order adds less than this fraction of the total, or when the
+    /// estimated error of the extrapolated tail is below it.
     pub tolerance: f64,
     /// Never compute more orders than this.
     pub max_orders: usize,
@@ -43,6 +58,8 @@ pub struct PreciseSettings {
     pub horizon_band_rad: f64,
     /// Sub-rays per cell (per side of the horizon) in that band.
     pub horizon_subrays: usize,
+    /// Whether the geometric tail of the series may end it early (and is added in any case).
+    pub extrapolate_tail: bool,
 }
 
 impl Default for PreciseSettings {
@@ -57,28 +74,36 @@ impl Default for PreciseSettings {
             max_orders: 60,
             horizon_band_rad: 10f64.to_radians(),
             horizon_subrays: 3,
+            extrapolate_tail: true,
         }
     }
 }
 
 /// Convergence record of one precise computation.
-#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct Convergence {
-    /// Number of scattering orders computed (including the first).
+    /// Number of scattering orders computed explicitly (including the first).
     pub orders: usize,
-    /// Fraction of the total that the last order added.
+    /// Fraction of the total that the last computed order added.
     pub last_order_fraction: f64,
-    /// Fraction each order added, in order.
+    /// Fraction each computed order added, in order.
     pub order_fractions: Vec<f64>,
+    /// Fraction of the total radiance that the extrapolated geometric tail adds (0 without one).
+    pub tail_fraction: f64,
+    /// Estimated relative error of the summed series (the tail's error estimate, or the last
+    /// order's fraction × q/(1 − q) when nothing was extrapolated).
+    pub series_error_estimate: f64,
+    /// Mean ratio of the last two orders' radiance (the geometric ratio q of the tail).
+    pub order_ratio: f64,
 }
 
 /// The converged multiple-scattering source J_ms = Σ_{n≥2} J_n and ground sky irradiance.
 pub struct PreciseMultipleScattering {
     grid: Grid,
     n_l: usize,
-    /// `[cell][λ]`, ln of the scattering source of orders ≥ 2, m⁻¹ sr⁻¹ per unit solar
-    /// irradiance (−∞ where it is zero).
-    ln_j_ms: Vec<f64>,
+    /// `[i_r][i_mu][i_mu_s][i_phi][λ]`, ln of the scattering source of orders ≥ 2, m⁻¹ sr⁻¹ per
+    /// unit solar irradiance (−∞ where it is zero; see [`lookup_j`]).
+    ln_j_ms: Vec<f32>,
     /// `[i_mu_s][λ]`, ln of the sky irradiance on the ground per unit solar irradiance.
     ln_ground_sky: Vec<f64>,
     pub convergence: Convergence,
@@ -93,8 +118,23 @@ struct Grid {
 }
 
 impl Grid {
+    fn new(s: PreciseSettings, bottom: f64, top: f64) -> Self {
+        // Beyond 12° below the top's horizon no point of the atmosphere sees any light worth
+        // tabulating.
+        let theta_s_max = (horizon_mu(top, bottom).acos() + 12f64.to_radians()).min(PI);
+        Self {
+            s,
+            bottom,
+            top,
+            theta_s_max,
+        }
+    }
     fn dirs(&self) -> usize {
         self.s.n_mu * self.s.n_phi
+    }
+    /// Cells of one ray family (one (r, θ)): all sun zeniths and azimuths.
+    fn family_cells(&self) -> usize {
+        self.s.n_mu_s * self.s.n_phi
     }
     fn cells(&self) -> usize {
         self.s.n_r * self.s.n_mu_s * self.dirs()
@@ -119,6 +159,7 @@ impl Grid {
         PI * (l as f64 + 0.5) / self.s.n_phi as f64
     }
     /// Interpolation position on a cell-centred grid of `n` nodes over [0, π].
+    #[inline(always)]
     fn centred_pos(angle: f64, n: usize) -> (usize, f64) {
         let f = (angle / PI * n as f64 - 0.5).clamp(0.0, (n - 1) as f64);
         let i = (f.floor() as usize).min(n.saturating_sub(2));
@@ -199,16 +240,9 @@ fn upward_cosine_weights(grid: &Grid) -> Vec<f64> {
     w
 }
 
-/// A source made of one order's J table and the previous order's ground irradiance, both as ln.
-struct OrderSource<'a> {
-    grid: &'a Grid,
-    n_l: usize,
-    ln_j: &'a [f64],
-    ln_ground: &'a [f64],
-}
-
 /// Catmull–Rom weights and node indices for position `(i, f)` on a grid of `n` nodes (end
 /// nodes repeated at the edges).
+#[inline(always)]
 fn catmull_rom(i: usize, f: f64, n: usize) -> ([usize; 4], [f64; 4]) {
     let (f2, f3) = (f * f, f * f * f);
     (
@@ -227,91 +261,11 @@ fn catmull_rom(i: usize, f: f64, n: usize) -> ([usize; 4], [f64; 4]) {
     )
 }
 
-/// Natural logarithm of every table entry (−∞ for zeros): the tables are interpolated in
-/// ln J (see [`lookup_j`]).
-fn ln_table(j: &[f64]) -> Vec<f64> {
-    j.par_iter()
-        .map(|&v| if v > 0.0 { v.ln() } else { f64::NEG_INFINITY })
-        .collect()
-}
-
-/// Interpolates a J table stored as ln J at a ray sample, adding J to `out[λ]`.
-///
-/// Across the terminator J falls by about an order of magnitude per table step in sun zenith
-/// (the lower atmosphere then sees only light scattered from the lit air above and towards the
-/// sun), so linear interpolation of J overestimates it between nodes: by 30–100 % in the sky
-/// away from the sun at −2° to −9° (issue 14). ln J is smooth through the terminator and close to
-/// linear beyond it, so the table is interpolated in ln J: Catmull–Rom in sun zenith (exact for
-/// an exponential decay, third order where ln J bends at the terminator), multilinear in radius
-/// and direction (where ln J is close to linear too: J ∝ air density in r). Where a corner is
-/// zero (deep twilight, ln J = −∞) the interpolation falls back to multilinear in J.
-fn lookup_j(grid: &Grid, n_l: usize, ln_j: &[f64], s: &RaySample, out: &mut [f64]) {
-    let theta_s = s.mu_s.clamp(-1.0, 1.0).acos();
-    if theta_s > grid.theta_s_max {
-        return;
-    }
-    let (ir, fr) = grid_pos(grid.x_r(s.r), grid.s.n_r);
-    let (is, fs) = grid_pos(theta_s / grid.theta_s_max, grid.s.n_mu_s);
-    let theta = s.mu.clamp(-1.0, 1.0).acos();
-    let (im, fm) = Grid::centred_pos(theta, grid.s.n_mu);
-    let denom = safe_sqrt(1.0 - s.mu * s.mu) * safe_sqrt(1.0 - s.mu_s * s.mu_s);
-    let cos_phi = if denom > 1e-9 {
-        ((s.nu - s.mu * s.mu_s) / denom).clamp(-1.0, 1.0)
-    } else {
-        1.0
-    };
-    let (ip, fp) = Grid::centred_pos(cos_phi.acos(), grid.s.n_phi);
-    let (n_mu_s, n_mu, n_phi) = (grid.s.n_mu_s, grid.s.n_mu, grid.s.n_phi);
-    let (nodes_s, w_s) = catmull_rom(is, fs, n_mu_s);
-    let mut acc = [0.0f64; crate::spectrum::wavelengths::MAX_WAVELENGTHS];
-    let acc = &mut acc[..n_l];
-    let mut corners = [(0usize, 0.0f64); 8];
-    let mut k = 0;
-    for (a, wa) in [(ir, 1.0 - fr), (ir + 1, fr)] {
-        for (c, wc) in [(im, 1.0 - fm), (im + 1, fm)] {
-            for (e, we) in [(ip, 1.0 - fp), (ip + 1, fp)] {
-                corners[k] = ((a * n_mu_s * n_mu + c) * n_phi + e, wa * wc * we);
-                k += 1;
-            }
-        }
-    }
-    // Stride of one sun-zenith node in the flat index.
-    let stride_s = n_mu * n_phi;
-    for &(base, w) in &corners {
-        if w == 0.0 {
-            continue;
-        }
-        for (&b, &ws) in nodes_s.iter().zip(&w_s) {
-            if ws == 0.0 {
-                continue;
-            }
-            let row = &ln_j[(base + b * stride_s) * n_l..][..n_l];
-            for (a, v) in acc.iter_mut().zip(row) {
-                *a += w * ws * v;
-            }
-        }
-    }
-    for i in 0..n_l {
-        if acc[i].is_finite() {
-            out[i] += acc[i].exp();
-        } else {
-            // A zero corner: multilinear in J.
-            for &(base, w) in &corners {
-                if w == 0.0 {
-                    continue;
-                }
-                for (b, wb) in [(is, 1.0 - fs), (is + 1, fs)] {
-                    out[i] += w * wb * ln_j[(base + b * stride_s) * n_l + i].exp();
-                }
-            }
-        }
-    }
-}
-
-/// Sky irradiance on the ground from a table stored as ln E over sun zenith (Catmull–Rom in
-/// ln E, as [`lookup_j`]; linear in E where a node is zero).
+/// Sky irradiance on the ground from a table of ln E, `[i_mu_s][λ]`, at sun zenith cosine
+/// `mu_s`: Catmull–Rom in ln E over sun zenith, as [`lookup_j`] (linear in E where a node is 0).
+#[inline(always)]
 fn lookup_ground(grid: &Grid, n_l: usize, ln_table: &[f64], mu_s: f64, out: &mut [f64]) {
-    let theta_s = mu_s.clamp(-1.0, 1.0).acos();
+    let theta_s = acos_fast(mu_s);
     if theta_s > grid.theta_s_max {
         return;
     }
@@ -327,208 +281,714 @@ fn lookup_ground(grid: &Grid, n_l: usize, ln_table: &[f64], mu_s: f64, out: &mut
     }
 }
 
-impl Source for OrderSource<'_> {
-    fn add_scattering(&self, s: &RaySample, out: &mut [f64]) {
-        lookup_j(self.grid, self.n_l, self.ln_j, s, out);
+/// ln of every entry (−∞ for zeros): the tables are interpolated in ln J and ln E.
+fn ln_table_f64(v: &[f64]) -> Vec<f64> {
+    v.iter()
+        .map(|&x| if x > 0.0 { x.ln() } else { f64::NEG_INFINITY })
+        .collect()
+}
+
+/// Cosine of the view azimuth relative to the sun from the three cosines (1 when undefined).
+#[inline(always)]
+fn cos_azimuth(mu: f64, mu_s: f64, nu: f64) -> f64 {
+    let denom = safe_sqrt(1.0 - mu * mu) * safe_sqrt(1.0 - mu_s * mu_s);
+    if denom > 1e-9 {
+        ((nu - mu * mu_s) / denom).clamp(-1.0, 1.0)
+    } else {
+        1.0
     }
-    fn add_ground_sky_irradiance(&self, mu_s: f64, out: &mut [f64]) {
-        lookup_ground(self.grid, self.n_l, self.ln_ground, mu_s, out);
+}
+
+/// J_ms at a ray sample (products), from the table of ln J.
+///
+/// Across the terminator J falls by about an order of magnitude per table step in sun zenith (the
+/// lower atmosphere then sees only light scattered from the lit air above and towards the sun), so
+/// linear interpolation of J overestimates it between nodes: by 30–100 % in the sky away from the
+/// sun at −2° to −9° (issue 14). ln J is smooth through the terminator and close to linear beyond
+/// it, so the table is interpolated in ln J: Catmull–Rom in sun zenith (exact for an exponential
+/// decay, third order where ln J bends at the terminator), multilinear in radius and direction.
+/// Where a corner is zero (deep twilight, ln J = −∞) it falls back to multilinear in J.
+fn lookup_j(grid: &Grid, n_l: usize, ln_j: &[f32], s: &RaySample, out: &mut [f64]) {
+    let theta_s = s.mu_s.clamp(-1.0, 1.0).acos();
+    if theta_s > grid.theta_s_max {
+        return;
+    }
+    let (ir, fr) = grid_pos(grid.x_r(s.r), grid.s.n_r);
+    let (is, fs) = grid_pos(theta_s / grid.theta_s_max, grid.s.n_mu_s);
+    let theta = s.mu.clamp(-1.0, 1.0).acos();
+    let (im, fm) = Grid::centred_pos(theta, grid.s.n_mu);
+    let cos_phi = cos_azimuth(s.mu, s.mu_s, s.nu);
+    let (ip, fp) = Grid::centred_pos(cos_phi.acos(), grid.s.n_phi);
+    let (n_mu_s, n_mu, n_phi) = (grid.s.n_mu_s, grid.s.n_mu, grid.s.n_phi);
+    let (nodes_s, w_s) = catmull_rom(is, fs, n_mu_s);
+    let mut acc = [0.0f64; crate::spectrum::wavelengths::MAX_WAVELENGTHS];
+    let acc = &mut acc[..n_l];
+    let idx =
+        |a: usize, c: usize, b: usize, e: usize| (((a * n_mu + c) * n_mu_s + b) * n_phi + e) * n_l;
+    let mut corners = [(0usize, 0usize, 0usize, 0.0f64); 8];
+    let mut k = 0;
+    for (a, wa) in [(ir, 1.0 - fr), (ir + 1, fr)] {
+        for (c, wc) in [(im, 1.0 - fm), (im + 1, fm)] {
+            for (e, we) in [(ip, 1.0 - fp), (ip + 1, fp)] {
+                corners[k] = (a, c, e, wa * wc * we);
+                k += 1;
+            }
+        }
+    }
+    for &(a, c, e, w) in &corners {
+        if w == 0.0 {
+            continue;
+        }
+        for (&b, &ws) in nodes_s.iter().zip(&w_s) {
+            if ws == 0.0 {
+                continue;
+            }
+            let row = &ln_j[idx(a, c, b, e)..][..n_l];
+            for (x, v) in acc.iter_mut().zip(row) {
+                *x += w * ws * *v as f64;
+            }
+        }
+    }
+    for i in 0..n_l {
+        if acc[i].is_finite() {
+            out[i] += acc[i].exp();
+        } else {
+            for &(a, c, e, w) in &corners {
+                if w == 0.0 {
+                    continue;
+                }
+                for (b, wb) in [(is, 1.0 - fs), (is + 1, fs)] {
+                    out[i] += w * wb * (ln_j[idx(a, c, b, e) + i] as f64).exp();
+                }
+            }
+        }
+    }
+}
+
+/// What one radiance pass integrates.
+#[derive(Clone, Copy)]
+enum PassInput<'a> {
+    /// Order 1: exact single scattering and the ground's reflection of direct sun.
+    Single,
+    /// Order n ≥ 2: the order's scattering source J_n (family layout) and ln of the previous
+    /// order's ground sky irradiance E_{n−1}, `[i_mu_s][λ]`.
+    Order { j: &'a [f32], ground: &'a [f64] },
+}
+
+/// Everything a radiance pass reads.
+struct PassCtx<'a> {
+    grid: &'a Grid,
+    medium: &'a Medium,
+    table: &'a DensityIntegralTable,
+    n_l: usize,
+}
+
+/// Per-thread buffers of the radiance pass.
+struct FamilyScratch {
+    points: Vec<RayPoint>,
+    /// `[point][λ]`: sub-ray weight × quadrature weight × transmittance viewer → point.
+    tw: Vec<f32>,
+    /// `[point]`: relative densities (order 1).
+    rho: Vec<[f64; CONSTITUENTS]>,
+    /// `[i_mu_s][i_phi][λ]`: J at one point's (r, θ), all sun zeniths and azimuths.
+    slice: Vec<f32>,
+    /// `[cell]`: sun zenith cosine at the ray origin, view–sun cosine, √(1 − μ_s²).
+    cell_mu_s: Vec<f64>,
+    cell_nu: Vec<f64>,
+    /// `[cell]`: Rayleigh and Mie phase functions at ν (order 1).
+    cell_phase: Vec<[f64; 2]>,
+    /// `[λ]`: transmittance of the whole ray, a ground irradiance.
+    t_total: Vec<f64>,
+    e: Vec<f64>,
+}
+
+impl FamilyScratch {
+    fn new(grid: &Grid, n_l: usize) -> Self {
+        let fc = grid.family_cells();
+        Self {
+            points: Vec::with_capacity(2 * grid.s.steps),
+            tw: Vec::with_capacity(2 * grid.s.steps * n_l),
+            rho: Vec::with_capacity(2 * grid.s.steps),
+            slice: vec![0.0; fc * n_l],
+            cell_mu_s: vec![0.0; fc],
+            cell_nu: vec![0.0; fc],
+            cell_phase: vec![[0.0; 2]; fc],
+            t_total: vec![0.0; n_l],
+            e: vec![0.0; n_l],
+        }
+    }
+}
+
+/// Sub-rays of the family (r, θ bin `k`) with normalised weights: the cell centre, or near the
+/// local horizon the solid-angle average of sub-rays split at the horizon, since L changes fast
+/// there (long grazing paths on both sides, ground on one).
+fn family_subrays(grid: &Grid, r: f64, k: usize) -> Vec<(f64, f64)> {
+    let s = grid.s;
+    let th = grid.theta(k);
+    let (t0, t1) = (
+        PI * k as f64 / s.n_mu as f64,
+        PI * (k + 1) as f64 / s.n_mu as f64,
+    );
+    let theta_h = horizon_mu(r, grid.bottom).acos();
+    let straddles = theta_h > t0 + 1e-9 && theta_h < t1 - 1e-9;
+    let near = (th - theta_h).abs() < s.horizon_band_rad;
+    if !(straddles || near) {
+        return vec![(th, 1.0)];
+    }
+    let pieces: &[(f64, f64)] = if straddles {
+        &[(t0, theta_h), (theta_h, t1)]
+    } else {
+        &[(t0, t1)]
+    };
+    let sub = s.horizon_subrays;
+    let mut rays = Vec::with_capacity(2 * sub);
+    for &(a, b) in pieces {
+        for q in 0..sub {
+            let theta = a + (b - a) * (q as f64 + 0.5) / sub as f64;
+            rays.push((theta, theta.sin() * (b - a)));
+        }
+    }
+    let wsum: f64 = rays.iter().map(|r| r.1).sum();
+    rays.iter_mut().for_each(|r| r.1 /= wsum);
+    rays
+}
+
+crate::simd_dispatch! {
+    /// Radiance of one order for the ray family (r index `ir`, θ index `k`): writes `out`,
+    /// `[i_mu_s][i_phi][λ]` (zeroed here).
+    fn family_pass(
+        ctx: &PassCtx,
+        input: PassInput,
+        ir: usize,
+        k: usize,
+        sc: &mut FamilyScratch,
+        out: &mut [f32],
+    ) {
+        let (grid, medium, n_l) = (ctx.grid, ctx.medium, ctx.n_l);
+        let s = grid.s;
+        let (n_mu_s, n_phi) = (s.n_mu_s, s.n_phi);
+        let fc = grid.family_cells();
+        let bottom = medium.bottom_radius_m;
+        let r = grid.r(ir);
+        let r0 = r.max(bottom);
+        out.fill(0.0);
+        // Per-λ arrays sliced to exactly n_l, so the λ loops need no bounds checks and vectorise.
+        let ext = [0, 1, 2].map(|c| &medium.extinction_per_m[c][..n_l]);
+        let sig_r = &medium.rayleigh_scattering_per_m[..n_l];
+        let sig_m = &medium.mie_scattering_per_m[..n_l];
+        let albedo = &medium.ground_albedo[..n_l];
+        let t_total = &mut sc.t_total[..n_l];
+        for (theta, w_ray) in family_subrays(grid, r, k) {
+            let (mu, sin_t) = (theta.cos(), theta.sin());
+            for is in 0..n_mu_s {
+                let ts = grid.theta_s(is);
+                let (mu_s0, sin_s0) = (ts.cos(), ts.sin());
+                for l in 0..n_phi {
+                    let c = is * n_phi + l;
+                    let nu = mu * mu_s0 + sin_t * sin_s0 * grid.phi(l).cos();
+                    sc.cell_mu_s[c] = mu_s0;
+                    sc.cell_nu[c] = nu;
+                    if matches!(input, PassInput::Single) {
+                        sc.cell_phase[c] = [Phase::Rayleigh.eval(nu), medium.mie_phase.eval(nu)];
+                    }
+                }
+            }
+            let Some(seg) = ray_points(medium, r, mu, s.steps, &mut sc.points) else {
+                continue;
+            };
+            // Viewer-to-point transmittance at each point's midpoint (f64 density integrals).
+            sc.tw.clear();
+            sc.rho.clear();
+            let mut d_view = [0.0f64; CONSTITUENTS];
+            for p in &sc.points {
+                let rho = medium.densities(p.r);
+                let d_mid: [f64; CONSTITUENTS] =
+                    std::array::from_fn(|c| d_view[c] + 0.5 * rho[c] * p.weight);
+                let w = w_ray * p.weight;
+                sc.tw.extend((0..n_l).map(|i| {
+                    let tau = ext[0][i] * d_mid[0] + ext[1][i] * d_mid[1] + ext[2][i] * d_mid[2];
+                    (w * exp_fast(-tau)) as f32
+                }));
+                for c in 0..CONSTITUENTS {
+                    d_view[c] += rho[c] * p.weight;
+                }
+                sc.rho.push(rho);
+            }
+            for i in 0..n_l {
+                let tau = ext[0][i] * d_view[0] + ext[1][i] * d_view[1] + ext[2][i] * d_view[2];
+                t_total[i] = exp_fast(-tau);
+            }
+            for (pi, p) in sc.points.iter().enumerate() {
+                let tw = &sc.tw[pi * n_l..][..n_l];
+                let sin_mu = safe_sqrt(1.0 - p.mu * p.mu);
+                match input {
+                    PassInput::Single => {
+                        let rho = sc.rho[pi];
+                        for c in 0..fc {
+                            let mu_s = ((r0 * sc.cell_mu_s[c] + p.t * sc.cell_nu[c]) / p.r)
+                                .clamp(-1.0, 1.0);
+                            let vis = ctx.table.sun_visibility(
+                                p.r,
+                                mu_s,
+                                medium.sun_angular_radius_rad,
+                            );
+                            if vis <= 0.0 {
+                                continue;
+                            }
+                            let d = ctx.table.lookup(p.r, mu_s);
+                            let [ph_r, ph_m] = sc.cell_phase[c];
+                            let (ar, am) = (rho[RAYLEIGH] * ph_r * vis, rho[MIE] * ph_m * vis);
+                            let o = &mut out[c * n_l..][..n_l];
+                            for i in 0..n_l {
+                                let tau = ext[0][i] * d[0] + ext[1][i] * d[1] + ext[2][i] * d[2];
+                                let single = (sig_r[i] * ar + sig_m[i] * am) * exp_fast(-tau);
+                                o[i] += tw[i] * single as f32;
+                            }
+                        }
+                    }
+                    PassInput::Order { j, .. } => {
+                        // J at this point's (r, θ) for every (θ_s, φ): bilinear in (r, θ).
+                        let (ia, fa) = grid_pos(grid.x_r(p.r), s.n_r);
+                        let (ic, fcw) = Grid::centred_pos(acos_fast(p.mu), s.n_mu);
+                        let block = |a: usize, c: usize| &j[(a * s.n_mu + c) * fc * n_l..][..fc * n_l];
+                        let (b00, b01, b10, b11) =
+                            (block(ia, ic), block(ia, ic + 1), block(ia + 1, ic), block(ia + 1, ic + 1));
+                        let (w00, w01, w10, w11) = (
+                            ((1.0 - fa) * (1.0 - fcw)) as f32,
+                            ((1.0 - fa) * fcw) as f32,
+                            (fa * (1.0 - fcw)) as f32,
+                            (fa * fcw) as f32,
+                        );
+                        for (x, slice) in sc.slice.iter_mut().enumerate() {
+                            *slice = w00 * b00[x] + w01 * b01[x] + w10 * b10[x] + w11 * b11[x];
+                        }
+                        for c in 0..fc {
+                            let mu_s = ((r0 * sc.cell_mu_s[c] + p.t * sc.cell_nu[c]) / p.r)
+                                .clamp(-1.0, 1.0);
+                            let theta_s = acos_fast(mu_s);
+                            if theta_s > grid.theta_s_max {
+                                continue;
+                            }
+                            let (js, fs) = grid_pos(theta_s / grid.theta_s_max, n_mu_s);
+                            let denom = sin_mu * safe_sqrt(1.0 - mu_s * mu_s);
+                            let cos_phi = if denom > 1e-9 {
+                                ((sc.cell_nu[c] - p.mu * mu_s) / denom).clamp(-1.0, 1.0)
+                            } else {
+                                1.0
+                            };
+                            let (jp, fp) = Grid::centred_pos(acos_fast(cos_phi), n_phi);
+                            // Catmull–Rom in ln J over sun zenith (see `lookup_j`), linear in
+                            // azimuth; linear in J where a node is zero.
+                            let (nodes, cw) = catmull_rom(js, fs, n_mu_s);
+                            let o = &mut out[c * n_l..][..n_l];
+                            for i in 0..n_l {
+                                let mut v = 0.0f64;
+                                for (e, we) in [(jp, 1.0 - fp), (jp + 1, fp)] {
+                                    let at = |b: usize| sc.slice[(b * n_phi + e) * n_l + i] as f64;
+                                    let vals = nodes.map(at);
+                                    v += we * if vals.iter().all(|&x| x > 0.0) {
+                                        (0..4).map(|q| cw[q] * vals[q].ln()).sum::<f64>().exp()
+                                    } else {
+                                        at(js) * (1.0 - fs) + at(js + 1) * fs
+                                    };
+                                }
+                                o[i] += tw[i] * v as f32;
+                            }
+                        }
+                    }
+                }
+            }
+            if !seg.hits_ground {
+                continue;
+            }
+            // Lambertian ground at the ray's end: (a/π)(E_direct + E_sky), attenuated.
+            let r_end = radius_at(r0, mu, seg.t_end).max(bottom);
+            for c in 0..fc {
+                let mu_s_g = ((r0 * sc.cell_mu_s[c] + seg.t_end * sc.cell_nu[c]) / r_end)
+                    .clamp(-1.0, 1.0);
+                sc.e.fill(0.0);
+                match input {
+                    PassInput::Single => {
+                        if mu_s_g <= -0.02 {
+                            continue;
+                        }
+                        let vis =
+                            ctx.table.sun_visibility(bottom, mu_s_g, medium.sun_angular_radius_rad);
+                        if vis <= 0.0 {
+                            continue;
+                        }
+                        let d = ctx.table.lookup(bottom, mu_s_g);
+                        let e = &mut sc.e[..n_l];
+                        for i in 0..n_l {
+                            let tau = ext[0][i] * d[0] + ext[1][i] * d[1] + ext[2][i] * d[2];
+                            e[i] = mu_s_g.max(0.0) * exp_fast(-tau) * vis;
+                        }
+                    }
+                    PassInput::Order { ground, .. } => {
+                        lookup_ground(grid, n_l, ground, mu_s_g, &mut sc.e)
+                    }
+                }
+                let o = &mut out[c * n_l..][..n_l];
+                let e = &sc.e[..n_l];
+                for i in 0..n_l {
+                    o[i] += (w_ray * t_total[i] * albedo[i] / PI * e[i]) as f32;
+                }
+            }
+        }
+    }
+}
+
+/// Width of the J kernel's column blocks (one AVX2 register of f32).
+const LANES: usize = 8;
+
+/// Wavelength count padded to whole column blocks.
+fn padded(n_l: usize) -> usize {
+    n_l.div_ceil(LANES) * LANES
+}
+
+/// Output rows the J kernel accumulates at once (8 accumulators with Mie, 4 without).
+const ROWS: usize = 4;
+
+crate::simd_dispatch! {
+    /// J of the next order for every cell of radius index `ir` (`out`: `[i_mu][i_mu_s][i_phi][λ]`)
+    /// from one order's radiance there (`l`, same layout): the phase matrices (directions ×
+    /// directions) times the radiance over directions (directions × (sun zeniths × λ)), a dense
+    /// matrix product blocked ROWS × LANES, then the scattering coefficients at this radius.
+    /// `lin` is scratch of `dirs × n_mu_s × padded(n_l)`.
+    fn scattering_density_at_radius(
+        grid: &Grid,
+        n_l: usize,
+        phase_r: &[f32],
+        phase_m: &[f32],
+        scale_r: &[f32],
+        scale_m: &[f32],
+        l: &[f32],
+        lin: &mut [f32],
+        out: &mut [f32],
+    ) {
+        let s = grid.s;
+        let dirs = grid.dirs();
+        let n_lp = padded(n_l);
+        let width = s.n_mu_s * n_lp;
+        let with_mie = scale_m.iter().any(|&v| v != 0.0);
+        // Gather [direction][sun zenith][λ (padded with zeros)].
+        lin.fill(0.0);
+        for d in 0..dirs {
+            let (k, ph) = (d / s.n_phi, d % s.n_phi);
+            for is in 0..s.n_mu_s {
+                let src = &l[((k * s.n_mu_s + is) * s.n_phi + ph) * n_l..][..n_l];
+                lin[d * width + is * n_lp..][..n_l].copy_from_slice(src);
+            }
+        }
+        let lin = &lin[..dirs * width];
+        let mut o0 = 0;
+        while o0 < dirs {
+            let rows = ROWS.min(dirs - o0);
+            let pr: [&[f32]; ROWS] =
+                std::array::from_fn(|b| &phase_r[(o0 + b.min(rows - 1)) * dirs..][..dirs]);
+            let pm: [&[f32]; ROWS] =
+                std::array::from_fn(|b| &phase_m[(o0 + b.min(rows - 1)) * dirs..][..dirs]);
+            for c in 0..width / LANES {
+                let mut ar = [[0.0f32; LANES]; ROWS];
+                let mut am = [[0.0f32; LANES]; ROWS];
+                if with_mie {
+                    for d in 0..dirs {
+                        let src = &lin[d * width + c * LANES..][..LANES];
+                        for b in 0..ROWS {
+                            let (wr, wm) = (pr[b][d], pm[b][d]);
+                            for i in 0..LANES {
+                                ar[b][i] += wr * src[i];
+                                am[b][i] += wm * src[i];
+                            }
+                        }
+                    }
+                } else {
+                    for d in 0..dirs {
+                        let src = &lin[d * width + c * LANES..][..LANES];
+                        for b in 0..ROWS {
+                            let wr = pr[b][d];
+                            for i in 0..LANES {
+                                ar[b][i] += wr * src[i];
+                            }
+                        }
+                    }
+                }
+                let (is, l0) = ((c * LANES) / n_lp, (c * LANES) % n_lp);
+                let n = LANES.min(n_l.saturating_sub(l0));
+                for b in 0..rows {
+                    let o = o0 + b;
+                    let (ko, lo) = (o / s.n_phi, o % s.n_phi);
+                    let dst = &mut out[((ko * s.n_mu_s + is) * s.n_phi + lo) * n_l + l0..][..n];
+                    for i in 0..n {
+                        dst[i] = scale_r[l0 + i] * ar[b][i] + scale_m[l0 + i] * am[b][i];
+                    }
+                }
+            }
+            o0 += rows;
+        }
+    }
+}
+
+/// Geometric extrapolation state: per (sun zenith, λ) sums of the last orders' radiance.
+struct Series {
+    n_mu_s: usize,
+    n_l: usize,
+    /// Running total of all computed orders, `[i_mu_s][λ]`.
+    total: Vec<f64>,
+    /// Sums of the last three orders (oldest first), `[i_mu_s][λ]`.
+    last: Vec<Vec<f64>>,
+    /// How many of the stored orders are multiple-scattering orders (n ≥ 2).
+    multiple: usize,
+}
+
+impl Series {
+    fn push(&mut self, sums: Vec<f64>, multiple: bool) {
+        self.total.iter_mut().zip(&sums).for_each(|(t, s)| *t += s);
+        self.last.push(sums);
+        if self.last.len() > 3 {
+            self.last.remove(0);
+        }
+        if multiple {
+            self.multiple += 1;
+        }
+    }
+    /// Ratio of the last two orders per (sun zenith, λ), when both are multiple orders and
+    /// the ratio is usable for a geometric tail (0 < q < 0.98).
+    fn ratio(&self, back: usize) -> Option<Vec<Option<f64>>> {
+        let n = self.last.len();
+        if self.multiple < back + 2 || n < back + 2 {
+            return None;
+        }
+        let (a, b) = (&self.last[n - 2 - back], &self.last[n - 1 - back]);
+        Some(
+            a.iter()
+                .zip(b)
+                .map(|(&a, &b)| (a > 0.0 && b > 0.0 && b / a < 0.98).then(|| b / a))
+                .collect(),
+        )
+    }
+    /// (tail, error estimate, mean ratio) as fractions of the total, for a geometric tail
+    /// after the last order: tail_x = S_x q/(1 − q); its error is estimated as
+    /// tail_x · 2|q − q_prev|/(1 − q) (the ratio's drift over the tail), summed over x.
+    fn tail(&self) -> Option<(f64, f64, f64, Vec<f64>)> {
+        let q = self.ratio(0)?;
+        let q_prev = self.ratio(1)?;
+        let last = self.last.last()?;
+        let total: f64 = self.total.iter().sum();
+        if total <= 0.0 {
+            return None;
+        }
+        let (mut tail, mut err, mut qsum, mut wsum) = (0.0, 0.0, 0.0, 0.0);
+        let mut factors = vec![0.0; self.n_mu_s * self.n_l];
+        for x in 0..factors.len() {
+            match (q[x], q_prev[x]) {
+                (Some(qx), Some(qp)) => {
+                    let t = last[x] * qx / (1.0 - qx);
+                    factors[x] = qx / (1.0 - qx);
+                    tail += t;
+                    err += t * (2.0 * (qx - qp).abs() / (1.0 - qx)).min(1.0);
+                    qsum += qx * last[x];
+                    wsum += last[x];
+                }
+                // No usable ratio: no tail there; everything past this order counts as error.
+                _ => err += last[x],
+            }
+        }
+        let q_mean = if wsum > 0.0 { qsum / wsum } else { 0.0 };
+        Some((tail / total, err / total, q_mean, factors))
     }
 }
 
 impl PreciseMultipleScattering {
-    /// Computes orders of scattering until convergence.
+    /// Computes orders of scattering until convergence (see the module documentation).
     pub fn new(medium: &Medium, table: &DensityIntegralTable, s: PreciseSettings) -> Self {
-        let (bottom, top) = (medium.bottom_radius_m, medium.top_radius_m);
-        // Beyond 12° below the top's horizon no point of the atmosphere sees any light worth
-        // tabulating.
-        let theta_s_max = (horizon_mu(top, bottom).acos() + 12f64.to_radians()).min(PI);
-        let grid = Grid {
-            s,
-            bottom,
-            top,
-            theta_s_max,
-        };
+        let grid = Grid::new(s, medium.bottom_radius_m, medium.top_radius_m);
         let n_l = medium.len();
-        let dirs = grid.dirs();
-        let slab = dirs * n_l;
-        let phase = phase_matrices(&grid, medium.mie_phase);
+        let fc = grid.family_cells();
+        let family_len = fc * n_l;
+        let per_r = s.n_mu * family_len;
+        let [phase_r, phase_m] = phase_matrices(&grid, medium.mie_phase)
+            .map(|m| m.iter().map(|&v| v as f32).collect::<Vec<f32>>());
         let up_w = upward_cosine_weights(&grid);
+        let ctx = PassCtx {
+            grid: &grid,
+            medium,
+            table,
+            n_l,
+        };
 
-        // Radiance of one order on every cell, given a source and which direct terms to include.
-        let compute_l = |source: &dyn Source, terms: Terms| -> Vec<f64> {
-            let mut l = vec![0.0; grid.cells() * n_l];
-            l.par_chunks_mut(n_l).enumerate().for_each_init(
-                || (Scratch::new(n_l), vec![0.0; n_l]),
-                |(scratch, tr), (cell, out)| {
-                    let e = cell % dirs;
-                    let rs = cell / dirs;
-                    let (ir, is) = (rs / s.n_mu_s, rs % s.n_mu_s);
-                    let r = grid.r(ir);
-                    let k = e / s.n_phi;
-                    let (ts, th, ph) = (grid.theta_s(is), grid.theta(k), grid.phi(e % s.n_phi));
-                    let mu_s = ts.cos();
-                    let ray =
-                        |theta: f64, scratch: &mut Scratch, out: &mut [f64], tr: &mut [f64]| {
-                            let mu = theta.cos();
-                            let nu = mu * mu_s + theta.sin() * ts.sin() * ph.cos();
-                            integrate_ray(
-                                medium, table, source, terms, r, mu, mu_s, nu, s.steps, scratch,
-                                out, tr, None,
-                            );
-                        };
-                    // A cell the horizon cuts holds ground on one side and sky on the other: its
-                    // value is the solid-angle average of sub-rays on both sides, not the centre's.
-                    let (t0, t1) = (
-                        PI * k as f64 / s.n_mu as f64,
-                        PI * (k + 1) as f64 / s.n_mu as f64,
-                    );
-                    let theta_h = horizon_mu(r, bottom).acos();
-                    // Near the local horizon, L changes fast (long grazing paths on both sides,
-                    // ground on one): the cell value is the solid-angle average of sub-rays,
-                    // split at the horizon, instead of the value at the cell centre.
-                    let straddles = theta_h > t0 + 1e-9 && theta_h < t1 - 1e-9;
-                    let near = (th - theta_h).abs() < s.horizon_band_rad;
-                    if straddles || near {
-                        let pieces: &[(f64, f64)] = if straddles {
-                            &[(t0, theta_h), (theta_h, t1)]
-                        } else {
-                            &[(t0, t1)]
-                        };
-                        let sub = s.horizon_subrays;
-                        let mut acc = vec![0.0; n_l];
-                        let mut wsum = 0.0;
-                        for &(a, b) in pieces {
-                            for q in 0..sub {
-                                let theta = a + (b - a) * (q as f64 + 0.5) / sub as f64;
-                                let w = theta.sin() * (b - a);
-                                ray(theta, scratch, out, tr);
-                                for i in 0..n_l {
-                                    acc[i] += w * out[i];
-                                }
-                                wsum += w;
-                            }
-                        }
-                        for i in 0..n_l {
-                            out[i] = acc[i] / wsum;
-                        }
-                    } else {
-                        ray(th, scratch, out, tr);
-                    }
-                },
+        // Radiance of one order on every cell, family by family.
+        let radiance = |input: PassInput| -> Vec<f32> {
+            let mut l = vec![0.0f32; grid.cells() * n_l];
+            l.par_chunks_mut(family_len).enumerate().for_each_init(
+                || FamilyScratch::new(&grid, n_l),
+                |sc, (f, out)| family_pass(&ctx, input, f / s.n_mu, f % s.n_mu, sc, out),
             );
             l
         };
-        // Sky irradiance on the ground from one order's radiance at r = bottom.
-        let ground_of = |l: &[f64]| -> Vec<f64> {
+        // Sky irradiance on the ground from one order's radiance at r = bottom, `[i_mu_s][λ]`.
+        let ground_of = |l: &[f32]| -> Vec<f64> {
             let mut e = vec![0.0; s.n_mu_s * n_l];
-            for is in 0..s.n_mu_s {
-                let base = is * slab;
-                for (d, w) in up_w.iter().enumerate() {
-                    if *w == 0.0 {
-                        continue;
-                    }
-                    for i in 0..n_l {
-                        e[is * n_l + i] += w * l[base + d * n_l + i];
+            for k in 0..s.n_mu {
+                for is in 0..s.n_mu_s {
+                    for ph in 0..s.n_phi {
+                        let w = up_w[k * s.n_phi + ph];
+                        if w == 0.0 {
+                            continue;
+                        }
+                        let src = &l[((k * s.n_mu_s + is) * s.n_phi + ph) * n_l..][..n_l];
+                        for i in 0..n_l {
+                            e[is * n_l + i] += w * src[i] as f64;
+                        }
                     }
                 }
             }
             e
         };
-        // J of the next order from one order's radiance: per (r, θ_s) slab, a matrix product.
-        let compute_j = |l: &[f64]| -> Vec<f64> {
-            let mut j = vec![0.0; grid.cells() * n_l];
-            j.par_chunks_mut(slab).enumerate().for_each_init(
-                || vec![0.0; 2 * n_l],
-                |acc, (rs, out)| {
-                    let ir = rs / s.n_mu_s;
-                    let rho = medium.densities(grid.r(ir));
-                    let lin = &l[rs * slab..(rs + 1) * slab];
-                    for o in 0..dirs {
-                        acc.fill(0.0);
-                        let (pr, pm) = (
-                            &phase[0][o * dirs..(o + 1) * dirs],
-                            &phase[1][o * dirs..(o + 1) * dirs],
-                        );
-                        for d in 0..dirs {
-                            let (wr, wm) = (pr[d], pm[d]);
-                            let src = &lin[d * n_l..(d + 1) * n_l];
-                            for i in 0..n_l {
-                                acc[i] += wr * src[i];
-                                acc[n_l + i] += wm * src[i];
-                            }
-                        }
-                        for i in 0..n_l {
-                            out[o * n_l + i] =
-                                medium.rayleigh_scattering_per_m[i] * rho[RAYLEIGH] * acc[i]
-                                    + medium.mie_scattering_per_m[i] * rho[MIE] * acc[n_l + i];
+        // Sums of one order's radiance per (sun zenith, λ).
+        let sums_of = |l: &[f32]| -> Vec<f64> {
+            let parts: Vec<Vec<f64>> = l
+                .par_chunks(per_r)
+                .map(|block| {
+                    let mut out = vec![0.0; s.n_mu_s * n_l];
+                    for fam in block.chunks(family_len) {
+                        for (x, v) in fam.iter().enumerate() {
+                            out[(x / (s.n_phi * n_l)) * n_l + x % n_l] += *v as f64;
                         }
                     }
+                    out
+                })
+                .collect();
+            let mut out = vec![0.0; s.n_mu_s * n_l];
+            for p in parts {
+                out.iter_mut().zip(&p).for_each(|(o, v)| *o += v);
+            }
+            out
+        };
+        // J of the next order from one order's radiance, radius by radius.
+        let scattering_density = |l: &[f32]| -> Vec<f32> {
+            let mut j = vec![0.0f32; grid.cells() * n_l];
+            j.par_chunks_mut(per_r).enumerate().for_each_init(
+                || vec![0.0f32; grid.dirs() * s.n_mu_s * padded(n_l)],
+                |lin, (ir, out)| {
+                    let rho = medium.densities(grid.r(ir));
+                    let scale_r: Vec<f32> = medium
+                        .rayleigh_scattering_per_m
+                        .iter()
+                        .map(|&v| (v * rho[RAYLEIGH]) as f32)
+                        .collect();
+                    let scale_m: Vec<f32> = medium
+                        .mie_scattering_per_m
+                        .iter()
+                        .map(|&v| (v * rho[MIE]) as f32)
+                        .collect();
+                    scattering_density_at_radius(
+                        &grid,
+                        n_l,
+                        &phase_r,
+                        &phase_m,
+                        &scale_r,
+                        &scale_m,
+                        &l[ir * per_r..][..per_r],
+                        lin,
+                        out,
+                    );
                 },
             );
             j
         };
 
-        let mut l_n = compute_l(
-            &NoSource,
-            Terms {
-                single: true,
-                ground_direct: true,
-            },
+        let t0 = std::time::Instant::now();
+        let mut l_n = radiance(PassInput::Single);
+        tracing::debug!(
+            radiance_ms = t0.elapsed().as_secs_f64() * 1e3,
+            "precise order 1"
         );
-        let mut total: f64 = l_n.iter().sum();
+        let mut series = Series {
+            n_mu_s: s.n_mu_s,
+            n_l,
+            total: vec![0.0; s.n_mu_s * n_l],
+            last: Vec::new(),
+            multiple: 0,
+        };
+        series.push(sums_of(&l_n), false);
         let mut e_n = ground_of(&l_n);
         let mut ground_sky = e_n.clone();
-        let mut j_ms = vec![0.0; grid.cells() * n_l];
+        let mut j_ms = vec![0.0f32; grid.cells() * n_l];
+        let mut j_n = Vec::new();
         let mut fractions = vec![1.0];
         let mut orders = 1;
         while orders < s.max_orders {
             let t_j = std::time::Instant::now();
-            let j_n = compute_j(&l_n);
+            j_n = scattering_density(&l_n);
             let j_ms_elapsed = t_j.elapsed().as_secs_f64() * 1e3;
             let t_l = std::time::Instant::now();
-            let (ln_jn, ln_en) = (ln_table(&j_n), ln_table(&e_n));
-            let source = OrderSource {
-                grid: &grid,
-                n_l,
-                ln_j: &ln_jn,
-                ln_ground: &ln_en,
-            };
-            l_n = compute_l(
-                &source,
-                Terms {
-                    single: false,
-                    ground_direct: false,
-                },
-            );
+            let ln_en = ln_table_f64(&e_n);
+            l_n = radiance(PassInput::Order {
+                j: &j_n,
+                ground: &ln_en,
+            });
             e_n = ground_of(&l_n);
             j_ms.par_iter_mut().zip(&j_n).for_each(|(a, b)| *a += b);
             ground_sky.iter_mut().zip(&e_n).for_each(|(a, b)| *a += b);
-            let added: f64 = l_n.iter().sum();
-            total += added;
+            let sums = sums_of(&l_n);
+            let added: f64 = sums.iter().sum();
+            series.push(sums, true);
             orders += 1;
+            let total: f64 = series.total.iter().sum();
             let fraction = if total > 0.0 { added / total } else { 0.0 };
+            fractions.push(fraction);
+            let tail_error = series.tail().map(|t| t.1);
             tracing::debug!(
                 order = orders,
                 fraction,
+                tail_error,
                 scattering_density_ms = j_ms_elapsed,
                 radiance_ms = t_l.elapsed().as_secs_f64() * 1e3,
                 "precise multiple scattering order"
             );
-            fractions.push(fraction);
-            if fraction < s.tolerance {
+            if fraction < s.tolerance
+                || (s.extrapolate_tail && tail_error.is_some_and(|e| e < s.tolerance))
+            {
                 break;
             }
         }
+        let last_fraction = *fractions.last().unwrap_or(&0.0);
+        let (tail_fraction, series_error_estimate, order_ratio) = match series.tail() {
+            Some((tail, err, q, factors)) if s.extrapolate_tail => {
+                // Σ_{m>n} J_m ≈ J_n q/(1 − q), Σ_{m>n} E_m ≈ E_n q/(1 − q), per (θ_s, λ).
+                j_ms.par_chunks_mut(family_len)
+                    .zip(j_n.par_chunks(family_len))
+                    .for_each(|(acc, jn)| {
+                        for (x, (a, b)) in acc.iter_mut().zip(jn).enumerate() {
+                            let is = x / (s.n_phi * n_l);
+                            *a += b * factors[is * n_l + x % n_l] as f32;
+                        }
+                    });
+                for (x, (g, e)) in ground_sky.iter_mut().zip(&e_n).enumerate() {
+                    *g += e * factors[x];
+                }
+                (tail / (1.0 + tail), err / (1.0 + tail), q)
+            }
+            Some((_, _, q, _)) => (0.0, last_fraction * q / (1.0 - q), q),
+            None => (0.0, last_fraction, 0.0),
+        };
+        let ln_j_ms = j_ms
+            .par_iter()
+            .map(|&v| if v > 0.0 { v.ln() } else { f32::NEG_INFINITY })
+            .collect();
         Self {
             grid,
             n_l,
-            ln_j_ms: ln_table(&j_ms),
-            ln_ground_sky: ln_table(&ground_sky),
+            ln_j_ms,
+            ln_ground_sky: ln_table_f64(&ground_sky),
             convergence: Convergence {
                 orders,
-                last_order_fraction: *fractions.last().unwrap_or(&0.0),
+                last_order_fraction: last_fraction,
                 order_fractions: fractions,
+                tail_fraction,
+                series_error_estimate,
+                order_ratio,
             },
         }
     }
