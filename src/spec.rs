@@ -127,10 +127,12 @@ impl ProductKind {
             })
     }
 
-    /// Lowest sun elevation the product accepts, degrees: the end of astronomical twilight for
-    /// every product (below it no sunlight reaches the sky; issue 14).
+    /// Lowest sun elevation the product accepts, degrees.
     pub fn min_sun_elevation_deg(self) -> f64 {
-        -18.0
+        match self {
+            Self::Sun => -10.0,
+            _ => -18.0,
+        }
     }
 }
 

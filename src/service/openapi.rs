@@ -45,7 +45,7 @@ pub const ROUTES: &[Route] = &[
 pub const PRODUCT_PARAMETERS: [(&str, &str); 16] = [
     (
         "sun_elevation_deg",
-        "Sun elevation, degrees (−18…90; default 30)",
+        "Sun elevation, degrees (sun −10…90, others −18…90; default 30)",
     ),
     (
         "latitude_deg",

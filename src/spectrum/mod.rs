@@ -2,7 +2,6 @@
 
 pub mod colour;
 pub mod data;
-pub mod photometry;
 pub mod tabulated;
 pub mod wavelengths;
 
