@@ -20,13 +20,14 @@ const QUERY: &str = "method=fast&quality=draft&wavelengths=440,550&sun_elevation
 /// them): every attribute, the wavelengths, and every layer's planes bit for bit. (The encoder may
 /// write tiles in a different order from one run to the next, so the comparison is of the
 /// decoded content, which is every byte of meaning in the file.)
-fn without_timing(
-    bytes: &[u8],
-) -> (
+/// (attributes, wavelength bits, (layer, plane bits)) of an artifact.
+type Content = (
     Vec<(String, String)>,
     Vec<u32>,
     Vec<(String, Vec<Vec<u32>>)>,
-) {
+);
+
+fn without_timing(bytes: &[u8]) -> Content {
     let image = decode_exr(bytes).unwrap();
     for name in TIMING_ATTRIBUTES {
         assert!(image.attribute(name).is_some(), "{name} missing");

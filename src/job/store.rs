@@ -9,6 +9,9 @@ use crate::store::{files, write_atomic};
 use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
 
+/// A stored job that cannot be read: (job id, why).
+pub type Unreadable = (String, String);
+
 /// Job lifecycle.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
@@ -108,8 +111,9 @@ impl JobStore {
         Ok(write_atomic(&self.job_dir(id).join("status.json"), &text)?)
     }
 
-    /// Every stored job; a job that cannot be read is reported in the second list with why.
-    pub fn load_all(&self) -> Result<(Vec<StoredJob>, Vec<(String, String)>), JobError> {
+    /// Every stored job; a job that cannot be read is reported in the second list, as
+    /// (job id, why).
+    pub fn load_all(&self) -> Result<(Vec<StoredJob>, Vec<Unreadable>), JobError> {
         let mut jobs = Vec::new();
         let mut unreadable = Vec::new();
         for (id, dir) in files::subdirectories(&self.dir)? {
