@@ -89,7 +89,8 @@ fn settings(scene: &FrameScene, method: Method, spp: usize) -> RenderSettings {
 /// towards and away from the sun), path tracer within 2 % plus three of its own standard errors
 /// (1–2.6 % at these sample counts: forward-peaked sun paths are heavy-tailed); the fast
 /// method's deviation is printed (stated in the report; its coarse multiple-scattering grid
-/// cannot resolve a 4-voxel-thick slab).
+/// cannot resolve a 4-voxel-thick slab: its cells are 5 voxels wide, thicker than the slab;
+/// measured worst −52.5 %, asserted below 60 %).
 #[test]
 fn slab_reflection_matches_disort() {
     let data: Value =
@@ -194,6 +195,7 @@ fn slab_reflection_matches_disort() {
         }
     }
     println!("fast method: worst |deviation| {:.1} %", worst_fast * 100.0);
+    assert!(worst_fast < 0.6, "fast method vs DISORT: worst {worst_fast}");
     for (rp, sigma) in worst_pt {
         assert!(
             rp.abs() < 0.02 + 3.0 * sigma,
@@ -214,9 +216,9 @@ fn cloud_matches_mitsuba() {
         .map(|&m| m > 0.0)
         .collect();
     // Fast method (whole frame, δ-M/TMS field, P2): measured block NRMSE and bias, sun 6.0 % and
-    // −3.0 %, sky 12.8 % and +6.6 %; bounds are those plus a margin for the photon noise.
+    // −3.0 %, sky 8.5 % and +5.6 %; bounds are those plus a margin for the photon noise.
     for (case, nrmse_bound, fast_block_bound, fast_bias_bound) in [
-        ("sky", 0.03, 0.15, 0.085),
+        ("sky", 0.03, 0.10, 0.075),
         (
             "sun",
             (0.03f64.powi(2) + 0.027f64.powi(2)).sqrt(),
@@ -313,7 +315,7 @@ fn cloud_matches_mitsuba() {
 /// (b) continued, fast method only (whole 160×120 frames, about a second each): the Mitsuba cases
 /// thin cloud, g = 0.5, albedo 0.9 and sun + sky, with bounds = measured block NRMSE and bias plus
 /// a margin (measured: thin 8.1 % / −4.8 %, g 0.5 6.6 % / −2.7 %, albedo 0.9 7.2 % / −2.7 %,
-/// sun + sky 17.6 % / +12.4 %).
+/// sun + sky 10.2 % / +7.5 %).
 #[test]
 fn fast_cloud_matches_mitsuba_cases() {
     let mask: Vec<bool> = npy("cloud_mitsuba_mask.npy")
@@ -324,7 +326,7 @@ fn fast_cloud_matches_mitsuba_cases() {
         ("sun_thin", 0.10, 0.065),
         ("sun_g05", 0.085, 0.045),
         ("sun_albedo09", 0.09, 0.045),
-        ("sunsky", 0.20, 0.145),
+        ("sunsky", 0.125, 0.095),
     ] {
         let bytes = std::fs::read(format!("{DATA}/validation-cloud-{case}.json")).unwrap();
         let scene = FrameScene::parse(&bytes).unwrap();
