@@ -195,7 +195,10 @@ fn slab_reflection_matches_disort() {
         }
     }
     println!("fast method: worst |deviation| {:.1} %", worst_fast * 100.0);
-    assert!(worst_fast < 0.6, "fast method vs DISORT: worst {worst_fast}");
+    assert!(
+        worst_fast < 0.6,
+        "fast method vs DISORT: worst {worst_fast}"
+    );
     for (rp, sigma) in worst_pt {
         assert!(
             rp.abs() < 0.02 + 3.0 * sigma,

@@ -507,17 +507,17 @@ impl<'a> Prepared<'a> {
                 (0..n_l).any(|l| self.sun_visibility(p, l) < 1.0)
             });
             if shadowed {
-            s_eff.iter_mut().for_each(|v| *v = 0.0);
-            for kstep in 0..n {
-                let t_next = tx * (kstep + 1) as f64 / n as f64;
-                let t_mid = tx * (kstep as f64 + 0.5) / n as f64;
-                aerial.eval(d, t_next, &mut t_tmp, &mut s_next);
-                let p = o + d * t_mid;
-                for l in 0..n_l {
-                    s_eff[l] += self.sun_visibility(p, l) * (s_next[l] - s_prev[l]);
+                s_eff.iter_mut().for_each(|v| *v = 0.0);
+                for kstep in 0..n {
+                    let t_next = tx * (kstep + 1) as f64 / n as f64;
+                    let t_mid = tx * (kstep as f64 + 0.5) / n as f64;
+                    aerial.eval(d, t_next, &mut t_tmp, &mut s_next);
+                    let p = o + d * t_mid;
+                    for l in 0..n_l {
+                        s_eff[l] += self.sun_visibility(p, l) * (s_next[l] - s_prev[l]);
+                    }
+                    std::mem::swap(&mut s_prev, &mut s_next);
                 }
-                std::mem::swap(&mut s_prev, &mut s_next);
-            }
             }
         }
         for l in 0..n_l {
