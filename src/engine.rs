@@ -5,7 +5,7 @@ use crate::atmosphere::integrate::{Recorder, Scratch};
 use crate::atmosphere::multiple_fast::FastSettings;
 use crate::atmosphere::multiple_precise::PreciseSettings;
 use crate::atmosphere::quadrature::gauss_legendre;
-use crate::atmosphere::shared::SharedTables;
+use crate::atmosphere::shared::{Persistence, SharedTables, TableEvents, TableStore};
 use crate::atmosphere::sky::{
     dome_table, horizon_axis_deg, horizon_dip_deg, DomeTable, MsMethod, Observer, RadianceEvaluator,
 };
@@ -141,6 +141,9 @@ pub struct Engine {
     /// for the same medium wait for one build instead of each building their own.
     shared: Mutex<Vec<(String, SharedSlot)>>,
     counters: Mutex<HashMap<&'static str, u64>>,
+    /// Where precise tables are kept between processes (`store::tables`), if anywhere.
+    table_store: Option<Arc<dyn TableStore>>,
+    table_events: Arc<TableEvents>,
 }
 
 impl Engine {
@@ -148,12 +151,32 @@ impl Engine {
         Self::default()
     }
 
+    /// An engine that loads precise tables from `store` when it has them and saves those it builds.
+    pub fn with_table_store(store: Arc<dyn TableStore>) -> Self {
+        Self {
+            table_store: Some(store),
+            ..Self::default()
+        }
+    }
+
     /// How many times each table kind was built (for tests and metrics).
     pub fn build_count(&self, what: &'static str) -> u64 {
+        if what == "precise" {
+            return TableEvents::get(&self.table_events.precise_built);
+        }
         self.counters
             .lock()
             .map(|c| c.get(what).copied().unwrap_or(0))
             .unwrap_or(0)
+    }
+
+    /// How many precise tables were loaded from the table store, and how many stored ones were
+    /// refused and rebuilt (for tests and metrics).
+    pub fn table_loads(&self) -> (u64, u64) {
+        (
+            TableEvents::get(&self.table_events.precise_loaded),
+            TableEvents::get(&self.table_events.precise_rejected),
+        )
     }
 
     fn count(&self, what: &'static str) {
@@ -178,7 +201,7 @@ impl Engine {
                 Some(pos) => cache.remove(pos).1,
                 None => SharedSlot::default(),
             };
-            cache.push((key, slot.clone()));
+            cache.push((key.clone(), slot.clone()));
             if cache.len() > SHARED_CAPACITY {
                 cache.remove(0);
             }
@@ -187,7 +210,14 @@ impl Engine {
         let tables = slot.get_or_init(|| {
             self.count("density");
             let (fast, precise) = settings_for(spec.quality);
-            Arc::new(SharedTables::new(medium, fast, precise))
+            Arc::new(
+                SharedTables::new(medium, fast, precise).with_persistence(Persistence {
+                    store: self.table_store.clone(),
+                    medium_key: key,
+                    engine_version: ENGINE_VERSION,
+                    events: self.table_events.clone(),
+                }),
+            )
         });
         Ok(tables.clone())
     }
@@ -202,11 +232,9 @@ impl Engine {
             MsMethod::Fast => shared.has_fast(),
             MsMethod::None => true,
         };
-        if !warm {
-            self.count(match spec.method {
-                MsMethod::Precise => "precise",
-                _ => "fast",
-            });
+        // Precise builds are counted where they happen (a stored table may be loaded instead).
+        if !warm && spec.method == MsMethod::Fast {
+            self.count("fast");
         }
         let observer = Observer {
             altitude_m: spec.observer_altitude_m,

@@ -64,7 +64,7 @@ enum Command {
     ///
     /// Example: skybake bench sky-fast sun --format json
     Bench {
-        /// Benchmarks to run (default: all). Known: sun, sky-fast, sky-precise, ca-step, spheres,
+        /// Benchmarks to run (default: all). Known: sun, sky-fast, sky-precise, precise-tables, ca-step, spheres,
         /// metaballs, fractal, satellite, solar-position, store.
         names: Vec<String>,
         #[arg(long, value_enum, default_value_t = Format::Text)]
@@ -122,6 +122,10 @@ enum Format {
 
 #[derive(Args, Clone)]
 struct CommonArgs {
+    /// Neither load nor save shared tables in the cache directory (SKYBAKE_CACHE_DIR or the
+    /// config's cache.dir); build them in this process only.
+    #[arg(long)]
+    no_table_cache: bool,
     /// Sun elevation above the horizon, degrees (sun: −10…90, others: −18…90) [default: 30].
     #[arg(long, allow_hyphen_values = true)]
     sun_elevation_deg: Option<String>,
@@ -232,6 +236,19 @@ fn request_params(c: &CommonArgs) -> Result<RequestParams> {
     })
 }
 
+/// The engine of one CLI call: precise tables come from (and go to) the cache directory unless
+/// `--no-table-cache`, so a second call with the same atmosphere and wavelengths skips the build.
+fn cli_engine(c: &CommonArgs) -> Result<Engine> {
+    if c.no_table_cache {
+        return Ok(Engine::new());
+    }
+    let settings = load_settings(None)?;
+    Ok(match skybake::store::tables::open_table_store(&settings) {
+        Some(store) => Engine::with_table_store(store),
+        None => Engine::new(),
+    })
+}
+
 fn print_json<T: serde::Serialize>(value: &T) -> Result<()> {
     let text =
         serde_json::to_string_pretty(value).map_err(|e| Error::invalid("format", e.to_string()))?;
@@ -262,7 +279,7 @@ fn run_dome(args: &DomeArgs, ground: bool) -> Result<()> {
     let shape = req
         .shape
         .unwrap_or(if ground { GROUND_SHAPE } else { SKY_SHAPE });
-    let engine = Engine::new();
+    let engine = cli_engine(&args.common)?;
     let product = if ground {
         engine.ground(spec, shape, probes)?
     } else {
@@ -381,7 +398,7 @@ fn run(cli: Cli) -> Result<()> {
         }
         Command::Sun(c) => {
             let req = ProductRequest::from_params(ProductKind::Sun, &request_params(&c)?)?;
-            print_json(&Engine::new().sun(&req.spec)?)
+            print_json(&cli_engine(&c)?.sun(&req.spec)?)
         }
         Command::Sky(a) => run_dome(&a, false),
         Command::Ground(a) => run_dome(&a, true),
@@ -398,7 +415,7 @@ fn run(cli: Cli) -> Result<()> {
             let shape = req.shape.unwrap_or(AERIAL_SHAPE);
             let n_d = req.distance_count.unwrap_or(AERIAL_DISTANCE_COUNT);
             let max_d = req.max_distance_m.unwrap_or(AERIAL_MAX_DISTANCE_M);
-            let product = Engine::new().aerial(&spec, shape, n_d, max_d)?;
+            let product = cli_engine(&a.common)?.aerial(&spec, shape, n_d, max_d)?;
             if let Some(path) = &a.output {
                 if path
                     .extension()

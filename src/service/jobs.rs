@@ -824,7 +824,11 @@ pub fn bake(
     }
     std::fs::create_dir_all(out)
         .map_err(|e| ApiError::Internal(format!("cannot create {}: {e}", out.display())))?;
-    let engine = crate::engine::Engine::new();
+    // Precise tables persist in the configured cache directory, shared with the CLI and server.
+    let engine = match crate::store::tables::open_table_store(settings) {
+        Some(store) => crate::engine::Engine::with_table_store(store),
+        None => crate::engine::Engine::new(),
+    };
     let mut summary = BakeSummary {
         total: plan.len(),
         computed: 0,

@@ -6,6 +6,7 @@
 //! - [`checksum`]: the whole-file blake3 checksum embedded in every file skybake writes.
 //! - [`atomic`]: the one function that writes files (temp file, fsync, rename, fsync directory).
 //! - [`cache`]: the content-addressed, size-bounded disk cache with an in-memory LRU in front.
+//! - [`tables`]: the engine's shared tables (precise multiple scattering) kept in that cache.
 //!
 //! ```no_run
 //! use skybake::store::{cache_key, Cache, CacheConfig, SpectralImage};
@@ -26,6 +27,7 @@ pub mod exr;
 pub mod layout;
 mod lru;
 pub mod spectral_image;
+pub mod tables;
 
 pub use atomic::write_atomic;
 pub use bench::{bench_store, StoreBench};
