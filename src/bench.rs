@@ -76,6 +76,14 @@ pub const BENCHMARKS: &[(&str, &str)] = &[
         "100 000 SPA solar positions over a year at one site",
     ),
     (
+        "frame",
+        "lit cloud frame 640×480, 128³ cumulus, sky + ground light + multiple scattering, standard quality, cold and warm",
+    ),
+    (
+        "frame-accuracy",
+        "fast frame method against the path tracer (1024 spp), bench cumulus at 160×120 (slow: minutes)",
+    ),
+    (
         "store",
         "EXR encode/decode/verify and cache put/get, 256×128 px, 16 wavelengths + RGB, zip",
     ),
@@ -261,6 +269,35 @@ pub fn run(names: &[String], cold_runs: usize, warm_runs: usize) -> Result<Vec<B
             }
             "store" => out.extend(bench_store_stages(&entry, warm_runs)?),
             "precise-tables" => out.extend(precise_tables(&desc, cold_runs, warm_runs)?),
+            "frame" => {
+                let runs: Vec<_> = (0..warm_runs.max(1))
+                    .map(|_| crate::render::bench::bench_frame(640, 480))
+                    .collect::<Result<_>>()?;
+                let last = &runs[runs.len() - 1];
+                out.push(entry(
+                    "cold",
+                    runs.len(),
+                    runs.iter().map(|b| b.cold_ms).collect(),
+                    json!({"lighting_ms": last.lighting_cold_ms, "image": [last.width, last.height], "voxels": last.voxels}),
+                ));
+                out.push(entry(
+                    "warm",
+                    runs.len(),
+                    runs.iter().map(|b| b.warm_ms).collect(),
+                    json!({"lighting_ms": last.lighting_warm_ms, "stages_ms": last.warm_stages_ms,
+                           "image": [last.width, last.height], "voxels": last.voxels}),
+                ));
+            }
+            "frame-accuracy" => {
+                let (e, noise, fast_ms, ref_ms) =
+                    crate::render::bench::bench_frame_accuracy(160, 120, 1024)?;
+                out.push(entry(
+                    "run",
+                    1,
+                    vec![fast_ms],
+                    json!({"errors": e, "reference_noise": noise, "reference_ms": ref_ms, "image": [160, 120]}),
+                ));
+            }
             _ => out.extend(atmosphere(name, &desc, cold_runs, warm_runs)?),
         }
     }

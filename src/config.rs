@@ -29,6 +29,13 @@ pub struct ServerSettings {
     pub request_timeout_s: f64,
     pub concurrency_limit: usize,
     pub body_limit_bytes: usize,
+    /// Longest wait for a request's headers, seconds; on a kept-alive connection the wait for the
+    /// next request counts too, so this is also the idle timeout.
+    pub header_read_timeout_s: f64,
+    /// Most open client connections; more are closed as soon as they are accepted.
+    pub max_connections: usize,
+    /// Longest a shutdown waits for open connections and computations, seconds.
+    pub shutdown_grace_s: f64,
 }
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -63,6 +70,13 @@ pub const ENV_VARS: &[(&str, &str, &str)] = &[
     ("SKYBAKE_REQUEST_TIMEOUT_S", "server", "request_timeout_s"),
     ("SKYBAKE_CONCURRENCY_LIMIT", "server", "concurrency_limit"),
     ("SKYBAKE_BODY_LIMIT_BYTES", "server", "body_limit_bytes"),
+    (
+        "SKYBAKE_HEADER_READ_TIMEOUT_S",
+        "server",
+        "header_read_timeout_s",
+    ),
+    ("SKYBAKE_MAX_CONNECTIONS", "server", "max_connections"),
+    ("SKYBAKE_SHUTDOWN_GRACE_S", "server", "shutdown_grace_s"),
     ("SKYBAKE_CACHE_DIR", "cache", "dir"),
     ("SKYBAKE_DISK_BUDGET_BYTES", "cache", "disk_budget_bytes"),
     (
@@ -80,6 +94,23 @@ pub const ENV_VARS: &[(&str, &str, &str)] = &[
     ("SKYBAKE_DEFAULT_WAVELENGTHS", "defaults", "wavelengths"),
     ("SKYBAKE_DEFAULT_QUALITY", "defaults", "quality"),
 ];
+
+/// `SKYBAKE_*` variables that are not settings and so are not refused at start-up: the log filter,
+/// and switches read only by the test suite.
+pub const NON_SETTING_ENV_VARS: &[&str] = &[
+    "SKYBAKE_LOG",
+    "SKYBAKE_EXR_SAMPLE_DIR",
+    "SKYBAKE_REGENERATE_EXAMPLES",
+];
+
+/// The known setting variables, comma-separated, for error messages.
+fn known_env_vars() -> String {
+    ENV_VARS
+        .iter()
+        .map(|(var, _, _)| *var)
+        .collect::<Vec<_>>()
+        .join(", ")
+}
 
 /// Most products a job may hold, whatever the configuration says.
 pub const MAX_JOB_PRODUCTS_LIMIT: usize = 1_000_000;
@@ -142,10 +173,18 @@ impl Settings {
                 })
             })
             .transpose()?;
-        let env: Vec<(String, String)> = ENV_VARS
-            .iter()
-            .filter_map(|(var, _, _)| std::env::var(var).ok().map(|v| (var.to_string(), v)))
-            .collect();
+        // Every SKYBAKE_* variable is taken, so a mistyped one is refused instead of ignored.
+        let mut env: Vec<(String, String)> = Vec::new();
+        for (name, value) in std::env::vars_os() {
+            let Some(name) = name.to_str() else { continue };
+            if !name.starts_with("SKYBAKE_") || NON_SETTING_ENV_VARS.contains(&name) {
+                continue;
+            }
+            let value = value
+                .into_string()
+                .map_err(|_| config_err(name, "not valid UTF-8"))?;
+            env.push((name.to_string(), value));
+        }
         Self::from_layers(text.as_deref(), &env)
     }
 
@@ -160,7 +199,13 @@ impl Settings {
         }
         for (var, text) in env {
             let Some((_, section, key)) = ENV_VARS.iter().find(|(v, _, _)| v == var) else {
-                return Err(config_err(var, "not a known SKYBAKE_* setting"));
+                return Err(config_err(
+                    var,
+                    format!(
+                        "not a known SKYBAKE_* setting (known: {})",
+                        known_env_vars()
+                    ),
+                ));
             };
             let like = value.get(section).and_then(|s| s.get(key));
             let v = env_value(var, text, like)?;
@@ -215,6 +260,21 @@ impl Settings {
                 "server.body_limit_bytes",
                 s.body_limit_bytes,
                 "1024 to 1073741824",
+            ));
+        }
+        for (name, value) in [
+            ("server.header_read_timeout_s", s.header_read_timeout_s),
+            ("server.shutdown_grace_s", s.shutdown_grace_s),
+        ] {
+            if !(value.is_finite() && value > 0.0 && value <= 3600.0) {
+                return Err(Error::out_of_range(name, value, "above 0 to 3600 s"));
+            }
+        }
+        if !(1..=1_000_000).contains(&s.max_connections) {
+            return Err(Error::out_of_range(
+                "server.max_connections",
+                s.max_connections,
+                "1 to 1000000",
             ));
         }
         if self.cache.dir.as_os_str().is_empty() {

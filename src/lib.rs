@@ -8,6 +8,7 @@
 
 pub mod atmosphere;
 pub mod bench;
+pub mod camera;
 pub mod cloud;
 pub mod config;
 pub mod engine;
@@ -15,6 +16,7 @@ pub mod error;
 pub mod export;
 pub mod output;
 pub mod phase;
+pub mod render;
 pub mod service;
 pub mod solar;
 pub mod solar_position;

@@ -18,6 +18,9 @@ pub enum Phase {
     CornetteShanks { g: f64 },
     /// Isotropic, `1/(4π)`.
     Isotropic,
+    /// Seed 000 §3.3 eq 4 with two terms: `(1 − f)·CS(g) + f·Rayleigh`, `f` the Rayleigh fraction
+    /// (the paper's example: 5 % Rayleigh, the rest Cornette-Shanks for the droplets).
+    Mixture { g: f64, rayleigh_fraction: f64 },
 }
 
 impl Phase {
@@ -37,6 +40,32 @@ impl Phase {
                 3.0 / (8.0 * PI) * (1.0 - g * g) * (1.0 + mu * mu) / ((2.0 + g * g) * d * d.sqrt())
             }
             Phase::Isotropic => 1.0 / (4.0 * PI),
+            Phase::Mixture {
+                g,
+                rayleigh_fraction: f,
+            } => (1.0 - f) * Phase::CornetteShanks { g }.eval(mu) + f * Phase::Rayleigh.eval(mu),
+        }
+    }
+
+    /// Mean cosine of the scattering angle, `∫ p(μ) μ dω` (the first Legendre moment): `g` for
+    /// Henyey-Greenstein; for Cornette-Shanks integrated numerically (it is not `g`), 0 for
+    /// Rayleigh and isotropic.
+    pub fn mean_cosine(&self) -> f64 {
+        match *self {
+            Phase::HenyeyGreenstein { g } => g,
+            Phase::Rayleigh | Phase::Isotropic => 0.0,
+            _ => {
+                // Midpoint rule in u with μ = 1 − 2u² (dμ = −4u du), which resolves the forward
+                // peak at μ = 1.
+                let n = 20_000;
+                let mut s = 0.0;
+                for k in 0..n {
+                    let u = (k as f64 + 0.5) / n as f64;
+                    let mu = 1.0 - 2.0 * u * u;
+                    s += self.eval(mu) * mu * 4.0 * u / n as f64;
+                }
+                2.0 * PI * s
+            }
         }
     }
 
@@ -59,6 +88,16 @@ impl Phase {
                 (a - 1.0 / a).clamp(-1.0, 1.0)
             }
             Phase::HenyeyGreenstein { g } => sample_hg(g, u),
+            Phase::Mixture {
+                g,
+                rayleigh_fraction: f,
+            } => {
+                if more() < f {
+                    Phase::Rayleigh.sample_cos(u, more)
+                } else {
+                    Phase::CornetteShanks { g }.sample_cos(u, more)
+                }
+            }
             Phase::CornetteShanks { g } => {
                 // Rejection from HG: CS/HG = 3(1+μ²)/(2(2+g²)) ≤ 3/(2+g²); accept with (1+μ²)/2.
                 let mut mu = sample_hg(g, u);
@@ -115,14 +154,46 @@ mod tests {
     use super::*;
     use rand::{Rng, SeedableRng};
 
-    const ALL: [Phase; 6] = [
+    const ALL: [Phase; 9] = [
         Phase::Rayleigh,
         Phase::Isotropic,
         Phase::HenyeyGreenstein { g: 0.76 },
         Phase::HenyeyGreenstein { g: -0.3 },
         Phase::CornetteShanks { g: 0.7 },
         Phase::CornetteShanks { g: 0.95 },
+        Phase::Mixture {
+            g: 0.85,
+            rayleigh_fraction: 0.05,
+        },
+        Phase::Mixture {
+            g: 0.6,
+            rayleigh_fraction: 0.5,
+        },
+        Phase::HenyeyGreenstein { g: -0.9 },
     ];
+
+    #[test]
+    fn mean_cosine_matches_quadrature() {
+        for p in ALL {
+            let n = 200_000;
+            let h = 2.0 / n as f64;
+            let m: f64 = (0..n)
+                .map(|i| {
+                    let mu = -1.0 + (i as f64 + 0.5) * h;
+                    p.eval(mu) * mu * h
+                })
+                .sum::<f64>()
+                * 2.0
+                * PI;
+            assert!(
+                (p.mean_cosine() - m).abs() < 2e-3,
+                "{p:?}: {} vs {m}",
+                p.mean_cosine()
+            );
+        }
+        // Henyey-Greenstein's mean cosine is g exactly; Cornette-Shanks' is below g (seed 000 eq 5).
+        assert!(Phase::CornetteShanks { g: 0.85 }.mean_cosine() < 0.85);
+    }
 
     #[test]
     fn every_phase_integrates_to_one() {

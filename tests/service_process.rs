@@ -250,4 +250,14 @@ fn invalid_configuration_is_refused_at_start_up() {
         .unwrap();
     assert_eq!(o.status.code(), Some(2));
     assert!(String::from_utf8_lossy(&o.stderr).contains("SKYBAKE_REQUEST_TIMEOUT_S"));
+    // A mistyped variable is refused with the list of known ones, not silently ignored.
+    let o = Command::new(BIN)
+        .args(["serve", "--bind", "127.0.0.1:0"])
+        .env("SKYBAKE_CONCURENCY_LIMIT", "3")
+        .output()
+        .unwrap();
+    assert_eq!(o.status.code(), Some(2));
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(err.contains("SKYBAKE_CONCURENCY_LIMIT"), "{err}");
+    assert!(err.contains("known: SKYBAKE_BIND"), "{err}");
 }

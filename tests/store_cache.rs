@@ -6,7 +6,7 @@ use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicUsize, Ordering};
 use std::sync::Arc;
 
-use skybake::store::layout::{ATTR_ENGINE_VERSION, ATTR_SPEC_JSON};
+use skybake::store::layout::{ATTR_CACHE_KEY, ATTR_ENGINE_VERSION, ATTR_SPEC_JSON};
 use skybake::store::{cache_key, Cache, CacheConfig, SpectralImage, StoreError};
 
 static SCRATCH_COUNTER: AtomicUsize = AtomicUsize::new(0);
@@ -32,8 +32,16 @@ impl Drop for Scratch {
     }
 }
 
-/// A small radiance image whose content depends on `seed`; 16x16 x 2 wavelengths.
+/// A small radiance image whose content depends on `seed`; 16x16 x 2 wavelengths, carrying
+/// its cache key `key(seed)` as every cached product does.
 fn image(seed: u32) -> SpectralImage {
+    let mut image = unbound_image(seed);
+    image.set_attribute(ATTR_CACHE_KEY, key(seed)).unwrap();
+    image
+}
+
+/// [`image`] without the cache key attribute.
+fn unbound_image(seed: u32) -> SpectralImage {
     let plane = |k: u32| -> Vec<f32> {
         (0..256u32)
             .map(|i| {
@@ -246,25 +254,6 @@ fn opening_with_a_smaller_budget_evicts_and_cleans_temp_files() {
 }
 
 #[test]
-fn entry_larger_than_the_budget_is_not_kept() {
-    let scratch = Scratch::new("oversize");
-    let cache = Cache::open(CacheConfig::new(&scratch.0, 100, 100)).unwrap();
-    let bytes = cache.put_image(&key(40), &image(40)).unwrap();
-    assert!(bytes.len() > 100);
-    assert_eq!(cache.get(&key(40)).unwrap(), None);
-    let stats = cache.stats();
-    assert_eq!(
-        (
-            stats.entries_on_disk,
-            stats.entries_in_memory,
-            stats.evictions
-        ),
-        (0, 0, 1)
-    );
-    assert!(cache_files(&scratch.0).is_empty());
-}
-
-#[test]
 fn memory_tier_respects_its_budget() {
     let scratch = Scratch::new("memory");
     let size = cache_key_size(&image(50));
@@ -320,7 +309,16 @@ fn keys_that_are_not_hex_are_refused_and_write_nothing() {
 fn put_bytes_accepts_only_verified_files() {
     let scratch = Scratch::new("put-bytes");
     let cache = disk_only(&scratch.0, 1 << 20);
+    let unbound = skybake::store::encode_exr(&unbound_image(60)).unwrap();
+    assert!(matches!(
+        cache.put_bytes(&key(60), unbound),
+        Err(StoreError::Invalid(_))
+    ));
     let good = skybake::store::encode_exr(&image(60)).unwrap();
+    assert!(matches!(
+        cache.put_bytes(&key(61), good.clone()),
+        Err(StoreError::Invalid(_))
+    ));
     let mut bad = good.clone();
     let middle = bad.len() / 2;
     bad[middle] ^= 1;
@@ -395,4 +393,75 @@ fn cache_can_be_shared_across_threads_and_tasks() {
     assert_send_sync::<Arc<[u8]>>();
     assert_send_sync::<SpectralImage>();
     assert_send_sync::<StoreError>();
+}
+
+#[test]
+fn a_file_under_another_keys_name_is_a_miss_and_counted() {
+    let scratch = Scratch::new("foreign-key");
+    {
+        let cache = disk_only(&scratch.0, 1 << 20);
+        cache.put_image(&key(23), &image(23)).unwrap();
+        cache.put_image(&key(24), &image(24)).unwrap();
+    }
+    // Copy the valid file of key 23 over the one of key 24, then restart.
+    let path = |k: &str| scratch.0.join(&k[..2]).join(format!("{k}.exr"));
+    fs::copy(path(&key(23)), path(&key(24))).unwrap();
+    let cache = disk_only(&scratch.0, 1 << 20);
+    assert!(cache.get(&key(24)).unwrap().is_none());
+    let stats = cache.stats();
+    assert_eq!(stats.key_mismatches, 1);
+    assert_eq!(stats.corrupt_detected, 0);
+    assert!(!path(&key(24)).exists(), "the foreign file is removed");
+    assert!(
+        cache.get(&key(23)).unwrap().is_some(),
+        "the original still hits"
+    );
+    // An image that carries another key is refused at put.
+    let mut other = image(25);
+    other.set_attribute(ATTR_CACHE_KEY, key(26)).unwrap();
+    assert!(matches!(
+        cache.put_image(&key(25), &other),
+        Err(StoreError::Invalid(_))
+    ));
+}
+
+#[test]
+fn a_directory_at_an_entry_path_is_cleared_not_a_permanent_error() {
+    let scratch = Scratch::new("dir-at-path");
+    let cache = disk_only(&scratch.0, 1 << 20);
+    let k = key(70);
+    let path = scratch.0.join(&k[..2]).join(format!("{k}.exr"));
+    // Before the first put: a directory (with content) where the file goes.
+    fs::create_dir_all(path.join("inner")).unwrap();
+    cache.put_image(&k, &image(70)).unwrap();
+    assert!(path.is_file());
+    assert!(cache.get(&k).unwrap().is_some());
+    // After a put: the file replaced by a directory is a miss, and the next put stores again.
+    let cache = disk_only(&scratch.0, 1 << 20);
+    fs::remove_file(&path).unwrap();
+    fs::create_dir_all(path.join("inner")).unwrap();
+    assert!(cache.get(&k).unwrap().is_none());
+    cache.put_image(&k, &image(70)).unwrap();
+    assert!(cache.get(&k).unwrap().is_some());
+}
+
+#[test]
+fn a_product_larger_than_the_disk_budget_is_returned_but_not_stored() {
+    let scratch = Scratch::new("oversize");
+    let small = skybake::store::encode_exr(&image(80)).unwrap().len() as u64;
+    let cache = disk_only(&scratch.0, small + small / 2);
+    cache.put_image(&key(80), &image(80)).unwrap();
+    let big = {
+        let plane: Vec<f32> = (0..64 * 64u32)
+            .map(|i| i.wrapping_mul(2_654_435_761) as f32 * 1e-3)
+            .collect();
+        SpectralImage::emissive(64, 64, &[450.0, 650.0], vec![plane.clone(), plane]).unwrap()
+    };
+    let bytes = cache.put_image(&key(81), &big).unwrap();
+    assert!(bytes.len() as u64 > small + small / 2);
+    assert!(!cache.contains(&key(81)));
+    let stats = cache.stats();
+    assert_eq!(stats.not_stored, 1);
+    assert_eq!(stats.evictions, 0, "the oversized product evicts nothing");
+    assert!(cache.get(&key(80)).unwrap().is_some());
 }

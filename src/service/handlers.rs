@@ -277,6 +277,16 @@ async fn metrics(State(state): State<AppState>) -> Response {
             "Cache files that failed verification (deleted, recomputed).",
             c.corrupt_detected,
         ),
+        (
+            "skybake_cache_key_mismatches_total",
+            "Valid cache files found under a key they do not carry (deleted, recomputed).",
+            c.key_mismatches,
+        ),
+        (
+            "skybake_cache_not_stored_total",
+            "Products served but not stored (larger than the disk budget, or unwritable path).",
+            c.not_stored,
+        ),
     ] {
         counter(&mut out, name, help, v);
     }

@@ -34,6 +34,10 @@ pub struct Metrics {
     pub timeouts: AtomicU64,
     pub response_cache_hits: AtomicU64,
     pub compute_in_flight: AtomicU64,
+    /// Client connections open now.
+    pub connections_open: AtomicU64,
+    /// Connections closed at accept because `server.max_connections` were open.
+    pub connections_refused: AtomicU64,
 }
 
 impl Metrics {
@@ -159,6 +163,18 @@ impl Metrics {
             "skybake_computations_in_flight",
             "Engine computations running now.",
             self.compute_in_flight.load(Ordering::Relaxed),
+        );
+        gauge(
+            out,
+            "skybake_connections_open",
+            "Client connections open now.",
+            self.connections_open.load(Ordering::Relaxed),
+        );
+        counter(
+            out,
+            "skybake_connections_refused_total",
+            "Connections closed at accept because the connection cap was reached.",
+            self.connections_refused.load(Ordering::Relaxed),
         );
     }
 }

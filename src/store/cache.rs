@@ -4,6 +4,12 @@
 //!
 //! - Integrity: every file carries its whole-file blake3 checksum (see [`super::checksum`]); a read
 //!   verifies it, and a file that fails is counted, deleted and reported as a miss, never served.
+//! - Binding: every file carries the key it was stored under (header attribute
+//!   [`ATTR_CACHE_KEY`]); a read checks it, so a valid file copied or renamed under another key is
+//!   counted in [`CacheStats::key_mismatches`], deleted and reported as a miss, never served.
+//! - Robustness: something other than a regular file at an entry's path (a directory, a symlink) is
+//!   removed and treated as a miss; an entry larger than the whole disk budget is returned to the
+//!   caller but not stored ([`CacheStats::not_stored`]).
 //! - Size: the files on disk keep to a byte budget, evicting the least recently used. Access order
 //!   lives in memory and is rebuilt from file modification times when the cache is opened (a disk
 //!   hit refreshes the file's mtime), so a restarted service reuses and ages the same files.
@@ -23,7 +29,10 @@ use std::time::SystemTime;
 use serde::Serialize;
 
 use super::atomic::{is_temp_file_name, write_atomic};
-use super::exr::{decode_exr, encode_exr_with, read_bounded, ExrCompression};
+use super::exr::{
+    decode_exr, encode_exr_with, header_text_attribute, read_bounded, ExrCompression,
+};
+use super::layout::ATTR_CACHE_KEY;
 use super::lru::LruIndex;
 use super::{checksum, SpectralImage, StoreError};
 
@@ -105,6 +114,11 @@ pub struct CacheStats {
     pub memory_evictions: u64,
     /// Files that failed verification (each deleted and reported as a miss).
     pub corrupt_detected: u64,
+    /// Valid files found under a key other than the one they carry (each deleted, a miss).
+    pub key_mismatches: u64,
+    /// Entries returned but not stored: larger than the disk budget, or their path could not be
+    /// cleared of something that is not a regular file.
+    pub not_stored: u64,
     /// Cache files on disk.
     pub entries_on_disk: u64,
     /// Bytes of cache files on disk.
@@ -256,6 +270,16 @@ impl Cache {
             }
         };
 
+        if !self.clear_non_file(&path) {
+            // Something that is not a regular file sits at the path and could not be removed.
+            let mut state = self.lock();
+            if state.disk.peek(key) == Some(&generation) {
+                state.disk.remove(key);
+            }
+            state.stats.misses += 1;
+            self.refresh_sizes(&mut state);
+            return Ok(None);
+        }
         let bytes = match read_bounded(&path) {
             Ok(bytes) => bytes,
             Err(StoreError::Io { source, .. }) if source.kind() == ErrorKind::NotFound => {
@@ -277,6 +301,20 @@ impl Cache {
             tracing::warn!(key, error = %e, "corrupt cache file removed");
             self.discard_corrupt(key, &path, generation);
             return Ok(None);
+        }
+        match header_text_attribute(&bytes, ATTR_CACHE_KEY) {
+            Ok(Some(carried)) if carried == key => {}
+            Ok(carried) => {
+                tracing::warn!(key, carried = ?carried, "cache file under a foreign key removed");
+                self.lock().stats.key_mismatches += 1;
+                self.discard(key, &path, generation);
+                return Ok(None);
+            }
+            Err(e) => {
+                tracing::warn!(key, error = %e, "corrupt cache file removed");
+                self.discard_corrupt(key, &path, generation);
+                return Ok(None);
+            }
         }
 
         let bytes: Arc<[u8]> = bytes.into();
@@ -321,19 +359,33 @@ impl Cache {
     }
 
     /// Encodes `image` (with the configured compression) and stores it under `key`; returns the file
-    /// bytes (ready to serve).
+    /// bytes (ready to serve). The file carries `key` in its [`ATTR_CACHE_KEY`] attribute: an image
+    /// that already carries one must carry this key; one without gets it added.
     pub fn put_image(&self, key: &str, image: &SpectralImage) -> Result<Arc<[u8]>, StoreError> {
         check_key(key)?;
-        let bytes: Arc<[u8]> = encode_exr_with(image, self.config.compression)?.into();
+        let bytes: Arc<[u8]> = match image.attribute(ATTR_CACHE_KEY) {
+            Some(carried) if carried == key => encode_exr_with(image, self.config.compression)?,
+            Some(carried) => return Err(foreign_key(key, carried)),
+            None => {
+                let mut bound = image.clone();
+                bound.set_attribute(ATTR_CACHE_KEY, key)?;
+                encode_exr_with(&bound, self.config.compression)?
+            }
+        }
+        .into();
         self.store(key, &bytes)?;
         Ok(bytes)
     }
 
-    /// Stores EXR file bytes produced by [`super::encode_exr`] under `key` after decoding them in full, so
-    /// only valid files enter the cache.
+    /// Stores EXR file bytes produced by [`super::encode_exr`] under `key` after decoding them in
+    /// full, so only valid files enter the cache; they must carry `key` in [`ATTR_CACHE_KEY`].
     pub fn put_bytes(&self, key: &str, bytes: Vec<u8>) -> Result<Arc<[u8]>, StoreError> {
         check_key(key)?;
-        decode_exr(&bytes)?;
+        let image = decode_exr(&bytes)?;
+        match image.attribute(ATTR_CACHE_KEY) {
+            Some(carried) if carried == key => {}
+            carried => return Err(foreign_key(key, carried.unwrap_or("no key"))),
+        }
         let bytes: Arc<[u8]> = bytes.into();
         self.store(key, &bytes)?;
         Ok(bytes)
@@ -364,8 +416,15 @@ impl Cache {
     }
 
     /// Writes `bytes` for `key` atomically, then indexes it and evicts to the budgets.
+    /// An entry larger than the whole disk budget, or whose path cannot be cleared of a non-file,
+    /// is not stored (and counted in [`CacheStats::not_stored`]); the caller still serves it.
     fn store(&self, key: &str, bytes: &Arc<[u8]>) -> Result<(), StoreError> {
         let path = self.path_for(key)?;
+        if bytes.len() as u64 > self.config.disk_budget_bytes || !self.clear_non_file(&path) {
+            tracing::warn!(key, bytes = bytes.len(), "product served but not stored");
+            self.lock().stats.not_stored += 1;
+            return Ok(());
+        }
         *self.lock().writing.entry(key.to_string()).or_insert(0) += 1;
         let written = write_atomic(&path, bytes);
         let mut state = self.lock();
@@ -388,17 +447,50 @@ impl Cache {
         Ok(())
     }
 
+    /// Removes whatever sits at an entry's path when it is not a regular file (a directory or a
+    /// symlink; the path is built from a validated key inside the cache directory). True when the
+    /// path now holds a regular file or nothing.
+    fn clear_non_file(&self, path: &Path) -> bool {
+        let meta = match fs::symlink_metadata(path) {
+            Ok(meta) => meta,
+            Err(e) => return e.kind() == ErrorKind::NotFound,
+        };
+        if meta.is_file() {
+            return true;
+        }
+        let removed = if meta.is_dir() {
+            fs::remove_dir_all(path)
+        } else {
+            fs::remove_file(path)
+        };
+        match removed {
+            Ok(()) => {
+                tracing::warn!(path = %path.display(), "removed a non-file at a cache path");
+                true
+            }
+            Err(e) => {
+                tracing::warn!(path = %path.display(), error = %e, "cannot clear a cache path");
+                false
+            }
+        }
+    }
+
     /// Counts a corrupt file and deletes it, unless a newer write replaced it meanwhile.
     fn discard_corrupt(&self, key: &str, path: &Path, generation: u64) {
+        self.lock().stats.corrupt_detected += 1;
+        self.discard(key, path, generation);
+    }
+
+    /// Counts a miss and deletes the file, unless a newer write replaced it meanwhile.
+    fn discard(&self, key: &str, path: &Path, generation: u64) {
         let mut state = self.lock();
-        state.stats.corrupt_detected += 1;
         state.stats.misses += 1;
         state.memory.remove(key);
         if state.disk.peek(key) == Some(&generation) && !state.writing.contains_key(key) {
             state.disk.remove(key);
             if let Err(e) = fs::remove_file(path) {
                 if e.kind() != ErrorKind::NotFound {
-                    tracing::warn!(path = %path.display(), error = %e, "cannot delete corrupt cache file");
+                    tracing::warn!(path = %path.display(), error = %e, "cannot delete cache file");
                 }
             }
         }
@@ -454,6 +546,14 @@ impl Cache {
             .lock()
             .unwrap_or_else(|poisoned| poisoned.into_inner())
     }
+}
+
+fn foreign_key(key: &str, carried: &str) -> StoreError {
+    crate::Error::invalid(
+        "cache_key",
+        format!("the image carries cache key {carried}, not {key}"),
+    )
+    .into()
 }
 
 fn read_dir(dir: &Path) -> Result<Vec<fs::DirEntry>, StoreError> {

@@ -147,6 +147,20 @@ pub fn encode_exr_with(
     Ok(bytes)
 }
 
+/// The value of the text attribute `name` in the header of the single-part EXR file `bytes`, read
+/// without decoding any pixels; `None` when the header has no such text attribute.
+pub fn header_text_attribute(bytes: &[u8], name: &str) -> Result<Option<String>, StoreError> {
+    let meta = MetaData::read_from_buffered(Cursor::new(bytes), true)
+        .map_err(|e| StoreError::Exr(format!("header: {e}")))?;
+    let [header] = meta.headers.as_slice() else {
+        return Err(StoreError::Exr("expected exactly one part".into()));
+    };
+    Ok(match header.own_attributes.other.get(&Text::from(name)) {
+        Some(AttributeValue::Text(text)) => Some(text.to_string()),
+        _ => None,
+    })
+}
+
 /// Decodes bytes written by [`encode_exr`]: verifies the embedded checksum, bounds the size from the
 /// header, then reads every channel. Errors with [`StoreError::Corrupt`] on a checksum failure and
 /// [`StoreError::Exr`] on anything that is not a skybake spectral EXR.

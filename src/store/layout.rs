@@ -33,6 +33,9 @@ pub const ATTR_ENGINE_VERSION: &str = "skybakeEngineVersion";
 pub const ATTR_ERROR_ESTIMATE_JSON: &str = "skybakeErrorEstimate";
 /// Attribute key for the compute time in milliseconds (decimal text).
 pub const ATTR_COMPUTE_TIME_MS: &str = "skybakeComputeTimeMs";
+/// Attribute key for the cache key a product is stored under: a cache file carries its own key, so a
+/// file copied or renamed under another key is detected on read (`store::Cache::get`).
+pub const ATTR_CACHE_KEY: &str = "skybakeCacheKey";
 /// Attribute key for the plan (stages run and left out) JSON.
 pub const ATTR_PLAN_JSON: &str = "skybakePlan";
 
