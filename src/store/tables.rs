@@ -34,8 +34,12 @@ impl TableStore for CacheTableStore {
     }
 
     fn save(&self, key: &str, table: &SpectralImage) {
-        let stored = encode_exr_with(table, ExrCompression::None)
+        // The cache accepts only files that carry their own key.
+        let mut bound = table.clone();
+        let stored = bound
+            .set_attribute(super::layout::ATTR_CACHE_KEY, key)
             .map_err(|e| e.to_string())
+            .and_then(|()| encode_exr_with(&bound, ExrCompression::None).map_err(|e| e.to_string()))
             .and_then(|bytes| self.cache.put_bytes(key, bytes).map_err(|e| e.to_string()));
         if let Err(e) = stored {
             tracing::warn!(key, error = %e, "shared table not stored");
