@@ -2,23 +2,25 @@
 //! requests. Pure computation; the only clock read is for timing.
 
 use crate::atmosphere::integrate::{Recorder, Scratch};
+use crate::atmosphere::irradiance::{hemisphere_irradiance, SUN_PRODUCT_N_MU, SUN_PRODUCT_N_PHI};
 use crate::atmosphere::multiple_fast::FastSettings;
 use crate::atmosphere::multiple_precise::PreciseSettings;
-use crate::atmosphere::quadrature::gauss_legendre;
 use crate::atmosphere::shared::{Persistence, SharedTables, TableEvents, TableStore};
 use crate::atmosphere::sky::{
     dome_table, horizon_axis_deg, horizon_dip_deg, DomeTable, MsMethod, Observer, RadianceEvaluator,
 };
-use crate::atmosphere::transmittance::density_integrals;
-use crate::atmosphere::{geometry, Medium};
-use crate::spec::{CommonSpec, Quality};
-use crate::Result;
+use crate::atmosphere::sun_transmittance::sun_transmittance;
+use crate::atmosphere::Medium;
+use crate::plan::{Plan, Stage};
+use crate::spec::{AerialSpec, CommonSpec, DomeSpec, ProductKind, ProductSpec, Quality};
+use crate::{Error, Result};
 use rayon::prelude::*;
 use serde::Serialize;
-use std::collections::HashMap;
-use std::f64::consts::PI;
+use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::Instant;
+
+pub use crate::spec::DomeShape;
 
 /// Engine version: part of every cache key, bumped when results change.
 pub const ENGINE_VERSION: &str = concat!("skybake-", env!("CARGO_PKG_VERSION"), "-engine1");
@@ -57,7 +59,8 @@ pub struct ErrorEstimate {
     pub caveat: Option<&'static str>,
 }
 
-/// Stages that ran and stages left out, with the reason (DESIGN.md "Leaving out").
+/// Stages that ran and stages left out, as prose: the cloud frame's list (`render/`) until the
+/// frame joins the typed [`Plan`] as a product.
 #[derive(Debug, Clone, Default, PartialEq, Serialize)]
 pub struct Stages {
     pub ran: Vec<String>,
@@ -69,7 +72,8 @@ pub struct Stages {
 pub struct ProductMeta {
     pub engine_version: &'static str,
     pub error_estimate: ErrorEstimate,
-    pub stages: Stages,
+    /// The stages that ran and those left out, and why.
+    pub plan: Plan,
     pub timing_ms: f64,
     /// Whether the shared tables were already built (warm) when this ran.
     pub shared_tables_warm: bool,
@@ -124,15 +128,76 @@ pub struct AerialProduct {
     pub meta: ProductMeta,
 }
 
-/// Table shape of a sky/ground request.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
-pub struct DomeShape {
-    pub elevation_count: usize,
-    pub azimuth_count: usize,
-}
-
 /// A shared-tables slot, filled by the first request that needs it.
 type SharedSlot = Arc<std::sync::OnceLock<Arc<SharedTables>>>;
+
+/// The shared tables the engine builds, for the build counters.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub enum Table {
+    /// The density-integral (transmittance) table, with the medium.
+    Density,
+    /// The fast (Hillaire 2020) multiple-scattering table.
+    Fast,
+    /// The precise (orders of scattering) multiple-scattering table.
+    Precise,
+}
+
+impl Table {
+    pub const ALL: [Table; 3] = [Table::Density, Table::Fast, Table::Precise];
+
+    pub fn name(self) -> &'static str {
+        match self {
+            Table::Density => "density",
+            Table::Fast => "fast",
+            Table::Precise => "precise",
+        }
+    }
+}
+
+/// Ray-march terms and product integrals the engine evaluates, for the work counters that show
+/// a plan's stages ran (and those left out did not).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub enum Term {
+    /// Samples at which single scattering of direct sunlight was evaluated.
+    SingleScattering,
+    /// Samples at which a multiple-scattering table was evaluated.
+    MultipleScattering,
+    /// Rays ending on the ground whose ground bounce was evaluated.
+    GroundBounce,
+    /// Direct-sun transmittances computed (sun product).
+    DirectSun,
+    /// Hemisphere directions integrated for the diffuse irradiance (sun product).
+    DiffuseIrradiance,
+}
+
+impl Term {
+    pub const ALL: [Term; 5] = [
+        Term::SingleScattering,
+        Term::MultipleScattering,
+        Term::GroundBounce,
+        Term::DirectSun,
+        Term::DiffuseIrradiance,
+    ];
+}
+
+/// Any atmosphere product.
+#[derive(Debug, Clone, PartialEq)]
+pub enum Product {
+    Sun(SunProduct),
+    Sky(DomeProduct),
+    Ground(DomeProduct),
+    Aerial(AerialProduct),
+}
+
+impl Product {
+    pub fn meta(&self) -> &ProductMeta {
+        match self {
+            Product::Sun(p) => &p.meta,
+            Product::Sky(p) | Product::Ground(p) => &p.meta,
+            Product::Aerial(p) => &p.meta,
+        }
+    }
+}
 
 /// The engine with its cache of shared tables.
 #[derive(Default)]
@@ -140,9 +205,11 @@ pub struct Engine {
     /// Most recently used last. Each slot is filled once, outside the lock, so concurrent requests
     /// for the same medium wait for one build instead of each building their own.
     shared: Mutex<Vec<(String, SharedSlot)>>,
-    counters: Mutex<HashMap<&'static str, u64>>,
+    tables: [AtomicU64; 3],
+    terms: [AtomicU64; 5],
     /// Where precise tables are kept between processes (`store::tables`), if anywhere.
     table_store: Option<Arc<dyn TableStore>>,
+    /// Precise tables built, loaded and refused (counted where they happen, in `SharedTables`).
     table_events: Arc<TableEvents>,
 }
 
@@ -160,18 +227,16 @@ impl Engine {
     }
 
     /// How many times each table kind was built (for tests and metrics).
-    pub fn build_count(&self, what: &'static str) -> u64 {
-        if what == "precise" {
-            return TableEvents::get(&self.table_events.precise_built);
+    pub fn table_builds(&self, table: Table) -> u64 {
+        match table {
+            // A precise table may be loaded from the table store instead of built.
+            Table::Precise => TableEvents::get(&self.table_events.precise_built),
+            _ => self.tables[table as usize].load(Ordering::Relaxed),
         }
-        self.counters
-            .lock()
-            .map(|c| c.get(what).copied().unwrap_or(0))
-            .unwrap_or(0)
     }
 
     /// How many precise tables were loaded from the table store, and how many stored ones were
-    /// refused and rebuilt (for tests and metrics).
+    /// refused (corrupt or not matching) and rebuilt (for tests and metrics).
     pub fn table_loads(&self) -> (u64, u64) {
         (
             TableEvents::get(&self.table_events.precise_loaded),
@@ -179,10 +244,51 @@ impl Engine {
         )
     }
 
-    fn count(&self, what: &'static str) {
-        if let Ok(mut c) = self.counters.lock() {
-            *c.entry(what).or_default() += 1;
-        }
+    /// How much of each term the engine has evaluated (for tests and metrics).
+    pub fn term_count(&self, term: Term) -> u64 {
+        self.terms[term as usize].load(Ordering::Relaxed)
+    }
+
+    fn count(&self, table: Table) {
+        self.tables[table as usize].fetch_add(1, Ordering::Relaxed);
+    }
+
+    fn add_terms(&self, term: Term, n: u64) {
+        self.terms[term as usize].fetch_add(n, Ordering::Relaxed);
+    }
+
+    fn add_ray_work(&self, eval: &RadianceEvaluator) {
+        let w = eval.work();
+        self.add_terms(Term::SingleScattering, w.single_samples);
+        self.add_terms(Term::MultipleScattering, w.source_samples);
+        self.add_terms(Term::GroundBounce, w.ground_bounces);
+    }
+
+    /// The plan of `product` for `spec` (resolves the medium; builds no tables).
+    pub fn plan(spec: &CommonSpec, product: ProductKind) -> Result<Plan> {
+        let medium = Medium::new(&spec.atmosphere, &spec.wavelengths_nm, spec.ground_albedo)?;
+        Ok(crate::plan::plan(product, spec, &medium))
+    }
+
+    /// Plans and computes `product` for `spec`.
+    pub fn compute(&self, spec: &CommonSpec, product: &ProductSpec) -> Result<Product> {
+        let plan = Self::plan(spec, product.kind())?;
+        self.execute(spec, product, &plan)
+    }
+
+    /// Executes `plan` for `product`: only the plan's stages run.
+    pub fn execute(
+        &self,
+        spec: &CommonSpec,
+        product: &ProductSpec,
+        plan: &Plan,
+    ) -> Result<Product> {
+        Ok(match product {
+            ProductSpec::Sun => Product::Sun(self.run_sun(spec, plan)?),
+            ProductSpec::Sky(d) => Product::Sky(self.run_dome(spec, plan, d, -90.0, 90.0)?),
+            ProductSpec::Ground(d) => Product::Ground(self.run_dome(spec, plan, d, -90.0, 0.0)?),
+            ProductSpec::Aerial(a) => Product::Aerial(self.run_aerial(spec, plan, a)?),
+        })
     }
 
     /// Shared tables for this spec's medium (LRU of a few).
@@ -208,11 +314,13 @@ impl Engine {
             slot
         };
         let tables = slot.get_or_init(|| {
-            self.count("density");
+            self.count(Table::Density);
             let (fast, precise) = settings_for(spec.quality);
             Arc::new(
                 SharedTables::new(medium, fast, precise).with_persistence(Persistence {
-                    store: self.table_store.clone(),
+                    // No key, no store: a table is never shared under a key that does not say
+                    // what it was built for.
+                    store: self.table_store.clone().filter(|_| !key.is_empty()),
                     medium_key: key,
                     engine_version: ENGINE_VERSION,
                     events: self.table_events.clone(),
@@ -222,28 +330,45 @@ impl Engine {
         Ok(tables.clone())
     }
 
+    /// The radiance evaluator of `plan`: the multiple-scattering source only when the plan runs
+    /// that stage (building its table on first use), single scattering and the ground bounce only
+    /// when the plan runs them.
     fn evaluator<'a>(
         &self,
         shared: &'a SharedTables,
         spec: &CommonSpec,
+        plan: &Plan,
     ) -> (RadianceEvaluator<'a>, bool) {
-        let warm = match spec.method {
+        let method = plan.ms_method();
+        let warm = match method {
             MsMethod::Precise => shared.has_precise(),
             MsMethod::Fast => shared.has_fast(),
             MsMethod::None => true,
         };
         // Precise builds are counted where they happen (a stored table may be loaded instead).
-        if !warm && spec.method == MsMethod::Fast {
-            self.count("fast");
+        if !warm && method == MsMethod::Fast {
+            self.count(Table::Fast);
         }
         let observer = Observer {
             altitude_m: spec.observer_altitude_m,
             sun_elevation_rad: spec.sun.sun_elevation_deg.to_radians(),
         };
-        (
-            RadianceEvaluator::new(shared, spec.method, observer, spec.quality.steps()),
-            warm,
-        )
+        let eval = RadianceEvaluator::new(shared, method, observer, spec.quality.steps())
+            .with_terms(
+                plan.runs(Stage::SingleScattering),
+                plan.runs(Stage::GroundBounce),
+            );
+        (eval, warm)
+    }
+
+    fn tables_for(&self, spec: &CommonSpec, plan: &Plan) -> Result<Arc<SharedTables>> {
+        if !plan.runs(Stage::DensityTable) {
+            return Err(Error::invalid(
+                "plan",
+                "every atmosphere product needs the density table",
+            ));
+        }
+        self.shared(spec)
     }
 
     fn meta(
@@ -252,9 +377,9 @@ impl Engine {
         spec: &CommonSpec,
         warm: bool,
         start: Instant,
-        stages: Stages,
+        plan: &Plan,
     ) -> ProductMeta {
-        let (orders, last) = match spec.method {
+        let (orders, last) = match plan.ms_method() {
             MsMethod::Precise => {
                 let c = &shared.precise().convergence;
                 (Some(c.orders), Some(c.last_order_fraction))
@@ -286,59 +411,82 @@ impl Engine {
                 validated,
                 caveat,
             },
-            stages,
+            plan: plan.clone(),
             timing_ms: start.elapsed().as_secs_f64() * 1e3,
             shared_tables_warm: warm,
             colour_note,
         }
     }
 
-    /// Stages for a spec (what runs and what is left out, and why); needs only the resolved
-    /// medium, so planning costs no table builds.
-    pub fn plan(spec: &CommonSpec, m: &Medium) -> Stages {
-        let mut st = Stages::default();
-        st.ran.push("transmittance: density-integral table".into());
-        if spec.sun.sun_elevation_deg < -m.sun_angular_radius_rad.to_degrees() {
-            st.ran.push(
-                "single scattering: exact ray marching, lit only where the atmosphere still sees the sun (twilight)".into(),
-            );
-        } else {
-            st.ran.push("single scattering: exact ray marching".into());
-        }
-        match spec.method {
-            MsMethod::Precise => st
-                .ran
-                .push("multiple scattering: successive orders (precise)".into()),
-            MsMethod::Fast => st
-                .ran
-                .push("multiple scattering: Hillaire 2020 table (fast)".into()),
-            MsMethod::None => st.skipped.push("multiple scattering: method=none".into()),
-        }
-        if m.ground_albedo.iter().all(|&a| a == 0.0) {
-            st.skipped.push("ground bounce: ground albedo is 0".into());
-        } else {
-            st.ran
-                .push("ground bounce: Lambertian ground lit by sun and sky".into());
-        }
-        if spec.sun.sun_elevation_deg < -1.0 {
-            st.skipped
-                .push("direct sun at the observer: the sun is below the horizon".into());
-        }
-        st
+    /// Sun attenuation and irradiances at the observer (plans, then executes).
+    pub fn sun(&self, spec: &CommonSpec) -> Result<SunProduct> {
+        let plan = Self::plan(spec, ProductKind::Sun)?;
+        self.run_sun(spec, &plan)
     }
 
-    /// Sun attenuation and irradiances at the observer.
-    pub fn sun(&self, spec: &CommonSpec) -> Result<SunProduct> {
+    /// Sky-dome table (view elevation −90°…90°) and probes (plans, then executes).
+    pub fn sky(
+        &self,
+        spec: &CommonSpec,
+        shape: DomeShape,
+        probes: &[(f64, f64)],
+    ) -> Result<DomeProduct> {
+        let dome = DomeSpec::sky(shape, probes.to_vec())?;
+        let plan = Self::plan(spec, ProductKind::Sky)?;
+        self.run_dome(spec, &plan, &dome, -90.0, 90.0)
+    }
+
+    /// Upward radiance (view zenith 90°–180°, i.e. elevation −90°…0°) and probes.
+    pub fn ground(
+        &self,
+        spec: &CommonSpec,
+        shape: DomeShape,
+        probes: &[(f64, f64)],
+    ) -> Result<DomeProduct> {
+        let dome = DomeSpec::ground(shape, probes.to_vec())?;
+        let plan = Self::plan(spec, ProductKind::Ground)?;
+        self.run_dome(spec, &plan, &dome, -90.0, 0.0)
+    }
+
+    /// Aerial perspective table: `elevation_count` × `azimuth_count` directions × `distance_count`
+    /// distances from 0 to `max_distance_m` (quadratic spacing, dense near the viewer).
+    pub fn aerial(
+        &self,
+        spec: &CommonSpec,
+        shape: DomeShape,
+        distance_count: usize,
+        max_distance_m: f64,
+    ) -> Result<AerialProduct> {
+        let aerial = AerialSpec::new(shape, distance_count, max_distance_m)?;
+        let plan = Self::plan(spec, ProductKind::Aerial)?;
+        self.run_aerial(spec, &plan, &aerial)
+    }
+
+    fn run_sun(&self, spec: &CommonSpec, plan: &Plan) -> Result<SunProduct> {
         let start = Instant::now();
-        let shared = self.shared(spec)?;
+        let shared = self.tables_for(spec, plan)?;
         let m = &shared.medium;
-        let (eval, warm) = self.evaluator(&shared, spec);
-        let transmittance = sun_transmittance(
-            m,
-            spec.observer_altitude_m,
-            spec.sun.sun_elevation_deg.to_radians(),
-        );
-        let dhi = hemisphere_irradiance(&eval, m.len(), 16, 16);
+        let (eval, warm) = self.evaluator(&shared, spec, plan);
+        let transmittance = if plan.runs(Stage::DirectSun) {
+            self.add_terms(Term::DirectSun, 1);
+            sun_transmittance(
+                m,
+                spec.observer_altitude_m,
+                spec.sun.sun_elevation_deg.to_radians(),
+            )
+        } else {
+            vec![0.0; m.len()]
+        };
+        let dhi = if plan.runs(Stage::DiffuseIrradiance) {
+            self.add_terms(
+                Term::DiffuseIrradiance,
+                (SUN_PRODUCT_N_MU * SUN_PRODUCT_N_PHI) as u64,
+            );
+            hemisphere_irradiance(&eval, m.len(), SUN_PRODUCT_N_MU, SUN_PRODUCT_N_PHI)
+        } else {
+            vec![0.0; m.len()]
+        };
+        self.add_ray_work(&eval);
         let mu_s = spec.sun.sun_elevation_deg.to_radians().sin();
         let dni: Vec<f64> = transmittance
             .iter()
@@ -350,8 +498,7 @@ impl Engine {
             .zip(&dhi)
             .map(|(d, h)| d * mu_s.max(0.0) + h)
             .collect();
-        let stages = Self::plan(spec, &shared.medium);
-        let meta = self.meta(&shared, spec, warm, start, stages);
+        let meta = self.meta(&shared, spec, warm, start, plan);
         Ok(SunProduct {
             wavelengths_nm: m.wavelengths_nm.clone(),
             sun_elevation_deg: spec.sun.sun_elevation_deg,
@@ -367,45 +514,18 @@ impl Engine {
         })
     }
 
-    /// Sky-dome table (view elevation −90°…90°) and probes.
-    pub fn sky(
+    fn run_dome(
         &self,
         spec: &CommonSpec,
-        shape: DomeShape,
-        probes: &[(f64, f64)],
-    ) -> Result<DomeProduct> {
-        self.dome(spec, shape, probes, -90.0, 90.0)
-    }
-
-    /// Upward radiance (view zenith 90°–180°, i.e. elevation −90°…0°) and probes.
-    pub fn ground(
-        &self,
-        spec: &CommonSpec,
-        shape: DomeShape,
-        probes: &[(f64, f64)],
-    ) -> Result<DomeProduct> {
-        if let Some(&(vz, _)) = probes.iter().find(|(vz, _)| *vz < 90.0) {
-            return Err(crate::Error::out_of_range(
-                "probe",
-                vz,
-                "90 to 180 deg view zenith (ground looks down)",
-            ));
-        }
-        self.dome(spec, shape, probes, -90.0, 0.0)
-    }
-
-    fn dome(
-        &self,
-        spec: &CommonSpec,
-        shape: DomeShape,
-        probes: &[(f64, f64)],
+        plan: &Plan,
+        dome: &DomeSpec,
         lo: f64,
         hi: f64,
     ) -> Result<DomeProduct> {
-        check_shape(shape)?;
+        let shape = dome.shape();
         let start = Instant::now();
-        let shared = self.shared(spec)?;
-        let (eval, warm) = self.evaluator(&shared, spec);
+        let shared = self.tables_for(spec, plan)?;
+        let (eval, warm) = self.evaluator(&shared, spec, plan);
         let table = dome_table(
             &eval,
             horizon_axis_deg(
@@ -416,9 +536,9 @@ impl Engine {
             ),
             shape.azimuth_count,
         );
-        let probes = evaluate_probes(&eval, shared.medium.len(), probes);
-        let stages = Self::plan(spec, &shared.medium);
-        let meta = self.meta(&shared, spec, warm, start, stages);
+        let probes = evaluate_probes(&eval, shared.medium.len(), dome.probes());
+        self.add_ray_work(&eval);
+        let meta = self.meta(&shared, spec, warm, start, plan);
         Ok(DomeProduct {
             table,
             probes,
@@ -426,27 +546,20 @@ impl Engine {
         })
     }
 
-    /// Aerial perspective table: `elevation_count` × `azimuth_count` directions × `distance_count`
-    /// distances from 0 to `max_distance_m` (quadratic spacing, dense near the viewer).
-    pub fn aerial(
+    fn run_aerial(
         &self,
         spec: &CommonSpec,
-        shape: DomeShape,
-        distance_count: usize,
-        max_distance_m: f64,
+        plan: &Plan,
+        aerial: &AerialSpec,
     ) -> Result<AerialProduct> {
-        check_shape(shape)?;
-        let cells = shape.elevation_count * shape.azimuth_count * distance_count;
-        if cells > crate::spec::MAX_AERIAL_CELLS {
-            return Err(crate::Error::too_large(
-                "distance_count",
-                format!("{cells} cells (elevations × azimuths × distances)"),
-                crate::spec::MAX_AERIAL_CELLS,
-            ));
-        }
+        let (shape, distance_count, max_distance_m) = (
+            aerial.shape(),
+            aerial.distance_count(),
+            aerial.max_distance_m(),
+        );
         let start = Instant::now();
-        let shared = self.shared(spec)?;
-        let (eval, warm) = self.evaluator(&shared, spec);
+        let shared = self.tables_for(spec, plan)?;
+        let (eval, warm) = self.evaluator(&shared, spec, plan);
         let m = &shared.medium;
         let n_l = m.len();
         let elevation_deg = horizon_axis_deg(
@@ -499,8 +612,8 @@ impl Engine {
                     }
                 },
             );
-        let stages = Self::plan(spec, &shared.medium);
-        let meta = self.meta(&shared, spec, warm, start, stages);
+        self.add_ray_work(&eval);
+        let meta = self.meta(&shared, spec, warm, start, plan);
         Ok(AerialProduct {
             wavelengths_nm: m.wavelengths_nm.clone(),
             elevation_deg,
@@ -511,32 +624,6 @@ impl Engine {
             meta,
         })
     }
-}
-
-fn check_shape(shape: DomeShape) -> Result<()> {
-    if shape.elevation_count < 2 || shape.elevation_count > 4096 {
-        return Err(crate::Error::out_of_range(
-            "elevation_count",
-            shape.elevation_count,
-            "2 to 4096",
-        ));
-    }
-    if shape.azimuth_count < 1 || shape.azimuth_count > 4096 {
-        return Err(crate::Error::out_of_range(
-            "azimuth_count",
-            shape.azimuth_count,
-            "1 to 4096",
-        ));
-    }
-    let cells = shape.elevation_count * shape.azimuth_count;
-    if cells > crate::spec::MAX_TABLE_CELLS {
-        return Err(crate::Error::too_large(
-            "elevation_count",
-            format!("{cells} table cells (elevations × azimuths)"),
-            crate::spec::MAX_TABLE_CELLS,
-        ));
-    }
-    Ok(())
 }
 
 /// Table resolutions for a quality preset.
@@ -598,86 +685,6 @@ pub fn settings_for(q: Quality) -> (FastSettings, PreciseSettings) {
     }
 }
 
-/// Spectral transmittance from the top of the atmosphere to an observer at `altitude_m` along
-/// the sun direction (elevation `sun_elevation_rad`), times the visible fraction of the sun's
-/// disk; exact integration in f64 (not the table), valid from the ground to space.
-pub fn sun_transmittance(m: &Medium, altitude_m: f64, sun_elevation_rad: f64) -> Vec<f64> {
-    let r = m.bottom_radius_m + altitude_m;
-    let mu_s = sun_elevation_rad.sin();
-    // Visible fraction of the disk: the sun's centre may be below the geometric horizon.
-    let mu_h = geometry::horizon_mu(r, m.bottom_radius_m);
-    let width = (m.sun_angular_radius_rad * (1.0 - mu_h * mu_h).max(0.0).sqrt()).max(1e-9);
-    let x = ((mu_s - mu_h) / width * 0.5 + 0.5).clamp(0.0, 1.0);
-    let vis = x * x * (3.0 - 2.0 * x);
-    if vis == 0.0 {
-        return vec![0.0; m.len()];
-    }
-    let mu = mu_s.max(mu_h);
-    let d = match geometry::atmosphere_segment(r, mu, m.bottom_radius_m, m.top_radius_m) {
-        None => [0.0; 3],
-        Some(seg) => {
-            // Integrate from the far (upper) end towards the observer: densest part last, so
-            // reverse the parametrisation by integrating from the observer outward in two
-            // halves around the perigee when it lies on the path.
-            let r0 = r.max(m.bottom_radius_m);
-            let perigee = -r0 * mu;
-            let piece = |a: f64, b: f64| -> [f64; 3] {
-                if b <= a {
-                    return [0.0; 3];
-                }
-                let ra = geometry::radius_at(r0, mu, a);
-                let mu_a = ((r0 * mu + a) / ra).clamp(-1.0, 1.0);
-                density_integrals(m, ra, mu_a, b - a, 4000)
-            };
-            let (a, b) = (seg.t_start, seg.t_end);
-            if perigee > a && perigee < b {
-                let p1 = piece(perigee, b);
-                // The inbound half mirrors the outbound one from the perigee.
-                let rp = geometry::radius_at(r0, mu, perigee);
-                let p0 = density_integrals(m, rp, 0.0, perigee - a, 4000);
-                [p0[0] + p1[0], p0[1] + p1[1], p0[2] + p1[2]]
-            } else {
-                piece(a, b)
-            }
-        }
-    };
-    (0..m.len())
-        .map(|i| (-m.optical_depth(i, &d)).exp() * vis)
-        .collect()
-}
-
-/// Diffuse irradiance on a horizontal surface at the observer, ∫ L cosθ dω over the upper
-/// hemisphere (Gauss-Legendre in cosθ × midpoint in azimuth, symmetric about the sun plane).
-pub fn hemisphere_irradiance(
-    eval: &RadianceEvaluator,
-    n_l: usize,
-    n_mu: usize,
-    n_phi: usize,
-) -> Vec<f64> {
-    let (x, w) = gauss_legendre(n_mu);
-    let parts: Vec<Vec<f64>> = (0..n_mu * n_phi)
-        .into_par_iter()
-        .map_init(
-            || (Scratch::new(n_l), vec![0.0; n_l], vec![0.0; n_l]),
-            |(scratch, out, tr), idx| {
-                let (a, b) = (idx / n_phi, idx % n_phi);
-                let mu = 0.5 * (x[a] + 1.0);
-                let phi = PI * (b as f64 + 0.5) / n_phi as f64;
-                eval.eval(mu.acos(), phi, scratch, out, tr);
-                let weight = 0.5 * w[a] * mu * 2.0 * PI / n_phi as f64;
-                out.iter().map(|v| v * weight).collect()
-            },
-        )
-        .collect();
-    let mut e = vec![0.0; n_l];
-    for p in parts {
-        for (a, b) in e.iter_mut().zip(p) {
-            *a += b;
-        }
-    }
-    e
-}
-
 fn evaluate_probes(eval: &RadianceEvaluator, n_l: usize, probes: &[(f64, f64)]) -> Vec<Probe> {
     probes
         .par_iter()
@@ -698,7 +705,7 @@ fn evaluate_probes(eval: &RadianceEvaluator, n_l: usize, probes: &[(f64, f64)]) 
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::spec::RequestParams;
+    use crate::product::params::RequestParams;
 
     #[test]
     fn concurrent_requests_for_one_medium_build_its_tables_once() {
@@ -714,7 +721,7 @@ mod tests {
                 .collect();
             handles.into_iter().map(|h| h.join().unwrap()).collect()
         });
-        assert_eq!(engine.build_count("density"), 1);
+        assert_eq!(engine.table_builds(Table::Density), 1);
         assert!(tables.iter().all(|t| Arc::ptr_eq(t, &tables[0])));
     }
 }

@@ -23,6 +23,10 @@ pub enum Error {
         reason: String,
         limit: String,
     },
+    /// Not the request's fault: stored data that fails to decode (a malformed cached artifact),
+    /// an encoder failure. HTTP 500 (and the artifact is recomputed), CLI exit code 1.
+    #[error("internal error in {what}: {reason}")]
+    Internal { what: String, reason: String },
 }
 
 impl Error {
@@ -52,6 +56,19 @@ impl Error {
         }
     }
 
+    /// Shorthand for [`Error::Internal`].
+    pub fn internal(what: &str, reason: impl ToString) -> Self {
+        Error::Internal {
+            what: what.to_string(),
+            reason: reason.to_string(),
+        }
+    }
+
+    /// Whether the fault lies with the request (bad input) rather than the server.
+    pub fn is_input(&self) -> bool {
+        !matches!(self, Error::Internal { .. })
+    }
+
     /// The same error with `prefix` put before the parameter name (e.g. `products[3].`).
     pub fn prefixed(self, prefix: &str) -> Self {
         match self {
@@ -77,15 +94,17 @@ impl Error {
                 reason,
                 limit,
             },
+            internal @ Error::Internal { .. } => internal,
         }
     }
 
-    /// The name of the offending parameter.
+    /// The name of the offending parameter (for an internal error: what failed).
     pub fn field(&self) -> &str {
         match self {
             Error::OutOfRange { field, .. }
             | Error::Invalid { field, .. }
             | Error::TooLarge { field, .. } => field,
+            Error::Internal { what, .. } => what,
         }
     }
 }

@@ -1,36 +1,25 @@
 //! Products → spectral images (DESIGN.md "Storage"): one emissive channel per wavelength
-//! (`S0.<λ>nm`), linear sRGB for viewers, and the canonical spec, engine version, error
-//! estimate, timing and table axes as header attributes. Encoding only; `store` writes.
+//! (`S0.<λ>nm`), linear sRGB for viewers, and the table axes as a header attribute. The request,
+//! response, plan, error estimate and timing attributes are added by [`crate::product::artifact`],
+//! the one place that makes artifacts. Encoding only; `store` writes.
 
-use crate::engine::{AerialProduct, DomeProduct, ProductMeta};
+use crate::engine::{AerialProduct, DomeProduct, SunProduct};
 use crate::output::rgb_planes;
-use crate::spec::CommonSpec;
-use crate::store::{layout, SpectralImage, StoreError};
-use crate::{Error, Result};
+use crate::store::{layout, SpectralImage};
+use crate::Result;
 
-fn store_err(e: StoreError) -> Error {
-    match e {
-        StoreError::Invalid(e) => e,
-        other => Error::invalid("output", other.to_string()),
-    }
-}
-
-fn set_meta(
-    img: &mut SpectralImage,
-    spec: &CommonSpec,
-    meta: &ProductMeta,
-    product: &str,
-) -> Result<()> {
-    let spec_json = serde_json::json!({ "product": product, "spec": spec }).to_string();
-    let error_json = serde_json::to_string(&meta.error_estimate).unwrap_or_default();
-    img.set_product_metadata(&spec_json, meta.engine_version, &error_json, meta.timing_ms)?;
-    let plan_json = serde_json::to_string(&meta.stages).unwrap_or_default();
-    img.set_attribute(layout::ATTR_PLAN_JSON, plan_json)
+/// The sun product as a 1×1 spectral image: layer `T` holds the transmittance (the irradiances
+/// are in the JSON envelope).
+pub fn sun_image(p: &SunProduct) -> Result<SpectralImage> {
+    let t: Vec<Vec<f32>> = p.transmittance.iter().map(|&t| vec![t as f32]).collect();
+    let mut img = SpectralImage::new(1, 1, &p.wavelengths_nm)?;
+    img.add_layer(layout::TRANSMITTANCE_LAYER, t)?;
+    Ok(img)
 }
 
 /// A sky or ground table as a spectral image: rows are view elevations from the highest (top
 /// row) down, columns azimuths 0…180° from the sun; attribute `skybakeAxes` lists both.
-pub fn dome_image(p: &DomeProduct, spec: &CommonSpec, product: &str) -> Result<SpectralImage> {
+pub fn dome_image(p: &DomeProduct) -> Result<SpectralImage> {
     let t = &p.table;
     let (w, h, n_l) = (
         t.azimuth_deg.len(),
@@ -51,7 +40,6 @@ pub fn dome_image(p: &DomeProduct, spec: &CommonSpec, product: &str) -> Result<S
     }
     let mut img = SpectralImage::emissive(w, h, &t.wavelengths_nm, planes)?;
     img.set_rgb(rgb_planes(&t.wavelengths_nm, &flipped))?;
-    set_meta(&mut img, spec, &p.meta, product)?;
     let mut rows = t.elevation_deg.clone();
     rows.reverse();
     let axes = serde_json::json!({ "rows_view_elevation_deg": rows, "columns_view_azimuth_deg": t.azimuth_deg });
@@ -59,15 +47,10 @@ pub fn dome_image(p: &DomeProduct, spec: &CommonSpec, product: &str) -> Result<S
     Ok(img)
 }
 
-/// Encodes a sky or ground table as a tiled spectral EXR.
-pub fn dome_exr(p: &DomeProduct, spec: &CommonSpec, product: &str) -> Result<Vec<u8>> {
-    crate::store::encode_exr(&dome_image(p, spec, product)?).map_err(store_err)
-}
-
 /// An aerial-perspective table as a spectral image: one row per direction (elevation-major,
 /// then azimuth), one column per distance; layer `S0` holds in-scattered radiance and layer
 /// `T` transmittance.
-pub fn aerial_image(p: &AerialProduct, spec: &CommonSpec) -> Result<SpectralImage> {
+pub fn aerial_image(p: &AerialProduct) -> Result<SpectralImage> {
     let (n_d, n_l) = (p.distance_m.len(), p.wavelengths_nm.len());
     let h = p.elevation_deg.len() * p.azimuth_deg.len();
     let to_planes = |v: &[f32]| -> Vec<Vec<f32>> {
@@ -78,7 +61,6 @@ pub fn aerial_image(p: &AerialProduct, spec: &CommonSpec) -> Result<SpectralImag
     let mut img = SpectralImage::emissive(n_d, h, &p.wavelengths_nm, to_planes(&p.inscatter))?;
     img.add_layer(layout::TRANSMITTANCE_LAYER, to_planes(&p.transmittance))?;
     img.set_rgb(rgb_planes(&p.wavelengths_nm, &p.inscatter))?;
-    set_meta(&mut img, spec, &p.meta, "aerial")?;
     let axes = serde_json::json!({
         "rows": "elevation-major, then azimuth",
         "view_elevation_deg": p.elevation_deg,
@@ -88,8 +70,44 @@ pub fn aerial_image(p: &AerialProduct, spec: &CommonSpec) -> Result<SpectralImag
     img.set_attribute("skybakeAxes", axes.to_string())?;
     Ok(img)
 }
-
-/// Encodes an aerial-perspective table as a tiled spectral EXR.
-pub fn aerial_exr(p: &AerialProduct, spec: &CommonSpec) -> Result<Vec<u8>> {
-    crate::store::encode_exr(&aerial_image(p, spec)?).map_err(store_err)
+/// A rendered cloud frame as a spectral image (width × height of the camera): layer `S0` holds
+/// the spectral radiance of each pixel, layer `T` the cloud's transmittance along the pixel's ray
+/// (mean over wavelengths, repeated per wavelength), plus linear sRGB. `spec_json` is the
+/// canonical frame request; the frame's stages, timings and error estimate go in the attributes.
+pub fn frame_image(frame: &crate::render::Frame, spec_json: &str) -> Result<SpectralImage> {
+    let (w, h, n_l) = (
+        frame.tile.width,
+        frame.tile.height,
+        frame.wavelengths_nm.len(),
+    );
+    let mut planes = vec![vec![0f32; w * h]; n_l];
+    for (p, spectrum) in frame.radiance.chunks(n_l).enumerate() {
+        for (plane, v) in planes.iter_mut().zip(spectrum) {
+            plane[p] = *v;
+        }
+    }
+    let mut img = SpectralImage::emissive(w, h, &frame.wavelengths_nm, planes)?;
+    img.add_layer(
+        layout::TRANSMITTANCE_LAYER,
+        vec![frame.transmittance.clone(); n_l],
+    )?;
+    img.set_rgb(rgb_planes(&frame.wavelengths_nm, &frame.radiance))?;
+    let meta = &frame.meta;
+    let error_json = serde_json::to_string(&meta.error_estimate).unwrap_or_default();
+    let total_ms: f64 = meta.timing_ms.iter().map(|(_, ms)| ms).sum();
+    img.set_product_metadata(
+        spec_json,
+        crate::engine::ENGINE_VERSION,
+        &error_json,
+        total_ms,
+    )?;
+    img.set_attribute(
+        layout::ATTR_PLAN_JSON,
+        serde_json::to_string(&meta.stages).unwrap_or_default(),
+    )?;
+    img.set_attribute(
+        "skybakeFrameMeta",
+        serde_json::to_string(meta).unwrap_or_default(),
+    )?;
+    Ok(img)
 }

@@ -1,20 +1,50 @@
 //! `skybake`: command-line front end. Parses flags, calls the library, prints JSON or writes files.
 
-use clap::{Args, Parser, Subcommand, ValueEnum};
+use clap::{Arg, ArgAction, ArgMatches, Args, FromArgMatches, Parser, Subcommand, ValueEnum};
 use skybake::engine::Engine;
-use skybake::output::{dome_png, AerialJson, DomeJson, Projection};
-use skybake::service::products::{
-    ProductKind, ProductRequest, AERIAL_DISTANCE_COUNT, AERIAL_MAX_DISTANCE_M, AERIAL_SHAPE,
-    GROUND_SHAPE, SKY_SHAPE,
-};
-use skybake::spec::RequestParams;
-use skybake::{Error, Result};
+use skybake::output::{dome_png, Projection};
+use skybake::product::params::{RequestParams, PARAMETERS};
+use skybake::product::{artifact, Format as BodyFormat, ProductKind, ProductRequest};
+use skybake::Error;
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
+
+/// Why the CLI stopped: bad input (exit code 2) or a failure that is not the input's fault (I/O,
+/// internal; exit code 1).
+#[derive(Debug)]
+enum CliError {
+    Input(Error),
+    Failure(String),
+}
+
+impl From<Error> for CliError {
+    fn from(e: Error) -> Self {
+        if e.is_input() {
+            CliError::Input(e)
+        } else {
+            CliError::Failure(e.to_string())
+        }
+    }
+}
+
+impl From<skybake::store::StoreError> for CliError {
+    fn from(e: skybake::store::StoreError) -> Self {
+        match e {
+            skybake::store::StoreError::Invalid(e) => e.into(),
+            other => CliError::Failure(other.to_string()),
+        }
+    }
+}
+
+type Result<T, E = CliError> = std::result::Result<T, E>;
 
 #[derive(Parser)]
 #[command(name = "skybake", version, about = "Spectral atmosphere and sky precomputation", long_about = None)]
 struct Cli {
+    /// Build shared tables in this process only: neither load nor save them in the cache
+    /// directory (SKYBAKE_CACHE_DIR or the config's cache.dir, shared with `serve` and `bake`).
+    #[arg(long, global = true)]
+    no_table_cache: bool,
     #[command(subcommand)]
     command: Command,
 }
@@ -24,19 +54,23 @@ enum Command {
     /// Sun attenuation: transmittance, direct normal, diffuse and global horizontal irradiance.
     ///
     /// Example: skybake sun --sun-elevation-deg 30 --wavelengths 440,550,680
-    Sun(CommonArgs),
+    Sun(SunArgs),
     /// Sky-dome radiance table (view elevation −90…90°, azimuth 0…180° from the sun).
     ///
     /// Example: skybake sky --sun-elevation-deg 10 -o sky.exr
-    Sky(DomeArgs),
+    Sky(SkyArgs),
     /// Ground-reflected upward skylight at the observer (view zenith 90…180°).
     ///
     /// Example: skybake ground --observer-altitude-m 3000 --probe 120:0,180:0
-    Ground(DomeArgs),
+    Ground(GroundArgs),
     /// Aerial perspective: transmittance and in-scattered radiance against distance.
     ///
     /// Example: skybake aerial --distance-count 32 --max-distance-m 50000
     Aerial(AerialArgs),
+    /// The stages that would run for a product and those left out (and why), without computing.
+    ///
+    /// Example: skybake plan sky --sun-elevation-deg -5 --ground-albedo 0
+    Plan(PlanArgs),
     /// Atmosphere presets: list them, or print one's resolved JSON to start from.
     Atmosphere {
         /// Print this preset's JSON.
@@ -60,12 +94,29 @@ enum Command {
         #[arg(long, value_enum, default_value_t = Format::Json)]
         format: Format,
     },
+    /// Render a lit cloud frame of a scene (sun, sky and ground light, multiple scattering).
+    ///
+    /// Example: skybake render config/scenes/cumulus-frame.json -o frame.png
+    Render {
+        /// Frame scene JSON (see config/scenes/*-frame.json); files it names are read relative to
+        /// the scene's directory.
+        scene: PathBuf,
+        /// Write the frame: .exr (spectral + RGB, the cached artifact) or .png (tone-mapped).
+        #[arg(short = 'o', long = "output", value_name = "FILE")]
+        output: Option<PathBuf>,
+        /// fast (per-voxel light + multiple-scattering field + ray march) or reference (path tracer).
+        #[arg(long, default_value = "fast")]
+        method: String,
+        /// Summary format.
+        #[arg(long, value_enum, default_value_t = Format::Json)]
+        format: Format,
+    },
     /// Run named benchmarks in-process and print median times.
     ///
     /// Example: skybake bench sky-fast sun --format json
     Bench {
-        /// Benchmarks to run (default: all). Known: sun, sky-fast, sky-precise, precise-tables, ca-step, spheres,
-        /// metaballs, fractal, satellite, solar-position, store.
+        /// Benchmarks to run (default: all). Known: sun, sky-fast, sky-precise, precise-tables,
+        /// ca-step, spheres, metaballs, fractal, satellite, solar-position, store.
         names: Vec<String>,
         #[arg(long, value_enum, default_value_t = Format::Text)]
         format: Format,
@@ -120,61 +171,86 @@ enum Format {
     Text,
 }
 
+const SUN: u8 = 0;
+const SKY: u8 = 1;
+const GROUND: u8 = 2;
+const AERIAL: u8 = 3;
+/// Every product's flags (`skybake plan`; the request then refuses those its product lacks).
+const ANY: u8 = 4;
+
+/// The product flags, built from the parameter table ([`PARAMETERS`]): one `--flag` per row that
+/// the product `K` takes, with the row's doc, unit, range and default as help.
+#[derive(Clone, Default)]
+struct ProductFlags<const K: u8> {
+    params: RequestParams,
+}
+
+fn kind_of(k: u8) -> Option<ProductKind> {
+    match k {
+        SUN => Some(ProductKind::Sun),
+        SKY => Some(ProductKind::Sky),
+        GROUND => Some(ProductKind::Ground),
+        AERIAL => Some(ProductKind::Aerial),
+        _ => None,
+    }
+}
+
+fn flag_rows(
+    k: u8,
+) -> impl Iterator<Item = (&'static str, &'static skybake::product::params::Parameter)> {
+    PARAMETERS.iter().filter_map(move |row| {
+        let applies = kind_of(k).is_none_or(|kind| row.applies_to(kind));
+        row.cli.filter(|_| applies).map(|flag| (flag, row))
+    })
+}
+
+impl<const K: u8> FromArgMatches for ProductFlags<K> {
+    fn from_arg_matches(m: &ArgMatches) -> Result<Self, clap::Error> {
+        let mut flags = Self::default();
+        flags.update_from_arg_matches(m)?;
+        Ok(flags)
+    }
+
+    fn update_from_arg_matches(&mut self, m: &ArgMatches) -> Result<(), clap::Error> {
+        for (_, row) in flag_rows(K) {
+            if let (Some(v), Some(slot)) =
+                (m.get_one::<String>(row.name), self.params.slot(row.name))
+            {
+                *slot = Some(v.clone());
+            }
+        }
+        Ok(())
+    }
+}
+
+impl<const K: u8> Args for ProductFlags<K> {
+    fn augment_args(cmd: clap::Command) -> clap::Command {
+        cmd.args(flag_rows(K).map(|(flag, row)| {
+            Arg::new(row.name)
+                .long(flag)
+                .help(row.help())
+                .allow_hyphen_values(true)
+                .action(ArgAction::Set)
+        }))
+    }
+
+    fn augment_args_for_update(cmd: clap::Command) -> clap::Command {
+        Self::augment_args(cmd)
+    }
+}
+
 #[derive(Args, Clone)]
-struct CommonArgs {
-    /// Neither load nor save shared tables in the cache directory (SKYBAKE_CACHE_DIR or the
-    /// config's cache.dir); build them in this process only.
-    #[arg(long)]
-    no_table_cache: bool,
-    /// Sun elevation above the horizon, degrees (sun: −10…90, others: −18…90) [default: 30].
-    #[arg(long, allow_hyphen_values = true)]
-    sun_elevation_deg: Option<String>,
-    /// Latitude, degrees (with --longitude and --time instead of --sun-elevation-deg).
-    #[arg(long, allow_hyphen_values = true)]
-    latitude: Option<String>,
-    /// Longitude, degrees east.
-    #[arg(long, allow_hyphen_values = true)]
-    longitude: Option<String>,
-    /// UTC time, RFC 3339 (e.g. 2026-06-21T12:00:00Z).
-    #[arg(long)]
-    time: Option<String>,
-    /// Observer altitude above the ground, m [default: 0].
-    #[arg(long, allow_hyphen_values = true)]
-    observer_altitude_m: Option<String>,
-    /// Wavelengths in nm, comma-separated, 1–64 values in 360–830 [default: 380,405,…,755].
-    #[arg(long, allow_hyphen_values = true)]
-    wavelengths: Option<String>,
-    /// Atmosphere: a preset name (earth, earth-hazy, rayleigh-only, mars) or a JSON file path.
-    #[arg(long)]
-    atmosphere: Option<String>,
-    /// Ground albedo 0–1, overriding the atmosphere's.
-    #[arg(long, allow_hyphen_values = true)]
-    ground_albedo: Option<String>,
-    /// Multiple scattering: precise, fast or none [default: precise].
-    #[arg(long)]
-    method: Option<String>,
-    /// Quality: draft, standard, high, reference [default: standard].
-    #[arg(long)]
-    quality: Option<String>,
-    /// Print JSON to stdout.
+struct SunArgs {
+    #[command(flatten)]
+    flags: ProductFlags<SUN>,
+    /// Print JSON to stdout (the default).
     #[arg(long, value_enum)]
     format: Option<Format>,
 }
 
 #[derive(Args, Clone)]
-struct DomeArgs {
-    #[command(flatten)]
-    common: CommonArgs,
-    /// Directions to evaluate exactly, VZ:VA pairs in degrees (view zenith, azimuth from the sun).
-    #[arg(long, allow_hyphen_values = true)]
-    probe: Option<String>,
-    /// Table rows (view elevations, concentrated at the horizon) [default: 129, ground 65].
-    #[arg(long, allow_hyphen_values = true)]
-    elevation_count: Option<String>,
-    /// Table columns (azimuths 0…180°) [default: 64].
-    #[arg(long, allow_hyphen_values = true)]
-    azimuth_count: Option<String>,
-    /// Write the table: .png (preview) or .exr (spectral).
+struct DomeOutput {
+    /// Write the table: .png (preview) or .exr (the spectral artifact, as the service stores it).
     #[arg(short = 'o', long = "output")]
     output: Option<PathBuf>,
     /// PNG projection.
@@ -183,27 +259,45 @@ struct DomeArgs {
     /// PNG size in pixels (height).
     #[arg(long, default_value_t = 512)]
     size: usize,
+    /// Print JSON to stdout as well when writing a file.
+    #[arg(long, value_enum)]
+    format: Option<Format>,
+}
+
+#[derive(Args, Clone)]
+struct SkyArgs {
+    #[command(flatten)]
+    flags: ProductFlags<SKY>,
+    #[command(flatten)]
+    out: DomeOutput,
+}
+
+#[derive(Args, Clone)]
+struct GroundArgs {
+    #[command(flatten)]
+    flags: ProductFlags<GROUND>,
+    #[command(flatten)]
+    out: DomeOutput,
 }
 
 #[derive(Args, Clone)]
 struct AerialArgs {
     #[command(flatten)]
-    common: CommonArgs,
-    /// Rows (view elevations) [default: 33].
-    #[arg(long, allow_hyphen_values = true)]
-    elevation_count: Option<String>,
-    /// Columns (azimuths 0…180°) [default: 16].
-    #[arg(long, allow_hyphen_values = true)]
-    azimuth_count: Option<String>,
-    /// Distances per ray [default: 32].
-    #[arg(long, allow_hyphen_values = true)]
-    distance_count: Option<String>,
-    /// Largest distance, m [default: 100000].
-    #[arg(long, allow_hyphen_values = true)]
-    max_distance_m: Option<String>,
+    flags: ProductFlags<AERIAL>,
     /// Write the table as a spectral EXR (layers S0 = in-scattered radiance, T = transmittance).
     #[arg(short = 'o', long = "output")]
     output: Option<PathBuf>,
+    /// Print JSON to stdout as well when writing a file.
+    #[arg(long, value_enum)]
+    format: Option<Format>,
+}
+
+#[derive(Args, Clone)]
+struct PlanArgs {
+    /// The product: sun, sky, ground or aerial.
+    product: String,
+    #[command(flatten)]
+    flags: ProductFlags<ANY>,
 }
 
 #[derive(Clone, Copy, PartialEq, Eq, ValueEnum)]
@@ -212,117 +306,117 @@ enum ProjectionArg {
     Latlong,
 }
 
-fn request_params(c: &CommonArgs) -> Result<RequestParams> {
-    // `--atmosphere` may name a file: read it here (the library does no I/O).
-    let atmosphere = match &c.atmosphere {
-        Some(a) if Path::new(a).is_file() => Some(
-            std::fs::read_to_string(a)
-                .map_err(|e| Error::invalid("atmosphere", format!("cannot read {a}: {e}")))?,
-        ),
-        other => other.clone(),
-    };
-    Ok(RequestParams {
-        sun_elevation_deg: c.sun_elevation_deg.clone(),
-        latitude_deg: c.latitude.clone(),
-        longitude_deg: c.longitude.clone(),
-        time: c.time.clone(),
-        observer_altitude_m: c.observer_altitude_m.clone(),
-        wavelengths: c.wavelengths.clone(),
-        atmosphere,
-        ground_albedo: c.ground_albedo.clone(),
-        method: c.method.clone(),
-        quality: c.quality.clone(),
-        ..Default::default()
-    })
+/// The request parameters of the flags; `--atmosphere` may name a file, read here (the library
+/// does no I/O).
+fn request_params(mut p: RequestParams) -> Result<RequestParams> {
+    if let Some(a) = &p.atmosphere {
+        if Path::new(a).is_file() {
+            p.atmosphere = Some(read_input(Path::new(a), "atmosphere")?);
+        }
+    }
+    Ok(p)
 }
 
-/// The engine of one CLI call: precise tables come from (and go to) the cache directory unless
-/// `--no-table-cache`, so a second call with the same atmosphere and wavelengths skips the build.
-fn cli_engine(c: &CommonArgs) -> Result<Engine> {
-    if c.no_table_cache {
-        return Ok(Engine::new());
+/// Reads a file the user named: a missing file is bad input, other I/O errors are failures.
+fn read_input(path: &Path, field: &str) -> Result<String> {
+    std::fs::read_to_string(path).map_err(|e| io_error(e, field, path))
+}
+
+fn io_error(e: std::io::Error, field: &str, path: &Path) -> CliError {
+    let message = format!("cannot read {}: {e}", path.display());
+    if e.kind() == std::io::ErrorKind::NotFound {
+        CliError::Input(Error::invalid(field, message))
+    } else {
+        CliError::Failure(message)
     }
-    let settings = load_settings(None)?;
-    Ok(match skybake::store::tables::open_table_store(&settings) {
-        Some(store) => Engine::with_table_store(store),
-        None => Engine::new(),
-    })
 }
 
 fn print_json<T: serde::Serialize>(value: &T) -> Result<()> {
-    let text =
-        serde_json::to_string_pretty(value).map_err(|e| Error::invalid("format", e.to_string()))?;
-    println!("{text}");
-    Ok(())
+    let text = serde_json::to_string_pretty(value)
+        .map_err(|e| CliError::Failure(format!("JSON encoding: {e}")))?;
+    // A closed pipe (`| head`) ends the output quietly instead of panicking.
+    use std::io::Write;
+    let mut out = std::io::stdout().lock();
+    match writeln!(out, "{text}") {
+        Err(e) if e.kind() != std::io::ErrorKind::BrokenPipe => {
+            Err(CliError::Failure(format!("cannot write to stdout: {e}")))
+        }
+        _ => Ok(()),
+    }
+}
+
+/// Prints the JSON body rendered from the artifact (the service's `format=json`), indented.
+fn print_body(kind: ProductKind, image: &skybake::store::SpectralImage) -> Result<()> {
+    let body = artifact::render(kind, BodyFormat::Json, image)?;
+    let value: serde_json::Value =
+        serde_json::from_slice(&body).map_err(|e| CliError::Failure(format!("JSON body: {e}")))?;
+    print_json(&value)
 }
 
 fn write_file(path: &Path, bytes: &[u8]) -> Result<()> {
-    std::fs::write(path, bytes)
-        .map_err(|e| Error::invalid("output", format!("cannot write {}: {e}", path.display())))
+    // Through the store, the one place that writes (atomically).
+    Ok(skybake::store::write_atomic(path, bytes)?)
 }
 
-fn run_dome(args: &DomeArgs, ground: bool) -> Result<()> {
-    // Same request → product path as the HTTP service (defaults, limits, validation).
-    let params = RequestParams {
-        elevation_count: args.elevation_count.clone(),
-        azimuth_count: args.azimuth_count.clone(),
-        probe: args.probe.clone(),
-        ..request_params(&args.common)?
-    };
-    let kind = if ground {
-        ProductKind::Ground
-    } else {
-        ProductKind::Sky
-    };
-    let req = ProductRequest::from_params(kind, &params)?;
-    let (spec, probes) = (&req.spec, &req.probes);
-    let shape = req
-        .shape
-        .unwrap_or(if ground { GROUND_SHAPE } else { SKY_SHAPE });
-    let engine = cli_engine(&args.common)?;
-    let product = if ground {
-        engine.ground(spec, shape, probes)?
-    } else {
-        engine.sky(spec, shape, probes)?
-    };
-    if let Some(path) = &args.output {
-        let ext = path
-            .extension()
-            .and_then(|e| e.to_str())
-            .unwrap_or("")
-            .to_ascii_lowercase();
-        match ext.as_str() {
-            "png" => {
-                let projection = match args.projection {
-                    ProjectionArg::Fisheye => Projection::Fisheye,
-                    ProjectionArg::Latlong => Projection::LatLong,
-                };
-                write_file(path, &dome_png(&product.table, projection, args.size)?)?;
-            }
-            "exr" => write_file(
-                path,
-                &skybake::export::dome_exr(&product, spec, if ground { "ground" } else { "sky" })?,
-            )?,
-            _ => {
-                return Err(Error::invalid(
-                    "output",
-                    format!("'{}': use a .exr or .png file name", path.display()),
-                ))
-            }
+fn extension(path: &Path) -> String {
+    path.extension()
+        .and_then(|e| e.to_str())
+        .unwrap_or("")
+        .to_ascii_lowercase()
+}
+
+/// `sky`/`ground`: the product's artifact (the EXR the service and bakes store), written with
+/// `-o FILE.exr`, previewed with `-o FILE.png`, printed as the service's JSON body.
+fn run_dome(
+    kind: ProductKind,
+    flags: &RequestParams,
+    out: &DomeOutput,
+    engine: &Engine,
+) -> Result<()> {
+    let req = ProductRequest::from_params(kind, &request_params(flags.clone())?)?;
+    let ext = out.output.as_deref().map(extension);
+    if let (Some(path), Some(ext)) = (&out.output, &ext) {
+        if ext != "png" && ext != "exr" {
+            return Err(Error::invalid(
+                "output",
+                format!("'{}': use a .exr or .png file name", path.display()),
+            )
+            .into());
         }
     }
-    if args.output.is_none() || args.common.format == Some(Format::Json) {
-        print_json(&DomeJson::new(
-            if ground { "ground" } else { "sky" },
-            &product,
-            spec,
-        ))?;
+    let image = req.compute(engine)?;
+    if let (Some(path), Some(ext)) = (&out.output, &ext) {
+        if ext == "png" {
+            let projection = match out.projection {
+                ProjectionArg::Fisheye => Projection::Fisheye,
+                ProjectionArg::Latlong => Projection::LatLong,
+            };
+            let table = artifact::dome_table_of(&image)?;
+            write_file(path, &dome_png(&table, projection, out.size)?)?;
+        } else {
+            write_file(path, &skybake::store::encode_exr(&image)?)?;
+        }
+    }
+    if out.output.is_none() || out.format == Some(Format::Json) {
+        print_body(kind, &image)?;
     }
     Ok(())
 }
 
 fn load_settings(config: Option<&Path>) -> Result<skybake::config::Settings> {
-    skybake::config::Settings::load(config)
+    Ok(skybake::config::Settings::load(config)?)
+}
+
+/// The engine of every product command (`sun`, `sky`, `ground`, `aerial`, `render`, `bake`): the
+/// precise tables come from (and go to) the configured cache directory, so a second call with the
+/// same atmosphere and wavelengths skips the build; `--no-table-cache` builds them in-process.
+fn engine(no_table_cache: bool, config: Option<&Path>) -> Result<Engine> {
+    if no_table_cache {
+        return Ok(Engine::new());
+    }
+    Ok(skybake::store::tables::engine_for_settings(
+        &load_settings(config)?,
+    ))
 }
 
 fn serve(args: ServeArgs) -> Result<()> {
@@ -334,13 +428,13 @@ fn serve(args: ServeArgs) -> Result<()> {
         settings.cache.dir = dir;
     }
     settings.validate()?;
-    skybake::service::server::run(settings).map_err(|e| Error::invalid("serve", e))
+    skybake::service::server::run(settings).map_err(CliError::Failure)
 }
 
-fn bake(job: &Path, out: &Path, config: Option<&Path>) -> Result<()> {
+fn bake(job: &Path, out: &Path, config: Option<&Path>, no_table_cache: bool) -> Result<()> {
     let settings = load_settings(config)?;
-    let body = std::fs::read(job)
-        .map_err(|e| Error::invalid("job", format!("cannot read {}: {e}", job.display())))?;
+    let engine = engine(no_table_cache, config)?;
+    let body = std::fs::read(job).map_err(|e| io_error(e, "job", job))?;
     let start = std::time::Instant::now();
     // A progress bar on a terminal; plain progress lines in logs and pipes.
     let bar = std::io::IsTerminal::is_terminal(&std::io::stderr()).then(|| {
@@ -352,8 +446,14 @@ fn bake(job: &Path, out: &Path, config: Option<&Path>) -> Result<()> {
         }
         bar
     });
-    let summary =
-        skybake::service::jobs::bake(&body, out, &settings, |done, total, what| match &bar {
+    let defaults = skybake::product::params::Defaults::from_settings(&settings);
+    let summary = skybake::job::bake::bake(
+        &body,
+        out,
+        &defaults,
+        settings.jobs.max_products,
+        &engine,
+        |done, total, what| match &bar {
             Some(bar) => {
                 bar.set_length(total as u64);
                 bar.set_position(done as u64);
@@ -363,28 +463,33 @@ fn bake(job: &Path, out: &Path, config: Option<&Path>) -> Result<()> {
                 "[{done}/{total}] {what} ({:.1} s)",
                 start.elapsed().as_secs_f64()
             ),
-        })
-        .map_err(|e| Error::invalid("bake", e))?;
+        },
+    )
+    .map_err(|e| {
+        if e.is_input() {
+            CliError::Input(Error::invalid("job", e))
+        } else {
+            CliError::Failure(e.to_string())
+        }
+    })?;
     if let Some(bar) = &bar {
         bar.finish_and_clear();
     }
     print_json(&summary)?;
     if summary.failed > 0 {
-        return Err(Error::invalid(
-            "bake",
-            format!(
-                "{} of {} products failed (see manifest.json)",
-                summary.failed, summary.total
-            ),
-        ));
+        return Err(CliError::Failure(format!(
+            "{} of {} products failed (see manifest.json)",
+            summary.failed, summary.total
+        )));
     }
     Ok(())
 }
 
 fn run(cli: Cli) -> Result<()> {
+    let no_table_cache = cli.no_table_cache;
     match cli.command {
         Command::Serve(args) => serve(args),
-        Command::Bake { job, out, config } => bake(&job, &out, config.as_deref()),
+        Command::Bake { job, out, config } => bake(&job, &out, config.as_deref(), no_table_cache),
         Command::Healthcheck { addr } => {
             let addr = match addr {
                 Some(a) => a,
@@ -393,48 +498,63 @@ fn run(cli: Cli) -> Result<()> {
             let addr = addr
                 .parse()
                 .map_err(|_| Error::invalid("addr", format!("'{addr}' is not HOST:PORT")))?;
-            skybake::service::server::healthcheck(addr)
-                .map_err(|e| Error::invalid("healthcheck", e))
+            skybake::service::server::healthcheck(addr).map_err(CliError::Failure)
         }
-        Command::Sun(c) => {
-            let req = ProductRequest::from_params(ProductKind::Sun, &request_params(&c)?)?;
-            print_json(&cli_engine(&c)?.sun(&req.spec)?)
+        Command::Sun(a) => {
+            let req = ProductRequest::from_params(
+                ProductKind::Sun,
+                &request_params(a.flags.params.clone())?,
+            )?;
+            print_body(
+                ProductKind::Sun,
+                &req.compute(&engine(no_table_cache, None)?)?,
+            )
         }
-        Command::Sky(a) => run_dome(&a, false),
-        Command::Ground(a) => run_dome(&a, true),
+        Command::Sky(a) => run_dome(
+            ProductKind::Sky,
+            &a.flags.params,
+            &a.out,
+            &engine(no_table_cache, None)?,
+        ),
+        Command::Ground(a) => run_dome(
+            ProductKind::Ground,
+            &a.flags.params,
+            &a.out,
+            &engine(no_table_cache, None)?,
+        ),
         Command::Aerial(a) => {
-            let params = RequestParams {
-                elevation_count: a.elevation_count.clone(),
-                azimuth_count: a.azimuth_count.clone(),
-                distance_count: a.distance_count.clone(),
-                max_distance_m: a.max_distance_m.clone(),
-                ..request_params(&a.common)?
-            };
-            let req = ProductRequest::from_params(ProductKind::Aerial, &params)?;
-            let spec = req.spec.clone();
-            let shape = req.shape.unwrap_or(AERIAL_SHAPE);
-            let n_d = req.distance_count.unwrap_or(AERIAL_DISTANCE_COUNT);
-            let max_d = req.max_distance_m.unwrap_or(AERIAL_MAX_DISTANCE_M);
-            let product = cli_engine(&a.common)?.aerial(&spec, shape, n_d, max_d)?;
+            let req = ProductRequest::from_params(
+                ProductKind::Aerial,
+                &request_params(a.flags.params.clone())?,
+            )?;
             if let Some(path) = &a.output {
-                if path
-                    .extension()
-                    .and_then(|e| e.to_str())
-                    .map(str::to_ascii_lowercase)
-                    .as_deref()
-                    != Some("exr")
-                {
+                if extension(path) != "exr" {
                     return Err(Error::invalid(
                         "output",
                         format!("'{}': aerial tables are written as .exr", path.display()),
-                    ));
+                    )
+                    .into());
                 }
-                write_file(path, &skybake::export::aerial_exr(&product, &spec)?)?;
             }
-            if a.output.is_none() || a.common.format == Some(Format::Json) {
-                print_json(&AerialJson::new(&product, &spec))?;
+            let image = req.compute(&engine(no_table_cache, None)?)?;
+            if let Some(path) = &a.output {
+                write_file(path, &skybake::store::encode_exr(&image)?)?;
+            }
+            if a.output.is_none() || a.format == Some(Format::Json) {
+                print_body(ProductKind::Aerial, &image)?;
             }
             Ok(())
+        }
+        Command::Plan(a) => {
+            let kind = ProductKind::parse(&a.product)?;
+            let req = ProductRequest::from_params(kind, &request_params(a.flags.params.clone())?)?;
+            print_json(&serde_json::json!({
+                "product": kind.name(),
+                "cache_key": req.cache_key(),
+                "engine_version": skybake::engine::ENGINE_VERSION,
+                "plan": req.plan()?,
+                "work_cells": req.work_cells(),
+            }))
         }
         Command::Atmosphere { print, list } => {
             if let Some(name) = print {
@@ -445,7 +565,7 @@ fn run(cli: Cli) -> Result<()> {
                 }
                 Ok(())
             } else {
-                Err(Error::invalid("atmosphere", "use --print PRESET or --list"))
+                Err(Error::invalid("atmosphere", "use --print PRESET or --list").into())
             }
         }
         Command::Clouds {
@@ -453,6 +573,18 @@ fn run(cli: Cli) -> Result<()> {
             voxels,
             format,
         } => run_clouds(&scene, voxels.as_deref(), format),
+        Command::Render {
+            scene,
+            output,
+            method,
+            format,
+        } => run_render(
+            &scene,
+            output.as_deref(),
+            &method,
+            format,
+            &engine(no_table_cache, None)?,
+        ),
         Command::Bench {
             names,
             format,
@@ -479,7 +611,7 @@ fn run(cli: Cli) -> Result<()> {
 }
 
 /// Reads at most `limit` bytes of `path`, refusing larger files (errors name `field`).
-fn read_limited(path: &Path, field: &str, limit: usize) -> Result<Vec<u8>> {
+fn read_limited(path: &Path, field: &str, limit: usize) -> skybake::Result<Vec<u8>> {
     use std::io::Read;
     let cannot =
         |e: std::io::Error| Error::invalid(field, format!("cannot read {}: {e}", path.display()));
@@ -505,6 +637,108 @@ fn read_limited(path: &Path, field: &str, limit: usize) -> Result<Vec<u8>> {
     Ok(bytes)
 }
 
+/// `skybake render`: reads the scene (the library does no I/O), renders it through the frame
+/// product (the same path as `POST /v1/render`), writes the EXR or PNG and prints a summary.
+fn run_render(
+    scene: &Path,
+    output: Option<&Path>,
+    method: &str,
+    format: Format,
+    engine: &Engine,
+) -> Result<()> {
+    use skybake::cloud::scene as cloud_scene;
+    use skybake::render::{FrameRequest, Method};
+    let method = Method::parse(method)?;
+    let ext = output
+        .and_then(|o| o.extension())
+        .and_then(|e| e.to_str())
+        .map(str::to_ascii_lowercase);
+    if let (Some(out), Some(ext)) = (output, ext.as_deref()) {
+        if ext != "exr" && ext != "png" {
+            return Err(Error::invalid(
+                "output",
+                format!("'{}': a frame is written as .exr or .png", out.display()),
+            )
+            .into());
+        }
+    } else if let Some(out) = output {
+        return Err(Error::invalid(
+            "output",
+            format!("'{}': a frame is written as .exr or .png", out.display()),
+        )
+        .into());
+    }
+    let text = read_limited(scene, "scene", cloud_scene::MAX_SCENE_FILE_BYTES)?;
+    let request = FrameRequest::parse(&text, method)?;
+    let dir = scene.parent().unwrap_or(Path::new("."));
+    let loader =
+        |name: &str| read_limited(&dir.join(name), "path", cloud_scene::MAX_GRID_FILE_BYTES);
+    let bar = std::io::IsTerminal::is_terminal(&std::io::stderr()).then(|| {
+        let bar = indicatif::ProgressBar::new(1000);
+        if let Ok(style) = indicatif::ProgressStyle::with_template(
+            "{elapsed_precise} [{bar:40}] {percent}% ({eta} left)",
+        ) {
+            bar.set_style(style.progress_chars("=> "));
+        }
+        bar
+    });
+    let progress = |f: f64| {
+        if let Some(bar) = &bar {
+            bar.set_position((f * 1000.0) as u64);
+        }
+    };
+    let image = request.compute(engine, &loader, &progress, &|| false)?;
+    if let Some(bar) = &bar {
+        bar.finish_and_clear();
+    }
+    match (output, ext.as_deref()) {
+        (Some(out), Some("png")) => {
+            let rgb = image
+                .rgb()
+                .ok_or_else(|| Error::invalid("frame", "has no RGB planes"))?;
+            let bytes = skybake::output::frame_png(image.width(), image.height(), rgb)?;
+            write_file(out, &bytes)?;
+        }
+        (Some(out), _) => {
+            let bytes = skybake::store::encode_exr(&image)
+                .map_err(|e| Error::invalid("output", e.to_string()))?;
+            write_file(out, &bytes)?;
+        }
+        (None, _) => {}
+    }
+    let attr = |name: &str| -> serde_json::Value {
+        image
+            .attribute(name)
+            .and_then(|t| serde_json::from_str(t).ok())
+            .unwrap_or(serde_json::Value::Null)
+    };
+    let summary = serde_json::json!({
+        "scene": scene.display().to_string(),
+        "method": method,
+        "width": image.width(),
+        "height": image.height(),
+        "wavelengths_nm": image.wavelengths_nm(),
+        "output": output.map(|p| p.display().to_string()),
+        "cache_key": request.cache_key(),
+        "meta": attr("skybakeFrameMeta"),
+    });
+    if format == Format::Json {
+        print_json(&summary)
+    } else {
+        println!(
+            "{} {}x{} ({:?}) -> {}",
+            scene.display(),
+            image.width(),
+            image.height(),
+            method,
+            output
+                .map(|p| p.display().to_string())
+                .unwrap_or_else(|| "-".into())
+        );
+        Ok(())
+    }
+}
+
 /// `skybake clouds`: reads the scene (the library does no I/O), voxelises its cloud section with
 /// files resolved relative to the scene's directory, writes the grid as `.npy` and prints a
 /// summary.
@@ -522,7 +756,8 @@ fn run_clouds(scene: &Path, voxels: Option<&Path>, format: Format) -> Result<()>
             return Err(Error::invalid(
                 "voxels",
                 format!("'{}': the density grid is written as .npy", out.display()),
-            ));
+            )
+            .into());
         }
     }
     let start = Instant::now();
@@ -595,9 +830,13 @@ fn main() -> ExitCode {
         .init();
     match run(Cli::parse()) {
         Ok(()) => ExitCode::SUCCESS,
-        Err(e) => {
+        Err(CliError::Input(e)) => {
             eprintln!("error: {e}");
             ExitCode::from(2)
+        }
+        Err(CliError::Failure(message)) => {
+            eprintln!("failed (not an input error): {message}");
+            ExitCode::from(1)
         }
     }
 }

@@ -202,14 +202,33 @@ pub fn dome_png(t: &DomeTable, projection: Projection, size: usize) -> Result<Ve
         }
     }
     // Expose on the lit part of the view (space around a planet seen from orbit is black).
+    let exposure = middle_grey_exposure(lum);
+    exposed_srgb_png(width, height, exposure, |i| rgb[i])
+}
+
+/// The exposure that maps the median of the positive luminances to 0.18 (photographic middle
+/// grey); 1 when nothing is lit.
+fn middle_grey_exposure(mut lum: Vec<f64>) -> f64 {
     lum.retain(|&y| y > 0.0);
     lum.sort_by(f64::total_cmp);
     let mid = lum.get(lum.len() / 2).copied().unwrap_or(1.0);
-    let exposure = if mid > 0.0 { 0.18 / mid } else { 1.0 };
+    if mid > 0.0 {
+        0.18 / mid
+    } else {
+        1.0
+    }
+}
+
+/// 8-bit sRGB PNG of `width` × `height` linear sRGB pixels (`pixel(i)`, row-major) times `exposure`.
+fn exposed_srgb_png(
+    width: usize,
+    height: usize,
+    exposure: f64,
+    pixel: impl Fn(usize) -> [f64; 3],
+) -> Result<Vec<u8>> {
     let mut img = image::RgbImage::new(width as u32, height as u32);
     for (i, px) in img.pixels_mut().enumerate() {
-        let c = rgb[i];
-        *px = image::Rgb(c.map(|v| (srgb_encode(v * exposure) * 255.0).round() as u8));
+        *px = image::Rgb(pixel(i).map(|v| (srgb_encode(v * exposure) * 255.0).round() as u8));
     }
     let mut bytes = Vec::new();
     img.write_to(
@@ -231,4 +250,25 @@ fn axis_pos(axis: &[f64], x: f64) -> (usize, f64) {
     }
     let i = axis.partition_point(|&v| v <= x) - 1;
     (i, (x - axis[i]) / (axis[i + 1] - axis[i]))
+}
+
+/// PNG of a rendered frame from its linear sRGB planes (the frame's `R`, `G`, `B`): exposed so
+/// that the median luminance of the lit pixels maps to 0.18 (photographic middle grey; bright
+/// cloud tops may clip), then sRGB-encoded to 8 bits. Pixels are row-major, top row first.
+pub fn frame_png(width: usize, height: usize, rgb: &[Vec<f32>; 3]) -> Result<Vec<u8>> {
+    let n = width * height;
+    if n == 0 || rgb.iter().any(|p| p.len() != n) {
+        return Err(Error::invalid(
+            "frame",
+            "RGB planes do not match the image size",
+        ));
+    }
+    let pixel = |i: usize| [rgb[0][i], rgb[1][i], rgb[2][i]].map(f64::from);
+    let lum = (0..n)
+        .map(|i| {
+            let [r, g, b] = pixel(i);
+            0.2126 * r + 0.7152 * g + 0.0722 * b
+        })
+        .collect();
+    exposed_srgb_png(width, height, middle_grey_exposure(lum), pixel)
 }

@@ -191,8 +191,10 @@ mod tests {
                 p.mean_cosine()
             );
         }
-        // Henyey-Greenstein's mean cosine is g exactly; Cornette-Shanks' is below g (seed 000 eq 5).
-        assert!(Phase::CornetteShanks { g: 0.85 }.mean_cosine() < 0.85);
+        // Cornette & Shanks 1992: ⟨μ⟩ = 3g(4 + g²) / (5(2 + g²)), above g for g > 0 (0.885 at 0.85).
+        let g: f64 = 0.85;
+        let closed = 3.0 * g * (4.0 + g * g) / (5.0 * (2.0 + g * g));
+        assert!((Phase::CornetteShanks { g }.mean_cosine() - closed).abs() < 1e-3);
     }
 
     #[test]

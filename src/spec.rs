@@ -1,9 +1,9 @@
-//! Parsing at the edge: the parameters of a request (CLI flags or an HTTP query string, both as
-//! strings) become one canonical, validated, hashable spec (STYLE.md §3). Errors name the
-//! parameter and its allowed range.
+//! The canonical, validated, hashable specs of the atmosphere products (STYLE.md §3): what the
+//! planner plans and the engine executes. [`crate::product::params`] parses request parameters
+//! (CLI flags, query strings, JSON bodies) into these; the constructors here hold the limits, so a
+//! spec that exists is valid and nothing downstream checks again.
 
 use crate::atmosphere::params::AtmosphereParams;
-use crate::atmosphere::presets;
 use crate::atmosphere::sky::MsMethod;
 use crate::spectrum::Wavelengths;
 use crate::{Error, Result};
@@ -19,28 +19,6 @@ pub const MAX_PROBES: usize = 4096;
 /// Most aerial-perspective cells (azimuths × elevations × distances): with 64 wavelengths and
 /// two layers (transmittance, in-scattered radiance), 128 MiB.
 pub const MAX_AERIAL_CELLS: usize = 256 * 1024;
-
-/// Request parameters as they arrive (all optional strings; missing ones take defaults).
-#[derive(Debug, Clone, Default, Deserialize, Serialize)]
-#[serde(deny_unknown_fields)]
-pub struct RequestParams {
-    pub sun_elevation_deg: Option<String>,
-    pub latitude_deg: Option<String>,
-    pub longitude_deg: Option<String>,
-    pub time: Option<String>,
-    pub observer_altitude_m: Option<String>,
-    pub wavelengths: Option<String>,
-    pub atmosphere: Option<String>,
-    pub ground_albedo: Option<String>,
-    pub method: Option<String>,
-    pub quality: Option<String>,
-    pub elevation_count: Option<String>,
-    pub azimuth_count: Option<String>,
-    pub distance_count: Option<String>,
-    pub max_distance_m: Option<String>,
-    pub probe: Option<String>,
-    pub format: Option<String>,
-}
 
 /// Quality presets: ray-marching steps and table resolutions.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
@@ -109,205 +87,258 @@ pub struct CommonSpec {
     pub quality: Quality,
 }
 
-/// Parses a float parameter, naming it in errors and checking its range.
-pub fn parse_f64(field: &str, text: &str, lo: f64, hi: f64, unit: &str) -> Result<f64> {
-    let v: f64 = text
-        .trim()
-        .parse()
-        .map_err(|_| Error::invalid(field, format!("'{text}' is not a number")))?;
-    if !(v.is_finite() && v >= lo && v <= hi) {
-        return Err(Error::out_of_range(
-            field,
-            v,
-            format!("{lo} to {hi} {unit}"),
-        ));
-    }
-    Ok(v)
-}
-
-/// Parses an integer parameter in `[lo, hi]`.
-pub fn parse_usize(field: &str, text: &str, lo: usize, hi: usize) -> Result<usize> {
-    let v: usize = text
-        .trim()
-        .parse()
-        .map_err(|_| Error::invalid(field, format!("'{text}' is not a whole number")))?;
-    if v < lo || v > hi {
-        return Err(Error::out_of_range(field, v, format!("{lo} to {hi}")));
-    }
-    Ok(v)
-}
-
-/// Resolves `atmosphere=`: a preset name or inline JSON (`{...}`).
-pub fn resolve_atmosphere(text: Option<&str>) -> Result<AtmosphereParams> {
-    match text.map(str::trim) {
-        None | Some("") => presets::preset("earth"),
-        Some(t) if t.starts_with('{') => presets::parse_json("atmosphere", t),
-        Some(name) => presets::preset(name),
-    }
-}
-
 /// Solar position hook: (latitude, longitude, RFC 3339 time) → (elevation, azimuth), degrees.
 pub type SolarPositionFn = fn(f64, f64, &str) -> Result<(f64, f64)>;
 
-impl CommonSpec {
-    /// Builds the common spec; `min_sun_elevation_deg` is the product's lower limit
-    /// (−10° for `sun`, −18° for the others).
-    pub fn from_params(p: &RequestParams, min_sun_elevation_deg: f64) -> Result<Self> {
-        let atmosphere = resolve_atmosphere(p.atmosphere.as_deref())?;
-        let wavelengths_nm = match &p.wavelengths {
-            Some(w) => Wavelengths::parse(w)?,
-            None => Wavelengths::default_set(),
-        };
-        let sun = match (
-            &p.sun_elevation_deg,
-            &p.latitude_deg,
-            &p.longitude_deg,
-            &p.time,
-        ) {
-            (Some(e), None, None, None) => SunPosition {
-                sun_elevation_deg: parse_f64(
-                    "sun_elevation_deg",
-                    e,
-                    min_sun_elevation_deg,
-                    90.0,
-                    "deg",
-                )?,
-                from_location: None,
-            },
-            (None, Some(lat), Some(lon), Some(time)) => {
-                let lat = parse_f64("latitude_deg", lat, -90.0, 90.0, "deg")?;
-                let lon = parse_f64("longitude_deg", lon, -180.0, 180.0, "deg")?;
-                let (elevation, azimuth) = crate::solar::sun_elevation_azimuth_deg(lat, lon, time)?;
-                if elevation < min_sun_elevation_deg {
-                    return Err(Error::out_of_range(
-                        "time",
-                        format!("{time} (sun elevation {elevation:.3}°)"),
-                        format!("times when the sun is at least {min_sun_elevation_deg}° high at this place"),
-                    ));
-                }
-                SunPosition {
-                    sun_elevation_deg: elevation,
-                    from_location: Some(SolarLocation {
-                        latitude_deg: lat,
-                        longitude_deg: lon,
-                        time: time.clone(),
-                        sun_azimuth_deg: azimuth,
-                    }),
-                }
-            }
-            (None, None, None, None) => SunPosition {
-                sun_elevation_deg: 30.0,
-                from_location: None,
-            },
-            _ => {
-                return Err(Error::invalid(
-                    "sun_elevation_deg",
-                    "give either sun_elevation_deg, or all of latitude_deg, longitude_deg and time",
-                ))
-            }
-        };
-        let observer_altitude_m = match &p.observer_altitude_m {
-            Some(a) => parse_f64("observer_altitude_m", a, 0.0, MAX_OBSERVER_ALTITUDE_M, "m")?,
-            None => 0.0,
-        };
-        let ground_albedo = p
-            .ground_albedo
-            .as_deref()
-            .map(|a| parse_f64("ground_albedo", a, 0.0, 1.0, ""))
-            .transpose()?;
-        let method = p
-            .method
-            .as_deref()
-            .map(MsMethod::parse)
-            .transpose()?
-            .unwrap_or(MsMethod::Precise);
-        let quality = p
-            .quality
-            .as_deref()
-            .map(Quality::parse)
-            .transpose()?
-            .unwrap_or(Quality::Standard);
-        Ok(Self {
-            atmosphere,
-            wavelengths_nm,
-            sun,
-            observer_altitude_m,
-            ground_albedo,
-            method,
-            quality,
-        })
-    }
+/// The products. A product whose spec comes from a JSON body rather than query parameters (the
+/// cloud `Frame(Scene)` to come) is one more variant here and in [`ProductSpec`].
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum ProductKind {
+    Sun,
+    Sky,
+    Ground,
+    Aerial,
 }
 
-/// Parses `probe=VZ:VA,VZ:VA` (degrees): view zenith 0–180, view azimuth −360–360.
-pub fn parse_probes(text: &str) -> Result<Vec<(f64, f64)>> {
-    let probes = text
-        .split(',')
-        .filter(|s| !s.trim().is_empty())
-        .map(|pair| {
-            let (vz, va) = pair.split_once(':').ok_or_else(|| {
-                Error::invalid("probe", format!("'{pair}' is not VZ:VA (e.g. 30:90)"))
-            })?;
-            Ok((
-                parse_f64("probe", vz, 0.0, 180.0, "deg view zenith")?,
-                parse_f64("probe", va, -360.0, 360.0, "deg view azimuth")?,
-            ))
-        })
-        .collect::<Result<Vec<_>>>()?;
-    if probes.len() > MAX_PROBES {
-        return Err(Error::too_large(
-            "probe",
-            format!("{} directions", probes.len()),
-            MAX_PROBES,
-        ));
-    }
-    Ok(probes)
-}
+impl ProductKind {
+    /// All kinds, in route order.
+    pub const ALL: [ProductKind; 4] = [Self::Sun, Self::Sky, Self::Ground, Self::Aerial];
 
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    fn params(pairs: &[(&str, &str)]) -> RequestParams {
-        let v: serde_json::Map<String, serde_json::Value> = pairs
-            .iter()
-            .map(|(k, v)| (k.to_string(), serde_json::Value::String(v.to_string())))
-            .collect();
-        serde_json::from_value(serde_json::Value::Object(v)).unwrap()
-    }
-
-    #[test]
-    fn errors_name_the_parameter() {
-        let bad = [
-            ("sun_elevation_deg", "-30"),
-            ("sun_elevation_deg", "abc"),
-            ("observer_altitude_m", "-1"),
-            ("wavelengths", "200"),
-            ("ground_albedo", "1.5"),
-            ("method", "magic"),
-            ("quality", "ultra"),
-            ("atmosphere", "venus"),
-        ];
-        for (k, v) in bad {
-            let err = CommonSpec::from_params(&params(&[(k, v)]), -18.0).unwrap_err();
-            let field = if k == "wavelengths" || k == "atmosphere" {
-                k
-            } else {
-                err.field()
-            };
-            assert!(err.field().starts_with(field), "{k}={v}: {err}");
-            assert_eq!(err.field(), k, "{k}={v}: {err}");
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::Sun => "sun",
+            Self::Sky => "sky",
+            Self::Ground => "ground",
+            Self::Aerial => "aerial",
         }
-        assert_eq!(parse_probes("30:0,45").unwrap_err().field(), "probe");
-        assert_eq!(parse_probes("30:0, 200:5").unwrap_err().field(), "probe");
     }
 
-    #[test]
-    fn defaults_are_sane() {
-        let s = CommonSpec::from_params(&RequestParams::default(), -18.0).unwrap();
-        assert_eq!(s.wavelengths_nm.len(), 16);
-        assert_eq!(s.sun.sun_elevation_deg, 30.0);
-        assert_eq!(s.method, MsMethod::Precise);
-        assert_eq!(s.atmosphere.name.as_deref(), Some("earth"));
+    /// Parses a product name (`product` member of plan and job bodies).
+    pub fn parse(s: &str) -> Result<Self> {
+        Self::ALL
+            .into_iter()
+            .find(|k| k.name() == s)
+            .ok_or_else(|| {
+                Error::invalid(
+                    "product",
+                    format!("'{s}' is not one of sun, sky, ground, aerial"),
+                )
+            })
+    }
+
+    /// Lowest sun elevation the product accepts, degrees.
+    pub fn min_sun_elevation_deg(self) -> f64 {
+        match self {
+            Self::Sun => -10.0,
+            _ => -18.0,
+        }
+    }
+}
+
+/// Table shape of a sky/ground/aerial request.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+pub struct DomeShape {
+    pub elevation_count: usize,
+    pub azimuth_count: usize,
+}
+
+/// Default sky table shape (CLI and HTTP).
+pub const SKY_SHAPE: DomeShape = DomeShape {
+    elevation_count: 129,
+    azimuth_count: 64,
+};
+/// Default ground table shape.
+pub const GROUND_SHAPE: DomeShape = DomeShape {
+    elevation_count: 65,
+    azimuth_count: 64,
+};
+/// Default aerial-perspective shape.
+pub const AERIAL_SHAPE: DomeShape = DomeShape {
+    elevation_count: 33,
+    azimuth_count: 16,
+};
+/// Default aerial distances per ray.
+pub const AERIAL_DISTANCE_COUNT: usize = 32;
+/// Default largest aerial distance, m.
+pub const AERIAL_MAX_DISTANCE_M: f64 = 100_000.0;
+
+impl DomeShape {
+    /// Checks the shape: 2–4096 rows, 1–4096 columns, at most [`MAX_TABLE_CELLS`] cells.
+    pub fn checked(self) -> Result<Self> {
+        if !(2..=4096).contains(&self.elevation_count) {
+            return Err(Error::out_of_range(
+                "elevation_count",
+                self.elevation_count,
+                "2 to 4096",
+            ));
+        }
+        if !(1..=4096).contains(&self.azimuth_count) {
+            return Err(Error::out_of_range(
+                "azimuth_count",
+                self.azimuth_count,
+                "1 to 4096",
+            ));
+        }
+        let cells = self.elevation_count * self.azimuth_count;
+        if cells > MAX_TABLE_CELLS {
+            return Err(Error::too_large(
+                "elevation_count",
+                format!("{cells} table cells (elevations × azimuths)"),
+                MAX_TABLE_CELLS,
+            ));
+        }
+        Ok(self)
+    }
+}
+
+/// A sky or ground table and exact probe directions (view zenith, view azimuth), degrees.
+/// Construct with [`DomeSpec::sky`] or [`DomeSpec::ground`], which check the limits.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct DomeSpec {
+    shape: DomeShape,
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    probes: Vec<(f64, f64)>,
+}
+
+impl DomeSpec {
+    /// A sky table (view elevation −90…90°) of `shape` and probes anywhere on the sphere.
+    pub fn sky(shape: DomeShape, probes: Vec<(f64, f64)>) -> Result<Self> {
+        Self::checked(shape, probes, 0.0)
+    }
+
+    /// A ground table (view elevation −90…0°): probes must look down (view zenith ≥ 90°).
+    pub fn ground(shape: DomeShape, probes: Vec<(f64, f64)>) -> Result<Self> {
+        Self::checked(shape, probes, 90.0)
+    }
+
+    fn checked(shape: DomeShape, probes: Vec<(f64, f64)>, min_zenith_deg: f64) -> Result<Self> {
+        let shape = shape.checked()?;
+        if probes.len() > MAX_PROBES {
+            return Err(Error::too_large(
+                "probe",
+                format!("{} directions", probes.len()),
+                MAX_PROBES,
+            ));
+        }
+        for &(vz, va) in &probes {
+            if !(vz.is_finite() && (min_zenith_deg..=180.0).contains(&vz)) {
+                let allowed = if min_zenith_deg > 0.0 {
+                    "90 to 180 deg view zenith (ground looks down)"
+                } else {
+                    "0 to 180 deg view zenith"
+                };
+                return Err(Error::out_of_range("probe", vz, allowed));
+            }
+            if !(va.is_finite() && (-360.0..=360.0).contains(&va)) {
+                return Err(Error::out_of_range(
+                    "probe",
+                    va,
+                    "-360 to 360 deg view azimuth",
+                ));
+            }
+        }
+        Ok(Self { shape, probes })
+    }
+
+    pub fn shape(&self) -> DomeShape {
+        self.shape
+    }
+
+    pub fn probes(&self) -> &[(f64, f64)] {
+        &self.probes
+    }
+}
+
+/// An aerial-perspective table: directions × distances from 0 to `max_distance_m`.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct AerialSpec {
+    shape: DomeShape,
+    distance_count: usize,
+    max_distance_m: f64,
+}
+
+impl AerialSpec {
+    /// Checks the limits: 1–4096 distances, 1 m–10 000 km, at most [`MAX_AERIAL_CELLS`] cells.
+    pub fn new(shape: DomeShape, distance_count: usize, max_distance_m: f64) -> Result<Self> {
+        let shape = shape.checked()?;
+        if !(1..=4096).contains(&distance_count) {
+            return Err(Error::out_of_range(
+                "distance_count",
+                distance_count,
+                "1 to 4096",
+            ));
+        }
+        if !(max_distance_m.is_finite() && (1.0..=1.0e7).contains(&max_distance_m)) {
+            return Err(Error::out_of_range(
+                "max_distance_m",
+                max_distance_m,
+                "1 to 10000000 m",
+            ));
+        }
+        let cells = shape.elevation_count * shape.azimuth_count * distance_count;
+        if cells > MAX_AERIAL_CELLS {
+            return Err(Error::too_large(
+                "distance_count",
+                format!("{cells} cells (elevations × azimuths × distances)"),
+                MAX_AERIAL_CELLS,
+            ));
+        }
+        Ok(Self {
+            shape,
+            distance_count,
+            max_distance_m,
+        })
+    }
+
+    pub fn shape(&self) -> DomeShape {
+        self.shape
+    }
+
+    pub fn distance_count(&self) -> usize {
+        self.distance_count
+    }
+
+    pub fn max_distance_m(&self) -> f64 {
+        self.max_distance_m
+    }
+}
+
+/// What to compute, beyond the [`CommonSpec`]: one variant per product. Serialised with a
+/// `product` tag (part of the canonical request and so of the cache key).
+#[derive(Debug, Clone, PartialEq, Serialize)]
+#[serde(tag = "product", rename_all = "snake_case")]
+pub enum ProductSpec {
+    Sun,
+    Sky(DomeSpec),
+    Ground(DomeSpec),
+    Aerial(AerialSpec),
+}
+
+impl ProductSpec {
+    pub fn kind(&self) -> ProductKind {
+        match self {
+            Self::Sun => ProductKind::Sun,
+            Self::Sky(_) => ProductKind::Sky,
+            Self::Ground(_) => ProductKind::Ground,
+            Self::Aerial(_) => ProductKind::Aerial,
+        }
+    }
+
+    /// Output cells (pixels of the artifact).
+    pub fn pixel_count(&self) -> usize {
+        match self {
+            Self::Sun => 1,
+            Self::Sky(d) | Self::Ground(d) => d.shape.elevation_count * d.shape.azimuth_count,
+            Self::Aerial(a) => a.shape.elevation_count * a.shape.azimuth_count * a.distance_count,
+        }
+    }
+
+    /// Probe directions (sky and ground).
+    pub fn probes(&self) -> &[(f64, f64)] {
+        match self {
+            Self::Sky(d) | Self::Ground(d) => d.probes(),
+            _ => &[],
+        }
     }
 }

@@ -2,7 +2,8 @@
 //! against Beer-Lambert, and spectral EXR round trips.
 
 use skybake::engine::{DomeShape, Engine};
-use skybake::spec::{CommonSpec, RequestParams};
+use skybake::product::params::RequestParams;
+use skybake::spec::CommonSpec;
 
 fn spec(method: &str, wavelengths: &str, atmosphere: &str, sun: &str, alt: &str) -> CommonSpec {
     let p = RequestParams {
@@ -116,49 +117,133 @@ fn aerial_perspective_follows_beer_lambert_and_ends_at_the_sky() {
 
 #[test]
 fn ground_product_looks_down_and_joins_the_sky_table() {
+    // Looks down: the table spans view elevation −90° up to the observer's geometric horizon,
+    // −acos(R / (R + h)), and no further; a probe looking up is refused.
     let engine = Engine::new();
     let s = spec("fast", "450,550,650", "earth", "30", "3000");
     let shape = DomeShape {
-        elevation_count: 17,
+        elevation_count: 33,
         azimuth_count: 5,
     };
-    let g = engine
-        .ground(&s, shape, &[(180.0, 0.0), (120.0, 90.0)])
-        .unwrap();
+    let g = engine.ground(&s, shape, &[]).unwrap();
+    let dip = (6_360_000.0f64 / 6_363_000.0).acos().to_degrees();
+    assert_eq!(g.table.elevation_deg[0], -90.0);
+    let top = *g.table.elevation_deg.last().unwrap();
+    assert!(
+        (top + dip).abs() < 1e-9 || top <= 0.0,
+        "top row {top}°, dip {dip}°"
+    );
     assert!(g.table.elevation_deg.iter().all(|&e| e <= 0.0));
     assert!(engine.ground(&s, shape, &[(45.0, 0.0)]).is_err());
+
+    // Joins the sky: across the observer's horizon the radiance is continuous, the ground table's
+    // rows approaching the sky table's first rows above the horizon (both ends look through
+    // ~200 km of air at the horizon, so the airlight dominates either side).
     let sky = engine
-        .sky(&s, shape, &[(180.0, 0.0), (120.0, 90.0)])
+        .sky(
+            &s,
+            DomeShape {
+                elevation_count: 257,
+                azimuth_count: 5,
+            },
+            &[],
+        )
         .unwrap();
-    assert_eq!(g.probes, sky.probes);
-    assert!(g.probes[0].radiance_w_m2_sr_nm.iter().all(|&v| v > 0.0));
+    let n_l = 3;
+    let row_of = |t: &skybake::atmosphere::sky::DomeTable, e: f64| {
+        t.elevation_deg
+            .iter()
+            .position(|&x| (x - e).abs() < 1e-9)
+            .unwrap()
+    };
+    let h_sky = row_of(&sky.table, -dip);
+    let above = sky.table.elevation_deg[h_sky + 1];
+    assert!(
+        above - -dip < 0.05,
+        "first row above the horizon at {above}°"
+    );
+    let h_ground = row_of(&g.table, -dip);
+    for col in 0..5 {
+        for i in 0..n_l {
+            let below = g.table.radiance[(h_ground * 5 + col) * n_l + i] as f64;
+            let over = sky.table.radiance[((h_sky + 1) * 5 + col) * n_l + i] as f64;
+            assert!(
+                (below / over - 1.0).abs() < 0.05,
+                "azimuth column {col}, λ {i}: {below} below vs {over} above the horizon"
+            );
+        }
+    }
+}
+
+#[test]
+fn ground_nadir_radiance_at_the_surface_is_albedo_over_pi_times_global_irradiance() {
+    // An observer on a Lambertian ground looking straight down sees L = (a/π)·E_global, with
+    // E_global the global horizontal irradiance of the `sun` product (direct + the sky radiance
+    // integrated over the hemisphere) — two independent code paths: the ground product takes the
+    // sky's irradiance on the ground from the multiple-scattering tables.
+    let engine = Engine::new();
+    for sun in ["60", "20"] {
+        let mut s = spec("fast", "450,550,650", "earth", sun, "0");
+        s.ground_albedo = Some(0.3);
+        let ghi = engine.sun(&s).unwrap().global_horizontal_irradiance_w_m2_nm;
+        let g = engine
+            .ground(
+                &s,
+                DomeShape {
+                    elevation_count: 3,
+                    azimuth_count: 1,
+                },
+                &[(180.0, 0.0)],
+            )
+            .unwrap();
+        for (i, &e) in ghi.iter().enumerate() {
+            let expected = 0.3 / std::f64::consts::PI * e;
+            let got = g.probes[0].radiance_w_m2_sr_nm[i];
+            eprintln!("sun {sun}°, λ {i}: nadir {got:.5} vs (a/π)·GHI {expected:.5}");
+            assert!(
+                (got / expected - 1.0).abs() < 0.002,
+                "sun {sun}°, λ {i}: {got} vs {expected}"
+            );
+        }
+    }
 }
 
 #[test]
 fn sky_exr_round_trips_through_the_store() {
-    let engine = Engine::new();
-    let s = spec("fast", "400,500,600,700", "earth", "10", "0");
-    let p = engine
+    use skybake::product::{ProductKind, ProductRequest};
+    let p = RequestParams {
+        method: Some("fast".into()),
+        wavelengths: Some("400,500,600,700".into()),
+        sun_elevation_deg: Some("10".into()),
+        elevation_count: Some("9".into()),
+        azimuth_count: Some("7".into()),
+        ..Default::default()
+    };
+    let req = ProductRequest::from_params(ProductKind::Sky, &p).unwrap();
+    let image = req.compute(&Engine::new()).unwrap();
+    let bytes = skybake::store::encode_exr(&image).unwrap();
+    let img = skybake::store::decode_exr(&bytes).unwrap();
+    assert_eq!((img.width(), img.height()), (7, 9));
+    assert_eq!(img.wavelengths_nm(), &[400.0, 500.0, 600.0, 700.0]);
+    // The same table computed directly by the engine.
+    let table = Engine::new()
         .sky(
-            &s,
+            &req.spec,
             DomeShape {
                 elevation_count: 9,
                 azimuth_count: 7,
             },
             &[],
         )
-        .unwrap();
-    let bytes = skybake::export::dome_exr(&p, &s, "sky").unwrap();
-    let img = skybake::store::decode_exr(&bytes).unwrap();
-    assert_eq!((img.width(), img.height()), (7, 9));
-    assert_eq!(img.wavelengths_nm(), &[400.0, 500.0, 600.0, 700.0]);
+        .unwrap()
+        .table;
     let layer = img.layer("S0").unwrap();
     // Top image row = highest elevation = last table row.
     for col in 0..7 {
         for i in 0..4 {
             assert_eq!(
                 layer.plane(i).unwrap()[col],
-                p.table.radiance[(8 * 7 + col) * 4 + i]
+                table.radiance[(8 * 7 + col) * 4 + i]
             );
         }
     }

@@ -3,7 +3,8 @@
 //! Every output finite and non-negative, and continuous where the physics is.
 
 use skybake::engine::{DomeShape, Engine};
-use skybake::spec::{CommonSpec, RequestParams};
+use skybake::product::params::RequestParams;
+use skybake::spec::CommonSpec;
 
 fn spec(pairs: &[(&str, &str)]) -> CommonSpec {
     let mut p = RequestParams {

@@ -78,9 +78,28 @@ async fn each_endpoint_answers_in_its_documented_form() {
     let v = plan.json();
     assert_eq!(v["cached"], false);
     assert_eq!(v["cache_key"].as_str().unwrap().len(), 64);
-    let skipped = v["stages"]["skipped"].to_string();
-    assert!(skipped.contains("ground albedo is 0"), "{skipped}");
-    assert!(skipped.contains("below the horizon"), "{skipped}");
+    assert_eq!(
+        v["plan"]["left_out"],
+        serde_json::json!([{"stage": "ground_bounce", "reason": "zero_ground_albedo",
+                            "detail": "the ground albedo is 0 at every wavelength"}])
+    );
+    let stages = v["plan"]["stages"].to_string();
+    assert!(stages.contains("multiple_scattering"), "{stages}");
+    // Direct sun: the same geometric test as the transmittance, observer altitude included.
+    for (altitude, runs) in [(0, false), (400_000, true)] {
+        let body = format!(
+            r#"{{"product": "sun", "sun_elevation_deg": -10, "observer_altitude_m": {altitude}}}"#
+        );
+        let v = srv.post("/v1/plan", &body).await.json();
+        let stages = v["plan"]["stages"].to_string();
+        assert_eq!(stages.contains("direct_sun"), runs, "{altitude} m: {v}");
+        let left_out = v["plan"]["left_out"].to_string();
+        assert_eq!(
+            left_out.contains("sun_below_horizon"),
+            !runs,
+            "{altitude} m: {v}"
+        );
+    }
     assert_eq!(
         srv.state.metrics().computations("sky"),
         1,
@@ -356,9 +375,12 @@ async fn excess_load_is_shed_and_slow_requests_time_out() {
     assert_eq!(retry.status, 503, "{}", retry.text());
     // The timed-out computation still finishes and lands in the cache.
     let key = {
-        let p = skybake::service::parse_query(Some(&slow[slow.find('?').unwrap() + 1..])).unwrap();
+        let pairs =
+            skybake::service::extract::query_pairs(Some(&slow[slow.find('?').unwrap() + 1..]))
+                .unwrap();
+        let p = skybake::product::params::RequestParams::from_pairs(pairs).unwrap();
         srv.state
-            .request(skybake::service::products::ProductKind::Sky, p)
+            .request(skybake::product::ProductKind::Sky, p)
             .unwrap()
             .cache_key()
     };

@@ -203,7 +203,7 @@ async function refresh() {
     loadedImages.fisheye = fisheye.bitmap;
     drawExposed("fisheye", fisheye.bitmap);
     const [pano, sky, sun] = await Promise.all([
-      loadImage(url("/v1/sky", p, { format: "png", projection: "latlong" })).catch(() => null),
+      loadImage(url("/v1/sky", p, { format: "png_latlong" })).catch(() => null),
       fetchOk(url("/v1/sky", p)).then((r) => r.json()),
       fetchOk(url("/v1/sun", p, { wavelengths: SPECTRUM_NM.join(",") })).then((r) => r.json()),
     ]);

@@ -187,8 +187,57 @@ pub fn integrate_ray(
     scratch: &mut Scratch,
     radiance: &mut [f64],
     transmittance: &mut [f64],
-    mut recorder: Option<&mut Recorder>,
+    recorder: Option<&mut Recorder>,
 ) {
+    integrate_ray_counted(
+        medium,
+        table,
+        source,
+        terms,
+        true,
+        r,
+        mu,
+        mu_s,
+        nu,
+        steps,
+        scratch,
+        radiance,
+        transmittance,
+        recorder,
+    );
+}
+
+/// Work one ray did, for the plan-execution counters ([`crate::engine::Term`]).
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct RayWork {
+    /// Samples at which single scattering of direct sunlight was evaluated.
+    pub single_samples: u64,
+    /// Samples at which the multiple-scattering source was evaluated.
+    pub source_samples: u64,
+    /// 1 when the ray ended on the ground and the ground bounce was evaluated.
+    pub ground_bounces: u64,
+}
+
+/// [`integrate_ray`], with the ground bounce (Lambertian reflection at the ray's end) only when
+/// `ground_bounce` is set (the plan leaves it out at zero albedo), returning the work done.
+#[allow(clippy::too_many_arguments)]
+pub fn integrate_ray_counted(
+    medium: &Medium,
+    table: &DensityIntegralTable,
+    source: &dyn Source,
+    terms: Terms,
+    ground_bounce: bool,
+    r: f64,
+    mu: f64,
+    mu_s: f64,
+    nu: f64,
+    steps: usize,
+    scratch: &mut Scratch,
+    radiance: &mut [f64],
+    transmittance: &mut [f64],
+    mut recorder: Option<&mut Recorder>,
+) -> RayWork {
+    let mut work = RayWork::default();
     let n = medium.len();
     radiance.fill(0.0);
     transmittance.fill(1.0);
@@ -233,7 +282,7 @@ pub fn integrate_ray(
             &none,
             &mut recorder,
         );
-        return;
+        return work;
     };
     let phase_r = Phase::Rayleigh.eval(nu);
     let phase_m = medium.mie_phase.eval(nu);
@@ -250,7 +299,9 @@ pub fn integrate_ray(
         }
         scratch.j.fill(0.0);
         source.add_scattering(s, &mut scratch.j);
+        work.source_samples += 1;
         let (d_sun, vis) = if terms.single {
+            work.single_samples += 1;
             let vis = table.sun_visibility(s.r, s.mu_s, medium.sun_angular_radius_rad);
             (table.lookup(s.r, s.mu_s), vis)
         } else {
@@ -299,7 +350,8 @@ pub fn integrate_ray(
     for (i, t) in transmittance.iter_mut().enumerate() {
         *t = (-medium.optical_depth(i, &d_view)).exp();
     }
-    if seg.hits_ground {
+    if ground_bounce && seg.hits_ground {
+        work.ground_bounces += 1;
         // Lambertian ground at the end of the ray: (a/π)(E_direct + E_sky), attenuated.
         let r_g = medium.bottom_radius_m;
         let r0 = r.max(r_g);
@@ -322,4 +374,5 @@ pub fn integrate_ray(
                 transmittance[i] * medium.ground_albedo[i] / std::f64::consts::PI * scratch.e[i];
         }
     }
+    work
 }

@@ -3,6 +3,7 @@
 
 pub mod geometry;
 pub mod integrate;
+pub mod irradiance;
 pub mod kernels;
 pub mod medium;
 pub mod multiple_fast;
@@ -12,6 +13,7 @@ pub mod presets;
 pub mod quadrature;
 pub mod shared;
 pub mod sky;
+pub mod sun_transmittance;
 pub mod transmittance;
 
 pub use medium::Medium;

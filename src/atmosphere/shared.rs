@@ -155,6 +155,7 @@ impl SharedTables {
                     self.precise_settings,
                 ) {
                     Some(table) => {
+                        tracing::info!(key, "precise table loaded from the table store");
                         TableEvents::bump(&p.events.precise_loaded);
                         return table;
                     }
@@ -167,6 +168,7 @@ impl SharedTables {
             let table =
                 PreciseMultipleScattering::new(&self.medium, &self.density, self.precise_settings);
             TableEvents::bump(&p.events.precise_built);
+            tracing::info!(key, "precise table built");
             match table.to_image(&self.medium) {
                 Ok(image) => store.save(&key, &image),
                 Err(e) => tracing::warn!(key, error = %e, "precise table not stored"),

@@ -2,10 +2,13 @@
 //! dome (`sky`), the lower hemisphere of ground-reflected upward skylight (`ground`, seed 000
 //! §3.5), both from the same integrator so they join seamlessly at the horizon.
 
-use super::integrate::{integrate_ray, NoSource, Recorder, Scratch, Source, Terms};
+use super::integrate::{
+    integrate_ray_counted, NoSource, RayWork, Recorder, Scratch, Source, Terms,
+};
 use super::shared::SharedTables;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
+use std::sync::atomic::{AtomicU64, Ordering};
 
 /// How orders of scattering ≥ 2 are computed.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
@@ -46,9 +49,14 @@ pub struct Observer {
 pub struct RadianceEvaluator<'a> {
     shared: &'a SharedTables,
     source: &'a dyn Source,
+    has_source: bool,
     r: f64,
     mu_s: f64,
     steps: usize,
+    single: bool,
+    ground_bounce: bool,
+    /// Work done so far: single-scattering samples, source samples, ground bounces.
+    work: [AtomicU64; 3],
 }
 
 impl<'a> RadianceEvaluator<'a> {
@@ -67,9 +75,30 @@ impl<'a> RadianceEvaluator<'a> {
         Self {
             shared,
             source,
+            has_source: method != MsMethod::None,
             r: shared.medium.bottom_radius_m + observer.altitude_m,
             mu_s: observer.sun_elevation_rad.sin(),
             steps,
+            single: true,
+            ground_bounce: true,
+            work: Default::default(),
+        }
+    }
+
+    /// Which terms to integrate (the plan's stages): single scattering of direct sunlight, and
+    /// the Lambertian ground bounce at the end of rays that hit the ground. Both on by default.
+    pub fn with_terms(mut self, single: bool, ground_bounce: bool) -> Self {
+        self.single = single;
+        self.ground_bounce = ground_bounce;
+        self
+    }
+
+    /// Work done by every ray traced so far (summed over threads).
+    pub fn work(&self) -> RayWork {
+        RayWork {
+            single_samples: self.work[0].load(Ordering::Relaxed),
+            source_samples: self.work[1].load(Ordering::Relaxed),
+            ground_bounces: self.work[2].load(Ordering::Relaxed),
         }
     }
 
@@ -99,15 +128,16 @@ impl<'a> RadianceEvaluator<'a> {
         rec: Option<&mut Recorder>,
     ) {
         let terms = Terms {
-            single: true,
-            ground_direct: true,
+            single: self.single,
+            ground_direct: self.ground_bounce,
         };
         let m = &self.shared.medium;
-        integrate_ray(
+        let work = integrate_ray_counted(
             m,
             &self.shared.density,
             self.source,
             terms,
+            self.ground_bounce,
             self.r,
             mu,
             self.mu_s,
@@ -118,6 +148,16 @@ impl<'a> RadianceEvaluator<'a> {
             tr,
             rec,
         );
+        // One relaxed add per counter per ray: negligible next to the ray's samples.
+        if work.single_samples > 0 {
+            self.work[0].fetch_add(work.single_samples, Ordering::Relaxed);
+        }
+        if self.has_source && work.source_samples > 0 {
+            self.work[1].fetch_add(work.source_samples, Ordering::Relaxed);
+        }
+        if work.ground_bounces > 0 {
+            self.work[2].fetch_add(work.ground_bounces, Ordering::Relaxed);
+        }
     }
 
     /// Radiance arriving from view zenith `theta` and azimuth `phi` (relative to the sun),

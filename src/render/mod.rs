@@ -30,12 +30,14 @@ pub mod lighting;
 pub mod march;
 pub mod multiple;
 pub mod pathtracer;
+pub mod product;
 pub mod scene;
 pub mod volume;
 
 pub use lighting::Lighting;
 pub use march::Prepared;
 pub use multiple::PhotonSettings;
+pub use product::FrameRequest;
 pub use scene::FrameScene;
 
 use crate::cloud::DensityGrid;

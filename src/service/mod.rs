@@ -1,10 +1,9 @@
 //! The HTTP service (DESIGN.md "Interfaces"): an axum router over the engine and the product cache.
 //!
-//! - [`products`]: request → canonical product → artifact → response body (shared with the CLI's
-//!   defaults and with bake jobs).
 //! - [`problem`]: RFC 9457 problem+json errors.
+//! - [`extract`]: the query and JSON-body extractors (the only place requests are parsed).
+//! - [`routes`]: the router, one module per concern (products, plan, jobs, operations).
 //! - [`metrics`]: Prometheus text.
-//! - [`jobs`]: persisted, resumable bake jobs and the offline `bake`.
 //! - [`openapi`]: the route table and the OpenAPI document generated from it.
 //! - [`server`]: binding, graceful shutdown, the `healthcheck` client.
 //!
@@ -13,30 +12,30 @@
 //! identical requests in flight (single flight), run on a blocking thread behind a semaphore sized
 //! to the cores.
 
-pub mod jobs;
+pub mod extract;
 pub mod metrics;
 pub mod openapi;
 pub mod problem;
-pub mod products;
 pub mod server;
+pub mod viewer;
 
-mod handlers;
 mod responses;
+mod routes;
 
 use crate::config::Settings;
 use crate::engine::Engine;
+use crate::product::{Format, ProductKind, ProductRequest};
 use crate::store::{Cache, CacheConfig};
 use bytes::Bytes;
 use metrics::Metrics;
 use problem::ApiError;
-use products::{Format, ProductKind, ProductRequest};
 use responses::ResponseCache;
 use std::collections::HashMap;
 use std::sync::atomic::Ordering;
 use std::sync::{Arc, Mutex};
 use tokio::sync::Semaphore;
 
-pub use handlers::{app, params_from_object, parse_query};
+pub use routes::app;
 
 /// A computation in flight: its result, once published.
 type Flight = tokio::sync::watch::Receiver<Option<Result<Arc<[u8]>, ApiError>>>;
@@ -75,28 +74,29 @@ struct Inner {
     compute: Semaphore,
     flights: Mutex<HashMap<String, Flight>>,
     responses: Mutex<ResponseCache>,
-    jobs: jobs::Jobs,
+    jobs: crate::job::run::Jobs,
 }
 
 impl AppState {
     /// Opens the cache at `settings.cache.dir` and loads persisted jobs (call
-    /// [`jobs::start_workers`] inside a runtime to run them).
+    /// [`AppState::start_job_workers`] inside a runtime to run them).
     pub fn new(settings: Settings) -> Result<Self, ApiError> {
         let cache = Arc::new(Cache::open(CacheConfig::new(
             &settings.cache.dir,
             settings.cache.disk_budget_bytes,
             settings.cache.memory_budget_bytes,
         ))?);
-        let jobs = jobs::Jobs::open(&settings.cache.dir.join("jobs"))?;
+        let jobs = crate::job::run::Jobs::open(
+            &settings.cache.dir.join("jobs"),
+            crate::product::params::Defaults::from_settings(&settings),
+        )?;
         Ok(Self {
             inner: Arc::new(Inner {
                 compute: Semaphore::new(settings.compute_threads()),
                 responses: Mutex::new(ResponseCache::new(settings.cache.response_budget_bytes)),
                 settings,
                 // Precise tables persist in the same cache (one disk budget) across restarts.
-                engine: Engine::with_table_store(Arc::new(
-                    crate::store::tables::CacheTableStore::new(cache.clone()),
-                )),
+                engine: crate::store::tables::engine_with_cache(cache.clone()),
                 cache,
                 metrics: Metrics::default(),
                 flights: Mutex::new(HashMap::new()),
@@ -121,20 +121,13 @@ impl AppState {
         &self.inner.metrics
     }
 
-    pub fn jobs(&self) -> &jobs::Jobs {
+    pub fn jobs(&self) -> &crate::job::run::Jobs {
         &self.inner.jobs
     }
 
-    /// Applies the configured defaults (wavelengths, quality) to a request that leaves them out.
-    pub fn with_defaults(&self, mut p: crate::spec::RequestParams) -> crate::spec::RequestParams {
-        let d = &self.inner.settings.defaults;
-        if p.wavelengths.is_none() && !d.wavelengths.trim().is_empty() {
-            p.wavelengths = Some(d.wavelengths.clone());
-        }
-        if p.quality.is_none() {
-            p.quality = Some(d.quality.clone());
-        }
-        p
+    /// Starts the job workers (`settings.jobs.workers` tasks) on the current runtime.
+    pub fn start_job_workers(&self) {
+        crate::job::run::start_workers(self, self.settings().jobs.workers);
     }
 
     /// Runs blocking work on the blocking pool; a panic there becomes a 500, never a crash.
@@ -219,7 +212,7 @@ impl AppState {
                 }
             }
             let m = &s.inner.metrics;
-            m.computed(req.product.name());
+            m.computed(req.kind().name());
             m.compute_in_flight.fetch_add(1, Ordering::Relaxed);
             let image = req.compute(&s.inner.engine);
             m.compute_in_flight.fetch_sub(1, Ordering::Relaxed);
@@ -239,21 +232,41 @@ impl AppState {
             return Ok((b, Source::Response, key));
         }
         let (artifact, source) = self.artifact(req, &key).await?;
-        let body = match req.format {
-            Format::Exr => Bytes::copy_from_slice(&artifact),
-            format => {
-                let product = req.product;
-                Self::blocking(move || {
-                    let image = crate::store::decode_exr(&artifact)?;
-                    Ok(Bytes::from(products::render(product, format, &image)?))
-                })
-                .await?
+        let body = match Self::render_body(req, artifact).await {
+            Ok(body) => body,
+            Err(ApiError::Internal(why)) => {
+                // A stored artifact that passed its checksum but does not render is a server
+                // fault, never the request's: drop it and compute the product again (a second
+                // failure is a 500).
+                tracing::warn!(key = %key, error = %why, "malformed cached artifact; recomputing");
+                self.inner.cache.remove(&key)?;
+                let (artifact, _) = self.artifact(req, &key).await?;
+                Self::render_body(req, artifact).await?
             }
+            Err(e) => return Err(e),
         };
         if let Ok(mut r) = self.inner.responses.lock() {
             r.put(&key, req.format, body.clone());
         }
         Ok((body, source, key))
+    }
+
+    /// The body of `req` in its format, rendered from `artifact` (EXR bytes).
+    async fn render_body(req: &ProductRequest, artifact: Arc<[u8]>) -> Result<Bytes, ApiError> {
+        match req.format {
+            Format::Exr => Ok(Bytes::copy_from_slice(&artifact)),
+            format => {
+                let product = req.kind();
+                Self::blocking(move || {
+                    let image = crate::store::decode_exr(&artifact)
+                        .map_err(|e| ApiError::Internal(format!("cached artifact: {e}")))?;
+                    Ok(Bytes::from(crate::product::render(
+                        product, format, &image,
+                    )?))
+                })
+                .await
+            }
+        }
     }
 
     fn response_get(&self, key: &str, format: Format) -> Option<Bytes> {
@@ -271,10 +284,30 @@ impl AppState {
     pub fn request(
         &self,
         product: ProductKind,
-        p: crate::spec::RequestParams,
+        p: crate::product::params::RequestParams,
     ) -> Result<ProductRequest, ApiError> {
-        let req = ProductRequest::from_params(product, &self.with_defaults(p))?;
-        req.check_cacheable()?;
-        Ok(req)
+        Ok(ProductRequest::from_params(
+            product,
+            &self.jobs().defaults().apply(p),
+        )?)
+    }
+}
+
+/// Jobs produce their items through the service's cache: cached items are hits, the others are
+/// computed once (joining identical requests in flight) and stored.
+impl crate::job::run::Producer for AppState {
+    async fn produce(&self, req: ProductRequest) -> Result<(), crate::job::JobError> {
+        let key = req.cache_key();
+        self.artifact(&req, &key)
+            .await
+            .map(|_| ())
+            .map_err(|e| match e {
+                ApiError::Param(e) => crate::job::JobError::Param(e),
+                other => crate::job::JobError::Failure(other.to_string()),
+            })
+    }
+
+    fn jobs(&self) -> &crate::job::run::Jobs {
+        &self.inner.jobs
     }
 }

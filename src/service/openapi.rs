@@ -1,6 +1,8 @@
 //! The route table (the router is built from it) and the OpenAPI 3.1 document generated from it, so
 //! `/openapi.json` lists exactly the routes the router serves (a test checks both directions).
 
+use crate::product::params::{Parameter, Range, PARAMETERS};
+use crate::spec::ProductKind;
 use serde_json::{json, Map, Value};
 
 /// One route of the service.
@@ -34,57 +36,35 @@ pub const ROUTES: &[Route] = &[
     Route { method: "GET", path: "/v1/jobs/{id}", summary: "Job state, progress, errors and artifacts (offset/limit page the artifact list)", limited: true, product: None, body: None, produces: JSON },
     Route { method: "DELETE", path: "/v1/jobs/{id}", summary: "Cancel a job (finished products stay cached)", limited: true, product: None, body: None, produces: JSON },
     Route { method: "GET", path: "/v1/jobs/{id}/artifacts/{n}", summary: "The n-th product of a job (format=exr default, json, png)", limited: true, product: None, body: None, produces: &["image/x-exr", "application/json", "image/png"] },
+    Route { method: "GET", path: "/", summary: "The web viewer (HTML page; uses this API)", limited: false, product: None, body: None, produces: &["text/html"] },
+    Route { method: "GET", path: "/assets/{file}", summary: "The viewer's script and style sheet", limited: false, product: None, body: None, produces: &["text/javascript", "text/css"] },
     Route { method: "GET", path: "/healthz", summary: "Liveness", limited: false, product: None, body: None, produces: JSON },
     Route { method: "GET", path: "/metrics", summary: "Prometheus metrics", limited: false, product: None, body: None, produces: &["text/plain"] },
     Route { method: "GET", path: "/openapi.json", summary: "This document", limited: false, product: None, body: None, produces: JSON },
 ];
 
-/// (name, description) of the product query parameters.
-pub const PRODUCT_PARAMETERS: [(&str, &str); 16] = [
-    (
-        "sun_elevation_deg",
-        "Sun elevation, degrees (sun −10…90, others −18…90; default 30)",
-    ),
-    (
-        "latitude_deg",
-        "Latitude, degrees (with longitude_deg and time instead of sun_elevation_deg)",
-    ),
-    ("longitude_deg", "Longitude, degrees east"),
-    ("time", "UTC time, RFC 3339"),
-    (
-        "observer_altitude_m",
-        "Observer altitude, m (0…4e7; default 0)",
-    ),
-    (
-        "wavelengths",
-        "Wavelengths, nm, comma-separated, 1–64 values in 360–830",
-    ),
-    (
-        "atmosphere",
-        "Preset name (earth, earth-hazy, rayleigh-only, mars) or inline JSON",
-    ),
-    (
-        "ground_albedo",
-        "Ground albedo 0–1 (overrides the atmosphere's)",
-    ),
-    ("method", "Multiple scattering: precise, fast, none"),
-    ("quality", "draft, standard, high, reference"),
-    (
-        "elevation_count",
-        "Table rows (sky 129, ground 65, aerial 33)",
-    ),
-    ("azimuth_count", "Table columns (sky/ground 64, aerial 16)"),
-    ("distance_count", "Aerial: distances per ray (32)"),
-    ("max_distance_m", "Aerial: largest distance, m (100000)"),
-    (
-        "probe",
-        "Sky/ground: exact directions VZ:VA,VZ:VA in degrees",
-    ),
-    (
-        "format",
-        "json (default), exr (sky, ground, aerial), png (sky, ground)",
-    ),
-];
+/// The OpenAPI description and schema of a row of the product parameter table
+/// (`product::params::PARAMETERS`, the same table the CLI flags and the query parser use).
+fn parameter_doc(p: &Parameter) -> (String, Value) {
+    let unit = if p.unit.is_empty() {
+        String::new()
+    } else {
+        format!(", {}", p.unit)
+    };
+    let description = format!(
+        "{}{unit}; {}; default {}",
+        p.doc,
+        p.range.describe(),
+        p.default
+    );
+    let schema = match p.range {
+        Range::Real { lo, hi } => json!({"type": "number", "minimum": lo, "maximum": hi}),
+        Range::Whole { lo, hi } => json!({"type": "integer", "minimum": lo, "maximum": hi}),
+        Range::OneOf(words) => json!({"type": "string", "enum": words}),
+        Range::Text(_) => json!({"type": "string"}),
+    };
+    (description, schema)
+}
 
 fn problem_response(description: &str) -> Value {
     json!({
@@ -104,9 +84,10 @@ fn operation(route: &Route) -> Value {
             );
         }
     }
-    if route.product.is_some() {
-        for (name, description) in PRODUCT_PARAMETERS {
-            parameters.push(json!({"name": name, "in": "query", "required": false, "description": description, "schema": {"type": "string"}}));
+    if let Some(product) = route.product.and_then(|p| ProductKind::parse(p).ok()) {
+        for p in PARAMETERS.iter().filter(|p| p.applies_to(product)) {
+            let (description, schema) = parameter_doc(p);
+            parameters.push(json!({"name": p.name, "in": "query", "required": false, "description": description, "schema": schema}));
         }
     }
     if route.path == "/v1/jobs/{id}" && route.method == "GET" {
@@ -115,7 +96,7 @@ fn operation(route: &Route) -> Value {
         }
     }
     if route.path.ends_with("/artifacts/{n}") {
-        parameters.push(json!({"name": "format", "in": "query", "required": false, "schema": {"type": "string", "enum": ["exr", "json", "png"]}}));
+        parameters.push(json!({"name": "format", "in": "query", "required": false, "schema": {"type": "string", "enum": ["exr", "json", "png", "png_latlong"]}}));
     }
     if !parameters.is_empty() {
         op.insert("parameters".into(), Value::Array(parameters));
@@ -172,12 +153,14 @@ pub fn openapi_json() -> String {
             m.insert(route.method.to_ascii_lowercase(), operation(route));
         }
     }
-    let params: Map<String, Value> = PRODUCT_PARAMETERS
+    // JSON bodies accept numbers or the query's text for every parameter.
+    let params: Map<String, Value> = PARAMETERS
         .iter()
-        .map(|(n, d)| {
+        .map(|p| {
+            let (description, _) = parameter_doc(p);
             (
-                n.to_string(),
-                json!({"type": ["string", "number"], "description": d}),
+                p.name.to_string(),
+                json!({"type": ["string", "number"], "description": description}),
             )
         })
         .collect();

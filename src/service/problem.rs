@@ -29,14 +29,45 @@ pub enum ApiError {
 
 impl From<crate::Error> for ApiError {
     fn from(e: crate::Error) -> Self {
-        ApiError::Param(e)
+        if e.is_input() {
+            ApiError::Param(e)
+        } else {
+            ApiError::Internal(e.to_string())
+        }
+    }
+}
+
+impl From<crate::product::params::PairsError> for ApiError {
+    fn from(e: crate::product::params::PairsError) -> Self {
+        match e {
+            crate::product::params::PairsError::Unknown(names) => {
+                ApiError::UnknownParameters(names)
+            }
+            crate::product::params::PairsError::Param(e) => e.into(),
+        }
+    }
+}
+
+impl From<crate::job::JobError> for ApiError {
+    fn from(e: crate::job::JobError) -> Self {
+        use crate::job::JobError;
+        match e {
+            JobError::Param(e) => e.into(),
+            JobError::Unknown(names) => ApiError::UnknownParameters(names),
+            JobError::Body(detail) => ApiError::Body {
+                status: StatusCode::UNPROCESSABLE_ENTITY,
+                detail,
+            },
+            JobError::NotFound(d) => ApiError::NotFound(d),
+            JobError::Failure(d) => ApiError::Internal(d),
+        }
     }
 }
 
 impl From<crate::store::StoreError> for ApiError {
     fn from(e: crate::store::StoreError) -> Self {
         match e {
-            crate::store::StoreError::Invalid(e) => ApiError::Param(e),
+            crate::store::StoreError::Invalid(e) => e.into(),
             other => ApiError::Internal(other.to_string()),
         }
     }

@@ -1,7 +1,7 @@
 //! Rendered response bodies (JSON, PNG, EXR) kept in memory with a byte budget, least recently used
 //! evicted first, so a hot request is answered without decoding the EXR artifact again.
 
-use super::products::Format;
+use crate::product::Format;
 use bytes::Bytes;
 use std::collections::{BTreeMap, HashMap};
 

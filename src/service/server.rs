@@ -1,7 +1,7 @@
 //! Running the service: bind, serve until SIGTERM or ctrl-c (graceful: in-flight requests finish,
 //! job progress is already persisted), and the tiny HTTP client behind `skybake healthcheck`.
 
-use super::{app, jobs, AppState};
+use super::{app, AppState};
 use crate::config::Settings;
 use axum::body::Body;
 use axum::http::Request;
@@ -37,7 +37,7 @@ pub async fn serve_on(
     let grace = Duration::from_secs_f64(server.shutdown_grace_s);
     let connections = Arc::new(Semaphore::new(server.max_connections));
     let metrics_state = state.clone();
-    jobs::start_workers(&state);
+    state.start_job_workers();
     let router = app(state);
     let graceful = GracefulShutdown::new();
     let mut builder = auto::Builder::new(TokioExecutor::new());

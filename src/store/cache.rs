@@ -272,23 +272,13 @@ impl Cache {
 
         if !self.clear_non_file(&path) {
             // Something that is not a regular file sits at the path and could not be removed.
-            let mut state = self.lock();
-            if state.disk.peek(key) == Some(&generation) {
-                state.disk.remove(key);
-            }
-            state.stats.misses += 1;
-            self.refresh_sizes(&mut state);
+            self.forget_missing(key, generation);
             return Ok(None);
         }
         let bytes = match read_bounded(&path) {
             Ok(bytes) => bytes,
             Err(StoreError::Io { source, .. }) if source.kind() == ErrorKind::NotFound => {
-                let mut state = self.lock();
-                if state.disk.peek(key) == Some(&generation) {
-                    state.disk.remove(key);
-                }
-                state.stats.misses += 1;
-                self.refresh_sizes(&mut state);
+                self.forget_missing(key, generation);
                 return Ok(None);
             }
             Err(StoreError::Invalid(_)) => {
@@ -473,6 +463,17 @@ impl Cache {
                 false
             }
         }
+    }
+
+    /// Counts a miss for an entry whose file is gone and drops it from the index (unless a newer
+    /// write replaced it meanwhile).
+    fn forget_missing(&self, key: &str, generation: u64) {
+        let mut state = self.lock();
+        if state.disk.peek(key) == Some(&generation) {
+            state.disk.remove(key);
+        }
+        state.stats.misses += 1;
+        self.refresh_sizes(&mut state);
     }
 
     /// Counts a corrupt file and deletes it, unless a newer write replaced it meanwhile.

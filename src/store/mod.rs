@@ -5,6 +5,7 @@
 //! - [`exr`]: tiled spectral OpenEXR encode/decode, in memory and to files.
 //! - [`checksum`]: the whole-file blake3 checksum embedded in every file skybake writes.
 //! - [`atomic`]: the one function that writes files (temp file, fsync, rename, fsync directory).
+//! - [`files`]: whole-file reads and directory listing for the job store and bakes.
 //! - [`cache`]: the content-addressed, size-bounded disk cache with an in-memory LRU in front.
 //! - [`tables`]: the engine's shared tables (precise multiple scattering) kept in that cache.
 //!
@@ -24,6 +25,7 @@ pub mod cache;
 pub mod checksum;
 mod error;
 pub mod exr;
+pub mod files;
 pub mod layout;
 mod lru;
 pub mod spectral_image;

@@ -1,0 +1,200 @@
+//! The planner (DESIGN.md "Leaving out what a scene does not need"): a product spec and its
+//! resolved medium become the [`Stage`]s that will run and those left out, each with a typed
+//! [`Reason`]. Pure and cheap (no tables are built), so `POST /v1/plan` and `skybake plan` answer
+//! without computing. The engine **executes** the plan: a stage not in it does not run (no table
+//! is built, no ray-march term is evaluated), a stage in it does; `tests/plan.rs` checks each rule
+//! against the engine's work counters.
+//!
+//! Rules live here and nowhere else. Cost rules (issue 15) and a "sun below the darkest twilight"
+//! rule (issues 14/18: leave out single scattering once no air the product sees is lit) are new
+//! arms of [`plan`], with a new [`Reason`] each.
+
+use crate::atmosphere::sky::MsMethod;
+use crate::atmosphere::sun_transmittance::sun_disk_visible_fraction;
+use crate::atmosphere::Medium;
+use crate::spec::{CommonSpec, ProductKind};
+use serde::ser::SerializeStruct;
+use serde::{Serialize, Serializer};
+
+/// A unit of work the engine can run for a product.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Stage {
+    /// The density-integral (transmittance) table T(r, μ) of the medium.
+    DensityTable,
+    /// Exact single scattering of direct sunlight by ray marching along every output ray.
+    SingleScattering,
+    /// Multiple scattering: the precise (orders of scattering) or fast (Hillaire 2020) table,
+    /// as the spec's `method` says, evaluated along every output ray.
+    MultipleScattering,
+    /// Lambertian ground reflection of sun and sky at the end of rays that hit the ground.
+    GroundBounce,
+    /// `sun` product: transmittance and direct normal irradiance of the sun's disk at the observer.
+    DirectSun,
+    /// `sun` product: diffuse horizontal irradiance, the sky radiance integrated over the upper
+    /// hemisphere.
+    DiffuseIrradiance,
+}
+
+impl Stage {
+    /// One line on what the stage does.
+    pub fn description(self) -> &'static str {
+        match self {
+            Stage::DensityTable => "transmittance: density-integral table T(r, mu)",
+            Stage::SingleScattering => "single scattering: exact ray marching of direct sunlight",
+            Stage::MultipleScattering => "multiple scattering along every output ray",
+            Stage::GroundBounce => "ground bounce: Lambertian ground lit by sun and sky",
+            Stage::DirectSun => "direct sun: transmittance and direct normal irradiance",
+            Stage::DiffuseIrradiance => {
+                "diffuse irradiance: sky radiance over the upper hemisphere"
+            }
+        }
+    }
+}
+
+/// Why a stage is left out.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+#[serde(tag = "reason", rename_all = "snake_case")]
+pub enum Reason {
+    /// `method=none`: single scattering only.
+    MethodNone,
+    /// The ground albedo is 0 at every requested wavelength: the ground reflects nothing.
+    ZeroGroundAlbedo,
+    /// The whole sun disk is below the observer's geometric horizon (which dips below the
+    /// horizontal aloft), by the same test as the transmittance.
+    SunBelowHorizon {
+        sun_elevation_deg: f64,
+        horizon_elevation_deg: f64,
+    },
+}
+
+impl Reason {
+    /// One line for people.
+    pub fn detail(&self) -> String {
+        match self {
+            Reason::MethodNone => "method=none asks for single scattering only".into(),
+            Reason::ZeroGroundAlbedo => "the ground albedo is 0 at every wavelength".into(),
+            Reason::SunBelowHorizon {
+                sun_elevation_deg,
+                horizon_elevation_deg,
+            } => format!(
+                "the sun's disk (centre at {sun_elevation_deg}°) is wholly below the observer's horizon at {horizon_elevation_deg:.3}°"
+            ),
+        }
+    }
+}
+
+/// The stages that run, in order, and those left out with their reasons.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Plan {
+    pub stages: Vec<Stage>,
+    pub left_out: Vec<(Stage, Reason)>,
+    /// The multiple-scattering method the [`Stage::MultipleScattering`] stage uses.
+    pub method: MsMethod,
+}
+
+impl Plan {
+    /// Whether `stage` runs.
+    pub fn runs(&self, stage: Stage) -> bool {
+        self.stages.contains(&stage)
+    }
+
+    /// The multiple-scattering method that runs (`None` when the stage is left out).
+    pub fn ms_method(&self) -> MsMethod {
+        if self.runs(Stage::MultipleScattering) {
+            self.method
+        } else {
+            MsMethod::None
+        }
+    }
+
+    /// The plan without `stage` (a stage forced out, for tests and diagnostics).
+    pub fn without(mut self, stage: Stage) -> Self {
+        self.stages.retain(|s| *s != stage);
+        self
+    }
+}
+
+#[derive(Serialize)]
+struct StageView {
+    stage: Stage,
+    description: &'static str,
+}
+
+#[derive(Serialize)]
+struct LeftOutView {
+    stage: Stage,
+    #[serde(flatten)]
+    reason: Reason,
+    detail: String,
+}
+
+impl Serialize for Plan {
+    /// `{"method", "stages": [{"stage", "description"}], "left_out": [{"stage", "reason", …,
+    /// "detail"}]}`.
+    fn serialize<S: Serializer>(&self, s: S) -> Result<S::Ok, S::Error> {
+        let stages: Vec<StageView> = self
+            .stages
+            .iter()
+            .map(|&stage| StageView {
+                stage,
+                description: stage.description(),
+            })
+            .collect();
+        let left_out: Vec<LeftOutView> = self
+            .left_out
+            .iter()
+            .map(|&(stage, reason)| LeftOutView {
+                stage,
+                reason,
+                detail: reason.detail(),
+            })
+            .collect();
+        let mut st = s.serialize_struct("Plan", 3)?;
+        st.serialize_field("method", &self.method)?;
+        st.serialize_field("stages", &stages)?;
+        st.serialize_field("left_out", &left_out)?;
+        st.end()
+    }
+}
+
+/// Plans `product` for `spec` on the resolved medium `m` (which carries the effective ground
+/// albedo). Pure: no tables, no I/O.
+pub fn plan(product: ProductKind, spec: &CommonSpec, m: &Medium) -> Plan {
+    let mut p = Plan {
+        stages: vec![Stage::DensityTable, Stage::SingleScattering],
+        left_out: Vec::new(),
+        method: spec.method,
+    };
+    let mut rule = |stage: Stage, left_out: Option<Reason>| match left_out {
+        None => p.stages.push(stage),
+        Some(reason) => p.left_out.push((stage, reason)),
+    };
+    rule(
+        Stage::MultipleScattering,
+        (spec.method == MsMethod::None).then_some(Reason::MethodNone),
+    );
+    rule(
+        Stage::GroundBounce,
+        m.ground_albedo
+            .iter()
+            .all(|&a| a == 0.0)
+            .then_some(Reason::ZeroGroundAlbedo),
+    );
+    if product == ProductKind::Sun {
+        let elevation = spec.sun.sun_elevation_deg;
+        let visible =
+            sun_disk_visible_fraction(m, spec.observer_altitude_m, elevation.to_radians());
+        let horizon_elevation_deg =
+            -crate::atmosphere::sky::horizon_dip_deg(m.bottom_radius_m, spec.observer_altitude_m);
+        rule(
+            Stage::DirectSun,
+            (visible == 0.0).then_some(Reason::SunBelowHorizon {
+                sun_elevation_deg: elevation,
+                horizon_elevation_deg,
+            }),
+        );
+        rule(Stage::DiffuseIrradiance, None);
+    }
+    p
+}

@@ -1,0 +1,113 @@
+//! The job routes over the job library ([`crate::job`]): submit, status (paged artifact list),
+//! cancel, and an item's artifact in any of its formats.
+
+use super::super::extract::{FormatOnly, JsonObject, NoParams, Page, Query};
+use super::super::problem::ApiError;
+use super::super::AppState;
+use crate::job::run::Job;
+use crate::product::ProductKind;
+use axum::extract::{Path as UrlPath, State};
+use axum::http::{header, HeaderValue, StatusCode};
+use axum::response::{IntoResponse, Response};
+use serde_json::{json, Value};
+
+/// The status document of `job`, listing artifacts `offset..offset + limit` with their URLs.
+fn status_json(state: &AppState, job: &Job, offset: usize, limit: usize) -> Value {
+    let st = job.status();
+    let items: Vec<Value> = job
+        .items(offset, limit, state.jobs().defaults())
+        .into_iter()
+        .map(|it| {
+            json!({"index": it.index, "product": it.product, "cache_key": it.cache_key,
+                   "status": it.status, "url": format!("/v1/jobs/{}/artifacts/{}", job.id, it.index)})
+        })
+        .collect();
+    json!({
+        "id": job.id, "state": st.state, "done": st.done, "failed": st.failed, "total": st.total,
+        "created": st.created, "updated": st.updated, "errors": st.errors,
+        "artifacts": {"offset": offset, "limit": limit, "items": items},
+    })
+}
+
+/// `POST /v1/jobs`: validates every item, stores and queues the job; 202 with its status.
+pub async fn submit(
+    State(state): State<AppState>,
+    Query(NoParams): Query<NoParams>,
+    body: JsonObject,
+) -> Result<Response, ApiError> {
+    let s = state.clone();
+    let job = AppState::blocking(move || {
+        Ok(s.jobs()
+            .submit(&body.bytes, s.settings().jobs.max_products)?)
+    })
+    .await?;
+    let mut resp = (
+        StatusCode::ACCEPTED,
+        axum::Json(status_json(&state, &job, 0, 0)),
+    )
+        .into_response();
+    if let Ok(v) = format!("/v1/jobs/{}", job.id).parse() {
+        resp.headers_mut().insert(header::LOCATION, v);
+    }
+    Ok(resp)
+}
+
+/// `GET /v1/jobs/{id}?offset=&limit=`.
+pub async fn status(
+    State(state): State<AppState>,
+    UrlPath(id): UrlPath<String>,
+    Query(page): Query<Page>,
+) -> Result<Response, ApiError> {
+    let job = state.jobs().find(&id)?;
+    // Listing up to MAX_PAGE artifacts validates and hashes each item: keep it off the executor.
+    let s = state.clone();
+    let doc =
+        AppState::blocking(move || Ok(status_json(&s, &job, page.offset, page.limit))).await?;
+    Ok(axum::Json(doc).into_response())
+}
+
+/// `DELETE /v1/jobs/{id}`: stops a queued or running job after its current item.
+pub async fn cancel(
+    State(state): State<AppState>,
+    UrlPath(id): UrlPath<String>,
+    Query(NoParams): Query<NoParams>,
+) -> Result<Response, ApiError> {
+    let job = state.jobs().cancel(&id)?;
+    Ok(axum::Json(status_json(&state, &job, 0, 0)).into_response())
+}
+
+/// `GET /v1/jobs/{id}/artifacts/{n}?format=`: the item's product (computed if it is not cached).
+pub async fn artifact(
+    State(state): State<AppState>,
+    UrlPath((id, n)): UrlPath<(String, String)>,
+    Query(FormatOnly(format)): Query<FormatOnly>,
+) -> Result<Response, ApiError> {
+    let job = state.jobs().find(&id)?;
+    let n: usize = n
+        .parse()
+        .map_err(|_| ApiError::NotFound(format!("artifact '{n}' is not an item number")))?;
+    let (product, mut params, _) = job.spec.item(n).ok_or_else(|| {
+        ApiError::NotFound(format!("no artifact {n} (the job has {})", job.spec.len()))
+    })?;
+    params.format = Some(format.unwrap_or_else(|| {
+        if product == ProductKind::Sun {
+            "json"
+        } else {
+            "exr"
+        }
+        .into()
+    }));
+    let req = state.request(product, params)?;
+    let (body, source, key) = state.body(&req).await?;
+    let mut resp = body.into_response();
+    let h = resp.headers_mut();
+    h.insert(
+        header::CONTENT_TYPE,
+        HeaderValue::from_static(req.format.content_type()),
+    );
+    h.insert("x-cache", HeaderValue::from_static(source.header()));
+    if let Ok(v) = HeaderValue::from_str(&key) {
+        h.insert("x-skybake-cache-key", v);
+    }
+    Ok(resp)
+}

@@ -1,0 +1,112 @@
+//! The router, built from the route table ([`super::openapi::ROUTES`]): one module per concern
+//! (products, plan, jobs, operations), the overload layers (load shedding, concurrency limit,
+//! timeout) on `/v1/*`, and the per-route metrics and tracing middleware on all.
+
+mod jobs;
+mod ops;
+mod plan;
+mod products;
+
+use super::openapi::{Route, ROUTES};
+use super::problem::ApiError;
+use super::AppState;
+use crate::product::ProductKind;
+use axum::error_handling::HandleErrorLayer;
+use axum::extract::{DefaultBodyLimit, MatchedPath, Request, State};
+use axum::middleware::Next;
+use axum::response::Response;
+use axum::routing::{delete, get, post};
+use axum::{BoxError, Router};
+use std::sync::atomic::Ordering;
+use std::time::{Duration, Instant};
+use tower::ServiceBuilder;
+use tracing::Instrument;
+
+async fn not_found(uri: axum::http::Uri) -> ApiError {
+    ApiError::NotFound(format!("no route {}; see /openapi.json", uri.path()))
+}
+
+async fn handle_overload(state: AppState, err: BoxError) -> ApiError {
+    if err.is::<tower::timeout::error::Elapsed>() {
+        state.metrics().timeouts.fetch_add(1, Ordering::Relaxed);
+        ApiError::Timeout
+    } else if err.is::<tower::load_shed::error::Overloaded>() {
+        state.metrics().load_shed.fetch_add(1, Ordering::Relaxed);
+        ApiError::Overloaded
+    } else {
+        ApiError::Internal(format!("middleware: {err}"))
+    }
+}
+
+async fn record(State(state): State<AppState>, req: Request, next: Next) -> Response {
+    let start = Instant::now();
+    let route = req
+        .extensions()
+        .get::<MatchedPath>()
+        .map(|p| p.as_str().to_string())
+        .unwrap_or_else(|| "unmatched".into());
+    let method = req.method().clone();
+    let span = tracing::info_span!("request", %method, route = %route, uri = %req.uri());
+    let resp = next.run(req).instrument(span.clone()).await;
+    let elapsed = start.elapsed();
+    tracing::info!(parent: &span, status = resp.status().as_u16(), elapsed_ms = elapsed.as_secs_f64() * 1e3, "done");
+    state
+        .metrics()
+        .observe(&route, method.as_str(), resp.status().as_u16(), elapsed);
+    resp
+}
+
+fn method_router(route: &Route) -> axum::routing::MethodRouter<AppState> {
+    match (route.method, route.path) {
+        ("GET", "/v1/sun") => products::route(ProductKind::Sun),
+        ("GET", "/v1/sky") => products::route(ProductKind::Sky),
+        ("GET", "/v1/ground") => products::route(ProductKind::Ground),
+        ("GET", "/v1/aerial") => products::route(ProductKind::Aerial),
+        ("POST", "/v1/plan") => post(plan::plan),
+        ("POST", "/v1/jobs") => post(jobs::submit),
+        ("GET", "/v1/jobs/{id}") => get(jobs::status),
+        ("DELETE", "/v1/jobs/{id}") => delete(jobs::cancel),
+        ("GET", "/v1/jobs/{id}/artifacts/{n}") => get(jobs::artifact),
+        ("GET", "/") => get(super::viewer::index),
+        ("GET", "/assets/{file}") => get(super::viewer::asset),
+        ("GET", "/healthz") => get(ops::healthz),
+        ("GET", "/metrics") => get(ops::metrics),
+        ("GET", "/openapi.json") => get(ops::openapi),
+        // ROUTES and this table are checked against each other by a test.
+        _ => get(not_found),
+    }
+}
+
+/// The service router: every route of [`ROUTES`], the limits on `/v1/*`, metrics and tracing on all.
+pub fn app(state: AppState) -> Router {
+    let settings = state.settings().clone();
+    let timeout = Duration::from_secs_f64(settings.server.request_timeout_s);
+    let mut limited: Router<AppState> = Router::new();
+    let mut open: Router<AppState> = Router::new();
+    for route in ROUTES {
+        if route.limited {
+            limited = limited.route(route.path, method_router(route));
+        } else {
+            open = open.route(route.path, method_router(route));
+        }
+    }
+    let s = state.clone();
+    let limited = limited.layer(
+        ServiceBuilder::new()
+            .layer(HandleErrorLayer::new(move |err: BoxError| {
+                handle_overload(s.clone(), err)
+            }))
+            .load_shed()
+            // Global: one semaphore for all limited routes (a per-route limit would multiply it).
+            .layer(tower::limit::GlobalConcurrencyLimitLayer::new(
+                settings.server.concurrency_limit,
+            ))
+            .timeout(timeout),
+    );
+    limited
+        .merge(open)
+        .fallback(not_found)
+        .layer(DefaultBodyLimit::max(settings.server.body_limit_bytes))
+        .layer(axum::middleware::from_fn_with_state(state.clone(), record))
+        .with_state(state)
+}

@@ -1,0 +1,36 @@
+//! Plain file access for the job store and offline bakes (so that only `store` touches the disk):
+//! read a whole file, create a directory, list the subdirectories of a directory. Writes go
+//! through [`super::write_atomic`].
+
+use super::StoreError;
+use std::path::{Path, PathBuf};
+
+/// Reads the whole file at `path`.
+pub fn read(path: &Path) -> Result<Vec<u8>, StoreError> {
+    std::fs::read(path).map_err(|e| StoreError::io(path, e))
+}
+
+/// Reads the file at `path`, or `None` when there is none.
+pub fn read_if_exists(path: &Path) -> Result<Option<Vec<u8>>, StoreError> {
+    match std::fs::read(path) {
+        Ok(bytes) => Ok(Some(bytes)),
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => Ok(None),
+        Err(e) => Err(StoreError::io(path, e)),
+    }
+}
+
+/// Creates `dir` and its parents.
+pub fn create_dir_all(dir: &Path) -> Result<(), StoreError> {
+    std::fs::create_dir_all(dir).map_err(|e| StoreError::io(dir, e))
+}
+
+/// The subdirectories of `dir` as (name, path), in no particular order; entries whose names are
+/// not UTF-8 are skipped.
+pub fn subdirectories(dir: &Path) -> Result<Vec<(String, PathBuf)>, StoreError> {
+    let entries = std::fs::read_dir(dir).map_err(|e| StoreError::io(dir, e))?;
+    Ok(entries
+        .flatten()
+        .filter(|e| e.file_type().is_ok_and(|t| t.is_dir()))
+        .filter_map(|e| Some((e.file_name().into_string().ok()?, e.path())))
+        .collect())
+}

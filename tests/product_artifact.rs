@@ -1,0 +1,183 @@
+//! One artifact, whoever asks: the CLI's `-o sky.exr`, the service's `format=exr` (through the
+//! router, `app(state).oneshot`) and a bake's EXR of the same request are the same file apart from
+//! the timing attributes; and a malformed cached artifact is a server fault that is recomputed,
+//! never a request error.
+
+mod service_support;
+
+use axum::body::Body;
+use axum::http::Request;
+use service_support::{settings, Scratch};
+use skybake::product::params::{Defaults, RequestParams};
+use skybake::product::{render, Format, ProductKind, ProductRequest, TIMING_ATTRIBUTES};
+use skybake::service::{app, AppState};
+use skybake::store::decode_exr;
+use tower::ServiceExt;
+
+const QUERY: &str = "method=fast&quality=draft&wavelengths=440,550&sun_elevation_deg=20&elevation_count=5&azimuth_count=3";
+
+/// Everything in the file but its timing attributes (and the whole-file checksum, which covers
+/// them): every attribute, the wavelengths, and every layer's planes bit for bit. (The encoder may
+/// write tiles in a different order from one run to the next, so the comparison is of the
+/// decoded content, which is every byte of meaning in the file.)
+/// (attributes, wavelength bits, (layer, plane bits)) of an artifact.
+type Content = (
+    Vec<(String, String)>,
+    Vec<u32>,
+    Vec<(String, Vec<Vec<u32>>)>,
+);
+
+fn without_timing(bytes: &[u8]) -> Content {
+    let image = decode_exr(bytes).unwrap();
+    for name in TIMING_ATTRIBUTES {
+        assert!(image.attribute(name).is_some(), "{name} missing");
+    }
+    let attributes = image
+        .attributes()
+        .iter()
+        .filter(|(k, _)| !TIMING_ATTRIBUTES.contains(&k.as_str()))
+        .map(|(k, v)| (k.clone(), v.clone()))
+        .collect();
+    let wavelengths = image
+        .wavelengths_nm()
+        .iter()
+        .map(|&w| (w as f32).to_bits())
+        .collect();
+    let bits = |planes: &[Vec<f32>]| -> Vec<Vec<u32>> {
+        planes
+            .iter()
+            .map(|p| p.iter().map(|v| v.to_bits()).collect())
+            .collect()
+    };
+    let mut layers: Vec<(String, Vec<Vec<u32>>)> = image
+        .layers()
+        .iter()
+        .map(|l| (l.name().to_string(), bits(l.planes())))
+        .collect();
+    if let Some(rgb) = image.rgb() {
+        layers.push(("RGB".into(), bits(&rgb[..])));
+    }
+    (attributes, wavelengths, layers)
+}
+
+async fn get(state: &AppState, uri: &str) -> (u16, Vec<u8>) {
+    let req = Request::builder().uri(uri).body(Body::empty()).unwrap();
+    let resp = app(state.clone()).oneshot(req).await.unwrap();
+    let status = resp.status().as_u16();
+    let bytes = axum::body::to_bytes(resp.into_body(), 1 << 26)
+        .await
+        .unwrap();
+    (status, bytes.to_vec())
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn cli_http_and_bake_write_the_same_artifact() {
+    let dir = Scratch::new("artifact");
+    // CLI.
+    let cli_path = dir.path().join("cli.exr");
+    let mut args = vec!["sky".to_string()];
+    for pair in QUERY.split('&') {
+        let (k, v) = pair.split_once('=').unwrap();
+        args.push(format!("--{}", k.replace('_', "-")));
+        args.push(v.to_string());
+    }
+    args.extend(["-o".into(), cli_path.to_str().unwrap().to_string()]);
+    let out = std::process::Command::new(env!("CARGO_BIN_EXE_skybake"))
+        .args(&args)
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let cli = std::fs::read(&cli_path).unwrap();
+    // HTTP.
+    let state = AppState::new(settings(&dir.path().join("cache"))).unwrap();
+    let (status, http) = get(&state, &format!("/v1/sky?{QUERY}&format=exr")).await;
+    assert_eq!(status, 200, "{}", String::from_utf8_lossy(&http));
+    // Bake.
+    let job = serde_json::json!({"products": [{"product": "sky", "method": "fast", "quality": "draft",
+        "wavelengths": "440,550", "sun_elevation_deg": 20, "elevation_count": 5, "azimuth_count": 3}]});
+    let baked = dir.path().join("baked");
+    let summary = skybake::job::bake::bake(
+        job.to_string().as_bytes(),
+        &baked,
+        &Defaults::default(),
+        10,
+        &skybake::engine::Engine::new(),
+        |_, _, _| {},
+    )
+    .unwrap();
+    assert_eq!(summary.computed, 1);
+    let name = std::fs::read_dir(&baked)
+        .unwrap()
+        .flatten()
+        .map(|e| e.file_name().into_string().unwrap())
+        .find(|n| n.ends_with(".exr"))
+        .unwrap();
+    let bake = std::fs::read(baked.join(name)).unwrap();
+
+    let reference = without_timing(&cli);
+    assert_eq!(
+        reference,
+        without_timing(&http),
+        "CLI and HTTP artifacts differ"
+    );
+    assert_eq!(
+        reference,
+        without_timing(&bake),
+        "CLI and bake artifacts differ"
+    );
+    // And the CLI's JSON is the service's JSON body.
+    let json = std::process::Command::new(env!("CARGO_BIN_EXE_skybake"))
+        .args(&args[..args.len() - 2])
+        .output()
+        .unwrap();
+    let cli_json: serde_json::Value = serde_json::from_slice(&json.stdout).unwrap();
+    let (_, body) = get(&state, &format!("/v1/sky?{QUERY}")).await;
+    let http_json: serde_json::Value = serde_json::from_slice(&body).unwrap();
+    for field in [
+        "radiance_w_m2_sr_nm",
+        "elevation_deg",
+        "spec",
+        "error_estimate",
+    ] {
+        assert_eq!(cli_json[field], http_json[field], "{field}");
+    }
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_malformed_cached_artifact_is_a_server_fault_and_is_recomputed() {
+    let dir = Scratch::new("malformed");
+    let state = AppState::new(settings(dir.path())).unwrap();
+    let p = RequestParams::from_pairs(skybake::service::extract::query_pairs(Some(QUERY)).unwrap())
+        .unwrap();
+    let req = ProductRequest::from_params(ProductKind::Sky, &p).unwrap();
+    // A verified EXR (it passes the store's checksum) without the response envelope.
+    let bad =
+        skybake::store::SpectralImage::emissive(3, 5, &[440.0, 550.0], vec![vec![0.0; 15]; 2])
+            .unwrap();
+    let err = render(ProductKind::Sky, Format::Json, &bad).unwrap_err();
+    assert!(
+        !err.is_input(),
+        "a malformed artifact is not the request's fault: {err}"
+    );
+    assert_eq!(
+        skybake::service::problem::ApiError::from(err)
+            .status()
+            .as_u16(),
+        500
+    );
+    state.cache().put_image(&req.cache_key(), &bad).unwrap();
+    let (status, body) = get(&state, &format!("/v1/sky?{QUERY}")).await;
+    assert_eq!(status, 200, "{}", String::from_utf8_lossy(&body));
+    let v: serde_json::Value = serde_json::from_slice(&body).unwrap();
+    assert_eq!(v["radiance_w_m2_sr_nm"].as_array().unwrap().len(), 5);
+    assert_eq!(state.metrics().computations("sky"), 1);
+    // The good artifact replaced the bad one.
+    let stored = state.cache().get_image(&req.cache_key()).unwrap().unwrap();
+    assert!(stored
+        .attribute(skybake::product::ATTR_RESPONSE_JSON)
+        .is_some());
+}
