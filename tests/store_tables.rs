@@ -135,6 +135,9 @@ const PAIRS: [(&str, &str); 7] = [
 fn cli(args: &[&str], cache_dir: &Path) -> serde_json::Value {
     let mut all = vec!["sky".to_string()];
     for (k, v) in PAIRS {
+        if args.contains(&format!("--{k}").as_str()) {
+            continue;
+        }
         all.push(format!("--{}", k.replace('_', "-")));
         all.push(v.to_string());
     }
