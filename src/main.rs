@@ -414,9 +414,9 @@ fn engine(no_table_cache: bool, config: Option<&Path>) -> Result<Engine> {
     if no_table_cache {
         return Ok(Engine::new());
     }
-    Ok(skybake::store::tables::engine_for_settings(
-        &load_settings(config)?,
-    ))
+    Ok(skybake::store::tables::engine_for_settings(&load_settings(
+        config,
+    )?))
 }
 
 fn serve(args: ServeArgs) -> Result<()> {

@@ -102,7 +102,11 @@ fn precise_tables_persist_across_engines_and_corrupt_ones_are_rebuilt() {
         .iter()
         .map(|f| std::fs::metadata(f).unwrap().len())
         .sum();
-    assert_eq!(cache.stats().bytes_on_disk, on_disk, "tables count in the budget");
+    assert_eq!(
+        cache.stats().bytes_on_disk,
+        on_disk,
+        "tables count in the budget"
+    );
 
     // A disk budget of one and a half tables keeps one: the older table is evicted.
     let small = scratch.path().join("small");

@@ -859,6 +859,7 @@ impl PreciseMultipleScattering {
         series.push(sums_of(&l_n), false);
         let mut e_n = ground_of(&l_n);
         let mut ground_sky = e_n.clone();
+        stage_ms.single_scattering = ms(t_start);
         let mut j_ms = vec![0.0f32; grid.cells() * n_l];
         let mut j_n = Vec::new();
         let mut fractions = vec![1.0];
