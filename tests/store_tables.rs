@@ -269,3 +269,37 @@ async fn cli_server_and_bake_share_the_stored_table() {
     assert_eq!(engine.table_loads(), (1, 0));
     assert_eq!(engine.table_builds(Table::Precise), 0);
 }
+
+/// A verified table file that was made for another medium (here: another wavelength list, stored
+/// under this medium's key) is refused by the engine, counted, and rebuilt; it is never used.
+#[test]
+fn a_stored_table_for_another_medium_is_refused_and_rebuilt() {
+    let scratch = Scratch::new("tables-mismatch");
+    let (dir_a, dir_b) = (scratch.path().join("a"), scratch.path().join("b"));
+    let (a, b) = (spec("440,550"), spec("440,680"));
+    Engine::with_table_store(Arc::new(CacheTableStore::new(open(&dir_a))))
+        .sky(&a, SHAPE, &[])
+        .unwrap();
+    let built_b = Engine::with_table_store(Arc::new(CacheTableStore::new(open(&dir_b))))
+        .sky(&b, SHAPE, &[])
+        .unwrap();
+    let key_of = |dir: &Path| -> String {
+        let files = exr_files(dir);
+        assert_eq!(files.len(), 1);
+        files[0].file_stem().unwrap().to_str().unwrap().to_string()
+    };
+    let (key_a, key_b) = (key_of(&dir_a), key_of(&dir_b));
+    assert_ne!(key_a, key_b);
+
+    // Table A, re-bound to B's key (valid checksum and key attribute), replaces B's table.
+    let cache_b = open(&dir_b);
+    let table_a = open(&dir_a).get_image(&key_a).unwrap().unwrap();
+    use skybake::atmosphere::shared::TableStore;
+    CacheTableStore::new(cache_b.clone()).save(&key_b, &table_a);
+
+    let engine = Engine::with_table_store(Arc::new(CacheTableStore::new(cache_b)));
+    let rebuilt = engine.sky(&b, SHAPE, &[]).unwrap();
+    assert_eq!(engine.table_loads(), (0, 1));
+    assert_eq!(engine.table_builds(Table::Precise), 1);
+    assert_eq!(rebuilt.table.radiance, built_b.table.radiance);
+}
