@@ -220,6 +220,25 @@ impl<'a> Prepared<'a> {
             lap("sky_light", &mut timing_ms);
             check(cancel)?;
             if sw.multiple_scattering
+                && scene.multiple_scattering_method == super::MsMethod::ReferencePattern
+                && optics.albedo.iter().any(|&a| a > 0.0)
+            {
+                let field = super::pattern::compute(
+                    scene,
+                    grid,
+                    lighting,
+                    &settings.pattern,
+                    &mask,
+                    cancel,
+                )?;
+                for (v, q) in vox.chunks_mut(stride).zip(field.q.chunks(n_l)) {
+                    for l in 0..n_l {
+                        v[1 + l] += q[l];
+                    }
+                }
+                stages.ran.push(field.describe());
+                lap("reference_pattern", &mut timing_ms);
+            } else if sw.multiple_scattering
                 && optics.albedo.iter().any(|&a| a > 0.0)
                 && (sun_on || env_on)
             {
