@@ -22,11 +22,13 @@
 //!
 //! The algorithm, as the paper's steps:
 //!
-//! 1. **Reference pattern** (step 1, Fig. 3–5): a *sample space* of S³ voxels (S = 15 by default;
-//!    the paper's example is 30³, whose (N−1)² third-order paths cost 30× more) of uniform
+//! 1. **Reference pattern** (step 1, Fig. 3–5): a *sample space* of S³ voxels (S = 21 by default;
+//!    the paper's example is 30³, whose (N−1)² third-order paths cost 11× more) of uniform
 //!    *average density* (the mean over the cloud's non-empty voxels), lit by the sun from outside,
 //!    with P at its centre and the camera's central view direction. Every 2nd-order path (j→P)
-//!    and every 3rd-order path (j→k→P) in it is evaluated; the *contribution ratio* of a path is
+//!    and every 3rd-order path (j→k→P) in it is evaluated (the third-order ones for ranking with
+//!    one node per hop, its phase-weighted mean direction; the paths kept get the full
+//!    sub-voxel form factors); the *contribution ratio* of a path is
 //!    its share of the total 2nd + 3rd order intensity at P, that of a voxel the sum over the
 //!    paths through it. The *bounding box* of the voxels whose ratio exceeds the threshold is the
 //!    reference pattern; inside it the highest-ratio paths whose ratios sum to r (r = 0.8, the
@@ -86,8 +88,8 @@ pub enum MsMethod {
 /// Settings of the reference pattern.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct PatternSettings {
-    /// Edge of the sample space, voxels (odd, 3 to 21; clipped to twice the grid's largest
-    /// dimension).
+    /// Edge of the sample space, voxels (odd, 3 to 31; clipped to twice the grid's largest
+    /// dimension less one). Its (S³)² third-order paths are all ranked: 86 million at 21.
     pub sample_space: usize,
     /// A voxel belongs to the pattern's bounding box when its contribution ratio exceeds this.
     pub voxel_threshold: f64,
@@ -111,7 +113,7 @@ impl PatternSettings {
             Quality::Reference => 256,
         };
         Self {
-            sample_space: 15,
+            sample_space: 21,
             voxel_threshold: 5e-4,
             ratio: 0.8,
             paths_per_voxel: n1,
@@ -122,11 +124,11 @@ impl PatternSettings {
 
     /// Checks the ranges (errors name the field).
     pub fn validate(&self) -> Result<()> {
-        if !(3..=21).contains(&self.sample_space) || self.sample_space % 2 == 0 {
+        if !(3..=31).contains(&self.sample_space) || self.sample_space % 2 == 0 {
             return Err(Error::out_of_range(
                 "pattern.sample_space",
                 self.sample_space,
-                "an odd number of voxels from 3 to 21",
+                "an odd number of voxels from 3 to 31",
             ));
         }
         if !(self.voxel_threshold.is_finite() && (0.0..=0.5).contains(&self.voxel_threshold)) {
@@ -157,10 +159,37 @@ impl PatternSettings {
     }
 }
 
+/// Most sub-voxels per axis within the beam spread.
+const MAX_SUBDIVISION: usize = 6;
+
+/// The phase function's beam spread θ_b (seed 000 Fig. 3: the angle holding the forward lobe,
+/// here where the phase falls to 10 % of its forward value) as its cosine, and the lobe's
+/// half-width at half maximum (rad; 0 when the phase has no forward peak, p(0) < 2·p(90°)).
+fn beam_spread(phase: Phase) -> (f64, f64) {
+    let p0 = phase.eval(1.0);
+    if p0 < 2.0 * phase.eval(0.0) {
+        return (1.0, 0.0);
+    }
+    let angle_at = |frac: f64| {
+        // Bisection on the angle: p decreases from the forward direction.
+        let (mut lo, mut hi) = (0.0f64, PI / 2.0);
+        for _ in 0..60 {
+            let mid = 0.5 * (lo + hi);
+            if phase.eval(mid.cos()) > frac * p0 {
+                lo = mid;
+            } else {
+                hi = mid;
+            }
+        }
+        0.5 * (lo + hi)
+    };
+    (angle_at(0.1).cos(), angle_at(0.5))
+}
+
 /// Directions of the self form factor's radial integration.
 const SELF_DIRECTIONS: usize = 128;
-/// Largest number of viewing directions of a pattern (3 × 3).
-const MAX_VIEWS: usize = 9;
+/// Largest number of viewing directions of a pattern (the central one and a 3 × 3 grid).
+const MAX_VIEWS: usize = 10;
 
 /// One quadrature node of a hop: travel direction from the source sub-voxel to the receiving
 /// point, weight (m·sr: sub-voxel volume / r², times the average-density attenuation relative
@@ -170,6 +199,17 @@ struct Node {
     u: DVec3,
     w: f64,
     ws: f64,
+}
+
+/// A hop reduced to one node (for ranking paths).
+#[derive(Debug, Clone, Copy)]
+struct Lump {
+    ws: f64,
+    wl: f64,
+    /// Mean direction weighted by w·p(s·u) (zero when the hop's directions spread widely).
+    u: DVec3,
+    /// Mean direction weighted by w·p(u·ω).
+    ul: DVec3,
 }
 
 /// The modified form factors' quadrature for every hop offset within ±(S − 1) voxels.
@@ -193,8 +233,18 @@ fn radial(sigma: f64, r: f64) -> f64 {
 }
 
 impl Kernel {
-    fn new(half: i32, h: f64, sigma_bar: f64, phase: Phase, s_in: DVec3) -> Self {
+    /// Quadrature of every hop within ±`half` voxels; `beam` holds the directions whose phase
+    /// lobes decide the beam spread (the sun's travel direction and the outgoing views).
+    fn new(
+        half: i32,
+        h: f64,
+        sigma_bar: f64,
+        phase: Phase,
+        s_in: DVec3,
+        beam: &[DVec3],
+    ) -> Self {
         let side = (2 * half + 1) as usize;
+        let (cos_spread, width) = beam_spread(phase);
         let mut range = Vec::with_capacity(side * side * side);
         let mut nodes = Vec::new();
         let mut trans = Vec::with_capacity(side * side * side);
@@ -221,13 +271,23 @@ impl Kernel {
                         }
                     } else {
                         let d2 = ex * ex + ey * ey + ez * ez;
-                        let m = if d2 <= 3 {
+                        let mut m = if d2 <= 3 {
                             4
                         } else if d2 <= 12 {
                             2
                         } else {
                             1
                         };
+                        // Within the beam spread, sub-voxels no wider than the phase lobe's
+                        // half-width (seed 000 §3.4: "every volume element within the beam
+                        // spread … is subdivided into smaller sub-voxels").
+                        let u_c = -c / dist;
+                        let alpha = (0.87 / (d2 as f64).sqrt()).min(1.0);
+                        let spread = cos_spread.acos() + alpha;
+                        if width > 0.0 && beam.iter().any(|b| b.dot(u_c) > spread.min(PI).cos()) {
+                            let need = (1.0 / ((d2 as f64).sqrt() * width)).ceil() as usize;
+                            m = m.max(need.min(MAX_SUBDIVISION));
+                        }
                         let sub = h / m as f64;
                         let dv = sub * sub * sub;
                         for k in 0..m {
@@ -262,6 +322,38 @@ impl Kernel {
             trans,
             r_mean_m: r_sum / SELF_DIRECTIONS as f64,
         }
+    }
+
+    /// One node per hop for ranking the paths: Σ w·p(s·u) with its mean direction (the first
+    /// hop of a path) and Σ w·p(u·ω) with its mean direction (the last hop), ω the outgoing
+    /// central view direction. A mean direction of zero length is stored as zero.
+    fn lumps(&self, phase: Phase, omega: DVec3) -> Vec<Lump> {
+        self.range
+            .iter()
+            .map(|&(a, b)| {
+                let nodes = &self.nodes[a as usize..b as usize];
+                let ws: f64 = nodes.iter().map(|n| n.ws).sum();
+                let wl: f64 = nodes.iter().map(|n| n.w * phase.eval(n.u.dot(omega))).sum();
+                let us: DVec3 = nodes.iter().map(|n| n.u * n.ws).sum();
+                let ul: DVec3 = nodes
+                    .iter()
+                    .map(|n| n.u * n.w * phase.eval(n.u.dot(omega)))
+                    .sum();
+                let unit = |v: DVec3, total: f64| {
+                    if v.length() > 0.5 * total.abs() && total > 0.0 {
+                        v.normalize()
+                    } else {
+                        DVec3::ZERO
+                    }
+                };
+                Lump {
+                    ws,
+                    wl,
+                    u: unit(us, ws),
+                    ul: unit(ul, wl),
+                }
+            })
+            .collect()
     }
 
     #[inline]
@@ -466,7 +558,9 @@ impl ReferencePattern {
         let sbar_s = albedo * sigma_bar;
         let half_s = (settings.sample_space / 2) as i32;
         let side = settings.sample_space;
-        let kernel = Kernel::new(2 * half_s, h, sigma_bar, phase, s_in);
+        let mut beam = vec![s_in];
+        beam.extend_from_slice(views);
+        let kernel = Kernel::new(2 * half_s, h, sigma_bar, phase, s_in, &beam);
         let centre_view = [views[0]];
         let n_vox = side * side * side;
         let offset = |i: usize| -> [i32; 3] {
@@ -492,16 +586,42 @@ impl ReferencePattern {
             let j = idx_of(dj, half_s, side);
             sbar_s * tsun[j] * kernel.trans[kernel.index(dj)] * f[0]
         };
-        let c3 = |dj: [i32; 3], dk: [i32; 3]| -> f64 {
-            let mut f = [0.0];
-            kernel.f3(phase, dj, dk, &centre_view, &mut f);
-            let j = idx_of(dj, half_s, side);
-            sbar_s
-                * sbar_s
-                * tsun[j]
-                * kernel.trans[kernel.index(sub(dj, dk))]
-                * kernel.trans[kernel.index(dk)]
-                * f[0]
+        // The (N − 1)² third-order paths are ranked with one node per hop (its phase-weighted
+        // mean direction); the paths kept get the full sub-voxel form factors below.
+        let lumps = kernel.lumps(phase, views[0]);
+        // Per hop: the first hop's weight with the centre-to-centre transmittance, and its
+        // direction (zero: spread, the middle phase averages to 1/4π).
+        let first_w: Vec<f64> = lumps
+            .iter()
+            .zip(&kernel.trans)
+            .map(|(l, t)| l.ws * t)
+            .collect();
+        let first_u: Vec<DVec3> = lumps.iter().map(|l| l.u).collect();
+        let hs = half_s;
+        // c₃ for the row of j = (x0..=x1, y, z) through k = dk, into `out`.
+        let c3_row = |dk: [i32; 3], y: i32, z: i32, x0: i32, x1: i32, out: &mut [f64]| {
+            let k = kernel.index(dk);
+            let b = &lumps[k];
+            let bw = sbar_s * sbar_s * b.wl * kernel.trans[k];
+            let jb = idx_of([x0, y, z], hs, side);
+            let eb = kernel.index([x0 - dk[0], y - dk[1], z - dk[2]]);
+            let n = (x1 - x0 + 1) as usize;
+            if b.ul == DVec3::ZERO {
+                let iso = bw / (4.0 * PI);
+                for (i, o) in out[..n].iter_mut().enumerate() {
+                    *o = tsun[jb + i] * first_w[eb + i] * iso;
+                }
+            } else {
+                for (i, o) in out[..n].iter_mut().enumerate() {
+                    let u = first_u[eb + i];
+                    let pm = if u == DVec3::ZERO {
+                        1.0 / (4.0 * PI)
+                    } else {
+                        phase.eval(u.dot(b.ul))
+                    };
+                    *o = tsun[jb + i] * first_w[eb + i] * pm * bw;
+                }
+            }
         };
         // Contribution ratios of every path and voxel in the sample space.
         let (mut voxel, total3) = (0..n_vox)
@@ -511,10 +631,16 @@ impl ReferencePattern {
                 |(mut acc, mut t3), ik| {
                     let dk = offset(ik);
                     let mut via_k = 0.0;
-                    for ij in 0..n_vox {
-                        let c = c3(offset(ij), dk);
-                        acc[ij] += c;
-                        via_k += c;
+                    let mut row = vec![0.0; side];
+                    for z in -hs..=hs {
+                        for y in -hs..=hs {
+                            c3_row(dk, y, z, -hs, hs, &mut row);
+                            let jb = idx_of([-hs, y, z], hs, side);
+                            for (a, c) in acc[jb..jb + side].iter_mut().zip(&row) {
+                                *a += c;
+                                via_k += c;
+                            }
+                        }
                     }
                     acc[ik] += via_k;
                     t3 += via_k;
@@ -562,18 +688,32 @@ impl ReferencePattern {
             let x = -(c / total).log10() * BINS_PER_DECADE;
             Some((x.max(0.0) as usize).min(n_bins - 1))
         };
+        // Every 3rd-order path of the box, row by row of j, for each k in the box.
+        let box_rows = |dk: [i32; 3], f: &mut dyn FnMut([i32; 3], f64)| {
+            let mut row = vec![0.0; side];
+            for z in box_min[2]..=box_max[2] {
+                for y in box_min[1]..=box_max[1] {
+                    c3_row(dk, y, z, box_min[0], box_max[0], &mut row);
+                    for (i, c) in row[..(box_max[0] - box_min[0] + 1) as usize]
+                        .iter()
+                        .enumerate()
+                    {
+                        f([box_min[0] + i as i32, y, z], *c);
+                    }
+                }
+            }
+        };
         let (hist_c, hist_n) = in_box
             .par_iter()
             .fold(
                 || (vec![0.0f64; n_bins], vec![0usize; n_bins]),
                 |(mut hc, mut hn), &dk| {
-                    for &dj in &in_box {
-                        let c = c3(dj, dk);
+                    box_rows(dk, &mut |_, c| {
                         if let Some(b) = bin(c) {
                             hc[b] += c;
                             hn[b] += 1;
                         }
-                    }
+                    });
                     (hc, hn)
                 },
             )
@@ -623,15 +763,18 @@ impl ReferencePattern {
         let third: Vec<Path> = in_box
             .par_iter()
             .flat_map_iter(|&dk| {
-                in_box.iter().filter_map(move |&dj| {
-                    let c = c3(dj, dk);
-                    keep(c).then_some(Path {
-                        dj,
-                        dk: Some(dk),
-                        c,
-                        segs: (0, 0),
-                    })
-                })
+                let mut kept = Vec::new();
+                box_rows(dk, &mut |dj, c| {
+                    if keep(c) {
+                        kept.push(Path {
+                            dj,
+                            dk: Some(dk),
+                            c,
+                            segs: (0, 0),
+                        });
+                    }
+                });
+                kept
             })
             .collect();
         paths.extend(third);
@@ -961,7 +1104,7 @@ mod tests {
     fn form_factors_integrate_the_volume() {
         let h = 1.0;
         let iso = Phase::Isotropic;
-        let k0 = Kernel::new(1, h, 0.0, iso, DVec3::Z);
+        let k0 = Kernel::new(1, h, 0.0, iso, DVec3::Z, &[]);
         let self_w: f64 = k0.hop([0, 0, 0]).iter().map(|n| n.w).sum();
         // Independent: midpoint rule over the unit cube with 200³ cells (the singular centre
         // cell integrated analytically as a ball of equal volume, 4π r_eq).
@@ -987,7 +1130,7 @@ mod tests {
         // With attenuation, over a large cube: hop weight × centre transmittance.
         let sigma = 0.5;
         let half = 14;
-        let k = Kernel::new(half, h, sigma, iso, DVec3::Z);
+        let k = Kernel::new(half, h, sigma, iso, DVec3::Z, &[]);
         let mut sum = 0.0;
         for z in -half..=half {
             for y in -half..=half {
@@ -1007,7 +1150,7 @@ mod tests {
     #[test]
     fn self_hop_phase_weights_normalise() {
         let hg = Phase::HenyeyGreenstein { g: 0.5 };
-        let k = Kernel::new(0, 1.0, 0.0, hg, DVec3::new(0.3, -0.2, 0.9).normalize());
+        let k = Kernel::new(0, 1.0, 0.0, hg, DVec3::new(0.3, -0.2, 0.9).normalize(), &[]);
         let nodes = k.hop([0, 0, 0]);
         // Σ (w/R) p = Σ dω p ≈ 1 (128-point Fibonacci rule for a g = 0.5 lobe).
         let s: f64 = nodes
