@@ -92,7 +92,11 @@ fn orders_2_3(tau: f64, sun_elev: f64, sun_az: f64, px: usize, spp: usize) -> Im
     let pt_s = t.elapsed().as_secs_f64();
     let mask: Vec<bool> = f_pt.transmittance.iter().map(|&t| t < 0.99).collect();
     let e = image_errors(&pattern, &f_pt.radiance, &mask, px, 1);
-    let noise = f_pt.meta.error_estimate.path_tracer_relative_noise.unwrap_or(0.0);
+    let noise = f_pt
+        .meta
+        .error_estimate
+        .path_tracer_relative_noise
+        .unwrap_or(0.0);
     let ms_stage = f_pattern
         .meta
         .stages
@@ -123,8 +127,16 @@ fn orders_2_3(tau: f64, sun_elev: f64, sun_az: f64, px: usize, spp: usize) -> Im
         noise,
         100.0 * share("reference_pattern"),
     );
-    assert!(ms_stage.contains("seed 000 §3.4"), "{:?}", f_pattern.meta.stages);
-    assert!(f_pattern.meta.timing_ms.iter().any(|t| t.0 == "reference_pattern"));
+    assert!(
+        ms_stage.contains("seed 000 §3.4"),
+        "{:?}",
+        f_pattern.meta.stages
+    );
+    assert!(f_pattern
+        .meta
+        .timing_ms
+        .iter()
+        .any(|t| t.0 == "reference_pattern"));
     e
 }
 
@@ -176,7 +188,10 @@ fn low_orders_are_a_small_share_at_the_thick_cloud_centre() {
         let (mut sum, mut wsum) = (0.0, 0.0);
         for y in 0..px {
             for x in 0..px {
-                let (dx, dy) = (x as f64 + 0.5 - 0.5 * px as f64, 0.5 * px as f64 - y as f64 - 0.5);
+                let (dx, dy) = (
+                    x as f64 + 0.5 - 0.5 * px as f64,
+                    0.5 * px as f64 - y as f64 - 0.5,
+                );
                 let theta = (dx * dx + dy * dy).sqrt() * rad_per_px;
                 if theta > std::f64::consts::PI {
                     continue;

@@ -235,14 +235,7 @@ fn radial(sigma: f64, r: f64) -> f64 {
 impl Kernel {
     /// Quadrature of every hop within ±`half` voxels; `beam` holds the directions whose phase
     /// lobes decide the beam spread (the sun's travel direction and the outgoing views).
-    fn new(
-        half: i32,
-        h: f64,
-        sigma_bar: f64,
-        phase: Phase,
-        s_in: DVec3,
-        beam: &[DVec3],
-    ) -> Self {
+    fn new(half: i32, h: f64, sigma_bar: f64, phase: Phase, s_in: DVec3, beam: &[DVec3]) -> Self {
         let side = (2 * half + 1) as usize;
         let (cos_spread, width) = beam_spread(phase);
         let mut range = Vec::with_capacity(side * side * side);
@@ -466,7 +459,10 @@ impl Views {
         let last = (self.n - 1) as f64;
         let gx = (px / w * last).clamp(0.0, last);
         let gy = (py / h * last).clamp(0.0, last);
-        let (i0, j0) = ((gx.floor() as usize).min(self.n - 2), (gy.floor() as usize).min(self.n - 2));
+        let (i0, j0) = (
+            (gx.floor() as usize).min(self.n - 2),
+            (gy.floor() as usize).min(self.n - 2),
+        );
         let (fx, fy) = (gx - i0 as f64, gy - j0 as f64);
         let at = |i: usize, j: usize| j * self.n + i;
         [
@@ -576,7 +572,9 @@ impl ReferencePattern {
             .map(|i| {
                 let d = offset(i);
                 let p = DVec3::new(d[0] as f64, d[1] as f64, d[2] as f64) * h;
-                let t = box_interval(p, -s_in, lo, -lo).map(|(_, t1)| t1).unwrap_or(0.0);
+                let t = box_interval(p, -s_in, lo, -lo)
+                    .map(|(_, t1)| t1)
+                    .unwrap_or(0.0);
                 (-sigma_bar * t).exp()
             })
             .collect();
@@ -874,7 +872,10 @@ impl ReferencePattern {
         let mut est = 0.0;
         for i in 0..n1 {
             let u = (i as f64 + xi) / n1 as f64 * c_total;
-            let s = self.cdf.partition_point(|&c| c < u).min(self.paths.len() - 1);
+            let s = self
+                .cdf
+                .partition_point(|&c| c < u)
+                .min(self.paths.len() - 1);
             let p = &self.paths[s];
             let Some(j) = at(p.dj) else { continue };
             let rho_j = grid.data[j] as f64;
@@ -1064,15 +1065,9 @@ pub fn compute(
                     for ww in w.iter_mut() {
                         ww.0 += 1;
                     }
-                    let xi = hash01(settings.seed ^ (idx as u64).wrapping_mul(0xD1B5_4A32_D192_ED03));
-                    let v = pattern.at_voxel(
-                        grid,
-                        &d_sun,
-                        [x, y, z],
-                        &w,
-                        s.paths_per_voxel,
-                        xi,
-                    );
+                    let xi =
+                        hash01(settings.seed ^ (idx as u64).wrapping_mul(0xD1B5_4A32_D192_ED03));
+                    let v = pattern.at_voxel(grid, &d_sun, [x, y, z], &w, s.paths_per_voxel, xi);
                     for (gi, &l) in group.iter().enumerate() {
                         slab[i * n_l + l] += (e[gi] * v) as f32;
                     }
@@ -1089,6 +1084,41 @@ pub fn compute(
         q,
         stats,
         apply_ms,
+    })
+}
+
+/// `skybake bench frame-pattern`: the `frame` benchmark (640×480, 128³ cumulus, standard
+/// quality, cold then warm) with `"multiple_scattering_method": "reference_pattern"`.
+pub fn bench_frame_pattern(width: usize, height: usize) -> Result<super::bench::FrameBench> {
+    use super::{bench, lighting_for, render_frame, Method, RenderSettings};
+    let grid = bench::bench_cumulus()?;
+    let mut scene = bench::bench_scene(width, height)?;
+    scene.multiple_scattering_method = MsMethod::ReferencePattern;
+    let settings = RenderSettings::for_quality(scene.quality, Method::Fast);
+    let engine = crate::engine::Engine::new();
+    let t = Instant::now();
+    let lighting = lighting_for(&scene, &grid, &engine)?;
+    let lighting_cold_ms = t.elapsed().as_secs_f64() * 1e3;
+    render_frame(&scene, &grid, &lighting, &settings, None, &|_| {}, &|| {
+        false
+    })?;
+    let cold_ms = t.elapsed().as_secs_f64() * 1e3;
+    let t = Instant::now();
+    let lighting = lighting_for(&scene, &grid, &engine)?;
+    let lighting_warm_ms = t.elapsed().as_secs_f64() * 1e3;
+    let frame = render_frame(&scene, &grid, &lighting, &settings, None, &|_| {}, &|| {
+        false
+    })?;
+    let warm_ms = t.elapsed().as_secs_f64() * 1e3;
+    Ok(bench::FrameBench {
+        cold_ms,
+        warm_ms,
+        warm_stages_ms: frame.meta.timing_ms,
+        lighting_cold_ms,
+        lighting_warm_ms,
+        width,
+        height,
+        voxels: grid.data.len(),
     })
 }
 
