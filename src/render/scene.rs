@@ -16,8 +16,13 @@
 //!  "atmosphere": "earth", "sky": "atmosphere", "ground": {"albedo": 0.3, "height_m": 0},
 //!  "wavelengths_nm": [440, 550, 680], "quality": "standard",
 //!  "lighting": {"sky_light": true, "ground_light": true, "aerial_perspective": true,
-//!               "shafts_of_light": true, "cloud_shadows": true, "multiple_scattering": true}}
+//!               "shafts_of_light": true, "cloud_shadows": true, "multiple_scattering": true},
+//!  "multiple_scattering_method": "all_orders"}
 //! ```
+//!
+//! `multiple_scattering_method` picks the fast method's multiple scattering: `"all_orders"` (the
+//! photon-transport field) or `"reference_pattern"` (orders 2 and 3 of sunlight by seed 000
+//! §3.4, for thin clouds; `render::pattern`).
 //!
 //! Every value is checked here, before anything is allocated; errors name the field (dotted
 //! path, e.g. `optics.phase.g`) and its allowed range.
