@@ -148,11 +148,11 @@ impl PatternSettings {
                 "1 to 65536",
             ));
         }
-        if !(1..=1 << 20).contains(&self.max_paths) {
+        if !(1..=1 << 17).contains(&self.max_paths) {
             return Err(Error::out_of_range(
                 "pattern.max_paths",
                 self.max_paths,
-                "1 to 1048576",
+                "1 to 131072",
             ));
         }
         Ok(())
