@@ -146,11 +146,15 @@ impl<'a> Prepared<'a> {
         let optics = &scene.optics;
         let sw = scene.lighting;
         let env_on = !(lighting.sky.is_zero() && lighting.below.is_zero());
-        let ms_on = settings.method == Method::Fast
+        let scattering = settings.method == Method::Fast
             && vol.rho_max > 0.0
             && sw.multiple_scattering
-            && optics.albedo.iter().any(|&a| a > 0.0)
-            && (sun_on || env_on);
+            && optics.albedo.iter().any(|&a| a > 0.0);
+        // Orders 2–3 of sunlight by the reference pattern (seed 000 §3.4), with the true phase
+        // function and no δ-M scaling; or the all-order field.
+        let pattern_on = scattering
+            && scene.multiple_scattering_method == super::MsMethod::ReferencePattern;
+        let ms_on = scattering && !pattern_on && (sun_on || env_on);
         // δ-M scaling (f = g₁²) when the multiple-scattering field runs; none otherwise.
         let trunc: Vec<Truncation> = optics
             .phase
@@ -255,7 +259,23 @@ impl<'a> Prepared<'a> {
             }
             lap("sky_light", &mut timing_ms);
             check(cancel)?;
-            if ms_on {
+            if pattern_on {
+                let field = super::pattern::compute(
+                    scene,
+                    grid,
+                    lighting,
+                    &settings.pattern,
+                    &mask,
+                    cancel,
+                )?;
+                for (v, q) in vox.chunks_mut(stride).zip(field.q.chunks(n_l)) {
+                    for l in 0..n_l {
+                        v[1 + l] += q[l];
+                    }
+                }
+                stages.ran.push(field.describe());
+                lap("reference_pattern", &mut timing_ms);
+            } else if ms_on {
                 let field = MsField::compute(grid, optics, lighting, &settings.photons);
                 lap("multiple_scattering", &mut timing_ms);
                 let [nx, ny, _] = grid.dims;

@@ -9,7 +9,8 @@
 //! - `scene`: the scene JSON and its validation; `camera`: primary rays.
 //! - `lighting`: the light from outside the cloud (engine adapter, vacuum, constant sky).
 //! - `volume`: the density grid as a medium; `light`: per-voxel sun and sky-element paths.
-//! - `multiple`: the all-order multiple-scattering field; `pathtracer`: the reference.
+//! - `multiple`: the all-order multiple-scattering field; `pattern`: orders 2 and 3 by seed 000
+//!   §3.4's reference pattern; `pathtracer`: the reference.
 //! - `march`: the fast method's preparation and final ray march, compositing, shafts.
 //!
 //! ```no_run
@@ -30,6 +31,7 @@ pub mod lighting;
 pub mod march;
 pub mod multiple;
 pub mod pathtracer;
+pub mod pattern;
 pub mod product;
 pub mod scene;
 pub mod volume;
@@ -37,6 +39,7 @@ pub mod volume;
 pub use lighting::Lighting;
 pub use march::Prepared;
 pub use multiple::PhotonSettings;
+pub use pattern::{MsMethod, PatternSettings};
 pub use product::FrameRequest;
 pub use scene::FrameScene;
 
@@ -102,6 +105,11 @@ pub struct RenderSettings {
     pub seed: u64,
     /// Path tracer: scattering orders counted (`usize::MAX`: all), for measuring orders.
     pub max_orders: usize,
+    /// Path tracer: lowest scattering order counted (0: all, including the unscattered
+    /// background; 2 with `max_orders` 3 renders orders 2 and 3 only).
+    pub min_orders: usize,
+    /// Reference pattern of the scene's `"multiple_scattering_method": "reference_pattern"`.
+    pub pattern: PatternSettings,
 }
 
 impl RenderSettings {
@@ -133,6 +141,8 @@ impl RenderSettings {
             shaft_steps: 16,
             seed: 0x5EED,
             max_orders: usize::MAX,
+            min_orders: 0,
+            pattern: PatternSettings::for_quality(q),
         }
     }
 
@@ -170,6 +180,7 @@ impl RenderSettings {
                 "64 to 65536 (table 4..512 x 4..1024)",
             ));
         }
+        self.pattern.validate()?;
         if !(1..=1024).contains(&self.shaft_steps) {
             return Err(Error::out_of_range(
                 "shaft_steps",
@@ -322,6 +333,7 @@ pub fn render_tile(
     let cancelled = std::sync::atomic::AtomicBool::new(false);
     let mut pt = pathtracer::PathTracer::new(&p.vol, &p.scene.optics, p.lighting, p.settings.seed);
     pt.max_orders = p.settings.max_orders;
+    pt.min_orders = p.settings.min_orders;
     radiance
         .par_chunks_mut(tile.width * n_l)
         .zip(transmittance.par_chunks_mut(tile.width))
