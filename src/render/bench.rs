@@ -84,6 +84,17 @@ pub struct FrameBench {
 pub fn bench_frame(width: usize, height: usize) -> Result<FrameBench> {
     let grid = bench_cumulus()?;
     let scene = bench_scene(width, height)?;
+    time_frame(&scene, &grid, width, height)
+}
+
+/// Cold then warm frames of `scene` (the `frame` benchmarks' timing).
+pub fn time_frame(
+    scene: &FrameScene,
+    grid: &crate::cloud::DensityGrid,
+    width: usize,
+    height: usize,
+) -> Result<FrameBench> {
+    let (scene, grid) = (scene.clone(), grid);
     let settings = RenderSettings::for_quality(scene.quality, Method::Fast);
     let engine = Engine::new();
     let t = Instant::now();

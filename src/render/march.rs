@@ -152,8 +152,8 @@ impl<'a> Prepared<'a> {
             && optics.albedo.iter().any(|&a| a > 0.0);
         // Orders 2–3 of sunlight by the reference pattern (seed 000 §3.4), with the true phase
         // function and no δ-M scaling; or the all-order field.
-        let pattern_on = scattering
-            && scene.multiple_scattering_method == super::MsMethod::ReferencePattern;
+        let pattern_on =
+            scattering && scene.multiple_scattering_method == super::MsMethod::ReferencePattern;
         let ms_on = scattering && !pattern_on && (sun_on || env_on);
         // δ-M scaling (f = g₁²) when the multiple-scattering field runs; none otherwise.
         let trunc: Vec<Truncation> = optics

@@ -1090,36 +1090,11 @@ pub fn compute(
 /// `skybake bench frame-pattern`: the `frame` benchmark (640×480, 128³ cumulus, standard
 /// quality, cold then warm) with `"multiple_scattering_method": "reference_pattern"`.
 pub fn bench_frame_pattern(width: usize, height: usize) -> Result<super::bench::FrameBench> {
-    use super::{bench, lighting_for, render_frame, Method, RenderSettings};
+    use super::bench;
     let grid = bench::bench_cumulus()?;
     let mut scene = bench::bench_scene(width, height)?;
     scene.multiple_scattering_method = MsMethod::ReferencePattern;
-    let settings = RenderSettings::for_quality(scene.quality, Method::Fast);
-    let engine = crate::engine::Engine::new();
-    let t = Instant::now();
-    let lighting = lighting_for(&scene, &grid, &engine)?;
-    let lighting_cold_ms = t.elapsed().as_secs_f64() * 1e3;
-    render_frame(&scene, &grid, &lighting, &settings, None, &|_| {}, &|| {
-        false
-    })?;
-    let cold_ms = t.elapsed().as_secs_f64() * 1e3;
-    let t = Instant::now();
-    let lighting = lighting_for(&scene, &grid, &engine)?;
-    let lighting_warm_ms = t.elapsed().as_secs_f64() * 1e3;
-    let frame = render_frame(&scene, &grid, &lighting, &settings, None, &|_| {}, &|| {
-        false
-    })?;
-    let warm_ms = t.elapsed().as_secs_f64() * 1e3;
-    Ok(bench::FrameBench {
-        cold_ms,
-        warm_ms,
-        warm_stages_ms: frame.meta.timing_ms,
-        lighting_cold_ms,
-        lighting_warm_ms,
-        width,
-        height,
-        voxels: grid.data.len(),
-    })
+    bench::time_frame(&scene, &grid, width, height)
 }
 
 #[cfg(test)]
