@@ -5,7 +5,8 @@
 //! is built, no ray-march term is evaluated), a stage in it does; `tests/plan.rs` checks each rule
 //! against the engine's work counters.
 //!
-//! Rules live here and nowhere else. Cost rules (issue 15) and a "sun below the darkest twilight"
+//! Rules live here and nowhere else, the choice of multiple-scattering method among them (`fast`
+//! below [`FAST_TWILIGHT_LIMIT_DEG`] runs the precise tables, issue 14). Cost rules (issue 15) and a "sun below the darkest twilight"
 //! rule (issues 14/18: leave out single scattering once no air the product sees is lit) are new
 //! arms of [`plan`], with a new [`Reason`] each.
 
@@ -52,6 +53,48 @@ impl Stage {
     }
 }
 
+/// Sun elevation below which a `fast` request is computed with the precise tables instead: the
+/// fast method's measured error against the spherical Monte Carlo exceeds 10 % there (−6°: up to
+/// 54 % low, −9°: 81 %, −12°: 96 %; tests/atmosphere_twilight.rs), issue 14 point 3.
+pub const FAST_TWILIGHT_LIMIT_DEG: f64 = -4.0;
+
+/// The multiple-scattering method a spec is computed with: `fast` below
+/// [`FAST_TWILIGHT_LIMIT_DEG`] runs on the precise tables, where the fast method's measured error
+/// exceeds 10 %; otherwise the requested one.
+pub fn effective_method(spec: &CommonSpec) -> MsMethod {
+    match spec.method {
+        MsMethod::Fast if spec.sun.sun_elevation_deg < FAST_TWILIGHT_LIMIT_DEG => MsMethod::Precise,
+        m => m,
+    }
+}
+
+/// Why the multiple-scattering stage runs another method than the one requested.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+#[serde(tag = "reason", rename_all = "snake_case")]
+pub enum Substitution {
+    /// `fast` requested with the sun below [`FAST_TWILIGHT_LIMIT_DEG`]: the precise tables run.
+    FastInTwilight {
+        requested: MsMethod,
+        sun_elevation_deg: f64,
+        limit_deg: f64,
+    },
+}
+
+impl Substitution {
+    /// One line for people.
+    pub fn detail(&self) -> String {
+        match self {
+            Substitution::FastInTwilight {
+                sun_elevation_deg,
+                limit_deg,
+                ..
+            } => format!(
+                "multiple scattering: successive orders (precise) in place of the requested fast method: the sun at {sun_elevation_deg}° is below {limit_deg}°, where the fast method's measured error exceeds 10 % (up to 54 % low at −6°)"
+            ),
+        }
+    }
+}
+
 /// Why a stage is left out.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize)]
 #[serde(tag = "reason", rename_all = "snake_case")]
@@ -89,8 +132,11 @@ impl Reason {
 pub struct Plan {
     pub stages: Vec<Stage>,
     pub left_out: Vec<(Stage, Reason)>,
-    /// The multiple-scattering method the [`Stage::MultipleScattering`] stage uses.
+    /// The multiple-scattering method the [`Stage::MultipleScattering`] stage uses (the
+    /// effective one, see [`effective_method`]).
     pub method: MsMethod,
+    /// Set when `method` is not the requested one, with the reason.
+    pub substitution: Option<Substitution>,
 }
 
 impl Plan {
@@ -122,6 +168,13 @@ struct StageView {
 }
 
 #[derive(Serialize)]
+struct SubstitutionView {
+    #[serde(flatten)]
+    substitution: Substitution,
+    detail: String,
+}
+
+#[derive(Serialize)]
 struct LeftOutView {
     stage: Stage,
     #[serde(flatten)]
@@ -131,7 +184,8 @@ struct LeftOutView {
 
 impl Serialize for Plan {
     /// `{"method", "stages": [{"stage", "description"}], "left_out": [{"stage", "reason", …,
-    /// "detail"}]}`.
+    /// "detail"}]}`, with `"method_substitution": {"reason", "requested", …, "detail"}` when the
+    /// method that runs is not the requested one.
     fn serialize<S: Serializer>(&self, s: S) -> Result<S::Ok, S::Error> {
         let stages: Vec<StageView> = self
             .stages
@@ -150,8 +204,17 @@ impl Serialize for Plan {
                 detail: reason.detail(),
             })
             .collect();
-        let mut st = s.serialize_struct("Plan", 3)?;
+        let mut st = s.serialize_struct("Plan", 4)?;
         st.serialize_field("method", &self.method)?;
+        if let Some(substitution) = self.substitution {
+            st.serialize_field(
+                "method_substitution",
+                &SubstitutionView {
+                    substitution,
+                    detail: substitution.detail(),
+                },
+            )?;
+        }
         st.serialize_field("stages", &stages)?;
         st.serialize_field("left_out", &left_out)?;
         st.end()
@@ -161,10 +224,17 @@ impl Serialize for Plan {
 /// Plans `product` for `spec` on the resolved medium `m` (which carries the effective ground
 /// albedo). Pure: no tables, no I/O.
 pub fn plan(product: ProductKind, spec: &CommonSpec, m: &Medium) -> Plan {
+    let method = effective_method(spec);
+    let substitution = (method != spec.method).then_some(Substitution::FastInTwilight {
+        requested: spec.method,
+        sun_elevation_deg: spec.sun.sun_elevation_deg,
+        limit_deg: FAST_TWILIGHT_LIMIT_DEG,
+    });
     let mut p = Plan {
         stages: vec![Stage::DensityTable, Stage::SingleScattering],
         left_out: Vec::new(),
-        method: spec.method,
+        method,
+        substitution,
     };
     let mut rule = |stage: Stage, left_out: Option<Reason>| match left_out {
         None => p.stages.push(stage),

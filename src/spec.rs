@@ -127,12 +127,10 @@ impl ProductKind {
             })
     }
 
-    /// Lowest sun elevation the product accepts, degrees.
+    /// Lowest sun elevation the product accepts, degrees: the end of astronomical twilight for
+    /// every product (below it no sunlight reaches the sky; issue 14).
     pub fn min_sun_elevation_deg(self) -> f64 {
-        match self {
-            Self::Sun => -10.0,
-            _ => -18.0,
-        }
+        -18.0
     }
 }
 

@@ -101,11 +101,11 @@ pub struct Convergence {
 pub struct PreciseMultipleScattering {
     grid: Grid,
     n_l: usize,
-    /// `[i_r][i_mu][i_mu_s][i_phi][λ]`, scattering source of orders ≥ 2, m⁻¹ sr⁻¹ per unit solar
-    /// irradiance.
-    j_ms: Vec<f32>,
-    /// `[i_mu_s][λ]`, sky irradiance on the ground per unit solar irradiance.
-    ground_sky: Vec<f64>,
+    /// `[i_r][i_mu][i_mu_s][i_phi][λ]`, ln of the scattering source of orders ≥ 2, m⁻¹ sr⁻¹ per
+    /// unit solar irradiance (−∞ where it is zero; see [`lookup_j`]).
+    ln_j_ms: Vec<f32>,
+    /// `[i_mu_s][λ]`, ln of the sky irradiance on the ground per unit solar irradiance.
+    ln_ground_sky: Vec<f64>,
     pub convergence: Convergence,
 }
 
@@ -240,18 +240,52 @@ fn upward_cosine_weights(grid: &Grid) -> Vec<f64> {
     w
 }
 
-/// Sky irradiance on the ground, `[i_mu_s][λ]`, interpolated at sun zenith cosine `mu_s`.
+/// Catmull–Rom weights and node indices for position `(i, f)` on a grid of `n` nodes (end
+/// nodes repeated at the edges).
 #[inline(always)]
-fn lookup_ground(grid: &Grid, n_l: usize, table: &[f64], mu_s: f64, out: &mut [f64]) {
+fn catmull_rom(i: usize, f: f64, n: usize) -> ([usize; 4], [f64; 4]) {
+    let (f2, f3) = (f * f, f * f * f);
+    (
+        [
+            i.saturating_sub(1),
+            i,
+            (i + 1).min(n - 1),
+            (i + 2).min(n - 1),
+        ],
+        [
+            0.5 * (-f3 + 2.0 * f2 - f),
+            0.5 * (3.0 * f3 - 5.0 * f2 + 2.0),
+            0.5 * (-3.0 * f3 + 4.0 * f2 + f),
+            0.5 * (f3 - f2),
+        ],
+    )
+}
+
+/// Sky irradiance on the ground from a table of ln E, `[i_mu_s][λ]`, at sun zenith cosine
+/// `mu_s`: Catmull–Rom in ln E over sun zenith, as [`lookup_j`] (linear in E where a node is 0).
+#[inline(always)]
+fn lookup_ground(grid: &Grid, n_l: usize, ln_table: &[f64], mu_s: f64, out: &mut [f64]) {
     let theta_s = acos_fast(mu_s);
     if theta_s > grid.theta_s_max {
         return;
     }
     let (is, fs) = grid_pos(theta_s / grid.theta_s_max, grid.s.n_mu_s);
-    let (a, b) = (&table[is * n_l..][..n_l], &table[(is + 1) * n_l..][..n_l]);
+    let (nodes, w) = catmull_rom(is, fs, grid.s.n_mu_s);
     for i in 0..n_l {
-        out[i] += a[i] * (1.0 - fs) + b[i] * fs;
+        let v: f64 = (0..4).map(|q| w[q] * ln_table[nodes[q] * n_l + i]).sum();
+        out[i] += if v.is_finite() {
+            v.exp()
+        } else {
+            ln_table[is * n_l + i].exp() * (1.0 - fs) + ln_table[(is + 1) * n_l + i].exp() * fs
+        };
     }
+}
+
+/// ln of every entry (−∞ for zeros): the tables are interpolated in ln J and ln E.
+fn ln_table_f64(v: &[f64]) -> Vec<f64> {
+    v.iter()
+        .map(|&x| if x > 0.0 { x.ln() } else { f64::NEG_INFINITY })
+        .collect()
 }
 
 /// Cosine of the view azimuth relative to the sun from the three cosines (1 when undefined).
@@ -265,8 +299,16 @@ fn cos_azimuth(mu: f64, mu_s: f64, nu: f64) -> f64 {
     }
 }
 
-/// J_ms at a ray sample (products): 16-corner interpolation over (r, θ, θ_s, φ).
-fn lookup_j(grid: &Grid, n_l: usize, j: &[f32], s: &RaySample, out: &mut [f64]) {
+/// J_ms at a ray sample (products), from the table of ln J.
+///
+/// Across the terminator J falls by about an order of magnitude per table step in sun zenith (the
+/// lower atmosphere then sees only light scattered from the lit air above and towards the sun), so
+/// linear interpolation of J overestimates it between nodes: by 30–100 % in the sky away from the
+/// sun at −2° to −9° (issue 14). ln J is smooth through the terminator and close to linear beyond
+/// it, so the table is interpolated in ln J: Catmull–Rom in sun zenith (exact for an exponential
+/// decay, third order where ln J bends at the terminator), multilinear in radius and direction.
+/// Where a corner is zero (deep twilight, ln J = −∞) it falls back to multilinear in J.
+fn lookup_j(grid: &Grid, n_l: usize, ln_j: &[f32], s: &RaySample, out: &mut [f64]) {
     let theta_s = s.mu_s.clamp(-1.0, 1.0).acos();
     if theta_s > grid.theta_s_max {
         return;
@@ -278,18 +320,45 @@ fn lookup_j(grid: &Grid, n_l: usize, j: &[f32], s: &RaySample, out: &mut [f64]) 
     let cos_phi = cos_azimuth(s.mu, s.mu_s, s.nu);
     let (ip, fp) = Grid::centred_pos(cos_phi.acos(), grid.s.n_phi);
     let (n_mu_s, n_mu, n_phi) = (grid.s.n_mu_s, grid.s.n_mu, grid.s.n_phi);
+    let (nodes_s, w_s) = catmull_rom(is, fs, n_mu_s);
+    let mut acc = [0.0f64; crate::spectrum::wavelengths::MAX_WAVELENGTHS];
+    let acc = &mut acc[..n_l];
+    let idx =
+        |a: usize, c: usize, b: usize, e: usize| (((a * n_mu + c) * n_mu_s + b) * n_phi + e) * n_l;
+    let mut corners = [(0usize, 0usize, 0usize, 0.0f64); 8];
+    let mut k = 0;
     for (a, wa) in [(ir, 1.0 - fr), (ir + 1, fr)] {
         for (c, wc) in [(im, 1.0 - fm), (im + 1, fm)] {
-            for (b, wb) in [(is, 1.0 - fs), (is + 1, fs)] {
-                for (e, we) in [(ip, 1.0 - fp), (ip + 1, fp)] {
-                    let w = wa * wb * wc * we;
-                    if w == 0.0 {
-                        continue;
-                    }
-                    let base = (((a * n_mu + c) * n_mu_s + b) * n_phi + e) * n_l;
-                    for i in 0..n_l {
-                        out[i] += w * j[base + i] as f64;
-                    }
+            for (e, we) in [(ip, 1.0 - fp), (ip + 1, fp)] {
+                corners[k] = (a, c, e, wa * wc * we);
+                k += 1;
+            }
+        }
+    }
+    for &(a, c, e, w) in &corners {
+        if w == 0.0 {
+            continue;
+        }
+        for (&b, &ws) in nodes_s.iter().zip(&w_s) {
+            if ws == 0.0 {
+                continue;
+            }
+            let row = &ln_j[idx(a, c, b, e)..][..n_l];
+            for (x, v) in acc.iter_mut().zip(row) {
+                *x += w * ws * *v as f64;
+            }
+        }
+    }
+    for i in 0..n_l {
+        if acc[i].is_finite() {
+            out[i] += acc[i].exp();
+        } else {
+            for &(a, c, e, w) in &corners {
+                if w == 0.0 {
+                    continue;
+                }
+                for (b, wb) in [(is, 1.0 - fs), (is + 1, fs)] {
+                    out[i] += w * wb * (ln_j[idx(a, c, b, e) + i] as f64).exp();
                 }
             }
         }
@@ -301,8 +370,8 @@ fn lookup_j(grid: &Grid, n_l: usize, j: &[f32], s: &RaySample, out: &mut [f64]) 
 enum PassInput<'a> {
     /// Order 1: exact single scattering and the ground's reflection of direct sun.
     Single,
-    /// Order n ≥ 2: the order's scattering source J_n (family layout) and the previous order's
-    /// ground sky irradiance E_{n−1}, `[i_mu_s][λ]`.
+    /// Order n ≥ 2: the order's scattering source J_n (family layout) and ln of the previous
+    /// order's ground sky irradiance E_{n−1}, `[i_mu_s][λ]`.
     Order { j: &'a [f32], ground: &'a [f64] },
 }
 
@@ -508,17 +577,22 @@ crate::simd_dispatch! {
                                 1.0
                             };
                             let (jp, fp) = Grid::centred_pos(acos_fast(cos_phi), n_phi);
-                            let (fs, fp) = (fs as f32, fp as f32);
-                            let (c00, c01, c10, c11) =
-                                ((1.0 - fs) * (1.0 - fp), (1.0 - fs) * fp, fs * (1.0 - fp), fs * fp);
-                            let (s00, s01) =
-                                sc.slice[(js * n_phi + jp) * n_l..][..2 * n_l].split_at(n_l);
-                            let (s10, s11) =
-                                sc.slice[((js + 1) * n_phi + jp) * n_l..][..2 * n_l].split_at(n_l);
+                            // Catmull–Rom in ln J over sun zenith (see `lookup_j`), linear in
+                            // azimuth; linear in J where a node is zero.
+                            let (nodes, cw) = catmull_rom(js, fs, n_mu_s);
                             let o = &mut out[c * n_l..][..n_l];
                             for i in 0..n_l {
-                                let v = c00 * s00[i] + c01 * s01[i] + c10 * s10[i] + c11 * s11[i];
-                                o[i] += tw[i] * v;
+                                let mut v = 0.0f64;
+                                for (e, we) in [(jp, 1.0 - fp), (jp + 1, fp)] {
+                                    let at = |b: usize| sc.slice[(b * n_phi + e) * n_l + i] as f64;
+                                    let vals = nodes.map(at);
+                                    v += we * if vals.iter().all(|&x| x > 0.0) {
+                                        (0..4).map(|q| cw[q] * vals[q].ln()).sum::<f64>().exp()
+                                    } else {
+                                        at(js) * (1.0 - fs) + at(js + 1) * fs
+                                    };
+                                }
+                                o[i] += tw[i] * v as f32;
                             }
                         }
                     }
@@ -849,9 +923,10 @@ impl PreciseMultipleScattering {
             j_n = scattering_density(&l_n);
             let j_ms_elapsed = t_j.elapsed().as_secs_f64() * 1e3;
             let t_l = std::time::Instant::now();
+            let ln_en = ln_table_f64(&e_n);
             l_n = radiance(PassInput::Order {
                 j: &j_n,
-                ground: &e_n,
+                ground: &ln_en,
             });
             e_n = ground_of(&l_n);
             j_ms.par_iter_mut().zip(&j_n).for_each(|(a, b)| *a += b);
@@ -898,11 +973,15 @@ impl PreciseMultipleScattering {
             Some((_, _, q, _)) => (0.0, last_fraction * q / (1.0 - q), q),
             None => (0.0, last_fraction, 0.0),
         };
+        let ln_j_ms = j_ms
+            .par_iter()
+            .map(|&v| if v > 0.0 { v.ln() } else { f32::NEG_INFINITY })
+            .collect();
         Self {
             grid,
             n_l,
-            j_ms,
-            ground_sky,
+            ln_j_ms,
+            ln_ground_sky: ln_table_f64(&ground_sky),
             convergence: Convergence {
                 orders,
                 last_order_fraction: last_fraction,
@@ -917,9 +996,9 @@ impl PreciseMultipleScattering {
 
 impl Source for PreciseMultipleScattering {
     fn add_scattering(&self, s: &RaySample, out: &mut [f64]) {
-        lookup_j(&self.grid, self.n_l, &self.j_ms, s, out);
+        lookup_j(&self.grid, self.n_l, &self.ln_j_ms, s, out);
     }
     fn add_ground_sky_irradiance(&self, mu_s: f64, out: &mut [f64]) {
-        lookup_ground(&self.grid, self.n_l, &self.ground_sky, mu_s, out);
+        lookup_ground(&self.grid, self.n_l, &self.ln_ground_sky, mu_s, out);
     }
 }
