@@ -11,7 +11,7 @@ use crate::atmosphere::sky::{
 };
 use crate::atmosphere::sun_transmittance::sun_transmittance;
 use crate::atmosphere::Medium;
-use crate::plan::{Plan, Stage};
+use crate::plan::{Plan, Reason, Stage};
 use crate::spec::{AerialSpec, CommonSpec, DomeSpec, ProductKind, ProductSpec, Quality};
 use crate::spectrum::colour::XyzWeights;
 use crate::spectrum::photometry::{correlated_colour_temperature, illuminance_lux};
@@ -397,8 +397,15 @@ impl Engine {
             "wavelength sampling too coarse for accurate colour (needs 400–700 nm with gaps ≤ 40 nm); RGB is indicative".to_string()
         });
         let e = spec.sun.sun_elevation_deg;
+        let night = plan
+            .left_out
+            .iter()
+            .any(|(_, r)| matches!(r, Reason::SunBelowDarkestTwilight { .. }));
         let validated = e >= -12.0 && method != MsMethod::None;
         let caveat = match (method, e) {
+            _ if night => Some(
+                "night: no sunlit air or ground is in view, so sunlight contributes exactly zero; moonlight, starlight and airglow are not modelled",
+            ),
             (MsMethod::None, _) => Some("single scattering only: multiple scattering is left out"),
             (_, e) if e < -12.0 => Some(
                 "deep twilight (sun below −12°): validated down to −12° only; energy conservation is verified for all sun positions",
@@ -417,7 +424,10 @@ impl Engine {
             engine_version: ENGINE_VERSION,
             error_estimate: ErrorEstimate {
                 method,
-                relative_error: if e >= 30.0 {
+                relative_error: if night {
+                    // Every scattering term is exactly zero in the model (`plan::darkest_twilight_deg`).
+                    0.0
+                } else if e >= 30.0 {
                     stated_relative_error(method)
                 } else {
                     stated_twilight_error(method, e)

@@ -6,13 +6,39 @@
 //! Tolerances of the precise method (issue 14): 2 % for sun ≥ 0°, 4 % down to −6°, 10 % down to
 //! −12°, each widened by twice the case's Monte Carlo standard error (the reference's own noise).
 
+//! Twilight and the spherical planet (issue 14): sky radiance against an independent backward
+//! Monte Carlo on the spherical shell (tools/spherical_mc.py, numpy; its plane-parallel limit
+//! agrees with DISORT to 0.8 % max, −0.1 % mean, see tools/README.md). The reference files are
+//! tests/data/spherical_mc_*.json; each case carries its Monte Carlo standard error.
+//!
+//! Tolerances of the precise method (issue 14): 2 % for sun ≥ 0°, 4 % down to −6°, 10 % down to
+//! −12°, each widened by twice the case's Monte Carlo standard error (the reference's own noise).
+//!
+//! Every case goes through the `sky` product a user would request (probes at the Monte Carlo's
+//! view directions), at standard quality, the quality the README figures are stated for; one
+//! engine is shared by the tests of this file, so each table is built once. The same comparison
+//! at quality `high` is `#[ignore]`d (minutes on 2 cores).
+
 use serde_json::Value;
-use skybake::atmosphere::integrate::Scratch;
-use skybake::atmosphere::sky::{MsMethod, Observer, RadianceEvaluator};
-use skybake::atmosphere::{presets::preset, shared::SharedTables, Medium};
-use skybake::engine::{settings_for, stated_twilight_error, FAST_TWILIGHT_LIMIT_DEG};
-use skybake::spec::Quality;
+use skybake::atmosphere::sky::MsMethod;
+use skybake::atmosphere::{presets::preset, Medium};
+use skybake::engine::{stated_twilight_error, Engine, FAST_TWILIGHT_LIMIT_DEG};
+use skybake::product::params::RequestParams;
+use skybake::spec::{CommonSpec, DomeShape, Quality};
 use skybake::spectrum::Wavelengths;
+use std::sync::OnceLock;
+
+/// The engine shared by the tests of this file (its table cache keeps the shared tables).
+fn engine() -> &'static Engine {
+    static ENGINE: OnceLock<Engine> = OnceLock::new();
+    ENGINE.get_or_init(Engine::new)
+}
+
+const ALL: [&str; 3] = [
+    "spherical_mc_ground.json",
+    "spherical_mc_spectral.json",
+    "spherical_mc_altitude.json",
+];
 
 fn load(name: &str) -> Vec<Value> {
     let path = format!("{}/tests/data/{name}", env!("CARGO_MANIFEST_DIR"));
@@ -43,39 +69,61 @@ struct Row {
     label: String,
 }
 
-/// Our radiance for every Monte Carlo case in `files`, per unit solar irradiance, with `method`
-/// at `quality`, on the `rayleigh-only` atmosphere the Monte Carlo uses (R = 6360 km).
-fn compare(files: &[&str], method: MsMethod, quality: Quality) -> Vec<Row> {
-    let mut cases: Vec<Value> = files.iter().flat_map(|n| load(n)).collect();
-    cases.sort_by(|a, b| f(a, "ground_albedo").total_cmp(&f(b, "ground_albedo")));
+/// Our radiance for every Monte Carlo case, per unit solar irradiance, from `sky` requests with
+/// `method` at `quality` on the `rayleigh-only` atmosphere the Monte Carlo uses (R = 6360 km):
+/// one request per (albedo, observer altitude, sun elevation) with every wavelength of that
+/// albedo's cases and the cases' view directions as probes.
+fn compare(method: &str, quality: &str) -> Vec<Row> {
+    let cases: Vec<Value> = ALL.iter().flat_map(|n| load(n)).collect();
+    let key = |c: &Value| {
+        (
+            f(c, "ground_albedo"),
+            f(c, "observer_altitude_m"),
+            f(c, "sun_elevation_deg"),
+        )
+    };
+    let mut groups: Vec<(f64, f64, f64)> = cases.iter().map(key).collect();
+    groups.sort_by(|a, b| a.partial_cmp(b).unwrap());
+    groups.dedup();
     let mut rows = Vec::new();
-    // One set of shared tables per albedo, with every wavelength the cases use.
-    let mut albedos: Vec<f64> = cases.iter().map(|c| f(c, "ground_albedo")).collect();
-    albedos.dedup();
-    for albedo in albedos {
-        let mine: Vec<&Value> = cases
+    for g @ (albedo, altitude, sun) in groups {
+        let mut nm: Vec<f64> = cases
             .iter()
             .filter(|c| f(c, "ground_albedo") == albedo)
+            .map(|c| f(c, "wavelength_nm"))
             .collect();
-        let mut nm: Vec<f64> = mine.iter().map(|c| f(c, "wavelength_nm")).collect();
         nm.sort_by(f64::total_cmp);
         nm.dedup();
+        let mine: Vec<&Value> = cases.iter().filter(|c| key(c) == g).collect();
+        let probes: Vec<(f64, f64)> = mine
+            .iter()
+            .map(|c| (f(c, "view_zenith_deg"), f(c, "view_azimuth_deg")))
+            .collect();
+        let wavelengths = nm.iter().map(|l| l.to_string()).collect::<Vec<_>>().join(",");
+        let spec = CommonSpec::from_params(
+            &RequestParams {
+                sun_elevation_deg: Some(sun.to_string()),
+                observer_altitude_m: Some(altitude.to_string()),
+                atmosphere: Some("rayleigh-only".into()),
+                ground_albedo: Some(albedo.to_string()),
+                wavelengths: Some(wavelengths),
+                method: Some(method.into()),
+                quality: Some(quality.into()),
+                ..Default::default()
+            },
+            -90.0,
+        )
+        .unwrap();
+        let shape = DomeShape {
+            elevation_count: 2,
+            azimuth_count: 1,
+        };
+        let sky = engine().sky(&spec, shape, &probes).unwrap();
         let w = Wavelengths::new(nm.clone()).unwrap();
         let m = Medium::new(&preset("rayleigh-only").unwrap(), &w, Some(albedo)).unwrap();
-        let (fast, precise) = settings_for(quality);
-        let shared = SharedTables::new(m, fast, precise);
-        let n = nm.len();
-        let (mut s, mut out, mut tr) = (Scratch::new(n), vec![0.0; n], vec![0.0; n]);
-        for c in mine {
+        for (c, probe) in mine.iter().zip(&sky.probes) {
             let li = nm.iter().position(|&l| l == f(c, "wavelength_nm")).unwrap();
-            let obs = Observer {
-                altitude_m: f(c, "observer_altitude_m"),
-                sun_elevation_rad: f(c, "sun_elevation_deg").to_radians(),
-            };
-            let ev = RadianceEvaluator::new(&shared, method, obs, quality.steps());
-            let (vz, va) = (f(c, "view_zenith_deg"), f(c, "view_azimuth_deg"));
-            ev.eval(vz.to_radians(), va.to_radians(), &mut s, &mut out, &mut tr);
-            let ours = out[li] / shared.medium.solar_irradiance[li];
+            let ours = probe.radiance_w_m2_sr_nm[li] / m.solar_irradiance[li];
             let mc = f(c, "radiance_per_sr");
             if f(c, "std_error_per_sr") > 0.2 * mc {
                 // The night side seen from 400 km: too dark for the Monte Carlo to resolve.
@@ -83,14 +131,12 @@ fn compare(files: &[&str], method: MsMethod, quality: Quality) -> Vec<Row> {
                 continue;
             }
             rows.push(Row {
-                sun_deg: f(c, "sun_elevation_deg"),
+                sun_deg: sun,
                 deviation: ours / mc - 1.0,
                 mc_rel_error: f(c, "std_error_per_sr") / mc,
                 label: format!(
-                    "{} nm a {albedo} h {} m sun {}° vz {vz} va {va}",
-                    nm[li],
-                    obs.altitude_m,
-                    f(c, "sun_elevation_deg")
+                    "{} nm a {albedo} h {altitude} m sun {sun}° vz {} va {}",
+                    nm[li], probe.view_zenith_deg, probe.view_azimuth_deg
                 ),
             });
         }
@@ -125,23 +171,13 @@ fn band_maxima(rows: &[Row]) -> [f64; 3] {
     m
 }
 
-#[test]
-fn precise_sky_matches_spherical_monte_carlo_from_day_to_nautical_twilight() {
-    // The regression test of issue 14: before the fix, the precise sky at −6° read 33 % too
-    // bright at view zenith 85° away from the sun and 36 % at 89° (+85 % at −4°, +106 % at −9°).
-    let rows = compare(
-        &[
-            "spherical_mc_ground.json",
-            "spherical_mc_spectral.json",
-            "spherical_mc_altitude.json",
-        ],
-        MsMethod::Precise,
-        Quality::High,
-    );
+/// Checks the precise method's rows against the issue-14 tolerances.
+fn check_precise(quality: &str) {
+    let rows = compare("precise", quality);
     report("precise", &rows);
     let bands = band_maxima(&rows);
     eprintln!(
-        "precise max |deviation|: sun ≥ 0° {:.2} %, 0…−6° {:.2} %, −6…−12° {:.2} %",
+        "precise ({quality}) max |deviation|: sun ≥ 0° {:.2} %, 0…−6° {:.2} %, −6…−12° {:.2} %",
         100.0 * bands[0],
         100.0 * bands[1],
         100.0 * bands[2]
@@ -152,50 +188,97 @@ fn precise_sky_matches_spherical_monte_carlo_from_day_to_nautical_twilight() {
         .map(|r| format!("{}: {:+.2} %", r.label, 100.0 * r.deviation))
         .collect();
     assert!(bad.is_empty(), "outside tolerance: {bad:#?}");
-}
-
-#[test]
-fn fast_sky_error_in_twilight_is_within_what_its_error_estimate_states() {
-    let rows = compare(
-        &[
-            "spherical_mc_ground.json",
-            "spherical_mc_spectral.json",
-            "spherical_mc_altitude.json",
-        ],
-        MsMethod::Fast,
-        Quality::Standard,
-    );
-    report("fast", &rows);
-    let bands = band_maxima(&rows);
-    eprintln!(
-        "fast max |deviation|: sun ≥ 0° {:.1} %, 0…−6° {:.1} %, −6…−12° {:.1} %",
-        100.0 * bands[0],
-        100.0 * bands[1],
-        100.0 * bands[2]
-    );
-    // Where the planner keeps the fast method, its error is within what the product states;
-    // below the limit the planner switches to the precise tables because it is not.
-    let mut worst_below = 0.0f64;
+    // What the product states covers what was measured (issue 14 point 2).
     for r in &rows {
-        if r.sun_deg < FAST_TWILIGHT_LIMIT_DEG {
-            worst_below = worst_below.max(r.deviation.abs());
-            continue;
-        }
-        let stated = stated_twilight_error(MsMethod::Fast, r.sun_deg);
+        let stated = stated_twilight_error(MsMethod::Precise, r.sun_deg);
         assert!(
             r.deviation.abs() <= stated + 2.0 * r.mc_rel_error,
-            "{}: {:+.1} % > stated {:.0} %",
+            "{}: {:+.2} % > stated {:.1} %",
             r.label,
             100.0 * r.deviation,
             100.0 * stated
         );
     }
-    assert!(worst_below > 0.10, "{worst_below}");
+}
+
+#[test]
+fn precise_sky_matches_spherical_monte_carlo_from_day_to_nautical_twilight() {
+    // The regression test of issue 14: before the fix, the precise sky at −6° read 33 % too
+    // bright at view zenith 85° away from the sun and 36 % at 89° (+85 % at −4°, +106 % at −9°).
+    check_precise("standard");
+}
+
+#[test]
+#[ignore = "quality high: minutes on 2 cores; run with --ignored for the README figures"]
+fn precise_sky_matches_spherical_monte_carlo_at_quality_high() {
+    check_precise("high");
+}
+
+#[test]
+fn fast_sky_error_in_twilight_is_within_what_its_error_estimate_states() {
+    // What a `method=fast` request gets: the fast tables down to FAST_TWILIGHT_LIMIT_DEG, the
+    // precise ones below it (the plan says so), each within the error the product states.
+    let rows = compare("fast", "standard");
+    report("fast", &rows);
+    let bands = band_maxima(&rows);
+    eprintln!(
+        "fast requests max |deviation|: sun ≥ 0° {:.1} %, 0…−6° {:.1} %, −6…−12° {:.1} %",
+        100.0 * bands[0],
+        100.0 * bands[1],
+        100.0 * bands[2]
+    );
+    for r in &rows {
+        let stated = stated_twilight_error(MsMethod::Fast, r.sun_deg);
+        assert!(
+            r.deviation.abs() <= stated + 2.0 * r.mc_rel_error,
+            "{}: {:+.1} % > stated {:.1} %",
+            r.label,
+            100.0 * r.deviation,
+            100.0 * stated
+        );
+    }
+}
+
+#[test]
+fn fast_tables_alone_are_too_dark_below_the_substitution_limit() {
+    // Why the planner substitutes: the fast tables themselves (evaluated without the planner)
+    // against the ground-level Monte Carlo cases (550 nm, black ground) below the limit.
+    use skybake::atmosphere::integrate::Scratch;
+    use skybake::atmosphere::shared::SharedTables;
+    use skybake::atmosphere::sky::{Observer, RadianceEvaluator};
+    let (fast, precise) = skybake::engine::settings_for(Quality::Standard);
+    let w = Wavelengths::new(vec![550.0]).unwrap();
+    let m = Medium::new(&preset("rayleigh-only").unwrap(), &w, Some(0.0)).unwrap();
+    let shared = SharedTables::new(m, fast, precise);
+    let (mut s, mut out, mut tr) = (Scratch::new(1), vec![0.0], vec![0.0]);
+    let mut worst = [0.0f64; 2];
+    for c in load("spherical_mc_ground.json") {
+        let sun = f(&c, "sun_elevation_deg");
+        if sun >= FAST_TWILIGHT_LIMIT_DEG {
+            continue;
+        }
+        let obs = Observer {
+            altitude_m: 0.0,
+            sun_elevation_rad: sun.to_radians(),
+        };
+        let ev = RadianceEvaluator::new(&shared, MsMethod::Fast, obs, Quality::Standard.steps());
+        let (vz, va) = (f(&c, "view_zenith_deg"), f(&c, "view_azimuth_deg"));
+        ev.eval(vz.to_radians(), va.to_radians(), &mut s, &mut out, &mut tr);
+        let deviation = out[0] / shared.medium.solar_irradiance[0] / f(&c, "radiance_per_sr") - 1.0;
+        let band = usize::from(sun < -6.0);
+        worst[band] = worst[band].max(deviation.abs());
+    }
+    eprintln!(
+        "fast tables alone, max |deviation|: −4…−6° {:.0} %, −6…−12° {:.0} %",
+        100.0 * worst[0],
+        100.0 * worst[1]
+    );
+    assert!(worst[0] > 0.10 && worst[1] > 0.10, "{worst:?}");
 }
 
 /// `sun` product at `sun_deg` on the `earth` preset (aerosol 0.1, ozone 300 DU), precise method.
-fn earth_sun(engine: &skybake::engine::Engine, sun_deg: f64) -> skybake::engine::SunProduct {
-    let p = skybake::product::params::RequestParams {
+fn earth_sun(sun_deg: f64) -> skybake::engine::SunProduct {
+    let p = RequestParams {
         sun_elevation_deg: Some(sun_deg.to_string()),
         atmosphere: Some("earth".into()),
         wavelengths: Some("400,440,480,520,560,600,640,680,700".into()),
@@ -203,8 +286,8 @@ fn earth_sun(engine: &skybake::engine::Engine, sun_deg: f64) -> skybake::engine:
         quality: Some("standard".into()),
         ..Default::default()
     };
-    engine
-        .sun(&skybake::spec::CommonSpec::from_params(&p, -18.0).unwrap())
+    engine()
+        .sun(&CommonSpec::from_params(&p, -90.0).unwrap())
         .unwrap()
 }
 
@@ -214,12 +297,10 @@ fn twilight_illuminance_is_near_published_clear_sky_measurements() {
     // evening horizontal illuminance falls from ~585–410 lx at sunset (sun's unrefracted centre at
     // 0°) to ~3.5–2 lx at −6° and ~0.008 lx at −12°. Those are measurements under real skies
     // (varying aerosol and ozone), ours the `earth` model atmosphere (aerosol optical depth 0.1).
-    // Measured here: 969 lx, 6.5 lx and 0.017 lx, 1.7–2.4× the published figures at all three
-    // elevations; the check is within a factor 2.5 of the published range.
-    let engine = skybake::engine::Engine::new();
+    // ILLUMINANCE_NOTE
     let published = [(0.0, 410.0, 585.0), (-6.0, 2.0, 3.5), (-12.0, 0.008, 0.008)];
     for (sun, lo, hi) in published {
-        let p = earth_sun(&engine, sun);
+        let p = earth_sun(sun);
         let lux = p.global_horizontal_illuminance_lux;
         eprintln!(
             "sun {sun}°: {lux:.4} lx (published {lo}–{hi} lx), diffuse {:.4} lx, CCT {:?} K, Duv {:?}",
@@ -234,12 +315,14 @@ fn twilight_illuminance_is_near_published_clear_sky_measurements() {
             assert!(p.direct_normal_irradiance_w_m2_nm.iter().all(|&v| v == 0.0));
         }
     }
-    // The whole range the sky accepts, down to −18°: no refusal, finite, falling with the sun.
+    // Down to the darkest modelled twilight (about −32° for a ground observer): no refusal,
+    // finite, falling with the sun.
     let mut last = f64::INFINITY;
-    for sun in [-8.0, -10.0, -14.0, -18.0] {
-        let lux = earth_sun(&engine, sun).global_horizontal_illuminance_lux;
+    for sun in [-8.0, -10.0, -14.0, -18.0, -24.0] {
+        let lux = earth_sun(sun).global_horizontal_illuminance_lux;
+        eprintln!("sun {sun}°: {lux:.3e} lx");
         assert!(
-            lux.is_finite() && lux >= 0.0 && lux < last,
+            lux.is_finite() && lux > 0.0 && lux < last,
             "sun {sun}: {lux}"
         );
         last = lux;

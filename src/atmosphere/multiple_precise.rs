@@ -40,6 +40,27 @@ use crate::phase::Phase;
 use rayon::prelude::*;
 use std::f64::consts::PI;
 
+/// Sun zenith angle, degrees, beyond which the tables of J and of the ground's sky irradiance are
+/// interpolated over sun zenith in ln J (Catmull–Rom, [`twilight_interp`]) instead of linearly in J.
+///
+/// Across the terminator J falls by about an order of magnitude per table step in sun zenith (the
+/// lower atmosphere then sees only light scattered from the lit air above it and towards the
+/// sun), so linear interpolation overestimates it between nodes: by 30–100 % in the sky away from
+/// the sun at −2° to −9° (issue 14, against tools/spherical_mc.py). ln J is smooth through the
+/// terminator and nearly linear beyond it. By day J is smooth and nearly linear in sun zenith, and
+/// there the linear interpolation is kept: Catmull–Rom in ln J with repeated end nodes biased the
+/// daytime sky (DISORT plane-parallel 0.26 % → 0.53 %) and the order series (energy 0.998). A cell
+/// is a twilight cell when its far node lies beyond this angle (sun elevation 10°); the two
+/// interpolants agree at the nodes, so the result is continuous.
+pub const TWILIGHT_INTERP_FROM_DEG: f64 = 80.0;
+
+/// The largest local sun zenith angle, radians, at which the precise tables hold a source (J and
+/// the ground's sky irradiance); beyond it both are zero. Beyond 12° below the top's horizon no
+/// point of the atmosphere sees any light worth tabulating.
+pub fn source_sun_zenith_limit_rad(bottom_radius_m: f64, top_radius_m: f64) -> f64 {
+    (horizon_mu(top_radius_m, bottom_radius_m).acos() + 12f64.to_radians()).min(PI)
+}
+
 /// Resolution and convergence settings of the precise method.
 #[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
 pub struct PreciseSettings {
@@ -101,11 +122,11 @@ pub struct Convergence {
 pub struct PreciseMultipleScattering {
     grid: Grid,
     n_l: usize,
-    /// `[i_r][i_mu][i_mu_s][i_phi][λ]`, ln of the scattering source of orders ≥ 2, m⁻¹ sr⁻¹ per
-    /// unit solar irradiance (−∞ where it is zero; see [`lookup_j`]).
-    ln_j_ms: Vec<f32>,
-    /// `[i_mu_s][λ]`, ln of the sky irradiance on the ground per unit solar irradiance.
-    ln_ground_sky: Vec<f64>,
+    /// `[i_r][i_mu][i_mu_s][i_phi][λ]`, scattering source of orders ≥ 2, m⁻¹ sr⁻¹ per unit solar
+    /// irradiance.
+    j_ms: Vec<f32>,
+    /// `[i_mu_s][λ]`, sky irradiance on the ground per unit solar irradiance.
+    ground_sky: Vec<f64>,
     pub convergence: Convergence,
 }
 
@@ -119,9 +140,7 @@ struct Grid {
 
 impl Grid {
     fn new(s: PreciseSettings, bottom: f64, top: f64) -> Self {
-        // Beyond 12° below the top's horizon no point of the atmosphere sees any light worth
-        // tabulating.
-        let theta_s_max = (horizon_mu(top, bottom).acos() + 12f64.to_radians()).min(PI);
+        let theta_s_max = source_sun_zenith_limit_rad(bottom, top);
         Self {
             s,
             bottom,
@@ -150,6 +169,12 @@ impl Grid {
     }
     fn theta_s(&self, j: usize) -> f64 {
         self.theta_s_max * j as f64 / (self.s.n_mu_s - 1) as f64
+    }
+    /// Whether the sun-zenith interval `[θ_s(is), θ_s(is + 1)]` reaches past
+    /// [`TWILIGHT_INTERP_FROM_DEG`], where the tables are interpolated in ln J.
+    #[inline(always)]
+    fn twilight_cell(&self, is: usize) -> bool {
+        self.theta_s(is + 1) > TWILIGHT_INTERP_FROM_DEG.to_radians()
     }
     /// View zenith of direction node `k` (cell centres, uniform in angle).
     fn theta(&self, k: usize) -> f64 {
@@ -240,6 +265,27 @@ fn upward_cosine_weights(grid: &Grid) -> Vec<f64> {
     w
 }
 
+/// Sky irradiance on the ground, `[i_mu_s][λ]`, interpolated at sun zenith cosine `mu_s`:
+/// linear by day, in ln E across the terminator ([`twilight_interp`]).
+#[inline(always)]
+fn lookup_ground(grid: &Grid, n_l: usize, table: &[f64], mu_s: f64, out: &mut [f64]) {
+    let theta_s = acos_fast(mu_s);
+    if theta_s > grid.theta_s_max {
+        return;
+    }
+    let (is, fs) = grid_pos(theta_s / grid.theta_s_max, grid.s.n_mu_s);
+    if grid.twilight_cell(is) {
+        for i in 0..n_l {
+            out[i] += twilight_interp(is, fs, grid.s.n_mu_s, |b| table[b * n_l + i]);
+        }
+        return;
+    }
+    let (a, b) = (&table[is * n_l..][..n_l], &table[(is + 1) * n_l..][..n_l]);
+    for i in 0..n_l {
+        out[i] += a[i] * (1.0 - fs) + b[i] * fs;
+    }
+}
+
 /// Catmull–Rom weights and node indices for position `(i, f)` on a grid of `n` nodes (end
 /// nodes repeated at the edges).
 #[inline(always)]
@@ -261,31 +307,19 @@ fn catmull_rom(i: usize, f: f64, n: usize) -> ([usize; 4], [f64; 4]) {
     )
 }
 
-/// Sky irradiance on the ground from a table of ln E, `[i_mu_s][λ]`, at sun zenith cosine
-/// `mu_s`: Catmull–Rom in ln E over sun zenith, as [`lookup_j`] (linear in E where a node is 0).
+/// Interpolation over sun zenith in a twilight cell (see [`TWILIGHT_INTERP_FROM_DEG`]) of the
+/// values `at(node)`: Catmull–Rom in ln J between nodes `is` and `is + 1` (exact for an
+/// exponential decay, third order where ln J bends at the terminator); linear in J where one of
+/// the four nodes is zero (deep twilight, ln J = −∞).
 #[inline(always)]
-fn lookup_ground(grid: &Grid, n_l: usize, ln_table: &[f64], mu_s: f64, out: &mut [f64]) {
-    let theta_s = acos_fast(mu_s);
-    if theta_s > grid.theta_s_max {
-        return;
+fn twilight_interp(is: usize, fs: f64, n: usize, at: impl Fn(usize) -> f64) -> f64 {
+    let (nodes, w) = catmull_rom(is, fs, n);
+    let vals = nodes.map(&at);
+    if vals.iter().all(|&x| x > 0.0) {
+        (0..4).map(|q| w[q] * vals[q].ln()).sum::<f64>().exp()
+    } else {
+        at(is) * (1.0 - fs) + at(is + 1) * fs
     }
-    let (is, fs) = grid_pos(theta_s / grid.theta_s_max, grid.s.n_mu_s);
-    let (nodes, w) = catmull_rom(is, fs, grid.s.n_mu_s);
-    for i in 0..n_l {
-        let v: f64 = (0..4).map(|q| w[q] * ln_table[nodes[q] * n_l + i]).sum();
-        out[i] += if v.is_finite() {
-            v.exp()
-        } else {
-            ln_table[is * n_l + i].exp() * (1.0 - fs) + ln_table[(is + 1) * n_l + i].exp() * fs
-        };
-    }
-}
-
-/// ln of every entry (−∞ for zeros): the tables are interpolated in ln J and ln E.
-fn ln_table_f64(v: &[f64]) -> Vec<f64> {
-    v.iter()
-        .map(|&x| if x > 0.0 { x.ln() } else { f64::NEG_INFINITY })
-        .collect()
 }
 
 /// Cosine of the view azimuth relative to the sun from the three cosines (1 when undefined).
@@ -299,16 +333,10 @@ fn cos_azimuth(mu: f64, mu_s: f64, nu: f64) -> f64 {
     }
 }
 
-/// J_ms at a ray sample (products), from the table of ln J.
-///
-/// Across the terminator J falls by about an order of magnitude per table step in sun zenith (the
-/// lower atmosphere then sees only light scattered from the lit air above and towards the sun), so
-/// linear interpolation of J overestimates it between nodes: by 30–100 % in the sky away from the
-/// sun at −2° to −9° (issue 14). ln J is smooth through the terminator and close to linear beyond
-/// it, so the table is interpolated in ln J: Catmull–Rom in sun zenith (exact for an exponential
-/// decay, third order where ln J bends at the terminator), multilinear in radius and direction.
-/// Where a corner is zero (deep twilight, ln J = −∞) it falls back to multilinear in J.
-fn lookup_j(grid: &Grid, n_l: usize, ln_j: &[f32], s: &RaySample, out: &mut [f64]) {
+/// J_ms at a ray sample (products): 16-corner interpolation over (r, θ, θ_s, φ), multilinear by
+/// day; in a twilight cell ([`Grid::twilight_cell`]) Catmull–Rom in ln J over sun zenith
+/// ([`twilight_interp`]), multilinear in radius and direction.
+fn lookup_j(grid: &Grid, n_l: usize, j: &[f32], s: &RaySample, out: &mut [f64]) {
     let theta_s = s.mu_s.clamp(-1.0, 1.0).acos();
     if theta_s > grid.theta_s_max {
         return;
@@ -320,45 +348,29 @@ fn lookup_j(grid: &Grid, n_l: usize, ln_j: &[f32], s: &RaySample, out: &mut [f64
     let cos_phi = cos_azimuth(s.mu, s.mu_s, s.nu);
     let (ip, fp) = Grid::centred_pos(cos_phi.acos(), grid.s.n_phi);
     let (n_mu_s, n_mu, n_phi) = (grid.s.n_mu_s, grid.s.n_mu, grid.s.n_phi);
-    let (nodes_s, w_s) = catmull_rom(is, fs, n_mu_s);
-    let mut acc = [0.0f64; crate::spectrum::wavelengths::MAX_WAVELENGTHS];
-    let acc = &mut acc[..n_l];
-    let idx =
-        |a: usize, c: usize, b: usize, e: usize| (((a * n_mu + c) * n_mu_s + b) * n_phi + e) * n_l;
-    let mut corners = [(0usize, 0usize, 0usize, 0.0f64); 8];
-    let mut k = 0;
+    let twilight = grid.twilight_cell(is);
     for (a, wa) in [(ir, 1.0 - fr), (ir + 1, fr)] {
         for (c, wc) in [(im, 1.0 - fm), (im + 1, fm)] {
             for (e, we) in [(ip, 1.0 - fp), (ip + 1, fp)] {
-                corners[k] = (a, c, e, wa * wc * we);
-                k += 1;
-            }
-        }
-    }
-    for &(a, c, e, w) in &corners {
-        if w == 0.0 {
-            continue;
-        }
-        for (&b, &ws) in nodes_s.iter().zip(&w_s) {
-            if ws == 0.0 {
-                continue;
-            }
-            let row = &ln_j[idx(a, c, b, e)..][..n_l];
-            for (x, v) in acc.iter_mut().zip(row) {
-                *x += w * ws * *v as f64;
-            }
-        }
-    }
-    for i in 0..n_l {
-        if acc[i].is_finite() {
-            out[i] += acc[i].exp();
-        } else {
-            for &(a, c, e, w) in &corners {
+                let w = wa * wc * we;
                 if w == 0.0 {
                     continue;
                 }
+                let base = |b: usize| (((a * n_mu + c) * n_mu_s + b) * n_phi + e) * n_l;
+                if twilight {
+                    for i in 0..n_l {
+                        out[i] += w * twilight_interp(is, fs, n_mu_s, |b| j[base(b) + i] as f64);
+                    }
+                    continue;
+                }
                 for (b, wb) in [(is, 1.0 - fs), (is + 1, fs)] {
-                    out[i] += w * wb * (ln_j[idx(a, c, b, e) + i] as f64).exp();
+                    let (w, base) = (w * wb, base(b));
+                    if w == 0.0 {
+                        continue;
+                    }
+                    for i in 0..n_l {
+                        out[i] += w * j[base + i] as f64;
+                    }
                 }
             }
         }
@@ -370,8 +382,8 @@ fn lookup_j(grid: &Grid, n_l: usize, ln_j: &[f32], s: &RaySample, out: &mut [f64
 enum PassInput<'a> {
     /// Order 1: exact single scattering and the ground's reflection of direct sun.
     Single,
-    /// Order n ≥ 2: the order's scattering source J_n (family layout) and ln of the previous
-    /// order's ground sky irradiance E_{n−1}, `[i_mu_s][λ]`.
+    /// Order n ≥ 2: the order's scattering source J_n (family layout) and the previous order's
+    /// ground sky irradiance E_{n−1}, `[i_mu_s][λ]`.
     Order { j: &'a [f32], ground: &'a [f64] },
 }
 
@@ -577,22 +589,31 @@ crate::simd_dispatch! {
                                 1.0
                             };
                             let (jp, fp) = Grid::centred_pos(acos_fast(cos_phi), n_phi);
-                            // Catmull–Rom in ln J over sun zenith (see `lookup_j`), linear in
-                            // azimuth; linear in J where a node is zero.
-                            let (nodes, cw) = catmull_rom(js, fs, n_mu_s);
+                            if grid.twilight_cell(js) {
+                                // In ln J over sun zenith (`twilight_interp`), linear in azimuth.
+                                let o = &mut out[c * n_l..][..n_l];
+                                for i in 0..n_l {
+                                    let mut v = 0.0f64;
+                                    for (e, we) in [(jp, 1.0 - fp), (jp + 1, fp)] {
+                                        let at =
+                                            |b: usize| sc.slice[(b * n_phi + e) * n_l + i] as f64;
+                                        v += we * twilight_interp(js, fs, n_mu_s, at);
+                                    }
+                                    o[i] += tw[i] * v as f32;
+                                }
+                                continue;
+                            }
+                            let (fs, fp) = (fs as f32, fp as f32);
+                            let (c00, c01, c10, c11) =
+                                ((1.0 - fs) * (1.0 - fp), (1.0 - fs) * fp, fs * (1.0 - fp), fs * fp);
+                            let (s00, s01) =
+                                sc.slice[(js * n_phi + jp) * n_l..][..2 * n_l].split_at(n_l);
+                            let (s10, s11) =
+                                sc.slice[((js + 1) * n_phi + jp) * n_l..][..2 * n_l].split_at(n_l);
                             let o = &mut out[c * n_l..][..n_l];
                             for i in 0..n_l {
-                                let mut v = 0.0f64;
-                                for (e, we) in [(jp, 1.0 - fp), (jp + 1, fp)] {
-                                    let at = |b: usize| sc.slice[(b * n_phi + e) * n_l + i] as f64;
-                                    let vals = nodes.map(at);
-                                    v += we * if vals.iter().all(|&x| x > 0.0) {
-                                        (0..4).map(|q| cw[q] * vals[q].ln()).sum::<f64>().exp()
-                                    } else {
-                                        at(js) * (1.0 - fs) + at(js + 1) * fs
-                                    };
-                                }
-                                o[i] += tw[i] * v as f32;
+                                let v = c00 * s00[i] + c01 * s01[i] + c10 * s10[i] + c11 * s11[i];
+                                o[i] += tw[i] * v;
                             }
                         }
                     }
@@ -923,10 +944,9 @@ impl PreciseMultipleScattering {
             j_n = scattering_density(&l_n);
             let j_ms_elapsed = t_j.elapsed().as_secs_f64() * 1e3;
             let t_l = std::time::Instant::now();
-            let ln_en = ln_table_f64(&e_n);
             l_n = radiance(PassInput::Order {
                 j: &j_n,
-                ground: &ln_en,
+                ground: &e_n,
             });
             e_n = ground_of(&l_n);
             j_ms.par_iter_mut().zip(&j_n).for_each(|(a, b)| *a += b);
@@ -973,15 +993,11 @@ impl PreciseMultipleScattering {
             Some((_, _, q, _)) => (0.0, last_fraction * q / (1.0 - q), q),
             None => (0.0, last_fraction, 0.0),
         };
-        let ln_j_ms = j_ms
-            .par_iter()
-            .map(|&v| if v > 0.0 { v.ln() } else { f32::NEG_INFINITY })
-            .collect();
         Self {
             grid,
             n_l,
-            ln_j_ms,
-            ln_ground_sky: ln_table_f64(&ground_sky),
+            j_ms,
+            ground_sky,
             convergence: Convergence {
                 orders,
                 last_order_fraction: last_fraction,
@@ -996,9 +1012,9 @@ impl PreciseMultipleScattering {
 
 impl Source for PreciseMultipleScattering {
     fn add_scattering(&self, s: &RaySample, out: &mut [f64]) {
-        lookup_j(&self.grid, self.n_l, &self.ln_j_ms, s, out);
+        lookup_j(&self.grid, self.n_l, &self.j_ms, s, out);
     }
     fn add_ground_sky_irradiance(&self, mu_s: f64, out: &mut [f64]) {
-        lookup_ground(&self.grid, self.n_l, &self.ln_ground_sky, mu_s, out);
+        lookup_ground(&self.grid, self.n_l, &self.ground_sky, mu_s, out);
     }
 }
