@@ -12,12 +12,12 @@
 
 use crate::atmosphere::multiple_precise::source_sun_zenith_limit_rad;
 use crate::atmosphere::sky::MsMethod;
-use std::f64::consts::FRAC_PI_2;
 use crate::atmosphere::sun_transmittance::sun_disk_visible_fraction;
 use crate::atmosphere::Medium;
 use crate::spec::{CommonSpec, ProductKind};
 use serde::ser::SerializeStruct;
 use serde::{Serialize, Serializer};
+use std::f64::consts::FRAC_PI_2;
 
 /// A unit of work the engine can run for a product.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize)]
@@ -249,7 +249,8 @@ impl Serialize for Plan {
 pub fn darkest_twilight_deg(m: &Medium, observer_altitude_m: f64, method: MsMethod) -> f64 {
     let (bottom, top) = (m.bottom_radius_m, m.top_radius_m);
     let observer = bottom + observer_altitude_m.max(0.0);
-    let reach = (bottom / observer).clamp(-1.0, 1.0).acos() + (bottom / top).clamp(-1.0, 1.0).acos();
+    let reach =
+        (bottom / observer).clamp(-1.0, 1.0).acos() + (bottom / top).clamp(-1.0, 1.0).acos();
     let lit = FRAC_PI_2 + (bottom / top).clamp(-1.0, 1.0).acos() + m.sun_angular_radius_rad;
     let source = match method {
         MsMethod::None => lit,
@@ -268,13 +269,12 @@ pub fn plan(product: ProductKind, spec: &CommonSpec, m: &Medium) -> Plan {
         sun_elevation_deg: elevation,
         darkest_twilight_deg: darkest,
     });
-    let substitution = (method != spec.method && night.is_none()).then_some(
-        Substitution::FastInTwilight {
+    let substitution =
+        (method != spec.method && night.is_none()).then_some(Substitution::FastInTwilight {
             requested: spec.method,
             sun_elevation_deg: elevation,
             limit_deg: FAST_TWILIGHT_LIMIT_DEG,
-        },
-    );
+        });
     let mut p = Plan {
         stages: vec![Stage::DensityTable],
         left_out: Vec::new(),

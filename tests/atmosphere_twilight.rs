@@ -99,7 +99,11 @@ fn compare(method: &str, quality: &str) -> Vec<Row> {
             .iter()
             .map(|c| (f(c, "view_zenith_deg"), f(c, "view_azimuth_deg")))
             .collect();
-        let wavelengths = nm.iter().map(|l| l.to_string()).collect::<Vec<_>>().join(",");
+        let wavelengths = nm
+            .iter()
+            .map(|l| l.to_string())
+            .collect::<Vec<_>>()
+            .join(",");
         let spec = CommonSpec::from_params(
             &RequestParams {
                 sun_elevation_deg: Some(sun.to_string()),

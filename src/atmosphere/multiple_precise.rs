@@ -130,23 +130,53 @@ pub struct PreciseMultipleScattering {
     pub convergence: Convergence,
 }
 
+/// The table grid. Sun zenith nodes are uniform (`n_coarse` nodes over [0, θ_s max], the
+/// settings' `n_mu_s`) up to the last node before [`TWILIGHT_INTERP_FROM_DEG`], then twice as dense
+/// to θ_s max, where J changes fastest (across the terminator); `s.n_mu_s` is the total count.
+/// The daytime nodes, and the interpolation between them, are those of the uniform grid.
 #[derive(Debug, Clone, Copy)]
 struct Grid {
     s: PreciseSettings,
     bottom: f64,
     top: f64,
     theta_s_max: f64,
+    /// Nodes of the uniform grid the settings ask for.
+    n_coarse: usize,
+    /// Index of the last uniform node; twice-as-dense nodes follow it.
+    j_fine: usize,
 }
 
 impl Grid {
     fn new(s: PreciseSettings, bottom: f64, top: f64) -> Self {
         let theta_s_max = source_sun_zenith_limit_rad(bottom, top);
+        let n_coarse = s.n_mu_s.max(2);
+        let step = theta_s_max / (n_coarse - 1) as f64;
+        let j_fine =
+            ((TWILIGHT_INTERP_FROM_DEG.to_radians() / step).floor() as usize).min(n_coarse - 1);
         Self {
-            s,
+            s: PreciseSettings {
+                n_mu_s: j_fine + 1 + 2 * (n_coarse - 1 - j_fine),
+                ..s
+            },
             bottom,
             top,
             theta_s_max,
+            n_coarse,
+            j_fine,
         }
+    }
+    /// Interpolation position `(i, f)` of sun zenith `theta_s` (radians) on the sun-zenith nodes.
+    #[inline(always)]
+    fn s_pos(&self, theta_s: f64) -> (usize, f64) {
+        let f = (theta_s / self.theta_s_max).clamp(0.0, 1.0) * (self.n_coarse - 1) as f64;
+        if f < self.j_fine as f64 {
+            // By day exactly `grid_pos` on the uniform grid.
+            let i = (f.floor() as usize).min(self.n_coarse.saturating_sub(2));
+            return (i, f - i as f64);
+        }
+        let g = self.j_fine as f64 + 2.0 * (f - self.j_fine as f64);
+        let i = (g.floor() as usize).min(self.s.n_mu_s.saturating_sub(2));
+        (i, g - i as f64)
     }
     fn dirs(&self) -> usize {
         self.s.n_mu * self.s.n_phi
@@ -168,7 +198,12 @@ impl Grid {
         safe_sqrt(r * r - self.bottom * self.bottom) / h
     }
     fn theta_s(&self, j: usize) -> f64 {
-        self.theta_s_max * j as f64 / (self.s.n_mu_s - 1) as f64
+        if j <= self.j_fine {
+            self.theta_s_max * j as f64 / (self.n_coarse - 1) as f64
+        } else {
+            let x = self.j_fine as f64 + 0.5 * (j - self.j_fine) as f64;
+            self.theta_s_max * x / (self.n_coarse - 1) as f64
+        }
     }
     /// Whether the sun-zenith interval `[θ_s(is), θ_s(is + 1)]` reaches past
     /// [`TWILIGHT_INTERP_FROM_DEG`], where the tables are interpolated in ln J.
@@ -273,7 +308,7 @@ fn lookup_ground(grid: &Grid, n_l: usize, table: &[f64], mu_s: f64, out: &mut [f
     if theta_s > grid.theta_s_max {
         return;
     }
-    let (is, fs) = grid_pos(theta_s / grid.theta_s_max, grid.s.n_mu_s);
+    let (is, fs) = grid.s_pos(theta_s);
     if grid.twilight_cell(is) {
         for i in 0..n_l {
             out[i] += twilight_interp(is, fs, grid.s.n_mu_s, |b| table[b * n_l + i]);
@@ -342,7 +377,7 @@ fn lookup_j(grid: &Grid, n_l: usize, j: &[f32], s: &RaySample, out: &mut [f64]) 
         return;
     }
     let (ir, fr) = grid_pos(grid.x_r(s.r), grid.s.n_r);
-    let (is, fs) = grid_pos(theta_s / grid.theta_s_max, grid.s.n_mu_s);
+    let (is, fs) = grid.s_pos(theta_s);
     let theta = s.mu.clamp(-1.0, 1.0).acos();
     let (im, fm) = Grid::centred_pos(theta, grid.s.n_mu);
     let cos_phi = cos_azimuth(s.mu, s.mu_s, s.nu);
@@ -581,7 +616,7 @@ crate::simd_dispatch! {
                             if theta_s > grid.theta_s_max {
                                 continue;
                             }
-                            let (js, fs) = grid_pos(theta_s / grid.theta_s_max, n_mu_s);
+                            let (js, fs) = grid.s_pos(theta_s);
                             let denom = sin_mu * safe_sqrt(1.0 - mu_s * mu_s);
                             let cos_phi = if denom > 1e-9 {
                                 ((sc.cell_nu[c] - p.mu * mu_s) / denom).clamp(-1.0, 1.0)
@@ -824,6 +859,8 @@ impl PreciseMultipleScattering {
     /// Computes orders of scattering until convergence (see the module documentation).
     pub fn new(medium: &Medium, table: &DensityIntegralTable, s: PreciseSettings) -> Self {
         let grid = Grid::new(s, medium.bottom_radius_m, medium.top_radius_m);
+        // The grid's settings: `n_mu_s` counts the denser twilight nodes too.
+        let s = grid.s;
         let n_l = medium.len();
         let fc = grid.family_cells();
         let family_len = fc * n_l;
