@@ -26,8 +26,11 @@ fn skybake(args: &[&str]) -> (i32, String, String) {
 #[test]
 fn invalid_arguments_exit_2_and_name_the_argument() {
     let cases: &[(&[&str], &str)] = &[
-        (&["sky", "--sun-elevation-deg", "-40"], "sun_elevation_deg"),
-        (&["sun", "--sun-elevation-deg", "-12"], "sun_elevation_deg"),
+        (&["sky", "--sun-elevation-deg", "-95"], "sun_elevation_deg"),
+        (
+            &["sun", "--sun-elevation-deg", "-90.5"],
+            "sun_elevation_deg",
+        ),
         (&["sky", "--wavelengths", "300,550"], "wavelengths"),
         (
             &["sky", "--observer-altitude-m", "-5"],
