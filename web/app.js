@@ -261,7 +261,8 @@ async function loadScenes() {
   try {
     const list = await fetchOk("/v1/scenes").then((r) => r.json());
     const select = $("scene");
-    for (const s of list.scenes) {
+    // Only frame scenes (with a camera) render; the others are cloud sections for `skybake clouds`.
+    for (const s of list.scenes.filter((x) => x.frame)) {
       const o = document.createElement("option");
       o.value = s.name;
       o.textContent = s.description ? `${s.name}: ${s.description}` : s.name;

@@ -161,7 +161,12 @@ impl FrameSweep {
     }
 }
 
+/// A sweep value as a JSON number; whole numbers stay integers, so a swept scene has the cache key
+/// of the same scene written by hand.
 fn number(axis: &str, v: &str) -> Result<Value, Error> {
+    if let Ok(i) = v.trim().parse::<i64>() {
+        return Ok(Value::from(i));
+    }
     v.trim()
         .parse::<f64>()
         .ok()

@@ -337,7 +337,19 @@ impl FrameRequest {
         let mut this_run: Option<TileMeta> = None;
         if !missing.is_empty() {
             let start = Instant::now();
-            let grid = self.scene.cloud.voxelize(loader)?;
+            // The grid's size is checked before it is allocated; name the scene field that sets it.
+            let grid = self.scene.cloud.voxelize(loader).map_err(|e| match e {
+                Error::TooLarge {
+                    field,
+                    reason,
+                    limit,
+                } if field == "dims" => Error::TooLarge {
+                    field: "cloud.voxel_size_m".into(),
+                    reason: format!("the grid at this voxel size: {reason}"),
+                    limit,
+                },
+                other => other,
+            })?;
             let voxelize_ms = start.elapsed().as_secs_f64() * 1e3;
             super::check_grid(&grid)?;
             let start = Instant::now();
