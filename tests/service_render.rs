@@ -80,7 +80,7 @@ fn an_interrupted_render_resumes_from_its_tiles_and_matches_an_uninterrupted_one
     let dir = Scratch::new("render-resume");
     let store = TileStore::open(&dir.path().join("tiles")).unwrap();
     let engine = Engine::new();
-    for (method, (w, h)) in [(Method::Fast, (150, 100)), (Method::Reference, (160, 40))] {
+    for (method, (w, h)) in [(Method::Fast, (150, 100)), (Method::Reference, (160, 8))] {
         let req = FrameRequest::from_value(&tiny_scene(w, h), method).unwrap();
         let total = req.tile_count();
         assert_eq!(total, w.div_ceil(64) * h.div_ceil(64));
@@ -236,8 +236,8 @@ async fn bad_scenes_are_refused_naming_the_field_and_the_limit() {
 async fn a_render_whose_client_hangs_up_stops_at_the_next_tile_and_a_retry_resumes() {
     let dir = Scratch::new("render-hangup");
     let srv = TestServer::start(settings(dir.path())).await;
-    // The path tracer on 8 tiles: slow enough per tile that the client leaves mid-render.
-    let scene = tiny_scene(512, 64).to_string();
+    // The path tracer on 8 tiles of 64 × 8: slow enough per cloud tile that the client leaves mid-render.
+    let scene = tiny_scene(512, 8).to_string();
     let uri = "/v1/render?format=json&method=reference";
     let m = srv.state.metrics();
     let addr = srv.addr;
