@@ -79,25 +79,42 @@ fn frame_entries_expand_sun_and_automaton_sweeps() {
             let f = frame(&s, i);
             assert_eq!(f.method, skybake::render::Method::Reference);
             let sun = &f.scene_json()["sun"];
-            (sun["azimuth_deg"].as_f64().unwrap(), sun["elevation_deg"].as_f64().unwrap())
+            (
+                sun["azimuth_deg"].as_f64().unwrap(),
+                sun["elevation_deg"].as_f64().unwrap(),
+            )
         })
         .collect();
-    assert_eq!(suns, vec![(0.0, 10.0), (0.0, 30.0), (90.0, 10.0), (90.0, 30.0)]);
+    assert_eq!(
+        suns,
+        vec![(0.0, 10.0), (0.0, 30.0), (90.0, 10.0), (90.0, 30.0)]
+    );
     // Different frames, different products.
     assert_ne!(frame(&s, 1).cache_key(), frame(&s, 2).cache_key());
     let steps: Vec<f64> = (5..7)
-        .map(|i| frame(&s, i).scene_json()["cloud"]["source"]["frame_time_steps"].as_f64().unwrap())
+        .map(|i| {
+            frame(&s, i).scene_json()["cloud"]["source"]["frame_time_steps"]
+                .as_f64()
+                .unwrap()
+        })
         .collect();
     assert_eq!(steps, vec![20.0, 20.5]);
     // A place-and-time sun sweeps its time; a collimated sun its elevation.
     let mut timed = tiny_scene(32, 24);
-    timed["sun"] = json!({"latitude_deg": 47.0, "longitude_deg": 8.0, "time": "2024-06-21T06:00:00Z"});
+    timed["sun"] =
+        json!({"latitude_deg": 47.0, "longitude_deg": 8.0, "time": "2024-06-21T06:00:00Z"});
     timed["atmosphere"] = json!("earth");
     let s = spec(json!({"frames": [{"scene": timed, "sweep": {"time": ["2024-06-21T08:00:00Z", "2024-06-21T12:00:00Z"]}},
                                     {"scene": tiny_scene(32, 24), "sweep": {"sun_elevation_deg": [5]}}]}))
     .unwrap();
-    assert_eq!(frame(&s, 1).scene_json()["sun"]["time"], json!("2024-06-21T12:00:00Z"));
-    assert_eq!(frame(&s, 2).scene_json()["sun"]["collimated"]["elevation_deg"], json!(5));
+    assert_eq!(
+        frame(&s, 1).scene_json()["sun"]["time"],
+        json!("2024-06-21T12:00:00Z")
+    );
+    assert_eq!(
+        frame(&s, 2).scene_json()["sun"]["collimated"]["elevation_deg"],
+        json!(5)
+    );
 }
 
 #[test]
@@ -111,21 +128,45 @@ fn frame_entry_mistakes_are_named() {
         e.parameter().unwrap_or_default()
     };
     let tiny = tiny_scene(32, 24);
-    assert_eq!(field(json!({"frames": [{"example": "nothing"}]})), "frames[0].example");
-    assert_eq!(field(json!({"frames": [{"example": "cumulus-frame", "scene": tiny}]})), "frames[0].scene");
-    assert_eq!(field(json!({"frames": [{"scene": tiny, "method": "magic"}]})), "frames[0].method");
-    assert_eq!(field(json!({"frames": [{"scene": tiny, "sweep": {"colour": [1]}}]})), "frames[0].sweep.colour");
-    assert_eq!(field(json!({"frames": [{"scene": tiny, "sweep": {"time": ["2024-06-21T08:00:00Z"]}}]})), "frames[0][0].time");
-    assert_eq!(field(json!({"frames": [{"scene": tiny, "sweep": {"frame_time_steps": [1]}}]})), "frames[0][0].frame_time_steps");
+    assert_eq!(
+        field(json!({"frames": [{"example": "nothing"}]})),
+        "frames[0].example"
+    );
+    assert_eq!(
+        field(json!({"frames": [{"example": "cumulus-frame", "scene": tiny}]})),
+        "frames[0].scene"
+    );
+    assert_eq!(
+        field(json!({"frames": [{"scene": tiny, "method": "magic"}]})),
+        "frames[0].method"
+    );
+    assert_eq!(
+        field(json!({"frames": [{"scene": tiny, "sweep": {"colour": [1]}}]})),
+        "frames[0].sweep.colour"
+    );
+    assert_eq!(
+        field(json!({"frames": [{"scene": tiny, "sweep": {"time": ["2024-06-21T08:00:00Z"]}}]})),
+        "frames[0][0].time"
+    );
+    assert_eq!(
+        field(json!({"frames": [{"scene": tiny, "sweep": {"frame_time_steps": [1]}}]})),
+        "frames[0][0].frame_time_steps"
+    );
     // The second frame's elevation is out of range: the item and the scene field are named.
     let f = field(json!({"frames": [{"scene": tiny, "sweep": {"sun_elevation_deg": [10, 200]}}]}));
     assert!(f.starts_with("frames[0][1].sun"), "{f}");
     let mut bad = tiny.clone();
     bad["optics"]["phase"] = json!({"henyey_greenstein": {"g": -1.0}});
-    assert_eq!(field(json!({"frames": [{"scene": bad}]})), "frames[0][0].optics.phase.g");
+    assert_eq!(
+        field(json!({"frames": [{"scene": bad}]})),
+        "frames[0][0].optics.phase.g"
+    );
     // The job size limit counts frames.
     let e = spec(json!({"frames": [{"scene": tiny, "sweep": {"sun_elevation_deg": {"from": 0, "to": 90, "step": 0.01}}}]})).unwrap_err();
-    assert!(matches!(&e, JobError::Param(skybake::Error::TooLarge { .. })), "{e}");
+    assert!(
+        matches!(&e, JobError::Param(skybake::Error::TooLarge { .. })),
+        "{e}"
+    );
 }
 
 #[test]
@@ -137,11 +178,21 @@ fn a_killed_frame_bake_resumes_from_its_frames_and_tiles() {
     let body = job.to_string();
     let s = spec(job).unwrap();
     let key1 = frame(&s, 1).cache_key();
-    let tiles1 = TileStore::open(&out.join("tiles")).unwrap().frame(&key1).unwrap();
+    let tiles1 = TileStore::open(&out.join("tiles"))
+        .unwrap()
+        .frame(&key1)
+        .unwrap();
     // Killed once the second frame has stored one tile.
     let cancel = || tiles1.count() >= 1;
-    let e = bake_with_cancel(body.as_bytes(), &out, &Defaults::default(), 1000, |_, _, _| {}, &cancel)
-        .unwrap_err();
+    let e = bake_with_cancel(
+        body.as_bytes(),
+        &out,
+        &Defaults::default(),
+        1000,
+        |_, _, _| {},
+        &cancel,
+    )
+    .unwrap_err();
     assert!(!e.is_input(), "{e}");
     let exrs = |dir: &std::path::Path| -> Vec<String> {
         let mut names: Vec<String> = std::fs::read_dir(dir)
@@ -155,18 +206,35 @@ fn a_killed_frame_bake_resumes_from_its_frames_and_tiles() {
     assert_eq!(exrs(&out).len(), 1, "the first frame is finished");
     assert_eq!(tiles1.count(), 1, "the second frame kept its finished tile");
     // The rerun reuses the first frame and renders only the second frame's missing tiles.
-    let summary = bake(body.as_bytes(), &out, &Defaults::default(), 1000, |_, _, _| {}).unwrap();
-    assert_eq!((summary.reused, summary.computed, summary.failed), (1, 1, 0));
+    let summary = bake(
+        body.as_bytes(),
+        &out,
+        &Defaults::default(),
+        1000,
+        |_, _, _| {},
+    )
+    .unwrap();
+    assert_eq!(
+        (summary.reused, summary.computed, summary.failed),
+        (1, 1, 0)
+    );
     let names = exrs(&out);
     assert_eq!(names.len(), 2);
     assert!(names[1].starts_with("000001-frame-"), "{names:?}");
     let second = read_exr_file(&out.join(&names[1])).unwrap();
-    let tiles_attr: Value = serde_json::from_str(second.attribute("skybakeFrameTiles").unwrap()).unwrap();
-    assert_eq!(tiles_attr, json!({"tile_size": 64, "total": 3, "computed": 2, "reused": 1}));
+    let tiles_attr: Value =
+        serde_json::from_str(second.attribute("skybakeFrameTiles").unwrap()).unwrap();
+    assert_eq!(
+        tiles_attr,
+        json!({"tile_size": 64, "total": 3, "computed": 2, "reused": 1})
+    );
     assert_eq!(tiles1.count(), 0, "a finished frame's tiles are removed");
     // The sweep changes the light: the frames differ.
     let first = read_exr_file(&out.join(&names[0])).unwrap();
-    assert_ne!(first.layer("S0").unwrap().planes(), second.layer("S0").unwrap().planes());
+    assert_ne!(
+        first.layer("S0").unwrap().planes(),
+        second.layer("S0").unwrap().planes()
+    );
     let manifest: Value =
         serde_json::from_slice(&std::fs::read(out.join("manifest.json")).unwrap()).unwrap();
     assert_eq!(manifest["artifacts"][1]["product"], "frame");
@@ -177,9 +245,22 @@ fn a_killed_frame_bake_resumes_from_its_frames_and_tiles() {
 fn an_automaton_animation_bakes_frames_that_change() {
     let dir = Scratch::new("bake-automaton");
     let out = dir.path().join("out");
-    let job = json!({"frames": [{"scene": automaton_scene(), "sweep": {"frame_time_steps": [30, 40]}}]});
-    let summary = bake(job.to_string().as_bytes(), &out, &Defaults::default(), 1000, |_, _, _| {}).unwrap();
-    assert_eq!((summary.computed, summary.failed), (2, 0), "{:?}", summary.errors);
+    let job =
+        json!({"frames": [{"scene": automaton_scene(), "sweep": {"frame_time_steps": [30, 40]}}]});
+    let summary = bake(
+        job.to_string().as_bytes(),
+        &out,
+        &Defaults::default(),
+        1000,
+        |_, _, _| {},
+    )
+    .unwrap();
+    assert_eq!(
+        (summary.computed, summary.failed),
+        (2, 0),
+        "{:?}",
+        summary.errors
+    );
     let mut names: Vec<_> = std::fs::read_dir(&out)
         .unwrap()
         .map(|e| e.unwrap().path())
@@ -191,7 +272,10 @@ fn an_automaton_animation_bakes_frames_that_change() {
         .map(|p| read_exr_file(p).unwrap().layer("T").unwrap().planes()[0].clone())
         .collect();
     // Cloud is in view in both frames, and it moved or grew between them.
-    assert!(t.iter().all(|t| t.iter().any(|&v| v < 0.9)), "no cloud in view");
+    assert!(
+        t.iter().all(|t| t.iter().any(|&v| v < 0.9)),
+        "no cloud in view"
+    );
     assert_ne!(t[0], t[1]);
 }
 
@@ -213,11 +297,19 @@ async fn a_service_frame_job_fills_the_render_cache() {
         assert!(tokio::time::Instant::now() < deadline, "{s}");
         tokio::time::sleep(Duration::from_millis(50)).await;
     };
-    assert_eq!((status["done"].clone(), status["failed"].clone()), (json!(2), json!(0)), "{status}");
+    assert_eq!(
+        (status["done"].clone(), status["failed"].clone()),
+        (json!(2), json!(0)),
+        "{status}"
+    );
     let items = status["artifacts"]["items"].as_array().unwrap();
-    assert!(items.iter().all(|it| it["product"] == "frame" && it["status"] == "done"));
+    assert!(items
+        .iter()
+        .all(|it| it["product"] == "frame" && it["status"] == "done"));
     // The job's artifacts in each format.
-    let a = srv.get(&format!("/v1/jobs/{id}/artifacts/1?format=json")).await;
+    let a = srv
+        .get(&format!("/v1/jobs/{id}/artifacts/1?format=json"))
+        .await;
     assert_eq!(a.status, 200, "{}", a.text());
     assert_eq!(a.json()["tiles"]["total"], 1);
     let exr = srv.get(&format!("/v1/jobs/{id}/artifacts/1")).await;
@@ -228,7 +320,10 @@ async fn a_service_frame_job_fills_the_render_cache() {
     let r = srv.post("/v1/render?format=exr", &second.to_string()).await;
     assert_eq!(r.status, 200, "{}", r.text());
     assert_eq!(r.header("x-cache"), Some("hit"));
-    assert_eq!(r.header("x-skybake-cache-key"), items[1]["cache_key"].as_str());
+    assert_eq!(
+        r.header("x-skybake-cache-key"),
+        items[1]["cache_key"].as_str()
+    );
     assert_eq!(r.body, exr.body);
     srv.stop().await;
 }

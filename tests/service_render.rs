@@ -35,7 +35,12 @@ fn tiny_scene(w: usize, h: usize) -> Value {
     scene
 }
 
-async fn post(state: &AppState, uri: &str, body: Vec<u8>, accept: Option<&str>) -> (u16, Vec<(String, String)>, Vec<u8>) {
+async fn post(
+    state: &AppState,
+    uri: &str,
+    body: Vec<u8>,
+    accept: Option<&str>,
+) -> (u16, Vec<(String, String)>, Vec<u8>) {
     let mut req = Request::builder().method("POST").uri(uri);
     if let Some(a) = accept {
         req = req.header("accept", a);
@@ -50,7 +55,9 @@ async fn post(state: &AppState, uri: &str, body: Vec<u8>, accept: Option<&str>) 
         .iter()
         .map(|(k, v)| (k.to_string(), v.to_str().unwrap_or("").to_string()))
         .collect();
-    let bytes = axum::body::to_bytes(resp.into_body(), 1 << 28).await.unwrap();
+    let bytes = axum::body::to_bytes(resp.into_body(), 1 << 28)
+        .await
+        .unwrap();
     (status, headers, bytes.to_vec())
 }
 
@@ -67,7 +74,11 @@ fn pixels(bytes: &[u8]) -> Vec<Vec<u32>> {
     let mut planes: Vec<Vec<u32>> = img
         .layers()
         .iter()
-        .flat_map(|l| l.planes().iter().map(|p| p.iter().map(|v| v.to_bits()).collect()))
+        .flat_map(|l| {
+            l.planes()
+                .iter()
+                .map(|p| p.iter().map(|v| v.to_bits()).collect())
+        })
         .collect();
     for p in img.rgb().unwrap() {
         planes.push(p.iter().map(|v| v.to_bits()).collect());
@@ -90,7 +101,10 @@ fn an_interrupted_render_resumes_from_its_tiles_and_matches_an_uninterrupted_one
         let progress = |p: TileProgress| done.store(p.done, Ordering::SeqCst);
         let cancel = || done.load(Ordering::SeqCst) >= 2;
         let first = req.compute_tiled(&engine, &example_file, &tiles, &progress, &cancel);
-        assert!(first.is_err(), "{method:?}: the cancelled render must not finish");
+        assert!(
+            first.is_err(),
+            "{method:?}: the cancelled render must not finish"
+        );
         assert_eq!(tiles.count(), 2, "{method:?}");
         // Second run: takes the two stored tiles, computes only the others.
         let computed = AtomicUsize::new(0);
@@ -104,7 +118,10 @@ fn an_interrupted_render_resumes_from_its_tiles_and_matches_an_uninterrupted_one
         assert_eq!(computed.load(Ordering::SeqCst), total - 2, "{method:?}");
         let tiles_attr: Value =
             serde_json::from_str(resumed.attribute("skybakeFrameTiles").unwrap()).unwrap();
-        assert_eq!(tiles_attr, json!({"tile_size": 64, "total": total, "computed": total - 2, "reused": 2}));
+        assert_eq!(
+            tiles_attr,
+            json!({"tile_size": 64, "total": total, "computed": total - 2, "reused": 2})
+        );
         // The same frame, bit for bit, as one uninterrupted render (and the same noise estimate).
         let whole = req
             .compute(&engine, &example_file, &|_| {}, &|| false)
@@ -118,11 +135,22 @@ fn an_interrupted_render_resumes_from_its_tiles_and_matches_an_uninterrupted_one
         };
         assert_eq!(noise(&resumed), noise(&whole));
         if method == Method::Reference {
-            assert!(noise(&whole)["path_tracer_relative_noise"].as_f64().unwrap() > 0.0);
+            assert!(
+                noise(&whole)["path_tracer_relative_noise"]
+                    .as_f64()
+                    .unwrap()
+                    > 0.0
+            );
         }
         // A run that finds every tile renders nothing (not even the light) and gives the same frame.
         let again = req
-            .compute_tiled(&engine, &example_file, &tiles, &|p| assert_eq!(p.done, p.reused), &|| false)
+            .compute_tiled(
+                &engine,
+                &example_file,
+                &tiles,
+                &|p| assert_eq!(p.done, p.reused),
+                &|| false,
+            )
             .unwrap();
         assert_eq!(pixels(&enc(&again)), pixels(&enc(&whole)));
         tiles.remove_all().unwrap();
@@ -142,11 +170,18 @@ async fn render_answers_json_exr_and_png_from_one_cached_artifact() {
     let key = header(&h, "x-skybake-cache-key").unwrap().to_string();
     assert_eq!(header(&h, "etag"), Some(format!("\"{key}-json\"").as_str()));
     let doc: Value = serde_json::from_slice(&body).unwrap();
-    assert_eq!((doc["width"].clone(), doc["height"].clone()), (json!(80), json!(60)));
+    assert_eq!(
+        (doc["width"].clone(), doc["height"].clone()),
+        (json!(80), json!(60))
+    );
     assert_eq!(doc["cache_key"], json!(key));
     assert_eq!(doc["tiles"]["total"], 2);
-    assert!(doc["stages"]["ran"].as_array().is_some_and(|r| !r.is_empty()));
-    assert!(doc["timing_ms_by_stage"].as_array().is_some_and(|r| r.len() >= 3));
+    assert!(doc["stages"]["ran"]
+        .as_array()
+        .is_some_and(|r| !r.is_empty()));
+    assert!(doc["timing_ms_by_stage"]
+        .as_array()
+        .is_some_and(|r| r.len() >= 3));
     assert!(doc["error_estimate"].is_object());
     // The key is the frame request's (method included; name and description excluded).
     let req = FrameRequest::parse(&scene, Method::Fast).unwrap();
@@ -161,7 +196,14 @@ async fn render_answers_json_exr_and_png_from_one_cached_artifact() {
     assert_eq!(image.attribute("skybakeCacheKey"), Some(key.as_str()));
     assert_eq!(state.metrics().computations("frame"), 1);
     // The finished frame's tiles are gone; the artifact is in the cache.
-    assert_eq!(TileStore::open(&dir.path().join("tiles")).unwrap().frame(&key).unwrap().count(), 0);
+    assert_eq!(
+        TileStore::open(&dir.path().join("tiles"))
+            .unwrap()
+            .frame(&key)
+            .unwrap()
+            .count(),
+        0
+    );
 
     // Accept picks the format when the query does not.
     let (status, h, png) = post(&state, "/v1/render", scene.clone(), Some("image/png")).await;
@@ -169,11 +211,20 @@ async fn render_answers_json_exr_and_png_from_one_cached_artifact() {
     assert_eq!(header(&h, "content-type"), Some("image/png"));
     assert_eq!(&png[1..4], b"PNG");
     // Another method is another product.
-    let (status, h, _) = post(&state, "/v1/render?format=json&method=reference", scene, None).await;
+    let (status, h, _) = post(
+        &state,
+        "/v1/render?format=json&method=reference",
+        scene,
+        None,
+    )
+    .await;
     assert_eq!(status, 200);
     assert_ne!(header(&h, "x-skybake-cache-key"), Some(key.as_str()));
     assert_eq!(state.metrics().computations("frame"), 2);
 }
+
+/// (what, how the scene is spoiled, status, the field the problem names).
+type Case = (&'static str, Box<dyn Fn(&mut Value)>, u16, &'static str);
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn bad_scenes_are_refused_naming_the_field_and_the_limit() {
@@ -182,27 +233,85 @@ async fn bad_scenes_are_refused_naming_the_field_and_the_limit() {
     s.server.body_limit_bytes = 16 * 1024;
     let state = AppState::new(s).unwrap();
     let base = tiny_scene(32, 24);
-    let cases: Vec<(&str, Box<dyn Fn(&mut Value)>, u16, &str)> = vec![
-        ("zero fov", Box::new(|v: &mut Value| v["camera"]["fov_deg"] = json!(0)), 400, "camera.fov_deg"),
-        ("looking nowhere", Box::new(|v: &mut Value| v["camera"]["look_at_m"] = v["camera"]["position_m"].clone()), 422, "camera"),
-        ("g outside (-1, 1)", Box::new(|v: &mut Value| v["optics"]["phase"] = json!({"henyey_greenstein": {"g": 1.5}})), 400, "optics.phase.g"),
-        ("NaN optics", Box::new(|v: &mut Value| v["optics"]["extinction_per_density_m"] = json!("NaN")), 422, "optics"),
-        ("negative optics", Box::new(|v: &mut Value| v["optics"]["single_scattering_albedo"] = json!(-0.5)), 400, "optics.single_scattering_albedo"),
-        ("too many pixels", Box::new(|v: &mut Value| { v["camera"]["width"] = json!(16384); v["camera"]["height"] = json!(16384); }), 413, "camera.width"),
-        ("grid over the limit", Box::new(|v: &mut Value| v["cloud"]["voxel_size_m"] = json!(2.0)), 413, "voxel_size_m"),
-        ("a file of the server", Box::new(|v: &mut Value| v["cloud"]["source"] = json!({"type": "grid", "path": "/etc/passwd"})), 422, "path"),
+    let cases: Vec<Case> = vec![
+        (
+            "zero fov",
+            Box::new(|v: &mut Value| v["camera"]["fov_deg"] = json!(0)),
+            400,
+            "camera.fov_deg",
+        ),
+        (
+            "looking nowhere",
+            Box::new(|v: &mut Value| v["camera"]["look_at_m"] = v["camera"]["position_m"].clone()),
+            422,
+            "camera",
+        ),
+        (
+            "g outside (-1, 1)",
+            Box::new(|v: &mut Value| {
+                v["optics"]["phase"] = json!({"henyey_greenstein": {"g": 1.5}})
+            }),
+            400,
+            "optics.phase.g",
+        ),
+        (
+            "NaN optics",
+            Box::new(|v: &mut Value| v["optics"]["extinction_per_density_m"] = json!("NaN")),
+            422,
+            "optics",
+        ),
+        (
+            "negative optics",
+            Box::new(|v: &mut Value| v["optics"]["single_scattering_albedo"] = json!(-0.5)),
+            400,
+            "optics.single_scattering_albedo",
+        ),
+        (
+            "too many pixels",
+            Box::new(|v: &mut Value| {
+                v["camera"]["width"] = json!(16384);
+                v["camera"]["height"] = json!(16384);
+            }),
+            413,
+            "camera.width",
+        ),
+        (
+            "grid over the limit",
+            Box::new(|v: &mut Value| v["cloud"]["voxel_size_m"] = json!(2.0)),
+            413,
+            "voxel_size_m",
+        ),
+        (
+            "a file of the server",
+            Box::new(|v: &mut Value| {
+                v["cloud"]["source"] = json!({"type": "grid", "path": "/etc/passwd"})
+            }),
+            422,
+            "path",
+        ),
     ];
     for (what, change, status, field) in cases {
         let mut scene = base.clone();
         change(&mut scene);
-        let (got, h, body) =
-            post(&state, "/v1/render?format=json", serde_json::to_vec(&scene).unwrap(), None).await;
+        let (got, h, body) = post(
+            &state,
+            "/v1/render?format=json",
+            serde_json::to_vec(&scene).unwrap(),
+            None,
+        )
+        .await;
         let text = String::from_utf8_lossy(&body);
         assert_eq!(got, status, "{what}: {text}");
-        assert_eq!(header(&h, "content-type"), Some("application/problem+json"), "{what}");
+        assert_eq!(
+            header(&h, "content-type"),
+            Some("application/problem+json"),
+            "{what}"
+        );
         let problem: Value = serde_json::from_slice(&body).unwrap();
         assert!(
-            problem["parameter"].as_str().is_some_and(|p| p.contains(field)),
+            problem["parameter"]
+                .as_str()
+                .is_some_and(|p| p.contains(field)),
             "{what}: parameter {} does not name {field}",
             problem["parameter"]
         );
@@ -210,10 +319,19 @@ async fn bad_scenes_are_refused_naming_the_field_and_the_limit() {
     // The body limit is stated.
     let mut big = base.clone();
     big["doc"] = json!({"padding": "x".repeat(20_000)});
-    let (got, _, body) = post(&state, "/v1/render", serde_json::to_vec(&big).unwrap(), None).await;
+    let (got, _, body) = post(
+        &state,
+        "/v1/render",
+        serde_json::to_vec(&big).unwrap(),
+        None,
+    )
+    .await;
     assert_eq!(got, 413, "{}", String::from_utf8_lossy(&body));
     let problem: Value = serde_json::from_slice(&body).unwrap();
-    assert!(problem["detail"].as_str().unwrap().contains("16384 bytes"), "{problem}");
+    assert!(
+        problem["detail"].as_str().unwrap().contains("16384 bytes"),
+        "{problem}"
+    );
     // Not JSON, unknown parameter, unknown format or method.
     let (got, _, _) = post(&state, "/v1/render", b"{not json".to_vec(), None).await;
     assert_eq!(got, 422);
@@ -242,7 +360,9 @@ async fn a_render_whose_client_hangs_up_stops_at_the_next_tile_and_a_retry_resum
     let m = srv.state.metrics();
     let addr = srv.addr;
     let (body, u) = (scene.clone(), uri.to_string());
-    let client = tokio::spawn(async move { service_support::request(addr, "POST", &u, Some(body.as_bytes())).await });
+    let client = tokio::spawn(async move {
+        service_support::request(addr, "POST", &u, Some(body.as_bytes())).await
+    });
     let deadline = tokio::time::Instant::now() + Duration::from_secs(60);
     while m.frame_tiles_computed.load(Ordering::SeqCst) < 1 {
         assert!(tokio::time::Instant::now() < deadline, "no tile finished");
@@ -250,12 +370,20 @@ async fn a_render_whose_client_hangs_up_stops_at_the_next_tile_and_a_retry_resum
     }
     client.abort(); // the client hangs up (its socket is closed)
     while m.frames_abandoned.load(Ordering::SeqCst) < 1 {
-        assert!(tokio::time::Instant::now() < deadline, "the render did not stop");
+        assert!(
+            tokio::time::Instant::now() < deadline,
+            "the render did not stop"
+        );
         tokio::time::sleep(Duration::from_millis(5)).await;
     }
     let stored = m.frame_tiles_computed.load(Ordering::SeqCst) as usize;
-    let key = FrameRequest::parse(scene.as_bytes(), Method::Reference).unwrap().cache_key();
-    let tiles = TileStore::open(&dir.path().join("tiles")).unwrap().frame(&key).unwrap();
+    let key = FrameRequest::parse(scene.as_bytes(), Method::Reference)
+        .unwrap()
+        .cache_key();
+    let tiles = TileStore::open(&dir.path().join("tiles"))
+        .unwrap()
+        .frame(&key)
+        .unwrap();
     assert_eq!(tiles.count(), stored);
     assert!((1..8).contains(&stored), "{stored} tiles stored");
     assert!(!srv.state.cache().contains(&key));
@@ -263,7 +391,10 @@ async fn a_render_whose_client_hangs_up_stops_at_the_next_tile_and_a_retry_resum
     let resp = srv.post(uri, &scene).await;
     assert_eq!(resp.status, 200, "{}", resp.text());
     let doc = resp.json();
-    assert_eq!(doc["tiles"], json!({"tile_size": 64, "total": 8, "computed": 8 - stored, "reused": stored}));
+    assert_eq!(
+        doc["tiles"],
+        json!({"tile_size": 64, "total": 8, "computed": 8 - stored, "reused": stored})
+    );
     assert_eq!(m.frame_tiles_computed.load(Ordering::SeqCst), 8);
     srv.stop().await;
 }
@@ -278,7 +409,13 @@ async fn example_scenes_are_listed_served_and_render() {
         async move {
             let resp = app(state).oneshot(req).await.unwrap();
             let status = resp.status().as_u16();
-            (status, axum::body::to_bytes(resp.into_body(), 1 << 24).await.unwrap().to_vec())
+            (
+                status,
+                axum::body::to_bytes(resp.into_body(), 1 << 24)
+                    .await
+                    .unwrap()
+                    .to_vec(),
+            )
         }
     };
     let (status, body) = get("/v1/scenes").await;
@@ -288,7 +425,13 @@ async fn example_scenes_are_listed_served_and_render() {
     // Every file of config/scenes/ is listed.
     let on_disk = std::fs::read_dir(concat!(env!("CARGO_MANIFEST_DIR"), "/config/scenes"))
         .unwrap()
-        .filter(|e| e.as_ref().unwrap().path().extension().is_some_and(|x| x == "json"))
+        .filter(|e| {
+            e.as_ref()
+                .unwrap()
+                .path()
+                .extension()
+                .is_some_and(|x| x == "json")
+        })
         .count();
     assert_eq!(scenes.len(), on_disk);
     let mut frames = 0;
@@ -297,11 +440,19 @@ async fn example_scenes_are_listed_served_and_render() {
         assert!(!s["description"].as_str().unwrap().is_empty(), "{name}");
         let (status, body) = get(&format!("/v1/scenes/{name}")).await;
         assert_eq!(status, 200, "{name}");
-        let on_disk = std::fs::read(format!("{}/config/scenes/{name}.json", env!("CARGO_MANIFEST_DIR"))).unwrap();
+        let on_disk = std::fs::read(format!(
+            "{}/config/scenes/{name}.json",
+            env!("CARGO_MANIFEST_DIR")
+        ))
+        .unwrap();
         assert_eq!(body, on_disk, "{name}: served as stored");
         // A frame scene is what /v1/render takes, as it is.
         let parsed = FrameRequest::parse(&body, Method::Fast);
-        assert_eq!(parsed.is_ok(), s["frame"] == json!(true), "{name}: {parsed:?}");
+        assert_eq!(
+            parsed.is_ok(),
+            s["frame"] == json!(true),
+            "{name}: {parsed:?}"
+        );
         frames += usize::from(parsed.is_ok());
     }
     assert!(frames >= 2);

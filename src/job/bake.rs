@@ -101,7 +101,9 @@ pub fn bake_with_cancel(
         }
         match outcome {
             Ok(what) => {
-                manifest.push(json!({"index": i, "product": req.name(), "cache_key": key, "file": name}));
+                manifest.push(
+                    json!({"index": i, "product": req.name(), "cache_key": key, "file": name}),
+                );
                 progress(i + 1, spec.len(), what);
             }
             Err(e) => {

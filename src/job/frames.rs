@@ -34,6 +34,9 @@ pub const FRAME_AXES: &[&str] = &[
     "time",
 ];
 
+/// Turns a sweep member (field name, JSON value, most values) into its values.
+pub type AxisValuesFn = dyn Fn(&str, &Value, usize) -> Result<Vec<String>, Error>;
+
 /// One `frames[i]` entry: the base scene, the method and the sweep.
 #[derive(Debug, Clone)]
 pub struct FrameSweep {
@@ -51,7 +54,7 @@ impl FrameSweep {
         obj: &Map<String, Value>,
         prefix: &str,
         max_items: usize,
-        axis_values: &dyn Fn(&str, &Value, usize) -> Result<Vec<String>, Error>,
+        axis_values: &AxisValuesFn,
     ) -> Result<Self, JobError> {
         if let Some(k) = obj
             .keys()
@@ -88,9 +91,7 @@ impl FrameSweep {
         };
         let method = match obj.get("method") {
             None => Method::Fast,
-            Some(Value::String(m)) => {
-                Method::parse(m).map_err(|e| e.prefixed(prefix))?
-            }
+            Some(Value::String(m)) => Method::parse(m).map_err(|e| e.prefixed(prefix))?,
             Some(_) => {
                 return Err(Error::invalid(
                     &format!("{prefix}method"),
@@ -124,11 +125,9 @@ impl FrameSweep {
                 }
             }
             Some(_) => {
-                return Err(Error::invalid(
-                    &format!("{prefix}sweep"),
-                    "must be an object of axes",
+                return Err(
+                    Error::invalid(&format!("{prefix}sweep"), "must be an object of axes").into(),
                 )
-                .into())
             }
         }
         Ok(Self {

@@ -6,8 +6,8 @@
 use super::frames::FrameSweep;
 use super::JobError;
 use crate::product::params::{Defaults, RequestParams};
-use crate::render::FrameRequest;
 use crate::product::{product_of, ProductKind, ProductRequest};
+use crate::render::FrameRequest;
 use crate::Error;
 use serde_json::{Map, Value};
 
@@ -38,7 +38,7 @@ enum Entry {
 /// The validated request of a job item: a product of the parameter table or a cloud frame.
 #[derive(Debug, Clone)]
 pub enum ItemRequest {
-    Product(ProductRequest),
+    Product(Box<ProductRequest>),
     Frame(Box<FrameRequest>),
 }
 
@@ -62,7 +62,7 @@ impl ItemRequest {
 
 /// Where item `i` comes from.
 enum Located<'a> {
-    Product(ProductKind, RequestParams, String),
+    Product(ProductKind, Box<RequestParams>, String),
     Frame(&'a FrameSweep, usize, String),
 }
 
@@ -295,7 +295,11 @@ impl JobSpec {
             match entry {
                 Entry::One { product, params } => {
                     if i == 0 {
-                        return Some(Located::Product(*product, params.clone(), prefix.clone()));
+                        return Some(Located::Product(
+                            *product,
+                            Box::new(params.clone()),
+                            prefix.clone(),
+                        ));
                     }
                     i -= 1;
                 }
@@ -313,7 +317,11 @@ impl JobSpec {
                             rest /= values.len();
                             set_param(&mut p, name, v);
                         }
-                        return Some(Located::Product(*product, p, format!("{prefix}[{i}].")));
+                        return Some(Located::Product(
+                            *product,
+                            Box::new(p),
+                            format!("{prefix}[{i}]."),
+                        ));
                     }
                     i -= len;
                 }
@@ -332,7 +340,7 @@ impl JobSpec {
     /// error names); `None` past the end and for frames.
     pub fn item(&self, i: usize) -> Option<(ProductKind, RequestParams, String)> {
         match self.locate(i)? {
-            Located::Product(kind, params, prefix) => Some((kind, params, prefix)),
+            Located::Product(kind, params, prefix) => Some((kind, *params, prefix)),
             Located::Frame(..) => None,
         }
     }
@@ -345,8 +353,8 @@ impl JobSpec {
                 self.total
             ))),
             Some(Located::Product(product, params, prefix)) => {
-                ProductRequest::from_params(product, &defaults.apply(params))
-                    .map(ItemRequest::Product)
+                ProductRequest::from_params(product, &defaults.apply(*params))
+                    .map(|r| ItemRequest::Product(Box::new(r)))
                     .map_err(|e| e.prefixed(&prefix).into())
             }
             Some(Located::Frame(sweep, k, prefix)) => sweep

@@ -34,13 +34,34 @@ pub const ATTR_FRAME_TILES: &str = "skybakeFrameTiles";
 /// a `camera` are frame scenes (`POST /v1/render`, frame jobs); the others are cloud sections
 /// (`skybake clouds`).
 pub const EXAMPLE_SCENES: &[(&str, &str)] = &[
-    ("automaton-field", include_str!("../../config/scenes/automaton-field.json")),
-    ("cumulus-fractal", include_str!("../../config/scenes/cumulus-fractal.json")),
-    ("cumulus-frame", include_str!("../../config/scenes/cumulus-frame.json")),
-    ("cumulus-metaballs", include_str!("../../config/scenes/cumulus-metaballs.json")),
-    ("satellite-field", include_str!("../../config/scenes/satellite-field.json")),
-    ("sphere-cloud", include_str!("../../config/scenes/sphere-cloud.json")),
-    ("validation-frame", include_str!("../../config/scenes/validation-frame.json")),
+    (
+        "automaton-field",
+        include_str!("../../config/scenes/automaton-field.json"),
+    ),
+    (
+        "cumulus-fractal",
+        include_str!("../../config/scenes/cumulus-fractal.json"),
+    ),
+    (
+        "cumulus-frame",
+        include_str!("../../config/scenes/cumulus-frame.json"),
+    ),
+    (
+        "cumulus-metaballs",
+        include_str!("../../config/scenes/cumulus-metaballs.json"),
+    ),
+    (
+        "satellite-field",
+        include_str!("../../config/scenes/satellite-field.json"),
+    ),
+    (
+        "sphere-cloud",
+        include_str!("../../config/scenes/sphere-cloud.json"),
+    ),
+    (
+        "validation-frame",
+        include_str!("../../config/scenes/validation-frame.json"),
+    ),
 ];
 
 /// Files the example scenes name, embedded with them: (name as written in the scene, bytes).
@@ -318,7 +339,10 @@ impl FrameRequest {
         let mut stored: Option<TileMeta> = None;
         let mut missing = Vec::new();
         for (i, rect) in rects.iter().enumerate() {
-            match tiles.get(i)?.map(|b| self.decode_tile(&b, rect, &tiles.binding(i))) {
+            match tiles
+                .get(i)?
+                .map(|b| self.decode_tile(&b, rect, &tiles.binding(i)))
+            {
                 Some(Some((meta, rad, tr, var))) => {
                     canvas.blit(rect, &rad, &tr, &var);
                     pixels_ms += meta.pixels_ms;
@@ -398,7 +422,12 @@ impl FrameRequest {
                 };
                 let bytes = encode_tile(&frame, &tile_meta, &tiles.binding(i))?;
                 tiles.put(i, &bytes)?;
-                canvas.blit(&rect, &frame.radiance, &frame.transmittance, &frame.variance);
+                canvas.blit(
+                    &rect,
+                    &frame.radiance,
+                    &frame.transmittance,
+                    &frame.variance,
+                );
                 pixels_ms += tile_ms;
                 computed += 1;
                 progress(TileProgress {
@@ -475,7 +504,8 @@ impl FrameRequest {
             return None;
         }
         let meta: TileMeta = serde_json::from_str(img.attribute(ATTR_TILE_META)?).ok()?;
-        if (meta.x0, meta.y0, meta.width, meta.height) != (rect.x0, rect.y0, rect.width, rect.height)
+        if (meta.x0, meta.y0, meta.width, meta.height)
+            != (rect.x0, rect.y0, rect.width, rect.height)
             || (img.width(), img.height()) != (rect.width, rect.height)
         {
             return None;

@@ -25,14 +25,14 @@ mod routes;
 use crate::config::Settings;
 use crate::engine::Engine;
 use crate::product::{Format, ProductKind, ProductRequest};
+use crate::render::FrameRequest;
+use crate::store::TileStore;
 use crate::store::{Cache, CacheConfig};
 use bytes::Bytes;
 use metrics::Metrics;
 use problem::ApiError;
 use responses::ResponseCache;
 use std::collections::HashMap;
-use crate::render::FrameRequest;
-use crate::store::TileStore;
 use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
 use std::sync::{Arc, Mutex};
 use tokio::sync::Semaphore;
@@ -50,7 +50,7 @@ struct Flight {
 /// What a flight computes: a product of the parameter table or a cloud frame.
 #[derive(Clone)]
 pub(crate) enum Work {
-    Product(ProductRequest),
+    Product(Box<ProductRequest>),
     Frame(Arc<FrameRequest>),
 }
 
@@ -191,7 +191,8 @@ impl AppState {
         req: &ProductRequest,
         key: &str,
     ) -> Result<(Arc<[u8]>, Source), ApiError> {
-        self.artifact_of(Work::Product(req.clone()), key).await
+        self.artifact_of(Work::Product(Box::new(req.clone())), key)
+            .await
     }
 
     /// [`Self::artifact`] of any work. A frame render is computed tile by tile into the tile
@@ -422,7 +423,10 @@ impl AppState {
 /// Jobs produce their items through the service's cache: cached items are hits, the others are
 /// computed once (joining identical requests in flight) and stored.
 impl crate::job::run::Producer for AppState {
-    async fn produce(&self, req: crate::job::spec::ItemRequest) -> Result<(), crate::job::JobError> {
+    async fn produce(
+        &self,
+        req: crate::job::spec::ItemRequest,
+    ) -> Result<(), crate::job::JobError> {
         let key = req.cache_key();
         let work = match req {
             crate::job::spec::ItemRequest::Product(r) => Work::Product(r),

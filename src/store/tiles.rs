@@ -45,7 +45,10 @@ impl TileStore {
             root: root.to_path_buf(),
         };
         for dir in store.frame_dirs()? {
-            for entry in std::fs::read_dir(&dir).map_err(|e| StoreError::io(&dir, e))?.flatten() {
+            for entry in std::fs::read_dir(&dir)
+                .map_err(|e| StoreError::io(&dir, e))?
+                .flatten()
+            {
                 if is_temp_file_name(&entry.file_name().to_string_lossy()) {
                     // Best effort: a leftover that cannot be deleted is only wasted space.
                     let _ = std::fs::remove_file(entry.path());
@@ -78,7 +81,11 @@ impl TileStore {
             if name.len() != 2 || !shard.file_type().is_ok_and(|t| t.is_dir()) {
                 continue;
             }
-            for frame in std::fs::read_dir(shard.path()).into_iter().flatten().flatten() {
+            for frame in std::fs::read_dir(shard.path())
+                .into_iter()
+                .flatten()
+                .flatten()
+            {
                 let key = frame.file_name().to_string_lossy().into_owned();
                 if is_valid_key(&key) && frame.file_type().is_ok_and(|t| t.is_dir()) {
                     dirs.push(frame.path());
@@ -150,7 +157,9 @@ impl FrameTiles {
     /// Stores tile `index` (EXR bytes carrying [`ATTR_TILE_OF`] = [`Self::binding`]) atomically.
     pub fn put(&self, index: usize, bytes: &[u8]) -> Result<(), StoreError> {
         if index >= MAX_TILES {
-            return Err(crate::Error::out_of_range("tile", index, format!("0..{MAX_TILES}")).into());
+            return Err(
+                crate::Error::out_of_range("tile", index, format!("0..{MAX_TILES}")).into(),
+            );
         }
         write_atomic(&self.path(index), bytes)
     }

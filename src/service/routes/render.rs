@@ -65,7 +65,9 @@ pub fn frame_format(query: Option<&str>, accept: Option<&str>) -> Result<Format,
             .ok_or_else(|| {
                 crate::Error::invalid(
                     "format",
-                    format!("'{text}' is not a format of the frame product (allowed: json, exr, png)"),
+                    format!(
+                        "'{text}' is not a format of the frame product (allowed: json, exr, png)"
+                    ),
                 )
                 .into()
             });
@@ -90,7 +92,12 @@ fn body_limit(state: &AppState) -> usize {
 }
 
 fn too_large(limit: usize, what: String) -> ApiError {
-    crate::Error::too_large("body", format!("the scene is {what}"), format!("{limit} bytes")).into()
+    crate::Error::too_large(
+        "body",
+        format!("the scene is {what}"),
+        format!("{limit} bytes"),
+    )
+    .into()
 }
 
 /// Reads the body, refusing (413, stating the limit) more than `limit` bytes before buffering
@@ -106,7 +113,9 @@ async fn read_body(headers: &HeaderMap, mut body: Body, limit: usize) -> Result<
         }
     }
     let mut buf = Vec::new();
-    while let Some(frame) = std::future::poll_fn(|cx| std::pin::Pin::new(&mut body).poll_frame(cx)).await {
+    while let Some(frame) =
+        std::future::poll_fn(|cx| std::pin::Pin::new(&mut body).poll_frame(cx)).await
+    {
         let frame = frame.map_err(|e| ApiError::Body {
             status: StatusCode::BAD_REQUEST,
             detail: format!("reading the body failed: {e}"),
