@@ -119,6 +119,7 @@ pub fn bake_with_cancel(
             }
         }
     }
+    tiles.remove_empty()?;
     let doc = json!({"engine_version": ENGINE_VERSION, "summary": summary, "artifacts": manifest});
     write_atomic(&out.join("manifest.json"), doc.to_string().as_bytes())?;
     Ok(summary)
