@@ -189,6 +189,7 @@ fn a_killed_frame_bake_resumes_from_its_frames_and_tiles() {
         &out,
         &Defaults::default(),
         1000,
+        &skybake::engine::Engine::new(),
         |_, _, _| {},
         &cancel,
     )
@@ -211,6 +212,7 @@ fn a_killed_frame_bake_resumes_from_its_frames_and_tiles() {
         &out,
         &Defaults::default(),
         1000,
+        &skybake::engine::Engine::new(),
         |_, _, _| {},
     )
     .unwrap();
@@ -252,6 +254,7 @@ fn an_automaton_animation_bakes_frames_that_change() {
         &out,
         &Defaults::default(),
         1000,
+        &skybake::engine::Engine::new(),
         |_, _, _| {},
     )
     .unwrap();

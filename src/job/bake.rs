@@ -28,16 +28,27 @@ pub struct BakeSummary {
     pub errors: Vec<ItemError>,
 }
 
-/// Runs the job `job_body` into `out`; `progress(done, total, what)` is called per item. Every
-/// item is validated before anything is computed.
+/// Runs the job `job_body` into `out` on `engine` (`store::tables::engine_for_settings` shares
+/// the precise tables stored in the cache directory with the CLI and the server);
+/// `progress(done, total, what)` is called per item. Every item is validated before anything is
+/// computed.
 pub fn bake(
     job_body: &[u8],
     out: &Path,
     defaults: &Defaults,
     max_products: usize,
+    engine: &Engine,
     progress: impl FnMut(usize, usize, &str),
 ) -> Result<BakeSummary, JobError> {
-    bake_with_cancel(job_body, out, defaults, max_products, progress, &|| false)
+    bake_with_cancel(
+        job_body,
+        out,
+        defaults,
+        max_products,
+        engine,
+        progress,
+        &|| false,
+    )
 }
 
 /// [`bake`] that stops when `cancel` returns true (polled between items and between the tiles of
@@ -47,6 +58,7 @@ pub fn bake_with_cancel(
     out: &Path,
     defaults: &Defaults,
     max_products: usize,
+    engine: &Engine,
     mut progress: impl FnMut(usize, usize, &str),
     cancel: &(dyn Fn() -> bool + Sync),
 ) -> Result<BakeSummary, JobError> {
@@ -54,7 +66,6 @@ pub fn bake_with_cancel(
     spec.validate(defaults)?;
     files::create_dir_all(out)?;
     let tiles = TileStore::open(&out.join("tiles"))?;
-    let engine = Engine::new();
     let mut summary = BakeSummary {
         total: spec.len(),
         computed: 0,
@@ -81,7 +92,7 @@ pub fn bake_with_cancel(
             summary.reused += 1;
             Ok("reused")
         } else {
-            compute(&req, &engine, &tiles, &key, cancel)
+            compute(&req, engine, &tiles, &key, cancel)
                 .and_then(|img| Ok(encode_exr(&img)?))
                 .and_then(|bytes| Ok(write_atomic(&path, &bytes)?))
                 .map(|()| {

@@ -108,7 +108,7 @@ pub struct AppState {
 struct Inner {
     settings: Settings,
     engine: Engine,
-    cache: Cache,
+    cache: Arc<Cache>,
     tiles: TileStore,
     metrics: Metrics,
     compute: Semaphore,
@@ -121,11 +121,11 @@ impl AppState {
     /// Opens the cache at `settings.cache.dir` and loads persisted jobs (call
     /// [`AppState::start_job_workers`] inside a runtime to run them).
     pub fn new(settings: Settings) -> Result<Self, ApiError> {
-        let cache = Cache::open(CacheConfig::new(
+        let cache = Arc::new(Cache::open(CacheConfig::new(
             &settings.cache.dir,
             settings.cache.disk_budget_bytes,
             settings.cache.memory_budget_bytes,
-        ))?;
+        ))?);
         let tiles = TileStore::open(&settings.cache.dir.join("tiles"))?;
         // Tiles of renders nobody resumed within a week are abandoned.
         if let Err(e) = tiles.prune(std::time::Duration::from_secs(7 * 24 * 3600)) {
@@ -140,7 +140,8 @@ impl AppState {
                 compute: Semaphore::new(settings.compute_threads()),
                 responses: Mutex::new(ResponseCache::new(settings.cache.response_budget_bytes)),
                 settings,
-                engine: Engine::new(),
+                // Precise tables persist in the same cache (one disk budget) across restarts.
+                engine: crate::store::tables::engine_with_cache(cache.clone()),
                 cache,
                 tiles,
                 metrics: Metrics::default(),

@@ -8,6 +8,7 @@
 //! - [`files`]: whole-file reads and directory listing for the job store and bakes.
 //! - [`tiles`]: the tiles of a product computed piece by piece (a resumable render).
 //! - [`cache`]: the content-addressed, size-bounded disk cache with an in-memory LRU in front.
+//! - [`tables`]: the engine's shared tables (precise multiple scattering) kept in that cache.
 //!
 //! ```no_run
 //! use skybake::store::{cache_key, Cache, CacheConfig, SpectralImage};
@@ -29,6 +30,7 @@ pub mod files;
 pub mod layout;
 mod lru;
 pub mod spectral_image;
+pub mod tables;
 pub mod tiles;
 
 pub use atomic::write_atomic;
