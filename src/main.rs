@@ -135,7 +135,7 @@ enum Command {
     ///
     /// Example: skybake bake job.json --out baked/
     Bake {
-        /// Job file (JSON: {"products": [...], "grids": [...]}).
+        /// Job file (JSON: {"products": [...], "grids": [...], "frames": [...]}; see README "Bake jobs").
         job: PathBuf,
         /// Output directory (EXR per product + manifest.json); a rerun reuses finished files.
         #[arg(long)]
@@ -673,21 +673,32 @@ fn run_render(
     let dir = scene.parent().unwrap_or(Path::new("."));
     let loader =
         |name: &str| read_limited(&dir.join(name), "path", cloud_scene::MAX_GRID_FILE_BYTES);
+    // A progress bar on a terminal only: tiles done / total and the time left.
     let bar = std::io::IsTerminal::is_terminal(&std::io::stderr()).then(|| {
-        let bar = indicatif::ProgressBar::new(1000);
+        let bar = indicatif::ProgressBar::new(request.tile_count() as u64);
         if let Ok(style) = indicatif::ProgressStyle::with_template(
-            "{elapsed_precise} [{bar:40}] {percent}% ({eta} left)",
+            "{elapsed_precise} [{bar:40}] {pos}/{len} tiles ({eta} left) {msg}",
         ) {
             bar.set_style(style.progress_chars("=> "));
         }
+        bar.set_message("voxels, light, multiple scattering");
         bar
     });
-    let progress = |f: f64| {
+    let progress = |p: skybake::render::product::TileProgress| {
         if let Some(bar) = &bar {
-            bar.set_position((f * 1000.0) as u64);
+            if p.done > p.reused {
+                bar.set_message("");
+            }
+            bar.set_position(p.done as u64);
         }
     };
-    let image = request.compute(engine, &loader, &progress, &|| false)?;
+    let image = request.compute_tiled(
+        engine,
+        &loader,
+        &skybake::render::product::NoTiles,
+        &progress,
+        &|| false,
+    )?;
     if let Some(bar) = &bar {
         bar.finish_and_clear();
     }
@@ -706,22 +717,9 @@ fn run_render(
         }
         (None, _) => {}
     }
-    let attr = |name: &str| -> serde_json::Value {
-        image
-            .attribute(name)
-            .and_then(|t| serde_json::from_str(t).ok())
-            .unwrap_or(serde_json::Value::Null)
-    };
-    let summary = serde_json::json!({
-        "scene": scene.display().to_string(),
-        "method": method,
-        "width": image.width(),
-        "height": image.height(),
-        "wavelengths_nm": image.wavelengths_nm(),
-        "output": output.map(|p| p.display().to_string()),
-        "cache_key": request.cache_key(),
-        "meta": attr("skybakeFrameMeta"),
-    });
+    let mut summary = skybake::render::product::frame_summary(&image);
+    summary["scene"] = serde_json::json!(scene.display().to_string());
+    summary["output"] = serde_json::json!(output.map(|p| p.display().to_string()));
     if format == Format::Json {
         print_json(&summary)
     } else {

@@ -41,9 +41,25 @@ fn validation_frame_renders_to_exr_and_png() {
     let summary: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
     assert_eq!(summary["width"], 160);
     assert_eq!(summary["height"], 120);
-    assert!(summary["meta"]["stages"]["ran"]
+    assert!(summary["stages"]["ran"]
         .as_array()
         .is_some_and(|r| !r.is_empty()));
+    assert!(summary["stages"]["skipped"].is_array());
+    // Timings per stage, the tiles and the error estimate (issue 13 point 6).
+    let stages: Vec<&str> = summary["timing_ms_by_stage"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|s| s["stage"].as_str().unwrap())
+        .collect();
+    for stage in ["voxelize", "lighting", "pixels"] {
+        assert!(stages.contains(&stage), "{stage} missing from {stages:?}");
+    }
+    assert!(summary["timing_ms"].as_f64().unwrap() > 0.0);
+    assert!(summary["error_estimate"]["basis"].is_string());
+    // 160 × 120 in 64-pixel tiles: 3 × 2.
+    assert_eq!(summary["tiles"]["total"], 6);
+    assert_eq!(summary["tiles"]["computed"], 6);
 
     let image = skybake::store::read_exr_file(&exr).unwrap();
     assert_eq!((image.width(), image.height()), (160, 120));

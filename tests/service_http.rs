@@ -200,9 +200,11 @@ async fn bad_input_is_a_problem_naming_the_parameter() {
     let r = srv.post("/v1/plan", &big).await;
     assert_eq!(r.status, 413, "{}", r.text());
     assert_eq!(r.header("content-type"), Some("application/problem+json"));
-    let r = srv.get("/v1/render").await;
+    let r = srv.get("/v1/nothing").await;
     assert_eq!(r.status, 404);
     assert_eq!(r.header("content-type"), Some("application/problem+json"));
+    // POST /v1/render exists; GET does not.
+    assert_eq!(srv.get("/v1/render").await.status, 405);
     assert_eq!(srv.get("/v1/jobs/00000000000000ff").await.status, 404);
     srv.stop().await;
 }

@@ -177,8 +177,9 @@ function describeDetails(name, doc) {
   lines.push(`<h3>${name}</h3>`);
   if (doc.timing_ms !== undefined) lines.push(`<p>Computed in ${Number(doc.timing_ms).toFixed(1)} ms.</p>`);
   if (err) {
-    const rel = err.relative_error !== undefined ? `${(100 * err.relative_error).toFixed(2)} %` : "?";
-    lines.push(`<p>Error estimate: ${rel} (${err.method || ""}${err.validated === false ? ", not validated here" : ""}).` +
+    const relative = err.relative_error ?? err.path_tracer_relative_noise;
+    const rel = relative !== undefined && relative !== null ? `${(100 * relative).toFixed(2)} %` : "?";
+    lines.push(`<p>Error estimate: ${rel} (${escapeHtml(err.method || err.basis || "")}${err.validated === false ? ", not validated here" : ""}).` +
       `${err.caveat ? ` <em>${escapeHtml(err.caveat)}</em>` : ""}</p>`);
   }
   if (stages) lines.push(`<pre>${escapeHtml(JSON.stringify(stages, null, 1))}</pre>`);
@@ -261,7 +262,8 @@ async function loadScenes() {
   try {
     const list = await fetchOk("/v1/scenes").then((r) => r.json());
     const select = $("scene");
-    for (const s of list.scenes) {
+    // Only frame scenes (with a camera) render; the others are cloud sections for `skybake clouds`.
+    for (const s of list.scenes.filter((x) => x.frame)) {
       const o = document.createElement("option");
       o.value = s.name;
       o.textContent = s.description ? `${s.name}: ${s.description}` : s.name;

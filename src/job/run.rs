@@ -2,11 +2,10 @@
 //! [`Producer`] for each item's artifact in turn (the service's producer is its product cache:
 //! cached items are hits, the rest are computed once and stored), persisting progress as it goes.
 
-use super::spec::JobSpec;
+use super::spec::{ItemRequest, JobSpec};
 use super::store::{now, ItemError, JobState, JobStatus, JobStore};
 use super::JobError;
 use crate::product::params::Defaults;
-use crate::product::ProductRequest;
 use std::collections::{HashMap, HashSet, VecDeque};
 use std::future::Future;
 use std::path::Path;
@@ -21,8 +20,8 @@ const PERSIST_EVERY: Duration = Duration::from_millis(250);
 
 /// Whatever turns a product request into a stored artifact.
 pub trait Producer: Clone + Send + Sync + 'static {
-    /// Makes sure the artifact of `req` exists (cached or computed now).
-    fn produce(&self, req: ProductRequest) -> impl Future<Output = Result<(), JobError>> + Send;
+    /// Makes sure the artifact of `req` (a product or a frame) exists (cached or computed now).
+    fn produce(&self, req: ItemRequest) -> impl Future<Output = Result<(), JobError>> + Send;
     /// The job table the workers take jobs from.
     fn jobs(&self) -> &Jobs;
 }
@@ -69,8 +68,8 @@ impl Job {
         (offset.min(end)..end)
             .map(|i| {
                 let (product, key) = match self.spec.request(i, defaults) {
-                    Ok(r) => (r.kind().name(), Some(r.cache_key())),
-                    Err(_) => (self.spec.item(i).map(|x| x.0.name()).unwrap_or(""), None),
+                    Ok(r) => (r.name(), Some(r.cache_key())),
+                    Err(_) => (self.spec.item_name(i).unwrap_or(""), None),
                 };
                 let status = if failed.contains(&i) || (key.is_none() && i < st.next) {
                     "failed"

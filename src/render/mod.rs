@@ -234,6 +234,9 @@ pub struct Frame {
     pub radiance: Vec<f32>,
     /// Cloud transmittance along each pixel's ray (mean over wavelengths), `[row][col]`.
     pub transmittance: Vec<f32>,
+    /// Reference method: variance of each pixel's mean, `[row][col][λ]` (empty for the fast
+    /// method), so tiles rendered apart combine into the frame's noise estimate.
+    pub variance: Vec<f32>,
     pub meta: FrameMeta,
 }
 
@@ -398,6 +401,9 @@ pub fn render_tile(
     timing_ms.push(("pixels".into(), start.elapsed().as_secs_f64() * 1e3));
     let noise = (p.settings.method == Method::Reference)
         .then(|| relative_noise(&radiance, &variance, &transmittance, n_l));
+    if p.settings.method != Method::Reference {
+        variance = Vec::new();
+    }
     Ok(Frame {
         tile,
         image_width: cam.width,
@@ -405,22 +411,26 @@ pub fn render_tile(
         wavelengths_nm: p.scene.wavelengths.as_nm().to_vec(),
         radiance,
         transmittance,
+        variance,
         meta: FrameMeta {
             method: p.settings.method,
             stages: p.stages.clone(),
             timing_ms,
             error_estimate: FrameError {
                 path_tracer_relative_noise: noise,
-                basis: "fast method: not estimated per frame; measured against Mitsuba 3, DISORT (tests/render_validation.rs) and the path tracer on the bench cumulus (skybake bench frame-accuracy), see README 'Cloud frames'; path tracer: sample variance",
+                basis: ERROR_BASIS,
             },
             lighting_notes: p.lighting.notes.clone(),
         },
     })
 }
 
+/// Where a frame's error estimate comes from.
+pub const ERROR_BASIS: &str = "fast method: not estimated per frame; measured against Mitsuba 3, DISORT (tests/render_validation.rs) and the path tracer on the bench cumulus (skybake bench frame-accuracy), see README 'Cloud frames'; path tracer: sample variance";
+
 /// RMS over cloud pixels (transmittance < 0.99) of the standard error of the mean, relative to
 /// the mean cloud radiance.
-fn relative_noise(rad: &[f32], var: &[f32], tr: &[f32], n_l: usize) -> f64 {
+pub(crate) fn relative_noise(rad: &[f32], var: &[f32], tr: &[f32], n_l: usize) -> f64 {
     let (mut s, mut v, mut n) = (0.0, 0.0, 0usize);
     for (i, t) in tr.iter().enumerate() {
         if *t < 0.99 {

@@ -1,11 +1,101 @@
 //! The `frame` product: scene JSON → voxelised cloud → lighting from the engine → rendered frame →
-//! spectral image (the artifact). The CLI (`skybake render`), the service (`POST /v1/render`) and
-//! the cache all run this one path, so the `-o` file and the HTTP EXR of a scene are the same.
+//! spectral image (the artifact). The CLI (`skybake render`), the service (`POST /v1/render`),
+//! frame bake jobs and the cache all run this one path, so the `-o` file and the HTTP EXR of a
+//! scene are the same.
+//!
+//! A frame is computed in [`TILE_SIZE`]² tiles in raster order. Each finished tile goes to a
+//! [`TileSink`] (the service's and the bake's: [`crate::store::FrameTiles`], one verified EXR per
+//! tile); a later run of the same request takes the tiles it finds there and computes only the
+//! others, so a crash, a kill or a cancellation loses only the tile in flight. Pixels do not
+//! depend on the tiling (every pixel's rays and random stream are its own), so a resumed frame is
+//! the frame an uninterrupted run gives.
 
-use super::{lighting_for, render_frame, FrameScene, Method, RenderSettings};
-use crate::engine::Engine;
-use crate::store::SpectralImage;
+use super::{
+    lighting_for, relative_noise, render_tile, FrameError, FrameMeta, FrameScene, Method, Prepared,
+    RenderSettings, Tile, ERROR_BASIS,
+};
+use crate::engine::{Engine, Stages};
+use crate::store::tiles::ATTR_TILE_OF;
+use crate::store::{decode_exr, encode_exr, SpectralImage, StoreError};
 use crate::{Error, Result};
+use serde::{Deserialize, Serialize};
+use std::time::Instant;
+
+/// Edge of a render tile, pixels.
+pub const TILE_SIZE: usize = 64;
+/// Header attribute of a tile: its rectangle, the preparation's stages and timings, its own
+/// pixel time ([`TileMeta`] as JSON).
+const ATTR_TILE_META: &str = "skybakeTileMeta";
+/// Header attribute of the assembled frame: how many tiles there are, how many this run
+/// computed and how many it took from an earlier run.
+pub const ATTR_FRAME_TILES: &str = "skybakeFrameTiles";
+
+/// The example scenes of `config/scenes/`, embedded in the binary: (name, scene JSON). Those with
+/// a `camera` are frame scenes (`POST /v1/render`, frame jobs); the others are cloud sections
+/// (`skybake clouds`).
+pub const EXAMPLE_SCENES: &[(&str, &str)] = &[
+    (
+        "automaton-field",
+        include_str!("../../config/scenes/automaton-field.json"),
+    ),
+    (
+        "cumulus-fractal",
+        include_str!("../../config/scenes/cumulus-fractal.json"),
+    ),
+    (
+        "cumulus-frame",
+        include_str!("../../config/scenes/cumulus-frame.json"),
+    ),
+    (
+        "cumulus-metaballs",
+        include_str!("../../config/scenes/cumulus-metaballs.json"),
+    ),
+    (
+        "satellite-field",
+        include_str!("../../config/scenes/satellite-field.json"),
+    ),
+    (
+        "sphere-cloud",
+        include_str!("../../config/scenes/sphere-cloud.json"),
+    ),
+    (
+        "validation-frame",
+        include_str!("../../config/scenes/validation-frame.json"),
+    ),
+];
+
+/// Files the example scenes name, embedded with them: (name as written in the scene, bytes).
+const EXAMPLE_FILES: &[(&str, &[u8])] = &[(
+    "satellite-field.png",
+    include_bytes!("../../config/scenes/satellite-field.png"),
+)];
+
+/// The example scene `name`'s JSON, if there is one.
+pub fn example_scene(name: &str) -> Option<&'static str> {
+    EXAMPLE_SCENES
+        .iter()
+        .find(|(n, _)| *n == name)
+        .map(|(_, json)| *json)
+}
+
+/// The loader of scenes that arrive over the network (service, jobs): a scene may name only the
+/// files of the example scenes (embedded), never a file of the machine it runs on.
+pub fn example_file(name: &str) -> Result<Vec<u8>> {
+    EXAMPLE_FILES
+        .iter()
+        .find(|(n, _)| *n == name)
+        .map(|(_, bytes)| bytes.to_vec())
+        .ok_or_else(|| {
+            let known: Vec<&str> = EXAMPLE_FILES.iter().map(|(n, _)| *n).collect();
+            Error::invalid(
+                "path",
+                format!(
+                    "'{name}': a scene sent to the service can name only the example scenes' files ({}); send other clouds as a grid through skybake render",
+                    known.join(", ")
+                ),
+            )
+        })
+}
 
 /// A validated frame request: the scene (as parsed JSON, for the canonical form) and the method.
 #[derive(Debug, Clone)]
@@ -13,6 +103,147 @@ pub struct FrameRequest {
     pub scene: FrameScene,
     scene_json: serde_json::Value,
     pub method: Method,
+}
+
+/// Progress of a tiled render, reported after each tile.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+pub struct TileProgress {
+    /// Tiles finished (taken from the sink or computed now).
+    pub done: usize,
+    pub total: usize,
+    /// Of `done`, tiles taken from an earlier run.
+    pub reused: usize,
+}
+
+/// Where the tiles of a render are kept between runs (the library does no I/O itself).
+pub trait TileSink: Sync {
+    /// The bytes stored for tile `index` (verified), or `None`.
+    fn get(&self, index: usize) -> Result<Option<Vec<u8>>>;
+    /// Stores tile `index`.
+    fn put(&self, index: usize, bytes: &[u8]) -> Result<()>;
+    /// The binding a tile file carries, so a tile stored for another request or place is refused.
+    fn binding(&self, index: usize) -> String;
+}
+
+/// No persistence: every tile is computed.
+pub struct NoTiles;
+
+impl TileSink for NoTiles {
+    fn get(&self, _: usize) -> Result<Option<Vec<u8>>> {
+        Ok(None)
+    }
+    fn put(&self, _: usize, _: &[u8]) -> Result<()> {
+        Ok(())
+    }
+    fn binding(&self, index: usize) -> String {
+        format!("-/{index}")
+    }
+}
+
+fn store_error(e: StoreError) -> Error {
+    match e {
+        StoreError::Invalid(e) => e,
+        other => Error::internal("tile store", other),
+    }
+}
+
+impl TileSink for crate::store::FrameTiles {
+    fn get(&self, index: usize) -> Result<Option<Vec<u8>>> {
+        crate::store::FrameTiles::get(self, index).map_err(store_error)
+    }
+    fn put(&self, index: usize, bytes: &[u8]) -> Result<()> {
+        crate::store::FrameTiles::put(self, index, bytes).map_err(store_error)
+    }
+    fn binding(&self, index: usize) -> String {
+        crate::store::FrameTiles::binding(self, index)
+    }
+}
+
+/// The stage list as stored in a tile (the preparation's, the same for every tile of a run).
+#[derive(Debug, Clone, Serialize, Deserialize)]
+struct StoredStages {
+    ran: Vec<String>,
+    skipped: Vec<String>,
+}
+
+/// What a tile file carries besides its pixels.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+struct TileMeta {
+    x0: usize,
+    y0: usize,
+    width: usize,
+    height: usize,
+    stages: StoredStages,
+    /// The preparation's stage timings in the run that computed the tile, ms.
+    preparation_ms: Vec<(String, f64)>,
+    lighting_notes: Vec<String>,
+    /// This tile's pixels, ms.
+    pixels_ms: f64,
+}
+
+/// The tiles of a `width` × `height` image in raster order.
+pub fn tile_rects(width: usize, height: usize) -> Vec<Tile> {
+    let mut rects = Vec::new();
+    for y0 in (0..height).step_by(TILE_SIZE) {
+        for x0 in (0..width).step_by(TILE_SIZE) {
+            rects.push(Tile {
+                x0,
+                y0,
+                width: TILE_SIZE.min(width - x0),
+                height: TILE_SIZE.min(height - y0),
+            });
+        }
+    }
+    rects
+}
+
+/// Full-frame buffers the tiles are copied into.
+struct Canvas {
+    width: usize,
+    n_l: usize,
+    radiance: Vec<f32>,
+    transmittance: Vec<f32>,
+    variance: Vec<f32>,
+}
+
+impl Canvas {
+    fn blit(&mut self, t: &Tile, radiance: &[f32], transmittance: &[f32], variance: &[f32]) {
+        let n_l = self.n_l;
+        for row in 0..t.height {
+            let dst = (t.y0 + row) * self.width + t.x0;
+            let src = row * t.width;
+            self.radiance[dst * n_l..(dst + t.width) * n_l]
+                .copy_from_slice(&radiance[src * n_l..(src + t.width) * n_l]);
+            self.transmittance[dst..dst + t.width]
+                .copy_from_slice(&transmittance[src..src + t.width]);
+            if !self.variance.is_empty() && !variance.is_empty() {
+                self.variance[dst * n_l..(dst + t.width) * n_l]
+                    .copy_from_slice(&variance[src * n_l..(src + t.width) * n_l]);
+            }
+        }
+    }
+}
+
+/// Interleaves per-wavelength planes into `[pixel][λ]`.
+fn interleave(planes: &[Vec<f32>], pixels: usize) -> Vec<f32> {
+    let n_l = planes.len();
+    let mut out = vec![0f32; pixels * n_l];
+    for (l, plane) in planes.iter().enumerate() {
+        for (p, v) in plane.iter().enumerate().take(pixels) {
+            out[p * n_l + l] = *v;
+        }
+    }
+    out
+}
+
+fn planes_of(values: &[f32], n_l: usize, pixels: usize) -> Vec<Vec<f32>> {
+    let mut planes = vec![vec![0f32; pixels]; n_l];
+    for (p, spectrum) in values.chunks(n_l).enumerate().take(pixels) {
+        for (plane, v) in planes.iter_mut().zip(spectrum) {
+            plane[p] = *v;
+        }
+    }
+    planes
 }
 
 impl FrameRequest {
@@ -26,6 +257,17 @@ impl FrameRequest {
             scene_json: value,
             method,
         })
+    }
+
+    /// A request from a scene given as parsed JSON (a job item).
+    pub fn from_value(scene: &serde_json::Value, method: Method) -> Result<Self> {
+        let bytes = serde_json::to_vec(scene).map_err(|e| Error::invalid("scene", e))?;
+        Self::parse(&bytes, method)
+    }
+
+    /// The scene as given (parsed JSON).
+    pub fn scene_json(&self) -> &serde_json::Value {
+        &self.scene_json
     }
 
     /// The canonical request: the scene JSON with sorted keys, minus the free-form `doc`, `name`
@@ -45,9 +287,14 @@ impl FrameRequest {
         crate::store::cache_key(&self.canonical_json(), crate::engine::ENGINE_VERSION)
     }
 
-    /// Renders the frame and encodes it as the product's spectral image. `loader` reads the files
-    /// a cloud source names (the library does no I/O); `progress` gets the fraction done and
-    /// `cancel` is polled between rows.
+    /// Number of tiles of the frame.
+    pub fn tile_count(&self) -> usize {
+        tile_rects(self.scene.camera.width, self.scene.camera.height).len()
+    }
+
+    /// Renders the frame without keeping tiles and encodes it as the product's spectral image.
+    /// `loader` reads the files a cloud source names (the library does no I/O); `progress` gets
+    /// the fraction done and `cancel` is polled between tiles and rows.
     pub fn compute(
         &self,
         engine: &Engine,
@@ -55,20 +302,306 @@ impl FrameRequest {
         progress: &(dyn Fn(f64) + Sync),
         cancel: &(dyn Fn() -> bool + Sync),
     ) -> Result<SpectralImage> {
-        let grid = self.scene.cloud.voxelize(loader)?;
-        let lighting = lighting_for(&self.scene, &grid, engine)?;
-        let settings = RenderSettings::for_quality(self.scene.quality, self.method);
-        let frame = render_frame(
-            &self.scene,
-            &grid,
-            &lighting,
-            &settings,
-            None,
-            progress,
-            cancel,
-        )?;
+        let progress = |p: TileProgress| progress(p.done as f64 / p.total.max(1) as f64);
+        self.compute_tiled(engine, loader, &NoTiles, &progress, cancel)
+    }
+
+    /// Renders the frame tile by tile, taking the tiles `tiles` already holds and storing each
+    /// new one there as soon as it is done, then assembles the product's spectral image. When
+    /// every tile is there nothing is voxelised or lit. `cancel` is polled between tiles (and
+    /// between rows inside one): a cancelled render returns an error and keeps its finished tiles.
+    pub fn compute_tiled(
+        &self,
+        engine: &Engine,
+        loader: &dyn Fn(&str) -> Result<Vec<u8>>,
+        tiles: &dyn TileSink,
+        progress: &(dyn Fn(TileProgress) + Sync),
+        cancel: &(dyn Fn() -> bool + Sync),
+    ) -> Result<SpectralImage> {
+        let cam = &self.scene.camera;
+        let (w, h) = (cam.width, cam.height);
+        let n_l = self.scene.wavelengths.len();
+        let reference = self.method == Method::Reference;
+        let rects = tile_rects(w, h);
+        let total = rects.len();
+        let mut canvas = Canvas {
+            width: w,
+            n_l,
+            radiance: vec![0f32; w * h * n_l],
+            transmittance: vec![0f32; w * h],
+            variance: if reference {
+                vec![0f32; w * h * n_l]
+            } else {
+                Vec::new()
+            },
+        };
+        let mut pixels_ms = 0.0;
+        let mut stored: Option<TileMeta> = None;
+        let mut missing = Vec::new();
+        for (i, rect) in rects.iter().enumerate() {
+            match tiles
+                .get(i)?
+                .map(|b| self.decode_tile(&b, rect, &tiles.binding(i)))
+            {
+                Some(Some((meta, rad, tr, var))) => {
+                    canvas.blit(rect, &rad, &tr, &var);
+                    pixels_ms += meta.pixels_ms;
+                    stored.get_or_insert(meta);
+                }
+                _ => missing.push(i),
+            }
+        }
+        let reused = total - missing.len();
+        progress(TileProgress {
+            done: reused,
+            total,
+            reused,
+        });
+        let mut computed = 0;
+        let mut this_run: Option<TileMeta> = None;
+        if !missing.is_empty() {
+            let start = Instant::now();
+            // The grid's size is checked before it is allocated; name the scene field that sets it.
+            let grid = self.scene.cloud.voxelize(loader).map_err(|e| match e {
+                Error::TooLarge {
+                    field,
+                    reason,
+                    limit,
+                } if field == "dims" => Error::TooLarge {
+                    field: "cloud.voxel_size_m".into(),
+                    reason: format!("the grid at this voxel size: {reason}"),
+                    limit,
+                },
+                other => other,
+            })?;
+            let voxelize_ms = start.elapsed().as_secs_f64() * 1e3;
+            super::check_grid(&grid)?;
+            let start = Instant::now();
+            let lighting = lighting_for(&self.scene, &grid, engine)?;
+            let lighting_ms = start.elapsed().as_secs_f64() * 1e3;
+            let settings = RenderSettings::for_quality(self.scene.quality, self.method);
+            let prepared = Prepared::new(&self.scene, &grid, &lighting, settings, cancel)?;
+            let mut preparation_ms = vec![
+                ("voxelize".to_string(), voxelize_ms),
+                ("lighting".to_string(), lighting_ms),
+            ];
+            preparation_ms.extend(prepared.timing_ms.iter().cloned());
+            let meta = TileMeta {
+                x0: 0,
+                y0: 0,
+                width: 0,
+                height: 0,
+                stages: StoredStages {
+                    ran: prepared.stages.ran.clone(),
+                    skipped: prepared.stages.skipped.clone(),
+                },
+                preparation_ms,
+                lighting_notes: lighting.notes.clone(),
+                pixels_ms: 0.0,
+            };
+            for i in missing {
+                if cancel() {
+                    return Err(Error::invalid("render", "cancelled"));
+                }
+                let rect = rects[i];
+                let frame = render_tile(&prepared, Some(rect), &|_| {}, cancel)?;
+                let tile_ms = frame
+                    .meta
+                    .timing_ms
+                    .iter()
+                    .rev()
+                    .find(|(name, _)| name == "pixels")
+                    .map_or(0.0, |(_, ms)| *ms);
+                let tile_meta = TileMeta {
+                    x0: rect.x0,
+                    y0: rect.y0,
+                    width: rect.width,
+                    height: rect.height,
+                    pixels_ms: tile_ms,
+                    ..meta.clone()
+                };
+                let bytes = encode_tile(&frame, &tile_meta, &tiles.binding(i))?;
+                tiles.put(i, &bytes)?;
+                canvas.blit(
+                    &rect,
+                    &frame.radiance,
+                    &frame.transmittance,
+                    &frame.variance,
+                );
+                pixels_ms += tile_ms;
+                computed += 1;
+                progress(TileProgress {
+                    done: reused + computed,
+                    total,
+                    reused,
+                });
+            }
+            this_run = Some(meta);
+        }
+        let meta = this_run
+            .or(stored)
+            .ok_or_else(|| Error::internal("render", "a frame without tiles"))?;
+        let mut timing_ms = meta.preparation_ms.clone();
+        timing_ms.push(("pixels".into(), pixels_ms));
+        let noise = reference.then(|| {
+            relative_noise(
+                &canvas.radiance,
+                &canvas.variance,
+                &canvas.transmittance,
+                n_l,
+            )
+        });
+        let frame = super::Frame {
+            tile: Tile {
+                x0: 0,
+                y0: 0,
+                width: w,
+                height: h,
+            },
+            image_width: w,
+            image_height: h,
+            wavelengths_nm: self.scene.wavelengths.as_nm().to_vec(),
+            radiance: canvas.radiance,
+            transmittance: canvas.transmittance,
+            variance: Vec::new(),
+            meta: FrameMeta {
+                method: self.method,
+                stages: Stages {
+                    ran: meta.stages.ran,
+                    skipped: meta.stages.skipped,
+                },
+                timing_ms,
+                error_estimate: FrameError {
+                    path_tracer_relative_noise: noise,
+                    basis: ERROR_BASIS,
+                },
+                lighting_notes: meta.lighting_notes,
+            },
+        };
         let mut image = crate::export::frame_image(&frame, &self.canonical_json())?;
         image.set_attribute(crate::store::layout::ATTR_CACHE_KEY, self.cache_key())?;
+        image.set_attribute(
+            ATTR_FRAME_TILES,
+            serde_json::json!({"tile_size": TILE_SIZE, "total": total, "computed": computed, "reused": reused})
+                .to_string(),
+        )?;
         Ok(image)
+    }
+
+    /// A stored tile's metadata and pixels (`[pixel][λ]` radiance, transmittance, variance), or
+    /// `None` when it is not the tile `rect` of this request (then it is computed again).
+    #[allow(clippy::type_complexity)]
+    fn decode_tile(
+        &self,
+        bytes: &[u8],
+        rect: &Tile,
+        binding: &str,
+    ) -> Option<(TileMeta, Vec<f32>, Vec<f32>, Vec<f32>)> {
+        let img = decode_exr(bytes).ok()?;
+        if img.attribute(ATTR_TILE_OF) != Some(binding)
+            || img.wavelengths_nm() != self.scene.wavelengths.as_nm()
+        {
+            return None;
+        }
+        let meta: TileMeta = serde_json::from_str(img.attribute(ATTR_TILE_META)?).ok()?;
+        if (meta.x0, meta.y0, meta.width, meta.height)
+            != (rect.x0, rect.y0, rect.width, rect.height)
+            || (img.width(), img.height()) != (rect.width, rect.height)
+        {
+            return None;
+        }
+        let pixels = rect.width * rect.height;
+        let rad = interleave(img.layer("S0")?.planes(), pixels);
+        let tr = img.layer("T")?.plane(0)?.to_vec();
+        let var = match (self.method, img.layer("V")) {
+            (Method::Reference, Some(v)) => interleave(v.planes(), pixels),
+            (Method::Reference, None) => return None,
+            (Method::Fast, _) => Vec::new(),
+        };
+        Some((meta, rad, tr, var))
+    }
+}
+
+/// The JSON summary of a frame artifact (`skybake render --format json`, `POST /v1/render`
+/// with `format=json`): size, wavelengths, cache key, method, the stages that ran and those left
+/// out, the time of each stage and in total, the error estimate and the tiles.
+pub fn frame_summary(image: &SpectralImage) -> serde_json::Value {
+    use serde_json::{json, Value};
+    let attr = |name: &str| -> Value {
+        image
+            .attribute(name)
+            .and_then(|t| serde_json::from_str(t).ok())
+            .unwrap_or(Value::Null)
+    };
+    let meta = attr("skybakeFrameMeta");
+    let stages: Vec<Value> = meta["timing_ms"]
+        .as_array()
+        .map(|a| {
+            a.iter()
+                .map(|pair| json!({"stage": pair[0], "ms": pair[1]}))
+                .collect()
+        })
+        .unwrap_or_default();
+    let total_ms: f64 = stages.iter().filter_map(|s| s["ms"].as_f64()).sum();
+    json!({
+        "product": "frame",
+        "width": image.width(),
+        "height": image.height(),
+        "wavelengths_nm": image.wavelengths_nm(),
+        "cache_key": image.attribute(crate::store::layout::ATTR_CACHE_KEY),
+        "method": meta["method"],
+        "stages": meta["stages"],
+        "timing_ms": total_ms,
+        "timing_ms_by_stage": stages,
+        "error_estimate": meta["error_estimate"],
+        "lighting_notes": meta["lighting_notes"],
+        "tiles": attr(ATTR_FRAME_TILES),
+    })
+}
+
+/// A rendered tile as a spectral EXR: `S0` radiance, `T` transmittance, `V` the variance of
+/// each pixel's mean (reference method), the binding and the [`TileMeta`].
+fn encode_tile(frame: &super::Frame, meta: &TileMeta, binding: &str) -> Result<Vec<u8>> {
+    let (w, h) = (frame.tile.width, frame.tile.height);
+    let n_l = frame.wavelengths_nm.len();
+    let pixels = w * h;
+    let mut img = SpectralImage::emissive(
+        w,
+        h,
+        &frame.wavelengths_nm,
+        planes_of(&frame.radiance, n_l, pixels),
+    )?;
+    img.add_layer("T", vec![frame.transmittance.clone(); n_l])?;
+    if !frame.variance.is_empty() {
+        img.add_layer("V", planes_of(&frame.variance, n_l, pixels))?;
+    }
+    img.set_attribute(ATTR_TILE_OF, binding)?;
+    img.set_attribute(
+        ATTR_TILE_META,
+        serde_json::to_string(meta).map_err(|e| Error::internal("tile", e))?,
+    )?;
+    encode_exr(&img).map_err(store_error)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn tiles_cover_the_image_once() {
+        for (w, h) in [(1, 1), (64, 64), (65, 130), (640, 480)] {
+            let rects = tile_rects(w, h);
+            let mut seen = vec![0u8; w * h];
+            for t in &rects {
+                assert!(t.width >= 1 && t.width <= TILE_SIZE && t.height <= TILE_SIZE);
+                for y in t.y0..t.y0 + t.height {
+                    for x in t.x0..t.x0 + t.width {
+                        seen[y * w + x] += 1;
+                    }
+                }
+            }
+            assert!(seen.iter().all(|&c| c == 1), "{w}x{h}");
+            assert_eq!(rects.len(), w.div_ceil(TILE_SIZE) * h.div_ceil(TILE_SIZE));
+        }
     }
 }

@@ -38,6 +38,10 @@ pub struct Metrics {
     pub connections_open: AtomicU64,
     /// Connections closed at accept because `server.max_connections` were open.
     pub connections_refused: AtomicU64,
+    /// Frame tiles rendered (tiles taken from an earlier, interrupted run are not counted).
+    pub frame_tiles_computed: AtomicU64,
+    /// Frame renders stopped because no request waited for them any more.
+    pub frames_abandoned: AtomicU64,
 }
 
 impl Metrics {
@@ -175,6 +179,18 @@ impl Metrics {
             "skybake_connections_refused_total",
             "Connections closed at accept because the connection cap was reached.",
             self.connections_refused.load(Ordering::Relaxed),
+        );
+        counter(
+            out,
+            "skybake_frame_tiles_computed_total",
+            "Frame tiles rendered (tiles resumed from an interrupted render not counted).",
+            self.frame_tiles_computed.load(Ordering::Relaxed),
+        );
+        counter(
+            out,
+            "skybake_frames_abandoned_total",
+            "Frame renders stopped at a tile because no request waited for them.",
+            self.frames_abandoned.load(Ordering::Relaxed),
         );
     }
 }

@@ -25,20 +25,59 @@ mod routes;
 use crate::config::Settings;
 use crate::engine::Engine;
 use crate::product::{Format, ProductKind, ProductRequest};
+use crate::render::FrameRequest;
+use crate::store::TileStore;
 use crate::store::{Cache, CacheConfig};
 use bytes::Bytes;
 use metrics::Metrics;
 use problem::ApiError;
 use responses::ResponseCache;
 use std::collections::HashMap;
-use std::sync::atomic::Ordering;
+use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
 use std::sync::{Arc, Mutex};
 use tokio::sync::Semaphore;
 
 pub use routes::app;
 
-/// A computation in flight: its result, once published.
-type Flight = tokio::sync::watch::Receiver<Option<Result<Arc<[u8]>, ApiError>>>;
+/// A computation in flight: its result, once published, and how many requests wait for it (a
+/// frame render stops at its next tile when none is left).
+#[derive(Clone)]
+struct Flight {
+    rx: tokio::sync::watch::Receiver<Option<Result<Arc<[u8]>, ApiError>>>,
+    waiters: Arc<AtomicUsize>,
+}
+
+/// What a flight computes: a product of the parameter table or a cloud frame.
+#[derive(Clone)]
+pub(crate) enum Work {
+    Product(Box<ProductRequest>),
+    Frame(Arc<FrameRequest>),
+}
+
+impl Work {
+    fn name(&self) -> &'static str {
+        match self {
+            Work::Product(r) => r.kind().name(),
+            Work::Frame(_) => "frame",
+        }
+    }
+}
+
+/// One request waiting for a flight; leaving (a hung-up client, a timeout) decrements the count.
+struct Waiter(Arc<AtomicUsize>);
+
+impl Waiter {
+    fn join(count: &Arc<AtomicUsize>) -> Self {
+        count.fetch_add(1, Ordering::SeqCst);
+        Self(count.clone())
+    }
+}
+
+impl Drop for Waiter {
+    fn drop(&mut self) {
+        self.0.fetch_sub(1, Ordering::SeqCst);
+    }
+}
 
 /// Where a response's artifact came from.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -70,6 +109,7 @@ struct Inner {
     settings: Settings,
     engine: Engine,
     cache: Arc<Cache>,
+    tiles: TileStore,
     metrics: Metrics,
     compute: Semaphore,
     flights: Mutex<HashMap<String, Flight>>,
@@ -86,6 +126,11 @@ impl AppState {
             settings.cache.disk_budget_bytes,
             settings.cache.memory_budget_bytes,
         ))?);
+        let tiles = TileStore::open(&settings.cache.dir.join("tiles"))?;
+        // Tiles of renders nobody resumed within a week are abandoned.
+        if let Err(e) = tiles.prune(std::time::Duration::from_secs(7 * 24 * 3600)) {
+            tracing::warn!(error = %e, "cannot prune old render tiles");
+        }
         let jobs = crate::job::run::Jobs::open(
             &settings.cache.dir.join("jobs"),
             crate::product::params::Defaults::from_settings(&settings),
@@ -98,6 +143,7 @@ impl AppState {
                 // Precise tables persist in the same cache (one disk budget) across restarts.
                 engine: crate::store::tables::engine_with_cache(cache.clone()),
                 cache,
+                tiles,
                 metrics: Metrics::default(),
                 flights: Mutex::new(HashMap::new()),
                 jobs,
@@ -146,6 +192,19 @@ impl AppState {
         req: &ProductRequest,
         key: &str,
     ) -> Result<(Arc<[u8]>, Source), ApiError> {
+        self.artifact_of(Work::Product(Box::new(req.clone())), key)
+            .await
+    }
+
+    /// [`Self::artifact`] of any work. A frame render is computed tile by tile into the tile
+    /// store and stops at its next tile when every request waiting for it has gone (client hung
+    /// up or timed out, and no job waits for it); a retry resumes from the stored tiles. Other
+    /// products always finish into the cache.
+    pub(crate) async fn artifact_of(
+        &self,
+        work: Work,
+        key: &str,
+    ) -> Result<(Arc<[u8]>, Source), ApiError> {
         let lookup = {
             let (s, k) = (self.clone(), key.to_string());
             Self::blocking(move || Ok(s.inner.cache.get(&k)?)).await?
@@ -155,17 +214,26 @@ impl AppState {
         }
         // Join the computation in flight for this key, or start one. The computation runs on a
         // task of its own that publishes its result and leaves the map, so a waiter that times out
-        // or disconnects neither cancels it nor causes a second one.
-        let (mut rx, leader) = {
+        // or disconnects neither cancels it (a frame: unless it was the last) nor causes a second one.
+        let (flight, _waiter, leader) = {
             let mut flights = self.inner.flights.lock().unwrap_or_else(|e| e.into_inner());
             match flights.get(key) {
-                Some(rx) => (rx.clone(), false),
+                Some(f) => {
+                    let waiter = Waiter::join(&f.waiters);
+                    (f.clone(), waiter, false)
+                }
                 None => {
                     let (tx, rx) = tokio::sync::watch::channel(None);
-                    flights.insert(key.to_string(), rx.clone());
-                    let (state, req, key) = (self.clone(), req.clone(), key.to_string());
+                    let flight = Flight {
+                        rx,
+                        waiters: Arc::new(AtomicUsize::new(0)),
+                    };
+                    let waiter = Waiter::join(&flight.waiters);
+                    flights.insert(key.to_string(), flight.clone());
+                    let (state, key, waiters) =
+                        (self.clone(), key.to_string(), flight.waiters.clone());
                     tokio::spawn(async move {
-                        let result = state.compute(req, key.clone()).await;
+                        let result = state.compute(work, key.clone(), waiters).await;
                         // Publish, then leave the map (the product is already in the cache).
                         let _ = tx.send(Some(result));
                         let mut flights = state
@@ -175,7 +243,7 @@ impl AppState {
                             .unwrap_or_else(|e| e.into_inner());
                         flights.remove(&key);
                     });
-                    (rx, true)
+                    (flight, waiter, true)
                 }
             }
         };
@@ -185,6 +253,7 @@ impl AppState {
                 .single_flight_joins
                 .fetch_add(1, Ordering::Relaxed);
         }
+        let mut rx = flight.rx;
         let result = rx
             .wait_for(Option::is_some)
             .await
@@ -194,8 +263,13 @@ impl AppState {
         result.map(|b| (b, Source::Computed))
     }
 
-    /// Computes `req` (behind the compute semaphore, on a blocking thread) and stores it.
-    async fn compute(&self, req: ProductRequest, key: String) -> Result<Arc<[u8]>, ApiError> {
+    /// Computes `work` (behind the compute semaphore, on a blocking thread) and stores it.
+    async fn compute(
+        &self,
+        work: Work,
+        key: String,
+        waiters: Arc<AtomicUsize>,
+    ) -> Result<Arc<[u8]>, ApiError> {
         let _permit = self
             .inner
             .compute
@@ -212,13 +286,67 @@ impl AppState {
                 }
             }
             let m = &s.inner.metrics;
-            m.computed(req.kind().name());
+            m.computed(work.name());
             m.compute_in_flight.fetch_add(1, Ordering::Relaxed);
-            let image = req.compute(&s.inner.engine);
+            let image = match &work {
+                Work::Product(req) => req.compute(&s.inner.engine).map_err(ApiError::from),
+                Work::Frame(req) => s.render_frame(req, &key, &waiters),
+            };
             m.compute_in_flight.fetch_sub(1, Ordering::Relaxed);
-            Ok(s.inner.cache.put_image(&key, &image?)?)
+            let bytes = s.inner.cache.put_image(&key, &image?)?;
+            if let Work::Frame(_) = work {
+                // The assembled frame is in the cache: its tiles are no longer needed.
+                if let Err(e) = s.inner.tiles.frame(&key).and_then(|t| t.remove_all()) {
+                    tracing::warn!(key = %key, error = %e, "cannot remove a finished frame's tiles");
+                }
+            }
+            Ok(bytes)
         })
         .await
+    }
+
+    /// Renders a frame tile by tile into the tile store (blocking). Stops at the next tile when
+    /// no request waits any more.
+    fn render_frame(
+        &self,
+        req: &FrameRequest,
+        key: &str,
+        waiters: &AtomicUsize,
+    ) -> Result<crate::store::SpectralImage, ApiError> {
+        let tiles = self.inner.tiles.frame(key)?;
+        let abandoned = AtomicBool::new(false);
+        let cancel = || {
+            let gone = waiters.load(Ordering::SeqCst) == 0;
+            if gone {
+                abandoned.store(true, Ordering::Relaxed);
+            }
+            gone
+        };
+        let m = &self.inner.metrics;
+        let progress = |p: crate::render::product::TileProgress| {
+            // Called once with the tiles found, then once per tile computed.
+            if p.done > p.reused {
+                m.frame_tiles_computed.fetch_add(1, Ordering::Relaxed);
+            }
+        };
+        let result = req.compute_tiled(
+            &self.inner.engine,
+            &crate::render::product::example_file,
+            &tiles,
+            &progress,
+            &cancel,
+        );
+        match result {
+            Err(_) if abandoned.load(Ordering::Relaxed) => {
+                m.frames_abandoned.fetch_add(1, Ordering::Relaxed);
+                Err(ApiError::Unavailable(format!(
+                    "the render stopped because no client was waiting for it; {} of {} tiles are stored and a retry resumes from them",
+                    tiles.count(),
+                    req.tile_count()
+                )))
+            }
+            other => Ok(other?),
+        }
     }
 
     /// The response body of `req` in its format, and where it came from.
@@ -296,9 +424,16 @@ impl AppState {
 /// Jobs produce their items through the service's cache: cached items are hits, the others are
 /// computed once (joining identical requests in flight) and stored.
 impl crate::job::run::Producer for AppState {
-    async fn produce(&self, req: ProductRequest) -> Result<(), crate::job::JobError> {
+    async fn produce(
+        &self,
+        req: crate::job::spec::ItemRequest,
+    ) -> Result<(), crate::job::JobError> {
         let key = req.cache_key();
-        self.artifact(&req, &key)
+        let work = match req {
+            crate::job::spec::ItemRequest::Product(r) => Work::Product(r),
+            crate::job::spec::ItemRequest::Frame(r) => Work::Frame(Arc::from(r)),
+        };
+        self.artifact_of(work, &key)
             .await
             .map(|_| ())
             .map_err(|e| match e {

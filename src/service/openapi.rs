@@ -31,6 +31,9 @@ pub const ROUTES: &[Route] = &[
     Route { method: "GET", path: "/v1/sky", summary: "Sky-dome radiance table (view elevation −90…90°, azimuth 0…180° from the sun) or probes", limited: true, product: Some("sky"), body: None, produces: &["application/json", "image/x-exr", "image/png"] },
     Route { method: "GET", path: "/v1/ground", summary: "Ground-reflected upward skylight at the observer (view zenith 90…180°) or probes", limited: true, product: Some("ground"), body: None, produces: &["application/json", "image/x-exr", "image/png"] },
     Route { method: "GET", path: "/v1/aerial", summary: "Aerial perspective: transmittance and in-scattered radiance against distance", limited: true, product: Some("aerial"), body: None, produces: &["application/json", "image/x-exr"] },
+    Route { method: "POST", path: "/v1/render", summary: "A lit cloud frame of the scene in the body (format=json|exr|png or Accept; method=fast|reference); cached, rendered and stored tile by tile so an interrupted render resumes", limited: true, product: None, body: Some("FrameScene"), produces: &["application/json", "image/x-exr", "image/png"] },
+    Route { method: "GET", path: "/v1/scenes", summary: "The example scenes (name, description, whether it is a frame scene)", limited: false, product: None, body: None, produces: JSON },
+    Route { method: "GET", path: "/v1/scenes/{name}", summary: "An example scene's JSON (frame scenes can be posted to /v1/render as they are)", limited: false, product: None, body: None, produces: JSON },
     Route { method: "POST", path: "/v1/plan", summary: "What would run for a product (stages run and left out, cache key), without computing it", limited: true, product: None, body: Some("PlanRequest"), produces: JSON },
     Route { method: "POST", path: "/v1/jobs", summary: "Submit a bake job (product list and/or grids); 202 with the job id", limited: true, product: None, body: Some("JobRequest"), produces: JSON },
     Route { method: "GET", path: "/v1/jobs/{id}", summary: "Job state, progress, errors and artifacts (offset/limit page the artifact list)", limited: true, product: None, body: None, produces: JSON },
@@ -94,6 +97,10 @@ fn operation(route: &Route) -> Value {
         for name in ["offset", "limit"] {
             parameters.push(json!({"name": name, "in": "query", "required": false, "schema": {"type": "integer", "minimum": 0}}));
         }
+    }
+    if route.path == "/v1/render" {
+        parameters.push(json!({"name": "format", "in": "query", "required": false, "description": "body format; when absent the Accept header picks (image/x-exr, image/png), else json", "schema": {"type": "string", "enum": ["json", "exr", "png"]}}));
+        parameters.push(json!({"name": "method", "in": "query", "required": false, "description": "fast (per-voxel light, multiple-scattering field, ray march) or reference (path tracer); default fast", "schema": {"type": "string", "enum": ["fast", "reference"]}}));
     }
     if route.path.ends_with("/artifacts/{n}") {
         parameters.push(json!({"name": "format", "in": "query", "required": false, "schema": {"type": "string", "enum": ["exr", "json", "png", "png_latlong"]}}));
@@ -179,7 +186,24 @@ pub fn openapi_json() -> String {
                 "type": {"type": "string"}, "title": {"type": "string"}, "status": {"type": "integer"},
                 "detail": {"type": "string"}, "parameter": {"type": "string"}}},
             "PlanRequest": {"type": "object", "required": ["product"], "properties": plan_props, "additionalProperties": false},
+            "FrameScene": {"type": "object", "required": ["cloud", "optics", "camera", "sun"],
+                "description": "A frame scene (see GET /v1/scenes/cumulus-frame): cloud (any cloud source; files only those of the example scenes), optics (extinction_per_density_m, single_scattering_albedo, phase with g in (-1, 1)), camera (pinhole | orthographic | fisheye, width x height up to 16 Mi pixels), sun (elevation_deg + azimuth_deg from +y towards +x, latitude_deg + longitude_deg + time, or collimated), atmosphere (preset, inline or null), sky, ground, wavelengths_nm, quality, lighting switches",
+                "properties": {"cloud": {"type": "object"}, "optics": {"type": "object"}, "camera": {"type": "object"},
+                    "sun": {"type": "object"}, "atmosphere": {"type": ["string", "object", "null"]},
+                    "sky": {"type": ["string", "object", "null"]}, "ground": {"type": ["object", "null"]},
+                    "wavelengths_nm": {"type": "array", "items": {"type": "number"}},
+                    "quality": {"type": "string", "enum": ["draft", "standard", "high", "reference"]},
+                    "lighting": {"type": "object"}, "name": {"type": "string"}, "description": {"type": "string"}, "doc": {"type": "object"}}},
+            "FrameEntry": {"type": "object", "additionalProperties": false,
+                "description": "Frames of one scene: exactly one of scene or example; sweep axes (each a list or {from, to, step}) combine in alphabetical order, the last varying fastest",
+                "properties": {"scene": {"$ref": "#/components/schemas/FrameScene"},
+                    "example": {"type": "string", "description": "name of an example scene (GET /v1/scenes)"},
+                    "method": {"type": "string", "enum": ["fast", "reference"]},
+                    "sweep": {"type": "object", "additionalProperties": false, "properties": {
+                        "sun_elevation_deg": {}, "sun_azimuth_deg": {}, "time": {"description": "RFC 3339 times (a sun given by place and time)"},
+                        "frame_time_steps": {"description": "automaton frames (a cloud whose source is an automaton)"}}}}},
             "JobRequest": {"type": "object", "additionalProperties": false, "properties": {
+                "frames": {"type": "array", "items": {"$ref": "#/components/schemas/FrameEntry"}},
                 "products": {"type": "array", "items": {"$ref": "#/components/schemas/PlanRequest"}},
                 "grids": {"type": "array", "items": {"type": "object", "required": ["product", "sweep"],
                     "description": "A product with base parameters and a sweep: each sweep member is a list of values or {from, to, step}",

@@ -6,6 +6,7 @@
 //! - [`checksum`]: the whole-file blake3 checksum embedded in every file skybake writes.
 //! - [`atomic`]: the one function that writes files (temp file, fsync, rename, fsync directory).
 //! - [`files`]: whole-file reads and directory listing for the job store and bakes.
+//! - [`tiles`]: the tiles of a product computed piece by piece (a resumable render).
 //! - [`cache`]: the content-addressed, size-bounded disk cache with an in-memory LRU in front.
 //! - [`tables`]: the engine's shared tables (precise multiple scattering) kept in that cache.
 //!
@@ -30,6 +31,7 @@ pub mod layout;
 mod lru;
 pub mod spectral_image;
 pub mod tables;
+pub mod tiles;
 
 pub use atomic::write_atomic;
 pub use bench::{bench_store, StoreBench};
@@ -39,3 +41,4 @@ pub use exr::{
     decode_exr, encode_exr, encode_exr_with, read_exr_file, write_exr_file, ExrCompression,
 };
 pub use spectral_image::{SpectralImage, SpectralLayer};
+pub use tiles::{FrameTiles, TileStore};

@@ -1,11 +1,13 @@
 //! The router, built from the route table ([`super::openapi::ROUTES`]): one module per concern
-//! (products, plan, jobs, operations), the overload layers (load shedding, concurrency limit,
+//! (products, render, scenes, plan, jobs, operations), the overload layers (load shedding, concurrency limit,
 //! timeout) on `/v1/*`, and the per-route metrics and tracing middleware on all.
 
 mod jobs;
 mod ops;
 mod plan;
 mod products;
+pub(super) mod render;
+mod scenes;
 
 use super::openapi::{Route, ROUTES};
 use super::problem::ApiError;
@@ -63,6 +65,9 @@ fn method_router(route: &Route) -> axum::routing::MethodRouter<AppState> {
         ("GET", "/v1/ground") => products::route(ProductKind::Ground),
         ("GET", "/v1/aerial") => products::route(ProductKind::Aerial),
         ("POST", "/v1/plan") => post(plan::plan),
+        ("POST", "/v1/render") => post(render::render),
+        ("GET", "/v1/scenes") => get(scenes::list),
+        ("GET", "/v1/scenes/{name}") => get(scenes::scene),
         ("POST", "/v1/jobs") => post(jobs::submit),
         ("GET", "/v1/jobs/{id}") => get(jobs::status),
         ("DELETE", "/v1/jobs/{id}") => delete(jobs::cancel),
