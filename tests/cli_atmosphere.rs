@@ -18,17 +18,17 @@ fn skybake(args: &[&str]) -> (i32, String, String) {
 #[test]
 fn invalid_arguments_exit_2_and_name_the_argument() {
     let cases: &[(&[&str], &str)] = &[
-        (&["sky", "--sun-elevation-deg", "-40"], "sun_elevation_deg"),
-        (&["sun", "--sun-elevation-deg", "-12"], "sun_elevation_deg"),
-        (&["sky", "--wavelengths", "300,550"], "wavelengths"),
+        (&["sky", "--sun-elevation-deg", "-40"], "--sun-elevation-deg"),
+        (&["sun", "--sun-elevation-deg", "-12"], "--sun-elevation-deg"),
+        (&["sky", "--wavelengths", "300,550"], "--wavelengths"),
         (
             &["sky", "--observer-altitude-m", "-5"],
-            "observer_altitude_m",
+            "--observer-altitude-m",
         ),
-        (&["sky", "--atmosphere", "venus"], "atmosphere"),
-        (&["sky", "--ground-albedo", "2"], "ground_albedo"),
-        (&["sky", "--probe", "30"], "probe"),
-        (&["sky", "--elevation-count", "100000"], "elevation_count"),
+        (&["sky", "--atmosphere", "venus"], "--atmosphere"),
+        (&["sky", "--ground-albedo", "2"], "--ground-albedo"),
+        (&["sky", "--probe", "30"], "--probe"),
+        (&["sky", "--elevation-count", "100000"], "--elevation-count"),
         (
             &[
                 "sun",
@@ -39,7 +39,7 @@ fn invalid_arguments_exit_2_and_name_the_argument() {
                 "--time",
                 "2026-01-01T00:00:00Z",
             ],
-            "latitude_deg",
+            "--latitude",
         ),
         (
             &[
@@ -51,7 +51,7 @@ fn invalid_arguments_exit_2_and_name_the_argument() {
                 "--time",
                 "noon",
             ],
-            "time",
+            "--time",
         ),
         (
             &[
@@ -73,6 +73,22 @@ fn invalid_arguments_exit_2_and_name_the_argument() {
         assert_eq!(code, 2, "{args:?}: {err}");
         assert!(err.contains(field), "{args:?}: '{err}' should name {field}");
     }
+}
+
+#[test]
+fn a_missing_atmosphere_file_is_named_as_a_file_not_a_preset() {
+    let (code, _, err) = skybake(&["sky", "--atmosphere", "nope.json"]);
+    assert_eq!(code, 2, "{err}");
+    assert!(err.contains("--atmosphere"), "{err}");
+    assert!(err.contains("cannot read nope.json"), "{err}");
+    assert!(!err.contains("unknown preset"), "{err}");
+    // An inline atmosphere's field is named under the flag, not as the query parameter.
+    let earth = include_str!("../config/atmospheres/earth.json");
+    let bad = earth.replace("\"ground_albedo\": 0.1", "\"ground_albedo\": 7");
+    assert_ne!(bad, earth);
+    let (code, _, err) = skybake(&["sun", "--atmosphere", &bad]);
+    assert_eq!(code, 2, "{err}");
+    assert!(err.contains("--atmosphere ground_albedo"), "{err}");
 }
 
 #[test]

@@ -354,6 +354,9 @@ async fn excess_load_is_shed_and_slow_requests_time_out() {
     let mut s = settings(dir.path());
     s.server.concurrency_limit = 1;
     s.server.request_timeout_s = 0.3;
+    // The cache policy that keeps an abandoned computation running (tests/service_cancel.rs
+    // covers the default, cancelling it).
+    s.server.finish_abandoned = true;
     let srv = TestServer::start(s).await;
     // A cold request slow enough to exceed the timeout (fast method, full default table).
     let slow = "/v1/sky?method=fast&quality=high&elevation_count=257&azimuth_count=128&sun_elevation_deg=33";

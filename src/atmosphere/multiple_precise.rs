@@ -728,6 +728,16 @@ impl Series {
 impl PreciseMultipleScattering {
     /// Computes orders of scattering until convergence (see the module documentation).
     pub fn new(medium: &Medium, table: &DensityIntegralTable, s: PreciseSettings) -> Self {
+        Self::build(medium, table, s, &|| false).unwrap_or_else(|| unreachable!("never cancelled"))
+    }
+
+    /// [`Self::new`], stopped (`None`) when `cancelled` returns true between two orders (issue 18).
+    pub fn build(
+        medium: &Medium,
+        table: &DensityIntegralTable,
+        s: PreciseSettings,
+        cancelled: &(dyn Fn() -> bool + Sync),
+    ) -> Option<Self> {
         let grid = Grid::new(s, medium.bottom_radius_m, medium.top_radius_m);
         let n_l = medium.len();
         let fc = grid.family_cells();
@@ -845,6 +855,9 @@ impl PreciseMultipleScattering {
         let mut fractions = vec![1.0];
         let mut orders = 1;
         while orders < s.max_orders {
+            if cancelled() {
+                return None;
+            }
             let t_j = std::time::Instant::now();
             j_n = scattering_density(&l_n);
             let j_ms_elapsed = t_j.elapsed().as_secs_f64() * 1e3;
@@ -898,7 +911,7 @@ impl PreciseMultipleScattering {
             Some((_, _, q, _)) => (0.0, last_fraction * q / (1.0 - q), q),
             None => (0.0, last_fraction, 0.0),
         };
-        Self {
+        Some(Self {
             grid,
             n_l,
             j_ms,
@@ -911,7 +924,7 @@ impl PreciseMultipleScattering {
                 series_error_estimate,
                 order_ratio,
             },
-        }
+        })
     }
 }
 

@@ -62,6 +62,32 @@ impl SharedTables {
         })
     }
 
+    /// The precise table, built on first use unless `cancelled` returns true between two orders
+    /// of scattering (issue 18); `None` then, and the table stays unbuilt: a later request builds
+    /// it whole, and one waiting for this build builds it itself.
+    pub fn precise_unless(
+        &self,
+        cancelled: &(dyn Fn() -> bool + Sync),
+    ) -> Option<&PreciseMultipleScattering> {
+        /// The unwind payload that leaves `OnceLock::get_or_init` without initialising it.
+        struct Stopped;
+        if let Some(t) = self.precise.get() {
+            return Some(t);
+        }
+        let built = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
+            self.precise.get_or_init(|| {
+                let s = self.precise_settings;
+                PreciseMultipleScattering::build(&self.medium, &self.density, s, cancelled)
+                    .unwrap_or_else(|| std::panic::resume_unwind(Box::new(Stopped)))
+            })
+        }));
+        match built {
+            Ok(t) => Some(t),
+            Err(payload) if payload.is::<Stopped>() => None,
+            Err(payload) => std::panic::resume_unwind(payload),
+        }
+    }
+
     /// Whether the precise table exists already.
     pub fn has_precise(&self) -> bool {
         self.precise.get().is_some()

@@ -266,7 +266,9 @@ impl JobSpec {
                             rest /= values.len();
                             set_param(&mut p, name, v);
                         }
-                        return Some((*product, p, format!("{prefix}[{i}].")));
+                        // Errors name the grid's parameter (`grids[0].sun_elevation_deg`);
+                        // the item's index is in the job status.
+                        return Some((*product, p, prefix.clone()));
                     }
                     i -= len;
                 }

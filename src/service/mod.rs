@@ -37,8 +37,65 @@ use tokio::sync::Semaphore;
 
 pub use routes::app;
 
-/// A computation in flight: its result, once published.
-type Flight = tokio::sync::watch::Receiver<Option<Result<Arc<[u8]>, ApiError>>>;
+/// The published result of a computation.
+type FlightResult = Option<Result<Arc<[u8]>, ApiError>>;
+
+/// A computation in flight: its result once published, who waits for it, and its cancel token.
+struct Flight {
+    id: u64,
+    rx: tokio::sync::watch::Receiver<FlightResult>,
+    /// Requests and job items awaiting the result now.
+    waiters: usize,
+    cancel: Arc<CancelToken>,
+}
+
+/// Set when every waiter of a computation has gone (issue 18): the computation leaves the
+/// compute queue at once, or stops at the engine's next stage boundary.
+#[derive(Default)]
+struct CancelToken {
+    cancelled: std::sync::atomic::AtomicBool,
+    notify: tokio::sync::Notify,
+}
+
+impl CancelToken {
+    fn cancel(&self) {
+        self.cancelled.store(true, Ordering::Relaxed);
+        self.notify.notify_waiters();
+    }
+
+    fn is_cancelled(&self) -> bool {
+        self.cancelled.load(Ordering::Relaxed)
+    }
+}
+
+/// One waiter of a flight; dropping it (the request finished, timed out, or its client hung up)
+/// leaves the flight, and the last one to leave cancels the computation unless
+/// `server.finish_abandoned` keeps it running for the cache.
+struct Waiter {
+    state: AppState,
+    key: String,
+    id: u64,
+}
+
+impl Drop for Waiter {
+    fn drop(&mut self) {
+        let inner = &self.state.inner;
+        let mut flights = inner.flights.lock().unwrap_or_else(|e| e.into_inner());
+        let Some(f) = flights.get_mut(&self.key).filter(|f| f.id == self.id) else {
+            return;
+        };
+        f.waiters = f.waiters.saturating_sub(1);
+        if f.waiters == 0 && !inner.settings.server.finish_abandoned {
+            // Out of the map first, so a new request for the key starts a fresh computation
+            // instead of joining one being cancelled.
+            if let Some(f) = flights.remove(&self.key) {
+                if f.rx.borrow().is_none() {
+                    f.cancel.cancel();
+                }
+            }
+        }
+    }
+}
 
 /// Where a response's artifact came from.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -73,6 +130,10 @@ struct Inner {
     metrics: Metrics,
     compute: Semaphore,
     flights: Mutex<HashMap<String, Flight>>,
+    /// Flights started and not yet holding a compute slot (bounded by
+    /// `server.max_queued_computations`).
+    queued: std::sync::atomic::AtomicUsize,
+    next_flight: std::sync::atomic::AtomicU64,
     responses: Mutex<ResponseCache>,
     jobs: crate::job::run::Jobs,
 }
@@ -99,6 +160,8 @@ impl AppState {
                 cache,
                 metrics: Metrics::default(),
                 flights: Mutex::new(HashMap::new()),
+                queued: Default::default(),
+                next_flight: Default::default(),
                 jobs,
             }),
         })
@@ -154,17 +217,41 @@ impl AppState {
         }
         // Join the computation in flight for this key, or start one. The computation runs on a
         // task of its own that publishes its result and leaves the map, so a waiter that times out
-        // or disconnects neither cancels it nor causes a second one.
-        let (mut rx, leader) = {
+        // or disconnects does not cause a second one; when the last waiter has gone the
+        // computation is cancelled (see [`Waiter`]).
+        let (mut rx, waiter, leader) = {
             let mut flights = self.inner.flights.lock().unwrap_or_else(|e| e.into_inner());
-            match flights.get(key) {
-                Some(rx) => (rx.clone(), false),
+            match flights.get_mut(key) {
+                Some(f) => {
+                    f.waiters += 1;
+                    (f.rx.clone(), self.waiter(key, f.id), false)
+                }
                 None => {
+                    let queued = self.inner.queued.load(Ordering::Relaxed);
+                    if queued >= self.inner.settings.server.max_queued_computations {
+                        self.inner.metrics.load_shed.fetch_add(1, Ordering::Relaxed);
+                        self.inner
+                            .metrics
+                            .queue_shed
+                            .fetch_add(1, Ordering::Relaxed);
+                        return Err(ApiError::Overloaded);
+                    }
+                    self.inner.queued.fetch_add(1, Ordering::Relaxed);
+                    let id = self.inner.next_flight.fetch_add(1, Ordering::Relaxed);
                     let (tx, rx) = tokio::sync::watch::channel(None);
-                    flights.insert(key.to_string(), rx.clone());
-                    let (state, req, key) = (self.clone(), req.clone(), key.to_string());
+                    let cancel = Arc::new(CancelToken::default());
+                    flights.insert(
+                        key.to_string(),
+                        Flight {
+                            id,
+                            rx: rx.clone(),
+                            waiters: 1,
+                            cancel: cancel.clone(),
+                        },
+                    );
+                    let (state, req, k) = (self.clone(), req.clone(), key.to_string());
                     tokio::spawn(async move {
-                        let result = state.compute(req, key.clone()).await;
+                        let result = state.compute(req, k.clone(), cancel).await;
                         // Publish, then leave the map (the product is already in the cache).
                         let _ = tx.send(Some(result));
                         let mut flights = state
@@ -172,9 +259,11 @@ impl AppState {
                             .flights
                             .lock()
                             .unwrap_or_else(|e| e.into_inner());
-                        flights.remove(&key);
+                        if flights.get(&k).is_some_and(|f| f.id == id) {
+                            flights.remove(&k);
+                        }
                     });
-                    (rx, true)
+                    (rx, self.waiter(key, id), true)
                 }
             }
         };
@@ -190,17 +279,46 @@ impl AppState {
             .map_err(|_| ApiError::Internal("computation task ended without a result".into()))?
             .clone()
             .unwrap_or_else(|| Err(ApiError::Internal("no result".into())));
+        drop(waiter);
         result.map(|b| (b, Source::Computed))
     }
 
-    /// Computes `req` (behind the compute semaphore, on a blocking thread) and stores it.
-    async fn compute(&self, req: ProductRequest, key: String) -> Result<Arc<[u8]>, ApiError> {
-        let _permit = self
-            .inner
-            .compute
-            .acquire()
-            .await
-            .map_err(|_| ApiError::Unavailable("shutting down".into()))?;
+    fn waiter(&self, key: &str, id: u64) -> Waiter {
+        Waiter {
+            state: self.clone(),
+            key: key.to_string(),
+            id,
+        }
+    }
+
+    /// Computes `req` (behind the compute semaphore, on a blocking thread) and stores it; a
+    /// cancelled computation leaves the queue at once or stops at the engine's next stage.
+    async fn compute(
+        &self,
+        req: ProductRequest,
+        key: String,
+        cancel: Arc<CancelToken>,
+    ) -> Result<Arc<[u8]>, ApiError> {
+        let inner = &self.inner;
+        let permit = {
+            let notified = cancel.notify.notified();
+            tokio::pin!(notified);
+            notified.as_mut().enable();
+            if cancel.is_cancelled() {
+                None
+            } else {
+                tokio::select! {
+                    p = inner.compute.acquire() => Some(p),
+                    () = notified => None,
+                }
+            }
+        };
+        inner.queued.fetch_sub(1, Ordering::Relaxed);
+        let Some(permit) = permit else {
+            inner.metrics.cancelled.fetch_add(1, Ordering::Relaxed);
+            return Err(crate::Error::Cancelled.into());
+        };
+        let _permit = permit.map_err(|_| ApiError::Unavailable("shutting down".into()))?;
         let s = self.clone();
         Self::blocking(move || {
             // Another flight may have finished between our cache miss and starting this one.
@@ -213,8 +331,11 @@ impl AppState {
             let m = &s.inner.metrics;
             m.computed(req.kind().name());
             m.compute_in_flight.fetch_add(1, Ordering::Relaxed);
-            let image = req.compute(&s.inner.engine);
+            let image = req.compute_cancellable(&s.inner.engine, &|| cancel.is_cancelled());
             m.compute_in_flight.fetch_sub(1, Ordering::Relaxed);
+            if matches!(image, Err(crate::Error::Cancelled)) {
+                m.cancelled.fetch_add(1, Ordering::Relaxed);
+            }
             Ok(s.inner.cache.put_image(&key, &image?)?)
         })
         .await
@@ -229,6 +350,9 @@ impl AppState {
                 .response_cache_hits
                 .fetch_add(1, Ordering::Relaxed);
             return Ok((b, Source::Response, key));
+        }
+        if !self.inner.cache.contains(&key) {
+            self.check_cost(req)?;
         }
         let (artifact, source) = self.artifact(req, &key).await?;
         let body = match Self::render_body(req, artifact).await {
@@ -277,6 +401,26 @@ impl AppState {
         if let Ok(mut r) = self.inner.responses.lock() {
             r.clear();
         }
+    }
+
+    /// Refuses (413) a request whose estimated cost ([`crate::cost`]) exceeds
+    /// `server.max_request_cost`; jobs are not subject to it (they queue instead of holding a
+    /// request open).
+    pub fn check_cost(&self, req: &ProductRequest) -> Result<(), ApiError> {
+        let budget = self.inner.settings.server.max_request_cost;
+        let c = crate::cost::estimate(req)?;
+        if c.units > budget {
+            return Err(crate::Error::too_large(
+                "request_cost",
+                format!(
+                    "estimated cost {} cell-wavelength-orders ((table cells {} × expected orders {} + output cells {}) × wavelengths {}) exceeds the budget server.max_request_cost; lower quality, wavelengths or table size, or submit it as a job (POST /v1/jobs)",
+                    c.units, c.table_cells, c.expected_orders, c.output_cells, c.wavelengths
+                ),
+                budget,
+            )
+            .into());
+        }
+        Ok(())
     }
 
     /// The validated request of `product` from raw parameters, with the configured defaults.

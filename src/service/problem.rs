@@ -29,7 +29,9 @@ pub enum ApiError {
 
 impl From<crate::Error> for ApiError {
     fn from(e: crate::Error) -> Self {
-        if e.is_input() {
+        if e == crate::Error::Cancelled {
+            ApiError::Unavailable(e.to_string())
+        } else if e.is_input() {
             ApiError::Param(e)
         } else {
             ApiError::Internal(e.to_string())
@@ -140,7 +142,7 @@ impl ApiError {
             ApiError::Timeout => (
                 "urn:skybake:problem:timeout",
                 "Request timed out",
-                "the request took longer than the configured request timeout; the computation continues and a retry may be served from the cache".into(),
+                "the request took longer than the configured request timeout; its computation is cancelled unless another request or a job waits for it (server.finish_abandoned keeps it running): submit long computations as a job (POST /v1/jobs)".into(),
                 None,
             ),
             ApiError::Unavailable(d) => (
