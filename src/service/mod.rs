@@ -13,6 +13,7 @@
 //! to the cores.
 
 pub mod extract;
+pub mod limits;
 pub mod metrics;
 pub mod openapi;
 pub mod problem;
@@ -33,6 +34,7 @@ use responses::ResponseCache;
 use std::collections::HashMap;
 use std::sync::atomic::Ordering;
 use std::sync::{Arc, Mutex};
+use std::time::Duration;
 use tokio::sync::Semaphore;
 
 pub use routes::app;
@@ -134,6 +136,7 @@ struct Inner {
     /// `server.max_queued_computations`).
     queued: std::sync::atomic::AtomicUsize,
     next_flight: std::sync::atomic::AtomicU64,
+    rate: limits::RateLimiter,
     responses: Mutex<ResponseCache>,
     jobs: crate::job::run::Jobs,
 }
@@ -151,7 +154,7 @@ impl AppState {
             &settings.cache.dir.join("jobs"),
             crate::product::params::Defaults::from_settings(&settings),
         )?;
-        Ok(Self {
+        let state = Self {
             inner: Arc::new(Inner {
                 compute: Semaphore::new(settings.compute_threads()),
                 responses: Mutex::new(ResponseCache::new(settings.cache.response_budget_bytes)),
@@ -162,9 +165,12 @@ impl AppState {
                 flights: Mutex::new(HashMap::new()),
                 queued: Default::default(),
                 next_flight: Default::default(),
+                rate: Default::default(),
                 jobs,
             }),
-        })
+        };
+        state.housekeeping();
+        Ok(state)
     }
 
     pub fn settings(&self) -> &Settings {
@@ -187,9 +193,39 @@ impl AppState {
         &self.inner.jobs
     }
 
-    /// Starts the job workers (`settings.jobs.workers` tasks) on the current runtime.
+    pub fn rate_limiter(&self) -> &limits::RateLimiter {
+        &self.inner.rate
+    }
+
+    /// Starts the job workers (`settings.jobs.workers` tasks) on the current runtime, and the
+    /// housekeeping task that expires finished jobs (`jobs.expire_after_s`) and keeps the job
+    /// files counted in the cache's disk budget.
     pub fn start_job_workers(&self) {
         crate::job::run::start_workers(self, self.settings().jobs.workers);
+        let state = self.clone();
+        let expire_after_s = self.settings().jobs.expire_after_s;
+        let every = Duration::from_secs_f64((expire_after_s / 4.0).clamp(0.05, 30.0));
+        tokio::spawn(async move {
+            loop {
+                let s = state.clone();
+                let _ = Self::blocking(move || {
+                    s.housekeeping();
+                    Ok(())
+                })
+                .await;
+                tokio::time::sleep(every).await;
+            }
+        });
+    }
+
+    /// Expires finished jobs and counts the job files in the cache's disk budget.
+    pub fn housekeeping(&self) {
+        let jobs = self.jobs();
+        let removed = jobs.expire(self.settings().jobs.expire_after_s);
+        if removed > 0 {
+            tracing::info!(removed, "expired finished jobs");
+        }
+        self.inner.cache.set_reserved_bytes(jobs.disk_bytes());
     }
 
     /// Runs blocking work on the blocking pool; a panic there becomes a 500, never a crash.
