@@ -173,10 +173,10 @@ async fn job_files_count_in_the_disk_budget() {
     let srv = TestServer::start(s).await;
     // The case: job bodies of ~980 kB against a 1 MiB budget. Padding goes in a product's
     // probe list (valid directions, the most compact way to make a large valid body).
-    let probes: Vec<String> = (0..30_000).map(|i| format!("{},{}", i % 80, i % 170)).collect();
+    let probes: Vec<String> = (0..30_000).map(|i| format!("{}:{}", i % 80, i % 170)).collect();
     let body = format!(
         "{{\"products\": [{{\"product\": \"sky\", \"method\": \"fast\", \"quality\": \"draft\", \"wavelengths\": \"550\", \"probe\": \"{}\"}}]}}",
-        probes.join(";")
+        probes.join(",")
     );
     assert!(body.len() > 150_000, "{}", body.len());
     let mut accepted = 0;

@@ -47,6 +47,9 @@ pub struct Job {
     /// Bytes of its files on disk (body + last status written), for the disk budget.
     body_bytes: u64,
     status_bytes: AtomicU64,
+    /// Held while the job's files are written or removed; `true` once removed, so a late progress
+    /// write does not bring the directory back.
+    files: Mutex<bool>,
 }
 
 /// One item of a job as listed in its status.
@@ -152,6 +155,7 @@ impl Jobs {
                 cancel: AtomicBool::new(false),
                 body_bytes: s.body.len() as u64,
                 status_bytes: AtomicU64::new(s.status_bytes),
+                files: Mutex::new(false),
             });
         }
         found.sort_by(|a, b| a.status().created.cmp(&b.status().created));
@@ -199,6 +203,10 @@ impl Jobs {
     }
 
     fn persist(&self, job: &Job, status: &JobStatus) {
+        let removed = job.files.lock().unwrap_or_else(|e| e.into_inner());
+        if *removed {
+            return;
+        }
         match self.store.save_status(&job.id, status) {
             Ok(n) => job.status_bytes.store(n, Ordering::Relaxed),
             Err(e) => tracing::warn!(job = %job.id, error = %e, "cannot persist job status"),
@@ -260,6 +268,7 @@ impl Jobs {
             cancel: AtomicBool::new(false),
             body_bytes: body.len() as u64,
             status_bytes: AtomicU64::new(0),
+            files: Mutex::new(false),
         });
         let n = self.store.save_status(&id, &job.status())?;
         job.status_bytes.store(n, Ordering::Relaxed);
@@ -293,29 +302,38 @@ impl Jobs {
         if !job.status().finished() {
             return Ok((self.cancel(id)?, false));
         }
-        self.lock_table().remove(id);
-        self.store.remove(id)?;
+        self.remove(&job)?;
         Ok((job, true))
+    }
+
+    /// Removes a job's files, then forgets it.
+    fn remove(&self, job: &Job) -> Result<(), JobError> {
+        {
+            let mut removed = job.files.lock().unwrap_or_else(|e| e.into_inner());
+            self.store.remove(&job.id)?;
+            *removed = true;
+        }
+        self.lock_table().remove(&job.id);
+        Ok(())
     }
 
     /// Removes finished jobs last updated more than `max_age_s` ago, with their files; returns
     /// how many.
     pub fn expire(&self, max_age_s: f64) -> usize {
-        let old: Vec<String> = self
+        let old: Vec<Arc<Job>> = self
             .lock_table()
             .values()
             .filter(|j| {
                 let st = j.status();
                 st.finished() && st.age_s() > max_age_s
             })
-            .map(|j| j.id.clone())
+            .cloned()
             .collect();
         let mut removed = 0;
-        for id in old {
-            self.lock_table().remove(&id);
-            match self.store.remove(&id) {
+        for job in old {
+            match self.remove(&job) {
                 Ok(()) => removed += 1,
-                Err(e) => tracing::warn!(job = %id, error = %e, "cannot remove expired job"),
+                Err(e) => tracing::warn!(job = %job.id, error = %e, "cannot remove expired job"),
             }
         }
         removed
