@@ -173,11 +173,12 @@ async fn job_files_count_in_the_disk_budget() {
     let srv = TestServer::start(s).await;
     // The case: job bodies of ~980 kB against a 1 MiB budget. Padding goes in a product's
     // probe list (valid directions, the most compact way to make a large valid body).
-    let probes: Vec<String> = (0..30_000).map(|i| format!("{}:{}", i % 80, i % 170)).collect();
-    let body = format!(
-        "{{\"products\": [{{\"product\": \"sky\", \"method\": \"fast\", \"quality\": \"draft\", \"wavelengths\": \"550\", \"probe\": \"{}\"}}]}}",
+    let probes: Vec<String> = (0..4000).map(|i| format!("{}:{}", i % 80, i % 170)).collect();
+    let item = format!(
+        "{{\"product\": \"sky\", \"method\": \"fast\", \"quality\": \"draft\", \"wavelengths\": \"550\", \"probe\": \"{}\"}}",
         probes.join(",")
     );
+    let body = format!("{{\"products\": [{}]}}", vec![item; 6].join(","));
     assert!(body.len() > 150_000, "{}", body.len());
     let mut accepted = 0;
     let mut refused = None;

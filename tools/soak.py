@@ -219,11 +219,12 @@ def storm_jobs(binary, port, quick):
     srv = Server(binary, port, env={"SKYBAKE_DISK_BUDGET_BYTES": str(1 << 20),
                                     "SKYBAKE_MAX_LIVE_JOBS": "1000"})
     try:
-        pad = ",".join(f"{i % 80}:{i % 170}" for i in range(22400))
+        pad = ",".join(f"{i % 80}:{i % 170}" for i in range(4000))
         item = {"product": "sky", "method": "fast", "quality": "draft", "wavelengths": "550",
                 "elevation_count": 5, "azimuth_count": 4, "probe": pad}
-        # ~980 kB: the same product listed several times (each a cache hit after the first).
-        body = json.dumps({"products": [item] * 7})
+        # ~980 kB: the same product (4000 probes, the most a request takes) listed 39 times (each
+        # a cache hit after the first).
+        body = json.dumps({"products": [item] * 39})
         report("jobs.body_bytes", len(body))
         accepted, refused, statuses = [], 0, {}
         for _ in range(6 if quick else 30):
