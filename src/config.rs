@@ -145,7 +145,10 @@ fn known_env_vars() -> String {
 
 /// The non-empty, trimmed items of a comma-separated list.
 fn split_list(s: &str) -> Vec<&str> {
-    s.split(',').map(str::trim).filter(|t| !t.is_empty()).collect()
+    s.split(',')
+        .map(str::trim)
+        .filter(|t| !t.is_empty())
+        .collect()
 }
 
 /// Most products a job may hold, whatever the configuration says.

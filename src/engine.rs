@@ -291,9 +291,7 @@ impl Engine {
         Ok(match product {
             ProductSpec::Sun => Product::Sun(self.run_sun(spec, plan, c)?),
             ProductSpec::Sky(d) => Product::Sky(self.run_dome(spec, plan, d, -90.0, 90.0, c)?),
-            ProductSpec::Ground(d) => {
-                Product::Ground(self.run_dome(spec, plan, d, -90.0, 0.0, c)?)
-            }
+            ProductSpec::Ground(d) => Product::Ground(self.run_dome(spec, plan, d, -90.0, 0.0, c)?),
             ProductSpec::Aerial(a) => Product::Aerial(self.run_aerial(spec, plan, a, c)?),
         })
     }
@@ -472,7 +470,12 @@ impl Engine {
         self.run_aerial(spec, &plan, &aerial, NEVER)
     }
 
-    fn run_sun(&self, spec: &CommonSpec, plan: &Plan, cancelled: CancelCheck) -> Result<SunProduct> {
+    fn run_sun(
+        &self,
+        spec: &CommonSpec,
+        plan: &Plan,
+        cancelled: CancelCheck,
+    ) -> Result<SunProduct> {
         let start = Instant::now();
         let shared = self.tables_for(spec, plan)?;
         let m = &shared.medium;

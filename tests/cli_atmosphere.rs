@@ -18,8 +18,14 @@ fn skybake(args: &[&str]) -> (i32, String, String) {
 #[test]
 fn invalid_arguments_exit_2_and_name_the_argument() {
     let cases: &[(&[&str], &str)] = &[
-        (&["sky", "--sun-elevation-deg", "-40"], "--sun-elevation-deg"),
-        (&["sun", "--sun-elevation-deg", "-12"], "--sun-elevation-deg"),
+        (
+            &["sky", "--sun-elevation-deg", "-40"],
+            "--sun-elevation-deg",
+        ),
+        (
+            &["sun", "--sun-elevation-deg", "-12"],
+            "--sun-elevation-deg",
+        ),
         (&["sky", "--wavelengths", "300,550"], "--wavelengths"),
         (
             &["sky", "--observer-altitude-m", "-5"],

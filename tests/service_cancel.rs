@@ -65,7 +65,10 @@ async fn abandoned_computations_are_cancelled_and_the_queue_is_bounded() {
     let cancelled = wait_for_metric(&srv, "skybake_computations_cancelled_total", 2.0).await;
     assert_eq!(cancelled, 2.0);
     let m = srv.get("/metrics").await.text();
-    assert_eq!(metric(&m, "skybake_computations_queue_shed_total"), Some(1.0));
+    assert_eq!(
+        metric(&m, "skybake_computations_queue_shed_total"),
+        Some(1.0)
+    );
     assert_eq!(metric(&m, "skybake_computations_in_flight"), Some(0.0));
     assert_eq!(
         srv.state.metrics().computations("sky"),
@@ -110,7 +113,9 @@ async fn a_request_above_the_cost_budget_is_refused_naming_it() {
     assert!(detail.contains("limit 100000000"), "{detail}");
     assert_eq!(srv.state.metrics().computations("sun"), 0);
     // The default request is well within the budget.
-    let ok = srv.get("/v1/sun?method=fast&quality=draft&wavelengths=550").await;
+    let ok = srv
+        .get("/v1/sun?method=fast&quality=draft&wavelengths=550")
+        .await;
     assert_eq!(ok.status, 200, "{}", ok.text());
     srv.stop().await;
 }

@@ -35,7 +35,10 @@ fn assert_problem(r: &service_support::Response, status: u16, needle: &str) {
         "{status}"
     );
     let detail = r.json()["detail"].as_str().unwrap_or("").to_string();
-    assert!(detail.contains(needle), "{status}: '{detail}' should contain '{needle}'");
+    assert!(
+        detail.contains(needle),
+        "{status}: '{detail}' should contain '{needle}'"
+    );
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
@@ -50,7 +53,13 @@ async fn http_conventions_etag_compression_cache_control_and_problems() {
     let etag = first.header("etag").unwrap().to_string();
     assert_eq!(first.header("cache-control"), Some("public, max-age=86400"));
     // If-None-Match with the ETag: 304, no body.
-    let again = request_with(srv.addr, "GET", &path, &format!("If-None-Match: {etag}\r\n")).await;
+    let again = request_with(
+        srv.addr,
+        "GET",
+        &path,
+        &format!("If-None-Match: {etag}\r\n"),
+    )
+    .await;
     assert_eq!(again.status, 304);
     assert!(again.body.is_empty());
     assert_eq!(again.header("etag"), Some(etag.as_str()));
@@ -61,11 +70,8 @@ async fn http_conventions_etag_compression_cache_control_and_problems() {
     assert_eq!(gz.status, 200);
     assert_eq!(gz.header("content-encoding"), Some("gzip"));
     let mut plain = Vec::new();
-    std::io::Read::read_to_end(
-        &mut flate2::read::GzDecoder::new(&gz.body[..]),
-        &mut plain,
-    )
-    .unwrap();
+    std::io::Read::read_to_end(&mut flate2::read::GzDecoder::new(&gz.body[..]), &mut plain)
+        .unwrap();
     assert_eq!(plain, first.body);
     assert!(gz.body.len() < first.body.len() / 2);
     let br = request_with(srv.addr, "GET", &path, "Accept-Encoding: br\r\n").await;
@@ -173,12 +179,14 @@ async fn job_files_count_in_the_disk_budget() {
     let srv = TestServer::start(s).await;
     // The case: job bodies of ~980 kB against a 1 MiB budget. Padding goes in a product's
     // probe list (valid directions, the most compact way to make a large valid body).
-    let probes: Vec<String> = (0..4000).map(|i| format!("{}:{}", i % 80, i % 170)).collect();
+    let probes: Vec<String> = (0..4000)
+        .map(|i| format!("{}:{}", i % 80, i % 170))
+        .collect();
     let item = format!(
         "{{\"product\": \"sky\", \"method\": \"fast\", \"quality\": \"draft\", \"wavelengths\": \"550\", \"probe\": \"{}\"}}",
         probes.join(",")
     );
-    let body = format!("{{\"products\": [{}]}}", vec![item; 6].join(","));
+    let body = format!("{{\"products\": [{}]}}", vec![item; 7].join(","));
     assert!(body.len() > 150_000, "{}", body.len());
     let mut accepted = 0;
     let mut refused = None;

@@ -198,9 +198,12 @@ impl Medium {
                     nm.iter().map(|&l| t.eval(l)).collect()
                 }
             };
-            let ssa =
-                m.single_scattering_albedo
-                    .resolve("atmosphere.mie.single_scattering_albedo", nm, 0.0, 1.0)?;
+            let ssa = m.single_scattering_albedo.resolve(
+                "atmosphere.mie.single_scattering_albedo",
+                nm,
+                0.0,
+                1.0,
+            )?;
             mie_scattering = extinction[MIE]
                 .iter()
                 .zip(&ssa)

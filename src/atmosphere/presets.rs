@@ -28,7 +28,9 @@ pub fn parse_json(field: &str, text: &str) -> Result<AtmosphereParams> {
         .map_err(|e| Error::invalid(field, format!("not a valid atmosphere JSON: {e}")))?;
     // An inline atmosphere's fields are named under the parameter that holds it
     // (`atmosphere.ground_albedo`, not the query parameter `ground_albedo`).
-    params.validate().map_err(|e| e.prefixed(&format!("{field}.")))?;
+    params
+        .validate()
+        .map_err(|e| e.prefixed(&format!("{field}.")))?;
     Ok(params)
 }
 

@@ -216,9 +216,7 @@ impl Jobs {
     /// Every job, oldest first.
     pub fn list(&self) -> Vec<Arc<Job>> {
         let mut all: Vec<Arc<Job>> = self.lock_table().values().cloned().collect();
-        all.sort_by(|a, b| {
-            (a.status().created, &a.id).cmp(&(b.status().created, &b.id))
-        });
+        all.sort_by(|a, b| (a.status().created, &a.id).cmp(&(b.status().created, &b.id)));
         all
     }
 

@@ -59,7 +59,9 @@ impl JobStatus {
     /// Seconds since the last update (0 when the stamp cannot be read).
     pub fn age_s(&self) -> f64 {
         chrono::DateTime::parse_from_rfc3339(&self.updated)
-            .map(|t| (chrono::Utc::now() - t.with_timezone(&chrono::Utc)).num_milliseconds() as f64 / 1e3)
+            .map(|t| {
+                (chrono::Utc::now() - t.with_timezone(&chrono::Utc)).num_milliseconds() as f64 / 1e3
+            })
             .unwrap_or(0.0)
     }
 

@@ -152,9 +152,7 @@ impl<S: Send + Sync> FromRequest<S> for JsonObject {
             .map_err(|e| ApiError::Body {
                 status: e.status(),
                 detail: if e.status() == StatusCode::PAYLOAD_TOO_LARGE {
-                    format!(
-                        "the body is larger than server.body_limit_bytes (limit {limit} bytes)"
-                    )
+                    format!("the body is larger than server.body_limit_bytes (limit {limit} bytes)")
                 } else {
                     e.body_text()
                 },

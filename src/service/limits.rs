@@ -67,10 +67,13 @@ pub async fn authenticate(State(state): State<AppState>, req: Request, next: Nex
     let settings = state.settings();
     let tokens = settings.api_tokens();
     let path = req.uri().path();
-    let exempt = settings.auth_exempt().iter().any(|e| match e.strip_suffix('*') {
-        Some(prefix) => path.starts_with(prefix),
-        None => path == *e,
-    });
+    let exempt = settings
+        .auth_exempt()
+        .iter()
+        .any(|e| match e.strip_suffix('*') {
+            Some(prefix) => path.starts_with(prefix),
+            None => path == *e,
+        });
     if tokens.is_empty() || exempt {
         return next.run(req).await;
     }

@@ -23,7 +23,9 @@ pub fn route(kind: ProductKind) -> axum::routing::MethodRouter<AppState> {
     axum::routing::get(
         move |State(state): State<AppState>,
               headers: HeaderMap,
-              Query(params): Query<RequestParams>| { product(state, kind, params, headers) },
+              Query(params): Query<RequestParams>| {
+            product(state, kind, params, headers)
+        },
     )
 }
 
