@@ -5,7 +5,7 @@ use crate::atmosphere::integrate::{Recorder, Scratch};
 use crate::atmosphere::irradiance::{hemisphere_irradiance, SUN_PRODUCT_N_MU, SUN_PRODUCT_N_PHI};
 use crate::atmosphere::multiple_fast::FastSettings;
 use crate::atmosphere::multiple_precise::PreciseSettings;
-use crate::atmosphere::shared::SharedTables;
+use crate::atmosphere::shared::{Persistence, SharedTables, TableEvents, TableStore};
 use crate::atmosphere::sky::{
     dome_table, horizon_axis_deg, horizon_dip_deg, DomeTable, MsMethod, Observer, RadianceEvaluator,
 };
@@ -224,6 +224,10 @@ pub struct Engine {
     shared: Mutex<Vec<(String, SharedSlot)>>,
     tables: [AtomicU64; 3],
     terms: [AtomicU64; 5],
+    /// Where precise tables are kept between processes (`store::tables`), if anywhere.
+    table_store: Option<Arc<dyn TableStore>>,
+    /// Precise tables built, loaded and refused (counted where they happen, in `SharedTables`).
+    table_events: Arc<TableEvents>,
 }
 
 impl Engine {
@@ -231,9 +235,30 @@ impl Engine {
         Self::default()
     }
 
+    /// An engine that loads precise tables from `store` when it has them and saves those it builds.
+    pub fn with_table_store(store: Arc<dyn TableStore>) -> Self {
+        Self {
+            table_store: Some(store),
+            ..Self::default()
+        }
+    }
+
     /// How many times each table kind was built (for tests and metrics).
     pub fn table_builds(&self, table: Table) -> u64 {
-        self.tables[table as usize].load(Ordering::Relaxed)
+        match table {
+            // A precise table may be loaded from the table store instead of built.
+            Table::Precise => TableEvents::get(&self.table_events.precise_built),
+            _ => self.tables[table as usize].load(Ordering::Relaxed),
+        }
+    }
+
+    /// How many precise tables were loaded from the table store, and how many stored ones were
+    /// refused (corrupt or not matching) and rebuilt (for tests and metrics).
+    pub fn table_loads(&self) -> (u64, u64) {
+        (
+            TableEvents::get(&self.table_events.precise_loaded),
+            TableEvents::get(&self.table_events.precise_rejected),
+        )
     }
 
     /// How much of each term the engine has evaluated (for tests and metrics).
@@ -312,7 +337,7 @@ impl Engine {
                 Some(pos) => cache.remove(pos).1,
                 None => SharedSlot::default(),
             };
-            cache.push((key, slot.clone()));
+            cache.push((key.clone(), slot.clone()));
             if cache.len() > SHARED_CAPACITY {
                 cache.remove(0);
             }
@@ -321,7 +346,16 @@ impl Engine {
         let tables = slot.get_or_init(|| {
             self.count(Table::Density);
             let (fast, precise) = settings_for(spec.quality);
-            Arc::new(SharedTables::new(medium, fast, precise))
+            Arc::new(
+                SharedTables::new(medium, fast, precise).with_persistence(Persistence {
+                    // No key, no store: a table is never shared under a key that does not say
+                    // what it was built for.
+                    store: self.table_store.clone().filter(|_| !key.is_empty()),
+                    medium_key: key,
+                    engine_version: ENGINE_VERSION,
+                    events: self.table_events.clone(),
+                }),
+            )
         });
         Ok(tables.clone())
     }
@@ -343,10 +377,9 @@ impl Engine {
             MsMethod::Fast => shared.has_fast(),
             MsMethod::None => true,
         };
-        match (warm, method) {
-            (false, MsMethod::Precise) => self.count(Table::Precise),
-            (false, MsMethod::Fast) => self.count(Table::Fast),
-            _ => {}
+        // Precise builds are counted where they happen (a stored table may be loaded instead).
+        if !warm && method == MsMethod::Fast {
+            self.count(Table::Fast);
         }
         if method == MsMethod::Precise && shared.precise_unless(cancelled).is_none() {
             return Err(Error::Cancelled);

@@ -37,11 +37,12 @@ use super::medium::{Medium, CONSTITUENTS, MIE, RAYLEIGH};
 use super::quadrature::grid_pos;
 use super::transmittance::DensityIntegralTable;
 use crate::phase::Phase;
+use crate::store::SpectralImage;
 use rayon::prelude::*;
 use std::f64::consts::PI;
 
 /// Resolution and convergence settings of the precise method.
-#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct PreciseSettings {
     pub n_r: usize,
     pub n_mu_s: usize,
@@ -95,6 +96,21 @@ pub struct Convergence {
     pub series_error_estimate: f64,
     /// Mean ratio of the last two orders' radiance (the geometric ratio q of the tail).
     pub order_ratio: f64,
+    /// Wall-clock time of each stage of the build.
+    pub stage_ms: StageTimes,
+}
+
+/// Wall-clock time of the stages of one precise build, ms.
+#[derive(Debug, Clone, Default, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct StageTimes {
+    /// Phase matrices and the order-1 (single-scattering) radiance pass.
+    pub single_scattering: f64,
+    /// All J passes (phase-matrix products).
+    pub scattering_density: f64,
+    /// All radiance passes of orders ≥ 2.
+    pub radiance: f64,
+    /// The whole build.
+    pub total: f64,
 }
 
 /// The converged multiple-scattering source J_ms = Σ_{n≥2} J_n and ground sky irradiance.
@@ -738,6 +754,9 @@ impl PreciseMultipleScattering {
         s: PreciseSettings,
         cancelled: &(dyn Fn() -> bool + Sync),
     ) -> Option<Self> {
+        let t_start = std::time::Instant::now();
+        let ms = |t: std::time::Instant| t.elapsed().as_secs_f64() * 1e3;
+        let mut stage_ms = StageTimes::default();
         let grid = Grid::new(s, medium.bottom_radius_m, medium.top_radius_m);
         let n_l = medium.len();
         let fc = grid.family_cells();
@@ -850,6 +869,7 @@ impl PreciseMultipleScattering {
         series.push(sums_of(&l_n), false);
         let mut e_n = ground_of(&l_n);
         let mut ground_sky = e_n.clone();
+        stage_ms.single_scattering = ms(t_start);
         let mut j_ms = vec![0.0f32; grid.cells() * n_l];
         let mut j_n = Vec::new();
         let mut fractions = vec![1.0];
@@ -860,13 +880,16 @@ impl PreciseMultipleScattering {
             }
             let t_j = std::time::Instant::now();
             j_n = scattering_density(&l_n);
-            let j_ms_elapsed = t_j.elapsed().as_secs_f64() * 1e3;
+            let j_ms_elapsed = ms(t_j);
+            stage_ms.scattering_density += j_ms_elapsed;
             let t_l = std::time::Instant::now();
             l_n = radiance(PassInput::Order {
                 j: &j_n,
                 ground: &e_n,
             });
             e_n = ground_of(&l_n);
+            let l_elapsed = ms(t_l);
+            stage_ms.radiance += l_elapsed;
             j_ms.par_iter_mut().zip(&j_n).for_each(|(a, b)| *a += b);
             ground_sky.iter_mut().zip(&e_n).for_each(|(a, b)| *a += b);
             let sums = sums_of(&l_n);
@@ -882,7 +905,7 @@ impl PreciseMultipleScattering {
                 fraction,
                 tail_error,
                 scattering_density_ms = j_ms_elapsed,
-                radiance_ms = t_l.elapsed().as_secs_f64() * 1e3,
+                radiance_ms = l_elapsed,
                 "precise multiple scattering order"
             );
             if fraction < s.tolerance
@@ -911,6 +934,7 @@ impl PreciseMultipleScattering {
             Some((_, _, q, _)) => (0.0, last_fraction * q / (1.0 - q), q),
             None => (0.0, last_fraction, 0.0),
         };
+        stage_ms.total = ms(t_start);
         Some(Self {
             grid,
             n_l,
@@ -923,7 +947,94 @@ impl PreciseMultipleScattering {
                 tail_fraction,
                 series_error_estimate,
                 order_ratio,
+                stage_ms,
             },
+        })
+    }
+}
+
+/// Version of the stored table layout (part of its store key).
+pub const TABLE_FORMAT: &str = "precise-table-1";
+/// Header attribute holding the stored table's description ([`StoredPrecise`] as JSON).
+const ATTR_TABLE: &str = "skybakeSharedTable";
+
+/// What a stored precise table says about itself; it is used only if all of it matches.
+#[derive(serde::Serialize, serde::Deserialize)]
+struct StoredPrecise {
+    kind: String,
+    settings: PreciseSettings,
+    bottom_radius_m: f64,
+    top_radius_m: f64,
+    wavelengths_nm: Vec<f64>,
+    /// `[i_mu_s][λ]`, exact (JSON numbers round-trip f64).
+    ground_sky: Vec<f64>,
+    convergence: Convergence,
+}
+
+impl PreciseMultipleScattering {
+    /// The table as a spectral image for the table store: pixel (x, y) = (i_mu_s · n_φ + i_φ,
+    /// i_r · n_μ + i_μ), one plane per wavelength (J_ms in f32, as computed), and the ground sky
+    /// irradiance, settings and convergence record as a JSON header attribute.
+    pub fn to_image(&self, medium: &Medium) -> crate::Result<SpectralImage> {
+        let s = self.grid.s;
+        let (w, h) = (self.grid.family_cells(), s.n_r * s.n_mu);
+        let planes = (0..self.n_l)
+            .map(|i| (0..w * h).map(|px| self.j_ms[px * self.n_l + i]).collect())
+            .collect();
+        let mut image = SpectralImage::emissive(w, h, &medium.wavelengths_nm, planes)?;
+        let meta = StoredPrecise {
+            kind: "precise".into(),
+            settings: s,
+            bottom_radius_m: self.grid.bottom,
+            top_radius_m: self.grid.top,
+            wavelengths_nm: medium.wavelengths_nm.clone(),
+            ground_sky: self.ground_sky.clone(),
+            convergence: self.convergence.clone(),
+        };
+        let json = serde_json::to_string(&meta)
+            .map_err(|e| crate::Error::invalid("precise_table", e.to_string()))?;
+        image.set_attribute(ATTR_TABLE, json)?;
+        Ok(image)
+    }
+
+    /// The table stored by [`Self::to_image`], if it was made for exactly this medium's geometry
+    /// and wavelengths with these settings and holds only finite, non-negative values.
+    pub fn from_image(image: &SpectralImage, medium: &Medium, s: PreciseSettings) -> Option<Self> {
+        let meta: StoredPrecise = serde_json::from_str(image.attribute(ATTR_TABLE)?).ok()?;
+        let n_l = medium.len();
+        let grid = Grid::new(s, medium.bottom_radius_m, medium.top_radius_m);
+        let (w, h) = (grid.family_cells(), s.n_r * s.n_mu);
+        let planes = image.layers().first()?.planes();
+        let valid = |v: f64| v.is_finite() && v >= 0.0;
+        let matches = meta.kind == "precise"
+            && meta.settings == s
+            && meta.bottom_radius_m == medium.bottom_radius_m
+            && meta.top_radius_m == medium.top_radius_m
+            && meta.wavelengths_nm == medium.wavelengths_nm
+            && image.width() == w
+            && image.height() == h
+            && planes.len() == n_l
+            && planes.iter().all(|p| p.len() == w * h)
+            && meta.ground_sky.len() == s.n_mu_s * n_l
+            && meta.ground_sky.iter().all(|&v| valid(v));
+        if !matches {
+            return None;
+        }
+        let mut j_ms = vec![0.0f32; w * h * n_l];
+        for (i, plane) in planes.iter().enumerate() {
+            for (px, &v) in plane.iter().enumerate() {
+                if !valid(v as f64) {
+                    return None;
+                }
+                j_ms[px * n_l + i] = v;
+            }
+        }
+        Some(Self {
+            grid,
+            n_l,
+            j_ms,
+            ground_sky: meta.ground_sky,
+            convergence: meta.convergence,
         })
     }
 }
