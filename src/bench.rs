@@ -81,6 +81,10 @@ pub const BENCHMARKS: &[(&str, &str)] = &[
         "lit cloud frame 640×480, 128³ cumulus, sky + ground light + multiple scattering, standard quality, cold and warm",
     ),
     (
+        "frame-pattern",
+        "the frame benchmark with multiple scattering of orders 2 and 3 by the reference pattern (seed 000 §3.4) instead of all orders",
+    ),
+    (
         "frame-accuracy",
         "fast frame method against the path tracer (1024 spp), bench cumulus at 160×120 (slow: minutes)",
     ),
@@ -270,9 +274,15 @@ pub fn run(names: &[String], cold_runs: usize, warm_runs: usize) -> Result<Vec<B
             }
             "store" => out.extend(bench_store_stages(&entry, warm_runs)?),
             "precise-tables" => out.extend(precise_tables(&desc, cold_runs, warm_runs)?),
-            "frame" => {
+            "frame" | "frame-pattern" => {
                 let runs: Vec<_> = (0..warm_runs.max(1))
-                    .map(|_| crate::render::bench::bench_frame(640, 480))
+                    .map(|_| {
+                        if name == "frame" {
+                            crate::render::bench::bench_frame(640, 480)
+                        } else {
+                            crate::render::pattern::bench_frame_pattern(640, 480)
+                        }
+                    })
                     .collect::<Result<_>>()?;
                 let last = &runs[runs.len() - 1];
                 out.push(entry(

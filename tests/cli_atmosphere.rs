@@ -27,11 +27,11 @@ fn skybake(args: &[&str]) -> (i32, String, String) {
 fn invalid_arguments_exit_2_and_name_the_argument() {
     let cases: &[(&[&str], &str)] = &[
         (
-            &["sky", "--sun-elevation-deg", "-40"],
+            &["sky", "--sun-elevation-deg", "-95"],
             "--sun-elevation-deg",
         ),
         (
-            &["sun", "--sun-elevation-deg", "-12"],
+            &["sun", "--sun-elevation-deg", "-90.5"],
             "--sun-elevation-deg",
         ),
         (&["sky", "--wavelengths", "300,550"], "--wavelengths"),
