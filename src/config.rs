@@ -36,6 +36,20 @@ pub struct ServerSettings {
     pub max_connections: usize,
     /// Longest a shutdown waits for open connections and computations, seconds.
     pub shutdown_grace_s: f64,
+    /// Largest estimated cost of one product request ([`crate::cost`]), cell-wavelength-orders.
+    pub max_request_cost: u64,
+    /// Computations waiting for a compute slot before new ones are shed.
+    pub max_queued_computations: usize,
+    /// Whether a computation nobody waits for any more runs on to fill the cache.
+    pub finish_abandoned: bool,
+    /// Requests per second per client address on `/v1/*`; 0 = no limit.
+    pub rate_limit_per_s: f64,
+    /// Requests a client may make at once before the rate applies.
+    pub rate_limit_burst: u32,
+    /// Comma-separated bearer tokens; empty = no authentication.
+    pub api_tokens: String,
+    /// Comma-separated paths answered without a token.
+    pub auth_exempt: String,
 }
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -52,6 +66,10 @@ pub struct CacheSettings {
 pub struct JobSettings {
     pub workers: usize,
     pub max_products: usize,
+    /// Most jobs queued or running at once.
+    pub max_live: usize,
+    /// Seconds a finished job and its files are kept.
+    pub expire_after_s: f64,
 }
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -77,6 +95,17 @@ pub const ENV_VARS: &[(&str, &str, &str)] = &[
     ),
     ("SKYBAKE_MAX_CONNECTIONS", "server", "max_connections"),
     ("SKYBAKE_SHUTDOWN_GRACE_S", "server", "shutdown_grace_s"),
+    ("SKYBAKE_MAX_REQUEST_COST", "server", "max_request_cost"),
+    (
+        "SKYBAKE_MAX_QUEUED_COMPUTATIONS",
+        "server",
+        "max_queued_computations",
+    ),
+    ("SKYBAKE_FINISH_ABANDONED", "server", "finish_abandoned"),
+    ("SKYBAKE_RATE_LIMIT_PER_S", "server", "rate_limit_per_s"),
+    ("SKYBAKE_RATE_LIMIT_BURST", "server", "rate_limit_burst"),
+    ("SKYBAKE_API_TOKENS", "server", "api_tokens"),
+    ("SKYBAKE_AUTH_EXEMPT", "server", "auth_exempt"),
     ("SKYBAKE_CACHE_DIR", "cache", "dir"),
     ("SKYBAKE_DISK_BUDGET_BYTES", "cache", "disk_budget_bytes"),
     (
@@ -91,6 +120,8 @@ pub const ENV_VARS: &[(&str, &str, &str)] = &[
     ),
     ("SKYBAKE_JOB_WORKERS", "jobs", "workers"),
     ("SKYBAKE_MAX_JOB_PRODUCTS", "jobs", "max_products"),
+    ("SKYBAKE_MAX_LIVE_JOBS", "jobs", "max_live"),
+    ("SKYBAKE_JOB_EXPIRE_AFTER_S", "jobs", "expire_after_s"),
     ("SKYBAKE_DEFAULT_WAVELENGTHS", "defaults", "wavelengths"),
     ("SKYBAKE_DEFAULT_QUALITY", "defaults", "quality"),
 ];
@@ -110,6 +141,14 @@ fn known_env_vars() -> String {
         .map(|(var, _, _)| *var)
         .collect::<Vec<_>>()
         .join(", ")
+}
+
+/// The non-empty, trimmed items of a comma-separated list.
+fn split_list(s: &str) -> Vec<&str> {
+    s.split(',')
+        .map(str::trim)
+        .filter(|t| !t.is_empty())
+        .collect()
 }
 
 /// Most products a job may hold, whatever the configuration says.
@@ -147,6 +186,11 @@ fn env_value(var: &str, text: &str, like: Option<&toml::Value>) -> Result<toml::
                     .parse()
                     .map_err(|_| config_err(var, format!("'{text}' is not a whole number")))?,
             ),
+        },
+        Some(toml::Value::Boolean(_)) => match text.trim() {
+            "true" | "1" => toml::Value::Boolean(true),
+            "false" | "0" => toml::Value::Boolean(false),
+            _ => return Err(config_err(var, format!("'{text}' is not true or false"))),
         },
         Some(toml::Value::Float(_)) => toml::Value::Float(
             text.trim()
@@ -277,6 +321,57 @@ impl Settings {
                 "1 to 1000000",
             ));
         }
+        if s.max_request_cost < 1_000_000 {
+            return Err(Error::out_of_range(
+                "server.max_request_cost",
+                s.max_request_cost,
+                "at least 1000000",
+            ));
+        }
+        if !(1..=1_000_000).contains(&s.max_queued_computations) {
+            return Err(Error::out_of_range(
+                "server.max_queued_computations",
+                s.max_queued_computations,
+                "1 to 1000000",
+            ));
+        }
+        if !(s.rate_limit_per_s.is_finite() && (0.0..=1e6).contains(&s.rate_limit_per_s)) {
+            return Err(Error::out_of_range(
+                "server.rate_limit_per_s",
+                s.rate_limit_per_s,
+                "0 (no limit) to 1000000",
+            ));
+        }
+        if !(1..=1_000_000).contains(&s.rate_limit_burst) {
+            return Err(Error::out_of_range(
+                "server.rate_limit_burst",
+                s.rate_limit_burst,
+                "1 to 1000000",
+            ));
+        }
+        for t in self.api_tokens() {
+            if t.len() < 16 || !t.bytes().all(|b| b.is_ascii_graphic()) {
+                return Err(Error::invalid(
+                    "server.api_tokens",
+                    "each token must be at least 16 printable ASCII characters without spaces",
+                ));
+            }
+        }
+        if !(1..=100_000).contains(&self.jobs.max_live) {
+            return Err(Error::out_of_range(
+                "jobs.max_live",
+                self.jobs.max_live,
+                "1 to 100000",
+            ));
+        }
+        let e = self.jobs.expire_after_s;
+        if !(e.is_finite() && e > 0.0 && e <= 3.2e7) {
+            return Err(Error::out_of_range(
+                "jobs.expire_after_s",
+                e,
+                "above 0 to 32000000 s (about a year)",
+            ));
+        }
         if self.cache.dir.as_os_str().is_empty() {
             return Err(Error::invalid("cache.dir", "must not be empty"));
         }
@@ -308,6 +403,16 @@ impl Settings {
         crate::spec::Quality::parse(&self.defaults.quality)
             .map_err(|e| Error::invalid("defaults.quality", e.to_string()))?;
         Ok(())
+    }
+
+    /// The configured bearer tokens (none: authentication is off).
+    pub fn api_tokens(&self) -> Vec<&str> {
+        split_list(&self.server.api_tokens)
+    }
+
+    /// The paths answered without a token.
+    pub fn auth_exempt(&self) -> Vec<&str> {
+        split_list(&self.server.auth_exempt)
     }
 
     /// The parsed bind address.

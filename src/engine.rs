@@ -27,6 +27,23 @@ pub use crate::spec::DomeShape;
 /// Engine version: part of every cache key, bumped when results change.
 pub const ENGINE_VERSION: &str = concat!("skybake-", env!("CARGO_PKG_VERSION"), "-engine1");
 
+/// A cooperative cancellation check (issue 18): true once nobody wants the result. The engine
+/// asks it at stage boundaries (after the density table, between orders of scattering of the
+/// precise table, before the output table) and stops with [`Error::Cancelled`].
+pub type CancelCheck<'a> = &'a (dyn Fn() -> bool + Sync);
+
+/// Never cancelled.
+const NEVER: CancelCheck<'static> = &|| false;
+
+/// [`Error::Cancelled`] when `cancelled` says so.
+fn checkpoint(cancelled: CancelCheck) -> Result<()> {
+    if cancelled() {
+        Err(Error::Cancelled)
+    } else {
+        Ok(())
+    }
+}
+
 /// Most sets of shared tables kept in memory.
 const SHARED_CAPACITY: usize = 8;
 
@@ -324,11 +341,24 @@ impl Engine {
         product: &ProductSpec,
         plan: &Plan,
     ) -> Result<Product> {
+        self.execute_cancellable(spec, product, plan, NEVER)
+    }
+
+    /// [`Self::execute`], stopped with [`Error::Cancelled`] at the next stage boundary once
+    /// `cancelled` returns true.
+    pub fn execute_cancellable(
+        &self,
+        spec: &CommonSpec,
+        product: &ProductSpec,
+        plan: &Plan,
+        cancelled: CancelCheck,
+    ) -> Result<Product> {
+        let c = cancelled;
         Ok(match product {
-            ProductSpec::Sun => Product::Sun(self.run_sun(spec, plan)?),
-            ProductSpec::Sky(d) => Product::Sky(self.run_dome(spec, plan, d, -90.0, 90.0)?),
-            ProductSpec::Ground(d) => Product::Ground(self.run_dome(spec, plan, d, -90.0, 0.0)?),
-            ProductSpec::Aerial(a) => Product::Aerial(self.run_aerial(spec, plan, a)?),
+            ProductSpec::Sun => Product::Sun(self.run_sun(spec, plan, c)?),
+            ProductSpec::Sky(d) => Product::Sky(self.run_dome(spec, plan, d, -90.0, 90.0, c)?),
+            ProductSpec::Ground(d) => Product::Ground(self.run_dome(spec, plan, d, -90.0, 0.0, c)?),
+            ProductSpec::Aerial(a) => Product::Aerial(self.run_aerial(spec, plan, a, c)?),
         })
     }
 
@@ -372,14 +402,16 @@ impl Engine {
     }
 
     /// The radiance evaluator of `plan`: the multiple-scattering source only when the plan runs
-    /// that stage (building its table on first use), single scattering and the ground bounce only
-    /// when the plan runs them.
+    /// that stage (building its table on first use, the precise one stopped between orders when
+    /// `cancelled`), single scattering and the ground bounce only when the plan runs them.
     fn evaluator<'a>(
         &self,
         shared: &'a SharedTables,
         spec: &CommonSpec,
         plan: &Plan,
-    ) -> (RadianceEvaluator<'a>, bool) {
+        cancelled: CancelCheck,
+    ) -> Result<(RadianceEvaluator<'a>, bool)> {
+        checkpoint(cancelled)?;
         let method = plan.ms_method();
         let warm = match method {
             MsMethod::Precise => shared.has_precise(),
@@ -390,6 +422,10 @@ impl Engine {
         if !warm && method == MsMethod::Fast {
             self.count(Table::Fast);
         }
+        if method == MsMethod::Precise && shared.precise_unless(cancelled).is_none() {
+            return Err(Error::Cancelled);
+        }
+        checkpoint(cancelled)?;
         let observer = Observer {
             altitude_m: spec.observer_altitude_m,
             sun_elevation_rad: spec.sun.sun_elevation_deg.to_radians(),
@@ -399,7 +435,7 @@ impl Engine {
                 plan.runs(Stage::SingleScattering),
                 plan.runs(Stage::GroundBounce),
             );
-        (eval, warm)
+        Ok((eval, warm))
     }
 
     fn tables_for(&self, spec: &CommonSpec, plan: &Plan) -> Result<Arc<SharedTables>> {
@@ -436,10 +472,14 @@ impl Engine {
             .left_out
             .iter()
             .any(|(_, r)| matches!(r, Reason::SunBelowDarkestTwilight { .. }));
-        let validated = e >= -12.0 && method != MsMethod::None;
+        let thick = max_vertical_optical_depth(&shared.medium) > VALIDATED_MAX_OPTICAL_DEPTH;
+        let validated = e >= -12.0 && method != MsMethod::None && !thick;
         let caveat = match (method, e) {
             _ if night => Some(
                 "night: no sunlit air or ground is in view, so sunlight contributes exactly zero; moonlight, starlight and airglow are not modelled",
+            ),
+            _ if thick => Some(
+                "outside the validated range: the atmosphere's vertical optical depth exceeds 1 at some wavelength (validation covers optically thin to moderate atmospheres); orders of scattering are capped, energy conservation still holds",
             ),
             (MsMethod::None, _) => Some("single scattering only: multiple scattering is left out"),
             (_, e) if e < -12.0 => Some(
@@ -483,7 +523,7 @@ impl Engine {
     /// Sun attenuation and irradiances at the observer (plans, then executes).
     pub fn sun(&self, spec: &CommonSpec) -> Result<SunProduct> {
         let plan = Self::plan(spec, ProductKind::Sun)?;
-        self.run_sun(spec, &plan)
+        self.run_sun(spec, &plan, NEVER)
     }
 
     /// Sky-dome table (view elevation −90°…90°) and probes (plans, then executes).
@@ -495,7 +535,7 @@ impl Engine {
     ) -> Result<DomeProduct> {
         let dome = DomeSpec::sky(shape, probes.to_vec())?;
         let plan = Self::plan(spec, ProductKind::Sky)?;
-        self.run_dome(spec, &plan, &dome, -90.0, 90.0)
+        self.run_dome(spec, &plan, &dome, -90.0, 90.0, NEVER)
     }
 
     /// Upward radiance (view zenith 90°–180°, i.e. elevation −90°…0°) and probes.
@@ -507,7 +547,7 @@ impl Engine {
     ) -> Result<DomeProduct> {
         let dome = DomeSpec::ground(shape, probes.to_vec())?;
         let plan = Self::plan(spec, ProductKind::Ground)?;
-        self.run_dome(spec, &plan, &dome, -90.0, 0.0)
+        self.run_dome(spec, &plan, &dome, -90.0, 0.0, NEVER)
     }
 
     /// Aerial perspective table: `elevation_count` × `azimuth_count` directions × `distance_count`
@@ -521,14 +561,19 @@ impl Engine {
     ) -> Result<AerialProduct> {
         let aerial = AerialSpec::new(shape, distance_count, max_distance_m)?;
         let plan = Self::plan(spec, ProductKind::Aerial)?;
-        self.run_aerial(spec, &plan, &aerial)
+        self.run_aerial(spec, &plan, &aerial, NEVER)
     }
 
-    fn run_sun(&self, spec: &CommonSpec, plan: &Plan) -> Result<SunProduct> {
+    fn run_sun(
+        &self,
+        spec: &CommonSpec,
+        plan: &Plan,
+        cancelled: CancelCheck,
+    ) -> Result<SunProduct> {
         let start = Instant::now();
         let shared = self.tables_for(spec, plan)?;
         let m = &shared.medium;
-        let (eval, warm) = self.evaluator(&shared, spec, plan);
+        let (eval, warm) = self.evaluator(&shared, spec, plan, cancelled)?;
         let transmittance = if plan.runs(Stage::DirectSun) {
             self.add_terms(Term::DirectSun, 1);
             sun_transmittance(
@@ -589,11 +634,12 @@ impl Engine {
         dome: &DomeSpec,
         lo: f64,
         hi: f64,
+        cancelled: CancelCheck,
     ) -> Result<DomeProduct> {
         let shape = dome.shape();
         let start = Instant::now();
         let shared = self.tables_for(spec, plan)?;
-        let (eval, warm) = self.evaluator(&shared, spec, plan);
+        let (eval, warm) = self.evaluator(&shared, spec, plan, cancelled)?;
         let table = dome_table(
             &eval,
             horizon_axis_deg(
@@ -619,6 +665,7 @@ impl Engine {
         spec: &CommonSpec,
         plan: &Plan,
         aerial: &AerialSpec,
+        cancelled: CancelCheck,
     ) -> Result<AerialProduct> {
         let (shape, distance_count, max_distance_m) = (
             aerial.shape(),
@@ -627,7 +674,7 @@ impl Engine {
         );
         let start = Instant::now();
         let shared = self.tables_for(spec, plan)?;
-        let (eval, warm) = self.evaluator(&shared, spec, plan);
+        let (eval, warm) = self.evaluator(&shared, spec, plan, cancelled)?;
         let m = &shared.medium;
         let n_l = m.len();
         let elevation_deg = horizon_axis_deg(
@@ -692,6 +739,18 @@ impl Engine {
             meta,
         })
     }
+}
+
+/// Largest vertical optical depth (all constituents) of the validated range: the DISORT
+/// comparisons (tests/atmosphere_validation.rs) are Rayleigh atmospheres, τ ≈ 0.56 at 360 nm;
+/// beyond τ = 1 the orders-of-scattering series converges slowly and is capped (issue 18).
+pub const VALIDATED_MAX_OPTICAL_DEPTH: f64 = 1.0;
+
+/// The largest vertical optical depth of `m` over its wavelengths.
+pub fn max_vertical_optical_depth(m: &Medium) -> f64 {
+    (0..m.len())
+        .map(|i| m.vertical_optical_depth(i).iter().sum::<f64>())
+        .fold(0.0, f64::max)
 }
 
 /// Table resolutions for a quality preset.

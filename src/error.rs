@@ -27,6 +27,10 @@ pub enum Error {
     /// an encoder failure. HTTP 500 (and the artifact is recomputed), CLI exit code 1.
     #[error("internal error in {what}: {reason}")]
     Internal { what: String, reason: String },
+    /// The computation was stopped because nobody wants its result any more (every client that
+    /// asked for it has gone; issue 18). Not the request's fault; nobody is left to answer.
+    #[error("computation cancelled: every client waiting for it has gone")]
+    Cancelled,
 }
 
 impl Error {
@@ -66,7 +70,7 @@ impl Error {
 
     /// Whether the fault lies with the request (bad input) rather than the server.
     pub fn is_input(&self) -> bool {
-        !matches!(self, Error::Internal { .. })
+        !matches!(self, Error::Internal { .. } | Error::Cancelled)
     }
 
     /// The same error with `prefix` put before the parameter name (e.g. `products[3].`).
@@ -94,7 +98,28 @@ impl Error {
                 reason,
                 limit,
             },
-            internal @ Error::Internal { .. } => internal,
+            other @ (Error::Internal { .. } | Error::Cancelled) => other,
+        }
+    }
+
+    /// The same error naming `field` instead (the CLI names its flags, not query names).
+    pub fn renamed(self, field: &str) -> Self {
+        match self {
+            Error::OutOfRange { value, allowed, .. } => Error::OutOfRange {
+                field: field.to_string(),
+                value,
+                allowed,
+            },
+            Error::Invalid { reason, .. } => Error::Invalid {
+                field: field.to_string(),
+                reason,
+            },
+            Error::TooLarge { reason, limit, .. } => Error::TooLarge {
+                field: field.to_string(),
+                reason,
+                limit,
+            },
+            other @ (Error::Internal { .. } | Error::Cancelled) => other,
         }
     }
 
@@ -105,6 +130,7 @@ impl Error {
             | Error::Invalid { field, .. }
             | Error::TooLarge { field, .. } => field,
             Error::Internal { what, .. } => what,
+            Error::Cancelled => "computation",
         }
     }
 }

@@ -11,6 +11,7 @@ pub mod bench;
 pub mod camera;
 pub mod cloud;
 pub mod config;
+pub mod cost;
 pub mod engine;
 pub mod error;
 pub mod export;

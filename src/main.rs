@@ -310,7 +310,10 @@ enum ProjectionArg {
 /// does no I/O).
 fn request_params(mut p: RequestParams) -> Result<RequestParams> {
     if let Some(a) = &p.atmosphere {
-        if Path::new(a).is_file() {
+        // A file, or what can only be meant as one (a path or a .json name): a missing or
+        // unreadable file says so instead of "unknown preset".
+        let meant_as_file = a.ends_with(".json") || a.contains('/') || a.contains('\\');
+        if !a.trim_start().starts_with('{') && (Path::new(a).is_file() || meant_as_file) {
             p.atmosphere = Some(read_input(Path::new(a), "atmosphere")?);
         }
     }
@@ -818,6 +821,23 @@ fn run_clouds(scene: &Path, voxels: Option<&Path>, format: Format) -> Result<()>
     }
 }
 
+/// The error naming the command-line flag (`--sun-elevation-deg`) of the request parameter it
+/// names (`sun_elevation_deg`), or the field of an inline atmosphere under `--atmosphere`.
+fn flag_named(e: Error) -> Error {
+    let field = e.field().to_string();
+    let (head, rest) = match field.split_once('.') {
+        Some((h, r)) => (h, Some(r)),
+        None => (field.as_str(), None),
+    };
+    match skybake::product::params::parameter(head).and_then(|p| p.cli) {
+        Some(flag) => match rest {
+            Some(rest) => e.renamed(&format!("--{flag} {rest}")),
+            None => e.renamed(&format!("--{flag}")),
+        },
+        None => e,
+    }
+}
+
 fn main() -> ExitCode {
     tracing_subscriber::fmt()
         .with_writer(std::io::stderr)
@@ -829,7 +849,7 @@ fn main() -> ExitCode {
     match run(Cli::parse()) {
         Ok(()) => ExitCode::SUCCESS,
         Err(CliError::Input(e)) => {
-            eprintln!("error: {e}");
+            eprintln!("error: {}", flag_named(e));
             ExitCode::from(2)
         }
         Err(CliError::Failure(message)) => {

@@ -26,20 +26,23 @@ fn skybake(args: &[&str]) -> (i32, String, String) {
 #[test]
 fn invalid_arguments_exit_2_and_name_the_argument() {
     let cases: &[(&[&str], &str)] = &[
-        (&["sky", "--sun-elevation-deg", "-95"], "sun_elevation_deg"),
+        (
+            &["sky", "--sun-elevation-deg", "-95"],
+            "--sun-elevation-deg",
+        ),
         (
             &["sun", "--sun-elevation-deg", "-90.5"],
-            "sun_elevation_deg",
+            "--sun-elevation-deg",
         ),
-        (&["sky", "--wavelengths", "300,550"], "wavelengths"),
+        (&["sky", "--wavelengths", "300,550"], "--wavelengths"),
         (
             &["sky", "--observer-altitude-m", "-5"],
-            "observer_altitude_m",
+            "--observer-altitude-m",
         ),
-        (&["sky", "--atmosphere", "venus"], "atmosphere"),
-        (&["sky", "--ground-albedo", "2"], "ground_albedo"),
-        (&["sky", "--probe", "30"], "probe"),
-        (&["sky", "--elevation-count", "100000"], "elevation_count"),
+        (&["sky", "--atmosphere", "venus"], "--atmosphere"),
+        (&["sky", "--ground-albedo", "2"], "--ground-albedo"),
+        (&["sky", "--probe", "30"], "--probe"),
+        (&["sky", "--elevation-count", "100000"], "--elevation-count"),
         (
             &[
                 "sun",
@@ -50,7 +53,7 @@ fn invalid_arguments_exit_2_and_name_the_argument() {
                 "--time",
                 "2026-01-01T00:00:00Z",
             ],
-            "latitude_deg",
+            "--latitude",
         ),
         (
             &[
@@ -62,7 +65,7 @@ fn invalid_arguments_exit_2_and_name_the_argument() {
                 "--time",
                 "noon",
             ],
-            "time",
+            "--time",
         ),
         (
             &[
@@ -84,6 +87,22 @@ fn invalid_arguments_exit_2_and_name_the_argument() {
         assert_eq!(code, 2, "{args:?}: {err}");
         assert!(err.contains(field), "{args:?}: '{err}' should name {field}");
     }
+}
+
+#[test]
+fn a_missing_atmosphere_file_is_named_as_a_file_not_a_preset() {
+    let (code, _, err) = skybake(&["sky", "--atmosphere", "nope.json"]);
+    assert_eq!(code, 2, "{err}");
+    assert!(err.contains("--atmosphere"), "{err}");
+    assert!(err.contains("cannot read nope.json"), "{err}");
+    assert!(!err.contains("unknown preset"), "{err}");
+    // An inline atmosphere's field is named under the flag, not as the query parameter.
+    let earth = include_str!("../config/atmospheres/earth.json");
+    let bad = earth.replace("\"ground_albedo\": 0.1", "\"ground_albedo\": 7");
+    assert_ne!(bad, earth);
+    let (code, _, err) = skybake(&["sun", "--atmosphere", &bad]);
+    assert_eq!(code, 2, "{err}");
+    assert!(err.contains("--atmosphere ground_albedo"), "{err}");
 }
 
 #[test]

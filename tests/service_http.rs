@@ -356,6 +356,9 @@ async fn excess_load_is_shed_and_slow_requests_time_out() {
     let mut s = settings(dir.path());
     s.server.concurrency_limit = 1;
     s.server.request_timeout_s = 0.3;
+    // The cache policy that keeps an abandoned computation running (tests/service_cancel.rs
+    // covers the default, cancelling it).
+    s.server.finish_abandoned = true;
     let srv = TestServer::start(s).await;
     // A cold request slow enough to exceed the timeout (fast method, full default table).
     let slow = "/v1/sky?method=fast&quality=high&elevation_count=257&azimuth_count=128&sun_elevation_deg=33";
@@ -541,7 +544,7 @@ async fn openapi_lists_exactly_the_routes_served() {
         assert!(!fallback, "{method} {path} is documented but not routed");
     }
     // ...and routes outside the table are not.
-    for (method, path) in [("GET", "/v1/render"), ("GET", "/v1"), ("GET", "/v1/jobs")] {
+    for (method, path) in [("GET", "/v1/render"), ("GET", "/v1"), ("PUT", "/v1/jobs")] {
         let r = service_support::request(srv.addr, method, path, None).await;
         assert!(
             r.status == 404 || r.status == 405,

@@ -198,9 +198,12 @@ impl Medium {
                     nm.iter().map(|&l| t.eval(l)).collect()
                 }
             };
-            let ssa =
-                m.single_scattering_albedo
-                    .resolve("mie.single_scattering_albedo", nm, 0.0, 1.0)?;
+            let ssa = m.single_scattering_albedo.resolve(
+                "atmosphere.mie.single_scattering_albedo",
+                nm,
+                0.0,
+                1.0,
+            )?;
             mie_scattering = extinction[MIE]
                 .iter()
                 .zip(&ssa)
@@ -242,7 +245,7 @@ impl Medium {
                 }
                 vec![a; n]
             }
-            (None, Some(s)) => s.resolve("ground_albedo", nm, 0.0, 1.0)?,
+            (None, Some(s)) => s.resolve("atmosphere.ground_albedo", nm, 0.0, 1.0)?,
             (None, None) => vec![0.0; n],
         };
         let scale = 1.0 / (params.sun_distance_au * params.sun_distance_au);

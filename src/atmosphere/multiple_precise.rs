@@ -881,6 +881,16 @@ impl Series {
 impl PreciseMultipleScattering {
     /// Computes orders of scattering until convergence (see the module documentation).
     pub fn new(medium: &Medium, table: &DensityIntegralTable, s: PreciseSettings) -> Self {
+        Self::build(medium, table, s, &|| false).unwrap_or_else(|| unreachable!("never cancelled"))
+    }
+
+    /// [`Self::new`], stopped (`None`) when `cancelled` returns true between two orders (issue 18).
+    pub fn build(
+        medium: &Medium,
+        table: &DensityIntegralTable,
+        s: PreciseSettings,
+        cancelled: &(dyn Fn() -> bool + Sync),
+    ) -> Option<Self> {
         let t_start = std::time::Instant::now();
         let ms = |t: std::time::Instant| t.elapsed().as_secs_f64() * 1e3;
         let mut stage_ms = StageTimes::default();
@@ -1004,6 +1014,9 @@ impl PreciseMultipleScattering {
         let mut fractions = vec![1.0];
         let mut orders = 1;
         while orders < s.max_orders {
+            if cancelled() {
+                return None;
+            }
             let t_j = std::time::Instant::now();
             j_n = scattering_density(&l_n);
             let j_ms_elapsed = ms(t_j);
@@ -1061,7 +1074,7 @@ impl PreciseMultipleScattering {
             None => (0.0, last_fraction, 0.0),
         };
         stage_ms.total = ms(t_start);
-        Self {
+        Some(Self {
             grid,
             n_l,
             j_ms,
@@ -1075,7 +1088,7 @@ impl PreciseMultipleScattering {
                 order_ratio,
                 stage_ms,
             },
-        }
+        })
     }
 }
 

@@ -26,7 +26,11 @@ pub fn preset_names() -> Vec<&'static str> {
 pub fn parse_json(field: &str, text: &str) -> Result<AtmosphereParams> {
     let params: AtmosphereParams = serde_json::from_str(text)
         .map_err(|e| Error::invalid(field, format!("not a valid atmosphere JSON: {e}")))?;
-    params.validate()?;
+    // An inline atmosphere's fields are named under the parameter that holds it
+    // (`atmosphere.ground_albedo`, not the query parameter `ground_albedo`).
+    params
+        .validate()
+        .map_err(|e| e.prefixed(&format!("{field}.")))?;
     Ok(params)
 }
 
@@ -65,7 +69,7 @@ mod tests {
         let text = include_str!("../../config/atmospheres/earth.json").replace("0.7 }", "1.5 }");
         assert_eq!(
             parse_json("atmosphere", &text).unwrap_err().field(),
-            "mie.phase.g"
+            "atmosphere.mie.phase.g"
         );
     }
 }

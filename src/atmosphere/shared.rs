@@ -132,49 +132,81 @@ impl SharedTables {
     /// when a verified, matching copy exists, otherwise built (and then stored).
     pub fn precise(&self) -> &PreciseMultipleScattering {
         self.precise.get_or_init(|| {
-            let Some(p) = &self.persistence else {
-                return PreciseMultipleScattering::new(
-                    &self.medium,
-                    &self.density,
-                    self.precise_settings,
-                );
-            };
-            let key = p.key("precise");
-            let Some(store) = &p.store else {
-                TableEvents::bump(&p.events.precise_built);
-                return PreciseMultipleScattering::new(
-                    &self.medium,
-                    &self.density,
-                    self.precise_settings,
-                );
-            };
-            if let Some(image) = store.load(&key) {
-                match PreciseMultipleScattering::from_image(
-                    &image,
-                    &self.medium,
-                    self.precise_settings,
-                ) {
-                    Some(table) => {
-                        tracing::info!(key, "precise table loaded from the table store");
-                        TableEvents::bump(&p.events.precise_loaded);
-                        return table;
-                    }
-                    None => {
-                        tracing::warn!(key, "stored precise table does not match; rebuilding");
-                        TableEvents::bump(&p.events.precise_rejected);
-                    }
+            self.load_or_build_precise(&|| false)
+                .unwrap_or_else(|| unreachable!("never cancelled"))
+        })
+    }
+
+    /// The precise table, loaded or built on first use unless `cancelled` returns true between two
+    /// orders of scattering (issue 18); `None` then, and the table stays unbuilt: a later request
+    /// builds it whole, and one waiting for this build builds it itself.
+    pub fn precise_unless(
+        &self,
+        cancelled: &(dyn Fn() -> bool + Sync),
+    ) -> Option<&PreciseMultipleScattering> {
+        /// The unwind payload that leaves `OnceLock::get_or_init` without initialising it.
+        struct Stopped;
+        if let Some(t) = self.precise.get() {
+            return Some(t);
+        }
+        let built = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
+            self.precise.get_or_init(|| {
+                self.load_or_build_precise(cancelled)
+                    .unwrap_or_else(|| std::panic::resume_unwind(Box::new(Stopped)))
+            })
+        }));
+        match built {
+            Ok(t) => Some(t),
+            Err(payload) if payload.is::<Stopped>() => None,
+            Err(payload) => std::panic::resume_unwind(payload),
+        }
+    }
+
+    /// Loads the precise table from the table store, or builds it (`None` when cancelled) and
+    /// stores it.
+    fn load_or_build_precise(
+        &self,
+        cancelled: &(dyn Fn() -> bool + Sync),
+    ) -> Option<PreciseMultipleScattering> {
+        let build = || {
+            PreciseMultipleScattering::build(
+                &self.medium,
+                &self.density,
+                self.precise_settings,
+                cancelled,
+            )
+        };
+        let Some(p) = &self.persistence else {
+            return build();
+        };
+        let key = p.key("precise");
+        let Some(store) = &p.store else {
+            let table = build()?;
+            TableEvents::bump(&p.events.precise_built);
+            return Some(table);
+        };
+        if let Some(image) = store.load(&key) {
+            match PreciseMultipleScattering::from_image(&image, &self.medium, self.precise_settings)
+            {
+                Some(table) => {
+                    tracing::info!(key, "precise table loaded from the table store");
+                    TableEvents::bump(&p.events.precise_loaded);
+                    return Some(table);
+                }
+                None => {
+                    tracing::warn!(key, "stored precise table does not match; rebuilding");
+                    TableEvents::bump(&p.events.precise_rejected);
                 }
             }
-            let table =
-                PreciseMultipleScattering::new(&self.medium, &self.density, self.precise_settings);
-            TableEvents::bump(&p.events.precise_built);
-            tracing::info!(key, "precise table built");
-            match table.to_image(&self.medium) {
-                Ok(image) => store.save(&key, &image),
-                Err(e) => tracing::warn!(key, error = %e, "precise table not stored"),
-            }
-            table
-        })
+        }
+        let table = build()?;
+        TableEvents::bump(&p.events.precise_built);
+        tracing::info!(key, "precise table built");
+        match table.to_image(&self.medium) {
+            Ok(image) => store.save(&key, &image),
+            Err(e) => tracing::warn!(key, error = %e, "precise table not stored"),
+        }
+        Some(table)
     }
 
     /// Whether the precise table exists already.

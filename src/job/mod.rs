@@ -40,6 +40,9 @@ pub enum JobError {
     /// Storage or computation failed (not the request's fault).
     #[error("{0}")]
     Failure(String),
+    /// Too many jobs are queued or running (`jobs.max_live`); retry later.
+    #[error("{0}")]
+    Full(String),
 }
 
 impl From<crate::Error> for JobError {

@@ -18,6 +18,17 @@ pub const MAX_KEPT_ERRORS: usize = 1000;
 /// Most time between progress writes.
 const PERSIST_EVERY: Duration = Duration::from_millis(250);
 
+/// The limits a submission is checked against.
+#[derive(Debug, Clone, Copy)]
+pub struct SubmitLimits {
+    /// Most products in the job.
+    pub max_products: usize,
+    /// Most jobs queued or running.
+    pub max_live: usize,
+    /// Most bytes of job files on disk.
+    pub disk_bytes: u64,
+}
+
 /// Whatever turns a product request into a stored artifact.
 pub trait Producer: Clone + Send + Sync + 'static {
     /// Makes sure the artifact of `req` (a product or a frame) exists (cached or computed now).
@@ -32,6 +43,12 @@ pub struct Job {
     pub spec: JobSpec,
     status: Mutex<JobStatus>,
     cancel: AtomicBool,
+    /// Bytes of its files on disk (body + last status written), for the disk budget.
+    body_bytes: u64,
+    status_bytes: AtomicU64,
+    /// Held while the job's files are written or removed; `true` once removed, so a late progress
+    /// write does not bring the directory back.
+    files: Mutex<bool>,
 }
 
 /// One item of a job as listed in its status.
@@ -135,6 +152,9 @@ impl Jobs {
                 spec,
                 status: Mutex::new(status),
                 cancel: AtomicBool::new(false),
+                body_bytes: s.body.len() as u64,
+                status_bytes: AtomicU64::new(s.status_bytes),
+                files: Mutex::new(false),
             });
         }
         found.sort_by(|a, b| a.status().created.cmp(&b.status().created));
@@ -182,14 +202,59 @@ impl Jobs {
     }
 
     fn persist(&self, job: &Job, status: &JobStatus) {
-        if let Err(e) = self.store.save_status(&job.id, status) {
-            tracing::warn!(job = %job.id, error = %e, "cannot persist job status");
+        let removed = job.files.lock().unwrap_or_else(|e| e.into_inner());
+        if *removed {
+            return;
+        }
+        match self.store.save_status(&job.id, status) {
+            Ok(n) => job.status_bytes.store(n, Ordering::Relaxed),
+            Err(e) => tracing::warn!(job = %job.id, error = %e, "cannot persist job status"),
         }
     }
 
+    /// Every job, oldest first.
+    pub fn list(&self) -> Vec<Arc<Job>> {
+        let mut all: Vec<Arc<Job>> = self.lock_table().values().cloned().collect();
+        all.sort_by(|a, b| (a.status().created, &a.id).cmp(&(b.status().created, &b.id)));
+        all
+    }
+
+    /// Jobs queued or running.
+    pub fn live(&self) -> usize {
+        self.lock_table()
+            .values()
+            .filter(|j| !j.status().finished())
+            .count()
+    }
+
+    /// Bytes of all job files on disk (counted in the cache's disk budget).
+    pub fn disk_bytes(&self) -> u64 {
+        self.lock_table()
+            .values()
+            .map(|j| j.body_bytes + j.status_bytes.load(Ordering::Relaxed))
+            .sum()
+    }
+
     /// Parses and validates a job body (every item), stores and queues it; returns the job.
-    pub fn submit(&self, body: &[u8], max_products: usize) -> Result<Arc<Job>, JobError> {
-        let spec = JobSpec::parse_body(body, max_products)?;
+    /// Refused ([`JobError::Full`]) when `limits.max_live` jobs are queued or running, or when the
+    /// job files would exceed `limits.disk_bytes`.
+    pub fn submit(&self, body: &[u8], limits: SubmitLimits) -> Result<Arc<Job>, JobError> {
+        let live = self.live();
+        if live >= limits.max_live {
+            return Err(JobError::Full(format!(
+                "{live} jobs are queued or running, the most jobs.max_live allows (limit {}); retry when one has finished",
+                limits.max_live
+            )));
+        }
+        let on_disk = self.disk_bytes();
+        if on_disk + body.len() as u64 > limits.disk_bytes {
+            return Err(JobError::Full(format!(
+                "job files take {on_disk} bytes; this body ({} bytes) would exceed cache.disk_budget_bytes (limit {}); delete finished jobs (DELETE /v1/jobs/{{id}})",
+                body.len(),
+                limits.disk_bytes
+            )));
+        }
+        let spec = JobSpec::parse_body(body, limits.max_products)?;
         spec.validate(&self.defaults)?;
         let id = format!("{:016x}", rand::random::<u64>());
         self.store.create(&id, body)?;
@@ -198,8 +263,12 @@ impl Jobs {
             status: Mutex::new(JobStatus::queued(spec.len())),
             spec,
             cancel: AtomicBool::new(false),
+            body_bytes: body.len() as u64,
+            status_bytes: AtomicU64::new(0),
+            files: Mutex::new(false),
         });
-        self.store.save_status(&id, &job.status())?;
+        let n = self.store.save_status(&id, &job.status())?;
+        job.status_bytes.store(n, Ordering::Relaxed);
         self.lock_table().insert(id.clone(), job.clone());
         self.lock_queue().push_back(id);
         self.wake.notify_one();
@@ -221,6 +290,50 @@ impl Jobs {
             self.store.save_status(&job.id, &st)?;
         }
         Ok(job)
+    }
+
+    /// `DELETE`: a finished job is removed with its files (`Ok((job, true))`); a queued or
+    /// running one is cancelled (`Ok((job, false))`, delete it again once it has stopped).
+    pub fn delete(&self, id: &str) -> Result<(Arc<Job>, bool), JobError> {
+        let job = self.find(id)?;
+        if !job.status().finished() {
+            return Ok((self.cancel(id)?, false));
+        }
+        self.remove(&job)?;
+        Ok((job, true))
+    }
+
+    /// Removes a job's files, then forgets it.
+    fn remove(&self, job: &Job) -> Result<(), JobError> {
+        {
+            let mut removed = job.files.lock().unwrap_or_else(|e| e.into_inner());
+            self.store.remove(&job.id)?;
+            *removed = true;
+        }
+        self.lock_table().remove(&job.id);
+        Ok(())
+    }
+
+    /// Removes finished jobs last updated more than `max_age_s` ago, with their files; returns
+    /// how many.
+    pub fn expire(&self, max_age_s: f64) -> usize {
+        let old: Vec<Arc<Job>> = self
+            .lock_table()
+            .values()
+            .filter(|j| {
+                let st = j.status();
+                st.finished() && st.age_s() > max_age_s
+            })
+            .cloned()
+            .collect();
+        let mut removed = 0;
+        for job in old {
+            match self.remove(&job) {
+                Ok(()) => removed += 1,
+                Err(e) => tracing::warn!(job = %job.id, error = %e, "cannot remove expired job"),
+            }
+        }
+        removed
     }
 
     async fn next_job(&self) -> Arc<Job> {

@@ -317,10 +317,12 @@ impl JobSpec {
                             rest /= values.len();
                             set_param(&mut p, name, v);
                         }
+                        // Errors name the grid's parameter (`grids[0].sun_elevation_deg`);
+                        // the item's index is in the job status.
                         return Some(Located::Product(
                             *product,
                             Box::new(p),
-                            format!("{prefix}[{i}]."),
+                            prefix.clone(),
                         ));
                     }
                     i -= len;

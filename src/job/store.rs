@@ -51,6 +51,20 @@ pub fn now() -> String {
 
 impl JobStatus {
     /// A queued job of `total` items, nothing done yet.
+    /// Whether the job has ended (completed or cancelled): it expires, and `DELETE` removes it.
+    pub fn finished(&self) -> bool {
+        matches!(self.state, JobState::Completed | JobState::Cancelled)
+    }
+
+    /// Seconds since the last update (0 when the stamp cannot be read).
+    pub fn age_s(&self) -> f64 {
+        chrono::DateTime::parse_from_rfc3339(&self.updated)
+            .map(|t| {
+                (chrono::Utc::now() - t.with_timezone(&chrono::Utc)).num_milliseconds() as f64 / 1e3
+            })
+            .unwrap_or(0.0)
+    }
+
     pub fn queued(total: usize) -> Self {
         let t = now();
         Self {
@@ -73,6 +87,8 @@ pub struct StoredJob {
     pub body: Vec<u8>,
     /// `None` when the job was stored but its progress never was.
     pub status: Option<JobStatus>,
+    /// Bytes of `status.json` (0 when absent).
+    pub status_bytes: u64,
 }
 
 /// The job directory.
@@ -104,11 +120,20 @@ impl JobStore {
         Ok(write_atomic(&self.job_dir(id).join("job.json"), body)?)
     }
 
-    /// Stores a job's progress.
-    pub fn save_status(&self, id: &str, status: &JobStatus) -> Result<(), JobError> {
+    /// Stores a job's progress; returns the bytes written.
+    pub fn save_status(&self, id: &str, status: &JobStatus) -> Result<u64, JobError> {
         let text = serde_json::to_vec_pretty(status)
             .map_err(|e| JobError::Failure(format!("encoding job status: {e}")))?;
-        Ok(write_atomic(&self.job_dir(id).join("status.json"), &text)?)
+        write_atomic(&self.job_dir(id).join("status.json"), &text)?;
+        Ok(text.len() as u64)
+    }
+
+    /// Removes a job's files.
+    pub fn remove(&self, id: &str) -> Result<(), JobError> {
+        if !valid_id(id) {
+            return Err(JobError::NotFound(format!("no job '{id}'")));
+        }
+        Ok(files::remove_dir_all(&self.job_dir(id))?)
     }
 
     /// Every stored job; a job that cannot be read is reported in the second list, as
@@ -122,16 +147,20 @@ impl JobStore {
             }
             let load = || -> Result<StoredJob, String> {
                 let body = files::read(&dir.join("job.json")).map_err(|e| e.to_string())?;
-                let status = match files::read_if_exists(&dir.join("status.json"))
+                let (status, status_bytes) = match files::read_if_exists(&dir.join("status.json"))
                     .map_err(|e| e.to_string())?
                 {
-                    Some(bytes) => Some(serde_json::from_slice(&bytes).map_err(|e| e.to_string())?),
-                    None => None,
+                    Some(bytes) => (
+                        Some(serde_json::from_slice(&bytes).map_err(|e| e.to_string())?),
+                        bytes.len() as u64,
+                    ),
+                    None => (None, 0),
                 };
                 Ok(StoredJob {
                     id: id.clone(),
                     body,
                     status,
+                    status_bytes,
                 })
             };
             match load() {

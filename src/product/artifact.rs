@@ -32,7 +32,18 @@ impl ProductRequest {
     /// Computes the product (the engine plans and executes) and returns its artifact.
     /// CPU-heavy: call from a blocking thread.
     pub fn compute(&self, engine: &Engine) -> Result<SpectralImage> {
-        let product = engine.compute(&self.spec, &self.product)?;
+        self.compute_cancellable(engine, &|| false)
+    }
+
+    /// [`Self::compute`], stopped with [`Error::Cancelled`] at the engine's next stage boundary
+    /// once `cancelled` returns true (nobody wants the result any more).
+    pub fn compute_cancellable(
+        &self,
+        engine: &Engine,
+        cancelled: crate::engine::CancelCheck,
+    ) -> Result<SpectralImage> {
+        let plan = self.plan()?;
+        let product = engine.execute_cancellable(&self.spec, &self.product, &plan, cancelled)?;
         let spec = &self.spec;
         let name = self.kind().name();
         let (mut image, mut envelope) = match &product {

@@ -10,8 +10,10 @@ use axum::http::request::Parts;
 use axum::http::StatusCode;
 use serde_json::{Map, Value};
 
-/// Most bytes of a query string.
-pub const MAX_QUERY_BYTES: usize = 64 * 1024;
+/// Most bytes of a query string: below hyper's own URI limit (65534 bytes, answered with a bare
+/// 414 before the router runs), so that the service's problem+json 414 stating this limit is what
+/// a long query meets.
+pub const MAX_QUERY_BYTES: usize = 32 * 1024;
 
 /// A type built from a route's decoded query pairs.
 pub trait FromQuery: Sized {
@@ -125,6 +127,11 @@ impl FromQuery for FormatOnly {
     }
 }
 
+/// The configured body limit in bytes, put in each request's extensions by the router so that a
+/// 413 can state it.
+#[derive(Debug, Clone, Copy)]
+pub struct BodyLimit(pub usize);
+
 /// A JSON object body (and its raw bytes, which jobs persist as submitted).
 pub struct JsonObject {
     pub object: Map<String, Value>,
@@ -135,11 +142,20 @@ impl<S: Send + Sync> FromRequest<S> for JsonObject {
     type Rejection = ApiError;
 
     async fn from_request(req: Request, state: &S) -> Result<Self, ApiError> {
+        let limit = req
+            .extensions()
+            .get::<BodyLimit>()
+            .map(|l| l.0.to_string())
+            .unwrap_or_else(|| "server.body_limit_bytes".into());
         let bytes = bytes::Bytes::from_request(req, state)
             .await
             .map_err(|e| ApiError::Body {
                 status: e.status(),
-                detail: e.body_text(),
+                detail: if e.status() == StatusCode::PAYLOAD_TOO_LARGE {
+                    format!("the body is larger than server.body_limit_bytes (limit {limit} bytes)")
+                } else {
+                    e.body_text()
+                },
             })?;
         match serde_json::from_slice::<Value>(&bytes) {
             Ok(Value::Object(object)) => Ok(Self { object, bytes }),

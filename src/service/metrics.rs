@@ -42,6 +42,14 @@ pub struct Metrics {
     pub frame_tiles_computed: AtomicU64,
     /// Frame renders stopped because no request waited for them any more.
     pub frames_abandoned: AtomicU64,
+    /// Computations cancelled because every client waiting for them had gone.
+    pub cancelled: AtomicU64,
+    /// New computations shed because `server.max_queued_computations` were waiting.
+    pub queue_shed: AtomicU64,
+    /// Requests refused with 429 by the per-client rate limit.
+    pub rate_limited: AtomicU64,
+    /// Requests refused with 401 (missing or unknown bearer token).
+    pub unauthorized: AtomicU64,
 }
 
 impl Metrics {
@@ -192,6 +200,30 @@ impl Metrics {
             "Frame renders stopped at a tile because no request waited for them.",
             self.frames_abandoned.load(Ordering::Relaxed),
         );
+        for (name, help, v) in [
+            (
+                "skybake_computations_cancelled_total",
+                "Computations cancelled because every client waiting for them had gone.",
+                &self.cancelled,
+            ),
+            (
+                "skybake_computations_queue_shed_total",
+                "New computations shed with 503 because the compute queue was full.",
+                &self.queue_shed,
+            ),
+            (
+                "skybake_rate_limited_total",
+                "Requests refused with 429 by the per-client rate limit.",
+                &self.rate_limited,
+            ),
+            (
+                "skybake_unauthorized_total",
+                "Requests refused with 401 (missing or unknown bearer token).",
+                &self.unauthorized,
+            ),
+        ] {
+            counter(out, name, help, v.load(Ordering::Relaxed));
+        }
     }
 }
 

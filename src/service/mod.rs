@@ -13,6 +13,7 @@
 //! to the cores.
 
 pub mod extract;
+pub mod limits;
 pub mod metrics;
 pub mod openapi;
 pub mod problem;
@@ -25,26 +26,50 @@ mod routes;
 use crate::config::Settings;
 use crate::engine::Engine;
 use crate::product::{Format, ProductKind, ProductRequest};
-use crate::render::FrameRequest;
-use crate::store::TileStore;
 use crate::store::{Cache, CacheConfig};
 use bytes::Bytes;
 use metrics::Metrics;
 use problem::ApiError;
 use responses::ResponseCache;
 use std::collections::HashMap;
-use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
+use crate::render::FrameRequest;
+use crate::store::TileStore;
+use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Mutex};
+use std::time::Duration;
 use tokio::sync::Semaphore;
 
 pub use routes::app;
 
-/// A computation in flight: its result, once published, and how many requests wait for it (a
-/// frame render stops at its next tile when none is left).
-#[derive(Clone)]
+/// The published result of a computation.
+type FlightResult = Option<Result<Arc<[u8]>, ApiError>>;
+
+/// A computation in flight: its result once published, who waits for it, and its cancel token.
 struct Flight {
-    rx: tokio::sync::watch::Receiver<Option<Result<Arc<[u8]>, ApiError>>>,
-    waiters: Arc<AtomicUsize>,
+    id: u64,
+    rx: tokio::sync::watch::Receiver<FlightResult>,
+    /// Requests and job items awaiting the result now.
+    waiters: usize,
+    cancel: Arc<CancelToken>,
+}
+
+/// Set when every waiter of a computation has gone (issue 18): the computation leaves the
+/// compute queue at once, or stops at the engine's next stage boundary.
+#[derive(Default)]
+struct CancelToken {
+    cancelled: std::sync::atomic::AtomicBool,
+    notify: tokio::sync::Notify,
+}
+
+impl CancelToken {
+    fn cancel(&self) {
+        self.cancelled.store(true, Ordering::Relaxed);
+        self.notify.notify_waiters();
+    }
+
+    fn is_cancelled(&self) -> bool {
+        self.cancelled.load(Ordering::Relaxed)
+    }
 }
 
 /// What a flight computes: a product of the parameter table or a cloud frame.
@@ -63,19 +88,32 @@ impl Work {
     }
 }
 
-/// One request waiting for a flight; leaving (a hung-up client, a timeout) decrements the count.
-struct Waiter(Arc<AtomicUsize>);
-
-impl Waiter {
-    fn join(count: &Arc<AtomicUsize>) -> Self {
-        count.fetch_add(1, Ordering::SeqCst);
-        Self(count.clone())
-    }
+/// One waiter of a flight; dropping it (the request finished, timed out, or its client hung up)
+/// leaves the flight, and the last one to leave cancels the computation unless
+/// `server.finish_abandoned` keeps it running for the cache.
+struct Waiter {
+    state: AppState,
+    key: String,
+    id: u64,
 }
 
 impl Drop for Waiter {
     fn drop(&mut self) {
-        self.0.fetch_sub(1, Ordering::SeqCst);
+        let inner = &self.state.inner;
+        let mut flights = inner.flights.lock().unwrap_or_else(|e| e.into_inner());
+        let Some(f) = flights.get_mut(&self.key).filter(|f| f.id == self.id) else {
+            return;
+        };
+        f.waiters = f.waiters.saturating_sub(1);
+        if f.waiters == 0 && !inner.settings.server.finish_abandoned {
+            // Out of the map first, so a new request for the key starts a fresh computation
+            // instead of joining one being cancelled.
+            if let Some(f) = flights.remove(&self.key) {
+                if f.rx.borrow().is_none() {
+                    f.cancel.cancel();
+                }
+            }
+        }
     }
 }
 
@@ -109,10 +147,15 @@ struct Inner {
     settings: Settings,
     engine: Engine,
     cache: Arc<Cache>,
-    tiles: TileStore,
     metrics: Metrics,
     compute: Semaphore,
     flights: Mutex<HashMap<String, Flight>>,
+    tiles: TileStore,
+    /// Flights started and not yet holding a compute slot (bounded by
+    /// `server.max_queued_computations`).
+    queued: std::sync::atomic::AtomicUsize,
+    next_flight: std::sync::atomic::AtomicU64,
+    rate: limits::RateLimiter,
     responses: Mutex<ResponseCache>,
     jobs: crate::job::run::Jobs,
 }
@@ -126,16 +169,16 @@ impl AppState {
             settings.cache.disk_budget_bytes,
             settings.cache.memory_budget_bytes,
         ))?);
+        let jobs = crate::job::run::Jobs::open(
+            &settings.cache.dir.join("jobs"),
+            crate::product::params::Defaults::from_settings(&settings),
+        )?;
         let tiles = TileStore::open(&settings.cache.dir.join("tiles"))?;
         // Tiles of renders nobody resumed within a week are abandoned.
         if let Err(e) = tiles.prune(std::time::Duration::from_secs(7 * 24 * 3600)) {
             tracing::warn!(error = %e, "cannot prune old render tiles");
         }
-        let jobs = crate::job::run::Jobs::open(
-            &settings.cache.dir.join("jobs"),
-            crate::product::params::Defaults::from_settings(&settings),
-        )?;
-        Ok(Self {
+        let state = Self {
             inner: Arc::new(Inner {
                 compute: Semaphore::new(settings.compute_threads()),
                 responses: Mutex::new(ResponseCache::new(settings.cache.response_budget_bytes)),
@@ -143,12 +186,17 @@ impl AppState {
                 // Precise tables persist in the same cache (one disk budget) across restarts.
                 engine: crate::store::tables::engine_with_cache(cache.clone()),
                 cache,
-                tiles,
                 metrics: Metrics::default(),
                 flights: Mutex::new(HashMap::new()),
+                tiles,
+                queued: Default::default(),
+                next_flight: Default::default(),
+                rate: Default::default(),
                 jobs,
             }),
-        })
+        };
+        state.housekeeping();
+        Ok(state)
     }
 
     pub fn settings(&self) -> &Settings {
@@ -171,9 +219,39 @@ impl AppState {
         &self.inner.jobs
     }
 
-    /// Starts the job workers (`settings.jobs.workers` tasks) on the current runtime.
+    pub fn rate_limiter(&self) -> &limits::RateLimiter {
+        &self.inner.rate
+    }
+
+    /// Starts the job workers (`settings.jobs.workers` tasks) on the current runtime, and the
+    /// housekeeping task that expires finished jobs (`jobs.expire_after_s`) and keeps the job
+    /// files counted in the cache's disk budget.
     pub fn start_job_workers(&self) {
         crate::job::run::start_workers(self, self.settings().jobs.workers);
+        let state = self.clone();
+        let expire_after_s = self.settings().jobs.expire_after_s;
+        let every = Duration::from_secs_f64((expire_after_s / 4.0).clamp(0.05, 30.0));
+        tokio::spawn(async move {
+            loop {
+                let s = state.clone();
+                let _ = Self::blocking(move || {
+                    s.housekeeping();
+                    Ok(())
+                })
+                .await;
+                tokio::time::sleep(every).await;
+            }
+        });
+    }
+
+    /// Expires finished jobs and counts the job files in the cache's disk budget.
+    pub fn housekeeping(&self) {
+        let jobs = self.jobs();
+        let removed = jobs.expire(self.settings().jobs.expire_after_s);
+        if removed > 0 {
+            tracing::info!(removed, "expired finished jobs");
+        }
+        self.inner.cache.set_reserved_bytes(jobs.disk_bytes());
     }
 
     /// Runs blocking work on the blocking pool; a panic there becomes a 500, never a crash.
@@ -197,9 +275,8 @@ impl AppState {
     }
 
     /// [`Self::artifact`] of any work. A frame render is computed tile by tile into the tile
-    /// store and stops at its next tile when every request waiting for it has gone (client hung
-    /// up or timed out, and no job waits for it); a retry resumes from the stored tiles. Other
-    /// products always finish into the cache.
+    /// store and, like any computation, stops when every request waiting for it has gone (at its
+    /// next tile; a retry resumes from the stored tiles).
     pub(crate) async fn artifact_of(
         &self,
         work: Work,
@@ -214,26 +291,41 @@ impl AppState {
         }
         // Join the computation in flight for this key, or start one. The computation runs on a
         // task of its own that publishes its result and leaves the map, so a waiter that times out
-        // or disconnects neither cancels it (a frame: unless it was the last) nor causes a second one.
-        let (flight, _waiter, leader) = {
+        // or disconnects does not cause a second one; when the last waiter has gone the
+        // computation is cancelled (see [`Waiter`]).
+        let (mut rx, waiter, leader) = {
             let mut flights = self.inner.flights.lock().unwrap_or_else(|e| e.into_inner());
-            match flights.get(key) {
+            match flights.get_mut(key) {
                 Some(f) => {
-                    let waiter = Waiter::join(&f.waiters);
-                    (f.clone(), waiter, false)
+                    f.waiters += 1;
+                    (f.rx.clone(), self.waiter(key, f.id), false)
                 }
                 None => {
+                    let queued = self.inner.queued.load(Ordering::Relaxed);
+                    if queued >= self.inner.settings.server.max_queued_computations {
+                        self.inner.metrics.load_shed.fetch_add(1, Ordering::Relaxed);
+                        self.inner
+                            .metrics
+                            .queue_shed
+                            .fetch_add(1, Ordering::Relaxed);
+                        return Err(ApiError::Overloaded);
+                    }
+                    self.inner.queued.fetch_add(1, Ordering::Relaxed);
+                    let id = self.inner.next_flight.fetch_add(1, Ordering::Relaxed);
                     let (tx, rx) = tokio::sync::watch::channel(None);
-                    let flight = Flight {
-                        rx,
-                        waiters: Arc::new(AtomicUsize::new(0)),
-                    };
-                    let waiter = Waiter::join(&flight.waiters);
-                    flights.insert(key.to_string(), flight.clone());
-                    let (state, key, waiters) =
-                        (self.clone(), key.to_string(), flight.waiters.clone());
+                    let cancel = Arc::new(CancelToken::default());
+                    flights.insert(
+                        key.to_string(),
+                        Flight {
+                            id,
+                            rx: rx.clone(),
+                            waiters: 1,
+                            cancel: cancel.clone(),
+                        },
+                    );
+                    let (state, k) = (self.clone(), key.to_string());
                     tokio::spawn(async move {
-                        let result = state.compute(work, key.clone(), waiters).await;
+                        let result = state.compute(work, k.clone(), cancel).await;
                         // Publish, then leave the map (the product is already in the cache).
                         let _ = tx.send(Some(result));
                         let mut flights = state
@@ -241,9 +333,11 @@ impl AppState {
                             .flights
                             .lock()
                             .unwrap_or_else(|e| e.into_inner());
-                        flights.remove(&key);
+                        if flights.get(&k).is_some_and(|f| f.id == id) {
+                            flights.remove(&k);
+                        }
                     });
-                    (flight, waiter, true)
+                    (rx, self.waiter(key, id), true)
                 }
             }
         };
@@ -253,29 +347,52 @@ impl AppState {
                 .single_flight_joins
                 .fetch_add(1, Ordering::Relaxed);
         }
-        let mut rx = flight.rx;
         let result = rx
             .wait_for(Option::is_some)
             .await
             .map_err(|_| ApiError::Internal("computation task ended without a result".into()))?
             .clone()
             .unwrap_or_else(|| Err(ApiError::Internal("no result".into())));
+        drop(waiter);
         result.map(|b| (b, Source::Computed))
     }
 
-    /// Computes `work` (behind the compute semaphore, on a blocking thread) and stores it.
+    fn waiter(&self, key: &str, id: u64) -> Waiter {
+        Waiter {
+            state: self.clone(),
+            key: key.to_string(),
+            id,
+        }
+    }
+
+    /// Computes `req` (behind the compute semaphore, on a blocking thread) and stores it; a
+    /// cancelled computation leaves the queue at once or stops at the engine's next stage.
     async fn compute(
         &self,
         work: Work,
         key: String,
-        waiters: Arc<AtomicUsize>,
+        cancel: Arc<CancelToken>,
     ) -> Result<Arc<[u8]>, ApiError> {
-        let _permit = self
-            .inner
-            .compute
-            .acquire()
-            .await
-            .map_err(|_| ApiError::Unavailable("shutting down".into()))?;
+        let inner = &self.inner;
+        let permit = {
+            let notified = cancel.notify.notified();
+            tokio::pin!(notified);
+            notified.as_mut().enable();
+            if cancel.is_cancelled() {
+                None
+            } else {
+                tokio::select! {
+                    p = inner.compute.acquire() => Some(p),
+                    () = notified => None,
+                }
+            }
+        };
+        inner.queued.fetch_sub(1, Ordering::Relaxed);
+        let Some(permit) = permit else {
+            inner.metrics.cancelled.fetch_add(1, Ordering::Relaxed);
+            return Err(crate::Error::Cancelled.into());
+        };
+        let _permit = permit.map_err(|_| ApiError::Unavailable("shutting down".into()))?;
         let s = self.clone();
         Self::blocking(move || {
             // Another flight may have finished between our cache miss and starting this one.
@@ -289,8 +406,15 @@ impl AppState {
             m.computed(work.name());
             m.compute_in_flight.fetch_add(1, Ordering::Relaxed);
             let image = match &work {
-                Work::Product(req) => req.compute(&s.inner.engine).map_err(ApiError::from),
-                Work::Frame(req) => s.render_frame(req, &key, &waiters),
+                Work::Product(req) => req
+                    .compute_cancellable(&s.inner.engine, &|| cancel.is_cancelled())
+                    .map_err(|e| {
+                        if matches!(e, crate::Error::Cancelled) {
+                            m.cancelled.fetch_add(1, Ordering::Relaxed);
+                        }
+                        ApiError::from(e)
+                    }),
+                Work::Frame(req) => s.render_frame(req, &key, &cancel),
             };
             m.compute_in_flight.fetch_sub(1, Ordering::Relaxed);
             let bytes = s.inner.cache.put_image(&key, &image?)?;
@@ -306,17 +430,17 @@ impl AppState {
     }
 
     /// Renders a frame tile by tile into the tile store (blocking). Stops at the next tile when
-    /// no request waits any more.
+    /// the flight is cancelled (no request waits any more).
     fn render_frame(
         &self,
         req: &FrameRequest,
         key: &str,
-        waiters: &AtomicUsize,
+        flight: &CancelToken,
     ) -> Result<crate::store::SpectralImage, ApiError> {
         let tiles = self.inner.tiles.frame(key)?;
         let abandoned = AtomicBool::new(false);
         let cancel = || {
-            let gone = waiters.load(Ordering::SeqCst) == 0;
+            let gone = flight.is_cancelled();
             if gone {
                 abandoned.store(true, Ordering::Relaxed);
             }
@@ -339,6 +463,7 @@ impl AppState {
         match result {
             Err(_) if abandoned.load(Ordering::Relaxed) => {
                 m.frames_abandoned.fetch_add(1, Ordering::Relaxed);
+                m.cancelled.fetch_add(1, Ordering::Relaxed);
                 Err(ApiError::Unavailable(format!(
                     "the render stopped because no client was waiting for it; {} of {} tiles are stored and a retry resumes from them",
                     tiles.count(),
@@ -349,6 +474,7 @@ impl AppState {
         }
     }
 
+
     /// The response body of `req` in its format, and where it came from.
     pub async fn body(&self, req: &ProductRequest) -> Result<(Bytes, Source, String), ApiError> {
         let key = req.cache_key();
@@ -358,6 +484,9 @@ impl AppState {
                 .response_cache_hits
                 .fetch_add(1, Ordering::Relaxed);
             return Ok((b, Source::Response, key));
+        }
+        if !self.inner.cache.contains(&key) {
+            self.check_cost(req)?;
         }
         let (artifact, source) = self.artifact(req, &key).await?;
         let body = match Self::render_body(req, artifact).await {
@@ -406,6 +535,26 @@ impl AppState {
         if let Ok(mut r) = self.inner.responses.lock() {
             r.clear();
         }
+    }
+
+    /// Refuses (413) a request whose estimated cost ([`crate::cost`]) exceeds
+    /// `server.max_request_cost`; jobs are not subject to it (they queue instead of holding a
+    /// request open).
+    pub fn check_cost(&self, req: &ProductRequest) -> Result<(), ApiError> {
+        let budget = self.inner.settings.server.max_request_cost;
+        let c = crate::cost::estimate(req)?;
+        if c.units > budget {
+            return Err(crate::Error::too_large(
+                "request_cost",
+                format!(
+                    "estimated cost {} cell-wavelength-orders ((table cells {} × expected orders {} + output cells {}) × wavelengths {}) exceeds the budget server.max_request_cost; lower quality, wavelengths or table size, or submit it as a job (POST /v1/jobs)",
+                    c.units, c.table_cells, c.expected_orders, c.output_cells, c.wavelengths
+                ),
+                budget,
+            )
+            .into());
+        }
+        Ok(())
     }
 
     /// The validated request of `product` from raw parameters, with the configured defaults.

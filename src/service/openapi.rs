@@ -36,9 +36,11 @@ pub const ROUTES: &[Route] = &[
     Route { method: "GET", path: "/v1/scenes/{name}", summary: "An example scene's JSON (frame scenes can be posted to /v1/render as they are)", limited: false, product: None, body: None, produces: JSON },
     Route { method: "POST", path: "/v1/plan", summary: "What would run for a product (stages run and left out, cache key), without computing it", limited: true, product: None, body: Some("PlanRequest"), produces: JSON },
     Route { method: "POST", path: "/v1/jobs", summary: "Submit a bake job (product list and/or grids); 202 with the job id", limited: true, product: None, body: Some("JobRequest"), produces: JSON },
+    Route { method: "GET", path: "/v1/jobs", summary: "Every job (oldest first) with state and progress (offset/limit page the list)", limited: true, product: None, body: None, produces: JSON },
     Route { method: "GET", path: "/v1/jobs/{id}", summary: "Job state, progress, errors and artifacts (offset/limit page the artifact list)", limited: true, product: None, body: None, produces: JSON },
-    Route { method: "DELETE", path: "/v1/jobs/{id}", summary: "Cancel a job (finished products stay cached)", limited: true, product: None, body: None, produces: JSON },
+    Route { method: "DELETE", path: "/v1/jobs/{id}", summary: "Cancel a queued or running job; remove a finished one and its files (its products stay cached)", limited: true, product: None, body: None, produces: JSON },
     Route { method: "GET", path: "/v1/jobs/{id}/artifacts/{n}", summary: "The n-th product of a job (format=exr default, json, png)", limited: true, product: None, body: None, produces: &["image/x-exr", "application/json", "image/png"] },
+    Route { method: "GET", path: "/v1/atmospheres", summary: "The built-in atmosphere presets with their parameters", limited: true, product: None, body: None, produces: JSON },
     Route { method: "GET", path: "/", summary: "The web viewer (HTML page; uses this API)", limited: false, product: None, body: None, produces: &["text/html"] },
     Route { method: "GET", path: "/assets/{file}", summary: "The viewer's script and style sheet", limited: false, product: None, body: None, produces: &["text/javascript", "text/css"] },
     Route { method: "GET", path: "/healthz", summary: "Liveness", limited: false, product: None, body: None, produces: JSON },
@@ -93,7 +95,7 @@ fn operation(route: &Route) -> Value {
             parameters.push(json!({"name": p.name, "in": "query", "required": false, "description": description, "schema": schema}));
         }
     }
-    if route.path == "/v1/jobs/{id}" && route.method == "GET" {
+    if (route.path == "/v1/jobs/{id}" || route.path == "/v1/jobs") && route.method == "GET" {
         for name in ["offset", "limit"] {
             parameters.push(json!({"name": name, "in": "query", "required": false, "schema": {"type": "integer", "minimum": 0}}));
         }
@@ -119,7 +121,7 @@ fn operation(route: &Route) -> Value {
         .iter()
         .map(|t| (t.to_string(), json!({})))
         .collect();
-    let ok = if route.path == "/v1/jobs" {
+    let ok = if route.path == "/v1/jobs" && route.method == "POST" {
         "202"
     } else {
         "200"

@@ -25,11 +25,21 @@ pub enum ApiError {
     Unavailable(String),
     /// A server-side fault (disk I/O, corrupted state); the detail is logged and reported.
     Internal(String),
+    /// The route exists but not with this method (the allowed ones are listed).
+    MethodNotAllowed(String),
+    /// A bearer token is required (`server.api_tokens`) and missing or unknown.
+    Unauthorized,
+    /// The client exceeded `server.rate_limit_per_s`; retry after this many seconds.
+    RateLimited { retry_after_s: u64 },
+    /// Too many live jobs (`jobs.max_live`).
+    JobsFull(String),
 }
 
 impl From<crate::Error> for ApiError {
     fn from(e: crate::Error) -> Self {
-        if e.is_input() {
+        if e == crate::Error::Cancelled {
+            ApiError::Unavailable(e.to_string())
+        } else if e.is_input() {
             ApiError::Param(e)
         } else {
             ApiError::Internal(e.to_string())
@@ -60,6 +70,7 @@ impl From<crate::job::JobError> for ApiError {
             },
             JobError::NotFound(d) => ApiError::NotFound(d),
             JobError::Failure(d) => ApiError::Internal(d),
+            JobError::Full(d) => ApiError::JobsFull(d),
         }
     }
 }
@@ -89,6 +100,9 @@ impl ApiError {
     pub fn status(&self) -> StatusCode {
         match self {
             ApiError::Param(crate::Error::OutOfRange { .. }) => StatusCode::BAD_REQUEST,
+            ApiError::Param(crate::Error::TooLarge { field, .. }) if field == "query" => {
+                StatusCode::URI_TOO_LONG
+            }
             ApiError::Param(crate::Error::TooLarge { .. }) => StatusCode::PAYLOAD_TOO_LARGE,
             ApiError::Param(_) => StatusCode::UNPROCESSABLE_ENTITY,
             ApiError::UnknownParameters(_) => StatusCode::BAD_REQUEST,
@@ -98,6 +112,10 @@ impl ApiError {
                 StatusCode::SERVICE_UNAVAILABLE
             }
             ApiError::Internal(_) => StatusCode::INTERNAL_SERVER_ERROR,
+            ApiError::MethodNotAllowed(_) => StatusCode::METHOD_NOT_ALLOWED,
+            ApiError::Unauthorized => StatusCode::UNAUTHORIZED,
+            ApiError::RateLimited { .. } => StatusCode::TOO_MANY_REQUESTS,
+            ApiError::JobsFull(_) => StatusCode::SERVICE_UNAVAILABLE,
         }
     }
 
@@ -140,7 +158,7 @@ impl ApiError {
             ApiError::Timeout => (
                 "urn:skybake:problem:timeout",
                 "Request timed out",
-                "the request took longer than the configured request timeout; the computation continues and a retry may be served from the cache".into(),
+                "the request took longer than the configured request timeout; its computation is cancelled unless another request or a job waits for it (server.finish_abandoned keeps it running): submit long computations as a job (POST /v1/jobs)".into(),
                 None,
             ),
             ApiError::Unavailable(d) => (
@@ -152,6 +170,30 @@ impl ApiError {
             ApiError::Internal(d) => (
                 "urn:skybake:problem:internal",
                 "Internal server error",
+                d.clone(),
+                None,
+            ),
+            ApiError::MethodNotAllowed(d) => (
+                "urn:skybake:problem:method-not-allowed",
+                "Method not allowed",
+                d.clone(),
+                None,
+            ),
+            ApiError::Unauthorized => (
+                "urn:skybake:problem:unauthorized",
+                "Unauthorized",
+                "this route needs an Authorization: Bearer <token> header with one of the tokens of server.api_tokens".into(),
+                None,
+            ),
+            ApiError::RateLimited { retry_after_s } => (
+                "urn:skybake:problem:rate-limited",
+                "Too many requests",
+                format!("this client exceeded server.rate_limit_per_s; retry after {retry_after_s} s"),
+                None,
+            ),
+            ApiError::JobsFull(d) => (
+                "urn:skybake:problem:jobs-full",
+                "Too many live jobs",
                 d.clone(),
                 None,
             ),
@@ -188,6 +230,15 @@ impl IntoResponse for ApiError {
         );
         if status == StatusCode::SERVICE_UNAVAILABLE {
             h.insert(header::RETRY_AFTER, HeaderValue::from_static("1"));
+        }
+        if let ApiError::RateLimited { retry_after_s } = self {
+            h.insert(header::RETRY_AFTER, HeaderValue::from(retry_after_s));
+        }
+        if status == StatusCode::UNAUTHORIZED {
+            h.insert(
+                header::WWW_AUTHENTICATE,
+                HeaderValue::from_static("Bearer realm=\"skybake\""),
+            );
         }
         resp
     }

@@ -142,6 +142,8 @@ struct State {
     /// Last access stamp written as a file mtime: strictly increasing, so the access order
     /// survives a restart even when the file system's own clock ticks coarsely.
     last_stamp: SystemTime,
+    /// Bytes of the budget taken by other files under the cache directory (persisted jobs).
+    reserved_bytes: u64,
 }
 
 impl State {
@@ -214,6 +216,7 @@ impl Cache {
             next_generation: 0,
             stats: CacheStats::default(),
             last_stamp: SystemTime::UNIX_EPOCH,
+            reserved_bytes: 0,
         };
         for (mtime, key, size_bytes) in found {
             state.last_stamp = state.last_stamp.max(mtime);
@@ -405,12 +408,25 @@ impl Cache {
         self.lock().stats
     }
 
+    /// Counts `bytes` of other files under the cache directory (persisted jobs) in the disk
+    /// budget, evicting products to make room for them.
+    pub fn set_reserved_bytes(&self, bytes: u64) {
+        let mut state = self.lock();
+        state.reserved_bytes = bytes;
+        self.evict_disk(&mut state);
+        self.refresh_sizes(&mut state);
+    }
+
     /// Writes `bytes` for `key` atomically, then indexes it and evicts to the budgets.
     /// An entry larger than the whole disk budget, or whose path cannot be cleared of a non-file,
     /// is not stored (and counted in [`CacheStats::not_stored`]); the caller still serves it.
     fn store(&self, key: &str, bytes: &Arc<[u8]>) -> Result<(), StoreError> {
         let path = self.path_for(key)?;
-        if bytes.len() as u64 > self.config.disk_budget_bytes || !self.clear_non_file(&path) {
+        let room = self
+            .config
+            .disk_budget_bytes
+            .saturating_sub(self.lock().reserved_bytes);
+        if bytes.len() as u64 > room || !self.clear_non_file(&path) {
             tracing::warn!(key, bytes = bytes.len(), "product served but not stored");
             self.lock().stats.not_stored += 1;
             return Ok(());
@@ -515,7 +531,7 @@ impl Cache {
 
     /// Deletes least recently used files until the disk budget holds; keys being written are kept.
     fn evict_disk(&self, state: &mut State) {
-        while state.disk.total_bytes() > self.config.disk_budget_bytes {
+        while state.disk.total_bytes() + state.reserved_bytes > self.config.disk_budget_bytes {
             let writing = &state.writing;
             let Some((key, _, _)) = state.disk.pop_oldest_unpinned(|k| writing.contains_key(k))
             else {

@@ -1,5 +1,5 @@
 //! Plain file access for the job store and offline bakes (so that only `store` touches the disk):
-//! read a whole file, create a directory, list the subdirectories of a directory. Writes go
+//! read a whole file, create or remove a directory, list the subdirectories of a directory. Writes go
 //! through [`super::write_atomic`].
 
 use super::StoreError;
@@ -16,6 +16,14 @@ pub fn read_if_exists(path: &Path) -> Result<Option<Vec<u8>>, StoreError> {
         Ok(bytes) => Ok(Some(bytes)),
         Err(e) if e.kind() == std::io::ErrorKind::NotFound => Ok(None),
         Err(e) => Err(StoreError::io(path, e)),
+    }
+}
+
+/// Removes `dir` and everything in it; a directory already gone is not an error.
+pub fn remove_dir_all(dir: &Path) -> Result<(), StoreError> {
+    match std::fs::remove_dir_all(dir) {
+        Err(e) if e.kind() != std::io::ErrorKind::NotFound => Err(StoreError::io(dir, e)),
+        _ => Ok(()),
     }
 }
 

@@ -37,8 +37,15 @@ pub async fn submit(
 ) -> Result<Response, ApiError> {
     let s = state.clone();
     let job = AppState::blocking(move || {
-        Ok(s.jobs()
-            .submit(&body.bytes, s.settings().jobs.max_products)?)
+        let settings = s.settings();
+        let limits = crate::job::run::SubmitLimits {
+            max_products: settings.jobs.max_products,
+            max_live: settings.jobs.max_live,
+            disk_bytes: settings.cache.disk_budget_bytes,
+        };
+        let job = s.jobs().submit(&body.bytes, limits)?;
+        s.cache().set_reserved_bytes(s.jobs().disk_bytes());
+        Ok(job)
     })
     .await?;
     let mut resp = (
@@ -66,14 +73,50 @@ pub async fn status(
     Ok(axum::Json(doc).into_response())
 }
 
-/// `DELETE /v1/jobs/{id}`: stops a queued or running job after its current item.
+/// `DELETE /v1/jobs/{id}`: stops a queued or running job after its current item; removes a
+/// finished one with its files (`"deleted": true`; its products stay in the product cache).
 pub async fn cancel(
     State(state): State<AppState>,
     UrlPath(id): UrlPath<String>,
     Query(NoParams): Query<NoParams>,
 ) -> Result<Response, ApiError> {
-    let job = state.jobs().cancel(&id)?;
-    Ok(axum::Json(status_json(&state, &job, 0, 0)).into_response())
+    let s = state.clone();
+    let (job, deleted) = AppState::blocking(move || {
+        let r = s.jobs().delete(&id)?;
+        s.cache().set_reserved_bytes(s.jobs().disk_bytes());
+        Ok(r)
+    })
+    .await?;
+    let mut doc = status_json(&state, &job, 0, 0);
+    doc["deleted"] = Value::Bool(deleted);
+    Ok(axum::Json(doc).into_response())
+}
+
+/// `GET /v1/jobs?offset=&limit=`: every job (oldest first) with its state and progress.
+pub async fn list(
+    State(state): State<AppState>,
+    Query(page): Query<Page>,
+) -> Result<Response, ApiError> {
+    let all = state.jobs().list();
+    let total = all.len();
+    let jobs: Vec<Value> = all
+        .iter()
+        .skip(page.offset)
+        .take(page.limit)
+        .map(|job| {
+            let st = job.status();
+            json!({"id": job.id, "state": st.state, "done": st.done, "failed": st.failed,
+                   "total": st.total, "created": st.created, "updated": st.updated,
+                   "url": format!("/v1/jobs/{}", job.id)})
+        })
+        .collect();
+    Ok(axum::Json(json!({
+        "total": total, "offset": page.offset, "limit": page.limit,
+        "live": state.jobs().live(), "max_live": state.settings().jobs.max_live,
+        "expire_after_s": state.settings().jobs.expire_after_s,
+        "jobs": jobs,
+    }))
+    .into_response())
 }
 
 /// `GET /v1/jobs/{id}/artifacts/{n}?format=`: the item's product (computed if it is not cached).
@@ -118,5 +161,10 @@ pub async fn artifact(
     if let Ok(v) = HeaderValue::from_str(&key) {
         h.insert("x-skybake-cache-key", v);
     }
+    // A job's item never changes (its spec is fixed and the engine version is in the key).
+    h.insert(
+        header::CACHE_CONTROL,
+        HeaderValue::from_static(super::products::IMMUTABLE),
+    );
     Ok(resp)
 }

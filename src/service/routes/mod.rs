@@ -16,7 +16,7 @@ use crate::product::ProductKind;
 use axum::error_handling::HandleErrorLayer;
 use axum::extract::{DefaultBodyLimit, MatchedPath, Request, State};
 use axum::middleware::Next;
-use axum::response::Response;
+use axum::response::{IntoResponse, Response};
 use axum::routing::{delete, get, post};
 use axum::{BoxError, Router};
 use std::sync::atomic::Ordering;
@@ -26,6 +26,34 @@ use tracing::Instrument;
 
 async fn not_found(uri: axum::http::Uri) -> ApiError {
     ApiError::NotFound(format!("no route {}; see /openapi.json", uri.path()))
+}
+
+/// Whether `path` matches the route pattern `pattern` (`{name}` matches one segment).
+fn matches(pattern: &str, path: &str) -> bool {
+    let (p, q): (Vec<&str>, Vec<&str>) = (pattern.split('/').collect(), path.split('/').collect());
+    p.len() == q.len()
+        && p.iter()
+            .zip(&q)
+            .all(|(a, b)| a == b || (a.starts_with('{') && !b.is_empty()))
+}
+
+/// 405 as problem+json, with the `Allow` header and the methods the path takes.
+async fn method_not_allowed(method: axum::http::Method, uri: axum::http::Uri) -> Response {
+    let allowed: Vec<&str> = ROUTES
+        .iter()
+        .filter(|r| matches(r.path, uri.path()))
+        .map(|r| r.method)
+        .collect();
+    let list = allowed.join(", ");
+    let mut resp = ApiError::MethodNotAllowed(format!(
+        "{method} is not allowed on {}; allowed: {list}",
+        uri.path()
+    ))
+    .into_response();
+    if let Ok(v) = axum::http::HeaderValue::from_str(&list) {
+        resp.headers_mut().insert(axum::http::header::ALLOW, v);
+    }
+    resp
 }
 
 async fn handle_overload(state: AppState, err: BoxError) -> ApiError {
@@ -69,6 +97,8 @@ fn method_router(route: &Route) -> axum::routing::MethodRouter<AppState> {
         ("GET", "/v1/scenes") => get(scenes::list),
         ("GET", "/v1/scenes/{name}") => get(scenes::scene),
         ("POST", "/v1/jobs") => post(jobs::submit),
+        ("GET", "/v1/jobs") => get(jobs::list),
+        ("GET", "/v1/atmospheres") => get(ops::atmospheres),
         ("GET", "/v1/jobs/{id}") => get(jobs::status),
         ("DELETE", "/v1/jobs/{id}") => delete(jobs::cancel),
         ("GET", "/v1/jobs/{id}/artifacts/{n}") => get(jobs::artifact),
@@ -108,10 +138,25 @@ pub fn app(state: AppState) -> Router {
             ))
             .timeout(timeout),
     );
+    // The rate limit answers before the shedder counts a request in flight.
+    let limited = limited.layer(axum::middleware::from_fn_with_state(
+        state.clone(),
+        super::limits::rate_limit,
+    ));
     limited
         .merge(open)
         .fallback(not_found)
+        .method_not_allowed_fallback(method_not_allowed)
         .layer(DefaultBodyLimit::max(settings.server.body_limit_bytes))
+        .layer(axum::Extension(super::extract::BodyLimit(
+            settings.server.body_limit_bytes,
+        )))
+        .layer(axum::middleware::from_fn_with_state(
+            state.clone(),
+            super::limits::authenticate,
+        ))
+        // JSON (and text) bodies compressed when the client accepts gzip or br; images are not.
+        .layer(tower_http::compression::CompressionLayer::new())
         .layer(axum::middleware::from_fn_with_state(state.clone(), record))
         .with_state(state)
 }

@@ -1,4 +1,4 @@
-//! Operations routes: liveness, Prometheus metrics, the OpenAPI document.
+//! Operations routes: liveness, Prometheus metrics, the OpenAPI document, the atmosphere presets.
 
 use super::super::metrics::{counter, gauge};
 use super::super::openapi::openapi_json;
@@ -132,4 +132,20 @@ pub async fn openapi() -> Response {
         HeaderValue::from_static("application/json"),
     );
     resp
+}
+
+/// `GET /v1/atmospheres`: the built-in atmosphere presets (names for `atmosphere=`), each with its
+/// parameters as an inline atmosphere would give them.
+pub async fn atmospheres() -> Result<Response, super::super::problem::ApiError> {
+    let mut list = Vec::new();
+    for name in crate::atmosphere::presets::preset_names() {
+        let params = crate::atmosphere::presets::preset(name)?;
+        list.push(json!({"name": name, "parameters": params}));
+    }
+    let mut resp = axum::Json(json!({ "atmospheres": list })).into_response();
+    resp.headers_mut().insert(
+        header::CACHE_CONTROL,
+        HeaderValue::from_static("public, max-age=3600"),
+    );
+    Ok(resp)
 }
