@@ -3,7 +3,11 @@
 // the new sky image, and checks that it changed, that the page logged no console errors, that every
 // control has a label, and that the page fits a phone-sized viewport. Screenshots go to docs/.
 //
-// Usage: node tools/browser/viewer_test.mjs [path/to/skybake]   (default target/release/skybake)
+// It then renders the cheapest example cloud frame through the page (POST /v1/render) and bakes a
+// three-step sun sweep through the page's job form, waiting for both to finish.
+//
+// Usage: node tools/browser/viewer_test.mjs [path/to/skybake] [screenshot dir]
+//        (defaults: target/release/skybake, docs/)
 import { spawn } from "node:child_process";
 import { mkdtempSync, mkdirSync, rmSync } from "node:fs";
 import { tmpdir } from "node:os";
@@ -14,7 +18,7 @@ import { chromium } from "playwright-core";
 const root = resolve(dirname(fileURLToPath(import.meta.url)), "..", "..");
 const binary = process.argv[2] || join(root, "target", "release", "skybake");
 const chromePath = process.env.CHROMIUM || "/usr/bin/chromium";
-const docs = join(root, "docs");
+const docs = process.argv[3] ? resolve(process.argv[3]) : join(root, "docs");
 mkdirSync(docs, { recursive: true });
 
 let passed = 0;
@@ -91,6 +95,37 @@ try {
   await page.waitForFunction(() => document.getElementById("probe-label").textContent.startsWith("View zenith"),
     null, { timeout: 60000 });
   check("spectrum at a clicked direction", true);
+
+  // Render an example cloud frame (the smallest one the page offers).
+  const scenes = await page.evaluate(() => [...document.querySelectorAll("#scene option")].map((o) => o.value));
+  check("example frame scenes listed", scenes.length > 0, JSON.stringify(scenes));
+  if (scenes.length > 0) {
+    const pick = scenes.find((n) => n.startsWith("validation")) || scenes[0];
+    await page.selectOption("#scene", pick);
+    await page.click("#render");
+    await page.waitForFunction(() => {
+      const t = document.getElementById("frame-caption").textContent;
+      return t !== "Not rendered yet." && !t.startsWith("Rendering");
+    }, null, { timeout: 600000 });
+    const caption = await page.textContent("#frame-caption");
+    check("cloud frame rendered", !caption.startsWith("Error") && !caption.startsWith("Cloud frames unavailable"), caption);
+    const frameWidth = await page.evaluate(() => document.getElementById("frame").naturalWidth);
+    check("cloud frame image shown", frameWidth > 0, `naturalWidth ${frameWidth}`);
+    check("frame EXR download offered", (await page.getAttribute("#frame-exr", "hidden")) === null);
+  }
+
+  // Bake a three-step sun sweep through the job form and wait for it to finish.
+  await page.fill("#bake-from", "0");
+  await page.fill("#bake-to", "10");
+  await page.fill("#bake-step", "5");
+  await page.click("#bake-form button[type=submit]");
+  await page.waitForFunction(() => {
+    const t = document.getElementById("bake-status").textContent;
+    return /^Job .*: (completed|cancelled)/.test(t) || t.startsWith("Error");
+  }, null, { timeout: 300000 });
+  const bakeStatus = await page.textContent("#bake-status");
+  const links = await page.evaluate(() => document.querySelectorAll("#bake-artifacts a").length);
+  check("bake job finished with three artifacts", /: completed, 3\/3 done/.test(bakeStatus) && links === 3, `${bakeStatus} (${links} links)`);
 
   await page.screenshot({ path: join(docs, "viewer.png"), fullPage: true });
 
