@@ -20,6 +20,7 @@ pub mod phase;
 pub mod plan;
 pub mod product;
 pub mod render;
+pub mod report;
 pub mod service;
 pub mod solar;
 pub mod solar_position;
