@@ -21,6 +21,7 @@
 //! see [`data`]), `README.md` (tables) and one log–log PNG of error against time per product
 //! ([`plot`]).
 
+pub mod data;
 pub mod plot;
 
 use crate::atmosphere::sky::MsMethod;
