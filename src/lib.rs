@@ -6,6 +6,7 @@
 // Numeric kernels index several parallel per-wavelength arrays in one loop; an index is clearer.
 #![allow(clippy::needless_range_loop)]
 
+pub mod accuracy;
 pub mod atmosphere;
 pub mod bench;
 pub mod camera;

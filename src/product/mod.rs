@@ -141,7 +141,7 @@ impl ProductRequest {
                     "give either quality or max_rel_error, not both",
                 ));
             }
-            spec.quality = crate::report::data::quality_for_target(product, &spec, target)?;
+            spec.quality = crate::accuracy::quality_for_target(product, &spec, target)?;
         }
         let format = Format::parse(p.format.as_deref(), product)?;
         let count = |name: &str, default: usize| -> Result<usize> {

@@ -1,22 +1,118 @@
-//! The committed report (`report/report.json`, written by `skybake report`) compiled into the
-//! binary (issue 15 point 2): every product's measured error for its regime, and quality chosen
-//! by a target error (`max_rel_error`).
+//! Measured accuracy (issue 15 point 2): the data of `skybake report` (`report/report.json`,
+//! compiled into the binary), the regime bands it was measured in, every product's measured error
+//! for its regime, and quality chosen by a target error (`max_rel_error`).
 //!
 //! The error a product states is the largest `rel_max` measured at its quality preset over the
 //! report's regimes in the same bands (sun elevation, observer altitude, aerosol load), plus the
 //! reference's own error against the independent codes ([`REFERENCE_ERROR`]). Outside the
 //! measured bands there is no figure and the product says `validated: false`.
+//! `src/report/` makes the data; this module only reads it (the engine may use it).
 
-use super::{band_of_aerosol, band_of_altitude, band_of_sun, Curve, Report, PRESETS};
 use crate::atmosphere::params::{AtmosphereParams, MieExtinction};
 use crate::atmosphere::sky::MsMethod;
-use crate::product::ProductKind;
-use crate::spec::{CommonSpec, Quality};
+use crate::spec::{CommonSpec, ProductKind, Quality};
 use crate::{Error, Result};
+use serde::{Deserialize, Serialize};
 use std::sync::OnceLock;
 
+/// The quality presets, cheapest first.
+pub const PRESETS: [Quality; 4] = [
+    Quality::Draft,
+    Quality::Standard,
+    Quality::High,
+    Quality::Reference,
+];
+
+/// Sun elevation bands, degrees: (name, lower bound inclusive).
+pub const SUN_BANDS: [(&str, f64); 3] = [("high", 30.0), ("low", 0.0), ("twilight", -18.0)];
+/// Observer altitude bands, metres: (name, upper bound exclusive).
+pub const ALTITUDE_BANDS: [(&str, f64); 2] = [("ground", 2_000.0), ("aloft", 20_000.0)];
+/// Aerosol bands by optical depth at 550 nm: (name, upper bound inclusive).
+pub const AEROSOL_BANDS: [(&str, f64); 2] = [("clear", 0.3), ("hazy", 1.0)];
+
+/// One measured regime: where in the sun/altitude/aerosol space the curves were taken.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Regime {
+    /// `<aerosol>/<sun band>/<altitude band>`, e.g. `clear/high/ground`.
+    pub name: String,
+    pub atmosphere: String,
+    pub sun_elevation_deg: f64,
+    pub observer_altitude_m: f64,
+    pub sun_band: String,
+    pub altitude_band: String,
+    pub aerosol_band: String,
+}
+
+/// One quality setting's measurement.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Point {
+    pub quality: Quality,
+    /// Shared tables built + the product, wall-clock ms.
+    pub cold_ms: f64,
+    /// The product with its tables built, wall-clock ms.
+    pub warm_ms: f64,
+    /// Process CPU time (all threads) of `cold_ms`, ms: steadier than wall time on a shared
+    /// machine; divide by the thread count for the wall time of an idle machine.
+    #[serde(default)]
+    pub cold_cpu_ms: Option<f64>,
+    pub rel_rms: f64,
+    pub rel_max: f64,
+}
+
+/// Error against time for one product, method and regime, over the presets.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Curve {
+    pub product: ProductKind,
+    pub method: MsMethod,
+    pub regime: String,
+    pub points: Vec<Point>,
+}
+
+/// A whole report.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Report {
+    pub engine_version: String,
+    /// `true` for `--quick` (one regime, three wavelengths, small tables).
+    pub quick: bool,
+    pub threads: usize,
+    /// One-minute load average of the machine when the report was written (timings are
+    /// inflated under load), when known.
+    #[serde(default)]
+    pub machine_load: Option<String>,
+    pub wavelengths_nm: String,
+    /// Table shape of the sky and ground products (elevations × azimuths).
+    pub dome_shape: [usize; 2],
+    pub reference: String,
+    pub regimes: Vec<Regime>,
+    pub curves: Vec<Curve>,
+}
+
+/// The sun band of an elevation (everything below 0° is `twilight`).
+pub fn band_of_sun(elevation_deg: f64) -> &'static str {
+    SUN_BANDS
+        .iter()
+        .find(|(_, lo)| elevation_deg >= *lo)
+        .map_or("twilight", |(n, _)| n)
+}
+
+/// The altitude band of an observer altitude (`None` above the highest measured band).
+pub fn band_of_altitude(altitude_m: f64) -> Option<&'static str> {
+    ALTITUDE_BANDS
+        .iter()
+        .find(|(_, hi)| altitude_m < *hi)
+        .map(|(n, _)| *n)
+}
+
+/// The aerosol band of an optical depth at 550 nm (`None` above the haziest measured band).
+pub fn band_of_aerosol(tau_550: f64) -> Option<&'static str> {
+    AEROSOL_BANDS
+        .iter()
+        .find(|(_, hi)| tau_550 <= *hi + 1e-9)
+        .map(|(n, _)| *n)
+}
+
 /// The committed full report.
-static REPORT_JSON: &str = include_str!("../../report/report.json");
+static REPORT_JSON: &str = include_str!("../report/report.json");
 
 /// The reference's own relative error (the precise method at the `reference` preset) against
 /// DISORT in the plane-parallel limit through the product path (README "Measured accuracy":
