@@ -135,6 +135,9 @@ enum Command {
         /// Output directory.
         #[arg(long, default_value = "report")]
         out: PathBuf,
+        /// Rewrite the markdown and plots from an existing report.json instead of measuring.
+        #[arg(long, value_name = "REPORT_JSON")]
+        from_json: Option<PathBuf>,
     },
     /// Run the HTTP service (settings: config/default.toml ← --config FILE ← SKYBAKE_* ← flags).
     ///
@@ -555,7 +558,11 @@ fn run(cli: Cli) -> Result<()> {
             method,
             format,
         } => run_render(&scene, output.as_deref(), &method, format),
-        Command::Report { quick, out } => Ok(run_report(quick, &out)?),
+        Command::Report {
+            quick,
+            out,
+            from_json,
+        } => Ok(run_report(quick, &out, from_json.as_deref())?),
         Command::Bench {
             names,
             format,
@@ -582,7 +589,20 @@ fn run(cli: Cli) -> Result<()> {
 }
 
 /// `skybake report`: runs the sweep with a progress bar on a terminal and writes the files.
-fn run_report(quick: bool, out: &Path) -> Result<()> {
+fn run_report(quick: bool, out: &Path, from_json: Option<&Path>) -> Result<()> {
+    if let Some(path) = from_json {
+        let text = read_limited(path, "from_json", 64 << 20)?;
+        let report: skybake::report::Report = serde_json::from_slice(&text).map_err(|e| {
+            Error::invalid(
+                "from_json",
+                format!("{} is not a report: {e}", path.display()),
+            )
+        })?;
+        for path in skybake::report::write(&report, out)? {
+            println!("{}", path.display());
+        }
+        return Ok(());
+    }
     let bar = std::io::IsTerminal::is_terminal(&std::io::stderr()).then(|| {
         let bar = indicatif::ProgressBar::new(0);
         bar.set_style(

@@ -32,7 +32,6 @@ use crate::product::params::RequestParams;
 use crate::product::{ProductKind, ProductRequest};
 use crate::spec::Quality;
 use crate::{Error, Result};
-use serde::{Deserialize, Serialize};
 use std::path::Path;
 use std::time::Instant;
 
@@ -346,9 +345,8 @@ pub fn write(report: &Report, dir: &Path) -> Result<Vec<std::path::PathBuf>> {
     let path = dir.join("report.json");
     std::fs::write(&path, json + "\n").map_err(io)?;
     written.push(path);
-    let mut products: Vec<ProductKind> = report.curves.iter().map(|c| c.product).collect();
-    products.dedup();
     let mut plots = Vec::new();
+    let products = products_of(report);
     for kind in products {
         let png = plot::error_time_png(report, kind)?;
         let name = format!("{}.png", kind.name());
@@ -361,6 +359,14 @@ pub fn write(report: &Report, dir: &Path) -> Result<Vec<std::path::PathBuf>> {
     std::fs::write(&path, markdown(report, &plots)).map_err(io)?;
     written.push(path);
     Ok(written)
+}
+
+/// The products a report has curves for, in route order.
+fn products_of(report: &Report) -> Vec<ProductKind> {
+    ProductKind::ALL
+        .into_iter()
+        .filter(|k| report.curves.iter().any(|c| c.product == *k))
+        .collect()
 }
 
 fn quality_name(q: Quality) -> &'static str {
@@ -411,9 +417,7 @@ pub fn markdown(report: &Report, plots: &[(ProductKind, String)]) -> String {
         );
     }
     let _ = writeln!(s);
-    let mut products: Vec<ProductKind> = report.curves.iter().map(|c| c.product).collect();
-    products.dedup();
-    for kind in products {
+    for kind in products_of(report) {
         let _ = writeln!(s, "## {}\n", kind.name());
         if let Some((_, file)) = plots.iter().find(|(k, _)| *k == kind) {
             let _ = writeln!(s, "![{} error against time]({file})\n", kind.name());
