@@ -49,6 +49,10 @@ pub const BENCHMARKS: &[(&str, &str)] = &[
         "sky table 129×64, 16 wavelengths, precise multiple scattering",
     ),
     (
+        "precise-tables",
+        "precise multiple-scattering tables + sky 129×64: cold (built), stored (loaded from the table cache, as a second process sees it), warm; 1/16/47/64 wavelengths, every quality, earth-hazy",
+    ),
+    (
         "ca-step",
         "cloud automaton step, 256×256×20 cells, median of 100 steps after 20 (seed 003: 500 ms)",
     ),
@@ -75,6 +79,10 @@ pub const BENCHMARKS: &[(&str, &str)] = &[
     (
         "frame",
         "lit cloud frame 640×480, 128³ cumulus, sky + ground light + multiple scattering, standard quality, cold and warm",
+    ),
+    (
+        "frame-pattern",
+        "the frame benchmark with multiple scattering of orders 2 and 3 by the reference pattern (seed 000 §3.4) instead of all orders",
     ),
     (
         "frame-accuracy",
@@ -265,9 +273,16 @@ pub fn run(names: &[String], cold_runs: usize, warm_runs: usize) -> Result<Vec<B
                 ));
             }
             "store" => out.extend(bench_store_stages(&entry, warm_runs)?),
-            "frame" => {
+            "precise-tables" => out.extend(precise_tables(&desc, cold_runs, warm_runs)?),
+            "frame" | "frame-pattern" => {
                 let runs: Vec<_> = (0..warm_runs.max(1))
-                    .map(|_| crate::render::bench::bench_frame(640, 480))
+                    .map(|_| {
+                        if name == "frame" {
+                            crate::render::bench::bench_frame(640, 480)
+                        } else {
+                            crate::render::pattern::bench_frame_pattern(640, 480)
+                        }
+                    })
                     .collect::<Result<_>>()?;
                 let last = &runs[runs.len() - 1];
                 out.push(entry(
@@ -366,6 +381,126 @@ fn bench_store_stages(
             )
         })
         .collect())
+}
+
+/// Cases of `precise-tables`: atmosphere, quality, number of wavelengths.
+const PRECISE_CASES: &[(&str, &str, usize)] = &[
+    ("earth", "standard", 1),
+    ("earth", "standard", 16),
+    ("earth", "standard", 47),
+    ("earth", "standard", 64),
+    ("earth", "draft", 16),
+    ("earth", "high", 16),
+    ("earth", "reference", 16),
+    ("earth-hazy", "standard", 16),
+];
+
+/// `n` wavelengths evenly spread over 380–755 nm (the default set's span) for n ≤ 16, else over
+/// 370–830 nm (47 at 10 nm) or 360–826 nm (64).
+fn wavelength_list(n: usize) -> String {
+    let (from, to) = match n {
+        1 => return "550".into(),
+        2..=16 => (380.0, 755.0),
+        17..=47 => (370.0, 830.0),
+        _ => (360.0, 826.2),
+    };
+    (0..n)
+        .map(|i| format!("{:.2}", from + (to - from) * i as f64 / (n - 1) as f64))
+        .collect::<Vec<_>>()
+        .join(",")
+}
+
+/// `precise-tables`: per case, the cold build (fresh engine on an empty table store: build and
+/// save, what a first CLI call does), a fresh engine on the store that now holds the table (what a
+/// second CLI call or a restarted server does), and a warm engine; details carry the orders, the
+/// extrapolated tail and the time per stage.
+fn precise_tables(desc: &str, cold_runs: usize, warm_runs: usize) -> Result<Vec<BenchResult>> {
+    use crate::store::tables::CacheTableStore;
+    use crate::store::{Cache, CacheConfig};
+    use std::sync::Arc;
+    let shape = DomeShape {
+        elevation_count: 129,
+        azimuth_count: 64,
+    };
+    let dir = std::env::temp_dir().join(format!("skybake-bench-tables-{}", std::process::id()));
+    let open_store = || -> Result<Arc<CacheTableStore>> {
+        let cache = Cache::open(CacheConfig::new(&dir, 16 << 30, 1 << 30))
+            .map_err(|e| Error::invalid("bench", e.to_string()))?;
+        Ok(Arc::new(CacheTableStore::new(Arc::new(cache))))
+    };
+    let mut out = Vec::new();
+    for &(atmosphere, quality, n) in PRECISE_CASES {
+        let p = RequestParams {
+            method: Some("precise".into()),
+            sun_elevation_deg: Some("20".into()),
+            atmosphere: Some(atmosphere.into()),
+            quality: Some(quality.into()),
+            wavelengths: Some(wavelength_list(n)),
+            ..Default::default()
+        };
+        let s = CommonSpec::from_params(&p, -18.0)?;
+        let name = format!("precise-tables {atmosphere} {quality} {n}λ");
+        let mut cold = Vec::new();
+        let mut details = serde_json::Value::Null;
+        for _ in 0..cold_runs {
+            let _ = std::fs::remove_dir_all(&dir);
+            let engine = Engine::with_table_store(open_store()?);
+            let t = Instant::now();
+            // The medium and density-integral table, then the precise table and the dome.
+            let shared = engine.shared(&s)?;
+            let density_ms = ms(t.elapsed());
+            engine.sky(&s, shape, &[])?;
+            let total_ms = ms(t.elapsed());
+            cold.push(total_ms);
+            let c = &shared.precise().convergence;
+            details = json!({
+                "atmosphere": atmosphere,
+                "quality": quality,
+                "wavelengths": n,
+                "orders": c.orders,
+                "last_order_fraction": c.last_order_fraction,
+                "tail_fraction": c.tail_fraction,
+                "series_error_estimate": c.series_error_estimate,
+                "order_ratio": c.order_ratio,
+                "stage_ms": {
+                    "density_table": density_ms,
+                    "precise_single_scattering": c.stage_ms.single_scattering,
+                    "precise_scattering_density": c.stage_ms.scattering_density,
+                    "precise_radiance": c.stage_ms.radiance,
+                    "precise_total": c.stage_ms.total,
+                    // The dome table, and saving the table to the store.
+                    "dome_and_save": total_ms - density_ms - c.stage_ms.total,
+                },
+            });
+        }
+        // Fresh engines that load the table the cold run stored.
+        let (stored, stored_min) = time_runs(cold_runs, || {
+            Engine::with_table_store(open_store()?)
+                .sky(&s, shape, &[])
+                .map(|_| ())
+        })?;
+        let engine = Engine::new();
+        engine.sky(&s, shape, &[])?;
+        let (warm, warm_min) = time_runs(warm_runs, || engine.sky(&s, shape, &[]).map(|_| ()))?;
+        let (cold_median, cold_min) = median(cold);
+        for (variant, runs, median_ms, min_ms) in [
+            ("cold", cold_runs, cold_median, cold_min),
+            ("stored", cold_runs, stored, stored_min),
+            ("warm", warm_runs, warm, warm_min),
+        ] {
+            out.push(BenchResult {
+                name: name.clone(),
+                variant,
+                runs,
+                median_ms,
+                min_ms,
+                description: desc.to_string(),
+                details: Some(details.clone()),
+            });
+        }
+    }
+    let _ = std::fs::remove_dir_all(&dir);
+    Ok(out)
 }
 
 /// The atmosphere products `sun`, `sky-fast`, `sky-precise`: cold and warm engines.

@@ -5,14 +5,16 @@ use crate::atmosphere::integrate::{Recorder, Scratch};
 use crate::atmosphere::irradiance::{hemisphere_irradiance, SUN_PRODUCT_N_MU, SUN_PRODUCT_N_PHI};
 use crate::atmosphere::multiple_fast::FastSettings;
 use crate::atmosphere::multiple_precise::PreciseSettings;
-use crate::atmosphere::shared::SharedTables;
+use crate::atmosphere::shared::{Persistence, SharedTables, TableEvents, TableStore};
 use crate::atmosphere::sky::{
     dome_table, horizon_axis_deg, horizon_dip_deg, DomeTable, MsMethod, Observer, RadianceEvaluator,
 };
 use crate::atmosphere::sun_transmittance::sun_transmittance;
 use crate::atmosphere::Medium;
-use crate::plan::{Plan, Stage};
+use crate::plan::{Plan, Reason, Stage};
 use crate::spec::{AerialSpec, CommonSpec, DomeSpec, ProductKind, ProductSpec, Quality};
+use crate::spectrum::colour::XyzWeights;
+use crate::spectrum::photometry::{correlated_colour_temperature, illuminance_lux};
 use crate::{Error, Result};
 use rayon::prelude::*;
 use serde::Serialize;
@@ -38,6 +40,34 @@ pub fn stated_relative_error(method: MsMethod) -> f64 {
     }
 }
 
+pub use crate::plan::{effective_method, FAST_TWILIGHT_LIMIT_DEG};
+
+/// Bound on the relative sky-radiance error of `method` at `sun_elevation_deg`, measured against
+/// DISORT (sun ≥ 30°, tests/atmosphere_validation.rs) and the spherical-shell Monte Carlo
+/// (sun 10° to −12°, observers at 0, 10 and 400 km, 440–680 nm, albedo 0 and 0.3,
+/// tests/atmosphere_twilight.rs, quality `standard`); keep these in step with those tests. Below
+/// −12° nothing is validated and the −12° figure is given.
+pub fn stated_twilight_error(method: MsMethod, sun_elevation_deg: f64) -> f64 {
+    let e = sun_elevation_deg;
+    match method {
+        MsMethod::Precise if e >= 30.0 => stated_relative_error(MsMethod::Precise),
+        // Measured: 2.08 % max, at view zenith 89° away from the sun at sunset (MC noise 0.4 %).
+        MsMethod::Precise if e >= 0.0 => 0.025,
+        // 3.2 % max (−6°, nadir from 400 km; MC noise 1.5 %).
+        MsMethod::Precise if e >= -6.0 => 0.04,
+        // 7.0 % max at −9°, 16.7 % at −12° where the Monte Carlo's own noise is 5–17 %.
+        MsMethod::Precise => 0.17,
+        MsMethod::Fast if e >= 30.0 => stated_relative_error(MsMethod::Fast),
+        // Measured: 8.9 % max (10° to 0°).
+        MsMethod::Fast if e >= 0.0 => 0.10,
+        // 10.0 % max (−2° to −4°).
+        MsMethod::Fast if e >= FAST_TWILIGHT_LIMIT_DEG => 0.11,
+        // Computed with the precise tables (see [`effective_method`]).
+        MsMethod::Fast => stated_twilight_error(MsMethod::Precise, e),
+        MsMethod::None => 1.0,
+    }
+}
+
 /// Error estimate attached to every product.
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct ErrorEstimate {
@@ -52,8 +82,9 @@ pub struct ErrorEstimate {
     pub last_order_fraction: Option<f64>,
     /// Where `relative_error` comes from.
     pub basis: &'static str,
-    /// Whether this request lies inside the validated range (sun elevation ≥ 30°); outside it
-    /// `relative_error` is the validated figure, not a bound, and `caveat` says why.
+    /// Whether this request lies inside the validated range (sun elevation ≥ −12°: spherical
+    /// Monte Carlo to 10°, DISORT from 30°); outside it `relative_error` is the nearest validated
+    /// figure, not a bound, and `caveat` says why.
     pub validated: bool,
     #[serde(skip_serializing_if = "Option::is_none")]
     pub caveat: Option<&'static str>,
@@ -93,6 +124,16 @@ pub struct SunProduct {
     pub direct_normal_irradiance_w_m2_nm: Vec<f64>,
     pub diffuse_horizontal_irradiance_w_m2_nm: Vec<f64>,
     pub global_horizontal_irradiance_w_m2_nm: Vec<f64>,
+    /// Photopic illuminance on a horizontal surface from the whole sky and sun, lux (CIE,
+    /// K_m = 683 lm/W; integrated over the requested wavelengths, see `meta.colour_note`).
+    pub global_horizontal_illuminance_lux: f64,
+    /// The sky's part of it (diffuse), lux.
+    pub diffuse_horizontal_illuminance_lux: f64,
+    /// Correlated colour temperature of the global horizontal light, K (CIE 015:2018 §9.5;
+    /// `null` when it is dark or farther than Duv 0.05 from the Planckian locus).
+    pub global_correlated_colour_temperature_k: Option<f64>,
+    /// Signed distance of that light from the Planckian locus in CIE 1960 (u, v).
+    pub global_duv: Option<f64>,
     pub error_estimate: ErrorEstimate,
     pub timing_ms: f64,
     pub meta: ProductMeta,
@@ -207,6 +248,10 @@ pub struct Engine {
     shared: Mutex<Vec<(String, SharedSlot)>>,
     tables: [AtomicU64; 3],
     terms: [AtomicU64; 5],
+    /// Where precise tables are kept between processes (`store::tables`), if anywhere.
+    table_store: Option<Arc<dyn TableStore>>,
+    /// Precise tables built, loaded and refused (counted where they happen, in `SharedTables`).
+    table_events: Arc<TableEvents>,
 }
 
 impl Engine {
@@ -214,9 +259,30 @@ impl Engine {
         Self::default()
     }
 
+    /// An engine that loads precise tables from `store` when it has them and saves those it builds.
+    pub fn with_table_store(store: Arc<dyn TableStore>) -> Self {
+        Self {
+            table_store: Some(store),
+            ..Self::default()
+        }
+    }
+
     /// How many times each table kind was built (for tests and metrics).
     pub fn table_builds(&self, table: Table) -> u64 {
-        self.tables[table as usize].load(Ordering::Relaxed)
+        match table {
+            // A precise table may be loaded from the table store instead of built.
+            Table::Precise => TableEvents::get(&self.table_events.precise_built),
+            _ => self.tables[table as usize].load(Ordering::Relaxed),
+        }
+    }
+
+    /// How many precise tables were loaded from the table store, and how many stored ones were
+    /// refused (corrupt or not matching) and rebuilt (for tests and metrics).
+    pub fn table_loads(&self) -> (u64, u64) {
+        (
+            TableEvents::get(&self.table_events.precise_loaded),
+            TableEvents::get(&self.table_events.precise_rejected),
+        )
     }
 
     /// How much of each term the engine has evaluated (for tests and metrics).
@@ -282,7 +348,7 @@ impl Engine {
                 Some(pos) => cache.remove(pos).1,
                 None => SharedSlot::default(),
             };
-            cache.push((key, slot.clone()));
+            cache.push((key.clone(), slot.clone()));
             if cache.len() > SHARED_CAPACITY {
                 cache.remove(0);
             }
@@ -291,7 +357,16 @@ impl Engine {
         let tables = slot.get_or_init(|| {
             self.count(Table::Density);
             let (fast, precise) = settings_for(spec.quality);
-            Arc::new(SharedTables::new(medium, fast, precise))
+            Arc::new(
+                SharedTables::new(medium, fast, precise).with_persistence(Persistence {
+                    // No key, no store: a table is never shared under a key that does not say
+                    // what it was built for.
+                    store: self.table_store.clone().filter(|_| !key.is_empty()),
+                    medium_key: key,
+                    engine_version: ENGINE_VERSION,
+                    events: self.table_events.clone(),
+                }),
+            )
         });
         Ok(tables.clone())
     }
@@ -311,10 +386,9 @@ impl Engine {
             MsMethod::Fast => shared.has_fast(),
             MsMethod::None => true,
         };
-        match (warm, method) {
-            (false, MsMethod::Precise) => self.count(Table::Precise),
-            (false, MsMethod::Fast) => self.count(Table::Fast),
-            _ => {}
+        // Precise builds are counted where they happen (a stored table may be loaded instead).
+        if !warm && method == MsMethod::Fast {
+            self.count(Table::Fast);
         }
         let observer = Observer {
             altitude_m: spec.observer_altitude_m,
@@ -346,7 +420,8 @@ impl Engine {
         start: Instant,
         plan: &Plan,
     ) -> ProductMeta {
-        let (orders, last) = match plan.ms_method() {
+        let method = plan.ms_method();
+        let (orders, last) = match method {
             MsMethod::Precise => {
                 let c = &shared.precise().convergence;
                 (Some(c.orders), Some(c.last_order_fraction))
@@ -356,25 +431,45 @@ impl Engine {
         let colour_note = (!spec.wavelengths_nm.adequate_for_colour()).then(|| {
             "wavelength sampling too coarse for accurate colour (needs 400–700 nm with gaps ≤ 40 nm); RGB is indicative".to_string()
         });
-        let validated = spec.sun.sun_elevation_deg >= 30.0 && spec.method != MsMethod::None;
-        let caveat = match (spec.method, spec.sun.sun_elevation_deg) {
-            (MsMethod::Fast, e) if e < 0.0 => Some(
-                "twilight: the fast method's isotropic table under-resolves light scattered from the lit upper atmosphere; it reads 2–3x low at −6° and far lower in deep twilight; use method=precise",
+        let e = spec.sun.sun_elevation_deg;
+        let night = plan
+            .left_out
+            .iter()
+            .any(|(_, r)| matches!(r, Reason::SunBelowDarkestTwilight { .. }));
+        let validated = e >= -12.0 && method != MsMethod::None;
+        let caveat = match (method, e) {
+            _ if night => Some(
+                "night: no sunlit air or ground is in view, so sunlight contributes exactly zero; moonlight, starlight and airglow are not modelled",
             ),
             (MsMethod::None, _) => Some("single scattering only: multiple scattering is left out"),
-            (_, e) if e < 30.0 => Some(
-                "outside the DISORT-validated range (sun elevation ≥ 30°); energy conservation is verified for all sun positions",
+            (_, e) if e < -12.0 => Some(
+                "deep twilight (sun below −12°): validated down to −12° only; energy conservation is verified for all sun positions",
+            ),
+            (_, e) if e < 30.0 && e > 10.0 => Some(
+                "between the validated ranges (spherical Monte Carlo to 10°, DISORT from 30°)",
             ),
             _ => None,
+        };
+        let basis = if e >= 30.0 {
+            "max relative deviation from DISORT (Rayleigh, sun zenith 0–60°, view zenith 0–60°, albedo 0 and 0.3), tests/atmosphere_validation.rs"
+        } else {
+            "max relative deviation from the spherical-shell Monte Carlo in this sun-elevation band (Rayleigh, 440–680 nm, albedo 0 and 0.3, observers at 0, 10 and 400 km), tests/atmosphere_twilight.rs"
         };
         ProductMeta {
             engine_version: ENGINE_VERSION,
             error_estimate: ErrorEstimate {
-                method: spec.method,
-                relative_error: stated_relative_error(spec.method),
+                method,
+                relative_error: if night {
+                    // Every scattering term is exactly zero in the model (`plan::darkest_twilight_deg`).
+                    0.0
+                } else if e >= 30.0 {
+                    stated_relative_error(method)
+                } else {
+                    stated_twilight_error(method, e)
+                },
                 scattering_orders: orders,
                 last_order_fraction: last,
-                basis: "max relative deviation from DISORT (Rayleigh, sun zenith 0–60°, view zenith 0–60°, albedo 0 and 0.3), tests/atmosphere_validation.rs",
+                basis,
                 validated,
                 caveat,
             },
@@ -466,7 +561,13 @@ impl Engine {
             .map(|(d, h)| d * mu_s.max(0.0) + h)
             .collect();
         let meta = self.meta(&shared, spec, warm, start, plan);
+        let nm = &m.wavelengths_nm;
+        let cct = correlated_colour_temperature(XyzWeights::new(nm).xyz(&ghi));
         Ok(SunProduct {
+            global_horizontal_illuminance_lux: illuminance_lux(nm, &ghi),
+            diffuse_horizontal_illuminance_lux: illuminance_lux(nm, &dhi),
+            global_correlated_colour_temperature_k: cct.map(|c| c.kelvin),
+            global_duv: cct.map(|c| c.duv),
             wavelengths_nm: m.wavelengths_nm.clone(),
             sun_elevation_deg: spec.sun.sun_elevation_deg,
             observer_altitude_m: spec.observer_altitude_m,

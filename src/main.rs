@@ -41,6 +41,10 @@ type Result<T, E = CliError> = std::result::Result<T, E>;
 #[derive(Parser)]
 #[command(name = "skybake", version, about = "Spectral atmosphere and sky precomputation", long_about = None)]
 struct Cli {
+    /// Build shared tables in this process only: neither load nor save them in the cache
+    /// directory (SKYBAKE_CACHE_DIR or the config's cache.dir, shared with `serve` and `bake`).
+    #[arg(long, global = true)]
+    no_table_cache: bool,
     #[command(subcommand)]
     command: Command,
 }
@@ -111,8 +115,8 @@ enum Command {
     ///
     /// Example: skybake bench sky-fast sun --format json
     Bench {
-        /// Benchmarks to run (default: all). Known: sun, sky-fast, sky-precise, ca-step, spheres,
-        /// metaballs, fractal, satellite, solar-position, store.
+        /// Benchmarks to run (default: all). Known: sun, sky-fast, sky-precise, precise-tables,
+        /// ca-step, spheres, metaballs, fractal, satellite, solar-position, store.
         names: Vec<String>,
         #[arg(long, value_enum, default_value_t = Format::Text)]
         format: Format,
@@ -379,7 +383,12 @@ fn extension(path: &Path) -> String {
 
 /// `sky`/`ground`: the product's artifact (the EXR the service and bakes store), written with
 /// `-o FILE.exr`, previewed with `-o FILE.png`, printed as the service's JSON body.
-fn run_dome(kind: ProductKind, flags: &RequestParams, out: &DomeOutput) -> Result<()> {
+fn run_dome(
+    kind: ProductKind,
+    flags: &RequestParams,
+    out: &DomeOutput,
+    engine: &Engine,
+) -> Result<()> {
     let req = ProductRequest::from_params(kind, &request_params(flags.clone())?)?;
     let ext = out.output.as_deref().map(extension);
     if let (Some(path), Some(ext)) = (&out.output, &ext) {
@@ -391,7 +400,7 @@ fn run_dome(kind: ProductKind, flags: &RequestParams, out: &DomeOutput) -> Resul
             .into());
         }
     }
-    let image = req.compute(&Engine::new())?;
+    let image = req.compute(engine)?;
     if let (Some(path), Some(ext)) = (&out.output, &ext) {
         if ext == "png" {
             let projection = match out.projection {
@@ -414,6 +423,18 @@ fn load_settings(config: Option<&Path>) -> Result<skybake::config::Settings> {
     Ok(skybake::config::Settings::load(config)?)
 }
 
+/// The engine of every product command (`sun`, `sky`, `ground`, `aerial`, `render`, `bake`): the
+/// precise tables come from (and go to) the configured cache directory, so a second call with the
+/// same atmosphere and wavelengths skips the build; `--no-table-cache` builds them in-process.
+fn engine(no_table_cache: bool, config: Option<&Path>) -> Result<Engine> {
+    if no_table_cache {
+        return Ok(Engine::new());
+    }
+    Ok(skybake::store::tables::engine_for_settings(&load_settings(
+        config,
+    )?))
+}
+
 fn serve(args: ServeArgs) -> Result<()> {
     let mut settings = load_settings(args.config.as_deref())?;
     if let Some(bind) = args.bind {
@@ -426,8 +447,9 @@ fn serve(args: ServeArgs) -> Result<()> {
     skybake::service::server::run(settings).map_err(CliError::Failure)
 }
 
-fn bake(job: &Path, out: &Path, config: Option<&Path>) -> Result<()> {
+fn bake(job: &Path, out: &Path, config: Option<&Path>, no_table_cache: bool) -> Result<()> {
     let settings = load_settings(config)?;
+    let engine = engine(no_table_cache, config)?;
     let body = std::fs::read(job).map_err(|e| io_error(e, "job", job))?;
     let start = std::time::Instant::now();
     // A progress bar on a terminal; plain progress lines in logs and pipes.
@@ -446,6 +468,7 @@ fn bake(job: &Path, out: &Path, config: Option<&Path>) -> Result<()> {
         out,
         &defaults,
         settings.jobs.max_products,
+        &engine,
         |done, total, what| match &bar {
             Some(bar) => {
                 bar.set_length(total as u64);
@@ -479,9 +502,10 @@ fn bake(job: &Path, out: &Path, config: Option<&Path>) -> Result<()> {
 }
 
 fn run(cli: Cli) -> Result<()> {
+    let no_table_cache = cli.no_table_cache;
     match cli.command {
         Command::Serve(args) => serve(args),
-        Command::Bake { job, out, config } => bake(&job, &out, config.as_deref()),
+        Command::Bake { job, out, config } => bake(&job, &out, config.as_deref(), no_table_cache),
         Command::Healthcheck { addr } => {
             let addr = match addr {
                 Some(a) => a,
@@ -497,10 +521,23 @@ fn run(cli: Cli) -> Result<()> {
                 ProductKind::Sun,
                 &request_params(a.flags.params.clone())?,
             )?;
-            print_body(ProductKind::Sun, &req.compute(&Engine::new())?)
+            print_body(
+                ProductKind::Sun,
+                &req.compute(&engine(no_table_cache, None)?)?,
+            )
         }
-        Command::Sky(a) => run_dome(ProductKind::Sky, &a.flags.params, &a.out),
-        Command::Ground(a) => run_dome(ProductKind::Ground, &a.flags.params, &a.out),
+        Command::Sky(a) => run_dome(
+            ProductKind::Sky,
+            &a.flags.params,
+            &a.out,
+            &engine(no_table_cache, None)?,
+        ),
+        Command::Ground(a) => run_dome(
+            ProductKind::Ground,
+            &a.flags.params,
+            &a.out,
+            &engine(no_table_cache, None)?,
+        ),
         Command::Aerial(a) => {
             let req = ProductRequest::from_params(
                 ProductKind::Aerial,
@@ -515,7 +552,7 @@ fn run(cli: Cli) -> Result<()> {
                     .into());
                 }
             }
-            let image = req.compute(&Engine::new())?;
+            let image = req.compute(&engine(no_table_cache, None)?)?;
             if let Some(path) = &a.output {
                 write_file(path, &skybake::store::encode_exr(&image)?)?;
             }
@@ -557,7 +594,13 @@ fn run(cli: Cli) -> Result<()> {
             output,
             method,
             format,
-        } => run_render(&scene, output.as_deref(), &method, format),
+        } => run_render(
+            &scene,
+            output.as_deref(),
+            &method,
+            format,
+            &engine(no_table_cache, None)?,
+        ),
         Command::Report {
             quick,
             out,
@@ -661,7 +704,13 @@ fn read_limited(path: &Path, field: &str, limit: usize) -> skybake::Result<Vec<u
 
 /// `skybake render`: reads the scene (the library does no I/O), renders it through the frame
 /// product (the same path as `POST /v1/render`), writes the EXR or PNG and prints a summary.
-fn run_render(scene: &Path, output: Option<&Path>, method: &str, format: Format) -> Result<()> {
+fn run_render(
+    scene: &Path,
+    output: Option<&Path>,
+    method: &str,
+    format: Format,
+    engine: &Engine,
+) -> Result<()> {
     use skybake::cloud::scene as cloud_scene;
     use skybake::render::{FrameRequest, Method};
     let method = Method::parse(method)?;
@@ -703,7 +752,7 @@ fn run_render(scene: &Path, output: Option<&Path>, method: &str, format: Format)
             bar.set_position((f * 1000.0) as u64);
         }
     };
-    let image = request.compute(&Engine::new(), &loader, &progress, &|| false)?;
+    let image = request.compute(engine, &loader, &progress, &|| false)?;
     if let Some(bar) = &bar {
         bar.finish_and_clear();
     }

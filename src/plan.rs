@@ -5,16 +5,19 @@
 //! is built, no ray-march term is evaluated), a stage in it does; `tests/plan.rs` checks each rule
 //! against the engine's work counters.
 //!
-//! Rules live here and nowhere else. Cost rules (issue 15) and a "sun below the darkest twilight"
-//! rule (issues 14/18: leave out single scattering once no air the product sees is lit) are new
-//! arms of [`plan`], with a new [`Reason`] each.
+//! Rules live here and nowhere else, the choice of multiple-scattering method among them (`fast`
+//! below [`FAST_TWILIGHT_LIMIT_DEG`] runs the precise tables, issue 14) and night (issue 18: below
+//! [`darkest_twilight_deg`] nothing the observer sees is lit, and every scattering stage is left
+//! out). Cost rules (issue 15) are new arms of [`plan`], with a new [`Reason`] each.
 
+use crate::atmosphere::multiple_precise::source_sun_zenith_limit_rad;
 use crate::atmosphere::sky::MsMethod;
 use crate::atmosphere::sun_transmittance::sun_disk_visible_fraction;
 use crate::atmosphere::Medium;
 use crate::spec::{CommonSpec, ProductKind};
 use serde::ser::SerializeStruct;
 use serde::{Serialize, Serializer};
+use std::f64::consts::FRAC_PI_2;
 
 /// A unit of work the engine can run for a product.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize)]
@@ -52,6 +55,48 @@ impl Stage {
     }
 }
 
+/// Sun elevation below which a `fast` request is computed with the precise tables instead: the
+/// fast method's measured error against the spherical Monte Carlo exceeds 10 % there (−6°: up to
+/// 54 % low, −9°: 81 %, −12°: 96 %; tests/atmosphere_twilight.rs), issue 14 point 3.
+pub const FAST_TWILIGHT_LIMIT_DEG: f64 = -4.0;
+
+/// The multiple-scattering method a spec is computed with: `fast` below
+/// [`FAST_TWILIGHT_LIMIT_DEG`] runs on the precise tables, where the fast method's measured error
+/// exceeds 10 %; otherwise the requested one.
+pub fn effective_method(spec: &CommonSpec) -> MsMethod {
+    match spec.method {
+        MsMethod::Fast if spec.sun.sun_elevation_deg < FAST_TWILIGHT_LIMIT_DEG => MsMethod::Precise,
+        m => m,
+    }
+}
+
+/// Why the multiple-scattering stage runs another method than the one requested.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+#[serde(tag = "reason", rename_all = "snake_case")]
+pub enum Substitution {
+    /// `fast` requested with the sun below [`FAST_TWILIGHT_LIMIT_DEG`]: the precise tables run.
+    FastInTwilight {
+        requested: MsMethod,
+        sun_elevation_deg: f64,
+        limit_deg: f64,
+    },
+}
+
+impl Substitution {
+    /// One line for people.
+    pub fn detail(&self) -> String {
+        match self {
+            Substitution::FastInTwilight {
+                sun_elevation_deg,
+                limit_deg,
+                ..
+            } => format!(
+                "multiple scattering: successive orders (precise) in place of the requested fast method: the sun at {sun_elevation_deg}° is below {limit_deg}°, where the fast method's measured error exceeds 10 % (up to 54 % low at −6°)"
+            ),
+        }
+    }
+}
+
 /// Why a stage is left out.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize)]
 #[serde(tag = "reason", rename_all = "snake_case")]
@@ -65,6 +110,13 @@ pub enum Reason {
     SunBelowHorizon {
         sun_elevation_deg: f64,
         horizon_elevation_deg: f64,
+    },
+    /// Night: the sun is below [`darkest_twilight_deg`], so no air and no ground the observer can
+    /// see is lit, directly or through the modelled multiple scattering; the stage's result is
+    /// exactly zero.
+    SunBelowDarkestTwilight {
+        sun_elevation_deg: f64,
+        darkest_twilight_deg: f64,
     },
 }
 
@@ -80,6 +132,12 @@ impl Reason {
             } => format!(
                 "the sun's disk (centre at {sun_elevation_deg}°) is wholly below the observer's horizon at {horizon_elevation_deg:.3}°"
             ),
+            Reason::SunBelowDarkestTwilight {
+                sun_elevation_deg,
+                darkest_twilight_deg,
+            } => format!(
+                "night: with the sun at {sun_elevation_deg}°, below {darkest_twilight_deg:.2}°, no air or ground this observer sees is lit by the sun or by the modelled multiple scattering (moonlight, starlight and airglow are not modelled)"
+            ),
         }
     }
 }
@@ -89,8 +147,11 @@ impl Reason {
 pub struct Plan {
     pub stages: Vec<Stage>,
     pub left_out: Vec<(Stage, Reason)>,
-    /// The multiple-scattering method the [`Stage::MultipleScattering`] stage uses.
+    /// The multiple-scattering method the [`Stage::MultipleScattering`] stage uses (the
+    /// effective one, see [`effective_method`]).
     pub method: MsMethod,
+    /// Set when `method` is not the requested one, with the reason.
+    pub substitution: Option<Substitution>,
 }
 
 impl Plan {
@@ -122,6 +183,13 @@ struct StageView {
 }
 
 #[derive(Serialize)]
+struct SubstitutionView {
+    #[serde(flatten)]
+    substitution: Substitution,
+    detail: String,
+}
+
+#[derive(Serialize)]
 struct LeftOutView {
     stage: Stage,
     #[serde(flatten)]
@@ -131,7 +199,8 @@ struct LeftOutView {
 
 impl Serialize for Plan {
     /// `{"method", "stages": [{"stage", "description"}], "left_out": [{"stage", "reason", …,
-    /// "detail"}]}`.
+    /// "detail"}]}`, with `"method_substitution": {"reason", "requested", …, "detail"}` when the
+    /// method that runs is not the requested one.
     fn serialize<S: Serializer>(&self, s: S) -> Result<S::Ok, S::Error> {
         let stages: Vec<StageView> = self
             .stages
@@ -150,39 +219,88 @@ impl Serialize for Plan {
                 detail: reason.detail(),
             })
             .collect();
-        let mut st = s.serialize_struct("Plan", 3)?;
+        let mut st = s.serialize_struct("Plan", 4)?;
         st.serialize_field("method", &self.method)?;
+        if let Some(substitution) = self.substitution {
+            st.serialize_field(
+                "method_substitution",
+                &SubstitutionView {
+                    substitution,
+                    detail: substitution.detail(),
+                },
+            )?;
+        }
         st.serialize_field("stages", &stages)?;
         st.serialize_field("left_out", &left_out)?;
         st.end()
     }
 }
 
+/// The sun elevation, degrees, below which nothing an observer at `observer_altitude_m` can see
+/// is lit, directly or through the modelled multiple scattering (`method`): the darkest modelled
+/// twilight (issue 18).
+///
+/// The air the observer sees reaches at most the geocentric angle α = acos(R/r_o) + acos(R/R_top)
+/// from it (along the ray that grazes the ground). A point α towards the sun sees it at local
+/// zenith angle θ_s − α. Air there is lit by the sun when its local zenith angle is below the
+/// top's horizon, 90° + acos(R/R_top), plus the sun's angular radius (single scattering and the
+/// ground); the precise tables hold a source up to [`source_sun_zenith_limit_rad`] (12° further).
+/// Below the returned elevation every scattering term is exactly zero.
+pub fn darkest_twilight_deg(m: &Medium, observer_altitude_m: f64, method: MsMethod) -> f64 {
+    let (bottom, top) = (m.bottom_radius_m, m.top_radius_m);
+    let observer = bottom + observer_altitude_m.max(0.0);
+    let reach =
+        (bottom / observer).clamp(-1.0, 1.0).acos() + (bottom / top).clamp(-1.0, 1.0).acos();
+    let lit = FRAC_PI_2 + (bottom / top).clamp(-1.0, 1.0).acos() + m.sun_angular_radius_rad;
+    let source = match method {
+        MsMethod::None => lit,
+        MsMethod::Fast | MsMethod::Precise => lit.max(source_sun_zenith_limit_rad(bottom, top)),
+    };
+    90.0 - (source + reach).to_degrees()
+}
+
 /// Plans `product` for `spec` on the resolved medium `m` (which carries the effective ground
 /// albedo). Pure: no tables, no I/O.
 pub fn plan(product: ProductKind, spec: &CommonSpec, m: &Medium) -> Plan {
+    let method = effective_method(spec);
+    let elevation = spec.sun.sun_elevation_deg;
+    let darkest = darkest_twilight_deg(m, spec.observer_altitude_m, method);
+    let night = (elevation < darkest).then_some(Reason::SunBelowDarkestTwilight {
+        sun_elevation_deg: elevation,
+        darkest_twilight_deg: darkest,
+    });
+    let substitution =
+        (method != spec.method && night.is_none()).then_some(Substitution::FastInTwilight {
+            requested: spec.method,
+            sun_elevation_deg: elevation,
+            limit_deg: FAST_TWILIGHT_LIMIT_DEG,
+        });
     let mut p = Plan {
-        stages: vec![Stage::DensityTable, Stage::SingleScattering],
+        stages: vec![Stage::DensityTable],
         left_out: Vec::new(),
-        method: spec.method,
+        method,
+        substitution,
     };
     let mut rule = |stage: Stage, left_out: Option<Reason>| match left_out {
         None => p.stages.push(stage),
         Some(reason) => p.left_out.push((stage, reason)),
     };
+    rule(Stage::SingleScattering, night);
     rule(
         Stage::MultipleScattering,
-        (spec.method == MsMethod::None).then_some(Reason::MethodNone),
+        (spec.method == MsMethod::None)
+            .then_some(Reason::MethodNone)
+            .or(night),
     );
     rule(
         Stage::GroundBounce,
         m.ground_albedo
             .iter()
             .all(|&a| a == 0.0)
-            .then_some(Reason::ZeroGroundAlbedo),
+            .then_some(Reason::ZeroGroundAlbedo)
+            .or(night),
     );
     if product == ProductKind::Sun {
-        let elevation = spec.sun.sun_elevation_deg;
         let visible =
             sun_disk_visible_fraction(m, spec.observer_altitude_m, elevation.to_radians());
         let horizon_elevation_deg =
@@ -194,7 +312,7 @@ pub fn plan(product: ProductKind, spec: &CommonSpec, m: &Medium) -> Plan {
                 horizon_elevation_deg,
             }),
         );
-        rule(Stage::DiffuseIrradiance, None);
+        rule(Stage::DiffuseIrradiance, night);
     }
     p
 }

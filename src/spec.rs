@@ -127,12 +127,11 @@ impl ProductKind {
             })
     }
 
-    /// Lowest sun elevation the product accepts, degrees.
+    /// Lowest sun elevation the product accepts, degrees: any (issue 18). Below the darkest
+    /// modelled twilight the plan leaves the scattering stages out and the products are zero
+    /// (`plan::darkest_twilight_deg`).
     pub fn min_sun_elevation_deg(self) -> f64 {
-        match self {
-            Self::Sun => -10.0,
-            _ => -18.0,
-        }
+        -90.0
     }
 }
 

@@ -329,7 +329,7 @@ fn energy_is_conserved_over_the_whole_spherical_planet() {
     // scattered and reflected light (upward flux at every point of the top, integrated over the
     // globe by symmetry about the sun axis) plus unscattered sunlight that crosses the shell
     // through the limb without touching the ground — equals the power entering, π R_top² E.
-    // README: 1.0044.
+    // README: 1.0040 (1.00393).
     let engine = Engine::new();
     let base = white_ground(EARTH_RADIUS_M);
     let (r, top) = (EARTH_RADIUS_M, EARTH_RADIUS_M + 100_000.0);
@@ -367,5 +367,5 @@ fn energy_is_conserved_over_the_whole_spherical_planet() {
         "outgoing / incoming = {diffuse:.5} (scattered) + {limb:.5} (limb) = {:.5}",
         diffuse + limb
     );
-    assert!((diffuse + limb - 1.0).abs() < 0.0044, "{}", diffuse + limb);
+    assert!((diffuse + limb - 1.0).abs() < 0.0040, "{}", diffuse + limb);
 }

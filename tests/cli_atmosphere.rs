@@ -3,9 +3,17 @@
 
 use std::process::Command;
 
+/// The cache directory of this test binary's CLI calls, under the target directory (precise
+/// tables persist between calls and runs, keyed by engine version like every cache entry).
+fn table_dir() -> std::path::PathBuf {
+    std::path::Path::new(env!("CARGO_TARGET_TMPDIR")).join(concat!(module_path!(), "-tables"))
+}
+
 fn skybake(args: &[&str]) -> (i32, String, String) {
     let out = Command::new(env!("CARGO_BIN_EXE_skybake"))
         .args(args)
+        // Stored tables go to this test's own directory, not ./skybake-cache.
+        .env("SKYBAKE_CACHE_DIR", table_dir())
         .output()
         .unwrap();
     (
@@ -18,8 +26,11 @@ fn skybake(args: &[&str]) -> (i32, String, String) {
 #[test]
 fn invalid_arguments_exit_2_and_name_the_argument() {
     let cases: &[(&[&str], &str)] = &[
-        (&["sky", "--sun-elevation-deg", "-40"], "sun_elevation_deg"),
-        (&["sun", "--sun-elevation-deg", "-12"], "sun_elevation_deg"),
+        (&["sky", "--sun-elevation-deg", "-95"], "sun_elevation_deg"),
+        (
+            &["sun", "--sun-elevation-deg", "-90.5"],
+            "sun_elevation_deg",
+        ),
         (&["sky", "--wavelengths", "300,550"], "wavelengths"),
         (
             &["sky", "--observer-altitude-m", "-5"],

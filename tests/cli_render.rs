@@ -14,9 +14,17 @@ fn scratch(name: &str) -> PathBuf {
     dir
 }
 
+/// The cache directory of this test binary's CLI calls, under the target directory (precise
+/// tables persist between calls and runs, keyed by engine version like every cache entry).
+fn table_dir() -> std::path::PathBuf {
+    std::path::Path::new(env!("CARGO_TARGET_TMPDIR")).join(concat!(module_path!(), "-tables"))
+}
+
 fn skybake(args: &[&str]) -> Output {
     Command::new(env!("CARGO_BIN_EXE_skybake"))
         .args(args)
+        // Stored tables go to this test's own directory, not ./skybake-cache.
+        .env("SKYBAKE_CACHE_DIR", table_dir())
         .current_dir(env!("CARGO_MANIFEST_DIR"))
         .output()
         .unwrap()

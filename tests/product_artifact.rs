@@ -105,6 +105,7 @@ async fn cli_http_and_bake_write_the_same_artifact() {
         &baked,
         &Defaults::default(),
         10,
+        &skybake::engine::Engine::new(),
         |_, _, _| {},
     )
     .unwrap();

@@ -89,7 +89,8 @@ fn settings(scene: &FrameScene, method: Method, spp: usize) -> RenderSettings {
 /// towards and away from the sun), path tracer within 2 % plus three of its own standard errors
 /// (1–2.6 % at these sample counts: forward-peaked sun paths are heavy-tailed); the fast
 /// method's deviation is printed (stated in the report; its coarse multiple-scattering grid
-/// cannot resolve a 4-voxel-thick slab).
+/// cannot resolve a 4-voxel-thick slab: its cells are 5 voxels wide, thicker than the slab;
+/// measured worst −52.5 %, asserted below 60 %).
 #[test]
 fn slab_reflection_matches_disort() {
     let data: Value =
@@ -194,6 +195,10 @@ fn slab_reflection_matches_disort() {
         }
     }
     println!("fast method: worst |deviation| {:.1} %", worst_fast * 100.0);
+    assert!(
+        worst_fast < 0.6,
+        "fast method vs DISORT: worst {worst_fast}"
+    );
     for (rp, sigma) in worst_pt {
         assert!(
             rp.abs() < 0.02 + 3.0 * sigma,
@@ -213,9 +218,16 @@ fn cloud_matches_mitsuba() {
         .iter()
         .map(|&m| m > 0.0)
         .collect();
-    for (case, nrmse_bound) in [
-        ("sky", 0.03),
-        ("sun", (0.03f64.powi(2) + 0.027f64.powi(2)).sqrt()),
+    // Fast method (whole frame, δ-M/TMS field, P2): measured block NRMSE and bias, sun 6.0 % and
+    // −3.0 %, sky 8.5 % and +5.6 %; bounds are those plus a margin for the photon noise.
+    for (case, nrmse_bound, fast_block_bound, fast_bias_bound) in [
+        ("sky", 0.03, 0.10, 0.075),
+        (
+            "sun",
+            (0.03f64.powi(2) + 0.027f64.powi(2)).sqrt(),
+            0.075,
+            0.045,
+        ),
     ] {
         let bytes = std::fs::read(format!("{DATA}/validation-cloud-{case}.json")).unwrap();
         let scene = FrameScene::parse(&bytes).unwrap();
@@ -297,8 +309,58 @@ fn cloud_matches_mitsuba() {
             "{case}: path tracer block NRMSE {bn}, bias {bias}"
         );
         assert!(
-            fbias.abs() < 0.5,
-            "{case}: fast method far off Mitsuba: {fbias}"
+            fb < fast_block_bound && fbias.abs() < fast_bias_bound,
+            "{case}: fast method vs Mitsuba: block NRMSE {fb}, bias {fbias}"
+        );
+    }
+}
+
+/// (b) continued, fast method only (whole 160×120 frames, about a second each): the Mitsuba cases
+/// thin cloud, g = 0.5, albedo 0.9 and sun + sky, with bounds = measured block NRMSE and bias plus
+/// a margin (measured: thin 8.1 % / −4.8 %, g 0.5 6.6 % / −2.7 %, albedo 0.9 7.2 % / −2.7 %,
+/// sun + sky 10.2 % / +7.5 %).
+#[test]
+fn fast_cloud_matches_mitsuba_cases() {
+    let mask: Vec<bool> = npy("cloud_mitsuba_mask.npy")
+        .iter()
+        .map(|&m| m > 0.0)
+        .collect();
+    for (case, block_bound, bias_bound) in [
+        ("sun_thin", 0.10, 0.065),
+        ("sun_g05", 0.085, 0.045),
+        ("sun_albedo09", 0.09, 0.045),
+        ("sunsky", 0.125, 0.095),
+    ] {
+        let bytes = std::fs::read(format!("{DATA}/validation-cloud-{case}.json")).unwrap();
+        let scene = FrameScene::parse(&bytes).unwrap();
+        let grid = scene
+            .cloud
+            .voxelize(&|p: &str| {
+                std::fs::read(format!("{DATA}/{p}")).map_err(|e| skybake::Error::invalid("path", e))
+            })
+            .unwrap();
+        let reference = npy(&format!("cloud_mitsuba_{case}.npy"));
+        let lighting = lighting_for(&scene, &grid, &Engine::new()).unwrap();
+        let fast = render_frame(
+            &scene,
+            &grid,
+            &lighting,
+            &settings(&scene, Method::Fast, 1),
+            None,
+            &|_| {},
+            &|| false,
+        )
+        .unwrap();
+        let (fb, fp, fbias) = stats(&fast.radiance, &reference, &mask, 160, 120);
+        println!(
+            "{case}: fast vs Mitsuba: block NRMSE {:.1} %, pixel NRMSE {:.1} %, bias {:+.1} %",
+            fb * 100.0,
+            fp * 100.0,
+            fbias * 100.0
+        );
+        assert!(
+            fb < block_bound && fbias.abs() < bias_bound,
+            "{case}: fast method vs Mitsuba: block NRMSE {fb}, bias {fbias}"
         );
     }
 }

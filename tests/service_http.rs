@@ -135,7 +135,7 @@ async fn bad_input_is_a_problem_naming_the_parameter() {
     let cases: [(&str, u16, &str); 11] = [
         ("/v1/sky?colour=blue&sun_elevation_deg=3", 400, "colour"),
         ("/v1/sky?sun_elevation_deg=95", 400, "sun_elevation_deg"),
-        ("/v1/sun?sun_elevation_deg=-15", 400, "sun_elevation_deg"),
+        ("/v1/sun?sun_elevation_deg=-90.5", 400, "sun_elevation_deg"),
         ("/v1/sky?sun_elevation_deg=abc", 422, "sun_elevation_deg"),
         ("/v1/sky?method=magic", 422, "method"),
         ("/v1/sun?format=exr", 422, "format"),

@@ -7,6 +7,7 @@
 //! keeps 1.2 km aerosol layers resolved on 1000 km grazing rays with a few dozen samples.
 
 use super::geometry::{atmosphere_segment, clamp_cos, radius_at, Segment};
+use super::kernels::exp_fast;
 use super::medium::{Medium, CONSTITUENTS, MIE, RAYLEIGH};
 use super::transmittance::DensityIntegralTable;
 use crate::phase::Phase;
@@ -313,9 +314,9 @@ pub fn integrate_ray_counted(
             if vis > 0.0 {
                 let single = medium.rayleigh_scattering_per_m[i] * rho[RAYLEIGH] * phase_r
                     + medium.mie_scattering_per_m[i] * rho[MIE] * phase_m;
-                j += single * (-medium.optical_depth(i, &d_sun)).exp() * vis;
+                j += single * exp_fast(-medium.optical_depth(i, &d_sun)) * vis;
             }
-            scratch.j[i] = (-tau_view).exp() * j * s.weight;
+            scratch.j[i] = exp_fast(-tau_view) * j * s.weight;
         }
         record(
             cell_start + s.weight,

@@ -37,11 +37,40 @@ use super::medium::{Medium, CONSTITUENTS, MIE, RAYLEIGH};
 use super::quadrature::grid_pos;
 use super::transmittance::DensityIntegralTable;
 use crate::phase::Phase;
+use crate::store::SpectralImage;
 use rayon::prelude::*;
 use std::f64::consts::PI;
 
+/// Sun zenith angle, degrees, beyond which the sun-zenith nodes of the precise tables are twice as
+/// dense and J and the ground's sky irradiance are interpolated over sun zenith in ln J
+/// (Catmull–Rom, [`twilight_interp`]) instead of linearly in J (issue 14).
+///
+/// Across the terminator J falls by about an order of magnitude per table step in sun zenith (the
+/// lower atmosphere then sees only light scattered from the lit air above it and towards the
+/// sun), so linear interpolation overestimates it between nodes: by 30–100 % in the sky away from
+/// the sun at −2° to −9° (against tools/spherical_mc.py). ln J is smooth beyond the terminator
+/// and nearly linear there. Near it, where each height's own sunset puts a kink in J, neither
+/// interpolant is good on the uniform grid (at sunset, view zenith 89°: −3.4 % in ln J, +1.3 %
+/// linear at 550 nm, +4.0 % linear at 440 nm and sun 2°), hence the denser nodes: 2.1 % max at
+/// sun ≥ 0°, 3.2 % to −6° (tests/atmosphere_twilight.rs, quality `standard`).
+///
+/// By day J is smooth and nearly linear in sun zenith; there the uniform grid and the linear
+/// interpolation are kept (the daytime DISORT figures are unchanged: applying ln-J Catmull–Rom
+/// everywhere had moved the plane-parallel deviation from 0.26 % to 0.53 % and the energy of the
+/// plane-parallel albedo-1 case to 0.998). A cell is a twilight cell when its far node lies beyond
+/// this angle (sun elevation 10°); the two interpolants agree at the nodes, so the result is
+/// continuous.
+pub const TWILIGHT_INTERP_FROM_DEG: f64 = 80.0;
+
+/// The largest local sun zenith angle, radians, at which the precise tables hold a source (J and
+/// the ground's sky irradiance); beyond it both are zero. Beyond 12° below the top's horizon no
+/// point of the atmosphere sees any light worth tabulating.
+pub fn source_sun_zenith_limit_rad(bottom_radius_m: f64, top_radius_m: f64) -> f64 {
+    (horizon_mu(top_radius_m, bottom_radius_m).acos() + 12f64.to_radians()).min(PI)
+}
+
 /// Resolution and convergence settings of the precise method.
-#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct PreciseSettings {
     pub n_r: usize,
     pub n_mu_s: usize,
@@ -95,6 +124,21 @@ pub struct Convergence {
     pub series_error_estimate: f64,
     /// Mean ratio of the last two orders' radiance (the geometric ratio q of the tail).
     pub order_ratio: f64,
+    /// Wall-clock time of each stage of the build.
+    pub stage_ms: StageTimes,
+}
+
+/// Wall-clock time of the stages of one precise build, ms.
+#[derive(Debug, Clone, Default, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct StageTimes {
+    /// Phase matrices and the order-1 (single-scattering) radiance pass.
+    pub single_scattering: f64,
+    /// All J passes (phase-matrix products).
+    pub scattering_density: f64,
+    /// All radiance passes of orders ≥ 2.
+    pub radiance: f64,
+    /// The whole build.
+    pub total: f64,
 }
 
 /// The converged multiple-scattering source J_ms = Σ_{n≥2} J_n and ground sky irradiance.
@@ -109,25 +153,53 @@ pub struct PreciseMultipleScattering {
     pub convergence: Convergence,
 }
 
+/// The table grid. Sun zenith nodes are uniform (`n_coarse` nodes over [0, θ_s max], the
+/// settings' `n_mu_s`) up to the last node before [`TWILIGHT_INTERP_FROM_DEG`], then twice as dense
+/// to θ_s max, where J changes fastest (across the terminator); `s.n_mu_s` is the total count.
+/// The daytime nodes, and the interpolation between them, are those of the uniform grid.
 #[derive(Debug, Clone, Copy)]
 struct Grid {
     s: PreciseSettings,
     bottom: f64,
     top: f64,
     theta_s_max: f64,
+    /// Nodes of the uniform grid the settings ask for.
+    n_coarse: usize,
+    /// Index of the last uniform node; twice-as-dense nodes follow it.
+    j_fine: usize,
 }
 
 impl Grid {
     fn new(s: PreciseSettings, bottom: f64, top: f64) -> Self {
-        // Beyond 12° below the top's horizon no point of the atmosphere sees any light worth
-        // tabulating.
-        let theta_s_max = (horizon_mu(top, bottom).acos() + 12f64.to_radians()).min(PI);
+        let theta_s_max = source_sun_zenith_limit_rad(bottom, top);
+        let n_coarse = s.n_mu_s.max(2);
+        let step = theta_s_max / (n_coarse - 1) as f64;
+        let j_fine =
+            ((TWILIGHT_INTERP_FROM_DEG.to_radians() / step).floor() as usize).min(n_coarse - 1);
         Self {
-            s,
+            s: PreciseSettings {
+                n_mu_s: j_fine + 1 + 2 * (n_coarse - 1 - j_fine),
+                ..s
+            },
             bottom,
             top,
             theta_s_max,
+            n_coarse,
+            j_fine,
         }
+    }
+    /// Interpolation position `(i, f)` of sun zenith `theta_s` (radians) on the sun-zenith nodes.
+    #[inline(always)]
+    fn s_pos(&self, theta_s: f64) -> (usize, f64) {
+        let f = (theta_s / self.theta_s_max).clamp(0.0, 1.0) * (self.n_coarse - 1) as f64;
+        if f < self.j_fine as f64 {
+            // By day exactly `grid_pos` on the uniform grid.
+            let i = (f.floor() as usize).min(self.n_coarse.saturating_sub(2));
+            return (i, f - i as f64);
+        }
+        let g = self.j_fine as f64 + 2.0 * (f - self.j_fine as f64);
+        let i = (g.floor() as usize).min(self.s.n_mu_s.saturating_sub(2));
+        (i, g - i as f64)
     }
     fn dirs(&self) -> usize {
         self.s.n_mu * self.s.n_phi
@@ -149,7 +221,18 @@ impl Grid {
         safe_sqrt(r * r - self.bottom * self.bottom) / h
     }
     fn theta_s(&self, j: usize) -> f64 {
-        self.theta_s_max * j as f64 / (self.s.n_mu_s - 1) as f64
+        if j <= self.j_fine {
+            self.theta_s_max * j as f64 / (self.n_coarse - 1) as f64
+        } else {
+            let x = self.j_fine as f64 + 0.5 * (j - self.j_fine) as f64;
+            self.theta_s_max * x / (self.n_coarse - 1) as f64
+        }
+    }
+    /// Whether the sun-zenith interval `[θ_s(is), θ_s(is + 1)]` reaches past
+    /// [`TWILIGHT_INTERP_FROM_DEG`], where the tables are interpolated in ln J.
+    #[inline(always)]
+    fn twilight_cell(&self, is: usize) -> bool {
+        self.theta_s(is + 1) > TWILIGHT_INTERP_FROM_DEG.to_radians()
     }
     /// View zenith of direction node `k` (cell centres, uniform in angle).
     fn theta(&self, k: usize) -> f64 {
@@ -240,17 +323,60 @@ fn upward_cosine_weights(grid: &Grid) -> Vec<f64> {
     w
 }
 
-/// Sky irradiance on the ground, `[i_mu_s][λ]`, interpolated at sun zenith cosine `mu_s`.
+/// Sky irradiance on the ground, `[i_mu_s][λ]`, interpolated at sun zenith cosine `mu_s`:
+/// linear by day, in ln E across the terminator ([`twilight_interp`]).
 #[inline(always)]
 fn lookup_ground(grid: &Grid, n_l: usize, table: &[f64], mu_s: f64, out: &mut [f64]) {
     let theta_s = acos_fast(mu_s);
     if theta_s > grid.theta_s_max {
         return;
     }
-    let (is, fs) = grid_pos(theta_s / grid.theta_s_max, grid.s.n_mu_s);
+    let (is, fs) = grid.s_pos(theta_s);
+    if grid.twilight_cell(is) {
+        for i in 0..n_l {
+            out[i] += twilight_interp(is, fs, grid.s.n_mu_s, |b| table[b * n_l + i]);
+        }
+        return;
+    }
     let (a, b) = (&table[is * n_l..][..n_l], &table[(is + 1) * n_l..][..n_l]);
     for i in 0..n_l {
         out[i] += a[i] * (1.0 - fs) + b[i] * fs;
+    }
+}
+
+/// Catmull–Rom weights and node indices for position `(i, f)` on a grid of `n` nodes (end
+/// nodes repeated at the edges).
+#[inline(always)]
+fn catmull_rom(i: usize, f: f64, n: usize) -> ([usize; 4], [f64; 4]) {
+    let (f2, f3) = (f * f, f * f * f);
+    (
+        [
+            i.saturating_sub(1),
+            i,
+            (i + 1).min(n - 1),
+            (i + 2).min(n - 1),
+        ],
+        [
+            0.5 * (-f3 + 2.0 * f2 - f),
+            0.5 * (3.0 * f3 - 5.0 * f2 + 2.0),
+            0.5 * (-3.0 * f3 + 4.0 * f2 + f),
+            0.5 * (f3 - f2),
+        ],
+    )
+}
+
+/// Interpolation over sun zenith in a twilight cell (see [`TWILIGHT_INTERP_FROM_DEG`]) of the
+/// values `at(node)`: Catmull–Rom in ln J between nodes `is` and `is + 1` (exact for an
+/// exponential decay, third order where ln J bends at the terminator); linear in J where one of
+/// the four nodes is zero (deep twilight, ln J = −∞).
+#[inline(always)]
+fn twilight_interp(is: usize, fs: f64, n: usize, at: impl Fn(usize) -> f64) -> f64 {
+    let (nodes, w) = catmull_rom(is, fs, n);
+    let vals = nodes.map(&at);
+    if vals.iter().all(|&x| x > 0.0) {
+        (0..4).map(|q| w[q] * vals[q].ln()).sum::<f64>().exp()
+    } else {
+        at(is) * (1.0 - fs) + at(is + 1) * fs
     }
 }
 
@@ -265,28 +391,41 @@ fn cos_azimuth(mu: f64, mu_s: f64, nu: f64) -> f64 {
     }
 }
 
-/// J_ms at a ray sample (products): 16-corner interpolation over (r, θ, θ_s, φ).
+/// J_ms at a ray sample (products): 16-corner interpolation over (r, θ, θ_s, φ), multilinear by
+/// day; in a twilight cell ([`Grid::twilight_cell`]) Catmull–Rom in ln J over sun zenith
+/// ([`twilight_interp`]), multilinear in radius and direction.
 fn lookup_j(grid: &Grid, n_l: usize, j: &[f32], s: &RaySample, out: &mut [f64]) {
     let theta_s = s.mu_s.clamp(-1.0, 1.0).acos();
     if theta_s > grid.theta_s_max {
         return;
     }
     let (ir, fr) = grid_pos(grid.x_r(s.r), grid.s.n_r);
-    let (is, fs) = grid_pos(theta_s / grid.theta_s_max, grid.s.n_mu_s);
+    let (is, fs) = grid.s_pos(theta_s);
     let theta = s.mu.clamp(-1.0, 1.0).acos();
     let (im, fm) = Grid::centred_pos(theta, grid.s.n_mu);
     let cos_phi = cos_azimuth(s.mu, s.mu_s, s.nu);
     let (ip, fp) = Grid::centred_pos(cos_phi.acos(), grid.s.n_phi);
     let (n_mu_s, n_mu, n_phi) = (grid.s.n_mu_s, grid.s.n_mu, grid.s.n_phi);
+    let twilight = grid.twilight_cell(is);
     for (a, wa) in [(ir, 1.0 - fr), (ir + 1, fr)] {
         for (c, wc) in [(im, 1.0 - fm), (im + 1, fm)] {
-            for (b, wb) in [(is, 1.0 - fs), (is + 1, fs)] {
-                for (e, we) in [(ip, 1.0 - fp), (ip + 1, fp)] {
-                    let w = wa * wb * wc * we;
+            for (e, we) in [(ip, 1.0 - fp), (ip + 1, fp)] {
+                let w = wa * wc * we;
+                if w == 0.0 {
+                    continue;
+                }
+                let base = |b: usize| (((a * n_mu + c) * n_mu_s + b) * n_phi + e) * n_l;
+                if twilight {
+                    for i in 0..n_l {
+                        out[i] += w * twilight_interp(is, fs, n_mu_s, |b| j[base(b) + i] as f64);
+                    }
+                    continue;
+                }
+                for (b, wb) in [(is, 1.0 - fs), (is + 1, fs)] {
+                    let (w, base) = (w * wb, base(b));
                     if w == 0.0 {
                         continue;
                     }
-                    let base = (((a * n_mu + c) * n_mu_s + b) * n_phi + e) * n_l;
                     for i in 0..n_l {
                         out[i] += w * j[base + i] as f64;
                     }
@@ -500,7 +639,7 @@ crate::simd_dispatch! {
                             if theta_s > grid.theta_s_max {
                                 continue;
                             }
-                            let (js, fs) = grid_pos(theta_s / grid.theta_s_max, n_mu_s);
+                            let (js, fs) = grid.s_pos(theta_s);
                             let denom = sin_mu * safe_sqrt(1.0 - mu_s * mu_s);
                             let cos_phi = if denom > 1e-9 {
                                 ((sc.cell_nu[c] - p.mu * mu_s) / denom).clamp(-1.0, 1.0)
@@ -508,6 +647,20 @@ crate::simd_dispatch! {
                                 1.0
                             };
                             let (jp, fp) = Grid::centred_pos(acos_fast(cos_phi), n_phi);
+                            if grid.twilight_cell(js) {
+                                // In ln J over sun zenith (`twilight_interp`), linear in azimuth.
+                                let o = &mut out[c * n_l..][..n_l];
+                                for i in 0..n_l {
+                                    let mut v = 0.0f64;
+                                    for (e, we) in [(jp, 1.0 - fp), (jp + 1, fp)] {
+                                        let at =
+                                            |b: usize| sc.slice[(b * n_phi + e) * n_l + i] as f64;
+                                        v += we * twilight_interp(js, fs, n_mu_s, at);
+                                    }
+                                    o[i] += tw[i] * v as f32;
+                                }
+                                continue;
+                            }
                             let (fs, fp) = (fs as f32, fp as f32);
                             let (c00, c01, c10, c11) =
                                 ((1.0 - fs) * (1.0 - fp), (1.0 - fs) * fp, fs * (1.0 - fp), fs * fp);
@@ -728,7 +881,12 @@ impl Series {
 impl PreciseMultipleScattering {
     /// Computes orders of scattering until convergence (see the module documentation).
     pub fn new(medium: &Medium, table: &DensityIntegralTable, s: PreciseSettings) -> Self {
+        let t_start = std::time::Instant::now();
+        let ms = |t: std::time::Instant| t.elapsed().as_secs_f64() * 1e3;
+        let mut stage_ms = StageTimes::default();
         let grid = Grid::new(s, medium.bottom_radius_m, medium.top_radius_m);
+        // The grid's settings: `n_mu_s` counts the denser twilight nodes too.
+        let s = grid.s;
         let n_l = medium.len();
         let fc = grid.family_cells();
         let family_len = fc * n_l;
@@ -840,6 +998,7 @@ impl PreciseMultipleScattering {
         series.push(sums_of(&l_n), false);
         let mut e_n = ground_of(&l_n);
         let mut ground_sky = e_n.clone();
+        stage_ms.single_scattering = ms(t_start);
         let mut j_ms = vec![0.0f32; grid.cells() * n_l];
         let mut j_n = Vec::new();
         let mut fractions = vec![1.0];
@@ -847,13 +1006,16 @@ impl PreciseMultipleScattering {
         while orders < s.max_orders {
             let t_j = std::time::Instant::now();
             j_n = scattering_density(&l_n);
-            let j_ms_elapsed = t_j.elapsed().as_secs_f64() * 1e3;
+            let j_ms_elapsed = ms(t_j);
+            stage_ms.scattering_density += j_ms_elapsed;
             let t_l = std::time::Instant::now();
             l_n = radiance(PassInput::Order {
                 j: &j_n,
                 ground: &e_n,
             });
             e_n = ground_of(&l_n);
+            let l_elapsed = ms(t_l);
+            stage_ms.radiance += l_elapsed;
             j_ms.par_iter_mut().zip(&j_n).for_each(|(a, b)| *a += b);
             ground_sky.iter_mut().zip(&e_n).for_each(|(a, b)| *a += b);
             let sums = sums_of(&l_n);
@@ -869,7 +1031,7 @@ impl PreciseMultipleScattering {
                 fraction,
                 tail_error,
                 scattering_density_ms = j_ms_elapsed,
-                radiance_ms = t_l.elapsed().as_secs_f64() * 1e3,
+                radiance_ms = l_elapsed,
                 "precise multiple scattering order"
             );
             if fraction < s.tolerance
@@ -898,6 +1060,7 @@ impl PreciseMultipleScattering {
             Some((_, _, q, _)) => (0.0, last_fraction * q / (1.0 - q), q),
             None => (0.0, last_fraction, 0.0),
         };
+        stage_ms.total = ms(t_start);
         Self {
             grid,
             n_l,
@@ -910,8 +1073,98 @@ impl PreciseMultipleScattering {
                 tail_fraction,
                 series_error_estimate,
                 order_ratio,
+                stage_ms,
             },
         }
+    }
+}
+
+/// Version of the stored table layout (part of its store key).
+/// (2: twice-as-dense sun-zenith nodes beyond 80°, issue 14.)
+pub const TABLE_FORMAT: &str = "precise-table-2";
+/// Header attribute holding the stored table's description ([`StoredPrecise`] as JSON).
+const ATTR_TABLE: &str = "skybakeSharedTable";
+
+/// What a stored precise table says about itself; it is used only if all of it matches.
+#[derive(serde::Serialize, serde::Deserialize)]
+struct StoredPrecise {
+    kind: String,
+    settings: PreciseSettings,
+    bottom_radius_m: f64,
+    top_radius_m: f64,
+    wavelengths_nm: Vec<f64>,
+    /// `[i_mu_s][λ]`, exact (JSON numbers round-trip f64).
+    ground_sky: Vec<f64>,
+    convergence: Convergence,
+}
+
+impl PreciseMultipleScattering {
+    /// The table as a spectral image for the table store: pixel (x, y) = (i_mu_s · n_φ + i_φ,
+    /// i_r · n_μ + i_μ), one plane per wavelength (J_ms in f32, as computed), and the ground sky
+    /// irradiance, settings and convergence record as a JSON header attribute.
+    pub fn to_image(&self, medium: &Medium) -> crate::Result<SpectralImage> {
+        let s = self.grid.s;
+        let (w, h) = (self.grid.family_cells(), s.n_r * s.n_mu);
+        let planes = (0..self.n_l)
+            .map(|i| (0..w * h).map(|px| self.j_ms[px * self.n_l + i]).collect())
+            .collect();
+        let mut image = SpectralImage::emissive(w, h, &medium.wavelengths_nm, planes)?;
+        let meta = StoredPrecise {
+            kind: "precise".into(),
+            settings: s,
+            bottom_radius_m: self.grid.bottom,
+            top_radius_m: self.grid.top,
+            wavelengths_nm: medium.wavelengths_nm.clone(),
+            ground_sky: self.ground_sky.clone(),
+            convergence: self.convergence.clone(),
+        };
+        let json = serde_json::to_string(&meta)
+            .map_err(|e| crate::Error::invalid("precise_table", e.to_string()))?;
+        image.set_attribute(ATTR_TABLE, json)?;
+        Ok(image)
+    }
+
+    /// The table stored by [`Self::to_image`], if it was made for exactly this medium's geometry
+    /// and wavelengths with these settings and holds only finite, non-negative values.
+    pub fn from_image(image: &SpectralImage, medium: &Medium, s: PreciseSettings) -> Option<Self> {
+        let meta: StoredPrecise = serde_json::from_str(image.attribute(ATTR_TABLE)?).ok()?;
+        let n_l = medium.len();
+        let grid = Grid::new(s, medium.bottom_radius_m, medium.top_radius_m);
+        // The grid's settings (`n_mu_s` counts the denser twilight nodes), as `to_image` stores.
+        let s = grid.s;
+        let (w, h) = (grid.family_cells(), s.n_r * s.n_mu);
+        let planes = image.layers().first()?.planes();
+        let valid = |v: f64| v.is_finite() && v >= 0.0;
+        let matches = meta.kind == "precise"
+            && meta.settings == s
+            && meta.bottom_radius_m == medium.bottom_radius_m
+            && meta.top_radius_m == medium.top_radius_m
+            && meta.wavelengths_nm == medium.wavelengths_nm
+            && image.width() == w
+            && image.height() == h
+            && planes.len() == n_l
+            && planes.iter().all(|p| p.len() == w * h)
+            && meta.ground_sky.len() == s.n_mu_s * n_l
+            && meta.ground_sky.iter().all(|&v| valid(v));
+        if !matches {
+            return None;
+        }
+        let mut j_ms = vec![0.0f32; w * h * n_l];
+        for (i, plane) in planes.iter().enumerate() {
+            for (px, &v) in plane.iter().enumerate() {
+                if !valid(v as f64) {
+                    return None;
+                }
+                j_ms[px * n_l + i] = v;
+            }
+        }
+        Some(Self {
+            grid,
+            n_l,
+            j_ms,
+            ground_sky: meta.ground_sky,
+            convergence: meta.convergence,
+        })
     }
 }
 

@@ -1,12 +1,20 @@
 //! Precomputed tables shared by every product of one (atmosphere, wavelengths, ground albedo):
 //! the density-integral table and, built on first use, the fast and precise multiple-scattering
 //! tables. Building them is the cold cost; every later sky/sun/ground/aerial request reuses them.
+//!
+//! Given a [`TableStore`] (the engine's hook to `store::tables`, which keeps them in the cache
+//! directory), the precise table is loaded instead of built when a verified copy exists under the
+//! medium's key, and saved after a build, so other processes (CLI calls, restarted servers, bake
+//! jobs) skip the build. A stored table that fails verification or does not match the medium and
+//! settings is rebuilt, never used.
 
 use super::medium::Medium;
 use super::multiple_fast::{FastMultipleScattering, FastSettings};
 use super::multiple_precise::{PreciseMultipleScattering, PreciseSettings};
 use super::transmittance::DensityIntegralTable;
-use std::sync::OnceLock;
+use crate::store::SpectralImage;
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::{Arc, OnceLock};
 
 /// Resolution of the shared density-integral table.
 pub const TRANSMITTANCE_N_R: usize = 64;
@@ -14,6 +22,63 @@ pub const TRANSMITTANCE_N_R: usize = 64;
 pub const TRANSMITTANCE_N_MU: usize = 256;
 /// Quadrature intervals per ray of the density-integral table.
 pub const TRANSMITTANCE_STEPS: usize = 500;
+
+/// Where shared tables are kept between processes. `load` returns only verified tables (a corrupt
+/// file is a miss); `save` is best effort (a failure only costs a rebuild next time).
+pub trait TableStore: Send + Sync {
+    /// The table stored under `key` (64 hex digits), or `None`.
+    fn load(&self, key: &str) -> Option<SpectralImage>;
+    /// Stores `table` under `key`.
+    fn save(&self, key: &str, table: &SpectralImage);
+}
+
+/// Counts of shared-table builds and loads (for metrics and tests).
+#[derive(Debug, Default)]
+pub struct TableEvents {
+    /// Precise tables built.
+    pub precise_built: AtomicU64,
+    /// Precise tables loaded from the store.
+    pub precise_loaded: AtomicU64,
+    /// Stored precise tables refused (undecodable, or not matching the medium and settings).
+    pub precise_rejected: AtomicU64,
+}
+
+impl TableEvents {
+    fn bump(counter: &AtomicU64) {
+        counter.fetch_add(1, Ordering::Relaxed);
+    }
+    /// Current value of a counter.
+    pub fn get(counter: &AtomicU64) -> u64 {
+        counter.load(Ordering::Relaxed)
+    }
+}
+
+/// Persistence of one medium's tables: the store (none: build every time), the medium's key and
+/// where to count builds and loads.
+#[derive(Clone)]
+pub struct Persistence {
+    pub store: Option<Arc<dyn TableStore>>,
+    /// Canonical description of the medium and quality (the engine's shared-table key).
+    pub medium_key: String,
+    /// Engine version: part of the stored key, so a new engine never reads an old table.
+    pub engine_version: &'static str,
+    pub events: Arc<TableEvents>,
+}
+
+impl Persistence {
+    /// The store key of table `kind` for this medium (blake3 over kind, medium key, versions).
+    pub fn key(&self, kind: &str) -> String {
+        let canonical = serde_json::json!({"shared_table": kind, "medium": self.medium_key});
+        crate::store::cache_key(
+            &canonical.to_string(),
+            &format!(
+                "{}+{}",
+                self.engine_version,
+                super::multiple_precise::TABLE_FORMAT
+            ),
+        )
+    }
+}
 
 /// Shared tables for one medium.
 pub struct SharedTables {
@@ -23,6 +88,7 @@ pub struct SharedTables {
     precise: OnceLock<PreciseMultipleScattering>,
     pub fast_settings: FastSettings,
     pub precise_settings: PreciseSettings,
+    persistence: Option<Persistence>,
 }
 
 impl SharedTables {
@@ -45,7 +111,14 @@ impl SharedTables {
             precise: OnceLock::new(),
             fast_settings,
             precise_settings,
+            persistence: None,
         }
+    }
+
+    /// Loads and saves the precise table through `persistence` from now on.
+    pub fn with_persistence(mut self, persistence: Persistence) -> Self {
+        self.persistence = Some(persistence);
+        self
     }
 
     /// The fast (Hillaire 2020) multiple-scattering table, built on first use.
@@ -55,10 +128,52 @@ impl SharedTables {
         })
     }
 
-    /// The precise (orders of scattering) multiple-scattering table, built on first use.
+    /// The precise (orders of scattering) multiple-scattering table: loaded from the table store
+    /// when a verified, matching copy exists, otherwise built (and then stored).
     pub fn precise(&self) -> &PreciseMultipleScattering {
         self.precise.get_or_init(|| {
-            PreciseMultipleScattering::new(&self.medium, &self.density, self.precise_settings)
+            let Some(p) = &self.persistence else {
+                return PreciseMultipleScattering::new(
+                    &self.medium,
+                    &self.density,
+                    self.precise_settings,
+                );
+            };
+            let key = p.key("precise");
+            let Some(store) = &p.store else {
+                TableEvents::bump(&p.events.precise_built);
+                return PreciseMultipleScattering::new(
+                    &self.medium,
+                    &self.density,
+                    self.precise_settings,
+                );
+            };
+            if let Some(image) = store.load(&key) {
+                match PreciseMultipleScattering::from_image(
+                    &image,
+                    &self.medium,
+                    self.precise_settings,
+                ) {
+                    Some(table) => {
+                        tracing::info!(key, "precise table loaded from the table store");
+                        TableEvents::bump(&p.events.precise_loaded);
+                        return table;
+                    }
+                    None => {
+                        tracing::warn!(key, "stored precise table does not match; rebuilding");
+                        TableEvents::bump(&p.events.precise_rejected);
+                    }
+                }
+            }
+            let table =
+                PreciseMultipleScattering::new(&self.medium, &self.density, self.precise_settings);
+            TableEvents::bump(&p.events.precise_built);
+            tracing::info!(key, "precise table built");
+            match table.to_image(&self.medium) {
+                Ok(image) => store.save(&key, &image),
+                Err(e) => tracing::warn!(key, error = %e, "precise table not stored"),
+            }
+            table
         })
     }
 

@@ -26,19 +26,21 @@ pub struct BakeSummary {
     pub errors: Vec<ItemError>,
 }
 
-/// Runs the job `job_body` into `out`; `progress(done, total, what)` is called per item. Every
-/// item is validated before anything is computed.
+/// Runs the job `job_body` into `out` on `engine` (`store::tables::engine_for_settings` shares
+/// the precise tables stored in the cache directory with the CLI and the server);
+/// `progress(done, total, what)` is called per item. Every item is validated before anything is
+/// computed.
 pub fn bake(
     job_body: &[u8],
     out: &Path,
     defaults: &Defaults,
     max_products: usize,
+    engine: &Engine,
     mut progress: impl FnMut(usize, usize, &str),
 ) -> Result<BakeSummary, JobError> {
     let spec = JobSpec::parse_body(job_body, max_products)?;
     spec.validate(defaults)?;
     files::create_dir_all(out)?;
-    let engine = Engine::new();
     let mut summary = BakeSummary {
         total: spec.len(),
         computed: 0,
@@ -60,7 +62,7 @@ pub fn bake(
             summary.reused += 1;
             Ok("reused")
         } else {
-            req.compute(&engine)
+            req.compute(engine)
                 .map_err(JobError::from)
                 .and_then(|img| Ok(encode_exr(&img)?))
                 .and_then(|bytes| Ok(write_atomic(&path, &bytes)?))

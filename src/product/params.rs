@@ -146,8 +146,8 @@ macro_rules! parameter_table {
 
 parameter_table! {
     sun_elevation_deg { cli: Some("sun-elevation-deg"), unit: "deg",
-        range: Range::Real { lo: -18.0, hi: 90.0 }, default: "30", products: ALL,
-        doc: "Sun elevation above the horizon (the sun product from -10)" },
+        range: Range::Real { lo: -90.0, hi: 90.0 }, default: "30", products: ALL,
+        doc: "Sun elevation above the horizon (below the darkest twilight the products are zero)" },
     latitude_deg { cli: Some("latitude"), unit: "deg", range: Range::Real { lo: -90.0, hi: 90.0 },
         default: "—", products: ALL,
         doc: "Latitude, with longitude_deg and time instead of sun_elevation_deg" },
@@ -271,7 +271,7 @@ pub fn parse_probes(text: &str) -> Result<Vec<(f64, f64)>> {
 
 impl CommonSpec {
     /// Builds the common spec; `min_sun_elevation_deg` is the product's lower limit
-    /// (−10° for `sun`, −18° for the others).
+    /// (−90° for every product: night is answered, issue 18).
     pub fn from_params(p: &RequestParams, min_sun_elevation_deg: f64) -> Result<Self> {
         let atmosphere = resolve_atmosphere(p.atmosphere.as_deref())?;
         let wavelengths_nm = match &p.wavelengths {

@@ -70,6 +70,9 @@ pub struct FrameBench {
     pub warm_ms: f64,
     /// Warm-run stage timings, ms.
     pub warm_stages_ms: Vec<(String, f64)>,
+    /// Warm-run stage shares of the frame's time (the engine's lighting tables included as
+    /// `lighting`), fractions summing to ≈ 1.
+    pub warm_stage_shares: Vec<(String, f64)>,
     pub lighting_cold_ms: f64,
     pub lighting_warm_ms: f64,
     pub width: usize,
@@ -81,6 +84,17 @@ pub struct FrameBench {
 pub fn bench_frame(width: usize, height: usize) -> Result<FrameBench> {
     let grid = bench_cumulus()?;
     let scene = bench_scene(width, height)?;
+    time_frame(&scene, &grid, width, height)
+}
+
+/// Cold then warm frames of `scene` (the `frame` benchmarks' timing).
+pub fn time_frame(
+    scene: &FrameScene,
+    grid: &crate::cloud::DensityGrid,
+    width: usize,
+    height: usize,
+) -> Result<FrameBench> {
+    let (scene, grid) = (scene.clone(), grid);
     let settings = RenderSettings::for_quality(scene.quality, Method::Fast);
     let engine = Engine::new();
     let t = Instant::now();
@@ -97,10 +111,15 @@ pub fn bench_frame(width: usize, height: usize) -> Result<FrameBench> {
         false
     })?;
     let warm_ms = t.elapsed().as_secs_f64() * 1e3;
+    let warm_stage_shares = std::iter::once(("lighting".to_string(), lighting_warm_ms))
+        .chain(frame.meta.timing_ms.iter().cloned())
+        .map(|(name, ms)| (name, ms / warm_ms.max(1e-9)))
+        .collect();
     Ok(FrameBench {
         cold_ms,
         warm_ms,
         warm_stages_ms: frame.meta.timing_ms,
+        warm_stage_shares,
         lighting_cold_ms,
         lighting_warm_ms,
         width,

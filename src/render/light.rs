@@ -78,48 +78,53 @@ pub fn sun_density_integrals(grid: &DensityGrid, sun_dir: DVec3) -> Vec<f32> {
     let mut layer_vals = vec![0f64; n[b] * n[c]];
     let mut next_vals = vec![0f64; n[b] * n[c]];
     for &ia in &layers {
+        // Each layer depends only on the previous one: its rows run in parallel.
+        next_vals
+            .par_chunks_mut(n[c])
+            .enumerate()
+            .for_each(|(ib, row)| {
+                for (ic, slot) in row.iter_mut().enumerate() {
+                    let mut v = [0usize; 3];
+                    v[a] = ia;
+                    v[b] = ib;
+                    v[c] = ic;
+                    let p = grid.voxel_centre(v[0], v[1], v[2]);
+                    *slot = match prev {
+                        // First layer: marched directly.
+                        None => march_to_exit(grid, p, s),
+                        Some(_) => {
+                            let rho_p = grid.at(v[0], v[1], v[2]) as f64;
+                            let q = p + s * step;
+                            let m = p + s * (0.5 * step);
+                            let seg = step / 6.0
+                                * (rho_p + 4.0 * grid.sample(m) as f64 + grid.sample(q) as f64);
+                            // Bilinear in the previous layer at the shifted position (voxel
+                            // units); between the outermost centres and the box face, or
+                            // outside, march the short rest of the way instead of clamping.
+                            let fb = ib as f64 + shift_b;
+                            let fc = ic as f64 + shift_c;
+                            let beyond = if fb < 0.0
+                                || fc < 0.0
+                                || fb > (n[b] - 1) as f64
+                                || fc > (n[c] - 1) as f64
+                            {
+                                march_to_exit(grid, q, s)
+                            } else {
+                                let (b0, c0) = (fb.floor() as usize, fc.floor() as usize);
+                                let (b1, c1) = ((b0 + 1).min(n[b] - 1), (c0 + 1).min(n[c] - 1));
+                                let (tb, tc) = (fb - b0 as f64, fc - c0 as f64);
+                                let g = |x: usize, y: usize| layer_vals[x * n[c] + y];
+                                (g(b0, c0) * (1.0 - tb) + g(b1, c0) * tb) * (1.0 - tc)
+                                    + (g(b0, c1) * (1.0 - tb) + g(b1, c1) * tb) * tc
+                            };
+                            beyond + seg
+                        }
+                    };
+                }
+            });
         for ib in 0..n[b] {
             for ic in 0..n[c] {
-                let mut v = [0usize; 3];
-                v[a] = ia;
-                v[b] = ib;
-                v[c] = ic;
-                let p = grid.voxel_centre(v[0], v[1], v[2]);
-                let rho_p = grid.at(v[0], v[1], v[2]) as f64;
-                let q = p + s * step;
-                let m = p + s * (0.5 * step);
-                let seg =
-                    step / 6.0 * (rho_p + 4.0 * grid.sample(m) as f64 + grid.sample(q) as f64);
-                let beyond = match prev {
-                    // First layer: marched directly below.
-                    None => 0.0,
-                    Some(_) => {
-                        // Bilinear in the previous layer at the shifted position (voxel units);
-                        // between the outermost centres and the box face, or outside, march the
-                        // short rest of the way instead of clamping.
-                        let fb = ib as f64 + shift_b;
-                        let fc = ic as f64 + shift_c;
-                        if fb < 0.0 || fc < 0.0 || fb > (n[b] - 1) as f64 || fc > (n[c] - 1) as f64
-                        {
-                            march_to_exit(grid, q, s)
-                        } else {
-                            let (b0, c0) = (fb.floor() as usize, fc.floor() as usize);
-                            let (b1, c1) = ((b0 + 1).min(n[b] - 1), (c0 + 1).min(n[c] - 1));
-                            let (tb, tc) = (fb - b0 as f64, fc - c0 as f64);
-                            let g = |x: usize, y: usize| layer_vals[x * n[c] + y];
-                            (g(b0, c0) * (1.0 - tb) + g(b1, c0) * tb) * (1.0 - tc)
-                                + (g(b0, c1) * (1.0 - tb) + g(b1, c1) * tb) * tc
-                        }
-                    }
-                };
-                let (seg, beyond) = if prev.is_none() {
-                    (0.0, march_to_exit(grid, p, s))
-                } else {
-                    (seg, beyond)
-                };
-                let d = beyond + seg;
-                next_vals[ib * n[c] + ic] = d;
-                out[idx(ia, ib, ic)] = d as f32;
+                out[idx(ia, ib, ic)] = next_vals[ib * n[c] + ic] as f32;
             }
         }
         std::mem::swap(&mut layer_vals, &mut next_vals);

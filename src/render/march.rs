@@ -6,7 +6,7 @@
 
 use super::light::{lattice_density_integrals, sun_density_integrals, SkyElements, LATTICE};
 use super::lighting::Lighting;
-use super::multiple::MsField;
+use super::multiple::{MsField, Truncation};
 use super::pathtracer::PathTracer;
 use super::scene::{FrameScene, Projection};
 use super::volume::CloudVolume;
@@ -96,14 +96,20 @@ impl ShadowMap {
     }
 }
 
+/// The march stops where the scaled transmittance T* of every wavelength is below this: the rest
+/// of the ray adds at most this fraction of the brightest source behind it (and the background
+/// seen through the cloud, T_c ≤ T*, at most this fraction of its radiance).
+pub const MARCH_CUTOFF: f64 = 1e-3;
+
 /// Everything precomputed for one scene, camera and lighting; renders any tile.
 pub struct Prepared<'a> {
     pub scene: &'a FrameScene,
     pub lighting: &'a Lighting,
     pub settings: RenderSettings,
     pub vol: CloudVolume<'a>,
-    /// Per voxel: `[D_sun, Q_0 … Q_{n-1}]` (sun density integral, m; in-scattered sky and
-    /// multiple-scattering radiance towards the camera, W m⁻² sr⁻¹ nm⁻¹).
+    /// Per voxel: `[D_sun, S_0 … S_{n-1}]` (sun density integral, m; the source per unit scaled
+    /// extinction towards the camera, S = (ω/s)·Q_sky + ω*·J*: first-order sky radiance Q_sky
+    /// and the orders ≥ 2 J* of the δ-M scaled problem, W m⁻² sr⁻¹ nm⁻¹; see [`Prepared::march`]).
     pub vox: Vec<f32>,
     pub stride: usize,
     pub shadow: Option<ShadowMap>,
@@ -112,6 +118,8 @@ pub struct Prepared<'a> {
     /// Stage timings, ms.
     pub timing_ms: Vec<(String, f64)>,
     sun_on: bool,
+    /// σ_t*/σ_t per wavelength (TMS, see `multiple`).
+    ms_extinction_scale: Vec<f64>,
 }
 
 impl<'a> Prepared<'a> {
@@ -138,11 +146,37 @@ impl<'a> Prepared<'a> {
         let optics = &scene.optics;
         let sw = scene.lighting;
         let env_on = !(lighting.sky.is_zero() && lighting.below.is_zero());
+        let scattering = settings.method == Method::Fast
+            && vol.rho_max > 0.0
+            && sw.multiple_scattering
+            && optics.albedo.iter().any(|&a| a > 0.0);
+        // Orders 2–3 of sunlight by the reference pattern (seed 000 §3.4), with the true phase
+        // function and no δ-M scaling; or the all-order field.
+        let pattern_on =
+            scattering && scene.multiple_scattering_method == super::MsMethod::ReferencePattern;
+        let ms_on = scattering && !pattern_on && (sun_on || env_on);
+        // δ-M scaling (f = g₁²) when the multiple-scattering field runs; none otherwise.
+        let trunc: Vec<Truncation> = optics
+            .phase
+            .iter()
+            .zip(&optics.albedo)
+            .map(|(p, &a)| {
+                let power = if ms_on {
+                    settings.photons.truncation_power
+                } else {
+                    0.0
+                };
+                Truncation::new(p.mean_cosine(), a, power)
+            })
+            .collect();
+        let ms_extinction_scale: Vec<f64> = trunc.iter().map(|t| t.extinction_scale).collect();
+        let ms_albedo: Vec<f64> = trunc.iter().map(|t| t.albedo_scaled).collect();
         let mut vox = Vec::new();
         let mut ms = None;
         if settings.method == Method::Fast && vol.rho_max > 0.0 {
             vox = vec![0f32; grid.data.len() * stride];
-            if sun_on {
+            // The sky element round the sun uses the sun's path too.
+            if sun_on || env_on {
                 let d = sun_density_integrals(grid, lighting.sun_dir);
                 for (v, s) in vox.chunks_mut(stride).zip(&d) {
                     v[0] = *s;
@@ -177,7 +211,13 @@ impl<'a> Prepared<'a> {
                     .map(|e| lattice_density_integrals(grid, *e))
                     .collect();
                 check(cancel)?;
-                let k = &optics.extinction_per_density_m;
+                // Scaled extinction on the paths to the sky (TMS: Nakajima & Tanaka 1988).
+                let k: Vec<f64> = optics
+                    .extinction_per_density_m
+                    .iter()
+                    .zip(&ms_extinction_scale)
+                    .map(|(k, s)| k * s)
+                    .collect();
                 let [nx, ny, _] = grid.dims;
                 vox.par_chunks_mut(nx * ny * stride)
                     .enumerate()
@@ -196,7 +236,7 @@ impl<'a> Prepared<'a> {
                                 for (e, path) in paths.iter().enumerate() {
                                     q += il[(e + 1) * n_l + l] * (-k[l] * path[idx] as f64).exp();
                                 }
-                                v[1 + l] += q as f32;
+                                v[1 + l] += (optics.albedo[l] / ms_extinction_scale[l] * q) as f32;
                             }
                         }
                     });
@@ -219,10 +259,23 @@ impl<'a> Prepared<'a> {
             }
             lap("sky_light", &mut timing_ms);
             check(cancel)?;
-            if sw.multiple_scattering
-                && optics.albedo.iter().any(|&a| a > 0.0)
-                && (sun_on || env_on)
-            {
+            if pattern_on {
+                let field = super::pattern::compute(
+                    scene,
+                    grid,
+                    lighting,
+                    &settings.pattern,
+                    &mask,
+                    cancel,
+                )?;
+                for (v, q) in vox.chunks_mut(stride).zip(field.q.chunks(n_l)) {
+                    for l in 0..n_l {
+                        v[1 + l] += q[l];
+                    }
+                }
+                stages.ran.push(field.describe());
+                lap("reference_pattern", &mut timing_ms);
+            } else if ms_on {
                 let field = MsField::compute(grid, optics, lighting, &settings.photons);
                 lap("multiple_scattering", &mut timing_ms);
                 let [nx, ny, _] = grid.dims;
@@ -237,13 +290,15 @@ impl<'a> Prepared<'a> {
                             let p = grid.voxel_centre(i % nx, i / nx, z);
                             field.inscatter(p, view(p), &mut j);
                             for l in 0..n_l {
-                                v[1 + l] += j[l] as f32;
+                                v[1 + l] += (ms_albedo[l] * j[l]) as f32;
                             }
                         }
                     });
                 stages.ran.push(format!(
-                    "multiple scattering, all orders: photon transport on a {}x{}x{} grid, similarity-scaled after the first scattering, P1 angular reconstruction",
-                    field.dims[0], field.dims[1], field.dims[2]
+                    "multiple scattering, all orders: photon transport on a {}x{}x{} grid, {}, P{} angular reconstruction",
+                    field.dims[0], field.dims[1], field.dims[2],
+                    if settings.photons.truncation_power > 0.0 { "delta-M truncated forward peak with the TMS single-scattering correction" } else { "untruncated phase function" },
+                    settings.photons.angular_order
                 ));
                 ms = Some(field);
                 lap("ms_to_voxels", &mut timing_ms);
@@ -263,7 +318,7 @@ impl<'a> Prepared<'a> {
             && ((sw.cloud_shadows && lighting.ground.is_some())
                 || (sw.shafts_of_light && lighting.aerial.is_some()));
         let shadow = if needs_shadow {
-            ShadowMap::new(&vol, lighting.sun_dir, 0.5 * grid.voxel_size_m)
+            ShadowMap::new(&vol, lighting.sun_dir, grid.voxel_size_m)
         } else {
             None
         };
@@ -288,6 +343,7 @@ impl<'a> Prepared<'a> {
                 .push("aerial perspective: vacuum or switched off".into());
         }
         Ok(Self {
+            ms_extinction_scale,
             scene,
             lighting,
             settings,
@@ -304,22 +360,36 @@ impl<'a> Prepared<'a> {
 
     /// Fast method: cloud radiance I_a, cloud transmittance T_c per wavelength and the distance
     /// of the cloud's front along the ray.
+    ///
+    /// The TMS method (Nakajima & Tanaka 1988, eqs 13–15) with the δ-M scaling of `multiple`:
+    /// the cloud's radiance is attenuated with the scaled extinction σ_t* = σ_t(1 − ω f) along
+    /// the view ray and along the paths to the sun and sky; single scattering keeps the true
+    /// phase function and σ_s, multiple scattering is ω*·J*. Without multiple scattering f = 0 and
+    /// this is exact single scattering. The cloud's transmittance T_c of the background uses the
+    /// true extinction. Each step integrates exactly for a density constant within it.
     pub fn march(&self, ray: &Ray, ia: &mut [f64], tc: &mut [f64]) -> Option<f64> {
         ia.iter_mut().for_each(|v| *v = 0.0);
         tc.iter_mut().for_each(|v| *v = 1.0);
+        let mut tcs = [1.0f64; 64];
         let (t0, t1) = self.vol.interval(ray.origin_m, ray.dir)?;
         let optics = &self.scene.optics;
         let n_l = ia.len();
         let lt = self.lighting;
         let step = self.settings.step_voxels * self.vol.grid.voxel_size_m;
         let cos_sun = lt.sun_dir.dot(ray.dir);
+        // Per wavelength: ω/s · E_sun · p(Θ) and the scaled and true extinctions per density.
         let mut sun_src = [0.0f64; 64];
+        let mut ks = [0.0f64; 64];
+        let mut kt = [0.0f64; 64];
         for l in 0..n_l {
+            let sc = self.ms_extinction_scale[l];
             sun_src[l] = if self.sun_on {
-                lt.sun_irradiance[l] * optics.phase[l].eval(cos_sun)
+                optics.albedo[l] / sc * lt.sun_irradiance[l] * optics.phase[l].eval(cos_sun)
             } else {
                 0.0
             };
+            kt[l] = optics.extinction_per_density_m[l];
+            ks[l] = kt[l] * sc;
         }
         let mut t = t0;
         let mut front = None;
@@ -356,14 +426,22 @@ impl<'a> Prepared<'a> {
                 }
             }
             let mut alive = false;
+            // Wavelengths with equal extinction (grey clouds) share their exponentials.
+            let (mut a, mut a_ms, mut sun_t) = (0.0, 0.0, 0.0);
             for l in 0..n_l {
-                let k = optics.extinction_per_density_m[l];
-                let tau = k * rho * dt;
-                let a = -(-tau).exp_m1();
-                let src = optics.albedo[l] * (sun_src[l] * (-k * buf[0]).exp() + buf[1 + l]);
-                ia[l] += tc[l] * src * a;
+                if l == 0 || kt[l] != kt[l - 1] || ks[l] != ks[l - 1] {
+                    a = -(-kt[l] * rho * dt).exp_m1();
+                    a_ms = -(-ks[l] * rho * dt).exp_m1();
+                    sun_t = if self.sun_on {
+                        (-ks[l] * buf[0]).exp()
+                    } else {
+                        0.0
+                    };
+                }
+                ia[l] += tcs[l] * a_ms * (sun_src[l] * sun_t + buf[1 + l]);
                 tc[l] *= 1.0 - a;
-                alive |= tc[l] > 1e-5;
+                tcs[l] *= 1.0 - a_ms;
+                alive |= tcs[l] > MARCH_CUTOFF;
             }
             if !alive {
                 break;
@@ -442,16 +520,24 @@ impl<'a> Prepared<'a> {
             let mut s_prev = vec![0.0; n_l];
             let mut s_next = vec![0.0; n_l];
             let mut t_tmp = vec![0.0; n_l];
-            s_eff.iter_mut().for_each(|v| *v = 0.0);
-            for kstep in 0..n {
-                let t_next = tx * (kstep + 1) as f64 / n as f64;
-                let t_mid = tx * (kstep as f64 + 0.5) / n as f64;
-                aerial.eval(d, t_next, &mut t_tmp, &mut s_next);
-                let p = o + d * t_mid;
-                for l in 0..n_l {
-                    s_eff[l] += self.sun_visibility(p, l) * (s_next[l] - s_prev[l]);
+            // Where the sun is visible along the whole ray (the usual case above the cloud base or
+            // outside its shadow) S_eff = S: skip the table look-ups.
+            let shadowed = (0..n).any(|kstep| {
+                let p = o + d * (tx * (kstep as f64 + 0.5) / n as f64);
+                (0..n_l).any(|l| self.sun_visibility(p, l) < 1.0)
+            });
+            if shadowed {
+                s_eff.iter_mut().for_each(|v| *v = 0.0);
+                for kstep in 0..n {
+                    let t_next = tx * (kstep + 1) as f64 / n as f64;
+                    let t_mid = tx * (kstep as f64 + 0.5) / n as f64;
+                    aerial.eval(d, t_next, &mut t_tmp, &mut s_next);
+                    let p = o + d * t_mid;
+                    for l in 0..n_l {
+                        s_eff[l] += self.sun_visibility(p, l) * (s_next[l] - s_prev[l]);
+                    }
+                    std::mem::swap(&mut s_prev, &mut s_next);
                 }
-                std::mem::swap(&mut s_prev, &mut s_next);
             }
         }
         for l in 0..n_l {

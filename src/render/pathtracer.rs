@@ -42,6 +42,10 @@ pub struct PathTracer<'a> {
     /// Largest number of scattering events counted (cloud and ground); `usize::MAX` for all
     /// orders. Lower values measure the contribution of orders 1..=N.
     pub max_orders: usize,
+    /// Smallest number of scattering events counted: light that reaches the camera after fewer
+    /// is dropped (with 1 or more, the unscattered background too: `transmitted` stays 0).
+    /// `min_orders` 2 and `max_orders` 3 give the orders of seed 000 §3.4's reference pattern.
+    pub min_orders: usize,
 }
 
 impl<'a> PathTracer<'a> {
@@ -58,6 +62,7 @@ impl<'a> PathTracer<'a> {
             groups: optics.groups(),
             seed,
             max_orders: usize::MAX,
+            min_orders: 0,
         }
     }
 
@@ -171,8 +176,9 @@ impl<'a> PathTracer<'a> {
                     for x in thr.iter_mut() {
                         *x *= albedo;
                     }
-                    // Next-event estimation towards the sun (a delta light: the only way to it).
-                    if sun_on {
+                    // Next-event estimation towards the sun (a delta light: the only way to it);
+                    // the light it finds has scattered depth + 1 times.
+                    if sun_on && depth + 1 >= self.min_orders {
                         let blocked = self.ground_hit(pos, lt.sun_dir).is_some();
                         if !blocked {
                             let tr = self.transmittance(pos, lt.sun_dir, k, rng);
@@ -204,8 +210,10 @@ impl<'a> PathTracer<'a> {
                 None => {
                     if depth == 0 {
                         // The primary ray left unscattered: the caller adds T_c · background.
-                        for &l in group {
-                            transmitted[l] += 1.0;
+                        if self.min_orders == 0 {
+                            for &l in group {
+                                transmitted[l] += 1.0;
+                            }
                         }
                         return;
                     }
@@ -225,7 +233,7 @@ impl<'a> PathTracer<'a> {
                         for (gi, &l) in group.iter().enumerate() {
                             thr[gi] *= g[l];
                         }
-                        if sun_on && lt.sun_dir.z > 0.0 {
+                        if sun_on && lt.sun_dir.z > 0.0 && depth + 1 >= self.min_orders {
                             let tr = self.transmittance(pos, lt.sun_dir, k, rng);
                             for (gi, &l) in group.iter().enumerate() {
                                 radiance[l] +=
@@ -248,7 +256,7 @@ impl<'a> PathTracer<'a> {
                     }
                     // Escaped: the environment (with an explicit ground, only the sky above).
                     let explicit = lt.ground.as_ref().is_some_and(|g| g.explicit);
-                    if dir.z >= 0.0 || !explicit {
+                    if (dir.z >= 0.0 || !explicit) && depth >= self.min_orders {
                         lt.env(dir, &mut env);
                         for (gi, &l) in group.iter().enumerate() {
                             radiance[l] += thr[gi] * env[l];

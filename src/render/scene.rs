@@ -16,12 +16,18 @@
 //!  "atmosphere": "earth", "sky": "atmosphere", "ground": {"albedo": 0.3, "height_m": 0},
 //!  "wavelengths_nm": [440, 550, 680], "quality": "standard",
 //!  "lighting": {"sky_light": true, "ground_light": true, "aerial_perspective": true,
-//!               "shafts_of_light": true, "cloud_shadows": true, "multiple_scattering": true}}
+//!               "shafts_of_light": true, "cloud_shadows": true, "multiple_scattering": true},
+//!  "multiple_scattering_method": "all_orders"}
 //! ```
+//!
+//! `multiple_scattering_method` picks the fast method's multiple scattering: `"all_orders"` (the
+//! photon-transport field) or `"reference_pattern"` (orders 2 and 3 of sunlight by seed 000
+//! §3.4, for thin clouds; `render::pattern`).
 //!
 //! Every value is checked here, before anything is allocated; errors name the field (dotted
 //! path, e.g. `optics.phase.g`) and its allowed range.
 
+use super::pattern::MsMethod;
 use crate::atmosphere::params::AtmosphereParams;
 use crate::atmosphere::presets;
 use crate::cloud::scene::{CloudSection, MAX_SCENE_FILE_BYTES};
@@ -307,6 +313,11 @@ pub struct FrameSceneJson {
     pub quality: Quality,
     #[serde(default)]
     pub lighting: LightingSwitches,
+    /// Multiple scattering of the fast method: `"all_orders"` (the photon-transport field) or
+    /// `"reference_pattern"` (orders 2 and 3 of sunlight by seed 000 §3.4; thin clouds)
+    /// ["all_orders"].
+    #[serde(default)]
+    pub multiple_scattering_method: MsMethod,
 }
 
 fn default_atmosphere() -> Value {
@@ -437,6 +448,7 @@ pub struct FrameScene {
     pub wavelengths: Wavelengths,
     pub quality: Quality,
     pub lighting: LightingSwitches,
+    pub multiple_scattering_method: MsMethod,
     /// The scene as given (for cache keys and metadata).
     pub source: FrameSceneJson,
 }
@@ -561,6 +573,7 @@ impl FrameScene {
             wavelengths,
             quality: s.quality,
             lighting: s.lighting,
+            multiple_scattering_method: s.multiple_scattering_method,
             source: s,
         })
     }

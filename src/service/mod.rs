@@ -69,7 +69,7 @@ pub struct AppState {
 struct Inner {
     settings: Settings,
     engine: Engine,
-    cache: Cache,
+    cache: Arc<Cache>,
     metrics: Metrics,
     compute: Semaphore,
     flights: Mutex<HashMap<String, Flight>>,
@@ -81,11 +81,11 @@ impl AppState {
     /// Opens the cache at `settings.cache.dir` and loads persisted jobs (call
     /// [`AppState::start_job_workers`] inside a runtime to run them).
     pub fn new(settings: Settings) -> Result<Self, ApiError> {
-        let cache = Cache::open(CacheConfig::new(
+        let cache = Arc::new(Cache::open(CacheConfig::new(
             &settings.cache.dir,
             settings.cache.disk_budget_bytes,
             settings.cache.memory_budget_bytes,
-        ))?;
+        ))?);
         let jobs = crate::job::run::Jobs::open(
             &settings.cache.dir.join("jobs"),
             crate::product::params::Defaults::from_settings(&settings),
@@ -95,7 +95,8 @@ impl AppState {
                 compute: Semaphore::new(settings.compute_threads()),
                 responses: Mutex::new(ResponseCache::new(settings.cache.response_budget_bytes)),
                 settings,
-                engine: Engine::new(),
+                // Precise tables persist in the same cache (one disk budget) across restarts.
+                engine: crate::store::tables::engine_with_cache(cache.clone()),
                 cache,
                 metrics: Metrics::default(),
                 flights: Mutex::new(HashMap::new()),

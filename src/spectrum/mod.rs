@@ -2,6 +2,7 @@
 
 pub mod colour;
 pub mod data;
+pub mod photometry;
 pub mod tabulated;
 pub mod wavelengths;
 

@@ -7,6 +7,7 @@
 //! - [`atomic`]: the one function that writes files (temp file, fsync, rename, fsync directory).
 //! - [`files`]: whole-file reads and directory listing for the job store and bakes.
 //! - [`cache`]: the content-addressed, size-bounded disk cache with an in-memory LRU in front.
+//! - [`tables`]: the engine's shared tables (precise multiple scattering) kept in that cache.
 //!
 //! ```no_run
 //! use skybake::store::{cache_key, Cache, CacheConfig, SpectralImage};
@@ -28,6 +29,7 @@ pub mod files;
 pub mod layout;
 mod lru;
 pub mod spectral_image;
+pub mod tables;
 
 pub use atomic::write_atomic;
 pub use bench::{bench_store, StoreBench};

@@ -113,6 +113,10 @@ pub async fn metrics(State(state): State<AppState>) -> Response {
             state.engine().table_builds(table)
         ));
     }
+    let (loaded, rejected) = state.engine().table_loads();
+    out.push_str(&format!(
+        "# HELP skybake_engine_table_loads_total Shared engine tables loaded from the cache directory instead of built.\n# TYPE skybake_engine_table_loads_total counter\nskybake_engine_table_loads_total{{table=\"precise\"}} {loaded}\n# HELP skybake_engine_table_rejected_total Stored shared tables refused (not matching the medium and settings) and rebuilt.\n# TYPE skybake_engine_table_rejected_total counter\nskybake_engine_table_rejected_total{{table=\"precise\"}} {rejected}\n"
+    ));
     let mut resp = out.into_response();
     resp.headers_mut().insert(
         header::CONTENT_TYPE,
