@@ -119,6 +119,17 @@ static REPORT_JSON: &str = include_str!("../report/report.json");
 /// 0.25 % radiance, 0.41 % diffuse flux), rounded up.
 pub const REFERENCE_ERROR: f64 = 0.005;
 
+/// The reference preset's own relative error against the independent codes at a sun
+/// elevation: DISORT above 30° ([`REFERENCE_ERROR`]), the spherical Monte Carlo's stated
+/// figures below (`engine::stated_twilight_error`).
+pub fn reference_error(sun_elevation_deg: f64) -> f64 {
+    if sun_elevation_deg >= 30.0 {
+        REFERENCE_ERROR
+    } else {
+        crate::engine::stated_twilight_error(MsMethod::Precise, sun_elevation_deg)
+    }
+}
+
 /// The committed report, parsed once (`None` if it does not parse, which a unit test rules out).
 pub fn committed() -> Option<&'static Report> {
     static REPORT: OnceLock<Option<Report>> = OnceLock::new();
@@ -194,8 +205,8 @@ pub fn aerosol_optical_depth_550(a: &AtmosphereParams) -> Option<f64> {
 /// A product's measured error at one quality in one regime.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Measured {
-    /// Largest `rel_max` over the matching regimes plus [`REFERENCE_ERROR`] (0 plus it for the
-    /// reference itself).
+    /// Largest `rel_max` over the matching regimes: the deviation from the reference preset
+    /// (0 for the reference itself); add [`reference_error`] for the error against the truth.
     pub relative_error: f64,
     /// Cold CPU time, ms (the largest over the matching regimes).
     pub cold_cpu_ms: f64,
@@ -248,7 +259,7 @@ pub fn measured(
         .iter()
         .fold(0.0f64, |m, p| m.max(p.cold_cpu_ms.unwrap_or(p.cold_ms)));
     worst.is_finite().then_some(Measured {
-        relative_error: worst + REFERENCE_ERROR,
+        relative_error: worst,
         cold_cpu_ms: cpu,
         regimes: points.len(),
     })
@@ -262,11 +273,16 @@ pub fn choose_quality(
     product: ProductKind,
     method: MsMethod,
     bands: &RegimeBands,
+    reference_error: f64,
     target: f64,
 ) -> Result<Quality> {
     let options: Vec<(Quality, Measured)> = PRESETS
         .iter()
-        .filter_map(|&q| Some((q, measured(report, product, method, q, bands)?)))
+        .filter_map(|&q| {
+            let mut m = measured(report, product, method, q, bands)?;
+            m.relative_error += reference_error;
+            Some((q, m))
+        })
         .collect();
     if options.is_empty() {
         return Err(Error::invalid(
@@ -304,6 +320,23 @@ pub fn choose_quality(
         })
 }
 
+/// The measured error of `product` by `method` at the request's quality in the request's
+/// regime, with the bands (`None` outside the measured bands or without data).
+pub fn measured_for(
+    product: ProductKind,
+    method: MsMethod,
+    spec: &CommonSpec,
+) -> Option<(Measured, RegimeBands)> {
+    let report = committed()?;
+    let bands = RegimeBands::of(
+        &spec.atmosphere,
+        spec.sun.sun_elevation_deg,
+        spec.observer_altitude_m,
+    );
+    let m = measured(report, product, method, spec.quality, &bands)?;
+    Some((m, bands))
+}
+
 /// The quality for a request's `max_rel_error` target, from the committed report.
 pub fn quality_for_target(product: ProductKind, spec: &CommonSpec, target: f64) -> Result<Quality> {
     if spec.method == MsMethod::None {
@@ -319,7 +352,8 @@ pub fn quality_for_target(product: ProductKind, spec: &CommonSpec, target: f64) 
         spec.sun.sun_elevation_deg,
         spec.observer_altitude_m,
     );
-    choose_quality(report, product, spec.method, &bands, target)
+    let reference = reference_error(spec.sun.sun_elevation_deg);
+    choose_quality(report, product, spec.method, &bands, reference, target)
 }
 
 fn method_label(m: MsMethod) -> &'static str {
@@ -387,7 +421,14 @@ mod tests {
             assert!(m.cold_cpu_ms >= last_cpu);
             last_cpu = m.cold_cpu_ms;
         }
-        let err = choose_quality(report, ProductKind::Sky, MsMethod::Precise, &bands, 1e-6)
+        let err = choose_quality(
+            report,
+            ProductKind::Sky,
+            MsMethod::Precise,
+            &bands,
+            REFERENCE_ERROR,
+            1e-6,
+        )
             .unwrap_err()
             .to_string();
         assert!(

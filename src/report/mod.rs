@@ -458,6 +458,7 @@ fn percent(v: f64) -> String {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::accuracy::band_of_aerosol;
 
     #[test]
     fn errors_are_normalised_rms_and_floored_max() {
