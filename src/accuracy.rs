@@ -429,8 +429,8 @@ mod tests {
             REFERENCE_ERROR,
             1e-6,
         )
-            .unwrap_err()
-            .to_string();
+        .unwrap_err()
+        .to_string();
         assert!(
             err.contains("max_rel_error") && err.contains("best measured"),
             "{err}"
