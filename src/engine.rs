@@ -98,7 +98,11 @@ pub struct ErrorEstimate {
     #[serde(skip_serializing_if = "Option::is_none")]
     pub last_order_fraction: Option<f64>,
     /// Where `relative_error` comes from.
-    pub basis: &'static str,
+    pub basis: String,
+    /// The measured regime (`aerosol/sun band/altitude band`) the figure comes from, when the
+    /// request lies in one.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub regime: Option<String>,
     /// Whether this request lies inside the validated range (sun elevation ≥ −12°: spherical
     /// Monte Carlo to 10°, DISORT from 30°); outside it `relative_error` is the nearest validated
     /// figure, not a bound, and `caveat` says why.
@@ -448,8 +452,10 @@ impl Engine {
         self.shared(spec)
     }
 
+    #[allow(clippy::too_many_arguments)]
     fn meta(
         &self,
+        kind: ProductKind,
         shared: &SharedTables,
         spec: &CommonSpec,
         warm: bool,
@@ -490,26 +496,52 @@ impl Engine {
             ),
             _ => None,
         };
-        let basis = if e >= 30.0 {
-            "max relative deviation from DISORT (Rayleigh, sun zenith 0–60°, view zenith 0–60°, albedo 0 and 0.3), tests/atmosphere_validation.rs"
+        let independent = if e >= 30.0 {
+            "DISORT (Rayleigh, sun zenith 0–60°, view zenith 0–60°, albedo 0 and 0.3), tests/atmosphere_validation.rs"
         } else {
-            "max relative deviation from the spherical-shell Monte Carlo in this sun-elevation band (Rayleigh, 440–680 nm, albedo 0 and 0.3, observers at 0, 10 and 400 km), tests/atmosphere_twilight.rs"
+            "the spherical-shell Monte Carlo in this sun-elevation band (Rayleigh, 440–680 nm, albedo 0 and 0.3, observers at 0, 10 and 400 km), tests/atmosphere_twilight.rs"
         };
-        ProductMeta {
-            engine_version: ENGINE_VERSION,
-            error_estimate: ErrorEstimate {
-                method,
-                relative_error: if night {
-                    // Every scattering term is exactly zero in the model (`plan::darkest_twilight_deg`).
-                    0.0
-                } else if e >= 30.0 {
+        // The reference preset's own error against the independent code in this band.
+        let reference_error = crate::accuracy::reference_error(e);
+        // This product, method and quality in this regime, from the compiled-in report.
+        let measured = (!night && method != MsMethod::None)
+            .then(|| crate::accuracy::measured_for(kind, method, spec))
+            .flatten();
+        let (relative_error, basis, regime) = match (night, measured) {
+            // Every scattering term is exactly zero in the model (`plan::darkest_twilight_deg`).
+            (true, _) => (0.0, "night: sunlight contributes exactly zero".to_string(), None),
+            (false, Some((m, bands))) => (
+                m.relative_error + reference_error,
+                format!(
+                    "skybake report (report/README.md): largest deviation of this quality preset from the precise method at the reference preset over {} measured regime(s) in band {}, plus the reference's own deviation from {independent} ({:.2} %)",
+                    m.regimes,
+                    bands.name(),
+                    reference_error * 100.0
+                ),
+                Some(bands.name()),
+            ),
+            (false, None) => (
+                if e >= 30.0 {
                     stated_relative_error(method)
                 } else {
                     stated_twilight_error(method, e)
                 },
+                format!(
+                    "max relative deviation from {independent} (no report data for this regime)"
+                ),
+                None,
+            ),
+        };
+        let validated = validated && (night || regime.is_some());
+        ProductMeta {
+            engine_version: ENGINE_VERSION,
+            error_estimate: ErrorEstimate {
+                method,
+                relative_error,
                 scattering_orders: orders,
                 last_order_fraction: last,
                 basis,
+                regime,
                 validated,
                 caveat,
             },
@@ -605,7 +637,7 @@ impl Engine {
             .zip(&dhi)
             .map(|(d, h)| d * mu_s.max(0.0) + h)
             .collect();
-        let meta = self.meta(&shared, spec, warm, start, plan);
+        let meta = self.meta(ProductKind::Sun, &shared, spec, warm, start, plan);
         let nm = &m.wavelengths_nm;
         let cct = correlated_colour_temperature(XyzWeights::new(nm).xyz(&ghi));
         Ok(SunProduct {
@@ -652,7 +684,12 @@ impl Engine {
         );
         let probes = evaluate_probes(&eval, shared.medium.len(), dome.probes());
         self.add_ray_work(&eval);
-        let meta = self.meta(&shared, spec, warm, start, plan);
+        let kind = if hi > 0.0 {
+            ProductKind::Sky
+        } else {
+            ProductKind::Ground
+        };
+        let meta = self.meta(kind, &shared, spec, warm, start, plan);
         Ok(DomeProduct {
             table,
             probes,
@@ -728,7 +765,7 @@ impl Engine {
                 },
             );
         self.add_ray_work(&eval);
-        let meta = self.meta(&shared, spec, warm, start, plan);
+        let meta = self.meta(ProductKind::Aerial, &shared, spec, warm, start, plan);
         Ok(AerialProduct {
             wavelengths_nm: m.wavelengths_nm.clone(),
             elevation_deg,

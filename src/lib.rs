@@ -6,6 +6,7 @@
 // Numeric kernels index several parallel per-wavelength arrays in one loop; an index is clearer.
 #![allow(clippy::needless_range_loop)]
 
+pub mod accuracy;
 pub mod atmosphere;
 pub mod bench;
 pub mod camera;
@@ -21,6 +22,7 @@ pub mod phase;
 pub mod plan;
 pub mod product;
 pub mod render;
+pub mod report;
 pub mod service;
 pub mod solar;
 pub mod solar_position;

@@ -127,6 +127,22 @@ enum Command {
         #[arg(long, default_value_t = 5)]
         warm_runs: usize,
     },
+    /// Measure error against run time for every product and method over the quality presets
+    /// (against the precise method at the reference preset) and write report/ (JSON, markdown,
+    /// PNG plots).
+    ///
+    /// Example: skybake report --quick --out /tmp/report
+    Report {
+        /// One regime, three wavelengths, sun and sky only (under 2 minutes; run by CI).
+        #[arg(long)]
+        quick: bool,
+        /// Output directory.
+        #[arg(long, default_value = "report")]
+        out: PathBuf,
+        /// Rewrite the markdown and plots from an existing report.json instead of measuring.
+        #[arg(long, value_name = "REPORT_JSON")]
+        from_json: Option<PathBuf>,
+    },
     /// Run the HTTP service (settings: config/default.toml ← --config FILE ← SKYBAKE_* ← flags).
     ///
     /// Example: skybake serve --bind 127.0.0.1:8080 --cache-dir /var/cache/skybake
@@ -588,6 +604,11 @@ fn run(cli: Cli) -> Result<()> {
             format,
             &engine(no_table_cache, None)?,
         ),
+        Command::Report {
+            quick,
+            out,
+            from_json,
+        } => Ok(run_report(quick, &out, from_json.as_deref())?),
         Command::Bench {
             names,
             format,
@@ -611,6 +632,50 @@ fn run(cli: Cli) -> Result<()> {
             }
         }
     }
+}
+
+/// `skybake report`: runs the sweep with a progress bar on a terminal and writes the files.
+fn run_report(quick: bool, out: &Path, from_json: Option<&Path>) -> Result<()> {
+    if let Some(path) = from_json {
+        let text = read_limited(path, "from_json", 64 << 20)?;
+        let report: skybake::report::Report = serde_json::from_slice(&text).map_err(|e| {
+            Error::invalid(
+                "from_json",
+                format!("{} is not a report: {e}", path.display()),
+            )
+        })?;
+        for path in skybake::report::write(&report, out)? {
+            println!("{}", path.display());
+        }
+        return Ok(());
+    }
+    let bar = std::io::IsTerminal::is_terminal(&std::io::stderr()).then(|| {
+        let bar = indicatif::ProgressBar::new(0);
+        bar.set_style(
+            indicatif::ProgressStyle::with_template(
+                "{bar:40} {pos}/{len} points, {elapsed} (ETA {eta})",
+            )
+            .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
+        );
+        bar
+    });
+    let progress = |done: usize, total: usize| {
+        if let Some(bar) = &bar {
+            bar.set_length(total as u64);
+            bar.set_position(done as u64);
+        }
+    };
+    let mut report = skybake::report::run(&skybake::report::ReportOptions { quick }, &progress)?;
+    if let Some(bar) = &bar {
+        bar.finish_and_clear();
+    }
+    report.machine_load = std::fs::read_to_string("/proc/loadavg")
+        .ok()
+        .and_then(|s| s.split_whitespace().next().map(str::to_string));
+    for path in skybake::report::write(&report, out)? {
+        println!("{}", path.display());
+    }
+    Ok(())
 }
 
 /// Reads at most `limit` bytes of `path`, refusing larger files (errors name `field`).

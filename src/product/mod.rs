@@ -132,7 +132,17 @@ impl ProductRequest {
         if let Some(name) = p.not_for(product) {
             return Err(not_for(name, product));
         }
-        let spec = CommonSpec::from_params(p, product.min_sun_elevation_deg())?;
+        let mut spec = CommonSpec::from_params(p, product.min_sun_elevation_deg())?;
+        if let Some(target) = p.max_rel_error.as_deref() {
+            let target = row("max_rel_error")?.real(target)?;
+            if p.quality.is_some() {
+                return Err(Error::invalid(
+                    "max_rel_error",
+                    "give either quality or max_rel_error, not both",
+                ));
+            }
+            spec.quality = crate::accuracy::quality_for_target(product, &spec, target)?;
+        }
         let format = Format::parse(p.format.as_deref(), product)?;
         let count = |name: &str, default: usize| -> Result<usize> {
             match p.get(name) {
