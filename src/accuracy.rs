@@ -24,7 +24,7 @@ pub const PRESETS: [Quality; 4] = [
 ];
 
 /// Sun elevation bands, degrees: (name, lower bound inclusive).
-pub const SUN_BANDS: [(&str, f64); 3] = [("high", 30.0), ("low", 0.0), ("twilight", -18.0)];
+pub const SUN_BANDS: [(&str, f64); 3] = [("high", 30.0), ("low", 0.0), ("twilight", -6.0)];
 /// Observer altitude bands, metres: (name, upper bound exclusive).
 pub const ALTITUDE_BANDS: [(&str, f64); 2] = [("ground", 2_000.0), ("aloft", 20_000.0)];
 /// Aerosol bands by optical depth at 550 nm: (name, upper bound inclusive).
@@ -87,12 +87,12 @@ pub struct Report {
     pub curves: Vec<Curve>,
 }
 
-/// The sun band of an elevation (everything below 0° is `twilight`).
-pub fn band_of_sun(elevation_deg: f64) -> &'static str {
+/// The sun band of an elevation (`None` below civil twilight, −6°: not measured).
+pub fn band_of_sun(elevation_deg: f64) -> Option<&'static str> {
     SUN_BANDS
         .iter()
         .find(|(_, lo)| elevation_deg >= *lo)
-        .map_or("twilight", |(n, _)| n)
+        .map(|(n, _)| *n)
 }
 
 /// The altitude band of an observer altitude (`None` above the highest measured band).
@@ -141,7 +141,7 @@ pub fn committed() -> Option<&'static Report> {
 /// Where a request lies: its bands, or `None` for a quantity outside every measured band.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct RegimeBands {
-    pub sun: &'static str,
+    pub sun: Option<&'static str>,
     pub altitude: Option<&'static str>,
     pub aerosol: Option<&'static str>,
 }
@@ -160,7 +160,7 @@ impl RegimeBands {
         format!(
             "{}/{}/{}",
             self.aerosol.unwrap_or("?"),
-            self.sun,
+            self.sun.unwrap_or("?"),
             self.altitude.unwrap_or("?")
         )
     }
@@ -220,7 +220,8 @@ fn matching<'a>(
     method: MsMethod,
     bands: &RegimeBands,
 ) -> Vec<&'a Curve> {
-    let (Some(altitude), Some(aerosol)) = (bands.altitude, bands.aerosol) else {
+    let (Some(sun), Some(altitude), Some(aerosol)) = (bands.sun, bands.altitude, bands.aerosol)
+    else {
         return Vec::new();
     };
     report
@@ -230,7 +231,7 @@ fn matching<'a>(
         .filter(|c| {
             report.regimes.iter().any(|r| {
                 r.name == c.regime
-                    && r.sun_band == bands.sun
+                    && r.sun_band == sun
                     && r.altitude_band == altitude
                     && r.aerosol_band == aerosol
             })
@@ -289,7 +290,7 @@ pub fn choose_quality(
             "max_rel_error",
             format!(
                 "no measured error for the {} product by the {} method in regime {} (measured: sun \
-                 elevation ≥ −18°, observer below 20 km, aerosol optical depth at 550 nm ≤ 1); give \
+                 elevation ≥ −6°, observer below 20 km, aerosol optical depth at 550 nm ≤ 1); give \
                  quality instead",
                 product.name(),
                 method_label(method),

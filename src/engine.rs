@@ -532,7 +532,15 @@ impl Engine {
                 None,
             ),
         };
-        let validated = validated && (night || regime.is_some());
+        // Outside the measured altitude and aerosol bands nothing is validated; below the
+        // measured sun bands the spherical Monte Carlo's figures stand (to −12°).
+        let bands = crate::accuracy::RegimeBands::of(
+            &spec.atmosphere,
+            spec.sun.sun_elevation_deg,
+            spec.observer_altitude_m,
+        );
+        let validated =
+            validated && (night || (bands.altitude.is_some() && bands.aerosol.is_some()));
         ProductMeta {
             engine_version: ENGINE_VERSION,
             error_estimate: ErrorEstimate {

@@ -51,7 +51,7 @@ struct Sweep {
 }
 
 fn regime(atmosphere: &str, aerosol: &str, sun: f64, altitude: f64) -> Regime {
-    let sun_band = band_of_sun(sun);
+    let sun_band = band_of_sun(sun).unwrap_or("night");
     let altitude_band = band_of_altitude(altitude).unwrap_or("space");
     Regime {
         name: format!("{aerosol}/{sun_band}/{altitude_band}"),
@@ -474,11 +474,12 @@ mod tests {
 
     #[test]
     fn bands_cover_every_elevation_and_stop_at_the_measured_range() {
-        assert_eq!(band_of_sun(90.0), "high");
-        assert_eq!(band_of_sun(30.0), "high");
-        assert_eq!(band_of_sun(0.0), "low");
-        assert_eq!(band_of_sun(-0.1), "twilight");
-        assert_eq!(band_of_sun(-90.0), "twilight");
+        assert_eq!(band_of_sun(90.0), Some("high"));
+        assert_eq!(band_of_sun(30.0), Some("high"));
+        assert_eq!(band_of_sun(0.0), Some("low"));
+        assert_eq!(band_of_sun(-0.1), Some("twilight"));
+        assert_eq!(band_of_sun(-6.0), Some("twilight"));
+        assert_eq!(band_of_sun(-6.1), None);
         assert_eq!(band_of_altitude(0.0), Some("ground"));
         assert_eq!(band_of_altitude(10_000.0), Some("aloft"));
         assert_eq!(band_of_altitude(400_000.0), None);
