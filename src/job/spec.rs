@@ -319,11 +319,7 @@ impl JobSpec {
                         }
                         // Errors name the grid's parameter (`grids[0].sun_elevation_deg`);
                         // the item's index is in the job status.
-                        return Some(Located::Product(
-                            *product,
-                            Box::new(p),
-                            prefix.clone(),
-                        ));
+                        return Some(Located::Product(*product, Box::new(p), prefix.clone()));
                     }
                     i -= len;
                 }

@@ -26,14 +26,14 @@ mod routes;
 use crate::config::Settings;
 use crate::engine::Engine;
 use crate::product::{Format, ProductKind, ProductRequest};
+use crate::render::FrameRequest;
+use crate::store::TileStore;
 use crate::store::{Cache, CacheConfig};
 use bytes::Bytes;
 use metrics::Metrics;
 use problem::ApiError;
 use responses::ResponseCache;
 use std::collections::HashMap;
-use crate::render::FrameRequest;
-use crate::store::TileStore;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
@@ -473,7 +473,6 @@ impl AppState {
             other => Ok(other?),
         }
     }
-
 
     /// The response body of `req` in its format, and where it came from.
     pub async fn body(&self, req: &ProductRequest) -> Result<(Bytes, Source, String), ApiError> {
