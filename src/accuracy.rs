@@ -190,7 +190,7 @@ pub fn aerosol_optical_depth_550(a: &AtmosphereParams) -> Option<f64> {
                 .iter()
                 .filter_map(|(k, v)| Some((k.parse::<f64>().ok()?, *v)))
                 .collect();
-            let lo = points.iter().filter(|(nm, _)| *nm <= 550.0).last()?;
+            let lo = points.iter().rfind(|(nm, _)| *nm <= 550.0)?;
             let hi = points.iter().find(|(nm, _)| *nm >= 550.0)?;
             let t = if hi.0 > lo.0 {
                 (550.0 - lo.0) / (hi.0 - lo.0)

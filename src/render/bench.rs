@@ -94,22 +94,17 @@ pub fn time_frame(
     width: usize,
     height: usize,
 ) -> Result<FrameBench> {
-    let (scene, grid) = (scene.clone(), grid);
     let settings = RenderSettings::for_quality(scene.quality, Method::Fast);
     let engine = Engine::new();
     let t = Instant::now();
-    let lighting = lighting_for(&scene, &grid, &engine)?;
+    let lighting = lighting_for(scene, grid, &engine)?;
     let lighting_cold_ms = t.elapsed().as_secs_f64() * 1e3;
-    render_frame(&scene, &grid, &lighting, &settings, None, &|_| {}, &|| {
-        false
-    })?;
+    render_frame(scene, grid, &lighting, &settings, None, &|_| {}, &|| false)?;
     let cold_ms = t.elapsed().as_secs_f64() * 1e3;
     let t = Instant::now();
-    let lighting = lighting_for(&scene, &grid, &engine)?;
+    let lighting = lighting_for(scene, grid, &engine)?;
     let lighting_warm_ms = t.elapsed().as_secs_f64() * 1e3;
-    let frame = render_frame(&scene, &grid, &lighting, &settings, None, &|_| {}, &|| {
-        false
-    })?;
+    let frame = render_frame(scene, grid, &lighting, &settings, None, &|_| {}, &|| false)?;
     let warm_ms = t.elapsed().as_secs_f64() * 1e3;
     let warm_stage_shares = std::iter::once(("lighting".to_string(), lighting_warm_ms))
         .chain(frame.meta.timing_ms.iter().cloned())
