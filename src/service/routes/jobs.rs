@@ -151,16 +151,8 @@ pub async fn artifact(
     }));
     let req = state.request(product, params)?;
     let (body, source, key) = state.body(&req).await?;
-    let mut resp = body.into_response();
+    let mut resp = super::artifact_response(body, req.format.content_type(), source, &key);
     let h = resp.headers_mut();
-    h.insert(
-        header::CONTENT_TYPE,
-        HeaderValue::from_static(req.format.content_type()),
-    );
-    h.insert("x-cache", HeaderValue::from_static(source.header()));
-    if let Ok(v) = HeaderValue::from_str(&key) {
-        h.insert("x-skybake-cache-key", v);
-    }
     // A job's item never changes (its spec is fixed and the engine version is in the key).
     h.insert(
         header::CACHE_CONTROL,

@@ -160,3 +160,22 @@ pub fn app(state: AppState) -> Router {
         .layer(axum::middleware::from_fn_with_state(state.clone(), record))
         .with_state(state)
 }
+
+/// A product body with its content type, where it came from (`x-cache`) and its cache key
+/// (`x-skybake-cache-key`); callers add their validators and caching headers.
+fn artifact_response(
+    body: bytes::Bytes,
+    content_type: &'static str,
+    source: super::Source,
+    key: &str,
+) -> Response {
+    use axum::http::{header, HeaderValue};
+    let mut resp = body.into_response();
+    let h = resp.headers_mut();
+    h.insert(header::CONTENT_TYPE, HeaderValue::from_static(content_type));
+    h.insert("x-cache", HeaderValue::from_static(source.header()));
+    if let Ok(v) = HeaderValue::from_str(key) {
+        h.insert("x-skybake-cache-key", v);
+    }
+    resp
+}

@@ -63,16 +63,8 @@ async fn product(
         }
     }
     let (body, source, key) = state.body(&req).await?;
-    let mut resp = body.into_response();
+    let mut resp = super::artifact_response(body, req.format.content_type(), source, &key);
     let h = resp.headers_mut();
-    h.insert(
-        header::CONTENT_TYPE,
-        HeaderValue::from_static(req.format.content_type()),
-    );
-    h.insert("x-cache", HeaderValue::from_static(source.header()));
-    if let Ok(v) = HeaderValue::from_str(&key) {
-        h.insert("x-skybake-cache-key", v);
-    }
     if let Ok(v) = HeaderValue::from_str(&etag) {
         h.insert(header::ETAG, v);
     }
