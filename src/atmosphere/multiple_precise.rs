@@ -32,7 +32,7 @@
 
 use super::geometry::{horizon_mu, radius_at, safe_sqrt};
 use super::integrate::{ray_points, RayPoint, RaySample, Source};
-use super::kernels::{acos_fast, exp_fast};
+use super::kernels::{acos_fast, exp_fast, ln_fast};
 use super::medium::{Medium, CONSTITUENTS, MIE, RAYLEIGH};
 use super::quadrature::grid_pos;
 use super::transmittance::DensityIntegralTable;
@@ -380,6 +380,41 @@ fn twilight_interp(is: usize, fs: f64, n: usize, at: impl Fn(usize) -> f64) -> f
     }
 }
 
+/// [`twilight_interp`] for every wavelength at once: `out[i] += w · interp(i)` for the four node
+/// rows `v[q]` (`[λ]`, the Catmull–Rom nodes of `catmull_rom(is, fs, n)`) whose logarithms are
+/// `ln_v[q]` (any finite value where `v ≤ 0`). Branch-free over λ with [`ln_fast`]/[`exp_fast`],
+/// so the loop vectorises; the same values as [`twilight_interp`] to rounding.
+#[inline(always)]
+fn twilight_lanes(
+    v: [&[f32]; 4],
+    ln_v: [&[f64]; 4],
+    wq: [f64; 4],
+    fs: f64,
+    w: f64,
+    out: &mut [f64],
+) {
+    let n = out.len();
+    let (v, ln_v) = (v.map(|x| &x[..n]), ln_v.map(|x| &x[..n]));
+    for i in 0..n {
+        let positive = (v[0][i] > 0.0) & (v[1][i] > 0.0) & (v[2][i] > 0.0) & (v[3][i] > 0.0);
+        let ln_j =
+            wq[0] * ln_v[0][i] + wq[1] * ln_v[1][i] + wq[2] * ln_v[2][i] + wq[3] * ln_v[3][i];
+        let linear = v[1][i] as f64 * (1.0 - fs) + v[2][i] as f64 * fs;
+        out[i] += w * if positive { exp_fast(ln_j) } else { linear };
+    }
+}
+
+/// `ln v` for positive `v`, 0 otherwise (masked by [`twilight_lanes`]).
+#[inline(always)]
+fn ln_or_zero(v: f32) -> f64 {
+    let l = ln_fast(v as f64);
+    if v > 0.0 {
+        l
+    } else {
+        0.0
+    }
+}
+
 /// Cosine of the view azimuth relative to the sun from the three cosines (1 when undefined).
 #[inline(always)]
 fn cos_azimuth(mu: f64, mu_s: f64, nu: f64) -> f64 {
@@ -391,43 +426,56 @@ fn cos_azimuth(mu: f64, mu_s: f64, nu: f64) -> f64 {
     }
 }
 
-/// J_ms at a ray sample (products): 16-corner interpolation over (r, θ, θ_s, φ), multilinear by
-/// day; in a twilight cell ([`Grid::twilight_cell`]) Catmull–Rom in ln J over sun zenith
-/// ([`twilight_interp`]), multilinear in radius and direction.
-fn lookup_j(grid: &Grid, n_l: usize, j: &[f32], s: &RaySample, out: &mut [f64]) {
-    let theta_s = s.mu_s.clamp(-1.0, 1.0).acos();
-    if theta_s > grid.theta_s_max {
-        return;
-    }
-    let (ir, fr) = grid_pos(grid.x_r(s.r), grid.s.n_r);
-    let (is, fs) = grid.s_pos(theta_s);
-    let theta = s.mu.clamp(-1.0, 1.0).acos();
-    let (im, fm) = Grid::centred_pos(theta, grid.s.n_mu);
-    let cos_phi = cos_azimuth(s.mu, s.mu_s, s.nu);
-    let (ip, fp) = Grid::centred_pos(cos_phi.acos(), grid.s.n_phi);
-    let (n_mu_s, n_mu, n_phi) = (grid.s.n_mu_s, grid.s.n_mu, grid.s.n_phi);
-    let twilight = grid.twilight_cell(is);
-    for (a, wa) in [(ir, 1.0 - fr), (ir + 1, fr)] {
-        for (c, wc) in [(im, 1.0 - fm), (im + 1, fm)] {
-            for (e, we) in [(ip, 1.0 - fp), (ip + 1, fp)] {
-                let w = wa * wc * we;
-                if w == 0.0 {
-                    continue;
-                }
-                let base = |b: usize| (((a * n_mu + c) * n_mu_s + b) * n_phi + e) * n_l;
-                if twilight {
-                    for i in 0..n_l {
-                        out[i] += w * twilight_interp(is, fs, n_mu_s, |b| j[base(b) + i] as f64);
-                    }
-                    continue;
-                }
-                for (b, wb) in [(is, 1.0 - fs), (is + 1, fs)] {
-                    let (w, base) = (w * wb, base(b));
+crate::simd_dispatch! {
+    /// J_ms at a ray sample (products): 16-corner interpolation over (r, θ, θ_s, φ), multilinear by
+    /// day; in a twilight cell ([`Grid::twilight_cell`]) Catmull–Rom in ln J over sun zenith
+    /// ([`twilight_interp`]), multilinear in radius and direction.
+    fn lookup_j(grid: &Grid, n_l: usize, j: &[f32], s: &RaySample, out: &mut [f64]) {
+        let theta_s = s.mu_s.clamp(-1.0, 1.0).acos();
+        if theta_s > grid.theta_s_max {
+            return;
+        }
+        let (ir, fr) = grid_pos(grid.x_r(s.r), grid.s.n_r);
+        let (is, fs) = grid.s_pos(theta_s);
+        let theta = s.mu.clamp(-1.0, 1.0).acos();
+        let (im, fm) = Grid::centred_pos(theta, grid.s.n_mu);
+        let cos_phi = cos_azimuth(s.mu, s.mu_s, s.nu);
+        let (ip, fp) = Grid::centred_pos(cos_phi.acos(), grid.s.n_phi);
+        let (n_mu_s, n_mu, n_phi) = (grid.s.n_mu_s, grid.s.n_mu, grid.s.n_phi);
+        let twilight = grid.twilight_cell(is);
+        for (a, wa) in [(ir, 1.0 - fr), (ir + 1, fr)] {
+            for (c, wc) in [(im, 1.0 - fm), (im + 1, fm)] {
+                for (e, we) in [(ip, 1.0 - fp), (ip + 1, fp)] {
+                    let w = wa * wc * we;
                     if w == 0.0 {
                         continue;
                     }
-                    for i in 0..n_l {
-                        out[i] += w * j[base + i] as f64;
+                    let base = |b: usize| (((a * n_mu + c) * n_mu_s + b) * n_phi + e) * n_l;
+                    if twilight {
+                        let (nodes, wq) = catmull_rom(is, fs, n_mu_s);
+                        // In chunks of wavelengths, with the logarithms on the stack.
+                        const CHUNK: usize = crate::spectrum::wavelengths::MAX_WAVELENGTHS;
+                        let mut ln_v = [[0.0f64; CHUNK]; 4];
+                        for i0 in (0..n_l).step_by(CHUNK) {
+                            let m = CHUNK.min(n_l - i0);
+                            let v = nodes.map(|b| &j[base(b) + i0..][..m]);
+                            for q in 0..4 {
+                                for (l, &x) in ln_v[q].iter_mut().zip(v[q]) {
+                                    *l = ln_or_zero(x);
+                                }
+                            }
+                            twilight_lanes(v, ln_v.each_ref().map(|x| &x[..m]), wq, fs, w, &mut out[i0..][..m]);
+                        }
+                        continue;
+                    }
+                    for (b, wb) in [(is, 1.0 - fs), (is + 1, fs)] {
+                        let (w, base) = (w * wb, base(b));
+                        if w == 0.0 {
+                            continue;
+                        }
+                        for i in 0..n_l {
+                            out[i] += w * j[base + i] as f64;
+                        }
                     }
                 }
             }
@@ -462,6 +510,12 @@ struct FamilyScratch {
     rho: Vec<[f64; CONSTITUENTS]>,
     /// `[i_mu_s][i_phi][λ]`: J at one point's (r, θ), all sun zeniths and azimuths.
     slice: Vec<f32>,
+    /// `[i_mu_s][i_phi][λ]`: ln of `slice` (0 where it is 0) from sun-zenith node `ln_from` on,
+    /// the nodes of twilight cells ([`Grid::twilight_cell`]).
+    ln_slice: Vec<f64>,
+    ln_from: usize,
+    /// `[λ]`: one twilight cell's interpolated J.
+    tv: Vec<f64>,
     /// `[cell]`: sun zenith cosine at the ray origin, view–sun cosine, √(1 − μ_s²).
     cell_mu_s: Vec<f64>,
     cell_nu: Vec<f64>,
@@ -480,6 +534,12 @@ impl FamilyScratch {
             tw: Vec::with_capacity(2 * grid.s.steps * n_l),
             rho: Vec::with_capacity(2 * grid.s.steps),
             slice: vec![0.0; fc * n_l],
+            ln_slice: vec![0.0; fc * n_l],
+            ln_from: (0..grid.s.n_mu_s.saturating_sub(1))
+                .find(|&is| grid.twilight_cell(is))
+                .unwrap_or(grid.s.n_mu_s)
+                .saturating_sub(1),
+            tv: vec![0.0; n_l],
             cell_mu_s: vec![0.0; fc],
             cell_nu: vec![0.0; fc],
             cell_phase: vec![[0.0; 2]; fc],
@@ -632,6 +692,11 @@ crate::simd_dispatch! {
                         for (x, slice) in sc.slice.iter_mut().enumerate() {
                             *slice = w00 * b00[x] + w01 * b01[x] + w10 * b10[x] + w11 * b11[x];
                         }
+                        // ln J of the sun-zenith nodes that twilight cells interpolate over.
+                        let from = sc.ln_from * n_phi * n_l;
+                        for (lv, &v) in sc.ln_slice[from..].iter_mut().zip(&sc.slice[from..]) {
+                            *lv = ln_or_zero(v);
+                        }
                         for c in 0..fc {
                             let mu_s = ((r0 * sc.cell_mu_s[c] + p.t * sc.cell_nu[c]) / p.r)
                                 .clamp(-1.0, 1.0);
@@ -649,15 +714,23 @@ crate::simd_dispatch! {
                             let (jp, fp) = Grid::centred_pos(acos_fast(cos_phi), n_phi);
                             if grid.twilight_cell(js) {
                                 // In ln J over sun zenith (`twilight_interp`), linear in azimuth.
+                                let (nodes, wq) = catmull_rom(js, fs, n_mu_s);
+                                let tv = &mut sc.tv[..n_l];
+                                tv.fill(0.0);
+                                for (e, we) in [(jp, 1.0 - fp), (jp + 1, fp)] {
+                                    let row = nodes.map(|b| (b * n_phi + e) * n_l);
+                                    twilight_lanes(
+                                        row.map(|x| &sc.slice[x..][..n_l]),
+                                        row.map(|x| &sc.ln_slice[x..][..n_l]),
+                                        wq,
+                                        fs,
+                                        we,
+                                        tv,
+                                    );
+                                }
                                 let o = &mut out[c * n_l..][..n_l];
                                 for i in 0..n_l {
-                                    let mut v = 0.0f64;
-                                    for (e, we) in [(jp, 1.0 - fp), (jp + 1, fp)] {
-                                        let at =
-                                            |b: usize| sc.slice[(b * n_phi + e) * n_l + i] as f64;
-                                        v += we * twilight_interp(js, fs, n_mu_s, at);
-                                    }
-                                    o[i] += tw[i] * v as f32;
+                                    o[i] += tw[i] * tv[i] as f32;
                                 }
                                 continue;
                             }
