@@ -410,10 +410,45 @@ fn wavelength_list(n: usize) -> String {
         .join(",")
 }
 
+/// CPU time (user + system) of this process so far, ms, from `/proc/self/stat` (Linux; clock
+/// ticks, usually 10 ms). `None` where that file does not exist.
+fn process_cpu_ms() -> Option<f64> {
+    let stat = std::fs::read_to_string("/proc/self/stat").ok()?;
+    // Fields after the command name (which is in parentheses and may contain spaces).
+    let rest = stat.get(stat.rfind(')')? + 2..)?;
+    let fields: Vec<&str> = rest.split_whitespace().collect();
+    // utime and stime are fields 14 and 15 of the whole line, 12 and 13 after the name.
+    let ticks: f64 = fields.get(11)?.parse::<f64>().ok()? + fields.get(12)?.parse::<f64>().ok()?;
+    // The kernel reports USER_HZ ticks, 100 per second on every mainstream Linux build.
+    Some(ticks * 10.0)
+}
+
+/// The 1, 5 and 15 minute load averages (`/proc/loadavg`), to judge wall times on a shared machine.
+fn load_average() -> Option<[f64; 3]> {
+    let text = std::fs::read_to_string("/proc/loadavg").ok()?;
+    let mut it = text.split_whitespace().map(|v| v.parse::<f64>().ok());
+    Some([it.next()??, it.next()??, it.next()??])
+}
+
+/// Wall and CPU time of one run of `f`, ms.
+fn timed<T>(f: impl FnOnce() -> Result<T>) -> Result<(T, f64, Option<f64>)> {
+    let (t, cpu) = (Instant::now(), process_cpu_ms());
+    let out = f()?;
+    let wall = ms(t.elapsed());
+    Ok((out, wall, cpu.zip(process_cpu_ms()).map(|(a, b)| b - a)))
+}
+
+/// Median of CPU times (when every run has one).
+fn median_cpu(v: &[Option<f64>]) -> Option<f64> {
+    let v: Option<Vec<f64>> = v.iter().copied().collect();
+    v.filter(|v| !v.is_empty()).map(|v| median(v).0)
+}
+
 /// `precise-tables`: per case, the cold build (fresh engine on an empty table store: build and
-/// save, what a first CLI call does), a fresh engine on the store that now holds the table (what a
-/// second CLI call or a restarted server does), and a warm engine; details carry the orders, the
-/// extrapolated tail and the time per stage.
+/// save, what a first CLI call does), a fresh engine on the store that now holds the tables (what
+/// a second CLI call or a restarted server does: density and precise tables loaded), and a warm
+/// engine; details carry the orders, the extrapolated tail, the time per stage, the CPU time
+/// (user + system, all threads) beside the wall time, and the load average while measuring.
 fn precise_tables(desc: &str, cold_runs: usize, warm_runs: usize) -> Result<Vec<BenchResult>> {
     use crate::store::tables::CacheTableStore;
     use crate::store::{Cache, CacheConfig};
@@ -440,18 +475,23 @@ fn precise_tables(desc: &str, cold_runs: usize, warm_runs: usize) -> Result<Vec<
         };
         let s = CommonSpec::from_params(&p, -18.0)?;
         let name = format!("precise-tables {atmosphere} {quality} {n}λ");
-        let mut cold = Vec::new();
+        let load_before = load_average();
+        let (mut cold, mut cold_cpu) = (Vec::new(), Vec::new());
         let mut details = serde_json::Value::Null;
         for _ in 0..cold_runs {
             let _ = std::fs::remove_dir_all(&dir);
             let engine = Engine::with_table_store(open_store()?);
             let t = Instant::now();
-            // The medium and density-integral table, then the precise table and the dome.
+            let cpu0 = process_cpu_ms();
+            // The medium, the density-integral table (built and saved), then the precise table
+            // (built and saved) and the dome.
             let shared = engine.shared(&s)?;
+            shared.density();
             let density_ms = ms(t.elapsed());
             engine.sky(&s, shape, &[])?;
             let total_ms = ms(t.elapsed());
             cold.push(total_ms);
+            cold_cpu.push(cpu0.zip(process_cpu_ms()).map(|(a, b)| b - a));
             let c = &shared.precise().convergence;
             details = json!({
                 "atmosphere": atmosphere,
@@ -473,21 +513,40 @@ fn precise_tables(desc: &str, cold_runs: usize, warm_runs: usize) -> Result<Vec<
                 },
             });
         }
-        // Fresh engines that load the table the cold run stored.
-        let (stored, stored_min) = time_runs(cold_runs, || {
-            Engine::with_table_store(open_store()?)
-                .sky(&s, shape, &[])
-                .map(|_| ())
-        })?;
+        // Fresh engines that load the tables the cold run stored.
+        let (mut stored, mut stored_cpu) = (Vec::new(), Vec::new());
+        for _ in 0..cold_runs {
+            let ((), wall, cpu) = timed(|| {
+                Engine::with_table_store(open_store()?)
+                    .sky(&s, shape, &[])
+                    .map(|_| ())
+            })?;
+            stored.push(wall);
+            stored_cpu.push(cpu);
+        }
         let engine = Engine::new();
         engine.sky(&s, shape, &[])?;
-        let (warm, warm_min) = time_runs(warm_runs, || engine.sky(&s, shape, &[]).map(|_| ()))?;
-        let (cold_median, cold_min) = median(cold);
-        for (variant, runs, median_ms, min_ms) in [
-            ("cold", cold_runs, cold_median, cold_min),
-            ("stored", cold_runs, stored, stored_min),
-            ("warm", warm_runs, warm, warm_min),
+        let (mut warm, mut warm_cpu) = (Vec::new(), Vec::new());
+        for _ in 0..warm_runs {
+            let ((), wall, cpu) = timed(|| engine.sky(&s, shape, &[]).map(|_| ()))?;
+            warm.push(wall);
+            warm_cpu.push(cpu);
+        }
+        let load_after = load_average();
+        for (variant, runs, times, cpu) in [
+            ("cold", cold_runs, cold, cold_cpu),
+            ("stored", cold_runs, stored, stored_cpu),
+            ("warm", warm_runs, warm, warm_cpu),
         ] {
+            let (median_ms, min_ms) = median(times);
+            let mut d = details.clone();
+            if let Some(m) = d.as_object_mut() {
+                m.insert("cpu_ms_median".into(), json!(median_cpu(&cpu)));
+                m.insert(
+                    "load_average".into(),
+                    json!({"before": load_before, "after": load_after}),
+                );
+            }
             out.push(BenchResult {
                 name: name.clone(),
                 variant,
@@ -495,7 +554,7 @@ fn precise_tables(desc: &str, cold_runs: usize, warm_runs: usize) -> Result<Vec<
                 median_ms,
                 min_ms,
                 description: desc.to_string(),
-                details: Some(details.clone()),
+                details: Some(d),
             });
         }
     }

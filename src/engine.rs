@@ -293,6 +293,10 @@ impl Engine {
         match table {
             // A precise table may be loaded from the table store instead of built.
             Table::Precise => TableEvents::get(&self.table_events.precise_built),
+            // Counted when the shared tables are made; a density table may be loaded instead.
+            Table::Density => self.tables[table as usize]
+                .load(Ordering::Relaxed)
+                .saturating_sub(TableEvents::get(&self.table_events.density_loaded)),
             _ => self.tables[table as usize].load(Ordering::Relaxed),
         }
     }
@@ -303,6 +307,15 @@ impl Engine {
         (
             TableEvents::get(&self.table_events.precise_loaded),
             TableEvents::get(&self.table_events.precise_rejected),
+        )
+    }
+
+    /// How many density-integral tables were loaded from the table store, and how many stored
+    /// ones were refused (not matching the atmosphere or the resolution) and rebuilt.
+    pub fn density_table_loads(&self) -> (u64, u64) {
+        (
+            TableEvents::get(&self.table_events.density_loaded),
+            TableEvents::get(&self.table_events.density_rejected),
         )
     }
 
@@ -391,16 +404,30 @@ impl Engine {
         let tables = slot.get_or_init(|| {
             self.count(Table::Density);
             let (fast, precise) = settings_for(spec.quality);
-            Arc::new(
-                SharedTables::new(medium, fast, precise).with_persistence(Persistence {
+            // The density table depends on the radii and density profiles only.
+            let density_key = serde_json::to_string(&(
+                medium.bottom_radius_m,
+                medium.top_radius_m,
+                &medium.profiles,
+            ))
+            .unwrap_or_default();
+            Arc::new(SharedTables::persistent(
+                medium,
+                fast,
+                precise,
+                Persistence {
                     // No key, no store: a table is never shared under a key that does not say
                     // what it was built for.
-                    store: self.table_store.clone().filter(|_| !key.is_empty()),
+                    store: self
+                        .table_store
+                        .clone()
+                        .filter(|_| !key.is_empty() && !density_key.is_empty()),
                     medium_key: key,
+                    density_key,
                     engine_version: ENGINE_VERSION,
                     events: self.table_events.clone(),
-                }),
-            )
+                },
+            ))
         });
         Ok(tables.clone())
     }

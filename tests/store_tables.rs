@@ -53,6 +53,27 @@ fn exr_files(dir: &Path) -> Vec<PathBuf> {
     out
 }
 
+/// The stored tables of one kind: files carrying the precise table's (`skybakeSharedTable`) or
+/// the density table's (`skybakeDensityTable`) description attribute.
+fn table_files(dir: &Path, attribute: &str) -> Vec<PathBuf> {
+    let needle = attribute.as_bytes();
+    exr_files(dir)
+        .into_iter()
+        .filter(|f| {
+            let bytes = std::fs::read(f).unwrap();
+            bytes.windows(needle.len()).any(|w| w == needle)
+        })
+        .collect()
+}
+
+fn precise_files(dir: &Path) -> Vec<PathBuf> {
+    table_files(dir, "skybakeSharedTable")
+}
+
+fn density_files(dir: &Path) -> Vec<PathBuf> {
+    table_files(dir, "skybakeDensityTable")
+}
+
 #[test]
 fn precise_tables_persist_across_engines_and_corrupt_ones_are_rebuilt() {
     let scratch = Scratch::new("tables");
@@ -63,7 +84,9 @@ fn precise_tables_persist_across_engines_and_corrupt_ones_are_rebuilt() {
     let built = first.sky(&s, SHAPE, &[]).unwrap();
     assert_eq!(first.table_builds(Table::Precise), 1);
     assert_eq!(first.table_loads(), (0, 0));
-    assert_eq!(exr_files(dir).len(), 1, "one table file");
+    assert_eq!(precise_files(dir).len(), 1, "one precise table file");
+    assert_eq!(density_files(dir).len(), 1, "one density table file");
+    assert_eq!(exr_files(dir).len(), 2);
 
     // A fresh engine on the same directory (what a second process sees) loads, builds nothing,
     // and produces the same radiance bit for bit, with the same convergence record.
@@ -71,6 +94,8 @@ fn precise_tables_persist_across_engines_and_corrupt_ones_are_rebuilt() {
     let loaded = second.sky(&s, SHAPE, &[]).unwrap();
     assert_eq!(second.table_builds(Table::Precise), 0);
     assert_eq!(second.table_loads(), (1, 0));
+    assert_eq!(second.density_table_loads(), (1, 0));
+    assert_eq!(second.table_builds(Table::Density), 0);
     assert_eq!(built.table.radiance, loaded.table.radiance);
     assert_eq!(
         built.meta.error_estimate.scattering_orders,
@@ -78,10 +103,13 @@ fn precise_tables_persist_across_engines_and_corrupt_ones_are_rebuilt() {
     );
     assert!(loaded.meta.error_estimate.scattering_orders.unwrap() >= 2);
 
-    // Other wavelengths are another table.
+    // Other wavelengths are another precise table, and the same density table (it depends on
+    // the atmosphere only).
     second.sky(&spec("440,680"), SHAPE, &[]).unwrap();
     assert_eq!(second.table_builds(Table::Precise), 1);
-    assert_eq!(exr_files(dir).len(), 2);
+    assert_eq!(second.density_table_loads(), (2, 0));
+    assert_eq!(precise_files(dir).len(), 2);
+    assert_eq!(density_files(dir).len(), 1);
 
     // Flip one byte in the middle of every table: the checksum catches it, the file is removed,
     // the table is rebuilt (and stored again) and the product is unchanged.
@@ -96,6 +124,8 @@ fn precise_tables_persist_across_engines_and_corrupt_ones_are_rebuilt() {
     let rebuilt = third.sky(&s, SHAPE, &[]).unwrap();
     assert_eq!(third.table_builds(Table::Precise), 1);
     assert_eq!(third.table_loads().0, 0);
+    assert_eq!(third.density_table_loads().0, 0);
+    assert_eq!(third.table_builds(Table::Density), 1);
     assert!(cache.stats().corrupt_detected >= 1);
     assert_eq!(built.table.radiance, rebuilt.table.radiance);
     let on_disk: u64 = exr_files(dir)
@@ -108,14 +138,17 @@ fn precise_tables_persist_across_engines_and_corrupt_ones_are_rebuilt() {
         "tables count in the budget"
     );
 
-    // A disk budget of one and a half tables keeps one: the older table is evicted.
+    // A disk budget of the density table and one and a half precise tables keeps one precise
+    // table: the older one is evicted (the density table was used since).
     let small = scratch.path().join("small");
-    let budget = on_disk * 3 / 4;
+    let density_bytes = std::fs::metadata(&density_files(dir)[0]).unwrap().len();
+    let budget = density_bytes + (on_disk - density_bytes) * 3 / 4;
     let cache = Arc::new(Cache::open(CacheConfig::new(&small, budget, 0)).unwrap());
     let tight = Engine::with_table_store(Arc::new(CacheTableStore::new(cache.clone())));
     tight.sky(&s, SHAPE, &[]).unwrap();
     tight.sky(&spec("440,680"), SHAPE, &[]).unwrap();
-    assert_eq!(exr_files(&small).len(), 1);
+    assert_eq!(precise_files(&small).len(), 1);
+    assert_eq!(density_files(&small).len(), 1);
     assert_eq!(cache.stats().evictions, 1);
 
     // Without a store nothing is read or written.
@@ -180,7 +213,7 @@ fn orders(v: &serde_json::Value) -> u64 {
 const MARK: u64 = 99;
 
 fn mark_stored_table(cache_dir: &Path) {
-    let files = exr_files(cache_dir);
+    let files = precise_files(cache_dir);
     assert_eq!(files.len(), 1, "one stored table");
     let key = files[0].file_stem().unwrap().to_str().unwrap().to_string();
     let cache = open(cache_dir);
@@ -284,7 +317,7 @@ fn a_stored_table_for_another_medium_is_refused_and_rebuilt() {
         .sky(&b, SHAPE, &[])
         .unwrap();
     let key_of = |dir: &Path| -> String {
-        let files = exr_files(dir);
+        let files = precise_files(dir);
         assert_eq!(files.len(), 1);
         files[0].file_stem().unwrap().to_str().unwrap().to_string()
     };
@@ -302,4 +335,74 @@ fn a_stored_table_for_another_medium_is_refused_and_rebuilt() {
     assert_eq!(engine.table_loads(), (0, 1));
     assert_eq!(engine.table_builds(Table::Precise), 1);
     assert_eq!(rebuilt.table.radiance, built_b.table.radiance);
+}
+
+/// The density-integral table is stored once per set of density profiles and loaded by the next
+/// engine (bit for bit the same products); a stored density table made for other density profiles
+/// (a valid file, re-bound to this atmosphere's key) or a corrupt one is refused, counted and
+/// rebuilt.
+#[test]
+fn density_tables_persist_and_foreign_or_corrupt_ones_are_rebuilt() {
+    let scratch = Scratch::new("tables-density");
+    let (dir_a, dir_b) = (scratch.path().join("a"), scratch.path().join("b"));
+    let earth = spec("440,550");
+    let p = RequestParams::from_pairs(
+        [
+            ("sun_elevation_deg", "20"),
+            ("wavelengths", "440,550"),
+            ("method", "precise"),
+            ("quality", "draft"),
+            ("atmosphere", "rayleigh-only"),
+        ]
+        .iter()
+        .copied(),
+    )
+    .unwrap();
+    let other = CommonSpec::from_params(&p, -18.0).unwrap();
+    let built = Engine::with_table_store(Arc::new(CacheTableStore::new(open(&dir_a))))
+        .sky(&earth, SHAPE, &[])
+        .unwrap();
+    Engine::with_table_store(Arc::new(CacheTableStore::new(open(&dir_b))))
+        .sky(&other, SHAPE, &[])
+        .unwrap();
+    let key_of = |dir: &Path| -> String {
+        let files = density_files(dir);
+        assert_eq!(files.len(), 1);
+        files[0].file_stem().unwrap().to_str().unwrap().to_string()
+    };
+    let (key_a, key_b) = (key_of(&dir_a), key_of(&dir_b));
+    assert_ne!(key_a, key_b, "one density table per set of profiles");
+
+    // Loaded by a second engine: same radiance bit for bit, nothing built.
+    let engine = Engine::with_table_store(Arc::new(CacheTableStore::new(open(&dir_a))));
+    let loaded = engine.sky(&earth, SHAPE, &[]).unwrap();
+    assert_eq!(engine.density_table_loads(), (1, 0));
+    assert_eq!(engine.table_builds(Table::Density), 0);
+    assert_eq!(loaded.table.radiance, built.table.radiance);
+
+    // Rayleigh-only's density table (other profiles) under earth's key: refused, rebuilt,
+    // never used.
+    let cache_a = open(&dir_a);
+    let other_table = open(&dir_b).get_image(&key_b).unwrap().unwrap();
+    use skybake::atmosphere::shared::TableStore;
+    CacheTableStore::new(cache_a.clone()).save(&key_a, &other_table);
+    let engine = Engine::with_table_store(Arc::new(CacheTableStore::new(cache_a)));
+    let rebuilt = engine.sky(&earth, SHAPE, &[]).unwrap();
+    assert_eq!(engine.density_table_loads(), (0, 1));
+    assert_eq!(engine.table_builds(Table::Density), 1);
+    assert_eq!(rebuilt.table.radiance, built.table.radiance);
+
+    // A flipped byte in the stored density table: the checksum refuses the file; rebuilt.
+    let f = &density_files(&dir_a)[0];
+    let mut bytes = std::fs::read(f).unwrap();
+    let mid = bytes.len() / 2;
+    bytes[mid] ^= 0x01;
+    std::fs::write(f, bytes).unwrap();
+    let cache = open(&dir_a);
+    let engine = Engine::with_table_store(Arc::new(CacheTableStore::new(cache.clone())));
+    let again = engine.sky(&earth, SHAPE, &[]).unwrap();
+    assert_eq!(engine.density_table_loads().0, 0);
+    assert_eq!(engine.table_builds(Table::Density), 1);
+    assert!(cache.stats().corrupt_detected >= 1);
+    assert_eq!(again.table.radiance, built.table.radiance);
 }

@@ -218,161 +218,164 @@ pub struct RayWork {
     pub ground_bounces: u64,
 }
 
-/// [`integrate_ray`], with the ground bounce (Lambertian reflection at the ray's end) only when
-/// `ground_bounce` is set (the plan leaves it out at zero albedo), returning the work done.
-#[allow(clippy::too_many_arguments)]
-pub fn integrate_ray_counted(
-    medium: &Medium,
-    table: &DensityIntegralTable,
-    source: &dyn Source,
-    terms: Terms,
-    ground_bounce: bool,
-    r: f64,
-    mu: f64,
-    mu_s: f64,
-    nu: f64,
-    steps: usize,
-    scratch: &mut Scratch,
-    radiance: &mut [f64],
-    transmittance: &mut [f64],
-    mut recorder: Option<&mut Recorder>,
-) -> RayWork {
-    let mut work = RayWork::default();
-    let n = medium.len();
-    radiance.fill(0.0);
-    transmittance.fill(1.0);
-    let (seg, samples) = ray_samples(medium, r, mu, mu_s, nu, steps);
-    let mut next_record = 0usize;
-    // Records the partial transmittance and radiance at every recorder distance below `t_limit`:
-    // inside a sample's cell [cell_start, cell_start + w) the density integral grows linearly
-    // and the radiance by the same fraction of the cell's contribution `delta`.
-    let mut record = |t_limit: f64,
-                      cell_start: f64,
-                      w: f64,
-                      d_view: &[f64; CONSTITUENTS],
-                      rho: &[f64; CONSTITUENTS],
-                      radiance: &[f64],
-                      delta: &[f64],
-                      rec: &mut Option<&mut Recorder>| {
-        let Some(rec) = rec.as_deref_mut() else {
-            return;
-        };
-        while next_record < rec.distances_m.len() && rec.distances_m[next_record] < t_limit {
-            let x = (rec.distances_m[next_record] - cell_start).clamp(0.0, w);
-            let frac = if w > 0.0 { x / w } else { 0.0 };
-            let d = [0, 1, 2].map(|k| d_view[k] + rho[k] * x);
-            for i in 0..n {
-                rec.transmittance[next_record * n + i] =
-                    (-medium.optical_depth(i, &d)).exp() as f32;
-                rec.inscatter[next_record * n + i] = (radiance[i] + frac * delta[i]) as f32;
+crate::simd_dispatch! {
+    /// [`integrate_ray`], with the ground bounce (Lambertian reflection at the ray's end) only when
+    /// `ground_bounce` is set (the plan leaves it out at zero albedo), returning the work done.
+    /// Compiled for AVX2 + FMA where the CPU has them (the loops over wavelengths vectorise).
+    pub fn integrate_ray_counted(
+        medium: &Medium,
+        table: &DensityIntegralTable,
+        source: &dyn Source,
+        terms: Terms,
+        ground_bounce: bool,
+        r: f64,
+        mu: f64,
+        mu_s: f64,
+        nu: f64,
+        steps: usize,
+        scratch: &mut Scratch,
+        radiance: &mut [f64],
+        transmittance: &mut [f64],
+        recorder: Option<&mut Recorder>,
+    ) -> RayWork {
+        let mut recorder = recorder;
+        let mut work = RayWork::default();
+        let n = medium.len();
+        radiance.fill(0.0);
+        transmittance.fill(1.0);
+        let (seg, samples) = ray_samples(medium, r, mu, mu_s, nu, steps);
+        let mut next_record = 0usize;
+        // Records the partial transmittance and radiance at every recorder distance below `t_limit`:
+        // inside a sample's cell [cell_start, cell_start + w) the density integral grows linearly
+        // and the radiance by the same fraction of the cell's contribution `delta`.
+        let mut record = |t_limit: f64,
+                          cell_start: f64,
+                          w: f64,
+                          d_view: &[f64; CONSTITUENTS],
+                          rho: &[f64; CONSTITUENTS],
+                          radiance: &[f64],
+                          delta: &[f64],
+                          rec: &mut Option<&mut Recorder>| {
+            let Some(rec) = rec.as_deref_mut() else {
+                return;
+            };
+            while next_record < rec.distances_m.len() && rec.distances_m[next_record] < t_limit {
+                let x = (rec.distances_m[next_record] - cell_start).clamp(0.0, w);
+                let frac = if w > 0.0 { x / w } else { 0.0 };
+                let d = [0, 1, 2].map(|k| d_view[k] + rho[k] * x);
+                for i in 0..n {
+                    rec.transmittance[next_record * n + i] =
+                        (-medium.optical_depth(i, &d)).exp() as f32;
+                    rec.inscatter[next_record * n + i] = (radiance[i] + frac * delta[i]) as f32;
+                }
+                next_record += 1;
             }
-            next_record += 1;
+        };
+        let zeros = [0.0; CONSTITUENTS];
+        let Some(seg) = seg else {
+            let none = vec![0.0; n];
+            record(
+                f64::INFINITY,
+                0.0,
+                0.0,
+                &zeros,
+                &zeros,
+                radiance,
+                &none,
+                &mut recorder,
+            );
+            return work;
+        };
+        let phase_r = Phase::Rayleigh.eval(nu);
+        let phase_m = medium.mie_phase.eval(nu);
+        let mut d_view = [0.0f64; CONSTITUENTS];
+        // The sample weights tile the segment exactly (cell lengths of the u² map), so their
+        // running sum is the start of each sample's cell.
+        let mut cell_start = seg.t_start;
+        for s in &samples {
+            let rho = medium.densities(s.r);
+            // Density integral from the viewer to the sample's midpoint.
+            let mut d_mid = d_view;
+            for k in 0..CONSTITUENTS {
+                d_mid[k] += 0.5 * rho[k] * s.weight;
+            }
+            scratch.j.fill(0.0);
+            source.add_scattering(s, &mut scratch.j);
+            work.source_samples += 1;
+            let (d_sun, vis) = if terms.single {
+                work.single_samples += 1;
+                let vis = table.sun_visibility(s.r, s.mu_s, medium.sun_angular_radius_rad);
+                (table.lookup(s.r, s.mu_s), vis)
+            } else {
+                ([0.0; CONSTITUENTS], 0.0)
+            };
+            // Turn the source into this cell's radiance contribution, in place.
+            for i in 0..n {
+                let tau_view = medium.optical_depth(i, &d_mid);
+                let mut j = scratch.j[i];
+                if vis > 0.0 {
+                    let single = medium.rayleigh_scattering_per_m[i] * rho[RAYLEIGH] * phase_r
+                        + medium.mie_scattering_per_m[i] * rho[MIE] * phase_m;
+                    j += single * exp_fast(-medium.optical_depth(i, &d_sun)) * vis;
+                }
+                scratch.j[i] = exp_fast(-tau_view) * j * s.weight;
+            }
+            record(
+                cell_start + s.weight,
+                cell_start,
+                s.weight,
+                &d_view,
+                &rho,
+                radiance,
+                &scratch.j,
+                &mut recorder,
+            );
+            for i in 0..n {
+                radiance[i] += scratch.j[i];
+            }
+            for k in 0..CONSTITUENTS {
+                d_view[k] += rho[k] * s.weight;
+            }
+            cell_start += s.weight;
         }
-    };
-    let zeros = [0.0; CONSTITUENTS];
-    let Some(seg) = seg else {
-        let none = vec![0.0; n];
+        scratch.e.fill(0.0);
         record(
             f64::INFINITY,
-            0.0,
-            0.0,
-            &zeros,
-            &zeros,
-            radiance,
-            &none,
-            &mut recorder,
-        );
-        return work;
-    };
-    let phase_r = Phase::Rayleigh.eval(nu);
-    let phase_m = medium.mie_phase.eval(nu);
-    let mut d_view = [0.0f64; CONSTITUENTS];
-    // The sample weights tile the segment exactly (cell lengths of the u² map), so their
-    // running sum is the start of each sample's cell.
-    let mut cell_start = seg.t_start;
-    for s in &samples {
-        let rho = medium.densities(s.r);
-        // Density integral from the viewer to the sample's midpoint.
-        let mut d_mid = d_view;
-        for k in 0..CONSTITUENTS {
-            d_mid[k] += 0.5 * rho[k] * s.weight;
-        }
-        scratch.j.fill(0.0);
-        source.add_scattering(s, &mut scratch.j);
-        work.source_samples += 1;
-        let (d_sun, vis) = if terms.single {
-            work.single_samples += 1;
-            let vis = table.sun_visibility(s.r, s.mu_s, medium.sun_angular_radius_rad);
-            (table.lookup(s.r, s.mu_s), vis)
-        } else {
-            ([0.0; CONSTITUENTS], 0.0)
-        };
-        // Turn the source into this cell's radiance contribution, in place.
-        for i in 0..n {
-            let tau_view = medium.optical_depth(i, &d_mid);
-            let mut j = scratch.j[i];
-            if vis > 0.0 {
-                let single = medium.rayleigh_scattering_per_m[i] * rho[RAYLEIGH] * phase_r
-                    + medium.mie_scattering_per_m[i] * rho[MIE] * phase_m;
-                j += single * exp_fast(-medium.optical_depth(i, &d_sun)) * vis;
-            }
-            scratch.j[i] = exp_fast(-tau_view) * j * s.weight;
-        }
-        record(
-            cell_start + s.weight,
             cell_start,
-            s.weight,
+            0.0,
             &d_view,
-            &rho,
+            &zeros,
             radiance,
-            &scratch.j,
+            &scratch.e,
             &mut recorder,
         );
-        for i in 0..n {
-            radiance[i] += scratch.j[i];
+        for (i, t) in transmittance.iter_mut().enumerate() {
+            *t = (-medium.optical_depth(i, &d_view)).exp();
         }
-        for k in 0..CONSTITUENTS {
-            d_view[k] += rho[k] * s.weight;
-        }
-        cell_start += s.weight;
-    }
-    scratch.e.fill(0.0);
-    record(
-        f64::INFINITY,
-        cell_start,
-        0.0,
-        &d_view,
-        &zeros,
-        radiance,
-        &scratch.e,
-        &mut recorder,
-    );
-    for (i, t) in transmittance.iter_mut().enumerate() {
-        *t = (-medium.optical_depth(i, &d_view)).exp();
-    }
-    if ground_bounce && seg.hits_ground {
-        work.ground_bounces += 1;
-        // Lambertian ground at the end of the ray: (a/π)(E_direct + E_sky), attenuated.
-        let r_g = medium.bottom_radius_m;
-        let r0 = r.max(r_g);
-        let mu_s_g =
-            clamp_cos((r0 * mu_s + seg.t_end * nu) / radius_at(r0, mu, seg.t_end).max(r_g));
-        scratch.e.fill(0.0);
-        source.add_ground_sky_irradiance(mu_s_g, &mut scratch.e);
-        if terms.ground_direct && mu_s_g > -0.02 {
-            let vis = table.sun_visibility(r_g, mu_s_g, medium.sun_angular_radius_rad);
-            if vis > 0.0 {
-                let d_sun = table.lookup(r_g, mu_s_g);
-                for i in 0..n {
-                    scratch.e[i] +=
-                        mu_s_g.max(0.0) * (-medium.optical_depth(i, &d_sun)).exp() * vis;
+        if ground_bounce && seg.hits_ground {
+            work.ground_bounces += 1;
+            // Lambertian ground at the end of the ray: (a/π)(E_direct + E_sky), attenuated.
+            let r_g = medium.bottom_radius_m;
+            let r0 = r.max(r_g);
+            let mu_s_g =
+                clamp_cos((r0 * mu_s + seg.t_end * nu) / radius_at(r0, mu, seg.t_end).max(r_g));
+            scratch.e.fill(0.0);
+            source.add_ground_sky_irradiance(mu_s_g, &mut scratch.e);
+            if terms.ground_direct && mu_s_g > -0.02 {
+                let vis = table.sun_visibility(r_g, mu_s_g, medium.sun_angular_radius_rad);
+                if vis > 0.0 {
+                    let d_sun = table.lookup(r_g, mu_s_g);
+                    for i in 0..n {
+                        scratch.e[i] +=
+                            mu_s_g.max(0.0) * (-medium.optical_depth(i, &d_sun)).exp() * vis;
+                    }
                 }
             }
+            for i in 0..n {
+                radiance[i] +=
+                    transmittance[i] * medium.ground_albedo[i] / std::f64::consts::PI * scratch.e[i];
+            }
         }
-        for i in 0..n {
-            radiance[i] +=
-                transmittance[i] * medium.ground_albedo[i] / std::f64::consts::PI * scratch.e[i];
-        }
+        work
     }
-    work
 }

@@ -201,6 +201,21 @@ impl Grid {
         let i = (g.floor() as usize).min(self.s.n_mu_s.saturating_sub(2));
         (i, g - i as f64)
     }
+    /// [`Self::s_pos`] with the node index as a float, branch-free (for loops that vectorise);
+    /// the same values.
+    #[inline(always)]
+    fn s_pos_f(&self, theta_s: f64) -> (f64, f64) {
+        let f = (theta_s / self.theta_s_max).clamp(0.0, 1.0) * (self.n_coarse - 1) as f64;
+        let jf = self.j_fine as f64;
+        let i_day = f.floor().min(self.n_coarse.saturating_sub(2) as f64);
+        let g = jf + 2.0 * (f - jf);
+        let i_dusk = g.floor().min(self.s.n_mu_s.saturating_sub(2) as f64);
+        if f < jf {
+            (i_day, f - i_day)
+        } else {
+            (i_dusk, g - i_dusk)
+        }
+    }
     fn dirs(&self) -> usize {
         self.s.n_mu * self.s.n_phi
     }
@@ -240,6 +255,13 @@ impl Grid {
     }
     fn phi(&self, l: usize) -> f64 {
         PI * (l as f64 + 0.5) / self.s.n_phi as f64
+    }
+    /// [`Self::centred_pos`] with the node index as a float, branch-free; the same values.
+    #[inline(always)]
+    fn centred_pos_f(angle: f64, n: usize) -> (f64, f64) {
+        let f = (angle / PI * n as f64 - 0.5).clamp(0.0, (n - 1) as f64);
+        let i = f.floor().min(n.saturating_sub(2) as f64);
+        (i, f - i)
     }
     /// Interpolation position on a cell-centred grid of `n` nodes over [0, π].
     #[inline(always)]
@@ -431,16 +453,16 @@ crate::simd_dispatch! {
     /// day; in a twilight cell ([`Grid::twilight_cell`]) Catmull–Rom in ln J over sun zenith
     /// ([`twilight_interp`]), multilinear in radius and direction.
     fn lookup_j(grid: &Grid, n_l: usize, j: &[f32], s: &RaySample, out: &mut [f64]) {
-        let theta_s = s.mu_s.clamp(-1.0, 1.0).acos();
+        let theta_s = acos_fast(s.mu_s);
         if theta_s > grid.theta_s_max {
             return;
         }
         let (ir, fr) = grid_pos(grid.x_r(s.r), grid.s.n_r);
         let (is, fs) = grid.s_pos(theta_s);
-        let theta = s.mu.clamp(-1.0, 1.0).acos();
+        let theta = acos_fast(s.mu);
         let (im, fm) = Grid::centred_pos(theta, grid.s.n_mu);
         let cos_phi = cos_azimuth(s.mu, s.mu_s, s.nu);
-        let (ip, fp) = Grid::centred_pos(cos_phi.acos(), grid.s.n_phi);
+        let (ip, fp) = Grid::centred_pos(acos_fast(cos_phi), grid.s.n_phi);
         let (n_mu_s, n_mu, n_phi) = (grid.s.n_mu_s, grid.s.n_mu, grid.s.n_phi);
         let twilight = grid.twilight_cell(is);
         for (a, wa) in [(ir, 1.0 - fr), (ir + 1, fr)] {
@@ -516,6 +538,12 @@ struct FamilyScratch {
     ln_from: usize,
     /// `[λ]`: one twilight cell's interpolated J.
     tv: Vec<f64>,
+    /// `[cell]`: interpolation positions at one point (sun-zenith node, −1 for none, and
+    /// weight; azimuth node and weight), see [`Grid::s_pos_f`].
+    pos_s: Vec<f64>,
+    pos_fs: Vec<f64>,
+    pos_p: Vec<f64>,
+    pos_fp: Vec<f64>,
     /// `[cell]`: sun zenith cosine at the ray origin, view–sun cosine, √(1 − μ_s²).
     cell_mu_s: Vec<f64>,
     cell_nu: Vec<f64>,
@@ -540,6 +568,10 @@ impl FamilyScratch {
                 .unwrap_or(grid.s.n_mu_s)
                 .saturating_sub(1),
             tv: vec![0.0; n_l],
+            pos_s: vec![0.0; fc],
+            pos_fs: vec![0.0; fc],
+            pos_p: vec![0.0; fc],
+            pos_fp: vec![0.0; fc],
             cell_mu_s: vec![0.0; fc],
             cell_nu: vec![0.0; fc],
             cell_phase: vec![[0.0; 2]; fc],
@@ -697,21 +729,33 @@ crate::simd_dispatch! {
                         for (lv, &v) in sc.ln_slice[from..].iter_mut().zip(&sc.slice[from..]) {
                             *lv = ln_or_zero(v);
                         }
+                        // Every cell's interpolation position at this point first, in a
+                        // branch-free loop over cells that vectorises: sun-zenith node and
+                        // weight, azimuth node and weight (node −1: the sun is beyond the
+                        // tables' last node, no source there).
                         for c in 0..fc {
                             let mu_s = ((r0 * sc.cell_mu_s[c] + p.t * sc.cell_nu[c]) / p.r)
                                 .clamp(-1.0, 1.0);
                             let theta_s = acos_fast(mu_s);
-                            if theta_s > grid.theta_s_max {
-                                continue;
-                            }
-                            let (js, fs) = grid.s_pos(theta_s);
+                            let (js, fs) = grid.s_pos_f(theta_s);
                             let denom = sin_mu * safe_sqrt(1.0 - mu_s * mu_s);
                             let cos_phi = if denom > 1e-9 {
                                 ((sc.cell_nu[c] - p.mu * mu_s) / denom).clamp(-1.0, 1.0)
                             } else {
                                 1.0
                             };
-                            let (jp, fp) = Grid::centred_pos(acos_fast(cos_phi), n_phi);
+                            let (jp, fp) = Grid::centred_pos_f(acos_fast(cos_phi), n_phi);
+                            sc.pos_s[c] = if theta_s > grid.theta_s_max { -1.0 } else { js };
+                            sc.pos_fs[c] = fs;
+                            sc.pos_p[c] = jp;
+                            sc.pos_fp[c] = fp;
+                        }
+                        for c in 0..fc {
+                            if sc.pos_s[c] < 0.0 {
+                                continue;
+                            }
+                            let (js, fs) = (sc.pos_s[c] as usize, sc.pos_fs[c]);
+                            let (jp, fp) = (sc.pos_p[c] as usize, sc.pos_fp[c]);
                             if grid.twilight_cell(js) {
                                 // In ln J over sun zenith (`twilight_interp`), linear in azimuth.
                                 let (nodes, wq) = catmull_rom(js, fs, n_mu_s);
@@ -1235,14 +1279,13 @@ impl PreciseMultipleScattering {
         if !matches {
             return None;
         }
-        let mut j_ms = vec![0.0f32; w * h * n_l];
-        for (i, plane) in planes.iter().enumerate() {
-            for (px, &v) in plane.iter().enumerate() {
-                if !valid(v as f64) {
-                    return None;
-                }
-                j_ms[px * n_l + i] = v;
-            }
+        // Interleaved [pixel][λ], written in order.
+        let mut j_ms = Vec::with_capacity(w * h * n_l);
+        for px in 0..w * h {
+            j_ms.extend(planes.iter().map(|p| p[px]));
+        }
+        if !j_ms.iter().all(|&v| valid(v as f64)) {
+            return None;
         }
         Some(Self {
             grid,

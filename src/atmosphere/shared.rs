@@ -30,6 +30,12 @@ pub trait TableStore: Send + Sync {
     fn load(&self, key: &str) -> Option<SpectralImage>;
     /// Stores `table` under `key`.
     fn save(&self, key: &str, table: &SpectralImage);
+    /// Whether the store is open already. The density-integral table goes through the store only
+    /// then (a store that opens on first use is opened by the precise table alone, so a process
+    /// that needs no precise table neither creates nor scans it).
+    fn is_open(&self) -> bool {
+        true
+    }
 }
 
 /// Counts of shared-table builds and loads (for metrics and tests).
@@ -41,6 +47,12 @@ pub struct TableEvents {
     pub precise_loaded: AtomicU64,
     /// Stored precise tables refused (undecodable, or not matching the medium and settings).
     pub precise_rejected: AtomicU64,
+    /// Density-integral tables built while a table store was configured.
+    pub density_built: AtomicU64,
+    /// Density-integral tables loaded from the store.
+    pub density_loaded: AtomicU64,
+    /// Stored density-integral tables refused (not matching the medium or the resolution).
+    pub density_rejected: AtomicU64,
 }
 
 impl TableEvents {
@@ -60,6 +72,11 @@ pub struct Persistence {
     pub store: Option<Arc<dyn TableStore>>,
     /// Canonical description of the medium and quality (the engine's shared-table key).
     pub medium_key: String,
+    /// Canonical description of what the density-integral table depends on (the radii and the
+    /// density profiles; not the coefficients, wavelengths, albedo or quality), so every
+    /// wavelength set and quality of one atmosphere, and atmospheres that differ only in their
+    /// coefficients, share one stored density table.
+    pub density_key: String,
     /// Engine version: part of the stored key, so a new engine never reads an old table.
     pub engine_version: &'static str,
     pub events: Arc<TableEvents>,
@@ -78,12 +95,32 @@ impl Persistence {
             ),
         )
     }
+
+    /// The store key of the density-integral table (blake3 over the radii and profiles, the table's
+    /// resolution, the engine version and the table format).
+    pub fn density_table_key(&self) -> String {
+        let canonical = serde_json::json!({
+            "shared_table": "density",
+            "profiles": self.density_key,
+            "n_r": TRANSMITTANCE_N_R,
+            "n_mu": TRANSMITTANCE_N_MU,
+            "steps": TRANSMITTANCE_STEPS,
+        });
+        crate::store::cache_key(
+            &canonical.to_string(),
+            &format!(
+                "{}+{}",
+                self.engine_version,
+                super::transmittance::DENSITY_TABLE_FORMAT
+            ),
+        )
+    }
 }
 
 /// Shared tables for one medium.
 pub struct SharedTables {
     pub medium: Medium,
-    pub density: DensityIntegralTable,
+    density: OnceLock<DensityIntegralTable>,
     fast: OnceLock<FastMultipleScattering>,
     precise: OnceLock<PreciseMultipleScattering>,
     pub fast_settings: FastSettings,
@@ -106,7 +143,7 @@ impl SharedTables {
         );
         Self {
             medium,
-            density,
+            density: OnceLock::from(density),
             fast: OnceLock::new(),
             precise: OnceLock::new(),
             fast_settings,
@@ -121,10 +158,81 @@ impl SharedTables {
         self
     }
 
+    /// Shared tables kept through `persistence`, all made on first use: the precise table is
+    /// loaded from the table store when a verified copy made for this medium exists, else built
+    /// and stored; the density-integral table likewise, under its own key (one per atmosphere),
+    /// once the store is open ([`TableStore::is_open`]).
+    pub fn persistent(
+        medium: Medium,
+        fast_settings: FastSettings,
+        precise_settings: PreciseSettings,
+        persistence: Persistence,
+    ) -> Self {
+        Self {
+            medium,
+            density: OnceLock::new(),
+            fast: OnceLock::new(),
+            precise: OnceLock::new(),
+            fast_settings,
+            precise_settings,
+            persistence: Some(persistence),
+        }
+    }
+
+    /// The density-integral table D_k(r, μ), made on first use (see [`Self::persistent`]).
+    pub fn density(&self) -> &DensityIntegralTable {
+        self.density.get_or_init(|| self.load_or_build_density())
+    }
+
+    fn load_or_build_density(&self) -> DensityIntegralTable {
+        let medium = &self.medium;
+        let build = || {
+            DensityIntegralTable::new(
+                medium,
+                TRANSMITTANCE_N_R,
+                TRANSMITTANCE_N_MU,
+                TRANSMITTANCE_STEPS,
+            )
+        };
+        let Some(p) = &self.persistence else {
+            return build();
+        };
+        let Some(store) = p.store.as_ref().filter(|s| s.is_open()) else {
+            return build();
+        };
+        let key = p.density_table_key();
+        if let Some(image) = store.load(&key) {
+            match DensityIntegralTable::from_image(
+                &image,
+                medium,
+                TRANSMITTANCE_N_R,
+                TRANSMITTANCE_N_MU,
+                TRANSMITTANCE_STEPS,
+            ) {
+                Some(table) => {
+                    tracing::debug!(key, "density table loaded from the table store");
+                    TableEvents::bump(&p.events.density_loaded);
+                    return table;
+                }
+                None => {
+                    tracing::warn!(key, "stored density table does not match; rebuilding");
+                    TableEvents::bump(&p.events.density_rejected);
+                }
+            }
+        }
+        let table = build();
+        TableEvents::bump(&p.events.density_built);
+        match table.to_image(medium) {
+            Ok(image) => store.save(&key, &image),
+            Err(e) => tracing::warn!(key, error = %e, "density table not stored"),
+        }
+        table
+    }
+
     /// The fast (Hillaire 2020) multiple-scattering table, built on first use.
     pub fn fast(&self) -> &FastMultipleScattering {
         self.fast.get_or_init(|| {
-            FastMultipleScattering::new(&self.medium, &self.density, self.fast_settings)
+            FastMultipleScattering::new(&self.medium, self.density(), self.fast_settings)
         })
     }
 
@@ -171,7 +279,7 @@ impl SharedTables {
         let build = || {
             PreciseMultipleScattering::build(
                 &self.medium,
-                &self.density,
+                self.density(),
                 self.precise_settings,
                 cancelled,
             )

@@ -134,7 +134,7 @@ impl<'a> RadianceEvaluator<'a> {
         let m = &self.shared.medium;
         let work = integrate_ray_counted(
             m,
-            &self.shared.density,
+            self.shared.density(),
             self.source,
             terms,
             self.ground_bounce,

@@ -7,13 +7,50 @@
 use super::geometry::{distance_to_sphere_far, horizon_mu, radius_at, safe_sqrt};
 use super::kernels::exp_fast;
 use super::medium::{Medium, Profile, CONSTITUENTS};
+use crate::store::SpectralImage;
 use rayon::prelude::*;
+use std::fmt::Write as _;
+
+/// Version of the stored density-table layout (part of its store key, checked on load).
+pub const DENSITY_TABLE_FORMAT: &str = "density-table-1";
+/// Header attribute with the stored table's description ([`StoredDensity`] as JSON).
+const ATTR_DENSITY: &str = "skybakeDensityTable";
+/// Header attribute with the stored table's values (hex digits of the f64 bits).
+const ATTR_DENSITY_DATA: &str = "skybakeDensityData";
+
+/// What a stored density table was built for; it is used only if all of it matches.
+#[derive(serde::Serialize)]
+struct StoredDensity {
+    format: &'static str,
+    n_r: usize,
+    n_mu: usize,
+    steps: usize,
+    bottom_radius_m: f64,
+    top_radius_m: f64,
+    profiles: [Profile; CONSTITUENTS],
+}
+
+impl StoredDensity {
+    fn of(medium: &Medium, n_r: usize, n_mu: usize, steps: usize) -> Self {
+        Self {
+            format: DENSITY_TABLE_FORMAT,
+            n_r,
+            n_mu,
+            steps,
+            bottom_radius_m: medium.bottom_radius_m,
+            top_radius_m: medium.top_radius_m,
+            profiles: medium.profiles,
+        }
+    }
+}
 
 /// The table, `[i_r][i_mu]` of `[D_rayleigh, D_mie, D_ozone]`.
 #[derive(Debug, Clone)]
 pub struct DensityIntegralTable {
     n_r: usize,
     n_mu: usize,
+    /// Quadrature intervals per ray it was built with.
+    steps: usize,
     bottom: f64,
     top: f64,
     data: Vec<[f64; CONSTITUENTS]>,
@@ -111,10 +148,70 @@ impl DensityIntegralTable {
         Self {
             n_r,
             n_mu,
+            steps,
             bottom,
             top,
             data,
         }
+    }
+
+    /// The table as an image for the table store (issue 17): the density integrals, f64 exactly,
+    /// as 16 hex digits per value (little-endian `[i_r][i_mu][k]` order) in a header attribute,
+    /// with a description of what it was built for beside it; the single pixel is unused (a
+    /// stored table is an EXR entry of the product cache like any other, so it is written
+    /// atomically, checksummed, bound to its key and counted in the disk budget).
+    pub fn to_image(&self, medium: &Medium) -> crate::Result<SpectralImage> {
+        let mut image = SpectralImage::emissive(1, 1, &[550.0], vec![vec![0.0]])?;
+        let meta = StoredDensity::of(medium, self.n_r, self.n_mu, self.steps);
+        let json = serde_json::to_string(&meta)
+            .map_err(|e| crate::Error::invalid("density_table", e.to_string()))?;
+        let mut hex = String::with_capacity(self.data.len() * CONSTITUENTS * 16);
+        for v in self.data.iter().flatten() {
+            // Writing to a String cannot fail.
+            let _ = write!(hex, "{:016x}", v.to_bits());
+        }
+        image.set_attribute(ATTR_DENSITY, json)?;
+        image.set_attribute(ATTR_DENSITY_DATA, hex)?;
+        Ok(image)
+    }
+
+    /// The table stored by [`Self::to_image`], if it was made for exactly this medium's radii
+    /// and density profiles with these resolutions and holds only finite, non-negative values.
+    pub fn from_image(
+        image: &SpectralImage,
+        medium: &Medium,
+        n_r: usize,
+        n_mu: usize,
+        steps: usize,
+    ) -> Option<Self> {
+        let meta: serde_json::Value = serde_json::from_str(image.attribute(ATTR_DENSITY)?).ok()?;
+        let expected = serde_json::to_value(StoredDensity::of(medium, n_r, n_mu, steps)).ok()?;
+        let hex = image.attribute(ATTR_DENSITY_DATA)?.as_bytes();
+        let n = n_r.checked_mul(n_mu)?;
+        if meta != expected || n_r < 2 || n_mu < 2 || hex.len() != n * CONSTITUENTS * 16 {
+            return None;
+        }
+        let mut data = Vec::with_capacity(n);
+        for entry in hex.chunks_exact(CONSTITUENTS * 16) {
+            let mut d = [0.0; CONSTITUENTS];
+            for (k, digits) in entry.chunks_exact(16).enumerate() {
+                let bits = u64::from_str_radix(std::str::from_utf8(digits).ok()?, 16).ok()?;
+                let v = f64::from_bits(bits);
+                if !(v.is_finite() && v >= 0.0) {
+                    return None;
+                }
+                d[k] = v;
+            }
+            data.push(d);
+        }
+        Some(Self {
+            n_r,
+            n_mu,
+            steps,
+            bottom: medium.bottom_radius_m,
+            top: medium.top_radius_m,
+            data,
+        })
     }
 
     /// Density integrals from radius `r` along `mu` to the top. For rays below the horizon,

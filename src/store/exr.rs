@@ -285,7 +285,9 @@ pub fn read_exr_file(path: &Path) -> Result<SpectralImage, StoreError> {
 pub(crate) fn read_bounded(path: &Path) -> Result<Vec<u8>, StoreError> {
     use std::io::Read;
     let file = std::fs::File::open(path).map_err(|e| StoreError::io(path, e))?;
-    let mut bytes = Vec::new();
+    // Sized from the file's length (bounded): no regrowth and copy of a large file as it is read.
+    let len = file.metadata().map(|m| m.len()).unwrap_or(0);
+    let mut bytes = Vec::with_capacity(len.min(MAX_FILE_BYTES) as usize);
     file.take(MAX_FILE_BYTES + 1)
         .read_to_end(&mut bytes)
         .map_err(|e| StoreError::io(path, e))?;

@@ -114,8 +114,9 @@ pub async fn metrics(State(state): State<AppState>) -> Response {
         ));
     }
     let (loaded, rejected) = state.engine().table_loads();
+    let (d_loaded, d_rejected) = state.engine().density_table_loads();
     out.push_str(&format!(
-        "# HELP skybake_engine_table_loads_total Shared engine tables loaded from the cache directory instead of built.\n# TYPE skybake_engine_table_loads_total counter\nskybake_engine_table_loads_total{{table=\"precise\"}} {loaded}\n# HELP skybake_engine_table_rejected_total Stored shared tables refused (not matching the medium and settings) and rebuilt.\n# TYPE skybake_engine_table_rejected_total counter\nskybake_engine_table_rejected_total{{table=\"precise\"}} {rejected}\n"
+        "# HELP skybake_engine_table_loads_total Shared engine tables loaded from the cache directory instead of built.\n# TYPE skybake_engine_table_loads_total counter\nskybake_engine_table_loads_total{{table=\"precise\"}} {loaded}\nskybake_engine_table_loads_total{{table=\"density\"}} {d_loaded}\n# HELP skybake_engine_table_rejected_total Stored shared tables refused (not matching the medium and settings) and rebuilt.\n# TYPE skybake_engine_table_rejected_total counter\nskybake_engine_table_rejected_total{{table=\"precise\"}} {rejected}\nskybake_engine_table_rejected_total{{table=\"density\"}} {d_rejected}\n"
     ));
     let mut resp = out.into_response();
     resp.headers_mut().insert(
