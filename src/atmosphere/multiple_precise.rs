@@ -686,18 +686,15 @@ crate::simd_dispatch! {
                 match input {
                     PassInput::Single => {
                         let rho = sc.rho[pi];
+                        let at = ctx.table.at_radius(p.r, medium.sun_angular_radius_rad);
                         for c in 0..fc {
                             let mu_s = ((r0 * sc.cell_mu_s[c] + p.t * sc.cell_nu[c]) / p.r)
                                 .clamp(-1.0, 1.0);
-                            let vis = ctx.table.sun_visibility(
-                                p.r,
-                                mu_s,
-                                medium.sun_angular_radius_rad,
-                            );
+                            let vis = at.sun_visibility(mu_s);
                             if vis <= 0.0 {
                                 continue;
                             }
-                            let d = ctx.table.lookup(p.r, mu_s);
+                            let d = at.lookup(mu_s);
                             let [ph_r, ph_m] = sc.cell_phase[c];
                             let (ar, am) = (rho[RAYLEIGH] * ph_r * vis, rho[MIE] * ph_m * vis);
                             let o = &mut out[c * n_l..][..n_l];

@@ -216,26 +216,80 @@ impl DensityIntegralTable {
 
     /// Density integrals from radius `r` along `mu` to the top. For rays below the horizon,
     /// the grazing ray's value (callers handle the ground's shadow separately).
+    #[inline]
     pub fn lookup(&self, r: f64, mu: f64) -> [f64; CONSTITUENTS] {
+        self.at_radius(r, 0.0).lookup(mu)
+    }
+
+    /// Fraction of the sun's disk above the local horizon at radius `r`, with the sun's zenith
+    /// cosine `mu_s` (smoothstep over the disk's angular radius: no pop at sunset).
+    #[inline]
+    pub fn sun_visibility(&self, r: f64, mu_s: f64, sun_radius_rad: f64) -> f64 {
+        self.at_radius(r, sun_radius_rad).sun_visibility(mu_s)
+    }
+
+    /// [`Self::lookup`] and [`Self::sun_visibility`] at one radius, with what depends on the
+    /// radius alone computed once (for loops over many directions at one point: the precise
+    /// table's order-1 pass); the same values.
+    #[inline]
+    pub fn at_radius(&self, r: f64, sun_radius_rad: f64) -> AtRadius<'_> {
+        let mu_h_vis = horizon_mu(r.max(self.bottom), self.bottom);
         let r = r.clamp(self.bottom, self.top);
         let h = safe_sqrt(self.top * self.top - self.bottom * self.bottom);
         let rho = safe_sqrt(r * r - self.bottom * self.bottom);
-        let mu = mu.max(horizon_mu(r, self.bottom));
-        let d = distance_to_sphere_far(r, mu, self.top).unwrap_or(0.0);
-        let d_min = self.top - r;
-        let d_max = rho + h;
+        let x_r = (rho / h).clamp(0.0, 1.0);
+        let fr = x_r * (self.n_r - 1) as f64;
+        let ir = (fr.floor() as usize).min(self.n_r - 2);
+        AtRadius {
+            table: self,
+            r,
+            mu_h: horizon_mu(r, self.bottom),
+            d_min: self.top - r,
+            d_max: rho + h,
+            ir,
+            ar: fr - ir as f64,
+            mu_h_vis,
+            width: (sun_radius_rad * safe_sqrt(1.0 - mu_h_vis * mu_h_vis)).max(1e-9),
+        }
+    }
+}
+
+/// The density table at one radius ([`DensityIntegralTable::at_radius`]).
+pub struct AtRadius<'a> {
+    table: &'a DensityIntegralTable,
+    /// The radius, clamped to the atmosphere.
+    r: f64,
+    /// Horizon zenith cosine there.
+    mu_h: f64,
+    /// Shortest and longest distance to the top from there.
+    d_min: f64,
+    d_max: f64,
+    /// Radius interpolation position.
+    ir: usize,
+    ar: f64,
+    /// Horizon zenith cosine at the unclamped radius (above the ground) and width of the sun's
+    /// disk across it, for [`Self::sun_visibility`].
+    mu_h_vis: f64,
+    width: f64,
+}
+
+impl AtRadius<'_> {
+    /// [`DensityIntegralTable::lookup`] at this radius.
+    #[inline(always)]
+    pub fn lookup(&self, mu: f64) -> [f64; CONSTITUENTS] {
+        let t = self.table;
+        let mu = mu.max(self.mu_h);
+        let d = distance_to_sphere_far(self.r, mu, t.top).unwrap_or(0.0);
+        let (d_min, d_max) = (self.d_min, self.d_max);
         let x_mu = if d_max > d_min {
             ((d - d_min) / (d_max - d_min)).clamp(0.0, 1.0)
         } else {
             0.0
         };
-        let x_r = (rho / h).clamp(0.0, 1.0);
-        let fr = x_r * (self.n_r - 1) as f64;
-        let fm = x_mu * (self.n_mu - 1) as f64;
-        let ir = (fr.floor() as usize).min(self.n_r - 2);
-        let im = (fm.floor() as usize).min(self.n_mu - 2);
-        let (ar, am) = (fr - ir as f64, fm - im as f64);
-        let at = |i: usize, j: usize| &self.data[i * self.n_mu + j];
+        let fm = x_mu * (t.n_mu - 1) as f64;
+        let im = (fm.floor() as usize).min(t.n_mu - 2);
+        let (ir, ar, am) = (self.ir, self.ar, fm - im as f64);
+        let at = |i: usize, j: usize| &t.data[i * t.n_mu + j];
         let mut out = [0.0; CONSTITUENTS];
         for (k, o) in out.iter_mut().enumerate() {
             let v0 = at(ir, im)[k] * (1.0 - am) + at(ir, im + 1)[k] * am;
@@ -245,12 +299,11 @@ impl DensityIntegralTable {
         out
     }
 
-    /// Fraction of the sun's disk above the local horizon at radius `r`, with the sun's zenith
-    /// cosine `mu_s` (smoothstep over the disk's angular radius: no pop at sunset).
-    pub fn sun_visibility(&self, r: f64, mu_s: f64, sun_radius_rad: f64) -> f64 {
-        let mu_h = horizon_mu(r.max(self.bottom), self.bottom);
-        let width = (sun_radius_rad * safe_sqrt(1.0 - mu_h * mu_h)).max(1e-9);
-        let x = ((mu_s - mu_h) / width * 0.5 + 0.5).clamp(0.0, 1.0);
+    /// [`DensityIntegralTable::sun_visibility`] at this radius (with the sun radius given to
+    /// [`DensityIntegralTable::at_radius`]).
+    #[inline(always)]
+    pub fn sun_visibility(&self, mu_s: f64) -> f64 {
+        let x = ((mu_s - self.mu_h_vis) / self.width * 0.5 + 0.5).clamp(0.0, 1.0);
         x * x * (3.0 - 2.0 * x)
     }
 }
