@@ -4,6 +4,8 @@
 # stage times in $OUT/c-*/cold.log (SKYBAKE_LOG=skybake=debug). Needs python3 for the wavelength lists.
 B=${SKYBAKE_BIN:-target/release/skybake}
 OUT=${OUT:-/tmp/skybake-precise-cli}
+# skybake refuses unknown SKYBAKE_* variables: do not pass ours on.
+unset SKYBAKE_BIN
 wl() { python3 -c "
 n=$1
 if n==1: print('550')
