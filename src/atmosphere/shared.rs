@@ -13,7 +13,7 @@ use super::multiple_fast::{FastMultipleScattering, FastSettings};
 use super::multiple_precise::{PreciseMultipleScattering, PreciseSettings};
 use super::transmittance::DensityIntegralTable;
 use crate::store::SpectralImage;
-use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::{Arc, OnceLock};
 
 /// Resolution of the shared density-integral table.
@@ -30,12 +30,6 @@ pub trait TableStore: Send + Sync {
     fn load(&self, key: &str) -> Option<SpectralImage>;
     /// Stores `table` under `key`.
     fn save(&self, key: &str, table: &SpectralImage);
-    /// Whether the store is open already. The density-integral table goes through the store only
-    /// then (a store that opens on first use is opened by the precise table alone, so a process
-    /// that needs no precise table neither creates nor scans it).
-    fn is_open(&self) -> bool {
-        true
-    }
 }
 
 /// Counts of shared-table builds and loads (for metrics and tests).
@@ -126,6 +120,10 @@ pub struct SharedTables {
     pub fast_settings: FastSettings,
     pub precise_settings: PreciseSettings,
     persistence: Option<Persistence>,
+    /// Set once the precise table is wanted: the density-integral table goes through the store
+    /// only with it, so requests that need no precise table (the fast method) neither open the
+    /// store nor add files to it.
+    precise_wanted: AtomicBool,
 }
 
 impl SharedTables {
@@ -149,6 +147,7 @@ impl SharedTables {
             fast_settings,
             precise_settings,
             persistence: None,
+            precise_wanted: AtomicBool::new(false),
         }
     }
 
@@ -160,8 +159,8 @@ impl SharedTables {
 
     /// Shared tables kept through `persistence`, all made on first use: the precise table is
     /// loaded from the table store when a verified copy made for this medium exists, else built
-    /// and stored; the density-integral table likewise, under its own key (one per atmosphere),
-    /// once the store is open ([`TableStore::is_open`]).
+    /// and stored; the density-integral table likewise, under its own key (one per set of
+    /// density profiles), when the precise table is wanted (before that it is built in-process).
     pub fn persistent(
         medium: Medium,
         fast_settings: FastSettings,
@@ -176,6 +175,7 @@ impl SharedTables {
             fast_settings,
             precise_settings,
             persistence: Some(persistence),
+            precise_wanted: AtomicBool::new(false),
         }
     }
 
@@ -197,7 +197,11 @@ impl SharedTables {
         let Some(p) = &self.persistence else {
             return build();
         };
-        let Some(store) = p.store.as_ref().filter(|s| s.is_open()) else {
+        let Some(store) = p
+            .store
+            .as_ref()
+            .filter(|_| self.precise_wanted.load(Ordering::Relaxed))
+        else {
             return build();
         };
         let key = p.density_table_key();
@@ -276,6 +280,7 @@ impl SharedTables {
         &self,
         cancelled: &(dyn Fn() -> bool + Sync),
     ) -> Option<PreciseMultipleScattering> {
+        self.precise_wanted.store(true, Ordering::Relaxed);
         let build = || {
             PreciseMultipleScattering::build(
                 &self.medium,

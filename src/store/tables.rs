@@ -70,10 +70,6 @@ impl TableStore for CacheTableStore {
         }
     }
 
-    fn is_open(&self) -> bool {
-        self.cache.get().is_some_and(|c| c.is_some())
-    }
-
     fn save(&self, key: &str, table: &SpectralImage) {
         let Some(cache) = self.cache() else {
             return;
