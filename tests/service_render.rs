@@ -282,6 +282,14 @@ async fn bad_scenes_are_refused_naming_the_field_and_the_limit() {
             "voxel_size_m",
         ),
         (
+            // Under the cloud module's 512³ but over the renderer's 2²³ voxels: refused from the
+            // balls' box before anything is voxelised (it used to build 6.4e7 voxels first).
+            "grid over the render limit",
+            Box::new(|v: &mut Value| v["cloud"]["voxel_size_m"] = json!(5.0)),
+            413,
+            "cloud.voxel_size_m",
+        ),
+        (
             "a file of the server",
             Box::new(|v: &mut Value| {
                 v["cloud"]["source"] = json!({"type": "grid", "path": "/etc/passwd"})
@@ -346,8 +354,9 @@ async fn bad_scenes_are_refused_naming_the_field_and_the_limit() {
         let problem: Value = serde_json::from_slice(&body).unwrap();
         assert_eq!(problem["parameter"], json!(name), "{uri}");
     }
-    // Only the over-limit grid and the file reached the computation (both refused before allocating).
-    assert_eq!(state.metrics().computations("frame"), 2);
+    // Only the file reached the computation (a grid's size comes from its file); the grids over
+    // the limits were refused when the request was read.
+    assert_eq!(state.metrics().computations("frame"), 1);
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]

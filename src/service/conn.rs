@@ -5,8 +5,8 @@
 //! an empty body: 414 for a URI longer than 65534 bytes (`MAX_URI_LEN` in hyper's `proto/h1/role.rs`),
 //! 431 for a request head larger than its read buffer (`max_buf_size`, ~400 KiB by default, so
 //! also for a URI of a megabyte), 400 for an unparsable head. Those answers are written as the last
-//! bytes of the connection, a status line and no header but `content-length: 0` and `date`, which
-//! no response of the router has (its errors always have a problem+json body). [`ClientConn`]
+//! bytes of the connection, a status line and no header but `connection: close`,
+//! `content-length: 0` and `date`, which no response of the router has (its errors always have a problem+json body). [`ClientConn`]
 //! recognises such a head at the end of a write and writes the service's answer instead: a 414 that
 //! states the service's query limit ([`MAX_QUERY_BYTES`]) when the head was too large because of its
 //! request line (tracked on the read side), a 431 stating the head limit otherwise, a 400 naming
@@ -139,8 +139,8 @@ fn uri_too_long() -> (StatusCode, &'static str, &'static str, String, &'static s
 }
 
 /// Where hyper's bare error head starts in `buf`, and its status, when `buf` ends with one:
-/// `HTTP/1.1 400|414|431 <reason>\r\n`, then only `content-length: 0` and `date` headers (either
-/// case), then the empty line, and nothing after it.
+/// `HTTP/1.1 400|414|431 <reason>\r\n`, then only `content-length: 0`, `connection` and `date`
+/// headers (either case), then the empty line, and nothing after it.
 fn hyper_error_head(buf: &[u8]) -> Option<(usize, u16)> {
     const START: &[u8] = b"HTTP/1.1 ";
     if !buf.ends_with(b"\r\n\r\n") {
@@ -158,7 +158,7 @@ fn hyper_error_head(buf: &[u8]) -> Option<(usize, u16)> {
         let (name, value) = line.split_once(':')?;
         match name.to_ascii_lowercase().as_str() {
             "content-length" if value.trim() == "0" => length_zero = true,
-            "date" => {}
+            "date" | "connection" => {}
             _ => return None,
         }
     }
@@ -269,7 +269,10 @@ mod tests {
     #[test]
     fn recognises_only_hyper_s_bare_error_heads() {
         let date = "date: Wed, 02 Dec 2026 08:00:00 GMT\r\n";
-        let bare = format!("HTTP/1.1 414 URI Too Long\r\ncontent-length: 0\r\n{date}\r\n");
+        // As hyper 1.x writes it.
+        let bare = format!(
+            "HTTP/1.1 414 URI Too Long\r\nconnection: close\r\ncontent-length: 0\r\n{date}\r\n"
+        );
         assert_eq!(hyper_error_head(bare.as_bytes()), Some((0, 414)));
         let after = format!("HTTP/1.1 200 OK\r\ncontent-length: 2\r\n\r\nok{bare}");
         assert_eq!(hyper_error_head(after.as_bytes()), Some((40, 414)));

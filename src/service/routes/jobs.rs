@@ -42,6 +42,7 @@ pub async fn submit(
             max_products: settings.jobs.max_products,
             max_live: settings.jobs.max_live,
             disk_bytes: settings.cache.disk_budget_bytes,
+            max_cost: settings.server.max_job_cost,
         };
         let job = s.jobs().submit(&body.bytes, limits)?;
         s.cache().set_reserved_bytes(s.jobs().disk_bytes());
