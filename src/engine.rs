@@ -7,7 +7,8 @@ use crate::atmosphere::multiple_fast::FastSettings;
 use crate::atmosphere::multiple_precise::PreciseSettings;
 use crate::atmosphere::shared::{init_unless, Persistence, SharedTables, TableEvents, TableStore};
 use crate::atmosphere::sky::{
-    dome_table_unless, horizon_axis_deg, horizon_dip_deg, DomeTable, MsMethod, Observer, RadianceEvaluator,
+    dome_table_unless, horizon_axis_deg, horizon_dip_deg, DomeTable, MsMethod, Observer,
+    RadianceEvaluator,
 };
 use crate::atmosphere::sun_transmittance::sun_transmittance;
 use crate::atmosphere::Medium;
@@ -404,10 +405,10 @@ impl Engine {
             Some(Arc::new(
                 SharedTables::new_unless(medium, fast, precise, cancelled)?.with_persistence(
                     Persistence {
-                    // No key, no store: a table is never shared under a key that does not say
-                    // what it was built for.
-                    store: self.table_store.clone().filter(|_| !key.is_empty()),
-                    medium_key: key,
+                        // No key, no store: a table is never shared under a key that does not say
+                        // what it was built for.
+                        store: self.table_store.clone().filter(|_| !key.is_empty()),
+                        medium_key: key,
                         engine_version: ENGINE_VERSION,
                         events: self.table_events.clone(),
                     },

@@ -181,13 +181,25 @@ async fn over_long_uris_get_the_service_s_problem_json_414() {
     head.extend(std::iter::repeat_n(b'a', 500 * 1024));
     head.extend_from_slice(b"\r\n\r\n");
     let (status, content_type, body) = parse_answer(&exchange(srv.addr, head).await);
-    assert_eq!((status, content_type.as_str()), (431, "application/problem+json"));
+    assert_eq!(
+        (status, content_type.as_str()),
+        (431, "application/problem+json")
+    );
     assert_eq!(body["parameter"], "headers", "{body}");
-    assert!(body["detail"].as_str().unwrap_or_default().contains("417792"), "{body}");
+    assert!(
+        body["detail"]
+            .as_str()
+            .unwrap_or_default()
+            .contains("417792"),
+        "{body}"
+    );
     // A malformed head.
     let (status, content_type, body) =
         parse_answer(&exchange(srv.addr, b"GET / HTTP/1.1\r\nBad Header\r\n\r\n".to_vec()).await);
-    assert_eq!((status, content_type.as_str()), (400, "application/problem+json"));
+    assert_eq!(
+        (status, content_type.as_str()),
+        (400, "application/problem+json")
+    );
     assert_eq!(body["status"], 400, "{body}");
     // A kept-alive connection: a good request, then a 70 KiB URI on the same connection.
     let mut head = b"GET /healthz HTTP/1.1\r\nHost: x\r\n\r\nGET /v1/sky?a=".to_vec();

@@ -213,13 +213,17 @@ fn the_same_image_always_encodes_to_the_same_bytes() {
         let mut at = 8;
         while first[at] != 0 {
             let name_end = at + first[at..].iter().position(|&b| b == 0).unwrap();
-            let type_end = name_end + 1 + first[name_end + 1..].iter().position(|&b| b == 0).unwrap();
+            let type_end =
+                name_end + 1 + first[name_end + 1..].iter().position(|&b| b == 0).unwrap();
             let size = i32::from_le_bytes(first[type_end + 1..type_end + 5].try_into().unwrap());
             names.push(&first[at..name_end]);
             at = type_end + 5 + size as usize;
         }
         assert!(names.len() >= 12 + 8, "{} attributes", names.len());
-        assert!(names.windows(2).all(|w| w[0] < w[1]), "attributes not in name order");
+        assert!(
+            names.windows(2).all(|w| w[0] < w[1]),
+            "attributes not in name order"
+        );
     }
 }
 

@@ -73,7 +73,10 @@ impl ProductRequest {
         image.set_product_metadata(&canonical, ENGINE_VERSION, &error_json, meta.timing_ms)?;
         image.set_attribute(layout::ATTR_PLAN_JSON, to_json(&meta.plan)?)?;
         // One byte either way, like the fixed-width compute time: timing never moves other bytes.
-        image.set_attribute(ATTR_TABLES_WARM, if meta.shared_tables_warm { "1" } else { "0" })?;
+        image.set_attribute(
+            ATTR_TABLES_WARM,
+            if meta.shared_tables_warm { "1" } else { "0" },
+        )?;
         image.set_attribute(ATTR_RESPONSE_JSON, Value::Object(envelope).to_string())?;
         // The artifact carries its cache key wherever it is written (CLI, service, bake), so the
         // cache can tell a file under another key's name (store::Cache::get).

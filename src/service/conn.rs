@@ -149,7 +149,11 @@ fn hyper_error_head(buf: &[u8]) -> Option<(usize, u16)> {
     let at = buf.windows(START.len()).rposition(|w| w == START)?;
     let head = std::str::from_utf8(&buf[at..]).ok()?;
     let mut lines = head.strip_suffix("\r\n\r\n")?.split("\r\n");
-    let status: u16 = lines.next()?.get(START.len()..START.len() + 3)?.parse().ok()?;
+    let status: u16 = lines
+        .next()?
+        .get(START.len()..START.len() + 3)?
+        .parse()
+        .ok()?;
     if ![400, 414, 431].contains(&status) {
         return None;
     }

@@ -170,7 +170,11 @@ fn sort_header_attributes(bytes: &mut [u8]) -> Result<(), StoreError> {
     }
     let start = 8;
     let nul_from = |bytes: &[u8], at: usize| -> Option<usize> {
-        bytes.get(at..)?.iter().position(|&b| b == 0).map(|p| at + p)
+        bytes
+            .get(at..)?
+            .iter()
+            .position(|&b| b == 0)
+            .map(|p| at + p)
     };
     // (name, record start, record end) of each attribute.
     let mut records: Vec<(usize, usize, usize)> = Vec::new();
