@@ -119,6 +119,8 @@ async fn exchange(addr: std::net::SocketAddr, head: Vec<u8>) -> Vec<u8> {
     let (mut rd, mut wr) = stream.into_split();
     let writer = tokio::spawn(async move {
         let _ = wr.write_all(&head).await;
+        // Done sending: the server's lingering close ends at this end of input.
+        let _ = wr.shutdown().await;
         wr
     });
     let mut out = Vec::new();

@@ -480,3 +480,40 @@ async fn example_scenes_are_listed_served_and_render() {
     let section = skybake::cloud::scene::parse_scene_file(&sat).unwrap();
     assert!(section.voxelize(&example_file).is_ok());
 }
+
+/// Render tiles count in the cache's disk budget (issue 13): tiles left by three interrupted
+/// renders that together exceed the budget are evicted at start-up, the least recently written
+/// frame first, until they fit.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn render_tiles_count_in_the_disk_budget_and_are_evicted_oldest_first() {
+    use skybake::store::layout::EMISSIVE_LAYER;
+    use skybake::store::{encode_exr, SpectralImage};
+    let dir = Scratch::new("render-tile-budget");
+    let keys: Vec<String> = ["a1", "b2", "c3"].iter().map(|k| k.repeat(32)).collect();
+    let store = TileStore::open(&dir.path().join("tiles")).unwrap();
+    let mut size = 0;
+    for (i, key) in keys.iter().enumerate() {
+        let tiles = store.frame(key).unwrap();
+        // Incompressible values, so each tile file has about the same size.
+        let values: Vec<f32> = (0..64 * 64)
+            .map(|k| f32::from_bits(0x3f80_0000 | ((k as u32 * 2_654_435_761 + i as u32) >> 9)))
+            .collect();
+        let mut img = SpectralImage::new(64, 64, &[550.0]).unwrap();
+        img.add_layer(EMISSIVE_LAYER, vec![values]).unwrap();
+        img.set_attribute(skybake::store::tiles::ATTR_TILE_OF, tiles.binding(0))
+            .unwrap();
+        let bytes = encode_exr(&img).unwrap();
+        size = size.max(bytes.len() as u64);
+        tiles.put(0, &bytes).unwrap();
+        std::thread::sleep(Duration::from_millis(30));
+    }
+    let mut s = settings(dir.path());
+    s.cache.disk_budget_bytes = 2 * size + size / 4;
+    let state = AppState::new(s).unwrap();
+    let left: Vec<usize> = keys
+        .iter()
+        .map(|k| store.frame(k).unwrap().count())
+        .collect();
+    assert_eq!(left, [0, 1, 1], "the oldest frame's tiles go first");
+    drop(state);
+}

@@ -45,7 +45,7 @@ pub async fn submit(
             max_cost: settings.server.max_job_cost,
         };
         let job = s.jobs().submit(&body.bytes, limits)?;
-        s.cache().set_reserved_bytes(s.jobs().disk_bytes());
+        s.account_disk(None);
         Ok(job)
     })
     .await?;
@@ -84,7 +84,7 @@ pub async fn cancel(
     let s = state.clone();
     let (job, deleted) = AppState::blocking(move || {
         let r = s.jobs().delete(&id)?;
-        s.cache().set_reserved_bytes(s.jobs().disk_bytes());
+        s.account_disk(None);
         Ok(r)
     })
     .await?;
