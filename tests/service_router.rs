@@ -92,7 +92,7 @@ async fn products_answer_json_and_exr_and_name_a_bad_parameter() {
     let sun = call(
         &state,
         "GET",
-        &format!("/v1/sun?{FAST}&sun_elevation_deg=30"),
+        "/v1/sun?method=fast&quality=draft&wavelengths=440,550,680&sun_elevation_deg=30",
         None,
     )
     .await;
@@ -111,7 +111,7 @@ async fn products_answer_json_and_exr_and_name_a_bad_parameter() {
 
     for (query, status, name) in [
         ("sun_elevation_deg=95", 400, "sun_elevation_deg"),
-        ("sun_elevation_deg=abc", 400, "sun_elevation_deg"),
+        ("sun_elevation_deg=abc", 422, "sun_elevation_deg"),
         ("wavelengths=100", 400, "wavelengths"),
         ("colour=red", 400, "colour"),
     ] {
