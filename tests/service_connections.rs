@@ -113,26 +113,45 @@ async fn shutdown_ends_within_its_grace_period_despite_a_stalled_client() {
 }
 
 /// Sends `head` (writing on a task of its own, so a server that stops reading cannot block the
-/// test) and reads the answer until the server closes.
-async fn exchange(addr: std::net::SocketAddr, head: Vec<u8>) -> Vec<u8> {
+/// test) and reads until `responses` complete responses have arrived or the server closes.
+async fn exchange(addr: std::net::SocketAddr, head: Vec<u8>, responses: usize) -> Vec<u8> {
     let stream = TcpStream::connect(addr).await.unwrap();
     let (mut rd, mut wr) = stream.into_split();
     let writer = tokio::spawn(async move {
         let _ = wr.write_all(&head).await;
-        // Done sending: the server's lingering close ends at this end of input.
-        let _ = wr.shutdown().await;
         wr
     });
     let mut out = Vec::new();
     let mut buf = [0u8; 4096];
-    loop {
+    while complete_responses(&out) < responses {
         match tokio::time::timeout(Duration::from_secs(10), rd.read(&mut buf)).await {
             Ok(Ok(0)) | Ok(Err(_)) | Err(_) => break,
             Ok(Ok(n)) => out.extend_from_slice(&buf[..n]),
         }
     }
-    let _ = writer.await;
+    writer.abort();
     out
+}
+
+/// Number of complete HTTP/1.1 responses (head and `content-length` body) at the start of `raw`.
+fn complete_responses(raw: &[u8]) -> usize {
+    let mut at = 0;
+    let mut n = 0;
+    while let Some(end) = raw[at..].windows(4).position(|w| w == b"\r\n\r\n") {
+        let head = String::from_utf8_lossy(&raw[at..at + end]).to_ascii_lowercase();
+        let length: usize = head
+            .lines()
+            .find_map(|l| l.strip_prefix("content-length: "))
+            .and_then(|v| v.trim().parse().ok())
+            .unwrap_or(0);
+        let next = at + end + 4 + length;
+        if next > raw.len() {
+            break;
+        }
+        n += 1;
+        at = next;
+    }
+    n
 }
 
 /// (status, content type, JSON body) of a raw HTTP/1.1 answer.
@@ -164,7 +183,7 @@ async fn over_long_uris_get_the_service_s_problem_json_414() {
         let mut head = b"GET /v1/sky?sun_elevation_deg=".to_vec();
         head.extend(std::iter::repeat_n(b'1', kib * 1024));
         head.extend_from_slice(b" HTTP/1.1\r\nHost: x\r\n\r\n");
-        let raw = exchange(srv.addr, head).await;
+        let raw = exchange(srv.addr, head, 1).await;
         let (status, content_type, body) = parse_answer(&raw);
         assert_eq!(
             status,
@@ -182,7 +201,7 @@ async fn over_long_uris_get_the_service_s_problem_json_414() {
     let mut head = b"GET /healthz HTTP/1.1\r\nHost: x\r\nX-Big: ".to_vec();
     head.extend(std::iter::repeat_n(b'a', 500 * 1024));
     head.extend_from_slice(b"\r\n\r\n");
-    let (status, content_type, body) = parse_answer(&exchange(srv.addr, head).await);
+    let (status, content_type, body) = parse_answer(&exchange(srv.addr, head, 1).await);
     assert_eq!(
         (status, content_type.as_str()),
         (431, "application/problem+json")
@@ -196,8 +215,14 @@ async fn over_long_uris_get_the_service_s_problem_json_414() {
         "{body}"
     );
     // A malformed head.
-    let (status, content_type, body) =
-        parse_answer(&exchange(srv.addr, b"GET / HTTP/1.1\r\nBad Header\r\n\r\n".to_vec()).await);
+    let (status, content_type, body) = parse_answer(
+        &exchange(
+            srv.addr,
+            b"GET / HTTP/1.1\r\nBad Header\r\n\r\n".to_vec(),
+            1,
+        )
+        .await,
+    );
     assert_eq!(
         (status, content_type.as_str()),
         (400, "application/problem+json")
@@ -207,7 +232,7 @@ async fn over_long_uris_get_the_service_s_problem_json_414() {
     let mut head = b"GET /healthz HTTP/1.1\r\nHost: x\r\n\r\nGET /v1/sky?a=".to_vec();
     head.extend(std::iter::repeat_n(b'1', 70 * 1024));
     head.extend_from_slice(b" HTTP/1.1\r\nHost: x\r\n\r\n");
-    let raw = exchange(srv.addr, head).await;
+    let raw = exchange(srv.addr, head, 2).await;
     let text = String::from_utf8_lossy(&raw);
     assert!(text.starts_with("HTTP/1.1 200"), "{text}");
     let second = text.find("HTTP/1.1 414").expect("a 414 after the 200");
