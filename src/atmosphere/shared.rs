@@ -133,13 +133,26 @@ impl SharedTables {
         fast_settings: FastSettings,
         precise_settings: PreciseSettings,
     ) -> Self {
-        let density = DensityIntegralTable::new(
+        Self::new_unless(medium, fast_settings, precise_settings, &|| false)
+            .unwrap_or_else(|| unreachable!("never cancelled"))
+    }
+
+    /// [`Self::new`], stopped (`None`) when `cancelled` returns true between two rows of the
+    /// density-integral table (issue 18).
+    pub fn new_unless(
+        medium: Medium,
+        fast_settings: FastSettings,
+        precise_settings: PreciseSettings,
+        cancelled: &(dyn Fn() -> bool + Sync),
+    ) -> Option<Self> {
+        let density = DensityIntegralTable::new_unless(
             &medium,
             TRANSMITTANCE_N_R,
             TRANSMITTANCE_N_MU,
             TRANSMITTANCE_STEPS,
-        );
-        Self {
+            cancelled,
+        )?;
+        Some(Self {
             medium,
             density: OnceLock::from(density),
             fast: OnceLock::new(),
@@ -148,7 +161,7 @@ impl SharedTables {
             precise_settings,
             persistence: None,
             precise_wanted: AtomicBool::new(false),
-        }
+        })
     }
 
     /// Loads and saves the precise table through `persistence` from now on.
@@ -181,17 +194,31 @@ impl SharedTables {
 
     /// The density-integral table D_k(r, μ), made on first use (see [`Self::persistent`]).
     pub fn density(&self) -> &DensityIntegralTable {
-        self.density.get_or_init(|| self.load_or_build_density())
+        self.density_unless(&|| false)
+            .unwrap_or_else(|| unreachable!("never cancelled"))
     }
 
-    fn load_or_build_density(&self) -> DensityIntegralTable {
+    /// The density-integral table, made on first use unless `cancelled` returns true between two
+    /// rows of its build (issue 18); `None` then, and the table stays unbuilt.
+    pub fn density_unless(
+        &self,
+        cancelled: &(dyn Fn() -> bool + Sync),
+    ) -> Option<&DensityIntegralTable> {
+        init_unless(&self.density, || self.load_or_build_density(cancelled))
+    }
+
+    fn load_or_build_density(
+        &self,
+        cancelled: &(dyn Fn() -> bool + Sync),
+    ) -> Option<DensityIntegralTable> {
         let medium = &self.medium;
         let build = || {
-            DensityIntegralTable::new(
+            DensityIntegralTable::new_unless(
                 medium,
                 TRANSMITTANCE_N_R,
                 TRANSMITTANCE_N_MU,
                 TRANSMITTANCE_STEPS,
+                cancelled,
             )
         };
         let Some(p) = &self.persistence else {
@@ -216,7 +243,7 @@ impl SharedTables {
                 Some(table) => {
                     tracing::debug!(key, "density table loaded from the table store");
                     TableEvents::bump(&p.events.density_loaded);
-                    return table;
+                    return Some(table);
                 }
                 None => {
                     tracing::warn!(key, "stored density table does not match; rebuilding");
@@ -224,19 +251,35 @@ impl SharedTables {
                 }
             }
         }
-        let table = build();
+        let table = build()?;
         TableEvents::bump(&p.events.density_built);
         match table.to_image(medium) {
             Ok(image) => store.save(&key, &image),
             Err(e) => tracing::warn!(key, error = %e, "density table not stored"),
         }
-        table
+        Some(table)
     }
 
     /// The fast (Hillaire 2020) multiple-scattering table, built on first use.
     pub fn fast(&self) -> &FastMultipleScattering {
         self.fast.get_or_init(|| {
             FastMultipleScattering::new(&self.medium, self.density(), self.fast_settings)
+        })
+    }
+
+    /// The fast table, built on first use unless `cancelled` returns true between two rows of its
+    /// passes (issue 18); `None` then, and the table stays unbuilt.
+    pub fn fast_unless(
+        &self,
+        cancelled: &(dyn Fn() -> bool + Sync),
+    ) -> Option<&FastMultipleScattering> {
+        init_unless(&self.fast, || {
+            FastMultipleScattering::new_unless(
+                &self.medium,
+                self.density_unless(cancelled)?,
+                self.fast_settings,
+                cancelled,
+            )
         })
     }
 
@@ -284,7 +327,7 @@ impl SharedTables {
         let build = || {
             PreciseMultipleScattering::build(
                 &self.medium,
-                self.density(),
+                self.density_unless(cancelled)?,
                 self.precise_settings,
                 cancelled,
             )
@@ -330,5 +373,25 @@ impl SharedTables {
     /// Whether the fast table exists already.
     pub fn has_fast(&self) -> bool {
         self.fast.get().is_some()
+    }
+}
+
+/// `cell`'s value, initialised by `build` unless `build` gives `None` (a cancelled build): then
+/// `None`, and the cell stays empty, so a later caller builds it whole (and a caller waiting on
+/// this build builds it itself). `OnceLock` has no stable fallible initialiser; leaving
+/// `get_or_init` by an unwind with a private payload leaves the cell uninitialised.
+pub fn init_unless<T>(cell: &OnceLock<T>, build: impl FnOnce() -> Option<T>) -> Option<&T> {
+    /// The unwind payload of a cancelled build.
+    struct Stopped;
+    if let Some(t) = cell.get() {
+        return Some(t);
+    }
+    let built = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
+        cell.get_or_init(|| build().unwrap_or_else(|| std::panic::resume_unwind(Box::new(Stopped))))
+    }));
+    match built {
+        Ok(t) => Some(t),
+        Err(payload) if payload.is::<Stopped>() => None,
+        Err(payload) => std::panic::resume_unwind(payload),
     }
 }
