@@ -294,10 +294,8 @@ impl Engine {
         match table {
             // A precise table may be loaded from the table store instead of built.
             Table::Precise => TableEvents::get(&self.table_events.precise_built),
-            // Counted when the shared tables are made; a density table may be loaded instead.
-            Table::Density => self.tables[table as usize]
-                .load(Ordering::Relaxed)
-                .saturating_sub(TableEvents::get(&self.table_events.density_loaded)),
+            // Counted where it happens (it may be loaded from the table store instead).
+            Table::Density => TableEvents::get(&self.table_events.density_built),
             _ => self.tables[table as usize].load(Ordering::Relaxed),
         }
     }
@@ -413,7 +411,6 @@ impl Engine {
             slot
         };
         let tables = init_unless(&slot, || {
-            self.count(Table::Density);
             let (fast, precise) = settings_for(spec.quality);
             // The density table depends on the radii and density profiles only.
             let density_key = serde_json::to_string(&(

@@ -41,7 +41,7 @@ pub struct TableEvents {
     pub precise_loaded: AtomicU64,
     /// Stored precise tables refused (undecodable, or not matching the medium and settings).
     pub precise_rejected: AtomicU64,
-    /// Density-integral tables built while a table store was configured.
+    /// Density-integral tables built (builds started, cancelled ones included).
     pub density_built: AtomicU64,
     /// Density-integral tables loaded from the store.
     pub density_loaded: AtomicU64,
@@ -229,6 +229,8 @@ impl SharedTables {
             .as_ref()
             .filter(|_| self.precise_wanted.load(Ordering::Relaxed))
         else {
+            // Counted when started, like every table build (a cancelled one too).
+            TableEvents::bump(&p.events.density_built);
             return build();
         };
         let key = p.density_table_key();
@@ -251,8 +253,8 @@ impl SharedTables {
                 }
             }
         }
-        let table = build()?;
         TableEvents::bump(&p.events.density_built);
+        let table = build()?;
         match table.to_image(medium) {
             Ok(image) => store.save(&key, &image),
             Err(e) => tracing::warn!(key, error = %e, "density table not stored"),
