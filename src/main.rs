@@ -132,10 +132,16 @@ enum Command {
     /// PNG plots).
     ///
     /// Example: skybake report --quick --out /tmp/report
+    ///          skybake report --only frames   (the cloud frames' part; the rest is kept)
     Report {
-        /// One regime, three wavelengths, sun and sky only (under 2 minutes; run by CI).
+        /// One regime, three wavelengths, sun and sky only, one tiny frame (under 2 minutes; run
+        /// by CI).
         #[arg(long)]
         quick: bool,
+        /// Measure only this part and keep the other from OUT's existing report.json or
+        /// frames.json (the README is rewritten with both).
+        #[arg(long, value_enum)]
+        only: Option<ReportPart>,
         /// Output directory.
         #[arg(long, default_value = "report")]
         out: PathBuf,
@@ -179,6 +185,15 @@ struct ServeArgs {
     /// Settings file (TOML, any subset of config/default.toml).
     #[arg(long)]
     config: Option<PathBuf>,
+}
+
+/// The parts of `skybake report`.
+#[derive(Clone, Copy, PartialEq, Eq, ValueEnum)]
+enum ReportPart {
+    /// The atmosphere products (sun, sky, ground, aerial).
+    Atmosphere,
+    /// The cloud frames.
+    Frames,
 }
 
 #[derive(Clone, Copy, PartialEq, Eq, ValueEnum)]
@@ -606,9 +621,10 @@ fn run(cli: Cli) -> Result<()> {
         ),
         Command::Report {
             quick,
+            only,
             out,
             from_json,
-        } => Ok(run_report(quick, &out, from_json.as_deref())?),
+        } => Ok(run_report(quick, only, &out, from_json.as_deref())?),
         Command::Bench {
             names,
             format,
@@ -634,17 +650,37 @@ fn run(cli: Cli) -> Result<()> {
     }
 }
 
+/// A report part's JSON at `path`, `None` when there is no such file (errors name `field`).
+fn read_report_part<T: serde::de::DeserializeOwned>(
+    path: &Path,
+    field: &str,
+) -> skybake::Result<Option<T>> {
+    if !path.exists() {
+        return Ok(None);
+    }
+    let text = read_limited(path, field, 64 << 20)?;
+    serde_json::from_slice(&text)
+        .map(Some)
+        .map_err(|e| Error::invalid(field, format!("{} is not a report: {e}", path.display())))
+}
+
 /// `skybake report`: runs the sweep with a progress bar on a terminal and writes the files.
-fn run_report(quick: bool, out: &Path, from_json: Option<&Path>) -> Result<()> {
+fn run_report(
+    quick: bool,
+    only: Option<ReportPart>,
+    out: &Path,
+    from_json: Option<&Path>,
+) -> Result<()> {
+    use skybake::report::frames::FrameReport;
+    use skybake::report::Report;
     if let Some(path) = from_json {
-        let text = read_limited(path, "from_json", 64 << 20)?;
-        let report: skybake::report::Report = serde_json::from_slice(&text).map_err(|e| {
-            Error::invalid(
-                "from_json",
-                format!("{} is not a report: {e}", path.display()),
-            )
+        let report: Report = read_report_part(path, "from_json")?.ok_or_else(|| {
+            Error::invalid("from_json", format!("{} does not exist", path.display()))
         })?;
-        for path in skybake::report::write(&report, out)? {
+        // The frame part, if there is one next to it.
+        let frames: Option<FrameReport> =
+            read_report_part(&path.with_file_name("frames.json"), "from_json")?;
+        for path in skybake::report::write(Some(&report), frames.as_ref(), out)? {
             println!("{}", path.display());
         }
         return Ok(());
@@ -665,14 +701,30 @@ fn run_report(quick: bool, out: &Path, from_json: Option<&Path>) -> Result<()> {
             bar.set_position(done as u64);
         }
     };
-    let mut report = skybake::report::run(&skybake::report::ReportOptions { quick }, &progress)?;
+    let load = || {
+        std::fs::read_to_string("/proc/loadavg")
+            .ok()
+            .and_then(|s| s.split_whitespace().next().map(str::to_string))
+    };
+    let report: Option<Report> = if only == Some(ReportPart::Frames) {
+        read_report_part(&out.join("report.json"), "out")?
+    } else {
+        let mut r = skybake::report::run(&skybake::report::ReportOptions { quick }, &progress)?;
+        r.machine_load = load();
+        Some(r)
+    };
+    let frames: Option<FrameReport> = if only == Some(ReportPart::Atmosphere) {
+        read_report_part(&out.join("frames.json"), "out")?
+    } else {
+        // A full run keeps its converged references next to the report (they take minutes).
+        let mut f = skybake::report::frames::run(quick, (!quick).then_some(out), &progress)?;
+        f.machine_load = load();
+        Some(f)
+    };
     if let Some(bar) = &bar {
         bar.finish_and_clear();
     }
-    report.machine_load = std::fs::read_to_string("/proc/loadavg")
-        .ok()
-        .and_then(|s| s.split_whitespace().next().map(str::to_string));
-    for path in skybake::report::write(&report, out)? {
+    for path in skybake::report::write(report.as_ref(), frames.as_ref(), out)? {
         println!("{}", path.display());
     }
     Ok(())
