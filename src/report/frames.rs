@@ -50,7 +50,7 @@ use std::time::Instant;
 
 /// Random streams of the converged references (the measured path-tracer points use the presets'
 /// default seed, so the two are independent).
-pub const REFERENCE_SEED: u64 = 0x00C0_FFEE_D15C_0;
+pub const REFERENCE_SEED: u64 = 0x0C0F_FEED_15C0;
 
 /// Samples per pixel of the path tracer's points.
 pub const PATH_TRACER_SPP: [usize; 4] = [4, 16, 64, 256];
