@@ -156,3 +156,61 @@ fn a_stage_taken_out_of_the_plan_does_not_run() {
         .is_err());
     assert_eq!(engine.table_builds(Table::Density), 0);
 }
+
+#[test]
+fn precise_orders_under_the_error_budget_are_left_out() {
+    let hazy = include_str!("../config/atmospheres/earth-hazy.json");
+    let pairs = [
+        ("method", "precise"),
+        ("quality", "standard"),
+        ("atmosphere", hazy),
+        ("sun_elevation_deg", "30"),
+    ];
+    let req = request(ProductKind::Sky, &pairs);
+    let plan = req.plan().unwrap();
+    let Some(&(
+        _,
+        Reason::OrdersUnderBudget {
+            tolerance,
+            preset_tolerance,
+            budget,
+        },
+    )) = plan.left_out.iter().find(|(s, _)| *s == Stage::HigherOrders)
+    else {
+        panic!("{plan:?}")
+    };
+    assert!(tolerance > preset_tolerance && tolerance <= budget.allowance);
+    assert_eq!(plan.precise_tolerance, Some(tolerance));
+    let (_, with) = run(&req);
+    let engine = Engine::new();
+    let full = plan.clone().without_cost_rules();
+    assert!(full.runs(Stage::HigherOrders) && full.precise_tolerance.is_none());
+    let without = engine.execute(&req.spec, &req.product, &full).unwrap();
+    let orders = |p: &Product| p.meta().error_estimate.scattering_orders.unwrap();
+    let (Product::Sky(a), Product::Sky(b)) = (&with, &without) else {
+        panic!("not sky products")
+    };
+    let worst = a
+        .table
+        .radiance
+        .iter()
+        .zip(&b.table.radiance)
+        .map(|(x, y)| ((x - y).abs() / y.abs().max(1e-30)) as f64)
+        .fold(0.0, f64::max);
+    eprintln!(
+        "orders {} vs {}, worst relative difference {worst:.2e}, tolerance {tolerance:.2e}",
+        orders(&with),
+        orders(&without)
+    );
+    assert!(orders(&with) < orders(&without));
+    // What the left-out orders add stays within the budget's allowance.
+    assert!(worst <= budget.allowance, "{worst}");
+
+    // The converged reference is never loosened.
+    let reference = request(
+        ProductKind::Sky,
+        &[("method", "precise"), ("quality", "reference"), ("atmosphere", hazy)],
+    );
+    let plan = reference.plan().unwrap();
+    assert!(plan.runs(Stage::HigherOrders) && plan.precise_tolerance.is_none());
+}
