@@ -142,6 +142,10 @@ enum Command {
         /// Rewrite the markdown and plots from an existing report.json instead of measuring.
         #[arg(long, value_name = "REPORT_JSON")]
         from_json: Option<PathBuf>,
+        /// Measure instead what each of the planner's cost rules saves and costs (time and error
+        /// with and without it) and write `planner.md` into the output directory.
+        #[arg(long, conflicts_with_all = ["quick", "from_json"])]
+        planner: bool,
     },
     /// Run the HTTP service (settings: config/default.toml ← --config FILE ← SKYBAKE_* ← flags).
     ///
@@ -605,9 +609,13 @@ fn run(cli: Cli) -> Result<()> {
             &engine(no_table_cache, None)?,
         ),
         Command::Report {
+            planner: true, out, ..
+        } => Ok(run_planner_report(&out)?),
+        Command::Report {
             quick,
             out,
             from_json,
+            ..
         } => Ok(run_report(quick, &out, from_json.as_deref())?),
         Command::Bench {
             names,
@@ -632,6 +640,21 @@ fn run(cli: Cli) -> Result<()> {
             }
         }
     }
+}
+
+/// `skybake report --planner`: measures the planner's cost rules and writes `planner.md`.
+fn run_planner_report(out: &Path) -> Result<()> {
+    let rows = skybake::report::planner::run(&|done, total| eprintln!("planner report: {done}/{total}"))?;
+    let load = std::fs::read_to_string("/proc/loadavg")
+        .ok()
+        .and_then(|l| l.split_whitespace().next().map(str::to_string));
+    let md = skybake::report::planner::markdown(&rows, rayon::current_num_threads(), load.as_deref());
+    let io = |e: std::io::Error| Error::invalid("out", format!("{}: {e}", out.display()));
+    std::fs::create_dir_all(out).map_err(io)?;
+    let path = out.join("planner.md");
+    std::fs::write(&path, md).map_err(io)?;
+    println!("{}", path.display());
+    Ok(())
 }
 
 /// `skybake report`: runs the sweep with a progress bar on a terminal and writes the files.

@@ -21,6 +21,7 @@
 //! see [`data`]), `README.md` (tables) and one log–log PNG of error against time per product
 //! ([`plot`]).
 
+pub mod planner;
 pub mod plot;
 
 use crate::accuracy::{band_of_altitude, band_of_sun};
