@@ -314,8 +314,11 @@ struct AerialArgs {
 
 #[derive(Args, Clone)]
 struct PlanArgs {
-    /// The product: sun, sky, ground or aerial.
+    /// The product: sun, sky, ground, aerial, or frame (with --scene; --method fast|reference).
     product: String,
+    /// The frame scene (product `frame`).
+    #[arg(long, value_name = "SCENE_JSON")]
+    scene: Option<PathBuf>,
     #[command(flatten)]
     flags: ProductFlags<ANY>,
 }
@@ -568,7 +571,33 @@ fn run(cli: Cli) -> Result<()> {
             }
             Ok(())
         }
+        Command::Plan(a) if a.product == "frame" => {
+            let scene = a
+                .scene
+                .as_deref()
+                .ok_or_else(|| Error::invalid("scene", "plan frame needs --scene SCENE.json"))?;
+            let method = match a.flags.params.method.as_deref() {
+                Some(m) => skybake::render::Method::parse(m)?,
+                None => skybake::render::Method::Fast,
+            };
+            let text = read_limited(scene, "scene", skybake::cloud::scene::MAX_SCENE_FILE_BYTES)?;
+            let request = skybake::render::FrameRequest::parse(&text, method)?;
+            let dir = scene.parent().unwrap_or(Path::new("."));
+            let loader = |name: &str| {
+                read_limited(&dir.join(name), "path", skybake::cloud::scene::MAX_GRID_FILE_BYTES)
+            };
+            print_json(&serde_json::json!({
+                "product": "frame",
+                "cache_key": request.cache_key(),
+                "engine_version": skybake::engine::ENGINE_VERSION,
+                "method": method,
+                "plan": request.plan(&loader)?,
+            }))
+        }
         Command::Plan(a) => {
+            if a.scene.is_some() {
+                return Err(Error::invalid("scene", "only for plan frame").into());
+            }
             let kind = ProductKind::parse(&a.product)?;
             let req = ProductRequest::from_params(kind, &request_params(a.flags.params.clone())?)?;
             print_json(&serde_json::json!({

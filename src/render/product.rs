@@ -527,6 +527,14 @@ impl FrameRequest {
         crate::store::cache_key(&self.canonical_json(), crate::engine::ENGINE_VERSION)
     }
 
+    /// The frame's plan (voxelises the cloud to measure it; lights and renders nothing): what
+    /// `skybake plan frame` and `POST /v1/plan` with `"product": "frame"` answer.
+    pub fn plan(&self, loader: &dyn Fn(&str) -> Result<Vec<u8>>) -> Result<FramePlan> {
+        let grid = self.scene.cloud.voxelize(loader)?;
+        super::check_grid(&grid)?;
+        Ok(plan_frame(&self.scene, &grid, self.method))
+    }
+
     /// Number of tiles of the frame.
     pub fn tile_count(&self) -> usize {
         tile_rects(self.scene.camera.width, self.scene.camera.height).len()
