@@ -584,7 +584,11 @@ fn run(cli: Cli) -> Result<()> {
             let request = skybake::render::FrameRequest::parse(&text, method)?;
             let dir = scene.parent().unwrap_or(Path::new("."));
             let loader = |name: &str| {
-                read_limited(&dir.join(name), "path", skybake::cloud::scene::MAX_GRID_FILE_BYTES)
+                read_limited(
+                    &dir.join(name),
+                    "path",
+                    skybake::cloud::scene::MAX_GRID_FILE_BYTES,
+                )
             };
             print_json(&serde_json::json!({
                 "product": "frame",
@@ -673,11 +677,13 @@ fn run(cli: Cli) -> Result<()> {
 
 /// `skybake report --planner`: measures the planner's cost rules and writes `planner.md`.
 fn run_planner_report(out: &Path) -> Result<()> {
-    let rows = skybake::report::planner::run(&|done, total| eprintln!("planner report: {done}/{total}"))?;
+    let rows =
+        skybake::report::planner::run(&|done, total| eprintln!("planner report: {done}/{total}"))?;
     let load = std::fs::read_to_string("/proc/loadavg")
         .ok()
         .and_then(|l| l.split_whitespace().next().map(str::to_string));
-    let md = skybake::report::planner::markdown(&rows, rayon::current_num_threads(), load.as_deref());
+    let md =
+        skybake::report::planner::markdown(&rows, rayon::current_num_threads(), load.as_deref());
     let io = |e: std::io::Error| Error::invalid("out", format!("{}: {e}", out.display()));
     std::fs::create_dir_all(out).map_err(io)?;
     let path = out.join("planner.md");

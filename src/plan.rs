@@ -157,7 +157,7 @@ impl Reason {
                 preset_tolerance,
                 budget,
             } => format!(
-                "orders adding less than {tolerance:.2e} of the total (the preset stops at {preset_tolerance:.0e}) are under the error budget: {:.2} % of the preset's measured {:.2} % may be spent on left-out work",
+                "orders adding less than {tolerance:.2e} of the total (the preset stops at {preset_tolerance:.0e}) are under the error budget: {:.2} % of {:.2} % (the smallest measured error of the products sharing the table at this preset) may be spent on left-out work",
                 budget.allowance * 100.0,
                 budget.relative_error * 100.0
             ),
@@ -406,7 +406,8 @@ impl Budget {
 
     /// Spends `predicted` if it fits in what is left of the allowance.
     pub fn try_spend(&mut self, predicted: f64) -> bool {
-        let fits = predicted.is_finite() && predicted >= 0.0 && self.spent + predicted <= self.allowance;
+        let fits =
+            predicted.is_finite() && predicted >= 0.0 && self.spent + predicted <= self.allowance;
         if fits {
             self.spent += predicted;
         }
@@ -665,8 +666,10 @@ impl FramePlan {
     /// The plan without its cost rules (every stage the scene has runs at the scene's detail),
     /// for measuring what the rules save and cost.
     pub fn without_cost_rules(mut self) -> Self {
-        let (cost, kept): (Vec<_>, Vec<_>) =
-            self.left_out.into_iter().partition(|(_, r)| Self::by_cost_rule(r));
+        let (cost, kept): (Vec<_>, Vec<_>) = self
+            .left_out
+            .into_iter()
+            .partition(|(_, r)| Self::by_cost_rule(r));
         self.left_out = kept;
         for (stage, _) in cost {
             if !self.stages.contains(&stage) {
@@ -754,11 +757,10 @@ pub fn plan_frame(f: &FrameFacts) -> FramePlan {
         coarsened: Vec::new(),
         budget: Budget::new(if f.reference { 0.0 } else { f.budget }),
     };
-    let rule = |p: &mut FramePlan, stage: FrameStage, left_out: Option<FrameReason>| {
-        match left_out {
-            None => p.stages.push(stage),
-            Some(reason) => p.left_out.push((stage, reason)),
-        }
+    let rule = |p: &mut FramePlan, stage: FrameStage, left_out: Option<FrameReason>| match left_out
+    {
+        None => p.stages.push(stage),
+        Some(reason) => p.left_out.push((stage, reason)),
     };
     let no_cloud = if f.cloud_empty {
         Some(FrameReason::NoCloud)
@@ -802,14 +804,20 @@ pub fn plan_frame(f: &FrameFacts) -> FramePlan {
     rule(&mut p, FrameStage::SkyLight, sky);
     rule(&mut p, FrameStage::GroundLight, ground);
     let mut ms = no_cloud
-        .or((!f.multiple_scattering_switch).then_some(FrameReason::SwitchedOff {
-            switch: "multiple_scattering",
-        }))
+        .or(
+            (!f.multiple_scattering_switch).then_some(FrameReason::SwitchedOff {
+                switch: "multiple_scattering",
+            }),
+        )
         .or((f.max_albedo <= 0.0).then_some(FrameReason::NoLight));
     if ms.is_none() && !f.reference {
         let tau = f.max_optical_depth.max(0.0);
         let q = f.max_albedo.clamp(0.0, 1.0) * -(-tau).exp_m1();
-        let share = if q < 1.0 { q / (1.0 - q) } else { f64::INFINITY };
+        let share = if q < 1.0 {
+            q / (1.0 - q)
+        } else {
+            f64::INFINITY
+        };
         if p.budget.try_spend(share) {
             ms = Some(FrameReason::ThinCloud {
                 max_optical_depth: tau,

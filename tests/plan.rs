@@ -28,7 +28,9 @@ fn request(kind: ProductKind, pairs: &[(&str, &str)]) -> ProductRequest {
 /// Runs the request's own plan on a fresh engine; returns the engine (for its counters) and the
 /// product.
 fn engine_run(req: &ProductRequest, plan: &skybake::plan::Plan) -> Product {
-    Engine::new().execute(&req.spec, &req.product, plan).unwrap()
+    Engine::new()
+        .execute(&req.spec, &req.product, plan)
+        .unwrap()
 }
 
 fn run(req: &ProductRequest) -> (Engine, Product) {
@@ -182,7 +184,10 @@ fn precise_orders_under_the_error_budget_are_left_out() {
             preset_tolerance,
             budget,
         },
-    )) = plan.left_out.iter().find(|(s, _)| *s == Stage::HigherOrders)
+    )) = plan
+        .left_out
+        .iter()
+        .find(|(s, _)| *s == Stage::HigherOrders)
     else {
         panic!("{plan:?}")
     };
@@ -242,4 +247,3 @@ fn precise_orders_under_the_error_budget_are_left_out() {
     let plan = reference.plan().unwrap();
     assert!(plan.runs(Stage::HigherOrders) && plan.precise_tolerance.is_none());
 }
-

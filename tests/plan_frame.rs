@@ -85,7 +85,9 @@ fn reason(plan: &FramePlan, stage: FrameStage) -> Option<FrameReason> {
 #[test]
 fn a_cloud_outside_the_view_gets_no_per_voxel_light_and_the_image_is_unchanged() {
     // Looking away from the cloud (towards −y), still over the ground-less vacuum.
-    let s = parse(&scene(|v| v["camera"]["look_at_m"] = json!([0, -9000, 1200])));
+    let s = parse(&scene(|v| {
+        v["camera"]["look_at_m"] = json!([0, -9000, 1200])
+    }));
     let grid = voxelize(&s);
     let plan = plan_frame(&s, &grid, Method::Fast);
     assert_eq!(
@@ -120,7 +122,11 @@ fn an_empty_grid_runs_no_cloud_stage() {
         FrameStage::GroundLight,
         FrameStage::MultipleScattering,
     ] {
-        assert_eq!(reason(&plan, stage), Some(FrameReason::NoCloud), "{stage:?}");
+        assert_eq!(
+            reason(&plan, stage),
+            Some(FrameReason::NoCloud),
+            "{stage:?}"
+        );
     }
     let r = run(&s, &grid, &plan);
     assert_eq!((r.voxels_lit, r.lattice_paths, r.ms_field), (0, 0, false));
@@ -205,7 +211,9 @@ fn dim_ground_and_no_sky_leave_the_lattice_paths_out() {
     let plan = plan_frame(&off, &voxelize(&off), Method::Fast);
     assert_eq!(
         reason(&plan, FrameStage::SkyLight),
-        Some(FrameReason::SwitchedOff { switch: "sky_light" })
+        Some(FrameReason::SwitchedOff {
+            switch: "sky_light"
+        })
     );
 }
 
@@ -222,7 +230,12 @@ fn a_distant_cloud_runs_on_coarser_voxels() {
     assert_eq!(plan.coarsening(), 2, "{plan:?}");
     let with = run(&far, &grid, &plan);
     let without = run(&far, &grid, &plan.clone().without_cost_rules());
-    assert!(with.grid_voxels * 6 < without.grid_voxels, "{} vs {}", with.grid_voxels, without.grid_voxels);
+    assert!(
+        with.grid_voxels * 6 < without.grid_voxels,
+        "{} vs {}",
+        with.grid_voxels,
+        without.grid_voxels
+    );
     assert_eq!(with.voxels_lit, with.grid_voxels);
     let d = relative_difference(&with.radiance, &without.radiance);
     assert!(d < 0.05, "{d}");
@@ -230,7 +243,10 @@ fn a_distant_cloud_runs_on_coarser_voxels() {
     let near: Value =
         serde_json::from_str(include_str!("../config/scenes/validation-frame.json")).unwrap();
     let near = parse(&near);
-    assert_eq!(plan_frame(&near, &voxelize(&near), Method::Fast).coarsening(), 1);
+    assert_eq!(
+        plan_frame(&near, &voxelize(&near), Method::Fast).coarsening(),
+        1
+    );
 }
 
 #[test]
@@ -238,7 +254,13 @@ fn the_frame_summary_names_each_left_out_stage_and_its_rule() {
     let v = scene(|v| v["camera"]["look_at_m"] = json!([0, -9000, 1200]));
     let req = FrameRequest::from_value(&v, Method::Fast).unwrap();
     let image = req
-        .compute_tiled(&Engine::new(), &|_| Err(skybake::Error::invalid("path", "none")), &NoTiles, &|_| {}, &|| false)
+        .compute_tiled(
+            &Engine::new(),
+            &|_| Err(skybake::Error::invalid("path", "none")),
+            &NoTiles,
+            &|_| {},
+            &|| false,
+        )
         .unwrap();
     let summary = frame_summary(&image);
     let left: Vec<(&str, &str)> = summary["plan"]["left_out"]
@@ -247,7 +269,13 @@ fn the_frame_summary_names_each_left_out_stage_and_its_rule() {
         .iter()
         .map(|l| (l["stage"].as_str().unwrap(), l["reason"].as_str().unwrap()))
         .collect();
-    assert!(left.contains(&("cloud_light", "cloud_out_of_view")), "{left:?}");
-    assert!(left.contains(&("multiple_scattering", "cloud_out_of_view")), "{left:?}");
+    assert!(
+        left.contains(&("cloud_light", "cloud_out_of_view")),
+        "{left:?}"
+    );
+    assert!(
+        left.contains(&("multiple_scattering", "cloud_out_of_view")),
+        "{left:?}"
+    );
     assert!(summary["plan"]["budget"]["allowance"].as_f64().unwrap() > 0.0);
 }

@@ -367,8 +367,10 @@ pub fn frame_facts(scene: &FrameScene, grid: &DensityGrid, method: Method) -> Fr
         for l in 0..n_l {
             let sky = if sw.sky_light { sky_l[l] } else { 0.0 };
             let l_g = match (&scene.ground, sw.ground_light) {
-                (Some(g), true) => g.albedo[l] / std::f64::consts::PI
-                    * (sun[l] * mu_s + std::f64::consts::PI * sky_l[l]),
+                (Some(g), true) => {
+                    g.albedo[l] / std::f64::consts::PI
+                        * (sun[l] * mu_s + std::f64::consts::PI * sky_l[l])
+                }
                 _ => 0.0,
             };
             let total = sun[l] / (4.0 * std::f64::consts::PI) + 0.5 * sky + 0.5 * l_g;

@@ -45,12 +45,18 @@ async fn frame_plan(body: JsonObject) -> Result<Response, ApiError> {
         .keys()
         .find(|k| !matches!(k.as_str(), "product" | "scene" | "method"))
     {
-        return Err(crate::Error::invalid(k, "not a member of a frame plan request (product, scene, method)").into());
+        return Err(crate::Error::invalid(
+            k,
+            "not a member of a frame plan request (product, scene, method)",
+        )
+        .into());
     }
     let method = match obj.get("method") {
         None => Method::Fast,
         Some(Value::String(m)) => Method::parse(m)?,
-        Some(_) => return Err(crate::Error::invalid("method", "a string: fast or reference").into()),
+        Some(_) => {
+            return Err(crate::Error::invalid("method", "a string: fast or reference").into())
+        }
     };
     let scene = obj
         .get("scene")
