@@ -38,6 +38,8 @@ pub struct ServerSettings {
     pub shutdown_grace_s: f64,
     /// Largest estimated cost of one product request ([`crate::cost`]), cell-wavelength-orders.
     pub max_request_cost: u64,
+    /// Largest estimated cost of one job ([`crate::job::spec::JobSpec::validate_and_cost`]).
+    pub max_job_cost: u64,
     /// Computations waiting for a compute slot before new ones are shed.
     pub max_queued_computations: usize,
     /// Whether a computation nobody waits for any more runs on to fill the cache.
@@ -96,6 +98,7 @@ pub const ENV_VARS: &[(&str, &str, &str)] = &[
     ("SKYBAKE_MAX_CONNECTIONS", "server", "max_connections"),
     ("SKYBAKE_SHUTDOWN_GRACE_S", "server", "shutdown_grace_s"),
     ("SKYBAKE_MAX_REQUEST_COST", "server", "max_request_cost"),
+    ("SKYBAKE_MAX_JOB_COST", "server", "max_job_cost"),
     (
         "SKYBAKE_MAX_QUEUED_COMPUTATIONS",
         "server",
@@ -325,6 +328,13 @@ impl Settings {
             return Err(Error::out_of_range(
                 "server.max_request_cost",
                 s.max_request_cost,
+                "at least 1000000",
+            ));
+        }
+        if s.max_job_cost < 1_000_000 {
+            return Err(Error::out_of_range(
+                "server.max_job_cost",
+                s.max_job_cost,
                 "at least 1000000",
             ));
         }

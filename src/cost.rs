@@ -76,13 +76,27 @@ pub fn expected_orders(m: &Medium, tolerance: f64, max_orders: usize) -> u64 {
 pub fn estimate(req: &ProductRequest) -> Result<Cost> {
     let spec = &req.spec;
     let m = Medium::new(&spec.atmosphere, &spec.wavelengths_nm, spec.ground_albedo)?;
-    let plan = crate::plan::plan(req.kind(), spec, &m);
+    estimate_in(req, &m)
+}
+
+/// The medium key of `req`: requests with equal keys resolve to the same [`Medium`].
+pub fn medium_key(req: &ProductRequest) -> String {
+    let spec = &req.spec;
+    serde_json::to_string(&(&spec.atmosphere, &spec.wavelengths_nm, spec.ground_albedo))
+        .unwrap_or_default()
+}
+
+/// [`estimate`] with the request's medium already resolved (`m` must be the medium of
+/// [`medium_key`]`(req)`).
+pub fn estimate_in(req: &ProductRequest, m: &Medium) -> Result<Cost> {
+    let spec = &req.spec;
+    let plan = crate::plan::plan(req.kind(), spec, m);
     let (fast, precise) = settings_for(spec.quality);
     let (table_cells, expected_orders) = match plan.ms_method() {
         MsMethod::Precise => (
             (precise.n_r * precise.n_mu_s * precise.n_mu * precise.n_phi) as u64,
             expected_orders(
-                &m,
+                m,
                 plan.precise_tolerance.unwrap_or(precise.tolerance),
                 precise.max_orders,
             ),
@@ -109,6 +123,48 @@ pub fn estimate(req: &ProductRequest) -> Result<Cost> {
         expected_orders,
         units,
     })
+}
+
+/// The estimated cost of a job's product items: every distinct multiple-scattering table once
+/// (the engine shares a table between the requests of one medium and quality) plus every item's
+/// output cells, × wavelengths, in the units of [`Cost::units`]. Add requests with [`Self::add`].
+#[derive(Debug, Default)]
+pub struct JobCost {
+    media: std::collections::HashMap<String, Medium>,
+    tables: std::collections::HashSet<String>,
+    /// The total so far.
+    pub units: u64,
+}
+
+impl JobCost {
+    /// Adds `req`'s output cells, and its table unless an earlier request builds the same one.
+    pub fn add(&mut self, req: &ProductRequest) -> Result<()> {
+        let key = medium_key(req);
+        let m = match self.media.entry(key.clone()) {
+            std::collections::hash_map::Entry::Occupied(e) => e.into_mut(),
+            std::collections::hash_map::Entry::Vacant(e) => {
+                let spec = &req.spec;
+                e.insert(Medium::new(
+                    &spec.atmosphere,
+                    &spec.wavelengths_nm,
+                    spec.ground_albedo,
+                )?)
+            }
+        };
+        let c = estimate_in(req, m)?;
+        let table = format!("{key}|{:?}|{}", req.spec.quality, c.table_cells);
+        let table_units = if self.tables.insert(table) {
+            c.table_cells.saturating_mul(c.expected_orders)
+        } else {
+            0
+        };
+        self.units = self.units.saturating_add(
+            table_units
+                .saturating_add(c.output_cells)
+                .saturating_mul(c.wavelengths),
+        );
+        Ok(())
+    }
 }
 
 #[cfg(test)]

@@ -5,9 +5,10 @@ use crate::atmosphere::integrate::{Recorder, Scratch};
 use crate::atmosphere::irradiance::{hemisphere_irradiance, SUN_PRODUCT_N_MU, SUN_PRODUCT_N_PHI};
 use crate::atmosphere::multiple_fast::FastSettings;
 use crate::atmosphere::multiple_precise::PreciseSettings;
-use crate::atmosphere::shared::{Persistence, SharedTables, TableEvents, TableStore};
+use crate::atmosphere::shared::{init_unless, Persistence, SharedTables, TableEvents, TableStore};
 use crate::atmosphere::sky::{
-    dome_table, horizon_axis_deg, horizon_dip_deg, DomeTable, MsMethod, Observer, RadianceEvaluator,
+    dome_table_unless, horizon_axis_deg, horizon_dip_deg, DomeTable, MsMethod, Observer,
+    RadianceEvaluator,
 };
 use crate::atmosphere::sun_transmittance::sun_transmittance;
 use crate::atmosphere::Medium;
@@ -18,7 +19,7 @@ use crate::spectrum::photometry::{correlated_colour_temperature, illuminance_lux
 use crate::{Error, Result};
 use rayon::prelude::*;
 use serde::Serialize;
-use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::Instant;
 
@@ -369,9 +370,19 @@ impl Engine {
     /// Shared tables for this spec's medium (LRU of a few), with the precise order series' tolerance
     /// the planner's cost rule gives it (`plan::table_budget`).
     pub fn shared(&self, spec: &CommonSpec) -> Result<Arc<SharedTables>> {
+        self.shared_unless(spec, NEVER)
+    }
+
+    /// [`Self::shared`], stopped with [`Error::Cancelled`] between two rows of the density table
+    /// once `cancelled` returns true (the slot stays empty for the next caller).
+    pub fn shared_unless(
+        &self,
+        spec: &CommonSpec,
+        cancelled: CancelCheck,
+    ) -> Result<Arc<SharedTables>> {
         let medium = Medium::new(&spec.atmosphere, &spec.wavelengths_nm, spec.ground_albedo)?;
         let plan = crate::plan::plan(ProductKind::Sky, spec, &medium);
-        self.shared_with(spec, plan.precise_tolerance)
+        self.shared_with(spec, plan.precise_tolerance, cancelled)
     }
 
     /// Shared tables for this spec's medium whose precise table stops its order series at
@@ -380,6 +391,7 @@ impl Engine {
         &self,
         spec: &CommonSpec,
         precise_tolerance: Option<f64>,
+        cancelled: CancelCheck,
     ) -> Result<Arc<SharedTables>> {
         let medium = Medium::new(&spec.atmosphere, &spec.wavelengths_nm, spec.ground_albedo)?;
         let (fast, mut precise) = settings_for(spec.quality);
@@ -406,19 +418,22 @@ impl Engine {
             }
             slot
         };
-        let tables = slot.get_or_init(|| {
+        let tables = init_unless(&slot, || {
             self.count(Table::Density);
-            Arc::new(
-                SharedTables::new(medium, fast, precise).with_persistence(Persistence {
-                    // No key, no store: a table is never shared under a key that does not say
-                    // what it was built for.
-                    store: self.table_store.clone().filter(|_| !key.is_empty()),
-                    medium_key: key,
-                    engine_version: ENGINE_VERSION,
-                    events: self.table_events.clone(),
-                }),
-            )
-        });
+            Some(Arc::new(
+                SharedTables::new_unless(medium, fast, precise, cancelled)?.with_persistence(
+                    Persistence {
+                        // No key, no store: a table is never shared under a key that does not say
+                        // what it was built for.
+                        store: self.table_store.clone().filter(|_| !key.is_empty()),
+                        medium_key: key,
+                        engine_version: ENGINE_VERSION,
+                        events: self.table_events.clone(),
+                    },
+                ),
+            ))
+        })
+        .ok_or(Error::Cancelled)?;
         Ok(tables.clone())
     }
 
@@ -446,6 +461,9 @@ impl Engine {
         if method == MsMethod::Precise && shared.precise_unless(cancelled).is_none() {
             return Err(Error::Cancelled);
         }
+        if method == MsMethod::Fast && shared.fast_unless(cancelled).is_none() {
+            return Err(Error::Cancelled);
+        }
         checkpoint(cancelled)?;
         let observer = Observer {
             altitude_m: spec.observer_altitude_m,
@@ -459,14 +477,19 @@ impl Engine {
         Ok((eval, warm))
     }
 
-    fn tables_for(&self, spec: &CommonSpec, plan: &Plan) -> Result<Arc<SharedTables>> {
+    fn tables_for(
+        &self,
+        spec: &CommonSpec,
+        plan: &Plan,
+        cancelled: CancelCheck,
+    ) -> Result<Arc<SharedTables>> {
         if !plan.runs(Stage::DensityTable) {
             return Err(Error::invalid(
                 "plan",
                 "every atmosphere product needs the density table",
             ));
         }
-        self.shared_with(spec, plan.precise_tolerance)
+        self.shared_with(spec, plan.precise_tolerance, cancelled)
     }
 
     #[allow(clippy::too_many_arguments)]
@@ -628,7 +651,7 @@ impl Engine {
         cancelled: CancelCheck,
     ) -> Result<SunProduct> {
         let start = Instant::now();
-        let shared = self.tables_for(spec, plan)?;
+        let shared = self.tables_for(spec, plan, cancelled)?;
         let m = &shared.medium;
         let (eval, warm) = self.evaluator(&shared, spec, plan, cancelled)?;
         let transmittance = if plan.runs(Stage::DirectSun) {
@@ -695,9 +718,9 @@ impl Engine {
     ) -> Result<DomeProduct> {
         let shape = dome.shape();
         let start = Instant::now();
-        let shared = self.tables_for(spec, plan)?;
+        let shared = self.tables_for(spec, plan, cancelled)?;
         let (eval, warm) = self.evaluator(&shared, spec, plan, cancelled)?;
-        let table = dome_table(
+        let table = dome_table_unless(
             &eval,
             horizon_axis_deg(
                 shape.elevation_count,
@@ -706,7 +729,9 @@ impl Engine {
                 -horizon_dip_deg(shared.medium.bottom_radius_m, spec.observer_altitude_m),
             ),
             shape.azimuth_count,
-        );
+            cancelled,
+        )
+        .ok_or(Error::Cancelled)?;
         let probes = evaluate_probes(&eval, shared.medium.len(), dome.probes());
         self.add_ray_work(&eval);
         let kind = if hi > 0.0 {
@@ -735,7 +760,7 @@ impl Engine {
             aerial.max_distance_m(),
         );
         let start = Instant::now();
-        let shared = self.tables_for(spec, plan)?;
+        let shared = self.tables_for(spec, plan, cancelled)?;
         let (eval, warm) = self.evaluator(&shared, spec, plan, cancelled)?;
         let m = &shared.medium;
         let n_l = m.len();
@@ -768,6 +793,7 @@ impl Engine {
         let mut transmittance = vec![0f32; shape.elevation_count * shape.azimuth_count * per_dir];
         let mut inscatter = vec![0f32; transmittance.len()];
         let steps = spec.quality.steps() * 2;
+        let stopped = AtomicBool::new(false);
         transmittance
             .par_chunks_mut(per_dir)
             .zip(inscatter.par_chunks_mut(per_dir))
@@ -776,6 +802,14 @@ impl Engine {
                 || (Scratch::new(n_l), vec![0.0; n_l], vec![0.0; n_l]),
                 |(scratch, out, tr), (idx, (t_dst, s_dst))| {
                     let (row, col) = (idx / shape.azimuth_count, idx % shape.azimuth_count);
+                    // One check per row of elevation; once stopped, the rest is skipped.
+                    if stopped.load(Ordering::Relaxed) {
+                        return;
+                    }
+                    if col == 0 && cancelled() {
+                        stopped.store(true, Ordering::Relaxed);
+                        return;
+                    }
                     let theta = (90.0 - elevation_deg[row]).to_radians();
                     let (mu, nu) = eval.direction(theta, azimuth_deg[col].to_radians());
                     let mut rec = Recorder {
@@ -789,6 +823,9 @@ impl Engine {
                     }
                 },
             );
+        if stopped.load(Ordering::Relaxed) {
+            return Err(Error::Cancelled);
+        }
         self.add_ray_work(&eval);
         let meta = self.meta(ProductKind::Aerial, &shared, spec, warm, start, plan);
         Ok(AerialProduct {

@@ -111,3 +111,132 @@ async fn shutdown_ends_within_its_grace_period_despite_a_stalled_client() {
     );
     drop(stalled);
 }
+
+/// Sends `head` (writing on a task of its own, so a server that stops reading cannot block the
+/// test) and reads until `responses` complete responses have arrived or the server closes.
+async fn exchange(addr: std::net::SocketAddr, head: Vec<u8>, responses: usize) -> Vec<u8> {
+    let stream = TcpStream::connect(addr).await.unwrap();
+    let (mut rd, mut wr) = stream.into_split();
+    let writer = tokio::spawn(async move {
+        let _ = wr.write_all(&head).await;
+        wr
+    });
+    let mut out = Vec::new();
+    let mut buf = [0u8; 4096];
+    while complete_responses(&out) < responses {
+        match tokio::time::timeout(Duration::from_secs(10), rd.read(&mut buf)).await {
+            Ok(Ok(0)) | Ok(Err(_)) | Err(_) => break,
+            Ok(Ok(n)) => out.extend_from_slice(&buf[..n]),
+        }
+    }
+    writer.abort();
+    out
+}
+
+/// Number of complete HTTP/1.1 responses (head and `content-length` body) at the start of `raw`.
+fn complete_responses(raw: &[u8]) -> usize {
+    let mut at = 0;
+    let mut n = 0;
+    while let Some(end) = raw[at..].windows(4).position(|w| w == b"\r\n\r\n") {
+        let head = String::from_utf8_lossy(&raw[at..at + end]).to_ascii_lowercase();
+        let length: usize = head
+            .lines()
+            .find_map(|l| l.strip_prefix("content-length: "))
+            .and_then(|v| v.trim().parse().ok())
+            .unwrap_or(0);
+        let next = at + end + 4 + length;
+        if next > raw.len() {
+            break;
+        }
+        n += 1;
+        at = next;
+    }
+    n
+}
+
+/// (status, content type, JSON body) of a raw HTTP/1.1 answer.
+fn parse_answer(raw: &[u8]) -> (u16, String, serde_json::Value) {
+    let text = String::from_utf8_lossy(raw);
+    let (head, body) = text.split_once("\r\n\r\n").unwrap_or((&text, ""));
+    let status = head.get(9..12).and_then(|s| s.parse().ok()).unwrap_or(0);
+    let content_type = head
+        .lines()
+        .find_map(|l| l.strip_prefix("content-type: "))
+        .unwrap_or("")
+        .to_string();
+    (
+        status,
+        content_type,
+        serde_json::from_str(body).unwrap_or(serde_json::Value::Null),
+    )
+}
+
+/// Every over-long URI gets the service's problem+json 414 stating its limit: 40 KiB (the
+/// router's own check), 70 KiB (over hyper's 65534-byte URI limit, which answers with an empty
+/// 414 by itself) and 1 MiB (over hyper's ~400 KiB head buffer, which answers 431). A long header
+/// is a 431 naming the head limit; a malformed head a 400. The connection is usable until then.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn over_long_uris_get_the_service_s_problem_json_414() {
+    let dir = Scratch::new("long-uri");
+    let srv = TestServer::start(settings(dir.path())).await;
+    for kib in [40usize, 70, 1024] {
+        let mut head = b"GET /v1/sky?sun_elevation_deg=".to_vec();
+        head.extend(std::iter::repeat_n(b'1', kib * 1024));
+        head.extend_from_slice(b" HTTP/1.1\r\nHost: x\r\n\r\n");
+        let raw = exchange(srv.addr, head, 1).await;
+        let (status, content_type, body) = parse_answer(&raw);
+        assert_eq!(
+            status,
+            414,
+            "{kib} KiB: {}",
+            String::from_utf8_lossy(&raw[..raw.len().min(300)])
+        );
+        assert_eq!(content_type, "application/problem+json", "{kib} KiB");
+        assert_eq!(body["status"], 414, "{kib} KiB: {body}");
+        assert_eq!(body["parameter"], "query", "{kib} KiB: {body}");
+        let detail = body["detail"].as_str().unwrap_or_default();
+        assert!(detail.contains("32768"), "{kib} KiB: {detail}");
+    }
+    // A header line of 500 KiB: the head is over hyper's buffer; not the URI's fault.
+    let mut head = b"GET /healthz HTTP/1.1\r\nHost: x\r\nX-Big: ".to_vec();
+    head.extend(std::iter::repeat_n(b'a', 500 * 1024));
+    head.extend_from_slice(b"\r\n\r\n");
+    let (status, content_type, body) = parse_answer(&exchange(srv.addr, head, 1).await);
+    assert_eq!(
+        (status, content_type.as_str()),
+        (431, "application/problem+json")
+    );
+    assert_eq!(body["parameter"], "headers", "{body}");
+    assert!(
+        body["detail"]
+            .as_str()
+            .unwrap_or_default()
+            .contains("417792"),
+        "{body}"
+    );
+    // A malformed head.
+    let (status, content_type, body) = parse_answer(
+        &exchange(
+            srv.addr,
+            b"GET / HTTP/1.1\r\nBad Header\r\n\r\n".to_vec(),
+            1,
+        )
+        .await,
+    );
+    assert_eq!(
+        (status, content_type.as_str()),
+        (400, "application/problem+json")
+    );
+    assert_eq!(body["status"], 400, "{body}");
+    // A kept-alive connection: a good request, then a 70 KiB URI on the same connection.
+    let mut head = b"GET /healthz HTTP/1.1\r\nHost: x\r\n\r\nGET /v1/sky?a=".to_vec();
+    head.extend(std::iter::repeat_n(b'1', 70 * 1024));
+    head.extend_from_slice(b" HTTP/1.1\r\nHost: x\r\n\r\n");
+    let raw = exchange(srv.addr, head, 2).await;
+    let text = String::from_utf8_lossy(&raw);
+    assert!(text.starts_with("HTTP/1.1 200"), "{text}");
+    let second = text.find("HTTP/1.1 414").expect("a 414 after the 200");
+    let (status, _, body) = parse_answer(&raw[second..]);
+    assert_eq!((status, body["parameter"].as_str()), (414, Some("query")));
+    srv.stop().await;
+}

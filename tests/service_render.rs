@@ -142,10 +142,12 @@ fn an_interrupted_render_resumes_from_its_tiles_and_matches_an_uninterrupted_one
                     > 0.0
             );
         }
-        // A run that finds every tile renders nothing (not even the light) and gives the same frame.
+        // A run that finds every tile renders nothing (not even the light: a fresh engine builds
+        // no table) and gives the same frame.
+        let fresh = Engine::new();
         let again = req
             .compute_tiled(
-                &engine,
+                &fresh,
                 &example_file,
                 &tiles,
                 &|p| assert_eq!(p.done, p.reused),
@@ -153,6 +155,7 @@ fn an_interrupted_render_resumes_from_its_tiles_and_matches_an_uninterrupted_one
             )
             .unwrap();
         assert_eq!(pixels(&enc(&again)), pixels(&enc(&whole)));
+        assert_eq!(fresh.table_builds(skybake::engine::Table::Density), 0);
         tiles.remove_all().unwrap();
     }
 }
@@ -282,6 +285,14 @@ async fn bad_scenes_are_refused_naming_the_field_and_the_limit() {
             "voxel_size_m",
         ),
         (
+            // Under the cloud module's 512³ but over the renderer's 2²³ voxels: refused from the
+            // balls' box before anything is voxelised (it used to build 6.4e7 voxels first).
+            "grid over the render limit",
+            Box::new(|v: &mut Value| v["cloud"]["voxel_size_m"] = json!(5.0)),
+            413,
+            "cloud.voxel_size_m",
+        ),
+        (
             "a file of the server",
             Box::new(|v: &mut Value| {
                 v["cloud"]["source"] = json!({"type": "grid", "path": "/etc/passwd"})
@@ -346,8 +357,9 @@ async fn bad_scenes_are_refused_naming_the_field_and_the_limit() {
         let problem: Value = serde_json::from_slice(&body).unwrap();
         assert_eq!(problem["parameter"], json!(name), "{uri}");
     }
-    // Only the over-limit grid and the file reached the computation (both refused before allocating).
-    assert_eq!(state.metrics().computations("frame"), 2);
+    // Only the file reached the computation (a grid's size comes from its file); the grids over
+    // the limits were refused when the request was read.
+    assert_eq!(state.metrics().computations("frame"), 1);
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
@@ -470,4 +482,41 @@ async fn example_scenes_are_listed_served_and_render() {
     let sat = get("/v1/scenes/satellite-field").await.1;
     let section = skybake::cloud::scene::parse_scene_file(&sat).unwrap();
     assert!(section.voxelize(&example_file).is_ok());
+}
+
+/// Render tiles count in the cache's disk budget (issue 13): tiles left by three interrupted
+/// renders that together exceed the budget are evicted at start-up, the least recently written
+/// frame first, until they fit.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn render_tiles_count_in_the_disk_budget_and_are_evicted_oldest_first() {
+    use skybake::store::layout::EMISSIVE_LAYER;
+    use skybake::store::{encode_exr, SpectralImage};
+    let dir = Scratch::new("render-tile-budget");
+    let keys: Vec<String> = ["a1", "b2", "c3"].iter().map(|k| k.repeat(32)).collect();
+    let store = TileStore::open(&dir.path().join("tiles")).unwrap();
+    let mut size = 0;
+    for (i, key) in keys.iter().enumerate() {
+        let tiles = store.frame(key).unwrap();
+        // Incompressible values, so each tile file has about the same size.
+        let values: Vec<f32> = (0..64 * 64)
+            .map(|k| f32::from_bits(0x3f80_0000 | ((k as u32 * 2_654_435_761 + i as u32) >> 9)))
+            .collect();
+        let mut img = SpectralImage::new(64, 64, &[550.0]).unwrap();
+        img.add_layer(EMISSIVE_LAYER, vec![values]).unwrap();
+        img.set_attribute(skybake::store::tiles::ATTR_TILE_OF, tiles.binding(0))
+            .unwrap();
+        let bytes = encode_exr(&img).unwrap();
+        size = size.max(bytes.len() as u64);
+        tiles.put(0, &bytes).unwrap();
+        std::thread::sleep(Duration::from_millis(30));
+    }
+    let mut s = settings(dir.path());
+    s.cache.disk_budget_bytes = 2 * size + size / 4;
+    let state = AppState::new(s).unwrap();
+    let left: Vec<usize> = keys
+        .iter()
+        .map(|k| store.frame(k).unwrap().count())
+        .collect();
+    assert_eq!(left, [0, 1, 1], "the oldest frame's tiles go first");
+    drop(state);
 }

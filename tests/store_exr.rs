@@ -186,6 +186,47 @@ fn header_follows_the_spectral_layout_and_is_tiled() {
     assert_eq!(text("skybakeFileBlake3").len(), 64);
 }
 
+/// One image always encodes to the same bytes: the header attributes are written in name order
+/// (the `exr` crate keeps them in a hash map) and the chunks in increasing order, also when they
+/// are compressed on several threads (images of at least 2^20 samples). Each encode builds a new
+/// hash map with new random keys, so before the sort eight encodes all agreeing was unlikely.
+#[test]
+fn the_same_image_always_encodes_to_the_same_bytes() {
+    // 3 layers × 3 planes: 9 × 70 × 70 samples (one thread) and 9 × 400 × 300 (several).
+    for (width, height) in [(70, 70), (400, 300)] {
+        let mut image = sample_image(width, height);
+        for k in 0..12 {
+            image
+                .set_attribute(&format!("skybakeExtra{k}"), format!("value {k}"))
+                .unwrap();
+        }
+        let first = encode_exr(&image).unwrap();
+        for _ in 0..7 {
+            assert!(
+                encode_exr(&image).unwrap() == first,
+                "{width}x{height}: two encodes of one image differ"
+            );
+        }
+        // And the header lists its attributes in byte order of their names (OpenEXR layout:
+        // magic, version, then name NUL type NUL i32 size value ..., ended by a NUL).
+        let mut names: Vec<&[u8]> = Vec::new();
+        let mut at = 8;
+        while first[at] != 0 {
+            let name_end = at + first[at..].iter().position(|&b| b == 0).unwrap();
+            let type_end =
+                name_end + 1 + first[name_end + 1..].iter().position(|&b| b == 0).unwrap();
+            let size = i32::from_le_bytes(first[type_end + 1..type_end + 5].try_into().unwrap());
+            names.push(&first[at..name_end]);
+            at = type_end + 5 + size as usize;
+        }
+        assert!(names.len() >= 12 + 8, "{} attributes", names.len());
+        assert!(
+            names.windows(2).all(|w| w[0] < w[1]),
+            "attributes not in name order"
+        );
+    }
+}
+
 #[test]
 fn transmittance_only_image_has_no_emissive_units() {
     let mut image = SpectralImage::new(2, 2, &[500.0]).unwrap();

@@ -65,6 +65,26 @@ fn r_of(x_r: f64, bottom: f64, top: f64) -> f64 {
 impl FastMultipleScattering {
     /// Builds the table for `medium` (parallel over table entries).
     pub fn new(medium: &Medium, table: &DensityIntegralTable, s: FastSettings) -> Self {
+        Self::new_unless(medium, table, s, &|| false)
+            .unwrap_or_else(|| unreachable!("never cancelled"))
+    }
+
+    /// [`Self::new`], stopped (`None`) when `cancelled` returns true: it is asked once per row of
+    /// radius of each ψ pass and before each pass (issue 18).
+    pub fn new_unless(
+        medium: &Medium,
+        table: &DensityIntegralTable,
+        s: FastSettings,
+        cancelled: &(dyn Fn() -> bool + Sync),
+    ) -> Option<Self> {
+        let stopped = std::sync::atomic::AtomicBool::new(false);
+        let stop = || {
+            stopped.load(std::sync::atomic::Ordering::Relaxed) || {
+                let now = cancelled();
+                stopped.fetch_or(now, std::sync::atomic::Ordering::Relaxed);
+                now
+            }
+        };
         let n_l = medium.len();
         let (bottom, top) = (medium.bottom_radius_m, medium.top_radius_m);
         let (gx, gw) = gauss_legendre(s.directions_mu);
@@ -72,6 +92,12 @@ impl FastMultipleScattering {
             (0..s.n_r * s.n_mu_s)
                 .into_par_iter()
                 .flat_map_iter(|idx| {
+                    // Once stopped, the remaining entries are skipped (the result is dropped).
+                    if stopped.load(std::sync::atomic::Ordering::Relaxed)
+                        || (idx % s.n_mu_s == 0 && stop())
+                    {
+                        return Vec::new();
+                    }
                     let r = r_of((idx / s.n_mu_s) as f64 / (s.n_r - 1) as f64, bottom, top);
                     let mu_s = -1.0 + 2.0 * (idx % s.n_mu_s) as f64 / (s.n_mu_s - 1) as f64;
                     let mut scratch = Scratch::new(n_l);
@@ -132,7 +158,9 @@ impl FastMultipleScattering {
                             }
                         }
                     }
-                    (0..n_l).map(move |i| l2[i] / (1.0 - fms[i].min(0.999)))
+                    (0..n_l)
+                        .map(|i| l2[i] / (1.0 - fms[i].min(0.999)))
+                        .collect::<Vec<f64>>()
                 })
                 .collect()
         };
@@ -150,6 +178,9 @@ impl FastMultipleScattering {
             psi: compute_psi(&NoSource),
             ground_sky: vec![0.0; s.n_mu_s * n_l],
         };
+        if stop() {
+            return None;
+        }
         fast.ground_sky =
             ground_sky_irradiance(medium, table, &fast, s.n_mu_s, 16, 16, s.steps * 2);
         // Hillaire's transfer factor leaves out light that the ground sends back up. A second
@@ -161,12 +192,18 @@ impl FastMultipleScattering {
                 n_mu_s: s.n_mu_s,
                 n_l,
             };
+            if stop() {
+                return None;
+            }
             let psi = compute_psi(&ground);
+            if stop() {
+                return None;
+            }
             fast.psi = psi;
             fast.ground_sky =
                 ground_sky_irradiance(medium, table, &fast, s.n_mu_s, 16, 16, s.steps * 2);
         }
-        fast
+        Some(fast)
     }
 }
 

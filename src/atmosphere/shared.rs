@@ -98,13 +98,26 @@ impl SharedTables {
         fast_settings: FastSettings,
         precise_settings: PreciseSettings,
     ) -> Self {
-        let density = DensityIntegralTable::new(
+        Self::new_unless(medium, fast_settings, precise_settings, &|| false)
+            .unwrap_or_else(|| unreachable!("never cancelled"))
+    }
+
+    /// [`Self::new`], stopped (`None`) when `cancelled` returns true between two rows of the
+    /// density-integral table (issue 18).
+    pub fn new_unless(
+        medium: Medium,
+        fast_settings: FastSettings,
+        precise_settings: PreciseSettings,
+        cancelled: &(dyn Fn() -> bool + Sync),
+    ) -> Option<Self> {
+        let density = DensityIntegralTable::new_unless(
             &medium,
             TRANSMITTANCE_N_R,
             TRANSMITTANCE_N_MU,
             TRANSMITTANCE_STEPS,
-        );
-        Self {
+            cancelled,
+        )?;
+        Some(Self {
             medium,
             density,
             fast: OnceLock::new(),
@@ -112,7 +125,7 @@ impl SharedTables {
             fast_settings,
             precise_settings,
             persistence: None,
-        }
+        })
     }
 
     /// Loads and saves the precise table through `persistence` from now on.
@@ -125,6 +138,22 @@ impl SharedTables {
     pub fn fast(&self) -> &FastMultipleScattering {
         self.fast.get_or_init(|| {
             FastMultipleScattering::new(&self.medium, &self.density, self.fast_settings)
+        })
+    }
+
+    /// The fast table, built on first use unless `cancelled` returns true between two rows of its
+    /// passes (issue 18); `None` then, and the table stays unbuilt.
+    pub fn fast_unless(
+        &self,
+        cancelled: &(dyn Fn() -> bool + Sync),
+    ) -> Option<&FastMultipleScattering> {
+        init_unless(&self.fast, || {
+            FastMultipleScattering::new_unless(
+                &self.medium,
+                &self.density,
+                self.fast_settings,
+                cancelled,
+            )
         })
     }
 
@@ -217,5 +246,25 @@ impl SharedTables {
     /// Whether the fast table exists already.
     pub fn has_fast(&self) -> bool {
         self.fast.get().is_some()
+    }
+}
+
+/// `cell`'s value, initialised by `build` unless `build` gives `None` (a cancelled build): then
+/// `None`, and the cell stays empty, so a later caller builds it whole (and a caller waiting on
+/// this build builds it itself). `OnceLock` has no stable fallible initialiser; leaving
+/// `get_or_init` by an unwind with a private payload leaves the cell uninitialised.
+pub fn init_unless<T>(cell: &OnceLock<T>, build: impl FnOnce() -> Option<T>) -> Option<&T> {
+    /// The unwind payload of a cancelled build.
+    struct Stopped;
+    if let Some(t) = cell.get() {
+        return Some(t);
+    }
+    let built = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
+        cell.get_or_init(|| build().unwrap_or_else(|| std::panic::resume_unwind(Box::new(Stopped))))
+    }));
+    match built {
+        Ok(t) => Some(t),
+        Err(payload) if payload.is::<Stopped>() => None,
+        Err(payload) => std::panic::resume_unwind(payload),
     }
 }

@@ -229,6 +229,19 @@ pub fn dome_table(
     elevation_deg: Vec<f64>,
     n_azimuth: usize,
 ) -> DomeTable {
+    dome_table_unless(eval, elevation_deg, n_azimuth, &|| false)
+        .unwrap_or_else(|| unreachable!("never cancelled"))
+}
+
+/// [`dome_table`], stopped (`None`) when `cancelled` returns true: it is asked once per row of
+/// elevation, as the row's first entry starts (issue 18).
+pub fn dome_table_unless(
+    eval: &RadianceEvaluator,
+    elevation_deg: Vec<f64>,
+    n_azimuth: usize,
+    cancelled: &(dyn Fn() -> bool + Sync),
+) -> Option<DomeTable> {
+    let stopped = std::sync::atomic::AtomicBool::new(false);
     let n_l = eval.shared.medium.len();
     let azimuth_deg: Vec<f64> = (0..n_azimuth)
         .map(|k| {
@@ -244,6 +257,13 @@ pub fn dome_table(
         || (Scratch::new(n_l), vec![0.0; n_l], vec![0.0; n_l]),
         |(scratch, out, tr), (idx, dst)| {
             let (row, col) = (idx / n_azimuth, idx % n_azimuth);
+            if stopped.load(std::sync::atomic::Ordering::Relaxed) {
+                return;
+            }
+            if col == 0 && cancelled() {
+                stopped.store(true, std::sync::atomic::Ordering::Relaxed);
+                return;
+            }
             let theta = (90.0 - elevation_deg[row]).to_radians();
             eval.eval(theta, azimuth_deg[col].to_radians(), scratch, out, tr);
             for (d, v) in dst.iter_mut().zip(out.iter()) {
@@ -251,10 +271,13 @@ pub fn dome_table(
             }
         },
     );
-    DomeTable {
+    if stopped.into_inner() {
+        return None;
+    }
+    Some(DomeTable {
         wavelengths_nm: eval.shared.medium.wavelengths_nm.clone(),
         elevation_deg,
         azimuth_deg,
         radiance,
-    }
+    })
 }

@@ -86,6 +86,19 @@ crate::simd_dispatch! {
 impl DensityIntegralTable {
     /// Builds the table (`n_r` × `n_mu` entries, `steps` quadrature intervals per ray).
     pub fn new(medium: &Medium, n_r: usize, n_mu: usize, steps: usize) -> Self {
+        Self::new_unless(medium, n_r, n_mu, steps, &|| false)
+            .unwrap_or_else(|| unreachable!("never cancelled"))
+    }
+
+    /// [`Self::new`], stopped (`None`) when `cancelled` returns true: it is asked once per row of
+    /// radius, as the row's first entry starts (issue 18).
+    pub fn new_unless(
+        medium: &Medium,
+        n_r: usize,
+        n_mu: usize,
+        steps: usize,
+        cancelled: &(dyn Fn() -> bool + Sync),
+    ) -> Option<Self> {
         let bottom = medium.bottom_radius_m;
         let top = medium.top_radius_m;
         let h = safe_sqrt(top * top - bottom * bottom);
@@ -93,6 +106,9 @@ impl DensityIntegralTable {
             .into_par_iter()
             .map(|idx| {
                 let (i_r, i_mu) = (idx / n_mu, idx % n_mu);
+                if i_mu == 0 && cancelled() {
+                    return None;
+                }
                 let x_r = i_r as f64 / (n_r - 1) as f64;
                 let x_mu = i_mu as f64 / (n_mu - 1) as f64;
                 let rho = h * x_r;
@@ -105,16 +121,17 @@ impl DensityIntegralTable {
                 } else {
                     ((h * h - rho * rho - d * d) / (2.0 * r * d)).clamp(-1.0, 1.0)
                 };
-                density_integrals(medium, r, mu, d, steps)
+                Some(density_integrals(medium, r, mu, d, steps))
             })
-            .collect();
-        Self {
+            // Stops taking new entries at the first `None`.
+            .collect::<Option<Vec<_>>>()?;
+        Some(Self {
             n_r,
             n_mu,
             bottom,
             top,
             data,
-        }
+        })
     }
 
     /// Density integrals from radius `r` along `mu` to the top. For rays below the horizon,

@@ -224,6 +224,30 @@ impl CloudSection {
         validate_source(&self.source)
     }
 
+    /// The dimensions of the grid [`Self::voxelize`] would build, found without building it or
+    /// reading a file, for the sources whose box follows from their parameters: metaballs (the
+    /// balls' box plus one voxel of margin) and the automaton (its cell box, resampled). `None`
+    /// for the others, whose box comes from a file or a growth (grid, satellite, fractal, spheres).
+    pub fn planned_dims(&self) -> Result<Option<[usize; 3]>> {
+        let v = self.voxel_size_m;
+        Ok(match &self.source {
+            CloudSource::Metaballs(p) => {
+                let (lo, hi) = MetaballField::new(p.balls.clone())?.bounds_m();
+                Some(box_dims(lo - v, hi + v, v)?.0)
+            }
+            CloudSource::Automaton(a) => {
+                let (dims, cell) = (a.params.dims, a.params.cell_size_m);
+                if same_size(cell, v) {
+                    Some(dims)
+                } else {
+                    let hi = DVec3::new(dims[0] as f64, dims[1] as f64, dims[2] as f64) * cell;
+                    Some(box_dims(DVec3::ZERO, hi, v)?.0)
+                }
+            }
+            _ => None,
+        })
+    }
+
     /// Builds the density grid (see [`voxelize`]).
     pub fn voxelize(&self, loader: &dyn Fn(&str) -> Result<Vec<u8>>) -> Result<DensityGrid> {
         voxelize(&self.source, self.voxel_size_m, loader)

@@ -27,6 +27,8 @@ pub struct SubmitLimits {
     pub max_live: usize,
     /// Most bytes of job files on disk.
     pub disk_bytes: u64,
+    /// Largest estimated cost of the whole job ([`JobSpec::validate_and_cost`]).
+    pub max_cost: u64,
 }
 
 /// Whatever turns a product request into a stored artifact.
@@ -255,7 +257,17 @@ impl Jobs {
             )));
         }
         let spec = JobSpec::parse_body(body, limits.max_products)?;
-        spec.validate(&self.defaults)?;
+        let cost = spec.validate_and_cost(&self.defaults)?;
+        if cost > limits.max_cost {
+            return Err(crate::Error::too_large(
+                "job_cost",
+                format!(
+                    "the job's estimated cost is {cost} units (products: each distinct table's cells × expected orders plus every output's cells, × wavelengths; frames: pixels × voxels × samples per pixel), over server.max_job_cost; split the job or lower its quality, sizes or wavelengths"
+                ),
+                limits.max_cost,
+            )
+            .into());
+        }
         let id = format!("{:016x}", rand::random::<u64>());
         self.store.create(&id, body)?;
         let job = Arc::new(Job {

@@ -372,7 +372,22 @@ impl JobSpec {
 
     /// Checks every item (a job is accepted only when all its items are valid).
     pub fn validate(&self, defaults: &Defaults) -> Result<(), JobError> {
-        (0..self.len()).try_for_each(|i| self.request(i, defaults).map(|_| ()))
+        self.validate_and_cost(defaults).map(drop)
+    }
+
+    /// Checks every item and returns the job's estimated cost: its products' by
+    /// [`crate::cost::JobCost`] (each distinct table once, every output) plus its frames' by
+    /// [`FrameRequest::estimated_cost`] (pixels × voxels × samples per pixel).
+    pub fn validate_and_cost(&self, defaults: &Defaults) -> Result<u64, JobError> {
+        let mut products = crate::cost::JobCost::default();
+        let mut frames = 0u64;
+        for i in 0..self.len() {
+            match self.request(i, defaults)? {
+                ItemRequest::Product(r) => products.add(&r)?,
+                ItemRequest::Frame(r) => frames = frames.saturating_add(r.estimated_cost()),
+            }
+        }
+        Ok(products.units.saturating_add(frames))
     }
 }
 

@@ -21,7 +21,7 @@ use serde_json::{Map, Value};
 
 /// Attribute holding the JSON response envelope (the response without its big arrays).
 pub const ATTR_RESPONSE_JSON: &str = "skybakeResponse";
-/// Attribute: "true" when the shared tables were already built when the product was computed.
+/// Attribute: "1" when the shared tables were already built when the product was computed, else "0".
 pub const ATTR_TABLES_WARM: &str = "skybakeTablesWarm";
 /// The attributes that change from one computation of a request to the next.
 pub const TIMING_ATTRIBUTES: [&str; 2] = [layout::ATTR_COMPUTE_TIME_MS, ATTR_TABLES_WARM];
@@ -72,7 +72,11 @@ impl ProductRequest {
         let error_json = to_json(&meta.error_estimate)?;
         image.set_product_metadata(&canonical, ENGINE_VERSION, &error_json, meta.timing_ms)?;
         image.set_attribute(layout::ATTR_PLAN_JSON, to_json(&meta.plan)?)?;
-        image.set_attribute(ATTR_TABLES_WARM, meta.shared_tables_warm.to_string())?;
+        // One byte either way, like the fixed-width compute time: timing never moves other bytes.
+        image.set_attribute(
+            ATTR_TABLES_WARM,
+            if meta.shared_tables_warm { "1" } else { "0" },
+        )?;
         image.set_attribute(ATTR_RESPONSE_JSON, Value::Object(envelope).to_string())?;
         // The artifact carries its cache key wherever it is written (CLI, service, bake), so the
         // cache can tell a file under another key's name (store::Cache::get).
@@ -91,7 +95,8 @@ fn timing(image: &SpectralImage) -> Result<(f64, bool)> {
         .attribute(layout::ATTR_COMPUTE_TIME_MS)
         .and_then(|t| t.parse::<f64>().ok())
         .ok_or_else(|| artifact_err("no compute time"))?;
-    let warm = image.attribute(ATTR_TABLES_WARM) == Some("true");
+    // "true" in artifacts written before the value became one byte.
+    let warm = matches!(image.attribute(ATTR_TABLES_WARM), Some("1" | "true"));
     Ok((ms, warm))
 }
 

@@ -490,8 +490,17 @@ fn planes_of(values: &[f32], n_l: usize, pixels: usize) -> Vec<Vec<f32>> {
 
 impl FrameRequest {
     /// Parses and validates a scene file's bytes (errors name the field and its range).
+    /// A cloud whose grid size follows from its parameters is checked against the renderer's
+    /// voxel limit here, before anything is voxelised ([`Self::planned_voxels`]).
     pub fn parse(scene_json: &[u8], method: Method) -> Result<Self> {
         let scene = FrameScene::parse(scene_json)?;
+        if let Some(dims) = scene
+            .cloud
+            .planned_dims()
+            .map_err(|e| e.prefixed("cloud."))?
+        {
+            check_render_voxels(dims)?;
+        }
         let value: serde_json::Value = serde_json::from_slice(scene_json)
             .map_err(|e| Error::invalid("scene", e.to_string()))?;
         Ok(Self {
@@ -535,6 +544,30 @@ impl FrameRequest {
         let grid = self.scene.cloud.voxelize(loader)?;
         super::check_grid(&grid)?;
         Ok(plan_frame(&self.scene, &grid, self.method))
+    }
+
+    /// Voxels of the frame's grid when they are known before voxelising
+    /// ([`crate::cloud::scene::CloudSection::planned_dims`]), else the renderer's limit
+    /// [`super::MAX_RENDER_VOXELS`] (an upper bound).
+    pub fn planned_voxels(&self) -> u64 {
+        match self.scene.cloud.planned_dims() {
+            Ok(Some(d)) => (d[0] as u64) * (d[1] as u64) * (d[2] as u64),
+            _ => super::MAX_RENDER_VOXELS as u64,
+        }
+    }
+
+    /// The estimated cost of the frame, in pixel-voxel-sample units: pixels × voxels × samples
+    /// per pixel (the reference method's paths; one ray march per pixel for the fast method).
+    /// A bound for job admission (`server.max_job_cost`), not a time prediction.
+    pub fn estimated_cost(&self) -> u64 {
+        let pixels = (self.scene.camera.width as u64) * (self.scene.camera.height as u64);
+        let spp = match self.method {
+            Method::Reference => RenderSettings::for_quality(self.scene.quality, self.method).spp,
+            Method::Fast => 1,
+        } as u64;
+        pixels
+            .saturating_mul(self.planned_voxels())
+            .saturating_mul(spp.max(1))
     }
 
     /// Number of tiles of the frame.
@@ -778,6 +811,23 @@ impl FrameRequest {
         };
         Some((meta, rad, tr, var))
     }
+}
+
+/// Refuses a grid of more than [`super::MAX_RENDER_VOXELS`] voxels, naming the scene field that
+/// sets its size.
+fn check_render_voxels(dims: [usize; 3]) -> Result<()> {
+    let n = (dims[0] as u64) * (dims[1] as u64) * (dims[2] as u64);
+    if n > super::MAX_RENDER_VOXELS as u64 {
+        return Err(Error::too_large(
+            "cloud.voxel_size_m",
+            format!("the grid at this voxel size is {dims:?} = {n} voxels to render"),
+            format!(
+                "{} voxels (use a larger voxel_size_m)",
+                super::MAX_RENDER_VOXELS
+            ),
+        ));
+    }
+    Ok(())
 }
 
 /// The JSON summary of a frame artifact (`skybake render --format json`, `POST /v1/render`

@@ -12,6 +12,7 @@
 //! identical requests in flight (single flight), run on a blocking thread behind a semaphore sized
 //! to the cores.
 
+pub mod conn;
 pub mod extract;
 pub mod limits;
 pub mod metrics;
@@ -244,14 +245,41 @@ impl AppState {
         });
     }
 
-    /// Expires finished jobs and counts the job files in the cache's disk budget.
+    /// Expires finished jobs and counts the job files and render tiles in the cache's disk budget.
     pub fn housekeeping(&self) {
         let jobs = self.jobs();
         let removed = jobs.expire(self.settings().jobs.expire_after_s);
         if removed > 0 {
             tracing::info!(removed, "expired finished jobs");
         }
-        self.inner.cache.set_reserved_bytes(jobs.disk_bytes());
+        self.account_disk(None);
+    }
+
+    /// Counts the job files and the render tiles in the cache's disk budget
+    /// (`cache.disk_budget_bytes`). When everything does not fit, the tiles of frames other than
+    /// `rendering` go first, least recently written first (they are only a head start for a
+    /// retry), then products, least recently used first.
+    pub fn account_disk(&self, rendering: Option<&str>) {
+        let budget = self.settings().cache.disk_budget_bytes;
+        let jobs = self.jobs().disk_bytes();
+        let tiles = &self.inner.tiles;
+        let products = self.inner.cache.stats().bytes_on_disk;
+        let over = (jobs + tiles.bytes() + products).saturating_sub(budget);
+        if over > 0 {
+            match tiles.evict_oldest(rendering, tiles.bytes().saturating_sub(over)) {
+                Ok(0) => {}
+                Ok(n) => {
+                    tracing::info!(
+                        frames = n,
+                        "render tiles evicted to keep to the disk budget"
+                    )
+                }
+                Err(e) => tracing::warn!(error = %e, "cannot evict render tiles"),
+            }
+        }
+        self.inner
+            .cache
+            .set_reserved_bytes(jobs.saturating_add(tiles.bytes()));
     }
 
     /// Runs blocking work on the blocking pool; a panic there becomes a 500, never a crash.
@@ -423,6 +451,7 @@ impl AppState {
                 if let Err(e) = s.inner.tiles.frame(&key).and_then(|t| t.remove_all()) {
                     tracing::warn!(key = %key, error = %e, "cannot remove a finished frame's tiles");
                 }
+                s.account_disk(None);
             }
             Ok(bytes)
         })
@@ -451,6 +480,8 @@ impl AppState {
             // Called once with the tiles found, then once per tile computed.
             if p.done > p.reused {
                 m.frame_tiles_computed.fetch_add(1, Ordering::Relaxed);
+                // The new tile counts in the disk budget.
+                self.account_disk(Some(key));
             }
         };
         let result = req.compute_tiled(

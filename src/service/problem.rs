@@ -201,6 +201,25 @@ impl ApiError {
     }
 }
 
+/// The problem+json body of an error (also written by [`super::conn`] for the requests hyper
+/// refuses before the router runs).
+pub fn problem_json(
+    status: StatusCode,
+    kind: &str,
+    title: &str,
+    detail: String,
+    parameter: Option<String>,
+) -> Vec<u8> {
+    serde_json::to_vec(&Problem {
+        kind,
+        title,
+        status: status.as_u16(),
+        detail,
+        parameter,
+    })
+    .unwrap_or_default()
+}
+
 impl std::fmt::Display for ApiError {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         write!(f, "{}", self.parts().2)
@@ -214,14 +233,7 @@ impl IntoResponse for ApiError {
             tracing::warn!(status = status.as_u16(), error = %self, "request failed");
         }
         let (kind, title, detail, parameter) = self.parts();
-        let body = serde_json::to_vec(&Problem {
-            kind,
-            title,
-            status: status.as_u16(),
-            detail,
-            parameter,
-        })
-        .unwrap_or_default();
+        let body = problem_json(status, kind, title, detail, parameter);
         let mut resp = (status, body).into_response();
         let h = resp.headers_mut();
         h.insert(

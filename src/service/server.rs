@@ -1,6 +1,7 @@
 //! Running the service: bind, serve until SIGTERM or ctrl-c (graceful: in-flight requests finish,
 //! job progress is already persisted), and the tiny HTTP client behind `skybake healthcheck`.
 
+use super::conn::ClientConn;
 use super::{app, AppState};
 use crate::config::Settings;
 use axum::body::Body;
@@ -26,7 +27,9 @@ use tower::ServiceExt;
 /// The accept loop is hyper's own (axum::serve exposes none of these): a request's headers must
 /// arrive within `server.header_read_timeout_s` (on a kept-alive connection the wait for the next
 /// request counts too, so it is also the idle timeout), and at most `server.max_connections` are
-/// open; further connections are closed as soon as they are accepted and counted.
+/// open; further connections are closed as soon as they are accepted and counted. The requests
+/// hyper refuses itself (a URI over 64 KiB, a head over its buffer, a malformed head) get the
+/// service's problem+json answer ([`ClientConn`]), not hyper's empty one.
 pub async fn serve_on(
     listener: tokio::net::TcpListener,
     state: AppState,
@@ -81,7 +84,7 @@ pub async fn serve_on(
                 req
             }));
         let connection = builder
-            .serve_connection_with_upgrades(TokioIo::new(stream), service)
+            .serve_connection_with_upgrades(TokioIo::new(ClientConn::new(stream)), service)
             .into_owned();
         let connection = graceful.watch(connection);
         let open = metrics_state.clone();

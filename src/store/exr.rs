@@ -143,8 +143,71 @@ pub fn encode_exr_with(
     writer
         .to_buffered(Cursor::new(&mut bytes))
         .map_err(|e| StoreError::Exr(format!("encoding failed: {e}")))?;
+    sort_header_attributes(&mut bytes)?;
     checksum::embed(&mut bytes)?;
     Ok(bytes)
+}
+
+/// Puts the header attributes of the single-part file `bytes` in byte order of their names, in
+/// place, so that one image always encodes to the same bytes.
+///
+/// The `exr` crate keeps custom attributes in a `HashMap` and writes them in its iteration order,
+/// which differs from one map to the next; the chunks themselves are written in increasing order
+/// (`LineOrder::Increasing`, also when compressed on several threads). OpenEXR gives attribute
+/// order no meaning (OpenEXR file layout, "Header": a sequence of attributes ended by a null
+/// byte), and the header keeps its length, so the offset table stays valid.
+fn sort_header_attributes(bytes: &mut [u8]) -> Result<(), StoreError> {
+    const MULTIPART_FLAG: u32 = 0x1000;
+    const DEEP_FLAG: u32 = 0x800;
+    let malformed = || StoreError::Exr("encoded header is malformed".into());
+    let flags = bytes
+        .get(4..8)
+        .and_then(|v| v.try_into().ok())
+        .map(u32::from_le_bytes)
+        .ok_or_else(malformed)?;
+    if flags & (MULTIPART_FLAG | DEEP_FLAG) != 0 {
+        return Err(StoreError::Exr("expected a single-part flat image".into()));
+    }
+    let start = 8;
+    let nul_from = |bytes: &[u8], at: usize| -> Option<usize> {
+        bytes
+            .get(at..)?
+            .iter()
+            .position(|&b| b == 0)
+            .map(|p| at + p)
+    };
+    // (name, record start, record end) of each attribute.
+    let mut records: Vec<(usize, usize, usize)> = Vec::new();
+    let mut at = start;
+    loop {
+        let name_end = nul_from(bytes, at).ok_or_else(malformed)?;
+        if name_end == at {
+            break;
+        }
+        let type_end = nul_from(bytes, name_end + 1).ok_or_else(malformed)?;
+        let size_at = type_end + 1;
+        let size = bytes
+            .get(size_at..size_at + 4)
+            .and_then(|v| v.try_into().ok())
+            .map(i32::from_le_bytes)
+            .and_then(|s| usize::try_from(s).ok())
+            .ok_or_else(malformed)?;
+        let end = size_at + 4 + size;
+        if end > bytes.len() {
+            return Err(malformed());
+        }
+        records.push((name_end, at, end));
+        at = end;
+    }
+    let header = bytes[start..at].to_vec();
+    records.sort_by(|a, b| header[a.1 - start..a.0 - start].cmp(&header[b.1 - start..b.0 - start]));
+    let mut out = start;
+    for (_, from, to) in records {
+        bytes[out..out + (to - from)].copy_from_slice(&header[from - start..to - start]);
+        out += to - from;
+    }
+    debug_assert_eq!(out, at);
+    Ok(())
 }
 
 /// The value of the text attribute `name` in the header of the single-part EXR file `bytes`, read

@@ -8,14 +8,20 @@
 //! the [`super::Cache`] and its tiles are then removed ([`FrameTiles::remove_all`]); tiles of a
 //! render that never finishes stay until [`TileStore::prune`] removes directories older than a
 //! given age. Keys are checked like cache keys (64 lowercase hex digits), so no request text
-//! becomes part of a path. Tile bytes are not counted in the cache's disk budget: at most one
-//! unfinished frame per computation slot (plus abandoned ones until pruned) sits here.
+//! becomes part of a path.
+//!
+//! The store counts the bytes of its tile files ([`TileStore::bytes`]; counted at open, kept up
+//! to date by every put and removal), so that the service counts them in the cache's disk
+//! budget, and [`TileStore::evict_oldest`] removes whole frames' tiles, least recently written
+//! first, when that budget needs room (a frame's tiles are only a head start for a retry).
 
 use super::atomic::{is_temp_file_name, write_atomic};
 use super::cache::is_valid_key;
 use super::exr::header_text_attribute;
 use super::{checksum, StoreError};
 use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::Arc;
 use std::time::{Duration, SystemTime};
 
 /// Header attribute binding a tile file to `<key>/<index>`.
@@ -28,6 +34,8 @@ pub const MAX_TILES: usize = 1 << 16;
 #[derive(Debug, Clone)]
 pub struct TileStore {
     root: PathBuf,
+    /// Bytes of the tile files under `root`.
+    bytes: Arc<AtomicU64>,
 }
 
 /// The tiles of one product (one cache key).
@@ -35,6 +43,27 @@ pub struct TileStore {
 pub struct FrameTiles {
     dir: PathBuf,
     key: String,
+    /// The store's byte count.
+    bytes: Arc<AtomicU64>,
+}
+
+/// Bytes of the files directly in `dir` (0 when it does not exist).
+fn dir_bytes(dir: &Path) -> u64 {
+    std::fs::read_dir(dir)
+        .into_iter()
+        .flatten()
+        .flatten()
+        .filter_map(|e| e.metadata().ok())
+        .filter(|m| m.is_file())
+        .map(|m| m.len())
+        .sum()
+}
+
+/// Subtracts without wrapping below zero (a file changed behind the store's back).
+fn sub_bytes(counter: &AtomicU64, n: u64) {
+    let _ = counter.fetch_update(Ordering::Relaxed, Ordering::Relaxed, |b| {
+        Some(b.saturating_sub(n))
+    });
 }
 
 impl TileStore {
@@ -43,6 +72,7 @@ impl TileStore {
         std::fs::create_dir_all(root).map_err(|e| StoreError::io(root, e))?;
         let store = Self {
             root: root.to_path_buf(),
+            bytes: Arc::default(),
         };
         for dir in store.frame_dirs()? {
             for entry in std::fs::read_dir(&dir)
@@ -55,7 +85,48 @@ impl TileStore {
                 }
             }
         }
+        store.recount()?;
         Ok(store)
+    }
+
+    /// Bytes of the tile files in the store.
+    pub fn bytes(&self) -> u64 {
+        self.bytes.load(Ordering::Relaxed)
+    }
+
+    /// Counts the tile files' bytes again from the disk.
+    fn recount(&self) -> Result<(), StoreError> {
+        let total = self.frame_dirs()?.iter().map(|d| dir_bytes(d)).sum();
+        self.bytes.store(total, Ordering::Relaxed);
+        Ok(())
+    }
+
+    /// Removes the tiles of whole frames, least recently written first and never those of
+    /// `keep` (the render in progress), until the store holds at most `target_bytes`; returns
+    /// how many frames' tiles were removed.
+    pub fn evict_oldest(&self, keep: Option<&str>, target_bytes: u64) -> Result<usize, StoreError> {
+        if self.bytes() <= target_bytes {
+            return Ok(0);
+        }
+        let mut frames: Vec<(SystemTime, PathBuf)> = self
+            .frame_dirs()?
+            .into_iter()
+            .filter(|d| keep.is_none_or(|k| d.file_name().is_none_or(|n| n != k)))
+            .map(|d| (newest_modification(&d), d))
+            .collect();
+        frames.sort();
+        let mut removed = 0;
+        for (_, dir) in frames {
+            if self.bytes() <= target_bytes {
+                break;
+            }
+            let n = dir_bytes(&dir);
+            if std::fs::remove_dir_all(&dir).is_ok() {
+                sub_bytes(&self.bytes, n);
+                removed += 1;
+            }
+        }
+        Ok(removed)
     }
 
     /// The tiles stored under `key` (64 lowercase hex digits).
@@ -70,6 +141,7 @@ impl TileStore {
         Ok(FrameTiles {
             dir: self.root.join(&key[..2]).join(key),
             key: key.to_string(),
+            bytes: self.bytes.clone(),
         })
     }
 
@@ -115,19 +187,26 @@ impl TileStore {
         let now = SystemTime::now();
         let mut removed = 0;
         for dir in self.frame_dirs()? {
-            let newest = std::fs::read_dir(&dir)
-                .into_iter()
-                .flatten()
-                .flatten()
-                .filter_map(|e| e.metadata().ok()?.modified().ok())
-                .max();
-            let stale = newest.is_none_or(|t| now.duration_since(t).unwrap_or_default() >= age);
+            let newest = newest_modification(&dir);
+            let stale = now.duration_since(newest).unwrap_or_default() >= age;
             if stale && std::fs::remove_dir_all(&dir).is_ok() {
                 removed += 1;
             }
         }
+        self.recount()?;
         Ok(removed)
     }
+}
+
+/// The newest modification time of the files in `dir` (the epoch when it has none).
+fn newest_modification(dir: &Path) -> SystemTime {
+    std::fs::read_dir(dir)
+        .into_iter()
+        .flatten()
+        .flatten()
+        .filter_map(|e| e.metadata().ok()?.modified().ok())
+        .max()
+        .unwrap_or(SystemTime::UNIX_EPOCH)
 }
 
 impl FrameTiles {
@@ -153,6 +232,7 @@ impl FrameTiles {
             remove_any(&path);
             return Ok(None);
         }
+        let size = meta.len();
         let bytes = std::fs::read(&path).map_err(|e| StoreError::io(&path, e))?;
         let bound = checksum::verify(&bytes).is_ok()
             && header_text_attribute(&bytes, ATTR_TILE_OF)
@@ -164,6 +244,7 @@ impl FrameTiles {
         } else {
             tracing::warn!(path = %path.display(), "tile failed verification; recomputing it");
             remove_any(&path);
+            sub_bytes(&self.bytes, size);
             Ok(None)
         }
     }
@@ -175,7 +256,15 @@ impl FrameTiles {
                 crate::Error::out_of_range("tile", index, format!("0..{MAX_TILES}")).into(),
             );
         }
-        write_atomic(&self.path(index), bytes)
+        let path = self.path(index);
+        let before = std::fs::symlink_metadata(&path)
+            .ok()
+            .filter(|m| m.is_file())
+            .map_or(0, |m| m.len());
+        write_atomic(&path, bytes)?;
+        sub_bytes(&self.bytes, before);
+        self.bytes.fetch_add(bytes.len() as u64, Ordering::Relaxed);
+        Ok(())
     }
 
     /// Number of tile files present (verified or not).
@@ -193,8 +282,12 @@ impl FrameTiles {
 
     /// Removes every tile of this product (after the assembled product went to the cache).
     pub fn remove_all(&self) -> Result<(), StoreError> {
+        let n = dir_bytes(&self.dir);
         match std::fs::remove_dir_all(&self.dir) {
-            Ok(()) => Ok(()),
+            Ok(()) => {
+                sub_bytes(&self.bytes, n);
+                Ok(())
+            }
             Err(e) if e.kind() == std::io::ErrorKind::NotFound => Ok(()),
             Err(e) => Err(StoreError::io(&self.dir, e)),
         }
@@ -249,11 +342,41 @@ mod tests {
         tiles.put(2, &bad).unwrap();
         assert_eq!(tiles.get(2).unwrap(), None);
         assert_eq!(tiles.count(), 1);
+        // Two tiles written (index 1 was good bytes), two removed: the count is the one left.
+        assert_eq!(store.bytes(), good.len() as u64);
+        assert_eq!(TileStore::open(&root).unwrap().bytes(), good.len() as u64);
         assert!(store.frame("../etc").is_err());
         assert_eq!(store.prune(Duration::from_secs(3600)).unwrap(), 0);
         assert_eq!(store.prune(Duration::ZERO).unwrap(), 1);
         assert_eq!(tiles.count(), 0);
         store.remove_empty().unwrap();
         assert!(!root.exists());
+    }
+
+    #[test]
+    fn the_oldest_frames_are_evicted_first_and_the_kept_one_never() {
+        let root = scratch("evict");
+        let store = TileStore::open(&root).unwrap();
+        let keys: Vec<String> = ["aa", "bb", "cc"].iter().map(|k| k.repeat(32)).collect();
+        let mut sizes = Vec::new();
+        for key in &keys {
+            let tiles = store.frame(key).unwrap();
+            let bytes = tile_bytes(&tiles.binding(0), 1.0);
+            tiles.put(0, &bytes).unwrap();
+            sizes.push(bytes.len() as u64);
+            // Distinct modification times.
+            std::thread::sleep(Duration::from_millis(20));
+        }
+        assert_eq!(store.bytes(), sizes.iter().sum::<u64>());
+        // Room for one frame, keeping the oldest: the middle one goes, then the newest.
+        let removed = store.evict_oldest(Some(&keys[0]), sizes[0]).unwrap();
+        assert_eq!(removed, 2);
+        assert_eq!(store.bytes(), sizes[0]);
+        assert_eq!(store.frame(&keys[0]).unwrap().count(), 1);
+        assert_eq!(store.frame(&keys[1]).unwrap().count(), 0);
+        // Nothing to keep: the last one goes too.
+        assert_eq!(store.evict_oldest(None, 0).unwrap(), 1);
+        assert_eq!(store.bytes(), 0);
+        let _ = std::fs::remove_dir_all(&root);
     }
 }

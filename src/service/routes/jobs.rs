@@ -42,9 +42,10 @@ pub async fn submit(
             max_products: settings.jobs.max_products,
             max_live: settings.jobs.max_live,
             disk_bytes: settings.cache.disk_budget_bytes,
+            max_cost: settings.server.max_job_cost,
         };
         let job = s.jobs().submit(&body.bytes, limits)?;
-        s.cache().set_reserved_bytes(s.jobs().disk_bytes());
+        s.account_disk(None);
         Ok(job)
     })
     .await?;
@@ -83,7 +84,7 @@ pub async fn cancel(
     let s = state.clone();
     let (job, deleted) = AppState::blocking(move || {
         let r = s.jobs().delete(&id)?;
-        s.cache().set_reserved_bytes(s.jobs().disk_bytes());
+        s.account_disk(None);
         Ok(r)
     })
     .await?;
