@@ -148,6 +148,10 @@ enum Command {
         /// Rewrite the markdown and plots from an existing report.json instead of measuring.
         #[arg(long, value_name = "REPORT_JSON")]
         from_json: Option<PathBuf>,
+        /// Measure instead what each of the planner's cost rules saves and costs (time and error
+        /// with and without it) and write `planner.md` into the output directory.
+        #[arg(long, conflicts_with_all = ["quick", "from_json"])]
+        planner: bool,
     },
     /// Run the HTTP service (settings: config/default.toml ← --config FILE ← SKYBAKE_* ← flags).
     ///
@@ -325,8 +329,11 @@ struct AerialArgs {
 
 #[derive(Args, Clone)]
 struct PlanArgs {
-    /// The product: sun, sky, ground or aerial.
+    /// The product: sun, sky, ground, aerial, or frame (with --scene; --method fast|reference).
     product: String,
+    /// The frame scene (product `frame`).
+    #[arg(long, value_name = "SCENE_JSON")]
+    scene: Option<PathBuf>,
     #[command(flatten)]
     flags: ProductFlags<ANY>,
 }
@@ -579,7 +586,37 @@ fn run(cli: Cli) -> Result<()> {
             }
             Ok(())
         }
+        Command::Plan(a) if a.product == "frame" => {
+            let scene = a
+                .scene
+                .as_deref()
+                .ok_or_else(|| Error::invalid("scene", "plan frame needs --scene SCENE.json"))?;
+            let method = match a.flags.params.method.as_deref() {
+                Some(m) => skybake::render::Method::parse(m)?,
+                None => skybake::render::Method::Fast,
+            };
+            let text = read_limited(scene, "scene", skybake::cloud::scene::MAX_SCENE_FILE_BYTES)?;
+            let request = skybake::render::FrameRequest::parse(&text, method)?;
+            let dir = scene.parent().unwrap_or(Path::new("."));
+            let loader = |name: &str| {
+                read_limited(
+                    &dir.join(name),
+                    "path",
+                    skybake::cloud::scene::MAX_GRID_FILE_BYTES,
+                )
+            };
+            print_json(&serde_json::json!({
+                "product": "frame",
+                "cache_key": request.cache_key(),
+                "engine_version": skybake::engine::ENGINE_VERSION,
+                "method": method,
+                "plan": request.plan(&loader)?,
+            }))
+        }
         Command::Plan(a) => {
+            if a.scene.is_some() {
+                return Err(Error::invalid("scene", "only for plan frame").into());
+            }
             let kind = ProductKind::parse(&a.product)?;
             let req = ProductRequest::from_params(kind, &request_params(a.flags.params.clone())?)?;
             print_json(&serde_json::json!({
@@ -620,10 +657,14 @@ fn run(cli: Cli) -> Result<()> {
             &engine(no_table_cache, None)?,
         ),
         Command::Report {
+            planner: true, out, ..
+        } => Ok(run_planner_report(&out)?),
+        Command::Report {
             quick,
             only,
             out,
             from_json,
+            ..
         } => Ok(run_report(quick, only, &out, from_json.as_deref())?),
         Command::Bench {
             names,
@@ -663,6 +704,22 @@ fn read_report_part<T: serde::de::DeserializeOwned>(
         .map(Some)
         .map_err(|e| Error::invalid(field, format!("{} is not a report: {e}", path.display())))
 }
+
+/// `skybake report --planner`: measures the planner's cost rules and writes `planner.md`.
+fn run_planner_report(out: &Path) -> Result<()> {
+    let rows =
+        skybake::report::planner::run(&|done, total| eprintln!("planner report: {done}/{total}"))?;
+    let load = std::fs::read_to_string("/proc/loadavg")
+        .ok()
+        .and_then(|l| l.split_whitespace().next().map(str::to_string));
+    let md =
+        skybake::report::planner::markdown(&rows, rayon::current_num_threads(), load.as_deref());
+    let io = |e: std::io::Error| Error::invalid("out", format!("{}: {e}", out.display()));
+    std::fs::create_dir_all(out).map_err(io)?;
+    let path = out.join("planner.md");
+    std::fs::write(&path, md).map_err(io)?;
+    println!("{}", path.display());
+    Ok(())}
 
 /// `skybake report`: runs the sweep with a progress bar on a terminal and writes the files.
 fn run_report(

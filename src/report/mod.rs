@@ -22,6 +22,7 @@
 //! product ([`plot`]); the cloud frames' part ([`frames`]) in `frames.json` and one PNG per frame.
 
 pub mod frames;
+pub mod planner;
 pub mod plot;
 
 use crate::accuracy::{band_of_altitude, band_of_sun};
