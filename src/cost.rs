@@ -95,7 +95,11 @@ pub fn estimate_in(req: &ProductRequest, m: &Medium) -> Result<Cost> {
     let (table_cells, expected_orders) = match plan.ms_method() {
         MsMethod::Precise => (
             (precise.n_r * precise.n_mu_s * precise.n_mu * precise.n_phi) as u64,
-            expected_orders(m, precise.tolerance, precise.max_orders),
+            expected_orders(
+                m,
+                plan.precise_tolerance.unwrap_or(precise.tolerance),
+                precise.max_orders,
+            ),
         ),
         MsMethod::Fast => (
             (fast.n_r * fast.n_mu_s * fast.directions_mu * fast.directions_phi) as u64,

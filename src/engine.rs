@@ -378,7 +378,8 @@ impl Engine {
         })
     }
 
-    /// Shared tables for this spec's medium (LRU of a few).
+    /// Shared tables for this spec's medium (LRU of a few), with the precise order series' tolerance
+    /// the planner's cost rule gives it (`plan::table_budget`).
     pub fn shared(&self, spec: &CommonSpec) -> Result<Arc<SharedTables>> {
         self.shared_unless(spec, NEVER)
     }
@@ -391,11 +392,29 @@ impl Engine {
         cancelled: CancelCheck,
     ) -> Result<Arc<SharedTables>> {
         let medium = Medium::new(&spec.atmosphere, &spec.wavelengths_nm, spec.ground_albedo)?;
+        let plan = crate::plan::plan(ProductKind::Sky, spec, &medium);
+        self.shared_with(spec, plan.precise_tolerance, cancelled)
+    }
+
+    /// Shared tables for this spec's medium whose precise table stops its order series at
+    /// `precise_tolerance` (`None`: the preset's); the tolerance is part of the table's key.
+    pub fn shared_with(
+        &self,
+        spec: &CommonSpec,
+        precise_tolerance: Option<f64>,
+        cancelled: CancelCheck,
+    ) -> Result<Arc<SharedTables>> {
+        let medium = Medium::new(&spec.atmosphere, &spec.wavelengths_nm, spec.ground_albedo)?;
+        let (fast, mut precise) = settings_for(spec.quality);
+        if let Some(t) = precise_tolerance {
+            precise.tolerance = t;
+        }
         let key = serde_json::to_string(&(
             &spec.atmosphere,
             &spec.wavelengths_nm,
             spec.ground_albedo,
             spec.quality,
+            precise.tolerance,
         ))
         .unwrap_or_default();
         let slot = {
@@ -411,7 +430,6 @@ impl Engine {
             slot
         };
         let tables = init_unless(&slot, || {
-            let (fast, precise) = settings_for(spec.quality);
             // The density table depends on the radii and density profiles only.
             let density_key = serde_json::to_string(&(
                 medium.bottom_radius_m,
@@ -499,7 +517,7 @@ impl Engine {
                 "every atmosphere product needs the density table",
             ));
         }
-        self.shared_unless(spec, cancelled)
+        self.shared_with(spec, plan.precise_tolerance, cancelled)
     }
 
     #[allow(clippy::too_many_arguments)]

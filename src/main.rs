@@ -132,16 +132,26 @@ enum Command {
     /// PNG plots).
     ///
     /// Example: skybake report --quick --out /tmp/report
+    ///          skybake report --only frames   (the cloud frames' part; the rest is kept)
     Report {
-        /// One regime, three wavelengths, sun and sky only (under 2 minutes; run by CI).
+        /// One regime, three wavelengths, sun and sky only, one tiny frame (under 2 minutes; run
+        /// by CI).
         #[arg(long)]
         quick: bool,
+        /// Measure only this part and keep the other from OUT's existing report.json or
+        /// frames.json (the README is rewritten with both).
+        #[arg(long, value_enum)]
+        only: Option<ReportPart>,
         /// Output directory.
         #[arg(long, default_value = "report")]
         out: PathBuf,
         /// Rewrite the markdown and plots from an existing report.json instead of measuring.
         #[arg(long, value_name = "REPORT_JSON")]
         from_json: Option<PathBuf>,
+        /// Measure instead what each of the planner's cost rules saves and costs (time and error
+        /// with and without it) and write `planner.md` into the output directory.
+        #[arg(long, conflicts_with_all = ["quick", "from_json"])]
+        planner: bool,
     },
     /// Run the HTTP service (settings: config/default.toml ← --config FILE ← SKYBAKE_* ← flags).
     ///
@@ -179,6 +189,15 @@ struct ServeArgs {
     /// Settings file (TOML, any subset of config/default.toml).
     #[arg(long)]
     config: Option<PathBuf>,
+}
+
+/// The parts of `skybake report`.
+#[derive(Clone, Copy, PartialEq, Eq, ValueEnum)]
+enum ReportPart {
+    /// The atmosphere products (sun, sky, ground, aerial).
+    Atmosphere,
+    /// The cloud frames.
+    Frames,
 }
 
 #[derive(Clone, Copy, PartialEq, Eq, ValueEnum)]
@@ -310,8 +329,11 @@ struct AerialArgs {
 
 #[derive(Args, Clone)]
 struct PlanArgs {
-    /// The product: sun, sky, ground or aerial.
+    /// The product: sun, sky, ground, aerial, or frame (with --scene; --method fast|reference).
     product: String,
+    /// The frame scene (product `frame`).
+    #[arg(long, value_name = "SCENE_JSON")]
+    scene: Option<PathBuf>,
     #[command(flatten)]
     flags: ProductFlags<ANY>,
 }
@@ -564,7 +586,37 @@ fn run(cli: Cli) -> Result<()> {
             }
             Ok(())
         }
+        Command::Plan(a) if a.product == "frame" => {
+            let scene = a
+                .scene
+                .as_deref()
+                .ok_or_else(|| Error::invalid("scene", "plan frame needs --scene SCENE.json"))?;
+            let method = match a.flags.params.method.as_deref() {
+                Some(m) => skybake::render::Method::parse(m)?,
+                None => skybake::render::Method::Fast,
+            };
+            let text = read_limited(scene, "scene", skybake::cloud::scene::MAX_SCENE_FILE_BYTES)?;
+            let request = skybake::render::FrameRequest::parse(&text, method)?;
+            let dir = scene.parent().unwrap_or(Path::new("."));
+            let loader = |name: &str| {
+                read_limited(
+                    &dir.join(name),
+                    "path",
+                    skybake::cloud::scene::MAX_GRID_FILE_BYTES,
+                )
+            };
+            print_json(&serde_json::json!({
+                "product": "frame",
+                "cache_key": request.cache_key(),
+                "engine_version": skybake::engine::ENGINE_VERSION,
+                "method": method,
+                "plan": request.plan(&loader)?,
+            }))
+        }
         Command::Plan(a) => {
+            if a.scene.is_some() {
+                return Err(Error::invalid("scene", "only for plan frame").into());
+            }
             let kind = ProductKind::parse(&a.product)?;
             let req = ProductRequest::from_params(kind, &request_params(a.flags.params.clone())?)?;
             print_json(&serde_json::json!({
@@ -605,10 +657,15 @@ fn run(cli: Cli) -> Result<()> {
             &engine(no_table_cache, None)?,
         ),
         Command::Report {
+            planner: true, out, ..
+        } => Ok(run_planner_report(&out)?),
+        Command::Report {
             quick,
+            only,
             out,
             from_json,
-        } => Ok(run_report(quick, &out, from_json.as_deref())?),
+            ..
+        } => Ok(run_report(quick, only, &out, from_json.as_deref())?),
         Command::Bench {
             names,
             format,
@@ -634,17 +691,53 @@ fn run(cli: Cli) -> Result<()> {
     }
 }
 
+/// A report part's JSON at `path`, `None` when there is no such file (errors name `field`).
+fn read_report_part<T: serde::de::DeserializeOwned>(
+    path: &Path,
+    field: &str,
+) -> skybake::Result<Option<T>> {
+    if !path.exists() {
+        return Ok(None);
+    }
+    let text = read_limited(path, field, 64 << 20)?;
+    serde_json::from_slice(&text)
+        .map(Some)
+        .map_err(|e| Error::invalid(field, format!("{} is not a report: {e}", path.display())))
+}
+
+/// `skybake report --planner`: measures the planner's cost rules and writes `planner.md`.
+fn run_planner_report(out: &Path) -> Result<()> {
+    let rows =
+        skybake::report::planner::run(&|done, total| eprintln!("planner report: {done}/{total}"))?;
+    let load = std::fs::read_to_string("/proc/loadavg")
+        .ok()
+        .and_then(|l| l.split_whitespace().next().map(str::to_string));
+    let md =
+        skybake::report::planner::markdown(&rows, rayon::current_num_threads(), load.as_deref());
+    let io = |e: std::io::Error| Error::invalid("out", format!("{}: {e}", out.display()));
+    std::fs::create_dir_all(out).map_err(io)?;
+    let path = out.join("planner.md");
+    std::fs::write(&path, md).map_err(io)?;
+    println!("{}", path.display());
+    Ok(())}
+
 /// `skybake report`: runs the sweep with a progress bar on a terminal and writes the files.
-fn run_report(quick: bool, out: &Path, from_json: Option<&Path>) -> Result<()> {
+fn run_report(
+    quick: bool,
+    only: Option<ReportPart>,
+    out: &Path,
+    from_json: Option<&Path>,
+) -> Result<()> {
+    use skybake::report::frames::FrameReport;
+    use skybake::report::Report;
     if let Some(path) = from_json {
-        let text = read_limited(path, "from_json", 64 << 20)?;
-        let report: skybake::report::Report = serde_json::from_slice(&text).map_err(|e| {
-            Error::invalid(
-                "from_json",
-                format!("{} is not a report: {e}", path.display()),
-            )
+        let report: Report = read_report_part(path, "from_json")?.ok_or_else(|| {
+            Error::invalid("from_json", format!("{} does not exist", path.display()))
         })?;
-        for path in skybake::report::write(&report, out)? {
+        // The frame part, if there is one next to it.
+        let frames: Option<FrameReport> =
+            read_report_part(&path.with_file_name("frames.json"), "from_json")?;
+        for path in skybake::report::write(Some(&report), frames.as_ref(), out)? {
             println!("{}", path.display());
         }
         return Ok(());
@@ -665,14 +758,30 @@ fn run_report(quick: bool, out: &Path, from_json: Option<&Path>) -> Result<()> {
             bar.set_position(done as u64);
         }
     };
-    let mut report = skybake::report::run(&skybake::report::ReportOptions { quick }, &progress)?;
+    let load = || {
+        std::fs::read_to_string("/proc/loadavg")
+            .ok()
+            .and_then(|s| s.split_whitespace().next().map(str::to_string))
+    };
+    let report: Option<Report> = if only == Some(ReportPart::Frames) {
+        read_report_part(&out.join("report.json"), "out")?
+    } else {
+        let mut r = skybake::report::run(&skybake::report::ReportOptions { quick }, &progress)?;
+        r.machine_load = load();
+        Some(r)
+    };
+    let frames: Option<FrameReport> = if only == Some(ReportPart::Atmosphere) {
+        read_report_part(&out.join("frames.json"), "out")?
+    } else {
+        // A full run keeps its converged references next to the report (they take minutes).
+        let mut f = skybake::report::frames::run(quick, (!quick).then_some(out), &progress)?;
+        f.machine_load = load();
+        Some(f)
+    };
     if let Some(bar) = &bar {
         bar.finish_and_clear();
     }
-    report.machine_load = std::fs::read_to_string("/proc/loadavg")
-        .ok()
-        .and_then(|s| s.split_whitespace().next().map(str::to_string));
-    for path in skybake::report::write(&report, out)? {
+    for path in skybake::report::write(report.as_ref(), frames.as_ref(), out)? {
         println!("{}", path.display());
     }
     Ok(())

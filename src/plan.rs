@@ -37,6 +37,9 @@ pub enum Stage {
     /// `sun` product: diffuse horizontal irradiance, the sky radiance integrated over the upper
     /// hemisphere.
     DiffuseIrradiance,
+    /// The precise table's orders of scattering beyond those the error budget needs (the order
+    /// series stops at the preset's tolerance unless the budget rule loosens it).
+    HigherOrders,
 }
 
 impl Stage {
@@ -50,6 +53,9 @@ impl Stage {
             Stage::DirectSun => "direct sun: transmittance and direct normal irradiance",
             Stage::DiffuseIrradiance => {
                 "diffuse irradiance: sky radiance over the upper hemisphere"
+            }
+            Stage::HigherOrders => {
+                "higher orders of scattering of the precise table, to the preset's tolerance"
             }
         }
     }
@@ -118,6 +124,14 @@ pub enum Reason {
         sun_elevation_deg: f64,
         darkest_twilight_deg: f64,
     },
+    /// Cost rule (issue 15): the precise order series stops once an order adds less than
+    /// `tolerance` of the total (or its extrapolated tail's error is below it), `tolerance` being
+    /// the budget's allowance instead of the preset's tighter `preset_tolerance`.
+    OrdersUnderBudget {
+        tolerance: f64,
+        preset_tolerance: f64,
+        budget: Budget,
+    },
 }
 
 impl Reason {
@@ -138,6 +152,15 @@ impl Reason {
             } => format!(
                 "night: with the sun at {sun_elevation_deg}°, below {darkest_twilight_deg:.2}°, no air or ground this observer sees is lit by the sun or by the modelled multiple scattering (moonlight, starlight and airglow are not modelled)"
             ),
+            Reason::OrdersUnderBudget {
+                tolerance,
+                preset_tolerance,
+                budget,
+            } => format!(
+                "orders adding less than {tolerance:.2e} of the total (the preset stops at {preset_tolerance:.0e}) are under the error budget: {:.2} % of {:.2} % (the smallest measured error of the products sharing the table at this preset) may be spent on left-out work",
+                budget.allowance * 100.0,
+                budget.relative_error * 100.0
+            ),
         }
     }
 }
@@ -152,6 +175,9 @@ pub struct Plan {
     pub method: MsMethod,
     /// Set when `method` is not the requested one, with the reason.
     pub substitution: Option<Substitution>,
+    /// The precise table's order-series tolerance when the error budget loosens it (cost rule
+    /// [`Reason::OrdersUnderBudget`]); `None`: the preset's.
+    pub precise_tolerance: Option<f64>,
 }
 
 impl Plan {
@@ -172,6 +198,23 @@ impl Plan {
     /// The plan without `stage` (a stage forced out, for tests and diagnostics).
     pub fn without(mut self, stage: Stage) -> Self {
         self.stages.retain(|s| *s != stage);
+        self
+    }
+
+    /// The plan without its cost rules (issue 15): every stage a cost rule left out runs as the
+    /// preset says, for measuring what the rules save and cost.
+    pub fn without_cost_rules(mut self) -> Self {
+        let (cost, kept): (Vec<_>, Vec<_>) = self
+            .left_out
+            .into_iter()
+            .partition(|(_, r)| matches!(r, Reason::OrdersUnderBudget { .. }));
+        self.left_out = kept;
+        for (stage, _) in cost {
+            if !self.stages.contains(&stage) {
+                self.stages.push(stage);
+            }
+        }
+        self.precise_tolerance = None;
         self
     }
 }
@@ -280,6 +323,7 @@ pub fn plan(product: ProductKind, spec: &CommonSpec, m: &Medium) -> Plan {
         left_out: Vec::new(),
         method,
         substitution,
+        precise_tolerance: None,
     };
     let mut rule = |stage: Stage, left_out: Option<Reason>| match left_out {
         None => p.stages.push(stage),
@@ -313,6 +357,497 @@ pub fn plan(product: ProductKind, spec: &CommonSpec, m: &Medium) -> Plan {
             }),
         );
         rule(Stage::DiffuseIrradiance, night);
+    }
+    // The tolerance is set whatever the method, so every product of one medium and quality
+    // shares one set of tables (the tolerance is part of their key).
+    let orders = precise_orders_rule(spec);
+    p.precise_tolerance = orders.map(|(tolerance, _)| tolerance);
+    if p.ms_method() == MsMethod::Precise {
+        match orders {
+            Some((_, reason)) => p.left_out.push((Stage::HigherOrders, reason)),
+            None => p.stages.push(Stage::HigherOrders),
+        }
+    }
+    p
+}
+
+// ---------------------------------------------------------------------------------------------
+// Cost rules (issue 15 point 3): work whose predicted contribution falls under the error budget.
+
+/// Share of a request's error budget the cost rules may spend on what they leave out or coarsen;
+/// the rest stays with the method's own (measured) error, so the result keeps within the budget.
+pub const BUDGET_SHARE: f64 = 0.25;
+
+/// A request's error budget and what the cost rules spent of it.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct Budget {
+    /// The relative error the request may have: its preset's measured error (a `max_rel_error`
+    /// target picks the preset, whose measured error is at most the target).
+    pub relative_error: f64,
+    /// What the cost rules may spend: [`BUDGET_SHARE`] × `relative_error`.
+    pub allowance: f64,
+    /// The predicted error of what they left out or coarsened.
+    pub spent: f64,
+}
+
+impl Budget {
+    pub fn new(relative_error: f64) -> Self {
+        let e = if relative_error.is_finite() {
+            relative_error.max(0.0)
+        } else {
+            0.0
+        };
+        Self {
+            relative_error: e,
+            allowance: BUDGET_SHARE * e,
+            spent: 0.0,
+        }
+    }
+
+    /// Spends `predicted` if it fits in what is left of the allowance.
+    pub fn try_spend(&mut self, predicted: f64) -> bool {
+        let fits =
+            predicted.is_finite() && predicted >= 0.0 && self.spent + predicted <= self.allowance;
+        if fits {
+            self.spent += predicted;
+        }
+        fits
+    }
+}
+
+/// The error budget of the precise table of `spec`'s medium at its quality: the smallest
+/// measured error of the precise method at this preset over every product sharing the table
+/// (sun, sky, ground, aerial) and every regime of the request's aerosol band (the table serves
+/// every sun position and observer), plus the reference's own error against DISORT
+/// (`accuracy::REFERENCE_ERROR`). `None` outside the measured aerosol bands, without report data,
+/// and for the `reference` preset (the converged reference is never loosened).
+pub fn table_budget(spec: &CommonSpec) -> Option<Budget> {
+    use crate::accuracy;
+    if spec.quality == crate::spec::Quality::Reference {
+        return None;
+    }
+    let report = accuracy::committed()?;
+    let aerosol = accuracy::aerosol_optical_depth_550(&spec.atmosphere)
+        .and_then(accuracy::band_of_aerosol)?;
+    let smallest = report
+        .curves
+        .iter()
+        .filter(|c| c.method == MsMethod::Precise)
+        .filter(|c| {
+            report
+                .regimes
+                .iter()
+                .any(|r| r.name == c.regime && r.aerosol_band == aerosol)
+        })
+        .filter_map(|c| c.points.iter().find(|p| p.quality == spec.quality))
+        .map(|p| p.rel_max)
+        .filter(|e| e.is_finite())
+        .fold(None, |m: Option<f64>, e| Some(m.map_or(e, |m| m.min(e))))?;
+    Some(Budget::new(smallest + accuracy::REFERENCE_ERROR))
+}
+
+/// Cost rule: the precise order series stops at the budget's allowance where that is looser than
+/// the preset's tolerance. The series' own stopping test bounds what the left-out orders add
+/// (the last order's share of the total, or the error of the extrapolated geometric tail), so
+/// the predicted error spent is the tolerance itself.
+fn precise_orders_rule(spec: &CommonSpec) -> Option<(f64, Reason)> {
+    let preset_tolerance = crate::engine::settings_for(spec.quality).1.tolerance;
+    let mut budget = table_budget(spec)?;
+    let tolerance = budget.allowance;
+    (tolerance > preset_tolerance && budget.try_spend(tolerance)).then_some((
+        tolerance,
+        Reason::OrdersUnderBudget {
+            tolerance,
+            preset_tolerance,
+            budget,
+        },
+    ))
+}
+
+// ---------------------------------------------------------------------------------------------
+// Cloud frames (issue 15 point 3): the same rules on the frame's stages. The renderer measures
+// the scene (`render::product::frame_facts`: the cloud's box against the camera's view, the pixel
+// footprint, the cloud's optical depth bound, the light's shares) and these pure rules decide;
+// `render::product` executes the plan (a coarser grid, lighting switches, settings hooks).
+
+/// The fast method's measured error on cloud frames, relative: the worst block NRMSE against
+/// Mitsuba 3 and the path tracer at `standard` quality (sun + sky, 10.2 %; README "Cloud
+/// frames", tests/render_validation.rs). The presets differ in photon counts and steps, not in
+/// the model error that dominates this figure, so it is every preset's budget.
+pub const FRAME_MEASURED_ERROR: f64 = 0.102;
+
+/// Factor on the direction-averaged share of sky or ground light before it is compared with
+/// the budget: on the validation cloud lit by the sun and a dark ground (albedo 0.02, no sky)
+/// leaving the ground light out moved the frame's mean by 1.27× the averaged share (the camera
+/// sees the cloud's lower side, where that light enters), so the rule counts twice the share.
+pub const LIGHT_SHARE_SAFETY: f64 = 2.0;
+
+/// Largest factor by which the planner coarsens a cloud's voxels.
+pub const MAX_COARSENING: usize = 8;
+
+/// A unit of work of a cloud frame.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum FrameStage {
+    /// The fast method's per-voxel light: the sun's optical path to every voxel (seed 000 §3.2).
+    CloudLight,
+    /// Sky light on the cloud: sky elements through the cumulative lattice paths (seed 000 eq
+    /// 7), the sky's photons in the multiple-scattering field.
+    SkyLight,
+    /// Ground light on the cloud: the upward light from below (the `ground` product, or the lit
+    /// ground plane in vacuum), seed 000 §3.5.
+    GroundLight,
+    /// Multiple scattering in the cloud (the all-order photon field or the reference pattern).
+    MultipleScattering,
+    /// The cloud's voxel detail the per-voxel light and the march run at.
+    CloudDetail,
+    /// The reference method: the path tracer (all orders, all light).
+    PathTracer,
+}
+
+impl FrameStage {
+    /// One line on what the stage does.
+    pub fn description(self) -> &'static str {
+        match self {
+            FrameStage::CloudLight => "cloud light: the sun's optical path per voxel",
+            FrameStage::SkyLight => "sky light on the cloud: sky elements through lattice paths",
+            FrameStage::GroundLight => "ground light on the cloud: upward light from below",
+            FrameStage::MultipleScattering => "multiple scattering in the cloud",
+            FrameStage::CloudDetail => "cloud detail: voxels of the per-voxel light and the march",
+            FrameStage::PathTracer => "path tracer: all orders, all light",
+        }
+    }
+}
+
+/// Why a frame stage is left out.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+#[serde(tag = "reason", rename_all = "snake_case")]
+pub enum FrameReason {
+    /// The cloud's grid holds no density.
+    NoCloud,
+    /// The cloud's box lies wholly outside the camera's view: no pixel's ray reaches it (its
+    /// shadows and shafts of light are still computed).
+    CloudOutOfView,
+    /// The scene's `lighting` switch turns it off.
+    SwitchedOff { switch: &'static str },
+    /// There is no such light in the scene (no sky, no ground, albedo 0, a sun below the horizon).
+    NoLight,
+    /// Cost rule: the cloud is so thin that orders ≥ 2 are under the budget. With ω the largest
+    /// single-scattering albedo and τ a bound on the optical path through the cloud (largest
+    /// extinction × largest density × the diagonal of the occupied box), once-scattered light
+    /// scatters again with probability at most q = ω(1 − e^(−τ)), so orders ≥ 2 add at most
+    /// q/(1 − q) of the first order (a geometric series).
+    ThinCloud {
+        max_optical_depth: f64,
+        max_albedo: f64,
+        predicted_share: f64,
+        budget: Budget,
+    },
+    /// Cost rule: the light's predicted share of all the light reaching the cloud (averaged
+    /// over directions, times [`LIGHT_SHARE_SAFETY`]) is under the budget.
+    UnderBudget {
+        predicted_share: f64,
+        budget: Budget,
+    },
+}
+
+impl FrameReason {
+    /// One line for people.
+    pub fn detail(&self) -> String {
+        match self {
+            FrameReason::NoCloud => "the cloud's grid holds no density".into(),
+            FrameReason::CloudOutOfView => {
+                "the cloud's box lies outside the camera's view (its shadows are kept)".into()
+            }
+            FrameReason::SwitchedOff { switch } => format!("lighting.{switch} is false"),
+            FrameReason::NoLight => "no such light reaches the cloud in this scene".into(),
+            FrameReason::ThinCloud {
+                max_optical_depth,
+                max_albedo,
+                predicted_share,
+                budget,
+            } => format!(
+                "optically thin cloud (optical path ≤ {max_optical_depth:.3}, albedo ≤ {max_albedo:.3}): orders ≥ 2 add at most {:.2} % of single scattering, under the budget's {:.2} %",
+                predicted_share * 100.0,
+                budget.allowance * 100.0
+            ),
+            FrameReason::UnderBudget {
+                predicted_share,
+                budget,
+            } => format!(
+                "predicted share {:.2} % of the light reaching the cloud, under the budget's {:.2} %",
+                predicted_share * 100.0,
+                budget.allowance * 100.0
+            ),
+        }
+    }
+}
+
+/// A frame stage run at coarser detail than the scene asks, because the camera cannot resolve it.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct Coarsening {
+    pub stage: FrameStage,
+    pub rule: &'static str,
+    /// The scene's voxel edge, m.
+    pub from_voxel_m: f64,
+    /// The voxel edge the frame runs at (block means of `factor`³ voxels), m.
+    pub to_voxel_m: f64,
+    pub factor: usize,
+    /// The smallest pixel footprint on the cloud (at its nearest distance), m.
+    pub pixel_footprint_m: f64,
+    pub nearest_distance_m: f64,
+}
+
+/// What the frame planner needs to know of a scene (measured by the renderer; plain numbers).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct FrameFacts {
+    /// The reference method (the path tracer): no cost rules, it is the reference.
+    pub reference: bool,
+    /// The grid holds no density.
+    pub cloud_empty: bool,
+    /// Some pixel's ray may reach the cloud's occupied box (a conservative test: `false` only
+    /// when the box is wholly outside one of the view's bounding planes).
+    pub cloud_in_view: bool,
+    /// The scene's switches.
+    pub sky_light_switch: bool,
+    pub ground_light_switch: bool,
+    pub multiple_scattering_switch: bool,
+    /// The scene has sky light / light from below at all.
+    pub has_sky_light: bool,
+    pub has_ground_light: bool,
+    /// Predicted shares of all the light reaching the cloud, averaged over directions (`None`:
+    /// not predicted, the stage runs).
+    pub sky_share: Option<f64>,
+    pub ground_share: Option<f64>,
+    /// Bound on the optical path through the cloud (any wavelength, any line).
+    pub max_optical_depth: f64,
+    /// Largest single-scattering albedo of the cloud.
+    pub max_albedo: f64,
+    pub voxel_size_m: f64,
+    /// The smallest pixel footprint at the cloud's nearest distance, m (0 with the camera in it).
+    pub pixel_footprint_m: f64,
+    pub nearest_distance_m: f64,
+    /// The budget's relative error ([`FRAME_MEASURED_ERROR`]).
+    pub budget: f64,
+}
+
+/// The plan of a cloud frame.
+#[derive(Debug, Clone, PartialEq)]
+pub struct FramePlan {
+    pub stages: Vec<FrameStage>,
+    pub left_out: Vec<(FrameStage, FrameReason)>,
+    pub coarsened: Vec<Coarsening>,
+    pub budget: Budget,
+}
+
+impl FramePlan {
+    pub fn runs(&self, stage: FrameStage) -> bool {
+        self.stages.contains(&stage)
+    }
+
+    /// The voxel coarsening factor (1: the scene's voxels).
+    pub fn coarsening(&self) -> usize {
+        self.coarsened
+            .iter()
+            .find(|c| c.stage == FrameStage::CloudDetail)
+            .map_or(1, |c| c.factor)
+    }
+
+    /// Whether a stage was left out by a cost rule (budget or resolution), not by the scene.
+    fn by_cost_rule(reason: &FrameReason) -> bool {
+        matches!(
+            reason,
+            FrameReason::ThinCloud { .. }
+                | FrameReason::UnderBudget { .. }
+                | FrameReason::CloudOutOfView
+        )
+    }
+
+    /// The plan without its cost rules (every stage the scene has runs at the scene's detail),
+    /// for measuring what the rules save and cost.
+    pub fn without_cost_rules(mut self) -> Self {
+        let (cost, kept): (Vec<_>, Vec<_>) = self
+            .left_out
+            .into_iter()
+            .partition(|(_, r)| Self::by_cost_rule(r));
+        self.left_out = kept;
+        for (stage, _) in cost {
+            if !self.stages.contains(&stage) {
+                self.stages.push(stage);
+            }
+        }
+        self.coarsened.clear();
+        self.budget.spent = 0.0;
+        self
+    }
+
+    /// The plan without the cost rule that left out or coarsened `stage` (the others kept).
+    pub fn without_rule_for(mut self, stage: FrameStage) -> Self {
+        if let Some(pos) = self
+            .left_out
+            .iter()
+            .position(|(s, r)| *s == stage && Self::by_cost_rule(r))
+        {
+            self.left_out.remove(pos);
+            self.stages.push(stage);
+        }
+        self.coarsened.retain(|c| c.stage != stage);
+        self
+    }
+}
+
+#[derive(Serialize)]
+struct FrameStageView {
+    stage: FrameStage,
+    description: &'static str,
+}
+
+#[derive(Serialize)]
+struct FrameLeftOutView {
+    stage: FrameStage,
+    #[serde(flatten)]
+    reason: FrameReason,
+    detail: String,
+}
+
+impl Serialize for FramePlan {
+    /// `{"stages": [{"stage", "description"}], "left_out": [{"stage", "reason", …, "detail"}],
+    /// "coarsened": [{"stage", "rule", "from_voxel_m", "to_voxel_m", …}], "budget": {…}}`.
+    fn serialize<S: Serializer>(&self, s: S) -> Result<S::Ok, S::Error> {
+        let stages: Vec<FrameStageView> = self
+            .stages
+            .iter()
+            .map(|&stage| FrameStageView {
+                stage,
+                description: stage.description(),
+            })
+            .collect();
+        let left_out: Vec<FrameLeftOutView> = self
+            .left_out
+            .iter()
+            .map(|&(stage, reason)| FrameLeftOutView {
+                stage,
+                reason,
+                detail: reason.detail(),
+            })
+            .collect();
+        let mut st = s.serialize_struct("FramePlan", 4)?;
+        st.serialize_field("stages", &stages)?;
+        st.serialize_field("left_out", &left_out)?;
+        st.serialize_field("coarsened", &self.coarsened)?;
+        st.serialize_field("budget", &self.budget)?;
+        st.end()
+    }
+}
+
+/// Plans a cloud frame from its measured facts. Pure.
+///
+/// Structural rules: no cloud stages without a cloud (an empty grid) or with the cloud outside
+/// the view; no sky or ground light on the cloud when the scene switches it off or has none; no
+/// multiple scattering when switched off or at albedo 0. Cost rules (the fast method only; the
+/// path tracer is the reference): multiple scattering left out for an optically thin cloud
+/// ([`FrameReason::ThinCloud`]), ground and sky light left out when their predicted share is
+/// under the budget, each spending its prediction from [`Budget::allowance`]; and the voxels
+/// coarsened by a power of two (at most [`MAX_COARSENING`]) to the largest size not above the
+/// smallest pixel footprint on the cloud (a pixel's single ray cannot resolve finer detail).
+pub fn plan_frame(f: &FrameFacts) -> FramePlan {
+    let mut p = FramePlan {
+        stages: Vec::new(),
+        left_out: Vec::new(),
+        coarsened: Vec::new(),
+        budget: Budget::new(if f.reference { 0.0 } else { f.budget }),
+    };
+    let rule = |p: &mut FramePlan, stage: FrameStage, left_out: Option<FrameReason>| match left_out
+    {
+        None => p.stages.push(stage),
+        Some(reason) => p.left_out.push((stage, reason)),
+    };
+    let no_cloud = if f.cloud_empty {
+        Some(FrameReason::NoCloud)
+    } else if !f.cloud_in_view && !f.reference {
+        Some(FrameReason::CloudOutOfView)
+    } else {
+        None
+    };
+    if f.reference {
+        rule(&mut p, FrameStage::PathTracer, None);
+    } else {
+        rule(&mut p, FrameStage::CloudLight, no_cloud);
+    }
+    let light = |switch_on: bool, name: &'static str, has: bool| {
+        no_cloud
+            .or((!switch_on).then_some(FrameReason::SwitchedOff { switch: name }))
+            .or((!has).then_some(FrameReason::NoLight))
+    };
+    let mut ground = light(f.ground_light_switch, "ground_light", f.has_ground_light);
+    if ground.is_none() && !f.reference {
+        if let Some(share) = f.ground_share.map(|s| s * LIGHT_SHARE_SAFETY) {
+            if p.budget.try_spend(share) {
+                ground = Some(FrameReason::UnderBudget {
+                    predicted_share: share,
+                    budget: p.budget,
+                });
+            }
+        }
+    }
+    let mut sky = light(f.sky_light_switch, "sky_light", f.has_sky_light);
+    if sky.is_none() && !f.reference {
+        if let Some(share) = f.sky_share.map(|s| s * LIGHT_SHARE_SAFETY) {
+            if p.budget.try_spend(share) {
+                sky = Some(FrameReason::UnderBudget {
+                    predicted_share: share,
+                    budget: p.budget,
+                });
+            }
+        }
+    }
+    rule(&mut p, FrameStage::SkyLight, sky);
+    rule(&mut p, FrameStage::GroundLight, ground);
+    let mut ms = no_cloud
+        .or(
+            (!f.multiple_scattering_switch).then_some(FrameReason::SwitchedOff {
+                switch: "multiple_scattering",
+            }),
+        )
+        .or((f.max_albedo <= 0.0).then_some(FrameReason::NoLight));
+    if ms.is_none() && !f.reference {
+        let tau = f.max_optical_depth.max(0.0);
+        let q = f.max_albedo.clamp(0.0, 1.0) * -(-tau).exp_m1();
+        let share = if q < 1.0 {
+            q / (1.0 - q)
+        } else {
+            f64::INFINITY
+        };
+        if p.budget.try_spend(share) {
+            ms = Some(FrameReason::ThinCloud {
+                max_optical_depth: tau,
+                max_albedo: f.max_albedo,
+                predicted_share: share,
+                budget: p.budget,
+            });
+        }
+    }
+    if !f.reference {
+        rule(&mut p, FrameStage::MultipleScattering, ms);
+    }
+    if no_cloud.is_none() && !f.reference {
+        p.stages.push(FrameStage::CloudDetail);
+        let ratio = f.pixel_footprint_m / f.voxel_size_m;
+        let mut factor = 1;
+        while factor * 2 <= MAX_COARSENING && (factor * 2) as f64 <= ratio {
+            factor *= 2;
+        }
+        if factor > 1 {
+            p.coarsened.push(Coarsening {
+                stage: FrameStage::CloudDetail,
+                rule: "pixel_footprint",
+                from_voxel_m: f.voxel_size_m,
+                to_voxel_m: f.voxel_size_m * factor as f64,
+                factor,
+                pixel_footprint_m: f.pixel_footprint_m,
+                nearest_distance_m: f.nearest_distance_m,
+            });
+        }
     }
     p
 }

@@ -2,6 +2,7 @@
 //! does (table builds, ray-march terms counted by the engine), and a stage taken out of a plan
 //! does not run.
 
+use skybake::atmosphere::sky::MsMethod;
 use skybake::engine::{Engine, Product, Table, Term};
 use skybake::plan::{Reason, Stage};
 use skybake::product::params::RequestParams;
@@ -26,6 +27,12 @@ fn request(kind: ProductKind, pairs: &[(&str, &str)]) -> ProductRequest {
 
 /// Runs the request's own plan on a fresh engine; returns the engine (for its counters) and the
 /// product.
+fn engine_run(req: &ProductRequest, plan: &skybake::plan::Plan) -> Product {
+    Engine::new()
+        .execute(&req.spec, &req.product, plan)
+        .unwrap()
+}
+
 fn run(req: &ProductRequest) -> (Engine, Product) {
     let engine = Engine::new();
     let plan = req.plan().unwrap();
@@ -155,4 +162,88 @@ fn a_stage_taken_out_of_the_plan_does_not_run() {
         .execute(&req.spec, &req.product, &full.without(Stage::DensityTable))
         .is_err());
     assert_eq!(engine.table_builds(Table::Density), 0);
+}
+
+#[test]
+fn precise_orders_under_the_error_budget_are_left_out() {
+    // Clear air at 440 nm, standard: the preset's tolerance 1e-3 takes 5 orders, the budget's
+    // (a quarter of the smallest measured error of the products sharing the table, the sun's
+    // 0.28 % + the reference's 0.5 %) 4.
+    let pairs = [
+        ("method", "precise"),
+        ("quality", "standard"),
+        ("wavelengths", "440"),
+        ("sun_elevation_deg", "30"),
+    ];
+    let req = request(ProductKind::Sky, &pairs);
+    let plan = req.plan().unwrap();
+    let Some(&(
+        _,
+        Reason::OrdersUnderBudget {
+            tolerance,
+            preset_tolerance,
+            budget,
+        },
+    )) = plan
+        .left_out
+        .iter()
+        .find(|(s, _)| *s == Stage::HigherOrders)
+    else {
+        panic!("{plan:?}")
+    };
+    assert!(tolerance > preset_tolerance && tolerance <= budget.allowance);
+    assert_eq!(plan.precise_tolerance, Some(tolerance));
+    let (_, with) = run(&req);
+    let engine = Engine::new();
+    let full = plan.clone().without_cost_rules();
+    assert!(full.runs(Stage::HigherOrders) && full.precise_tolerance.is_none());
+    let without = engine.execute(&req.spec, &req.product, &full).unwrap();
+    let orders = |p: &Product| p.meta().error_estimate.scattering_orders.unwrap();
+    let (Product::Sky(a), Product::Sky(b)) = (&with, &without) else {
+        panic!("not sky products")
+    };
+    let worst = a
+        .table
+        .radiance
+        .iter()
+        .zip(&b.table.radiance)
+        .map(|(x, y)| ((x - y).abs() / y.abs().max(1e-30)) as f64)
+        .fold(0.0, f64::max);
+    eprintln!(
+        "orders {} vs {}, worst relative difference {worst:.2e}, tolerance {tolerance:.2e}",
+        orders(&with),
+        orders(&without)
+    );
+    assert!(orders(&with) < orders(&without));
+    // What the left-out orders change in the sky table stays within the sky's allowance (a
+    // quarter of its measured error in this regime), …
+    let (sky_measured, _) =
+        skybake::accuracy::measured_for(ProductKind::Sky, MsMethod::Precise, &req.spec).unwrap();
+    let sky_allowance = skybake::plan::BUDGET_SHARE
+        * (sky_measured.relative_error + skybake::accuracy::REFERENCE_ERROR);
+    assert!(worst <= sky_allowance, "{worst} > {sky_allowance}");
+    // … and in the sun product (the smallest measured error, which sets the table's budget)
+    // within the table's allowance.
+    let sun = request(ProductKind::Sun, &pairs);
+    let sun_with = engine_run(&sun, &sun.plan().unwrap());
+    let sun_without = engine_run(&sun, &sun.plan().unwrap().without_cost_rules());
+    let (Product::Sun(a), Product::Sun(b)) = (&sun_with, &sun_without) else {
+        panic!("not sun products")
+    };
+    let sun_worst = a
+        .diffuse_horizontal_irradiance_w_m2_nm
+        .iter()
+        .zip(&b.diffuse_horizontal_irradiance_w_m2_nm)
+        .map(|(x, y)| (x - y).abs() / y.abs())
+        .fold(0.0, f64::max);
+    eprintln!("sun diffuse: {sun_worst:.2e}");
+    assert!(sun_worst <= budget.allowance, "{sun_worst}");
+
+    // The converged reference is never loosened.
+    let reference = request(
+        ProductKind::Sky,
+        &[("method", "precise"), ("quality", "reference")],
+    );
+    let plan = reference.plan().unwrap();
+    assert!(plan.runs(Stage::HigherOrders) && plan.precise_tolerance.is_none());
 }

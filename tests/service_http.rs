@@ -79,9 +79,14 @@ async fn each_endpoint_answers_in_its_documented_form() {
     assert_eq!(v["cached"], false);
     assert_eq!(v["cache_key"].as_str().unwrap().len(), 64);
     assert_eq!(
-        v["plan"]["left_out"],
-        serde_json::json!([{"stage": "ground_bounce", "reason": "zero_ground_albedo",
-                            "detail": "the ground albedo is 0 at every wavelength"}])
+        v["plan"]["left_out"][0],
+        serde_json::json!({"stage": "ground_bounce", "reason": "zero_ground_albedo",
+                            "detail": "the ground albedo is 0 at every wavelength"})
+    );
+    // Fast at −5° runs the precise tables, whose orders under the error budget are left out.
+    assert_eq!(
+        v["plan"]["left_out"][1]["reason"], "orders_under_budget",
+        "{v}"
     );
     let stages = v["plan"]["stages"].to_string();
     assert!(stages.contains("multiple_scattering"), "{stages}");
@@ -100,6 +105,25 @@ async fn each_endpoint_answers_in_its_documented_form() {
             "{altitude} m: {v}"
         );
     }
+    // A cloud frame's plan: the cloud is measured, nothing is lit or rendered.
+    let scene: serde_json::Value =
+        serde_json::from_str(include_str!("../config/scenes/validation-frame.json")).unwrap();
+    let body = serde_json::json!({"product": "frame", "scene": scene, "method": "fast"});
+    let v = srv.post("/v1/plan", &body.to_string()).await.json();
+    assert_eq!(v["product"], "frame", "{v}");
+    let stages = v["plan"]["stages"].to_string();
+    assert!(
+        stages.contains("cloud_light") && stages.contains("multiple_scattering"),
+        "{v}"
+    );
+    assert!(
+        v["plan"]["budget"]["allowance"].as_f64().unwrap() > 0.0,
+        "{v}"
+    );
+    let bad = srv
+        .post("/v1/plan", r#"{"product": "frame", "scene": {}, "fov": 1}"#)
+        .await;
+    assert!((400..500).contains(&bad.status), "{}", bad.text());
     assert_eq!(
         srv.state.metrics().computations("sky"),
         1,

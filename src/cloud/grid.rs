@@ -124,6 +124,36 @@ impl DensityGrid {
             ) * self.voxel_size_m
     }
 
+    /// The grid at `factor` times the voxel edge: each coarse voxel holds the mean density of
+    /// the `factor`³ fine voxels it covers (fine voxels past the grid's edge count as 0, the
+    /// density outside the box), so every coarse voxel keeps the mass of its block. Same origin;
+    /// the box grows by less than one coarse voxel where `factor` does not divide the dims.
+    pub fn block_mean(&self, factor: usize) -> Result<Self> {
+        let f = factor.max(1);
+        let dims = [
+            self.dims[0].div_ceil(f),
+            self.dims[1].div_ceil(f),
+            self.dims[2].div_ceil(f),
+        ];
+        let mut sum = vec![0f64; checked_voxel_count(dims)?];
+        for z in 0..self.dims[2] {
+            for y in 0..self.dims[1] {
+                let row = self.index(0, y, z);
+                let base = ((z / f) * dims[1] + y / f) * dims[0];
+                for (x, v) in self.data[row..row + self.dims[0]].iter().enumerate() {
+                    sum[base + x / f] += *v as f64;
+                }
+            }
+        }
+        let volume = (f * f * f) as f64;
+        Self::from_data(
+            dims,
+            self.voxel_size_m * f as f64,
+            self.origin_m,
+            sum.iter().map(|s| (s / volume) as f32).collect(),
+        )
+    }
+
     /// Largest density in the grid (0 for an empty grid).
     pub fn max_density(&self) -> f32 {
         self.data.iter().copied().fold(0.0, f32::max)

@@ -196,6 +196,22 @@ pub struct Lighting {
 }
 
 impl Lighting {
+    /// This lighting without the sky light (`sky` false) and/or the ground light (`ground`
+    /// false) on the cloud, for the planner's rules; `None` when both stay.
+    pub fn masked(&self, sky: bool, ground: bool) -> Option<Self> {
+        if sky && ground {
+            return None;
+        }
+        let mut l = self.clone();
+        if !sky {
+            l.sky = Hemisphere::Zero;
+        }
+        if !ground {
+            l.below = Hemisphere::Zero;
+        }
+        Some(l)
+    }
+
     /// Radiance arriving at the cloud from direction `dir` (sky above, ground light below).
     pub fn env(&self, dir: DVec3, out: &mut [f64]) {
         if dir.z >= 0.0 {

@@ -117,6 +117,9 @@ pub struct Prepared<'a> {
     pub stages: Stages,
     /// Stage timings, ms.
     pub timing_ms: Vec<(String, f64)>,
+    /// Work counter: lattice density-integral grids computed for sky and ground light (14 when
+    /// either lights the cloud, else 0).
+    pub lattice_paths: usize,
     sun_on: bool,
     /// σ_t*/σ_t per wavelength (TMS, see `multiple`).
     ms_extinction_scale: Vec<f64>,
@@ -145,7 +148,10 @@ impl<'a> Prepared<'a> {
         let sun_on = lighting.sun_irradiance.iter().any(|&e| e > 0.0);
         let optics = &scene.optics;
         let sw = scene.lighting;
-        let env_on = !(lighting.sky.is_zero() && lighting.below.is_zero());
+        // The planner's hooks: sky or ground light left out on the cloud (not the background).
+        let masked = lighting.masked(settings.sky_light, settings.ground_light);
+        let cloud_lighting = masked.as_ref().unwrap_or(lighting);
+        let env_on = !(cloud_lighting.sky.is_zero() && cloud_lighting.below.is_zero());
         let scattering = settings.method == Method::Fast
             && vol.rho_max > 0.0
             && sw.multiple_scattering
@@ -173,7 +179,8 @@ impl<'a> Prepared<'a> {
         let ms_albedo: Vec<f64> = trunc.iter().map(|t| t.albedo_scaled).collect();
         let mut vox = Vec::new();
         let mut ms = None;
-        if settings.method == Method::Fast && vol.rho_max > 0.0 {
+        let mut lattice_paths = 0;
+        if settings.method == Method::Fast && vol.rho_max > 0.0 && settings.cloud_in_view {
             vox = vec![0f32; grid.data.len() * stride];
             // The sky element round the sun uses the sun's path too.
             if sun_on || env_on {
@@ -200,7 +207,7 @@ impl<'a> Prepared<'a> {
             };
             if env_on {
                 let elements = SkyElements::new(
-                    lighting,
+                    cloud_lighting,
                     &optics.phase,
                     settings.sky_quadrature,
                     settings.sky_table[0],
@@ -210,6 +217,7 @@ impl<'a> Prepared<'a> {
                     .par_iter()
                     .map(|e| lattice_density_integrals(grid, *e))
                     .collect();
+                lattice_paths = paths.len();
                 check(cancel)?;
                 // Scaled extinction on the paths to the sky (TMS: Nakajima & Tanaka 1988).
                 let k: Vec<f64> = optics
@@ -241,8 +249,8 @@ impl<'a> Prepared<'a> {
                         }
                     });
                 let what = match (
-                    sw.sky_light && !lighting.sky.is_zero(),
-                    sw.ground_light && !lighting.below.is_zero(),
+                    sw.sky_light && !cloud_lighting.sky.is_zero(),
+                    sw.ground_light && !cloud_lighting.below.is_zero(),
                 ) {
                     (true, true) => "sky and ground light",
                     (true, false) => "sky light",
@@ -263,7 +271,7 @@ impl<'a> Prepared<'a> {
                 let field = super::pattern::compute(
                     scene,
                     grid,
-                    lighting,
+                    cloud_lighting,
                     &settings.pattern,
                     &mask,
                     cancel,
@@ -276,7 +284,7 @@ impl<'a> Prepared<'a> {
                 stages.ran.push(field.describe());
                 lap("reference_pattern", &mut timing_ms);
             } else if ms_on {
-                let field = MsField::compute(grid, optics, lighting, &settings.photons);
+                let field = MsField::compute(grid, optics, cloud_lighting, &settings.photons);
                 lap("multiple_scattering", &mut timing_ms);
                 let [nx, ny, _] = grid.dims;
                 vox.par_chunks_mut(nx * ny * stride)
@@ -354,6 +362,7 @@ impl<'a> Prepared<'a> {
             ms,
             stages,
             timing_ms,
+            lattice_paths,
             sun_on,
         })
     }
@@ -370,6 +379,10 @@ impl<'a> Prepared<'a> {
     pub fn march(&self, ray: &Ray, ia: &mut [f64], tc: &mut [f64]) -> Option<f64> {
         ia.iter_mut().for_each(|v| *v = 0.0);
         tc.iter_mut().for_each(|v| *v = 1.0);
+        if self.vox.is_empty() {
+            // No per-voxel light: an empty cloud, or one the plan found outside the view.
+            return None;
+        }
         let mut tcs = [1.0f64; 64];
         let (t0, t1) = self.vol.interval(ray.origin_m, ray.dir)?;
         let optics = &self.scene.optics;

@@ -110,6 +110,12 @@ pub struct RenderSettings {
     pub min_orders: usize,
     /// Reference pattern of the scene's `"multiple_scattering_method": "reference_pattern"`.
     pub pattern: PatternSettings,
+    /// The planner's hooks (`plan::plan_frame`, executed by `product::FrameRequest`): the fast
+    /// method's per-voxel light runs only when some pixel sees the cloud, and sky or ground light
+    /// reach the cloud only when the plan keeps them (the background is unchanged).
+    pub cloud_in_view: bool,
+    pub sky_light: bool,
+    pub ground_light: bool,
 }
 
 impl RenderSettings {
@@ -143,6 +149,9 @@ impl RenderSettings {
             max_orders: usize::MAX,
             min_orders: 0,
             pattern: PatternSettings::for_quality(q),
+            cloud_in_view: true,
+            sky_light: true,
+            ground_light: true,
         }
     }
 
@@ -221,6 +230,10 @@ pub struct FrameMeta {
     pub timing_ms: Vec<(String, f64)>,
     pub error_estimate: FrameError,
     pub lighting_notes: Vec<String>,
+    /// The typed plan (`plan::FramePlan` as JSON: stages, left out with their rules and
+    /// reasons, coarsened, budget) when the frame ran through `product::FrameRequest`.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub plan: Option<serde_json::Value>,
 }
 
 /// Spectral radiance of an image or a tile.
@@ -421,6 +434,7 @@ pub fn render_tile(
                 basis: ERROR_BASIS,
             },
             lighting_notes: p.lighting.notes.clone(),
+            plan: None,
         },
     })
 }

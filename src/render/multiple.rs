@@ -77,6 +77,19 @@ pub struct MsField {
 /// Angular moments scored per cell and wavelength.
 const MOMENTS: usize = 10;
 
+/// Photon-pass accumulators: at most this many, fewer when one would be large, never fewer
+/// than two (so two cores stay busy). Fixed, not the thread count, so the field is the same on
+/// every machine.
+const MAX_LANES: usize = 8;
+/// Memory the accumulators of one wavelength group may take together, bytes (two lanes are
+/// kept whatever their size: the scene limits bound it).
+const LANE_BUDGET_BYTES: usize = 256 << 20;
+
+/// Number of accumulator lanes for accumulators of `len` f64 values each.
+fn accumulator_lanes(len: usize) -> usize {
+    (LANE_BUDGET_BYTES / (len * 8).max(1)).clamp(2, MAX_LANES)
+}
+
 /// A coarse, piecewise-constant copy of the density grid.
 struct Coarse {
     dims: [usize; 3],
@@ -188,81 +201,90 @@ impl MsField {
             let total = n_sun + n_env;
             let chunk = 4096;
             let chunks = total.div_ceil(chunk);
-            let partial: Vec<Vec<f64>> = (0..chunks)
+            let lane_len = cells * group.len() * MOMENTS;
+            let lanes = accumulator_lanes(lane_len).min(chunks.max(1));
+            // Each lane traces a fixed, interleaved set of photon chunks into its own
+            // accumulator, and the lanes are summed in order: the result does not depend on
+            // the thread count or on scheduling (a resumed frame is bit-identical), and only
+            // `lanes` accumulators are ever allocated.
+            let partial: Vec<Vec<f64>> = (0..lanes)
                 .into_par_iter()
-                .map(|ci| {
-                    let mut acc = vec![0f64; cells * group.len() * MOMENTS];
-                    let mut rng = Pcg64::seed_from_u64(
-                        s.seed
-                            ^ (ci as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15)
-                            ^ (l0 as u64) << 56,
-                    );
+                .map(|lane| {
+                    let mut acc = vec![0f64; lane_len];
                     let mut env = vec![0.0; n_l];
-                    for i in ci * chunk..((ci + 1) * chunk).min(total) {
-                        let (dir_in, weights): (DVec3, Vec<f64>) = if i < n_sun {
-                            (
-                                -lighting.sun_dir,
-                                sun_w.iter().map(|w| w / n_sun as f64).collect(),
-                            )
-                        } else {
-                            // Uniform over the sphere of incoming directions.
-                            let w = uniform_sphere(rng.random(), rng.random());
-                            lighting.env(w, &mut env);
-                            let f = 4.0 * PI * disc_area / n_env as f64;
-                            (-w, group.iter().map(|&l| env[l] * f).collect())
-                        };
-                        if weights.iter().all(|&w| w <= 0.0) {
-                            continue;
-                        }
-                        // Start on the disc perpendicular to the direction, outside the box.
-                        let (t, b) = orthonormal_basis(dir_in);
-                        let r = radius * rng.random::<f64>().sqrt();
-                        let phi = 2.0 * PI * rng.random::<f64>();
-                        let start =
-                            centre + (t * phi.cos() + b * phi.sin()) * r - dir_in * (2.0 * radius);
-                        let mut ph = Photon {
-                            pos: start,
-                            dir: dir_in,
-                            scattered: false,
-                        };
-                        let mut w = weights;
-                        let mut bounces = 0usize;
-                        loop {
-                            let tau = -(1.0 - rng.random::<f64>()).ln();
-                            match fly(
-                                &coarse,
-                                lo,
-                                hi,
-                                &mut ph,
-                                tau,
-                                k * scale,
-                                cell_volume,
-                                &w,
-                                &mut acc,
-                                group.len(),
-                            ) {
-                                false => break,
-                                true => {
-                                    let a = albedo_scaled;
-                                    for x in w.iter_mut() {
-                                        *x *= a;
+                    let mut w = vec![0.0; group.len()];
+                    for ci in (lane..chunks).step_by(lanes) {
+                        let mut rng = Pcg64::seed_from_u64(
+                            s.seed
+                                ^ (ci as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15)
+                                ^ (l0 as u64) << 56,
+                        );
+                        for i in ci * chunk..((ci + 1) * chunk).min(total) {
+                            let dir_in = if i < n_sun {
+                                for (x, sw) in w.iter_mut().zip(&sun_w) {
+                                    *x = sw / n_sun as f64;
+                                }
+                                -lighting.sun_dir
+                            } else {
+                                // Uniform over the sphere of incoming directions.
+                                let d = uniform_sphere(rng.random(), rng.random());
+                                lighting.env(d, &mut env);
+                                let f = 4.0 * PI * disc_area / n_env as f64;
+                                for (x, &l) in w.iter_mut().zip(group.iter()) {
+                                    *x = env[l] * f;
+                                }
+                                -d
+                            };
+                            if w.iter().all(|&x| x <= 0.0) {
+                                continue;
+                            }
+                            // Start on the disc perpendicular to the direction, outside the box.
+                            let (t, b) = orthonormal_basis(dir_in);
+                            let r = radius * rng.random::<f64>().sqrt();
+                            let phi = 2.0 * PI * rng.random::<f64>();
+                            let start = centre + (t * phi.cos() + b * phi.sin()) * r
+                                - dir_in * (2.0 * radius);
+                            let mut ph = Photon {
+                                pos: start,
+                                dir: dir_in,
+                                scattered: false,
+                            };
+                            let mut bounces = 0usize;
+                            loop {
+                                let tau = -(1.0 - rng.random::<f64>()).ln();
+                                if !fly(
+                                    &coarse,
+                                    lo,
+                                    hi,
+                                    &mut ph,
+                                    tau,
+                                    k * scale,
+                                    cell_volume,
+                                    &w,
+                                    &mut acc,
+                                    group.len(),
+                                ) {
+                                    break;
+                                }
+                                let a = albedo_scaled;
+                                for x in w.iter_mut() {
+                                    *x *= a;
+                                }
+                                ph.dir = {
+                                    let mut more = || rng.random::<f64>();
+                                    let (u1, u2) = (more(), more());
+                                    phase.sample(ph.dir, u1, u2, &mut more).0
+                                };
+                                ph.scattered = true;
+                                bounces += 1;
+                                // Russian roulette on low weights and very long paths (unbiased).
+                                if bounces > 20 || a < 1.0 {
+                                    let keep = if bounces > 20 { 0.95 } else { a.max(0.05) };
+                                    if rng.random::<f64>() >= keep {
+                                        break;
                                     }
-                                    ph.dir = {
-                                        let mut more = || rng.random::<f64>();
-                                        let (u1, u2) = (more(), more());
-                                        phase.sample(ph.dir, u1, u2, &mut more).0
-                                    };
-                                    ph.scattered = true;
-                                    bounces += 1;
-                                    // Russian roulette on low weights and very long paths (unbiased).
-                                    if bounces > 20 || a < 1.0 {
-                                        let keep = if bounces > 20 { 0.95 } else { a.max(0.05) };
-                                        if rng.random::<f64>() >= keep {
-                                            break;
-                                        }
-                                        for x in w.iter_mut() {
-                                            *x /= keep;
-                                        }
+                                    for x in w.iter_mut() {
+                                        *x /= keep;
                                     }
                                 }
                             }

@@ -14,7 +14,9 @@ use super::{
     lighting_for, relative_noise, render_tile, FrameError, FrameMeta, FrameScene, Method, Prepared,
     RenderSettings, Tile, ERROR_BASIS,
 };
+use crate::cloud::DensityGrid;
 use crate::engine::{Engine, Stages};
+use crate::plan::{FrameFacts, FramePlan, FrameReason, FrameStage};
 use crate::store::tiles::ATTR_TILE_OF;
 use crate::store::{decode_exr, encode_exr, SpectralImage, StoreError};
 use crate::{Error, Result};
@@ -179,6 +181,9 @@ struct TileMeta {
     lighting_notes: Vec<String>,
     /// This tile's pixels, ms.
     pixels_ms: f64,
+    /// The frame's typed plan (`plan::FramePlan` as JSON).
+    #[serde(default)]
+    plan: Option<serde_json::Value>,
 }
 
 /// The tiles of a `width` × `height` image in raster order.
@@ -222,6 +227,243 @@ impl Canvas {
             }
         }
     }
+}
+
+/// The planner's view of a scene and its voxelised cloud (issue 15 point 3): whether there is a
+/// cloud and whether any pixel's ray can reach it, the smallest pixel footprint on it, a bound on
+/// its optical path, and the predicted shares of sky and ground light.
+///
+/// - Occupied box: the voxels holding density, one voxel wider on every side (trilinear
+///   interpolation reaches the next centre), within the grid's box.
+/// - In view (conservative: `false` only when no ray can reach the box): pinhole, the box wholly
+///   behind the camera or beyond one of the four side planes of the view frustum; orthographic,
+///   beyond one of the four side planes or behind the image plane; fisheye, the box's bounding
+///   sphere farther from the axis than the image circle's half angle.
+/// - Pixel footprint at the box's nearest point (distance d): pinhole d·Δ·cos²θ_c, Δ the pixel
+///   pitch at unit distance and θ_c the angle of the image corner (where the angular pitch is
+///   smallest); orthographic the pixel pitch; fisheye d times the radians per pixel.
+/// - Optical path bound: the largest extinction × the largest density × the box's diagonal.
+/// - Shares (vacuum scenes, where the light is given): the light reaching a cloud point averaged
+///   over directions, sun E/(4π), a constant sky L_s over the upper hemisphere L_s/2, the lit
+///   Lambertian ground below L_g/2 with L_g = a/π·(E μ_s + π L_s); a share is its part of the sum,
+///   largest over wavelengths. With an atmosphere the shares are not predicted (the stages run).
+pub fn frame_facts(scene: &FrameScene, grid: &DensityGrid, method: Method) -> FrameFacts {
+    use super::scene::{Projection, SkySpec};
+    use glam::DVec3;
+    let [nx, ny, nz] = grid.dims;
+    let (mut lo_i, mut hi_i) = ([usize::MAX; 3], [0usize; 3]);
+    for z in 0..nz {
+        for y in 0..ny {
+            let row = grid.index(0, y, z);
+            for (x, v) in grid.data[row..row + nx].iter().enumerate() {
+                if *v > 0.0 {
+                    for (a, i) in [x, y, z].into_iter().enumerate() {
+                        lo_i[a] = lo_i[a].min(i);
+                        hi_i[a] = hi_i[a].max(i);
+                    }
+                }
+            }
+        }
+    }
+    let empty = lo_i[0] == usize::MAX;
+    let h = grid.voxel_size_m;
+    let (lo, hi) = if empty {
+        (grid.origin_m, grid.max_corner_m())
+    } else {
+        let at = |i: [usize; 3], pad: f64| {
+            grid.origin_m + DVec3::new(i[0] as f64, i[1] as f64, i[2] as f64) * h + pad * h
+        };
+        (
+            at(lo_i, -1.0).max(grid.origin_m),
+            at(hi_i, 2.0).min(grid.max_corner_m()),
+        )
+    };
+    let cam = &scene.camera;
+    let corners: Vec<DVec3> = (0..8)
+        .map(|c| {
+            DVec3::new(
+                if c & 1 == 0 { lo.x } else { hi.x },
+                if c & 2 == 0 { lo.y } else { hi.y },
+                if c & 4 == 0 { lo.z } else { hi.z },
+            ) - cam.position_m
+        })
+        .collect();
+    let local: Vec<(f64, f64, f64)> = corners
+        .iter()
+        .map(|v| (v.dot(cam.right), v.dot(cam.up), v.dot(cam.forward)))
+        .collect();
+    let all = |f: &dyn Fn(&(f64, f64, f64)) -> bool| local.iter().all(f);
+    let nearest = (cam.position_m.clamp(lo, hi) - cam.position_m).length();
+    let (in_view, footprint) = match cam.projection {
+        Projection::Pinhole { half_w, half_h } => {
+            let out = all(&|c| c.2 <= 0.0)
+                || all(&|c| c.0 > half_w * c.2)
+                || all(&|c| c.0 < -half_w * c.2)
+                || all(&|c| c.1 > half_h * c.2)
+                || all(&|c| c.1 < -half_h * c.2);
+            let pitch = (2.0 * half_w / cam.width as f64).min(2.0 * half_h / cam.height as f64);
+            let cos2 = 1.0 / (1.0 + half_w * half_w + half_h * half_h);
+            (!out, nearest * pitch * cos2)
+        }
+        Projection::Orthographic { half_w, half_h } => {
+            let out = all(&|c| c.2 <= 0.0)
+                || all(&|c| c.0 > half_w)
+                || all(&|c| c.0 < -half_w)
+                || all(&|c| c.1 > half_h)
+                || all(&|c| c.1 < -half_h);
+            let pitch = (2.0 * half_w / cam.width as f64).min(2.0 * half_h / cam.height as f64);
+            (!out, pitch)
+        }
+        Projection::Fisheye { rad_per_px } => {
+            let centre = 0.5 * (lo + hi) - cam.position_m;
+            let radius = 0.5 * (hi - lo).length();
+            let dist = centre.length();
+            let half_diagonal =
+                0.5 * ((cam.width * cam.width + cam.height * cam.height) as f64).sqrt();
+            let theta_max = (rad_per_px * half_diagonal).min(std::f64::consts::PI);
+            let in_view = dist <= radius || {
+                let axis = (centre.dot(cam.forward) / dist).clamp(-1.0, 1.0).acos();
+                axis - (radius / dist).clamp(-1.0, 1.0).asin() <= theta_max
+            };
+            (in_view, nearest * rad_per_px)
+        }
+    };
+    let optics = &scene.optics;
+    let k_max = optics
+        .extinction_per_density_m
+        .iter()
+        .copied()
+        .fold(0.0, f64::max);
+    let max_albedo = optics.albedo.iter().copied().fold(0.0, f64::max);
+    let n_l = scene.wavelengths.len();
+    let sky_l = match &scene.sky {
+        SkySpec::Constant(v) => v.clone(),
+        _ => vec![0.0; n_l],
+    };
+    let has_sky_light = match &scene.sky {
+        SkySpec::Atmosphere => scene.atmosphere.is_some(),
+        SkySpec::Constant(v) => v.iter().any(|&x| x > 0.0),
+        SkySpec::None => false,
+    };
+    let has_ground_light = if scene.atmosphere.is_some() {
+        // The `ground` product (ground and the air below) lights the cloud from below.
+        !matches!(scene.sky, SkySpec::None)
+    } else {
+        scene
+            .ground
+            .as_ref()
+            .is_some_and(|g| g.albedo.iter().any(|&a| a > 0.0))
+    };
+    let (mut sky_share, mut ground_share) = (None, None);
+    if scene.atmosphere.is_none() {
+        let sun = scene
+            .sun
+            .collimated_irradiance
+            .clone()
+            .unwrap_or_else(|| vec![1.0; n_l]);
+        let mu_s = scene.sun.direction().z.max(0.0);
+        let sw = scene.lighting;
+        let (mut s_max, mut g_max) = (0.0f64, 0.0f64);
+        for l in 0..n_l {
+            let sky = if sw.sky_light { sky_l[l] } else { 0.0 };
+            let l_g = match (&scene.ground, sw.ground_light) {
+                (Some(g), true) => {
+                    g.albedo[l] / std::f64::consts::PI
+                        * (sun[l] * mu_s + std::f64::consts::PI * sky_l[l])
+                }
+                _ => 0.0,
+            };
+            let total = sun[l] / (4.0 * std::f64::consts::PI) + 0.5 * sky + 0.5 * l_g;
+            if total > 0.0 {
+                s_max = s_max.max(0.5 * sky / total);
+                g_max = g_max.max(0.5 * l_g / total);
+            }
+        }
+        sky_share = Some(s_max);
+        ground_share = Some(g_max);
+    }
+    FrameFacts {
+        reference: method == Method::Reference,
+        cloud_empty: empty,
+        cloud_in_view: in_view,
+        sky_light_switch: scene.lighting.sky_light,
+        ground_light_switch: scene.lighting.ground_light,
+        multiple_scattering_switch: scene.lighting.multiple_scattering,
+        has_sky_light,
+        has_ground_light,
+        sky_share,
+        ground_share,
+        max_optical_depth: k_max * grid.max_density() as f64 * (hi - lo).length(),
+        max_albedo,
+        voxel_size_m: h,
+        pixel_footprint_m: footprint,
+        nearest_distance_m: nearest,
+        budget: crate::plan::FRAME_MEASURED_ERROR,
+    }
+}
+
+/// The frame plan of a scene and its voxelised cloud (`plan::plan_frame` on [`frame_facts`]).
+pub fn plan_frame(scene: &FrameScene, grid: &DensityGrid, method: Method) -> FramePlan {
+    crate::plan::plan_frame(&frame_facts(scene, grid, method))
+}
+
+/// What a frame runs with under its plan.
+pub struct PlannedRun {
+    /// The scene with the lighting switches the plan turns off (its JSON and cache key are the
+    /// request's: the plan is a function of the request).
+    pub scene: FrameScene,
+    /// The coarsened grid, when the plan coarsens the cloud's detail.
+    pub grid: Option<DensityGrid>,
+    pub settings: RenderSettings,
+}
+
+/// Executes `plan`: multiple scattering of a thin cloud off, sky or ground light left out on the
+/// cloud (settings hooks, the background unchanged), no per-voxel light for a cloud out of view,
+/// no lighting products for the cloud when no cloud stage runs, and the grid's block means at
+/// the coarsened voxel size.
+pub fn execute_plan(
+    plan: &FramePlan,
+    scene: &FrameScene,
+    grid: &DensityGrid,
+    method: Method,
+) -> Result<PlannedRun> {
+    use super::scene::SkySpec;
+    let mut scene = scene.clone();
+    let mut settings = RenderSettings::for_quality(scene.quality, method);
+    let reason = |stage: FrameStage| {
+        plan.left_out
+            .iter()
+            .find(|(s, _)| *s == stage)
+            .map(|(_, r)| *r)
+    };
+    if let Some(FrameReason::ThinCloud { .. }) = reason(FrameStage::MultipleScattering) {
+        scene.lighting.multiple_scattering = false;
+    }
+    let under_budget = |stage| matches!(reason(stage), Some(FrameReason::UnderBudget { .. }));
+    settings.sky_light = !under_budget(FrameStage::SkyLight);
+    settings.ground_light = !under_budget(FrameStage::GroundLight);
+    if let Some(r @ (FrameReason::CloudOutOfView | FrameReason::NoCloud)) =
+        reason(FrameStage::CloudLight)
+    {
+        settings.cloud_in_view = r != FrameReason::CloudOutOfView;
+        // Nothing lights a cloud nobody sees: the `sky` product at the cloud and the `ground`
+        // product are not computed (the camera's background comes from its own `sky` product).
+        if matches!(scene.sky, SkySpec::Atmosphere) && scene.atmosphere.is_some() {
+            scene.lighting.sky_light = false;
+            scene.lighting.ground_light = false;
+        }
+    }
+    let factor = plan.coarsening();
+    let grid = if factor > 1 {
+        Some(grid.block_mean(factor)?)
+    } else {
+        None
+    };
+    Ok(PlannedRun {
+        scene,
+        grid,
+        settings,
+    })
 }
 
 /// Interleaves per-wavelength planes into `[pixel][λ]`.
@@ -294,6 +536,14 @@ impl FrameRequest {
     /// The cache key: blake3 of the canonical request and the engine version.
     pub fn cache_key(&self) -> String {
         crate::store::cache_key(&self.canonical_json(), crate::engine::ENGINE_VERSION)
+    }
+
+    /// The frame's plan (voxelises the cloud to measure it; lights and renders nothing): what
+    /// `skybake plan frame` and `POST /v1/plan` with `"product": "frame"` answer.
+    pub fn plan(&self, loader: &dyn Fn(&str) -> Result<Vec<u8>>) -> Result<FramePlan> {
+        let grid = self.scene.cloud.voxelize(loader)?;
+        super::check_grid(&grid)?;
+        Ok(plan_frame(&self.scene, &grid, self.method))
     }
 
     /// Voxels of the frame's grid when they are known before voxelising
@@ -410,12 +660,18 @@ impl FrameRequest {
             let voxelize_ms = start.elapsed().as_secs_f64() * 1e3;
             super::check_grid(&grid)?;
             let start = Instant::now();
-            let lighting = lighting_for(&self.scene, &grid, engine)?;
+            let plan = plan_frame(&self.scene, &grid, self.method);
+            let run = execute_plan(&plan, &self.scene, &grid, self.method)?;
+            let grid = run.grid.unwrap_or(grid);
+            let scene = &run.scene;
+            let plan_ms = start.elapsed().as_secs_f64() * 1e3;
+            let start = Instant::now();
+            let lighting = lighting_for(scene, &grid, engine)?;
             let lighting_ms = start.elapsed().as_secs_f64() * 1e3;
-            let settings = RenderSettings::for_quality(self.scene.quality, self.method);
-            let prepared = Prepared::new(&self.scene, &grid, &lighting, settings, cancel)?;
+            let prepared = Prepared::new(scene, &grid, &lighting, run.settings, cancel)?;
             let mut preparation_ms = vec![
                 ("voxelize".to_string(), voxelize_ms),
+                ("plan".to_string(), plan_ms),
                 ("lighting".to_string(), lighting_ms),
             ];
             preparation_ms.extend(prepared.timing_ms.iter().cloned());
@@ -431,6 +687,7 @@ impl FrameRequest {
                 preparation_ms,
                 lighting_notes: lighting.notes.clone(),
                 pixels_ms: 0.0,
+                plan: serde_json::to_value(&plan).ok(),
             };
             for i in missing {
                 if cancel() {
@@ -509,6 +766,7 @@ impl FrameRequest {
                     basis: ERROR_BASIS,
                 },
                 lighting_notes: meta.lighting_notes,
+                plan: meta.plan,
             },
         };
         let mut image = crate::export::frame_image(&frame, &self.canonical_json())?;
@@ -601,6 +859,7 @@ pub fn frame_summary(image: &SpectralImage) -> serde_json::Value {
         "cache_key": image.attribute(crate::store::layout::ATTR_CACHE_KEY),
         "method": meta["method"],
         "stages": meta["stages"],
+        "plan": meta["plan"],
         "timing_ms": total_ms,
         "timing_ms_by_stage": stages,
         "error_estimate": meta["error_estimate"],

@@ -18,9 +18,11 @@
 //! with the tables built (what a flight simulator's repeated requests pay).
 //!
 //! Output (`write`): `report.json` (the data, also compiled into the binary for quality-by-target,
-//! see [`data`]), `README.md` (tables) and one log–log PNG of error against time per product
-//! ([`plot`]).
+//! see [`crate::accuracy`]), `README.md` (tables) and one log–log PNG of error against time per
+//! product ([`plot`]); the cloud frames' part ([`frames`]) in `frames.json` and one PNG per frame.
 
+pub mod frames;
+pub mod planner;
 pub mod plot;
 
 use crate::accuracy::{band_of_altitude, band_of_sun};
@@ -335,30 +337,53 @@ fn process_cpu_ms() -> Option<f64> {
     Some((ticks(11)? + ticks(12)?) * 10.0)
 }
 
-/// Writes `report.json`, `README.md` and one PNG per product into `dir`.
-pub fn write(report: &Report, dir: &Path) -> Result<Vec<std::path::PathBuf>> {
+/// Writes into `dir` what there is of the atmosphere part (`report.json`, one PNG per product) and
+/// of the frame part (`frames.json`, `frames-<case>.png`), and `README.md` with both.
+pub fn write(
+    report: Option<&Report>,
+    frames: Option<&frames::FrameReport>,
+    dir: &Path,
+) -> Result<Vec<std::path::PathBuf>> {
     let io = |e: std::io::Error| Error::invalid("out", format!("{}: {e}", dir.display()));
     std::fs::create_dir_all(dir).map_err(io)?;
     let mut written = Vec::new();
-    let json = serde_json::to_string_pretty(report)
-        .map_err(|e| Error::internal("report", format!("JSON encoding: {e}")))?;
-    let path = dir.join("report.json");
-    std::fs::write(&path, json + "\n").map_err(io)?;
-    written.push(path);
-    let mut plots = Vec::new();
-    let products = products_of(report);
-    for kind in products {
-        let png = plot::error_time_png(report, kind)?;
-        let name = format!("{}.png", kind.name());
-        let path = dir.join(&name);
-        std::fs::write(&path, png).map_err(io)?;
+    let mut put = |name: &str, bytes: &[u8]| -> Result<()> {
+        let path = dir.join(name);
+        std::fs::write(&path, bytes).map_err(io)?;
         written.push(path);
-        plots.push((kind, name));
+        Ok(())
+    };
+    let mut readme = String::new();
+    if let Some(report) = report {
+        put("report.json", (pretty(report)? + "\n").as_bytes())?;
+        let mut plots = Vec::new();
+        for kind in products_of(report) {
+            let name = format!("{}.png", kind.name());
+            put(&name, &plot::error_time_png(report, kind)?)?;
+            plots.push((kind, name));
+        }
+        readme.push_str(&markdown(report, &plots));
+    } else {
+        readme.push_str("# Error against run time\n\n");
     }
-    let path = dir.join("README.md");
-    std::fs::write(&path, markdown(report, &plots)).map_err(io)?;
-    written.push(path);
+    if let Some(frames) = frames {
+        put("frames.json", (pretty(frames)? + "\n").as_bytes())?;
+        let mut plots = Vec::new();
+        for case in &frames.cases {
+            let name = format!("frames-{}.png", case.name);
+            put(&name, &frames::png(frames, &case.name)?)?;
+            plots.push((case.name.clone(), name));
+        }
+        readme.push_str(&frames::markdown(frames, &plots));
+    }
+    put("README.md", readme.as_bytes())?;
     Ok(written)
+}
+
+/// Pretty JSON of either part of a report.
+fn pretty<T: serde::Serialize>(v: &T) -> Result<String> {
+    serde_json::to_string_pretty(v)
+        .map_err(|e| Error::internal("report", format!("JSON encoding: {e}")))
 }
 
 /// The products a report has curves for, in route order.

@@ -166,3 +166,90 @@ pub fn error_time_png(report: &Report, product: ProductKind) -> Result<Vec<u8>> 
         .map_err(|e| Error::internal("report", format!("PNG encoding: {e}")))?;
     Ok(png)
 }
+
+/// One curve of a generic error-against-time plot: its legend, colour and points
+/// (time s, error, marker text).
+pub struct Series {
+    pub label: String,
+    pub colour: RGBColor,
+    pub points: Vec<(f64, f64, String)>,
+}
+
+/// A log–log plot of `series` (points with a non-positive or non-finite coordinate are left out).
+pub fn log_log_png(title: &str, x_desc: &str, y_desc: &str, series: &[Series]) -> Result<Vec<u8>> {
+    register_font()?;
+    let ok = |p: &&(f64, f64, String)| p.0 > 0.0 && p.1 > 0.0 && p.0.is_finite() && p.1.is_finite();
+    let all: Vec<&(f64, f64, String)> = series
+        .iter()
+        .flat_map(|s| s.points.iter())
+        .filter(ok)
+        .collect();
+    let (mut t0, mut t1, mut e0, mut e1) = all.iter().fold(
+        (f64::MAX, f64::MIN_POSITIVE, f64::MAX, f64::MIN_POSITIVE),
+        |(a, b, c, d), &&(t, e, _)| (a.min(t), b.max(t), c.min(e), d.max(e)),
+    );
+    if all.is_empty() {
+        (t0, t1, e0, e1) = (0.1, 10.0, 1e-4, 1e-1);
+    }
+    let (t0, t1, e0, e1) = (t0 / 1.5, t1 * 1.5, e0 / 1.5, e1 * 1.5);
+    let mut buf = vec![255u8; (SIZE.0 * SIZE.1 * 3) as usize];
+    {
+        let root = BitMapBackend::with_buffer(&mut buf, SIZE).into_drawing_area();
+        root.fill(&WHITE).map_err(plot_err)?;
+        let mut chart = ChartBuilder::on(&root)
+            .caption(title, (FAMILY, 22))
+            .margin(12)
+            .x_label_area_size(44)
+            .y_label_area_size(70)
+            .build_cartesian_2d((t0..t1).log_scale(), (e0..e1).log_scale())
+            .map_err(plot_err)?;
+        chart
+            .configure_mesh()
+            .x_desc(x_desc)
+            .y_desc(y_desc)
+            .label_style((FAMILY, 14))
+            .axis_desc_style((FAMILY, 15))
+            .x_labels(8)
+            .y_labels(8)
+            .light_line_style(WHITE)
+            .y_label_formatter(&|v| format!("{:.2}%", v * 100.0))
+            .x_label_formatter(&|v| format!("{v:.3}"))
+            .draw()
+            .map_err(plot_err)?;
+        for s in series {
+            let colour = s.colour;
+            let pts: Vec<&(f64, f64, String)> = s.points.iter().filter(ok).collect();
+            chart
+                .draw_series(LineSeries::new(
+                    pts.iter().map(|&&(t, e, _)| (t, e)),
+                    colour.stroke_width(2),
+                ))
+                .map_err(plot_err)?
+                .label(s.label.clone())
+                .legend(move |(x, y)| {
+                    PathElement::new(vec![(x, y), (x + 18, y)], colour.stroke_width(2))
+                });
+            chart
+                .draw_series(pts.iter().map(|&&(t, e, ref text)| {
+                    EmptyElement::at((t, e))
+                        + Circle::new((0, 0), 4, colour.filled())
+                        + Text::new(text.clone(), (6, -14), (FAMILY, 13))
+                }))
+                .map_err(plot_err)?;
+        }
+        chart
+            .configure_series_labels()
+            .background_style(WHITE.mix(0.85))
+            .border_style(BLACK)
+            .label_font((FAMILY, 12))
+            .position(SeriesLabelPosition::UpperRight)
+            .draw()
+            .map_err(plot_err)?;
+        root.present().map_err(plot_err)?;
+    }
+    let mut png = Vec::new();
+    image::codecs::png::PngEncoder::new(&mut png)
+        .write_image(&buf, SIZE.0, SIZE.1, image::ExtendedColorType::Rgb8)
+        .map_err(|e| Error::internal("report", format!("PNG encoding: {e}")))?;
+    Ok(png)
+}

@@ -14,6 +14,9 @@ pub async fn plan(
     Query(NoParams): Query<NoParams>,
     body: JsonObject,
 ) -> Result<Response, ApiError> {
+    if body.object.get("product").and_then(Value::as_str) == Some("frame") {
+        return frame_plan(body).await;
+    }
     let req = ProductRequest::from_object(&body.object, &[], "", state.jobs().defaults())?;
     let key = req.cache_key();
     let cached = state.cache().contains(&key);
@@ -30,4 +33,46 @@ pub async fn plan(
         "request": canonical,
     }))
     .into_response())
+}
+
+/// `{"product": "frame", "scene": {…}, "method": "fast"|"reference"}`: the frame's plan (the
+/// cloud is voxelised to measure it, on a blocking thread; nothing is lit or rendered).
+async fn frame_plan(body: JsonObject) -> Result<Response, ApiError> {
+    use crate::render::product::example_file;
+    use crate::render::{FrameRequest, Method};
+    let obj = body.object;
+    if let Some(k) = obj
+        .keys()
+        .find(|k| !matches!(k.as_str(), "product" | "scene" | "method"))
+    {
+        return Err(crate::Error::invalid(
+            k,
+            "not a member of a frame plan request (product, scene, method)",
+        )
+        .into());
+    }
+    let method = match obj.get("method") {
+        None => Method::Fast,
+        Some(Value::String(m)) => Method::parse(m)?,
+        Some(_) => {
+            return Err(crate::Error::invalid("method", "a string: fast or reference").into())
+        }
+    };
+    let scene = obj
+        .get("scene")
+        .cloned()
+        .ok_or_else(|| crate::Error::invalid("scene", "a frame plan needs the scene"))?;
+    AppState::blocking(move || {
+        let req = FrameRequest::from_value(&scene, method)?;
+        let plan = req.plan(&example_file)?;
+        Ok(axum::Json(json!({
+            "product": "frame",
+            "cache_key": req.cache_key(),
+            "engine_version": crate::engine::ENGINE_VERSION,
+            "method": method,
+            "plan": plan,
+        }))
+        .into_response())
+    })
+    .await
 }

@@ -1,0 +1,344 @@
+//! `skybake report --planner` (issue 15 point 3): what each of the planner's cost rules saves
+//! and costs. For one case per rule, the request runs with its plan and with the same plan
+//! without the cost rules (`Plan::without_cost_rules`, `FramePlan::without_cost_rules`); both are
+//! timed and compared with the reference: the precise method at the `reference` preset for the
+//! sky product, the path tracer for frames. Writes `planner.md`.
+//!
+//! Error measures: sky, `rel_max` and `rel_rms` of the report (`report::errors`); frames, the
+//! normalised RMS over pixels and wavelengths √(mean (x − r)²) / mean r and the bias of the mean
+//! (mean x − mean r) / mean r, against a path-traced frame whose own noise is in the table.
+
+use crate::cloud::DensityGrid;
+use crate::engine::{Engine, Product};
+use crate::plan::{FramePlan, FrameReason};
+use crate::product::params::RequestParams;
+use crate::product::{ProductKind, ProductRequest};
+use crate::render::product::{execute_plan, plan_frame};
+use crate::render::{lighting_for, render_tile, FrameScene, Method, Prepared};
+use crate::{Error, Result};
+use serde_json::{json, Value};
+use std::time::Instant;
+
+/// One rule's measurement.
+#[derive(Debug, Clone)]
+pub struct RuleSaving {
+    pub rule: String,
+    pub case: String,
+    /// What the plan left out or coarsened, as the plan says it.
+    pub plan: String,
+    pub ms_with: f64,
+    pub ms_without: f64,
+    /// What the rule changes: (normalised RMS or largest relative deviation, bias) of the
+    /// result with the rule against the result without it.
+    pub change: (f64, f64),
+    /// Error against the reference with and without the rule.
+    pub error_with: f64,
+    pub error_without: f64,
+    /// What the error against the reference is.
+    pub measures: &'static str,
+    pub note: String,
+}
+
+/// Path-tracer samples per pixel of the frames' references.
+const REFERENCE_SPP: usize = 64;
+/// Timed runs per configuration (the fastest counts: the machine is shared).
+const RUNS: usize = 2;
+
+fn fastest<T>(mut f: impl FnMut() -> Result<T>) -> Result<(T, f64)> {
+    let mut best = f64::INFINITY;
+    let mut out = None;
+    for _ in 0..RUNS {
+        let t = Instant::now();
+        let v = f()?;
+        best = best.min(t.elapsed().as_secs_f64() * 1e3);
+        out = Some(v);
+    }
+    out.map(|v| (v, best))
+        .ok_or_else(|| Error::internal("planner report", "no run"))
+}
+
+/// The sky rule: precise orders under the error budget (clear air, standard, 3 wavelengths).
+fn sky_orders() -> Result<RuleSaving> {
+    let pairs = [
+        ("method", "precise"),
+        ("quality", "standard"),
+        ("wavelengths", "440"),
+        ("sun_elevation_deg", "30"),
+        ("elevation_count", "33"),
+        ("azimuth_count", "16"),
+    ];
+    let request = |quality: &str| -> Result<ProductRequest> {
+        let mut p = RequestParams::from_pairs(pairs.iter().copied())
+            .map_err(|e| Error::invalid("planner report", format!("{e:?}")))?;
+        p.quality = Some(quality.into());
+        ProductRequest::from_params(ProductKind::Sky, &p)
+    };
+    let req = request("standard")?;
+    let plan = req.plan()?;
+    let full = plan.clone().without_cost_rules();
+    // Cold: a new engine (tables built) each run.
+    let (with, ms_with) = fastest(|| Engine::new().execute(&req.spec, &req.product, &plan))?;
+    let (without, ms_without) = fastest(|| Engine::new().execute(&req.spec, &req.product, &full))?;
+    let reference_req = request("reference")?;
+    let reference = Engine::new().compute(&reference_req.spec, &reference_req.product)?;
+    let table = |p: &Product| -> Vec<f64> {
+        match p {
+            Product::Sky(d) => d.table.radiance.iter().map(|&v| v as f64).collect(),
+            _ => Vec::new(),
+        }
+    };
+    let r = table(&reference);
+    let err = |p: &Product| super::errors(&table(p), &r).1;
+    let (change_rms, change_max) = super::errors(&table(&with), &table(&without));
+    let orders = |p: &Product| p.meta().error_estimate.scattering_orders.unwrap_or(0);
+    let left = plan
+        .left_out
+        .iter()
+        .find(|(s, _)| *s == crate::plan::Stage::HigherOrders)
+        .map(|(_, r)| r.detail())
+        .unwrap_or_else(|| "(rule did not fire)".into());
+    Ok(RuleSaving {
+        rule: "sky: precise orders under the error budget".into(),
+        case: "sky 33×16, earth, 440 nm, sun 30°, standard, cold tables".into(),
+        plan: left,
+        ms_with,
+        ms_without,
+        change: (change_max, change_rms),
+        error_with: err(&with),
+        error_without: err(&without),
+        measures: "rel_max against the precise method at the reference preset",
+        note: format!(
+            "orders {} with, {} without",
+            orders(&with),
+            orders(&without)
+        ),
+    })
+}
+
+/// The validation cloud (vacuum, collimated sun 1, constant sky 0.1) at 50 m voxels, 48×36 px,
+/// standard quality, edited.
+fn frame_scene(edit: impl FnOnce(&mut Value)) -> Result<FrameScene> {
+    let mut v: Value =
+        serde_json::from_str(include_str!("../../config/scenes/validation-frame.json"))
+            .map_err(|e| Error::internal("planner report", e))?;
+    v["cloud"]["voxel_size_m"] = json!(50.0);
+    v["camera"]["width"] = json!(48);
+    v["camera"]["height"] = json!(36);
+    v["quality"] = json!("standard");
+    edit(&mut v);
+    FrameScene::parse(&serde_json::to_vec(&v).map_err(|e| Error::internal("planner report", e))?)
+}
+
+fn render(
+    scene: &FrameScene,
+    grid: &DensityGrid,
+    plan: &FramePlan,
+    method: Method,
+) -> Result<Vec<f32>> {
+    let run = execute_plan(plan, scene, grid, method)?;
+    let grid = run.grid.as_ref().unwrap_or(grid);
+    let lighting = lighting_for(&run.scene, grid, &Engine::new())?;
+    let mut settings = run.settings;
+    settings.spp = REFERENCE_SPP;
+    let p = Prepared::new(&run.scene, grid, &lighting, settings, &|| false)?;
+    Ok(render_tile(&p, None, &|_| {}, &|| false)?.radiance)
+}
+
+/// Normalised RMS and bias of `x` against `r`, relative to the cloud's signal: the mean of
+/// |r − b| with `b` the frame without the cloud (module docs), so a faint cloud over a bright
+/// background is not hidden by the background. (0, 0) for identical frames.
+fn frame_errors(x: &[f32], r: &[f32], b: &[f32]) -> (f64, f64) {
+    if x == r {
+        return (0.0, 0.0);
+    }
+    let n = r.len().max(1) as f64;
+    let signal = r
+        .iter()
+        .zip(b)
+        .map(|(r, b)| (*r as f64 - *b as f64).abs())
+        .sum::<f64>()
+        / n;
+    let diff = x
+        .iter()
+        .zip(r)
+        .map(|(a, b)| *a as f64 - *b as f64)
+        .sum::<f64>()
+        / n;
+    let mse = x
+        .iter()
+        .zip(r)
+        .map(|(a, b)| (*a as f64 - *b as f64).powi(2))
+        .sum::<f64>()
+        / n;
+    (mse.sqrt() / signal, diff / signal)
+}
+
+fn frame_rule(rule: &str, case: &str, scene: FrameScene, reference: bool) -> Result<RuleSaving> {
+    let grid = scene
+        .cloud
+        .voxelize(&|_| Err(Error::invalid("path", "no files")))?;
+    let plan = plan_frame(&scene, &grid, Method::Fast);
+    let full = plan.clone().without_cost_rules();
+    let (with, ms_with) = fastest(|| render(&scene, &grid, &plan, Method::Fast))?;
+    let (without, ms_without) = fastest(|| render(&scene, &grid, &full, Method::Fast))?;
+    let empty = DensityGrid::zeros(grid.dims, grid.voxel_size_m, grid.origin_m)?;
+    let background = render(
+        &scene,
+        &empty,
+        &plan_frame(&scene, &empty, Method::Fast),
+        Method::Fast,
+    )?;
+    let change = frame_errors(&with, &without, &background);
+    let (error_with, error_without, note) = if reference {
+        let pt_plan = plan_frame(&scene, &grid, Method::Reference);
+        let r = render(&scene, &grid, &pt_plan, Method::Reference)?;
+        (
+            frame_errors(&with, &r, &background).1,
+            frame_errors(&without, &r, &background).1,
+            format!("path tracer {REFERENCE_SPP} spp"),
+        )
+    } else {
+        (
+            f64::NAN,
+            f64::NAN,
+            format!(
+                "identical frames: {}; no path tracer needed",
+                with == without
+            ),
+        )
+    };
+    let mut what: Vec<String> = plan
+        .left_out
+        .iter()
+        .filter(|(_, r)| {
+            matches!(
+                r,
+                FrameReason::ThinCloud { .. }
+                    | FrameReason::UnderBudget { .. }
+                    | FrameReason::CloudOutOfView
+            )
+        })
+        .map(|(s, r)| format!("{s:?}: {}", r.detail()))
+        .collect();
+    what.extend(plan.coarsened.iter().map(|c| {
+        format!(
+            "{:?}: voxels {} m → {} m (pixel footprint {:.0} m at {:.0} m)",
+            c.stage, c.from_voxel_m, c.to_voxel_m, c.pixel_footprint_m, c.nearest_distance_m
+        )
+    }));
+    Ok(RuleSaving {
+        rule: rule.into(),
+        case: case.into(),
+        plan: if what.is_empty() {
+            "(rule did not fire)".into()
+        } else {
+            what.join("; ")
+        },
+        ms_with,
+        ms_without,
+        change,
+        error_with,
+        error_without,
+        measures: "bias of the cloud's mean signal against the path tracer",
+        note,
+    })
+}
+
+/// Measures every rule (see the module docs). `progress(done, total)` after each.
+pub fn run(progress: &dyn Fn(usize, usize)) -> Result<Vec<RuleSaving>> {
+    let total = 5;
+    let mut out = Vec::new();
+    out.push(sky_orders()?);
+    progress(1, total);
+    out.push(frame_rule(
+        "frame: cloud outside the view",
+        "validation cloud, camera turned away, 48×36",
+        frame_scene(|v| v["camera"]["look_at_m"] = json!([0, -9000, 1200]))?,
+        false,
+    )?);
+    progress(2, total);
+    out.push(frame_rule(
+        "frame: thin cloud, no multiple scattering",
+        "validation cloud at extinction 5e-6 /m (optical path ≤ 0.013), 48×36",
+        frame_scene(|v| v["optics"]["extinction_per_density_m"] = json!(5e-6))?,
+        true,
+    )?);
+    progress(3, total);
+    out.push(frame_rule(
+        "frame: ground light under budget (no sky: lattice paths left out)",
+        "validation cloud, no sky, ground albedo 0.01, 48×36",
+        frame_scene(|v| {
+            v["sky"] = Value::Null;
+            v["ground"] = json!({"albedo": 0.01, "height_m": 0});
+        })?,
+        true,
+    )?);
+    progress(4, total);
+    out.push(frame_rule(
+        "frame: coarser voxels at the pixel footprint",
+        "validation cloud from 30 km, fov 12°, 48×36",
+        frame_scene(|v| {
+            v["camera"]["position_m"] = json!([0, -30000, 1200]);
+            v["camera"]["fov_deg"] = json!(12);
+        })?,
+        true,
+    )?);
+    progress(5, total);
+    Ok(out)
+}
+
+/// The markdown of `planner.md`.
+pub fn markdown(rows: &[RuleSaving], threads: usize, load: Option<&str>) -> String {
+    let mut s = String::from(
+        "# What the planner's cost rules save (issue 15 point 3)\n\n\
+         Written by `skybake report --planner` (`src/report/planner.rs`): one case per rule, run with its \
+         plan and with the same plan without the cost rules, each the fastest of 2 wall-clock runs \
+         (sky: cold tables, a new engine per run; frames: lighting, preparation and pixels), and \
+         compared with the reference (sky: the precise method at the `reference` preset; frames: \
+         the path tracer). Frames: RMS and mean of the difference from the path tracer over all \
+         pixels and wavelengths, relative to the cloud's mean signal |path tracer − frame without \
+         the cloud|; the RMS includes the path tracer's own noise, equal for both columns.\n\n",
+    );
+    s.push_str(&format!(
+        "Machine: {threads} threads{}.\n\n",
+        load.map(|l| format!(", load average {l}"))
+            .unwrap_or_default()
+    ));
+    s.push_str(
+        "| rule | case | time with | time without | saving | change by the rule | error with | error without | error measure |\n",
+    );
+    s.push_str("|---|---|---|---|---|---|---|---|---|\n");
+    let pct = |v: f64| {
+        if v.is_finite() {
+            format!("{:+.2} %", v * 100.0)
+        } else {
+            "—".into()
+        }
+    };
+    for r in rows {
+        s.push_str(&format!(
+            "| {} | {} | {:.0} ms | {:.0} ms | {:.0} % | {:.2} % / {} | {} | {} | {} |\n",
+            r.rule,
+            r.case,
+            r.ms_with,
+            r.ms_without,
+            100.0 * (1.0 - r.ms_with / r.ms_without.max(1e-9)),
+            r.change.0 * 100.0,
+            pct(r.change.1),
+            pct(r.error_with),
+            pct(r.error_without),
+            r.measures
+        ));
+    }
+    s.push_str(
+        "\n`change by the rule`: the result with the rule against the result without it (sky: \
+         largest relative deviation / RMS; frames: RMS / bias, relative to the cloud's mean \
+         signal). The frames' path tracer has 64 samples per pixel: its noise on these small \
+         clouds' signal is too large for a per-pixel error, so the bias of the mean is given.\n",
+    );
+    s.push_str("\nWhat each plan said and notes:\n\n");
+    for r in rows {
+        s.push_str(&format!("- **{}**: {} ({})\n", r.rule, r.plan, r.note));
+    }
+    s
+}

@@ -1,0 +1,281 @@
+//! The frame planner's rules (issue 15 point 3): each rule changes the typed plan AND the work
+//! the renderer does (voxels lit, lattice paths, the multiple-scattering field, grid size), and
+//! what a cost rule leaves out changes the image by less than its predicted share.
+
+use serde_json::{json, Value};
+use skybake::cloud::DensityGrid;
+use skybake::engine::Engine;
+use skybake::plan::{FramePlan, FrameReason, FrameStage};
+use skybake::render::product::{execute_plan, frame_summary, plan_frame, NoTiles};
+use skybake::render::{lighting_for, render_tile, FrameRequest, FrameScene, Method, Prepared};
+
+/// The validation cloud (vacuum, collimated sun 1, constant sky 0.1) at 50 m voxels, 32×24 px.
+fn scene(edit: impl FnOnce(&mut Value)) -> Value {
+    let mut v: Value =
+        serde_json::from_str(include_str!("../config/scenes/validation-frame.json")).unwrap();
+    v["cloud"]["voxel_size_m"] = json!(50.0);
+    v["camera"]["width"] = json!(32);
+    v["camera"]["height"] = json!(24);
+    v["quality"] = json!("draft");
+    edit(&mut v);
+    v
+}
+
+fn parse(v: &Value) -> FrameScene {
+    FrameScene::parse(&serde_json::to_vec(v).unwrap()).unwrap()
+}
+
+fn voxelize(s: &FrameScene) -> DensityGrid {
+    s.cloud
+        .voxelize(&|_| Err(skybake::Error::invalid("path", "no files")))
+        .unwrap()
+}
+
+/// What one run did: the image, voxels lit, lattice paths, whether the multiple-scattering field
+/// was built, the grid's voxel count.
+struct Run {
+    radiance: Vec<f32>,
+    voxels_lit: usize,
+    lattice_paths: usize,
+    ms_field: bool,
+    grid_voxels: usize,
+}
+
+fn run(scene: &FrameScene, grid: &DensityGrid, plan: &FramePlan) -> Run {
+    let planned = execute_plan(plan, scene, grid, Method::Fast).unwrap();
+    let grid = planned.grid.as_ref().unwrap_or(grid);
+    let lighting = lighting_for(&planned.scene, grid, &Engine::new()).unwrap();
+    let p = Prepared::new(&planned.scene, grid, &lighting, planned.settings, &|| false).unwrap();
+    let frame = render_tile(&p, None, &|_| {}, &|| false).unwrap();
+    Run {
+        radiance: frame.radiance,
+        voxels_lit: p.vox.len() / p.stride,
+        lattice_paths: p.lattice_paths,
+        ms_field: p.ms.is_some(),
+        grid_voxels: grid.data.len(),
+    }
+}
+
+/// Relative difference of the mean radiance of `a` from that of `reference` (the bias a
+/// left-out light's share predicts; photon noise of the field averages out).
+fn mean_difference(a: &[f32], reference: &[f32]) -> f64 {
+    let sum = |x: &[f32]| x.iter().map(|&v| v as f64).sum::<f64>();
+    (sum(a) - sum(reference)).abs() / sum(reference)
+}
+
+/// Mean absolute difference over the image relative to the mean radiance of `reference`.
+fn relative_difference(a: &[f32], reference: &[f32]) -> f64 {
+    let mean = reference.iter().map(|&v| v as f64).sum::<f64>() / reference.len() as f64;
+    let diff = a
+        .iter()
+        .zip(reference)
+        .map(|(x, y)| (*x as f64 - *y as f64).abs())
+        .sum::<f64>()
+        / a.len() as f64;
+    diff / mean
+}
+
+fn reason(plan: &FramePlan, stage: FrameStage) -> Option<FrameReason> {
+    plan.left_out
+        .iter()
+        .find(|(s, _)| *s == stage)
+        .map(|(_, r)| *r)
+}
+
+#[test]
+fn a_cloud_outside_the_view_gets_no_per_voxel_light_and_the_image_is_unchanged() {
+    // Looking away from the cloud (towards −y), still over the ground-less vacuum.
+    let s = parse(&scene(|v| {
+        v["camera"]["look_at_m"] = json!([0, -9000, 1200])
+    }));
+    let grid = voxelize(&s);
+    let plan = plan_frame(&s, &grid, Method::Fast);
+    assert_eq!(
+        reason(&plan, FrameStage::CloudLight),
+        Some(FrameReason::CloudOutOfView)
+    );
+    assert!(!plan.runs(FrameStage::MultipleScattering));
+    let with = run(&s, &grid, &plan);
+    let without = run(&s, &grid, &plan.clone().without_cost_rules());
+    assert_eq!(with.voxels_lit, 0);
+    assert!(!with.ms_field && with.lattice_paths == 0);
+    assert_eq!(without.voxels_lit, grid.data.len());
+    assert!(without.ms_field && without.lattice_paths == 14);
+    // No pixel's ray reaches the cloud: the rule is exact.
+    assert_eq!(with.radiance, without.radiance);
+
+    // Facing it, the cloud is in view.
+    let facing = parse(&scene(|_| {}));
+    let plan = plan_frame(&facing, &voxelize(&facing), Method::Fast);
+    assert!(plan.runs(FrameStage::CloudLight));
+}
+
+#[test]
+fn an_empty_grid_runs_no_cloud_stage() {
+    let s = parse(&scene(|_| {}));
+    let full = voxelize(&s);
+    let grid = DensityGrid::zeros(full.dims, full.voxel_size_m, full.origin_m).unwrap();
+    let plan = plan_frame(&s, &grid, Method::Fast);
+    for stage in [
+        FrameStage::CloudLight,
+        FrameStage::SkyLight,
+        FrameStage::GroundLight,
+        FrameStage::MultipleScattering,
+    ] {
+        assert_eq!(
+            reason(&plan, stage),
+            Some(FrameReason::NoCloud),
+            "{stage:?}"
+        );
+    }
+    let r = run(&s, &grid, &plan);
+    assert_eq!((r.voxels_lit, r.lattice_paths, r.ms_field), (0, 0, false));
+    // The reference method plans its path tracer and no budget rule.
+    let reference = plan_frame(&s, &grid, Method::Reference);
+    assert!(reference.runs(FrameStage::PathTracer));
+    assert_eq!(reference.budget.allowance, 0.0);
+}
+
+#[test]
+fn an_optically_thin_cloud_runs_no_multiple_scattering() {
+    // Extinction 5e-6 per unit density: optical path through the cloud ≤ 0.013.
+    let thin = parse(&scene(|v| {
+        v["optics"]["extinction_per_density_m"] = json!(5e-6);
+    }));
+    let grid = voxelize(&thin);
+    let plan = plan_frame(&thin, &grid, Method::Fast);
+    let Some(FrameReason::ThinCloud {
+        predicted_share, ..
+    }) = reason(&plan, FrameStage::MultipleScattering)
+    else {
+        panic!("{plan:?}")
+    };
+    assert!(predicted_share <= plan.budget.allowance);
+    let with = run(&thin, &grid, &plan);
+    let without = run(&thin, &grid, &plan.clone().without_cost_rules());
+    assert!(!with.ms_field && without.ms_field);
+    // The image changes by less than the predicted share of orders ≥ 2 (plus photon noise of the
+    // field that is no longer there).
+    let d = relative_difference(&with.radiance, &without.radiance);
+    assert!(d <= predicted_share + 0.005, "{d} vs {predicted_share}");
+
+    // The validation cloud (optical path up to ≈ 100) keeps it.
+    let thick = parse(&scene(|_| {}));
+    let plan = plan_frame(&thick, &voxelize(&thick), Method::Fast);
+    assert!(plan.runs(FrameStage::MultipleScattering));
+}
+
+#[test]
+fn dim_ground_and_no_sky_leave_the_lattice_paths_out() {
+    // No sky; a dark ground (albedo 0.01) under the sun: ground light ≈ 1.1 % of the light at
+    // the cloud, twice that under the budget (a quarter of the frame's measured 10.2 %).
+    let s = parse(&scene(|v| {
+        v["sky"] = Value::Null;
+        v["ground"] = json!({"albedo": 0.01, "height_m": 0});
+    }));
+    let grid = voxelize(&s);
+    let plan = plan_frame(&s, &grid, Method::Fast);
+    assert_eq!(
+        reason(&plan, FrameStage::SkyLight),
+        Some(FrameReason::NoLight)
+    );
+    let Some(FrameReason::UnderBudget {
+        predicted_share, ..
+    }) = reason(&plan, FrameStage::GroundLight)
+    else {
+        panic!("{plan:?}")
+    };
+    assert!(predicted_share > 0.01 && predicted_share <= plan.budget.allowance);
+    // The image's mean moves by less than the predicted (doubled) share.
+    let with = run(&s, &grid, &plan);
+    let without = run(&s, &grid, &plan.clone().without_cost_rules());
+    assert_eq!((with.lattice_paths, without.lattice_paths), (0, 14));
+    let bias = mean_difference(&with.radiance, &without.radiance);
+    let d = relative_difference(&with.radiance, &without.radiance);
+    eprintln!("ground light left out: mean {bias:.4}, mean |difference| {d:.4}, predicted {predicted_share:.4}");
+    assert!(bias <= predicted_share, "{bias} vs {predicted_share}");
+    // A ground of albedo 0.02 (predicted 2 × 2.2 %) keeps its light, as does a bright one.
+    let grey = parse(&scene(|v| {
+        v["sky"] = Value::Null;
+        v["ground"] = json!({"albedo": 0.02, "height_m": 0});
+    }));
+    assert!(plan_frame(&grey, &voxelize(&grey), Method::Fast).runs(FrameStage::GroundLight));
+    let bright = parse(&scene(|v| {
+        v["sky"] = Value::Null;
+        v["ground"] = json!({"albedo": 0.5, "height_m": 0});
+    }));
+    let plan = plan_frame(&bright, &voxelize(&bright), Method::Fast);
+    assert!(plan.runs(FrameStage::GroundLight));
+    // Switched off by the scene: named as such.
+    let off = parse(&scene(|v| v["lighting"]["sky_light"] = json!(false)));
+    let plan = plan_frame(&off, &voxelize(&off), Method::Fast);
+    assert_eq!(
+        reason(&plan, FrameStage::SkyLight),
+        Some(FrameReason::SwitchedOff {
+            switch: "sky_light"
+        })
+    );
+}
+
+#[test]
+fn a_distant_cloud_runs_on_coarser_voxels() {
+    // 30 km away at 32 px over 50°: a pixel covers ≈ 650 m of the cloud, 13 voxels of 50 m.
+    let far = parse(&scene(|v| {
+        v["camera"]["position_m"] = json!([0, -30000, 1200]);
+        v["camera"]["fov_deg"] = json!(8);
+    }));
+    let grid = voxelize(&far);
+    let plan = plan_frame(&far, &grid, Method::Fast);
+    // fov 8°: pitch 0.0044 rad, at ≈ 29 km ≈ 127 m: factor 2.
+    assert_eq!(plan.coarsening(), 2, "{plan:?}");
+    let with = run(&far, &grid, &plan);
+    let without = run(&far, &grid, &plan.clone().without_cost_rules());
+    assert!(
+        with.grid_voxels * 6 < without.grid_voxels,
+        "{} vs {}",
+        with.grid_voxels,
+        without.grid_voxels
+    );
+    assert_eq!(with.voxels_lit, with.grid_voxels);
+    let d = relative_difference(&with.radiance, &without.radiance);
+    assert!(d < 0.05, "{d}");
+    // The validation camera (4 km, 160 px) resolves the 25 m voxels: nothing coarsened.
+    let near: Value =
+        serde_json::from_str(include_str!("../config/scenes/validation-frame.json")).unwrap();
+    let near = parse(&near);
+    assert_eq!(
+        plan_frame(&near, &voxelize(&near), Method::Fast).coarsening(),
+        1
+    );
+}
+
+#[test]
+fn the_frame_summary_names_each_left_out_stage_and_its_rule() {
+    let v = scene(|v| v["camera"]["look_at_m"] = json!([0, -9000, 1200]));
+    let req = FrameRequest::from_value(&v, Method::Fast).unwrap();
+    let image = req
+        .compute_tiled(
+            &Engine::new(),
+            &|_| Err(skybake::Error::invalid("path", "none")),
+            &NoTiles,
+            &|_| {},
+            &|| false,
+        )
+        .unwrap();
+    let summary = frame_summary(&image);
+    let left: Vec<(&str, &str)> = summary["plan"]["left_out"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|l| (l["stage"].as_str().unwrap(), l["reason"].as_str().unwrap()))
+        .collect();
+    assert!(
+        left.contains(&("cloud_light", "cloud_out_of_view")),
+        "{left:?}"
+    );
+    assert!(
+        left.contains(&("multiple_scattering", "cloud_out_of_view")),
+        "{left:?}"
+    );
+    assert!(summary["plan"]["budget"]["allowance"].as_f64().unwrap() > 0.0);
+}
