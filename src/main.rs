@@ -719,7 +719,8 @@ fn run_planner_report(out: &Path) -> Result<()> {
     let path = out.join("planner.md");
     std::fs::write(&path, md).map_err(io)?;
     println!("{}", path.display());
-    Ok(())}
+    Ok(())
+}
 
 /// `skybake report`: runs the sweep with a progress bar on a terminal and writes the files.
 fn run_report(

@@ -5,7 +5,7 @@
 use serde_json::{json, Value};
 use skybake::cloud::DensityGrid;
 use skybake::engine::Engine;
-use skybake::plan::{FramePlan, FrameReason, FrameStage};
+use skybake::plan::{Coarsening, FramePlan, FrameReason, FrameStage, COARSENING_ERROR};
 use skybake::render::product::{execute_plan, frame_summary, plan_frame, NoTiles};
 use skybake::render::{lighting_for, render_tile, FrameRequest, FrameScene, Method, Prepared};
 
@@ -226,8 +226,21 @@ fn a_distant_cloud_runs_on_coarser_voxels() {
     }));
     let grid = voxelize(&far);
     let plan = plan_frame(&far, &grid, Method::Fast);
-    // fov 8°: pitch 0.0044 rad, at ≈ 29 km ≈ 127 m: factor 2.
-    assert_eq!(plan.coarsening(), 2, "{plan:?}");
+    // fov 8°: pitch 0.0044 rad, at ≈ 29 km ≈ 127 m: a factor 2 would fit the footprint, but its
+    // measured error (COARSENING_ERROR, 9.1 %) is over the fast method's allowance: not coarsened.
+    assert_eq!(plan.coarsening(), 1, "{plan:?}");
+    assert!(COARSENING_ERROR > plan.budget.allowance, "{plan:?}");
+    // Where a budget allows it, the coarsened plan runs on block means of 2³ voxels.
+    let mut plan = plan;
+    plan.coarsened.push(Coarsening {
+        stage: FrameStage::CloudDetail,
+        rule: "pixel_footprint",
+        from_voxel_m: grid.voxel_size_m,
+        to_voxel_m: 2.0 * grid.voxel_size_m,
+        factor: 2,
+        pixel_footprint_m: 127.0,
+        nearest_distance_m: 29_000.0,
+    });
     let with = run(&far, &grid, &plan);
     let without = run(&far, &grid, &plan.clone().without_cost_rules());
     assert!(
