@@ -16,9 +16,9 @@
 
 use crate::atmosphere::irradiance::{SUN_PRODUCT_N_MU, SUN_PRODUCT_N_PHI};
 use crate::atmosphere::medium::{MIE, RAYLEIGH};
+use crate::atmosphere::quality::settings_for;
 use crate::atmosphere::sky::MsMethod;
 use crate::atmosphere::Medium;
-use crate::engine::settings_for;
 use crate::product::ProductRequest;
 use crate::spec::ProductSpec;
 use crate::Result;

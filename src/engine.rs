@@ -3,8 +3,6 @@
 
 use crate::atmosphere::integrate::{Recorder, Scratch};
 use crate::atmosphere::irradiance::{hemisphere_irradiance, SUN_PRODUCT_N_MU, SUN_PRODUCT_N_PHI};
-use crate::atmosphere::multiple_fast::FastSettings;
-use crate::atmosphere::multiple_precise::PreciseSettings;
 use crate::atmosphere::shared::{init_unless, Persistence, SharedTables, TableEvents, TableStore};
 use crate::atmosphere::sky::{
     dome_table_unless, horizon_axis_deg, horizon_dip_deg, DomeTable, MsMethod, Observer,
@@ -13,7 +11,7 @@ use crate::atmosphere::sky::{
 use crate::atmosphere::sun_transmittance::sun_transmittance;
 use crate::atmosphere::Medium;
 use crate::plan::{Plan, Reason, Stage};
-use crate::spec::{AerialSpec, CommonSpec, DomeSpec, ProductKind, ProductSpec, Quality};
+use crate::spec::{AerialSpec, CommonSpec, DomeSpec, ProductKind, ProductSpec};
 use crate::spectrum::colour::XyzWeights;
 use crate::spectrum::photometry::{correlated_colour_temperature, illuminance_lux};
 use crate::{Error, Result};
@@ -48,43 +46,9 @@ fn checkpoint(cancelled: CancelCheck) -> Result<()> {
 /// Most sets of shared tables kept in memory.
 const SHARED_CAPACITY: usize = 8;
 
-/// Relative error of each method against DISORT for the Rayleigh validation cases
-/// (tests/atmosphere_validation.rs measures it; keep these in step with that test).
-pub fn stated_relative_error(method: MsMethod) -> f64 {
-    match method {
-        MsMethod::Precise => 0.02,
-        MsMethod::Fast => 0.06,
-        MsMethod::None => 0.5,
-    }
-}
-
+pub use crate::accuracy::{stated_relative_error, stated_twilight_error};
+pub use crate::atmosphere::quality::settings_for;
 pub use crate::plan::{effective_method, FAST_TWILIGHT_LIMIT_DEG};
-
-/// Bound on the relative sky-radiance error of `method` at `sun_elevation_deg`, measured against
-/// DISORT (sun ≥ 30°, tests/atmosphere_validation.rs) and the spherical-shell Monte Carlo
-/// (sun 10° to −12°, observers at 0, 10 and 400 km, 440–680 nm, albedo 0 and 0.3,
-/// tests/atmosphere_twilight.rs, quality `standard`); keep these in step with those tests. Below
-/// −12° nothing is validated and the −12° figure is given.
-pub fn stated_twilight_error(method: MsMethod, sun_elevation_deg: f64) -> f64 {
-    let e = sun_elevation_deg;
-    match method {
-        MsMethod::Precise if e >= 30.0 => stated_relative_error(MsMethod::Precise),
-        // Measured: 2.08 % max, at view zenith 89° away from the sun at sunset (MC noise 0.4 %).
-        MsMethod::Precise if e >= 0.0 => 0.025,
-        // 3.2 % max (−6°, nadir from 400 km; MC noise 1.5 %).
-        MsMethod::Precise if e >= -6.0 => 0.04,
-        // 7.0 % max at −9°, 16.7 % at −12° where the Monte Carlo's own noise is 5–17 %.
-        MsMethod::Precise => 0.17,
-        MsMethod::Fast if e >= 30.0 => stated_relative_error(MsMethod::Fast),
-        // Measured: 8.9 % max (10° to 0°).
-        MsMethod::Fast if e >= 0.0 => 0.10,
-        // 10.0 % max (−2° to −4°).
-        MsMethod::Fast if e >= FAST_TWILIGHT_LIMIT_DEG => 0.11,
-        // Computed with the precise tables (see [`effective_method`]).
-        MsMethod::Fast => stated_twilight_error(MsMethod::Precise, e),
-        MsMethod::None => 1.0,
-    }
-}
 
 /// Error estimate attached to every product.
 #[derive(Debug, Clone, PartialEq, Serialize)]
@@ -878,65 +842,6 @@ pub fn max_vertical_optical_depth(m: &Medium) -> f64 {
     (0..m.len())
         .map(|i| m.vertical_optical_depth(i).iter().sum::<f64>())
         .fold(0.0, f64::max)
-}
-
-/// Table resolutions for a quality preset.
-pub fn settings_for(q: Quality) -> (FastSettings, PreciseSettings) {
-    let fast = FastSettings::default();
-    let precise = PreciseSettings::default();
-    match q {
-        Quality::Draft => (
-            FastSettings {
-                n_r: 16,
-                n_mu_s: 32,
-                steps: 12,
-                ..fast
-            },
-            PreciseSettings {
-                n_r: 12,
-                n_mu_s: 20,
-                n_mu: 24,
-                n_phi: 8,
-                steps: 12,
-                tolerance: 1e-2,
-                ..precise
-            },
-        ),
-        Quality::Standard => (fast, precise),
-        Quality::High => (
-            FastSettings {
-                directions_mu: 16,
-                steps: 24,
-                ..fast
-            },
-            PreciseSettings {
-                n_r: 28,
-                n_mu_s: 36,
-                n_mu: 40,
-                n_phi: 16,
-                steps: 28,
-                ..precise
-            },
-        ),
-        Quality::Reference => (
-            FastSettings {
-                n_r: 64,
-                n_mu_s: 96,
-                directions_mu: 16,
-                directions_phi: 16,
-                steps: 32,
-            },
-            PreciseSettings {
-                n_r: 36,
-                n_mu_s: 48,
-                n_mu: 48,
-                n_phi: 20,
-                steps: 40,
-                tolerance: 1e-4,
-                ..precise
-            },
-        ),
-    }
 }
 
 fn evaluate_probes(eval: &RadianceEvaluator, n_l: usize, probes: &[(f64, f64)]) -> Vec<Probe> {

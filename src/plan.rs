@@ -61,10 +61,7 @@ impl Stage {
     }
 }
 
-/// Sun elevation below which a `fast` request is computed with the precise tables instead: the
-/// fast method's measured error against the spherical Monte Carlo exceeds 10 % there (−6°: up to
-/// 54 % low, −9°: 81 %, −12°: 96 %; tests/atmosphere_twilight.rs), issue 14 point 3.
-pub const FAST_TWILIGHT_LIMIT_DEG: f64 = -4.0;
+pub use crate::accuracy::FAST_TWILIGHT_LIMIT_DEG;
 
 /// The multiple-scattering method a spec is computed with: `fast` below
 /// [`FAST_TWILIGHT_LIMIT_DEG`] runs on the precise tables, where the fast method's measured error
@@ -451,7 +448,9 @@ pub fn table_budget(spec: &CommonSpec) -> Option<Budget> {
 /// (the last order's share of the total, or the error of the extrapolated geometric tail), so
 /// the predicted error spent is the tolerance itself.
 fn precise_orders_rule(spec: &CommonSpec) -> Option<(f64, Reason)> {
-    let preset_tolerance = crate::engine::settings_for(spec.quality).1.tolerance;
+    let preset_tolerance = crate::atmosphere::quality::settings_for(spec.quality)
+        .1
+        .tolerance;
     let mut budget = table_budget(spec)?;
     let tolerance = budget.allowance;
     (tolerance > preset_tolerance && budget.try_spend(tolerance)).then_some((

@@ -11,6 +11,7 @@ pub mod multiple_precise;
 pub mod params;
 pub mod presets;
 pub mod quadrature;
+pub mod quality;
 pub mod shared;
 pub mod sky;
 pub mod sun_transmittance;
