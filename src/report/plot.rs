@@ -160,11 +160,7 @@ pub fn error_time_png(report: &Report, product: ProductKind) -> Result<Vec<u8>> 
             .map_err(plot_err)?;
         root.present().map_err(plot_err)?;
     }
-    let mut png = Vec::new();
-    image::codecs::png::PngEncoder::new(&mut png)
-        .write_image(&buf, SIZE.0, SIZE.1, image::ExtendedColorType::Rgb8)
-        .map_err(|e| Error::internal("report", format!("PNG encoding: {e}")))?;
-    Ok(png)
+    encode_png(&buf)
 }
 
 /// One curve of a generic error-against-time plot: its legend, colour and points
@@ -247,9 +243,14 @@ pub fn log_log_png(title: &str, x_desc: &str, y_desc: &str, series: &[Series]) -
             .map_err(plot_err)?;
         root.present().map_err(plot_err)?;
     }
+    encode_png(&buf)
+}
+
+/// The plot's RGB buffer as a PNG file.
+fn encode_png(buf: &[u8]) -> Result<Vec<u8>> {
     let mut png = Vec::new();
     image::codecs::png::PngEncoder::new(&mut png)
-        .write_image(&buf, SIZE.0, SIZE.1, image::ExtendedColorType::Rgb8)
+        .write_image(buf, SIZE.0, SIZE.1, image::ExtendedColorType::Rgb8)
         .map_err(|e| Error::internal("report", format!("PNG encoding: {e}")))?;
     Ok(png)
 }
