@@ -88,9 +88,10 @@ fn settings(scene: &FrameScene, method: Method, spp: usize) -> RenderSettings {
 /// negligible): reflected radiance at the top for a subset of the cases (view zenith 0 and 60°,
 /// towards and away from the sun), path tracer within 2 % plus three of its own standard errors
 /// (1–2.6 % at these sample counts: forward-peaked sun paths are heavy-tailed); the fast
-/// method's deviation is printed (stated in the report; its coarse multiple-scattering grid
-/// cannot resolve a 4-voxel-thick slab: its cells are 5 voxels wide, thicker than the slab;
-/// measured worst −52.5 %, asserted below 60 %).
+/// method's deviation is printed (stated in the README; its multiple-scattering grid keeps the
+/// slab's 4 voxels in depth and coarsens only across: measured worst −27.7 % (τ 1, nadir view,
+/// sun at 60°, the dimmest case), τ 8 −12.2 % to +2.6 %, τ 32 +1.9 % to +7.7 %; asserted below
+/// 35 %).
 #[test]
 fn slab_reflection_matches_disort() {
     let data: Value =
@@ -196,7 +197,7 @@ fn slab_reflection_matches_disort() {
     }
     println!("fast method: worst |deviation| {:.1} %", worst_fast * 100.0);
     assert!(
-        worst_fast < 0.6,
+        worst_fast < 0.35,
         "fast method vs DISORT: worst {worst_fast}"
     );
     for (rp, sigma) in worst_pt {
@@ -218,15 +219,16 @@ fn cloud_matches_mitsuba() {
         .iter()
         .map(|&m| m > 0.0)
         .collect();
-    // Fast method (whole frame, δ-M/TMS field, P2): measured block NRMSE and bias, sun 6.0 % and
-    // −3.0 %, sky 8.5 % and +5.6 %; bounds are those plus a margin for the photon noise.
+    // Fast method (whole frame, δ-M/TMS field, P2, view cap, density-weighted field): measured
+    // block NRMSE and bias, sun 5.2 % and −1.3 %, sky 7.9 % and −0.2 %; bounds are those plus a
+    // margin for the photon noise.
     for (case, nrmse_bound, fast_block_bound, fast_bias_bound) in [
-        ("sky", 0.03, 0.10, 0.075),
+        ("sky", 0.03, 0.09, 0.025),
         (
             "sun",
             (0.03f64.powi(2) + 0.027f64.powi(2)).sqrt(),
-            0.075,
-            0.045,
+            0.065,
+            0.03,
         ),
     ] {
         let bytes = std::fs::read(format!("{DATA}/validation-cloud-{case}.json")).unwrap();
@@ -317,8 +319,8 @@ fn cloud_matches_mitsuba() {
 
 /// (b) continued, fast method only (whole 160×120 frames, about a second each): the Mitsuba cases
 /// thin cloud, g = 0.5, albedo 0.9 and sun + sky, with bounds = measured block NRMSE and bias plus
-/// a margin (measured: thin 8.1 % / −4.8 %, g 0.5 6.6 % / −2.7 %, albedo 0.9 7.2 % / −2.7 %,
-/// sun + sky 10.2 % / +7.5 %).
+/// a margin (measured: thin 8.0 % / −4.5 %, g 0.5 5.2 % / +0.1 %, albedo 0.9 8.1 % / −0.9 %,
+/// sun + sky 6.5 % / +2.4 %).
 #[test]
 fn fast_cloud_matches_mitsuba_cases() {
     let mask: Vec<bool> = npy("cloud_mitsuba_mask.npy")
@@ -326,10 +328,10 @@ fn fast_cloud_matches_mitsuba_cases() {
         .map(|&m| m > 0.0)
         .collect();
     for (case, block_bound, bias_bound) in [
-        ("sun_thin", 0.10, 0.065),
-        ("sun_g05", 0.085, 0.045),
-        ("sun_albedo09", 0.09, 0.045),
-        ("sunsky", 0.125, 0.095),
+        ("sun_thin", 0.095, 0.06),
+        ("sun_g05", 0.065, 0.02),
+        ("sun_albedo09", 0.095, 0.025),
+        ("sunsky", 0.08, 0.04),
     ] {
         let bytes = std::fs::read(format!("{DATA}/validation-cloud-{case}.json")).unwrap();
         let scene = FrameScene::parse(&bytes).unwrap();

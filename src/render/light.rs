@@ -192,9 +192,28 @@ pub fn lattice_density_integrals(grid: &DensityGrid, e: [i32; 3]) -> Vec<f32> {
     out
 }
 
+/// Half-angle of the sky element centred on the view direction (the light from behind the point
+/// as the camera sees it), whose attenuation is the view ray's own: the forward peak of a cloud's
+/// phase function takes most of its first-order sky light from there (HG g = 0.85: 70 % of the
+/// phase function within 25°), and no lattice direction follows that path.
+pub const VIEW_CAP_DEG: f64 = 25.0;
+
+/// Element index of the view cap (after the sun cap and the 14 lattice elements).
+pub const VIEW_ELEMENT: usize = 1 + LATTICE.len();
+/// Pseudo-element holding the environment radiance L(d) arriving from the view direction itself.
+pub const VIEW_RADIANCE: usize = VIEW_ELEMENT + 1;
+
 /// Sky elements' phase-weighted radiance I_l(d) = ∫_{ω_l} F(θ) L(ω) dω (seed 000 eq 7), tabulated
-/// over view directions d (latitude-longitude), for the sun cap (element 0) and the 14 lattice
-/// elements (1..=14), per wavelength.
+/// over view directions d (latitude-longitude), for the sun cap (element 0), the 14 lattice
+/// elements (1..=14) and the view cap ([`VIEW_ELEMENT`]), per wavelength; and L(d) itself
+/// ([`VIEW_RADIANCE`]).
+///
+/// The view cap holds the δ-M scaled phase function's share (Wiscombe 1977: F − f·δ, f the
+/// truncated fraction per wavelength): ∫_cap F(d·ω)[L(ω) − L(d)] dω + L(d)(P_cap − f), where
+/// P_cap is F's integral over the cap. The truncated peak f·δ is light that the scaled problem
+/// keeps in the direct beam; the final march adds it as L(d)(e^{−τ*} − e^{−τ}) (see
+/// `march::Prepared::march`), where the full F with the scaled attenuation (the TMS single
+/// scattering) would count it once more, as ω f τ L e^{−τ*}.
 pub struct SkyElements {
     pub n_elev: usize,
     pub n_az: usize,
@@ -205,32 +224,34 @@ pub struct SkyElements {
 }
 
 impl SkyElements {
-    /// Quadrature over `quad_points` Fibonacci directions; each belongs to the sun cap if within
-    /// [`SUN_CAP_DEG`] of the sun, else to the nearest lattice direction.
+    /// Quadrature over `quad_points` Fibonacci directions; each belongs to the view cap if within
+    /// [`VIEW_CAP_DEG`] of the view direction, else to the sun cap if within [`SUN_CAP_DEG`] of
+    /// the sun, else to the nearest lattice direction. `truncated[l]` is the δ-M fraction f
+    /// taken out of the view cap (0 for the exact phase function).
     pub fn new(
         lighting: &Lighting,
         phases: &[Phase],
+        truncated: &[f64],
         quad_points: usize,
         n_elev: usize,
         n_az: usize,
     ) -> Self {
         let n_l = phases.len();
-        let elements = LATTICE.len() + 1;
+        let elements = VIEW_RADIANCE + 1;
         let dirs: Vec<DVec3> = LATTICE
             .iter()
             .map(|e| DVec3::new(e[0] as f64, e[1] as f64, e[2] as f64).normalize())
             .collect();
         let cap = SUN_CAP_DEG.to_radians().cos();
+        let view_cap = VIEW_CAP_DEG.to_radians().cos();
+        let cap_share: Vec<f64> = phases.iter().map(|p| cap_integral(p, view_cap)).collect();
         let dw = 4.0 * PI / quad_points as f64;
-        // Quadrature nodes with their element and radiance.
+        // Quadrature nodes with their element outside the view cap and radiance.
         let mut nodes: Vec<(DVec3, usize, Vec<f64>)> = Vec::new();
         let mut rad = vec![0.0; n_l];
         for i in 0..quad_points {
             let w = fibonacci(i, quad_points);
             lighting.env(w, &mut rad);
-            if rad.iter().all(|&v| v == 0.0) {
-                continue;
-            }
             let el = if lighting.sun_dir.dot(w) > cap {
                 0
             } else {
@@ -238,18 +259,31 @@ impl SkyElements {
                     .max_by(|&a, &b| dirs[a].dot(w).total_cmp(&dirs[b].dot(w)))
                     .unwrap_or(0)
             };
-            nodes.push((w, el, rad.iter().map(|v| v * dw).collect()));
+            nodes.push((w, el, rad.clone()));
         }
         let per = elements * n_l;
         let mut table = vec![0f32; n_elev * n_az * per];
         table.par_chunks_mut(per).enumerate().for_each(|(k, dst)| {
             let d = table_dir(k / n_az, k % n_az, n_elev, n_az);
             let mut acc = vec![0.0f64; per];
+            let mut l_view = vec![0.0; n_l];
+            lighting.env(d, &mut l_view);
             for (w, el, r) in &nodes {
                 let mu = d.dot(*w);
-                for l in 0..n_l {
-                    acc[el * n_l + l] += phases[l].eval(mu) * r[l];
+                if mu > view_cap {
+                    // The smooth remainder; the peak's share is added analytically below.
+                    for l in 0..n_l {
+                        acc[VIEW_ELEMENT * n_l + l] += phases[l].eval(mu) * (r[l] - l_view[l]) * dw;
+                    }
+                } else {
+                    for l in 0..n_l {
+                        acc[el * n_l + l] += phases[l].eval(mu) * r[l] * dw;
+                    }
                 }
+            }
+            for l in 0..n_l {
+                acc[VIEW_ELEMENT * n_l + l] += l_view[l] * (cap_share[l] - truncated[l]);
+                acc[VIEW_RADIANCE * n_l + l] = l_view[l];
             }
             for (o, a) in dst.iter_mut().zip(acc) {
                 *o = a as f32;
@@ -264,26 +298,66 @@ impl SkyElements {
         }
     }
 
-    /// Bilinear lookup for view direction `d` (camera → point): `[element][λ]` into `out`.
-    pub fn lookup(&self, d: DVec3, out: &mut [f64]) {
+    /// Table offsets and bilinear weights of the four nodes around view direction `d`.
+    fn corners(&self, d: DVec3) -> [(usize, f64); 4] {
         let (u, v) = dir_to_table(d, self.n_elev, self.n_az);
         let (r0, fr) = (u.floor() as usize, u - u.floor());
+        let r0 = r0.min(self.n_elev - 1);
         let r1 = (r0 + 1).min(self.n_elev - 1);
         let c0 = (v.floor() as usize) % self.n_az;
         let fc = v - v.floor();
         let c1 = (c0 + 1) % self.n_az;
         let per = self.elements * self.n_l;
+        let at = |r: usize, c: usize| (r * self.n_az + c) * per;
+        [
+            (at(r0, c0), (1.0 - fr) * (1.0 - fc)),
+            (at(r0, c1), (1.0 - fr) * fc),
+            (at(r1, c0), fr * (1.0 - fc)),
+            (at(r1, c1), fr * fc),
+        ]
+    }
+
+    /// Bilinear lookup for view direction `d` (camera → point): `[element][λ]` into `out`.
+    pub fn lookup(&self, d: DVec3, out: &mut [f64]) {
+        let per = self.elements * self.n_l;
         out.iter_mut().for_each(|o| *o = 0.0);
-        for (r, wr) in [(r0.min(self.n_elev - 1), 1.0 - fr), (r1, fr)] {
-            for (c, wc) in [(c0, 1.0 - fc), (c1, fc)] {
-                let w = wr * wc;
-                let base = (r * self.n_az + c) * per;
-                for (o, t) in out.iter_mut().zip(&self.table[base..base + per]) {
-                    *o += w * *t as f64;
-                }
+        for (base, w) in self.corners(d) {
+            for (o, t) in out.iter_mut().zip(&self.table[base..base + per]) {
+                *o += w * *t as f64;
             }
         }
     }
+
+    /// The view cap ([`VIEW_ELEMENT`]) and the radiance from the view direction
+    /// ([`VIEW_RADIANCE`]) for view direction `d`, bilinear, per wavelength.
+    pub fn lookup_view(&self, d: DVec3, cap: &mut [f64], radiance: &mut [f64]) {
+        cap.iter_mut().for_each(|o| *o = 0.0);
+        radiance.iter_mut().for_each(|o| *o = 0.0);
+        let n_l = self.n_l;
+        for (base, w) in self.corners(d) {
+            for l in 0..n_l {
+                cap[l] += w * self.table[base + VIEW_ELEMENT * n_l + l] as f64;
+                radiance[l] += w * self.table[base + VIEW_RADIANCE * n_l + l] as f64;
+            }
+        }
+    }
+}
+
+/// ∫ F(μ) dω over the cap μ ≥ `mu0` around the forward direction: 2π ∫_{μ0}^{1} F dμ on a
+/// grid geometric in 1 − μ (strongly forward phase functions peak within 10⁻⁴ of μ = 1).
+fn cap_integral(phase: &Phase, mu0: f64) -> f64 {
+    let x_max = 1.0 - mu0;
+    let x_min = 1e-9_f64.min(x_max);
+    let n = 4000;
+    let r = (x_max / x_min).powf(1.0 / n as f64);
+    let mut sum = x_min * phase.eval(1.0 - 0.5 * x_min);
+    let mut x0 = x_min;
+    for _ in 0..n {
+        let x1 = x0 * r;
+        sum += 0.5 * (x1 - x0) * (phase.eval(1.0 - x0) + phase.eval(1.0 - x1));
+        x0 = x1;
+    }
+    2.0 * PI * sum
 }
 
 /// Direction of table node (row, col): rows from −90° to 90° elevation, columns around azimuth.

@@ -4,7 +4,10 @@
 //! path, plus the interpolated sky and multiple-scattering terms; background, ground with cloud
 //! shadows, aerial perspective and shafts of light (seed 003 eq 13–14) in [`Prepared::composite`].
 
-use super::light::{lattice_density_integrals, sun_density_integrals, SkyElements, LATTICE};
+use super::light::{
+    lattice_density_integrals, sun_density_integrals, SkyElements, LATTICE, VIEW_CAP_DEG,
+    VIEW_ELEMENT,
+};
 use super::lighting::Lighting;
 use super::multiple::{MsField, Truncation};
 use super::pathtracer::PathTracer;
@@ -123,6 +126,8 @@ pub struct Prepared<'a> {
     sun_on: bool,
     /// σ_t*/σ_t per wavelength (TMS, see `multiple`).
     ms_extinction_scale: Vec<f64>,
+    /// The sky elements, for the view cap that each ray adds (`None` without sky or ground light).
+    sky_elements: Option<SkyElements>,
 }
 
 impl<'a> Prepared<'a> {
@@ -180,6 +185,7 @@ impl<'a> Prepared<'a> {
         let mut vox = Vec::new();
         let mut ms = None;
         let mut lattice_paths = 0;
+        let mut sky_elements = None;
         if settings.method == Method::Fast && vol.rho_max > 0.0 && settings.cloud_in_view {
             vox = vec![0f32; grid.data.len() * stride];
             // The sky element round the sun uses the sun's path too.
@@ -206,9 +212,11 @@ impl<'a> Prepared<'a> {
                 }
             };
             if env_on {
+                let truncated: Vec<f64> = trunc.iter().map(|t| t.fraction).collect();
                 let elements = SkyElements::new(
                     cloud_lighting,
                     &optics.phase,
+                    &truncated,
                     settings.sky_quadrature,
                     settings.sky_table[0],
                     settings.sky_table[1],
@@ -257,9 +265,10 @@ impl<'a> Prepared<'a> {
                     _ => "ground light",
                 };
                 stages.ran.push(format!(
-                    "{what}: {} sky elements (sun cap + 6 axes + 8 diagonals) with cumulative t/t_d paths (seed 000 eq 7)",
-                    elements.elements
+                    "{what}: {} sky elements (sun cap + 6 axes + 8 diagonals with cumulative t/t_d paths, seed 000 eq 7; a {VIEW_CAP_DEG}° cap round the view direction along the view ray)",
+                    VIEW_ELEMENT + 1
                 ));
+                sky_elements = Some(elements);
             } else {
                 stages
                     .skipped
@@ -352,6 +361,7 @@ impl<'a> Prepared<'a> {
         }
         Ok(Self {
             ms_extinction_scale,
+            sky_elements,
             scene,
             lighting,
             settings,
@@ -460,7 +470,41 @@ impl<'a> Prepared<'a> {
                 break;
             }
         }
+        if front.is_some() {
+            self.add_view_cap(ray.dir, ia, tc, &tcs[..n_l]);
+        }
         front
+    }
+
+    /// The sky light from behind each point along the ray, whose path to the sky is the view
+    /// ray itself (the view cap of [`SkyElements`]): a source S_cap per unit scaled extinction,
+    /// the same at every point, attenuated by e^{−τ*} over the whole line through the cloud
+    /// whatever the point, sums to S_cap·τ*·e^{−τ*}. The forward peak f·δ that the δ-M scaling
+    /// takes out of the phase function stays in the scaled direct beam: the radiance from
+    /// behind scattered only within the peak, L(d)·(e^{−τ*} − e^{−τ}) with τ* = (1 − ωf)τ
+    /// (Poisson sum over the number of peak scatterings), is added here, as the background seen
+    /// through the cloud keeps the true transmittance e^{−τ} (`tc`).
+    fn add_view_cap(&self, d: DVec3, ia: &mut [f64], tc: &[f64], tcs: &[f64]) {
+        let Some(elements) = &self.sky_elements else {
+            return;
+        };
+        let n_l = ia.len();
+        let mut cap = [0.0f64; 64];
+        let mut radiance = [0.0f64; 64];
+        elements.lookup_view(d, &mut cap[..n_l], &mut radiance[..n_l]);
+        let albedo = &self.scene.optics.albedo;
+        for l in 0..n_l {
+            let t_scaled = tcs[l];
+            if t_scaled <= 0.0 {
+                continue;
+            }
+            let tau_scaled = -t_scaled.ln();
+            let s_cap = albedo[l] / self.ms_extinction_scale[l] * cap[l];
+            // The cap's share F − f·δ may be negative for a bright sky straight behind a
+            // thick point; the sum with the peak's direct light is not.
+            ia[l] =
+                (ia[l] + s_cap * tau_scaled * t_scaled + radiance[l] * (t_scaled - tc[l])).max(0.0);
+        }
     }
 
     /// Transmittance of the sun's light from the cloud to point `p` (cloud shadows, shafts).

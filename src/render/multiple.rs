@@ -56,8 +56,8 @@ pub struct PhotonSettings {
 /// Φ and F on the coarse grid, per wavelength.
 pub struct MsField {
     pub dims: [usize; 3],
-    /// Coarse cell edge, m.
-    pub cell_m: f64,
+    /// Coarse cell edges along x, y, z, m.
+    pub cell_m: DVec3,
     pub origin_m: DVec3,
     pub n_l: usize,
     /// `[cell][λ][MOMENTS]`: Φ, Fx, Fy, Fz, Qxx, Qyy, Qzz, Qxy, Qxz, Qyz (W m⁻² nm⁻¹): the
@@ -71,6 +71,8 @@ pub struct MsField {
     pub extinction_scale: Vec<f64>,
     /// ω* per wavelength.
     pub albedo_scaled: Vec<f64>,
+    /// Mean density of each coarse cell (the weights of [`MsField::inscatter`]).
+    rho: Vec<f32>,
     angular_order: usize,
 }
 
@@ -90,34 +92,26 @@ fn accumulator_lanes(len: usize) -> usize {
     (LANE_BUDGET_BYTES / (len * 8).max(1)).clamp(2, MAX_LANES)
 }
 
-/// A coarse, piecewise-constant copy of the density grid.
+/// A coarse, piecewise-constant copy of the density grid: blocks of whole voxels, each axis
+/// coarsened only as far as it needs to be (a thin slab keeps its vertical resolution).
 struct Coarse {
     dims: [usize; 3],
-    cell_m: f64,
+    /// Cell edges along x, y, z, m.
+    cell_m: DVec3,
     origin_m: DVec3,
     rho: Vec<f32>,
 }
 
 impl Coarse {
     fn new(grid: &DensityGrid, max_dim: usize) -> Self {
-        let f = grid
-            .dims
-            .iter()
-            .map(|&d| d.div_ceil(max_dim.max(1)))
-            .max()
-            .unwrap_or(1)
-            .max(1);
-        let dims = [
-            grid.dims[0].div_ceil(f),
-            grid.dims[1].div_ceil(f),
-            grid.dims[2].div_ceil(f),
-        ];
+        let f: [usize; 3] = std::array::from_fn(|a| grid.dims[a].div_ceil(max_dim.max(1)).max(1));
+        let dims: [usize; 3] = std::array::from_fn(|a| grid.dims[a].div_ceil(f[a]));
         let mut sum = vec![0f64; dims[0] * dims[1] * dims[2]];
         let mut cnt = vec![0u32; sum.len()];
         for z in 0..grid.dims[2] {
             for y in 0..grid.dims[1] {
                 for x in 0..grid.dims[0] {
-                    let c = ((z / f) * dims[1] + y / f) * dims[0] + x / f;
+                    let c = ((z / f[2]) * dims[1] + y / f[1]) * dims[0] + x / f[0];
                     sum[c] += grid.at(x, y, z) as f64;
                     cnt[c] += 1;
                 }
@@ -132,7 +126,7 @@ impl Coarse {
             .collect();
         Self {
             dims,
-            cell_m: grid.voxel_size_m * f as f64,
+            cell_m: DVec3::new(f[0] as f64, f[1] as f64, f[2] as f64) * grid.voxel_size_m,
             origin_m: grid.origin_m,
             rho,
         }
@@ -178,7 +172,7 @@ impl MsField {
         let centre = 0.5 * (lo + hi);
         let radius = 0.5 * (hi - lo).length() * 1.001;
         let disc_area = PI * radius * radius;
-        let cell_volume = coarse.cell_m.powi(3);
+        let cell_volume = coarse.cell_m.x * coarse.cell_m.y * coarse.cell_m.z;
         for group in optics.groups() {
             let l0 = group[0];
             let k = optics.extinction_per_density_m[l0];
@@ -314,14 +308,20 @@ impl MsField {
             p2: truncation.iter().map(|t| t.p2_scaled).collect(),
             extinction_scale: truncation.iter().map(|t| t.extinction_scale).collect(),
             albedo_scaled: truncation.iter().map(|t| t.albedo_scaled).collect(),
+            rho: coarse.rho,
             angular_order: s.angular_order,
         }
     }
 
     /// In-scattered radiance of orders ≥ 2 of the scaled problem towards a viewer looking along
-    /// `d`, at `p` (trilinear between coarse cell centres), the phase convolution done exactly in
-    /// the Legendre basis up to the angular order (addition theorem; ω_o = −d):
+    /// `d`, at `p`, the phase convolution done exactly in the Legendre basis up to the angular
+    /// order (addition theorem; ω_o = −d):
     /// J* = [Φ + 3 p*₁ F·ω_o + 5 p*₂ (3/2 ω_oᵀQω_o − Φ/2)]/(4π).
+    ///
+    /// Between coarse cell centres the trilinear weights are multiplied by each cell's mean
+    /// density: J is needed where there is cloud, and a cell that is mostly empty holds the
+    /// fluence of light leaving the cloud (outward only, about half the fluence just inside a
+    /// lit surface), which would dim the cloud's surface voxels.
     pub fn inscatter(&self, p: DVec3, d: DVec3, out: &mut [f64]) {
         out.iter_mut().for_each(|o| *o = 0.0);
         let local = (p - self.origin_m) / self.cell_m - DVec3::splat(0.5);
@@ -334,19 +334,34 @@ impl MsField {
             i1[a] = (i0[a] + 1).min(self.dims[a] - 1);
             f[a] = c - i0[a] as f64;
         }
-        for corner in 0..8 {
+        let mut cells = [(0usize, 0f64, 0f64); 8];
+        let (mut sum_w, mut sum_wr) = (0.0, 0.0);
+        for (corner, cell) in cells.iter_mut().enumerate() {
             let ix = if corner & 1 == 0 { i0[0] } else { i1[0] };
             let iy = if corner & 2 == 0 { i0[1] } else { i1[1] };
             let iz = if corner & 4 == 0 { i0[2] } else { i1[2] };
             let w = (if corner & 1 == 0 { 1.0 - f[0] } else { f[0] })
                 * (if corner & 2 == 0 { 1.0 - f[1] } else { f[1] })
                 * (if corner & 4 == 0 { 1.0 - f[2] } else { f[2] });
+            let c = (iz * self.dims[1] + iy) * self.dims[0] + ix;
+            let wr = self.rho[c] as f64;
+            *cell = (c, w, wr);
+            sum_w += w;
+            sum_wr += w * wr;
+        }
+        // Density weights where any of the cells holds cloud, plain trilinear otherwise.
+        let by_density = sum_wr > 0.0;
+        let w1 = if self.angular_order >= 1 { 1.0 } else { 0.0 };
+        let w2 = if self.angular_order >= 2 { 1.0 } else { 0.0 };
+        for (c, w, wr) in cells {
+            let w = if by_density {
+                w * wr / sum_wr
+            } else {
+                w / sum_w.max(1e-300)
+            };
             if w == 0.0 {
                 continue;
             }
-            let c = (iz * self.dims[1] + iy) * self.dims[0] + ix;
-            let w1 = if self.angular_order >= 1 { 1.0 } else { 0.0 };
-            let w2 = if self.angular_order >= 2 { 1.0 } else { 0.0 };
             for l in 0..self.n_l {
                 let b = (c * self.n_l + l) * MOMENTS;
                 let v: [f64; MOMENTS] = std::array::from_fn(|m| self.data[b + m] as f64);
@@ -371,6 +386,8 @@ impl MsField {
 /// are not truncated).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Truncation {
+    /// The truncated fraction f of every scattering (the forward peak f·δ).
+    pub fraction: f64,
     pub g_scaled: f64,
     pub p2_scaled: f64,
     pub extinction_scale: f64,
@@ -386,6 +403,7 @@ impl Truncation {
         };
         let scale = 1.0 - albedo * f;
         Self {
+            fraction: f,
             g_scaled: (g1 - f) / (1.0 - f),
             p2_scaled: (g1 * g1 - f) / (1.0 - f),
             extinction_scale: scale,
@@ -426,22 +444,23 @@ fn fly(
     let d = ph.dir;
     let mut t = t0;
     // DDA through the cells.
-    let p0 = ph.pos + d * (t0 + 1e-9 * g.cell_m);
+    let p0 = ph.pos + d * (t0 + 1e-9 * g.cell_m.min_element());
     let mut cell = [0i64; 3];
     let mut step = [0i64; 3];
     let mut t_next = [f64::INFINITY; 3];
     let mut t_delta = [f64::INFINITY; 3];
     for a in 0..3 {
-        let local = (p0[a] - lo[a]) / g.cell_m;
+        let h = g.cell_m[a];
+        let local = (p0[a] - lo[a]) / h;
         cell[a] = (local.floor() as i64).clamp(0, g.dims[a] as i64 - 1);
         if d[a] > 0.0 {
             step[a] = 1;
-            t_next[a] = t0 + ((cell[a] + 1) as f64 * g.cell_m + lo[a] - p0[a]) / d[a];
-            t_delta[a] = g.cell_m / d[a];
+            t_next[a] = t0 + ((cell[a] + 1) as f64 * h + lo[a] - p0[a]) / d[a];
+            t_delta[a] = h / d[a];
         } else if d[a] < 0.0 {
             step[a] = -1;
-            t_next[a] = t0 + (cell[a] as f64 * g.cell_m + lo[a] - p0[a]) / d[a];
-            t_delta[a] = -g.cell_m / d[a];
+            t_next[a] = t0 + (cell[a] as f64 * h + lo[a] - p0[a]) / d[a];
+            t_delta[a] = -h / d[a];
         }
     }
     loop {
