@@ -140,6 +140,10 @@ fn main() -> skybake::Result<()> {
         let fast_s = t.elapsed().as_secs_f64();
         scene.lighting.multiple_scattering = true;
         let mask: Vec<bool> = trans.iter().map(|&t| t < 0.99).collect();
+        if let Ok(d) = std::env::var("DUMP") {
+            let bytes: Vec<u8> = fast.iter().chain(&trans).flat_map(|v| v.to_le_bytes()).collect();
+            std::fs::write(format!("{d}/fast_{w}x{h}_{mode}.bin"), bytes).ok();
+        }
         let e = image_errors(&fast, &reference, &mask, w, n_l);
         // Bias by transmittance band.
         let mut bands = String::new();
@@ -183,32 +187,115 @@ fn whole_frame(
 ) -> skybake::Result<()> {
     use skybake::render::render_frame;
     let n_l = scene.wavelengths.len();
-    let path = format!("{dir}/ref_{w}x{h}_{spp}_frame.bin");
-    let (reference, trans) = if let Ok(b) = std::fs::read(&path) {
+    let seed = env_f("SEED").map(|v| v as u64);
+    let path = match seed {
+        Some(sd) => format!("{dir}/ref_{w}x{h}_{spp}_frame_seed{sd}.bin"),
+        None => format!("{dir}/ref_{w}x{h}_{spp}_frame.bin"),
+    };
+    let npx = w * h;
+    let (reference, trans, var) = if let Ok(b) = std::fs::read(&path) {
         let v: Vec<f32> = b
             .chunks(4)
             .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]))
             .collect();
-        let (r, t) = v.split_at(w * h * n_l);
-        (r.to_vec(), t.to_vec())
+        (
+            v[..npx * n_l].to_vec(),
+            v[npx * n_l..npx * (n_l + 1)].to_vec(),
+            v[npx * (n_l + 1)..].to_vec(),
+        )
     } else {
+        let t = Instant::now();
         let mut s = RenderSettings::for_quality(scene.quality, Method::Reference);
         s.spp = spp;
+        if let Some(sd) = seed {
+            s.seed = sd;
+        }
         let f = render_frame(scene, grid, lt, &s, None, &|_| {}, &|| false)?;
         let bytes: Vec<u8> = f
             .radiance
             .iter()
             .chain(&f.transmittance)
+            .chain(&f.variance)
             .flat_map(|v| v.to_le_bytes())
             .collect();
         std::fs::write(&path, bytes).ok();
-        (f.radiance, f.transmittance)
+        eprintln!("reference frame: {:.1} s", t.elapsed().as_secs_f64());
+        (f.radiance, f.transmittance, f.variance)
     };
+    // The reference's own noise on 8×8 cloud blocks: RMS of the block mean's standard error.
+    let mask: Vec<bool> = trans.iter().map(|&t| t < 0.99).collect();
+    if var.len() == npx * n_l {
+        let (mut s2, mut nb, mut sum, mut n) = (0.0, 0, 0.0, 0);
+        for i in 0..npx {
+            if mask[i] {
+                sum += (0..n_l).map(|l| reference[i * n_l + l] as f64).sum::<f64>() / n_l as f64;
+                n += 1;
+            }
+        }
+        for by in 0..h / 8 {
+            for bx in 0..w / 8 {
+                let idx = |k: usize| (by * 8 + k / 8) * w + bx * 8 + k % 8;
+                if (0..64).all(|k| mask[idx(k)]) {
+                    let v: f64 = (0..64)
+                        .map(|k| {
+                            // Wavelengths of a grey cloud share their paths: fully correlated.
+                            ((0..n_l)
+                                .map(|l| (var[idx(k) * n_l + l] as f64).sqrt())
+                                .sum::<f64>()
+                                / n_l as f64)
+                                .powi(2)
+                        })
+                        .sum::<f64>()
+                        / (64.0 * 64.0);
+                    s2 += v;
+                    nb += 1;
+                }
+            }
+        }
+        println!(
+            "reference block noise {:.2}% ({nb} blocks)",
+            100.0 * (s2 / nb.max(1) as f64).sqrt() / (sum / n.max(1) as f64)
+        );
+    }
     let s = RenderSettings::for_quality(scene.quality, Method::Fast);
     let t = Instant::now();
     let fast = render_frame(scene, grid, lt, &s, None, &|_| {}, &|| false)?;
-    let mask: Vec<bool> = trans.iter().map(|&t| t < 0.99).collect();
     let e = image_errors(&fast.radiance, &reference, &mask, w, n_l);
+    // With a second reference of another seed (CROSS=path), the squared block error without
+    // the references' noise: the mean of (F − R1)(F − R2) over cloud blocks.
+    if let Some(b) = std::env::var("CROSS").ok().and_then(|p| std::fs::read(p).ok()) {
+        let r2: Vec<f32> = b[..npx * n_l * 4]
+            .chunks(4)
+            .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]))
+            .collect();
+        let px = |img: &[f32], i: usize| -> f64 {
+            (0..n_l).map(|l| img[i * n_l + l] as f64).sum::<f64>() / n_l as f64
+        };
+        let (mut cross, mut nb, mut sum, mut n) = (0.0, 0, 0.0, 0);
+        for i in 0..npx {
+            if mask[i] {
+                sum += 0.5 * (px(&reference, i) + px(&r2, i));
+                n += 1;
+            }
+        }
+        for by in 0..h / 8 {
+            for bx in 0..w / 8 {
+                let idx = |k: usize| (by * 8 + k / 8) * w + bx * 8 + k % 8;
+                if (0..64).all(|k| mask[idx(k)]) {
+                    let m = |img: &[f32]| (0..64).map(|k| px(img, idx(k))).sum::<f64>() / 64.0;
+                    let f = m(&fast.radiance);
+                    cross += (f - m(&reference)) * (f - m(&r2));
+                    nb += 1;
+                }
+            }
+        }
+        let mean = sum / n.max(1) as f64;
+        println!(
+            "cross-estimated block NRMSE {:.2}% (signed square {:+.3e})",
+            100.0 * (cross / nb.max(1) as f64).max(0.0).sqrt() / mean,
+            cross / nb.max(1) as f64 / (mean * mean)
+        );
+    }
     println!(
         "frame  blocks {:5.2}% px {:5.2}% bias {:+6.2}%  fast {:.2}s",
         100.0 * e.nrmse_blocks,
