@@ -583,9 +583,31 @@ impl FrameRequest {
     /// The frame's plan (voxelises the cloud to measure it; lights and renders nothing): what
     /// `skybake plan frame` and `POST /v1/plan` with `"product": "frame"` answer.
     pub fn plan(&self, loader: &dyn Fn(&str) -> Result<Vec<u8>>) -> Result<FramePlan> {
-        let grid = self.scene.cloud.voxelize(loader)?;
+        let grid = self.voxelize(loader)?;
         super::check_grid(&grid)?;
         Ok(plan_frame(&self.scene, &grid, self.method))
+    }
+
+    /// The scene's cloud as a grid within the renderer's limit: every source's grid size is
+    /// checked against [`super::MAX_RENDER_VOXELS`] as soon as it is known and before the grid
+    /// is allocated ([`crate::cloud::scene::voxelize_within`]); the error names the scene field
+    /// that sets it, `cloud.voxel_size_m`.
+    fn voxelize(&self, loader: &dyn Fn(&str) -> Result<Vec<u8>>) -> Result<DensityGrid> {
+        self.scene
+            .cloud
+            .voxelize_within(loader, super::MAX_RENDER_VOXELS)
+            .map_err(|e| match e {
+                Error::TooLarge {
+                    field,
+                    reason,
+                    limit,
+                } if field == "dims" => Error::TooLarge {
+                    field: "cloud.voxel_size_m".into(),
+                    reason: format!("the grid at this voxel size: {reason}"),
+                    limit: format!("{limit} (use a larger voxel_size_m)"),
+                },
+                other => other,
+            })
     }
 
     /// Voxels of the frame's grid when they are known before voxelising
@@ -686,19 +708,7 @@ impl FrameRequest {
         let mut this_run: Option<TileMeta> = None;
         if !missing.is_empty() {
             let start = Instant::now();
-            // The grid's size is checked before it is allocated; name the scene field that sets it.
-            let grid = self.scene.cloud.voxelize(loader).map_err(|e| match e {
-                Error::TooLarge {
-                    field,
-                    reason,
-                    limit,
-                } if field == "dims" => Error::TooLarge {
-                    field: "cloud.voxel_size_m".into(),
-                    reason: format!("the grid at this voxel size: {reason}"),
-                    limit,
-                },
-                other => other,
-            })?;
+            let grid = self.voxelize(loader)?;
             let voxelize_ms = start.elapsed().as_secs_f64() * 1e3;
             super::check_grid(&grid)?;
             let start = Instant::now();
