@@ -124,7 +124,11 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         let r = render_frame(&scene, &grid, &light, &s, None, &|_| {}, &|| false)?;
         reference_ms = Some(t.elapsed().as_secs_f64() * 1e3);
         reference_noise = r.meta.error_estimate.path_tracer_relative_noise;
-        write_npy(&out.join("reference.npy"), &[height, width, n_l], &r.radiance)?;
+        write_npy(
+            &out.join("reference.npy"),
+            &[height, width, n_l],
+            &r.radiance,
+        )?;
         write_npy(
             &out.join("reference_var.npy"),
             &[height, width, n_l],

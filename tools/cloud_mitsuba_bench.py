@@ -19,6 +19,8 @@ tools/cloud_mitsuba.py):
   python3 tools/cloud_mitsuba_bench.py checks DIR      # envmap orientation and channels, sun irradiance
   python3 tools/cloud_mitsuba_bench.py series DIR [SPP ...]   # Mitsuba at increasing spp
   python3 tools/cloud_mitsuba_bench.py summary DIR     # writes tests/data/cloud_mitsuba_bench.json
+  python3 tools/cloud_mitsuba_bench.py pair DIR SPP    # two renders: noise without a reference
+                                                       # (for DIR exported at 640 480 0 and 160 120 0)
 
 Each `series` render is stored in DIR (mitsuba_spp<N>_seed<S>.npy with its wall and CPU time) so the
 summary can pool them. Errors follow src/render/bench.rs `image_errors`: pixel value = mean over the
@@ -43,6 +45,9 @@ DATA = os.path.normpath(os.path.join(HERE, "..", "tests", "data"))
 JSON_OUT = os.path.join(DATA, "cloud_mitsuba_bench.json")
 BLOCK = 8
 THREADS = int(os.environ.get("MI_THREADS", "2"))
+# Mitsuba's Russian roulette starts at this depth (volpath's default is 5; tools/cloud_mitsuba.py
+# used 10). With albedo 1 it keeps a path with probability 0.95 per event, raising its weight.
+RR_DEPTH = int(os.environ.get("MI_RR_DEPTH", "10"))
 
 
 def load_export(d):
@@ -114,7 +119,7 @@ def bench_scene(mi, meta, grid, env, spp, seed):
     o = meta["optics"]
     if len(set(o["extinction_per_density_m"])) != 1 or len(set(o["single_scattering_albedo"])) != 1:
         sys.exit("the export's optics vary with wavelength; this script renders a grey cloud only")
-    return {"type": "scene", "integrator": {"type": "volpath", "max_depth": -1, "rr_depth": 10},
+    return {"type": "scene", "integrator": {"type": "volpath", "max_depth": -1, "rr_depth": RR_DEPTH},
             "sensor": sensor(mi, meta, spp, seed), "cloud": cloud_shape(mi, meta, grid),
             "sun": sun_emitter(meta), "env": env_emitter(mi, env)}
 
@@ -255,15 +260,16 @@ def cmd_series(d, spps):
     env = np.load(os.path.join(d, "env.npy"))
     render(mi, bench_scene(mi, meta, grid, env, 1, 999_999))  # JIT and scene set-up warm-up, not timed
     for spp in spps:
-        done = glob.glob(os.path.join(d, f"mitsuba_spp{spp}_seed*.npy"))
-        seed = 1000 * spp + len(done)
+        tag = "" if RR_DEPTH == 10 else f"_rr{RR_DEPTH}"
+        done = glob.glob(os.path.join(d, f"mitsuba{tag}_spp{spp}_seed*.npy"))
+        seed = 1000 * spp + len(done) + 100 * (RR_DEPTH != 10)
         t, c = time.perf_counter(), cpu_seconds()
         img = render(mi, bench_scene(mi, meta, grid, env, spp, seed))
         wall, cpu = time.perf_counter() - t, cpu_seconds() - c
-        np.save(os.path.join(d, f"mitsuba_spp{spp}_seed{seed}.npy"), img.astype(np.float32))
-        with open(os.path.join(d, f"mitsuba_spp{spp}_seed{seed}.json"), "w") as f:
-            json.dump({"spp": spp, "seed": seed, "wall_s": wall, "cpu_s": cpu, "threads": THREADS,
-                       "load_average": os.getloadavg()}, f)
+        np.save(os.path.join(d, f"mitsuba{tag}_spp{spp}_seed{seed}.npy"), img.astype(np.float32))
+        with open(os.path.join(d, f"mitsuba{tag}_spp{spp}_seed{seed}.json"), "w") as f:
+            json.dump({"spp": spp, "seed": seed, "rr_depth": RR_DEPTH, "wall_s": wall, "cpu_s": cpu,
+                       "threads": THREADS, "load_average": os.getloadavg()}, f)
         print(f"spp {spp} seed {seed}: wall {wall:.1f} s, cpu {cpu:.1f} s, load {os.getloadavg()[0]:.1f}", flush=True)
 
 
@@ -282,9 +288,10 @@ def cmd_summary(d):
     fast = np.load(os.path.join(d, "fast.npy")).astype(np.float64).mean(axis=2)
     rows = []
     images = {}
-    for f in sorted(glob.glob(os.path.join(d, "mitsuba_spp*_seed*.json"))):
+    for f in sorted(glob.glob(os.path.join(d, "mitsuba*_spp*_seed*.json"))):
         with open(f) as fh:
             r = json.load(fh)
+        r.setdefault("rr_depth", 10)
         img = np.load(f[:-5] + ".npy").astype(np.float64)
         images.setdefault(r["spp"], []).append(img)
         e = errors(img.mean(axis=2), ref, mask)
@@ -292,12 +299,33 @@ def cmd_summary(d):
         e["block_nrmse_ref_noise_removed"] = math.sqrt(max(e["block_nrmse"] ** 2 - ref_block_noise**2, 0.0))
         e["pixel_nrmse_ref_noise_removed"] = math.sqrt(max(e["pixel_nrmse"] ** 2 - ref_pixel_noise**2, 0.0))
         rows.append({**r, **e})
-    rows.sort(key=lambda r: (r["spp"], r["seed"]))
+    rows.sort(key=lambda r: (r["rr_depth"], r["spp"], r["seed"]))
     # The pooled Mitsuba image (all renders, weighted by spp) against skybake's path tracer: the two
     # unbiased renderers on the same scene.
     tot = sum(k * len(v) for k, v in images.items())
     pooled = sum(k * sum(v) for k, v in images.items()) / tot
     per_channel_bias = [float(pooled[..., l][mask].mean() / ref_l[..., l][mask].mean() - 1) for l in range(3)]
+    # Time to reach a given block NRMSE: fit NRMSE^2 = a / spp over the renders of >= 64 spp (the
+    # reference's noise removed; below 64 spp rare long paths make the error heavy-tailed), and
+    # CPU seconds per sample per pixel from the same renders.
+    fast_e = errors(fast, ref, mask)
+    to_reach = {}
+    for rr in sorted({r["rr_depth"] for r in rows}):
+        fit_rows = [r for r in rows if r["spp"] >= 64 and r["rr_depth"] == rr]
+        if not fit_rows:
+            continue
+        a = float(np.mean([r["block_nrmse_ref_noise_removed"] ** 2 * r["spp"] for r in fit_rows]))
+        cpu_per_spp = float(np.median([r["cpu_s"] / r["spp"] for r in fit_rows]))
+        wall_per_spp = float(np.median([r["wall_s"] / r["spp"] for r in fit_rows]))
+        target = {"rr_depth": rr, "renders_fitted": len(fit_rows),
+                  "fit": "block NRMSE^2 = a / spp over renders of >= 64 spp (reference noise removed)",
+                  "a": a, "cpu_s_per_spp": cpu_per_spp, "wall_s_per_spp": wall_per_spp,
+                  "scaling_to_640x480": "x16 pixels at the same spp (block noise per spp checked with `pair`)"}
+        for name, e in (("5 %", 0.05), ("fast method", fast_e["block_nrmse"])):
+            spp = a / e**2
+            target[name] = {"block_nrmse": e, "spp": spp, "cpu_s": spp * cpu_per_spp, "wall_s": spp * wall_per_spp,
+                            "cpu_s_at_640x480": 16 * spp * cpu_per_spp}
+        to_reach[f"rr_depth_{rr}"] = target
     data = load_json()
     data.update({
         "what": "Mitsuba 3 on skybake's bench frame (issue 13 point 8): time to reach the fast method's error",
@@ -307,23 +335,63 @@ def cmd_summary(d):
         "versions": {"mitsuba": version("mitsuba"), "drjit": version("drjit"), "numpy": np.__version__,
                      "variant": os.environ.get("MI_VARIANT", "llvm_ad_rgb"), "libLLVM": "19.1.7 (Debian libllvm19)",
                      "python": sys.version.split()[0]},
-        "mitsuba_integrator": "volpath, max_depth -1, rr_depth 10, box filter, independent sampler",
+        "mitsuba_integrator": "volpath, max_depth -1, rr_depth per render (10 unless stated), box filter, "
+                              "independent sampler, 2 threads; times are the Python process's (drjit's "
+                              "threads included), the scene load and JIT warmed up by a 1-spp render first",
         "cloud_pixels": int(mask.sum()), "cloud_blocks": int(cb.sum()),
         "reference": {"renderer": "skybake path tracer (Method::Reference)", "spp": meta["reference_spp"],
                       "wall_s": meta["reference_ms"] / 1e3 if meta["reference_ms"] else None,
                       "block_noise": ref_block_noise, "pixel_noise": ref_pixel_noise, "cloud_mean": float(m)},
-        "fast": {"wall_s": meta["fast_ms"] / 1e3, "stages_ms": meta["fast_stages_ms"], **errors(fast, ref, mask)},
+        "fast": {"wall_s": meta["fast_ms"] / 1e3, "stages_ms": meta["fast_stages_ms"], **fast_e},
+        "mitsuba_to_reach": to_reach,
         "mitsuba_pooled_vs_path_tracer": {"spp_total": tot, **errors(pooled.mean(axis=2), ref, mask),
                                           "cloud_mean_bias_per_wavelength": per_channel_bias},
         "mitsuba_series": rows,
     })
     save_json(data)
-    print(json.dumps({k: data[k] for k in ("reference", "fast", "mitsuba_pooled_vs_path_tracer")}, indent=1))
-    print("| spp | wall s | CPU s | block NRMSE | (ref noise removed) | pixel NRMSE | cloud-mean bias |")
+    print(json.dumps({k: data[k] for k in ("reference", "fast", "mitsuba_pooled_vs_path_tracer", "mitsuba_to_reach")},
+                     indent=1))
+    print("| rr_depth | spp | wall s | CPU s | block NRMSE | (ref noise removed) | pixel NRMSE | cloud-mean bias |")
     for r in rows:
-        print(f"| {r['spp']} | {r['wall_s']:.1f} | {r['cpu_s']:.1f} | {100 * r['block_nrmse']:.1f} % | "
+        print(f"| {r['rr_depth']} | {r['spp']} | {r['wall_s']:.1f} | {r['cpu_s']:.1f} | {100 * r['block_nrmse']:.1f} % | "
               f"{100 * r['block_nrmse_ref_noise_removed']:.1f} % | {100 * r['pixel_nrmse']:.0f} % | "
               f"{100 * r['cloud_mean_bias']:+.1f} % |")
+
+
+def cmd_pair(d, spp):
+    """Noise without a reference, for the resolution scaling: two independent renders at `spp`; the
+    RMS of their difference over cloud blocks (pixels) divided by sqrt 2 is one render's block
+    (pixel) noise, relative to the pair's mean over cloud pixels. Renders are stored as in
+    `series` (seeds 1000 * spp + 500 + k) and the figures go to `pairs` in the JSON."""
+    mi = mitsuba()
+    meta = load_export(d)
+    grid = np.load(os.path.join(d, "grid.npy"))
+    env = np.load(os.path.join(d, "env.npy"))
+    mask = mask_of(d)
+    render(mi, bench_scene(mi, meta, grid, env, 1, 999_999))
+    imgs, walls, cpus = [], [], []
+    for k in range(2):
+        seed = 1000 * spp + 500 + k
+        t, c = time.perf_counter(), cpu_seconds()
+        img = render(mi, bench_scene(mi, meta, grid, env, spp, seed))
+        walls.append(time.perf_counter() - t)
+        cpus.append(cpu_seconds() - c)
+        np.save(os.path.join(d, f"pair_spp{spp}_seed{seed}.npy"), img.astype(np.float32))
+        imgs.append(img.mean(axis=2))
+        print(f"spp {spp} seed {seed}: wall {walls[-1]:.1f} s, cpu {cpus[-1]:.1f} s", flush=True)
+    a, b = imgs
+    m = 0.5 * (a[mask].mean() + b[mask].mean())
+    cb = blocks(mask.astype(float)) == 1.0
+    row = {"width": meta["camera"]["width"], "height": meta["camera"]["height"], "spp": spp,
+           "wall_s": walls, "cpu_s": cpus, "threads": THREADS, "cloud_pixels": int(mask.sum()),
+           "cloud_blocks": int(cb.sum()),
+           "block_noise": float(np.sqrt(np.mean((blocks(a)[cb] - blocks(b)[cb]) ** 2) / 2) / m),
+           "pixel_noise": float(np.sqrt(np.mean((a[mask] - b[mask]) ** 2) / 2) / m)}
+    data = load_json()
+    pairs = [p for p in data.get("pairs", []) if (p["width"], p["spp"]) != (row["width"], spp)]
+    data["pairs"] = sorted(pairs + [row], key=lambda p: (p["width"], p["spp"]))
+    save_json(data)
+    print(json.dumps(row))
 
 
 def main():
@@ -334,6 +402,8 @@ def main():
         cmd_checks(d)
     elif cmd == "series":
         cmd_series(d, [int(x) for x in sys.argv[3:]] or [4, 16, 64, 256])
+    elif cmd == "pair":
+        cmd_pair(d, int(sys.argv[3]))
     elif cmd == "summary":
         cmd_summary(d)
     else:
