@@ -327,8 +327,18 @@ fn voxelize_for_mc(
 
 /// Grows the cloud and voxelises it at `voxel_size_m` (seed 000 §4, then seed 001 eq 3).
 pub fn voxelize(params: &FractalParams, voxel_size_m: f64) -> Result<DensityGrid> {
+    voxelize_within(params, voxel_size_m, super::grid::MAX_VOXELS)
+}
+
+/// [`voxelize`], refusing a grid of more than `max_voxels` voxels (too large on `dims`) once the
+/// grown balls give its box, before it is allocated.
+pub fn voxelize_within(
+    params: &FractalParams,
+    voxel_size_m: f64,
+    max_voxels: usize,
+) -> Result<DensityGrid> {
     let cloud = grow(params)?;
-    MetaballField::new(cloud.balls)?.voxelize(voxel_size_m, voxel_size_m)
+    MetaballField::new(cloud.balls)?.voxelize_within(voxel_size_m, voxel_size_m, max_voxels)
 }
 
 /// Timing of one growth, for `skybake bench fractal_grow`.

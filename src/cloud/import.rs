@@ -87,9 +87,35 @@ enum Dtype {
     F8,
 }
 
+/// The dimensions `[nx, ny, nz]` of the grid in `.npy` bytes, from the header alone (the
+/// header and the data length are validated as [`from_npy_bytes`] does; nothing is allocated).
+pub fn npy_dims(bytes: &[u8]) -> Result<[usize; 3]> {
+    npy_layout(bytes).map(|(dims, _, _)| dims)
+}
+
 /// A grid from `.npy` bytes: a 3-D float32 or float64 array in C order, shape `(nz, ny, nx)`.
 /// The file holds no geometry, so `voxel_size_m` and `origin_m` come from the caller.
 pub fn from_npy_bytes(bytes: &[u8], voxel_size_m: f64, origin_m: DVec3) -> Result<DensityGrid> {
+    let (dims, dtype, end) = npy_layout(bytes)?;
+    let data = &bytes[end..];
+    let values: Vec<f32> = match dtype {
+        Dtype::F4 => data
+            .chunks_exact(4)
+            .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]))
+            .collect(),
+        Dtype::F8 => data
+            .chunks_exact(8)
+            .map(|c| {
+                let v = f64::from_le_bytes([c[0], c[1], c[2], c[3], c[4], c[5], c[6], c[7]]);
+                v as f32
+            })
+            .collect(),
+    };
+    DensityGrid::from_data(dims, voxel_size_m, origin_m, values)
+}
+
+/// Validates `.npy` bytes: dims `[nx, ny, nz]`, element type and where the data starts.
+fn npy_layout(bytes: &[u8]) -> Result<([usize; 3], Dtype, usize)> {
     if bytes.len() < 10 || &bytes[..6] != NPY_MAGIC {
         return Err(Error::invalid(
             "npy",
@@ -179,20 +205,7 @@ pub fn from_npy_bytes(bytes: &[u8], voxel_size_m: f64, origin_m: DVec3) -> Resul
             ),
         ));
     }
-    let values: Vec<f32> = match dtype {
-        Dtype::F4 => data
-            .chunks_exact(4)
-            .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]))
-            .collect(),
-        Dtype::F8 => data
-            .chunks_exact(8)
-            .map(|c| {
-                let v = f64::from_le_bytes([c[0], c[1], c[2], c[3], c[4], c[5], c[6], c[7]]);
-                v as f32
-            })
-            .collect(),
-    };
-    DensityGrid::from_data(dims, voxel_size_m, origin_m, values)
+    Ok((dims, dtype, end))
 }
 
 /// A grid as `.npy` bytes (version 1.0, `<f4`, C order, shape `(nz, ny, nx)`), readable by

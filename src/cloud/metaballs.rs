@@ -5,7 +5,7 @@
 //! it (compressed-row storage), so a lookup touches only nearby balls. Voxelisation into a
 //! [`DensityGrid`] runs over z-slices in parallel with rayon.
 
-use super::grid::{checked_voxel_count, DensityGrid, MAX_VOXELS};
+use super::grid::{checked_count, checked_voxel_count, DensityGrid, MAX_VOXELS};
 use super::wyvill;
 use crate::{Error, Result};
 use glam::DVec3;
@@ -238,6 +238,17 @@ impl MetaballField {
     /// Voxelises the field over its support plus `margin_m` on every side, at voxel edge
     /// `voxel_size_m`, centring the box on the support. Validates the voxel count first.
     pub fn voxelize(&self, voxel_size_m: f64, margin_m: f64) -> Result<DensityGrid> {
+        self.voxelize_within(voxel_size_m, margin_m, MAX_VOXELS)
+    }
+
+    /// [`Self::voxelize`], refusing a grid of more than `max_voxels` voxels (too large on `dims`)
+    /// before it is allocated.
+    pub fn voxelize_within(
+        &self,
+        voxel_size_m: f64,
+        margin_m: f64,
+        max_voxels: usize,
+    ) -> Result<DensityGrid> {
         if !(margin_m.is_finite() && margin_m >= 0.0) {
             return Err(Error::out_of_range(
                 "margin_m",
@@ -247,6 +258,7 @@ impl MetaballField {
         }
         let (lo, hi) = (self.min_m - margin_m, self.max_m + margin_m);
         let (dims, origin_m) = box_dims(lo, hi, voxel_size_m)?;
+        checked_count(dims, max_voxels, "voxels")?;
         self.voxelize_box(dims, voxel_size_m, origin_m)
     }
 

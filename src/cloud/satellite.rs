@@ -612,10 +612,22 @@ pub fn voxelize_with_fit(
     params: &SatelliteParams,
     voxel_size_m: f64,
 ) -> Result<(DensityGrid, FitResult)> {
+    voxelize_with_fit_within(png_bytes, params, voxel_size_m, super::grid::MAX_VOXELS)
+}
+
+/// [`voxelize_with_fit`], refusing a grid of more than `max_voxels` voxels (too large on `dims`)
+/// once the fitted balls give its box, before it is allocated.
+pub fn voxelize_with_fit_within(
+    png_bytes: &[u8],
+    params: &SatelliteParams,
+    voxel_size_m: f64,
+    max_voxels: usize,
+) -> Result<(DensityGrid, FitResult)> {
     let img = GrayImage::from_png_bytes(png_bytes)?;
     let fitted = fit(&img, params)?;
     let balls = to_metaballs(&img, &fitted, params)?;
-    let grid = MetaballField::new(balls)?.voxelize(voxel_size_m, voxel_size_m)?;
+    let grid =
+        MetaballField::new(balls)?.voxelize_within(voxel_size_m, voxel_size_m, max_voxels)?;
     Ok((grid, fitted))
 }
 

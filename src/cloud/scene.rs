@@ -16,7 +16,7 @@
 
 use super::automaton::{self, AutomatonParams};
 use super::fractal::{self, FractalParams};
-use super::grid::{checked_voxel_count, MAX_VOXELS};
+use super::grid::{checked_count, checked_voxel_count, MAX_VOXELS};
 use super::import;
 use super::metaballs::{box_dims, Metaball, MetaballField};
 use super::satellite::{self, SatelliteParams};
@@ -229,28 +229,22 @@ impl CloudSection {
     /// balls' box plus one voxel of margin) and the automaton (its cell box, resampled). `None`
     /// for the others, whose box comes from a file or a growth (grid, satellite, fractal, spheres).
     pub fn planned_dims(&self) -> Result<Option<[usize; 3]>> {
-        let v = self.voxel_size_m;
-        Ok(match &self.source {
-            CloudSource::Metaballs(p) => {
-                let (lo, hi) = MetaballField::new(p.balls.clone())?.bounds_m();
-                Some(box_dims(lo - v, hi + v, v)?.0)
-            }
-            CloudSource::Automaton(a) => {
-                let (dims, cell) = (a.params.dims, a.params.cell_size_m);
-                if same_size(cell, v) {
-                    Some(dims)
-                } else {
-                    let hi = DVec3::new(dims[0] as f64, dims[1] as f64, dims[2] as f64) * cell;
-                    Some(box_dims(DVec3::ZERO, hi, v)?.0)
-                }
-            }
-            _ => None,
-        })
+        planned_dims(&self.source, self.voxel_size_m)
     }
 
     /// Builds the density grid (see [`voxelize`]).
     pub fn voxelize(&self, loader: &dyn Fn(&str) -> Result<Vec<u8>>) -> Result<DensityGrid> {
         voxelize(&self.source, self.voxel_size_m, loader)
+    }
+
+    /// Builds the density grid, refusing one of more than `max_voxels` voxels before it is
+    /// allocated (see [`voxelize_within`]).
+    pub fn voxelize_within(
+        &self,
+        loader: &dyn Fn(&str) -> Result<Vec<u8>>,
+        max_voxels: usize,
+    ) -> Result<DensityGrid> {
+        voxelize_within(&self.source, self.voxel_size_m, loader, max_voxels).map(|(g, _)| g)
     }
 
     /// Builds the density grid and the source's report (see [`voxelize_with_report`]).
@@ -260,6 +254,26 @@ impl CloudSection {
     ) -> Result<(DensityGrid, SourceReport)> {
         voxelize_with_report(&self.source, self.voxel_size_m, loader)
     }
+}
+
+/// [`CloudSection::planned_dims`] of `source` at voxel edge `v`.
+fn planned_dims(source: &CloudSource, v: f64) -> Result<Option<[usize; 3]>> {
+    Ok(match source {
+        CloudSource::Metaballs(p) => {
+            let (lo, hi) = MetaballField::new(p.balls.clone())?.bounds_m();
+            Some(box_dims(lo - v, hi + v, v)?.0)
+        }
+        CloudSource::Automaton(a) => {
+            let (dims, cell) = (a.params.dims, a.params.cell_size_m);
+            if same_size(cell, v) {
+                Some(dims)
+            } else {
+                let hi = DVec3::new(dims[0] as f64, dims[1] as f64, dims[2] as f64) * cell;
+                Some(box_dims(DVec3::ZERO, hi, v)?.0)
+            }
+        }
+        _ => None,
+    })
 }
 
 fn check_voxel_size(v: f64) -> Result<()> {
@@ -359,16 +373,37 @@ pub fn voxelize_with_report(
     voxel_size_m: f64,
     loader: &dyn Fn(&str) -> Result<Vec<u8>>,
 ) -> Result<(DensityGrid, SourceReport)> {
+    voxelize_within(source, voxel_size_m, loader, MAX_VOXELS)
+}
+
+/// [`voxelize_with_report`], refusing a grid of more than `max_voxels` voxels (too large on
+/// `dims`) as soon as its dimensions are known and before it is allocated: from the parameters
+/// (metaballs, automaton: before the simulation), from the file's header (grid: before the data
+/// are decoded or resampled), from the grown or fitted balls (fractal, satellite) and from the
+/// built sphere hierarchy (spheres). The renderer passes its own limit
+/// (`render::MAX_RENDER_VOXELS`).
+pub fn voxelize_within(
+    source: &CloudSource,
+    voxel_size_m: f64,
+    loader: &dyn Fn(&str) -> Result<Vec<u8>>,
+    max_voxels: usize,
+) -> Result<(DensityGrid, SourceReport)> {
     check_voxel_size(voxel_size_m)?;
     validate_source(source)?;
+    if let Some(dims) = planned_dims(source, voxel_size_m)? {
+        checked_count(dims, max_voxels, "voxels")?;
+    }
     let grid = match source {
-        CloudSource::Metaballs(p) => {
-            MetaballField::new(p.balls.clone())?.voxelize(voxel_size_m, voxel_size_m)
-        }
-        CloudSource::Fractal(p) => fractal::voxelize(p, voxel_size_m),
+        CloudSource::Metaballs(p) => MetaballField::new(p.balls.clone())?.voxelize_within(
+            voxel_size_m,
+            voxel_size_m,
+            max_voxels,
+        ),
+        CloudSource::Fractal(p) => fractal::voxelize_within(p, voxel_size_m, max_voxels),
         CloudSource::Satellite(p) => {
             let png = loader(&p.image)?;
-            let (grid, fit) = satellite::voxelize_with_fit(&png, p, voxel_size_m)?;
+            let (grid, fit) =
+                satellite::voxelize_with_fit_within(&png, p, voxel_size_m, max_voxels)?;
             let report = SourceReport {
                 fit_error: Some(fit.error),
                 fit_converged: Some(fit.converged),
@@ -378,16 +413,38 @@ pub fn voxelize_with_report(
         }
         CloudSource::Grid(p) => {
             let bytes = loader(&p.path)?;
-            let mut grid = match p.format() {
-                GridFormat::Npy => import::from_npy_bytes(
-                    &bytes,
-                    p.file_voxel_size_m.unwrap_or(voxel_size_m),
-                    DVec3::from_array(p.origin_m.unwrap_or([0.0; 3])),
-                )?,
+            let (file_dims, header) = match p.format() {
+                GridFormat::Npy => (import::npy_dims(&bytes)?, None),
                 GridFormat::RawF32 => {
                     let header = import::parse_raw_header(&loader(&p.header_path())?)?;
-                    import::from_raw_f32(&header, &bytes)?
+                    (header.dims, Some(header))
                 }
+            };
+            let (file_voxel_m, origin_m) = match &header {
+                Some(h) => (h.voxel_size_m, DVec3::from_array(h.origin_m)),
+                None => (
+                    p.file_voxel_size_m.unwrap_or(voxel_size_m),
+                    DVec3::from_array(p.origin_m.unwrap_or([0.0; 3])),
+                ),
+            };
+            // The grid at the section's voxel size, before the data are decoded (a header's bad
+            // voxel size or origin is reported by the decoding below).
+            if file_voxel_m.is_finite() && file_voxel_m > 0.0 && origin_m.is_finite() {
+                let dims = if same_size(file_voxel_m, voxel_size_m) {
+                    file_dims
+                } else {
+                    let n = DVec3::new(
+                        file_dims[0] as f64,
+                        file_dims[1] as f64,
+                        file_dims[2] as f64,
+                    );
+                    box_dims(origin_m, origin_m + n * file_voxel_m, voxel_size_m)?.0
+                };
+                checked_count(dims, max_voxels, "voxels")?;
+            }
+            let mut grid = match &header {
+                None => import::from_npy_bytes(&bytes, file_voxel_m, origin_m)?,
+                Some(h) => import::from_raw_f32(h, &bytes)?,
             };
             if p.density_scale != 1.0 {
                 let s = p.density_scale as f32;
@@ -399,7 +456,12 @@ pub fn voxelize_with_report(
             automaton::automaton_density(&a.params, a.frame_time_steps)?,
             voxel_size_m,
         ),
-        CloudSource::Spheres(s) => SphereCloud::new(&s.params)?.voxelize(voxel_size_m, s.level),
+        CloudSource::Spheres(s) => {
+            let cloud = SphereCloud::new(&s.params)?;
+            let (dims, _, _) = cloud.grid_box(voxel_size_m, s.level)?;
+            checked_count(dims, max_voxels, "voxels")?;
+            cloud.voxelize(voxel_size_m, s.level)
+        }
     }?;
     Ok((grid, SourceReport::default()))
 }

@@ -32,6 +32,48 @@ const ATTR_TILE_META: &str = "skybakeTileMeta";
 /// computed and how many it took from an earlier run.
 pub const ATTR_FRAME_TILES: &str = "skybakeFrameTiles";
 
+/// Header attribute of a frame artifact: its [`FrameMeta`] as JSON, the timings at a fixed width
+/// ([`frame_meta_json`]).
+pub const ATTR_FRAME_META: &str = "skybakeFrameMeta";
+
+/// Width of a timing value in [`ATTR_FRAME_META`]: milliseconds to the microsecond, right-aligned
+/// with spaces (JSON whitespace), capped at 99 999 999.999.
+pub const FRAME_TIMING_WIDTH: usize = 12;
+
+/// A frame's metadata as JSON whose `timing_ms` values all have [`FRAME_TIMING_WIDTH`] characters
+/// (`["pixels",     1234.567]`), so the attribute's length and every byte outside those values
+/// depend on the request only.
+pub fn frame_meta_json(meta: &FrameMeta) -> Result<String> {
+    fn json<T: Serialize + ?Sized>(v: &T) -> Result<String> {
+        serde_json::to_string(v)
+            .map_err(|e| Error::internal("frame", format!("JSON encoding: {e}")))
+    }
+    let text = json(&FrameMeta {
+        timing_ms: Vec::new(),
+        ..meta.clone()
+    })?;
+    let mut timings = Vec::with_capacity(meta.timing_ms.len());
+    for (stage, ms) in &meta.timing_ms {
+        let ms = if ms.is_finite() {
+            ms.clamp(0.0, 99_999_999.999)
+        } else {
+            0.0
+        };
+        timings.push(format!(
+            "[{},{:>w$.3}]",
+            json(stage)?,
+            ms,
+            w = FRAME_TIMING_WIDTH
+        ));
+    }
+    // `timing_ms` is serialised before the fields that hold free text (notes, plan).
+    let empty = "\"timing_ms\":[]";
+    if !text.contains(empty) {
+        return Err(Error::internal("frame", "metadata without timing_ms"));
+    }
+    Ok(text.replacen(empty, &format!("\"timing_ms\":[{}]", timings.join(",")), 1))
+}
+
 /// The example scenes of `config/scenes/`, embedded in the binary: (name, scene JSON). Those with
 /// a `camera` are frame scenes (`POST /v1/render`, frame jobs); the others are cloud sections
 /// (`skybake clouds`).
@@ -541,9 +583,31 @@ impl FrameRequest {
     /// The frame's plan (voxelises the cloud to measure it; lights and renders nothing): what
     /// `skybake plan frame` and `POST /v1/plan` with `"product": "frame"` answer.
     pub fn plan(&self, loader: &dyn Fn(&str) -> Result<Vec<u8>>) -> Result<FramePlan> {
-        let grid = self.scene.cloud.voxelize(loader)?;
+        let grid = self.voxelize(loader)?;
         super::check_grid(&grid)?;
         Ok(plan_frame(&self.scene, &grid, self.method))
+    }
+
+    /// The scene's cloud as a grid within the renderer's limit: every source's grid size is
+    /// checked against [`super::MAX_RENDER_VOXELS`] as soon as it is known and before the grid
+    /// is allocated ([`crate::cloud::scene::voxelize_within`]); the error names the scene field
+    /// that sets it, `cloud.voxel_size_m`.
+    fn voxelize(&self, loader: &dyn Fn(&str) -> Result<Vec<u8>>) -> Result<DensityGrid> {
+        self.scene
+            .cloud
+            .voxelize_within(loader, super::MAX_RENDER_VOXELS)
+            .map_err(|e| match e {
+                Error::TooLarge {
+                    field,
+                    reason,
+                    limit,
+                } if field == "dims" => Error::TooLarge {
+                    field: "cloud.voxel_size_m".into(),
+                    reason: format!("the grid at this voxel size: {reason}"),
+                    limit: format!("{limit} (use a larger voxel_size_m)"),
+                },
+                other => other,
+            })
     }
 
     /// Voxels of the frame's grid when they are known before voxelising
@@ -644,19 +708,7 @@ impl FrameRequest {
         let mut this_run: Option<TileMeta> = None;
         if !missing.is_empty() {
             let start = Instant::now();
-            // The grid's size is checked before it is allocated; name the scene field that sets it.
-            let grid = self.scene.cloud.voxelize(loader).map_err(|e| match e {
-                Error::TooLarge {
-                    field,
-                    reason,
-                    limit,
-                } if field == "dims" => Error::TooLarge {
-                    field: "cloud.voxel_size_m".into(),
-                    reason: format!("the grid at this voxel size: {reason}"),
-                    limit,
-                },
-                other => other,
-            })?;
+            let grid = self.voxelize(loader)?;
             let voxelize_ms = start.elapsed().as_secs_f64() * 1e3;
             super::check_grid(&grid)?;
             let start = Instant::now();
@@ -770,6 +822,9 @@ impl FrameRequest {
             },
         };
         let mut image = crate::export::frame_image(&frame, &self.canonical_json())?;
+        // The metadata again with its timings at a fixed width, so two computations of a request
+        // (CLI, service, bake) differ only in those values' bytes.
+        image.set_attribute(ATTR_FRAME_META, frame_meta_json(&frame.meta)?)?;
         image.set_attribute(crate::store::layout::ATTR_CACHE_KEY, self.cache_key())?;
         image.set_attribute(
             ATTR_FRAME_TILES,
@@ -841,7 +896,7 @@ pub fn frame_summary(image: &SpectralImage) -> serde_json::Value {
             .and_then(|t| serde_json::from_str(t).ok())
             .unwrap_or(Value::Null)
     };
-    let meta = attr("skybakeFrameMeta");
+    let meta = attr(ATTR_FRAME_META);
     let stages: Vec<Value> = meta["timing_ms"]
         .as_array()
         .map(|a| {

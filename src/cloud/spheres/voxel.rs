@@ -35,6 +35,20 @@ impl SphereCloud {
     /// `level` (default K), density [`Self::density_at`] at every voxel centre (DESIGN.md's
     /// cell-centred convention). Multiply by [`Self::extinction_per_m`] for extinction.
     pub fn voxelize(&self, voxel_size_m: f64, level: Option<u32>) -> Result<DensityGrid> {
+        let (dims, origin, level) = self.grid_box(voxel_size_m, level)?;
+        DensityGrid::from_fn(dims, voxel_size_m, origin, |p| {
+            self.density_at(p, level) as f32
+        })
+    }
+
+    /// The grid [`Self::voxelize`] builds, without building it: dims `[nx, ny, nz]`, minimum
+    /// corner and the level used. Refuses a voxel size out of range, a level above K and a grid
+    /// over the cloud module's voxel limit.
+    pub fn grid_box(
+        &self,
+        voxel_size_m: f64,
+        level: Option<u32>,
+    ) -> Result<([usize; 3], DVec3, u32)> {
         if !(voxel_size_m.is_finite() && voxel_size_m > 0.0) {
             return Err(Error::out_of_range(
                 "voxel_size_m",
@@ -77,9 +91,6 @@ impl SphereCloud {
             },
             other => other,
         })?;
-        let origin = self.centre_m() + lo;
-        DensityGrid::from_fn(dims, voxel_size_m, origin, |p| {
-            self.density_at(p, level) as f32
-        })
+        Ok((dims, self.centre_m() + lo, level))
     }
 }
