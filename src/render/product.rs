@@ -365,8 +365,11 @@ fn view_of_box(
 }
 
 /// The sphere-hierarchy facts of a scene whose cloud source is `spheres` (`None` otherwise):
-/// the pixel footprint on the box of the requested level's spheres and the deepest level whose
-/// mean sphere diameter is at least that footprint. Builds the hierarchy (no voxels).
+/// the pixel footprint on the base sphere's box (every level's spheres lie inside it) and the
+/// deepest level whose mean sphere diameter is at least that footprint
+/// (`SphereCloud::level_for_resolution`). The levels are built one at a time and only as deep
+/// as needed (a parent's children come from its own random stream, so the first L levels of a
+/// hierarchy of K ≥ L ≥ 1 levels are those of a hierarchy of L levels); no voxels.
 pub fn sphere_facts(scene: &FrameScene) -> Result<Option<SphereFacts>> {
     use crate::cloud::scene::CloudSource;
     use crate::cloud::spheres::SphereCloud;
@@ -374,24 +377,35 @@ pub fn sphere_facts(scene: &FrameScene) -> Result<Option<SphereFacts>> {
     let CloudSource::Spheres(source) = &scene.cloud.source else {
         return Ok(None);
     };
-    let model = SphereCloud::new(&source.params).map_err(|e| e.prefixed("cloud.source."))?;
-    let requested_level = source.level.unwrap_or(model.max_level()).min(model.max_level());
-    let (mut lo, mut hi) = (DVec3::splat(f64::INFINITY), DVec3::splat(f64::NEG_INFINITY));
-    for sphere in model.level(requested_level) {
-        let c = model.centre_m() + sphere.centre_m();
-        lo = lo.min(c - sphere.radius as f64);
-        hi = hi.max(c + sphere.radius as f64);
-    }
+    let k_max = source.params.levels;
+    let requested_level = source.level.unwrap_or(k_max).min(k_max);
+    let build = |levels: u32| {
+        let mut params = source.params.clone();
+        params.levels = levels;
+        SphereCloud::new(&params).map_err(|e| e.prefixed("cloud.source.params."))
+    };
+    let mean_diameter = |model: &SphereCloud, k: u32| {
+        let spheres = model.level(k);
+        2.0 * spheres.iter().map(|s| s.radius as f64).sum::<f64>() / spheres.len().max(1) as f64
+    };
+    let base = build(k_max.min(1))?;
+    let r0 = base.level(0)[0].radius as f64;
+    let (lo, hi) = (base.centre_m() - DVec3::splat(r0), base.centre_m() + DVec3::splat(r0));
     let (_, footprint, nearest) = view_of_box(&scene.camera, lo, hi);
-    let resolved_level = model.level_for_resolution(footprint).min(requested_level);
-    let spheres = model.level(resolved_level);
-    let diameter = 2.0 * spheres.iter().map(|s| s.radius as f64).sum::<f64>()
-        / spheres.len().max(1) as f64;
+    let (mut resolved_level, mut resolved_diameter_m) = (0, mean_diameter(&base, 0));
+    for k in 1..=requested_level {
+        let model = build(k)?;
+        let d = mean_diameter(&model, k);
+        if d < footprint {
+            break;
+        }
+        (resolved_level, resolved_diameter_m) = (k, d);
+    }
     Ok(Some(SphereFacts {
         requested_level,
         level_fixed: source.level.is_some(),
         resolved_level,
-        resolved_diameter_m: diameter,
+        resolved_diameter_m,
         pixel_footprint_m: footprint,
         nearest_distance_m: nearest,
     }))
@@ -566,6 +580,12 @@ pub fn execute_plan(
     let under_budget = |stage| matches!(reason(stage), Some(FrameReason::UnderBudget { .. }));
     settings.sky_light = !under_budget(FrameStage::SkyLight);
     settings.ground_light = !under_budget(FrameStage::GroundLight);
+    // With an atmosphere the camera's background is its own `sky` product, so the products
+    // that light only the cloud (`sky` at the cloud, `ground`) are not computed either.
+    if matches!(scene.sky, SkySpec::Atmosphere) && scene.atmosphere.is_some() {
+        scene.lighting.sky_light &= settings.sky_light;
+        scene.lighting.ground_light &= settings.ground_light;
+    }
     if let Some(r @ (FrameReason::CloudOutOfView | FrameReason::NoCloud)) =
         reason(FrameStage::CloudLight)
     {
@@ -742,7 +762,14 @@ impl FrameRequest {
         if let (Some(level), crate::cloud::scene::CloudSource::Spheres(source)) =
             (&level, &mut cloud.source)
         {
-            source.level = Some(level.to_level);
+            // The hierarchy is built only to the level summed (see `sphere_facts`); level 0 of
+            // a hierarchy of K ≥ 1 levels is another sphere than that of K = 0.
+            if level.to_level >= 1 {
+                source.params.levels = level.to_level;
+                source.level = None;
+            } else {
+                source.level = Some(0);
+            }
         }
         // The grid's size is checked before it is allocated; name the scene field that sets it.
         let grid = cloud.voxelize(loader).map_err(|e| match e {
@@ -795,13 +822,22 @@ impl FrameRequest {
             Some(g) => g,
             None => grid,
         };
-        let same_light = |a: &FrameScene, b: &FrameScene| {
-            a.lighting.sky_light == b.lighting.sky_light
-                && a.lighting.ground_light == b.lighting.ground_light
-        };
         let plan_ms = start.elapsed().as_secs_f64() * 1e3 - lighting_ms;
         let lighting = match measured {
-            Some(l) if plan.coarsening() == 1 && same_light(&run.scene, &self.scene) => l,
+            // The light measured is the frame's, less what the plan left out.
+            Some(l) if plan.coarsening() == 1 => {
+                let (sky, ground) = (run.scene.lighting.sky_light, run.scene.lighting.ground_light);
+                match l.masked(sky, ground) {
+                    Some(mut masked) => {
+                        masked.notes.retain(|n| {
+                            !((n.starts_with("sky product at") && !sky)
+                                || (n.starts_with("ground product at") && !ground))
+                        });
+                        masked
+                    }
+                    None => l,
+                }
+            }
             _ => {
                 let t = Instant::now();
                 let l = lighting_for(&run.scene, &grid, engine)?;

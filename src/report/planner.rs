@@ -13,8 +13,10 @@ use crate::engine::{Engine, Product};
 use crate::plan::{FramePlan, FrameReason};
 use crate::product::params::RequestParams;
 use crate::product::{ProductKind, ProductRequest};
-use crate::render::product::{execute_plan, plan_frame};
-use crate::render::{lighting_for, render_tile, FrameScene, Method, Prepared};
+use crate::render::product::{
+    execute_plan, frame_facts_with, plan_frame, sphere_facts, PlanInputs,
+};
+use crate::render::{lighting_for, render_tile, FrameScene, Lighting, Method, Prepared};
 use crate::{Error, Result};
 use serde_json::{json, Value};
 use std::time::Instant;
@@ -135,9 +137,40 @@ fn render(
     plan: &FramePlan,
     method: Method,
 ) -> Result<Vec<f32>> {
+    render_lit(scene, grid, plan, method, None)
+}
+
+/// [`render`], with an atmosphere lit as `FrameRequest` does: the scene's whole light computed
+/// first (the planner measures the shares on it), less what the plan leaves out.
+fn render_measured(
+    scene: &FrameScene,
+    grid: &DensityGrid,
+    plan: &FramePlan,
+    method: Method,
+) -> Result<Vec<f32>> {
+    if scene.atmosphere.is_none() || plan.coarsening() > 1 {
+        return render(scene, grid, plan, method);
+    }
+    let measured = lighting_for(scene, grid, &Engine::new())?;
+    render_lit(scene, grid, plan, method, Some(measured))
+}
+
+fn render_lit(
+    scene: &FrameScene,
+    grid: &DensityGrid,
+    plan: &FramePlan,
+    method: Method,
+    measured: Option<Lighting>,
+) -> Result<Vec<f32>> {
     let run = execute_plan(plan, scene, grid, method)?;
     let grid = run.grid.as_ref().unwrap_or(grid);
-    let lighting = lighting_for(&run.scene, grid, &Engine::new())?;
+    let lighting = match measured {
+        Some(l) => {
+            let sw = run.scene.lighting;
+            l.masked(sw.sky_light, sw.ground_light).unwrap_or(l)
+        }
+        None => lighting_for(&run.scene, grid, &Engine::new())?,
+    };
     let mut settings = run.settings;
     settings.spp = REFERENCE_SPP;
     let p = Prepared::new(&run.scene, grid, &lighting, settings, &|| false)?;
@@ -173,14 +206,40 @@ fn frame_errors(x: &[f32], r: &[f32], b: &[f32]) -> (f64, f64) {
     (mse.sqrt() / signal, diff / signal)
 }
 
-fn frame_rule(rule: &str, case: &str, scene: FrameScene, reference: bool) -> Result<RuleSaving> {
+/// The fast plan of `scene` on `grid` with the request's `target`, the light measured on the
+/// scene's computed lighting when it has an atmosphere (as `FrameRequest` plans).
+fn fast_plan(scene: &FrameScene, grid: &DensityGrid, target: Option<f64>) -> Result<FramePlan> {
+    let lighting = match scene.atmosphere {
+        Some(_) => Some(lighting_for(scene, grid, &Engine::new())?),
+        None => None,
+    };
+    Ok(crate::plan::plan_frame(&frame_facts_with(
+        scene,
+        grid,
+        Method::Fast,
+        &PlanInputs {
+            max_rel_error: target,
+            lighting: lighting.as_ref(),
+            sphere: None,
+        },
+    )))
+}
+
+fn frame_rule(
+    rule: &str,
+    case: &str,
+    scene: FrameScene,
+    reference: bool,
+    target: Option<f64>,
+) -> Result<RuleSaving> {
     let grid = scene
         .cloud
         .voxelize(&|_| Err(Error::invalid("path", "no files")))?;
-    let plan = plan_frame(&scene, &grid, Method::Fast);
+    let plan = fast_plan(&scene, &grid, target)?;
     let full = plan.clone().without_cost_rules();
-    let (with, ms_with) = fastest(|| render(&scene, &grid, &plan, Method::Fast))?;
-    let (without, ms_without) = fastest(|| render(&scene, &grid, &full, Method::Fast))?;
+    let (with, ms_with) = fastest(|| render_measured(&scene, &grid, &plan, Method::Fast))?;
+    let (without, ms_without) =
+        fastest(|| render_measured(&scene, &grid, &full, Method::Fast))?;
     let empty = DensityGrid::zeros(grid.dims, grid.voxel_size_m, grid.origin_m)?;
     let background = render(
         &scene,
@@ -244,9 +303,89 @@ fn frame_rule(rule: &str, case: &str, scene: FrameScene, reference: bool) -> Res
     })
 }
 
+/// The sphere-level rule: the example sphere cumulus with K = `levels` (seed 004) seen from
+/// 30 km, with the request's `target`: built, voxelised and rendered at the plan's level and at
+/// the leaves; the error against the path tracer on the leaves.
+fn sphere_rule(levels: u32, target: f64) -> Result<RuleSaving> {
+    let spheres: Value =
+        serde_json::from_str(include_str!("../../config/scenes/sphere-cloud.json"))
+            .map_err(|e| Error::internal("planner report", e))?;
+    let scene = frame_scene(|v| {
+        v["cloud"] = spheres["cloud"].clone();
+        v["cloud"]["source"]["params"]["levels"] = json!(levels);
+        v["cloud"]["voxel_size_m"] = json!(25.0);
+        // The model's own extinction, −ln 0.02 / S_M with S_M = 60 m.
+        v["optics"]["extinction_per_density_m"] = json!(3.912 / 60.0);
+        v["camera"]["position_m"] = json!([0, -30000, 1200]);
+        v["camera"]["look_at_m"] = json!([0, 0, 1500]);
+        v["camera"]["fov_deg"] = json!(12);
+    })?;
+    let facts = sphere_facts(&scene)?
+        .ok_or_else(|| Error::internal("planner report", "not a sphere cloud"))?;
+    let mut budget = crate::plan::frame_budget(false, crate::plan::FRAME_MEASURED_ERROR, Some(target));
+    let level = crate::plan::sphere_level_rule(&facts, &mut budget);
+    let voxelize = |to: Option<u32>| -> Result<DensityGrid> {
+        let mut cloud = scene.cloud.clone();
+        if let (Some(to), crate::cloud::scene::CloudSource::Spheres(s)) = (to, &mut cloud.source)
+        {
+            s.params.levels = to;
+        }
+        cloud.voxelize(&|_| Err(Error::invalid("path", "no files")))
+    };
+    let to = level.map(|l| l.to_level);
+    let timed = |to: Option<u32>| -> Result<Vec<f32>> {
+        let grid = voxelize(to)?;
+        let plan = plan_frame(&scene, &grid, Method::Fast).without_cost_rules();
+        render(&scene, &grid, &plan, Method::Fast)
+    };
+    let (with, ms_with) = fastest(|| timed(to))?;
+    let (without, ms_without) = fastest(|| timed(None))?;
+    let leaves = voxelize(None)?;
+    let empty = DensityGrid::zeros(leaves.dims, leaves.voxel_size_m, leaves.origin_m)?;
+    let background = render(
+        &scene,
+        &empty,
+        &plan_frame(&scene, &empty, Method::Fast),
+        Method::Fast,
+    )?;
+    let r = render(
+        &scene,
+        &leaves,
+        &plan_frame(&scene, &leaves, Method::Reference),
+        Method::Reference,
+    )?;
+    Ok(RuleSaving {
+        rule: format!("frame: sphere hierarchy at the pixel footprint (max_rel_error {target})"),
+        case: format!(
+            "example sphere cumulus, K = {levels}, 25 m voxels, from 30 km, fov 12°, 48×36; building, voxelising and rendering"
+        ),
+        plan: match level {
+            Some(l) => format!(
+                "CloudDetail: spheres summed at level {} instead of {} (level {} of mean diameter {:.0} m resolves the pixel footprint {:.0} m at {:.0} m; predicted {:.0} % of a {:.0} % allowance)",
+                l.to_level,
+                l.from_level,
+                facts.resolved_level,
+                facts.resolved_diameter_m,
+                l.pixel_footprint_m,
+                l.nearest_distance_m,
+                l.predicted_error * 100.0,
+                budget.allowance * 100.0
+            ),
+            None => "(rule did not fire)".into(),
+        },
+        ms_with,
+        ms_without,
+        change: frame_errors(&with, &without, &background),
+        error_with: frame_errors(&with, &r, &background).1,
+        error_without: frame_errors(&without, &r, &background).1,
+        measures: "bias of the cloud's mean signal against the path tracer",
+        note: format!("path tracer {REFERENCE_SPP} spp on the leaves"),
+    })
+}
+
 /// Measures every rule (see the module docs). `progress(done, total)` after each.
 pub fn run(progress: &dyn Fn(usize, usize)) -> Result<Vec<RuleSaving>> {
-    let total = 5;
+    let total = 8;
     let mut out = Vec::new();
     out.push(sky_orders()?);
     progress(1, total);
@@ -255,6 +394,7 @@ pub fn run(progress: &dyn Fn(usize, usize)) -> Result<Vec<RuleSaving>> {
         "validation cloud, camera turned away, 48×36",
         frame_scene(|v| v["camera"]["look_at_m"] = json!([0, -9000, 1200]))?,
         false,
+        None,
     )?);
     progress(2, total);
     out.push(frame_rule(
@@ -262,6 +402,7 @@ pub fn run(progress: &dyn Fn(usize, usize)) -> Result<Vec<RuleSaving>> {
         "validation cloud at extinction 5e-6 /m (optical path ≤ 0.013), 48×36",
         frame_scene(|v| v["optics"]["extinction_per_density_m"] = json!(5e-6))?,
         true,
+        None,
     )?);
     progress(3, total);
     out.push(frame_rule(
@@ -272,6 +413,7 @@ pub fn run(progress: &dyn Fn(usize, usize)) -> Result<Vec<RuleSaving>> {
             v["ground"] = json!({"albedo": 0.01, "height_m": 0});
         })?,
         true,
+        None,
     )?);
     progress(4, total);
     out.push(frame_rule(
@@ -282,8 +424,36 @@ pub fn run(progress: &dyn Fn(usize, usize)) -> Result<Vec<RuleSaving>> {
             v["camera"]["fov_deg"] = json!(12);
         })?,
         true,
+        None,
     )?);
     progress(5, total);
+    out.push(frame_rule(
+        "frame: coarser voxels at the pixel footprint (max_rel_error 0.3)",
+        "validation cloud from 30 km, fov 12°, 48×36",
+        frame_scene(|v| {
+            v["camera"]["position_m"] = json!([0, -30000, 1200]);
+            v["camera"]["fov_deg"] = json!(12);
+        })?,
+        true,
+        Some(0.3),
+    )?);
+    progress(6, total);
+    out.push(frame_rule(
+        "frame: ground light under budget with an atmosphere, measured share (max_rel_error 0.4)",
+        "validation cloud, earth atmosphere and sky, sun 35°, ground albedo 0.02, 440/550/680 nm, 48×36; lighting included (cold tables)",
+        frame_scene(|v| {
+            v["atmosphere"] = json!("earth");
+            v["sky"] = json!("atmosphere");
+            v["sun"] = json!({"elevation_deg": 35, "azimuth_deg": 140});
+            v["ground"] = json!({"albedo": 0.02, "height_m": 0});
+            v["wavelengths_nm"] = json!([440, 550, 680]);
+        })?,
+        true,
+        Some(0.4),
+    )?);
+    progress(7, total);
+    out.push(sphere_rule(9, 0.5)?);
+    progress(8, total);
     Ok(out)
 }
 
