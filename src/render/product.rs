@@ -292,7 +292,12 @@ pub fn measured_shares(lighting: &super::Lighting) -> (f64, f64) {
     }
     let (mut sky, mut ground) = (0.0f64, 0.0f64);
     for i in 0..n_l {
-        let sun = lighting.sun_irradiance.get(i).copied().unwrap_or(0.0).max(0.0)
+        let sun = lighting
+            .sun_irradiance
+            .get(i)
+            .copied()
+            .unwrap_or(0.0)
+            .max(0.0)
             / (4.0 * std::f64::consts::PI);
         let total = sun + up[i] + down[i];
         if total > 0.0 {
@@ -390,7 +395,10 @@ pub fn sphere_facts(scene: &FrameScene) -> Result<Option<SphereFacts>> {
     };
     let base = build(k_max.min(1))?;
     let r0 = base.level(0)[0].radius as f64;
-    let (lo, hi) = (base.centre_m() - DVec3::splat(r0), base.centre_m() + DVec3::splat(r0));
+    let (lo, hi) = (
+        base.centre_m() - DVec3::splat(r0),
+        base.centre_m() + DVec3::splat(r0),
+    );
     let (_, footprint, nearest) = view_of_box(&scene.camera, lo, hi);
     let (mut resolved_level, mut resolved_diameter_m) = (0, mean_diameter(&base, 0));
     for k in 1..=requested_level {
@@ -476,6 +484,7 @@ pub fn frame_facts_with(
             .is_some_and(|g| g.albedo.iter().any(|&a| a > 0.0))
     };
     let (mut sky_share, mut ground_share) = (None, None);
+    let mut shares_measured = false;
     if scene.atmosphere.is_none() {
         let sun = scene
             .sun
@@ -506,6 +515,7 @@ pub fn frame_facts_with(
         let (sky, ground) = measured_shares(lighting);
         sky_share = Some(sky);
         ground_share = Some(ground);
+        shares_measured = true;
     }
     FrameFacts {
         reference: method == Method::Reference,
@@ -518,6 +528,7 @@ pub fn frame_facts_with(
         has_ground_light,
         sky_share,
         ground_share,
+        shares_measured,
         max_optical_depth: k_max * grid.max_density() as f64 * (hi - lo).length(),
         max_albedo,
         voxel_size_m: h,
@@ -677,10 +688,12 @@ impl FrameRequest {
         }
         let best = crate::plan::FRAME_MEASURED_ERROR;
         if target < best {
-            return Err(Error::invalid(
+            // Out of range (a 400), the allowed range starting at the best achievable error.
+            return Err(Error::out_of_range(
                 "max_rel_error",
+                target,
                 format!(
-                    "{target} is below the best measured error of the frame by the fast method: {best:.4} (block NRMSE against Mitsuba 3 and the path tracer, README \"Cloud frames\"; allowed: {best:.4} to 1)"
+                    "{best:.4} to 1: {best:.4} is the best measured error of the frame by the fast method (block NRMSE against Mitsuba 3 and the path tracer, README \"Cloud frames\")"
                 ),
             ));
         }
@@ -708,7 +721,8 @@ impl FrameRequest {
                 map.remove(key);
             }
         }
-        let mut request = serde_json::json!({"product": "frame", "method": self.method, "scene": scene});
+        let mut request =
+            serde_json::json!({"product": "frame", "method": self.method, "scene": scene});
         // Only when given, so the keys of requests without a target stay as they were.
         if let Some(target) = self.max_rel_error {
             request["max_rel_error"] = serde_json::json!(target);
@@ -811,12 +825,8 @@ impl FrameRequest {
             None
         };
         inputs.lighting = measured.as_ref();
-        let plan = crate::plan::plan_frame(&frame_facts_with(
-            &self.scene,
-            &grid,
-            self.method,
-            &inputs,
-        ));
+        let plan =
+            crate::plan::plan_frame(&frame_facts_with(&self.scene, &grid, self.method, &inputs));
         let run = execute_plan(&plan, &self.scene, &grid, self.method)?;
         let grid = match run.grid {
             Some(g) => g,
@@ -826,7 +836,10 @@ impl FrameRequest {
         let lighting = match measured {
             // The light measured is the frame's, less what the plan left out.
             Some(l) if plan.coarsening() == 1 => {
-                let (sky, ground) = (run.scene.lighting.sky_light, run.scene.lighting.ground_light);
+                let (sky, ground) = (
+                    run.scene.lighting.sky_light,
+                    run.scene.lighting.ground_light,
+                );
                 match l.masked(sky, ground) {
                     Some(mut masked) => {
                         masked.notes.retain(|n| {

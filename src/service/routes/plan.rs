@@ -69,7 +69,8 @@ async fn frame_plan(state: AppState, body: JsonObject) -> Result<Response, ApiEr
         .cloned()
         .ok_or_else(|| crate::Error::invalid("scene", "a frame plan needs the scene"))?;
     AppState::blocking(move || {
-        let req = FrameRequest::from_value(&scene, method)?.with_max_rel_error(target.as_deref())?;
+        let req =
+            FrameRequest::from_value(&scene, method)?.with_max_rel_error(target.as_deref())?;
         let plan = req.plan(state.engine(), &example_file)?;
         Ok(axum::Json(json!({
             "product": "frame",
