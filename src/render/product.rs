@@ -843,8 +843,8 @@ impl FrameRequest {
                 match l.masked(sky, ground) {
                     Some(mut masked) => {
                         masked.notes.retain(|n| {
-                            !((n.starts_with("sky product at") && !sky)
-                                || (n.starts_with("ground product at") && !ground))
+                            (sky || !n.starts_with("sky product at"))
+                                && (ground || !n.starts_with("ground product at"))
                         });
                         masked
                     }

@@ -30,6 +30,10 @@ pub struct RuleSaving {
     pub plan: String,
     pub ms_with: f64,
     pub ms_without: f64,
+    /// CPU time (user + system, all threads) of the same runs, the smallest of the runs, ms
+    /// (`NaN` where not measurable): fairer than wall time on a shared machine.
+    pub cpu_with: f64,
+    pub cpu_without: f64,
     /// What the rule changes: (normalised RMS or largest relative deviation, bias) of the
     /// result with the rule against the result without it.
     pub change: (f64, f64),
@@ -46,16 +50,22 @@ const REFERENCE_SPP: usize = 64;
 /// Timed runs per configuration (the fastest counts: the machine is shared).
 const RUNS: usize = 2;
 
-fn fastest<T>(mut f: impl FnMut() -> Result<T>) -> Result<(T, f64)> {
-    let mut best = f64::INFINITY;
+/// The result of `f` and the smallest wall and CPU times of [`RUNS`] runs, ms.
+fn fastest<T>(mut f: impl FnMut() -> Result<T>) -> Result<(T, f64, f64)> {
+    let (mut best, mut best_cpu) = (f64::INFINITY, f64::INFINITY);
     let mut out = None;
     for _ in 0..RUNS {
+        let cpu = super::process_cpu_ms();
         let t = Instant::now();
         let v = f()?;
         best = best.min(t.elapsed().as_secs_f64() * 1e3);
+        best_cpu = match (cpu, super::process_cpu_ms()) {
+            (Some(a), Some(b)) => best_cpu.min(b - a),
+            _ => f64::NAN,
+        };
         out = Some(v);
     }
-    out.map(|v| (v, best))
+    out.map(|v| (v, best, best_cpu))
         .ok_or_else(|| Error::internal("planner report", "no run"))
 }
 
@@ -79,8 +89,10 @@ fn sky_orders() -> Result<RuleSaving> {
     let plan = req.plan()?;
     let full = plan.clone().without_cost_rules();
     // Cold: a new engine (tables built) each run.
-    let (with, ms_with) = fastest(|| Engine::new().execute(&req.spec, &req.product, &plan))?;
-    let (without, ms_without) = fastest(|| Engine::new().execute(&req.spec, &req.product, &full))?;
+    let (with, ms_with, cpu_with) =
+        fastest(|| Engine::new().execute(&req.spec, &req.product, &plan))?;
+    let (without, ms_without, cpu_without) =
+        fastest(|| Engine::new().execute(&req.spec, &req.product, &full))?;
     let reference_req = request("reference")?;
     let reference = Engine::new().compute(&reference_req.spec, &reference_req.product)?;
     let table = |p: &Product| -> Vec<f64> {
@@ -105,6 +117,8 @@ fn sky_orders() -> Result<RuleSaving> {
         plan: left,
         ms_with,
         ms_without,
+        cpu_with,
+        cpu_without,
         change: (change_max, change_rms),
         error_with: err(&with),
         error_without: err(&without),
@@ -237,8 +251,10 @@ fn frame_rule(
         .voxelize(&|_| Err(Error::invalid("path", "no files")))?;
     let plan = fast_plan(&scene, &grid, target)?;
     let full = plan.clone().without_cost_rules();
-    let (with, ms_with) = fastest(|| render_measured(&scene, &grid, &plan, Method::Fast))?;
-    let (without, ms_without) = fastest(|| render_measured(&scene, &grid, &full, Method::Fast))?;
+    let (with, ms_with, cpu_with) =
+        fastest(|| render_measured(&scene, &grid, &plan, Method::Fast))?;
+    let (without, ms_without, cpu_without) =
+        fastest(|| render_measured(&scene, &grid, &full, Method::Fast))?;
     let empty = DensityGrid::zeros(grid.dims, grid.voxel_size_m, grid.origin_m)?;
     let background = render(
         &scene,
@@ -294,6 +310,8 @@ fn frame_rule(
         },
         ms_with,
         ms_without,
+        cpu_with,
+        cpu_without,
         change,
         error_with,
         error_without,
@@ -337,8 +355,8 @@ fn sphere_rule(levels: u32, target: f64) -> Result<RuleSaving> {
         let plan = plan_frame(&scene, &grid, Method::Fast).without_cost_rules();
         render(&scene, &grid, &plan, Method::Fast)
     };
-    let (with, ms_with) = fastest(|| timed(to))?;
-    let (without, ms_without) = fastest(|| timed(None))?;
+    let (with, ms_with, cpu_with) = fastest(|| timed(to))?;
+    let (without, ms_without, cpu_without) = fastest(|| timed(None))?;
     let leaves = voxelize(None)?;
     let empty = DensityGrid::zeros(leaves.dims, leaves.voxel_size_m, leaves.origin_m)?;
     let background = render(
@@ -374,6 +392,8 @@ fn sphere_rule(levels: u32, target: f64) -> Result<RuleSaving> {
         },
         ms_with,
         ms_without,
+        cpu_with,
+        cpu_without,
         change: frame_errors(&with, &without, &background),
         error_with: frame_errors(&with, &r, &background).1,
         error_without: frame_errors(&without, &r, &background).1,
@@ -461,8 +481,11 @@ pub fn markdown(rows: &[RuleSaving], threads: usize, load: Option<&str>) -> Stri
     let mut s = String::from(
         "# What the planner's cost rules save (issue 15 point 3)\n\n\
          Written by `skybake report --planner` (`src/report/planner.rs`): one case per rule, run with its \
-         plan and with the same plan without the cost rules, each the fastest of 2 wall-clock runs \
-         (sky: cold tables, a new engine per run; frames: lighting, preparation and pixels), and \
+         plan and with the same plan without the cost rules, each the fastest of 2 runs in wall \
+         time and in CPU time (user + system of all threads, 10 ms ticks; fairer on a shared \
+         machine) (sky: cold tables, a new engine per run; frames: lighting, preparation and \
+         pixels; with an atmosphere the whole light is computed first, as the planner measures \
+         its shares on it; sphere hierarchies: building and voxelising too), and \
          compared with the reference (sky: the precise method at the `reference` preset; frames: \
          the path tracer). Frames: RMS and mean of the difference from the path tracer over all \
          pixels and wavelengths, relative to the cloud's mean signal |path tracer − frame without \
@@ -474,9 +497,9 @@ pub fn markdown(rows: &[RuleSaving], threads: usize, load: Option<&str>) -> Stri
             .unwrap_or_default()
     ));
     s.push_str(
-        "| rule | case | time with | time without | saving | change by the rule | error with | error without | error measure |\n",
+        "| rule | case | time with | time without | saving | CPU with | CPU without | CPU saving | change by the rule | error with | error without | error measure |\n",
     );
-    s.push_str("|---|---|---|---|---|---|---|---|---|\n");
+    s.push_str("|---|---|---|---|---|---|---|---|---|---|---|---|\n");
     let pct = |v: f64| {
         if v.is_finite() {
             format!("{:+.2} %", v * 100.0)
@@ -486,12 +509,15 @@ pub fn markdown(rows: &[RuleSaving], threads: usize, load: Option<&str>) -> Stri
     };
     for r in rows {
         s.push_str(&format!(
-            "| {} | {} | {:.0} ms | {:.0} ms | {:.0} % | {:.2} % / {} | {} | {} | {} |\n",
+            "| {} | {} | {:.0} ms | {:.0} ms | {:.0} % | {:.0} ms | {:.0} ms | {:.0} % | {:.2} % / {} | {} | {} | {} |\n",
             r.rule,
             r.case,
             r.ms_with,
             r.ms_without,
             100.0 * (1.0 - r.ms_with / r.ms_without.max(1e-9)),
+            r.cpu_with,
+            r.cpu_without,
+            100.0 * (1.0 - r.cpu_with / r.cpu_without.max(1e-9)),
             r.change.0 * 100.0,
             pct(r.change.1),
             pct(r.error_with),
