@@ -567,7 +567,8 @@ pub struct PlannedRun {
 }
 
 /// Executes `plan`: multiple scattering of a thin cloud off, sky or ground light left out on the
-/// cloud (settings hooks, the background unchanged), no per-voxel light for a cloud out of view,
+/// cloud (settings hooks, the background unchanged; with an atmosphere the `sky` product at the
+/// cloud or the `ground` product not computed), no per-voxel light for a cloud out of view,
 /// no lighting products for the cloud when no cloud stage runs, and the grid's block means at
 /// the coarsened voxel size.
 pub fn execute_plan(
