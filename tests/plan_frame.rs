@@ -570,3 +570,29 @@ fn the_cli_and_the_service_take_max_rel_error_for_frames() {
         let _ = std::fs::remove_dir_all(&cache);
     });
 }
+
+#[test]
+fn measured_shares_agree_with_the_given_light_of_a_vacuum_scene() {
+    // Vacuum: sun 1 (collimated), constant sky 0.1, ground albedo 0.3 lit by both. The shares
+    // measured on the lighting (4096 directions) must be the closed forms the planner predicts
+    // for vacuum scenes: sun E/(4π), sky L_s/2, ground a/π·(E μ_s + π L_s)/2.
+    let v = scene(|v| v["ground"] = json!({"albedo": 0.3, "height_m": 0}));
+    let s = parse(&v);
+    let grid = voxelize(&s);
+    let lighting = lighting_for(&s, &grid, &Engine::new()).unwrap();
+    let (sky, ground) = measured_shares(&lighting);
+    let pi = std::f64::consts::PI;
+    let mu_s = 35f64.to_radians().sin();
+    let (e, l_s) = (1.0, 0.1);
+    let l_g = 0.3 / pi * (e * mu_s + pi * l_s);
+    let total = e / (4.0 * pi) + l_s / 2.0 + l_g / 2.0;
+    let (sky_exact, ground_exact) = (l_s / 2.0 / total, l_g / 2.0 / total);
+    assert!((sky - sky_exact).abs() < 1e-3, "{sky} vs {sky_exact}");
+    assert!(
+        (ground - ground_exact).abs() < 1e-3,
+        "{ground} vs {ground_exact}"
+    );
+    let facts = skybake::render::product::frame_facts(&s, &grid, Method::Fast);
+    assert!(!facts.shares_measured);
+    assert!((facts.sky_share.unwrap() - sky_exact).abs() < 1e-9);
+}
