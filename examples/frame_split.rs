@@ -141,7 +141,11 @@ fn main() -> skybake::Result<()> {
         scene.lighting.multiple_scattering = true;
         let mask: Vec<bool> = trans.iter().map(|&t| t < 0.99).collect();
         if let Ok(d) = std::env::var("DUMP") {
-            let bytes: Vec<u8> = fast.iter().chain(&trans).flat_map(|v| v.to_le_bytes()).collect();
+            let bytes: Vec<u8> = fast
+                .iter()
+                .chain(&trans)
+                .flat_map(|v| v.to_le_bytes())
+                .collect();
             std::fs::write(format!("{d}/fast_{w}x{h}_{mode}.bin"), bytes).ok();
         }
         let e = image_errors(&fast, &reference, &mask, w, n_l);
@@ -263,7 +267,10 @@ fn whole_frame(
     let e = image_errors(&fast.radiance, &reference, &mask, w, n_l);
     // With a second reference of another seed (CROSS=path), the squared block error without
     // the references' noise: the mean of (F − R1)(F − R2) over cloud blocks.
-    if let Some(b) = std::env::var("CROSS").ok().and_then(|p| std::fs::read(p).ok()) {
+    if let Some(b) = std::env::var("CROSS")
+        .ok()
+        .and_then(|p| std::fs::read(p).ok())
+    {
         let r2: Vec<f32> = b[..npx * n_l * 4]
             .chunks(4)
             .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]))
@@ -290,6 +297,17 @@ fn whole_frame(
             }
         }
         let mean = sum / n.max(1) as f64;
+        let mut cross_px = 0.0;
+        for i in 0..npx {
+            if mask[i] {
+                let f = px(&fast.radiance, i);
+                cross_px += (f - px(&reference, i)) * (f - px(&r2, i));
+            }
+        }
+        println!(
+            "cross-estimated pixel NRMSE {:.2}%",
+            100.0 * (cross_px / n.max(1) as f64).max(0.0).sqrt() / mean
+        );
         println!(
             "cross-estimated block NRMSE {:.2}% (signed square {:+.3e})",
             100.0 * (cross / nb.max(1) as f64).max(0.0).sqrt() / mean,

@@ -381,7 +381,8 @@ pub struct Budget {
     /// The relative error the request may have: its preset's measured error (a `max_rel_error`
     /// target picks the preset, whose measured error is at most the target).
     pub relative_error: f64,
-    /// What the cost rules may spend: [`BUDGET_SHARE`] × `relative_error`.
+    /// What the cost rules may spend: [`BUDGET_SHARE`] × `relative_error`, or with a user's
+    /// target ([`Budget::for_target`]) what the target leaves over the method's measured error.
     pub allowance: f64,
     /// The predicted error of what they left out or coarsened.
     pub spent: f64,
@@ -397,6 +398,19 @@ impl Budget {
         Self {
             relative_error: e,
             allowance: BUDGET_SHARE * e,
+            spent: 0.0,
+        }
+    }
+
+    /// The budget of a request with a `max_rel_error` target: the result may be off by `target`,
+    /// of which the method's own measured error `measured` is spent already, so the cost rules
+    /// may spend the rest (`target − measured`, 0 when the target is tighter than the method).
+    pub fn for_target(target: f64, measured: f64) -> Self {
+        let clean = |v: f64| if v.is_finite() { v.max(0.0) } else { 0.0 };
+        let (target, measured) = (clean(target), clean(measured));
+        Self {
+            relative_error: target,
+            allowance: (target - measured).max(0.0),
             spent: 0.0,
         }
     }
@@ -470,10 +484,10 @@ fn precise_orders_rule(spec: &CommonSpec) -> Option<(f64, Reason)> {
 // `render::product` executes the plan (a coarser grid, lighting switches, settings hooks).
 
 /// The fast method's measured error on cloud frames, relative: the worst block NRMSE against
-/// Mitsuba 3 and the path tracer at `standard` quality (sun + sky, 10.2 %; README "Cloud
+/// Mitsuba 3 and the path tracer at `standard` quality (albedo 0.9, 8.1 %; README "Cloud
 /// frames", tests/render_validation.rs). The presets differ in photon counts and steps, not in
 /// the model error that dominates this figure, so it is every preset's budget.
-pub const FRAME_MEASURED_ERROR: f64 = 0.102;
+pub const FRAME_MEASURED_ERROR: f64 = 0.081;
 
 /// Factor on the direction-averaged share of sky or ground light before it is compared with
 /// the budget: on the validation cloud lit by the sun and a dark ground (albedo 0.02, no sky)
@@ -481,12 +495,28 @@ pub const FRAME_MEASURED_ERROR: f64 = 0.102;
 /// sees the cloud's lower side, where that light enters), so the rule counts twice the share.
 pub const LIGHT_SHARE_SAFETY: f64 = 2.0;
 
+/// [`LIGHT_SHARE_SAFETY`] for shares measured on an atmosphere's light
+/// ([`FrameFacts::shares_measured`]): on the validation cloud under the earth's atmosphere
+/// (sun 35°, ground albedo 0.02, 48×36 px) leaving the light from below out moved the cloud's
+/// mean signal (frame less the frame without the cloud) by 27.6 %, 2.28× the averaged share of
+/// 12.1 % (`skybake report --planner`): the air under the cloud lights the lower side the camera
+/// sees. The rule counts three times the share.
+pub const MEASURED_LIGHT_SHARE_SAFETY: f64 = 3.0;
+
 /// Largest factor by which the planner coarsens a cloud's voxels.
 pub const MAX_COARSENING: usize = 8;
 
 /// Predicted error of halving a cloud's detail once (block means of 2³ voxels): the cloud-mean
 /// change measured by `skybake report --planner` on the validation cloud seen from 30 km.
 pub const COARSENING_ERROR: f64 = 0.091;
+
+/// Predicted error, per level left out, of summing a sphere hierarchy's spheres above the
+/// leaves (seed 004: each sphere in place of its five children), relative to the cloud's mean
+/// signal. Measured on the example sphere cumulus (K = 6, 25 m voxels, 48×36 px, fov 12°) from
+/// 30 km and 15 km: the cloud's mean moved by 7.2 % and 8.1 % one level up, 19.8 % and 24.9 %
+/// two levels up, 37.5 % and 44.8 % three levels up (the frame's per-pixel RMS change is larger,
+/// 55–90 % of the signal one level up: the shape changes); the worst per level, 15 %, counts.
+pub const SPHERE_LEVEL_ERROR: f64 = 0.15;
 
 /// A unit of work of a cloud frame.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize)]
@@ -547,7 +577,8 @@ pub enum FrameReason {
         budget: Budget,
     },
     /// Cost rule: the light's predicted share of all the light reaching the cloud (averaged
-    /// over directions, times [`LIGHT_SHARE_SAFETY`]) is under the budget.
+    /// over directions, times [`LIGHT_SHARE_SAFETY`] or [`MEASURED_LIGHT_SHARE_SAFETY`]) is
+    /// under the budget.
     UnderBudget {
         predicted_share: f64,
         budget: Budget,
@@ -601,6 +632,70 @@ pub struct Coarsening {
     pub nearest_distance_m: f64,
 }
 
+/// What the frame planner needs to know of a sphere-hierarchy cloud (source `spheres`) before
+/// it is voxelised: its levels and the deepest one the camera resolves.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct SphereFacts {
+    /// The level the scene asks for (`level`, default the leaves K).
+    pub requested_level: u32,
+    /// Whether the scene fixed the level itself (then it is kept).
+    pub level_fixed: bool,
+    /// The deepest level whose mean sphere diameter is at least the pixel footprint
+    /// (`SphereCloud::level_for_resolution`).
+    pub resolved_level: u32,
+    /// Mean sphere diameter at `resolved_level`, m.
+    pub resolved_diameter_m: f64,
+    /// The smallest pixel footprint on the spheres' box, m, and the distance it is taken at.
+    pub pixel_footprint_m: f64,
+    pub nearest_distance_m: f64,
+}
+
+/// A sphere-hierarchy cloud summed at a coarser level than the scene asks, because the camera
+/// does not resolve the finer spheres.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct SphereLevel {
+    pub rule: &'static str,
+    pub from_level: u32,
+    pub to_level: u32,
+    /// Mean sphere diameter at `to_level`, m (at least the pixel footprint).
+    pub mean_diameter_m: f64,
+    pub pixel_footprint_m: f64,
+    pub nearest_distance_m: f64,
+    /// [`SPHERE_LEVEL_ERROR`] × levels left out, spent from the budget.
+    pub predicted_error: f64,
+}
+
+/// Cost rule on a sphere-hierarchy cloud: the spheres are summed at the deepest level the camera
+/// resolves instead of the leaves, when the scene did not fix the level, as many levels up as
+/// the budget covers at [`SPHERE_LEVEL_ERROR`] each. Spends from `budget`. The renderer runs it
+/// before voxelising ([`plan_frame`] runs it first, so it decides the same).
+pub fn sphere_level_rule(s: &SphereFacts, budget: &mut Budget) -> Option<SphereLevel> {
+    if s.level_fixed || s.resolved_level >= s.requested_level {
+        return None;
+    }
+    let mut to = s.resolved_level;
+    while to < s.requested_level {
+        let predicted = SPHERE_LEVEL_ERROR * (s.requested_level - to) as f64;
+        if budget.try_spend(predicted) {
+            return Some(SphereLevel {
+                rule: "pixel_footprint",
+                from_level: s.requested_level,
+                to_level: to,
+                mean_diameter_m: if to == s.resolved_level {
+                    s.resolved_diameter_m
+                } else {
+                    f64::NAN
+                },
+                pixel_footprint_m: s.pixel_footprint_m,
+                nearest_distance_m: s.nearest_distance_m,
+                predicted_error: predicted,
+            });
+        }
+        to += 1;
+    }
+    None
+}
+
 /// What the frame planner needs to know of a scene (measured by the renderer; plain numbers).
 #[derive(Debug, Clone, Copy, PartialEq, Serialize)]
 pub struct FrameFacts {
@@ -622,6 +717,10 @@ pub struct FrameFacts {
     /// not predicted, the stage runs).
     pub sky_share: Option<f64>,
     pub ground_share: Option<f64>,
+    /// The shares were measured on an atmosphere's computed light (then
+    /// [`MEASURED_LIGHT_SHARE_SAFETY`] applies) rather than predicted from a vacuum scene's
+    /// given light ([`LIGHT_SHARE_SAFETY`]).
+    pub shares_measured: bool,
     /// Bound on the optical path through the cloud (any wavelength, any line).
     pub max_optical_depth: f64,
     /// Largest single-scattering albedo of the cloud.
@@ -630,8 +729,32 @@ pub struct FrameFacts {
     /// The smallest pixel footprint at the cloud's nearest distance, m (0 with the camera in it).
     pub pixel_footprint_m: f64,
     pub nearest_distance_m: f64,
-    /// The budget's relative error ([`FRAME_MEASURED_ERROR`]).
+    /// The method's measured relative error ([`FRAME_MEASURED_ERROR`]): the budget without a
+    /// target.
     pub budget: f64,
+    /// The request's `max_rel_error` target, if any: the budget is then the target, and the
+    /// cost rules may spend what it leaves over `budget` ([`Budget::for_target`]).
+    pub max_rel_error: Option<f64>,
+    /// A sphere-hierarchy cloud's levels (`None` for other sources).
+    pub sphere: Option<SphereFacts>,
+}
+
+impl FrameFacts {
+    /// The frame's budget ([`frame_budget`]).
+    pub fn frame_budget(&self) -> Budget {
+        frame_budget(self.reference, self.budget, self.max_rel_error)
+    }
+}
+
+/// A frame's budget: none for the reference method, the target's for a request with
+/// `max_rel_error` ([`Budget::for_target`]), else [`BUDGET_SHARE`] of the method's measured
+/// error `measured`.
+pub fn frame_budget(reference: bool, measured: f64, max_rel_error: Option<f64>) -> Budget {
+    match (reference, max_rel_error) {
+        (true, _) => Budget::new(0.0),
+        (false, Some(target)) => Budget::for_target(target, measured),
+        (false, None) => Budget::new(measured),
+    }
 }
 
 /// The plan of a cloud frame.
@@ -640,6 +763,8 @@ pub struct FramePlan {
     pub stages: Vec<FrameStage>,
     pub left_out: Vec<(FrameStage, FrameReason)>,
     pub coarsened: Vec<Coarsening>,
+    /// A sphere-hierarchy cloud summed at a coarser level ([`sphere_level_rule`]).
+    pub sphere_level: Option<SphereLevel>,
     pub budget: Budget,
 }
 
@@ -680,6 +805,7 @@ impl FramePlan {
             }
         }
         self.coarsened.clear();
+        self.sphere_level = None;
         self.budget.spent = 0.0;
         self
     }
@@ -695,6 +821,9 @@ impl FramePlan {
             self.stages.push(stage);
         }
         self.coarsened.retain(|c| c.stage != stage);
+        if stage == FrameStage::CloudDetail {
+            self.sphere_level = None;
+        }
         self
     }
 }
@@ -734,10 +863,13 @@ impl Serialize for FramePlan {
                 detail: reason.detail(),
             })
             .collect();
-        let mut st = s.serialize_struct("FramePlan", 4)?;
+        let mut st = s.serialize_struct("FramePlan", 5)?;
         st.serialize_field("stages", &stages)?;
         st.serialize_field("left_out", &left_out)?;
         st.serialize_field("coarsened", &self.coarsened)?;
+        if let Some(level) = &self.sphere_level {
+            st.serialize_field("sphere_level", level)?;
+        }
         st.serialize_field("budget", &self.budget)?;
         st.end()
     }
@@ -752,14 +884,22 @@ impl Serialize for FramePlan {
 /// ([`FrameReason::ThinCloud`]), ground and sky light left out when their predicted share is
 /// under the budget, each spending its prediction from [`Budget::allowance`]; and the voxels
 /// coarsened by a power of two (at most [`MAX_COARSENING`]) to the largest size not above the
-/// smallest pixel footprint on the cloud (a pixel's single ray cannot resolve finer detail).
+/// smallest pixel footprint on the cloud (a pixel's single ray cannot resolve finer detail),
+/// and a sphere hierarchy summed at the deepest level the camera resolves
+/// ([`sphere_level_rule`], decided first), each where the budget covers its measured cost. A
+/// `max_rel_error` target sets the budget ([`FrameFacts::frame_budget`]).
 pub fn plan_frame(f: &FrameFacts) -> FramePlan {
     let mut p = FramePlan {
         stages: Vec::new(),
         left_out: Vec::new(),
         coarsened: Vec::new(),
-        budget: Budget::new(if f.reference { 0.0 } else { f.budget }),
+        sphere_level: None,
+        budget: f.frame_budget(),
     };
+    // First, as the renderer runs it before voxelising (same budget, same decision).
+    if let (false, Some(sphere)) = (f.reference, &f.sphere) {
+        p.sphere_level = sphere_level_rule(sphere, &mut p.budget);
+    }
     let rule = |p: &mut FramePlan, stage: FrameStage, left_out: Option<FrameReason>| match left_out
     {
         None => p.stages.push(stage),
@@ -782,9 +922,14 @@ pub fn plan_frame(f: &FrameFacts) -> FramePlan {
             .or((!switch_on).then_some(FrameReason::SwitchedOff { switch: name }))
             .or((!has).then_some(FrameReason::NoLight))
     };
+    let safety = if f.shares_measured {
+        MEASURED_LIGHT_SHARE_SAFETY
+    } else {
+        LIGHT_SHARE_SAFETY
+    };
     let mut ground = light(f.ground_light_switch, "ground_light", f.has_ground_light);
     if ground.is_none() && !f.reference {
-        if let Some(share) = f.ground_share.map(|s| s * LIGHT_SHARE_SAFETY) {
+        if let Some(share) = f.ground_share.map(|s| s * safety) {
             if p.budget.try_spend(share) {
                 ground = Some(FrameReason::UnderBudget {
                     predicted_share: share,
@@ -795,7 +940,7 @@ pub fn plan_frame(f: &FrameFacts) -> FramePlan {
     }
     let mut sky = light(f.sky_light_switch, "sky_light", f.has_sky_light);
     if sky.is_none() && !f.reference {
-        if let Some(share) = f.sky_share.map(|s| s * LIGHT_SHARE_SAFETY) {
+        if let Some(share) = f.sky_share.map(|s| s * safety) {
             if p.budget.try_spend(share) {
                 sky = Some(FrameReason::UnderBudget {
                     predicted_share: share,

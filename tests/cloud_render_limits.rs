@@ -102,7 +102,7 @@ fn every_source_is_refused_over_the_render_limit_naming_the_voxel_size() {
             other => panic!("{what}: not too large: {other}"),
         }
         // `plan` (skybake plan frame, POST /v1/plan) voxelises too, and is refused the same way.
-        match request.plan(&loader) {
+        match request.plan(&skybake::engine::Engine::new(), &loader) {
             Err(Error::TooLarge { field, .. }) => assert_eq!(field, "cloud.voxel_size_m"),
             other => panic!("{what}: plan: {other:?}"),
         }

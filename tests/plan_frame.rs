@@ -5,8 +5,13 @@
 use serde_json::{json, Value};
 use skybake::cloud::DensityGrid;
 use skybake::engine::Engine;
-use skybake::plan::{Coarsening, FramePlan, FrameReason, FrameStage, COARSENING_ERROR};
-use skybake::render::product::{execute_plan, frame_summary, plan_frame, NoTiles};
+use skybake::plan::{
+    Coarsening, FramePlan, FrameReason, FrameStage, COARSENING_ERROR, FRAME_MEASURED_ERROR,
+    MEASURED_LIGHT_SHARE_SAFETY, SPHERE_LEVEL_ERROR,
+};
+use skybake::render::product::{
+    execute_plan, frame_summary, measured_shares, plan_frame, sphere_facts, NoTiles,
+};
 use skybake::render::{lighting_for, render_tile, FrameRequest, FrameScene, Method, Prepared};
 
 /// The validation cloud (vacuum, collimated sun 1, constant sky 0.1) at 50 m voxels, 32×24 px.
@@ -167,11 +172,11 @@ fn an_optically_thin_cloud_runs_no_multiple_scattering() {
 
 #[test]
 fn dim_ground_and_no_sky_leave_the_lattice_paths_out() {
-    // No sky; a dark ground (albedo 0.01) under the sun: ground light ≈ 1.1 % of the light at
-    // the cloud, twice that under the budget (a quarter of the frame's measured 10.2 %).
+    // No sky; a dark ground (albedo 0.005) under the sun: ground light ≈ 0.55 % of the light at
+    // the cloud, twice that under the budget (a quarter of the frame's measured 8.1 %).
     let s = parse(&scene(|v| {
         v["sky"] = Value::Null;
-        v["ground"] = json!({"albedo": 0.01, "height_m": 0});
+        v["ground"] = json!({"albedo": 0.005, "height_m": 0});
     }));
     let grid = voxelize(&s);
     let plan = plan_frame(&s, &grid, Method::Fast);
@@ -185,7 +190,7 @@ fn dim_ground_and_no_sky_leave_the_lattice_paths_out() {
     else {
         panic!("{plan:?}")
     };
-    assert!(predicted_share > 0.01 && predicted_share <= plan.budget.allowance);
+    assert!(predicted_share > 0.005 && predicted_share <= plan.budget.allowance);
     // The image's mean moves by less than the predicted (doubled) share.
     let with = run(&s, &grid, &plan);
     let without = run(&s, &grid, &plan.clone().without_cost_rules());
@@ -291,4 +296,303 @@ fn the_frame_summary_names_each_left_out_stage_and_its_rule() {
         "{left:?}"
     );
     assert!(summary["plan"]["budget"]["allowance"].as_f64().unwrap() > 0.0);
+}
+
+fn no_files(_: &str) -> skybake::Result<Vec<u8>> {
+    Err(skybake::Error::invalid("path", "no files"))
+}
+
+#[test]
+fn max_rel_error_sets_the_frame_budget_and_a_target_under_the_measured_error_is_refused() {
+    let far = scene(|v| {
+        v["camera"]["position_m"] = json!([0, -30000, 1200]);
+        v["camera"]["fov_deg"] = json!(8);
+    });
+    let req = FrameRequest::from_value(&far, Method::Fast).unwrap();
+    // Below the fast method's measured error: refused, naming the best achievable error.
+    let err = req
+        .clone()
+        .with_max_rel_error(Some("0.05"))
+        .unwrap_err()
+        .to_string();
+    assert!(
+        err.contains("max_rel_error") && err.contains("0.0810"),
+        "{err}"
+    );
+    for bad in ["abc", "0", "2"] {
+        let err = req.clone().with_max_rel_error(Some(bad)).unwrap_err();
+        assert!(err.to_string().contains("max_rel_error"), "{bad}: {err}");
+    }
+    let err = FrameRequest::from_value(&far, Method::Reference)
+        .unwrap()
+        .with_max_rel_error(Some("0.3"))
+        .unwrap_err();
+    assert!(err.to_string().contains("max_rel_error"), "{err}");
+    // A target is part of the request (its cache key); no target leaves the key as it was.
+    let targeted = req.clone().with_max_rel_error(Some("0.3")).unwrap();
+    assert_ne!(targeted.cache_key(), req.cache_key());
+    assert_eq!(
+        req.clone().with_max_rel_error(None).unwrap().cache_key(),
+        req.cache_key()
+    );
+    // The budget is the target; the cost rules may spend what it leaves over the method's
+    // measured error, which here covers one halving of the distant cloud's voxels.
+    let engine = Engine::new();
+    let plan = targeted.plan(&engine, &no_files).unwrap();
+    assert!((plan.budget.relative_error - 0.3).abs() < 1e-12, "{plan:?}");
+    assert!(
+        (plan.budget.allowance - (0.3 - FRAME_MEASURED_ERROR)).abs() < 1e-12,
+        "{plan:?}"
+    );
+    assert_eq!(plan.coarsening(), 2, "{plan:?}");
+    assert!(plan.budget.spent >= COARSENING_ERROR);
+    assert_eq!(req.plan(&engine, &no_files).unwrap().coarsening(), 1);
+}
+
+/// The validation cloud under the earth's atmosphere and sky, sun 35°, a dark ground (albedo
+/// 0.02, the open sea), three wavelengths.
+fn atmosphere_scene() -> Value {
+    scene(|v| {
+        v["atmosphere"] = json!("earth");
+        v["sky"] = json!("atmosphere");
+        v["sun"] = json!({"elevation_deg": 35, "azimuth_deg": 140});
+        v["ground"] = json!({"albedo": 0.02, "height_m": 0});
+        v["wavelengths_nm"] = json!([440, 550, 680]);
+    })
+}
+
+#[test]
+fn with_an_atmosphere_the_light_shares_are_measured_and_ground_light_left_out_under_a_loose_target()
+{
+    let v = atmosphere_scene();
+    let engine = Engine::new();
+    let req = FrameRequest::from_value(&v, Method::Fast).unwrap();
+    // The shares measured on the scene's light: the sky's about a quarter, the light from below
+    // (the dark sea and the air under the cloud) about an eighth.
+    let s = parse(&v);
+    let grid = voxelize(&s);
+    let lighting = lighting_for(&s, &grid, &engine).unwrap();
+    let (sky, ground) = measured_shares(&lighting);
+    eprintln!("measured shares: sky {sky:.4}, ground {ground:.4}");
+    assert!((0.15..0.4).contains(&sky) && (0.05..0.2).contains(&ground));
+    // At the default budget (a quarter of 8.1 %) both run.
+    let plan = req.plan(&engine, &no_files).unwrap();
+    assert!(plan.runs(FrameStage::SkyLight) && plan.runs(FrameStage::GroundLight));
+    // Under a target of 0.5 the ground share, counted three times, fits the allowance (0.398);
+    // the sky's does not.
+    let loose = req.clone().with_max_rel_error(Some("0.5")).unwrap();
+    let plan = loose.plan(&engine, &no_files).unwrap();
+    let Some(FrameReason::UnderBudget {
+        predicted_share, ..
+    }) = reason(&plan, FrameStage::GroundLight)
+    else {
+        panic!("{plan:?}")
+    };
+    assert!(
+        (predicted_share - MEASURED_LIGHT_SHARE_SAFETY * ground).abs() < 1e-9,
+        "{plan:?}"
+    );
+    assert!(plan.runs(FrameStage::SkyLight));
+    // Executed: the `ground` product is not used for the cloud, and the frame's mean moves by
+    // less than the predicted share.
+    let image = loose
+        .compute_tiled(&engine, &no_files, &NoTiles, &|_| {}, &|| false)
+        .unwrap();
+    let summary = frame_summary(&image);
+    let notes = summary["lighting_notes"].to_string();
+    assert!(!notes.contains("ground product"), "{notes}");
+    assert!(notes.contains("sky product"), "{notes}");
+    let full = req
+        .compute_tiled(&engine, &no_files, &NoTiles, &|_| {}, &|| false)
+        .unwrap();
+    assert!(frame_summary(&full)["lighting_notes"]
+        .to_string()
+        .contains("ground product"));
+    let radiance = |img: &skybake::store::SpectralImage| -> Vec<f32> {
+        img.layer("S0")
+            .unwrap()
+            .planes()
+            .iter()
+            .flatten()
+            .copied()
+            .collect()
+    };
+    let bias = mean_difference(&radiance(&image), &radiance(&full));
+    eprintln!(
+        "ground light left out under an atmosphere: mean {bias:.4}, predicted {predicted_share:.4}"
+    );
+    assert!(bias > 0.0 && bias <= predicted_share, "{bias}");
+}
+
+/// The example sphere cumulus (K = 6, 25 m voxels) from `distance_m`, fov 12°.
+fn sphere_scene(distance_m: f64, level: Option<u32>) -> Value {
+    let spheres: Value =
+        serde_json::from_str(include_str!("../config/scenes/sphere-cloud.json")).unwrap();
+    scene(|v| {
+        v["cloud"] = spheres["cloud"].clone();
+        v["cloud"]["voxel_size_m"] = json!(25.0);
+        v["cloud"]["source"]["level"] = json!(level);
+        v["optics"]["extinction_per_density_m"] = json!(3.912 / 60.0);
+        v["camera"]["position_m"] = json!([0, -distance_m, 1200]);
+        v["camera"]["look_at_m"] = json!([0, 0, 1500]);
+        v["camera"]["fov_deg"] = json!(12);
+    })
+}
+
+#[test]
+fn a_distant_sphere_hierarchy_is_summed_at_the_level_the_camera_resolves_under_a_loose_target() {
+    let v = sphere_scene(30_000.0, None);
+    let s = parse(&v);
+    let facts = sphere_facts(&s).unwrap().unwrap();
+    // 32 px over 12° at ≈ 29 km: a pixel covers ≈ 190 m; the leaves (level 6) are ≈ 35 m across.
+    assert_eq!(facts.requested_level, 6);
+    assert!(facts.resolved_level < 6, "{facts:?}");
+    assert!(
+        facts.resolved_diameter_m >= facts.pixel_footprint_m,
+        "{facts:?}"
+    );
+    let engine = Engine::new();
+    let req = FrameRequest::from_value(&v, Method::Fast).unwrap();
+    // The default budget does not cover one level (SPHERE_LEVEL_ERROR).
+    assert!(SPHERE_LEVEL_ERROR > req.plan(&engine, &no_files).unwrap().budget.allowance);
+    assert_eq!(req.plan(&engine, &no_files).unwrap().sphere_level, None);
+    // A target of 0.5 leaves 0.398: two levels (0.30), not three.
+    let loose = req.clone().with_max_rel_error(Some("0.5")).unwrap();
+    let plan = loose.plan(&engine, &no_files).unwrap();
+    let level = plan.sphere_level.expect("sphere level coarsened");
+    let levels_up = ((0.5 - FRAME_MEASURED_ERROR) / SPHERE_LEVEL_ERROR).floor() as u32;
+    assert_eq!(
+        level.to_level,
+        facts.resolved_level.max(6 - levels_up),
+        "{level:?}"
+    );
+    assert_eq!(
+        serde_json::to_value(&plan).unwrap()["sphere_level"]["to_level"],
+        json!(level.to_level)
+    );
+    // The hierarchy is built only to that level: its leaves are the full hierarchy's level.
+    let at = |levels: u32, level: Option<u32>| {
+        let mut c = s.cloud.clone();
+        if let skybake::cloud::scene::CloudSource::Spheres(src) = &mut c.source {
+            src.params.levels = levels;
+            src.level = level;
+        }
+        c.voxelize(&no_files).unwrap()
+    };
+    let truncated = at(level.to_level, None);
+    let full = at(6, Some(level.to_level));
+    assert_eq!(truncated.dims, full.dims);
+    assert_eq!(truncated.data, full.data);
+    // A level the scene fixes is kept.
+    let fixed = FrameRequest::from_value(&sphere_scene(30_000.0, Some(6)), Method::Fast)
+        .unwrap()
+        .with_max_rel_error(Some("0.5"))
+        .unwrap();
+    assert_eq!(fixed.plan(&engine, &no_files).unwrap().sphere_level, None);
+    // Near, the camera resolves the leaves: nothing to coarsen.
+    let near = parse(&sphere_scene(3_000.0, None));
+    let f = sphere_facts(&near).unwrap().unwrap();
+    assert_eq!(f.resolved_level, 6, "{f:?}");
+}
+
+#[test]
+fn the_cli_and_the_service_take_max_rel_error_for_frames() {
+    // CLI: a target under the measured error is refused naming the parameter and the figure.
+    let dir = std::env::temp_dir().join(format!("skybake-plan-frame-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let path = dir.join("scene.json");
+    std::fs::write(&path, serde_json::to_vec(&scene(|_| {})).unwrap()).unwrap();
+    let out = std::process::Command::new(env!("CARGO_BIN_EXE_skybake"))
+        .args(["render", path.to_str().unwrap(), "--max-rel-error", "0.05"])
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success());
+    assert!(
+        stderr.contains("--max-rel-error") && stderr.contains("0.0810"),
+        "{stderr}"
+    );
+    let out = std::process::Command::new(env!("CARGO_BIN_EXE_skybake"))
+        .args(["plan", "frame", "--scene", path.to_str().unwrap()])
+        .args(["--max-rel-error", "0.3"])
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let plan: Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert_eq!(plan["plan"]["budget"]["relative_error"], json!(0.3));
+    let _ = std::fs::remove_dir_all(&dir);
+
+    // Service: a 400 naming the best achievable error; a met target sets the budget.
+    let rt = tokio::runtime::Runtime::new().unwrap();
+    rt.block_on(async {
+        use axum::body::Body;
+        use axum::http::Request;
+        use tower::ServiceExt;
+        let cache =
+            std::env::temp_dir().join(format!("skybake-plan-frame-service-{}", std::process::id()));
+        let mut settings = skybake::config::Settings::defaults();
+        settings.cache.dir = cache.clone();
+        let state = skybake::service::AppState::new(settings).unwrap();
+        let body = serde_json::to_vec(&scene(|_| {})).unwrap();
+        let post = |uri: &str| {
+            let req = Request::builder()
+                .method("POST")
+                .uri(uri)
+                .body(Body::from(body.clone()))
+                .unwrap();
+            skybake::service::app(state.clone()).oneshot(req)
+        };
+        let resp = post("/v1/render?max_rel_error=0.05").await.unwrap();
+        assert_eq!(resp.status().as_u16(), 400);
+        let text = axum::body::to_bytes(resp.into_body(), 1 << 20)
+            .await
+            .unwrap();
+        let text = String::from_utf8_lossy(&text);
+        assert!(
+            text.contains("max_rel_error") && text.contains("0.0810"),
+            "{text}"
+        );
+        let resp = post("/v1/render?max_rel_error=0.3&format=json")
+            .await
+            .unwrap();
+        assert_eq!(resp.status().as_u16(), 200);
+        let json: Value = serde_json::from_slice(
+            &axum::body::to_bytes(resp.into_body(), 1 << 24)
+                .await
+                .unwrap(),
+        )
+        .unwrap();
+        assert_eq!(json["plan"]["budget"]["relative_error"], json!(0.3));
+        let _ = std::fs::remove_dir_all(&cache);
+    });
+}
+
+#[test]
+fn measured_shares_agree_with_the_given_light_of_a_vacuum_scene() {
+    // Vacuum: sun 1 (collimated), constant sky 0.1, ground albedo 0.3 lit by both. The shares
+    // measured on the lighting (4096 directions) must be the closed forms the planner predicts
+    // for vacuum scenes: sun E/(4π), sky L_s/2, ground a/π·(E μ_s + π L_s)/2.
+    let v = scene(|v| v["ground"] = json!({"albedo": 0.3, "height_m": 0}));
+    let s = parse(&v);
+    let grid = voxelize(&s);
+    let lighting = lighting_for(&s, &grid, &Engine::new()).unwrap();
+    let (sky, ground) = measured_shares(&lighting);
+    let pi = std::f64::consts::PI;
+    let mu_s = 35f64.to_radians().sin();
+    let (e, l_s) = (1.0, 0.1);
+    let l_g = 0.3 / pi * (e * mu_s + pi * l_s);
+    let total = e / (4.0 * pi) + l_s / 2.0 + l_g / 2.0;
+    let (sky_exact, ground_exact) = (l_s / 2.0 / total, l_g / 2.0 / total);
+    assert!((sky - sky_exact).abs() < 1e-3, "{sky} vs {sky_exact}");
+    assert!(
+        (ground - ground_exact).abs() < 1e-3,
+        "{ground} vs {ground_exact}"
+    );
+    let facts = skybake::render::product::frame_facts(&s, &grid, Method::Fast);
+    assert!(!facts.shares_measured);
+    assert!((facts.sky_share.unwrap() - sky_exact).abs() < 1e-9);
 }

@@ -16,7 +16,7 @@ use super::{
 };
 use crate::cloud::DensityGrid;
 use crate::engine::{Engine, Stages};
-use crate::plan::{FrameFacts, FramePlan, FrameReason, FrameStage};
+use crate::plan::{FrameFacts, FramePlan, FrameReason, FrameStage, SphereFacts};
 use crate::store::tiles::ATTR_TILE_OF;
 use crate::store::{decode_exr, encode_exr, SpectralImage, StoreError};
 use crate::{Error, Result};
@@ -147,6 +147,9 @@ pub struct FrameRequest {
     pub scene: FrameScene,
     scene_json: serde_json::Value,
     pub method: Method,
+    /// The request's `max_rel_error` target ([`Self::with_max_rel_error`]): the frame plan's
+    /// budget.
+    pub max_rel_error: Option<f64>,
 }
 
 /// Progress of a tiled render, reported after each tile.
@@ -290,37 +293,72 @@ impl Canvas {
 ///   Lambertian ground below L_g/2 with L_g = a/π·(E μ_s + π L_s); a share is its part of the sum,
 ///   largest over wavelengths. With an atmosphere the shares are not predicted (the stages run).
 pub fn frame_facts(scene: &FrameScene, grid: &DensityGrid, method: Method) -> FrameFacts {
-    use super::scene::{Projection, SkySpec};
+    frame_facts_with(scene, grid, method, &PlanInputs::default())
+}
+
+/// What the frame planner takes besides the scene and its grid.
+#[derive(Debug, Clone, Copy, Default)]
+pub struct PlanInputs<'a> {
+    /// The request's `max_rel_error` target.
+    pub max_rel_error: Option<f64>,
+    /// The light at the cloud as computed for the scene: with an atmosphere the shares of sky
+    /// and ground light are measured on it ([`measured_shares`]); without, they are not
+    /// predicted (the stages run).
+    pub lighting: Option<&'a super::Lighting>,
+    /// A sphere-hierarchy cloud's levels ([`sphere_facts`]).
+    pub sphere: Option<SphereFacts>,
+}
+
+/// Shares of sky light and of ground light (light from below) in all the light reaching the
+/// cloud, averaged over directions, largest over wavelengths, measured on the scene's computed
+/// light: the sun E/(4π), the sky's and the ground's radiance tables averaged over 4096
+/// directions evenly spread over the sphere (a Fibonacci lattice), each hemisphere's mean
+/// weighted by its half of the sphere.
+pub fn measured_shares(lighting: &super::Lighting) -> (f64, f64) {
     use glam::DVec3;
-    let [nx, ny, nz] = grid.dims;
-    let (mut lo_i, mut hi_i) = ([usize::MAX; 3], [0usize; 3]);
-    for z in 0..nz {
-        for y in 0..ny {
-            let row = grid.index(0, y, z);
-            for (x, v) in grid.data[row..row + nx].iter().enumerate() {
-                if *v > 0.0 {
-                    for (a, i) in [x, y, z].into_iter().enumerate() {
-                        lo_i[a] = lo_i[a].min(i);
-                        hi_i[a] = hi_i[a].max(i);
-                    }
-                }
-            }
+    const N: usize = 4096;
+    let n_l = lighting.wavelengths_nm.len();
+    let (mut up, mut down) = (vec![0.0f64; n_l], vec![0.0f64; n_l]);
+    let mut l = vec![0.0f64; n_l];
+    let golden = std::f64::consts::PI * (3.0 - 5f64.sqrt());
+    for i in 0..N {
+        let z = 1.0 - (2.0 * i as f64 + 1.0) / N as f64;
+        let r = (1.0 - z * z).max(0.0).sqrt();
+        let phi = golden * i as f64;
+        let dir = DVec3::new(r * phi.cos(), r * phi.sin(), z);
+        lighting.env(dir, &mut l);
+        let acc = if z >= 0.0 { &mut up } else { &mut down };
+        for (a, v) in acc.iter_mut().zip(&l) {
+            *a += v.max(0.0) / N as f64;
         }
     }
-    let empty = lo_i[0] == usize::MAX;
-    let h = grid.voxel_size_m;
-    let (lo, hi) = if empty {
-        (grid.origin_m, grid.max_corner_m())
-    } else {
-        let at = |i: [usize; 3], pad: f64| {
-            grid.origin_m + DVec3::new(i[0] as f64, i[1] as f64, i[2] as f64) * h + pad * h
-        };
-        (
-            at(lo_i, -1.0).max(grid.origin_m),
-            at(hi_i, 2.0).min(grid.max_corner_m()),
-        )
-    };
-    let cam = &scene.camera;
+    let (mut sky, mut ground) = (0.0f64, 0.0f64);
+    for i in 0..n_l {
+        let sun = lighting
+            .sun_irradiance
+            .get(i)
+            .copied()
+            .unwrap_or(0.0)
+            .max(0.0)
+            / (4.0 * std::f64::consts::PI);
+        let total = sun + up[i] + down[i];
+        if total > 0.0 {
+            sky = sky.max(up[i] / total);
+            ground = ground.max(down[i] / total);
+        }
+    }
+    (sky, ground)
+}
+
+/// Whether the camera sees a box, its smallest pixel footprint on it and its nearest distance
+/// (see [`frame_facts`]).
+fn view_of_box(
+    cam: &super::scene::CameraSpec,
+    lo: glam::DVec3,
+    hi: glam::DVec3,
+) -> (bool, f64, f64) {
+    use super::scene::Projection;
+    use glam::DVec3;
     let corners: Vec<DVec3> = (0..8)
         .map(|c| {
             DVec3::new(
@@ -370,6 +408,97 @@ pub fn frame_facts(scene: &FrameScene, grid: &DensityGrid, method: Method) -> Fr
             (in_view, nearest * rad_per_px)
         }
     };
+    (in_view, footprint, nearest)
+}
+
+/// The sphere-hierarchy facts of a scene whose cloud source is `spheres` (`None` otherwise):
+/// the pixel footprint on the base sphere's box (every level's spheres lie inside it) and the
+/// deepest level whose mean sphere diameter is at least that footprint
+/// (`SphereCloud::level_for_resolution`). The levels are built one at a time and only as deep
+/// as needed (a parent's children come from its own random stream, so the first L levels of a
+/// hierarchy of K ≥ L ≥ 1 levels are those of a hierarchy of L levels); no voxels.
+pub fn sphere_facts(scene: &FrameScene) -> Result<Option<SphereFacts>> {
+    use crate::cloud::scene::CloudSource;
+    use crate::cloud::spheres::SphereCloud;
+    use glam::DVec3;
+    let CloudSource::Spheres(source) = &scene.cloud.source else {
+        return Ok(None);
+    };
+    let k_max = source.params.levels;
+    let requested_level = source.level.unwrap_or(k_max).min(k_max);
+    let build = |levels: u32| {
+        let mut params = source.params.clone();
+        params.levels = levels;
+        SphereCloud::new(&params).map_err(|e| e.prefixed("cloud.source.params."))
+    };
+    let mean_diameter = |model: &SphereCloud, k: u32| {
+        let spheres = model.level(k);
+        2.0 * spheres.iter().map(|s| s.radius as f64).sum::<f64>() / spheres.len().max(1) as f64
+    };
+    let base = build(k_max.min(1))?;
+    let r0 = base.level(0)[0].radius as f64;
+    let (lo, hi) = (
+        base.centre_m() - DVec3::splat(r0),
+        base.centre_m() + DVec3::splat(r0),
+    );
+    let (_, footprint, nearest) = view_of_box(&scene.camera, lo, hi);
+    let (mut resolved_level, mut resolved_diameter_m) = (0, mean_diameter(&base, 0));
+    for k in 1..=requested_level {
+        let model = build(k)?;
+        let d = mean_diameter(&model, k);
+        if d < footprint {
+            break;
+        }
+        (resolved_level, resolved_diameter_m) = (k, d);
+    }
+    Ok(Some(SphereFacts {
+        requested_level,
+        level_fixed: source.level.is_some(),
+        resolved_level,
+        resolved_diameter_m,
+        pixel_footprint_m: footprint,
+        nearest_distance_m: nearest,
+    }))
+}
+
+/// [`frame_facts`] with the request's target, its measured light and its sphere levels.
+pub fn frame_facts_with(
+    scene: &FrameScene,
+    grid: &DensityGrid,
+    method: Method,
+    inputs: &PlanInputs,
+) -> FrameFacts {
+    use super::scene::SkySpec;
+    use glam::DVec3;
+    let [nx, ny, nz] = grid.dims;
+    let (mut lo_i, mut hi_i) = ([usize::MAX; 3], [0usize; 3]);
+    for z in 0..nz {
+        for y in 0..ny {
+            let row = grid.index(0, y, z);
+            for (x, v) in grid.data[row..row + nx].iter().enumerate() {
+                if *v > 0.0 {
+                    for (a, i) in [x, y, z].into_iter().enumerate() {
+                        lo_i[a] = lo_i[a].min(i);
+                        hi_i[a] = hi_i[a].max(i);
+                    }
+                }
+            }
+        }
+    }
+    let empty = lo_i[0] == usize::MAX;
+    let h = grid.voxel_size_m;
+    let (lo, hi) = if empty {
+        (grid.origin_m, grid.max_corner_m())
+    } else {
+        let at = |i: [usize; 3], pad: f64| {
+            grid.origin_m + DVec3::new(i[0] as f64, i[1] as f64, i[2] as f64) * h + pad * h
+        };
+        (
+            at(lo_i, -1.0).max(grid.origin_m),
+            at(hi_i, 2.0).min(grid.max_corner_m()),
+        )
+    };
+    let (in_view, footprint, nearest) = view_of_box(&scene.camera, lo, hi);
     let optics = &scene.optics;
     let k_max = optics
         .extinction_per_density_m
@@ -397,6 +526,7 @@ pub fn frame_facts(scene: &FrameScene, grid: &DensityGrid, method: Method) -> Fr
             .is_some_and(|g| g.albedo.iter().any(|&a| a > 0.0))
     };
     let (mut sky_share, mut ground_share) = (None, None);
+    let mut shares_measured = false;
     if scene.atmosphere.is_none() {
         let sun = scene
             .sun
@@ -423,6 +553,11 @@ pub fn frame_facts(scene: &FrameScene, grid: &DensityGrid, method: Method) -> Fr
         }
         sky_share = Some(s_max);
         ground_share = Some(g_max);
+    } else if let Some(lighting) = inputs.lighting {
+        let (sky, ground) = measured_shares(lighting);
+        sky_share = Some(sky);
+        ground_share = Some(ground);
+        shares_measured = true;
     }
     FrameFacts {
         reference: method == Method::Reference,
@@ -435,18 +570,32 @@ pub fn frame_facts(scene: &FrameScene, grid: &DensityGrid, method: Method) -> Fr
         has_ground_light,
         sky_share,
         ground_share,
+        shares_measured,
         max_optical_depth: k_max * grid.max_density() as f64 * (hi - lo).length(),
         max_albedo,
         voxel_size_m: h,
         pixel_footprint_m: footprint,
         nearest_distance_m: nearest,
         budget: crate::plan::FRAME_MEASURED_ERROR,
+        max_rel_error: inputs.max_rel_error,
+        sphere: inputs.sphere,
     }
 }
 
 /// The frame plan of a scene and its voxelised cloud (`plan::plan_frame` on [`frame_facts`]).
 pub fn plan_frame(scene: &FrameScene, grid: &DensityGrid, method: Method) -> FramePlan {
     crate::plan::plan_frame(&frame_facts(scene, grid, method))
+}
+
+/// A frame planned and ready to render ([`FrameRequest::planned`]).
+struct PlannedFrame {
+    plan: FramePlan,
+    scene: FrameScene,
+    grid: DensityGrid,
+    settings: RenderSettings,
+    lighting: super::Lighting,
+    /// voxelize, plan, lighting, ms.
+    timing_ms: Vec<(String, f64)>,
 }
 
 /// What a frame runs with under its plan.
@@ -460,7 +609,8 @@ pub struct PlannedRun {
 }
 
 /// Executes `plan`: multiple scattering of a thin cloud off, sky or ground light left out on the
-/// cloud (settings hooks, the background unchanged), no per-voxel light for a cloud out of view,
+/// cloud (settings hooks, the background unchanged; with an atmosphere the `sky` product at the
+/// cloud or the `ground` product not computed), no per-voxel light for a cloud out of view,
 /// no lighting products for the cloud when no cloud stage runs, and the grid's block means at
 /// the coarsened voxel size.
 pub fn execute_plan(
@@ -484,6 +634,12 @@ pub fn execute_plan(
     let under_budget = |stage| matches!(reason(stage), Some(FrameReason::UnderBudget { .. }));
     settings.sky_light = !under_budget(FrameStage::SkyLight);
     settings.ground_light = !under_budget(FrameStage::GroundLight);
+    // With an atmosphere the camera's background is its own `sky` product, so the products
+    // that light only the cloud (`sky` at the cloud, `ground`) are not computed either.
+    if matches!(scene.sky, SkySpec::Atmosphere) && scene.atmosphere.is_some() {
+        scene.lighting.sky_light &= settings.sky_light;
+        scene.lighting.ground_light &= settings.ground_light;
+    }
     if let Some(r @ (FrameReason::CloudOutOfView | FrameReason::NoCloud)) =
         reason(FrameStage::CloudLight)
     {
@@ -549,7 +705,43 @@ impl FrameRequest {
             scene,
             scene_json: value,
             method,
+            max_rel_error: None,
         })
+    }
+
+    /// Sets the request's `max_rel_error` target (CLI `--max-rel-error`, HTTP `max_rel_error`),
+    /// a number in [1e-4, 1]: the frame plan's budget is then the target, of which the cost
+    /// rules may spend what the fast method's measured error
+    /// ([`crate::plan::FRAME_MEASURED_ERROR`]) leaves over. A target below that error is
+    /// refused, naming the best achievable error; the reference method (the path tracer, whose
+    /// error is its noise, set by `quality`) takes none.
+    pub fn with_max_rel_error(mut self, target: Option<&str>) -> Result<Self> {
+        let Some(text) = target else {
+            self.max_rel_error = None;
+            return Ok(self);
+        };
+        let target = crate::product::params::parameter("max_rel_error")
+            .ok_or_else(|| Error::internal("max_rel_error", "not in the parameter table"))?
+            .real(text)?;
+        if self.method == Method::Reference {
+            return Err(Error::invalid(
+                "max_rel_error",
+                "only for method fast: the reference method (the path tracer) is the reference, its noise is set by the scene's quality",
+            ));
+        }
+        let best = crate::plan::FRAME_MEASURED_ERROR;
+        if target < best {
+            // Out of range (a 400), the allowed range starting at the best achievable error.
+            return Err(Error::out_of_range(
+                "max_rel_error",
+                target,
+                format!(
+                    "{best:.4} to 1: {best:.4} is the best measured error of the frame by the fast method (block NRMSE against Mitsuba 3 and the path tracer, README \"Cloud frames\")"
+                ),
+            ));
+        }
+        self.max_rel_error = Some(target);
+        Ok(self)
     }
 
     /// A request from a scene given as parsed JSON (a job item).
@@ -572,7 +764,13 @@ impl FrameRequest {
                 map.remove(key);
             }
         }
-        serde_json::json!({"product": "frame", "method": self.method, "scene": scene}).to_string()
+        let mut request =
+            serde_json::json!({"product": "frame", "method": self.method, "scene": scene});
+        // Only when given, so the keys of requests without a target stay as they were.
+        if let Some(target) = self.max_rel_error {
+            request["max_rel_error"] = serde_json::json!(target);
+        }
+        request.to_string()
     }
 
     /// The cache key: blake3 of the canonical request and the engine version.
@@ -582,34 +780,133 @@ impl FrameRequest {
 
     /// The frame's plan (voxelises the cloud to measure it; lights and renders nothing): what
     /// `skybake plan frame` and `POST /v1/plan` with `"product": "frame"` answer.
-    pub fn plan(&self, loader: &dyn Fn(&str) -> Result<Vec<u8>>) -> Result<FramePlan> {
-        let grid = self.voxelize(loader)?;
+    ///
+    /// With an atmosphere the light at the cloud is computed (the `sky` and `ground` products
+    /// at the cloud, tables kept in `engine`) to measure the shares of sky and ground light.
+    pub fn plan(
+        &self,
+        engine: &Engine,
+        loader: &dyn Fn(&str) -> Result<Vec<u8>>,
+    ) -> Result<FramePlan> {
+        Ok(self.planned(engine, loader)?.plan)
+    }
+
+    /// Voxelises (a sphere hierarchy at the level the plan chooses), measures, plans and
+    /// executes the plan, and computes the light the frame runs with.
+    fn planned(
+        &self,
+        engine: &Engine,
+        loader: &dyn Fn(&str) -> Result<Vec<u8>>,
+    ) -> Result<PlannedFrame> {
+        let start = Instant::now();
+        let reference = self.method == Method::Reference;
+        // The sphere-level rule runs before voxelising (`plan_frame` repeats it first, with the
+        // same budget, so it decides the same).
+        let sphere = if reference {
+            None
+        } else {
+            sphere_facts(&self.scene)?
+        };
+        let mut budget = crate::plan::frame_budget(
+            reference,
+            crate::plan::FRAME_MEASURED_ERROR,
+            self.max_rel_error,
+        );
+        let level = sphere
+            .as_ref()
+            .and_then(|s| crate::plan::sphere_level_rule(s, &mut budget));
+        let mut cloud = self.scene.cloud.clone();
+        if let (Some(level), crate::cloud::scene::CloudSource::Spheres(source)) =
+            (&level, &mut cloud.source)
+        {
+            // The hierarchy is built only to the level summed (see `sphere_facts`); level 0 of
+            // a hierarchy of K ≥ 1 levels is another sphere than that of K = 0.
+            if level.to_level >= 1 {
+                source.params.levels = level.to_level;
+                source.level = None;
+            } else {
+                source.level = Some(0);
+            }
+        }
+        let grid = voxelize_cloud(&cloud, loader)?;
+        let voxelize_ms = start.elapsed().as_secs_f64() * 1e3;
         super::check_grid(&grid)?;
-        Ok(plan_frame(&self.scene, &grid, self.method))
+        let start = Instant::now();
+        let mut inputs = PlanInputs {
+            max_rel_error: self.max_rel_error,
+            lighting: None,
+            sphere,
+        };
+        let facts = frame_facts_with(&self.scene, &grid, self.method, &inputs);
+        // With an atmosphere the shares of sky and ground light are measured on the light the
+        // scene computes anyway (kept for the frame when the plan does not change it).
+        let measure = self.scene.atmosphere.is_some()
+            && !reference
+            && !facts.cloud_empty
+            && facts.cloud_in_view
+            && ((facts.sky_light_switch && facts.has_sky_light)
+                || (facts.ground_light_switch && facts.has_ground_light));
+        let mut lighting_ms = 0.0;
+        let measured = if measure {
+            let t = Instant::now();
+            let l = lighting_for(&self.scene, &grid, engine)?;
+            lighting_ms += t.elapsed().as_secs_f64() * 1e3;
+            Some(l)
+        } else {
+            None
+        };
+        inputs.lighting = measured.as_ref();
+        let plan =
+            crate::plan::plan_frame(&frame_facts_with(&self.scene, &grid, self.method, &inputs));
+        let run = execute_plan(&plan, &self.scene, &grid, self.method)?;
+        let grid = match run.grid {
+            Some(g) => g,
+            None => grid,
+        };
+        let plan_ms = start.elapsed().as_secs_f64() * 1e3 - lighting_ms;
+        let lighting = match measured {
+            // The light measured is the frame's, less what the plan left out.
+            Some(l) if plan.coarsening() == 1 => {
+                let (sky, ground) = (
+                    run.scene.lighting.sky_light,
+                    run.scene.lighting.ground_light,
+                );
+                match l.masked(sky, ground) {
+                    Some(mut masked) => {
+                        masked.notes.retain(|n| {
+                            (sky || !n.starts_with("sky product at"))
+                                && (ground || !n.starts_with("ground product at"))
+                        });
+                        masked
+                    }
+                    None => l,
+                }
+            }
+            _ => {
+                let t = Instant::now();
+                let l = lighting_for(&run.scene, &grid, engine)?;
+                lighting_ms += t.elapsed().as_secs_f64() * 1e3;
+                l
+            }
+        };
+        Ok(PlannedFrame {
+            plan,
+            scene: run.scene,
+            grid,
+            settings: run.settings,
+            lighting,
+            timing_ms: vec![
+                ("voxelize".to_string(), voxelize_ms),
+                ("plan".to_string(), plan_ms),
+                ("lighting".to_string(), lighting_ms),
+            ],
+        })
     }
 
     /// The scene's cloud as a grid within the renderer's limit: every source's grid size is
     /// checked against [`super::MAX_RENDER_VOXELS`] as soon as it is known and before the grid
     /// is allocated ([`crate::cloud::scene::voxelize_within`]); the error names the scene field
     /// that sets it, `cloud.voxel_size_m`.
-    fn voxelize(&self, loader: &dyn Fn(&str) -> Result<Vec<u8>>) -> Result<DensityGrid> {
-        self.scene
-            .cloud
-            .voxelize_within(loader, super::MAX_RENDER_VOXELS)
-            .map_err(|e| match e {
-                Error::TooLarge {
-                    field,
-                    reason,
-                    limit,
-                } if field == "dims" => Error::TooLarge {
-                    field: "cloud.voxel_size_m".into(),
-                    reason: format!("the grid at this voxel size: {reason}"),
-                    limit: format!("{limit} (use a larger voxel_size_m)"),
-                },
-                other => other,
-            })
-    }
-
     /// Voxels of the frame's grid when they are known before voxelising
     /// ([`crate::cloud::scene::CloudSection::planned_dims`]), else the renderer's limit
     /// [`super::MAX_RENDER_VOXELS`] (an upper bound).
@@ -707,25 +1004,15 @@ impl FrameRequest {
         let mut computed = 0;
         let mut this_run: Option<TileMeta> = None;
         if !missing.is_empty() {
-            let start = Instant::now();
-            let grid = self.voxelize(loader)?;
-            let voxelize_ms = start.elapsed().as_secs_f64() * 1e3;
-            super::check_grid(&grid)?;
-            let start = Instant::now();
-            let plan = plan_frame(&self.scene, &grid, self.method);
-            let run = execute_plan(&plan, &self.scene, &grid, self.method)?;
-            let grid = run.grid.unwrap_or(grid);
-            let scene = &run.scene;
-            let plan_ms = start.elapsed().as_secs_f64() * 1e3;
-            let start = Instant::now();
-            let lighting = lighting_for(scene, &grid, engine)?;
-            let lighting_ms = start.elapsed().as_secs_f64() * 1e3;
-            let prepared = Prepared::new(scene, &grid, &lighting, run.settings, cancel)?;
-            let mut preparation_ms = vec![
-                ("voxelize".to_string(), voxelize_ms),
-                ("plan".to_string(), plan_ms),
-                ("lighting".to_string(), lighting_ms),
-            ];
+            let PlannedFrame {
+                plan,
+                scene,
+                grid,
+                settings,
+                lighting,
+                timing_ms: mut preparation_ms,
+            } = self.planned(engine, loader)?;
+            let prepared = Prepared::new(&scene, &grid, &lighting, settings, cancel)?;
             preparation_ms.extend(prepared.timing_ms.iter().cloned());
             let meta = TileMeta {
                 x0: 0,
@@ -968,4 +1255,26 @@ mod tests {
             assert_eq!(rects.len(), w.div_ceil(TILE_SIZE) * h.div_ceil(TILE_SIZE));
         }
     }
+}
+
+/// Voxelises a frame's cloud within the renderer's limit, checked before the grid is allocated;
+/// a grid too large names the scene field that sets its size.
+fn voxelize_cloud(
+    cloud: &crate::cloud::scene::CloudSection,
+    loader: &dyn Fn(&str) -> Result<Vec<u8>>,
+) -> Result<DensityGrid> {
+    cloud
+        .voxelize_within(loader, super::MAX_RENDER_VOXELS)
+        .map_err(|e| match e {
+            Error::TooLarge {
+                field,
+                reason,
+                limit,
+            } if field == "dims" => Error::TooLarge {
+                field: "cloud.voxel_size_m".into(),
+                reason: format!("the grid at this voxel size: {reason}"),
+                limit: format!("{limit} (use a larger voxel_size_m)"),
+            },
+            other => other,
+        })
 }

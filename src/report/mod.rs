@@ -328,7 +328,7 @@ pub fn run(options: &ReportOptions, progress: &dyn Fn(usize, usize)) -> Result<R
 
 /// CPU time of this process (user + system, all threads), ms, from `/proc/self/stat` (Linux;
 /// `None` elsewhere). Clock ticks of 10 ms (USER_HZ = 100).
-fn process_cpu_ms() -> Option<f64> {
+pub(crate) fn process_cpu_ms() -> Option<f64> {
     let stat = std::fs::read_to_string("/proc/self/stat").ok()?;
     // Fields after the command name (which may hold spaces) start at field 3 (state).
     let rest = &stat[stat.rfind(')')? + 2..];

@@ -13,8 +13,10 @@ use crate::engine::{Engine, Product};
 use crate::plan::{FramePlan, FrameReason};
 use crate::product::params::RequestParams;
 use crate::product::{ProductKind, ProductRequest};
-use crate::render::product::{execute_plan, plan_frame};
-use crate::render::{lighting_for, render_tile, FrameScene, Method, Prepared};
+use crate::render::product::{
+    execute_plan, frame_facts_with, plan_frame, sphere_facts, PlanInputs,
+};
+use crate::render::{lighting_for, render_tile, FrameScene, Lighting, Method, Prepared};
 use crate::{Error, Result};
 use serde_json::{json, Value};
 use std::time::Instant;
@@ -28,6 +30,10 @@ pub struct RuleSaving {
     pub plan: String,
     pub ms_with: f64,
     pub ms_without: f64,
+    /// CPU time (user + system, all threads) of the same runs, the smallest of the runs, ms
+    /// (`NaN` where not measurable): fairer than wall time on a shared machine.
+    pub cpu_with: f64,
+    pub cpu_without: f64,
     /// What the rule changes: (normalised RMS or largest relative deviation, bias) of the
     /// result with the rule against the result without it.
     pub change: (f64, f64),
@@ -44,16 +50,22 @@ const REFERENCE_SPP: usize = 64;
 /// Timed runs per configuration (the fastest counts: the machine is shared).
 const RUNS: usize = 2;
 
-fn fastest<T>(mut f: impl FnMut() -> Result<T>) -> Result<(T, f64)> {
-    let mut best = f64::INFINITY;
+/// The result of `f` and the smallest wall and CPU times of [`RUNS`] runs, ms.
+fn fastest<T>(mut f: impl FnMut() -> Result<T>) -> Result<(T, f64, f64)> {
+    let (mut best, mut best_cpu) = (f64::INFINITY, f64::INFINITY);
     let mut out = None;
     for _ in 0..RUNS {
+        let cpu = super::process_cpu_ms();
         let t = Instant::now();
         let v = f()?;
         best = best.min(t.elapsed().as_secs_f64() * 1e3);
+        best_cpu = match (cpu, super::process_cpu_ms()) {
+            (Some(a), Some(b)) => best_cpu.min(b - a),
+            _ => f64::NAN,
+        };
         out = Some(v);
     }
-    out.map(|v| (v, best))
+    out.map(|v| (v, best, best_cpu))
         .ok_or_else(|| Error::internal("planner report", "no run"))
 }
 
@@ -77,8 +89,10 @@ fn sky_orders() -> Result<RuleSaving> {
     let plan = req.plan()?;
     let full = plan.clone().without_cost_rules();
     // Cold: a new engine (tables built) each run.
-    let (with, ms_with) = fastest(|| Engine::new().execute(&req.spec, &req.product, &plan))?;
-    let (without, ms_without) = fastest(|| Engine::new().execute(&req.spec, &req.product, &full))?;
+    let (with, ms_with, cpu_with) =
+        fastest(|| Engine::new().execute(&req.spec, &req.product, &plan))?;
+    let (without, ms_without, cpu_without) =
+        fastest(|| Engine::new().execute(&req.spec, &req.product, &full))?;
     let reference_req = request("reference")?;
     let reference = Engine::new().compute(&reference_req.spec, &reference_req.product)?;
     let table = |p: &Product| -> Vec<f64> {
@@ -103,6 +117,8 @@ fn sky_orders() -> Result<RuleSaving> {
         plan: left,
         ms_with,
         ms_without,
+        cpu_with,
+        cpu_without,
         change: (change_max, change_rms),
         error_with: err(&with),
         error_without: err(&without),
@@ -135,9 +151,40 @@ fn render(
     plan: &FramePlan,
     method: Method,
 ) -> Result<Vec<f32>> {
+    render_lit(scene, grid, plan, method, None)
+}
+
+/// [`render`], with an atmosphere lit as `FrameRequest` does: the scene's whole light computed
+/// first (the planner measures the shares on it), less what the plan leaves out.
+fn render_measured(
+    scene: &FrameScene,
+    grid: &DensityGrid,
+    plan: &FramePlan,
+    method: Method,
+) -> Result<Vec<f32>> {
+    if scene.atmosphere.is_none() || plan.coarsening() > 1 {
+        return render(scene, grid, plan, method);
+    }
+    let measured = lighting_for(scene, grid, &Engine::new())?;
+    render_lit(scene, grid, plan, method, Some(measured))
+}
+
+fn render_lit(
+    scene: &FrameScene,
+    grid: &DensityGrid,
+    plan: &FramePlan,
+    method: Method,
+    measured: Option<Lighting>,
+) -> Result<Vec<f32>> {
     let run = execute_plan(plan, scene, grid, method)?;
     let grid = run.grid.as_ref().unwrap_or(grid);
-    let lighting = lighting_for(&run.scene, grid, &Engine::new())?;
+    let lighting = match measured {
+        Some(l) => {
+            let sw = run.scene.lighting;
+            l.masked(sw.sky_light, sw.ground_light).unwrap_or(l)
+        }
+        None => lighting_for(&run.scene, grid, &Engine::new())?,
+    };
     let mut settings = run.settings;
     settings.spp = REFERENCE_SPP;
     let p = Prepared::new(&run.scene, grid, &lighting, settings, &|| false)?;
@@ -173,14 +220,41 @@ fn frame_errors(x: &[f32], r: &[f32], b: &[f32]) -> (f64, f64) {
     (mse.sqrt() / signal, diff / signal)
 }
 
-fn frame_rule(rule: &str, case: &str, scene: FrameScene, reference: bool) -> Result<RuleSaving> {
+/// The fast plan of `scene` on `grid` with the request's `target`, the light measured on the
+/// scene's computed lighting when it has an atmosphere (as `FrameRequest` plans).
+fn fast_plan(scene: &FrameScene, grid: &DensityGrid, target: Option<f64>) -> Result<FramePlan> {
+    let lighting = match scene.atmosphere {
+        Some(_) => Some(lighting_for(scene, grid, &Engine::new())?),
+        None => None,
+    };
+    Ok(crate::plan::plan_frame(&frame_facts_with(
+        scene,
+        grid,
+        Method::Fast,
+        &PlanInputs {
+            max_rel_error: target,
+            lighting: lighting.as_ref(),
+            sphere: None,
+        },
+    )))
+}
+
+fn frame_rule(
+    rule: &str,
+    case: &str,
+    scene: FrameScene,
+    reference: bool,
+    target: Option<f64>,
+) -> Result<RuleSaving> {
     let grid = scene
         .cloud
         .voxelize(&|_| Err(Error::invalid("path", "no files")))?;
-    let plan = plan_frame(&scene, &grid, Method::Fast);
+    let plan = fast_plan(&scene, &grid, target)?;
     let full = plan.clone().without_cost_rules();
-    let (with, ms_with) = fastest(|| render(&scene, &grid, &plan, Method::Fast))?;
-    let (without, ms_without) = fastest(|| render(&scene, &grid, &full, Method::Fast))?;
+    let (with, ms_with, cpu_with) =
+        fastest(|| render_measured(&scene, &grid, &plan, Method::Fast))?;
+    let (without, ms_without, cpu_without) =
+        fastest(|| render_measured(&scene, &grid, &full, Method::Fast))?;
     let empty = DensityGrid::zeros(grid.dims, grid.voxel_size_m, grid.origin_m)?;
     let background = render(
         &scene,
@@ -236,6 +310,8 @@ fn frame_rule(rule: &str, case: &str, scene: FrameScene, reference: bool) -> Res
         },
         ms_with,
         ms_without,
+        cpu_with,
+        cpu_without,
         change,
         error_with,
         error_without,
@@ -244,9 +320,91 @@ fn frame_rule(rule: &str, case: &str, scene: FrameScene, reference: bool) -> Res
     })
 }
 
+/// The sphere-level rule: the example sphere cumulus with K = `levels` (seed 004) seen from
+/// 30 km, with the request's `target`: built, voxelised and rendered at the plan's level and at
+/// the leaves; the error against the path tracer on the leaves.
+fn sphere_rule(levels: u32, target: f64) -> Result<RuleSaving> {
+    let spheres: Value =
+        serde_json::from_str(include_str!("../../config/scenes/sphere-cloud.json"))
+            .map_err(|e| Error::internal("planner report", e))?;
+    let scene = frame_scene(|v| {
+        v["cloud"] = spheres["cloud"].clone();
+        v["cloud"]["source"]["params"]["levels"] = json!(levels);
+        v["cloud"]["voxel_size_m"] = json!(25.0);
+        // The model's own extinction, −ln 0.02 / S_M with S_M = 60 m.
+        v["optics"]["extinction_per_density_m"] = json!(3.912 / 60.0);
+        v["camera"]["position_m"] = json!([0, -30000, 1200]);
+        v["camera"]["look_at_m"] = json!([0, 0, 1500]);
+        v["camera"]["fov_deg"] = json!(12);
+    })?;
+    let facts = sphere_facts(&scene)?
+        .ok_or_else(|| Error::internal("planner report", "not a sphere cloud"))?;
+    let mut budget =
+        crate::plan::frame_budget(false, crate::plan::FRAME_MEASURED_ERROR, Some(target));
+    let level = crate::plan::sphere_level_rule(&facts, &mut budget);
+    let voxelize = |to: Option<u32>| -> Result<DensityGrid> {
+        let mut cloud = scene.cloud.clone();
+        if let (Some(to), crate::cloud::scene::CloudSource::Spheres(s)) = (to, &mut cloud.source) {
+            s.params.levels = to;
+        }
+        cloud.voxelize(&|_| Err(Error::invalid("path", "no files")))
+    };
+    let to = level.map(|l| l.to_level);
+    let timed = |to: Option<u32>| -> Result<Vec<f32>> {
+        let grid = voxelize(to)?;
+        let plan = plan_frame(&scene, &grid, Method::Fast).without_cost_rules();
+        render(&scene, &grid, &plan, Method::Fast)
+    };
+    let (with, ms_with, cpu_with) = fastest(|| timed(to))?;
+    let (without, ms_without, cpu_without) = fastest(|| timed(None))?;
+    let leaves = voxelize(None)?;
+    let empty = DensityGrid::zeros(leaves.dims, leaves.voxel_size_m, leaves.origin_m)?;
+    let background = render(
+        &scene,
+        &empty,
+        &plan_frame(&scene, &empty, Method::Fast),
+        Method::Fast,
+    )?;
+    let r = render(
+        &scene,
+        &leaves,
+        &plan_frame(&scene, &leaves, Method::Reference),
+        Method::Reference,
+    )?;
+    Ok(RuleSaving {
+        rule: format!("frame: sphere hierarchy at the pixel footprint (max_rel_error {target})"),
+        case: format!(
+            "example sphere cumulus, K = {levels}, 25 m voxels, from 30 km, fov 12°, 48×36; building, voxelising and rendering"
+        ),
+        plan: match level {
+            Some(l) => format!(
+                "CloudDetail: spheres summed at level {} instead of {} (level {} of mean diameter {:.0} m resolves the pixel footprint {:.0} m at {:.0} m; predicted {:.0} % of a {:.0} % allowance)",
+                l.to_level,
+                l.from_level,
+                facts.resolved_level,
+                facts.resolved_diameter_m,
+                l.pixel_footprint_m,
+                l.nearest_distance_m,
+                l.predicted_error * 100.0,
+                budget.allowance * 100.0
+            ),
+            None => "(rule did not fire)".into(),
+        },
+        ms_with,
+        ms_without,
+        cpu_with,
+        cpu_without,
+        change: frame_errors(&with, &without, &background),
+        error_with: frame_errors(&with, &r, &background).1,
+        error_without: frame_errors(&without, &r, &background).1,
+        measures: "bias of the cloud's mean signal against the path tracer",
+        note: format!("path tracer {REFERENCE_SPP} spp on the leaves"),
+    })
+}
+
 /// Measures every rule (see the module docs). `progress(done, total)` after each.
 pub fn run(progress: &dyn Fn(usize, usize)) -> Result<Vec<RuleSaving>> {
-    let total = 5;
+    let total = 8;
     let mut out = Vec::new();
     out.push(sky_orders()?);
     progress(1, total);
@@ -255,6 +413,7 @@ pub fn run(progress: &dyn Fn(usize, usize)) -> Result<Vec<RuleSaving>> {
         "validation cloud, camera turned away, 48×36",
         frame_scene(|v| v["camera"]["look_at_m"] = json!([0, -9000, 1200]))?,
         false,
+        None,
     )?);
     progress(2, total);
     out.push(frame_rule(
@@ -262,6 +421,7 @@ pub fn run(progress: &dyn Fn(usize, usize)) -> Result<Vec<RuleSaving>> {
         "validation cloud at extinction 5e-6 /m (optical path ≤ 0.013), 48×36",
         frame_scene(|v| v["optics"]["extinction_per_density_m"] = json!(5e-6))?,
         true,
+        None,
     )?);
     progress(3, total);
     out.push(frame_rule(
@@ -272,6 +432,7 @@ pub fn run(progress: &dyn Fn(usize, usize)) -> Result<Vec<RuleSaving>> {
             v["ground"] = json!({"albedo": 0.01, "height_m": 0});
         })?,
         true,
+        None,
     )?);
     progress(4, total);
     out.push(frame_rule(
@@ -282,8 +443,36 @@ pub fn run(progress: &dyn Fn(usize, usize)) -> Result<Vec<RuleSaving>> {
             v["camera"]["fov_deg"] = json!(12);
         })?,
         true,
+        None,
     )?);
     progress(5, total);
+    out.push(frame_rule(
+        "frame: coarser voxels at the pixel footprint (max_rel_error 0.3)",
+        "validation cloud from 30 km, fov 12°, 48×36",
+        frame_scene(|v| {
+            v["camera"]["position_m"] = json!([0, -30000, 1200]);
+            v["camera"]["fov_deg"] = json!(12);
+        })?,
+        true,
+        Some(0.3),
+    )?);
+    progress(6, total);
+    out.push(frame_rule(
+        "frame: ground light under budget with an atmosphere, measured share (max_rel_error 0.5)",
+        "validation cloud, earth atmosphere and sky, sun 35°, ground albedo 0.02, 440/550/680 nm, 48×36; lighting included (cold tables)",
+        frame_scene(|v| {
+            v["atmosphere"] = json!("earth");
+            v["sky"] = json!("atmosphere");
+            v["sun"] = json!({"elevation_deg": 35, "azimuth_deg": 140});
+            v["ground"] = json!({"albedo": 0.02, "height_m": 0});
+            v["wavelengths_nm"] = json!([440, 550, 680]);
+        })?,
+        true,
+        Some(0.5),
+    )?);
+    progress(7, total);
+    out.push(sphere_rule(9, 0.5)?);
+    progress(8, total);
     Ok(out)
 }
 
@@ -292,8 +481,11 @@ pub fn markdown(rows: &[RuleSaving], threads: usize, load: Option<&str>) -> Stri
     let mut s = String::from(
         "# What the planner's cost rules save (issue 15 point 3)\n\n\
          Written by `skybake report --planner` (`src/report/planner.rs`): one case per rule, run with its \
-         plan and with the same plan without the cost rules, each the fastest of 2 wall-clock runs \
-         (sky: cold tables, a new engine per run; frames: lighting, preparation and pixels), and \
+         plan and with the same plan without the cost rules, each the fastest of 2 runs in wall \
+         time and in CPU time (user + system of all threads, 10 ms ticks; fairer on a shared \
+         machine) (sky: cold tables, a new engine per run; frames: lighting, preparation and \
+         pixels; with an atmosphere the whole light is computed first, as the planner measures \
+         its shares on it; sphere hierarchies: building and voxelising too), and \
          compared with the reference (sky: the precise method at the `reference` preset; frames: \
          the path tracer). Frames: RMS and mean of the difference from the path tracer over all \
          pixels and wavelengths, relative to the cloud's mean signal |path tracer − frame without \
@@ -305,9 +497,9 @@ pub fn markdown(rows: &[RuleSaving], threads: usize, load: Option<&str>) -> Stri
             .unwrap_or_default()
     ));
     s.push_str(
-        "| rule | case | time with | time without | saving | change by the rule | error with | error without | error measure |\n",
+        "| rule | case | time with | time without | saving | CPU with | CPU without | CPU saving | change by the rule | error with | error without | error measure |\n",
     );
-    s.push_str("|---|---|---|---|---|---|---|---|---|\n");
+    s.push_str("|---|---|---|---|---|---|---|---|---|---|---|---|\n");
     let pct = |v: f64| {
         if v.is_finite() {
             format!("{:+.2} %", v * 100.0)
@@ -317,12 +509,15 @@ pub fn markdown(rows: &[RuleSaving], threads: usize, load: Option<&str>) -> Stri
     };
     for r in rows {
         s.push_str(&format!(
-            "| {} | {} | {:.0} ms | {:.0} ms | {:.0} % | {:.2} % / {} | {} | {} | {} |\n",
+            "| {} | {} | {:.0} ms | {:.0} ms | {:.0} % | {:.0} ms | {:.0} ms | {:.0} % | {:.2} % / {} | {} | {} | {} |\n",
             r.rule,
             r.case,
             r.ms_with,
             r.ms_without,
             100.0 * (1.0 - r.ms_with / r.ms_without.max(1e-9)),
+            r.cpu_with,
+            r.cpu_without,
+            100.0 * (1.0 - r.cpu_with / r.cpu_without.max(1e-9)),
             r.change.0 * 100.0,
             pct(r.change.1),
             pct(r.error_with),

@@ -15,7 +15,7 @@ pub async fn plan(
     body: JsonObject,
 ) -> Result<Response, ApiError> {
     if body.object.get("product").and_then(Value::as_str) == Some("frame") {
-        return frame_plan(body).await;
+        return frame_plan(state, body).await;
     }
     let req = ProductRequest::from_object(&body.object, &[], "", state.jobs().defaults())?;
     let key = req.cache_key();
@@ -37,20 +37,26 @@ pub async fn plan(
 
 /// `{"product": "frame", "scene": {…}, "method": "fast"|"reference"}`: the frame's plan (the
 /// cloud is voxelised to measure it, on a blocking thread; nothing is lit or rendered).
-async fn frame_plan(body: JsonObject) -> Result<Response, ApiError> {
+async fn frame_plan(state: AppState, body: JsonObject) -> Result<Response, ApiError> {
     use crate::render::product::example_file;
     use crate::render::{FrameRequest, Method};
     let obj = body.object;
     if let Some(k) = obj
         .keys()
-        .find(|k| !matches!(k.as_str(), "product" | "scene" | "method"))
+        .find(|k| !matches!(k.as_str(), "product" | "scene" | "method" | "max_rel_error"))
     {
         return Err(crate::Error::invalid(
             k,
-            "not a member of a frame plan request (product, scene, method)",
+            "not a member of a frame plan request (product, scene, method, max_rel_error)",
         )
         .into());
     }
+    let target = match obj.get("max_rel_error") {
+        None | Some(Value::Null) => None,
+        Some(Value::Number(n)) => Some(n.to_string()),
+        Some(Value::String(t)) => Some(t.clone()),
+        Some(_) => return Err(crate::Error::invalid("max_rel_error", "a number").into()),
+    };
     let method = match obj.get("method") {
         None => Method::Fast,
         Some(Value::String(m)) => Method::parse(m)?,
@@ -63,8 +69,9 @@ async fn frame_plan(body: JsonObject) -> Result<Response, ApiError> {
         .cloned()
         .ok_or_else(|| crate::Error::invalid("scene", "a frame plan needs the scene"))?;
     AppState::blocking(move || {
-        let req = FrameRequest::from_value(&scene, method)?;
-        let plan = req.plan(&example_file)?;
+        let req =
+            FrameRequest::from_value(&scene, method)?.with_max_rel_error(target.as_deref())?;
+        let plan = req.plan(state.engine(), &example_file)?;
         Ok(axum::Json(json!({
             "product": "frame",
             "cache_key": req.cache_key(),

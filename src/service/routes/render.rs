@@ -24,6 +24,8 @@ pub const FRAME_FORMATS: &[Format] = &[Format::Json, Format::Exr, Format::Png];
 pub struct RenderQuery {
     pub format: Option<String>,
     pub method: Option<String>,
+    /// The frame's target relative error (`FrameRequest::with_max_rel_error`).
+    pub max_rel_error: Option<String>,
 }
 
 impl FromQuery for RenderQuery {
@@ -31,12 +33,14 @@ impl FromQuery for RenderQuery {
         let mut q = RenderQuery {
             format: None,
             method: None,
+            max_rel_error: None,
         };
         let mut unknown = Vec::new();
         for (k, v) in pairs {
             let slot = match k.as_str() {
                 "format" => &mut q.format,
                 "method" => &mut q.method,
+                "max_rel_error" => &mut q.max_rel_error,
                 _ => {
                     unknown.push(k);
                     continue;
@@ -130,7 +134,8 @@ async fn read_body(headers: &HeaderMap, mut body: Body, limit: usize) -> Result<
     Ok(Bytes::from(buf))
 }
 
-/// `POST /v1/render?format=exr|png|json&method=fast|reference` with the scene JSON as the body.
+/// `POST /v1/render?format=exr|png|json&method=fast|reference&max_rel_error=E` with the scene
+/// JSON as the body.
 pub async fn render(
     State(state): State<AppState>,
     Query(q): Query<RenderQuery>,
@@ -144,7 +149,11 @@ pub async fn render(
     let method = Method::parse(q.method.as_deref().unwrap_or("fast"))?;
     let bytes = read_body(&headers, body, body_limit(&state)).await?;
     // Parsing validates every limit of the scene before anything is allocated for it.
-    let req = AppState::blocking(move || Ok(FrameRequest::parse(&bytes, method)?)).await?;
+    let target = q.max_rel_error;
+    let req = AppState::blocking(move || {
+        Ok(FrameRequest::parse(&bytes, method)?.with_max_rel_error(target.as_deref())?)
+    })
+    .await?;
     frame_response(&state, Arc::new(req), format).await
 }
 
