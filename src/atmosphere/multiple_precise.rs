@@ -32,7 +32,7 @@
 
 use super::geometry::{horizon_mu, radius_at, safe_sqrt};
 use super::integrate::{ray_points, RayPoint, RaySample, Source};
-use super::kernels::{acos_fast, exp_fast, ln_fast};
+use super::kernels::{acos_fast, exp_fast, exp_fast_f32, ln_fast, ln_fast_f32};
 use super::medium::{Medium, CONSTITUENTS, MIE, RAYLEIGH};
 use super::quadrature::grid_pos;
 use super::transmittance::DensityIntegralTable;
@@ -40,6 +40,7 @@ use crate::phase::Phase;
 use crate::store::SpectralImage;
 use rayon::prelude::*;
 use std::f64::consts::PI;
+use std::sync::atomic::{AtomicUsize, Ordering};
 
 /// Sun zenith angle, degrees, beyond which the sun-zenith nodes of the precise tables are twice as
 /// dense and J and the ground's sky irradiance are interpolated over sun zenith in ln J
@@ -273,7 +274,12 @@ impl Grid {
 }
 
 /// Phase matrices for the Rayleigh and Mie components, `[o][i]`: ∫_{cell i and its mirror}
-/// p(ω_o·ω) dω, rows normalised to sum to 1.
+/// p(ω_o·ω) dω (6 × 6 midpoint sub-cells per half), rows normalised to sum to 1.
+///
+/// The sub-cell directions and solid angles depend on the input cell only, so they are computed
+/// once (not once per matrix entry) and each row evaluates both phase functions on the same
+/// cosines; every entry is summed in the same order as a direct evaluation, so the values are
+/// those of the direct double loop to the bit.
 fn phase_matrices(grid: &Grid, mie: Phase) -> [Vec<f64>; 2] {
     let d = grid.dirs();
     let (n_mu, n_phi) = (grid.s.n_mu, grid.s.n_phi);
@@ -281,46 +287,57 @@ fn phase_matrices(grid: &Grid, mie: Phase) -> [Vec<f64>; 2] {
         let s = theta.sin();
         [s * phi.cos(), s * phi.sin(), theta.cos()]
     };
-    let sub = 6;
-    [Phase::Rayleigh, mie].map(|phase| {
-        let mut m: Vec<f64> = (0..d * d)
-            .into_par_iter()
-            .map(|oi| {
-                let (o, i) = (oi / d, oi % d);
-                let wo = dir(grid.theta(o / n_phi), grid.phi(o % n_phi));
-                let (k, l) = (i / n_phi, i % n_phi);
-                let (t0, t1) = (
-                    PI * k as f64 / n_mu as f64,
-                    PI * (k + 1) as f64 / n_mu as f64,
-                );
-                let (p0, p1) = (
-                    PI * l as f64 / n_phi as f64,
-                    PI * (l + 1) as f64 / n_phi as f64,
-                );
-                let mut sum = 0.0;
-                for a in 0..sub {
-                    let th = t0 + (t1 - t0) * (a as f64 + 0.5) / sub as f64;
-                    let w = th.sin() * (t1 - t0) / sub as f64 * (p1 - p0) / sub as f64;
-                    for b in 0..sub {
-                        let ph = p0 + (p1 - p0) * (b as f64 + 0.5) / sub as f64;
-                        for sign in [1.0, -1.0] {
-                            let wi = dir(th, sign * ph);
-                            let c = wo[0] * wi[0] + wo[1] * wi[1] + wo[2] * wi[2];
-                            sum += phase.eval(c) * w;
-                        }
-                    }
+    const SUB: usize = 6;
+    const PER_CELL: usize = 2 * SUB * SUB;
+    // `[i][a][b][sign]`: sub-cell direction (x, y, z) and solid angle.
+    let mut subcells = Vec::with_capacity(d * PER_CELL);
+    for i in 0..d {
+        let (k, l) = (i / n_phi, i % n_phi);
+        let (t0, t1) = (
+            PI * k as f64 / n_mu as f64,
+            PI * (k + 1) as f64 / n_mu as f64,
+        );
+        let (p0, p1) = (
+            PI * l as f64 / n_phi as f64,
+            PI * (l + 1) as f64 / n_phi as f64,
+        );
+        for a in 0..SUB {
+            let th = t0 + (t1 - t0) * (a as f64 + 0.5) / SUB as f64;
+            let w = th.sin() * (t1 - t0) / SUB as f64 * (p1 - p0) / SUB as f64;
+            for b in 0..SUB {
+                let ph = p0 + (p1 - p0) * (b as f64 + 0.5) / SUB as f64;
+                for sign in [1.0, -1.0] {
+                    let [x, y, z] = dir(th, sign * ph);
+                    subcells.push([x, y, z, w]);
                 }
-                sum
-            })
-            .collect();
-        for row in m.chunks_mut(d) {
-            let s: f64 = row.iter().sum();
-            if s > 0.0 {
-                row.iter_mut().for_each(|v| *v /= s);
             }
         }
-        m
-    })
+    }
+    let mut m_r = vec![0.0; d * d];
+    let mut m_m = vec![0.0; d * d];
+    m_r.par_chunks_mut(d)
+        .zip(m_m.par_chunks_mut(d))
+        .enumerate()
+        .for_each(|(o, (row_r, row_m))| {
+            let wo = dir(grid.theta(o / n_phi), grid.phi(o % n_phi));
+            for (i, cell) in subcells.chunks_exact(PER_CELL).enumerate() {
+                let (mut sum_r, mut sum_m) = (0.0, 0.0);
+                for &[x, y, z, w] in cell {
+                    let c = wo[0] * x + wo[1] * y + wo[2] * z;
+                    sum_r += Phase::Rayleigh.eval(c) * w;
+                    sum_m += mie.eval(c) * w;
+                }
+                row_r[i] = sum_r;
+                row_m[i] = sum_m;
+            }
+            for row in [row_r, row_m] {
+                let s: f64 = row.iter().sum();
+                if s > 0.0 {
+                    row.iter_mut().for_each(|v| *v /= s);
+                }
+            }
+        });
+    [m_r, m_m]
 }
 
 /// Solid angle × cosθ of each upward direction cell (both mirror halves), for E = ∫ L cosθ dω.
@@ -437,6 +454,43 @@ fn ln_or_zero(v: f32) -> f64 {
     }
 }
 
+/// [`twilight_lanes`] in f32 for the radiance passes of the build (J is stored in f32): `out[i] +=
+/// w · interp(i)` for the four node rows `v[q]` whose logarithms are `ln_v[q]` (from
+/// [`ln_or_zero_f32`]), eight wavelengths per AVX2 instruction with [`exp_fast_f32`]. Nodes
+/// below the smallest normal f32 (1.2e-38) count as zero (linear in J there). ln J rounded to f32
+/// (|ln J| ≲ 40) costs at most 4e-6 of J, beside the percent-level error of the twilight tables.
+#[inline(always)]
+fn twilight_lanes_f32(
+    v: [&[f32]; 4],
+    ln_v: [&[f32]; 4],
+    wq: [f32; 4],
+    fs: f32,
+    w: f32,
+    out: &mut [f32],
+) {
+    let n = out.len();
+    let (v, ln_v) = (v.map(|x| &x[..n]), ln_v.map(|x| &x[..n]));
+    const MIN: f32 = f32::MIN_POSITIVE;
+    for i in 0..n {
+        let positive = (v[0][i] >= MIN) & (v[1][i] >= MIN) & (v[2][i] >= MIN) & (v[3][i] >= MIN);
+        let ln_j =
+            wq[0] * ln_v[0][i] + wq[1] * ln_v[1][i] + wq[2] * ln_v[2][i] + wq[3] * ln_v[3][i];
+        let linear = v[1][i] * (1.0 - fs) + v[2][i] * fs;
+        out[i] += w * if positive { exp_fast_f32(ln_j) } else { linear };
+    }
+}
+
+/// `ln v` for normal positive `v`, 0 otherwise (masked by [`twilight_lanes_f32`]).
+#[inline(always)]
+fn ln_or_zero_f32(v: f32) -> f32 {
+    let l = ln_fast_f32(v);
+    if v >= f32::MIN_POSITIVE {
+        l
+    } else {
+        0.0
+    }
+}
+
 /// Cosine of the view azimuth relative to the sun from the three cosines (1 when undefined).
 #[inline(always)]
 fn cos_azimuth(mu: f64, mu_s: f64, nu: f64) -> f64 {
@@ -534,16 +588,19 @@ struct FamilyScratch {
     slice: Vec<f32>,
     /// `[i_mu_s][i_phi][λ]`: ln of `slice` (0 where it is 0) from sun-zenith node `ln_from` on,
     /// the nodes of twilight cells ([`Grid::twilight_cell`]).
-    ln_slice: Vec<f64>,
+    ln_slice: Vec<f32>,
     ln_from: usize,
     /// `[λ]`: one twilight cell's interpolated J.
-    tv: Vec<f64>,
+    tv: Vec<f32>,
     /// `[cell]`: interpolation positions at one point (sun-zenith node, −1 for none, and
     /// weight; azimuth node and weight), see [`Grid::s_pos_f`].
     pos_s: Vec<f64>,
     pos_fs: Vec<f64>,
     pos_p: Vec<f64>,
     pos_fp: Vec<f64>,
+    /// `[cell]`: the same positions as the radiance passes use them ([`PositionCache`]).
+    q_idx: Vec<[u16; 2]>,
+    q_w: Vec<[f32; 2]>,
     /// `[cell]`: sun zenith cosine at the ray origin, view–sun cosine, √(1 − μ_s²).
     cell_mu_s: Vec<f64>,
     cell_nu: Vec<f64>,
@@ -572,11 +629,70 @@ impl FamilyScratch {
             pos_fs: vec![0.0; fc],
             pos_p: vec![0.0; fc],
             pos_fp: vec![0.0; fc],
+            q_idx: vec![[0; 2]; fc],
+            q_w: vec![[0.0; 2]; fc],
             cell_mu_s: vec![0.0; fc],
             cell_nu: vec![0.0; fc],
             cell_phase: vec![[0.0; 2]; fc],
             t_total: vec![0.0; n_l],
             e: vec![0.0; n_l],
+        }
+    }
+}
+
+/// Upper bound of the memory all ray families of one build may hold in [`PositionCache`]s
+/// (12 bytes per cell and ray point: about 90 MB at `standard`; at `high` and `reference` the
+/// families that do not fit compute their positions in every order).
+const POSITION_CACHE_BYTES: usize = 256 << 20;
+
+/// Node index meaning "no source" (the sun beyond the tables' last node) in [`PositionCache`].
+const NO_NODE: u16 = u16::MAX;
+
+/// The interpolation positions of one ray family's cells at each of its ray points (sun-zenith
+/// node and weight, azimuth node and weight): they depend on the geometry only, so the first
+/// radiance pass of orders ≥ 2 records them and the later orders read them instead of
+/// recomputing them (two `acos`, two square roots and two divisions per cell and point).
+#[derive(Default)]
+struct PositionCache {
+    state: CacheState,
+    /// `[subray][point][cell]`: sun-zenith node ([`NO_NODE`]: no source) and azimuth node.
+    idx: Vec<[u16; 2]>,
+    /// `[subray][point][cell]`: their interpolation weights.
+    w: Vec<[f32; 2]>,
+}
+
+#[derive(Default, Clone, Copy, PartialEq, Eq)]
+enum CacheState {
+    /// Not recorded yet: the next order ≥ 2 pass records it.
+    #[default]
+    Empty,
+    Recording,
+    Ready,
+    /// Over [`POSITION_CACHE_BYTES`]: computed in every pass.
+    Off,
+}
+
+impl PositionCache {
+    const CELL_BYTES: usize = std::mem::size_of::<[u16; 2]>() + std::mem::size_of::<[f32; 2]>();
+
+    /// Appends one point's positions if the build's budget (`left`, bytes) still has room; else
+    /// frees the recorded ones, gives their bytes back and stops recording.
+    fn record(&mut self, idx: &[[u16; 2]], w: &[[f32; 2]], left: &AtomicUsize) {
+        let bytes = idx.len() * Self::CELL_BYTES;
+        let reserved = left
+            .fetch_update(Ordering::Relaxed, Ordering::Relaxed, |v| {
+                v.checked_sub(bytes)
+            })
+            .is_ok();
+        if reserved {
+            self.idx.extend_from_slice(idx);
+            self.w.extend_from_slice(w);
+        } else {
+            left.fetch_add(self.idx.len() * Self::CELL_BYTES, Ordering::Relaxed);
+            *self = Self {
+                state: CacheState::Off,
+                ..Self::default()
+            };
         }
     }
 }
@@ -624,6 +740,8 @@ crate::simd_dispatch! {
         ir: usize,
         k: usize,
         sc: &mut FamilyScratch,
+        cache: &mut PositionCache,
+        cache_left: &AtomicUsize,
         out: &mut [f32],
     ) {
         let (grid, medium, n_l) = (ctx.grid, ctx.medium, ctx.n_l);
@@ -640,6 +758,15 @@ crate::simd_dispatch! {
         let sig_m = &medium.mie_scattering_per_m[..n_l];
         let albedo = &medium.ground_albedo[..n_l];
         let t_total = &mut sc.t_total[..n_l];
+        // Orders ≥ 2 read the positions recorded by the first of them when there is room.
+        if let (PassInput::Order { .. }, CacheState::Empty) = (input, cache.state) {
+            cache.state = if n_mu_s < NO_NODE as usize && n_phi < NO_NODE as usize {
+                CacheState::Recording
+            } else {
+                CacheState::Off
+            };
+        }
+        let mut cursor = 0;
         for (theta, w_ray) in family_subrays(grid, r, k) {
             let (mu, sin_t) = (theta.cos(), theta.sin());
             for is in 0..n_mu_s {
@@ -698,10 +825,11 @@ crate::simd_dispatch! {
                             let [ph_r, ph_m] = sc.cell_phase[c];
                             let (ar, am) = (rho[RAYLEIGH] * ph_r * vis, rho[MIE] * ph_m * vis);
                             let o = &mut out[c * n_l..][..n_l];
+                            // Optical depth in f64, its exponential in f32 (8 lanes).
                             for i in 0..n_l {
                                 let tau = ext[0][i] * d[0] + ext[1][i] * d[1] + ext[2][i] * d[2];
-                                let single = (sig_r[i] * ar + sig_m[i] * am) * exp_fast(-tau);
-                                o[i] += tw[i] * single as f32;
+                                let single = (sig_r[i] * ar + sig_m[i] * am) as f32;
+                                o[i] += tw[i] * single * exp_fast_f32(-tau as f32);
                             }
                         }
                     }
@@ -724,13 +852,14 @@ crate::simd_dispatch! {
                         // ln J of the sun-zenith nodes that twilight cells interpolate over.
                         let from = sc.ln_from * n_phi * n_l;
                         for (lv, &v) in sc.ln_slice[from..].iter_mut().zip(&sc.slice[from..]) {
-                            *lv = ln_or_zero(v);
+                            *lv = ln_or_zero_f32(v);
                         }
                         // Every cell's interpolation position at this point first, in a
                         // branch-free loop over cells that vectorises: sun-zenith node and
                         // weight, azimuth node and weight (node −1: the sun is beyond the
-                        // tables' last node, no source there).
-                        for c in 0..fc {
+                        // tables' last node, no source there); or recorded by an earlier order.
+                        let ready = cache.state == CacheState::Ready;
+                        for c in 0..if ready { 0 } else { fc } {
                             let mu_s = ((r0 * sc.cell_mu_s[c] + p.t * sc.cell_nu[c]) / p.r)
                                 .clamp(-1.0, 1.0);
                             let theta_s = acos_fast(mu_s);
@@ -747,23 +876,43 @@ crate::simd_dispatch! {
                             sc.pos_p[c] = jp;
                             sc.pos_fp[c] = fp;
                         }
+                        if !ready {
+                            for c in 0..fc {
+                                sc.q_idx[c] = if sc.pos_s[c] < 0.0 {
+                                    [NO_NODE, 0]
+                                } else {
+                                    [sc.pos_s[c] as u16, sc.pos_p[c] as u16]
+                                };
+                                sc.q_w[c] = [sc.pos_fs[c] as f32, sc.pos_fp[c] as f32];
+                            }
+                            if cache.state == CacheState::Recording {
+                                cache.record(&sc.q_idx, &sc.q_w, cache_left);
+                            }
+                        }
+                        let (q_idx, q_w) = if ready {
+                            (&cache.idx[cursor..][..fc], &cache.w[cursor..][..fc])
+                        } else {
+                            (&sc.q_idx[..fc], &sc.q_w[..fc])
+                        };
+                        cursor += fc;
                         for c in 0..fc {
-                            if sc.pos_s[c] < 0.0 {
+                            let [js, jp] = q_idx[c];
+                            if js == NO_NODE {
                                 continue;
                             }
-                            let (js, fs) = (sc.pos_s[c] as usize, sc.pos_fs[c]);
-                            let (jp, fp) = (sc.pos_p[c] as usize, sc.pos_fp[c]);
+                            let (js, jp) = (js as usize, jp as usize);
+                            let [fs, fp] = q_w[c];
                             if grid.twilight_cell(js) {
                                 // In ln J over sun zenith (`twilight_interp`), linear in azimuth.
-                                let (nodes, wq) = catmull_rom(js, fs, n_mu_s);
+                                let (nodes, wq) = catmull_rom(js, fs as f64, n_mu_s);
                                 let tv = &mut sc.tv[..n_l];
                                 tv.fill(0.0);
                                 for (e, we) in [(jp, 1.0 - fp), (jp + 1, fp)] {
                                     let row = nodes.map(|b| (b * n_phi + e) * n_l);
-                                    twilight_lanes(
+                                    twilight_lanes_f32(
                                         row.map(|x| &sc.slice[x..][..n_l]),
                                         row.map(|x| &sc.ln_slice[x..][..n_l]),
-                                        wq,
+                                        wq.map(|w| w as f32),
                                         fs,
                                         we,
                                         tv,
@@ -771,11 +920,10 @@ crate::simd_dispatch! {
                                 }
                                 let o = &mut out[c * n_l..][..n_l];
                                 for i in 0..n_l {
-                                    o[i] += tw[i] * tv[i] as f32;
+                                    o[i] += tw[i] * tv[i];
                                 }
                                 continue;
                             }
-                            let (fs, fp) = (fs as f32, fp as f32);
                             let (c00, c01, c10, c11) =
                                 ((1.0 - fs) * (1.0 - fp), (1.0 - fs) * fp, fs * (1.0 - fp), fs * fp);
                             let (s00, s01) =
@@ -827,6 +975,9 @@ crate::simd_dispatch! {
                     o[i] += (w_ray * t_total[i] * albedo[i] / PI * e[i]) as f32;
                 }
             }
+        }
+        if cache.state == CacheState::Recording {
+            cache.state = CacheState::Ready;
         }
     }
 }
@@ -1026,12 +1177,23 @@ impl PreciseMultipleScattering {
         };
 
         // Radiance of one order on every cell, family by family.
-        let radiance = |input: PassInput| -> Vec<f32> {
+        // (Per family, the interpolation positions that orders ≥ 2 share.)
+        let mut positions: Vec<PositionCache> = (0..s.n_r * s.n_mu)
+            .map(|_| PositionCache::default())
+            .collect();
+        let positions_left = AtomicUsize::new(POSITION_CACHE_BYTES);
+        let radiance = |input: PassInput, positions: &mut [PositionCache]| -> Vec<f32> {
             let mut l = vec![0.0f32; grid.cells() * n_l];
-            l.par_chunks_mut(family_len).enumerate().for_each_init(
-                || FamilyScratch::new(&grid, n_l),
-                |sc, (f, out)| family_pass(&ctx, input, f / s.n_mu, f % s.n_mu, sc, out),
-            );
+            l.par_chunks_mut(family_len)
+                .zip(positions.par_iter_mut())
+                .enumerate()
+                .for_each_init(
+                    || FamilyScratch::new(&grid, n_l),
+                    |sc, (f, (out, cache))| {
+                        let (ir, k) = (f / s.n_mu, f % s.n_mu);
+                        family_pass(&ctx, input, ir, k, sc, cache, &positions_left, out)
+                    },
+                );
             l
         };
         // Sky irradiance on the ground from one order's radiance at r = bottom, `[i_mu_s][λ]`.
@@ -1107,7 +1269,7 @@ impl PreciseMultipleScattering {
         };
 
         let t0 = std::time::Instant::now();
-        let mut l_n = radiance(PassInput::Single);
+        let mut l_n = radiance(PassInput::Single, &mut positions);
         tracing::debug!(
             radiance_ms = t0.elapsed().as_secs_f64() * 1e3,
             "precise order 1"
@@ -1136,10 +1298,13 @@ impl PreciseMultipleScattering {
             let j_ms_elapsed = ms(t_j);
             stage_ms.scattering_density += j_ms_elapsed;
             let t_l = std::time::Instant::now();
-            l_n = radiance(PassInput::Order {
-                j: &j_n,
-                ground: &e_n,
-            });
+            l_n = radiance(
+                PassInput::Order {
+                    j: &j_n,
+                    ground: &e_n,
+                },
+                &mut positions,
+            );
             e_n = ground_of(&l_n);
             let l_elapsed = ms(t_l);
             stage_ms.radiance += l_elapsed;
@@ -1207,8 +1372,8 @@ impl PreciseMultipleScattering {
 }
 
 /// Version of the stored table layout (part of its store key).
-/// (2: twice-as-dense sun-zenith nodes beyond 80°, issue 14.)
-pub const TABLE_FORMAT: &str = "precise-table-2";
+/// (2: twice-as-dense sun-zenith nodes beyond 80°, issue 14; 3: f32 exp/ln in the build, issue 17.)
+pub const TABLE_FORMAT: &str = "precise-table-3";
 /// Header attribute holding the stored table's description ([`StoredPrecise`] as JSON).
 const ATTR_TABLE: &str = "skybakeSharedTable";
 
