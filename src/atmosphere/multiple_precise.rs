@@ -17,9 +17,13 @@
 //!   transmittance T(λ) are computed once per order for the n_θs × n_φ cells of that "ray
 //!   family" (only the sun-dependent lookup differs), and J_n is first interpolated in (r, θ) at
 //!   each point into a (θ_s, φ) slice, so each cell's lookup is bilinear instead of 16-corner;
-//! - the J pass is a dense matrix product over directions, in f32 with f64 sums of orders;
+//! - the J pass is the phase matrix's product over directions taken in azimuthal cosine space,
+//!   where it is n_φ small products of view-zenith blocks ([`AzimuthalPhase`]);
+//! - the interpolation positions of the radiance pass depend on the geometry only: the first
+//!   order ≥ 2 records them per ray family and later orders read them ([`PositionCache`]);
 //! - inner loops run over wavelengths and are compiled for AVX2 + FMA when the CPU has them, with
-//!   a polynomial `exp` (optical depth itself stays f64);
+//!   polynomial `exp`/`ln` in f32 in the radiance passes (J is stored in f32; optical depth itself
+//!   is summed in f64);
 //! - the series Σ L_n settles to a geometric one (ratio q ≈ 0.46 on `earth`, ≈ 0.69 hazy): once
 //!   the ratio per (sun zenith, λ) is stable, the tail J_n q/(1 − q) is added in closed form
 //!   (Aitken-style geometric extrapolation) instead of marching on. Orders stop when the last
@@ -273,71 +277,116 @@ impl Grid {
     }
 }
 
-/// Phase matrices for the Rayleigh and Mie components, `[o][i]`: ∫_{cell i and its mirror}
-/// p(ω_o·ω) dω (6 × 6 midpoint sub-cells per half), rows normalised to sum to 1.
+/// The phase matrices of the J pass in azimuthal cosine space.
 ///
-/// The sub-cell directions and solid angles depend on the input cell only, so they are computed
-/// once (not once per matrix entry) and each row evaluates both phase functions on the same
-/// cosines; every entry is summed in the same order as a direct evaluation, so the values are
-/// those of the direct double loop to the bit.
-fn phase_matrices(grid: &Grid, mie: Phase) -> [Vec<f64>; 2] {
-    let d = grid.dirs();
+/// The phase matrix of a constituent, P[(k_o, l_o)][(k_i, l_i)] = ∫_{cell (k_i, l_i) and its
+/// mirror} p(ω_o·ω) dω (6 × 6 midpoint sub-cells per half, rows normalised to 1), depends on the
+/// azimuth bins only through the difference of the output azimuth and the input sub-cell's:
+/// P = G(l_o − l_i) + G(−l_o − l_i − 1), with G_{k_o,k_i}(m) the sub-cell sum at azimuth offset
+/// (m + ½ − u_b)Δφ, 2n_φ-periodic in m and even (the sub-cell offsets u_b are symmetric). So
+/// J(l_o) = Σ_{l_i} P L(l_i) is a circular convolution of G with the mirror-extended radiance,
+/// which a cosine transform over the n_φ azimuth bins diagonalises: with
+/// C_q = Σ_l L(l) cos(πq(l + ½)/n_φ) and Ĝ_q = Σ_{m<2n_φ} G(m) cos(πqm/n_φ),
+/// J(l_o) = (1/n_φ) Σ_{q<n_φ} ε_q Ĝ_q C_q cos(πq(l_o + ½)/n_φ), ε_0 = 1, else 2.
+/// The directions × directions product becomes n_φ products of view-zenith blocks
+/// (n_φ times fewer operations), and the phase functions are evaluated n_φ times less often.
+/// The row sum of P is Σ_{k_i} Ĝ_0, so the normalisation is exact in this form too.
+struct AzimuthalPhase {
+    /// `[q][k_o][k_i]`: Ĝ_q of the Rayleigh and the Mie phase matrix, rows normalised.
+    g_r: Vec<f64>,
+    g_m: Vec<f64>,
+    /// `[q][l]`: cos(πq(l + ½)/n_φ), the forward transform.
+    fwd: Vec<f64>,
+    /// `[q][l]`: ε_q/n_φ · cos(πq(l + ½)/n_φ), the inverse transform.
+    inv: Vec<f64>,
+}
+
+fn azimuthal_phase(grid: &Grid, mie: Phase) -> AzimuthalPhase {
     let (n_mu, n_phi) = (grid.s.n_mu, grid.s.n_phi);
-    let dir = |theta: f64, phi: f64| {
-        let s = theta.sin();
-        [s * phi.cos(), s * phi.sin(), theta.cos()]
-    };
+    let n = 2 * n_phi;
+    let dphi = PI / n_phi as f64;
     const SUB: usize = 6;
-    const PER_CELL: usize = 2 * SUB * SUB;
-    // `[i][a][b][sign]`: sub-cell direction (x, y, z) and solid angle.
-    let mut subcells = Vec::with_capacity(d * PER_CELL);
-    for i in 0..d {
-        let (k, l) = (i / n_phi, i % n_phi);
-        let (t0, t1) = (
-            PI * k as f64 / n_mu as f64,
-            PI * (k + 1) as f64 / n_mu as f64,
-        );
-        let (p0, p1) = (
-            PI * l as f64 / n_phi as f64,
-            PI * (l + 1) as f64 / n_phi as f64,
-        );
-        for a in 0..SUB {
-            let th = t0 + (t1 - t0) * (a as f64 + 0.5) / SUB as f64;
-            let w = th.sin() * (t1 - t0) / SUB as f64 * (p1 - p0) / SUB as f64;
-            for b in 0..SUB {
-                let ph = p0 + (p1 - p0) * (b as f64 + 0.5) / SUB as f64;
-                for sign in [1.0, -1.0] {
-                    let [x, y, z] = dir(th, sign * ph);
-                    subcells.push([x, y, z, w]);
+    // `[m][b]`: cosine of the azimuth between an output direction and sub-cell b of the input
+    // cell m bins before it.
+    let cos_dphi: Vec<f64> = (0..n)
+        .flat_map(|m| {
+            (0..SUB).map(move |b| ((m as f64 + 0.5 - (b as f64 + 0.5) / SUB as f64) * dphi).cos())
+        })
+        .collect();
+    // `[k][a]`: cosine, sine and solid-angle weight of zenith sub-cell a of bin k.
+    let theta_sub: Vec<[f64; 3]> = (0..n_mu)
+        .flat_map(|k| {
+            let (t0, t1) = (
+                PI * k as f64 / n_mu as f64,
+                PI * (k + 1) as f64 / n_mu as f64,
+            );
+            (0..SUB).map(move |a| {
+                let th = t0 + (t1 - t0) * (a as f64 + 0.5) / SUB as f64;
+                let w = th.sin() * (t1 - t0) / SUB as f64 * dphi / SUB as f64;
+                [th.cos(), th.sin(), w]
+            })
+        })
+        .collect();
+    // `[q][m]`: cos(πqm/n_φ).
+    let dft: Vec<f64> = (0..n_phi)
+        .flat_map(|q| (0..n).map(move |m| (PI * (q * m) as f64 / n_phi as f64).cos()))
+        .collect();
+    // Per output zenith bin: `[q][k_i]` for both phase functions.
+    let rows: Vec<[Vec<f64>; 2]> = (0..n_mu)
+        .into_par_iter()
+        .map(|ko| {
+            let th_o = grid.theta(ko);
+            let (co, so) = (th_o.cos(), th_o.sin());
+            let mut out = [vec![0.0; n_phi * n_mu], vec![0.0; n_phi * n_mu]];
+            let (mut g_r, mut g_m) = (vec![0.0; n], vec![0.0; n]);
+            for ki in 0..n_mu {
+                for m in 0..n {
+                    let (mut sr, mut sm) = (0.0, 0.0);
+                    for &[ca, sa, w] in &theta_sub[ki * SUB..][..SUB] {
+                        for &cd in &cos_dphi[m * SUB..][..SUB] {
+                            let c = co * ca + so * sa * cd;
+                            sr += Phase::Rayleigh.eval(c) * w;
+                            sm += mie.eval(c) * w;
+                        }
+                    }
+                    g_r[m] = sr;
+                    g_m[m] = sm;
+                }
+                for q in 0..n_phi {
+                    let d = &dft[q * n..][..n];
+                    out[0][q * n_mu + ki] = g_r.iter().zip(d).map(|(g, c)| g * c).sum::<f64>();
+                    out[1][q * n_mu + ki] = g_m.iter().zip(d).map(|(g, c)| g * c).sum::<f64>();
                 }
             }
+            for g in &mut out {
+                let row_sum: f64 = g[..n_mu].iter().sum();
+                if row_sum > 0.0 {
+                    g.iter_mut().for_each(|v| *v /= row_sum);
+                }
+            }
+            out
+        })
+        .collect();
+    let mut g_r = vec![0.0; n_phi * n_mu * n_mu];
+    let mut g_m = vec![0.0; n_phi * n_mu * n_mu];
+    for (ko, [r, m]) in rows.iter().enumerate() {
+        for q in 0..n_phi {
+            g_r[(q * n_mu + ko) * n_mu..][..n_mu].copy_from_slice(&r[q * n_mu..][..n_mu]);
+            g_m[(q * n_mu + ko) * n_mu..][..n_mu].copy_from_slice(&m[q * n_mu..][..n_mu]);
         }
     }
-    let mut m_r = vec![0.0; d * d];
-    let mut m_m = vec![0.0; d * d];
-    m_r.par_chunks_mut(d)
-        .zip(m_m.par_chunks_mut(d))
-        .enumerate()
-        .for_each(|(o, (row_r, row_m))| {
-            let wo = dir(grid.theta(o / n_phi), grid.phi(o % n_phi));
-            for (i, cell) in subcells.chunks_exact(PER_CELL).enumerate() {
-                let (mut sum_r, mut sum_m) = (0.0, 0.0);
-                for &[x, y, z, w] in cell {
-                    let c = wo[0] * x + wo[1] * y + wo[2] * z;
-                    sum_r += Phase::Rayleigh.eval(c) * w;
-                    sum_m += mie.eval(c) * w;
-                }
-                row_r[i] = sum_r;
-                row_m[i] = sum_m;
-            }
-            for row in [row_r, row_m] {
-                let s: f64 = row.iter().sum();
-                if s > 0.0 {
-                    row.iter_mut().for_each(|v| *v /= s);
-                }
-            }
-        });
-    [m_r, m_m]
+    let basis = |q: usize, l: usize| (PI * q as f64 * (l as f64 + 0.5) / n_phi as f64).cos();
+    let fwd = (0..n_phi * n_phi)
+        .map(|x| basis(x / n_phi, x % n_phi))
+        .collect();
+    let inv = (0..n_phi * n_phi)
+        .map(|x| {
+            let q = x / n_phi;
+            let eps = if q == 0 { 1.0 } else { 2.0 };
+            eps / n_phi as f64 * basis(q, x % n_phi)
+        })
+        .collect();
+    AzimuthalPhase { g_r, g_m, fwd, inv }
 }
 
 /// Solid angle × cosθ of each upward direction cell (both mirror halves), for E = ∫ L cosθ dω.
@@ -982,93 +1031,127 @@ crate::simd_dispatch! {
     }
 }
 
-/// Width of the J kernel's column blocks (one AVX2 register of f32).
-const LANES: usize = 8;
+/// Output zenith bins the J product accumulates at once.
+const J_ROWS: usize = 4;
 
-/// Wavelength count padded to whole column blocks.
-fn padded(n_l: usize) -> usize {
-    n_l.div_ceil(LANES) * LANES
+/// Per-thread scratch of the J pass, f64: `[q][k][i_mu_s][λ]` twice (the transformed radiance
+/// and the transformed J), and the accumulators of [`J_ROWS`] rows for both phase functions.
+struct JScratch {
+    spec: Vec<f64>,
+    y: Vec<f64>,
+    acc: Vec<f64>,
 }
 
-/// Output rows the J kernel accumulates at once (8 accumulators with Mie, 4 without).
-const ROWS: usize = 4;
+impl JScratch {
+    fn new(grid: &Grid, n_l: usize) -> Self {
+        let w = grid.s.n_mu_s * n_l;
+        let n = grid.s.n_phi * grid.s.n_mu * w;
+        Self {
+            spec: vec![0.0; n],
+            y: vec![0.0; n],
+            acc: vec![0.0; 2 * J_ROWS * w],
+        }
+    }
+}
 
 crate::simd_dispatch! {
     /// J of the next order for every cell of radius index `ir` (`out`: `[i_mu][i_mu_s][i_phi][λ]`)
-    /// from one order's radiance there (`l`, same layout): the phase matrices (directions ×
-    /// directions) times the radiance over directions (directions × (sun zeniths × λ)), a dense
-    /// matrix product blocked ROWS × LANES, then the scattering coefficients at this radius.
-    /// `lin` is scratch of `dirs × n_mu_s × padded(n_l)`.
+    /// from one order's radiance there (`l`, same layout), in azimuthal cosine space
+    /// ([`AzimuthalPhase`]): the radiance transformed over azimuth, per frequency q the product
+    /// of the view-zenith blocks Ĝ_q (Rayleigh and Mie) with it, times the scattering coefficients
+    /// at this radius, transformed back. In f64 (the transforms take differences; J in f32 after,
+    /// clamped at 0 against rounding where J vanishes).
     fn scattering_density_at_radius(
         grid: &Grid,
         n_l: usize,
-        phase_r: &[f32],
-        phase_m: &[f32],
-        scale_r: &[f32],
-        scale_m: &[f32],
+        ap: &AzimuthalPhase,
+        scale_r: &[f64],
+        scale_m: &[f64],
         l: &[f32],
-        lin: &mut [f32],
+        sc: &mut JScratch,
         out: &mut [f32],
     ) {
         let s = grid.s;
-        let dirs = grid.dirs();
-        let n_lp = padded(n_l);
-        let width = s.n_mu_s * n_lp;
+        let (n_mu, n_mu_s, n_phi) = (s.n_mu, s.n_mu_s, s.n_phi);
+        let w = n_mu_s * n_l;
+        let (scale_r, scale_m) = (&scale_r[..n_l], &scale_m[..n_l]);
         let with_mie = scale_m.iter().any(|&v| v != 0.0);
-        // Gather [direction][sun zenith][λ (padded with zeros)].
-        lin.fill(0.0);
-        for d in 0..dirs {
-            let (k, ph) = (d / s.n_phi, d % s.n_phi);
-            for is in 0..s.n_mu_s {
-                let src = &l[((k * s.n_mu_s + is) * s.n_phi + ph) * n_l..][..n_l];
-                lin[d * width + is * n_lp..][..n_l].copy_from_slice(src);
+        // Forward: spec[q][k][is][λ] = Σ_l L[k][is][l][λ] cos(πq(l + ½)/n_φ).
+        let spec = &mut sc.spec[..n_phi * n_mu * w];
+        spec.fill(0.0);
+        for k in 0..n_mu {
+            for is in 0..n_mu_s {
+                for ph in 0..n_phi {
+                    let src = &l[((k * n_mu_s + is) * n_phi + ph) * n_l..][..n_l];
+                    for q in 0..n_phi {
+                        let c = ap.fwd[q * n_phi + ph];
+                        let dst = &mut spec[(q * n_mu + k) * w + is * n_l..][..n_l];
+                        for i in 0..n_l {
+                            dst[i] += c * src[i] as f64;
+                        }
+                    }
+                }
             }
         }
-        let lin = &lin[..dirs * width];
-        let mut o0 = 0;
-        while o0 < dirs {
-            let rows = ROWS.min(dirs - o0);
-            let pr: [&[f32]; ROWS] =
-                std::array::from_fn(|b| &phase_r[(o0 + b.min(rows - 1)) * dirs..][..dirs]);
-            let pm: [&[f32]; ROWS] =
-                std::array::from_fn(|b| &phase_m[(o0 + b.min(rows - 1)) * dirs..][..dirs]);
-            for c in 0..width / LANES {
-                let mut ar = [[0.0f32; LANES]; ROWS];
-                let mut am = [[0.0f32; LANES]; ROWS];
-                if with_mie {
-                    for d in 0..dirs {
-                        let src = &lin[d * width + c * LANES..][..LANES];
-                        for b in 0..ROWS {
-                            let (wr, wm) = (pr[b][d], pm[b][d]);
-                            for i in 0..LANES {
-                                ar[b][i] += wr * src[i];
-                                am[b][i] += wm * src[i];
-                            }
+        // Per frequency: y[q][k_o] = σ_R Σ_{k_i} Ĝ^R_q[k_o][k_i] spec[q][k_i] + σ_M (same with Ĝ^M).
+        let spec = &sc.spec[..n_phi * n_mu * w];
+        for q in 0..n_phi {
+            let mut o0 = 0;
+            while o0 < n_mu {
+                let rows = J_ROWS.min(n_mu - o0);
+                let (acc_r, acc_m) = sc.acc.split_at_mut(J_ROWS * w);
+                acc_r.fill(0.0);
+                acc_m.fill(0.0);
+                for ki in 0..n_mu {
+                    let src = &spec[(q * n_mu + ki) * w..][..w];
+                    for b in 0..rows {
+                        let g = (q * n_mu + o0 + b) * n_mu + ki;
+                        let (gr, gm) = (ap.g_r[g], ap.g_m[g]);
+                        let ar = &mut acc_r[b * w..][..w];
+                        for x in 0..w {
+                            ar[x] += gr * src[x];
                         }
-                    }
-                } else {
-                    for d in 0..dirs {
-                        let src = &lin[d * width + c * LANES..][..LANES];
-                        for b in 0..ROWS {
-                            let wr = pr[b][d];
-                            for i in 0..LANES {
-                                ar[b][i] += wr * src[i];
+                        if with_mie {
+                            let am = &mut acc_m[b * w..][..w];
+                            for x in 0..w {
+                                am[x] += gm * src[x];
                             }
                         }
                     }
                 }
-                let (is, l0) = ((c * LANES) / n_lp, (c * LANES) % n_lp);
-                let n = LANES.min(n_l.saturating_sub(l0));
                 for b in 0..rows {
-                    let o = o0 + b;
-                    let (ko, lo) = (o / s.n_phi, o % s.n_phi);
-                    let dst = &mut out[((ko * s.n_mu_s + is) * s.n_phi + lo) * n_l + l0..][..n];
-                    for i in 0..n {
-                        dst[i] = scale_r[l0 + i] * ar[b][i] + scale_m[l0 + i] * am[b][i];
+                    let dst = &mut sc.y[(q * n_mu + o0 + b) * w..][..w];
+                    let (ar, am) = (&acc_r[b * w..][..w], &acc_m[b * w..][..w]);
+                    for is in 0..n_mu_s {
+                        let x0 = is * n_l;
+                        for i in 0..n_l {
+                            dst[x0 + i] = scale_r[i] * ar[x0 + i] + scale_m[i] * am[x0 + i];
+                        }
+                    }
+                }
+                o0 += rows;
+            }
+        }
+        // Inverse: J[k][is][l][λ] = Σ_q ε_q/n_φ cos(πq(l + ½)/n_φ) y[q][k][is][λ].
+        let y = &sc.y[..n_phi * n_mu * w];
+        for k in 0..n_mu {
+            for is in 0..n_mu_s {
+                for lo in 0..n_phi {
+                    let dst = &mut out[((k * n_mu_s + is) * n_phi + lo) * n_l..][..n_l];
+                    let acc = &mut sc.acc[..n_l];
+                    acc.fill(0.0);
+                    for q in 0..n_phi {
+                        let c = ap.inv[q * n_phi + lo];
+                        let src = &y[(q * n_mu + k) * w + is * n_l..][..n_l];
+                        for i in 0..n_l {
+                            acc[i] += c * src[i];
+                        }
+                    }
+                    for i in 0..n_l {
+                        dst[i] = acc[i].max(0.0) as f32;
                     }
                 }
             }
-            o0 += rows;
         }
     }
 }
@@ -1166,8 +1249,7 @@ impl PreciseMultipleScattering {
         let fc = grid.family_cells();
         let family_len = fc * n_l;
         let per_r = s.n_mu * family_len;
-        let [phase_r, phase_m] = phase_matrices(&grid, medium.mie_phase)
-            .map(|m| m.iter().map(|&v| v as f32).collect::<Vec<f32>>());
+        let phase = azimuthal_phase(&grid, medium.mie_phase);
         let up_w = upward_cosine_weights(&grid);
         let ctx = PassCtx {
             grid: &grid,
@@ -1239,28 +1321,27 @@ impl PreciseMultipleScattering {
         let scattering_density = |l: &[f32]| -> Vec<f32> {
             let mut j = vec![0.0f32; grid.cells() * n_l];
             j.par_chunks_mut(per_r).enumerate().for_each_init(
-                || vec![0.0f32; grid.dirs() * s.n_mu_s * padded(n_l)],
-                |lin, (ir, out)| {
+                || JScratch::new(&grid, n_l),
+                |sc, (ir, out)| {
                     let rho = medium.densities(grid.r(ir));
-                    let scale_r: Vec<f32> = medium
+                    let scale_r: Vec<f64> = medium
                         .rayleigh_scattering_per_m
                         .iter()
-                        .map(|&v| (v * rho[RAYLEIGH]) as f32)
+                        .map(|&v| v * rho[RAYLEIGH])
                         .collect();
-                    let scale_m: Vec<f32> = medium
+                    let scale_m: Vec<f64> = medium
                         .mie_scattering_per_m
                         .iter()
-                        .map(|&v| (v * rho[MIE]) as f32)
+                        .map(|&v| v * rho[MIE])
                         .collect();
                     scattering_density_at_radius(
                         &grid,
                         n_l,
-                        &phase_r,
-                        &phase_m,
+                        &phase,
                         &scale_r,
                         &scale_m,
                         &l[ir * per_r..][..per_r],
-                        lin,
+                        sc,
                         out,
                     );
                 },
