@@ -1304,8 +1304,11 @@ impl PreciseMultipleScattering {
                 .map(|block| {
                     let mut out = vec![0.0; s.n_mu_s * n_l];
                     for fam in block.chunks(family_len) {
-                        for (x, v) in fam.iter().enumerate() {
-                            out[(x / (s.n_phi * n_l)) * n_l + x % n_l] += *v as f64;
+                        for (is, row) in fam.chunks(s.n_phi * n_l).enumerate() {
+                            let o = &mut out[is * n_l..][..n_l];
+                            for cell in row.chunks(n_l) {
+                                o.iter_mut().zip(cell).for_each(|(o, v)| *o += *v as f64);
+                            }
                         }
                     }
                     out
@@ -1420,9 +1423,18 @@ impl PreciseMultipleScattering {
                 j_ms.par_chunks_mut(family_len)
                     .zip(j_n.par_chunks(family_len))
                     .for_each(|(acc, jn)| {
-                        for (x, (a, b)) in acc.iter_mut().zip(jn).enumerate() {
-                            let is = x / (s.n_phi * n_l);
-                            *a += b * factors[is * n_l + x % n_l] as f32;
+                        let rows = acc.chunks_mut(s.n_phi * n_l).zip(jn.chunks(s.n_phi * n_l));
+                        for (is, (acc, jn)) in rows.enumerate() {
+                            let f: Vec<f32> = factors[is * n_l..][..n_l]
+                                .iter()
+                                .map(|&f| f as f32)
+                                .collect();
+                            for (a, b) in acc.chunks_mut(n_l).zip(jn.chunks(n_l)) {
+                                a.iter_mut()
+                                    .zip(b)
+                                    .zip(&f)
+                                    .for_each(|((a, b), f)| *a += b * f);
+                            }
                         }
                     });
                 for (x, (g, e)) in ground_sky.iter_mut().zip(&e_n).enumerate() {
