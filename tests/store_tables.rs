@@ -167,15 +167,18 @@ fn a_table_with_an_unround_tolerance_is_loaded_not_rebuilt() {
     let scratch = Scratch::new("tables-tolerance");
     let dir = scratch.path();
     let s = spec("440,550");
-    let tolerance = Some(0.001_938_785_271_524_338_1);
+    let tolerance = 0.001_938_785_271_524_338_1;
     let never = &|| false;
     let first = Engine::with_table_store(Arc::new(CacheTableStore::new(open(dir))));
-    let built = first.shared_with(&s, tolerance, never).unwrap();
-    assert_eq!(built.precise_settings.tolerance, tolerance.unwrap());
+    let built = first.shared_with(&s, Some(tolerance), never).unwrap();
+    assert_eq!(built.precise_settings.tolerance, tolerance);
     built.precise();
     assert_eq!(first.table_builds(Table::Precise), 1);
     let second = Engine::with_table_store(Arc::new(CacheTableStore::new(open(dir))));
-    second.shared_with(&s, tolerance, never).unwrap().precise();
+    second
+        .shared_with(&s, Some(tolerance), never)
+        .unwrap()
+        .precise();
     assert_eq!(second.table_loads(), (1, 0), "loaded, not refused");
     assert_eq!(second.table_builds(Table::Precise), 0);
 }

@@ -98,7 +98,7 @@ pub fn exp_fast_f32(x: f32) -> f32 {
     p = p * r + 8.333_452e-3;
     p = p * r + 4.166_579_6e-2;
     p = p * r + 1.666_666_5e-1;
-    p = p * r + 5.000_000_1e-1;
+    p = p * r + 0.5;
     let e = p * r * r + r + 1.0;
     // k + 127 ∈ [1, 254] after the clamp: shifted into the exponent field it makes 2^k.
     let scale = f32::from_bits(kf.to_bits().wrapping_add(127) << 23);
@@ -116,7 +116,7 @@ pub fn ln_fast_f32(x: f32) -> f32 {
     const OFF: u32 = 0x3f35_04f3;
     // musl's split of ln 2 (0x3f317180: k·LN2_HI is exact for |k| < 2^8).
     const LN2_HI: f32 = 0.693_138_1;
-    const LN2_LO: f32 = 9.058_000_6e-6;
+    const LN2_LO: f32 = 9.058_001e-6;
     let ix = x.to_bits();
     let tmp = ix.wrapping_sub(OFF);
     let k = ((tmp as i32) >> 23) as f32;

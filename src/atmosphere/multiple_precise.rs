@@ -1446,6 +1446,16 @@ impl PreciseMultipleScattering {
             None => (0.0, last_fraction, 0.0),
         };
         stage_ms.total = ms(t_start);
+        tracing::debug!(
+            position_cache_mb =
+                (POSITION_CACHE_BYTES - positions_left.load(Ordering::Relaxed)) as f64 / 1048576.0,
+            families_computing_positions = positions
+                .iter()
+                .filter(|p| p.state == CacheState::Off)
+                .count(),
+            total_ms = stage_ms.total,
+            "precise build done"
+        );
         Some(Self {
             grid,
             n_l,
