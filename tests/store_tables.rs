@@ -158,6 +158,31 @@ fn precise_tables_persist_across_engines_and_corrupt_ones_are_rebuilt() {
     assert_eq!(built.table.radiance, again.table.radiance);
 }
 
+/// A table whose settings hold a tolerance that is not a short decimal (the planner's "orders under
+/// the budget" gives such values, e.g. 0.0019387852715243381 for the CLI's default sky) is loaded
+/// by the next process: its JSON description round-trips every f64 exactly (serde_json's
+/// `float_roundtrip`; without it this value came back one ulp off and every call rebuilt).
+#[test]
+fn a_table_with_an_unround_tolerance_is_loaded_not_rebuilt() {
+    let scratch = Scratch::new("tables-tolerance");
+    let dir = scratch.path();
+    let s = spec("440,550");
+    let tolerance = 0.001_938_785_271_524_338_1;
+    let never = &|| false;
+    let first = Engine::with_table_store(Arc::new(CacheTableStore::new(open(dir))));
+    let built = first.shared_with(&s, Some(tolerance), never).unwrap();
+    assert_eq!(built.precise_settings.tolerance, tolerance);
+    built.precise();
+    assert_eq!(first.table_builds(Table::Precise), 1);
+    let second = Engine::with_table_store(Arc::new(CacheTableStore::new(open(dir))));
+    second
+        .shared_with(&s, Some(tolerance), never)
+        .unwrap()
+        .precise();
+    assert_eq!(second.table_loads(), (1, 0), "loaded, not refused");
+    assert_eq!(second.table_builds(Table::Precise), 0);
+}
+
 /// The precise request every path below makes (draft quality, two wavelengths, small table).
 const PAIRS: [(&str, &str); 7] = [
     ("method", "precise"),

@@ -17,9 +17,13 @@
 //!   transmittance T(λ) are computed once per order for the n_θs × n_φ cells of that "ray
 //!   family" (only the sun-dependent lookup differs), and J_n is first interpolated in (r, θ) at
 //!   each point into a (θ_s, φ) slice, so each cell's lookup is bilinear instead of 16-corner;
-//! - the J pass is a dense matrix product over directions, in f32 with f64 sums of orders;
+//! - the J pass is the phase matrix's product over directions taken in azimuthal cosine space,
+//!   where it is n_φ small products of view-zenith blocks ([`AzimuthalPhase`]);
+//! - the interpolation positions of the radiance pass depend on the geometry only: the first
+//!   order ≥ 2 records them per ray family and later orders read them ([`PositionCache`]);
 //! - inner loops run over wavelengths and are compiled for AVX2 + FMA when the CPU has them, with
-//!   a polynomial `exp` (optical depth itself stays f64);
+//!   polynomial `exp`/`ln` in f32 in the radiance passes (J is stored in f32; optical depth itself
+//!   is summed in f64);
 //! - the series Σ L_n settles to a geometric one (ratio q ≈ 0.46 on `earth`, ≈ 0.69 hazy): once
 //!   the ratio per (sun zenith, λ) is stable, the tail J_n q/(1 − q) is added in closed form
 //!   (Aitken-style geometric extrapolation) instead of marching on. Orders stop when the last
@@ -32,7 +36,7 @@
 
 use super::geometry::{horizon_mu, radius_at, safe_sqrt};
 use super::integrate::{ray_points, RayPoint, RaySample, Source};
-use super::kernels::{acos_fast, exp_fast, ln_fast};
+use super::kernels::{acos_fast, exp_fast, exp_fast_f32, ln_fast, ln_fast_f32};
 use super::medium::{Medium, CONSTITUENTS, MIE, RAYLEIGH};
 use super::quadrature::grid_pos;
 use super::transmittance::DensityIntegralTable;
@@ -40,6 +44,7 @@ use crate::phase::Phase;
 use crate::store::SpectralImage;
 use rayon::prelude::*;
 use std::f64::consts::PI;
+use std::sync::atomic::{AtomicUsize, Ordering};
 
 /// Sun zenith angle, degrees, beyond which the sun-zenith nodes of the precise tables are twice as
 /// dense and J and the ground's sky irradiance are interpolated over sun zenith in ln J
@@ -272,55 +277,116 @@ impl Grid {
     }
 }
 
-/// Phase matrices for the Rayleigh and Mie components, `[o][i]`: ∫_{cell i and its mirror}
-/// p(ω_o·ω) dω, rows normalised to sum to 1.
-fn phase_matrices(grid: &Grid, mie: Phase) -> [Vec<f64>; 2] {
-    let d = grid.dirs();
+/// The phase matrices of the J pass in azimuthal cosine space.
+///
+/// The phase matrix of a constituent, P[(k_o, l_o)][(k_i, l_i)] = ∫_{cell (k_i, l_i) and its
+/// mirror} p(ω_o·ω) dω (6 × 6 midpoint sub-cells per half, rows normalised to 1), depends on the
+/// azimuth bins only through the difference of the output azimuth and the input sub-cell's:
+/// P = G(l_o − l_i) + G(−l_o − l_i − 1), with G_{k_o,k_i}(m) the sub-cell sum at azimuth offset
+/// (m + ½ − u_b)Δφ, 2n_φ-periodic in m and even (the sub-cell offsets u_b are symmetric). So
+/// J(l_o) = Σ_{l_i} P L(l_i) is a circular convolution of G with the mirror-extended radiance,
+/// which a cosine transform over the n_φ azimuth bins diagonalises: with
+/// C_q = Σ_l L(l) cos(πq(l + ½)/n_φ) and Ĝ_q = Σ_{m<2n_φ} G(m) cos(πqm/n_φ),
+/// J(l_o) = (1/n_φ) Σ_{q<n_φ} ε_q Ĝ_q C_q cos(πq(l_o + ½)/n_φ), ε_0 = 1, else 2.
+/// The directions × directions product becomes n_φ products of view-zenith blocks
+/// (n_φ times fewer operations), and the phase functions are evaluated n_φ times less often.
+/// The row sum of P is Σ_{k_i} Ĝ_0, so the normalisation is exact in this form too.
+struct AzimuthalPhase {
+    /// `[q][k_o][k_i]`: Ĝ_q of the Rayleigh and the Mie phase matrix, rows normalised.
+    g_r: Vec<f64>,
+    g_m: Vec<f64>,
+    /// `[q][l]`: cos(πq(l + ½)/n_φ), the forward transform.
+    fwd: Vec<f64>,
+    /// `[q][l]`: ε_q/n_φ · cos(πq(l + ½)/n_φ), the inverse transform.
+    inv: Vec<f64>,
+}
+
+fn azimuthal_phase(grid: &Grid, mie: Phase) -> AzimuthalPhase {
     let (n_mu, n_phi) = (grid.s.n_mu, grid.s.n_phi);
-    let dir = |theta: f64, phi: f64| {
-        let s = theta.sin();
-        [s * phi.cos(), s * phi.sin(), theta.cos()]
-    };
-    let sub = 6;
-    [Phase::Rayleigh, mie].map(|phase| {
-        let mut m: Vec<f64> = (0..d * d)
-            .into_par_iter()
-            .map(|oi| {
-                let (o, i) = (oi / d, oi % d);
-                let wo = dir(grid.theta(o / n_phi), grid.phi(o % n_phi));
-                let (k, l) = (i / n_phi, i % n_phi);
-                let (t0, t1) = (
-                    PI * k as f64 / n_mu as f64,
-                    PI * (k + 1) as f64 / n_mu as f64,
-                );
-                let (p0, p1) = (
-                    PI * l as f64 / n_phi as f64,
-                    PI * (l + 1) as f64 / n_phi as f64,
-                );
-                let mut sum = 0.0;
-                for a in 0..sub {
-                    let th = t0 + (t1 - t0) * (a as f64 + 0.5) / sub as f64;
-                    let w = th.sin() * (t1 - t0) / sub as f64 * (p1 - p0) / sub as f64;
-                    for b in 0..sub {
-                        let ph = p0 + (p1 - p0) * (b as f64 + 0.5) / sub as f64;
-                        for sign in [1.0, -1.0] {
-                            let wi = dir(th, sign * ph);
-                            let c = wo[0] * wi[0] + wo[1] * wi[1] + wo[2] * wi[2];
-                            sum += phase.eval(c) * w;
+    let n = 2 * n_phi;
+    let dphi = PI / n_phi as f64;
+    const SUB: usize = 6;
+    // `[m][b]`: cosine of the azimuth between an output direction and sub-cell b of the input
+    // cell m bins before it.
+    let cos_dphi: Vec<f64> = (0..n)
+        .flat_map(|m| {
+            (0..SUB).map(move |b| ((m as f64 + 0.5 - (b as f64 + 0.5) / SUB as f64) * dphi).cos())
+        })
+        .collect();
+    // `[k][a]`: cosine, sine and solid-angle weight of zenith sub-cell a of bin k.
+    let theta_sub: Vec<[f64; 3]> = (0..n_mu)
+        .flat_map(|k| {
+            let (t0, t1) = (
+                PI * k as f64 / n_mu as f64,
+                PI * (k + 1) as f64 / n_mu as f64,
+            );
+            (0..SUB).map(move |a| {
+                let th = t0 + (t1 - t0) * (a as f64 + 0.5) / SUB as f64;
+                let w = th.sin() * (t1 - t0) / SUB as f64 * dphi / SUB as f64;
+                [th.cos(), th.sin(), w]
+            })
+        })
+        .collect();
+    // `[q][m]`: cos(πqm/n_φ).
+    let dft: Vec<f64> = (0..n_phi)
+        .flat_map(|q| (0..n).map(move |m| (PI * (q * m) as f64 / n_phi as f64).cos()))
+        .collect();
+    // Per output zenith bin: `[q][k_i]` for both phase functions.
+    let rows: Vec<[Vec<f64>; 2]> = (0..n_mu)
+        .into_par_iter()
+        .map(|ko| {
+            let th_o = grid.theta(ko);
+            let (co, so) = (th_o.cos(), th_o.sin());
+            let mut out = [vec![0.0; n_phi * n_mu], vec![0.0; n_phi * n_mu]];
+            let (mut g_r, mut g_m) = (vec![0.0; n], vec![0.0; n]);
+            for ki in 0..n_mu {
+                for m in 0..n {
+                    let (mut sr, mut sm) = (0.0, 0.0);
+                    for &[ca, sa, w] in &theta_sub[ki * SUB..][..SUB] {
+                        for &cd in &cos_dphi[m * SUB..][..SUB] {
+                            let c = co * ca + so * sa * cd;
+                            sr += Phase::Rayleigh.eval(c) * w;
+                            sm += mie.eval(c) * w;
                         }
                     }
+                    g_r[m] = sr;
+                    g_m[m] = sm;
                 }
-                sum
-            })
-            .collect();
-        for row in m.chunks_mut(d) {
-            let s: f64 = row.iter().sum();
-            if s > 0.0 {
-                row.iter_mut().for_each(|v| *v /= s);
+                for q in 0..n_phi {
+                    let d = &dft[q * n..][..n];
+                    out[0][q * n_mu + ki] = g_r.iter().zip(d).map(|(g, c)| g * c).sum::<f64>();
+                    out[1][q * n_mu + ki] = g_m.iter().zip(d).map(|(g, c)| g * c).sum::<f64>();
+                }
             }
+            for g in &mut out {
+                let row_sum: f64 = g[..n_mu].iter().sum();
+                if row_sum > 0.0 {
+                    g.iter_mut().for_each(|v| *v /= row_sum);
+                }
+            }
+            out
+        })
+        .collect();
+    let mut g_r = vec![0.0; n_phi * n_mu * n_mu];
+    let mut g_m = vec![0.0; n_phi * n_mu * n_mu];
+    for (ko, [r, m]) in rows.iter().enumerate() {
+        for q in 0..n_phi {
+            g_r[(q * n_mu + ko) * n_mu..][..n_mu].copy_from_slice(&r[q * n_mu..][..n_mu]);
+            g_m[(q * n_mu + ko) * n_mu..][..n_mu].copy_from_slice(&m[q * n_mu..][..n_mu]);
         }
-        m
-    })
+    }
+    let basis = |q: usize, l: usize| (PI * q as f64 * (l as f64 + 0.5) / n_phi as f64).cos();
+    let fwd = (0..n_phi * n_phi)
+        .map(|x| basis(x / n_phi, x % n_phi))
+        .collect();
+    let inv = (0..n_phi * n_phi)
+        .map(|x| {
+            let q = x / n_phi;
+            let eps = if q == 0 { 1.0 } else { 2.0 };
+            eps / n_phi as f64 * basis(q, x % n_phi)
+        })
+        .collect();
+    AzimuthalPhase { g_r, g_m, fwd, inv }
 }
 
 /// Solid angle × cosθ of each upward direction cell (both mirror halves), for E = ∫ L cosθ dω.
@@ -437,6 +503,43 @@ fn ln_or_zero(v: f32) -> f64 {
     }
 }
 
+/// [`twilight_lanes`] in f32 for the radiance passes of the build (J is stored in f32): `out[i] +=
+/// w · interp(i)` for the four node rows `v[q]` whose logarithms are `ln_v[q]` (from
+/// [`ln_or_zero_f32`]), eight wavelengths per AVX2 instruction with [`exp_fast_f32`]. Nodes
+/// below the smallest normal f32 (1.2e-38) count as zero (linear in J there). ln J rounded to f32
+/// (|ln J| ≲ 40) costs at most 4e-6 of J, beside the percent-level error of the twilight tables.
+#[inline(always)]
+fn twilight_lanes_f32(
+    v: [&[f32]; 4],
+    ln_v: [&[f32]; 4],
+    wq: [f32; 4],
+    fs: f32,
+    w: f32,
+    out: &mut [f32],
+) {
+    let n = out.len();
+    let (v, ln_v) = (v.map(|x| &x[..n]), ln_v.map(|x| &x[..n]));
+    const MIN: f32 = f32::MIN_POSITIVE;
+    for i in 0..n {
+        let positive = (v[0][i] >= MIN) & (v[1][i] >= MIN) & (v[2][i] >= MIN) & (v[3][i] >= MIN);
+        let ln_j =
+            wq[0] * ln_v[0][i] + wq[1] * ln_v[1][i] + wq[2] * ln_v[2][i] + wq[3] * ln_v[3][i];
+        let linear = v[1][i] * (1.0 - fs) + v[2][i] * fs;
+        out[i] += w * if positive { exp_fast_f32(ln_j) } else { linear };
+    }
+}
+
+/// `ln v` for normal positive `v`, 0 otherwise (masked by [`twilight_lanes_f32`]).
+#[inline(always)]
+fn ln_or_zero_f32(v: f32) -> f32 {
+    let l = ln_fast_f32(v);
+    if v >= f32::MIN_POSITIVE {
+        l
+    } else {
+        0.0
+    }
+}
+
 /// Cosine of the view azimuth relative to the sun from the three cosines (1 when undefined).
 #[inline(always)]
 fn cos_azimuth(mu: f64, mu_s: f64, nu: f64) -> f64 {
@@ -534,16 +637,19 @@ struct FamilyScratch {
     slice: Vec<f32>,
     /// `[i_mu_s][i_phi][λ]`: ln of `slice` (0 where it is 0) from sun-zenith node `ln_from` on,
     /// the nodes of twilight cells ([`Grid::twilight_cell`]).
-    ln_slice: Vec<f64>,
+    ln_slice: Vec<f32>,
     ln_from: usize,
     /// `[λ]`: one twilight cell's interpolated J.
-    tv: Vec<f64>,
+    tv: Vec<f32>,
     /// `[cell]`: interpolation positions at one point (sun-zenith node, −1 for none, and
     /// weight; azimuth node and weight), see [`Grid::s_pos_f`].
     pos_s: Vec<f64>,
     pos_fs: Vec<f64>,
     pos_p: Vec<f64>,
     pos_fp: Vec<f64>,
+    /// `[cell]`: the same positions as the radiance passes use them ([`PositionCache`]).
+    q_idx: Vec<[u16; 2]>,
+    q_w: Vec<[f32; 2]>,
     /// `[cell]`: sun zenith cosine at the ray origin, view–sun cosine, √(1 − μ_s²).
     cell_mu_s: Vec<f64>,
     cell_nu: Vec<f64>,
@@ -572,11 +678,70 @@ impl FamilyScratch {
             pos_fs: vec![0.0; fc],
             pos_p: vec![0.0; fc],
             pos_fp: vec![0.0; fc],
+            q_idx: vec![[0; 2]; fc],
+            q_w: vec![[0.0; 2]; fc],
             cell_mu_s: vec![0.0; fc],
             cell_nu: vec![0.0; fc],
             cell_phase: vec![[0.0; 2]; fc],
             t_total: vec![0.0; n_l],
             e: vec![0.0; n_l],
+        }
+    }
+}
+
+/// Upper bound of the memory all ray families of one build may hold in [`PositionCache`]s
+/// (12 bytes per cell and ray point: about 90 MB at `standard`; at `high` and `reference` the
+/// families that do not fit compute their positions in every order).
+const POSITION_CACHE_BYTES: usize = 256 << 20;
+
+/// Node index meaning "no source" (the sun beyond the tables' last node) in [`PositionCache`].
+const NO_NODE: u16 = u16::MAX;
+
+/// The interpolation positions of one ray family's cells at each of its ray points (sun-zenith
+/// node and weight, azimuth node and weight): they depend on the geometry only, so the first
+/// radiance pass of orders ≥ 2 records them and the later orders read them instead of
+/// recomputing them (two `acos`, two square roots and two divisions per cell and point).
+#[derive(Default)]
+struct PositionCache {
+    state: CacheState,
+    /// `[subray][point][cell]`: sun-zenith node ([`NO_NODE`]: no source) and azimuth node.
+    idx: Vec<[u16; 2]>,
+    /// `[subray][point][cell]`: their interpolation weights.
+    w: Vec<[f32; 2]>,
+}
+
+#[derive(Default, Clone, Copy, PartialEq, Eq)]
+enum CacheState {
+    /// Not recorded yet: the next order ≥ 2 pass records it.
+    #[default]
+    Empty,
+    Recording,
+    Ready,
+    /// Over [`POSITION_CACHE_BYTES`]: computed in every pass.
+    Off,
+}
+
+impl PositionCache {
+    const CELL_BYTES: usize = std::mem::size_of::<[u16; 2]>() + std::mem::size_of::<[f32; 2]>();
+
+    /// Appends one point's positions if the build's budget (`left`, bytes) still has room; else
+    /// frees the recorded ones, gives their bytes back and stops recording.
+    fn record(&mut self, idx: &[[u16; 2]], w: &[[f32; 2]], left: &AtomicUsize) {
+        let bytes = idx.len() * Self::CELL_BYTES;
+        let reserved = left
+            .fetch_update(Ordering::Relaxed, Ordering::Relaxed, |v| {
+                v.checked_sub(bytes)
+            })
+            .is_ok();
+        if reserved {
+            self.idx.extend_from_slice(idx);
+            self.w.extend_from_slice(w);
+        } else {
+            left.fetch_add(self.idx.len() * Self::CELL_BYTES, Ordering::Relaxed);
+            *self = Self {
+                state: CacheState::Off,
+                ..Self::default()
+            };
         }
     }
 }
@@ -624,6 +789,8 @@ crate::simd_dispatch! {
         ir: usize,
         k: usize,
         sc: &mut FamilyScratch,
+        cache: &mut PositionCache,
+        cache_left: &AtomicUsize,
         out: &mut [f32],
     ) {
         let (grid, medium, n_l) = (ctx.grid, ctx.medium, ctx.n_l);
@@ -640,6 +807,15 @@ crate::simd_dispatch! {
         let sig_m = &medium.mie_scattering_per_m[..n_l];
         let albedo = &medium.ground_albedo[..n_l];
         let t_total = &mut sc.t_total[..n_l];
+        // Orders ≥ 2 read the positions recorded by the first of them when there is room.
+        if let (PassInput::Order { .. }, CacheState::Empty) = (input, cache.state) {
+            cache.state = if n_mu_s < NO_NODE as usize && n_phi < NO_NODE as usize {
+                CacheState::Recording
+            } else {
+                CacheState::Off
+            };
+        }
+        let mut cursor = 0;
         for (theta, w_ray) in family_subrays(grid, r, k) {
             let (mu, sin_t) = (theta.cos(), theta.sin());
             for is in 0..n_mu_s {
@@ -698,10 +874,11 @@ crate::simd_dispatch! {
                             let [ph_r, ph_m] = sc.cell_phase[c];
                             let (ar, am) = (rho[RAYLEIGH] * ph_r * vis, rho[MIE] * ph_m * vis);
                             let o = &mut out[c * n_l..][..n_l];
+                            // Optical depth in f64, its exponential in f32 (8 lanes).
                             for i in 0..n_l {
                                 let tau = ext[0][i] * d[0] + ext[1][i] * d[1] + ext[2][i] * d[2];
-                                let single = (sig_r[i] * ar + sig_m[i] * am) * exp_fast(-tau);
-                                o[i] += tw[i] * single as f32;
+                                let single = (sig_r[i] * ar + sig_m[i] * am) as f32;
+                                o[i] += tw[i] * single * exp_fast_f32(-tau as f32);
                             }
                         }
                     }
@@ -724,13 +901,14 @@ crate::simd_dispatch! {
                         // ln J of the sun-zenith nodes that twilight cells interpolate over.
                         let from = sc.ln_from * n_phi * n_l;
                         for (lv, &v) in sc.ln_slice[from..].iter_mut().zip(&sc.slice[from..]) {
-                            *lv = ln_or_zero(v);
+                            *lv = ln_or_zero_f32(v);
                         }
                         // Every cell's interpolation position at this point first, in a
                         // branch-free loop over cells that vectorises: sun-zenith node and
                         // weight, azimuth node and weight (node −1: the sun is beyond the
-                        // tables' last node, no source there).
-                        for c in 0..fc {
+                        // tables' last node, no source there); or recorded by an earlier order.
+                        let ready = cache.state == CacheState::Ready;
+                        for c in 0..if ready { 0 } else { fc } {
                             let mu_s = ((r0 * sc.cell_mu_s[c] + p.t * sc.cell_nu[c]) / p.r)
                                 .clamp(-1.0, 1.0);
                             let theta_s = acos_fast(mu_s);
@@ -747,23 +925,43 @@ crate::simd_dispatch! {
                             sc.pos_p[c] = jp;
                             sc.pos_fp[c] = fp;
                         }
+                        if !ready {
+                            for c in 0..fc {
+                                sc.q_idx[c] = if sc.pos_s[c] < 0.0 {
+                                    [NO_NODE, 0]
+                                } else {
+                                    [sc.pos_s[c] as u16, sc.pos_p[c] as u16]
+                                };
+                                sc.q_w[c] = [sc.pos_fs[c] as f32, sc.pos_fp[c] as f32];
+                            }
+                            if cache.state == CacheState::Recording {
+                                cache.record(&sc.q_idx, &sc.q_w, cache_left);
+                            }
+                        }
+                        let (q_idx, q_w) = if ready {
+                            (&cache.idx[cursor..][..fc], &cache.w[cursor..][..fc])
+                        } else {
+                            (&sc.q_idx[..fc], &sc.q_w[..fc])
+                        };
+                        cursor += fc;
                         for c in 0..fc {
-                            if sc.pos_s[c] < 0.0 {
+                            let [js, jp] = q_idx[c];
+                            if js == NO_NODE {
                                 continue;
                             }
-                            let (js, fs) = (sc.pos_s[c] as usize, sc.pos_fs[c]);
-                            let (jp, fp) = (sc.pos_p[c] as usize, sc.pos_fp[c]);
+                            let (js, jp) = (js as usize, jp as usize);
+                            let [fs, fp] = q_w[c];
                             if grid.twilight_cell(js) {
                                 // In ln J over sun zenith (`twilight_interp`), linear in azimuth.
-                                let (nodes, wq) = catmull_rom(js, fs, n_mu_s);
+                                let (nodes, wq) = catmull_rom(js, fs as f64, n_mu_s);
                                 let tv = &mut sc.tv[..n_l];
                                 tv.fill(0.0);
                                 for (e, we) in [(jp, 1.0 - fp), (jp + 1, fp)] {
                                     let row = nodes.map(|b| (b * n_phi + e) * n_l);
-                                    twilight_lanes(
+                                    twilight_lanes_f32(
                                         row.map(|x| &sc.slice[x..][..n_l]),
                                         row.map(|x| &sc.ln_slice[x..][..n_l]),
-                                        wq,
+                                        wq.map(|w| w as f32),
                                         fs,
                                         we,
                                         tv,
@@ -771,11 +969,10 @@ crate::simd_dispatch! {
                                 }
                                 let o = &mut out[c * n_l..][..n_l];
                                 for i in 0..n_l {
-                                    o[i] += tw[i] * tv[i] as f32;
+                                    o[i] += tw[i] * tv[i];
                                 }
                                 continue;
                             }
-                            let (fs, fp) = (fs as f32, fp as f32);
                             let (c00, c01, c10, c11) =
                                 ((1.0 - fs) * (1.0 - fp), (1.0 - fs) * fp, fs * (1.0 - fp), fs * fp);
                             let (s00, s01) =
@@ -828,96 +1025,133 @@ crate::simd_dispatch! {
                 }
             }
         }
+        if cache.state == CacheState::Recording {
+            cache.state = CacheState::Ready;
+        }
     }
 }
 
-/// Width of the J kernel's column blocks (one AVX2 register of f32).
-const LANES: usize = 8;
+/// Output zenith bins the J product accumulates at once.
+const J_ROWS: usize = 4;
 
-/// Wavelength count padded to whole column blocks.
-fn padded(n_l: usize) -> usize {
-    n_l.div_ceil(LANES) * LANES
+/// Per-thread scratch of the J pass, f64: `[q][k][i_mu_s][λ]` twice (the transformed radiance
+/// and the transformed J), and the accumulators of [`J_ROWS`] rows for both phase functions.
+struct JScratch {
+    spec: Vec<f64>,
+    y: Vec<f64>,
+    acc: Vec<f64>,
 }
 
-/// Output rows the J kernel accumulates at once (8 accumulators with Mie, 4 without).
-const ROWS: usize = 4;
+impl JScratch {
+    fn new(grid: &Grid, n_l: usize) -> Self {
+        let w = grid.s.n_mu_s * n_l;
+        let n = grid.s.n_phi * grid.s.n_mu * w;
+        Self {
+            spec: vec![0.0; n],
+            y: vec![0.0; n],
+            acc: vec![0.0; 2 * J_ROWS * w],
+        }
+    }
+}
 
 crate::simd_dispatch! {
     /// J of the next order for every cell of radius index `ir` (`out`: `[i_mu][i_mu_s][i_phi][λ]`)
-    /// from one order's radiance there (`l`, same layout): the phase matrices (directions ×
-    /// directions) times the radiance over directions (directions × (sun zeniths × λ)), a dense
-    /// matrix product blocked ROWS × LANES, then the scattering coefficients at this radius.
-    /// `lin` is scratch of `dirs × n_mu_s × padded(n_l)`.
+    /// from one order's radiance there (`l`, same layout), in azimuthal cosine space
+    /// ([`AzimuthalPhase`]): the radiance transformed over azimuth, per frequency q the product
+    /// of the view-zenith blocks Ĝ_q (Rayleigh and Mie) with it, times the scattering coefficients
+    /// at this radius, transformed back. In f64 (the transforms take differences; J in f32 after,
+    /// clamped at 0 against rounding where J vanishes).
     fn scattering_density_at_radius(
         grid: &Grid,
         n_l: usize,
-        phase_r: &[f32],
-        phase_m: &[f32],
-        scale_r: &[f32],
-        scale_m: &[f32],
+        ap: &AzimuthalPhase,
+        scale_r: &[f64],
+        scale_m: &[f64],
         l: &[f32],
-        lin: &mut [f32],
+        sc: &mut JScratch,
         out: &mut [f32],
     ) {
         let s = grid.s;
-        let dirs = grid.dirs();
-        let n_lp = padded(n_l);
-        let width = s.n_mu_s * n_lp;
+        let (n_mu, n_mu_s, n_phi) = (s.n_mu, s.n_mu_s, s.n_phi);
+        let w = n_mu_s * n_l;
+        let (scale_r, scale_m) = (&scale_r[..n_l], &scale_m[..n_l]);
         let with_mie = scale_m.iter().any(|&v| v != 0.0);
-        // Gather [direction][sun zenith][λ (padded with zeros)].
-        lin.fill(0.0);
-        for d in 0..dirs {
-            let (k, ph) = (d / s.n_phi, d % s.n_phi);
-            for is in 0..s.n_mu_s {
-                let src = &l[((k * s.n_mu_s + is) * s.n_phi + ph) * n_l..][..n_l];
-                lin[d * width + is * n_lp..][..n_l].copy_from_slice(src);
+        // Forward: spec[q][k][is][λ] = Σ_l L[k][is][l][λ] cos(πq(l + ½)/n_φ).
+        let spec = &mut sc.spec[..n_phi * n_mu * w];
+        spec.fill(0.0);
+        for k in 0..n_mu {
+            for is in 0..n_mu_s {
+                for ph in 0..n_phi {
+                    let src = &l[((k * n_mu_s + is) * n_phi + ph) * n_l..][..n_l];
+                    for q in 0..n_phi {
+                        let c = ap.fwd[q * n_phi + ph];
+                        let dst = &mut spec[(q * n_mu + k) * w + is * n_l..][..n_l];
+                        for i in 0..n_l {
+                            dst[i] += c * src[i] as f64;
+                        }
+                    }
+                }
             }
         }
-        let lin = &lin[..dirs * width];
-        let mut o0 = 0;
-        while o0 < dirs {
-            let rows = ROWS.min(dirs - o0);
-            let pr: [&[f32]; ROWS] =
-                std::array::from_fn(|b| &phase_r[(o0 + b.min(rows - 1)) * dirs..][..dirs]);
-            let pm: [&[f32]; ROWS] =
-                std::array::from_fn(|b| &phase_m[(o0 + b.min(rows - 1)) * dirs..][..dirs]);
-            for c in 0..width / LANES {
-                let mut ar = [[0.0f32; LANES]; ROWS];
-                let mut am = [[0.0f32; LANES]; ROWS];
-                if with_mie {
-                    for d in 0..dirs {
-                        let src = &lin[d * width + c * LANES..][..LANES];
-                        for b in 0..ROWS {
-                            let (wr, wm) = (pr[b][d], pm[b][d]);
-                            for i in 0..LANES {
-                                ar[b][i] += wr * src[i];
-                                am[b][i] += wm * src[i];
-                            }
+        // Per frequency: y[q][k_o] = σ_R Σ_{k_i} Ĝ^R_q[k_o][k_i] spec[q][k_i] + σ_M (same with Ĝ^M).
+        let spec = &sc.spec[..n_phi * n_mu * w];
+        for q in 0..n_phi {
+            let mut o0 = 0;
+            while o0 < n_mu {
+                let rows = J_ROWS.min(n_mu - o0);
+                let (acc_r, acc_m) = sc.acc.split_at_mut(J_ROWS * w);
+                acc_r.fill(0.0);
+                acc_m.fill(0.0);
+                for ki in 0..n_mu {
+                    let src = &spec[(q * n_mu + ki) * w..][..w];
+                    for b in 0..rows {
+                        let g = (q * n_mu + o0 + b) * n_mu + ki;
+                        let (gr, gm) = (ap.g_r[g], ap.g_m[g]);
+                        let ar = &mut acc_r[b * w..][..w];
+                        for x in 0..w {
+                            ar[x] += gr * src[x];
                         }
-                    }
-                } else {
-                    for d in 0..dirs {
-                        let src = &lin[d * width + c * LANES..][..LANES];
-                        for b in 0..ROWS {
-                            let wr = pr[b][d];
-                            for i in 0..LANES {
-                                ar[b][i] += wr * src[i];
+                        if with_mie {
+                            let am = &mut acc_m[b * w..][..w];
+                            for x in 0..w {
+                                am[x] += gm * src[x];
                             }
                         }
                     }
                 }
-                let (is, l0) = ((c * LANES) / n_lp, (c * LANES) % n_lp);
-                let n = LANES.min(n_l.saturating_sub(l0));
                 for b in 0..rows {
-                    let o = o0 + b;
-                    let (ko, lo) = (o / s.n_phi, o % s.n_phi);
-                    let dst = &mut out[((ko * s.n_mu_s + is) * s.n_phi + lo) * n_l + l0..][..n];
-                    for i in 0..n {
-                        dst[i] = scale_r[l0 + i] * ar[b][i] + scale_m[l0 + i] * am[b][i];
+                    let dst = &mut sc.y[(q * n_mu + o0 + b) * w..][..w];
+                    let (ar, am) = (&acc_r[b * w..][..w], &acc_m[b * w..][..w]);
+                    for is in 0..n_mu_s {
+                        let x0 = is * n_l;
+                        for i in 0..n_l {
+                            dst[x0 + i] = scale_r[i] * ar[x0 + i] + scale_m[i] * am[x0 + i];
+                        }
+                    }
+                }
+                o0 += rows;
+            }
+        }
+        // Inverse: J[k][is][l][λ] = Σ_q ε_q/n_φ cos(πq(l + ½)/n_φ) y[q][k][is][λ].
+        let y = &sc.y[..n_phi * n_mu * w];
+        for k in 0..n_mu {
+            for is in 0..n_mu_s {
+                for lo in 0..n_phi {
+                    let dst = &mut out[((k * n_mu_s + is) * n_phi + lo) * n_l..][..n_l];
+                    let acc = &mut sc.acc[..n_l];
+                    acc.fill(0.0);
+                    for q in 0..n_phi {
+                        let c = ap.inv[q * n_phi + lo];
+                        let src = &y[(q * n_mu + k) * w + is * n_l..][..n_l];
+                        for i in 0..n_l {
+                            acc[i] += c * src[i];
+                        }
+                    }
+                    for i in 0..n_l {
+                        dst[i] = acc[i].max(0.0) as f32;
                     }
                 }
             }
-            o0 += rows;
         }
     }
 }
@@ -1015,8 +1249,7 @@ impl PreciseMultipleScattering {
         let fc = grid.family_cells();
         let family_len = fc * n_l;
         let per_r = s.n_mu * family_len;
-        let [phase_r, phase_m] = phase_matrices(&grid, medium.mie_phase)
-            .map(|m| m.iter().map(|&v| v as f32).collect::<Vec<f32>>());
+        let phase = azimuthal_phase(&grid, medium.mie_phase);
         let up_w = upward_cosine_weights(&grid);
         let ctx = PassCtx {
             grid: &grid,
@@ -1026,12 +1259,23 @@ impl PreciseMultipleScattering {
         };
 
         // Radiance of one order on every cell, family by family.
-        let radiance = |input: PassInput| -> Vec<f32> {
+        // (Per family, the interpolation positions that orders ≥ 2 share.)
+        let mut positions: Vec<PositionCache> = (0..s.n_r * s.n_mu)
+            .map(|_| PositionCache::default())
+            .collect();
+        let positions_left = AtomicUsize::new(POSITION_CACHE_BYTES);
+        let radiance = |input: PassInput, positions: &mut [PositionCache]| -> Vec<f32> {
             let mut l = vec![0.0f32; grid.cells() * n_l];
-            l.par_chunks_mut(family_len).enumerate().for_each_init(
-                || FamilyScratch::new(&grid, n_l),
-                |sc, (f, out)| family_pass(&ctx, input, f / s.n_mu, f % s.n_mu, sc, out),
-            );
+            l.par_chunks_mut(family_len)
+                .zip(positions.par_iter_mut())
+                .enumerate()
+                .for_each_init(
+                    || FamilyScratch::new(&grid, n_l),
+                    |sc, (f, (out, cache))| {
+                        let (ir, k) = (f / s.n_mu, f % s.n_mu);
+                        family_pass(&ctx, input, ir, k, sc, cache, &positions_left, out)
+                    },
+                );
             l
         };
         // Sky irradiance on the ground from one order's radiance at r = bottom, `[i_mu_s][λ]`.
@@ -1060,8 +1304,11 @@ impl PreciseMultipleScattering {
                 .map(|block| {
                     let mut out = vec![0.0; s.n_mu_s * n_l];
                     for fam in block.chunks(family_len) {
-                        for (x, v) in fam.iter().enumerate() {
-                            out[(x / (s.n_phi * n_l)) * n_l + x % n_l] += *v as f64;
+                        for (is, row) in fam.chunks(s.n_phi * n_l).enumerate() {
+                            let o = &mut out[is * n_l..][..n_l];
+                            for cell in row.chunks(n_l) {
+                                o.iter_mut().zip(cell).for_each(|(o, v)| *o += *v as f64);
+                            }
                         }
                     }
                     out
@@ -1077,28 +1324,27 @@ impl PreciseMultipleScattering {
         let scattering_density = |l: &[f32]| -> Vec<f32> {
             let mut j = vec![0.0f32; grid.cells() * n_l];
             j.par_chunks_mut(per_r).enumerate().for_each_init(
-                || vec![0.0f32; grid.dirs() * s.n_mu_s * padded(n_l)],
-                |lin, (ir, out)| {
+                || JScratch::new(&grid, n_l),
+                |sc, (ir, out)| {
                     let rho = medium.densities(grid.r(ir));
-                    let scale_r: Vec<f32> = medium
+                    let scale_r: Vec<f64> = medium
                         .rayleigh_scattering_per_m
                         .iter()
-                        .map(|&v| (v * rho[RAYLEIGH]) as f32)
+                        .map(|&v| v * rho[RAYLEIGH])
                         .collect();
-                    let scale_m: Vec<f32> = medium
+                    let scale_m: Vec<f64> = medium
                         .mie_scattering_per_m
                         .iter()
-                        .map(|&v| (v * rho[MIE]) as f32)
+                        .map(|&v| v * rho[MIE])
                         .collect();
                     scattering_density_at_radius(
                         &grid,
                         n_l,
-                        &phase_r,
-                        &phase_m,
+                        &phase,
                         &scale_r,
                         &scale_m,
                         &l[ir * per_r..][..per_r],
-                        lin,
+                        sc,
                         out,
                     );
                 },
@@ -1107,7 +1353,7 @@ impl PreciseMultipleScattering {
         };
 
         let t0 = std::time::Instant::now();
-        let mut l_n = radiance(PassInput::Single);
+        let mut l_n = radiance(PassInput::Single, &mut positions);
         tracing::debug!(
             radiance_ms = t0.elapsed().as_secs_f64() * 1e3,
             "precise order 1"
@@ -1136,10 +1382,13 @@ impl PreciseMultipleScattering {
             let j_ms_elapsed = ms(t_j);
             stage_ms.scattering_density += j_ms_elapsed;
             let t_l = std::time::Instant::now();
-            l_n = radiance(PassInput::Order {
-                j: &j_n,
-                ground: &e_n,
-            });
+            l_n = radiance(
+                PassInput::Order {
+                    j: &j_n,
+                    ground: &e_n,
+                },
+                &mut positions,
+            );
             e_n = ground_of(&l_n);
             let l_elapsed = ms(t_l);
             stage_ms.radiance += l_elapsed;
@@ -1174,9 +1423,18 @@ impl PreciseMultipleScattering {
                 j_ms.par_chunks_mut(family_len)
                     .zip(j_n.par_chunks(family_len))
                     .for_each(|(acc, jn)| {
-                        for (x, (a, b)) in acc.iter_mut().zip(jn).enumerate() {
-                            let is = x / (s.n_phi * n_l);
-                            *a += b * factors[is * n_l + x % n_l] as f32;
+                        let rows = acc.chunks_mut(s.n_phi * n_l).zip(jn.chunks(s.n_phi * n_l));
+                        for (is, (acc, jn)) in rows.enumerate() {
+                            let f: Vec<f32> = factors[is * n_l..][..n_l]
+                                .iter()
+                                .map(|&f| f as f32)
+                                .collect();
+                            for (a, b) in acc.chunks_mut(n_l).zip(jn.chunks(n_l)) {
+                                a.iter_mut()
+                                    .zip(b)
+                                    .zip(&f)
+                                    .for_each(|((a, b), f)| *a += b * f);
+                            }
                         }
                     });
                 for (x, (g, e)) in ground_sky.iter_mut().zip(&e_n).enumerate() {
@@ -1188,6 +1446,16 @@ impl PreciseMultipleScattering {
             None => (0.0, last_fraction, 0.0),
         };
         stage_ms.total = ms(t_start);
+        tracing::debug!(
+            position_cache_mb =
+                (POSITION_CACHE_BYTES - positions_left.load(Ordering::Relaxed)) as f64 / 1048576.0,
+            families_computing_positions = positions
+                .iter()
+                .filter(|p| p.state == CacheState::Off)
+                .count(),
+            total_ms = stage_ms.total,
+            "precise build done"
+        );
         Some(Self {
             grid,
             n_l,
@@ -1207,8 +1475,8 @@ impl PreciseMultipleScattering {
 }
 
 /// Version of the stored table layout (part of its store key).
-/// (2: twice-as-dense sun-zenith nodes beyond 80°, issue 14.)
-pub const TABLE_FORMAT: &str = "precise-table-2";
+/// (2: twice-as-dense sun-zenith nodes beyond 80°, issue 14; 3: f32 exp/ln in the build, issue 17.)
+pub const TABLE_FORMAT: &str = "precise-table-3";
 /// Header attribute holding the stored table's description ([`StoredPrecise`] as JSON).
 const ATTR_TABLE: &str = "skybakeSharedTable";
 
