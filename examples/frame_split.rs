@@ -279,11 +279,9 @@ fn whole_frame(
             (0..n_l).map(|l| img[i * n_l + l] as f64).sum::<f64>() / n_l as f64
         };
         let (mut cross, mut nb, mut sum, mut n) = (0.0, 0, 0.0, 0);
-        for i in 0..npx {
-            if mask[i] {
-                sum += 0.5 * (px(&reference, i) + px(&r2, i));
-                n += 1;
-            }
+        for (i, _) in mask.iter().enumerate().filter(|(_, m)| **m) {
+            sum += 0.5 * (px(&reference, i) + px(&r2, i));
+            n += 1;
         }
         for by in 0..h / 8 {
             for bx in 0..w / 8 {
@@ -298,11 +296,9 @@ fn whole_frame(
         }
         let mean = sum / n.max(1) as f64;
         let mut cross_px = 0.0;
-        for i in 0..npx {
-            if mask[i] {
-                let f = px(&fast.radiance, i);
-                cross_px += (f - px(&reference, i)) * (f - px(&r2, i));
-            }
+        for (i, _) in mask.iter().enumerate().filter(|(_, m)| **m) {
+            let f = px(&fast.radiance, i);
+            cross_px += (f - px(&reference, i)) * (f - px(&r2, i));
         }
         println!(
             "cross-estimated pixel NRMSE {:.2}%",

@@ -1234,6 +1234,28 @@ fn encode_tile(frame: &super::Frame, meta: &TileMeta, binding: &str) -> Result<V
     encode_exr(&img).map_err(store_error)
 }
 
+/// Voxelises a frame's cloud within the renderer's limit, checked before the grid is allocated;
+/// a grid too large names the scene field that sets its size.
+fn voxelize_cloud(
+    cloud: &crate::cloud::scene::CloudSection,
+    loader: &dyn Fn(&str) -> Result<Vec<u8>>,
+) -> Result<DensityGrid> {
+    cloud
+        .voxelize_within(loader, super::MAX_RENDER_VOXELS)
+        .map_err(|e| match e {
+            Error::TooLarge {
+                field,
+                reason,
+                limit,
+            } if field == "dims" => Error::TooLarge {
+                field: "cloud.voxel_size_m".into(),
+                reason: format!("the grid at this voxel size: {reason}"),
+                limit: format!("{limit} (use a larger voxel_size_m)"),
+            },
+            other => other,
+        })
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -1255,26 +1277,4 @@ mod tests {
             assert_eq!(rects.len(), w.div_ceil(TILE_SIZE) * h.div_ceil(TILE_SIZE));
         }
     }
-}
-
-/// Voxelises a frame's cloud within the renderer's limit, checked before the grid is allocated;
-/// a grid too large names the scene field that sets its size.
-fn voxelize_cloud(
-    cloud: &crate::cloud::scene::CloudSection,
-    loader: &dyn Fn(&str) -> Result<Vec<u8>>,
-) -> Result<DensityGrid> {
-    cloud
-        .voxelize_within(loader, super::MAX_RENDER_VOXELS)
-        .map_err(|e| match e {
-            Error::TooLarge {
-                field,
-                reason,
-                limit,
-            } if field == "dims" => Error::TooLarge {
-                field: "cloud.voxel_size_m".into(),
-                reason: format!("the grid at this voxel size: {reason}"),
-                limit: format!("{limit} (use a larger voxel_size_m)"),
-            },
-            other => other,
-        })
 }
