@@ -120,7 +120,8 @@ enum Command {
     /// Example: skybake bench sky-fast sun --format json
     Bench {
         /// Benchmarks to run (default: all). Known: sun, sky-fast, sky-precise, precise-tables,
-        /// ca-step, spheres, metaballs, fractal, satellite, solar-position, store.
+        /// ca-step, spheres, metaballs, fractal, satellite, solar-position, frame, frame-pattern,
+        /// frame-accuracy, store.
         names: Vec<String>,
         #[arg(long, value_enum, default_value_t = Format::Text)]
         format: Format,
