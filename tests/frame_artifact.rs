@@ -9,29 +9,13 @@ mod service_support;
 use axum::body::Body;
 use axum::http::Request;
 use serde_json::{json, Value};
-use service_support::{settings, Scratch};
+use service_support::{bake_single_exr, settings, tiny_frame_scene, Scratch};
 use skybake::engine::Stages;
-use skybake::product::params::Defaults;
-use skybake::render::product::{frame_meta_json, ATTR_FRAME_META, EXAMPLE_SCENES};
+use skybake::render::product::{frame_meta_json, ATTR_FRAME_META};
 use skybake::render::{FrameError, FrameMeta, Method, ERROR_BASIS};
 use skybake::service::{app, AppState};
 use skybake::store::layout::{ATTR_COMPUTE_TIME_MS, ATTR_FILE_CHECKSUM};
 use tower::ServiceExt;
-
-/// The validation scene made cheap: 24 × 16 pixels, draft quality, 100 m voxels.
-fn tiny_scene() -> Value {
-    let text = EXAMPLE_SCENES
-        .iter()
-        .find(|(n, _)| *n == "validation-frame")
-        .unwrap()
-        .1;
-    let mut scene: Value = serde_json::from_str(text).unwrap();
-    scene["camera"]["width"] = json!(24);
-    scene["camera"]["height"] = json!(16);
-    scene["quality"] = json!("draft");
-    scene["cloud"]["voxel_size_m"] = json!(100.0);
-    scene
-}
 
 /// Byte range of the value of string attribute `name` in an EXR header.
 fn attribute_range(bytes: &[u8], name: &str) -> std::ops::Range<usize> {
@@ -81,7 +65,7 @@ fn first_difference(a: &[u8], b: &[u8]) -> Option<(usize, String, String)> {
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn cli_http_and_bake_write_the_same_frame_artifact() {
     let dir = Scratch::new("frame-artifact");
-    let scene = tiny_scene();
+    let scene = tiny_frame_scene(24, 16);
     let scene_path = dir.path().join("scene.json");
     std::fs::write(&scene_path, scene.to_string()).unwrap();
     // CLI.
@@ -113,23 +97,7 @@ async fn cli_http_and_bake_write_the_same_frame_artifact() {
     // Bake.
     let job = json!({"frames": [{"scene": scene}]});
     let baked = dir.path().join("baked");
-    let summary = skybake::job::bake::bake(
-        job.to_string().as_bytes(),
-        &baked,
-        &Defaults::default(),
-        10,
-        &skybake::engine::Engine::new(),
-        |_, _, _| {},
-    )
-    .unwrap();
-    assert_eq!(summary.computed, 1);
-    let name = std::fs::read_dir(&baked)
-        .unwrap()
-        .flatten()
-        .map(|e| e.file_name().into_string().unwrap())
-        .find(|n| n.ends_with(".exr"))
-        .unwrap();
-    let bake = std::fs::read(baked.join(name)).unwrap();
+    let bake = bake_single_exr(&job, &baked);
 
     assert_eq!(
         cli.len(),

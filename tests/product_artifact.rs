@@ -7,8 +7,8 @@ mod service_support;
 
 use axum::body::Body;
 use axum::http::Request;
-use service_support::{settings, Scratch};
-use skybake::product::params::{Defaults, RequestParams};
+use service_support::{bake_single_exr, settings, Scratch};
+use skybake::product::params::RequestParams;
 use skybake::product::{render, Format, ProductKind, ProductRequest, TIMING_ATTRIBUTES};
 use skybake::service::{app, AppState};
 use skybake::store::layout::ATTR_FILE_CHECKSUM;
@@ -80,23 +80,7 @@ async fn cli_http_and_bake_write_the_same_artifact() {
     let job = serde_json::json!({"products": [{"product": "sky", "method": "fast", "quality": "draft",
         "wavelengths": "440,550", "sun_elevation_deg": 20, "elevation_count": 5, "azimuth_count": 3}]});
     let baked = dir.path().join("baked");
-    let summary = skybake::job::bake::bake(
-        job.to_string().as_bytes(),
-        &baked,
-        &Defaults::default(),
-        10,
-        &skybake::engine::Engine::new(),
-        |_, _, _| {},
-    )
-    .unwrap();
-    assert_eq!(summary.computed, 1);
-    let name = std::fs::read_dir(&baked)
-        .unwrap()
-        .flatten()
-        .map(|e| e.file_name().into_string().unwrap())
-        .find(|n| n.ends_with(".exr"))
-        .unwrap();
-    let bake = std::fs::read(baked.join(name)).unwrap();
+    let bake = bake_single_exr(&job, &baked);
 
     // Byte for byte, apart from the timing values.
     let reference = without_timing(&cli);

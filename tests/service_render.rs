@@ -9,31 +9,15 @@ mod service_support;
 use axum::body::Body;
 use axum::http::Request;
 use serde_json::{json, Value};
-use service_support::{settings, Scratch, TestServer};
+use service_support::{settings, tiny_frame_scene, Scratch, TestServer};
 use skybake::engine::Engine;
-use skybake::render::product::{example_file, TileProgress, EXAMPLE_SCENES};
+use skybake::render::product::{example_file, TileProgress};
 use skybake::render::{FrameRequest, Method};
 use skybake::service::{app, AppState};
 use skybake::store::{decode_exr, TileStore};
 use std::sync::atomic::{AtomicUsize, Ordering};
 use std::time::Duration;
 use tower::ServiceExt;
-
-/// The validation scene made cheap: `w` × `h` pixels, draft quality, 100 m voxels (a grid of
-/// about 20³), one wavelength.
-fn tiny_scene(w: usize, h: usize) -> Value {
-    let text = EXAMPLE_SCENES
-        .iter()
-        .find(|(n, _)| *n == "validation-frame")
-        .unwrap()
-        .1;
-    let mut scene: Value = serde_json::from_str(text).unwrap();
-    scene["camera"]["width"] = json!(w);
-    scene["camera"]["height"] = json!(h);
-    scene["quality"] = json!("draft");
-    scene["cloud"]["voxel_size_m"] = json!(100.0);
-    scene
-}
 
 async fn post(
     state: &AppState,
@@ -92,7 +76,7 @@ fn an_interrupted_render_resumes_from_its_tiles_and_matches_an_uninterrupted_one
     let store = TileStore::open(&dir.path().join("tiles")).unwrap();
     let engine = Engine::new();
     for (method, (w, h)) in [(Method::Fast, (150, 100)), (Method::Reference, (160, 8))] {
-        let req = FrameRequest::from_value(&tiny_scene(w, h), method).unwrap();
+        let req = FrameRequest::from_value(&tiny_frame_scene(w, h), method).unwrap();
         let total = req.tile_count();
         assert_eq!(total, w.div_ceil(64) * h.div_ceil(64));
         let tiles = store.frame(&req.cache_key()).unwrap();
@@ -164,7 +148,7 @@ fn an_interrupted_render_resumes_from_its_tiles_and_matches_an_uninterrupted_one
 async fn render_answers_json_exr_and_png_from_one_cached_artifact() {
     let dir = Scratch::new("render-formats");
     let state = AppState::new(settings(dir.path())).unwrap();
-    let scene = serde_json::to_vec(&tiny_scene(80, 60)).unwrap();
+    let scene = serde_json::to_vec(&tiny_frame_scene(80, 60)).unwrap();
 
     let (status, h, body) = post(&state, "/v1/render?format=json", scene.clone(), None).await;
     assert_eq!(status, 200, "{}", String::from_utf8_lossy(&body));
@@ -235,7 +219,7 @@ async fn bad_scenes_are_refused_naming_the_field_and_the_limit() {
     let mut s = settings(dir.path());
     s.server.body_limit_bytes = 16 * 1024;
     let state = AppState::new(s).unwrap();
-    let base = tiny_scene(32, 24);
+    let base = tiny_frame_scene(32, 24);
     let cases: Vec<Case> = vec![
         (
             "zero fov",
@@ -367,7 +351,7 @@ async fn a_render_whose_client_hangs_up_stops_at_the_next_tile_and_a_retry_resum
     let dir = Scratch::new("render-hangup");
     let srv = TestServer::start(settings(dir.path())).await;
     // The path tracer on 8 tiles of 64 × 8: slow enough per cloud tile that the client leaves mid-render.
-    let scene = tiny_scene(512, 8).to_string();
+    let scene = tiny_frame_scene(512, 8).to_string();
     let uri = "/v1/render?format=json&method=reference";
     let m = srv.state.metrics();
     let addr = srv.addr;

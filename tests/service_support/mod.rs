@@ -197,3 +197,40 @@ pub fn metric(text: &str, series: &str) -> Option<f64> {
         .find_map(|l| l.strip_prefix(series).and_then(|r| r.strip_prefix(' ')))
         .and_then(|v| v.trim().parse().ok())
 }
+
+/// The `validation-frame` example scene made cheap: `w` × `h` pixels, draft quality, 100 m voxels
+/// (a grid of about 20³).
+pub fn tiny_frame_scene(w: usize, h: usize) -> serde_json::Value {
+    let text = skybake::render::product::EXAMPLE_SCENES
+        .iter()
+        .find(|(n, _)| *n == "validation-frame")
+        .unwrap()
+        .1;
+    let mut scene: serde_json::Value = serde_json::from_str(text).unwrap();
+    scene["camera"]["width"] = serde_json::json!(w);
+    scene["camera"]["height"] = serde_json::json!(h);
+    scene["quality"] = serde_json::json!("draft");
+    scene["cloud"]["voxel_size_m"] = serde_json::json!(100.0);
+    scene
+}
+
+/// Bakes a one-item `job` into `out` (offline, default parameters) and returns the EXR it wrote.
+pub fn bake_single_exr(job: &serde_json::Value, out: &Path) -> Vec<u8> {
+    let summary = skybake::job::bake::bake(
+        job.to_string().as_bytes(),
+        out,
+        &skybake::product::params::Defaults::default(),
+        10,
+        &skybake::engine::Engine::new(),
+        |_, _, _| {},
+    )
+    .unwrap();
+    assert_eq!(summary.computed, 1);
+    let name = std::fs::read_dir(out)
+        .unwrap()
+        .flatten()
+        .map(|e| e.file_name().into_string().unwrap())
+        .find(|n| n.ends_with(".exr"))
+        .unwrap();
+    std::fs::read(out.join(name)).unwrap()
+}
