@@ -426,10 +426,10 @@ pub fn run(progress: &dyn Fn(usize, usize)) -> Result<Vec<RuleSaving>> {
     progress(3, total);
     out.push(frame_rule(
         "frame: ground light under budget (no sky: lattice paths left out)",
-        "validation cloud, no sky, ground albedo 0.01, 48×36",
+        "validation cloud, no sky, ground albedo 0.005, 48×36",
         frame_scene(|v| {
             v["sky"] = Value::Null;
-            v["ground"] = json!({"albedo": 0.01, "height_m": 0});
+            v["ground"] = json!({"albedo": 0.005, "height_m": 0});
         })?,
         true,
         None,
