@@ -515,8 +515,10 @@ pub const COARSENING_ERROR: f64 = 0.091;
 /// signal. Measured on the example sphere cumulus (K = 6, 25 m voxels, 48×36 px, fov 12°) from
 /// 30 km and 15 km: the cloud's mean moved by 7.2 % and 8.1 % one level up, 19.8 % and 24.9 %
 /// two levels up, 37.5 % and 44.8 % three levels up (the frame's per-pixel RMS change is larger,
-/// 55–90 % of the signal one level up: the shape changes); the worst per level, 15 %, counts.
-pub const SPHERE_LEVEL_ERROR: f64 = 0.15;
+/// 55–90 % of the signal one level up: the shape changes); and the K = 9 cumulus of
+/// report/planner.md two levels up from 30 km by 39.6 % with the fast method of the view cap and
+/// the density-weighted field (23.7 % before it). The worst per level, 20 %, counts.
+pub const SPHERE_LEVEL_ERROR: f64 = 0.20;
 
 /// A unit of work of a cloud frame.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize)]
