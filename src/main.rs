@@ -101,7 +101,8 @@ enum Command {
         /// Frame scene JSON (see config/scenes/*-frame.json); files it names are read relative to
         /// the scene's directory.
         scene: PathBuf,
-        /// Write the frame: .exr (spectral + RGB, the cached artifact) or .png (tone-mapped).
+        /// Write the frame: .exr (spectral + RGB, the cached artifact) or .png (tone-mapped; an
+        /// RGB-only request, which the planner may run at fewer wavelengths).
         #[arg(short = 'o', long = "output", value_name = "FILE")]
         output: Option<PathBuf>,
         /// fast (per-voxel light + multiple-scattering field + ray march) or reference (path tracer).
@@ -339,6 +340,10 @@ struct PlanArgs {
     /// The frame scene (product `frame`).
     #[arg(long, value_name = "SCENE_JSON")]
     scene: Option<PathBuf>,
+    /// Plan the frame as an RGB-only request (what `skybake render -o FRAME.png` and
+    /// `POST /v1/render?format=png` run): the planner may leave wavelengths out.
+    #[arg(long)]
+    rgb_only: bool,
     #[command(flatten)]
     flags: ProductFlags<ANY>,
 }
@@ -602,7 +607,8 @@ fn run(cli: Cli) -> Result<()> {
             };
             let text = read_limited(scene, "scene", skybake::cloud::scene::MAX_SCENE_FILE_BYTES)?;
             let request = skybake::render::FrameRequest::parse(&text, method)?
-                .with_max_rel_error(a.flags.params.max_rel_error.as_deref())?;
+                .with_max_rel_error(a.flags.params.max_rel_error.as_deref())?
+                .with_rgb_only(a.rgb_only);
             let dir = scene.parent().unwrap_or(Path::new("."));
             let loader = |name: &str| {
                 read_limited(
@@ -622,6 +628,9 @@ fn run(cli: Cli) -> Result<()> {
         Command::Plan(a) => {
             if a.scene.is_some() {
                 return Err(Error::invalid("scene", "only for plan frame").into());
+            }
+            if a.rgb_only {
+                return Err(Error::invalid("rgb_only", "only for plan frame").into());
             }
             let kind = ProductKind::parse(&a.product)?;
             let req = ProductRequest::from_params(kind, &request_params(a.flags.params.clone())?)?;
@@ -856,7 +865,10 @@ fn run_render(
         .into());
     }
     let text = read_limited(scene, "scene", cloud_scene::MAX_SCENE_FILE_BYTES)?;
-    let request = FrameRequest::parse(&text, method)?.with_max_rel_error(max_rel_error)?;
+    // A PNG is the RGB image only: the planner may run fewer wavelengths.
+    let request = FrameRequest::parse(&text, method)?
+        .with_max_rel_error(max_rel_error)?
+        .with_rgb_only(ext.as_deref() == Some("png"));
     let dir = scene.parent().unwrap_or(Path::new("."));
     let loader =
         |name: &str| read_limited(&dir.join(name), "path", cloud_scene::MAX_GRID_FILE_BYTES);

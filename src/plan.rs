@@ -520,6 +520,92 @@ pub const COARSENING_ERROR: f64 = 0.091;
 /// the density-weighted field (23.7 % before it). The worst per level, 20 %, counts.
 pub const SPHERE_LEVEL_ERROR: f64 = 0.20;
 
+/// Factor on the proxies' predicted change of an RGB-only frame rendered at fewer wavelengths
+/// ([`RgbFacts`]): the proxies are the scene's light and cloud spectra, the pixels mix them
+/// (light scattered once and many times, through air and cloud), so the rule counts twice the
+/// worst proxy's change. Measured by `skybake report --planner` (report/planner.md).
+pub const RGB_PROXY_SAFETY: f64 = 2.0;
+
+/// Fewest wavelengths an RGB-only frame runs at (the colour needs blue, green and red).
+pub const MIN_RGB_WAVELENGTHS: usize = 3;
+
+/// A subset of the requested wavelengths and the change of the RGB image its proxies predict.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct WavelengthCandidate {
+    /// The wavelengths kept, nm, ascending (the first and last requested ones among them).
+    pub internal_nm: Vec<f64>,
+    /// The largest change of the proxies' linear sRGB, relative to their mean channel, when
+    /// their spectra are known at `internal_nm` only (linear between them, as the frame's RGB
+    /// planes are made) instead of at every requested wavelength.
+    pub proxy_error: f64,
+}
+
+/// What the planner needs to know of an RGB-only frame request (one whose only output is the
+/// RGB image, e.g. a PNG): its wavelengths and the subsets it could run at, fewest first.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct RgbFacts {
+    pub requested_nm: Vec<f64>,
+    /// Subsets by backward elimination (each drops the interior wavelength whose loss changes
+    /// the proxies least), fewest wavelengths first.
+    pub candidates: Vec<WavelengthCandidate>,
+}
+
+/// An RGB-only frame run at fewer wavelengths than requested.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct WavelengthSubset {
+    pub rule: &'static str,
+    pub requested_nm: Vec<f64>,
+    /// The wavelengths the frame runs at (its spectral planes; the RGB planes interpolate
+    /// linearly between them).
+    pub internal_nm: Vec<f64>,
+    pub left_out_nm: Vec<f64>,
+    /// [`RGB_PROXY_SAFETY`] × the candidate's proxy error, spent from the budget.
+    pub predicted_error: f64,
+}
+
+impl WavelengthSubset {
+    /// One line for people.
+    pub fn detail(&self, budget: &Budget) -> String {
+        format!(
+            "RGB-only output: runs at {} of the {} requested wavelengths ({} nm); the RGB image is predicted to change by {:.2} % of its mean channel, within the budget's {:.2} %",
+            self.internal_nm.len(),
+            self.requested_nm.len(),
+            self.internal_nm
+                .iter()
+                .map(|w| format!("{w}"))
+                .collect::<Vec<_>>()
+                .join(", "),
+            self.predicted_error * 100.0,
+            budget.allowance * 100.0
+        )
+    }
+}
+
+/// Cost rule on an RGB-only frame: it runs at the fewest of the requested wavelengths whose
+/// predicted RGB change ([`RGB_PROXY_SAFETY`] × the proxies') fits in what is left of the
+/// budget. Spends from `budget`; runs first ([`plan_frame`] and the renderer decide the same).
+pub fn rgb_wavelengths_rule(f: &RgbFacts, budget: &mut Budget) -> Option<WavelengthSubset> {
+    let c = f
+        .candidates
+        .iter()
+        .filter(|c| {
+            c.internal_nm.len() >= MIN_RGB_WAVELENGTHS && c.internal_nm.len() < f.requested_nm.len()
+        })
+        .find(|c| budget.try_spend(RGB_PROXY_SAFETY * c.proxy_error))?;
+    Some(WavelengthSubset {
+        rule: "rgb_only",
+        requested_nm: f.requested_nm.clone(),
+        internal_nm: c.internal_nm.clone(),
+        left_out_nm: f
+            .requested_nm
+            .iter()
+            .copied()
+            .filter(|w| !c.internal_nm.contains(w))
+            .collect(),
+        predicted_error: RGB_PROXY_SAFETY * c.proxy_error,
+    })
+}
+
 /// A unit of work of a cloud frame.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize)]
 #[serde(rename_all = "snake_case")]
@@ -698,8 +784,8 @@ pub fn sphere_level_rule(s: &SphereFacts, budget: &mut Budget) -> Option<SphereL
     None
 }
 
-/// What the frame planner needs to know of a scene (measured by the renderer; plain numbers).
-#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+/// What the frame planner needs to know of a scene (measured by the renderer).
+#[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct FrameFacts {
     /// The reference method (the path tracer): no cost rules, it is the reference.
     pub reference: bool,
@@ -739,6 +825,9 @@ pub struct FrameFacts {
     pub max_rel_error: Option<f64>,
     /// A sphere-hierarchy cloud's levels (`None` for other sources).
     pub sphere: Option<SphereFacts>,
+    /// An RGB-only request's wavelengths and their subsets (`None`: the spectral image is
+    /// wanted, every requested wavelength runs).
+    pub rgb: Option<RgbFacts>,
 }
 
 impl FrameFacts {
@@ -767,6 +856,8 @@ pub struct FramePlan {
     pub coarsened: Vec<Coarsening>,
     /// A sphere-hierarchy cloud summed at a coarser level ([`sphere_level_rule`]).
     pub sphere_level: Option<SphereLevel>,
+    /// An RGB-only frame run at fewer wavelengths ([`rgb_wavelengths_rule`]).
+    pub wavelengths: Option<WavelengthSubset>,
     pub budget: Budget,
 }
 
@@ -808,6 +899,7 @@ impl FramePlan {
         }
         self.coarsened.clear();
         self.sphere_level = None;
+        self.wavelengths = None;
         self.budget.spent = 0.0;
         self
     }
@@ -872,6 +964,21 @@ impl Serialize for FramePlan {
         if let Some(level) = &self.sphere_level {
             st.serialize_field("sphere_level", level)?;
         }
+        if let Some(w) = &self.wavelengths {
+            #[derive(Serialize)]
+            struct WavelengthsView<'a> {
+                #[serde(flatten)]
+                subset: &'a WavelengthSubset,
+                detail: String,
+            }
+            st.serialize_field(
+                "wavelengths",
+                &WavelengthsView {
+                    subset: w,
+                    detail: w.detail(&self.budget),
+                },
+            )?;
+        }
         st.serialize_field("budget", &self.budget)?;
         st.end()
     }
@@ -896,9 +1003,14 @@ pub fn plan_frame(f: &FrameFacts) -> FramePlan {
         left_out: Vec::new(),
         coarsened: Vec::new(),
         sphere_level: None,
+        wavelengths: None,
         budget: f.frame_budget(),
     };
-    // First, as the renderer runs it before voxelising (same budget, same decision).
+    // First, as the request decides its wavelengths before anything runs, then the sphere
+    // level, as the renderer runs it before voxelising (same budget, same decisions).
+    if let (false, Some(rgb)) = (f.reference, &f.rgb) {
+        p.wavelengths = rgb_wavelengths_rule(rgb, &mut p.budget);
+    }
     if let (false, Some(sphere)) = (f.reference, &f.sphere) {
         p.sphere_level = sphere_level_rule(sphere, &mut p.budget);
     }

@@ -33,6 +33,7 @@ pub mod multiple;
 pub mod pathtracer;
 pub mod pattern;
 pub mod product;
+pub mod rgb_only;
 pub mod scene;
 pub mod volume;
 

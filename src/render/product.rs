@@ -16,7 +16,10 @@ use super::{
 };
 use crate::cloud::DensityGrid;
 use crate::engine::{Engine, Stages};
-use crate::plan::{FrameFacts, FramePlan, FrameReason, FrameStage, SphereFacts};
+use crate::plan::{
+    Budget, FrameFacts, FramePlan, FrameReason, FrameStage, RgbFacts, SphereFacts, WavelengthSubset,
+};
+use crate::spectrum::Wavelengths;
 use crate::store::tiles::ATTR_TILE_OF;
 use crate::store::{decode_exr, encode_exr, SpectralImage, StoreError};
 use crate::{Error, Result};
@@ -150,6 +153,9 @@ pub struct FrameRequest {
     /// The request's `max_rel_error` target ([`Self::with_max_rel_error`]): the frame plan's
     /// budget.
     pub max_rel_error: Option<f64>,
+    /// The RGB image is the only output wanted (a PNG, [`Self::with_rgb_only`]): the planner
+    /// may run fewer wavelengths.
+    pub rgb_only: bool,
 }
 
 /// Progress of a tiled render, reported after each tile.
@@ -307,6 +313,8 @@ pub struct PlanInputs<'a> {
     pub lighting: Option<&'a super::Lighting>,
     /// A sphere-hierarchy cloud's levels ([`sphere_facts`]).
     pub sphere: Option<SphereFacts>,
+    /// An RGB-only request's wavelengths and their subsets ([`super::rgb_only::rgb_facts`]).
+    pub rgb: Option<&'a RgbFacts>,
 }
 
 /// Shares of sky light and of ground light (light from below) in all the light reaching the
@@ -579,6 +587,7 @@ pub fn frame_facts_with(
         budget: crate::plan::FRAME_MEASURED_ERROR,
         max_rel_error: inputs.max_rel_error,
         sphere: inputs.sphere,
+        rgb: inputs.rgb.cloned(),
     }
 }
 
@@ -706,7 +715,44 @@ impl FrameRequest {
             scene_json: value,
             method,
             max_rel_error: None,
+            rgb_only: false,
         })
+    }
+
+    /// Marks the request RGB-only (`rgb_only`: its only output is the RGB image, a PNG): the
+    /// planner may then run it at a subset of its wavelengths where the error budget allows
+    /// (`plan::rgb_wavelengths_rule`). An RGB-only request has its own cache key (its artifact's
+    /// spectral planes are at the wavelengths it ran at).
+    pub fn with_rgb_only(mut self, rgb_only: bool) -> Self {
+        self.rgb_only = rgb_only;
+        self
+    }
+
+    /// The RGB-only facts and the wavelength rule's decision on a fresh budget (the rule runs
+    /// first, so the planner repeats the same decision): `(None, None, budget)` for a request
+    /// that wants the spectral image or for the reference method.
+    fn rgb_decision(&self) -> Result<(Option<RgbFacts>, Option<WavelengthSubset>, Budget)> {
+        let reference = self.method == Method::Reference;
+        let mut budget = crate::plan::frame_budget(
+            reference,
+            crate::plan::FRAME_MEASURED_ERROR,
+            self.max_rel_error,
+        );
+        if !self.rgb_only || reference {
+            return Ok((None, None, budget));
+        }
+        let facts = super::rgb_only::rgb_facts(&self.scene)?;
+        let subset = crate::plan::rgb_wavelengths_rule(&facts, &mut budget);
+        Ok((Some(facts), subset, budget))
+    }
+
+    /// The wavelengths the frame runs at and its artifact holds: the requested ones, or an
+    /// RGB-only request's subset of them.
+    pub fn internal_wavelengths(&self) -> Result<Wavelengths> {
+        match self.rgb_decision()?.1 {
+            Some(subset) => Wavelengths::new(subset.internal_nm),
+            None => Ok(self.scene.wavelengths.clone()),
+        }
     }
 
     /// Sets the request's `max_rel_error` target (CLI `--max-rel-error`, HTTP `max_rel_error`),
@@ -770,6 +816,9 @@ impl FrameRequest {
         if let Some(target) = self.max_rel_error {
             request["max_rel_error"] = serde_json::json!(target);
         }
+        if self.rgb_only {
+            request["output"] = serde_json::json!("rgb");
+        }
         request.to_string()
     }
 
@@ -807,11 +856,12 @@ impl FrameRequest {
         } else {
             sphere_facts(&self.scene)?
         };
-        let mut budget = crate::plan::frame_budget(
-            reference,
-            crate::plan::FRAME_MEASURED_ERROR,
-            self.max_rel_error,
-        );
+        // The wavelength rule first: an RGB-only request may run at a subset of its wavelengths.
+        let (rgb, subset, mut budget) = self.rgb_decision()?;
+        let scene = match &subset {
+            Some(s) => self.scene.at_wavelengths(&s.internal_nm)?,
+            None => self.scene.clone(),
+        };
         let level = sphere
             .as_ref()
             .and_then(|s| crate::plan::sphere_level_rule(s, &mut budget));
@@ -836,11 +886,12 @@ impl FrameRequest {
             max_rel_error: self.max_rel_error,
             lighting: None,
             sphere,
+            rgb: rgb.as_ref(),
         };
-        let facts = frame_facts_with(&self.scene, &grid, self.method, &inputs);
+        let facts = frame_facts_with(&scene, &grid, self.method, &inputs);
         // With an atmosphere the shares of sky and ground light are measured on the light the
         // scene computes anyway (kept for the frame when the plan does not change it).
-        let measure = self.scene.atmosphere.is_some()
+        let measure = scene.atmosphere.is_some()
             && !reference
             && !facts.cloud_empty
             && facts.cloud_in_view
@@ -849,16 +900,15 @@ impl FrameRequest {
         let mut lighting_ms = 0.0;
         let measured = if measure {
             let t = Instant::now();
-            let l = lighting_for(&self.scene, &grid, engine)?;
+            let l = lighting_for(&scene, &grid, engine)?;
             lighting_ms += t.elapsed().as_secs_f64() * 1e3;
             Some(l)
         } else {
             None
         };
         inputs.lighting = measured.as_ref();
-        let plan =
-            crate::plan::plan_frame(&frame_facts_with(&self.scene, &grid, self.method, &inputs));
-        let run = execute_plan(&plan, &self.scene, &grid, self.method)?;
+        let plan = crate::plan::plan_frame(&frame_facts_with(&scene, &grid, self.method, &inputs));
+        let run = execute_plan(&plan, &scene, &grid, self.method)?;
         let grid = match run.grid {
             Some(g) => g,
             None => grid,
@@ -964,7 +1014,8 @@ impl FrameRequest {
     ) -> Result<SpectralImage> {
         let cam = &self.scene.camera;
         let (w, h) = (cam.width, cam.height);
-        let n_l = self.scene.wavelengths.len();
+        let wavelengths = self.internal_wavelengths()?;
+        let n_l = wavelengths.len();
         let reference = self.method == Method::Reference;
         let rects = tile_rects(w, h);
         let total = rects.len();
@@ -985,7 +1036,7 @@ impl FrameRequest {
         for (i, rect) in rects.iter().enumerate() {
             match tiles
                 .get(i)?
-                .map(|b| self.decode_tile(&b, rect, &tiles.binding(i)))
+                .map(|b| self.decode_tile(&b, rect, &tiles.binding(i), &wavelengths))
             {
                 Some(Some((meta, rad, tr, var))) => {
                     canvas.blit(rect, &rad, &tr, &var);
@@ -1089,7 +1140,7 @@ impl FrameRequest {
             },
             image_width: w,
             image_height: h,
-            wavelengths_nm: self.scene.wavelengths.as_nm().to_vec(),
+            wavelengths_nm: wavelengths.as_nm().to_vec(),
             radiance: canvas.radiance,
             transmittance: canvas.transmittance,
             variance: Vec::new(),
@@ -1129,10 +1180,11 @@ impl FrameRequest {
         bytes: &[u8],
         rect: &Tile,
         binding: &str,
+        wavelengths: &Wavelengths,
     ) -> Option<(TileMeta, Vec<f32>, Vec<f32>, Vec<f32>)> {
         let img = decode_exr(bytes).ok()?;
         if img.attribute(ATTR_TILE_OF) != Some(binding)
-            || img.wavelengths_nm() != self.scene.wavelengths.as_nm()
+            || img.wavelengths_nm() != wavelengths.as_nm()
         {
             return None;
         }

@@ -493,6 +493,14 @@ impl FrameScene {
         Self::from_json(s)
     }
 
+    /// The scene at `wavelengths_nm` instead of its own (an RGB-only frame's subset of them):
+    /// every spectral value resolved again at those wavelengths.
+    pub fn at_wavelengths(&self, wavelengths_nm: &[f64]) -> Result<Self> {
+        let mut s = self.source.clone();
+        s.wavelengths_nm = wavelengths_nm.to_vec();
+        Self::from_json(s)
+    }
+
     /// Validates a deserialised scene.
     pub fn from_json(s: FrameSceneJson) -> Result<Self> {
         s.cloud.validate().map_err(|e| e.prefixed("cloud."))?;

@@ -235,6 +235,7 @@ fn fast_plan(scene: &FrameScene, grid: &DensityGrid, target: Option<f64>) -> Res
             max_rel_error: target,
             lighting: lighting.as_ref(),
             sphere: None,
+            rgb: None,
         },
     )))
 }
@@ -402,9 +403,93 @@ fn sphere_rule(levels: u32, target: f64) -> Result<RuleSaving> {
     })
 }
 
+/// The RGB planes of a frame artifact, flattened (R, then G, then B).
+fn rgb_of(image: &crate::store::SpectralImage) -> Result<Vec<f32>> {
+    let rgb = image
+        .rgb()
+        .ok_or_else(|| Error::internal("planner report", "a frame without RGB planes"))?;
+    Ok(rgb.iter().flatten().copied().collect())
+}
+
+/// Per pixel, the largest change of a channel relative to the pixel's mean |channel| in the
+/// frame without the rule (the measure the wavelength rule predicts): (RMS over pixels,
+/// largest).
+fn rgb_pixel_changes(with: &[f32], without: &[f32]) -> (f64, f64) {
+    let n = without.len() / 3;
+    let (mut sum2, mut worst) = (0.0f64, 0.0f64);
+    for p in 0..n {
+        let at = |v: &[f32], c: usize| v[c * n + p] as f64;
+        let scale = (0..3).map(|c| at(without, c).abs()).sum::<f64>() / 3.0;
+        let d = (0..3)
+            .map(|c| (at(with, c) - at(without, c)).abs())
+            .fold(0.0, f64::max);
+        let e = if scale > 0.0 { d / scale } else { 0.0 };
+        sum2 += e * e;
+        worst = worst.max(e);
+    }
+    ((sum2 / n.max(1) as f64).sqrt(), worst)
+}
+
+/// The wavelength rule: the example cumulus frame (earth atmosphere and sky, ground albedo 0.3,
+/// sun 35°) asked at the default 16 wavelengths 380–755 nm as a PNG (RGB-only) and as the
+/// spectral EXR, both through `FrameRequest` (voxels, light with cold tables, pixels).
+fn rgb_rule(width: usize, height: usize) -> Result<RuleSaving> {
+    use crate::render::FrameRequest;
+    let mut v: Value = serde_json::from_str(include_str!("../../config/scenes/cumulus-frame.json"))
+        .map_err(|e| Error::internal("planner report", e))?;
+    v["wavelengths_nm"] = json!((0..16).map(|i| 380 + 25 * i).collect::<Vec<_>>());
+    v["camera"]["width"] = json!(width);
+    v["camera"]["height"] = json!(height);
+    let no_files = |_: &str| -> Result<Vec<u8>> { Err(Error::invalid("path", "no files")) };
+    let request = |v: &Value, method: Method, rgb_only: bool| -> Result<FrameRequest> {
+        Ok(FrameRequest::from_value(v, method)?.with_rgb_only(rgb_only))
+    };
+    let compute = |r: &FrameRequest| r.compute(&Engine::new(), &no_files, &|_| {}, &|| false);
+    let rgb_req = request(&v, Method::Fast, true)?;
+    let full_req = request(&v, Method::Fast, false)?;
+    let plan = rgb_req.plan(&Engine::new(), &no_files)?;
+    let (with, ms_with, cpu_with) = fastest(|| compute(&rgb_req))?;
+    let (without, ms_without, cpu_without) = fastest(|| compute(&full_req))?;
+    let (with, without) = (rgb_of(&with)?, rgb_of(&without)?);
+    let (rms, worst) = rgb_pixel_changes(&with, &without);
+    let brightness = |x: &[f32]| x.iter().map(|&v| v as f64).sum::<f64>();
+    let bias = brightness(&with) / brightness(&without).max(1e-300) - 1.0;
+    let mut empty = v.clone();
+    empty["optics"]["extinction_per_density_m"] = json!(0.0);
+    let background = rgb_of(&compute(&request(&empty, Method::Fast, false)?)?)?;
+    let reference = rgb_of(&compute(&request(&v, Method::Reference, false)?)?)?;
+    let spp =
+        crate::render::RenderSettings::for_quality(full_req.scene.quality, Method::Reference).spp;
+    Ok(RuleSaving {
+        rule: "frame: RGB-only output at fewer wavelengths".into(),
+        case: format!(
+            "example cumulus frame, earth atmosphere, sun 35°, ground albedo 0.3, 16 wavelengths 380–755 nm, {width}×{height}, PNG (RGB-only) against EXR; voxels, light (cold tables) and pixels"
+        ),
+        plan: match &plan.wavelengths {
+            Some(w) => format!(
+                "{}; measured per-pixel change of the RGB: RMS {:.2} %, largest {:.2} % (predicted {:.2} %)",
+                w.detail(&plan.budget),
+                rms * 100.0,
+                worst * 100.0,
+                w.predicted_error * 100.0
+            ),
+            None => "(rule did not fire)".into(),
+        },
+        ms_with,
+        ms_without,
+        cpu_with,
+        cpu_without,
+        change: (rms, bias),
+        error_with: frame_errors(&with, &reference, &background).1,
+        error_without: frame_errors(&without, &reference, &background).1,
+        measures: "bias of the cloud's mean RGB signal against the path tracer",
+        note: format!("path tracer {spp} spp at the 16 wavelengths; change: per-pixel largest channel change relative to the pixel's mean channel (RMS over pixels) / bias of the image's mean"),
+    })
+}
+
 /// Measures every rule (see the module docs). `progress(done, total)` after each.
 pub fn run(progress: &dyn Fn(usize, usize)) -> Result<Vec<RuleSaving>> {
-    let total = 8;
+    let total = 9;
     let mut out = Vec::new();
     out.push(sky_orders()?);
     progress(1, total);
@@ -473,6 +558,8 @@ pub fn run(progress: &dyn Fn(usize, usize)) -> Result<Vec<RuleSaving>> {
     progress(7, total);
     out.push(sphere_rule(9, 0.5)?);
     progress(8, total);
+    out.push(rgb_rule(160, 120)?);
+    progress(9, total);
     Ok(out)
 }
 

@@ -35,22 +35,37 @@ pub async fn plan(
     .into_response())
 }
 
-/// `{"product": "frame", "scene": {…}, "method": "fast"|"reference"}`: the frame's plan (the
+/// `{"product": "frame", "scene": {…}, "method": "fast"|"reference", "max_rel_error": E, "output":
+/// "spectral"|"rgb"}`: the frame's plan (the
 /// cloud is voxelised to measure it, on a blocking thread; nothing is lit or rendered).
 async fn frame_plan(state: AppState, body: JsonObject) -> Result<Response, ApiError> {
     use crate::render::product::example_file;
     use crate::render::{FrameRequest, Method};
     let obj = body.object;
-    if let Some(k) = obj
-        .keys()
-        .find(|k| !matches!(k.as_str(), "product" | "scene" | "method" | "max_rel_error"))
-    {
+    if let Some(k) = obj.keys().find(|k| {
+        !matches!(
+            k.as_str(),
+            "product" | "scene" | "method" | "max_rel_error" | "output"
+        )
+    }) {
         return Err(crate::Error::invalid(
             k,
-            "not a member of a frame plan request (product, scene, method, max_rel_error)",
+            "not a member of a frame plan request (product, scene, method, max_rel_error, output)",
         )
         .into());
     }
+    // `"output": "rgb"`: plan the frame as `POST /v1/render?format=png` runs it (RGB-only).
+    let rgb_only =
+        match obj.get("output") {
+            None | Some(Value::Null) => false,
+            Some(Value::String(o)) if o == "rgb" => true,
+            Some(Value::String(o)) if o == "spectral" => false,
+            Some(_) => return Err(crate::Error::invalid(
+                "output",
+                "\"spectral\" (the EXR's spectral image, the default) or \"rgb\" (a PNG: RGB only)",
+            )
+            .into()),
+        };
     let target = match obj.get("max_rel_error") {
         None | Some(Value::Null) => None,
         Some(Value::Number(n)) => Some(n.to_string()),
@@ -69,8 +84,9 @@ async fn frame_plan(state: AppState, body: JsonObject) -> Result<Response, ApiEr
         .cloned()
         .ok_or_else(|| crate::Error::invalid("scene", "a frame plan needs the scene"))?;
     AppState::blocking(move || {
-        let req =
-            FrameRequest::from_value(&scene, method)?.with_max_rel_error(target.as_deref())?;
+        let req = FrameRequest::from_value(&scene, method)?
+            .with_max_rel_error(target.as_deref())?
+            .with_rgb_only(rgb_only);
         let plan = req.plan(state.engine(), &example_file)?;
         Ok(axum::Json(json!({
             "product": "frame",

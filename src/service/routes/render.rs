@@ -154,7 +154,10 @@ pub async fn render(
         Ok(FrameRequest::parse(&bytes, method)?.with_max_rel_error(target.as_deref())?)
     })
     .await?;
-    frame_response(&state, Arc::new(req), format).await
+    // A PNG is RGB-only: the planner may run fewer wavelengths (its own cache key), unless the
+    // spectral frame of the request is cached already (its RGB is at every wavelength).
+    let rgb_only = format == Format::Png && !state.cache().contains(&req.cache_key());
+    frame_response(&state, Arc::new(req.with_rgb_only(rgb_only)), format).await
 }
 
 /// The response of a frame request in `format`: from the rendered-response cache, the product

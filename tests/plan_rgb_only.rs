@@ -1,0 +1,323 @@
+//! The planner's wavelength rule (issue 15 point 3): an RGB-only frame request (a PNG) runs at
+//! the fewest of its wavelengths whose predicted change of the RGB image fits the error budget;
+//! the image it gives changes by less than predicted, the wavelengths it keeps are computed as
+//! in the spectral frame, and it has its own cache key (CLI, service, plan).
+
+use serde_json::{json, Value};
+use skybake::engine::Engine;
+use skybake::plan::{
+    rgb_wavelengths_rule, Budget, RgbFacts, WavelengthCandidate, FRAME_MEASURED_ERROR,
+    RGB_PROXY_SAFETY,
+};
+use skybake::render::{FrameRequest, Method};
+use skybake::store::SpectralImage;
+
+/// The 16 wavelengths of the default set, 380–755 nm.
+fn sixteen() -> Vec<f64> {
+    (0..16).map(|i| 380.0 + 25.0 * i as f64).collect()
+}
+
+/// The validation cloud under the earth's atmosphere and sky (sun 35°, ground albedo 0.3) at
+/// 50 m voxels, `width`×`height` px, standard quality, 16 wavelengths.
+fn scene(width: usize, height: usize) -> Value {
+    let mut v: Value =
+        serde_json::from_str(include_str!("../config/scenes/validation-frame.json")).unwrap();
+    v["cloud"]["voxel_size_m"] = json!(50.0);
+    v["camera"]["width"] = json!(width);
+    v["camera"]["height"] = json!(height);
+    v["quality"] = json!("standard");
+    v["atmosphere"] = json!("earth");
+    v["sky"] = json!("atmosphere");
+    v["sun"] = json!({"elevation_deg": 35, "azimuth_deg": 140});
+    v["ground"] = json!({"albedo": 0.3, "height_m": 0});
+    v["wavelengths_nm"] = json!(sixteen());
+    v
+}
+
+fn no_files(_: &str) -> skybake::Result<Vec<u8>> {
+    Err(skybake::Error::invalid("path", "no files"))
+}
+
+fn planes(img: &SpectralImage) -> Vec<Vec<f32>> {
+    img.layer("S0").unwrap().planes().to_vec()
+}
+
+#[test]
+fn the_rule_takes_the_fewest_wavelengths_whose_prediction_fits_and_spends_it() {
+    let facts = RgbFacts {
+        requested_nm: vec![400.0, 450.0, 500.0, 550.0, 600.0, 650.0, 700.0],
+        candidates: vec![
+            WavelengthCandidate {
+                internal_nm: vec![400.0, 550.0, 700.0],
+                proxy_error: 0.05,
+            },
+            WavelengthCandidate {
+                internal_nm: vec![400.0, 500.0, 600.0, 700.0],
+                proxy_error: 0.008,
+            },
+            WavelengthCandidate {
+                internal_nm: vec![400.0, 450.0, 500.0, 600.0, 650.0, 700.0],
+                proxy_error: 0.001,
+            },
+        ],
+    };
+    // Default budget: a quarter of 8.1 % = 2.025 %; the three-wavelength subset's 2 × 5 % does
+    // not fit, the four-wavelength one's 2 × 0.8 % does.
+    let mut budget = Budget::new(FRAME_MEASURED_ERROR);
+    let s = rgb_wavelengths_rule(&facts, &mut budget).unwrap();
+    assert_eq!(s.internal_nm, vec![400.0, 500.0, 600.0, 700.0]);
+    assert_eq!(s.left_out_nm, vec![450.0, 550.0, 650.0]);
+    assert_eq!(s.rule, "rgb_only");
+    assert!((s.predicted_error - RGB_PROXY_SAFETY * 0.008).abs() < 1e-15);
+    assert!((budget.spent - s.predicted_error).abs() < 1e-15);
+    // A loose target pays for three wavelengths; the reference method's empty budget for none.
+    let mut loose = Budget::for_target(0.3, FRAME_MEASURED_ERROR);
+    assert_eq!(
+        rgb_wavelengths_rule(&facts, &mut loose)
+            .unwrap()
+            .internal_nm
+            .len(),
+        3
+    );
+    assert!(rgb_wavelengths_rule(&facts, &mut Budget::new(0.0)).is_none());
+}
+
+#[test]
+fn an_rgb_only_frame_runs_at_fewer_wavelengths_and_its_rgb_changes_less_than_predicted() {
+    let v = scene(48, 36);
+    let engine = Engine::new();
+    let spectral = FrameRequest::from_value(&v, Method::Fast).unwrap();
+    let rgb = spectral.clone().with_rgb_only(true);
+    // Its own cache key; the spectral request's key is as it was.
+    assert_ne!(rgb.cache_key(), spectral.cache_key());
+    assert_eq!(
+        rgb.clone().with_rgb_only(false).cache_key(),
+        spectral.cache_key()
+    );
+    let plan = rgb.plan(&engine, &no_files).unwrap();
+    let subset = plan.wavelengths.clone().expect("the rule fires");
+    eprintln!(
+        "internal {:?}, predicted {:.4}, budget {:?}",
+        subset.internal_nm, subset.predicted_error, plan.budget
+    );
+    assert!(subset.internal_nm.len() < 16 && subset.internal_nm.len() >= 3);
+    assert!(subset.predicted_error <= plan.budget.allowance);
+    assert!(spectral
+        .plan(&engine, &no_files)
+        .unwrap()
+        .wavelengths
+        .is_none());
+    let json = serde_json::to_value(&plan).unwrap();
+    assert_eq!(json["wavelengths"]["rule"], "rgb_only");
+    assert!(json["wavelengths"]["detail"]
+        .as_str()
+        .unwrap()
+        .contains("RGB-only"));
+
+    let full = spectral
+        .compute(&Engine::new(), &no_files, &|_| {}, &|| false)
+        .unwrap();
+    let fewer = rgb
+        .compute(&Engine::new(), &no_files, &|_| {}, &|| false)
+        .unwrap();
+    assert_eq!(fewer.wavelengths_nm(), subset.internal_nm.as_slice());
+    assert_eq!(full.wavelengths_nm(), sixteen().as_slice());
+    // The kept wavelengths are computed as in the spectral frame.
+    let (pf, pr) = (planes(&full), planes(&fewer));
+    for (j, nm) in subset.internal_nm.iter().enumerate() {
+        let i = sixteen().iter().position(|w| w == nm).unwrap();
+        let scale = pf[i].iter().map(|v| v.abs() as f64).sum::<f64>() / pf[i].len() as f64;
+        let worst = pf[i]
+            .iter()
+            .zip(&pr[j])
+            .map(|(a, b)| (a - b).abs() as f64)
+            .fold(0.0, f64::max);
+        assert!(worst <= 1e-4 * scale, "{nm} nm: {worst} of {scale}");
+    }
+    // The RGB changes by less than predicted: per pixel, the largest channel change relative
+    // to the pixel's mean channel, RMS over the frame.
+    let (a, b) = (full.rgb().unwrap(), fewer.rgb().unwrap());
+    let n = a[0].len();
+    let (mut sum2, mut worst) = (0.0f64, 0.0f64);
+    for p in 0..n {
+        let scale = (0..3).map(|c| a[c][p].abs() as f64).sum::<f64>() / 3.0;
+        let d = (0..3)
+            .map(|c| (a[c][p] - b[c][p]).abs() as f64)
+            .fold(0.0, f64::max);
+        let e = d / scale;
+        sum2 += e * e;
+        worst = worst.max(e);
+    }
+    let rms = (sum2 / n as f64).sqrt();
+    eprintln!("RGB change: RMS {rms:.4}, largest {worst:.4}");
+    assert!(rms <= subset.predicted_error, "{rms}");
+    assert!(worst <= 2.0 * subset.predicted_error, "{worst}");
+}
+
+#[test]
+fn few_wavelengths_the_reference_method_and_spectral_requests_keep_every_wavelength() {
+    let mut three = scene(16, 12);
+    three["wavelengths_nm"] = json!([440, 550, 680]);
+    let engine = Engine::new();
+    let req = FrameRequest::from_value(&three, Method::Fast)
+        .unwrap()
+        .with_rgb_only(true);
+    assert!(req.plan(&engine, &no_files).unwrap().wavelengths.is_none());
+    assert_eq!(
+        req.internal_wavelengths().unwrap().as_nm(),
+        &[440.0, 550.0, 680.0]
+    );
+    let reference = FrameRequest::from_value(&scene(16, 12), Method::Reference)
+        .unwrap()
+        .with_rgb_only(true);
+    assert_eq!(reference.internal_wavelengths().unwrap().len(), 16);
+    assert!(reference
+        .plan(&engine, &no_files)
+        .unwrap()
+        .wavelengths
+        .is_none());
+    // A looser target buys fewer wavelengths.
+    let rgb = FrameRequest::from_value(&scene(16, 12), Method::Fast)
+        .unwrap()
+        .with_rgb_only(true);
+    let default = rgb.internal_wavelengths().unwrap().len();
+    let loose = rgb
+        .clone()
+        .with_max_rel_error(Some("0.5"))
+        .unwrap()
+        .internal_wavelengths()
+        .unwrap()
+        .len();
+    assert!(loose < default, "{loose} vs {default}");
+}
+
+#[test]
+fn the_cli_and_the_service_run_a_png_as_an_rgb_only_request() {
+    let v = scene(16, 12);
+    let dir = std::env::temp_dir().join(format!("skybake-rgb-only-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let path = dir.join("scene.json");
+    std::fs::write(&path, serde_json::to_vec(&v).unwrap()).unwrap();
+    let skybake = || std::process::Command::new(env!("CARGO_BIN_EXE_skybake"));
+    let spectral = FrameRequest::from_value(&v, Method::Fast).unwrap();
+    let rgb = spectral.clone().with_rgb_only(true);
+    let internal = rgb.internal_wavelengths().unwrap();
+    // `plan frame --rgb-only` shows the subset; `--rgb-only` is refused for other products.
+    let out = skybake()
+        .args([
+            "plan",
+            "frame",
+            "--rgb-only",
+            "--scene",
+            path.to_str().unwrap(),
+        ])
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let plan: Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert_eq!(plan["cache_key"], json!(rgb.cache_key()));
+    assert_eq!(
+        plan["plan"]["wavelengths"]["internal_nm"],
+        json!(internal.as_nm())
+    );
+    let out = skybake()
+        .args(["plan", "sky", "--rgb-only"])
+        .output()
+        .unwrap();
+    assert!(!out.status.success());
+    assert!(String::from_utf8_lossy(&out.stderr).contains("rgb"));
+    // `render -o FRAME.png` runs the RGB-only request: its summary lists the subset.
+    let png = dir.join("frame.png");
+    let out = skybake()
+        .args([
+            "render",
+            path.to_str().unwrap(),
+            "-o",
+            png.to_str().unwrap(),
+        ])
+        .args(["--format", "json"])
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let summary: Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert_eq!(summary["wavelengths_nm"], json!(internal.as_nm()));
+    assert!(std::fs::read(&png).unwrap().starts_with(b"\x89PNG"));
+    let _ = std::fs::remove_dir_all(&dir);
+
+    let rt = tokio::runtime::Runtime::new().unwrap();
+    rt.block_on(async {
+        use axum::body::Body;
+        use axum::http::Request;
+        use tower::ServiceExt;
+        let cache =
+            std::env::temp_dir().join(format!("skybake-rgb-only-svc-{}", std::process::id()));
+        let mut settings = skybake::config::Settings::defaults();
+        settings.cache.dir = cache.clone();
+        let state = skybake::service::AppState::new(settings).unwrap();
+        let body = serde_json::to_vec(&v).unwrap();
+        let send = |method: &str, uri: &str, body: Vec<u8>| {
+            let req = Request::builder()
+                .method(method)
+                .uri(uri)
+                .header("content-type", "application/json")
+                .body(Body::from(body))
+                .unwrap();
+            skybake::service::app(state.clone()).oneshot(req)
+        };
+        let key = |r: &axum::response::Response| {
+            r.headers()["x-skybake-cache-key"]
+                .to_str()
+                .unwrap()
+                .to_string()
+        };
+        // A PNG first: the RGB-only request.
+        let resp = send("POST", "/v1/render?format=png", body.clone())
+            .await
+            .unwrap();
+        assert_eq!(resp.status().as_u16(), 200);
+        assert_eq!(key(&resp), rgb.cache_key());
+        // The EXR: every wavelength, the spectral key; a PNG after it takes that frame.
+        let resp = send("POST", "/v1/render?format=exr", body.clone())
+            .await
+            .unwrap();
+        assert_eq!(key(&resp), spectral.cache_key());
+        let resp = send("POST", "/v1/render?format=png", body.clone())
+            .await
+            .unwrap();
+        assert_eq!(resp.status().as_u16(), 200);
+        assert_eq!(key(&resp), spectral.cache_key());
+        // The plan with "output": "rgb"; another output is refused naming the member.
+        let plan_body = |output: Value| {
+            serde_json::to_vec(&json!({"product": "frame", "scene": v, "output": output})).unwrap()
+        };
+        let resp = send("POST", "/v1/plan", plan_body(json!("rgb")))
+            .await
+            .unwrap();
+        assert_eq!(resp.status().as_u16(), 200);
+        let plan: Value = serde_json::from_slice(
+            &axum::body::to_bytes(resp.into_body(), 1 << 24)
+                .await
+                .unwrap(),
+        )
+        .unwrap();
+        assert_eq!(plan["cache_key"], json!(rgb.cache_key()));
+        assert_eq!(plan["plan"]["wavelengths"]["rule"], "rgb_only");
+        let resp = send("POST", "/v1/plan", plan_body(json!("grey")))
+            .await
+            .unwrap();
+        assert_eq!(resp.status().as_u16(), 422);
+        let text = axum::body::to_bytes(resp.into_body(), 1 << 20)
+            .await
+            .unwrap();
+        assert!(String::from_utf8_lossy(&text).contains("output"));
+        let _ = std::fs::remove_dir_all(&cache);
+    });
+}
