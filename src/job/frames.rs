@@ -47,7 +47,7 @@ const ENTRY_MEMBERS: &[&str] = &["scene", "example", "method", "max_rel_error", 
 pub struct FrameSweep {
     scene: Value,
     method: Method,
-    /// The entry's `max_rel_error` as given (a number's JSON text), checked by
+    /// The entry's `max_rel_error` as given (a number's JSON text, or the string), checked by
     /// [`FrameRequest::with_max_rel_error`] for every frame.
     max_rel_error: Option<String>,
     /// The entry's prefix (`frames[0].`), naming errors of the entry's own members.
