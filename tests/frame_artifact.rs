@@ -126,6 +126,65 @@ async fn cli_http_and_bake_write_the_same_frame_artifact() {
     );
 }
 
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_baked_frame_with_a_target_is_the_render_with_that_target() {
+    let dir = Scratch::new("frame-artifact-target");
+    let scene = tiny_frame_scene(24, 16);
+    // HTTP with the target.
+    let state = AppState::new(settings(&dir.path().join("cache"))).unwrap();
+    let req = Request::builder()
+        .method("POST")
+        .uri("/v1/render?format=exr&max_rel_error=0.3")
+        .body(Body::from(scene.to_string()))
+        .unwrap();
+    let resp = app(state.clone()).oneshot(req).await.unwrap();
+    assert_eq!(resp.status().as_u16(), 200);
+    let key = resp
+        .headers()
+        .get("x-skybake-cache-key")
+        .and_then(|v| v.to_str().ok())
+        .map(str::to_string);
+    let http = axum::body::to_bytes(resp.into_body(), 1 << 26)
+        .await
+        .unwrap()
+        .to_vec();
+    // Bake of a frame entry with the same target.
+    let job = json!({"frames": [{"scene": scene, "max_rel_error": 0.3}]});
+    let baked = dir.path().join("baked");
+    let bake = bake_single_exr(&job, &baked);
+    assert_eq!(
+        http.len(),
+        bake.len(),
+        "HTTP and bake artifacts differ in size"
+    );
+    let reference = without_timing(&http);
+    assert!(
+        reference == without_timing(&bake),
+        "HTTP and bake artifacts differ (first at byte {:?})",
+        first_difference(&reference, &without_timing(&bake))
+    );
+    // The bake's manifest names the render's cache key; the artifact carries the target's plan.
+    let manifest: Value =
+        serde_json::from_slice(&std::fs::read(baked.join("manifest.json")).unwrap()).unwrap();
+    assert_eq!(
+        manifest["artifacts"][0]["cache_key"].as_str(),
+        key.as_deref()
+    );
+    let img = skybake::store::decode_exr(&bake).unwrap();
+    let meta: Value = serde_json::from_str(img.attribute(ATTR_FRAME_META).unwrap()).unwrap();
+    assert_eq!(
+        meta["plan"]["budget"]["relative_error"],
+        json!(0.3),
+        "{meta}"
+    );
+    // Without the target the bake is another product.
+    let plain = bake_single_exr(
+        &json!({"frames": [{"scene": scene}]}),
+        &dir.path().join("plain"),
+    );
+    assert!(without_timing(&plain) != reference);
+}
+
 #[test]
 fn frame_metadata_timings_have_a_fixed_width() {
     let mut meta = FrameMeta {

@@ -169,6 +169,136 @@ fn frame_entry_mistakes_are_named() {
     );
 }
 
+/// The error of a job body (at parsing or at validation, as a submission checks it).
+fn job_error(body: Value) -> JobError {
+    let e = match spec(body) {
+        Err(e) => e,
+        Ok(s) => s.validate(&Defaults::default()).unwrap_err(),
+    };
+    assert!(e.is_input(), "{e}");
+    e
+}
+
+#[test]
+fn a_frame_entry_target_sets_every_frame_s_key_and_budget() {
+    use skybake::plan::FRAME_MEASURED_ERROR;
+    use skybake::render::{FrameRequest, Method};
+    let tiny = tiny_scene(32, 24);
+    let sweep = json!({"sun_elevation_deg": [20, 40]});
+    let targeted =
+        spec(json!({"frames": [{"scene": tiny, "max_rel_error": 0.3, "sweep": sweep}]})).unwrap();
+    let plain = spec(json!({"frames": [{"scene": tiny, "sweep": sweep}]})).unwrap();
+    // As a string holding the number (as the parameter table's members of product items).
+    let text =
+        spec(json!({"frames": [{"scene": tiny, "max_rel_error": "0.3", "sweep": sweep}]})).unwrap();
+    targeted.validate(&Defaults::default()).unwrap();
+    let engine = skybake::engine::Engine::new();
+    let files = skybake::render::product::example_file;
+    for (k, elevation) in [(0, 20), (1, 40)] {
+        let f = frame(&targeted, k);
+        assert_eq!(f.max_rel_error, Some(0.3));
+        assert_eq!(frame(&plain, k).max_rel_error, None);
+        // The frame is the render request of the same scene with the same target: same key.
+        let mut scene = tiny.clone();
+        scene["sun"]["collimated"]["elevation_deg"] = json!(elevation);
+        let render = FrameRequest::from_value(&scene, Method::Fast)
+            .unwrap()
+            .with_max_rel_error(Some("0.3"))
+            .unwrap();
+        assert_eq!(f.cache_key(), render.cache_key());
+        assert_eq!(f.canonical_json(), render.canonical_json());
+        assert_eq!(frame(&text, k).cache_key(), render.cache_key());
+        // The target is part of the key; without one the key is the untargeted render's.
+        assert_ne!(f.cache_key(), frame(&plain, k).cache_key());
+        let untargeted = FrameRequest::from_value(&scene, Method::Fast).unwrap();
+        assert_eq!(frame(&plain, k).cache_key(), untargeted.cache_key());
+        // The target is the frame plan's budget: the cost rules may spend what it leaves over
+        // the fast method's measured error.
+        let plan = f.plan(&engine, &files).unwrap();
+        assert!((plan.budget.relative_error - 0.3).abs() < 1e-12, "{plan:?}");
+        assert!(
+            (plan.budget.allowance - (0.3 - FRAME_MEASURED_ERROR)).abs() < 1e-12,
+            "{plan:?}"
+        );
+        let default = frame(&plain, k).plan(&engine, &files).unwrap();
+        assert!(
+            default.budget.allowance < plan.budget.allowance,
+            "{default:?}"
+        );
+    }
+}
+
+#[test]
+fn a_bad_frame_entry_target_is_refused_naming_the_entry_s_field() {
+    let tiny = tiny_scene(32, 24);
+    let sweep = json!({"sun_elevation_deg": [20, 40]});
+    let refused = |target: Value, method: &str| -> String {
+        let e = job_error(json!({"products": [{"product": "sun"}],
+            "frames": [{"scene": tiny, "method": method, "max_rel_error": target, "sweep": sweep}]}));
+        assert_eq!(
+            e.parameter().as_deref(),
+            Some("frames[0].max_rel_error"),
+            "{e}"
+        );
+        e.to_string()
+    };
+    // Under the fast method's measured error: the allowed range starts at the best achievable.
+    let e = refused(json!(0.01), "fast");
+    assert!(e.contains("0.0810 to 1"), "{e}");
+    // Not a number; above 1 (the parameter table's range).
+    let e = refused(json!("x"), "fast");
+    assert!(e.contains("'x' is not a number"), "{e}");
+    let e = refused(json!(2), "fast");
+    assert!(e.contains("to 1"), "{e}");
+    let e = refused(json!(true), "fast");
+    assert!(e.contains("must be a number"), "{e}");
+    let e = refused(json!([0.3]), "fast");
+    assert!(e.contains("must be a number"), "{e}");
+    // The reference method takes no target.
+    let e = refused(json!(0.3), "reference");
+    assert!(e.contains("only for method fast"), "{e}");
+    // The second entry is named by its own index.
+    let e = job_error(json!({"frames": [{"scene": tiny}, {"scene": tiny, "max_rel_error": 0.05}]}));
+    assert_eq!(e.parameter().as_deref(), Some("frames[1].max_rel_error"));
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_bad_frame_entry_target_is_a_400_and_a_cli_input_error() {
+    let dir = Scratch::new("job-frames-target");
+    let job = json!({"frames": [{"scene": tiny_scene(24, 16), "max_rel_error": 0.01,
+                                 "sweep": {"sun_elevation_deg": [20, 40]}}]});
+    // HTTP: a problem naming the entry's field and the allowed range; no job is made.
+    let srv = TestServer::start(settings(&dir.path().join("cache"))).await;
+    let r = srv.post("/v1/jobs", &job.to_string()).await;
+    assert_eq!(r.status, 400, "{}", r.text());
+    assert_eq!(r.header("content-type"), Some("application/problem+json"));
+    let problem = r.json();
+    assert_eq!(problem["parameter"], "frames[0].max_rel_error", "{problem}");
+    assert!(
+        problem["detail"].as_str().unwrap().contains("0.0810 to 1"),
+        "{problem}"
+    );
+    assert_eq!(srv.get("/v1/jobs").await.json()["total"], 0);
+    srv.stop().await;
+    // CLI: exit 2 (bad input), the message naming the field; nothing baked.
+    let path = dir.path().join("job.json");
+    std::fs::write(&path, job.to_string()).unwrap();
+    let out = dir.path().join("out");
+    let o = std::process::Command::new(env!("CARGO_BIN_EXE_skybake"))
+        .args(["--no-table-cache", "bake"])
+        .arg(&path)
+        .arg("--out")
+        .arg(&out)
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(2), "{stderr}");
+    assert!(
+        stderr.contains("frames[0].max_rel_error") && stderr.contains("0.0810"),
+        "{stderr}"
+    );
+}
+
 #[test]
 fn a_killed_frame_bake_resumes_from_its_frames_and_tiles() {
     let dir = Scratch::new("bake-frames");

@@ -10,8 +10,10 @@
 //!
 //! Each entry takes exactly one of `scene` (inline frame scene JSON) or `example` (the name of an
 //! embedded example scene, `GET /v1/scenes`), an optional `method` (`fast`, default, or
-//! `reference`) and an optional `sweep`. Sweep axes (values as a list or `{from, to, step}`) combine
-//! like a grid's, in alphabetical order, the last varying fastest:
+//! `reference`), an optional `max_rel_error` (the target relative error of every frame of the
+//! entry, as `POST /v1/render?max_rel_error=E`: [`FrameRequest::with_max_rel_error`]'s rule, errors
+//! named `frames[i].max_rel_error`) and an optional `sweep`. Sweep axes (values as a list or
+//! `{from, to, step}`) combine like a grid's, in alphabetical order, the last varying fastest:
 //!
 //! - `sun_elevation_deg`, `sun_azimuth_deg`: replace the scene sun's elevation / azimuth (a sun
 //!   given by elevation and azimuth, or a collimated one);
@@ -37,11 +39,19 @@ pub const FRAME_AXES: &[&str] = &[
 /// Turns a sweep member (field name, JSON value, most values) into its values.
 pub type AxisValuesFn = dyn Fn(&str, &Value, usize) -> Result<Vec<String>, Error>;
 
-/// One `frames[i]` entry: the base scene, the method and the sweep.
+/// Members a frame entry takes.
+const ENTRY_MEMBERS: &[&str] = &["scene", "example", "method", "max_rel_error", "sweep"];
+
+/// One `frames[i]` entry: the base scene, the method, the target error and the sweep.
 #[derive(Debug, Clone)]
 pub struct FrameSweep {
     scene: Value,
     method: Method,
+    /// The entry's `max_rel_error` as given (a number's JSON text, or the string), checked by
+    /// [`FrameRequest::with_max_rel_error`] for every frame.
+    max_rel_error: Option<String>,
+    /// The entry's prefix (`frames[0].`), naming errors of the entry's own members.
+    prefix: String,
     /// (axis, values), last varies fastest.
     axes: Vec<(String, Vec<String>)>,
     len: usize,
@@ -56,10 +66,7 @@ impl FrameSweep {
         max_items: usize,
         axis_values: &AxisValuesFn,
     ) -> Result<Self, JobError> {
-        if let Some(k) = obj
-            .keys()
-            .find(|k| !["scene", "example", "method", "sweep"].contains(&k.as_str()))
-        {
+        if let Some(k) = obj.keys().find(|k| !ENTRY_MEMBERS.contains(&k.as_str())) {
             return Err(JobError::Unknown(vec![format!("{prefix}{k}")]));
         }
         let scene = match (obj.get("scene"), obj.get("example")) {
@@ -100,6 +107,19 @@ impl FrameSweep {
                 .into())
             }
         };
+        // A number, or a string holding one, as the parameter table's members of product items.
+        let max_rel_error = match obj.get("max_rel_error") {
+            None | Some(Value::Null) => None,
+            Some(Value::Number(n)) => Some(n.to_string()),
+            Some(Value::String(s)) => Some(s.clone()),
+            Some(_) => {
+                return Err(Error::invalid(
+                    &format!("{prefix}max_rel_error"),
+                    "must be a number (the target relative error, e.g. 0.3)",
+                )
+                .into())
+            }
+        };
         let mut axes = Vec::new();
         let mut len: usize = 1;
         match obj.get("sweep") {
@@ -130,9 +150,13 @@ impl FrameSweep {
                 )
             }
         }
+        // The target is checked with each item's request (`JobSpec::validate` checks every item
+        // before a job is accepted), by the render request's own rule.
         Ok(Self {
             scene,
             method,
+            max_rel_error,
+            prefix: prefix.to_string(),
             axes,
             len,
         })
@@ -156,7 +180,17 @@ impl FrameSweep {
             rest /= values.len();
             apply(&mut scene, name, v).map_err(|e| e.prefixed(prefix))?;
         }
-        FrameRequest::from_value(&scene, self.method).map_err(|e| e.prefixed(prefix))
+        let request =
+            FrameRequest::from_value(&scene, self.method).map_err(|e| e.prefixed(prefix))?;
+        self.with_target(request)
+    }
+
+    /// `request` with the entry's target (errors named with the entry's prefix,
+    /// `frames[0].max_rel_error`).
+    fn with_target(&self, request: FrameRequest) -> Result<FrameRequest, Error> {
+        request
+            .with_max_rel_error(self.max_rel_error.as_deref())
+            .map_err(|e| e.prefixed(&self.prefix))
     }
 }
 

@@ -202,6 +202,7 @@ pub fn openapi_json() -> String {
                 "properties": {"scene": {"$ref": "#/components/schemas/FrameScene"},
                     "example": {"type": "string", "description": "name of an example scene (GET /v1/scenes)"},
                     "method": {"type": "string", "enum": ["fast", "reference"]},
+                    "max_rel_error": {"type": "number", "minimum": 0.0001, "maximum": 1, "description": "target relative error of every frame of the entry (method fast), as POST /v1/render's max_rel_error: 0.081 to 1, below 0.081 a 400 naming frames[i].max_rel_error and the best achievable error"},
                     "sweep": {"type": "object", "additionalProperties": false, "properties": {
                         "sun_elevation_deg": {}, "sun_azimuth_deg": {}, "time": {"description": "RFC 3339 times (a sun given by place and time)"},
                         "frame_time_steps": {"description": "automaton frames (a cloud whose source is an automaton)"}}}}},
