@@ -430,6 +430,16 @@ fn rgb_pixel_changes(with: &[f32], without: &[f32]) -> (f64, f64) {
     ((sum2 / n.max(1) as f64).sqrt(), worst)
 }
 
+/// (mean x − mean r) / mean r.
+fn mean_bias(x: &[f32], r: &[f32]) -> f64 {
+    let sum = |v: &[f32]| v.iter().map(|&a| a as f64).sum::<f64>();
+    sum(x) / sum(r).max(1e-300) - 1.0
+}
+
+fn signed_pct(v: f64) -> String {
+    format!("{:+.2} %", v * 100.0)
+}
+
 /// The wavelength rule: the example cumulus frame (earth atmosphere and sky, ground albedo 0.3,
 /// sun 35°) asked at the default 16 wavelengths 380–755 nm as a PNG (RGB-only) and as the
 /// spectral EXR, both through `FrameRequest` (voxels, light with cold tables, pixels).
@@ -452,8 +462,7 @@ fn rgb_rule(width: usize, height: usize) -> Result<RuleSaving> {
     let (without, ms_without, cpu_without) = fastest(|| compute(&full_req))?;
     let (with, without) = (rgb_of(&with)?, rgb_of(&without)?);
     let (rms, worst) = rgb_pixel_changes(&with, &without);
-    let brightness = |x: &[f32]| x.iter().map(|&v| v as f64).sum::<f64>();
-    let bias = brightness(&with) / brightness(&without).max(1e-300) - 1.0;
+    let bias = mean_bias(&with, &without);
     let mut empty = v.clone();
     empty["optics"]["extinction_per_density_m"] = json!(0.0);
     let background = rgb_of(&compute(&request(&empty, Method::Fast, false)?)?)?;
@@ -483,7 +492,11 @@ fn rgb_rule(width: usize, height: usize) -> Result<RuleSaving> {
         error_with: frame_errors(&with, &reference, &background).1,
         error_without: frame_errors(&without, &reference, &background).1,
         measures: "bias of the cloud's mean RGB signal against the path tracer",
-        note: format!("path tracer {spp} spp at the 16 wavelengths; change: per-pixel largest channel change relative to the pixel's mean channel (RMS over pixels) / bias of the image's mean"),
+        note: format!(
+            "path tracer {spp} spp at the 16 wavelengths; change: per-pixel largest channel change relative to the pixel's mean channel (RMS over pixels) / bias of the image's mean; against the path tracer relative to its mean pixel (the frames' stated measure, sky included): bias {} with, {} without",
+            signed_pct(mean_bias(&with, &reference)),
+            signed_pct(mean_bias(&without, &reference))
+        ),
     })
 }
 
@@ -572,7 +585,8 @@ pub fn markdown(rows: &[RuleSaving], threads: usize, load: Option<&str>) -> Stri
          time and in CPU time (user + system of all threads, 10 ms ticks; fairer on a shared \
          machine) (sky: cold tables, a new engine per run; frames: lighting, preparation and \
          pixels; with an atmosphere the whole light is computed first, as the planner measures \
-         its shares on it; sphere hierarchies: building and voxelising too), and \
+         its shares on it; sphere hierarchies: building and voxelising too; the RGB-only frame: \
+         the whole request through `FrameRequest`, cold tables), and \
          compared with the reference (sky: the precise method at the `reference` preset; frames: \
          the path tracer). Frames: RMS and mean of the difference from the path tracer over all \
          pixels and wavelengths, relative to the cloud's mean signal |path tracer − frame without \
