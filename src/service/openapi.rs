@@ -101,7 +101,7 @@ fn operation(route: &Route) -> Value {
         }
     }
     if route.path == "/v1/render" {
-        parameters.push(json!({"name": "format", "in": "query", "required": false, "description": "body format; when absent the Accept header picks (image/x-exr, image/png), else json", "schema": {"type": "string", "enum": ["json", "exr", "png"]}}));
+        parameters.push(json!({"name": "format", "in": "query", "required": false, "description": "body format; when absent the Accept header picks (image/x-exr, image/png), else json. png is an RGB-only request: the planner may run it at fewer wavelengths (its own cache key) unless the scene's spectral frame is cached", "schema": {"type": "string", "enum": ["json", "exr", "png"]}}));
         parameters.push(json!({"name": "method", "in": "query", "required": false, "description": "fast (per-voxel light, multiple-scattering field, ray march) or reference (path tracer); default fast", "schema": {"type": "string", "enum": ["fast", "reference"]}}));
         parameters.push(json!({"name": "max_rel_error", "in": "query", "required": false, "description": "target relative error of the frame (method fast), 0.081 to 1: what it leaves over the fast method's measured 8.1 % is the planner's budget; below 0.081 a 400 names the best achievable error", "schema": {"type": "number", "minimum": 0.0001, "maximum": 1}}));
     }
@@ -177,7 +177,15 @@ pub fn openapi_json() -> String {
     let mut plan_props = params.clone();
     plan_props.insert(
         "product".into(),
-        json!({"type": "string", "enum": ["sun", "sky", "ground", "aerial"]}),
+        json!({"type": "string", "enum": ["sun", "sky", "ground", "aerial", "frame"]}),
+    );
+    plan_props.insert(
+        "scene".into(),
+        json!({"$ref": "#/components/schemas/FrameScene", "description": "product frame: the scene to plan (with method fast|reference and max_rel_error)"}),
+    );
+    plan_props.insert(
+        "output".into(),
+        json!({"type": "string", "enum": ["spectral", "rgb"], "description": "product frame: spectral (the EXR, default) or rgb (the PNG of POST /v1/render?format=png: an RGB-only request, which the planner may run at fewer wavelengths, its own cache key)"}),
     );
     let doc = json!({
         "openapi": "3.1.0",

@@ -1,5 +1,6 @@
 //! `POST /v1/render`: a frame scene in the body → the cloud frame (issue 13 point 6), as EXR (the
-//! artifact), PNG (tone-mapped preview) or JSON (stages, timings, error estimate). Cached like
+//! artifact), PNG (tone-mapped preview; an RGB-only request, which the planner may run at fewer
+//! wavelengths) or JSON (stages, timings, error estimate). Cached like
 //! every product under the frame request's cache key, computed through the same single flight and
 //! compute slots, and rendered tile by tile into the tile store, so an interrupted render resumes
 //! (see [`AppState::artifact_of`]).
