@@ -582,6 +582,15 @@ pub fn frame_facts_with(
         max_optical_depth: k_max * grid.max_density() as f64 * (hi - lo).length(),
         max_albedo,
         voxel_size_m: h,
+        grid_dims: grid.dims,
+        ms_max_dim: match (method, scene.multiple_scattering_method) {
+            (Method::Fast, super::MsMethod::AllOrders) => {
+                RenderSettings::for_quality(scene.quality, method)
+                    .photons
+                    .max_coarse_dim
+            }
+            _ => 0,
+        },
         pixel_footprint_m: footprint,
         nearest_distance_m: nearest,
         budget: crate::plan::FRAME_MEASURED_ERROR,
@@ -620,8 +629,8 @@ pub struct PlannedRun {
 /// Executes `plan`: multiple scattering of a thin cloud off, sky or ground light left out on the
 /// cloud (settings hooks, the background unchanged; with an atmosphere the `sky` product at the
 /// cloud or the `ground` product not computed), no per-voxel light for a cloud out of view,
-/// no lighting products for the cloud when no cloud stage runs, and the grid's block means at
-/// the coarsened voxel size.
+/// no lighting products for the cloud when no cloud stage runs, the grid's block means at
+/// the coarsened voxel size, and the multiple-scattering field at the coarsened cells per axis.
 pub fn execute_plan(
     plan: &FramePlan,
     scene: &FrameScene,
@@ -659,6 +668,11 @@ pub fn execute_plan(
             scene.lighting.sky_light = false;
             scene.lighting.ground_light = false;
         }
+    }
+    let k = plan.ms_grid_coarsening();
+    if k > 1 {
+        settings.photons.max_coarse_dim =
+            (settings.photons.max_coarse_dim / k).max(crate::plan::MIN_MS_GRID_DIM);
     }
     let factor = plan.coarsening();
     let grid = if factor > 1 {
