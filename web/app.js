@@ -283,11 +283,13 @@ async function renderFrame() {
   try {
     const scene = await fetchOk(`/v1/scenes/${encodeURIComponent(name)}`).then((r) => r.text());
     const headers = { "content-type": "application/json" };
+    // The spectral frame first: the PNG and the summary are then made from it (a PNG alone
+    // would be an RGB-only request, computed on its own).
+    const exr = await fetchOk("/v1/render?format=exr", { method: "POST", headers, body: scene }).then((r) => r.blob());
     const png = await fetchOk("/v1/render?format=png", { method: "POST", headers, body: scene }).then((r) => r.blob());
     $("frame").src = URL.createObjectURL(png);
     const meta = await fetchOk("/v1/render?format=json", { method: "POST", headers, body: scene }).then((r) => r.json());
     $("frame-caption").innerHTML = describeDetails(`frame: ${escapeHtml(name)}`, meta);
-    const exr = await fetchOk("/v1/render?format=exr", { method: "POST", headers, body: scene }).then((r) => r.blob());
     $("frame-exr").href = URL.createObjectURL(exr);
     $("frame-exr").download = `${name}.exr`;
     $("frame-exr").hidden = false;
