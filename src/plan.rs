@@ -1124,28 +1124,18 @@ pub fn plan_frame(f: &FrameFacts) -> FramePlan {
     }
     if no_cloud.is_none() && !f.reference {
         p.stages.push(FrameStage::CloudDetail);
-        let ratio = f.pixel_footprint_m / f.voxel_size_m;
-        let mut factor = 1;
-        while factor * 2 <= MAX_COARSENING && (factor * 2) as f64 <= ratio {
-            factor *= 2;
-        }
         // Each halving of the detail is predicted to cost what it cost where it was measured
         // (`report/planner.md`: +9.1 % of the cloud's mean at 50 → 100 m): it runs only when the
         // budget's allowance covers that, which no fast preset's does today.
-        while factor > 1 && !p.budget.try_spend(COARSENING_ERROR * factor.ilog2() as f64) {
-            factor /= 2;
-        }
-        if factor > 1 {
-            p.coarsened.push(Coarsening {
-                stage: FrameStage::CloudDetail,
-                rule: "pixel_footprint",
-                from_voxel_m: f.voxel_size_m,
-                to_voxel_m: f.voxel_size_m * factor as f64,
-                factor,
-                pixel_footprint_m: f.pixel_footprint_m,
-                nearest_distance_m: f.nearest_distance_m,
-            });
-        }
+        let edge = |k: usize| f.voxel_size_m * k as f64;
+        coarsen_to_footprint(
+            f,
+            &mut p,
+            FrameStage::CloudDetail,
+            COARSENING_ERROR,
+            |k| edge(k) <= f.pixel_footprint_m,
+            edge,
+        );
         if p.runs(FrameStage::MultipleScattering) && f.ms_max_dim > 0 {
             ms_grid_rule(f, &mut p);
         }
@@ -1169,22 +1159,41 @@ fn ms_grid_rule(f: &FrameFacts, p: &mut FramePlan) {
             .unwrap_or(1);
         blocks as f64 * f.voxel_size_m * vf as f64
     };
+    let edge = |k: usize| cell(f.ms_max_dim / k);
+    coarsen_to_footprint(
+        f,
+        p,
+        FrameStage::MultipleScattering,
+        MS_GRID_ERROR,
+        |k| f.ms_max_dim / k >= MIN_MS_GRID_DIM && edge(k) <= f.pixel_footprint_m,
+        edge,
+    );
+}
+
+/// Coarsens `stage` by the largest power of two `k` ≤ [`MAX_COARSENING`] that `fits` (its edge
+/// within the pixel footprint), halved until the budget covers `per_halving` × log₂ k; records
+/// the coarsening with the edges `edge(1)` → `edge(k)`.
+fn coarsen_to_footprint(
+    f: &FrameFacts,
+    p: &mut FramePlan,
+    stage: FrameStage,
+    per_halving: f64,
+    fits: impl Fn(usize) -> bool,
+    edge: impl Fn(usize) -> f64,
+) {
     let mut k = 1;
-    while k * 2 <= MAX_COARSENING
-        && f.ms_max_dim / (k * 2) >= MIN_MS_GRID_DIM
-        && cell(f.ms_max_dim / (k * 2)) <= f.pixel_footprint_m
-    {
+    while k * 2 <= MAX_COARSENING && fits(k * 2) {
         k *= 2;
     }
-    while k > 1 && !p.budget.try_spend(MS_GRID_ERROR * k.ilog2() as f64) {
+    while k > 1 && !p.budget.try_spend(per_halving * k.ilog2() as f64) {
         k /= 2;
     }
     if k > 1 {
         p.coarsened.push(Coarsening {
-            stage: FrameStage::MultipleScattering,
+            stage,
             rule: "pixel_footprint",
-            from_voxel_m: cell(f.ms_max_dim),
-            to_voxel_m: cell(f.ms_max_dim / k),
+            from_voxel_m: edge(1),
+            to_voxel_m: edge(k),
             factor: k,
             pixel_footprint_m: f.pixel_footprint_m,
             nearest_distance_m: f.nearest_distance_m,

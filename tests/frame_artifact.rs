@@ -6,16 +6,13 @@
 
 mod service_support;
 
-use axum::body::Body;
-use axum::http::Request;
 use serde_json::{json, Value};
-use service_support::{bake_single_exr, settings, tiny_frame_scene, Scratch};
+use service_support::{bake_single_exr, call, settings, tiny_frame_scene, Scratch};
 use skybake::engine::Stages;
 use skybake::render::product::{frame_meta_json, ATTR_FRAME_META};
 use skybake::render::{FrameError, FrameMeta, Method, ERROR_BASIS};
-use skybake::service::{app, AppState};
+use skybake::service::AppState;
 use skybake::store::layout::{ATTR_COMPUTE_TIME_MS, ATTR_FILE_CHECKSUM};
-use tower::ServiceExt;
 
 /// Byte range of the value of string attribute `name` in an EXR header.
 fn attribute_range(bytes: &[u8], name: &str) -> std::ops::Range<usize> {
@@ -83,17 +80,9 @@ async fn cli_http_and_bake_write_the_same_frame_artifact() {
     let cli = std::fs::read(&cli_path).unwrap();
     // HTTP.
     let state = AppState::new(settings(&dir.path().join("cache"))).unwrap();
-    let req = Request::builder()
-        .method("POST")
-        .uri("/v1/render?format=exr")
-        .body(Body::from(scene.to_string()))
-        .unwrap();
-    let resp = app(state.clone()).oneshot(req).await.unwrap();
-    assert_eq!(resp.status().as_u16(), 200);
-    let http = axum::body::to_bytes(resp.into_body(), 1 << 26)
-        .await
-        .unwrap()
-        .to_vec();
+    let resp = call(&state, "POST", "/v1/render?format=exr", scene.to_string()).await;
+    assert_eq!(resp.status, 200);
+    let http = resp.body;
     // Bake.
     let job = json!({"frames": [{"scene": scene}]});
     let baked = dir.path().join("baked");
@@ -132,22 +121,11 @@ async fn a_baked_frame_with_a_target_is_the_render_with_that_target() {
     let scene = tiny_frame_scene(24, 16);
     // HTTP with the target.
     let state = AppState::new(settings(&dir.path().join("cache"))).unwrap();
-    let req = Request::builder()
-        .method("POST")
-        .uri("/v1/render?format=exr&max_rel_error=0.3")
-        .body(Body::from(scene.to_string()))
-        .unwrap();
-    let resp = app(state.clone()).oneshot(req).await.unwrap();
-    assert_eq!(resp.status().as_u16(), 200);
-    let key = resp
-        .headers()
-        .get("x-skybake-cache-key")
-        .and_then(|v| v.to_str().ok())
-        .map(str::to_string);
-    let http = axum::body::to_bytes(resp.into_body(), 1 << 26)
-        .await
-        .unwrap()
-        .to_vec();
+    let uri = "/v1/render?format=exr&max_rel_error=0.3";
+    let resp = call(&state, "POST", uri, scene.to_string()).await;
+    assert_eq!(resp.status, 200);
+    let key = resp.header("x-skybake-cache-key").map(str::to_string);
+    let http = resp.body;
     // Bake of a frame entry with the same target.
     let job = json!({"frames": [{"scene": scene, "max_rel_error": 0.3}]});
     let baked = dir.path().join("baked");

@@ -13,6 +13,10 @@ use skybake::render::product::{
     execute_plan, frame_summary, measured_shares, plan_frame, sphere_facts, NoTiles,
 };
 use skybake::render::{lighting_for, render_tile, FrameRequest, FrameScene, Method, Prepared};
+use skybake::service::AppState;
+
+mod service_support;
+use service_support::{call, settings, Scratch};
 
 /// The validation cloud (vacuum, collimated sun 1, constant sky 0.1) at 50 m voxels, 32×24 px.
 fn scene(edit: impl FnOnce(&mut Value)) -> Value {
@@ -585,45 +589,20 @@ fn the_cli_and_the_service_take_max_rel_error_for_frames() {
     // Service: a 400 naming the best achievable error; a met target sets the budget.
     let rt = tokio::runtime::Runtime::new().unwrap();
     rt.block_on(async {
-        use axum::body::Body;
-        use axum::http::Request;
-        use tower::ServiceExt;
-        let cache =
-            std::env::temp_dir().join(format!("skybake-plan-frame-service-{}", std::process::id()));
-        let mut settings = skybake::config::Settings::defaults();
-        settings.cache.dir = cache.clone();
-        let state = skybake::service::AppState::new(settings).unwrap();
+        let cache = Scratch::new("plan-frame-service");
+        let state = AppState::new(settings(cache.path())).unwrap();
         let body = serde_json::to_vec(&scene(|_| {})).unwrap();
-        let post = |uri: &str| {
-            let req = Request::builder()
-                .method("POST")
-                .uri(uri)
-                .body(Body::from(body.clone()))
-                .unwrap();
-            skybake::service::app(state.clone()).oneshot(req)
-        };
-        let resp = post("/v1/render?max_rel_error=0.05").await.unwrap();
-        assert_eq!(resp.status().as_u16(), 400);
-        let text = axum::body::to_bytes(resp.into_body(), 1 << 20)
-            .await
-            .unwrap();
-        let text = String::from_utf8_lossy(&text);
+        let post = |uri: &'static str| call(&state, "POST", uri, body.clone());
+        let resp = post("/v1/render?max_rel_error=0.05").await;
+        assert_eq!(resp.status, 400);
+        let text = resp.text();
         assert!(
             text.contains("max_rel_error") && text.contains("0.0810"),
             "{text}"
         );
-        let resp = post("/v1/render?max_rel_error=0.3&format=json")
-            .await
-            .unwrap();
-        assert_eq!(resp.status().as_u16(), 200);
-        let json: Value = serde_json::from_slice(
-            &axum::body::to_bytes(resp.into_body(), 1 << 24)
-                .await
-                .unwrap(),
-        )
-        .unwrap();
-        assert_eq!(json["plan"]["budget"]["relative_error"], json!(0.3));
-        let _ = std::fs::remove_dir_all(&cache);
+        let resp = post("/v1/render?max_rel_error=0.3&format=json").await;
+        assert_eq!(resp.status, 200);
+        assert_eq!(resp.json()["plan"]["budget"]["relative_error"], json!(0.3));
     });
 }
 

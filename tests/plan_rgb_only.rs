@@ -10,7 +10,11 @@ use skybake::plan::{
     RGB_PROXY_SAFETY,
 };
 use skybake::render::{FrameRequest, Method};
+use skybake::service::AppState;
 use skybake::store::SpectralImage;
+
+mod service_support;
+use service_support::{call, settings, Scratch};
 
 /// The 16 wavelengths of the default set, 380–755 nm.
 fn sixteen() -> Vec<f64> {
@@ -192,132 +196,84 @@ fn few_wavelengths_the_reference_method_and_spectral_requests_keep_every_wavelen
 }
 
 #[test]
-fn the_cli_and_the_service_run_a_png_as_an_rgb_only_request() {
+fn the_cli_runs_a_png_as_an_rgb_only_request() {
     let v = scene(16, 12);
-    let dir = std::env::temp_dir().join(format!("skybake-rgb-only-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
-    let path = dir.join("scene.json");
+    let dir = Scratch::new("rgb-only-cli");
+    let path = dir.path().join("scene.json");
     std::fs::write(&path, serde_json::to_vec(&v).unwrap()).unwrap();
-    let skybake = || std::process::Command::new(env!("CARGO_BIN_EXE_skybake"));
-    let spectral = FrameRequest::from_value(&v, Method::Fast).unwrap();
-    let rgb = spectral.clone().with_rgb_only(true);
+    let skybake = |args: &[&str]| {
+        std::process::Command::new(env!("CARGO_BIN_EXE_skybake"))
+            .args(args)
+            .output()
+            .unwrap()
+    };
+    let rgb = FrameRequest::from_value(&v, Method::Fast)
+        .unwrap()
+        .with_rgb_only(true);
     let internal = rgb.internal_wavelengths().unwrap();
     // `plan frame --rgb-only` shows the subset; `--rgb-only` is refused for other products.
-    let out = skybake()
-        .args([
-            "plan",
-            "frame",
-            "--rgb-only",
-            "--scene",
-            path.to_str().unwrap(),
-        ])
-        .output()
-        .unwrap();
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
+    let scene_arg = path.to_str().unwrap();
+    let out = skybake(&["plan", "frame", "--rgb-only", "--scene", scene_arg]);
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "{stderr}");
     let plan: Value = serde_json::from_slice(&out.stdout).unwrap();
     assert_eq!(plan["cache_key"], json!(rgb.cache_key()));
     assert_eq!(
         plan["plan"]["wavelengths"]["internal_nm"],
         json!(internal.as_nm())
     );
-    let out = skybake()
-        .args(["plan", "sky", "--rgb-only"])
-        .output()
-        .unwrap();
+    let out = skybake(&["plan", "sky", "--rgb-only"]);
     assert!(!out.status.success());
     assert!(String::from_utf8_lossy(&out.stderr).contains("rgb"));
     // `render -o FRAME.png` runs the RGB-only request: its summary lists the subset.
-    let png = dir.join("frame.png");
-    let out = skybake()
-        .args([
-            "render",
-            path.to_str().unwrap(),
-            "-o",
-            png.to_str().unwrap(),
-        ])
-        .args(["--format", "json"])
-        .output()
-        .unwrap();
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
+    let png = dir.path().join("frame.png");
+    let png_arg = png.to_str().unwrap();
+    let out = skybake(&["render", scene_arg, "-o", png_arg, "--format", "json"]);
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "{stderr}");
     let summary: Value = serde_json::from_slice(&out.stdout).unwrap();
     assert_eq!(summary["wavelengths_nm"], json!(internal.as_nm()));
     assert!(std::fs::read(&png).unwrap().starts_with(b"\x89PNG"));
-    let _ = std::fs::remove_dir_all(&dir);
+}
 
-    let rt = tokio::runtime::Runtime::new().unwrap();
-    rt.block_on(async {
-        use axum::body::Body;
-        use axum::http::Request;
-        use tower::ServiceExt;
-        let cache =
-            std::env::temp_dir().join(format!("skybake-rgb-only-svc-{}", std::process::id()));
-        let mut settings = skybake::config::Settings::defaults();
-        settings.cache.dir = cache.clone();
-        let state = skybake::service::AppState::new(settings).unwrap();
-        let body = serde_json::to_vec(&v).unwrap();
-        let send = |method: &str, uri: &str, body: Vec<u8>| {
-            let req = Request::builder()
-                .method(method)
-                .uri(uri)
-                .header("content-type", "application/json")
-                .body(Body::from(body))
-                .unwrap();
-            skybake::service::app(state.clone()).oneshot(req)
-        };
-        let key = |r: &axum::response::Response| {
-            r.headers()["x-skybake-cache-key"]
-                .to_str()
-                .unwrap()
-                .to_string()
-        };
-        // A PNG first: the RGB-only request.
-        let resp = send("POST", "/v1/render?format=png", body.clone())
-            .await
-            .unwrap();
-        assert_eq!(resp.status().as_u16(), 200);
-        assert_eq!(key(&resp), rgb.cache_key());
-        // The EXR: every wavelength, the spectral key; a PNG after it takes that frame.
-        let resp = send("POST", "/v1/render?format=exr", body.clone())
-            .await
-            .unwrap();
-        assert_eq!(key(&resp), spectral.cache_key());
-        let resp = send("POST", "/v1/render?format=png", body.clone())
-            .await
-            .unwrap();
-        assert_eq!(resp.status().as_u16(), 200);
-        assert_eq!(key(&resp), spectral.cache_key());
-        // The plan with "output": "rgb"; another output is refused naming the member.
-        let plan_body = |output: Value| {
-            serde_json::to_vec(&json!({"product": "frame", "scene": v, "output": output})).unwrap()
-        };
-        let resp = send("POST", "/v1/plan", plan_body(json!("rgb")))
-            .await
-            .unwrap();
-        assert_eq!(resp.status().as_u16(), 200);
-        let plan: Value = serde_json::from_slice(
-            &axum::body::to_bytes(resp.into_body(), 1 << 24)
-                .await
-                .unwrap(),
-        )
-        .unwrap();
-        assert_eq!(plan["cache_key"], json!(rgb.cache_key()));
-        assert_eq!(plan["plan"]["wavelengths"]["rule"], "rgb_only");
-        let resp = send("POST", "/v1/plan", plan_body(json!("grey")))
-            .await
-            .unwrap();
-        assert_eq!(resp.status().as_u16(), 422);
-        let text = axum::body::to_bytes(resp.into_body(), 1 << 20)
-            .await
-            .unwrap();
-        assert!(String::from_utf8_lossy(&text).contains("output"));
-        let _ = std::fs::remove_dir_all(&cache);
-    });
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn the_service_runs_a_png_as_an_rgb_only_request_unless_the_spectral_frame_is_cached() {
+    let v = scene(16, 12);
+    let dir = Scratch::new("rgb-only-service");
+    let state = AppState::new(settings(dir.path())).unwrap();
+    let spectral = FrameRequest::from_value(&v, Method::Fast).unwrap();
+    let rgb = spectral.clone().with_rgb_only(true);
+    let body = serde_json::to_vec(&v).unwrap();
+    // A PNG first: the RGB-only request.
+    let resp = call(&state, "POST", "/v1/render?format=png", body.clone()).await;
+    assert_eq!(resp.status, 200, "{}", resp.text());
+    assert_eq!(
+        resp.header("x-skybake-cache-key"),
+        Some(rgb.cache_key().as_str())
+    );
+    assert!(resp.body.starts_with(b"\x89PNG"));
+    // The EXR: every wavelength, the spectral key; a PNG after it takes that frame.
+    let resp = call(&state, "POST", "/v1/render?format=exr", body.clone()).await;
+    assert_eq!(
+        resp.header("x-skybake-cache-key"),
+        Some(spectral.cache_key().as_str())
+    );
+    let resp = call(&state, "POST", "/v1/render?format=png", body.clone()).await;
+    assert_eq!(resp.status, 200);
+    assert_eq!(
+        resp.header("x-skybake-cache-key"),
+        Some(spectral.cache_key().as_str())
+    );
+    // The plan with "output": "rgb"; another output is refused naming the member.
+    let plan_body = |output: Value| {
+        serde_json::to_vec(&json!({"product": "frame", "scene": v, "output": output})).unwrap()
+    };
+    let resp = call(&state, "POST", "/v1/plan", plan_body(json!("rgb"))).await;
+    assert_eq!(resp.status, 200, "{}", resp.text());
+    let plan = resp.json();
+    assert_eq!(plan["cache_key"], json!(rgb.cache_key()));
+    assert_eq!(plan["plan"]["wavelengths"]["rule"], "rgb_only");
+    let resp = call(&state, "POST", "/v1/plan", plan_body(json!("grey"))).await;
+    assert_eq!(resp.status, 422);
+    assert_eq!(resp.json()["parameter"], "output", "{}", resp.text());
 }

@@ -29,20 +29,8 @@ async fn post(
     if let Some(a) = accept {
         req = req.header("accept", a);
     }
-    let resp = app(state.clone())
-        .oneshot(req.body(Body::from(body)).unwrap())
-        .await
-        .unwrap();
-    let status = resp.status().as_u16();
-    let headers = resp
-        .headers()
-        .iter()
-        .map(|(k, v)| (k.to_string(), v.to_str().unwrap_or("").to_string()))
-        .collect();
-    let bytes = axum::body::to_bytes(resp.into_body(), 1 << 28)
-        .await
-        .unwrap();
-    (status, headers, bytes.to_vec())
+    let r = service_support::send(state, req.body(Body::from(body)).unwrap()).await;
+    (r.status, r.headers, r.body)
 }
 
 fn header<'a>(headers: &'a [(String, String)], name: &str) -> Option<&'a str> {

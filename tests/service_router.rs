@@ -9,8 +9,7 @@ use axum::body::Body;
 use axum::http::Request;
 use serde_json::{json, Value};
 use service_support::{settings, Scratch, FAST};
-use skybake::service::{app, AppState};
-use tower::ServiceExt;
+use skybake::service::AppState;
 
 /// An answer: status, headers (lower-case names), body.
 struct Answer {
@@ -60,24 +59,11 @@ async fn call(state: &AppState, method: &str, uri: &str, body: Option<Value>) ->
         }
         None => Body::empty(),
     };
-    let resp = app(state.clone())
-        .oneshot(req.body(body).unwrap())
-        .await
-        .unwrap();
-    let status = resp.status().as_u16();
-    let headers = resp
-        .headers()
-        .iter()
-        .map(|(k, v)| (k.to_string(), v.to_str().unwrap_or("").to_string()))
-        .collect();
-    let body = axum::body::to_bytes(resp.into_body(), 1 << 28)
-        .await
-        .unwrap()
-        .to_vec();
+    let r = service_support::send(state, req.body(body).unwrap()).await;
     Answer {
-        status,
-        headers,
-        body,
+        status: r.status,
+        headers: r.headers,
+        body: r.body,
     }
 }
 

@@ -146,6 +146,41 @@ pub async fn request(
     parse_response(&raw)
 }
 
+/// One request through the router in process (no socket), the whole response read.
+pub async fn send(state: &AppState, req: axum::http::Request<axum::body::Body>) -> Response {
+    use tower::ServiceExt;
+    let resp = skybake::service::app(state.clone())
+        .oneshot(req)
+        .await
+        .expect("router");
+    let status = resp.status().as_u16();
+    let headers = resp
+        .headers()
+        .iter()
+        .map(|(k, v)| (k.to_string(), v.to_str().unwrap_or("").to_string()))
+        .collect();
+    let body = axum::body::to_bytes(resp.into_body(), usize::MAX)
+        .await
+        .expect("body")
+        .to_vec();
+    Response {
+        status,
+        headers,
+        body,
+    }
+}
+
+/// [`send`] of `method` `uri` with a JSON `body`.
+pub async fn call(state: &AppState, method: &str, uri: &str, body: impl Into<Vec<u8>>) -> Response {
+    let req = axum::http::Request::builder()
+        .method(method)
+        .uri(uri)
+        .header("content-type", "application/json")
+        .body(axum::body::Body::from(body.into()))
+        .expect("request");
+    send(state, req).await
+}
+
 /// Parses a full HTTP/1.1 response (content-length or chunked body).
 pub fn parse_response(raw: &[u8]) -> Response {
     let split = raw
