@@ -424,8 +424,19 @@ fn run_dome(
     out: &DomeOutput,
     engine: &Engine,
 ) -> Result<()> {
-    let req = ProductRequest::from_params(kind, &request_params(flags.clone())?)?;
     let ext = out.output.as_deref().map(extension);
+    let mut params = flags.clone();
+    if ext.as_deref() == Some("png") && out.format != Some(Format::Json) {
+        // A PNG alone is RGB-only: the planner may run fewer wavelengths.
+        params.format = Some(
+            match out.projection {
+                ProjectionArg::Fisheye => "png",
+                ProjectionArg::Latlong => "png_latlong",
+            }
+            .into(),
+        );
+    }
+    let req = ProductRequest::from_params(kind, &request_params(params)?)?;
     if let (Some(path), Some(ext)) = (&out.output, &ext) {
         if ext != "png" && ext != "exr" {
             return Err(Error::invalid(

@@ -175,6 +175,9 @@ pub struct Plan {
     /// The precise table's order-series tolerance when the error budget loosens it (cost rule
     /// [`Reason::OrdersUnderBudget`]); `None`: the preset's.
     pub precise_tolerance: Option<f64>,
+    /// An RGB-only request (a sky or ground PNG) run at fewer wavelengths
+    /// ([`rgb_wavelengths_rule`], set by `product::ProductRequest`).
+    pub wavelengths: Option<WavelengthSubset>,
 }
 
 impl Plan {
@@ -272,7 +275,27 @@ impl Serialize for Plan {
         }
         st.serialize_field("stages", &stages)?;
         st.serialize_field("left_out", &left_out)?;
+        if let Some(w) = &self.wavelengths {
+            st.serialize_field("wavelengths", &WavelengthsView::of(w))?;
+        }
         st.end()
+    }
+}
+
+/// A [`WavelengthSubset`] with its line for people.
+#[derive(Serialize)]
+struct WavelengthsView<'a> {
+    #[serde(flatten)]
+    subset: &'a WavelengthSubset,
+    detail: String,
+}
+
+impl<'a> WavelengthsView<'a> {
+    fn of(subset: &'a WavelengthSubset) -> Self {
+        Self {
+            subset,
+            detail: subset.detail(),
+        }
     }
 }
 
@@ -321,6 +344,7 @@ pub fn plan(product: ProductKind, spec: &CommonSpec, m: &Medium) -> Plan {
         method,
         substitution,
         precise_tolerance: None,
+        wavelengths: None,
     };
     let mut rule = |stage: Stage, left_out: Option<Reason>| match left_out {
         None => p.stages.push(stage),
@@ -537,8 +561,7 @@ pub const SPHERE_LEVEL_ERROR: f64 = 0.20;
 /// worst proxy's change. Measured by `skybake report --planner` (report/planner.md).
 pub const RGB_PROXY_SAFETY: f64 = 2.0;
 
-/// Fewest wavelengths an RGB-only frame runs at (the colour needs blue, green and red).
-pub const MIN_RGB_WAVELENGTHS: usize = 3;
+pub use crate::spectrum::subsets::MIN_RGB_WAVELENGTHS;
 
 /// A subset of the requested wavelengths and the change of the RGB image its proxies predict.
 #[derive(Debug, Clone, PartialEq, Serialize)]
@@ -561,7 +584,7 @@ pub struct RgbFacts {
     pub candidates: Vec<WavelengthCandidate>,
 }
 
-/// An RGB-only frame run at fewer wavelengths than requested.
+/// An RGB-only request (a frame or a sky or ground PNG) run at fewer wavelengths than requested.
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct WavelengthSubset {
     pub rule: &'static str,
@@ -572,11 +595,13 @@ pub struct WavelengthSubset {
     pub left_out_nm: Vec<f64>,
     /// [`RGB_PROXY_SAFETY`] × the candidate's proxy error, spent from the budget.
     pub predicted_error: f64,
+    /// The budget's allowance when the rule ran.
+    pub allowance: f64,
 }
 
 impl WavelengthSubset {
     /// One line for people.
-    pub fn detail(&self, budget: &Budget) -> String {
+    pub fn detail(&self) -> String {
         format!(
             "RGB-only output: runs at {} of the {} requested wavelengths ({} nm); the RGB image is predicted to change by {:.2} % of its mean channel, within the budget's {:.2} %",
             self.internal_nm.len(),
@@ -587,7 +612,7 @@ impl WavelengthSubset {
                 .collect::<Vec<_>>()
                 .join(", "),
             self.predicted_error * 100.0,
-            budget.allowance * 100.0
+            self.allowance * 100.0
         )
     }
 }
@@ -614,6 +639,7 @@ pub fn rgb_wavelengths_rule(f: &RgbFacts, budget: &mut Budget) -> Option<Wavelen
             .filter(|w| !c.internal_nm.contains(w))
             .collect(),
         predicted_error: RGB_PROXY_SAFETY * c.proxy_error,
+        allowance: budget.allowance,
     })
 }
 
@@ -993,19 +1019,7 @@ impl Serialize for FramePlan {
             st.serialize_field("sphere_level", level)?;
         }
         if let Some(w) = &self.wavelengths {
-            #[derive(Serialize)]
-            struct WavelengthsView<'a> {
-                #[serde(flatten)]
-                subset: &'a WavelengthSubset,
-                detail: String,
-            }
-            st.serialize_field(
-                "wavelengths",
-                &WavelengthsView {
-                    subset: w,
-                    detail: w.detail(&self.budget),
-                },
-            )?;
+            st.serialize_field("wavelengths", &WavelengthsView::of(w))?;
         }
         st.serialize_field("budget", &self.budget)?;
         st.end()

@@ -9,6 +9,8 @@ use skybake::plan::{
     rgb_wavelengths_rule, Budget, RgbFacts, WavelengthCandidate, FRAME_MEASURED_ERROR,
     RGB_PROXY_SAFETY,
 };
+use skybake::product::params::RequestParams;
+use skybake::product::{ProductKind, ProductRequest};
 use skybake::render::{FrameRequest, Method};
 use skybake::service::AppState;
 use skybake::store::SpectralImage;
@@ -276,4 +278,148 @@ async fn the_service_runs_a_png_as_an_rgb_only_request_unless_the_spectral_frame
     let resp = call(&state, "POST", "/v1/plan", plan_body(json!("grey"))).await;
     assert_eq!(resp.status, 422);
     assert_eq!(resp.json()["parameter"], "output", "{}", resp.text());
+}
+
+/// A sky or ground request by the parameter table's pairs (sun 30°, fast, standard, the default
+/// 16 wavelengths, each overridden by `extra`), in `format`.
+fn dome_request(kind: ProductKind, format: &str, extra: &[(&str, &str)]) -> ProductRequest {
+    let mut pairs = vec![
+        ("format", format),
+        ("method", "fast"),
+        ("quality", "standard"),
+        ("sun_elevation_deg", "30"),
+    ];
+    for &(k, v) in extra {
+        match pairs.iter_mut().find(|(name, _)| *name == k) {
+            Some(pair) => pair.1 = v,
+            None => pairs.push((k, v)),
+        }
+    }
+    ProductRequest::from_params(kind, &RequestParams::from_pairs(pairs).unwrap()).unwrap()
+}
+
+/// Linear sRGB of every direction of a sky or ground artifact.
+fn dome_rgb(req: &ProductRequest) -> Vec<[f64; 3]> {
+    let image = req.compute(&Engine::new()).unwrap();
+    let table = skybake::product::artifact::dome_table_of(&image).unwrap();
+    let w = skybake::spectrum::colour::XyzWeights::new(&table.wavelengths_nm);
+    table
+        .radiance
+        .chunks(table.wavelengths_nm.len())
+        .map(|s| w.linear_srgb(&s.iter().map(|&v| v as f64).collect::<Vec<_>>()))
+        .collect()
+}
+
+#[test]
+fn a_sky_or_ground_png_runs_at_fewer_wavelengths_and_changes_less_than_predicted() {
+    let small = [("elevation_count", "17"), ("azimuth_count", "12")];
+    for (kind, extra) in [
+        (ProductKind::Sky, small.to_vec()),
+        (
+            ProductKind::Sky,
+            [&small[..], &[("sun_elevation_deg", "5")]].concat(),
+        ),
+        (ProductKind::Ground, small.to_vec()),
+    ] {
+        let (png, spectral) = (
+            dome_request(kind, "png", &extra),
+            dome_request(kind, "json", &extra),
+        );
+        let subset = png.rgb_only.clone().expect("the rule fires");
+        assert!(spectral.rgb_only.is_none());
+        assert_eq!(subset.requested_nm, sixteen());
+        assert!(subset.internal_nm.len() < 16 && subset.internal_nm.len() >= 3);
+        assert_eq!(
+            png.spec.wavelengths_nm.as_nm(),
+            subset.internal_nm.as_slice()
+        );
+        assert!(subset.predicted_error <= subset.allowance);
+        // Its own key; undone, it is the spectral request.
+        assert_ne!(png.cache_key(), spectral.cache_key());
+        assert_eq!(
+            png.clone().without_rgb_only().unwrap().cache_key(),
+            spectral.cache_key()
+        );
+        let plan = serde_json::to_value(png.plan().unwrap()).unwrap();
+        assert_eq!(plan["wavelengths"]["rule"], "rgb_only", "{plan}");
+        // The RGB of every direction changes by less than predicted (largest channel change
+        // relative to the direction's mean channel).
+        let (a, b) = (dome_rgb(&png), dome_rgb(&spectral));
+        let worst = a
+            .iter()
+            .zip(&b)
+            .filter(|(_, f)| f.iter().any(|&v| v != 0.0))
+            .map(|(x, f)| {
+                let scale = (f[0].abs() + f[1].abs() + f[2].abs()) / 3.0;
+                (0..3).map(|c| (x[c] - f[c]).abs()).fold(0.0, f64::max) / scale
+            })
+            .fold(0.0, f64::max);
+        eprintln!(
+            "{kind:?} {extra:?}: {} of 16 wavelengths, largest RGB change {worst:.4}, predicted {:.4}",
+            subset.internal_nm.len(),
+            subset.predicted_error
+        );
+        assert!(worst <= subset.predicted_error, "{worst}");
+    }
+    // Three wavelengths keep theirs.
+    let three = dome_request(ProductKind::Sky, "png", &[("wavelengths", "440,550,680")]);
+    assert!(three.rgb_only.is_none());
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_sky_png_has_its_own_key_unless_the_spectral_sky_is_cached_and_jobs_keep_theirs() {
+    let dir = Scratch::new("rgb-only-sky");
+    let state = AppState::new(settings(dir.path())).unwrap();
+    state.start_job_workers();
+    let q = "method=fast&quality=draft&elevation_count=9&azimuth_count=8&sun_elevation_deg=30";
+    let png = dome_request(
+        ProductKind::Sky,
+        "png",
+        &[
+            ("quality", "draft"),
+            ("elevation_count", "9"),
+            ("azimuth_count", "8"),
+        ],
+    );
+    let spectral = png.clone().without_rgb_only().unwrap();
+    assert!(png.rgb_only.is_some());
+    let state = &state;
+    let get = |uri: String| async move { call(state, "GET", &uri, Vec::new()).await };
+    let key = |r: &service_support::Response| r.header("x-skybake-cache-key").map(str::to_string);
+    let r = get(format!("/v1/sky?{q}&format=png")).await;
+    assert_eq!(r.status, 200, "{}", r.text());
+    assert_eq!(key(&r), Some(png.cache_key()));
+    let r = get(format!("/v1/sky?{q}&format=exr")).await;
+    assert_eq!(key(&r), Some(spectral.cache_key()));
+    let r = get(format!("/v1/sky?{q}&format=png")).await;
+    assert_eq!(key(&r), Some(spectral.cache_key()));
+    // The plan of a PNG names the rule.
+    let body = json!({"product": "sky", "format": "png", "method": "fast", "quality": "draft",
+                      "elevation_count": 9, "azimuth_count": 8, "sun_elevation_deg": 30});
+    let r = call(state, "POST", "/v1/plan", body.to_string()).await;
+    assert_eq!(r.status, 200, "{}", r.text());
+    assert_eq!(r.json()["plan"]["wavelengths"]["rule"], "rgb_only");
+    // A job's item downloaded as a PNG is the job's spectral artifact.
+    let job = json!({"products": [{"product": "sky", "method": "fast", "quality": "draft",
+        "elevation_count": 9, "azimuth_count": 8, "sun_elevation_deg": 40}]});
+    let r = call(state, "POST", "/v1/jobs", job.to_string()).await;
+    assert_eq!(r.status, 202, "{}", r.text());
+    let id = r.json()["id"].as_str().unwrap().to_string();
+    let mut status = Value::Null;
+    for _ in 0..600 {
+        status = get(format!("/v1/jobs/{id}")).await.json();
+        if status["state"] == "completed" {
+            break;
+        }
+        tokio::time::sleep(std::time::Duration::from_millis(50)).await;
+    }
+    assert_eq!(status["state"], "completed", "{status}");
+    let item_key = status["artifacts"]["items"][0]["cache_key"]
+        .as_str()
+        .unwrap()
+        .to_string();
+    let r = get(format!("/v1/jobs/{id}/artifacts/0?format=png")).await;
+    assert_eq!(r.status, 200, "{}", r.text());
+    assert_eq!(key(&r), Some(item_key));
+    assert!(r.body.starts_with(b"\x89PNG"));
 }

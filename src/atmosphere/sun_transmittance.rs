@@ -64,3 +64,41 @@ pub fn sun_transmittance(m: &Medium, altitude_m: f64, sun_elevation_rad: f64) ->
         .map(|i| (-m.optical_depth(i, &d)).exp() * vis)
         .collect()
 }
+
+/// Air masses of the view paths [`light_spectra`] sees the lit air through: a high view, one
+/// 6° above the horizon and the horizon itself (about 38 in the earth's atmosphere).
+const VIEW_AIR_MASSES: [f64; 3] = [2.0, 10.0, 38.0];
+
+/// Spectra of the light an atmosphere puts on a scene, known at every wavelength of `m` without
+/// a table (the planner's RGB-only rule, `spectrum::subsets`): the sun above the atmosphere E₀
+/// and the colour of the air it lights E₀·(β_R + β_M); at each of `altitudes_m` the sun's beam
+/// E₀·T ([`sun_transmittance`]), the air it lights E₀·T·(β_R + β_M), that air seen through
+/// [`VIEW_AIR_MASSES`] of the vertical optical depth τ (× e^(−τ m), the reddened and
+/// ozone-coloured light of long view paths) and, when the ground reflects, the ground under that
+/// beam E₀·T·a.
+pub fn light_spectra(m: &Medium, altitudes_m: &[f64], sun_elevation_rad: f64) -> Vec<Vec<f64>> {
+    let n = m.len();
+    let times = |a: &[f64], b: &[f64]| a.iter().zip(b).map(|(x, y)| x * y).collect::<Vec<_>>();
+    let e0 = m.solar_irradiance.clone();
+    let scattering: Vec<f64> = (0..n)
+        .map(|l| m.rayleigh_scattering_per_m[l] + m.mie_scattering_per_m[l])
+        .collect();
+    let tau: Vec<f64> = (0..n)
+        .map(|l| m.vertical_optical_depth(l).iter().sum::<f64>())
+        .collect();
+    let mut out = vec![e0.clone(), times(&e0, &scattering)];
+    for &altitude in altitudes_m {
+        let beam = times(&e0, &sun_transmittance(m, altitude, sun_elevation_rad));
+        let air = times(&beam, &scattering);
+        for air_mass in VIEW_AIR_MASSES {
+            let seen: Vec<f64> = (0..n).map(|l| (-tau[l] * air_mass).exp()).collect();
+            out.push(times(&air, &seen));
+        }
+        out.push(air);
+        if m.ground_albedo.iter().any(|&a| a > 0.0) {
+            out.push(times(&beam, &m.ground_albedo));
+        }
+        out.push(beam);
+    }
+    out
+}

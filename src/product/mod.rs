@@ -111,6 +111,11 @@ pub struct ProductRequest {
     pub spec: CommonSpec,
     #[serde(skip)]
     pub format: Format,
+    /// A PNG preview of the sky or the ground is RGB-only: the planner may run it at fewer of the
+    /// requested wavelengths (`spec.wavelengths_nm` then holds those it runs at; this records
+    /// the rule, and is part of the cache key).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub rgb_only: Option<crate::plan::WavelengthSubset>,
 }
 
 fn not_for(field: &str, product: ProductKind) -> Error {
@@ -133,8 +138,10 @@ impl ProductRequest {
             return Err(not_for(name, product));
         }
         let mut spec = CommonSpec::from_params(p, product.min_sun_elevation_deg())?;
+        let mut max_rel_error = None;
         if let Some(target) = p.max_rel_error.as_deref() {
             let target = row("max_rel_error")?.real(target)?;
+            max_rel_error = Some(target);
             if p.quality.is_some() {
                 return Err(Error::invalid(
                     "max_rel_error",
@@ -181,7 +188,76 @@ impl ProductRequest {
                 )?)
             }
         };
-        Self::new(spec, spec_of_product, format)
+        Self::new(spec, spec_of_product, format)?.planned_rgb_only(max_rel_error)
+    }
+
+    /// The same request at every requested wavelength (the spectral artifact): an RGB-only
+    /// request's rule undone, in the same format.
+    pub fn without_rgb_only(mut self) -> Result<Self> {
+        if let Some(subset) = self.rgb_only.take() {
+            self.spec.wavelengths_nm = crate::spectrum::Wavelengths::new(subset.requested_nm)?;
+        }
+        Ok(self)
+    }
+
+    /// The planner's wavelength rule on a PNG preview of the sky or the ground (an RGB-only
+    /// request): it runs at the fewest of its wavelengths whose predicted RGB change
+    /// ([`crate::plan::RGB_PROXY_SAFETY`] × the worst proxy's, `spectrum::subsets`, on the
+    /// atmosphere's light spectra `atmosphere::sun_transmittance::light_spectra` at the observer
+    /// and the ground) fits the budget: [`crate::plan::BUDGET_SHARE`] of the request's measured
+    /// error in its regime (or what a `max_rel_error` target leaves over it), less what the
+    /// precise orders rule spent. Nothing outside the measured regimes.
+    fn planned_rgb_only(mut self, max_rel_error: Option<f64>) -> Result<Self> {
+        use crate::plan::{rgb_wavelengths_rule, Budget, RgbFacts, WavelengthCandidate};
+        let rgb = matches!(self.format, Format::Png | Format::PngLatlong)
+            && matches!(self.kind(), ProductKind::Sky | ProductKind::Ground);
+        let plan = self.plan()?;
+        if !rgb || plan.ms_method() == crate::atmosphere::sky::MsMethod::None {
+            return Ok(self);
+        }
+        let Some((measured, _)) =
+            crate::accuracy::measured_for(self.kind(), plan.method, &self.spec)
+        else {
+            return Ok(self);
+        };
+        let error = measured.relative_error
+            + crate::accuracy::reference_error(self.spec.sun.sun_elevation_deg);
+        let mut budget = match max_rel_error {
+            Some(target) => Budget::for_target(target, error),
+            None => Budget::new(error),
+        };
+        if let (crate::atmosphere::sky::MsMethod::Precise, Some(t)) =
+            (plan.ms_method(), plan.precise_tolerance)
+        {
+            budget.spent += t;
+        }
+        let m = crate::atmosphere::Medium::new(
+            &self.spec.atmosphere,
+            &self.spec.wavelengths_nm,
+            self.spec.ground_albedo,
+        )?;
+        let nm = self.spec.wavelengths_nm.as_nm().to_vec();
+        let proxies = crate::atmosphere::sun_transmittance::light_spectra(
+            &m,
+            &[self.spec.observer_altitude_m.clamp(0.0, 1e6), 0.0],
+            self.spec.sun.sun_elevation_deg.to_radians(),
+        );
+        let facts = RgbFacts {
+            candidates: crate::spectrum::subsets::rgb_subsets(&nm, &proxies)
+                .into_iter()
+                .map(|(internal_nm, proxy_error)| WavelengthCandidate {
+                    internal_nm,
+                    proxy_error,
+                })
+                .collect(),
+            requested_nm: nm,
+        };
+        if let Some(subset) = rgb_wavelengths_rule(&facts, &mut budget) {
+            self.spec.wavelengths_nm =
+                crate::spectrum::Wavelengths::new(subset.internal_nm.clone())?;
+            self.rgb_only = Some(subset);
+        }
+        Ok(self)
     }
 
     /// A request from its parts, checking what the artifact must hold: the samples of the EXR
@@ -220,6 +296,7 @@ impl ProductRequest {
             product,
             spec,
             format,
+            rgb_only: None,
         })
     }
 
@@ -260,9 +337,12 @@ impl ProductRequest {
         (self.product.pixel_count() + self.product.probes().len()) * self.spec.wavelengths_nm.len()
     }
 
-    /// The plan the engine will execute for this request (no tables built).
+    /// The plan the engine will execute for this request (no tables built), with the
+    /// wavelengths an RGB-only request left out.
     pub fn plan(&self) -> Result<crate::plan::Plan> {
-        crate::engine::Engine::plan(&self.spec, self.kind())
+        let mut plan = crate::engine::Engine::plan(&self.spec, self.kind())?;
+        plan.wavelengths = self.rgb_only.clone();
+        Ok(plan)
     }
 }
 

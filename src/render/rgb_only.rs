@@ -14,68 +14,13 @@
 //! the interior wavelength whose loss changes the worst proxy least.
 
 use super::scene::{FrameScene, SkySpec};
-use crate::atmosphere::sun_transmittance::sun_transmittance;
+use crate::atmosphere::sun_transmittance::light_spectra;
 use crate::atmosphere::Medium;
-use crate::plan::{RgbFacts, WavelengthCandidate, MIN_RGB_WAVELENGTHS};
-use crate::spectrum::colour::xyz_to_linear_srgb;
-use crate::spectrum::data::cie1931_cmfs;
+use crate::plan::{RgbFacts, WavelengthCandidate};
+use crate::spectrum::subsets::rgb_subsets;
 use crate::Result;
 
-/// The CIE 1931 colour-matching functions on the 1 nm grid 360–830 nm.
-fn cmf_grid() -> Vec<[f64; 3]> {
-    let cmfs = cie1931_cmfs();
-    (0..=470)
-        .map(|k| {
-            let l = 360.0 + k as f64;
-            [cmfs[0].eval(l), cmfs[1].eval(l), cmfs[2].eval(l)]
-        })
-        .collect()
-}
-
-/// Linear sRGB of each proxy known at the wavelengths `keep` (indices into `nm`, ascending),
-/// linear between them and constant beyond the ends, as `spectrum::colour::XyzWeights`.
-fn rgb_at(nm: &[f64], keep: &[usize], proxies: &[Vec<f64>], cmf: &[[f64; 3]]) -> Vec<[f64; 3]> {
-    let mut xyz = vec![[0.0f64; 3]; proxies.len()];
-    let mut j = 0;
-    for (k, c) in cmf.iter().enumerate() {
-        let l = 360.0 + k as f64;
-        while j + 1 < keep.len() && nm[keep[j + 1]] <= l {
-            j += 1;
-        }
-        let (i0, i1, t) = if l <= nm[keep[0]] || j + 1 >= keep.len() {
-            (keep[j], keep[j], 0.0)
-        } else {
-            let (a, b) = (keep[j], keep[j + 1]);
-            (a, b, (l - nm[a]) / (nm[b] - nm[a]))
-        };
-        for (acc, p) in xyz.iter_mut().zip(proxies) {
-            let v = p[i0] * (1.0 - t) + p[i1] * t;
-            for ch in 0..3 {
-                acc[ch] += v * c[ch];
-            }
-        }
-    }
-    xyz.into_iter().map(xyz_to_linear_srgb).collect()
-}
-
-/// The largest change of any proxy's RGB against `full`, relative to its mean |channel|.
-fn worst_change(rgb: &[[f64; 3]], full: &[[f64; 3]]) -> f64 {
-    rgb.iter()
-        .zip(full)
-        .map(|(a, f)| {
-            let scale = (f[0].abs() + f[1].abs() + f[2].abs()) / 3.0;
-            let d = (0..3).map(|c| (a[c] - f[c]).abs()).fold(0.0, f64::max);
-            if scale > 0.0 {
-                d / scale
-            } else {
-                0.0
-            }
-        })
-        .fold(0.0, f64::max)
-}
-
-/// The scene's proxy spectra at its wavelengths (see the module docs); those that are zero
-/// everywhere are dropped.
+/// The scene's proxy spectra at its wavelengths (see the module docs).
 pub fn proxy_spectra(scene: &FrameScene) -> Result<Vec<Vec<f64>>> {
     let n = scene.wavelengths.len();
     let albedo = &scene.optics.albedo;
@@ -86,9 +31,7 @@ pub fn proxy_spectra(scene: &FrameScene) -> Result<Vec<Vec<f64>>> {
         .map(|v| if k_mean > 0.0 { v / k_mean } else { 1.0 })
         .collect();
     let times = |a: &[f64], b: &[f64]| a.iter().zip(b).map(|(x, y)| x * y).collect::<Vec<_>>();
-    let mut lights: Vec<Vec<f64>> = Vec::new();
-    let ground_albedo = scene.ground.as_ref().map(|g| g.albedo.clone());
-    match &scene.atmosphere {
+    let lights: Vec<Vec<f64>> = match &scene.atmosphere {
         None => {
             let sun = scene
                 .sun
@@ -100,80 +43,52 @@ pub fn proxy_spectra(scene: &FrameScene) -> Result<Vec<Vec<f64>>> {
                 _ => vec![0.0; n],
             };
             let mu_s = scene.sun.direction().z.max(0.0);
-            if let Some(g) = &ground_albedo {
+            let mut lights = Vec::new();
+            if let Some(g) = &scene.ground {
                 lights.push(
                     (0..n)
-                        .map(|l| g[l] * (sun[l] * mu_s + std::f64::consts::PI * sky[l]))
+                        .map(|l| g.albedo[l] * (sun[l] * mu_s + std::f64::consts::PI * sky[l]))
                         .collect(),
                 );
             }
             lights.push(sun);
             lights.push(sky);
+            lights
         }
         Some(params) => {
-            let m = Medium::new(params, &scene.wavelengths, None)?;
-            let e0 = m.solar_irradiance.clone();
-            let scattering: Vec<f64> = (0..n)
-                .map(|l| m.rayleigh_scattering_per_m[l] + m.mie_scattering_per_m[l])
-                .collect();
-            let elevation = scene.sun.elevation_deg.to_radians();
+            let mut m = Medium::new(params, &scene.wavelengths, None)?;
+            m.ground_albedo = match &scene.ground {
+                Some(g) => g.albedo.clone(),
+                None => vec![0.0; n],
+            };
             let camera_altitude = scene.camera.position_m.z.clamp(0.0, 1e6);
-            lights.push(e0.clone());
-            lights.push(times(&e0, &scattering));
-            for altitude in [0.0, camera_altitude] {
-                let t = sun_transmittance(&m, altitude, elevation);
-                let beam = times(&e0, &t);
-                lights.push(times(&beam, &scattering));
-                if let Some(g) = &ground_albedo {
-                    lights.push(times(&beam, g));
-                }
-                lights.push(beam);
-            }
+            light_spectra(
+                &m,
+                &[0.0, camera_altitude],
+                scene.sun.elevation_deg.to_radians(),
+            )
         }
-    }
+    };
     let mut proxies = Vec::new();
     for light in lights {
         proxies.push(times(&light, albedo));
         proxies.push(times(&times(&light, albedo), &relative_k));
         proxies.push(light);
     }
-    proxies.retain(|p| p.iter().any(|v| *v > 0.0) && p.iter().all(|v| v.is_finite()));
     Ok(proxies)
 }
 
 /// The facts of an RGB-only request for `scene`: its wavelengths and the subsets it could run
-/// at with their proxies' change, fewest wavelengths first (none with fewer than
-/// [`MIN_RGB_WAVELENGTHS`] wavelengths requested or without a lit proxy).
+/// at with their proxies' change, fewest wavelengths first (`spectrum::subsets::rgb_subsets`).
 pub fn rgb_facts(scene: &FrameScene) -> Result<RgbFacts> {
     let nm = scene.wavelengths.as_nm().to_vec();
-    let proxies = proxy_spectra(scene)?;
-    let mut candidates = Vec::new();
-    if nm.len() > MIN_RGB_WAVELENGTHS && !proxies.is_empty() {
-        let cmf = cmf_grid();
-        let all: Vec<usize> = (0..nm.len()).collect();
-        let full = rgb_at(&nm, &all, &proxies, &cmf);
-        let mut keep = all;
-        while keep.len() > MIN_RGB_WAVELENGTHS {
-            // Drop the interior wavelength whose loss changes the worst proxy least (the first
-            // and last stay: beyond them the spectrum is held constant).
-            let mut best: Option<(usize, f64)> = None;
-            for j in 1..keep.len() - 1 {
-                let mut trial = keep.clone();
-                trial.remove(j);
-                let e = worst_change(&rgb_at(&nm, &trial, &proxies, &cmf), &full);
-                if best.is_none_or(|(_, b)| e < b) {
-                    best = Some((j, e));
-                }
-            }
-            let Some((j, e)) = best else { break };
-            keep.remove(j);
-            candidates.push(WavelengthCandidate {
-                internal_nm: keep.iter().map(|&i| nm[i]).collect(),
-                proxy_error: e,
-            });
-        }
-        candidates.reverse();
-    }
+    let candidates = rgb_subsets(&nm, &proxy_spectra(scene)?)
+        .into_iter()
+        .map(|(internal_nm, proxy_error)| WavelengthCandidate {
+            internal_nm,
+            proxy_error,
+        })
+        .collect();
     Ok(RgbFacts {
         requested_nm: nm,
         candidates,
@@ -183,6 +98,7 @@ pub fn rgb_facts(scene: &FrameScene) -> Result<RgbFacts> {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::spectrum::subsets::MIN_RGB_WAVELENGTHS;
 
     fn scene(wavelengths: &str, atmosphere: bool) -> FrameScene {
         let mut v: serde_json::Value =
@@ -198,34 +114,19 @@ mod tests {
     }
 
     #[test]
-    fn the_full_set_reproduces_the_colour_module_and_subsets_are_ordered() {
+    fn an_atmosphere_scene_has_subsets_down_to_three_wavelengths() {
         let s = scene(
             "[380, 405, 430, 455, 480, 505, 530, 555, 580, 605, 630, 655, 680, 705, 730, 755]",
             true,
         );
-        let proxies = proxy_spectra(&s).unwrap();
-        assert!(proxies.len() >= 6);
-        let nm = s.wavelengths.as_nm();
-        let all: Vec<usize> = (0..nm.len()).collect();
-        let ours = rgb_at(nm, &all, &proxies, &cmf_grid());
-        let w = crate::spectrum::colour::XyzWeights::new(nm);
-        for (p, rgb) in proxies.iter().zip(&ours) {
-            let theirs = w.linear_srgb(p);
-            for c in 0..3 {
-                assert!((rgb[c] - theirs[c]).abs() <= 1e-9 * theirs[c].abs().max(1e-30));
-            }
-        }
+        assert!(proxy_spectra(&s).unwrap().len() >= 15);
         let f = rgb_facts(&s).unwrap();
         assert_eq!(f.candidates.len(), 16 - MIN_RGB_WAVELENGTHS);
         assert_eq!(f.candidates[0].internal_nm.len(), MIN_RGB_WAVELENGTHS);
-        for c in &f.candidates {
-            assert_eq!(c.internal_nm.first(), Some(&380.0));
-            assert_eq!(c.internal_nm.last(), Some(&755.0));
-            assert!(c.proxy_error.is_finite() && c.proxy_error >= 0.0);
-        }
-        // Three wavelengths cannot hold a sky's colour to a per cent; fifteen of sixteen can.
-        assert!(f.candidates[0].proxy_error > 0.01);
-        assert!(f.candidates.last().unwrap().proxy_error < 0.02);
+        // Three wavelengths cannot hold the sunlit sky's colour to a per cent (20 % measured);
+        // fifteen of sixteen can (705 nm, where the colour-matching functions are small).
+        assert!(f.candidates[0].proxy_error > 0.05);
+        assert!(f.candidates.last().unwrap().proxy_error < 1e-3);
     }
 
     #[test]

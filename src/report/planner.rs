@@ -481,7 +481,7 @@ fn rgb_rule(width: usize, height: usize) -> Result<RuleSaving> {
         plan: match &plan.wavelengths {
             Some(w) => format!(
                 "{}; measured per-pixel change of the RGB: RMS {:.2} %, largest {:.2} % (predicted {:.2} %)",
-                w.detail(&plan.budget),
+                w.detail(),
                 rms * 100.0,
                 worst * 100.0,
                 w.predicted_error * 100.0

@@ -3,6 +3,7 @@
 pub mod colour;
 pub mod data;
 pub mod photometry;
+pub mod subsets;
 pub mod tabulated;
 pub mod wavelengths;
 

@@ -150,7 +150,8 @@ pub async fn artifact(
         }
         .into()
     }));
-    let req = state.request(product, params)?;
+    // The job's artifact: every wavelength, whatever the download's format.
+    let req = state.request(product, params)?.without_rgb_only()?;
     let (body, source, key) = state.body(&req).await?;
     let mut resp = super::artifact_response(body, req.format.content_type(), source, &key);
     let h = resp.headers_mut();

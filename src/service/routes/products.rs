@@ -44,7 +44,15 @@ async fn product(
     params: RequestParams,
     headers: HeaderMap,
 ) -> Result<Response, ApiError> {
-    let req = state.request(kind, params)?;
+    let mut req = state.request(kind, params)?;
+    // A PNG is RGB-only (the planner may run fewer wavelengths), unless the spectral artifact
+    // of the request is cached already.
+    if req.rgb_only.is_some() {
+        let spectral = req.clone().without_rgb_only()?;
+        if state.cache().contains(&spectral.cache_key()) {
+            req = spectral;
+        }
+    }
     // The ETag is the cache key and the format, known before anything is computed: a client that
     // holds it gets 304 at once.
     let etag = format!("\"{}-{}\"", req.cache_key(), req.format.name());
