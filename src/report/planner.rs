@@ -504,12 +504,82 @@ fn rgb_rule(width: usize, height: usize) -> Result<RuleSaving> {
     })
 }
 
+/// Linear sRGB of every direction of a sky artifact.
+fn dome_rgb(image: &crate::store::SpectralImage) -> Result<Vec<[f64; 3]>> {
+    let table = crate::product::artifact::dome_table_of(image)?;
+    let w = crate::spectrum::colour::XyzWeights::new(&table.wavelengths_nm);
+    Ok(table
+        .radiance
+        .chunks(table.wavelengths_nm.len().max(1))
+        .map(|s| w.linear_srgb(&s.iter().map(|&v| v as f64).collect::<Vec<_>>()))
+        .collect())
+}
+
+/// Per direction, the largest channel change of `x` against `r` relative to the direction's
+/// mean |channel| in `r`: (largest, RMS) over the directions that are lit.
+fn rgb_direction_changes(x: &[[f64; 3]], r: &[[f64; 3]]) -> (f64, f64) {
+    let (mut worst, mut sum2, mut n) = (0.0f64, 0.0f64, 0usize);
+    for (a, b) in x.iter().zip(r) {
+        let scale = (b[0].abs() + b[1].abs() + b[2].abs()) / 3.0;
+        if scale > 0.0 {
+            let e = (0..3).map(|c| (a[c] - b[c]).abs()).fold(0.0, f64::max) / scale;
+            worst = worst.max(e);
+            sum2 += e * e;
+            n += 1;
+        }
+    }
+    (worst, (sum2 / n.max(1) as f64).sqrt())
+}
+
+/// The wavelength rule on a sky PNG: the default 16 wavelengths, fast, standard, sun 30°, the
+/// default 33×16 table, as a PNG (RGB-only) and as the spectral artifact (cold engines), against
+/// the precise method at the `reference` preset at every wavelength.
+fn sky_rgb_rule() -> Result<RuleSaving> {
+    let request = |format: &str, method: &str, quality: &str| -> Result<ProductRequest> {
+        let pairs = [
+            ("format", format),
+            ("method", method),
+            ("quality", quality),
+            ("sun_elevation_deg", "30"),
+        ];
+        let p = RequestParams::from_pairs(pairs.iter().copied())
+            .map_err(|e| Error::invalid("planner report", format!("{e:?}")))?;
+        ProductRequest::from_params(ProductKind::Sky, &p)
+    };
+    let png = request("png", "fast", "standard")?;
+    let spectral = png.clone().without_rgb_only()?;
+    let (with, ms_with, cpu_with) = fastest(|| png.compute(&Engine::new()))?;
+    let (without, ms_without, cpu_without) = fastest(|| spectral.compute(&Engine::new()))?;
+    let reference = request("json", "precise", "reference")?.compute(&Engine::new())?;
+    let (with, without, reference) = (dome_rgb(&with)?, dome_rgb(&without)?, dome_rgb(&reference)?);
+    let (worst, rms) = rgb_direction_changes(&with, &without);
+    Ok(RuleSaving {
+        rule: "sky: RGB-only PNG at fewer wavelengths".into(),
+        case: "sky 33×16, earth, fast, standard, sun 30°, 16 wavelengths 380–755 nm, PNG (RGB-only) against the spectral artifact; cold tables".into(),
+        plan: match &png.rgb_only {
+            Some(w) => w.detail(),
+            None => "(rule did not fire)".into(),
+        },
+        ms_with,
+        ms_without,
+        cpu_with,
+        cpu_without,
+        change: (worst, rms),
+        error_with: rgb_direction_changes(&with, &reference).0,
+        error_without: rgb_direction_changes(&without, &reference).0,
+        measures: "largest RGB deviation of a direction (relative to its mean channel) from the precise method at the reference preset",
+        note: "change: largest / RMS over directions of the largest channel change relative to the direction's mean channel".into(),
+    })
+}
+
 /// Measures every rule (see the module docs). `progress(done, total)` after each.
 pub fn run(progress: &dyn Fn(usize, usize)) -> Result<Vec<RuleSaving>> {
-    let total = 10;
+    let total = 11;
     let mut out = Vec::new();
     out.push(sky_orders()?);
     progress(1, total);
+    out.push(sky_rgb_rule()?);
+    progress(2, total);
     out.push(frame_rule(
         "frame: cloud outside the view",
         "validation cloud, camera turned away, 48×36",
@@ -517,7 +587,7 @@ pub fn run(progress: &dyn Fn(usize, usize)) -> Result<Vec<RuleSaving>> {
         false,
         None,
     )?);
-    progress(2, total);
+    progress(3, total);
     out.push(frame_rule(
         "frame: thin cloud, no multiple scattering",
         "validation cloud at extinction 5e-6 /m (optical path ≤ 0.013), 48×36",
@@ -525,7 +595,7 @@ pub fn run(progress: &dyn Fn(usize, usize)) -> Result<Vec<RuleSaving>> {
         true,
         None,
     )?);
-    progress(3, total);
+    progress(4, total);
     out.push(frame_rule(
         "frame: ground light under budget (no sky: lattice paths left out)",
         "validation cloud, no sky, ground albedo 0.005, 48×36",
@@ -536,7 +606,7 @@ pub fn run(progress: &dyn Fn(usize, usize)) -> Result<Vec<RuleSaving>> {
         true,
         None,
     )?);
-    progress(4, total);
+    progress(5, total);
     out.push(frame_rule(
         "frame: coarser voxels at the pixel footprint",
         "validation cloud from 30 km, fov 12°, 48×36",
@@ -547,7 +617,7 @@ pub fn run(progress: &dyn Fn(usize, usize)) -> Result<Vec<RuleSaving>> {
         true,
         None,
     )?);
-    progress(5, total);
+    progress(6, total);
     out.push(frame_rule(
         "frame: coarser voxels at the pixel footprint (max_rel_error 0.3)",
         "validation cloud from 30 km, fov 12°, 48×36",
@@ -558,7 +628,7 @@ pub fn run(progress: &dyn Fn(usize, usize)) -> Result<Vec<RuleSaving>> {
         true,
         Some(0.3),
     )?);
-    progress(6, total);
+    progress(7, total);
     out.push(frame_rule(
         "frame: coarser multiple-scattering field at the pixel footprint (max_rel_error 0.13)",
         "validation cloud at 25 m voxels from 30 km, fov 12°, 48×36",
@@ -570,7 +640,7 @@ pub fn run(progress: &dyn Fn(usize, usize)) -> Result<Vec<RuleSaving>> {
         true,
         Some(0.13),
     )?);
-    progress(7, total);
+    progress(8, total);
     out.push(frame_rule(
         "frame: ground light under budget with an atmosphere, measured share (max_rel_error 0.5)",
         "validation cloud, earth atmosphere and sky, sun 35°, ground albedo 0.02, 440/550/680 nm, 48×36; lighting included (cold tables)",
@@ -584,11 +654,11 @@ pub fn run(progress: &dyn Fn(usize, usize)) -> Result<Vec<RuleSaving>> {
         true,
         Some(0.5),
     )?);
-    progress(8, total);
-    out.push(sphere_rule(9, 0.5)?);
     progress(9, total);
-    out.push(rgb_rule(160, 120)?);
+    out.push(sphere_rule(9, 0.5)?);
     progress(10, total);
+    out.push(rgb_rule(160, 120)?);
+    progress(11, total);
     Ok(out)
 }
 
