@@ -393,14 +393,25 @@ mod tests {
 
     #[test]
     fn key_ignores_format_but_not_numbers() {
-        let a = ProductRequest::from_params(ProductKind::Sky, &params(&[("format", "exr")]));
-        let b = ProductRequest::from_params(ProductKind::Sky, &params(&[("format", "png")]));
-        let c = ProductRequest::from_params(ProductKind::Ground, &params(&[]));
-        let d = ProductRequest::from_params(ProductKind::Sky, &params(&[("ground_albedo", "0.2")]));
-        let (a, b, c, d) = (a.unwrap(), b.unwrap(), c.unwrap(), d.unwrap());
-        assert_eq!(a.cache_key(), b.cache_key());
+        let sky = |pairs: &[(&str, &str)]| {
+            ProductRequest::from_params(ProductKind::Sky, &params(pairs)).unwrap()
+        };
+        let a = sky(&[("format", "exr")]);
+        let c = ProductRequest::from_params(ProductKind::Ground, &params(&[])).unwrap();
+        let d = sky(&[("ground_albedo", "0.2")]);
+        assert_eq!(a.cache_key(), sky(&[]).cache_key());
         assert_ne!(a.cache_key(), c.cache_key());
         assert_ne!(a.cache_key(), d.cache_key());
+        // A PNG is RGB-only: fewer wavelengths where the budget allows, its own key (both
+        // projections share it); undone, it is the spectral request.
+        let png = sky(&[("format", "png")]);
+        assert!(png.rgb_only.is_some());
+        assert_ne!(png.cache_key(), a.cache_key());
+        assert_eq!(
+            png.cache_key(),
+            sky(&[("format", "png_latlong")]).cache_key()
+        );
+        assert_eq!(png.without_rgb_only().unwrap().cache_key(), a.cache_key());
     }
 
     #[test]
