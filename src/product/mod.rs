@@ -101,7 +101,8 @@ impl Format {
 pub const MAX_PROBE_VALUES: usize = 32_768;
 
 /// A validated, canonical product request. Everything that changes the numbers is in
-/// [`Self::canonical_json`]; the response format is not (it is rendered from the same artifact).
+/// [`Self::canonical_json`]; the response format is not (it is rendered from the same artifact),
+/// except that a PNG is RGB-only and may run at fewer wavelengths ([`Self::rgb_only`]).
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct ProductRequest {
     /// What to compute (tagged `product`, with the table shape, probes, distances).
