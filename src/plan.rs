@@ -1041,7 +1041,7 @@ impl Serialize for FramePlan {
 /// under the budget, each spending its prediction from [`Budget::allowance`]; and the voxels
 /// coarsened by a power of two (at most [`MAX_COARSENING`]) to the largest size not above the
 /// smallest pixel footprint on the cloud (a pixel's single ray cannot resolve finer detail),
-/// the multiple-scattering field's cells coarsened likewise ([`ms_grid_rule`]), a sphere
+/// the multiple-scattering field's cells coarsened likewise (`ms_grid_rule`), a sphere
 /// hierarchy summed at the deepest level the camera resolves ([`sphere_level_rule`], decided
 /// before voxelising) and an RGB-only request run at fewer wavelengths
 /// ([`rgb_wavelengths_rule`], decided first), each where the budget covers its measured cost. A

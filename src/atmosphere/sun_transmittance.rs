@@ -67,7 +67,7 @@ pub fn sun_transmittance(m: &Medium, altitude_m: f64, sun_elevation_rad: f64) ->
 
 /// Air masses of the view paths [`light_spectra`] sees the lit air through: a high view, one
 /// 6° above the horizon and the horizon itself (about 38 in the earth's atmosphere).
-const VIEW_AIR_MASSES: [f64; 3] = [2.0, 10.0, 38.0];
+pub const VIEW_AIR_MASSES: [f64; 3] = [2.0, 10.0, 38.0];
 
 /// Spectra of the light an atmosphere puts on a scene, known at every wavelength of `m` without
 /// a table (the planner's RGB-only rule, `spectrum::subsets`): the sun above the atmosphere E₀
