@@ -62,11 +62,17 @@ pub fn proxy_spectra(scene: &FrameScene) -> Result<Vec<Vec<f64>>> {
                 None => vec![0.0; n],
             };
             let camera_altitude = scene.camera.position_m.z.clamp(0.0, 1e6);
-            light_spectra(
+            let mut lights = light_spectra(
                 &m,
                 &[0.0, camera_altitude],
                 scene.sun.elevation_deg.to_radians(),
-            )
+            );
+            // A collimated sun lights the cloud with its given spectrum (the atmosphere's
+            // products keep the solar one).
+            if let Some(e) = &scene.sun.collimated_irradiance {
+                lights.push(e.clone());
+            }
+            lights
         }
     };
     let mut proxies = Vec::new();
