@@ -191,7 +191,7 @@ parameter_table! {
         default: "—", products: DOMES,
         doc: "Exact directions to evaluate (view zenith, view azimuth from the sun)" },
     format { cli: None, unit: "", range: Range::OneOf(&["json", "exr", "png", "png_latlong"]), default: "json",
-        products: ALL, doc: "Response format: json (all), exr (sky, ground, aerial), png (fisheye preview; sky, ground), png_latlong (panorama preview; sky, ground)" },
+        products: ALL, doc: "Response format: json (all), exr (sky, ground, aerial), png (fisheye preview; sky, ground), png_latlong (panorama preview; sky, ground); a PNG is RGB-only: the planner may run it at fewer wavelengths (its own cache key)" },
 }
 
 /// The table row of `name`.
