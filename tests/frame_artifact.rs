@@ -7,7 +7,7 @@
 mod service_support;
 
 use serde_json::{json, Value};
-use service_support::{bake_single_exr, call, settings, tiny_frame_scene, Scratch};
+use service_support::{bake_single_exr, call, settings, skybake_ok, tiny_frame_scene, Scratch};
 use skybake::engine::Stages;
 use skybake::render::product::{frame_meta_json, ATTR_FRAME_META};
 use skybake::render::{FrameError, FrameMeta, Method, ERROR_BASIS};
@@ -67,16 +67,12 @@ async fn cli_http_and_bake_write_the_same_frame_artifact() {
     std::fs::write(&scene_path, scene.to_string()).unwrap();
     // CLI.
     let cli_path = dir.path().join("cli.exr");
-    let out = std::process::Command::new(env!("CARGO_BIN_EXE_skybake"))
-        .args(["render", scene_path.to_str().unwrap(), "-o"])
-        .arg(&cli_path)
-        .output()
-        .unwrap();
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
+    skybake_ok([
+        "render",
+        scene_path.to_str().unwrap(),
+        "-o",
+        cli_path.to_str().unwrap(),
+    ]);
     let cli = std::fs::read(&cli_path).unwrap();
     // HTTP.
     let state = AppState::new(settings(&dir.path().join("cache"))).unwrap();

@@ -16,7 +16,7 @@ use skybake::render::{lighting_for, render_tile, FrameRequest, FrameScene, Metho
 use skybake::service::AppState;
 
 mod service_support;
-use service_support::{call, settings, Scratch};
+use service_support::{call, settings, skybake_ok, Scratch};
 
 /// The validation cloud (vacuum, collimated sun 1, constant sky 0.1) at 50 m voxels, 32×24 px.
 fn scene(edit: impl FnOnce(&mut Value)) -> Value {
@@ -572,16 +572,15 @@ fn the_cli_and_the_service_take_max_rel_error_for_frames() {
         stderr.contains("--max-rel-error") && stderr.contains("0.0810"),
         "{stderr}"
     );
-    let out = std::process::Command::new(env!("CARGO_BIN_EXE_skybake"))
-        .args(["plan", "frame", "--scene", path.to_str().unwrap()])
-        .args(["--max-rel-error", "0.3"])
-        .output()
-        .unwrap();
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
+    let scene_arg = path.to_str().unwrap();
+    let out = skybake_ok([
+        "plan",
+        "frame",
+        "--scene",
+        scene_arg,
+        "--max-rel-error",
+        "0.3",
+    ]);
     let plan: Value = serde_json::from_slice(&out.stdout).unwrap();
     assert_eq!(plan["plan"]["budget"]["relative_error"], json!(0.3));
     let _ = std::fs::remove_dir_all(&dir);

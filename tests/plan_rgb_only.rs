@@ -16,7 +16,7 @@ use skybake::service::AppState;
 use skybake::store::SpectralImage;
 
 mod service_support;
-use service_support::{call, settings, Scratch};
+use service_support::{call, settings, skybake_ok, Scratch};
 
 /// The 16 wavelengths of the default set, 380–755 nm.
 fn sixteen() -> Vec<f64> {
@@ -203,36 +203,29 @@ fn the_cli_runs_a_png_as_an_rgb_only_request() {
     let dir = Scratch::new("rgb-only-cli");
     let path = dir.path().join("scene.json");
     std::fs::write(&path, serde_json::to_vec(&v).unwrap()).unwrap();
-    let skybake = |args: &[&str]| {
-        std::process::Command::new(env!("CARGO_BIN_EXE_skybake"))
-            .args(args)
-            .output()
-            .unwrap()
-    };
     let rgb = FrameRequest::from_value(&v, Method::Fast)
         .unwrap()
         .with_rgb_only(true);
     let internal = rgb.internal_wavelengths().unwrap();
     // `plan frame --rgb-only` shows the subset; `--rgb-only` is refused for other products.
     let scene_arg = path.to_str().unwrap();
-    let out = skybake(&["plan", "frame", "--rgb-only", "--scene", scene_arg]);
-    let stderr = String::from_utf8_lossy(&out.stderr);
-    assert!(out.status.success(), "{stderr}");
+    let out = skybake_ok(["plan", "frame", "--rgb-only", "--scene", scene_arg]);
     let plan: Value = serde_json::from_slice(&out.stdout).unwrap();
     assert_eq!(plan["cache_key"], json!(rgb.cache_key()));
     assert_eq!(
         plan["plan"]["wavelengths"]["internal_nm"],
         json!(internal.as_nm())
     );
-    let out = skybake(&["plan", "sky", "--rgb-only"]);
+    let out = std::process::Command::new(env!("CARGO_BIN_EXE_skybake"))
+        .args(["plan", "sky", "--rgb-only"])
+        .output()
+        .unwrap();
     assert!(!out.status.success());
     assert!(String::from_utf8_lossy(&out.stderr).contains("rgb"));
     // `render -o FRAME.png` runs the RGB-only request: its summary lists the subset.
     let png = dir.path().join("frame.png");
     let png_arg = png.to_str().unwrap();
-    let out = skybake(&["render", scene_arg, "-o", png_arg, "--format", "json"]);
-    let stderr = String::from_utf8_lossy(&out.stderr);
-    assert!(out.status.success(), "{stderr}");
+    let out = skybake_ok(["render", scene_arg, "-o", png_arg, "--format", "json"]);
     let summary: Value = serde_json::from_slice(&out.stdout).unwrap();
     assert_eq!(summary["wavelengths_nm"], json!(internal.as_nm()));
     assert!(std::fs::read(&png).unwrap().starts_with(b"\x89PNG"));

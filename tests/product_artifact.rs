@@ -62,15 +62,7 @@ async fn cli_http_and_bake_write_the_same_artifact() {
         args.push(v.to_string());
     }
     args.extend(["-o".into(), cli_path.to_str().unwrap().to_string()]);
-    let out = std::process::Command::new(env!("CARGO_BIN_EXE_skybake"))
-        .args(&args)
-        .output()
-        .unwrap();
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
+    service_support::skybake_ok(&args);
     let cli = std::fs::read(&cli_path).unwrap();
     // HTTP.
     let state = AppState::new(settings(&dir.path().join("cache"))).unwrap();

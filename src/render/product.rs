@@ -605,6 +605,24 @@ pub fn plan_frame(scene: &FrameScene, grid: &DensityGrid, method: Method) -> Fra
     crate::plan::plan_frame(&frame_facts(scene, grid, method))
 }
 
+/// An RGB-only request's facts, the wavelength rule's decision and the budget it leaves
+/// ([`FrameRequest::rgb_decision`]).
+struct RgbDecision {
+    facts: Option<RgbFacts>,
+    subset: Option<WavelengthSubset>,
+    budget: Budget,
+}
+
+impl RgbDecision {
+    /// The wavelengths the frame runs at: the subset, or the scene's own.
+    fn wavelengths(&self, scene: &FrameScene) -> Result<Wavelengths> {
+        match &self.subset {
+            Some(s) => Wavelengths::new(s.internal_nm.clone()),
+            None => Ok(scene.wavelengths.clone()),
+        }
+    }
+}
+
 /// A frame planned and ready to render ([`FrameRequest::planned`]).
 struct PlannedFrame {
     plan: FramePlan,
@@ -743,9 +761,9 @@ impl FrameRequest {
     }
 
     /// The RGB-only facts and the wavelength rule's decision on a fresh budget (the rule runs
-    /// first, so the planner repeats the same decision): `(None, None, budget)` for a request
+    /// first, so the planner repeats the same decision); no facts and no subset for a request
     /// that wants the spectral image or for the reference method.
-    fn rgb_decision(&self) -> Result<(Option<RgbFacts>, Option<WavelengthSubset>, Budget)> {
+    fn rgb_decision(&self) -> Result<RgbDecision> {
         let reference = self.method == Method::Reference;
         let mut budget = crate::plan::frame_budget(
             reference,
@@ -753,20 +771,25 @@ impl FrameRequest {
             self.max_rel_error,
         );
         if !self.rgb_only || reference {
-            return Ok((None, None, budget));
+            return Ok(RgbDecision {
+                facts: None,
+                subset: None,
+                budget,
+            });
         }
         let facts = super::rgb_only::rgb_facts(&self.scene)?;
         let subset = crate::plan::rgb_wavelengths_rule(&facts, &mut budget);
-        Ok((Some(facts), subset, budget))
+        Ok(RgbDecision {
+            facts: Some(facts),
+            subset,
+            budget,
+        })
     }
 
     /// The wavelengths the frame runs at and its artifact holds: the requested ones, or an
     /// RGB-only request's subset of them.
     pub fn internal_wavelengths(&self) -> Result<Wavelengths> {
-        match self.rgb_decision()?.1 {
-            Some(subset) => Wavelengths::new(subset.internal_nm),
-            None => Ok(self.scene.wavelengths.clone()),
-        }
+        self.rgb_decision()?.wavelengths(&self.scene)
     }
 
     /// Sets the request's `max_rel_error` target (CLI `--max-rel-error`, HTTP `max_rel_error`),
@@ -851,15 +874,17 @@ impl FrameRequest {
         engine: &Engine,
         loader: &dyn Fn(&str) -> Result<Vec<u8>>,
     ) -> Result<FramePlan> {
-        Ok(self.planned(engine, loader)?.plan)
+        Ok(self.planned(engine, loader, self.rgb_decision()?)?.plan)
     }
 
     /// Voxelises (a sphere hierarchy at the level the plan chooses), measures, plans and
-    /// executes the plan, and computes the light the frame runs with.
+    /// executes the plan, and computes the light the frame runs with; `rgb` is the request's
+    /// [`Self::rgb_decision`].
     fn planned(
         &self,
         engine: &Engine,
         loader: &dyn Fn(&str) -> Result<Vec<u8>>,
+        rgb: RgbDecision,
     ) -> Result<PlannedFrame> {
         let start = Instant::now();
         let reference = self.method == Method::Reference;
@@ -871,7 +896,11 @@ impl FrameRequest {
             sphere_facts(&self.scene)?
         };
         // The wavelength rule first: an RGB-only request may run at a subset of its wavelengths.
-        let (rgb, subset, mut budget) = self.rgb_decision()?;
+        let RgbDecision {
+            facts: rgb,
+            subset,
+            mut budget,
+        } = rgb;
         let scene = match &subset {
             Some(s) => self.scene.at_wavelengths(&s.internal_nm)?,
             None => self.scene.clone(),
@@ -1028,7 +1057,8 @@ impl FrameRequest {
     ) -> Result<SpectralImage> {
         let cam = &self.scene.camera;
         let (w, h) = (cam.width, cam.height);
-        let wavelengths = self.internal_wavelengths()?;
+        let rgb = self.rgb_decision()?;
+        let wavelengths = rgb.wavelengths(&self.scene)?;
         let n_l = wavelengths.len();
         let reference = self.method == Method::Reference;
         let rects = tile_rects(w, h);
@@ -1076,7 +1106,7 @@ impl FrameRequest {
                 settings,
                 lighting,
                 timing_ms: mut preparation_ms,
-            } = self.planned(engine, loader)?;
+            } = self.planned(engine, loader, rgb)?;
             let prepared = Prepared::new(&scene, &grid, &lighting, settings, cancel)?;
             preparation_ms.extend(prepared.timing_ms.iter().cloned());
             let meta = TileMeta {

@@ -191,6 +191,18 @@ fn render_lit(
     Ok(render_tile(&p, None, &|_| {}, &|| false)?.radiance)
 }
 
+/// The frame of `scene` without its cloud (an empty grid of `grid`'s shape), fast method: the
+/// background the cloud's signal is measured against.
+fn background_of(scene: &FrameScene, grid: &DensityGrid) -> Result<Vec<f32>> {
+    let empty = DensityGrid::zeros(grid.dims, grid.voxel_size_m, grid.origin_m)?;
+    render(
+        scene,
+        &empty,
+        &plan_frame(scene, &empty, Method::Fast),
+        Method::Fast,
+    )
+}
+
 /// Normalised RMS and bias of `x` against `r`, relative to the cloud's signal: the mean of
 /// |r − b| with `b` the frame without the cloud (module docs), so a faint cloud over a bright
 /// background is not hidden by the background. (0, 0) for identical frames.
@@ -256,13 +268,7 @@ fn frame_rule(
         fastest(|| render_measured(&scene, &grid, &plan, Method::Fast))?;
     let (without, ms_without, cpu_without) =
         fastest(|| render_measured(&scene, &grid, &full, Method::Fast))?;
-    let empty = DensityGrid::zeros(grid.dims, grid.voxel_size_m, grid.origin_m)?;
-    let background = render(
-        &scene,
-        &empty,
-        &plan_frame(&scene, &empty, Method::Fast),
-        Method::Fast,
-    )?;
+    let background = background_of(&scene, &grid)?;
     let change = frame_errors(&with, &without, &background);
     let (error_with, error_without, note) = if reference {
         let pt_plan = plan_frame(&scene, &grid, Method::Reference);
@@ -363,13 +369,7 @@ fn sphere_rule(levels: u32, target: f64) -> Result<RuleSaving> {
     let (with, ms_with, cpu_with) = fastest(|| timed(to))?;
     let (without, ms_without, cpu_without) = fastest(|| timed(None))?;
     let leaves = voxelize(None)?;
-    let empty = DensityGrid::zeros(leaves.dims, leaves.voxel_size_m, leaves.origin_m)?;
-    let background = render(
-        &scene,
-        &empty,
-        &plan_frame(&scene, &empty, Method::Fast),
-        Method::Fast,
-    )?;
+    let background = background_of(&scene, &leaves)?;
     let r = render(
         &scene,
         &leaves,

@@ -146,6 +146,24 @@ pub async fn request(
     parse_response(&raw)
 }
 
+/// Runs the `skybake` binary with `args` and checks that it succeeded (its stderr otherwise).
+pub fn skybake_ok<I, S>(args: I) -> std::process::Output
+where
+    I: IntoIterator<Item = S>,
+    S: AsRef<std::ffi::OsStr>,
+{
+    let out = std::process::Command::new(env!("CARGO_BIN_EXE_skybake"))
+        .args(args)
+        .output()
+        .expect("run skybake");
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    out
+}
+
 /// One request through the router in process (no socket), the whole response read.
 pub async fn send(state: &AppState, req: axum::http::Request<axum::body::Body>) -> Response {
     use tower::ServiceExt;
