@@ -1,7 +1,7 @@
 //! Times the cellular automaton on the paper's 256×256×20 space (seed 003 §6: 0.5 s per step).
 //! Run: `cargo run --example ca_bench [nx ny nz steps]`.
 
-fn main() -> Result<(), skybake::Error> {
+fn main() -> Result<(), skybake_physics::Error> {
     let args: Vec<usize> = std::env::args()
         .skip(1)
         .filter_map(|a| a.parse().ok())
@@ -10,7 +10,7 @@ fn main() -> Result<(), skybake::Error> {
         [a, b, c, d] => [*a, *b, *c, *d],
         _ => [256, 256, 20, 200],
     };
-    let b = skybake::cloud::automaton::bench_ca_step(nx, ny, nz, steps)?;
+    let b = skybake_physics::cloud::automaton::bench_ca_step(nx, ny, nz, steps)?;
     println!(
         "ca-step {}x{}x{}: mean {:.3} ms, min {:.3} ms over {} steps, cloud cover {:.3}",
         nx,

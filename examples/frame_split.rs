@@ -8,24 +8,24 @@
 //! MODE: all | sun | env | sky | gnd, suffixed `1` for first order only (e.g. env1).
 //! Knobs (env): TPOW, COARSE, ENVP, SUNP, ANG, STEP, QUALITY.
 use rayon::prelude::*;
-use skybake::render::bench::{bench_cumulus, bench_scene, image_errors};
-use skybake::render::lighting::Hemisphere;
-use skybake::render::pathtracer::PathTracer;
-use skybake::render::{camera, lighting_for, Method, Prepared, RenderSettings};
+use skybake_harness::frame_bench::{bench_cumulus, bench_scene, image_errors};
+use skybake_render::lighting::Hemisphere;
+use skybake_render::pathtracer::PathTracer;
+use skybake_render::{camera, lighting_for, Method, Prepared, RenderSettings};
 use std::time::Instant;
 
 fn env_f(name: &str) -> Option<f64> {
     std::env::var(name).ok().and_then(|v| v.parse().ok())
 }
 
-fn main() -> skybake::Result<()> {
+fn main() -> skybake_physics::Result<()> {
     let a: Vec<String> = std::env::args().collect();
     let w: usize = a[1].parse().unwrap();
     let h: usize = a[2].parse().unwrap();
     let spp: usize = a[3].parse().unwrap();
     let grid = bench_cumulus()?;
     let mut scene = bench_scene(w, h)?;
-    let engine = skybake::engine::Engine::new();
+    let engine = skybake_engine::engine::Engine::new();
     let base = lighting_for(&scene, &grid, &engine)?;
     let n_l = scene.wavelengths.len();
     let dir = std::env::var("REF_DIR").unwrap_or("/tmp".into());
@@ -181,15 +181,15 @@ fn main() -> skybake::Result<()> {
 
 /// The whole composited frame (background, aerial perspective) as `bench frame-accuracy` does.
 fn whole_frame(
-    scene: &skybake::render::FrameScene,
-    grid: &skybake::cloud::DensityGrid,
-    lt: &skybake::render::Lighting,
+    scene: &skybake_render::FrameScene,
+    grid: &skybake_physics::cloud::DensityGrid,
+    lt: &skybake_render::Lighting,
     w: usize,
     h: usize,
     spp: usize,
     dir: &str,
-) -> skybake::Result<()> {
-    use skybake::render::render_frame;
+) -> skybake_physics::Result<()> {
+    use skybake_render::render_frame;
     let n_l = scene.wavelengths.len();
     let seed = env_f("SEED").map(|v| v as u64);
     let path = match seed {

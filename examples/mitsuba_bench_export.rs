@@ -19,8 +19,8 @@
 //! Run: `cargo run --release --example mitsuba_bench_export -- OUT_DIR [WIDTH HEIGHT SPP ENV_H]`
 //! (defaults 160 120 1024 1024; SPP 0 skips the path tracer).
 
-use skybake::render::bench::{bench_cumulus, bench_scene};
-use skybake::render::{lighting_for, render_frame, Method, RenderSettings};
+use skybake_harness::frame_bench::{bench_cumulus, bench_scene};
+use skybake_render::{lighting_for, render_frame, Method, RenderSettings};
 use std::io::Write;
 use std::path::Path;
 use std::time::Instant;
@@ -64,7 +64,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
 
     let grid = bench_cumulus()?;
     let scene = bench_scene(width, height)?;
-    let engine = skybake::engine::Engine::new();
+    let engine = skybake_engine::engine::Engine::new();
     let lighting = lighting_for(&scene, &grid, &engine)?;
     let mut light = lighting.clone();
     light.aerial = None;

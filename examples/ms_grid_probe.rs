@@ -7,8 +7,8 @@
 //! `cargo run --release --example ms_grid_probe -- 30000`
 
 use serde_json::{json, Value};
-use skybake::engine::Engine;
-use skybake::render::{lighting_for, render_tile, FrameScene, Method, Prepared, RenderSettings};
+use skybake_engine::engine::Engine;
+use skybake_render::{lighting_for, render_tile, FrameScene, Method, Prepared, RenderSettings};
 use std::time::Instant;
 
 fn main() {
@@ -27,7 +27,7 @@ fn main() {
     let scene = FrameScene::parse(&serde_json::to_vec(&v).unwrap()).unwrap();
     let grid = scene
         .cloud
-        .voxelize(&|_| Err(skybake::Error::invalid("p", "x")))
+        .voxelize(&|_| Err(skybake_physics::Error::invalid("p", "x")))
         .unwrap();
     eprintln!("grid {:?} voxel {}", grid.dims, grid.voxel_size_m);
     let lighting = lighting_for(&scene, &grid, &Engine::new()).unwrap();

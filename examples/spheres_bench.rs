@@ -1,7 +1,7 @@
 //! Seed 004 table 1: an 800×600 transmittance image of a cloud with 5^K leaf spheres.
 //! Run: `cargo run --example spheres_bench [K ...]` (default K = 6 8 10).
 
-fn main() -> Result<(), skybake::Error> {
+fn main() -> Result<(), skybake_physics::Error> {
     let mut ks: Vec<u32> = std::env::args()
         .skip(1)
         .filter_map(|a| a.parse().ok())
@@ -10,7 +10,7 @@ fn main() -> Result<(), skybake::Error> {
         ks = vec![6, 8, 10];
     }
     for k in ks {
-        let b = skybake::cloud::spheres::bench_spheres(k, 800, 600)?;
+        let b = skybake_physics::cloud::spheres::bench_spheres(k, 800, 600)?;
         println!(
             "K={k} leaves={}: build {:.3} s, render {:.3} s ({} tests), render LOD 1px {:.3} s ({} tests), coverage {:.2}",
             b.leaves,

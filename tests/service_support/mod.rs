@@ -2,8 +2,8 @@
 //! server on an ephemeral port, and a minimal HTTP/1.1 client (one request per connection).
 #![allow(dead_code)]
 
-use skybake::config::Settings;
-use skybake::service::{server, AppState};
+use skybake_product::config::Settings;
+use skybake_service::{server, AppState};
 use std::path::{Path, PathBuf};
 use std::time::{SystemTime, UNIX_EPOCH};
 use tokio::io::{AsyncReadExt, AsyncWriteExt};
@@ -167,7 +167,7 @@ where
 /// One request through the router in process (no socket), the whole response read.
 pub async fn send(state: &AppState, req: axum::http::Request<axum::body::Body>) -> Response {
     use tower::ServiceExt;
-    let resp = skybake::service::app(state.clone())
+    let resp = skybake_service::app(state.clone())
         .oneshot(req)
         .await
         .expect("router");
@@ -254,7 +254,7 @@ pub fn metric(text: &str, series: &str) -> Option<f64> {
 /// The `validation-frame` example scene made cheap: `w` × `h` pixels, draft quality, 100 m voxels
 /// (a grid of about 20³).
 pub fn tiny_frame_scene(w: usize, h: usize) -> serde_json::Value {
-    let text = skybake::render::product::EXAMPLE_SCENES
+    let text = skybake_product::frame::EXAMPLE_SCENES
         .iter()
         .find(|(n, _)| *n == "validation-frame")
         .unwrap()
@@ -269,12 +269,12 @@ pub fn tiny_frame_scene(w: usize, h: usize) -> serde_json::Value {
 
 /// Bakes a one-item `job` into `out` (offline, default parameters) and returns the EXR it wrote.
 pub fn bake_single_exr(job: &serde_json::Value, out: &Path) -> Vec<u8> {
-    let summary = skybake::job::bake::bake(
+    let summary = skybake_job::bake::bake(
         job.to_string().as_bytes(),
         out,
-        &skybake::product::params::Defaults::default(),
+        &skybake_product::params::Defaults::default(),
         10,
-        &skybake::engine::Engine::new(),
+        &skybake_engine::engine::Engine::new(),
         |_, _, _| {},
     )
     .unwrap();

@@ -1,0 +1,258 @@
+//! `skybake bench frame` (issue 13 point 8): a 640×480 frame of a 128³ cumulus with sky light,
+//! ground light and multiple scattering at the standard quality, cold (the engine's sky and
+//! ground tables built inside the timed region) and warm; `frame-accuracy` compares the fast
+//! method with the path tracer on the same scene at a reduced resolution.
+
+use super::{lighting_for, render_frame, FrameScene, Method, RenderSettings};
+use skybake_physics::cloud::DensityGrid;
+use skybake_engine::engine::Engine;
+use crate::Result;
+use glam::DVec3;
+use serde::Serialize;
+use std::time::Instant;
+
+/// Voxels per axis of the benchmark cumulus.
+pub const BENCH_DIM: usize = 128;
+
+/// The benchmark cumulus: eight overlapping smooth balls (Wyvill's field, seed 003 eq B.1) in a
+/// 128³ grid of 12 m voxels, flat-ish base at 1 km.
+pub fn bench_cumulus() -> Result<DensityGrid> {
+    let h = 12.0;
+    let side = BENCH_DIM as f64 * h;
+    let origin = DVec3::new(-0.5 * side, -0.5 * side, 1000.0);
+    let balls: [(DVec3, f64, f64); 8] = [
+        (DVec3::new(0.0, 0.0, 1450.0), 420.0, 1.0),
+        (DVec3::new(330.0, 80.0, 1350.0), 300.0, 0.9),
+        (DVec3::new(-320.0, -60.0, 1360.0), 320.0, 0.9),
+        (DVec3::new(60.0, 300.0, 1330.0), 280.0, 0.8),
+        (DVec3::new(-40.0, -300.0, 1320.0), 270.0, 0.8),
+        (DVec3::new(50.0, -40.0, 1760.0), 300.0, 1.0),
+        (DVec3::new(-140.0, 70.0, 1980.0), 200.0, 1.0),
+        (DVec3::new(190.0, 40.0, 1880.0), 190.0, 0.9),
+    ];
+    DensityGrid::from_fn([BENCH_DIM; 3], h, origin, |p| {
+        let mut f = 0.0;
+        for (c, r, d) in balls {
+            let q = (p - c).length_squared() / (r * r);
+            if q < 1.0 {
+                // Wyvill: 1 − 22/9 q + 17/9 q² − 4/9 q³ (q = d²/r²).
+                f += d * (1.0 - q * (22.0 / 9.0) + q * q * (17.0 / 9.0) - q * q * q * (4.0 / 9.0));
+            }
+        }
+        // Flatten the base below 1.15 km.
+        let base = ((p.z - 1100.0) / 60.0).clamp(0.0, 1.0);
+        (f.min(1.2) * base) as f32
+    })
+}
+
+/// The benchmark scene (earth atmosphere, sun at 35°, ground albedo 0.3, HG 0.85).
+pub fn bench_scene(width: usize, height: usize) -> Result<FrameScene> {
+    let json = serde_json::json!({
+        "name": "bench-cumulus",
+        "cloud": {"voxel_size_m": 12.0, "source": {"type": "metaballs",
+                  "balls": [{"centre_m": [0, 0, 1450], "radius_m": 420, "density": 1.0}]}},
+        "optics": {"extinction_per_density_m": 0.04, "single_scattering_albedo": 1.0,
+                   "phase": {"henyey_greenstein": {"g": 0.85}}},
+        "camera": {"type": "pinhole", "position_m": [0, -3200, 1300], "look_at_m": [0, 0, 1500],
+                   "up": [0, 0, 1], "fov_deg": 50, "fov_axis": "horizontal",
+                   "width": width, "height": height},
+        "sun": {"elevation_deg": 35, "azimuth_deg": 140},
+        "atmosphere": "earth", "sky": "atmosphere", "ground": {"albedo": 0.3, "height_m": 0},
+        "wavelengths_nm": [440, 550, 680], "quality": "standard"
+    });
+    FrameScene::parse(json.to_string().as_bytes())
+}
+
+/// Timings of one bench run.
+#[derive(Debug, Clone, Serialize)]
+pub struct FrameBench {
+    pub cold_ms: f64,
+    pub warm_ms: f64,
+    /// Warm-run stage timings, ms.
+    pub warm_stages_ms: Vec<(String, f64)>,
+    /// Warm-run stage shares of the frame's time (the engine's lighting tables included as
+    /// `lighting`), fractions summing to ≈ 1.
+    pub warm_stage_shares: Vec<(String, f64)>,
+    pub lighting_cold_ms: f64,
+    pub lighting_warm_ms: f64,
+    pub width: usize,
+    pub height: usize,
+    pub voxels: usize,
+}
+
+/// Cold then warm: the cold run builds the engine's tables.
+pub fn bench_frame(width: usize, height: usize) -> Result<FrameBench> {
+    let grid = bench_cumulus()?;
+    let scene = bench_scene(width, height)?;
+    time_frame(&scene, &grid, width, height)
+}
+
+/// Cold then warm frames of `scene` (the `frame` benchmarks' timing).
+pub fn time_frame(
+    scene: &FrameScene,
+    grid: &skybake_physics::cloud::DensityGrid,
+    width: usize,
+    height: usize,
+) -> Result<FrameBench> {
+    let settings = RenderSettings::for_quality(scene.quality, Method::Fast);
+    let engine = Engine::new();
+    let t = Instant::now();
+    let lighting = lighting_for(scene, grid, &engine)?;
+    let lighting_cold_ms = t.elapsed().as_secs_f64() * 1e3;
+    render_frame(scene, grid, &lighting, &settings, None, &|_| {}, &|| false)?;
+    let cold_ms = t.elapsed().as_secs_f64() * 1e3;
+    let t = Instant::now();
+    let lighting = lighting_for(scene, grid, &engine)?;
+    let lighting_warm_ms = t.elapsed().as_secs_f64() * 1e3;
+    let frame = render_frame(scene, grid, &lighting, &settings, None, &|_| {}, &|| false)?;
+    let warm_ms = t.elapsed().as_secs_f64() * 1e3;
+    let warm_stage_shares = std::iter::once(("lighting".to_string(), lighting_warm_ms))
+        .chain(frame.meta.timing_ms.iter().cloned())
+        .map(|(name, ms)| (name, ms / warm_ms.max(1e-9)))
+        .collect();
+    Ok(FrameBench {
+        cold_ms,
+        warm_ms,
+        warm_stages_ms: frame.meta.timing_ms,
+        warm_stage_shares,
+        lighting_cold_ms,
+        lighting_warm_ms,
+        width,
+        height,
+        voxels: grid.data.len(),
+    })
+}
+
+/// Image errors of a test frame against a reference frame.
+#[derive(Debug, Clone, Copy, Serialize, PartialEq)]
+pub struct ImageErrors {
+    /// RMS over 8×8-pixel blocks made only of cloud pixels of the block-mean difference,
+    /// relative to the mean cloud radiance.
+    pub nrmse_blocks: f64,
+    /// The same per pixel.
+    pub nrmse_pixels: f64,
+    /// (mean test − mean reference) / mean reference over cloud pixels.
+    pub mean_bias: f64,
+    pub cloud_pixels: usize,
+}
+
+/// Compares spectral images `[px][λ]` over the pixels where `mask` is true (cloud pixels).
+pub fn image_errors(
+    test: &[f32],
+    reference: &[f32],
+    mask: &[bool],
+    width: usize,
+    n_l: usize,
+) -> ImageErrors {
+    let height = mask.len() / width.max(1);
+    let px = |img: &[f32], i: usize| -> f64 {
+        (0..n_l).map(|l| img[i * n_l + l] as f64).sum::<f64>() / n_l as f64
+    };
+    let (mut st, mut sr, mut se2, mut n) = (0.0, 0.0, 0.0, 0usize);
+    for i in 0..mask.len() {
+        if mask[i] {
+            let (a, b) = (px(test, i), px(reference, i));
+            st += a;
+            sr += b;
+            se2 += (a - b) * (a - b);
+            n += 1;
+        }
+    }
+    if n == 0 || sr <= 0.0 {
+        return ImageErrors {
+            nrmse_blocks: 0.0,
+            nrmse_pixels: 0.0,
+            mean_bias: 0.0,
+            cloud_pixels: 0,
+        };
+    }
+    let mean_r = sr / n as f64;
+    // Cloud blocks: 8×8 blocks aligned at pixel (0, 0) whose pixels are all cloud pixels (the
+    // definition of tests/data/README.md, shared with the Mitsuba comparison).
+    let (mut be2, mut nb) = (0.0, 0usize);
+    for by in 0..height / 8 {
+        for bx in 0..width / 8 {
+            let idx = |k: usize| (by * 8 + k / 8) * width + bx * 8 + k % 8;
+            if (0..64).all(|k| mask[idx(k)]) {
+                let a: f64 = (0..64).map(|k| px(test, idx(k))).sum::<f64>() / 64.0;
+                let b: f64 = (0..64).map(|k| px(reference, idx(k))).sum::<f64>() / 64.0;
+                be2 += (a - b).powi(2);
+                nb += 1;
+            }
+        }
+    }
+    ImageErrors {
+        nrmse_blocks: if nb > 0 {
+            (be2 / nb as f64).sqrt() / mean_r
+        } else {
+            0.0
+        },
+        nrmse_pixels: (se2 / n as f64).sqrt() / mean_r,
+        mean_bias: (st - sr) / sr,
+        cloud_pixels: n,
+    }
+}
+
+/// Fast method against the path tracer (`spp` samples) on the bench scene at `width`×`height`.
+pub fn bench_frame_accuracy(
+    width: usize,
+    height: usize,
+    spp: usize,
+) -> Result<(ImageErrors, f64, f64, f64)> {
+    let grid = bench_cumulus()?;
+    let scene = bench_scene(width, height)?;
+    let engine = Engine::new();
+    let lighting = lighting_for(&scene, &grid, &engine)?;
+    let fast_settings = RenderSettings::for_quality(scene.quality, Method::Fast);
+    let t = Instant::now();
+    let fast = render_frame(
+        &scene,
+        &grid,
+        &lighting,
+        &fast_settings,
+        None,
+        &|_| {},
+        &|| false,
+    )?;
+    let fast_ms = t.elapsed().as_secs_f64() * 1e3;
+    let mut ref_settings = RenderSettings::for_quality(scene.quality, Method::Reference);
+    ref_settings.spp = spp;
+    let t = Instant::now();
+    let reference = render_frame(
+        &scene,
+        &grid,
+        &lighting,
+        &ref_settings,
+        None,
+        &|_| {},
+        &|| false,
+    )?;
+    let ref_ms = t.elapsed().as_secs_f64() * 1e3;
+    let mask: Vec<bool> = reference.transmittance.iter().map(|&t| t < 0.99).collect();
+    let e = image_errors(
+        &fast.radiance,
+        &reference.radiance,
+        &mask,
+        width,
+        fast.wavelengths_nm.len(),
+    );
+    Ok((
+        e,
+        reference
+            .meta
+            .error_estimate
+            .path_tracer_relative_noise
+            .unwrap_or(0.0),
+        fast_ms,
+        ref_ms,
+    ))
+}
+
+/// `skybake bench frame-pattern`: the `frame` benchmark (640×480, 128³ cumulus, standard
+/// quality, cold then warm) with `"multiple_scattering_method": "reference_pattern"`.
+pub fn bench_frame_pattern(width: usize, height: usize) -> Result<FrameBench> {
+    let grid = bench_cumulus()?;
+    let mut scene = bench_scene(width, height)?;
+    scene.multiple_scattering_method = skybake_render::MsMethod::ReferencePattern;
+    time_frame(&scene, &grid, width, height)
+}

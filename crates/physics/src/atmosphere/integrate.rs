@@ -1,0 +1,381 @@
+//! Integration of the radiative transfer equation along one view ray (seed 001 eq 1–2, with
+//! aerosol, ozone, multiple scattering and ground reflection): radiance
+//! L = ∫ T(x, y) J(y) ds + T(x, g) · (a/π) E(g), all per unit extraterrestrial solar irradiance.
+//!
+//! Samples are placed by a midpoint rule in u with t = u² mapping each sub-segment towards its
+//! lowest (densest) end; a ray passing its perigee inside the atmosphere is split there. This
+//! keeps 1.2 km aerosol layers resolved on 1000 km grazing rays with a few dozen samples.
+
+use super::geometry::{atmosphere_segment, clamp_cos, radius_at, Segment};
+use super::kernels::exp_fast;
+use super::medium::{Medium, CONSTITUENTS, MIE, RAYLEIGH};
+use super::transmittance::DensityIntegralTable;
+use crate::phase::Phase;
+
+/// A sample point along a ray, with everything a scattering source may need.
+#[derive(Debug, Clone, Copy)]
+pub struct RaySample {
+    /// Distance from the ray origin, m.
+    pub t: f64,
+    /// Quadrature weight, m.
+    pub weight: f64,
+    /// Radius, m.
+    pub r: f64,
+    /// Cosine of the local zenith angle of the ray direction.
+    pub mu: f64,
+    /// Cosine of the local sun zenith angle.
+    pub mu_s: f64,
+    /// Cosine of the angle between ray direction and sun direction (constant along the ray).
+    pub nu: f64,
+}
+
+/// Scattering sources beyond single scattering, and the sky part of ground irradiance.
+pub trait Source: Sync {
+    /// Adds the in-scattered radiance per unit length (m⁻¹ sr⁻¹, per unit solar irradiance) at
+    /// `s` towards the viewer into `out[λ]`.
+    fn add_scattering(&self, s: &RaySample, out: &mut [f64]);
+    /// Adds the diffuse (sky) irradiance on the ground per unit solar irradiance into `out[λ]`,
+    /// for a ground point where the sun's zenith cosine is `mu_s`.
+    fn add_ground_sky_irradiance(&self, mu_s: f64, out: &mut [f64]);
+}
+
+/// No source beyond what the integrator computes itself.
+pub struct NoSource;
+
+impl Source for NoSource {
+    fn add_scattering(&self, _: &RaySample, _: &mut [f64]) {}
+    fn add_ground_sky_irradiance(&self, _: f64, _: &mut [f64]) {}
+}
+
+/// What to integrate along a ray.
+#[derive(Clone, Copy)]
+pub struct Terms {
+    /// Exact single scattering of direct sunlight.
+    pub single: bool,
+    /// Direct sunlight reflected by the ground at the ray's end.
+    pub ground_direct: bool,
+}
+
+/// A point of a ray's quadrature, independent of the sun: what every cell sharing this ray's
+/// origin and direction reuses.
+#[derive(Debug, Clone, Copy)]
+pub struct RayPoint {
+    /// Distance from the ray origin, m.
+    pub t: f64,
+    /// Quadrature weight, m.
+    pub weight: f64,
+    /// Radius, m.
+    pub r: f64,
+    /// Cosine of the local zenith angle of the ray direction.
+    pub mu: f64,
+}
+
+/// Quadrature points of the ray (r, mu) inside the atmosphere, in order of increasing `t`,
+/// written to `out` (cleared first): a midpoint rule in u with t = u² towards the densest end of
+/// each piece, the ray split at its perigee when that lies inside the atmosphere.
+pub fn ray_points(
+    medium: &Medium,
+    r: f64,
+    mu: f64,
+    steps: usize,
+    out: &mut Vec<RayPoint>,
+) -> Option<Segment> {
+    out.clear();
+    let (bottom, top) = (medium.bottom_radius_m, medium.top_radius_m);
+    let seg = atmosphere_segment(r, mu, bottom, top)?;
+    let r0 = r.max(bottom);
+    let perigee = -r0 * mu;
+    let mut push_piece = |a: f64, b: f64, dense_at_start: bool, n: usize| {
+        if b <= a {
+            return;
+        }
+        let len = b - a;
+        let point = |i: usize| {
+            let u = (i as f64 + 0.5) / n as f64;
+            let off = len * u * u;
+            let t = if dense_at_start { a + off } else { b - off };
+            let rr = radius_at(r0, mu, t).max(bottom);
+            RayPoint {
+                t,
+                weight: 2.0 * len * u / n as f64,
+                r: rr,
+                mu: clamp_cos((r0 * mu + t) / rr),
+            }
+        };
+        if dense_at_start {
+            out.extend((0..n).map(point));
+        } else {
+            out.extend((0..n).rev().map(point));
+        }
+    };
+    if perigee > seg.t_start && perigee < seg.t_end {
+        push_piece(seg.t_start, perigee, false, steps);
+        push_piece(perigee, seg.t_end, true, steps);
+    } else if perigee <= seg.t_start {
+        push_piece(seg.t_start, seg.t_end, true, steps);
+    } else {
+        push_piece(seg.t_start, seg.t_end, false, steps);
+    }
+    Some(seg)
+}
+
+/// Samples of a ray inside the atmosphere, in order of increasing `t`.
+pub fn ray_samples(
+    medium: &Medium,
+    r: f64,
+    mu: f64,
+    mu_s: f64,
+    nu: f64,
+    steps: usize,
+) -> (Option<Segment>, Vec<RaySample>) {
+    let mut points = Vec::with_capacity(steps * 2);
+    let seg = ray_points(medium, r, mu, steps, &mut points);
+    let r0 = r.max(medium.bottom_radius_m);
+    let samples = points
+        .iter()
+        .map(|p| RaySample {
+            t: p.t,
+            weight: p.weight,
+            r: p.r,
+            mu: p.mu,
+            mu_s: clamp_cos((r0 * mu_s + p.t * nu) / p.r),
+            nu,
+        })
+        .collect();
+    (seg, samples)
+}
+
+/// Per-ray scratch buffers (one per thread), so the hot loop does not allocate.
+pub struct Scratch {
+    j: Vec<f64>,
+    e: Vec<f64>,
+}
+
+impl Scratch {
+    pub fn new(n: usize) -> Self {
+        Self {
+            j: vec![0.0; n],
+            e: vec![0.0; n],
+        }
+    }
+}
+
+/// Optional recording of partial results at increasing distances (aerial perspective).
+pub struct Recorder<'a> {
+    /// Distances from the ray origin, m, ascending.
+    pub distances_m: &'a [f64],
+    /// Output transmittance, `[distance][λ]` flattened.
+    pub transmittance: &'a mut [f32],
+    /// Output in-scattered radiance per unit solar irradiance, `[distance][λ]` flattened.
+    pub inscatter: &'a mut [f32],
+}
+
+/// Integrates radiance along the view ray from radius `r` with zenith cosine `mu`, for a sun at
+/// zenith cosine `mu_s` and view-sun cosine `nu`. Writes radiance per unit solar irradiance to
+/// `radiance[λ]` and the total transmittance of the ray to `transmittance[λ]`.
+#[allow(clippy::too_many_arguments)]
+pub fn integrate_ray(
+    medium: &Medium,
+    table: &DensityIntegralTable,
+    source: &dyn Source,
+    terms: Terms,
+    r: f64,
+    mu: f64,
+    mu_s: f64,
+    nu: f64,
+    steps: usize,
+    scratch: &mut Scratch,
+    radiance: &mut [f64],
+    transmittance: &mut [f64],
+    recorder: Option<&mut Recorder>,
+) {
+    integrate_ray_counted(
+        medium,
+        table,
+        source,
+        terms,
+        true,
+        r,
+        mu,
+        mu_s,
+        nu,
+        steps,
+        scratch,
+        radiance,
+        transmittance,
+        recorder,
+    );
+}
+
+/// Work one ray did, for the plan-execution counters ([`skybake_engine::engine::Term`]).
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct RayWork {
+    /// Samples at which single scattering of direct sunlight was evaluated.
+    pub single_samples: u64,
+    /// Samples at which the multiple-scattering source was evaluated.
+    pub source_samples: u64,
+    /// 1 when the ray ended on the ground and the ground bounce was evaluated.
+    pub ground_bounces: u64,
+}
+
+crate::simd_dispatch! {
+    /// [`integrate_ray`], with the ground bounce (Lambertian reflection at the ray's end) only when
+    /// `ground_bounce` is set (the plan leaves it out at zero albedo), returning the work done.
+    /// Compiled for AVX2 + FMA where the CPU has them (the loops over wavelengths vectorise).
+    pub fn integrate_ray_counted(
+        medium: &Medium,
+        table: &DensityIntegralTable,
+        source: &dyn Source,
+        terms: Terms,
+        ground_bounce: bool,
+        r: f64,
+        mu: f64,
+        mu_s: f64,
+        nu: f64,
+        steps: usize,
+        scratch: &mut Scratch,
+        radiance: &mut [f64],
+        transmittance: &mut [f64],
+        recorder: Option<&mut Recorder>,
+    ) -> RayWork {
+        let mut recorder = recorder;
+        let mut work = RayWork::default();
+        let n = medium.len();
+        radiance.fill(0.0);
+        transmittance.fill(1.0);
+        let (seg, samples) = ray_samples(medium, r, mu, mu_s, nu, steps);
+        let mut next_record = 0usize;
+        // Records the partial transmittance and radiance at every recorder distance below `t_limit`:
+        // inside a sample's cell [cell_start, cell_start + w) the density integral grows linearly
+        // and the radiance by the same fraction of the cell's contribution `delta`.
+        let mut record = |t_limit: f64,
+                          cell_start: f64,
+                          w: f64,
+                          d_view: &[f64; CONSTITUENTS],
+                          rho: &[f64; CONSTITUENTS],
+                          radiance: &[f64],
+                          delta: &[f64],
+                          rec: &mut Option<&mut Recorder>| {
+            let Some(rec) = rec.as_deref_mut() else {
+                return;
+            };
+            while next_record < rec.distances_m.len() && rec.distances_m[next_record] < t_limit {
+                let x = (rec.distances_m[next_record] - cell_start).clamp(0.0, w);
+                let frac = if w > 0.0 { x / w } else { 0.0 };
+                let d = [0, 1, 2].map(|k| d_view[k] + rho[k] * x);
+                for i in 0..n {
+                    rec.transmittance[next_record * n + i] =
+                        (-medium.optical_depth(i, &d)).exp() as f32;
+                    rec.inscatter[next_record * n + i] = (radiance[i] + frac * delta[i]) as f32;
+                }
+                next_record += 1;
+            }
+        };
+        let zeros = [0.0; CONSTITUENTS];
+        let Some(seg) = seg else {
+            let none = vec![0.0; n];
+            record(
+                f64::INFINITY,
+                0.0,
+                0.0,
+                &zeros,
+                &zeros,
+                radiance,
+                &none,
+                &mut recorder,
+            );
+            return work;
+        };
+        let phase_r = Phase::Rayleigh.eval(nu);
+        let phase_m = medium.mie_phase.eval(nu);
+        let mut d_view = [0.0f64; CONSTITUENTS];
+        // The sample weights tile the segment exactly (cell lengths of the u² map), so their
+        // running sum is the start of each sample's cell.
+        let mut cell_start = seg.t_start;
+        for s in &samples {
+            let rho = medium.densities(s.r);
+            // Density integral from the viewer to the sample's midpoint.
+            let mut d_mid = d_view;
+            for k in 0..CONSTITUENTS {
+                d_mid[k] += 0.5 * rho[k] * s.weight;
+            }
+            scratch.j.fill(0.0);
+            source.add_scattering(s, &mut scratch.j);
+            work.source_samples += 1;
+            let (d_sun, vis) = if terms.single {
+                work.single_samples += 1;
+                let vis = table.sun_visibility(s.r, s.mu_s, medium.sun_angular_radius_rad);
+                (table.lookup(s.r, s.mu_s), vis)
+            } else {
+                ([0.0; CONSTITUENTS], 0.0)
+            };
+            // Turn the source into this cell's radiance contribution, in place.
+            for i in 0..n {
+                let tau_view = medium.optical_depth(i, &d_mid);
+                let mut j = scratch.j[i];
+                if vis > 0.0 {
+                    let single = medium.rayleigh_scattering_per_m[i] * rho[RAYLEIGH] * phase_r
+                        + medium.mie_scattering_per_m[i] * rho[MIE] * phase_m;
+                    j += single * exp_fast(-medium.optical_depth(i, &d_sun)) * vis;
+                }
+                scratch.j[i] = exp_fast(-tau_view) * j * s.weight;
+            }
+            record(
+                cell_start + s.weight,
+                cell_start,
+                s.weight,
+                &d_view,
+                &rho,
+                radiance,
+                &scratch.j,
+                &mut recorder,
+            );
+            for i in 0..n {
+                radiance[i] += scratch.j[i];
+            }
+            for k in 0..CONSTITUENTS {
+                d_view[k] += rho[k] * s.weight;
+            }
+            cell_start += s.weight;
+        }
+        scratch.e.fill(0.0);
+        record(
+            f64::INFINITY,
+            cell_start,
+            0.0,
+            &d_view,
+            &zeros,
+            radiance,
+            &scratch.e,
+            &mut recorder,
+        );
+        for (i, t) in transmittance.iter_mut().enumerate() {
+            *t = (-medium.optical_depth(i, &d_view)).exp();
+        }
+        if ground_bounce && seg.hits_ground {
+            work.ground_bounces += 1;
+            // Lambertian ground at the end of the ray: (a/π)(E_direct + E_sky), attenuated.
+            let r_g = medium.bottom_radius_m;
+            let r0 = r.max(r_g);
+            let mu_s_g =
+                clamp_cos((r0 * mu_s + seg.t_end * nu) / radius_at(r0, mu, seg.t_end).max(r_g));
+            scratch.e.fill(0.0);
+            source.add_ground_sky_irradiance(mu_s_g, &mut scratch.e);
+            if terms.ground_direct && mu_s_g > -0.02 {
+                let vis = table.sun_visibility(r_g, mu_s_g, medium.sun_angular_radius_rad);
+                if vis > 0.0 {
+                    let d_sun = table.lookup(r_g, mu_s_g);
+                    for i in 0..n {
+                        scratch.e[i] +=
+                            mu_s_g.max(0.0) * (-medium.optical_depth(i, &d_sun)).exp() * vis;
+                    }
+                }
+            }
+            for i in 0..n {
+                radiance[i] +=
+                    transmittance[i] * medium.ground_albedo[i] / std::f64::consts::PI * scratch.e[i];
+            }
+        }
+        work
+    }
+}

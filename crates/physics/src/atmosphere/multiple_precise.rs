@@ -1,0 +1,1572 @@
+//! Precise multiple scattering by successive orders on the spherical planet (the method of
+//! Bruneton & Neyret 2008 / Bruneton 2017, reorganised for CPUs), with ground bounce.
+//!
+//! Fields live on a regular grid over (r, θ, θ_s, φ): radius, view zenith, sun zenith and view
+//! azimuth relative to the sun (φ ∈ [0, π] by symmetry). For order n:
+//!
+//! - L_n(x, ω) = ∫ T(x, y) J_n(y, ω) ds + T(x, g)(a/π) E_{n−1}(g) along the ray (L_1 is exact single
+//!   scattering plus the ground's reflection of direct sun, E_0 = direct irradiance);
+//! - E_n = ∫ L_n(ground, ω) cosθ dω, the sky irradiance on the ground;
+//! - J_{n+1}(x, ω) = Σ_c σ_c(x) ∫ p_c(ω·ω′) L_n(x, ω′) dω′ — at fixed (r, θ_s) this is a matrix
+//!   product with a phase matrix whose entries are the phase function integrated over each
+//!   direction cell (rows normalised to exactly 1, so the angular quadrature conserves energy).
+//!
+//! Speed comes from the layout, not from coarser physics:
+//!
+//! - All cells with the same (r, θ) share one ray: its points, densities and viewer-to-point
+//!   transmittance T(λ) are computed once per order for the n_θs × n_φ cells of that "ray
+//!   family" (only the sun-dependent lookup differs), and J_n is first interpolated in (r, θ) at
+//!   each point into a (θ_s, φ) slice, so each cell's lookup is bilinear instead of 16-corner;
+//! - the J pass is the phase matrix's product over directions taken in azimuthal cosine space,
+//!   where it is n_φ small products of view-zenith blocks ([`AzimuthalPhase`]);
+//! - the interpolation positions of the radiance pass depend on the geometry only: the first
+//!   order ≥ 2 records them per ray family and later orders read them ([`PositionCache`]);
+//! - inner loops run over wavelengths and are compiled for AVX2 + FMA when the CPU has them, with
+//!   polynomial `exp`/`ln` in f32 in the radiance passes (J is stored in f32; optical depth itself
+//!   is summed in f64);
+//! - the series Σ L_n settles to a geometric one (ratio q ≈ 0.46 on `earth`, ≈ 0.69 hazy): once
+//!   the ratio per (sun zenith, λ) is stable, the tail J_n q/(1 − q) is added in closed form
+//!   (Aitken-style geometric extrapolation) instead of marching on. Orders stop when the last
+//!   order adds less than `tolerance` (0.1 %) of the total, or earlier when the estimated error
+//!   of the extrapolated tail (tail × 2|Δq|/(1 − q)) is below it; the tail's size and error
+//!   estimate are reported in [`Convergence`].
+//!
+//! Products integrate J_ms = Σ_{n≥2} J_n along their own rays at full resolution, beside exact
+//! single scattering, so the table only has to resolve the smooth multiple part.
+
+use super::geometry::{horizon_mu, radius_at, safe_sqrt};
+use super::integrate::{ray_points, RayPoint, RaySample, Source};
+use super::kernels::{acos_fast, exp_fast, exp_fast_f32, ln_fast, ln_fast_f32};
+use super::medium::{Medium, CONSTITUENTS, MIE, RAYLEIGH};
+use super::quadrature::grid_pos;
+use super::transmittance::DensityIntegralTable;
+use crate::phase::Phase;
+use crate::image::SpectralImage;
+use rayon::prelude::*;
+use std::f64::consts::PI;
+use std::sync::atomic::{AtomicUsize, Ordering};
+
+/// Sun zenith angle, degrees, beyond which the sun-zenith nodes of the precise tables are twice as
+/// dense and J and the ground's sky irradiance are interpolated over sun zenith in ln J
+/// (Catmull–Rom, [`twilight_interp`]) instead of linearly in J (issue 14).
+///
+/// Across the terminator J falls by about an order of magnitude per table step in sun zenith (the
+/// lower atmosphere then sees only light scattered from the lit air above it and towards the
+/// sun), so linear interpolation overestimates it between nodes: by 30–100 % in the sky away from
+/// the sun at −2° to −9° (against tools/spherical_mc.py). ln J is smooth beyond the terminator
+/// and nearly linear there. Near it, where each height's own sunset puts a kink in J, neither
+/// interpolant is good on the uniform grid (at sunset, view zenith 89°: −3.4 % in ln J, +1.3 %
+/// linear at 550 nm, +4.0 % linear at 440 nm and sun 2°), hence the denser nodes: 2.1 % max at
+/// sun ≥ 0°, 3.2 % to −6° (tests/atmosphere_twilight.rs, quality `standard`).
+///
+/// By day J is smooth and nearly linear in sun zenith; there the uniform grid and the linear
+/// interpolation are kept (the daytime DISORT figures are unchanged: applying ln-J Catmull–Rom
+/// everywhere had moved the plane-parallel deviation from 0.26 % to 0.53 % and the energy of the
+/// plane-parallel albedo-1 case to 0.998). A cell is a twilight cell when its far node lies beyond
+/// this angle (sun elevation 10°); the two interpolants agree at the nodes, so the result is
+/// continuous.
+pub const TWILIGHT_INTERP_FROM_DEG: f64 = 80.0;
+
+/// The largest local sun zenith angle, radians, at which the precise tables hold a source (J and
+/// the ground's sky irradiance); beyond it both are zero. Beyond 12° below the top's horizon no
+/// point of the atmosphere sees any light worth tabulating.
+pub fn source_sun_zenith_limit_rad(bottom_radius_m: f64, top_radius_m: f64) -> f64 {
+    (horizon_mu(top_radius_m, bottom_radius_m).acos() + 12f64.to_radians()).min(PI)
+}
+
+/// Resolution and convergence settings of the precise method.
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct PreciseSettings {
+    pub n_r: usize,
+    pub n_mu_s: usize,
+    pub n_mu: usize,
+    pub n_phi: usize,
+    /// Samples per ray segment when integrating J along table rays.
+    pub steps: usize,
+    /// Stop when the last order adds less than this fraction of the total, or when the
+    /// estimated error of the extrapolated tail is below it.
+    pub tolerance: f64,
+    /// Never compute more orders than this.
+    pub max_orders: usize,
+    /// Cells whose centre lies within this angle of the local horizon are averaged over sub-rays.
+    pub horizon_band_rad: f64,
+    /// Sub-rays per cell (per side of the horizon) in that band.
+    pub horizon_subrays: usize,
+    /// Whether the geometric tail of the series may end it early (and is added in any case).
+    pub extrapolate_tail: bool,
+}
+
+impl Default for PreciseSettings {
+    fn default() -> Self {
+        Self {
+            n_r: 20,
+            n_mu_s: 28,
+            n_mu: 32,
+            n_phi: 12,
+            steps: 20,
+            tolerance: 1e-3,
+            max_orders: 60,
+            horizon_band_rad: 10f64.to_radians(),
+            horizon_subrays: 3,
+            extrapolate_tail: true,
+        }
+    }
+}
+
+/// Convergence record of one precise computation.
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct Convergence {
+    /// Number of scattering orders computed explicitly (including the first).
+    pub orders: usize,
+    /// Fraction of the total that the last computed order added.
+    pub last_order_fraction: f64,
+    /// Fraction each computed order added, in order.
+    pub order_fractions: Vec<f64>,
+    /// Fraction of the total radiance that the extrapolated geometric tail adds (0 without one).
+    pub tail_fraction: f64,
+    /// Estimated relative error of the summed series (the tail's error estimate, or the last
+    /// order's fraction × q/(1 − q) when nothing was extrapolated).
+    pub series_error_estimate: f64,
+    /// Mean ratio of the last two orders' radiance (the geometric ratio q of the tail).
+    pub order_ratio: f64,
+    /// Wall-clock time of each stage of the build.
+    pub stage_ms: StageTimes,
+}
+
+/// Wall-clock time of the stages of one precise build, ms.
+#[derive(Debug, Clone, Default, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct StageTimes {
+    /// Phase matrices and the order-1 (single-scattering) radiance pass.
+    pub single_scattering: f64,
+    /// All J passes (phase-matrix products).
+    pub scattering_density: f64,
+    /// All radiance passes of orders ≥ 2.
+    pub radiance: f64,
+    /// The whole build.
+    pub total: f64,
+}
+
+/// The converged multiple-scattering source J_ms = Σ_{n≥2} J_n and ground sky irradiance.
+pub struct PreciseMultipleScattering {
+    grid: Grid,
+    n_l: usize,
+    /// `[i_r][i_mu][i_mu_s][i_phi][λ]`, scattering source of orders ≥ 2, m⁻¹ sr⁻¹ per unit solar
+    /// irradiance.
+    j_ms: Vec<f32>,
+    /// `[i_mu_s][λ]`, sky irradiance on the ground per unit solar irradiance.
+    ground_sky: Vec<f64>,
+    pub convergence: Convergence,
+}
+
+/// The table grid. Sun zenith nodes are uniform (`n_coarse` nodes over [0, θ_s max], the
+/// settings' `n_mu_s`) up to the last node before [`TWILIGHT_INTERP_FROM_DEG`], then twice as dense
+/// to θ_s max, where J changes fastest (across the terminator); `s.n_mu_s` is the total count.
+/// The daytime nodes, and the interpolation between them, are those of the uniform grid.
+#[derive(Debug, Clone, Copy)]
+struct Grid {
+    s: PreciseSettings,
+    bottom: f64,
+    top: f64,
+    theta_s_max: f64,
+    /// Nodes of the uniform grid the settings ask for.
+    n_coarse: usize,
+    /// Index of the last uniform node; twice-as-dense nodes follow it.
+    j_fine: usize,
+}
+
+impl Grid {
+    fn new(s: PreciseSettings, bottom: f64, top: f64) -> Self {
+        let theta_s_max = source_sun_zenith_limit_rad(bottom, top);
+        let n_coarse = s.n_mu_s.max(2);
+        let step = theta_s_max / (n_coarse - 1) as f64;
+        let j_fine =
+            ((TWILIGHT_INTERP_FROM_DEG.to_radians() / step).floor() as usize).min(n_coarse - 1);
+        Self {
+            s: PreciseSettings {
+                n_mu_s: j_fine + 1 + 2 * (n_coarse - 1 - j_fine),
+                ..s
+            },
+            bottom,
+            top,
+            theta_s_max,
+            n_coarse,
+            j_fine,
+        }
+    }
+    /// Interpolation position `(i, f)` of sun zenith `theta_s` (radians) on the sun-zenith nodes.
+    #[inline(always)]
+    fn s_pos(&self, theta_s: f64) -> (usize, f64) {
+        let f = (theta_s / self.theta_s_max).clamp(0.0, 1.0) * (self.n_coarse - 1) as f64;
+        if f < self.j_fine as f64 {
+            // By day exactly `grid_pos` on the uniform grid.
+            let i = (f.floor() as usize).min(self.n_coarse.saturating_sub(2));
+            return (i, f - i as f64);
+        }
+        let g = self.j_fine as f64 + 2.0 * (f - self.j_fine as f64);
+        let i = (g.floor() as usize).min(self.s.n_mu_s.saturating_sub(2));
+        (i, g - i as f64)
+    }
+    /// [`Self::s_pos`] with the node index as a float, branch-free (for loops that vectorise);
+    /// the same values.
+    #[inline(always)]
+    fn s_pos_f(&self, theta_s: f64) -> (f64, f64) {
+        let f = (theta_s / self.theta_s_max).clamp(0.0, 1.0) * (self.n_coarse - 1) as f64;
+        let jf = self.j_fine as f64;
+        let i_day = f.floor().min(self.n_coarse.saturating_sub(2) as f64);
+        let g = jf + 2.0 * (f - jf);
+        let i_dusk = g.floor().min(self.s.n_mu_s.saturating_sub(2) as f64);
+        if f < jf {
+            (i_day, f - i_day)
+        } else {
+            (i_dusk, g - i_dusk)
+        }
+    }
+    fn dirs(&self) -> usize {
+        self.s.n_mu * self.s.n_phi
+    }
+    /// Cells of one ray family (one (r, θ)): all sun zeniths and azimuths.
+    fn family_cells(&self) -> usize {
+        self.s.n_mu_s * self.s.n_phi
+    }
+    fn cells(&self) -> usize {
+        self.s.n_r * self.s.n_mu_s * self.dirs()
+    }
+    fn r(&self, i: usize) -> f64 {
+        let h = safe_sqrt(self.top * self.top - self.bottom * self.bottom);
+        let rho = h * i as f64 / (self.s.n_r - 1) as f64;
+        safe_sqrt(rho * rho + self.bottom * self.bottom)
+    }
+    fn x_r(&self, r: f64) -> f64 {
+        let h = safe_sqrt(self.top * self.top - self.bottom * self.bottom);
+        safe_sqrt(r * r - self.bottom * self.bottom) / h
+    }
+    fn theta_s(&self, j: usize) -> f64 {
+        if j <= self.j_fine {
+            self.theta_s_max * j as f64 / (self.n_coarse - 1) as f64
+        } else {
+            let x = self.j_fine as f64 + 0.5 * (j - self.j_fine) as f64;
+            self.theta_s_max * x / (self.n_coarse - 1) as f64
+        }
+    }
+    /// Whether the sun-zenith interval `[θ_s(is), θ_s(is + 1)]` reaches past
+    /// [`TWILIGHT_INTERP_FROM_DEG`], where the tables are interpolated in ln J.
+    #[inline(always)]
+    fn twilight_cell(&self, is: usize) -> bool {
+        self.theta_s(is + 1) > TWILIGHT_INTERP_FROM_DEG.to_radians()
+    }
+    /// View zenith of direction node `k` (cell centres, uniform in angle).
+    fn theta(&self, k: usize) -> f64 {
+        PI * (k as f64 + 0.5) / self.s.n_mu as f64
+    }
+    fn phi(&self, l: usize) -> f64 {
+        PI * (l as f64 + 0.5) / self.s.n_phi as f64
+    }
+    /// [`Self::centred_pos`] with the node index as a float, branch-free; the same values.
+    #[inline(always)]
+    fn centred_pos_f(angle: f64, n: usize) -> (f64, f64) {
+        let f = (angle / PI * n as f64 - 0.5).clamp(0.0, (n - 1) as f64);
+        let i = f.floor().min(n.saturating_sub(2) as f64);
+        (i, f - i)
+    }
+    /// Interpolation position on a cell-centred grid of `n` nodes over [0, π].
+    #[inline(always)]
+    fn centred_pos(angle: f64, n: usize) -> (usize, f64) {
+        let f = (angle / PI * n as f64 - 0.5).clamp(0.0, (n - 1) as f64);
+        let i = (f.floor() as usize).min(n.saturating_sub(2));
+        (i, f - i as f64)
+    }
+}
+
+/// The phase matrices of the J pass in azimuthal cosine space.
+///
+/// The phase matrix of a constituent, P[(k_o, l_o)][(k_i, l_i)] = ∫_{cell (k_i, l_i) and its
+/// mirror} p(ω_o·ω) dω (6 × 6 midpoint sub-cells per half, rows normalised to 1), depends on the
+/// azimuth bins only through the difference of the output azimuth and the input sub-cell's:
+/// P = G(l_o − l_i) + G(−l_o − l_i − 1), with G_{k_o,k_i}(m) the sub-cell sum at azimuth offset
+/// (m + ½ − u_b)Δφ, 2n_φ-periodic in m and even (the sub-cell offsets u_b are symmetric). So
+/// J(l_o) = Σ_{l_i} P L(l_i) is a circular convolution of G with the mirror-extended radiance,
+/// which a cosine transform over the n_φ azimuth bins diagonalises: with
+/// C_q = Σ_l L(l) cos(πq(l + ½)/n_φ) and Ĝ_q = Σ_{m<2n_φ} G(m) cos(πqm/n_φ),
+/// J(l_o) = (1/n_φ) Σ_{q<n_φ} ε_q Ĝ_q C_q cos(πq(l_o + ½)/n_φ), ε_0 = 1, else 2.
+/// The directions × directions product becomes n_φ products of view-zenith blocks
+/// (n_φ times fewer operations), and the phase functions are evaluated n_φ times less often.
+/// The row sum of P is Σ_{k_i} Ĝ_0, so the normalisation is exact in this form too.
+struct AzimuthalPhase {
+    /// `[q][k_o][k_i]`: Ĝ_q of the Rayleigh and the Mie phase matrix, rows normalised.
+    g_r: Vec<f64>,
+    g_m: Vec<f64>,
+    /// `[q][l]`: cos(πq(l + ½)/n_φ), the forward transform.
+    fwd: Vec<f64>,
+    /// `[q][l]`: ε_q/n_φ · cos(πq(l + ½)/n_φ), the inverse transform.
+    inv: Vec<f64>,
+}
+
+fn azimuthal_phase(grid: &Grid, mie: Phase) -> AzimuthalPhase {
+    let (n_mu, n_phi) = (grid.s.n_mu, grid.s.n_phi);
+    let n = 2 * n_phi;
+    let dphi = PI / n_phi as f64;
+    const SUB: usize = 6;
+    // `[m][b]`: cosine of the azimuth between an output direction and sub-cell b of the input
+    // cell m bins before it.
+    let cos_dphi: Vec<f64> = (0..n)
+        .flat_map(|m| {
+            (0..SUB).map(move |b| ((m as f64 + 0.5 - (b as f64 + 0.5) / SUB as f64) * dphi).cos())
+        })
+        .collect();
+    // `[k][a]`: cosine, sine and solid-angle weight of zenith sub-cell a of bin k.
+    let theta_sub: Vec<[f64; 3]> = (0..n_mu)
+        .flat_map(|k| {
+            let (t0, t1) = (
+                PI * k as f64 / n_mu as f64,
+                PI * (k + 1) as f64 / n_mu as f64,
+            );
+            (0..SUB).map(move |a| {
+                let th = t0 + (t1 - t0) * (a as f64 + 0.5) / SUB as f64;
+                let w = th.sin() * (t1 - t0) / SUB as f64 * dphi / SUB as f64;
+                [th.cos(), th.sin(), w]
+            })
+        })
+        .collect();
+    // `[q][m]`: cos(πqm/n_φ).
+    let dft: Vec<f64> = (0..n_phi)
+        .flat_map(|q| (0..n).map(move |m| (PI * (q * m) as f64 / n_phi as f64).cos()))
+        .collect();
+    // Per output zenith bin: `[q][k_i]` for both phase functions.
+    let rows: Vec<[Vec<f64>; 2]> = (0..n_mu)
+        .into_par_iter()
+        .map(|ko| {
+            let th_o = grid.theta(ko);
+            let (co, so) = (th_o.cos(), th_o.sin());
+            let mut out = [vec![0.0; n_phi * n_mu], vec![0.0; n_phi * n_mu]];
+            let (mut g_r, mut g_m) = (vec![0.0; n], vec![0.0; n]);
+            for ki in 0..n_mu {
+                for m in 0..n {
+                    let (mut sr, mut sm) = (0.0, 0.0);
+                    for &[ca, sa, w] in &theta_sub[ki * SUB..][..SUB] {
+                        for &cd in &cos_dphi[m * SUB..][..SUB] {
+                            let c = co * ca + so * sa * cd;
+                            sr += Phase::Rayleigh.eval(c) * w;
+                            sm += mie.eval(c) * w;
+                        }
+                    }
+                    g_r[m] = sr;
+                    g_m[m] = sm;
+                }
+                for q in 0..n_phi {
+                    let d = &dft[q * n..][..n];
+                    out[0][q * n_mu + ki] = g_r.iter().zip(d).map(|(g, c)| g * c).sum::<f64>();
+                    out[1][q * n_mu + ki] = g_m.iter().zip(d).map(|(g, c)| g * c).sum::<f64>();
+                }
+            }
+            for g in &mut out {
+                let row_sum: f64 = g[..n_mu].iter().sum();
+                if row_sum > 0.0 {
+                    g.iter_mut().for_each(|v| *v /= row_sum);
+                }
+            }
+            out
+        })
+        .collect();
+    let mut g_r = vec![0.0; n_phi * n_mu * n_mu];
+    let mut g_m = vec![0.0; n_phi * n_mu * n_mu];
+    for (ko, [r, m]) in rows.iter().enumerate() {
+        for q in 0..n_phi {
+            g_r[(q * n_mu + ko) * n_mu..][..n_mu].copy_from_slice(&r[q * n_mu..][..n_mu]);
+            g_m[(q * n_mu + ko) * n_mu..][..n_mu].copy_from_slice(&m[q * n_mu..][..n_mu]);
+        }
+    }
+    let basis = |q: usize, l: usize| (PI * q as f64 * (l as f64 + 0.5) / n_phi as f64).cos();
+    let fwd = (0..n_phi * n_phi)
+        .map(|x| basis(x / n_phi, x % n_phi))
+        .collect();
+    let inv = (0..n_phi * n_phi)
+        .map(|x| {
+            let q = x / n_phi;
+            let eps = if q == 0 { 1.0 } else { 2.0 };
+            eps / n_phi as f64 * basis(q, x % n_phi)
+        })
+        .collect();
+    AzimuthalPhase { g_r, g_m, fwd, inv }
+}
+
+/// Solid angle × cosθ of each upward direction cell (both mirror halves), for E = ∫ L cosθ dω.
+fn upward_cosine_weights(grid: &Grid) -> Vec<f64> {
+    let (n_mu, n_phi) = (grid.s.n_mu, grid.s.n_phi);
+    let dphi = PI / n_phi as f64;
+    let mut w = vec![0.0; grid.dirs()];
+    for k in 0..n_mu {
+        let (t0, t1) = (
+            PI * k as f64 / n_mu as f64,
+            (PI * (k + 1) as f64 / n_mu as f64).min(PI / 2.0),
+        );
+        if t1 <= t0 {
+            continue;
+        }
+        // ∫ cosθ sinθ dθ = (sin²t1 − sin²t0)/2, times 2Δφ for the cell and its mirror.
+        let v = (t1.sin().powi(2) - t0.sin().powi(2)) * dphi;
+        for l in 0..n_phi {
+            w[k * n_phi + l] = v;
+        }
+    }
+    w
+}
+
+/// Sky irradiance on the ground, `[i_mu_s][λ]`, interpolated at sun zenith cosine `mu_s`:
+/// linear by day, in ln E across the terminator ([`twilight_interp`]).
+#[inline(always)]
+fn lookup_ground(grid: &Grid, n_l: usize, table: &[f64], mu_s: f64, out: &mut [f64]) {
+    let theta_s = acos_fast(mu_s);
+    if theta_s > grid.theta_s_max {
+        return;
+    }
+    let (is, fs) = grid.s_pos(theta_s);
+    if grid.twilight_cell(is) {
+        for i in 0..n_l {
+            out[i] += twilight_interp(is, fs, grid.s.n_mu_s, |b| table[b * n_l + i]);
+        }
+        return;
+    }
+    let (a, b) = (&table[is * n_l..][..n_l], &table[(is + 1) * n_l..][..n_l]);
+    for i in 0..n_l {
+        out[i] += a[i] * (1.0 - fs) + b[i] * fs;
+    }
+}
+
+/// Catmull–Rom weights and node indices for position `(i, f)` on a grid of `n` nodes (end
+/// nodes repeated at the edges).
+#[inline(always)]
+fn catmull_rom(i: usize, f: f64, n: usize) -> ([usize; 4], [f64; 4]) {
+    let (f2, f3) = (f * f, f * f * f);
+    (
+        [
+            i.saturating_sub(1),
+            i,
+            (i + 1).min(n - 1),
+            (i + 2).min(n - 1),
+        ],
+        [
+            0.5 * (-f3 + 2.0 * f2 - f),
+            0.5 * (3.0 * f3 - 5.0 * f2 + 2.0),
+            0.5 * (-3.0 * f3 + 4.0 * f2 + f),
+            0.5 * (f3 - f2),
+        ],
+    )
+}
+
+/// Interpolation over sun zenith in a twilight cell (see [`TWILIGHT_INTERP_FROM_DEG`]) of the
+/// values `at(node)`: Catmull–Rom in ln J between nodes `is` and `is + 1` (exact for an
+/// exponential decay, third order where ln J bends at the terminator); linear in J where one of
+/// the four nodes is zero (deep twilight, ln J = −∞).
+#[inline(always)]
+fn twilight_interp(is: usize, fs: f64, n: usize, at: impl Fn(usize) -> f64) -> f64 {
+    let (nodes, w) = catmull_rom(is, fs, n);
+    let vals = nodes.map(&at);
+    if vals.iter().all(|&x| x > 0.0) {
+        (0..4).map(|q| w[q] * vals[q].ln()).sum::<f64>().exp()
+    } else {
+        at(is) * (1.0 - fs) + at(is + 1) * fs
+    }
+}
+
+/// [`twilight_interp`] for every wavelength at once: `out[i] += w · interp(i)` for the four node
+/// rows `v[q]` (`[λ]`, the Catmull–Rom nodes of `catmull_rom(is, fs, n)`) whose logarithms are
+/// `ln_v[q]` (any finite value where `v ≤ 0`). Branch-free over λ with [`ln_fast`]/[`exp_fast`],
+/// so the loop vectorises; the same values as [`twilight_interp`] to rounding.
+#[inline(always)]
+fn twilight_lanes(
+    v: [&[f32]; 4],
+    ln_v: [&[f64]; 4],
+    wq: [f64; 4],
+    fs: f64,
+    w: f64,
+    out: &mut [f64],
+) {
+    let n = out.len();
+    let (v, ln_v) = (v.map(|x| &x[..n]), ln_v.map(|x| &x[..n]));
+    for i in 0..n {
+        let positive = (v[0][i] > 0.0) & (v[1][i] > 0.0) & (v[2][i] > 0.0) & (v[3][i] > 0.0);
+        let ln_j =
+            wq[0] * ln_v[0][i] + wq[1] * ln_v[1][i] + wq[2] * ln_v[2][i] + wq[3] * ln_v[3][i];
+        let linear = v[1][i] as f64 * (1.0 - fs) + v[2][i] as f64 * fs;
+        out[i] += w * if positive { exp_fast(ln_j) } else { linear };
+    }
+}
+
+/// `ln v` for positive `v`, 0 otherwise (masked by [`twilight_lanes`]).
+#[inline(always)]
+fn ln_or_zero(v: f32) -> f64 {
+    let l = ln_fast(v as f64);
+    if v > 0.0 {
+        l
+    } else {
+        0.0
+    }
+}
+
+/// [`twilight_lanes`] in f32 for the radiance passes of the build (J is stored in f32): `out[i] +=
+/// w · interp(i)` for the four node rows `v[q]` whose logarithms are `ln_v[q]` (from
+/// [`ln_or_zero_f32`]), eight wavelengths per AVX2 instruction with [`exp_fast_f32`]. Nodes
+/// below the smallest normal f32 (1.2e-38) count as zero (linear in J there). ln J rounded to f32
+/// (|ln J| ≲ 40) costs at most 4e-6 of J, beside the percent-level error of the twilight tables.
+#[inline(always)]
+fn twilight_lanes_f32(
+    v: [&[f32]; 4],
+    ln_v: [&[f32]; 4],
+    wq: [f32; 4],
+    fs: f32,
+    w: f32,
+    out: &mut [f32],
+) {
+    let n = out.len();
+    let (v, ln_v) = (v.map(|x| &x[..n]), ln_v.map(|x| &x[..n]));
+    const MIN: f32 = f32::MIN_POSITIVE;
+    for i in 0..n {
+        let positive = (v[0][i] >= MIN) & (v[1][i] >= MIN) & (v[2][i] >= MIN) & (v[3][i] >= MIN);
+        let ln_j =
+            wq[0] * ln_v[0][i] + wq[1] * ln_v[1][i] + wq[2] * ln_v[2][i] + wq[3] * ln_v[3][i];
+        let linear = v[1][i] * (1.0 - fs) + v[2][i] * fs;
+        out[i] += w * if positive { exp_fast_f32(ln_j) } else { linear };
+    }
+}
+
+/// `ln v` for normal positive `v`, 0 otherwise (masked by [`twilight_lanes_f32`]).
+#[inline(always)]
+fn ln_or_zero_f32(v: f32) -> f32 {
+    let l = ln_fast_f32(v);
+    if v >= f32::MIN_POSITIVE {
+        l
+    } else {
+        0.0
+    }
+}
+
+/// Cosine of the view azimuth relative to the sun from the three cosines (1 when undefined).
+#[inline(always)]
+fn cos_azimuth(mu: f64, mu_s: f64, nu: f64) -> f64 {
+    let denom = safe_sqrt(1.0 - mu * mu) * safe_sqrt(1.0 - mu_s * mu_s);
+    if denom > 1e-9 {
+        ((nu - mu * mu_s) / denom).clamp(-1.0, 1.0)
+    } else {
+        1.0
+    }
+}
+
+crate::simd_dispatch! {
+    /// J_ms at a ray sample (products): 16-corner interpolation over (r, θ, θ_s, φ), multilinear by
+    /// day; in a twilight cell ([`Grid::twilight_cell`]) Catmull–Rom in ln J over sun zenith
+    /// ([`twilight_interp`]), multilinear in radius and direction.
+    fn lookup_j(grid: &Grid, n_l: usize, j: &[f32], s: &RaySample, out: &mut [f64]) {
+        let theta_s = acos_fast(s.mu_s);
+        if theta_s > grid.theta_s_max {
+            return;
+        }
+        let (ir, fr) = grid_pos(grid.x_r(s.r), grid.s.n_r);
+        let (is, fs) = grid.s_pos(theta_s);
+        let theta = acos_fast(s.mu);
+        let (im, fm) = Grid::centred_pos(theta, grid.s.n_mu);
+        let cos_phi = cos_azimuth(s.mu, s.mu_s, s.nu);
+        let (ip, fp) = Grid::centred_pos(acos_fast(cos_phi), grid.s.n_phi);
+        let (n_mu_s, n_mu, n_phi) = (grid.s.n_mu_s, grid.s.n_mu, grid.s.n_phi);
+        let twilight = grid.twilight_cell(is);
+        for (a, wa) in [(ir, 1.0 - fr), (ir + 1, fr)] {
+            for (c, wc) in [(im, 1.0 - fm), (im + 1, fm)] {
+                for (e, we) in [(ip, 1.0 - fp), (ip + 1, fp)] {
+                    let w = wa * wc * we;
+                    if w == 0.0 {
+                        continue;
+                    }
+                    let base = |b: usize| (((a * n_mu + c) * n_mu_s + b) * n_phi + e) * n_l;
+                    if twilight {
+                        let (nodes, wq) = catmull_rom(is, fs, n_mu_s);
+                        // In chunks of wavelengths, with the logarithms on the stack.
+                        const CHUNK: usize = crate::spectrum::wavelengths::MAX_WAVELENGTHS;
+                        let mut ln_v = [[0.0f64; CHUNK]; 4];
+                        for i0 in (0..n_l).step_by(CHUNK) {
+                            let m = CHUNK.min(n_l - i0);
+                            let v = nodes.map(|b| &j[base(b) + i0..][..m]);
+                            for q in 0..4 {
+                                for (l, &x) in ln_v[q].iter_mut().zip(v[q]) {
+                                    *l = ln_or_zero(x);
+                                }
+                            }
+                            twilight_lanes(v, ln_v.each_ref().map(|x| &x[..m]), wq, fs, w, &mut out[i0..][..m]);
+                        }
+                        continue;
+                    }
+                    for (b, wb) in [(is, 1.0 - fs), (is + 1, fs)] {
+                        let (w, base) = (w * wb, base(b));
+                        if w == 0.0 {
+                            continue;
+                        }
+                        for i in 0..n_l {
+                            out[i] += w * j[base + i] as f64;
+                        }
+                    }
+                }
+            }
+        }
+    }
+}
+
+/// What one radiance pass integrates.
+#[derive(Clone, Copy)]
+enum PassInput<'a> {
+    /// Order 1: exact single scattering and the ground's reflection of direct sun.
+    Single,
+    /// Order n ≥ 2: the order's scattering source J_n (family layout) and the previous order's
+    /// ground sky irradiance E_{n−1}, `[i_mu_s][λ]`.
+    Order { j: &'a [f32], ground: &'a [f64] },
+}
+
+/// Everything a radiance pass reads.
+struct PassCtx<'a> {
+    grid: &'a Grid,
+    medium: &'a Medium,
+    table: &'a DensityIntegralTable,
+    n_l: usize,
+}
+
+/// Per-thread buffers of the radiance pass.
+struct FamilyScratch {
+    points: Vec<RayPoint>,
+    /// `[point][λ]`: sub-ray weight × quadrature weight × transmittance viewer → point.
+    tw: Vec<f32>,
+    /// `[point]`: relative densities (order 1).
+    rho: Vec<[f64; CONSTITUENTS]>,
+    /// `[i_mu_s][i_phi][λ]`: J at one point's (r, θ), all sun zeniths and azimuths.
+    slice: Vec<f32>,
+    /// `[i_mu_s][i_phi][λ]`: ln of `slice` (0 where it is 0) from sun-zenith node `ln_from` on,
+    /// the nodes of twilight cells ([`Grid::twilight_cell`]).
+    ln_slice: Vec<f32>,
+    ln_from: usize,
+    /// `[λ]`: one twilight cell's interpolated J.
+    tv: Vec<f32>,
+    /// `[cell]`: interpolation positions at one point (sun-zenith node, −1 for none, and
+    /// weight; azimuth node and weight), see [`Grid::s_pos_f`].
+    pos_s: Vec<f64>,
+    pos_fs: Vec<f64>,
+    pos_p: Vec<f64>,
+    pos_fp: Vec<f64>,
+    /// `[cell]`: the same positions as the radiance passes use them ([`PositionCache`]).
+    q_idx: Vec<[u16; 2]>,
+    q_w: Vec<[f32; 2]>,
+    /// `[cell]`: sun zenith cosine at the ray origin, view–sun cosine, √(1 − μ_s²).
+    cell_mu_s: Vec<f64>,
+    cell_nu: Vec<f64>,
+    /// `[cell]`: Rayleigh and Mie phase functions at ν (order 1).
+    cell_phase: Vec<[f64; 2]>,
+    /// `[λ]`: transmittance of the whole ray, a ground irradiance.
+    t_total: Vec<f64>,
+    e: Vec<f64>,
+}
+
+impl FamilyScratch {
+    fn new(grid: &Grid, n_l: usize) -> Self {
+        let fc = grid.family_cells();
+        Self {
+            points: Vec::with_capacity(2 * grid.s.steps),
+            tw: Vec::with_capacity(2 * grid.s.steps * n_l),
+            rho: Vec::with_capacity(2 * grid.s.steps),
+            slice: vec![0.0; fc * n_l],
+            ln_slice: vec![0.0; fc * n_l],
+            ln_from: (0..grid.s.n_mu_s.saturating_sub(1))
+                .find(|&is| grid.twilight_cell(is))
+                .unwrap_or(grid.s.n_mu_s)
+                .saturating_sub(1),
+            tv: vec![0.0; n_l],
+            pos_s: vec![0.0; fc],
+            pos_fs: vec![0.0; fc],
+            pos_p: vec![0.0; fc],
+            pos_fp: vec![0.0; fc],
+            q_idx: vec![[0; 2]; fc],
+            q_w: vec![[0.0; 2]; fc],
+            cell_mu_s: vec![0.0; fc],
+            cell_nu: vec![0.0; fc],
+            cell_phase: vec![[0.0; 2]; fc],
+            t_total: vec![0.0; n_l],
+            e: vec![0.0; n_l],
+        }
+    }
+}
+
+/// Upper bound of the memory all ray families of one build may hold in [`PositionCache`]s
+/// (12 bytes per cell and ray point: about 90 MB at `standard`; at `high` and `reference` the
+/// families that do not fit compute their positions in every order).
+const POSITION_CACHE_BYTES: usize = 256 << 20;
+
+/// Node index meaning "no source" (the sun beyond the tables' last node) in [`PositionCache`].
+const NO_NODE: u16 = u16::MAX;
+
+/// The interpolation positions of one ray family's cells at each of its ray points (sun-zenith
+/// node and weight, azimuth node and weight): they depend on the geometry only, so the first
+/// radiance pass of orders ≥ 2 records them and the later orders read them instead of
+/// recomputing them (two `acos`, two square roots and two divisions per cell and point).
+#[derive(Default)]
+struct PositionCache {
+    state: CacheState,
+    /// `[subray][point][cell]`: sun-zenith node ([`NO_NODE`]: no source) and azimuth node.
+    idx: Vec<[u16; 2]>,
+    /// `[subray][point][cell]`: their interpolation weights.
+    w: Vec<[f32; 2]>,
+}
+
+#[derive(Default, Clone, Copy, PartialEq, Eq)]
+enum CacheState {
+    /// Not recorded yet: the next order ≥ 2 pass records it.
+    #[default]
+    Empty,
+    Recording,
+    Ready,
+    /// Over [`POSITION_CACHE_BYTES`]: computed in every pass.
+    Off,
+}
+
+impl PositionCache {
+    const CELL_BYTES: usize = std::mem::size_of::<[u16; 2]>() + std::mem::size_of::<[f32; 2]>();
+
+    /// Appends one point's positions if the build's budget (`left`, bytes) still has room; else
+    /// frees the recorded ones, gives their bytes back and stops recording.
+    fn record(&mut self, idx: &[[u16; 2]], w: &[[f32; 2]], left: &AtomicUsize) {
+        let bytes = idx.len() * Self::CELL_BYTES;
+        let reserved = left
+            .fetch_update(Ordering::Relaxed, Ordering::Relaxed, |v| {
+                v.checked_sub(bytes)
+            })
+            .is_ok();
+        if reserved {
+            self.idx.extend_from_slice(idx);
+            self.w.extend_from_slice(w);
+        } else {
+            left.fetch_add(self.idx.len() * Self::CELL_BYTES, Ordering::Relaxed);
+            *self = Self {
+                state: CacheState::Off,
+                ..Self::default()
+            };
+        }
+    }
+}
+
+/// Sub-rays of the family (r, θ bin `k`) with normalised weights: the cell centre, or near the
+/// local horizon the solid-angle average of sub-rays split at the horizon, since L changes fast
+/// there (long grazing paths on both sides, ground on one).
+fn family_subrays(grid: &Grid, r: f64, k: usize) -> Vec<(f64, f64)> {
+    let s = grid.s;
+    let th = grid.theta(k);
+    let (t0, t1) = (
+        PI * k as f64 / s.n_mu as f64,
+        PI * (k + 1) as f64 / s.n_mu as f64,
+    );
+    let theta_h = horizon_mu(r, grid.bottom).acos();
+    let straddles = theta_h > t0 + 1e-9 && theta_h < t1 - 1e-9;
+    let near = (th - theta_h).abs() < s.horizon_band_rad;
+    if !(straddles || near) {
+        return vec![(th, 1.0)];
+    }
+    let pieces: &[(f64, f64)] = if straddles {
+        &[(t0, theta_h), (theta_h, t1)]
+    } else {
+        &[(t0, t1)]
+    };
+    let sub = s.horizon_subrays;
+    let mut rays = Vec::with_capacity(2 * sub);
+    for &(a, b) in pieces {
+        for q in 0..sub {
+            let theta = a + (b - a) * (q as f64 + 0.5) / sub as f64;
+            rays.push((theta, theta.sin() * (b - a)));
+        }
+    }
+    let wsum: f64 = rays.iter().map(|r| r.1).sum();
+    rays.iter_mut().for_each(|r| r.1 /= wsum);
+    rays
+}
+
+crate::simd_dispatch! {
+    /// Radiance of one order for the ray family (r index `ir`, θ index `k`): writes `out`,
+    /// `[i_mu_s][i_phi][λ]` (zeroed here).
+    fn family_pass(
+        ctx: &PassCtx,
+        input: PassInput,
+        ir: usize,
+        k: usize,
+        sc: &mut FamilyScratch,
+        cache: &mut PositionCache,
+        cache_left: &AtomicUsize,
+        out: &mut [f32],
+    ) {
+        let (grid, medium, n_l) = (ctx.grid, ctx.medium, ctx.n_l);
+        let s = grid.s;
+        let (n_mu_s, n_phi) = (s.n_mu_s, s.n_phi);
+        let fc = grid.family_cells();
+        let bottom = medium.bottom_radius_m;
+        let r = grid.r(ir);
+        let r0 = r.max(bottom);
+        out.fill(0.0);
+        // Per-λ arrays sliced to exactly n_l, so the λ loops need no bounds checks and vectorise.
+        let ext = [0, 1, 2].map(|c| &medium.extinction_per_m[c][..n_l]);
+        let sig_r = &medium.rayleigh_scattering_per_m[..n_l];
+        let sig_m = &medium.mie_scattering_per_m[..n_l];
+        let albedo = &medium.ground_albedo[..n_l];
+        let t_total = &mut sc.t_total[..n_l];
+        // Orders ≥ 2 read the positions recorded by the first of them when there is room.
+        if let (PassInput::Order { .. }, CacheState::Empty) = (input, cache.state) {
+            cache.state = if n_mu_s < NO_NODE as usize && n_phi < NO_NODE as usize {
+                CacheState::Recording
+            } else {
+                CacheState::Off
+            };
+        }
+        let mut cursor = 0;
+        for (theta, w_ray) in family_subrays(grid, r, k) {
+            let (mu, sin_t) = (theta.cos(), theta.sin());
+            for is in 0..n_mu_s {
+                let ts = grid.theta_s(is);
+                let (mu_s0, sin_s0) = (ts.cos(), ts.sin());
+                for l in 0..n_phi {
+                    let c = is * n_phi + l;
+                    let nu = mu * mu_s0 + sin_t * sin_s0 * grid.phi(l).cos();
+                    sc.cell_mu_s[c] = mu_s0;
+                    sc.cell_nu[c] = nu;
+                    if matches!(input, PassInput::Single) {
+                        sc.cell_phase[c] = [Phase::Rayleigh.eval(nu), medium.mie_phase.eval(nu)];
+                    }
+                }
+            }
+            let Some(seg) = ray_points(medium, r, mu, s.steps, &mut sc.points) else {
+                continue;
+            };
+            // Viewer-to-point transmittance at each point's midpoint (f64 density integrals).
+            sc.tw.clear();
+            sc.rho.clear();
+            let mut d_view = [0.0f64; CONSTITUENTS];
+            for p in &sc.points {
+                let rho = medium.densities(p.r);
+                let d_mid: [f64; CONSTITUENTS] =
+                    std::array::from_fn(|c| d_view[c] + 0.5 * rho[c] * p.weight);
+                let w = w_ray * p.weight;
+                sc.tw.extend((0..n_l).map(|i| {
+                    let tau = ext[0][i] * d_mid[0] + ext[1][i] * d_mid[1] + ext[2][i] * d_mid[2];
+                    (w * exp_fast(-tau)) as f32
+                }));
+                for c in 0..CONSTITUENTS {
+                    d_view[c] += rho[c] * p.weight;
+                }
+                sc.rho.push(rho);
+            }
+            for i in 0..n_l {
+                let tau = ext[0][i] * d_view[0] + ext[1][i] * d_view[1] + ext[2][i] * d_view[2];
+                t_total[i] = exp_fast(-tau);
+            }
+            for (pi, p) in sc.points.iter().enumerate() {
+                let tw = &sc.tw[pi * n_l..][..n_l];
+                let sin_mu = safe_sqrt(1.0 - p.mu * p.mu);
+                match input {
+                    PassInput::Single => {
+                        let rho = sc.rho[pi];
+                        let at = ctx.table.at_radius(p.r, medium.sun_angular_radius_rad);
+                        for c in 0..fc {
+                            let mu_s = ((r0 * sc.cell_mu_s[c] + p.t * sc.cell_nu[c]) / p.r)
+                                .clamp(-1.0, 1.0);
+                            let vis = at.sun_visibility(mu_s);
+                            if vis <= 0.0 {
+                                continue;
+                            }
+                            let d = at.lookup(mu_s);
+                            let [ph_r, ph_m] = sc.cell_phase[c];
+                            let (ar, am) = (rho[RAYLEIGH] * ph_r * vis, rho[MIE] * ph_m * vis);
+                            let o = &mut out[c * n_l..][..n_l];
+                            // Optical depth in f64, its exponential in f32 (8 lanes).
+                            for i in 0..n_l {
+                                let tau = ext[0][i] * d[0] + ext[1][i] * d[1] + ext[2][i] * d[2];
+                                let single = (sig_r[i] * ar + sig_m[i] * am) as f32;
+                                o[i] += tw[i] * single * exp_fast_f32(-tau as f32);
+                            }
+                        }
+                    }
+                    PassInput::Order { j, .. } => {
+                        // J at this point's (r, θ) for every (θ_s, φ): bilinear in (r, θ).
+                        let (ia, fa) = grid_pos(grid.x_r(p.r), s.n_r);
+                        let (ic, fcw) = Grid::centred_pos(acos_fast(p.mu), s.n_mu);
+                        let block = |a: usize, c: usize| &j[(a * s.n_mu + c) * fc * n_l..][..fc * n_l];
+                        let (b00, b01, b10, b11) =
+                            (block(ia, ic), block(ia, ic + 1), block(ia + 1, ic), block(ia + 1, ic + 1));
+                        let (w00, w01, w10, w11) = (
+                            ((1.0 - fa) * (1.0 - fcw)) as f32,
+                            ((1.0 - fa) * fcw) as f32,
+                            (fa * (1.0 - fcw)) as f32,
+                            (fa * fcw) as f32,
+                        );
+                        for (x, slice) in sc.slice.iter_mut().enumerate() {
+                            *slice = w00 * b00[x] + w01 * b01[x] + w10 * b10[x] + w11 * b11[x];
+                        }
+                        // ln J of the sun-zenith nodes that twilight cells interpolate over.
+                        let from = sc.ln_from * n_phi * n_l;
+                        for (lv, &v) in sc.ln_slice[from..].iter_mut().zip(&sc.slice[from..]) {
+                            *lv = ln_or_zero_f32(v);
+                        }
+                        // Every cell's interpolation position at this point first, in a
+                        // branch-free loop over cells that vectorises: sun-zenith node and
+                        // weight, azimuth node and weight (node −1: the sun is beyond the
+                        // tables' last node, no source there); or recorded by an earlier order.
+                        let ready = cache.state == CacheState::Ready;
+                        for c in 0..if ready { 0 } else { fc } {
+                            let mu_s = ((r0 * sc.cell_mu_s[c] + p.t * sc.cell_nu[c]) / p.r)
+                                .clamp(-1.0, 1.0);
+                            let theta_s = acos_fast(mu_s);
+                            let (js, fs) = grid.s_pos_f(theta_s);
+                            let denom = sin_mu * safe_sqrt(1.0 - mu_s * mu_s);
+                            let cos_phi = if denom > 1e-9 {
+                                ((sc.cell_nu[c] - p.mu * mu_s) / denom).clamp(-1.0, 1.0)
+                            } else {
+                                1.0
+                            };
+                            let (jp, fp) = Grid::centred_pos_f(acos_fast(cos_phi), n_phi);
+                            sc.pos_s[c] = if theta_s > grid.theta_s_max { -1.0 } else { js };
+                            sc.pos_fs[c] = fs;
+                            sc.pos_p[c] = jp;
+                            sc.pos_fp[c] = fp;
+                        }
+                        if !ready {
+                            for c in 0..fc {
+                                sc.q_idx[c] = if sc.pos_s[c] < 0.0 {
+                                    [NO_NODE, 0]
+                                } else {
+                                    [sc.pos_s[c] as u16, sc.pos_p[c] as u16]
+                                };
+                                sc.q_w[c] = [sc.pos_fs[c] as f32, sc.pos_fp[c] as f32];
+                            }
+                            if cache.state == CacheState::Recording {
+                                cache.record(&sc.q_idx, &sc.q_w, cache_left);
+                            }
+                        }
+                        let (q_idx, q_w) = if ready {
+                            (&cache.idx[cursor..][..fc], &cache.w[cursor..][..fc])
+                        } else {
+                            (&sc.q_idx[..fc], &sc.q_w[..fc])
+                        };
+                        cursor += fc;
+                        for c in 0..fc {
+                            let [js, jp] = q_idx[c];
+                            if js == NO_NODE {
+                                continue;
+                            }
+                            let (js, jp) = (js as usize, jp as usize);
+                            let [fs, fp] = q_w[c];
+                            if grid.twilight_cell(js) {
+                                // In ln J over sun zenith (`twilight_interp`), linear in azimuth.
+                                let (nodes, wq) = catmull_rom(js, fs as f64, n_mu_s);
+                                let tv = &mut sc.tv[..n_l];
+                                tv.fill(0.0);
+                                for (e, we) in [(jp, 1.0 - fp), (jp + 1, fp)] {
+                                    let row = nodes.map(|b| (b * n_phi + e) * n_l);
+                                    twilight_lanes_f32(
+                                        row.map(|x| &sc.slice[x..][..n_l]),
+                                        row.map(|x| &sc.ln_slice[x..][..n_l]),
+                                        wq.map(|w| w as f32),
+                                        fs,
+                                        we,
+                                        tv,
+                                    );
+                                }
+                                let o = &mut out[c * n_l..][..n_l];
+                                for i in 0..n_l {
+                                    o[i] += tw[i] * tv[i];
+                                }
+                                continue;
+                            }
+                            let (c00, c01, c10, c11) =
+                                ((1.0 - fs) * (1.0 - fp), (1.0 - fs) * fp, fs * (1.0 - fp), fs * fp);
+                            let (s00, s01) =
+                                sc.slice[(js * n_phi + jp) * n_l..][..2 * n_l].split_at(n_l);
+                            let (s10, s11) =
+                                sc.slice[((js + 1) * n_phi + jp) * n_l..][..2 * n_l].split_at(n_l);
+                            let o = &mut out[c * n_l..][..n_l];
+                            for i in 0..n_l {
+                                let v = c00 * s00[i] + c01 * s01[i] + c10 * s10[i] + c11 * s11[i];
+                                o[i] += tw[i] * v;
+                            }
+                        }
+                    }
+                }
+            }
+            if !seg.hits_ground {
+                continue;
+            }
+            // Lambertian ground at the ray's end: (a/π)(E_direct + E_sky), attenuated.
+            let r_end = radius_at(r0, mu, seg.t_end).max(bottom);
+            for c in 0..fc {
+                let mu_s_g = ((r0 * sc.cell_mu_s[c] + seg.t_end * sc.cell_nu[c]) / r_end)
+                    .clamp(-1.0, 1.0);
+                sc.e.fill(0.0);
+                match input {
+                    PassInput::Single => {
+                        if mu_s_g <= -0.02 {
+                            continue;
+                        }
+                        let vis =
+                            ctx.table.sun_visibility(bottom, mu_s_g, medium.sun_angular_radius_rad);
+                        if vis <= 0.0 {
+                            continue;
+                        }
+                        let d = ctx.table.lookup(bottom, mu_s_g);
+                        let e = &mut sc.e[..n_l];
+                        for i in 0..n_l {
+                            let tau = ext[0][i] * d[0] + ext[1][i] * d[1] + ext[2][i] * d[2];
+                            e[i] = mu_s_g.max(0.0) * exp_fast(-tau) * vis;
+                        }
+                    }
+                    PassInput::Order { ground, .. } => {
+                        lookup_ground(grid, n_l, ground, mu_s_g, &mut sc.e)
+                    }
+                }
+                let o = &mut out[c * n_l..][..n_l];
+                let e = &sc.e[..n_l];
+                for i in 0..n_l {
+                    o[i] += (w_ray * t_total[i] * albedo[i] / PI * e[i]) as f32;
+                }
+            }
+        }
+        if cache.state == CacheState::Recording {
+            cache.state = CacheState::Ready;
+        }
+    }
+}
+
+/// Output zenith bins the J product accumulates at once.
+const J_ROWS: usize = 4;
+
+/// Per-thread scratch of the J pass, f64: `[q][k][i_mu_s][λ]` twice (the transformed radiance
+/// and the transformed J), and the accumulators of [`J_ROWS`] rows for both phase functions.
+struct JScratch {
+    spec: Vec<f64>,
+    y: Vec<f64>,
+    acc: Vec<f64>,
+}
+
+impl JScratch {
+    fn new(grid: &Grid, n_l: usize) -> Self {
+        let w = grid.s.n_mu_s * n_l;
+        let n = grid.s.n_phi * grid.s.n_mu * w;
+        Self {
+            spec: vec![0.0; n],
+            y: vec![0.0; n],
+            acc: vec![0.0; 2 * J_ROWS * w],
+        }
+    }
+}
+
+crate::simd_dispatch! {
+    /// J of the next order for every cell of radius index `ir` (`out`: `[i_mu][i_mu_s][i_phi][λ]`)
+    /// from one order's radiance there (`l`, same layout), in azimuthal cosine space
+    /// ([`AzimuthalPhase`]): the radiance transformed over azimuth, per frequency q the product
+    /// of the view-zenith blocks Ĝ_q (Rayleigh and Mie) with it, times the scattering coefficients
+    /// at this radius, transformed back. In f64 (the transforms take differences; J in f32 after,
+    /// clamped at 0 against rounding where J vanishes).
+    fn scattering_density_at_radius(
+        grid: &Grid,
+        n_l: usize,
+        ap: &AzimuthalPhase,
+        scale_r: &[f64],
+        scale_m: &[f64],
+        l: &[f32],
+        sc: &mut JScratch,
+        out: &mut [f32],
+    ) {
+        let s = grid.s;
+        let (n_mu, n_mu_s, n_phi) = (s.n_mu, s.n_mu_s, s.n_phi);
+        let w = n_mu_s * n_l;
+        let (scale_r, scale_m) = (&scale_r[..n_l], &scale_m[..n_l]);
+        let with_mie = scale_m.iter().any(|&v| v != 0.0);
+        // Forward: spec[q][k][is][λ] = Σ_l L[k][is][l][λ] cos(πq(l + ½)/n_φ).
+        let spec = &mut sc.spec[..n_phi * n_mu * w];
+        spec.fill(0.0);
+        for k in 0..n_mu {
+            for is in 0..n_mu_s {
+                for ph in 0..n_phi {
+                    let src = &l[((k * n_mu_s + is) * n_phi + ph) * n_l..][..n_l];
+                    for q in 0..n_phi {
+                        let c = ap.fwd[q * n_phi + ph];
+                        let dst = &mut spec[(q * n_mu + k) * w + is * n_l..][..n_l];
+                        for i in 0..n_l {
+                            dst[i] += c * src[i] as f64;
+                        }
+                    }
+                }
+            }
+        }
+        // Per frequency: y[q][k_o] = σ_R Σ_{k_i} Ĝ^R_q[k_o][k_i] spec[q][k_i] + σ_M (same with Ĝ^M).
+        let spec = &sc.spec[..n_phi * n_mu * w];
+        for q in 0..n_phi {
+            let mut o0 = 0;
+            while o0 < n_mu {
+                let rows = J_ROWS.min(n_mu - o0);
+                let (acc_r, acc_m) = sc.acc.split_at_mut(J_ROWS * w);
+                acc_r.fill(0.0);
+                acc_m.fill(0.0);
+                for ki in 0..n_mu {
+                    let src = &spec[(q * n_mu + ki) * w..][..w];
+                    for b in 0..rows {
+                        let g = (q * n_mu + o0 + b) * n_mu + ki;
+                        let (gr, gm) = (ap.g_r[g], ap.g_m[g]);
+                        let ar = &mut acc_r[b * w..][..w];
+                        for x in 0..w {
+                            ar[x] += gr * src[x];
+                        }
+                        if with_mie {
+                            let am = &mut acc_m[b * w..][..w];
+                            for x in 0..w {
+                                am[x] += gm * src[x];
+                            }
+                        }
+                    }
+                }
+                for b in 0..rows {
+                    let dst = &mut sc.y[(q * n_mu + o0 + b) * w..][..w];
+                    let (ar, am) = (&acc_r[b * w..][..w], &acc_m[b * w..][..w]);
+                    for is in 0..n_mu_s {
+                        let x0 = is * n_l;
+                        for i in 0..n_l {
+                            dst[x0 + i] = scale_r[i] * ar[x0 + i] + scale_m[i] * am[x0 + i];
+                        }
+                    }
+                }
+                o0 += rows;
+            }
+        }
+        // Inverse: J[k][is][l][λ] = Σ_q ε_q/n_φ cos(πq(l + ½)/n_φ) y[q][k][is][λ].
+        let y = &sc.y[..n_phi * n_mu * w];
+        for k in 0..n_mu {
+            for is in 0..n_mu_s {
+                for lo in 0..n_phi {
+                    let dst = &mut out[((k * n_mu_s + is) * n_phi + lo) * n_l..][..n_l];
+                    let acc = &mut sc.acc[..n_l];
+                    acc.fill(0.0);
+                    for q in 0..n_phi {
+                        let c = ap.inv[q * n_phi + lo];
+                        let src = &y[(q * n_mu + k) * w + is * n_l..][..n_l];
+                        for i in 0..n_l {
+                            acc[i] += c * src[i];
+                        }
+                    }
+                    for i in 0..n_l {
+                        dst[i] = acc[i].max(0.0) as f32;
+                    }
+                }
+            }
+        }
+    }
+}
+
+/// Geometric extrapolation state: per (sun zenith, λ) sums of the last orders' radiance.
+struct Series {
+    n_mu_s: usize,
+    n_l: usize,
+    /// Running total of all computed orders, `[i_mu_s][λ]`.
+    total: Vec<f64>,
+    /// Sums of the last three orders (oldest first), `[i_mu_s][λ]`.
+    last: Vec<Vec<f64>>,
+    /// How many of the stored orders are multiple-scattering orders (n ≥ 2).
+    multiple: usize,
+}
+
+impl Series {
+    fn push(&mut self, sums: Vec<f64>, multiple: bool) {
+        self.total.iter_mut().zip(&sums).for_each(|(t, s)| *t += s);
+        self.last.push(sums);
+        if self.last.len() > 3 {
+            self.last.remove(0);
+        }
+        if multiple {
+            self.multiple += 1;
+        }
+    }
+    /// Ratio of the last two orders per (sun zenith, λ), when both are multiple orders and
+    /// the ratio is usable for a geometric tail (0 < q < 0.98).
+    fn ratio(&self, back: usize) -> Option<Vec<Option<f64>>> {
+        let n = self.last.len();
+        if self.multiple < back + 2 || n < back + 2 {
+            return None;
+        }
+        let (a, b) = (&self.last[n - 2 - back], &self.last[n - 1 - back]);
+        Some(
+            a.iter()
+                .zip(b)
+                .map(|(&a, &b)| (a > 0.0 && b > 0.0 && b / a < 0.98).then(|| b / a))
+                .collect(),
+        )
+    }
+    /// (tail, error estimate, mean ratio) as fractions of the total, for a geometric tail
+    /// after the last order: tail_x = S_x q/(1 − q); its error is estimated as
+    /// tail_x · 2|q − q_prev|/(1 − q) (the ratio's drift over the tail), summed over x.
+    fn tail(&self) -> Option<(f64, f64, f64, Vec<f64>)> {
+        let q = self.ratio(0)?;
+        let q_prev = self.ratio(1)?;
+        let last = self.last.last()?;
+        let total: f64 = self.total.iter().sum();
+        if total <= 0.0 {
+            return None;
+        }
+        let (mut tail, mut err, mut qsum, mut wsum) = (0.0, 0.0, 0.0, 0.0);
+        let mut factors = vec![0.0; self.n_mu_s * self.n_l];
+        for x in 0..factors.len() {
+            match (q[x], q_prev[x]) {
+                (Some(qx), Some(qp)) => {
+                    let t = last[x] * qx / (1.0 - qx);
+                    factors[x] = qx / (1.0 - qx);
+                    tail += t;
+                    err += t * (2.0 * (qx - qp).abs() / (1.0 - qx)).min(1.0);
+                    qsum += qx * last[x];
+                    wsum += last[x];
+                }
+                // No usable ratio: no tail there; everything past this order counts as error.
+                _ => err += last[x],
+            }
+        }
+        let q_mean = if wsum > 0.0 { qsum / wsum } else { 0.0 };
+        Some((tail / total, err / total, q_mean, factors))
+    }
+}
+
+impl PreciseMultipleScattering {
+    /// Computes orders of scattering until convergence (see the module documentation).
+    pub fn new(medium: &Medium, table: &DensityIntegralTable, s: PreciseSettings) -> Self {
+        Self::build(medium, table, s, &|| false).unwrap_or_else(|| unreachable!("never cancelled"))
+    }
+
+    /// [`Self::new`], stopped (`None`) when `cancelled` returns true between two orders (issue 18).
+    pub fn build(
+        medium: &Medium,
+        table: &DensityIntegralTable,
+        s: PreciseSettings,
+        cancelled: &(dyn Fn() -> bool + Sync),
+    ) -> Option<Self> {
+        let t_start = std::time::Instant::now();
+        let ms = |t: std::time::Instant| t.elapsed().as_secs_f64() * 1e3;
+        let mut stage_ms = StageTimes::default();
+        let grid = Grid::new(s, medium.bottom_radius_m, medium.top_radius_m);
+        // The grid's settings: `n_mu_s` counts the denser twilight nodes too.
+        let s = grid.s;
+        let n_l = medium.len();
+        let fc = grid.family_cells();
+        let family_len = fc * n_l;
+        let per_r = s.n_mu * family_len;
+        let phase = azimuthal_phase(&grid, medium.mie_phase);
+        let up_w = upward_cosine_weights(&grid);
+        let ctx = PassCtx {
+            grid: &grid,
+            medium,
+            table,
+            n_l,
+        };
+
+        // Radiance of one order on every cell, family by family.
+        // (Per family, the interpolation positions that orders ≥ 2 share.)
+        let mut positions: Vec<PositionCache> = (0..s.n_r * s.n_mu)
+            .map(|_| PositionCache::default())
+            .collect();
+        let positions_left = AtomicUsize::new(POSITION_CACHE_BYTES);
+        let radiance = |input: PassInput, positions: &mut [PositionCache]| -> Vec<f32> {
+            let mut l = vec![0.0f32; grid.cells() * n_l];
+            l.par_chunks_mut(family_len)
+                .zip(positions.par_iter_mut())
+                .enumerate()
+                .for_each_init(
+                    || FamilyScratch::new(&grid, n_l),
+                    |sc, (f, (out, cache))| {
+                        let (ir, k) = (f / s.n_mu, f % s.n_mu);
+                        family_pass(&ctx, input, ir, k, sc, cache, &positions_left, out)
+                    },
+                );
+            l
+        };
+        // Sky irradiance on the ground from one order's radiance at r = bottom, `[i_mu_s][λ]`.
+        let ground_of = |l: &[f32]| -> Vec<f64> {
+            let mut e = vec![0.0; s.n_mu_s * n_l];
+            for k in 0..s.n_mu {
+                for is in 0..s.n_mu_s {
+                    for ph in 0..s.n_phi {
+                        let w = up_w[k * s.n_phi + ph];
+                        if w == 0.0 {
+                            continue;
+                        }
+                        let src = &l[((k * s.n_mu_s + is) * s.n_phi + ph) * n_l..][..n_l];
+                        for i in 0..n_l {
+                            e[is * n_l + i] += w * src[i] as f64;
+                        }
+                    }
+                }
+            }
+            e
+        };
+        // Sums of one order's radiance per (sun zenith, λ).
+        let sums_of = |l: &[f32]| -> Vec<f64> {
+            let parts: Vec<Vec<f64>> = l
+                .par_chunks(per_r)
+                .map(|block| {
+                    let mut out = vec![0.0; s.n_mu_s * n_l];
+                    for fam in block.chunks(family_len) {
+                        for (is, row) in fam.chunks(s.n_phi * n_l).enumerate() {
+                            let o = &mut out[is * n_l..][..n_l];
+                            for cell in row.chunks(n_l) {
+                                o.iter_mut().zip(cell).for_each(|(o, v)| *o += *v as f64);
+                            }
+                        }
+                    }
+                    out
+                })
+                .collect();
+            let mut out = vec![0.0; s.n_mu_s * n_l];
+            for p in parts {
+                out.iter_mut().zip(&p).for_each(|(o, v)| *o += v);
+            }
+            out
+        };
+        // J of the next order from one order's radiance, radius by radius.
+        let scattering_density = |l: &[f32]| -> Vec<f32> {
+            let mut j = vec![0.0f32; grid.cells() * n_l];
+            j.par_chunks_mut(per_r).enumerate().for_each_init(
+                || JScratch::new(&grid, n_l),
+                |sc, (ir, out)| {
+                    let rho = medium.densities(grid.r(ir));
+                    let scale_r: Vec<f64> = medium
+                        .rayleigh_scattering_per_m
+                        .iter()
+                        .map(|&v| v * rho[RAYLEIGH])
+                        .collect();
+                    let scale_m: Vec<f64> = medium
+                        .mie_scattering_per_m
+                        .iter()
+                        .map(|&v| v * rho[MIE])
+                        .collect();
+                    scattering_density_at_radius(
+                        &grid,
+                        n_l,
+                        &phase,
+                        &scale_r,
+                        &scale_m,
+                        &l[ir * per_r..][..per_r],
+                        sc,
+                        out,
+                    );
+                },
+            );
+            j
+        };
+
+        let t0 = std::time::Instant::now();
+        let mut l_n = radiance(PassInput::Single, &mut positions);
+        tracing::debug!(
+            radiance_ms = t0.elapsed().as_secs_f64() * 1e3,
+            "precise order 1"
+        );
+        let mut series = Series {
+            n_mu_s: s.n_mu_s,
+            n_l,
+            total: vec![0.0; s.n_mu_s * n_l],
+            last: Vec::new(),
+            multiple: 0,
+        };
+        series.push(sums_of(&l_n), false);
+        let mut e_n = ground_of(&l_n);
+        let mut ground_sky = e_n.clone();
+        stage_ms.single_scattering = ms(t_start);
+        let mut j_ms = vec![0.0f32; grid.cells() * n_l];
+        let mut j_n = Vec::new();
+        let mut fractions = vec![1.0];
+        let mut orders = 1;
+        while orders < s.max_orders {
+            if cancelled() {
+                return None;
+            }
+            let t_j = std::time::Instant::now();
+            j_n = scattering_density(&l_n);
+            let j_ms_elapsed = ms(t_j);
+            stage_ms.scattering_density += j_ms_elapsed;
+            let t_l = std::time::Instant::now();
+            l_n = radiance(
+                PassInput::Order {
+                    j: &j_n,
+                    ground: &e_n,
+                },
+                &mut positions,
+            );
+            e_n = ground_of(&l_n);
+            let l_elapsed = ms(t_l);
+            stage_ms.radiance += l_elapsed;
+            j_ms.par_iter_mut().zip(&j_n).for_each(|(a, b)| *a += b);
+            ground_sky.iter_mut().zip(&e_n).for_each(|(a, b)| *a += b);
+            let sums = sums_of(&l_n);
+            let added: f64 = sums.iter().sum();
+            series.push(sums, true);
+            orders += 1;
+            let total: f64 = series.total.iter().sum();
+            let fraction = if total > 0.0 { added / total } else { 0.0 };
+            fractions.push(fraction);
+            let tail_error = series.tail().map(|t| t.1);
+            tracing::debug!(
+                order = orders,
+                fraction,
+                tail_error,
+                scattering_density_ms = j_ms_elapsed,
+                radiance_ms = l_elapsed,
+                "precise multiple scattering order"
+            );
+            if fraction < s.tolerance
+                || (s.extrapolate_tail && tail_error.is_some_and(|e| e < s.tolerance))
+            {
+                break;
+            }
+        }
+        let last_fraction = *fractions.last().unwrap_or(&0.0);
+        let (tail_fraction, series_error_estimate, order_ratio) = match series.tail() {
+            Some((tail, err, q, factors)) if s.extrapolate_tail => {
+                // Σ_{m>n} J_m ≈ J_n q/(1 − q), Σ_{m>n} E_m ≈ E_n q/(1 − q), per (θ_s, λ).
+                j_ms.par_chunks_mut(family_len)
+                    .zip(j_n.par_chunks(family_len))
+                    .for_each(|(acc, jn)| {
+                        let rows = acc.chunks_mut(s.n_phi * n_l).zip(jn.chunks(s.n_phi * n_l));
+                        for (is, (acc, jn)) in rows.enumerate() {
+                            let f: Vec<f32> = factors[is * n_l..][..n_l]
+                                .iter()
+                                .map(|&f| f as f32)
+                                .collect();
+                            for (a, b) in acc.chunks_mut(n_l).zip(jn.chunks(n_l)) {
+                                a.iter_mut()
+                                    .zip(b)
+                                    .zip(&f)
+                                    .for_each(|((a, b), f)| *a += b * f);
+                            }
+                        }
+                    });
+                for (x, (g, e)) in ground_sky.iter_mut().zip(&e_n).enumerate() {
+                    *g += e * factors[x];
+                }
+                (tail / (1.0 + tail), err / (1.0 + tail), q)
+            }
+            Some((_, _, q, _)) => (0.0, last_fraction * q / (1.0 - q), q),
+            None => (0.0, last_fraction, 0.0),
+        };
+        stage_ms.total = ms(t_start);
+        tracing::debug!(
+            position_cache_mb =
+                (POSITION_CACHE_BYTES - positions_left.load(Ordering::Relaxed)) as f64 / 1048576.0,
+            families_computing_positions = positions
+                .iter()
+                .filter(|p| p.state == CacheState::Off)
+                .count(),
+            total_ms = stage_ms.total,
+            "precise build done"
+        );
+        Some(Self {
+            grid,
+            n_l,
+            j_ms,
+            ground_sky,
+            convergence: Convergence {
+                orders,
+                last_order_fraction: last_fraction,
+                order_fractions: fractions,
+                tail_fraction,
+                series_error_estimate,
+                order_ratio,
+                stage_ms,
+            },
+        })
+    }
+}
+
+/// Version of the stored table layout (part of its store key).
+/// (2: twice-as-dense sun-zenith nodes beyond 80°, issue 14; 3: f32 exp/ln in the build, issue 17.)
+pub const TABLE_FORMAT: &str = "precise-table-3";
+/// Header attribute holding the stored table's description ([`StoredPrecise`] as JSON).
+const ATTR_TABLE: &str = "skybakeSharedTable";
+
+/// What a stored precise table says about itself; it is used only if all of it matches.
+#[derive(serde::Serialize, serde::Deserialize)]
+struct StoredPrecise {
+    kind: String,
+    settings: PreciseSettings,
+    bottom_radius_m: f64,
+    top_radius_m: f64,
+    wavelengths_nm: Vec<f64>,
+    /// `[i_mu_s][λ]`, exact (JSON numbers round-trip f64).
+    ground_sky: Vec<f64>,
+    convergence: Convergence,
+}
+
+impl PreciseMultipleScattering {
+    /// The table as a spectral image for the table store: pixel (x, y) = (i_mu_s · n_φ + i_φ,
+    /// i_r · n_μ + i_μ), one plane per wavelength (J_ms in f32, as computed), and the ground sky
+    /// irradiance, settings and convergence record as a JSON header attribute.
+    pub fn to_image(&self, medium: &Medium) -> crate::Result<SpectralImage> {
+        let s = self.grid.s;
+        let (w, h) = (self.grid.family_cells(), s.n_r * s.n_mu);
+        let planes = (0..self.n_l)
+            .map(|i| (0..w * h).map(|px| self.j_ms[px * self.n_l + i]).collect())
+            .collect();
+        let mut image = SpectralImage::emissive(w, h, &medium.wavelengths_nm, planes)?;
+        let meta = StoredPrecise {
+            kind: "precise".into(),
+            settings: s,
+            bottom_radius_m: self.grid.bottom,
+            top_radius_m: self.grid.top,
+            wavelengths_nm: medium.wavelengths_nm.clone(),
+            ground_sky: self.ground_sky.clone(),
+            convergence: self.convergence.clone(),
+        };
+        let json = serde_json::to_string(&meta)
+            .map_err(|e| crate::Error::invalid("precise_table", e.to_string()))?;
+        image.set_attribute(ATTR_TABLE, json)?;
+        Ok(image)
+    }
+
+    /// The table stored by [`Self::to_image`], if it was made for exactly this medium's geometry
+    /// and wavelengths with these settings and holds only finite, non-negative values.
+    pub fn from_image(image: &SpectralImage, medium: &Medium, s: PreciseSettings) -> Option<Self> {
+        let meta: StoredPrecise = serde_json::from_str(image.attribute(ATTR_TABLE)?).ok()?;
+        let n_l = medium.len();
+        let grid = Grid::new(s, medium.bottom_radius_m, medium.top_radius_m);
+        // The grid's settings (`n_mu_s` counts the denser twilight nodes), as `to_image` stores.
+        let s = grid.s;
+        let (w, h) = (grid.family_cells(), s.n_r * s.n_mu);
+        let planes = image.layers().first()?.planes();
+        let valid = |v: f64| v.is_finite() && v >= 0.0;
+        let matches = meta.kind == "precise"
+            && meta.settings == s
+            && meta.bottom_radius_m == medium.bottom_radius_m
+            && meta.top_radius_m == medium.top_radius_m
+            && meta.wavelengths_nm == medium.wavelengths_nm
+            && image.width() == w
+            && image.height() == h
+            && planes.len() == n_l
+            && planes.iter().all(|p| p.len() == w * h)
+            && meta.ground_sky.len() == s.n_mu_s * n_l
+            && meta.ground_sky.iter().all(|&v| valid(v));
+        if !matches {
+            return None;
+        }
+        // Interleaved [pixel][λ], written in order.
+        let mut j_ms = Vec::with_capacity(w * h * n_l);
+        for px in 0..w * h {
+            j_ms.extend(planes.iter().map(|p| p[px]));
+        }
+        if !j_ms.iter().all(|&v| valid(v as f64)) {
+            return None;
+        }
+        Some(Self {
+            grid,
+            n_l,
+            j_ms,
+            ground_sky: meta.ground_sky,
+            convergence: meta.convergence,
+        })
+    }
+}
+
+impl Source for PreciseMultipleScattering {
+    fn add_scattering(&self, s: &RaySample, out: &mut [f64]) {
+        lookup_j(&self.grid, self.n_l, &self.j_ms, s, out);
+    }
+    fn add_ground_sky_irradiance(&self, mu_s: f64, out: &mut [f64]) {
+        lookup_ground(&self.grid, self.n_l, &self.ground_sky, mu_s, out);
+    }
+}

@@ -1,0 +1,25 @@
+//! skybake's product core: a request (CLI flags, query string, JSON body or job item) becomes a
+//! validated spec, the spec a plan, the plan a computed product, and the product an artifact (the
+//! spectral EXR image with its request, response, plan and timing attributes) kept in the store.
+//! Every product kind (sun, sky, ground, aerial and the cloud frame) takes that one road.
+//!
+//! - [`params`]: the one parameter table (name, flag, unit, range, default, doc).
+//! - [`ProductRequest`]: an atmosphere product's request; [`frame::FrameRequest`]: a frame's.
+//! - [`artifact`]: compute → artifact; JSON, PNG and EXR bodies rendered from it.
+//! - [`cost`]: a request's and a job's cost estimate; [`config`]: the deployment settings.
+//! - [`engines`]: the engine of every product path, on the store's stored tables.
+
+// Numeric kernels index several parallel per-wavelength arrays in one loop; an index is clearer.
+#![allow(clippy::needless_range_loop)]
+
+pub mod artifact;
+pub mod config;
+pub mod cost;
+pub mod engines;
+pub mod export;
+pub mod frame;
+pub mod params;
+mod request;
+
+pub use request::*;
+pub use skybake_physics::{Error, Result};

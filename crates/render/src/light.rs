@@ -1,0 +1,387 @@
+//! Light at each voxel (seed 000 §3.2, §3.5): the sun's optical path to every voxel, the
+//! optical paths towards K sky directions by the cumulative t/t_d scheme, and the sky elements'
+//! phase-weighted radiance (eq 7).
+//!
+//! Optical paths are stored as density integrals D = ∫ρ ds (m) accumulated in f64 and stored
+//! f32; the optical depth at a wavelength is k_λ·D (k the extinction per unit density), so one
+//! pass serves every wavelength.
+
+use super::lighting::Lighting;
+use skybake_physics::cloud::DensityGrid;
+use skybake_physics::phase::Phase;
+use glam::DVec3;
+use rayon::prelude::*;
+use std::f64::consts::PI;
+
+/// The 14 lattice directions of the sky elements: the 6 axes and the 8 cube diagonals
+/// (seed 000 §3.5: "the principal and diagonal axes of the voxel").
+pub const LATTICE: [[i32; 3]; 14] = [
+    [1, 0, 0],
+    [-1, 0, 0],
+    [0, 1, 0],
+    [0, -1, 0],
+    [0, 0, 1],
+    [0, 0, -1],
+    [1, 1, 1],
+    [1, 1, -1],
+    [1, -1, 1],
+    [1, -1, -1],
+    [-1, 1, 1],
+    [-1, 1, -1],
+    [-1, -1, 1],
+    [-1, -1, -1],
+];
+
+/// Half-angle of the sky element around the sun, whose attenuation is the sun's own
+/// (seed 000 §3.5: "the attenuation in the sun's direction stored at each voxel can be utilized").
+pub const SUN_CAP_DEG: f64 = 12.0;
+
+/// Density integral from each voxel centre towards the sun, m (cumulative scheme: each voxel
+/// continues from the interpolated value one layer closer to the sun along the sun's dominant
+/// axis, plus Simpson's rule over the step).
+pub fn sun_density_integrals(grid: &DensityGrid, sun_dir: DVec3) -> Vec<f32> {
+    let [nx, ny, nz] = grid.dims;
+    let n = [nx, ny, nz];
+    let h = grid.voxel_size_m;
+    let mut out = vec![0f32; grid.data.len()];
+    let s = sun_dir.normalize();
+    // Dominant axis and the other two.
+    let a = if s.x.abs() >= s.y.abs() && s.x.abs() >= s.z.abs() {
+        0
+    } else if s.y.abs() >= s.z.abs() {
+        1
+    } else {
+        2
+    };
+    let (b, c) = match a {
+        0 => (1, 2),
+        1 => (0, 2),
+        _ => (0, 1),
+    };
+    let step = h / s[a].abs();
+    let dir_sign: i64 = if s[a] > 0.0 { 1 } else { -1 };
+    let shift_b = s[b] * step / h; // in voxels per layer
+    let shift_c = s[c] * step / h;
+    let idx = |ia: usize, ib: usize, ic: usize| {
+        let mut v = [0usize; 3];
+        v[a] = ia;
+        v[b] = ib;
+        v[c] = ic;
+        grid.index(v[0], v[1], v[2])
+    };
+    let layers: Vec<usize> = if dir_sign > 0 {
+        (0..n[a]).rev().collect()
+    } else {
+        (0..n[a]).collect()
+    };
+    let mut prev: Option<usize> = None;
+    let mut layer_vals = vec![0f64; n[b] * n[c]];
+    let mut next_vals = vec![0f64; n[b] * n[c]];
+    for &ia in &layers {
+        // Each layer depends only on the previous one: its rows run in parallel.
+        next_vals
+            .par_chunks_mut(n[c])
+            .enumerate()
+            .for_each(|(ib, row)| {
+                for (ic, slot) in row.iter_mut().enumerate() {
+                    let mut v = [0usize; 3];
+                    v[a] = ia;
+                    v[b] = ib;
+                    v[c] = ic;
+                    let p = grid.voxel_centre(v[0], v[1], v[2]);
+                    *slot = match prev {
+                        // First layer: marched directly.
+                        None => march_to_exit(grid, p, s),
+                        Some(_) => {
+                            let rho_p = grid.at(v[0], v[1], v[2]) as f64;
+                            let q = p + s * step;
+                            let m = p + s * (0.5 * step);
+                            let seg = step / 6.0
+                                * (rho_p + 4.0 * grid.sample(m) as f64 + grid.sample(q) as f64);
+                            // Bilinear in the previous layer at the shifted position (voxel
+                            // units); between the outermost centres and the box face, or
+                            // outside, march the short rest of the way instead of clamping.
+                            let fb = ib as f64 + shift_b;
+                            let fc = ic as f64 + shift_c;
+                            let beyond = if fb < 0.0
+                                || fc < 0.0
+                                || fb > (n[b] - 1) as f64
+                                || fc > (n[c] - 1) as f64
+                            {
+                                march_to_exit(grid, q, s)
+                            } else {
+                                let (b0, c0) = (fb.floor() as usize, fc.floor() as usize);
+                                let (b1, c1) = ((b0 + 1).min(n[b] - 1), (c0 + 1).min(n[c] - 1));
+                                let (tb, tc) = (fb - b0 as f64, fc - c0 as f64);
+                                let g = |x: usize, y: usize| layer_vals[x * n[c] + y];
+                                (g(b0, c0) * (1.0 - tb) + g(b1, c0) * tb) * (1.0 - tc)
+                                    + (g(b0, c1) * (1.0 - tb) + g(b1, c1) * tb) * tc
+                            };
+                            beyond + seg
+                        }
+                    };
+                }
+            });
+        for ib in 0..n[b] {
+            for ic in 0..n[c] {
+                out[idx(ia, ib, ic)] = next_vals[ib * n[c] + ic] as f32;
+            }
+        }
+        std::mem::swap(&mut layer_vals, &mut next_vals);
+        prev = Some(ia);
+    }
+    out
+}
+
+/// Density integral from `p` along `s` to the box exit (midpoint rule, quarter-voxel steps).
+fn march_to_exit(grid: &DensityGrid, p: DVec3, s: DVec3) -> f64 {
+    let Some((t0, t1)) = super::camera::box_interval(p, s, grid.origin_m, grid.max_corner_m())
+    else {
+        return 0.0;
+    };
+    let step = 0.25 * grid.voxel_size_m;
+    let n = ((t1 - t0) / step).ceil().max(1.0) as usize;
+    let dt = (t1 - t0) / n as f64;
+    (0..n)
+        .map(|i| grid.sample(p + s * (t0 + (i as f64 + 0.5) * dt)) as f64 * dt)
+        .sum()
+}
+
+/// Density integral from each voxel centre to the box along lattice direction `e` (components
+/// −1, 0, 1): D(p) = D(p + e·h) + trapezoid over the step (seed 000 §3.5: the stored attenuation
+/// t towards the box face, with t/t_d giving any piece of the line).
+pub fn lattice_density_integrals(grid: &DensityGrid, e: [i32; 3]) -> Vec<f32> {
+    let [nx, ny, nz] = grid.dims;
+    let len = DVec3::new(e[0] as f64, e[1] as f64, e[2] as f64).length() * grid.voxel_size_m;
+    let mut out = vec![0f32; grid.data.len()];
+    let order = |n: usize, c: i32| -> Vec<usize> {
+        if c > 0 {
+            (0..n).rev().collect()
+        } else {
+            (0..n).collect()
+        }
+    };
+    let (zs, ys, xs) = (order(nz, e[2]), order(ny, e[1]), order(nx, e[0]));
+    for &z in &zs {
+        for &y in &ys {
+            for &x in &xs {
+                let rho = grid.at(x, y, z) as f64;
+                let (qx, qy, qz) = (
+                    x as i64 + e[0] as i64,
+                    y as i64 + e[1] as i64,
+                    z as i64 + e[2] as i64,
+                );
+                let inside = qx >= 0
+                    && qy >= 0
+                    && qz >= 0
+                    && (qx as usize) < nx
+                    && (qy as usize) < ny
+                    && (qz as usize) < nz;
+                let d = if inside {
+                    let (qx, qy, qz) = (qx as usize, qy as usize, qz as usize);
+                    out[grid.index(qx, qy, qz)] as f64
+                        + 0.5 * len * (rho + grid.at(qx, qy, qz) as f64)
+                } else {
+                    // To the box face: half a step at the clamped density.
+                    0.5 * len * rho
+                };
+                out[grid.index(x, y, z)] = d as f32;
+            }
+        }
+    }
+    out
+}
+
+/// Half-angle of the sky element centred on the view direction (the light from behind the point
+/// as the camera sees it), whose attenuation is the view ray's own: the forward peak of a cloud's
+/// phase function takes most of its first-order sky light from there (HG g = 0.85: 70 % of the
+/// phase function within 25°), and no lattice direction follows that path.
+pub const VIEW_CAP_DEG: f64 = 25.0;
+
+/// Element index of the view cap (after the sun cap and the 14 lattice elements).
+pub const VIEW_ELEMENT: usize = 1 + LATTICE.len();
+/// Pseudo-element holding the environment radiance L(d) arriving from the view direction itself.
+pub const VIEW_RADIANCE: usize = VIEW_ELEMENT + 1;
+
+/// Sky elements' phase-weighted radiance I_l(d) = ∫_{ω_l} F(θ) L(ω) dω (seed 000 eq 7), tabulated
+/// over view directions d (latitude-longitude), for the sun cap (element 0), the 14 lattice
+/// elements (1..=14) and the view cap ([`VIEW_ELEMENT`]), per wavelength; and L(d) itself
+/// ([`VIEW_RADIANCE`]).
+///
+/// The view cap holds the δ-M scaled phase function's share (Wiscombe 1977: F − f·δ, f the
+/// truncated fraction per wavelength): ∫_cap F(d·ω)[L(ω) − L(d)] dω + L(d)(P_cap − f), where
+/// P_cap is F's integral over the cap. The truncated peak f·δ is light that the scaled problem
+/// keeps in the direct beam; the final march adds it as L(d)(e^{−τ*} − e^{−τ}) (see
+/// `march::Prepared::march`), where the full F with the scaled attenuation (the TMS single
+/// scattering) would count it once more, as ω f τ L e^{−τ*}.
+pub struct SkyElements {
+    pub n_elev: usize,
+    pub n_az: usize,
+    pub n_l: usize,
+    /// `[elev][az][element][λ]`.
+    pub table: Vec<f32>,
+    pub elements: usize,
+}
+
+impl SkyElements {
+    /// Quadrature over `quad_points` Fibonacci directions; each belongs to the view cap if within
+    /// [`VIEW_CAP_DEG`] of the view direction, else to the sun cap if within [`SUN_CAP_DEG`] of
+    /// the sun, else to the nearest lattice direction. `truncated[l]` is the δ-M fraction f
+    /// taken out of the view cap (0 for the exact phase function).
+    pub fn new(
+        lighting: &Lighting,
+        phases: &[Phase],
+        truncated: &[f64],
+        quad_points: usize,
+        n_elev: usize,
+        n_az: usize,
+    ) -> Self {
+        let n_l = phases.len();
+        let elements = VIEW_RADIANCE + 1;
+        let dirs: Vec<DVec3> = LATTICE
+            .iter()
+            .map(|e| DVec3::new(e[0] as f64, e[1] as f64, e[2] as f64).normalize())
+            .collect();
+        let cap = SUN_CAP_DEG.to_radians().cos();
+        let view_cap = VIEW_CAP_DEG.to_radians().cos();
+        let cap_share: Vec<f64> = phases.iter().map(|p| cap_integral(p, view_cap)).collect();
+        let dw = 4.0 * PI / quad_points as f64;
+        // Quadrature nodes with their element outside the view cap and radiance.
+        let mut nodes: Vec<(DVec3, usize, Vec<f64>)> = Vec::new();
+        let mut rad = vec![0.0; n_l];
+        for i in 0..quad_points {
+            let w = fibonacci(i, quad_points);
+            lighting.env(w, &mut rad);
+            let el = if lighting.sun_dir.dot(w) > cap {
+                0
+            } else {
+                1 + (0..dirs.len())
+                    .max_by(|&a, &b| dirs[a].dot(w).total_cmp(&dirs[b].dot(w)))
+                    .unwrap_or(0)
+            };
+            nodes.push((w, el, rad.clone()));
+        }
+        let per = elements * n_l;
+        let mut table = vec![0f32; n_elev * n_az * per];
+        table.par_chunks_mut(per).enumerate().for_each(|(k, dst)| {
+            let d = table_dir(k / n_az, k % n_az, n_elev, n_az);
+            let mut acc = vec![0.0f64; per];
+            let mut l_view = vec![0.0; n_l];
+            lighting.env(d, &mut l_view);
+            for (w, el, r) in &nodes {
+                let mu = d.dot(*w);
+                if mu > view_cap {
+                    // The smooth remainder; the peak's share is added analytically below.
+                    for l in 0..n_l {
+                        acc[VIEW_ELEMENT * n_l + l] += phases[l].eval(mu) * (r[l] - l_view[l]) * dw;
+                    }
+                } else {
+                    for l in 0..n_l {
+                        acc[el * n_l + l] += phases[l].eval(mu) * r[l] * dw;
+                    }
+                }
+            }
+            for l in 0..n_l {
+                acc[VIEW_ELEMENT * n_l + l] += l_view[l] * (cap_share[l] - truncated[l]);
+                acc[VIEW_RADIANCE * n_l + l] = l_view[l];
+            }
+            for (o, a) in dst.iter_mut().zip(acc) {
+                *o = a as f32;
+            }
+        });
+        Self {
+            n_elev,
+            n_az,
+            n_l,
+            table,
+            elements,
+        }
+    }
+
+    /// Table offsets and bilinear weights of the four nodes around view direction `d`.
+    fn corners(&self, d: DVec3) -> [(usize, f64); 4] {
+        let (u, v) = dir_to_table(d, self.n_elev, self.n_az);
+        let (r0, fr) = (u.floor() as usize, u - u.floor());
+        let r0 = r0.min(self.n_elev - 1);
+        let r1 = (r0 + 1).min(self.n_elev - 1);
+        let c0 = (v.floor() as usize) % self.n_az;
+        let fc = v - v.floor();
+        let c1 = (c0 + 1) % self.n_az;
+        let per = self.elements * self.n_l;
+        let at = |r: usize, c: usize| (r * self.n_az + c) * per;
+        [
+            (at(r0, c0), (1.0 - fr) * (1.0 - fc)),
+            (at(r0, c1), (1.0 - fr) * fc),
+            (at(r1, c0), fr * (1.0 - fc)),
+            (at(r1, c1), fr * fc),
+        ]
+    }
+
+    /// Bilinear lookup for view direction `d` (camera → point): `[element][λ]` into `out`.
+    pub fn lookup(&self, d: DVec3, out: &mut [f64]) {
+        let per = self.elements * self.n_l;
+        out.iter_mut().for_each(|o| *o = 0.0);
+        for (base, w) in self.corners(d) {
+            for (o, t) in out.iter_mut().zip(&self.table[base..base + per]) {
+                *o += w * *t as f64;
+            }
+        }
+    }
+
+    /// The view cap ([`VIEW_ELEMENT`]) and the radiance from the view direction
+    /// ([`VIEW_RADIANCE`]) for view direction `d`, bilinear, per wavelength.
+    pub fn lookup_view(&self, d: DVec3, cap: &mut [f64], radiance: &mut [f64]) {
+        cap.iter_mut().for_each(|o| *o = 0.0);
+        radiance.iter_mut().for_each(|o| *o = 0.0);
+        let n_l = self.n_l;
+        for (base, w) in self.corners(d) {
+            for l in 0..n_l {
+                cap[l] += w * self.table[base + VIEW_ELEMENT * n_l + l] as f64;
+                radiance[l] += w * self.table[base + VIEW_RADIANCE * n_l + l] as f64;
+            }
+        }
+    }
+}
+
+/// ∫ F(μ) dω over the cap μ ≥ `mu0` around the forward direction: 2π ∫_{μ0}^{1} F dμ on a
+/// grid geometric in 1 − μ (strongly forward phase functions peak within 10⁻⁴ of μ = 1).
+fn cap_integral(phase: &Phase, mu0: f64) -> f64 {
+    let x_max = 1.0 - mu0;
+    let x_min = 1e-9_f64.min(x_max);
+    let n = 4000;
+    let r = (x_max / x_min).powf(1.0 / n as f64);
+    let mut sum = x_min * phase.eval(1.0 - 0.5 * x_min);
+    let mut x0 = x_min;
+    for _ in 0..n {
+        let x1 = x0 * r;
+        sum += 0.5 * (x1 - x0) * (phase.eval(1.0 - x0) + phase.eval(1.0 - x1));
+        x0 = x1;
+    }
+    2.0 * PI * sum
+}
+
+/// Direction of table node (row, col): rows from −90° to 90° elevation, columns around azimuth.
+fn table_dir(row: usize, col: usize, n_elev: usize, n_az: usize) -> DVec3 {
+    let e = -0.5 * PI + PI * row as f64 / (n_elev - 1) as f64;
+    let a = 2.0 * PI * col as f64 / n_az as f64;
+    DVec3::new(a.sin() * e.cos(), a.cos() * e.cos(), e.sin())
+}
+
+/// Fractional table coordinates of direction `d`.
+fn dir_to_table(d: DVec3, n_elev: usize, n_az: usize) -> (f64, f64) {
+    let e = d.z.clamp(-1.0, 1.0).asin();
+    let a = d.x.atan2(d.y).rem_euclid(2.0 * PI);
+    (
+        ((e + 0.5 * PI) / PI * (n_elev - 1) as f64).clamp(0.0, (n_elev - 1) as f64),
+        a / (2.0 * PI) * n_az as f64,
+    )
+}
+
+/// The i-th of n points of a spherical Fibonacci lattice (equal areas 4π/n).
+pub fn fibonacci(i: usize, n: usize) -> DVec3 {
+    let golden = PI * (3.0 - 5f64.sqrt());
+    let z = 1.0 - (2.0 * i as f64 + 1.0) / n as f64;
+    let r = (1.0 - z * z).max(0.0).sqrt();
+    let phi = golden * i as f64;
+    DVec3::new(r * phi.cos(), r * phi.sin(), z)
+}

@@ -1,0 +1,628 @@
+//! The HTTP service (DESIGN.md "Interfaces"): an axum router over the engine and the product cache.
+//!
+//! - [`problem`]: RFC 9457 problem+json errors.
+//! - [`extract`]: the query and JSON-body extractors (the only place requests are parsed).
+//! - [`routes`]: the router, one module per concern (products, plan, jobs, operations).
+//! - [`metrics`]: Prometheus text.
+//! - [`openapi`]: the route table and the OpenAPI document generated from it.
+//! - [`server`]: binding, graceful shutdown, the `healthcheck` client.
+//!
+//! A product request is answered from, in order: the rendered-response memory cache, the product
+//! cache (memory LRU, then verified EXR files on disk), or one engine computation shared by all
+//! identical requests in flight (single flight), run on a blocking thread behind a semaphore sized
+//! to the cores.
+
+pub mod conn;
+pub mod extract;
+pub mod limits;
+pub mod metrics;
+pub mod openapi;
+pub mod problem;
+pub mod server;
+pub mod viewer;
+
+mod responses;
+mod routes;
+
+use skybake_product::config::Settings;
+use skybake_engine::engine::Engine;
+use skybake_product::{Format, ProductKind, ProductRequest};
+use skybake_product::frame::FrameRequest;
+use skybake_store::TileStore;
+use skybake_store::{Cache, CacheConfig};
+use bytes::Bytes;
+use metrics::Metrics;
+use problem::ApiError;
+use responses::ResponseCache;
+use std::collections::HashMap;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::{Arc, Mutex};
+use std::time::Duration;
+use tokio::sync::Semaphore;
+
+pub use routes::app;
+pub use skybake_physics::{Error, Result};
+
+/// The published result of a computation.
+type FlightResult = Option<Result<Arc<[u8]>, ApiError>>;
+
+/// A computation in flight: its result once published, who waits for it, and its cancel token.
+struct Flight {
+    id: u64,
+    rx: tokio::sync::watch::Receiver<FlightResult>,
+    /// Requests and job items awaiting the result now.
+    waiters: usize,
+    cancel: Arc<CancelToken>,
+}
+
+/// Set when every waiter of a computation has gone (issue 18): the computation leaves the
+/// compute queue at once, or stops at the engine's next stage boundary.
+#[derive(Default)]
+struct CancelToken {
+    cancelled: std::sync::atomic::AtomicBool,
+    notify: tokio::sync::Notify,
+}
+
+impl CancelToken {
+    fn cancel(&self) {
+        self.cancelled.store(true, Ordering::Relaxed);
+        self.notify.notify_waiters();
+    }
+
+    fn is_cancelled(&self) -> bool {
+        self.cancelled.load(Ordering::Relaxed)
+    }
+}
+
+/// What a flight computes: a product of the parameter table or a cloud frame.
+#[derive(Clone)]
+pub(crate) enum Work {
+    Product(Box<ProductRequest>),
+    Frame(Arc<FrameRequest>),
+}
+
+impl Work {
+    fn name(&self) -> &'static str {
+        match self {
+            Work::Product(r) => r.kind().name(),
+            Work::Frame(_) => "frame",
+        }
+    }
+}
+
+/// One waiter of a flight; dropping it (the request finished, timed out, or its client hung up)
+/// leaves the flight, and the last one to leave cancels the computation unless
+/// `server.finish_abandoned` keeps it running for the cache.
+struct Waiter {
+    state: AppState,
+    key: String,
+    id: u64,
+}
+
+impl Drop for Waiter {
+    fn drop(&mut self) {
+        let inner = &self.state.inner;
+        let mut flights = inner.flights.lock().unwrap_or_else(|e| e.into_inner());
+        let Some(f) = flights.get_mut(&self.key).filter(|f| f.id == self.id) else {
+            return;
+        };
+        f.waiters = f.waiters.saturating_sub(1);
+        if f.waiters == 0 && !inner.settings.server.finish_abandoned {
+            // Out of the map first, so a new request for the key starts a fresh computation
+            // instead of joining one being cancelled.
+            if let Some(f) = flights.remove(&self.key) {
+                if f.rx.borrow().is_none() {
+                    f.cancel.cancel();
+                }
+            }
+        }
+    }
+}
+
+/// Where a response's artifact came from.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Source {
+    /// The rendered-response memory cache.
+    Response,
+    /// The product cache (memory or disk).
+    Cache,
+    /// Computed for this request (or joined an identical computation in flight).
+    Computed,
+}
+
+impl Source {
+    pub fn header(self) -> &'static str {
+        match self {
+            Source::Response | Source::Cache => "hit",
+            Source::Computed => "miss",
+        }
+    }
+}
+
+/// Shared state of the service: settings, engine, cache, metrics, jobs.
+#[derive(Clone)]
+pub struct AppState {
+    inner: Arc<Inner>,
+}
+
+struct Inner {
+    settings: Settings,
+    engine: Engine,
+    cache: Arc<Cache>,
+    metrics: Metrics,
+    compute: Semaphore,
+    flights: Mutex<HashMap<String, Flight>>,
+    tiles: TileStore,
+    /// Flights started and not yet holding a compute slot (bounded by
+    /// `server.max_queued_computations`).
+    queued: std::sync::atomic::AtomicUsize,
+    next_flight: std::sync::atomic::AtomicU64,
+    rate: limits::RateLimiter,
+    responses: Mutex<ResponseCache>,
+    jobs: skybake_job::run::Jobs,
+}
+
+impl AppState {
+    /// Opens the cache at `settings.cache.dir` and loads persisted jobs (call
+    /// [`AppState::start_job_workers`] inside a runtime to run them).
+    pub fn new(settings: Settings) -> Result<Self, ApiError> {
+        let cache = Arc::new(Cache::open(CacheConfig::new(
+            &settings.cache.dir,
+            settings.cache.disk_budget_bytes,
+            settings.cache.memory_budget_bytes,
+        ))?);
+        let jobs = skybake_job::run::Jobs::open(
+            &settings.cache.dir.join("jobs"),
+            skybake_product::params::Defaults::from_settings(&settings),
+        )?;
+        let tiles = TileStore::open(&settings.cache.dir.join("tiles"))?;
+        // Tiles of renders nobody resumed within a week are abandoned.
+        if let Err(e) = tiles.prune(std::time::Duration::from_secs(7 * 24 * 3600)) {
+            tracing::warn!(error = %e, "cannot prune old render tiles");
+        }
+        let state = Self {
+            inner: Arc::new(Inner {
+                compute: Semaphore::new(settings.compute_threads()),
+                responses: Mutex::new(ResponseCache::new(settings.cache.response_budget_bytes)),
+                settings,
+                // Precise tables persist in the same cache (one disk budget) across restarts.
+                engine: skybake_product::engines::engine_with_cache(cache.clone()),
+                cache,
+                metrics: Metrics::default(),
+                flights: Mutex::new(HashMap::new()),
+                tiles,
+                queued: Default::default(),
+                next_flight: Default::default(),
+                rate: Default::default(),
+                jobs,
+            }),
+        };
+        state.housekeeping();
+        Ok(state)
+    }
+
+    pub fn settings(&self) -> &Settings {
+        &self.inner.settings
+    }
+
+    pub fn engine(&self) -> &Engine {
+        &self.inner.engine
+    }
+
+    pub fn cache(&self) -> &Cache {
+        &self.inner.cache
+    }
+
+    pub fn metrics(&self) -> &Metrics {
+        &self.inner.metrics
+    }
+
+    pub fn jobs(&self) -> &skybake_job::run::Jobs {
+        &self.inner.jobs
+    }
+
+    pub fn rate_limiter(&self) -> &limits::RateLimiter {
+        &self.inner.rate
+    }
+
+    /// Starts the job workers (`settings.jobs.workers` tasks) on the current runtime, and the
+    /// housekeeping task that expires finished jobs (`jobs.expire_after_s`) and keeps the job
+    /// files counted in the cache's disk budget.
+    pub fn start_job_workers(&self) {
+        skybake_job::run::start_workers(self, self.settings().jobs.workers);
+        let state = self.clone();
+        let expire_after_s = self.settings().jobs.expire_after_s;
+        let every = Duration::from_secs_f64((expire_after_s / 4.0).clamp(0.05, 30.0));
+        tokio::spawn(async move {
+            loop {
+                let s = state.clone();
+                let _ = Self::blocking(move || {
+                    s.housekeeping();
+                    Ok(())
+                })
+                .await;
+                tokio::time::sleep(every).await;
+            }
+        });
+    }
+
+    /// Expires finished jobs and counts the job files and render tiles in the cache's disk budget.
+    pub fn housekeeping(&self) {
+        let jobs = self.jobs();
+        let removed = jobs.expire(self.settings().jobs.expire_after_s);
+        if removed > 0 {
+            tracing::info!(removed, "expired finished jobs");
+        }
+        self.account_disk(None);
+    }
+
+    /// Counts the job files and the render tiles in the cache's disk budget
+    /// (`cache.disk_budget_bytes`). When everything does not fit, the tiles of frames other than
+    /// `rendering` go first, least recently written first (they are only a head start for a
+    /// retry), then products, least recently used first.
+    pub fn account_disk(&self, rendering: Option<&str>) {
+        let budget = self.settings().cache.disk_budget_bytes;
+        let jobs = self.jobs().disk_bytes();
+        let tiles = &self.inner.tiles;
+        let products = self.inner.cache.stats().bytes_on_disk;
+        let over = (jobs + tiles.bytes() + products).saturating_sub(budget);
+        if over > 0 {
+            match tiles.evict_oldest(rendering, tiles.bytes().saturating_sub(over)) {
+                Ok(0) => {}
+                Ok(n) => {
+                    tracing::info!(
+                        frames = n,
+                        "render tiles evicted to keep to the disk budget"
+                    )
+                }
+                Err(e) => tracing::warn!(error = %e, "cannot evict render tiles"),
+            }
+        }
+        self.inner
+            .cache
+            .set_reserved_bytes(jobs.saturating_add(tiles.bytes()));
+    }
+
+    /// Runs blocking work on the blocking pool; a panic there becomes a 500, never a crash.
+    pub async fn blocking<T: Send + 'static>(
+        f: impl FnOnce() -> Result<T, ApiError> + Send + 'static,
+    ) -> Result<T, ApiError> {
+        tokio::task::spawn_blocking(f)
+            .await
+            .map_err(|e| ApiError::Internal(format!("worker failed: {e}")))?
+    }
+
+    /// The artifact (verified EXR bytes) of `req`: from the cache, or computed once for all identical
+    /// requests in flight.
+    pub async fn artifact(
+        &self,
+        req: &ProductRequest,
+        key: &str,
+    ) -> Result<(Arc<[u8]>, Source), ApiError> {
+        self.artifact_of(Work::Product(Box::new(req.clone())), key)
+            .await
+    }
+
+    /// [`Self::artifact`] of any work. A frame render is computed tile by tile into the tile
+    /// store and, like any computation, stops when every request waiting for it has gone (at its
+    /// next tile; a retry resumes from the stored tiles).
+    pub(crate) async fn artifact_of(
+        &self,
+        work: Work,
+        key: &str,
+    ) -> Result<(Arc<[u8]>, Source), ApiError> {
+        let lookup = {
+            let (s, k) = (self.clone(), key.to_string());
+            Self::blocking(move || Ok(s.inner.cache.get(&k)?)).await?
+        };
+        if let Some(bytes) = lookup {
+            return Ok((bytes, Source::Cache));
+        }
+        // Join the computation in flight for this key, or start one. The computation runs on a
+        // task of its own that publishes its result and leaves the map, so a waiter that times out
+        // or disconnects does not cause a second one; when the last waiter has gone the
+        // computation is cancelled (see [`Waiter`]).
+        let (mut rx, waiter, leader) = {
+            let mut flights = self.inner.flights.lock().unwrap_or_else(|e| e.into_inner());
+            match flights.get_mut(key) {
+                Some(f) => {
+                    f.waiters += 1;
+                    (f.rx.clone(), self.waiter(key, f.id), false)
+                }
+                None => {
+                    let queued = self.inner.queued.load(Ordering::Relaxed);
+                    if queued >= self.inner.settings.server.max_queued_computations {
+                        self.inner.metrics.load_shed.fetch_add(1, Ordering::Relaxed);
+                        self.inner
+                            .metrics
+                            .queue_shed
+                            .fetch_add(1, Ordering::Relaxed);
+                        return Err(ApiError::Overloaded);
+                    }
+                    self.inner.queued.fetch_add(1, Ordering::Relaxed);
+                    let id = self.inner.next_flight.fetch_add(1, Ordering::Relaxed);
+                    let (tx, rx) = tokio::sync::watch::channel(None);
+                    let cancel = Arc::new(CancelToken::default());
+                    flights.insert(
+                        key.to_string(),
+                        Flight {
+                            id,
+                            rx: rx.clone(),
+                            waiters: 1,
+                            cancel: cancel.clone(),
+                        },
+                    );
+                    let (state, k) = (self.clone(), key.to_string());
+                    tokio::spawn(async move {
+                        let result = state.compute(work, k.clone(), cancel).await;
+                        // Publish, then leave the map (the product is already in the cache).
+                        let _ = tx.send(Some(result));
+                        let mut flights = state
+                            .inner
+                            .flights
+                            .lock()
+                            .unwrap_or_else(|e| e.into_inner());
+                        if flights.get(&k).is_some_and(|f| f.id == id) {
+                            flights.remove(&k);
+                        }
+                    });
+                    (rx, self.waiter(key, id), true)
+                }
+            }
+        };
+        if !leader {
+            self.inner
+                .metrics
+                .single_flight_joins
+                .fetch_add(1, Ordering::Relaxed);
+        }
+        let result = rx
+            .wait_for(Option::is_some)
+            .await
+            .map_err(|_| ApiError::Internal("computation task ended without a result".into()))?
+            .clone()
+            .unwrap_or_else(|| Err(ApiError::Internal("no result".into())));
+        drop(waiter);
+        result.map(|b| (b, Source::Computed))
+    }
+
+    fn waiter(&self, key: &str, id: u64) -> Waiter {
+        Waiter {
+            state: self.clone(),
+            key: key.to_string(),
+            id,
+        }
+    }
+
+    /// Computes `req` (behind the compute semaphore, on a blocking thread) and stores it; a
+    /// cancelled computation leaves the queue at once or stops at the engine's next stage.
+    async fn compute(
+        &self,
+        work: Work,
+        key: String,
+        cancel: Arc<CancelToken>,
+    ) -> Result<Arc<[u8]>, ApiError> {
+        let inner = &self.inner;
+        let permit = {
+            let notified = cancel.notify.notified();
+            tokio::pin!(notified);
+            notified.as_mut().enable();
+            if cancel.is_cancelled() {
+                None
+            } else {
+                tokio::select! {
+                    p = inner.compute.acquire() => Some(p),
+                    () = notified => None,
+                }
+            }
+        };
+        inner.queued.fetch_sub(1, Ordering::Relaxed);
+        let Some(permit) = permit else {
+            inner.metrics.cancelled.fetch_add(1, Ordering::Relaxed);
+            return Err(crate::Error::Cancelled.into());
+        };
+        let _permit = permit.map_err(|_| ApiError::Unavailable("shutting down".into()))?;
+        let s = self.clone();
+        Self::blocking(move || {
+            // Another flight may have finished between our cache miss and starting this one.
+            // (`contains` first, so the common case does not count a second miss.)
+            if s.inner.cache.contains(&key) {
+                if let Some(bytes) = s.inner.cache.get(&key)? {
+                    return Ok(bytes);
+                }
+            }
+            let m = &s.inner.metrics;
+            m.computed(work.name());
+            m.compute_in_flight.fetch_add(1, Ordering::Relaxed);
+            let image = match &work {
+                Work::Product(req) => req
+                    .compute_cancellable(&s.inner.engine, &|| cancel.is_cancelled())
+                    .map_err(|e| {
+                        if matches!(e, crate::Error::Cancelled) {
+                            m.cancelled.fetch_add(1, Ordering::Relaxed);
+                        }
+                        ApiError::from(e)
+                    }),
+                Work::Frame(req) => s.render_frame(req, &key, &cancel),
+            };
+            m.compute_in_flight.fetch_sub(1, Ordering::Relaxed);
+            let bytes = s.inner.cache.put_image(&key, &image?)?;
+            if let Work::Frame(_) = work {
+                // The assembled frame is in the cache: its tiles are no longer needed.
+                if let Err(e) = s.inner.tiles.frame(&key).and_then(|t| t.remove_all()) {
+                    tracing::warn!(key = %key, error = %e, "cannot remove a finished frame's tiles");
+                }
+                s.account_disk(None);
+            }
+            Ok(bytes)
+        })
+        .await
+    }
+
+    /// Renders a frame tile by tile into the tile store (blocking). Stops at the next tile when
+    /// the flight is cancelled (no request waits any more).
+    fn render_frame(
+        &self,
+        req: &FrameRequest,
+        key: &str,
+        flight: &CancelToken,
+    ) -> Result<skybake_physics::image::SpectralImage, ApiError> {
+        let tiles = self.inner.tiles.frame(key)?;
+        let abandoned = AtomicBool::new(false);
+        let cancel = || {
+            let gone = flight.is_cancelled();
+            if gone {
+                abandoned.store(true, Ordering::Relaxed);
+            }
+            gone
+        };
+        let m = &self.inner.metrics;
+        let progress = |p: skybake_product::frame::TileProgress| {
+            // Called once with the tiles found, then once per tile computed.
+            if p.done > p.reused {
+                m.frame_tiles_computed.fetch_add(1, Ordering::Relaxed);
+                // The new tile counts in the disk budget.
+                self.account_disk(Some(key));
+            }
+        };
+        let result = req.compute_tiled(
+            &self.inner.engine,
+            &skybake_product::frame::example_file,
+            &tiles,
+            &progress,
+            &cancel,
+        );
+        match result {
+            Err(_) if abandoned.load(Ordering::Relaxed) => {
+                m.frames_abandoned.fetch_add(1, Ordering::Relaxed);
+                m.cancelled.fetch_add(1, Ordering::Relaxed);
+                Err(ApiError::Unavailable(format!(
+                    "the render stopped because no client was waiting for it; {} of {} tiles are stored and a retry resumes from them",
+                    tiles.count(),
+                    req.tile_count()
+                )))
+            }
+            other => Ok(other?),
+        }
+    }
+
+    /// The response body of `req` in its format, and where it came from.
+    pub async fn body(&self, req: &ProductRequest) -> Result<(Bytes, Source, String), ApiError> {
+        let key = req.cache_key();
+        if let Some(b) = self.response_get(&key, req.format) {
+            self.inner
+                .metrics
+                .response_cache_hits
+                .fetch_add(1, Ordering::Relaxed);
+            return Ok((b, Source::Response, key));
+        }
+        if !self.inner.cache.contains(&key) {
+            self.check_cost(req)?;
+        }
+        let (artifact, source) = self.artifact(req, &key).await?;
+        let body = match Self::render_body(req, artifact).await {
+            Ok(body) => body,
+            Err(ApiError::Internal(why)) => {
+                // A stored artifact that passed its checksum but does not render is a server
+                // fault, never the request's: drop it and compute the product again (a second
+                // failure is a 500).
+                tracing::warn!(key = %key, error = %why, "malformed cached artifact; recomputing");
+                self.inner.cache.remove(&key)?;
+                let (artifact, _) = self.artifact(req, &key).await?;
+                Self::render_body(req, artifact).await?
+            }
+            Err(e) => return Err(e),
+        };
+        if let Ok(mut r) = self.inner.responses.lock() {
+            r.put(&key, req.format, body.clone());
+        }
+        Ok((body, source, key))
+    }
+
+    /// The body of `req` in its format, rendered from `artifact` (EXR bytes).
+    async fn render_body(req: &ProductRequest, artifact: Arc<[u8]>) -> Result<Bytes, ApiError> {
+        match req.format {
+            Format::Exr => Ok(Bytes::copy_from_slice(&artifact)),
+            format => {
+                let product = req.kind();
+                Self::blocking(move || {
+                    let image = skybake_store::decode_exr(&artifact)
+                        .map_err(|e| ApiError::Internal(format!("cached artifact: {e}")))?;
+                    Ok(Bytes::from(skybake_product::render(
+                        product, format, &image,
+                    )?))
+                })
+                .await
+            }
+        }
+    }
+
+    fn response_get(&self, key: &str, format: Format) -> Option<Bytes> {
+        self.inner.responses.lock().ok()?.get(key, format)
+    }
+
+    /// Drops everything the rendered-response cache holds (tests; after a cache directory change).
+    pub fn clear_responses(&self) {
+        if let Ok(mut r) = self.inner.responses.lock() {
+            r.clear();
+        }
+    }
+
+    /// Refuses (413) a request whose estimated cost ([`skybake_product::cost`]) exceeds
+    /// `server.max_request_cost`; jobs are not subject to it (they queue instead of holding a
+    /// request open).
+    pub fn check_cost(&self, req: &ProductRequest) -> Result<(), ApiError> {
+        let budget = self.inner.settings.server.max_request_cost;
+        let c = skybake_product::cost::estimate(req)?;
+        if c.units > budget {
+            return Err(crate::Error::too_large(
+                "request_cost",
+                format!(
+                    "estimated cost {} cell-wavelength-orders ((table cells {} × expected orders {} + output cells {}) × wavelengths {}) exceeds the budget server.max_request_cost; lower quality, wavelengths or table size, or submit it as a job (POST /v1/jobs)",
+                    c.units, c.table_cells, c.expected_orders, c.output_cells, c.wavelengths
+                ),
+                budget,
+            )
+            .into());
+        }
+        Ok(())
+    }
+
+    /// The validated request of `product` from raw parameters, with the configured defaults.
+    pub fn request(
+        &self,
+        product: ProductKind,
+        p: skybake_product::params::RequestParams,
+    ) -> Result<ProductRequest, ApiError> {
+        Ok(ProductRequest::from_params(
+            product,
+            &self.jobs().defaults().apply(p),
+        )?)
+    }
+}
+
+/// Jobs produce their items through the service's cache: cached items are hits, the others are
+/// computed once (joining identical requests in flight) and stored.
+impl skybake_job::run::Producer for AppState {
+    async fn produce(
+        &self,
+        req: skybake_job::spec::ItemRequest,
+    ) -> Result<(), skybake_job::JobError> {
+        let key = req.cache_key();
+        let work = match req {
+            skybake_job::spec::ItemRequest::Product(r) => Work::Product(r),
+            skybake_job::spec::ItemRequest::Frame(r) => Work::Frame(Arc::from(r)),
+        };
+        self.artifact_of(work, &key)
+            .await
+            .map(|_| ())
+            .map_err(|e| match e {
+                ApiError::Param(e) => skybake_job::JobError::Param(e),
+                other => skybake_job::JobError::Failure(other.to_string()),
+            })
+    }
+
+    fn jobs(&self) -> &skybake_job::run::Jobs {
+        &self.inner.jobs
+    }
+}

@@ -1,0 +1,245 @@
+//! `POST /v1/render`: a frame scene in the body → the cloud frame (issue 13 point 6), as EXR (the
+//! artifact), PNG (tone-mapped preview; an RGB-only request, which the planner may run at fewer
+//! wavelengths) or JSON (stages, timings, error estimate). Cached like
+//! every product under the frame request's cache key, computed through the same single flight and
+//! compute slots, and rendered tile by tile into the tile store, so an interrupted render resumes
+//! (see [`AppState::artifact_of`]).
+
+use super::super::extract::{FromQuery, Query};
+use super::super::problem::ApiError;
+use super::super::{AppState, Source, Work};
+use skybake_physics::cloud::scene::MAX_SCENE_FILE_BYTES;
+use skybake_product::Format;
+use skybake_product::frame::{frame_summary, FrameRequest};
+use skybake_render::Method;
+use axum::body::{Body, Bytes, HttpBody};
+use axum::extract::State;
+use axum::http::{header, HeaderMap, HeaderValue, StatusCode};
+use axum::response::{IntoResponse, Response};
+use std::sync::atomic::Ordering;
+use std::sync::Arc;
+
+/// The formats of a frame.
+pub const FRAME_FORMATS: &[Format] = &[Format::Json, Format::Exr, Format::Png];
+
+/// `format` and `method` of a render.
+pub struct RenderQuery {
+    pub format: Option<String>,
+    pub method: Option<String>,
+    /// The frame's target relative error (`FrameRequest::with_max_rel_error`).
+    pub max_rel_error: Option<String>,
+}
+
+impl FromQuery for RenderQuery {
+    fn from_pairs(pairs: Vec<(String, String)>) -> Result<Self, ApiError> {
+        let mut q = RenderQuery {
+            format: None,
+            method: None,
+            max_rel_error: None,
+        };
+        let mut unknown = Vec::new();
+        for (k, v) in pairs {
+            let slot = match k.as_str() {
+                "format" => &mut q.format,
+                "method" => &mut q.method,
+                "max_rel_error" => &mut q.max_rel_error,
+                _ => {
+                    unknown.push(k);
+                    continue;
+                }
+            };
+            if slot.replace(v).is_some() {
+                return Err(crate::Error::invalid(&k, "given more than once").into());
+            }
+        }
+        if unknown.is_empty() {
+            Ok(q)
+        } else {
+            Err(ApiError::UnknownParameters(unknown))
+        }
+    }
+}
+
+/// The body format: `format=` if given, else the first of EXR, PNG, JSON the `Accept` header
+/// names, else JSON.
+pub fn frame_format(query: Option<&str>, accept: Option<&str>) -> Result<Format, ApiError> {
+    if let Some(text) = query {
+        return FRAME_FORMATS
+            .iter()
+            .copied()
+            .find(|f| f.name() == text.trim())
+            .ok_or_else(|| {
+                crate::Error::invalid(
+                    "format",
+                    format!(
+                        "'{text}' is not a format of the frame product (allowed: json, exr, png)"
+                    ),
+                )
+                .into()
+            });
+    }
+    let accept = accept.unwrap_or("");
+    Ok(if accept.contains("image/x-exr") {
+        Format::Exr
+    } else if accept.contains("image/png") {
+        Format::Png
+    } else {
+        Format::Json
+    })
+}
+
+/// Most bytes of a scene body: the smaller of the server's body limit and the scene file limit.
+fn body_limit(state: &AppState) -> usize {
+    state
+        .settings()
+        .server
+        .body_limit_bytes
+        .min(MAX_SCENE_FILE_BYTES)
+}
+
+fn too_large(limit: usize, what: String) -> ApiError {
+    crate::Error::too_large(
+        "body",
+        format!("the scene is {what}"),
+        format!("{limit} bytes"),
+    )
+    .into()
+}
+
+/// Reads the body, refusing (413, stating the limit) more than `limit` bytes before buffering
+/// them: a declared length is checked first, then the bytes as they arrive.
+async fn read_body(headers: &HeaderMap, mut body: Body, limit: usize) -> Result<Bytes, ApiError> {
+    if let Some(len) = headers
+        .get(header::CONTENT_LENGTH)
+        .and_then(|v| v.to_str().ok())
+        .and_then(|v| v.parse::<u64>().ok())
+    {
+        if len > limit as u64 {
+            return Err(too_large(limit, format!("{len} bytes (content-length)")));
+        }
+    }
+    let mut buf = Vec::new();
+    while let Some(frame) =
+        std::future::poll_fn(|cx| std::pin::Pin::new(&mut body).poll_frame(cx)).await
+    {
+        let frame = frame.map_err(|e| ApiError::Body {
+            status: StatusCode::BAD_REQUEST,
+            detail: format!("reading the body failed: {e}"),
+        })?;
+        if let Ok(data) = frame.into_data() {
+            if buf.len() + data.len() > limit {
+                return Err(too_large(limit, format!("over {limit} bytes")));
+            }
+            buf.extend_from_slice(&data);
+        }
+    }
+    Ok(Bytes::from(buf))
+}
+
+/// `POST /v1/render?format=exr|png|json&method=fast|reference&max_rel_error=E` with the scene
+/// JSON as the body.
+pub async fn render(
+    State(state): State<AppState>,
+    Query(q): Query<RenderQuery>,
+    headers: HeaderMap,
+    body: Body,
+) -> Result<Response, ApiError> {
+    let format = frame_format(
+        q.format.as_deref(),
+        headers.get(header::ACCEPT).and_then(|v| v.to_str().ok()),
+    )?;
+    let method = Method::parse(q.method.as_deref().unwrap_or("fast"))?;
+    let bytes = read_body(&headers, body, body_limit(&state)).await?;
+    // Parsing validates every limit of the scene before anything is allocated for it.
+    let target = q.max_rel_error;
+    let req = AppState::blocking(move || {
+        Ok(FrameRequest::parse(&bytes, method)?.with_max_rel_error(target.as_deref())?)
+    })
+    .await?;
+    // A PNG is RGB-only: the planner may run fewer wavelengths (its own cache key), unless the
+    // spectral frame of the request is cached already (its RGB is at every wavelength).
+    let rgb_only = format == Format::Png && !state.cache().contains(&req.cache_key());
+    frame_response(&state, Arc::new(req.with_rgb_only(rgb_only)), format).await
+}
+
+/// The response of a frame request in `format`: from the rendered-response cache, the product
+/// cache, or one tiled computation (shared by identical requests).
+pub async fn frame_response(
+    state: &AppState,
+    req: Arc<FrameRequest>,
+    format: Format,
+) -> Result<Response, ApiError> {
+    let key = req.cache_key();
+    let (body, source) = match state.response_get(&key, format) {
+        Some(b) => {
+            state
+                .metrics()
+                .response_cache_hits
+                .fetch_add(1, Ordering::Relaxed);
+            (b, Source::Response)
+        }
+        None => {
+            let (artifact, source) = state.artifact_of(Work::Frame(req.clone()), &key).await?;
+            let body = match frame_body(format, artifact).await {
+                Ok(b) => b,
+                Err(ApiError::Internal(why)) => {
+                    // A stored frame that verifies but does not decode is a server fault: drop
+                    // it and render again (a second failure is a 500).
+                    tracing::warn!(key = %key, error = %why, "malformed cached frame; recomputing");
+                    state.cache().remove(&key)?;
+                    let (artifact, _) = state.artifact_of(Work::Frame(req), &key).await?;
+                    frame_body(format, artifact).await?
+                }
+                Err(e) => return Err(e),
+            };
+            if let Ok(mut r) = state.inner.responses.lock() {
+                r.put(&key, format, body.clone());
+            }
+            (body, source)
+        }
+    };
+    let mut resp = body.into_response();
+    let h = resp.headers_mut();
+    h.insert(
+        header::CONTENT_TYPE,
+        HeaderValue::from_static(format.content_type()),
+    );
+    h.insert("x-cache", HeaderValue::from_static(source.header()));
+    if let Ok(v) = HeaderValue::from_str(&key) {
+        h.insert("x-skybake-cache-key", v);
+    }
+    if let Ok(v) = HeaderValue::from_str(&format!("\"{key}-{}\"", format.name())) {
+        h.insert(header::ETAG, v);
+    }
+    Ok(resp)
+}
+
+/// The body of a frame artifact (EXR bytes) in `format`.
+async fn frame_body(format: Format, artifact: Arc<[u8]>) -> Result<Bytes, ApiError> {
+    if format == Format::Exr {
+        return Ok(Bytes::copy_from_slice(&artifact));
+    }
+    AppState::blocking(move || {
+        let image = skybake_store::decode_exr(&artifact)
+            .map_err(|e| ApiError::Internal(format!("cached frame: {e}")))?;
+        match format {
+            Format::Png => {
+                let rgb = image
+                    .rgb()
+                    .ok_or_else(|| ApiError::Internal("cached frame has no RGB planes".into()))?;
+                Ok(Bytes::from(skybake_engine::output::frame_png(
+                    image.width(),
+                    image.height(),
+                    rgb,
+                )?))
+            }
+            _ => {
+                let doc = frame_summary(&image);
+                serde_json::to_vec(&doc)
+                    .map(Bytes::from)
+                    .map_err(|e| ApiError::Internal(format!("encoding the summary: {e}")))
+            }
+        }
+    })
+    .await
+}

@@ -1,0 +1,9 @@
+//! One module per command.
+
+pub mod atmosphere;
+pub mod bake;
+pub mod clouds;
+pub mod plan;
+pub mod product;
+pub mod render;
+pub mod serve;

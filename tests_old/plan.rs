@@ -1,0 +1,249 @@
+//! The typed plan is executed: every planner rule changes both the plan and the work the engine
+//! does (table builds, ray-march terms counted by the engine), and a stage taken out of a plan
+//! does not run.
+
+use skybake_physics::atmosphere::sky::MsMethod;
+use skybake_engine::engine::{Engine, Product, Table, Term};
+use skybake_engine::plan::{Reason, Stage};
+use skybake_product::params::RequestParams;
+use skybake_product::{ProductKind, ProductRequest};
+
+fn request(kind: ProductKind, pairs: &[(&str, &str)]) -> ProductRequest {
+    let base = [
+        ("method", "fast"),
+        ("quality", "draft"),
+        ("wavelengths", "550"),
+    ];
+    let mut p = RequestParams::from_pairs(base.iter().copied()).unwrap();
+    for (k, v) in pairs {
+        *p.slot(k).unwrap() = Some(v.to_string());
+    }
+    if kind != ProductKind::Sun {
+        p.elevation_count = Some("9".into());
+        p.azimuth_count = Some("3".into());
+    }
+    ProductRequest::from_params(kind, &p).unwrap()
+}
+
+/// Runs the request's own plan on a fresh engine; returns the engine (for its counters) and the
+/// product.
+fn engine_run(req: &ProductRequest, plan: &skybake_engine::plan::Plan) -> Product {
+    Engine::new()
+        .execute(&req.spec, &req.product, plan)
+        .unwrap()
+}
+
+fn run(req: &ProductRequest) -> (Engine, Product) {
+    let engine = Engine::new();
+    let plan = req.plan().unwrap();
+    let product = engine.execute(&req.spec, &req.product, &plan).unwrap();
+    (engine, product)
+}
+
+#[test]
+fn planning_builds_no_tables() {
+    let engine = Engine::new();
+    let req = request(ProductKind::Sky, &[("method", "precise")]);
+    let plan = req.plan().unwrap();
+    assert!(plan.runs(Stage::MultipleScattering));
+    for table in Table::ALL {
+        assert_eq!(engine.table_builds(table), 0, "{table:?}");
+    }
+}
+
+#[test]
+fn method_none_leaves_out_multiple_scattering_and_its_table() {
+    let none = request(ProductKind::Sky, &[("method", "none")]);
+    let plan = none.plan().unwrap();
+    assert!(!plan.runs(Stage::MultipleScattering));
+    assert!(plan
+        .left_out
+        .contains(&(Stage::MultipleScattering, Reason::MethodNone)));
+    let (engine, _) = run(&none);
+    assert_eq!(engine.table_builds(Table::Fast), 0);
+    assert_eq!(engine.table_builds(Table::Precise), 0);
+    assert_eq!(engine.term_count(Term::MultipleScattering), 0);
+
+    let fast = request(ProductKind::Sky, &[]);
+    assert!(fast.plan().unwrap().runs(Stage::MultipleScattering));
+    let (engine, _) = run(&fast);
+    assert_eq!(engine.table_builds(Table::Fast), 1);
+    assert_eq!(engine.table_builds(Table::Precise), 0);
+    assert!(engine.term_count(Term::MultipleScattering) > 0);
+}
+
+#[test]
+fn zero_albedo_leaves_out_the_ground_bounce() {
+    let black = request(ProductKind::Sky, &[("ground_albedo", "0")]);
+    let plan = black.plan().unwrap();
+    assert!(plan
+        .left_out
+        .contains(&(Stage::GroundBounce, Reason::ZeroGroundAlbedo)));
+    let (engine, _) = run(&black);
+    assert_eq!(engine.term_count(Term::GroundBounce), 0);
+
+    let grey = request(ProductKind::Sky, &[("ground_albedo", "0.3")]);
+    assert!(grey.plan().unwrap().runs(Stage::GroundBounce));
+    let (engine, _) = run(&grey);
+    // The table's rows below the horizon (4 of 9, × 3 azimuths) end on the ground.
+    assert!(engine.term_count(Term::GroundBounce) >= 12);
+}
+
+#[test]
+fn direct_sun_follows_the_observers_horizon() {
+    // At −10° the sun is below the horizon on the ground but not from 400 km, where the horizon
+    // dips 20°: the plan and the transmittance use the same geometric test.
+    for (altitude, visible) in [("0", false), ("400000", true)] {
+        let req = request(
+            ProductKind::Sun,
+            &[
+                ("sun_elevation_deg", "-10"),
+                ("observer_altitude_m", altitude),
+            ],
+        );
+        let plan = req.plan().unwrap();
+        assert_eq!(plan.runs(Stage::DirectSun), visible, "{altitude} m");
+        assert_eq!(
+            plan.left_out
+                .iter()
+                .any(|(s, r)| *s == Stage::DirectSun
+                    && matches!(r, Reason::SunBelowHorizon { .. })),
+            !visible,
+            "{altitude} m"
+        );
+        let (engine, product) = run(&req);
+        assert_eq!(engine.term_count(Term::DirectSun), u64::from(visible));
+        let Product::Sun(sun) = product else {
+            panic!("not a sun product")
+        };
+        assert_eq!(sun.transmittance[0] > 0.0, visible, "{altitude} m");
+        assert_eq!(sun.meta.plan, plan);
+    }
+}
+
+#[test]
+fn a_stage_taken_out_of_the_plan_does_not_run() {
+    let req = request(ProductKind::Sky, &[("ground_albedo", "0.3")]);
+    let full = req.plan().unwrap();
+    let engine = Engine::new();
+    let with = engine.execute(&req.spec, &req.product, &full).unwrap();
+    let single = engine.term_count(Term::SingleScattering);
+    assert!(single > 0);
+    for stage in [
+        Stage::SingleScattering,
+        Stage::GroundBounce,
+        Stage::MultipleScattering,
+    ] {
+        let engine = Engine::new();
+        let plan = full.clone().without(stage);
+        let without = engine.execute(&req.spec, &req.product, &plan).unwrap();
+        let term = match stage {
+            Stage::SingleScattering => Term::SingleScattering,
+            Stage::GroundBounce => Term::GroundBounce,
+            _ => Term::MultipleScattering,
+        };
+        assert_eq!(engine.term_count(term), 0, "{stage:?}");
+        if stage == Stage::MultipleScattering {
+            assert_eq!(engine.table_builds(Table::Fast), 0);
+        }
+        let (Product::Sky(a), Product::Sky(b)) = (&with, &without) else {
+            panic!("not sky products")
+        };
+        let (sum_a, sum_b): (f64, f64) = (
+            a.table.radiance.iter().map(|&v| v as f64).sum(),
+            b.table.radiance.iter().map(|&v| v as f64).sum(),
+        );
+        assert!(sum_b < sum_a, "{stage:?}: {sum_b} !< {sum_a}");
+        assert_eq!(b.meta.plan, plan);
+    }
+    // Without the density table nothing can run: refused, not computed.
+    let engine = Engine::new();
+    assert!(engine
+        .execute(&req.spec, &req.product, &full.without(Stage::DensityTable))
+        .is_err());
+    assert_eq!(engine.table_builds(Table::Density), 0);
+}
+
+#[test]
+fn precise_orders_under_the_error_budget_are_left_out() {
+    // Clear air at 440 nm, standard: the preset's tolerance 1e-3 takes 5 orders, the budget's
+    // (a quarter of the smallest measured error of the products sharing the table, the sun's
+    // 0.28 % + the reference's 0.5 %) 4.
+    let pairs = [
+        ("method", "precise"),
+        ("quality", "standard"),
+        ("wavelengths", "440"),
+        ("sun_elevation_deg", "30"),
+    ];
+    let req = request(ProductKind::Sky, &pairs);
+    let plan = req.plan().unwrap();
+    let Some(&(
+        _,
+        Reason::OrdersUnderBudget {
+            tolerance,
+            preset_tolerance,
+            budget,
+        },
+    )) = plan
+        .left_out
+        .iter()
+        .find(|(s, _)| *s == Stage::HigherOrders)
+    else {
+        panic!("{plan:?}")
+    };
+    assert!(tolerance > preset_tolerance && tolerance <= budget.allowance);
+    assert_eq!(plan.precise_tolerance, Some(tolerance));
+    let (_, with) = run(&req);
+    let engine = Engine::new();
+    let full = plan.clone().without_cost_rules();
+    assert!(full.runs(Stage::HigherOrders) && full.precise_tolerance.is_none());
+    let without = engine.execute(&req.spec, &req.product, &full).unwrap();
+    let orders = |p: &Product| p.meta().error_estimate.scattering_orders.unwrap();
+    let (Product::Sky(a), Product::Sky(b)) = (&with, &without) else {
+        panic!("not sky products")
+    };
+    let worst = a
+        .table
+        .radiance
+        .iter()
+        .zip(&b.table.radiance)
+        .map(|(x, y)| ((x - y).abs() / y.abs().max(1e-30)) as f64)
+        .fold(0.0, f64::max);
+    eprintln!(
+        "orders {} vs {}, worst relative difference {worst:.2e}, tolerance {tolerance:.2e}",
+        orders(&with),
+        orders(&without)
+    );
+    assert!(orders(&with) < orders(&without));
+    // What the left-out orders change in the sky table stays within the sky's allowance (a
+    // quarter of its measured error in this regime), …
+    let (sky_measured, _) =
+        skybake_engine::accuracy::measured_for(ProductKind::Sky, MsMethod::Precise, &req.spec).unwrap();
+    let sky_allowance = skybake_engine::plan::BUDGET_SHARE
+        * (sky_measured.relative_error + skybake_engine::accuracy::REFERENCE_ERROR);
+    assert!(worst <= sky_allowance, "{worst} > {sky_allowance}");
+    // … and in the sun product (the smallest measured error, which sets the table's budget)
+    // within the table's allowance.
+    let sun = request(ProductKind::Sun, &pairs);
+    let sun_with = engine_run(&sun, &sun.plan().unwrap());
+    let sun_without = engine_run(&sun, &sun.plan().unwrap().without_cost_rules());
+    let (Product::Sun(a), Product::Sun(b)) = (&sun_with, &sun_without) else {
+        panic!("not sun products")
+    };
+    let sun_worst = a
+        .diffuse_horizontal_irradiance_w_m2_nm
+        .iter()
+        .zip(&b.diffuse_horizontal_irradiance_w_m2_nm)
+        .map(|(x, y)| (x - y).abs() / y.abs())
+        .fold(0.0, f64::max);
+    eprintln!("sun diffuse: {sun_worst:.2e}");
+    assert!(sun_worst <= budget.allowance, "{sun_worst}");
+
+    // The converged reference is never loosened.
+    let reference = request(
+        ProductKind::Sky,
+        &[("method", "precise"), ("quality", "reference")],
+    );
+    let plan = reference.plan().unwrap();
+    assert!(plan.runs(Stage::HigherOrders) && plan.precise_tolerance.is_none());
+}

@@ -1,0 +1,368 @@
+//! Issue 13 point 7: the path tracer (and the fast method's figures) against independent codes:
+//! (a) DISORT for a laterally huge homogeneous slab (tests/data/cloud_slab_disort.json, made by
+//! tools/cloud_slab_disort.py with pydisort 1.8.13, 128 streams), (b) Mitsuba 3 `volpath` for a
+//! 3-D cloud grid lit by a sun and a constant sky in vacuum (tests/data/cloud_mitsuba_*.npy and
+//! validation-cloud-*.json, made by tools/cloud_mitsuba.py with Mitsuba 3.9.1). Every render goes
+//! through `render::render_frame`.
+
+use glam::DVec3;
+use serde_json::{json, Value};
+use skybake_physics::cloud::DensityGrid;
+use skybake_engine::engine::Engine;
+use skybake_render::{lighting_for, render_frame, FrameScene, Method, RenderSettings, Tile};
+
+const DATA: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/tests/data");
+
+/// Reads a 1.0/2.0 `.npy` of little-endian float32 or uint8 as f32.
+fn npy(name: &str) -> Vec<f32> {
+    let b = std::fs::read(format!("{DATA}/{name}")).unwrap();
+    assert_eq!(&b[..6], b"\x93NUMPY");
+    let (hl, start) = if b[6] == 1 {
+        (u16::from_le_bytes([b[8], b[9]]) as usize, 10)
+    } else {
+        (u32::from_le_bytes([b[8], b[9], b[10], b[11]]) as usize, 12)
+    };
+    let header = String::from_utf8_lossy(&b[start..start + hl]).to_string();
+    let data = &b[start + hl..];
+    if header.contains("<f4") {
+        data.chunks_exact(4)
+            .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]))
+            .collect()
+    } else if header.contains("u1") {
+        data.iter().map(|&v| v as f32).collect()
+    } else {
+        panic!("{name}: unsupported dtype in {header}")
+    }
+}
+
+/// tests/data/README.md's statistics over a region: cloud blocks are 8×8 blocks aligned at pixel
+/// (0, 0) whose pixels are all in the mask; block NRMSE and pixel NRMSE relative to the
+/// reference's cloud mean; bias = test mean / reference mean − 1.
+fn stats(
+    test: &[f32],
+    reference: &[f32],
+    mask: &[bool],
+    width: usize,
+    height: usize,
+) -> (f64, f64, f64) {
+    let (mut st, mut sr, mut se2, mut n) = (0.0, 0.0, 0.0, 0usize);
+    for i in 0..mask.len() {
+        if mask[i] {
+            let (a, b) = (test[i] as f64, reference[i] as f64);
+            st += a;
+            sr += b;
+            se2 += (a - b).powi(2);
+            n += 1;
+        }
+    }
+    let mean_r = sr / n as f64;
+    let (mut be2, mut nb) = (0.0, 0usize);
+    for by in 0..height / 8 {
+        for bx in 0..width / 8 {
+            let idx: Vec<usize> = (0..64)
+                .map(|k| (by * 8 + k / 8) * width + bx * 8 + k % 8)
+                .collect();
+            if idx.iter().all(|&i| mask[i]) {
+                let a: f64 = idx.iter().map(|&i| test[i] as f64).sum::<f64>() / 64.0;
+                let b: f64 = idx.iter().map(|&i| reference[i] as f64).sum::<f64>() / 64.0;
+                be2 += (a - b).powi(2);
+                nb += 1;
+            }
+        }
+    }
+    assert!(nb > 0, "no cloud blocks");
+    (
+        (be2 / nb as f64).sqrt() / mean_r,
+        (se2 / n as f64).sqrt() / mean_r,
+        st / sr - 1.0,
+    )
+}
+
+fn settings(scene: &FrameScene, method: Method, spp: usize) -> RenderSettings {
+    let mut s = RenderSettings::for_quality(scene.quality, method);
+    s.spp = spp;
+    s
+}
+
+/// (a) DISORT slab (4 km wide, 100 m thick: 40 thicknesses, so light lost at the sides is
+/// negligible): reflected radiance at the top for a subset of the cases (view zenith 0 and 60°,
+/// towards and away from the sun), path tracer within 2 % plus three of its own standard errors
+/// (1–2.6 % at these sample counts: forward-peaked sun paths are heavy-tailed); the fast
+/// method's deviation is printed (stated in the README; its multiple-scattering grid keeps the
+/// slab's 4 voxels in depth and coarsens only across: measured worst −27.7 % (τ 1, nadir view,
+/// sun at 60°, the dimmest case), τ 8 −12.2 % to +2.6 %, τ 32 +1.9 % to +7.7 %; asserted below
+/// 35 %).
+#[test]
+fn slab_reflection_matches_disort() {
+    let data: Value =
+        serde_json::from_slice(&std::fs::read(format!("{DATA}/cloud_slab_disort.json")).unwrap())
+            .unwrap();
+    let views = data["view_zenith_deg"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|v| v.as_f64().unwrap())
+        .collect::<Vec<_>>();
+    let azs = data["relative_azimuth_deg"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|v| v.as_f64().unwrap())
+        .collect::<Vec<_>>();
+    let (h, nxy, nz) = (25.0, 160usize, 4usize);
+    let thickness = nz as f64 * h;
+    let origin = DVec3::new(-0.5 * nxy as f64 * h, -0.5 * nxy as f64 * h, 1000.0);
+    let grid = DensityGrid::from_fn([nxy, nxy, nz], h, origin, |_| 1.0).unwrap();
+    let a_sun: f64 = 100.0;
+    let mut worst_fast: f64 = 0.0;
+    let mut worst_pt = Vec::new();
+    for (tau, albedo, mu0) in [(1.0f64, 1.0f64, 0.5f64), (8.0, 1.0, 0.5), (32.0, 0.99, 1.0)] {
+        let case = data["cases"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .find(|c| {
+                c["optical_thickness"] == json!(tau)
+                    && c["single_scattering_albedo"] == json!(albedo)
+                    && c["mu0"] == json!(mu0)
+            })
+            .unwrap_or_else(|| panic!("no DISORT case {tau} {albedo} {mu0}"));
+        for (vi, ai) in [(0usize, 0usize), (2, 0), (2, 2)] {
+            let (vz, raz) = (views[vi].to_radians(), azs[ai]);
+            let expected = case["reflected_radiance_per_sr"][vi][ai].as_f64().unwrap();
+            let a = (a_sun + 180.0 + raz).to_radians();
+            let prop = DVec3::new(vz.sin() * a.sin(), vz.sin() * a.cos(), vz.cos());
+            let target = DVec3::new(0.0, 0.0, 1000.0 + thickness);
+            let cam = target + prop * 300.0;
+            let up = if vi == 0 {
+                [0.0, 1.0, 0.0]
+            } else {
+                [0.0, 0.0, 1.0]
+            };
+            let v = json!({
+                "cloud": {"voxel_size_m": h, "source": {"type": "metaballs", "balls": [{"centre_m": [0, 0, 1000], "radius_m": 100, "density": 1}]}},
+                "optics": {"extinction_per_density_m": tau / thickness, "single_scattering_albedo": albedo,
+                           "phase": {"henyey_greenstein": {"g": 0.85}}},
+                "camera": {"type": "orthographic", "position_m": [cam.x, cam.y, cam.z], "look_at_m": [target.x, target.y, target.z],
+                           "up": up, "view_width_m": 40, "width": 4, "height": 4},
+                "sun": {"collimated": {"elevation_deg": 90.0 - mu0.acos().to_degrees(), "azimuth_deg": a_sun, "normal_irradiance_w_m2_nm": 1.0}},
+                "atmosphere": null, "sky": null, "ground": null, "wavelengths_nm": [550], "quality": "standard"
+            });
+            let scene = FrameScene::parse(v.to_string().as_bytes()).unwrap();
+            let lighting = lighting_for(&scene, &grid, &Engine::new()).unwrap();
+            let mean = |f: &skybake_render::Frame| {
+                f.radiance.iter().map(|&x| x as f64).sum::<f64>() / f.radiance.len() as f64
+            };
+            let spp = if tau < 2.0 { 16384 } else { 4096 };
+            let pt = render_frame(
+                &scene,
+                &grid,
+                &lighting,
+                &settings(&scene, Method::Reference, spp),
+                None,
+                &|_| {},
+                &|| false,
+            )
+            .unwrap();
+            // Noise of the 16-pixel mean (the metadata's figure is per pixel).
+            let sigma = pt
+                .meta
+                .error_estimate
+                .path_tracer_relative_noise
+                .unwrap_or(0.0)
+                / 4.0;
+            let fast = render_frame(
+                &scene,
+                &grid,
+                &lighting,
+                &settings(&scene, Method::Fast, 1),
+                None,
+                &|_| {},
+                &|| false,
+            )
+            .unwrap();
+            let (rp, rf) = (mean(&pt) / expected - 1.0, mean(&fast) / expected - 1.0);
+            println!(
+                "tau {tau} albedo {albedo} mu0 {mu0} vz {} raz {raz}: DISORT {expected:.5} path tracer {:+.2} % (noise {:.2} %) fast {:+.1} %",
+                views[vi],
+                rp * 100.0,
+                sigma * 100.0,
+                rf * 100.0
+            );
+            // 2 %, widened by three standard errors where forward-peaked sun paths leave the
+            // estimate noisier than that (optically thin cases seen off the sun's side).
+            worst_pt.push((rp, sigma));
+            worst_fast = worst_fast.max(rf.abs());
+        }
+    }
+    println!("fast method: worst |deviation| {:.1} %", worst_fast * 100.0);
+    assert!(
+        worst_fast < 0.35,
+        "fast method vs DISORT: worst {worst_fast}"
+    );
+    for (rp, sigma) in worst_pt {
+        assert!(
+            rp.abs() < 0.02 + 3.0 * sigma,
+            "path tracer {rp} (noise {sigma})"
+        );
+    }
+}
+
+/// (b) Mitsuba 3: the validation cloud lit by the sky alone and by the sun alone, on a 64×48 tile
+/// at the image centre (the whole 160×120 frame at this noise level takes minutes): path tracer
+/// within 3 % block NRMSE and 2 % cloud-mean bias (for the sun, whose Mitsuba image itself has
+/// 2.7 % block noise, the NRMSE bound is 3 % added in quadrature to that); the fast method's
+/// whole-frame figures are printed.
+#[test]
+fn cloud_matches_mitsuba() {
+    let mask_full: Vec<bool> = npy("cloud_mitsuba_mask.npy")
+        .iter()
+        .map(|&m| m > 0.0)
+        .collect();
+    // Fast method (whole frame, δ-M/TMS field, P2, view cap, density-weighted field): measured
+    // block NRMSE and bias, sun 5.2 % and −1.3 %, sky 7.9 % and −0.2 %; bounds are those plus a
+    // margin for the photon noise.
+    for (case, nrmse_bound, fast_block_bound, fast_bias_bound) in [
+        ("sky", 0.03, 0.09, 0.025),
+        (
+            "sun",
+            (0.03f64.powi(2) + 0.027f64.powi(2)).sqrt(),
+            0.065,
+            0.03,
+        ),
+    ] {
+        let bytes = std::fs::read(format!("{DATA}/validation-cloud-{case}.json")).unwrap();
+        let scene = FrameScene::parse(&bytes).unwrap();
+        let grid = scene
+            .cloud
+            .voxelize(&|p: &str| {
+                std::fs::read(format!("{DATA}/{p}")).map_err(|e| skybake_physics::Error::invalid("path", e))
+            })
+            .unwrap();
+        let reference = npy(&format!("cloud_mitsuba_{case}.npy"));
+        assert_eq!(reference.len(), 160 * 120);
+        let tile = if case == "sun" {
+            Tile {
+                x0: 64,
+                y0: 40,
+                width: 32,
+                height: 32,
+            }
+        } else {
+            Tile {
+                x0: 48,
+                y0: 32,
+                width: 64,
+                height: 48,
+            }
+        };
+        let spp = if case == "sun" { 512 } else { 96 };
+        let crop = |img: &[f32]| -> Vec<f32> {
+            (0..tile.height)
+                .flat_map(|y| (0..tile.width).map(move |x| (y, x)))
+                .map(|(y, x)| img[(tile.y0 + y) * 160 + tile.x0 + x])
+                .collect()
+        };
+        let ref_tile = crop(&reference);
+        let mask: Vec<bool> = (0..tile.height)
+            .flat_map(|y| (0..tile.width).map(move |x| (y, x)))
+            .map(|(y, x)| mask_full[(tile.y0 + y) * 160 + tile.x0 + x])
+            .collect();
+        let lighting = lighting_for(&scene, &grid, &Engine::new()).unwrap();
+        let pt = render_frame(
+            &scene,
+            &grid,
+            &lighting,
+            &settings(&scene, Method::Reference, spp),
+            Some(tile),
+            &|_| {},
+            &|| false,
+        )
+        .unwrap();
+        let t = std::time::Instant::now();
+        let fast = render_frame(
+            &scene,
+            &grid,
+            &lighting,
+            &settings(&scene, Method::Fast, 1),
+            None,
+            &|_| {},
+            &|| false,
+        )
+        .unwrap();
+        let fast_ms = t.elapsed().as_secs_f64() * 1e3;
+        let (bn, pn, bias) = stats(&pt.radiance, &ref_tile, &mask, tile.width, tile.height);
+        println!(
+            "{case}: path tracer vs Mitsuba (tile): block NRMSE {:.2} %, pixel NRMSE {:.2} %, bias {:+.2} %, own noise {:.2} %",
+            bn * 100.0,
+            pn * 100.0,
+            bias * 100.0,
+            pt.meta.error_estimate.path_tracer_relative_noise.unwrap_or(0.0) * 100.0
+        );
+        let (fb, fp, fbias) = stats(&fast.radiance, &reference, &mask_full, 160, 120);
+        println!(
+            "{case}: fast vs Mitsuba (whole frame, {fast_ms:.0} ms): block NRMSE {:.1} %, pixel NRMSE {:.1} %, bias {:+.1} %",
+            fb * 100.0,
+            fp * 100.0,
+            fbias * 100.0
+        );
+        assert!(
+            bn < nrmse_bound && bias.abs() < 0.02,
+            "{case}: path tracer block NRMSE {bn}, bias {bias}"
+        );
+        assert!(
+            fb < fast_block_bound && fbias.abs() < fast_bias_bound,
+            "{case}: fast method vs Mitsuba: block NRMSE {fb}, bias {fbias}"
+        );
+    }
+}
+
+/// (b) continued, fast method only (whole 160×120 frames, about a second each): the Mitsuba cases
+/// thin cloud, g = 0.5, albedo 0.9 and sun + sky, with bounds = measured block NRMSE and bias plus
+/// a margin (measured: thin 8.0 % / −4.5 %, g 0.5 5.2 % / +0.1 %, albedo 0.9 8.1 % / −0.9 %,
+/// sun + sky 6.5 % / +2.4 %).
+#[test]
+fn fast_cloud_matches_mitsuba_cases() {
+    let mask: Vec<bool> = npy("cloud_mitsuba_mask.npy")
+        .iter()
+        .map(|&m| m > 0.0)
+        .collect();
+    for (case, block_bound, bias_bound) in [
+        ("sun_thin", 0.095, 0.06),
+        ("sun_g05", 0.065, 0.02),
+        ("sun_albedo09", 0.095, 0.025),
+        ("sunsky", 0.08, 0.04),
+    ] {
+        let bytes = std::fs::read(format!("{DATA}/validation-cloud-{case}.json")).unwrap();
+        let scene = FrameScene::parse(&bytes).unwrap();
+        let grid = scene
+            .cloud
+            .voxelize(&|p: &str| {
+                std::fs::read(format!("{DATA}/{p}")).map_err(|e| skybake_physics::Error::invalid("path", e))
+            })
+            .unwrap();
+        let reference = npy(&format!("cloud_mitsuba_{case}.npy"));
+        let lighting = lighting_for(&scene, &grid, &Engine::new()).unwrap();
+        let fast = render_frame(
+            &scene,
+            &grid,
+            &lighting,
+            &settings(&scene, Method::Fast, 1),
+            None,
+            &|_| {},
+            &|| false,
+        )
+        .unwrap();
+        let (fb, fp, fbias) = stats(&fast.radiance, &reference, &mask, 160, 120);
+        println!(
+            "{case}: fast vs Mitsuba: block NRMSE {:.1} %, pixel NRMSE {:.1} %, bias {:+.1} %",
+            fb * 100.0,
+            fp * 100.0,
+            fbias * 100.0
+        );
+        assert!(
+            fb < block_bound && fbias.abs() < bias_bound,
+            "{case}: fast method vs Mitsuba: block NRMSE {fb}, bias {fbias}"
+        );
+    }
+}
