@@ -15,7 +15,7 @@ cloud is grey, so one path serves all three, as in skybake's path tracer).
 Usage (from the repository root; DRJIT_LIBLLVM_PATH must point to a libLLVM >= 15, see
 tools/cloud_mitsuba.py):
 
-  cargo run --release --locked --example mitsuba_bench_export -- DIR 160 120 1024   # ~100 s CPU
+  cargo run --release --locked -p skybake-harness --features probes --example mitsuba_bench_export -- DIR 160 120 1024   # ~100 s CPU
   python3 tools/cloud_mitsuba_bench.py checks DIR      # envmap orientation and channels, sun irradiance
   python3 tools/cloud_mitsuba_bench.py series DIR [SPP ...]   # Mitsuba at increasing spp
   python3 tools/cloud_mitsuba_bench.py summary DIR     # writes tests/data/cloud_mitsuba_bench.json

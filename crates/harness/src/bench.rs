@@ -12,7 +12,7 @@ use skybake_engine::engine::{DomeShape, Engine};
 use skybake_product::params::RequestParams;
 use skybake_physics::solar_position::bench_solar_position;
 use skybake_engine::spec::CommonSpec;
-use skybake_store;
+
 use crate::{Error, Result};
 use serde::Serialize;
 use serde_json::json;
@@ -280,7 +280,7 @@ pub fn run(names: &[String], cold_runs: usize, warm_runs: usize) -> Result<Vec<B
                         if name == "frame" {
                             crate::frame_bench::bench_frame(640, 480)
                         } else {
-                            skybake_render::pattern::bench_frame_pattern(640, 480)
+                            crate::frame_bench::bench_frame_pattern(640, 480)
                         }
                     })
                     .collect::<Result<_>>()?;
@@ -337,18 +337,18 @@ fn ms(d: Duration) -> f64 {
     d.as_secs_f64() * 1e3
 }
 
-/// `store`: each stage of [`store::bench_store`] as its own entry, medians over `runs` calls of
+/// `store`: each stage of [`skybake_store::bench_store`] as its own entry, medians over `runs` calls of
 /// one repetition each, in a scratch directory under the system temp directory.
 fn bench_store_stages(
     entry: &dyn Fn(&'static str, usize, Vec<f64>, serde_json::Value) -> BenchResult,
     runs: usize,
 ) -> Result<Vec<BenchResult>> {
     let dir = std::env::temp_dir();
-    let runs_out: Vec<store::StoreBench> = (0..runs)
+    let runs_out: Vec<crate::store_bench::StoreBench> = (0..runs)
         .map(|_| {
-            store::bench_store(&dir, 256, 128, 16, store::ExrCompression::Zip, 1).map_err(|e| {
+            crate::store_bench::bench_store(&dir, 256, 128, 16, skybake_store::ExrCompression::Zip, 1).map_err(|e| {
                 match e {
-                    store::StoreError::Invalid(e) => e,
+                    skybake_store::StoreError::Invalid(e) => e,
                     other => Error::invalid("store", other.to_string()),
                 }
             })
@@ -361,7 +361,7 @@ fn bench_store_stages(
         "payload_bytes": last.payload_bytes,
         "file_bytes": last.file_bytes,
     });
-    type Stage = (&'static str, fn(&store::StoreBench) -> f64);
+    type Stage = (&'static str, fn(&crate::store_bench::StoreBench) -> f64);
     let stages: [Stage; 6] = [
         ("encode", |b| b.encode_ms),
         ("decode", |b| b.decode_ms),
@@ -412,7 +412,7 @@ fn wavelength_list(n: usize) -> String {
 
 /// CPU time (user + system) of this process so far, ms, from `/proc/self/stat` (Linux; clock
 /// ticks, usually 10 ms). `None` where that file does not exist.
-fn process_cpu_ms() -> Option<f64> {
+pub fn process_cpu_ms() -> Option<f64> {
     let stat = std::fs::read_to_string("/proc/self/stat").ok()?;
     // Fields after the command name (which is in parentheses and may contain spaces).
     let rest = stat.get(stat.rfind(')')? + 2..)?;
@@ -421,6 +421,12 @@ fn process_cpu_ms() -> Option<f64> {
     let ticks: f64 = fields.get(11)?.parse::<f64>().ok()? + fields.get(12)?.parse::<f64>().ok()?;
     // The kernel reports USER_HZ ticks, 100 per second on every mainstream Linux build.
     Some(ticks * 10.0)
+}
+
+/// The 1-minute load average as `/proc/loadavg` writes it (the report's `machine_load`).
+pub fn load_average_1min() -> Option<String> {
+    let text = std::fs::read_to_string("/proc/loadavg").ok()?;
+    text.split_whitespace().next().map(str::to_string)
 }
 
 /// The 1, 5 and 15 minute load averages (`/proc/loadavg`), to judge wall times on a shared machine.

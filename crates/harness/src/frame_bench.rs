@@ -3,7 +3,7 @@
 //! ground tables built inside the timed region) and warm; `frame-accuracy` compares the fast
 //! method with the path tracer on the same scene at a reduced resolution.
 
-use super::{lighting_for, render_frame, FrameScene, Method, RenderSettings};
+use skybake_render::{lighting_for, render_frame, FrameScene, Method, RenderSettings};
 use skybake_physics::cloud::DensityGrid;
 use skybake_engine::engine::Engine;
 use crate::Result;

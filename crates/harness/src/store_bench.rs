@@ -5,8 +5,8 @@ use std::time::Instant;
 
 use serde::Serialize;
 
-use super::StoreError;
-use super::{
+use skybake_store::StoreError;
+use skybake_store::{
     cache_key, checksum, decode_exr, encode_exr_with, Cache, CacheConfig, ExrCompression,
     SpectralImage,
 };
@@ -135,7 +135,7 @@ fn median_ms(
 
 #[cfg(test)]
 mod tests {
-    use super::*;
+    use skybake_store::*;
 
     #[test]
     fn bench_runs_and_cleans_up() {

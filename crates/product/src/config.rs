@@ -215,9 +215,13 @@ impl Settings {
     pub fn load(file: Option<&Path>) -> Result<Self> {
         let text = file
             .map(|p| {
-                std::fs::read_to_string(p).map_err(|e| {
-                    config_err("--config", format!("cannot read {}: {e}", p.display()))
-                })
+                skybake_store::files::read(p)
+                    .map_err(|e| config_err("--config", format!("cannot read {}: {e}", p.display())))
+                    .and_then(|bytes| {
+                        String::from_utf8(bytes).map_err(|e| {
+                            config_err("--config", format!("{} is not UTF-8: {e}", p.display()))
+                        })
+                    })
             })
             .transpose()?;
         // Every SKYBAKE_* variable is taken, so a mistyped one is refused instead of ignored.

@@ -36,3 +36,14 @@ impl StoreError {
         }
     }
 }
+
+/// A store error as the engine's error: invalid input stays input; I/O failures, undecodable and
+/// corrupt files are failures that are not the input's fault.
+impl From<StoreError> for crate::Error {
+    fn from(e: StoreError) -> Self {
+        match e {
+            StoreError::Invalid(e) => e,
+            other => crate::Error::internal("store", other),
+        }
+    }
+}

@@ -387,11 +387,11 @@ fn reference(
         if orders_2_3 { "-orders23" } else { "" }
     );
     if let Some(dir) = dir {
-        let note = std::fs::read(dir.join(format!("{stem}.json")))
+        let note = skybake_store::files::read(&dir.join(format!("{stem}.json")))
             .ok()
             .and_then(|b| serde_json::from_slice::<ReferenceInfo>(&b).ok());
         if let Some(mut info) = note.filter(|i| i.key == key) {
-            if let Some(r) = std::fs::read(dir.join(format!("{stem}.npy")))
+            if let Some(r) = skybake_store::files::read(&dir.join(format!("{stem}.npy")))
                 .ok()
                 .and_then(|b| {
                     info.cached = true;
@@ -420,16 +420,14 @@ fn reference(
         transmittance: f.transmittance,
     };
     if let Some(dir) = dir {
-        let io = |e: std::io::Error| Error::invalid("out", format!("{}: {e}", dir.display()));
-        std::fs::create_dir_all(dir).map_err(io)?;
-        std::fs::write(
-            dir.join(format!("{stem}.npy")),
-            reference_npy(&r, w, h, n_l),
-        )
-        .map_err(io)?;
+        skybake_store::files::create_dir_all(dir)?;
+        skybake_store::write_atomic(
+            &dir.join(format!("{stem}.npy")),
+            &reference_npy(&r, w, h, n_l),
+        )?;
         let note = serde_json::to_string_pretty(&r.info)
             .map_err(|e| Error::internal("report", format!("JSON encoding: {e}")))?;
-        std::fs::write(dir.join(format!("{stem}.json")), note + "\n").map_err(io)?;
+        skybake_store::write_atomic(&dir.join(format!("{stem}.json")), (note + "\n").as_bytes())?;
     }
     Ok(r)
 }

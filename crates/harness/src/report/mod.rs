@@ -326,16 +326,7 @@ pub fn run(options: &ReportOptions, progress: &dyn Fn(usize, usize)) -> Result<R
     })
 }
 
-/// CPU time of this process (user + system, all threads), ms, from `/proc/self/stat` (Linux;
-/// `None` elsewhere). Clock ticks of 10 ms (USER_HZ = 100).
-pub(crate) fn process_cpu_ms() -> Option<f64> {
-    let stat = std::fs::read_to_string("/proc/self/stat").ok()?;
-    // Fields after the command name (which may hold spaces) start at field 3 (state).
-    let rest = &stat[stat.rfind(')')? + 2..];
-    let fields: Vec<&str> = rest.split_whitespace().collect();
-    let ticks = |i: usize| fields.get(i)?.parse::<f64>().ok();
-    Some((ticks(11)? + ticks(12)?) * 10.0)
-}
+pub(crate) use crate::bench::process_cpu_ms;
 
 /// Writes into `dir` what there is of the atmosphere part (`report.json`, one PNG per product) and
 /// of the frame part (`frames.json`, `frames-<case>.png`), and `README.md` with both.
@@ -344,12 +335,11 @@ pub fn write(
     frames: Option<&frames::FrameReport>,
     dir: &Path,
 ) -> Result<Vec<std::path::PathBuf>> {
-    let io = |e: std::io::Error| Error::invalid("out", format!("{}: {e}", dir.display()));
-    std::fs::create_dir_all(dir).map_err(io)?;
+    skybake_store::files::create_dir_all(dir)?;
     let mut written = Vec::new();
     let mut put = |name: &str, bytes: &[u8]| -> Result<()> {
         let path = dir.join(name);
-        std::fs::write(&path, bytes).map_err(io)?;
+        skybake_store::write_atomic(&path, bytes)?;
         written.push(path);
         Ok(())
     };

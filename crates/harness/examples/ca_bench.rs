@@ -1,5 +1,5 @@
 //! Times the cellular automaton on the paper's 256×256×20 space (seed 003 §6: 0.5 s per step).
-//! Run: `cargo run --example ca_bench [nx ny nz steps]`.
+//! Run: `cargo run -p skybake-harness --features probes --example ca_bench [nx ny nz steps]`.
 
 fn main() -> Result<(), skybake_physics::Error> {
     let args: Vec<usize> = std::env::args()

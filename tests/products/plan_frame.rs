@@ -15,13 +15,13 @@ use skybake_product::frame::{
 use skybake_render::{lighting_for, render_tile, FrameRequest, FrameScene, Method, Prepared};
 use skybake_service::AppState;
 
-mod service_support;
+use crate::service_support;
 use service_support::{call, settings, skybake_ok, Scratch};
 
 /// The validation cloud (vacuum, collimated sun 1, constant sky 0.1) at 50 m voxels, 32×24 px.
 fn scene(edit: impl FnOnce(&mut Value)) -> Value {
     let mut v: Value =
-        serde_json::from_str(include_str!("../config/scenes/validation-frame.json")).unwrap();
+        serde_json::from_str(include_str!("../../config/scenes/validation-frame.json")).unwrap();
     v["cloud"]["voxel_size_m"] = json!(50.0);
     v["camera"]["width"] = json!(32);
     v["camera"]["height"] = json!(24);
@@ -266,7 +266,7 @@ fn a_distant_cloud_runs_on_coarser_voxels() {
     assert!(d < 0.05, "{d}");
     // The validation camera (4 km, 160 px) resolves the 25 m voxels: nothing coarsened.
     let near: Value =
-        serde_json::from_str(include_str!("../config/scenes/validation-frame.json")).unwrap();
+        serde_json::from_str(include_str!("../../config/scenes/validation-frame.json")).unwrap();
     let near = parse(&near);
     assert_eq!(
         plan_frame(&near, &voxelize(&near), Method::Fast).coarsening(),
@@ -487,7 +487,7 @@ fn with_an_atmosphere_the_light_shares_are_measured_and_ground_light_left_out_un
 /// The example sphere cumulus (K = 6, 25 m voxels) from `distance_m`, fov 12°.
 fn sphere_scene(distance_m: f64, level: Option<u32>) -> Value {
     let spheres: Value =
-        serde_json::from_str(include_str!("../config/scenes/sphere-cloud.json")).unwrap();
+        serde_json::from_str(include_str!("../../config/scenes/sphere-cloud.json")).unwrap();
     scene(|v| {
         v["cloud"] = spheres["cloud"].clone();
         v["cloud"]["voxel_size_m"] = json!(25.0);

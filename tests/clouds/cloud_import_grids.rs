@@ -9,12 +9,12 @@ use skybake_physics::cloud::import::{
 };
 use skybake_physics::cloud::DensityGrid;
 
-const F4: &[u8] = include_bytes!("../tests/data/cloud_grid_f4.npy");
-const F8: &[u8] = include_bytes!("../tests/data/cloud_grid_f8.npy");
-const FORTRAN: &[u8] = include_bytes!("../tests/data/cloud_grid_fortran.npy");
-const BIG_ENDIAN: &[u8] = include_bytes!("../tests/data/cloud_grid_big_endian.npy");
-const INT32: &[u8] = include_bytes!("../tests/data/cloud_grid_int32.npy");
-const TWO_D: &[u8] = include_bytes!("../tests/data/cloud_grid_2d.npy");
+const F4: &[u8] = include_bytes!("../data/cloud_grid_f4.npy");
+const F8: &[u8] = include_bytes!("../data/cloud_grid_f8.npy");
+const FORTRAN: &[u8] = include_bytes!("../data/cloud_grid_fortran.npy");
+const BIG_ENDIAN: &[u8] = include_bytes!("../data/cloud_grid_big_endian.npy");
+const INT32: &[u8] = include_bytes!("../data/cloud_grid_int32.npy");
+const TWO_D: &[u8] = include_bytes!("../data/cloud_grid_2d.npy");
 
 /// The fixture formula (tools/make_cloud_npy_fixtures.py).
 fn fixture_value(x: usize, y: usize, z: usize) -> f64 {

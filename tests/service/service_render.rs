@@ -4,7 +4,7 @@
 //! gives), stopped at the next tile when its client hangs up; bad scenes refused with
 //! problem+json naming the field; the example scenes at `/v1/scenes`.
 
-mod service_support;
+use crate::service_support;
 
 use axum::body::Body;
 use axum::http::Request;

@@ -3,7 +3,7 @@
 //! Requests that happen to be valid are kept cheap (fast method, draft, one wavelength, tiny
 //! tables) so about 2 000 cases run in seconds.
 
-mod service_support;
+use crate::service_support;
 
 use axum::body::Body;
 use axum::http::Request;

@@ -4,7 +4,7 @@
 //! load the table stored in the configured cache directory; `--no-table-cache` and requests that
 //! need no precise table leave the directory alone.
 
-mod service_support;
+use crate::service_support;
 
 use axum::body::Body;
 use axum::http::Request;

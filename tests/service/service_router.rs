@@ -3,7 +3,7 @@
 //! parameter), plan, jobs (create, list, get, delete; the job cost cap), render, scenes, ops
 //! (healthz, metrics, openapi), and the unknown route (404) and method (405).
 
-mod service_support;
+use crate::service_support;
 
 use axum::body::Body;
 use axum::http::Request;

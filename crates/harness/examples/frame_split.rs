@@ -4,7 +4,7 @@
 //! the whole composited frame (`frame`). Path-traced references are cached under $REF_DIR
 //! (default /tmp); the README's "where the error is" figures come from it.
 //!
-//! cargo run --release --example frame_split -- W H SPP MODE...
+//! cargo run --release -p skybake-harness --features probes --example frame_split -- W H SPP MODE...
 //! MODE: all | sun | env | sky | gnd, suffixed `1` for first order only (e.g. env1).
 //! Knobs (env): TPOW, COARSE, ENVP, SUNP, ANG, STEP, QUALITY.
 use rayon::prelude::*;

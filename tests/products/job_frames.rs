@@ -3,7 +3,7 @@
 //! resumes from its finished frames and from the stored tiles of the frame in flight; a service
 //! job's frames are the same cached products `POST /v1/render` serves.
 
-mod service_support;
+use crate::service_support;
 
 use serde_json::{json, Value};
 use service_support::{settings, Scratch, TestServer};

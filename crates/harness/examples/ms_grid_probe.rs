@@ -4,7 +4,7 @@
 //! field at most 32, 16, 8 and 4 cells per axis; prints the frame time, the multiple-scattering
 //! stages' time and the per-pixel RMS change and bias of the mean against 32 cells.
 //!
-//! `cargo run --release --example ms_grid_probe -- 30000`
+//! `cargo run --release -p skybake-harness --features probes --example ms_grid_probe -- 30000`
 
 use serde_json::{json, Value};
 use skybake_engine::engine::Engine;

@@ -1,7 +1,7 @@
 //! Issue 18, point 1: abandoned computations are cancelled, the compute queue is bounded, a
 //! request's estimated cost is capped, and an atmosphere outside the validated range says so.
 
-mod service_support;
+use crate::service_support;
 
 use service_support::{metric, settings, Scratch, TestServer};
 use std::time::Duration;
@@ -90,7 +90,7 @@ async fn abandoned_computations_are_cancelled_and_the_queue_is_bounded() {
 
 /// The earth preset with its aerosol optical depth (0.1 at 550 nm) replaced by `tau`.
 fn earth_with_aerosol(tau: f64) -> String {
-    let earth = include_str!("../config/atmospheres/earth.json");
+    let earth = include_str!("../../config/atmospheres/earth.json");
     let thick = earth.replace("\"value\": 0.1,", &format!("\"value\": {tau:.1},"));
     assert_ne!(thick, earth);
     let compact: String = thick.split_whitespace().collect::<Vec<_>>().join("");

@@ -3,7 +3,7 @@
 //! 405/413/414, the atmosphere list), optional bearer tokens and a per-client rate limit, and the
 //! error names of inline atmospheres and sweeps.
 
-mod service_support;
+use crate::service_support;
 
 use service_support::{metric, settings, Scratch, TestServer, FAST};
 use std::time::Duration;
@@ -268,7 +268,7 @@ async fn bearer_tokens_and_the_rate_limit() {
 async fn inline_atmosphere_and_sweep_errors_name_their_parameter() {
     let dir = Scratch::new("naming");
     let srv = TestServer::start(settings(dir.path())).await;
-    let earth = include_str!("../config/atmospheres/earth.json");
+    let earth = include_str!("../../config/atmospheres/earth.json");
     let bad = earth.replace("\"ground_albedo\": 0.1", "\"ground_albedo\": 7");
     assert_ne!(bad, earth);
     let q: String = form_urlencoded::byte_serialize(bad.as_bytes()).collect();

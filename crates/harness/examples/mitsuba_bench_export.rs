@@ -16,7 +16,7 @@
 //!   reference_var.npy  variance of each pixel's mean, and
 //!   transmittance.npy  float32 (h, w) cloud transmittance along the pixel centres
 //!
-//! Run: `cargo run --release --example mitsuba_bench_export -- OUT_DIR [WIDTH HEIGHT SPP ENV_H]`
+//! Run: `cargo run --release -p skybake-harness --features probes --example mitsuba_bench_export -- OUT_DIR [WIDTH HEIGHT SPP ENV_H]`
 //! (defaults 160 120 1024 1024; SPP 0 skips the path tracer).
 
 use skybake_harness::frame_bench::{bench_cumulus, bench_scene};

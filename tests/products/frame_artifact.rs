@@ -4,7 +4,7 @@
 //! and the per-stage times inside `skybakeFrameMeta`, which are written at a fixed width
 //! (`render::product::frame_meta_json`) so that no other byte moves.
 
-mod service_support;
+use crate::service_support;
 
 use serde_json::{json, Value};
 use service_support::{bake_single_exr, call, settings, skybake_ok, tiny_frame_scene, Scratch};

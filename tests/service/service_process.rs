@@ -2,7 +2,7 @@
 //! SIGKILL (a bake job resumes after restart without recomputing finished products),
 //! `healthcheck`, and the offline, resumable `bake`.
 
-mod service_support;
+use crate::service_support;
 
 use service_support::{metric, request, Scratch};
 use std::io::{BufRead, BufReader};

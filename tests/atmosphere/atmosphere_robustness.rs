@@ -87,7 +87,7 @@ fn every_output_is_finite_and_non_negative_at_extremes() {
 
 #[test]
 fn thick_aerosol_stays_finite_with_both_methods() {
-    let atmosphere = include_str!("../config/atmospheres/earth-hazy.json")
+    let atmosphere = include_str!("../../config/atmospheres/earth-hazy.json")
         .replace("\"value\": 1.0", "\"value\": 10.0");
     let engine = Engine::new();
     for method in ["fast", "precise"] {

@@ -97,7 +97,7 @@ fn a_missing_atmosphere_file_is_named_as_a_file_not_a_preset() {
     assert!(err.contains("cannot read nope.json"), "{err}");
     assert!(!err.contains("unknown preset"), "{err}");
     // An inline atmosphere's field is named under the flag, not as the query parameter.
-    let earth = include_str!("../config/atmospheres/earth.json");
+    let earth = include_str!("../../config/atmospheres/earth.json");
     let bad = earth.replace("\"ground_albedo\": 0.1", "\"ground_albedo\": 7");
     assert_ne!(bad, earth);
     let (code, _, err) = skybake(&["sun", "--atmosphere", &bad]);

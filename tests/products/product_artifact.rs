@@ -3,7 +3,7 @@
 //! the values of the timing attributes, byte for byte; and a malformed cached artifact is a server fault that is recomputed,
 //! never a request error.
 
-mod service_support;
+use crate::service_support;
 
 use axum::body::Body;
 use axum::http::Request;

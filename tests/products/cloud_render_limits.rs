@@ -6,7 +6,7 @@
 //! were voxelised in full and refused afterwards. The error is "too large" on
 //! `cloud.voxel_size_m`: HTTP 413, CLI exit 2.
 
-mod service_support;
+use crate::service_support;
 
 use axum::body::Body;
 use axum::http::Request;

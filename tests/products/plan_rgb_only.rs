@@ -16,7 +16,7 @@ use skybake_render::Method;
 use skybake_service::AppState;
 use skybake_physics::image::SpectralImage;
 
-mod service_support;
+use crate::service_support;
 use service_support::{call, settings, skybake_ok, Scratch};
 
 /// The 16 wavelengths of the default set, 380–755 nm.
@@ -28,7 +28,7 @@ fn sixteen() -> Vec<f64> {
 /// 50 m voxels, `width`×`height` px, standard quality, 16 wavelengths.
 fn scene(width: usize, height: usize) -> Value {
     let mut v: Value =
-        serde_json::from_str(include_str!("../config/scenes/validation-frame.json")).unwrap();
+        serde_json::from_str(include_str!("../../config/scenes/validation-frame.json")).unwrap();
     v["cloud"]["voxel_size_m"] = json!(50.0);
     v["camera"]["width"] = json!(width);
     v["camera"]["height"] = json!(height);

@@ -3,7 +3,7 @@
 //! `server.max_connections` connections are open, and a shutdown ends within
 //! `server.shutdown_grace_s` whatever the clients do.
 
-mod service_support;
+use crate::service_support;
 
 use service_support::{metric, settings, Scratch, TestServer};
 use std::time::{Duration, Instant};

@@ -291,7 +291,7 @@ fn bad_parameters_are_refused_with_their_name() {
 
 #[test]
 fn example_scene_parses_builds_and_documents_every_parameter() {
-    let text = include_str!("../config/scenes/sphere-cloud.json");
+    let text = include_str!("../../config/scenes/sphere-cloud.json");
     let section = parse_scene_file(text.as_bytes()).unwrap();
     let CloudSource::Spheres(source) = &section.source else {
         panic!("sphere-cloud.json is not a spheres scene")

@@ -409,7 +409,7 @@ fn bad_parameters_are_refused_with_their_name() {
 
 #[test]
 fn example_scene_parses_runs_and_documents_every_parameter() {
-    let text = include_str!("../config/scenes/automaton-field.json");
+    let text = include_str!("../../config/scenes/automaton-field.json");
     let section = parse_scene_file(text.as_bytes()).unwrap();
     let CloudSource::Automaton(source) = &section.source else {
         panic!("automaton-field.json is not an automaton scene")

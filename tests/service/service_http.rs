@@ -1,6 +1,6 @@
 //! The HTTP service end to end: a real server on an ephemeral port, spoken to over TCP.
 
-mod service_support;
+use crate::service_support;
 
 use service_support::{metric, settings, Scratch, TestServer, FAST};
 use skybake_service::openapi::ROUTES;
@@ -107,7 +107,7 @@ async fn each_endpoint_answers_in_its_documented_form() {
     }
     // A cloud frame's plan: the cloud is measured, nothing is lit or rendered.
     let scene: serde_json::Value =
-        serde_json::from_str(include_str!("../config/scenes/validation-frame.json")).unwrap();
+        serde_json::from_str(include_str!("../../config/scenes/validation-frame.json")).unwrap();
     let body = serde_json::json!({"product": "frame", "scene": scene, "method": "fast"});
     let v = srv.post("/v1/plan", &body.to_string()).await.json();
     assert_eq!(v["product"], "frame", "{v}");

@@ -1,0 +1,17 @@
+//! The product core, the store, jobs and the CLI: artifacts, frame plans, caches, tables and the `skybake` binary.
+
+#[path = "../service_support/mod.rs"]
+mod service_support;
+
+mod cli_atmosphere;
+mod cli_clouds;
+mod cli_render;
+mod cloud_render_limits;
+mod frame_artifact;
+mod job_frames;
+mod plan_frame;
+mod plan_rgb_only;
+mod product_artifact;
+mod store_cache;
+mod store_exr;
+mod store_tables;

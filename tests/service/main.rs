@@ -1,0 +1,13 @@
+//! The HTTP service: routes, conventions, limits, cancellation, connections, fuzzing and the process.
+
+#[path = "../service_support/mod.rs"]
+mod service_support;
+
+mod service_cancel;
+mod service_connections;
+mod service_conventions;
+mod service_fuzz;
+mod service_http;
+mod service_process;
+mod service_render;
+mod service_router;
