@@ -24,7 +24,7 @@ use skybake_physics::atmosphere::sky::MsMethod;
 use skybake_physics::atmosphere::{presets::preset, Medium};
 use skybake_engine::engine::{stated_twilight_error, Engine, FAST_TWILIGHT_LIMIT_DEG};
 use skybake_product::params::RequestParams;
-use skybake_engine::spec::{CommonSpec, DomeShape, Quality};
+use skybake_engine::spec::{DomeShape, Quality};
 use skybake_physics::spectrum::Wavelengths;
 use std::sync::OnceLock;
 

@@ -182,7 +182,8 @@ fn job_error(body: Value) -> JobError {
 #[test]
 fn a_frame_entry_target_sets_every_frame_s_key_and_budget() {
     use skybake_engine::plan::FRAME_MEASURED_ERROR;
-    use skybake_render::{FrameRequest, Method};
+    use skybake_product::frame::FrameRequest;
+    use skybake_render::Method;
     let tiny = tiny_scene(32, 24);
     let sweep = json!({"sun_elevation_deg": [20, 40]});
     let targeted =

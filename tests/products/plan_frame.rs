@@ -12,7 +12,8 @@ use skybake_engine::plan::{
 use skybake_product::frame::{
     execute_plan, frame_summary, measured_shares, plan_frame, sphere_facts, NoTiles,
 };
-use skybake_render::{lighting_for, render_tile, FrameRequest, FrameScene, Method, Prepared};
+use skybake_product::frame::FrameRequest;
+use skybake_render::{lighting_for, render_tile, FrameScene, Method, Prepared};
 use skybake_service::AppState;
 
 use crate::service_support;

@@ -864,16 +864,26 @@ fn evaluate_probes(eval: &RadianceEvaluator, n_l: usize, probes: &[(f64, f64)]) 
 #[cfg(test)]
 mod tests {
     use super::*;
-    use skybake_product::params::RequestParams;
+    use crate::spec::{Quality, SunPosition};
+    use skybake_physics::atmosphere::presets::preset;
+    use skybake_physics::atmosphere::sky::MsMethod;
+    use skybake_physics::spectrum::Wavelengths;
 
     #[test]
     fn concurrent_requests_for_one_medium_build_its_tables_once() {
         let engine = Engine::new();
-        let p = RequestParams {
-            wavelengths: Some("550".into()),
-            ..Default::default()
+        let spec = CommonSpec {
+            atmosphere: preset("earth").unwrap(),
+            wavelengths_nm: Wavelengths::parse("550").unwrap(),
+            sun: SunPosition {
+                sun_elevation_deg: 30.0,
+                from_location: None,
+            },
+            observer_altitude_m: 0.0,
+            ground_albedo: None,
+            method: MsMethod::Precise,
+            quality: Quality::Standard,
         };
-        let spec = skybake_product::params::common_spec(&p, -18.0).unwrap();
         let tables: Vec<Arc<SharedTables>> = std::thread::scope(|s| {
             let handles: Vec<_> = (0..4)
                 .map(|_| s.spawn(|| engine.shared(&spec).unwrap()))

@@ -135,7 +135,7 @@ fn median_ms(
 
 #[cfg(test)]
 mod tests {
-    use skybake_store::*;
+    use super::*;
 
     #[test]
     fn bench_runs_and_cleans_up() {

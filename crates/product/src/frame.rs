@@ -1354,7 +1354,7 @@ fn voxelize_cloud(
 
 #[cfg(test)]
 mod tests {
-    use skybake_render::*;
+    use super::*;
 
     #[test]
     fn tiles_cover_the_image_once() {

@@ -570,6 +570,7 @@ fn read_dir(dir: &Path) -> Result<Vec<fs::DirEntry>, StoreError> {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::cache_key;
 
     #[test]
     fn keys_are_blake3_hex_and_unambiguous() {
