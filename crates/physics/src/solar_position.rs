@@ -8,7 +8,7 @@
 //!
 //! ```
 //! use chrono::{TimeZone, Utc};
-//! use crate::solar_position::{solar_position, SpaInput};
+//! use skybake_physics::solar_position::{solar_position, SpaInput};
 //! let time = Utc.with_ymd_and_hms(2024, 6, 21, 12, 0, 0).unwrap();
 //! let sun = solar_position(&SpaInput::new(48.14, 11.58, time)).unwrap();
 //! assert!(sun.elevation_deg > 60.0 && sun.elevation_deg < 70.0);

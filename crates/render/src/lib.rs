@@ -14,14 +14,14 @@
 //! - `march`: the fast method's preparation and final ray march, compositing, shafts.
 //!
 //! ```no_run
-//! # use crate::{self, FrameScene, RenderSettings, Method, Lighting};
+//! # use skybake_render::{self as render, FrameScene, RenderSettings, Method, Lighting};
 //! # let json = std::fs::read("config/scenes/cumulus-frame.json").unwrap();
 //! let scene = FrameScene::parse(&json)?;
-//! let grid = scene.cloud.voxelize(&|_| Err(skybake::Error::invalid("path", "no files")))?;
+//! let grid = scene.cloud.voxelize(&|_| Err(skybake_render::Error::invalid("path", "no files")))?;
 //! let lighting = render::lighting_for(&scene, &grid, &skybake_engine::engine::Engine::new())?;
 //! let settings = RenderSettings::for_quality(scene.quality, Method::Fast);
 //! let frame = render::render_frame(&scene, &grid, &lighting, &settings, None, &|_| {}, &|| false)?;
-//! # Ok::<(), skybake::Error>(())
+//! # Ok::<(), skybake_render::Error>(())
 //! ```
 
 pub mod camera;

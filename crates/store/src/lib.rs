@@ -11,13 +11,13 @@
 //! - [`tables`]: the engine's shared tables (precise multiple scattering) kept in that cache.
 //!
 //! ```no_run
-//! use crate::{cache_key, Cache, CacheConfig, SpectralImage};
+//! use skybake_store::{cache_key, Cache, CacheConfig, SpectralImage};
 //! let cache = Cache::open(CacheConfig::new("/var/cache/skybake", 10 << 30, 256 << 20))?;
 //! let key = cache_key(r#"{"product":"sky"}"#, "0.1.0");
 //! let image = SpectralImage::emissive(1, 1, &[550.0], vec![vec![1.0]])?;
 //! let bytes = cache.put_image(&key, &image)?; // the EXR file, ready to serve
 //! assert_eq!(cache.get(&key)?.as_deref(), Some(&bytes[..]));
-//! # Ok::<(), crate::StoreError>(())
+//! # Ok::<(), skybake_store::StoreError>(())
 //! ```
 
 pub mod atomic;

@@ -21,10 +21,10 @@
 //! - Wind blows along ±x only; other directions rotate the simulation space (§4.3).
 //!
 //! ```no_run
-//! # use crate::cloud::automaton::{automaton_density, AutomatonParams};
+//! # use skybake_physics::cloud::automaton::{automaton_density, AutomatonParams};
 //! let params = AutomatonParams::example([256, 128, 20], 7);
 //! let grid = automaton_density(&params, 120.5)?; // halfway between steps 120 and 121
-//! # Ok::<(), skybake::Error>(())
+//! # Ok::<(), skybake_physics::Error>(())
 //! ```
 
 pub mod control;

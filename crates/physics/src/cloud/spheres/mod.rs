@@ -17,10 +17,10 @@
 //!   so it is not part of the density model.
 //!
 //! ```no_run
-//! # use crate::cloud::spheres::{SphereCloud, SphereCloudParams};
+//! # use skybake_physics::cloud::spheres::{SphereCloud, SphereCloudParams};
 //! let cloud = SphereCloud::new(&SphereCloudParams::cumulus(6, 42))?;
 //! let grid = cloud.voxelize(25.0, None)?;
-//! # Ok::<(), skybake::Error>(())
+//! # Ok::<(), skybake_physics::Error>(())
 //! ```
 
 pub mod model;
