@@ -546,7 +546,7 @@ pub const MS_GRID_ERROR: f64 = 0.04;
 pub const MIN_MS_GRID_DIM: usize = 4;
 
 /// Predicted error, per level left out, of summing a sphere hierarchy's spheres above the
-/// leaves (seed 004: each sphere in place of its five children), relative to the cloud's mean
+/// leaves (Ostroushko et al.: each sphere in place of its five children), relative to the cloud's mean
 /// signal. Measured on the example sphere cumulus (K = 6, 25 m voxels, 48×36 px, fov 12°) from
 /// 30 km and 15 km: the cloud's mean moved by 7.2 % and 8.1 % one level up, 19.8 % and 24.9 %
 /// two levels up, 37.5 % and 44.8 % three levels up (the frame's per-pixel RMS change is larger,
@@ -652,13 +652,13 @@ pub fn rgb_wavelengths_rule(f: &RgbFacts, budget: &mut Budget) -> Option<Wavelen
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize)]
 #[serde(rename_all = "snake_case")]
 pub enum FrameStage {
-    /// The fast method's per-voxel light: the sun's optical path to every voxel (seed 000 §3.2).
+    /// The fast method's per-voxel light: the sun's optical path to every voxel (Nishita et al. 1996, §3.2).
     CloudLight,
-    /// Sky light on the cloud: sky elements through the cumulative lattice paths (seed 000 eq
+    /// Sky light on the cloud: sky elements through the cumulative lattice paths (Nishita et al. 1996, eq
     /// 7), the sky's photons in the multiple-scattering field.
     SkyLight,
     /// Ground light on the cloud: the upward light from below (the `ground` product, or the lit
-    /// ground plane in vacuum), seed 000 §3.5.
+    /// ground plane in vacuum), Nishita et al. 1996, §3.5.
     GroundLight,
     /// Multiple scattering in the cloud (the all-order photon field or the reference pattern).
     MultipleScattering,

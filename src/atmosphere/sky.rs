@@ -1,5 +1,5 @@
 //! Radiance in any direction for an observer, and tables of it over the view sphere: the sky
-//! dome (`sky`), the lower hemisphere of ground-reflected upward skylight (`ground`, seed 000
+//! dome (`sky`), the lower hemisphere of ground-reflected upward skylight (`ground`, Nishita et al. 1996,
 //! §3.5), both from the same integrator so they join seamlessly at the horizon.
 
 use super::integrate::{

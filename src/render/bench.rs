@@ -14,7 +14,7 @@ use std::time::Instant;
 /// Voxels per axis of the benchmark cumulus.
 pub const BENCH_DIM: usize = 128;
 
-/// The benchmark cumulus: eight overlapping smooth balls (Wyvill's field, seed 003 eq B.1) in a
+/// The benchmark cumulus: eight overlapping smooth balls (Wyvill's field, Dobashi et al. 2000, eq B.1) in a
 /// 128³ grid of 12 m voxels, flat-ish base at 1 km.
 pub fn bench_cumulus() -> Result<DensityGrid> {
     let h = 12.0;

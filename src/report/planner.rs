@@ -331,7 +331,7 @@ fn frame_rule(
     })
 }
 
-/// The sphere-level rule: the example sphere cumulus with K = `levels` (seed 004) seen from
+/// The sphere-level rule: the example sphere cumulus with K = `levels` (Ostroushko et al.) seen from
 /// 30 km, with the request's `target`: built, voxelised and rendered at the plan's level and at
 /// the leaves; the error against the path tracer on the leaves.
 fn sphere_rule(levels: u32, target: f64) -> Result<RuleSaving> {

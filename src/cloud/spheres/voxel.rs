@@ -8,7 +8,7 @@ use crate::{Error, Result};
 use glam::DVec3;
 
 impl SphereCloud {
-    /// Density at a point: Σ over the spheres of level `level` containing it of f(d, r) (seed 004
+    /// Density at a point: Σ over the spheres of level `level` containing it of f(d, r) (Ostroushko et al.,
     /// eq 2 with d the distance from the sphere centre), so that the local extinction is
     /// `extinction_per_m() × density`. This is the volumetric reading of eq 3's edge function:
     /// extinction falls linearly from the centre to the rim of each sphere. Only spheres whose
