@@ -1,4 +1,4 @@
-//! The cost estimate of a product request (issue 18, point 1): cells × wavelengths × expected
+//! The cost estimate of a product request: cells × wavelengths × expected
 //! orders of scattering, from the plan and the resolved medium, so the service can refuse a
 //! request that would hold a compute slot for minutes (an inline atmosphere with aerosol optical
 //! depth 100 took 90 s of CPU for one `sun` product) before any table is built.

@@ -1,5 +1,5 @@
 //! Phase functions, normalised to integrate to 1 over the sphere (units sr⁻¹), each with
-//! `eval`, `sample` and `pdf` (STYLE.md §8).
+//! `eval`, `sample` and `pdf` (`sample` draws exactly from `eval`, so `pdf` is `eval`).
 //!
 //! `cos_theta` is the cosine of the scattering angle between the propagation directions of the
 //! incident and scattered light (1 = straight on).

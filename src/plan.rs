@@ -1,4 +1,4 @@
-//! The planner (DESIGN.md "Leaving out what a scene does not need"): a product spec and its
+//! The planner (README.md "What the planner leaves out"): a product spec and its
 //! resolved medium become the [`Stage`]s that will run and those left out, each with a typed
 //! [`Reason`]. Pure and cheap (no tables are built), so `POST /v1/plan` and `skybake plan` answer
 //! without computing. The engine **executes** the plan: a stage not in it does not run (no table
@@ -6,9 +6,9 @@
 //! against the engine's work counters.
 //!
 //! Rules live here and nowhere else, the choice of multiple-scattering method among them (`fast`
-//! below [`FAST_TWILIGHT_LIMIT_DEG`] runs the precise tables, issue 14) and night (issue 18: below
+//! below [`FAST_TWILIGHT_LIMIT_DEG`] runs the precise tables: the fast method's twilight error exceeds 10 % there) and night (below
 //! [`darkest_twilight_deg`] nothing the observer sees is lit, and every scattering stage is left
-//! out). Cost rules (issue 15) are new arms of [`plan`], with a new [`Reason`] each.
+//! out). Cost rules (work whose predicted contribution is under the error budget) are new arms of [`plan`], with a new [`Reason`] each.
 
 use crate::atmosphere::multiple_precise::source_sun_zenith_limit_rad;
 use crate::atmosphere::sky::MsMethod;
@@ -121,7 +121,7 @@ pub enum Reason {
         sun_elevation_deg: f64,
         darkest_twilight_deg: f64,
     },
-    /// Cost rule (issue 15): the precise order series stops once an order adds less than
+    /// Cost rule: the precise order series stops once an order adds less than
     /// `tolerance` of the total (or its extrapolated tail's error is below it), `tolerance` being
     /// the budget's allowance instead of the preset's tighter `preset_tolerance`.
     OrdersUnderBudget {
@@ -201,7 +201,7 @@ impl Plan {
         self
     }
 
-    /// The plan without its cost rules (issue 15): every stage a cost rule left out runs as the
+    /// The plan without its cost rules: every stage a cost rule left out runs as the
     /// preset says, for measuring what the rules save and cost.
     pub fn without_cost_rules(mut self) -> Self {
         let (cost, kept): (Vec<_>, Vec<_>) = self
@@ -301,7 +301,7 @@ impl<'a> WavelengthsView<'a> {
 
 /// The sun elevation, degrees, below which nothing an observer at `observer_altitude_m` can see
 /// is lit, directly or through the modelled multiple scattering (`method`): the darkest modelled
-/// twilight (issue 18).
+/// twilight (below it the products are zero).
 ///
 /// The air the observer sees reaches at most the geocentric angle α = acos(R/r_o) + acos(R/R_top)
 /// from it (along the ray that grazes the ground). A point α towards the sun sees it at local
@@ -393,7 +393,7 @@ pub fn plan(product: ProductKind, spec: &CommonSpec, m: &Medium) -> Plan {
 }
 
 // ---------------------------------------------------------------------------------------------
-// Cost rules (issue 15 point 3): work whose predicted contribution falls under the error budget.
+// Cost rules: work whose predicted contribution falls under the error budget.
 
 /// Share of a request's error budget the cost rules may spend on what they leave out or coarsen;
 /// the rest stays with the method's own (measured) error, so the result keeps within the budget.
@@ -502,7 +502,7 @@ fn precise_orders_rule(spec: &CommonSpec) -> Option<(f64, Reason)> {
 }
 
 // ---------------------------------------------------------------------------------------------
-// Cloud frames (issue 15 point 3): the same rules on the frame's stages. The renderer measures
+// Cloud frames: the same rules on the frame's stages. The renderer measures
 // the scene (`render::product::frame_facts`: the cloud's box against the camera's view, the pixel
 // footprint, the cloud's optical depth bound, the light's shares) and these pure rules decide;
 // `render::product` executes the plan (a coarser grid, lighting switches, settings hooks).

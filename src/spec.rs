@@ -1,4 +1,4 @@
-//! The canonical, validated, hashable specs of the atmosphere products (STYLE.md §3): what the
+//! The canonical, validated, hashable specs of the atmosphere products (parse, don't validate): what the
 //! planner plans and the engine executes. [`crate::product::params`] parses request parameters
 //! (CLI flags, query strings, JSON bodies) into these; the constructors here hold the limits, so a
 //! spec that exists is valid and nothing downstream checks again.
@@ -127,7 +127,7 @@ impl ProductKind {
             })
     }
 
-    /// Lowest sun elevation the product accepts, degrees: any (issue 18). Below the darkest
+    /// Lowest sun elevation the product accepts, degrees: any (night and polar cases are answered). Below the darkest
     /// modelled twilight the plan leaves the scattering stages out and the products are zero
     /// (`plan::darkest_twilight_deg`).
     pub fn min_sun_elevation_deg(self) -> f64 {

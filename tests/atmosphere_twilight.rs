@@ -207,7 +207,7 @@ fn check_precise(quality: &str) {
 
 #[test]
 fn precise_sky_matches_spherical_monte_carlo_from_day_to_nautical_twilight() {
-    // The regression test of issue 14: before the fix, the precise sky at −6° read 33 % too
+    // The twilight regression test: before the fix, the precise sky at −6° read 33 % too
     // bright at view zenith 85° away from the sun and 36 % at 89° (+85 % at −4°, +106 % at −9°).
     check_precise("standard");
 }

@@ -234,7 +234,7 @@ pub fn dome_table(
 }
 
 /// [`dome_table`], stopped (`None`) when `cancelled` returns true: it is asked once per row of
-/// elevation, as the row's first entry starts (issue 18).
+/// elevation, as the row's first entry starts, so an abandoned request stops within a row.
 pub fn dome_table_unless(
     eval: &RadianceEvaluator,
     elevation_deg: Vec<f64>,

@@ -1,4 +1,4 @@
-//! `skybake bench frame` (issue 13 point 8): a 640×480 frame of a 128³ cumulus with sky light,
+//! `skybake bench frame`: a 640×480 frame of a 128³ cumulus with sky light,
 //! ground light and multiple scattering at the standard quality, cold (the engine's sky and
 //! ground tables built inside the timed region) and warm; `frame-accuracy` compares the fast
 //! method with the path tracer on the same scene at a reduced resolution.

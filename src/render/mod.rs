@@ -1,4 +1,4 @@
-//! Lit cloud frames (issue 13; Nishita et al. 1996, §3, Dobashi et al. 2000, §5): the `frame` product's renderer.
+//! Lit cloud frames (Nishita et al. 1996, §3; Dobashi et al. 2000, §5): the `frame` product's renderer.
 //!
 //! Nothing below this module imports it. It is pure: it receives a validated [`FrameScene`], the
 //! cloud's [`DensityGrid`] and the [`Lighting`] (built from the engine's `sun`, `sky`, `ground`

@@ -1,4 +1,4 @@
-//! The reference (issue 13 point 4): a spectral Monte Carlo path tracer with delta tracking for
+//! The reference: a spectral Monte Carlo path tracer with delta tracking for
 //! free paths, ratio tracking for shadow rays towards the sun, all orders of scattering, unbiased
 //! Russian roulette, the scene's phase functions, sun, environment (sky above, ground light
 //! below) and, in vacuum, the Lambertian ground plane. Wavelengths with identical optics share

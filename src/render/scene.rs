@@ -1,5 +1,5 @@
-//! The frame scene: what a lit cloud frame needs besides the density grid (the scene contract,
-//! `DESIGN.md` "Clouds"; issue 13 point 1).
+//! The frame scene: what a lit cloud frame needs besides the density grid (the scene contract;
+//! README.md "Cloud frames").
 //!
 //! World frame: metres, right-handed, **z up**; z is the altitude above sea level. Azimuths are
 //! measured from +y ("north") towards +x ("east"), so a direction with elevation e and azimuth a

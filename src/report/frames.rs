@@ -1,4 +1,4 @@
-//! The frame part of `skybake report` (issue 15 point 1): error against run time of the cloud
+//! The frame part of `skybake report`: error against run time of the cloud
 //! renderer, for a few representative frames, against a converged path-traced reference.
 //!
 //! Per case (a cloud, a camera, a light), three curves:

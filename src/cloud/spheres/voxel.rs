@@ -32,7 +32,7 @@ impl SphereCloud {
     }
 
     /// Voxelises the cloud: cubic voxels of `voxel_size_m` over the bounding box of the spheres of
-    /// `level` (default K), density [`Self::density_at`] at every voxel centre (DESIGN.md's
+    /// `level` (default K), density [`Self::density_at`] at every voxel centre (the grid's
     /// cell-centred convention). Multiply by [`Self::extinction_per_m`] for extinction.
     pub fn voxelize(&self, voxel_size_m: f64, level: Option<u32>) -> Result<DensityGrid> {
         let (dims, origin, level) = self.grid_box(voxel_size_m, level)?;
