@@ -1,4 +1,4 @@
-//! Issue 13 point 3: orders 2 and 3 by the reference pattern of Nishita et al. 1996, §3.4, measured against the
+//! Orders 2 and 3 by the reference pattern of Nishita et al. 1996, §3.4, measured against the
 //! path tracer restricted to the same orders (`min_orders` 2, `max_orders` 3: the independent,
 //! unbiased estimate of exactly what the pattern approximates), on a 20³ cloud of non-uniform
 //! density in vacuum lit by a collimated sun, HG g = 0.85, at optical diameters 3 and 20. The

@@ -1,4 +1,4 @@
-//! Stability suite for cloud frames (issue 15 point 4), through `render::render_frame`, the entry
+//! Stability suite for cloud frames, through `render::render_frame`, the entry
 //! point of the product: stiff and extreme scenes give finite, non-negative radiance bounded by
 //! energy conservation, the frame is continuous in the sun angle, and the fast method's error
 //! against the path tracer falls along the quality presets.

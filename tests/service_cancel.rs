@@ -1,4 +1,4 @@
-//! Issue 18, point 1: abandoned computations are cancelled, the compute queue is bounded, a
+//! Abandoned computations are cancelled, the compute queue is bounded, a
 //! request's estimated cost is capped, and an atmosphere outside the validated range says so.
 
 mod service_support;

@@ -1,4 +1,4 @@
-//! Issue 18, points 4, 6, 7 and 8: jobs bounded (listing, deletion with files, expiry, live-job
+//! Service conventions: jobs bounded (listing, deletion with files, expiry, live-job
 //! limit, disk budget), HTTP conventions (304, compression, Cache-Control, problem+json for
 //! 405/413/414, the atmosphere list), optional bearer tokens and a per-client rate limit, and the
 //! error names of inline atmospheres and sweeps.
