@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-"""Soak test of the skybake service: the storms of issue 18, on loopback only, bounded in count and time.
+"""Soak test of the skybake service: the storms below (abandoned, slow, swapped cache files, jobs), on loopback only, bounded in count and time.
 
     tools/soak.py [--bin target/release/skybake] [--port 18190] [--quick]
 
