@@ -175,7 +175,7 @@ fn band_maxima(rows: &[Row]) -> [f64; 3] {
     m
 }
 
-/// Checks the precise method's rows against the issue-14 tolerances.
+/// Checks the precise method's rows against the tolerances of `precise_tolerance`.
 fn check_precise(quality: &str) {
     let rows = compare("precise", quality);
     report("precise", &rows);

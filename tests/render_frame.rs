@@ -251,7 +251,7 @@ fn energy_is_conserved_with_albedo_one() {
 }
 
 /// The fast method against the path tracer on a thick cloud lit by sun + constant sky in vacuum
-/// (the figures are stated in the issue note; the bounds here guard against regressions).
+/// (the bounds here guard against regressions of the measured figures).
 #[test]
 fn fast_method_tracks_the_path_tracer() {
     let mut v = base_scene();

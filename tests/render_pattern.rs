@@ -209,7 +209,7 @@ fn low_orders_are_a_small_share_at_the_thick_cloud_centre() {
         100.0 * l / a,
         100.0 * o1 / a
     );
-    // Measured 0.5 % (orders ≤ 3) and 0.06 % (order 1); the claim is < 10 %.
+    // Measured 0.5 % (orders ≤ 3) and 0.06 % (order 1); the required bound is < 10 %.
     assert!(a > 0.0 && l > 0.0);
     assert!(l / a < 0.02, "{l} / {a}");
 }

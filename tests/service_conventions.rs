@@ -177,7 +177,7 @@ async fn job_files_count_in_the_disk_budget() {
     s.server.body_limit_bytes = 1 << 20;
     s.jobs.max_live = 100;
     let srv = TestServer::start(s).await;
-    // The case: job bodies of ~980 kB against a 1 MiB budget. Padding goes in a product's
+    // The motivating case: job bodies of ~980 kB against a 1 MiB budget. Padding goes in a product's
     // probe list (valid directions, the most compact way to make a large valid body).
     let probes: Vec<String> = (0..4000)
         .map(|i| format!("{}:{}", i % 80, i % 170))
