@@ -37,7 +37,7 @@ mod tests {
 
     #[test]
     fn path_of_one_mor_leaves_two_percent() {
-        // Koschmieder: over a path equal to the MOR the transmittance is the 0.02 threshold.
+        // Koschmieder 1924: over a path equal to the MOR the transmittance is the 0.02 threshold.
         let s = extinction_from_mor_per_m(150.0);
         assert!(((-s * 150.0).exp() - 0.02).abs() < 1e-15);
         assert!((s - 3.912_023_005_428_146 / 150.0).abs() < 1e-15);
