@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-"""Mitsuba 3 reference images of the validation cloud (issue 13 point 7b, point 8 timings).
+"""Mitsuba 3 reference images of the validation cloud (the 3-D cloud check of the path tracer, and Mitsuba's timings).
 
 Renders tests/data/cloud_mitsuba_grid.npy (tools/cloud_grid.py) with Mitsuba 3's `volpath` integrator
 (unbiased, all orders) through a `heterogeneous` medium whose `sigma_t` is a `gridvolume`, in vacuum,
@@ -488,7 +488,7 @@ def cmd_sum(a, b, name):
 
 
 def cmd_convergence(case="sun", spps=(4, 16, 64, 256), repeats=2):
-    """Mitsuba's time to reach a given error (issue 13 point 8): independent renders at increasing spp
+    """Mitsuba's time to reach a given error: independent renders at increasing spp
     against the converged image of the same case (whose own noise is in cases.<case>.noise: the
     measured NRMSE floors at that level)."""
     mi = mitsuba()

@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-"""Mitsuba 3's time to reach the fast method's error on skybake's bench frame (issue 13 point 8).
+"""Mitsuba 3's time to reach the fast method's error on skybake's bench frame.
 
 The scene is skybake's bench frame (src/render/bench.rs: the 128^3 cumulus of 12 m voxels, extinction
 0.04 /m per unit density, albedo 1, Henyey-Greenstein g 0.85, pinhole camera 50 deg horizontal at
@@ -328,7 +328,7 @@ def cmd_summary(d):
         to_reach[f"rr_depth_{rr}"] = target
     data = load_json()
     data.update({
-        "what": "Mitsuba 3 on skybake's bench frame (issue 13 point 8): time to reach the fast method's error",
+        "what": "Mitsuba 3 on skybake's bench frame: time to reach the fast method's error",
         "scene": "src/render/bench.rs bench_cumulus + bench_scene under Lighting (sun + env) at the cloud, in vacuum "
                  "(no aerial perspective, no ground plane): examples/mitsuba_bench_export.rs",
         "resolution": [meta["camera"]["width"], meta["camera"]["height"]],

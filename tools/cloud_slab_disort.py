@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
 """Reference radiances and fluxes of a homogeneous Henyey-Greenstein cloud slab from DISORT (pydisort).
 
-Writes tests/data/cloud_slab_disort.json (issue 13 point 7a). Run from the repository root:
+Writes tests/data/cloud_slab_disort.json (the path tracer's slab check). Run from the repository root:
 
     python3 tools/cloud_slab_disort.py        # ~1 min
 

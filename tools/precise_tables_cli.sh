@@ -1,5 +1,5 @@
 #!/bin/bash
-# Issue 17 measurement (README "Performance"): per case a cold CLI call on an empty table cache
+# Precise shared tables measurement (README "Performance"): per case a cold CLI call on an empty table cache
 # (build + save) and a second call (table loaded), with user CPU from /usr/bin/time and per-order
 # stage times in $OUT/c-*/cold.log (SKYBAKE_LOG=skybake=debug). Needs python3 for the wavelength lists.
 B=${SKYBAKE_BIN:-target/release/skybake}

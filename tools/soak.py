@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-"""Soak test of the skybake service: the storms of issue 18, on loopback only, bounded in count and time.
+"""Soak test of the skybake service: the storms below (abandoned, slow, swapped cache files, jobs), on loopback only, bounded in count and time.
 
     tools/soak.py [--bin target/release/skybake] [--port 18190] [--quick]
 
@@ -11,7 +11,7 @@ object at the end (and each line as it is measured).
 Storms
   1. abandoned : the latency of a fresh cold default sky request (new ground albedo) on an idle
                  server; then 12 clients that each ask for a different cold default sky and hang up
-                 after 0.5 s (the issue's `curl -m 0.5` storm); then the same fresh request again.
+                 after 0.5 s (a `curl -m 0.5` storm); then the same fresh request again.
                  Reported: both latencies, their ratio (must be <= 2), cancelled computations.
   2. slow      : 400 connections that send half a request line and stall; reported: how many the
                  server held, how long until it closed them, whether a normal request was answered

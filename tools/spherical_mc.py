@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
 """Backward Monte Carlo radiance in a pure-Rayleigh atmosphere on a spherical shell (numpy).
 
-Written from scratch for skybake issue 14 as a reference that, unlike DISORT, sees the planet's
+Written from scratch for skybake's twilight accuracy work as a reference that, unlike DISORT, sees the planet's
 curvature, the Earth's shadow and the lit upper atmosphere in twilight. Nothing here is taken from
 skybake's Rust code: geometry, optical depths, sampling and estimators are its own.
 
@@ -418,7 +418,7 @@ def run_set(name, out, max_seconds):
 
 def _write(out, name, results):
     header = {
-        "source": "tools/spherical_mc.py (backward Monte Carlo on the spherical shell, written for issue 14)",
+        "source": "tools/spherical_mc.py (backward Monte Carlo on the spherical shell, the twilight reference)",
         "package_versions": {"python": sys.version.split()[0], "numpy": np.__version__},
         "set": name,
         "inputs": {

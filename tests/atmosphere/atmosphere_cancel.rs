@@ -1,4 +1,4 @@
-//! Cooperative cancellation inside the table builds and the output rows (issue 18): the density
+//! Cooperative cancellation inside the table builds and the output rows: the density
 //! table, the fast multiple-scattering table and a product's output rows ask the cancel check once
 //! per row, so a cancelled request stops within a row or so of the check that said "stop" instead
 //! of finishing the build. Work is measured by counting the checks (each one starts a row), never

@@ -1,4 +1,4 @@
-//! Night and polar cases (issue 18 point 5): every product accepts any sun elevation. Below the
+//! Night and polar cases: every product accepts any sun elevation. Below the
 //! darkest modelled twilight (`plan::darkest_twilight_deg`) the plan leaves every scattering stage
 //! out with a reason, builds no multiple-scattering table and the products are zero; leaving the
 //! stages out loses nothing (the full computation there is exactly zero too), and just above the

@@ -1,4 +1,4 @@
-//! Numerical robustness (issue 2 item 9): extreme sun angles, observers from the ground to orbit,
+//! Numerical robustness: extreme sun angles, observers from the ground to orbit,
 //! horizontal and grazing views, the ends of the wavelength range and a very thick aerosol layer.
 //! Every output finite and non-negative, and continuous where the physics is.
 

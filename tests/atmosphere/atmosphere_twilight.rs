@@ -1,17 +1,17 @@
-//! Twilight and the spherical planet (issue 14): sky radiance against an independent backward
+//! Twilight and the spherical planet: sky radiance against an independent backward
 //! Monte Carlo on the spherical shell (tools/spherical_mc.py, numpy; its plane-parallel limit
 //! agrees with DISORT to 0.8 % max, −0.1 % mean, see tools/README.md). The reference files are
 //! tests/data/spherical_mc_*.json; each case carries its Monte Carlo standard error.
 //!
-//! Tolerances of the precise method (issue 14): 2 % for sun ≥ 0°, 4 % down to −6°, 10 % down to
+//! Tolerances of the precise method: 2 % for sun ≥ 0°, 4 % down to −6°, 10 % down to
 //! −12°, each widened by twice the case's Monte Carlo standard error (the reference's own noise).
 
-//! Twilight and the spherical planet (issue 14): sky radiance against an independent backward
+//! Twilight and the spherical planet: sky radiance against an independent backward
 //! Monte Carlo on the spherical shell (tools/spherical_mc.py, numpy; its plane-parallel limit
 //! agrees with DISORT to 0.8 % max, −0.1 % mean, see tools/README.md). The reference files are
 //! tests/data/spherical_mc_*.json; each case carries its Monte Carlo standard error.
 //!
-//! Tolerances of the precise method (issue 14): 2 % for sun ≥ 0°, 4 % down to −6°, 10 % down to
+//! Tolerances of the precise method: 2 % for sun ≥ 0°, 4 % down to −6°, 10 % down to
 //! −12°, each widened by twice the case's Monte Carlo standard error (the reference's own noise).
 //!
 //! Every case goes through the `sky` product a user would request (probes at the Monte Carlo's
@@ -50,7 +50,7 @@ fn f(v: &Value, k: &str) -> f64 {
     v[k].as_f64().unwrap()
 }
 
-/// Tolerance of the precise method in a sun-elevation band (issue 14).
+/// Tolerance of the precise method in a sun-elevation band.
 fn precise_tolerance(sun_deg: f64) -> f64 {
     if sun_deg >= 0.0 {
         0.02
@@ -175,7 +175,7 @@ fn band_maxima(rows: &[Row]) -> [f64; 3] {
     m
 }
 
-/// Checks the precise method's rows against the issue-14 tolerances.
+/// Checks the precise method's rows against the tolerances of `precise_tolerance`.
 fn check_precise(quality: &str) {
     let rows = compare("precise", quality);
     report("precise", &rows);
@@ -192,7 +192,7 @@ fn check_precise(quality: &str) {
         .map(|r| format!("{}: {:+.2} %", r.label, 100.0 * r.deviation))
         .collect();
     assert!(bad.is_empty(), "outside tolerance: {bad:#?}");
-    // What the product states covers what was measured (issue 14 point 2).
+    // What the product states covers what was measured.
     for r in &rows {
         let stated = stated_twilight_error(MsMethod::Precise, r.sun_deg);
         assert!(
@@ -207,7 +207,7 @@ fn check_precise(quality: &str) {
 
 #[test]
 fn precise_sky_matches_spherical_monte_carlo_from_day_to_nautical_twilight() {
-    // The regression test of issue 14: before the fix, the precise sky at −6° read 33 % too
+    // The twilight regression test: before the fix, the precise sky at −6° read 33 % too
     // bright at view zenith 85° away from the sun and 36 % at 89° (+85 % at −4°, +106 % at −9°).
     check_precise("standard");
 }

@@ -1,4 +1,4 @@
-//! Quality by target and error estimates from the measured report (issue 15 point 2), through
+//! Quality by target and error estimates from the measured report, through
 //! the product path a request takes (`ProductRequest::from_params` → `Engine::compute`).
 
 use skybake_engine::accuracy::{self, RegimeBands, REFERENCE_ERROR};

@@ -1,6 +1,6 @@
 //! Illuminance and correlated colour temperature against colour-science
 //! (tests/data/photometry_reference.json, made by tools/photometry_reference.py with
-//! colour-science 0.4.7): the `sun` product's lux and CCT (issue 14 point 4).
+//! colour-science 0.4.7): the `sun` product's lux and CCT.
 
 use serde_json::Value;
 use skybake_physics::spectrum::colour::XyzWeights;

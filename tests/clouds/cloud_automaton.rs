@@ -1,4 +1,4 @@
-//! The bit-packed automaton against a plain one-cell-at-a-time implementation of seed 003 eqs 1–10
+//! The bit-packed automaton against a plain one-cell-at-a-time implementation of Dobashi et al. 2000, eqs 1–10
 //! (bool arrays, the same random-bit table and the same per-word draws), plus wind, obstacle and
 //! density properties.
 

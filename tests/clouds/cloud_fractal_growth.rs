@@ -1,4 +1,4 @@
-//! Fractal growth (seed 000 §4): deterministic for a seed, grows the cloud, keeps the base flat.
+//! Fractal growth (Nishita et al. 1996, §4): deterministic for a seed, grows the cloud, keeps the base flat.
 
 use glam::DVec3;
 use skybake_physics::cloud::fractal::{example_cumulus_base, grow, FractalParams};

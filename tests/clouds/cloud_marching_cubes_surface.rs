@@ -1,4 +1,4 @@
-//! Marching cubes (seed 000 §4): a metaball sphere gives the analytic area and volume, and the
+//! Marching cubes (Nishita et al. 1996, §4): a metaball sphere gives the analytic area and volume, and the
 //! surface of any field that vanishes on the grid border is closed and consistently oriented.
 
 use glam::DVec3;

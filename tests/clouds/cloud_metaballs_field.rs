@@ -1,4 +1,4 @@
-//! Metaball field (seed 001 eq 3): the binned evaluator and the voxeliser agree with a brute-force
+//! Metaball field (Nishita & Dobashi 2001, eq 3): the binned evaluator and the voxeliser agree with a brute-force
 //! sum over all balls, and bad input is refused with the offending field named.
 
 use glam::DVec3;
@@ -103,7 +103,7 @@ fn gradient_matches_finite_differences() {
 
 #[test]
 fn total_density_of_a_ball_is_centre_density_times_wyvill_volume() {
-    // Seed 001 eq 3 with q as centre density: ∫ρ dV = q · 736π/2835 R³ (corrected eq B.2).
+    // Nishita & Dobashi 2001, eq 3 with q as centre density: ∫ρ dV = q · 736π/2835 R³ (corrected eq B.2).
     let b = ball(5.0, -3.0, 7.0, 40.0, 0.8);
     let grid = MetaballField::new(vec![b])
         .unwrap()

@@ -1,4 +1,4 @@
-//! Satellite-image cloud modelling (seed 001 §3.1): greedy metaball fitting lowers the image
+//! Satellite-image cloud modelling (Nishita & Dobashi 2001, §3.1): greedy metaball fitting lowers the image
 //! error at every step and reaches the threshold; the 3-D cloud reproduces the fitted image as
 //! column density; PNG input is validated.
 

@@ -1,4 +1,4 @@
-//! Sphere-hierarchy cloud (seed 004): containment, traversal against brute force, transmittance
+//! Sphere-hierarchy cloud (Ostroushko et al.): containment, traversal against brute force, transmittance
 //! bounds and monotonicity, level of detail, animation, voxelisation and validation.
 
 use glam::DVec3;

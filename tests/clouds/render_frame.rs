@@ -1,4 +1,4 @@
-//! Lit cloud frames (issue 13): scene validation, the azimuth convention, an analytic
+//! Lit cloud frames: scene validation, the azimuth convention, an analytic
 //! single-scattering slab, energy conservation, fast method against the path tracer, robustness.
 //! Every render goes through `render::render_frame`, the entry point the product uses.
 
@@ -200,7 +200,7 @@ fn thin_slab_matches_analytic_single_scattering() {
     }
 }
 
-/// Issue 13 point 7c: albedo 1 and black surroundings, energy in = energy out within 1 %, through
+/// Energy conservation: albedo 1 and black surroundings, energy in = energy out within 1 %, through
 /// the path tracer. Out = Σ over 96 view directions (Fibonacci, 4π/96 sr each) of the image
 /// integral ∫L dA of an orthographic view + the sun's beam transmitted unscattered.
 #[test]
@@ -251,7 +251,7 @@ fn energy_is_conserved_with_albedo_one() {
 }
 
 /// The fast method against the path tracer on a thick cloud lit by sun + constant sky in vacuum
-/// (the figures are stated in the issue note; the bounds here guard against regressions).
+/// (the bounds here guard against regressions of the measured figures).
 #[test]
 fn fast_method_tracks_the_path_tracer() {
     let mut v = base_scene();

@@ -1,4 +1,4 @@
-//! Issue 13 point 3: orders 2 and 3 by seed 000 §3.4's reference pattern, measured against the
+//! Orders 2 and 3 by the reference pattern of Nishita et al. 1996, §3.4, measured against the
 //! path tracer restricted to the same orders (`min_orders` 2, `max_orders` 3: the independent,
 //! unbiased estimate of exactly what the pattern approximates), on a 20³ cloud of non-uniform
 //! density in vacuum lit by a collimated sun, HG g = 0.85, at optical diameters 3 and 20. The
@@ -128,7 +128,7 @@ fn orders_2_3(tau: f64, sun_elev: f64, sun_az: f64, px: usize, spp: usize) -> Im
         100.0 * share("reference_pattern"),
     );
     assert!(
-        ms_stage.contains("seed 000 §3.4"),
+        ms_stage.contains("Nishita et al. 1996, §3.4"),
         "{:?}",
         f_pattern.meta.stages
     );
@@ -209,7 +209,7 @@ fn low_orders_are_a_small_share_at_the_thick_cloud_centre() {
         100.0 * l / a,
         100.0 * o1 / a
     );
-    // Measured 0.5 % (orders ≤ 3) and 0.06 % (order 1); the issue's claim is < 10 %.
+    // Measured 0.5 % (orders ≤ 3) and 0.06 % (order 1); the required bound is < 10 %.
     assert!(a > 0.0 && l > 0.0);
     assert!(l / a < 0.02, "{l} / {a}");
 }

@@ -1,4 +1,4 @@
-//! Stability of cloud frames as properties (issue 15 point 4; STYLE §9: invariants that hold for
+//! Stability of cloud frames as properties (invariants that hold for
 //! any input are `proptest` properties). Random small clouds (2–8 voxels a side of random
 //! density, voxels of 1 m to 1 km, optical thickness 0.1 to 1000 across, single-scattering
 //! albedo 0.9 to 1, Henyey-Greenstein g from −0.9 to 0.99, sun elevation −0.5° to 90°, camera

@@ -1,9 +1,9 @@
-//! Stability suite for cloud frames (issue 15 point 4), through `render::render_frame`, the entry
+//! Stability suite for cloud frames, through `render::render_frame`, the entry
 //! point of the product: stiff and extreme scenes give finite, non-negative radiance bounded by
 //! energy conservation, the frame is continuous in the sun angle, and the fast method's error
 //! against the path tracer falls along the quality presets.
 //! (tests/render_frame.rs has the first robustness cases: empty grid, single voxel, τ 1000,
-//! g 0.99 and −0.9, camera inside; this file adds the rest of the issue's list.)
+//! g 0.99 and −0.9, camera inside; this file adds the rest of the stiff and extreme cases.)
 
 use glam::DVec3;
 use serde_json::{json, Value};

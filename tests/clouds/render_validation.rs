@@ -1,4 +1,4 @@
-//! Issue 13 point 7: the path tracer (and the fast method's figures) against independent codes:
+//! Validation: the path tracer (and the fast method's figures) against independent codes:
 //! (a) DISORT for a laterally huge homogeneous slab (tests/data/cloud_slab_disort.json, made by
 //! tools/cloud_slab_disort.py with pydisort 1.8.13, 128 streams), (b) Mitsuba 3 `volpath` for a
 //! 3-D cloud grid lit by a sun and a constant sky in vacuum (tests/data/cloud_mitsuba_*.npy and

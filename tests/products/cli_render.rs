@@ -45,7 +45,7 @@ fn validation_frame_renders_to_exr_and_png() {
         .as_array()
         .is_some_and(|r| !r.is_empty()));
     assert!(summary["stages"]["skipped"].is_array());
-    // Timings per stage, the tiles and the error estimate (issue 13 point 6).
+    // Timings per stage, the tiles and the error estimate.
     let stages: Vec<&str> = summary["timing_ms_by_stage"]
         .as_array()
         .unwrap()

@@ -1,4 +1,4 @@
-//! Frame bake jobs (issue 13 point 6): a scene over a sun sweep or over automaton steps, as a job
+//! Frame bake jobs: a scene over a sun sweep or over automaton steps, as a job
 //! entry (`"frames"`) of `POST /v1/jobs` and `skybake bake`; items named in errors; a killed bake
 //! resumes from its finished frames and from the stored tiles of the frame in flight; a service
 //! job's frames are the same cached products `POST /v1/render` serves.

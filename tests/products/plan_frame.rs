@@ -1,4 +1,4 @@
-//! The frame planner's rules (issue 15 point 3): each rule changes the typed plan AND the work
+//! The frame planner's rules: each rule changes the typed plan AND the work
 //! the renderer does (voxels lit, lattice paths, the multiple-scattering field, grid size), and
 //! what a cost rule leaves out changes the image by less than its predicted share.
 

@@ -1,4 +1,4 @@
-//! The planner's wavelength rule (issue 15 point 3): an RGB-only frame request (a PNG) runs at
+//! The planner's wavelength rule: an RGB-only frame request (a PNG) runs at
 //! the fewest of its wavelengths whose predicted change of the RGB image fits the error budget;
 //! the image it gives changes by less than predicted, the wavelengths it keeps are computed as
 //! in the spectral frame, and it has its own cache key (CLI, service, plan).

@@ -1,4 +1,4 @@
-//! Precise shared tables persisted between processes (issue 17 item 1): a second engine on the
+//! Precise shared tables persisted between processes: a second engine on the
 //! same cache directory loads the table instead of building it and gets bit-identical products;
 //! a corrupt table file is detected, never used, and rebuilt; the CLI, the server and `bake` all
 //! load the table stored in the configured cache directory; `--no-table-cache` and requests that

@@ -1,4 +1,4 @@
-//! Issue 18, point 1: abandoned computations are cancelled, the compute queue is bounded, a
+//! Abandoned computations are cancelled, the compute queue is bounded, a
 //! request's estimated cost is capped, and an atmosphere outside the validated range says so.
 
 use crate::service_support;
@@ -101,7 +101,7 @@ fn earth_with_aerosol(tau: f64) -> String {
 async fn a_request_above_the_cost_budget_is_refused_naming_it() {
     let dir = Scratch::new("cost");
     let srv = TestServer::start(settings(dir.path())).await;
-    // The issue's case: aerosol optical depth 100 took 90 s of CPU for one sun product.
+    // The case that motivated the cost cap: aerosol optical depth 100 took 90 s of CPU for one sun product.
     let r = srv
         .get(&format!("/v1/sun?atmosphere={}", earth_with_aerosol(100.0)))
         .await;

@@ -1,4 +1,4 @@
-//! Issue 18, points 4, 6, 7 and 8: jobs bounded (listing, deletion with files, expiry, live-job
+//! Service conventions: jobs bounded (listing, deletion with files, expiry, live-job
 //! limit, disk budget), HTTP conventions (304, compression, Cache-Control, problem+json for
 //! 405/413/414, the atmosphere list), optional bearer tokens and a per-client rate limit, and the
 //! error names of inline atmospheres and sweeps.
@@ -177,7 +177,7 @@ async fn job_files_count_in_the_disk_budget() {
     s.server.body_limit_bytes = 1 << 20;
     s.jobs.max_live = 100;
     let srv = TestServer::start(s).await;
-    // The issue's case: job bodies of ~980 kB against a 1 MiB budget. Padding goes in a product's
+    // The motivating case: job bodies of ~980 kB against a 1 MiB budget. Padding goes in a product's
     // probe list (valid directions, the most compact way to make a large valid body).
     let probes: Vec<String> = (0..4000)
         .map(|i| format!("{}:{}", i % 80, i % 170))

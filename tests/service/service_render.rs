@@ -1,4 +1,4 @@
-//! Cloud frames through the service (issue 13 points 6 and 9): `POST /v1/render` in its three
+//! Cloud frames through the service: `POST /v1/render` in its three
 //! formats, cached under the frame request's key, rendered and stored tile by tile so that an
 //! interrupted render resumes from its stored tiles (and gives the frame an uninterrupted render
 //! gives), stopped at the next tile when its client hangs up; bad scenes refused with
@@ -457,7 +457,7 @@ async fn example_scenes_are_listed_served_and_render() {
     assert!(section.voxelize(&example_file).is_ok());
 }
 
-/// Render tiles count in the cache's disk budget (issue 13): tiles left by three interrupted
+/// Render tiles count in the cache's disk budget: tiles left by three interrupted
 /// renders that together exceed the budget are evicted at start-up, the least recently written
 /// frame first, until they fit.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]

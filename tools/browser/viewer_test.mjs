@@ -1,4 +1,4 @@
-// Browser test of the viewer (issue 16): starts `skybake serve` on a loopback port with a scratch
+// Browser test of the viewer: starts `skybake serve` on a loopback port with a scratch
 // cache, opens `/` in Debian's headless Chromium (playwright-core), moves the sun slider, waits for
 // the new sky image, and checks that it changed, that the page logged no console errors, that every
 // control has a label, and that the page fits a phone-sized viewport. Screenshots go to docs/.

@@ -1,4 +1,4 @@
-//! Measured accuracy (issue 15 point 2): the data of `skybake report` (`report/report.json`,
+//! Measured accuracy: the data of `skybake report` (`report/report.json`,
 //! compiled into the binary), the regime bands it was measured in, every product's measured error
 //! for its regime, and quality chosen by a target error (`max_rel_error`).
 //!
@@ -17,7 +17,7 @@ use std::sync::OnceLock;
 
 /// Sun elevation below which a `fast` request is computed with the precise tables instead: the
 /// fast method's measured error against the spherical Monte Carlo exceeds 10 % there (−6°: up to
-/// 54 % low, −9°: 81 %, −12°: 96 %; tests/atmosphere_twilight.rs), issue 14 point 3.
+/// 54 % low, −9°: 81 %, −12°: 96 %; tests/atmosphere_twilight.rs).
 pub const FAST_TWILIGHT_LIMIT_DEG: f64 = -4.0;
 
 /// Relative error of each method against DISORT for the Rayleigh validation cases

@@ -26,7 +26,7 @@ pub use crate::spec::DomeShape;
 /// Engine version: part of every cache key, bumped when results change.
 pub const ENGINE_VERSION: &str = concat!("skybake-", env!("CARGO_PKG_VERSION"), "-engine1");
 
-/// A cooperative cancellation check (issue 18): true once nobody wants the result. The engine
+/// A cooperative cancellation check: true once nobody wants the result (every waiting client has gone). The engine
 /// asks it at stage boundaries (after the density table, between orders of scattering of the
 /// precise table, before the output table) and stops with [`Error::Cancelled`].
 pub type CancelCheck<'a> = &'a (dyn Fn() -> bool + Sync);
@@ -99,7 +99,7 @@ pub struct ProductMeta {
     pub colour_note: Option<String>,
 }
 
-/// Sun attenuation and irradiance at the observer (DESIGN.md `/v1/sun`).
+/// Sun attenuation and irradiance at the observer (the `sun` product, `GET /v1/sun`).
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct SunProduct {
     pub wavelengths_nm: Vec<f64>,
@@ -834,7 +834,7 @@ impl Engine {
 
 /// Largest vertical optical depth (all constituents) of the validated range: the DISORT
 /// comparisons (tests/atmosphere_validation.rs) are Rayleigh atmospheres, τ ≈ 0.56 at 360 nm;
-/// beyond τ = 1 the orders-of-scattering series converges slowly and is capped (issue 18).
+/// beyond τ = 1 the orders-of-scattering series converges slowly and is capped (the product then carries an "outside the validated range" caveat).
 pub const VALIDATED_MAX_OPTICAL_DEPTH: f64 = 1.0;
 
 /// The largest vertical optical depth of `m` over its wavelengths.

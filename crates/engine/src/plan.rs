@@ -1,4 +1,4 @@
-//! The planner (DESIGN.md "Leaving out what a scene does not need"): a product spec and its
+//! The planner (README.md "What the planner leaves out"): a product spec and its
 //! resolved medium become the [`Stage`]s that will run and those left out, each with a typed
 //! [`Reason`]. Pure and cheap (no tables are built), so `POST /v1/plan` and `skybake plan` answer
 //! without computing. The engine **executes** the plan: a stage not in it does not run (no table
@@ -6,9 +6,9 @@
 //! against the engine's work counters.
 //!
 //! Rules live here and nowhere else, the choice of multiple-scattering method among them (`fast`
-//! below [`FAST_TWILIGHT_LIMIT_DEG`] runs the precise tables, issue 14) and night (issue 18: below
+//! below [`FAST_TWILIGHT_LIMIT_DEG`] runs the precise tables: the fast method's twilight error exceeds 10 % there) and night (below
 //! [`darkest_twilight_deg`] nothing the observer sees is lit, and every scattering stage is left
-//! out). Cost rules (issue 15) are new arms of [`plan`], with a new [`Reason`] each.
+//! out). Cost rules (work whose predicted contribution is under the error budget) are new arms of [`plan`], with a new [`Reason`] each.
 
 use skybake_physics::atmosphere::multiple_precise::source_sun_zenith_limit_rad;
 use skybake_physics::atmosphere::sky::MsMethod;
@@ -121,7 +121,7 @@ pub enum Reason {
         sun_elevation_deg: f64,
         darkest_twilight_deg: f64,
     },
-    /// Cost rule (issue 15): the precise order series stops once an order adds less than
+    /// Cost rule: the precise order series stops once an order adds less than
     /// `tolerance` of the total (or its extrapolated tail's error is below it), `tolerance` being
     /// the budget's allowance instead of the preset's tighter `preset_tolerance`.
     OrdersUnderBudget {
@@ -201,7 +201,7 @@ impl Plan {
         self
     }
 
-    /// The plan without its cost rules (issue 15): every stage a cost rule left out runs as the
+    /// The plan without its cost rules: every stage a cost rule left out runs as the
     /// preset says, for measuring what the rules save and cost.
     pub fn without_cost_rules(mut self) -> Self {
         let (cost, kept): (Vec<_>, Vec<_>) = self
@@ -301,7 +301,7 @@ impl<'a> WavelengthsView<'a> {
 
 /// The sun elevation, degrees, below which nothing an observer at `observer_altitude_m` can see
 /// is lit, directly or through the modelled multiple scattering (`method`): the darkest modelled
-/// twilight (issue 18).
+/// twilight (below it the products are zero).
 ///
 /// The air the observer sees reaches at most the geocentric angle α = acos(R/r_o) + acos(R/R_top)
 /// from it (along the ray that grazes the ground). A point α towards the sun sees it at local
@@ -393,7 +393,7 @@ pub fn plan(product: ProductKind, spec: &CommonSpec, m: &Medium) -> Plan {
 }
 
 // ---------------------------------------------------------------------------------------------
-// Cost rules (issue 15 point 3): work whose predicted contribution falls under the error budget.
+// Cost rules: work whose predicted contribution falls under the error budget.
 
 /// Share of a request's error budget the cost rules may spend on what they leave out or coarsen;
 /// the rest stays with the method's own (measured) error, so the result keeps within the budget.
@@ -502,7 +502,7 @@ fn precise_orders_rule(spec: &CommonSpec) -> Option<(f64, Reason)> {
 }
 
 // ---------------------------------------------------------------------------------------------
-// Cloud frames (issue 15 point 3): the same rules on the frame's stages. The renderer measures
+// Cloud frames: the same rules on the frame's stages. The renderer measures
 // the scene (`render::product::frame_facts`: the cloud's box against the camera's view, the pixel
 // footprint, the cloud's optical depth bound, the light's shares) and these pure rules decide;
 // `render::product` executes the plan (a coarser grid, lighting switches, settings hooks).
@@ -546,7 +546,7 @@ pub const MS_GRID_ERROR: f64 = 0.04;
 pub const MIN_MS_GRID_DIM: usize = 4;
 
 /// Predicted error, per level left out, of summing a sphere hierarchy's spheres above the
-/// leaves (seed 004: each sphere in place of its five children), relative to the cloud's mean
+/// leaves (Ostroushko et al.: each sphere in place of its five children), relative to the cloud's mean
 /// signal. Measured on the example sphere cumulus (K = 6, 25 m voxels, 48×36 px, fov 12°) from
 /// 30 km and 15 km: the cloud's mean moved by 7.2 % and 8.1 % one level up, 19.8 % and 24.9 %
 /// two levels up, 37.5 % and 44.8 % three levels up (the frame's per-pixel RMS change is larger,
@@ -652,13 +652,13 @@ pub fn rgb_wavelengths_rule(f: &RgbFacts, budget: &mut Budget) -> Option<Wavelen
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize)]
 #[serde(rename_all = "snake_case")]
 pub enum FrameStage {
-    /// The fast method's per-voxel light: the sun's optical path to every voxel (seed 000 §3.2).
+    /// The fast method's per-voxel light: the sun's optical path to every voxel (Nishita et al. 1996, §3.2).
     CloudLight,
-    /// Sky light on the cloud: sky elements through the cumulative lattice paths (seed 000 eq
+    /// Sky light on the cloud: sky elements through the cumulative lattice paths (Nishita et al. 1996, eq
     /// 7), the sky's photons in the multiple-scattering field.
     SkyLight,
     /// Ground light on the cloud: the upward light from below (the `ground` product, or the lit
-    /// ground plane in vacuum), seed 000 §3.5.
+    /// ground plane in vacuum), Nishita et al. 1996, §3.5.
     GroundLight,
     /// Multiple scattering in the cloud (the all-order photon field or the reference pattern).
     MultipleScattering,

@@ -1,5 +1,5 @@
-//! The canonical, validated, hashable specs of the atmosphere products (STYLE.md §3): what the
-//! planner plans and the engine executes. [`skybake_product::params`] parses request parameters
+//! The canonical, validated, hashable specs of the atmosphere products (parse, don't validate): what the
+//! planner plans and the engine executes. `skybake_product::params` parses request parameters
 //! (CLI flags, query strings, JSON bodies) into these; the constructors here hold the limits, so a
 //! spec that exists is valid and nothing downstream checks again.
 
@@ -93,7 +93,7 @@ impl ProductKind {
             })
     }
 
-    /// Lowest sun elevation the product accepts, degrees: any (issue 18). Below the darkest
+    /// Lowest sun elevation the product accepts, degrees: any (night and polar cases are answered). Below the darkest
     /// modelled twilight the plan leaves the scattering stages out and the products are zero
     /// (`plan::darkest_twilight_deg`).
     pub fn min_sun_elevation_deg(self) -> f64 {

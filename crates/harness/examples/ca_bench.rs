@@ -1,4 +1,4 @@
-//! Times the cellular automaton on the paper's 256×256×20 space (seed 003 §6: 0.5 s per step).
+//! Times the cellular automaton on the paper's 256×256×20 space (Dobashi et al. 2000, §6: 0.5 s per step).
 //! Run: `cargo run -p skybake-harness --features probes --example ca_bench [nx ny nz steps]`.
 
 fn main() -> Result<(), skybake_physics::Error> {

@@ -1,4 +1,4 @@
-//! Where the fast frame's error is (issue 13 point 8): the bench cumulus's cloud radiance I_a
+//! Where the fast frame's error is (the bench frame against the path tracer): the bench cumulus's cloud radiance I_a
 //! (before background and aerial perspective) from the fast method against the path tracer,
 //! split by light source and scattering order, with the bias by cloud transmittance band; or
 //! the whole composited frame (`frame`). Path-traced references are cached under $REF_DIR

@@ -1,5 +1,5 @@
-//! Exports skybake's bench frame (src/render/bench.rs) for Mitsuba 3 (tools/cloud_mitsuba_bench.py,
-//! issue 13 point 8) and renders it with skybake's fast method and path tracer under the same light.
+//! Exports skybake's bench frame (src/render/bench.rs) for Mitsuba 3 (tools/cloud_mitsuba_bench.py:
+//! Mitsuba's time to reach the fast method's error) and renders it with skybake's fast method and path tracer under the same light.
 //!
 //! The light is the bench scene's `Lighting` (earth atmosphere, sun 35° el / 140° az, ground albedo
 //! 0.3) as seen at the cloud: the sun's transmitted irradiance per wavelength, and `Lighting::env`

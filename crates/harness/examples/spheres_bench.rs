@@ -1,4 +1,4 @@
-//! Seed 004 table 1: an 800×600 transmittance image of a cloud with 5^K leaf spheres.
+//! Ostroushko et al., table 1: an 800×600 transmittance image of a cloud with 5^K leaf spheres.
 //! Run: `cargo run -p skybake-harness --features probes --example spheres_bench [K ...]` (default K = 6 8 10).
 
 fn main() -> Result<(), skybake_physics::Error> {

@@ -1,6 +1,6 @@
 //! In-process benchmarks behind `skybake bench NAME…` (median wall-clock times), so users can
 //! size their machines with the same code paths the service runs: the atmosphere products, the
-//! cloud density sources (seed 003's automaton step, seed 004's table 1, metaballs, fractal growth,
+//! cloud density sources (the automaton step of Dobashi et al. 2000, Ostroushko et al.'s table 1, metaballs, fractal growth,
 //! satellite fitting), the solar position and the tile store.
 
 use skybake_physics::cloud::automaton::bench_ca_step;
@@ -54,11 +54,11 @@ pub const BENCHMARKS: &[(&str, &str)] = &[
     ),
     (
         "ca-step",
-        "cloud automaton step, 256×256×20 cells, median of 100 steps after 20 (seed 003: 500 ms)",
+        "cloud automaton step, 256×256×20 cells, median of 100 steps after 20 (Dobashi et al. 2000: 500 ms)",
     ),
     (
         "spheres",
-        "sphere-hierarchy 800×600 transmittance, K = 6, 8, 10 (seed 004 table 1: 4.75, 9.2, 22.1 s)",
+        "sphere-hierarchy 800×600 transmittance, K = 6, 8, 10 (Ostroushko et al., table 1: 4.75, 9.2, 22.1 s)",
     ),
     (
         "metaballs",
@@ -82,7 +82,7 @@ pub const BENCHMARKS: &[(&str, &str)] = &[
     ),
     (
         "frame-pattern",
-        "the frame benchmark with multiple scattering of orders 2 and 3 by the reference pattern (seed 000 §3.4) instead of all orders",
+        "the frame benchmark with multiple scattering of orders 2 and 3 by the reference pattern (Nishita et al. 1996, §3.4) instead of all orders",
     ),
     (
         "frame-accuracy",
@@ -94,10 +94,10 @@ pub const BENCHMARKS: &[(&str, &str)] = &[
     ),
 ];
 
-/// Cells of the `ca-step` benchmark (seed 003 §6) and steps timed.
+/// Cells of the `ca-step` benchmark (Dobashi et al. 2000, §6) and steps timed.
 const CA_DIMS: [usize; 3] = [256, 256, 20];
 const CA_STEPS: usize = 100;
-/// Image and levels of the `spheres` benchmark (seed 004 table 1) and the paper's times, ms.
+/// Image and levels of the `spheres` benchmark (Ostroushko et al., table 1) and the paper's times, ms.
 const SPHERES_IMAGE: (usize, usize) = (800, 600);
 const SPHERES_LEVELS: [(u32, &str, f64); 3] =
     [(6, "K6", 4750.0), (8, "K8", 9200.0), (10, "K10", 22100.0)];

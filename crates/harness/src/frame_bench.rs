@@ -1,4 +1,4 @@
-//! `skybake bench frame` (issue 13 point 8): a 640×480 frame of a 128³ cumulus with sky light,
+//! `skybake bench frame`: a 640×480 frame of a 128³ cumulus with sky light,
 //! ground light and multiple scattering at the standard quality, cold (the engine's sky and
 //! ground tables built inside the timed region) and warm; `frame-accuracy` compares the fast
 //! method with the path tracer on the same scene at a reduced resolution.
@@ -14,7 +14,7 @@ use std::time::Instant;
 /// Voxels per axis of the benchmark cumulus.
 pub const BENCH_DIM: usize = 128;
 
-/// The benchmark cumulus: eight overlapping smooth balls (Wyvill's field, seed 003 eq B.1) in a
+/// The benchmark cumulus: eight overlapping smooth balls (Wyvill's field, Dobashi et al. 2000, eq B.1) in a
 /// 128³ grid of 12 m voxels, flat-ish base at 1 km.
 pub fn bench_cumulus() -> Result<DensityGrid> {
     let h = 12.0;

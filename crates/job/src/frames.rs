@@ -1,4 +1,4 @@
-//! Frame entries of a job (issue 13 point 6): a scene rendered once per value of a sweep, for a
+//! Frame entries of a job: a scene rendered once per value of a sweep, for a
 //! sun sweep (elevations, azimuths or times of day) or an automaton animation (cloud frames at
 //! successive automaton steps).
 //!

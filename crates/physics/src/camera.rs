@@ -1,5 +1,5 @@
 //! The shared camera/ray leaf: a ray segment and the pinhole camera of the sphere-hierarchy
-//! renderer (seed 004). The frame renderer's cameras (`render::camera`) build on [`Ray`].
+//! renderer (Ostroushko et al.). The frame renderer's cameras (`render::camera`) build on [`Ray`].
 
 use crate::{Error, Result};
 use glam::DVec3;

@@ -28,7 +28,7 @@ pub enum Error {
     #[error("internal error in {what}: {reason}")]
     Internal { what: String, reason: String },
     /// The computation was stopped because nobody wants its result any more (every client that
-    /// asked for it has gone; issue 18). Not the request's fault; nobody is left to answer.
+    /// asked for it has gone). Not the request's fault; nobody is left to answer.
     #[error("computation cancelled: every client waiting for it has gone")]
     Cancelled,
 }

@@ -1,5 +1,5 @@
 //! Phase functions, normalised to integrate to 1 over the sphere (units sr⁻¹), each with
-//! `eval`, `sample` and `pdf` (STYLE.md §8).
+//! `eval`, `sample` and `pdf` (`sample` draws exactly from `eval`, so `pdf` is `eval`).
 //!
 //! `cos_theta` is the cosine of the scattering angle between the propagation directions of the
 //! incident and scattered light (1 = straight on).
@@ -14,11 +14,11 @@ pub enum Phase {
     Rayleigh,
     /// Henyey-Greenstein with asymmetry `g`.
     HenyeyGreenstein { g: f64 },
-    /// Cornette-Shanks (seed 000 eq 5), a Mie approximation with asymmetry parameter `g`.
+    /// Cornette-Shanks (Nishita et al. 1996, eq 5), a Mie approximation with asymmetry parameter `g`.
     CornetteShanks { g: f64 },
     /// Isotropic, `1/(4π)`.
     Isotropic,
-    /// Seed 000 §3.3 eq 4 with two terms: `(1 − f)·CS(g) + f·Rayleigh`, `f` the Rayleigh fraction
+    /// Nishita et al. 1996, §3.3 eq 4 with two terms: `(1 − f)·CS(g) + f·Rayleigh`, `f` the Rayleigh fraction
     /// (the paper's example: 5 % Rayleigh, the rest Cornette-Shanks for the droplets).
     Mixture { g: f64, rayleigh_fraction: f64 },
 }
@@ -34,7 +34,7 @@ impl Phase {
                 (1.0 - g * g) / (4.0 * PI * d * d.sqrt())
             }
             Phase::CornetteShanks { g } => {
-                // Seed 000 eq 5: F(θ) = 3/2 (1−g²)/(2+g²) (1+cos²θ)/(1+g²−2g cosθ)^{3/2}, here
+                // Nishita et al. 1996, eq 5: F(θ) = 3/2 (1−g²)/(2+g²) (1+cos²θ)/(1+g²−2g cosθ)^{3/2}, here
                 // divided by 4π so that it integrates to 1 over the sphere.
                 let d = (1.0 + g * g - 2.0 * g * mu).max(1e-12);
                 3.0 / (8.0 * PI) * (1.0 - g * g) * (1.0 + mu * mu) / ((2.0 + g * g) * d * d.sqrt())

@@ -1,4 +1,4 @@
-//! The cost estimate of a product request (issue 18, point 1): cells × wavelengths × expected
+//! The cost estimate of a product request: cells × wavelengths × expected
 //! orders of scattering, from the plan and the resolved medium, so the service can refuse a
 //! request that would hold a compute slot for minutes (an inline atmosphere with aerosol optical
 //! depth 100 took 90 s of CPU for one `sun` product) before any table is built.
@@ -184,7 +184,7 @@ mod tests {
         // converges in 5 with its tail extrapolation).
         let thin = estimate(&request(ProductKind::Sky, &[])).unwrap();
         assert!((3..=10).contains(&thin.expected_orders), "{thin:?}");
-        // The issue's case: the earth preset with aerosol optical depth 100 (90 s of CPU).
+        // The case that motivated the estimate: the earth preset with aerosol optical depth 100 (90 s of CPU).
         let hazy = include_str!("../../../config/atmospheres/earth-hazy.json");
         let earth = include_str!("../../../config/atmospheres/earth.json");
         let thick_json = earth.replace("\"value\": 0.1,", "\"value\": 100.0,");

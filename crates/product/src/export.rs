@@ -1,4 +1,4 @@
-//! Products → spectral images (DESIGN.md "Storage"): one emissive channel per wavelength
+//! Products → spectral images (the stored form of every product): one emissive channel per wavelength
 //! (`S0.<λ>nm`), linear sRGB for viewers, and the table axes as a header attribute. The request,
 //! response, plan, error estimate and timing attributes are added by [`crate::artifact`],
 //! the one place that makes artifacts. Encoding only; `store` writes.

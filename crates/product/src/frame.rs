@@ -280,7 +280,7 @@ impl Canvas {
     }
 }
 
-/// The planner's view of a scene and its voxelised cloud (issue 15 point 3): whether there is a
+/// The planner's view of a scene and its voxelised cloud (the facts the planner's frame rules decide on): whether there is a
 /// cloud and whether any pixel's ray can reach it, the smallest pixel footprint on it, a bound on
 /// its optical path, and the predicted shares of sky and ground light.
 ///

@@ -4,7 +4,7 @@
 //! from it, so a parameter is named in exactly one place.
 //!
 //! Parameters arrive as strings (CLI flags, query values, JSON members spelled as text) and are
-//! parsed into the canonical [`CommonSpec`] here ("parse, don't validate", STYLE.md §3).
+//! parsed into the canonical [`CommonSpec`] here ("parse, don't validate": the spec's constructors hold the limits, so nothing downstream checks again).
 
 use skybake_physics::atmosphere::params::AtmosphereParams;
 use skybake_physics::atmosphere::presets;
@@ -270,7 +270,7 @@ pub fn parse_probes(text: &str) -> Result<Vec<(f64, f64)>> {
 }
 
 /// Builds the common spec; `min_sun_elevation_deg` is the product's lower limit
-/// (−90° for every product: night is answered, issue 18).
+/// (−90° for every product: night is answered with zero products).
 pub fn common_spec(p: &RequestParams, min_sun_elevation_deg: f64) -> Result<CommonSpec> {
     let atmosphere = resolve_atmosphere(p.atmosphere.as_deref())?;
     let wavelengths_nm = match &p.wavelengths {

@@ -1,4 +1,4 @@
-//! Lit cloud frames (issue 13; seed 000 §3, seed 003 §5): the `frame` product's renderer.
+//! Lit cloud frames (Nishita et al. 1996, §3; Dobashi et al. 2000, §5): the `frame` product's renderer.
 //!
 //! Nothing below this module imports it. It is pure: it receives a validated [`FrameScene`], the
 //! cloud's [`DensityGrid`] and the [`Lighting`] (built from the engine's `sun`, `sky`, `ground`
@@ -9,8 +9,8 @@
 //! - `scene`: the scene JSON and its validation; `camera`: primary rays.
 //! - `lighting`: the light from outside the cloud (engine adapter, vacuum, constant sky).
 //! - `volume`: the density grid as a medium; `light`: per-voxel sun and sky-element paths.
-//! - `multiple`: the all-order multiple-scattering field; `pattern`: orders 2 and 3 by seed 000
-//!   §3.4's reference pattern; `pathtracer`: the reference.
+//! - `multiple`: the all-order multiple-scattering field; `pattern`: orders 2 and 3 by the reference pattern of
+//!   Nishita et al. 1996, §3.4; `pathtracer`: the reference.
 //! - `march`: the fast method's preparation and final ray march, compositing, shafts.
 //!
 //! ```no_run

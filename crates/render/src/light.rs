@@ -1,4 +1,4 @@
-//! Light at each voxel (seed 000 §3.2, §3.5): the sun's optical path to every voxel, the
+//! Light at each voxel (Nishita et al. 1996, §3.2, §3.5): the sun's optical path to every voxel, the
 //! optical paths towards K sky directions by the cumulative t/t_d scheme, and the sky elements'
 //! phase-weighted radiance (eq 7).
 //!
@@ -14,7 +14,7 @@ use rayon::prelude::*;
 use std::f64::consts::PI;
 
 /// The 14 lattice directions of the sky elements: the 6 axes and the 8 cube diagonals
-/// (seed 000 §3.5: "the principal and diagonal axes of the voxel").
+/// (Nishita et al. 1996, §3.5: "the principal and diagonal axes of the voxel").
 pub const LATTICE: [[i32; 3]; 14] = [
     [1, 0, 0],
     [-1, 0, 0],
@@ -33,7 +33,7 @@ pub const LATTICE: [[i32; 3]; 14] = [
 ];
 
 /// Half-angle of the sky element around the sun, whose attenuation is the sun's own
-/// (seed 000 §3.5: "the attenuation in the sun's direction stored at each voxel can be utilized").
+/// (Nishita et al. 1996, §3.5: "the attenuation in the sun's direction stored at each voxel can be utilized").
 pub const SUN_CAP_DEG: f64 = 12.0;
 
 /// Density integral from each voxel centre towards the sun, m (cumulative scheme: each voxel
@@ -148,7 +148,7 @@ fn march_to_exit(grid: &DensityGrid, p: DVec3, s: DVec3) -> f64 {
 }
 
 /// Density integral from each voxel centre to the box along lattice direction `e` (components
-/// −1, 0, 1): D(p) = D(p + e·h) + trapezoid over the step (seed 000 §3.5: the stored attenuation
+/// −1, 0, 1): D(p) = D(p + e·h) + trapezoid over the step (Nishita et al. 1996, §3.5: the stored attenuation
 /// t towards the box face, with t/t_d giving any piece of the line).
 pub fn lattice_density_integrals(grid: &DensityGrid, e: [i32; 3]) -> Vec<f32> {
     let [nx, ny, nz] = grid.dims;
@@ -203,7 +203,7 @@ pub const VIEW_ELEMENT: usize = 1 + LATTICE.len();
 /// Pseudo-element holding the environment radiance L(d) arriving from the view direction itself.
 pub const VIEW_RADIANCE: usize = VIEW_ELEMENT + 1;
 
-/// Sky elements' phase-weighted radiance I_l(d) = ∫_{ω_l} F(θ) L(ω) dω (seed 000 eq 7), tabulated
+/// Sky elements' phase-weighted radiance I_l(d) = ∫_{ω_l} F(θ) L(ω) dω (Nishita et al. 1996, eq 7), tabulated
 /// over view directions d (latitude-longitude), for the sun cap (element 0), the 14 lattice
 /// elements (1..=14) and the view cap ([`VIEW_ELEMENT`]), per wavelength; and L(d) itself
 /// ([`VIEW_RADIANCE`]).

@@ -1,7 +1,7 @@
 //! The light a frame receives from outside the cloud, gathered once (the renderer itself is pure):
 //! the sun's transmitted irradiance at the cloud, sky radiance over the upper hemisphere (seed
 //! 000 §3.5: the `sky` product at the cloud's altitude, a constant, or none), upward radiance from
-//! below (the `ground` product, seed 000's "upward sky light"), the ground plane seen by the
+//! below (the `ground` product, Nishita et al.'s (1996) "upward sky light"), the ground plane seen by the
 //! camera, the sky behind the clouds seen from the camera, and the `aerial` product between
 //! camera and cloud. [`Lighting::from_scene`] builds it from the public engine API, or without
 //! any atmosphere for vacuum scenes.
@@ -268,7 +268,7 @@ impl Lighting {
                 diffuse_horizontal: sky_l.iter().map(|l| PI * l).collect(),
                 explicit: true,
             });
-            // Seed 000 §3.5: the ground seen from the cloud as upward light of uniform radiance
+            // Nishita et al. 1996, §3.5: the ground seen from the cloud as upward light of uniform radiance
             // a/π·(E_sun μ_s + E_sky) (the ground's shadowing by the cloud is not in this term).
             let below = match (&ground, sw.ground_light) {
                 (Some(g), true) => Hemisphere::Constant(

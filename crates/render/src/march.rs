@@ -1,8 +1,8 @@
-//! The fast method's preparation and final image (seed 000 §3.4 step 3): per-voxel light (sun
+//! The fast method's preparation and final image (Nishita et al. 1996, §3.4 step 3): per-voxel light (sun
 //! optical path, sky elements through the cumulative lattice paths, multiple scattering), then
 //! per pixel a ray march with single scattering of the sun at every sample from the stored sun
 //! path, plus the interpolated sky and multiple-scattering terms; background, ground with cloud
-//! shadows, aerial perspective and shafts of light (seed 003 eq 13–14) in [`Prepared::composite`].
+//! shadows, aerial perspective and shafts of light (Dobashi et al. 2000, eq 13–14) in [`Prepared::composite`].
 
 use super::light::{
     lattice_density_integrals, sun_density_integrals, SkyElements, LATTICE, VIEW_CAP_DEG,
@@ -22,7 +22,7 @@ use rayon::prelude::*;
 use std::f64::consts::PI;
 use std::time::Instant;
 
-/// The sun's shadow map on the plane of the box's bottom face (seed 003 §5.2.1): density
+/// The sun's shadow map on the plane of the box's bottom face (Dobashi et al. 2000, §5.2.1): density
 /// integral towards the sun from each point of the plane.
 pub struct ShadowMap {
     pub z_m: f64,
@@ -161,7 +161,7 @@ impl<'a> Prepared<'a> {
             && vol.rho_max > 0.0
             && sw.multiple_scattering
             && optics.albedo.iter().any(|&a| a > 0.0);
-        // Orders 2–3 of sunlight by the reference pattern (seed 000 §3.4), with the true phase
+        // Orders 2–3 of sunlight by the reference pattern (Nishita et al. 1996, §3.4), with the true phase
         // function and no δ-M scaling; or the all-order field.
         let pattern_on =
             scattering && scene.multiple_scattering_method == super::MsMethod::ReferencePattern;
@@ -196,7 +196,7 @@ impl<'a> Prepared<'a> {
                 }
                 stages
                     .ran
-                    .push("sun optical path per voxel (cumulative, seed 000 §3.2)".into());
+                    .push("sun optical path per voxel (cumulative, Nishita et al. 1996, §3.2)".into());
             } else {
                 stages
                     .skipped
@@ -265,7 +265,7 @@ impl<'a> Prepared<'a> {
                     _ => "ground light",
                 };
                 stages.ran.push(format!(
-                    "{what}: {} sky elements (sun cap + 6 axes + 8 diagonals with cumulative t/t_d paths, seed 000 eq 7; a {VIEW_CAP_DEG}° cap round the view direction along the view ray)",
+                    "{what}: {} sky elements (sun cap + 6 axes + 8 diagonals with cumulative t/t_d paths, Nishita et al. 1996, eq 7; a {VIEW_CAP_DEG}° cap round the view direction along the view ray)",
                     VIEW_ELEMENT + 1
                 ));
                 sky_elements = Some(elements);
@@ -352,7 +352,7 @@ impl<'a> Prepared<'a> {
             if sw.shafts_of_light && shadow.is_some() {
                 stages
                     .ran
-                    .push("shafts of light below the cloud base (seed 003 eq 13-14)".into());
+                    .push("shafts of light below the cloud base (Dobashi et al. 2000, eq 13-14)".into());
             }
         } else {
             stages
@@ -517,8 +517,8 @@ impl<'a> Prepared<'a> {
     }
 
     /// Pixel radiance from the cloud terms: background or ground behind, aerial perspective and
-    /// shafts in front: L = S_eff(t_a) + T(t_a)·I_a + T_c·(B − S(t_a)) (seed 000 eq 3 with the
-    /// atmosphere between cloud and viewer; seed 003 eq 14 for S_eff).
+    /// shafts in front: L = S_eff(t_a) + T(t_a)·I_a + T_c·(B − S(t_a)) (Nishita et al. 1996, eq 3 with the
+    /// atmosphere between cloud and viewer; Dobashi et al. 2000, eq 14 for S_eff).
     pub fn composite(
         &self,
         ray: &Ray,
@@ -570,7 +570,7 @@ impl<'a> Prepared<'a> {
         let tx = front.or(t_ground).unwrap_or(aerial.max_distance_m());
         aerial.eval(d, tx, &mut ta, &mut sa);
         // Shafts of light: air in-scattering along the ray weighted by the sun's visibility
-        // through the cloud, only below the cloud base (seed 003 eq 14, γ = 1 above z_c).
+        // through the cloud, only below the cloud base (Dobashi et al. 2000, eq 14, γ = 1 above z_c).
         let mut s_eff = sa.clone();
         if sw.shafts_of_light && self.sun_on && self.shadow.is_some() {
             let n = self.settings.shaft_steps.max(1);

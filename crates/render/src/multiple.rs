@@ -1,4 +1,4 @@
-//! All-order multiple scattering (issue 13 point 3): a photon-transport estimate of the fluence
+//! All-order multiple scattering: a photon-transport estimate of the fluence
 //! Φ and the net flux vector F of light that has scattered at least once in the cloud, on a
 //! coarse copy of the grid (block means, piecewise constant), all orders, with sun, sky and
 //! ground light as sources.

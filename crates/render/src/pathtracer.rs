@@ -1,4 +1,4 @@
-//! The reference (issue 13 point 4): a spectral Monte Carlo path tracer with delta tracking for
+//! The reference: a spectral Monte Carlo path tracer with delta tracking for
 //! free paths, ratio tracking for shadow rays towards the sun, all orders of scattering, unbiased
 //! Russian roulette, the scene's phase functions, sun, environment (sky above, ground light
 //! below) and, in vacuum, the Lambertian ground plane. Wavelengths with identical optics share
@@ -44,7 +44,7 @@ pub struct PathTracer<'a> {
     pub max_orders: usize,
     /// Smallest number of scattering events counted: light that reaches the camera after fewer
     /// is dropped (with 1 or more, the unscattered background too: `transmitted` stays 0).
-    /// `min_orders` 2 and `max_orders` 3 give the orders of seed 000 §3.4's reference pattern.
+    /// `min_orders` 2 and `max_orders` 3 give the orders of the reference pattern of Nishita et al. 1996, §3.4.
     pub min_orders: usize,
 }
 

@@ -1,11 +1,11 @@
-//! Orders 2 and 3 of multiple scattering by the reference pattern of seed 000 §3.4 (Nishita,
+//! Orders 2 and 3 of multiple scattering by the reference pattern (§3.4 of Nishita,
 //! Dobashi and Nakamae 1996, "Display of clouds taking into account multiple anisotropic
 //! scattering and sky light"), selected per scene by `"multiple_scattering_method":
 //! "reference_pattern"` instead of the all-order field of [`super::multiple`].
 //!
 //! What is computed, per voxel P of the cloud, is the in-scattered radiance of sunlight scattered
 //! twice or three times, towards the camera, per unit scattering coefficient at P (the quantity
-//! `Q` the final march multiplies by ω·σ_t, seed 000 §3.4 step 3):
+//! `Q` the final march multiplies by ω·σ_t, Nishita et al. 1996, §3.4 step 3):
 //!
 //! Q₂(P) = Σ_j σ_s(j) E T_sun(j) T(j→P) F₂(j→P),
 //! Q₃(P) = Σ_{j,k} σ_s(j) E T_sun(j) T(j→k) σ_s(k) T(k→P) F₃(j→k→P),
@@ -81,7 +81,7 @@ pub enum MsMethod {
     /// All orders from the photon-transport field ([`super::multiple`]).
     #[default]
     AllOrders,
-    /// Orders 2 and 3 of the sun's light by seed 000 §3.4's reference pattern (this module).
+    /// Orders 2 and 3 of the sun's light by the reference pattern of Nishita et al. 1996, §3.4 (this module).
     ReferencePattern,
 }
 
@@ -162,7 +162,7 @@ impl PatternSettings {
 /// Most sub-voxels per axis within the beam spread.
 const MAX_SUBDIVISION: usize = 6;
 
-/// The phase function's beam spread θ_b (seed 000 Fig. 3: the angle holding the forward lobe,
+/// The phase function's beam spread θ_b (Nishita et al. 1996, Fig. 3: the angle holding the forward lobe,
 /// here where the phase falls to 10 % of its forward value) as its cosine, and the lobe's
 /// half-width at half maximum (rad; 0 when the phase has no forward peak, p(0) < 2·p(90°)).
 fn beam_spread(phase: Phase) -> (f64, f64) {
@@ -272,7 +272,7 @@ impl Kernel {
                             1
                         };
                         // Within the beam spread, sub-voxels no wider than the phase lobe's
-                        // half-width (seed 000 §3.4: "every volume element within the beam
+                        // half-width (Nishita et al. 1996, §3.4: "every volume element within the beam
                         // spread … is subdivided into smaller sub-voxels").
                         let u_c = -c / dist;
                         let alpha = (0.87 / (d2 as f64).sqrt()).min(1.0);
@@ -969,9 +969,9 @@ impl PatternField {
     /// One line for the frame's stages.
     pub fn describe(&self) -> String {
         match self.stats.first() {
-            None => "multiple scattering, orders 2 and 3 by the reference pattern (seed 000 §3.4): no sunlight or no cloud, nothing to scatter".into(),
+            None => "multiple scattering, orders 2 and 3 by the reference pattern (Nishita et al. 1996, §3.4): no sunlight or no cloud, nothing to scatter".into(),
             Some(s) => format!(
-                "multiple scattering, orders 2 and 3 of sunlight by the reference pattern (seed 000 §3.4): sample space {0}³ at average density {1:.3} ({2:.3} per voxel), bounding box {3:?}..{4:?}, {5} + {6} high-ratio paths of ratio r = {7:.3}, drawn stochastically per voxel (pattern built in {8:.0} ms, grid scanned in {9:.0} ms); orders ≥ 4 left out",
+                "multiple scattering, orders 2 and 3 of sunlight by the reference pattern (Nishita et al. 1996, §3.4): sample space {0}³ at average density {1:.3} ({2:.3} per voxel), bounding box {3:?}..{4:?}, {5} + {6} high-ratio paths of ratio r = {7:.3}, drawn stochastically per voxel (pattern built in {8:.0} ms, grid scanned in {9:.0} ms); orders ≥ 4 left out",
                 s.sample_space,
                 s.average_density,
                 s.voxel_optical_thickness,
@@ -987,7 +987,7 @@ impl PatternField {
     }
 }
 
-/// Orders 2 and 3 of the sun's light at every voxel where `mask` is set (seed 000 §3.4 steps 1
+/// Orders 2 and 3 of the sun's light at every voxel where `mask` is set (Nishita et al. 1996, §3.4 steps 1
 /// and 2), with `settings.paths_per_voxel` paths per voxel. `cancel` is polled per slab.
 pub fn compute(
     scene: &FrameScene,

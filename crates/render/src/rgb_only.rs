@@ -1,4 +1,4 @@
-//! RGB-only frames (issue 15 point 3): what the planner's wavelength rule
+//! RGB-only frames: what the planner's wavelength rule
 //! ([`skybake_engine::plan::rgb_wavelengths_rule`]) decides on. A request whose only output is the RGB
 //! image (a PNG) needs the spectrum only as far as the colour-matching functions see it; the
 //! frame's RGB planes interpolate its spectral planes linearly onto the 1 nm grid

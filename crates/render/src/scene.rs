@@ -1,5 +1,5 @@
-//! The frame scene: what a lit cloud frame needs besides the density grid (the scene contract,
-//! `DESIGN.md` "Clouds"; issue 13 point 1).
+//! The frame scene: what a lit cloud frame needs besides the density grid (the scene contract;
+//! README.md "Cloud frames").
 //!
 //! World frame: metres, right-handed, **z up**; z is the altitude above sea level. Azimuths are
 //! measured from +y ("north") towards +x ("east"), so a direction with elevation e and azimuth a
@@ -21,7 +21,7 @@
 //! ```
 //!
 //! `multiple_scattering_method` picks the fast method's multiple scattering: `"all_orders"` (the
-//! photon-transport field) or `"reference_pattern"` (orders 2 and 3 of sunlight by seed 000
+//! photon-transport field) or `"reference_pattern"` (orders 2 and 3 of sunlight by Nishita et al. 1996,
 //! §3.4, for thin clouds; `render::pattern`).
 //!
 //! Every value is checked here, before anything is allocated; errors name the field (dotted
@@ -144,8 +144,8 @@ fn default_phase() -> PhaseJson {
     }
 }
 
-/// `{"henyey_greenstein": {"g"}}`, `{"cornette_shanks": {"g"}}` (seed 000 eq 5) or
-/// `{"mixture": {"g", "rayleigh_fraction"}}` (seed 000 eq 4: (1 − f)·CS(g) + f·Rayleigh).
+/// `{"henyey_greenstein": {"g"}}`, `{"cornette_shanks": {"g"}}` (Nishita et al. 1996, eq 5) or
+/// `{"mixture": {"g", "rayleigh_fraction"}}` (Nishita et al. 1996, eq 4: (1 − f)·CS(g) + f·Rayleigh).
 /// `g` in (−1, 1) (|g| ≤ 0.999), number or wavelength table; `rayleigh_fraction` in [0, 1].
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case", deny_unknown_fields)]
@@ -314,7 +314,7 @@ pub struct FrameSceneJson {
     #[serde(default)]
     pub lighting: LightingSwitches,
     /// Multiple scattering of the fast method: `"all_orders"` (the photon-transport field) or
-    /// `"reference_pattern"` (orders 2 and 3 of sunlight by seed 000 §3.4; thin clouds)
+    /// `"reference_pattern"` (orders 2 and 3 of sunlight by Nishita et al. 1996, §3.4; thin clouds)
     /// ["all_orders"].
     #[serde(default)]
     pub multiple_scattering_method: MsMethod,

@@ -1,5 +1,5 @@
 //! A client connection as hyper sees it, with hyper's own bare error answers replaced by the
-//! service's problem+json (issue 18, point 6).
+//! service's problem+json (every error answer is problem+json).
 //!
 //! hyper answers some malformed HTTP/1 requests itself, before any request reaches the router, with
 //! an empty body: 414 for a URI longer than 65534 bytes (`MAX_URI_LEN` in hyper's `proto/h1/role.rs`),

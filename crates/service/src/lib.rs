@@ -1,4 +1,4 @@
-//! The HTTP service (DESIGN.md "Interfaces"): an axum router over the engine and the product cache.
+//! The HTTP service (README.md "Service"): an axum router over the engine and the product cache.
 //!
 //! - [`problem`]: RFC 9457 problem+json errors.
 //! - [`extract`]: the query and JSON-body extractors (the only place requests are parsed).
@@ -55,7 +55,7 @@ struct Flight {
     cancel: Arc<CancelToken>,
 }
 
-/// Set when every waiter of a computation has gone (issue 18): the computation leaves the
+/// Set when every waiter of a computation has gone: the computation leaves the
 /// compute queue at once, or stops at the engine's next stage boundary.
 #[derive(Default)]
 struct CancelToken {

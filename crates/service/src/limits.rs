@@ -1,4 +1,4 @@
-//! Access limits applied as middleware where the router is built (issue 18, point 7): optional
+//! Access limits applied as middleware where the router is built: optional
 //! bearer-token authentication (`server.api_tokens`, off when empty; `server.auth_exempt` paths,
 //! exact or a prefix ending in `*`, answered without a token) and a per-client rate limit on `/v1/*` (`server.rate_limit_per_s`,
 //! a token bucket per client address of `server.rate_limit_burst` requests; 429 + `Retry-After`).

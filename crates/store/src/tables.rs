@@ -1,4 +1,4 @@
-//! Shared engine tables kept between processes (issue 17): the [`TableStore`] the engine is
+//! Shared engine tables kept between processes (a later process loads a table instead of building it): the [`TableStore`] the engine is
 //! given, backed by the product [`Cache`]. A table is a spectral EXR like any product, so it is
 //! written atomically, carries the whole-file blake3 checksum and its own key
 //! (`skybakeCacheKey`), is verified on every load (a corrupt file is deleted and reported as a

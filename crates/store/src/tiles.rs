@@ -1,4 +1,4 @@
-//! Tiles of a product computed piece by piece (DESIGN.md "Storage": large renders compute and
+//! Tiles of a product computed piece by piece (large renders compute and
 //! cache tile by tile, so a crash loses at most the tiles in flight and a rerun resumes).
 //!
 //! Layout: `<root>/<first 2 hex of key>/<key>/tile-<index:05>.exr`, one spectral EXR per tile,

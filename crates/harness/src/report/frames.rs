@@ -1,4 +1,4 @@
-//! The frame part of `skybake report` (issue 15 point 1): error against run time of the cloud
+//! The frame part of `skybake report`: error against run time of the cloud
 //! renderer, for a few representative frames, against a converged path-traced reference.
 //!
 //! Per case (a cloud, a camera, a light), three curves:
@@ -6,7 +6,7 @@
 //!   march (`multiple_scattering_method: all_orders`), its settings from each quality preset
 //!   ([`RenderSettings::for_quality`]), against the path tracer at [`FrameCase::reference_spp`]
 //!   samples per pixel (all orders);
-//! - **reference pattern, orders 2–3** (seed 000 §3.4; thin cases only): the pattern's image of
+//! - **reference pattern, orders 2–3** (Nishita et al. 1996, §3.4; thin cases only): the pattern's image of
 //!   orders 2 + 3 (the frame with the pattern minus the frame with multiple scattering switched
 //!   off, the same exact single scattering), each preset, against the path tracer restricted to
 //!   orders 2 and 3 (`min_orders` 2, `max_orders` 3), the independent estimate of exactly what the

@@ -1,4 +1,4 @@
-//! `skybake report` (issue 15 point 1): error against run time for every atmosphere product and
+//! `skybake report`: error against run time for every atmosphere product and
 //! method, over the quality presets, in several regimes (sun elevation band, observer altitude
 //! band, aerosol load).
 //!

@@ -1,4 +1,4 @@
-//! `skybake report --planner` (issue 15 point 3): what each of the planner's cost rules saves
+//! `skybake report --planner`: what each of the planner's cost rules saves
 //! and costs. For one case per rule, the request runs with its plan and with the same plan
 //! without the cost rules (`Plan::without_cost_rules`, `FramePlan::without_cost_rules`); both are
 //! timed and compared with the reference: the precise method at the `reference` preset for the
@@ -331,7 +331,7 @@ fn frame_rule(
     })
 }
 
-/// The sphere-level rule: the example sphere cumulus with K = `levels` (seed 004) seen from
+/// The sphere-level rule: the example sphere cumulus with K = `levels` (Ostroushko et al.) seen from
 /// 30 km, with the request's `target`: built, voxelised and rendered at the plan's level and at
 /// the leaves; the error against the path tracer on the leaves.
 fn sphere_rule(levels: u32, target: f64) -> Result<RuleSaving> {
@@ -665,7 +665,7 @@ pub fn run(progress: &dyn Fn(usize, usize)) -> Result<Vec<RuleSaving>> {
 /// The markdown of `planner.md`.
 pub fn markdown(rows: &[RuleSaving], threads: usize, load: Option<&str>) -> String {
     let mut s = String::from(
-        "# What the planner's cost rules save (issue 15 point 3)\n\n\
+        "# What the planner's cost rules save\n\n\
          Written by `skybake report --planner` (`src/report/planner.rs`): one case per rule, run with its \
          plan and with the same plan without the cost rules, each the fastest of 2 runs in wall \
          time and in CPU time (user + system of all threads, 10 ms ticks; fairer on a shared \

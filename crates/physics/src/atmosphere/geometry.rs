@@ -1,5 +1,5 @@
 //! Spherical-planet ray geometry (Bruneton 2017, "Precomputed atmospheric scattering: a new
-//! implementation", §Geometry), with named guards against rounding (STYLE.md §7).
+//! implementation", §Geometry), with named guards against rounding (`clamp_cos`, `safe_sqrt`).
 //!
 //! A ray starts at radius `r` with `mu` = cosine of its zenith angle. Points along it at distance
 //! `t` have radius `sqrt(r² + 2 r mu t + t²)`.

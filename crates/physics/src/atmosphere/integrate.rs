@@ -1,4 +1,4 @@
-//! Integration of the radiative transfer equation along one view ray (seed 001 eq 1–2, with
+//! Integration of the radiative transfer equation along one view ray (Nishita & Dobashi 2001, eq 1–2, with
 //! aerosol, ozone, multiple scattering and ground reflection): radiance
 //! L = ∫ T(x, y) J(y) ds + T(x, g) · (a/π) E(g), all per unit extraterrestrial solar irradiance.
 //!

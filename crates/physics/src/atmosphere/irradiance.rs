@@ -1,5 +1,5 @@
 //! Diffuse (sky) irradiance on a horizontal surface at the observer: E = ∫ L(θ, φ) cos θ dω over
-//! the upper hemisphere (seed 000 §3.5's sky light integrated against the cosine), by
+//! the upper hemisphere (the sky light of Nishita et al. 1996, §3.5, integrated against the cosine), by
 //! Gauss-Legendre quadrature in cos θ × midpoint rule in azimuth, using the symmetry of the sky
 //! about the sun's vertical plane (azimuth 0…π, doubled).
 

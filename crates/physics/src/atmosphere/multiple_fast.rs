@@ -70,7 +70,7 @@ impl FastMultipleScattering {
     }
 
     /// [`Self::new`], stopped (`None`) when `cancelled` returns true: it is asked once per row of
-    /// radius of each ψ pass and before each pass (issue 18).
+    /// radius of each ψ pass and before each pass, so an abandoned request stops within a row.
     pub fn new_unless(
         medium: &Medium,
         table: &DensityIntegralTable,

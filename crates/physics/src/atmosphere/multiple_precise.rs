@@ -48,7 +48,7 @@ use std::sync::atomic::{AtomicUsize, Ordering};
 
 /// Sun zenith angle, degrees, beyond which the sun-zenith nodes of the precise tables are twice as
 /// dense and J and the ground's sky irradiance are interpolated over sun zenith in ln J
-/// (Catmull–Rom, [`twilight_interp`]) instead of linearly in J (issue 14).
+/// (Catmull–Rom, [`twilight_interp`]) instead of linearly in J (accuracy of the twilight sky).
 ///
 /// Across the terminator J falls by about an order of magnitude per table step in sun zenith (the
 /// lower atmosphere then sees only light scattered from the lit air above it and towards the
@@ -1232,7 +1232,7 @@ impl PreciseMultipleScattering {
         Self::build(medium, table, s, &|| false).unwrap_or_else(|| unreachable!("never cancelled"))
     }
 
-    /// [`Self::new`], stopped (`None`) when `cancelled` returns true between two orders (issue 18).
+    /// [`Self::new`], stopped (`None`) when `cancelled` returns true between two orders (every waiting client has gone).
     pub fn build(
         medium: &Medium,
         table: &DensityIntegralTable,
@@ -1475,7 +1475,7 @@ impl PreciseMultipleScattering {
 }
 
 /// Version of the stored table layout (part of its store key).
-/// (2: twice-as-dense sun-zenith nodes beyond 80°, issue 14; 3: f32 exp/ln in the build, issue 17.)
+/// (2: twice-as-dense sun-zenith nodes beyond 80°, for twilight; 3: f32 exp/ln in the build.)
 pub const TABLE_FORMAT: &str = "precise-table-3";
 /// Header attribute holding the stored table's description ([`StoredPrecise`] as JSON).
 const ATTR_TABLE: &str = "skybakeSharedTable";

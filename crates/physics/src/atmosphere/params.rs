@@ -109,7 +109,7 @@ pub enum MieExtinction {
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case", deny_unknown_fields)]
 pub enum MiePhase {
-    /// Cornette-Shanks (seed 000 eq 5), asymmetry parameter `g` in (−1, 1).
+    /// Cornette-Shanks (Nishita et al. 1996, eq 5), asymmetry parameter `g` in (−1, 1).
     CornetteShanks { g: f64 },
     /// Henyey-Greenstein, asymmetry parameter `g` in (−1, 1).
     HenyeyGreenstein { g: f64 },

@@ -138,7 +138,7 @@ impl SharedTables {
     }
 
     /// [`Self::new`], stopped (`None`) when `cancelled` returns true between two rows of the
-    /// density-integral table (issue 18).
+    /// density-integral table (every waiting client has gone).
     pub fn new_unless(
         medium: Medium,
         fast_settings: FastSettings,
@@ -199,7 +199,7 @@ impl SharedTables {
     }
 
     /// The density-integral table, made on first use unless `cancelled` returns true between two
-    /// rows of its build (issue 18); `None` then, and the table stays unbuilt.
+    /// rows of its build (every waiting client has gone); `None` then, and the table stays unbuilt.
     pub fn density_unless(
         &self,
         cancelled: &(dyn Fn() -> bool + Sync),
@@ -270,7 +270,7 @@ impl SharedTables {
     }
 
     /// The fast table, built on first use unless `cancelled` returns true between two rows of its
-    /// passes (issue 18); `None` then, and the table stays unbuilt.
+    /// passes (every waiting client has gone); `None` then, and the table stays unbuilt.
     pub fn fast_unless(
         &self,
         cancelled: &(dyn Fn() -> bool + Sync),
@@ -295,7 +295,7 @@ impl SharedTables {
     }
 
     /// The precise table, loaded or built on first use unless `cancelled` returns true between two
-    /// orders of scattering (issue 18); `None` then, and the table stays unbuilt: a later request
+    /// orders of scattering (every waiting client has gone); `None` then, and the table stays unbuilt: a later request
     /// builds it whole, and one waiting for this build builds it itself.
     pub fn precise_unless(
         &self,

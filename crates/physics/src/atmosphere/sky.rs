@@ -1,5 +1,5 @@
 //! Radiance in any direction for an observer, and tables of it over the view sphere: the sky
-//! dome (`sky`), the lower hemisphere of ground-reflected upward skylight (`ground`, seed 000
+//! dome (`sky`), the lower hemisphere of ground-reflected upward skylight (`ground`, Nishita et al. 1996,
 //! §3.5), both from the same integrator so they join seamlessly at the horizon.
 
 use super::integrate::{
@@ -234,7 +234,7 @@ pub fn dome_table(
 }
 
 /// [`dome_table`], stopped (`None`) when `cancelled` returns true: it is asked once per row of
-/// elevation, as the row's first entry starts (issue 18).
+/// elevation, as the row's first entry starts, so an abandoned request stops within a row.
 pub fn dome_table_unless(
     eval: &RadianceEvaluator,
     elevation_deg: Vec<f64>,

@@ -2,7 +2,7 @@
 //! that do not hit the ground, parametrised as in Bruneton 2017 (`GetTransmittanceTextureUvFromRMu`):
 //! x_r = ρ/H with ρ = sqrt(r² − R²), H = sqrt(R_top² − R²); x_μ = (d − d_min)/(d_max − d_min),
 //! d the distance to the top. Stored as density integrals (not transmittance) so that huge optical
-//! depths interpolate well and every wavelength reuses the same table (DESIGN.md conventions).
+//! depths interpolate well and every wavelength reuses the same table (ARCHITECTURE.md, "Invariants").
 
 use super::geometry::{distance_to_sphere_far, horizon_mu, radius_at, safe_sqrt};
 use super::kernels::exp_fast;
@@ -128,7 +128,7 @@ impl DensityIntegralTable {
     }
 
     /// [`Self::new`], stopped (`None`) when `cancelled` returns true: it is asked once per row of
-    /// radius, as the row's first entry starts (issue 18).
+    /// radius, as the row's first entry starts, so an abandoned request stops within a row.
     pub fn new_unless(
         medium: &Medium,
         n_r: usize,
@@ -172,7 +172,7 @@ impl DensityIntegralTable {
         })
     }
 
-    /// The table as an image for the table store (issue 17): the density integrals, f64 exactly,
+    /// The table as an image for the table store (tables kept between processes, `store::tables`): the density integrals, f64 exactly,
     /// as 16 hex digits per value (little-endian `[i_r][i_mu][k]` order) in a header attribute,
     /// with a description of what it was built for beside it; the single pixel is unused (a
     /// stored table is an EXR entry of the product cache like any other, so it is written

@@ -1,4 +1,4 @@
-//! Fractal growth of metaball clouds (seed 000 §4).
+//! Fractal growth of metaball clouds (Nishita et al. 1996, §4).
 //!
 //! Starting from a few user-placed balls, each level extracts the isosurface of the current field
 //! by marching cubes, scatters new, smaller balls over its triangles (random positions within each
@@ -207,7 +207,7 @@ pub struct FractalCloud {
     pub base_z_m: Option<f64>,
 }
 
-/// Grows a cloud from `params` (seed 000 §4).
+/// Grows a cloud from `params` (Nishita et al. 1996, §4).
 pub fn grow(params: &FractalParams) -> Result<FractalCloud> {
     params.validate()?;
     let base = &params.balls;
@@ -325,7 +325,7 @@ fn voxelize_for_mc(
     field.voxelize(voxel, voxel)
 }
 
-/// Grows the cloud and voxelises it at `voxel_size_m` (seed 000 §4, then seed 001 eq 3).
+/// Grows the cloud and voxelises it at `voxel_size_m` (Nishita et al. 1996, §4; then Nishita & Dobashi 2001, eq 3).
 pub fn voxelize(params: &FractalParams, voxel_size_m: f64) -> Result<DensityGrid> {
     voxelize_within(params, voxel_size_m, super::grid::MAX_VOXELS)
 }

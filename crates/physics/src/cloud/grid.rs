@@ -1,4 +1,4 @@
-//! Cell-centred voxel density grids (DESIGN.md, "Density grids").
+//! Cell-centred voxel density grids.
 //!
 //! Values sit at voxel centres; `origin_m` is the minimum corner of the box, so voxel (i, j, k) is
 //! centred at `origin + (i+½, j+½, k+½)·voxel_size`. Sampling is trilinear between centres, clamped

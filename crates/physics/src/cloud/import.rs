@@ -2,7 +2,7 @@
 //!
 //! Everything parses from bytes (the caller reads the files). Headers are validated, and the
 //! voxel count and byte length checked, before any grid memory is allocated. Both formats store
-//! `[z][y][x]` with x fastest, as [`DensityGrid`] does (DESIGN.md, "Density grids").
+//! `[z][y][x]` with x fastest, as [`DensityGrid`] does (`cloud::grid`).
 
 use super::grid::{checked_voxel_count, DensityGrid};
 use crate::{Error, Result};

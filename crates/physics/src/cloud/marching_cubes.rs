@@ -1,5 +1,5 @@
 //! Isosurface extraction by marching cubes (Lorensen & Cline 1987), as used by the fractal
-//! cloud growth of seed 000 §4 ("the isosurface is extracted by the marching-cubes algorithm
+//! cloud growth of Nishita et al. 1996, §4 ("the isosurface is extracted by the marching-cubes algorithm
 //! and triangulated").
 //!
 //! The lattice is the voxel centres of a [`DensityGrid`]; a corner is *inside* when its density
@@ -152,7 +152,7 @@ fn build_case_table() -> CaseTable {
     CaseTable { edges, cases }
 }
 
-/// Extracts the `iso` isosurface of `grid` sampled at voxel centres (seed 000 §4). Fails with
+/// Extracts the `iso` isosurface of `grid` sampled at voxel centres (Nishita et al. 1996, §4). Fails with
 /// an error naming `max_triangles` if the surface would need more triangles.
 pub fn extract(grid: &DensityGrid, iso: f32, max_triangles: usize) -> Result<TriangleMesh> {
     if !iso.is_finite() {

@@ -1,5 +1,5 @@
-//! Metaball density fields (seed 001 eq 3, seed 000 §4): `ρ(P) = Σ_j q_j h(|P - C_j|, R_j)` with
-//! Wyvill's field `h` (seed 003 eq B.1), so `q_j` is the density at the centre of ball `j`.
+//! Metaball density fields (Nishita & Dobashi 2001, eq 3; Nishita et al. 1996, §4): `ρ(P) = Σ_j q_j h(|P - C_j|, R_j)` with
+//! Wyvill's field `h` (Dobashi et al. 2000, eq B.1), so `q_j` is the density at the centre of ball `j`.
 //!
 //! Evaluation uses a uniform grid of bins, each listing the balls whose bounding box overlaps
 //! it (compressed-row storage), so a lookup touches only nearby balls. Voxelisation into a
@@ -24,7 +24,7 @@ const MAX_BINS: u64 = 1 << 21;
 /// Most (bin, ball) references in the acceleration grid.
 const MAX_BIN_REFS: u64 = 1 << 25;
 
-/// One metaball: centre, effective radius and density at the centre (seed 001 eq 3).
+/// One metaball: centre, effective radius and density at the centre (Nishita & Dobashi 2001, eq 3).
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct Metaball {
@@ -77,7 +77,7 @@ pub fn validate_balls(balls: &[Metaball]) -> Result<()> {
     Ok(())
 }
 
-/// Density at `p` by summing over every ball (seed 001 eq 3); the reference for the binned
+/// Density at `p` by summing over every ball (Nishita & Dobashi 2001, eq 3); the reference for the binned
 /// evaluator and the baseline in benchmarks.
 pub fn density_brute_force(balls: &[Metaball], p: DVec3) -> f64 {
     balls
@@ -210,7 +210,7 @@ impl MetaballField {
             .map(move |&i| &self.packed[i as usize])
     }
 
-    /// Density at `p` (seed 001 eq 3), from the balls in `p`'s bin.
+    /// Density at `p` (Nishita & Dobashi 2001, eq 3), from the balls in `p`'s bin.
     pub fn density(&self, p: DVec3) -> f64 {
         let mut sum = 0.0;
         for b in self.balls_near(p) {

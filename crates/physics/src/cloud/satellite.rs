@@ -1,4 +1,4 @@
-//! Clouds from a satellite image (seed 001 §3.1).
+//! Clouds from a satellite image (Nishita & Dobashi 2001, §3.1).
 //!
 //! The image is reduced to grey levels; pixels brighter than a threshold form the cloud mask.
 //! Assuming, as the paper does, no multiple scattering and constant attenuation, a pixel's
@@ -450,7 +450,7 @@ fn overlaps(a: &Blob, b: &Blob) -> bool {
     (a.x_px as f64 - b.x_px as f64).abs() <= reach && (a.y_px as f64 - b.y_px as f64).abs() <= reach
 }
 
-/// Fits metaballs to the image (seed 001 §3.1); see the module docs.
+/// Fits metaballs to the image (Nishita & Dobashi 2001, §3.1); see the module docs.
 ///
 /// After each new ball, the centre densities of the balls overlapping it are re-optimised by
 /// non-negative coordinate descent (each update is the exact minimiser along its coordinate, so
@@ -597,7 +597,7 @@ pub fn to_metaballs(
     Ok(balls)
 }
 
-/// Decodes the PNG, fits metaballs and voxelises them at `voxel_size_m` (seed 001 §3.1, eq 3).
+/// Decodes the PNG, fits metaballs and voxelises them at `voxel_size_m` (Nishita & Dobashi 2001, §3.1, eq 3).
 pub fn voxelize(
     png_bytes: &[u8],
     params: &SatelliteParams,

@@ -56,18 +56,18 @@ fn default_voxel_size_m() -> f64 {
 #[serde(tag = "type", rename_all = "snake_case")]
 #[non_exhaustive]
 pub enum CloudSource {
-    /// Explicit metaballs (seed 001 eq 3).
+    /// Explicit metaballs (Nishita & Dobashi 2001, eq 3).
     Metaballs(MetaballsParams),
-    /// Metaballs grown fractally on their isosurface (seed 000 §4).
+    /// Metaballs grown fractally on their isosurface (Nishita et al. 1996, §4).
     Fractal(FractalParams),
-    /// Metaballs fitted to a satellite image (seed 001 §3.1).
+    /// Metaballs fitted to a satellite image (Nishita & Dobashi 2001, §3.1).
     Satellite(SatelliteParams),
     /// A density grid from a `.npy` or raw f32 file.
     Grid(GridParams),
-    /// One frame of the cellular-automaton cloud animation (seed 003 §4–5.1). Boxed: its
+    /// One frame of the cellular-automaton cloud animation (Dobashi et al. 2000, §4–5.1). Boxed: its
     /// parameters are much larger than the other variants'.
     Automaton(Box<AutomatonSource>),
-    /// A hierarchy of spheres (seed 004) sampled into voxels.
+    /// A hierarchy of spheres (Ostroushko et al.) sampled into voxels.
     Spheres(SpheresSource),
 }
 
@@ -94,7 +94,7 @@ impl CloudSource {
 #[serde(deny_unknown_fields)]
 pub struct AutomatonSource {
     /// Time of the frame in automaton steps, in [0, 1e6]; fractional times interpolate linearly
-    /// between the densities of the neighbouring steps (seed 003 §5.1).
+    /// between the densities of the neighbouring steps (Dobashi et al. 2000, §5.1).
     pub frame_time_steps: f64,
     /// The simulation (documented on [`AutomatonParams`]). Its grid has one voxel per cell
     /// (`cell_size_m`); at another `voxel_size_m` it is resampled trilinearly over the same box.
@@ -345,7 +345,7 @@ pub fn validate_source(source: &CloudSource) -> Result<()> {
 /// What building a source's grid found out besides the grid (printed by `skybake clouds`).
 #[derive(Debug, Clone, Default, PartialEq, Serialize)]
 pub struct SourceReport {
-    /// Satellite: final relative image error of the fit, `‖T − M‖ / ‖T‖` (seed 001 §3.1).
+    /// Satellite: final relative image error of the fit, `‖T − M‖ / ‖T‖` (Nishita & Dobashi 2001, §3.1).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub fit_error: Option<f64>,
     /// Satellite: whether the error fell below `error_threshold` (else `max_balls` stopped it).

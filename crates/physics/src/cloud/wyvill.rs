@@ -1,11 +1,11 @@
-//! Wyvill's metaball field function and its normalisation (seed 003 appendix B, eqs B.1–B.2).
+//! Wyvill's metaball field function and its normalisation (Dobashi et al. 2000, appendix B, eqs B.1–B.2).
 //!
 //! `h(r) = -4/9 a⁶ + 17/9 a⁴ - 22/9 a² + 1` for `r <= R` (0 beyond), with `a = r/R`. It falls
 //! smoothly from 1 at the centre to 0 with zero slope at the effective radius `R`.
 //!
 //! # The printed normalisation (B.2) is not a volume integral
 //!
-//! Seed 003 normalises `f = h/c` "by its total density" with `c = 4π∫₀ᴿ h(r) dr = 748/405 πR`.
+//! Dobashi et al. 2000 normalises `f = h/c` "by its total density" with `c = 4π∫₀ᴿ h(r) dr = 748/405 πR`.
 //! Neither half of that holds: `4π∫₀ᴿ h dr` is `1888/945 πR` (not `748/405 πR`), and a factor
 //! linear in `R` cannot make a 3-D density integrate to a constant. The total density of one
 //! metaball is the volume integral
@@ -13,18 +13,18 @@
 //! `c = ∫∫∫ h(|x|) dV = 4π∫₀ᴿ h(r) r² dr = 736/2835 πR³ ≈ 0.8156 R³`,
 //!
 //! which is what [`normalisation_m3`] returns, so `∫∫∫ f dV = 1` (checked by 3-D quadrature in
-//! the tests). Eq 12 of seed 003 (`ρ = Σ q f`) then conserves the total of the cell densities `q`.
+//! the tests). Eq 12 of Dobashi et al. 2000 (`ρ = Σ q f`) then conserves the total of the cell densities `q`.
 
 use std::f64::consts::PI;
 
 /// `∫∫∫ h dV / R³ = 736π/2835` (see the module docs; replaces the printed B.2).
 pub const VOLUME_FACTOR: f64 = 736.0 * PI / 2835.0;
 
-/// The normalisation as printed in seed 003 eq B.2, `c/R = 748π/405` (kept only to document the
+/// The normalisation as printed in Dobashi et al. 2000, eq B.2, `c/R = 748π/405` (kept only to document the
 /// discrepancy; do not use it to normalise a 3-D density).
 pub const PRINTED_B2_FACTOR: f64 = 748.0 * PI / 405.0;
 
-/// Field value from the squared normalised distance `a² = (r/R)²` (seed 003 eq B.1); 0 for
+/// Field value from the squared normalised distance `a² = (r/R)²` (Dobashi et al. 2000, eq B.1); 0 for
 /// `a² >= 1`. Taking `a²` avoids a square root in inner loops.
 #[inline]
 pub fn h_of_a2(a2: f64) -> f64 {
@@ -36,7 +36,7 @@ pub fn h_of_a2(a2: f64) -> f64 {
 }
 
 /// Wyvill's field `h(r)` at distance `r_m` from the centre of a ball of effective radius
-/// `radius_m` (seed 003 eq B.1). Dimensionless, 1 at the centre, 0 for `r >= R`.
+/// `radius_m` (Dobashi et al. 2000, eq B.1). Dimensionless, 1 at the centre, 0 for `r >= R`.
 /// Precondition: `radius_m > 0`.
 #[inline]
 pub fn h(r_m: f64, radius_m: f64) -> f64 {
@@ -44,15 +44,15 @@ pub fn h(r_m: f64, radius_m: f64) -> f64 {
     h_of_a2(a * a)
 }
 
-/// Total density of one unit metaball, `c = ∫∫∫ h dV = 736/2835 πR³` in m³ (the corrected seed 003
+/// Total density of one unit metaball, `c = ∫∫∫ h dV = 736/2835 πR³` in m³ (the corrected Dobashi et al. 2000,
 /// eq B.2; see the module docs).
 #[inline]
 pub fn normalisation_m3(radius_m: f64) -> f64 {
     VOLUME_FACTOR * radius_m * radius_m * radius_m
 }
 
-/// The normalised basis function `f = h/c` (seed 003 appendix B), in m⁻³: it integrates to 1
-/// over space, so `Σ q f` conserves `Σ q` (seed 003 eq 12).
+/// The normalised basis function `f = h/c` (Dobashi et al. 2000, appendix B), in m⁻³: it integrates to 1
+/// over space, so `Σ q f` conserves `Σ q` (Dobashi et al. 2000, eq 12).
 #[inline]
 pub fn normalised(r_m: f64, radius_m: f64) -> f64 {
     h(r_m, radius_m) / normalisation_m3(radius_m)
@@ -74,7 +74,7 @@ pub fn dh_dr(r_m: f64, radius_m: f64) -> f64 {
 /// Column integral `∫ h dz` through a ball of radius `radius_m` along a straight line passing at
 /// distance `d_m` from its centre, in metres (closed form: `h` is a polynomial in `d² + z²`).
 /// The projection of the field that an optically thin, vertically viewed image sees
-/// (seed 001 §3.1).
+/// (Nishita & Dobashi 2001, §3.1).
 pub fn column_integral_m(d_m: f64, radius_m: f64) -> f64 {
     let u = d_m / radius_m;
     let u2 = u * u;

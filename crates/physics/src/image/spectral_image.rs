@@ -219,7 +219,7 @@ impl SpectralImage {
         Ok(())
     }
 
-    /// Sets the product attributes every cached product carries (DESIGN.md "Storage"): the canonical
+    /// Sets the product attributes every cached product carries: the canonical
     /// spec JSON, the engine version, the error estimate JSON and the compute time in milliseconds.
     pub fn set_product_metadata(
         &mut self,

@@ -1,4 +1,4 @@
-//! Subsets of a spectrum's wavelengths for an RGB-only output (issue 15 point 3). RGB planes
+//! Subsets of a spectrum's wavelengths for an RGB-only output (the planner's wavelength rule). RGB planes
 //! interpolate a sampled spectrum linearly onto the 1 nm grid ([`super::colour`]), so leaving
 //! wavelengths out changes the RGB by the interpolation error of the spectrum between those kept.
 //! Given proxy spectra known at every wavelength, backward elimination drops, one at a time, the

@@ -1,4 +1,4 @@
-//! Validated wavelength lists (DESIGN.md "Conventions": 1 to 64 values within 360–830 nm).
+//! Validated wavelength lists (1 to 64 values within 360–830 nm).
 
 use crate::{Error, Result};
 use serde::{Deserialize, Serialize};

@@ -1,4 +1,4 @@
-//! `POST /v1/render`: a frame scene in the body → the cloud frame (issue 13 point 6), as EXR (the
+//! `POST /v1/render`: a frame scene in the body → the cloud frame, as EXR (the
 //! artifact), PNG (tone-mapped preview; an RGB-only request, which the planner may run at fewer
 //! wavelengths) or JSON (stages, timings, error estimate). Cached like
 //! every product under the frame request's cache key, computed through the same single flight and

@@ -1,4 +1,4 @@
-//! What the animator controls (seed 003 §4.3, §4.5, §6): the height-dependent wind, ellipsoids that
+//! What the animator controls (Dobashi et al. 2000, §4.3, §4.5, §6): the height-dependent wind, ellipsoids that
 //! set the vapour / activation / extinction probabilities, and obstacles (terrain) that cannot hold
 //! cloud.
 
@@ -15,7 +15,7 @@ pub const MAX_HILLS: usize = 256;
 /// Largest accepted total size of the ellipsoid stamps, in cells (6 bytes each).
 pub const MAX_STAMP_CELLS: usize = 1 << 25;
 
-/// One knot of the piecewise-linear wind profile v(z) (seed 003 §4.3).
+/// One knot of the piecewise-linear wind profile v(z) (Dobashi et al. 2000, §4.3).
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct WindKnot {
@@ -25,7 +25,7 @@ pub struct WindKnot {
     pub velocity_cells_per_step: f64,
 }
 
-/// Integer wind velocity per cell layer, from a piecewise-linear profile (seed 003 eqs 8–10).
+/// Integer wind velocity per cell layer, from a piecewise-linear profile (Dobashi et al. 2000, eqs 8–10).
 #[derive(Debug, Clone, PartialEq)]
 pub struct WindProfile {
     velocity: Vec<i32>,
@@ -92,7 +92,7 @@ fn piecewise_linear(knots: &[WindKnot], z: f64) -> f64 {
     }
 }
 
-/// Probabilities of the three stochastic rules (seed 003 eqs 5–7), each in [0, 1].
+/// Probabilities of the three stochastic rules (Dobashi et al. 2000, eqs 5–7), each in [0, 1].
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct RuleProbabilities {
@@ -115,7 +115,7 @@ impl RuleProbabilities {
     }
 }
 
-/// An air parcel controlling the probabilities (seed 003 §4.5). Inside it, with ρ the normalised
+/// An air parcel controlling the probabilities (Dobashi et al. 2000, §4.5). Inside it, with ρ the normalised
 /// ellipsoidal radius, p_hum = hum·(1−ρ²), p_act = act·(1−ρ²) and
 /// p_ext = ext_centre + (ext_edge − ext_centre)·ρ²: vapour and activation highest at the centre,
 /// extinction lowest there (the paper gives no profile; 1−ρ² is the simplest smooth one).
@@ -163,7 +163,7 @@ impl Ellipsoid {
     }
 }
 
-/// Ellipsoids placed with uniform random numbers (seed 003 §6, Fig. 8).
+/// Ellipsoids placed with uniform random numbers (Dobashi et al. 2000, §6, Fig. 8).
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct RandomEllipsoids {
@@ -182,7 +182,7 @@ pub struct RandomEllipsoids {
 }
 
 /// Terrain that cannot hold cloud: cell (i, j, k) is solid when its centre height k+½ lies below the
-/// terrain height at the column centre (seed 003 §6, Fig. 9).
+/// terrain height at the column centre (Dobashi et al. 2000, §6, Fig. 9).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(tag = "kind", rename_all = "snake_case", deny_unknown_fields)]
 pub enum Obstacle {
@@ -284,7 +284,7 @@ impl RowLevels {
 }
 
 /// The probability fields: per cell, the quantised levels `int(p·n_p)` of p_hum, p_act and p_ext
-/// (seed 003 eqs A.4–A.6), from the background and the ellipsoids, which drift with the wind.
+/// (Dobashi et al. 2000, eqs A.4–A.6), from the background and the ellipsoids, which drift with the wind.
 ///
 /// Ellipsoids move only along x and by whole cells, so each one's levels are computed once, as a
 /// stamp of row segments, and pasted at its current integer offset. Quantisation is monotone, so

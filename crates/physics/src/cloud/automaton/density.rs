@@ -1,4 +1,4 @@
-//! From binary cloud to continuous density (seed 003 §5.1): space-time smoothing of cld (eq 11),
+//! From binary cloud to continuous density (Dobashi et al. 2000, §5.1): space-time smoothing of cld (eq 11),
 //! then a sum of metaballs with Wyvill's field function (eq 12, appendix B eq B.1).
 
 use crate::cloud::wyvill;
@@ -54,7 +54,7 @@ impl Smoothing {
     }
 }
 
-/// Smoothed cloud fraction q (seed 003 eq 11) at one step, with w ≡ 1, so q is the mean of cld
+/// Smoothed cloud fraction q (Dobashi et al. 2000, eq 11) at one step, with w ≡ 1, so q is the mean of cld
 /// over the (2i0+1)(2j0+1)(2k0+1) cells and (2t0+1) steps around the cell; cells outside the
 /// space count as 0 (the paper's boundary condition). `frames[t]` are the packed cld words of the
 /// 2t0+1 steps (the caller clamps steps before 0 to step 0). Result index `(k·ny + j)·nx + x`.

@@ -1,4 +1,4 @@
-//! Cellular-automaton cloud animation (seed 003 §4–5.1, appendices A–B).
+//! Cellular-automaton cloud animation (Dobashi et al. 2000, §4–5.1, appendices A–B).
 //!
 //! `control` holds the animator's inputs (wind, ellipsoids, terrain), `random` the random-bit
 //! look-up table, `sim` the bit-packed automaton, `density` the smoothing and metaball basis that
@@ -253,7 +253,7 @@ impl AutomatonParams {
     }
 }
 
-/// Density grids at the given times (in steps, fractional allowed; seed 003 §5.1): q by eq 11 at
+/// Density grids at the given times (in steps, fractional allowed; Dobashi et al. 2000, §5.1): q by eq 11 at
 /// the steps either side, ρ by eq 12 at the cell centres, then linear interpolation in time. The
 /// grid has one voxel per cell, `cell_size_m` voxels, origin `origin_m`; values are dimensionless
 /// (1 inside a fully cloudy region). Frames come back in the order asked.

@@ -1,4 +1,4 @@
-//! The random-bit look-up table of seed 003 appendix A (eqs A.4–A.6) and the per-slice random
+//! The random-bit look-up table of Dobashi et al. 2000, appendix A (eqs A.4–A.6) and the per-slice random
 //! streams that index it.
 //!
 //! Row `(level, sequence)` of the table is a 64-bit word whose bits are set independently with
@@ -20,7 +20,7 @@ pub const MAX_PROBABILITY_LEVELS: usize = 65_534;
 /// Largest accepted table size, in 64-bit words (32 MiB).
 pub const MAX_TABLE_WORDS: usize = 1 << 22;
 
-/// Look-up table of random bit sequences, `p[level][sequence]` (seed 003 app. A).
+/// Look-up table of random bit sequences, `p[level][sequence]` (Dobashi et al. 2000, app. A).
 #[derive(Debug, Clone, PartialEq)]
 pub struct RandomBitTable {
     levels: usize,

@@ -1,4 +1,4 @@
-//! The bit-packed cellular automaton (seed 003 §4.1–4.4 and appendix A): hum / act / cld stored one
+//! The bit-packed cellular automaton (Dobashi et al. 2000, §4.1–4.4 and appendix A): hum / act / cld stored one
 //! bit per cell, 64 cells of a row along x per `u64` word, so every rule updates 64 cells at once.
 
 use super::control::{ProbabilityControl, RowLevels, WindProfile, ACT, EXT, HUM};
@@ -42,7 +42,7 @@ pub struct Automaton {
 
 impl Automaton {
     /// Validates `params` (sizes before any allocation) and sets the initial state: hum and act
-    /// random with the initial probabilities, cld zero (seed 003 §4.1), all zero inside obstacles.
+    /// random with the initial probabilities, cld zero (Dobashi et al. 2000, §4.1), all zero inside obstacles.
     /// The initial draws come from `setup_rng(seed, 0)`: per cell in (k, j, x) order, one `f64` for
     /// hum then one for act.
     pub fn new(params: &AutomatonParams) -> Result<Self> {

@@ -1,4 +1,4 @@
-//! Hierarchical-sphere cloud model for ray tracing (seed 004, Ostroushko et al.).
+//! Hierarchical-sphere cloud model for ray tracing (Ostroushko, Bilous, Bugriy, Chagovets, "Mathematical Model of the Cloud for Ray Tracing").
 //!
 //! A base sphere is split K times into five smaller spheres placed inside it; every sphere bounds
 //! its five children, so a ray descends only into spheres it hits. `model` builds the hierarchy,

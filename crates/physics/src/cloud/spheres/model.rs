@@ -1,4 +1,4 @@
-//! Building the sphere hierarchy (seed 004, "Mathematical model of the cloud").
+//! Building the sphere hierarchy (Ostroushko et al., "Mathematical model of the cloud").
 
 use super::optics::extinction_from_mor_per_m;
 use crate::{Error, Result};
@@ -11,10 +11,10 @@ use serde::{Deserialize, Serialize};
 /// Deepest level accepted. Level K holds 5^K spheres and all levels (5^(K+1) − 1)/4, 16 bytes
 /// each: K = 10 is 9 765 625 leaves and 195 MB, the paper's largest case (table 1).
 pub const MAX_LEVELS: u32 = 10;
-/// Children per sphere (seed 004: "divided into five similar figures").
+/// Children per sphere (Ostroushko et al.: "divided into five similar figures").
 pub const CHILDREN: usize = 5;
 
-/// Inputs of the model (seed 004). Deserialises from the `spheres` block of a scene (see
+/// Inputs of the model (Ostroushko et al.). Deserialises from the `spheres` block of a scene (see
 /// `config/scenes/sphere-cloud.json`).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -140,7 +140,7 @@ pub struct SphereCloud {
 }
 
 impl SphereCloud {
-    /// Builds the hierarchy (seed 004). Level 0 is one sphere of radius min(a,b,c)/2 when K = 0,
+    /// Builds the hierarchy (Ostroushko et al.). Level 0 is one sphere of radius min(a,b,c)/2 when K = 0,
     /// max(a,b,c)/2 otherwise; the first split scales the children's offsets by the deformation
     /// coefficients d = (a, b, c)/(2r⁰), later splits by 1. Child j of a sphere (x, r) has radius
     /// r_j = I_j·r and, with D = r − r_j and e = √(D² − (D·s_j)²) (the paper's f_Δ):
@@ -184,7 +184,7 @@ impl SphereCloud {
     }
 
     /// Linear interpolation of every sphere's centre and radius (and the optical range) between
-    /// two realisations with the same K (seed 004, animation), `tau` in [0, 1]. Containment
+    /// two realisations with the same K (Ostroushko et al., animation), `tau` in [0, 1]. Containment
     /// survives: it is a convex condition on (centre, radius) pairs.
     pub fn interpolate(a: &SphereCloud, b: &SphereCloud, tau: f64) -> Result<SphereCloud> {
         if a.levels.len() != b.levels.len() {
@@ -249,7 +249,7 @@ impl SphereCloud {
         &self.levels[k as usize]
     }
 
-    /// Level of detail for a resolution (seed 004 conclusion: "choosing the desired level of
+    /// Level of detail for a resolution (Ostroushko et al., conclusion: "choosing the desired level of
     /// detail, taking into account the angular resolution"): the deepest level whose mean sphere
     /// diameter is still at least `resolution_m` (a voxel size, or a pixel's footprint at the
     /// cloud's distance); level 0 if even the base sphere is smaller.
@@ -281,7 +281,7 @@ fn parent_rng(seed: u64, k: u32, index: u64) -> Pcg64Mcg {
     Pcg64Mcg::seed_from_u64(z ^ (z >> 31))
 }
 
-/// The five children of `p` (seed 004), drawing per child I_j, s_j and ξ_j in that order.
+/// The five children of `p` (Ostroushko et al.), drawing per child I_j, s_j and ξ_j in that order.
 fn split(p: &Sphere, d: DVec3, params: &SphereCloudParams, rng: &mut Pcg64Mcg, out: &mut [Sphere]) {
     let [i0, i1] = params.radius_factor_range;
     let [s0, s1] = params.offset_factor_range;

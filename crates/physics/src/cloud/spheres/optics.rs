@@ -1,7 +1,7 @@
-//! Transmittance of the sphere model from the meteorological optical range (seed 004 eqs 1–3).
+//! Transmittance of the sphere model from the meteorological optical range (Ostroushko et al., eqs 1–3).
 
 /// Contrast threshold that defines the meteorological optical range: a black object at distance
-/// S_M is seen with contrast 0.02 (seed 004: S_M = ln 0.02 / ln t).
+/// S_M is seen with contrast 0.02 (Ostroushko et al.: S_M = ln 0.02 / ln t).
 pub const MOR_CONTRAST: f64 = 0.02;
 
 /// Extinction coefficient σ = −ln t per metre from the meteorological optical range S_M in metres:
@@ -11,7 +11,7 @@ pub fn extinction_from_mor_per_m(mor_m: f64) -> f64 {
     -MOR_CONTRAST.ln() / mor_m
 }
 
-/// Edge function f(d, r) = 1 − d/r for d ≤ r, else 0 (seed 004 eq 2): the share of a sphere's
+/// Edge function f(d, r) = 1 − d/r for d ≤ r, else 0 (Ostroushko et al., eq 2): the share of a sphere's
 /// attenuation that applies at distance d from its centre, so transparency grows to the rim.
 #[inline]
 pub fn edge_weight(d: f64, r: f64) -> f64 {
@@ -22,7 +22,7 @@ pub fn edge_weight(d: f64, r: f64) -> f64 {
     }
 }
 
-/// Transmittance of one sphere, T = T_i·f(d, r) + 1 − f(d, r) (seed 004 eq 3), with
+/// Transmittance of one sphere, T = T_i·f(d, r) + 1 − f(d, r) (Ostroushko et al., eq 3), with
 /// T_i = t^ℓ = exp(−σ·ℓ) over the chord length `chord_m` inside it (eq 1) and `d_m` the distance
 /// from the sphere centre to the ray.
 #[inline]
@@ -37,7 +37,7 @@ mod tests {
 
     #[test]
     fn path_of_one_mor_leaves_two_percent() {
-        // Koschmieder: over a path equal to the MOR the transmittance is the 0.02 threshold.
+        // Koschmieder 1924: over a path equal to the MOR the transmittance is the 0.02 threshold.
         let s = extinction_from_mor_per_m(150.0);
         assert!(((-s * 150.0).exp() - 0.02).abs() < 1e-15);
         assert!((s - 3.912_023_005_428_146 / 150.0).abs() < 1e-15);

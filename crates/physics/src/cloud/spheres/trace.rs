@@ -1,4 +1,4 @@
-//! Ray traversal of the sphere hierarchy (seed 004, "bounding primitives"): a ray enters a
+//! Ray traversal of the sphere hierarchy (Ostroushko et al., "bounding primitives"): a ray enters a
 //! sphere's children only if it hits the sphere, stops at the leaves or where the level of detail
 //! says a sphere is too small to split further, and multiplies the transmittances of eq 3.
 
@@ -16,7 +16,7 @@ const BOUND_SLACK: f64 = 1e-5;
 
 pub use crate::camera::{Camera, Ray};
 
-/// Level of detail (seed 004 conclusion): a sphere whose angular diameter seen from `eye_m` is
+/// Level of detail (Ostroushko et al., conclusion): a sphere whose angular diameter seen from `eye_m` is
 /// below `min_angle_rad` is not split further and counts as a leaf.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Lod {
@@ -194,7 +194,7 @@ pub struct SpheresBench {
     pub coverage: f64,
 }
 
-/// Seed 004 table 1: a `width × height` transmittance image of a cumulus with 5^`levels` leaves
+/// Ostroushko et al., table 1: a `width × height` transmittance image of a cumulus with 5^`levels` leaves
 /// (the paper: 800×600, K = 6, 8, 10 → 4.75 s, 9.2 s, 22.1 s on one Core 2 core). The camera sits
 /// 3 km from the cloud centre with a 45° vertical field of view, so the cloud fills most of the
 /// frame.

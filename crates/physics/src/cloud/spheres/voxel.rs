@@ -8,7 +8,7 @@ use crate::{Error, Result};
 use glam::DVec3;
 
 impl SphereCloud {
-    /// Density at a point: Σ over the spheres of level `level` containing it of f(d, r) (seed 004
+    /// Density at a point: Σ over the spheres of level `level` containing it of f(d, r) (Ostroushko et al.,
     /// eq 2 with d the distance from the sphere centre), so that the local extinction is
     /// `extinction_per_m() × density`. This is the volumetric reading of eq 3's edge function:
     /// extinction falls linearly from the centre to the rim of each sphere. Only spheres whose
@@ -32,7 +32,7 @@ impl SphereCloud {
     }
 
     /// Voxelises the cloud: cubic voxels of `voxel_size_m` over the bounding box of the spheres of
-    /// `level` (default K), density [`Self::density_at`] at every voxel centre (DESIGN.md's
+    /// `level` (default K), density [`Self::density_at`] at every voxel centre (the grid's
     /// cell-centred convention). Multiply by [`Self::extinction_per_m`] for extinction.
     pub fn voxelize(&self, voxel_size_m: f64, level: Option<u32>) -> Result<DensityGrid> {
         let (dims, origin, level) = self.grid_box(voxel_size_m, level)?;
