@@ -34,7 +34,6 @@ impl From<skybake_store::StoreError> for CliError {
 
 pub type Result<T, E = CliError> = std::result::Result<T, E>;
 
-
 impl From<skybake_job::JobError> for CliError {
     fn from(e: skybake_job::JobError) -> Self {
         if e.is_input() {

@@ -167,4 +167,3 @@ pub struct ServeArgs {
     #[arg(long)]
     pub config: Option<PathBuf>,
 }
-

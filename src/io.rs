@@ -78,11 +78,10 @@ pub fn engine(no_table_cache: bool, config: Option<&Path>) -> Result<Engine> {
     if no_table_cache {
         return Ok(Engine::new());
     }
-    Ok(skybake_product::engines::engine_for_settings(&load_settings(
-        config,
-    )?))
+    Ok(skybake_product::engines::engine_for_settings(
+        &load_settings(config)?,
+    ))
 }
-
 
 /// Reads at most `limit` bytes of `path`, refusing larger files (errors name `field`).
 pub fn read_limited(path: &Path, field: &str, limit: usize) -> skybake_physics::Result<Vec<u8>> {

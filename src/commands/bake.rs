@@ -38,8 +38,7 @@ pub fn bake(job: &Path, out: &Path, config: Option<&Path>, no_table_cache: bool)
                 start.elapsed().as_secs_f64()
             ),
         },
-    )
-    ?;
+    )?;
     if let Some(bar) = &bar {
         bar.finish_and_clear();
     }

@@ -5,9 +5,9 @@
 //! by the wall clock.
 
 use skybake_engine::engine::{Engine, Table};
+use skybake_physics::Error;
 use skybake_product::params::RequestParams;
 use skybake_product::{ProductKind, ProductRequest};
-use skybake_physics::Error;
 use std::sync::atomic::{AtomicUsize, Ordering};
 
 /// A fast sky on 4 wavelengths with 64 elevation rows (64 × 3 output entries).

@@ -4,9 +4,9 @@
 //! stages out loses nothing (the full computation there is exactly zero too), and just above the
 //! limit the twilight tail is still there.
 
-use skybake_physics::atmosphere::sky::MsMethod;
 use skybake_engine::engine::{Engine, Product, Table, Term};
 use skybake_engine::plan::{darkest_twilight_deg, Plan, Reason, Stage};
+use skybake_physics::atmosphere::sky::MsMethod;
 use skybake_product::params::RequestParams;
 use skybake_product::{ProductKind, ProductRequest};
 
@@ -110,9 +110,12 @@ fn midnight_is_answered_by_every_product_with_zero_and_the_plan_says_why() {
 #[test]
 fn darkest_twilight_follows_the_observer_altitude_and_the_method() {
     let earth = request(ProductKind::Sky, &[]);
-    let m =
-        skybake_physics::atmosphere::Medium::new(&earth.spec.atmosphere, &earth.spec.wavelengths_nm, None)
-            .unwrap();
+    let m = skybake_physics::atmosphere::Medium::new(
+        &earth.spec.atmosphere,
+        &earth.spec.wavelengths_nm,
+        None,
+    )
+    .unwrap();
     let ground = darkest_twilight_deg(&m, 0.0, MsMethod::Precise);
     let orbit = darkest_twilight_deg(&m, 400_000.0, MsMethod::Precise);
     let single = darkest_twilight_deg(&m, 0.0, MsMethod::None);

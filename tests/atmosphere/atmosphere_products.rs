@@ -2,8 +2,8 @@
 //! against Beer-Lambert, and spectral EXR round trips.
 
 use skybake_engine::engine::{DomeShape, Engine};
-use skybake_product::params::RequestParams;
 use skybake_engine::spec::CommonSpec;
+use skybake_product::params::RequestParams;
 
 fn spec(method: &str, wavelengths: &str, atmosphere: &str, sun: &str, alt: &str) -> CommonSpec {
     let p = RequestParams {

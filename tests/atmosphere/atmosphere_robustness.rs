@@ -3,8 +3,8 @@
 //! Every output finite and non-negative, and continuous where the physics is.
 
 use skybake_engine::engine::{DomeShape, Engine};
-use skybake_product::params::RequestParams;
 use skybake_engine::spec::CommonSpec;
+use skybake_product::params::RequestParams;
 
 fn spec(pairs: &[(&str, &str)]) -> CommonSpec {
     let mut p = RequestParams {

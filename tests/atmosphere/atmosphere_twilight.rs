@@ -20,12 +20,12 @@
 //! at quality `high` is `#[ignore]`d (minutes on 2 cores).
 
 use serde_json::Value;
+use skybake_engine::engine::{stated_twilight_error, Engine, FAST_TWILIGHT_LIMIT_DEG};
+use skybake_engine::spec::{DomeShape, Quality};
 use skybake_physics::atmosphere::sky::MsMethod;
 use skybake_physics::atmosphere::{presets::preset, Medium};
-use skybake_engine::engine::{stated_twilight_error, Engine, FAST_TWILIGHT_LIMIT_DEG};
-use skybake_product::params::RequestParams;
-use skybake_engine::spec::{DomeShape, Quality};
 use skybake_physics::spectrum::Wavelengths;
+use skybake_product::params::RequestParams;
 use std::sync::OnceLock;
 
 /// The engine shared by the tests of this file (its table cache keeps the shared tables).

@@ -6,12 +6,12 @@
 //! offline by the scripts under `tools/`; each data file's header gives the exact inputs.
 
 use serde_json::Value;
+use skybake_engine::engine::Engine;
+use skybake_engine::spec::{DomeShape, DomeSpec, ProductSpec};
 use skybake_physics::atmosphere::medium::RAYLEIGH;
 use skybake_physics::atmosphere::presets::preset;
-use skybake_engine::engine::Engine;
 use skybake_product::params::RequestParams;
 use skybake_product::{render, Format, ProductKind, ProductRequest};
-use skybake_engine::spec::{DomeShape, DomeSpec, ProductSpec};
 use std::f64::consts::PI;
 
 fn load(name: &str) -> Value {
@@ -158,7 +158,9 @@ fn fast_sky_error_against_disort_is_within_its_stated_bound() {
     assert!(d.radiance < 0.0531, "{}", d.radiance);
     assert!(
         d.radiance
-            < skybake_engine::engine::stated_relative_error(skybake_physics::atmosphere::sky::MsMethod::Fast)
+            < skybake_engine::engine::stated_relative_error(
+                skybake_physics::atmosphere::sky::MsMethod::Fast
+            )
     );
 }
 
@@ -357,9 +359,15 @@ fn energy_is_conserved_over_the_whole_spherical_planet() {
         spec.observer_altitude_m = b - r;
         spec.sun.sun_elevation_deg = 0.0;
         let m =
-            skybake_physics::atmosphere::Medium::new(&spec.atmosphere, &spec.wavelengths_nm, None).unwrap();
-        let t_half = skybake_physics::atmosphere::sun_transmittance::sun_transmittance(&m, b - r, 0.0)[0]
-            / skybake_physics::atmosphere::sun_transmittance::sun_disk_visible_fraction(&m, b - r, 0.0);
+            skybake_physics::atmosphere::Medium::new(&spec.atmosphere, &spec.wavelengths_nm, None)
+                .unwrap();
+        let t_half =
+            skybake_physics::atmosphere::sun_transmittance::sun_transmittance(&m, b - r, 0.0)[0]
+                / skybake_physics::atmosphere::sun_transmittance::sun_disk_visible_fraction(
+                    &m,
+                    b - r,
+                    0.0,
+                );
         limb += 2.0 * PI * b * t_half * t_half * 0.5 * (top - r) * gw[k];
     }
     let limb = limb / (PI * top * top);

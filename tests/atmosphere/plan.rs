@@ -2,9 +2,9 @@
 //! does (table builds, ray-march terms counted by the engine), and a stage taken out of a plan
 //! does not run.
 
-use skybake_physics::atmosphere::sky::MsMethod;
 use skybake_engine::engine::{Engine, Product, Table, Term};
 use skybake_engine::plan::{Reason, Stage};
+use skybake_physics::atmosphere::sky::MsMethod;
 use skybake_product::params::RequestParams;
 use skybake_product::{ProductKind, ProductRequest};
 
@@ -218,7 +218,8 @@ fn precise_orders_under_the_error_budget_are_left_out() {
     // What the left-out orders change in the sky table stays within the sky's allowance (a
     // quarter of its measured error in this regime), …
     let (sky_measured, _) =
-        skybake_engine::accuracy::measured_for(ProductKind::Sky, MsMethod::Precise, &req.spec).unwrap();
+        skybake_engine::accuracy::measured_for(ProductKind::Sky, MsMethod::Precise, &req.spec)
+            .unwrap();
     let sky_allowance = skybake_engine::plan::BUDGET_SHARE
         * (sky_measured.relative_error + skybake_engine::accuracy::REFERENCE_ERROR);
     assert!(worst <= sky_allowance, "{worst} > {sky_allowance}");

@@ -2,12 +2,12 @@
 //! the product path a request takes (`ProductRequest::from_params` → `Engine::compute`).
 
 use skybake_engine::accuracy::{self, RegimeBands, REFERENCE_ERROR};
-use skybake_physics::atmosphere::presets::preset;
-use skybake_physics::atmosphere::sky::MsMethod;
 use skybake_engine::engine::{Engine, ErrorEstimate};
+use skybake_physics::atmosphere::presets::preset;
+use skybake_physics::atmosphere::quality::Quality;
+use skybake_physics::atmosphere::sky::MsMethod;
 use skybake_product::params::RequestParams;
 use skybake_product::{ProductKind, ProductRequest};
-use skybake_physics::atmosphere::quality::Quality;
 
 fn params(sun: f64, altitude: f64) -> RequestParams {
     RequestParams {

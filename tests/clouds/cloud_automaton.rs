@@ -451,7 +451,10 @@ fn scene_source_resamples_and_checks_the_frame_time() {
         }))
     };
     let no_files = |path: &str| -> skybake_physics::Result<Vec<u8>> {
-        Err(skybake_physics::Error::invalid("path", format!("no file {path}")))
+        Err(skybake_physics::Error::invalid(
+            "path",
+            format!("no file {path}"),
+        ))
     };
     let same = voxelize(&source(12.25), 100.0, &no_files).unwrap();
     assert_eq!(same, direct);

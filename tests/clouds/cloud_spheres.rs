@@ -310,7 +310,10 @@ fn example_scene_parses_builds_and_documents_every_parameter() {
     assert_eq!(cloud.leaves().len(), 15_625);
     // The scene API gives the same grid as the model's own voxeliser.
     let no_files = |path: &str| -> skybake_physics::Result<Vec<u8>> {
-        Err(skybake_physics::Error::invalid("path", format!("no file {path}")))
+        Err(skybake_physics::Error::invalid(
+            "path",
+            format!("no file {path}"),
+        ))
     };
     let grid = section.voxelize(&no_files).unwrap();
     assert_eq!(grid, cloud.voxelize(section.voxel_size_m, None).unwrap());
@@ -323,7 +326,10 @@ fn scene_source_level_selects_the_summed_spheres() {
     let params = SphereCloudParams::cumulus(3, 9);
     let cloud = SphereCloud::new(&params).unwrap();
     let no_files = |path: &str| -> skybake_physics::Result<Vec<u8>> {
-        Err(skybake_physics::Error::invalid("path", format!("no file {path}")))
+        Err(skybake_physics::Error::invalid(
+            "path",
+            format!("no file {path}"),
+        ))
     };
     let source = |level: Option<u32>| {
         CloudSource::Spheres(SpheresSource {

@@ -4,9 +4,9 @@
 
 use glam::DVec3;
 use serde_json::{json, Value};
-use skybake_physics::cloud::DensityGrid;
 use skybake_engine::engine::Engine;
 use skybake_harness::frame_bench::image_errors;
+use skybake_physics::cloud::DensityGrid;
 use skybake_render::light::fibonacci;
 use skybake_render::{lighting_for, render_frame, Frame, FrameScene, Method, RenderSettings};
 use std::f64::consts::PI;
@@ -186,7 +186,8 @@ fn thin_slab_matches_analytic_single_scattering() {
     let d = scene.camera.forward;
     let mu = -d.z;
     let mu0 = scene.sun.direction().z;
-    let p = skybake_physics::phase::Phase::HenyeyGreenstein { g }.eval(scene.sun.direction().dot(d));
+    let p =
+        skybake_physics::phase::Phase::HenyeyGreenstein { g }.eval(scene.sun.direction().dot(d));
     let expected = omega * p * mu0 / (mu0 + mu) * (1.0 - (-tau * (1.0 / mu0 + 1.0 / mu)).exp());
     for (method, spp) in [(Method::Reference, 2048), (Method::Fast, 1)] {
         let f = render(&scene, &grid, method, spp);

@@ -7,8 +7,8 @@
 
 use glam::DVec3;
 use serde_json::{json, Value};
-use skybake_physics::cloud::DensityGrid;
 use skybake_engine::engine::Engine;
+use skybake_physics::cloud::DensityGrid;
 use skybake_render::{lighting_for, render_frame, FrameScene, Method, RenderSettings, Tile};
 
 const DATA: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/tests/data");
@@ -236,7 +236,8 @@ fn cloud_matches_mitsuba() {
         let grid = scene
             .cloud
             .voxelize(&|p: &str| {
-                std::fs::read(format!("{DATA}/{p}")).map_err(|e| skybake_physics::Error::invalid("path", e))
+                std::fs::read(format!("{DATA}/{p}"))
+                    .map_err(|e| skybake_physics::Error::invalid("path", e))
             })
             .unwrap();
         let reference = npy(&format!("cloud_mitsuba_{case}.npy"));
@@ -338,7 +339,8 @@ fn fast_cloud_matches_mitsuba_cases() {
         let grid = scene
             .cloud
             .voxelize(&|p: &str| {
-                std::fs::read(format!("{DATA}/{p}")).map_err(|e| skybake_physics::Error::invalid("path", e))
+                std::fs::read(format!("{DATA}/{p}"))
+                    .map_err(|e| skybake_physics::Error::invalid("path", e))
             })
             .unwrap();
         let reference = npy(&format!("cloud_mitsuba_{case}.npy"));

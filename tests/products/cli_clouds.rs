@@ -29,7 +29,10 @@ fn skybake(args: &[&str], cwd: &Path) -> Output {
 }
 
 fn no_files(path: &str) -> skybake_physics::Result<Vec<u8>> {
-    Err(skybake_physics::Error::invalid("path", format!("no file {path}")))
+    Err(skybake_physics::Error::invalid(
+        "path",
+        format!("no file {path}"),
+    ))
 }
 
 /// Stderr of a run that must fail with exit code 2 and an `error: ...` line.

@@ -16,11 +16,11 @@ use service_support::{settings, Scratch};
 use skybake_physics::cloud::import::{to_npy_bytes, to_raw_f32};
 use skybake_physics::cloud::scene::{parse_cloud_section, voxelize_within};
 use skybake_physics::cloud::DensityGrid;
-use skybake_product::frame::{example_file, EXAMPLE_SCENES};
+use skybake_physics::Error;
 use skybake_product::frame::FrameRequest;
+use skybake_product::frame::{example_file, EXAMPLE_SCENES};
 use skybake_render::{Method, MAX_RENDER_VOXELS};
 use skybake_service::{app, AppState};
-use skybake_physics::Error;
 use tower::ServiceExt;
 
 fn example(name: &str) -> Value {

@@ -9,10 +9,10 @@ use crate::service_support;
 use serde_json::{json, Value};
 use service_support::{bake_single_exr, call, settings, skybake_ok, tiny_frame_scene, Scratch};
 use skybake_engine::engine::Stages;
+use skybake_physics::image::layout::{ATTR_COMPUTE_TIME_MS, ATTR_FILE_CHECKSUM};
 use skybake_product::frame::{frame_meta_json, ATTR_FRAME_META};
 use skybake_render::{FrameError, FrameMeta, Method, ERROR_BASIS};
 use skybake_service::AppState;
-use skybake_physics::image::layout::{ATTR_COMPUTE_TIME_MS, ATTR_FILE_CHECKSUM};
 
 /// Byte range of the value of string attribute `name` in an EXR header.
 fn attribute_range(bytes: &[u8], name: &str) -> std::ops::Range<usize> {

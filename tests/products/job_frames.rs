@@ -10,8 +10,8 @@ use service_support::{settings, Scratch, TestServer};
 use skybake_job::bake::{bake, bake_with_cancel};
 use skybake_job::spec::{ItemRequest, JobSpec};
 use skybake_job::JobError;
-use skybake_product::params::Defaults;
 use skybake_product::frame::EXAMPLE_SCENES;
+use skybake_product::params::Defaults;
 use skybake_store::{read_exr_file, TileStore};
 use std::time::Duration;
 

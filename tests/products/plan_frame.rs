@@ -3,16 +3,16 @@
 //! what a cost rule leaves out changes the image by less than its predicted share.
 
 use serde_json::{json, Value};
-use skybake_physics::cloud::DensityGrid;
 use skybake_engine::engine::Engine;
 use skybake_engine::plan::{
     Coarsening, FramePlan, FrameReason, FrameStage, COARSENING_ERROR, FRAME_MEASURED_ERROR,
     MEASURED_LIGHT_SHARE_SAFETY, MS_GRID_ERROR, SPHERE_LEVEL_ERROR,
 };
+use skybake_physics::cloud::DensityGrid;
+use skybake_product::frame::FrameRequest;
 use skybake_product::frame::{
     execute_plan, frame_summary, measured_shares, plan_frame, sphere_facts, NoTiles,
 };
-use skybake_product::frame::FrameRequest;
 use skybake_render::{lighting_for, render_tile, FrameScene, Method, Prepared};
 use skybake_service::AppState;
 

@@ -9,12 +9,12 @@ use skybake_engine::plan::{
     rgb_wavelengths_rule, Budget, RgbFacts, WavelengthCandidate, FRAME_MEASURED_ERROR,
     RGB_PROXY_SAFETY,
 };
+use skybake_physics::image::SpectralImage;
+use skybake_product::frame::FrameRequest;
 use skybake_product::params::RequestParams;
 use skybake_product::{ProductKind, ProductRequest};
-use skybake_product::frame::FrameRequest;
 use skybake_render::Method;
 use skybake_service::AppState;
-use skybake_physics::image::SpectralImage;
 
 use crate::service_support;
 use service_support::{call, settings, skybake_ok, Scratch};

@@ -8,10 +8,10 @@ use crate::service_support;
 use axum::body::Body;
 use axum::http::Request;
 use service_support::{bake_single_exr, settings, Scratch};
+use skybake_physics::image::layout::ATTR_FILE_CHECKSUM;
 use skybake_product::params::RequestParams;
 use skybake_product::{render, Format, ProductKind, ProductRequest, TIMING_ATTRIBUTES};
 use skybake_service::{app, AppState};
-use skybake_physics::image::layout::ATTR_FILE_CHECKSUM;
 use tower::ServiceExt;
 
 const QUERY: &str = "method=fast&quality=draft&wavelengths=440,550&sun_elevation_deg=20&elevation_count=5&azimuth_count=3";
@@ -112,9 +112,13 @@ async fn a_malformed_cached_artifact_is_a_server_fault_and_is_recomputed() {
         .unwrap();
     let req = ProductRequest::from_params(ProductKind::Sky, &p).unwrap();
     // A verified EXR (it passes the store's checksum) without the response envelope.
-    let bad =
-        skybake_physics::image::SpectralImage::emissive(3, 5, &[440.0, 550.0], vec![vec![0.0; 15]; 2])
-            .unwrap();
+    let bad = skybake_physics::image::SpectralImage::emissive(
+        3,
+        5,
+        &[440.0, 550.0],
+        vec![vec![0.0; 15]; 2],
+    )
+    .unwrap();
     let err = render(ProductKind::Sky, Format::Json, &bad).unwrap_err();
     assert!(
         !err.is_input(),

@@ -11,8 +11,8 @@ use axum::http::Request;
 use serde_json::{json, Value};
 use service_support::{settings, tiny_frame_scene, Scratch, TestServer};
 use skybake_engine::engine::Engine;
-use skybake_product::frame::{example_file, TileProgress};
 use skybake_product::frame::FrameRequest;
+use skybake_product::frame::{example_file, TileProgress};
 use skybake_render::Method;
 use skybake_service::{app, AppState};
 use skybake_store::{decode_exr, TileStore};
@@ -128,7 +128,10 @@ fn an_interrupted_render_resumes_from_its_tiles_and_matches_an_uninterrupted_one
             )
             .unwrap();
         assert_eq!(pixels(&enc(&again)), pixels(&enc(&whole)));
-        assert_eq!(fresh.table_builds(skybake_engine::engine::Table::Density), 0);
+        assert_eq!(
+            fresh.table_builds(skybake_engine::engine::Table::Density),
+            0
+        );
         tiles.remove_all().unwrap();
     }
 }

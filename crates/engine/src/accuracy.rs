@@ -8,11 +8,11 @@
 //! measured bands there is no figure and the product says `validated: false`.
 //! `src/report/` makes the data; this module only reads it (the engine may use it).
 
-use skybake_physics::atmosphere::params::{AtmosphereParams, MieExtinction};
-use skybake_physics::atmosphere::sky::MsMethod;
 use crate::spec::{CommonSpec, ProductKind, Quality};
 use crate::{Error, Result};
 use serde::{Deserialize, Serialize};
+use skybake_physics::atmosphere::params::{AtmosphereParams, MieExtinction};
+use skybake_physics::atmosphere::sky::MsMethod;
 use std::sync::OnceLock;
 
 /// Sun elevation below which a `fast` request is computed with the precise tables instead: the

@@ -1,22 +1,26 @@
 //! The engine: turns validated specs into products, reusing shared precomputed tables across
 //! requests. Pure computation; the only clock read is for timing.
 
+use crate::plan::{Plan, Reason, Stage};
+use crate::spec::{AerialSpec, CommonSpec, DomeSpec, ProductKind, ProductSpec};
+use crate::{Error, Result};
+use rayon::prelude::*;
+use serde::Serialize;
 use skybake_physics::atmosphere::integrate::{Recorder, Scratch};
-use skybake_physics::atmosphere::irradiance::{hemisphere_irradiance, SUN_PRODUCT_N_MU, SUN_PRODUCT_N_PHI};
-use skybake_physics::atmosphere::shared::{init_unless, Persistence, SharedTables, TableEvents, TableStore};
+use skybake_physics::atmosphere::irradiance::{
+    hemisphere_irradiance, SUN_PRODUCT_N_MU, SUN_PRODUCT_N_PHI,
+};
+use skybake_physics::atmosphere::shared::{
+    init_unless, Persistence, SharedTables, TableEvents, TableStore,
+};
 use skybake_physics::atmosphere::sky::{
     dome_table_unless, horizon_axis_deg, horizon_dip_deg, DomeTable, MsMethod, Observer,
     RadianceEvaluator,
 };
 use skybake_physics::atmosphere::sun_transmittance::sun_transmittance;
 use skybake_physics::atmosphere::Medium;
-use crate::plan::{Plan, Reason, Stage};
-use crate::spec::{AerialSpec, CommonSpec, DomeSpec, ProductKind, ProductSpec};
 use skybake_physics::spectrum::colour::XyzWeights;
 use skybake_physics::spectrum::photometry::{correlated_colour_temperature, illuminance_lux};
-use crate::{Error, Result};
-use rayon::prelude::*;
-use serde::Serialize;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::Instant;
@@ -47,8 +51,8 @@ fn checkpoint(cancelled: CancelCheck) -> Result<()> {
 const SHARED_CAPACITY: usize = 8;
 
 pub use crate::accuracy::{stated_relative_error, stated_twilight_error};
-pub use skybake_physics::atmosphere::quality::settings_for;
 pub use crate::plan::{effective_method, FAST_TWILIGHT_LIMIT_DEG};
+pub use skybake_physics::atmosphere::quality::settings_for;
 
 /// Error estimate attached to every product.
 #[derive(Debug, Clone, PartialEq, Serialize)]

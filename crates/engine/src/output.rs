@@ -1,12 +1,12 @@
 //! Output forms of the atmosphere products: JSON documents (serde structs) and PNG previews.
 //! Encoding only; writing files is the caller's (CLI) or the store's business.
 
-use skybake_physics::atmosphere::sky::DomeTable;
 use crate::engine::{AerialProduct, DomeProduct, ErrorEstimate, Probe, ProductMeta};
 use crate::spec::CommonSpec;
-use skybake_physics::spectrum::colour::{srgb_encode, XyzWeights};
 use crate::{Error, Result};
 use serde::Serialize;
+use skybake_physics::atmosphere::sky::DomeTable;
+use skybake_physics::spectrum::colour::{srgb_encode, XyzWeights};
 
 /// JSON form of a sky or ground product.
 #[derive(Debug, Serialize)]

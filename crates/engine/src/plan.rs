@@ -10,13 +10,13 @@
 //! [`darkest_twilight_deg`] nothing the observer sees is lit, and every scattering stage is left
 //! out). Cost rules (work whose predicted contribution is under the error budget) are new arms of [`plan`], with a new [`Reason`] each.
 
+use crate::spec::{CommonSpec, ProductKind};
+use serde::ser::SerializeStruct;
+use serde::{Serialize, Serializer};
 use skybake_physics::atmosphere::multiple_precise::source_sun_zenith_limit_rad;
 use skybake_physics::atmosphere::sky::MsMethod;
 use skybake_physics::atmosphere::sun_transmittance::sun_disk_visible_fraction;
 use skybake_physics::atmosphere::Medium;
-use crate::spec::{CommonSpec, ProductKind};
-use serde::ser::SerializeStruct;
-use serde::{Serialize, Serializer};
 use std::f64::consts::FRAC_PI_2;
 
 /// A unit of work the engine can run for a product.
@@ -368,8 +368,10 @@ pub fn plan(product: ProductKind, spec: &CommonSpec, m: &Medium) -> Plan {
     if product == ProductKind::Sun {
         let visible =
             sun_disk_visible_fraction(m, spec.observer_altitude_m, elevation.to_radians());
-        let horizon_elevation_deg =
-            -skybake_physics::atmosphere::sky::horizon_dip_deg(m.bottom_radius_m, spec.observer_altitude_m);
+        let horizon_elevation_deg = -skybake_physics::atmosphere::sky::horizon_dip_deg(
+            m.bottom_radius_m,
+            spec.observer_altitude_m,
+        );
         rule(
             Stage::DirectSun,
             (visible == 0.0).then_some(Reason::SunBelowHorizon {

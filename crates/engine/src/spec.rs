@@ -3,12 +3,12 @@
 //! (CLI flags, query strings, JSON bodies) into these; the constructors here hold the limits, so a
 //! spec that exists is valid and nothing downstream checks again.
 
-use skybake_physics::atmosphere::params::AtmosphereParams;
-use skybake_physics::atmosphere::sky::MsMethod;
-pub use skybake_physics::atmosphere::quality::Quality;
-use skybake_physics::spectrum::Wavelengths;
 use crate::{Error, Result};
 use serde::{Deserialize, Serialize};
+use skybake_physics::atmosphere::params::AtmosphereParams;
+pub use skybake_physics::atmosphere::quality::Quality;
+use skybake_physics::atmosphere::sky::MsMethod;
+use skybake_physics::spectrum::Wavelengths;
 
 /// Highest observer altitude accepted, m (geostationary orbit and a bit).
 pub const MAX_OBSERVER_ALTITUDE_M: f64 = 40_000_000.0;

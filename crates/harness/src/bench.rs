@@ -3,15 +3,15 @@
 //! cloud density sources (the automaton step of Dobashi et al. 2000, Ostroushko et al.'s table 1, metaballs, fractal growth,
 //! satellite fitting), the solar position and the tile store.
 
+use skybake_engine::engine::{DomeShape, Engine};
+use skybake_engine::spec::CommonSpec;
 use skybake_physics::cloud::automaton::bench_ca_step;
 use skybake_physics::cloud::fractal::bench_fractal_grow;
 use skybake_physics::cloud::metaballs::bench_metaball_voxelize;
 use skybake_physics::cloud::satellite::bench_satellite_fit;
 use skybake_physics::cloud::spheres::{bench_spheres, SpheresBench};
-use skybake_engine::engine::{DomeShape, Engine};
-use skybake_product::params::RequestParams;
 use skybake_physics::solar_position::bench_solar_position;
-use skybake_engine::spec::CommonSpec;
+use skybake_product::params::RequestParams;
 
 use crate::{Error, Result};
 use serde::Serialize;
@@ -346,11 +346,17 @@ fn bench_store_stages(
     let dir = std::env::temp_dir();
     let runs_out: Vec<crate::store_bench::StoreBench> = (0..runs)
         .map(|_| {
-            crate::store_bench::bench_store(&dir, 256, 128, 16, skybake_store::ExrCompression::Zip, 1).map_err(|e| {
-                match e {
-                    skybake_store::StoreError::Invalid(e) => e,
-                    other => Error::invalid("store", other.to_string()),
-                }
+            crate::store_bench::bench_store(
+                &dir,
+                256,
+                128,
+                16,
+                skybake_store::ExrCompression::Zip,
+                1,
+            )
+            .map_err(|e| match e {
+                skybake_store::StoreError::Invalid(e) => e,
+                other => Error::invalid("store", other.to_string()),
             })
         })
         .collect::<Result<_>>()?;

@@ -3,12 +3,12 @@
 //! ground tables built inside the timed region) and warm; `frame-accuracy` compares the fast
 //! method with the path tracer on the same scene at a reduced resolution.
 
-use skybake_render::{lighting_for, render_frame, FrameScene, Method, RenderSettings};
-use skybake_physics::cloud::DensityGrid;
-use skybake_engine::engine::Engine;
 use crate::Result;
 use glam::DVec3;
 use serde::Serialize;
+use skybake_engine::engine::Engine;
+use skybake_physics::cloud::DensityGrid;
+use skybake_render::{lighting_for, render_frame, FrameScene, Method, RenderSettings};
 use std::time::Instant;
 
 /// Voxels per axis of the benchmark cumulus.

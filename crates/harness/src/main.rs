@@ -132,11 +132,15 @@ fn read_report_part<T: serde::de::DeserializeOwned>(
 
 /// `skybake-harness report --planner`: measures the planner's cost rules and writes `planner.md`.
 fn run_planner_report(out: &Path) -> Result<()> {
-    let rows =
-        skybake_harness::report::planner::run(&|done, total| eprintln!("planner report: {done}/{total}"))?;
+    let rows = skybake_harness::report::planner::run(&|done, total| {
+        eprintln!("planner report: {done}/{total}")
+    })?;
     let load = skybake_harness::bench::load_average_1min();
-    let md =
-        skybake_harness::report::planner::markdown(&rows, rayon::current_num_threads(), load.as_deref());
+    let md = skybake_harness::report::planner::markdown(
+        &rows,
+        rayon::current_num_threads(),
+        load.as_deref(),
+    );
     skybake_store::files::create_dir_all(out)?;
     let path = out.join("planner.md");
     skybake_store::write_atomic(&path, md.as_bytes())?;
@@ -185,7 +189,10 @@ fn run_report(
     let report: Option<Report> = if only == Some(ReportPart::Frames) {
         read_report_part(&out.join("report.json"), "out")?
     } else {
-        let mut r = skybake_harness::report::run(&skybake_harness::report::ReportOptions { quick }, &progress)?;
+        let mut r = skybake_harness::report::run(
+            &skybake_harness::report::ReportOptions { quick },
+            &progress,
+        )?;
         r.machine_load = load();
         Some(r)
     };
@@ -193,7 +200,8 @@ fn run_report(
         read_report_part(&out.join("frames.json"), "out")?
     } else {
         // A full run keeps its converged references next to the report (they take minutes).
-        let mut f = skybake_harness::report::frames::run(quick, (!quick).then_some(out), &progress)?;
+        let mut f =
+            skybake_harness::report::frames::run(quick, (!quick).then_some(out), &progress)?;
         f.machine_load = load();
         Some(f)
     };

@@ -9,11 +9,11 @@ use super::run::MAX_KEPT_ERRORS;
 use super::spec::{ItemRequest, JobSpec};
 use super::store::ItemError;
 use super::JobError;
+use serde::Serialize;
+use serde_json::json;
 use skybake_engine::engine::{Engine, ENGINE_VERSION};
 use skybake_product::params::Defaults;
 use skybake_store::{checksum, encode_exr, files, write_atomic, TileStore};
-use serde::Serialize;
-use serde_json::json;
 use std::path::Path;
 
 /// Summary of an offline bake.

@@ -24,10 +24,10 @@
 //! `frames[i][k].<field>`.
 
 use super::JobError;
-use skybake_product::frame::{example_scene, FrameRequest};
-use skybake_render::Method;
 use crate::Error;
 use serde_json::{Map, Value};
+use skybake_product::frame::{example_scene, FrameRequest};
+use skybake_render::Method;
 
 /// Axes a frame entry can sweep.
 pub const FRAME_AXES: &[&str] = &[

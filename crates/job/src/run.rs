@@ -137,13 +137,15 @@ impl Jobs {
         };
         let mut found = Vec::new();
         for s in stored {
-            let spec = match JobSpec::parse_body(&s.body, skybake_product::config::MAX_JOB_PRODUCTS_LIMIT) {
-                Ok(spec) => spec,
-                Err(e) => {
-                    tracing::warn!(job = %s.id, error = %e, "persisted job not loaded");
-                    continue;
-                }
-            };
+            let spec =
+                match JobSpec::parse_body(&s.body, skybake_product::config::MAX_JOB_PRODUCTS_LIMIT)
+                {
+                    Ok(spec) => spec,
+                    Err(e) => {
+                        tracing::warn!(job = %s.id, error = %e, "persisted job not loaded");
+                        continue;
+                    }
+                };
             let status = s.status.unwrap_or_else(|| JobStatus::queued(spec.len()));
             if status.total != spec.len() {
                 tracing::warn!(job = %s.id, "persisted status does not match the job");

@@ -5,11 +5,11 @@
 
 use super::frames::FrameSweep;
 use super::JobError;
-use skybake_product::params::{Defaults, RequestParams};
-use skybake_product::{product_of, ProductKind, ProductRequest};
-use skybake_product::frame::FrameRequest;
 use crate::Error;
 use serde_json::{Map, Value};
+use skybake_product::frame::FrameRequest;
+use skybake_product::params::{Defaults, RequestParams};
+use skybake_product::{product_of, ProductKind, ProductRequest};
 
 /// Most errors kept per job (later ones are counted only).
 pub const MAX_KEPT_ERRORS: usize = 1000;

@@ -5,8 +5,8 @@
 //! those already computed are cache hits.
 
 use super::JobError;
-use skybake_store::{files, write_atomic};
 use serde::{Deserialize, Serialize};
+use skybake_store::{files, write_atomic};
 use std::path::{Path, PathBuf};
 
 /// A stored job that cannot be read: (job id, why).

@@ -11,13 +11,13 @@
 //! [`Error::Internal`] (a server fault), never a request error.
 
 use super::{Format, ProductKind, ProductRequest};
-use skybake_physics::atmosphere::sky::DomeTable;
-use skybake_engine::engine::{Engine, Product, ENGINE_VERSION};
-use skybake_engine::output::{dome_png, AerialJson, DomeJson, Projection};
-use skybake_store::{layout, SpectralImage};
 use crate::{Error, Result};
 use serde::Serialize;
 use serde_json::{Map, Value};
+use skybake_engine::engine::{Engine, Product, ENGINE_VERSION};
+use skybake_engine::output::{dome_png, AerialJson, DomeJson, Projection};
+use skybake_physics::atmosphere::sky::DomeTable;
+use skybake_store::{layout, SpectralImage};
 
 /// Attribute holding the JSON response envelope (the response without its big arrays).
 pub const ATTR_RESPONSE_JSON: &str = "skybakeResponse";

@@ -216,7 +216,9 @@ impl Settings {
         let text = file
             .map(|p| {
                 skybake_store::files::read(p)
-                    .map_err(|e| config_err("--config", format!("cannot read {}: {e}", p.display())))
+                    .map_err(|e| {
+                        config_err("--config", format!("cannot read {}: {e}", p.display()))
+                    })
                     .and_then(|bytes| {
                         String::from_utf8(bytes).map_err(|e| {
                             config_err("--config", format!("{} is not UTF-8: {e}", p.display()))

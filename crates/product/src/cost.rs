@@ -14,15 +14,15 @@
 //! wavelength decides. The estimate assumes cold tables (a warm table costs nothing to reuse),
 //! so it is an upper bound on the first request for a medium.
 
+use crate::ProductRequest;
+use crate::Result;
+use serde::Serialize;
+use skybake_engine::spec::ProductSpec;
 use skybake_physics::atmosphere::irradiance::{SUN_PRODUCT_N_MU, SUN_PRODUCT_N_PHI};
 use skybake_physics::atmosphere::medium::{MIE, RAYLEIGH};
 use skybake_physics::atmosphere::quality::settings_for;
 use skybake_physics::atmosphere::sky::MsMethod;
 use skybake_physics::atmosphere::Medium;
-use crate::ProductRequest;
-use skybake_engine::spec::ProductSpec;
-use crate::Result;
-use serde::Serialize;
 
 /// The cost estimate of one request, in cell-wavelength-order units.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize)]

@@ -3,10 +3,10 @@
 //! response, plan, error estimate and timing attributes are added by [`crate::artifact`],
 //! the one place that makes artifacts. Encoding only; `store` writes.
 
+use crate::Result;
 use skybake_engine::engine::{AerialProduct, DomeProduct, SunProduct};
 use skybake_engine::output::rgb_planes;
 use skybake_store::{layout, SpectralImage};
-use crate::Result;
 
 /// The sun product as a 1×1 spectral image: layer `T` holds the transmittance (the irradiances
 /// are in the JSON envelope).

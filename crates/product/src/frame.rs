@@ -10,20 +10,20 @@
 //! depend on the tiling (every pixel's rays and random stream are its own), so a resumed frame is
 //! the frame an uninterrupted run gives.
 
-use skybake_render::{
-    lighting_for, relative_noise, render_tile, FrameError, FrameMeta, FrameScene, Method, Prepared,
-    RenderSettings, Tile, ERROR_BASIS,
-};
-use skybake_physics::cloud::DensityGrid;
+use crate::{Error, Result};
+use serde::{Deserialize, Serialize};
 use skybake_engine::engine::{Engine, Stages};
 use skybake_engine::plan::{
     Budget, FrameFacts, FramePlan, FrameReason, FrameStage, RgbFacts, SphereFacts, WavelengthSubset,
 };
+use skybake_physics::cloud::DensityGrid;
 use skybake_physics::spectrum::Wavelengths;
+use skybake_render::{
+    lighting_for, relative_noise, render_tile, FrameError, FrameMeta, FrameScene, Method, Prepared,
+    RenderSettings, Tile, ERROR_BASIS,
+};
 use skybake_store::tiles::ATTR_TILE_OF;
 use skybake_store::{decode_exr, encode_exr, SpectralImage, StoreError};
-use crate::{Error, Result};
-use serde::{Deserialize, Serialize};
 use std::time::Instant;
 
 /// Edge of a render tile, pixels.
@@ -365,8 +365,8 @@ fn view_of_box(
     lo: glam::DVec3,
     hi: glam::DVec3,
 ) -> (bool, f64, f64) {
-    use skybake_render::scene::Projection;
     use glam::DVec3;
+    use skybake_render::scene::Projection;
     let corners: Vec<DVec3> = (0..8)
         .map(|c| {
             DVec3::new(
@@ -426,9 +426,9 @@ fn view_of_box(
 /// as needed (a parent's children come from its own random stream, so the first L levels of a
 /// hierarchy of K ≥ L ≥ 1 levels are those of a hierarchy of L levels); no voxels.
 pub fn sphere_facts(scene: &FrameScene) -> Result<Option<SphereFacts>> {
+    use glam::DVec3;
     use skybake_physics::cloud::scene::CloudSource;
     use skybake_physics::cloud::spheres::SphereCloud;
-    use glam::DVec3;
     let CloudSource::Spheres(source) = &scene.cloud.source else {
         return Ok(None);
     };
@@ -476,8 +476,8 @@ pub fn frame_facts_with(
     method: Method,
     inputs: &PlanInputs,
 ) -> FrameFacts {
-    use skybake_render::scene::SkySpec;
     use glam::DVec3;
+    use skybake_render::scene::SkySpec;
     let [nx, ny, nz] = grid.dims;
     let (mut lo_i, mut hi_i) = ([usize::MAX; 3], [0usize; 3]);
     for z in 0..nz {
@@ -861,7 +861,10 @@ impl FrameRequest {
 
     /// The cache key: blake3 of the canonical request and the engine version.
     pub fn cache_key(&self) -> String {
-        skybake_physics::key::cache_key(&self.canonical_json(), skybake_engine::engine::ENGINE_VERSION)
+        skybake_physics::key::cache_key(
+            &self.canonical_json(),
+            skybake_engine::engine::ENGINE_VERSION,
+        )
     }
 
     /// The frame's plan (voxelises the cloud to measure it; lights and renders nothing): what
@@ -950,7 +953,12 @@ impl FrameRequest {
             None
         };
         inputs.lighting = measured.as_ref();
-        let plan = skybake_engine::plan::plan_frame(&frame_facts_with(&scene, &grid, self.method, &inputs));
+        let plan = skybake_engine::plan::plan_frame(&frame_facts_with(
+            &scene,
+            &grid,
+            self.method,
+            &inputs,
+        ));
         let run = execute_plan(&plan, &scene, &grid, self.method)?;
         let grid = match run.grid {
             Some(g) => g,
@@ -1207,7 +1215,10 @@ impl FrameRequest {
         // The metadata again with its timings at a fixed width, so two computations of a request
         // (CLI, service, bake) differ only in those values' bytes.
         image.set_attribute(ATTR_FRAME_META, frame_meta_json(&frame.meta)?)?;
-        image.set_attribute(skybake_physics::image::layout::ATTR_CACHE_KEY, self.cache_key())?;
+        image.set_attribute(
+            skybake_physics::image::layout::ATTR_CACHE_KEY,
+            self.cache_key(),
+        )?;
         image.set_attribute(
             ATTR_FRAME_TILES,
             serde_json::json!({"tile_size": TILE_SIZE, "total": total, "computed": computed, "reused": reused})

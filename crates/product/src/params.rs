@@ -6,17 +6,17 @@
 //! Parameters arrive as strings (CLI flags, query values, JSON members spelled as text) and are
 //! parsed into the canonical [`CommonSpec`] here ("parse, don't validate": the spec's constructors hold the limits, so nothing downstream checks again).
 
-use skybake_physics::atmosphere::params::AtmosphereParams;
-use skybake_physics::atmosphere::presets;
-use skybake_physics::atmosphere::sky::MsMethod;
+use crate::{Error, Result};
+use serde::{Deserialize, Serialize};
+use serde_json::{Map, Value};
 use skybake_engine::spec::{
     CommonSpec, ProductKind, Quality, SolarLocation, SunPosition, MAX_OBSERVER_ALTITUDE_M,
     MAX_PROBES,
 };
+use skybake_physics::atmosphere::params::AtmosphereParams;
+use skybake_physics::atmosphere::presets;
+use skybake_physics::atmosphere::sky::MsMethod;
 use skybake_physics::spectrum::Wavelengths;
-use crate::{Error, Result};
-use serde::{Deserialize, Serialize};
-use serde_json::{Map, Value};
 
 /// The allowed values of a parameter (used by the parser and printed in the docs).
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -296,7 +296,8 @@ pub fn common_spec(p: &RequestParams, min_sun_elevation_deg: f64) -> Result<Comm
         (None, Some(lat), Some(lon), Some(time)) => {
             let lat = row("latitude_deg").real(lat)?;
             let lon = row("longitude_deg").real(lon)?;
-            let (elevation, azimuth) = skybake_physics::solar::sun_elevation_azimuth_deg(lat, lon, time)?;
+            let (elevation, azimuth) =
+                skybake_physics::solar::sun_elevation_azimuth_deg(lat, lon, time)?;
             if elevation < min_sun_elevation_deg {
                 return Err(Error::out_of_range(
                     "time",

@@ -12,20 +12,21 @@
 //! through `from_object` as one more [`ProductKind`]/[`ProductSpec`] variant, with an image of
 //! width × height in the same channel layout as its artifact.
 
-
+use crate::params::{parameter, PairsError, RequestParams};
+use crate::{Error, Result};
+use serde::Serialize;
+use serde_json::{Map, Value};
 use skybake_engine::engine::ENGINE_VERSION;
 use skybake_engine::spec::{
     AerialSpec, CommonSpec, DomeShape, DomeSpec, AERIAL_DISTANCE_COUNT, AERIAL_MAX_DISTANCE_M,
     AERIAL_SHAPE, GROUND_SHAPE, SKY_SHAPE,
 };
 use skybake_physics::key::cache_key;
-use crate::{Error, Result};
-use crate::params::{parameter, PairsError, RequestParams};
-use serde::Serialize;
-use serde_json::{Map, Value};
 
+pub use crate::artifact::{
+    render, ATTR_RESPONSE_JSON, ATTR_TABLES_WARM, PNG_SIZE, TIMING_ATTRIBUTES,
+};
 pub use skybake_engine::spec::{ProductKind, ProductSpec};
-pub use crate::artifact::{render, ATTR_RESPONSE_JSON, ATTR_TABLES_WARM, PNG_SIZE, TIMING_ATTRIBUTES};
 
 /// Response body format.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize)]
@@ -194,7 +195,8 @@ impl ProductRequest {
     /// request's rule undone, in the same format.
     pub fn without_rgb_only(mut self) -> Result<Self> {
         if let Some(subset) = self.rgb_only.take() {
-            self.spec.wavelengths_nm = skybake_physics::spectrum::Wavelengths::new(subset.requested_nm)?;
+            self.spec.wavelengths_nm =
+                skybake_physics::spectrum::Wavelengths::new(subset.requested_nm)?;
         }
         Ok(self)
     }

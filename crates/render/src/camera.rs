@@ -2,8 +2,8 @@
 //! shared [`skybake_physics::camera::Ray`] leaf.
 
 use super::scene::{CameraSpec, Projection};
-use skybake_physics::camera::Ray;
 use glam::DVec3;
+use skybake_physics::camera::Ray;
 
 /// The ray through image position (`px`, `py`) in pixels from the top-left corner (pixel centres
 /// at i + ½); `None` outside a fisheye's circle.

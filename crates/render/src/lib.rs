@@ -41,12 +41,12 @@ pub use multiple::PhotonSettings;
 pub use pattern::{MsMethod, PatternSettings};
 pub use scene::FrameScene;
 
-use skybake_physics::cloud::DensityGrid;
-use skybake_engine::engine::{Engine, Stages};
-use skybake_physics::atmosphere::quality::Quality;
-pub use skybake_physics::{Error, Result};
 use rayon::prelude::*;
 use serde::Serialize;
+use skybake_engine::engine::{Engine, Stages};
+use skybake_physics::atmosphere::quality::Quality;
+use skybake_physics::cloud::DensityGrid;
+pub use skybake_physics::{Error, Result};
 use std::sync::atomic::{AtomicUsize, Ordering};
 use std::time::Instant;
 

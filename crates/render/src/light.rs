@@ -7,10 +7,10 @@
 //! pass serves every wavelength.
 
 use super::lighting::Lighting;
-use skybake_physics::cloud::DensityGrid;
-use skybake_physics::phase::Phase;
 use glam::DVec3;
 use rayon::prelude::*;
+use skybake_physics::cloud::DensityGrid;
+use skybake_physics::phase::Phase;
 use std::f64::consts::PI;
 
 /// The 14 lattice directions of the sky elements: the 6 axes and the 8 cube diagonals

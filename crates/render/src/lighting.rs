@@ -7,11 +7,11 @@
 //! any atmosphere for vacuum scenes.
 
 use super::scene::{direction_from_deg, FrameScene, SkySpec};
-use skybake_physics::atmosphere::sky::{DomeTable, MsMethod};
-use skybake_engine::engine::{AerialProduct, DomeShape, Engine};
-use skybake_engine::spec::{CommonSpec, Quality, SunPosition};
 use crate::Result;
 use glam::DVec3;
+use skybake_engine::engine::{AerialProduct, DomeShape, Engine};
+use skybake_engine::spec::{CommonSpec, Quality, SunPosition};
+use skybake_physics::atmosphere::sky::{DomeTable, MsMethod};
 use std::f64::consts::PI;
 use std::sync::Arc;
 

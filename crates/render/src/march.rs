@@ -14,11 +14,11 @@ use super::pathtracer::PathTracer;
 use super::scene::{FrameScene, Projection};
 use super::volume::CloudVolume;
 use super::{Method, RenderSettings};
-use skybake_physics::camera::Ray;
-use skybake_physics::cloud::DensityGrid;
-use skybake_engine::engine::Stages;
 use glam::DVec3;
 use rayon::prelude::*;
+use skybake_engine::engine::Stages;
+use skybake_physics::camera::Ray;
+use skybake_physics::cloud::DensityGrid;
 use std::f64::consts::PI;
 use std::time::Instant;
 
@@ -194,9 +194,9 @@ impl<'a> Prepared<'a> {
                 for (v, s) in vox.chunks_mut(stride).zip(&d) {
                     v[0] = *s;
                 }
-                stages
-                    .ran
-                    .push("sun optical path per voxel (cumulative, Nishita et al. 1996, §3.2)".into());
+                stages.ran.push(
+                    "sun optical path per voxel (cumulative, Nishita et al. 1996, §3.2)".into(),
+                );
             } else {
                 stages
                     .skipped
@@ -350,9 +350,9 @@ impl<'a> Prepared<'a> {
                 .ran
                 .push("aerial perspective between camera and cloud".into());
             if sw.shafts_of_light && shadow.is_some() {
-                stages
-                    .ran
-                    .push("shafts of light below the cloud base (Dobashi et al. 2000, eq 13-14)".into());
+                stages.ran.push(
+                    "shafts of light below the cloud base (Dobashi et al. 2000, eq 13-14)".into(),
+                );
             }
         } else {
             stages

@@ -26,12 +26,12 @@
 
 use super::lighting::Lighting;
 use super::scene::Optics;
-use skybake_physics::cloud::DensityGrid;
-use skybake_physics::phase::{orthonormal_basis, Phase};
 use glam::DVec3;
 use rand::{Rng, SeedableRng};
 use rand_pcg::Pcg64;
 use rayon::prelude::*;
+use skybake_physics::cloud::DensityGrid;
+use skybake_physics::phase::{orthonormal_basis, Phase};
 use std::f64::consts::PI;
 
 /// Settings of the photon pass.

@@ -13,11 +13,11 @@
 use super::lighting::Lighting;
 use super::scene::Optics;
 use super::volume::CloudVolume;
-use skybake_physics::camera::Ray;
-use skybake_physics::phase::orthonormal_basis;
 use glam::DVec3;
 use rand::{Rng, SeedableRng};
 use rand_pcg::Pcg64;
+use skybake_physics::camera::Ray;
+use skybake_physics::phase::orthonormal_basis;
 use std::f64::consts::PI;
 
 /// Depth after which Russian roulette keeps a path with probability 0.9 (and divides its weight).

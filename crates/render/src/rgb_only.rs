@@ -14,11 +14,11 @@
 //! the interior wavelength whose loss changes the worst proxy least.
 
 use super::scene::{FrameScene, SkySpec};
+use crate::Result;
+use skybake_engine::plan::{RgbFacts, WavelengthCandidate};
 use skybake_physics::atmosphere::sun_transmittance::light_spectra;
 use skybake_physics::atmosphere::Medium;
-use skybake_engine::plan::{RgbFacts, WavelengthCandidate};
 use skybake_physics::spectrum::subsets::rgb_subsets;
-use crate::Result;
 
 /// The scene's proxy spectra at its wavelengths (see the module docs).
 pub fn proxy_spectra(scene: &FrameScene) -> Result<Vec<Vec<f64>>> {

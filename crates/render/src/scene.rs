@@ -28,16 +28,16 @@
 //! path, e.g. `optics.phase.g`) and its allowed range.
 
 use super::pattern::MsMethod;
-use skybake_physics::atmosphere::params::AtmosphereParams;
-use skybake_physics::atmosphere::presets;
-use skybake_physics::cloud::scene::{CloudSection, MAX_SCENE_FILE_BYTES};
-use skybake_physics::phase::Phase;
-use skybake_physics::atmosphere::quality::Quality;
-use skybake_physics::spectrum::Wavelengths;
 use crate::{Error, Result};
 use glam::DVec3;
 use serde::{Deserialize, Serialize};
 use serde_json::Value;
+use skybake_physics::atmosphere::params::AtmosphereParams;
+use skybake_physics::atmosphere::presets;
+use skybake_physics::atmosphere::quality::Quality;
+use skybake_physics::cloud::scene::{CloudSection, MAX_SCENE_FILE_BYTES};
+use skybake_physics::phase::Phase;
+use skybake_physics::spectrum::Wavelengths;
 use std::collections::BTreeMap;
 
 /// Largest image, pixels.
@@ -845,9 +845,12 @@ fn resolve_sun(s: &SunJson, wl: &[f64], has_atmosphere: bool) -> Result<SunSpec>
                     "-180 to 180 deg",
                 ));
             }
-            let (e, a) =
-                skybake_physics::solar::sun_elevation_azimuth_deg(*latitude_deg, *longitude_deg, time)
-                    .map_err(|e| e.prefixed("sun."))?;
+            let (e, a) = skybake_physics::solar::sun_elevation_azimuth_deg(
+                *latitude_deg,
+                *longitude_deg,
+                time,
+            )
+            .map_err(|e| e.prefixed("sun."))?;
             if has_atmosphere && e < -18.0 {
                 return Err(Error::out_of_range(
                     "sun.time",

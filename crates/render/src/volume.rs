@@ -2,8 +2,8 @@
 //! a block grid of maximum densities for skipping empty space, and optical paths along rays.
 
 use super::camera::box_interval;
-use skybake_physics::cloud::DensityGrid;
 use glam::DVec3;
+use skybake_physics::cloud::DensityGrid;
 
 /// Edge of the empty-space blocks, voxels.
 pub const BLOCK: usize = 8;

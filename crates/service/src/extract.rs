@@ -4,11 +4,11 @@
 //! malformed bodies become problem+json errors here, before a handler runs.
 
 use super::problem::ApiError;
-use skybake_product::params::RequestParams;
 use axum::extract::{FromRequest, FromRequestParts, Request};
 use axum::http::request::Parts;
 use axum::http::StatusCode;
 use serde_json::{Map, Value};
+use skybake_product::params::RequestParams;
 
 /// Most bytes of a query string: below hyper's own URI limit (65534 bytes, answered with a bare
 /// 414 before the router runs), so that the service's problem+json 414 stating this limit is what

@@ -1,9 +1,9 @@
 //! The route table (the router is built from it) and the OpenAPI 3.1 document generated from it, so
 //! `/openapi.json` lists exactly the routes the router serves (a test checks both directions).
 
-use skybake_product::params::{Parameter, Range, PARAMETERS};
-use skybake_engine::spec::ProductKind;
 use serde_json::{json, Map, Value};
+use skybake_engine::spec::ProductKind;
+use skybake_product::params::{Parameter, Range, PARAMETERS};
 
 /// One route of the service.
 #[derive(Debug, Clone, Copy)]

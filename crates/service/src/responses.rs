@@ -1,8 +1,8 @@
 //! Rendered response bodies (JSON, PNG, EXR) kept in memory with a byte budget, least recently used
 //! evicted first, so a hot request is answered without decoding the EXR artifact again.
 
-use skybake_product::Format;
 use bytes::Bytes;
+use skybake_product::Format;
 use std::collections::{BTreeMap, HashMap};
 
 /// A byte-bounded LRU of response bodies keyed by (cache key, format).

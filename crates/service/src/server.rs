@@ -3,7 +3,6 @@
 
 use super::conn::ClientConn;
 use super::{app, AppState};
-use skybake_product::config::Settings;
 use axum::body::Body;
 use axum::http::Request;
 use hyper::body::Incoming;
@@ -11,6 +10,7 @@ use hyper_util::rt::{TokioExecutor, TokioIo, TokioTimer};
 use hyper_util::server::conn::auto;
 use hyper_util::server::graceful::GracefulShutdown;
 use hyper_util::service::TowerToHyperService;
+use skybake_product::config::Settings;
 use std::future::Future;
 use std::io::{Read, Write};
 use std::net::{SocketAddr, TcpStream};

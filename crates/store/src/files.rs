@@ -45,8 +45,9 @@ pub fn subdirectories(dir: &Path) -> Result<Vec<(String, PathBuf)>, StoreError> 
 /// Reads at most `limit` bytes of `path`, refusing larger files (errors name `field`).
 pub fn read_limited(path: &Path, field: &str, limit: usize) -> crate::Result<Vec<u8>> {
     use std::io::Read;
-    let cannot =
-        |e: std::io::Error| crate::Error::invalid(field, format!("cannot read {}: {e}", path.display()));
+    let cannot = |e: std::io::Error| {
+        crate::Error::invalid(field, format!("cannot read {}: {e}", path.display()))
+    };
     let too_large = |len: u64| {
         crate::Error::too_large(
             field,

@@ -35,16 +35,16 @@
 //! directory, and reuses it while the key matches.
 
 use super::process_cpu_ms;
-use skybake_physics::cloud::DensityGrid;
-use skybake_engine::engine::Engine;
 use crate::frame_bench::{bench_cumulus, bench_scene, image_errors, ImageErrors};
-use skybake_render::{
-    lighting_for, render_frame, Frame, FrameScene, Lighting, Method, MsMethod, RenderSettings,
-};
-use skybake_physics::atmosphere::quality::Quality;
 use crate::{Error, Result};
 use glam::DVec3;
 use serde::{Deserialize, Serialize};
+use skybake_engine::engine::Engine;
+use skybake_physics::atmosphere::quality::Quality;
+use skybake_physics::cloud::DensityGrid;
+use skybake_render::{
+    lighting_for, render_frame, Frame, FrameScene, Lighting, Method, MsMethod, RenderSettings,
+};
 use std::path::Path;
 use std::time::Instant;
 
@@ -295,7 +295,13 @@ fn reference_key(case: &FrameCase, orders: &str, settings: &RenderSettings) -> S
     for v in &case.grid.data {
         h.update(&v.to_le_bytes());
     }
-    h.update(format!("{orders}|{settings:?}|{}", skybake_engine::engine::ENGINE_VERSION).as_bytes());
+    h.update(
+        format!(
+            "{orders}|{settings:?}|{}",
+            skybake_engine::engine::ENGINE_VERSION
+        )
+        .as_bytes(),
+    );
     h.finalize().to_hex().to_string()
 }
 

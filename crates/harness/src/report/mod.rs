@@ -28,12 +28,12 @@ pub mod plot;
 use skybake_engine::accuracy::{band_of_altitude, band_of_sun};
 pub use skybake_engine::accuracy::{Curve, Point, Regime, Report, PRESETS};
 
-use skybake_physics::atmosphere::sky::MsMethod;
+use crate::{Error, Result};
 use skybake_engine::engine::{Engine, Product};
+use skybake_physics::atmosphere::quality::Quality;
+use skybake_physics::atmosphere::sky::MsMethod;
 use skybake_product::params::RequestParams;
 use skybake_product::{ProductKind, ProductRequest};
-use skybake_physics::atmosphere::quality::Quality;
-use crate::{Error, Result};
 use std::path::Path;
 use std::time::Instant;
 

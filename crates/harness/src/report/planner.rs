@@ -8,17 +8,17 @@
 //! normalised RMS over pixels and wavelengths √(mean (x − r)²) / mean r and the bias of the mean
 //! (mean x − mean r) / mean r, against a path-traced frame whose own noise is in the table.
 
-use skybake_physics::cloud::DensityGrid;
+use crate::{Error, Result};
+use serde_json::{json, Value};
 use skybake_engine::engine::{Engine, Product};
 use skybake_engine::plan::{FramePlan, FrameReason};
-use skybake_product::params::RequestParams;
-use skybake_product::{ProductKind, ProductRequest};
+use skybake_physics::cloud::DensityGrid;
 use skybake_product::frame::{
     execute_plan, frame_facts_with, plan_frame, sphere_facts, PlanInputs,
 };
+use skybake_product::params::RequestParams;
+use skybake_product::{ProductKind, ProductRequest};
 use skybake_render::{lighting_for, render_tile, FrameScene, Lighting, Method, Prepared};
-use crate::{Error, Result};
-use serde_json::{json, Value};
 use std::time::Instant;
 
 /// One rule's measurement.
@@ -134,9 +134,10 @@ fn sky_orders() -> Result<RuleSaving> {
 /// The validation cloud (vacuum, collimated sun 1, constant sky 0.1) at 50 m voxels, 48×36 px,
 /// standard quality, edited.
 fn frame_scene(edit: impl FnOnce(&mut Value)) -> Result<FrameScene> {
-    let mut v: Value =
-        serde_json::from_str(include_str!("../../../../config/scenes/validation-frame.json"))
-            .map_err(|e| Error::internal("planner report", e))?;
+    let mut v: Value = serde_json::from_str(include_str!(
+        "../../../../config/scenes/validation-frame.json"
+    ))
+    .map_err(|e| Error::internal("planner report", e))?;
     v["cloud"]["voxel_size_m"] = json!(50.0);
     v["camera"]["width"] = json!(48);
     v["camera"]["height"] = json!(36);
@@ -350,12 +351,17 @@ fn sphere_rule(levels: u32, target: f64) -> Result<RuleSaving> {
     })?;
     let facts = sphere_facts(&scene)?
         .ok_or_else(|| Error::internal("planner report", "not a sphere cloud"))?;
-    let mut budget =
-        skybake_engine::plan::frame_budget(false, skybake_engine::plan::FRAME_MEASURED_ERROR, Some(target));
+    let mut budget = skybake_engine::plan::frame_budget(
+        false,
+        skybake_engine::plan::FRAME_MEASURED_ERROR,
+        Some(target),
+    );
     let level = skybake_engine::plan::sphere_level_rule(&facts, &mut budget);
     let voxelize = |to: Option<u32>| -> Result<DensityGrid> {
         let mut cloud = scene.cloud.clone();
-        if let (Some(to), skybake_physics::cloud::scene::CloudSource::Spheres(s)) = (to, &mut cloud.source) {
+        if let (Some(to), skybake_physics::cloud::scene::CloudSource::Spheres(s)) =
+            (to, &mut cloud.source)
+        {
             s.params.levels = to;
         }
         cloud.voxelize(&|_| Err(Error::invalid("path", "no files")))
@@ -449,8 +455,9 @@ fn signed_pct(v: f64) -> String {
 /// spectral EXR, both through `FrameRequest` (voxels, light with cold tables, pixels).
 fn rgb_rule(width: usize, height: usize) -> Result<RuleSaving> {
     use skybake_product::frame::FrameRequest;
-    let mut v: Value = serde_json::from_str(include_str!("../../../../config/scenes/cumulus-frame.json"))
-        .map_err(|e| Error::internal("planner report", e))?;
+    let mut v: Value =
+        serde_json::from_str(include_str!("../../../../config/scenes/cumulus-frame.json"))
+            .map_err(|e| Error::internal("planner report", e))?;
     v["wavelengths_nm"] = json!((0..16).map(|i| 380 + 25 * i).collect::<Vec<_>>());
     v["camera"]["width"] = json!(width);
     v["camera"]["height"] = json!(height);

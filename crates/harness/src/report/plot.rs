@@ -3,12 +3,12 @@
 //! initial (d, s, h). The reference point (error 0 by construction) is left out of the curve.
 
 use super::{Curve, Report};
-use skybake_physics::atmosphere::sky::MsMethod;
-use skybake_product::ProductKind;
-use skybake_physics::atmosphere::quality::Quality;
 use crate::{Error, Result};
 use image::ImageEncoder;
 use plotters::prelude::*;
+use skybake_physics::atmosphere::quality::Quality;
+use skybake_physics::atmosphere::sky::MsMethod;
+use skybake_product::ProductKind;
 use std::sync::Once;
 
 /// Plot size, pixels.

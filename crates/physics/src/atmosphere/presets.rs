@@ -5,7 +5,10 @@ use crate::{Error, Result};
 
 /// (name, JSON) of every built-in preset.
 pub const PRESETS: &[(&str, &str)] = &[
-    ("earth", include_str!("../../../../config/atmospheres/earth.json")),
+    (
+        "earth",
+        include_str!("../../../../config/atmospheres/earth.json"),
+    ),
     (
         "earth-hazy",
         include_str!("../../../../config/atmospheres/earth-hazy.json"),
@@ -14,7 +17,10 @@ pub const PRESETS: &[(&str, &str)] = &[
         "rayleigh-only",
         include_str!("../../../../config/atmospheres/rayleigh-only.json"),
     ),
-    ("mars", include_str!("../../../../config/atmospheres/mars.json")),
+    (
+        "mars",
+        include_str!("../../../../config/atmospheres/mars.json"),
+    ),
 ];
 
 /// Names of the built-in presets.
@@ -66,7 +72,8 @@ mod tests {
         let mut p = preset("earth").unwrap();
         p.atmosphere_height_m = -5.0;
         assert_eq!(p.validate().unwrap_err().field(), "atmosphere_height_m");
-        let text = include_str!("../../../../config/atmospheres/earth.json").replace("0.7 }", "1.5 }");
+        let text =
+            include_str!("../../../../config/atmospheres/earth.json").replace("0.7 }", "1.5 }");
         assert_eq!(
             parse_json("atmosphere", &text).unwrap_err().field(),
             "atmosphere.mie.phase.g"

@@ -4,12 +4,12 @@
 use super::super::extract::{FormatOnly, JsonObject, NoParams, Page, Query};
 use super::super::problem::ApiError;
 use super::super::AppState;
-use skybake_job::run::Job;
-use skybake_product::ProductKind;
 use axum::extract::{Path as UrlPath, State};
 use axum::http::{header, HeaderValue, StatusCode};
 use axum::response::{IntoResponse, Response};
 use serde_json::{json, Value};
+use skybake_job::run::Job;
+use skybake_product::ProductKind;
 
 /// The status document of `job`, listing artifacts `offset..offset + limit` with their URLs.
 fn status_json(state: &AppState, job: &Job, offset: usize, limit: usize) -> Value {

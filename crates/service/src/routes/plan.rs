@@ -4,10 +4,10 @@
 use super::super::extract::{JsonObject, NoParams, Query};
 use super::super::problem::ApiError;
 use super::super::AppState;
-use skybake_product::ProductRequest;
 use axum::extract::State;
 use axum::response::{IntoResponse, Response};
 use serde_json::{json, Value};
+use skybake_product::ProductRequest;
 
 pub async fn plan(
     State(state): State<AppState>,

@@ -4,11 +4,11 @@
 use super::super::extract::Query;
 use super::super::problem::ApiError;
 use super::super::AppState;
-use skybake_product::params::RequestParams;
-use skybake_product::ProductKind;
 use axum::extract::State;
 use axum::http::{header, HeaderMap, HeaderValue, StatusCode};
 use axum::response::{IntoResponse, Response};
+use skybake_product::params::RequestParams;
+use skybake_product::ProductKind;
 
 /// `Cache-Control` of artifacts that never change.
 pub const IMMUTABLE: &str = "public, max-age=31536000, immutable";

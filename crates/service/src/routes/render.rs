@@ -8,14 +8,14 @@
 use super::super::extract::{FromQuery, Query};
 use super::super::problem::ApiError;
 use super::super::{AppState, Source, Work};
-use skybake_physics::cloud::scene::MAX_SCENE_FILE_BYTES;
-use skybake_product::Format;
-use skybake_product::frame::{frame_summary, FrameRequest};
-use skybake_render::Method;
 use axum::body::{Body, Bytes, HttpBody};
 use axum::extract::State;
 use axum::http::{header, HeaderMap, HeaderValue, StatusCode};
 use axum::response::{IntoResponse, Response};
+use skybake_physics::cloud::scene::MAX_SCENE_FILE_BYTES;
+use skybake_product::frame::{frame_summary, FrameRequest};
+use skybake_product::Format;
+use skybake_render::Method;
 use std::sync::atomic::Ordering;
 use std::sync::Arc;
 

@@ -4,11 +4,11 @@
 
 use super::super::extract::{NoParams, Query};
 use super::super::problem::ApiError;
-use skybake_product::frame::{example_scene, EXAMPLE_SCENES};
 use axum::extract::Path;
 use axum::http::header;
 use axum::response::{IntoResponse, Response};
 use serde_json::{json, Value};
+use skybake_product::frame::{example_scene, EXAMPLE_SCENES};
 
 /// The list entry of one example scene: name, description, whether it is a frame scene (has a
 /// camera; the others are cloud sections for `skybake clouds`), its URL.
