@@ -4,6 +4,8 @@ use std::path::Path;
 
 use skybake_engine::engine::Engine;
 use skybake_physics::Error;
+use skybake_product::frame::NoTiles;
+use skybake_product::{AnyRequest, ComputeEnv, Format as BodyFormat};
 
 use crate::error::Result;
 use crate::flags::Format;
@@ -69,32 +71,25 @@ pub fn run_render(
             bar.set_position(p.done as u64);
         }
     };
-    let image = request.compute_tiled(
-        engine,
-        &loader,
-        &skybake_product::frame::NoTiles,
-        &progress,
-        &|| false,
-    )?;
+    let request = AnyRequest::Frame(std::sync::Arc::new(request));
+    let env = ComputeEnv {
+        loader: &loader,
+        tiles: &NoTiles,
+        progress: &progress,
+        cancel: &|| false,
+    };
+    let image = request.compute(engine, &env)?;
     if let Some(bar) = &bar {
         bar.finish_and_clear();
     }
-    match (output, ext.as_deref()) {
-        (Some(out), Some("png")) => {
-            let rgb = image
-                .rgb()
-                .ok_or_else(|| Error::invalid("frame", "has no RGB planes"))?;
-            let bytes = skybake_engine::output::frame_png(image.width(), image.height(), rgb)?;
-            write_file(out, &bytes)?;
-        }
-        (Some(out), _) => {
-            let bytes = skybake_store::encode_exr(&image)
-                .map_err(|e| Error::invalid("output", e.to_string()))?;
-            write_file(out, &bytes)?;
-        }
-        (None, _) => {}
+    if let Some(out) = output {
+        let format = match ext.as_deref() {
+            Some("png") => BodyFormat::Png,
+            _ => BodyFormat::Exr,
+        };
+        write_file(out, &request.body(format, &image)?)?;
     }
-    let mut summary = skybake_product::frame::frame_summary(&image);
+    let mut summary = skybake_product::artifact::frame_summary(&image);
     summary["scene"] = serde_json::json!(scene.display().to_string());
     summary["output"] = serde_json::json!(output.map(|p| p.display().to_string()));
     if format == Format::Json {

@@ -10,7 +10,7 @@ use serde_json::{json, Value};
 use service_support::{bake_single_exr, call, settings, skybake_ok, tiny_frame_scene, Scratch};
 use skybake_engine::engine::Stages;
 use skybake_physics::image::layout::{ATTR_COMPUTE_TIME_MS, ATTR_FILE_CHECKSUM};
-use skybake_product::frame::{frame_meta_json, ATTR_FRAME_META};
+use skybake_product::artifact::{frame_meta_json, ATTR_FRAME_META};
 use skybake_render::{FrameError, FrameMeta, Method, ERROR_BASIS};
 use skybake_service::AppState;
 
@@ -102,7 +102,7 @@ async fn cli_http_and_bake_write_the_same_frame_artifact() {
     );
     // The timings are still there and still JSON numbers (the summary reads them).
     let img = skybake_store::decode_exr(&cli).unwrap();
-    let summary = skybake_product::frame::frame_summary(&img);
+    let summary = skybake_product::artifact::frame_summary(&img);
     let stages = summary["timing_ms_by_stage"].as_array().unwrap();
     assert!(stages.iter().any(|s| s["stage"] == "pixels"), "{summary}");
     assert!(

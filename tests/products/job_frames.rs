@@ -8,10 +8,11 @@ use crate::service_support;
 use serde_json::{json, Value};
 use service_support::{settings, Scratch, TestServer};
 use skybake_job::bake::{bake, bake_with_cancel};
-use skybake_job::spec::{ItemRequest, JobSpec};
+use skybake_job::spec::JobSpec;
 use skybake_job::JobError;
 use skybake_product::frame::EXAMPLE_SCENES;
 use skybake_product::params::Defaults;
+use skybake_product::AnyRequest;
 use skybake_store::{read_exr_file, TileStore};
 use std::time::Duration;
 
@@ -55,10 +56,10 @@ fn spec(body: Value) -> Result<JobSpec, JobError> {
     JobSpec::parse(body.as_object().unwrap(), 1000)
 }
 
-fn frame(spec: &JobSpec, i: usize) -> Box<skybake_product::frame::FrameRequest> {
+fn frame(spec: &JobSpec, i: usize) -> std::sync::Arc<skybake_product::frame::FrameRequest> {
     match spec.request(i, &Defaults::default()).unwrap() {
-        ItemRequest::Frame(f) => f,
-        ItemRequest::Product(_) => panic!("item {i} is not a frame"),
+        AnyRequest::Frame(f) => f,
+        AnyRequest::Atmosphere(_) => panic!("item {i} is not a frame"),
     }
 }
 

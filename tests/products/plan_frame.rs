@@ -9,10 +9,9 @@ use skybake_engine::plan::{
     MEASURED_LIGHT_SHARE_SAFETY, MS_GRID_ERROR, SPHERE_LEVEL_ERROR,
 };
 use skybake_physics::cloud::DensityGrid;
+use skybake_product::artifact::frame_summary;
 use skybake_product::frame::FrameRequest;
-use skybake_product::frame::{
-    execute_plan, frame_summary, measured_shares, plan_frame, sphere_facts, NoTiles,
-};
+use skybake_product::frame::{execute_plan, measured_shares, plan_frame, sphere_facts, NoTiles};
 use skybake_render::{lighting_for, render_tile, FrameScene, Method, Prepared};
 use skybake_service::AppState;
 

@@ -6,13 +6,14 @@
 //! `<out>/manifest.json` lists them at the end.
 
 use super::run::MAX_KEPT_ERRORS;
-use super::spec::{ItemRequest, JobSpec};
+use super::spec::JobSpec;
 use super::store::ItemError;
 use super::JobError;
 use serde::Serialize;
 use serde_json::json;
 use skybake_engine::engine::{Engine, ENGINE_VERSION};
 use skybake_product::params::Defaults;
+use skybake_product::{AnyRequest, ComputeEnv};
 use skybake_store::{checksum, encode_exr, files, write_atomic, TileStore};
 use std::path::Path;
 
@@ -106,7 +107,7 @@ pub fn bake_with_cancel(
             )));
         }
         if outcome.is_ok() {
-            if let ItemRequest::Frame(_) = req {
+            if let AnyRequest::Frame(_) = req {
                 tiles.frame(&key)?.remove_all()?;
             }
         }
@@ -139,20 +140,18 @@ pub fn bake_with_cancel(
 /// The artifact of one item; a frame renders tile by tile into `tiles` (scenes may name only the
 /// example scenes' embedded files, as in the service).
 fn compute(
-    req: &ItemRequest,
+    req: &AnyRequest,
     engine: &Engine,
     tiles: &TileStore,
     key: &str,
     cancel: &(dyn Fn() -> bool + Sync),
 ) -> Result<skybake_physics::image::SpectralImage, JobError> {
-    match req {
-        ItemRequest::Product(r) => Ok(r.compute(engine)?),
-        ItemRequest::Frame(r) => Ok(r.compute_tiled(
-            engine,
-            &skybake_product::frame::example_file,
-            &tiles.frame(key)?,
-            &|_| {},
-            cancel,
-        )?),
-    }
+    let frame_tiles = tiles.frame(key)?;
+    let env = ComputeEnv {
+        loader: &skybake_product::frame::example_file,
+        tiles: &frame_tiles,
+        progress: &|_| {},
+        cancel,
+    };
+    Ok(req.compute(engine, &env)?)
 }

@@ -2,10 +2,11 @@
 //! [`Producer`] for each item's artifact in turn (the service's producer is its product cache:
 //! cached items are hits, the rest are computed once and stored), persisting progress as it goes.
 
-use super::spec::{ItemRequest, JobSpec};
+use super::spec::JobSpec;
 use super::store::{now, ItemError, JobState, JobStatus, JobStore};
 use super::JobError;
 use skybake_product::params::Defaults;
+use skybake_product::AnyRequest;
 use std::collections::{HashMap, HashSet, VecDeque};
 use std::future::Future;
 use std::path::Path;
@@ -34,7 +35,7 @@ pub struct SubmitLimits {
 /// Whatever turns a product request into a stored artifact.
 pub trait Producer: Clone + Send + Sync + 'static {
     /// Makes sure the artifact of `req` (a product or a frame) exists (cached or computed now).
-    fn produce(&self, req: ItemRequest) -> impl Future<Output = Result<(), JobError>> + Send;
+    fn produce(&self, req: AnyRequest) -> impl Future<Output = Result<(), JobError>> + Send;
     /// The job table the workers take jobs from.
     fn jobs(&self) -> &Jobs;
 }

@@ -7,8 +7,8 @@ use super::frames::FrameSweep;
 use super::JobError;
 use crate::Error;
 use serde_json::{Map, Value};
-use skybake_product::frame::FrameRequest;
 use skybake_product::params::{Defaults, RequestParams};
+use skybake_product::AnyRequest;
 use skybake_product::{product_of, ProductKind, ProductRequest};
 
 /// Most errors kept per job (later ones are counted only).
@@ -33,31 +33,6 @@ enum Entry {
         len: usize,
     },
     Frames(FrameSweep),
-}
-
-/// The validated request of a job item: a product of the parameter table or a cloud frame.
-#[derive(Debug, Clone)]
-pub enum ItemRequest {
-    Product(Box<ProductRequest>),
-    Frame(Box<FrameRequest>),
-}
-
-impl ItemRequest {
-    /// The product's name (`sun`, `sky`, `ground`, `aerial`, `frame`).
-    pub fn name(&self) -> &'static str {
-        match self {
-            ItemRequest::Product(r) => r.kind().name(),
-            ItemRequest::Frame(_) => "frame",
-        }
-    }
-
-    /// The cache key of the item's artifact.
-    pub fn cache_key(&self) -> String {
-        match self {
-            ItemRequest::Product(r) => r.cache_key(),
-            ItemRequest::Frame(r) => r.cache_key(),
-        }
-    }
 }
 
 /// Where item `i` comes from.
@@ -344,7 +319,7 @@ impl JobSpec {
     }
 
     /// The validated request of item `i`, with the deployment's defaults applied (products).
-    pub fn request(&self, i: usize, defaults: &Defaults) -> Result<ItemRequest, JobError> {
+    pub fn request(&self, i: usize, defaults: &Defaults) -> Result<AnyRequest, JobError> {
         match self.locate(i) {
             None => Err(JobError::NotFound(format!(
                 "no item {i} (the job has {})",
@@ -352,12 +327,12 @@ impl JobSpec {
             ))),
             Some(Located::Product(product, params, prefix)) => {
                 ProductRequest::from_params(product, &defaults.apply(*params))
-                    .map(|r| ItemRequest::Product(Box::new(r)))
+                    .map(|r| AnyRequest::Atmosphere(Box::new(r)))
                     .map_err(|e| e.prefixed(&prefix).into())
             }
             Some(Located::Frame(sweep, k, prefix)) => sweep
                 .request(k, &prefix)
-                .map(|r| ItemRequest::Frame(Box::new(r)))
+                .map(|r| AnyRequest::Frame(std::sync::Arc::new(r)))
                 .map_err(JobError::from),
         }
     }
@@ -383,8 +358,8 @@ impl JobSpec {
         let mut frames = 0u64;
         for i in 0..self.len() {
             match self.request(i, defaults)? {
-                ItemRequest::Product(r) => products.add(&r)?,
-                ItemRequest::Frame(r) => frames = frames.saturating_add(r.estimated_cost()),
+                AnyRequest::Atmosphere(r) => products.add(&r)?,
+                AnyRequest::Frame(r) => frames = frames.saturating_add(r.estimated_cost()),
             }
         }
         Ok(products.units.saturating_add(frames))

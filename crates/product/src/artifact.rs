@@ -17,6 +17,7 @@ use serde_json::{Map, Value};
 use skybake_engine::engine::{Engine, Product, ENGINE_VERSION};
 use skybake_engine::output::{dome_png, AerialJson, DomeJson, Projection};
 use skybake_physics::atmosphere::sky::DomeTable;
+use skybake_render::{Frame, FrameMeta};
 use skybake_store::{layout, SpectralImage};
 
 /// Attribute holding the JSON response envelope (the response without its big arrays).
@@ -276,6 +277,149 @@ pub fn render(product: ProductKind, format: Format, image: &SpectralImage) -> Re
         (p, f) => Err(Error::invalid(
             "format",
             format!("'{}' is not a format of the {} product", f.name(), p.name()),
+        )),
+    }
+}
+
+/// Header attribute of the assembled frame: how many tiles there are, how many this run
+/// computed and how many it took from an earlier run.
+pub const ATTR_FRAME_TILES: &str = "skybakeFrameTiles";
+
+/// Tiles of an assembled frame: how many there are, how many this run computed and how many it
+/// took from an earlier run ([`ATTR_FRAME_TILES`]).
+#[derive(Debug, Clone, Copy, Serialize)]
+pub struct FrameTileCounts {
+    pub tile_size: usize,
+    pub total: usize,
+    pub computed: usize,
+    pub reused: usize,
+}
+
+/// A rendered frame's artifact: its spectral image ([`crate::export::frame_image`]) with the
+/// canonical request, the engine version, the error estimate, the compute time, the stages, the
+/// metadata with fixed-width timings ([`frame_meta_json`]), the cache key and the tile counts.
+pub fn frame_artifact(
+    frame: &Frame,
+    canonical_json: &str,
+    cache_key: &str,
+    tiles: FrameTileCounts,
+) -> Result<SpectralImage> {
+    let mut image = crate::export::frame_image(frame)?;
+    let meta = &frame.meta;
+    let error_json = serde_json::to_string(&meta.error_estimate).unwrap_or_default();
+    let total_ms: f64 = meta.timing_ms.iter().map(|(_, ms)| ms).sum();
+    image.set_product_metadata(canonical_json, ENGINE_VERSION, &error_json, total_ms)?;
+    image.set_attribute(
+        layout::ATTR_PLAN_JSON,
+        serde_json::to_string(&meta.stages).unwrap_or_default(),
+    )?;
+    // Timings at a fixed width, so two computations of a request (CLI, service, bake) differ
+    // only in those values' bytes.
+    image.set_attribute(ATTR_FRAME_META, frame_meta_json(meta)?)?;
+    image.set_attribute(layout::ATTR_CACHE_KEY, cache_key)?;
+    image.set_attribute(ATTR_FRAME_TILES, to_json(&tiles)?)?;
+    Ok(image)
+}
+
+/// Header attribute of a frame artifact: its [`FrameMeta`] as JSON, the timings at a fixed width
+/// ([`frame_meta_json`]).
+pub const ATTR_FRAME_META: &str = "skybakeFrameMeta";
+
+/// Width of a timing value in [`ATTR_FRAME_META`]: milliseconds to the microsecond, right-aligned
+/// with spaces (JSON whitespace), capped at 99 999 999.999.
+pub const FRAME_TIMING_WIDTH: usize = 12;
+
+/// A frame's metadata as JSON whose `timing_ms` values all have [`FRAME_TIMING_WIDTH`] characters
+/// (`["pixels",     1234.567]`), so the attribute's length and every byte outside those values
+/// depend on the request only.
+pub fn frame_meta_json(meta: &FrameMeta) -> Result<String> {
+    fn json<T: Serialize + ?Sized>(v: &T) -> Result<String> {
+        serde_json::to_string(v)
+            .map_err(|e| Error::internal("frame", format!("JSON encoding: {e}")))
+    }
+    let text = json(&FrameMeta {
+        timing_ms: Vec::new(),
+        ..meta.clone()
+    })?;
+    let mut timings = Vec::with_capacity(meta.timing_ms.len());
+    for (stage, ms) in &meta.timing_ms {
+        let ms = if ms.is_finite() {
+            ms.clamp(0.0, 99_999_999.999)
+        } else {
+            0.0
+        };
+        timings.push(format!(
+            "[{},{:>w$.3}]",
+            json(stage)?,
+            ms,
+            w = FRAME_TIMING_WIDTH
+        ));
+    }
+    // `timing_ms` is serialised before the fields that hold free text (notes, plan).
+    let empty = "\"timing_ms\":[]";
+    if !text.contains(empty) {
+        return Err(Error::internal("frame", "metadata without timing_ms"));
+    }
+    Ok(text.replacen(empty, &format!("\"timing_ms\":[{}]", timings.join(",")), 1))
+}
+
+/// The JSON summary of a frame artifact (`skybake render --format json`, `POST /v1/render`
+/// with `format=json`): size, wavelengths, cache key, method, the stages that ran and those left
+/// out, the time of each stage and in total, the error estimate and the tiles.
+pub fn frame_summary(image: &SpectralImage) -> serde_json::Value {
+    use serde_json::{json, Value};
+    let attr = |name: &str| -> Value {
+        image
+            .attribute(name)
+            .and_then(|t| serde_json::from_str(t).ok())
+            .unwrap_or(Value::Null)
+    };
+    let meta = attr(ATTR_FRAME_META);
+    let stages: Vec<Value> = meta["timing_ms"]
+        .as_array()
+        .map(|a| {
+            a.iter()
+                .map(|pair| json!({"stage": pair[0], "ms": pair[1]}))
+                .collect()
+        })
+        .unwrap_or_default();
+    let total_ms: f64 = stages.iter().filter_map(|s| s["ms"].as_f64()).sum();
+    json!({
+        "product": "frame",
+        "width": image.width(),
+        "height": image.height(),
+        "wavelengths_nm": image.wavelengths_nm(),
+        "cache_key": image.attribute(skybake_physics::image::layout::ATTR_CACHE_KEY),
+        "method": meta["method"],
+        "stages": meta["stages"],
+        "plan": meta["plan"],
+        "timing_ms": total_ms,
+        "timing_ms_by_stage": stages,
+        "error_estimate": meta["error_estimate"],
+        "lighting_notes": meta["lighting_notes"],
+        "tiles": attr(ATTR_FRAME_TILES),
+    })
+}
+
+/// A frame's response body in `format`, rendered from its artifact: the EXR itself, the
+/// tone-mapped PNG of its RGB planes, or its JSON summary ([`frame_summary`]).
+pub fn render_frame(format: Format, image: &SpectralImage) -> Result<Vec<u8>> {
+    match format {
+        Format::Exr => skybake_store::encode_exr(image).map_err(|e| artifact_err(&e.to_string())),
+        Format::Png => {
+            let rgb = image
+                .rgb()
+                .ok_or_else(|| artifact_err("a frame without RGB planes"))?;
+            skybake_engine::output::frame_png(image.width(), image.height(), rgb)
+        }
+        Format::Json => serde_json::to_vec(&frame_summary(image))
+            .map_err(|e| Error::internal("artifact", format!("encoding the summary: {e}"))),
+        other => Err(Error::invalid(
+            "format",
+            format!(
+                "'{}' is not a format of the frame product (allowed: json, exr, png)",
+                other.name()
+            ),
         )),
     }
 }

@@ -72,9 +72,9 @@ pub fn aerial_image(p: &AerialProduct) -> Result<SpectralImage> {
 }
 /// A rendered cloud frame as a spectral image (width × height of the camera): layer `S0` holds
 /// the spectral radiance of each pixel, layer `T` the cloud's transmittance along the pixel's ray
-/// (mean over wavelengths, repeated per wavelength), plus linear sRGB. `spec_json` is the
-/// canonical frame request; the frame's stages, timings and error estimate go in the attributes.
-pub fn frame_image(frame: &skybake_render::Frame, spec_json: &str) -> Result<SpectralImage> {
+/// (mean over wavelengths, repeated per wavelength), plus linear sRGB. Its attributes are added
+/// by [`crate::artifact::frame_artifact`].
+pub fn frame_image(frame: &skybake_render::Frame) -> Result<SpectralImage> {
     let (w, h, n_l) = (
         frame.tile.width,
         frame.tile.height,
@@ -92,22 +92,5 @@ pub fn frame_image(frame: &skybake_render::Frame, spec_json: &str) -> Result<Spe
         vec![frame.transmittance.clone(); n_l],
     )?;
     img.set_rgb(rgb_planes(&frame.wavelengths_nm, &frame.radiance))?;
-    let meta = &frame.meta;
-    let error_json = serde_json::to_string(&meta.error_estimate).unwrap_or_default();
-    let total_ms: f64 = meta.timing_ms.iter().map(|(_, ms)| ms).sum();
-    img.set_product_metadata(
-        spec_json,
-        skybake_engine::engine::ENGINE_VERSION,
-        &error_json,
-        total_ms,
-    )?;
-    img.set_attribute(
-        layout::ATTR_PLAN_JSON,
-        serde_json::to_string(&meta.stages).unwrap_or_default(),
-    )?;
-    img.set_attribute(
-        "skybakeFrameMeta",
-        serde_json::to_string(meta).unwrap_or_default(),
-    )?;
     Ok(img)
 }

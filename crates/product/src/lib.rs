@@ -3,6 +3,7 @@
 //! spectral EXR image with its request, response, plan and timing attributes) kept in the store.
 //! Every product kind (sun, sky, ground, aerial and the cloud frame) takes that one road.
 //!
+//! - [`AnyRequest`]: the one interface of every product kind (key, compute, body).
 //! - [`params`]: the one parameter table (name, flag, unit, range, default, doc).
 //! - [`ProductRequest`]: an atmosphere product's request; [`frame::FrameRequest`]: a frame's.
 //! - [`artifact`]: compute → artifact; JSON, PNG and EXR bodies rendered from it.
@@ -12,6 +13,7 @@
 // Numeric kernels index several parallel per-wavelength arrays in one loop; an index is clearer.
 #![allow(clippy::needless_range_loop)]
 
+mod any;
 pub mod artifact;
 pub mod config;
 pub mod cost;
@@ -21,5 +23,6 @@ pub mod frame;
 pub mod params;
 mod request;
 
+pub use any::{AnyRequest, ComputeEnv};
 pub use request::*;
 pub use skybake_physics::{Error, Result};

@@ -406,7 +406,7 @@ pub fn render_tile(
             progress(done as f64 / tile.height as f64);
         });
     if cancelled.load(Ordering::Relaxed) {
-        return Err(Error::invalid("render", "cancelled"));
+        return Err(Error::Cancelled);
     }
     let mut timing_ms = p.timing_ms.clone();
     timing_ms.push(("pixels".into(), start.elapsed().as_secs_f64() * 1e3));

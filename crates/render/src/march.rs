@@ -649,7 +649,7 @@ impl<'a> Prepared<'a> {
 
 fn check(cancel: &(dyn Fn() -> bool + Sync)) -> crate::Result<()> {
     if cancel() {
-        Err(crate::Error::invalid("render", "cancelled"))
+        Err(crate::Error::Cancelled)
     } else {
         Ok(())
     }

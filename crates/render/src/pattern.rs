@@ -1074,7 +1074,7 @@ pub fn compute(
                 }
             });
         if cancelled.load(Ordering::Relaxed) {
-            return Err(Error::invalid("render", "cancelled"));
+            return Err(Error::Cancelled);
         }
         apply_ms += t.elapsed().as_secs_f64() * 1e3;
         stats.push(pattern.stats);

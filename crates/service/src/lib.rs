@@ -30,8 +30,8 @@ use problem::ApiError;
 use responses::ResponseCache;
 use skybake_engine::engine::Engine;
 use skybake_product::config::Settings;
-use skybake_product::frame::FrameRequest;
-use skybake_product::{Format, ProductKind, ProductRequest};
+use skybake_product::frame::{NoTiles, TileProgress};
+use skybake_product::{AnyRequest, ComputeEnv, Format, ProductKind, ProductRequest};
 use skybake_store::TileStore;
 use skybake_store::{Cache, CacheConfig};
 use std::collections::HashMap;
@@ -71,22 +71,6 @@ impl CancelToken {
 
     fn is_cancelled(&self) -> bool {
         self.cancelled.load(Ordering::Relaxed)
-    }
-}
-
-/// What a flight computes: a product of the parameter table or a cloud frame.
-#[derive(Clone)]
-pub(crate) enum Work {
-    Product(Box<ProductRequest>),
-    Frame(Arc<FrameRequest>),
-}
-
-impl Work {
-    fn name(&self) -> &'static str {
-        match self {
-            Work::Product(r) => r.kind().name(),
-            Work::Frame(_) => "frame",
-        }
     }
 }
 
@@ -292,25 +276,16 @@ impl AppState {
             .map_err(|e| ApiError::Internal(format!("worker failed: {e}")))?
     }
 
-    /// The artifact (verified EXR bytes) of `req`: from the cache, or computed once for all identical
-    /// requests in flight.
+    /// The artifact (verified EXR bytes) of `work`: from the cache, or computed once for all
+    /// identical requests in flight. A frame is computed tile by tile into the tile store and,
+    /// like any computation, stops when every request waiting for it has gone (at its next tile;
+    /// a retry resumes from the stored tiles).
     pub async fn artifact(
         &self,
-        req: &ProductRequest,
+        work: &AnyRequest,
         key: &str,
     ) -> Result<(Arc<[u8]>, Source), ApiError> {
-        self.artifact_of(Work::Product(Box::new(req.clone())), key)
-            .await
-    }
-
-    /// [`Self::artifact`] of any work. A frame render is computed tile by tile into the tile
-    /// store and, like any computation, stops when every request waiting for it has gone (at its
-    /// next tile; a retry resumes from the stored tiles).
-    pub(crate) async fn artifact_of(
-        &self,
-        work: Work,
-        key: &str,
-    ) -> Result<(Arc<[u8]>, Source), ApiError> {
+        let work = work.clone();
         let lookup = {
             let (s, k) = (self.clone(), key.to_string());
             Self::blocking(move || Ok(s.inner.cache.get(&k)?)).await?
@@ -398,7 +373,7 @@ impl AppState {
     /// cancelled computation leaves the queue at once or stops at the engine's next stage.
     async fn compute(
         &self,
-        work: Work,
+        work: AnyRequest,
         key: String,
         cancel: Arc<CancelToken>,
     ) -> Result<Arc<[u8]>, ApiError> {
@@ -434,20 +409,10 @@ impl AppState {
             let m = &s.inner.metrics;
             m.computed(work.name());
             m.compute_in_flight.fetch_add(1, Ordering::Relaxed);
-            let image = match &work {
-                Work::Product(req) => req
-                    .compute_cancellable(&s.inner.engine, &|| cancel.is_cancelled())
-                    .map_err(|e| {
-                        if matches!(e, crate::Error::Cancelled) {
-                            m.cancelled.fetch_add(1, Ordering::Relaxed);
-                        }
-                        ApiError::from(e)
-                    }),
-                Work::Frame(req) => s.render_frame(req, &key, &cancel),
-            };
+            let image = s.compute_image(&work, &key, &cancel);
             m.compute_in_flight.fetch_sub(1, Ordering::Relaxed);
             let bytes = s.inner.cache.put_image(&key, &image?)?;
-            if let Work::Frame(_) = work {
+            if let AnyRequest::Frame(_) = work {
                 // The assembled frame is in the cache: its tiles are no longer needed.
                 if let Err(e) = s.inner.tiles.frame(&key).and_then(|t| t.remove_all()) {
                     tracing::warn!(key = %key, error = %e, "cannot remove a finished frame's tiles");
@@ -459,15 +424,20 @@ impl AppState {
         .await
     }
 
-    /// Renders a frame tile by tile into the tile store (blocking). Stops at the next tile when
-    /// the flight is cancelled (no request waits any more).
-    fn render_frame(
+    /// Computes `work`'s artifact (blocking): a frame tile by tile into the tile store. Stops at
+    /// the engine's next stage, tile or row when the flight is cancelled (no request waits any
+    /// more).
+    fn compute_image(
         &self,
-        req: &FrameRequest,
+        work: &AnyRequest,
         key: &str,
         flight: &CancelToken,
     ) -> Result<skybake_physics::image::SpectralImage, ApiError> {
-        let tiles = self.inner.tiles.frame(key)?;
+        let m = &self.inner.metrics;
+        let tiles = match work {
+            AnyRequest::Frame(_) => Some(self.inner.tiles.frame(key)?),
+            AnyRequest::Atmosphere(_) => None,
+        };
         let abandoned = AtomicBool::new(false);
         let cancel = || {
             let gone = flight.is_cancelled();
@@ -476,8 +446,7 @@ impl AppState {
             }
             gone
         };
-        let m = &self.inner.metrics;
-        let progress = |p: skybake_product::frame::TileProgress| {
+        let progress = |p: TileProgress| {
             // Called once with the tiles found, then once per tile computed.
             if p.done > p.reused {
                 m.frame_tiles_computed.fetch_add(1, Ordering::Relaxed);
@@ -485,15 +454,18 @@ impl AppState {
                 self.account_disk(Some(key));
             }
         };
-        let result = req.compute_tiled(
-            &self.inner.engine,
-            &skybake_product::frame::example_file,
-            &tiles,
-            &progress,
-            &cancel,
-        );
-        match result {
-            Err(_) if abandoned.load(Ordering::Relaxed) => {
+        let env = ComputeEnv {
+            loader: &skybake_product::frame::example_file,
+            tiles: match &tiles {
+                Some(t) => t,
+                None => &NoTiles,
+            },
+            progress: &progress,
+            cancel: &cancel,
+        };
+        match (work.compute(&self.inner.engine, &env), work, &tiles) {
+            (Ok(image), _, _) => Ok(image),
+            (Err(_), AnyRequest::Frame(req), Some(tiles)) if abandoned.load(Ordering::Relaxed) => {
                 m.frames_abandoned.fetch_add(1, Ordering::Relaxed);
                 m.cancelled.fetch_add(1, Ordering::Relaxed);
                 Err(ApiError::Unavailable(format!(
@@ -502,25 +474,45 @@ impl AppState {
                     req.tile_count()
                 )))
             }
-            other => Ok(other?),
+            (Err(e), _, _) => {
+                if matches!(e, crate::Error::Cancelled) {
+                    m.cancelled.fetch_add(1, Ordering::Relaxed);
+                }
+                Err(e.into())
+            }
         }
     }
 
     /// The response body of `req` in its format, and where it came from.
     pub async fn body(&self, req: &ProductRequest) -> Result<(Bytes, Source, String), ApiError> {
-        let key = req.cache_key();
-        if let Some(b) = self.response_get(&key, req.format) {
+        self.respond(&AnyRequest::Atmosphere(Box::new(req.clone())), req.format)
+            .await
+    }
+
+    /// The one response path of every product: the body of `work` in `format` from the
+    /// rendered-response cache, the product cache, or one computation shared by identical requests
+    /// (an atmosphere product over `server.max_request_cost` is refused before it starts); with
+    /// where it came from and its cache key.
+    pub async fn respond(
+        &self,
+        work: &AnyRequest,
+        format: Format,
+    ) -> Result<(Bytes, Source, String), ApiError> {
+        let key = work.cache_key();
+        if let Some(b) = self.response_get(&key, format) {
             self.inner
                 .metrics
                 .response_cache_hits
                 .fetch_add(1, Ordering::Relaxed);
             return Ok((b, Source::Response, key));
         }
-        if !self.inner.cache.contains(&key) {
-            self.check_cost(req)?;
+        if let AnyRequest::Atmosphere(req) = work {
+            if !self.inner.cache.contains(&key) {
+                self.check_cost(req)?;
+            }
         }
-        let (artifact, source) = self.artifact(req, &key).await?;
-        let body = match Self::render_body(req, artifact).await {
+        let (artifact, source) = self.artifact(work, &key).await?;
+        let body = match Self::render_body(work, format, artifact).await {
             Ok(body) => body,
             Err(ApiError::Internal(why)) => {
                 // A stored artifact that passed its checksum but does not render is a server
@@ -528,33 +520,33 @@ impl AppState {
                 // failure is a 500).
                 tracing::warn!(key = %key, error = %why, "malformed cached artifact; recomputing");
                 self.inner.cache.remove(&key)?;
-                let (artifact, _) = self.artifact(req, &key).await?;
-                Self::render_body(req, artifact).await?
+                let (artifact, _) = self.artifact(work, &key).await?;
+                Self::render_body(work, format, artifact).await?
             }
             Err(e) => return Err(e),
         };
         if let Ok(mut r) = self.inner.responses.lock() {
-            r.put(&key, req.format, body.clone());
+            r.put(&key, format, body.clone());
         }
         Ok((body, source, key))
     }
 
-    /// The body of `req` in its format, rendered from `artifact` (EXR bytes).
-    async fn render_body(req: &ProductRequest, artifact: Arc<[u8]>) -> Result<Bytes, ApiError> {
-        match req.format {
-            Format::Exr => Ok(Bytes::copy_from_slice(&artifact)),
-            format => {
-                let product = req.kind();
-                Self::blocking(move || {
-                    let image = skybake_store::decode_exr(&artifact)
-                        .map_err(|e| ApiError::Internal(format!("cached artifact: {e}")))?;
-                    Ok(Bytes::from(skybake_product::render(
-                        product, format, &image,
-                    )?))
-                })
-                .await
-            }
+    /// The body of `work` in `format`, rendered from `artifact` (EXR bytes, served as they are).
+    async fn render_body(
+        work: &AnyRequest,
+        format: Format,
+        artifact: Arc<[u8]>,
+    ) -> Result<Bytes, ApiError> {
+        if format == Format::Exr {
+            return Ok(Bytes::copy_from_slice(&artifact));
         }
+        let work = work.clone();
+        Self::blocking(move || {
+            let image = skybake_store::decode_exr(&artifact)
+                .map_err(|e| ApiError::Internal(format!("cached artifact: {e}")))?;
+            Ok(Bytes::from(work.body(format, &image)?))
+        })
+        .await
     }
 
     fn response_get(&self, key: &str, format: Format) -> Option<Bytes> {
@@ -604,16 +596,8 @@ impl AppState {
 /// Jobs produce their items through the service's cache: cached items are hits, the others are
 /// computed once (joining identical requests in flight) and stored.
 impl skybake_job::run::Producer for AppState {
-    async fn produce(
-        &self,
-        req: skybake_job::spec::ItemRequest,
-    ) -> Result<(), skybake_job::JobError> {
-        let key = req.cache_key();
-        let work = match req {
-            skybake_job::spec::ItemRequest::Product(r) => Work::Product(r),
-            skybake_job::spec::ItemRequest::Frame(r) => Work::Frame(Arc::from(r)),
-        };
-        self.artifact_of(work, &key)
+    async fn produce(&self, work: AnyRequest) -> Result<(), skybake_job::JobError> {
+        self.artifact(&work, &work.cache_key())
             .await
             .map(|_| ())
             .map_err(|e| match e {

@@ -133,11 +133,11 @@ pub async fn artifact(
     if job.spec.item_name(n) == Some("frame") {
         let (s, j) = (state.clone(), job.clone());
         let req = AppState::blocking(move || Ok(j.spec.request(n, s.jobs().defaults())?)).await?;
-        let skybake_job::spec::ItemRequest::Frame(frame) = req else {
+        let skybake_product::AnyRequest::Frame(frame) = req else {
             return Err(ApiError::Internal(format!("item {n} is not a frame")));
         };
         let format = super::render::frame_format(Some(format.as_deref().unwrap_or("exr")), None)?;
-        return super::render::frame_response(&state, std::sync::Arc::from(frame), format).await;
+        return super::render::frame_response(&state, frame, format).await;
     }
     let (product, mut params, _) = job.spec.item(n).ok_or_else(|| {
         ApiError::NotFound(format!("no artifact {n} (the job has {})", job.spec.len()))

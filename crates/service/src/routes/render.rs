@@ -7,16 +7,15 @@
 
 use super::super::extract::{FromQuery, Query};
 use super::super::problem::ApiError;
-use super::super::{AppState, Source, Work};
+use super::super::AppState;
 use axum::body::{Body, Bytes, HttpBody};
 use axum::extract::State;
 use axum::http::{header, HeaderMap, HeaderValue, StatusCode};
 use axum::response::{IntoResponse, Response};
 use skybake_physics::cloud::scene::MAX_SCENE_FILE_BYTES;
-use skybake_product::frame::{frame_summary, FrameRequest};
-use skybake_product::Format;
+use skybake_product::frame::FrameRequest;
+use skybake_product::{AnyRequest, Format};
 use skybake_render::Method;
-use std::sync::atomic::Ordering;
 use std::sync::Arc;
 
 /// The formats of a frame.
@@ -162,42 +161,14 @@ pub async fn render(
     frame_response(&state, Arc::new(req.with_rgb_only(rgb_only)), format).await
 }
 
-/// The response of a frame request in `format`: from the rendered-response cache, the product
-/// cache, or one tiled computation (shared by identical requests).
+/// The response of a frame request in `format` (through the one response path of every
+/// product, [`AppState::respond`]).
 pub async fn frame_response(
     state: &AppState,
     req: Arc<FrameRequest>,
     format: Format,
 ) -> Result<Response, ApiError> {
-    let key = req.cache_key();
-    let (body, source) = match state.response_get(&key, format) {
-        Some(b) => {
-            state
-                .metrics()
-                .response_cache_hits
-                .fetch_add(1, Ordering::Relaxed);
-            (b, Source::Response)
-        }
-        None => {
-            let (artifact, source) = state.artifact_of(Work::Frame(req.clone()), &key).await?;
-            let body = match frame_body(format, artifact).await {
-                Ok(b) => b,
-                Err(ApiError::Internal(why)) => {
-                    // A stored frame that verifies but does not decode is a server fault: drop
-                    // it and render again (a second failure is a 500).
-                    tracing::warn!(key = %key, error = %why, "malformed cached frame; recomputing");
-                    state.cache().remove(&key)?;
-                    let (artifact, _) = state.artifact_of(Work::Frame(req), &key).await?;
-                    frame_body(format, artifact).await?
-                }
-                Err(e) => return Err(e),
-            };
-            if let Ok(mut r) = state.inner.responses.lock() {
-                r.put(&key, format, body.clone());
-            }
-            (body, source)
-        }
-    };
+    let (body, source, key) = state.respond(&AnyRequest::Frame(req), format).await?;
     let mut resp = body.into_response();
     let h = resp.headers_mut();
     h.insert(
@@ -212,34 +183,4 @@ pub async fn frame_response(
         h.insert(header::ETAG, v);
     }
     Ok(resp)
-}
-
-/// The body of a frame artifact (EXR bytes) in `format`.
-async fn frame_body(format: Format, artifact: Arc<[u8]>) -> Result<Bytes, ApiError> {
-    if format == Format::Exr {
-        return Ok(Bytes::copy_from_slice(&artifact));
-    }
-    AppState::blocking(move || {
-        let image = skybake_store::decode_exr(&artifact)
-            .map_err(|e| ApiError::Internal(format!("cached frame: {e}")))?;
-        match format {
-            Format::Png => {
-                let rgb = image
-                    .rgb()
-                    .ok_or_else(|| ApiError::Internal("cached frame has no RGB planes".into()))?;
-                Ok(Bytes::from(skybake_engine::output::frame_png(
-                    image.width(),
-                    image.height(),
-                    rgb,
-                )?))
-            }
-            _ => {
-                let doc = frame_summary(&image);
-                serde_json::to_vec(&doc)
-                    .map(Bytes::from)
-                    .map_err(|e| ApiError::Internal(format!("encoding the summary: {e}")))
-            }
-        }
-    })
-    .await
 }
