@@ -7,12 +7,19 @@
 # ---- build -------------------------------------------------------------------------------------
 FROM rust:1.95-bookworm AS build
 WORKDIR /src
-# Sources the build reads (the engine embeds config/ and data/ tables at compile time).
+# The workspace (every member's manifest and sources, and the test targets the root manifest
+# names) and what the crates embed at compile time: config/ and data/ tables, the measured
+# report (report/report.json), the viewer (web/), the harness's font (assets/).
 COPY Cargo.toml Cargo.lock ./
+COPY crates ./crates
 COPY src ./src
+COPY tests ./tests
 COPY config ./config
 COPY data ./data
-RUN cargo build --release --locked --bin skybake \
+COPY report ./report
+COPY web ./web
+COPY assets ./assets
+RUN cargo build --release --locked -p skybake --bin skybake \
     && strip target/release/skybake
 
 # ---- runtime -----------------------------------------------------------------------------------

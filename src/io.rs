@@ -25,12 +25,20 @@ pub fn request_params(mut p: RequestParams) -> Result<RequestParams> {
 
 /// Reads a file the user named: a missing file is bad input, other I/O errors are failures.
 pub fn read_input(path: &Path, field: &str) -> Result<String> {
-    std::fs::read_to_string(path).map_err(|e| io_error(e, field, path))
+    String::from_utf8(read_input_bytes(path, field)?).map_err(|e| {
+        CliError::Input(skybake_physics::Error::invalid(
+            field,
+            format!("{} is not UTF-8 text: {e}", path.display()),
+        ))
+    })
 }
 
 /// Reads a file the user named as bytes (errors as [`read_input`]).
 pub fn read_input_bytes(path: &Path, field: &str) -> Result<Vec<u8>> {
-    std::fs::read(path).map_err(|e| io_error(e, field, path))
+    skybake_store::files::read(path).map_err(|e| match e {
+        skybake_store::StoreError::Io { source, .. } => io_error(source, field, path),
+        other => other.into(),
+    })
 }
 
 pub fn print_json<T: serde::Serialize>(value: &T) -> Result<()> {

@@ -7,14 +7,14 @@ OpenEXR 3.x), prints its header and channels, and checks: single part, tiled 64x
 `spectralLayoutVersion == "1.0"`, `emissiveUnits == "W.m^-2.sr^-1"` when S0 channels exist.
 
 With `--pattern` it also compares every pixel with the analytic pattern that the Rust test
-`reference_pattern_file_round_trips` (tests/store_exr.rs) writes:
+`reference_pattern_file_round_trips` (tests/products/store_exr.rs) writes:
 
     mkdir -p /tmp/skybake-exr
     SKYBAKE_EXR_SAMPLE_DIR=/tmp/skybake-exr cargo test --test store_exr reference_pattern
     python tools/check_exr.py --pattern /tmp/skybake-exr/pattern_*.exr
 
 When the `blake3` package is installed it also recomputes the whole-file checksum
-(src/store/checksum.rs): blake3 of the file with the 64 hex digits of `skybakeFileBlake3` replaced by
+(crates/store/src/checksum.rs): blake3 of the file with the 64 hex digits of `skybakeFileBlake3` replaced by
 ASCII zeros.
 
 Exit status 0 when every check passes.
@@ -106,7 +106,7 @@ def verify_checksum(path, stored):
 
 
 def check_pattern(header, channels):
-    """Recompute the pattern of tests/store_exr.rs::reference_pattern_image in float32."""
+    """Recompute the pattern of tests/products/store_exr.rs::reference_pattern_image in float32."""
     height, width = channels["R"].pixels.shape
     if (width, height) != (100, 70):
         fail(f"pattern image is {width}x{height}, expected 100x70")

@@ -8,7 +8,7 @@ skybake's validation scenes (tests/data/validation-cloud-*.json, `"type": "grid"
 Geometry (the .npy holds none; it is repeated in every scene and in tests/data/cloud_mitsuba.json):
 voxel edge 30 m, box minimum corner ORIGIN_M = (-960, -960, 1000) m, so the box is
 [-960, 960] x [-960, 960] x [1000, 2920] m in skybake's world frame (z up). Voxel (i, j, k) holds the
-density at its centre ORIGIN_M + (i + 1/2, j + 1/2, k + 1/2) * 30 m (src/cloud/grid.rs convention).
+density at its centre ORIGIN_M + (i + 1/2, j + 1/2, k + 1/2) * 30 m (crates/physics/src/cloud/grid.rs convention).
 
 Density (dimensionless, in [0, 1]): Wyvill-type soft field f(p) = sum_b (1 - |p - c_b|^2 / R_b^2)^3
 (zero outside each ball), mapped to density = clamp((f - 0.1) / 0.4, 0, 1) and multiplied by a

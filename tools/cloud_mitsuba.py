@@ -217,7 +217,7 @@ def check_gridvolume(mi):
     v = mi.load_dict({"type": "gridvolume", "grid": mi.VolumeGrid(a), "filter_type": "trilinear",
                       "to_world": mi.ScalarTransform4f().scale([3.0, 1.0, 2.0])})
     si = mi.SurfaceInteraction3f()
-    probes = {  # world point -> expected under skybake's convention (src/cloud/grid.rs)
+    probes = {  # world point -> expected under skybake's convention (crates/physics/src/cloud/grid.rs)
         (0.05, 0.5, 0.5): 0.0, (0.5, 0.5, 0.5): 0.0, (1.0, 0.5, 0.5): 0.5, (1.5, 0.5, 0.5): 1.0,
         (2.0, 0.5, 0.5): 2.5, (2.5, 0.5, 0.5): 4.0, (2.95, 0.5, 0.5): 4.0, (0.5, 0.2, 0.5): 0.0,
         (0.5, 0.5, 1.0): 5.0, (1.5, 0.5, 1.5): 11.0, (2.5, 0.5, 1.9): 14.0, (1.25, 0.5, 1.25): 0.25 * 0.75 + 0.75 * (0.25 * 10.0 + 0.75 * 11.0),

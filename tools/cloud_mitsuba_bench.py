@@ -1,11 +1,11 @@
 #!/usr/bin/env python3
 """Mitsuba 3's time to reach the fast method's error on skybake's bench frame.
 
-The scene is skybake's bench frame (src/render/bench.rs: the 128^3 cumulus of 12 m voxels, extinction
+The scene is skybake's bench frame (crates/harness/src/frame_bench.rs: the 128^3 cumulus of 12 m voxels, extinction
 0.04 /m per unit density, albedo 1, Henyey-Greenstein g 0.85, pinhole camera 50 deg horizontal at
 (0, -3200, 1300) m looking at (0, 0, 1500) m) under the light skybake computes at the cloud for the
 bench scene (earth atmosphere, sun 35 deg elevation / 140 deg azimuth, ground albedo 0.3, 440/550/680
-nm), as exported by `examples/mitsuba_bench_export.rs`: the sun's transmitted normal irradiance per
+nm), as exported by `crates/harness/examples/mitsuba_bench_export.rs`: the sun's transmitted normal irradiance per
 wavelength (Mitsuba `directional`) and `Lighting::env`, sky radiance above the horizontal and ground
 light below, as a lat-long map (Mitsuba `envmap`). Both renderers see the cloud in vacuum, with no
 aerial perspective and no ground plane, so each image is I_a + T_c * env (the cloud's radiance plus
@@ -23,7 +23,7 @@ tools/cloud_mitsuba.py):
                                                        # (for DIR exported at 640 480 0 and 160 120 0)
 
 Each `series` render is stored in DIR (mitsuba_spp<N>_seed<S>.npy with its wall and CPU time) so the
-summary can pool them. Errors follow src/render/bench.rs `image_errors`: pixel value = mean over the
+summary can pool them. Errors follow crates/harness/src/frame_bench.rs `image_errors`: pixel value = mean over the
 three wavelengths; cloud pixels = transmittance < 0.99 (skybake's fast march, pixel centres); cloud
 blocks = aligned 8x8 blocks of cloud pixels only; block NRMSE, pixel NRMSE and cloud-mean bias
 relative to the reference's mean over cloud pixels.
@@ -129,7 +129,7 @@ def render(mi, scene_dict):
     return np.array(mi.render(scene), dtype=np.float64)[..., :3]
 
 
-# ---- statistics (src/render/bench.rs image_errors) ----------------------------------------------------
+# ---- statistics (crates/harness/src/frame_bench.rs image_errors) ----------------------------------------------------
 def blocks(img):
     h, w = img.shape[:2]
     hb, wb = h // BLOCK, w // BLOCK
@@ -153,7 +153,7 @@ def mask_of(d):
 
 # ---- numpy look-ups for the checks -------------------------------------------------------------------
 def camera_dirs(meta, sub):
-    """Pixel ray directions as skybake's pinhole camera (src/render/camera.rs) at sub x sub stratified
+    """Pixel ray directions as skybake's pinhole camera (crates/render/src/camera.rs) at sub x sub stratified
     points per pixel: (h, w, sub*sub, 3)."""
     c = meta["camera"]
     w, h = c["width"], c["height"]
@@ -329,8 +329,8 @@ def cmd_summary(d):
     data = load_json()
     data.update({
         "what": "Mitsuba 3 on skybake's bench frame: time to reach the fast method's error",
-        "scene": "src/render/bench.rs bench_cumulus + bench_scene under Lighting (sun + env) at the cloud, in vacuum "
-                 "(no aerial perspective, no ground plane): examples/mitsuba_bench_export.rs",
+        "scene": "crates/harness/src/frame_bench.rs bench_cumulus + bench_scene under Lighting (sun + env) at the cloud, in vacuum "
+                 "(no aerial perspective, no ground plane): crates/harness/examples/mitsuba_bench_export.rs",
         "resolution": [meta["camera"]["width"], meta["camera"]["height"]],
         "versions": {"mitsuba": version("mitsuba"), "drjit": version("drjit"), "numpy": np.__version__,
                      "variant": os.environ.get("MI_VARIANT", "llvm_ad_rgb"), "libLLVM": "19.1.7 (Debian libllvm19)",

@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-"""Writes the .npy fixtures for tests/cloud_import_grids.rs with NumPy's own writer (np.save),
+"""Writes the .npy fixtures for tests/clouds/cloud_import_grids.rs with NumPy's own writer (np.save),
 so the Rust reader is checked against an independent implementation of the format.
 
 Values: v[z, y, x] = 0.5 + 0.1 x + 0.01 y + 0.001 z, shape (nz, ny, nx) = (3, 4, 5).

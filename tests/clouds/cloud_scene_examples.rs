@@ -64,7 +64,7 @@ fn every_scene_file_voxelises_through_the_scene_api() {
             "{name}: max {} and {cloudy} cloudy voxels",
             grid.max_density()
         );
-        // Frame scenes (`*-frame.json`, tests/render_frame.rs) reuse a source for lighting.
+        // Frame scenes (`*-frame.json`, tests/clouds/render_frame.rs) reuse a source for lighting.
         if !name.ends_with("-frame.json") {
             kinds.push(section.source.kind());
         }

@@ -14,7 +14,7 @@
 //!
 //! The cases are few and the frames tiny (8×8 to 16×16 pixels) so that the file runs in seconds;
 //! the RNG seed is fixed so a failure reproduces (proptest also shrinks it to a small case).
-//! tests/render_stability.rs has the hand-picked extremes (τ 1000 ball, 1 m and 1 km voxels,
+//! tests/clouds/render_stability.rs has the hand-picked extremes (τ 1000 ball, 1 m and 1 km voxels,
 //! sun at −0.5°, 0°, 90° in the atmosphere, a cloud above the top of the atmosphere).
 
 use glam::DVec3;
@@ -207,7 +207,7 @@ fn finite_non_negative(f: &Frame) -> Result<(), TestCaseError> {
 
 /// Scattered power leaving the cloud, Σ over 26 orthographic views of ∫L dA · 4π/26, against the
 /// power the cloud takes out of the sun's beam, ∫(1 − T) dA seen from the sun (as
-/// tests/render_stability.rs). The 26 directions are turned so that none lies within 20° of the
+/// tests/clouds/render_stability.rs). The 26 directions are turned so that none lies within 20° of the
 /// sun beam's forward direction: a strongly forward-peaked phase function (g → 0.99) puts its
 /// light in a cone a few degrees wide that one quadrature direction would over-count by orders of
 /// magnitude; left out, the sum is a lower estimate of the power out, which is what an upper

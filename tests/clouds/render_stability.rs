@@ -2,7 +2,7 @@
 //! point of the product: stiff and extreme scenes give finite, non-negative radiance bounded by
 //! energy conservation, the frame is continuous in the sun angle, and the fast method's error
 //! against the path tracer falls along the quality presets.
-//! (tests/render_frame.rs has the first robustness cases: empty grid, single voxel, τ 1000,
+//! (tests/clouds/render_frame.rs has the first robustness cases: empty grid, single voxel, τ 1000,
 //! g 0.99 and −0.9, camera inside; this file adds the rest of the stiff and extreme cases.)
 
 use glam::DVec3;

@@ -380,7 +380,7 @@ async fn excess_load_is_shed_and_slow_requests_time_out() {
     let mut s = settings(dir.path());
     s.server.concurrency_limit = 1;
     s.server.request_timeout_s = 0.3;
-    // The cache policy that keeps an abandoned computation running (tests/service_cancel.rs
+    // The cache policy that keeps an abandoned computation running (tests/service/service_cancel.rs
     // covers the default, cancelling it).
     s.server.finish_abandoned = true;
     let srv = TestServer::start(s).await;

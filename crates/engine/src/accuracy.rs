@@ -1,4 +1,4 @@
-//! Measured accuracy: the data of `skybake report` (`report/report.json`,
+//! Measured accuracy: the data of `skybake-harness report` (`report/report.json`,
 //! compiled into the binary), the regime bands it was measured in, every product's measured error
 //! for its regime, and quality chosen by a target error (`max_rel_error`).
 //!
@@ -17,11 +17,11 @@ use std::sync::OnceLock;
 
 /// Sun elevation below which a `fast` request is computed with the precise tables instead: the
 /// fast method's measured error against the spherical Monte Carlo exceeds 10 % there (−6°: up to
-/// 54 % low, −9°: 81 %, −12°: 96 %; tests/atmosphere_twilight.rs).
+/// 54 % low, −9°: 81 %, −12°: 96 %; tests/atmosphere/atmosphere_twilight.rs).
 pub const FAST_TWILIGHT_LIMIT_DEG: f64 = -4.0;
 
 /// Relative error of each method against DISORT for the Rayleigh validation cases
-/// (tests/atmosphere_validation.rs measures it; keep these in step with that test).
+/// (tests/atmosphere/atmosphere_validation.rs measures it; keep these in step with that test).
 pub fn stated_relative_error(method: MsMethod) -> f64 {
     match method {
         MsMethod::Precise => 0.02,
@@ -31,9 +31,9 @@ pub fn stated_relative_error(method: MsMethod) -> f64 {
 }
 
 /// Bound on the relative sky-radiance error of `method` at `sun_elevation_deg`, measured against
-/// DISORT (sun ≥ 30°, tests/atmosphere_validation.rs) and the spherical-shell Monte Carlo
+/// DISORT (sun ≥ 30°, tests/atmosphere/atmosphere_validation.rs) and the spherical-shell Monte Carlo
 /// (sun 10° to −12°, observers at 0, 10 and 400 km, 440–680 nm, albedo 0 and 0.3,
-/// tests/atmosphere_twilight.rs, quality `standard`); keep these in step with those tests. Below
+/// tests/atmosphere/atmosphere_twilight.rs, quality `standard`); keep these in step with those tests. Below
 /// −12° nothing is validated and the −12° figure is given.
 pub fn stated_twilight_error(method: MsMethod, sun_elevation_deg: f64) -> f64 {
     let e = sun_elevation_deg;

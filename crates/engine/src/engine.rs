@@ -533,9 +533,9 @@ impl Engine {
             _ => None,
         };
         let independent = if e >= 30.0 {
-            "DISORT (Rayleigh, sun zenith 0–60°, view zenith 0–60°, albedo 0 and 0.3), tests/atmosphere_validation.rs"
+            "DISORT (Rayleigh, sun zenith 0–60°, view zenith 0–60°, albedo 0 and 0.3), tests/atmosphere/atmosphere_validation.rs"
         } else {
-            "the spherical-shell Monte Carlo in this sun-elevation band (Rayleigh, 440–680 nm, albedo 0 and 0.3, observers at 0, 10 and 400 km), tests/atmosphere_twilight.rs"
+            "the spherical-shell Monte Carlo in this sun-elevation band (Rayleigh, 440–680 nm, albedo 0 and 0.3, observers at 0, 10 and 400 km), tests/atmosphere/atmosphere_twilight.rs"
         };
         // The reference preset's own error against the independent code in this band.
         let reference_error = crate::accuracy::reference_error(e);
@@ -549,7 +549,7 @@ impl Engine {
             (false, Some((m, bands))) => (
                 m.relative_error + reference_error,
                 format!(
-                    "skybake report (report/README.md): largest deviation of this quality preset from the precise method at the reference preset over {} measured regime(s) in band {}, plus the reference's own deviation from {independent} ({:.2} %)",
+                    "skybake-harness report (report/README.md): largest deviation of this quality preset from the precise method at the reference preset over {} measured regime(s) in band {}, plus the reference's own deviation from {independent} ({:.2} %)",
                     m.regimes,
                     bands.name(),
                     reference_error * 100.0
@@ -837,7 +837,7 @@ impl Engine {
 }
 
 /// Largest vertical optical depth (all constituents) of the validated range: the DISORT
-/// comparisons (tests/atmosphere_validation.rs) are Rayleigh atmospheres, τ ≈ 0.56 at 360 nm;
+/// comparisons (tests/atmosphere/atmosphere_validation.rs) are Rayleigh atmospheres, τ ≈ 0.56 at 360 nm;
 /// beyond τ = 1 the orders-of-scattering series converges slowly and is capped (the product then carries an "outside the validated range" caveat).
 pub const VALIDATED_MAX_OPTICAL_DEPTH: f64 = 1.0;
 

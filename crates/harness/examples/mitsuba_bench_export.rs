@@ -1,4 +1,4 @@
-//! Exports skybake's bench frame (src/render/bench.rs) for Mitsuba 3 (tools/cloud_mitsuba_bench.py:
+//! Exports skybake's bench frame (crates/harness/src/frame_bench.rs) for Mitsuba 3 (tools/cloud_mitsuba_bench.py:
 //! Mitsuba's time to reach the fast method's error) and renders it with skybake's fast method and path tracer under the same light.
 //!
 //! The light is the bench scene's `Lighting` (earth atmosphere, sun 35° el / 140° az, ground albedo
@@ -139,7 +139,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
 
     let cam = &scene.camera;
     let meta = serde_json::json!({
-        "what": "skybake bench frame under its own light at the cloud, in vacuum (examples/mitsuba_bench_export.rs)",
+        "what": "skybake-harness bench frame under its own light at the cloud, in vacuum (crates/harness/examples/mitsuba_bench_export.rs)",
         "wavelengths_nm": light.wavelengths_nm,
         "sun_direction": [light.sun_dir.x, light.sun_dir.y, light.sun_dir.z],
         "sun_irradiance_w_m2_nm": light.sun_irradiance,

@@ -1,4 +1,4 @@
-//! In-process benchmarks behind `skybake bench NAME…` (median wall-clock times), so users can
+//! In-process benchmarks behind `skybake-harness bench NAME…` (median wall-clock times), so users can
 //! size their machines with the same code paths the service runs: the atmosphere products, the
 //! cloud density sources (the automaton step of Dobashi et al. 2000, Ostroushko et al.'s table 1, metaballs, fractal growth,
 //! satellite fitting), the solar position and the tile store.

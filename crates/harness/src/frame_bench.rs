@@ -1,4 +1,4 @@
-//! `skybake bench frame`: a 640×480 frame of a 128³ cumulus with sky light,
+//! `skybake-harness bench frame`: a 640×480 frame of a 128³ cumulus with sky light,
 //! ground light and multiple scattering at the standard quality, cold (the engine's sky and
 //! ground tables built inside the timed region) and warm; `frame-accuracy` compares the fast
 //! method with the path tracer on the same scene at a reduced resolution.
@@ -248,7 +248,7 @@ pub fn bench_frame_accuracy(
     ))
 }
 
-/// `skybake bench frame-pattern`: the `frame` benchmark (640×480, 128³ cumulus, standard
+/// `skybake-harness bench frame-pattern`: the `frame` benchmark (640×480, 128³ cumulus, standard
 /// quality, cold then warm) with `"multiple_scattering_method": "reference_pattern"`.
 pub fn bench_frame_pattern(width: usize, height: usize) -> Result<FrameBench> {
     let grid = bench_cumulus()?;

@@ -1,4 +1,4 @@
-//! Throughput figures for the storage layer, for `skybake bench store` (not asserted in tests).
+//! Throughput figures for the storage layer, for `skybake-harness bench store` (not asserted in tests).
 
 use std::path::Path;
 use std::time::Instant;

@@ -145,7 +145,7 @@ pub fn solar_position(input: &SpaInput) -> Result<SolarPosition> {
     })
 }
 
-/// Benchmark hook for `skybake bench solar_position`: computes `n` positions over a year at one
+/// Benchmark hook for `skybake-harness bench solar_position`: computes `n` positions over a year at one
 /// site and returns the sum of zenith angles (so the work cannot be optimised away).
 pub fn bench_solar_position(n: usize) -> f64 {
     let start = DateTime::<Utc>::from_timestamp(1_704_067_200, 0).unwrap_or_default();

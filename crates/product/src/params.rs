@@ -175,7 +175,7 @@ parameter_table! {
         products: ALL, doc: "Quality preset (ray-marching steps, table resolutions)" },
     max_rel_error { cli: Some("max-rel-error"), unit: "", range: Range::Real { lo: 1.0e-4, hi: 1.0 },
         default: "—", products: ALL,
-        doc: "Target relative error, instead of quality: the cheapest quality preset whose error measured by skybake report (report/README.md) in this regime meets it" },
+        doc: "Target relative error, instead of quality: the cheapest quality preset whose error measured by skybake-harness report (report/README.md) in this regime meets it" },
     elevation_count { cli: Some("elevation-count"), unit: "", range: Range::Whole { lo: 2, hi: 4096 },
         default: "sky 129, ground 65, aerial 33", products: TABLES,
         doc: "Table rows (view elevations, concentrated at the horizon)" },

@@ -438,7 +438,7 @@ pub fn render_tile(
 }
 
 /// Where a frame's error estimate comes from.
-pub const ERROR_BASIS: &str = "fast method: not estimated per frame; measured against Mitsuba 3, DISORT (tests/render_validation.rs) and the path tracer on the bench cumulus (skybake bench frame-accuracy), see README 'Cloud frames'; path tracer: sample variance";
+pub const ERROR_BASIS: &str = "fast method: not estimated per frame; measured against Mitsuba 3, DISORT (tests/clouds/render_validation.rs) and the path tracer on the bench cumulus (skybake-harness bench frame-accuracy), see README 'Cloud frames'; path tracer: sample variance";
 
 /// RMS over cloud pixels (transmittance < 0.99) of the standard error of the mean, relative to
 /// the mean cloud radiance.

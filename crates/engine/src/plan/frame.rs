@@ -7,7 +7,7 @@ use super::*;
 
 /// The fast method's measured error on cloud frames, relative: the worst block NRMSE against
 /// Mitsuba 3 and the path tracer at `standard` quality (albedo 0.9, 8.1 %; README "Cloud
-/// frames", tests/render_validation.rs). The presets differ in photon counts and steps, not in
+/// frames", tests/clouds/render_validation.rs). The presets differ in photon counts and steps, not in
 /// the model error that dominates this figure, so it is every preset's budget.
 pub const FRAME_MEASURED_ERROR: f64 = 0.081;
 
@@ -21,7 +21,7 @@ pub const LIGHT_SHARE_SAFETY: f64 = 2.0;
 /// ([`FrameFacts::shares_measured`]): on the validation cloud under the earth's atmosphere
 /// (sun 35°, ground albedo 0.02, 48×36 px) leaving the light from below out moved the cloud's
 /// mean signal (frame less the frame without the cloud) by 27.6 %, 2.28× the averaged share of
-/// 12.1 % (`skybake report --planner`): the air under the cloud lights the lower side the camera
+/// 12.1 % (`skybake-harness report --planner`): the air under the cloud lights the lower side the camera
 /// sees. The rule counts three times the share.
 pub const MEASURED_LIGHT_SHARE_SAFETY: f64 = 3.0;
 
@@ -29,7 +29,7 @@ pub const MEASURED_LIGHT_SHARE_SAFETY: f64 = 3.0;
 pub const MAX_COARSENING: usize = 8;
 
 /// Predicted error of halving a cloud's detail once (block means of 2³ voxels): the cloud-mean
-/// change measured by `skybake report --planner` on the validation cloud seen from 30 km.
+/// change measured by `skybake-harness report --planner` on the validation cloud seen from 30 km.
 pub const COARSENING_ERROR: f64 = 0.091;
 
 /// Predicted error, per halving of the resolution, of running the all-order multiple-scattering

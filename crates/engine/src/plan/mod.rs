@@ -2,7 +2,7 @@
 //! resolved medium become the [`Stage`]s that will run and those left out, each with a typed
 //! [`Reason`]. Pure and cheap (no tables are built), so `POST /v1/plan` and `skybake plan` answer
 //! without computing. The engine **executes** the plan: a stage not in it does not run (no table
-//! is built, no ray-march term is evaluated), a stage in it does; `tests/plan.rs` checks each rule
+//! is built, no ray-march term is evaluated), a stage in it does; `tests/atmosphere/plan.rs` checks each rule
 //! against the engine's work counters.
 //!
 //! Rules live here and nowhere else, the choice of multiple-scattering method among them (`fast`

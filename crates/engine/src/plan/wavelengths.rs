@@ -9,7 +9,7 @@ use super::*;
 /// the worst proxy's change. Measured (largest per-pixel or per-direction change of the RGB
 /// relative to its mean channel, against the prediction): the fast sky at sun 30° 1.7 % of
 /// 4.2 %, at sun 5° 4.8 % of 6.1 %, the ground 1.5 % of 4.2 %, the example cumulus frame under
-/// the earth's atmosphere 0.5 % of 1.3 % (`tests/plan_rgb_only.rs`, `report/planner.md`); with
+/// the earth's atmosphere 0.5 % of 1.3 % (`tests/products/plan_rgb_only.rs`, `report/planner.md`); with
 /// the proxies of the sunlit air alone, without the long view paths, the sky's largest change
 /// exceeded the doubled prediction (5.1 % of 4.2 %).
 pub const RGB_PROXY_SAFETY: f64 = 2.0;

@@ -1,4 +1,4 @@
-//! The frame part of `skybake report`: error against run time of the cloud
+//! The frame part of `skybake-harness report`: error against run time of the cloud
 //! renderer, for a few representative frames, against a converged path-traced reference.
 //!
 //! Per case (a cloud, a camera, a light), three curves:
@@ -10,13 +10,13 @@
 //!   orders 2 + 3 (the frame with the pattern minus the frame with multiple scattering switched
 //!   off, the same exact single scattering), each preset, against the path tracer restricted to
 //!   orders 2 and 3 (`min_orders` 2, `max_orders` 3), the independent estimate of exactly what the
-//!   pattern approximates (as tests/render_pattern.rs);
+//!   pattern approximates (as tests/clouds/render_pattern.rs);
 //! - **path tracer** at increasing samples per pixel (4, 16, 64, 256; the presets' own counts are
 //!   16, 64, 256, 1024), all orders, with its own random streams, against the same reference with
 //!   other streams (seed [`REFERENCE_SEED`]), so its curve is its noise.
 //!
 //! The reference is the path tracer itself, converged; it is validated against DISORT (slabs) and
-//! Mitsuba 3 (a 3-D grid cloud) in tests/render_validation.rs. Its own noise is reported: block
+//! Mitsuba 3 (a 3-D grid cloud) in tests/clouds/render_validation.rs. Its own noise is reported: block
 //! errors below about twice its block noise (pixel noise / 8) are not resolved.
 //!
 //! Every render goes through [`render_frame`], the renderer's entry point the product runs; the
@@ -163,7 +163,7 @@ struct FrameCase {
 
 /// The thin side-lit case: a 20³ blob (1 − r²/R²) with ±30 % waves, optical diameter 3 through the
 /// centre, HG g 0.85, albedo 1, in vacuum, a collimated sun of normal irradiance 1 from the side
-/// (elevation 30°, scattering angle about 90°), no sky, no ground (tests/render_pattern.rs's).
+/// (elevation 30°, scattering angle about 90°), no sky, no ground (tests/clouds/render_pattern.rs's).
 fn thin_case(px: usize) -> Result<(FrameScene, DensityGrid)> {
     const H: f64 = 20.0;
     const N: usize = 20;
@@ -619,9 +619,9 @@ pub fn markdown(frames: &FrameReport, plots: &[(String, String)]) -> String {
     let _ = writeln!(s, "## Cloud frames\n");
     let _ = writeln!(
         s,
-        "Made by `skybake report{} --only frames` ({}, {} threads, load average {}). \
+        "Made by `skybake-harness report{} --only frames` ({}, {} threads, load average {}). \
          Reference: the path tracer (all orders; validated against DISORT and Mitsuba 3 in \
-         tests/render_validation.rs), converged at the samples per pixel below with its own random \
+         tests/clouds/render_validation.rs), converged at the samples per pixel below with its own random \
          streams; the pattern's orders 2–3 are compared with the path tracer restricted to orders \
          2–3. The lighting from the atmosphere is built once per case at the scene's quality and \
          shared, so the figures are the cloud renderer's alone; the presets set the renderer's \

@@ -1,4 +1,4 @@
-//! `skybake report`: error against run time for every atmosphere product and
+//! `skybake-harness report`: error against run time for every atmosphere product and
 //! method, over the quality presets, in several regimes (sun elevation band, observer altitude
 //! band, aerosol load).
 //!
@@ -6,7 +6,7 @@
 //! ([`ProductRequest::from_params`] → [`Engine::compute`]) and is compared with the converged
 //! reference: the **precise** method at the `reference` preset, in the same regime, on the same
 //! table shape and wavelengths. That reference is itself checked against independent codes by
-//! `tests/atmosphere_validation.rs` (DISORT) and `tests/atmosphere_twilight.rs` (spherical Monte
+//! `tests/atmosphere/atmosphere_validation.rs` (DISORT) and `tests/atmosphere/atmosphere_twilight.rs` (spherical Monte
 //! Carlo). So the fast method's curve levels off at its model error, which is what a user pays.
 //!
 //! Error measures, over every table cell (or spectral value) `x` against its reference `r`:
@@ -37,7 +37,7 @@ use skybake_product::{ProductKind, ProductRequest};
 use std::path::Path;
 use std::time::Instant;
 
-/// What `skybake report` runs.
+/// What `skybake-harness report` runs.
 #[derive(Debug, Clone)]
 pub struct ReportOptions {
     pub quick: bool,
@@ -400,7 +400,7 @@ pub fn markdown(report: &Report, plots: &[(ProductKind, String)]) -> String {
     let _ = writeln!(s, "# Error against run time\n");
     let _ = writeln!(
         s,
-        "Made by `skybake report{}` ({}, {} threads, load average {}). Regenerate it whenever a \
+        "Made by `skybake-harness report{}` ({}, {} threads, load average {}). Regenerate it whenever a \
          method changes.\n",
         if report.quick { " --quick" } else { "" },
         report.engine_version,
@@ -409,8 +409,8 @@ pub fn markdown(report: &Report, plots: &[(ProductKind, String)]) -> String {
     );
     let _ = writeln!(
         s,
-        "Reference: the {}. That reference is checked against DISORT (tests/atmosphere_validation.rs) \
-         and a spherical-shell Monte Carlo (tests/atmosphere_twilight.rs). Wavelengths {} nm; sky and \
+        "Reference: the {}. That reference is checked against DISORT (tests/atmosphere/atmosphere_validation.rs) \
+         and a spherical-shell Monte Carlo (tests/atmosphere/atmosphere_twilight.rs). Wavelengths {} nm; sky and \
          ground tables {}×{}; aerial 9×8 directions. `rel_rms` = √(Σ(x−r)²/Σr²); `rel_max` = max |x−r| / \
          max(|r|, 10⁻³·max|r|), over every value of the product (sun: direct normal and diffuse \
          horizontal irradiance spectra; aerial: in-scattered radiance and transmittance, the worse). \

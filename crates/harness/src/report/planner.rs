@@ -1,4 +1,4 @@
-//! `skybake report --planner`: what each of the planner's cost rules saves
+//! `skybake-harness report --planner`: what each of the planner's cost rules saves
 //! and costs. For one case per rule, the request runs with its plan and with the same plan
 //! without the cost rules (`Plan::without_cost_rules`, `FramePlan::without_cost_rules`); both are
 //! timed and compared with the reference: the precise method at the `reference` preset for the
@@ -673,7 +673,7 @@ pub fn run(progress: &dyn Fn(usize, usize)) -> Result<Vec<RuleSaving>> {
 pub fn markdown(rows: &[RuleSaving], threads: usize, load: Option<&str>) -> String {
     let mut s = String::from(
         "# What the planner's cost rules save\n\n\
-         Written by `skybake report --planner` (`src/report/planner.rs`): one case per rule, run with its \
+         Written by `skybake-harness report --planner` (`crates/harness/src/report/planner.rs`): one case per rule, run with its \
          plan and with the same plan without the cost rules, each the fastest of 2 runs in wall \
          time and in CPU time (user + system of all threads, 10 ms ticks; fairer on a shared \
          machine) (sky: cold tables, a new engine per run; frames: lighting, preparation and \

@@ -1,4 +1,4 @@
-//! Log–log plots of error against run time for `skybake report`: one PNG per product, one curve
+//! Log–log plots of error against run time for `skybake-harness report`: one PNG per product, one curve
 //! per method and regime (cold CPU time on x, relative RMS error on y), the presets marked by their
 //! initial (d, s, h). The reference point (error 0 by construction) is left out of the curve.
 

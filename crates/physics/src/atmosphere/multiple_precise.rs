@@ -57,7 +57,7 @@ use std::sync::atomic::{AtomicUsize, Ordering};
 /// and nearly linear there. Near it, where each height's own sunset puts a kink in J, neither
 /// interpolant is good on the uniform grid (at sunset, view zenith 89°: −3.4 % in ln J, +1.3 %
 /// linear at 550 nm, +4.0 % linear at 440 nm and sun 2°), hence the denser nodes: 2.1 % max at
-/// sun ≥ 0°, 3.2 % to −6° (tests/atmosphere_twilight.rs, quality `standard`).
+/// sun ≥ 0°, 3.2 % to −6° (tests/atmosphere/atmosphere_twilight.rs, quality `standard`).
 ///
 /// By day J is smooth and nearly linear in sun zenith; there the uniform grid and the linear
 /// interpolation are kept (the daytime DISORT figures are unchanged: applying ln-J Catmull–Rom

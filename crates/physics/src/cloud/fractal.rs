@@ -341,7 +341,7 @@ pub fn voxelize_within(
     MetaballField::new(cloud.balls)?.voxelize_within(voxel_size_m, voxel_size_m, max_voxels)
 }
 
-/// Timing of one growth, for `skybake bench fractal_grow`.
+/// Timing of one growth, for `skybake-harness bench fractal_grow`.
 #[derive(Debug, Clone, Serialize)]
 pub struct GrowBench {
     /// Balls in the grown cloud.

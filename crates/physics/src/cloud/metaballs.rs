@@ -348,7 +348,7 @@ fn for_each_bin(
     }
 }
 
-/// Timing of one voxelisation, for `skybake bench metaball_voxelize`.
+/// Timing of one voxelisation, for `skybake-harness bench metaball_voxelize`.
 #[derive(Debug, Clone, Serialize)]
 pub struct VoxelizeBench {
     /// Number of metaballs.

@@ -631,7 +631,7 @@ pub fn voxelize_with_fit_within(
     Ok((grid, fitted))
 }
 
-/// Timing of one fit, for `skybake bench satellite_fit`.
+/// Timing of one fit, for `skybake-harness bench satellite_fit`.
 #[derive(Debug, Clone, Serialize)]
 pub struct FitBench {
     /// Image side, pixels.
