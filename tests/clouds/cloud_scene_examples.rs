@@ -131,9 +131,9 @@ fn quantised_satellite_field() -> Vec<u8> {
 /// field quantised to 8 bits, pixel by pixel.
 ///
 /// Tolerance: none where the quantisation is determined. A pixel may differ by one step only
-/// when the generated value lies within 1e-5 of a rounding boundary (half a step, 1/510),
-/// where the last bits of `exp` on another platform's libm could round it the other way; the
-/// test counts those pixels and requires every other one to be equal.
+/// when the generated value lies within 1e-6 of a rounding boundary (a half step, 1/510, from
+/// a level), where the last bits of `exp` on another platform's libm (one f32 ulp is 6e-8 at
+/// 1) could round it the other way; every other pixel must be equal.
 #[test]
 fn satellite_example_png_is_the_generated_field() {
     let path = Path::new(SCENES).join("satellite-field.png");
@@ -155,7 +155,7 @@ fn satellite_example_png_is_the_generated_field() {
     let mut ambiguous = 0;
     for (i, ((&got, &want), &v)) in png.iter().zip(&expected).zip(&field.data).enumerate() {
         let scaled = v as f64 * 255.0;
-        let near_boundary = (scaled - scaled.floor() - 0.5).abs() < 1e-5 * 255.0;
+        let near_boundary = (scaled - scaled.floor() - 0.5).abs() < 1e-6 * 255.0;
         if near_boundary {
             ambiguous += 1;
             assert!(
@@ -174,8 +174,13 @@ fn satellite_example_png_is_the_generated_field() {
             );
         }
     }
-    // The slack is for a handful of pixels at most, not a loophole for the image.
-    assert!(ambiguous <= 16, "{ambiguous} pixels at a rounding boundary");
+    // The slack is for a few pixels (about 0.05 % of them lie that close to a boundary), not a
+    // loophole for the image.
+    eprintln!("{ambiguous} pixels within 1e-6 of a rounding boundary");
+    assert!(
+        ambiguous * 100 <= png.len(),
+        "{ambiguous} pixels at a rounding boundary"
+    );
     // And through the loader the scene uses: the same field within the quantisation (half a
     // step, 1/510).
     let loaded = GrayImage::from_png_bytes(&bytes).unwrap();
