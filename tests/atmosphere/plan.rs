@@ -116,7 +116,10 @@ fn planning_a_frame_builds_only_the_tables_of_its_light() {
     use skybake_product::frame::FrameRequest;
     use skybake_render::Method;
     let no_files = |name: &str| -> skybake_physics::Result<Vec<u8>> {
-        Err(skybake_physics::Error::invalid("path", format!("no file {name}")))
+        Err(skybake_physics::Error::invalid(
+            "path",
+            format!("no file {name}"),
+        ))
     };
     let frame = |json: &str| {
         let mut v: serde_json::Value = serde_json::from_str(json).unwrap();
@@ -136,7 +139,11 @@ fn planning_a_frame_builds_only_the_tables_of_its_light() {
     let engine = Engine::new();
     lit.plan(&engine, &no_files).unwrap();
     let first = builds(&engine);
-    assert_eq!(first, [1, 1, 0], "atmosphere, draft: density and fast tables");
+    assert_eq!(
+        first,
+        [1, 1, 0],
+        "atmosphere, draft: density and fast tables"
+    );
     lit.plan(&engine, &no_files).unwrap();
     assert_eq!(builds(&engine), first, "planned again");
 }

@@ -115,7 +115,10 @@ fn scene_files_without_a_valid_cloud_section_are_refused() {
 /// `v × 255` (v in [0, 1]).
 fn quantised_satellite_field() -> Vec<u8> {
     let field = synthetic_cloud_field(SATELLITE_SIDE, SATELLITE_SEED).unwrap();
-    assert_eq!((field.width, field.height), (SATELLITE_SIDE, SATELLITE_SIDE));
+    assert_eq!(
+        (field.width, field.height),
+        (SATELLITE_SIDE, SATELLITE_SIDE)
+    );
     field
         .data
         .iter()
@@ -185,7 +188,10 @@ fn satellite_example_png_is_the_generated_field() {
     // step, 1/510).
     let loaded = GrayImage::from_png_bytes(&bytes).unwrap();
     for (&l, &v) in loaded.data.iter().zip(&field.data) {
-        assert!((l - v).abs() <= 0.5 / 255.0 + 1e-6, "loaded {l}, generated {v}");
+        assert!(
+            (l - v).abs() <= 0.5 / 255.0 + 1e-6,
+            "loaded {l}, generated {v}"
+        );
     }
 }
 
