@@ -40,15 +40,112 @@ fn run(req: &ProductRequest) -> (Engine, Product) {
     (engine, product)
 }
 
+/// Table builds of `engine`, density, fast, precise.
+fn builds(engine: &Engine) -> [u64; 3] {
+    [Table::Density, Table::Fast, Table::Precise].map(|t| engine.table_builds(t))
+}
+
+/// Planning an atmosphere request builds no table. By construction: `ProductRequest::plan`
+/// and `Engine::plan` take no engine (these coercions stop compiling if either starts to need
+/// one). On the engine the request path executes with (`ProductRequest::compute(&engine)`
+/// plans, then executes there) the tables built are exactly those of the plans executed, each
+/// once: planning precise requests before and between executions adds none, and a `method=none`
+/// request executed after a precise one was planned builds neither multiple-scattering table.
+/// And planning does not build a table anywhere else either: it takes a small fraction of the
+/// time the same request's tables take to build.
 #[test]
-fn planning_builds_no_tables() {
+fn planning_builds_no_table_on_the_engine_that_executes_the_request() {
+    let _plan_takes_no_engine: fn(&ProductRequest) -> _ = ProductRequest::plan;
+    let _engine_plan_takes_no_engine: fn(&skybake_engine::spec::CommonSpec, ProductKind) -> _ =
+        Engine::plan;
+
+    let precise = request(ProductKind::Sky, &[("method", "precise")]);
+    let precise_sun = request(ProductKind::Sun, &[("method", "precise")]);
+    let fast = request(ProductKind::Sky, &[]);
+    let none = request(ProductKind::Sky, &[("method", "none")]);
     let engine = Engine::new();
-    let req = request(ProductKind::Sky, &[("method", "precise")]);
-    let plan = req.plan().unwrap();
-    assert!(plan.runs(Stage::MultipleScattering));
-    for table in Table::ALL {
-        assert_eq!(engine.table_builds(table), 0, "{table:?}");
-    }
+    let plan_all = || {
+        for req in [&precise, &precise_sun, &fast, &none] {
+            req.plan().unwrap();
+        }
+    };
+
+    plan_all();
+    assert_eq!(builds(&engine), [0, 0, 0], "planned only");
+    assert!(precise.plan().unwrap().runs(Stage::MultipleScattering));
+    none.compute(&engine).unwrap();
+    assert_eq!(builds(&engine), [1, 0, 0], "method=none executed");
+
+    // Timing: planning the precise request (the least of a few tries, so load spikes do not
+    // count) against building its tables cold.
+    let planning = (0..5)
+        .map(|_| {
+            let t = std::time::Instant::now();
+            precise.plan().unwrap();
+            t.elapsed()
+        })
+        .min()
+        .unwrap();
+    let t = std::time::Instant::now();
+    precise.compute(&engine).unwrap();
+    let cold = t.elapsed();
+    eprintln!("planning {planning:?}, cold precise execution {cold:?}");
+    let after_precise = builds(&engine);
+    assert_eq!(after_precise[1..], [0, 1], "precise executed");
+    assert!(
+        planning * 20 < cold,
+        "planning took {planning:?}, the cold execution {cold:?}"
+    );
+
+    plan_all();
+    precise.compute(&engine).unwrap();
+    precise_sun.compute(&engine).unwrap();
+    none.compute(&engine).unwrap();
+    assert_eq!(builds(&engine), after_precise, "all warm");
+    fast.compute(&engine).unwrap();
+    assert_eq!(builds(&engine)[1..], [1, 1], "fast executed");
+}
+
+/// The frame's plan takes an engine (with an atmosphere it computes the light at the cloud,
+/// by design): in vacuum it builds no table on it; with an atmosphere, at draft quality, only
+/// the tables of the light it documents (the fast method's, for draft and standard), each once,
+/// and planning the frame again builds nothing more.
+#[test]
+fn planning_a_frame_builds_only_the_tables_of_its_light() {
+    use serde_json::json;
+    use skybake_product::frame::FrameRequest;
+    use skybake_render::Method;
+    let no_files = |name: &str| -> skybake_physics::Result<Vec<u8>> {
+        Err(skybake_physics::Error::invalid(
+            "path",
+            format!("no file {name}"),
+        ))
+    };
+    let frame = |json: &str| {
+        let mut v: serde_json::Value = serde_json::from_str(json).unwrap();
+        v["cloud"]["voxel_size_m"] = json!(100.0);
+        v["camera"]["width"] = json!(16);
+        v["camera"]["height"] = json!(12);
+        v["quality"] = json!("draft");
+        FrameRequest::from_value(&v, Method::Fast).unwrap()
+    };
+
+    let vacuum = frame(include_str!("../../config/scenes/validation-frame.json"));
+    let engine = Engine::new();
+    vacuum.plan(&engine, &no_files).unwrap();
+    assert_eq!(builds(&engine), [0, 0, 0], "vacuum");
+
+    let lit = frame(include_str!("../../config/scenes/cumulus-frame.json"));
+    let engine = Engine::new();
+    lit.plan(&engine, &no_files).unwrap();
+    let first = builds(&engine);
+    assert_eq!(
+        first,
+        [1, 1, 0],
+        "atmosphere, draft: density and fast tables"
+    );
+    lit.plan(&engine, &no_files).unwrap();
+    assert_eq!(builds(&engine), first, "planned again");
 }
 
 #[test]

@@ -244,7 +244,7 @@ async fn jobs_over_the_cost_budget_are_refused_at_submission() {
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
-async fn render_and_scenes() {
+async fn the_router_lists_serves_and_renders_scenes_and_refuses_a_bad_camera() {
     let dir = Scratch::new("router-render");
     let state = state(&dir);
     let list = call(&state, "GET", "/v1/scenes", None).await;
