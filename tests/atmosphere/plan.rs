@@ -51,8 +51,6 @@ fn builds(engine: &Engine) -> [u64; 3] {
 /// plans, then executes there) the tables built are exactly those of the plans executed, each
 /// once: planning precise requests before and between executions adds none, and a `method=none`
 /// request executed after a precise one was planned builds neither multiple-scattering table.
-/// And planning does not build a table anywhere else either: it takes a small fraction of the
-/// time the same request's tables take to build.
 #[test]
 fn planning_builds_no_table_on_the_engine_that_executes_the_request() {
     let _plan_takes_no_engine: fn(&ProductRequest) -> _ = ProductRequest::plan;
@@ -76,26 +74,9 @@ fn planning_builds_no_table_on_the_engine_that_executes_the_request() {
     none.compute(&engine).unwrap();
     assert_eq!(builds(&engine), [1, 0, 0], "method=none executed");
 
-    // Timing: planning the precise request (the least of a few tries, so load spikes do not
-    // count) against building its tables cold.
-    let planning = (0..5)
-        .map(|_| {
-            let t = std::time::Instant::now();
-            precise.plan().unwrap();
-            t.elapsed()
-        })
-        .min()
-        .unwrap();
-    let t = std::time::Instant::now();
     precise.compute(&engine).unwrap();
-    let cold = t.elapsed();
-    eprintln!("planning {planning:?}, cold precise execution {cold:?}");
     let after_precise = builds(&engine);
     assert_eq!(after_precise[1..], [0, 1], "precise executed");
-    assert!(
-        planning * 20 < cold,
-        "planning took {planning:?}, the cold execution {cold:?}"
-    );
 
     plan_all();
     precise.compute(&engine).unwrap();
