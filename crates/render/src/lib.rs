@@ -24,6 +24,9 @@
 //! # Ok::<(), skybake_render::Error>(())
 //! ```
 
+// Numeric kernels index several parallel per-wavelength arrays in one loop; an index is clearer.
+#![allow(clippy::needless_range_loop)]
+
 pub mod camera;
 pub mod light;
 pub mod lighting;
