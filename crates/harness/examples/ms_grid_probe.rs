@@ -17,7 +17,7 @@ fn main() {
         .and_then(|a| a.parse().ok())
         .unwrap_or(4000.0);
     let mut v: Value =
-        serde_json::from_str(include_str!("../config/scenes/validation-frame.json")).unwrap();
+        serde_json::from_str(include_str!("../../../config/scenes/validation-frame.json")).unwrap();
     v["camera"]["position_m"] = json!([0, -dist, 1200]);
     if dist > 10000.0 {
         v["camera"]["fov_deg"] = json!(12);
