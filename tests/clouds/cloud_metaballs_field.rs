@@ -140,10 +140,3 @@ fn bad_balls_and_oversized_grids_are_refused() {
     );
     assert_eq!(field.voxelize(100.0, -1.0).unwrap_err().field(), "margin_m");
 }
-
-#[test]
-fn bench_function_reports_throughput() {
-    let r = skybake_physics::cloud::metaballs::bench_metaball_voxelize(200, 80.0).unwrap();
-    assert_eq!(r.balls, 200);
-    assert!(r.voxels > 0 && r.voxels_per_second > 0.0);
-}

@@ -10,7 +10,7 @@ fn main() -> Result<(), skybake_physics::Error> {
         [a, b, c, d] => [*a, *b, *c, *d],
         _ => [256, 256, 20, 200],
     };
-    let b = skybake_physics::cloud::automaton::bench_ca_step(nx, ny, nz, steps)?;
+    let b = skybake_harness::physics_bench::bench_ca_step(nx, ny, nz, steps)?;
     println!(
         "ca-step {}x{}x{}: mean {:.3} ms, min {:.3} ms over {} steps, cloud cover {:.3}",
         nx,

@@ -10,7 +10,7 @@ fn main() -> Result<(), skybake_physics::Error> {
         ks = vec![6, 8, 10];
     }
     for k in ks {
-        let b = skybake_physics::cloud::spheres::bench_spheres(k, 800, 600)?;
+        let b = skybake_harness::physics_bench::bench_spheres(k, 800, 600)?;
         println!(
             "K={k} leaves={}: build {:.3} s, render {:.3} s ({} tests), render LOD 1px {:.3} s ({} tests), coverage {:.2}",
             b.leaves,

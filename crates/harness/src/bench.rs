@@ -5,13 +5,12 @@
 
 use skybake_engine::engine::{DomeShape, Engine};
 use skybake_engine::spec::CommonSpec;
-use skybake_physics::cloud::automaton::bench_ca_step;
-use skybake_physics::cloud::fractal::bench_fractal_grow;
-use skybake_physics::cloud::metaballs::bench_metaball_voxelize;
-use skybake_physics::cloud::satellite::bench_satellite_fit;
-use skybake_physics::cloud::spheres::{bench_spheres, SpheresBench};
-use skybake_physics::solar_position::bench_solar_position;
 use skybake_product::params::RequestParams;
+
+use crate::physics_bench::{
+    bench_ca_step, bench_fractal_grow, bench_metaball_voxelize, bench_satellite_fit,
+    bench_solar_position, bench_spheres, SpheresBench,
+};
 
 use crate::{Error, Result};
 use serde::Serialize;

@@ -253,6 +253,6 @@ pub fn bench_frame_accuracy(
 pub fn bench_frame_pattern(width: usize, height: usize) -> Result<FrameBench> {
     let grid = bench_cumulus()?;
     let mut scene = bench_scene(width, height)?;
-    scene.multiple_scattering_method = skybake_render::MsMethod::ReferencePattern;
+    scene.multiple_scattering_method = skybake_render::CloudMsMethod::ReferencePattern;
     time_frame(&scene, &grid, width, height)
 }

@@ -1,5 +1,5 @@
 //! skybake's measurement harness: the error-against-run-time report ([`report`]), in-process
-//! benchmarks ([`bench`], [`frame_bench`], [`store_bench`]) and their plots. It depends on every
+//! benchmarks ([`bench`], [`frame_bench`], [`physics_bench`], [`store_bench`]) and their plots. It depends on every
 //! layer and nothing depends on it, so the server and the CLI link none of it.
 
 // Numeric kernels index several parallel per-wavelength arrays in one loop; an index is clearer.
@@ -7,6 +7,7 @@
 
 pub mod bench;
 pub mod frame_bench;
+pub mod physics_bench;
 pub mod report;
 pub mod store_bench;
 

@@ -145,19 +145,6 @@ pub fn solar_position(input: &SpaInput) -> Result<SolarPosition> {
     })
 }
 
-/// Benchmark hook for `skybake-harness bench solar_position`: computes `n` positions over a year at one
-/// site and returns the sum of zenith angles (so the work cannot be optimised away).
-pub fn bench_solar_position(n: usize) -> f64 {
-    let start = DateTime::<Utc>::from_timestamp(1_704_067_200, 0).unwrap_or_default();
-    let step_s = 31_536_000 / n.max(1) as i64;
-    (0..n)
-        .map(|i| {
-            let time = start + chrono::Duration::seconds(step_s * i as i64);
-            spa_terms(&SpaInput::new(47.37, 8.54, time)).e0_deg
-        })
-        .sum()
-}
-
 fn check_range(field: &str, value: f64, lo: f64, hi: f64, allowed: &str) -> Result<()> {
     // NaN fails both comparisons and is rejected.
     if value >= lo && value <= hi {

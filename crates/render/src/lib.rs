@@ -41,8 +41,8 @@ pub mod volume;
 pub use lighting::Lighting;
 pub use march::Prepared;
 pub use multiple::PhotonSettings;
-pub use pattern::{MsMethod, PatternSettings};
-pub use scene::FrameScene;
+pub use pattern::PatternSettings;
+pub use scene::{CloudMsMethod, FrameScene};
 
 use rayon::prelude::*;
 use serde::Serialize;

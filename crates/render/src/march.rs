@@ -11,7 +11,7 @@ use super::light::{
 use super::lighting::Lighting;
 use super::multiple::{MsField, Truncation};
 use super::pathtracer::PathTracer;
-use super::scene::{FrameScene, Projection};
+use super::scene::{CloudMsMethod, FrameScene, Projection};
 use super::volume::CloudVolume;
 use super::{Method, RenderSettings};
 use glam::DVec3;
@@ -164,7 +164,7 @@ impl<'a> Prepared<'a> {
         // Orders 2–3 of sunlight by the reference pattern (Nishita et al. 1996, §3.4), with the true phase
         // function and no δ-M scaling; or the all-order field.
         let pattern_on =
-            scattering && scene.multiple_scattering_method == super::MsMethod::ReferencePattern;
+            scattering && scene.multiple_scattering_method == CloudMsMethod::ReferencePattern;
         let ms_on = scattering && !pattern_on && (sun_on || env_on);
         // δ-M scaling (f = g₁²) when the multiple-scattering field runs; none otherwise.
         let trunc: Vec<Truncation> = optics

@@ -66,24 +66,13 @@ use super::scene::{FrameScene, Projection};
 use crate::{Error, Result};
 use glam::DVec3;
 use rayon::prelude::*;
-use serde::{Deserialize, Serialize};
+use serde::Serialize;
 use skybake_physics::atmosphere::quality::Quality;
 use skybake_physics::cloud::DensityGrid;
 use skybake_physics::phase::Phase;
 use std::f64::consts::PI;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Instant;
-
-/// How the fast method computes multiple scattering (scene field `multiple_scattering_method`).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
-#[serde(rename_all = "snake_case")]
-pub enum MsMethod {
-    /// All orders from the photon-transport field ([`super::multiple`]).
-    #[default]
-    AllOrders,
-    /// Orders 2 and 3 of the sun's light by the reference pattern of Nishita et al. 1996, §3.4 (this module).
-    ReferencePattern,
-}
 
 /// Settings of the reference pattern.
 #[derive(Debug, Clone, Copy, PartialEq)]

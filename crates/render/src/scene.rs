@@ -27,7 +27,6 @@
 //! Every value is checked here, before anything is allocated; errors name the field (dotted
 //! path, e.g. `optics.phase.g`) and its allowed range.
 
-use super::pattern::MsMethod;
 use crate::{Error, Result};
 use glam::DVec3;
 use serde::{Deserialize, Serialize};
@@ -39,6 +38,20 @@ use skybake_physics::cloud::scene::{CloudSection, MAX_SCENE_FILE_BYTES};
 use skybake_physics::phase::Phase;
 use skybake_physics::spectrum::Wavelengths;
 use std::collections::BTreeMap;
+
+/// How the fast method computes the cloud's multiple scattering (scene field
+/// `multiple_scattering_method`). Not the atmosphere's multiple-scattering method
+/// (`skybake_physics::atmosphere::sky::MsMethod`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum CloudMsMethod {
+    /// All orders from the photon-transport field (`render::multiple`).
+    #[default]
+    AllOrders,
+    /// Orders 2 and 3 of the sun's light by the reference pattern of Nishita et al. 1996, §3.4
+    /// (`render::pattern`).
+    ReferencePattern,
+}
 
 /// Largest image, pixels.
 pub const MAX_PIXELS: usize = 16_777_216;
@@ -317,7 +330,7 @@ pub struct FrameSceneJson {
     /// `"reference_pattern"` (orders 2 and 3 of sunlight by Nishita et al. 1996, §3.4; thin clouds)
     /// ["all_orders"].
     #[serde(default)]
-    pub multiple_scattering_method: MsMethod,
+    pub multiple_scattering_method: CloudMsMethod,
 }
 
 fn default_atmosphere() -> Value {
@@ -448,7 +461,7 @@ pub struct FrameScene {
     pub wavelengths: Wavelengths,
     pub quality: Quality,
     pub lighting: LightingSwitches,
-    pub multiple_scattering_method: MsMethod,
+    pub multiple_scattering_method: CloudMsMethod,
     /// The scene as given (for cache keys and metadata).
     pub source: FrameSceneJson,
 }

@@ -43,7 +43,7 @@ use skybake_engine::engine::Engine;
 use skybake_physics::atmosphere::quality::Quality;
 use skybake_physics::cloud::DensityGrid;
 use skybake_render::{
-    lighting_for, render_frame, Frame, FrameScene, Lighting, Method, MsMethod, RenderSettings,
+    lighting_for, render_frame, CloudMsMethod, Frame, FrameScene, Lighting, Method, RenderSettings,
 };
 use std::path::Path;
 use std::time::Instant;
@@ -505,7 +505,7 @@ pub fn run(
         let errors = |img: &[f32], r: &[f32]| image_errors(img, r, &mask, w, n_l);
         // Fast method, all orders, over the presets.
         let mut scene = case.scene.clone();
-        scene.multiple_scattering_method = MsMethod::AllOrders;
+        scene.multiple_scattering_method = CloudMsMethod::AllOrders;
         let mut points = Vec::new();
         for &q in &case.presets {
             let s = RenderSettings::for_quality(q, Method::Fast);
@@ -550,7 +550,7 @@ pub fn run(
             let reference_23 = reference(case, &lighting, true, reference_dir)?;
             step();
             let mut with = case.scene.clone();
-            with.multiple_scattering_method = MsMethod::ReferencePattern;
+            with.multiple_scattering_method = CloudMsMethod::ReferencePattern;
             let mut without = with.clone();
             without.lighting.multiple_scattering = false;
             let mut points = Vec::new();

@@ -341,30 +341,6 @@ pub fn voxelize_within(
     MetaballField::new(cloud.balls)?.voxelize_within(voxel_size_m, voxel_size_m, max_voxels)
 }
 
-/// Timing of one growth, for `skybake-harness bench fractal_grow`.
-#[derive(Debug, Clone, Serialize)]
-pub struct GrowBench {
-    /// Balls in the grown cloud.
-    pub balls: usize,
-    /// Triangles extracted over all levels.
-    pub triangles: usize,
-    /// Wall-clock time, seconds.
-    pub seconds: f64,
-}
-
-/// Benchmark: a five-ball cumulus grown over `levels` levels with default parameters.
-pub fn bench_fractal_grow(levels: u32) -> Result<GrowBench> {
-    let mut params = FractalParams::new(example_cumulus_base());
-    params.levels = levels;
-    let start = std::time::Instant::now();
-    let cloud = grow(&params)?;
-    Ok(GrowBench {
-        balls: cloud.balls.len(),
-        triangles: cloud.levels.iter().map(|l| l.triangles).sum(),
-        seconds: start.elapsed().as_secs_f64(),
-    })
-}
-
 /// A small cumulus base (five balls, about 1.6 km across, base near 1 km altitude), used by the
 /// benchmark and the example scene.
 pub fn example_cumulus_base() -> Vec<Metaball> {

@@ -631,33 +631,6 @@ pub fn voxelize_with_fit_within(
     Ok((grid, fitted))
 }
 
-/// Timing of one fit, for `skybake-harness bench satellite_fit`.
-#[derive(Debug, Clone, Serialize)]
-pub struct FitBench {
-    /// Image side, pixels.
-    pub side_px: usize,
-    /// Blobs fitted.
-    pub balls: usize,
-    /// Final relative error.
-    pub error: f64,
-    /// Wall-clock time, seconds.
-    pub seconds: f64,
-}
-
-/// Benchmark: fit a synthetic `side_px`² field of Gaussian cloud cells (fixed seed).
-pub fn bench_satellite_fit(side_px: usize) -> Result<FitBench> {
-    let img = synthetic_cloud_field(side_px, 7)?;
-    let params = SatelliteParams::new("synthetic");
-    let start = std::time::Instant::now();
-    let fitted = fit(&img, &params)?;
-    Ok(FitBench {
-        side_px,
-        balls: fitted.blobs.len(),
-        error: fitted.error,
-        seconds: start.elapsed().as_secs_f64(),
-    })
-}
-
 /// A synthetic satellite-like image: clusters of Gaussian cloud cells of varied size and optical
 /// thickness, shown as reflectance `1 − exp(−1.5 τ)` (bright, saturating cores; dim fringes).
 /// Deterministic for `seed`; for tests, benchmarks and the example scene.

@@ -308,7 +308,7 @@ pub fn frame_facts_with(
         voxel_size_m: h,
         grid_dims: grid.dims,
         ms_max_dim: match (method, scene.multiple_scattering_method) {
-            (Method::Fast, skybake_render::MsMethod::AllOrders) => {
+            (Method::Fast, skybake_render::CloudMsMethod::AllOrders) => {
                 RenderSettings::for_quality(scene.quality, method)
                     .photons
                     .max_coarse_dim

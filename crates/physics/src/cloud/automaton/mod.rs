@@ -45,7 +45,6 @@ use crate::{Error, Result};
 use glam::DVec3;
 use rand::Rng;
 use serde::{Deserialize, Serialize};
-use std::time::{Duration, Instant};
 
 /// Largest simulated time accepted, in steps.
 pub const MAX_STEPS: f64 = 1_000_000.0;
@@ -355,53 +354,4 @@ pub fn automaton_density(params: &AutomatonParams, time_steps: f64) -> Result<De
     frames
         .pop()
         .ok_or_else(|| Error::invalid("time_steps", "no frame produced"))
-}
-
-/// Timing of [`bench_ca_step`].
-#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
-pub struct CaBench {
-    /// Cells along x, y, z.
-    pub dims: [usize; 3],
-    /// Steps timed.
-    pub steps: usize,
-    /// Mean wall time of one step (growth, stochastic rules, wind, obstacles, ellipsoid drift).
-    pub mean_step: Duration,
-    /// Median single step.
-    pub median_step: Duration,
-    /// Fastest single step.
-    pub min_step: Duration,
-    /// Cloud cover (fraction of cells) after the run, a sanity check that something happened.
-    pub cloud_cover: f64,
-}
-
-/// Times `steps` automaton steps on an `nx × ny × nz` space with the [`AutomatonParams::example`]
-/// setting (Fig. 8 probabilities, random ellipsoids, sheared wind) after a 20-step warm-up. The
-/// paper reports 0.5 s per step for 256×256×20 on a Pentium III 500 MHz (§6).
-pub fn bench_ca_step(nx: usize, ny: usize, nz: usize, steps: usize) -> Result<CaBench> {
-    if !(1..=100_000).contains(&steps) {
-        return Err(Error::out_of_range("steps", steps, "1..=100000"));
-    }
-    let params = AutomatonParams::example([nx, ny, nz], 1);
-    params.validate()?;
-    let mut sim = Automaton::new(&params)?;
-    for _ in 0..20 {
-        sim.step();
-    }
-    let mut times: Vec<Duration> = (0..steps)
-        .map(|_| {
-            let start = Instant::now();
-            sim.step();
-            start.elapsed()
-        })
-        .collect();
-    let total: Duration = times.iter().sum();
-    times.sort_unstable();
-    Ok(CaBench {
-        dims: [nx, ny, nz],
-        steps,
-        mean_step: total / steps as u32,
-        median_step: times[steps / 2],
-        min_step: times[0],
-        cloud_cover: sim.cloud_cover(),
-    })
 }

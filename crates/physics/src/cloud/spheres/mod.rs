@@ -30,4 +30,4 @@ pub mod voxel;
 
 pub use model::{Sphere, SphereCloud, SphereCloudParams, MAX_LEVELS};
 pub use optics::{edge_weight, extinction_from_mor_per_m, sphere_transmittance};
-pub use trace::{bench_spheres, Camera, Lod, Ray, SpheresBench, TraceStats};
+pub use trace::{Camera, Lod, Ray, TraceStats};

@@ -2,13 +2,12 @@
 //! sphere's children only if it hits the sphere, stops at the leaves or where the level of detail
 //! says a sphere is too small to split further, and multiplies the transmittances of eq 3.
 
-use super::model::{Sphere, SphereCloud, SphereCloudParams, CHILDREN};
+use super::model::{Sphere, SphereCloud, CHILDREN};
 use super::optics::sphere_transmittance;
 use crate::{Error, Result};
 use glam::DVec3;
 use rayon::prelude::*;
 use serde::Serialize;
-use std::time::{Duration, Instant};
 
 /// Relative inflation of bounding tests, covering the single-precision rounding of tangent
 /// children so pruning never drops a leaf the ray touches.
@@ -167,68 +166,4 @@ impl SphereCloud {
             });
         Ok((image, stats))
     }
-}
-
-/// Result of [`bench_spheres`].
-#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
-pub struct SpheresBench {
-    /// Level K.
-    pub levels: u32,
-    /// Leaf spheres, 5^K.
-    pub leaves: usize,
-    /// Image size.
-    pub width: usize,
-    /// Image height.
-    pub height: usize,
-    /// Time to build the hierarchy.
-    pub build: Duration,
-    /// Time to render the transmittance image (all leaves, no level of detail).
-    pub render: Duration,
-    /// Time to render with level of detail at one pixel.
-    pub render_lod: Duration,
-    /// Traversal work without level of detail.
-    pub stats: TraceStats,
-    /// Traversal work with level of detail.
-    pub stats_lod: TraceStats,
-    /// Fraction of pixels with transmittance below 0.99 (how much of the frame the cloud covers).
-    pub coverage: f64,
-}
-
-/// Ostroushko et al., table 1: a `width × height` transmittance image of a cumulus with 5^`levels` leaves
-/// (the paper: 800×600, K = 6, 8, 10 → 4.75 s, 9.2 s, 22.1 s on one Core 2 core). The camera sits
-/// 3 km from the cloud centre with a 45° vertical field of view, so the cloud fills most of the
-/// frame.
-pub fn bench_spheres(levels: u32, width: usize, height: usize) -> Result<SpheresBench> {
-    let params = SphereCloudParams::cumulus(levels, 2024);
-    let start = Instant::now();
-    let cloud = SphereCloud::new(&params)?;
-    let build = start.elapsed();
-    let centre = cloud.centre_m();
-    let camera = Camera {
-        eye_m: centre + DVec3::new(0.0, -3000.0, 300.0),
-        target_m: centre,
-        up: DVec3::Z,
-        fov_y_deg: 45.0,
-        width,
-        height,
-    };
-    let start = Instant::now();
-    let (image, stats) = cloud.render_transmittance(&camera, None)?;
-    let render = start.elapsed();
-    let start = Instant::now();
-    let (_, stats_lod) = cloud.render_transmittance(&camera, Some(1.0))?;
-    let render_lod = start.elapsed();
-    let covered = image.iter().filter(|t| **t < 0.99).count();
-    Ok(SpheresBench {
-        levels,
-        leaves: cloud.leaves().len(),
-        width,
-        height,
-        build,
-        render,
-        render_lod,
-        stats,
-        stats_lod,
-        coverage: covered as f64 / image.len() as f64,
-    })
 }
