@@ -2,7 +2,7 @@
 //! request takes (`ProductRequest::from_params` → `ProductRequest::plan` → `Engine::execute`).
 //!
 //! The expected figures come from the committed measurements, not from the engine's lookup:
-//! this file reads `report/report.json` (what `skybake report` wrote) with serde_json, finds
+//! this file reads `report/report.json` (what `skybake-harness report` wrote) with serde_json, finds
 //! the regime and the curve by name, and adds the reference preset's own deviation from the
 //! external codes as stated here (DISORT, the spherical Monte Carlo). Nothing in
 //! `skybake_engine::accuracy` is used.
@@ -172,7 +172,11 @@ fn the_error_estimate_is_the_reports_measured_error_plus_the_references_own() {
         // reference and the reference's measured deviation from the independent code.
         assert!(e.relative_error >= rel_max + measured, "{case}");
         assert_eq!(e.validated, validated, "{case}: {e:?}");
-        assert!(e.basis.contains("skybake report"), "{case}: {}", e.basis);
+        assert!(
+            e.basis.contains("skybake-harness report"),
+            "{case}: {}",
+            e.basis
+        );
     }
 
     // Above the measured altitude bands: no figure, not validated.
@@ -181,7 +185,7 @@ fn the_error_estimate_is_the_reports_measured_error_plus_the_references_own() {
     let e = estimate(&engine, &p);
     assert_eq!(e.regime, None);
     assert!(!e.validated);
-    assert!(!e.basis.contains("skybake report"), "{}", e.basis);
+    assert!(!e.basis.contains("skybake-harness report"), "{}", e.basis);
 }
 
 #[test]

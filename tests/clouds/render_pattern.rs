@@ -10,8 +10,8 @@
 use glam::DVec3;
 use serde_json::{json, Value};
 use skybake_engine::engine::Engine;
-use skybake_harness::frame_bench::{image_errors, ImageErrors};
 use skybake_physics::cloud::DensityGrid;
+use skybake_render::compare::{image_errors, ImageErrors};
 use skybake_render::{lighting_for, render_frame, Frame, FrameScene, Method, RenderSettings};
 
 const H: f64 = 20.0;

@@ -23,9 +23,9 @@ use proptest::test_runner::{Config, RngSeed};
 use rand::{Rng, SeedableRng};
 use serde_json::{json, Value};
 use skybake_engine::engine::Engine;
-use skybake_harness::frame_bench::image_errors;
 use skybake_physics::atmosphere::quality::Quality;
 use skybake_physics::cloud::DensityGrid;
+use skybake_render::compare::image_errors;
 use skybake_render::light::fibonacci;
 use skybake_render::{
     lighting_for, render_frame, Frame, FrameScene, Lighting, Method, RenderSettings,

@@ -8,7 +8,8 @@
 //! MODE: all | sun | env | sky | gnd, suffixed `1` for first order only (e.g. env1).
 //! Knobs (env): TPOW, COARSE, ENVP, SUNP, ANG, STEP, QUALITY.
 use rayon::prelude::*;
-use skybake_harness::frame_bench::{bench_cumulus, bench_scene, image_errors};
+use skybake_harness::frame_bench::{bench_cumulus, bench_scene};
+use skybake_render::compare::image_errors;
 use skybake_render::lighting::Hemisphere;
 use skybake_render::pathtracer::PathTracer;
 use skybake_render::{camera, lighting_for, Method, Prepared, RenderSettings};

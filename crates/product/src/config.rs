@@ -131,11 +131,7 @@ pub const ENV_VARS: &[(&str, &str, &str)] = &[
 
 /// `SKYBAKE_*` variables that are not settings and so are not refused at start-up: the log filter,
 /// and switches read only by the test suite.
-pub const NON_SETTING_ENV_VARS: &[&str] = &[
-    "SKYBAKE_LOG",
-    "SKYBAKE_EXR_SAMPLE_DIR",
-    "SKYBAKE_REGENERATE_EXAMPLES",
-];
+pub const NON_SETTING_ENV_VARS: &[&str] = &["SKYBAKE_LOG", "SKYBAKE_EXR_SAMPLE_DIR"];
 
 /// The known setting variables, comma-separated, for error messages.
 fn known_env_vars() -> String {

@@ -28,6 +28,7 @@
 #![allow(clippy::needless_range_loop)]
 
 pub mod camera;
+pub mod compare;
 pub mod light;
 pub mod lighting;
 pub mod march;

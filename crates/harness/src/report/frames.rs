@@ -35,13 +35,14 @@
 //! directory, and reuses it while the key matches.
 
 use super::process_cpu_ms;
-use crate::frame_bench::{bench_cumulus, bench_scene, image_errors, ImageErrors};
+use crate::frame_bench::{bench_cumulus, bench_scene};
 use crate::{Error, Result};
 use glam::DVec3;
 use serde::{Deserialize, Serialize};
 use skybake_engine::engine::Engine;
 use skybake_physics::atmosphere::quality::Quality;
 use skybake_physics::cloud::DensityGrid;
+use skybake_render::compare::{image_errors, ImageErrors};
 use skybake_render::{
     lighting_for, render_frame, CloudMsMethod, Frame, FrameScene, Lighting, Method, RenderSettings,
 };
