@@ -286,13 +286,13 @@ pub fn render(product: ProductKind, format: Format, image: &SpectralImage) -> Re
 pub const ATTR_FRAME_TILES: &str = "skybakeFrameTiles";
 
 /// Tiles of an assembled frame: how many there are, how many this run computed and how many it
-/// took from an earlier run ([`ATTR_FRAME_TILES`]).
+/// took from an earlier run ([`ATTR_FRAME_TILES`]; members in name order, as stored).
 #[derive(Debug, Clone, Copy, Serialize)]
 pub struct FrameTileCounts {
-    pub tile_size: usize,
-    pub total: usize,
     pub computed: usize,
     pub reused: usize,
+    pub tile_size: usize,
+    pub total: usize,
 }
 
 /// A rendered frame's artifact: its spectral image ([`crate::export::frame_image`]) with the
