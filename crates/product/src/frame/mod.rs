@@ -25,7 +25,7 @@ use skybake_render::{
     RenderSettings, Tile, ERROR_BASIS,
 };
 use skybake_store::tiles::ATTR_TILE_OF;
-use skybake_store::{decode_exr, encode_exr, SpectralImage, StoreError};
+use skybake_store::{decode_exr, encode_exr, SpectralImage};
 use std::time::Instant;
 
 pub use examples::{example_file, example_scene, EXAMPLE_SCENES};

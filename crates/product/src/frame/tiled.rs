@@ -46,19 +46,12 @@ impl TileSink for NoTiles {
     }
 }
 
-fn store_error(e: StoreError) -> Error {
-    match e {
-        StoreError::Invalid(e) => e,
-        other => Error::internal("tile store", other),
-    }
-}
-
 impl TileSink for skybake_store::FrameTiles {
     fn get(&self, index: usize) -> Result<Option<Vec<u8>>> {
-        skybake_store::FrameTiles::get(self, index).map_err(store_error)
+        skybake_store::FrameTiles::get(self, index).map_err(Error::from)
     }
     fn put(&self, index: usize, bytes: &[u8]) -> Result<()> {
-        skybake_store::FrameTiles::put(self, index, bytes).map_err(store_error)
+        skybake_store::FrameTiles::put(self, index, bytes).map_err(Error::from)
     }
     fn binding(&self, index: usize) -> String {
         skybake_store::FrameTiles::binding(self, index)
@@ -176,7 +169,7 @@ fn encode_tile(frame: &skybake_render::Frame, meta: &TileMeta, binding: &str) ->
         ATTR_TILE_META,
         serde_json::to_string(meta).map_err(|e| Error::internal("tile", e))?,
     )?;
-    encode_exr(&img).map_err(store_error)
+    encode_exr(&img).map_err(Error::from)
 }
 
 impl FrameRequest {
