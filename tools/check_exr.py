@@ -10,7 +10,7 @@ With `--pattern` it also compares every pixel with the analytic pattern that the
 `reference_pattern_file_round_trips` (tests/products/store_exr.rs) writes:
 
     mkdir -p /tmp/skybake-exr
-    SKYBAKE_EXR_SAMPLE_DIR=/tmp/skybake-exr cargo test --test store_exr reference_pattern
+    SKYBAKE_EXR_SAMPLE_DIR=/tmp/skybake-exr cargo test --release --test products store_exr::reference_pattern
     python tools/check_exr.py --pattern /tmp/skybake-exr/pattern_*.exr
 
 When the `blake3` package is installed it also recomputes the whole-file checksum
