@@ -11,3 +11,4 @@ mod service_http;
 mod service_process;
 mod service_render;
 mod service_router;
+mod service_slow_clients;

@@ -34,6 +34,13 @@ pub struct ServerSettings {
     pub header_read_timeout_s: f64,
     /// Most open client connections; more are closed as soon as they are accepted.
     pub max_connections: usize,
+    /// Most open connections of one client address; more are closed as soon as they are accepted.
+    pub max_connections_per_client: usize,
+    /// Longest a request body may take to arrive, seconds (408 after it).
+    pub body_read_timeout_s: f64,
+    /// Slowest average rate a request body may arrive at after its first
+    /// [`BODY_RATE_GRACE_S`] seconds, bytes per second (408 below it); 0 = no minimum.
+    pub body_min_rate_bytes_per_s: f64,
     /// Longest a shutdown waits for open connections and computations, seconds.
     pub shutdown_grace_s: f64,
     /// Largest estimated cost of one product request ([`crate::cost`]), cell-wavelength-orders.
@@ -96,6 +103,21 @@ pub const ENV_VARS: &[(&str, &str, &str)] = &[
         "header_read_timeout_s",
     ),
     ("SKYBAKE_MAX_CONNECTIONS", "server", "max_connections"),
+    (
+        "SKYBAKE_MAX_CONNECTIONS_PER_CLIENT",
+        "server",
+        "max_connections_per_client",
+    ),
+    (
+        "SKYBAKE_BODY_READ_TIMEOUT_S",
+        "server",
+        "body_read_timeout_s",
+    ),
+    (
+        "SKYBAKE_BODY_MIN_RATE_BYTES_PER_S",
+        "server",
+        "body_min_rate_bytes_per_s",
+    ),
     ("SKYBAKE_SHUTDOWN_GRACE_S", "server", "shutdown_grace_s"),
     ("SKYBAKE_MAX_REQUEST_COST", "server", "max_request_cost"),
     ("SKYBAKE_MAX_JOB_COST", "server", "max_job_cost"),
@@ -149,6 +171,10 @@ fn split_list(s: &str) -> Vec<&str> {
         .filter(|t| !t.is_empty())
         .collect()
 }
+
+/// Seconds at the start of a request body during which its rate is not checked
+/// (`server.body_min_rate_bytes_per_s` applies to the average after them).
+pub const BODY_RATE_GRACE_S: f64 = 5.0;
 
 /// Most products a job may hold, whatever the configuration says.
 pub const MAX_JOB_PRODUCTS_LIMIT: usize = 1_000_000;
@@ -313,6 +339,7 @@ impl Settings {
         }
         for (name, value) in [
             ("server.header_read_timeout_s", s.header_read_timeout_s),
+            ("server.body_read_timeout_s", s.body_read_timeout_s),
             ("server.shutdown_grace_s", s.shutdown_grace_s),
         ] {
             if !(value.is_finite() && value > 0.0 && value <= 3600.0) {
@@ -324,6 +351,22 @@ impl Settings {
                 "server.max_connections",
                 s.max_connections,
                 "1 to 1000000",
+            ));
+        }
+        if !(1..=s.max_connections).contains(&s.max_connections_per_client) {
+            return Err(Error::out_of_range(
+                "server.max_connections_per_client",
+                s.max_connections_per_client,
+                format!("1 to server.max_connections ({})", s.max_connections),
+            ));
+        }
+        if !(s.body_min_rate_bytes_per_s.is_finite()
+            && (0.0..=1e9).contains(&s.body_min_rate_bytes_per_s))
+        {
+            return Err(Error::out_of_range(
+                "server.body_min_rate_bytes_per_s",
+                s.body_min_rate_bytes_per_s,
+                "0 (no minimum) to 1e9",
             ));
         }
         if s.max_request_cost < 1_000_000 {

@@ -12,6 +12,7 @@
 //! identical requests in flight (single flight), run on a blocking thread behind a semaphore sized
 //! to the cores.
 
+pub mod body;
 pub mod conn;
 pub mod extract;
 pub mod limits;

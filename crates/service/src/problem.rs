@@ -33,6 +33,9 @@ pub enum ApiError {
     RateLimited { retry_after_s: u64 },
     /// Too many live jobs (`jobs.max_live`).
     JobsFull(String),
+    /// The request body did not arrive in time or arrived too slowly (408; the connection is
+    /// closed).
+    SlowBody(String),
 }
 
 impl From<crate::Error> for ApiError {
@@ -116,6 +119,7 @@ impl ApiError {
             ApiError::Unauthorized => StatusCode::UNAUTHORIZED,
             ApiError::RateLimited { .. } => StatusCode::TOO_MANY_REQUESTS,
             ApiError::JobsFull(_) => StatusCode::SERVICE_UNAVAILABLE,
+            ApiError::SlowBody(_) => StatusCode::REQUEST_TIMEOUT,
         }
     }
 
@@ -197,6 +201,12 @@ impl ApiError {
                 d.clone(),
                 None,
             ),
+            ApiError::SlowBody(d) => (
+                "urn:skybake:problem:body-timeout",
+                "Request body timed out",
+                d.clone(),
+                Some("body".into()),
+            ),
         }
     }
 }
@@ -245,6 +255,10 @@ impl IntoResponse for ApiError {
         }
         if let ApiError::RateLimited { retry_after_s } = self {
             h.insert(header::RETRY_AFTER, HeaderValue::from(retry_after_s));
+        }
+        if status == StatusCode::REQUEST_TIMEOUT {
+            // RFC 9110 §15.5.9: the server closes the connection after a 408.
+            h.insert(header::CONNECTION, HeaderValue::from_static("close"));
         }
         if status == StatusCode::UNAUTHORIZED {
             h.insert(
