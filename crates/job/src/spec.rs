@@ -363,7 +363,7 @@ impl JobSpec {
     pub fn validate_and_cost_loading(
         &self,
         defaults: &Defaults,
-        loader: Option<&dyn Fn(&str) -> skybake_product::Result<Vec<u8>>>,
+        loader: Option<&FileLoader>,
     ) -> Result<u64, JobError> {
         let mut products = skybake_product::cost::JobCost::default();
         let mut frames = 0u64;
@@ -383,6 +383,9 @@ impl JobSpec {
         Ok(products.units.saturating_add(frames))
     }
 }
+
+/// A loader of the files a frame's cloud names (path → bytes).
+pub type FileLoader = dyn Fn(&str) -> skybake_product::Result<Vec<u8>>;
 
 /// Sets a parameter by name; returns the previous value (None if the name is unknown).
 fn set_param(p: &mut RequestParams, name: &str, value: &str) -> Option<Option<String>> {
