@@ -9,7 +9,8 @@
 //! - `scene`: the scene JSON and its validation; `camera`: primary rays.
 //! - `lighting`: the light from outside the cloud (engine adapter, vacuum, constant sky).
 //! - `volume`: the density grid as a medium; `light`: per-voxel sun and sky-element paths.
-//! - `multiple`: the all-order multiple-scattering field; `pattern`: orders 2 and 3 by the reference pattern of
+//! - `multiple`: the all-order multiple-scattering field; `peak`: the δ-M truncated peak spread over the
+//!   sun's scaled beam (its single scattering); `pattern`: orders 2 and 3 by the reference pattern of
 //!   Nishita et al. 1996, §3.4; `pathtracer`: the reference.
 //! - `march`: the fast method's preparation and final ray march, compositing, shafts.
 //!
