@@ -61,8 +61,7 @@ pub fn bake(args: BakeArgs) -> Result<()> {
     })?;
     let defaults = skybake_product::params::Defaults::from_settings(&settings);
     if args.status {
-        let status =
-            skybake_job::bake::status(&body, &out, &defaults, settings.jobs.max_products)?;
+        let status = skybake_job::bake::status(&body, &out, &defaults, settings.jobs.max_products)?;
         return print_json(&status);
     }
     let start = std::time::Instant::now();

@@ -38,7 +38,11 @@ fn shards_are_parsed_and_checked() {
         assert_eq!(e.parameter().as_deref(), Some("shard"), "{bad}");
     }
     let shares: Vec<Vec<usize>> = (0..3)
-        .map(|s| (0..10).filter(|&i| Shard::new(s, 3).unwrap().owns(i)).collect())
+        .map(|s| {
+            (0..10)
+                .filter(|&i| Shard::new(s, 3).unwrap().owns(i))
+                .collect()
+        })
         .collect();
     assert_eq!(shares, vec![vec![0, 3, 6, 9], vec![1, 4, 7], vec![2, 5, 8]]);
 }
@@ -55,17 +59,32 @@ fn two_shards_in_one_directory_bake_the_job_once_and_write_one_manifest() {
         engine: &engine,
         cancel: &|| false,
     };
-    let first = bake_share(body.as_bytes(), &out, Shard::new(0, 2).unwrap(), &env, |_, _, _| {})
-        .unwrap();
+    let first = bake_share(
+        body.as_bytes(),
+        &out,
+        Shard::new(0, 2).unwrap(),
+        &env,
+        |_, _, _| {},
+    )
+    .unwrap();
     assert_eq!((first.total, first.computed), (3, 3));
     let half = status(body.as_bytes(), &out, &defaults, 1000).unwrap();
     assert_eq!((half.total, half.present, half.manifest), (5, 3, false));
     assert_eq!(half.missing, vec![1, 3]);
-    let second = bake_share(body.as_bytes(), &out, Shard::new(1, 2).unwrap(), &env, |_, _, _| {})
-        .unwrap();
+    let second = bake_share(
+        body.as_bytes(),
+        &out,
+        Shard::new(1, 2).unwrap(),
+        &env,
+        |_, _, _| {},
+    )
+    .unwrap();
     assert_eq!((second.total, second.computed), (2, 2));
     let done = status(body.as_bytes(), &out, &defaults, 1000).unwrap();
-    assert_eq!((done.present, done.manifest, done.shards.len()), (5, true, 2));
+    assert_eq!(
+        (done.present, done.manifest, done.shards.len()),
+        (5, true, 2)
+    );
     let manifest: Value =
         serde_json::from_slice(&out.get("manifest.json").unwrap().unwrap()).unwrap();
     let indices: Vec<u64> = manifest["artifacts"]
@@ -76,12 +95,23 @@ fn two_shards_in_one_directory_bake_the_job_once_and_write_one_manifest() {
         .collect();
     assert_eq!(indices, vec![0, 1, 2, 3, 4]);
     // A rerun of a shard reuses its verified files.
-    let again = bake_share(body.as_bytes(), &out, Shard::new(1, 2).unwrap(), &env, |_, _, _| {})
-        .unwrap();
+    let again = bake_share(
+        body.as_bytes(),
+        &out,
+        Shard::new(1, 2).unwrap(),
+        &env,
+        |_, _, _| {},
+    )
+    .unwrap();
     assert_eq!((again.computed, again.reused, again.rejected), (0, 2, 0));
 }
 
-fn shard_command(job: &std::path::Path, url: &str, endpoint: &str, cache: &std::path::Path) -> Command {
+fn shard_command(
+    job: &std::path::Path,
+    url: &str,
+    endpoint: &str,
+    cache: &std::path::Path,
+) -> Command {
     let mut cmd = Command::new(BIN);
     cmd.arg("bake")
         .arg(job)
@@ -118,7 +148,8 @@ fn four_shard_processes_on_one_bucket_survive_a_sigkill_and_compute_each_item_on
     for index in 0..4 {
         let mut cmd = shard_command(&job_path, &url, &endpoint, &cache);
         if index == 3 {
-            cmd.env("JOB_COMPLETION_INDEX", "3").env("JOB_COMPLETIONS", "4");
+            cmd.env("JOB_COMPLETION_INDEX", "3")
+                .env("JOB_COMPLETIONS", "4");
         } else {
             cmd.args(["--shard", &format!("{index}/4")]);
         }
@@ -134,7 +165,11 @@ fn four_shard_processes_on_one_bucket_survive_a_sigkill_and_compute_each_item_on
     victim.wait().unwrap();
     for child in children {
         let s = summary(child.wait_with_output().unwrap());
-        assert_eq!((s["total"].as_u64(), s["computed"].as_u64()), (Some(6), Some(6)), "{s}");
+        assert_eq!(
+            (s["total"].as_u64(), s["computed"].as_u64()),
+            (Some(6), Some(6)),
+            "{s}"
+        );
         assert_eq!(s["reused"].as_u64(), Some(0));
     }
 
@@ -147,12 +182,20 @@ fn four_shard_processes_on_one_bucket_survive_a_sigkill_and_compute_each_item_on
     assert_eq!(partial["manifest"].as_bool(), Some(false));
     let stored_by_victim = 6 - partial["missing"].as_array().unwrap().len() as u64;
     assert!(stored_by_victim >= 1, "{partial}");
-    assert!(partial["missing"].as_array().unwrap().iter().all(|i| i.as_u64().unwrap() % 4 == 1));
+    assert!(partial["missing"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .all(|i| i.as_u64().unwrap() % 4 == 1));
 
     // Restarted with the same index, it computes only what it had not stored.
     let mut cmd = shard_command(&job_path, &url, &endpoint, &cache);
     let restarted = summary(cmd.args(["--shard", "1/4"]).output().unwrap());
-    assert_eq!(restarted["reused"].as_u64(), Some(stored_by_victim), "{restarted}");
+    assert_eq!(
+        restarted["reused"].as_u64(),
+        Some(stored_by_victim),
+        "{restarted}"
+    );
     assert_eq!(restarted["computed"].as_u64(), Some(6 - stored_by_victim));
     assert_eq!(restarted["rejected"].as_u64(), Some(0));
 
@@ -167,8 +210,14 @@ fn four_shard_processes_on_one_bucket_survive_a_sigkill_and_compute_each_item_on
     let manifest: Value =
         serde_json::from_slice(&bucket.get("manifest.json").unwrap().unwrap()).unwrap();
     let artifacts = manifest["artifacts"].as_array().unwrap();
-    let files: BTreeSet<&str> = artifacts.iter().map(|a| a["file"].as_str().unwrap()).collect();
-    let indices: BTreeSet<u64> = artifacts.iter().map(|a| a["index"].as_u64().unwrap()).collect();
+    let files: BTreeSet<&str> = artifacts
+        .iter()
+        .map(|a| a["file"].as_str().unwrap())
+        .collect();
+    let indices: BTreeSet<u64> = artifacts
+        .iter()
+        .map(|a| a["index"].as_u64().unwrap())
+        .collect();
     assert_eq!((artifacts.len(), files.len(), indices.len()), (24, 24, 24));
     for file in files {
         let bytes = bucket.get(file).unwrap().expect("listed artifact present");

@@ -20,7 +20,10 @@ use crate::service_support::s3;
 use crate::service_support::Scratch;
 
 fn key(seed: u32) -> String {
-    cache_key(&format!(r#"{{"product":"sky","bucket-seed":{seed}}}"#), "test")
+    cache_key(
+        &format!(r#"{{"product":"sky","bucket-seed":{seed}}}"#),
+        "test",
+    )
 }
 
 /// A small image bound to `key(seed)`, its content depending on `seed`.
@@ -92,7 +95,11 @@ fn corrupt_truncated_and_mis_keyed_objects_are_counted_deleted_and_never_served(
     let reader = shared_cache(&dir, "reader", &bucket);
     for seed in [1, 2, 3] {
         assert_eq!(reader.get(&key(seed)).unwrap(), None, "seed {seed} served");
-        assert_eq!(bucket.get(&object_name(&key(seed))).unwrap(), None, "seed {seed} kept");
+        assert_eq!(
+            bucket.get(&object_name(&key(seed))).unwrap(),
+            None,
+            "seed {seed} kept"
+        );
     }
     let stats = reader.stats();
     assert_eq!((stats.corrupt_detected, stats.key_mismatches), (2, 1));
@@ -110,7 +117,11 @@ fn a_bucket_that_stops_answering_is_unavailable_after_the_retries_then_serves_ag
     };
     let dir = Scratch::new("bucket-fault");
     let proxy = s3::Proxy::start(&endpoint);
-    let bucket = s3::open(&s3::fresh_url("fault"), &proxy.endpoint(), s3::quick_retry());
+    let bucket = s3::open(
+        &s3::fresh_url("fault"),
+        &proxy.endpoint(),
+        s3::quick_retry(),
+    );
     let cache = shared_cache(&dir, "c", &bucket);
     cache.put_image(&key(1), &image(1)).unwrap();
     proxy.stop();
@@ -125,7 +136,11 @@ fn a_bucket_that_stops_answering_is_unavailable_after_the_retries_then_serves_ag
     ));
     let stats = bucket.stats();
     assert_eq!(stats.failures, 2);
-    assert_eq!(stats.retries, 2 * 2, "3 tries each: 2 retries per operation");
+    assert_eq!(
+        stats.retries,
+        2 * 2,
+        "3 tries each: 2 retries per operation"
+    );
     // What is on the local disk is still served while the bucket is away.
     assert!(cache.get(&key(1)).unwrap().is_some());
     proxy.resume();
@@ -144,7 +159,8 @@ fn tiles_in_a_bucket_are_verified_and_bound_to_their_place() {
     let tiles = store.frame(&key(9)).unwrap();
     let tile = |index: usize| {
         let mut img = SpectralImage::emissive(2, 2, &[550.0], vec![vec![index as f32; 4]]).unwrap();
-        img.set_attribute(ATTR_TILE_OF, tiles.binding(index)).unwrap();
+        img.set_attribute(ATTR_TILE_OF, tiles.binding(index))
+            .unwrap();
         encode_exr(&img).unwrap()
     };
     assert_eq!(tiles.get(0).unwrap(), None);

@@ -9,6 +9,6 @@ mod service_conventions;
 mod service_fuzz;
 mod service_http;
 mod service_process;
-mod service_replicas;
 mod service_render;
+mod service_replicas;
 mod service_router;

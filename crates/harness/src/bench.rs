@@ -396,7 +396,10 @@ fn bench_store_stages(
         .collect();
     if let Some(bucket) = &bucket {
         let details = json!({"bucket": bucket.url(), "file_bytes": last.file_bytes});
-        type BucketStage = (&'static str, fn(&crate::store_bench::StoreBench) -> Option<f64>);
+        type BucketStage = (
+            &'static str,
+            fn(&crate::store_bench::StoreBench) -> Option<f64>,
+        );
         let stages: [BucketStage; 2] = [
             ("bucket-put", |b| b.bucket_put_ms),
             ("bucket-get", |b| b.bucket_get_ms),

@@ -6,11 +6,11 @@ use std::time::Instant;
 
 use serde::Serialize;
 
-use skybake_store::{Bucket, StoreError};
 use skybake_store::{
     cache_key, checksum, decode_exr, encode_exr_with, Cache, CacheConfig, ExrCompression,
     SpectralImage,
 };
+use skybake_store::{Bucket, StoreError};
 
 /// Median timings of the storage operations on one synthetic sky-like image.
 #[derive(Debug, Clone, Serialize)]
@@ -98,7 +98,9 @@ pub fn bench_store(
                 let found = reader.get(&key)?;
                 times.push(start.elapsed().as_secs_f64() * 1e3);
                 if found.is_none() {
-                    return Err(StoreError::Corrupt("the bench entry is not in the bucket".into()));
+                    return Err(StoreError::Corrupt(
+                        "the bench entry is not in the bucket".into(),
+                    ));
                 }
             }
             times.sort_by(f64::total_cmp);

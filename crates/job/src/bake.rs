@@ -17,9 +17,9 @@ use super::JobError;
 use serde::Serialize;
 use serde_json::json;
 use skybake_engine::engine::{Engine, ENGINE_VERSION};
+use skybake_physics::image::layout::ATTR_CACHE_KEY;
 use skybake_product::params::Defaults;
 use skybake_product::{AnyRequest, ComputeEnv};
-use skybake_physics::image::layout::ATTR_CACHE_KEY;
 use skybake_store::exr::header_text_attribute;
 use skybake_store::{checksum, encode_exr, Location, TileStore};
 use std::path::Path;
@@ -42,10 +42,20 @@ impl Shard {
     /// Shard `index` of `count` (`0 <= index < count <= MAX_SHARDS`).
     pub fn new(index: usize, count: usize) -> Result<Self, JobError> {
         if !(1..=MAX_SHARDS).contains(&count) {
-            return Err(crate::Error::out_of_range("shard", count, format!("1 to {MAX_SHARDS} shards")).into());
+            return Err(crate::Error::out_of_range(
+                "shard",
+                count,
+                format!("1 to {MAX_SHARDS} shards"),
+            )
+            .into());
         }
         if index >= count {
-            return Err(crate::Error::out_of_range("shard", index, format!("0 to {} (the shard count less one)", count - 1)).into());
+            return Err(crate::Error::out_of_range(
+                "shard",
+                index,
+                format!("0 to {} (the shard count less one)", count - 1),
+            )
+            .into());
         }
         Ok(Self { index, count })
     }
@@ -197,7 +207,10 @@ pub fn bake_share(
         let stored = out.get(&name)?;
         let reusable = stored.as_deref().is_some_and(|b| is_artifact_of(b, &key));
         if stored.is_some() && !reusable {
-            tracing::warn!(file = name, "stored artifact failed verification; recomputing it");
+            tracing::warn!(
+                file = name,
+                "stored artifact failed verification; recomputing it"
+            );
             summary.rejected += 1;
         }
         let outcome = if reusable {
@@ -325,7 +338,10 @@ pub fn status(
         .map(|item| item.index)
         .collect();
     let mut shards = std::collections::BTreeMap::new();
-    for name in names.iter().filter(|n| n.starts_with("shard-") && n.ends_with(".json")) {
+    for name in names
+        .iter()
+        .filter(|n| n.starts_with("shard-") && n.ends_with(".json"))
+    {
         if let Some(bytes) = out.get(name)? {
             let value = serde_json::from_slice(&bytes)
                 .unwrap_or_else(|e| json!({"unreadable": e.to_string()}));

@@ -118,8 +118,11 @@ pub fn is_bucket_url(url: &str) -> bool {
 /// Splits `s3://bucket/prefix` into the bucket name and the prefix (no leading or trailing `/`).
 fn parse_url(url: &str) -> Result<(String, String), StoreError> {
     let bad = |why: &str| -> StoreError {
-        crate::Error::invalid("cache_url", format!("{url}: {why} (expected s3://bucket/prefix)"))
-            .into()
+        crate::Error::invalid(
+            "cache_url",
+            format!("{url}: {why} (expected s3://bucket/prefix)"),
+        )
+        .into()
     };
     let rest = url
         .strip_prefix("s3://")
@@ -130,7 +133,9 @@ fn parse_url(url: &str) -> Result<(String, String), StoreError> {
             .bytes()
             .all(|b| b.is_ascii_lowercase() || b.is_ascii_digit() || b == b'-' || b == b'.');
     if !valid_bucket {
-        return Err(bad("bucket names are 3 to 63 lowercase letters, digits, '-' or '.'"));
+        return Err(bad(
+            "bucket names are 3 to 63 lowercase letters, digits, '-' or '.'",
+        ));
     }
     let prefix = prefix.trim_matches('/');
     if prefix
@@ -162,11 +167,12 @@ impl Bucket {
             })?;
             builder = builder.with_config(key, *value);
         }
-        let endpoint = builder
-            .get_config_value(&"aws_endpoint".parse().map_err(|e| {
-                crate::Error::invalid("cache_url", format!("bucket setting: {e}"))
-            })?)
-            .unwrap_or_default();
+        let endpoint =
+            builder
+                .get_config_value(&"aws_endpoint".parse().map_err(|e| {
+                    crate::Error::invalid("cache_url", format!("bucket setting: {e}"))
+                })?)
+                .unwrap_or_default();
         let options = ClientOptions::new()
             .with_allow_http(endpoint.starts_with("http://"))
             .with_timeout(retry.request_timeout)
@@ -440,7 +446,10 @@ mod tests {
             parse_url("s3://sky-cache/prod/v1/").unwrap(),
             ("sky-cache".into(), "prod/v1".into())
         );
-        assert_eq!(parse_url("s3://sky-cache").unwrap(), ("sky-cache".into(), String::new()));
+        assert_eq!(
+            parse_url("s3://sky-cache").unwrap(),
+            ("sky-cache".into(), String::new())
+        );
         for bad in [
             "sky-cache/x",
             "s3://",

@@ -34,7 +34,10 @@ pub enum Acquired {
     /// This process holds the lease now; it renews it until dropped, then deletes it.
     Held(Lease),
     /// Another holder has it, for at most this much longer unless renewed.
-    Busy { holder: String, expires_in: Duration },
+    Busy {
+        holder: String,
+        expires_in: Duration,
+    },
 }
 
 /// A lease this process holds; renewed by a background thread every third of its duration and
@@ -166,7 +169,9 @@ impl Lease {
                             return;
                         }
                         // Retried at the next period; the lease may expire meanwhile.
-                        Err(e) => tracing::warn!(name = renewing.name, error = %e, "lease not renewed"),
+                        Err(e) => {
+                            tracing::warn!(name = renewing.name, error = %e, "lease not renewed")
+                        }
                     }
                 }
             })

@@ -44,8 +44,8 @@ pub use error::StoreError;
 pub use exr::{
     decode_exr, encode_exr, encode_exr_with, read_exr_file, write_exr_file, ExrCompression,
 };
+pub use location::Location;
 pub use skybake_physics::image::{layout, spectral_image, SpectralImage, SpectralLayer};
 pub use skybake_physics::key::cache_key;
 pub use skybake_physics::{Error, Result};
-pub use location::Location;
 pub use tiles::{FrameTiles, TileStore};

@@ -79,9 +79,21 @@ pub async fn metrics(State(state): State<AppState>) -> Response {
     if let Some(bucket) = state.cache().bucket() {
         let b = bucket.stats();
         for (name, help, v) in [
-            ("skybake_bucket_gets_total", "Object reads from the bucket.", b.gets),
-            ("skybake_bucket_puts_total", "Object writes to the bucket.", b.puts),
-            ("skybake_bucket_retries_total", "Bucket requests repeated after a failure.", b.retries),
+            (
+                "skybake_bucket_gets_total",
+                "Object reads from the bucket.",
+                b.gets,
+            ),
+            (
+                "skybake_bucket_puts_total",
+                "Object writes to the bucket.",
+                b.puts,
+            ),
+            (
+                "skybake_bucket_retries_total",
+                "Bucket requests repeated after a failure.",
+                b.retries,
+            ),
             (
                 "skybake_bucket_failures_total",
                 "Bucket operations that failed after every retry (answered 503).",
@@ -90,7 +102,10 @@ pub async fn metrics(State(state): State<AppState>) -> Response {
             (
                 "skybake_lease_waits_total",
                 "Polls while another replica held the lease on a product.",
-                state.metrics().lease_waits.load(std::sync::atomic::Ordering::Relaxed),
+                state
+                    .metrics()
+                    .lease_waits
+                    .load(std::sync::atomic::Ordering::Relaxed),
             ),
         ] {
             counter(&mut out, name, help, v);
