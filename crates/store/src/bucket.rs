@@ -101,6 +101,9 @@ impl Drop for Bucket {
     }
 }
 
+/// An object's bytes and its entity tag, if the server gives one ([`Bucket::get_versioned`]).
+pub type Versioned = (Vec<u8>, Option<String>);
+
 /// An object found by [`Bucket::list`]: its name relative to the listed folder, and its size.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct Listed {
@@ -308,7 +311,7 @@ impl Bucket {
     pub fn get_versioned(
         &self,
         name: &str,
-    ) -> Result<Option<(Vec<u8>, Option<String>)>, StoreError> {
+    ) -> Result<Option<Versioned>, StoreError> {
         self.counters.gets.fetch_add(1, Ordering::Relaxed);
         let path = self.path(name);
         let outcome = self.run("get", name, |store| {
