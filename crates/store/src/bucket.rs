@@ -308,10 +308,7 @@ impl Bucket {
     }
 
     /// The object `name` and its entity tag (for [`Self::replace`]), or `None`.
-    pub fn get_versioned(
-        &self,
-        name: &str,
-    ) -> Result<Option<Versioned>, StoreError> {
+    pub fn get_versioned(&self, name: &str) -> Result<Option<Versioned>, StoreError> {
         self.counters.gets.fetch_add(1, Ordering::Relaxed);
         let path = self.path(name);
         let outcome = self.run("get", name, |store| {
