@@ -65,6 +65,11 @@ pub struct ServerSettings {
 #[serde(deny_unknown_fields)]
 pub struct CacheSettings {
     pub dir: PathBuf,
+    /// A bucket shared by several processes (`s3://bucket/prefix`) behind the directory, or
+    /// empty for the directory alone.
+    pub url: String,
+    /// Seconds a lease on a product in the bucket lasts unless its holder renews it.
+    pub lease_s: f64,
     pub disk_budget_bytes: u64,
     pub memory_budget_bytes: u64,
     pub response_budget_bytes: u64,
@@ -132,6 +137,8 @@ pub const ENV_VARS: &[(&str, &str, &str)] = &[
     ("SKYBAKE_API_TOKENS", "server", "api_tokens"),
     ("SKYBAKE_AUTH_EXEMPT", "server", "auth_exempt"),
     ("SKYBAKE_CACHE_DIR", "cache", "dir"),
+    ("SKYBAKE_CACHE_URL", "cache", "url"),
+    ("SKYBAKE_LEASE_S", "cache", "lease_s"),
     ("SKYBAKE_DISK_BUDGET_BYTES", "cache", "disk_budget_bytes"),
     (
         "SKYBAKE_MEMORY_BUDGET_BYTES",
@@ -153,7 +160,11 @@ pub const ENV_VARS: &[(&str, &str, &str)] = &[
 
 /// `SKYBAKE_*` variables that are not settings and so are not refused at start-up: the log filter,
 /// and switches read only by the test suite.
-pub const NON_SETTING_ENV_VARS: &[&str] = &["SKYBAKE_LOG", "SKYBAKE_EXR_SAMPLE_DIR"];
+pub const NON_SETTING_ENV_VARS: &[&str] = &[
+    "SKYBAKE_LOG",
+    "SKYBAKE_EXR_SAMPLE_DIR",
+    "SKYBAKE_TEST_S3_ENDPOINT",
+];
 
 /// The known setting variables, comma-separated, for error messages.
 fn known_env_vars() -> String {
@@ -429,6 +440,17 @@ impl Settings {
         }
         if self.cache.dir.as_os_str().is_empty() {
             return Err(Error::invalid("cache.dir", "must not be empty"));
+        }
+        let url = self.cache.url.trim();
+        if !url.is_empty() && !skybake_store::bucket::is_bucket_url(url) {
+            return Err(Error::invalid(
+                "cache.url",
+                format!("{url}: expected s3://bucket/prefix, or empty for the directory alone"),
+            ));
+        }
+        let l = self.cache.lease_s;
+        if !(l.is_finite() && (1.0..=3600.0).contains(&l)) {
+            return Err(Error::out_of_range("cache.lease_s", l, "1 to 3600 s"));
         }
         if self.cache.disk_budget_bytes < 1 << 20 {
             return Err(Error::out_of_range(

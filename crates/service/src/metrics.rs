@@ -30,6 +30,8 @@ pub struct Metrics {
     /// product → engine computations started.
     computations: Mutex<BTreeMap<&'static str, u64>>,
     pub single_flight_joins: AtomicU64,
+    /// Polls while another replica held the lease on a product being computed.
+    pub lease_waits: AtomicU64,
     pub load_shed: AtomicU64,
     pub timeouts: AtomicU64,
     pub response_cache_hits: AtomicU64,

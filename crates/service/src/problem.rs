@@ -36,6 +36,8 @@ pub enum ApiError {
     /// The request body did not arrive in time or arrived too slowly (408; the connection is
     /// closed).
     SlowBody(String),
+    /// The shared bucket did not answer after the retries; retry after this many seconds.
+    StorageUnavailable { detail: String, retry_after_s: u64 },
 }
 
 impl From<crate::Error> for ApiError {
@@ -82,6 +84,12 @@ impl From<skybake_store::StoreError> for ApiError {
     fn from(e: skybake_store::StoreError) -> Self {
         match e {
             skybake_store::StoreError::Invalid(e) => e.into(),
+            skybake_store::StoreError::Unavailable { retry_after_s, .. } => {
+                ApiError::StorageUnavailable {
+                    detail: e.to_string(),
+                    retry_after_s,
+                }
+            }
             other => ApiError::Internal(other.to_string()),
         }
     }
@@ -118,7 +126,9 @@ impl ApiError {
             ApiError::MethodNotAllowed(_) => StatusCode::METHOD_NOT_ALLOWED,
             ApiError::Unauthorized => StatusCode::UNAUTHORIZED,
             ApiError::RateLimited { .. } => StatusCode::TOO_MANY_REQUESTS,
-            ApiError::JobsFull(_) => StatusCode::SERVICE_UNAVAILABLE,
+            ApiError::JobsFull(_) | ApiError::StorageUnavailable { .. } => {
+                StatusCode::SERVICE_UNAVAILABLE
+            }
             ApiError::SlowBody(_) => StatusCode::REQUEST_TIMEOUT,
         }
     }
@@ -207,6 +217,12 @@ impl ApiError {
                 d.clone(),
                 Some("body".into()),
             ),
+            ApiError::StorageUnavailable { detail, .. } => (
+                "urn:skybake:problem:storage-unavailable",
+                "Storage unavailable",
+                format!("{detail}; nothing was served from it: retry after the indicated delay"),
+                None,
+            ),
         }
     }
 }
@@ -253,7 +269,9 @@ impl IntoResponse for ApiError {
         if status == StatusCode::SERVICE_UNAVAILABLE {
             h.insert(header::RETRY_AFTER, HeaderValue::from_static("1"));
         }
-        if let ApiError::RateLimited { retry_after_s } = self {
+        if let ApiError::RateLimited { retry_after_s }
+        | ApiError::StorageUnavailable { retry_after_s, .. } = self
+        {
             h.insert(header::RETRY_AFTER, HeaderValue::from(retry_after_s));
         }
         if status == StatusCode::REQUEST_TIMEOUT {
