@@ -84,6 +84,37 @@ fn settings(scene: &FrameScene, method: Method, spp: usize) -> RenderSettings {
     s
 }
 
+/// A committed validation case: its scene (`validation-cloud-CASE.json`), the scene's voxels and
+/// Mitsuba 3's image of it (`cloud_mitsuba_CASE.npy`).
+fn validation_case(case: &str) -> (FrameScene, DensityGrid, Vec<f32>) {
+    let bytes = std::fs::read(format!("{DATA}/validation-cloud-{case}.json")).unwrap();
+    let scene = FrameScene::parse(&bytes).unwrap();
+    let grid = scene
+        .cloud
+        .voxelize(&|p: &str| {
+            std::fs::read(format!("{DATA}/{p}"))
+                .map_err(|e| skybake_physics::Error::invalid("path", e))
+        })
+        .unwrap();
+    let reference = npy(&format!("cloud_mitsuba_{case}.npy"));
+    (scene, grid, reference)
+}
+
+/// The fast method's frame of a scene, lit as a request's frame is.
+fn fast_frame(scene: &FrameScene, grid: &DensityGrid) -> skybake_render::Frame {
+    let lighting = lighting_for(scene, grid, &Engine::new()).unwrap();
+    render_frame(
+        scene,
+        grid,
+        &lighting,
+        &settings(scene, Method::Fast, 1),
+        None,
+        &|_| {},
+        &|| false,
+    )
+    .unwrap()
+}
+
 /// (a) DISORT slab (4 km wide, 100 m thick: 40 thicknesses, so light lost at the sides is
 /// negligible): reflected radiance at the top for a subset of the cases (view zenith 0 and 60°,
 /// towards and away from the sun), path tracer within 2 % plus three of its own standard errors
@@ -231,16 +262,7 @@ fn cloud_matches_mitsuba() {
             0.03,
         ),
     ] {
-        let bytes = std::fs::read(format!("{DATA}/validation-cloud-{case}.json")).unwrap();
-        let scene = FrameScene::parse(&bytes).unwrap();
-        let grid = scene
-            .cloud
-            .voxelize(&|p: &str| {
-                std::fs::read(format!("{DATA}/{p}"))
-                    .map_err(|e| skybake_physics::Error::invalid("path", e))
-            })
-            .unwrap();
-        let reference = npy(&format!("cloud_mitsuba_{case}.npy"));
+        let (scene, grid, reference) = validation_case(case);
         assert_eq!(reference.len(), 160 * 120);
         let tile = if case == "sun" {
             Tile {
@@ -334,27 +356,8 @@ fn fast_cloud_matches_mitsuba_cases() {
         ("sun_albedo09", 0.095, 0.025),
         ("sunsky", 0.08, 0.04),
     ] {
-        let bytes = std::fs::read(format!("{DATA}/validation-cloud-{case}.json")).unwrap();
-        let scene = FrameScene::parse(&bytes).unwrap();
-        let grid = scene
-            .cloud
-            .voxelize(&|p: &str| {
-                std::fs::read(format!("{DATA}/{p}"))
-                    .map_err(|e| skybake_physics::Error::invalid("path", e))
-            })
-            .unwrap();
-        let reference = npy(&format!("cloud_mitsuba_{case}.npy"));
-        let lighting = lighting_for(&scene, &grid, &Engine::new()).unwrap();
-        let fast = render_frame(
-            &scene,
-            &grid,
-            &lighting,
-            &settings(&scene, Method::Fast, 1),
-            None,
-            &|_| {},
-            &|| false,
-        )
-        .unwrap();
+        let (scene, grid, reference) = validation_case(case);
+        let fast = fast_frame(&scene, &grid);
         let (fb, fp, fbias) = stats(&fast.radiance, &reference, &mask, 160, 120);
         println!(
             "{case}: fast vs Mitsuba: block NRMSE {:.1} %, pixel NRMSE {:.1} %, bias {:+.1} %",
@@ -395,28 +398,9 @@ fn fast_cloud_matches_mitsuba_every_side() {
     let mut failures = Vec::new();
     for &(case, mask_file, block_bound, bias_bound) in cases {
         let mask: Vec<bool> = npy(mask_file).iter().map(|&m| m > 0.0).collect();
-        let bytes = std::fs::read(format!("{DATA}/validation-cloud-{case}.json")).unwrap();
-        let scene = FrameScene::parse(&bytes).unwrap();
-        let grid = scene
-            .cloud
-            .voxelize(&|p: &str| {
-                std::fs::read(format!("{DATA}/{p}"))
-                    .map_err(|e| skybake_physics::Error::invalid("path", e))
-            })
-            .unwrap();
-        let reference = npy(&format!("cloud_mitsuba_{case}.npy"));
+        let (scene, grid, reference) = validation_case(case);
         let stderr = npy(&format!("cloud_mitsuba_{case}_stderr.npy"));
-        let lighting = lighting_for(&scene, &grid, &Engine::new()).unwrap();
-        let fast = render_frame(
-            &scene,
-            &grid,
-            &lighting,
-            &settings(&scene, Method::Fast, 1),
-            None,
-            &|_| {},
-            &|| false,
-        )
-        .unwrap();
+        let fast = fast_frame(&scene, &grid);
         let (fb, fp, fbias) = stats(&fast.radiance, &reference, &mask, 160, 120);
         let noise = block_noise(&stderr, &reference, &mask, 160, 120);
         let fb_clean = (fb * fb - noise * noise).max(0.0).sqrt();
