@@ -448,6 +448,15 @@ impl Settings {
                 format!("{url}: expected s3://bucket/prefix, or empty for the directory alone"),
             ));
         }
+        if !url.is_empty() && !skybake_store::bucket::AVAILABLE {
+            return Err(Error::invalid(
+                "cache.url",
+                format!(
+                    "{url}: this skybake was built without the S3 backend; build it with \
+                     `cargo build --release --features s3` (the container image has it)"
+                ),
+            ));
+        }
         let l = self.cache.lease_s;
         if !(l.is_finite() && (1.0..=3600.0).contains(&l)) {
             return Err(Error::out_of_range("cache.lease_s", l, "1 to 3600 s"));
