@@ -151,9 +151,9 @@ impl RenderSettings {
                 max_coarse_dim: coarse,
                 seed: 0x5EED,
                 // Orders 3–4 (measured, not the default): DISORT slab τ 32 resolved at 2 optical
-                // depths per voxel, grazing views away from the sun 15.7 % → 7.5 %, but the
-                // 4-voxel slab's τ 32 worst view 52 % → 58 % and the Mitsuba view from below
-                // −1.3 % → −2.6 % bias.
+                // depths per voxel, grazing views away from the sun 15.7 % → 7.5 %, but the 4-voxel
+                // slab's τ 32 (albedo 0.99) worst view 57.8 % → 58.1 % and the Mitsuba view from
+                // below −1.3 % → −2.6 % bias.
                 angular_order: 2,
                 truncation_power: TRUNCATION_POWER,
                 peak_spread: PEAK_SPREAD,
