@@ -247,6 +247,7 @@ fn http_surface_fuzz() {
         .enable_all()
         .build()
         .unwrap();
+    let router = app(state.clone());
     let mut rng = rand_pcg::Pcg64::seed_from_u64(seed);
     let scenes: Vec<serde_json::Value> = skybake_product::frame::EXAMPLE_SCENES
         .iter()
@@ -271,21 +272,36 @@ fn http_surface_fuzz() {
         let Ok(req) = req.body(Body::from(body.clone())) else {
             continue;
         };
-        let app = app(state.clone());
+        let app = router.clone();
         let outcome = rt.block_on(async move {
             tokio::spawn(async move {
                 let resp = app.oneshot(req).await.unwrap();
                 let status = resp.status().as_u16();
-                let ct = resp
-                    .headers()
-                    .get("content-type")
-                    .and_then(|v| v.to_str().ok())
-                    .unwrap_or("")
-                    .to_string();
+                let (ct, encoding) = {
+                    let header = |name: &str| {
+                        resp.headers()
+                            .get(name)
+                            .and_then(|v| v.to_str().ok())
+                            .unwrap_or("")
+                            .to_string()
+                    };
+                    (header("content-type"), header("content-encoding"))
+                };
                 let bytes = axum::body::to_bytes(resp.into_body(), 1 << 28)
                     .await
                     .map(|b| b.to_vec())
                     .unwrap_or_default();
+                // Compressed when the client asked for gzip (the only coding the generator asks for).
+                let bytes = if encoding == "gzip" {
+                    use std::io::Read;
+                    let mut plain = Vec::new();
+                    match flate2::read::GzDecoder::new(&bytes[..]).read_to_end(&mut plain) {
+                        Ok(_) => plain,
+                        Err(e) => format!("undecodable gzip body: {e}").into_bytes(),
+                    }
+                } else {
+                    bytes
+                };
                 (status, ct, bytes)
             })
             .await
@@ -300,7 +316,9 @@ fn http_surface_fuzz() {
             Err(e) => failures.push(format!("panic ({e}): {}", what())),
             Ok((status, ct, resp)) => {
                 *statuses.entry(status).or_insert(0usize) += 1;
+                // A HEAD answer has no body to check.
                 let problem = status < 400
+                    || (method == "HEAD" && ct == "application/problem+json")
                     || (ct == "application/problem+json"
                         && serde_json::from_slice::<serde_json::Value>(&resp)
                             .is_ok_and(|v| v["status"].as_u64() == Some(status as u64)));
@@ -628,7 +646,7 @@ mod fuzz {
                 4 => ("range", "bytes=0-10".into()),
                 5 => ("expect", "100-continue".into()),
                 6 => ("x-forwarded-for", garbage(rng, 15)),
-                7 => ("accept-encoding", "gzip, br".into()),
+                7 => ("accept-encoding", "gzip".into()),
                 _ => (
                     ["x-fuzz", "cookie", "origin"]
                         .choose(rng)
