@@ -751,6 +751,18 @@ impl AppState {
 /// computed once (joining identical requests in flight) and stored.
 impl skybake_job::run::Producer for AppState {
     async fn produce(&self, work: AnyRequest) -> Result<(), skybake_job::JobError> {
+        // A frame item is held to the per-request memory cap once voxelised, as a render is (its
+        // cost is the job's, admitted at submission).
+        let work = match work {
+            AnyRequest::Frame(r) => {
+                let caps = skybake_product::frame::FrameCaps {
+                    max_cost: u64::MAX,
+                    max_memory_bytes: self.frame_caps().max_memory_bytes,
+                };
+                AnyRequest::Frame(Arc::new(Arc::unwrap_or_clone(r).with_caps(Some(caps))))
+            }
+            other => other,
+        };
         self.artifact(&work, &work.cache_key())
             .await
             .map(|_| ())
