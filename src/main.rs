@@ -187,14 +187,29 @@ fn run(cli: Cli) -> Result<()> {
     }
 }
 
-fn main() -> ExitCode {
-    tracing_subscriber::fmt()
-        .with_writer(std::io::stderr)
-        .with_env_filter(
-            tracing_subscriber::EnvFilter::try_from_env("SKYBAKE_LOG")
-                .unwrap_or_else(|_| "warn".into()),
-        )
+/// Logs to stderr, filtered by `SKYBAKE_LOG`: comma-separated `target=level` directives and a bare
+/// default level (`info`, `skybake=debug,warn`); `warn` when unset. A value that does not parse is
+/// reported and the default kept.
+fn init_logging() {
+    use tracing_subscriber::filter::{LevelFilter, Targets};
+    use tracing_subscriber::layer::SubscriberExt;
+    use tracing_subscriber::util::SubscriberInitExt;
+    let default = Targets::new().with_default(LevelFilter::WARN);
+    let filter = match std::env::var("SKYBAKE_LOG") {
+        Ok(text) => text.parse::<Targets>().unwrap_or_else(|e| {
+            eprintln!("warning: SKYBAKE_LOG={text:?} is not a list of target=level directives ({e}); logging warnings");
+            default
+        }),
+        Err(_) => default,
+    };
+    tracing_subscriber::registry()
+        .with(tracing_subscriber::fmt::layer().with_writer(std::io::stderr))
+        .with(filter)
         .init();
+}
+
+fn main() -> ExitCode {
+    init_logging();
     match run(Cli::parse()) {
         Ok(()) => ExitCode::SUCCESS,
         Err(CliError::Input(e)) => {
