@@ -326,6 +326,8 @@ fn grid_sources_load_through_the_loader_and_resample() {
         header: None,
         file_voxel_size_m: Some(10.0),
         origin_m: Some([100.0, 200.0, 1000.0]),
+        grid_name: None,
+        file_unit_m: None,
         density_scale: 2.0,
     });
     // Same voxel size: the file as is (scaled).
@@ -361,6 +363,8 @@ fn grid_sources_load_through_the_loader_and_resample() {
         header: None,
         file_voxel_size_m: None,
         origin_m: None,
+        grid_name: None,
+        file_unit_m: None,
         density_scale: 1.0,
     });
     let g = voxelize(&raw, 30.0, &raw_files).unwrap();
@@ -372,6 +376,8 @@ fn grid_sources_load_through_the_loader_and_resample() {
         header: None,
         file_voxel_size_m: None,
         origin_m: None,
+        grid_name: None,
+        file_unit_m: None,
         density_scale: 1.0,
     });
     assert_eq!(
