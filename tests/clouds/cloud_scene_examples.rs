@@ -28,7 +28,7 @@ fn section(name: &str) -> skybake_physics::cloud::scene::CloudSection {
 
 /// Every `.json` file in `config/scenes/` is a scene that voxelises through the one scene API
 /// (files it names are read relative to `config/scenes/`), and together they cover every source
-/// that needs no external grid file.
+/// (`vdb-cloud.json`, a frame scene, is the `grid` source's, with its OpenVDB file).
 #[test]
 fn every_scene_file_voxelises_through_the_scene_api() {
     let mut kinds = Vec::new();
@@ -72,7 +72,7 @@ fn every_scene_file_voxelises_through_the_scene_api() {
     kinds.sort();
     assert_eq!(
         kinds,
-        ["automaton", "fractal", "metaballs", "satellite", "spheres"],
+        ["automaton", "fractal", "grid", "metaballs", "satellite", "spheres"],
         "one example scene per source"
     );
 }
