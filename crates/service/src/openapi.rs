@@ -198,7 +198,7 @@ pub fn openapi_json() -> String {
                 "detail": {"type": "string"}, "parameter": {"type": "string"}}},
             "PlanRequest": {"type": "object", "required": ["product"], "properties": plan_props, "additionalProperties": false},
             "FrameScene": {"type": "object", "required": ["cloud", "optics", "camera", "sun"],
-                "description": "A frame scene (see GET /v1/scenes/cumulus-frame): cloud (any cloud source; files only those of the example scenes), optics (extinction_per_density_m, single_scattering_albedo, phase with g in (-1, 1)), camera (pinhole | orthographic | fisheye, width x height up to 16 Mi pixels), sun (elevation_deg + azimuth_deg from +y towards +x, latitude_deg + longitude_deg + time, or collimated), atmosphere (preset, inline or null), sky, ground, wavelengths_nm, quality, lighting switches",
+                "description": "A frame scene (see GET /v1/scenes/cumulus-frame): cloud (any cloud source, grids .npy, raw or OpenVDB .vdb included; files only those of the example scenes: satellite-field.png, vdb-cloud.vdb), optics (extinction_per_density_m, single_scattering_albedo, phase with g in (-1, 1)), camera (pinhole | orthographic | fisheye, width x height up to 16 Mi pixels), sun (elevation_deg + azimuth_deg from +y towards +x, latitude_deg + longitude_deg + time, or collimated), atmosphere (preset, inline or null), sky, ground, wavelengths_nm, quality, lighting switches",
                 "properties": {"cloud": {"type": "object"}, "optics": {"type": "object"}, "camera": {"type": "object"},
                     "sun": {"type": "object"}, "atmosphere": {"type": ["string", "object", "null"]},
                     "sky": {"type": ["string", "object", "null"]}, "ground": {"type": ["object", "null"]},
