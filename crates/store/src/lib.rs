@@ -28,6 +28,7 @@ pub mod exr;
 pub mod files;
 mod lru;
 pub mod tables;
+pub mod texture;
 pub mod tiles;
 
 pub use atomic::write_atomic;

@@ -1,0 +1,465 @@
+//! Computes the bundle's tables with skybake's precise method, at the texel centres of Bruneton
+//! 2017's parameterisation ([`crate::param`]):
+//!
+//! - transmittance to the top of the atmosphere: the density integrals of the ray, integrated
+//!   directly (f64), exponentiated per channel;
+//! - scattering: along each texel's ray (to the top, or to the ground for the lower half of μ),
+//!   the same quadrature and sources as the `sky` product's integrator (exact single scattering,
+//!   the converged multiple-scattering source J_ms of the precise table, Bruneton & Neyret 2008,
+//!   eq. 7 and §4), without the ground's reflection at the end of the ray (his texture leaves it to
+//!   the client). Stored as he stores it (Bruneton 2017, `ComputeMultipleScatteringTexture` and
+//!   the combined layout): RGB = single Rayleigh without its phase function + multiple scattering
+//!   divided by the Rayleigh phase function; single Mie divided by his Mie phase function (exact
+//!   at the ν nodes when the atmosphere's aerosol phase function is another one);
+//! - irradiance: the sky's irradiance on a horizontal surface at (r, μs), the `sun` product's
+//!   hemisphere quadrature at that altitude and sun.
+//!
+//! Everything is multiplied by the extraterrestrial solar irradiance and by the bundle's unit
+//! scale ([`UNIT_SCALE`]).
+
+use std::time::Instant;
+
+use rayon::prelude::*;
+use skybake_physics::atmosphere::geometry::horizon_mu;
+use skybake_physics::atmosphere::integrate::{ray_points, RayPoint, RaySample, Source};
+use skybake_physics::atmosphere::irradiance::{
+    hemisphere_irradiance, SUN_PRODUCT_N_MU, SUN_PRODUCT_N_PHI,
+};
+use skybake_physics::atmosphere::kernels::exp_fast;
+use skybake_physics::atmosphere::medium::{CONSTITUENTS, MIE, RAYLEIGH};
+use skybake_physics::atmosphere::multiple_precise::source_sun_zenith_limit_rad;
+use skybake_physics::atmosphere::shared::SharedTables;
+use skybake_physics::atmosphere::sky::{MsMethod, Observer, RadianceEvaluator};
+use skybake_physics::atmosphere::transmittance::density_integrals;
+use skybake_physics::phase::Phase;
+
+use crate::param::{self, AtmosphereParameters, *};
+
+/// Texture values are radiometric quantities in milliwatts (mW m⁻² sr⁻¹ nm⁻¹, mW m⁻² nm⁻¹):
+/// texture value = value in W × this. Keeps the half-float scattering texture in its normal
+/// range from noon (≈ 2·10³) to the end of nautical twilight (≈ 10⁻⁴).
+pub const UNIT_SCALE: f64 = 1.0e3;
+
+/// Quadrature intervals of each transmittance texel's density integrals.
+const TRANSMITTANCE_STEPS: usize = 1000;
+
+/// The multiple-scattering source is integrated with this fraction of the products' samples
+/// per ray segment (at least [`MIN_MS_STEPS`]): it is smooth along the ray (the table resolves
+/// it at 20 radii), while its lookup is most of a texel's cost (measured: the 16-corner
+/// interpolation, with logarithms in twilight cells, took 3/4 of the build at full steps).
+const MS_STEPS_DIVISOR: usize = 4;
+const MIN_MS_STEPS: usize = 6;
+
+/// How texture samples are stored.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Sample {
+    /// 16-bit float (the scattering texture of the RGB bundle: RGBA16F filters linearly on
+    /// every WebGL2 device).
+    Half,
+    /// 32-bit float.
+    Float,
+}
+
+/// A texture: `[row][column][channel]`, row 0 at texture coordinate v = 0.5/height; 3-D
+/// textures are their depth slices stacked, slice k at rows k·height … (k+1)·height − 1.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Texture {
+    pub width: usize,
+    pub height: usize,
+    pub depth: usize,
+    pub channels: usize,
+    pub sample: Sample,
+    pub data: Vec<f32>,
+}
+
+impl Texture {
+    fn new(width: usize, height: usize, depth: usize, channels: usize, sample: Sample) -> Self {
+        Self {
+            width,
+            height,
+            depth,
+            channels,
+            sample,
+            data: vec![0.0; width * height * depth * channels],
+        }
+    }
+
+    /// Rounds every value to what the stored sample type holds.
+    fn round_to_sample(&mut self) {
+        if self.sample == Sample::Half {
+            for v in &mut self.data {
+                *v = half::f16::from_f32(*v).to_f32();
+            }
+        }
+    }
+
+    /// Texel (x, y, z), all channels.
+    pub fn texel(&self, x: usize, y: usize, z: usize) -> &[f32] {
+        let i = ((z * self.height + y) * self.width + x) * self.channels;
+        &self.data[i..i + self.channels]
+    }
+
+    /// One channel as a plane of width × (height · depth) values, rows in order.
+    pub fn plane(&self, channel: usize) -> Vec<f32> {
+        self.data
+            .iter()
+            .skip(channel)
+            .step_by(self.channels)
+            .copied()
+            .collect()
+    }
+}
+
+/// Which channels the bundle holds.
+#[derive(Debug, Clone, PartialEq)]
+pub enum Channels {
+    /// Three channels at Bruneton's wavelengths (R 680, G 550, B 440 nm), the combined
+    /// scattering layout (RGBA; single Mie of R in A), half-float scattering.
+    Rgb,
+    /// One channel per wavelength of the medium, ascending; scattering and single Mie as two
+    /// separate tables (his non-combined layout), float.
+    Spectral,
+}
+
+/// Bruneton's channel wavelengths, nm (R, G, B).
+pub const RGB_WAVELENGTHS_NM: [f64; 3] = [680.0, 550.0, 440.0];
+
+/// The computed bundle.
+#[derive(Debug, Clone)]
+pub struct Bundle {
+    pub channels: Channels,
+    /// Wavelength of each channel, nm.
+    pub wavelengths_nm: Vec<f64>,
+    pub params: AtmosphereParameters,
+    pub transmittance: Texture,
+    /// RGB bundle: RGBA combined; spectral: one channel per wavelength.
+    pub scattering: Texture,
+    /// Spectral bundle only: single Mie scattering (the RGB bundle has its red in `scattering`'s A).
+    pub single_mie: Option<Texture>,
+    pub irradiance: Texture,
+    /// Wall-clock times, ms: the precise table (built, loaded or already in memory), the
+    /// transmittance, scattering and irradiance textures.
+    pub timing_ms: [f64; 4],
+}
+
+/// Computes the bundle from shared tables whose precise table is built (or is built here).
+/// `steps` are the samples per ray segment of the products (`Quality::steps`).
+pub fn build(shared: &SharedTables, channels: Channels, steps: usize) -> crate::Result<Bundle> {
+    let m = &shared.medium;
+    let idx: Vec<usize> = match channels {
+        Channels::Rgb => RGB_WAVELENGTHS_NM
+            .iter()
+            .map(|w| {
+                m.wavelengths_nm
+                    .iter()
+                    .position(|x| (x - w).abs() < 1e-9)
+                    .ok_or_else(|| {
+                        crate::Error::invalid(
+                            "wavelengths",
+                            format!("the RGB bundle needs {w} nm among the medium's wavelengths"),
+                        )
+                    })
+            })
+            .collect::<crate::Result<_>>()?,
+        Channels::Spectral => (0..m.len()).collect(),
+    };
+    let n_c = idx.len();
+    let g = match m.mie_phase {
+        Phase::CornetteShanks { g } | Phase::HenyeyGreenstein { g } | Phase::Mixture { g, .. } => g,
+        Phase::Isotropic | Phase::Rayleigh => 0.0,
+    };
+    let params = AtmosphereParameters {
+        solar_irradiance: idx
+            .iter()
+            .map(|&i| m.solar_irradiance[i] * UNIT_SCALE)
+            .collect(),
+        sun_angular_radius: m.sun_angular_radius_rad,
+        bottom_radius: m.bottom_radius_m,
+        top_radius: m.top_radius_m,
+        rayleigh_scattering: idx
+            .iter()
+            .map(|&i| m.rayleigh_scattering_per_m[i])
+            .collect(),
+        mie_scattering: idx.iter().map(|&i| m.mie_scattering_per_m[i]).collect(),
+        mie_phase_function_g: g,
+        mu_s_min: source_sun_zenith_limit_rad(m.bottom_radius_m, m.top_radius_m).cos(),
+        ground_albedo: idx.iter().map(|&i| m.ground_albedo[i]).collect(),
+    };
+    let e0: Vec<f64> = params.solar_irradiance.clone();
+    let tp = Instant::now();
+    let source: &dyn Source = shared.precise();
+    let t_precise = tp.elapsed().as_secs_f64() * 1e3;
+
+    // Transmittance.
+    let t0 = Instant::now();
+    let mut transmittance = Texture::new(
+        TRANSMITTANCE_WIDTH,
+        TRANSMITTANCE_HEIGHT,
+        1,
+        n_c,
+        Sample::Float,
+    );
+    transmittance
+        .data
+        .par_chunks_mut(TRANSMITTANCE_WIDTH * n_c)
+        .enumerate()
+        .for_each(|(j, row)| {
+            for i in 0..TRANSMITTANCE_WIDTH {
+                let (r, mu) = params.transmittance_r_mu(
+                    (i as f64 + 0.5) / TRANSMITTANCE_WIDTH as f64,
+                    (j as f64 + 0.5) / TRANSMITTANCE_HEIGHT as f64,
+                );
+                let d =
+                    density_integrals(m, r, mu, params.distance_to_top(r, mu), TRANSMITTANCE_STEPS);
+                for (c, &l) in idx.iter().enumerate() {
+                    row[i * n_c + c] = (-m.optical_depth(l, &d)).exp() as f32;
+                }
+            }
+        });
+    let t_transmittance = t0.elapsed().as_secs_f64() * 1e3;
+
+    // Scattering: one task per ray family (r, μ), whose points all its (ν, μs) texels share.
+    let t1 = Instant::now();
+    let (sc_channels, sample) = match channels {
+        Channels::Rgb => (4, Sample::Half),
+        Channels::Spectral => (n_c, Sample::Float),
+    };
+    let mut scattering = Texture::new(
+        SCATTERING_WIDTH,
+        SCATTERING_MU,
+        SCATTERING_R,
+        sc_channels,
+        sample,
+    );
+    let mut single_mie = Texture::new(
+        SCATTERING_WIDTH,
+        SCATTERING_MU,
+        SCATTERING_R,
+        n_c,
+        Sample::Float,
+    );
+    let row_len_sc = SCATTERING_WIDTH * sc_channels;
+    let row_len_mie = SCATTERING_WIDTH * n_c;
+    scattering
+        .data
+        .par_chunks_mut(row_len_sc)
+        .zip(single_mie.data.par_chunks_mut(row_len_mie))
+        .enumerate()
+        .for_each_init(
+            || FamilyScratch::new(m.len()),
+            |scratch, (row, (sc_row, mie_row))| {
+                let (i_r, i_mu) = (row / SCATTERING_MU, row % SCATTERING_MU);
+                scratch.prepare(shared, &params, i_r, i_mu, steps);
+                for i_nu in 0..SCATTERING_NU {
+                    for i_mu_s in 0..SCATTERING_MU_S {
+                        let (_, _, mu_s, nu, _) = params.scattering_texel(i_nu, i_mu_s, i_mu, i_r);
+                        let s = scratch.texel(shared, source, mu_s, nu);
+                        let x = i_nu * SCATTERING_MU_S + i_mu_s;
+                        let p_r = param::rayleigh_phase(nu);
+                        let mie_ratio = m.mie_phase.eval(nu) / param::mie_phase(g, nu);
+                        for (c, &l) in idx.iter().enumerate() {
+                            let rgb = (s.rayleigh[l] + s.multiple[l] / p_r) * e0[c];
+                            sc_row[x * sc_channels + c] = rgb as f32;
+                            mie_row[x * n_c + c] = (s.mie[l] * mie_ratio * e0[c]) as f32;
+                        }
+                        if channels == Channels::Rgb {
+                            sc_row[x * sc_channels + 3] = mie_row[x * n_c];
+                        }
+                    }
+                }
+            },
+        );
+    scattering.round_to_sample();
+    let t_scattering = t1.elapsed().as_secs_f64() * 1e3;
+
+    // Irradiance: the sky's, on a horizontal surface (the direct sun is the client's).
+    let t2 = Instant::now();
+    let mut irradiance = Texture::new(IRRADIANCE_WIDTH, IRRADIANCE_HEIGHT, 1, n_c, Sample::Float);
+    let limit = source_sun_zenith_limit_rad(m.bottom_radius_m, m.top_radius_m);
+    irradiance
+        .data
+        .par_chunks_mut(n_c)
+        .enumerate()
+        .for_each(|(k, out)| {
+            let (i, j) = (k % IRRADIANCE_WIDTH, k / IRRADIANCE_WIDTH);
+            let (r, mu_s) = params.irradiance_r_mu_s(
+                (i as f64 + 0.5) / IRRADIANCE_WIDTH as f64,
+                (j as f64 + 0.5) / IRRADIANCE_HEIGHT as f64,
+            );
+            // Beyond the source limit plus the farthest point the sky there reaches
+            // (`plan::darkest_twilight_deg`'s bound) the sky is dark.
+            let reach = (m.bottom_radius_m / r).min(1.0).acos()
+                + (m.bottom_radius_m / m.top_radius_m).acos();
+            if mu_s.acos() > limit + reach {
+                return;
+            }
+            let observer = Observer {
+                altitude_m: r - m.bottom_radius_m,
+                sun_elevation_rad: mu_s.asin(),
+            };
+            let eval = RadianceEvaluator::new(shared, MsMethod::Precise, observer, steps);
+            let e = hemisphere_irradiance(&eval, m.len(), SUN_PRODUCT_N_MU, SUN_PRODUCT_N_PHI);
+            for (c, &l) in idx.iter().enumerate() {
+                out[c] = (e[l] * UNIT_SCALE) as f32;
+            }
+        });
+    let t_irradiance = t2.elapsed().as_secs_f64() * 1e3;
+
+    Ok(Bundle {
+        wavelengths_nm: idx.iter().map(|&i| m.wavelengths_nm[i]).collect(),
+        single_mie: (channels == Channels::Spectral).then_some(single_mie),
+        channels,
+        params,
+        transmittance,
+        scattering,
+        irradiance,
+        timing_ms: [t_precise, t_transmittance, t_scattering, t_irradiance],
+    })
+}
+
+/// Per-wavelength integrals of one texel's ray, per unit solar irradiance: single Rayleigh and
+/// single Mie without phase functions (m⁻¹·m), multiple scattering with its phases (sr⁻¹).
+struct TexelSums<'a> {
+    rayleigh: &'a [f64],
+    mie: &'a [f64],
+    multiple: &'a [f64],
+}
+
+/// One quadrature of a ray: its points, their densities and the transmittance from the ray's
+/// origin to each point's cell midpoint × the point's weight (`[point][λ]`).
+#[derive(Default)]
+struct Quadrature {
+    points: Vec<RayPoint>,
+    rho: Vec<[f64; CONSTITUENTS]>,
+    weighted_t: Vec<f64>,
+}
+
+impl Quadrature {
+    fn prepare(&mut self, m: &skybake_physics::atmosphere::Medium, r: f64, mu: f64, steps: usize) {
+        ray_points(m, r, mu, steps, &mut self.points);
+        self.rho.clear();
+        self.weighted_t.clear();
+        let mut d_view = [0.0f64; CONSTITUENTS];
+        for p in &self.points {
+            let rho = m.densities(p.r);
+            let mut d_mid = d_view;
+            for k in 0..CONSTITUENTS {
+                d_mid[k] += 0.5 * rho[k] * p.weight;
+                d_view[k] += rho[k] * p.weight;
+            }
+            for l in 0..m.len() {
+                self.weighted_t
+                    .push(exp_fast(-m.optical_depth(l, &d_mid)) * p.weight);
+            }
+            self.rho.push(rho);
+        }
+    }
+}
+
+/// What a ray family's texels share: the ray's quadratures for single scattering (the
+/// products' samples) and for the multiple-scattering source (fewer, [`MS_STEPS_DIVISOR`]).
+struct FamilyScratch {
+    r: f64,
+    single: Quadrature,
+    multiple_q: Quadrature,
+    n_l: usize,
+    j: Vec<f64>,
+    rayleigh: Vec<f64>,
+    mie: Vec<f64>,
+    multiple: Vec<f64>,
+}
+
+impl FamilyScratch {
+    fn new(n_l: usize) -> Self {
+        Self {
+            r: 0.0,
+            single: Quadrature::default(),
+            multiple_q: Quadrature::default(),
+            n_l,
+            j: vec![0.0; n_l],
+            rayleigh: vec![0.0; n_l],
+            mie: vec![0.0; n_l],
+            multiple: vec![0.0; n_l],
+        }
+    }
+
+    /// The ray of scattering row (i_r, i_mu): to the ground for the lower half of μ, to the
+    /// top otherwise (grazing rays are nudged to the side of the horizon their half says).
+    fn prepare(
+        &mut self,
+        shared: &SharedTables,
+        params: &AtmosphereParameters,
+        i_r: usize,
+        i_mu: usize,
+        steps: usize,
+    ) {
+        let m = &shared.medium;
+        let (r, mu, _, _, ground) = params.scattering_texel(0, 0, i_mu, i_r);
+        let mu_h = horizon_mu(r, m.bottom_radius_m);
+        let mu = if ground {
+            (mu.min(mu_h) - 1e-9).max(-1.0)
+        } else {
+            mu.max(mu_h + 1e-9).min(1.0)
+        };
+        self.r = r;
+        self.single.prepare(m, r, mu, steps);
+        self.multiple_q
+            .prepare(m, r, mu, (steps / MS_STEPS_DIVISOR).max(MIN_MS_STEPS));
+    }
+
+    /// The integrals of the prepared ray for the sun at (μs, ν) at its origin.
+    fn texel(
+        &mut self,
+        shared: &SharedTables,
+        source: &dyn Source,
+        mu_s: f64,
+        nu: f64,
+    ) -> TexelSums<'_> {
+        let m = &shared.medium;
+        let table = shared.density();
+        self.rayleigh.fill(0.0);
+        self.mie.fill(0.0);
+        self.multiple.fill(0.0);
+        let n_l = self.n_l;
+        let q = &self.single;
+        for (k, p) in q.points.iter().enumerate() {
+            let mu_s_p = ((self.r * mu_s + p.t * nu) / p.r).clamp(-1.0, 1.0);
+            let at = table.at_radius(p.r, m.sun_angular_radius_rad);
+            let vis = at.sun_visibility(mu_s_p);
+            if vis <= 0.0 {
+                continue;
+            }
+            let d_sun = at.lookup(mu_s_p);
+            let rho = &q.rho[k];
+            let wt = &q.weighted_t[k * n_l..(k + 1) * n_l];
+            for l in 0..n_l {
+                let sun = wt[l] * exp_fast(-m.optical_depth(l, &d_sun)) * vis;
+                self.rayleigh[l] += sun * m.rayleigh_scattering_per_m[l] * rho[RAYLEIGH];
+                self.mie[l] += sun * m.mie_scattering_per_m[l] * rho[MIE];
+            }
+        }
+        let q = &self.multiple_q;
+        for (k, p) in q.points.iter().enumerate() {
+            let mu_s_p = ((self.r * mu_s + p.t * nu) / p.r).clamp(-1.0, 1.0);
+            let sample = RaySample {
+                t: p.t,
+                weight: p.weight,
+                r: p.r,
+                mu: p.mu,
+                mu_s: mu_s_p,
+                nu,
+            };
+            self.j.fill(0.0);
+            source.add_scattering(&sample, &mut self.j);
+            let wt = &q.weighted_t[k * n_l..(k + 1) * n_l];
+            for l in 0..n_l {
+                self.multiple[l] += wt[l] * self.j[l];
+            }
+        }
+        TexelSums {
+            rayleigh: &self.rayleigh,
+            mie: &self.mie,
+            multiple: &self.multiple,
+        }
+    }
+}
