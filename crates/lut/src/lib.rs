@@ -3,6 +3,9 @@
 //! skybake's precise method ([`build`]), described by a manifest ([`manifest`]), and read back
 //! with his shader functions ([`reader`]). Pure computation: the store writes the files.
 
+// Numeric kernels index several parallel per-wavelength arrays in one loop; an index is clearer.
+#![allow(clippy::needless_range_loop)]
+
 pub mod build;
 pub mod manifest;
 pub mod param;
