@@ -71,11 +71,12 @@ pub fn encode_texture_exr(t: TextureImage) -> Result<Vec<u8>, StoreError> {
     Ok(bytes)
 }
 
+/// A decoded texture: width, height and its channels (name, values as f32) in name order.
+pub type DecodedTexture = (usize, usize, Vec<(String, Vec<f32>)>);
+
 /// Decodes a file written by [`encode_texture_exr`] (checksum verified): width, height and the
 /// channels (name, values as f32) in name order.
-pub fn decode_texture_exr(
-    bytes: &[u8],
-) -> Result<(usize, usize, Vec<(String, Vec<f32>)>), StoreError> {
+pub fn decode_texture_exr(bytes: &[u8]) -> Result<DecodedTexture, StoreError> {
     checksum::verify(bytes)?;
     let decoded = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
         read()
