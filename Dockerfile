@@ -24,6 +24,10 @@ RUN cargo build --release --locked -p skybake --bin skybake \
 
 # ---- runtime -----------------------------------------------------------------------------------
 FROM debian:bookworm-slim
+# CA certificates: a shared cache bucket (SKYBAKE_CACHE_URL=s3://…) is reached over HTTPS.
+RUN apt-get update \
+    && apt-get install -y --no-install-recommends ca-certificates \
+    && rm -rf /var/lib/apt/lists/*
 RUN groupadd --system --gid 10001 skybake \
     && useradd --system --uid 10001 --gid 10001 --no-create-home --home-dir /nonexistent skybake \
     && mkdir -p /var/cache/skybake \

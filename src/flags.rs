@@ -179,6 +179,10 @@ pub struct ServeArgs {
     /// Cache directory (overrides SKYBAKE_CACHE_DIR and the config).
     #[arg(long)]
     pub cache_dir: Option<PathBuf>,
+    /// Bucket shared with other replicas, s3://bucket/prefix (overrides SKYBAKE_CACHE_URL and
+    /// the config; credentials and endpoint from the AWS_* variables).
+    #[arg(long)]
+    pub cache_url: Option<String>,
     /// Settings file (TOML, any subset of config/default.toml).
     #[arg(long)]
     pub config: Option<PathBuf>,

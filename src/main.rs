@@ -105,15 +105,28 @@ enum Command {
     ///
     /// Example: skybake serve --bind 127.0.0.1:8080 --cache-dir /var/cache/skybake
     Serve(ServeArgs),
-    /// Run a bake job file offline (the POST /v1/jobs format); resumable.
+    /// Run a bake job file offline (the POST /v1/jobs format); resumable, and shardable over
+    /// processes sharing the output (e.g. a bucket).
     ///
     /// Example: skybake bake job.json --out baked/
+    /// Example: skybake bake job.json --out s3://assets/bakes/job1 --shard 2/8
     Bake {
         /// Job file (JSON: {"products": [...], "grids": [...], "frames": [...]}; see README "Bake jobs").
         job: PathBuf,
-        /// Output directory (EXR per product + manifest.json); a rerun reuses finished files.
+        /// Output directory or bucket folder (s3://bucket/prefix; AWS_* credentials and
+        /// endpoint): an EXR per product + manifest.json; a rerun reuses finished files.
         #[arg(long)]
-        out: PathBuf,
+        out: String,
+        /// This process's share, I/N: items i with i mod N = I. Default: the Kubernetes Indexed
+        /// Job's JOB_COMPLETION_INDEX / JOB_COMPLETIONS when set, else the whole job.
+        #[arg(long)]
+        shard: Option<String>,
+        /// Print the progress of the bake over all shards (JSON) and exit.
+        #[arg(long)]
+        status: bool,
+        /// Bucket for the shared precise tables, s3://bucket/prefix (overrides SKYBAKE_CACHE_URL).
+        #[arg(long)]
+        cache_url: Option<String>,
         /// Settings file (defaults for wavelengths and quality, job size limit).
         #[arg(long)]
         config: Option<PathBuf>,
@@ -132,9 +145,22 @@ fn run(cli: Cli) -> Result<()> {
     match cli.command {
         Command::Serve(args) => serve::serve(args),
         Command::Healthcheck { addr } => serve::healthcheck(addr),
-        Command::Bake { job, out, config } => {
-            bake::bake(&job, &out, config.as_deref(), no_table_cache)
-        }
+        Command::Bake {
+            job,
+            out,
+            shard,
+            status,
+            cache_url,
+            config,
+        } => bake::bake(bake::BakeArgs {
+            job: &job,
+            out: &out,
+            shard: shard.as_deref(),
+            status,
+            cache_url: cache_url.as_deref(),
+            config: config.as_deref(),
+            no_table_cache,
+        }),
         Command::Sun(a) => product::sun(&a.flags.params, &engine()?),
         Command::Sky(a) => product::run_dome(ProductKind::Sky, &a.flags.params, &a.out, &engine()?),
         Command::Ground(a) => {

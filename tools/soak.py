@@ -20,6 +20,12 @@ Storms
                  the 24 deg request must be a miss answering 24 deg (key mismatch counted).
   4. jobs      : 30 job bodies of ~980 kB against a 1 MiB disk budget: accepted, refused, bytes of
                  job files on disk, and whether DELETE removed a finished job's files.
+  5. slowbody  : 500 uploads (POST /v1/plan, Content-Length 500) trickling one byte a second, from
+                 127.0.0.2 and 127.0.0.3 (250 each, under the default per-client cap of 256), with
+                 the concurrency limit lowered to 64; meanwhile 300 cached /v1/sun requests one
+                 after another from 127.0.0.1. Reported: the cached requests' statuses and latency
+                 percentiles (p50, p99, max), the slow uploads' answers (408 expected) and when they
+                 came, and a 257th connection from one address (closed at accept).
 """
 import argparse
 import http.client
@@ -258,15 +264,97 @@ def storm_jobs(binary, port, quick):
         srv.stop()
 
 
+def percentile(values, q):
+    v = sorted(values)
+    return v[min(len(v) - 1, int(round(q * (len(v) - 1))))]
+
+
+def connect_from(source, port):
+    s = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
+    s.bind((source, 0))
+    s.settimeout(5)
+    s.connect((HOST, port))
+    return s
+
+
+def storm_slowbody(binary, port, quick):
+    srv = Server(binary, port, env={"SKYBAKE_CONCURRENCY_LIMIT": "64"})
+    socks = []
+    stop = threading.Event()
+    try:
+        sun = "/v1/sun?method=fast&quality=draft&wavelengths=550"
+        if get(port, sun)[0] != 200:
+            raise RuntimeError("the cached request failed")
+        n = 100 if quick else 500
+        head = (b"POST /v1/plan HTTP/1.1\r\nHost: x\r\nContent-Type: application/json\r\n"
+                b"Content-Length: 500\r\n\r\n")
+        t0 = time.monotonic()
+        for i in range(n):
+            s = connect_from(f"127.0.0.{2 + i % 2}", port)
+            s.sendall(head + b"{")
+            socks.append(s)
+
+        def trickle():
+            # One byte a second on every slow connection until it is answered.
+            while not stop.is_set():
+                for s in socks:
+                    try:
+                        s.send(b" ")
+                    except OSError:
+                        pass
+                stop.wait(1.0)
+
+        feeder = threading.Thread(target=trickle, daemon=True)
+        feeder.start()
+        report("slowbody.clients", len(socks))
+        report("slowbody.connections_open_on_server", metric(port, "skybake_connections_open"))
+        # A connection over the per-client cap (256) of one address is closed at accept.
+        extra = [connect_from("127.0.0.4", port) for _ in range(257)]
+        time.sleep(0.3)
+        report("slowbody.client_connections_refused",
+               metric(port, "skybake_client_connections_refused_total"))
+        for s in extra:
+            s.close()
+        statuses, lat = {}, []
+        for _ in range(60 if quick else 300):
+            status, dt, _ = timed(port, sun)
+            statuses[status] = statuses.get(status, 0) + 1
+            lat.append(dt * 1e3)
+        report("slowbody.cached_statuses", statuses)
+        report("slowbody.cached_latency_ms", {"p50": round(percentile(lat, 0.5), 2),
+                                              "p99": round(percentile(lat, 0.99), 2),
+                                              "max": round(max(lat), 2)})
+        answers, when = {}, []
+        for s in socks:
+            s.settimeout(max(1.0, 60 - (time.monotonic() - t0)))
+            try:
+                data = s.recv(4096)
+                when.append(time.monotonic() - t0)
+                code = data[9:12].decode() if data else "closed"
+            except OSError:
+                code = "none"
+            answers[code] = answers.get(code, 0) + 1
+        report("slowbody.upload_answers", answers)
+        report("slowbody.answered_after_s", [round(min(when), 1), round(max(when), 1)] if when else None)
+        report("slowbody.body_timeouts", metric(port, "skybake_body_timeouts_total"))
+        report("slowbody.load_shed", metric(port, "skybake_load_shed_total"))
+    finally:
+        stop.set()
+        for s in socks:
+            s.close()
+        srv.stop()
+
+
 def main():
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     here = os.path.dirname(os.path.abspath(__file__))
     ap.add_argument("--bin", default=os.path.join(here, "..", "target", "release", "skybake"))
     ap.add_argument("--port", type=int, default=18190)
     ap.add_argument("--quick", action="store_true", help="smaller storms (a minute or two)")
-    ap.add_argument("--only", choices=["abandoned", "slow", "swap", "jobs"], action="append")
+    ap.add_argument("--only", choices=["abandoned", "slow", "swap", "jobs", "slowbody"], action="append")
     args = ap.parse_args()
-    storms = {"abandoned": storm_abandoned, "slow": storm_slow, "swap": storm_swap, "jobs": storm_jobs}
+    storms = {"abandoned": storm_abandoned, "slow": storm_slow, "swap": storm_swap, "jobs": storm_jobs,
+              "slowbody": storm_slowbody}
     for name, storm in storms.items():
         if args.only and name not in args.only:
             continue

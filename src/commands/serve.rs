@@ -14,6 +14,9 @@ pub fn serve(args: ServeArgs) -> Result<()> {
     if let Some(dir) = args.cache_dir {
         settings.cache.dir = dir;
     }
+    if let Some(url) = args.cache_url {
+        settings.cache.url = url;
+    }
     settings.validate()?;
     skybake_service::server::run(settings).map_err(CliError::Failure)
 }

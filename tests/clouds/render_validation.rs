@@ -84,6 +84,37 @@ fn settings(scene: &FrameScene, method: Method, spp: usize) -> RenderSettings {
     s
 }
 
+/// A committed validation case: its scene (`validation-cloud-CASE.json`), the scene's voxels and
+/// Mitsuba 3's image of it (`cloud_mitsuba_CASE.npy`).
+fn validation_case(case: &str) -> (FrameScene, DensityGrid, Vec<f32>) {
+    let bytes = std::fs::read(format!("{DATA}/validation-cloud-{case}.json")).unwrap();
+    let scene = FrameScene::parse(&bytes).unwrap();
+    let grid = scene
+        .cloud
+        .voxelize(&|p: &str| {
+            std::fs::read(format!("{DATA}/{p}"))
+                .map_err(|e| skybake_physics::Error::invalid("path", e))
+        })
+        .unwrap();
+    let reference = npy(&format!("cloud_mitsuba_{case}.npy"));
+    (scene, grid, reference)
+}
+
+/// The fast method's frame of a scene, lit as a request's frame is.
+fn fast_frame(scene: &FrameScene, grid: &DensityGrid) -> skybake_render::Frame {
+    let lighting = lighting_for(scene, grid, &Engine::new()).unwrap();
+    render_frame(
+        scene,
+        grid,
+        &lighting,
+        &settings(scene, Method::Fast, 1),
+        None,
+        &|_| {},
+        &|| false,
+    )
+    .unwrap()
+}
+
 /// (a) DISORT slab (4 km wide, 100 m thick: 40 thicknesses, so light lost at the sides is
 /// negligible): reflected radiance at the top for a subset of the cases (view zenith 0 and 60°,
 /// towards and away from the sun), path tracer within 2 % plus three of its own standard errors
@@ -231,16 +262,7 @@ fn cloud_matches_mitsuba() {
             0.03,
         ),
     ] {
-        let bytes = std::fs::read(format!("{DATA}/validation-cloud-{case}.json")).unwrap();
-        let scene = FrameScene::parse(&bytes).unwrap();
-        let grid = scene
-            .cloud
-            .voxelize(&|p: &str| {
-                std::fs::read(format!("{DATA}/{p}"))
-                    .map_err(|e| skybake_physics::Error::invalid("path", e))
-            })
-            .unwrap();
-        let reference = npy(&format!("cloud_mitsuba_{case}.npy"));
+        let (scene, grid, reference) = validation_case(case);
         assert_eq!(reference.len(), 160 * 120);
         let tile = if case == "sun" {
             Tile {
@@ -334,27 +356,8 @@ fn fast_cloud_matches_mitsuba_cases() {
         ("sun_albedo09", 0.095, 0.025),
         ("sunsky", 0.08, 0.04),
     ] {
-        let bytes = std::fs::read(format!("{DATA}/validation-cloud-{case}.json")).unwrap();
-        let scene = FrameScene::parse(&bytes).unwrap();
-        let grid = scene
-            .cloud
-            .voxelize(&|p: &str| {
-                std::fs::read(format!("{DATA}/{p}"))
-                    .map_err(|e| skybake_physics::Error::invalid("path", e))
-            })
-            .unwrap();
-        let reference = npy(&format!("cloud_mitsuba_{case}.npy"));
-        let lighting = lighting_for(&scene, &grid, &Engine::new()).unwrap();
-        let fast = render_frame(
-            &scene,
-            &grid,
-            &lighting,
-            &settings(&scene, Method::Fast, 1),
-            None,
-            &|_| {},
-            &|| false,
-        )
-        .unwrap();
+        let (scene, grid, reference) = validation_case(case);
+        let fast = fast_frame(&scene, &grid);
         let (fb, fp, fbias) = stats(&fast.radiance, &reference, &mask, 160, 120);
         println!(
             "{case}: fast vs Mitsuba: block NRMSE {:.1} %, pixel NRMSE {:.1} %, bias {:+.1} %",
@@ -367,4 +370,82 @@ fn fast_cloud_matches_mitsuba_cases() {
             "{case}: fast method vs Mitsuba: block NRMSE {fb}, bias {fbias}"
         );
     }
+}
+
+/// (b) continued, every lighting geometry (fast method, whole 160×120 frames): the sun behind the
+/// cloud 35° above the view axis (thick and thin), 22° from it (the cloud's upper edges seen 5–20°
+/// from the sun), sun and sky back-lit, and the camera below the cloud looking up at its base
+/// (sun, sky). Mitsuba's own block noise (its committed stderr images) is removed in quadrature
+/// from the block NRMSE; the bounds are the measured figures (docs/frames.md) plus a margin for
+/// the photon noise.
+#[test]
+fn fast_cloud_matches_mitsuba_every_side() {
+    let cases: &[(&str, &str, f64, f64)] = &[
+        // Measured (block NRMSE without Mitsuba's noise / bias): 6.1 % / +1.0 %.
+        ("sun_back35", "cloud_mitsuba_mask.npy", 0.07, 0.02),
+        // 36.2 % / +25.8 %: the aureole round the sun reads high (docs/frames.md, limitations);
+        // the bound only keeps it from growing.
+        ("sun_back20", "cloud_mitsuba_mask.npy", 0.40, 0.29),
+        // 3.6 % / −2.1 %.
+        ("sun_back35_thin", "cloud_mitsuba_mask.npy", 0.05, 0.03),
+        // 5.7 % / +2.3 %.
+        ("sunsky_back35", "cloud_mitsuba_mask.npy", 0.07, 0.035),
+        // 6.6 % / −1.3 %.
+        ("below_sun", "cloud_mitsuba_mask_below.npy", 0.08, 0.025),
+        // 7.6 % / +0.1 %.
+        ("below_sky", "cloud_mitsuba_mask_below.npy", 0.09, 0.02),
+    ];
+    let mut failures = Vec::new();
+    for &(case, mask_file, block_bound, bias_bound) in cases {
+        let mask: Vec<bool> = npy(mask_file).iter().map(|&m| m > 0.0).collect();
+        let (scene, grid, reference) = validation_case(case);
+        let stderr = npy(&format!("cloud_mitsuba_{case}_stderr.npy"));
+        let fast = fast_frame(&scene, &grid);
+        let (fb, fp, fbias) = stats(&fast.radiance, &reference, &mask, 160, 120);
+        let noise = block_noise(&stderr, &reference, &mask, 160, 120);
+        let fb_clean = (fb * fb - noise * noise).max(0.0).sqrt();
+        println!(
+            "{case}: fast vs Mitsuba: block NRMSE {:.1} % ({:.1} % without Mitsuba's block noise {:.1} %), pixel NRMSE {:.1} %, bias {:+.1} %",
+            fb * 100.0,
+            fb_clean * 100.0,
+            noise * 100.0,
+            fp * 100.0,
+            fbias * 100.0
+        );
+        if !(fb_clean < block_bound && fbias.abs() < bias_bound) {
+            failures.push(format!("{case}: block NRMSE {fb_clean}, bias {fbias}"));
+        }
+    }
+    assert!(failures.is_empty(), "{failures:?}");
+}
+
+/// RMS over the cloud blocks of the reference's block standard error (pixels independent),
+/// relative to the reference's cloud mean.
+fn block_noise(
+    stderr: &[f32],
+    reference: &[f32],
+    mask: &[bool],
+    width: usize,
+    height: usize,
+) -> f64 {
+    let (mut sr, mut n) = (0.0, 0usize);
+    for i in 0..mask.len() {
+        if mask[i] {
+            sr += reference[i] as f64;
+            n += 1;
+        }
+    }
+    let (mut v, mut nb) = (0.0, 0usize);
+    for by in 0..height / 8 {
+        for bx in 0..width / 8 {
+            let idx: Vec<usize> = (0..64)
+                .map(|k| (by * 8 + k / 8) * width + bx * 8 + k % 8)
+                .collect();
+            if idx.iter().all(|&i| mask[i]) {
+                v += idx.iter().map(|&i| (stderr[i] as f64).powi(2)).sum::<f64>() / 64.0 / 64.0;
+                nb += 1;
+            }
+        }
+    }
+    (v / nb as f64).sqrt() / (sr / n as f64)
 }

@@ -3,6 +3,7 @@
 #[path = "../service_support/mod.rs"]
 mod service_support;
 
+mod bake_shards;
 mod cli_atmosphere;
 mod cli_clouds;
 mod cli_render;
@@ -12,6 +13,7 @@ mod job_frames;
 mod plan_frame;
 mod plan_rgb_only;
 mod product_artifact;
+mod store_bucket;
 mod store_cache;
 mod store_exr;
 mod store_tables;

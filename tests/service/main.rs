@@ -10,4 +10,6 @@ mod service_fuzz;
 mod service_http;
 mod service_process;
 mod service_render;
+mod service_replicas;
 mod service_router;
+mod service_slow_clients;

@@ -162,6 +162,32 @@ async fn render_answers_json_exr_and_png_from_one_cached_artifact() {
         .as_array()
         .is_some_and(|r| r.len() >= 3));
     assert!(doc["error_estimate"].is_object());
+    assert_eq!(
+        header(&h, "cache-control"),
+        Some("public, max-age=86400"),
+        "frames are cacheable like products"
+    );
+    // The ETag is known before anything is computed: If-None-Match gets 304 at once.
+    let conditional = Request::builder()
+        .method("POST")
+        .uri("/v1/render?format=json")
+        .header("if-none-match", format!("\"{key}-json\""))
+        .body(Body::from(scene.clone()))
+        .unwrap();
+    let r = service_support::send(&state, conditional).await;
+    assert_eq!(r.status, 304);
+    assert!(r.body.is_empty());
+    let other = Request::builder()
+        .method("POST")
+        .uri("/v1/render?format=exr")
+        .header("if-none-match", format!("\"{key}-json\""))
+        .body(Body::from(scene.clone()))
+        .unwrap();
+    assert_eq!(
+        service_support::send(&state, other).await.status,
+        200,
+        "another format's tag"
+    );
     // The key is the frame request's (method included; name and description excluded).
     let req = FrameRequest::parse(&scene, Method::Fast).unwrap();
     assert_eq!(key, req.cache_key());
@@ -170,6 +196,7 @@ async fn render_answers_json_exr_and_png_from_one_cached_artifact() {
     assert_eq!(status, 200);
     assert_eq!(header(&h, "content-type"), Some("image/x-exr"));
     assert_eq!(header(&h, "x-cache"), Some("hit"));
+    assert_eq!(header(&h, "etag"), Some(format!("\"{key}-exr\"").as_str()));
     let image = decode_exr(&exr).unwrap();
     assert_eq!((image.width(), image.height()), (80, 60));
     assert_eq!(image.attribute("skybakeCacheKey"), Some(key.as_str()));
@@ -276,6 +303,15 @@ async fn bad_scenes_are_refused_naming_the_field_and_the_limit() {
             422,
             "path",
         ),
+        (
+            "a sun given both by direction and by place and time",
+            Box::new(|v: &mut Value| {
+                v["sun"] = json!({"elevation_deg": 30, "azimuth_deg": 0, "latitude_deg": 45,
+                                  "longitude_deg": 0, "time": "2026-06-21T12:00:00Z"})
+            }),
+            422,
+            "sun",
+        ),
     ];
     for (what, change, status, field) in cases {
         let mut scene = base.clone();
@@ -333,9 +369,9 @@ async fn bad_scenes_are_refused_naming_the_field_and_the_limit() {
         let problem: Value = serde_json::from_slice(&body).unwrap();
         assert_eq!(problem["parameter"], json!(name), "{uri}");
     }
-    // Only the file reached the computation (a grid's size comes from its file); the grids over
-    // the limits were refused when the request was read.
-    assert_eq!(state.metrics().computations("frame"), 1);
+    // Nothing reached the computation: the grids over the limits and the server's file were
+    // refused when the request was read.
+    assert_eq!(state.metrics().computations("frame"), 0);
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]

@@ -321,3 +321,59 @@ async fn ops_routes_and_unknown_routes_and_methods() {
         wrong.headers
     );
 }
+
+/// Job admission is atomic: 200 concurrent submissions against `jobs.max_live` = 64 leave exactly
+/// 64 live jobs (no workers run here, so every accepted job stays queued), the others 503 naming
+/// the limit.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn concurrent_job_submissions_never_exceed_max_live() {
+    let dir = Scratch::new("router-job-race");
+    let state = state(&dir);
+    assert_eq!(state.settings().jobs.max_live, 64);
+    let body = json!({"products": [{"product": "sun", "method": "fast", "quality": "draft",
+                                    "wavelengths": "550"}]});
+    let tasks: Vec<_> = (0..200)
+        .map(|_| {
+            let (state, body) = (state.clone(), body.clone());
+            tokio::spawn(async move { call(&state, "POST", "/v1/jobs", Some(body)).await })
+        })
+        .collect();
+    let mut accepted = 0;
+    for t in tasks {
+        let a = t.await.unwrap();
+        match a.status {
+            202 => accepted += 1,
+            _ => {
+                let p = a.assert_problem(503, None);
+                assert!(
+                    p["detail"].as_str().unwrap().contains("jobs.max_live"),
+                    "{p}"
+                );
+            }
+        }
+    }
+    assert_eq!(accepted, 64);
+    assert_eq!(state.jobs().live(), 64);
+}
+
+/// A job's frame is validated at submission like the same scene posted to `/v1/render`: a
+/// scene naming a file of the server is refused at once, naming the item and the field.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_job_frame_naming_a_server_file_is_refused_at_submission() {
+    let dir = Scratch::new("router-job-files");
+    let state = state(&dir);
+    let mut scene: Value =
+        serde_json::from_str(skybake_product::frame::example_scene("validation-frame").unwrap())
+            .unwrap();
+    scene["cloud"]["source"] = json!({"type": "grid", "path": "/etc/passwd"});
+    let p = call(
+        &state,
+        "POST",
+        "/v1/jobs",
+        Some(json!({"frames": [{"scene": scene, "method": "fast"}]})),
+    )
+    .await
+    .assert_problem(422, Some("frames[0][0].cloud.source.path"));
+    assert!(p["detail"].as_str().unwrap().contains("/etc/passwd"), "{p}");
+    assert_eq!(state.jobs().live(), 0);
+}

@@ -89,7 +89,7 @@ pub const BENCHMARKS: &[(&str, &str)] = &[
     ),
     (
         "store",
-        "EXR encode/decode/verify and cache put/get, 256×128 px, 16 wavelengths + RGB, zip",
+        "EXR encode/decode/verify and cache put/get, 256×128 px, 16 wavelengths + RGB, zip; with SKYBAKE_BENCH_BUCKET=s3://… (AWS_* variables) also put/get through that bucket",
     ),
 ];
 
@@ -343,6 +343,13 @@ fn bench_store_stages(
     runs: usize,
 ) -> Result<Vec<BenchResult>> {
     let dir = std::env::temp_dir();
+    let bucket = match std::env::var("SKYBAKE_BENCH_BUCKET") {
+        Ok(url) if !url.trim().is_empty() => Some(std::sync::Arc::new(
+            skybake_store::Bucket::open(url.trim(), &[], skybake_store::RetryPolicy::default())
+                .map_err(|e| Error::invalid("SKYBAKE_BENCH_BUCKET", e.to_string()))?,
+        )),
+        _ => None,
+    };
     let runs_out: Vec<crate::store_bench::StoreBench> = (0..runs)
         .map(|_| {
             crate::store_bench::bench_store(
@@ -352,6 +359,7 @@ fn bench_store_stages(
                 16,
                 skybake_store::ExrCompression::Zip,
                 1,
+                bucket.as_ref(),
             )
             .map_err(|e| match e {
                 skybake_store::StoreError::Invalid(e) => e,
@@ -375,7 +383,7 @@ fn bench_store_stages(
         ("cache-disk-get", |b| b.cache_disk_get_ms),
         ("cache-memory-get", |b| b.cache_memory_get_ms),
     ];
-    Ok(stages
+    let mut out: Vec<BenchResult> = stages
         .into_iter()
         .map(|(variant, f)| {
             entry(
@@ -385,7 +393,23 @@ fn bench_store_stages(
                 details.clone(),
             )
         })
-        .collect())
+        .collect();
+    if let Some(bucket) = &bucket {
+        let details = json!({"bucket": bucket.url(), "file_bytes": last.file_bytes});
+        type BucketStage = (
+            &'static str,
+            fn(&crate::store_bench::StoreBench) -> Option<f64>,
+        );
+        let stages: [BucketStage; 2] = [
+            ("bucket-put", |b| b.bucket_put_ms),
+            ("bucket-get", |b| b.bucket_get_ms),
+        ];
+        for (variant, f) in stages {
+            let times = runs_out.iter().filter_map(f).collect();
+            out.push(entry(variant, runs, times, details.clone()));
+        }
+    }
+    Ok(out)
 }
 
 /// Cases of `precise-tables`: atmosphere, quality, number of wavelengths.

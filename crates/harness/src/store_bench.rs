@@ -1,15 +1,16 @@
 //! Throughput figures for the storage layer, for `skybake-harness bench store` (not asserted in tests).
 
 use std::path::Path;
+use std::sync::Arc;
 use std::time::Instant;
 
 use serde::Serialize;
 
-use skybake_store::StoreError;
 use skybake_store::{
     cache_key, checksum, decode_exr, encode_exr_with, Cache, CacheConfig, ExrCompression,
     SpectralImage,
 };
+use skybake_store::{Bucket, StoreError};
 
 /// Median timings of the storage operations on one synthetic sky-like image.
 #[derive(Debug, Clone, Serialize)]
@@ -32,6 +33,10 @@ pub struct StoreBench {
     pub cache_disk_get_ms: f64,
     /// `Cache::get` from the memory tier.
     pub cache_memory_get_ms: f64,
+    /// With a bucket: `Cache::put_image` on a cache shared through it (encode, disk write, PUT).
+    pub bucket_put_ms: Option<f64>,
+    /// With a bucket: `Cache::get` on a shared cache whose disk misses (GET, verify, local copy).
+    pub bucket_get_ms: Option<f64>,
     pub repetitions: usize,
 }
 
@@ -45,6 +50,7 @@ pub fn bench_store(
     wavelength_count: usize,
     compression: ExrCompression,
     repetitions: usize,
+    bucket: Option<&Arc<Bucket>>,
 ) -> Result<StoreBench, StoreError> {
     let repetitions = repetitions.max(1);
     let image = sky_like_image(width, height, wavelength_count)?;
@@ -71,11 +77,47 @@ pub fn bench_store(
         let in_memory = Cache::open(CacheConfig::new(&scratch, u64::MAX, u64::MAX))?;
         in_memory.get(&key)?;
         let cache_memory_get_ms = median_ms(repetitions, || in_memory.get(&key).map(drop))?;
-        Ok::<_, StoreError>((cache_put_ms, cache_disk_get_ms, cache_memory_get_ms))
+        let (mut bucket_put_ms, mut bucket_get_ms) = (None, None);
+        if let Some(bucket) = bucket {
+            let shared = |name: &str| {
+                let config = CacheConfig {
+                    compression,
+                    ..CacheConfig::new(scratch.join(name), u64::MAX, 0)
+                };
+                Cache::open_shared(config, bucket.clone())
+            };
+            let writer = shared("writer")?;
+            bucket_put_ms = Some(median_ms(repetitions, || {
+                writer.put_image(&key, &image).map(drop)
+            })?);
+            // A cache of its own each time, so the disk tier misses and the bucket answers.
+            let mut times = Vec::with_capacity(repetitions);
+            for n in 0..repetitions {
+                let reader = shared(&format!("reader-{n}"))?;
+                let start = Instant::now();
+                let found = reader.get(&key)?;
+                times.push(start.elapsed().as_secs_f64() * 1e3);
+                if found.is_none() {
+                    return Err(StoreError::Corrupt(
+                        "the bench entry is not in the bucket".into(),
+                    ));
+                }
+            }
+            times.sort_by(f64::total_cmp);
+            bucket_get_ms = Some(times[times.len() / 2]);
+        }
+        Ok::<_, StoreError>((
+            cache_put_ms,
+            cache_disk_get_ms,
+            cache_memory_get_ms,
+            bucket_put_ms,
+            bucket_get_ms,
+        ))
     })();
     // Best effort: the scratch directory only holds bench files.
     let _ = std::fs::remove_dir_all(&scratch);
-    let (cache_put_ms, cache_disk_get_ms, cache_memory_get_ms) = result?;
+    let (cache_put_ms, cache_disk_get_ms, cache_memory_get_ms, bucket_put_ms, bucket_get_ms) =
+        result?;
 
     Ok(StoreBench {
         width,
@@ -90,6 +132,8 @@ pub fn bench_store(
         cache_put_ms,
         cache_disk_get_ms,
         cache_memory_get_ms,
+        bucket_put_ms,
+        bucket_get_ms,
         repetitions,
     })
 }
@@ -140,7 +184,7 @@ mod tests {
     #[test]
     fn bench_runs_and_cleans_up() {
         let dir = std::env::temp_dir().join(format!("skybake-bench-test-{}", std::process::id()));
-        let report = bench_store(&dir, 40, 30, 3, ExrCompression::Piz, 1).unwrap();
+        let report = bench_store(&dir, 40, 30, 3, ExrCompression::Piz, 1, None).unwrap();
         assert_eq!(report.payload_bytes, 40 * 30 * 6 * 4);
         assert!(report.file_bytes > 0);
         assert!(!dir

@@ -1,9 +1,14 @@
 //! A job run offline (`skybake bake JOB.json --out DIR`): each item becomes
 //! `<out>/<index:06>-<product>-<key prefix>.exr`, the product's artifact (the same file the
-//! service caches), written atomically; items whose file exists and passes its checksum are
-//! reused, so a rerun after a crash resumes. A frame item keeps its finished tiles under
-//! `<out>/tiles/` until its EXR is written, so a rerun also resumes inside a frame.
-//! `<out>/manifest.json` lists them at the end.
+//! service caches), written atomically; items whose file exists, passes its checksum and carries
+//! the item's cache key are reused, so a rerun after a crash resumes. A frame item keeps its
+//! finished tiles under `<out>/tiles/` until its EXR is written, so a rerun also resumes inside a
+//! frame. `<out>/manifest.json` lists them at the end.
+//!
+//! `<out>` may be a folder in a bucket (`s3://bucket/prefix`), and the items may be shared among
+//! processes ([`Shard`]: item `i` belongs to shard `i mod N`). Each shard writes
+//! `shard-<I>-of-<N>.json` (its summary) when its share is done, and the shard that finds every
+//! item present writes the manifest; [`status`] reports progress over all shards.
 
 use super::run::MAX_KEPT_ERRORS;
 use super::spec::JobSpec;
@@ -12,19 +17,87 @@ use super::JobError;
 use serde::Serialize;
 use serde_json::json;
 use skybake_engine::engine::{Engine, ENGINE_VERSION};
+use skybake_physics::image::layout::ATTR_CACHE_KEY;
 use skybake_product::params::Defaults;
 use skybake_product::{AnyRequest, ComputeEnv};
-use skybake_store::{checksum, encode_exr, files, write_atomic, TileStore};
+use skybake_store::exr::header_text_attribute;
+use skybake_store::{checksum, encode_exr, Location, TileStore};
 use std::path::Path;
+
+/// Most processes one bake can be shared among.
+pub const MAX_SHARDS: usize = 10_000;
+
+/// The share of a job's items one process bakes: item `i` belongs to shard `i mod count`
+/// (round robin, so shares differ by at most one item and a grid's heavy corner is spread out).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+pub struct Shard {
+    pub index: usize,
+    pub count: usize,
+}
+
+impl Shard {
+    /// Every item, in one process.
+    pub const ALL: Shard = Shard { index: 0, count: 1 };
+
+    /// Shard `index` of `count` (`0 <= index < count <= MAX_SHARDS`).
+    pub fn new(index: usize, count: usize) -> Result<Self, JobError> {
+        if !(1..=MAX_SHARDS).contains(&count) {
+            return Err(crate::Error::out_of_range(
+                "shard",
+                count,
+                format!("1 to {MAX_SHARDS} shards"),
+            )
+            .into());
+        }
+        if index >= count {
+            return Err(crate::Error::out_of_range(
+                "shard",
+                index,
+                format!("0 to {} (the shard count less one)", count - 1),
+            )
+            .into());
+        }
+        Ok(Self { index, count })
+    }
+
+    /// `I/N`, e.g. `3/8`.
+    pub fn parse(text: &str) -> Result<Self, JobError> {
+        let bad = || {
+            JobError::from(crate::Error::invalid(
+                "shard",
+                format!("{text:?}: expected I/N, the shard index (from 0) and count, e.g. 0/4"),
+            ))
+        };
+        let (i, n) = text.split_once('/').ok_or_else(bad)?;
+        let i = i.trim().parse().map_err(|_| bad())?;
+        let n = n.trim().parse().map_err(|_| bad())?;
+        Self::new(i, n)
+    }
+
+    /// Whether item `i` is this shard's.
+    pub fn owns(&self, i: usize) -> bool {
+        i % self.count == self.index
+    }
+
+    /// The name of this shard's summary file.
+    fn file_name(&self) -> String {
+        format!("shard-{:04}-of-{:04}.json", self.index, self.count)
+    }
+}
 
 /// Summary of an offline bake.
 #[derive(Debug, Clone, Serialize)]
 pub struct BakeSummary {
+    /// This process's share (`0/1`: the whole job).
+    pub shard: Shard,
+    /// Items in this share.
     pub total: usize,
     /// Computed in this run.
     pub computed: usize,
     /// Already in the output directory (verified) from an earlier run.
     pub reused: usize,
+    /// Stored files found corrupt, truncated or bound to another key (each recomputed).
+    pub rejected: usize,
     pub failed: usize,
     pub errors: Vec<ItemError>,
 }
@@ -60,22 +133,69 @@ pub fn bake_with_cancel(
     defaults: &Defaults,
     max_products: usize,
     engine: &Engine,
-    mut progress: impl FnMut(usize, usize, &str),
+    progress: impl FnMut(usize, usize, &str),
     cancel: &(dyn Fn() -> bool + Sync),
 ) -> Result<BakeSummary, JobError> {
-    let spec = JobSpec::parse_body(job_body, max_products)?;
+    let out = Location::Dir(out.to_path_buf());
+    let env = BakeEnv {
+        defaults,
+        max_products,
+        engine,
+        cancel,
+    };
+    bake_share(job_body, &out, Shard::ALL, &env, progress)
+}
+
+/// What a bake runs with: the defaults and product limit of the settings, the engine, and a
+/// cancellation poll (between items and between the tiles of a frame).
+pub struct BakeEnv<'a> {
+    pub defaults: &'a Defaults,
+    pub max_products: usize,
+    pub engine: &'a Engine,
+    pub cancel: &'a (dyn Fn() -> bool + Sync),
+}
+
+/// The file of item `i`.
+fn item_file(i: usize, req: &AnyRequest, key: &str) -> String {
+    format!("{i:06}-{}-{}.exr", req.name(), &key[..16])
+}
+
+/// Whether `bytes` are a stored artifact of `key`: the whole-file checksum holds and the file
+/// carries the key.
+fn is_artifact_of(bytes: &[u8], key: &str) -> bool {
+    checksum::verify(bytes).is_ok()
+        && header_text_attribute(bytes, ATTR_CACHE_KEY)
+            .ok()
+            .flatten()
+            .is_some_and(|k| k == key)
+}
+
+/// Bakes `shard`'s share of the job into `out` (a directory or a bucket folder); see the module
+/// documentation. `progress(done, total, what)` counts this share's items.
+pub fn bake_share(
+    job_body: &[u8],
+    out: &Location,
+    shard: Shard,
+    env: &BakeEnv,
+    mut progress: impl FnMut(usize, usize, &str),
+) -> Result<BakeSummary, JobError> {
+    let (defaults, engine, cancel) = (env.defaults, env.engine, env.cancel);
+    let spec = JobSpec::parse_body(job_body, env.max_products)?;
     spec.validate(defaults)?;
-    files::create_dir_all(out)?;
-    let tiles = TileStore::open(&out.join("tiles"))?;
+    out.create()?;
+    let tiles = out.tiles()?;
+    let share: Vec<usize> = (0..spec.len()).filter(|&i| shard.owns(i)).collect();
     let mut summary = BakeSummary {
-        total: spec.len(),
+        shard,
+        total: share.len(),
         computed: 0,
         reused: 0,
+        rejected: 0,
         failed: 0,
         errors: Vec::new(),
     };
     let mut manifest = Vec::new();
-    for i in 0..spec.len() {
+    for (n, &i) in share.iter().enumerate() {
         if cancel() {
             return Err(JobError::Failure(format!(
                 "bake cancelled before item {i}; a rerun resumes"
@@ -83,19 +203,23 @@ pub fn bake_with_cancel(
         }
         let req = spec.request(i, defaults)?;
         let key = req.cache_key();
-        let name = format!("{i:06}-{}-{}.exr", req.name(), &key[..16]);
-        let path = out.join(&name);
-        let reusable = files::read_if_exists(&path)
-            .ok()
-            .flatten()
-            .is_some_and(|b| checksum::verify(&b).is_ok());
+        let name = item_file(i, &req, &key);
+        let stored = out.get(&name)?;
+        let reusable = stored.as_deref().is_some_and(|b| is_artifact_of(b, &key));
+        if stored.is_some() && !reusable {
+            tracing::warn!(
+                file = name,
+                "stored artifact failed verification; recomputing it"
+            );
+            summary.rejected += 1;
+        }
         let outcome = if reusable {
             summary.reused += 1;
             Ok("reused")
         } else {
             compute(&req, engine, &tiles, &key, cancel)
                 .and_then(|img| Ok(encode_exr(&img)?))
-                .and_then(|bytes| Ok(write_atomic(&path, &bytes)?))
+                .and_then(|bytes| Ok(out.put(&name, &bytes)?))
                 .map(|()| {
                     summary.computed += 1;
                     "computed"
@@ -116,7 +240,7 @@ pub fn bake_with_cancel(
                 manifest.push(
                     json!({"index": i, "product": req.name(), "cache_key": key, "file": name}),
                 );
-                progress(i + 1, spec.len(), what);
+                progress(n + 1, share.len(), what);
             }
             Err(e) => {
                 summary.failed += 1;
@@ -127,14 +251,110 @@ pub fn bake_with_cancel(
                         detail: e.to_string(),
                     });
                 }
-                progress(i + 1, spec.len(), "failed");
+                progress(n + 1, share.len(), "failed");
             }
         }
     }
     tiles.remove_empty()?;
-    let doc = json!({"engine_version": ENGINE_VERSION, "summary": summary, "artifacts": manifest});
-    write_atomic(&out.join("manifest.json"), doc.to_string().as_bytes())?;
+    if shard.count == 1 {
+        let doc =
+            json!({"engine_version": ENGINE_VERSION, "summary": summary, "artifacts": manifest});
+        out.put("manifest.json", doc.to_string().as_bytes())?;
+        return Ok(summary);
+    }
+    let text = serde_json::to_vec_pretty(&summary)
+        .map_err(|e| JobError::Failure(format!("encoding the shard summary: {e}")))?;
+    out.put(&shard.file_name(), &text)?;
+    // The shard that finds every item present writes the manifest (from the job, so any two
+    // such shards write the same one).
+    let items = items(&spec, defaults)?;
+    let present: std::collections::HashSet<String> = out.names()?.into_iter().collect();
+    if items.iter().all(|item| present.contains(&item.file)) {
+        let doc = json!({
+            "engine_version": ENGINE_VERSION,
+            "summary": {"total": items.len(), "shards": shard.count},
+            "artifacts": items,
+        });
+        out.put("manifest.json", doc.to_string().as_bytes())?;
+    }
     Ok(summary)
+}
+
+/// One item of a job as the manifest lists it.
+#[derive(Debug, Clone, Serialize)]
+pub struct ManifestItem {
+    pub index: usize,
+    pub product: &'static str,
+    pub cache_key: String,
+    pub file: String,
+}
+
+fn items(spec: &JobSpec, defaults: &Defaults) -> Result<Vec<ManifestItem>, JobError> {
+    (0..spec.len())
+        .map(|i| {
+            let req = spec.request(i, defaults)?;
+            let key = req.cache_key();
+            Ok(ManifestItem {
+                index: i,
+                product: req.name(),
+                file: item_file(i, &req, &key),
+                cache_key: key,
+            })
+        })
+        .collect()
+}
+
+/// Progress of a bake over all its shards ([`status`]).
+#[derive(Debug, Clone, Serialize)]
+pub struct BakeStatus {
+    /// Items in the job.
+    pub total: usize,
+    /// Items whose file is present (listed; each is verified when a shard reuses it).
+    pub present: usize,
+    /// Indices of the items not yet present (the first 100).
+    pub missing: Vec<usize>,
+    /// Whether the manifest has been written (every item present).
+    pub manifest: bool,
+    /// The summaries of the shards that finished their share, by file name.
+    pub shards: std::collections::BTreeMap<String, serde_json::Value>,
+}
+
+/// The progress of the bake of `job_body` in `out`, over every shard: which items are present,
+/// and the summaries the shards left.
+pub fn status(
+    job_body: &[u8],
+    out: &Location,
+    defaults: &Defaults,
+    max_products: usize,
+) -> Result<BakeStatus, JobError> {
+    let spec = JobSpec::parse_body(job_body, max_products)?;
+    spec.validate(defaults)?;
+    let items = items(&spec, defaults)?;
+    let names = out.names()?;
+    let present: std::collections::HashSet<&str> = names.iter().map(String::as_str).collect();
+    let missing: Vec<usize> = items
+        .iter()
+        .filter(|item| !present.contains(item.file.as_str()))
+        .map(|item| item.index)
+        .collect();
+    let mut shards = std::collections::BTreeMap::new();
+    for name in names
+        .iter()
+        .filter(|n| n.starts_with("shard-") && n.ends_with(".json"))
+    {
+        if let Some(bytes) = out.get(name)? {
+            let value = serde_json::from_slice(&bytes)
+                .unwrap_or_else(|e| json!({"unreadable": e.to_string()}));
+            shards.insert(name.clone(), value);
+        }
+    }
+    Ok(BakeStatus {
+        total: items.len(),
+        present: items.len() - missing.len(),
+        missing: missing.into_iter().take(100).collect(),
+        manifest: present.contains("manifest.json"),
+        shards,
+    })
 }
 
 /// The artifact of one item; a frame renders tile by tile into `tiles` (scenes may name only the

@@ -117,6 +117,9 @@ pub struct Jobs {
     queue: Mutex<VecDeque<String>>,
     wake: tokio::sync::Notify,
     running: AtomicU64,
+    /// Held from the live-job and disk checks of a submission to its insertion in the table, so
+    /// concurrent submissions never exceed `jobs.max_live`.
+    admission: Mutex<()>,
 }
 
 impl Jobs {
@@ -135,6 +138,7 @@ impl Jobs {
             queue: Mutex::new(VecDeque::new()),
             wake: tokio::sync::Notify::new(),
             running: AtomicU64::new(0),
+            admission: Mutex::new(()),
         };
         let mut found = Vec::new();
         for s in stored {
@@ -240,10 +244,9 @@ impl Jobs {
             .sum()
     }
 
-    /// Parses and validates a job body (every item), stores and queues it; returns the job.
-    /// Refused ([`JobError::Full`]) when `limits.max_live` jobs are queued or running, or when the
-    /// job files would exceed `limits.disk_bytes`.
-    pub fn submit(&self, body: &[u8], limits: SubmitLimits) -> Result<Arc<Job>, JobError> {
+    /// Refuses a submission when `jobs.max_live` jobs are live or its body would not fit the
+    /// disk budget.
+    fn check_room(&self, body: &[u8], limits: &SubmitLimits) -> Result<(), JobError> {
         let live = self.live();
         if live >= limits.max_live {
             return Err(JobError::Full(format!(
@@ -259,8 +262,22 @@ impl Jobs {
                 limits.disk_bytes
             )));
         }
+        Ok(())
+    }
+
+    /// Parses and validates a job body (every item), stores and queues it; returns the job.
+    /// Refused ([`JobError::Full`]) when `limits.max_live` jobs are queued or running, or when the
+    /// job files would exceed `limits.disk_bytes`.
+    pub fn submit(&self, body: &[u8], limits: SubmitLimits) -> Result<Arc<Job>, JobError> {
+        // A quick refusal before the (possibly long) validation; checked again under the
+        // admission lock below.
+        self.check_room(body, &limits)?;
         let spec = JobSpec::parse_body(body, limits.max_products)?;
-        let cost = spec.validate_and_cost(&self.defaults)?;
+        // A frame may name only the example scenes' files, as in a render.
+        let cost = spec.validate_and_cost_loading(
+            &self.defaults,
+            Some(&skybake_product::frame::example_file),
+        )?;
         if cost > limits.max_cost {
             return Err(crate::Error::too_large(
                 "job_cost",
@@ -271,6 +288,9 @@ impl Jobs {
             )
             .into());
         }
+        // Admission is atomic: the checks and the insertion under one lock.
+        let _admission = self.admission.lock().unwrap_or_else(|e| e.into_inner());
+        self.check_room(body, &limits)?;
         let id = format!("{:016x}", rand::random::<u64>());
         self.store.create(&id, body)?;
         let job = Arc::new(Job {

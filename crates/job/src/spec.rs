@@ -354,17 +354,38 @@ impl JobSpec {
     /// [`skybake_product::cost::JobCost`] (each distinct table once, every output) plus its frames' by
     /// [`FrameRequest::estimated_cost`] (pixels × voxels × samples per pixel).
     pub fn validate_and_cost(&self, defaults: &Defaults) -> Result<u64, JobError> {
+        self.validate_and_cost_loading(defaults, None)
+    }
+
+    /// [`Self::validate_and_cost`], also checking that `loader` gives every file a frame's cloud
+    /// names ([`FrameRequest::check_files`]): the service passes the loader its renders use, so
+    /// a job is refused at submission for a file a render would refuse.
+    pub fn validate_and_cost_loading(
+        &self,
+        defaults: &Defaults,
+        loader: Option<&FileLoader>,
+    ) -> Result<u64, JobError> {
         let mut products = skybake_product::cost::JobCost::default();
         let mut frames = 0u64;
         for i in 0..self.len() {
             match self.request(i, defaults)? {
                 AnyRequest::Atmosphere(r) => products.add(&r)?,
-                AnyRequest::Frame(r) => frames = frames.saturating_add(r.estimated_cost()),
+                AnyRequest::Frame(r) => {
+                    if let (Some(load), Some(Located::Frame(_, _, prefix))) =
+                        (loader, self.locate(i))
+                    {
+                        r.check_files(load).map_err(|e| e.prefixed(&prefix))?;
+                    }
+                    frames = frames.saturating_add(r.estimated_cost())
+                }
             }
         }
         Ok(products.units.saturating_add(frames))
     }
 }
+
+/// A loader of the files a frame's cloud names (path → bytes).
+pub type FileLoader = dyn Fn(&str) -> skybake_product::Result<Vec<u8>>;
 
 /// Sets a parameter by name; returns the previous value (None if the name is unknown).
 fn set_param(p: &mut RequestParams, name: &str, value: &str) -> Option<Option<String>> {

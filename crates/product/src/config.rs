@@ -34,6 +34,13 @@ pub struct ServerSettings {
     pub header_read_timeout_s: f64,
     /// Most open client connections; more are closed as soon as they are accepted.
     pub max_connections: usize,
+    /// Most open connections of one client address; more are closed as soon as they are accepted.
+    pub max_connections_per_client: usize,
+    /// Longest a request body may take to arrive, seconds (408 after it).
+    pub body_read_timeout_s: f64,
+    /// Slowest average rate a request body may arrive at after its first
+    /// [`BODY_RATE_GRACE_S`] seconds, bytes per second (408 below it); 0 = no minimum.
+    pub body_min_rate_bytes_per_s: f64,
     /// Longest a shutdown waits for open connections and computations, seconds.
     pub shutdown_grace_s: f64,
     /// Largest estimated cost of one product request ([`crate::cost`]), cell-wavelength-orders.
@@ -58,6 +65,11 @@ pub struct ServerSettings {
 #[serde(deny_unknown_fields)]
 pub struct CacheSettings {
     pub dir: PathBuf,
+    /// A bucket shared by several processes (`s3://bucket/prefix`) behind the directory, or
+    /// empty for the directory alone.
+    pub url: String,
+    /// Seconds a lease on a product in the bucket lasts unless its holder renews it.
+    pub lease_s: f64,
     pub disk_budget_bytes: u64,
     pub memory_budget_bytes: u64,
     pub response_budget_bytes: u64,
@@ -96,6 +108,21 @@ pub const ENV_VARS: &[(&str, &str, &str)] = &[
         "header_read_timeout_s",
     ),
     ("SKYBAKE_MAX_CONNECTIONS", "server", "max_connections"),
+    (
+        "SKYBAKE_MAX_CONNECTIONS_PER_CLIENT",
+        "server",
+        "max_connections_per_client",
+    ),
+    (
+        "SKYBAKE_BODY_READ_TIMEOUT_S",
+        "server",
+        "body_read_timeout_s",
+    ),
+    (
+        "SKYBAKE_BODY_MIN_RATE_BYTES_PER_S",
+        "server",
+        "body_min_rate_bytes_per_s",
+    ),
     ("SKYBAKE_SHUTDOWN_GRACE_S", "server", "shutdown_grace_s"),
     ("SKYBAKE_MAX_REQUEST_COST", "server", "max_request_cost"),
     ("SKYBAKE_MAX_JOB_COST", "server", "max_job_cost"),
@@ -110,6 +137,8 @@ pub const ENV_VARS: &[(&str, &str, &str)] = &[
     ("SKYBAKE_API_TOKENS", "server", "api_tokens"),
     ("SKYBAKE_AUTH_EXEMPT", "server", "auth_exempt"),
     ("SKYBAKE_CACHE_DIR", "cache", "dir"),
+    ("SKYBAKE_CACHE_URL", "cache", "url"),
+    ("SKYBAKE_LEASE_S", "cache", "lease_s"),
     ("SKYBAKE_DISK_BUDGET_BYTES", "cache", "disk_budget_bytes"),
     (
         "SKYBAKE_MEMORY_BUDGET_BYTES",
@@ -131,7 +160,11 @@ pub const ENV_VARS: &[(&str, &str, &str)] = &[
 
 /// `SKYBAKE_*` variables that are not settings and so are not refused at start-up: the log filter,
 /// and switches read only by the test suite.
-pub const NON_SETTING_ENV_VARS: &[&str] = &["SKYBAKE_LOG", "SKYBAKE_EXR_SAMPLE_DIR"];
+pub const NON_SETTING_ENV_VARS: &[&str] = &[
+    "SKYBAKE_LOG",
+    "SKYBAKE_EXR_SAMPLE_DIR",
+    "SKYBAKE_TEST_S3_ENDPOINT",
+];
 
 /// The known setting variables, comma-separated, for error messages.
 fn known_env_vars() -> String {
@@ -149,6 +182,10 @@ fn split_list(s: &str) -> Vec<&str> {
         .filter(|t| !t.is_empty())
         .collect()
 }
+
+/// Seconds at the start of a request body during which its rate is not checked
+/// (`server.body_min_rate_bytes_per_s` applies to the average after them).
+pub const BODY_RATE_GRACE_S: f64 = 5.0;
 
 /// Most products a job may hold, whatever the configuration says.
 pub const MAX_JOB_PRODUCTS_LIMIT: usize = 1_000_000;
@@ -313,6 +350,7 @@ impl Settings {
         }
         for (name, value) in [
             ("server.header_read_timeout_s", s.header_read_timeout_s),
+            ("server.body_read_timeout_s", s.body_read_timeout_s),
             ("server.shutdown_grace_s", s.shutdown_grace_s),
         ] {
             if !(value.is_finite() && value > 0.0 && value <= 3600.0) {
@@ -324,6 +362,22 @@ impl Settings {
                 "server.max_connections",
                 s.max_connections,
                 "1 to 1000000",
+            ));
+        }
+        if !(1..=s.max_connections).contains(&s.max_connections_per_client) {
+            return Err(Error::out_of_range(
+                "server.max_connections_per_client",
+                s.max_connections_per_client,
+                format!("1 to server.max_connections ({})", s.max_connections),
+            ));
+        }
+        if !(s.body_min_rate_bytes_per_s.is_finite()
+            && (0.0..=1e9).contains(&s.body_min_rate_bytes_per_s))
+        {
+            return Err(Error::out_of_range(
+                "server.body_min_rate_bytes_per_s",
+                s.body_min_rate_bytes_per_s,
+                "0 (no minimum) to 1e9",
             ));
         }
         if s.max_request_cost < 1_000_000 {
@@ -386,6 +440,17 @@ impl Settings {
         }
         if self.cache.dir.as_os_str().is_empty() {
             return Err(Error::invalid("cache.dir", "must not be empty"));
+        }
+        let url = self.cache.url.trim();
+        if !url.is_empty() && !skybake_store::bucket::is_bucket_url(url) {
+            return Err(Error::invalid(
+                "cache.url",
+                format!("{url}: expected s3://bucket/prefix, or empty for the directory alone"),
+            ));
+        }
+        let l = self.cache.lease_s;
+        if !(l.is_finite() && (1.0..=3600.0).contains(&l)) {
+            return Err(Error::out_of_range("cache.lease_s", l, "1 to 3600 s"));
         }
         if self.cache.disk_budget_bytes < 1 << 20 {
             return Err(Error::out_of_range(

@@ -11,6 +11,7 @@ use super::light::{
 use super::lighting::Lighting;
 use super::multiple::{MsField, Truncation};
 use super::pathtracer::PathTracer;
+use super::peak::PeakSpread;
 use super::scene::{CloudMsMethod, FrameScene, Projection};
 use super::volume::CloudVolume;
 use super::{Method, RenderSettings};
@@ -128,6 +129,10 @@ pub struct Prepared<'a> {
     ms_extinction_scale: Vec<f64>,
     /// The sky elements, for the view cap that each ray adds (`None` without sky or ground light).
     sky_elements: Option<SkyElements>,
+    /// The truncated peak spread over the scaled sun beam (`None` without truncation).
+    peak: Option<PeakSpread>,
+    /// ω·f per wavelength (the peak's share of extinction; 0 without truncation).
+    peak_rate: Vec<f64>,
 }
 
 impl<'a> Prepared<'a> {
@@ -182,6 +187,16 @@ impl<'a> Prepared<'a> {
             .collect();
         let ms_extinction_scale: Vec<f64> = trunc.iter().map(|t| t.extinction_scale).collect();
         let ms_albedo: Vec<f64> = trunc.iter().map(|t| t.albedo_scaled).collect();
+        let peak_rate: Vec<f64> = trunc
+            .iter()
+            .map(|t| settings.photons.peak_spread * t.albedo * t.fraction)
+            .collect();
+        let peak =
+            if sun_on && settings.method == Method::Fast && settings.photons.peak_spread > 0.0 {
+                PeakSpread::new(&optics.phase, &trunc)
+            } else {
+                None
+            };
         let mut vox = Vec::new();
         let mut ms = None;
         let mut lattice_paths = 0;
@@ -359,9 +374,17 @@ impl<'a> Prepared<'a> {
                 .skipped
                 .push("aerial perspective: vacuum or switched off".into());
         }
+        if peak.is_some() {
+            stages.ran.push(
+                "sun single scattering with the truncated peak spread over the scaled beam (Goudsmit & Saunderson 1940)".into(),
+            );
+        }
+        lap("peak_spread", &mut timing_ms);
         Ok(Self {
             ms_extinction_scale,
             sky_elements,
+            peak,
+            peak_rate,
             scene,
             lighting,
             settings,
@@ -404,7 +427,9 @@ impl<'a> Prepared<'a> {
         let mut sun_src = [0.0f64; 64];
         let mut ks = [0.0f64; 64];
         let mut kt = [0.0f64; 64];
+        let mut rows = [None; 64];
         for l in 0..n_l {
+            rows[l] = self.peak.as_ref().map(|p| p.row(l, cos_sun));
             let sc = self.ms_extinction_scale[l];
             sun_src[l] = if self.sun_on {
                 optics.albedo[l] / sc * lt.sun_irradiance[l] * optics.phase[l].eval(cos_sun)
@@ -456,7 +481,13 @@ impl<'a> Prepared<'a> {
                     a = -(-kt[l] * rho * dt).exp_m1();
                     a_ms = -(-ks[l] * rho * dt).exp_m1();
                     sun_t = if self.sun_on {
-                        (-ks[l] * buf[0]).exp()
+                        let spread = match (&self.peak, rows[l]) {
+                            (Some(p), Some(row)) => {
+                                p.ratio(row, self.peak_rate[l] * kt[l] * buf[0])
+                            }
+                            _ => 1.0,
+                        };
+                        (-ks[l] * buf[0]).exp() * spread
                     } else {
                         0.0
                     };

@@ -51,6 +51,8 @@ pub struct PhotonSettings {
     /// δ-M truncation of the forward peak, f = g₁^p with this p (2: δ-Eddington), with the TMS
     /// correction; 0: none, the true phase function throughout.
     pub truncation_power: f64,
+    /// Spread of the truncated peak over the scaled sun beam, 0 to 1 (see `peak`).
+    pub peak_spread: f64,
 }
 
 /// Φ and F on the coarse grid, per wavelength.
@@ -392,6 +394,8 @@ pub struct Truncation {
     pub p2_scaled: f64,
     pub extinction_scale: f64,
     pub albedo_scaled: f64,
+    /// The true single-scattering albedo ω.
+    pub albedo: f64,
 }
 
 impl Truncation {
@@ -412,6 +416,7 @@ impl Truncation {
             } else {
                 0.0
             },
+            albedo,
         }
     }
 }

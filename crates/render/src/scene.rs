@@ -495,10 +495,24 @@ impl FrameScene {
         section::<CloudSection>(&raw, "cloud")?;
         section::<OpticsJson>(&raw, "optics")?;
         section::<CameraJson>(&raw, "camera")?;
-        if section::<SunJson>(&raw, "sun").is_err() {
+        // Exactly one of the three forms: serde's untagged enum would ignore the members of
+        // another form (a place and time next to a direction).
+        let sun_members = |form: &[&str]| {
+            obj.get("sun")
+                .and_then(serde_json::Value::as_object)
+                .is_some_and(|m| m.len() == form.len() && form.iter().all(|k| m.contains_key(*k)))
+        };
+        let one_form = [
+            &["collimated"][..],
+            &["elevation_deg", "azimuth_deg"],
+            &["latitude_deg", "longitude_deg", "time"],
+        ]
+        .iter()
+        .any(|form| sun_members(form));
+        if !one_form || section::<SunJson>(&raw, "sun").is_err() {
             return Err(Error::invalid(
                 "sun",
-                "give {\"elevation_deg\", \"azimuth_deg\"}, {\"latitude_deg\", \"longitude_deg\", \"time\"} or {\"collimated\": {\"elevation_deg\", \"azimuth_deg\", \"normal_irradiance_w_m2_nm\"}}",
+                "give exactly one of {\"elevation_deg\", \"azimuth_deg\"}, {\"latitude_deg\", \"longitude_deg\", \"time\"} or {\"collimated\": {\"elevation_deg\", \"azimuth_deg\", \"normal_irradiance_w_m2_nm\"}}",
             ));
         }
         let s: FrameSceneJson = serde_json::from_value(raw)

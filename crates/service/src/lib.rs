@@ -12,6 +12,7 @@
 //! identical requests in flight (single flight), run on a blocking thread behind a semaphore sized
 //! to the cores.
 
+pub mod body;
 pub mod conn;
 pub mod extract;
 pub mod limits;
@@ -32,6 +33,7 @@ use skybake_engine::engine::Engine;
 use skybake_product::config::Settings;
 use skybake_product::frame::{NoTiles, TileProgress};
 use skybake_product::{AnyRequest, ComputeEnv, Format, ProductKind, ProductRequest};
+use skybake_store::lease::{Acquired, Lease};
 use skybake_store::TileStore;
 use skybake_store::{Cache, CacheConfig};
 use std::collections::HashMap;
@@ -103,6 +105,17 @@ impl Drop for Waiter {
     }
 }
 
+/// How often a replica waiting for another's product looks for it in the bucket.
+const LEASE_POLL: Duration = Duration::from_millis(100);
+
+/// The outcome of [`AppState::lease`].
+enum Leased {
+    /// Another replica stored the product meanwhile.
+    Stored(Arc<[u8]>),
+    /// This replica computes it.
+    Held(Lease),
+}
+
 /// Where a response's artifact came from.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Source {
@@ -144,22 +157,33 @@ struct Inner {
     rate: limits::RateLimiter,
     responses: Mutex<ResponseCache>,
     jobs: skybake_job::run::Jobs,
+    /// This process's name on the leases it holds in a bucket.
+    holder: String,
 }
 
 impl AppState {
     /// Opens the cache at `settings.cache.dir` and loads persisted jobs (call
     /// [`AppState::start_job_workers`] inside a runtime to run them).
     pub fn new(settings: Settings) -> Result<Self, ApiError> {
-        let cache = Arc::new(Cache::open(CacheConfig::new(
+        let config = CacheConfig::new(
             &settings.cache.dir,
             settings.cache.disk_budget_bytes,
             settings.cache.memory_budget_bytes,
-        ))?);
+        );
+        // With a bucket (`cache.url`), products and frame tiles are shared with other replicas.
+        let bucket = skybake_product::engines::shared_bucket(&settings)?;
+        let cache = Arc::new(match &bucket {
+            Some(bucket) => Cache::open_shared(config, bucket.clone())?,
+            None => Cache::open(config)?,
+        });
         let jobs = skybake_job::run::Jobs::open(
             &settings.cache.dir.join("jobs"),
             skybake_product::params::Defaults::from_settings(&settings),
         )?;
-        let tiles = TileStore::open(&settings.cache.dir.join("tiles"))?;
+        let tiles = match bucket {
+            Some(bucket) => TileStore::in_bucket(bucket, "tiles"),
+            None => TileStore::open(&settings.cache.dir.join("tiles"))?,
+        };
         // Tiles of renders nobody resumed within a week are abandoned.
         if let Err(e) = tiles.prune(std::time::Duration::from_secs(7 * 24 * 3600)) {
             tracing::warn!(error = %e, "cannot prune old render tiles");
@@ -179,6 +203,7 @@ impl AppState {
                 next_flight: Default::default(),
                 rate: Default::default(),
                 jobs,
+                holder: holder_name(),
             }),
         };
         state.housekeeping();
@@ -406,6 +431,15 @@ impl AppState {
                     return Ok(bytes);
                 }
             }
+            // With a bucket, one replica at a time computes a product (it holds the lease until
+            // the product is stored); the others wait for the product.
+            let _lease = match s.inner.cache.bucket() {
+                Some(bucket) => match s.lease(bucket, &key, &cancel)? {
+                    Leased::Stored(bytes) => return Ok(bytes),
+                    Leased::Held(lease) => Some(lease),
+                },
+                None => None,
+            };
             let m = &s.inner.metrics;
             m.computed(work.name());
             m.compute_in_flight.fetch_add(1, Ordering::Relaxed);
@@ -422,6 +456,43 @@ impl AppState {
             Ok(bytes)
         })
         .await
+    }
+
+    /// The lease on computing `key` across replicas (blocking), or the product once the replica
+    /// holding the lease has stored it. Polls every [`LEASE_POLL`] while another replica holds
+    /// the lease; a lease whose holder died expires (`cache.lease_s`) and is taken over.
+    fn lease(
+        &self,
+        bucket: &Arc<skybake_store::Bucket>,
+        key: &str,
+        cancel: &CancelToken,
+    ) -> Result<Leased, ApiError> {
+        let duration = Duration::from_secs_f64(self.inner.settings.cache.lease_s);
+        let name = format!("leases/{key}");
+        loop {
+            match Lease::try_acquire(bucket, &name, &self.inner.holder, duration)? {
+                Acquired::Held(lease) => {
+                    // The previous holder may have stored the product just before letting go.
+                    return Ok(match self.inner.cache.get(key)? {
+                        Some(bytes) => Leased::Stored(bytes),
+                        None => Leased::Held(lease),
+                    });
+                }
+                Acquired::Busy { .. } => {
+                    self.inner
+                        .metrics
+                        .lease_waits
+                        .fetch_add(1, Ordering::Relaxed);
+                    if cancel.is_cancelled() {
+                        return Err(crate::Error::Cancelled.into());
+                    }
+                    std::thread::sleep(LEASE_POLL);
+                    if let Some(bytes) = self.inner.cache.get(key)? {
+                        return Ok(Leased::Stored(bytes));
+                    }
+                }
+            }
+        }
     }
 
     /// Computes `work`'s artifact (blocking): a frame tile by tile into the tile store. Stops at
@@ -609,4 +680,15 @@ impl skybake_job::run::Producer for AppState {
     fn jobs(&self) -> &skybake_job::run::Jobs {
         &self.inner.jobs
     }
+}
+
+/// A name for this process on the leases it holds: the host (`HOSTNAME`, a pod's name under
+/// Kubernetes), the process id and the start time, so a restarted replica is a new holder.
+fn holder_name() -> String {
+    let host = std::env::var("HOSTNAME").unwrap_or_else(|_| "replica".into());
+    let started = std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .unwrap_or_default()
+        .as_nanos();
+    format!("{host}-{}-{started:x}", std::process::id())
 }

@@ -1,6 +1,7 @@
 //! Access limits applied as middleware where the router is built: optional
 //! bearer-token authentication (`server.api_tokens`, off when empty; `server.auth_exempt` paths,
-//! exact or a prefix ending in `*`, answered without a token) and a per-client rate limit on `/v1/*` (`server.rate_limit_per_s`,
+//! exact or a prefix ending in `*`, answered without a token; failed attempts count against the
+//! client's rate limit on every route) and a per-client rate limit on `/v1/*` (`server.rate_limit_per_s`,
 //! a token bucket per client address of `server.rate_limit_burst` requests; 429 + `Retry-After`).
 
 use super::problem::ApiError;
@@ -81,19 +82,40 @@ pub async fn authenticate(State(state): State<AppState>, req: Request, next: Nex
         .headers()
         .get(header::AUTHORIZATION)
         .and_then(|v| v.to_str().ok())
-        .and_then(|v| v.strip_prefix("Bearer "))
-        .map(str::trim);
+        .and_then(bearer_token);
     let known = given.is_some_and(|g| {
         tokens
             .iter()
             .fold(false, |ok, t| ok | same(g.as_bytes(), t.as_bytes()))
     });
     if known {
-        next.run(req).await
-    } else {
-        state.metrics().unauthorized.fetch_add(1, Ordering::Relaxed);
-        ApiError::Unauthorized.into_response()
+        return next.run(req).await;
     }
+    // Failed attempts take from the client's rate-limit bucket: a flood of them gets 429.
+    let s = &settings.server;
+    if s.rate_limit_per_s > 0.0 {
+        let taken = state.rate_limiter().take(
+            client(&req),
+            s.rate_limit_per_s,
+            s.rate_limit_burst,
+            Instant::now(),
+        );
+        if let Err(retry_after_s) = taken {
+            state.metrics().rate_limited.fetch_add(1, Ordering::Relaxed);
+            return ApiError::RateLimited { retry_after_s }.into_response();
+        }
+    }
+    state.metrics().unauthorized.fetch_add(1, Ordering::Relaxed);
+    ApiError::Unauthorized.into_response()
+}
+
+/// The token of an `Authorization: Bearer <token>` value; the scheme is case-insensitive
+/// (RFC 9110 §11.1).
+fn bearer_token(value: &str) -> Option<&str> {
+    let (scheme, token) = value.trim_start().split_once(' ')?;
+    scheme
+        .eq_ignore_ascii_case("bearer")
+        .then_some(token.trim())
 }
 
 /// The per-client rate limit, when `server.rate_limit_per_s` is above 0.
@@ -138,5 +160,15 @@ mod tests {
         assert_eq!(r.take(a, 2.0, 3, t0 + Duration::from_millis(500)), Ok(()));
         assert!(r.take(a, 2.0, 3, t0 + Duration::from_millis(500)).is_err());
         assert!(same(b"token", b"token") && !same(b"token", b"tokem") && !same(b"a", b"ab"));
+    }
+
+    #[test]
+    fn the_bearer_scheme_is_case_insensitive() {
+        for v in ["Bearer abc", "bearer abc", "BEARER  abc ", "bEaReR abc"] {
+            assert_eq!(bearer_token(v), Some("abc"), "{v}");
+        }
+        for v in ["Basic abc", "Bearerabc", "Bearer", "Token abc"] {
+            assert_eq!(bearer_token(v), None, "{v}");
+        }
     }
 }

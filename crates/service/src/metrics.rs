@@ -30,6 +30,8 @@ pub struct Metrics {
     /// product → engine computations started.
     computations: Mutex<BTreeMap<&'static str, u64>>,
     pub single_flight_joins: AtomicU64,
+    /// Polls while another replica held the lease on a product being computed.
+    pub lease_waits: AtomicU64,
     pub load_shed: AtomicU64,
     pub timeouts: AtomicU64,
     pub response_cache_hits: AtomicU64,
@@ -50,6 +52,12 @@ pub struct Metrics {
     pub rate_limited: AtomicU64,
     /// Requests refused with 401 (missing or unknown bearer token).
     pub unauthorized: AtomicU64,
+    /// Connections closed at accept because their client address had
+    /// `server.max_connections_per_client` open.
+    pub client_connections_refused: AtomicU64,
+    /// Requests answered 408 because their body arrived too slowly
+    /// (`server.body_read_timeout_s`, `server.body_min_rate_bytes_per_s`).
+    pub body_timeouts: AtomicU64,
 }
 
 impl Metrics {
@@ -220,6 +228,16 @@ impl Metrics {
                 "skybake_unauthorized_total",
                 "Requests refused with 401 (missing or unknown bearer token).",
                 &self.unauthorized,
+            ),
+            (
+                "skybake_client_connections_refused_total",
+                "Connections closed at accept because their client address had the per-client connection cap open.",
+                &self.client_connections_refused,
+            ),
+            (
+                "skybake_body_timeouts_total",
+                "Requests answered 408 because their body arrived too slowly.",
+                &self.body_timeouts,
             ),
         ] {
             counter(out, name, help, v.load(Ordering::Relaxed));

@@ -33,6 +33,11 @@ pub enum ApiError {
     RateLimited { retry_after_s: u64 },
     /// Too many live jobs (`jobs.max_live`).
     JobsFull(String),
+    /// The request body did not arrive in time or arrived too slowly (408; the connection is
+    /// closed).
+    SlowBody(String),
+    /// The shared bucket did not answer after the retries; retry after this many seconds.
+    StorageUnavailable { detail: String, retry_after_s: u64 },
 }
 
 impl From<crate::Error> for ApiError {
@@ -79,6 +84,12 @@ impl From<skybake_store::StoreError> for ApiError {
     fn from(e: skybake_store::StoreError) -> Self {
         match e {
             skybake_store::StoreError::Invalid(e) => e.into(),
+            skybake_store::StoreError::Unavailable { retry_after_s, .. } => {
+                ApiError::StorageUnavailable {
+                    detail: e.to_string(),
+                    retry_after_s,
+                }
+            }
             other => ApiError::Internal(other.to_string()),
         }
     }
@@ -115,7 +126,10 @@ impl ApiError {
             ApiError::MethodNotAllowed(_) => StatusCode::METHOD_NOT_ALLOWED,
             ApiError::Unauthorized => StatusCode::UNAUTHORIZED,
             ApiError::RateLimited { .. } => StatusCode::TOO_MANY_REQUESTS,
-            ApiError::JobsFull(_) => StatusCode::SERVICE_UNAVAILABLE,
+            ApiError::JobsFull(_) | ApiError::StorageUnavailable { .. } => {
+                StatusCode::SERVICE_UNAVAILABLE
+            }
+            ApiError::SlowBody(_) => StatusCode::REQUEST_TIMEOUT,
         }
     }
 
@@ -197,6 +211,18 @@ impl ApiError {
                 d.clone(),
                 None,
             ),
+            ApiError::SlowBody(d) => (
+                "urn:skybake:problem:body-timeout",
+                "Request body timed out",
+                d.clone(),
+                Some("body".into()),
+            ),
+            ApiError::StorageUnavailable { detail, .. } => (
+                "urn:skybake:problem:storage-unavailable",
+                "Storage unavailable",
+                format!("{detail}; nothing was served from it: retry after the indicated delay"),
+                None,
+            ),
         }
     }
 }
@@ -243,8 +269,14 @@ impl IntoResponse for ApiError {
         if status == StatusCode::SERVICE_UNAVAILABLE {
             h.insert(header::RETRY_AFTER, HeaderValue::from_static("1"));
         }
-        if let ApiError::RateLimited { retry_after_s } = self {
+        if let ApiError::RateLimited { retry_after_s }
+        | ApiError::StorageUnavailable { retry_after_s, .. } = self
+        {
             h.insert(header::RETRY_AFTER, HeaderValue::from(retry_after_s));
+        }
+        if status == StatusCode::REQUEST_TIMEOUT {
+            // RFC 9110 §15.5.9: the server closes the connection after a 408.
+            h.insert(header::CONNECTION, HeaderValue::from_static("close"));
         }
         if status == StatusCode::UNAUTHORIZED {
             h.insert(

@@ -1,9 +1,14 @@
 //! Rendered response bodies (JSON, PNG, EXR) kept in memory with a byte budget, least recently used
-//! evicted first, so a hot request is answered without decoding the EXR artifact again.
+//! evicted first, so a hot request is answered without decoding the EXR artifact again. A body
+//! over [`MAX_ENTRY_FRACTION`] of the budget is not kept, so one large product cannot flush the
+//! cache.
 
 use bytes::Bytes;
 use skybake_product::Format;
 use std::collections::{BTreeMap, HashMap};
+
+/// Largest share of the budget one body may take (larger ones are served, not kept).
+pub const MAX_ENTRY_FRACTION: u64 = 8;
 
 /// A byte-bounded LRU of response bodies keyed by (cache key, format).
 pub struct ResponseCache {
@@ -36,10 +41,10 @@ impl ResponseCache {
         Some(body.clone())
     }
 
-    /// Stores a body; bodies larger than the whole budget are not kept.
+    /// Stores a body; bodies larger than 1/[`MAX_ENTRY_FRACTION`] of the budget are not kept.
     pub fn put(&mut self, key: &str, format: Format, body: Bytes) {
         let len = body.len() as u64;
-        if len > self.budget_bytes {
+        if len > self.budget_bytes / MAX_ENTRY_FRACTION {
             return;
         }
         let id = (key.to_string(), format);
@@ -74,17 +79,34 @@ mod tests {
 
     #[test]
     fn keeps_to_budget_evicting_least_recent() {
-        let mut c = ResponseCache::new(10);
-        c.put("a", Format::Json, Bytes::from_static(b"1234"));
-        c.put("b", Format::Json, Bytes::from_static(b"1234"));
-        assert!(c.get("a", Format::Json).is_some()); // a is now newer than b
-        c.put("c", Format::Json, Bytes::from_static(b"1234"));
-        assert!(c.get("b", Format::Json).is_none());
-        assert!(c.get("a", Format::Json).is_some());
-        assert!(c.get("c", Format::Json).is_some());
+        let mut c = ResponseCache::new(10 * MAX_ENTRY_FRACTION);
+        let body = |n: u64| Bytes::from(vec![b'x'; n as usize]);
+        let quarter = 10 * MAX_ENTRY_FRACTION / 4;
+        let entry = quarter.min(10);
+        for k in ["a", "b", "e", "f"] {
+            c.put(k, Format::Json, body(entry));
+        }
+        c.put("b", Format::Json, body(entry));
+        assert!(c.get("a", Format::Json).is_some()); // a is now newer than the others
+        let full = 10 * MAX_ENTRY_FRACTION / entry;
+        for i in 0..full - 1 {
+            c.put(&format!("n{i}"), Format::Json, body(entry));
+        }
+        assert!(c.bytes <= 10 * MAX_ENTRY_FRACTION);
+        assert!(
+            c.get("a", Format::Json).is_some(),
+            "the most recent survives"
+        );
+        assert!(
+            c.get("e", Format::Json).is_none(),
+            "the least recent went first"
+        );
         assert!(c.get("a", Format::Png).is_none());
-        c.put("d", Format::Json, Bytes::from_static(b"01234567890"));
-        assert!(c.get("d", Format::Json).is_none());
-        assert!(c.bytes <= 10);
+        // A body over the per-entry ceiling is not kept and evicts nothing.
+        let before = c.entries.len();
+        c.put("big", Format::Json, body(10 + 1));
+        assert!(c.get("big", Format::Json).is_none());
+        assert_eq!(c.entries.len(), before);
+        assert!(c.get("a", Format::Json).is_some());
     }
 }

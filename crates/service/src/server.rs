@@ -11,11 +11,12 @@ use hyper_util::server::conn::auto;
 use hyper_util::server::graceful::GracefulShutdown;
 use hyper_util::service::TowerToHyperService;
 use skybake_product::config::Settings;
+use std::collections::HashMap;
 use std::future::Future;
 use std::io::{Read, Write};
-use std::net::{SocketAddr, TcpStream};
+use std::net::{IpAddr, SocketAddr, TcpStream};
 use std::sync::atomic::Ordering;
-use std::sync::Arc;
+use std::sync::{Arc, Mutex};
 use std::time::Duration;
 use tokio::sync::Semaphore;
 use tower::ServiceExt;
@@ -27,7 +28,8 @@ use tower::ServiceExt;
 /// The accept loop is hyper's own (axum::serve exposes none of these): a request's headers must
 /// arrive within `server.header_read_timeout_s` (on a kept-alive connection the wait for the next
 /// request counts too, so it is also the idle timeout), and at most `server.max_connections` are
-/// open; further connections are closed as soon as they are accepted and counted. The requests
+/// open, at most `server.max_connections_per_client` of one client address; further connections
+/// are closed as soon as they are accepted and counted. The requests
 /// hyper refuses itself (a URI over 64 KiB, a head over its buffer, a malformed head) get the
 /// service's problem+json answer ([`ClientConn`]), not hyper's empty one.
 pub async fn serve_on(
@@ -39,6 +41,7 @@ pub async fn serve_on(
     let header_timeout = Duration::from_secs_f64(server.header_read_timeout_s);
     let grace = Duration::from_secs_f64(server.shutdown_grace_s);
     let connections = Arc::new(Semaphore::new(server.max_connections));
+    let per_client = ClientConnections::new(server.max_connections_per_client);
     let metrics_state = state.clone();
     state.start_job_workers();
     let router = app(state);
@@ -74,6 +77,13 @@ pub async fn serve_on(
             drop(stream);
             continue;
         };
+        let Some(client_slot) = per_client.open(peer.ip()) else {
+            metrics
+                .client_connections_refused
+                .fetch_add(1, Ordering::Relaxed);
+            drop(stream);
+            continue;
+        };
         let _ = stream.set_nodelay(true);
         let service =
             TowerToHyperService::new(router.clone().map_request(move |req: Request<Incoming>| {
@@ -98,6 +108,7 @@ pub async fn serve_on(
             open.metrics()
                 .connections_open
                 .fetch_sub(1, Ordering::Relaxed);
+            drop(client_slot);
             drop(permit);
         });
     }
@@ -113,6 +124,54 @@ pub async fn serve_on(
         );
     }
     Ok(())
+}
+
+/// Open connections per client address, capped at `server.max_connections_per_client`.
+#[derive(Clone)]
+struct ClientConnections {
+    open: Arc<Mutex<HashMap<IpAddr, usize>>>,
+    max: usize,
+}
+
+/// One open connection of a client; dropping it frees its place.
+struct ClientSlot {
+    of: ClientConnections,
+    ip: IpAddr,
+}
+
+impl ClientConnections {
+    fn new(max: usize) -> Self {
+        Self {
+            open: Default::default(),
+            max,
+        }
+    }
+
+    /// A place for one more connection of `ip`, if it has fewer than the cap open.
+    fn open(&self, ip: IpAddr) -> Option<ClientSlot> {
+        let mut open = self.open.lock().unwrap_or_else(|e| e.into_inner());
+        let n = open.entry(ip).or_insert(0);
+        if *n >= self.max {
+            return None;
+        }
+        *n += 1;
+        Some(ClientSlot {
+            of: self.clone(),
+            ip,
+        })
+    }
+}
+
+impl Drop for ClientSlot {
+    fn drop(&mut self) {
+        let mut open = self.of.open.lock().unwrap_or_else(|e| e.into_inner());
+        if let Some(n) = open.get_mut(&self.ip) {
+            *n -= 1;
+            if *n == 0 {
+                open.remove(&self.ip);
+            }
+        }
+    }
 }
 
 /// Resolves on SIGTERM or ctrl-c.

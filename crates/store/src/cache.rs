@@ -15,6 +15,11 @@
 //!   hit refreshes the file's mtime), so a restarted service reuses and ages the same files.
 //! - Memory: verified file bytes are also kept in an in-memory LRU with its own byte budget, so a hot
 //!   entry is served without touching the disk.
+//! - Shared tier: a cache opened with [`Cache::open_shared`] keeps every entry in a bucket too
+//!   (`<prefix>/cache/<first 2 hex>/<key>.exr`), where other processes and machines find it; the
+//!   directory and memory tiers stay in front of it. A bucket object is verified like a file
+//!   (checksum, then key binding): one that fails is counted, deleted and reported as a miss. A
+//!   bucket that stays unreachable after the retries is [`StoreError::Unavailable`].
 //! - Concurrency: all methods take `&self`; the index sits behind a mutex that is never held while
 //!   reading or writing file contents. Methods block on disk I/O: call them from
 //!   `tokio::task::spawn_blocking`. One process owns a cache directory.
@@ -29,6 +34,7 @@ use std::time::SystemTime;
 use serde::Serialize;
 
 use super::atomic::{is_temp_file_name, write_atomic};
+use super::bucket::Bucket;
 use super::exr::{
     decode_exr, encode_exr_with, header_text_attribute, read_bounded, ExrCompression,
 };
@@ -92,9 +98,11 @@ pub struct CacheStats {
     pub memory_hits: u64,
     /// Lookups answered from disk (after verification).
     pub disk_hits: u64,
+    /// Lookups answered from the bucket (after verification; the entry is then kept on disk).
+    pub bucket_hits: u64,
     /// Lookups not answered (absent, vanished or corrupt).
     pub misses: u64,
-    /// Entries stored.
+    /// Entries stored on disk (computed ones, and copies of bucket hits).
     pub puts: u64,
     /// Files deleted to keep to the disk budget.
     pub evictions: u64,
@@ -148,6 +156,8 @@ impl State {
 pub struct Cache {
     config: CacheConfig,
     state: Mutex<State>,
+    /// The shared tier behind the directory ([`Cache::open_shared`]).
+    bucket: Option<Arc<Bucket>>,
 }
 
 impl std::fmt::Debug for Cache {
@@ -214,6 +224,7 @@ impl Cache {
         let cache = Self {
             config,
             state: Mutex::new(state),
+            bucket: None,
         };
         {
             let mut state = cache.lock();
@@ -221,6 +232,19 @@ impl Cache {
             cache.refresh_sizes(&mut state);
         }
         Ok(cache)
+    }
+
+    /// [`Cache::open`] with `bucket` as the shared tier behind the directory: a miss on disk looks
+    /// in the bucket, and every entry stored goes to the bucket too.
+    pub fn open_shared(config: CacheConfig, bucket: Arc<Bucket>) -> Result<Self, StoreError> {
+        let mut cache = Self::open(config)?;
+        cache.bucket = Some(bucket);
+        Ok(cache)
+    }
+
+    /// The shared tier, if any.
+    pub fn bucket(&self) -> Option<&Arc<Bucket>> {
+        self.bucket.as_ref()
     }
 
     /// The configuration this cache was opened with.
@@ -255,8 +279,8 @@ impl Cache {
             match state.disk.get(key).copied() {
                 Some(generation) => generation,
                 None => {
-                    state.stats.misses += 1;
-                    return Ok(None);
+                    drop(state);
+                    return self.get_from_bucket(key);
                 }
             }
         };
@@ -314,6 +338,48 @@ impl Cache {
         Ok(Some(bytes))
     }
 
+    /// The entry for `key` from the bucket (a miss without one), verified like a file; a hit is
+    /// kept on disk and in memory.
+    fn get_from_bucket(&self, key: &str) -> Result<Option<Arc<[u8]>>, StoreError> {
+        let Some(bucket) = &self.bucket else {
+            self.lock().stats.misses += 1;
+            return Ok(None);
+        };
+        let name = object_name(key);
+        let Some(bytes) = bucket.get(&name)? else {
+            self.lock().stats.misses += 1;
+            return Ok(None);
+        };
+        let rejected = match checksum::verify(&bytes) {
+            Err(e) => Some((true, e.to_string())),
+            Ok(()) => match header_text_attribute(&bytes, ATTR_CACHE_KEY) {
+                Ok(Some(carried)) if carried == key => None,
+                Ok(carried) => Some((false, format!("carries key {carried:?}"))),
+                Err(e) => Some((true, e.to_string())),
+            },
+        };
+        if let Some((corrupt, why)) = rejected {
+            tracing::warn!(key, error = %why, "bucket object failed verification; removed");
+            {
+                let mut state = self.lock();
+                state.stats.misses += 1;
+                if corrupt {
+                    state.stats.corrupt_detected += 1;
+                } else {
+                    state.stats.key_mismatches += 1;
+                }
+            }
+            bucket.delete(&name)?;
+            return Ok(None);
+        }
+        let bytes: Arc<[u8]> = bytes.into();
+        self.store_local(key, &bytes)?;
+        let mut state = self.lock();
+        state.stats.hits += 1;
+        state.stats.bucket_hits += 1;
+        Ok(Some(bytes))
+    }
+
     /// The decoded image stored under `key`, or `None` on a miss; an entry that fails to decode is
     /// treated like a corrupt file.
     pub fn get_image(&self, key: &str) -> Result<Option<SpectralImage>, StoreError> {
@@ -324,6 +390,9 @@ impl Cache {
             Ok(image) => Ok(Some(image)),
             Err(e) => {
                 tracing::warn!(key, error = %e, "undecodable cache entry removed");
+                if let Some(bucket) = &self.bucket {
+                    bucket.delete(&object_name(key))?;
+                }
                 let path = self.path_for(key)?;
                 let generation = self.lock().disk.peek(key).copied();
                 if let Some(generation) = generation {
@@ -375,6 +444,9 @@ impl Cache {
     /// Deletes the entry for `key`; returns whether there was one.
     pub fn remove(&self, key: &str) -> Result<bool, StoreError> {
         let path = self.path_for(key)?;
+        if let Some(bucket) = &self.bucket {
+            bucket.delete(&object_name(key))?;
+        }
         let mut state = self.lock();
         state.memory.remove(key);
         let indexed = state.disk.remove(key).is_some();
@@ -405,10 +477,19 @@ impl Cache {
         self.refresh_sizes(&mut state);
     }
 
+    /// Stores `bytes` for `key` on disk ([`Self::store_local`]) and in the bucket, if any.
+    fn store(&self, key: &str, bytes: &Arc<[u8]>) -> Result<(), StoreError> {
+        self.store_local(key, bytes)?;
+        if let Some(bucket) = &self.bucket {
+            bucket.put(&object_name(key), bytes)?;
+        }
+        Ok(())
+    }
+
     /// Writes `bytes` for `key` atomically, then indexes it and evicts to the budgets.
     /// An entry larger than the whole disk budget, or whose path cannot be cleared of a non-file,
     /// is not stored (and counted in [`CacheStats::not_stored`]); the caller still serves it.
-    fn store(&self, key: &str, bytes: &Arc<[u8]>) -> Result<(), StoreError> {
+    fn store_local(&self, key: &str, bytes: &Arc<[u8]>) -> Result<(), StoreError> {
         let path = self.path_for(key)?;
         let room = self
             .config
@@ -551,6 +632,11 @@ impl Cache {
             .lock()
             .unwrap_or_else(|poisoned| poisoned.into_inner())
     }
+}
+
+/// The bucket object of `key` (a validated key).
+pub fn object_name(key: &str) -> String {
+    format!("cache/{}/{key}.{EXTENSION}", &key[..2])
 }
 
 fn foreign_key(key: &str, carried: &str) -> StoreError {

@@ -25,6 +25,13 @@ pub enum StoreError {
     /// The bytes failed the integrity check (checksum mismatch, missing checksum, truncation).
     #[error("integrity check failed: {0}")]
     Corrupt(String),
+    /// The bucket did not answer after every retry (HTTP 503 with `Retry-After`).
+    #[error("storage unavailable ({what}): {reason}")]
+    Unavailable {
+        what: String,
+        reason: String,
+        retry_after_s: u64,
+    },
 }
 
 impl StoreError {

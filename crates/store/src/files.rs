@@ -42,6 +42,21 @@ pub fn subdirectories(dir: &Path) -> Result<Vec<(String, PathBuf)>, StoreError> 
         .filter_map(|e| Some((e.file_name().into_string().ok()?, e.path())))
         .collect())
 }
+/// The names of the regular files directly in `dir` (none when it does not exist); names that
+/// are not UTF-8 are skipped.
+pub fn file_names(dir: &Path) -> Result<Vec<String>, StoreError> {
+    let entries = match std::fs::read_dir(dir) {
+        Ok(entries) => entries,
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(Vec::new()),
+        Err(e) => return Err(StoreError::io(dir, e)),
+    };
+    Ok(entries
+        .flatten()
+        .filter(|e| e.file_type().is_ok_and(|t| t.is_file()))
+        .filter_map(|e| e.file_name().into_string().ok())
+        .collect())
+}
+
 /// Reads at most `limit` bytes of `path`, refusing larger files (errors name `field`).
 pub fn read_limited(path: &Path, field: &str, limit: usize) -> crate::Result<Vec<u8>> {
     use std::io::Read;

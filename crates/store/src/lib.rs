@@ -1,4 +1,4 @@
-//! Storage: the only module that touches the disk.
+//! Storage: the only crate that touches the disk or the network.
 //!
 //! - [`SpectralImage`] and [`layout`] (re-exported from the physics crate, where the tables that are
 //!   stored are made): the in-memory multi-layer spectral image and the spectral OpenEXR layout.
@@ -8,6 +8,10 @@
 //! - [`files`]: whole-file reads and directory listing for the job store and bakes.
 //! - [`tiles`]: the tiles of a product computed piece by piece (a resumable render).
 //! - [`cache`]: the content-addressed, size-bounded disk cache with an in-memory LRU in front.
+//! - [`bucket`]: an S3-compatible bucket (`s3://bucket/prefix`), the shared tier behind the cache,
+//!   frame tiles and bake state when several processes or machines share one store.
+//! - [`lease`]: leases in a bucket, so one process at a time computes a product.
+//! - [`location`]: a folder of files in a directory or a bucket (where bakes write).
 //! - [`tables`]: the engine's shared tables (precise multiple scattering) kept in that cache.
 //!
 //! ```no_run
@@ -21,22 +25,27 @@
 //! ```
 
 pub mod atomic;
+pub mod bucket;
 pub mod cache;
 pub mod checksum;
 mod error;
 pub mod exr;
 pub mod files;
+pub mod lease;
+pub mod location;
 mod lru;
 pub mod tables;
 pub mod texture;
 pub mod tiles;
 
 pub use atomic::write_atomic;
+pub use bucket::{Bucket, BucketStats, RetryPolicy};
 pub use cache::{Cache, CacheConfig, CacheStats};
 pub use error::StoreError;
 pub use exr::{
     decode_exr, encode_exr, encode_exr_with, read_exr_file, write_exr_file, ExrCompression,
 };
+pub use location::Location;
 pub use skybake_physics::image::{layout, spectral_image, SpectralImage, SpectralLayer};
 pub use skybake_physics::key::cache_key;
 pub use skybake_physics::{Error, Result};

@@ -6,6 +6,7 @@
 //! Tables are stored uncompressed: they are read far more often than written and zip would
 //! dominate the load time.
 
+use super::bucket::Bucket;
 use super::cache::{Cache, CacheConfig};
 use super::exr::{encode_exr_with, ExrCompression};
 use skybake_physics::atmosphere::shared::TableStore;
@@ -18,6 +19,8 @@ pub struct CacheTableStore {
     cache: OnceLock<Option<Arc<Cache>>>,
     /// Where to open it on first use ([`Self::lazy`]).
     config: Option<CacheConfig>,
+    /// The shared tier of the cache opened on first use.
+    bucket: Option<Arc<Bucket>>,
 }
 
 impl CacheTableStore {
@@ -26,6 +29,7 @@ impl CacheTableStore {
         Self {
             cache: OnceLock::from(Some(cache)),
             config: None,
+            bucket: None,
         }
     }
 
@@ -35,6 +39,15 @@ impl CacheTableStore {
         Self {
             cache: OnceLock::new(),
             config: Some(config),
+            bucket: None,
+        }
+    }
+
+    /// [`Self::lazy`] with `bucket` as the cache's shared tier ([`Cache::open_shared`]).
+    pub fn lazy_shared(config: CacheConfig, bucket: Arc<Bucket>) -> Self {
+        Self {
+            bucket: Some(bucket),
+            ..Self::lazy(config)
         }
     }
 
@@ -43,7 +56,11 @@ impl CacheTableStore {
             .get_or_init(|| {
                 let config = self.config.clone()?;
                 let dir = config.dir.clone();
-                match Cache::open(config) {
+                let opened = match &self.bucket {
+                    Some(bucket) => Cache::open_shared(config, bucket.clone()),
+                    None => Cache::open(config),
+                };
+                match opened {
                     Ok(cache) => Some(Arc::new(cache)),
                     Err(e) => {
                         tracing::warn!(dir = %dir.display(), error = %e, "table cache unavailable; building tables in-process");

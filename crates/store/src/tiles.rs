@@ -14,8 +14,14 @@
 //! to date by every put and removal), so that the service counts them in the cache's disk
 //! budget, and [`TileStore::evict_oldest`] removes whole frames' tiles, least recently written
 //! first, when that budget needs room (a frame's tiles are only a head start for a retry).
+//!
+//! A store in a bucket ([`TileStore::in_bucket`]) keeps the same files as objects
+//! `<folder>/<key>/tile-<index:05>.exr`, verified the same way, so a bake shard restarted on
+//! another machine resumes inside a frame. Its tiles are not in any local budget ([`Self::bytes`]
+//! is 0); [`TileStore::prune`] removes abandoned ones.
 
 use super::atomic::{is_temp_file_name, write_atomic};
+use super::bucket::Bucket;
 use super::cache::is_valid_key;
 use super::exr::header_text_attribute;
 use super::{checksum, StoreError};
@@ -36,6 +42,8 @@ pub struct TileStore {
     root: PathBuf,
     /// Bytes of the tile files under `root`.
     bytes: Arc<AtomicU64>,
+    /// The bucket and folder holding the tiles instead of `root`.
+    bucket: Option<(Arc<Bucket>, String)>,
 }
 
 /// The tiles of one product (one cache key).
@@ -45,6 +53,8 @@ pub struct FrameTiles {
     key: String,
     /// The store's byte count.
     bytes: Arc<AtomicU64>,
+    /// The bucket and this product's folder in it, instead of `dir`.
+    bucket: Option<(Arc<Bucket>, String)>,
 }
 
 /// Bytes of the files directly in `dir` (0 when it does not exist).
@@ -73,6 +83,7 @@ impl TileStore {
         let store = Self {
             root: root.to_path_buf(),
             bytes: Arc::default(),
+            bucket: None,
         };
         for dir in store.frame_dirs()? {
             for entry in std::fs::read_dir(&dir)
@@ -87,6 +98,15 @@ impl TileStore {
         }
         store.recount()?;
         Ok(store)
+    }
+
+    /// A store of tiles in `bucket` under `folder` (e.g. `tiles`).
+    pub fn in_bucket(bucket: Arc<Bucket>, folder: &str) -> Self {
+        Self {
+            root: PathBuf::new(),
+            bytes: Arc::default(),
+            bucket: Some((bucket, folder.trim_matches('/').to_string())),
+        }
     }
 
     /// Bytes of the tile files in the store.
@@ -105,7 +125,7 @@ impl TileStore {
     /// `keep` (the render in progress), until the store holds at most `target_bytes`; returns
     /// how many frames' tiles were removed.
     pub fn evict_oldest(&self, keep: Option<&str>, target_bytes: u64) -> Result<usize, StoreError> {
-        if self.bytes() <= target_bytes {
+        if self.bytes() <= target_bytes || self.bucket.is_some() {
             return Ok(0);
         }
         let mut frames: Vec<(SystemTime, PathBuf)> = self
@@ -142,6 +162,10 @@ impl TileStore {
             dir: self.root.join(&key[..2]).join(key),
             key: key.to_string(),
             bytes: self.bytes.clone(),
+            bucket: self
+                .bucket
+                .as_ref()
+                .map(|(b, folder)| (b.clone(), format!("{folder}/{key}"))),
         })
     }
 
@@ -170,6 +194,10 @@ impl TileStore {
     /// Removes the shard directories left empty by finished products, and the root when nothing
     /// else is in it (a bake whose frames are all finished leaves no `tiles/` behind).
     pub fn remove_empty(&self) -> Result<(), StoreError> {
+        if self.bucket.is_some() {
+            // A bucket has no folders to leave behind.
+            return Ok(());
+        }
         let shards = std::fs::read_dir(&self.root).map_err(|e| StoreError::io(&self.root, e))?;
         for shard in shards.flatten() {
             if shard.file_type().is_ok_and(|t| t.is_dir()) {
@@ -185,6 +213,26 @@ impl TileStore {
     /// good); returns how many products were removed.
     pub fn prune(&self, age: Duration) -> Result<usize, StoreError> {
         let now = SystemTime::now();
+        if let Some((bucket, folder)) = &self.bucket {
+            let now_s = now
+                .duration_since(SystemTime::UNIX_EPOCH)
+                .unwrap_or_default()
+                .as_secs() as i64;
+            let mut removed = 0;
+            for key in bucket.list(folder)?.1 {
+                if !is_valid_key(&key) {
+                    continue;
+                }
+                let frame = self.frame(&key)?;
+                let (tiles, _) = bucket.list(&format!("{folder}/{key}"))?;
+                let newest = tiles.iter().map(|t| t.modified_s).max().unwrap_or(0);
+                if now_s - newest >= age.as_secs() as i64 {
+                    frame.remove_all()?;
+                    removed += 1;
+                }
+            }
+            return Ok(removed);
+        }
         let mut removed = 0;
         for dir in self.frame_dirs()? {
             let newest = newest_modification(&dir);
@@ -211,7 +259,7 @@ fn newest_modification(dir: &Path) -> SystemTime {
 
 impl FrameTiles {
     fn path(&self, index: usize) -> PathBuf {
-        self.dir.join(format!("tile-{index:05}.exr"))
+        self.dir.join(tile_name(index))
     }
 
     /// The value of [`ATTR_TILE_OF`] for tile `index`.
@@ -222,6 +270,18 @@ impl FrameTiles {
     /// The verified bytes of tile `index`, or `None` when it is absent. A file that fails its
     /// checksum or carries another binding is deleted and reported as absent.
     pub fn get(&self, index: usize) -> Result<Option<Vec<u8>>, StoreError> {
+        if let Some((bucket, folder)) = &self.bucket {
+            let name = format!("{folder}/{}", tile_name(index));
+            let Some(bytes) = bucket.get(&name)? else {
+                return Ok(None);
+            };
+            if self.verified(index, &bytes) {
+                return Ok(Some(bytes));
+            }
+            tracing::warn!(name, "tile failed verification; recomputing it");
+            bucket.delete(&name)?;
+            return Ok(None);
+        }
         let path = self.path(index);
         let meta = match std::fs::symlink_metadata(&path) {
             Ok(m) => m,
@@ -234,12 +294,7 @@ impl FrameTiles {
         }
         let size = meta.len();
         let bytes = std::fs::read(&path).map_err(|e| StoreError::io(&path, e))?;
-        let bound = checksum::verify(&bytes).is_ok()
-            && header_text_attribute(&bytes, ATTR_TILE_OF)
-                .ok()
-                .flatten()
-                .is_some_and(|b| b == self.binding(index));
-        if bound {
+        if self.verified(index, &bytes) {
             Ok(Some(bytes))
         } else {
             tracing::warn!(path = %path.display(), "tile failed verification; recomputing it");
@@ -249,12 +304,24 @@ impl FrameTiles {
         }
     }
 
+    /// Whether `bytes` pass their checksum and are bound to tile `index` of this product.
+    fn verified(&self, index: usize, bytes: &[u8]) -> bool {
+        checksum::verify(bytes).is_ok()
+            && header_text_attribute(bytes, ATTR_TILE_OF)
+                .ok()
+                .flatten()
+                .is_some_and(|b| b == self.binding(index))
+    }
+
     /// Stores tile `index` (EXR bytes carrying [`ATTR_TILE_OF`] = [`Self::binding`]) atomically.
     pub fn put(&self, index: usize, bytes: &[u8]) -> Result<(), StoreError> {
         if index >= MAX_TILES {
             return Err(
                 crate::Error::out_of_range("tile", index, format!("0..{MAX_TILES}")).into(),
             );
+        }
+        if let Some((bucket, folder)) = &self.bucket {
+            return bucket.put(&format!("{folder}/{}", tile_name(index)), bytes);
         }
         let path = self.path(index);
         let before = std::fs::symlink_metadata(&path)
@@ -267,21 +334,29 @@ impl FrameTiles {
         Ok(())
     }
 
-    /// Number of tile files present (verified or not).
+    /// Number of tile files present (verified or not; 0 when a bucket cannot be listed).
     pub fn count(&self) -> usize {
+        if let Some((bucket, folder)) = &self.bucket {
+            return bucket.list(folder).map_or(0, |(tiles, _)| {
+                tiles.iter().filter(|t| is_tile_name(&t.name)).count()
+            });
+        }
         std::fs::read_dir(&self.dir)
             .into_iter()
             .flatten()
             .flatten()
-            .filter(|e| {
-                let n = e.file_name().to_string_lossy().into_owned();
-                n.starts_with("tile-") && n.ends_with(".exr")
-            })
+            .filter(|e| is_tile_name(&e.file_name().to_string_lossy()))
             .count()
     }
 
     /// Removes every tile of this product (after the assembled product went to the cache).
     pub fn remove_all(&self) -> Result<(), StoreError> {
+        if let Some((bucket, folder)) = &self.bucket {
+            for tile in bucket.list(folder)?.0 {
+                bucket.delete(&format!("{folder}/{}", tile.name))?;
+            }
+            return Ok(());
+        }
         let n = dir_bytes(&self.dir);
         match std::fs::remove_dir_all(&self.dir) {
             Ok(()) => {
@@ -292,6 +367,14 @@ impl FrameTiles {
             Err(e) => Err(StoreError::io(&self.dir, e)),
         }
     }
+}
+
+fn tile_name(index: usize) -> String {
+    format!("tile-{index:05}.exr")
+}
+
+fn is_tile_name(name: &str) -> bool {
+    name.starts_with("tile-") && name.ends_with(".exr")
 }
 
 fn remove_any(path: &Path) {

@@ -83,6 +83,22 @@ impl CloudSource {
             CloudSource::Spheres(_) => "spheres",
         }
     }
+
+    /// The files the source names, each with the field that names it: what [`voxelize`] asks
+    /// its loader for (a satellite image; a grid's data and, for raw f32, its header).
+    pub fn files(&self) -> Vec<(&'static str, String)> {
+        match self {
+            CloudSource::Satellite(p) => vec![("source.image", p.image.clone())],
+            CloudSource::Grid(p) => {
+                let mut files = vec![("source.path", p.path.clone())];
+                if p.format() == GridFormat::RawF32 {
+                    files.push(("source.header", p.header_path()));
+                }
+                files
+            }
+            _ => Vec::new(),
+        }
+    }
 }
 
 /// Parameters of the `"automaton"` source: the simulation and the time of the frame.

@@ -120,6 +120,16 @@ impl FrameRequest {
         Self::parse(&bytes, method)
     }
 
+    /// Checks that `loader` gives every file the scene's cloud names (before any work, e.g. at a
+    /// job's submission); the error names the field (`cloud.source.path`).
+    pub fn check_files(&self, loader: &dyn Fn(&str) -> Result<Vec<u8>>) -> Result<()> {
+        for (field, path) in self.scene.cloud.source.files() {
+            loader(&path)
+                .map_err(|e| Error::invalid(&format!("cloud.{field}"), format!("'{path}': {e}")))?;
+        }
+        Ok(())
+    }
+
     /// The scene as given (parsed JSON).
     pub fn scene_json(&self) -> &serde_json::Value {
         &self.scene_json

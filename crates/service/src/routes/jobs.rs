@@ -137,7 +137,12 @@ pub async fn artifact(
             return Err(ApiError::Internal(format!("item {n} is not a frame")));
         };
         let format = super::render::frame_format(Some(format.as_deref().unwrap_or("exr")), None)?;
-        return super::render::frame_response(&state, frame, format).await;
+        let mut resp = super::render::frame_response(&state, frame, format).await?;
+        resp.headers_mut().insert(
+            header::CACHE_CONTROL,
+            HeaderValue::from_static(super::products::IMMUTABLE),
+        );
+        return Ok(resp);
     }
     let (product, mut params, _) = job.spec.item(n).ok_or_else(|| {
         ApiError::NotFound(format!("no artifact {n} (the job has {})", job.spec.len()))
@@ -155,6 +160,9 @@ pub async fn artifact(
     let (body, source, key) = state.body(&req).await?;
     let mut resp = super::artifact_response(body, req.format.content_type(), source, &key);
     let h = resp.headers_mut();
+    if let Ok(v) = HeaderValue::from_str(&format!("\"{key}-{}\"", req.format.name())) {
+        h.insert(header::ETAG, v);
+    }
     // A job's item never changes (its spec is fixed and the engine version is in the key).
     h.insert(
         header::CACHE_CONTROL,

@@ -138,11 +138,17 @@ pub fn app(state: AppState) -> Router {
             ))
             .timeout(timeout),
     );
-    // The rate limit answers before the shedder counts a request in flight.
-    let limited = limited.layer(axum::middleware::from_fn_with_state(
-        state.clone(),
-        super::limits::rate_limit,
-    ));
+    // Bodies are read whole before a request takes a concurrency slot (a slow upload holds none),
+    // and the rate limit answers before a body is read or the shedder counts a request.
+    let limited = limited
+        .layer(axum::middleware::from_fn_with_state(
+            state.clone(),
+            super::body::buffer_body,
+        ))
+        .layer(axum::middleware::from_fn_with_state(
+            state.clone(),
+            super::limits::rate_limit,
+        ));
     limited
         .merge(open)
         .fallback(not_found)

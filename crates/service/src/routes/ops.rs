@@ -38,6 +38,11 @@ pub async fn metrics(State(state): State<AppState>) -> Response {
             c.disk_hits,
         ),
         (
+            "skybake_cache_bucket_hits_total",
+            "Product cache lookups answered from the shared bucket (cache.url).",
+            c.bucket_hits,
+        ),
+        (
             "skybake_cache_misses_total",
             "Product cache lookups not answered.",
             c.misses,
@@ -70,6 +75,41 @@ pub async fn metrics(State(state): State<AppState>) -> Response {
         ),
     ] {
         counter(&mut out, name, help, v);
+    }
+    if let Some(bucket) = state.cache().bucket() {
+        let b = bucket.stats();
+        for (name, help, v) in [
+            (
+                "skybake_bucket_gets_total",
+                "Object reads from the bucket.",
+                b.gets,
+            ),
+            (
+                "skybake_bucket_puts_total",
+                "Object writes to the bucket.",
+                b.puts,
+            ),
+            (
+                "skybake_bucket_retries_total",
+                "Bucket requests repeated after a failure.",
+                b.retries,
+            ),
+            (
+                "skybake_bucket_failures_total",
+                "Bucket operations that failed after every retry (answered 503).",
+                b.failures,
+            ),
+            (
+                "skybake_lease_waits_total",
+                "Polls while another replica held the lease on a product.",
+                state
+                    .metrics()
+                    .lease_waits
+                    .load(std::sync::atomic::Ordering::Relaxed),
+            ),
+        ] {
+            counter(&mut out, name, help, v);
+        }
     }
     for (name, help, v) in [
         (

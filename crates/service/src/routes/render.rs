@@ -152,13 +152,42 @@ pub async fn render(
     // Parsing validates every limit of the scene before anything is allocated for it.
     let target = q.max_rel_error;
     let req = AppState::blocking(move || {
-        Ok(FrameRequest::parse(&bytes, method)?.with_max_rel_error(target.as_deref())?)
+        let req = FrameRequest::parse(&bytes, method)?.with_max_rel_error(target.as_deref())?;
+        // A scene may name only the example scenes' files: refused before anything is computed.
+        req.check_files(&skybake_product::frame::example_file)?;
+        Ok(req)
     })
     .await?;
     // A PNG is RGB-only: the planner may run fewer wavelengths (its own cache key), unless the
     // spectral frame of the request is cached already (its RGB is at every wavelength).
     let rgb_only = format == Format::Png && !state.cache().contains(&req.cache_key());
-    frame_response(&state, Arc::new(req.with_rgb_only(rgb_only)), format).await
+    let req = req.with_rgb_only(rgb_only);
+    // The ETag (cache key and format) is known before anything is computed: a client that holds
+    // it gets 304 at once, as for the GET products.
+    let etag = frame_etag(&req.cache_key(), format);
+    if let Some(inm) = headers
+        .get(header::IF_NONE_MATCH)
+        .and_then(|v| v.to_str().ok())
+    {
+        if super::products::none_match(inm, &etag) {
+            let mut resp = StatusCode::NOT_MODIFIED.into_response();
+            let h = resp.headers_mut();
+            if let Ok(v) = HeaderValue::from_str(&etag) {
+                h.insert(header::ETAG, v);
+            }
+            h.insert(
+                header::CACHE_CONTROL,
+                HeaderValue::from_static(super::products::PRODUCT),
+            );
+            return Ok(resp);
+        }
+    }
+    frame_response(&state, Arc::new(req), format).await
+}
+
+/// The ETag of a frame body: its cache key and format.
+fn frame_etag(key: &str, format: Format) -> String {
+    format!("\"{key}-{}\"", format.name())
 }
 
 /// The response of a frame request in `format` (through the one response path of every
@@ -179,8 +208,13 @@ pub async fn frame_response(
     if let Ok(v) = HeaderValue::from_str(&key) {
         h.insert("x-skybake-cache-key", v);
     }
-    if let Ok(v) = HeaderValue::from_str(&format!("\"{key}-{}\"", format.name())) {
+    if let Ok(v) = HeaderValue::from_str(&frame_etag(&key, format)) {
         h.insert(header::ETAG, v);
     }
+    // The same scene and method give the same bytes until the engine changes (the key tells).
+    h.insert(
+        header::CACHE_CONTROL,
+        HeaderValue::from_static(super::products::PRODUCT),
+    );
     Ok(resp)
 }

@@ -1,0 +1,201 @@
+//! The forward peak that the δ-M truncation takes out of the phase function, spread over the
+//! scaled direct beam (the fast method's single scattering of sunlight).
+//!
+//! The δ-M scaled problem (see `multiple`) counts a scattering within the truncated peak as no
+//! scattering: the scaled direct beam e^{−τ*}, τ* = (1 − ωf)τ, is the true direct beam e^{−τ}
+//! plus the light scattered only within the peak, k times with Poisson weight (ωfτ)^k/k!. TMS
+//! (Nakajima & Tanaka 1988, eq 13) scatters all of it towards the viewer with the true phase
+//! function p(Θ) as if it were still collimated. The peak of g = 0.85 with f = g^3.5 is not
+//! narrow (most of it within 25° of the forward direction), so after a few peak scatterings the
+//! beam is spread, and p(Θ), convex and steep at 10–60°, underestimates the light scattered
+//! towards a viewer looking towards the sun (back-lit clouds, the silver lining).
+//!
+//! Here the beam's angular spread is the Goudsmit & Saunderson (1940, eq 9) distribution of a
+//! beam that has travelled through a medium scattering with the peak h alone: its Legendre
+//! moments decay as e^{−ωf⁺τ(1 − h_l)}, so the effective single-scattering phase function is
+//! p_eff(Θ, τ) = Σ_l (2l + 1)/(4π) p_l e^{−ωf⁺τ(1 − h_l)} P_l(cos Θ) (the path-length
+//! differences of the spread beam neglected). h is the positive part of p − (1 − f)·HG(g*), the
+//! true phase function less the part the scaled problem keeps, normalised by its integral f⁺.
+//! The table holds p_eff/p over Θ and λ = ωfτ (τ the true optical depth towards the sun), both
+//! series summed to the same order, so the ratio is exactly 1 at τ = 0. The renderer looks it up
+//! at a fraction of that λ (`PEAK_SPREAD`, measured against Mitsuba 3: the full spread makes
+//! back-lit clouds read 9 % high).
+
+use crate::multiple::Truncation;
+use skybake_physics::phase::Phase;
+use std::f64::consts::PI;
+
+/// Scattering angles of the table: 0 to 180° in 0.5° steps.
+const N_THETA: usize = 361;
+/// Largest λ = ωfτ tabulated (beyond it the ratio is held: e^{−τ*} ≤ e^{−λ(1−ωf)/(ωf)} is
+/// negligible there for cloud phase functions).
+const LAMBDA_MAX: f64 = 24.0;
+const N_LAMBDA: usize = 97;
+/// Legendre orders summed (Henyey-Greenstein g = 0.9: g^384 ≈ 3·10⁻¹⁸).
+const L_MAX: usize = 384;
+/// Quadrature points for the moments, μ = 1 − 2u² with u uniform (resolves the peak at μ = 1).
+const N_QUAD: usize = 8192;
+
+/// p_eff/p tables, one per distinct (phase function, albedo, truncation).
+pub struct PeakSpread {
+    table_of: Vec<usize>,
+    tables: Vec<Vec<f32>>,
+}
+
+/// A ray's row of the table for one wavelength: the angle's two rows and the weight of the second.
+#[derive(Debug, Clone, Copy)]
+pub struct PeakRow {
+    table: usize,
+    i0: usize,
+    w1: f64,
+}
+
+impl PeakSpread {
+    /// Tables for every wavelength whose truncation is on; `None` when none is truncated (then the
+    /// scaled beam is the true direct beam and single scattering is exact).
+    pub fn new(phases: &[Phase], truncation: &[Truncation]) -> Option<Self> {
+        if truncation.iter().all(|t| t.fraction <= 0.0) {
+            return None;
+        }
+        let mut keys: Vec<(Phase, u64, u64)> = Vec::new();
+        let mut tables = Vec::new();
+        let mut table_of = Vec::with_capacity(phases.len());
+        for (p, t) in phases.iter().zip(truncation) {
+            let key = (*p, t.fraction.to_bits(), t.albedo.to_bits());
+            let i = match keys.iter().position(|k| *k == key) {
+                Some(i) => i,
+                None => {
+                    keys.push(key);
+                    tables.push(table(p, t));
+                    tables.len() - 1
+                }
+            };
+            table_of.push(i);
+        }
+        Some(Self { table_of, tables })
+    }
+
+    /// The row for wavelength `l` and the cosine of the scattering angle (sun direction · ray).
+    pub fn row(&self, l: usize, cos_theta: f64) -> PeakRow {
+        let x = cos_theta.clamp(-1.0, 1.0).acos().to_degrees() * 2.0;
+        let i0 = (x.floor() as usize).min(N_THETA - 2);
+        PeakRow {
+            table: self.table_of[l],
+            i0,
+            w1: (x - i0 as f64).clamp(0.0, 1.0),
+        }
+    }
+
+    /// p_eff/p for the row at λ = ωfτ.
+    pub fn ratio(&self, row: PeakRow, lambda: f64) -> f64 {
+        let t = &self.tables[row.table];
+        let y = (lambda.max(0.0) / LAMBDA_MAX * (N_LAMBDA - 1) as f64).min((N_LAMBDA - 1) as f64);
+        let j0 = (y.floor() as usize).min(N_LAMBDA - 2);
+        let v = y - j0 as f64;
+        let at = |i: usize, j: usize| t[i * N_LAMBDA + j] as f64;
+        let a = at(row.i0, j0) * (1.0 - v) + at(row.i0, j0 + 1) * v;
+        let b = at(row.i0 + 1, j0) * (1.0 - v) + at(row.i0 + 1, j0 + 1) * v;
+        a * (1.0 - row.w1) + b * row.w1
+    }
+}
+
+/// Legendre polynomials P_0..P_{L_MAX} at `mu` into `out` (Bonnet's recurrence).
+fn legendre(mu: f64, out: &mut [f64]) {
+    out[0] = 1.0;
+    if out.len() > 1 {
+        out[1] = mu;
+    }
+    for l in 2..out.len() {
+        out[l] = ((2 * l - 1) as f64 * mu * out[l - 1] - (l - 1) as f64 * out[l - 2]) / l as f64;
+    }
+}
+
+/// The p_eff/p table `[θ][λ]` of one phase function and truncation.
+fn table(phase: &Phase, t: &Truncation) -> Vec<f32> {
+    let f = t.fraction;
+    let smooth = Phase::HenyeyGreenstein { g: t.g_scaled };
+    // Moments 2π∫ x P_l dμ of p and of the positive remainder r⁺ = max(p − (1 − f)p*, 0).
+    let mut p_l = vec![0.0; L_MAX + 1];
+    let mut h_l = vec![0.0; L_MAX + 1];
+    let mut pl = vec![0.0; L_MAX + 1];
+    for k in 0..N_QUAD {
+        let u = (k as f64 + 0.5) / N_QUAD as f64;
+        let mu = 1.0 - 2.0 * u * u;
+        let dmu = 4.0 * u / N_QUAD as f64;
+        let p = phase.eval(mu);
+        let r = (p - (1.0 - f) * smooth.eval(mu)).max(0.0);
+        legendre(mu, &mut pl);
+        for l in 0..=L_MAX {
+            p_l[l] += 2.0 * PI * p * pl[l] * dmu;
+            h_l[l] += 2.0 * PI * r * pl[l] * dmu;
+        }
+    }
+    let f_plus = h_l[0];
+    let albedo = t.albedo;
+    let mut out = vec![1f32; N_THETA * N_LAMBDA];
+    if f_plus <= 0.0 || f <= 0.0 || albedo <= 0.0 {
+        return out;
+    }
+    // λ = ωfτ; the peak's scattering rate is ωf⁺ per unit optical depth.
+    let strength = f_plus / f;
+    let decay: Vec<Vec<f64>> = (0..N_LAMBDA)
+        .map(|j| {
+            let lambda = LAMBDA_MAX * j as f64 / (N_LAMBDA - 1) as f64;
+            (0..=L_MAX)
+                .map(|l| (-lambda * strength * (1.0 - h_l[l] / f_plus)).exp())
+                .collect()
+        })
+        .collect();
+    for i in 0..N_THETA {
+        let mu = (i as f64 * 0.5).to_radians().cos();
+        legendre(mu, &mut pl);
+        let terms: Vec<f64> = (0..=L_MAX)
+            .map(|l| (2 * l + 1) as f64 / (4.0 * PI) * p_l[l] * pl[l])
+            .collect();
+        let s0: f64 = terms.iter().sum();
+        for j in 0..N_LAMBDA {
+            let s: f64 = terms.iter().zip(&decay[j]).map(|(a, b)| a * b).sum();
+            out[i * N_LAMBDA + j] = if s0 > 1e-12 {
+                (s / s0).max(0.0) as f32
+            } else {
+                1.0
+            };
+        }
+    }
+    out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The table is 1 without peak scatterings, and the spread beam conserves energy: the ratio
+    /// weighted by p over the sphere integrates to 1 at every λ (the l = 0 moment does not decay).
+    #[test]
+    fn ratio_is_one_at_zero_depth_and_conserves_energy() {
+        let phase = Phase::HenyeyGreenstein { g: 0.85 };
+        let t = Truncation::new(0.85, 0.999, 3.5);
+        let s = PeakSpread::new(&[phase], &[t]).unwrap();
+        for deg in [0.0f64, 10.0, 35.0, 90.0, 150.0] {
+            let r = s.ratio(s.row(0, deg.to_radians().cos()), 0.0);
+            assert!((r - 1.0).abs() < 1e-5, "{deg}: {r}");
+        }
+        for lambda in [0.5, 2.0, 8.0] {
+            // ∫ p·ratio dω by the midpoint rule in θ (the table's angular resolution).
+            let n = 36_000;
+            let mut e = 0.0;
+            for k in 0..n {
+                let th = (k as f64 + 0.5) / n as f64 * PI;
+                let mu = th.cos();
+                e += 2.0 * PI * th.sin() * PI / n as f64
+                    * phase.eval(mu)
+                    * s.ratio(s.row(0, mu), lambda);
+            }
+            assert!((e - 1.0).abs() < 0.01, "λ {lambda}: {e}");
+        }
+        // Spreading moves light from the peak to 20–60°.
+        let at = |deg: f64, lambda: f64| s.ratio(s.row(0, deg.to_radians().cos()), lambda);
+        assert!(at(0.0, 4.0) < 0.5 && at(35.0, 4.0) > 1.5);
+        assert!(PeakSpread::new(&[phase], &[Truncation::new(0.85, 0.999, 0.0)]).is_none());
+    }
+}

@@ -1,0 +1,226 @@
+//! Bakes shared among processes (`skybake bake --shard I/N`): shares are disjoint and cover the
+//! job, a shard killed with SIGKILL mid-item resumes without recomputing what it stored, `--status`
+//! reports over all shards, and the manifest lists every artifact once. The bucket test needs
+//! `SKYBAKE_TEST_S3_ENDPOINT` (skipped with a printed reason without it); the directory test
+//! always runs.
+
+use std::collections::BTreeSet;
+use std::io::{BufRead, BufReader};
+use std::process::{Command, Stdio};
+
+use serde_json::Value;
+use skybake_engine::engine::Engine;
+use skybake_job::bake::{bake_share, status, BakeEnv, Shard};
+use skybake_product::params::Defaults;
+use skybake_store::{Location, RetryPolicy};
+
+use crate::service_support::s3;
+use crate::service_support::Scratch;
+
+const BIN: &str = env!("CARGO_BIN_EXE_skybake");
+
+/// `n` cheap sky items (a sun-elevation sweep).
+fn job(n: usize) -> String {
+    let elevations: Vec<String> = (0..n).map(|i| format!("{}", 2 * i)).collect();
+    format!(
+        r#"{{"grids": [{{"product": "sky", "method": "fast", "quality": "draft", "wavelengths": "440,550,680",
+            "elevation_count": 17, "azimuth_count": 16,
+            "sweep": {{"sun_elevation_deg": [{}]}}}}]}}"#,
+        elevations.join(", ")
+    )
+}
+
+#[test]
+fn shards_are_parsed_and_checked() {
+    assert_eq!(Shard::parse("2/8").unwrap(), Shard { index: 2, count: 8 });
+    for bad in ["8/8", "0/0", "a/4", "4", "1/100001", "-1/4"] {
+        let e = Shard::parse(bad).unwrap_err();
+        assert_eq!(e.parameter().as_deref(), Some("shard"), "{bad}");
+    }
+    let shares: Vec<Vec<usize>> = (0..3)
+        .map(|s| {
+            (0..10)
+                .filter(|&i| Shard::new(s, 3).unwrap().owns(i))
+                .collect()
+        })
+        .collect();
+    assert_eq!(shares, vec![vec![0, 3, 6, 9], vec![1, 4, 7], vec![2, 5, 8]]);
+}
+
+#[test]
+fn two_shards_in_one_directory_bake_the_job_once_and_write_one_manifest() {
+    let dir = Scratch::new("shards-dir");
+    let out = Location::Dir(dir.path().join("out"));
+    let body = job(5);
+    let (defaults, engine) = (Defaults::default(), Engine::new());
+    let env = BakeEnv {
+        defaults: &defaults,
+        max_products: 1000,
+        engine: &engine,
+        cancel: &|| false,
+    };
+    let first = bake_share(
+        body.as_bytes(),
+        &out,
+        Shard::new(0, 2).unwrap(),
+        &env,
+        |_, _, _| {},
+    )
+    .unwrap();
+    assert_eq!((first.total, first.computed), (3, 3));
+    let half = status(body.as_bytes(), &out, &defaults, 1000).unwrap();
+    assert_eq!((half.total, half.present, half.manifest), (5, 3, false));
+    assert_eq!(half.missing, vec![1, 3]);
+    let second = bake_share(
+        body.as_bytes(),
+        &out,
+        Shard::new(1, 2).unwrap(),
+        &env,
+        |_, _, _| {},
+    )
+    .unwrap();
+    assert_eq!((second.total, second.computed), (2, 2));
+    let done = status(body.as_bytes(), &out, &defaults, 1000).unwrap();
+    assert_eq!(
+        (done.present, done.manifest, done.shards.len()),
+        (5, true, 2)
+    );
+    let manifest: Value =
+        serde_json::from_slice(&out.get("manifest.json").unwrap().unwrap()).unwrap();
+    let indices: Vec<u64> = manifest["artifacts"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|a| a["index"].as_u64().unwrap())
+        .collect();
+    assert_eq!(indices, vec![0, 1, 2, 3, 4]);
+    // A rerun of a shard reuses its verified files.
+    let again = bake_share(
+        body.as_bytes(),
+        &out,
+        Shard::new(1, 2).unwrap(),
+        &env,
+        |_, _, _| {},
+    )
+    .unwrap();
+    assert_eq!((again.computed, again.reused, again.rejected), (0, 2, 0));
+}
+
+fn shard_command(
+    job: &std::path::Path,
+    url: &str,
+    endpoint: &str,
+    cache: &std::path::Path,
+) -> Command {
+    let mut cmd = Command::new(BIN);
+    cmd.arg("bake")
+        .arg(job)
+        .args(["--out", url])
+        .env("SKYBAKE_CACHE_DIR", cache)
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped());
+    s3::aws_env(&mut cmd, endpoint);
+    cmd
+}
+
+fn summary(output: std::process::Output) -> Value {
+    assert!(
+        output.status.success(),
+        "{}",
+        String::from_utf8_lossy(&output.stderr)
+    );
+    serde_json::from_slice(&output.stdout).unwrap()
+}
+
+#[test]
+fn four_shard_processes_on_one_bucket_survive_a_sigkill_and_compute_each_item_once() {
+    let Some(endpoint) = s3::endpoint("four_shard_processes_on_one_bucket") else {
+        return;
+    };
+    let dir = Scratch::new("shards-s3");
+    let job_path = dir.path().join("job.json");
+    std::fs::write(&job_path, job(24)).unwrap();
+    let url = s3::fresh_url("shards");
+    let cache = dir.path().join("cache");
+
+    // Shard 3 takes its share from a Kubernetes Indexed Job's variables.
+    let mut children = Vec::new();
+    for index in 0..4 {
+        let mut cmd = shard_command(&job_path, &url, &endpoint, &cache);
+        if index == 3 {
+            cmd.env("JOB_COMPLETION_INDEX", "3")
+                .env("JOB_COMPLETIONS", "4");
+        } else {
+            cmd.args(["--shard", &format!("{index}/4")]);
+        }
+        children.push(cmd.spawn().unwrap());
+    }
+    // Shard 1 dies with SIGKILL once it has stored its first item, i.e. inside its second.
+    let mut victim = children.remove(1);
+    let stderr = victim.stderr.take().unwrap();
+    let mut first_line = String::new();
+    BufReader::new(stderr).read_line(&mut first_line).unwrap();
+    assert!(first_line.contains("[1/6] computed"), "{first_line}");
+    victim.kill().unwrap();
+    victim.wait().unwrap();
+    for child in children {
+        let s = summary(child.wait_with_output().unwrap());
+        assert_eq!(
+            (s["total"].as_u64(), s["computed"].as_u64()),
+            (Some(6), Some(6)),
+            "{s}"
+        );
+        assert_eq!(s["reused"].as_u64(), Some(0));
+    }
+
+    let status_of = || {
+        let mut cmd = shard_command(&job_path, &url, &endpoint, &cache);
+        summary(cmd.arg("--status").output().unwrap())
+    };
+    let partial = status_of();
+    assert_eq!(partial["total"].as_u64(), Some(24));
+    assert_eq!(partial["manifest"].as_bool(), Some(false));
+    let stored_by_victim = 6 - partial["missing"].as_array().unwrap().len() as u64;
+    assert!(stored_by_victim >= 1, "{partial}");
+    assert!(partial["missing"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .all(|i| i.as_u64().unwrap() % 4 == 1));
+
+    // Restarted with the same index, it computes only what it had not stored.
+    let mut cmd = shard_command(&job_path, &url, &endpoint, &cache);
+    let restarted = summary(cmd.args(["--shard", "1/4"]).output().unwrap());
+    assert_eq!(
+        restarted["reused"].as_u64(),
+        Some(stored_by_victim),
+        "{restarted}"
+    );
+    assert_eq!(restarted["computed"].as_u64(), Some(6 - stored_by_victim));
+    assert_eq!(restarted["rejected"].as_u64(), Some(0));
+
+    let done = status_of();
+    assert_eq!(
+        (done["present"].as_u64(), done["manifest"].as_bool()),
+        (Some(24), Some(true)),
+        "{done}"
+    );
+    assert_eq!(done["shards"].as_object().unwrap().len(), 4);
+    let bucket = s3::open(&url, &endpoint, RetryPolicy::default());
+    let manifest: Value =
+        serde_json::from_slice(&bucket.get("manifest.json").unwrap().unwrap()).unwrap();
+    let artifacts = manifest["artifacts"].as_array().unwrap();
+    let files: BTreeSet<&str> = artifacts
+        .iter()
+        .map(|a| a["file"].as_str().unwrap())
+        .collect();
+    let indices: BTreeSet<u64> = artifacts
+        .iter()
+        .map(|a| a["index"].as_u64().unwrap())
+        .collect();
+    assert_eq!((artifacts.len(), files.len(), indices.len()), (24, 24, 24));
+    for file in files {
+        let bytes = bucket.get(file).unwrap().expect("listed artifact present");
+        skybake_store::checksum::verify(&bytes).unwrap();
+    }
+}
