@@ -21,16 +21,18 @@ use std::time::Instant;
 
 use rayon::prelude::*;
 use skybake_physics::atmosphere::geometry::horizon_mu;
-use skybake_physics::atmosphere::integrate::{ray_points, RayPoint, RaySample, Source};
-use skybake_physics::atmosphere::irradiance::{
-    hemisphere_irradiance, SUN_PRODUCT_N_MU, SUN_PRODUCT_N_PHI,
-};
+use skybake_physics::atmosphere::integrate::{ray_points, RayPoint};
+use skybake_physics::atmosphere::irradiance::{SUN_PRODUCT_N_MU, SUN_PRODUCT_N_PHI};
 use skybake_physics::atmosphere::kernels::exp_fast;
-use skybake_physics::atmosphere::medium::{CONSTITUENTS, MIE, RAYLEIGH};
-use skybake_physics::atmosphere::multiple_precise::source_sun_zenith_limit_rad;
+use skybake_physics::atmosphere::medium::{Medium, CONSTITUENTS, MIE, RAYLEIGH};
+use skybake_physics::atmosphere::multiple_precise::{
+    source_sun_zenith_limit_rad, JSlice, PreciseMultipleScattering,
+};
+use skybake_physics::atmosphere::quadrature::gauss_legendre;
 use skybake_physics::atmosphere::shared::SharedTables;
-use skybake_physics::atmosphere::sky::{MsMethod, Observer, RadianceEvaluator};
-use skybake_physics::atmosphere::transmittance::density_integrals;
+use skybake_physics::atmosphere::transmittance::{
+    density_integrals, AtRadius, DensityIntegralTable,
+};
 use skybake_physics::phase::Phase;
 
 use crate::param::{self, AtmosphereParameters, *};
@@ -42,14 +44,6 @@ pub const UNIT_SCALE: f64 = 1.0e3;
 
 /// Quadrature intervals of each transmittance texel's density integrals.
 const TRANSMITTANCE_STEPS: usize = 1000;
-
-/// The multiple-scattering source is integrated with the products' samples per ray segment
-/// divided by this (at least [`MIN_MS_STEPS`]). Its lookup is most of a texel's cost, but a
-/// quarter of the samples was measured to cost accuracy near the horizon (sky product at the
-/// ground, sun ≥ 5°, view < 10° above the horizon: 12.8 % against 4.3 % with all samples, spectral
-/// form, tests/atmosphere/lut.rs), so all are used.
-const MS_STEPS_DIVISOR: usize = 1;
-const MIN_MS_STEPS: usize = 6;
 
 /// How texture samples are stored.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -188,7 +182,7 @@ pub fn build(shared: &SharedTables, channels: Channels, steps: usize) -> crate::
     };
     let e0: Vec<f64> = params.solar_irradiance.clone();
     let tp = Instant::now();
-    let source: &dyn Source = shared.precise();
+    shared.precise();
     let t_precise = tp.elapsed().as_secs_f64() * 1e3;
 
     // Transmittance.
@@ -247,14 +241,22 @@ pub fn build(shared: &SharedTables, channels: Channels, steps: usize) -> crate::
         .zip(single_mie.data.par_chunks_mut(row_len_mie))
         .enumerate()
         .for_each_init(
-            || FamilyScratch::new(m.len()),
+            || FamilyScratch::new(shared, m.len()),
             |scratch, (row, (sc_row, mie_row))| {
                 let (i_r, i_mu) = (row / SCATTERING_MU, row % SCATTERING_MU);
-                scratch.prepare(shared, &params, i_r, i_mu, steps);
+                let (r, mu, _, _, ground) = params.scattering_texel(0, 0, i_mu, i_r);
+                // Grazing rays are nudged to the side of the horizon their half of μ says.
+                let mu_h = horizon_mu(r, m.bottom_radius_m);
+                let mu = if ground {
+                    (mu.min(mu_h) - 1e-9).max(-1.0)
+                } else {
+                    mu.max(mu_h + 1e-9).min(1.0)
+                };
+                scratch.prepare(r, mu, steps);
                 for i_nu in 0..SCATTERING_NU {
                     for i_mu_s in 0..SCATTERING_MU_S {
                         let (_, _, mu_s, nu, _) = params.scattering_texel(i_nu, i_mu_s, i_mu, i_r);
-                        let s = scratch.texel(shared, source, mu_s, nu);
+                        let s = scratch.texel(mu_s, nu);
                         let x = i_nu * SCATTERING_MU_S + i_mu_s;
                         let p_r = param::rayleigh_phase(nu);
                         let mie_ratio = m.mie_phase.eval(nu) / param::mie_phase(g, nu);
@@ -275,35 +277,7 @@ pub fn build(shared: &SharedTables, channels: Channels, steps: usize) -> crate::
 
     // Irradiance: the sky's, on a horizontal surface (the direct sun is the client's).
     let t2 = Instant::now();
-    let mut irradiance = Texture::new(IRRADIANCE_WIDTH, IRRADIANCE_HEIGHT, 1, n_c, Sample::Float);
-    let limit = source_sun_zenith_limit_rad(m.bottom_radius_m, m.top_radius_m);
-    irradiance
-        .data
-        .par_chunks_mut(n_c)
-        .enumerate()
-        .for_each(|(k, out)| {
-            let (i, j) = (k % IRRADIANCE_WIDTH, k / IRRADIANCE_WIDTH);
-            let (r, mu_s) = params.irradiance_r_mu_s(
-                (i as f64 + 0.5) / IRRADIANCE_WIDTH as f64,
-                (j as f64 + 0.5) / IRRADIANCE_HEIGHT as f64,
-            );
-            // Beyond the source limit plus the farthest point the sky there reaches
-            // (`plan::darkest_twilight_deg`'s bound) the sky is dark.
-            let reach = (m.bottom_radius_m / r).min(1.0).acos()
-                + (m.bottom_radius_m / m.top_radius_m).acos();
-            if mu_s.acos() > limit + reach {
-                return;
-            }
-            let observer = Observer {
-                altitude_m: r - m.bottom_radius_m,
-                sun_elevation_rad: mu_s.asin(),
-            };
-            let eval = RadianceEvaluator::new(shared, MsMethod::Precise, observer, steps);
-            let e = hemisphere_irradiance(&eval, m.len(), SUN_PRODUCT_N_MU, SUN_PRODUCT_N_PHI);
-            for (c, &l) in idx.iter().enumerate() {
-                out[c] = (e[l] * UNIT_SCALE) as f32;
-            }
-        });
+    let irradiance = irradiance_texture(shared, &params, &idx, &e0, steps);
     let t_irradiance = t2.elapsed().as_secs_f64() * 1e3;
 
     Ok(Bundle {
@@ -318,6 +292,68 @@ pub fn build(shared: &SharedTables, channels: Channels, steps: usize) -> crate::
     })
 }
 
+/// The irradiance texture: at each row's radius, the `sun` product's hemisphere quadrature
+/// ([`hemisphere_irradiance`]: Gauss–Legendre in cos θ × midpoints in azimuth relative to the
+/// sun) of the sky radiance, each quadrature direction's ray integrated once for the row's 64
+/// suns ([`FamilyScratch`]), with the same sources and samples as the `sky` product's rays.
+fn irradiance_texture(
+    shared: &SharedTables,
+    params: &AtmosphereParameters,
+    idx: &[usize],
+    e0: &[f64],
+    steps: usize,
+) -> Texture {
+    let m = &shared.medium;
+    let n_c = idx.len();
+    let (x, w) = gauss_legendre(SUN_PRODUCT_N_MU);
+    let n_phi = SUN_PRODUCT_N_PHI;
+    // One task per (row, cos θ node): that row's contributions of that direction.
+    let parts: Vec<(usize, Vec<f64>)> = (0..IRRADIANCE_HEIGHT * SUN_PRODUCT_N_MU)
+        .into_par_iter()
+        .map_init(
+            || FamilyScratch::new(shared, m.len()),
+            |scratch, task| {
+                let (j, a) = (task / SUN_PRODUCT_N_MU, task % SUN_PRODUCT_N_MU);
+                let v = (j as f64 + 0.5) / IRRADIANCE_HEIGHT as f64;
+                let (r, _) = params.irradiance_r_mu_s(0.5 / IRRADIANCE_WIDTH as f64, v);
+                let mu = 0.5 * (x[a] + 1.0);
+                let sin_t = (1.0 - mu * mu).max(0.0).sqrt();
+                let weight = 0.5 * w[a] * mu * 2.0 * std::f64::consts::PI / n_phi as f64;
+                scratch.prepare(r, mu, steps);
+                let mut row = vec![0.0; IRRADIANCE_WIDTH * n_c];
+                for i in 0..IRRADIANCE_WIDTH {
+                    let (_, mu_s) =
+                        params.irradiance_r_mu_s((i as f64 + 0.5) / IRRADIANCE_WIDTH as f64, v);
+                    let sin_s = (1.0 - mu_s * mu_s).max(0.0).sqrt();
+                    for b in 0..n_phi {
+                        let phi = std::f64::consts::PI * (b as f64 + 0.5) / n_phi as f64;
+                        let nu = (mu * mu_s + sin_t * sin_s * phi.cos()).clamp(-1.0, 1.0);
+                        let (p_r, p_m) = (Phase::Rayleigh.eval(nu), m.mie_phase.eval(nu));
+                        let s = scratch.texel(mu_s, nu);
+                        for (c, &l) in idx.iter().enumerate() {
+                            let radiance = s.rayleigh[l] * p_r + s.mie[l] * p_m + s.multiple[l];
+                            row[i * n_c + c] += weight * radiance * e0[c];
+                        }
+                    }
+                }
+                (j, row)
+            },
+        )
+        .collect();
+    let mut irradiance = Texture::new(IRRADIANCE_WIDTH, IRRADIANCE_HEIGHT, 1, n_c, Sample::Float);
+    let mut sums = vec![0.0f64; irradiance.data.len()];
+    for (j, row) in parts {
+        let k = j * IRRADIANCE_WIDTH * n_c;
+        for (s, v) in sums[k..k + row.len()].iter_mut().zip(row) {
+            *s += v;
+        }
+    }
+    for (o, s) in irradiance.data.iter_mut().zip(sums) {
+        *o = s as f32;
+    }
+    irradiance
+}
+
 /// Per-wavelength integrals of one texel's ray, per unit solar irradiance: single Rayleigh and
 /// single Mie without phase functions (m⁻¹·m), multiple scattering with its phases (sr⁻¹).
 struct TexelSums<'a> {
@@ -326,22 +362,59 @@ struct TexelSums<'a> {
     multiple: &'a [f64],
 }
 
-/// One quadrature of a ray: its points, their densities and the transmittance from the ray's
-/// origin to each point's cell midpoint × the point's weight (`[point][λ]`).
-#[derive(Default)]
-struct Quadrature {
+/// What every sun on one ray shares (a ray family of the texture: fixed r and μ): the products'
+/// quadrature points, their densities, the transmittance from the ray's origin to each point's
+/// cell midpoint × the point's weight (`[point][λ]`), the density table at each point's radius
+/// and the multiple-scattering table at each point's (r, μ) ([`JSlice`]). A texel then costs
+/// one sun-zenith/azimuth interpolation per point.
+struct FamilyScratch<'a> {
+    medium: &'a Medium,
+    density: &'a DensityIntegralTable,
+    precise: &'a PreciseMultipleScattering,
+    r: f64,
     points: Vec<RayPoint>,
     rho: Vec<[f64; CONSTITUENTS]>,
     weighted_t: Vec<f64>,
+    at: Vec<AtRadius<'a>>,
+    slices: Vec<JSlice>,
+    n_l: usize,
+    j: Vec<f64>,
+    rayleigh: Vec<f64>,
+    mie: Vec<f64>,
+    multiple: Vec<f64>,
 }
 
-impl Quadrature {
-    fn prepare(&mut self, m: &skybake_physics::atmosphere::Medium, r: f64, mu: f64, steps: usize) {
+impl<'a> FamilyScratch<'a> {
+    fn new(shared: &'a SharedTables, n_l: usize) -> Self {
+        Self {
+            medium: &shared.medium,
+            density: shared.density(),
+            precise: shared.precise(),
+            r: 0.0,
+            points: Vec::new(),
+            rho: Vec::new(),
+            weighted_t: Vec::new(),
+            at: Vec::new(),
+            slices: Vec::new(),
+            n_l,
+            j: vec![0.0; n_l],
+            rayleigh: vec![0.0; n_l],
+            mie: vec![0.0; n_l],
+            multiple: vec![0.0; n_l],
+        }
+    }
+
+    /// The ray from radius `r` with zenith cosine `mu`, `steps` samples per segment.
+    fn prepare(&mut self, r: f64, mu: f64, steps: usize) {
+        let m = self.medium;
+        self.r = r;
         ray_points(m, r, mu, steps, &mut self.points);
         self.rho.clear();
         self.weighted_t.clear();
+        self.at.clear();
+        self.slices.resize_with(self.points.len(), JSlice::default);
         let mut d_view = [0.0f64; CONSTITUENTS];
-        for p in &self.points {
+        for (p, slice) in self.points.iter().zip(&mut self.slices) {
             let rho = m.densities(p.r);
             let mut d_mid = d_view;
             for k in 0..CONSTITUENTS {
@@ -353,108 +426,39 @@ impl Quadrature {
                     .push(exp_fast(-m.optical_depth(l, &d_mid)) * p.weight);
             }
             self.rho.push(rho);
+            self.at
+                .push(self.density.at_radius(p.r, m.sun_angular_radius_rad));
+            self.precise.slice(p.r, p.mu, slice);
         }
-    }
-}
-
-/// What a ray family's texels share: the ray's quadratures for single scattering (the
-/// products' samples) and for the multiple-scattering source (fewer, [`MS_STEPS_DIVISOR`]).
-struct FamilyScratch {
-    r: f64,
-    single: Quadrature,
-    multiple_q: Quadrature,
-    n_l: usize,
-    j: Vec<f64>,
-    rayleigh: Vec<f64>,
-    mie: Vec<f64>,
-    multiple: Vec<f64>,
-}
-
-impl FamilyScratch {
-    fn new(n_l: usize) -> Self {
-        Self {
-            r: 0.0,
-            single: Quadrature::default(),
-            multiple_q: Quadrature::default(),
-            n_l,
-            j: vec![0.0; n_l],
-            rayleigh: vec![0.0; n_l],
-            mie: vec![0.0; n_l],
-            multiple: vec![0.0; n_l],
-        }
-    }
-
-    /// The ray of scattering row (i_r, i_mu): to the ground for the lower half of μ, to the
-    /// top otherwise (grazing rays are nudged to the side of the horizon their half says).
-    fn prepare(
-        &mut self,
-        shared: &SharedTables,
-        params: &AtmosphereParameters,
-        i_r: usize,
-        i_mu: usize,
-        steps: usize,
-    ) {
-        let m = &shared.medium;
-        let (r, mu, _, _, ground) = params.scattering_texel(0, 0, i_mu, i_r);
-        let mu_h = horizon_mu(r, m.bottom_radius_m);
-        let mu = if ground {
-            (mu.min(mu_h) - 1e-9).max(-1.0)
-        } else {
-            mu.max(mu_h + 1e-9).min(1.0)
-        };
-        self.r = r;
-        self.single.prepare(m, r, mu, steps);
-        self.multiple_q
-            .prepare(m, r, mu, (steps / MS_STEPS_DIVISOR).max(MIN_MS_STEPS));
     }
 
     /// The integrals of the prepared ray for the sun at (μs, ν) at its origin.
-    fn texel(
-        &mut self,
-        shared: &SharedTables,
-        source: &dyn Source,
-        mu_s: f64,
-        nu: f64,
-    ) -> TexelSums<'_> {
-        let m = &shared.medium;
-        let table = shared.density();
+    fn texel(&mut self, mu_s: f64, nu: f64) -> TexelSums<'_> {
+        let m = self.medium;
         self.rayleigh.fill(0.0);
         self.mie.fill(0.0);
         self.multiple.fill(0.0);
         let n_l = self.n_l;
-        let q = &self.single;
-        for (k, p) in q.points.iter().enumerate() {
+        for (k, p) in self.points.iter().enumerate() {
             let mu_s_p = ((self.r * mu_s + p.t * nu) / p.r).clamp(-1.0, 1.0);
-            let at = table.at_radius(p.r, m.sun_angular_radius_rad);
+            let wt = &self.weighted_t[k * n_l..(k + 1) * n_l];
+            self.j.fill(0.0);
+            self.precise
+                .add_from_slice(&self.slices[k], mu_s_p, nu, &mut self.j);
+            for l in 0..n_l {
+                self.multiple[l] += wt[l] * self.j[l];
+            }
+            let at = &self.at[k];
             let vis = at.sun_visibility(mu_s_p);
             if vis <= 0.0 {
                 continue;
             }
             let d_sun = at.lookup(mu_s_p);
-            let rho = &q.rho[k];
-            let wt = &q.weighted_t[k * n_l..(k + 1) * n_l];
+            let rho = &self.rho[k];
             for l in 0..n_l {
                 let sun = wt[l] * exp_fast(-m.optical_depth(l, &d_sun)) * vis;
                 self.rayleigh[l] += sun * m.rayleigh_scattering_per_m[l] * rho[RAYLEIGH];
                 self.mie[l] += sun * m.mie_scattering_per_m[l] * rho[MIE];
-            }
-        }
-        let q = &self.multiple_q;
-        for (k, p) in q.points.iter().enumerate() {
-            let mu_s_p = ((self.r * mu_s + p.t * nu) / p.r).clamp(-1.0, 1.0);
-            let sample = RaySample {
-                t: p.t,
-                weight: p.weight,
-                r: p.r,
-                mu: p.mu,
-                mu_s: mu_s_p,
-                nu,
-            };
-            self.j.fill(0.0);
-            source.add_scattering(&sample, &mut self.j);
-            let wt = &q.weighted_t[k * n_l..(k + 1) * n_l];
-            for l in 0..n_l {
-                self.multiple[l] += wt[l] * self.j[l];
             }
         }
         TexelSums {
