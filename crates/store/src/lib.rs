@@ -35,6 +35,7 @@ pub mod lease;
 pub mod location;
 mod lru;
 pub mod tables;
+pub mod texture;
 pub mod tiles;
 
 pub use atomic::write_atomic;

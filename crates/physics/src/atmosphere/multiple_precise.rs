@@ -1562,6 +1562,125 @@ impl PreciseMultipleScattering {
     }
 }
 
+/// J_ms at one ray point for every sun: the table interpolated once to the point's radius and
+/// view zenith, `[i_mu_s][i_phi][λ]` (and its logarithm on the twilight nodes), for callers that
+/// evaluate many suns on the same rays (the texture bundle: 256 suns per ray). Filled by
+/// [`PreciseMultipleScattering::slice`], read by [`PreciseMultipleScattering::add_from_slice`].
+#[derive(Debug, Clone, Default)]
+pub struct JSlice {
+    /// View zenith cosine at the point.
+    mu: f64,
+    lin: Vec<f32>,
+    ln: Vec<f32>,
+}
+
+impl PreciseMultipleScattering {
+    /// The slice of the table at radius `r` and view zenith cosine `mu`: multilinear in
+    /// (r, θ) as [`Source::add_scattering`] interpolates.
+    pub fn slice(&self, r: f64, mu: f64, out: &mut JSlice) {
+        let grid = &self.grid;
+        let (n_l, n_mu_s, n_mu, n_phi) = (self.n_l, grid.s.n_mu_s, grid.s.n_mu, grid.s.n_phi);
+        let fam = n_mu_s * n_phi * n_l;
+        out.mu = mu;
+        out.lin.clear();
+        out.lin.resize(fam, 0.0);
+        out.ln.resize(fam, 0.0);
+        let (ir, fr) = grid_pos(grid.x_r(r), grid.s.n_r);
+        let (im, fm) = Grid::centred_pos(acos_fast(mu), n_mu);
+        for (a, wa) in [(ir, 1.0 - fr), (ir + 1, fr)] {
+            for (c, wc) in [(im, 1.0 - fm), (im + 1, fm)] {
+                let w = (wa * wc) as f32;
+                if w == 0.0 {
+                    continue;
+                }
+                // Family layout: (r, θ) rows of [i_mu_s][i_phi][λ].
+                let base = (a * n_mu + c) * fam;
+                for (o, v) in out.lin.iter_mut().zip(&self.j_ms[base..base + fam]) {
+                    *o += w * v;
+                }
+            }
+        }
+        let from = (0..n_mu_s.saturating_sub(1))
+            .find(|&is| grid.twilight_cell(is))
+            .unwrap_or(n_mu_s)
+            .saturating_sub(1);
+        let k = from * n_phi * n_l;
+        for (l, &v) in out.ln[k..].iter_mut().zip(&out.lin[k..]) {
+            *l = ln_or_zero_f32(v);
+        }
+    }
+
+    /// Adds J_ms (m⁻¹ sr⁻¹ per unit solar irradiance) for the sun at zenith cosine `mu_s` and
+    /// view–sun cosine `nu` at the slice's point, interpolated over sun zenith and azimuth as
+    /// [`Source::add_scattering`] does: the same values by day; in twilight cells Catmull–Rom in
+    /// ln J of the (r, θ)-interpolated slice rather than of each (r, θ) node (the same order of
+    /// accuracy, not the same rounding).
+    pub fn add_from_slice(&self, slice: &JSlice, mu_s: f64, nu: f64, out: &mut [f64]) {
+        let grid = &self.grid;
+        let theta_s = acos_fast(mu_s);
+        if theta_s > grid.theta_s_max {
+            return;
+        }
+        let (n_l, n_mu_s, n_phi) = (self.n_l, grid.s.n_mu_s, grid.s.n_phi);
+        let (is, fs) = grid.s_pos(theta_s);
+        let cos_phi = cos_azimuth(slice.mu, mu_s, nu);
+        let (ip, fp) = Grid::centred_pos(acos_fast(cos_phi), n_phi);
+        let row = n_phi * n_l;
+        let out = &mut out[..n_l];
+        if !grid.twilight_cell(is) {
+            let a = is * row + ip * n_l;
+            let (v00, v01) = (&slice.lin[a..a + n_l], &slice.lin[a + n_l..a + 2 * n_l]);
+            let (v10, v11) = (
+                &slice.lin[a + row..a + row + n_l],
+                &slice.lin[a + row + n_l..a + row + 2 * n_l],
+            );
+            let (w00, w01) = ((1.0 - fs) * (1.0 - fp), (1.0 - fs) * fp);
+            let (w10, w11) = (fs * (1.0 - fp), fs * fp);
+            for i in 0..n_l {
+                out[i] += w00 * v00[i] as f64
+                    + w01 * v01[i] as f64
+                    + w10 * v10[i] as f64
+                    + w11 * v11[i] as f64;
+            }
+            return;
+        }
+        let (nodes, wq) = catmull_rom(is, fs, n_mu_s);
+        for (e, we) in [(ip, 1.0 - fp), (ip + 1, fp)] {
+            if we == 0.0 {
+                continue;
+            }
+            let at = nodes.map(|b| b * row + e * n_l);
+            let (v0, v1, v2, v3) = (
+                &slice.lin[at[0]..at[0] + n_l],
+                &slice.lin[at[1]..at[1] + n_l],
+                &slice.lin[at[2]..at[2] + n_l],
+                &slice.lin[at[3]..at[3] + n_l],
+            );
+            let (l0, l1, l2, l3) = (
+                &slice.ln[at[0]..at[0] + n_l],
+                &slice.ln[at[1]..at[1] + n_l],
+                &slice.ln[at[2]..at[2] + n_l],
+                &slice.ln[at[3]..at[3] + n_l],
+            );
+            const MIN: f32 = f32::MIN_POSITIVE;
+            for i in 0..n_l {
+                let positive = v0[i] >= MIN && v1[i] >= MIN && v2[i] >= MIN && v3[i] >= MIN;
+                let j = if positive {
+                    exp_fast(
+                        wq[0] * l0[i] as f64
+                            + wq[1] * l1[i] as f64
+                            + wq[2] * l2[i] as f64
+                            + wq[3] * l3[i] as f64,
+                    )
+                } else {
+                    v1[i] as f64 * (1.0 - fs) + v2[i] as f64 * fs
+                };
+                out[i] += we * j;
+            }
+        }
+    }
+}
+
 impl Source for PreciseMultipleScattering {
     fn add_scattering(&self, s: &RaySample, out: &mut [f64]) {
         lookup_j(&self.grid, self.n_l, &self.j_ms, s, out);
