@@ -1,5 +1,6 @@
 //! The atmosphere products, the spectra and the solar position, against their external references (DISORT, the spherical Monte Carlo, Bruneton, pvlib, colour-science), and the atmosphere planner.
 
+mod atmosphere_aerosol;
 mod atmosphere_cancel;
 mod atmosphere_night;
 mod atmosphere_products;

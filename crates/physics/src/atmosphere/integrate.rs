@@ -39,6 +39,22 @@ pub trait Source: Sync {
     fn add_ground_sky_irradiance(&self, mu_s: f64, out: &mut [f64]);
 }
 
+/// Mean transmittance from the viewer over a ray cell that starts at optical depth `tau_start`
+/// and is `dtau` thick, for a source constant over the cell: e^{−τ₀}(1 − e^{−Δτ})/Δτ (exact for
+/// constant extinction in the cell). The midpoint value e^{−τ₀ − Δτ/2} agrees to O(Δτ²) but falls
+/// far short in optically thick cells (Δτ = 5: 0.082 instead of 0.199), which in thick haze
+/// (aerosol optical depth 2, a few samples across the boundary layer) made the multiple-scattering
+/// sky 20–40 % dark against DISORT.
+#[inline(always)]
+pub fn cell_transmittance(tau_start: f64, dtau: f64) -> f64 {
+    let mean = if dtau > 1e-4 {
+        (1.0 - exp_fast(-dtau)) / dtau
+    } else {
+        1.0 - 0.5 * dtau
+    };
+    exp_fast(-tau_start) * mean
+}
+
 /// No source beyond what the integrator computes itself.
 pub struct NoSource;
 
@@ -311,14 +327,17 @@ crate::simd_dispatch! {
             };
             // Turn the source into this cell's radiance contribution, in place.
             for i in 0..n {
-                let tau_view = medium.optical_depth(i, &d_mid);
+                let t_cell = cell_transmittance(
+                    medium.optical_depth(i, &d_view),
+                    medium.optical_depth(i, &rho) * s.weight,
+                );
                 let mut j = scratch.j[i];
                 if vis > 0.0 {
                     let single = medium.rayleigh_scattering_per_m[i] * rho[RAYLEIGH] * phase_r
                         + medium.mie_scattering_per_m[i] * rho[MIE] * phase_m;
                     j += single * exp_fast(-medium.optical_depth(i, &d_sun)) * vis;
                 }
-                scratch.j[i] = exp_fast(-tau_view) * j * s.weight;
+                scratch.j[i] = t_cell * j * s.weight;
             }
             record(
                 cell_start + s.weight,

@@ -11,6 +11,10 @@
 //!   product with a phase matrix whose entries are the phase function integrated over each
 //!   direction cell (rows normalised to exactly 1, so the angular quadrature conserves energy).
 //!
+//! J is tabulated per constituent and per unit scattering coefficient, Â_c = ∫ p_c L dω
+//! (J = Σ_c σ_c(r) Â_c), and multiplied by σ_c at the radius where it is used, so the radial
+//! interpolation does not have to follow the density profiles (see [`PreciseMultipleScattering`]).
+//!
 //! Speed comes from the layout, not from coarser physics:
 //!
 //! - All cells with the same (r, θ) share one ray: its points, densities and viewer-to-point
@@ -35,7 +39,7 @@
 //! single scattering, so the table only has to resolve the smooth multiple part.
 
 use super::geometry::{horizon_mu, radius_at, safe_sqrt};
-use super::integrate::{ray_points, RayPoint, RaySample, Source};
+use super::integrate::{cell_transmittance, ray_points, RayPoint, RaySample, Source};
 use super::kernels::{acos_fast, exp_fast, exp_fast_f32, ln_fast, ln_fast_f32};
 use super::medium::{Medium, CONSTITUENTS, MIE, RAYLEIGH};
 use super::quadrature::grid_pos;
@@ -147,12 +151,26 @@ pub struct StageTimes {
 }
 
 /// The converged multiple-scattering source J_ms = Σ_{n≥2} J_n and ground sky irradiance.
+///
+/// The tables hold, per constituent c (Rayleigh, Mie), the phase-weighted in-scattered radiance
+/// Â_c = ∫ p_c(ω·ω′) L(ω′) dω′ (sr⁻¹ per unit solar irradiance), so J = σ_R ρ_R(r) Â_R +
+/// σ_M ρ_M(r) Â_M; every lookup multiplies by the densities at the sample's own radius. Â_c is
+/// smooth in r (the radiance field is), J is not: it carries the density profiles, and an aerosol
+/// of scale height 1.2 km falls by a factor 2–3 between the radius nodes near the ground (0, 0.28,
+/// 1.1, 2.5, 4.4 km at `standard`), where interpolating J linearly overestimated it by up to 17 %
+/// (19 % for a 50/50 mixture at 2.5–4.4 km) mid-interval. That bias fed every order's radiance
+/// pass and the products, and read as a hazy sky 3–5 % bright away from the sun against DISORT
+/// (+2.7 % still at `high`). One table of J/σ_s (σ_s the total) is not enough: the aerosol's
+/// share of σ_s changes from 0.9 to 0.4 over the same nodes, and Â_R and Â_M differ by a factor
+/// ~10 away from the aureole (measured: −4.9 % low sky at 440 nm with it).
 pub struct PreciseMultipleScattering {
     grid: Grid,
     n_l: usize,
-    /// `[i_r][i_mu][i_mu_s][i_phi][λ]`, scattering source of orders ≥ 2, m⁻¹ sr⁻¹ per unit solar
-    /// irradiance.
+    /// `[i_r][i_mu][i_mu_s][i_phi][c][λ]`, Â_R then Â_M of orders ≥ 2 (`2 n_l` lanes per cell),
+    /// sr⁻¹ per unit solar irradiance.
     j_ms: Vec<f32>,
+    /// σ_s(r) per λ: the scattering coefficients at relative density 1 and their profiles.
+    scattering: ScatteringCoefficient,
     /// `[i_mu_s][λ]`, sky irradiance on the ground per unit solar irradiance.
     ground_sky: Vec<f64>,
     pub convergence: Convergence,
@@ -274,6 +292,33 @@ impl Grid {
         let f = (angle / PI * n as f64 - 0.5).clamp(0.0, (n - 1) as f64);
         let i = (f.floor() as usize).min(n.saturating_sub(2));
         (i, f - i as f64)
+    }
+}
+
+/// The scattering coefficient σ_s(r, λ) = σ_R(λ) ρ_R(r) + σ_M(λ) ρ_M(r) that turns the tables'
+/// Ĵ into J (see [`PreciseMultipleScattering`]).
+#[derive(Debug, Clone)]
+struct ScatteringCoefficient {
+    bottom_radius_m: f64,
+    profiles: [super::medium::Profile; 2],
+    rayleigh_per_m: Vec<f64>,
+    mie_per_m: Vec<f64>,
+}
+
+impl ScatteringCoefficient {
+    fn new(medium: &Medium) -> Self {
+        Self {
+            bottom_radius_m: medium.bottom_radius_m,
+            profiles: [medium.profiles[RAYLEIGH], medium.profiles[MIE]],
+            rayleigh_per_m: medium.rayleigh_scattering_per_m.clone(),
+            mie_per_m: medium.mie_scattering_per_m.clone(),
+        }
+    }
+    /// (ρ_R, ρ_M) at radius `r_m`.
+    #[inline(always)]
+    fn densities(&self, r_m: f64) -> (f64, f64) {
+        let h = r_m - self.bottom_radius_m;
+        (self.profiles[0].density(h), self.profiles[1].density(h))
     }
 }
 
@@ -629,17 +674,18 @@ struct PassCtx<'a> {
 /// Per-thread buffers of the radiance pass.
 struct FamilyScratch {
     points: Vec<RayPoint>,
-    /// `[point][λ]`: sub-ray weight × quadrature weight × transmittance viewer → point.
+    /// `[point][λ]`: sub-ray weight × quadrature weight × transmittance viewer → point (order 1);
+    /// `[point][c][λ]`: the same times σ_c ρ_c at the point (orders ≥ 2).
     tw: Vec<f32>,
     /// `[point]`: relative densities (order 1).
     rho: Vec<[f64; CONSTITUENTS]>,
-    /// `[i_mu_s][i_phi][λ]`: J at one point's (r, θ), all sun zeniths and azimuths.
+    /// `[i_mu_s][i_phi][c][λ]`: Â_R, Â_M at one point's (r, θ), all sun zeniths and azimuths.
     slice: Vec<f32>,
-    /// `[i_mu_s][i_phi][λ]`: ln of `slice` (0 where it is 0) from sun-zenith node `ln_from` on,
+    /// `[i_mu_s][i_phi][c][λ]`: ln of `slice` (0 where it is 0) from sun-zenith node `ln_from` on,
     /// the nodes of twilight cells ([`Grid::twilight_cell`]).
     ln_slice: Vec<f32>,
     ln_from: usize,
-    /// `[λ]`: one twilight cell's interpolated J.
+    /// `[c][λ]`: one twilight cell's interpolated Â.
     tv: Vec<f32>,
     /// `[cell]`: interpolation positions at one point (sun-zenith node, −1 for none, and
     /// weight; azimuth node and weight), see [`Grid::s_pos_f`].
@@ -667,13 +713,13 @@ impl FamilyScratch {
             points: Vec::with_capacity(2 * grid.s.steps),
             tw: Vec::with_capacity(2 * grid.s.steps * n_l),
             rho: Vec::with_capacity(2 * grid.s.steps),
-            slice: vec![0.0; fc * n_l],
-            ln_slice: vec![0.0; fc * n_l],
+            slice: vec![0.0; fc * 2 * n_l],
+            ln_slice: vec![0.0; fc * 2 * n_l],
             ln_from: (0..grid.s.n_mu_s.saturating_sub(1))
                 .find(|&is| grid.twilight_cell(is))
                 .unwrap_or(grid.s.n_mu_s)
                 .saturating_sub(1),
-            tv: vec![0.0; n_l],
+            tv: vec![0.0; 2 * n_l],
             pos_s: vec![0.0; fc],
             pos_fs: vec![0.0; fc],
             pos_p: vec![0.0; fc],
@@ -800,6 +846,8 @@ crate::simd_dispatch! {
         let bottom = medium.bottom_radius_m;
         let r = grid.r(ir);
         let r0 = r.max(bottom);
+        // Lanes per cell of the Â tables (both constituents).
+        let n_j = 2 * n_l;
         out.fill(0.0);
         // Per-λ arrays sliced to exactly n_l, so the λ loops need no bounds checks and vectorise.
         let ext = [0, 1, 2].map(|c| &medium.extinction_per_m[c][..n_l]);
@@ -837,16 +885,25 @@ crate::simd_dispatch! {
             // Viewer-to-point transmittance at each point's midpoint (f64 density integrals).
             sc.tw.clear();
             sc.rho.clear();
+            // Orders ≥ 2 read Â_R and Â_M: their weights carry σ_R ρ_R and σ_M ρ_M at the point
+            // itself (`2 n_l` lanes per point), order 1 only the transmittance (`n_l`).
+            let order = matches!(input, PassInput::Order { .. });
+            let n_tw = if order { n_j } else { n_l };
             let mut d_view = [0.0f64; CONSTITUENTS];
             for p in &sc.points {
                 let rho = medium.densities(p.r);
-                let d_mid: [f64; CONSTITUENTS] =
-                    std::array::from_fn(|c| d_view[c] + 0.5 * rho[c] * p.weight);
                 let w = w_ray * p.weight;
-                sc.tw.extend((0..n_l).map(|i| {
-                    let tau = ext[0][i] * d_mid[0] + ext[1][i] * d_mid[1] + ext[2][i] * d_mid[2];
-                    (w * exp_fast(-tau)) as f32
-                }));
+                let tw_at = |i: usize| {
+                    let tau = ext[0][i] * d_view[0] + ext[1][i] * d_view[1] + ext[2][i] * d_view[2];
+                    let dtau = (ext[0][i] * rho[0] + ext[1][i] * rho[1] + ext[2][i] * rho[2]) * p.weight;
+                    w * cell_transmittance(tau, dtau)
+                };
+                if order {
+                    sc.tw.extend((0..n_l).map(|i| (tw_at(i) * sig_r[i] * rho[RAYLEIGH]) as f32));
+                    sc.tw.extend((0..n_l).map(|i| (tw_at(i) * sig_m[i] * rho[MIE]) as f32));
+                } else {
+                    sc.tw.extend((0..n_l).map(|i| tw_at(i) as f32));
+                }
                 for c in 0..CONSTITUENTS {
                     d_view[c] += rho[c] * p.weight;
                 }
@@ -857,7 +914,7 @@ crate::simd_dispatch! {
                 t_total[i] = exp_fast(-tau);
             }
             for (pi, p) in sc.points.iter().enumerate() {
-                let tw = &sc.tw[pi * n_l..][..n_l];
+                let tw = &sc.tw[pi * n_tw..][..n_tw];
                 let sin_mu = safe_sqrt(1.0 - p.mu * p.mu);
                 match input {
                     PassInput::Single => {
@@ -886,7 +943,7 @@ crate::simd_dispatch! {
                         // J at this point's (r, θ) for every (θ_s, φ): bilinear in (r, θ).
                         let (ia, fa) = grid_pos(grid.x_r(p.r), s.n_r);
                         let (ic, fcw) = Grid::centred_pos(acos_fast(p.mu), s.n_mu);
-                        let block = |a: usize, c: usize| &j[(a * s.n_mu + c) * fc * n_l..][..fc * n_l];
+                        let block = |a: usize, c: usize| &j[(a * s.n_mu + c) * fc * n_j..][..fc * n_j];
                         let (b00, b01, b10, b11) =
                             (block(ia, ic), block(ia, ic + 1), block(ia + 1, ic), block(ia + 1, ic + 1));
                         let (w00, w01, w10, w11) = (
@@ -899,7 +956,7 @@ crate::simd_dispatch! {
                             *slice = w00 * b00[x] + w01 * b01[x] + w10 * b10[x] + w11 * b11[x];
                         }
                         // ln J of the sun-zenith nodes that twilight cells interpolate over.
-                        let from = sc.ln_from * n_phi * n_l;
+                        let from = sc.ln_from * n_phi * n_j;
                         for (lv, &v) in sc.ln_slice[from..].iter_mut().zip(&sc.slice[from..]) {
                             *lv = ln_or_zero_f32(v);
                         }
@@ -954,13 +1011,13 @@ crate::simd_dispatch! {
                             if grid.twilight_cell(js) {
                                 // In ln J over sun zenith (`twilight_interp`), linear in azimuth.
                                 let (nodes, wq) = catmull_rom(js, fs as f64, n_mu_s);
-                                let tv = &mut sc.tv[..n_l];
+                                let tv = &mut sc.tv[..n_j];
                                 tv.fill(0.0);
                                 for (e, we) in [(jp, 1.0 - fp), (jp + 1, fp)] {
-                                    let row = nodes.map(|b| (b * n_phi + e) * n_l);
+                                    let row = nodes.map(|b| (b * n_phi + e) * n_j);
                                     twilight_lanes_f32(
-                                        row.map(|x| &sc.slice[x..][..n_l]),
-                                        row.map(|x| &sc.ln_slice[x..][..n_l]),
+                                        row.map(|x| &sc.slice[x..][..n_j]),
+                                        row.map(|x| &sc.ln_slice[x..][..n_j]),
                                         wq.map(|w| w as f32),
                                         fs,
                                         we,
@@ -969,20 +1026,22 @@ crate::simd_dispatch! {
                                 }
                                 let o = &mut out[c * n_l..][..n_l];
                                 for i in 0..n_l {
-                                    o[i] += tw[i] * tv[i];
+                                    o[i] += tw[i] * tv[i] + tw[n_l + i] * tv[n_l + i];
                                 }
                                 continue;
                             }
                             let (c00, c01, c10, c11) =
                                 ((1.0 - fs) * (1.0 - fp), (1.0 - fs) * fp, fs * (1.0 - fp), fs * fp);
                             let (s00, s01) =
-                                sc.slice[(js * n_phi + jp) * n_l..][..2 * n_l].split_at(n_l);
+                                sc.slice[(js * n_phi + jp) * n_j..][..2 * n_j].split_at(n_j);
                             let (s10, s11) =
-                                sc.slice[((js + 1) * n_phi + jp) * n_l..][..2 * n_l].split_at(n_l);
+                                sc.slice[((js + 1) * n_phi + jp) * n_j..][..2 * n_j].split_at(n_j);
                             let o = &mut out[c * n_l..][..n_l];
                             for i in 0..n_l {
-                                let v = c00 * s00[i] + c01 * s01[i] + c10 * s10[i] + c11 * s11[i];
-                                o[i] += tw[i] * v;
+                                let (m, v) = (n_l + i, |q: usize| {
+                                    c00 * s00[q] + c01 * s01[q] + c10 * s10[q] + c11 * s11[q]
+                                });
+                                o[i] += tw[i] * v(i) + tw[m] * v(m);
                             }
                         }
                     }
@@ -1035,7 +1094,8 @@ crate::simd_dispatch! {
 const J_ROWS: usize = 4;
 
 /// Per-thread scratch of the J pass, f64: `[q][k][i_mu_s][λ]` twice (the transformed radiance
-/// and the transformed J), and the accumulators of [`J_ROWS`] rows for both phase functions.
+/// and the transformed Â, both constituents), and the accumulators of [`J_ROWS`] rows for both
+/// phase functions.
 struct JScratch {
     spec: Vec<f64>,
     y: Vec<f64>,
@@ -1048,25 +1108,24 @@ impl JScratch {
         let n = grid.s.n_phi * grid.s.n_mu * w;
         Self {
             spec: vec![0.0; n],
-            y: vec![0.0; n],
+            y: vec![0.0; 2 * n],
             acc: vec![0.0; 2 * J_ROWS * w],
         }
     }
 }
 
 crate::simd_dispatch! {
-    /// J of the next order for every cell of radius index `ir` (`out`: `[i_mu][i_mu_s][i_phi][λ]`)
-    /// from one order's radiance there (`l`, same layout), in azimuthal cosine space
-    /// ([`AzimuthalPhase`]): the radiance transformed over azimuth, per frequency q the product
-    /// of the view-zenith blocks Ĝ_q (Rayleigh and Mie) with it, times the scattering coefficients
-    /// at this radius, transformed back. In f64 (the transforms take differences; J in f32 after,
+    /// Â_R and Â_M of the next order for every cell of radius index `ir` (`out`:
+    /// `[i_mu][i_mu_s][i_phi][c][λ]`, see [`PreciseMultipleScattering`]) from one order's radiance
+    /// there (`l`: `[i_mu][i_mu_s][i_phi][λ]`), in azimuthal cosine space ([`AzimuthalPhase`]): the
+    /// radiance transformed over azimuth, per frequency q the product of the view-zenith blocks
+    /// Ĝ_q (Rayleigh and Mie) with it, transformed back (Â_M stays 0 without aerosol). In f64 (the transforms take differences; J in f32 after,
     /// clamped at 0 against rounding where J vanishes).
     fn scattering_density_at_radius(
         grid: &Grid,
         n_l: usize,
         ap: &AzimuthalPhase,
-        scale_r: &[f64],
-        scale_m: &[f64],
+        with_mie: bool,
         l: &[f32],
         sc: &mut JScratch,
         out: &mut [f32],
@@ -1074,8 +1133,7 @@ crate::simd_dispatch! {
         let s = grid.s;
         let (n_mu, n_mu_s, n_phi) = (s.n_mu, s.n_mu_s, s.n_phi);
         let w = n_mu_s * n_l;
-        let (scale_r, scale_m) = (&scale_r[..n_l], &scale_m[..n_l]);
-        let with_mie = scale_m.iter().any(|&v| v != 0.0);
+        let (n_j, w_j) = (2 * n_l, 2 * w);
         // Forward: spec[q][k][is][λ] = Σ_l L[k][is][l][λ] cos(πq(l + ½)/n_φ).
         let spec = &mut sc.spec[..n_phi * n_mu * w];
         spec.fill(0.0);
@@ -1120,34 +1178,34 @@ crate::simd_dispatch! {
                     }
                 }
                 for b in 0..rows {
-                    let dst = &mut sc.y[(q * n_mu + o0 + b) * w..][..w];
+                    let dst = &mut sc.y[(q * n_mu + o0 + b) * w_j..][..w_j];
                     let (ar, am) = (&acc_r[b * w..][..w], &acc_m[b * w..][..w]);
                     for is in 0..n_mu_s {
                         let x0 = is * n_l;
-                        for i in 0..n_l {
-                            dst[x0 + i] = scale_r[i] * ar[x0 + i] + scale_m[i] * am[x0 + i];
-                        }
+                        let (dr, dm) = dst[is * n_j..][..n_j].split_at_mut(n_l);
+                        dr.copy_from_slice(&ar[x0..][..n_l]);
+                        dm.copy_from_slice(&am[x0..][..n_l]);
                     }
                 }
                 o0 += rows;
             }
         }
-        // Inverse: J[k][is][l][λ] = Σ_q ε_q/n_φ cos(πq(l + ½)/n_φ) y[q][k][is][λ].
-        let y = &sc.y[..n_phi * n_mu * w];
+        // Inverse: Â[k][is][l][c][λ] = Σ_q ε_q/n_φ cos(πq(l + ½)/n_φ) y[q][k][is][c][λ].
+        let y = &sc.y[..n_phi * n_mu * w_j];
         for k in 0..n_mu {
             for is in 0..n_mu_s {
                 for lo in 0..n_phi {
-                    let dst = &mut out[((k * n_mu_s + is) * n_phi + lo) * n_l..][..n_l];
-                    let acc = &mut sc.acc[..n_l];
+                    let dst = &mut out[((k * n_mu_s + is) * n_phi + lo) * n_j..][..n_j];
+                    let acc = &mut sc.acc[..n_j];
                     acc.fill(0.0);
                     for q in 0..n_phi {
                         let c = ap.inv[q * n_phi + lo];
-                        let src = &y[(q * n_mu + k) * w + is * n_l..][..n_l];
-                        for i in 0..n_l {
+                        let src = &y[(q * n_mu + k) * w_j + is * n_j..][..n_j];
+                        for i in 0..n_j {
                             acc[i] += c * src[i];
                         }
                     }
-                    for i in 0..n_l {
+                    for i in 0..n_j {
                         dst[i] = acc[i].max(0.0) as f32;
                     }
                 }
@@ -1249,6 +1307,10 @@ impl PreciseMultipleScattering {
         let fc = grid.family_cells();
         let family_len = fc * n_l;
         let per_r = s.n_mu * family_len;
+        // Â tables: both constituents per cell.
+        let n_j = 2 * n_l;
+        let (family_len_j, per_r_j) = (fc * n_j, s.n_mu * fc * n_j);
+        let with_mie = medium.mie_scattering_per_m.iter().any(|&v| v > 0.0);
         let phase = azimuthal_phase(&grid, medium.mie_phase);
         let up_w = upward_cosine_weights(&grid);
         let ctx = PassCtx {
@@ -1322,27 +1384,15 @@ impl PreciseMultipleScattering {
         };
         // J of the next order from one order's radiance, radius by radius.
         let scattering_density = |l: &[f32]| -> Vec<f32> {
-            let mut j = vec![0.0f32; grid.cells() * n_l];
-            j.par_chunks_mut(per_r).enumerate().for_each_init(
+            let mut j = vec![0.0f32; grid.cells() * n_j];
+            j.par_chunks_mut(per_r_j).enumerate().for_each_init(
                 || JScratch::new(&grid, n_l),
                 |sc, (ir, out)| {
-                    let rho = medium.densities(grid.r(ir));
-                    let scale_r: Vec<f64> = medium
-                        .rayleigh_scattering_per_m
-                        .iter()
-                        .map(|&v| v * rho[RAYLEIGH])
-                        .collect();
-                    let scale_m: Vec<f64> = medium
-                        .mie_scattering_per_m
-                        .iter()
-                        .map(|&v| v * rho[MIE])
-                        .collect();
                     scattering_density_at_radius(
                         &grid,
                         n_l,
                         &phase,
-                        &scale_r,
-                        &scale_m,
+                        with_mie,
                         &l[ir * per_r..][..per_r],
                         sc,
                         out,
@@ -1369,7 +1419,7 @@ impl PreciseMultipleScattering {
         let mut e_n = ground_of(&l_n);
         let mut ground_sky = e_n.clone();
         stage_ms.single_scattering = ms(t_start);
-        let mut j_ms = vec![0.0f32; grid.cells() * n_l];
+        let mut j_ms = vec![0.0f32; grid.cells() * n_j];
         let mut j_n = Vec::new();
         let mut fractions = vec![1.0];
         let mut orders = 1;
@@ -1420,16 +1470,18 @@ impl PreciseMultipleScattering {
         let (tail_fraction, series_error_estimate, order_ratio) = match series.tail() {
             Some((tail, err, q, factors)) if s.extrapolate_tail => {
                 // Σ_{m>n} J_m ≈ J_n q/(1 − q), Σ_{m>n} E_m ≈ E_n q/(1 − q), per (θ_s, λ).
-                j_ms.par_chunks_mut(family_len)
-                    .zip(j_n.par_chunks(family_len))
+                j_ms.par_chunks_mut(family_len_j)
+                    .zip(j_n.par_chunks(family_len_j))
                     .for_each(|(acc, jn)| {
-                        let rows = acc.chunks_mut(s.n_phi * n_l).zip(jn.chunks(s.n_phi * n_l));
+                        let rows = acc.chunks_mut(s.n_phi * n_j).zip(jn.chunks(s.n_phi * n_j));
                         for (is, (acc, jn)) in rows.enumerate() {
+                            // The same factor for both constituents' lanes.
                             let f: Vec<f32> = factors[is * n_l..][..n_l]
                                 .iter()
+                                .chain(&factors[is * n_l..][..n_l])
                                 .map(|&f| f as f32)
                                 .collect();
-                            for (a, b) in acc.chunks_mut(n_l).zip(jn.chunks(n_l)) {
+                            for (a, b) in acc.chunks_mut(n_j).zip(jn.chunks(n_j)) {
                                 a.iter_mut()
                                     .zip(b)
                                     .zip(&f)
@@ -1460,6 +1512,7 @@ impl PreciseMultipleScattering {
             grid,
             n_l,
             j_ms,
+            scattering: ScatteringCoefficient::new(medium),
             ground_sky,
             convergence: Convergence {
                 orders,
@@ -1475,8 +1528,9 @@ impl PreciseMultipleScattering {
 }
 
 /// Version of the stored table layout (part of its store key).
-/// (2: twice-as-dense sun-zenith nodes beyond 80°, for twilight; 3: f32 exp/ln in the build.)
-pub const TABLE_FORMAT: &str = "precise-table-3";
+/// (2: twice-as-dense sun-zenith nodes beyond 80°, for twilight; 3: f32 exp/ln in the build;
+/// 4: Â_R and Â_M per constituent instead of J.)
+pub const TABLE_FORMAT: &str = "precise-table-4";
 /// Header attribute holding the stored table's description ([`StoredPrecise`] as JSON).
 const ATTR_TABLE: &str = "skybakeSharedTable";
 
@@ -1495,15 +1549,22 @@ struct StoredPrecise {
 
 impl PreciseMultipleScattering {
     /// The table as a spectral image for the table store: pixel (x, y) = (i_mu_s · n_φ + i_φ,
-    /// i_r · n_μ + i_μ), one plane per wavelength (J_ms in f32, as computed), and the ground sky
+    /// c · n_r · n_μ + i_r · n_μ + i_μ) for constituent c (Â_R, then Â_M), one plane per wavelength
+    /// (f32, as computed), and the ground sky
     /// irradiance, settings and convergence record as a JSON header attribute.
     pub fn to_image(&self, medium: &Medium) -> crate::Result<SpectralImage> {
         let s = self.grid.s;
         let (w, h) = (self.grid.family_cells(), s.n_r * s.n_mu);
-        let planes = (0..self.n_l)
-            .map(|i| (0..w * h).map(|px| self.j_ms[px * self.n_l + i]).collect())
+        let n_l = self.n_l;
+        // Rows [0, h): Â_R; rows [h, 2h): Â_M.
+        let planes = (0..n_l)
+            .map(|i| {
+                (0..2 * w * h)
+                    .map(|px| self.j_ms[(px % (w * h)) * 2 * n_l + (px / (w * h)) * n_l + i])
+                    .collect()
+            })
             .collect();
-        let mut image = SpectralImage::emissive(w, h, &medium.wavelengths_nm, planes)?;
+        let mut image = SpectralImage::emissive(w, 2 * h, &medium.wavelengths_nm, planes)?;
         let meta = StoredPrecise {
             kind: "precise".into(),
             settings: s,
@@ -1536,18 +1597,19 @@ impl PreciseMultipleScattering {
             && meta.top_radius_m == medium.top_radius_m
             && meta.wavelengths_nm == medium.wavelengths_nm
             && image.width() == w
-            && image.height() == h
+            && image.height() == 2 * h
             && planes.len() == n_l
-            && planes.iter().all(|p| p.len() == w * h)
+            && planes.iter().all(|p| p.len() == 2 * w * h)
             && meta.ground_sky.len() == s.n_mu_s * n_l
             && meta.ground_sky.iter().all(|&v| valid(v));
         if !matches {
             return None;
         }
-        // Interleaved [pixel][λ], written in order.
-        let mut j_ms = Vec::with_capacity(w * h * n_l);
+        // Interleaved [pixel][c][λ], written in order (Â_M's rows follow Â_R's).
+        let mut j_ms = Vec::with_capacity(2 * w * h * n_l);
         for px in 0..w * h {
             j_ms.extend(planes.iter().map(|p| p[px]));
+            j_ms.extend(planes.iter().map(|p| p[w * h + px]));
         }
         if !j_ms.iter().all(|&v| valid(v as f64)) {
             return None;
@@ -1556,6 +1618,7 @@ impl PreciseMultipleScattering {
             grid,
             n_l,
             j_ms,
+            scattering: ScatteringCoefficient::new(medium),
             ground_sky: meta.ground_sky,
             convergence: meta.convergence,
         })
@@ -1683,7 +1746,16 @@ impl PreciseMultipleScattering {
 
 impl Source for PreciseMultipleScattering {
     fn add_scattering(&self, s: &RaySample, out: &mut [f64]) {
-        lookup_j(&self.grid, self.n_l, &self.j_ms, s, out);
+        const MAX: usize = crate::spectrum::wavelengths::MAX_WAVELENGTHS;
+        let n_l = self.n_l;
+        let mut a = [0.0f64; 2 * MAX];
+        let a = &mut a[..2 * n_l];
+        lookup_j(&self.grid, 2 * n_l, &self.j_ms, s, a);
+        let sc = &self.scattering;
+        let (rho_r, rho_m) = sc.densities(s.r);
+        for i in 0..n_l {
+            out[i] += sc.rayleigh_per_m[i] * rho_r * a[i] + sc.mie_per_m[i] * rho_m * a[n_l + i];
+        }
     }
     fn add_ground_sky_irradiance(&self, mu_s: f64, out: &mut [f64]) {
         lookup_ground(&self.grid, self.n_l, &self.ground_sky, mu_s, out);
