@@ -45,6 +45,11 @@ pub struct ServerSettings {
     pub shutdown_grace_s: f64,
     /// Largest estimated cost of one product request ([`crate::cost`]), cell-wavelength-orders.
     pub max_request_cost: u64,
+    /// Largest estimated cost of one frame request or frame plan
+    /// ([`crate::frame::FrameCost`]), pixel-voxel-samples.
+    pub max_frame_cost: u64,
+    /// Largest estimated peak memory of one frame request ([`crate::frame::FrameCost`]), bytes.
+    pub max_request_memory_bytes: u64,
     /// Largest estimated cost of one job ([`skybake_job::spec::JobSpec::validate_and_cost`]).
     pub max_job_cost: u64,
     /// Computations waiting for a compute slot before new ones are shed.
@@ -125,6 +130,12 @@ pub const ENV_VARS: &[(&str, &str, &str)] = &[
     ),
     ("SKYBAKE_SHUTDOWN_GRACE_S", "server", "shutdown_grace_s"),
     ("SKYBAKE_MAX_REQUEST_COST", "server", "max_request_cost"),
+    ("SKYBAKE_MAX_FRAME_COST", "server", "max_frame_cost"),
+    (
+        "SKYBAKE_MAX_REQUEST_MEMORY_BYTES",
+        "server",
+        "max_request_memory_bytes",
+    ),
     ("SKYBAKE_MAX_JOB_COST", "server", "max_job_cost"),
     (
         "SKYBAKE_MAX_QUEUED_COMPUTATIONS",
@@ -385,6 +396,20 @@ impl Settings {
                 "server.max_request_cost",
                 s.max_request_cost,
                 "at least 1000000",
+            ));
+        }
+        if s.max_frame_cost < 1_000_000 {
+            return Err(Error::out_of_range(
+                "server.max_frame_cost",
+                s.max_frame_cost,
+                "at least 1000000",
+            ));
+        }
+        if s.max_request_memory_bytes < 1 << 24 {
+            return Err(Error::out_of_range(
+                "server.max_request_memory_bytes",
+                s.max_request_memory_bytes,
+                "at least 16777216",
             ));
         }
         if s.max_job_cost < 1_000_000 {

@@ -274,6 +274,16 @@ pub struct Frame {
 /// Lighting for a scene from the engine (or without one in vacuum), with the cloud's altitude
 /// and the distances the camera sees taken from the grid.
 pub fn lighting_for(scene: &FrameScene, grid: &DensityGrid, engine: &Engine) -> Result<Lighting> {
+    lighting_for_unless(scene, grid, engine, &|| false)
+}
+
+/// [`lighting_for`], stopped with [`Error::Cancelled`] once `cancelled` returns true.
+pub fn lighting_for_unless(
+    scene: &FrameScene,
+    grid: &DensityGrid,
+    engine: &Engine,
+    cancelled: &(dyn Fn() -> bool + Sync),
+) -> Result<Lighting> {
     let lo = grid.origin_m;
     let hi = grid.max_corner_m();
     let centre = 0.5 * (lo + hi);
@@ -294,11 +304,12 @@ pub fn lighting_for(scene: &FrameScene, grid: &DensityGrid, engine: &Engine) -> 
         .as_ref()
         .map(|g| 20.0 * (cam.z - g.height_m).max(100.0))
         .unwrap_or(0.0);
-    Lighting::from_scene(
+    Lighting::from_scene_unless(
         scene,
         engine,
         centre.z,
         far.max(ground_far).max(1000.0) * 1.05,
+        cancelled,
     )
 }
 

@@ -1,10 +1,11 @@
 //! The job routes over the job library ([`skybake_job`]): submit, status (paged artifact list),
 //! cancel, and an item's artifact in any of its formats.
 
+use super::super::extract::PathParams as UrlPath;
 use super::super::extract::{FormatOnly, JsonObject, NoParams, Page, Query};
 use super::super::problem::ApiError;
 use super::super::AppState;
-use axum::extract::{Path as UrlPath, State};
+use axum::extract::State;
 use axum::http::{header, HeaderValue, StatusCode};
 use axum::response::{IntoResponse, Response};
 use serde_json::{json, Value};
