@@ -1633,21 +1633,25 @@ impl PreciseMultipleScattering {
 pub struct JSlice {
     /// View zenith cosine at the point.
     mu: f64,
+    /// `[i_mu_s][i_phi][c][λ]`: Â_R and Â_M interpolated to the point.
+    per_constituent: Vec<f32>,
     lin: Vec<f32>,
     ln: Vec<f32>,
 }
 
 impl PreciseMultipleScattering {
-    /// The slice of the table at radius `r` and view zenith cosine `mu`: multilinear in
-    /// (r, θ) as [`Source::add_scattering`] interpolates.
+    /// The slice of the table at radius `r` and view zenith cosine `mu`: Â_R and Â_M
+    /// multilinear in (r, θ) as [`Source::add_scattering`] interpolates, then weighted by the
+    /// point's scattering coefficients σ_c ρ_c(r) into J.
     pub fn slice(&self, r: f64, mu: f64, out: &mut JSlice) {
         let grid = &self.grid;
         let (n_l, n_mu_s, n_mu, n_phi) = (self.n_l, grid.s.n_mu_s, grid.s.n_mu, grid.s.n_phi);
-        let fam = n_mu_s * n_phi * n_l;
+        let cells = n_mu_s * n_phi;
+        let lanes = 2 * n_l;
+        let fam = cells * lanes;
         out.mu = mu;
-        out.lin.clear();
-        out.lin.resize(fam, 0.0);
-        out.ln.resize(fam, 0.0);
+        out.per_constituent.clear();
+        out.per_constituent.resize(fam, 0.0);
         let (ir, fr) = grid_pos(grid.x_r(r), grid.s.n_r);
         let (im, fm) = Grid::centred_pos(acos_fast(mu), n_mu);
         for (a, wa) in [(ir, 1.0 - fr), (ir + 1, fr)] {
@@ -1656,11 +1660,27 @@ impl PreciseMultipleScattering {
                 if w == 0.0 {
                     continue;
                 }
-                // Family layout: (r, θ) rows of [i_mu_s][i_phi][λ].
+                // Family layout: (r, θ) rows of [i_mu_s][i_phi][c][λ].
                 let base = (a * n_mu + c) * fam;
-                for (o, v) in out.lin.iter_mut().zip(&self.j_ms[base..base + fam]) {
+                for (o, v) in out
+                    .per_constituent
+                    .iter_mut()
+                    .zip(&self.j_ms[base..base + fam])
+                {
                     *o += w * v;
                 }
+            }
+        }
+        let sc = &self.scattering;
+        let (rho_r, rho_m) = sc.densities(r);
+        out.lin.clear();
+        out.lin.resize(cells * n_l, 0.0);
+        out.ln.resize(cells * n_l, 0.0);
+        for (cell, j) in out.lin.chunks_exact_mut(n_l).enumerate() {
+            let a = &out.per_constituent[cell * lanes..][..lanes];
+            for i in 0..n_l {
+                j[i] = (sc.rayleigh_per_m[i] * rho_r * a[i] as f64
+                    + sc.mie_per_m[i] * rho_m * a[n_l + i] as f64) as f32;
             }
         }
         let from = (0..n_mu_s.saturating_sub(1))
