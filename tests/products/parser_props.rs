@@ -47,43 +47,9 @@ fn random_json(rng: &mut impl Rng, depth: u32) -> Value {
 fn mutated(v: &Value, seed: u64) -> Value {
     let mut rng = rand_pcg::Pcg64::seed_from_u64(seed);
     let mut v = v.clone();
-    for _ in 0..rng.random_range(1..=4) {
-        let (mut pointer, mut node) = (String::new(), &v);
-        loop {
-            let next = match node {
-                Value::Object(m) if !m.is_empty() && rng.random_bool(0.75) => {
-                    let (k, n) = m.iter().nth(rng.random_range(0..m.len())).unwrap();
-                    Some((k.replace('~', "~0").replace('/', "~1"), n))
-                }
-                Value::Array(a) if !a.is_empty() && rng.random_bool(0.75) => {
-                    let i = rng.random_range(0..a.len());
-                    Some((i.to_string(), &a[i]))
-                }
-                _ => None,
-            };
-            match next {
-                Some((k, n)) => {
-                    pointer = format!("{pointer}/{k}");
-                    node = n;
-                }
-                None => break,
-            }
-        }
-        let replacement = random_json(&mut rng, 2);
-        let remove = rng.random_bool(0.3);
-        if let Some(target) = v.pointer_mut(&pointer) {
-            match target {
-                Value::Object(m) if remove && !m.is_empty() => {
-                    let k = m.keys().next().unwrap().clone();
-                    m.remove(&k);
-                }
-                Value::Array(a) if remove => {
-                    a.pop();
-                }
-                _ => *target = replacement,
-            }
-        }
-    }
+    crate::service_support::json_mutation::mutate(&mut rng, &mut v, 1..=4, 0.75, |rng| {
+        random_json(rng, 2)
+    });
     v
 }
 

@@ -113,6 +113,18 @@ async fn frames_and_plans_over_the_cost_or_memory_cap_are_refused_naming_it() {
             .contains("server.max_request_memory_bytes"),
         "{p}"
     );
+    // As a job item, the same frame is refused at submission, naming the item and the cap.
+    let r = srv
+        .post(
+            "/v1/jobs",
+            &format!(r#"{{"frames": [{{"scene": {big}}}]}}"#),
+        )
+        .await;
+    assert_eq!(r.status, 413, "{}", r.text());
+    let p = r.json();
+    let parameter = p["parameter"].as_str().unwrap_or_default();
+    assert!(parameter.starts_with("frames[0]"), "{p}");
+    assert!(parameter.ends_with("request_memory"), "{p}");
     // The same automaton at few steps is within both caps.
     let r = srv
         .post(

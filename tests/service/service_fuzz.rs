@@ -540,45 +540,9 @@ mod fuzz {
 
     /// `v` with one to three of its members (at any depth) replaced, removed or emptied.
     fn mutate(rng: &mut impl Rng, v: &mut Value) {
-        for _ in 0..rng.random_range(1..=3) {
-            // A random JSON pointer into `v`, walked without mutating it.
-            let (mut pointer, mut node) = (String::new(), &*v);
-            loop {
-                let next = match node {
-                    Value::Object(m) if !m.is_empty() && rng.random_bool(0.7) => {
-                        let (k, n) = m.iter().nth(rng.random_range(0..m.len())).unwrap();
-                        Some((k.replace('~', "~0").replace('/', "~1"), n))
-                    }
-                    Value::Array(a) if !a.is_empty() && rng.random_bool(0.7) => {
-                        let i = rng.random_range(0..a.len());
-                        Some((i.to_string(), &a[i]))
-                    }
-                    _ => None,
-                };
-                match next {
-                    Some((k, n)) => {
-                        pointer = format!("{pointer}/{k}");
-                        node = n;
-                    }
-                    None => break,
-                }
-            }
-            let replacement = random_json(rng, 2);
-            let remove = rng.random_bool(0.3);
-            let Some(target) = v.pointer_mut(&pointer) else {
-                continue;
-            };
-            match target {
-                Value::Object(m) if remove && !m.is_empty() => {
-                    let k = m.keys().next().unwrap().clone();
-                    m.remove(&k);
-                }
-                Value::Array(a) if remove => {
-                    a.pop();
-                }
-                _ => *target = replacement,
-            }
-        }
+        crate::service_support::json_mutation::mutate(rng, v, 1..=3, 0.7, |rng| {
+            random_json(rng, 2)
+        });
     }
 
     fn job(rng: &mut impl Rng, scenes: &[Value]) -> Value {

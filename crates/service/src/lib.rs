@@ -402,26 +402,7 @@ impl AppState {
         key: String,
         cancel: Arc<CancelToken>,
     ) -> Result<Arc<[u8]>, ApiError> {
-        let inner = &self.inner;
-        let permit = {
-            let notified = cancel.notify.notified();
-            tokio::pin!(notified);
-            notified.as_mut().enable();
-            if cancel.is_cancelled() {
-                None
-            } else {
-                tokio::select! {
-                    p = inner.compute.acquire() => Some(p),
-                    () = notified => None,
-                }
-            }
-        };
-        inner.queued.fetch_sub(1, Ordering::Relaxed);
-        let Some(permit) = permit else {
-            inner.metrics.cancelled.fetch_add(1, Ordering::Relaxed);
-            return Err(crate::Error::Cancelled.into());
-        };
-        let _permit = permit.map_err(|_| ApiError::Unavailable("shutting down".into()))?;
+        let _permit = self.compute_slot(&cancel).await?;
         let s = self.clone();
         Self::blocking(move || {
             // Another flight may have finished between our cache miss and starting this one.
@@ -697,26 +678,7 @@ impl AppState {
         // A task of its own holds the slot until the blocking work has returned, even when the
         // caller has gone (the work stops at its next check).
         let task = tokio::spawn(async move {
-            let inner = &state.inner;
-            let permit = {
-                let notified = cancel.notify.notified();
-                tokio::pin!(notified);
-                notified.as_mut().enable();
-                if cancel.is_cancelled() {
-                    None
-                } else {
-                    tokio::select! {
-                        p = inner.compute.acquire() => Some(p),
-                        () = notified => None,
-                    }
-                }
-            };
-            inner.queued.fetch_sub(1, Ordering::Relaxed);
-            let Some(permit) = permit else {
-                inner.metrics.cancelled.fetch_add(1, Ordering::Relaxed);
-                return Err(crate::Error::Cancelled.into());
-            };
-            let _permit = permit.map_err(|_| ApiError::Unavailable("shutting down".into()))?;
+            let _permit = state.compute_slot(&cancel).await?;
             let s = state.clone();
             Self::blocking(move || {
                 let m = &s.inner.metrics;
@@ -747,10 +709,52 @@ impl AppState {
     }
 }
 
+impl AppState {
+    /// Waits in the queue for a compute slot, leaving the queue either way: cancelled (counted)
+    /// when `cancel` fires first, 503 when the service is shutting down.
+    async fn compute_slot(
+        &self,
+        cancel: &CancelToken,
+    ) -> Result<tokio::sync::SemaphorePermit<'_>, ApiError> {
+        let inner = &self.inner;
+        let permit = {
+            let notified = cancel.notify.notified();
+            tokio::pin!(notified);
+            notified.as_mut().enable();
+            if cancel.is_cancelled() {
+                None
+            } else {
+                tokio::select! {
+                    p = inner.compute.acquire() => Some(p),
+                    () = notified => None,
+                }
+            }
+        };
+        inner.queued.fetch_sub(1, Ordering::Relaxed);
+        let Some(permit) = permit else {
+            inner.metrics.cancelled.fetch_add(1, Ordering::Relaxed);
+            return Err(crate::Error::Cancelled.into());
+        };
+        permit.map_err(|_| ApiError::Unavailable("shutting down".into()))
+    }
+}
+
 /// Jobs produce their items through the service's cache: cached items are hits, the others are
 /// computed once (joining identical requests in flight) and stored.
 impl skybake_job::run::Producer for AppState {
     async fn produce(&self, work: AnyRequest) -> Result<(), skybake_job::JobError> {
+        // A frame item is held to the per-request memory cap once voxelised, as a render is (its
+        // cost is the job's, admitted at submission).
+        let work = match work {
+            AnyRequest::Frame(r) => {
+                let caps = skybake_product::frame::FrameCaps {
+                    max_cost: u64::MAX,
+                    max_memory_bytes: self.frame_caps().max_memory_bytes,
+                };
+                AnyRequest::Frame(Arc::new(Arc::unwrap_or_clone(r).with_caps(Some(caps))))
+            }
+            other => other,
+        };
         self.artifact(&work, &work.cache_key())
             .await
             .map(|_| ())

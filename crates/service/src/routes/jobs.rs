@@ -44,6 +44,7 @@ pub async fn submit(
             max_live: settings.jobs.max_live,
             disk_bytes: settings.cache.disk_budget_bytes,
             max_cost: settings.server.max_job_cost,
+            max_item_memory_bytes: settings.server.max_request_memory_bytes,
         };
         let job = s.jobs().submit(&body.bytes, limits)?;
         s.account_disk(None);
