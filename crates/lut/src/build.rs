@@ -21,9 +21,8 @@ use std::time::Instant;
 
 use rayon::prelude::*;
 use skybake_physics::atmosphere::geometry::horizon_mu;
-use skybake_physics::atmosphere::integrate::{ray_points, RayPoint};
+use skybake_physics::atmosphere::integrate::{cell_weight, ray_points, sun_attenuation, RayPoint};
 use skybake_physics::atmosphere::irradiance::{SUN_PRODUCT_N_MU, SUN_PRODUCT_N_PHI};
-use skybake_physics::atmosphere::kernels::exp_fast;
 use skybake_physics::atmosphere::medium::{Medium, CONSTITUENTS, MIE, RAYLEIGH};
 use skybake_physics::atmosphere::multiple_precise::{
     source_sun_zenith_limit_rad, JSlice, PreciseMultipleScattering,
@@ -363,8 +362,8 @@ struct TexelSums<'a> {
 }
 
 /// What every sun on one ray shares (a ray family of the texture: fixed r and μ): the products'
-/// quadrature points, their densities, the transmittance from the ray's origin to each point's
-/// cell midpoint × the point's weight (`[point][λ]`), the density table at each point's radius
+/// quadrature points, their densities, each point's cell weight as the products' integrator
+/// weights it ([`cell_weight`]: length × mean transmittance from the ray's origin, `[point][λ]`), the density table at each point's radius
 /// and the multiple-scattering table at each point's (r, μ) ([`JSlice`]). A texel then costs
 /// one sun-zenith/azimuth interpolation per point.
 struct FamilyScratch<'a> {
@@ -416,14 +415,12 @@ impl<'a> FamilyScratch<'a> {
         let mut d_view = [0.0f64; CONSTITUENTS];
         for (p, slice) in self.points.iter().zip(&mut self.slices) {
             let rho = m.densities(p.r);
-            let mut d_mid = d_view;
-            for k in 0..CONSTITUENTS {
-                d_mid[k] += 0.5 * rho[k] * p.weight;
-                d_view[k] += rho[k] * p.weight;
-            }
             for l in 0..m.len() {
                 self.weighted_t
-                    .push(exp_fast(-m.optical_depth(l, &d_mid)) * p.weight);
+                    .push(cell_weight(m, l, &d_view, &rho, p.weight));
+            }
+            for k in 0..CONSTITUENTS {
+                d_view[k] += rho[k] * p.weight;
             }
             self.rho.push(rho);
             self.at
@@ -456,7 +453,7 @@ impl<'a> FamilyScratch<'a> {
             let d_sun = at.lookup(mu_s_p);
             let rho = &self.rho[k];
             for l in 0..n_l {
-                let sun = wt[l] * exp_fast(-m.optical_depth(l, &d_sun)) * vis;
+                let sun = wt[l] * sun_attenuation(m, l, &d_sun, vis);
                 self.rayleigh[l] += sun * m.rayleigh_scattering_per_m[l] * rho[RAYLEIGH];
                 self.mie[l] += sun * m.mie_scattering_per_m[l] * rho[MIE];
             }

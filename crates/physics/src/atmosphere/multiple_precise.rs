@@ -1625,18 +1625,27 @@ impl PreciseMultipleScattering {
     }
 }
 
-/// J_ms at one ray point for every sun: the table interpolated once to the point's radius and
-/// view zenith, `[i_mu_s][i_phi][λ]` (and its logarithm on the twilight nodes), for callers that
-/// evaluate many suns on the same rays (the texture bundle: 256 suns per ray). Filled by
-/// [`PreciseMultipleScattering::slice`], read by [`PreciseMultipleScattering::add_from_slice`].
+/// J_ms at one ray point for every sun, for callers that evaluate many suns on the same rays
+/// (the texture bundle: 256 suns per ray): the table interpolated once to the point's radius and
+/// view zenith for the day cells, and the logarithms the products' twilight interpolation takes
+/// at the point's (r, θ) corners. Filled by [`PreciseMultipleScattering::slice`], read by
+/// [`PreciseMultipleScattering::add_from_slice`].
 #[derive(Debug, Clone, Default)]
 pub struct JSlice {
-    /// View zenith cosine at the point.
+    /// Radius and view zenith cosine of the point.
+    r: f64,
     mu: f64,
     /// `[i_mu_s][i_phi][c][λ]`: Â_R and Â_M interpolated to the point.
-    per_constituent: Vec<f32>,
-    lin: Vec<f32>,
-    ln: Vec<f32>,
+    per_constituent: Vec<f64>,
+    /// `[i_mu_s][i_phi][λ]`: J at the point (day cells only).
+    lin: Vec<f64>,
+    /// The (r, θ) corners of the point with a non-zero weight: (r node, θ node, weight), in the
+    /// order the products' lookup visits them.
+    corners: Vec<(usize, usize, f64)>,
+    /// `[corner][i_mu_s − ln_from][i_phi][c][λ]`: ln Â of each corner ([`ln_or_zero`]) on the
+    /// sun-zenith nodes twilight cells interpolate.
+    ln: Vec<f64>,
+    ln_from: usize,
 }
 
 impl PreciseMultipleScattering {
@@ -1649,117 +1658,106 @@ impl PreciseMultipleScattering {
         let cells = n_mu_s * n_phi;
         let lanes = 2 * n_l;
         let fam = cells * lanes;
+        out.r = r;
         out.mu = mu;
         out.per_constituent.clear();
         out.per_constituent.resize(fam, 0.0);
+        out.corners.clear();
+        out.ln.clear();
+        // Twilight cells from `from` on; their Catmull–Rom nodes from `from − 1`.
+        out.ln_from = (0..n_mu_s.saturating_sub(1))
+            .find(|&is| grid.twilight_cell(is))
+            .unwrap_or(n_mu_s)
+            .saturating_sub(1);
+        let ln_start = out.ln_from * n_phi * lanes;
         let (ir, fr) = grid_pos(grid.x_r(r), grid.s.n_r);
         let (im, fm) = Grid::centred_pos(acos_fast(mu), n_mu);
         for (a, wa) in [(ir, 1.0 - fr), (ir + 1, fr)] {
             for (c, wc) in [(im, 1.0 - fm), (im + 1, fm)] {
-                let w = (wa * wc) as f32;
+                let w = wa * wc;
                 if w == 0.0 {
                     continue;
                 }
                 // Family layout: (r, θ) rows of [i_mu_s][i_phi][c][λ].
                 let base = (a * n_mu + c) * fam;
-                for (o, v) in out
-                    .per_constituent
-                    .iter_mut()
-                    .zip(&self.j_ms[base..base + fam])
-                {
-                    *o += w * v;
+                let row = &self.j_ms[base..base + fam];
+                for (o, v) in out.per_constituent.iter_mut().zip(row) {
+                    *o += w * *v as f64;
                 }
+                out.corners.push((a, c, w));
+                out.ln
+                    .extend(row[ln_start..].iter().map(|&v| ln_or_zero(v)));
             }
         }
         let sc = &self.scattering;
         let (rho_r, rho_m) = sc.densities(r);
         out.lin.clear();
         out.lin.resize(cells * n_l, 0.0);
-        out.ln.resize(cells * n_l, 0.0);
         for (cell, j) in out.lin.chunks_exact_mut(n_l).enumerate() {
             let a = &out.per_constituent[cell * lanes..][..lanes];
             for i in 0..n_l {
-                j[i] = (sc.rayleigh_per_m[i] * rho_r * a[i] as f64
-                    + sc.mie_per_m[i] * rho_m * a[n_l + i] as f64) as f32;
+                j[i] = sc.rayleigh_per_m[i] * rho_r * a[i] + sc.mie_per_m[i] * rho_m * a[n_l + i];
             }
-        }
-        let from = (0..n_mu_s.saturating_sub(1))
-            .find(|&is| grid.twilight_cell(is))
-            .unwrap_or(n_mu_s)
-            .saturating_sub(1);
-        let k = from * n_phi * n_l;
-        for (l, &v) in out.ln[k..].iter_mut().zip(&out.lin[k..]) {
-            *l = ln_or_zero_f32(v);
         }
     }
 
     /// Adds J_ms (m⁻¹ sr⁻¹ per unit solar irradiance) for the sun at zenith cosine `mu_s` and
-    /// view–sun cosine `nu` at the slice's point, interpolated over sun zenith and azimuth as
-    /// [`Source::add_scattering`] does: the same values by day; in twilight cells Catmull–Rom in
-    /// ln J of the (r, θ)-interpolated slice rather than of each (r, θ) node (the same order of
-    /// accuracy, not the same rounding).
+    /// view–sun cosine `nu` at the slice's point, as [`Source::add_scattering`] computes it: by
+    /// day bilinear over sun zenith and azimuth in the slice (the products' 16-corner
+    /// interpolation, summed in another order); in twilight cells the products' own arithmetic
+    /// ([`twilight_lanes`]: Catmull–Rom in ln Â_c at each (r, θ, φ) corner), with the logarithms
+    /// taken once per point.
     pub fn add_from_slice(&self, slice: &JSlice, mu_s: f64, nu: f64, out: &mut [f64]) {
         let grid = &self.grid;
         let theta_s = acos_fast(mu_s);
         if theta_s > grid.theta_s_max {
             return;
         }
-        let (n_l, n_mu_s, n_phi) = (self.n_l, grid.s.n_mu_s, grid.s.n_phi);
+        let (n_l, n_mu_s, n_mu, n_phi) = (self.n_l, grid.s.n_mu_s, grid.s.n_mu, grid.s.n_phi);
         let (is, fs) = grid.s_pos(theta_s);
         let cos_phi = cos_azimuth(slice.mu, mu_s, nu);
         let (ip, fp) = Grid::centred_pos(acos_fast(cos_phi), n_phi);
-        let row = n_phi * n_l;
-        let out = &mut out[..n_l];
-        if !grid.twilight_cell(is) {
-            let a = is * row + ip * n_l;
-            let (v00, v01) = (&slice.lin[a..a + n_l], &slice.lin[a + n_l..a + 2 * n_l]);
-            let (v10, v11) = (
-                &slice.lin[a + row..a + row + n_l],
-                &slice.lin[a + row + n_l..a + row + 2 * n_l],
-            );
-            let (w00, w01) = ((1.0 - fs) * (1.0 - fp), (1.0 - fs) * fp);
-            let (w10, w11) = (fs * (1.0 - fp), fs * fp);
+        if grid.twilight_cell(is) {
+            const MAX: usize = crate::spectrum::wavelengths::MAX_WAVELENGTHS;
+            let lanes = 2 * n_l;
+            let mut a = [0.0f64; 2 * MAX];
+            let a = &mut a[..lanes];
+            let (nodes, wq) = catmull_rom(is, fs, n_mu_s);
+            let per_corner = (n_mu_s - slice.ln_from) * n_phi * lanes;
+            for (k, &(ir, im, wc)) in slice.corners.iter().enumerate() {
+                for (e, we) in [(ip, 1.0 - fp), (ip + 1, fp)] {
+                    let w = wc * we;
+                    if w == 0.0 {
+                        continue;
+                    }
+                    let base = |b: usize| (((ir * n_mu + im) * n_mu_s + b) * n_phi + e) * lanes;
+                    let ln_at =
+                        |b: usize| k * per_corner + ((b - slice.ln_from) * n_phi + e) * lanes;
+                    let v = nodes.map(|b| &self.j_ms[base(b)..][..lanes]);
+                    let ln_v = nodes.map(|b| &slice.ln[ln_at(b)..][..lanes]);
+                    twilight_lanes(v, ln_v, wq, fs, w, a);
+                }
+            }
+            let sc = &self.scattering;
+            let (rho_r, rho_m) = sc.densities(slice.r);
             for i in 0..n_l {
-                out[i] += w00 * v00[i] as f64
-                    + w01 * v01[i] as f64
-                    + w10 * v10[i] as f64
-                    + w11 * v11[i] as f64;
+                out[i] +=
+                    sc.rayleigh_per_m[i] * rho_r * a[i] + sc.mie_per_m[i] * rho_m * a[n_l + i];
             }
             return;
         }
-        let (nodes, wq) = catmull_rom(is, fs, n_mu_s);
-        for (e, we) in [(ip, 1.0 - fp), (ip + 1, fp)] {
-            if we == 0.0 {
-                continue;
-            }
-            let at = nodes.map(|b| b * row + e * n_l);
-            let (v0, v1, v2, v3) = (
-                &slice.lin[at[0]..at[0] + n_l],
-                &slice.lin[at[1]..at[1] + n_l],
-                &slice.lin[at[2]..at[2] + n_l],
-                &slice.lin[at[3]..at[3] + n_l],
-            );
-            let (l0, l1, l2, l3) = (
-                &slice.ln[at[0]..at[0] + n_l],
-                &slice.ln[at[1]..at[1] + n_l],
-                &slice.ln[at[2]..at[2] + n_l],
-                &slice.ln[at[3]..at[3] + n_l],
-            );
-            const MIN: f32 = f32::MIN_POSITIVE;
-            for i in 0..n_l {
-                let positive = v0[i] >= MIN && v1[i] >= MIN && v2[i] >= MIN && v3[i] >= MIN;
-                let j = if positive {
-                    exp_fast(
-                        wq[0] * l0[i] as f64
-                            + wq[1] * l1[i] as f64
-                            + wq[2] * l2[i] as f64
-                            + wq[3] * l3[i] as f64,
-                    )
-                } else {
-                    v1[i] as f64 * (1.0 - fs) + v2[i] as f64 * fs
-                };
-                out[i] += we * j;
-            }
+        let row = n_phi * n_l;
+        let out = &mut out[..n_l];
+        let a = is * row + ip * n_l;
+        let (v00, v01) = (&slice.lin[a..a + n_l], &slice.lin[a + n_l..a + 2 * n_l]);
+        let (v10, v11) = (
+            &slice.lin[a + row..a + row + n_l],
+            &slice.lin[a + row + n_l..a + row + 2 * n_l],
+        );
+        let (w00, w01) = ((1.0 - fs) * (1.0 - fp), (1.0 - fs) * fp);
+        let (w10, w11) = (fs * (1.0 - fp), fs * fp);
+        for i in 0..n_l {
+            out[i] += w00 * v00[i] + w01 * v01[i] + w10 * v10[i] + w11 * v11[i];
         }
     }
 }
