@@ -111,7 +111,7 @@ enum Command {
     /// Example: skybake bake job.json --out baked/
     /// Example: skybake bake job.json --out s3://assets/bakes/job1 --shard 2/8
     Bake {
-        /// Job file (JSON: {"products": [...], "grids": [...], "frames": [...]}; see README "Bake jobs").
+        /// Job file (JSON: {"products": [...], "grids": [...], "frames": [...], "bundles": [...]}; see README "Bake jobs").
         job: PathBuf,
         /// Output directory or bucket folder (s3://bucket/prefix; AWS_* credentials and
         /// endpoint): an EXR per product + manifest.json; a rerun reuses finished files.

@@ -6,8 +6,9 @@
 use serde_json::{json, Value};
 use skybake_engine::engine::{Engine, ENGINE_VERSION};
 use skybake_engine::spec::CommonSpec;
+pub use skybake_lut::manifest::MANIFEST_FILE;
 use skybake_lut::manifest::{
-    self, IRRADIANCE_FILE, MANIFEST_FILE, SCATTERING_FILE, SINGLE_MIE_FILE, TRANSMITTANCE_FILE,
+    self, IRRADIANCE_FILE, SCATTERING_FILE, SINGLE_MIE_FILE, TRANSMITTANCE_FILE,
 };
 use skybake_lut::{Bundle, Channels, Sample, Texture};
 use skybake_physics::atmosphere::sky::MsMethod;
@@ -88,6 +89,14 @@ impl LutRequest {
 
     pub fn cache_key(&self) -> String {
         cache_key(&self.canonical().to_string(), ENGINE_VERSION)
+    }
+
+    /// The cache key of the bundle's file `name` (a texture; the manifest's is [`Self::cache_key`]).
+    pub fn file_key(&self, name: &str) -> String {
+        cache_key(
+            &json!({"bundle": self.canonical(), "file": name}).to_string(),
+            ENGINE_VERSION,
+        )
     }
 
     /// Computes the bundle on the engine's shared tables (built, or loaded from its table

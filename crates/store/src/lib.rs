@@ -25,6 +25,7 @@
 //! ```
 
 pub mod atomic;
+pub mod blob;
 pub mod bucket;
 pub mod cache;
 pub mod checksum;
