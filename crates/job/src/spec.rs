@@ -54,7 +54,7 @@ enum Located<'a> {
 /// [`skybake_product::lut`]).
 pub enum JobItem {
     Artifact(AnyRequest),
-    Bundle(LutRequest),
+    Bundle(Box<LutRequest>),
 }
 
 /// The parameters of one sweep value combination: `base` with axis values `i` (last fastest).
@@ -435,7 +435,7 @@ impl JobSpec {
                     p.quality = defaults.apply(RequestParams::default()).quality;
                 }
                 LutRequest::from_params(&p)
-                    .map(JobItem::Bundle)
+                    .map(|b| JobItem::Bundle(Box::new(b)))
                     .map_err(|e| e.prefixed(&prefix).into())
             }
         }
