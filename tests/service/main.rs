@@ -9,6 +9,7 @@ mod service_conventions;
 mod service_frame_cost;
 mod service_fuzz;
 mod service_http;
+mod service_lut;
 mod service_process;
 mod service_render;
 mod service_replicas;

@@ -10,7 +10,9 @@
 //!
 //! Job body: `{"products": [{"product": "sky", params…}, …], "grids": [{"product": "sun", params…,
 //! "sweep": {"sun_elevation_deg": {"from": -10, "to": 90, "step": 1}, "observer_altitude_m": [0, 1000]}}],
-//! "frames": [{"example": "cumulus-frame", "max_rel_error": 0.3, "sweep": {"sun_elevation_deg": [10, 30, 50]}}]}`.
+//! "frames": [{"example": "cumulus-frame", "max_rel_error": 0.3, "sweep": {"sun_elevation_deg": [10, 30, 50]}}],
+//! "bundles": [{"quality": "standard", "sweep": {"atmosphere": ["earth", "earth-hazy"]}}]}` (texture
+//! bundles: offline bakes only).
 
 pub mod bake;
 pub mod frames;

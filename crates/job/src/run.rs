@@ -275,6 +275,13 @@ impl Jobs {
         // admission lock below.
         self.check_room(body, &limits)?;
         let spec = JobSpec::parse_body(body, limits.max_products)?;
+        if spec.has_bundles() {
+            return Err(crate::Error::invalid(
+                "bundles",
+                "texture bundles are baked offline (skybake bake JOB.json --out DIR); the server serves one bundle per request (GET /v1/lut)",
+            )
+            .into());
+        }
         // A frame may name only the example scenes' files, as in a render.
         let cost = spec.validate_and_cost_loading(
             &self.defaults,

@@ -696,6 +696,98 @@ impl AppState {
             .map_err(|e| ApiError::Internal(format!("computation task failed: {e}")))?
     }
 
+    /// Bundle parameters with the configured default quality (not the default wavelengths:
+    /// without `wavelengths` a bundle is the RGB form).
+    pub fn lut_params(
+        &self,
+        mut p: skybake_product::params::RequestParams,
+    ) -> skybake_product::params::RequestParams {
+        if p.quality.is_none() {
+            p.quality = self.jobs().defaults().apply(Default::default()).quality;
+        }
+        p
+    }
+
+    /// The manifest of the texture bundle `req` (with a `links` entry per texture): from the
+    /// cache, or computed (in a compute slot, as products are) and stored with its textures as
+    /// blobs, the manifest last, so a cached manifest means cached textures (a texture evicted
+    /// since is recomputed by [`Self::lut_file`]).
+    pub async fn lut(
+        &self,
+        req: skybake_product::lut::LutRequest,
+    ) -> Result<(Arc<[u8]>, Source), ApiError> {
+        let key = req.cache_key();
+        let lookup = {
+            let (s, k) = (self.clone(), key.clone());
+            Self::blocking(move || Ok(s.inner.cache.get_blob(&k)?)).await?
+        };
+        if let Some(bytes) = lookup {
+            let s = self.clone();
+            let (bytes, complete) = Self::blocking(move || {
+                let complete = s.lut_textures_cached(&bytes)?;
+                Ok((bytes, complete))
+            })
+            .await?;
+            if complete {
+                return Ok((bytes, Source::Cache));
+            }
+        }
+        let s = self.clone();
+        let bytes = self
+            .run_computation(move |_cancelled| {
+                if let Some(bytes) = s.inner.cache.get_blob(&key)? {
+                    if s.lut_textures_cached(&bytes)? {
+                        return Ok(bytes);
+                    }
+                }
+                s.inner.metrics.computed("lut");
+                let bundle = req.compute(&s.inner.engine)?;
+                let mut links = serde_json::Map::new();
+                let mut manifest = None;
+                for (name, bytes) in req.files(&bundle)? {
+                    if name == skybake_product::lut::MANIFEST_FILE {
+                        manifest = Some(bytes);
+                        continue;
+                    }
+                    let file_key = req.file_key(name);
+                    s.inner.cache.put_blob(&file_key, bytes)?;
+                    links.insert(name.into(), format!("/v1/lut/files/{file_key}").into());
+                }
+                let manifest =
+                    manifest.ok_or_else(|| ApiError::Internal("bundle without manifest".into()))?;
+                let mut manifest: serde_json::Value = serde_json::from_slice(&manifest)
+                    .map_err(|e| ApiError::Internal(format!("bundle manifest: {e}")))?;
+                manifest["links"] = links.into();
+                let text = serde_json::to_vec_pretty(&manifest)
+                    .map_err(|e| ApiError::Internal(format!("bundle manifest: {e}")))?;
+                let bytes = s.inner.cache.put_blob(&key, text)?;
+                s.account_disk(None);
+                Ok(bytes)
+            })
+            .await?;
+        Ok((bytes, Source::Computed))
+    }
+
+    /// Whether every texture a cached bundle manifest links to is still in the cache (on disk,
+    /// or fetched from the bucket); false when one was evicted, so the bundle is recomputed.
+    fn lut_textures_cached(&self, manifest: &[u8]) -> Result<bool, ApiError> {
+        let manifest: serde_json::Value = serde_json::from_slice(manifest)
+            .map_err(|e| ApiError::Internal(format!("cached bundle manifest: {e}")))?;
+        let Some(links) = manifest["links"].as_object() else {
+            return Ok(false);
+        };
+        for link in links.values() {
+            let Some(key) = link.as_str().and_then(|l| l.strip_prefix("/v1/lut/files/")) else {
+                return Ok(false);
+            };
+            let cache = &self.inner.cache;
+            if !cache.contains(key) && cache.get_blob(key)?.is_none() {
+                return Ok(false);
+            }
+        }
+        Ok(true)
+    }
+
     /// The validated request of `product` from raw parameters, with the configured defaults.
     pub fn request(
         &self,
