@@ -84,8 +84,13 @@ impl Job {
             .clone()
     }
 
-    fn set_status(&self, status: JobStatus) {
-        *self.status.lock().unwrap_or_else(|e| e.into_inner()) = status;
+    /// Replaces the status with one read from the store, unless a worker of this process runs
+    /// the job (its status is then the freshest, and the one being written).
+    fn refresh(&self, status: JobStatus) {
+        let mut s = self.status.lock().unwrap_or_else(|e| e.into_inner());
+        if !self.here() {
+            *s = status;
+        }
     }
 
     fn here(&self) -> bool {
@@ -244,7 +249,7 @@ impl Jobs {
                 Some(job) if job.here() || job.status().finished() => continue,
                 Some(job) => match self.store.load_status(&id)? {
                     Some(st) => {
-                        job.set_status(st);
+                        job.refresh(st);
                         job
                     }
                     None => job,
@@ -316,7 +321,7 @@ impl Jobs {
                 return Ok(job);
             }
             if let Some(st) = self.store.load_status(id)? {
-                job.set_status(st);
+                job.refresh(st);
                 return Ok(job);
             }
         }
@@ -479,7 +484,7 @@ impl Jobs {
             // Nobody runs it (or its runner died): take its lease and end it here.
             if let Some(claim) = self.store.claim(id)? {
                 if let Some(st) = self.store.load_status(id)? {
-                    job.set_status(st);
+                    job.refresh(st);
                 }
                 if !job.status().finished() {
                     let st = job.update(|s| s.state = JobState::Cancelled);
@@ -585,24 +590,34 @@ fn start(jobs: &Jobs, job: &Job) -> Result<Option<Claim>, JobError> {
     let Some(claim) = jobs.store.claim(&job.id)? else {
         return Ok(None);
     };
-    if jobs.store.shared() {
+    let stored = if jobs.store.shared() {
         match jobs.store.load_status(&job.id)? {
-            Some(st) => job.set_status(st),
+            Some(st) => Some(st),
             // Removed by another replica.
             None if jobs.store.load(&job.id)?.is_none() => {
                 jobs.forget(&job.id);
                 return Ok(None);
             }
-            None => {}
+            None => None,
         }
-        if job.status().finished() {
-            return Ok(None);
+    } else {
+        None
+    };
+    {
+        // Under the status lock, so a concurrent refresh from the store either comes before
+        // (and is replaced here) or sees the job run here and leaves its status alone.
+        let mut s = job.status.lock().unwrap_or_else(|e| e.into_inner());
+        if let Some(st) = stored {
+            *s = st;
+            if s.finished() {
+                return Ok(None);
+            }
         }
-        if jobs.store.cancel_requested(&job.id)? {
-            job.cancel.store(true, Ordering::Relaxed);
-        }
+        job.here.store(true, Ordering::Relaxed);
     }
-    job.here.store(true, Ordering::Relaxed);
+    if jobs.store.shared() && jobs.store.cancel_requested(&job.id)? {
+        job.cancel.store(true, Ordering::Relaxed);
+    }
     Ok(Some(claim))
 }
 
