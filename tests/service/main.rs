@@ -13,5 +13,6 @@ mod service_lut;
 mod service_process;
 mod service_render;
 mod service_replicas;
+mod service_replicas_jobs;
 mod service_router;
 mod service_slow_clients;

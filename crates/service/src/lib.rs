@@ -176,8 +176,19 @@ impl AppState {
             Some(bucket) => Cache::open_shared(config, bucket.clone())?,
             None => Cache::open(config)?,
         });
-        let jobs = skybake_job::run::Jobs::open(
-            &settings.cache.dir.join("jobs"),
+        let holder = holder_name();
+        // With a bucket, jobs are shared too: any replica answers for any job, and a job whose
+        // replica died is taken over by another (its lease expires after `cache.lease_s`).
+        let job_store = match &bucket {
+            Some(bucket) => skybake_job::store::JobStore::in_bucket(
+                bucket.clone(),
+                &holder,
+                Duration::from_secs_f64(settings.cache.lease_s),
+            ),
+            None => skybake_job::store::JobStore::open(&settings.cache.dir.join("jobs"))?,
+        };
+        let jobs = skybake_job::run::Jobs::with_store(
+            job_store,
             skybake_product::params::Defaults::from_settings(&settings),
         )?;
         let tiles = match bucket {
@@ -203,7 +214,7 @@ impl AppState {
                 next_flight: Default::default(),
                 rate: Default::default(),
                 jobs,
-                holder: holder_name(),
+                holder,
             }),
         };
         state.housekeeping();
@@ -239,6 +250,26 @@ impl AppState {
     /// files counted in the cache's disk budget.
     pub fn start_job_workers(&self) {
         skybake_job::run::start_workers(self, self.settings().jobs.workers);
+        if self.jobs().shared() {
+            // Jobs submitted to other replicas, and those whose replica died, are picked up
+            // every half lease.
+            let state = self.clone();
+            let every =
+                Duration::from_secs_f64((self.settings().cache.lease_s / 2.0).clamp(0.05, 30.0));
+            tokio::spawn(async move {
+                loop {
+                    tokio::time::sleep(every).await;
+                    let s = state.clone();
+                    let _ = Self::blocking(move || {
+                        if let Err(e) = s.jobs().sync() {
+                            tracing::warn!(error = %e, "cannot read the shared jobs");
+                        }
+                        Ok(())
+                    })
+                    .await;
+                }
+            });
+        }
         let state = self.clone();
         let expire_after_s = self.settings().jobs.expire_after_s;
         let every = Duration::from_secs_f64((expire_after_s / 4.0).clamp(0.05, 30.0));
