@@ -72,7 +72,14 @@ fn every_scene_file_voxelises_through_the_scene_api() {
     kinds.sort();
     assert_eq!(
         kinds,
-        ["automaton", "fractal", "grid", "metaballs", "satellite", "spheres"],
+        [
+            "automaton",
+            "fractal",
+            "grid",
+            "metaballs",
+            "satellite",
+            "spheres"
+        ],
         "one example scene per source"
     );
 }
