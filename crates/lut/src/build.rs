@@ -137,8 +137,15 @@ pub struct Bundle {
 }
 
 /// Computes the bundle from shared tables whose precise table is built (or is built here).
-/// `steps` are the samples per ray segment of the products (`Quality::steps`).
-pub fn build(shared: &SharedTables, channels: Channels, steps: usize) -> crate::Result<Bundle> {
+/// `steps` are the samples per ray segment of the products (`Quality::steps`). Stops with
+/// [`crate::Error::Cancelled`] inside the precise table's build, or at the next row of a
+/// texture, once `cancelled` returns true.
+pub fn build(
+    shared: &SharedTables,
+    channels: Channels,
+    steps: usize,
+    cancelled: &(dyn Fn() -> bool + Sync),
+) -> crate::Result<Bundle> {
     let m = &shared.medium;
     let idx: Vec<usize> = match channels {
         Channels::Rgb => RGB_WAVELENGTHS_NM
@@ -181,7 +188,9 @@ pub fn build(shared: &SharedTables, channels: Channels, steps: usize) -> crate::
     };
     let e0: Vec<f64> = params.solar_irradiance.clone();
     let tp = Instant::now();
-    shared.precise();
+    shared
+        .precise_unless(cancelled)
+        .ok_or(crate::Error::Cancelled)?;
     let t_precise = tp.elapsed().as_secs_f64() * 1e3;
 
     // Transmittance.
@@ -198,6 +207,9 @@ pub fn build(shared: &SharedTables, channels: Channels, steps: usize) -> crate::
         .par_chunks_mut(TRANSMITTANCE_WIDTH * n_c)
         .enumerate()
         .for_each(|(j, row)| {
+            if cancelled() {
+                return;
+            }
             for i in 0..TRANSMITTANCE_WIDTH {
                 let (r, mu) = params.transmittance_r_mu(
                     (i as f64 + 0.5) / TRANSMITTANCE_WIDTH as f64,
@@ -210,6 +222,9 @@ pub fn build(shared: &SharedTables, channels: Channels, steps: usize) -> crate::
                 }
             }
         });
+    if cancelled() {
+        return Err(crate::Error::Cancelled);
+    }
     let t_transmittance = t0.elapsed().as_secs_f64() * 1e3;
 
     // Scattering: one task per ray family (r, μ), whose points all its (ν, μs) texels share.
@@ -242,6 +257,9 @@ pub fn build(shared: &SharedTables, channels: Channels, steps: usize) -> crate::
         .for_each_init(
             || FamilyScratch::new(shared, m.len()),
             |scratch, (row, (sc_row, mie_row))| {
+                if cancelled() {
+                    return;
+                }
                 let (i_r, i_mu) = (row / SCATTERING_MU, row % SCATTERING_MU);
                 let (r, mu, _, _, ground) = params.scattering_texel(0, 0, i_mu, i_r);
                 // Grazing rays are nudged to the side of the horizon their half of μ says.
@@ -271,12 +289,18 @@ pub fn build(shared: &SharedTables, channels: Channels, steps: usize) -> crate::
                 }
             },
         );
+    if cancelled() {
+        return Err(crate::Error::Cancelled);
+    }
     scattering.round_to_sample();
     let t_scattering = t1.elapsed().as_secs_f64() * 1e3;
 
     // Irradiance: the sky's, on a horizontal surface (the direct sun is the client's).
     let t2 = Instant::now();
-    let irradiance = irradiance_texture(shared, &params, &idx, &e0, steps);
+    let irradiance = irradiance_texture(shared, &params, &idx, &e0, steps, cancelled);
+    if cancelled() {
+        return Err(crate::Error::Cancelled);
+    }
     let t_irradiance = t2.elapsed().as_secs_f64() * 1e3;
 
     Ok(Bundle {
@@ -301,6 +325,7 @@ fn irradiance_texture(
     idx: &[usize],
     e0: &[f64],
     steps: usize,
+    cancelled: &(dyn Fn() -> bool + Sync),
 ) -> Texture {
     let m = &shared.medium;
     let n_c = idx.len();
@@ -318,8 +343,11 @@ fn irradiance_texture(
                 let mu = 0.5 * (x[a] + 1.0);
                 let sin_t = (1.0 - mu * mu).max(0.0).sqrt();
                 let weight = 0.5 * w[a] * mu * 2.0 * std::f64::consts::PI / n_phi as f64;
-                scratch.prepare(r, mu, steps);
                 let mut row = vec![0.0; IRRADIANCE_WIDTH * n_c];
+                if cancelled() {
+                    return (j, row);
+                }
+                scratch.prepare(r, mu, steps);
                 for i in 0..IRRADIANCE_WIDTH {
                     let (_, mu_s) =
                         params.irradiance_r_mu_s((i as f64 + 0.5) / IRRADIANCE_WIDTH as f64, v);

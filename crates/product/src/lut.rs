@@ -102,8 +102,23 @@ impl LutRequest {
     /// Computes the bundle on the engine's shared tables (built, or loaded from its table
     /// store, as for any product of this atmosphere and wavelengths).
     pub fn compute(&self, engine: &Engine) -> Result<Bundle> {
-        let shared = engine.shared(&self.spec)?;
-        skybake_lut::build(&shared, self.channels.clone(), self.spec.quality.steps())
+        self.compute_unless(engine, &|| false)
+    }
+
+    /// [`Self::compute`], stopped with [`Error::Cancelled`] inside the tables' build or at the
+    /// next texture row once `cancelled` returns true.
+    pub fn compute_unless(
+        &self,
+        engine: &Engine,
+        cancelled: &(dyn Fn() -> bool + Sync),
+    ) -> Result<Bundle> {
+        let shared = engine.shared_unless(&self.spec, cancelled)?;
+        skybake_lut::build(
+            &shared,
+            self.channels.clone(),
+            self.spec.quality.steps(),
+            cancelled,
+        )
     }
 
     /// The bundle's files: (name, bytes), the manifest last.

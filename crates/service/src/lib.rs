@@ -765,14 +765,14 @@ impl AppState {
         }
         let s = self.clone();
         let bytes = self
-            .run_computation(move |_cancelled| {
+            .run_computation(move |cancelled| {
                 if let Some(bytes) = s.inner.cache.get_blob(&key)? {
                     if s.lut_textures_cached(&bytes)? {
                         return Ok(bytes);
                     }
                 }
                 s.inner.metrics.computed("lut");
-                let bundle = req.compute(&s.inner.engine)?;
+                let bundle = req.compute_unless(&s.inner.engine, cancelled)?;
                 let mut links = serde_json::Map::new();
                 let mut manifest = None;
                 for (name, bytes) in req.files(&bundle)? {
