@@ -31,14 +31,14 @@ enum Entry {
         product: ProductKind,
         base: RequestParams,
         /// (parameter, values), last varies fastest.
-        axes: Vec<(String, Vec<String>)>,
+        axes: Axes,
         len: usize,
     },
     Frames(FrameSweep),
     /// Texture bundles: the atmosphere's parameters × a sweep (`len` = 1 without one).
     Bundles {
         base: RequestParams,
-        axes: Vec<(String, Vec<String>)>,
+        axes: Axes,
         len: usize,
     },
 }
@@ -81,6 +81,39 @@ fn number_text(v: f64) -> String {
     let r = (v * 1e9).round() / 1e9;
     let r = if r == 0.0 { 0.0 } else { r };
     format!("{r}")
+}
+
+/// A sweep's axes: each parameter's name and its values, in the order given.
+type Axes = Vec<(String, Vec<String>)>;
+
+/// The axes of a `sweep` object and the number of their combinations: each axis name is checked
+/// by `accepts(name, field)`, its values parsed, and the combinations held to `max_products`.
+fn sweep_axes(
+    sweep: &serde_json::Map<String, Value>,
+    prefix: &str,
+    max_products: usize,
+    accepts: impl Fn(&str, &str) -> Result<(), JobError>,
+) -> Result<(Axes, usize), JobError> {
+    let mut axes = Vec::new();
+    let mut len: usize = 1;
+    for (name, values) in sweep {
+        let field = format!("{prefix}sweep.{name}");
+        accepts(name, &field)?;
+        let vals = axis_values(&field, values, max_products)?;
+        len = len
+            .checked_mul(vals.len())
+            .filter(|&n| n <= max_products)
+            .ok_or_else(|| -> JobError {
+                Error::too_large(
+                    "products",
+                    format!("more than {max_products} products in the job"),
+                    max_products,
+                )
+                .into()
+            })?;
+        axes.push((name.clone(), vals));
+    }
+    Ok((axes, len))
 }
 
 fn axis_values(field: &str, v: &Value, max_products: usize) -> Result<Vec<String>, Error> {
@@ -222,31 +255,20 @@ impl JobSpec {
                     Error::invalid(&format!("{prefix}sweep"), "missing or not an object").into(),
                 );
             };
-            let mut axes = Vec::new();
-            let mut len: usize = 1;
-            for (name, values) in sweep {
-                let field = format!("{prefix}sweep.{name}");
+            let (axes, len) = sweep_axes(sweep, &prefix, max_products, |name, field| {
                 if name == "format" {
-                    return Err(Error::invalid(&field, "format cannot be swept").into());
+                    return Err(Error::invalid(field, "format cannot be swept").into());
                 }
                 match set_param(&mut base.clone(), name, "0") {
-                    None => return Err(JobError::Unknown(vec![field])),
-                    Some(Some(_)) => {
-                        return Err(Error::invalid(
-                            &field,
-                            "given both as a base parameter and in the sweep",
-                        )
-                        .into())
-                    }
-                    Some(None) => {}
+                    None => Err(JobError::Unknown(vec![field.to_string()])),
+                    Some(Some(_)) => Err(Error::invalid(
+                        field,
+                        "given both as a base parameter and in the sweep",
+                    )
+                    .into()),
+                    Some(None) => Ok(()),
                 }
-                let vals = axis_values(&field, values, max_products)?;
-                len = len
-                    .checked_mul(vals.len())
-                    .filter(|&n| n <= max_products)
-                    .ok_or_else(|| too_many(format!("more than {max_products}")))?;
-                axes.push((name.clone(), vals));
-            }
+            })?;
             total = total
                 .checked_add(len)
                 .filter(|&n| n <= max_products)
@@ -279,39 +301,31 @@ impl JobSpec {
                 return Err(Error::invalid(&format!("bundles[{b}]"), "must be an object").into());
             };
             let base = RequestParams::from_object(obj, &["sweep"], &prefix)?;
-            let mut axes = Vec::new();
-            let mut len: usize = 1;
-            match obj.get("sweep") {
-                None | Some(Value::Null) => {}
+            let (axes, len) = match obj.get("sweep") {
+                None | Some(Value::Null) => (Vec::new(), 1),
                 Some(Value::Object(sweep)) => {
-                    for (name, values) in sweep {
-                        let field = format!("{prefix}sweep.{name}");
+                    sweep_axes(sweep, &prefix, max_products, |name, field| {
                         if !skybake_product::lut::takes(name) {
                             return Err(Error::invalid(
-                                &field,
+                                field,
                                 "a bundle sweeps the atmosphere's parameters only (atmosphere, ground_albedo, wavelengths, quality)",
                             )
                             .into());
                         }
                         if base.get(name).is_some() {
                             return Err(Error::invalid(
-                                &field,
+                                field,
                                 "given both as a base parameter and in the sweep",
                             )
                             .into());
                         }
-                        let vals = axis_values(&field, values, max_products)?;
-                        len = len
-                            .checked_mul(vals.len())
-                            .filter(|&n| n <= max_products)
-                            .ok_or_else(|| too_many(format!("more than {max_products}")))?;
-                        axes.push((name.clone(), vals));
-                    }
+                        Ok(())
+                    })?
                 }
                 Some(_) => {
                     return Err(Error::invalid(&format!("{prefix}sweep"), "not an object").into())
                 }
-            }
+            };
             total = total
                 .checked_add(len)
                 .filter(|&n| n <= max_products)
