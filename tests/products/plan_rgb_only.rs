@@ -409,7 +409,7 @@ async fn a_sky_png_has_its_own_key_unless_the_spectral_sky_is_cached_and_jobs_ke
     assert_eq!(r.status, 202, "{}", r.text());
     let id = r.json()["id"].as_str().unwrap().to_string();
     let mut status = Value::Null;
-    for _ in 0..600 {
+    for _ in 0..3600 {
         status = get(format!("/v1/jobs/{id}")).await.json();
         if status["state"] == "completed" {
             break;

@@ -121,7 +121,7 @@ async fn jobs_are_listed_deleted_with_their_files_expired_and_limited() {
         assert_problem(&second, 503, "jobs.max_live");
     }
     let mut state = serde_json::Value::Null;
-    for _ in 0..600 {
+    for _ in 0..3600 {
         state = srv.get(&format!("/v1/jobs/{id}")).await.json();
         if state["state"] == "completed" {
             break;
@@ -157,7 +157,7 @@ async fn jobs_are_listed_deleted_with_their_files_expired_and_limited() {
         .to_string();
     let job_dir = dir.path().join("jobs").join(&id);
     let mut gone = false;
-    for _ in 0..600 {
+    for _ in 0..3600 {
         if srv.get(&format!("/v1/jobs/{id}")).await.status == 404 {
             gone = true;
             break;

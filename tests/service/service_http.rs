@@ -414,7 +414,7 @@ async fn excess_load_is_shed_and_slow_requests_time_out() {
             .cache_key()
     };
     let mut cached = false;
-    for _ in 0..600 {
+    for _ in 0..1800 {
         if srv.state.cache().contains(&key) {
             cached = true;
             break;
@@ -467,7 +467,7 @@ async fn jobs_run_list_artifacts_and_refuse_oversized_grids() {
     let id = r.json()["id"].as_str().unwrap().to_string();
     assert_eq!(r.json()["total"], 4);
     let mut status = serde_json::Value::Null;
-    for _ in 0..300 {
+    for _ in 0..3600 {
         status = srv.get(&format!("/v1/jobs/{id}")).await.json();
         if status["state"] == "completed" {
             break;
@@ -522,7 +522,7 @@ async fn jobs_run_list_artifacts_and_refuse_oversized_grids() {
     let r = srv.delete(&format!("/v1/jobs/{a}")).await;
     assert_eq!(r.status, 200);
     let mut state = serde_json::Value::Null;
-    for _ in 0..200 {
+    for _ in 0..2000 {
         state = srv.get(&format!("/v1/jobs/{a}")).await.json();
         if state["state"] == "cancelled" {
             break;
