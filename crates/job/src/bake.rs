@@ -249,6 +249,18 @@ pub fn bake_share(
     env: &BakeEnv,
     mut progress: impl FnMut(usize, usize, &str),
 ) -> Result<BakeSummary, JobError> {
+    bake_share_with(job_body, out, shard, env, &mut progress)
+}
+
+/// [`bake_share`] with the progress callback as a trait object: the bake is compiled once, here,
+/// not once per caller's closure.
+fn bake_share_with(
+    job_body: &[u8],
+    out: &Location,
+    shard: Shard,
+    env: &BakeEnv,
+    progress: &mut dyn FnMut(usize, usize, &str),
+) -> Result<BakeSummary, JobError> {
     let (defaults, engine, cancel) = (env.defaults, env.engine, env.cancel);
     let spec = JobSpec::parse_body(job_body, env.max_products)?;
     spec.validate(defaults)?;

@@ -15,6 +15,7 @@ use std::collections::HashMap;
 use std::future::Future;
 use std::io::{Read, Write};
 use std::net::{IpAddr, SocketAddr, TcpStream};
+use std::pin::Pin;
 use std::sync::atomic::Ordering;
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
@@ -37,6 +38,16 @@ pub async fn serve_on(
     state: AppState,
     shutdown: impl Future<Output = ()> + Send + 'static,
 ) -> std::io::Result<()> {
+    serve_until(listener, state, Box::pin(shutdown)).await
+}
+
+/// [`serve_on`] with the shutdown signal boxed: the accept loop and hyper's connection types are
+/// compiled once, here, instead of in every crate that starts a server (the test binaries).
+async fn serve_until(
+    listener: tokio::net::TcpListener,
+    state: AppState,
+    mut shutdown: Pin<Box<dyn Future<Output = ()> + Send>>,
+) -> std::io::Result<()> {
     let server = state.settings().server.clone();
     let header_timeout = Duration::from_secs_f64(server.header_read_timeout_s);
     let grace = Duration::from_secs_f64(server.shutdown_grace_s);
@@ -57,7 +68,6 @@ pub async fn serve_on(
         .keep_alive_interval(header_timeout)
         .keep_alive_timeout(header_timeout);
 
-    tokio::pin!(shutdown);
     loop {
         let (stream, peer) = tokio::select! {
             accepted = listener.accept() => match accepted {
