@@ -77,6 +77,7 @@ pub fn run_render(
         tiles: &NoTiles,
         progress: &progress,
         cancel: &|| false,
+        reuse: None,
     };
     let image = request.compute(engine, &env)?;
     if let Some(bar) = &bar {

@@ -9,7 +9,10 @@ use glam::DVec3;
 use serde_json::{json, Value};
 use skybake_engine::engine::Engine;
 use skybake_physics::cloud::DensityGrid;
-use skybake_render::{lighting_for, render_frame, FrameScene, Method, RenderSettings, Tile};
+use skybake_render::{
+    lighting_for, render_frame, render_tile, FrameScene, LitInputs, LitVolume, Method, Prepared,
+    RenderSettings, Tile,
+};
 
 const DATA: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/tests/data");
 
@@ -257,7 +260,7 @@ fn slab_reflection_matches_disort() {
 /// (docs/frames.md) plus a margin for the photon noise; the target, 5 %, does not hold.
 #[test]
 fn fast_slab_every_angle_against_disort() {
-    let grid = slab_grid();
+    let grid = std::sync::Arc::new(slab_grid());
     // Measured worst views: τ 1 −24.9 % (nadir), τ 8 +22.8 % (75°, away from the sun), τ 32
     // −51.9 % (75°, towards the sun: 8 optical depths per voxel leave the lit surface unresolved).
     for (tau, albedo, bound) in [
@@ -269,6 +272,9 @@ fn fast_slab_every_angle_against_disort() {
         let (case, views, azs) = disort_case(tau, albedo, mu0);
         let mut worst: f64 = 0.0;
         let mut line = format!("fast vs DISORT, tau {tau} albedo {albedo} mu0 {mu0}:");
+        // One slab and one sun per case: the views share its lit volume (the frame each view
+        // renders alone, `tests/products/frame_sequence.rs`).
+        let mut lit: Option<std::sync::Arc<LitVolume>> = None;
         for (vi, &vz) in views.iter().enumerate() {
             for (ai, &raz) in azs.iter().enumerate() {
                 if vz == 0.0 && ai > 0 {
@@ -279,16 +285,17 @@ fn fast_slab_every_angle_against_disort() {
                 let width = 1600.0 * vz.to_radians().cos();
                 let scene = slab_scene(tau, albedo, mu0, vz, raz, width, 5000.0, 16);
                 let lighting = lighting_for(&scene, &grid, &Engine::new()).unwrap();
-                let fast = render_frame(
-                    &scene,
-                    &grid,
-                    &lighting,
-                    &settings(&scene, Method::Fast, 1),
-                    None,
-                    &|_| {},
-                    &|| false,
-                )
-                .unwrap();
+                let s = settings(&scene, Method::Fast, 1);
+                let shared = lit.is_some();
+                let lit = lit
+                    .get_or_insert_with(|| {
+                        let inputs = LitInputs::new(&scene, grid.clone(), &lighting, s);
+                        std::sync::Arc::new(LitVolume::new(inputs, &|| false).unwrap())
+                    })
+                    .clone();
+                let prepared =
+                    Prepared::with_lit(&scene, &lighting, s, lit, shared, &|| false).unwrap();
+                let fast = render_tile(&prepared, None, &|_| {}, &|| false).unwrap();
                 let r = mean_radiance(&fast) / expected - 1.0;
                 line += &format!(" [{vz:.0}° {raz:.0}°] {:+.1} %", r * 100.0);
                 worst = worst.max(r.abs());

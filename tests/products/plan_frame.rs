@@ -61,8 +61,8 @@ fn run(scene: &FrameScene, grid: &DensityGrid, plan: &FramePlan) -> Run {
         radiance: frame.radiance,
         voxels_lit: p.vox.len() / p.stride,
         lattice_paths: p.lattice_paths,
-        ms_field: p.ms.is_some(),
-        ms_dims: p.ms.as_ref().map(|m| m.dims),
+        ms_field: p.lit.ms.is_some(),
+        ms_dims: p.lit.ms.as_ref().map(|m| m.dims),
         grid_voxels: grid.data.len(),
     }
 }

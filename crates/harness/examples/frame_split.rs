@@ -66,7 +66,7 @@ fn main() -> skybake_physics::Result<()> {
             let t = Instant::now();
             let s = RenderSettings::for_quality(scene.quality, Method::Reference);
             let p = Prepared::new(&scene, &grid, &lt, s, &|| false)?;
-            let mut pt = PathTracer::new(&p.vol, &scene.optics, &lt, 0xABCD);
+            let mut pt = PathTracer::new(p.vol(), &scene.optics, &lt, 0xABCD);
             pt.min_orders = 1;
             if first {
                 pt.max_orders = 1;

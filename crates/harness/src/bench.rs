@@ -84,6 +84,10 @@ pub const BENCHMARKS: &[(&str, &str)] = &[
         "the frame benchmark with multiple scattering of orders 2 and 3 by the reference pattern (Nishita et al. 1996, §3.4) instead of all orders",
     ),
     (
+        "frame-sequence",
+        "60-frame fly-around of the frame benchmark's cumulus, 640×480, standard quality: the cloud lit once, each camera's source and pixels per frame (per-frame time and stage split)",
+    ),
+    (
         "frame-accuracy",
         "fast frame method against the path tracer (1024 spp), bench cumulus at 160×120 (slow: minutes)",
     ),
@@ -296,6 +300,21 @@ pub fn run(names: &[String], cold_runs: usize, warm_runs: usize) -> Result<Vec<B
                     runs.iter().map(|b| b.warm_ms).collect(),
                     json!({"lighting_ms": last.lighting_warm_ms, "stages_ms": last.warm_stages_ms,
                            "image": [last.width, last.height], "voxels": last.voxels}),
+                ));
+            }
+            "frame-sequence" => {
+                let runs: Vec<_> = (0..warm_runs.max(1))
+                    .map(|_| crate::frame_bench::bench_frame_sequence(60, 640, 480))
+                    .collect::<Result<_>>()?;
+                let last = &runs[runs.len() - 1];
+                out.push(entry(
+                    "per_frame",
+                    runs.len(),
+                    runs.iter().map(|b| b.per_frame_ms).collect(),
+                    json!({"frames": last.frames, "image": [last.width, last.height],
+                           "total_ms": last.total_ms, "first_frame_ms": last.first_frame_ms,
+                           "median_later_frame_ms": last.median_later_frame_ms,
+                           "stages_ms": last.stages_ms, "lit_bytes": last.lit_bytes}),
                 ));
             }
             "frame-accuracy" => {

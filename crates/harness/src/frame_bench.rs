@@ -187,3 +187,98 @@ pub fn bench_frame_pattern(width: usize, height: usize) -> Result<FrameBench> {
     scene.multiple_scattering_method = skybake_render::CloudMsMethod::ReferencePattern;
     time_frame(&scene, &grid, width, height)
 }
+
+/// Timings of `skybake-harness bench frame-sequence`.
+#[derive(Debug, Clone, Serialize)]
+pub struct SequenceBench {
+    pub frames: usize,
+    pub width: usize,
+    pub height: usize,
+    /// The whole sequence (lighting from the engine per frame, the lit cloud once, each camera's
+    /// source and pixels), ms, the engine's tables built before.
+    pub total_ms: f64,
+    /// `total_ms / frames`.
+    pub per_frame_ms: f64,
+    /// The first frame (it lights the cloud) and the median of the others, ms.
+    pub first_frame_ms: f64,
+    pub median_later_frame_ms: f64,
+    /// Stage times summed over the sequence, ms (`lighting` is the engine's products per
+    /// frame; the rest as in a frame's `timing_ms`, the lit cloud's stages counted once).
+    pub stages_ms: Vec<(String, f64)>,
+    /// Bytes the lit cloud holds.
+    pub lit_bytes: usize,
+}
+
+/// The bench cumulus seen from `frames` cameras on a circle round it (the `frame` bench's camera
+/// turned about the vertical through its target in equal steps), at `width`×`height`, standard
+/// quality: the cloud is lit once ([`skybake_render::LitVolume`]) and each frame adds its
+/// camera's part ([`skybake_render::Prepared::with_lit`]), as frame sequences run.
+pub fn bench_frame_sequence(frames: usize, width: usize, height: usize) -> Result<SequenceBench> {
+    use skybake_render::{render_tile, LitInputs, LitVolume, Prepared};
+    let grid = std::sync::Arc::new(bench_cumulus()?);
+    let base = bench_scene(width, height)?;
+    let settings = RenderSettings::for_quality(base.quality, Method::Fast);
+    let engine = Engine::new();
+    // The engine's shared tables, as in a warm service.
+    lighting_for(&base, &grid, &engine)?;
+    let target = DVec3::new(0.0, 0.0, 1500.0);
+    let start = base.camera.position_m - target;
+    let mut stages: Vec<(String, f64)> = Vec::new();
+    let mut add = |name: &str, ms: f64| match stages.iter_mut().find(|(n, _)| n == name) {
+        Some(s) => s.1 += ms,
+        None => stages.push((name.to_string(), ms)),
+    };
+    let mut lit: Option<std::sync::Arc<LitVolume>> = None;
+    let mut frame_ms = Vec::with_capacity(frames);
+    let t_all = Instant::now();
+    for k in 0..frames {
+        let t_frame = Instant::now();
+        let (s, c) = (std::f64::consts::TAU * k as f64 / frames as f64).sin_cos();
+        let p = target
+            + DVec3::new(
+                start.x * c + start.y * s,
+                start.y * c - start.x * s,
+                start.z,
+            );
+        let mut scene = base.clone();
+        let fwd = (target - p).normalize();
+        let right = fwd.cross(DVec3::Z).normalize();
+        scene.camera.position_m = p;
+        scene.camera.forward = fwd;
+        scene.camera.right = right;
+        scene.camera.up = right.cross(fwd);
+        let t = Instant::now();
+        let lighting = lighting_for(&scene, &grid, &engine)?;
+        add("lighting", t.elapsed().as_secs_f64() * 1e3);
+        let shared = lit.is_some();
+        let l = match &lit {
+            Some(l) => l.clone(),
+            None => {
+                let inputs = LitInputs::new(&scene, grid.clone(), &lighting, settings);
+                let l = std::sync::Arc::new(LitVolume::new(inputs, &|| false)?);
+                lit = Some(l.clone());
+                l
+            }
+        };
+        let prepared = Prepared::with_lit(&scene, &lighting, settings, l, shared, &|| false)?;
+        let frame = render_tile(&prepared, None, &|_| {}, &|| false)?;
+        for (name, ms) in &frame.meta.timing_ms {
+            add(name, *ms);
+        }
+        frame_ms.push(t_frame.elapsed().as_secs_f64() * 1e3);
+    }
+    let total_ms = t_all.elapsed().as_secs_f64() * 1e3;
+    let mut later: Vec<f64> = frame_ms.iter().skip(1).cloned().collect();
+    later.sort_by(f64::total_cmp);
+    Ok(SequenceBench {
+        frames,
+        width,
+        height,
+        total_ms,
+        per_frame_ms: total_ms / frames.max(1) as f64,
+        first_frame_ms: frame_ms.first().copied().unwrap_or(0.0),
+        median_later_frame_ms: later.get(later.len() / 2).copied().unwrap_or(0.0),
+        stages_ms: stages,
+        lit_bytes: lit.map_or(0, |l| l.bytes),
+    })
+}

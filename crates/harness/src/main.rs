@@ -23,7 +23,7 @@ enum Command {
     Bench {
         /// Benchmarks to run (default: all). Known: sun, sky-fast, sky-precise, precise-tables,
         /// ca-step, spheres, metaballs, fractal, satellite, solar-position, frame, frame-pattern,
-        /// frame-accuracy, store.
+        /// frame-sequence, frame-accuracy, store.
         names: Vec<String>,
         #[arg(long, value_enum, default_value_t = Format::Text)]
         format: Format,

@@ -22,6 +22,7 @@ use serde::Serialize;
 use serde_json::json;
 use skybake_engine::engine::{Engine, ENGINE_VERSION};
 use skybake_physics::image::layout::ATTR_CACHE_KEY;
+use skybake_product::frame::FrameReuse;
 use skybake_product::lut::LutRequest;
 use skybake_product::params::Defaults;
 use skybake_product::{AnyRequest, ComputeEnv};
@@ -266,6 +267,8 @@ fn bake_share_with(
     spec.validate(defaults)?;
     out.create()?;
     let tiles = out.tiles()?;
+    // Consecutive frame items share their grid and lit cloud (a camera path, a sun sweep).
+    let reuse = FrameReuse::default();
     let share: Vec<usize> = (0..spec.len()).filter(|&i| shard.owns(i)).collect();
     let mut summary = BakeSummary {
         shard,
@@ -304,7 +307,7 @@ fn bake_share_with(
             Ok("reused")
         } else {
             match &item {
-                JobItem::Artifact(req) => compute(req, engine, &tiles, &key, cancel)
+                JobItem::Artifact(req) => compute(req, engine, &tiles, &key, &reuse, cancel)
                     .and_then(|img| Ok(encode_exr(&img)?))
                     .and_then(|bytes| Ok(out.put(&name, &bytes)?)),
                 JobItem::Bundle(req) => bake_bundle(req, engine, out, &name),
@@ -452,6 +455,7 @@ fn compute(
     engine: &Engine,
     tiles: &TileStore,
     key: &str,
+    reuse: &FrameReuse,
     cancel: &(dyn Fn() -> bool + Sync),
 ) -> Result<skybake_physics::image::SpectralImage, JobError> {
     let frame_tiles = tiles.frame(key)?;
@@ -460,6 +464,7 @@ fn compute(
         tiles: &frame_tiles,
         progress: &|_| {},
         cancel,
+        reuse: Some(reuse),
     };
     Ok(req.compute(engine, &env)?)
 }

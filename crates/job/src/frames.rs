@@ -18,7 +18,14 @@
 //! - `sun_elevation_deg`, `sun_azimuth_deg`: replace the scene sun's elevation / azimuth (a sun
 //!   given by elevation and azimuth, or a collimated one);
 //! - `time`: RFC 3339 times replacing the time of a sun given by place and time;
-//! - `frame_time_steps`: the automaton frame of a cloud whose source is an `automaton`.
+//! - `frame_time_steps`: the automaton frame of a cloud whose source is an `automaton`;
+//! - `view_orbit_deg`: turns the camera (its position and `up`) about the vertical through its
+//!   `look_at_m` by this angle, towards increasing azimuth (from +y towards +x): a fly-around;
+//! - `view_distance_m`: puts the camera at this distance (> 0) from its `look_at_m`, on the line
+//!   it looks along: an approach. With both, the distance applies before the turn.
+//!
+//! The camera axes sort after the sun's, so they vary fastest: the frames of one sun follow each
+//! other and share the lit cloud (`skybake_product::frame::FrameReuse`).
 //!
 //! Item `k` of an entry is the scene with the `k`-th combination applied; its errors are named
 //! `frames[i][k].<field>`.
@@ -35,6 +42,8 @@ pub const FRAME_AXES: &[&str] = &[
     "sun_azimuth_deg",
     "sun_elevation_deg",
     "time",
+    "view_distance_m",
+    "view_orbit_deg",
 ];
 
 /// Turns a sweep member (field name, JSON value, most values) into its values.
@@ -249,7 +258,86 @@ fn apply(scene: &mut Value, axis: &str, v: &str) -> Result<(), Error> {
                 })?;
             source.insert("frame_time_steps".into(), number(axis, v)?);
         }
+        "view_orbit_deg" | "view_distance_m" => camera_path(scene, axis, v)?,
         _ => return Err(Error::invalid(axis, "not a frame sweep axis")),
+    }
+    Ok(())
+}
+
+/// A number as JSON; whole numbers as integers (a camera turned by 0° keeps its scene's key).
+fn json_number(x: f64) -> Value {
+    if x.fract() == 0.0 && x.abs() < 9.0e15 {
+        Value::from(x as i64)
+    } else {
+        serde_json::Number::from_f64(x).map_or(Value::Null, Value::Number)
+    }
+}
+
+/// The camera member `name` (3 numbers), named `camera.<name>` in errors.
+fn camera_vector(camera: &Map<String, Value>, name: &str) -> Result<[f64; 3], Error> {
+    let field = format!("camera.{name}");
+    let values = camera
+        .get(name)
+        .and_then(Value::as_array)
+        .filter(|a| a.len() == 3)
+        .ok_or_else(|| Error::invalid(&field, "must be 3 numbers"))?;
+    let mut out = [0.0; 3];
+    for (o, v) in out.iter_mut().zip(values) {
+        *o = v
+            .as_f64()
+            .filter(|x| x.is_finite())
+            .ok_or_else(|| Error::invalid(&field, "must be 3 finite numbers"))?;
+    }
+    Ok(out)
+}
+
+/// Applies a camera-path axis (`view_orbit_deg`, `view_distance_m`) to the scene's camera.
+fn camera_path(scene: &mut Value, axis: &str, v: &str) -> Result<(), Error> {
+    let x = v
+        .trim()
+        .parse::<f64>()
+        .ok()
+        .filter(|x| x.is_finite())
+        .ok_or_else(|| Error::invalid(axis, format!("'{v}' is not a finite number")))?;
+    let camera = scene
+        .get_mut("camera")
+        .and_then(Value::as_object_mut)
+        .ok_or_else(|| Error::invalid("camera", "missing (required to sweep the view)"))?;
+    let pos = camera_vector(camera, "position_m")?;
+    let look = camera_vector(camera, "look_at_m")?;
+    let rel = [pos[0] - look[0], pos[1] - look[1], pos[2] - look[2]];
+    let put = |camera: &mut Map<String, Value>, name: &str, p: [f64; 3]| {
+        camera.insert(
+            name.to_string(),
+            Value::Array(p.iter().map(|&c| json_number(c)).collect()),
+        );
+    };
+    if axis == "view_distance_m" {
+        if !(x > 0.0 && x <= 1.0e7) {
+            return Err(Error::out_of_range(axis, x, "greater than 0, up to 1e7 m"));
+        }
+        let d = (rel[0] * rel[0] + rel[1] * rel[1] + rel[2] * rel[2]).sqrt();
+        if d == 0.0 {
+            return Err(Error::invalid(
+                "camera.look_at_m",
+                "equals camera.position_m: the camera looks nowhere",
+            ));
+        }
+        let p = [0, 1, 2].map(|a| look[a] + rel[a] * (x / d));
+        put(camera, "position_m", p);
+        return Ok(());
+    }
+    if !(-3600.0..=3600.0).contains(&x) {
+        return Err(Error::out_of_range(axis, x, "-3600 to 3600 degrees"));
+    }
+    // Azimuth from +y towards +x: a turn by θ maps (x, y) to (x cos θ + y sin θ, y cos θ − x sin θ).
+    let (s, c) = x.to_radians().sin_cos();
+    let turn = |q: [f64; 3]| [q[0] * c + q[1] * s, q[1] * c - q[0] * s, q[2]];
+    let r = turn(rel);
+    put(camera, "position_m", [0, 1, 2].map(|a| look[a] + r[a]));
+    if camera.contains_key("up") {
+        let up = camera_vector(camera, "up")?;
+        put(camera, "up", turn(up));
     }
     Ok(())
 }

@@ -32,6 +32,9 @@ pub struct ComputeEnv<'a> {
     pub progress: &'a (dyn Fn(TileProgress) + Sync),
     /// Polled between stages, tiles and rows.
     pub cancel: &'a (dyn Fn() -> bool + Sync),
+    /// What a frame shares with the frames computed before it (a sequence's grid and lit
+    /// volume); `None`: computed alone.
+    pub reuse: Option<&'a crate::frame::FrameReuse>,
 }
 
 impl AnyRequest {
@@ -57,9 +60,14 @@ impl AnyRequest {
     pub fn compute(&self, engine: &Engine, env: &ComputeEnv) -> Result<SpectralImage> {
         match self {
             AnyRequest::Atmosphere(r) => r.compute_cancellable(engine, env.cancel),
-            AnyRequest::Frame(r) => {
-                r.compute_tiled(engine, env.loader, env.tiles, env.progress, env.cancel)
-            }
+            AnyRequest::Frame(r) => r.compute_tiled_with(
+                engine,
+                env.loader,
+                env.tiles,
+                env.progress,
+                env.reuse,
+                env.cancel,
+            ),
         }
     }
 

@@ -32,6 +32,7 @@ pub mod camera;
 pub mod compare;
 pub mod light;
 pub mod lighting;
+pub mod lit;
 pub mod march;
 pub mod multiple;
 pub mod pathtracer;
@@ -42,6 +43,7 @@ pub mod scene;
 pub mod volume;
 
 pub use lighting::Lighting;
+pub use lit::{LitInputs, LitVolume};
 pub use march::Prepared;
 pub use multiple::PhotonSettings;
 pub use pattern::PatternSettings;
@@ -376,7 +378,7 @@ pub fn render_tile(
     let mut variance = vec![0f32; tile.width * tile.height * n_l];
     let rows_done = AtomicUsize::new(0);
     let cancelled = std::sync::atomic::AtomicBool::new(false);
-    let mut pt = pathtracer::PathTracer::new(&p.vol, &p.scene.optics, p.lighting, p.settings.seed);
+    let mut pt = pathtracer::PathTracer::new(p.vol(), &p.scene.optics, p.lighting, p.settings.seed);
     pt.max_orders = p.settings.max_orders;
     pt.min_orders = p.settings.min_orders;
     radiance
@@ -413,10 +415,10 @@ pub fn render_tile(
                         }
                         if let Some(ray) = camera::primary_ray(cam, x as f64 + 0.5, y as f64 + 0.5)
                         {
-                            let tau = p.vol.density_integral(
+                            let tau = p.vol().density_integral(
                                 ray.origin_m,
                                 ray.dir,
-                                0.5 * p.vol.grid.voxel_size_m,
+                                0.5 * p.vol().grid.voxel_size_m,
                             );
                             tr[col] = (p
                                 .scene

@@ -4,16 +4,11 @@
 //! path, plus the interpolated sky and multiple-scattering terms; background, ground with cloud
 //! shadows, aerial perspective and shafts of light (Dobashi et al. 2000, eq 13–14) in [`Prepared::composite`].
 
-use super::light::{
-    lattice_density_integrals, sun_density_integrals, SkyElements, LATTICE, VIEW_CAP_DEG,
-    VIEW_ELEMENT,
-};
+use super::light::{VIEW_CAP_DEG, VIEW_ELEMENT};
 use super::lighting::Lighting;
-use super::multiple::{MsField, Truncation};
+use super::lit::{check, LitInputs, LitVolume};
 use super::pathtracer::PathTracer;
-use super::peak::PeakSpread;
-use super::scene::{CloudMsMethod, FrameScene, Projection};
-use super::volume::CloudVolume;
+use super::scene::{FrameScene, Projection};
 use super::{Method, RenderSettings};
 use glam::DVec3;
 use rayon::prelude::*;
@@ -21,194 +16,110 @@ use skybake_engine::engine::Stages;
 use skybake_physics::camera::Ray;
 use skybake_physics::cloud::DensityGrid;
 use std::f64::consts::PI;
+use std::sync::Arc;
 use std::time::Instant;
-
-/// The sun's shadow map on the plane of the box's bottom face (Dobashi et al. 2000, §5.2.1): density
-/// integral towards the sun from each point of the plane.
-pub struct ShadowMap {
-    pub z_m: f64,
-    pub origin_xy: [f64; 2],
-    pub cell_m: f64,
-    pub dims: [usize; 2],
-    pub d: Vec<f32>,
-}
-
-impl ShadowMap {
-    fn new(vol: &CloudVolume, sun: DVec3, step_m: f64) -> Option<Self> {
-        if sun.z < 0.02 {
-            return None;
-        }
-        let z = vol.lo.z;
-        // Footprint: the box's corners projected along the sun onto the plane.
-        let (mut min, mut max) = ([f64::INFINITY; 2], [f64::NEG_INFINITY; 2]);
-        for c in 0..8 {
-            let p = DVec3::new(
-                if c & 1 == 0 { vol.lo.x } else { vol.hi.x },
-                if c & 2 == 0 { vol.lo.y } else { vol.hi.y },
-                if c & 4 == 0 { vol.lo.z } else { vol.hi.z },
-            );
-            let q = p - sun * ((p.z - z) / sun.z);
-            for a in 0..2 {
-                min[a] = min[a].min(q[a]);
-                max[a] = max[a].max(q[a]);
-            }
-        }
-        let h = vol.grid.voxel_size_m;
-        let extent = (max[0] - min[0]).max(max[1] - min[1]);
-        let cell = h.max(extent / 1024.0);
-        let dims = [
-            ((max[0] - min[0]) / cell).ceil() as usize + 1,
-            ((max[1] - min[1]) / cell).ceil() as usize + 1,
-        ];
-        let mut d = vec![0f32; dims[0] * dims[1]];
-        d.par_chunks_mut(dims[0]).enumerate().for_each(|(j, row)| {
-            for (i, v) in row.iter_mut().enumerate() {
-                let p = DVec3::new(min[0] + i as f64 * cell, min[1] + j as f64 * cell, z);
-                *v = vol.density_integral(p, sun, step_m) as f32;
-            }
-        });
-        Some(Self {
-            z_m: z,
-            origin_xy: min,
-            cell_m: cell,
-            dims,
-            d,
-        })
-    }
-
-    /// Density integral towards the sun from `p` below the plane (bilinear).
-    fn lookup(&self, p: DVec3, sun: DVec3) -> f64 {
-        let q = p + sun * ((self.z_m - p.z) / sun.z);
-        let u = (q.x - self.origin_xy[0]) / self.cell_m;
-        let v = (q.y - self.origin_xy[1]) / self.cell_m;
-        if !(u >= 0.0
-            && v >= 0.0
-            && u <= (self.dims[0] - 1) as f64
-            && v <= (self.dims[1] - 1) as f64)
-        {
-            return 0.0;
-        }
-        let (i0, j0) = (u.floor() as usize, v.floor() as usize);
-        let (i1, j1) = (
-            (i0 + 1).min(self.dims[0] - 1),
-            (j0 + 1).min(self.dims[1] - 1),
-        );
-        let (fu, fv) = (u - i0 as f64, v - j0 as f64);
-        let g = |i: usize, j: usize| self.d[j * self.dims[0] + i] as f64;
-        (g(i0, j0) * (1.0 - fu) + g(i1, j0) * fu) * (1.0 - fv)
-            + (g(i0, j1) * (1.0 - fu) + g(i1, j1) * fu) * fv
-    }
-}
 
 /// The march stops where the scaled transmittance T* of every wavelength is below this: the rest
 /// of the ray adds at most this fraction of the brightest source behind it (and the background
 /// seen through the cloud, T_c ≤ T*, at most this fraction of its radiance).
 pub const MARCH_CUTOFF: f64 = 1e-3;
 
-/// Everything precomputed for one scene, camera and lighting; renders any tile.
+/// Everything precomputed for one scene, camera and lighting; renders any tile. The
+/// camera-independent part is a shared [`LitVolume`]; the per-voxel source towards the camera
+/// is this camera's.
 pub struct Prepared<'a> {
     pub scene: &'a FrameScene,
     pub lighting: &'a Lighting,
     pub settings: RenderSettings,
-    pub vol: CloudVolume<'a>,
+    pub lit: Arc<LitVolume>,
     /// Per voxel: `[D_sun, S_0 … S_{n-1}]` (sun density integral, m; the source per unit scaled
     /// extinction towards the camera, S = (ω/s)·Q_sky + ω*·J*: first-order sky radiance Q_sky
     /// and the orders ≥ 2 J* of the δ-M scaled problem, W m⁻² sr⁻¹ nm⁻¹; see [`Prepared::march`]).
     pub vox: Vec<f32>,
     pub stride: usize,
-    pub shadow: Option<ShadowMap>,
-    pub ms: Option<MsField>,
     pub stages: Stages,
-    /// Stage timings, ms.
+    /// Stage timings, ms (a stage of a shared lit volume counts 0 ms: this frame did not run it).
     pub timing_ms: Vec<(String, f64)>,
     /// Work counter: lattice density-integral grids computed for sky and ground light (14 when
     /// either lights the cloud, else 0).
     pub lattice_paths: usize,
-    sun_on: bool,
-    /// σ_t*/σ_t per wavelength (TMS, see `multiple`).
-    ms_extinction_scale: Vec<f64>,
-    /// The sky elements, for the view cap that each ray adds (`None` without sky or ground light).
-    sky_elements: Option<SkyElements>,
-    /// The truncated peak spread over the scaled sun beam (`None` without truncation).
-    peak: Option<PeakSpread>,
-    /// ω·f per wavelength (the peak's share of extinction; 0 without truncation).
-    peak_rate: Vec<f64>,
 }
 
 impl<'a> Prepared<'a> {
-    /// Builds the per-voxel light (fast method) or only what the path tracer needs.
+    /// Builds the per-voxel light (fast method) or only what the path tracer needs: lights the
+    /// cloud ([`LitVolume::new`], on a copy of `grid`) and adds this camera's part.
     pub fn new(
         scene: &'a FrameScene,
-        grid: &'a DensityGrid,
+        grid: &DensityGrid,
         lighting: &'a Lighting,
         settings: RenderSettings,
         cancel: &(dyn Fn() -> bool + Sync),
     ) -> crate::Result<Self> {
+        let inputs = LitInputs::new(scene, Arc::new(grid.clone()), lighting, settings);
+        let lit = Arc::new(LitVolume::new(inputs, cancel)?);
+        Self::with_lit(scene, lighting, settings, lit, false, cancel)
+    }
+
+    /// This camera's part on a lit cloud: the source towards the camera per voxel (sky
+    /// elements through the lattice paths, the multiple-scattering field's reconstruction, or the
+    /// reference pattern, whose views are the camera's). `lit` must have been computed from
+    /// these `scene`, `lighting` and `settings` (their [`LitInputs`], the camera aside), else
+    /// the call is refused; `shared` marks a lit volume computed for another frame (its stages
+    /// then count 0 ms here). The frame is the one [`Self::new`] gives.
+    pub fn with_lit(
+        scene: &'a FrameScene,
+        lighting: &'a Lighting,
+        settings: RenderSettings,
+        lit: Arc<LitVolume>,
+        shared: bool,
+        cancel: &(dyn Fn() -> bool + Sync),
+    ) -> crate::Result<Self> {
+        if !lit.inputs.same_as(&LitInputs::new(
+            scene,
+            lit.inputs.grid.clone(),
+            lighting,
+            settings,
+        )) {
+            return Err(crate::Error::invalid(
+                "lit",
+                "the lit volume was computed for another cloud, optics, sun, light or settings",
+            ));
+        }
         let n_l = scene.wavelengths.len();
         let stride = 1 + n_l;
-        let mut stages = Stages::default();
-        let mut timing_ms = Vec::new();
-        let mut clock = Instant::now();
-        let mut lap = |name: &str, timing: &mut Vec<(String, f64)>| {
-            timing.push((name.to_string(), clock.elapsed().as_secs_f64() * 1e3));
-            clock = Instant::now();
-        };
-        let vol = CloudVolume::new(grid);
-        lap("volume", &mut timing_ms);
-        let sun_on = lighting.sun_irradiance.iter().any(|&e| e > 0.0);
+        let grid = &*lit.inputs.grid;
         let optics = &scene.optics;
         let sw = scene.lighting;
-        // The planner's hooks: sky or ground light left out on the cloud (not the background).
-        let masked = lighting.masked(settings.sky_light, settings.ground_light);
-        let cloud_lighting = masked.as_ref().unwrap_or(lighting);
-        let env_on = !(cloud_lighting.sky.is_zero() && cloud_lighting.below.is_zero());
-        let scattering = settings.method == Method::Fast
-            && vol.rho_max > 0.0
-            && sw.multiple_scattering
-            && optics.albedo.iter().any(|&a| a > 0.0);
-        // Orders 2–3 of sunlight by the reference pattern (Nishita et al. 1996, §3.4), with the true phase
-        // function and no δ-M scaling; or the all-order field.
-        let pattern_on =
-            scattering && scene.multiple_scattering_method == CloudMsMethod::ReferencePattern;
-        let ms_on = scattering && !pattern_on && (sun_on || env_on);
-        // δ-M scaling (f = g₁²) when the multiple-scattering field runs; none otherwise.
-        let trunc: Vec<Truncation> = optics
-            .phase
-            .iter()
-            .zip(&optics.albedo)
-            .map(|(p, &a)| {
-                let power = if ms_on {
-                    settings.photons.truncation_power
-                } else {
-                    0.0
-                };
-                Truncation::new(p.mean_cosine(), a, power)
-            })
-            .collect();
-        let ms_extinction_scale: Vec<f64> = trunc.iter().map(|t| t.extinction_scale).collect();
-        let ms_albedo: Vec<f64> = trunc.iter().map(|t| t.albedo_scaled).collect();
-        let peak_rate: Vec<f64> = trunc
-            .iter()
-            .map(|t| settings.photons.peak_spread * t.albedo * t.fraction)
-            .collect();
-        let peak =
-            if sun_on && settings.method == Method::Fast && settings.photons.peak_spread > 0.0 {
-                PeakSpread::new(&optics.phase, &trunc)
+        let mut stages = Stages::default();
+        let mut timing_ms = Vec::new();
+        let lit_ms = |name: &str| {
+            if shared {
+                0.0
             } else {
-                None
-            };
+                lit.timing_ms
+                    .iter()
+                    .find(|(n, _)| n == name)
+                    .map_or(0.0, |(_, ms)| *ms)
+            }
+        };
+        let mut clock = Instant::now();
+        let mut lap = |name: &str, timing: &mut Vec<(String, f64)>| {
+            timing.push((
+                name.to_string(),
+                lit_ms(name) + clock.elapsed().as_secs_f64() * 1e3,
+            ));
+            clock = Instant::now();
+        };
+        lap("volume", &mut timing_ms);
+        let (sun_on, env_on) = (lit.sun_on, lit.env_on);
         let mut vox = Vec::new();
-        let mut ms = None;
         let mut lattice_paths = 0;
-        let mut sky_elements = None;
-        if settings.method == Method::Fast && vol.rho_max > 0.0 && settings.cloud_in_view {
+        if lit.per_voxel {
             vox = vec![0f32; grid.data.len() * stride];
-            // The sky element round the sun uses the sun's path too.
+            for (v, s) in vox.chunks_mut(stride).zip(&lit.d_sun) {
+                v[0] = *s;
+            }
             if sun_on || env_on {
-                let d = sun_density_integrals(grid, lighting.sun_dir);
-                for (v, s) in vox.chunks_mut(stride).zip(&d) {
-                    v[0] = *s;
-                }
                 stages.ran.push(
                     "sun optical path per voxel (cumulative, Nishita et al. 1996, §3.2)".into(),
                 );
@@ -219,34 +130,22 @@ impl<'a> Prepared<'a> {
             }
             lap("sun_paths", &mut timing_ms);
             check(cancel)?;
-            let mask = dilated_mask(grid);
+            let mask = &lit.mask;
             let view = |p: DVec3| -> DVec3 {
                 match scene.camera.projection {
                     Projection::Orthographic { .. } => scene.camera.forward,
                     _ => (p - scene.camera.position_m).normalize_or(scene.camera.forward),
                 }
             };
-            if env_on {
-                let truncated: Vec<f64> = trunc.iter().map(|t| t.fraction).collect();
-                let elements = SkyElements::new(
-                    cloud_lighting,
-                    &optics.phase,
-                    &truncated,
-                    settings.sky_quadrature,
-                    settings.sky_table[0],
-                    settings.sky_table[1],
-                );
-                let paths: Vec<Vec<f32>> = LATTICE
-                    .par_iter()
-                    .map(|e| lattice_density_integrals(grid, *e))
-                    .collect();
+            if let (true, Some(elements)) = (env_on, &lit.sky_elements) {
+                let paths = &lit.lattice;
                 lattice_paths = paths.len();
-                check(cancel)?;
+                let ms_extinction_scale = &lit.ms_extinction_scale;
                 // Scaled extinction on the paths to the sky (TMS: Nakajima & Tanaka 1988).
                 let k: Vec<f64> = optics
                     .extinction_per_density_m
                     .iter()
-                    .zip(&ms_extinction_scale)
+                    .zip(ms_extinction_scale)
                     .map(|(k, s)| k * s)
                     .collect();
                 let [nx, ny, _] = grid.dims;
@@ -271,6 +170,7 @@ impl<'a> Prepared<'a> {
                             }
                         }
                     });
+                let cloud_lighting = lit.cloud_lighting();
                 let what = match (
                     sw.sky_light && !cloud_lighting.sky.is_zero(),
                     sw.ground_light && !cloud_lighting.below.is_zero(),
@@ -283,7 +183,6 @@ impl<'a> Prepared<'a> {
                     "{what}: {} sky elements (sun cap + 6 axes + 8 diagonals with cumulative t/t_d paths, Nishita et al. 1996, eq 7; a {VIEW_CAP_DEG}° cap round the view direction along the view ray)",
                     VIEW_ELEMENT + 1
                 ));
-                sky_elements = Some(elements);
             } else {
                 stages
                     .skipped
@@ -291,13 +190,13 @@ impl<'a> Prepared<'a> {
             }
             lap("sky_light", &mut timing_ms);
             check(cancel)?;
-            if pattern_on {
+            if lit.pattern_on {
                 let field = super::pattern::compute(
                     scene,
                     grid,
-                    cloud_lighting,
+                    &lit.cloud_lighting(),
                     &settings.pattern,
-                    &mask,
+                    mask,
                     cancel,
                 )?;
                 for (v, q) in vox.chunks_mut(stride).zip(field.q.chunks(n_l)) {
@@ -307,9 +206,9 @@ impl<'a> Prepared<'a> {
                 }
                 stages.ran.push(field.describe());
                 lap("reference_pattern", &mut timing_ms);
-            } else if ms_on {
-                let field = MsField::compute(grid, optics, cloud_lighting, &settings.photons);
+            } else if let Some(field) = &lit.ms {
                 lap("multiple_scattering", &mut timing_ms);
+                let ms_albedo = &lit.ms_albedo;
                 let [nx, ny, _] = grid.dims;
                 vox.par_chunks_mut(nx * ny * stride)
                     .enumerate()
@@ -332,7 +231,6 @@ impl<'a> Prepared<'a> {
                     if settings.photons.truncation_power > 0.0 { "delta-M truncated forward peak with the TMS single-scattering correction" } else { "untruncated phase function" },
                     settings.photons.angular_order
                 ));
-                ms = Some(field);
                 lap("ms_to_voxels", &mut timing_ms);
             } else {
                 stages
@@ -345,16 +243,7 @@ impl<'a> Prepared<'a> {
                 settings.spp
             ));
         }
-        let needs_shadow = sun_on
-            && vol.rho_max > 0.0
-            && ((sw.cloud_shadows && lighting.ground.is_some())
-                || (sw.shafts_of_light && lighting.aerial.is_some()));
-        let shadow = if needs_shadow {
-            ShadowMap::new(&vol, lighting.sun_dir, grid.voxel_size_m)
-        } else {
-            None
-        };
-        if shadow.is_some() {
+        if lit.shadow.is_some() {
             stages
                 .ran
                 .push("sun shadow map (cloud shadows, shafts of light)".into());
@@ -364,7 +253,7 @@ impl<'a> Prepared<'a> {
             stages
                 .ran
                 .push("aerial perspective between camera and cloud".into());
-            if sw.shafts_of_light && shadow.is_some() {
+            if sw.shafts_of_light && lit.shadow.is_some() {
                 stages.ran.push(
                     "shafts of light below the cloud base (Dobashi et al. 2000, eq 13-14)".into(),
                 );
@@ -374,30 +263,28 @@ impl<'a> Prepared<'a> {
                 .skipped
                 .push("aerial perspective: vacuum or switched off".into());
         }
-        if peak.is_some() {
+        if lit.peak.is_some() {
             stages.ran.push(
                 "sun single scattering with the truncated peak spread over the scaled beam (Goudsmit & Saunderson 1940)".into(),
             );
         }
         lap("peak_spread", &mut timing_ms);
         Ok(Self {
-            ms_extinction_scale,
-            sky_elements,
-            peak,
-            peak_rate,
             scene,
             lighting,
             settings,
-            vol,
+            lit,
             vox,
             stride,
-            shadow,
-            ms,
             stages,
             timing_ms,
             lattice_paths,
-            sun_on,
         })
+    }
+
+    /// The cloud as a medium.
+    pub fn vol(&self) -> &super::volume::CloudVolume {
+        &self.lit.vol
     }
 
     /// Fast method: cloud radiance I_a, cloud transmittance T_c per wavelength and the distance
@@ -417,11 +304,11 @@ impl<'a> Prepared<'a> {
             return None;
         }
         let mut tcs = [1.0f64; 64];
-        let (t0, t1) = self.vol.interval(ray.origin_m, ray.dir)?;
+        let (t0, t1) = self.lit.vol.interval(ray.origin_m, ray.dir)?;
         let optics = &self.scene.optics;
         let n_l = ia.len();
         let lt = self.lighting;
-        let step = self.settings.step_voxels * self.vol.grid.voxel_size_m;
+        let step = self.settings.step_voxels * self.lit.vol.grid.voxel_size_m;
         let cos_sun = lt.sun_dir.dot(ray.dir);
         // Per wavelength: ω/s · E_sun · p(Θ) and the scaled and true extinctions per density.
         let mut sun_src = [0.0f64; 64];
@@ -429,9 +316,9 @@ impl<'a> Prepared<'a> {
         let mut kt = [0.0f64; 64];
         let mut rows = [None; 64];
         for l in 0..n_l {
-            rows[l] = self.peak.as_ref().map(|p| p.row(l, cos_sun));
-            let sc = self.ms_extinction_scale[l];
-            sun_src[l] = if self.sun_on {
+            rows[l] = self.lit.peak.as_ref().map(|p| p.row(l, cos_sun));
+            let sc = self.lit.ms_extinction_scale[l];
+            sun_src[l] = if self.lit.sun_on {
                 optics.albedo[l] / sc * lt.sun_irradiance[l] * optics.phase[l].eval(cos_sun)
             } else {
                 0.0
@@ -442,13 +329,13 @@ impl<'a> Prepared<'a> {
         let mut t = t0;
         let mut front = None;
         let (o, d) = (ray.origin_m, ray.dir);
-        let data = &self.vol.grid.data;
+        let data = &self.lit.vol.grid.data;
         // The sun's density integral at the current step's start (carried from the previous
         // step's end; `None` after a skip).
         let mut d_start: Option<f64> = None;
         while t < t1 {
             let p = o + d * t;
-            if let Some(skip) = self.vol.empty_skip(p, d) {
+            if let Some(skip) = self.lit.vol.empty_skip(p, d) {
                 t += skip + 1e-6 * step;
                 d_start = None;
                 continue;
@@ -457,17 +344,17 @@ impl<'a> Prepared<'a> {
             let pm = o + d * (t + 0.5 * dt);
             let d0 = match d_start {
                 Some(v) => v,
-                None if self.sun_on => self.sun_path_at(p),
+                None if self.lit.sun_on => self.sun_path_at(p),
                 None => 0.0,
             };
             t += dt;
-            let d1 = if self.sun_on {
+            let d1 = if self.lit.sun_on {
                 self.sun_path_at(o + d * t)
             } else {
                 0.0
             };
             d_start = Some(d1);
-            let Some(w) = self.vol.weights(pm) else {
+            let Some(w) = self.lit.vol.weights(pm) else {
                 continue;
             };
             let mut rho = 0.0;
@@ -495,13 +382,14 @@ impl<'a> Prepared<'a> {
                 if l == 0 || kt[l] != kt[l - 1] || ks[l] != ks[l - 1] {
                     a = -(-kt[l] * rho * dt).exp_m1();
                     a_ms = -(-ks[l] * rho * dt).exp_m1();
-                    sun_t = if self.sun_on {
+                    sun_t = if self.lit.sun_on {
                         let (weight, d_eff) =
                             sun_step(ks[l] * rho, ks[l] * (d1 - d0), dt, ks[l] * d0);
-                        let spread = match (&self.peak, rows[l]) {
-                            (Some(p), Some(row)) => {
-                                p.ratio(row, self.peak_rate[l] * kt[l] * (d0 + (d1 - d0) * d_eff))
-                            }
+                        let spread = match (&self.lit.peak, rows[l]) {
+                            (Some(p), Some(row)) => p.ratio(
+                                row,
+                                self.lit.peak_rate[l] * kt[l] * (d0 + (d1 - d0) * d_eff),
+                            ),
                             _ => 1.0,
                         };
                         weight * spread
@@ -527,7 +415,8 @@ impl<'a> Prepared<'a> {
     /// The sun's density integral D (m) at `p`, trilinear in the per-voxel values.
     #[inline]
     fn sun_path_at(&self, p: DVec3) -> f64 {
-        self.vol
+        self.lit
+            .vol
             .weights(p)
             .map(|w| {
                 w.iter()
@@ -546,7 +435,7 @@ impl<'a> Prepared<'a> {
     /// (Poisson sum over the number of peak scatterings), is added here, as the background seen
     /// through the cloud keeps the true transmittance e^{−τ} (`tc`).
     fn add_view_cap(&self, d: DVec3, ia: &mut [f64], tc: &[f64], tcs: &[f64]) {
-        let Some(elements) = &self.sky_elements else {
+        let Some(elements) = &self.lit.sky_elements else {
             return;
         };
         let n_l = ia.len();
@@ -560,7 +449,7 @@ impl<'a> Prepared<'a> {
                 continue;
             }
             let tau_scaled = -t_scaled.ln();
-            let s_cap = albedo[l] / self.ms_extinction_scale[l] * cap[l];
+            let s_cap = albedo[l] / self.lit.ms_extinction_scale[l] * cap[l];
             // The cap's share F − f·δ may be negative for a bright sky straight behind a
             // thick point; the sum with the peak's direct light is not.
             ia[l] =
@@ -571,7 +460,7 @@ impl<'a> Prepared<'a> {
     /// Transmittance of the sun's light from the cloud to point `p` (cloud shadows, shafts).
     fn sun_visibility(&self, p: DVec3, l: usize) -> f64 {
         let k = self.scene.optics.extinction_per_density_m[l];
-        match &self.shadow {
+        match &self.lit.shadow {
             Some(s) if p.z <= s.z_m => (-k * s.lookup(p, self.lighting.sun_dir)).exp(),
             _ => 1.0,
         }
@@ -633,7 +522,7 @@ impl<'a> Prepared<'a> {
         // Shafts of light: air in-scattering along the ray weighted by the sun's visibility
         // through the cloud, only below the cloud base (Dobashi et al. 2000, eq 14, γ = 1 above z_c).
         let mut s_eff = sa.clone();
-        if sw.shafts_of_light && self.sun_on && self.shadow.is_some() {
+        if sw.shafts_of_light && self.lit.sun_on && self.lit.shadow.is_some() {
             let n = self.settings.shaft_steps.max(1);
             let mut s_prev = vec![0.0; n_l];
             let mut s_next = vec![0.0; n_l];
@@ -681,8 +570,9 @@ impl<'a> Prepared<'a> {
         let mut px = vec![0.0; n_l];
         let centre = super::camera::primary_ray(&self.scene.camera, x as f64 + 0.5, y as f64 + 0.5);
         let front = centre.as_ref().and_then(|r| {
-            self.vol
-                .first_occupied(r.origin_m, r.dir, 0.5 * self.vol.grid.voxel_size_m)
+            self.lit
+                .vol
+                .first_occupied(r.origin_m, r.dir, 0.5 * self.lit.vol.grid.voxel_size_m)
         });
         for _ in 0..spp {
             use rand::Rng;
@@ -735,35 +625,4 @@ fn sun_step(a: f64, b_total: f64, dt: f64, tau0: f64) -> (f64, f64) {
         1.0 / x - 1.0 / x.exp_m1()
     };
     (weight, mean.clamp(0.0, 1.0))
-}
-
-fn check(cancel: &(dyn Fn() -> bool + Sync)) -> crate::Result<()> {
-    if cancel() {
-        Err(crate::Error::Cancelled)
-    } else {
-        Ok(())
-    }
-}
-
-/// Voxels whose 3×3×3 neighbourhood holds any density (where per-voxel light is needed).
-fn dilated_mask(grid: &DensityGrid) -> Vec<bool> {
-    let [nx, ny, nz] = grid.dims;
-    let mut m = vec![false; grid.data.len()];
-    for z in 0..nz {
-        for y in 0..ny {
-            for x in 0..nx {
-                if grid.at(x, y, z) <= 0.0 {
-                    continue;
-                }
-                for zz in z.saturating_sub(1)..=(z + 1).min(nz - 1) {
-                    for yy in y.saturating_sub(1)..=(y + 1).min(ny - 1) {
-                        for xx in x.saturating_sub(1)..=(x + 1).min(nx - 1) {
-                            m[grid.index(xx, yy, zz)] = true;
-                        }
-                    }
-                }
-            }
-        }
-    }
-    m
 }

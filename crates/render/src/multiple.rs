@@ -151,13 +151,21 @@ struct Photon {
 }
 
 impl MsField {
-    /// Runs the photon pass for every group of wavelengths with identical optics.
+    /// Bytes held by the field's tables.
+    pub fn bytes(&self) -> usize {
+        4 * (self.data.len() + self.rho.len())
+    }
+
+    /// Runs the photon pass for every group of wavelengths with identical optics; `cancel` is
+    /// polled before every chunk of 4096 photons ([`crate::Error::Cancelled`]).
     pub fn compute(
         grid: &DensityGrid,
         optics: &Optics,
         lighting: &Lighting,
         s: &PhotonSettings,
-    ) -> Self {
+        cancel: &(dyn Fn() -> bool + Sync),
+    ) -> crate::Result<Self> {
+        let cancelled = std::sync::atomic::AtomicBool::new(false);
         let coarse = Coarse::new(grid, s.max_coarse_dim);
         let n_l = optics.albedo.len();
         let cells = coarse.rho.len();
@@ -212,6 +220,10 @@ impl MsField {
                     let mut w = vec![0.0; group.len()];
                     let mut ylm = [0.0; (MAX_ORDER + 1) * (MAX_ORDER + 1)];
                     for ci in (lane..chunks).step_by(lanes) {
+                        if cancelled.load(std::sync::atomic::Ordering::Relaxed) || cancel() {
+                            cancelled.store(true, std::sync::atomic::Ordering::Relaxed);
+                            break;
+                        }
                         let mut rng = Pcg64::seed_from_u64(
                             s.seed
                                 ^ (ci as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15)
@@ -295,6 +307,9 @@ impl MsField {
                     acc
                 })
                 .collect();
+            if cancelled.load(std::sync::atomic::Ordering::Relaxed) {
+                return Err(crate::Error::Cancelled);
+            }
             for p in partial {
                 for c in 0..cells {
                     for (gi, &l) in group.iter().enumerate() {
@@ -306,7 +321,7 @@ impl MsField {
                 }
             }
         }
-        Self {
+        Ok(Self {
             dims: coarse.dims,
             cell_m: coarse.cell_m,
             origin_m: coarse.origin_m,
@@ -321,7 +336,7 @@ impl MsField {
             rho: coarse.rho,
             angular_order: order,
             moments,
-        }
+        })
     }
 
     /// In-scattered radiance of orders ≥ 2 of the scaled problem towards a viewer looking along

@@ -34,7 +34,7 @@ pub struct Sample {
 
 /// The path tracer for one scene.
 pub struct PathTracer<'a> {
-    pub vol: &'a CloudVolume<'a>,
+    pub vol: &'a CloudVolume,
     pub optics: &'a Optics,
     pub lighting: &'a Lighting,
     pub groups: Vec<Vec<usize>>,
@@ -50,7 +50,7 @@ pub struct PathTracer<'a> {
 
 impl<'a> PathTracer<'a> {
     pub fn new(
-        vol: &'a CloudVolume<'a>,
+        vol: &'a CloudVolume,
         optics: &'a Optics,
         lighting: &'a Lighting,
         seed: u64,

@@ -4,13 +4,15 @@
 use super::camera::box_interval;
 use glam::DVec3;
 use skybake_physics::cloud::DensityGrid;
+use std::sync::Arc;
 
 /// Edge of the empty-space blocks, voxels.
 pub const BLOCK: usize = 8;
 
-/// A density grid prepared for ray marching and tracking.
-pub struct CloudVolume<'a> {
-    pub grid: &'a DensityGrid,
+/// A density grid prepared for ray marching and tracking (it shares the grid, so a lit volume
+/// kept for a sequence of frames keeps it).
+pub struct CloudVolume {
+    pub grid: Arc<DensityGrid>,
     pub lo: DVec3,
     pub hi: DVec3,
     pub rho_max: f64,
@@ -19,8 +21,8 @@ pub struct CloudVolume<'a> {
     block_max: Vec<f32>,
 }
 
-impl<'a> CloudVolume<'a> {
-    pub fn new(grid: &'a DensityGrid) -> Self {
+impl CloudVolume {
+    pub fn new(grid: Arc<DensityGrid>) -> Self {
         let [nx, ny, nz] = grid.dims;
         let bd = [nx.div_ceil(BLOCK), ny.div_ceil(BLOCK), nz.div_ceil(BLOCK)];
         let mut block_max = vec![0f32; bd[0] * bd[1] * bd[2]];
@@ -45,19 +47,19 @@ impl<'a> CloudVolume<'a> {
             }
         }
         Self {
-            grid,
             lo: grid.origin_m,
             hi: grid.max_corner_m(),
             rho_max: grid.max_density() as f64,
             block_dims: bd,
             block_max,
+            grid,
         }
     }
 
     /// Trilinear weights of the 8 voxels around `p` (the grid's convention); `None` outside.
     #[inline]
     pub fn weights(&self, p: DVec3) -> Option<[(usize, f64); 8]> {
-        let g = self.grid;
+        let g = &*self.grid;
         let local = (p - g.origin_m) / g.voxel_size_m;
         let n = g.dims;
         let mut i0 = [0usize; 3];

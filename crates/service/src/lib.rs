@@ -159,6 +159,8 @@ struct Inner {
     jobs: skybake_job::run::Jobs,
     /// This process's name on the leases it holds in a bucket.
     holder: String,
+    /// What consecutive frames share (a camera path's lit cloud, a sun sweep's grid).
+    reuse: skybake_product::frame::FrameReuse,
 }
 
 impl AppState {
@@ -215,6 +217,7 @@ impl AppState {
                 rate: Default::default(),
                 jobs,
                 holder,
+                reuse: Default::default(),
             }),
         };
         state.housekeeping();
@@ -545,6 +548,7 @@ impl AppState {
             },
             progress: &progress,
             cancel: &cancel,
+            reuse: Some(&self.inner.reuse),
         };
         match (work.compute(&self.inner.engine, &env), work, &tiles) {
             (Ok(image), _, _) => Ok(image),

@@ -12,6 +12,7 @@
 
 mod examples;
 mod planning;
+mod reuse;
 mod tiled;
 
 use crate::{Error, Result};
@@ -22,7 +23,7 @@ use skybake_physics::cloud::DensityGrid;
 use skybake_physics::spectrum::Wavelengths;
 use skybake_render::{
     lighting_for_unless, relative_noise, render_tile, FrameError, FrameMeta, FrameScene, Method,
-    Prepared, RenderSettings, Tile, ERROR_BASIS,
+    RenderSettings, Tile, ERROR_BASIS,
 };
 use skybake_store::tiles::ATTR_TILE_OF;
 use skybake_store::{decode_exr, encode_exr, SpectralImage};
@@ -30,6 +31,7 @@ use std::time::Instant;
 
 pub use examples::{example_file, example_scene, EXAMPLE_SCENES};
 pub use planning::*;
+pub use reuse::{FrameReuse, ReuseCounts, DEFAULT_REUSE_BYTES};
 pub use tiled::*;
 
 /// A validated frame request: the scene (as parsed JSON, for the canonical form) and the method.

@@ -350,7 +350,7 @@ impl RgbDecision {
 pub(super) struct PlannedFrame {
     pub(super) plan: FramePlan,
     pub(super) scene: FrameScene,
-    pub(super) grid: DensityGrid,
+    pub(super) grid: std::sync::Arc<DensityGrid>,
     pub(super) settings: RenderSettings,
     pub(super) lighting: skybake_render::Lighting,
     /// voxelize, plan, lighting, ms.
@@ -501,18 +501,20 @@ impl FrameRequest {
         cancel: &(dyn Fn() -> bool + Sync),
     ) -> Result<FramePlan> {
         Ok(self
-            .planned(engine, loader, self.rgb_decision()?, cancel)?
+            .planned(engine, loader, self.rgb_decision()?, None, cancel)?
             .plan)
     }
 
     /// Voxelises (a sphere hierarchy at the level the plan chooses), measures, plans and
     /// executes the plan, and computes the light the frame runs with; `rgb` is the request's
-    /// [`Self::rgb_decision`].
+    /// [`Self::rgb_decision`]. With `reuse`, a grid voxelised for an earlier frame of the same
+    /// cloud (section, sphere level and file bytes) is taken as it is.
     pub(super) fn planned(
         &self,
         engine: &Engine,
         loader: &dyn Fn(&str) -> Result<Vec<u8>>,
         rgb: RgbDecision,
+        reuse: Option<&super::FrameReuse>,
         cancel: &(dyn Fn() -> bool + Sync),
     ) -> Result<PlannedFrame> {
         let start = Instant::now();
@@ -548,7 +550,20 @@ impl FrameRequest {
                 source.level = Some(0);
             }
         }
-        let grid = voxelize_cloud(&cloud, loader, cancel)?;
+        let grid = match reuse {
+            Some(reuse) => {
+                let key = super::reuse::grid_key(
+                    self.scene_json
+                        .get("cloud")
+                        .unwrap_or(&serde_json::Value::Null),
+                    &format!("{:?}", early.sphere_level),
+                    &cloud.source.files(),
+                    loader,
+                )?;
+                reuse.grid(&key, || voxelize_cloud(&cloud, loader, cancel))?
+            }
+            None => std::sync::Arc::new(voxelize_cloud(&cloud, loader, cancel)?),
+        };
         let voxelize_ms = start.elapsed().as_secs_f64() * 1e3;
         skybake_render::check_grid(&grid)?;
         let start = Instant::now();
@@ -583,7 +598,7 @@ impl FrameRequest {
         );
         let run = execute_plan(&plan, &scene, &grid, self.method)?;
         let grid = match run.grid {
-            Some(g) => g,
+            Some(g) => std::sync::Arc::new(g),
             None => grid,
         };
         let plan_ms = start.elapsed().as_secs_f64() * 1e3 - lighting_ms;

@@ -185,6 +185,20 @@ impl FrameRequest {
         progress: &(dyn Fn(TileProgress) + Sync),
         cancel: &(dyn Fn() -> bool + Sync),
     ) -> Result<SpectralImage> {
+        self.compute_tiled_with(engine, loader, tiles, progress, None, cancel)
+    }
+
+    /// [`Self::compute_tiled`] sharing the grid and the lit volume with the other frames of a
+    /// sequence through `reuse` (the same image, bit for bit).
+    pub fn compute_tiled_with(
+        &self,
+        engine: &Engine,
+        loader: &dyn Fn(&str) -> Result<Vec<u8>>,
+        tiles: &dyn TileSink,
+        progress: &(dyn Fn(TileProgress) + Sync),
+        reuse: Option<&super::FrameReuse>,
+        cancel: &(dyn Fn() -> bool + Sync),
+    ) -> Result<SpectralImage> {
         let cam = &self.scene.camera;
         let (w, h) = (cam.width, cam.height);
         let rgb = self.rgb_decision()?;
@@ -236,12 +250,22 @@ impl FrameRequest {
                 settings,
                 lighting,
                 timing_ms: mut preparation_ms,
-            } = self.planned(engine, loader, rgb, cancel)?;
+            } = self.planned(engine, loader, rgb, reuse, cancel)?;
             // Now that the grid is known, a cloud whose size voxelising told is held to the caps.
             if let Some(caps) = self.caps {
                 FrameCost::of(self, true, grid.data.len() as u64).check(caps)?;
             }
-            let prepared = Prepared::new(&scene, &grid, &lighting, settings, cancel)?;
+            let prepared = match reuse {
+                Some(reuse) => reuse.prepare(&scene, grid.clone(), &lighting, settings, cancel)?,
+                // Nothing kept: the grid is shared with the lit volume, not copied.
+                None => super::FrameReuse::new(0).prepare(
+                    &scene,
+                    grid.clone(),
+                    &lighting,
+                    settings,
+                    cancel,
+                )?,
+            };
             preparation_ms.extend(prepared.timing_ms.iter().cloned());
             let meta = TileMeta {
                 x0: 0,

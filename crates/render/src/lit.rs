@@ -1,0 +1,363 @@
+//! The camera-independent part of the fast method's per-voxel light (Nishita et al. 1996, §3.2–3.4):
+//! the cloud as a medium, the sun's optical path per voxel, the cumulative paths to the 14 lattice
+//! directions and the sky elements, the all-order multiple-scattering field, the sun's shadow map
+//! and the truncated peak's spread. None of it depends on the camera, so a camera path (fly-around,
+//! approach) lights the cloud once and [`super::march::Prepared::with_lit`] adds only what each
+//! camera needs (the source towards the camera per voxel, then the pixels). A [`LitVolume`] is a
+//! function of its [`LitInputs`] alone: a sequence reuses one where the inputs are equal, so its
+//! frames are the frames rendered alone.
+
+use super::light::{lattice_density_integrals, sun_density_integrals, SkyElements, LATTICE};
+use super::lighting::Lighting;
+use super::multiple::{MsField, Truncation};
+use super::peak::PeakSpread;
+use super::scene::{CloudMsMethod, FrameScene, LightingSwitches, Optics};
+use super::volume::CloudVolume;
+use super::{Method, RenderSettings};
+use glam::DVec3;
+use rayon::prelude::*;
+use skybake_physics::cloud::DensityGrid;
+use std::sync::Arc;
+use std::time::Instant;
+
+/// Everything a [`LitVolume`] is computed from (compared whole: equal inputs, equal volume).
+#[derive(Debug, Clone, PartialEq)]
+pub struct LitInputs {
+    pub grid: Arc<DensityGrid>,
+    pub optics: Optics,
+    pub wavelengths_nm: Vec<f64>,
+    pub switches: LightingSwitches,
+    pub ms_method: CloudMsMethod,
+    pub settings: RenderSettings,
+    /// The light from outside the cloud as the cloud receives it: the scene's lighting without
+    /// what only the camera sees (its background and aerial perspective) and without notes.
+    pub cloud_lighting: Lighting,
+    /// Whether the camera has aerial perspective (shafts of light then need the shadow map).
+    pub has_aerial: bool,
+}
+
+impl LitInputs {
+    pub fn new(
+        scene: &FrameScene,
+        grid: Arc<DensityGrid>,
+        lighting: &Lighting,
+        settings: RenderSettings,
+    ) -> Self {
+        let mut cloud_lighting = lighting.clone();
+        cloud_lighting.background = None;
+        cloud_lighting.aerial = None;
+        cloud_lighting.notes = Vec::new();
+        Self {
+            grid,
+            optics: scene.optics.clone(),
+            wavelengths_nm: scene.wavelengths.as_nm().to_vec(),
+            switches: scene.lighting,
+            ms_method: scene.multiple_scattering_method,
+            settings,
+            cloud_lighting,
+            has_aerial: lighting.aerial.is_some(),
+        }
+    }
+
+    /// Equal inputs; the grid compared by pointer first, then by value.
+    pub fn same_as(&self, other: &Self) -> bool {
+        (Arc::ptr_eq(&self.grid, &other.grid) || self.grid == other.grid)
+            && self.optics == other.optics
+            && self.wavelengths_nm == other.wavelengths_nm
+            && self.switches == other.switches
+            && self.ms_method == other.ms_method
+            && self.settings == other.settings
+            && self.cloud_lighting == other.cloud_lighting
+            && self.has_aerial == other.has_aerial
+    }
+}
+
+/// The lit cloud, for any camera (see the module's documentation).
+pub struct LitVolume {
+    pub inputs: LitInputs,
+    pub vol: CloudVolume,
+    /// The sun's density integral per voxel, m (empty when the cloud gets no per-voxel light).
+    pub d_sun: Vec<f32>,
+    /// Voxels whose 3×3×3 neighbourhood holds any density (where per-voxel light is needed).
+    pub mask: Vec<bool>,
+    /// Density integrals towards the 14 lattice directions (sky and ground light), m.
+    pub lattice: Vec<Vec<f32>>,
+    pub sky_elements: Option<SkyElements>,
+    pub ms: Option<MsField>,
+    pub shadow: Option<ShadowMap>,
+    pub peak: Option<PeakSpread>,
+    /// σ_t*/σ_t, ω* and ω·f·spread per wavelength (TMS, see `multiple`).
+    pub ms_extinction_scale: Vec<f64>,
+    pub ms_albedo: Vec<f64>,
+    pub peak_rate: Vec<f64>,
+    pub sun_on: bool,
+    pub env_on: bool,
+    /// Orders 2–3 by the reference pattern: computed per camera (its views are the camera's).
+    pub pattern_on: bool,
+    /// The per-voxel light runs (fast method, a cloud in view).
+    pub per_voxel: bool,
+    /// Stage timings of the computation, ms (volume, sun_paths, sky_light, multiple_scattering,
+    /// shadow_map, peak_spread).
+    pub timing_ms: Vec<(String, f64)>,
+    /// Approximate bytes held (for a cache's budget).
+    pub bytes: usize,
+}
+
+impl LitVolume {
+    /// Lights the cloud of `inputs`; `cancel` is polled between stages.
+    pub fn new(inputs: LitInputs, cancel: &(dyn Fn() -> bool + Sync)) -> crate::Result<Self> {
+        let settings = inputs.settings;
+        let mut timing_ms = Vec::new();
+        let mut clock = Instant::now();
+        let mut lap = |name: &str, timing: &mut Vec<(String, f64)>| {
+            timing.push((name.to_string(), clock.elapsed().as_secs_f64() * 1e3));
+            clock = Instant::now();
+        };
+        let vol = CloudVolume::new(inputs.grid.clone());
+        let grid = &*inputs.grid;
+        lap("volume", &mut timing_ms);
+        let lighting = &inputs.cloud_lighting;
+        let sun_on = lighting.sun_irradiance.iter().any(|&e| e > 0.0);
+        let optics = &inputs.optics;
+        let sw = inputs.switches;
+        // The planner's hooks: sky or ground light left out on the cloud (not the background).
+        let masked = lighting.masked(settings.sky_light, settings.ground_light);
+        let cloud_lighting = masked.as_ref().unwrap_or(lighting);
+        let env_on = !(cloud_lighting.sky.is_zero() && cloud_lighting.below.is_zero());
+        let scattering = settings.method == Method::Fast
+            && vol.rho_max > 0.0
+            && sw.multiple_scattering
+            && optics.albedo.iter().any(|&a| a > 0.0);
+        // Orders 2–3 of sunlight by the reference pattern (Nishita et al. 1996, §3.4), with the true phase
+        // function and no δ-M scaling; or the all-order field.
+        let pattern_on = scattering && inputs.ms_method == CloudMsMethod::ReferencePattern;
+        let ms_on = scattering && !pattern_on && (sun_on || env_on);
+        // δ-M scaling when the multiple-scattering field runs; none otherwise.
+        let trunc: Vec<Truncation> = optics
+            .phase
+            .iter()
+            .zip(&optics.albedo)
+            .map(|(p, &a)| {
+                let power = if ms_on {
+                    settings.photons.truncation_power
+                } else {
+                    0.0
+                };
+                Truncation::new(p.mean_cosine(), a, power)
+            })
+            .collect();
+        let ms_extinction_scale: Vec<f64> = trunc.iter().map(|t| t.extinction_scale).collect();
+        let ms_albedo: Vec<f64> = trunc.iter().map(|t| t.albedo_scaled).collect();
+        let peak_rate: Vec<f64> = trunc
+            .iter()
+            .map(|t| settings.photons.peak_spread * t.albedo * t.fraction)
+            .collect();
+        let peak =
+            if sun_on && settings.method == Method::Fast && settings.photons.peak_spread > 0.0 {
+                PeakSpread::new(&optics.phase, &trunc)
+            } else {
+                None
+            };
+        let per_voxel =
+            settings.method == Method::Fast && vol.rho_max > 0.0 && settings.cloud_in_view;
+        let (mut d_sun, mut mask, mut lattice) = (Vec::new(), Vec::new(), Vec::new());
+        let (mut sky_elements, mut ms) = (None, None);
+        if per_voxel {
+            // The sky element round the sun uses the sun's path too.
+            d_sun = if sun_on || env_on {
+                sun_density_integrals(grid, lighting.sun_dir)
+            } else {
+                vec![0f32; grid.data.len()]
+            };
+            lap("sun_paths", &mut timing_ms);
+            check(cancel)?;
+            mask = dilated_mask(grid);
+            if env_on {
+                let truncated: Vec<f64> = trunc.iter().map(|t| t.fraction).collect();
+                sky_elements = Some(SkyElements::new(
+                    cloud_lighting,
+                    &optics.phase,
+                    &truncated,
+                    settings.sky_quadrature,
+                    settings.sky_table[0],
+                    settings.sky_table[1],
+                ));
+                lattice = LATTICE
+                    .par_iter()
+                    .map(|e| lattice_density_integrals(grid, *e))
+                    .collect();
+            }
+            lap("sky_light", &mut timing_ms);
+            check(cancel)?;
+            if ms_on {
+                ms = Some(MsField::compute(
+                    grid,
+                    optics,
+                    cloud_lighting,
+                    &settings.photons,
+                    cancel,
+                )?);
+                lap("multiple_scattering", &mut timing_ms);
+                check(cancel)?;
+            }
+        }
+        let needs_shadow = sun_on
+            && vol.rho_max > 0.0
+            && ((sw.cloud_shadows && lighting.ground.is_some())
+                || (sw.shafts_of_light && inputs.has_aerial));
+        let shadow = if needs_shadow {
+            ShadowMap::new(&vol, lighting.sun_dir, grid.voxel_size_m)
+        } else {
+            None
+        };
+        lap("shadow_map", &mut timing_ms);
+        lap("peak_spread", &mut timing_ms);
+        let bytes = 4 * d_sun.len()
+            + mask.len()
+            + 4 * lattice.iter().map(Vec::len).sum::<usize>()
+            + ms.as_ref().map_or(0, MsField::bytes)
+            + shadow.as_ref().map_or(0, |s| 4 * s.d.len())
+            + 4 * grid.data.len();
+        Ok(Self {
+            inputs,
+            vol,
+            d_sun,
+            mask,
+            lattice,
+            sky_elements,
+            ms,
+            shadow,
+            peak,
+            ms_extinction_scale,
+            ms_albedo,
+            peak_rate,
+            sun_on,
+            env_on,
+            pattern_on,
+            per_voxel,
+            timing_ms,
+            bytes,
+        })
+    }
+
+    /// The light the cloud receives: the scene's, less what the planner's hooks left out.
+    pub fn cloud_lighting(&self) -> std::borrow::Cow<'_, Lighting> {
+        let s = &self.inputs.settings;
+        match self
+            .inputs
+            .cloud_lighting
+            .masked(s.sky_light, s.ground_light)
+        {
+            Some(l) => std::borrow::Cow::Owned(l),
+            None => std::borrow::Cow::Borrowed(&self.inputs.cloud_lighting),
+        }
+    }
+}
+
+pub(crate) fn check(cancel: &(dyn Fn() -> bool + Sync)) -> crate::Result<()> {
+    if cancel() {
+        Err(crate::Error::Cancelled)
+    } else {
+        Ok(())
+    }
+}
+
+/// The sun's shadow map on the plane of the box's bottom face (Dobashi et al. 2000, §5.2.1): density
+/// integral towards the sun from each point of the plane.
+pub struct ShadowMap {
+    pub z_m: f64,
+    pub origin_xy: [f64; 2],
+    pub cell_m: f64,
+    pub dims: [usize; 2],
+    pub d: Vec<f32>,
+}
+
+impl ShadowMap {
+    pub(crate) fn new(vol: &CloudVolume, sun: DVec3, step_m: f64) -> Option<Self> {
+        if sun.z < 0.02 {
+            return None;
+        }
+        let z = vol.lo.z;
+        // Footprint: the box's corners projected along the sun onto the plane.
+        let (mut min, mut max) = ([f64::INFINITY; 2], [f64::NEG_INFINITY; 2]);
+        for c in 0..8 {
+            let p = DVec3::new(
+                if c & 1 == 0 { vol.lo.x } else { vol.hi.x },
+                if c & 2 == 0 { vol.lo.y } else { vol.hi.y },
+                if c & 4 == 0 { vol.lo.z } else { vol.hi.z },
+            );
+            let q = p - sun * ((p.z - z) / sun.z);
+            for a in 0..2 {
+                min[a] = min[a].min(q[a]);
+                max[a] = max[a].max(q[a]);
+            }
+        }
+        let h = vol.grid.voxel_size_m;
+        let extent = (max[0] - min[0]).max(max[1] - min[1]);
+        let cell = h.max(extent / 1024.0);
+        let dims = [
+            ((max[0] - min[0]) / cell).ceil() as usize + 1,
+            ((max[1] - min[1]) / cell).ceil() as usize + 1,
+        ];
+        let mut d = vec![0f32; dims[0] * dims[1]];
+        d.par_chunks_mut(dims[0]).enumerate().for_each(|(j, row)| {
+            for (i, v) in row.iter_mut().enumerate() {
+                let p = DVec3::new(min[0] + i as f64 * cell, min[1] + j as f64 * cell, z);
+                *v = vol.density_integral(p, sun, step_m) as f32;
+            }
+        });
+        Some(Self {
+            z_m: z,
+            origin_xy: min,
+            cell_m: cell,
+            dims,
+            d,
+        })
+    }
+
+    /// Density integral towards the sun from `p` below the plane (bilinear).
+    pub(crate) fn lookup(&self, p: DVec3, sun: DVec3) -> f64 {
+        let q = p + sun * ((self.z_m - p.z) / sun.z);
+        let u = (q.x - self.origin_xy[0]) / self.cell_m;
+        let v = (q.y - self.origin_xy[1]) / self.cell_m;
+        if !(u >= 0.0
+            && v >= 0.0
+            && u <= (self.dims[0] - 1) as f64
+            && v <= (self.dims[1] - 1) as f64)
+        {
+            return 0.0;
+        }
+        let (i0, j0) = (u.floor() as usize, v.floor() as usize);
+        let (i1, j1) = (
+            (i0 + 1).min(self.dims[0] - 1),
+            (j0 + 1).min(self.dims[1] - 1),
+        );
+        let (fu, fv) = (u - i0 as f64, v - j0 as f64);
+        let g = |i: usize, j: usize| self.d[j * self.dims[0] + i] as f64;
+        (g(i0, j0) * (1.0 - fu) + g(i1, j0) * fu) * (1.0 - fv)
+            + (g(i0, j1) * (1.0 - fu) + g(i1, j1) * fu) * fv
+    }
+}
+
+/// Voxels whose 3×3×3 neighbourhood holds any density (where per-voxel light is needed).
+fn dilated_mask(grid: &DensityGrid) -> Vec<bool> {
+    let [nx, ny, nz] = grid.dims;
+    let mut m = vec![false; grid.data.len()];
+    for z in 0..nz {
+        for y in 0..ny {
+            for x in 0..nx {
+                if grid.at(x, y, z) <= 0.0 {
+                    continue;
+                }
+                for zz in z.saturating_sub(1)..=(z + 1).min(nz - 1) {
+                    for yy in y.saturating_sub(1)..=(y + 1).min(ny - 1) {
+                        for xx in x.saturating_sub(1)..=(x + 1).min(nx - 1) {
+                            m[grid.index(xx, yy, zz)] = true;
+                        }
+                    }
+                }
+            }
+        }
+    }
+    m
+}
