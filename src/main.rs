@@ -11,7 +11,7 @@ use std::process::ExitCode;
 
 use clap::{Parser, Subcommand};
 
-use commands::{atmosphere, bake, clouds, lut, plan, product, render, serve};
+use commands::{atmosphere, bake, clouds, lut, lut_eval, plan, product, render, serve};
 use error::{flag_named, CliError, Result};
 use flags::{AerialArgs, Format, GroundArgs, LutArgs, PlanArgs, ServeArgs, SkyArgs, SunArgs};
 use io::engine;
@@ -52,6 +52,18 @@ enum Command {
     ///
     /// Example: skybake lut --atmosphere earth-hazy -o bundle/
     Lut(LutArgs),
+    /// Evaluate a bundle written by `skybake lut` (or downloaded from GET /v1/lut) with the
+    /// reference reader (Bruneton 2017's GetSkyRadiance, GetSkyRadianceToPoint,
+    /// GetSunAndSkyIrradiance) at the queries of a JSON file; prints the values. See docs/lut.md.
+    ///
+    /// Example: skybake lut-eval bundle/ queries.json
+    LutEval {
+        /// Bundle directory (manifest.json and its textures).
+        bundle: PathBuf,
+        /// Queries: {"queries": [{"function": "sky_radiance", "camera": [x, y, z], "view": [...],
+        /// "sun": [...]}, ...]}, positions in m from the planet's centre (docs/lut.md).
+        queries: PathBuf,
+    },
     /// The stages that would run for a product and those left out (and why), without computing.
     ///
     /// Example: skybake plan sky --sun-elevation-deg -5 --ground-albedo 0
@@ -170,6 +182,7 @@ fn run(cli: Cli) -> Result<()> {
             product::aerial(&a.flags.params, a.output.as_ref(), a.format, &engine()?)
         }
         Command::Lut(a) => lut::lut(&a.flags.params, &a.output, &engine()?),
+        Command::LutEval { bundle, queries } => lut_eval::lut_eval(&bundle, &queries),
         Command::Plan(a) => plan::plan(&a, engine),
         Command::Atmosphere { print, list } => atmosphere::atmosphere(print.as_deref(), list),
         Command::Clouds {

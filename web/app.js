@@ -356,6 +356,53 @@ async function pollJob(id) {
   }
 }
 
+// ---- live sky (WebGL2, the real-time texture bundle) --------------------------------------------
+
+let liveSky = null;
+let liveFrame = 0;
+
+function liveSettings() {
+  const v = Number($("live-altitude").value);
+  return {
+    sunElevationDeg: Number($("live-sun").value),
+    altitudeM: v <= 0 ? 0 : Math.round(Math.pow(10, v) - 1),
+    // 1 − exp(−L · exposure) with L in mW m⁻² sr⁻¹ nm⁻¹: 0 EV shows a day sky mid-grey.
+    exposure: 0.01 * Math.pow(2, Number($("live-exposure").value)),
+  };
+}
+
+function drawLive() {
+  const s = liveSettings();
+  $("live-sun-value").textContent = `${s.sunElevationDeg}°`;
+  $("live-altitude-value").textContent = formatAltitude(s.altitudeM);
+  $("live-exposure-value").textContent = `${$("live-exposure").value} EV`;
+  if (!liveSky || !liveSky.manifest) return;
+  cancelAnimationFrame(liveFrame);
+  liveFrame = requestAnimationFrame(() => liveSky.render(s));
+}
+
+async function loadLive() {
+  const p = new URLSearchParams();
+  for (const k of ["atmosphere", "ground_albedo", "quality"]) p.set(k, commonParams().get(k));
+  $("live-status").textContent = "Fetching the bundle…";
+  $("live-load").disabled = true;
+  try {
+    if (!liveSky) {
+      const glsl = await fetchOk("/assets/lut-atmosphere.glsl").then((r) => r.text());
+      liveSky = new LiveSky($("live-canvas"), glsl);
+    }
+    const t0 = performance.now();
+    const m = await liveSky.load(url("/v1/lut", p), fetchOk);
+    $("live-status").textContent = `Live sky: ${p.get("atmosphere")}, quality ${m.request.quality}, ` +
+      `bundle loaded in ${((performance.now() - t0) / 1000).toFixed(1)} s.`;
+    drawLive();
+  } catch (e) {
+    $("live-status").textContent = `Error: ${e.message}`;
+  } finally {
+    $("live-load").disabled = false;
+  }
+}
+
 // ---- wiring -------------------------------------------------------------------------------------
 
 let timer = null;
@@ -379,6 +426,9 @@ $("exposure").addEventListener("input", redrawExposure);
 $("fisheye").addEventListener("click", probeAt);
 $("render").addEventListener("click", renderFrame);
 $("bake-form").addEventListener("submit", createJob);
+$("live-load").addEventListener("click", loadLive);
+for (const id of ["live-sun", "live-altitude", "live-exposure"]) $(id).addEventListener("input", drawLive);
+drawLive();
 updateLabels();
 refresh();
 loadScenes();

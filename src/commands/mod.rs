@@ -4,6 +4,7 @@ pub mod atmosphere;
 pub mod bake;
 pub mod clouds;
 pub mod lut;
+pub mod lut_eval;
 pub mod plan;
 pub mod product;
 pub mod render;

@@ -6,6 +6,7 @@ mod service_support;
 mod bake_shards;
 mod cli_atmosphere;
 mod cli_clouds;
+mod cli_lut_eval;
 mod cli_render;
 mod cloud_render_limits;
 mod frame_artifact;

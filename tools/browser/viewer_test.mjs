@@ -8,12 +8,11 @@
 //
 // Usage: node tools/browser/viewer_test.mjs [path/to/skybake] [screenshot dir]
 //        (defaults: target/release/skybake, docs/)
-import { spawn } from "node:child_process";
-import { mkdtempSync, mkdirSync, rmSync } from "node:fs";
-import { tmpdir } from "node:os";
+import { mkdirSync, rmSync } from "node:fs";
 import { join, dirname, resolve } from "node:path";
 import { fileURLToPath } from "node:url";
 import { chromium } from "playwright-core";
+import { startServer } from "./serve.mjs";
 
 const root = resolve(dirname(fileURLToPath(import.meta.url)), "..", "..");
 const binary = process.argv[2] || join(root, "target", "release", "skybake");
@@ -33,27 +32,7 @@ function check(name, ok, detail = "") {
   }
 }
 
-function startServer() {
-  const cache = mkdtempSync(join(tmpdir(), "skybake-viewer-"));
-  const child = spawn(binary, ["serve", "--bind", "127.0.0.1:0", "--cache-dir", cache], {
-    stdio: ["ignore", "ignore", "pipe"],
-  });
-  return new Promise((resolveAddr, reject) => {
-    let err = "";
-    const timer = setTimeout(() => reject(new Error(`server did not start: ${err}`)), 30000);
-    child.stderr.on("data", (d) => {
-      err += d.toString();
-      const m = err.match(/listening on (\S+)/);
-      if (m) {
-        clearTimeout(timer);
-        resolveAddr({ child, addr: m[1], cache });
-      }
-    });
-    child.on("exit", (code) => reject(new Error(`server exited with ${code}: ${err}`)));
-  });
-}
-
-const { child, addr, cache } = await startServer();
+const { child, addr, cache } = await startServer(binary);
 const base = `http://${addr}`;
 const browser = await chromium.launch({
   executablePath: chromePath,

@@ -7,6 +7,7 @@
 #![allow(clippy::needless_range_loop)]
 
 pub mod build;
+pub mod load;
 pub mod manifest;
 pub mod param;
 pub mod reader;

@@ -62,7 +62,7 @@ pub fn manifest(bundle: &Bundle, request: Value, engine_version: &str) -> Value 
         bundle
             .wavelengths_nm
             .iter()
-            .map(|w| skybake_physics::image::layout::format_wavelength_nm(*w))
+            .map(|w| skybake_physics::image::layout::spectral_channel_name("L", *w))
             .collect()
     };
     let channels: Vec<Value> = names

@@ -44,7 +44,7 @@ pub const ROUTES: &[Route] = &[
     Route { method: "GET", path: "/v1/lut/files/{key}", summary: "A texture (OpenEXR) of a bundle whose manifest was requested (the manifest's links)", limited: true, product: None, body: None, produces: &["image/x-exr"] },
     Route { method: "GET", path: "/v1/atmospheres", summary: "The built-in atmosphere presets with their parameters", limited: true, product: None, body: None, produces: JSON },
     Route { method: "GET", path: "/", summary: "The web viewer (HTML page; uses this API)", limited: false, product: None, body: None, produces: &["text/html"] },
-    Route { method: "GET", path: "/assets/{file}", summary: "The viewer's script and style sheet", limited: false, product: None, body: None, produces: &["text/javascript", "text/css"] },
+    Route { method: "GET", path: "/assets/{file}", summary: "The viewer's scripts, style sheet and live-sky shader", limited: false, product: None, body: None, produces: &["text/javascript", "text/css", "text/plain"] },
     Route { method: "GET", path: "/healthz", summary: "Liveness", limited: false, product: None, body: None, produces: JSON },
     Route { method: "GET", path: "/metrics", summary: "Prometheus metrics", limited: false, product: None, body: None, produces: &["text/plain"] },
     Route { method: "GET", path: "/openapi.json", summary: "This document", limited: false, product: None, body: None, produces: JSON },

@@ -1,0 +1,272 @@
+// Browser test of the viewer's live sky (web/lut/: the WebGL2 client of the texture bundle,
+// docs/lut.md). Starts `skybake serve`, opens `/` in Debian's headless Chromium (software WebGL),
+// loads the bundle through the page (GET /v1/lut, once), moves the live sliders and checks that the
+// picture changes without a request. Then it evaluates known queries with the page's shader into a
+// float framebuffer (EXT_color_buffer_float), reads them back, and compares them
+//   (a) with the reference reader's evaluation of the same bundle files (`skybake lut-eval`, the
+//       Rust port of Bruneton's functions, crates/lut/src/reader.rs): checks the shader;
+//   (b) with the `sky` product at the same directions (GET /v1/sky?probe=…, method precise, the
+//       same atmosphere, albedo and quality): the layout's own error, per band, asserted against
+//       the measured bounds (the issue's 1 / 3 / 10 % targets are printed, not asserted: his 4-D
+//       layout does not meet them, docs/lut.md).
+// Every expected value comes from skybake's Rust code through the CLI or the running service.
+//
+// Usage: node tools/browser/lut_test.mjs [path/to/skybake] [screenshot dir]
+import { execFileSync } from "node:child_process";
+import { mkdirSync, mkdtempSync, rmSync, writeFileSync } from "node:fs";
+import { tmpdir } from "node:os";
+import { join, dirname, resolve } from "node:path";
+import { fileURLToPath } from "node:url";
+import { chromium } from "playwright-core";
+import { startServer } from "./serve.mjs";
+
+const root = resolve(dirname(fileURLToPath(import.meta.url)), "..", "..");
+const binary = resolve(process.argv[2] || join(root, "target", "release", "skybake"));
+const chromePath = process.env.CHROMIUM || "/usr/bin/chromium";
+const shots = process.argv[3] ? resolve(process.argv[3]) : null;
+if (shots) mkdirSync(shots, { recursive: true });
+
+// The bundle and the products compared with it.
+const ATMOSPHERE = "earth";
+const ALBEDO = "0.1";
+const QUALITY = "draft";
+
+// (a) shader vs reader: largest deviation relative to the reader's value (radiance, irradiance;
+// for GetSkyRadianceToPoint relative to the whole ray's in-scatter, as it is a difference of two
+// lookups) or absolute (transmittance). Measured (software WebGL): GetSkyRadiance 8.9e-6,
+// GetSkyRadianceToPoint 1.2e-3 (camera 1 m above the ground; 3.5e-4 from 2-10 km),
+// GetSunAndSkyIrradiance 1.4e-6; transmittances 1.8e-5 absolute.
+const SHADER_BOUND = { relative: 2e-3, transmittance: 1e-4 };
+// (b) shader vs the sky product, largest relative error per band over R, G, B (680, 550, 440 nm).
+// Bounds: measured on this bundle (earth, albedo 0.1, draft) × 1.15; targets from the issue.
+const BANDS = [
+  { name: "ground, sun >= 5 deg, view > 10 deg above the horizon", target: 0.01, bound: 0.21,
+    cases: cross([0], [10, 30, 60], [0, 30, 60, 75], [0, 90, 180]) },
+  { name: "ground, sun >= 5 deg, view < 10 deg above the horizon", target: 0.03, bound: 0.23,
+    cases: cross([0], [10, 30, 60], [82, 87, 89.5], [0, 90, 180]) },
+  { name: "0-20 km, sun >= 5 deg", target: 0.01, bound: 0.24,
+    cases: cross([2000, 10000], [10, 40], [0, 45, 75, 88], [0, 90, 180]) },
+  { name: "0-5 km, sun -6..5 deg, view < 10 deg above the horizon", target: 0.03, bound: 0.77,
+    cases: cross([0, 5000], [2, -3], [82, 87], [0, 90, 180]) },
+  { name: "0-5 km, sun -12..-6 deg", target: 0.10, bound: 0.79,
+    cases: cross([0, 5000], [-8, -11], [0, 60, 85], [0, 180]) },
+];
+
+function cross(alts, suns, zeniths, azimuths) {
+  const out = [];
+  for (const h of alts) for (const e of suns) for (const z of zeniths) for (const a of azimuths) {
+    // Away from the sun's disk and aureole (the product's probes hold the diffuse sky).
+    const sun = [Math.cos((e * Math.PI) / 180), 0, Math.sin((e * Math.PI) / 180)];
+    if (dot(view(z, a), sun) > Math.cos((8 * Math.PI) / 180)) continue;
+    out.push({ h, e, z, a });
+  }
+  return out;
+}
+
+function dot(u, v) { return u[0] * v[0] + u[1] * v[1] + u[2] * v[2]; }
+function view(zDeg, aDeg) {
+  const z = (zDeg * Math.PI) / 180, a = (aDeg * Math.PI) / 180;
+  return [Math.sin(z) * Math.cos(a), Math.sin(z) * Math.sin(a), Math.cos(z)];
+}
+function sunDir(eDeg) {
+  const e = (eDeg * Math.PI) / 180;
+  return [Math.cos(e), 0, Math.sin(e)];
+}
+
+let passed = 0;
+let failed = 0;
+function check(name, ok, detail = "") {
+  if (ok) { passed++; console.log(`ok   ${name} ${detail}`); } else { failed++; console.log(`FAIL ${name} ${detail}`); }
+}
+
+async function getJson(url) {
+  const r = await fetch(url);
+  if (!r.ok) throw new Error(`${url}: ${r.status} ${await r.text()}`);
+  return r.json();
+}
+
+const { child, addr, cache } = await startServer(binary);
+const base = `http://${addr}`;
+const work = mkdtempSync(join(tmpdir(), "skybake-lut-test-"));
+const browser = await chromium.launch({
+  executablePath: chromePath,
+  headless: true,
+  args: ["--no-sandbox", "--use-angle=swiftshader", "--enable-unsafe-swiftshader", "--disable-quic",
+    "--no-first-run", "--disable-background-networking", "--disable-component-update", "--disable-sync"],
+});
+try {
+  const page = await browser.newPage({ viewport: { width: 1280, height: 1000 } });
+  const consoleErrors = [];
+  page.on("console", (m) => { if (m.type() === "error") consoleErrors.push(m.text()); });
+  page.on("pageerror", (e) => consoleErrors.push(String(e)));
+  await page.goto(base + "/", { waitUntil: "load" });
+  // The conditions the bundle is requested for (set without an input event: no product refresh).
+  await page.evaluate(([atm, albedo, q]) => {
+    document.getElementById("atmosphere").value = atm;
+    document.getElementById("albedo").value = albedo;
+    document.getElementById("quality").value = q;
+  }, [ATMOSPHERE, ALBEDO, QUALITY]);
+
+  const lutRequests = [];
+  page.on("request", (r) => { if (r.url().includes("/v1/lut")) lutRequests.push(r.url()); });
+  const t0 = Date.now();
+  await page.click("#live-load");
+  await page.waitForFunction(() => /^(Live sky|Error)/.test(document.getElementById("live-status").textContent),
+    null, { timeout: 1800000 });
+  const status = await page.textContent("#live-status");
+  check("bundle loaded into WebGL2", status.startsWith("Live sky"), `${status} (${((Date.now() - t0) / 1000).toFixed(0)} s with the bundle's computation)`);
+  check("bundle fetched once: manifest + 3 textures", lutRequests.length === 4, lutRequests.join(" "));
+
+  // Interactive: sliders re-render without any request.
+  const requestsBefore = [];
+  page.on("request", (r) => requestsBefore.push(r.url()));
+  const canvas = () => page.evaluate(() => document.getElementById("live-canvas").toDataURL());
+  const frames = {};
+  for (const [id, value] of [["live-sun", "30"], ["live-sun", "-4"], ["live-altitude", "4"], ["live-exposure", "8"]]) {
+    const before = await canvas();
+    await page.evaluate(([i, v]) => {
+      const s = document.getElementById(i);
+      s.value = v;
+      s.dispatchEvent(new Event("input", { bubbles: true }));
+    }, [id, value]);
+    await page.evaluate(() => new Promise((r) => requestAnimationFrame(() => requestAnimationFrame(r))));
+    const after = await canvas();
+    check(`picture changes with ${id} = ${value}`, after !== before);
+    frames[`${id}=${value}`] = after;
+    if (shots) await page.locator("#live-canvas").screenshot({ path: join(shots, `live-${id}-${value}.png`) });
+  }
+  check("no request while the sliders move", requestsBefore.length === 0, requestsBefore.join(" "));
+  const frameMs = await page.evaluate(() => {
+    const gl = liveSky.gl;
+    const t = performance.now();
+    for (let i = 0; i < 5; i++) liveSky.render(liveSettings());
+    gl.finish();
+    return (performance.now() - t) / 5;
+  });
+  console.log(`info frame time ${frameMs.toFixed(1)} ms for 1024x256 pixels (software WebGL, SwiftShader)`);
+
+  // The queries: every band's sky directions, plus aerial-perspective and irradiance queries.
+  const manifest = await getJson(`${base}/v1/lut?atmosphere=${ATMOSPHERE}&ground_albedo=${ALBEDO}&quality=${QUALITY}`);
+  const R = manifest.atmosphere_parameters.bottom_radius;
+  const perWatt = manifest.units.texture_value_per_watt;
+  const queries = [];
+  const skyIndex = [];
+  BANDS.forEach((band, b) => band.cases.forEach((c, k) => {
+    skyIndex.push({ b, k, q: queries.length });
+    queries.push({ function: "sky_radiance", camera: [0, 0, R + c.h], view: view(c.z, c.a), sun: sunDir(c.e) });
+  }));
+  for (const h of [0, 2000, 10000]) for (const e of [30, 5, -2]) for (const [dep, az] of [[0.3, 90], [2, 180], [10, 30]]) {
+    // The ground point the view ray `dep` degrees below the horizon meets (visible from the
+    // camera, as a renderer's depth buffer gives it).
+    const camera0 = [0, 0, R + h + 1];
+    const dip = (Math.acos(R / (R + h + 1)) * 180) / Math.PI;
+    const v = view(90 + dip + dep, az);
+    const b = dot(camera0, v), c = dot(camera0, camera0) - R * R;
+    const d = -b - Math.sqrt(b * b - c);
+    const point = camera0.map((x, k) => x + d * v[k]);
+    const camera = [0, 0, R + h + 1];
+    queries.push({ function: "sky_radiance_to_point", camera, point, sun: sunDir(e) });
+    // The in-scatter of the whole ray: the scale of GetSkyRadianceToPoint's two-lookup difference.
+    const off = point.map((x, k) => x - camera[k]);
+    const len = Math.hypot(...off);
+    queries.push({ function: "sky_radiance", camera, view: off.map((x) => x / len), sun: sunDir(e), scaleOnly: true });
+  }
+  for (const h of [0, 3000, 20000]) for (const e of [70, 30, 5, -5]) {
+    queries.push({ function: "sun_and_sky_irradiance", point: [0, 0, R + h], normal: [0, 0, 1], sun: sunDir(e) });
+    queries.push({ function: "sun_and_sky_irradiance", point: [0, 0, R + h], normal: view(60, 0), sun: sunDir(e) });
+  }
+  const gpu = await page.evaluate((q) => liveSky.probe(q), queries);
+
+  // (a) the reference reader on the same files, downloaded as a client would.
+  const dir = join(work, "bundle");
+  mkdirSync(dir);
+  writeFileSync(join(dir, "manifest.json"), JSON.stringify(manifest));
+  for (const t of Object.values(manifest.textures)) {
+    const r = await fetch(base + manifest.links[t.file]);
+    writeFileSync(join(dir, t.file), Buffer.from(await r.arrayBuffer()));
+  }
+  writeFileSync(join(work, "queries.json"), JSON.stringify({ queries }));
+  const cpu = JSON.parse(execFileSync(binary, ["lut-eval", dir, join(work, "queries.json")],
+    { maxBuffer: 1 << 28 }).toString());
+  const worst = {};
+  queries.forEach((q, i) => {
+    if (q.scaleOnly) return;
+    const c = cpu.results[i];
+    // GetSkyRadianceToPoint subtracts two interpolated lookups: its deviation is relative to the
+    // whole ray's in-scatter (the next query), not to the difference, which may be ~0 or < 0.
+    const floor = q.function === "sky_radiance_to_point" ? cpu.results[i + 1].radiance : null;
+    const [first, second] = q.function === "sun_and_sky_irradiance"
+      ? [c.sun_irradiance, c.sky_irradiance] : [c.radiance, c.transmittance];
+    const pairs = [[`${q.function} ${q.function === "sun_and_sky_irradiance" ? "sun" : "radiance"}`, first, gpu[i].first, false],
+      [`${q.function} ${q.function === "sun_and_sky_irradiance" ? "sky irradiance" : "transmittance"}`, second, gpu[i].second,
+        q.function !== "sun_and_sky_irradiance"]];
+    // GetSkyRadianceToPoint from 1 m above the ground is the hardest case for 32-bit radii
+    // (web/lut/atmosphere.glsl, RhoAlong): reported as its own group.
+    const group = q.function === "sky_radiance_to_point"
+      ? (Math.hypot(...q.camera) - R < 100 ? " (camera 1 m above the ground)" : " (camera 2-10 km)") : "";
+    for (const [whatBase, ref, got, absolute] of pairs) {
+      const what = whatBase + group;
+      for (let ch = 0; ch < 3; ch++) {
+        const scale = Math.max(...ref.map(Math.abs));
+        let dev;
+        if (absolute) dev = Math.abs(got[ch] - ref[ch]);
+        else if (scale === 0) dev = Math.abs(got[ch]);
+        else dev = Math.abs(got[ch] - ref[ch]) / Math.max(Math.abs(ref[ch]), 1e-3 * scale, floor && !absolute ? floor[ch] : 0);
+        if (!Number.isFinite(got[ch])) dev = Infinity;
+        if (!worst[what] || dev > worst[what].dev) worst[what] = { dev, i, ch, ref: ref[ch], got: got[ch] };
+      }
+    }
+  });
+  for (const [what, w] of Object.entries(worst)) {
+    const absolute = what.includes("transmittance");
+    const bound = absolute ? SHADER_BOUND.transmittance : SHADER_BOUND.relative;
+    check(`(a) shader = reader: ${what}`, w.dev <= bound,
+      `max ${absolute ? "abs" : "rel"} deviation ${w.dev.toExponential(2)} (bound ${bound}; query ${w.i} channel ${w.ch}: reader ${w.ref.toExponential(4)}, shader ${w.got.toExponential(4)})`);
+  }
+
+  // (b) the sky product at the same directions, one request per (altitude, sun).
+  for (const [b, band] of BANDS.entries()) {
+    const groups = new Map();
+    band.cases.forEach((c, k) => {
+      const key = `${c.h}:${c.e}`;
+      if (!groups.has(key)) groups.set(key, []);
+      groups.get(key).push(k);
+    });
+    const worstBand = { err: 0 };
+    const perChannel = [0, 0, 0];
+    for (const [key, ks] of groups) {
+      const [h, e] = key.split(":").map(Number);
+      const probe = ks.map((k) => `${band.cases[k].z}:${band.cases[k].a}`).join(",");
+      const wl = manifest.channels.map((c) => c.wavelength_nm);
+      const doc = await getJson(`${base}/v1/sky?atmosphere=${ATMOSPHERE}&ground_albedo=${ALBEDO}&quality=${QUALITY}` +
+        `&method=precise&observer_altitude_m=${h}&sun_elevation_deg=${e}&wavelengths=${wl.join(",")}&probe=${probe}`);
+      ks.forEach((k, j) => {
+        const q = skyIndex.find((s) => s.b === b && s.k === k).q;
+        for (let ch = 0; ch < 3; ch++) {
+          const w = doc.wavelengths_nm.findIndex((x) => Math.abs(x - wl[ch]) < 1e-6);
+          const product = doc.probes[j].radiance_w_m2_sr_nm[w];
+          const shader = gpu[q].first[ch] / perWatt;
+          const err = Math.abs(shader - product) / product;
+          perChannel[ch] = Math.max(perChannel[ch], err);
+          if (!(err <= worstBand.err)) Object.assign(worstBand, { err, c: band.cases[k], ch, product, shader });
+        }
+      });
+    }
+    const c = worstBand.c;
+    check(`(b) shader vs sky product: ${band.name}`, worstBand.err <= band.bound,
+      `max ${(100 * worstBand.err).toFixed(2)} % (R ${(100 * perChannel[0]).toFixed(2)}, G ${(100 * perChannel[1]).toFixed(2)}, B ${(100 * perChannel[2]).toFixed(2)} %; ` +
+      `bound ${(100 * band.bound).toFixed(0)} %; issue target ${(100 * band.target).toFixed(0)} %: ${worstBand.err <= band.target ? "met" : "NOT met"}; ` +
+      `${band.cases.length} directions; worst at h ${c.h} m, sun ${c.e}°, view zenith ${c.z}°, azimuth ${c.a}°, channel ${"RGB"[worstBand.ch]}: ` +
+      `product ${worstBand.product.toExponential(4)}, shader ${worstBand.shader.toExponential(4)} W m-2 sr-1 nm-1)`);
+  }
+  check("no console errors", consoleErrors.length === 0, consoleErrors.join(" | "));
+} catch (e) {
+  check("live sky test ran", false, String(e && e.stack || e));
+} finally {
+  await browser.close();
+  child.kill("SIGTERM");
+  rmSync(cache, { recursive: true, force: true });
+  rmSync(work, { recursive: true, force: true });
+}
+console.log(`${passed} passed, ${failed} failed`);
+process.exit(failed === 0 ? 0 : 1);

@@ -1,0 +1,230 @@
+// skybake's live sky: the texture bundle of GET /v1/lut (docs/lut.md) fetched once, decoded
+// (lut-exr.js), uploaded as WebGL2 textures and rendered every frame by Bruneton's functions
+// (lut-atmosphere.glsl; Bruneton & Neyret 2008, Bruneton 2017) — no request per frame. Also
+// evaluates queries into a float framebuffer (`probe`), which tools/browser/lut_test.mjs compares
+// with the reference reader and the `sky` product.
+"use strict";
+
+class LiveSky {
+  /** A renderer on `canvas` (WebGL2) with the shader source `glsl`. */
+  constructor(canvas, glsl) {
+    const gl = canvas.getContext("webgl2", { antialias: false, preserveDrawingBuffer: true });
+    if (!gl) throw new Error("WebGL2 is not available in this browser");
+    this.gl = gl;
+    this.canvas = canvas;
+    // Linear filtering of the 32-bit float textures (transmittance, irradiance); without it they
+    // are uploaded as 16-bit floats, which every WebGL2 device filters.
+    this.floatLinear = !!gl.getExtension("OES_texture_float_linear");
+    this.floatTarget = !!gl.getExtension("EXT_color_buffer_float");
+    const vs = `#version 300 es
+      in vec2 position; out vec2 frag_uv;
+      void main() { frag_uv = position * 0.5 + 0.5; gl_Position = vec4(position, 0.0, 1.0); }`;
+    this.skyProgram = this.program(vs, `#version 300 es\n#define SKY_VIEW\n${glsl}`);
+    this.probeProgram = this.program(vs, `#version 300 es\n#define PROBES\n${glsl}`);
+    const quad = gl.createBuffer();
+    gl.bindBuffer(gl.ARRAY_BUFFER, quad);
+    gl.bufferData(gl.ARRAY_BUFFER, new Float32Array([-1, -1, 1, -1, -1, 1, 1, 1]), gl.STATIC_DRAW);
+    this.vao = gl.createVertexArray();
+    gl.bindVertexArray(this.vao);
+    gl.enableVertexAttribArray(0);
+    gl.vertexAttribPointer(0, 2, gl.FLOAT, false, 0, 0);
+    this.manifest = null;
+  }
+
+  program(vsSource, fsSource) {
+    const gl = this.gl;
+    const compile = (type, src) => {
+      const s = gl.createShader(type);
+      gl.shaderSource(s, src);
+      gl.compileShader(s);
+      if (!gl.getShaderParameter(s, gl.COMPILE_STATUS)) throw new Error(`shader: ${gl.getShaderInfoLog(s)}`);
+      return s;
+    };
+    const p = gl.createProgram();
+    gl.attachShader(p, compile(gl.VERTEX_SHADER, vsSource));
+    gl.attachShader(p, compile(gl.FRAGMENT_SHADER, fsSource));
+    gl.bindAttribLocation(p, 0, "position");
+    gl.linkProgram(p);
+    if (!gl.getProgramParameter(p, gl.LINK_STATUS)) throw new Error(`program: ${gl.getProgramInfoLog(p)}`);
+    return p;
+  }
+
+  /** Fetches the manifest at `manifestUrl` and its textures (once each), and uploads them. */
+  async load(manifestUrl, fetchOk = fetch) {
+    const manifest = await fetchOk(manifestUrl).then((r) => r.json());
+    if (manifest.format !== "bruneton2017" || !manifest.parameterisation.combined_scattering_textures) {
+      throw new Error("the live sky reads RGB bundles (Bruneton 2017's combined layout)");
+    }
+    const files = await Promise.all(["transmittance", "scattering", "irradiance"].map(async (name) => {
+      const t = manifest.textures[name];
+      const href = manifest.links[t.file];
+      const exr = await decodeExr(await fetchOk(href).then((r) => r.arrayBuffer()));
+      if (exr.width !== t.width || exr.height !== t.height * t.depth) {
+        throw new Error(`${t.file}: ${exr.width}×${exr.height}, manifest ${t.width}×${t.height * t.depth}`);
+      }
+      return [name, { t, exr }];
+    }));
+    const gl = this.gl;
+    for (const tex of [this.transmittance, this.scattering, this.irradiance]) if (tex) gl.deleteTexture(tex);
+    const f = Object.fromEntries(files);
+    this.transmittance = this.texture2d(f.transmittance.t, f.transmittance.exr);
+    this.scattering = this.texture3d(f.scattering.t, f.scattering.exr);
+    this.irradiance = this.texture2d(f.irradiance.t, f.irradiance.exr);
+    this.manifest = manifest;
+    return manifest;
+  }
+
+  /** RGBA texel array of `exr`'s channels in the manifest's order (missing channels 0, A 1). */
+  interleave(t, exr, half) {
+    const n = exr.width * exr.height;
+    const out = half ? new Uint16Array(4 * n) : new Float32Array(4 * n);
+    const names = t.channels;
+    for (let c = 0; c < 4; c++) {
+      const src = names[c] !== undefined ? (half ? exr.halfBits[names[c]] : exr.channels[names[c]]) : null;
+      if (names[c] !== undefined && !src) throw new Error(`${t.file}: no ${half ? "half " : ""}channel ${names[c]}`);
+      for (let i = 0; i < n; i++) out[4 * i + c] = src ? src[i] : (half ? 0x3c00 : 1);
+    }
+    return out;
+  }
+
+  /** Texture parameters and the (format, type, data) a file uploads as. */
+  upload(t, exr) {
+    const gl = this.gl;
+    if (t.sample === "half") return [gl.RGBA16F, gl.HALF_FLOAT, this.interleave(t, exr, true)];
+    if (this.floatLinear) return [gl.RGBA32F, gl.FLOAT, this.interleave(t, exr, false)];
+    return [gl.RGBA16F, gl.FLOAT, this.interleave(t, exr, false)];
+  }
+
+  filtering(target) {
+    const gl = this.gl;
+    gl.texParameteri(target, gl.TEXTURE_MIN_FILTER, gl.LINEAR);
+    gl.texParameteri(target, gl.TEXTURE_MAG_FILTER, gl.LINEAR);
+    gl.texParameteri(target, gl.TEXTURE_WRAP_S, gl.CLAMP_TO_EDGE);
+    gl.texParameteri(target, gl.TEXTURE_WRAP_T, gl.CLAMP_TO_EDGE);
+    gl.texParameteri(target, gl.TEXTURE_WRAP_R, gl.CLAMP_TO_EDGE);
+  }
+
+  texture2d(t, exr) {
+    const gl = this.gl;
+    const tex = gl.createTexture();
+    gl.bindTexture(gl.TEXTURE_2D, tex);
+    const [format, type, data] = this.upload(t, exr);
+    gl.pixelStorei(gl.UNPACK_ALIGNMENT, 1);
+    gl.texImage2D(gl.TEXTURE_2D, 0, format, t.width, t.height, 0, gl.RGBA, type, data);
+    this.filtering(gl.TEXTURE_2D);
+    return tex;
+  }
+
+  /** The 3-D scattering texture: the file's stacked r slices are its depth slices, in order. */
+  texture3d(t, exr) {
+    const gl = this.gl;
+    const tex = gl.createTexture();
+    gl.bindTexture(gl.TEXTURE_3D, tex);
+    const [format, type, data] = this.upload(t, exr);
+    gl.texImage3D(gl.TEXTURE_3D, 0, format, t.width, t.height, t.depth, 0, gl.RGBA, type, data);
+    this.filtering(gl.TEXTURE_3D);
+    return tex;
+  }
+
+  /** Binds the bundle's textures and his AtmosphereParameters (from the manifest) to `p`. */
+  bindBundle(p) {
+    const gl = this.gl;
+    const a = this.manifest.atmosphere_parameters;
+    gl.useProgram(p);
+    const units = [[this.transmittance, gl.TEXTURE_2D, "transmittance_texture"],
+      [this.scattering, gl.TEXTURE_3D, "scattering_texture"],
+      [this.irradiance, gl.TEXTURE_2D, "irradiance_texture"]];
+    units.forEach(([tex, target, name], i) => {
+      gl.activeTexture(gl.TEXTURE0 + i);
+      gl.bindTexture(target, tex);
+      gl.uniform1i(gl.getUniformLocation(p, name), i);
+    });
+    for (const k of ["bottom_radius", "top_radius", "mu_s_min", "sun_angular_radius", "mie_phase_function_g"]) {
+      gl.uniform1f(gl.getUniformLocation(p, k), a[k]);
+    }
+    for (const k of ["solar_irradiance", "rayleigh_scattering", "mie_scattering"]) {
+      gl.uniform3fv(gl.getUniformLocation(p, k), a[k]);
+    }
+  }
+
+  /** Sun direction for elevation `deg` (x towards the sun's azimuth, z up at the camera). */
+  static sunDirection(deg) {
+    const e = (deg * Math.PI) / 180;
+    return [Math.cos(e), 0, Math.sin(e)];
+  }
+
+  /** Draws the panorama: observer `altitudeM` above the ground, sun at `sunElevationDeg`,
+   *  display value 1 − exp(−L · exposure), L in mW m⁻² sr⁻¹ nm⁻¹. */
+  render({ sunElevationDeg, altitudeM, exposure }) {
+    if (!this.manifest) return;
+    const gl = this.gl;
+    const p = this.skyProgram;
+    this.bindBundle(p);
+    const a = this.manifest.atmosphere_parameters;
+    const u = (name) => gl.getUniformLocation(p, name);
+    gl.uniform3fv(u("camera"), [0, 0, a.bottom_radius + Math.max(altitudeM, 1)]);
+    gl.uniform3fv(u("sun_direction"), LiveSky.sunDirection(sunElevationDeg));
+    gl.uniform3fv(u("ground_albedo"), a.ground_albedo);
+    gl.uniform1f(u("exposure"), exposure);
+    gl.uniform2f(u("view_size"), this.canvas.width, this.canvas.height);
+    gl.uniform2f(u("elevation_range"), (-30 * Math.PI) / 180, (60 * Math.PI) / 180);
+    gl.bindFramebuffer(gl.FRAMEBUFFER, null);
+    gl.viewport(0, 0, this.canvas.width, this.canvas.height);
+    gl.bindVertexArray(this.vao);
+    gl.drawArrays(gl.TRIANGLE_STRIP, 0, 4);
+  }
+
+  /** Evaluates queries ({function, camera|point, view|point|normal, sun}, as `skybake lut-eval`
+   *  takes them) on the GPU into a float framebuffer; returns [{first, second}] per query
+   *  (radiance and transmittance, or sun and sky irradiance), in the bundle's unit. */
+  probe(queries) {
+    if (!this.manifest) throw new Error("no bundle loaded");
+    if (!this.floatTarget) throw new Error("EXT_color_buffer_float is not available: float read-back impossible");
+    const gl = this.gl;
+    const n = queries.length;
+    const ids = { sky_radiance: 0, sky_radiance_to_point: 1, sun_and_sky_irradiance: 2 };
+    const data = new Float32Array(n * 3 * 4);
+    queries.forEach((q, i) => {
+      const id = ids[q.function];
+      if (id === undefined) throw new Error(`query ${i}: unknown function ${q.function}`);
+      // The aerial query's point goes in as its offset from the camera (computed here in doubles).
+      const [p0, p1] = id === 0 ? [q.camera, q.view]
+        : id === 1 ? [q.camera, q.point.map((x, k) => x - q.camera[k])] : [q.point, q.normal];
+      data.set([...p0, id], 4 * i);
+      data.set([...p1, 0], 4 * (n + i));
+      data.set([...q.sun, 0], 4 * (2 * n + i));
+    });
+    const p = this.probeProgram;
+    this.bindBundle(p);
+    const qtex = gl.createTexture();
+    gl.activeTexture(gl.TEXTURE3);
+    gl.bindTexture(gl.TEXTURE_2D, qtex);
+    gl.texImage2D(gl.TEXTURE_2D, 0, gl.RGBA32F, n, 3, 0, gl.RGBA, gl.FLOAT, data);
+    gl.texParameteri(gl.TEXTURE_2D, gl.TEXTURE_MIN_FILTER, gl.NEAREST);
+    gl.texParameteri(gl.TEXTURE_2D, gl.TEXTURE_MAG_FILTER, gl.NEAREST);
+    gl.uniform1i(gl.getUniformLocation(p, "queries"), 3);
+    const target = gl.createTexture();
+    gl.activeTexture(gl.TEXTURE4);
+    gl.bindTexture(gl.TEXTURE_2D, target);
+    gl.texImage2D(gl.TEXTURE_2D, 0, gl.RGBA32F, n, 1, 0, gl.RGBA, gl.FLOAT, null);
+    const fb = gl.createFramebuffer();
+    gl.bindFramebuffer(gl.FRAMEBUFFER, fb);
+    gl.framebufferTexture2D(gl.FRAMEBUFFER, gl.COLOR_ATTACHMENT0, gl.TEXTURE_2D, target, 0);
+    if (gl.checkFramebufferStatus(gl.FRAMEBUFFER) !== gl.FRAMEBUFFER_COMPLETE) throw new Error("float framebuffer incomplete");
+    gl.viewport(0, 0, n, 1);
+    gl.bindVertexArray(this.vao);
+    const out = queries.map(() => ({}));
+    for (const [which, key] of [[0, "first"], [1, "second"]]) {
+      gl.uniform1i(gl.getUniformLocation(p, "probe_output"), which);
+      gl.drawArrays(gl.TRIANGLE_STRIP, 0, 4);
+      const px = new Float32Array(4 * n);
+      gl.readPixels(0, 0, n, 1, gl.RGBA, gl.FLOAT, px);
+      out.forEach((o, i) => { o[key] = [px[4 * i], px[4 * i + 1], px[4 * i + 2]]; });
+    }
+    gl.bindFramebuffer(gl.FRAMEBUFFER, null);
+    gl.deleteFramebuffer(fb);
+    gl.deleteTexture(target);
+    gl.deleteTexture(qtex);
+    return out;
+  }
+}
