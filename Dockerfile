@@ -19,7 +19,9 @@ COPY data ./data
 COPY report ./report
 COPY web ./web
 COPY assets ./assets
-RUN cargo build --release --locked -p skybake --bin skybake \
+# With the S3-compatible bucket backend (`--features s3`): replicas and sharded bakes share a
+# bucket (docs/deploy.md).
+RUN cargo build --release --locked -p skybake --bin skybake --features s3 \
     && strip target/release/skybake
 
 # ---- runtime -----------------------------------------------------------------------------------

@@ -10,6 +10,7 @@ mod cli_render;
 mod cloud_render_limits;
 mod frame_artifact;
 mod job_frames;
+mod parser_props;
 mod plan_frame;
 mod plan_rgb_only;
 mod product_artifact;

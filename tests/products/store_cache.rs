@@ -257,18 +257,49 @@ fn opening_with_a_smaller_budget_evicts_and_cleans_temp_files() {
 fn memory_tier_respects_its_budget() {
     let scratch = Scratch::new("memory");
     let size = cache_key_size(&image(50));
-    let cache = Cache::open(CacheConfig::new(&scratch.0, 1 << 20, size + size / 2)).unwrap();
-    cache.put_image(&key(50), &image(50)).unwrap();
-    cache.put_image(&key(51), &image(51)).unwrap();
+    // Room for eight entries of this size (each within the per-entry ceiling, budget / 8).
+    let budget = 8 * size + size / 2;
+    let cache = Cache::open(CacheConfig::new(&scratch.0, 1 << 20, budget)).unwrap();
+    for s in 50..59 {
+        cache.put_image(&key(s), &image(s)).unwrap();
+    }
     let stats = cache.stats();
-    assert_eq!(stats.entries_in_memory, 1);
-    assert!(stats.bytes_in_memory <= size + size / 2);
+    assert_eq!(stats.entries_in_memory, 8);
+    assert!(stats.bytes_in_memory <= budget);
     assert!(stats.memory_evictions >= 1);
-    // Both are still served: the newer from memory, the older from disk.
-    assert!(cache.get(&key(51)).unwrap().is_some());
+    // All are still served: the newest from memory, the oldest from disk.
+    assert!(cache.get(&key(58)).unwrap().is_some());
     assert!(cache.get(&key(50)).unwrap().is_some());
     let stats = cache.stats();
     assert_eq!((stats.memory_hits, stats.disk_hits), (1, 1));
+}
+
+#[test]
+fn one_large_entry_does_not_flush_the_memory_tier() {
+    let scratch = Scratch::new("memory-ceiling");
+    let size = cache_key_size(&image(60));
+    // Eight small entries fill the memory tier; a product over budget / 8 is kept on disk only.
+    let budget = 8 * size + size / 2;
+    let cache = Cache::open(CacheConfig::new(&scratch.0, 1 << 24, budget)).unwrap();
+    for s in 60..68 {
+        cache.put_image(&key(s), &image(s)).unwrap();
+    }
+    // 128² × 2 planes of scattered values (they do not compress away).
+    let plane = |k: u32| -> Vec<f32> {
+        (0..128 * 128u32)
+            .map(|i| (i.wrapping_mul(2_654_435_761) ^ k) as f32 * 1e-6)
+            .collect()
+    };
+    let mut big =
+        SpectralImage::emissive(128, 128, &[450.0, 650.0], vec![plane(1), plane(2)]).unwrap();
+    big.set_attribute(ATTR_CACHE_KEY, key(99)).unwrap();
+    assert!(cache_key_size(&big) > budget / 8);
+    cache.put_image(&key(99), &big).unwrap();
+    let stats = cache.stats();
+    assert_eq!(stats.entries_in_memory, 8, "{stats:?}");
+    assert_eq!(stats.memory_evictions, 0, "{stats:?}");
+    assert!(cache.get(&key(99)).unwrap().is_some());
+    assert_eq!(cache.stats().disk_hits, 1);
 }
 
 #[test]
@@ -337,12 +368,13 @@ fn put_bytes_accepts_only_verified_files() {
 #[test]
 fn concurrent_gets_and_puts_stay_consistent() {
     let scratch = Scratch::new("concurrent");
-    let seeds: Vec<u32> = (70..76).collect();
+    let seeds: Vec<u32> = (70..82).collect();
     let images: Arc<Vec<SpectralImage>> = Arc::new(seeds.iter().map(|&s| image(s)).collect());
     let largest = images.iter().map(cache_key_size).max().unwrap();
-    // Room for about four of the six entries on disk and two in memory: eviction races with reads.
+    // Room for about four of the twelve entries on disk and eight in memory (each within the
+    // memory tier's per-entry ceiling): eviction races with reads.
     let cache =
-        Arc::new(Cache::open(CacheConfig::new(&scratch.0, 4 * largest, 2 * largest)).unwrap());
+        Arc::new(Cache::open(CacheConfig::new(&scratch.0, 4 * largest, 8 * largest)).unwrap());
     let gets = Arc::new(AtomicUsize::new(0));
 
     let threads: Vec<_> = (0..8u32)
@@ -378,7 +410,7 @@ fn concurrent_gets_and_puts_stay_consistent() {
     );
     assert_eq!(stats.corrupt_detected, 0);
     assert!(stats.bytes_on_disk <= 4 * largest);
-    assert!(stats.bytes_in_memory <= 2 * largest);
+    assert!(stats.bytes_in_memory <= 8 * largest);
     // The index agrees with the directory.
     let files = cache_files(&scratch.0);
     assert_eq!(files.len() as u64, stats.entries_on_disk);

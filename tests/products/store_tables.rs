@@ -128,6 +128,9 @@ fn precise_tables_persist_across_engines_and_corrupt_ones_are_rebuilt() {
     assert_eq!(third.density_table_loads().0, 0);
     assert_eq!(third.table_builds(Table::Density), 1);
     assert!(cache.stats().corrupt_detected >= 1);
+    // Counted as refused tables (`skybake_engine_table_rejected_total`), not only as corrupt files.
+    assert_eq!(third.table_loads().1, 1, "precise tables refused");
+    assert_eq!(third.density_table_loads().1, 1, "density tables refused");
     assert_eq!(built.table.radiance, rebuilt.table.radiance);
     let on_disk: u64 = exr_files(dir)
         .iter()
@@ -430,5 +433,10 @@ fn density_tables_persist_and_foreign_or_corrupt_ones_are_rebuilt() {
     assert_eq!(engine.density_table_loads().0, 0);
     assert_eq!(engine.table_builds(Table::Density), 1);
     assert!(cache.stats().corrupt_detected >= 1);
+    assert_eq!(
+        engine.density_table_loads().1,
+        1,
+        "the corrupt table counts as refused"
+    );
     assert_eq!(again.table.radiance, built.table.radiance);
 }

@@ -6,6 +6,7 @@ mod service_support;
 mod service_cancel;
 mod service_connections;
 mod service_conventions;
+mod service_frame_cost;
 mod service_fuzz;
 mod service_http;
 mod service_process;

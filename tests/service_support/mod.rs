@@ -2,6 +2,7 @@
 //! server on an ephemeral port, and a minimal HTTP/1.1 client (one request per connection).
 #![allow(dead_code)]
 
+pub mod json_mutation;
 pub mod s3;
 
 use skybake_product::config::Settings;

@@ -1,6 +1,7 @@
 //! The S3-compatible test server of the bucket tests: its endpoint comes from
-//! `SKYBAKE_TEST_S3_ENDPOINT` (`.ci/run` starts one on loopback and creates the bucket
-//! [`BUCKET`]); without it those tests print why and pass without checking anything. Each test
+//! `SKYBAKE_TEST_S3_ENDPOINT` (`.ci/run` starts one on loopback, creates the bucket [`BUCKET`]
+//! and runs these tests with `--features s3`); without it those tests print why and pass without
+//! checking anything. Each test
 //! works under a prefix of its own. [`Proxy`] stands between a client and the server so a test
 //! can cut the bucket off (connections refused) and bring it back.
 #![allow(dead_code)]
@@ -15,9 +16,18 @@ use skybake_store::{Bucket, RetryPolicy};
 pub const BUCKET: &str = "skybake-test";
 
 /// The test server's endpoint, or `None` after printing why the calling test checks nothing.
+/// A server set for a test build without the `s3` feature is a mistake, not a skip: it panics.
 pub fn endpoint(test: &str) -> Option<String> {
     match std::env::var("SKYBAKE_TEST_S3_ENDPOINT") {
-        Ok(e) if !e.trim().is_empty() => Some(e.trim().to_string()),
+        Ok(e) if !e.trim().is_empty() => {
+            if !skybake_store::bucket::AVAILABLE {
+                panic!(
+                    "SKYBAKE_TEST_S3_ENDPOINT is set but the tests were built without the S3 \
+                     backend: run them with `cargo test --release --locked --features s3`"
+                );
+            }
+            Some(e.trim().to_string())
+        }
         _ => {
             eprintln!(
                 "SKIPPED {test}: SKYBAKE_TEST_S3_ENDPOINT is not set (.ci/run starts an S3 server on loopback and sets it)"

@@ -28,7 +28,7 @@ use std::time::Instant;
 pub use crate::spec::DomeShape;
 
 /// Engine version: part of every cache key, bumped when results change.
-pub const ENGINE_VERSION: &str = concat!("skybake-", env!("CARGO_PKG_VERSION"), "-engine2");
+pub const ENGINE_VERSION: &str = concat!("skybake-", env!("CARGO_PKG_VERSION"), "-engine3");
 
 /// A cooperative cancellation check: true once nobody wants the result (every waiting client has gone). The engine
 /// asks it at stage boundaries (after the density table, between orders of scattering of the
@@ -598,8 +598,13 @@ impl Engine {
 
     /// Sun attenuation and irradiances at the observer (plans, then executes).
     pub fn sun(&self, spec: &CommonSpec) -> Result<SunProduct> {
+        self.sun_unless(spec, NEVER)
+    }
+
+    /// [`Self::sun`], stopped with [`Error::Cancelled`] once `cancelled` returns true.
+    pub fn sun_unless(&self, spec: &CommonSpec, cancelled: CancelCheck) -> Result<SunProduct> {
         let plan = Self::plan(spec, ProductKind::Sun)?;
-        self.run_sun(spec, &plan, NEVER)
+        self.run_sun(spec, &plan, cancelled)
     }
 
     /// Sky-dome table (view elevation −90°…90°) and probes (plans, then executes).
@@ -609,9 +614,20 @@ impl Engine {
         shape: DomeShape,
         probes: &[(f64, f64)],
     ) -> Result<DomeProduct> {
+        self.sky_unless(spec, shape, probes, NEVER)
+    }
+
+    /// [`Self::sky`], stopped with [`Error::Cancelled`] once `cancelled` returns true.
+    pub fn sky_unless(
+        &self,
+        spec: &CommonSpec,
+        shape: DomeShape,
+        probes: &[(f64, f64)],
+        cancelled: CancelCheck,
+    ) -> Result<DomeProduct> {
         let dome = DomeSpec::sky(shape, probes.to_vec())?;
         let plan = Self::plan(spec, ProductKind::Sky)?;
-        self.run_dome(spec, &plan, &dome, -90.0, 90.0, NEVER)
+        self.run_dome(spec, &plan, &dome, -90.0, 90.0, cancelled)
     }
 
     /// Upward radiance (view zenith 90°–180°, i.e. elevation −90°…0°) and probes.
@@ -621,9 +637,20 @@ impl Engine {
         shape: DomeShape,
         probes: &[(f64, f64)],
     ) -> Result<DomeProduct> {
+        self.ground_unless(spec, shape, probes, NEVER)
+    }
+
+    /// [`Self::ground`], stopped with [`Error::Cancelled`] once `cancelled` returns true.
+    pub fn ground_unless(
+        &self,
+        spec: &CommonSpec,
+        shape: DomeShape,
+        probes: &[(f64, f64)],
+        cancelled: CancelCheck,
+    ) -> Result<DomeProduct> {
         let dome = DomeSpec::ground(shape, probes.to_vec())?;
         let plan = Self::plan(spec, ProductKind::Ground)?;
-        self.run_dome(spec, &plan, &dome, -90.0, 0.0, NEVER)
+        self.run_dome(spec, &plan, &dome, -90.0, 0.0, cancelled)
     }
 
     /// Aerial perspective table: `elevation_count` × `azimuth_count` directions × `distance_count`
@@ -635,9 +662,21 @@ impl Engine {
         distance_count: usize,
         max_distance_m: f64,
     ) -> Result<AerialProduct> {
+        self.aerial_unless(spec, shape, distance_count, max_distance_m, NEVER)
+    }
+
+    /// [`Self::aerial`], stopped with [`Error::Cancelled`] once `cancelled` returns true.
+    pub fn aerial_unless(
+        &self,
+        spec: &CommonSpec,
+        shape: DomeShape,
+        distance_count: usize,
+        max_distance_m: f64,
+        cancelled: CancelCheck,
+    ) -> Result<AerialProduct> {
         let aerial = AerialSpec::new(shape, distance_count, max_distance_m)?;
         let plan = Self::plan(spec, ProductKind::Aerial)?;
-        self.run_aerial(spec, &plan, &aerial, NEVER)
+        self.run_aerial(spec, &plan, &aerial, cancelled)
     }
 
     fn run_sun(

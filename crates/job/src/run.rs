@@ -30,6 +30,8 @@ pub struct SubmitLimits {
     pub disk_bytes: u64,
     /// Largest estimated cost of the whole job ([`JobSpec::validate_and_cost`]).
     pub max_cost: u64,
+    /// Largest estimated peak memory of one frame item ([`JobSpec::check_frame_memory`]).
+    pub max_item_memory_bytes: u64,
 }
 
 /// Whatever turns a product request into a stored artifact.
@@ -278,6 +280,7 @@ impl Jobs {
             &self.defaults,
             Some(&skybake_product::frame::example_file),
         )?;
+        spec.check_frame_memory(&self.defaults, limits.max_item_memory_bytes)?;
         if cost > limits.max_cost {
             return Err(crate::Error::too_large(
                 "job_cost",

@@ -384,6 +384,29 @@ impl JobSpec {
     }
 }
 
+impl JobSpec {
+    /// Refuses (too large, `request_memory`) a frame item whose estimated peak memory, as far as
+    /// its parameters tell before voxelising, exceeds `max_bytes` (the service's
+    /// `server.max_request_memory_bytes`, as for a render); the error names the item.
+    pub fn check_frame_memory(&self, defaults: &Defaults, max_bytes: u64) -> Result<(), JobError> {
+        let caps = skybake_product::frame::FrameCaps {
+            max_cost: u64::MAX,
+            max_memory_bytes: max_bytes,
+        };
+        for i in 0..self.len() {
+            if let AnyRequest::Frame(r) = self.request(i, defaults)? {
+                if let Err(e) = r.admission_cost().check(caps) {
+                    return Err(match self.locate(i) {
+                        Some(Located::Frame(_, _, prefix)) => e.prefixed(&prefix).into(),
+                        _ => e.into(),
+                    });
+                }
+            }
+        }
+        Ok(())
+    }
+}
+
 /// A loader of the files a frame's cloud names (path → bytes).
 pub type FileLoader = dyn Fn(&str) -> skybake_product::Result<Vec<u8>>;
 

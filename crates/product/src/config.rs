@@ -45,6 +45,11 @@ pub struct ServerSettings {
     pub shutdown_grace_s: f64,
     /// Largest estimated cost of one product request ([`crate::cost`]), cell-wavelength-orders.
     pub max_request_cost: u64,
+    /// Largest estimated cost of one frame request or frame plan
+    /// ([`crate::frame::FrameCost`]), pixel-voxel-samples.
+    pub max_frame_cost: u64,
+    /// Largest estimated peak memory of one frame request ([`crate::frame::FrameCost`]), bytes.
+    pub max_request_memory_bytes: u64,
     /// Largest estimated cost of one job ([`skybake_job::spec::JobSpec::validate_and_cost`]).
     pub max_job_cost: u64,
     /// Computations waiting for a compute slot before new ones are shed.
@@ -125,6 +130,12 @@ pub const ENV_VARS: &[(&str, &str, &str)] = &[
     ),
     ("SKYBAKE_SHUTDOWN_GRACE_S", "server", "shutdown_grace_s"),
     ("SKYBAKE_MAX_REQUEST_COST", "server", "max_request_cost"),
+    ("SKYBAKE_MAX_FRAME_COST", "server", "max_frame_cost"),
+    (
+        "SKYBAKE_MAX_REQUEST_MEMORY_BYTES",
+        "server",
+        "max_request_memory_bytes",
+    ),
     ("SKYBAKE_MAX_JOB_COST", "server", "max_job_cost"),
     (
         "SKYBAKE_MAX_QUEUED_COMPUTATIONS",
@@ -387,6 +398,20 @@ impl Settings {
                 "at least 1000000",
             ));
         }
+        if s.max_frame_cost < 1_000_000 {
+            return Err(Error::out_of_range(
+                "server.max_frame_cost",
+                s.max_frame_cost,
+                "at least 1000000",
+            ));
+        }
+        if s.max_request_memory_bytes < 1 << 24 {
+            return Err(Error::out_of_range(
+                "server.max_request_memory_bytes",
+                s.max_request_memory_bytes,
+                "at least 16777216",
+            ));
+        }
         if s.max_job_cost < 1_000_000 {
             return Err(Error::out_of_range(
                 "server.max_job_cost",
@@ -446,6 +471,15 @@ impl Settings {
             return Err(Error::invalid(
                 "cache.url",
                 format!("{url}: expected s3://bucket/prefix, or empty for the directory alone"),
+            ));
+        }
+        if !url.is_empty() && !skybake_store::bucket::AVAILABLE {
+            return Err(Error::invalid(
+                "cache.url",
+                format!(
+                    "{url}: this skybake was built without the S3 backend; build it with \
+                     `cargo build --release --features s3` (the container image has it)"
+                ),
             ));
         }
         let l = self.cache.lease_s;

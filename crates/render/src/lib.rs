@@ -150,6 +150,10 @@ impl RenderSettings {
                 env_photons: env,
                 max_coarse_dim: coarse,
                 seed: 0x5EED,
+                // Orders 3–4 (measured, not the default): DISORT slab τ 32 resolved at 2 optical
+                // depths per voxel, grazing views away from the sun 15.7 % → 7.5 %, but the 4-voxel
+                // slab's τ 32 (albedo 0.99) worst view 57.8 % → 58.1 % and the Mitsuba view from
+                // below −1.3 % → −2.6 % bias.
                 angular_order: 2,
                 truncation_power: TRUNCATION_POWER,
                 peak_spread: PEAK_SPREAD,
@@ -183,14 +187,14 @@ impl RenderSettings {
         if p.sun_photons > 1 << 26
             || p.env_photons > 1 << 26
             || !(2..=256).contains(&p.max_coarse_dim)
-            || p.angular_order > 2
+            || p.angular_order > crate::multiple::MAX_ORDER
             || !(p.truncation_power.is_finite() && (0.0..=16.0).contains(&p.truncation_power))
             || !(p.peak_spread.is_finite() && (0.0..=1.0).contains(&p.peak_spread))
         {
             return Err(Error::out_of_range(
                 "photons",
                 "settings",
-                "photons <= 2^26, coarse dim 2 to 256, angular order 0 to 2, truncation power 0 to 16, peak spread 0 to 1",
+                "photons <= 2^26, coarse dim 2 to 256, angular order 0 to 4, truncation power 0 to 16, peak spread 0 to 1",
             ));
         }
         if !(64..=1 << 16).contains(&self.sky_quadrature)
@@ -270,6 +274,16 @@ pub struct Frame {
 /// Lighting for a scene from the engine (or without one in vacuum), with the cloud's altitude
 /// and the distances the camera sees taken from the grid.
 pub fn lighting_for(scene: &FrameScene, grid: &DensityGrid, engine: &Engine) -> Result<Lighting> {
+    lighting_for_unless(scene, grid, engine, &|| false)
+}
+
+/// [`lighting_for`], stopped with [`Error::Cancelled`] once `cancelled` returns true.
+pub fn lighting_for_unless(
+    scene: &FrameScene,
+    grid: &DensityGrid,
+    engine: &Engine,
+    cancelled: &(dyn Fn() -> bool + Sync),
+) -> Result<Lighting> {
     let lo = grid.origin_m;
     let hi = grid.max_corner_m();
     let centre = 0.5 * (lo + hi);
@@ -290,11 +304,12 @@ pub fn lighting_for(scene: &FrameScene, grid: &DensityGrid, engine: &Engine) -> 
         .as_ref()
         .map(|g| 20.0 * (cam.z - g.height_m).max(100.0))
         .unwrap_or(0.0);
-    Lighting::from_scene(
+    Lighting::from_scene_unless(
         scene,
         engine,
         centre.z,
         far.max(ground_far).max(1000.0) * 1.05,
+        cancelled,
     )
 }
 

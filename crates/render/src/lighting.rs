@@ -239,6 +239,24 @@ impl Lighting {
         cloud_altitude_m: f64,
         max_view_distance_m: f64,
     ) -> Result<Self> {
+        Self::from_scene_unless(
+            scene,
+            engine,
+            cloud_altitude_m,
+            max_view_distance_m,
+            &|| false,
+        )
+    }
+
+    /// [`Self::from_scene`], stopped with [`crate::Error::Cancelled`] once `cancelled` returns
+    /// true (the engine asks between table rows, orders and dome rows).
+    pub fn from_scene_unless(
+        scene: &FrameScene,
+        engine: &Engine,
+        cloud_altitude_m: f64,
+        max_view_distance_m: f64,
+        cancelled: &(dyn Fn() -> bool + Sync),
+    ) -> Result<Self> {
         let wl = scene.wavelengths.as_nm().to_vec();
         let n_l = wl.len();
         let sun_dir = scene.sun.direction();
@@ -318,7 +336,11 @@ impl Lighting {
         let cloud_spec = spec_at(cloud_altitude_m);
         let sun_irradiance = match &scene.sun.collimated_irradiance {
             Some(e) => e.clone(),
-            None => engine.sun(&cloud_spec)?.direct_normal_irradiance_w_m2_nm,
+            None => {
+                engine
+                    .sun_unless(&cloud_spec, cancelled)?
+                    .direct_normal_irradiance_w_m2_nm
+            }
         };
         let shape = DomeShape {
             elevation_count: 33,
@@ -326,7 +348,7 @@ impl Lighting {
         };
         let sky = match (&scene.sky, sw.sky_light) {
             (SkySpec::Atmosphere, true) => {
-                let t = engine.sky(&cloud_spec, shape, &[])?;
+                let t = engine.sky_unless(&cloud_spec, shape, &[], cancelled)?;
                 notes.push(format!(
                     "sky product at {:.0} m",
                     cloud_spec.observer_altitude_m
@@ -337,7 +359,7 @@ impl Lighting {
             _ => Hemisphere::Zero,
         };
         let below = if sw.ground_light && !matches!(scene.sky, SkySpec::None) {
-            let t = engine.ground(&cloud_spec, shape, &[])?;
+            let t = engine.ground_unless(&cloud_spec, shape, &[], cancelled)?;
             notes.push(format!(
                 "ground product at {:.0} m",
                 cloud_spec.observer_altitude_m
@@ -348,7 +370,7 @@ impl Lighting {
         };
         let ground = match &scene.ground {
             Some(g) => {
-                let s = engine.sun(&spec_at(g.height_m))?;
+                let s = engine.sun_unless(&spec_at(g.height_m), cancelled)?;
                 Some(GroundSurface {
                     height_m: g.height_m,
                     albedo: g.albedo.clone(),
@@ -361,20 +383,21 @@ impl Lighting {
         };
         let cam_spec = spec_at(scene.camera.position_m.z);
         let background = if matches!(scene.sky, SkySpec::Atmosphere) {
-            let t = engine.sky(
+            let t = engine.sky_unless(
                 &cam_spec,
                 DomeShape {
                     elevation_count: 65,
                     azimuth_count: 33,
                 },
                 &[],
+                cancelled,
             )?;
             Some(Arc::new(DirTable::from_dome(&t.table, az)))
         } else {
             None
         };
         let aerial = if sw.aerial_perspective {
-            let a = engine.aerial(
+            let a = engine.aerial_unless(
                 &cam_spec,
                 DomeShape {
                     elevation_count: 33,
@@ -382,6 +405,7 @@ impl Lighting {
                 },
                 32,
                 max_view_distance_m.clamp(100.0, 400_000.0),
+                cancelled,
             )?;
             notes.push(format!(
                 "aerial product from the camera to {:.0} m",

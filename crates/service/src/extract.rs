@@ -45,6 +45,21 @@ impl<S: Send + Sync, T: FromQuery> FromRequestParts<S> for Query<T> {
     }
 }
 
+/// Path parameters (axum's `Path`), a segment that does not decode (not UTF-8 once
+/// percent-decoded) or parse being a 404 problem+json instead of axum's plain-text 400.
+pub struct PathParams<T>(pub T);
+
+impl<S: Send + Sync, T: serde::de::DeserializeOwned + Send> FromRequestParts<S> for PathParams<T> {
+    type Rejection = ApiError;
+
+    async fn from_request_parts(parts: &mut Parts, state: &S) -> Result<Self, ApiError> {
+        axum::extract::Path::<T>::from_request_parts(parts, state)
+            .await
+            .map(|axum::extract::Path(t)| PathParams(t))
+            .map_err(|e| ApiError::NotFound(format!("no such resource: {e}")))
+    }
+}
+
 /// Product parameters: names from the parameter table, each at most once.
 impl FromQuery for RequestParams {
     fn from_pairs(pairs: Vec<(String, String)>) -> Result<Self, ApiError> {

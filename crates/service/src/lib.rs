@@ -402,26 +402,7 @@ impl AppState {
         key: String,
         cancel: Arc<CancelToken>,
     ) -> Result<Arc<[u8]>, ApiError> {
-        let inner = &self.inner;
-        let permit = {
-            let notified = cancel.notify.notified();
-            tokio::pin!(notified);
-            notified.as_mut().enable();
-            if cancel.is_cancelled() {
-                None
-            } else {
-                tokio::select! {
-                    p = inner.compute.acquire() => Some(p),
-                    () = notified => None,
-                }
-            }
-        };
-        inner.queued.fetch_sub(1, Ordering::Relaxed);
-        let Some(permit) = permit else {
-            inner.metrics.cancelled.fetch_add(1, Ordering::Relaxed);
-            return Err(crate::Error::Cancelled.into());
-        };
-        let _permit = permit.map_err(|_| ApiError::Unavailable("shutting down".into()))?;
+        let _permit = self.compute_slot(&cancel).await?;
         let s = self.clone();
         Self::blocking(move || {
             // Another flight may have finished between our cache miss and starting this one.
@@ -577,9 +558,10 @@ impl AppState {
                 .fetch_add(1, Ordering::Relaxed);
             return Ok((b, Source::Response, key));
         }
-        if let AnyRequest::Atmosphere(req) = work {
-            if !self.inner.cache.contains(&key) {
-                self.check_cost(req)?;
+        if !self.inner.cache.contains(&key) {
+            match work {
+                AnyRequest::Atmosphere(req) => self.check_cost(req)?,
+                AnyRequest::Frame(req) => self.check_frame_cost(&req.admission_cost())?,
             }
         }
         let (artifact, source) = self.artifact(work, &key).await?;
@@ -651,6 +633,69 @@ impl AppState {
         Ok(())
     }
 
+    /// Refuses (413) a frame request or frame plan whose estimated cost
+    /// ([`skybake_product::frame::FrameCost`]) exceeds `server.max_frame_cost` (naming
+    /// `request_cost`) or whose estimated peak memory exceeds `server.max_request_memory_bytes`
+    /// (naming `request_memory`), before anything is voxelised.
+    pub fn check_frame_cost(&self, c: &skybake_product::frame::FrameCost) -> Result<(), ApiError> {
+        Ok(c.check(self.frame_caps())?)
+    }
+
+    /// The caps of a frame request (`server.max_frame_cost`, `server.max_request_memory_bytes`).
+    pub fn frame_caps(&self) -> skybake_product::frame::FrameCaps {
+        let server = &self.inner.settings.server;
+        skybake_product::frame::FrameCaps {
+            max_cost: server.max_frame_cost,
+            max_memory_bytes: server.max_request_memory_bytes,
+        }
+    }
+
+    /// Runs blocking `work` as a computation that is not a product (a frame's plan): it waits
+    /// for one of the same compute slots as products, counts in the same bounded queue (503 when
+    /// full) and in `computations_in_flight`, and is cancelled — `work`'s check returns true —
+    /// as soon as the caller stops waiting (the client hung up or the request timed out).
+    pub async fn run_computation<T: Send + 'static>(
+        &self,
+        work: impl FnOnce(&(dyn Fn() -> bool + Sync)) -> Result<T, ApiError> + Send + 'static,
+    ) -> Result<T, ApiError> {
+        let inner = &self.inner;
+        if inner.queued.load(Ordering::Relaxed) >= inner.settings.server.max_queued_computations {
+            inner.metrics.load_shed.fetch_add(1, Ordering::Relaxed);
+            inner.metrics.queue_shed.fetch_add(1, Ordering::Relaxed);
+            return Err(ApiError::Overloaded);
+        }
+        inner.queued.fetch_add(1, Ordering::Relaxed);
+        let cancel = Arc::new(CancelToken::default());
+        /// Cancels the computation when the caller's future is dropped before it ends.
+        struct CancelOnDrop(Arc<CancelToken>);
+        impl Drop for CancelOnDrop {
+            fn drop(&mut self) {
+                self.0.cancel();
+            }
+        }
+        let _guard = CancelOnDrop(cancel.clone());
+        let state = self.clone();
+        // A task of its own holds the slot until the blocking work has returned, even when the
+        // caller has gone (the work stops at its next check).
+        let task = tokio::spawn(async move {
+            let _permit = state.compute_slot(&cancel).await?;
+            let s = state.clone();
+            Self::blocking(move || {
+                let m = &s.inner.metrics;
+                m.compute_in_flight.fetch_add(1, Ordering::Relaxed);
+                let result = work(&|| cancel.is_cancelled());
+                m.compute_in_flight.fetch_sub(1, Ordering::Relaxed);
+                if matches!(&result, Err(ApiError::Unavailable(_))) && cancel.is_cancelled() {
+                    m.cancelled.fetch_add(1, Ordering::Relaxed);
+                }
+                result
+            })
+            .await
+        });
+        task.await
+            .map_err(|e| ApiError::Internal(format!("computation task failed: {e}")))?
+    }
+
     /// The validated request of `product` from raw parameters, with the configured defaults.
     pub fn request(
         &self,
@@ -664,10 +709,52 @@ impl AppState {
     }
 }
 
+impl AppState {
+    /// Waits in the queue for a compute slot, leaving the queue either way: cancelled (counted)
+    /// when `cancel` fires first, 503 when the service is shutting down.
+    async fn compute_slot(
+        &self,
+        cancel: &CancelToken,
+    ) -> Result<tokio::sync::SemaphorePermit<'_>, ApiError> {
+        let inner = &self.inner;
+        let permit = {
+            let notified = cancel.notify.notified();
+            tokio::pin!(notified);
+            notified.as_mut().enable();
+            if cancel.is_cancelled() {
+                None
+            } else {
+                tokio::select! {
+                    p = inner.compute.acquire() => Some(p),
+                    () = notified => None,
+                }
+            }
+        };
+        inner.queued.fetch_sub(1, Ordering::Relaxed);
+        let Some(permit) = permit else {
+            inner.metrics.cancelled.fetch_add(1, Ordering::Relaxed);
+            return Err(crate::Error::Cancelled.into());
+        };
+        permit.map_err(|_| ApiError::Unavailable("shutting down".into()))
+    }
+}
+
 /// Jobs produce their items through the service's cache: cached items are hits, the others are
 /// computed once (joining identical requests in flight) and stored.
 impl skybake_job::run::Producer for AppState {
     async fn produce(&self, work: AnyRequest) -> Result<(), skybake_job::JobError> {
+        // A frame item is held to the per-request memory cap once voxelised, as a render is (its
+        // cost is the job's, admitted at submission).
+        let work = match work {
+            AnyRequest::Frame(r) => {
+                let caps = skybake_product::frame::FrameCaps {
+                    max_cost: u64::MAX,
+                    max_memory_bytes: self.frame_caps().max_memory_bytes,
+                };
+                AnyRequest::Frame(Arc::new(Arc::unwrap_or_clone(r).with_caps(Some(caps))))
+            }
+            other => other,
+        };
         self.artifact(&work, &work.cache_key())
             .await
             .map(|_| ())

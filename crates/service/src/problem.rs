@@ -114,6 +114,9 @@ impl ApiError {
             ApiError::Param(crate::Error::TooLarge { field, .. }) if field == "query" => {
                 StatusCode::URI_TOO_LONG
             }
+            ApiError::Param(crate::Error::TooLarge { field, .. }) if field == "headers" => {
+                StatusCode::REQUEST_HEADER_FIELDS_TOO_LARGE
+            }
             ApiError::Param(crate::Error::TooLarge { .. }) => StatusCode::PAYLOAD_TOO_LARGE,
             ApiError::Param(_) => StatusCode::UNPROCESSABLE_ENTITY,
             ApiError::UnknownParameters(_) => StatusCode::BAD_REQUEST,

@@ -1,5 +1,5 @@
 //! An S3-compatible bucket (`s3://bucket/prefix`) as a store of named objects, through the
-//! `object_store` crate: whole-object get, put, conditional create and replace (for leases),
+//! `object_store` crate (`bucket/s3.rs`): whole-object get, put, conditional create and replace (for leases),
 //! delete and one-level listing, all blocking (call them from blocking threads, as every store
 //! method). The bucket runs its requests on a small runtime of its own, so callers need none.
 //!
@@ -11,22 +11,31 @@
 //!   is retried with exponential backoff ([`RetryPolicy`]); when the retries are spent the error is
 //!   [`StoreError::Unavailable`] (the service answers 503 + Retry-After), never a partial object.
 //! - Sizes: an object larger than [`MAX_FILE_BYTES`] is refused like a file of that size.
+//! - Build: the client is the `s3` cargo feature (on in the container image, the deploy files and
+//!   CI's bucket tests; off in the default build, which then keeps the local directory's smaller
+//!   dependency tree). Without it, opening an `s3://` URL is an error that says how to build one
+//!   with it ([`AVAILABLE`]).
 
-use std::future::Future;
 use std::sync::atomic::{AtomicU64, Ordering};
-use std::sync::Arc;
 use std::time::Duration;
 
-use object_store::aws::AmazonS3Builder;
-use object_store::path::Path as ObjectPath;
-use object_store::{
-    ClientOptions, ObjectStore, ObjectStoreExt, PutMode, PutOptions, PutPayload, RetryConfig,
-    UpdateVersion,
-};
 use serde::Serialize;
 
 use super::exr::MAX_FILE_BYTES;
 use super::StoreError;
+
+#[cfg(not(feature = "s3"))]
+mod absent;
+#[cfg(feature = "s3")]
+mod s3;
+
+#[cfg(not(feature = "s3"))]
+use absent::Client;
+#[cfg(feature = "s3")]
+use s3::Client;
+
+/// Whether this build can open buckets (the `s3` cargo feature).
+pub const AVAILABLE: bool = cfg!(feature = "s3");
 
 /// How failed requests are retried: `attempts` tries in all, waiting `first_delay`, then twice
 /// that, … up to `max_delay` between them.
@@ -79,10 +88,7 @@ struct Counters {
 pub struct Bucket {
     url: String,
     prefix: String,
-    store: Arc<dyn ObjectStore>,
-    /// `Some` until drop, which shuts it down without waiting (a drop may happen on an async
-    /// thread, where waiting is not allowed).
-    runtime: Option<tokio::runtime::Runtime>,
+    client: Client,
     retry: RetryPolicy,
     counters: Counters,
 }
@@ -90,14 +96,6 @@ pub struct Bucket {
 impl std::fmt::Debug for Bucket {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         f.debug_struct("Bucket").field("url", &self.url).finish()
-    }
-}
-
-impl Drop for Bucket {
-    fn drop(&mut self) {
-        if let Some(runtime) = self.runtime.take() {
-            runtime.shutdown_background();
-        }
     }
 }
 
@@ -112,6 +110,9 @@ pub struct Listed {
     /// Seconds since the Unix epoch.
     pub modified_s: i64,
 }
+
+/// A folder's objects and its subfolders' names ([`Bucket::list`]).
+pub type Listing = (Vec<Listed>, Vec<String>);
 
 /// True when `url` names a bucket (`s3://…`) rather than a directory.
 pub fn is_bucket_url(url: &str) -> bool {
@@ -160,46 +161,11 @@ impl Bucket {
         retry: RetryPolicy,
     ) -> Result<Self, StoreError> {
         let (bucket, prefix) = parse_url(url)?;
-        // TLS through rustls with ring (reqwest is built without a bundled provider); a provider
-        // installed earlier by the process is kept.
-        let _ = rustls::crypto::ring::default_provider().install_default();
-        let mut builder = AmazonS3Builder::from_env().with_bucket_name(&bucket);
-        for (key, value) in overrides {
-            let key = key.parse().map_err(|e| {
-                crate::Error::invalid("cache_url", format!("bucket setting {key}: {e}"))
-            })?;
-            builder = builder.with_config(key, *value);
-        }
-        let endpoint =
-            builder
-                .get_config_value(&"aws_endpoint".parse().map_err(|e| {
-                    crate::Error::invalid("cache_url", format!("bucket setting: {e}"))
-                })?)
-                .unwrap_or_default();
-        let options = ClientOptions::new()
-            .with_allow_http(endpoint.starts_with("http://"))
-            .with_timeout(retry.request_timeout)
-            .with_connect_timeout(Duration::from_secs(5));
-        let store = builder
-            .with_client_options(options)
-            // Our own retry loop counts and bounds the retries.
-            .with_retry(RetryConfig {
-                max_retries: 0,
-                ..RetryConfig::default()
-            })
-            .build()
-            .map_err(|e| crate::Error::invalid("cache_url", format!("{url}: {e}")))?;
-        let runtime = tokio::runtime::Builder::new_multi_thread()
-            .worker_threads(2)
-            .thread_name("skybake-bucket")
-            .enable_all()
-            .build()
-            .map_err(|e| StoreError::io("bucket runtime", e))?;
+        let client = Client::open(url, &bucket, overrides, retry.request_timeout)?;
         Ok(Self {
             url: url.to_string(),
             prefix,
-            store: Arc::new(store),
-            runtime: Some(runtime),
+            client,
             retry,
             counters: Counters::default(),
         })
@@ -223,61 +189,38 @@ impl Bucket {
         }
     }
 
-    /// The object path of `name` (a `/`-separated name made by the store, never request text).
-    fn path(&self, name: &str) -> ObjectPath {
+    /// The object key of `name` (a `/`-separated name made by the store, never request text).
+    fn key(&self, name: &str) -> String {
         if self.prefix.is_empty() {
-            ObjectPath::from(name)
+            name.to_string()
         } else {
-            ObjectPath::from(format!("{}/{name}", self.prefix))
+            format!("{}/{name}", self.prefix)
         }
     }
 
-    /// Runs `op` on the bucket's runtime, retrying failures per the policy; `Ok(Err(e))` is an
-    /// answer that is not a failure (not found, precondition failed), returned at once.
-    fn run<T, F, Fut>(&self, what: &str, name: &str, op: F) -> Result<Outcome<T>, StoreError>
-    where
-        T: Send + 'static,
-        F: Fn(Arc<dyn ObjectStore>) -> Fut,
-        Fut: Future<Output = object_store::Result<T>> + Send + 'static,
-    {
-        let Some(runtime) = &self.runtime else {
-            return Err(self.unavailable(what, name, "bucket closed"));
-        };
+    /// Runs one request `attempt` after another per the retry policy until it gives an answer;
+    /// `Ok(Err(e))` is an answer that is not a failure (not found, precondition failed).
+    fn run<T>(
+        &self,
+        what: &str,
+        name: &str,
+        attempt: impl Fn() -> Result<Outcome<T>, Failure>,
+    ) -> Result<Outcome<T>, StoreError> {
         let mut delay = self.retry.first_delay;
-        let mut attempt = 1;
+        let mut tries = 1;
         loop {
-            let (tx, rx) = std::sync::mpsc::sync_channel(1);
-            let fut = op(self.store.clone());
-            runtime.spawn(async move {
-                let _ = tx.send(fut.await);
-            });
-            let result = rx
-                .recv()
-                .map_err(|_| self.unavailable(what, name, "bucket request dropped"))?;
-            let error = match result {
-                Ok(value) => return Ok(Ok(value)),
-                Err(object_store::Error::NotFound { .. }) => return Ok(Err(Answer::NotFound)),
-                Err(
-                    object_store::Error::Precondition { .. }
-                    | object_store::Error::AlreadyExists { .. },
-                ) => return Ok(Err(Answer::Precondition)),
-                Err(e) => e,
+            let failure = match attempt() {
+                Ok(answer) => return Ok(answer),
+                Err(failure) => failure,
             };
-            let permanent = matches!(
-                error,
-                object_store::Error::PermissionDenied { .. }
-                    | object_store::Error::Unauthenticated { .. }
-                    | object_store::Error::NotImplemented { .. }
-                    | object_store::Error::NotSupported { .. }
-            );
-            if permanent || attempt >= self.retry.attempts {
-                return Err(self.unavailable(what, name, &error.to_string()));
+            if failure.permanent || tries >= self.retry.attempts {
+                return Err(self.unavailable(what, name, &failure.reason));
             }
-            tracing::debug!(what, name, attempt, error = %error, "bucket request failed; retrying");
+            tracing::debug!(what, name, tries, error = %failure.reason, "bucket request failed; retrying");
             self.counters.retries.fetch_add(1, Ordering::Relaxed);
             std::thread::sleep(delay);
             delay = (delay * 2).min(self.retry.max_delay);
-            attempt += 1;
+            tries += 1;
         }
     }
 
@@ -310,38 +253,22 @@ impl Bucket {
     /// The object `name` and its entity tag (for [`Self::replace`]), or `None`.
     pub fn get_versioned(&self, name: &str) -> Result<Option<Versioned>, StoreError> {
         self.counters.gets.fetch_add(1, Ordering::Relaxed);
-        let path = self.path(name);
-        let outcome = self.run("get", name, |store| {
-            let path = path.clone();
-            async move {
-                let result = store.get(&path).await?;
-                let e_tag = result.meta.e_tag.clone();
-                if result.meta.size > MAX_FILE_BYTES {
-                    return Err(object_store::Error::Generic {
-                        store: "skybake",
-                        source: format!("{path} is {} bytes", result.meta.size).into(),
-                    });
-                }
-                let bytes = result.bytes().await?;
-                Ok((bytes.to_vec(), e_tag))
-            }
-        })?;
-        match outcome {
-            Ok(found) => Ok(Some(found)),
-            Err(_) => Ok(None),
-        }
+        let key = self.key(name);
+        Ok(self
+            .run("get", name, || self.client.get(&key, MAX_FILE_BYTES))?
+            .ok())
     }
 
     /// Stores `bytes` as `name`, replacing any object there (an S3 put is atomic: readers see the
     /// old object or the whole new one).
     pub fn put(&self, name: &str, bytes: &[u8]) -> Result<(), StoreError> {
-        self.put_mode(name, bytes, PutMode::Overwrite).map(|_| ())
+        self.write(name, bytes, &Write::Overwrite).map(|_| ())
     }
 
     /// Creates `name` only if no object has that name (`If-None-Match: *`): `Some(entity tag)`,
     /// or `None` when one had.
     pub fn create(&self, name: &str, bytes: &[u8]) -> Result<Option<String>, StoreError> {
-        self.put_mode(name, bytes, PutMode::Create)
+        self.write(name, bytes, &Write::Create)
     }
 
     /// Replaces `name` only if it still has entity tag `e_tag` (`If-Match`): `Some(new entity
@@ -352,89 +279,62 @@ impl Bucket {
         bytes: &[u8],
         e_tag: &str,
     ) -> Result<Option<String>, StoreError> {
-        self.put_mode(
-            name,
-            bytes,
-            PutMode::Update(UpdateVersion {
-                e_tag: Some(e_tag.to_string()),
-                version: None,
-            }),
-        )
+        self.write(name, bytes, &Write::Replace(e_tag.to_string()))
     }
 
-    fn put_mode(
-        &self,
-        name: &str,
-        bytes: &[u8],
-        mode: PutMode,
-    ) -> Result<Option<String>, StoreError> {
+    fn write(&self, name: &str, bytes: &[u8], mode: &Write) -> Result<Option<String>, StoreError> {
         self.counters.puts.fetch_add(1, Ordering::Relaxed);
-        let path = self.path(name);
-        let payload = PutPayload::from(bytes.to_vec());
-        let outcome = self.run("put", name, |store| {
-            let (path, payload, mode) = (path.clone(), payload.clone(), mode.clone());
-            async move {
-                let options = PutOptions {
-                    mode,
-                    ..PutOptions::default()
-                };
-                let done = store.put_opts(&path, payload, options).await?;
-                Ok(done.e_tag.unwrap_or_default())
-            }
-        })?;
+        let key = self.key(name);
         // A failed precondition, or a conditional replace of an object that is gone: `None`.
-        Ok(outcome.ok())
+        Ok(self
+            .run("put", name, || self.client.put(&key, bytes, mode))?
+            .ok())
     }
 
     /// Deletes `name` (an absent object is not an error).
     pub fn delete(&self, name: &str) -> Result<(), StoreError> {
         self.counters.deletes.fetch_add(1, Ordering::Relaxed);
-        let path = self.path(name);
-        self.run("delete", name, |store| {
-            let path = path.clone();
-            async move { store.delete(&path).await }
-        })
-        .map(|_| ())
+        let key = self.key(name);
+        self.run("delete", name, || self.client.delete(&key))
+            .map(|_| ())
     }
 
     /// The objects directly in folder `dir` (names relative to it) and its subfolders' names.
-    pub fn list(&self, dir: &str) -> Result<(Vec<Listed>, Vec<String>), StoreError> {
+    pub fn list(&self, dir: &str) -> Result<Listing, StoreError> {
         self.counters.lists.fetch_add(1, Ordering::Relaxed);
-        let path = self.path(dir.trim_end_matches('/'));
-        let outcome = self.run("list", dir, |store| {
-            let path = path.clone();
-            async move { store.list_with_delimiter(Some(&path)).await }
-        })?;
-        let Ok(listing) = outcome else {
-            return Ok((Vec::new(), Vec::new()));
-        };
-        let objects = listing
-            .objects
-            .iter()
-            .filter_map(|o| {
-                Some(Listed {
-                    name: o.location.filename()?.to_string(),
-                    size_bytes: o.size,
-                    modified_s: o.last_modified.timestamp(),
-                })
-            })
-            .collect();
-        let folders = listing
-            .common_prefixes
-            .iter()
-            .filter_map(|p| Some(p.filename()?.to_string()))
-            .collect();
-        Ok((objects, folders))
+        let key = self.key(dir.trim_end_matches('/'));
+        Ok(self
+            .run("list", dir, || self.client.list(&key))?
+            .unwrap_or_default())
     }
 }
 
+/// How a put treats an object already under its name.
+// Read and made only by a client, which a build without `s3` does not have.
+#[cfg_attr(not(feature = "s3"), allow(dead_code))]
+enum Write {
+    /// Replace it.
+    Overwrite,
+    /// Only create: fail the precondition when there is one.
+    Create,
+    /// Only replace the version with this entity tag.
+    Replace(String),
+}
+
 /// An answer that is not a failure: the object is absent, or a precondition failed.
+#[cfg_attr(not(feature = "s3"), allow(dead_code))]
 enum Answer {
     NotFound,
     Precondition,
 }
 
 type Outcome<T> = Result<T, Answer>;
+
+/// A request that failed: `permanent` ones (denied, unsupported, too large) are not retried.
+struct Failure {
+    reason: String,
+    permanent: bool,
+}
 
 #[cfg(test)]
 mod tests {

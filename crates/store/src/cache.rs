@@ -64,6 +64,10 @@ fn check_key(key: &str) -> Result<(), StoreError> {
     }
 }
 
+/// An entry larger than the memory budget divided by this is kept on disk only (it would evict
+/// most of the memory tier for itself).
+pub const MEMORY_ENTRY_FRACTION: u64 = 8;
+
 /// Where and how big the cache is.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct CacheConfig {
@@ -585,7 +589,9 @@ impl Cache {
 
     fn remember_in_memory(&self, state: &mut State, key: &str, bytes: &Arc<[u8]>) {
         let size_bytes = bytes.len() as u64;
-        if size_bytes > self.config.memory_budget_bytes {
+        // One entry may take at most 1/MEMORY_ENTRY_FRACTION of the memory tier, so a large
+        // product is served from disk instead of flushing every other entry out of memory.
+        if size_bytes > self.config.memory_budget_bytes / MEMORY_ENTRY_FRACTION {
             state.memory.remove(key);
             return;
         }

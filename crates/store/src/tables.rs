@@ -9,7 +9,7 @@
 use super::bucket::Bucket;
 use super::cache::{Cache, CacheConfig};
 use super::exr::{encode_exr_with, ExrCompression};
-use skybake_physics::atmosphere::shared::TableStore;
+use skybake_physics::atmosphere::shared::{TableLoad, TableStore};
 use skybake_physics::image::SpectralImage;
 use std::sync::{Arc, OnceLock};
 
@@ -73,12 +73,20 @@ impl CacheTableStore {
 }
 
 impl TableStore for CacheTableStore {
-    fn load(&self, key: &str) -> Option<SpectralImage> {
-        match self.cache()?.get_image(key) {
-            Ok(image) => image,
+    fn load(&self, key: &str) -> TableLoad {
+        let Some(cache) = self.cache() else {
+            return TableLoad::Absent;
+        };
+        // Listed in the cache's index but not returned: the file failed verification and was
+        // removed (or, rarely, was evicted in between).
+        let listed = cache.contains(key);
+        match cache.get_image(key) {
+            Ok(Some(image)) => TableLoad::Found(image),
+            Ok(None) if listed => TableLoad::Rejected,
+            Ok(None) => TableLoad::Absent,
             Err(e) => {
                 tracing::warn!(key, error = %e, "shared table unreadable; rebuilding");
-                None
+                TableLoad::Absent
             }
         }
     }

@@ -24,12 +24,24 @@ pub const TRANSMITTANCE_N_MU: usize = 256;
 pub const TRANSMITTANCE_STEPS: usize = 500;
 
 /// Where shared tables are kept between processes. `load` returns only verified tables (a corrupt
-/// file is a miss); `save` is best effort (a failure only costs a rebuild next time).
+/// file is [`TableLoad::Rejected`]); `save` is best effort (a failure only costs a rebuild next
+/// time).
 pub trait TableStore: Send + Sync {
-    /// The table stored under `key` (64 hex digits), or `None`.
-    fn load(&self, key: &str) -> Option<SpectralImage>;
+    /// The table stored under `key` (64 hex digits).
+    fn load(&self, key: &str) -> TableLoad;
     /// Stores `table` under `key`.
     fn save(&self, key: &str, table: &SpectralImage);
+}
+
+/// What a [`TableStore`] found under a key.
+pub enum TableLoad {
+    /// A verified table.
+    Found(SpectralImage),
+    /// Nothing stored.
+    Absent,
+    /// A stored table that failed verification (checksum, key, decoding): removed, and counted
+    /// with the tables refused ([`TableEvents`]).
+    Rejected,
 }
 
 /// Counts of shared-table builds and loads (for metrics and tests).
@@ -234,7 +246,12 @@ impl SharedTables {
             return build();
         };
         let key = p.density_table_key();
-        if let Some(image) = store.load(&key) {
+        let loaded = store.load(&key);
+        if let TableLoad::Rejected = loaded {
+            tracing::warn!(key, "stored density table failed verification; rebuilding");
+            TableEvents::bump(&p.events.density_rejected);
+        }
+        if let TableLoad::Found(image) = loaded {
             match DensityIntegralTable::from_image(
                 &image,
                 medium,
@@ -343,7 +360,12 @@ impl SharedTables {
             TableEvents::bump(&p.events.precise_built);
             return Some(table);
         };
-        if let Some(image) = store.load(&key) {
+        let loaded = store.load(&key);
+        if let TableLoad::Rejected = loaded {
+            tracing::warn!(key, "stored precise table failed verification; rebuilding");
+            TableEvents::bump(&p.events.precise_rejected);
+        }
+        if let TableLoad::Found(image) = loaded {
             match PreciseMultipleScattering::from_image(&image, &self.medium, self.precise_settings)
             {
                 Some(table) => {

@@ -337,8 +337,24 @@ pub fn voxelize_within(
     voxel_size_m: f64,
     max_voxels: usize,
 ) -> Result<DensityGrid> {
+    voxelize_unless(params, voxel_size_m, max_voxels, &|| false)
+}
+
+/// [`voxelize_within`], stopped with [`crate::Error::Cancelled`] once `cancelled` returns true
+/// (asked after the growth and before every z-slice of the grid).
+pub fn voxelize_unless(
+    params: &FractalParams,
+    voxel_size_m: f64,
+    max_voxels: usize,
+    cancelled: &(dyn Fn() -> bool + Sync),
+) -> Result<DensityGrid> {
     let cloud = grow(params)?;
-    MetaballField::new(cloud.balls)?.voxelize_within(voxel_size_m, voxel_size_m, max_voxels)
+    MetaballField::new(cloud.balls)?.voxelize_within_unless(
+        voxel_size_m,
+        voxel_size_m,
+        max_voxels,
+        cancelled,
+    )
 }
 
 /// A small cumulus base (five balls, about 1.6 km across, base near 1 km altitude), used by the

@@ -80,13 +80,31 @@ impl DensityGrid {
         origin_m: DVec3,
         density: impl Fn(DVec3) -> f32 + Sync,
     ) -> Result<Self> {
+        Self::from_fn_unless(dims, voxel_size_m, origin_m, density, &|| false)
+    }
+
+    /// [`Self::from_fn`], stopped with [`Error::Cancelled`] once `cancelled` returns true (asked
+    /// before every z-slice).
+    pub fn from_fn_unless(
+        dims: [usize; 3],
+        voxel_size_m: f64,
+        origin_m: DVec3,
+        density: impl Fn(DVec3) -> f32 + Sync,
+        cancelled: &(dyn Fn() -> bool + Sync),
+    ) -> Result<Self> {
         use rayon::prelude::*;
+        use std::sync::atomic::{AtomicBool, Ordering};
         let mut grid = Self::zeros(dims, voxel_size_m, origin_m)?;
         let [nx, ny, _] = dims;
+        let stopped = AtomicBool::new(false);
         grid.data
             .par_chunks_mut(nx * ny)
             .enumerate()
             .for_each(|(z, slice)| {
+                if stopped.load(Ordering::Relaxed) || cancelled() {
+                    stopped.store(true, Ordering::Relaxed);
+                    return;
+                }
                 for (i, v) in slice.iter_mut().enumerate() {
                     let (x, y) = (i % nx, i / nx);
                     let p =
@@ -94,6 +112,9 @@ impl DensityGrid {
                     *v = density(p);
                 }
             });
+        if stopped.load(Ordering::Relaxed) {
+            return Err(Error::Cancelled);
+        }
         Ok(grid)
     }
 

@@ -249,6 +249,18 @@ impl MetaballField {
         margin_m: f64,
         max_voxels: usize,
     ) -> Result<DensityGrid> {
+        self.voxelize_within_unless(voxel_size_m, margin_m, max_voxels, &|| false)
+    }
+
+    /// [`Self::voxelize_within`], stopped with [`Error::Cancelled`] once `cancelled` returns true
+    /// (asked before every z-slice).
+    pub fn voxelize_within_unless(
+        &self,
+        voxel_size_m: f64,
+        margin_m: f64,
+        max_voxels: usize,
+        cancelled: &(dyn Fn() -> bool + Sync),
+    ) -> Result<DensityGrid> {
         if !(margin_m.is_finite() && margin_m >= 0.0) {
             return Err(Error::out_of_range(
                 "margin_m",
@@ -259,7 +271,13 @@ impl MetaballField {
         let (lo, hi) = (self.min_m - margin_m, self.max_m + margin_m);
         let (dims, origin_m) = box_dims(lo, hi, voxel_size_m)?;
         checked_count(dims, max_voxels, "voxels")?;
-        self.voxelize_box(dims, voxel_size_m, origin_m)
+        DensityGrid::from_fn_unless(
+            dims,
+            voxel_size_m,
+            origin_m,
+            |p| self.density(p) as f32,
+            cancelled,
+        )
     }
 
     /// Voxelises the field into a given box (cell-centred samples), in parallel over z-slices.

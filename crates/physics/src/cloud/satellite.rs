@@ -457,6 +457,16 @@ fn overlaps(a: &Blob, b: &Blob) -> bool {
 /// the error never rises and earlier balls that now overshoot are turned down); all balls are
 /// refitted whenever the count reaches a power of two and once at the end.
 pub fn fit(img: &GrayImage, params: &SatelliteParams) -> Result<FitResult> {
+    fit_unless(img, params, &|| false)
+}
+
+/// [`fit`], stopped with [`Error::Cancelled`] once `cancelled` returns true (asked before every
+/// new ball).
+pub fn fit_unless(
+    img: &GrayImage,
+    params: &SatelliteParams,
+    cancelled: &(dyn Fn() -> bool + Sync),
+) -> Result<FitResult> {
     params.validate()?;
     let threshold = params.cloud_threshold as f32;
     let target: Vec<f64> = img
@@ -482,6 +492,9 @@ pub fn fit(img: &GrayImage, params: &SatelliteParams) -> Result<FitResult> {
         r.resum();
     };
     let converged = loop {
+        if cancelled() {
+            return Err(Error::Cancelled);
+        }
         if (r.err2 / norm2).max(0.0).sqrt() < params.error_threshold {
             break true;
         }
@@ -623,11 +636,27 @@ pub fn voxelize_with_fit_within(
     voxel_size_m: f64,
     max_voxels: usize,
 ) -> Result<(DensityGrid, FitResult)> {
+    voxelize_with_fit_unless(png_bytes, params, voxel_size_m, max_voxels, &|| false)
+}
+
+/// [`voxelize_with_fit_within`], stopped with [`Error::Cancelled`] once `cancelled` returns true
+/// (asked before every ball of the fit and every z-slice of the grid).
+pub fn voxelize_with_fit_unless(
+    png_bytes: &[u8],
+    params: &SatelliteParams,
+    voxel_size_m: f64,
+    max_voxels: usize,
+    cancelled: &(dyn Fn() -> bool + Sync),
+) -> Result<(DensityGrid, FitResult)> {
     let img = GrayImage::from_png_bytes(png_bytes)?;
-    let fitted = fit(&img, params)?;
+    let fitted = fit_unless(&img, params, cancelled)?;
     let balls = to_metaballs(&img, &fitted, params)?;
-    let grid =
-        MetaballField::new(balls)?.voxelize_within(voxel_size_m, voxel_size_m, max_voxels)?;
+    let grid = MetaballField::new(balls)?.voxelize_within_unless(
+        voxel_size_m,
+        voxel_size_m,
+        max_voxels,
+        cancelled,
+    )?;
     Ok((grid, fitted))
 }
 

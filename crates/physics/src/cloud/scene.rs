@@ -263,6 +263,24 @@ impl CloudSection {
         voxelize_within(&self.source, self.voxel_size_m, loader, max_voxels).map(|(g, _)| g)
     }
 
+    /// [`Self::voxelize_within`], stopped with [`Error::Cancelled`] once `cancelled` returns true
+    /// (see [`voxelize_unless`]).
+    pub fn voxelize_unless(
+        &self,
+        loader: &dyn Fn(&str) -> Result<Vec<u8>>,
+        max_voxels: usize,
+        cancelled: &(dyn Fn() -> bool + Sync),
+    ) -> Result<DensityGrid> {
+        voxelize_unless(
+            &self.source,
+            self.voxel_size_m,
+            loader,
+            max_voxels,
+            cancelled,
+        )
+        .map(|(g, _)| g)
+    }
+
     /// Builds the density grid and the source's report (see [`voxelize_with_report`]).
     pub fn voxelize_with_report(
         &self,
@@ -404,22 +422,36 @@ pub fn voxelize_within(
     loader: &dyn Fn(&str) -> Result<Vec<u8>>,
     max_voxels: usize,
 ) -> Result<(DensityGrid, SourceReport)> {
+    voxelize_unless(source, voxel_size_m, loader, max_voxels, &|| false)
+}
+
+/// [`voxelize_within`], stopped with [`Error::Cancelled`] once `cancelled` returns true: asked
+/// before every step of an automaton, every ball of a satellite fit and every z-slice of a grid
+/// that is evaluated or resampled, so an abandoned request stops within a step or a slice.
+pub fn voxelize_unless(
+    source: &CloudSource,
+    voxel_size_m: f64,
+    loader: &dyn Fn(&str) -> Result<Vec<u8>>,
+    max_voxels: usize,
+    cancelled: &(dyn Fn() -> bool + Sync),
+) -> Result<(DensityGrid, SourceReport)> {
     check_voxel_size(voxel_size_m)?;
     validate_source(source)?;
     if let Some(dims) = planned_dims(source, voxel_size_m)? {
         checked_count(dims, max_voxels, "voxels")?;
     }
     let grid = match source {
-        CloudSource::Metaballs(p) => MetaballField::new(p.balls.clone())?.voxelize_within(
+        CloudSource::Metaballs(p) => MetaballField::new(p.balls.clone())?.voxelize_within_unless(
             voxel_size_m,
             voxel_size_m,
             max_voxels,
+            cancelled,
         ),
-        CloudSource::Fractal(p) => fractal::voxelize_within(p, voxel_size_m, max_voxels),
+        CloudSource::Fractal(p) => fractal::voxelize_unless(p, voxel_size_m, max_voxels, cancelled),
         CloudSource::Satellite(p) => {
             let png = loader(&p.image)?;
             let (grid, fit) =
-                satellite::voxelize_with_fit_within(&png, p, voxel_size_m, max_voxels)?;
+                satellite::voxelize_with_fit_unless(&png, p, voxel_size_m, max_voxels, cancelled)?;
             let report = SourceReport {
                 fit_error: Some(fit.error),
                 fit_converged: Some(fit.converged),
@@ -466,17 +498,18 @@ pub fn voxelize_within(
                 let s = p.density_scale as f32;
                 grid.data.iter_mut().for_each(|v| *v *= s);
             }
-            at_voxel_size(grid, voxel_size_m)
+            at_voxel_size(grid, voxel_size_m, cancelled)
         }
         CloudSource::Automaton(a) => at_voxel_size(
-            automaton::automaton_density(&a.params, a.frame_time_steps)?,
+            automaton::automaton_density_unless(&a.params, a.frame_time_steps, cancelled)?,
             voxel_size_m,
+            cancelled,
         ),
         CloudSource::Spheres(s) => {
             let cloud = SphereCloud::new(&s.params)?;
             let (dims, _, _) = cloud.grid_box(voxel_size_m, s.level)?;
             checked_count(dims, max_voxels, "voxels")?;
-            cloud.voxelize(voxel_size_m, s.level)
+            cloud.voxelize_unless(voxel_size_m, s.level, cancelled)
         }
     }?;
     Ok((grid, SourceReport::default()))
@@ -484,11 +517,17 @@ pub fn voxelize_within(
 
 /// `grid` itself when its voxel size is `voxel_size_m`, else [`resample`]d (no copy in the common
 /// case of matching sizes).
-fn at_voxel_size(grid: DensityGrid, voxel_size_m: f64) -> Result<DensityGrid> {
+fn at_voxel_size(
+    grid: DensityGrid,
+    voxel_size_m: f64,
+    cancelled: &(dyn Fn() -> bool + Sync),
+) -> Result<DensityGrid> {
     if same_size(grid.voxel_size_m, voxel_size_m) {
         Ok(grid)
     } else {
-        resample(&grid, voxel_size_m)
+        let (dims, origin_m) = box_dims(grid.origin_m, grid.max_corner_m(), voxel_size_m)?;
+        checked_voxel_count(dims)?;
+        DensityGrid::from_fn_unless(dims, voxel_size_m, origin_m, |p| grid.sample(p), cancelled)
     }
 }
 

@@ -21,8 +21,8 @@ use skybake_engine::plan::{FrameFacts, FramePlan, FrameReason, FrameStage, RgbFa
 use skybake_physics::cloud::DensityGrid;
 use skybake_physics::spectrum::Wavelengths;
 use skybake_render::{
-    lighting_for, relative_noise, render_tile, FrameError, FrameMeta, FrameScene, Method, Prepared,
-    RenderSettings, Tile, ERROR_BASIS,
+    lighting_for_unless, relative_noise, render_tile, FrameError, FrameMeta, FrameScene, Method,
+    Prepared, RenderSettings, Tile, ERROR_BASIS,
 };
 use skybake_store::tiles::ATTR_TILE_OF;
 use skybake_store::{decode_exr, encode_exr, SpectralImage};
@@ -44,6 +44,17 @@ pub struct FrameRequest {
     /// The RGB image is the only output wanted (a PNG, [`Self::with_rgb_only`]): the planner
     /// may run fewer wavelengths.
     pub rgb_only: bool,
+    /// The caps a request is held to once its cloud is voxelised ([`Self::with_caps`]); not part
+    /// of the request (its key).
+    pub caps: Option<FrameCaps>,
+}
+
+/// The frame cost cap and memory cap of a request (`server.max_frame_cost`,
+/// `server.max_request_memory_bytes`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct FrameCaps {
+    pub max_cost: u64,
+    pub max_memory_bytes: u64,
 }
 
 impl FrameRequest {
@@ -67,7 +78,16 @@ impl FrameRequest {
             method,
             max_rel_error: None,
             rgb_only: false,
+            caps: None,
         })
+    }
+
+    /// Holds the request to `caps` once its grid is known: a cloud whose size only voxelising
+    /// tells (grid file, satellite fit, fractal growth, sphere hierarchy) is refused after it is
+    /// voxelised and before anything is lit or rendered ([`FrameCost::check`]).
+    pub fn with_caps(mut self, caps: Option<FrameCaps>) -> Self {
+        self.caps = caps;
+        self
     }
 
     /// Marks the request RGB-only (`rgb_only`: its only output is the RGB image, a PNG): the
@@ -180,16 +200,37 @@ impl FrameRequest {
 
     /// The estimated cost of the frame, in pixel-voxel-sample units: pixels × voxels × samples
     /// per pixel (the reference method's paths; one ray march per pixel for the fast method).
-    /// A bound for job admission (`server.max_job_cost`), not a time prediction.
+    /// A bound for job admission (`server.max_job_cost`), not a time prediction; an automaton's
+    /// steps count too ([`FrameCost`]).
     pub fn estimated_cost(&self) -> u64 {
-        let pixels = (self.scene.camera.width as u64) * (self.scene.camera.height as u64);
-        let spp = match self.method {
-            Method::Reference => RenderSettings::for_quality(self.scene.quality, self.method).spp,
-            Method::Fast => 1,
-        } as u64;
-        pixels
-            .saturating_mul(self.planned_voxels())
-            .saturating_mul(spp.max(1))
+        self.request_cost().units
+    }
+
+    /// The cost of computing the frame, with the renderer's voxel limit for a cloud whose size
+    /// is not known before voxelising (an upper bound; job admission), see [`FrameCost`].
+    pub fn request_cost(&self) -> FrameCost {
+        FrameCost::of(self, true, self.planned_voxels())
+    }
+
+    /// The cost of computing the frame as far as it is known before voxelising: a cloud whose
+    /// size only voxelising tells counts no voxel here and is checked again once voxelised
+    /// ([`Self::with_caps`]).
+    pub fn admission_cost(&self) -> FrameCost {
+        FrameCost::of(self, true, self.known_voxels())
+    }
+
+    /// The cost of planning the frame (`POST /v1/plan`: voxelising, the automaton's steps and the
+    /// light at the cloud; no pixel), see [`FrameCost`].
+    pub fn planning_cost(&self) -> FrameCost {
+        FrameCost::of(self, false, self.known_voxels())
+    }
+
+    /// Voxels of the frame's grid when its parameters give them, else 0.
+    fn known_voxels(&self) -> u64 {
+        match self.scene.cloud.planned_dims() {
+            Ok(Some(d)) => (d[0] as u64) * (d[1] as u64) * (d[2] as u64),
+            _ => 0,
+        }
     }
 
     /// Number of tiles of the frame.
@@ -209,6 +250,115 @@ impl FrameRequest {
     ) -> Result<SpectralImage> {
         let progress = |p: TileProgress| progress(p.done as f64 / p.total.max(1) as f64);
         self.compute_tiled(engine, loader, &NoTiles, &progress, cancel)
+    }
+}
+
+/// Pixel-voxel-sample units one automaton cell-step is charged: the measured time of a step over
+/// the measured time of one unit (release build, one core: the automaton-field scene's 655 360
+/// cells take 0.36 ms a step, 1.8e9 cell-steps/s; 640×480 fast and 160×120 reference frames of
+/// the cumulus-frame scene run 2.2e10–2.4e10 pixel-voxel-samples/s), rounded up.
+pub const UNITS_PER_CELL_STEP: u64 = 12;
+
+/// The estimated cost and peak memory of a frame request, before anything is voxelised:
+/// `units = pixels × voxels × samples + UNITS_PER_CELL_STEP × automaton cells × steps` (the job
+/// estimate's pixel-voxel-samples plus the simulation; planning counts no pixel), and
+/// `memory_bytes` the peak of what the request holds at once (see [`Self::of`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+pub struct FrameCost {
+    pub pixels: u64,
+    pub voxels: u64,
+    pub samples_per_pixel: u64,
+    /// Cells × steps the automaton runs (0 for the other sources).
+    pub automaton_cell_steps: u64,
+    pub units: u64,
+    pub memory_bytes: u64,
+}
+
+impl FrameCost {
+    /// The estimate; `with_pixels` false for planning (no pixel is rendered). Memory, in 4-byte
+    /// values: the image five times over (the tile canvas, the assembled spectral image, its EXR
+    /// encoding in the cache, the response body and a decoded copy for PNG/JSON bodies), each
+    /// `wavelengths + 4` planes (radiance, transmittance, RGB; the reference method's variance
+    /// adds `wavelengths`); the grid with its per-voxel light, `3 × wavelengths + 2` values a voxel;
+    /// the automaton's state and its density fields, 6 values a cell. An upper bound as
+    /// measured: a 1024² fast frame of the cumulus-frame scene (3 wavelengths) peaks at 118 MB RSS
+    /// in `skybake render` (estimate 159 MB), a 4096² one at 1.73 GB in the service (2.36 GB).
+    pub fn of(req: &FrameRequest, with_pixels: bool, voxels: u64) -> Self {
+        use skybake_physics::cloud::scene::CloudSource;
+        let cam = &req.scene.camera;
+        let pixels = if with_pixels {
+            (cam.width as u64) * (cam.height as u64)
+        } else {
+            0
+        };
+        let spp = match req.method {
+            Method::Reference => RenderSettings::for_quality(req.scene.quality, req.method).spp,
+            Method::Fast => 1,
+        }
+        .max(1) as u64;
+        let (cells, steps) = match &req.scene.cloud.source {
+            CloudSource::Automaton(a) => {
+                let d = a.params.dims;
+                let cells = (d[0] as u64) * (d[1] as u64) * (d[2] as u64);
+                // The steps run: to the frame's step and the next, plus the smoothing window.
+                let steps =
+                    a.frame_time_steps.max(0.0).ceil() as u64 + 1 + a.params.smoothing.t0 as u64;
+                (cells, steps)
+            }
+            _ => (0, 0),
+        };
+        let automaton_cell_steps = cells.saturating_mul(steps);
+        let units = pixels
+            .saturating_mul(voxels)
+            .saturating_mul(spp)
+            .saturating_add(automaton_cell_steps.saturating_mul(UNITS_PER_CELL_STEP));
+        let n_l = req.scene.wavelengths.len() as u64;
+        let planes = n_l
+            + 4
+            + if req.method == Method::Reference {
+                n_l
+            } else {
+                0
+            };
+        let memory_values = pixels
+            .saturating_mul(planes)
+            .saturating_mul(5)
+            .saturating_add(voxels.saturating_mul(3 * n_l + 2))
+            .saturating_add(cells.saturating_mul(6));
+        FrameCost {
+            pixels,
+            voxels,
+            samples_per_pixel: spp,
+            automaton_cell_steps,
+            units,
+            memory_bytes: memory_values.saturating_mul(4),
+        }
+    }
+
+    /// Refuses (too large) a cost over `caps.max_cost`, naming `request_cost`, or a peak memory
+    /// over `caps.max_memory_bytes`, naming `request_memory`, with the terms and the limit.
+    pub fn check(&self, caps: FrameCaps) -> Result<()> {
+        if self.units > caps.max_cost {
+            return Err(Error::too_large(
+                "request_cost",
+                format!(
+                    "estimated cost {} pixel-voxel-samples (pixels {} × voxels {} × samples per pixel {} + {UNITS_PER_CELL_STEP} × automaton cell-steps {}) exceeds the budget server.max_frame_cost; lower the size, voxel count, quality or automaton steps, or submit it as a job (POST /v1/jobs)",
+                    self.units, self.pixels, self.voxels, self.samples_per_pixel, self.automaton_cell_steps
+                ),
+                caps.max_cost,
+            ));
+        }
+        if self.memory_bytes > caps.max_memory_bytes {
+            return Err(Error::too_large(
+                "request_memory",
+                format!(
+                    "estimated peak memory {} bytes (pixels {}, voxels {}) exceeds server.max_request_memory_bytes; lower the image size, wavelengths or voxel count",
+                    self.memory_bytes, self.pixels, self.voxels
+                ),
+                caps.max_memory_bytes,
+            ));
+        }
+        Ok(())
     }
 }
 

@@ -433,9 +433,10 @@ pub fn execute_plan(
 fn voxelize_cloud(
     cloud: &skybake_physics::cloud::scene::CloudSection,
     loader: &dyn Fn(&str) -> Result<Vec<u8>>,
+    cancel: &(dyn Fn() -> bool + Sync),
 ) -> Result<DensityGrid> {
     cloud
-        .voxelize_within(loader, skybake_render::MAX_RENDER_VOXELS)
+        .voxelize_unless(loader, skybake_render::MAX_RENDER_VOXELS, cancel)
         .map_err(|e| match e {
             Error::TooLarge {
                 field,
@@ -488,7 +489,20 @@ impl FrameRequest {
         engine: &Engine,
         loader: &dyn Fn(&str) -> Result<Vec<u8>>,
     ) -> Result<FramePlan> {
-        Ok(self.planned(engine, loader, self.rgb_decision()?)?.plan)
+        self.plan_unless(engine, loader, &|| false)
+    }
+
+    /// [`Self::plan`], stopped with [`Error::Cancelled`] once `cancel` returns true (asked
+    /// before every automaton step, every z-slice voxelised and every row of the light's tables).
+    pub fn plan_unless(
+        &self,
+        engine: &Engine,
+        loader: &dyn Fn(&str) -> Result<Vec<u8>>,
+        cancel: &(dyn Fn() -> bool + Sync),
+    ) -> Result<FramePlan> {
+        Ok(self
+            .planned(engine, loader, self.rgb_decision()?, cancel)?
+            .plan)
     }
 
     /// Voxelises (a sphere hierarchy at the level the plan chooses), measures, plans and
@@ -499,6 +513,7 @@ impl FrameRequest {
         engine: &Engine,
         loader: &dyn Fn(&str) -> Result<Vec<u8>>,
         rgb: RgbDecision,
+        cancel: &(dyn Fn() -> bool + Sync),
     ) -> Result<PlannedFrame> {
         let start = Instant::now();
         let reference = self.method == Method::Reference;
@@ -533,7 +548,7 @@ impl FrameRequest {
                 source.level = Some(0);
             }
         }
-        let grid = voxelize_cloud(&cloud, loader)?;
+        let grid = voxelize_cloud(&cloud, loader, cancel)?;
         let voxelize_ms = start.elapsed().as_secs_f64() * 1e3;
         skybake_render::check_grid(&grid)?;
         let start = Instant::now();
@@ -555,7 +570,7 @@ impl FrameRequest {
         let mut lighting_ms = 0.0;
         let measured = if measure {
             let t = Instant::now();
-            let l = lighting_for(&scene, &grid, engine)?;
+            let l = lighting_for_unless(&scene, &grid, engine, cancel)?;
             lighting_ms += t.elapsed().as_secs_f64() * 1e3;
             Some(l)
         } else {
@@ -592,7 +607,7 @@ impl FrameRequest {
             }
             _ => {
                 let t = Instant::now();
-                let l = lighting_for(&run.scene, &grid, engine)?;
+                let l = lighting_for_unless(&run.scene, &grid, engine, cancel)?;
                 lighting_ms += t.elapsed().as_secs_f64() * 1e3;
                 l
             }

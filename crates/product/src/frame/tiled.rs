@@ -236,7 +236,11 @@ impl FrameRequest {
                 settings,
                 lighting,
                 timing_ms: mut preparation_ms,
-            } = self.planned(engine, loader, rgb)?;
+            } = self.planned(engine, loader, rgb, cancel)?;
+            // Now that the grid is known, a cloud whose size voxelising told is held to the caps.
+            if let Some(caps) = self.caps {
+                FrameCost::of(self, true, grid.data.len() as u64).check(caps)?;
+            }
             let prepared = Prepared::new(&scene, &grid, &lighting, settings, cancel)?;
             preparation_ms.extend(prepared.timing_ms.iter().cloned());
             let meta = TileMeta {

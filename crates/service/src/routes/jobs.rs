@@ -1,10 +1,11 @@
 //! The job routes over the job library ([`skybake_job`]): submit, status (paged artifact list),
 //! cancel, and an item's artifact in any of its formats.
 
+use super::super::extract::PathParams as UrlPath;
 use super::super::extract::{FormatOnly, JsonObject, NoParams, Page, Query};
 use super::super::problem::ApiError;
 use super::super::AppState;
-use axum::extract::{Path as UrlPath, State};
+use axum::extract::State;
 use axum::http::{header, HeaderValue, StatusCode};
 use axum::response::{IntoResponse, Response};
 use serde_json::{json, Value};
@@ -43,6 +44,7 @@ pub async fn submit(
             max_live: settings.jobs.max_live,
             disk_bytes: settings.cache.disk_budget_bytes,
             max_cost: settings.server.max_job_cost,
+            max_item_memory_bytes: settings.server.max_request_memory_bytes,
         };
         let job = s.jobs().submit(&body.bytes, limits)?;
         s.account_disk(None);

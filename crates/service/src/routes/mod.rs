@@ -112,6 +112,34 @@ fn method_router(route: &Route) -> axum::routing::MethodRouter<AppState> {
     }
 }
 
+/// The size of a request's head as sent: the request line and every header line (`name: value`,
+/// the one space clients send after the colon) with their CRLFs, and the empty line.
+fn head_bytes(req: &axum::extract::Request) -> usize {
+    let line = req.method().as_str().len() + 1 + req.uri().to_string().len() + 1 + 8 + 2;
+    let headers: usize = req
+        .headers()
+        .iter()
+        .map(|(k, v)| k.as_str().len() + 2 + v.len() + 2)
+        .sum();
+    line + headers + 2
+}
+
+/// Refuses (431) a request head over [`super::conn::MAX_HEAD_BYTES`]: hyper checks its read
+/// buffer's limit only when the buffer is full between two reads, so a head that arrives in a
+/// buffer grown past the limit is parsed; this makes the documented limit exact.
+async fn head_limit(req: axum::extract::Request, next: Next) -> Response {
+    let size = head_bytes(&req);
+    if size > super::conn::MAX_HEAD_BYTES {
+        return ApiError::from(crate::Error::too_large(
+            "headers",
+            format!("the request head is {size} bytes"),
+            format!("{} bytes", super::conn::MAX_HEAD_BYTES),
+        ))
+        .into_response();
+    }
+    next.run(req).await
+}
+
 /// The service router: every route of [`ROUTES`], the limits on `/v1/*`, metrics and tracing on all.
 pub fn app(state: AppState) -> Router {
     let settings = state.settings().clone();
@@ -163,6 +191,7 @@ pub fn app(state: AppState) -> Router {
         ))
         // JSON (and text) bodies compressed when the client accepts gzip or br; images are not.
         .layer(tower_http::compression::CompressionLayer::new())
+        .layer(axum::middleware::from_fn(head_limit))
         .layer(axum::middleware::from_fn_with_state(state.clone(), record))
         .with_state(state)
 }

@@ -84,19 +84,30 @@ async fn frame_plan(state: AppState, body: JsonObject) -> Result<Response, ApiEr
         .get("scene")
         .cloned()
         .ok_or_else(|| crate::Error::invalid("scene", "a frame plan needs the scene"))?;
-    AppState::blocking(move || {
+    let req = AppState::blocking(move || {
         let req = FrameRequest::from_value(&scene, method)?
             .with_max_rel_error(target.as_deref())?
             .with_rgb_only(rgb_only);
-        let plan = req.plan(state.engine(), &example_file)?;
-        Ok(axum::Json(json!({
-            "product": "frame",
-            "cache_key": req.cache_key(),
-            "engine_version": skybake_engine::engine::ENGINE_VERSION,
-            "method": method,
-            "plan": plan,
-        }))
-        .into_response())
+        // A scene may name only the example scenes' files, as for a render.
+        req.check_files(&example_file)?;
+        Ok(req)
     })
-    .await
+    .await?;
+    // Planning voxelises the cloud (running an automaton's steps) and computes the light at the
+    // cloud: charged to the frame cost cap, then run like a computation (a compute slot, the
+    // bounded queue, cancelled when the client goes).
+    state.check_frame_cost(&req.planning_cost())?;
+    let key = req.cache_key();
+    let s = state.clone();
+    let plan = state
+        .run_computation(move |cancel| Ok(req.plan_unless(s.engine(), &example_file, cancel)?))
+        .await?;
+    Ok(axum::Json(json!({
+        "product": "frame",
+        "cache_key": key,
+        "engine_version": skybake_engine::engine::ENGINE_VERSION,
+        "method": method,
+        "plan": plan,
+    }))
+    .into_response())
 }

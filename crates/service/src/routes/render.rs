@@ -161,7 +161,10 @@ pub async fn render(
     // A PNG is RGB-only: the planner may run fewer wavelengths (its own cache key), unless the
     // spectral frame of the request is cached already (its RGB is at every wavelength).
     let rgb_only = format == Format::Png && !state.cache().contains(&req.cache_key());
-    let req = req.with_rgb_only(rgb_only);
+    // Held to the frame caps again once a cloud whose size only voxelising tells is voxelised.
+    let req = req
+        .with_rgb_only(rgb_only)
+        .with_caps(Some(state.frame_caps()));
     // The ETag (cache key and format) is known before anything is computed: a client that holds
     // it gets 304 at once, as for the GET products.
     let etag = frame_etag(&req.cache_key(), format);

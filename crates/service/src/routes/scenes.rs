@@ -2,9 +2,8 @@
 //! in the binary ([`skybake_product::frame::EXAMPLE_SCENES`]). Frame scenes (`"frame": true`)
 //! can be sent as they are to `POST /v1/render` or named in a frame job (`"example": name`).
 
-use super::super::extract::{NoParams, Query};
+use super::super::extract::{NoParams, PathParams as Path, Query};
 use super::super::problem::ApiError;
-use axum::extract::Path;
 use axum::http::header;
 use axum::response::{IntoResponse, Response};
 use serde_json::{json, Value};

@@ -257,6 +257,16 @@ impl AutomatonParams {
 /// grid has one voxel per cell, `cell_size_m` voxels, origin `origin_m`; values are dimensionless
 /// (1 inside a fully cloudy region). Frames come back in the order asked.
 pub fn automaton_frames(params: &AutomatonParams, times_steps: &[f64]) -> Result<Vec<DensityGrid>> {
+    automaton_frames_unless(params, times_steps, &|| false)
+}
+
+/// [`automaton_frames`], stopped with [`Error::Cancelled`] once `cancelled` returns true (asked
+/// before every step of the simulation).
+pub fn automaton_frames_unless(
+    params: &AutomatonParams,
+    times_steps: &[f64],
+    cancelled: &(dyn Fn() -> bool + Sync),
+) -> Result<Vec<DensityGrid>> {
     params.validate()?;
     let cells = sim::checked_cells(params.dims)?;
     if times_steps.is_empty() {
@@ -299,11 +309,14 @@ pub fn automaton_frames(params: &AutomatonParams, times_steps: &[f64]) -> Result
         let t = times_steps[idx];
         let n = t.floor() as u64;
         let alpha = (t - n as f64) as f32;
-        let mut rho_at = |step: u64| -> Vec<f32> {
+        let mut rho_at = |step: u64| -> Result<Vec<f32>> {
             if let Some((_, r)) = cache.iter().find(|(s, _)| *s == step) {
-                return r.clone();
+                return Ok(r.clone());
             }
             while sim.steps_done() < step + t0 {
+                if cancelled() {
+                    return Err(Error::Cancelled);
+                }
                 sim.step();
                 history.push_back((sim.steps_done(), sim.state().cld.clone()));
                 while history.len() > (2 * t0 + 2) as usize {
@@ -326,11 +339,11 @@ pub fn automaton_frames(params: &AutomatonParams, times_steps: &[f64]) -> Result
             if cache.len() > 2 {
                 cache.remove(0);
             }
-            rho
+            Ok(rho)
         };
-        let a = rho_at(n);
+        let a = rho_at(n)?;
         let data = if alpha > 0.0 {
-            let b = rho_at(n + 1);
+            let b = rho_at(n + 1)?;
             a.iter()
                 .zip(&b)
                 .map(|(x, y)| x * (1.0 - alpha) + y * alpha)
@@ -350,7 +363,17 @@ pub fn automaton_frames(params: &AutomatonParams, times_steps: &[f64]) -> Result
 
 /// The density grid at one time, in steps (see [`automaton_frames`]).
 pub fn automaton_density(params: &AutomatonParams, time_steps: f64) -> Result<DensityGrid> {
-    let mut frames = automaton_frames(params, &[time_steps])?;
+    automaton_density_unless(params, time_steps, &|| false)
+}
+
+/// [`automaton_density`], stopped with [`Error::Cancelled`] once `cancelled` returns true (asked
+/// before every step).
+pub fn automaton_density_unless(
+    params: &AutomatonParams,
+    time_steps: f64,
+    cancelled: &(dyn Fn() -> bool + Sync),
+) -> Result<DensityGrid> {
+    let mut frames = automaton_frames_unless(params, &[time_steps], cancelled)?;
     frames
         .pop()
         .ok_or_else(|| Error::invalid("time_steps", "no frame produced"))

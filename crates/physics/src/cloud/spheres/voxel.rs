@@ -35,10 +35,25 @@ impl SphereCloud {
     /// `level` (default K), density [`Self::density_at`] at every voxel centre (the grid's
     /// cell-centred convention). Multiply by [`Self::extinction_per_m`] for extinction.
     pub fn voxelize(&self, voxel_size_m: f64, level: Option<u32>) -> Result<DensityGrid> {
+        self.voxelize_unless(voxel_size_m, level, &|| false)
+    }
+
+    /// [`Self::voxelize`], stopped with [`crate::Error::Cancelled`] once `cancelled` returns true
+    /// (asked before every z-slice).
+    pub fn voxelize_unless(
+        &self,
+        voxel_size_m: f64,
+        level: Option<u32>,
+        cancelled: &(dyn Fn() -> bool + Sync),
+    ) -> Result<DensityGrid> {
         let (dims, origin, level) = self.grid_box(voxel_size_m, level)?;
-        DensityGrid::from_fn(dims, voxel_size_m, origin, |p| {
-            self.density_at(p, level) as f32
-        })
+        DensityGrid::from_fn_unless(
+            dims,
+            voxel_size_m,
+            origin,
+            |p| self.density_at(p, level) as f32,
+            cancelled,
+        )
     }
 
     /// The grid [`Self::voxelize`] builds, without building it: dims `[nx, ny, nz]`, minimum
