@@ -75,6 +75,19 @@ impl Profile {
         }
     }
 
+    /// Altitude, m, where the relative density jumps by a large factor, or `None` for profiles
+    /// without one: the top of a layered aerosol's boundary layer (density 1 below, the free
+    /// troposphere's `free_ratio` ≪ 1 above). Ray quadratures split there so that no cell
+    /// straddles it (see `integrate::ray_points`). The layered profile's other steps (tropopause,
+    /// stratosphere top) are between background densities whose optical depths are 0.02 and 0.005
+    /// at 550 nm, and are left to the quadrature.
+    pub fn jump_altitude_m(&self) -> Option<f64> {
+        match *self {
+            Profile::Layered { top_m, .. } => Some(top_m),
+            _ => None,
+        }
+    }
+
     /// Vertical integral ∫₀^top ρ dh, m (exact).
     pub fn column_m(&self, top_m: f64) -> f64 {
         match *self {
