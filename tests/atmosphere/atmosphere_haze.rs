@@ -46,7 +46,8 @@ fn fog_like_haze_converges_and_stays_finite() {
         let last = e["last_order_fraction"].as_f64().unwrap();
         eprintln!("visibility 1 km, {kind}: {orders} orders, last order {last:.2e}");
         // The series ends (last order or its extrapolated geometric tail under the tolerance)
-        // before the cap of 60 orders. Measured: 14 orders, the last adding 1.3 % (continental; 13 before ray quadratures split at the layer top).
+        // before the cap of 60 orders. Measured: 14 orders, the last adding 1.3 % (continental;
+        // 13 before ray quadratures split at the layer top).
         assert!(orders < 60, "{orders} {last}");
         // Optical depth ≈ 5.9 at 550 nm: outside the validated range, and the product says so.
         assert_eq!(e["validated"], Value::Bool(false), "{e}");

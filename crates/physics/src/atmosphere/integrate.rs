@@ -459,7 +459,7 @@ mod tests {
     /// The ray quadrature integrates a layered aerosol's column: with 20 steps (the `standard`
     /// table rays), vertical rays up from the ground and down from the top give the exact column
     /// of a 1.5 km boundary layer plus backgrounds to 0.5 %. Without the split at the layer top a
-    /// cell straddling it took the density above it: the upward ray missed 30 % of the column.
+    /// cell straddling it took the density above it: the upward ray missed 33 % of the column.
     #[test]
     fn ray_points_resolve_the_boundary_layer_top() {
         let mut p = preset("rayleigh-only").unwrap();
