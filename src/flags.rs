@@ -19,6 +19,8 @@ pub const GROUND: u8 = 2;
 pub const AERIAL: u8 = 3;
 /// Every product's flags (`skybake plan`; the request then refuses those its product lacks).
 pub const ANY: u8 = 4;
+/// The texture bundle's flags (`skybake lut`): the atmosphere's rows of the table.
+pub const LUT: u8 = 5;
 
 /// The product flags, built from the parameter table ([`PARAMETERS`]): one `--flag` per row that
 /// the product `K` takes, with the row's doc, unit, range and default as help.
@@ -41,7 +43,11 @@ pub fn flag_rows(
     k: u8,
 ) -> impl Iterator<Item = (&'static str, &'static skybake_product::params::Parameter)> {
     PARAMETERS.iter().filter_map(move |row| {
-        let applies = kind_of(k).is_none_or(|kind| row.applies_to(kind));
+        let applies = if k == LUT {
+            skybake_product::lut::takes(row.name)
+        } else {
+            kind_of(k).is_none_or(|kind| row.applies_to(kind))
+        };
         row.cli.filter(|_| applies).map(|flag| (flag, row))
     })
 }
@@ -132,6 +138,16 @@ pub struct AerialArgs {
     /// Print JSON to stdout as well when writing a file.
     #[arg(long, value_enum)]
     pub format: Option<Format>,
+}
+
+#[derive(Args, Clone)]
+pub struct LutArgs {
+    #[command(flatten)]
+    pub flags: ProductFlags<LUT>,
+    /// Directory to write the bundle to (created if missing): transmittance.exr, scattering.exr,
+    /// irradiance.exr (+ single_mie_scattering.exr in spectral form) and manifest.json.
+    #[arg(short = 'o', long = "output", value_name = "DIR")]
+    pub output: PathBuf,
 }
 
 #[derive(Args, Clone)]

@@ -11,9 +11,9 @@ use std::process::ExitCode;
 
 use clap::{Parser, Subcommand};
 
-use commands::{atmosphere, bake, clouds, plan, product, render, serve};
+use commands::{atmosphere, bake, clouds, lut, plan, product, render, serve};
 use error::{flag_named, CliError, Result};
-use flags::{AerialArgs, Format, GroundArgs, PlanArgs, ServeArgs, SkyArgs, SunArgs};
+use flags::{AerialArgs, Format, GroundArgs, LutArgs, PlanArgs, ServeArgs, SkyArgs, SunArgs};
 use io::engine;
 use skybake_product::ProductKind;
 
@@ -46,6 +46,12 @@ enum Command {
     ///
     /// Example: skybake aerial --distance-count 32 --max-distance-m 50000
     Aerial(AerialArgs),
+    /// Real-time texture bundle (Bruneton 2017 layout: transmittance, scattering, irradiance +
+    /// manifest.json) for every observer and sun; RGB at 680/550/440 nm, or spectral with
+    /// --wavelengths. See docs/lut.md.
+    ///
+    /// Example: skybake lut --atmosphere earth-hazy -o bundle/
+    Lut(LutArgs),
     /// The stages that would run for a product and those left out (and why), without computing.
     ///
     /// Example: skybake plan sky --sun-elevation-deg -5 --ground-albedo 0
@@ -105,7 +111,7 @@ enum Command {
     /// Example: skybake bake job.json --out baked/
     /// Example: skybake bake job.json --out s3://assets/bakes/job1 --shard 2/8
     Bake {
-        /// Job file (JSON: {"products": [...], "grids": [...], "frames": [...]}; see README "Bake jobs").
+        /// Job file (JSON: {"products": [...], "grids": [...], "frames": [...], "bundles": [...]}; see README "Bake jobs").
         job: PathBuf,
         /// Output directory or bucket folder (s3://bucket/prefix; AWS_* credentials and
         /// endpoint): an EXR per product + manifest.json; a rerun reuses finished files.
@@ -163,6 +169,7 @@ fn run(cli: Cli) -> Result<()> {
         Command::Aerial(a) => {
             product::aerial(&a.flags.params, a.output.as_ref(), a.format, &engine()?)
         }
+        Command::Lut(a) => lut::lut(&a.flags.params, &a.output, &engine()?),
         Command::Plan(a) => plan::plan(&a, engine),
         Command::Atmosphere { print, list } => atmosphere::atmosphere(print.as_deref(), list),
         Command::Clouds {
@@ -187,14 +194,29 @@ fn run(cli: Cli) -> Result<()> {
     }
 }
 
-fn main() -> ExitCode {
-    tracing_subscriber::fmt()
-        .with_writer(std::io::stderr)
-        .with_env_filter(
-            tracing_subscriber::EnvFilter::try_from_env("SKYBAKE_LOG")
-                .unwrap_or_else(|_| "warn".into()),
-        )
+/// Logs to stderr, filtered by `SKYBAKE_LOG`: comma-separated `target=level` directives and a bare
+/// default level (`info`, `skybake=debug,warn`); `warn` when unset. A value that does not parse is
+/// reported and the default kept.
+fn init_logging() {
+    use tracing_subscriber::filter::{LevelFilter, Targets};
+    use tracing_subscriber::layer::SubscriberExt;
+    use tracing_subscriber::util::SubscriberInitExt;
+    let default = Targets::new().with_default(LevelFilter::WARN);
+    let filter = match std::env::var("SKYBAKE_LOG") {
+        Ok(text) => text.parse::<Targets>().unwrap_or_else(|e| {
+            eprintln!("warning: SKYBAKE_LOG={text:?} is not a list of target=level directives ({e}); logging warnings");
+            default
+        }),
+        Err(_) => default,
+    };
+    tracing_subscriber::registry()
+        .with(tracing_subscriber::fmt::layer().with_writer(std::io::stderr))
+        .with(filter)
         .init();
+}
+
+fn main() -> ExitCode {
+    init_logging();
     match run(Cli::parse()) {
         Ok(()) => ExitCode::SUCCESS,
         Err(CliError::Input(e)) => {

@@ -25,17 +25,19 @@ ALLOWED = {
     "skybake-engine": {"skybake-physics"},
     "skybake-render": {"skybake-physics", "skybake-engine"},
     "skybake-store": {"skybake-physics"},
-    "skybake-product": {"skybake-physics", "skybake-engine", "skybake-render", "skybake-store"},
+    "skybake-lut": {"skybake-physics", "skybake-engine"},
+    "skybake-product": {"skybake-physics", "skybake-engine", "skybake-render", "skybake-store",
+                        "skybake-lut"},
     "skybake-job": {"skybake-physics", "skybake-engine", "skybake-render", "skybake-store",
-                    "skybake-product"},
+                    "skybake-lut", "skybake-product"},
     "skybake-service": {"skybake-physics", "skybake-engine", "skybake-render", "skybake-store",
-                        "skybake-product", "skybake-job"},
+                        "skybake-lut", "skybake-product", "skybake-job"},
     "skybake-harness": {"skybake-physics", "skybake-engine", "skybake-render", "skybake-store",
                         "skybake-product"},
     "skybake": {"skybake-physics", "skybake-engine", "skybake-render", "skybake-store",
-                "skybake-product", "skybake-job", "skybake-service"},
+                "skybake-lut", "skybake-product", "skybake-job", "skybake-service"},
 }
-PURE = ["crates/physics/src", "crates/engine/src", "crates/render/src"]
+PURE = ["crates/physics/src", "crates/engine/src", "crates/render/src", "crates/lut/src"]
 IO_PATTERN = re.compile(r"\bstd::(fs|net|process)\b|\btokio::|\bFile::(open|create)\b")
 FS_PATTERN = re.compile(r"\bstd::fs\b|\bFile::(open|create)\b")
 # Where files may be touched: the store, and the harness (outside the product).

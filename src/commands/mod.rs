@@ -3,6 +3,7 @@
 pub mod atmosphere;
 pub mod bake;
 pub mod clouds;
+pub mod lut;
 pub mod plan;
 pub mod product;
 pub mod render;

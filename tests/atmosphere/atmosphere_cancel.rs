@@ -146,3 +146,27 @@ fn a_cancelled_warm_sky_stops_inside_its_output_rows() {
         full.calls()
     );
 }
+
+#[test]
+fn a_cancelled_bundle_stops_inside_its_textures() {
+    // The real-time bundle (Bruneton's layout) on tables already built: its transmittance
+    // texture asks once per row (64; a row after the stop asks and returns), then once before
+    // the scattering texture, whose 32 × 128 rows would each ask again.
+    let params =
+        RequestParams::from_pairs(vec![("quality".to_string(), "draft".to_string())]).unwrap();
+    let request = skybake_product::lut::LutRequest::from_params(&params).unwrap();
+    let engine = Engine::new();
+    engine.shared(&request.spec).unwrap().precise();
+    let stop_at = 10;
+    let stopped = Counter::new(stop_at);
+    let err = request
+        .compute_unless(&engine, &|| stopped.check())
+        .unwrap_err();
+    assert_eq!(err, Error::Cancelled);
+    let transmittance_rows = skybake_lut::param::TRANSMITTANCE_HEIGHT;
+    assert!(
+        stopped.calls() <= transmittance_rows + 1,
+        "{} checks: the build went past the transmittance texture ({transmittance_rows} rows)",
+        stopped.calls()
+    );
+}

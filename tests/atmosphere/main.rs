@@ -8,6 +8,7 @@ mod atmosphere_products;
 mod atmosphere_robustness;
 mod atmosphere_twilight;
 mod atmosphere_validation;
+mod lut;
 mod plan;
 mod report_accuracy;
 mod solar_position;

@@ -28,7 +28,7 @@ fn section(name: &str) -> skybake_physics::cloud::scene::CloudSection {
 
 /// Every `.json` file in `config/scenes/` is a scene that voxelises through the one scene API
 /// (files it names are read relative to `config/scenes/`), and together they cover every source
-/// that needs no external grid file.
+/// (`vdb-cloud.json`, a frame scene, is the `grid` source's, with its OpenVDB file).
 #[test]
 fn every_scene_file_voxelises_through_the_scene_api() {
     let mut kinds = Vec::new();
@@ -72,7 +72,14 @@ fn every_scene_file_voxelises_through_the_scene_api() {
     kinds.sort();
     assert_eq!(
         kinds,
-        ["automaton", "fractal", "metaballs", "satellite", "spheres"],
+        [
+            "automaton",
+            "fractal",
+            "grid",
+            "metaballs",
+            "satellite",
+            "spheres"
+        ],
         "one example scene per source"
     );
 }
@@ -326,6 +333,8 @@ fn grid_sources_load_through_the_loader_and_resample() {
         header: None,
         file_voxel_size_m: Some(10.0),
         origin_m: Some([100.0, 200.0, 1000.0]),
+        grid_name: None,
+        file_unit_m: None,
         density_scale: 2.0,
     });
     // Same voxel size: the file as is (scaled).
@@ -361,6 +370,8 @@ fn grid_sources_load_through_the_loader_and_resample() {
         header: None,
         file_voxel_size_m: None,
         origin_m: None,
+        grid_name: None,
+        file_unit_m: None,
         density_scale: 1.0,
     });
     let g = voxelize(&raw, 30.0, &raw_files).unwrap();
@@ -372,6 +383,8 @@ fn grid_sources_load_through_the_loader_and_resample() {
         header: None,
         file_voxel_size_m: None,
         origin_m: None,
+        grid_name: None,
+        file_unit_m: None,
         density_scale: 1.0,
     });
     assert_eq!(

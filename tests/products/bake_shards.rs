@@ -224,3 +224,52 @@ fn four_shard_processes_on_one_bucket_survive_a_sigkill_and_compute_each_item_on
         skybake_store::checksum::verify(&bytes).unwrap();
     }
 }
+
+/// A texture-bundle item (`"bundles"`) is baked by its shard into its textures and its bundle
+/// manifest (written last, linking them), listed in the job's manifest as product `lut`, and
+/// reused by a rerun (its manifest is for the same request and its textures pass their
+/// checksums).
+#[test]
+fn bundle_items_are_baked_by_their_shard_and_reused() {
+    let dir = Scratch::new("shards-lut");
+    let out = Location::Dir(dir.path().join("out"));
+    let body = r#"{"grids": [{"product": "sky", "method": "fast", "quality": "draft", "wavelengths": "440,550,680",
+        "elevation_count": 17, "azimuth_count": 16, "sweep": {"sun_elevation_deg": [10]}}],
+        "bundles": [{"quality": "draft", "ground_albedo": 0.2}]}"#;
+    let (defaults, engine) = (Defaults::default(), Engine::new());
+    let env = BakeEnv {
+        defaults: &defaults,
+        max_products: 1000,
+        engine: &engine,
+        cancel: &|| false,
+    };
+    let shard = |i| Shard::new(i, 2).unwrap();
+    let sky = bake_share(body.as_bytes(), &out, shard(0), &env, |_, _, _| {}).unwrap();
+    assert_eq!((sky.total, sky.computed), (1, 1));
+    let lut = bake_share(body.as_bytes(), &out, shard(1), &env, |_, _, _| {}).unwrap();
+    assert_eq!((lut.total, lut.computed, lut.failed), (1, 1, 0), "{lut:?}");
+    let manifest: Value =
+        serde_json::from_slice(&out.get("manifest.json").unwrap().unwrap()).unwrap();
+    let item = &manifest["artifacts"][1];
+    assert_eq!(item["product"], "lut");
+    let file = item["file"].as_str().unwrap();
+    assert!(
+        file.starts_with("000001-lut-") && file.ends_with(".json"),
+        "{file}"
+    );
+    let bundle: Value = serde_json::from_slice(&out.get(file).unwrap().unwrap()).unwrap();
+    assert_eq!(bundle["request"]["form"], "rgb");
+    assert_eq!(bundle["request"]["quality"], "draft");
+    let links = bundle["links"].as_object().unwrap();
+    let names: BTreeSet<&str> = links.keys().map(String::as_str).collect();
+    assert_eq!(
+        names,
+        BTreeSet::from(["irradiance.exr", "scattering.exr", "transmittance.exr"])
+    );
+    for stored in links.values() {
+        let bytes = out.get(stored.as_str().unwrap()).unwrap().unwrap();
+        skybake_store::checksum::verify(&bytes).unwrap();
+    }
+    let again = bake_share(body.as_bytes(), &out, shard(1), &env, |_, _, _| {}).unwrap();
+    assert_eq!((again.computed, again.reused, again.rejected), (0, 1, 0));
+}

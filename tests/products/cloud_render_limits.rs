@@ -84,11 +84,11 @@ fn oversized_clouds() -> Vec<(&'static str, Value)> {
 
 #[test]
 fn every_source_is_refused_over_the_render_limit_naming_the_voxel_size() {
-    let engine = skybake_engine::engine::Engine::new();
+    let engine = service_support::shared_engine();
     for (what, cloud) in oversized_clouds() {
         let request = FrameRequest::from_value(&frame_with(cloud), Method::Fast)
             .unwrap_or_else(|e| panic!("{what}: parse: {e}"));
-        let err = match request.compute(&engine, &loader, &|_| {}, &|| false) {
+        let err = match request.compute(engine, &loader, &|_| {}, &|| false) {
             Ok(_) => panic!("{what}: rendered a grid over the limit"),
             Err(e) => e,
         };
@@ -103,7 +103,7 @@ fn every_source_is_refused_over_the_render_limit_naming_the_voxel_size() {
             other => panic!("{what}: not too large: {other}"),
         }
         // `plan` (skybake plan frame, POST /v1/plan) voxelises too, and is refused the same way.
-        match request.plan(&skybake_engine::engine::Engine::new(), &loader) {
+        match request.plan(service_support::shared_engine(), &loader) {
             Err(Error::TooLarge { field, .. }) => assert_eq!(field, "cloud.voxel_size_m"),
             other => panic!("{what}: plan: {other:?}"),
         }

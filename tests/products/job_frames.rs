@@ -194,7 +194,7 @@ fn a_frame_entry_target_sets_every_frame_s_key_and_budget() {
     let text =
         spec(json!({"frames": [{"scene": tiny, "max_rel_error": "0.3", "sweep": sweep}]})).unwrap();
     targeted.validate(&Defaults::default()).unwrap();
-    let engine = skybake_engine::engine::Engine::new();
+    let engine = service_support::shared_engine();
     let files = skybake_product::frame::example_file;
     for (k, elevation) in [(0, 20), (1, 40)] {
         let f = frame(&targeted, k);
@@ -216,13 +216,13 @@ fn a_frame_entry_target_sets_every_frame_s_key_and_budget() {
         assert_eq!(frame(&plain, k).cache_key(), untargeted.cache_key());
         // The target is the frame plan's budget: the cost rules may spend what it leaves over
         // the fast method's measured error.
-        let plan = f.plan(&engine, &files).unwrap();
+        let plan = f.plan(engine, &files).unwrap();
         assert!((plan.budget.relative_error - 0.3).abs() < 1e-12, "{plan:?}");
         assert!(
             (plan.budget.allowance - (0.3 - FRAME_MEASURED_ERROR)).abs() < 1e-12,
             "{plan:?}"
         );
-        let default = frame(&plain, k).plan(&engine, &files).unwrap();
+        let default = frame(&plain, k).plan(engine, &files).unwrap();
         assert!(
             default.budget.allowance < plan.budget.allowance,
             "{default:?}"
@@ -321,7 +321,7 @@ fn a_killed_frame_bake_resumes_from_its_frames_and_tiles() {
         &out,
         &Defaults::default(),
         1000,
-        &skybake_engine::engine::Engine::new(),
+        service_support::shared_engine(),
         |_, _, _| {},
         &cancel,
     )
@@ -344,7 +344,7 @@ fn a_killed_frame_bake_resumes_from_its_frames_and_tiles() {
         &out,
         &Defaults::default(),
         1000,
-        &skybake_engine::engine::Engine::new(),
+        service_support::shared_engine(),
         |_, _, _| {},
     )
     .unwrap();
@@ -386,7 +386,7 @@ fn an_automaton_animation_bakes_frames_that_change() {
         &out,
         &Defaults::default(),
         1000,
-        &skybake_engine::engine::Engine::new(),
+        service_support::shared_engine(),
         |_, _, _| {},
     )
     .unwrap();

@@ -9,6 +9,7 @@ mod cli_clouds;
 mod cli_render;
 mod cloud_render_limits;
 mod frame_artifact;
+mod frame_vdb;
 mod job_frames;
 mod parser_props;
 mod plan_frame;

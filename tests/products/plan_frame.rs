@@ -3,7 +3,6 @@
 //! what a cost rule leaves out changes the image by less than its predicted share.
 
 use serde_json::{json, Value};
-use skybake_engine::engine::Engine;
 use skybake_engine::plan::{
     Coarsening, FramePlan, FrameReason, FrameStage, COARSENING_ERROR, FRAME_MEASURED_ERROR,
     MEASURED_LIGHT_SHARE_SAFETY, MS_GRID_ERROR, SPHERE_LEVEL_ERROR,
@@ -55,7 +54,7 @@ struct Run {
 fn run(scene: &FrameScene, grid: &DensityGrid, plan: &FramePlan) -> Run {
     let planned = execute_plan(plan, scene, grid, Method::Fast).unwrap();
     let grid = planned.grid.as_ref().unwrap_or(grid);
-    let lighting = lighting_for(&planned.scene, grid, &Engine::new()).unwrap();
+    let lighting = lighting_for(&planned.scene, grid, service_support::shared_engine()).unwrap();
     let p = Prepared::new(&planned.scene, grid, &lighting, planned.settings, &|| false).unwrap();
     let frame = render_tile(&p, None, &|_| {}, &|| false).unwrap();
     Run {
@@ -285,10 +284,10 @@ fn a_distant_cloud_runs_its_multiple_scattering_field_on_coarser_cells_under_a_t
         v["camera"]["width"] = json!(16);
         v["camera"]["height"] = json!(12);
     });
-    let engine = Engine::new();
+    let engine = service_support::shared_engine();
     let req = FrameRequest::from_value(&v, Method::Fast).unwrap();
     // The fast method's own allowance (2 %) does not cover one halving (4 %): kept.
-    let plan = req.plan(&engine, &no_files).unwrap();
+    let plan = req.plan(engine, &no_files).unwrap();
     assert_eq!(plan.ms_grid_coarsening(), 1, "{plan:?}");
     // A target of 0.17 leaves 8.9 %: one halving of the field (4 %), not one of the voxels
     // (9.1 %).
@@ -296,7 +295,7 @@ fn a_distant_cloud_runs_its_multiple_scattering_field_on_coarser_cells_under_a_t
         .clone()
         .with_max_rel_error(Some("0.17"))
         .unwrap()
-        .plan(&engine, &no_files)
+        .plan(engine, &no_files)
         .unwrap();
     assert_eq!(plan.coarsening(), 1, "{plan:?}");
     assert_eq!(plan.ms_grid_coarsening(), 2, "{plan:?}");
@@ -333,7 +332,7 @@ fn the_frame_summary_names_each_left_out_stage_and_its_rule() {
     let req = FrameRequest::from_value(&v, Method::Fast).unwrap();
     let image = req
         .compute_tiled(
-            &Engine::new(),
+            service_support::shared_engine(),
             &|_| Err(skybake_physics::Error::invalid("path", "none")),
             &NoTiles,
             &|_| {},
@@ -397,8 +396,8 @@ fn max_rel_error_sets_the_frame_budget_and_a_target_under_the_measured_error_is_
     );
     // The budget is the target; the cost rules may spend what it leaves over the method's
     // measured error, which here covers one halving of the distant cloud's voxels.
-    let engine = Engine::new();
-    let plan = targeted.plan(&engine, &no_files).unwrap();
+    let engine = service_support::shared_engine();
+    let plan = targeted.plan(engine, &no_files).unwrap();
     assert!((plan.budget.relative_error - 0.3).abs() < 1e-12, "{plan:?}");
     assert!(
         (plan.budget.allowance - (0.3 - FRAME_MEASURED_ERROR)).abs() < 1e-12,
@@ -406,7 +405,7 @@ fn max_rel_error_sets_the_frame_budget_and_a_target_under_the_measured_error_is_
     );
     assert_eq!(plan.coarsening(), 2, "{plan:?}");
     assert!(plan.budget.spent >= COARSENING_ERROR);
-    assert_eq!(req.plan(&engine, &no_files).unwrap().coarsening(), 1);
+    assert_eq!(req.plan(engine, &no_files).unwrap().coarsening(), 1);
 }
 
 /// The validation cloud under the earth's atmosphere and sky, sun 35°, a dark ground (albedo
@@ -425,23 +424,23 @@ fn atmosphere_scene() -> Value {
 fn with_an_atmosphere_the_light_shares_are_measured_and_ground_light_left_out_under_a_loose_target()
 {
     let v = atmosphere_scene();
-    let engine = Engine::new();
+    let engine = service_support::shared_engine();
     let req = FrameRequest::from_value(&v, Method::Fast).unwrap();
     // The shares measured on the scene's light: the sky's about a quarter, the light from below
     // (the dark sea and the air under the cloud) about an eighth.
     let s = parse(&v);
     let grid = voxelize(&s);
-    let lighting = lighting_for(&s, &grid, &engine).unwrap();
+    let lighting = lighting_for(&s, &grid, engine).unwrap();
     let (sky, ground) = measured_shares(&lighting);
     eprintln!("measured shares: sky {sky:.4}, ground {ground:.4}");
     assert!((0.15..0.4).contains(&sky) && (0.05..0.2).contains(&ground));
     // At the default budget (a quarter of 8.1 %) both run.
-    let plan = req.plan(&engine, &no_files).unwrap();
+    let plan = req.plan(engine, &no_files).unwrap();
     assert!(plan.runs(FrameStage::SkyLight) && plan.runs(FrameStage::GroundLight));
     // Under a target of 0.5 the ground share, counted three times, fits the allowance (0.398);
     // the sky's does not.
     let loose = req.clone().with_max_rel_error(Some("0.5")).unwrap();
-    let plan = loose.plan(&engine, &no_files).unwrap();
+    let plan = loose.plan(engine, &no_files).unwrap();
     let Some(FrameReason::UnderBudget {
         predicted_share, ..
     }) = reason(&plan, FrameStage::GroundLight)
@@ -456,14 +455,14 @@ fn with_an_atmosphere_the_light_shares_are_measured_and_ground_light_left_out_un
     // Executed: the `ground` product is not used for the cloud, and the frame's mean moves by
     // less than the predicted share.
     let image = loose
-        .compute_tiled(&engine, &no_files, &NoTiles, &|_| {}, &|| false)
+        .compute_tiled(engine, &no_files, &NoTiles, &|_| {}, &|| false)
         .unwrap();
     let summary = frame_summary(&image);
     let notes = summary["lighting_notes"].to_string();
     assert!(!notes.contains("ground product"), "{notes}");
     assert!(notes.contains("sky product"), "{notes}");
     let full = req
-        .compute_tiled(&engine, &no_files, &NoTiles, &|_| {}, &|| false)
+        .compute_tiled(engine, &no_files, &NoTiles, &|_| {}, &|| false)
         .unwrap();
     assert!(frame_summary(&full)["lighting_notes"]
         .to_string()
@@ -511,14 +510,14 @@ fn a_distant_sphere_hierarchy_is_summed_at_the_level_the_camera_resolves_under_a
         facts.resolved_diameter_m >= facts.pixel_footprint_m,
         "{facts:?}"
     );
-    let engine = Engine::new();
+    let engine = service_support::shared_engine();
     let req = FrameRequest::from_value(&v, Method::Fast).unwrap();
     // The default budget does not cover one level (SPHERE_LEVEL_ERROR).
-    assert!(SPHERE_LEVEL_ERROR > req.plan(&engine, &no_files).unwrap().budget.allowance);
-    assert_eq!(req.plan(&engine, &no_files).unwrap().sphere_level, None);
+    assert!(SPHERE_LEVEL_ERROR > req.plan(engine, &no_files).unwrap().budget.allowance);
+    assert_eq!(req.plan(engine, &no_files).unwrap().sphere_level, None);
     // A target of 0.5 leaves 0.398: two levels (0.30), not three.
     let loose = req.clone().with_max_rel_error(Some("0.5")).unwrap();
-    let plan = loose.plan(&engine, &no_files).unwrap();
+    let plan = loose.plan(engine, &no_files).unwrap();
     let level = plan.sphere_level.expect("sphere level coarsened");
     let levels_up = ((0.5 - FRAME_MEASURED_ERROR) / SPHERE_LEVEL_ERROR).floor() as u32;
     assert_eq!(
@@ -548,7 +547,7 @@ fn a_distant_sphere_hierarchy_is_summed_at_the_level_the_camera_resolves_under_a
         .unwrap()
         .with_max_rel_error(Some("0.5"))
         .unwrap();
-    assert_eq!(fixed.plan(&engine, &no_files).unwrap().sphere_level, None);
+    assert_eq!(fixed.plan(engine, &no_files).unwrap().sphere_level, None);
     // Near, the camera resolves the leaves: nothing to coarsen.
     let near = parse(&sphere_scene(3_000.0, None));
     let f = sphere_facts(&near).unwrap().unwrap();
@@ -613,7 +612,7 @@ fn measured_shares_agree_with_the_given_light_of_a_vacuum_scene() {
     let v = scene(|v| v["ground"] = json!({"albedo": 0.3, "height_m": 0}));
     let s = parse(&v);
     let grid = voxelize(&s);
-    let lighting = lighting_for(&s, &grid, &Engine::new()).unwrap();
+    let lighting = lighting_for(&s, &grid, service_support::shared_engine()).unwrap();
     let (sky, ground) = measured_shares(&lighting);
     let pi = std::f64::consts::PI;
     let mu_s = 35f64.to_radians().sin();

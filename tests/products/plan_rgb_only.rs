@@ -4,7 +4,6 @@
 //! in the spectral frame, and it has its own cache key (CLI, service, plan).
 
 use serde_json::{json, Value};
-use skybake_engine::engine::Engine;
 use skybake_engine::plan::{
     rgb_wavelengths_rule, Budget, RgbFacts, WavelengthCandidate, FRAME_MEASURED_ERROR,
     RGB_PROXY_SAFETY,
@@ -92,7 +91,7 @@ fn the_rule_takes_the_fewest_wavelengths_whose_prediction_fits_and_spends_it() {
 #[test]
 fn an_rgb_only_frame_runs_at_fewer_wavelengths_and_its_rgb_changes_less_than_predicted() {
     let v = scene(48, 36);
-    let engine = Engine::new();
+    let engine = service_support::shared_engine();
     let spectral = FrameRequest::from_value(&v, Method::Fast).unwrap();
     let rgb = spectral.clone().with_rgb_only(true);
     // Its own cache key; the spectral request's key is as it was.
@@ -101,7 +100,7 @@ fn an_rgb_only_frame_runs_at_fewer_wavelengths_and_its_rgb_changes_less_than_pre
         rgb.clone().with_rgb_only(false).cache_key(),
         spectral.cache_key()
     );
-    let plan = rgb.plan(&engine, &no_files).unwrap();
+    let plan = rgb.plan(engine, &no_files).unwrap();
     let subset = plan.wavelengths.clone().expect("the rule fires");
     eprintln!(
         "internal {:?}, predicted {:.4}, budget {:?}",
@@ -110,7 +109,7 @@ fn an_rgb_only_frame_runs_at_fewer_wavelengths_and_its_rgb_changes_less_than_pre
     assert!(subset.internal_nm.len() < 16 && subset.internal_nm.len() >= 3);
     assert!(subset.predicted_error <= plan.budget.allowance);
     assert!(spectral
-        .plan(&engine, &no_files)
+        .plan(engine, &no_files)
         .unwrap()
         .wavelengths
         .is_none());
@@ -122,10 +121,20 @@ fn an_rgb_only_frame_runs_at_fewer_wavelengths_and_its_rgb_changes_less_than_pre
         .contains("RGB-only"));
 
     let full = spectral
-        .compute(&Engine::new(), &no_files, &|_| {}, &|| false)
+        .compute(
+            service_support::shared_engine(),
+            &no_files,
+            &|_| {},
+            &|| false,
+        )
         .unwrap();
     let fewer = rgb
-        .compute(&Engine::new(), &no_files, &|_| {}, &|| false)
+        .compute(
+            service_support::shared_engine(),
+            &no_files,
+            &|_| {},
+            &|| false,
+        )
         .unwrap();
     assert_eq!(fewer.wavelengths_nm(), subset.internal_nm.as_slice());
     assert_eq!(full.wavelengths_nm(), sixteen().as_slice());
@@ -165,11 +174,11 @@ fn an_rgb_only_frame_runs_at_fewer_wavelengths_and_its_rgb_changes_less_than_pre
 fn few_wavelengths_the_reference_method_and_spectral_requests_keep_every_wavelength() {
     let mut three = scene(16, 12);
     three["wavelengths_nm"] = json!([440, 550, 680]);
-    let engine = Engine::new();
+    let engine = service_support::shared_engine();
     let req = FrameRequest::from_value(&three, Method::Fast)
         .unwrap()
         .with_rgb_only(true);
-    assert!(req.plan(&engine, &no_files).unwrap().wavelengths.is_none());
+    assert!(req.plan(engine, &no_files).unwrap().wavelengths.is_none());
     assert_eq!(
         req.internal_wavelengths().unwrap().as_nm(),
         &[440.0, 550.0, 680.0]
@@ -179,7 +188,7 @@ fn few_wavelengths_the_reference_method_and_spectral_requests_keep_every_wavelen
         .with_rgb_only(true);
     assert_eq!(reference.internal_wavelengths().unwrap().len(), 16);
     assert!(reference
-        .plan(&engine, &no_files)
+        .plan(engine, &no_files)
         .unwrap()
         .wavelengths
         .is_none());
@@ -294,7 +303,7 @@ fn dome_request(kind: ProductKind, format: &str, extra: &[(&str, &str)]) -> Prod
 
 /// Linear sRGB of every direction of a sky or ground artifact.
 fn dome_rgb(req: &ProductRequest) -> Vec<[f64; 3]> {
-    let image = req.compute(&Engine::new()).unwrap();
+    let image = req.compute(service_support::shared_engine()).unwrap();
     let table = skybake_product::artifact::dome_table_of(&image).unwrap();
     let w = skybake_physics::spectrum::colour::XyzWeights::new(&table.wavelengths_nm);
     table

@@ -18,13 +18,13 @@ const BIN: &str = env!("CARGO_BIN_EXE_skybake");
 const SLOW_SKY: &str = "/v1/sky?method=fast&quality=draft&wavelengths=440,550,680&elevation_count=129&azimuth_count=64&format=exr";
 
 /// A `skybake serve` replica with its own cache directory, sharing the bucket `url`.
-struct Replica {
-    child: Child,
-    addr: SocketAddr,
+pub(crate) struct Replica {
+    pub(crate) child: Child,
+    pub(crate) addr: SocketAddr,
 }
 
 impl Replica {
-    fn start(dir: &std::path::Path, url: &str, endpoint: &str, lease_s: &str) -> Self {
+    pub(crate) fn start(dir: &std::path::Path, url: &str, endpoint: &str, lease_s: &str) -> Self {
         let mut cmd = Command::new(BIN);
         cmd.args([
             "serve",
@@ -55,7 +55,7 @@ impl Replica {
         Self { child, addr }
     }
 
-    async fn metric(&self, series: &str) -> f64 {
+    pub(crate) async fn metric(&self, series: &str) -> f64 {
         let text = request(self.addr, "GET", "/metrics", None).await.text();
         metric(&text, series).unwrap_or(0.0)
     }
@@ -68,7 +68,7 @@ impl Drop for Replica {
     }
 }
 
-const SKY_COMPUTATIONS: &str = "skybake_computations_total{product=\"sky\"}";
+pub(crate) const SKY_COMPUTATIONS: &str = "skybake_computations_total{product=\"sky\"}";
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn three_replicas_compute_sixty_identical_cold_requests_once() {

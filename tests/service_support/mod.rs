@@ -270,6 +270,15 @@ pub fn tiny_frame_scene(w: usize, h: usize) -> serde_json::Value {
     scene
 }
 
+/// One engine for the tests of a binary that only compute with it: its table cache keeps the
+/// precise tables, which every product and frame under the same atmosphere, wavelengths and
+/// quality shares, so they are built once per binary rather than once per test. A test that reads
+/// an engine's counters, or checks that tables are built or loaded, makes its own.
+pub fn shared_engine() -> &'static skybake_engine::engine::Engine {
+    static ENGINE: std::sync::OnceLock<skybake_engine::engine::Engine> = std::sync::OnceLock::new();
+    ENGINE.get_or_init(skybake_engine::engine::Engine::new)
+}
+
 /// Bakes a one-item `job` into `out` (offline, default parameters) and returns the EXR it wrote.
 pub fn bake_single_exr(job: &serde_json::Value, out: &Path) -> Vec<u8> {
     let summary = skybake_job::bake::bake(
@@ -277,7 +286,7 @@ pub fn bake_single_exr(job: &serde_json::Value, out: &Path) -> Vec<u8> {
         out,
         &skybake_product::params::Defaults::default(),
         10,
-        &skybake_engine::engine::Engine::new(),
+        shared_engine(),
         |_, _, _| {},
     )
     .unwrap();

@@ -3,7 +3,11 @@
 //! service caches), written atomically; items whose file exists, passes its checksum and carries
 //! the item's cache key are reused, so a rerun after a crash resumes. A frame item keeps its
 //! finished tiles under `<out>/tiles/` until its EXR is written, so a rerun also resumes inside a
-//! frame. `<out>/manifest.json` lists them at the end.
+//! frame. A texture-bundle item (`"bundles"`, docs/lut.md) becomes its textures
+//! `<index:06>-lut-<key prefix>-<texture>.exr` and, written last, its bundle manifest
+//! `<index:06>-lut-<key prefix>.json` whose `links` name them; it is reused when that manifest
+//! is for the same request and engine version and every texture it links passes its checksum.
+//! `<out>/manifest.json` lists them at the end.
 //!
 //! `<out>` may be a folder in a bucket (`s3://bucket/prefix`), and the items may be shared among
 //! processes ([`Shard`]: item `i` belongs to shard `i mod N`). Each shard writes
@@ -11,13 +15,14 @@
 //! item present writes the manifest; [`status`] reports progress over all shards.
 
 use super::run::MAX_KEPT_ERRORS;
-use super::spec::JobSpec;
+use super::spec::{JobItem, JobSpec};
 use super::store::ItemError;
 use super::JobError;
 use serde::Serialize;
 use serde_json::json;
 use skybake_engine::engine::{Engine, ENGINE_VERSION};
 use skybake_physics::image::layout::ATTR_CACHE_KEY;
+use skybake_product::lut::LutRequest;
 use skybake_product::params::Defaults;
 use skybake_product::{AnyRequest, ComputeEnv};
 use skybake_store::exr::header_text_attribute;
@@ -155,9 +160,74 @@ pub struct BakeEnv<'a> {
     pub cancel: &'a (dyn Fn() -> bool + Sync),
 }
 
-/// The file of item `i`.
-fn item_file(i: usize, req: &AnyRequest, key: &str) -> String {
-    format!("{i:06}-{}-{}.exr", req.name(), &key[..16])
+/// The file of item `i`: its artifact, or a bundle's manifest.
+fn item_file(i: usize, item: &JobItem, key: &str) -> String {
+    match item {
+        JobItem::Artifact(req) => format!("{i:06}-{}-{}.exr", req.name(), &key[..16]),
+        JobItem::Bundle(_) => format!("{i:06}-lut-{}.json", &key[..16]),
+    }
+}
+
+/// The cache key and product name of an item.
+fn item_key(item: &JobItem) -> (String, &'static str) {
+    match item {
+        JobItem::Artifact(req) => (req.cache_key(), req.name()),
+        JobItem::Bundle(b) => (b.cache_key(), "lut"),
+    }
+}
+
+/// Whether the bundle manifest `bytes` in `out` is a finished bake of `req`: the same request
+/// and engine version, and every texture it links is there and passes its checksum.
+fn is_bundle_of(bytes: &[u8], req: &LutRequest, out: &Location) -> Result<bool, JobError> {
+    let Ok(manifest) = serde_json::from_slice::<serde_json::Value>(bytes) else {
+        return Ok(false);
+    };
+    if manifest["request"] != req.canonical() || manifest["engine_version"] != ENGINE_VERSION {
+        return Ok(false);
+    }
+    let Some(links) = manifest["links"].as_object() else {
+        return Ok(false);
+    };
+    for name in links.values() {
+        let Some(name) = name.as_str() else {
+            return Ok(false);
+        };
+        match out.get(name)? {
+            Some(texture) if checksum::verify(&texture).is_ok() => {}
+            _ => return Ok(false),
+        }
+    }
+    Ok(true)
+}
+
+/// Computes bundle `req` and writes its textures, then its manifest `name` (with `links` to
+/// them), into `out`.
+fn bake_bundle(
+    req: &LutRequest,
+    engine: &Engine,
+    out: &Location,
+    name: &str,
+) -> Result<(), JobError> {
+    let bundle = req.compute(engine)?;
+    let stem = name.trim_end_matches(".json");
+    let mut links = serde_json::Map::new();
+    let mut manifest = None;
+    for (file, bytes) in req.files(&bundle)? {
+        if file == skybake_product::lut::MANIFEST_FILE {
+            manifest = Some(bytes);
+            continue;
+        }
+        let stored = format!("{stem}-{file}");
+        out.put(&stored, &bytes)?;
+        links.insert(file.into(), stored.into());
+    }
+    let manifest = manifest.ok_or_else(|| JobError::Failure("bundle without a manifest".into()))?;
+    let mut manifest: serde_json::Value = serde_json::from_slice(&manifest)
+        .map_err(|e| JobError::Failure(format!("bundle manifest: {e}")))?;
+    manifest["links"] = links.into();
+    let text = serde_json::to_vec_pretty(&manifest)
+        .map_err(|e| JobError::Failure(format!("bundle manifest: {e}")))?;
+    Ok(out.put(name, &text)?)
 }
 
 /// Whether `bytes` are a stored artifact of `key`: the whole-file checksum holds and the file
@@ -201,11 +271,15 @@ pub fn bake_share(
                 "bake cancelled before item {i}; a rerun resumes"
             )));
         }
-        let req = spec.request(i, defaults)?;
-        let key = req.cache_key();
-        let name = item_file(i, &req, &key);
+        let item = spec.item_request(i, defaults)?;
+        let (key, product) = item_key(&item);
+        let name = item_file(i, &item, &key);
         let stored = out.get(&name)?;
-        let reusable = stored.as_deref().is_some_and(|b| is_artifact_of(b, &key));
+        let reusable = match (&item, stored.as_deref()) {
+            (_, None) => false,
+            (JobItem::Artifact(_), Some(b)) => is_artifact_of(b, &key),
+            (JobItem::Bundle(b), Some(bytes)) => is_bundle_of(bytes, b, out)?,
+        };
         if stored.is_some() && !reusable {
             tracing::warn!(
                 file = name,
@@ -217,13 +291,16 @@ pub fn bake_share(
             summary.reused += 1;
             Ok("reused")
         } else {
-            compute(&req, engine, &tiles, &key, cancel)
-                .and_then(|img| Ok(encode_exr(&img)?))
-                .and_then(|bytes| Ok(out.put(&name, &bytes)?))
-                .map(|()| {
-                    summary.computed += 1;
-                    "computed"
-                })
+            match &item {
+                JobItem::Artifact(req) => compute(req, engine, &tiles, &key, cancel)
+                    .and_then(|img| Ok(encode_exr(&img)?))
+                    .and_then(|bytes| Ok(out.put(&name, &bytes)?)),
+                JobItem::Bundle(req) => bake_bundle(req, engine, out, &name),
+            }
+            .map(|()| {
+                summary.computed += 1;
+                "computed"
+            })
         };
         if outcome.is_err() && cancel() {
             return Err(JobError::Failure(format!(
@@ -231,15 +308,14 @@ pub fn bake_share(
             )));
         }
         if outcome.is_ok() {
-            if let AnyRequest::Frame(_) = req {
+            if let JobItem::Artifact(AnyRequest::Frame(_)) = item {
                 tiles.frame(&key)?.remove_all()?;
             }
         }
         match outcome {
             Ok(what) => {
-                manifest.push(
-                    json!({"index": i, "product": req.name(), "cache_key": key, "file": name}),
-                );
+                manifest
+                    .push(json!({"index": i, "product": product, "cache_key": key, "file": name}));
                 progress(n + 1, share.len(), what);
             }
             Err(e) => {
@@ -292,12 +368,12 @@ pub struct ManifestItem {
 fn items(spec: &JobSpec, defaults: &Defaults) -> Result<Vec<ManifestItem>, JobError> {
     (0..spec.len())
         .map(|i| {
-            let req = spec.request(i, defaults)?;
-            let key = req.cache_key();
+            let item = spec.item_request(i, defaults)?;
+            let (key, product) = item_key(&item);
             Ok(ManifestItem {
                 index: i,
-                product: req.name(),
-                file: item_file(i, &req, &key),
+                product,
+                file: item_file(i, &item, &key),
                 cache_key: key,
             })
         })

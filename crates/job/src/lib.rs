@@ -10,7 +10,9 @@
 //!
 //! Job body: `{"products": [{"product": "sky", params…}, …], "grids": [{"product": "sun", params…,
 //! "sweep": {"sun_elevation_deg": {"from": -10, "to": 90, "step": 1}, "observer_altitude_m": [0, 1000]}}],
-//! "frames": [{"example": "cumulus-frame", "max_rel_error": 0.3, "sweep": {"sun_elevation_deg": [10, 30, 50]}}]}`.
+//! "frames": [{"example": "cumulus-frame", "max_rel_error": 0.3, "sweep": {"sun_elevation_deg": [10, 30, 50]}}],
+//! "bundles": [{"quality": "standard", "sweep": {"atmosphere": ["earth", "earth-hazy"]}}]}` (texture
+//! bundles: offline bakes only).
 
 pub mod bake;
 pub mod frames;
@@ -42,6 +44,9 @@ pub enum JobError {
     /// Too many jobs are queued or running (`jobs.max_live`); retry later.
     #[error("{0}")]
     Full(String),
+    /// The shared store (a bucket) did not answer after its retries; retry after the delay.
+    #[error("{detail}")]
+    Unavailable { detail: String, retry_after_s: u64 },
 }
 
 impl From<crate::Error> for JobError {
@@ -67,6 +72,12 @@ impl From<skybake_store::StoreError> for JobError {
     fn from(e: skybake_store::StoreError) -> Self {
         match e {
             skybake_store::StoreError::Invalid(e) => e.into(),
+            e @ skybake_store::StoreError::Unavailable { retry_after_s, .. } => {
+                JobError::Unavailable {
+                    detail: e.to_string(),
+                    retry_after_s,
+                }
+            }
             other => JobError::Failure(other.to_string()),
         }
     }

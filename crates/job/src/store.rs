@@ -1,13 +1,18 @@
-//! Persistence of jobs (under `<cache dir>/jobs/<id>/`): `job.json` is the body as submitted,
-//! `status.json` the progress ([`JobStatus`]), both written atomically through
-//! [`skybake_store::write_atomic`]; reads go through [`skybake_store::files`]. Finished items are in
+//! Persistence of jobs (under `<cache dir>/jobs/<id>/`, or `jobs/<id>/` in a bucket that replicas
+//! share): `job.json` is the body as submitted, `status.json` the progress ([`JobStatus`]), both
+//! written atomically ([`skybake_store::write_atomic`], or one S3 put); reads go through
+//! [`skybake_store::files`] or the bucket. In a bucket the replica running a job holds its lease
+//! ([`Claim`]) and is the only writer of its progress. Finished items are in
 //! the product cache, so a resumed job requests the items from the persisted `next` on again and
 //! those already computed are cache hits.
 
 use super::JobError;
 use serde::{Deserialize, Serialize};
-use skybake_store::{files, write_atomic};
+use skybake_store::lease::{Acquired, Lease};
+use skybake_store::{files, write_atomic, Bucket};
 use std::path::{Path, PathBuf};
+use std::sync::Arc;
+use std::time::Duration;
 
 /// A stored job that cannot be read: (job id, why).
 pub type Unreadable = (String, String);
@@ -91,10 +96,46 @@ pub struct StoredJob {
     pub status_bytes: u64,
 }
 
-/// The job directory.
+/// Where jobs are kept: a local directory (one process), or a bucket folder that replicas
+/// share.
+#[derive(Debug, Clone)]
+enum Backend {
+    Dir(PathBuf),
+    /// `jobs/` in the shared bucket; `holder` names this process on the job leases it takes,
+    /// for `lease` at a time (renewed while it runs the job).
+    Bucket {
+        bucket: Arc<Bucket>,
+        holder: String,
+        lease: Duration,
+    },
+}
+
+/// Where a job's files are: `<dir>/<id>/` on disk, or `jobs/<id>/` in a bucket (`job.json`,
+/// `status.json`, and with a bucket `cancel`, written by any replica to stop the job, and
+/// `lease`, held by the replica running it).
 #[derive(Debug, Clone)]
 pub struct JobStore {
-    dir: PathBuf,
+    backend: Backend,
+}
+
+/// The right to run a job and write its progress: always granted for a directory (one process
+/// owns it); with a bucket, a lease on `jobs/<id>/lease` that the holder renews while it runs
+/// the job, so a replica that dies lets another continue once the lease has expired.
+#[derive(Debug)]
+pub enum Claim {
+    Local,
+    Lease(Lease),
+}
+
+impl Claim {
+    /// Whether another replica took the job over (this one could not renew its lease in time):
+    /// the job must stop here without writing its progress.
+    pub fn lost(&self) -> bool {
+        match self {
+            Claim::Local => false,
+            Claim::Lease(lease) => lease.lost(),
+        }
+    }
 }
 
 /// Whether `id` has the form of a job id (16 hex digits).
@@ -102,30 +143,79 @@ pub fn valid_id(id: &str) -> bool {
     id.len() == 16 && id.bytes().all(|b| b.is_ascii_hexdigit())
 }
 
+/// The object names of one job in a bucket.
+fn object(id: &str, file: &str) -> String {
+    format!("jobs/{id}/{file}")
+}
+
+fn parse_status(bytes: &[u8]) -> Result<JobStatus, String> {
+    serde_json::from_slice(bytes).map_err(|e| e.to_string())
+}
+
 impl JobStore {
     /// Opens (creating) the job directory.
     pub fn open(dir: &Path) -> Result<Self, JobError> {
         files::create_dir_all(dir)?;
         Ok(Self {
-            dir: dir.to_path_buf(),
+            backend: Backend::Dir(dir.to_path_buf()),
         })
     }
 
-    fn job_dir(&self, id: &str) -> PathBuf {
-        self.dir.join(id)
+    /// The jobs under `jobs/` in `bucket`, shared by every replica that opens it; `holder` names
+    /// this process on job leases (unique per process) held for `lease` at a time.
+    pub fn in_bucket(bucket: Arc<Bucket>, holder: &str, lease: Duration) -> Self {
+        Self {
+            backend: Backend::Bucket {
+                bucket,
+                holder: holder.to_string(),
+                lease,
+            },
+        }
+    }
+
+    /// Whether other processes share these jobs (a bucket).
+    pub fn shared(&self) -> bool {
+        matches!(self.backend, Backend::Bucket { .. })
+    }
+
+    fn job_dir(dir: &Path, id: &str) -> PathBuf {
+        dir.join(id)
     }
 
     /// Stores a new job's body.
     pub fn create(&self, id: &str, body: &[u8]) -> Result<(), JobError> {
-        Ok(write_atomic(&self.job_dir(id).join("job.json"), body)?)
+        match &self.backend {
+            Backend::Dir(dir) => Ok(write_atomic(
+                &Self::job_dir(dir, id).join("job.json"),
+                body,
+            )?),
+            Backend::Bucket { bucket, .. } => Ok(bucket.put(&object(id, "job.json"), body)?),
+        }
     }
 
     /// Stores a job's progress; returns the bytes written.
     pub fn save_status(&self, id: &str, status: &JobStatus) -> Result<u64, JobError> {
         let text = serde_json::to_vec_pretty(status)
             .map_err(|e| JobError::Failure(format!("encoding job status: {e}")))?;
-        write_atomic(&self.job_dir(id).join("status.json"), &text)?;
+        match &self.backend {
+            Backend::Dir(dir) => write_atomic(&Self::job_dir(dir, id).join("status.json"), &text)?,
+            Backend::Bucket { bucket, .. } => bucket.put(&object(id, "status.json"), &text)?,
+        }
         Ok(text.len() as u64)
+    }
+
+    /// A job's stored progress (`None` when the job is gone or its progress was never stored).
+    pub fn load_status(&self, id: &str) -> Result<Option<JobStatus>, JobError> {
+        let bytes = match &self.backend {
+            Backend::Dir(dir) => {
+                files::read_if_exists(&Self::job_dir(dir, id).join("status.json"))?
+            }
+            Backend::Bucket { bucket, .. } => bucket.get(&object(id, "status.json"))?,
+        };
+        bytes
+            .map(|b| parse_status(&b))
+            .transpose()
+            .map_err(|e| JobError::Failure(format!("job {id}: status: {e}")))
     }
 
     /// Removes a job's files.
@@ -133,7 +223,94 @@ impl JobStore {
         if !valid_id(id) {
             return Err(JobError::NotFound(format!("no job '{id}'")));
         }
-        Ok(files::remove_dir_all(&self.job_dir(id))?)
+        match &self.backend {
+            Backend::Dir(dir) => Ok(files::remove_dir_all(&Self::job_dir(dir, id))?),
+            Backend::Bucket { bucket, .. } => {
+                // The body last: a job whose body is gone is gone for every replica.
+                for file in ["status.json", "cancel", "lease", "job.json"] {
+                    bucket.delete(&object(id, file))?;
+                }
+                Ok(())
+            }
+        }
+    }
+
+    /// Asks whichever process runs job `id` to stop it (a bucket's `cancel` object; a directory
+    /// has one process, which is told directly).
+    pub fn request_cancel(&self, id: &str) -> Result<(), JobError> {
+        match &self.backend {
+            Backend::Dir(_) => Ok(()),
+            Backend::Bucket { bucket, .. } => Ok(bucket.put(&object(id, "cancel"), b"{}")?),
+        }
+    }
+
+    /// Whether some process asked for job `id` to stop ([`Self::request_cancel`]).
+    pub fn cancel_requested(&self, id: &str) -> Result<bool, JobError> {
+        match &self.backend {
+            Backend::Dir(_) => Ok(false),
+            Backend::Bucket { bucket, .. } => Ok(bucket.get(&object(id, "cancel"))?.is_some()),
+        }
+    }
+
+    /// The right to run job `id` ([`Claim`]), or `None` while another replica holds it.
+    pub fn claim(&self, id: &str) -> Result<Option<Claim>, JobError> {
+        match &self.backend {
+            Backend::Dir(_) => Ok(Some(Claim::Local)),
+            Backend::Bucket {
+                bucket,
+                holder,
+                lease,
+            } => Ok(
+                match Lease::try_acquire(bucket, &object(id, "lease"), holder, *lease)? {
+                    Acquired::Held(lease) => Some(Claim::Lease(lease)),
+                    Acquired::Busy { .. } => None,
+                },
+            ),
+        }
+    }
+
+    /// The job `id`, or `None` when there is no such job.
+    pub fn load(&self, id: &str) -> Result<Option<StoredJob>, JobError> {
+        if !valid_id(id) {
+            return Ok(None);
+        }
+        let read = |file: &str| -> Result<Option<Vec<u8>>, JobError> {
+            Ok(match &self.backend {
+                Backend::Dir(dir) => files::read_if_exists(&Self::job_dir(dir, id).join(file))?,
+                Backend::Bucket { bucket, .. } => bucket.get(&object(id, file))?,
+            })
+        };
+        let Some(body) = read("job.json")? else {
+            return Ok(None);
+        };
+        let (status, status_bytes) = match read("status.json")? {
+            Some(bytes) => (
+                Some(
+                    parse_status(&bytes)
+                        .map_err(|e| JobError::Failure(format!("job {id}: status: {e}")))?,
+                ),
+                bytes.len() as u64,
+            ),
+            None => (None, 0),
+        };
+        Ok(Some(StoredJob {
+            id: id.to_string(),
+            body,
+            status,
+            status_bytes,
+        }))
+    }
+
+    /// The ids of every stored job (directories or bucket folders named like job ids).
+    pub fn ids(&self) -> Result<Vec<String>, JobError> {
+        let names = match &self.backend {
+            Backend::Dir(dir) => files::subdirectories(dir)?
+                .into_iter()
+                .map(|(id, _)| id)
+                .collect(),
+            Backend::Bucket { bucket, .. } => bucket.list("jobs")?.1,
+        };
+        Ok(names.into_iter().filter(|id| valid_id(id)).collect())
     }
 
     /// Every stored job; a job that cannot be read is reported in the second list, as
@@ -141,31 +318,12 @@ impl JobStore {
     pub fn load_all(&self) -> Result<(Vec<StoredJob>, Vec<Unreadable>), JobError> {
         let mut jobs = Vec::new();
         let mut unreadable = Vec::new();
-        for (id, dir) in files::subdirectories(&self.dir)? {
-            if !valid_id(&id) {
-                continue;
-            }
-            let load = || -> Result<StoredJob, String> {
-                let body = files::read(&dir.join("job.json")).map_err(|e| e.to_string())?;
-                let (status, status_bytes) = match files::read_if_exists(&dir.join("status.json"))
-                    .map_err(|e| e.to_string())?
-                {
-                    Some(bytes) => (
-                        Some(serde_json::from_slice(&bytes).map_err(|e| e.to_string())?),
-                        bytes.len() as u64,
-                    ),
-                    None => (None, 0),
-                };
-                Ok(StoredJob {
-                    id: id.clone(),
-                    body,
-                    status,
-                    status_bytes,
-                })
-            };
-            match load() {
-                Ok(job) => jobs.push(job),
-                Err(e) => unreadable.push((id, e)),
+        for id in self.ids()? {
+            match self.load(&id) {
+                Ok(Some(job)) => jobs.push(job),
+                // Removed meanwhile (or a folder left without its body).
+                Ok(None) => {}
+                Err(e) => unreadable.push((id, e.to_string())),
             }
         }
         Ok((jobs, unreadable))

@@ -73,7 +73,7 @@ pub struct CacheSettings {
     /// A bucket shared by several processes (`s3://bucket/prefix`) behind the directory, or
     /// empty for the directory alone.
     pub url: String,
-    /// Seconds a lease on a product in the bucket lasts unless its holder renews it.
+    /// Seconds a lease on a product or a job in the bucket lasts unless its holder renews it.
     pub lease_s: f64,
     pub disk_budget_bytes: u64,
     pub memory_budget_bytes: u64,

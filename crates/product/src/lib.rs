@@ -9,6 +9,7 @@
 //! - [`artifact`]: compute → artifact; JSON, PNG and EXR bodies rendered from it.
 //! - [`cost`]: a request's and a job's cost estimate; [`config`]: the deployment settings.
 //! - [`engines`]: the engine of every product path, on the store's stored tables.
+//! - [`lut`]: the real-time texture bundle of an atmosphere (Bruneton 2017's layout).
 
 // Numeric kernels index several parallel per-wavelength arrays in one loop; an index is clearer.
 #![allow(clippy::needless_range_loop)]
@@ -20,6 +21,7 @@ pub mod cost;
 pub mod engines;
 pub mod export;
 pub mod frame;
+pub mod lut;
 pub mod params;
 mod request;
 

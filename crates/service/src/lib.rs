@@ -176,8 +176,19 @@ impl AppState {
             Some(bucket) => Cache::open_shared(config, bucket.clone())?,
             None => Cache::open(config)?,
         });
-        let jobs = skybake_job::run::Jobs::open(
-            &settings.cache.dir.join("jobs"),
+        let holder = holder_name();
+        // With a bucket, jobs are shared too: any replica answers for any job, and a job whose
+        // replica died is taken over by another (its lease expires after `cache.lease_s`).
+        let job_store = match &bucket {
+            Some(bucket) => skybake_job::store::JobStore::in_bucket(
+                bucket.clone(),
+                &holder,
+                Duration::from_secs_f64(settings.cache.lease_s),
+            ),
+            None => skybake_job::store::JobStore::open(&settings.cache.dir.join("jobs"))?,
+        };
+        let jobs = skybake_job::run::Jobs::with_store(
+            job_store,
             skybake_product::params::Defaults::from_settings(&settings),
         )?;
         let tiles = match bucket {
@@ -203,7 +214,7 @@ impl AppState {
                 next_flight: Default::default(),
                 rate: Default::default(),
                 jobs,
-                holder: holder_name(),
+                holder,
             }),
         };
         state.housekeeping();
@@ -239,6 +250,26 @@ impl AppState {
     /// files counted in the cache's disk budget.
     pub fn start_job_workers(&self) {
         skybake_job::run::start_workers(self, self.settings().jobs.workers);
+        if self.jobs().shared() {
+            // Jobs submitted to other replicas, and those whose replica died, are picked up
+            // every half lease.
+            let state = self.clone();
+            let every =
+                Duration::from_secs_f64((self.settings().cache.lease_s / 2.0).clamp(0.05, 30.0));
+            tokio::spawn(async move {
+                loop {
+                    tokio::time::sleep(every).await;
+                    let s = state.clone();
+                    let _ = Self::blocking(move || {
+                        if let Err(e) = s.jobs().sync() {
+                            tracing::warn!(error = %e, "cannot read the shared jobs");
+                        }
+                        Ok(())
+                    })
+                    .await;
+                }
+            });
+        }
         let state = self.clone();
         let expire_after_s = self.settings().jobs.expire_after_s;
         let every = Duration::from_secs_f64((expire_after_s / 4.0).clamp(0.05, 30.0));
@@ -694,6 +725,98 @@ impl AppState {
         });
         task.await
             .map_err(|e| ApiError::Internal(format!("computation task failed: {e}")))?
+    }
+
+    /// Bundle parameters with the configured default quality (not the default wavelengths:
+    /// without `wavelengths` a bundle is the RGB form).
+    pub fn lut_params(
+        &self,
+        mut p: skybake_product::params::RequestParams,
+    ) -> skybake_product::params::RequestParams {
+        if p.quality.is_none() {
+            p.quality = self.jobs().defaults().apply(Default::default()).quality;
+        }
+        p
+    }
+
+    /// The manifest of the texture bundle `req` (with a `links` entry per texture): from the
+    /// cache, or computed (in a compute slot, as products are) and stored with its textures as
+    /// blobs, the manifest last, so a cached manifest means cached textures (a texture evicted
+    /// since is recomputed by [`Self::lut_file`]).
+    pub async fn lut(
+        &self,
+        req: skybake_product::lut::LutRequest,
+    ) -> Result<(Arc<[u8]>, Source), ApiError> {
+        let key = req.cache_key();
+        let lookup = {
+            let (s, k) = (self.clone(), key.clone());
+            Self::blocking(move || Ok(s.inner.cache.get_blob(&k)?)).await?
+        };
+        if let Some(bytes) = lookup {
+            let s = self.clone();
+            let (bytes, complete) = Self::blocking(move || {
+                let complete = s.lut_textures_cached(&bytes)?;
+                Ok((bytes, complete))
+            })
+            .await?;
+            if complete {
+                return Ok((bytes, Source::Cache));
+            }
+        }
+        let s = self.clone();
+        let bytes = self
+            .run_computation(move |cancelled| {
+                if let Some(bytes) = s.inner.cache.get_blob(&key)? {
+                    if s.lut_textures_cached(&bytes)? {
+                        return Ok(bytes);
+                    }
+                }
+                s.inner.metrics.computed("lut");
+                let bundle = req.compute_unless(&s.inner.engine, cancelled)?;
+                let mut links = serde_json::Map::new();
+                let mut manifest = None;
+                for (name, bytes) in req.files(&bundle)? {
+                    if name == skybake_product::lut::MANIFEST_FILE {
+                        manifest = Some(bytes);
+                        continue;
+                    }
+                    let file_key = req.file_key(name);
+                    s.inner.cache.put_blob(&file_key, bytes)?;
+                    links.insert(name.into(), format!("/v1/lut/files/{file_key}").into());
+                }
+                let manifest =
+                    manifest.ok_or_else(|| ApiError::Internal("bundle without manifest".into()))?;
+                let mut manifest: serde_json::Value = serde_json::from_slice(&manifest)
+                    .map_err(|e| ApiError::Internal(format!("bundle manifest: {e}")))?;
+                manifest["links"] = links.into();
+                let text = serde_json::to_vec_pretty(&manifest)
+                    .map_err(|e| ApiError::Internal(format!("bundle manifest: {e}")))?;
+                let bytes = s.inner.cache.put_blob(&key, text)?;
+                s.account_disk(None);
+                Ok(bytes)
+            })
+            .await?;
+        Ok((bytes, Source::Computed))
+    }
+
+    /// Whether every texture a cached bundle manifest links to is still in the cache (on disk,
+    /// or fetched from the bucket); false when one was evicted, so the bundle is recomputed.
+    fn lut_textures_cached(&self, manifest: &[u8]) -> Result<bool, ApiError> {
+        let manifest: serde_json::Value = serde_json::from_slice(manifest)
+            .map_err(|e| ApiError::Internal(format!("cached bundle manifest: {e}")))?;
+        let Some(links) = manifest["links"].as_object() else {
+            return Ok(false);
+        };
+        for link in links.values() {
+            let Some(key) = link.as_str().and_then(|l| l.strip_prefix("/v1/lut/files/")) else {
+                return Ok(false);
+            };
+            let cache = &self.inner.cache;
+            if !cache.contains(key) && cache.get_blob(key)?.is_none() {
+                return Ok(false);
+            }
+        }
+        Ok(true)
     }
 
     /// The validated request of `product` from raw parameters, with the configured defaults.

@@ -40,6 +40,8 @@ pub const ROUTES: &[Route] = &[
     Route { method: "GET", path: "/v1/jobs/{id}", summary: "Job state, progress, errors and artifacts (offset/limit page the artifact list)", limited: true, product: None, body: None, produces: JSON },
     Route { method: "DELETE", path: "/v1/jobs/{id}", summary: "Cancel a queued or running job; remove a finished one and its files (its products stay cached)", limited: true, product: None, body: None, produces: JSON },
     Route { method: "GET", path: "/v1/jobs/{id}/artifacts/{n}", summary: "The n-th product of a job (format=exr default, json, png)", limited: true, product: None, body: None, produces: &["image/x-exr", "application/json", "image/png"] },
+    Route { method: "GET", path: "/v1/lut", summary: "The real-time texture bundle of an atmosphere (Bruneton 2017's layout; RGB form, or spectral with wavelengths): its manifest with a link to each texture; computed once and cached", limited: true, product: None, body: None, produces: JSON },
+    Route { method: "GET", path: "/v1/lut/files/{key}", summary: "A texture (OpenEXR) of a bundle whose manifest was requested (the manifest's links)", limited: true, product: None, body: None, produces: &["image/x-exr"] },
     Route { method: "GET", path: "/v1/atmospheres", summary: "The built-in atmosphere presets with their parameters", limited: true, product: None, body: None, produces: JSON },
     Route { method: "GET", path: "/", summary: "The web viewer (HTML page; uses this API)", limited: false, product: None, body: None, produces: &["text/html"] },
     Route { method: "GET", path: "/assets/{file}", summary: "The viewer's script and style sheet", limited: false, product: None, body: None, produces: &["text/javascript", "text/css"] },
@@ -91,6 +93,15 @@ fn operation(route: &Route) -> Value {
     }
     if let Some(product) = route.product.and_then(|p| ProductKind::parse(p).ok()) {
         for p in PARAMETERS.iter().filter(|p| p.applies_to(product)) {
+            let (description, schema) = parameter_doc(p);
+            parameters.push(json!({"name": p.name, "in": "query", "required": false, "description": description, "schema": schema}));
+        }
+    }
+    if route.path == "/v1/lut" {
+        for p in PARAMETERS
+            .iter()
+            .filter(|p| skybake_product::lut::takes(p.name))
+        {
             let (description, schema) = parameter_doc(p);
             parameters.push(json!({"name": p.name, "in": "query", "required": false, "description": description, "schema": schema}));
         }
@@ -198,7 +209,7 @@ pub fn openapi_json() -> String {
                 "detail": {"type": "string"}, "parameter": {"type": "string"}}},
             "PlanRequest": {"type": "object", "required": ["product"], "properties": plan_props, "additionalProperties": false},
             "FrameScene": {"type": "object", "required": ["cloud", "optics", "camera", "sun"],
-                "description": "A frame scene (see GET /v1/scenes/cumulus-frame): cloud (any cloud source; files only those of the example scenes), optics (extinction_per_density_m, single_scattering_albedo, phase with g in (-1, 1)), camera (pinhole | orthographic | fisheye, width x height up to 16 Mi pixels), sun (elevation_deg + azimuth_deg from +y towards +x, latitude_deg + longitude_deg + time, or collimated), atmosphere (preset, inline or null), sky, ground, wavelengths_nm, quality, lighting switches",
+                "description": "A frame scene (see GET /v1/scenes/cumulus-frame): cloud (any cloud source, grids .npy, raw or OpenVDB .vdb included; files only those of the example scenes: satellite-field.png, vdb-cloud.vdb), optics (extinction_per_density_m, single_scattering_albedo, phase with g in (-1, 1)), camera (pinhole | orthographic | fisheye, width x height up to 16 Mi pixels), sun (elevation_deg + azimuth_deg from +y towards +x, latitude_deg + longitude_deg + time, or collimated), atmosphere (preset, inline or null), sky, ground, wavelengths_nm, quality, lighting switches",
                 "properties": {"cloud": {"type": "object"}, "optics": {"type": "object"}, "camera": {"type": "object"},
                     "sun": {"type": "object"}, "atmosphere": {"type": ["string", "object", "null"]},
                     "sky": {"type": ["string", "object", "null"]}, "ground": {"type": ["object", "null"]},
@@ -216,6 +227,7 @@ pub fn openapi_json() -> String {
                         "frame_time_steps": {"description": "automaton frames (a cloud whose source is an automaton)"}}}}},
             "JobRequest": {"type": "object", "additionalProperties": false, "properties": {
                 "frames": {"type": "array", "items": {"$ref": "#/components/schemas/FrameEntry"}},
+                "bundles": {"type": "array", "description": "Texture-bundle items (atmosphere parameters and an optional sweep over them): baked offline by `skybake bake` only; a job with bundles is refused here (400 naming bundles); GET /v1/lut serves one bundle", "items": {"type": "object"}},
                 "products": {"type": "array", "items": {"$ref": "#/components/schemas/PlanRequest"}},
                 "grids": {"type": "array", "items": {"type": "object", "required": ["product", "sweep"],
                     "description": "A product with base parameters and a sweep: each sweep member is a list of values or {from, to, step}",

@@ -76,6 +76,13 @@ impl From<skybake_job::JobError> for ApiError {
             JobError::NotFound(d) => ApiError::NotFound(d),
             JobError::Failure(d) => ApiError::Internal(d),
             JobError::Full(d) => ApiError::JobsFull(d),
+            JobError::Unavailable {
+                detail,
+                retry_after_s,
+            } => ApiError::StorageUnavailable {
+                detail,
+                retry_after_s,
+            },
         }
     }
 }

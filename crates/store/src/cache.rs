@@ -2,6 +2,12 @@
 //! blake3 hash of the canonical spec and the engine version ([`cache_key`]). Only 64-digit lowercase
 //! hex keys are accepted, so no request string ever becomes part of a path.
 //!
+//! Two entry kinds ([`EntryKind`]) share the index, the budgets, the memory tier and the bucket:
+//! product images (spectral OpenEXR, `<key>.exr`; [`Cache::get`], [`Cache::put_image`],
+//! [`Cache::put_bytes`]) and blobs (any bytes, e.g. a texture bundle's manifest and textures,
+//! `<key>.blob` in [`super::blob`]'s layout; [`Cache::get_blob`], [`Cache::put_blob`]). Every
+//! guarantee below holds for both.
+//!
 //! - Integrity: every file carries its whole-file blake3 checksum (see [`super::checksum`]); a read
 //!   verifies it, and a file that fails is counted, deleted and reported as a miss, never served.
 //! - Binding: every file carries the key it was stored under (header attribute
@@ -34,6 +40,7 @@ use std::time::SystemTime;
 use serde::Serialize;
 
 use super::atomic::{is_temp_file_name, write_atomic};
+use super::blob::{encode_blob, verify_blob, BlobRejection};
 use super::bucket::Bucket;
 use super::exr::{
     decode_exr, encode_exr_with, header_text_attribute, read_bounded, ExrCompression,
@@ -44,8 +51,34 @@ use super::{checksum, SpectralImage, StoreError};
 
 /// Length of a cache key in hex digits (a blake3 hash).
 pub const KEY_LEN: usize = 64;
-/// File name extension of cache entries.
-const EXTENSION: &str = "exr";
+/// What a cache entry holds.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord)]
+pub enum EntryKind {
+    /// A product image: spectral OpenEXR with its checksum and key attributes.
+    Image,
+    /// Any bytes in the blob layout ([`super::blob`]): key and checksum in a text header.
+    Blob,
+}
+
+impl EntryKind {
+    const ALL: [EntryKind; 2] = [EntryKind::Image, EntryKind::Blob];
+
+    /// File name extension of entries of this kind.
+    fn extension(self) -> &'static str {
+        match self {
+            EntryKind::Image => "exr",
+            EntryKind::Blob => "blob",
+        }
+    }
+}
+
+/// A file on disk in the index: its kind and the generation of its last write, so a slow reader
+/// that finds a corrupt file does not delete a newer one written meanwhile.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+struct Indexed {
+    generation: u64,
+    kind: EntryKind,
+}
 
 /// True when `key` is 64 lowercase hexadecimal digits.
 pub fn is_valid_key(key: &str) -> bool {
@@ -131,9 +164,9 @@ pub struct CacheStats {
 
 /// Shared mutable state, behind the cache's mutex.
 struct State {
-    /// Files on disk; value = generation of the last write, so a slow reader that finds a corrupt
-    /// file does not delete a newer one written meanwhile.
-    disk: LruIndex<u64>,
+    /// Files on disk.
+    disk: LruIndex<Indexed>,
+    /// What [`Cache::get`] / [`Cache::get_blob`] return (image file bytes, blob payloads).
     memory: LruIndex<Arc<[u8]>>,
     /// Keys with writes in flight (count per key); never evicted or deleted while present.
     writing: HashMap<String, usize>,
@@ -178,7 +211,7 @@ impl Cache {
     /// modification time, deletes temporary files left by a crash, and evicts down to the budget.
     pub fn open(config: CacheConfig) -> Result<Self, StoreError> {
         fs::create_dir_all(&config.dir).map_err(|e| StoreError::io(&config.dir, e))?;
-        let mut found: Vec<(SystemTime, String, u64)> = Vec::new();
+        let mut found: Vec<(SystemTime, String, u64, EntryKind)> = Vec::new();
         for shard in read_dir(&config.dir)? {
             let shard_name = shard.file_name().to_string_lossy().into_owned();
             let is_shard =
@@ -193,7 +226,9 @@ impl Cache {
                     let _ = fs::remove_file(file.path());
                     continue;
                 }
-                let Some(key) = name.strip_suffix(&format!(".{EXTENSION}")) else {
+                let Some((key, kind)) = EntryKind::ALL.iter().find_map(|&kind| {
+                    Some((name.strip_suffix(&format!(".{}", kind.extension()))?, kind))
+                }) else {
                     continue;
                 };
                 if !is_valid_key(key) || key[..2] != shard_name {
@@ -206,7 +241,7 @@ impl Cache {
                     continue;
                 }
                 let mtime = meta.modified().unwrap_or(SystemTime::UNIX_EPOCH);
-                found.push((mtime, key.to_string(), meta.len()));
+                found.push((mtime, key.to_string(), meta.len(), kind));
             }
         }
         found.sort();
@@ -220,10 +255,13 @@ impl Cache {
             last_stamp: SystemTime::UNIX_EPOCH,
             reserved_bytes: 0,
         };
-        for (mtime, key, size_bytes) in found {
+        for (mtime, key, size_bytes, kind) in found {
             state.last_stamp = state.last_stamp.max(mtime);
             state.next_generation += 1;
-            state.disk.insert(&key, size_bytes, state.next_generation);
+            let generation = state.next_generation;
+            state
+                .disk
+                .insert(&key, size_bytes, Indexed { generation, kind });
         }
         let cache = Self {
             config,
@@ -259,21 +297,44 @@ impl Cache {
     /// The file path of `key` (`<dir>/<first 2 hex>/<key>.exr`); refuses keys that are not 64
     /// lowercase hex digits.
     pub fn path_for(&self, key: &str) -> Result<PathBuf, StoreError> {
+        self.path_of(key, EntryKind::Image)
+    }
+
+    /// The file path of `key` as an entry of `kind`.
+    pub fn path_of(&self, key: &str, kind: EntryKind) -> Result<PathBuf, StoreError> {
         check_key(key)?;
         Ok(self
             .config
             .dir
             .join(&key[..2])
-            .join(format!("{key}.{EXTENSION}")))
+            .join(format!("{key}.{}", kind.extension())))
     }
 
     /// The verified EXR file bytes stored under `key`, or `None` on a miss. A file that fails its
     /// checksum is deleted, counted in [`CacheStats::corrupt_detected`] and reported as a miss.
     /// Errors only for an invalid key or an unexpected I/O failure (e.g. permissions).
     pub fn get(&self, key: &str) -> Result<Option<Arc<[u8]>>, StoreError> {
-        let path = self.path_for(key)?;
+        self.get_kind(key, EntryKind::Image)
+    }
+
+    /// The verified payload of the blob stored under `key`, or `None` on a miss (also when `key`
+    /// holds an image); otherwise as [`Self::get`].
+    pub fn get_blob(&self, key: &str) -> Result<Option<Arc<[u8]>>, StoreError> {
+        self.get_kind(key, EntryKind::Blob)
+    }
+
+    /// [`Self::get`] / [`Self::get_blob`].
+    fn get_kind(&self, key: &str, kind: EntryKind) -> Result<Option<Arc<[u8]>>, StoreError> {
+        let path = self.path_of(key, kind)?;
         let generation = {
             let mut state = self.lock();
+            match state.disk.peek(key).copied() {
+                Some(e) if e.kind != kind => {
+                    state.stats.misses += 1;
+                    return Ok(None);
+                }
+                _ => {}
+            }
             if let Some(bytes) = state.memory.get(key).cloned() {
                 state.disk.get(key);
                 state.stats.hits += 1;
@@ -281,10 +342,10 @@ impl Cache {
                 return Ok(Some(bytes));
             }
             match state.disk.get(key).copied() {
-                Some(generation) => generation,
+                Some(e) => e.generation,
                 None => {
                     drop(state);
-                    return self.get_from_bucket(key);
+                    return self.get_from_bucket(key, kind);
                 }
             }
         };
@@ -306,32 +367,25 @@ impl Cache {
             }
             Err(e) => return Err(e),
         };
-        if let Err(e) = checksum::verify(&bytes) {
-            tracing::warn!(key, error = %e, "corrupt cache file removed");
-            self.discard_corrupt(key, &path, generation);
-            return Ok(None);
-        }
-        match header_text_attribute(&bytes, ATTR_CACHE_KEY) {
-            Ok(Some(carried)) if carried == key => {}
-            Ok(carried) => {
+        let bytes: Arc<[u8]> = match verify(kind, key, bytes) {
+            Ok(served) => served,
+            Err(Rejected::Corrupt(why)) => {
+                tracing::warn!(key, error = %why, "corrupt cache file removed");
+                self.discard_corrupt(key, &path, generation);
+                return Ok(None);
+            }
+            Err(Rejected::ForeignKey(carried)) => {
                 tracing::warn!(key, carried = ?carried, "cache file under a foreign key removed");
                 self.lock().stats.key_mismatches += 1;
                 self.discard(key, &path, generation);
                 return Ok(None);
             }
-            Err(e) => {
-                tracing::warn!(key, error = %e, "corrupt cache file removed");
-                self.discard_corrupt(key, &path, generation);
-                return Ok(None);
-            }
-        }
-
-        let bytes: Arc<[u8]> = bytes.into();
+        };
         let stamp = {
             let mut state = self.lock();
             state.stats.hits += 1;
             state.stats.disk_hits += 1;
-            if state.disk.peek(key) == Some(&generation) {
+            if state.disk.peek(key).map(|e| e.generation) == Some(generation) {
                 self.remember_in_memory(&mut state, key, &bytes);
             }
             self.refresh_sizes(&mut state);
@@ -344,44 +398,44 @@ impl Cache {
 
     /// The entry for `key` from the bucket (a miss without one), verified like a file; a hit is
     /// kept on disk and in memory.
-    fn get_from_bucket(&self, key: &str) -> Result<Option<Arc<[u8]>>, StoreError> {
+    fn get_from_bucket(&self, key: &str, kind: EntryKind) -> Result<Option<Arc<[u8]>>, StoreError> {
         let Some(bucket) = &self.bucket else {
             self.lock().stats.misses += 1;
             return Ok(None);
         };
-        let name = object_name(key);
-        let Some(bytes) = bucket.get(&name)? else {
+        let name = object_name_of(key, kind);
+        let Some(file) = bucket.get(&name)? else {
             self.lock().stats.misses += 1;
             return Ok(None);
         };
-        let rejected = match checksum::verify(&bytes) {
-            Err(e) => Some((true, e.to_string())),
-            Ok(()) => match header_text_attribute(&bytes, ATTR_CACHE_KEY) {
-                Ok(Some(carried)) if carried == key => None,
-                Ok(carried) => Some((false, format!("carries key {carried:?}"))),
-                Err(e) => Some((true, e.to_string())),
-            },
-        };
-        if let Some((corrupt, why)) = rejected {
-            tracing::warn!(key, error = %why, "bucket object failed verification; removed");
-            {
-                let mut state = self.lock();
-                state.stats.misses += 1;
-                if corrupt {
-                    state.stats.corrupt_detected += 1;
-                } else {
-                    state.stats.key_mismatches += 1;
+        let file: Arc<[u8]> = file.into();
+        let served = match verify(kind, key, file.to_vec()) {
+            Ok(served) => served,
+            Err(rejected) => {
+                let corrupt = matches!(rejected, Rejected::Corrupt(_));
+                let why = match rejected {
+                    Rejected::Corrupt(why) => why,
+                    Rejected::ForeignKey(carried) => format!("carries key {carried:?}"),
+                };
+                tracing::warn!(key, error = %why, "bucket object failed verification; removed");
+                {
+                    let mut state = self.lock();
+                    state.stats.misses += 1;
+                    if corrupt {
+                        state.stats.corrupt_detected += 1;
+                    } else {
+                        state.stats.key_mismatches += 1;
+                    }
                 }
+                bucket.delete(&name)?;
+                return Ok(None);
             }
-            bucket.delete(&name)?;
-            return Ok(None);
-        }
-        let bytes: Arc<[u8]> = bytes.into();
-        self.store_local(key, &bytes)?;
+        };
+        self.store_local(key, kind, &file, &served)?;
         let mut state = self.lock();
         state.stats.hits += 1;
         state.stats.bucket_hits += 1;
-        Ok(Some(bytes))
+        Ok(Some(served))
     }
 
     /// The decoded image stored under `key`, or `None` on a miss; an entry that fails to decode is
@@ -398,7 +452,7 @@ impl Cache {
                     bucket.delete(&object_name(key))?;
                 }
                 let path = self.path_for(key)?;
-                let generation = self.lock().disk.peek(key).copied();
+                let generation = self.lock().disk.peek(key).map(|e| e.generation);
                 if let Some(generation) = generation {
                     self.discard_corrupt(key, &path, generation);
                 } else {
@@ -427,7 +481,7 @@ impl Cache {
             }
         }
         .into();
-        self.store(key, &bytes)?;
+        self.store(key, EntryKind::Image, &bytes, &bytes)?;
         Ok(bytes)
     }
 
@@ -441,25 +495,42 @@ impl Cache {
             carried => return Err(foreign_key(key, carried.unwrap_or("no key"))),
         }
         let bytes: Arc<[u8]> = bytes.into();
-        self.store(key, &bytes)?;
+        self.store(key, EntryKind::Image, &bytes, &bytes)?;
         Ok(bytes)
     }
 
-    /// Deletes the entry for `key`; returns whether there was one.
+    /// Stores `payload` under `key` as a blob ([`super::blob`]: the file carries the key and a
+    /// checksum); returns the payload (ready to serve).
+    pub fn put_blob(&self, key: &str, payload: Vec<u8>) -> Result<Arc<[u8]>, StoreError> {
+        check_key(key)?;
+        let file: Arc<[u8]> = encode_blob(key, &payload).into();
+        let payload: Arc<[u8]> = payload.into();
+        self.store(key, EntryKind::Blob, &file, &payload)?;
+        Ok(payload)
+    }
+
+    /// Deletes the entry for `key` (of either kind); returns whether there was one.
     pub fn remove(&self, key: &str) -> Result<bool, StoreError> {
-        let path = self.path_for(key)?;
+        check_key(key)?;
         if let Some(bucket) = &self.bucket {
-            bucket.delete(&object_name(key))?;
+            for kind in EntryKind::ALL {
+                bucket.delete(&object_name_of(key, kind))?;
+            }
         }
         let mut state = self.lock();
         state.memory.remove(key);
-        let indexed = state.disk.remove(key).is_some();
+        let mut found = state.disk.remove(key).is_some();
         self.refresh_sizes(&mut state);
-        match fs::remove_file(&path) {
-            Ok(()) => Ok(true),
-            Err(e) if e.kind() == ErrorKind::NotFound => Ok(indexed),
-            Err(e) => Err(StoreError::io(&path, e)),
+        drop(state);
+        for kind in EntryKind::ALL {
+            let path = self.path_of(key, kind)?;
+            match fs::remove_file(&path) {
+                Ok(()) => found = true,
+                Err(e) if e.kind() == ErrorKind::NotFound => {}
+                Err(e) => return Err(StoreError::io(&path, e)),
+            }
         }
+        Ok(found)
     }
 
     /// True when the index lists `key` (without reading or verifying the file).
@@ -481,11 +552,18 @@ impl Cache {
         self.refresh_sizes(&mut state);
     }
 
-    /// Stores `bytes` for `key` on disk ([`Self::store_local`]) and in the bucket, if any.
-    fn store(&self, key: &str, bytes: &Arc<[u8]>) -> Result<(), StoreError> {
-        self.store_local(key, bytes)?;
+    /// Stores the entry file `file` of `kind` for `key` on disk ([`Self::store_local`]) and in
+    /// the bucket, if any; `served` is what a read returns (kept in memory).
+    fn store(
+        &self,
+        key: &str,
+        kind: EntryKind,
+        file: &Arc<[u8]>,
+        served: &Arc<[u8]>,
+    ) -> Result<(), StoreError> {
+        self.store_local(key, kind, file, served)?;
         if let Some(bucket) = &self.bucket {
-            bucket.put(&object_name(key), bytes)?;
+            bucket.put(&object_name_of(key, kind), file)?;
         }
         Ok(())
     }
@@ -493,8 +571,14 @@ impl Cache {
     /// Writes `bytes` for `key` atomically, then indexes it and evicts to the budgets.
     /// An entry larger than the whole disk budget, or whose path cannot be cleared of a non-file,
     /// is not stored (and counted in [`CacheStats::not_stored`]); the caller still serves it.
-    fn store_local(&self, key: &str, bytes: &Arc<[u8]>) -> Result<(), StoreError> {
-        let path = self.path_for(key)?;
+    fn store_local(
+        &self,
+        key: &str,
+        kind: EntryKind,
+        bytes: &Arc<[u8]>,
+        served: &Arc<[u8]>,
+    ) -> Result<(), StoreError> {
+        let path = self.path_of(key, kind)?;
         let room = self
             .config
             .disk_budget_bytes
@@ -518,9 +602,11 @@ impl Cache {
         let _ = fs::File::open(&path).and_then(|f| f.set_modified(stamp));
         state.next_generation += 1;
         let generation = state.next_generation;
-        state.disk.insert(key, bytes.len() as u64, generation);
+        state
+            .disk
+            .insert(key, bytes.len() as u64, Indexed { generation, kind });
         state.stats.puts += 1;
-        self.remember_in_memory(&mut state, key, bytes);
+        self.remember_in_memory(&mut state, key, served);
         self.evict_disk(&mut state);
         self.refresh_sizes(&mut state);
         Ok(())
@@ -558,7 +644,7 @@ impl Cache {
     /// write replaced it meanwhile).
     fn forget_missing(&self, key: &str, generation: u64) {
         let mut state = self.lock();
-        if state.disk.peek(key) == Some(&generation) {
+        if state.disk.peek(key).map(|e| e.generation) == Some(generation) {
             state.disk.remove(key);
         }
         state.stats.misses += 1;
@@ -576,7 +662,9 @@ impl Cache {
         let mut state = self.lock();
         state.stats.misses += 1;
         state.memory.remove(key);
-        if state.disk.peek(key) == Some(&generation) && !state.writing.contains_key(key) {
+        if state.disk.peek(key).map(|e| e.generation) == Some(generation)
+            && !state.writing.contains_key(key)
+        {
             state.disk.remove(key);
             if let Err(e) = fs::remove_file(path) {
                 if e.kind() != ErrorKind::NotFound {
@@ -608,13 +696,14 @@ impl Cache {
     fn evict_disk(&self, state: &mut State) {
         while state.disk.total_bytes() + state.reserved_bytes > self.config.disk_budget_bytes {
             let writing = &state.writing;
-            let Some((key, _, _)) = state.disk.pop_oldest_unpinned(|k| writing.contains_key(k))
+            let Some((key, _, indexed)) =
+                state.disk.pop_oldest_unpinned(|k| writing.contains_key(k))
             else {
                 break;
             };
             state.memory.remove(&key);
             state.stats.evictions += 1;
-            if let Ok(path) = self.path_for(&key) {
+            if let Ok(path) = self.path_of(&key, indexed.kind) {
                 if let Err(e) = fs::remove_file(&path) {
                     if e.kind() != ErrorKind::NotFound {
                         tracing::warn!(path = %path.display(), error = %e, "cannot evict cache file");
@@ -640,9 +729,42 @@ impl Cache {
     }
 }
 
-/// The bucket object of `key` (a validated key).
+/// The bucket object of image `key` (a validated key).
 pub fn object_name(key: &str) -> String {
-    format!("cache/{}/{key}.{EXTENSION}", &key[..2])
+    object_name_of(key, EntryKind::Image)
+}
+
+/// The bucket object of `key` as an entry of `kind`.
+pub fn object_name_of(key: &str, kind: EntryKind) -> String {
+    format!("cache/{}/{key}.{}", &key[..2], kind.extension())
+}
+
+/// Why an entry's bytes were refused.
+enum Rejected {
+    /// Damaged (checksum, header): counted in [`CacheStats::corrupt_detected`].
+    Corrupt(String),
+    /// Intact but carrying another key: counted in [`CacheStats::key_mismatches`].
+    ForeignKey(Option<String>),
+}
+
+/// Checks entry file `bytes` of `kind` stored under `key` (checksum, then the key it carries);
+/// returns what a read serves: the file of an image, the payload of a blob.
+fn verify(kind: EntryKind, key: &str, bytes: Vec<u8>) -> Result<Arc<[u8]>, Rejected> {
+    match kind {
+        EntryKind::Image => {
+            checksum::verify(&bytes).map_err(|e| Rejected::Corrupt(e.to_string()))?;
+            match header_text_attribute(&bytes, ATTR_CACHE_KEY) {
+                Ok(Some(carried)) if carried == key => Ok(bytes.into()),
+                Ok(carried) => Err(Rejected::ForeignKey(carried)),
+                Err(e) => Err(Rejected::Corrupt(e.to_string())),
+            }
+        }
+        EntryKind::Blob => match verify_blob(&bytes, key) {
+            Ok(payload) => Ok(payload.into()),
+            Err(BlobRejection::Corrupt(e)) => Err(Rejected::Corrupt(e.to_string())),
+            Err(BlobRejection::ForeignKey(carried)) => Err(Rejected::ForeignKey(Some(carried))),
+        },
+    }
 }
 
 fn foreign_key(key: &str, carried: &str) -> StoreError {

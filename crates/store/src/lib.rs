@@ -25,6 +25,7 @@
 //! ```
 
 pub mod atomic;
+pub mod blob;
 pub mod bucket;
 pub mod cache;
 pub mod checksum;
@@ -35,6 +36,7 @@ pub mod lease;
 pub mod location;
 mod lru;
 pub mod tables;
+pub mod texture;
 pub mod tiles;
 
 pub use atomic::write_atomic;

@@ -55,6 +55,33 @@ pub fn cell_transmittance(tau_start: f64, dtau: f64) -> f64 {
     exp_fast(-tau_start) * mean
 }
 
+/// Weight of a ray cell's source in the radiance at wavelength index `i`: the cell's length
+/// `weight` × its mean transmittance from the viewer ([`cell_transmittance`]), for a cell whose
+/// relative densities are `rho` and which starts after the density integrals `d_view`. Every
+/// integration of a view ray (the products' [`integrate_ray`], the texture bundle's ray
+/// families) weights its sources with this.
+#[inline(always)]
+pub fn cell_weight(
+    medium: &Medium,
+    i: usize,
+    d_view: &[f64; CONSTITUENTS],
+    rho: &[f64; CONSTITUENTS],
+    weight: f64,
+) -> f64 {
+    cell_transmittance(
+        medium.optical_depth(i, d_view),
+        medium.optical_depth(i, rho) * weight,
+    ) * weight
+}
+
+/// Direct sunlight reaching a point at wavelength index `i`, per unit extraterrestrial
+/// irradiance: the transmittance of the density integrals `d_sun` to the sun × the visible
+/// fraction `vis` of its disk. Shared by every integration of single scattering along a view ray.
+#[inline(always)]
+pub fn sun_attenuation(medium: &Medium, i: usize, d_sun: &[f64; CONSTITUENTS], vis: f64) -> f64 {
+    exp_fast(-medium.optical_depth(i, d_sun)) * vis
+}
+
 /// No source beyond what the integrator computes itself.
 pub struct NoSource;
 
@@ -377,17 +404,13 @@ crate::simd_dispatch! {
             };
             // Turn the source into this cell's radiance contribution, in place.
             for i in 0..n {
-                let t_cell = cell_transmittance(
-                    medium.optical_depth(i, &d_view),
-                    medium.optical_depth(i, &rho) * s.weight,
-                );
                 let mut j = scratch.j[i];
                 if vis > 0.0 {
                     let single = medium.rayleigh_scattering_per_m[i] * rho[RAYLEIGH] * phase_r
                         + medium.mie_scattering_per_m[i] * rho[MIE] * phase_m;
-                    j += single * exp_fast(-medium.optical_depth(i, &d_sun)) * vis;
+                    j += single * sun_attenuation(medium, i, &d_sun, vis);
                 }
-                scratch.j[i] = t_cell * j * s.weight;
+                scratch.j[i] = cell_weight(medium, i, &d_view, &rho, s.weight) * j;
             }
             record(
                 cell_start + s.weight,

@@ -1625,6 +1625,143 @@ impl PreciseMultipleScattering {
     }
 }
 
+/// J_ms at one ray point for every sun, for callers that evaluate many suns on the same rays
+/// (the texture bundle: 256 suns per ray): the table interpolated once to the point's radius and
+/// view zenith for the day cells, and the logarithms the products' twilight interpolation takes
+/// at the point's (r, θ) corners. Filled by [`PreciseMultipleScattering::slice`], read by
+/// [`PreciseMultipleScattering::add_from_slice`].
+#[derive(Debug, Clone, Default)]
+pub struct JSlice {
+    /// Radius and view zenith cosine of the point.
+    r: f64,
+    mu: f64,
+    /// `[i_mu_s][i_phi][c][λ]`: Â_R and Â_M interpolated to the point.
+    per_constituent: Vec<f64>,
+    /// `[i_mu_s][i_phi][λ]`: J at the point (day cells only).
+    lin: Vec<f64>,
+    /// The (r, θ) corners of the point with a non-zero weight: (r node, θ node, weight), in the
+    /// order the products' lookup visits them.
+    corners: Vec<(usize, usize, f64)>,
+    /// `[corner][i_mu_s − ln_from][i_phi][c][λ]`: ln Â of each corner ([`ln_or_zero`]) on the
+    /// sun-zenith nodes twilight cells interpolate.
+    ln: Vec<f64>,
+    ln_from: usize,
+}
+
+impl PreciseMultipleScattering {
+    /// The slice of the table at radius `r` and view zenith cosine `mu`: Â_R and Â_M
+    /// multilinear in (r, θ) as [`Source::add_scattering`] interpolates, then weighted by the
+    /// point's scattering coefficients σ_c ρ_c(r) into J.
+    pub fn slice(&self, r: f64, mu: f64, out: &mut JSlice) {
+        let grid = &self.grid;
+        let (n_l, n_mu_s, n_mu, n_phi) = (self.n_l, grid.s.n_mu_s, grid.s.n_mu, grid.s.n_phi);
+        let cells = n_mu_s * n_phi;
+        let lanes = 2 * n_l;
+        let fam = cells * lanes;
+        out.r = r;
+        out.mu = mu;
+        out.per_constituent.clear();
+        out.per_constituent.resize(fam, 0.0);
+        out.corners.clear();
+        out.ln.clear();
+        // Twilight cells from `from` on; their Catmull–Rom nodes from `from − 1`.
+        out.ln_from = (0..n_mu_s.saturating_sub(1))
+            .find(|&is| grid.twilight_cell(is))
+            .unwrap_or(n_mu_s)
+            .saturating_sub(1);
+        let ln_start = out.ln_from * n_phi * lanes;
+        let (ir, fr) = grid_pos(grid.x_r(r), grid.s.n_r);
+        let (im, fm) = Grid::centred_pos(acos_fast(mu), n_mu);
+        for (a, wa) in [(ir, 1.0 - fr), (ir + 1, fr)] {
+            for (c, wc) in [(im, 1.0 - fm), (im + 1, fm)] {
+                let w = wa * wc;
+                if w == 0.0 {
+                    continue;
+                }
+                // Family layout: (r, θ) rows of [i_mu_s][i_phi][c][λ].
+                let base = (a * n_mu + c) * fam;
+                let row = &self.j_ms[base..base + fam];
+                for (o, v) in out.per_constituent.iter_mut().zip(row) {
+                    *o += w * *v as f64;
+                }
+                out.corners.push((a, c, w));
+                out.ln
+                    .extend(row[ln_start..].iter().map(|&v| ln_or_zero(v)));
+            }
+        }
+        let sc = &self.scattering;
+        let (rho_r, rho_m) = sc.densities(r);
+        out.lin.clear();
+        out.lin.resize(cells * n_l, 0.0);
+        for (cell, j) in out.lin.chunks_exact_mut(n_l).enumerate() {
+            let a = &out.per_constituent[cell * lanes..][..lanes];
+            for i in 0..n_l {
+                j[i] = sc.rayleigh_per_m[i] * rho_r * a[i] + sc.mie_per_m[i] * rho_m * a[n_l + i];
+            }
+        }
+    }
+
+    /// Adds J_ms (m⁻¹ sr⁻¹ per unit solar irradiance) for the sun at zenith cosine `mu_s` and
+    /// view–sun cosine `nu` at the slice's point, as [`Source::add_scattering`] computes it: by
+    /// day bilinear over sun zenith and azimuth in the slice (the products' 16-corner
+    /// interpolation, summed in another order); in twilight cells the products' own arithmetic
+    /// ([`twilight_lanes`]: Catmull–Rom in ln Â_c at each (r, θ, φ) corner), with the logarithms
+    /// taken once per point.
+    pub fn add_from_slice(&self, slice: &JSlice, mu_s: f64, nu: f64, out: &mut [f64]) {
+        let grid = &self.grid;
+        let theta_s = acos_fast(mu_s);
+        if theta_s > grid.theta_s_max {
+            return;
+        }
+        let (n_l, n_mu_s, n_mu, n_phi) = (self.n_l, grid.s.n_mu_s, grid.s.n_mu, grid.s.n_phi);
+        let (is, fs) = grid.s_pos(theta_s);
+        let cos_phi = cos_azimuth(slice.mu, mu_s, nu);
+        let (ip, fp) = Grid::centred_pos(acos_fast(cos_phi), n_phi);
+        if grid.twilight_cell(is) {
+            const MAX: usize = crate::spectrum::wavelengths::MAX_WAVELENGTHS;
+            let lanes = 2 * n_l;
+            let mut a = [0.0f64; 2 * MAX];
+            let a = &mut a[..lanes];
+            let (nodes, wq) = catmull_rom(is, fs, n_mu_s);
+            let per_corner = (n_mu_s - slice.ln_from) * n_phi * lanes;
+            for (k, &(ir, im, wc)) in slice.corners.iter().enumerate() {
+                for (e, we) in [(ip, 1.0 - fp), (ip + 1, fp)] {
+                    let w = wc * we;
+                    if w == 0.0 {
+                        continue;
+                    }
+                    let base = |b: usize| (((ir * n_mu + im) * n_mu_s + b) * n_phi + e) * lanes;
+                    let ln_at =
+                        |b: usize| k * per_corner + ((b - slice.ln_from) * n_phi + e) * lanes;
+                    let v = nodes.map(|b| &self.j_ms[base(b)..][..lanes]);
+                    let ln_v = nodes.map(|b| &slice.ln[ln_at(b)..][..lanes]);
+                    twilight_lanes(v, ln_v, wq, fs, w, a);
+                }
+            }
+            let sc = &self.scattering;
+            let (rho_r, rho_m) = sc.densities(slice.r);
+            for i in 0..n_l {
+                out[i] +=
+                    sc.rayleigh_per_m[i] * rho_r * a[i] + sc.mie_per_m[i] * rho_m * a[n_l + i];
+            }
+            return;
+        }
+        let row = n_phi * n_l;
+        let out = &mut out[..n_l];
+        let a = is * row + ip * n_l;
+        let (v00, v01) = (&slice.lin[a..a + n_l], &slice.lin[a + n_l..a + 2 * n_l]);
+        let (v10, v11) = (
+            &slice.lin[a + row..a + row + n_l],
+            &slice.lin[a + row + n_l..a + row + 2 * n_l],
+        );
+        let (w00, w01) = ((1.0 - fs) * (1.0 - fp), (1.0 - fs) * fp);
+        let (w10, w11) = (fs * (1.0 - fp), fs * fp);
+        for i in 0..n_l {
+            out[i] += w00 * v00[i] + w01 * v01[i] + w10 * v10[i] + w11 * v11[i];
+        }
+    }
+}
+
 impl Source for PreciseMultipleScattering {
     fn add_scattering(&self, s: &RaySample, out: &mut [f64]) {
         const MAX: usize = crate::spectrum::wavelengths::MAX_WAVELENGTHS;

@@ -7,6 +7,7 @@
 //! - [`fractal`]: fractal growth of metaballs on their isosurface (Nishita et al. 1996, §4)
 //! - [`satellite`]: metaballs fitted to a satellite image (Nishita & Dobashi 2001, §3.1)
 //! - [`import`]: `.npy` and raw f32 + JSON grids, parsed from bytes
+//! - [`vdb`]: OpenVDB `.vdb` float grids, walked and bounded, then decoded by `vdb-rs`
 //! - [`scene`]: the cloud section of the scene JSON and `voxelize` with an injected loader
 
 pub mod fractal;
@@ -16,6 +17,7 @@ pub mod marching_cubes;
 pub mod metaballs;
 pub mod satellite;
 pub mod scene;
+pub mod vdb;
 pub mod wyvill;
 
 pub use grid::DensityGrid;

@@ -21,6 +21,7 @@ use super::import;
 use super::metaballs::{box_dims, Metaball, MetaballField};
 use super::satellite::{self, SatelliteParams};
 use super::spheres::{SphereCloud, SphereCloudParams};
+use super::vdb;
 use super::DensityGrid;
 use crate::{Error, Result};
 use glam::DVec3;
@@ -151,6 +152,9 @@ pub enum GridFormat {
     /// Little-endian float32, x fastest, described by a JSON header
     /// (`{"dims": [nx, ny, nz], "voxel_size_m": …, "origin_m": [x, y, z]}`).
     RawF32,
+    /// OpenVDB `.vdb`: one float grid (fog volume) of the file, over its active voxels, placed
+    /// by the grid's transform (see [`super::vdb`] for what is read and what is refused).
+    Vdb,
 }
 
 /// Parameters of the `"grid"` source. Defaults in brackets.
@@ -159,7 +163,7 @@ pub enum GridFormat {
 pub struct GridParams {
     /// Path of the data file.
     pub path: String,
-    /// Format [from the extension: `.npy` is `npy`, anything else `raw_f32`].
+    /// Format [from the extension: `.npy` is `npy`, `.vdb` is `vdb`, anything else `raw_f32`].
     #[serde(default)]
     pub format: Option<GridFormat>,
     /// Raw only: path of the JSON header [`path` with its extension replaced by `.json`].
@@ -172,6 +176,12 @@ pub struct GridParams {
     /// `.npy` only: minimum corner of the box, metres [[0, 0, 0]].
     #[serde(default)]
     pub origin_m: Option<[f64; 3]>,
+    /// `.vdb` only: name of the grid to read [`density`, else the file's only grid].
+    #[serde(default)]
+    pub grid_name: Option<String>,
+    /// `.vdb` only: metres per unit of the file's world space, in [1e-6, 1e6] [1].
+    #[serde(default)]
+    pub file_unit_m: Option<f64>,
     /// Multiplies every density, in [0, 1e6] [1].
     #[serde(default = "default_scale")]
     pub density_scale: f64,
@@ -184,8 +194,11 @@ fn default_scale() -> f64 {
 impl GridParams {
     fn format(&self) -> GridFormat {
         self.format.unwrap_or_else(|| {
-            if self.path.to_ascii_lowercase().ends_with(".npy") {
+            let path = self.path.to_ascii_lowercase();
+            if path.ends_with(".npy") {
                 GridFormat::Npy
+            } else if path.ends_with(".vdb") {
+                GridFormat::Vdb
             } else {
                 GridFormat::RawF32
             }
@@ -347,7 +360,7 @@ pub fn validate_source(source: &CloudSource) -> Result<()> {
             if !(s.is_finite() && (0.0..=1e6).contains(&s)) {
                 return Err(Error::out_of_range("density_scale", s, "[0, 1e6]"));
             }
-            Ok(())
+            validate_grid_fields(p)
         }
         CloudSource::Automaton(a) => {
             let t = a.frame_time_steps;
@@ -374,6 +387,41 @@ pub fn validate_source(source: &CloudSource) -> Result<()> {
             }
         }
     }
+}
+
+/// The fields of a `"grid"` source that a `.vdb` file's own geometry replaces are refused for it,
+/// and its own fields for the other formats.
+fn validate_grid_fields(p: &GridParams) -> Result<()> {
+    let vdb = p.format() == GridFormat::Vdb;
+    let not_for_vdb = [
+        ("file_voxel_size_m", p.file_voxel_size_m.is_some()),
+        ("origin_m", p.origin_m.is_some()),
+        ("header", p.header.is_some()),
+    ];
+    let vdb_only = [
+        ("grid_name", p.grid_name.is_some()),
+        ("file_unit_m", p.file_unit_m.is_some()),
+    ];
+    for (field, set) in not_for_vdb {
+        if vdb && set {
+            return Err(Error::invalid(
+                field,
+                "does not apply to a .vdb grid (its transform gives the voxel size and position; \
+                 file_unit_m scales them)",
+            ));
+        }
+    }
+    for (field, set) in vdb_only {
+        if !vdb && set {
+            return Err(Error::invalid(field, "applies to .vdb grids only"));
+        }
+    }
+    if let Some(u) = p.file_unit_m {
+        if !(u.is_finite() && (1e-6..=1e6).contains(&u)) {
+            return Err(Error::out_of_range("file_unit_m", u, "[1e-6, 1e6]"));
+        }
+    }
+    Ok(())
 }
 
 /// What building a source's grid found out besides the grid (printed by `skybake clouds`).
@@ -461,16 +509,22 @@ pub fn voxelize_unless(
         }
         CloudSource::Grid(p) => {
             let bytes = loader(&p.path)?;
-            let (file_dims, header) = match p.format() {
-                GridFormat::Npy => (import::npy_dims(&bytes)?, None),
+            let (file_dims, header, layout) = match p.format() {
+                GridFormat::Npy => (import::npy_dims(&bytes)?, None, None),
                 GridFormat::RawF32 => {
                     let header = import::parse_raw_header(&loader(&p.header_path())?)?;
-                    (header.dims, Some(header))
+                    (header.dims, Some(header), None)
+                }
+                GridFormat::Vdb => {
+                    let layout = vdb::inspect(&bytes, p.grid_name.as_deref())?;
+                    (layout.dims, None, Some(layout))
                 }
             };
-            let (file_voxel_m, origin_m) = match &header {
-                Some(h) => (h.voxel_size_m, DVec3::from_array(h.origin_m)),
-                None => (
+            let unit_m = p.file_unit_m.unwrap_or(1.0);
+            let (file_voxel_m, origin_m) = match (&header, &layout) {
+                (Some(h), _) => (h.voxel_size_m, DVec3::from_array(h.origin_m)),
+                (_, Some(l)) => (l.voxel_size * unit_m, l.origin() * unit_m),
+                (None, None) => (
                     p.file_voxel_size_m.unwrap_or(voxel_size_m),
                     DVec3::from_array(p.origin_m.unwrap_or([0.0; 3])),
                 ),
@@ -490,9 +544,10 @@ pub fn voxelize_unless(
                 };
                 checked_count(dims, max_voxels, "voxels")?;
             }
-            let mut grid = match &header {
-                None => import::from_npy_bytes(&bytes, file_voxel_m, origin_m)?,
-                Some(h) => import::from_raw_f32(h, &bytes)?,
+            let mut grid = match (&header, &layout) {
+                (Some(h), _) => import::from_raw_f32(h, &bytes)?,
+                (_, Some(l)) => vdb::decode(&bytes, l, unit_m)?,
+                (None, None) => import::from_npy_bytes(&bytes, file_voxel_m, origin_m)?,
             };
             if p.density_scale != 1.0 {
                 let s = p.density_scale as f32;

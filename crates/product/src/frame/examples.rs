@@ -34,13 +34,23 @@ pub const EXAMPLE_SCENES: &[(&str, &str)] = &[
         "validation-frame",
         include_str!("../../../../config/scenes/validation-frame.json"),
     ),
+    (
+        "vdb-cloud",
+        include_str!("../../../../config/scenes/vdb-cloud.json"),
+    ),
 ];
 
 /// Files the example scenes name, embedded with them: (name as written in the scene, bytes).
-const EXAMPLE_FILES: &[(&str, &[u8])] = &[(
-    "satellite-field.png",
-    include_bytes!("../../../../config/scenes/satellite-field.png"),
-)];
+const EXAMPLE_FILES: &[(&str, &[u8])] = &[
+    (
+        "satellite-field.png",
+        include_bytes!("../../../../config/scenes/satellite-field.png"),
+    ),
+    (
+        "vdb-cloud.vdb",
+        include_bytes!("../../../../config/scenes/vdb-cloud.vdb"),
+    ),
+];
 
 /// The example scene `name`'s JSON, if there is one.
 pub fn example_scene(name: &str) -> Option<&'static str> {

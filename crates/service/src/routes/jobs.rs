@@ -68,11 +68,14 @@ pub async fn status(
     UrlPath(id): UrlPath<String>,
     Query(page): Query<Page>,
 ) -> Result<Response, ApiError> {
-    let job = state.jobs().find(&id)?;
-    // Listing up to MAX_PAGE artifacts validates and hashes each item: keep it off the executor.
+    // Listing up to MAX_PAGE artifacts validates and hashes each item, and a shared job's
+    // progress is read from the bucket: keep both off the executor.
     let s = state.clone();
-    let doc =
-        AppState::blocking(move || Ok(status_json(&s, &job, page.offset, page.limit))).await?;
+    let doc = AppState::blocking(move || {
+        let job = s.jobs().find(&id)?;
+        Ok(status_json(&s, &job, page.offset, page.limit))
+    })
+    .await?;
     Ok(axum::Json(doc).into_response())
 }
 
@@ -100,7 +103,13 @@ pub async fn list(
     State(state): State<AppState>,
     Query(page): Query<Page>,
 ) -> Result<Response, ApiError> {
-    let all = state.jobs().list();
+    let s = state.clone();
+    // With a bucket, every replica's jobs (read from it).
+    let all = AppState::blocking(move || {
+        s.jobs().sync()?;
+        Ok(s.jobs().list())
+    })
+    .await?;
     let total = all.len();
     let jobs: Vec<Value> = all
         .iter()
@@ -128,7 +137,8 @@ pub async fn artifact(
     UrlPath((id, n)): UrlPath<(String, String)>,
     Query(FormatOnly(format)): Query<FormatOnly>,
 ) -> Result<Response, ApiError> {
-    let job = state.jobs().find(&id)?;
+    let s = state.clone();
+    let job = AppState::blocking(move || Ok(s.jobs().find(&id)?)).await?;
     let n: usize = n
         .parse()
         .map_err(|_| ApiError::NotFound(format!("artifact '{n}' is not an item number")))?;

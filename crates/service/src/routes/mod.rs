@@ -1,8 +1,9 @@
 //! The router, built from the route table ([`super::openapi::ROUTES`]): one module per concern
-//! (products, render, scenes, plan, jobs, operations), the overload layers (load shedding, concurrency limit,
+//! (products, texture bundles, render, scenes, plan, jobs, operations), the overload layers (load shedding, concurrency limit,
 //! timeout) on `/v1/*`, and the per-route metrics and tracing middleware on all.
 
 mod jobs;
+mod lut;
 mod ops;
 mod plan;
 mod products;
@@ -99,6 +100,8 @@ fn method_router(route: &Route) -> axum::routing::MethodRouter<AppState> {
         ("POST", "/v1/jobs") => post(jobs::submit),
         ("GET", "/v1/jobs") => get(jobs::list),
         ("GET", "/v1/atmospheres") => get(ops::atmospheres),
+        ("GET", "/v1/lut") => get(lut::manifest),
+        ("GET", "/v1/lut/files/{key}") => get(lut::file),
         ("GET", "/v1/jobs/{id}") => get(jobs::status),
         ("DELETE", "/v1/jobs/{id}") => delete(jobs::cancel),
         ("GET", "/v1/jobs/{id}/artifacts/{n}") => get(jobs::artifact),

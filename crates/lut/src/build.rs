@@ -1,0 +1,495 @@
+//! Computes the bundle's tables with skybake's precise method, at the texel centres of Bruneton
+//! 2017's parameterisation ([`crate::param`]):
+//!
+//! - transmittance to the top of the atmosphere: the density integrals of the ray, integrated
+//!   directly (f64), exponentiated per channel;
+//! - scattering: along each texel's ray (to the top, or to the ground for the lower half of μ),
+//!   the same quadrature and sources as the `sky` product's integrator (exact single scattering,
+//!   the converged multiple-scattering source J_ms of the precise table, Bruneton & Neyret 2008,
+//!   eq. 7 and §4), without the ground's reflection at the end of the ray (his texture leaves it to
+//!   the client). Stored as he stores it (Bruneton 2017, `ComputeMultipleScatteringTexture` and
+//!   the combined layout): RGB = single Rayleigh without its phase function + multiple scattering
+//!   divided by the Rayleigh phase function; single Mie divided by his Mie phase function (exact
+//!   at the ν nodes when the atmosphere's aerosol phase function is another one);
+//! - irradiance: the sky's irradiance on a horizontal surface at (r, μs), the `sun` product's
+//!   hemisphere quadrature at that altitude and sun.
+//!
+//! Everything is multiplied by the extraterrestrial solar irradiance and by the bundle's unit
+//! scale ([`UNIT_SCALE`]).
+
+use std::time::Instant;
+
+use rayon::prelude::*;
+use skybake_physics::atmosphere::geometry::horizon_mu;
+use skybake_physics::atmosphere::integrate::{cell_weight, ray_points, sun_attenuation, RayPoint};
+use skybake_physics::atmosphere::irradiance::{SUN_PRODUCT_N_MU, SUN_PRODUCT_N_PHI};
+use skybake_physics::atmosphere::medium::{Medium, CONSTITUENTS, MIE, RAYLEIGH};
+use skybake_physics::atmosphere::multiple_precise::{
+    source_sun_zenith_limit_rad, JSlice, PreciseMultipleScattering,
+};
+use skybake_physics::atmosphere::quadrature::gauss_legendre;
+use skybake_physics::atmosphere::shared::SharedTables;
+use skybake_physics::atmosphere::transmittance::{
+    density_integrals, AtRadius, DensityIntegralTable,
+};
+use skybake_physics::phase::Phase;
+
+use crate::param::{self, AtmosphereParameters, *};
+
+/// Texture values are radiometric quantities in milliwatts (mW m⁻² sr⁻¹ nm⁻¹, mW m⁻² nm⁻¹):
+/// texture value = value in W × this. Keeps the half-float scattering texture in its normal
+/// range from noon (≈ 2·10³) to the end of nautical twilight (≈ 10⁻⁴).
+pub const UNIT_SCALE: f64 = 1.0e3;
+
+/// Quadrature intervals of each transmittance texel's density integrals.
+const TRANSMITTANCE_STEPS: usize = 1000;
+
+/// How texture samples are stored.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Sample {
+    /// 16-bit float (the scattering texture of the RGB bundle: RGBA16F filters linearly on
+    /// every WebGL2 device).
+    Half,
+    /// 32-bit float.
+    Float,
+}
+
+/// A texture: `[row][column][channel]`, row 0 at texture coordinate v = 0.5/height; 3-D
+/// textures are their depth slices stacked, slice k at rows k·height … (k+1)·height − 1.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Texture {
+    pub width: usize,
+    pub height: usize,
+    pub depth: usize,
+    pub channels: usize,
+    pub sample: Sample,
+    pub data: Vec<f32>,
+}
+
+impl Texture {
+    fn new(width: usize, height: usize, depth: usize, channels: usize, sample: Sample) -> Self {
+        Self {
+            width,
+            height,
+            depth,
+            channels,
+            sample,
+            data: vec![0.0; width * height * depth * channels],
+        }
+    }
+
+    /// Rounds every value to what the stored sample type holds.
+    fn round_to_sample(&mut self) {
+        if self.sample == Sample::Half {
+            for v in &mut self.data {
+                *v = half::f16::from_f32(*v).to_f32();
+            }
+        }
+    }
+
+    /// Texel (x, y, z), all channels.
+    pub fn texel(&self, x: usize, y: usize, z: usize) -> &[f32] {
+        let i = ((z * self.height + y) * self.width + x) * self.channels;
+        &self.data[i..i + self.channels]
+    }
+
+    /// One channel as a plane of width × (height · depth) values, rows in order.
+    pub fn plane(&self, channel: usize) -> Vec<f32> {
+        self.data
+            .iter()
+            .skip(channel)
+            .step_by(self.channels)
+            .copied()
+            .collect()
+    }
+}
+
+/// Which channels the bundle holds.
+#[derive(Debug, Clone, PartialEq)]
+pub enum Channels {
+    /// Three channels at Bruneton's wavelengths (R 680, G 550, B 440 nm), the combined
+    /// scattering layout (RGBA; single Mie of R in A), half-float scattering.
+    Rgb,
+    /// One channel per wavelength of the medium, ascending; scattering and single Mie as two
+    /// separate tables (his non-combined layout), float.
+    Spectral,
+}
+
+/// Bruneton's channel wavelengths, nm (R, G, B).
+pub const RGB_WAVELENGTHS_NM: [f64; 3] = [680.0, 550.0, 440.0];
+
+/// The computed bundle.
+#[derive(Debug, Clone)]
+pub struct Bundle {
+    pub channels: Channels,
+    /// Wavelength of each channel, nm.
+    pub wavelengths_nm: Vec<f64>,
+    pub params: AtmosphereParameters,
+    pub transmittance: Texture,
+    /// RGB bundle: RGBA combined; spectral: one channel per wavelength.
+    pub scattering: Texture,
+    /// Spectral bundle only: single Mie scattering (the RGB bundle has its red in `scattering`'s A).
+    pub single_mie: Option<Texture>,
+    pub irradiance: Texture,
+    /// Wall-clock times, ms: the precise table (built, loaded or already in memory), the
+    /// transmittance, scattering and irradiance textures.
+    pub timing_ms: [f64; 4],
+}
+
+/// Computes the bundle from shared tables whose precise table is built (or is built here).
+/// `steps` are the samples per ray segment of the products (`Quality::steps`). Stops with
+/// [`crate::Error::Cancelled`] inside the precise table's build, or at the next row of a
+/// texture, once `cancelled` returns true.
+pub fn build(
+    shared: &SharedTables,
+    channels: Channels,
+    steps: usize,
+    cancelled: &(dyn Fn() -> bool + Sync),
+) -> crate::Result<Bundle> {
+    let m = &shared.medium;
+    let idx: Vec<usize> = match channels {
+        Channels::Rgb => RGB_WAVELENGTHS_NM
+            .iter()
+            .map(|w| {
+                m.wavelengths_nm
+                    .iter()
+                    .position(|x| (x - w).abs() < 1e-9)
+                    .ok_or_else(|| {
+                        crate::Error::invalid(
+                            "wavelengths",
+                            format!("the RGB bundle needs {w} nm among the medium's wavelengths"),
+                        )
+                    })
+            })
+            .collect::<crate::Result<_>>()?,
+        Channels::Spectral => (0..m.len()).collect(),
+    };
+    let n_c = idx.len();
+    let g = match m.mie_phase {
+        Phase::CornetteShanks { g } | Phase::HenyeyGreenstein { g } | Phase::Mixture { g, .. } => g,
+        Phase::Isotropic | Phase::Rayleigh => 0.0,
+    };
+    let params = AtmosphereParameters {
+        solar_irradiance: idx
+            .iter()
+            .map(|&i| m.solar_irradiance[i] * UNIT_SCALE)
+            .collect(),
+        sun_angular_radius: m.sun_angular_radius_rad,
+        bottom_radius: m.bottom_radius_m,
+        top_radius: m.top_radius_m,
+        rayleigh_scattering: idx
+            .iter()
+            .map(|&i| m.rayleigh_scattering_per_m[i])
+            .collect(),
+        mie_scattering: idx.iter().map(|&i| m.mie_scattering_per_m[i]).collect(),
+        mie_phase_function_g: g,
+        mu_s_min: source_sun_zenith_limit_rad(m.bottom_radius_m, m.top_radius_m).cos(),
+        ground_albedo: idx.iter().map(|&i| m.ground_albedo[i]).collect(),
+    };
+    let e0: Vec<f64> = params.solar_irradiance.clone();
+    let tp = Instant::now();
+    shared
+        .precise_unless(cancelled)
+        .ok_or(crate::Error::Cancelled)?;
+    let t_precise = tp.elapsed().as_secs_f64() * 1e3;
+
+    // Transmittance.
+    let t0 = Instant::now();
+    let mut transmittance = Texture::new(
+        TRANSMITTANCE_WIDTH,
+        TRANSMITTANCE_HEIGHT,
+        1,
+        n_c,
+        Sample::Float,
+    );
+    transmittance
+        .data
+        .par_chunks_mut(TRANSMITTANCE_WIDTH * n_c)
+        .enumerate()
+        .for_each(|(j, row)| {
+            if cancelled() {
+                return;
+            }
+            for i in 0..TRANSMITTANCE_WIDTH {
+                let (r, mu) = params.transmittance_r_mu(
+                    (i as f64 + 0.5) / TRANSMITTANCE_WIDTH as f64,
+                    (j as f64 + 0.5) / TRANSMITTANCE_HEIGHT as f64,
+                );
+                let d =
+                    density_integrals(m, r, mu, params.distance_to_top(r, mu), TRANSMITTANCE_STEPS);
+                for (c, &l) in idx.iter().enumerate() {
+                    row[i * n_c + c] = (-m.optical_depth(l, &d)).exp() as f32;
+                }
+            }
+        });
+    if cancelled() {
+        return Err(crate::Error::Cancelled);
+    }
+    let t_transmittance = t0.elapsed().as_secs_f64() * 1e3;
+
+    // Scattering: one task per ray family (r, μ), whose points all its (ν, μs) texels share.
+    let t1 = Instant::now();
+    let (sc_channels, sample) = match channels {
+        Channels::Rgb => (4, Sample::Half),
+        Channels::Spectral => (n_c, Sample::Float),
+    };
+    let mut scattering = Texture::new(
+        SCATTERING_WIDTH,
+        SCATTERING_MU,
+        SCATTERING_R,
+        sc_channels,
+        sample,
+    );
+    let mut single_mie = Texture::new(
+        SCATTERING_WIDTH,
+        SCATTERING_MU,
+        SCATTERING_R,
+        n_c,
+        Sample::Float,
+    );
+    let row_len_sc = SCATTERING_WIDTH * sc_channels;
+    let row_len_mie = SCATTERING_WIDTH * n_c;
+    scattering
+        .data
+        .par_chunks_mut(row_len_sc)
+        .zip(single_mie.data.par_chunks_mut(row_len_mie))
+        .enumerate()
+        .for_each_init(
+            || FamilyScratch::new(shared, m.len()),
+            |scratch, (row, (sc_row, mie_row))| {
+                if cancelled() {
+                    return;
+                }
+                let (i_r, i_mu) = (row / SCATTERING_MU, row % SCATTERING_MU);
+                let (r, mu, _, _, ground) = params.scattering_texel(0, 0, i_mu, i_r);
+                // Grazing rays are nudged to the side of the horizon their half of μ says.
+                let mu_h = horizon_mu(r, m.bottom_radius_m);
+                let mu = if ground {
+                    (mu.min(mu_h) - 1e-9).max(-1.0)
+                } else {
+                    mu.max(mu_h + 1e-9).min(1.0)
+                };
+                scratch.prepare(r, mu, steps);
+                for i_nu in 0..SCATTERING_NU {
+                    for i_mu_s in 0..SCATTERING_MU_S {
+                        let (_, _, mu_s, nu, _) = params.scattering_texel(i_nu, i_mu_s, i_mu, i_r);
+                        let s = scratch.texel(mu_s, nu);
+                        let x = i_nu * SCATTERING_MU_S + i_mu_s;
+                        let p_r = param::rayleigh_phase(nu);
+                        let mie_ratio = m.mie_phase.eval(nu) / param::mie_phase(g, nu);
+                        for (c, &l) in idx.iter().enumerate() {
+                            let rgb = (s.rayleigh[l] + s.multiple[l] / p_r) * e0[c];
+                            sc_row[x * sc_channels + c] = rgb as f32;
+                            mie_row[x * n_c + c] = (s.mie[l] * mie_ratio * e0[c]) as f32;
+                        }
+                        if channels == Channels::Rgb {
+                            sc_row[x * sc_channels + 3] = mie_row[x * n_c];
+                        }
+                    }
+                }
+            },
+        );
+    if cancelled() {
+        return Err(crate::Error::Cancelled);
+    }
+    scattering.round_to_sample();
+    let t_scattering = t1.elapsed().as_secs_f64() * 1e3;
+
+    // Irradiance: the sky's, on a horizontal surface (the direct sun is the client's).
+    let t2 = Instant::now();
+    let irradiance = irradiance_texture(shared, &params, &idx, &e0, steps, cancelled);
+    if cancelled() {
+        return Err(crate::Error::Cancelled);
+    }
+    let t_irradiance = t2.elapsed().as_secs_f64() * 1e3;
+
+    Ok(Bundle {
+        wavelengths_nm: idx.iter().map(|&i| m.wavelengths_nm[i]).collect(),
+        single_mie: (channels == Channels::Spectral).then_some(single_mie),
+        channels,
+        params,
+        transmittance,
+        scattering,
+        irradiance,
+        timing_ms: [t_precise, t_transmittance, t_scattering, t_irradiance],
+    })
+}
+
+/// The irradiance texture: at each row's radius, the `sun` product's hemisphere quadrature
+/// ([`hemisphere_irradiance`]: Gauss–Legendre in cos θ × midpoints in azimuth relative to the
+/// sun) of the sky radiance, each quadrature direction's ray integrated once for the row's 64
+/// suns ([`FamilyScratch`]), with the same sources and samples as the `sky` product's rays.
+fn irradiance_texture(
+    shared: &SharedTables,
+    params: &AtmosphereParameters,
+    idx: &[usize],
+    e0: &[f64],
+    steps: usize,
+    cancelled: &(dyn Fn() -> bool + Sync),
+) -> Texture {
+    let m = &shared.medium;
+    let n_c = idx.len();
+    let (x, w) = gauss_legendre(SUN_PRODUCT_N_MU);
+    let n_phi = SUN_PRODUCT_N_PHI;
+    // One task per (row, cos θ node): that row's contributions of that direction.
+    let parts: Vec<(usize, Vec<f64>)> = (0..IRRADIANCE_HEIGHT * SUN_PRODUCT_N_MU)
+        .into_par_iter()
+        .map_init(
+            || FamilyScratch::new(shared, m.len()),
+            |scratch, task| {
+                let (j, a) = (task / SUN_PRODUCT_N_MU, task % SUN_PRODUCT_N_MU);
+                let v = (j as f64 + 0.5) / IRRADIANCE_HEIGHT as f64;
+                let (r, _) = params.irradiance_r_mu_s(0.5 / IRRADIANCE_WIDTH as f64, v);
+                let mu = 0.5 * (x[a] + 1.0);
+                let sin_t = (1.0 - mu * mu).max(0.0).sqrt();
+                let weight = 0.5 * w[a] * mu * 2.0 * std::f64::consts::PI / n_phi as f64;
+                let mut row = vec![0.0; IRRADIANCE_WIDTH * n_c];
+                if cancelled() {
+                    return (j, row);
+                }
+                scratch.prepare(r, mu, steps);
+                for i in 0..IRRADIANCE_WIDTH {
+                    let (_, mu_s) =
+                        params.irradiance_r_mu_s((i as f64 + 0.5) / IRRADIANCE_WIDTH as f64, v);
+                    let sin_s = (1.0 - mu_s * mu_s).max(0.0).sqrt();
+                    for b in 0..n_phi {
+                        let phi = std::f64::consts::PI * (b as f64 + 0.5) / n_phi as f64;
+                        let nu = (mu * mu_s + sin_t * sin_s * phi.cos()).clamp(-1.0, 1.0);
+                        let (p_r, p_m) = (Phase::Rayleigh.eval(nu), m.mie_phase.eval(nu));
+                        let s = scratch.texel(mu_s, nu);
+                        for (c, &l) in idx.iter().enumerate() {
+                            let radiance = s.rayleigh[l] * p_r + s.mie[l] * p_m + s.multiple[l];
+                            row[i * n_c + c] += weight * radiance * e0[c];
+                        }
+                    }
+                }
+                (j, row)
+            },
+        )
+        .collect();
+    let mut irradiance = Texture::new(IRRADIANCE_WIDTH, IRRADIANCE_HEIGHT, 1, n_c, Sample::Float);
+    let mut sums = vec![0.0f64; irradiance.data.len()];
+    for (j, row) in parts {
+        let k = j * IRRADIANCE_WIDTH * n_c;
+        for (s, v) in sums[k..k + row.len()].iter_mut().zip(row) {
+            *s += v;
+        }
+    }
+    for (o, s) in irradiance.data.iter_mut().zip(sums) {
+        *o = s as f32;
+    }
+    irradiance
+}
+
+/// Per-wavelength integrals of one texel's ray, per unit solar irradiance: single Rayleigh and
+/// single Mie without phase functions (m⁻¹·m), multiple scattering with its phases (sr⁻¹).
+struct TexelSums<'a> {
+    rayleigh: &'a [f64],
+    mie: &'a [f64],
+    multiple: &'a [f64],
+}
+
+/// What every sun on one ray shares (a ray family of the texture: fixed r and μ): the products'
+/// quadrature points, their densities, each point's cell weight as the products' integrator
+/// weights it ([`cell_weight`]: length × mean transmittance from the ray's origin, `[point][λ]`), the density table at each point's radius
+/// and the multiple-scattering table at each point's (r, μ) ([`JSlice`]). A texel then costs
+/// one sun-zenith/azimuth interpolation per point.
+struct FamilyScratch<'a> {
+    medium: &'a Medium,
+    density: &'a DensityIntegralTable,
+    precise: &'a PreciseMultipleScattering,
+    r: f64,
+    points: Vec<RayPoint>,
+    rho: Vec<[f64; CONSTITUENTS]>,
+    weighted_t: Vec<f64>,
+    at: Vec<AtRadius<'a>>,
+    slices: Vec<JSlice>,
+    n_l: usize,
+    j: Vec<f64>,
+    rayleigh: Vec<f64>,
+    mie: Vec<f64>,
+    multiple: Vec<f64>,
+}
+
+impl<'a> FamilyScratch<'a> {
+    fn new(shared: &'a SharedTables, n_l: usize) -> Self {
+        Self {
+            medium: &shared.medium,
+            density: shared.density(),
+            precise: shared.precise(),
+            r: 0.0,
+            points: Vec::new(),
+            rho: Vec::new(),
+            weighted_t: Vec::new(),
+            at: Vec::new(),
+            slices: Vec::new(),
+            n_l,
+            j: vec![0.0; n_l],
+            rayleigh: vec![0.0; n_l],
+            mie: vec![0.0; n_l],
+            multiple: vec![0.0; n_l],
+        }
+    }
+
+    /// The ray from radius `r` with zenith cosine `mu`, `steps` samples per segment.
+    fn prepare(&mut self, r: f64, mu: f64, steps: usize) {
+        let m = self.medium;
+        self.r = r;
+        ray_points(m, r, mu, steps, &mut self.points);
+        self.rho.clear();
+        self.weighted_t.clear();
+        self.at.clear();
+        self.slices.resize_with(self.points.len(), JSlice::default);
+        let mut d_view = [0.0f64; CONSTITUENTS];
+        for (p, slice) in self.points.iter().zip(&mut self.slices) {
+            let rho = m.densities(p.r);
+            for l in 0..m.len() {
+                self.weighted_t
+                    .push(cell_weight(m, l, &d_view, &rho, p.weight));
+            }
+            for k in 0..CONSTITUENTS {
+                d_view[k] += rho[k] * p.weight;
+            }
+            self.rho.push(rho);
+            self.at
+                .push(self.density.at_radius(p.r, m.sun_angular_radius_rad));
+            self.precise.slice(p.r, p.mu, slice);
+        }
+    }
+
+    /// The integrals of the prepared ray for the sun at (μs, ν) at its origin.
+    fn texel(&mut self, mu_s: f64, nu: f64) -> TexelSums<'_> {
+        let m = self.medium;
+        self.rayleigh.fill(0.0);
+        self.mie.fill(0.0);
+        self.multiple.fill(0.0);
+        let n_l = self.n_l;
+        for (k, p) in self.points.iter().enumerate() {
+            let mu_s_p = ((self.r * mu_s + p.t * nu) / p.r).clamp(-1.0, 1.0);
+            let wt = &self.weighted_t[k * n_l..(k + 1) * n_l];
+            self.j.fill(0.0);
+            self.precise
+                .add_from_slice(&self.slices[k], mu_s_p, nu, &mut self.j);
+            for l in 0..n_l {
+                self.multiple[l] += wt[l] * self.j[l];
+            }
+            let at = &self.at[k];
+            let vis = at.sun_visibility(mu_s_p);
+            if vis <= 0.0 {
+                continue;
+            }
+            let d_sun = at.lookup(mu_s_p);
+            let rho = &self.rho[k];
+            for l in 0..n_l {
+                let sun = wt[l] * sun_attenuation(m, l, &d_sun, vis);
+                self.rayleigh[l] += sun * m.rayleigh_scattering_per_m[l] * rho[RAYLEIGH];
+                self.mie[l] += sun * m.mie_scattering_per_m[l] * rho[MIE];
+            }
+        }
+        TexelSums {
+            rayleigh: &self.rayleigh,
+            mie: &self.mie,
+            multiple: &self.multiple,
+        }
+    }
+}

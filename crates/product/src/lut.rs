@@ -1,0 +1,159 @@
+//! The real-time texture bundle as a request: which parameters it takes (the atmosphere's, not
+//! the observer's or the sun's), its canonical form and cache key, its computation on the
+//! engine's shared tables (so the precise table is the one every product uses, stored and
+//! reused as theirs), and its files (OpenEXR textures + `manifest.json`, through the store).
+
+use serde_json::{json, Value};
+use skybake_engine::engine::{Engine, ENGINE_VERSION};
+use skybake_engine::spec::CommonSpec;
+pub use skybake_lut::manifest::MANIFEST_FILE;
+use skybake_lut::manifest::{
+    self, IRRADIANCE_FILE, SCATTERING_FILE, SINGLE_MIE_FILE, TRANSMITTANCE_FILE,
+};
+use skybake_lut::{Bundle, Channels, Sample, Texture};
+use skybake_physics::atmosphere::sky::MsMethod;
+use skybake_physics::key::cache_key;
+use skybake_store::texture::{encode_texture_exr, TextureImage};
+
+use crate::params::{common_spec, RequestParams, PARAMETERS};
+use crate::{Error, Result};
+
+/// Parameters of the table that describe the observer, the sun or the response, which a bundle
+/// (valid for every observer and sun) does not take.
+const NOT_FOR_LUT: &[&str] = &[
+    "sun_elevation_deg",
+    "latitude_deg",
+    "longitude_deg",
+    "time",
+    "observer_altitude_m",
+    "method",
+    "max_rel_error",
+    "elevation_count",
+    "azimuth_count",
+    "distance_count",
+    "max_distance_m",
+    "probe",
+    "format",
+];
+
+/// Whether the bundle takes parameter `name` of the parameter table (the atmosphere, haze,
+/// ground albedo, wavelengths and quality rows).
+pub fn takes(name: &str) -> bool {
+    PARAMETERS.iter().any(|p| p.name == name) && !NOT_FOR_LUT.contains(&name)
+}
+
+/// A bundle request: the atmosphere's spec, and RGB (no `wavelengths`) or spectral form.
+#[derive(Debug, Clone)]
+pub struct LutRequest {
+    pub spec: CommonSpec,
+    pub channels: Channels,
+}
+
+impl LutRequest {
+    /// From request parameters (CLI flags, query): refuses the observer's and the sun's.
+    pub fn from_params(p: &RequestParams) -> Result<Self> {
+        if let Some(name) = NOT_FOR_LUT.iter().find(|n| p.get(n).is_some()) {
+            return Err(Error::invalid(
+                name,
+                "a texture bundle holds every observer, view and sun; it takes the atmosphere's parameters only (atmosphere, ground_albedo, wavelengths, quality)",
+            ));
+        }
+        let mut p = p.clone();
+        let channels = if p.wavelengths.is_some() {
+            Channels::Spectral
+        } else {
+            let nm: Vec<String> = skybake_lut::build::RGB_WAVELENGTHS_NM
+                .iter()
+                .map(|w| w.to_string())
+                .collect();
+            p.wavelengths = Some(nm.join(","));
+            Channels::Rgb
+        };
+        let mut spec = common_spec(&p, -90.0)?;
+        spec.method = MsMethod::Precise;
+        Ok(Self { spec, channels })
+    }
+
+    /// The canonical request (the manifest's `request`, the cache key's text).
+    pub fn canonical(&self) -> Value {
+        json!({
+            "product": "lut",
+            "form": match self.channels { Channels::Rgb => "rgb", Channels::Spectral => "spectral" },
+            "atmosphere": self.spec.atmosphere,
+            "wavelengths_nm": self.spec.wavelengths_nm,
+            "ground_albedo": self.spec.ground_albedo,
+            "quality": self.spec.quality,
+            "bundle_version": manifest::BUNDLE_VERSION,
+        })
+    }
+
+    pub fn cache_key(&self) -> String {
+        cache_key(&self.canonical().to_string(), ENGINE_VERSION)
+    }
+
+    /// The cache key of the bundle's file `name` (a texture; the manifest's is [`Self::cache_key`]).
+    pub fn file_key(&self, name: &str) -> String {
+        cache_key(
+            &json!({"bundle": self.canonical(), "file": name}).to_string(),
+            ENGINE_VERSION,
+        )
+    }
+
+    /// Computes the bundle on the engine's shared tables (built, or loaded from its table
+    /// store, as for any product of this atmosphere and wavelengths).
+    pub fn compute(&self, engine: &Engine) -> Result<Bundle> {
+        self.compute_unless(engine, &|| false)
+    }
+
+    /// [`Self::compute`], stopped with [`Error::Cancelled`] inside the tables' build or at the
+    /// next texture row once `cancelled` returns true.
+    pub fn compute_unless(
+        &self,
+        engine: &Engine,
+        cancelled: &(dyn Fn() -> bool + Sync),
+    ) -> Result<Bundle> {
+        let shared = engine.shared_unless(&self.spec, cancelled)?;
+        skybake_lut::build(
+            &shared,
+            self.channels.clone(),
+            self.spec.quality.steps(),
+            cancelled,
+        )
+    }
+
+    /// The bundle's files: (name, bytes), the manifest last.
+    pub fn files(&self, bundle: &Bundle) -> Result<Vec<(&'static str, Vec<u8>)>> {
+        let names: Vec<String> = match bundle.channels {
+            Channels::Rgb => vec!["R".into(), "G".into(), "B".into(), "A".into()],
+            Channels::Spectral => bundle
+                .wavelengths_nm
+                .iter()
+                .map(|w| skybake_physics::image::layout::spectral_channel_name("L", *w))
+                .collect(),
+        };
+        let encode = |t: &Texture| -> Result<Vec<u8>> {
+            let channels = (0..t.channels)
+                .map(|c| (names[c].as_str(), t.plane(c)))
+                .collect();
+            encode_texture_exr(TextureImage {
+                width: t.width,
+                height: t.height * t.depth,
+                channels,
+                half: t.sample == Sample::Half,
+            })
+            .map_err(|e| Error::internal("lut", e))
+        };
+        let mut files = vec![
+            (TRANSMITTANCE_FILE, encode(&bundle.transmittance)?),
+            (SCATTERING_FILE, encode(&bundle.scattering)?),
+        ];
+        if let Some(mie) = &bundle.single_mie {
+            files.push((SINGLE_MIE_FILE, encode(mie)?));
+        }
+        files.push((IRRADIANCE_FILE, encode(&bundle.irradiance)?));
+        let m = manifest::manifest(bundle, self.canonical(), ENGINE_VERSION);
+        let text = serde_json::to_string_pretty(&m).map_err(|e| Error::internal("lut", e))?;
+        files.push((MANIFEST_FILE, text.into_bytes()));
+        Ok(files)
+    }
+}

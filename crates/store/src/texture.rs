@@ -1,0 +1,141 @@
+//! Plain texture OpenEXR files (the real-time bundle's transmittance, scattering and irradiance
+//! textures): single part, scan lines (what texture loaders such as three.js's `EXRLoader`
+//! read), ZIP-compressed, channels `R`, `G`, `B`, `A` or named ones, 16- or 32-bit float, with
+//! the whole-file checksum every file skybake writes carries ([`super::checksum`]). Row 0 of
+//! the file is the texture's first row (v = 0.5/height).
+
+use std::io::Cursor;
+
+use exr::prelude::{
+    read, AnyChannel, AnyChannels, AttributeValue, Blocks, Compression, Encoding, FlatSamples,
+    Image, Layer, LayerAttributes, LineOrder, ReadChannels, ReadLayers, SmallVec, Text, Vec2,
+    WritableImage,
+};
+
+use super::checksum::{self, PLACEHOLDER};
+use super::layout::ATTR_FILE_CHECKSUM;
+use super::StoreError;
+
+/// A texture's channels as they are written: (name, values row by row, whether 16-bit).
+pub struct TextureImage<'a> {
+    pub width: usize,
+    pub height: usize,
+    pub channels: Vec<(&'a str, Vec<f32>)>,
+    pub half: bool,
+}
+
+/// Encodes a texture as a scan-line, ZIP-compressed OpenEXR file with the checksum embedded.
+pub fn encode_texture_exr(t: TextureImage) -> Result<Vec<u8>, StoreError> {
+    let mut channels: SmallVec<[AnyChannel<FlatSamples>; 4]> = SmallVec::new();
+    for (name, values) in t.channels {
+        if values.len() != t.width * t.height {
+            return Err(StoreError::Exr(format!(
+                "texture channel {name} has {} values for {}×{}",
+                values.len(),
+                t.width,
+                t.height
+            )));
+        }
+        let samples = if t.half {
+            FlatSamples::F16(values.into_iter().map(half::f16::from_f32).collect())
+        } else {
+            FlatSamples::F32(values)
+        };
+        channels.push(AnyChannel::new(Text::from(name), samples));
+    }
+    let mut attributes = LayerAttributes {
+        software_name: Some(Text::from(concat!("skybake ", env!("CARGO_PKG_VERSION")))),
+        ..LayerAttributes::default()
+    };
+    attributes.other.insert(
+        Text::from(ATTR_FILE_CHECKSUM),
+        AttributeValue::Text(Text::from_slice_unchecked(&PLACEHOLDER)),
+    );
+    let encoding = Encoding {
+        compression: Compression::ZIP16,
+        blocks: Blocks::ScanLines,
+        line_order: LineOrder::Increasing,
+    };
+    let layer = Layer::new(
+        Vec2(t.width, t.height),
+        attributes,
+        encoding,
+        AnyChannels::sort(channels),
+    );
+    let mut bytes = Vec::new();
+    Image::from_layer(layer)
+        .write()
+        .to_buffered(Cursor::new(&mut bytes))
+        .map_err(|e| StoreError::Exr(format!("encoding failed: {e}")))?;
+    checksum::embed(&mut bytes)?;
+    Ok(bytes)
+}
+
+/// A decoded texture: width, height and its channels (name, values as f32) in name order.
+pub type DecodedTexture = (usize, usize, Vec<(String, Vec<f32>)>);
+
+/// Decodes a file written by [`encode_texture_exr`] (checksum verified): width, height and the
+/// channels (name, values as f32) in name order.
+pub fn decode_texture_exr(bytes: &[u8]) -> Result<DecodedTexture, StoreError> {
+    checksum::verify(bytes)?;
+    let decoded = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
+        read()
+            .no_deep_data()
+            .largest_resolution_level()
+            .all_channels()
+            .first_valid_layer()
+            .all_attributes()
+            .from_buffered(Cursor::new(bytes))
+    }))
+    .map_err(|_| StoreError::Corrupt("OpenEXR decoder panicked".into()))?
+    .map_err(|e| StoreError::Exr(format!("decoding failed: {e}")))?;
+    let layer = decoded.layer_data;
+    let channels = layer
+        .channel_data
+        .list
+        .iter()
+        .map(|c| {
+            let name = String::from_utf8_lossy(c.name.bytes()).into_owned();
+            let values = match &c.sample_data {
+                FlatSamples::F16(v) => v.iter().map(|h| h.to_f32()).collect(),
+                FlatSamples::F32(v) => v.clone(),
+                FlatSamples::U32(v) => v.iter().map(|u| *u as f32).collect(),
+            };
+            (name, values)
+        })
+        .collect();
+    Ok((layer.size.0, layer.size.1, channels))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn textures_round_trip_in_half_and_float() {
+        let values: Vec<f32> = (0..6 * 4).map(|i| i as f32 * 0.37 + 1e-3).collect();
+        for half in [false, true] {
+            let bytes = encode_texture_exr(TextureImage {
+                width: 6,
+                height: 4,
+                channels: vec![
+                    ("R", values.clone()),
+                    ("A", values.iter().map(|v| v * 2.0).collect()),
+                ],
+                half,
+            })
+            .unwrap();
+            let (w, h, ch) = decode_texture_exr(&bytes).unwrap();
+            assert_eq!((w, h, ch.len()), (6, 4, 2));
+            assert_eq!(ch[0].0, "A");
+            for (a, b) in ch[1].1.iter().zip(&values) {
+                let tol = if half { 1e-3 * b.abs() } else { 0.0 };
+                assert!((a - b).abs() <= tol, "{a} vs {b}");
+            }
+            let mut bad = bytes.clone();
+            let n = bad.len();
+            bad[n - 3] ^= 1;
+            assert!(decode_texture_exr(&bad).is_err());
+        }
+    }
+}
