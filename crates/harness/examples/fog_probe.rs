@@ -61,7 +61,8 @@ fn flux(shared: &SharedTables, h: f64, up: bool, product_steps: usize) -> f64 {
             total += out[0] * mu.abs() * 0.5 * (hi - lo) * w[a] * 2.0 * PI;
         }
     }
-    total / shared.medium.solar_irradiance[0]
+    // `trace` gives radiance per unit solar irradiance already.
+    total
 }
 
 fn main() {
