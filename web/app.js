@@ -30,6 +30,10 @@ function commonParams() {
   p.set("observer_altitude_m", String(altitudeM()));
   p.set("atmosphere", $("atmosphere").value);
   p.set("ground_albedo", $("albedo").value);
+  if ($("haze").value) {
+    p.set("aerosol_type", $("haze").value);
+    p.set("visibility_km", $("visibility").value);
+  }
   p.set("method", $("method").value);
   p.set("quality", $("quality").value);
   return p;

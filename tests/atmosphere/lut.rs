@@ -586,3 +586,33 @@ fn a_bundle_refuses_the_observers_parameters_by_name() {
         "{err}"
     );
 }
+
+#[test]
+fn haze_parameters_reach_the_bundle() {
+    // visibility_km, aerosol_type and boundary_layer_top_m resolve into the bundle's atmosphere
+    // (a layered aerosol), so its cache key changes with each; a bad value is refused by name.
+    let key = |pairs: &[(&str, &str)]| {
+        let p = RequestParams::from_pairs(pairs.iter().copied()).unwrap();
+        let req = LutRequest::from_params(&p).unwrap();
+        (req.cache_key(), req.spec.atmosphere.mie.clone())
+    };
+    let (clear, _) = key(&[]);
+    let (hazy, mie) = key(&[("visibility_km", "10")]);
+    let layers = mie.and_then(|m| m.layers).expect("a layered aerosol");
+    assert_eq!(layers.boundary_layer_top_m, 1000.0);
+    let (urban, _) = key(&[("visibility_km", "10"), ("aerosol_type", "urban")]);
+    let (high, mie) = key(&[("visibility_km", "10"), ("boundary_layer_top_m", "2000")]);
+    assert_eq!(
+        mie.and_then(|m| m.layers).unwrap().boundary_layer_top_m,
+        2000.0
+    );
+    let keys = [&clear, &hazy, &urban, &high];
+    for (i, a) in keys.iter().enumerate() {
+        for b in &keys[i + 1..] {
+            assert_ne!(a, b);
+        }
+    }
+    let p = RequestParams::from_pairs([("visibility_km", "0.2")]).unwrap();
+    let err = LutRequest::from_params(&p).unwrap_err();
+    assert!(err.to_string().contains("visibility_km"), "{err}");
+}

@@ -156,7 +156,7 @@ async fn each_endpoint_answers_in_its_documented_form() {
 async fn bad_input_is_a_problem_naming_the_parameter() {
     let dir = Scratch::new("problems");
     let srv = TestServer::start(settings(dir.path())).await;
-    let cases: [(&str, u16, &str); 11] = [
+    let cases: [(&str, u16, &str); 14] = [
         ("/v1/sky?colour=blue&sun_elevation_deg=3", 400, "colour"),
         ("/v1/sky?sun_elevation_deg=95", 400, "sun_elevation_deg"),
         ("/v1/sun?sun_elevation_deg=-90.5", 400, "sun_elevation_deg"),
@@ -172,6 +172,13 @@ async fn bad_input_is_a_problem_naming_the_parameter() {
         ("/v1/sky?wavelengths=100", 400, "wavelengths"),
         ("/v1/sky?quality=draft&quality=high", 422, "quality"),
         ("/v1/ground?probe=30:0", 400, "probe"),
+        ("/v1/sky?visibility_km=0.5", 400, "visibility_km"),
+        ("/v1/sky?aerosol_type=continental", 422, "aerosol_type"),
+        (
+            "/v1/sky?visibility_km=5&aerosol_type=volcanic",
+            400,
+            "aerosol_type",
+        ),
     ];
     for (path, status, parameter) in cases {
         let r = srv.get(path).await;

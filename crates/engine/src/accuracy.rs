@@ -213,6 +213,12 @@ pub fn aerosol_optical_depth_550(a: &AtmosphereParams) -> Option<f64> {
     let Some(mie) = &a.mie else {
         return Some(0.0);
     };
+    if mie.layers.is_some() {
+        // A layered profile: the resolved medium's column (boundary layer and backgrounds).
+        let at_550 = skybake_physics::spectrum::Wavelengths::parse("550").ok()?;
+        let m = skybake_physics::atmosphere::Medium::new(a, &at_550, None).ok()?;
+        return Some(m.vertical_optical_depth(0)[skybake_physics::atmosphere::medium::MIE]);
+    }
     // ∫₀^top exp(−h/H) dh for the sea-level coefficient forms.
     let column = mie.scale_height_m * (1.0 - (-a.atmosphere_height_m / mie.scale_height_m).exp());
     match &mie.extinction {

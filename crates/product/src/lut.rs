@@ -55,7 +55,7 @@ impl LutRequest {
         if let Some(name) = NOT_FOR_LUT.iter().find(|n| p.get(n).is_some()) {
             return Err(Error::invalid(
                 name,
-                "a texture bundle holds every observer, view and sun; it takes the atmosphere's parameters only (atmosphere, ground_albedo, wavelengths, quality)",
+                "a texture bundle holds every observer, view and sun; it takes the atmosphere's parameters only (atmosphere, visibility_km, aerosol_type, boundary_layer_top_m, ground_albedo, wavelengths, quality)",
             ));
         }
         let mut p = p.clone();

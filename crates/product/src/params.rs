@@ -13,6 +13,7 @@ use skybake_engine::spec::{
     CommonSpec, ProductKind, Quality, SolarLocation, SunPosition, MAX_OBSERVER_ALTITUDE_M,
     MAX_PROBES,
 };
+use skybake_physics::atmosphere::haze::{AerosolType, Haze};
 use skybake_physics::atmosphere::params::AtmosphereParams;
 use skybake_physics::atmosphere::presets;
 use skybake_physics::atmosphere::sky::MsMethod;
@@ -165,6 +166,16 @@ parameter_table! {
     atmosphere { cli: Some("atmosphere"), unit: "",
         range: Range::Text("earth, earth-hazy, rayleigh-only, mars, or inline JSON (CLI: a file)"),
         default: "earth", products: ALL, doc: "Atmosphere preset or definition" },
+    visibility_km { cli: Some("visibility-km"), unit: "km", range: Range::Real { lo: 1.0, hi: 300.0 },
+        default: "the atmosphere's aerosol", products: ALL,
+        doc: "Meteorological visibility at the ground (Koschmieder, 550 nm): replaces the atmosphere's aerosol by a hazy boundary layer of this visibility over free-tropospheric (optical depth 0.02) and stratospheric (0.005) background; the largest allowed is where Rayleigh extinction alone limits the visibility, the smallest where the boundary layer's optical depth at 550 nm reaches 2 (1.95 km for a 1000 m layer; fog-like haze is refused)" },
+    aerosol_type { cli: Some("aerosol-type"), unit: "",
+        range: Range::OneOf(skybake_physics::atmosphere::haze::AEROSOL_TYPES), default: "continental",
+        products: ALL,
+        doc: "Aerosol type of visibility_km's haze: spectral extinction, single-scattering albedo and asymmetry of the 6S models" },
+    boundary_layer_top_m { cli: Some("boundary-layer-top-m"), unit: "m",
+        range: Range::Real { lo: 100.0, hi: 5000.0 }, default: "1000", products: ALL,
+        doc: "Top of visibility_km's hazy boundary layer above the ground (an aircraft above it climbs out of the haze)" },
     ground_albedo { cli: Some("ground-albedo"), unit: "", range: Range::Real { lo: 0.0, hi: 1.0 },
         default: "the atmosphere's", products: ALL,
         doc: "Lambertian ground albedo, overriding the atmosphere's" },
@@ -272,7 +283,25 @@ pub fn parse_probes(text: &str) -> Result<Vec<(f64, f64)>> {
 /// Builds the common spec; `min_sun_elevation_deg` is the product's lower limit
 /// (−90° for every product: night is answered with zero products).
 pub fn common_spec(p: &RequestParams, min_sun_elevation_deg: f64) -> Result<CommonSpec> {
-    let atmosphere = resolve_atmosphere(p.atmosphere.as_deref())?;
+    let mut atmosphere = resolve_atmosphere(p.atmosphere.as_deref())?;
+    Haze {
+        visibility_km: p
+            .visibility_km
+            .as_deref()
+            .map(|v| row("visibility_km").real(v))
+            .transpose()?,
+        aerosol_type: p
+            .aerosol_type
+            .as_deref()
+            .map(|t| AerosolType::parse("aerosol_type", t))
+            .transpose()?,
+        boundary_layer_top_m: p
+            .boundary_layer_top_m
+            .as_deref()
+            .map(|v| row("boundary_layer_top_m").real(v))
+            .transpose()?,
+    }
+    .apply(&mut atmosphere)?;
     let wavelengths_nm = match &p.wavelengths {
         Some(w) => Wavelengths::parse(w)?,
         None => Wavelengths::default_set(),
@@ -520,6 +549,11 @@ mod tests {
             ("method", "magic"),
             ("quality", "ultra"),
             ("atmosphere", "venus"),
+            ("visibility_km", "0.5"),
+            ("visibility_km", "fog"),
+            ("aerosol_type", "volcanic"),
+            ("aerosol_type", "urban"),
+            ("boundary_layer_top_m", "800"),
         ];
         for (k, v) in bad {
             let err = crate::params::common_spec(&params(&[(k, v)]), -18.0).unwrap_err();

@@ -403,6 +403,20 @@ mod tests {
         assert_eq!(a.cache_key(), sky(&[]).cache_key());
         assert_ne!(a.cache_key(), c.cache_key());
         assert_ne!(a.cache_key(), d.cache_key());
+        // Haze parameters resolve into the atmosphere, which the key covers.
+        let hazy = sky(&[("visibility_km", "10")]);
+        assert_ne!(hazy.cache_key(), a.cache_key());
+        for other in [
+            sky(&[("visibility_km", "11")]),
+            sky(&[("visibility_km", "10"), ("aerosol_type", "urban")]),
+            sky(&[("visibility_km", "10"), ("boundary_layer_top_m", "1500")]),
+        ] {
+            assert_ne!(hazy.cache_key(), other.cache_key());
+        }
+        assert_eq!(
+            hazy.cache_key(),
+            sky(&[("visibility_km", "10"), ("aerosol_type", "continental")]).cache_key()
+        );
         // A PNG is RGB-only: fewer wavelengths where the budget allows, its own key (both
         // projections share it); undone, it is the spectral request.
         let png = sky(&[("format", "png")]);

@@ -115,7 +115,18 @@ pub struct RayPoint {
 
 /// Quadrature points of the ray (r, mu) inside the atmosphere, in order of increasing `t`,
 /// written to `out` (cleared first): a midpoint rule in u with t = u² towards the densest end of
-/// each piece, the ray split at its perigee when that lies inside the atmosphere.
+/// each piece, the ray split at its perigee when that lies inside the atmosphere, and each piece
+/// split again where it crosses a profile's density jump ([`Profile::jump_altitude_m`], the top
+/// of a layered aerosol's boundary layer), each part with `steps` points.
+///
+/// Without that split a cell straddling the boundary-layer top takes the density of its sample
+/// on one side for the whole cell: a vertical table ray at 20 steps put its third sample at
+/// 1.56 km, above a 1.5 km layer of visibility 1 km, and dropped the layer's top third (optical
+/// depth 2.4 of 7.2) from the ray, its scattering source with it; the precise method lost 65 % of
+/// the energy in conservative fog over a white ground (outgoing / incoming 0.355), 39 % at 80
+/// steps.
+///
+/// [`Profile::jump_altitude_m`]: super::medium::Profile::jump_altitude_m
 pub fn ray_points(
     medium: &Medium,
     r: f64,
@@ -128,7 +139,20 @@ pub fn ray_points(
     let seg = atmosphere_segment(r, mu, bottom, top)?;
     let r0 = r.max(bottom);
     let perigee = -r0 * mu;
-    let mut push_piece = |a: f64, b: f64, dense_at_start: bool, n: usize| {
+    // Radii of the density jumps the pieces split at.
+    let mut jumps = [0.0f64; CONSTITUENTS];
+    let mut n_jumps = 0;
+    for p in &medium.profiles {
+        if let Some(h) = p.jump_altitude_m() {
+            let rj = bottom + h;
+            if rj > bottom && rj < top && !jumps[..n_jumps].contains(&rj) {
+                jumps[n_jumps] = rj;
+                n_jumps += 1;
+            }
+        }
+    }
+    let jumps = &jumps[..n_jumps];
+    let mut push_part = |a: f64, b: f64, dense_at_start: bool, n: usize| {
         if b <= a {
             return;
         }
@@ -150,6 +174,32 @@ pub fn ray_points(
         } else {
             out.extend((0..n).rev().map(point));
         }
+    };
+    // A piece is monotonic in radius (it ends at the perigee or starts there), so it crosses each
+    // jump radius at most once: at the root of r0² + 2 r0 μ t + t² = r_j² inside it.
+    let mut push_piece = |a: f64, b: f64, dense_at_start: bool, n: usize| {
+        let mut cuts = [0.0f64; CONSTITUENTS];
+        let mut n_cuts = 0;
+        for &rj in jumps {
+            let disc = r0 * r0 * mu * mu - r0 * r0 + rj * rj;
+            if disc <= 0.0 {
+                continue;
+            }
+            for t in [perigee - disc.sqrt(), perigee + disc.sqrt()] {
+                if t > a && t < b && n_cuts < cuts.len() {
+                    cuts[n_cuts] = t;
+                    n_cuts += 1;
+                }
+            }
+        }
+        let cuts = &mut cuts[..n_cuts];
+        cuts.sort_by(f64::total_cmp);
+        let mut start = a;
+        for &t in cuts.iter() {
+            push_part(start, t, dense_at_start, n);
+            start = t;
+        }
+        push_part(start, b, dense_at_start, n);
     };
     if perigee > seg.t_start && perigee < seg.t_end {
         push_piece(seg.t_start, perigee, false, steps);
@@ -419,5 +469,37 @@ crate::simd_dispatch! {
             }
         }
         work
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::atmosphere::haze::{default_layers, AerosolType};
+    use crate::atmosphere::presets::preset;
+    use crate::spectrum::Wavelengths;
+
+    /// The ray quadrature integrates a layered aerosol's column: with 20 steps (the `standard`
+    /// table rays), vertical rays up from the ground and down from the top give the exact column
+    /// of a 1.5 km boundary layer plus backgrounds to 0.5 %. Without the split at the layer top a
+    /// cell straddling it took the density above it: the upward ray missed 33 % of the column.
+    #[test]
+    fn ray_points_resolve_the_boundary_layer_top() {
+        let mut p = preset("rayleigh-only").unwrap();
+        p.mie = Some(
+            AerosolType::Continental.mie(3.9e-3, default_layers(1500.0, p.atmosphere_height_m)),
+        );
+        let m = Medium::new(&p, &Wavelengths::parse("550").unwrap(), None).unwrap();
+        let column = m.profiles[MIE].column_m(p.atmosphere_height_m);
+        let mut pts = Vec::new();
+        for (r, mu) in [(m.bottom_radius_m, 1.0), (m.top_radius_m, -1.0)] {
+            ray_points(&m, r, mu, 20, &mut pts).unwrap();
+            let sum: f64 = pts
+                .iter()
+                .map(|p| m.profiles[MIE].density(p.r - m.bottom_radius_m) * p.weight)
+                .sum();
+            assert!((sum / column - 1.0).abs() < 5e-3, "{mu}: {sum} {column}");
+            assert!(pts.windows(2).all(|w| w[0].t < w[1].t));
+        }
     }
 }

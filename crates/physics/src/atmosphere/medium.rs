@@ -31,6 +31,16 @@ pub enum Profile {
     Exponential { scale_height_m: f64 },
     /// `max(0, 1 − |h − peak_m| / half_width_m)`.
     Tent { peak_m: f64, half_width_m: f64 },
+    /// Layered aerosol ([`MieLayers`]): 1 up to `top_m`, `free_ratio · exp(−(h − top_m) /
+    /// free_scale_height_m)` up to `tropopause_m`, `strat_ratio` up to `strat_top_m`, 0 above.
+    Layered {
+        top_m: f64,
+        free_ratio: f64,
+        free_scale_height_m: f64,
+        tropopause_m: f64,
+        strat_ratio: f64,
+        strat_top_m: f64,
+    },
 }
 
 impl Profile {
@@ -44,6 +54,37 @@ impl Profile {
                 peak_m,
                 half_width_m,
             } => (1.0 - (h_m - peak_m).abs() / half_width_m).max(0.0),
+            Profile::Layered {
+                top_m,
+                free_ratio,
+                free_scale_height_m,
+                tropopause_m,
+                strat_ratio,
+                strat_top_m,
+            } => {
+                if h_m <= top_m {
+                    1.0
+                } else if h_m <= tropopause_m {
+                    free_ratio * (-(h_m - top_m) / free_scale_height_m).exp()
+                } else if h_m <= strat_top_m {
+                    strat_ratio
+                } else {
+                    0.0
+                }
+            }
+        }
+    }
+
+    /// Altitude, m, where the relative density jumps by a large factor, or `None` for profiles
+    /// without one: the top of a layered aerosol's boundary layer (density 1 below, the free
+    /// troposphere's `free_ratio` ≪ 1 above). Ray quadratures split there so that no cell
+    /// straddles it (see `integrate::ray_points`). The layered profile's other steps (tropopause,
+    /// stratosphere top) are between background densities whose optical depths are 0.02 and 0.005
+    /// at 550 nm, and are left to the quadrature.
+    pub fn jump_altitude_m(&self) -> Option<f64> {
+        match *self {
+            Profile::Layered { top_m, .. } => Some(top_m),
+            _ => None,
         }
     }
 
@@ -71,6 +112,26 @@ impl Profile {
                 k.windows(2)
                     .map(|w| 0.5 * (self.density(w[0]) + self.density(w[1])) * (w[1] - w[0]))
                     .sum()
+            }
+            Profile::Layered {
+                top_m: bl_top,
+                free_ratio,
+                free_scale_height_m,
+                tropopause_m,
+                strat_ratio,
+                strat_top_m,
+            } => {
+                let bl = bl_top.min(top_m);
+                let ft_end = tropopause_m.min(top_m);
+                let ft = if ft_end > bl_top {
+                    free_ratio
+                        * free_scale_height_m
+                        * (1.0 - (-(ft_end - bl_top) / free_scale_height_m).exp())
+                } else {
+                    0.0
+                };
+                let st = strat_ratio * (strat_top_m.min(top_m) - tropopause_m.min(top_m)).max(0.0);
+                bl + ft + st
             }
         }
     }
@@ -128,6 +189,45 @@ pub fn bodhaine_cross_section_m2(lambda_nm: f64) -> f64 {
     sigma_cm2 * 1e-4
 }
 
+/// The layered aerosol profile: the backgrounds' relative densities from their optical depths at
+/// 550 nm and the boundary layer's extinction there.
+fn layered_profile(m: &Mie, l: &MieLayers) -> Result<Profile> {
+    let beta_550 = match &m.extinction {
+        MieExtinction::PowerLaw {
+            reference_nm,
+            value_per_m,
+            angstrom_exponent,
+        } => value_per_m * (550.0 / reference_nm).powf(-angstrom_exponent),
+        MieExtinction::TablePerM(t) => parse_table("mie.extinction.table_per_m", t)?.eval(550.0),
+        MieExtinction::OpticalDepth { .. } => 0.0,
+    };
+    if !(beta_550.is_finite() && beta_550 > 0.0) {
+        return Err(crate::Error::invalid(
+            "mie.layers",
+            "needs a positive boundary-layer extinction at 550 nm",
+        ));
+    }
+    let ft_depth = l.tropopause_m - l.boundary_layer_top_m;
+    let ft_shape = l.free_troposphere_scale_height_m
+        * (1.0 - (-ft_depth / l.free_troposphere_scale_height_m).exp());
+    let st_depth = l.stratosphere_top_m - l.tropopause_m;
+    let ratio = |tau: f64, column: f64| {
+        if column > 0.0 {
+            tau / (beta_550 * column)
+        } else {
+            0.0
+        }
+    };
+    Ok(Profile::Layered {
+        top_m: l.boundary_layer_top_m,
+        free_ratio: ratio(l.free_troposphere_optical_depth_550, ft_shape),
+        free_scale_height_m: l.free_troposphere_scale_height_m,
+        tropopause_m: l.tropopause_m,
+        strat_ratio: ratio(l.stratosphere_optical_depth_550, st_depth),
+        strat_top_m: l.stratosphere_top_m,
+    })
+}
+
 impl Medium {
     /// Resolves validated parameters for `wavelengths`, with an optional ground-albedo override.
     pub fn new(
@@ -170,10 +270,9 @@ impl Medium {
             extinction[RAYLEIGH] = rayleigh_scattering.clone();
         }
         if let Some(m) = &params.mie {
-            let profile = Profile::Exponential {
+            let mut profile = Profile::Exponential {
                 scale_height_m: m.scale_height_m,
             };
-            profiles[MIE] = profile;
             extinction[MIE] = match &m.extinction {
                 MieExtinction::OpticalDepth {
                     reference_nm,
@@ -198,6 +297,10 @@ impl Medium {
                     nm.iter().map(|&l| t.eval(l)).collect()
                 }
             };
+            if let Some(l) = &m.layers {
+                profile = layered_profile(m, l)?;
+            }
+            profiles[MIE] = profile;
             let ssa = m.single_scattering_albedo.resolve(
                 "atmosphere.mie.single_scattering_albedo",
                 nm,

@@ -2,6 +2,7 @@
 //! multiple scattering, and the products built on them (sun, sky, ground, aerial).
 
 pub mod geometry;
+pub mod haze;
 pub mod integrate;
 pub mod irradiance;
 pub mod kernels;

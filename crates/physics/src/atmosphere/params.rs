@@ -70,11 +70,12 @@ pub enum RayleighScattering {
     TablePerM(BTreeMap<String, f64>),
 }
 
-/// Aerosol: density `exp(-h / scale_height_m)`, extinction, single-scattering albedo, phase.
+/// Aerosol: density `exp(-h / scale_height_m)` (or `layers`), extinction, single-scattering
+/// albedo, phase.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct Mie {
-    /// Exponential scale height, m.
+    /// Exponential scale height, m (not used when `layers` is given).
     pub scale_height_m: f64,
     /// Sea-level extinction coefficient as a function of wavelength.
     pub extinction: MieExtinction,
@@ -82,6 +83,25 @@ pub struct Mie {
     pub single_scattering_albedo: Spectral,
     /// Phase function.
     pub phase: MiePhase,
+    /// A layered profile instead of the exponential one: the extinction is the boundary layer's.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub layers: Option<MieLayers>,
+}
+
+/// A layered aerosol profile (`haze.rs`): uniform boundary layer from the ground to
+/// `boundary_layer_top_m` (relative density 1), a free troposphere above it to `tropopause_m`
+/// (density falling with `free_troposphere_scale_height_m`), a uniform stratospheric background
+/// from the tropopause to `stratosphere_top_m`; the two backgrounds given by their vertical
+/// optical depths at 550 nm.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct MieLayers {
+    pub boundary_layer_top_m: f64,
+    pub free_troposphere_optical_depth_550: f64,
+    pub free_troposphere_scale_height_m: f64,
+    pub tropopause_m: f64,
+    pub stratosphere_optical_depth_550: f64,
+    pub stratosphere_top_m: f64,
 }
 
 /// How the aerosol extinction depends on wavelength.
@@ -336,6 +356,56 @@ impl AtmosphereParams {
                 MiePhase::CornetteShanks { g } | MiePhase::HenyeyGreenstein { g } => g,
             };
             check("mie.phase.g", g, -0.999, 0.999, "")?;
+            if let Some(l) = &m.layers {
+                if matches!(m.extinction, MieExtinction::OpticalDepth { .. }) {
+                    return Err(Error::invalid(
+                        "mie.layers",
+                        "needs the boundary layer's extinction (power_law or table_per_m), not optical_depth",
+                    ));
+                }
+                check(
+                    "mie.layers.boundary_layer_top_m",
+                    l.boundary_layer_top_m,
+                    10.0,
+                    h,
+                    "m",
+                )?;
+                check(
+                    "mie.layers.tropopause_m",
+                    l.tropopause_m,
+                    l.boundary_layer_top_m,
+                    h,
+                    "m",
+                )?;
+                check(
+                    "mie.layers.stratosphere_top_m",
+                    l.stratosphere_top_m,
+                    l.tropopause_m,
+                    h,
+                    "m",
+                )?;
+                check(
+                    "mie.layers.free_troposphere_scale_height_m",
+                    l.free_troposphere_scale_height_m,
+                    10.0,
+                    10.0 * h,
+                    "m",
+                )?;
+                check(
+                    "mie.layers.free_troposphere_optical_depth_550",
+                    l.free_troposphere_optical_depth_550,
+                    0.0,
+                    10.0,
+                    "",
+                )?;
+                check(
+                    "mie.layers.stratosphere_optical_depth_550",
+                    l.stratosphere_optical_depth_550,
+                    0.0,
+                    10.0,
+                    "",
+                )?;
+            }
         }
         if let Some(o) = &self.ozone {
             let OzoneProfile::Tent {

@@ -111,6 +111,14 @@ crate::simd_dispatch! {
                             }
                         }
                     }
+                    layered @ Profile::Layered { .. } => {
+                        for c in 0..BLOCK / PARTS {
+                            for q in 0..PARTS {
+                                let j = c * PARTS + q;
+                                acc[q] += layered.density(h[j]) * w[j];
+                            }
+                        }
+                    }
                 }
                 *dk += acc.iter().sum::<f64>();
             }
