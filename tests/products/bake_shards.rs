@@ -273,3 +273,28 @@ fn bundle_items_are_baked_by_their_shard_and_reused() {
     let again = bake_share(body.as_bytes(), &out, shard(1), &env, |_, _, _| {}).unwrap();
     assert_eq!((again.computed, again.reused, again.rejected), (0, 1, 0));
 }
+
+/// A bake cancelled while it computes a bundle stops inside it (in the tables' build or at the
+/// next texture row), not after the whole bundle, and stores nothing for that item.
+#[test]
+fn a_cancelled_bake_stops_inside_a_bundle_item() {
+    let dir = Scratch::new("shards-lut-cancel");
+    let out = Location::Dir(dir.path().join("out"));
+    let body = r#"{"bundles": [{"quality": "draft", "ground_albedo": 0.3}]}"#;
+    let (defaults, engine) = (Defaults::default(), Engine::new());
+    // The poll before the item says "go on"; every later one (inside the bundle) says "stop".
+    let polls = std::sync::atomic::AtomicUsize::new(0);
+    let cancel = || polls.fetch_add(1, std::sync::atomic::Ordering::Relaxed) >= 1;
+    let env = BakeEnv {
+        defaults: &defaults,
+        max_products: 1000,
+        engine: &engine,
+        cancel: &cancel,
+    };
+    let err = bake_share(body.as_bytes(), &out, Shard::ALL, &env, |_, _, _| {})
+        .expect_err("the bake must stop inside the bundle");
+    assert!(err.to_string().contains("cancelled in item 0"), "{err}");
+    // Polled inside the bundle, not only between items.
+    assert!(polls.load(std::sync::atomic::Ordering::Relaxed) >= 3);
+    assert!(out.get("manifest.json").unwrap().is_none());
+}

@@ -202,14 +202,15 @@ fn is_bundle_of(bytes: &[u8], req: &LutRequest, out: &Location) -> Result<bool, 
 }
 
 /// Computes bundle `req` and writes its textures, then its manifest `name` (with `links` to
-/// them), into `out`.
+/// them), into `out`. `cancel` is polled inside the tables' build and once per texture row.
 fn bake_bundle(
     req: &LutRequest,
     engine: &Engine,
     out: &Location,
     name: &str,
+    cancel: &(dyn Fn() -> bool + Sync),
 ) -> Result<(), JobError> {
-    let bundle = req.compute(engine)?;
+    let bundle = req.compute_unless(engine, cancel)?;
     let stem = name.trim_end_matches(".json");
     let mut links = serde_json::Map::new();
     let mut manifest = None;
@@ -310,7 +311,7 @@ fn bake_share_with(
                 JobItem::Artifact(req) => compute(req, engine, &tiles, &key, &reuse, cancel)
                     .and_then(|img| Ok(encode_exr(&img)?))
                     .and_then(|bytes| Ok(out.put(&name, &bytes)?)),
-                JobItem::Bundle(req) => bake_bundle(req, engine, out, &name),
+                JobItem::Bundle(req) => bake_bundle(req, engine, out, &name, cancel),
             }
             .map(|()| {
                 summary.computed += 1;
