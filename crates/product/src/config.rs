@@ -78,6 +78,9 @@ pub struct CacheSettings {
     pub disk_budget_bytes: u64,
     pub memory_budget_bytes: u64,
     pub response_budget_bytes: u64,
+    /// Most bytes of voxel grids and lit cloud volumes kept between frames of the same cloud
+    /// ([`crate::frame::FrameReuse`]); 0 = every frame computes everything.
+    pub frame_reuse_bytes: u64,
 }
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -161,6 +164,7 @@ pub const ENV_VARS: &[(&str, &str, &str)] = &[
         "cache",
         "response_budget_bytes",
     ),
+    ("SKYBAKE_FRAME_REUSE_BYTES", "cache", "frame_reuse_bytes"),
     ("SKYBAKE_JOB_WORKERS", "jobs", "workers"),
     ("SKYBAKE_MAX_JOB_PRODUCTS", "jobs", "max_products"),
     ("SKYBAKE_MAX_LIVE_JOBS", "jobs", "max_live"),
@@ -569,9 +573,18 @@ mod tests {
                 ("SKYBAKE_CONCURRENCY_LIMIT".into(), "9".into()),
                 ("SKYBAKE_CACHE_DIR".into(), "/tmp/x".into()),
                 ("SKYBAKE_REQUEST_TIMEOUT_S".into(), "2.5".into()),
+                ("SKYBAKE_FRAME_REUSE_BYTES".into(), "0".into()),
             ],
         )
         .unwrap();
+        assert_eq!(s.cache.frame_reuse_bytes, 0);
+        assert_eq!(
+            Settings::from_layers(None, &[])
+                .unwrap()
+                .cache
+                .frame_reuse_bytes,
+            384 << 20
+        );
         assert_eq!(s.server.bind, "0.0.0.0:9000");
         assert_eq!(s.server.concurrency_limit, 9);
         assert_eq!(s.cache.dir, PathBuf::from("/tmp/x"));

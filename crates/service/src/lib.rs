@@ -174,6 +174,9 @@ impl AppState {
         );
         // With a bucket (`cache.url`), products and frame tiles are shared with other replicas.
         let bucket = skybake_product::engines::shared_bucket(&settings)?;
+        let reuse = skybake_product::frame::FrameReuse::new(
+            usize::try_from(settings.cache.frame_reuse_bytes).unwrap_or(usize::MAX),
+        );
         let cache = Arc::new(match &bucket {
             Some(bucket) => Cache::open_shared(config, bucket.clone())?,
             None => Cache::open(config)?,
@@ -217,7 +220,7 @@ impl AppState {
                 rate: Default::default(),
                 jobs,
                 holder,
-                reuse: Default::default(),
+                reuse,
             }),
         };
         state.housekeeping();
