@@ -63,10 +63,10 @@ struct Point {
 }
 
 /// Relative deviations of sky radiance (view zenith ≤ 75°, scattering angle ≥ 2°) and of diffuse
-/// and global horizontal irradiance from DISORT, for the atmospheres named in `names`, at
-/// `quality`. Tolerances: `base` everywhere, `near` within 10° of the sun and for aerosol optical
+/// and global horizontal irradiance from DISORT, for the atmospheres named in `names`, with
+/// `method` at `quality`. Tolerances: `base` everywhere, `near` within 10° of the sun and for aerosol optical
 /// depth above 1.
-fn deviations(quality: &str, names: &[&str], base: f64, near: f64) -> Vec<Point> {
+fn deviations(method: &str, quality: &str, names: &[&str], base: f64, near: f64) -> Vec<Point> {
     let data = load();
     let engine = Engine::new();
     let mut out = Vec::new();
@@ -99,7 +99,7 @@ fn deviations(quality: &str, names: &[&str], base: f64, near: f64) -> Vec<Point>
                 ("atmosphere", atmosphere.clone()),
                 ("wavelengths", "440,550,680".to_string()),
                 ("sun_elevation_deg", (90.0 - sza).to_string()),
-                ("method", "precise".to_string()),
+                ("method", method.to_string()),
                 ("quality", quality.to_string()),
             ];
             let mut sky_pairs = common.clone();
@@ -222,10 +222,16 @@ fn check(points: &[Point], label: &str) {
 #[test]
 fn precise_standard_hazy_sky_is_within_its_measured_error_of_disort() {
     // Three atmospheres keep the test cheap (AOD 0.4 HG 0.7; AOD 0.05; AOD 0.4 HG 0.8 ssa 0.8).
-    // Measured (tools: crates/harness/examples/aerosol_probe.rs, all eight atmospheres): sky
-    // radiance mean bias within ±0.3 %, max +3.4 % at the zenith with the sun at 40° (g 0.8);
-    // the 2 % is not met there yet (see docs/validation.md).
-    let points = deviations("standard", &["base", "thin", "absorbing_g08"], 0.035, 0.035);
+    // Measured through this path (all eight: the ignored test below): radiance mean within ±0.1 %
+    // for these three, max +3.37 % at the zenith with the sun at 40° and −3.38 % 2.8° from the sun
+    // (g 0.8); the 2 % is not met there yet (see docs/validation.md).
+    let points = deviations(
+        "precise",
+        "standard",
+        &["base", "thin", "absorbing_g08"],
+        0.035,
+        0.035,
+    );
     let mean = points.iter().map(|p| p.deviation).sum::<f64>() / points.len() as f64;
     check(&points, "precise standard vs DISORT (aerosol)");
     assert!(mean.abs() < 0.005, "mean bias {mean}");
@@ -245,18 +251,14 @@ const MEASURED_BOUNDS: [(&str, f64, f64, f64, f64); 8] = [
     ("cs_g08_bright", 8.8, 7.3, 1.0, 2.8),
 ];
 
-/// All eight DISORT atmospheres at `standard`: the per-atmosphere table of docs/validation.md
-/// (`cargo test --release --locked --test atmosphere atmosphere_aerosol -- --include-ignored
-/// --nocapture`). Ignored because it costs ~40 s CPU; each atmosphere is held to its measured
-/// bounds (`MEASURED_BOUNDS`), so a regression in any of them fails it.
-#[test]
-#[ignore = "all eight atmospheres, ~40 s CPU: the measurement behind docs/validation.md's aerosol table"]
-fn precise_standard_all_eight_hazy_atmospheres_against_disort() {
-    let names: Vec<&str> = MEASURED_BOUNDS.iter().map(|b| b.0).collect();
-    let points = deviations("standard", &names, 1.0, 1.0);
-    summarise(&points, "precise standard vs DISORT, all eight");
+/// All eight atmospheres with `method` at `standard`, each held to its measured `bounds` (%,
+/// magnitudes: ≥ 10° from the sun, 2–10° from the sun, radiance mean, irradiance).
+fn hold_all_eight(method: &str, bounds: &[(&str, f64, f64, f64, f64)]) {
+    let names: Vec<&str> = bounds.iter().map(|b| b.0).collect();
+    let points = deviations(method, "standard", &names, 1.0, 1.0);
+    summarise(&points, &format!("{method} standard vs DISORT, all eight"));
     let mut failed = Vec::new();
-    for (name, far, near, mean, flux) in MEASURED_BOUNDS {
+    for &(name, far, near, mean, flux) in bounds {
         let of = || points.iter().filter(move |p| p.atmosphere == name);
         let max = |sel: &dyn Fn(&Point) -> bool| {
             of().filter(|p| sel(p))
@@ -293,4 +295,35 @@ fn precise_standard_all_eight_hazy_atmospheres_against_disort() {
         }
     }
     assert!(failed.is_empty(), "{}", failed.join("\n"));
+}
+
+/// All eight DISORT atmospheres at `standard`: the per-atmosphere table of docs/validation.md
+/// (`cargo test --release --locked --test atmosphere atmosphere_aerosol -- --include-ignored
+/// --nocapture`). Ignored because it costs ~40 s CPU; each atmosphere is held to its measured
+/// bounds (`MEASURED_BOUNDS`), so a regression in any of them fails it.
+#[test]
+#[ignore = "all eight atmospheres, ~40 s CPU: the measurement behind docs/validation.md's aerosol table"]
+fn precise_standard_all_eight_hazy_atmospheres_against_disort() {
+    hold_all_eight("precise", &MEASURED_BOUNDS);
+}
+
+/// The fast method's measured bounds (%, as `MEASURED_BOUNDS`; measured figures rounded up): far
+/// outside the 5 %, stated in docs/validation.md.
+const FAST_MEASURED_BOUNDS: [(&str, f64, f64, f64, f64); 8] = [
+    ("base", 39.0, 28.5, 6.0, 18.0),
+    ("thin", 10.5, 7.5, 2.5, 6.0),
+    ("thick", 91.0, 91.0, 46.0, 74.5),
+    ("conservative_g06", 31.0, 25.5, 6.0, 15.0),
+    ("absorbing_g08", 49.5, 33.5, 7.0, 23.5),
+    ("black_ground", 40.0, 29.0, 9.0, 19.5),
+    ("cornette_shanks", 50.0, 32.0, 5.0, 20.0),
+    ("cs_g08_bright", 172.0, 75.0, 10.0, 51.5),
+];
+
+/// The fast method against the same references (all eight atmospheres, `standard`, ~10 s): the
+/// fast rows of docs/validation.md.
+#[test]
+#[ignore = "the fast method in hazy air, ~10 s: the measurement behind docs/validation.md"]
+fn fast_standard_all_eight_hazy_atmospheres_against_disort() {
+    hold_all_eight("fast", &FAST_MEASURED_BOUNDS);
 }
