@@ -54,16 +54,19 @@ fn body(engine: &Engine, kind: ProductKind, pairs: Vec<(&str, String)>) -> Value
 
 /// One compared value: which, where, its relative deviation and the tolerance it must meet.
 struct Point {
+    atmosphere: String,
+    /// Angle from the sun (degrees) for a radiance, `None` for an irradiance.
+    from_sun_deg: Option<f64>,
     what: String,
     deviation: f64,
     tolerance: f64,
 }
 
 /// Relative deviations of sky radiance (view zenith ≤ 75°, scattering angle ≥ 2°) and of diffuse
-/// and global horizontal irradiance from DISORT, for the atmospheres named in `names`, at
-/// `quality`. Tolerances: `base` everywhere, `near` within 10° of the sun and for aerosol optical
+/// and global horizontal irradiance from DISORT, for the atmospheres named in `names`, with
+/// `method` at `quality`. Tolerances: `base` everywhere, `near` within 10° of the sun and for aerosol optical
 /// depth above 1.
-fn deviations(quality: &str, names: &[&str], base: f64, near: f64) -> Vec<Point> {
+fn deviations(method: &str, quality: &str, names: &[&str], base: f64, near: f64) -> Vec<Point> {
     let data = load();
     let engine = Engine::new();
     let mut out = Vec::new();
@@ -96,7 +99,7 @@ fn deviations(quality: &str, names: &[&str], base: f64, near: f64) -> Vec<Point>
                 ("atmosphere", atmosphere.clone()),
                 ("wavelengths", "440,550,680".to_string()),
                 ("sun_elevation_deg", (90.0 - sza).to_string()),
-                ("method", "precise".to_string()),
+                ("method", method.to_string()),
                 ("quality", quality.to_string()),
             ];
             let mut sky_pairs = common.clone();
@@ -126,6 +129,8 @@ fn deviations(quality: &str, names: &[&str], base: f64, near: f64) -> Vec<Point>
                 for (k, p) in all.iter().enumerate() {
                     let ours = f(&sky["probes"][k]["radiance_w_m2_sr_nm"][li]) / e0[li];
                     out.push(Point {
+                        atmosphere: name.to_string(),
+                        from_sun_deg: Some(p[2]),
                         what: format!(
                             "{name} {nm} nm sza {sza} vz {} az {} (scattering {:.1}°)",
                             p[0], p[1], p[2]
@@ -143,6 +148,8 @@ fn deviations(quality: &str, names: &[&str], base: f64, near: f64) -> Vec<Point>
                 ] {
                     let ours = f(&sun[ours][li]) / e0[li];
                     out.push(Point {
+                        atmosphere: name.to_string(),
+                        from_sun_deg: None,
                         what: format!("{name} {nm} nm sza {sza} {key}"),
                         deviation: ours / f(&case[key]) - 1.0,
                         tolerance: if thick { near } else { base },
@@ -154,11 +161,48 @@ fn deviations(quality: &str, names: &[&str], base: f64, near: f64) -> Vec<Point>
     out
 }
 
+/// The value of largest magnitude among `points` (signed, in %), or `None` if there are none.
+fn worst<'a>(points: impl Iterator<Item = &'a Point>) -> Option<&'a Point> {
+    points.max_by(|a, b| a.deviation.abs().total_cmp(&b.deviation.abs()))
+}
+
+/// Prints one line per atmosphere: sky radiance max deviation ≥ 10° from the sun, within 2–10° of
+/// the sun, the radiance mean, and the irradiances' max (all signed, %). The rows of
+/// docs/validation.md's aerosol table.
+fn summarise(points: &[Point], label: &str) {
+    let mut names: Vec<&str> = Vec::new();
+    for p in points {
+        if !names.contains(&p.atmosphere.as_str()) {
+            names.push(&p.atmosphere);
+        }
+    }
+    let pct = |p: Option<&Point>| p.map_or(f64::NAN, |p| 100.0 * p.deviation);
+    eprintln!("{label}: atmosphere | far (>= 10 deg) max | near (2-10 deg) max | radiance mean | irradiance max | worst far | worst near");
+    for name in names {
+        let of = || points.iter().filter(move |p| p.atmosphere == name);
+        let far = worst(of().filter(|p| p.from_sun_deg.is_some_and(|a| a >= 10.0)));
+        let near = worst(of().filter(|p| p.from_sun_deg.is_some_and(|a| a < 10.0)));
+        let flux = worst(of().filter(|p| p.from_sun_deg.is_none()));
+        let radiances: Vec<f64> = of()
+            .filter(|p| p.from_sun_deg.is_some())
+            .map(|p| p.deviation)
+            .collect();
+        let mean = radiances.iter().sum::<f64>() / radiances.len() as f64;
+        eprintln!(
+            "{label}: {name} | {:+.2} % | {:+.2} % | {:+.2} % | {:+.2} % | {} | {}",
+            pct(far),
+            pct(near),
+            100.0 * mean,
+            pct(flux),
+            far.map_or("-", |p| p.what.as_str()),
+            near.map_or("-", |p| p.what.as_str())
+        );
+    }
+}
+
 fn check(points: &[Point], label: &str) {
-    let worst = points
-        .iter()
-        .max_by(|a, b| a.deviation.abs().total_cmp(&b.deviation.abs()))
-        .unwrap();
+    summarise(points, label);
+    let worst = worst(points.iter()).unwrap();
     let mean = points.iter().map(|p| p.deviation).sum::<f64>() / points.len() as f64;
     eprintln!(
         "{label}: {} values, max |deviation| {:+.2} % at {}, mean {:+.2} %",
@@ -178,11 +222,108 @@ fn check(points: &[Point], label: &str) {
 #[test]
 fn precise_standard_hazy_sky_is_within_its_measured_error_of_disort() {
     // Three atmospheres keep the test cheap (AOD 0.4 HG 0.7; AOD 0.05; AOD 0.4 HG 0.8 ssa 0.8).
-    // Measured (tools: crates/harness/examples/aerosol_probe.rs, all eight atmospheres): sky
-    // radiance mean bias within ±0.3 %, max +3.4 % at the zenith with the sun at 40° (g 0.8);
-    // the 2 % is not met there yet (see docs/validation.md).
-    let points = deviations("standard", &["base", "thin", "absorbing_g08"], 0.035, 0.035);
+    // Measured through this path (all eight: the ignored test below): radiance mean within ±0.1 %
+    // for these three, max +3.37 % at the zenith with the sun at 40° and −3.38 % 2.8° from the sun
+    // (g 0.8); the 2 % is not met there yet (see docs/validation.md).
+    let points = deviations(
+        "precise",
+        "standard",
+        &["base", "thin", "absorbing_g08"],
+        0.035,
+        0.035,
+    );
     let mean = points.iter().map(|p| p.deviation).sum::<f64>() / points.len() as f64;
     check(&points, "precise standard vs DISORT (aerosol)");
     assert!(mean.abs() < 0.005, "mean bias {mean}");
+}
+
+/// Measured bounds per atmosphere at `standard` (%, magnitudes, the figures of docs/validation.md
+/// rounded up by 0.2–0.5): sky radiance ≥ 10° from the sun, within 2–10° of the sun, the radiance
+/// mean, and diffuse/global irradiance. Not the tolerances, which several rows exceed.
+const MEASURED_BOUNDS: [(&str, f64, f64, f64, f64); 8] = [
+    ("base", 2.5, 1.8, 0.2, 0.9),
+    ("thin", 1.0, 0.8, 0.2, 0.6),
+    ("thick", 16.7, 17.5, 0.3, 3.8),
+    ("conservative_g06", 1.8, 1.2, 0.2, 0.8),
+    ("absorbing_g08", 3.6, 3.6, 0.2, 1.3),
+    ("black_ground", 2.6, 1.9, 0.2, 1.0),
+    ("cornette_shanks", 3.3, 2.1, 0.2, 0.9),
+    ("cs_g08_bright", 8.8, 7.3, 1.0, 2.8),
+];
+
+/// All eight atmospheres with `method` at `standard`, each held to its measured `bounds` (%,
+/// magnitudes: ≥ 10° from the sun, 2–10° from the sun, radiance mean, irradiance).
+fn hold_all_eight(method: &str, bounds: &[(&str, f64, f64, f64, f64)]) {
+    let names: Vec<&str> = bounds.iter().map(|b| b.0).collect();
+    let points = deviations(method, "standard", &names, 1.0, 1.0);
+    summarise(&points, &format!("{method} standard vs DISORT, all eight"));
+    let mut failed = Vec::new();
+    for &(name, far, near, mean, flux) in bounds {
+        let of = || points.iter().filter(move |p| p.atmosphere == name);
+        let max = |sel: &dyn Fn(&Point) -> bool| {
+            of().filter(|p| sel(p))
+                .map(|p| 100.0 * p.deviation.abs())
+                .fold(0.0, f64::max)
+        };
+        let radiances: Vec<f64> = of()
+            .filter(|p| p.from_sun_deg.is_some())
+            .map(|p| 100.0 * p.deviation)
+            .collect();
+        assert!(!radiances.is_empty(), "{name}: no values");
+        let measured = [
+            (
+                "far",
+                max(&|p| p.from_sun_deg.is_some_and(|a| a >= 10.0)),
+                far,
+            ),
+            (
+                "near",
+                max(&|p| p.from_sun_deg.is_some_and(|a| a < 10.0)),
+                near,
+            ),
+            (
+                "mean",
+                (radiances.iter().sum::<f64>() / radiances.len() as f64).abs(),
+                mean,
+            ),
+            ("irradiance", max(&|p| p.from_sun_deg.is_none()), flux),
+        ];
+        for (what, value, bound) in measured {
+            if value > bound {
+                failed.push(format!("{name} {what}: {value:.2} % > {bound} %"));
+            }
+        }
+    }
+    assert!(failed.is_empty(), "{}", failed.join("\n"));
+}
+
+/// All eight DISORT atmospheres at `standard`: the per-atmosphere table of docs/validation.md
+/// (`cargo test --release --locked --test atmosphere atmosphere_aerosol -- --include-ignored
+/// --nocapture`). Ignored because it costs ~40 s CPU; each atmosphere is held to its measured
+/// bounds (`MEASURED_BOUNDS`), so a regression in any of them fails it.
+#[test]
+#[ignore = "all eight atmospheres, ~40 s CPU: the measurement behind docs/validation.md's aerosol table"]
+fn precise_standard_all_eight_hazy_atmospheres_against_disort() {
+    hold_all_eight("precise", &MEASURED_BOUNDS);
+}
+
+/// The fast method's measured bounds (%, as `MEASURED_BOUNDS`; measured figures rounded up): far
+/// outside the 5 %, stated in docs/validation.md.
+const FAST_MEASURED_BOUNDS: [(&str, f64, f64, f64, f64); 8] = [
+    ("base", 39.0, 28.5, 6.0, 18.0),
+    ("thin", 10.5, 7.5, 2.5, 6.0),
+    ("thick", 91.0, 91.0, 46.0, 74.5),
+    ("conservative_g06", 31.0, 25.5, 6.0, 15.0),
+    ("absorbing_g08", 49.5, 33.5, 7.0, 23.5),
+    ("black_ground", 40.0, 29.0, 9.0, 19.5),
+    ("cornette_shanks", 50.0, 32.0, 5.0, 20.0),
+    ("cs_g08_bright", 172.0, 75.0, 10.0, 51.5),
+];
+
+/// The fast method against the same references (all eight atmospheres, `standard`, ~10 s): the
+/// fast rows of docs/validation.md.
+#[test]
+#[ignore = "the fast method in hazy air, ~10 s: the measurement behind docs/validation.md"]
+fn fast_standard_all_eight_hazy_atmospheres_against_disort() {
+    hold_all_eight("fast", &FAST_MEASURED_BOUNDS);
 }
