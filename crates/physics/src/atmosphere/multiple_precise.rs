@@ -1708,57 +1708,72 @@ impl PreciseMultipleScattering {
     /// ([`twilight_lanes`]: Catmull–Rom in ln Â_c at each (r, θ, φ) corner), with the logarithms
     /// taken once per point.
     pub fn add_from_slice(&self, slice: &JSlice, mu_s: f64, nu: f64, out: &mut [f64]) {
-        let grid = &self.grid;
-        let theta_s = acos_fast(mu_s);
-        if theta_s > grid.theta_s_max {
-            return;
-        }
-        let (n_l, n_mu_s, n_mu, n_phi) = (self.n_l, grid.s.n_mu_s, grid.s.n_mu, grid.s.n_phi);
-        let (is, fs) = grid.s_pos(theta_s);
-        let cos_phi = cos_azimuth(slice.mu, mu_s, nu);
-        let (ip, fp) = Grid::centred_pos(acos_fast(cos_phi), n_phi);
-        if grid.twilight_cell(is) {
-            const MAX: usize = crate::spectrum::wavelengths::MAX_WAVELENGTHS;
-            let lanes = 2 * n_l;
-            let mut a = [0.0f64; 2 * MAX];
-            let a = &mut a[..lanes];
-            let (nodes, wq) = catmull_rom(is, fs, n_mu_s);
-            let per_corner = (n_mu_s - slice.ln_from) * n_phi * lanes;
-            for (k, &(ir, im, wc)) in slice.corners.iter().enumerate() {
-                for (e, we) in [(ip, 1.0 - fp), (ip + 1, fp)] {
-                    let w = wc * we;
-                    if w == 0.0 {
-                        continue;
+        add_from_slice_kernel(self, slice, mu_s, nu, out);
+    }
+}
+
+crate::simd_dispatch! {
+    /// [`PreciseMultipleScattering::add_from_slice`], compiled for AVX2 where the CPU has it (the
+    /// same IEEE operations in the same order: no fused multiply-adds are formed, so the values
+    /// are those of the baseline build).
+    fn add_from_slice_kernel(
+        table: &PreciseMultipleScattering,
+        slice: &JSlice,
+        mu_s: f64,
+        nu: f64,
+        out: &mut [f64],
+    ) {
+            let grid = &table.grid;
+            let theta_s = acos_fast(mu_s);
+            if theta_s > grid.theta_s_max {
+                return;
+            }
+            let (n_l, n_mu_s, n_mu, n_phi) = (table.n_l, grid.s.n_mu_s, grid.s.n_mu, grid.s.n_phi);
+            let (is, fs) = grid.s_pos(theta_s);
+            let cos_phi = cos_azimuth(slice.mu, mu_s, nu);
+            let (ip, fp) = Grid::centred_pos(acos_fast(cos_phi), n_phi);
+            if grid.twilight_cell(is) {
+                const MAX: usize = crate::spectrum::wavelengths::MAX_WAVELENGTHS;
+                let lanes = 2 * n_l;
+                let mut a = [0.0f64; 2 * MAX];
+                let a = &mut a[..lanes];
+                let (nodes, wq) = catmull_rom(is, fs, n_mu_s);
+                let per_corner = (n_mu_s - slice.ln_from) * n_phi * lanes;
+                for (k, &(ir, im, wc)) in slice.corners.iter().enumerate() {
+                    for (e, we) in [(ip, 1.0 - fp), (ip + 1, fp)] {
+                        let w = wc * we;
+                        if w == 0.0 {
+                            continue;
+                        }
+                        let base = |b: usize| (((ir * n_mu + im) * n_mu_s + b) * n_phi + e) * lanes;
+                        let ln_at =
+                            |b: usize| k * per_corner + ((b - slice.ln_from) * n_phi + e) * lanes;
+                        let v = nodes.map(|b| &table.j_ms[base(b)..][..lanes]);
+                        let ln_v = nodes.map(|b| &slice.ln[ln_at(b)..][..lanes]);
+                        twilight_lanes(v, ln_v, wq, fs, w, a);
                     }
-                    let base = |b: usize| (((ir * n_mu + im) * n_mu_s + b) * n_phi + e) * lanes;
-                    let ln_at =
-                        |b: usize| k * per_corner + ((b - slice.ln_from) * n_phi + e) * lanes;
-                    let v = nodes.map(|b| &self.j_ms[base(b)..][..lanes]);
-                    let ln_v = nodes.map(|b| &slice.ln[ln_at(b)..][..lanes]);
-                    twilight_lanes(v, ln_v, wq, fs, w, a);
                 }
+                let sc = &table.scattering;
+                let (rho_r, rho_m) = sc.densities(slice.r);
+                for i in 0..n_l {
+                    out[i] +=
+                        sc.rayleigh_per_m[i] * rho_r * a[i] + sc.mie_per_m[i] * rho_m * a[n_l + i];
+                }
+                return;
             }
-            let sc = &self.scattering;
-            let (rho_r, rho_m) = sc.densities(slice.r);
+            let row = n_phi * n_l;
+            let out = &mut out[..n_l];
+            let a = is * row + ip * n_l;
+            let (v00, v01) = (&slice.lin[a..a + n_l], &slice.lin[a + n_l..a + 2 * n_l]);
+            let (v10, v11) = (
+                &slice.lin[a + row..a + row + n_l],
+                &slice.lin[a + row + n_l..a + row + 2 * n_l],
+            );
+            let (w00, w01) = ((1.0 - fs) * (1.0 - fp), (1.0 - fs) * fp);
+            let (w10, w11) = (fs * (1.0 - fp), fs * fp);
             for i in 0..n_l {
-                out[i] +=
-                    sc.rayleigh_per_m[i] * rho_r * a[i] + sc.mie_per_m[i] * rho_m * a[n_l + i];
+                out[i] += w00 * v00[i] + w01 * v01[i] + w10 * v10[i] + w11 * v11[i];
             }
-            return;
-        }
-        let row = n_phi * n_l;
-        let out = &mut out[..n_l];
-        let a = is * row + ip * n_l;
-        let (v00, v01) = (&slice.lin[a..a + n_l], &slice.lin[a + n_l..a + 2 * n_l]);
-        let (v10, v11) = (
-            &slice.lin[a + row..a + row + n_l],
-            &slice.lin[a + row + n_l..a + row + 2 * n_l],
-        );
-        let (w00, w01) = ((1.0 - fs) * (1.0 - fp), (1.0 - fs) * fp);
-        let (w10, w11) = (fs * (1.0 - fp), fs * fp);
-        for i in 0..n_l {
-            out[i] += w00 * v00[i] + w01 * v01[i] + w10 * v10[i] + w11 * v11[i];
-        }
     }
 }
 
