@@ -1638,8 +1638,8 @@ impl PreciseMultipleScattering {
 /// J_ms at one ray point for every sun, for callers that evaluate many suns on the same rays
 /// (the texture bundle: 256 suns per ray): the table interpolated once to the point's radius and
 /// view zenith for the day cells, and the point's (r, θ) corners whose logarithms (taken once per
-/// table, [`PreciseMultipleScattering::ln_j_ms`]) the products' twilight interpolation uses. Filled by [`PreciseMultipleScattering::slice`], read by
-/// [`PreciseMultipleScattering::add_from_slice`].
+/// table, `ln_j_ms`) the products' twilight interpolation uses. Filled by
+/// [`PreciseMultipleScattering::slice`], read by [`PreciseMultipleScattering::add_from_slice`].
 #[derive(Debug, Clone, Default)]
 pub struct JSlice {
     /// Radius and view zenith cosine of the point.
@@ -1729,7 +1729,7 @@ impl PreciseMultipleScattering {
     /// day bilinear over sun zenith and azimuth in the slice (the products' 16-corner
     /// interpolation, summed in another order); in twilight cells the products' own arithmetic
     /// ([`twilight_lanes`]: Catmull–Rom in ln Â_c at each (r, θ, φ) corner), with the logarithms
-    /// taken once per point.
+    /// taken once per table (`ln_j_ms`).
     pub fn add_from_slice(&self, slice: &JSlice, mu_s: f64, nu: f64, out: &mut [f64]) {
         add_from_slice_kernel(self, slice, mu_s, nu, out);
     }
