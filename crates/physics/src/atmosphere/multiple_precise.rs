@@ -174,6 +174,10 @@ pub struct PreciseMultipleScattering {
     /// `[i_mu_s][λ]`, sky irradiance on the ground per unit solar irradiance.
     ground_sky: Vec<f64>,
     pub convergence: Convergence,
+    /// ln of `j_ms` ([`ln_or_zero`]) on the sun-zenith nodes twilight cells interpolate, taken
+    /// once on first use by [`Self::slice`] callers: `[i_r][i_mu][i_mu_s − ln_from][i_phi][c][λ]`
+    /// (see [`Self::ln_j_ms`]).
+    ln_j_ms: std::sync::OnceLock<(usize, Vec<f64>)>,
 }
 
 /// The table grid. Sun zenith nodes are uniform (`n_coarse` nodes over [0, θ_s max], the
@@ -527,7 +531,9 @@ fn twilight_lanes(
     out: &mut [f64],
 ) {
     let n = out.len();
-    let (v, ln_v) = (v.map(|x| &x[..n]), ln_v.map(|x| &x[..n]));
+    // Written out rather than `array::map`, which was not always inlined in the hot loops.
+    let v = [&v[0][..n], &v[1][..n], &v[2][..n], &v[3][..n]];
+    let ln_v = [&ln_v[0][..n], &ln_v[1][..n], &ln_v[2][..n], &ln_v[3][..n]];
     for i in 0..n {
         let positive = (v[0][i] > 0.0) & (v[1][i] > 0.0) & (v[2][i] > 0.0) & (v[3][i] > 0.0);
         let ln_j =
@@ -563,7 +569,9 @@ fn twilight_lanes_f32(
     out: &mut [f32],
 ) {
     let n = out.len();
-    let (v, ln_v) = (v.map(|x| &x[..n]), ln_v.map(|x| &x[..n]));
+    // Written out rather than `array::map`, which was not always inlined in the hot loops.
+    let v = [&v[0][..n], &v[1][..n], &v[2][..n], &v[3][..n]];
+    let ln_v = [&ln_v[0][..n], &ln_v[1][..n], &ln_v[2][..n], &ln_v[3][..n]];
     const MIN: f32 = f32::MIN_POSITIVE;
     for i in 0..n {
         let positive = (v[0][i] >= MIN) & (v[1][i] >= MIN) & (v[2][i] >= MIN) & (v[3][i] >= MIN);
@@ -1514,6 +1522,7 @@ impl PreciseMultipleScattering {
             j_ms,
             scattering: ScatteringCoefficient::new(medium),
             ground_sky,
+            ln_j_ms: std::sync::OnceLock::new(),
             convergence: Convergence {
                 orders,
                 last_order_fraction: last_fraction,
@@ -1621,15 +1630,16 @@ impl PreciseMultipleScattering {
             scattering: ScatteringCoefficient::new(medium),
             ground_sky: meta.ground_sky,
             convergence: meta.convergence,
+            ln_j_ms: std::sync::OnceLock::new(),
         })
     }
 }
 
 /// J_ms at one ray point for every sun, for callers that evaluate many suns on the same rays
 /// (the texture bundle: 256 suns per ray): the table interpolated once to the point's radius and
-/// view zenith for the day cells, and the logarithms the products' twilight interpolation takes
-/// at the point's (r, θ) corners. Filled by [`PreciseMultipleScattering::slice`], read by
-/// [`PreciseMultipleScattering::add_from_slice`].
+/// view zenith for the day cells, and the point's (r, θ) corners whose logarithms (taken once per
+/// table, `ln_j_ms`) the products' twilight interpolation uses. Filled by
+/// [`PreciseMultipleScattering::slice`], read by [`PreciseMultipleScattering::add_from_slice`].
 #[derive(Debug, Clone, Default)]
 pub struct JSlice {
     /// Radius and view zenith cosine of the point.
@@ -1642,17 +1652,39 @@ pub struct JSlice {
     /// The (r, θ) corners of the point with a non-zero weight: (r node, θ node, weight), in the
     /// order the products' lookup visits them.
     corners: Vec<(usize, usize, f64)>,
-    /// `[corner][i_mu_s − ln_from][i_phi][c][λ]`: ln Â of each corner ([`ln_or_zero`]) on the
-    /// sun-zenith nodes twilight cells interpolate.
-    ln: Vec<f64>,
-    ln_from: usize,
 }
 
 impl PreciseMultipleScattering {
+    /// `(ln_from, ln Â)`: the first sun-zenith node a twilight cell's Catmull–Rom reads (twilight
+    /// cells from `ln_from + 1` on) and [`ln_or_zero`] of every table value from that node on,
+    /// `[i_r][i_mu][i_mu_s − ln_from][i_phi][c][λ]`; computed once per table (the same logarithms
+    /// the products' twilight interpolation takes at each lookup).
+    fn ln_j_ms(&self) -> (usize, &[f64]) {
+        let (from, ln) = self.ln_j_ms.get_or_init(|| {
+            let grid = &self.grid;
+            let n_mu_s = grid.s.n_mu_s;
+            let from = (0..n_mu_s.saturating_sub(1))
+                .find(|&is| grid.twilight_cell(is))
+                .unwrap_or(n_mu_s)
+                .saturating_sub(1);
+            let per_node = grid.s.n_phi * 2 * self.n_l;
+            // Serial (a few ms): a parallel loop here could let this thread steal a task that
+            // waits on this same initialisation.
+            let ln = self
+                .j_ms
+                .chunks(n_mu_s * per_node)
+                .flat_map(|family| family[from * per_node..].iter().map(|&v| ln_or_zero(v)))
+                .collect();
+            (from, ln)
+        });
+        (*from, ln)
+    }
+
     /// The slice of the table at radius `r` and view zenith cosine `mu`: Â_R and Â_M
     /// multilinear in (r, θ) as [`Source::add_scattering`] interpolates, then weighted by the
     /// point's scattering coefficients σ_c ρ_c(r) into J.
     pub fn slice(&self, r: f64, mu: f64, out: &mut JSlice) {
+        self.ln_j_ms();
         let grid = &self.grid;
         let (n_l, n_mu_s, n_mu, n_phi) = (self.n_l, grid.s.n_mu_s, grid.s.n_mu, grid.s.n_phi);
         let cells = n_mu_s * n_phi;
@@ -1663,13 +1695,6 @@ impl PreciseMultipleScattering {
         out.per_constituent.clear();
         out.per_constituent.resize(fam, 0.0);
         out.corners.clear();
-        out.ln.clear();
-        // Twilight cells from `from` on; their Catmull–Rom nodes from `from − 1`.
-        out.ln_from = (0..n_mu_s.saturating_sub(1))
-            .find(|&is| grid.twilight_cell(is))
-            .unwrap_or(n_mu_s)
-            .saturating_sub(1);
-        let ln_start = out.ln_from * n_phi * lanes;
         let (ir, fr) = grid_pos(grid.x_r(r), grid.s.n_r);
         let (im, fm) = Grid::centred_pos(acos_fast(mu), n_mu);
         for (a, wa) in [(ir, 1.0 - fr), (ir + 1, fr)] {
@@ -1685,8 +1710,6 @@ impl PreciseMultipleScattering {
                     *o += w * *v as f64;
                 }
                 out.corners.push((a, c, w));
-                out.ln
-                    .extend(row[ln_start..].iter().map(|&v| ln_or_zero(v)));
             }
         }
         let sc = &self.scattering;
@@ -1706,59 +1729,89 @@ impl PreciseMultipleScattering {
     /// day bilinear over sun zenith and azimuth in the slice (the products' 16-corner
     /// interpolation, summed in another order); in twilight cells the products' own arithmetic
     /// ([`twilight_lanes`]: Catmull–Rom in ln Â_c at each (r, θ, φ) corner), with the logarithms
-    /// taken once per point.
+    /// taken once per table (`ln_j_ms`).
     pub fn add_from_slice(&self, slice: &JSlice, mu_s: f64, nu: f64, out: &mut [f64]) {
-        let grid = &self.grid;
-        let theta_s = acos_fast(mu_s);
-        if theta_s > grid.theta_s_max {
-            return;
-        }
-        let (n_l, n_mu_s, n_mu, n_phi) = (self.n_l, grid.s.n_mu_s, grid.s.n_mu, grid.s.n_phi);
-        let (is, fs) = grid.s_pos(theta_s);
-        let cos_phi = cos_azimuth(slice.mu, mu_s, nu);
-        let (ip, fp) = Grid::centred_pos(acos_fast(cos_phi), n_phi);
-        if grid.twilight_cell(is) {
-            const MAX: usize = crate::spectrum::wavelengths::MAX_WAVELENGTHS;
-            let lanes = 2 * n_l;
-            let mut a = [0.0f64; 2 * MAX];
-            let a = &mut a[..lanes];
-            let (nodes, wq) = catmull_rom(is, fs, n_mu_s);
-            let per_corner = (n_mu_s - slice.ln_from) * n_phi * lanes;
-            for (k, &(ir, im, wc)) in slice.corners.iter().enumerate() {
-                for (e, we) in [(ip, 1.0 - fp), (ip + 1, fp)] {
-                    let w = wc * we;
-                    if w == 0.0 {
-                        continue;
+        add_from_slice_kernel(self, slice, mu_s, nu, out);
+    }
+}
+
+crate::simd_dispatch! {
+    /// [`PreciseMultipleScattering::add_from_slice`], compiled for AVX2 where the CPU has it (the
+    /// same IEEE operations in the same order: no fused multiply-adds are formed, so the values
+    /// are those of the baseline build).
+    fn add_from_slice_kernel(
+        table: &PreciseMultipleScattering,
+        slice: &JSlice,
+        mu_s: f64,
+        nu: f64,
+        out: &mut [f64],
+    ) {
+            let grid = &table.grid;
+            let theta_s = acos_fast(mu_s);
+            if theta_s > grid.theta_s_max {
+                return;
+            }
+            let (n_l, n_mu_s, n_mu, n_phi) = (table.n_l, grid.s.n_mu_s, grid.s.n_mu, grid.s.n_phi);
+            let (is, fs) = grid.s_pos(theta_s);
+            let cos_phi = cos_azimuth(slice.mu, mu_s, nu);
+            let (ip, fp) = Grid::centred_pos(acos_fast(cos_phi), n_phi);
+            if grid.twilight_cell(is) {
+                const MAX: usize = crate::spectrum::wavelengths::MAX_WAVELENGTHS;
+                let lanes = 2 * n_l;
+                let mut a = [0.0f64; 2 * MAX];
+                let a = &mut a[..lanes];
+                let (nodes, wq) = catmull_rom(is, fs, n_mu_s);
+                let (ln_from, ln_j) = table.ln_j_ms();
+                let per_family = (n_mu_s - ln_from) * n_phi * lanes;
+                for &(ir, im, wc) in &slice.corners {
+                    for (e, we) in [(ip, 1.0 - fp), (ip + 1, fp)] {
+                        let w = wc * we;
+                        if w == 0.0 {
+                            continue;
+                        }
+                        let base = |b: usize| (((ir * n_mu + im) * n_mu_s + b) * n_phi + e) * lanes;
+                        let ln_at = |b: usize| {
+                            (ir * n_mu + im) * per_family + ((b - ln_from) * n_phi + e) * lanes
+                        };
+                        // Written out: `array::map` with these closures was not inlined (a
+                        // quarter of the bundle's CPU time in calls).
+                        let [b0, b1, b2, b3] = nodes;
+                        let v = [
+                            &table.j_ms[base(b0)..][..lanes],
+                            &table.j_ms[base(b1)..][..lanes],
+                            &table.j_ms[base(b2)..][..lanes],
+                            &table.j_ms[base(b3)..][..lanes],
+                        ];
+                        let ln_v = [
+                            &ln_j[ln_at(b0)..][..lanes],
+                            &ln_j[ln_at(b1)..][..lanes],
+                            &ln_j[ln_at(b2)..][..lanes],
+                            &ln_j[ln_at(b3)..][..lanes],
+                        ];
+                        twilight_lanes(v, ln_v, wq, fs, w, a);
                     }
-                    let base = |b: usize| (((ir * n_mu + im) * n_mu_s + b) * n_phi + e) * lanes;
-                    let ln_at =
-                        |b: usize| k * per_corner + ((b - slice.ln_from) * n_phi + e) * lanes;
-                    let v = nodes.map(|b| &self.j_ms[base(b)..][..lanes]);
-                    let ln_v = nodes.map(|b| &slice.ln[ln_at(b)..][..lanes]);
-                    twilight_lanes(v, ln_v, wq, fs, w, a);
                 }
+                let sc = &table.scattering;
+                let (rho_r, rho_m) = sc.densities(slice.r);
+                for i in 0..n_l {
+                    out[i] +=
+                        sc.rayleigh_per_m[i] * rho_r * a[i] + sc.mie_per_m[i] * rho_m * a[n_l + i];
+                }
+                return;
             }
-            let sc = &self.scattering;
-            let (rho_r, rho_m) = sc.densities(slice.r);
+            let row = n_phi * n_l;
+            let out = &mut out[..n_l];
+            let a = is * row + ip * n_l;
+            let (v00, v01) = (&slice.lin[a..a + n_l], &slice.lin[a + n_l..a + 2 * n_l]);
+            let (v10, v11) = (
+                &slice.lin[a + row..a + row + n_l],
+                &slice.lin[a + row + n_l..a + row + 2 * n_l],
+            );
+            let (w00, w01) = ((1.0 - fs) * (1.0 - fp), (1.0 - fs) * fp);
+            let (w10, w11) = (fs * (1.0 - fp), fs * fp);
             for i in 0..n_l {
-                out[i] +=
-                    sc.rayleigh_per_m[i] * rho_r * a[i] + sc.mie_per_m[i] * rho_m * a[n_l + i];
+                out[i] += w00 * v00[i] + w01 * v01[i] + w10 * v10[i] + w11 * v11[i];
             }
-            return;
-        }
-        let row = n_phi * n_l;
-        let out = &mut out[..n_l];
-        let a = is * row + ip * n_l;
-        let (v00, v01) = (&slice.lin[a..a + n_l], &slice.lin[a + n_l..a + 2 * n_l]);
-        let (v10, v11) = (
-            &slice.lin[a + row..a + row + n_l],
-            &slice.lin[a + row + n_l..a + row + 2 * n_l],
-        );
-        let (w00, w01) = ((1.0 - fs) * (1.0 - fp), (1.0 - fs) * fp);
-        let (w10, w11) = (fs * (1.0 - fp), fs * fp);
-        for i in 0..n_l {
-            out[i] += w00 * v00[i] + w01 * v01[i] + w10 * v10[i] + w11 * v11[i];
-        }
     }
 }
 
