@@ -7,7 +7,7 @@
 //! Each test prints its largest relative error per band and asserts the measured bound (with
 //! a little margin, so a regression fails); docs/lut.md states them against the targets
 //! (`cargo test --release --test atmosphere lut -- --ignored --nocapture` prints them). The two bundle
-//! builds (RGB and spectral form) are shared by the tests. They cost about 160 s of CPU, so these
+//! builds (RGB and spectral form) are shared by the tests. They cost about 45 s of CPU, so these
 //! tests are `#[ignore]`d in the README's test command and run as their own step of `.ci/run`
 //! (`cargo test --release --locked --test atmosphere -- --ignored lut::`).
 
@@ -175,7 +175,7 @@ fn view_dir(zenith_deg: f64, azimuth_deg: f64) -> [f64; 3] {
 }
 
 #[test]
-#[ignore = "builds two bundles (about 160 s of CPU): its own step of .ci/run"]
+#[ignore = "builds two bundles (about 45 s of CPU): its own step of .ci/run"]
 fn sky_radiance_matches_the_sky_product() {
     let bands = sky_errors(fixture());
     // Measured (RGB form: G and B single Mie extrapolated from R, half floats); the targets are
@@ -197,7 +197,7 @@ fn sky_radiance_matches_the_sky_product() {
 }
 
 #[test]
-#[ignore = "builds two bundles (about 160 s of CPU): its own step of .ci/run"]
+#[ignore = "builds two bundles (about 45 s of CPU): its own step of .ci/run"]
 fn sky_radiance_of_the_spectral_form() {
     let bands = sky_errors(spectral_fixture());
     // Measured: the 4-D table's interpolation alone (the texel centres equal the product,
@@ -293,7 +293,7 @@ fn sky_errors(f: &Fixture) -> Bands {
 }
 
 #[test]
-#[ignore = "builds two bundles (about 160 s of CPU): its own step of .ci/run"]
+#[ignore = "builds two bundles (about 45 s of CPU): its own step of .ci/run"]
 fn sun_and_sky_irradiance_match_the_sun_product() {
     let f = fixture();
     let reader = Reader::new(&f.bundle);
@@ -345,7 +345,7 @@ fn sun_and_sky_irradiance_match_the_sun_product() {
 }
 
 #[test]
-#[ignore = "builds two bundles (about 160 s of CPU): its own step of .ci/run"]
+#[ignore = "builds two bundles (about 45 s of CPU): its own step of .ci/run"]
 fn aerial_perspective_matches_the_aerial_product() {
     let f = fixture();
     let reader = Reader::new(&f.bundle);
@@ -436,7 +436,7 @@ fn aerial_perspective_matches_the_aerial_product() {
 /// products' per-sample lookup at random points, views and suns: equal to rounding, day and
 /// twilight.
 #[test]
-#[ignore = "builds two bundles (about 160 s of CPU): its own step of .ci/run"]
+#[ignore = "builds two bundles (about 45 s of CPU): its own step of .ci/run"]
 fn the_slice_lookup_matches_the_products_lookup() {
     use skybake_physics::atmosphere::integrate::{RaySample, Source};
     use skybake_physics::atmosphere::multiple_precise::JSlice;
@@ -487,7 +487,7 @@ fn the_slice_lookup_matches_the_products_lookup() {
 /// texture is involved. Rays above the horizon (the product adds the ground's reflection where
 /// the ray ends on the ground; the texture leaves it to the client).
 #[test]
-#[ignore = "builds two bundles (about 160 s of CPU): its own step of .ci/run"]
+#[ignore = "builds two bundles (about 45 s of CPU): its own step of .ci/run"]
 fn texel_centres_match_the_sky_product() {
     let f = spectral_fixture();
     let b = &f.bundle;
