@@ -212,22 +212,29 @@ fn sky_radiance_of_the_spectral_form() {
     }
 }
 
+/// Case `case`'s observer altitude (m; every third at the ground, else 0–100 km) and sun
+/// elevation (°; even cases −12…5°, odd 5…90°).
+fn random_observer(rng: &mut Pcg64, case: usize) -> (f64, f64) {
+    let altitude = if case % 3 == 0 {
+        0.0
+    } else {
+        rng.random_range(0.0..100_000.0f64)
+    };
+    let sun_deg = if case % 2 == 0 {
+        rng.random_range(-12.0..5.0f64)
+    } else {
+        rng.random_range(5.0..90.0f64)
+    };
+    (altitude, sun_deg)
+}
+
 fn sky_errors(f: &Fixture) -> Bands {
     let reader = Reader::new(&f.bundle);
     let mut rng = Pcg64::seed_from_u64(27);
     let mut bands = Bands::default();
     let bottom = f.bundle.params.bottom_radius;
     for case in 0..24 {
-        let altitude = if case % 3 == 0 {
-            0.0
-        } else {
-            rng.random_range(0.0..100_000.0f64)
-        };
-        let sun_deg = if case % 2 == 0 {
-            rng.random_range(-12.0..5.0f64)
-        } else {
-            rng.random_range(5.0..90.0f64)
-        };
+        let (altitude, sun_deg) = random_observer(&mut rng, case);
         let spec = spec_at(f, altitude, sun_deg);
         let dip = (bottom / (bottom + altitude)).acos().to_degrees();
         // Views above the geometric horizon (the bundle leaves the ground to the client).
@@ -302,16 +309,7 @@ fn sun_and_sky_irradiance_match_the_sun_product() {
     let mut sky = Bands::default();
     let bottom = f.bundle.params.bottom_radius;
     for case in 0..24 {
-        let altitude = if case % 3 == 0 {
-            0.0
-        } else {
-            rng.random_range(0.0..100_000.0f64)
-        };
-        let sun_deg = if case % 2 == 0 {
-            rng.random_range(-12.0..5.0f64)
-        } else {
-            rng.random_range(5.0..90.0f64)
-        };
+        let (altitude, sun_deg) = random_observer(&mut rng, case);
         let product = f.engine.sun(&spec_at(f, altitude, sun_deg)).unwrap();
         let idx = channel_index(f, &product.wavelengths_nm);
         let point = [0.0, 0.0, bottom + altitude];
