@@ -1,6 +1,7 @@
 //! Cloud density sources and the frame renderer, against Mitsuba 3, DISORT slabs and the path tracer.
 
 mod cloud_automaton;
+mod cloud_light;
 mod cloud_fractal_growth;
 mod cloud_import_grids;
 mod cloud_import_vdb;
