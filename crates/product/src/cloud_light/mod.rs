@@ -48,6 +48,11 @@ pub const SKY_ELEMENTS: usize = 17;
 /// Largest manifest accepted when decoding, bytes.
 const MAX_MANIFEST_BYTES: usize = 1 << 20;
 
+/// `v` as the 16-bit float the file holds (the in-memory export is what a client decodes).
+fn to_half(v: f32) -> f32 {
+    half::f16::from_f32(v).to_f32()
+}
+
 /// A wavelength-dependent directional table: one channel per (entry, wavelength).
 #[derive(Debug, Clone, PartialEq)]
 pub struct SkyTable {
@@ -145,8 +150,19 @@ impl CloudLight {
         let n_l = inputs.wavelengths_nm.len();
         let n = grid.data.len();
         let lighting = lit.cloud_lighting();
+        // Only voxels whose 3×3×3 neighbourhood holds cloud are ever interpolated where there
+        // is density: the rest are written as 0 (they compress to nothing).
+        let in_mask = |idx: usize| lit.mask.get(idx).copied().unwrap_or(false);
         let sky_paths = if lit.sky_elements.is_some() && lit.env_on {
-            lit.lattice.clone()
+            lit.lattice
+                .iter()
+                .map(|p| {
+                    p.iter()
+                        .enumerate()
+                        .map(|(i, &v)| if in_mask(i) { to_half(v) } else { 0.0 })
+                        .collect()
+                })
+                .collect()
         } else {
             Vec::new()
         };
@@ -178,13 +194,13 @@ impl CloudLight {
                 let [nx, ny, _] = grid.dims;
                 let mut planes = vec![vec![0f32; n]; per];
                 let mut c = vec![0.0; per];
-                for idx in 0..n {
+                for idx in (0..n).filter(|&i| in_mask(i)) {
                     let (x, y, z) = (idx % nx, (idx / nx) % ny, idx / (nx * ny));
                     f.convolved_coefficients(grid.voxel_centre(x, y, z), &mut c);
                     for l in 0..n_l {
                         for m in 0..moments {
                             planes[l * moments + m][idx] =
-                                (lit.ms_albedo[l] * c[l * moments + m]) as f32;
+                                to_half((lit.ms_albedo[l] * c[l * moments + m]) as f32);
                         }
                     }
                 }
@@ -265,7 +281,7 @@ impl CloudLight {
     pub fn files(&self) -> Result<Vec<(&'static str, Vec<u8>)>> {
         let [nx, ny, nz] = self.dims;
         let n_l = self.n_l();
-        let enc = |width: usize, height: usize, channels: Vec<(String, &[f32])>| {
+        let enc = |width: usize, height: usize, channels: Vec<(String, &[f32])>, half: bool| {
             encode_texture_exr(TextureImage {
                 width,
                 height,
@@ -273,18 +289,18 @@ impl CloudLight {
                     .iter()
                     .map(|(n, v)| (n.as_str(), v.to_vec()))
                     .collect(),
-                half: false,
+                half,
             })
             .map_err(|e| Error::internal("cloud_light", e))
         };
         let mut files = vec![
             (
                 DENSITY_FILE,
-                enc(nx, ny * nz, vec![("density".into(), &self.density)])?,
+                enc(nx, ny * nz, vec![("density".into(), &self.density)], false)?,
             ),
             (
                 SUN_PATH_FILE,
-                enc(nx, ny * nz, vec![("D_sun".into(), &self.sun_path)])?,
+                enc(nx, ny * nz, vec![("D_sun".into(), &self.sun_path)], false)?,
             ),
         ];
         if !self.sky_paths.is_empty() {
@@ -294,7 +310,7 @@ impl CloudLight {
                 .enumerate()
                 .map(|(e, v)| (format!("D_{e:02}"), v.as_slice()))
                 .collect();
-            files.push((SKY_PATHS_FILE, enc(nx, ny * nz, ch)?));
+            files.push((SKY_PATHS_FILE, enc(nx, ny * nz, ch, true)?));
         }
         if let Some(order) = self.ms_order {
             let moments = (order + 1) * (order + 1);
@@ -307,7 +323,7 @@ impl CloudLight {
                     ));
                 }
             }
-            files.push((MS_FILE, enc(nx, ny * nz, ch)?));
+            files.push((MS_FILE, enc(nx, ny * nz, ch, true)?));
         }
         if let Some(sky) = &self.sky {
             let mut ch = Vec::new();
@@ -319,7 +335,7 @@ impl CloudLight {
                     ));
                 }
             }
-            files.push((SKY_ELEMENTS_FILE, enc(sky.n_az, sky.n_elev, ch)?));
+            files.push((SKY_ELEMENTS_FILE, enc(sky.n_az, sky.n_elev, ch, false)?));
         }
         let ch = (0..n_l)
             .map(|l| {
@@ -329,7 +345,7 @@ impl CloudLight {
                 )
             })
             .collect();
-        files.push((PHASE_FILE, enc(PHASE_NODES, 1, ch)?));
+        files.push((PHASE_FILE, enc(PHASE_NODES, 1, ch, false)?));
         if let Some(p) = &self.peak {
             let ch = (0..n_l)
                 .map(|l| {
@@ -339,7 +355,7 @@ impl CloudLight {
                     )
                 })
                 .collect();
-            files.push((PEAK_FILE, enc(p.n_lambda, p.n_theta, ch)?));
+            files.push((PEAK_FILE, enc(p.n_lambda, p.n_theta, ch, false)?));
         }
         let text = serde_json::to_string_pretty(&self.manifest(&files))
             .map_err(|e| Error::internal("cloud_light", e))?;
@@ -353,10 +369,11 @@ impl CloudLight {
         let n_l = self.n_l();
         let o = self.origin_m;
         let h = self.voxel_size_m;
-        let volume = |file: &str, channels: Value, content: &str, unit: &str| {
+        let volume = |file: &str, channels: Value, content: &str, unit: &str, half: bool| {
             json!({
                 "file": file,
-                "layout": "3-D texture: z-slices stacked vertically (file row k·ny + j holds voxels (·, j, k)), 32-bit float, ZIP",
+                "layout": "3-D texture: z-slices stacked vertically (file row k·ny + j holds voxels (·, j, k)), ZIP",
+                "sample": if half { "half" } else { "float" },
                 "width": nx, "height": ny * nz, "depth": nz,
                 "channels": channels, "content": content, "unit": unit,
             })
@@ -375,6 +392,7 @@ impl CloudLight {
                 json!(["density"]),
                 "density rho at voxel centres; extinction sigma_t = extinction_per_density_m[λ]·rho",
                 "1",
+                false,
             ),
         );
         textures.insert(
@@ -384,6 +402,7 @@ impl CloudLight {
                 json!(["D_sun"]),
                 "density integral from the voxel centre towards the sun to the box's face: the sun's transmittance is exp(-k·s·D_sun) (scaled) or exp(-k·D_sun) (true)",
                 "m",
+                false,
             ),
         );
         if !self.sky_paths.is_empty() {
@@ -392,8 +411,9 @@ impl CloudLight {
                 volume(
                     SKY_PATHS_FILE,
                     json!((0..self.sky_paths.len()).map(|e| format!("D_{e:02}")).collect::<Vec<_>>()),
-                    "density integrals from the voxel centre along lattice direction e (lattice_directions[e]) to the box's face",
+                    "density integrals from the voxel centre along lattice direction e (lattice_directions[e]) to the box's face (0 where no voxel of the 3×3×3 neighbourhood holds cloud)",
                     "m",
+                    true,
                 ),
             );
         }
@@ -407,8 +427,9 @@ impl CloudLight {
                 volume(
                     MS_FILE,
                     json!(names),
-                    "C_lm = omega*·p*_l·L_lm: the all-order field's real spherical-harmonic radiance moments L_lm (index lm = l² + l + m), convolved with the delta-M scaled phase function's Legendre moments p*_l and multiplied by the scaled albedo omega*",
+                    "C_lm = omega*·p*_l·L_lm: the all-order field's real spherical-harmonic radiance moments L_lm (index lm = l² + l + m), convolved with the delta-M scaled phase function's Legendre moments p*_l and multiplied by the scaled albedo omega* (0 where no voxel of the 3×3×3 neighbourhood holds cloud)",
                     "W m-2 nm-1",
+                    true,
                 ),
             );
         }
@@ -420,6 +441,7 @@ impl CloudLight {
                 "sky_elements".into(),
                 json!({
                     "file": SKY_ELEMENTS_FILE,
+                    "sample": "float",
                     "layout": "2-D latitude-longitude table: row r at elevation -90° + 180°·r/(height-1), column c at azimuth 360°·c/width (from +y towards +x, wraps); bilinear, elevation clamped",
                     "width": sky.n_az, "height": sky.n_elev,
                     "channels": names,
@@ -432,6 +454,7 @@ impl CloudLight {
             "phase".into(),
             json!({
                 "file": PHASE_FILE,
+                "sample": "float",
                 "layout": format!("1 row of {PHASE_NODES} nodes: node i at scattering angle theta = pi·(i/{})², linear in sqrt(theta/pi)", PHASE_NODES - 1),
                 "width": PHASE_NODES, "height": 1,
                 "channels": spectral("phase"),
@@ -444,6 +467,7 @@ impl CloudLight {
                 "peak_spread".into(),
                 json!({
                     "file": PEAK_FILE,
+                    "sample": "float",
                     "layout": format!("row r at scattering angle 180°·r/{}, column c at lambda = {}·c/{}; bilinear, lambda held beyond the last column", p.n_theta - 1, p.lambda_max, p.n_lambda - 1),
                     "width": p.n_lambda, "height": p.n_theta,
                     "channels": spectral("peak"),
