@@ -744,6 +744,8 @@ impl CloudLight {
 #[derive(Debug, Clone)]
 pub struct CloudLightRequest {
     pub scene: FrameScene,
+    /// The scene as given (parsed JSON), for the canonical request.
+    pub scene_json: Value,
 }
 
 /// The export and what it cost.
@@ -754,6 +756,20 @@ pub struct CloudLightOutput {
 }
 
 impl CloudLightRequest {
+    /// The canonical request (a bake's manifest `request`, the cache key's text): the scene as
+    /// parsed JSON (object keys sorted) and the layout version.
+    pub fn canonical(&self) -> Value {
+        json!({
+            "product": "cloud_light",
+            "scene": self.scene_json,
+            "layout_version": LAYOUT_VERSION,
+        })
+    }
+
+    pub fn cache_key(&self) -> String {
+        skybake_physics::key::cache_key(&self.canonical().to_string(), ENGINE_VERSION)
+    }
+
     /// Parses a frame scene (the scene file's JSON).
     pub fn parse(scene_json: &[u8]) -> Result<Self> {
         if scene_json.len() > MAX_SCENE_FILE_BYTES {
@@ -764,13 +780,15 @@ impl CloudLightRequest {
             ));
         }
         let scene = FrameScene::parse(scene_json)?;
+        let scene_json: Value = serde_json::from_slice(scene_json)
+            .map_err(|e| Error::invalid("scene", format!("not JSON: {e}")))?;
         if scene.multiple_scattering_method == CloudMsMethod::ReferencePattern {
             return Err(Error::invalid(
                 "multiple_scattering_method",
                 "the reference pattern is computed per camera; a pre-lit volume needs \"all_orders\"",
             ));
         }
-        Ok(Self { scene })
+        Ok(Self { scene, scene_json })
     }
 
     /// The fast method's settings for the scene (its quality), every light kept.
