@@ -11,7 +11,9 @@ use std::process::ExitCode;
 
 use clap::{Parser, Subcommand};
 
-use commands::{atmosphere, bake, cloud_light, clouds, lut, lut_eval, plan, product, render, serve};
+use commands::{
+    atmosphere, bake, cloud_light, clouds, lut, lut_eval, plan, product, render, serve,
+};
 use error::{flag_named, CliError, Result};
 use flags::{AerialArgs, Format, GroundArgs, LutArgs, PlanArgs, ServeArgs, SkyArgs, SunArgs};
 use io::engine;

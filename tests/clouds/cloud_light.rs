@@ -46,7 +46,10 @@ fn compare(scene: &FrameScene, background_from_export: bool) -> (ImageErrors, Cl
     let fast = render_tile(&prepared, None, &|_| {}, &|| false).unwrap();
     let exported = CloudLight::from_lit(&prepared.lit, scene.name.as_deref()).unwrap();
     let cl = round_trip(&exported);
-    assert_eq!(cl, exported, "the files hold the export exactly (32-bit floats)");
+    assert_eq!(
+        cl, exported,
+        "the files hold the export exactly (32-bit floats)"
+    );
     let marcher = Marcher::new(&cl).unwrap();
     let (w, h) = (scene.camera.width, scene.camera.height);
     let n_l = scene.wavelengths.len();
@@ -142,8 +145,8 @@ fn small_export() -> Vec<(String, Vec<u8>)> {
     v["sun"] = json!({"collimated": {"elevation_deg": 40, "azimuth_deg": 120,
                                       "normal_irradiance_w_m2_nm": 1.0}});
     v["quality"] = json!("draft");
-    let req = skybake_product::cloud_light::CloudLightRequest::parse(v.to_string().as_bytes())
-        .unwrap();
+    let req =
+        skybake_product::cloud_light::CloudLightRequest::parse(v.to_string().as_bytes()).unwrap();
     let out = req
         .compute(
             &Engine::new(),
@@ -177,13 +180,14 @@ fn bad_exports_are_refused_with_the_field() {
     let files = small_export();
     let cl = decode(&files).unwrap();
     assert_eq!(cl.ms_order, Some(2));
-    let manifest: Value = serde_json::from_slice(
-        &files.iter().find(|(n, _)| n == MANIFEST_FILE).unwrap().1,
-    )
-    .unwrap();
+    let manifest: Value =
+        serde_json::from_slice(&files.iter().find(|(n, _)| n == MANIFEST_FILE).unwrap().1).unwrap();
     // Every file the manifest lists is there with its size.
     for f in manifest["files"].as_array().unwrap() {
-        let (_, b) = files.iter().find(|(n, _)| n == f["file"].as_str().unwrap()).unwrap();
+        let (_, b) = files
+            .iter()
+            .find(|(n, _)| n == f["file"].as_str().unwrap())
+            .unwrap();
         assert_eq!(b.len() as u64, f["bytes"].as_u64().unwrap());
     }
     let with_manifest = |edit: &dyn Fn(&mut Value)| {

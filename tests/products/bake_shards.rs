@@ -330,18 +330,28 @@ fn cloud_light_items_are_baked_decoded_and_reused() {
     };
     let all = Shard::new(0, 1).unwrap();
     let first = bake_share(body.as_bytes(), &out, all, &env, |_, _, _| {}).unwrap();
-    assert_eq!((first.total, first.computed, first.failed), (1, 1, 0), "{first:?}");
+    assert_eq!(
+        (first.total, first.computed, first.failed),
+        (1, 1, 0),
+        "{first:?}"
+    );
     let manifest: Value =
         serde_json::from_slice(&out.get("manifest.json").unwrap().unwrap()).unwrap();
     let item = &manifest["artifacts"][0];
     assert_eq!(item["product"], "cloud_light");
     let file = item["file"].as_str().unwrap();
-    assert!(file.starts_with("000000-cloud_light-") && file.ends_with(".json"), "{file}");
+    assert!(
+        file.starts_with("000000-cloud_light-") && file.ends_with(".json"),
+        "{file}"
+    );
     let baked: Value = serde_json::from_slice(&out.get(file).unwrap().unwrap()).unwrap();
     assert_eq!(baked["product"], "cloud_light");
     let links = baked["links"].as_object().unwrap().clone();
     let names: BTreeSet<&str> = links.keys().map(String::as_str).collect();
-    assert!(names.contains("multiple_scattering.exr") && names.contains("sun_path.exr"), "{names:?}");
+    assert!(
+        names.contains("multiple_scattering.exr") && names.contains("sun_path.exr"),
+        "{names:?}"
+    );
     // Decoded through the links (a client following them) it is the export of the request.
     let decoded = CloudLight::from_files(&|name: &str| {
         let stored = if name == "manifest.json" {

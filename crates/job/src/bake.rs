@@ -22,8 +22,8 @@ use serde::Serialize;
 use serde_json::json;
 use skybake_engine::engine::{Engine, ENGINE_VERSION};
 use skybake_physics::image::layout::ATTR_CACHE_KEY;
-use skybake_product::frame::FrameReuse;
 use skybake_product::cloud_light::CloudLightRequest;
+use skybake_product::frame::FrameReuse;
 use skybake_product::lut::LutRequest;
 use skybake_product::params::Defaults;
 use skybake_product::{AnyRequest, ComputeEnv};
@@ -239,12 +239,7 @@ fn bake_cloud_light(
     cancel: &(dyn Fn() -> bool + Sync),
 ) -> Result<(), JobError> {
     let computed = req.compute(engine, &skybake_product::frame::example_file, cancel)?;
-    put_linked(
-        computed.light.files()?,
-        Some(req.canonical()),
-        out,
-        name,
-    )
+    put_linked(computed.light.files()?, Some(req.canonical()), out, name)
 }
 
 /// Writes `files` (textures, then `manifest.json`) into `out`: each texture as `<stem>-<file>`,

@@ -9,9 +9,9 @@ use super::JobError;
 use crate::Error;
 use serde_json::{Map, Value};
 use skybake_product::cloud_light::CloudLightRequest;
+use skybake_product::frame::example_scene;
 use skybake_product::lut::LutRequest;
 use skybake_product::params::{Defaults, RequestParams};
-use skybake_product::frame::example_scene;
 use skybake_product::AnyRequest;
 use skybake_product::{product_of, ProductKind, ProductRequest};
 
@@ -205,12 +205,9 @@ impl JobSpec {
     /// Parses a job body, refusing more than `max_products` items (413 naming the limit) before
     /// generating any.
     pub fn parse(body: &Map<String, Value>, max_products: usize) -> Result<Self, JobError> {
-        if let Some(k) = body
-            .keys()
-            .find(|k| {
-                !["products", "grids", "frames", "bundles", "cloud_lights"].contains(&k.as_str())
-            })
-        {
+        if let Some(k) = body.keys().find(|k| {
+            !["products", "grids", "frames", "bundles", "cloud_lights"].contains(&k.as_str())
+        }) {
             return Err(JobError::Unknown(vec![k.clone()]));
         }
         let list = |name: &str| -> Result<Vec<Value>, JobError> {
@@ -348,7 +345,10 @@ impl JobSpec {
                     Error::invalid(&format!("cloud_lights[{c}]"), "must be an object").into(),
                 );
             };
-            if let Some(k) = obj.keys().find(|k| !["scene", "example"].contains(&k.as_str())) {
+            if let Some(k) = obj
+                .keys()
+                .find(|k| !["scene", "example"].contains(&k.as_str()))
+            {
                 return Err(JobError::Unknown(vec![format!("{prefix}{k}")]));
             }
             let text = match (obj.get("scene"), obj.get("example")) {

@@ -17,12 +17,12 @@
 
 mod any;
 pub mod artifact;
+pub mod cloud_light;
 pub mod config;
 pub mod cost;
 pub mod engines;
 pub mod export;
 pub mod frame;
-pub mod cloud_light;
 pub mod lut;
 pub mod params;
 mod request;

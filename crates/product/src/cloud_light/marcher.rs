@@ -168,8 +168,8 @@ impl<'a> Marcher<'a> {
         let x = cos_theta.clamp(-1.0, 1.0).acos().to_degrees() * (p.n_theta - 1) as f64 / 180.0;
         let i0 = (x.floor() as usize).min(p.n_theta - 2);
         let w1 = (x - i0 as f64).clamp(0.0, 1.0);
-        let y = (lambda.max(0.0) / p.lambda_max * (p.n_lambda - 1) as f64)
-            .min((p.n_lambda - 1) as f64);
+        let y =
+            (lambda.max(0.0) / p.lambda_max * (p.n_lambda - 1) as f64).min((p.n_lambda - 1) as f64);
         let j0 = (y.floor() as usize).min(p.n_lambda - 2);
         let v = y - j0 as f64;
         let t = &p.values[l];
@@ -243,7 +243,8 @@ impl<'a> Marcher<'a> {
                 let a_ms = -(-ks * rho * dt).exp_m1();
                 // Sun, single scattering with the true phase function and the spread peak.
                 let sun_t = if sun_on {
-                    let (weight, d_eff) = sun_step(ks * rho, ks * (d_end - d_start), dt, ks * d_start);
+                    let (weight, d_eff) =
+                        sun_step(ks * rho, ks * (d_end - d_start), dt, ks * d_start);
                     let lambda = cl.peak_rate[l] * k[l] * (d_start + (d_end - d_start) * d_eff);
                     weight * self.spread(l, cos_sun, lambda)
                 } else {

@@ -645,9 +645,8 @@ impl CloudLight {
                 .map(Some)
         };
         let [nx, ny, nz] = dims;
-        let spectral = |layer: &str| -> Vec<String> {
-            wl.iter().map(|w| Self::channel(layer, *w)).collect()
-        };
+        let spectral =
+            |layer: &str| -> Vec<String> { wl.iter().map(|w| Self::channel(layer, *w)).collect() };
         let missing = |key: &str| bad(&format!("textures.{key}"), "is missing");
         let density = load("density", nx, ny * nz, &["density".to_string()])?
             .ok_or_else(|| missing("density"))?
@@ -675,9 +674,7 @@ impl CloudLight {
                     .as_u64()
                     .filter(|v| (4..=4096).contains(v))
                     .map(|v| v as usize)
-                    .ok_or_else(|| {
-                        bad(&format!("textures.sky_elements.{f}"), "must be 4 to 4096")
-                    })
+                    .ok_or_else(|| bad(&format!("textures.sky_elements.{f}"), "must be 4 to 4096"))
             };
             let (w, hgt) = (dim("width")?, dim("height")?);
             let names: Vec<String> = (0..SKY_ELEMENTS)
@@ -696,16 +693,20 @@ impl CloudLight {
                 "sky_paths and sky_elements come together (both or neither)",
             ));
         }
-        let phase = load("phase", PHASE_NODES, 1, &spectral("phase"))?
-            .ok_or_else(|| missing("phase"))?;
-        let peak = load("peak_spread", peak::N_LAMBDA, peak::N_THETA, &spectral("peak"))?.map(
-            |values| PeakTable {
-                n_theta: peak::N_THETA,
-                n_lambda: peak::N_LAMBDA,
-                lambda_max: peak::LAMBDA_MAX,
-                values,
-            },
-        );
+        let phase =
+            load("phase", PHASE_NODES, 1, &spectral("phase"))?.ok_or_else(|| missing("phase"))?;
+        let peak = load(
+            "peak_spread",
+            peak::N_LAMBDA,
+            peak::N_THETA,
+            &spectral("peak"),
+        )?
+        .map(|values| PeakTable {
+            n_theta: peak::N_THETA,
+            n_lambda: peak::N_LAMBDA,
+            lambda_max: peak::LAMBDA_MAX,
+            values,
+        });
         let out = Self {
             dims,
             origin_m: [origin[0], origin[1], origin[2]],
@@ -729,10 +730,7 @@ impl CloudLight {
             settings: m["settings"].clone(),
         };
         if out.extinction_scale.iter().any(|&s| !(s > 0.0 && s <= 1.0)) {
-            return Err(bad(
-                "per_wavelength.extinction_scale",
-                "must be in (0, 1]",
-            ));
+            return Err(bad("per_wavelength.extinction_scale", "must be in (0, 1]"));
         }
         Ok(out)
     }
