@@ -48,10 +48,21 @@ fn cloud_light_writes_the_library_s_files_and_refuses_bad_scenes() {
     let path = dir.join("scene.json");
     std::fs::write(&path, scene().to_string()).unwrap();
     let out = skybake(
-        &["cloud-light", "scene.json", "-o", "light", "--format", "json"],
+        &[
+            "cloud-light",
+            "scene.json",
+            "-o",
+            "light",
+            "--format",
+            "json",
+        ],
         &dir,
     );
-    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
     let summary: Value = serde_json::from_slice(&out.stdout).unwrap();
     let listed = summary["files"].as_array().unwrap();
     assert!(listed.len() >= 7, "{summary}");
@@ -91,6 +102,9 @@ fn cloud_light_writes_the_library_s_files_and_refuses_bad_scenes() {
     let stderr = String::from_utf8_lossy(&out.stderr).to_string();
     assert_eq!(out.status.code(), Some(2), "{stderr}");
     assert!(stderr.contains("optics.phase.g"), "{stderr}");
-    assert!(!dir.join("x").exists(), "nothing written for a refused scene");
+    assert!(
+        !dir.join("x").exists(),
+        "nothing written for a refused scene"
+    );
     let _ = std::fs::remove_dir_all(&dir);
 }

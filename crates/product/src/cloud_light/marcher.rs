@@ -122,8 +122,10 @@ impl<'a> Marcher<'a> {
     }
 
     /// The sky-element table at view direction `d` (bilinear; elevation clamped, azimuth
-    /// wrapped), `[entry·n_λ + λ]`.
-    fn sky_entries(&self, d: DVec3, out: &mut [f64]) {
+    /// wrapped), `[entry·n_λ + λ]`. With `split_at_horizon`, rows on the other side of the
+    /// horizon from `d` are not blended in (for E16, the environment radiance, which jumps there
+    /// from sky to ground light; E00–E15 are smooth in d).
+    fn sky_entries_split(&self, d: DVec3, split_at_horizon: bool, out: &mut [f64]) {
         out.iter_mut().for_each(|o| *o = 0.0);
         let Some(t) = &self.cl.sky else {
             return;
@@ -132,9 +134,15 @@ impl<'a> Marcher<'a> {
         let az = d.x.atan2(d.y).rem_euclid(2.0 * PI);
         let u = ((e + 0.5 * PI) / PI * (t.n_elev - 1) as f64).clamp(0.0, (t.n_elev - 1) as f64);
         let v = az / (2.0 * PI) * t.n_az as f64;
-        let r0 = (u.floor() as usize).min(t.n_elev - 1);
-        let r1 = (r0 + 1).min(t.n_elev - 1);
-        let fr = u - r0 as f64;
+        let mut r0 = (u.floor() as usize).min(t.n_elev - 1);
+        let mut r1 = (r0 + 1).min(t.n_elev - 1);
+        let mut fr = u - r0 as f64;
+        let elevation = |r: usize| -90.0 + 180.0 * r as f64 / (t.n_elev - 1) as f64;
+        if split_at_horizon && elevation(r0) < 0.0 && elevation(r1) >= 0.0 {
+            // d.z ≥ 0 is the sky's side (the renderer's convention).
+            let r = if d.z >= 0.0 { r1 } else { r0 };
+            (r0, r1, fr) = (r, r, 0.0);
+        }
         let c0 = (v.floor() as usize) % t.n_az;
         let c1 = (c0 + 1) % t.n_az;
         let fc = v - v.floor();
@@ -147,6 +155,11 @@ impl<'a> Marcher<'a> {
         for (o, ch) in out.iter_mut().zip(&t.values) {
             *o = corners.iter().map(|&(i, w)| w * ch[i] as f64).sum();
         }
+    }
+
+    /// [`Self::sky_entries_split`] without the split: what the fast frame interpolates.
+    fn sky_entries(&self, d: DVec3, out: &mut [f64]) {
+        self.sky_entries_split(d, false, out)
     }
 
     /// The phase function of wavelength `l` at cos θ (the table, linear in √(θ/π)).
@@ -296,12 +309,12 @@ impl<'a> Marcher<'a> {
         }
     }
 
-    /// The environment radiance L(d) of the export's sky table (zero without sky light): the
-    /// background of a vacuum scene without ground.
+    /// The environment radiance L(d) of the export's sky table (zero without sky light), not
+    /// blended across the horizon: the background of a vacuum scene without ground.
     pub fn environment(&self, d: DVec3, out: &mut [f64]) {
         let n_l = self.cl.n_l();
         let mut sky = vec![0.0; SKY_ELEMENTS * n_l];
-        self.sky_entries(d, &mut sky);
+        self.sky_entries_split(d, true, &mut sky);
         out.copy_from_slice(&sky[16 * n_l..17 * n_l]);
     }
 }
