@@ -45,6 +45,37 @@ pub const PHASE_NODES: usize = 2048;
 /// Sky-element table entries: the sun cap (0), the 14 lattice elements (1–14), the view cap
 /// (15) and the environment radiance from the view direction itself (16).
 pub const SKY_ELEMENTS: usize = 17;
+/// Largest export held in memory, bytes (32-bit values: density, sun path, 14 sky paths and
+/// 9 multiple-scattering moments per wavelength, per voxel): 1 GiB, e.g. 6.2 M voxels at 3
+/// wavelengths.
+pub const MAX_EXPORT_BYTES: usize = 1 << 30;
+
+/// Bytes an export of `voxels` voxels and `n_l` wavelengths holds in memory (see
+/// [`MAX_EXPORT_BYTES`]).
+pub fn export_bytes(voxels: usize, n_l: usize) -> usize {
+    voxels.saturating_mul(4 * (2 + LATTICE.len() + 9 * n_l))
+}
+
+/// Refuses an export larger than [`MAX_EXPORT_BYTES`] before it is computed, naming the cloud.
+pub fn check_export_size(dims: [usize; 3], n_l: usize) -> Result<()> {
+    let voxels = dims[0] * dims[1] * dims[2];
+    let bytes = export_bytes(voxels, n_l);
+    if bytes > MAX_EXPORT_BYTES {
+        return Err(Error::too_large(
+            "cloud",
+            format!(
+                "{dims:?} = {voxels} voxels at {n_l} wavelengths make a {} MiB pre-lit volume",
+                bytes >> 20
+            ),
+            format!(
+                "{} MiB (use a larger voxel_size_m or fewer wavelengths)",
+                MAX_EXPORT_BYTES >> 20
+            ),
+        ));
+    }
+    Ok(())
+}
+
 /// Largest manifest accepted when decoding, bytes.
 const MAX_MANIFEST_BYTES: usize = 1 << 20;
 
@@ -148,6 +179,7 @@ impl CloudLight {
         }
         let grid = &*inputs.grid;
         let n_l = inputs.wavelengths_nm.len();
+        check_export_size(grid.dims, n_l)?;
         let n = grid.data.len();
         let lighting = lit.cloud_lighting();
         // Only voxels whose 3×3×3 neighbourhood holds cloud are ever interpolated where there
@@ -584,6 +616,13 @@ impl CloudLight {
             return Err(bad("wavelengths_nm", "must hold 1 to 64 wavelengths"));
         }
         let n_l = wl.len();
+        if export_bytes(voxels, n_l) > MAX_EXPORT_BYTES {
+            return Err(Error::too_large(
+                &format!("{MANIFEST_FILE}.grid.dims"),
+                format!("{dims:?} voxels at {n_l} wavelengths"),
+                format!("{} MiB in memory", MAX_EXPORT_BYTES >> 20),
+            ));
+        }
         let pw = &m["per_wavelength"];
         let per = |name: &str| -> Result<Vec<f64>> {
             let v = nums(&pw[name], &format!("per_wavelength.{name}"))?;
@@ -810,6 +849,7 @@ impl CloudLightRequest {
             cancel,
         )?);
         skybake_render::check_grid(&grid)?;
+        check_export_size(grid.dims, self.scene.wavelengths.len())?;
         timing_ms.push(("voxelize".to_string(), clock.elapsed().as_secs_f64() * 1e3));
         clock = Instant::now();
         let lighting = skybake_render::lighting_for_unless(&self.scene, &grid, engine, cancel)?;
