@@ -11,7 +11,9 @@ use std::process::ExitCode;
 
 use clap::{Parser, Subcommand};
 
-use commands::{atmosphere, bake, clouds, lut, lut_eval, plan, product, render, serve};
+use commands::{
+    atmosphere, bake, cloud_light, clouds, lut, lut_eval, plan, product, render, serve,
+};
 use error::{flag_named, CliError, Result};
 use flags::{AerialArgs, Format, GroundArgs, LutArgs, PlanArgs, ServeArgs, SkyArgs, SunArgs};
 use io::engine;
@@ -87,6 +89,22 @@ enum Command {
         /// Write the density grid as .npy (float32, shape (nz, ny, nx)).
         #[arg(long, value_name = "OUT.npy")]
         voxels: Option<PathBuf>,
+        /// Summary format.
+        #[arg(long, value_enum, default_value_t = Format::Json)]
+        format: Format,
+    },
+    /// Export the pre-lit cloud volume of a frame scene for real-time clients: the fast
+    /// method's per-voxel light (sun and sky paths, multiple-scattering moments) and the
+    /// direction tables as OpenEXR 3-D textures + manifest.json. See docs/cloud-light.md.
+    ///
+    /// Example: skybake cloud-light config/scenes/cumulus-frame.json -o cumulus-light/
+    CloudLight {
+        /// Frame scene JSON (its camera is not used); files it names are read relative to the
+        /// scene's directory.
+        scene: PathBuf,
+        /// Directory to write the textures and manifest.json into (created if missing).
+        #[arg(short = 'o', long = "output", value_name = "DIR")]
+        output: PathBuf,
         /// Summary format.
         #[arg(long, value_enum, default_value_t = Format::Json)]
         format: Format,
@@ -190,6 +208,11 @@ fn run(cli: Cli) -> Result<()> {
             voxels,
             format,
         } => clouds::run_clouds(&scene, voxels.as_deref(), format),
+        Command::CloudLight {
+            scene,
+            output,
+            format,
+        } => cloud_light::cloud_light(&scene, &output, format, &engine()?),
         Command::Render {
             scene,
             output,

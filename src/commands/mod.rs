@@ -2,6 +2,7 @@
 
 pub mod atmosphere;
 pub mod bake;
+pub mod cloud_light;
 pub mod clouds;
 pub mod lut;
 pub mod lut_eval;

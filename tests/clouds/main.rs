@@ -4,6 +4,7 @@ mod cloud_automaton;
 mod cloud_fractal_growth;
 mod cloud_import_grids;
 mod cloud_import_vdb;
+mod cloud_light;
 mod cloud_marching_cubes_surface;
 mod cloud_metaballs_field;
 mod cloud_satellite_fit;

@@ -298,3 +298,82 @@ fn a_cancelled_bake_stops_inside_a_bundle_item() {
     assert!(polls.load(std::sync::atomic::Ordering::Relaxed) >= 3);
     assert!(out.get("manifest.json").unwrap().is_none());
 }
+
+/// A pre-lit cloud volume item (`"cloud_lights"`) is baked into its textures and its manifest
+/// (linking them, with the request and engine version), listed as product `cloud_light`,
+/// decodes through its links into the export the same request computes, and is reused by a
+/// rerun; the service refuses such a job (offline only), and a bad entry names its field.
+#[test]
+fn cloud_light_items_are_baked_decoded_and_reused() {
+    use skybake_product::cloud_light::{CloudLight, CloudLightRequest};
+    let dir = Scratch::new("bake-cloud-light");
+    let out = Location::Dir(dir.path().join("out"));
+    let scene = serde_json::json!({
+        "name": "ball",
+        "cloud": {"voxel_size_m": 100.0, "source": {"type": "metaballs",
+            "balls": [{"centre_m": [0, 0, 1500], "radius_m": 400, "density": 1.0}]}},
+        "optics": {"extinction_per_density_m": 0.02, "single_scattering_albedo": 1.0,
+                   "phase": {"henyey_greenstein": {"g": 0.85}}},
+        "camera": {"type": "pinhole", "position_m": [0, -4000, 1500], "look_at_m": [0, 0, 1500],
+                   "up": [0, 0, 1], "fov_deg": 30, "width": 16, "height": 16},
+        "sun": {"collimated": {"elevation_deg": 40, "azimuth_deg": 120, "normal_irradiance_w_m2_nm": 1.0}},
+        "atmosphere": null, "sky": {"constant_radiance_w_m2_sr_nm": 0.05}, "ground": null,
+        "wavelengths_nm": [550], "quality": "draft"
+    });
+    let body = serde_json::json!({"cloud_lights": [{"scene": scene}]}).to_string();
+    let (defaults, engine) = (Defaults::default(), Engine::new());
+    let env = BakeEnv {
+        defaults: &defaults,
+        max_products: 1000,
+        engine: &engine,
+        cancel: &|| false,
+    };
+    let all = Shard::new(0, 1).unwrap();
+    let first = bake_share(body.as_bytes(), &out, all, &env, |_, _, _| {}).unwrap();
+    assert_eq!(
+        (first.total, first.computed, first.failed),
+        (1, 1, 0),
+        "{first:?}"
+    );
+    let manifest: Value =
+        serde_json::from_slice(&out.get("manifest.json").unwrap().unwrap()).unwrap();
+    let item = &manifest["artifacts"][0];
+    assert_eq!(item["product"], "cloud_light");
+    let file = item["file"].as_str().unwrap();
+    assert!(
+        file.starts_with("000000-cloud_light-") && file.ends_with(".json"),
+        "{file}"
+    );
+    let baked: Value = serde_json::from_slice(&out.get(file).unwrap().unwrap()).unwrap();
+    assert_eq!(baked["product"], "cloud_light");
+    let links = baked["links"].as_object().unwrap().clone();
+    let names: BTreeSet<&str> = links.keys().map(String::as_str).collect();
+    assert!(
+        names.contains("multiple_scattering.exr") && names.contains("sun_path.exr"),
+        "{names:?}"
+    );
+    // Decoded through the links (a client following them) it is the export of the request.
+    let decoded = CloudLight::from_files(&|name: &str| {
+        let stored = if name == "manifest.json" {
+            file.to_string()
+        } else {
+            links[name].as_str().unwrap().to_string()
+        };
+        Ok(out.get(&stored).unwrap().unwrap())
+    })
+    .unwrap();
+    let req = CloudLightRequest::parse(scene.to_string().as_bytes()).unwrap();
+    let direct = req
+        .compute(&engine, &|_| unreachable!("no files"), &|| false)
+        .unwrap();
+    assert_eq!(decoded, direct.light);
+    let again = bake_share(body.as_bytes(), &out, all, &env, |_, _, _| {}).unwrap();
+    assert_eq!((again.computed, again.reused, again.rejected), (0, 1, 0));
+    // Bad entries name their field.
+    let bad = r#"{"cloud_lights": [{"example": "no-such-scene"}]}"#;
+    let e = skybake_job::spec::JobSpec::parse_body(bad.as_bytes(), 10).unwrap_err();
+    assert!(e.to_string().contains("cloud_lights[0].example"), "{e}");
+    let bad = r#"{"cloud_lights": [{"example": "cumulus-frame", "scene": {}}]}"#;
+    let e = skybake_job::spec::JobSpec::parse_body(bad.as_bytes(), 10).unwrap_err();
+    assert!(e.to_string().contains("cloud_lights[0]"), "{e}");
+}

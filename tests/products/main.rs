@@ -5,6 +5,7 @@ mod service_support;
 
 mod bake_shards;
 mod cli_atmosphere;
+mod cli_cloud_light;
 mod cli_clouds;
 mod cli_lut_eval;
 mod cli_render;

@@ -190,6 +190,15 @@ async fn jobs_are_created_listed_read_and_deleted() {
     )
     .await
     .assert_problem(400, Some("products[0].sun_elevation_deg"));
+    // Pre-lit cloud volumes are baked offline only.
+    call(
+        &state,
+        "POST",
+        "/v1/jobs",
+        Some(json!({"cloud_lights": [{"example": "cumulus-frame"}]})),
+    )
+    .await
+    .assert_problem(422, Some("cloud_lights"));
 }
 
 /// A job whose estimated cost is over `server.max_job_cost` is refused at submission (413 naming

@@ -22,6 +22,7 @@ use serde::Serialize;
 use serde_json::json;
 use skybake_engine::engine::{Engine, ENGINE_VERSION};
 use skybake_physics::image::layout::ATTR_CACHE_KEY;
+use skybake_product::cloud_light::CloudLightRequest;
 use skybake_product::frame::FrameReuse;
 use skybake_product::lut::LutRequest;
 use skybake_product::params::Defaults;
@@ -166,6 +167,7 @@ fn item_file(i: usize, item: &JobItem, key: &str) -> String {
     match item {
         JobItem::Artifact(req) => format!("{i:06}-{}-{}.exr", req.name(), &key[..16]),
         JobItem::Bundle(_) => format!("{i:06}-lut-{}.json", &key[..16]),
+        JobItem::CloudLight(_) => format!("{i:06}-cloud_light-{}.json", &key[..16]),
     }
 }
 
@@ -174,16 +176,28 @@ fn item_key(item: &JobItem) -> (String, &'static str) {
     match item {
         JobItem::Artifact(req) => (req.cache_key(), req.name()),
         JobItem::Bundle(b) => (b.cache_key(), "lut"),
+        JobItem::CloudLight(c) => (c.cache_key(), "cloud_light"),
     }
 }
 
 /// Whether the bundle manifest `bytes` in `out` is a finished bake of `req`: the same request
 /// and engine version, and every texture it links is there and passes its checksum.
 fn is_bundle_of(bytes: &[u8], req: &LutRequest, out: &Location) -> Result<bool, JobError> {
+    is_files_of(bytes, &req.canonical(), out)
+}
+
+/// Whether the manifest `bytes` in `out` (a bundle's or a pre-lit cloud volume's) is a finished
+/// bake of the canonical request `canonical`: the same request and engine version, and every
+/// file it links is there and passes its checksum.
+fn is_files_of(
+    bytes: &[u8],
+    canonical: &serde_json::Value,
+    out: &Location,
+) -> Result<bool, JobError> {
     let Ok(manifest) = serde_json::from_slice::<serde_json::Value>(bytes) else {
         return Ok(false);
     };
-    if manifest["request"] != req.canonical() || manifest["engine_version"] != ENGINE_VERSION {
+    if manifest["request"] != *canonical || manifest["engine_version"] != ENGINE_VERSION {
         return Ok(false);
     }
     let Some(links) = manifest["links"].as_object() else {
@@ -211,10 +225,36 @@ fn bake_bundle(
     cancel: &(dyn Fn() -> bool + Sync),
 ) -> Result<(), JobError> {
     let bundle = req.compute_unless(engine, cancel)?;
+    put_linked(req.files(&bundle)?, None, out, name)
+}
+
+/// Computes the pre-lit cloud volume `req` (files the scene names: the example scenes' only,
+/// as for frames) and writes its textures, then its manifest `name` with the request, the
+/// engine version and `links` to them, into `out`.
+fn bake_cloud_light(
+    req: &CloudLightRequest,
+    engine: &Engine,
+    out: &Location,
+    name: &str,
+    cancel: &(dyn Fn() -> bool + Sync),
+) -> Result<(), JobError> {
+    let computed = req.compute(engine, &skybake_product::frame::example_file, cancel)?;
+    put_linked(computed.light.files()?, Some(req.canonical()), out, name)
+}
+
+/// Writes `files` (textures, then `manifest.json`) into `out`: each texture as `<stem>-<file>`,
+/// then the manifest as `name` with `links` to them (and `request`, `engine_version` when
+/// `request` is given).
+fn put_linked(
+    files: Vec<(&'static str, Vec<u8>)>,
+    request: Option<serde_json::Value>,
+    out: &Location,
+    name: &str,
+) -> Result<(), JobError> {
     let stem = name.trim_end_matches(".json");
     let mut links = serde_json::Map::new();
     let mut manifest = None;
-    for (file, bytes) in req.files(&bundle)? {
+    for (file, bytes) in files {
         if file == skybake_product::lut::MANIFEST_FILE {
             manifest = Some(bytes);
             continue;
@@ -227,6 +267,10 @@ fn bake_bundle(
     let mut manifest: serde_json::Value = serde_json::from_slice(&manifest)
         .map_err(|e| JobError::Failure(format!("bundle manifest: {e}")))?;
     manifest["links"] = links.into();
+    if let Some(request) = request {
+        manifest["request"] = request;
+        manifest["engine_version"] = ENGINE_VERSION.into();
+    }
     let text = serde_json::to_vec_pretty(&manifest)
         .map_err(|e| JobError::Failure(format!("bundle manifest: {e}")))?;
     Ok(out.put(name, &text)?)
@@ -295,6 +339,7 @@ fn bake_share_with(
             (_, None) => false,
             (JobItem::Artifact(_), Some(b)) => is_artifact_of(b, &key),
             (JobItem::Bundle(b), Some(bytes)) => is_bundle_of(bytes, b, out)?,
+            (JobItem::CloudLight(c), Some(bytes)) => is_files_of(bytes, &c.canonical(), out)?,
         };
         if stored.is_some() && !reusable {
             tracing::warn!(
@@ -312,6 +357,7 @@ fn bake_share_with(
                     .and_then(|img| Ok(encode_exr(&img)?))
                     .and_then(|bytes| Ok(out.put(&name, &bytes)?)),
                 JobItem::Bundle(req) => bake_bundle(req, engine, out, &name, cancel),
+                JobItem::CloudLight(req) => bake_cloud_light(req, engine, out, &name, cancel),
             }
             .map(|()| {
                 summary.computed += 1;

@@ -429,6 +429,13 @@ impl Jobs {
             )
             .into());
         }
+        if spec.has_cloud_lights() {
+            return Err(crate::Error::invalid(
+                "cloud_lights",
+                "pre-lit cloud volumes are baked offline (skybake bake JOB.json --out DIR) or written by skybake cloud-light",
+            )
+            .into());
+        }
         // A frame may name only the example scenes' files, as in a render.
         let cost = spec.validate_and_cost_loading(
             &self.defaults,

@@ -8,6 +8,8 @@ use super::frames::FrameSweep;
 use super::JobError;
 use crate::Error;
 use serde_json::{Map, Value};
+use skybake_product::cloud_light::CloudLightRequest;
+use skybake_product::frame::example_scene;
 use skybake_product::lut::LutRequest;
 use skybake_product::params::{Defaults, RequestParams};
 use skybake_product::AnyRequest;
@@ -41,6 +43,8 @@ enum Entry {
         axes: Axes,
         len: usize,
     },
+    /// A pre-lit cloud volume of a frame scene (one item).
+    CloudLight(Box<CloudLightRequest>),
 }
 
 /// Where item `i` comes from.
@@ -48,6 +52,7 @@ enum Located<'a> {
     Product(ProductKind, Box<RequestParams>, String),
     Frame(&'a FrameSweep, usize, String),
     Bundle(Box<RequestParams>, String),
+    CloudLight(&'a CloudLightRequest),
 }
 
 /// A validated item: a product or frame (an artifact), or a texture bundle (a set of files,
@@ -55,6 +60,8 @@ enum Located<'a> {
 pub enum JobItem {
     Artifact(AnyRequest),
     Bundle(Box<LutRequest>),
+    /// A pre-lit cloud volume ([`skybake_product::cloud_light`]): a set of files like a bundle.
+    CloudLight(Box<CloudLightRequest>),
 }
 
 /// The parameters of one sweep value combination: `base` with axis values `i` (last fastest).
@@ -198,10 +205,9 @@ impl JobSpec {
     /// Parses a job body, refusing more than `max_products` items (413 naming the limit) before
     /// generating any.
     pub fn parse(body: &Map<String, Value>, max_products: usize) -> Result<Self, JobError> {
-        if let Some(k) = body
-            .keys()
-            .find(|k| !["products", "grids", "frames", "bundles"].contains(&k.as_str()))
-        {
+        if let Some(k) = body.keys().find(|k| {
+            !["products", "grids", "frames", "bundles", "cloud_lights"].contains(&k.as_str())
+        }) {
             return Err(JobError::Unknown(vec![k.clone()]));
         }
         let list = |name: &str| -> Result<Vec<Value>, JobError> {
@@ -332,10 +338,48 @@ impl JobSpec {
                 .ok_or_else(|| too_many(format!("more than {max_products}")))?;
             entries.push((Entry::Bundles { base, axes, len }, prefix));
         }
+        for (c, v) in list("cloud_lights")?.iter().enumerate() {
+            let prefix = format!("cloud_lights[{c}].");
+            let Value::Object(obj) = v else {
+                return Err(
+                    Error::invalid(&format!("cloud_lights[{c}]"), "must be an object").into(),
+                );
+            };
+            if let Some(k) = obj
+                .keys()
+                .find(|k| !["scene", "example"].contains(&k.as_str()))
+            {
+                return Err(JobError::Unknown(vec![format!("{prefix}{k}")]));
+            }
+            let text = match (obj.get("scene"), obj.get("example")) {
+                (Some(scene), None) => scene.to_string(),
+                (None, Some(Value::String(name))) => example_scene(name)
+                    .ok_or_else(|| {
+                        Error::invalid(
+                            &format!("{prefix}example"),
+                            format!("no example scene '{name}' (see GET /v1/scenes)"),
+                        )
+                    })?
+                    .to_string(),
+                _ => {
+                    return Err(Error::invalid(
+                        &format!("cloud_lights[{c}]"),
+                        "give exactly one of scene (a frame scene) or example (an example scene's name)",
+                    )
+                    .into())
+                }
+            };
+            let req = CloudLightRequest::parse(text.as_bytes())?;
+            total = total
+                .checked_add(1)
+                .filter(|&n| n <= max_products)
+                .ok_or_else(|| too_many(format!("more than {max_products}")))?;
+            entries.push((Entry::CloudLight(Box::new(req)), prefix));
+        }
         if total == 0 {
             return Err(Error::invalid(
                 "products",
-                "the job has no products (give products, grids, frames and/or bundles)",
+                "the job has no products (give products, grids, frames, bundles and/or cloud_lights)",
             )
             .into());
         }
@@ -392,6 +436,12 @@ impl JobSpec {
                     }
                     i -= len;
                 }
+                Entry::CloudLight(req) => {
+                    if i == 0 {
+                        return Some(Located::CloudLight(req));
+                    }
+                    i -= 1;
+                }
             }
         }
         None
@@ -402,7 +452,7 @@ impl JobSpec {
     pub fn item(&self, i: usize) -> Option<(ProductKind, RequestParams, String)> {
         match self.locate(i)? {
             Located::Product(kind, params, prefix) => Some((kind, *params, prefix)),
-            Located::Frame(..) | Located::Bundle(..) => None,
+            Located::Frame(..) | Located::Bundle(..) | Located::CloudLight(..) => None,
         }
     }
 
@@ -413,6 +463,13 @@ impl JobSpec {
             .any(|(e, _)| matches!(e, Entry::Bundles { .. }))
     }
 
+    /// Whether the job has pre-lit cloud volume items (baked offline only).
+    pub fn has_cloud_lights(&self) -> bool {
+        self.entries
+            .iter()
+            .any(|(e, _)| matches!(e, Entry::CloudLight(_)))
+    }
+
     /// The validated request of item `i`, with the deployment's defaults applied (products);
     /// a texture bundle is refused naming `bundles` ([`Self::item_request`] takes it).
     pub fn request(&self, i: usize, defaults: &Defaults) -> Result<AnyRequest, JobError> {
@@ -421,6 +478,11 @@ impl JobSpec {
             JobItem::Bundle(_) => Err(Error::invalid(
                 "bundles",
                 "texture bundles are baked offline (skybake bake); the server serves one per request (GET /v1/lut)",
+            )
+            .into()),
+            JobItem::CloudLight(_) => Err(Error::invalid(
+                "cloud_lights",
+                "pre-lit cloud volumes are baked offline (skybake bake) or written by skybake cloud-light",
             )
             .into()),
         }
@@ -452,6 +514,7 @@ impl JobSpec {
                     .map(|b| JobItem::Bundle(Box::new(b)))
                     .map_err(|e| e.prefixed(&prefix).into())
             }
+            Some(Located::CloudLight(req)) => Ok(JobItem::CloudLight(Box::new(req.clone()))),
         }
     }
 
@@ -461,6 +524,7 @@ impl JobSpec {
             Located::Product(kind, ..) => Some(kind.name()),
             Located::Frame(..) => Some("frame"),
             Located::Bundle(..) => Some("lut"),
+            Located::CloudLight(..) => Some("cloud_light"),
         }
     }
 
@@ -490,7 +554,7 @@ impl JobSpec {
             let item = match self.item_request(i, defaults)? {
                 JobItem::Artifact(r) => r,
                 // Baked offline only (the service refuses a job with bundles first).
-                JobItem::Bundle(_) => continue,
+                JobItem::Bundle(_) | JobItem::CloudLight(_) => continue,
             };
             match item {
                 AnyRequest::Atmosphere(r) => products.add(&r)?,

@@ -10,12 +10,14 @@
 //! - [`cost`]: a request's and a job's cost estimate; [`config`]: the deployment settings.
 //! - [`engines`]: the engine of every product path, on the store's stored tables.
 //! - [`lut`]: the real-time texture bundle of an atmosphere (Bruneton 2017's layout).
+//! - [`cloud_light`]: pre-lit cloud volumes for real-time clients, and their reference marcher.
 
 // Numeric kernels index several parallel per-wavelength arrays in one loop; an index is clearer.
 #![allow(clippy::needless_range_loop)]
 
 mod any;
 pub mod artifact;
+pub mod cloud_light;
 pub mod config;
 pub mod cost;
 pub mod engines;

@@ -351,6 +351,61 @@ impl MsField {
         out.iter_mut().for_each(|o| *o = 0.0);
         let mut ylm = [0.0; (MAX_ORDER + 1) * (MAX_ORDER + 1)];
         real_sh(-d, self.angular_order, &mut ylm);
+        let n = self.moments;
+        for (c, w) in self.cell_weights(p) {
+            if w == 0.0 {
+                continue;
+            }
+            for (l, o) in out.iter_mut().enumerate() {
+                let v = &self.data[(c * self.n_l + l) * n..(c * self.n_l + l + 1) * n];
+                let pl = &self.phase_moments[l];
+                let mut sum = 0.0;
+                for (order, p_l) in pl.iter().enumerate() {
+                    for m in order * order..(order + 1) * (order + 1) {
+                        sum += p_l * v[m] as f64 * ylm[m];
+                    }
+                }
+                *o += w * sum;
+            }
+        }
+        for o in out.iter_mut() {
+            *o = o.max(0.0);
+        }
+    }
+
+    /// Angular order L of the field's harmonics.
+    pub fn angular_order(&self) -> usize {
+        self.angular_order
+    }
+
+    /// The phase-convolved coefficients p*_l·L_lm at `p` with [`Self::inscatter`]'s weights,
+    /// `[λ][(L + 1)²]` into `out`: [`Self::inscatter`] towards `d` is max(0, Σ_lm out_lm
+    /// Y_lm(−d)) per wavelength (what an export of the field per voxel holds).
+    pub fn convolved_coefficients(&self, p: DVec3, out: &mut [f64]) {
+        out.iter_mut().for_each(|o| *o = 0.0);
+        let n = self.moments;
+        for (c, w) in self.cell_weights(p) {
+            if w == 0.0 {
+                continue;
+            }
+            for l in 0..self.n_l {
+                let v = &self.data[(c * self.n_l + l) * n..(c * self.n_l + l + 1) * n];
+                let pl = &self.phase_moments[l];
+                for (order, p_l) in pl.iter().enumerate() {
+                    for m in order * order..(order + 1) * (order + 1) {
+                        out[l * n + m] += w * p_l * v[m] as f64;
+                    }
+                }
+            }
+        }
+    }
+
+    /// The 8 coarse cells around `p` and their weights: trilinear between cell centres,
+    /// multiplied by each cell's mean density where any of them holds cloud (J is needed where
+    /// there is cloud, and a cell that is mostly empty holds the fluence of light leaving the
+    /// cloud, outward only, about half the fluence just inside a lit surface, which would dim
+    /// the cloud's surface voxels), plain trilinear otherwise.
+    fn cell_weights(&self, p: DVec3) -> [(usize, f64); 8] {
         let local = (p - self.origin_m) / self.cell_m - DVec3::splat(0.5);
         let mut i0 = [0usize; 3];
         let mut i1 = [0usize; 3];
@@ -376,33 +431,15 @@ impl MsField {
             sum_w += w;
             sum_wr += w * wr;
         }
-        // Density weights where any of the cells holds cloud, plain trilinear otherwise.
         let by_density = sum_wr > 0.0;
-        let n = self.moments;
-        for (c, w, wr) in cells {
+        cells.map(|(c, w, wr)| {
             let w = if by_density {
                 w * wr / sum_wr
             } else {
                 w / sum_w.max(1e-300)
             };
-            if w == 0.0 {
-                continue;
-            }
-            for (l, o) in out.iter_mut().enumerate() {
-                let v = &self.data[(c * self.n_l + l) * n..(c * self.n_l + l + 1) * n];
-                let pl = &self.phase_moments[l];
-                let mut sum = 0.0;
-                for (order, p_l) in pl.iter().enumerate() {
-                    for m in order * order..(order + 1) * (order + 1) {
-                        sum += p_l * v[m] as f64 * ylm[m];
-                    }
-                }
-                *o += w * sum;
-            }
-        }
-        for o in out.iter_mut() {
-            *o = o.max(0.0);
-        }
+            (c, w)
+        })
     }
 }
 

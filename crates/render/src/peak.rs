@@ -26,11 +26,11 @@ use skybake_physics::phase::Phase;
 use std::f64::consts::PI;
 
 /// Scattering angles of the table: 0 to 180° in 0.5° steps.
-const N_THETA: usize = 361;
+pub const N_THETA: usize = 361;
 /// Largest λ = ωfτ tabulated (beyond it the ratio is held: e^{−τ*} ≤ e^{−λ(1−ωf)/(ωf)} is
 /// negligible there for cloud phase functions).
-const LAMBDA_MAX: f64 = 24.0;
-const N_LAMBDA: usize = 97;
+pub const LAMBDA_MAX: f64 = 24.0;
+pub const N_LAMBDA: usize = 97;
 /// Legendre orders summed (Henyey-Greenstein g = 0.9: g^384 ≈ 3·10⁻¹⁸).
 const L_MAX: usize = 384;
 /// Quadrature points for the moments, μ = 1 − 2u² with u uniform (resolves the peak at μ = 1).
@@ -73,6 +73,13 @@ impl PeakSpread {
             table_of.push(i);
         }
         Some(Self { table_of, tables })
+    }
+
+    /// Wavelength `l`'s table of p_eff/p, `[θ][λ]`: [`N_THETA`] scattering angles 0 to 180° in
+    /// 0.5° steps by [`N_LAMBDA`] values of λ = ωfτ from 0 to [`LAMBDA_MAX`] (what
+    /// [`Self::ratio`] interpolates bilinearly, λ held beyond the last).
+    pub fn table(&self, l: usize) -> &[f32] {
+        &self.tables[self.table_of[l]]
     }
 
     /// The row for wavelength `l` and the cosine of the scattering angle (sun direction · ray).

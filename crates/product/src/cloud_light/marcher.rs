@@ -1,0 +1,337 @@
+//! The reference marcher of a pre-lit cloud volume: what a real-time client does with the
+//! export, in Rust, from the decoded [`CloudLight`] alone (no call into the renderer's light
+//! computation). Per pixel it marches the view ray through the box in steps of the export's
+//! `step_voxels`, interpolating the per-voxel textures trilinearly at each step and evaluating
+//! the source towards the camera from the direction tables; the fast frame's march
+//! (`skybake_render::march`, the TMS form of Nakajima & Tanaka 1988, eqs 13–15, with the δ-M
+//! scaling of Wiscombe 1977) is what it reproduces, with the sky and multiple-scattering sources
+//! evaluated at each sample rather than at voxel centres first.
+
+use glam::DVec3;
+use std::f64::consts::PI;
+
+use super::{CloudLight, SKY_ELEMENTS};
+
+/// Where a client's ray leaves the cloud, per wavelength: the cloud's radiance I and its true
+/// transmittance T_c (the background is seen as T_c·B), and the distance of the cloud's front.
+#[derive(Debug, Clone, PartialEq)]
+pub struct CloudSample {
+    pub radiance: Vec<f64>,
+    pub transmittance: Vec<f64>,
+    pub front_m: Option<f64>,
+}
+
+/// The marcher over one decoded export.
+pub struct Marcher<'a> {
+    cl: &'a CloudLight,
+    lo: DVec3,
+    hi: DVec3,
+}
+
+/// Real orthonormal spherical harmonics up to l = 2 in the manifest's order (Sloan 2008,
+/// appendix A2); higher orders are not needed by exports of angular order ≤ 2.
+fn sh(d: DVec3, out: &mut [f64; 25]) {
+    let (x, y, z) = (d.x, d.y, d.z);
+    out[0] = 0.282_094_791_773_878_14;
+    out[1] = 0.488_602_511_902_919_9 * y;
+    out[2] = 0.488_602_511_902_919_9 * z;
+    out[3] = 0.488_602_511_902_919_9 * x;
+    out[4] = 1.092_548_430_592_079_2 * x * y;
+    out[5] = 1.092_548_430_592_079_2 * y * z;
+    out[6] = 0.315_391_565_252_520_05 * (3.0 * z * z - 1.0);
+    out[7] = 1.092_548_430_592_079_2 * x * z;
+    out[8] = 0.546_274_215_296_039_6 * (x * x - y * y);
+}
+
+/// One step's weight of the sun's single scattering for a density constant over the step and an
+/// optical depth towards the sun linear along it (a the view ray's scaled attenuation rate, b the
+/// step's change of the scaled optical depth towards the sun, τ₀ that depth at the step's start):
+/// ∫₀^Δ a e^{−a u} e^{−τ₀ − b u/Δ} du, and the mean of u/Δ under that weight.
+fn sun_step(a: f64, b: f64, dt: f64, tau0: f64) -> (f64, f64) {
+    let x = a * dt + b;
+    if x.abs() < 1e-6 {
+        return ((-tau0).exp() * a * dt * (1.0 - 0.5 * x), 0.5 - x / 12.0);
+    }
+    let weight = a
+        * dt
+        * if x > 0.0 {
+            (-tau0).exp() * (-(-x).exp_m1()) / x
+        } else {
+            (-tau0 - x).exp() * x.exp_m1() / x
+        };
+    let mean = if x > 700.0 {
+        1.0 / x
+    } else {
+        1.0 / x - 1.0 / x.exp_m1()
+    };
+    (weight, mean.clamp(0.0, 1.0))
+}
+
+impl<'a> Marcher<'a> {
+    /// Refuses an export whose multiple-scattering order this marcher does not evaluate.
+    pub fn new(cl: &'a CloudLight) -> crate::Result<Self> {
+        if cl.ms_order.is_some_and(|o| o > 2) {
+            return Err(crate::Error::out_of_range(
+                "settings.angular_order",
+                cl.ms_order.unwrap_or(0),
+                "0 to 2 (the reference marcher's harmonics)",
+            ));
+        }
+        let lo = DVec3::from_array(cl.origin_m);
+        let n = DVec3::new(cl.dims[0] as f64, cl.dims[1] as f64, cl.dims[2] as f64);
+        Ok(Self {
+            cl,
+            lo,
+            hi: lo + n * cl.voxel_size_m,
+        })
+    }
+
+    /// Trilinear weights of the 8 voxels around `p` (centres at origin + h·(i + ½); clamped to
+    /// the outermost centres inside the box); `None` outside the box.
+    fn weights(&self, p: DVec3) -> Option<[(usize, f64); 8]> {
+        let local = (p - self.lo) / self.cl.voxel_size_m;
+        let n = self.cl.dims;
+        let (mut i0, mut i1, mut f) = ([0usize; 3], [0usize; 3], [0f64; 3]);
+        for a in 0..3 {
+            let l = local[a];
+            if !(l >= 0.0 && l <= n[a] as f64) {
+                return None;
+            }
+            let c = (l - 0.5).clamp(0.0, (n[a] - 1) as f64);
+            i0[a] = (c.floor() as usize).min(n[a] - 1);
+            i1[a] = (i0[a] + 1).min(n[a] - 1);
+            f[a] = c - i0[a] as f64;
+        }
+        let mut out = [(0usize, 0f64); 8];
+        for (corner, o) in out.iter_mut().enumerate() {
+            let pick = |a: usize, bit: usize| {
+                if corner & bit == 0 {
+                    (i0[a], 1.0 - f[a])
+                } else {
+                    (i1[a], f[a])
+                }
+            };
+            let ((x, wx), (y, wy), (z, wz)) = (pick(0, 1), pick(1, 2), pick(2, 4));
+            *o = ((z * n[1] + y) * n[0] + x, wx * wy * wz);
+        }
+        Some(out)
+    }
+
+    fn interp(w: &[(usize, f64); 8], v: &[f32]) -> f64 {
+        w.iter().map(|&(i, wi)| wi * v[i] as f64).sum()
+    }
+
+    /// The sky-element table at view direction `d` (bilinear; elevation clamped, azimuth
+    /// wrapped), `[entry·n_λ + λ]`. With `split_at_horizon`, rows on the other side of the
+    /// horizon from `d` are not blended in (for E16, the environment radiance, which jumps there
+    /// from sky to ground light; E00–E15 are smooth in d).
+    fn sky_entries_split(&self, d: DVec3, split_at_horizon: bool, out: &mut [f64]) {
+        out.iter_mut().for_each(|o| *o = 0.0);
+        let Some(t) = &self.cl.sky else {
+            return;
+        };
+        let e = d.z.clamp(-1.0, 1.0).asin();
+        let az = d.x.atan2(d.y).rem_euclid(2.0 * PI);
+        let u = ((e + 0.5 * PI) / PI * (t.n_elev - 1) as f64).clamp(0.0, (t.n_elev - 1) as f64);
+        let v = az / (2.0 * PI) * t.n_az as f64;
+        let mut r0 = (u.floor() as usize).min(t.n_elev - 1);
+        let mut r1 = (r0 + 1).min(t.n_elev - 1);
+        let mut fr = u - r0 as f64;
+        let elevation = |r: usize| -90.0 + 180.0 * r as f64 / (t.n_elev - 1) as f64;
+        if split_at_horizon && elevation(r0) < 0.0 && elevation(r1) >= 0.0 {
+            // d.z ≥ 0 is the sky's side (the renderer's convention).
+            let r = if d.z >= 0.0 { r1 } else { r0 };
+            (r0, r1, fr) = (r, r, 0.0);
+        }
+        let c0 = (v.floor() as usize) % t.n_az;
+        let c1 = (c0 + 1) % t.n_az;
+        let fc = v - v.floor();
+        let corners = [
+            (r0 * t.n_az + c0, (1.0 - fr) * (1.0 - fc)),
+            (r0 * t.n_az + c1, (1.0 - fr) * fc),
+            (r1 * t.n_az + c0, fr * (1.0 - fc)),
+            (r1 * t.n_az + c1, fr * fc),
+        ];
+        for (o, ch) in out.iter_mut().zip(&t.values) {
+            *o = corners.iter().map(|&(i, w)| w * ch[i] as f64).sum();
+        }
+    }
+
+    /// [`Self::sky_entries_split`] without the split: what the fast frame interpolates.
+    fn sky_entries(&self, d: DVec3, out: &mut [f64]) {
+        self.sky_entries_split(d, false, out)
+    }
+
+    /// The phase function of wavelength `l` at cos θ (the table, linear in √(θ/π)).
+    fn phase(&self, l: usize, cos_theta: f64) -> f64 {
+        let t = &self.cl.phase[l];
+        let n = t.len();
+        let x = (cos_theta.clamp(-1.0, 1.0).acos() / PI).sqrt() * (n - 1) as f64;
+        let i0 = (x.floor() as usize).min(n - 2);
+        let f = x - i0 as f64;
+        t[i0] as f64 * (1.0 - f) + t[i0 + 1] as f64 * f
+    }
+
+    /// The peak spread p_eff/p of wavelength `l` at cos θ and λ (bilinear, λ held beyond the
+    /// table).
+    fn spread(&self, l: usize, cos_theta: f64, lambda: f64) -> f64 {
+        let Some(p) = &self.cl.peak else {
+            return 1.0;
+        };
+        let x = cos_theta.clamp(-1.0, 1.0).acos().to_degrees() * (p.n_theta - 1) as f64 / 180.0;
+        let i0 = (x.floor() as usize).min(p.n_theta - 2);
+        let w1 = (x - i0 as f64).clamp(0.0, 1.0);
+        let y =
+            (lambda.max(0.0) / p.lambda_max * (p.n_lambda - 1) as f64).min((p.n_lambda - 1) as f64);
+        let j0 = (y.floor() as usize).min(p.n_lambda - 2);
+        let v = y - j0 as f64;
+        let t = &p.values[l];
+        let at = |i: usize, j: usize| t[i * p.n_lambda + j] as f64;
+        let a = at(i0, j0) * (1.0 - v) + at(i0, j0 + 1) * v;
+        let b = at(i0 + 1, j0) * (1.0 - v) + at(i0 + 1, j0 + 1) * v;
+        a * (1.0 - w1) + b * w1
+    }
+
+    /// Marches the ray from `o` along unit `d` through the cloud.
+    pub fn march(&self, o: DVec3, d: DVec3) -> CloudSample {
+        let cl = self.cl;
+        let n_l = cl.n_l();
+        let mut ia = vec![0.0; n_l];
+        let mut tc = vec![1.0; n_l];
+        let mut ts = vec![1.0; n_l];
+        let Some((t0, t1)) = box_interval(o, d, self.lo, self.hi) else {
+            return CloudSample {
+                radiance: ia,
+                transmittance: tc,
+                front_m: None,
+            };
+        };
+        let sun = DVec3::from_array(cl.sun_direction);
+        let cos_sun = sun.dot(d);
+        let k: Vec<f64> = cl.extinction_per_density_m.clone();
+        let s = &cl.extinction_scale;
+        let sun_src: Vec<f64> = (0..n_l)
+            .map(|l| cl.albedo[l] / s[l] * cl.sun_irradiance[l] * self.phase(l, cos_sun))
+            .collect();
+        let sun_on = cl.sun_irradiance.iter().any(|&e| e > 0.0);
+        let mut sky = vec![0.0; SKY_ELEMENTS * n_l];
+        self.sky_entries(d, &mut sky);
+        let mut ylm = [0.0; 25];
+        sh(-d, &mut ylm);
+        let moments = cl.ms_order.map_or(0, |o| (o + 1) * (o + 1));
+        let step = cl.step_voxels * cl.voxel_size_m;
+        let sun_path = |p: DVec3| {
+            self.weights(p)
+                .map_or(0.0, |w| Self::interp(&w, &cl.sun_path))
+        };
+        let mut t = t0;
+        let mut d0 = if sun_on { sun_path(o + d * t) } else { 0.0 };
+        let mut front = None;
+        let mut paths = [0.0f64; 15];
+        while t < t1 {
+            let dt = step.min(t1 - t);
+            let pm = o + d * (t + 0.5 * dt);
+            t += dt;
+            let d1 = if sun_on { sun_path(o + d * t) } else { 0.0 };
+            let (d_start, d_end) = (d0, d1);
+            d0 = d1;
+            let Some(w) = self.weights(pm) else {
+                continue;
+            };
+            let rho = Self::interp(&w, &cl.density);
+            if rho <= 0.0 {
+                continue;
+            }
+            front.get_or_insert(t - dt);
+            if !cl.sky_paths.is_empty() {
+                paths[0] = Self::interp(&w, &cl.sun_path);
+                for (e, p) in cl.sky_paths.iter().enumerate() {
+                    paths[e + 1] = Self::interp(&w, p);
+                }
+            }
+            let mut alive = false;
+            for l in 0..n_l {
+                let ks = k[l] * s[l];
+                let a = -(-k[l] * rho * dt).exp_m1();
+                let a_ms = -(-ks * rho * dt).exp_m1();
+                // Sun, single scattering with the true phase function and the spread peak.
+                let sun_t = if sun_on {
+                    let (weight, d_eff) =
+                        sun_step(ks * rho, ks * (d_end - d_start), dt, ks * d_start);
+                    let lambda = cl.peak_rate[l] * k[l] * (d_start + (d_end - d_start) * d_eff);
+                    weight * self.spread(l, cos_sun, lambda)
+                } else {
+                    0.0
+                };
+                // Sky and ground light through the sun cap and the lattice elements.
+                let mut src = 0.0;
+                if !cl.sky_paths.is_empty() {
+                    let mut q = 0.0;
+                    for (e, &path) in paths.iter().enumerate() {
+                        q += sky[e * n_l + l] * (-ks * path).exp();
+                    }
+                    src += cl.albedo[l] / s[l] * q;
+                }
+                // Multiple scattering, all orders.
+                if moments > 0 {
+                    let mut j = 0.0;
+                    for m in 0..moments {
+                        j += Self::interp(&w, &cl.ms[l * moments + m]) * ylm[m];
+                    }
+                    src += j.max(0.0);
+                }
+                ia[l] += ts[l] * (sun_src[l] * sun_t + a_ms * src);
+                tc[l] *= 1.0 - a;
+                ts[l] *= 1.0 - a_ms;
+                alive |= ts[l] > skybake_render::march::MARCH_CUTOFF;
+            }
+            if !alive {
+                break;
+            }
+        }
+        // The view cap: sky light from behind each point along the view ray itself, and the
+        // forward peak's share of the radiance from behind.
+        if front.is_some() && cl.sky.is_some() {
+            for l in 0..n_l {
+                if ts[l] <= 0.0 {
+                    continue;
+                }
+                let tau = -ts[l].ln();
+                let cap = cl.albedo[l] / s[l] * sky[15 * n_l + l];
+                let behind = sky[16 * n_l + l];
+                ia[l] = (ia[l] + cap * tau * ts[l] + behind * (ts[l] - tc[l])).max(0.0);
+            }
+        }
+        CloudSample {
+            radiance: ia,
+            transmittance: tc,
+            front_m: front,
+        }
+    }
+
+    /// The environment radiance L(d) of the export's sky table (zero without sky light), not
+    /// blended across the horizon: the background of a vacuum scene without ground.
+    pub fn environment(&self, d: DVec3, out: &mut [f64]) {
+        let n_l = self.cl.n_l();
+        let mut sky = vec![0.0; SKY_ELEMENTS * n_l];
+        self.sky_entries_split(d, true, &mut sky);
+        out.copy_from_slice(&sky[16 * n_l..17 * n_l]);
+    }
+}
+
+/// Entry and exit distances (≥ 0) of the ray with the box (slab method).
+fn box_interval(o: DVec3, d: DVec3, lo: DVec3, hi: DVec3) -> Option<(f64, f64)> {
+    let (mut t0, mut t1) = (0.0f64, f64::INFINITY);
+    for a in 0..3 {
+        if d[a].abs() < 1e-300 {
+            if o[a] < lo[a] || o[a] > hi[a] {
+                return None;
+            }
+            continue;
+        }
+        let (ta, tb) = ((lo[a] - o[a]) / d[a], (hi[a] - o[a]) / d[a]);
+        t0 = t0.max(ta.min(tb));
+        t1 = t1.min(ta.max(tb));
+    }
+    (t0 < t1).then_some((t0, t1))
+}

@@ -1,0 +1,279 @@
+//! Pre-lit cloud volumes (`skybake_product::cloud_light`): the reference marcher of the exported
+//! volume, decoded from its OpenEXR files, against the fast frame it was exported from; the
+//! round trip of the files; bad exports refused with errors naming the file and field.
+
+use serde_json::{json, Value};
+use skybake_engine::engine::Engine;
+use skybake_product::cloud_light::marcher::Marcher;
+use skybake_product::cloud_light::{CloudLight, MANIFEST_FILE};
+use skybake_product::frame::example_scene;
+use skybake_render::camera::primary_ray;
+use skybake_render::compare::{image_errors, ImageErrors};
+use skybake_render::{lighting_for, render_tile, FrameScene, Method, Prepared, RenderSettings};
+use std::collections::HashMap;
+use std::sync::Arc;
+
+/// A decoded export through its files (encoded and decoded as the CLI writes and a client reads).
+fn round_trip(cl: &CloudLight) -> CloudLight {
+    let files: HashMap<String, Vec<u8>> = cl
+        .files()
+        .unwrap()
+        .into_iter()
+        .map(|(n, b)| (n.to_string(), b))
+        .collect();
+    CloudLight::from_files(&|name: &str| {
+        files
+            .get(name)
+            .cloned()
+            .ok_or_else(|| skybake_physics::Error::invalid(name, "no such file"))
+    })
+    .unwrap()
+}
+
+/// The fast frame of `scene` and the marcher's frame of its export for the same camera:
+/// `background_from_export` composites over the export's environment radiance alone (vacuum
+/// scenes without ground), otherwise over the renderer's compositor (atmosphere, ground), as a
+/// client composites the cloud with its own sky. `edit` changes the decoded export before it is
+/// marched. Returns the errors and the export.
+fn compare(
+    scene: &FrameScene,
+    background_from_export: bool,
+    edit: &dyn Fn(&mut CloudLight),
+) -> (ImageErrors, CloudLight) {
+    let grid = scene
+        .cloud
+        .voxelize(&|_| Err(skybake_physics::Error::invalid("path", "no files")))
+        .unwrap();
+    let engine = Engine::new();
+    let lighting = lighting_for(scene, &grid, &engine).unwrap();
+    let settings = RenderSettings::for_quality(scene.quality, Method::Fast);
+    let prepared = Prepared::new(scene, &grid, &lighting, settings, &|| false).unwrap();
+    let fast = render_tile(&prepared, None, &|_| {}, &|| false).unwrap();
+    let exported = CloudLight::from_lit(&prepared.lit, scene.name.as_deref()).unwrap();
+    let mut cl = round_trip(&exported);
+    assert_eq!(cl, exported, "the files hold the export exactly");
+    edit(&mut cl);
+    let marcher = Marcher::new(&cl).unwrap();
+    let (w, h) = (scene.camera.width, scene.camera.height);
+    let n_l = scene.wavelengths.len();
+    let mut image = vec![0f32; w * h * n_l];
+    let mut px = vec![0.0; n_l];
+    let mut bg = vec![0.0; n_l];
+    for y in 0..h {
+        for x in 0..w {
+            let ray = primary_ray(&scene.camera, x as f64 + 0.5, y as f64 + 0.5).unwrap();
+            let s = marcher.march(ray.origin_m, ray.dir);
+            if background_from_export {
+                marcher.environment(ray.dir, &mut bg);
+                for l in 0..n_l {
+                    px[l] = s.radiance[l] + s.transmittance[l] * bg[l];
+                }
+            } else {
+                prepared.composite(&ray, &s.radiance, &s.transmittance, s.front_m, &mut px);
+            }
+            for l in 0..n_l {
+                image[(y * w + x) * n_l + l] = px[l] as f32;
+            }
+        }
+    }
+    let mask: Vec<bool> = fast.transmittance.iter().map(|&t| t < 0.99).collect();
+    (image_errors(&image, &fast.radiance, &mask, w, n_l), cl)
+}
+
+/// A vacuum scene: the eight-metaball cumulus, sun at `sun_azimuth_deg`, a constant sky, no ground.
+fn vacuum_scene(sun_azimuth_deg: f64) -> FrameScene {
+    let mut v: Value = serde_json::from_str(example_scene("cumulus-frame").unwrap()).unwrap();
+    v["cloud"]["voxel_size_m"] = json!(50.0);
+    v["atmosphere"] = Value::Null;
+    v["sky"] = json!({"constant_radiance_w_m2_sr_nm": 0.05});
+    v["ground"] = Value::Null;
+    v["sun"] = json!({"collimated": {"elevation_deg": 25, "azimuth_deg": sun_azimuth_deg,
+                                      "normal_irradiance_w_m2_nm": 1.0}});
+    v["camera"]["width"] = json!(128);
+    v["camera"]["height"] = json!(96);
+    v["quality"] = json!("draft");
+    FrameScene::parse(v.to_string().as_bytes()).unwrap()
+}
+
+/// The marcher of the exported volume reproduces the fast frame within 3 % block NRMSE: front-lit
+/// and back-lit (sun 25° above the horizon behind the cloud, 30° off the view) in vacuum with a
+/// constant sky, composited over the export's own environment radiance. Measured (draft, 128×96,
+/// 50 m voxels): 0.15 % / 0.09 % block NRMSE, 0.15 % / 0.16 % pixel, −0.11 % / −0.07 % bias
+/// (docs/cloud-light.md).
+#[test]
+fn marcher_reproduces_the_fast_frame_in_vacuum() {
+    // Camera at −y looking +y: azimuth 180° puts the sun behind the camera (front-lit); 30°
+    // puts it behind the cloud.
+    for (name, az) in [("front-lit", 200.0), ("back-lit", 30.0)] {
+        let (e, cl) = compare(&vacuum_scene(az), true, &|_| {});
+        eprintln!(
+            "cloud_light {name}: block NRMSE {:.4}, pixel NRMSE {:.4}, bias {:+.4}, {} cloud pixels, dims {:?}",
+            e.nrmse_blocks, e.nrmse_pixels, e.mean_bias, e.cloud_pixels, cl.dims
+        );
+        assert!(e.cloud_pixels > 1500, "{name}: {e:?}");
+        assert!(e.nrmse_blocks <= 0.03, "{name}: {e:?}");
+        assert!(e.nrmse_pixels <= 0.03, "{name}: {e:?}");
+        assert!(e.mean_bias.abs() <= 0.02, "{name}: {e:?}");
+        assert!(cl.ms_order == Some(2) && cl.sky.is_some() && cl.peak.is_some());
+    }
+    // The comparison sees each exported term: without the multiple-scattering moments, or
+    // without the peak spread, the marcher misses the fast frame by more than the 3 % bound
+    // (measured 83 % and 5.0 % block NRMSE).
+    let scene = vacuum_scene(30.0);
+    let (no_ms, _) = compare(&scene, true, &|cl| {
+        cl.ms
+            .iter_mut()
+            .for_each(|c| c.iter_mut().for_each(|v| *v = 0.0))
+    });
+    let (no_peak, _) = compare(&scene, true, &|cl| cl.peak = None);
+    eprintln!(
+        "cloud_light back-lit without MS: block {:.3}; without the peak spread: block {:.3}",
+        no_ms.nrmse_blocks, no_peak.nrmse_blocks
+    );
+    assert!(no_ms.nrmse_blocks > 0.2, "{no_ms:?}");
+    assert!(no_peak.nrmse_blocks > 0.03, "{no_peak:?}");
+}
+
+/// The embedded `cumulus-frame` scene (earth atmosphere, sky, ground of albedo 0.3, aerial
+/// perspective; draft, 50 m voxels, 128×96): the marcher's cloud composited with the
+/// renderer's atmosphere and ground reproduces the fast frame within 3 % block NRMSE (measured
+/// 0.17 % block, 0.16 % pixel, −0.14 % bias).
+#[test]
+fn marcher_reproduces_the_embedded_cumulus_frame() {
+    let mut v: Value = serde_json::from_str(example_scene("cumulus-frame").unwrap()).unwrap();
+    v["cloud"]["voxel_size_m"] = json!(50.0);
+    v["camera"]["width"] = json!(128);
+    v["camera"]["height"] = json!(96);
+    v["quality"] = json!("draft");
+    let scene = FrameScene::parse(v.to_string().as_bytes()).unwrap();
+    let (e, _) = compare(&scene, false, &|_| {});
+    eprintln!(
+        "cloud_light cumulus-frame: block NRMSE {:.4}, pixel NRMSE {:.4}, bias {:+.4}, {} cloud pixels",
+        e.nrmse_blocks, e.nrmse_pixels, e.mean_bias, e.cloud_pixels
+    );
+    assert!(e.cloud_pixels > 1500, "{e:?}");
+    assert!(e.nrmse_blocks <= 0.03, "{e:?}");
+    assert!(e.nrmse_pixels <= 0.03, "{e:?}");
+    assert!(e.mean_bias.abs() <= 0.02, "{e:?}");
+}
+
+/// Small export for the error cases: a ball, draft.
+fn small_export() -> Vec<(String, Vec<u8>)> {
+    let mut v: Value = serde_json::from_str(example_scene("cumulus-frame").unwrap()).unwrap();
+    v["cloud"] = json!({"voxel_size_m": 100.0, "source": {"type": "metaballs",
+        "balls": [{"centre_m": [0, 0, 1500], "radius_m": 400, "density": 1.0}]}});
+    v["atmosphere"] = Value::Null;
+    v["sky"] = json!({"constant_radiance_w_m2_sr_nm": 0.05});
+    v["ground"] = Value::Null;
+    v["sun"] = json!({"collimated": {"elevation_deg": 40, "azimuth_deg": 120,
+                                      "normal_irradiance_w_m2_nm": 1.0}});
+    v["quality"] = json!("draft");
+    let req =
+        skybake_product::cloud_light::CloudLightRequest::parse(v.to_string().as_bytes()).unwrap();
+    let out = req
+        .compute(
+            &Engine::new(),
+            &|_| Err(skybake_physics::Error::invalid("path", "no files")),
+            &|| false,
+        )
+        .unwrap();
+    out.light
+        .files()
+        .unwrap()
+        .into_iter()
+        .map(|(n, b)| (n.to_string(), b))
+        .collect()
+}
+
+fn decode(files: &[(String, Vec<u8>)]) -> Result<CloudLight, skybake_physics::Error> {
+    let files: Arc<HashMap<String, Vec<u8>>> = Arc::new(files.iter().cloned().collect());
+    CloudLight::from_files(&|name: &str| {
+        files
+            .get(name)
+            .cloned()
+            .ok_or_else(|| skybake_physics::Error::invalid(name, "no such file"))
+    })
+}
+
+/// Bad exports are refused naming the file and the field: a wrong version, a texture of the
+/// wrong size, a missing channel, a corrupted file, a missing file; a reference-pattern scene is
+/// refused before anything is computed.
+#[test]
+fn bad_exports_are_refused_with_the_field() {
+    let files = small_export();
+    let cl = decode(&files).unwrap();
+    assert_eq!(cl.ms_order, Some(2));
+    let manifest: Value =
+        serde_json::from_slice(&files.iter().find(|(n, _)| n == MANIFEST_FILE).unwrap().1).unwrap();
+    // Every file the manifest lists is there with its size.
+    for f in manifest["files"].as_array().unwrap() {
+        let (_, b) = files
+            .iter()
+            .find(|(n, _)| n == f["file"].as_str().unwrap())
+            .unwrap();
+        assert_eq!(b.len() as u64, f["bytes"].as_u64().unwrap());
+    }
+    let with_manifest = |edit: &dyn Fn(&mut Value)| {
+        let mut m = manifest.clone();
+        edit(&mut m);
+        let mut f = files.clone();
+        for (n, b) in f.iter_mut() {
+            if n == MANIFEST_FILE {
+                *b = serde_json::to_vec(&m).unwrap();
+            }
+        }
+        decode(&f).unwrap_err()
+    };
+    let e = with_manifest(&|m| m["layout_version"] = json!("99"));
+    assert_eq!(e.field(), "manifest.json.layout_version", "{e}");
+    let e = with_manifest(&|m| m["grid"]["dims"][0] = json!(cl.dims[0] + 1));
+    assert_eq!(e.field(), "density.exr", "{e}");
+    assert!(e.to_string().contains("texels"), "{e}");
+    let e = with_manifest(&|m| m["grid"]["dims"] = json!([4096, 4096, 4096]));
+    assert_eq!(e.field(), "manifest.json.grid.dims", "{e}");
+    let e = with_manifest(&|m| m["wavelengths_nm"][0] = json!(441));
+    assert_eq!(e.field(), "multiple_scattering.exr", "{e}");
+    assert!(e.to_string().contains("C00.441"), "{e}");
+    let e = with_manifest(&|m| m["per_wavelength"]["peak_rate"] = json!([0.1]));
+    assert_eq!(e.field(), "manifest.json.per_wavelength.peak_rate", "{e}");
+    let e = with_manifest(&|m| m["textures"]["density"]["file"] = json!("../etc/passwd"));
+    assert_eq!(e.field(), "manifest.json.textures.density.file", "{e}");
+    // A flipped byte: the checksum refuses the texture.
+    let mut f = files.clone();
+    for (n, b) in f.iter_mut() {
+        if n == "sun_path.exr" {
+            let k = b.len() / 2;
+            b[k] ^= 0x10;
+        }
+    }
+    assert_eq!(decode(&f).unwrap_err().field(), "sun_path.exr");
+    let f: Vec<_> = files
+        .iter()
+        .filter(|(n, _)| n != "sky_elements.exr")
+        .cloned()
+        .collect();
+    assert_eq!(decode(&f).unwrap_err().field(), "sky_elements.exr");
+    // Too large for memory: refused naming the cloud before any light is computed (64
+    // wavelengths × 82³ voxels ≈ 1.2 GiB).
+    let mut v: Value = serde_json::from_str(example_scene("cumulus-frame").unwrap()).unwrap();
+    v["cloud"] = json!({"voxel_size_m": 10.0, "source": {"type": "metaballs",
+        "balls": [{"centre_m": [0, 0, 1500], "radius_m": 400, "density": 1.0}]}});
+    v["wavelengths_nm"] = json!((0..64).map(|i| 400 + 5 * i).collect::<Vec<_>>());
+    let req =
+        skybake_product::cloud_light::CloudLightRequest::parse(v.to_string().as_bytes()).unwrap();
+    let e = req
+        .compute(
+            &Engine::new(),
+            &|_| Err(skybake_physics::Error::invalid("path", "no files")),
+            &|| false,
+        )
+        .err()
+        .unwrap();
+    assert_eq!(e.field(), "cloud", "{e}");
+    assert!(e.to_string().contains("MiB"), "{e}");
+    let mut v: Value = serde_json::from_str(example_scene("cumulus-frame").unwrap()).unwrap();
+    v["multiple_scattering_method"] = json!("reference_pattern");
+    let e = skybake_product::cloud_light::CloudLightRequest::parse(v.to_string().as_bytes())
+        .unwrap_err();
+    assert_eq!(e.field(), "multiple_scattering_method");
+}
