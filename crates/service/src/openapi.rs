@@ -227,7 +227,7 @@ pub fn openapi_json() -> String {
                         "frame_time_steps": {"description": "automaton frames (a cloud whose source is an automaton)"}}}}},
             "JobRequest": {"type": "object", "additionalProperties": false, "properties": {
                 "frames": {"type": "array", "items": {"$ref": "#/components/schemas/FrameEntry"}},
-                "bundles": {"type": "array", "description": "Texture-bundle items (atmosphere parameters and an optional sweep over them): baked offline by `skybake bake` only; a job with bundles is refused here (400 naming bundles); GET /v1/lut serves one bundle", "items": {"type": "object"}},
+                "bundles": {"type": "array", "description": "Texture-bundle items (atmosphere parameters and an optional sweep over them): baked offline by `skybake bake` only; a job with bundles is refused here (422 naming bundles); GET /v1/lut serves one bundle", "items": {"type": "object"}},
                 "cloud_lights": {"type": "array", "description": "Pre-lit cloud volume items ({scene} or {example}; docs/cloud-light.md): baked offline by `skybake bake` only; a job with them is refused here (422 naming cloud_lights)", "items": {"type": "object"}},
                 "products": {"type": "array", "items": {"$ref": "#/components/schemas/PlanRequest"}},
                 "grids": {"type": "array", "items": {"type": "object", "required": ["product", "sweep"],
