@@ -1597,8 +1597,9 @@ impl PreciseMultipleScattering {
 
 /// Version of the stored table layout (part of its store key).
 /// (2: twice-as-dense sun-zenith nodes beyond 80°, for twilight; 3: f32 exp/ln in the build;
-/// 4: Â_R and Â_M per constituent instead of J.)
-pub const TABLE_FORMAT: &str = "precise-table-4";
+/// 4: Â_R and Â_M per constituent instead of J; 5: the view-zenith poles' azimuthal mean in the
+/// radiance passes, [`Grid::theta_corners`].)
+pub const TABLE_FORMAT: &str = "precise-table-5";
 /// Header attribute holding the stored table's description ([`StoredPrecise`] as JSON).
 const ATTR_TABLE: &str = "skybakeSharedTable";
 
