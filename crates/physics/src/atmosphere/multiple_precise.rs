@@ -1806,7 +1806,8 @@ impl PreciseMultipleScattering {
                     for is in 0..n_mu_s {
                         let block = is * n_phi * lanes;
                         for x in 0..lanes {
-                            let m: f64 = (0..n_phi).map(|l| row[block + l * lanes + x] as f64).sum();
+                            let m: f64 =
+                                (0..n_phi).map(|l| row[block + l * lanes + x] as f64).sum();
                             for l in 0..n_phi {
                                 out.per_constituent[block + l * lanes + x] += w * m;
                             }
@@ -1986,7 +1987,10 @@ mod tests {
         // a + bφ² (even about 0) and a + b(π − φ)² (even about π) are interpolated exactly over
         // the last half step; clamping would give the first node's value.
         for (edge, f) in [
-            (0.0, Box::new(|p: f64| 1.0 + 3.0 * p * p) as Box<dyn Fn(f64) -> f64>),
+            (
+                0.0,
+                Box::new(|p: f64| 1.0 + 3.0 * p * p) as Box<dyn Fn(f64) -> f64>,
+            ),
             (PI, Box::new(|p: f64| 1.0 + 3.0 * (PI - p) * (PI - p))),
         ] {
             for t in [0.0, 0.25, 0.5, 0.99] {
@@ -2006,7 +2010,10 @@ mod tests {
             let (j, v) = Grid::centred_pos(phi, n);
             assert!(i == j && (w - v).abs() < 1e-12, "{phi}: {i} {w} vs {j} {v}");
         }
-        assert_eq!(Grid::phi_pos(node(3) + 0.01, n), Grid::centred_pos(node(3) + 0.01, n));
+        assert_eq!(
+            Grid::phi_pos(node(3) + 0.01, n),
+            Grid::centred_pos(node(3) + 0.01, n)
+        );
         let (i, w) = Grid::phi_pos_f(0.0, n);
         assert!(i == 0.0 && (w + 0.125).abs() < 1e-12, "{i} {w}");
     }
@@ -2059,7 +2066,11 @@ mod tests {
             assert!(zenith[i] > 0.0);
             for cos_phi in [1.0, -1.0] {
                 let near = j(eps, cos_phi)[i];
-                assert!((near / zenith[i] - 1.0).abs() < 1e-3, "λ {i} cos φ {cos_phi}: {near} vs {}", zenith[i]);
+                assert!(
+                    (near / zenith[i] - 1.0).abs() < 1e-3,
+                    "λ {i} cos φ {cos_phi}: {near} vs {}",
+                    zenith[i]
+                );
             }
             let (towards, away) = (j(first, 1.0)[i], j(first, -1.0)[i]);
             assert!(towards / away > 1.01, "λ {i}: {towards} {away}");
