@@ -1912,8 +1912,11 @@ crate::simd_dispatch! {
                 let sc = &table.scattering;
                 let (rho_r, rho_m) = sc.densities(slice.r);
                 for i in 0..n_l {
-                    out[i] +=
-                        sc.rayleigh_per_m[i] * rho_r * a[i] + sc.mie_per_m[i] * rho_m * a[n_l + i];
+                    // Never below 0: the azimuth interpolation's even extrapolation at the
+                    // mirror planes ([`Grid::phi_pos`]) has a weight of −1/8 at most.
+                    out[i] += (sc.rayleigh_per_m[i] * rho_r * a[i]
+                        + sc.mie_per_m[i] * rho_m * a[n_l + i])
+                        .max(0.0);
                 }
                 return;
             }
@@ -1928,7 +1931,7 @@ crate::simd_dispatch! {
             let (w00, w01) = ((1.0 - fs) * (1.0 - fp), (1.0 - fs) * fp);
             let (w10, w11) = (fs * (1.0 - fp), fs * fp);
             for i in 0..n_l {
-                out[i] += w00 * v00[i] + w01 * v01[i] + w10 * v10[i] + w11 * v11[i];
+                out[i] += (w00 * v00[i] + w01 * v01[i] + w10 * v10[i] + w11 * v11[i]).max(0.0);
             }
     }
 }
@@ -1943,7 +1946,9 @@ impl Source for PreciseMultipleScattering {
         let sc = &self.scattering;
         let (rho_r, rho_m) = sc.densities(s.r);
         for i in 0..n_l {
-            out[i] += sc.rayleigh_per_m[i] * rho_r * a[i] + sc.mie_per_m[i] * rho_m * a[n_l + i];
+            // Never below 0 (as `add_from_slice`): see [`Grid::phi_pos`].
+            out[i] += (sc.rayleigh_per_m[i] * rho_r * a[i] + sc.mie_per_m[i] * rho_m * a[n_l + i])
+                .max(0.0);
         }
     }
     fn add_ground_sky_irradiance(&self, mu_s: f64, out: &mut [f64]) {
