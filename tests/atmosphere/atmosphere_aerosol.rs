@@ -222,33 +222,38 @@ fn check(points: &[Point], label: &str) {
 #[test]
 fn precise_standard_hazy_sky_is_within_its_measured_error_of_disort() {
     // Three atmospheres keep the test cheap (AOD 0.4 HG 0.7; AOD 0.05; AOD 0.4 HG 0.8 ssa 0.8).
-    // Measured through this path (all eight: the ignored test below): radiance mean within ±0.1 %
-    // for these three, max +3.37 % at the zenith with the sun at 40° and −3.38 % 2.8° from the sun
-    // (g 0.8); the 2 % target is not met there yet (see docs/validation.md).
-    let points = deviations(
+    // Measured through this path (all eight: the ignored test below): base and thin within the
+    // 2 % aimed for (1.56 %, 0.71 %; 2–10° from the sun 1.18 %, 0.58 %); absorbing_g08 +2.42 % at
+    // view zenith 75° with the sun at 75° (680 nm) and −2.52 % 2.8° from the sun. Before the
+    // view-zenith pole and azimuth mirror-plane interpolation were fixed, the zenith with the sun
+    // at 40° read +2.26 % (base) and +3.37 % (absorbing_g08), and 2.8° from the sun −3.38 %.
+    let mut points = deviations("precise", "standard", &["base", "thin"], 0.02, 0.03);
+    points.extend(deviations(
         "precise",
         "standard",
-        &["base", "thin", "absorbing_g08"],
-        0.035,
-        0.035,
-    );
+        &["absorbing_g08"],
+        0.026,
+        0.03,
+    ));
     let mean = points.iter().map(|p| p.deviation).sum::<f64>() / points.len() as f64;
     check(&points, "precise standard vs DISORT (aerosol)");
-    assert!(mean.abs() < 0.005, "mean bias {mean}");
+    assert!(mean.abs() < 0.003, "mean bias {mean}");
 }
 
 /// Measured bounds per atmosphere at `standard` (%, magnitudes, the figures of docs/validation.md
-/// rounded up by 0.2–0.5): sky radiance ≥ 10° from the sun, within 2–10° of the sun, the radiance
-/// mean, and diffuse/global irradiance. Not the target tolerances (2 %; 3 % near the sun), which several rows exceed.
+/// rounded up by 0.2–0.3, or the 2 % aimed for where that holds): sky radiance ≥ 10° from the
+/// sun, within 2–10° of the sun, the radiance mean, and diffuse/global irradiance. thick (+16 %,
+/// the radius nodes' resolution in optical depth 2) and cs_g08_bright (−5 %, the azimuth nodes'
+/// resolution for Cornette-Shanks g 0.8) exceed the aimed-for 3 %; absorbing_g08 exceeds 2 % by 0.4.
 const MEASURED_BOUNDS: [(&str, f64, f64, f64, f64); 8] = [
-    ("base", 2.5, 1.8, 0.2, 0.9),
-    ("thin", 1.0, 0.8, 0.2, 0.6),
-    ("thick", 16.7, 17.5, 0.3, 3.8),
-    ("conservative_g06", 1.8, 1.2, 0.2, 0.8),
-    ("absorbing_g08", 3.6, 3.6, 0.2, 1.3),
-    ("black_ground", 2.6, 1.9, 0.2, 1.0),
-    ("cornette_shanks", 3.3, 2.1, 0.2, 0.9),
-    ("cs_g08_bright", 8.8, 7.3, 1.0, 2.8),
+    ("base", 1.8, 1.4, 0.2, 0.8),
+    ("thin", 0.9, 0.8, 0.2, 0.6),
+    ("thick", 16.6, 17.7, 0.3, 3.8),
+    ("conservative_g06", 1.6, 1.1, 0.2, 0.8),
+    ("absorbing_g08", 2.7, 2.8, 0.2, 1.1),
+    ("black_ground", 1.9, 1.5, 0.2, 1.0),
+    ("cornette_shanks", 2.0, 1.7, 0.2, 0.9),
+    ("cs_g08_bright", 5.3, 5.5, 0.9, 2.6),
 ];
 
 /// All eight atmospheres with `method` at `standard`, each held to its measured `bounds` (%,

@@ -60,6 +60,9 @@ fn main() {
     let data: Value = serde_json::from_str(&std::fs::read_to_string(path).unwrap()).unwrap();
     eprintln!("{s:?} product steps {product_steps} R {radius_m}");
     let wl = Wavelengths::parse("440,550,680").unwrap();
+    // `AEROSOL_PROBE_DETAIL=atmosphere,sun_zenith,nm` (e.g. `thick,75,440`) prints every point of
+    // that case.
+    let detail = std::env::var("AEROSOL_PROBE_DETAIL").ok();
     for a in data["header"]["inputs"]["atmospheres"].as_array().unwrap() {
         let name = a["name"].as_str().unwrap();
         if !only.is_empty() && !only.iter().any(|o| o.as_str() == name) {
@@ -106,6 +109,9 @@ fn main() {
                     let (mu, nu) = ev.direction(vz.to_radians(), raz.to_radians());
                     ev.trace(mu, nu, product_steps, &mut sc, &mut out, &mut tr, None);
                     let d = out[li] / reference - 1.0;
+                    if detail.as_deref() == Some(&format!("{name},{sza},{nm}")) {
+                        println!("  vz {vz:5.1} az {raz:5.1} scattering {theta:6.2}: ours {:.5e} DISORT {reference:.5e} {:+.2} %", out[li], 100.0 * d);
+                    }
                     if theta >= 10.0 {
                         far_sum += d;
                         far_n += 1;
