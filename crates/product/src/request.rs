@@ -217,7 +217,7 @@ impl ProductRequest {
             return Ok(self);
         }
         let Some((measured, _)) =
-            skybake_engine::accuracy::measured_for(self.kind(), plan.method, &self.spec)
+            skybake_engine::accuracy::measured_for(self.kind(), plan.method, &plan.spec_for(&self.spec))
         else {
             return Ok(self);
         };
