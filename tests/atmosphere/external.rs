@@ -176,3 +176,49 @@ fn the_fast_preset_is_the_coarsest_within_5_percent_of_disort() {
     assert!(worst(Quality::Draft, "hazy") > 0.05);
     assert!(worst(Quality::Standard, "hazy") <= 0.05);
 }
+
+/// The viewer's defaults (web/index.html): the precise method (the fast one is not offered) at a
+/// quality whose measured distance from DISORT in the default atmosphere's aerosol band is within
+/// 2 % at every measured sun band.
+#[test]
+fn the_viewers_default_is_within_2_percent_of_disort() {
+    use skybake_engine::accuracy::aerosol_optical_depth_550;
+    use skybake_physics::atmosphere::presets::preset;
+    let html = include_str!("../../web/index.html");
+    // The options of `<select id="…">`, and the selected one (the first when none is marked).
+    let select = |id: &str| -> (Vec<String>, String) {
+        let start = html
+            .find(&format!("<select id=\"{id}\""))
+            .unwrap_or_else(|| panic!("no select {id}"));
+        let body = &html[start..start + html[start..].find("</select>").unwrap()];
+        let mut options = Vec::new();
+        let mut selected = None;
+        for part in body.split("<option").skip(1) {
+            let value = part.split("value=\"").nth(1).unwrap().split('"').next().unwrap();
+            if part.split('>').next().unwrap().contains("selected") {
+                selected = Some(value.to_string());
+            }
+            options.push(value.to_string());
+        }
+        let first = options[0].clone();
+        (options, selected.unwrap_or(first))
+    };
+    let (methods, method) = select("method");
+    assert_eq!(method, "precise");
+    assert!(!methods.iter().any(|m| m == "fast"), "{methods:?}");
+    let (_, quality) = select("quality");
+    let (_, atmosphere) = select("atmosphere");
+    let band = band_of_aerosol(aerosol_optical_depth_550(&preset(&atmosphere).unwrap()).unwrap())
+        .unwrap();
+    let quality = Quality::parse(&quality).unwrap();
+    let rows: Vec<_> = external()
+        .rows
+        .iter()
+        .filter(|r| r.quality == quality && r.aerosol_band.as_deref() == Some(band))
+        .collect();
+    assert!(rows.len() >= 3, "{quality:?} {band}");
+    for r in rows {
+        let d = r.radiance_max.max(r.irradiance_max);
+        assert!(d <= 0.02, "{} {} {quality:?}: {d}", r.case, r.sun_band);
+    }
+}
