@@ -21,6 +21,7 @@
 //! see [`skybake_engine::accuracy`]), `README.md` (tables) and one log–log PNG of error against time per
 //! product ([`plot`]); the cloud frames' part ([`frames`]) in `frames.json` and one PNG per frame.
 
+pub mod external;
 pub mod frames;
 pub mod planner;
 pub mod plot;
@@ -361,6 +362,7 @@ pub fn write(
             plots.push((kind, name));
         }
         readme.push_str(&markdown(report, &plots));
+        readme.push_str(&external::markdown(report));
     } else {
         readme.push_str("# Error against run time\n\n");
     }
