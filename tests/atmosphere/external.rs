@@ -48,7 +48,8 @@ fn measure() -> Vec<Value> {
             for sun_band in ["high", "low"] {
                 let of = || {
                     points.iter().filter(move |p| {
-                        p.atmosphere == name && band_of_sun(90.0 - p.sun_zenith_deg) == Some(sun_band)
+                        p.atmosphere == name
+                            && band_of_sun(90.0 - p.sun_zenith_deg) == Some(sun_band)
                     })
                 };
                 let max = |radiance: bool| {
@@ -194,7 +195,13 @@ fn the_viewers_default_is_within_2_percent_of_disort() {
         let mut options = Vec::new();
         let mut selected = None;
         for part in body.split("<option").skip(1) {
-            let value = part.split("value=\"").nth(1).unwrap().split('"').next().unwrap();
+            let value = part
+                .split("value=\"")
+                .nth(1)
+                .unwrap()
+                .split('"')
+                .next()
+                .unwrap();
             if part.split('>').next().unwrap().contains("selected") {
                 selected = Some(value.to_string());
             }
@@ -208,8 +215,8 @@ fn the_viewers_default_is_within_2_percent_of_disort() {
     assert!(!methods.iter().any(|m| m == "fast"), "{methods:?}");
     let (_, quality) = select("quality");
     let (_, atmosphere) = select("atmosphere");
-    let band = band_of_aerosol(aerosol_optical_depth_550(&preset(&atmosphere).unwrap()).unwrap())
-        .unwrap();
+    let band =
+        band_of_aerosol(aerosol_optical_depth_550(&preset(&atmosphere).unwrap()).unwrap()).unwrap();
     let quality = Quality::parse(&quality).unwrap();
     let rows: Vec<_> = external()
         .rows

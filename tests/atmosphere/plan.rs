@@ -85,7 +85,11 @@ fn planning_builds_no_table_on_the_engine_that_executes_the_request() {
     assert_eq!(builds(&engine), after_precise, "all warm");
     // The retired fast method runs the precise tables at draft: the same tables, warm.
     fast.compute(&engine).unwrap();
-    assert_eq!(builds(&engine), after_precise, "fast executed on the precise draft tables");
+    assert_eq!(
+        builds(&engine),
+        after_precise,
+        "fast executed on the precise draft tables"
+    );
 }
 
 /// The frame's plan takes an engine (with an atmosphere it computes the light at the cloud,

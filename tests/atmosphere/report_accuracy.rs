@@ -106,7 +106,11 @@ fn params(atmosphere: &str, sun: f64, altitude: f64) -> RequestParams {
 fn external_max(quality: &str, aerosol: &str, sun: &str) -> Option<f64> {
     let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("report/external.json");
     let v: Value = serde_json::from_str(&std::fs::read_to_string(path).unwrap()).unwrap();
-    let quality = if quality == "reference" { "high" } else { quality };
+    let quality = if quality == "reference" {
+        "high"
+    } else {
+        quality
+    };
     v["rows"]
         .as_array()
         .unwrap()

@@ -44,7 +44,7 @@ pub const FAST_MEASURED_ERROR: &str =
 /// what they cost cold against the fast method (report/external.json, docs/performance.md).
 pub fn fast_preset_evidence(q: Quality) -> &'static str {
     match q {
-        Quality::Draft => "at most 2.5 % in clear air (aerosol optical depth ≤ 0.3), at 0.59 s cold for a 16-wavelength sky against the fast method's 0.83 s",
+        Quality::Draft => "at most 2.5 % in clear air (aerosol optical depth ≤ 0.3), at 0.56 s cold for a 16-wavelength sky against the fast method's 0.83 s (skybake-harness bench sky-fast sky-hillaire)",
         _ => "1.4–3.4 % at aerosol optical depth 0.4 (draft: 3.7–7.9 %), 8.5 % at optical depth 1 with a strongly forward aerosol (a bias every preset shares), at 2.9 s cold for a hazy 16-wavelength sky against the fast method's 0.83 s",
     }
 }
@@ -369,13 +369,11 @@ pub fn external_distance(
         .filter(|r| r.quality == quality && r.sun_band == sun)
         .filter(|r| r.aerosol_band.as_deref() == aerosol)
         .collect();
-    let worst = rows
-        .iter()
-        .max_by(|a, b| {
-            a.radiance_max
-                .max(a.irradiance_max)
-                .total_cmp(&b.radiance_max.max(b.irradiance_max))
-        })?;
+    let worst = rows.iter().max_by(|a, b| {
+        a.radiance_max
+            .max(a.irradiance_max)
+            .total_cmp(&b.radiance_max.max(b.irradiance_max))
+    })?;
     Some(ExternalDistance {
         relative_error: worst.radiance_max.max(worst.irradiance_max),
         rows: rows.len(),

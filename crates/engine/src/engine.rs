@@ -550,7 +550,11 @@ impl Engine {
         };
         let (relative_error, basis, regime) = if night {
             // Every scattering term is exactly zero in the model (`plan::darkest_twilight_deg`).
-            (0.0, "night: sunlight contributes exactly zero".to_string(), None)
+            (
+                0.0,
+                "night: sunlight contributes exactly zero".to_string(),
+                None,
+            )
         } else if method == MsMethod::Precise {
             // At least the measured distance from DISORT in this regime (report/external.json).
             crate::accuracy::combined_error(spec, measured, reference_error, stated, independent)

@@ -317,7 +317,7 @@ impl Lighting {
         let (method, atmosphere_quality) = match scene.quality {
             Quality::Draft | Quality::Standard => (
                 MsMethod::Precise,
-                skybake_engine::plan::fast_preset(&atmosphere),
+                skybake_engine::plan::fast_preset(atmosphere),
             ),
             q @ (Quality::High | Quality::Reference) => (MsMethod::Precise, q),
         };

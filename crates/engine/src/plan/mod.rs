@@ -378,12 +378,11 @@ pub fn plan(product: ProductKind, spec: &CommonSpec, m: &Medium) -> Plan {
         sun_elevation_deg: elevation,
         darkest_twilight_deg: darkest,
     });
-    let substitution = (method != requested.method && night.is_none()).then_some(
-        Substitution::FastRetired {
+    let substitution =
+        (method != requested.method && night.is_none()).then_some(Substitution::FastRetired {
             requested: requested.method,
             quality: spec.quality,
-        },
-    );
+        });
     let mut p = Plan {
         stages: vec![Stage::DensityTable],
         left_out: Vec::new(),

@@ -40,12 +40,18 @@ pub fn markdown(report: &Report) -> String {
                 _ => None,
             },
         };
-        let internal = measured(report, ProductKind::Sky, MsMethod::Precise, r.quality, &bands)
-            .map_or("— (not measured)".to_string(), |m| {
-                // The report's regimes measure the high band at 45° and the low one at 10°.
-                let sun = if r.sun_band == "high" { 45.0 } else { 10.0 };
-                format!("{:.2} %", 100.0 * (m.relative_error + reference_error(sun)))
-            });
+        let internal = measured(
+            report,
+            ProductKind::Sky,
+            MsMethod::Precise,
+            r.quality,
+            &bands,
+        )
+        .map_or("— (not measured)".to_string(), |m| {
+            // The report's regimes measure the high band at 45° and the low one at 10°.
+            let sun = if r.sun_band == "high" { 45.0 } else { 10.0 };
+            format!("{:.2} %", 100.0 * (m.relative_error + reference_error(sun)))
+        });
         let _ = writeln!(
             s,
             "| {} | {} | {} | {} | {} | {} | {:.2} % | {:.2} % | {} |",
@@ -66,8 +72,15 @@ pub fn markdown(report: &Report) -> String {
          0.3; tests/atmosphere/atmosphere_twilight.rs, precise `standard`; the reference error the report's \
          figures add below 30°):\n"
     );
-    let _ = writeln!(s, "| sun elevation | stated (measured, rounded up) |\n|---|---:|");
-    for (band, e) in [("0° to 30°", 0.0), ("−6° to 0°", -3.0), ("−12° to −6°", -9.0)] {
+    let _ = writeln!(
+        s,
+        "| sun elevation | stated (measured, rounded up) |\n|---|---:|"
+    );
+    for (band, e) in [
+        ("0° to 30°", 0.0),
+        ("−6° to 0°", -3.0),
+        ("−12° to −6°", -9.0),
+    ] {
         let _ = writeln!(
             s,
             "| {band} | {:.1} % |",
