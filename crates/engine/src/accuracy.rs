@@ -653,6 +653,31 @@ mod tests {
     }
 
     #[test]
+    fn the_committed_external_distances_parse_and_cover_every_measured_preset() {
+        let ext = external();
+        assert!(!ext.command.is_empty());
+        for q in [Quality::Draft, Quality::Standard, Quality::High] {
+            for (aerosol, sun) in [
+                (Some("clear"), "high"),
+                (Some("clear"), "low"),
+                (Some("hazy"), "high"),
+                (Some("hazy"), "low"),
+                (None, "high"),
+            ] {
+                let d = external_distance(q, aerosol, Some(sun))
+                    .unwrap_or_else(|| panic!("{q:?} {aerosol:?} {sun}"));
+                assert!(d.relative_error > 0.0 && d.relative_error < 1.0, "{d:?}");
+            }
+        }
+        // Twilight has no DISORT row (the spherical Monte Carlo's figures are the reference
+        // error there).
+        assert_eq!(
+            external_distance(Quality::Standard, Some("clear"), Some("twilight")),
+            None
+        );
+    }
+
+    #[test]
     fn aerosol_bands_of_the_presets() {
         let earth = preset("earth").unwrap();
         let hazy = preset("earth-hazy").unwrap();
