@@ -389,6 +389,14 @@ fn a_fast_request_runs_the_precise_tables_at_the_coarse_preset() {
         };
         assert_eq!(sky.table.radiance, reference.table.radiance, "{quality}");
         assert_eq!(sky.meta.error_estimate.method, MsMethod::Precise);
+        assert!(
+            sky.meta
+                .error_estimate
+                .basis
+                .contains("fast method is retired"),
+            "{}",
+            sky.meta.error_estimate.basis
+        );
         assert_eq!(
             sky.meta.error_estimate.relative_error,
             reference.meta.error_estimate.relative_error

@@ -565,6 +565,13 @@ impl Engine {
                 None,
             )
         };
+        let basis = match plan.substitution {
+            Some(crate::plan::Substitution::FastRetired { quality, .. }) => format!(
+                "{basis}; the requested fast method is retired: the precise tables at the {} preset ran (plan.method_substitution)",
+                crate::accuracy::preset_name(quality)
+            ),
+            None => basis,
+        };
         // Outside the measured altitude and aerosol bands nothing is validated; below the
         // measured sun bands the spherical Monte Carlo's figures stand (to −12°).
         let bands = crate::accuracy::RegimeBands::of(
