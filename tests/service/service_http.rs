@@ -393,8 +393,9 @@ async fn excess_load_is_shed_and_slow_requests_time_out() {
     // covers the default, cancelling it).
     s.server.finish_abandoned = true;
     let srv = TestServer::start(s).await;
-    // A cold request slow enough to exceed the timeout (fast method, full default table).
-    let slow = "/v1/sky?method=fast&quality=high&elevation_count=257&azimuth_count=128&sun_elevation_deg=33";
+    // A cold request slow enough to exceed the timeout (precise tables at standard, a large
+    // table).
+    let slow = "/v1/sky?method=precise&quality=standard&elevation_count=257&azimuth_count=128&sun_elevation_deg=33";
     let addr = srv.addr;
     let first =
         tokio::spawn(async move { service_support::request(addr, "GET", slow, None).await });
