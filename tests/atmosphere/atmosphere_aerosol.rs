@@ -178,12 +178,14 @@ fn deviations_on(
                     });
                 }
             }
-            // No product states less than its measured distance from DISORT in its regime.
+            // No product states less than its measured distance from DISORT in its regime (not
+            // while that distance is being measured again, external.rs).
+            let remeasuring = std::env::var_os("SKYBAKE_WRITE_EXTERNAL").is_some();
             let worst = out[first..]
                 .iter()
                 .map(|p| p.deviation.abs())
                 .fold(0.0, f64::max);
-            for product in [&sky, &sun] {
+            for product in [&sky, &sun].into_iter().filter(|_| !remeasuring) {
                 let stated = f(&product["error_estimate"]["relative_error"]);
                 assert!(
                     stated >= worst,
