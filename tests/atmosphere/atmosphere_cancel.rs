@@ -1,6 +1,6 @@
 //! Cooperative cancellation inside the table builds and the output rows: the density
-//! table, the fast multiple-scattering table and a product's output rows ask the cancel check once
-//! per row, so a cancelled request stops within a row or so of the check that said "stop" instead
+//! table and a product's output rows ask the cancel check once per row, the precise
+//! multiple-scattering table once per order, so a cancelled request stops within a row or so of the check that said "stop" instead
 //! of finishing the build. Work is measured by counting the checks (each one starts a row), never
 //! by the wall clock.
 
@@ -10,10 +10,10 @@ use skybake_product::params::RequestParams;
 use skybake_product::{ProductKind, ProductRequest};
 use std::sync::atomic::{AtomicUsize, Ordering};
 
-/// A fast sky on 4 wavelengths with 64 elevation rows (64 × 3 output entries).
+/// A precise draft sky on 4 wavelengths with 64 elevation rows (64 × 3 output entries).
 fn sky_request() -> ProductRequest {
     let pairs: Vec<(String, String)> = [
-        ("method", "fast"),
+        ("method", "precise"),
         ("quality", "draft"),
         ("wavelengths", "440,550,610,680"),
         ("sun_elevation_deg", "25"),
@@ -67,7 +67,7 @@ fn a_cancelled_cold_sky_stops_inside_the_density_table() {
     let density_rows = skybake_physics::atmosphere::shared::TRANSMITTANCE_N_R;
     assert!(
         full.calls() > density_rows + 64,
-        "{} checks in a cold sky: the fast table's and the output's rows ask too",
+        "{} checks in a cold sky: the precise table's orders and the output's rows ask too",
         full.calls()
     );
 
@@ -88,11 +88,12 @@ fn a_cancelled_cold_sky_stops_inside_the_density_table() {
 }
 
 #[test]
-fn a_cancelled_cold_sky_stops_inside_the_fast_table() {
+fn a_cancelled_cold_sky_stops_inside_the_precise_table() {
     let request = sky_request();
     let density_rows = skybake_physics::atmosphere::shared::TRANSMITTANCE_N_R;
-    // The density table asks `density_rows` times, the evaluator once; then the fast table's rows.
-    let stop_at = density_rows + 1 + 4;
+    // The density table asks `density_rows` times, the evaluator once; then the precise table
+    // between its orders.
+    let stop_at = density_rows + 1 + 2;
     let engine = Engine::new();
     let stopped = Counter::new(stop_at);
     let err = request
@@ -104,8 +105,8 @@ fn a_cancelled_cold_sky_stops_inside_the_fast_table() {
         "{} checks after cancellation at check {stop_at}",
         stopped.calls()
     );
-    // The fast table was not kept (the next run builds it again: more checks than a warm run);
-    // the density table was.
+    // The precise table was not kept (the next run builds it again: more checks than a warm
+    // run); the density table was.
     let rebuild = Counter::new(0);
     request
         .compute_cancellable(&engine, &|| rebuild.check())
@@ -115,9 +116,10 @@ fn a_cancelled_cold_sky_stops_inside_the_fast_table() {
         .compute_cancellable(&engine, &|| warm.check())
         .unwrap();
     assert_eq!(engine.table_builds(Table::Density), 1);
+    assert_eq!(engine.table_builds(Table::Precise), 1);
     assert!(
-        rebuild.calls() > warm.calls() + 4,
-        "the fast table was not built again ({} checks, warm {})",
+        rebuild.calls() > warm.calls() + 2,
+        "the precise table was not built again ({} checks, warm {})",
         rebuild.calls(),
         warm.calls()
     );

@@ -66,7 +66,7 @@ fn sun_json_has_the_contract_fields_and_consistent_irradiances() {
 #[test]
 fn aerial_perspective_follows_beer_lambert_and_ends_at_the_sky() {
     let engine = Engine::new();
-    let s = spec("fast", "550", "rayleigh-only", "20", "0");
+    let s = spec("precise", "550", "rayleigh-only", "20", "0");
     let shape = DomeShape {
         elevation_count: 33,
         azimuth_count: 3,
@@ -183,7 +183,7 @@ fn ground_nadir_radiance_at_the_surface_is_albedo_over_pi_times_global_irradianc
     // sky's irradiance on the ground from the multiple-scattering tables.
     let engine = Engine::new();
     for sun in ["60", "20"] {
-        let mut s = spec("fast", "450,550,650", "earth", sun, "0");
+        let mut s = spec("precise", "450,550,650", "earth", sun, "0");
         s.ground_albedo = Some(0.3);
         let ghi = engine.sun(&s).unwrap().global_horizontal_irradiance_w_m2_nm;
         let g = engine

@@ -38,7 +38,7 @@ fn rayleigh_atmosphere(radius_m: f64) -> String {
 /// Plane-parallel limit: DISORT is plane-parallel; on a planet ten times Earth's radius the
 /// horizon air mass (~120) and all other geometry match it to < 0.1 %.
 const PLANE_PARALLEL_RADIUS_M: f64 = 63_600_000.0;
-const EARTH_RADIUS_M: f64 = 6_360_000.0;
+pub(crate) const EARTH_RADIUS_M: f64 = 6_360_000.0;
 
 /// The request of `kind` for these parameters (standard quality unless given).
 fn request(kind: ProductKind, pairs: &[(&str, String)]) -> ProductRequest {
@@ -52,15 +52,20 @@ fn body(engine: &Engine, req: &ProductRequest) -> Value {
     serde_json::from_slice(&render(req.kind(), Format::Json, &image).unwrap()).unwrap()
 }
 
-struct Deviation {
-    radiance: f64,
-    flux: f64,
+pub(crate) struct Deviation {
+    pub(crate) radiance: f64,
+    pub(crate) flux: f64,
 }
 
 /// Max relative deviation of sky radiance (ground observer looking up, view zenith 0–60°, all
 /// azimuths: `sky` probes) and of diffuse downward flux (`sun`'s diffuse horizontal irradiance)
 /// from DISORT, over every case.
 fn disort_deviation(method: &str, radius_m: f64) -> Deviation {
+    disort_deviation_at(method, "standard", radius_m)
+}
+
+/// [`disort_deviation`] at `quality`.
+pub(crate) fn disort_deviation_at(method: &str, quality: &str, radius_m: f64) -> Deviation {
     let data = load("disort_rayleigh.json");
     let engine = Engine::new();
     let vz = floats(&data["view_zenith_deg"]);
@@ -83,7 +88,7 @@ fn disort_deviation(method: &str, radius_m: f64) -> Deviation {
                     ("ground_albedo", albedo.to_string()),
                     ("sun_elevation_deg", (90.0 - sza).to_string()),
                     ("method", method.to_string()),
-                    ("quality", "standard".to_string()),
+                    ("quality", quality.to_string()),
                 ];
                 v.extend_from_slice(extra);
                 v
@@ -125,7 +130,7 @@ fn disort_deviation(method: &str, radius_m: f64) -> Deviation {
         }
     }
     eprintln!(
-        "{method} R = {radius_m} m: max deviation from DISORT: radiance {:.3} %, diffuse flux {:.3} %",
+        "{method} {quality} R = {radius_m} m: max deviation from DISORT: radiance {:.3} %, diffuse flux {:.3} %",
         100.0 * worst.radiance,
         100.0 * worst.flux
     );
@@ -153,16 +158,12 @@ fn precise_sky_on_earth_is_within_2_percent_of_disort() {
 }
 
 #[test]
-fn fast_sky_error_against_disort_is_within_its_stated_bound() {
-    // README: fast 5.31 % max; the error estimate every fast product carries is 6 %.
+fn a_fast_request_runs_the_precise_draft_tables_within_2_percent_of_disort() {
+    // The fast method (Hillaire 2020) is retired: it measured 5.31 % here (and 38–170 % in haze);
+    // a `method=fast` request runs the precise tables at draft, measured 1.65 % (radiance, on
+    // Earth's radius) in report/external.json.
     let d = disort_deviation("fast", EARTH_RADIUS_M);
-    assert!(d.radiance < 0.0531, "{}", d.radiance);
-    assert!(
-        d.radiance
-            < skybake_engine::engine::stated_relative_error(
-                skybake_physics::atmosphere::sky::MsMethod::Fast
-            )
-    );
+    assert!(d.radiance < 0.0192, "{}", d.radiance);
 }
 
 #[test]

@@ -8,6 +8,7 @@ mod atmosphere_products;
 mod atmosphere_robustness;
 mod atmosphere_twilight;
 mod atmosphere_validation;
+mod external;
 mod lut;
 mod plan;
 mod report_accuracy;

@@ -10,7 +10,7 @@ use skybake_product::{ProductKind, ProductRequest};
 
 fn request(kind: ProductKind, pairs: &[(&str, &str)]) -> ProductRequest {
     let base = [
-        ("method", "fast"),
+        ("method", "precise"),
         ("quality", "draft"),
         ("wavelengths", "550"),
     ];
@@ -59,7 +59,7 @@ fn planning_builds_no_table_on_the_engine_that_executes_the_request() {
 
     let precise = request(ProductKind::Sky, &[("method", "precise")]);
     let precise_sun = request(ProductKind::Sun, &[("method", "precise")]);
-    let fast = request(ProductKind::Sky, &[]);
+    let fast = request(ProductKind::Sky, &[("method", "fast")]);
     let none = request(ProductKind::Sky, &[("method", "none")]);
     let engine = Engine::new();
     let plan_all = || {
@@ -83,13 +83,18 @@ fn planning_builds_no_table_on_the_engine_that_executes_the_request() {
     precise_sun.compute(&engine).unwrap();
     none.compute(&engine).unwrap();
     assert_eq!(builds(&engine), after_precise, "all warm");
+    // The retired fast method runs the precise tables at draft: the same tables, warm.
     fast.compute(&engine).unwrap();
-    assert_eq!(builds(&engine)[1..], [1, 1], "fast executed");
+    assert_eq!(
+        builds(&engine),
+        after_precise,
+        "fast executed on the precise draft tables"
+    );
 }
 
 /// The frame's plan takes an engine (with an atmosphere it computes the light at the cloud,
 /// by design): in vacuum it builds no table on it; with an atmosphere, at draft quality, only
-/// the tables of the light it documents (the fast method's, for draft and standard), each once,
+/// the tables of the light it documents (the precise tables at draft, for draft and standard), each once,
 /// and planning the frame again builds nothing more.
 #[test]
 fn planning_a_frame_builds_only_the_tables_of_its_light() {
@@ -122,8 +127,8 @@ fn planning_a_frame_builds_only_the_tables_of_its_light() {
     let first = builds(&engine);
     assert_eq!(
         first,
-        [1, 1, 0],
-        "atmosphere, draft: density and fast tables"
+        [1, 0, 1],
+        "atmosphere, draft: density and precise tables"
     );
     lit.plan(&engine, &no_files).unwrap();
     assert_eq!(builds(&engine), first, "planned again");
@@ -142,11 +147,11 @@ fn method_none_leaves_out_multiple_scattering_and_its_table() {
     assert_eq!(engine.table_builds(Table::Precise), 0);
     assert_eq!(engine.term_count(Term::MultipleScattering), 0);
 
-    let fast = request(ProductKind::Sky, &[]);
-    assert!(fast.plan().unwrap().runs(Stage::MultipleScattering));
-    let (engine, _) = run(&fast);
-    assert_eq!(engine.table_builds(Table::Fast), 1);
-    assert_eq!(engine.table_builds(Table::Precise), 0);
+    let precise = request(ProductKind::Sky, &[]);
+    assert!(precise.plan().unwrap().runs(Stage::MultipleScattering));
+    let (engine, _) = run(&precise);
+    assert_eq!(engine.table_builds(Table::Fast), 0);
+    assert_eq!(engine.table_builds(Table::Precise), 1);
     assert!(engine.term_count(Term::MultipleScattering) > 0);
 }
 
@@ -222,7 +227,7 @@ fn a_stage_taken_out_of_the_plan_does_not_run() {
         };
         assert_eq!(engine.term_count(term), 0, "{stage:?}");
         if stage == Stage::MultipleScattering {
-            assert_eq!(engine.table_builds(Table::Fast), 0);
+            assert_eq!(engine.table_builds(Table::Precise), 0);
         }
         let (Product::Sky(a), Product::Sky(b)) = (&with, &without) else {
             panic!("not sky products")
@@ -329,4 +334,102 @@ fn precise_orders_under_the_error_budget_are_left_out() {
     );
     let plan = reference.plan().unwrap();
     assert!(plan.runs(Stage::HigherOrders) && plan.precise_tolerance.is_none());
+}
+
+fn precise_spec_atmosphere() -> skybake_physics::atmosphere::params::AtmosphereParams {
+    request(ProductKind::Sky, &[]).spec.atmosphere
+}
+
+/// The fast method is retired: a `method=fast` request (any quality) plans the precise tables at
+/// the coarse preset with the substitution and its reason, states the precise method in its
+/// error estimate, and computes exactly the precise-draft product (the same numbers, from the
+/// same shared tables).
+#[test]
+fn a_fast_request_runs_the_precise_tables_at_the_coarse_preset() {
+    use skybake_engine::plan::{fast_preset, Substitution};
+    use skybake_engine::spec::Quality;
+    // The `earth` atmosphere is clear air (aerosol optical depth 0.1): draft.
+    assert_eq!(fast_preset(&precise_spec_atmosphere()), Quality::Draft);
+    let precise = request(ProductKind::Sky, &[("ground_albedo", "0.3")]);
+    let engine = Engine::new();
+    let Product::Sky(reference) = engine
+        .execute(&precise.spec, &precise.product, &precise.plan().unwrap())
+        .unwrap()
+    else {
+        panic!("not a sky product")
+    };
+    for quality in ["draft", "standard", "high"] {
+        let fast = request(
+            ProductKind::Sky,
+            &[
+                ("method", "fast"),
+                ("quality", quality),
+                ("ground_albedo", "0.3"),
+            ],
+        );
+        let plan = fast.plan().unwrap();
+        assert_eq!(plan.method, MsMethod::Precise, "{quality}");
+        assert_eq!(plan.quality, Quality::Draft, "{quality}");
+        assert_eq!(
+            plan.substitution,
+            Some(Substitution::FastRetired {
+                requested: MsMethod::Fast,
+                quality: Quality::Draft
+            })
+        );
+        let v = serde_json::to_value(&plan).unwrap();
+        let detail = v["method_substitution"]["detail"].as_str().unwrap();
+        assert!(
+            detail.contains("retired") && detail.contains("DISORT") && detail.contains("draft"),
+            "{detail}"
+        );
+        assert_eq!(v["method_substitution"]["reason"], "fast_retired");
+        let Product::Sky(sky) = engine.execute(&fast.spec, &fast.product, &plan).unwrap() else {
+            panic!("not a sky product")
+        };
+        assert_eq!(sky.table.radiance, reference.table.radiance, "{quality}");
+        assert_eq!(sky.meta.error_estimate.method, MsMethod::Precise);
+        assert!(
+            sky.meta
+                .error_estimate
+                .basis
+                .contains("fast method is retired"),
+            "{}",
+            sky.meta.error_estimate.basis
+        );
+        assert_eq!(
+            sky.meta.error_estimate.relative_error,
+            reference.meta.error_estimate.relative_error
+        );
+        // The same predicted cost as the precise-draft request.
+        assert_eq!(
+            skybake_product::cost::estimate(&fast).unwrap().units,
+            skybake_product::cost::estimate(&precise).unwrap().units
+        );
+    }
+    assert_eq!(engine.table_builds(Table::Fast), 0);
+    assert_eq!(engine.table_builds(Table::Precise), 1);
+}
+
+/// A `max_rel_error` target on a `fast` request is met by the coarse preset or refused, naming
+/// the parameter: the retired method never runs at an error above what the request asks.
+#[test]
+fn a_fast_request_with_a_target_is_met_at_the_coarse_preset_or_refused() {
+    use skybake_engine::spec::Quality;
+    let target = |t: &str| {
+        let p = RequestParams::from_pairs([
+            ("method", "fast"),
+            ("wavelengths", "550"),
+            ("max_rel_error", t),
+        ])
+        .unwrap();
+        ProductRequest::from_params(ProductKind::Sun, &p)
+    };
+    let loose = target("0.5").unwrap();
+    assert_eq!(loose.plan().unwrap().quality, Quality::Draft);
+    let err = target("0.01").unwrap_err().to_string();
+    assert!(
+        err.contains("max_rel_error") && err.contains("retired") && err.contains("precise"),
+        "{err}"
+    );
 }

@@ -178,3 +178,35 @@ fn atmosphere_print_round_trips_through_a_file() {
     assert_eq!(&bytes[1..4], b"PNG");
     std::fs::remove_dir_all(&dir).ok();
 }
+
+/// `skybake plan` of a `--method fast` request shows the retired method's substitution: the
+/// precise tables at the coarse preset of its atmosphere (draft in clear air, standard in haze),
+/// with the reason and the measured evidence.
+#[test]
+fn plan_of_a_fast_request_shows_the_substitution() {
+    for (atmosphere, preset) in [("earth", "draft"), ("earth-hazy", "standard")] {
+        let (code, out, err) = skybake(&[
+            "plan",
+            "sky",
+            "--method",
+            "fast",
+            "--quality",
+            "high",
+            "--atmosphere",
+            atmosphere,
+        ]);
+        assert_eq!(code, 0, "{err}");
+        let v: serde_json::Value = serde_json::from_str(&out).unwrap();
+        let plan = &v["plan"];
+        assert_eq!(plan["method"], "precise", "{v}");
+        assert_eq!(plan["quality"], preset, "{v}");
+        let sub = &plan["method_substitution"];
+        assert_eq!(sub["reason"], "fast_retired", "{v}");
+        assert_eq!(sub["requested"], "fast", "{v}");
+        let detail = sub["detail"].as_str().unwrap();
+        assert!(
+            detail.contains("retired") && detail.contains("DISORT") && detail.contains(preset),
+            "{detail}"
+        );
+    }
+}

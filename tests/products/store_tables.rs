@@ -263,9 +263,9 @@ async fn cli_server_and_bake_share_the_stored_table() {
     let cache_dir = scratch.path().join("cache");
 
     // A request that needs no precise table does not even create the directory.
-    let fast = cli(&["--method", "fast"], &cache_dir);
-    assert!(find(&fast, "scattering_orders").is_none());
-    assert!(!cache_dir.exists(), "fast method touched the table cache");
+    let none = cli(&["--method", "none"], &cache_dir);
+    assert!(find(&none, "scattering_orders").is_none());
+    assert!(!cache_dir.exists(), "method none touched the table cache");
 
     // First CLI call: builds and stores the table.
     let built = cli(&[], &cache_dir);

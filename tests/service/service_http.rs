@@ -83,11 +83,13 @@ async fn each_endpoint_answers_in_its_documented_form() {
         serde_json::json!({"stage": "ground_bounce", "reason": "zero_ground_albedo",
                             "detail": "the ground albedo is 0 at every wavelength"})
     );
-    // Fast at −5° runs the precise tables, whose orders under the error budget are left out.
+    // Fast is retired: the precise tables at draft run, and the plan says why.
+    assert_eq!(v["plan"]["method"], "precise", "{v}");
     assert_eq!(
-        v["plan"]["left_out"][1]["reason"], "orders_under_budget",
+        v["plan"]["method_substitution"]["reason"], "fast_retired",
         "{v}"
     );
+    assert_eq!(v["plan"]["quality"], "draft", "{v}");
     let stages = v["plan"]["stages"].to_string();
     assert!(stages.contains("multiple_scattering"), "{stages}");
     // Direct sun: the same geometric test as the transmittance, observer altitude included.
@@ -391,8 +393,9 @@ async fn excess_load_is_shed_and_slow_requests_time_out() {
     // covers the default, cancelling it).
     s.server.finish_abandoned = true;
     let srv = TestServer::start(s).await;
-    // A cold request slow enough to exceed the timeout (fast method, full default table).
-    let slow = "/v1/sky?method=fast&quality=high&elevation_count=257&azimuth_count=128&sun_elevation_deg=33";
+    // A cold request slow enough to exceed the timeout (precise tables at standard, a large
+    // table).
+    let slow = "/v1/sky?method=precise&quality=standard&elevation_count=257&azimuth_count=128&sun_elevation_deg=33";
     let addr = srv.addr;
     let first =
         tokio::spawn(async move { service_support::request(addr, "GET", slow, None).await });

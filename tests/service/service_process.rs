@@ -51,6 +51,14 @@ fn wait_exit(child: &mut Child, within: Duration) -> std::process::ExitStatus {
 }
 
 fn count_cache_files(dir: &Path) -> usize {
+    // Stored shared tables (precise and density) are EXR files of the cache too, named by their
+    // header attribute; only products count.
+    let table = |f: &Path| {
+        let bytes = std::fs::read(f).unwrap_or_default();
+        [&b"skybakeSharedTable"[..], &b"skybakeDensityTable"[..]]
+            .iter()
+            .any(|needle| bytes.windows(needle.len()).any(|w| w == *needle))
+    };
     let mut n = 0;
     for shard in std::fs::read_dir(dir).unwrap().flatten() {
         if shard.file_name().len() == 2 && shard.path().is_dir() {
@@ -58,6 +66,7 @@ fn count_cache_files(dir: &Path) -> usize {
                 .unwrap()
                 .flatten()
                 .filter(|f| f.file_name().to_string_lossy().ends_with(".exr"))
+                .filter(|f| !table(&f.path()))
                 .count();
         }
     }

@@ -15,10 +15,49 @@ use skybake_physics::atmosphere::params::{AtmosphereParams, MieExtinction};
 use skybake_physics::atmosphere::sky::MsMethod;
 use std::sync::OnceLock;
 
-/// Sun elevation below which a `fast` request is computed with the precise tables instead: the
-/// fast method's measured error against the spherical Monte Carlo exceeds 10 % there (−6°: up to
-/// 54 % low, −9°: 81 %, −12°: 96 %; tests/atmosphere/atmosphere_twilight.rs).
+/// Sun elevation below which the fast method's (Hillaire 2020) measured error against the
+/// spherical Monte Carlo exceeds 10 % (−6°: up to 54 % low, −9°: 81 %, −12°: 96 %;
+/// tests/atmosphere/atmosphere_twilight.rs). The method is retired for products
+/// ([`fast_preset`]); the limit bounds its measured figures in [`stated_twilight_error`].
 pub const FAST_TWILIGHT_LIMIT_DEG: f64 = -4.0;
+
+/// The quality preset of the precise tables a `fast` request runs on (the fast method, Hillaire
+/// 2020, is retired: its isotropic orders ≥ 2 are [`FAST_MEASURED_ERROR`] off DISORT with
+/// aerosol): the coarsest preset whose measured distance from DISORT in the atmosphere's aerosol
+/// band is within 5 % (report/external.json): `draft` in clear air (optical depth at 550 nm ≤ 0.3;
+/// draft measures ≤ 2.5 %), `standard` in hazier air (draft measures 3.7–7.9 % at optical depth
+/// 0.4, standard 1.4–3.4 %; at optical depth 1 with a strongly forward aerosol every preset is
+/// 6–9 % off, the bias all presets share).
+pub fn fast_preset(atmosphere: &AtmosphereParams) -> Quality {
+    match aerosol_optical_depth_550(atmosphere).and_then(band_of_aerosol) {
+        Some("clear") => Quality::Draft,
+        _ => Quality::Standard,
+    }
+}
+
+/// The fast method's measured error against DISORT with aerosol (the eight atmospheres of
+/// tests/data/disort_aerosol.json, standard preset; docs/validation.md).
+pub const FAST_MEASURED_ERROR: &str =
+    "−38 … +170 % on sky radiance and −17 … −74 % on irradiance for aerosol optical depth 0.05–2";
+
+/// What the precise tables measure against DISORT at the preset a `fast` request runs at, and
+/// what they cost cold against the fast method (report/external.json, docs/performance.md).
+pub fn fast_preset_evidence(q: Quality) -> &'static str {
+    match q {
+        Quality::Draft => "at most 2.5 % in clear air (aerosol optical depth ≤ 0.3), at 0.56 s cold for a 16-wavelength sky against the fast method's 0.83 s (skybake-harness bench sky-fast sky-hillaire)",
+        _ => "1.4–3.4 % at aerosol optical depth 0.4 (draft: 3.7–7.9 %), 8.5 % at optical depth 1 with a strongly forward aerosol (a bias every preset shares), at 2.9 s cold for a hazy 16-wavelength sky against the fast method's 0.83 s",
+    }
+}
+
+/// A quality preset's name as requests spell it.
+pub fn preset_name(q: Quality) -> &'static str {
+    match q {
+        Quality::Draft => "draft",
+        Quality::Standard => "standard",
+        Quality::High => "high",
+        Quality::Reference => "reference",
+    }
+}
 
 /// Relative error of each method against DISORT for the Rayleigh validation cases
 /// (tests/atmosphere/atmosphere_validation.rs measures it; keep these in step with that test).
@@ -249,6 +288,157 @@ pub fn aerosol_optical_depth_550(a: &AtmosphereParams) -> Option<f64> {
     }
 }
 
+/// The committed distances from the external references (`report/external.json`, written by
+/// `tests/atmosphere/external.rs`, whose module doc gives the command).
+static EXTERNAL_JSON: &str = include_str!("../../../report/external.json");
+
+/// One measured distance of the precise method at one quality preset from an external reference
+/// in one case (an atmosphere, a sun band).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct ExternalRow {
+    /// `disort_aerosol` (tests/data/disort_aerosol.json) or `disort_rayleigh`
+    /// (tests/data/disort_rayleigh.json).
+    pub reference: String,
+    /// The reference's atmosphere.
+    pub case: String,
+    pub aerosol_optical_depth_550: f64,
+    /// [`AEROSOL_BANDS`] name; `None` above the haziest band (optical depth above 1).
+    pub aerosol_band: Option<String>,
+    /// [`SUN_BANDS`] name of the compared sun positions.
+    pub sun_band: String,
+    pub quality: Quality,
+    /// Largest |relative deviation| of the sky radiance.
+    pub radiance_max: f64,
+    /// Largest |relative deviation| of the diffuse (and global) horizontal irradiance.
+    pub irradiance_max: f64,
+    /// The worst compared value, for people.
+    #[serde(default)]
+    pub worst: Option<String>,
+}
+
+/// The whole external-reference file.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct External {
+    pub source: String,
+    pub command: String,
+    pub rows: Vec<ExternalRow>,
+}
+
+/// The committed external distances, parsed once (empty if the file does not parse, which a unit
+/// test rules out).
+pub fn external() -> &'static External {
+    static EXTERNAL: OnceLock<External> = OnceLock::new();
+    EXTERNAL.get_or_init(|| {
+        serde_json::from_str(EXTERNAL_JSON).unwrap_or(External {
+            source: String::new(),
+            command: String::new(),
+            rows: Vec::new(),
+        })
+    })
+}
+
+/// The measured distance of the precise method at a quality from the external references in a
+/// regime: the largest over the committed rows of that quality, sun band and aerosol band.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ExternalDistance {
+    pub relative_error: f64,
+    /// Rows the figure is the largest of.
+    pub rows: usize,
+    /// The row that gives it (`reference: case`).
+    pub worst: String,
+}
+
+/// The precise method's measured distance from DISORT (Rayleigh, and with aerosol) at `quality`
+/// in the bands `aerosol` (`None`: optical depth above the haziest band) and `sun` (`None`
+/// below −6°: no DISORT row; the spherical Monte Carlo's figures are [`reference_error`]'s). The
+/// `reference` preset takes the `high` rows (its distance from DISORT is the bias all presets
+/// share; `high` is within 0.2–1 % of it in the report). `None` where no row matches.
+pub fn external_distance(
+    quality: Quality,
+    aerosol: Option<&str>,
+    sun: Option<&str>,
+) -> Option<ExternalDistance> {
+    let quality = match quality {
+        Quality::Reference => Quality::High,
+        q => q,
+    };
+    let sun = sun?;
+    let rows: Vec<&ExternalRow> = external()
+        .rows
+        .iter()
+        .filter(|r| r.quality == quality && r.sun_band == sun)
+        .filter(|r| r.aerosol_band.as_deref() == aerosol)
+        .collect();
+    let worst = rows.iter().max_by(|a, b| {
+        a.radiance_max
+            .max(a.irradiance_max)
+            .total_cmp(&b.radiance_max.max(b.irradiance_max))
+    })?;
+    Some(ExternalDistance {
+        relative_error: worst.radiance_max.max(worst.irradiance_max),
+        rows: rows.len(),
+        worst: format!("{}: {}", worst.reference, worst.case),
+    })
+}
+
+/// The error a product by the precise method at the spec's quality states in its regime, and why:
+/// the larger of the report's figure plus the reference's own error (`report`, when the regime was
+/// measured) or the fallback `stated`, and the distance from the external references in that
+/// regime ([`external_distance`]). Returns (relative error, basis, regime name).
+pub fn combined_error(
+    spec: &CommonSpec,
+    report: Option<(Measured, RegimeBands)>,
+    reference_error: f64,
+    stated: f64,
+    independent: &str,
+) -> (f64, String, Option<String>) {
+    let bands = RegimeBands::of(
+        &spec.atmosphere,
+        spec.sun.sun_elevation_deg,
+        spec.observer_altitude_m,
+    );
+    let (internal, basis, regime) = match report {
+        Some((m, bands)) => (
+            m.relative_error + reference_error,
+            format!(
+                "skybake-harness report (report/README.md): largest deviation of this quality preset from the precise method at the reference preset over {} measured regime(s) in band {}, plus the reference's own deviation from {independent} ({:.2} %)",
+                m.regimes,
+                bands.name(),
+                reference_error * 100.0
+            ),
+            Some(bands.name()),
+        ),
+        None => (
+            stated,
+            format!("max relative deviation from {independent} (no report data for this regime)"),
+            None,
+        ),
+    };
+    match external_distance(spec.quality, bands.aerosol, bands.sun) {
+        Some(x) if x.relative_error > internal => (
+            x.relative_error,
+            format!(
+                "external reference dominates: the largest measured deviation of the precise method at this quality preset from DISORT in this regime ({:.2} %, {} of {} row(s) of report/external.json) exceeds the report's figure ({:.2} %: {basis})",
+                x.relative_error * 100.0,
+                x.worst,
+                x.rows,
+                internal * 100.0
+            ),
+            regime,
+        ),
+        Some(x) => (
+            internal,
+            format!(
+                "{basis}; at least the measured deviation from DISORT in this regime ({:.2} %, {}, report/external.json)",
+                x.relative_error * 100.0,
+                x.worst
+            ),
+            regime,
+        ),
+        None => (internal, basis, regime),
+    }
+}
+
 /// A product's measured error at one quality in one regime.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Measured {
@@ -313,8 +503,9 @@ pub fn measured(
     })
 }
 
-/// The cheapest preset (by measured cold CPU time) whose measured error in `bands` is at most
-/// `target`. Errors name `max_rel_error` with the best achievable figure, or say that the regime
+/// The cheapest preset (by measured cold CPU time) whose measured error in `bands` (the report's
+/// figure plus `reference_error`, at least the distance from the external references,
+/// [`external_distance`]) is at most `target`. Errors name `max_rel_error` with the best achievable figure, or say that the regime
 /// was not measured.
 pub fn choose_quality(
     report: &Report,
@@ -329,6 +520,9 @@ pub fn choose_quality(
         .filter_map(|&q| {
             let mut m = measured(report, product, method, q, bands)?;
             m.relative_error += reference_error;
+            if let Some(x) = external_distance(q, bands.aerosol, bands.sun) {
+                m.relative_error = m.relative_error.max(x.relative_error);
+            }
             Some((q, m))
         })
         .collect();
@@ -401,6 +595,28 @@ pub fn quality_for_target(product: ProductKind, spec: &CommonSpec, target: f64) 
         spec.observer_altitude_m,
     );
     let reference = reference_error(spec.sun.sun_elevation_deg);
+    if spec.method == MsMethod::Fast {
+        // The retired fast method runs the precise tables at one preset: the target is met there
+        // or refused.
+        let preset = fast_preset(&spec.atmosphere);
+        let at_preset = measured(report, product, MsMethod::Precise, preset, &bands).map(|m| {
+            let e = m.relative_error + reference;
+            external_distance(preset, bands.aerosol, bands.sun)
+                .map_or(e, |x| e.max(x.relative_error))
+        });
+        return match at_preset {
+            Some(e) if e <= target => Ok(preset),
+            Some(e) => Err(Error::invalid(
+                "max_rel_error",
+                format!(
+                    "method fast is retired and runs the precise tables at the {} preset, whose measured error in regime {} is {e:.4}, above {target}; ask method precise, whose quality the target then chooses",
+                    preset_name(preset),
+                    bands.name()
+                ),
+            )),
+            None => choose_quality(report, product, MsMethod::Precise, &bands, reference, target),
+        };
+    }
     choose_quality(report, product, spec.method, &bands, reference, target)
 }
 
@@ -434,6 +650,31 @@ mod tests {
                 );
             }
         }
+    }
+
+    #[test]
+    fn the_committed_external_distances_parse_and_cover_every_measured_preset() {
+        let ext = external();
+        assert!(!ext.command.is_empty());
+        for q in [Quality::Draft, Quality::Standard, Quality::High] {
+            for (aerosol, sun) in [
+                (Some("clear"), "high"),
+                (Some("clear"), "low"),
+                (Some("hazy"), "high"),
+                (Some("hazy"), "low"),
+                (None, "high"),
+            ] {
+                let d = external_distance(q, aerosol, Some(sun))
+                    .unwrap_or_else(|| panic!("{q:?} {aerosol:?} {sun}"));
+                assert!(d.relative_error > 0.0 && d.relative_error < 1.0, "{d:?}");
+            }
+        }
+        // Twilight has no DISORT row (the spherical Monte Carlo's figures are the reference
+        // error there).
+        assert_eq!(
+            external_distance(Quality::Standard, Some("clear"), Some("twilight")),
+            None
+        );
     }
 
     #[test]

@@ -28,7 +28,7 @@ use std::time::Instant;
 pub use crate::spec::DomeShape;
 
 /// Engine version: part of every cache key, bumped when results change.
-pub const ENGINE_VERSION: &str = concat!("skybake-", env!("CARGO_PKG_VERSION"), "-engine3");
+pub const ENGINE_VERSION: &str = concat!("skybake-", env!("CARGO_PKG_VERSION"), "-engine4");
 
 /// A cooperative cancellation check: true once nobody wants the result (every waiting client has gone). The engine
 /// asks it at stage boundaries (after the density table, between orders of scattering of the
@@ -51,7 +51,7 @@ fn checkpoint(cancelled: CancelCheck) -> Result<()> {
 const SHARED_CAPACITY: usize = 8;
 
 pub use crate::accuracy::{stated_relative_error, stated_twilight_error};
-pub use crate::plan::{effective_method, FAST_TWILIGHT_LIMIT_DEG};
+pub use crate::plan::{effective_method, fast_preset, FAST_TWILIGHT_LIMIT_DEG};
 pub use skybake_physics::atmosphere::quality::settings_for;
 
 /// Error estimate attached to every product.
@@ -361,7 +361,7 @@ impl Engine {
     ) -> Result<Arc<SharedTables>> {
         let medium = Medium::new(&spec.atmosphere, &spec.wavelengths_nm, spec.ground_albedo)?;
         let plan = crate::plan::plan(ProductKind::Sky, spec, &medium);
-        self.shared_with(spec, plan.precise_tolerance, cancelled)
+        self.shared_with(&plan.spec_for(spec), plan.precise_tolerance, cancelled)
     }
 
     /// Shared tables for this spec's medium whose precise table stops its order series at
@@ -543,30 +543,34 @@ impl Engine {
         let measured = (!night && method != MsMethod::None)
             .then(|| crate::accuracy::measured_for(kind, method, spec))
             .flatten();
-        let (relative_error, basis, regime) = match (night, measured) {
+        let stated = if e >= 30.0 {
+            stated_relative_error(method)
+        } else {
+            stated_twilight_error(method, e)
+        };
+        let (relative_error, basis, regime) = if night {
             // Every scattering term is exactly zero in the model (`plan::darkest_twilight_deg`).
-            (true, _) => (0.0, "night: sunlight contributes exactly zero".to_string(), None),
-            (false, Some((m, bands))) => (
-                m.relative_error + reference_error,
-                format!(
-                    "skybake-harness report (report/README.md): largest deviation of this quality preset from the precise method at the reference preset over {} measured regime(s) in band {}, plus the reference's own deviation from {independent} ({:.2} %)",
-                    m.regimes,
-                    bands.name(),
-                    reference_error * 100.0
-                ),
-                Some(bands.name()),
-            ),
-            (false, None) => (
-                if e >= 30.0 {
-                    stated_relative_error(method)
-                } else {
-                    stated_twilight_error(method, e)
-                },
-                format!(
-                    "max relative deviation from {independent} (no report data for this regime)"
-                ),
+            (
+                0.0,
+                "night: sunlight contributes exactly zero".to_string(),
                 None,
+            )
+        } else if method == MsMethod::Precise {
+            // At least the measured distance from DISORT in this regime (report/external.json).
+            crate::accuracy::combined_error(spec, measured, reference_error, stated, independent)
+        } else {
+            (
+                stated,
+                format!("max relative deviation from {independent}"),
+                None,
+            )
+        };
+        let basis = match plan.substitution {
+            Some(crate::plan::Substitution::FastRetired { quality, .. }) => format!(
+                "{basis}; the requested fast method is retired: the precise tables at the {} preset ran (plan.method_substitution)",
+                crate::accuracy::preset_name(quality)
             ),
+            None => basis,
         };
         // Outside the measured altitude and aerosol bands nothing is validated; below the
         // measured sun bands the spherical Monte Carlo's figures stand (to −12°).
@@ -685,6 +689,7 @@ impl Engine {
         plan: &Plan,
         cancelled: CancelCheck,
     ) -> Result<SunProduct> {
+        let spec = &plan.spec_for(spec);
         let start = Instant::now();
         let shared = self.tables_for(spec, plan, cancelled)?;
         let m = &shared.medium;
@@ -751,6 +756,7 @@ impl Engine {
         hi: f64,
         cancelled: CancelCheck,
     ) -> Result<DomeProduct> {
+        let spec = &plan.spec_for(spec);
         let shape = dome.shape();
         let start = Instant::now();
         let shared = self.tables_for(spec, plan, cancelled)?;
@@ -789,6 +795,7 @@ impl Engine {
         aerial: &AerialSpec,
         cancelled: CancelCheck,
     ) -> Result<AerialProduct> {
+        let spec = &plan.spec_for(spec);
         let (shape, distance_count, max_distance_m) = (
             aerial.shape(),
             aerial.distance_count(),

@@ -21,7 +21,7 @@ enum Command {
     ///
     /// Example: skybake-harness bench sky-fast sun --format json
     Bench {
-        /// Benchmarks to run (default: all). Known: sun, sky-fast, sky-precise, precise-tables,
+        /// Benchmarks to run (default: all). Known: sun, sky-fast, sky-hillaire, sky-precise, precise-tables,
         /// ca-step, spheres, metaballs, fractal, satellite, solar-position, frame, frame-pattern,
         /// frame-sequence, frame-accuracy, store.
         names: Vec<String>,

@@ -91,7 +91,8 @@ pub fn medium_key(req: &ProductRequest) -> String {
 pub fn estimate_in(req: &ProductRequest, m: &Medium) -> Result<Cost> {
     let spec = &req.spec;
     let plan = skybake_engine::plan::plan(req.kind(), spec, m);
-    let (fast, precise) = settings_for(spec.quality);
+    // The preset that runs (a retired `fast` request runs the precise tables at its preset).
+    let (fast, precise) = settings_for(plan.quality);
     let (table_cells, expected_orders) = match plan.ms_method() {
         MsMethod::Precise => (
             (precise.n_r * precise.n_mu_s * precise.n_mu * precise.n_phi) as u64,
@@ -152,7 +153,8 @@ impl JobCost {
             }
         };
         let c = estimate_in(req, m)?;
-        let table = format!("{key}|{:?}|{}", req.spec.quality, c.table_cells);
+        let quality = skybake_engine::plan::effective_quality(&req.spec);
+        let table = format!("{key}|{quality:?}|{}", c.table_cells);
         let table_units = if self.tables.insert(table) {
             c.table_cells.saturating_mul(c.expected_orders)
         } else {

@@ -180,7 +180,8 @@ parameter_table! {
         default: "the atmosphere's", products: ALL,
         doc: "Lambertian ground albedo, overriding the atmosphere's" },
     method { cli: Some("method"), unit: "", range: Range::OneOf(&["precise", "fast", "none"]),
-        default: "precise", products: ALL, doc: "Multiple scattering method" },
+        default: "precise", products: ALL,
+        doc: "Multiple scattering method: precise (successive orders of scattering) or none (single scattering only). fast is retired and accepted for compatibility: it runs the precise tables at a coarse preset (draft in clear air, standard for aerosol optical depth above 0.3; quality is then ignored), and the plan says so, because the fast method (Hillaire 2020) measured 38-170 % off DISORT in hazy air and up to 54 % low in twilight" },
     quality { cli: Some("quality"), unit: "",
         range: Range::OneOf(&["draft", "standard", "high", "reference"]), default: "standard",
         products: ALL, doc: "Quality preset (ray-marching steps, table resolutions)" },
@@ -376,6 +377,12 @@ pub fn common_spec(p: &RequestParams, min_sun_elevation_deg: f64) -> Result<Comm
         .map(Quality::parse)
         .transpose()?
         .unwrap_or(Quality::Standard);
+    // The retired fast method runs the precise tables at one preset whatever `quality` says, so
+    // every `fast` request of one atmosphere has one canonical form (one cache key).
+    let quality = match method {
+        MsMethod::Fast => skybake_engine::plan::fast_preset(&atmosphere),
+        _ => quality,
+    };
     Ok(CommonSpec {
         atmosphere,
         wavelengths_nm,

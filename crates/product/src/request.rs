@@ -216,9 +216,11 @@ impl ProductRequest {
         if !rgb || plan.ms_method() == skybake_physics::atmosphere::sky::MsMethod::None {
             return Ok(self);
         }
-        let Some((measured, _)) =
-            skybake_engine::accuracy::measured_for(self.kind(), plan.method, &self.spec)
-        else {
+        let Some((measured, _)) = skybake_engine::accuracy::measured_for(
+            self.kind(),
+            plan.method,
+            &plan.spec_for(&self.spec),
+        ) else {
             return Ok(self);
         };
         let error = measured.relative_error

@@ -311,9 +311,15 @@ impl Lighting {
                 notes,
             });
         };
-        let method = match scene.quality {
-            Quality::Draft | Quality::Standard => MsMethod::Fast,
-            Quality::High | Quality::Reference => MsMethod::Precise,
+        // The atmosphere's light: the precise tables, at the coarse preset a retired `fast`
+        // atmosphere request runs at (`skybake_engine::plan::fast_preset`: draft in clear air,
+        // standard in haze) for draft and standard frames, at the frame's own preset above.
+        let (method, atmosphere_quality) = match scene.quality {
+            Quality::Draft | Quality::Standard => (
+                MsMethod::Precise,
+                skybake_engine::plan::fast_preset(atmosphere),
+            ),
+            q @ (Quality::High | Quality::Reference) => (MsMethod::Precise, q),
         };
         let ground_albedo = scene
             .ground
@@ -330,7 +336,7 @@ impl Lighting {
             observer_altitude_m: altitude_m.clamp(0.0, 1e6),
             ground_albedo: Some(ground_albedo),
             method,
-            quality: scene.quality,
+            quality: atmosphere_quality,
         };
         let az = scene.sun.azimuth_deg;
         let cloud_spec = spec_at(cloud_altitude_m);

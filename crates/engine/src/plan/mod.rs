@@ -6,11 +6,12 @@
 //! against the engine's work counters.
 //!
 //! Rules live here and nowhere else, the choice of multiple-scattering method among them (`fast`
-//! below [`FAST_TWILIGHT_LIMIT_DEG`] runs the precise tables: the fast method's twilight error exceeds 10 % there) and night (below
+//! is retired and runs the precise tables at [`fast_preset`]: its measured error exceeds 5 % against
+//! DISORT with aerosol and in twilight) and night (below
 //! [`darkest_twilight_deg`] nothing the observer sees is lit, and every scattering stage is left
 //! out). Cost rules (work whose predicted contribution is under the error budget) are new arms of [`plan`], with a new [`Reason`] each.
 
-use crate::spec::{CommonSpec, ProductKind};
+use crate::spec::{CommonSpec, ProductKind, Quality};
 use serde::ser::SerializeStruct;
 use serde::{Serialize, Serializer};
 use skybake_physics::atmosphere::multiple_precise::source_sun_zenith_limit_rad;
@@ -27,8 +28,8 @@ pub enum Stage {
     DensityTable,
     /// Exact single scattering of direct sunlight by ray marching along every output ray.
     SingleScattering,
-    /// Multiple scattering: the precise (orders of scattering) or fast (Hillaire 2020) table,
-    /// as the spec's `method` says, evaluated along every output ray.
+    /// Multiple scattering: the precise (orders of scattering) table, evaluated along every
+    /// output ray (the fast table of Hillaire 2020 only in the harness's comparison rows).
     MultipleScattering,
     /// Lambertian ground reflection of sun and sky at the end of rays that hit the ground.
     GroundBounce,
@@ -61,15 +62,34 @@ impl Stage {
     }
 }
 
-pub use crate::accuracy::FAST_TWILIGHT_LIMIT_DEG;
+pub use crate::accuracy::{fast_preset, FAST_TWILIGHT_LIMIT_DEG};
 
-/// The multiple-scattering method a spec is computed with: `fast` below
-/// [`FAST_TWILIGHT_LIMIT_DEG`] runs on the precise tables, where the fast method's measured error
-/// exceeds 10 %; otherwise the requested one.
+/// The multiple-scattering method a spec is computed with: the requested one, except `fast`,
+/// which is retired (its measured error exceeds 5 % against DISORT with aerosol and in twilight,
+/// `docs/validation.md`): a `fast` request runs on the precise tables at [`fast_preset`]
+/// ([`Substitution::FastRetired`]).
 pub fn effective_method(spec: &CommonSpec) -> MsMethod {
     match spec.method {
-        MsMethod::Fast if spec.sun.sun_elevation_deg < FAST_TWILIGHT_LIMIT_DEG => MsMethod::Precise,
+        MsMethod::Fast => MsMethod::Precise,
         m => m,
+    }
+}
+
+/// The quality preset a spec is computed at: [`fast_preset`] for a `fast` request, otherwise the
+/// requested one.
+pub fn effective_quality(spec: &CommonSpec) -> Quality {
+    match spec.method {
+        MsMethod::Fast => fast_preset(&spec.atmosphere),
+        _ => spec.quality,
+    }
+}
+
+/// The spec as it is computed: [`effective_method`] and [`effective_quality`].
+pub fn effective_spec(spec: &CommonSpec) -> CommonSpec {
+    CommonSpec {
+        method: effective_method(spec),
+        quality: effective_quality(spec),
+        ..spec.clone()
     }
 }
 
@@ -77,11 +97,11 @@ pub fn effective_method(spec: &CommonSpec) -> MsMethod {
 #[derive(Debug, Clone, Copy, PartialEq, Serialize)]
 #[serde(tag = "reason", rename_all = "snake_case")]
 pub enum Substitution {
-    /// `fast` requested with the sun below [`FAST_TWILIGHT_LIMIT_DEG`]: the precise tables run.
-    FastInTwilight {
+    /// `fast` requested: the fast method (Hillaire 2020) is retired and the precise tables run at
+    /// the coarse preset `quality` ([`fast_preset`]).
+    FastRetired {
         requested: MsMethod,
-        sun_elevation_deg: f64,
-        limit_deg: f64,
+        quality: Quality,
     },
 }
 
@@ -89,12 +109,12 @@ impl Substitution {
     /// One line for people.
     pub fn detail(&self) -> String {
         match self {
-            Substitution::FastInTwilight {
-                sun_elevation_deg,
-                limit_deg,
-                ..
-            } => format!(
-                "multiple scattering: successive orders (precise) in place of the requested fast method: the sun at {sun_elevation_deg}° is below {limit_deg}°, where the fast method's measured error exceeds 10 % (up to 54 % low at −6°)"
+            Substitution::FastRetired { quality, .. } => format!(
+                "multiple scattering: successive orders (precise) at the {} preset in place of the requested fast method, which is retired: its measured error exceeds 5 % against DISORT with aerosol ({}) and in twilight against the spherical Monte Carlo (up to 54 % low at −6°); the precise tables at {} measure {}",
+                crate::accuracy::preset_name(*quality),
+                crate::accuracy::FAST_MEASURED_ERROR,
+                crate::accuracy::preset_name(*quality),
+                crate::accuracy::fast_preset_evidence(*quality)
             ),
         }
     }
@@ -170,6 +190,8 @@ pub struct Plan {
     /// The multiple-scattering method the [`Stage::MultipleScattering`] stage uses (the
     /// effective one, see [`effective_method`]).
     pub method: MsMethod,
+    /// The quality preset the stages run at (the effective one, see [`effective_quality`]).
+    pub quality: Quality,
     /// Set when `method` is not the requested one, with the reason.
     pub substitution: Option<Substitution>,
     /// The precise table's order-series tolerance when the error budget loosens it (cost rule
@@ -193,6 +215,27 @@ impl Plan {
         } else {
             MsMethod::None
         }
+    }
+
+    /// The spec the plan's stages run with: `spec` with the plan's method and quality.
+    pub fn spec_for(&self, spec: &CommonSpec) -> CommonSpec {
+        CommonSpec {
+            method: self.method,
+            quality: self.quality,
+            ..spec.clone()
+        }
+    }
+
+    /// The plan with the paper's fast method (Hillaire 2020, isotropic orders ≥ 2) at `quality`
+    /// in place of the precise tables: for the measurement harness's comparison rows only (no
+    /// product request is planned with it; `method=fast` runs the precise tables).
+    pub fn with_paper_fast_method(mut self, quality: Quality) -> Self {
+        self.method = MsMethod::Fast;
+        self.quality = quality;
+        self.substitution = None;
+        self.stages.retain(|s| *s != Stage::HigherOrders);
+        self.left_out.retain(|(s, _)| *s != Stage::HigherOrders);
+        self
     }
 
     /// The plan without `stage` (a stage forced out, for tests and diagnostics).
@@ -262,8 +305,9 @@ impl Serialize for Plan {
                 detail: reason.detail(),
             })
             .collect();
-        let mut st = s.serialize_struct("Plan", 4)?;
+        let mut st = s.serialize_struct("Plan", 6)?;
         st.serialize_field("method", &self.method)?;
+        st.serialize_field("quality", &self.quality)?;
         if let Some(substitution) = self.substitution {
             st.serialize_field(
                 "method_substitution",
@@ -325,7 +369,9 @@ pub fn darkest_twilight_deg(m: &Medium, observer_altitude_m: f64, method: MsMeth
 /// Plans `product` for `spec` on the resolved medium `m` (which carries the effective ground
 /// albedo). Pure: no tables, no I/O.
 pub fn plan(product: ProductKind, spec: &CommonSpec, m: &Medium) -> Plan {
-    let method = effective_method(spec);
+    let requested = spec;
+    let spec = &effective_spec(requested);
+    let method = spec.method;
     let elevation = spec.sun.sun_elevation_deg;
     let darkest = darkest_twilight_deg(m, spec.observer_altitude_m, method);
     let night = (elevation < darkest).then_some(Reason::SunBelowDarkestTwilight {
@@ -333,15 +379,15 @@ pub fn plan(product: ProductKind, spec: &CommonSpec, m: &Medium) -> Plan {
         darkest_twilight_deg: darkest,
     });
     let substitution =
-        (method != spec.method && night.is_none()).then_some(Substitution::FastInTwilight {
-            requested: spec.method,
-            sun_elevation_deg: elevation,
-            limit_deg: FAST_TWILIGHT_LIMIT_DEG,
+        (method != requested.method && night.is_none()).then_some(Substitution::FastRetired {
+            requested: requested.method,
+            quality: spec.quality,
         });
     let mut p = Plan {
         stages: vec![Stage::DensityTable],
         left_out: Vec::new(),
         method,
+        quality: spec.quality,
         substitution,
         precise_tolerance: None,
         wavelengths: None,
