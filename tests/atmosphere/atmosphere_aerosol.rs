@@ -277,15 +277,27 @@ fn precise_standard_hazy_sky_is_within_its_measured_error_of_disort() {
     assert!(mean.abs() < 0.003, "mean bias {mean}");
 }
 
+/// Thick haze (AOD 2 at 550 nm, 2.7 at 440 nm): within the 3 % aimed for above optical depth 1
+/// (measured +2.37 % ≥ 10° from the sun, +2.72 % within 2–10°, irradiance +0.79 %, all at sun
+/// zenith 75°, 440 nm). On the uniform radius grid of `standard` the low sky round a low sun read
+/// +16.35 % / +17.43 % and the irradiance +3.53 %: the grid's lowest intervals held 0.56–1.09
+/// optical depths (see `radius_nodes` in crates/physics/src/atmosphere/multiple_precise.rs).
+#[test]
+fn precise_standard_thick_haze_is_within_3_percent_of_disort() {
+    let points = deviations("precise", "standard", &["thick"], 0.03, 0.03);
+    check(&points, "precise standard vs DISORT (thick haze)");
+}
+
 /// Measured bounds per atmosphere at `standard` (%, magnitudes, the figures of docs/validation.md
 /// rounded up by 0.2–0.3, or the 2 % aimed for where that holds): sky radiance ≥ 10° from the
-/// sun, within 2–10° of the sun, the radiance mean, and diffuse/global irradiance. thick (+16 %,
-/// the radius nodes' resolution in optical depth 2) and cs_g08_bright (−5 %, the azimuth nodes'
-/// resolution for Cornette-Shanks g 0.8) exceed the aimed-for 3 %; absorbing_g08 exceeds 2 % by 0.4.
+/// sun, within 2–10° of the sun, the radiance mean, and diffuse/global irradiance. cs_g08_bright
+/// (−5 %, the azimuth nodes' resolution for Cornette-Shanks g 0.8) exceeds the aimed-for 3 %;
+/// absorbing_g08 exceeds 2 % by 0.4. thick (AOD 2) holds 3 % on the radius grid divided where the
+/// aerosol is optically thick (+16.35 % / +17.43 % / irradiance +3.53 % on the uniform grid).
 const MEASURED_BOUNDS: [(&str, f64, f64, f64, f64); 8] = [
     ("base", 1.8, 1.4, 0.2, 0.8),
     ("thin", 0.9, 0.8, 0.2, 0.6),
-    ("thick", 16.6, 17.7, 0.3, 3.8),
+    ("thick", 2.6, 3.0, 0.5, 1.0),
     ("conservative_g06", 1.6, 1.1, 0.2, 0.8),
     ("absorbing_g08", 2.7, 2.8, 0.2, 1.1),
     ("black_ground", 1.9, 1.5, 0.2, 1.0),
