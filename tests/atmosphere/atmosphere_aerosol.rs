@@ -259,19 +259,21 @@ fn check(points: &[Point], label: &str) {
 #[test]
 fn precise_standard_hazy_sky_is_within_its_measured_error_of_disort() {
     // Three atmospheres keep the test cheap (AOD 0.4 HG 0.7; AOD 0.05; AOD 0.4 HG 0.8 ssa 0.8).
-    // Measured through this path (all eight: the ignored test below): base and thin within the
-    // 2 % aimed for (1.56 %, 0.71 %; 2–10° from the sun 1.18 %, 0.58 %); absorbing_g08 +2.42 % at
-    // view zenith 75° with the sun at 75° (680 nm) and −2.52 % 2.8° from the sun. Before the
-    // view-zenith pole and azimuth mirror-plane interpolation were fixed, the zenith with the sun
-    // at 40° read +2.26 % (base) and +3.37 % (absorbing_g08), and 2.8° from the sun −3.38 %.
-    let mut points = deviations("precise", "standard", &["base", "thin"], 0.02, 0.03);
-    points.extend(deviations(
+    // Measured through this path (all eight: the ignored test below): base, thin and
+    // absorbing_g08 within the 2 % aimed for (1.56 %, 0.71 %, 1.69 %; 2–10° from the sun 1.18 %,
+    // 0.58 %, 1.33 %). absorbing_g08 read +2.42 % at view zenith 75° with the sun at 75° (680 nm)
+    // and −2.52 % 2.8° from the sun on 12 azimuth nodes, before they were doubled in strongly
+    // forward aerosols (`azimuth_nodes` in crates/physics/src/atmosphere/multiple_precise.rs).
+    // Before the view-zenith pole and azimuth mirror-plane interpolation were fixed, the zenith
+    // with the sun at 40° read +2.26 % (base) and +3.37 % (absorbing_g08), and 2.8° from the sun
+    // −3.38 %.
+    let points = deviations(
         "precise",
         "standard",
-        &["absorbing_g08"],
-        0.026,
+        &["base", "thin", "absorbing_g08"],
+        0.02,
         0.03,
-    ));
+    );
     let mean = points.iter().map(|p| p.deviation).sum::<f64>() / points.len() as f64;
     check(&points, "precise standard vs DISORT (aerosol)");
     assert!(mean.abs() < 0.003, "mean bias {mean}");
@@ -291,18 +293,20 @@ fn precise_standard_thick_haze_is_within_3_percent_of_disort() {
 /// Measured bounds per atmosphere at `standard` (%, magnitudes, the figures of docs/validation.md
 /// rounded up by 0.2–0.3, or the 2 % aimed for where that holds): sky radiance ≥ 10° from the
 /// sun, within 2–10° of the sun, the radiance mean, and diffuse/global irradiance. cs_g08_bright
-/// (−5 %, the azimuth nodes' resolution for Cornette-Shanks g 0.8) exceeds the aimed-for 3 %;
-/// absorbing_g08 exceeds 2 % by 0.4. thick (AOD 2) holds 3 % on the radius grid divided where the
+/// (AOD 1, Cornette-Shanks g 0.8) exceeds the 2 % aimed for ≥ 10° from the sun (−2.86 %) and the
+/// 3 % within 10° of it (−3.17 %), both at sun zenith 75°, view zenith 73°, 680 nm; on 12 azimuth
+/// nodes, before they were doubled in strongly forward aerosols, −5.02 % / −5.23 % (absorbing_g08
+/// +2.42 % / −2.52 %). thick (AOD 2) holds 3 % on the radius grid divided where the
 /// aerosol is optically thick (+16.35 % / +17.43 % / irradiance +3.53 % on the uniform grid).
 const MEASURED_BOUNDS: [(&str, f64, f64, f64, f64); 8] = [
     ("base", 1.8, 1.4, 0.2, 0.8),
     ("thin", 0.9, 0.8, 0.2, 0.6),
     ("thick", 2.6, 3.0, 0.5, 1.0),
     ("conservative_g06", 1.6, 1.1, 0.2, 0.8),
-    ("absorbing_g08", 2.7, 2.8, 0.2, 1.1),
+    ("absorbing_g08", 1.9, 1.6, 0.2, 1.0),
     ("black_ground", 1.9, 1.5, 0.2, 1.0),
     ("cornette_shanks", 2.0, 1.7, 0.2, 0.9),
-    ("cs_g08_bright", 5.3, 5.5, 0.9, 2.6),
+    ("cs_g08_bright", 3.1, 3.4, 0.8, 2.1),
 ];
 
 /// All eight atmospheres with `method` at `standard`, each held to its measured `bounds` (%,
