@@ -366,7 +366,7 @@ fn precise_standard_all_eight_hazy_atmospheres_against_disort() {
 }
 
 /// A `method=fast` request in hazy air (the fast method is retired): the precise tables at the
-/// coarse preset of haze (`standard`; `draft` measures 4.0 % here, up to 6.9 % at optical depth 0.4), the same numbers as
+/// coarse preset of haze (`standard`; `draft` measures 4.0 % here, up to 6.9 % at optical depth 1), the same numbers as
 /// `method=precise&quality=standard`, stating at least their measured distance from DISORT
 /// (report/external.json). One atmosphere keeps it cheap.
 #[test]

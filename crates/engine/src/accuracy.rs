@@ -25,9 +25,9 @@ pub const FAST_TWILIGHT_LIMIT_DEG: f64 = -4.0;
 /// 2020, is retired: its isotropic orders ≥ 2 are [`FAST_MEASURED_ERROR`] off DISORT with
 /// aerosol): the coarsest preset whose measured distance from DISORT in the atmosphere's aerosol
 /// band is within 5 % (report/external.json): `draft` in clear air (optical depth at 550 nm ≤ 0.3;
-/// draft measures ≤ 2.5 %), `standard` in hazier air (draft measures 3.7–6.9 % at optical depth
-/// 0.4, standard 1.3–2.5 %; at optical depth 2 draft 18.5 %, standard 2.7 %; at optical depth 1
-/// with a strongly forward aerosol draft 13.5 %, standard 5.2 %).
+/// draft measures ≤ 2.5 %), `standard` in hazier air (draft measures 3.7–4.7 % at optical depth
+/// 0.4 and 6.9 % at optical depth 1 with a strongly forward aerosol, standard 1.3–1.9 % and 3.2 %;
+/// at optical depth 2 draft 18.5 %, standard 2.7 %).
 pub fn fast_preset(atmosphere: &AtmosphereParams) -> Quality {
     match aerosol_optical_depth_550(atmosphere).and_then(band_of_aerosol) {
         Some("clear") => Quality::Draft,
@@ -45,7 +45,7 @@ pub const FAST_MEASURED_ERROR: &str =
 pub fn fast_preset_evidence(q: Quality) -> &'static str {
     match q {
         Quality::Draft => "at most 2.5 % in clear air (aerosol optical depth ≤ 0.3), at 0.56 s cold for a 16-wavelength sky against the fast method's 0.83 s (skybake-harness bench sky-fast sky-hillaire)",
-        _ => "1.3–2.5 % at aerosol optical depth 0.4 (draft: 3.7–6.9 %), 2.7 % at optical depth 2 (draft: 18.5 %), 5.2 % at optical depth 1 with a strongly forward aerosol (draft: 13.5 %), at 2.7 s cold for a hazy 16-wavelength sky against the fast method's 0.83 s",
+        _ => "1.3–1.9 % at aerosol optical depth 0.4 (draft: 3.7–4.7 %), 3.2 % at optical depth 1 with a strongly forward aerosol (draft: 6.9 %), 2.7 % at optical depth 2 (draft: 18.5 %), at 2.7 s cold for a hazy 16-wavelength sky against the fast method's 0.83 s",
     }
 }
 
