@@ -605,7 +605,7 @@ impl<'a> Prepared<'a> {
 /// many optical depths: a lit surface inside a thick voxel). Also the mean of u/Δ under the
 /// weight (where the scattering happens, for the peak spread's depth).
 #[inline]
-fn sun_step(a: f64, b_total: f64, dt: f64, tau0: f64) -> (f64, f64) {
+pub fn sun_step(a: f64, b_total: f64, dt: f64, tau0: f64) -> (f64, f64) {
     let x = a * dt + b_total;
     if x.abs() < 1e-6 {
         return ((-tau0).exp() * a * dt * (1.0 - 0.5 * x), 0.5 - x / 12.0);

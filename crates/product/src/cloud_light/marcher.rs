@@ -8,6 +8,7 @@
 //! evaluated at each sample rather than at voxel centres first.
 
 use glam::DVec3;
+use skybake_render::march::sun_step;
 use std::f64::consts::PI;
 
 use super::{CloudLight, SKY_ELEMENTS};
@@ -41,30 +42,6 @@ fn sh(d: DVec3, out: &mut [f64; 25]) {
     out[6] = 0.315_391_565_252_520_05 * (3.0 * z * z - 1.0);
     out[7] = 1.092_548_430_592_079_2 * x * z;
     out[8] = 0.546_274_215_296_039_6 * (x * x - y * y);
-}
-
-/// One step's weight of the sun's single scattering for a density constant over the step and an
-/// optical depth towards the sun linear along it (a the view ray's scaled attenuation rate, b the
-/// step's change of the scaled optical depth towards the sun, τ₀ that depth at the step's start):
-/// ∫₀^Δ a e^{−a u} e^{−τ₀ − b u/Δ} du, and the mean of u/Δ under that weight.
-fn sun_step(a: f64, b: f64, dt: f64, tau0: f64) -> (f64, f64) {
-    let x = a * dt + b;
-    if x.abs() < 1e-6 {
-        return ((-tau0).exp() * a * dt * (1.0 - 0.5 * x), 0.5 - x / 12.0);
-    }
-    let weight = a
-        * dt
-        * if x > 0.0 {
-            (-tau0).exp() * (-(-x).exp_m1()) / x
-        } else {
-            (-tau0 - x).exp() * x.exp_m1() / x
-        };
-    let mean = if x > 700.0 {
-        1.0 / x
-    } else {
-        1.0 / x - 1.0 / x.exp_m1()
-    };
-    (weight, mean.clamp(0.0, 1.0))
 }
 
 impl<'a> Marcher<'a> {
