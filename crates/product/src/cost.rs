@@ -20,6 +20,7 @@ use serde::Serialize;
 use skybake_engine::spec::ProductSpec;
 use skybake_physics::atmosphere::irradiance::{SUN_PRODUCT_N_MU, SUN_PRODUCT_N_PHI};
 use skybake_physics::atmosphere::medium::{MIE, RAYLEIGH};
+use skybake_physics::atmosphere::multiple_precise::table_radius_and_azimuth_nodes;
 use skybake_physics::atmosphere::quality::settings_for;
 use skybake_physics::atmosphere::sky::MsMethod;
 use skybake_physics::atmosphere::Medium;
@@ -95,7 +96,12 @@ pub fn estimate_in(req: &ProductRequest, m: &Medium) -> Result<Cost> {
     let (fast, precise) = settings_for(plan.quality);
     let (table_cells, expected_orders) = match plan.ms_method() {
         MsMethod::Precise => (
-            (precise.n_r * precise.n_mu_s * precise.n_mu * precise.n_phi) as u64,
+            {
+                // The table's own grid: more radius nodes in thick haze, more azimuth nodes for a
+                // strongly forward aerosol.
+                let (n_r, n_phi) = table_radius_and_azimuth_nodes(&precise, m);
+                (n_r * precise.n_mu_s * precise.n_mu * n_phi) as u64
+            },
             expected_orders(
                 m,
                 plan.precise_tolerance.unwrap_or(precise.tolerance),

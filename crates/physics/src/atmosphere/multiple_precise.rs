@@ -439,6 +439,16 @@ fn interval_optical_depths(medium: &Medium, n_base: usize) -> Vec<f64> {
         .collect()
 }
 
+/// The radius and azimuth node counts the precise table of `medium` is built on from the preset's
+/// settings `s`: the radius grid divided where the aerosol is optically thick ([`radius_nodes`]),
+/// the azimuth nodes doubled for a strongly forward aerosol ([`azimuth_nodes`]); for predicting a
+/// table's cost before it is built.
+pub fn table_radius_and_azimuth_nodes(s: &PreciseSettings, medium: &Medium) -> (usize, usize) {
+    let n_r_base = s.n_r.max(2);
+    let n_r = radius_nodes(medium, n_r_base)[n_r_base - 1] + 1;
+    (n_r, azimuth_nodes(medium, s.n_phi))
+}
+
 /// The radius nodes of the precise table. Returns, per node of the uniform grid in x = ρ/H of
 /// `n_base` nodes, the index of that node on the table's grid (the last + 1 is the node count).
 ///
@@ -2214,6 +2224,11 @@ mod tests {
         let g08 = ("\"g\":0.7", "\"g\":0.8");
         let forward = with(&[g08]);
         assert_eq!(Grid::new(standard, &forward).s.n_phi, 2 * standard.n_phi);
+        // The cost prediction's count is the built grid's.
+        assert_eq!(
+            table_radius_and_azimuth_nodes(&standard, &forward).1,
+            2 * standard.n_phi
+        );
         let thin = with(&[g08, ("\"value\":1.0", "\"value\":0.05")]);
         assert_eq!(Grid::new(standard, &thin).s.n_phi, standard.n_phi);
     }
@@ -2235,6 +2250,11 @@ mod tests {
         let thick = Medium::new(&params, &wl, None).unwrap();
         let grid = Grid::new(standard, &thick);
         assert!(grid.s.n_r > standard.n_r + 10, "{} nodes", grid.s.n_r);
+        // The cost prediction's count is the built grid's.
+        assert_eq!(
+            table_radius_and_azimuth_nodes(&standard, &thick).0,
+            grid.s.n_r
+        );
         let column = |h0: f64, h1: f64, i: usize| {
             [(RAYLEIGH, 8000.0), (MIE, 1200.0)]
                 .iter()
