@@ -1,6 +1,7 @@
 //! The reference marcher of a pre-lit cloud volume: what a real-time client does with the
 //! export, in Rust, from the decoded [`CloudLight`] alone (no call into the renderer's light
-//! computation). Per pixel it marches the view ray through the box in steps of the export's
+//! computation; it shares only the exact per-step weight of the sun term,
+//! [`skybake_render::march::sun_step`], a closed-form integral). Per pixel it marches the view ray through the box in steps of the export's
 //! `step_voxels`, interpolating the per-voxel textures trilinearly at each step and evaluating
 //! the source towards the camera from the direction tables; the fast frame's march
 //! (`skybake_render::march`, the TMS form of Nakajima & Tanaka 1988, eqs 13–15, with the δ-M
