@@ -2,29 +2,10 @@
 //! same files byte for byte as the library computes for the scene, decodable by the reference
 //! reader; bad input is refused with exit code 2 naming the field.
 
+use crate::cli_clouds::{scratch, skybake};
 use serde_json::{json, Value};
 use skybake_engine::engine::Engine;
 use skybake_product::cloud_light::{CloudLight, CloudLightRequest};
-use std::path::{Path, PathBuf};
-use std::process::{Command, Output};
-
-fn scratch(name: &str) -> PathBuf {
-    let dir = std::env::temp_dir().join(format!(
-        "skybake-cli-cloud-light-{}-{name}",
-        std::process::id()
-    ));
-    let _ = std::fs::remove_dir_all(&dir);
-    std::fs::create_dir_all(&dir).unwrap();
-    dir
-}
-
-fn skybake(args: &[&str], cwd: &Path) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_skybake"))
-        .args(args)
-        .current_dir(cwd)
-        .output()
-        .unwrap()
-}
 
 /// A small vacuum scene: one metaball, sun and a constant sky, two wavelengths, draft.
 fn scene() -> Value {
@@ -44,7 +25,7 @@ fn scene() -> Value {
 
 #[test]
 fn cloud_light_writes_the_library_s_files_and_refuses_bad_scenes() {
-    let dir = scratch("ok");
+    let dir = scratch("cloud-light-ok");
     let path = dir.join("scene.json");
     std::fs::write(&path, scene().to_string()).unwrap();
     let out = skybake(

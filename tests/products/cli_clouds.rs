@@ -12,7 +12,7 @@ use std::process::{Command, Output};
 const SCENES: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/config/scenes");
 
 /// A fresh scratch directory for one test.
-fn scratch(name: &str) -> PathBuf {
+pub(crate) fn scratch(name: &str) -> PathBuf {
     let dir =
         std::env::temp_dir().join(format!("skybake-cli-clouds-{}-{name}", std::process::id()));
     let _ = std::fs::remove_dir_all(&dir);
@@ -20,7 +20,8 @@ fn scratch(name: &str) -> PathBuf {
     dir
 }
 
-fn skybake(args: &[&str], cwd: &Path) -> Output {
+/// The `skybake` binary run with `args` in `cwd`.
+pub(crate) fn skybake(args: &[&str], cwd: &Path) -> Output {
     Command::new(env!("CARGO_BIN_EXE_skybake"))
         .args(args)
         .current_dir(cwd)
