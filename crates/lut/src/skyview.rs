@@ -49,7 +49,7 @@ pub const LAYOUT: &str = "skyview";
 pub const SKYVIEW_VERSION: &str = "1";
 
 /// Altitude nodes: h_k = (top − bottom) · (k / (N − 1))².
-pub const N_ALT: usize = 16;
+pub const N_ALT: usize = 24;
 /// Sun elevation nodes (see [`sun_node_deg`]).
 pub const SUN_MIN_DEG: f64 = -15.0;
 pub const SUN_KNEE_DEG: f64 = 10.0;
@@ -59,7 +59,7 @@ pub const N_SUN_LOW: usize = 25; // (KNEE − MIN) / STEP_LOW intervals
 pub const N_SUN: usize = N_SUN_LOW + 16 + 1; // + (90 − KNEE) / STEP_HIGH intervals, + 1
 /// View zenith nodes above the horizon (zenith to horizon) and below it (horizon to nadir).
 pub const N_VIEW_UP: usize = 24;
-pub const N_VIEW_DOWN: usize = 16;
+pub const N_VIEW_DOWN: usize = 8;
 pub const N_VIEW: usize = N_VIEW_UP + N_VIEW_DOWN;
 /// Azimuth-from-the-sun nodes, φ_a = π (a / (N − 1))².
 pub const N_AZ: usize = 24;
@@ -143,6 +143,38 @@ pub fn azimuth_coord(phi: f64) -> f64 {
     (phi / PI).clamp(0.0, 1.0).sqrt() * (N_AZ - 1) as f64
 }
 
+/// Where a node's length is zero — rays up from the top node, rays down from the ground node —
+/// the node is evaluated this far inside the atmosphere (m): its stored value is the limit of
+/// radiance / length there.
+pub const EVAL_OFFSET_M: f64 = 10.0;
+
+/// The radius at which texel rows of altitude node `k` and view row `i` are evaluated: the
+/// node's, or [`EVAL_OFFSET_M`] inside where the node's ray has no length.
+pub fn eval_radius(k: usize, i: usize, bottom: f64, thickness: f64) -> f64 {
+    let r = bottom + altitude_node_m(k, thickness);
+    if k == N_ALT - 1 && i < N_VIEW_UP {
+        r - EVAL_OFFSET_M
+    } else if k == 0 && i >= N_VIEW_UP {
+        r + EVAL_OFFSET_M
+    } else {
+        r
+    }
+}
+
+/// Length of the ray from radius `r` with zenith cosine `mu` to the top of the atmosphere, or
+/// to the ground when `ground` (the divisor of the stored scattering: the texels hold
+/// radiance per metre of ray, which varies little with altitude and view where the radiance
+/// itself goes to zero with the ray's length).
+pub fn ray_length(r: f64, mu: f64, bottom: f64, top: f64, ground: bool) -> f64 {
+    if ground {
+        let disc = r * r * (mu * mu - 1.0) + bottom * bottom;
+        (-r * mu - disc.max(0.0).sqrt()).max(0.0)
+    } else {
+        let disc = r * r * (mu * mu - 1.0) + top * top;
+        (-r * mu + disc.max(0.0).sqrt()).max(0.0)
+    }
+}
+
 /// The computed `skyview` bundle.
 #[derive(Debug, Clone)]
 pub struct SkyViewBundle {
@@ -156,14 +188,18 @@ pub struct SkyViewBundle {
     /// Bruneton's transmittance texture (his parameterisation).
     pub transmittance: Texture,
     /// Single Rayleigh scattering without its phase function + multiple scattering divided by
-    /// the Rayleigh phase function, divided by the slice's scale: width N_AZ, height N_VIEW,
+    /// the Rayleigh phase function, per metre of the ray ([`ray_length`]), divided by the
+    /// slice's scale: width N_AZ, height N_VIEW,
     /// depth N_ALT · N_SUN (slice = altitude · N_SUN + sun), half floats.
     pub rayleigh: Texture,
-    /// Single Mie scattering without its phase function, divided by the slice's scale; as above.
+    /// Single Mie scattering without its phase function, per metre of ray, divided by the
+    /// slice's scale; as above.
     pub mie: Texture,
     /// Per-slice scales: width N_SUN, height N_ALT, 2 × channels (Rayleigh-like then Mie), floats.
     pub scale: Texture,
-    /// Sky irradiance on a horizontal surface: width N_SUN, height N_ALT, floats.
+    /// Sky irradiance on a horizontal surface divided by the depth of the atmosphere above the
+    /// node (top − r; the top node evaluated [`EVAL_OFFSET_M`] below the top): width N_SUN,
+    /// height N_ALT, floats.
     pub irradiance: Texture,
     /// Wall-clock ms: precise table, transmittance, sky view, irradiance.
     pub timing_ms: [f64; 4],
@@ -213,7 +249,7 @@ pub fn build_skyview(
                 if cancelled() {
                     return (s_out, m_out);
                 }
-                let r = bottom + altitude_node_m(k, thickness);
+                let r = eval_radius(k, i, bottom, thickness);
                 let (theta, ground) = view_node(i, r, bottom);
                 let mu_h = horizon_mu(r, bottom);
                 let mu = if ground {
@@ -222,6 +258,7 @@ pub fn build_skyview(
                     theta.cos().max(mu_h + 1e-9).min(1.0)
                 };
                 let sin_t = (1.0 - mu * mu).max(0.0).sqrt();
+                let d = ray_length(r, mu, bottom, bottom + thickness, ground);
                 scratch.prepare(r, mu, steps);
                 for (j, &mu_s) in sun_mu.iter().enumerate() {
                     let sin_s = (1.0 - mu_s * mu_s).max(0.0).sqrt();
@@ -232,8 +269,8 @@ pub fn build_skyview(
                         let s = scratch.texel(mu_s, nu);
                         let o = (j * N_AZ + a) * n_c;
                         for (c, &l) in idx.iter().enumerate() {
-                            s_out[o + c] = (s.rayleigh[l] + s.multiple[l] / p_r) * e0[c];
-                            m_out[o + c] = s.mie[l] * e0[c];
+                            s_out[o + c] = (s.rayleigh[l] + s.multiple[l] / p_r) * e0[c] / d;
+                            m_out[o + c] = s.mie[l] * e0[c] / d;
                         }
                     }
                 }
@@ -282,15 +319,16 @@ pub fn build_skyview(
     // Irradiance on the altitude × sun nodes.
     let t2 = Instant::now();
     let radii: Vec<f64> = (0..N_ALT)
-        .map(|k| bottom + altitude_node_m(k, thickness))
+        .map(|k| (bottom + altitude_node_m(k, thickness)).min(bottom + thickness - EVAL_OFFSET_M))
         .collect();
     let sums = build::irradiance_grid(shared, &radii, &sun_mu, &idx, &e0, steps, cancelled);
     if cancelled() {
         return Err(crate::Error::Cancelled);
     }
     let mut irradiance = Texture::new(N_SUN, N_ALT, 1, n_c, Sample::Float);
-    for (o, s) in irradiance.data.iter_mut().zip(sums) {
-        *o = s as f32;
+    for (n, (o, s)) in irradiance.data.iter_mut().zip(sums).enumerate() {
+        let depth = bottom + thickness - radii[n / (N_SUN * n_c)];
+        *o = (s / depth) as f32;
     }
     let t_irradiance = t2.elapsed().as_secs_f64() * 1e3;
 
@@ -398,6 +436,8 @@ impl<'a> SkyViewReader<'a> {
             1.0
         };
         let col = azimuth_coord(cos_phi.acos());
+        let below = row >= N_VIEW_UP as f64;
+        let d = ray_length(r, mu, p.bottom_radius, p.top_radius, below);
         let mut out = [vec![0.0; n_c], vec![0.0; n_c]];
         let mut buf = [vec![0.0; n_c], vec![0.0; n_c]];
         let mut f = vec![0.0; n_c];
@@ -411,7 +451,7 @@ impl<'a> SkyViewReader<'a> {
                 }
             }
             for c in 0..n_c {
-                out[part][c] = geo_mix(buf[0][c], buf[1][c], tk);
+                out[part][c] = geo_mix(buf[0][c], buf[1][c], tk) * d;
             }
         }
         let [s, mm] = out;
@@ -487,7 +527,7 @@ impl<'a> SkyViewReader<'a> {
             .map(|c| {
                 let lo = geo_mix(e(k0, j0, c), e(k0, j0 + 1, c), tj);
                 let hi = geo_mix(e(k0 + 1, j0, c), e(k0 + 1, j0 + 1, c), tj);
-                geo_mix(lo, hi, tk) * tilt
+                geo_mix(lo, hi, tk) * tilt * (p.top_radius - rc)
             })
             .collect();
         let cos = dot(normal, sun).max(0.0);
