@@ -371,7 +371,16 @@ fn irradiance_texture(
                 .1
         })
         .collect();
-    let sums = irradiance_grid(shared, &radii, &mu_s, idx, e0, steps, cancelled);
+    let sums = irradiance_grid(
+        shared,
+        &radii,
+        IRRADIANCE_WIDTH,
+        &|_, i| mu_s[i],
+        idx,
+        e0,
+        steps,
+        cancelled,
+    );
     let mut irradiance = Texture::new(
         IRRADIANCE_WIDTH,
         IRRADIANCE_HEIGHT,
@@ -385,14 +394,15 @@ fn irradiance_texture(
     irradiance
 }
 
-/// The sky's irradiance on a horizontal surface at each radius of `radii` (rows) and sun zenith
-/// cosine of `mu_s` (columns), `[row][column][channel]`: the `sun` product's hemisphere
+/// The sky's irradiance on a horizontal surface at each radius of `radii` (rows) and the
+/// `width` sun zenith cosines `mu_s_of(row, column)`, `[row][column][channel]`: the `sun` product's hemisphere
 /// quadrature (Gauss–Legendre in cos θ × midpoints in azimuth relative to the sun) of the sky
 /// radiance, each quadrature direction's ray integrated once for all the row's suns.
 pub(crate) fn irradiance_grid(
     shared: &SharedTables,
     radii: &[f64],
-    mu_s_list: &[f64],
+    width: usize,
+    mu_s_of: &(dyn Fn(usize, usize) -> f64 + Sync),
     idx: &[usize],
     e0: &[f64],
     steps: usize,
@@ -400,7 +410,6 @@ pub(crate) fn irradiance_grid(
 ) -> Vec<f64> {
     let m = &shared.medium;
     let n_c = idx.len();
-    let width = mu_s_list.len();
     let (x, w) = gauss_legendre(SUN_PRODUCT_N_MU);
     let n_phi = SUN_PRODUCT_N_PHI;
     // One task per (row, cos θ node): that row's contributions of that direction.
@@ -419,7 +428,8 @@ pub(crate) fn irradiance_grid(
                     return (j, row);
                 }
                 scratch.prepare(r, mu, steps);
-                for (i, &mu_s) in mu_s_list.iter().enumerate() {
+                for i in 0..width {
+                    let mu_s = mu_s_of(j, i);
                     let sin_s = (1.0 - mu_s * mu_s).max(0.0).sqrt();
                     for b in 0..n_phi {
                         let phi = std::f64::consts::PI * (b as f64 + 0.5) / n_phi as f64;

@@ -49,20 +49,31 @@ pub const LAYOUT: &str = "skyview";
 pub const SKYVIEW_VERSION: &str = "1";
 
 /// Altitude nodes: h_k = (top − bottom) · (k / (N − 1))².
-pub const N_ALT: usize = 24;
-/// Sun elevation nodes (see [`sun_node_deg`]).
+pub const N_ALT: usize = 28;
+/// Sun nodes, in the sun's elevation above the observer's horizon (its elevation + the
+/// horizon's dip at the node's altitude, so sunset is on the same node at every altitude):
+/// every 1° from [`SUN_MIN_DEG`] to −8°, every 0.5° to 6° (twilight and sunset), every 1° to
+/// 20° (low sun), every 4° to 104° (the zenith seen from the top of a 100 km atmosphere is
+/// 100.1° above its horizon).
 pub const SUN_MIN_DEG: f64 = -15.0;
-pub const SUN_KNEE_DEG: f64 = 10.0;
-pub const SUN_STEP_LOW_DEG: f64 = 1.0;
-pub const SUN_STEP_HIGH_DEG: f64 = 5.0;
-pub const N_SUN_LOW: usize = 25; // (KNEE − MIN) / STEP_LOW intervals
-pub const N_SUN: usize = N_SUN_LOW + 16 + 1; // + (90 − KNEE) / STEP_HIGH intervals, + 1
-/// View zenith nodes above the horizon (zenith to horizon) and below it (horizon to nadir).
-pub const N_VIEW_UP: usize = 24;
+pub const SUN_SEGMENTS: [(f64, f64, usize); 4] = [
+    (-15.0, 1.0, 7),
+    (-8.0, 0.5, 28),
+    (6.0, 1.0, 14),
+    (20.0, 4.0, 21),
+];
+pub const N_SUN: usize = 7 + 28 + 14 + 21 + 1;
+/// View rows: from the zenith to the horizontal ([`N_VIEW_SKY`], θ = 90° (1 − (1 − x)²)),
+/// from the horizontal to the horizon ([`N_VIEW_LIMB`], uniform in the tangent altitude of the
+/// ray, from the observer's altitude to 0) and from the horizon to the nadir
+/// ([`N_VIEW_DOWN`], θ = θ_h + (π − θ_h) x²).
+pub const N_VIEW_SKY: usize = 18;
+pub const N_VIEW_LIMB: usize = 16;
+pub const N_VIEW_UP: usize = N_VIEW_SKY + N_VIEW_LIMB;
 pub const N_VIEW_DOWN: usize = 8;
 pub const N_VIEW: usize = N_VIEW_UP + N_VIEW_DOWN;
 /// Azimuth-from-the-sun nodes, φ_a = π (a / (N − 1))².
-pub const N_AZ: usize = 24;
+pub const N_AZ: usize = 20;
 
 /// File names.
 pub const RAYLEIGH_FILE: &str = "skyview_rayleigh.exr";
@@ -70,23 +81,36 @@ pub const MIE_FILE: &str = "skyview_mie.exr";
 pub const SCALE_FILE: &str = "skyview_scale.exr";
 pub const IRRADIANCE_FILE: &str = "skyview_irradiance.exr";
 
-/// Sun elevation of node `j`, degrees.
+/// Sun node `j`: the sun's elevation above the observer's horizon, degrees.
 pub fn sun_node_deg(j: usize) -> f64 {
-    if j <= N_SUN_LOW {
-        SUN_MIN_DEG + j as f64 * SUN_STEP_LOW_DEG
-    } else {
-        SUN_KNEE_DEG + (j - N_SUN_LOW) as f64 * SUN_STEP_HIGH_DEG
+    let mut first = 0;
+    for (start, step, n) in SUN_SEGMENTS {
+        if j <= first + n {
+            return start + (j - first) as f64 * step;
+        }
+        first += n;
     }
+    let (start, step, n) = SUN_SEGMENTS[SUN_SEGMENTS.len() - 1];
+    start + n as f64 * step
 }
 
-/// Continuous sun node coordinate of an elevation (degrees), clamped to the nodes.
-pub fn sun_coord(elevation_deg: f64) -> f64 {
-    let e = elevation_deg.clamp(SUN_MIN_DEG, 90.0);
-    if e <= SUN_KNEE_DEG {
-        (e - SUN_MIN_DEG) / SUN_STEP_LOW_DEG
-    } else {
-        N_SUN_LOW as f64 + (e - SUN_KNEE_DEG) / SUN_STEP_HIGH_DEG
+/// Continuous sun node coordinate of an elevation above the observer's horizon (degrees),
+/// clamped to the nodes.
+pub fn sun_coord(above_horizon_deg: f64) -> f64 {
+    let mut first = 0.0;
+    for (start, step, n) in SUN_SEGMENTS {
+        let end = start + n as f64 * step;
+        if above_horizon_deg <= end {
+            return first + ((above_horizon_deg - start) / step).max(0.0);
+        }
+        first += n as f64;
     }
+    (N_SUN - 1) as f64
+}
+
+/// The horizon's dip below the horizontal at radius `r`, rad.
+pub fn dip(r: f64, bottom: f64) -> f64 {
+    (bottom / r).min(1.0).acos()
 }
 
 /// Altitude of node `k`, m, for an atmosphere `thickness` m thick.
@@ -105,30 +129,51 @@ pub fn horizon_zenith(r: f64, bottom: f64) -> f64 {
     PI - (bottom / r).min(1.0).asin()
 }
 
-/// View zenith angle (rad) of row `i` of the view axis at radius `r`: rows 0 … N_VIEW_UP − 1
-/// from the zenith to the horizon (θ = θ_h (1 − (1 − x)²)), rows N_VIEW_UP … from the horizon to
-/// the nadir (θ = θ_h + (π − θ_h) x²), x uniform in [0, 1] within each half.
+/// View zenith angle (rad) of row `i` at radius `r` (see [`N_VIEW_SKY`]), and whether it looks
+/// below the horizon.
 pub fn view_node(i: usize, r: f64, bottom: f64) -> (f64, bool) {
     let th = horizon_zenith(r, bottom);
-    if i < N_VIEW_UP {
-        let x = i as f64 / (N_VIEW_UP - 1) as f64;
-        (th * (1.0 - (1.0 - x) * (1.0 - x)), false)
+    if i < N_VIEW_SKY {
+        let x = i as f64 / (N_VIEW_SKY - 1) as f64;
+        (0.5 * PI * (1.0 - (1.0 - x) * (1.0 - x)), false)
+    } else if i < N_VIEW_UP {
+        let y = (i - N_VIEW_SKY) as f64 / (N_VIEW_LIMB - 1) as f64;
+        // Tangent radius from r (horizontal) to the ground (the horizon).
+        let r_t = r - (r - bottom) * y;
+        (0.5 * PI + (r_t / r).min(1.0).acos(), false)
     } else {
         let x = (i - N_VIEW_UP) as f64 / (N_VIEW_DOWN - 1) as f64;
         (th + (PI - th) * x * x, true)
     }
 }
 
-/// Continuous row coordinate of view zenith `theta` at radius `r` (the inverse of
-/// [`view_node`]); whether the view is below the horizon.
-pub fn view_coord(theta: f64, r: f64, bottom: f64) -> (f64, bool) {
+/// Row segment of view zenith `theta` at radius `r` (0 sky, 1 limb, 2 below the horizon) and
+/// its continuous row coordinate (the inverse of [`view_node`]).
+pub fn view_coord(theta: f64, r: f64, bottom: f64) -> (usize, f64) {
     let th = horizon_zenith(r, bottom);
-    if theta < th {
-        let x = 1.0 - (1.0 - (theta / th).clamp(0.0, 1.0)).sqrt();
-        (x * (N_VIEW_UP - 1) as f64, false)
+    if theta <= 0.5 * PI {
+        let x = 1.0 - (1.0 - (theta / (0.5 * PI)).clamp(0.0, 1.0)).sqrt();
+        (0, x * (N_VIEW_SKY - 1) as f64)
+    } else if theta < th {
+        let r_t = r * (theta - 0.5 * PI).cos();
+        let y = if r > bottom {
+            ((r - r_t) / (r - bottom)).clamp(0.0, 1.0)
+        } else {
+            1.0
+        };
+        (1, N_VIEW_SKY as f64 + y * (N_VIEW_LIMB - 1) as f64)
     } else {
         let x = ((theta - th) / (PI - th)).clamp(0.0, 1.0).sqrt();
-        (N_VIEW_UP as f64 + x * (N_VIEW_DOWN - 1) as f64, true)
+        (2, N_VIEW_UP as f64 + x * (N_VIEW_DOWN - 1) as f64)
+    }
+}
+
+/// First and last row of segment `seg`.
+fn segment_rows(seg: usize) -> (usize, usize) {
+    match seg {
+        0 => (0, N_VIEW_SKY - 1),
+        1 => (N_VIEW_SKY, N_VIEW_UP - 1),
+        _ => (N_VIEW_UP, N_VIEW - 1),
     }
 }
 
@@ -234,9 +279,11 @@ pub fn build_skyview(
     let t1 = Instant::now();
     let bottom = params.bottom_radius;
     let thickness = params.top_radius - bottom;
-    let sun_mu: Vec<f64> = (0..N_SUN)
-        .map(|j| sun_node_deg(j).to_radians().sin())
-        .collect();
+    // μs of sun node j at altitude node k.
+    let sun_mu = |k: usize, j: usize| {
+        let r = bottom + altitude_node_m(k, thickness);
+        (sun_node_deg(j).to_radians() - dip(r, bottom)).sin()
+    };
     let per_family = N_SUN * N_AZ * n_c;
     let families: Vec<(Vec<f64>, Vec<f64>)> = (0..N_ALT * N_VIEW)
         .into_par_iter()
@@ -260,7 +307,8 @@ pub fn build_skyview(
                 let sin_t = (1.0 - mu * mu).max(0.0).sqrt();
                 let d = ray_length(r, mu, bottom, bottom + thickness, ground);
                 scratch.prepare(r, mu, steps);
-                for (j, &mu_s) in sun_mu.iter().enumerate() {
+                for j in 0..N_SUN {
+                    let mu_s = sun_mu(k, j);
                     let sin_s = (1.0 - mu_s * mu_s).max(0.0).sqrt();
                     for a in 0..N_AZ {
                         let nu =
@@ -321,7 +369,7 @@ pub fn build_skyview(
     let radii: Vec<f64> = (0..N_ALT)
         .map(|k| (bottom + altitude_node_m(k, thickness)).min(bottom + thickness - EVAL_OFFSET_M))
         .collect();
-    let sums = build::irradiance_grid(shared, &radii, &sun_mu, &idx, &e0, steps, cancelled);
+    let sums = build::irradiance_grid(shared, &radii, N_SUN, &sun_mu, &idx, &e0, steps, cancelled);
     if cancelled() {
         return Err(crate::Error::Cancelled);
     }
@@ -384,32 +432,21 @@ impl<'a> SkyViewReader<'a> {
         Self { bundle }
     }
 
-    /// Bilinear fetch of slice `z` at continuous (column, row) coordinates, times the slice's
-    /// scale (part 0 = Rayleigh-like, 1 = Mie).
-    fn fetch(&self, part: usize, z: usize, col: f64, row: f64, out: &mut [f64]) {
+    /// Fetch of row `y` of slice `z`, linear in the continuous column `col` (a GPU's linear
+    /// filtering at v = the row's centre), times the slice's scale (part 0 = Rayleigh-like,
+    /// 1 = Mie).
+    fn fetch(&self, part: usize, z: usize, col: f64, y: usize, out: &mut [f64]) {
         let b = self.bundle;
         let t = if part == 0 { &b.rayleigh } else { &b.mie };
         let n_c = t.channels;
         let (x0, fx) = split(col, N_AZ);
-        // Rows stay within their half (above / below the horizon).
-        let (lo, hi) = if row < N_VIEW_UP as f64 {
-            (0, N_VIEW_UP - 1)
-        } else {
-            (N_VIEW_UP, N_VIEW - 1)
-        };
-        let y = row.clamp(lo as f64, hi as f64);
-        let y0 = (y.floor() as usize).min(hi.saturating_sub(1)).max(lo);
-        let fy = y - y0 as f64;
         out.fill(0.0);
-        for (yy, wy) in [(y0, 1.0 - fy), (y0 + 1, fy)] {
-            for (xx, wx) in [(x0, 1.0 - fx), (x0 + 1, fx)] {
-                let w = wx * wy;
-                if w == 0.0 {
-                    continue;
-                }
-                for (o, v) in out.iter_mut().zip(t.texel(xx, yy, z)) {
-                    *o += w * *v as f64;
-                }
+        for (xx, wx) in [(x0, 1.0 - fx), (x0 + 1, fx)] {
+            if wx == 0.0 {
+                continue;
+            }
+            for (o, v) in out.iter_mut().zip(t.texel(xx, y, z)) {
+                *o += wx * *v as f64;
             }
         }
         let sc = b.scale.texel(z % N_SUN, z / N_SUN, 0);
@@ -427,8 +464,13 @@ impl<'a> SkyViewReader<'a> {
         let r = r.clamp(p.bottom_radius, p.top_radius);
         let thickness = p.top_radius - p.bottom_radius;
         let (k0, tk) = split(altitude_coord(r - p.bottom_radius, thickness), N_ALT);
-        let (j0, tj) = split(sun_coord(mu_s.clamp(-1.0, 1.0).asin().to_degrees()), N_SUN);
-        let (row, _) = view_coord(mu.clamp(-1.0, 1.0).acos(), r, p.bottom_radius);
+        let above_horizon = mu_s.clamp(-1.0, 1.0).asin() + dip(r, p.bottom_radius);
+        let (j0, tj) = split(sun_coord(above_horizon.to_degrees()), N_SUN);
+        let (seg, row) = view_coord(mu.clamp(-1.0, 1.0).acos(), r, p.bottom_radius);
+        let (lo, hi) = segment_rows(seg);
+        let y = row.clamp(lo as f64, hi as f64);
+        let y0 = (y.floor() as usize).min(hi - 1);
+        let ty = y - y0 as f64;
         let den = ((1.0 - mu * mu) * (1.0 - mu_s * mu_s)).max(0.0).sqrt();
         let cos_phi = if den > 1e-12 {
             ((nu - mu * mu_s) / den).clamp(-1.0, 1.0)
@@ -436,22 +478,27 @@ impl<'a> SkyViewReader<'a> {
             1.0
         };
         let col = azimuth_coord(cos_phi.acos());
-        let below = row >= N_VIEW_UP as f64;
-        let d = ray_length(r, mu, p.bottom_radius, p.top_radius, below);
+        let d = ray_length(r, mu, p.bottom_radius, p.top_radius, seg == 2);
         let mut out = [vec![0.0; n_c], vec![0.0; n_c]];
-        let mut buf = [vec![0.0; n_c], vec![0.0; n_c]];
-        let mut f = vec![0.0; n_c];
+        let (mut f0, mut f1) = (vec![0.0; n_c], vec![0.0; n_c]);
+        let mut by_sun = [vec![0.0; n_c], vec![0.0; n_c]];
+        let mut by_alt = [vec![0.0; n_c], vec![0.0; n_c]];
         for part in 0..2 {
             for (ki, k) in [k0, k0 + 1].into_iter().enumerate() {
-                let z0 = k * N_SUN + j0;
-                self.fetch(part, z0, col, row, &mut buf[ki]);
-                self.fetch(part, z0 + 1, col, row, &mut f);
+                for (ji, j) in [j0, j0 + 1].into_iter().enumerate() {
+                    let z = k * N_SUN + j;
+                    self.fetch(part, z, col, y0, &mut f0);
+                    self.fetch(part, z, col, y0 + 1, &mut f1);
+                    for c in 0..n_c {
+                        by_sun[ji][c] = geo_mix(f0[c], f1[c], ty);
+                    }
+                }
                 for c in 0..n_c {
-                    buf[ki][c] = geo_mix(buf[ki][c], f[c], tj);
+                    by_alt[ki][c] = geo_mix(by_sun[0][c], by_sun[1][c], tj);
                 }
             }
             for c in 0..n_c {
-                out[part][c] = geo_mix(buf[0][c], buf[1][c], tk) * d;
+                out[part][c] = geo_mix(by_alt[0][c], by_alt[1][c], tk) * d;
             }
         }
         let [s, mm] = out;
@@ -520,7 +567,8 @@ impl<'a> SkyViewReader<'a> {
             altitude_coord(rc - p.bottom_radius, p.top_radius - p.bottom_radius),
             N_ALT,
         );
-        let (j0, tj) = split(sun_coord(mu_s.clamp(-1.0, 1.0).asin().to_degrees()), N_SUN);
+        let above_horizon = mu_s.clamp(-1.0, 1.0).asin() + dip(rc, p.bottom_radius);
+        let (j0, tj) = split(sun_coord(above_horizon.to_degrees()), N_SUN);
         let e = |k: usize, j: usize, c: usize| b.irradiance.texel(j, k, 0)[c] as f64;
         let tilt = (1.0 + dot(normal, point) / r) * 0.5;
         let sky: Vec<f64> = (0..n_c)
@@ -643,12 +691,13 @@ pub fn manifest(
             "altitude_nodes_m": altitude_nodes,
             "altitude_node": "h_k = (top_radius - bottom_radius) * (k / (N_ALT - 1))^2, k = 0..N_ALT-1",
             "sun_elevation_nodes_deg": sun_nodes,
-            "sun_node": format!("e_j = {SUN_MIN_DEG} + {SUN_STEP_LOW_DEG} j for j <= {N_SUN_LOW}, else {SUN_KNEE_DEG} + {SUN_STEP_HIGH_DEG} (j - {N_SUN_LOW}); the local sun elevation at the observer"),
-            "view_rows": format!("rows 0..{} above the horizon: theta = theta_h (1 - (1 - x)^2), x = row / {}; rows {}..{} below it: theta = theta_h + (pi - theta_h) x^2, x = (row - {}) / {}; theta_h = pi - asin(bottom_radius / r), the horizon's zenith angle at the observer's radius r; a fetch never mixes the two halves (the row coordinate is clamped to its half)", N_VIEW_UP - 1, N_VIEW_UP - 1, N_VIEW_UP, N_VIEW - 1, N_VIEW_UP, N_VIEW_DOWN - 1),
+            "sun_node": "the sun's elevation above the observer's horizon, e_j (deg) = its elevation + the horizon's dip acos(bottom_radius / r): every 1 deg from -15 to -8, every 0.5 deg to 6, every 1 deg to 20, every 4 deg to 104 (segments [start, step, intervals] in sun_segments)",
+            "sun_segments": SUN_SEGMENTS.iter().map(|(a, b, n)| json!([a, b, n])).collect::<Vec<_>>(),
+            "view_rows": format!("rows 0..{} from the zenith to the horizontal: theta = (pi/2) (1 - (1 - x)^2), x = row / {}; rows {}..{} from the horizontal to the horizon, uniform in the ray's tangent radius r_t = r - (r - bottom_radius) y, y = (row - {}) / {}, theta = pi/2 + acos(r_t / r); rows {}..{} from the horizon to the nadir: theta = theta_h + (pi - theta_h) x^2, x = (row - {}) / {}, theta_h = pi - asin(bottom_radius / r); r the observer's radius. Interpolation between the two rows around the view, within its segment, is geometric (each row fetched at its centre, the GPU filtering only the azimuth)", N_VIEW_SKY - 1, N_VIEW_SKY - 1, N_VIEW_SKY, N_VIEW_UP - 1, N_VIEW_SKY, N_VIEW_LIMB - 1, N_VIEW_UP, N_VIEW - 1, N_VIEW_UP, N_VIEW_DOWN - 1),
             "azimuth_columns": format!("phi = pi (column / {})^2, the view's azimuth from the sun's, 0..pi", N_AZ - 1),
             "slices": "slice = altitude_index * N_SUN + sun_index; file row = slice * N_VIEW + view_row; texture coordinates at texel centres: u = (column + 0.5) / N_AZ, v = (view_row + 0.5) / N_VIEW",
-            "sizes": {"N_ALT": N_ALT, "N_SUN": N_SUN, "N_VIEW_UP": N_VIEW_UP, "N_VIEW_DOWN": N_VIEW_DOWN, "N_AZ": N_AZ},
-            "interpolation": "per (altitude, sun) node pair around the query: bilinear in (column, row) of each texture times the slice's scale; then between the two sun nodes and then the two altitude nodes geometrically, a^(1-t) b^t (linear where a value is not positive); t is the fraction of the continuous node coordinate (altitude: sqrt(h / thickness) (N_ALT - 1); sun: the inverse of sun_node)",
+            "sizes": {"N_ALT": N_ALT, "N_SUN": N_SUN, "N_VIEW_SKY": N_VIEW_SKY, "N_VIEW_LIMB": N_VIEW_LIMB, "N_VIEW_DOWN": N_VIEW_DOWN, "N_AZ": N_AZ},
+            "interpolation": "per (altitude, sun, view row) node triple around the query: a fetch linear in the column at the row's centre, times the slice's scale; then between the two rows, the two sun nodes and then the two altitude nodes geometrically, a^(1-t) b^t (linear where a value is not positive); t is the fraction of the continuous node coordinate (altitude: sqrt(h / thickness) (N_ALT - 1); sun: the inverse of sun_node)",
             "radiance": "L = rayleigh * RayleighPhase(nu) + mie * aerosol_phase_function(nu), nu = cos of the angle between view and sun; RayleighPhase = 3/(16 pi) (1 + nu^2)",
             "observer": "inside the atmosphere; above its top, move the observer along the view to the top first (a view missing the atmosphere sees nothing); views below the horizon: the in-scattered light along the ray to the ground, without the ground's reflection",
             "transmittance_texture": [crate::param::TRANSMITTANCE_WIDTH, crate::param::TRANSMITTANCE_HEIGHT],
