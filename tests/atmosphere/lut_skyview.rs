@@ -165,8 +165,45 @@ fn sky_errors(f: &Fixture, seed: u64, cases: usize) -> (Bands, Bands) {
 #[test]
 #[ignore = "builds a bundle (about 10 s of CPU): run with --ignored lut_skyview::"]
 fn skyview_sky_radiance_matches_the_sky_product() {
-    let (bands, _) = sky_errors(fixture(), 2027, 96);
-    let _ = bands;
+    let (_, bands) = sky_errors(fixture(), 2027, 96);
+    // Measured on 2026-12-04 (earth, standard, RGB); bounds = measured + ~12 %. Targets
+    // met: the day sky at the ground and 0–20 km (< 1 %), near the horizon at the ground
+    // (< 3 %), and −12…−6° at the ground (< 10 %); not met: the rest (docs/lut.md).
+    for (band, measured) in [
+        (
+            "sun >= 5, view > 10 deg above horizon (target 1 %), ground",
+            0.0095,
+        ),
+        (
+            "sun >= 5, view > 10 deg above horizon (target 1 %), 0-20 km",
+            0.0081,
+        ),
+        (
+            "sun >= 5, view > 10 deg above horizon (target 1 %), 20-100 km",
+            0.0137,
+        ),
+        (
+            "sun >= 5, view < 10 deg above horizon (target 3 %), ground",
+            0.0169,
+        ),
+        (
+            "sun >= 5, view < 10 deg above horizon (target 3 %), 0-20 km",
+            0.0467,
+        ),
+        (
+            "sun >= 5, view < 10 deg above horizon (target 3 %), 20-100 km",
+            0.1007,
+        ),
+        ("sun -6..5 (target 3 %), ground", 0.0831),
+        ("sun -6..5 (target 3 %), 0-20 km", 0.1002),
+        ("sun -6..5 (target 3 %), 20-100 km", 0.1148),
+        ("sun -12..-6 (target 10 %), ground", 0.0631),
+        ("sun -12..-6 (target 10 %), 0-20 km", 0.2060),
+        ("sun -12..-6 (target 10 %), 20-100 km", 4.7517),
+    ] {
+        assert!(bands.get(band) > 0.0, "no sample in {band}");
+        assert!(bands.get(band) < measured * 1.12, "{band}: {bands:?}");
+    }
 }
 
 /// At its nodes the bundle is the `sky` product: random texels (altitude, sun, view above the
@@ -188,9 +225,9 @@ fn skyview_nodes_equal_the_sky_product() {
         let dip = skyview::dip(bottom + altitude, bottom).to_degrees();
         // Sun nodes are elevations above the horizon: this one's elevation, up to 90°.
         let sun_deg = loop {
-            let j = rng.random_range(3..skyview::N_SUN);
+            let j = rng.random_range(0..skyview::N_SUN);
             let e = skyview::sun_node_deg(j) - dip;
-            if e <= 90.0 {
+            if (-12.0..=90.0).contains(&e) {
                 break e;
             }
         };
@@ -306,6 +343,31 @@ fn skyview_sun_and_sky_irradiance_match_the_sun_product() {
     }
     direct.print("skyview sun direct normal");
     sky.print("skyview sky diffuse horizontal");
+    // Measured 0.006 %, 0.023 %, 0.041 %, 0.38 % (Bruneton's transmittance texture) and for
+    // the sky's irradiance 0.24 % (ground, sun >= 5), 1.27 % (aloft, sun >= 5), 0.34 %, 0.88 %
+    // (sun -6..5), 0.03 %, 0.73 % (sun -12..-6).
+    for (band, measured) in [
+        ("sun >= 5, ground", 6e-5),
+        ("sun >= 5, aloft", 2.3e-4),
+        ("sun -6..5, ground", 4.1e-4),
+        ("sun -6..5, aloft", 0.0038),
+    ] {
+        assert!(
+            direct.get(band) < measured * 1.12 + 1e-5,
+            "{band}: {direct:?}"
+        );
+    }
+    for (band, measured) in [
+        ("sun >= 5, ground", 0.0024),
+        ("sun >= 5, aloft", 0.0127),
+        ("sun -6..5, ground", 0.0034),
+        ("sun -6..5, aloft", 0.0088),
+        ("sun -12..-6, ground", 0.0004),
+        ("sun -12..-6, aloft", 0.0073),
+    ] {
+        assert!(sky.get(band) > 0.0, "no sample in {band}");
+        assert!(sky.get(band) < measured * 1.12, "{band}: {sky:?}");
+    }
 }
 
 /// The files: sizes (the budget: ≤ 10 MB for the RGB bundle) and a manifest that

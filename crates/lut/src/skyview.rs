@@ -640,7 +640,23 @@ pub fn phase_from_json(v: &Value) -> crate::Result<Phase> {
 /// Stated error of each table: the largest relative error of what [`SkyViewReader`] computes
 /// from it against skybake's own product, per band of the accuracy targets, measured by
 /// tests/atmosphere/lut_skyview.rs (`earth`, quality `standard`, RGB form; docs/lut.md).
-pub const STATED_ERRORS: &[(&str, &str, f64)] = &[];
+pub const STATED_ERRORS: &[(&str, &str, f64)] = &[
+    ("transmittance", "direct normal irradiance (sun product), sun >= 5 deg, 0-100 km", 0.0003),
+    ("transmittance", "direct normal irradiance (sun product), sun -6..5 deg", 0.004),
+    ("rayleigh+mie", "sky radiance (sky product), sun >= 5 deg, view > 10 deg above the horizon, ground", 0.0095),
+    ("rayleigh+mie", "sky radiance (sky product), sun >= 5 deg, view > 10 deg above the horizon, 0-20 km", 0.0081),
+    ("rayleigh+mie", "sky radiance (sky product), sun >= 5 deg, view > 10 deg above the horizon, 20-100 km", 0.014),
+    ("rayleigh+mie", "sky radiance (sky product), sun >= 5 deg, view < 10 deg above the horizon, ground", 0.017),
+    ("rayleigh+mie", "sky radiance (sky product), sun >= 5 deg, view < 10 deg above the horizon, 0-20 km", 0.047),
+    ("rayleigh+mie", "sky radiance (sky product), sun >= 5 deg, view < 10 deg above the horizon, 20-100 km", 0.10),
+    ("rayleigh+mie", "sky radiance (sky product), sun -6..5 deg, ground", 0.083),
+    ("rayleigh+mie", "sky radiance (sky product), sun -6..5 deg, 0-100 km", 0.115),
+    ("rayleigh+mie", "sky radiance (sky product), sun -12..-6 deg, ground", 0.063),
+    ("rayleigh+mie", "sky radiance (sky product), sun -12..-6 deg, 0-20 km", 0.21),
+    ("rayleigh+mie", "sky radiance (sky product), sun -12..-6 deg, 20-100 km (the limb across the earth's shadow)", 4.8),
+    ("irradiance", "diffuse horizontal irradiance (sun product), sun >= 5 deg, 0-100 km", 0.013),
+    ("irradiance", "diffuse horizontal irradiance (sun product), sun -12..5 deg, 0-100 km", 0.009),
+];
 
 fn sample_name(s: Sample) -> &'static str {
     match s {
@@ -721,3 +737,89 @@ pub fn manifest(
 }
 
 const UNIT_SCALE_REF: f64 = crate::build::UNIT_SCALE;
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const R: f64 = 6_360_000.0;
+    const H: f64 = 100_000.0;
+
+    #[test]
+    fn node_coordinates_invert_the_nodes() {
+        for j in 0..N_SUN {
+            assert!(
+                (sun_coord(sun_node_deg(j)) - j as f64).abs() < 1e-9,
+                "sun node {j}"
+            );
+        }
+        // Increasing, from −15° to 104°.
+        assert_eq!(sun_node_deg(0), SUN_MIN_DEG);
+        assert!((sun_node_deg(N_SUN - 1) - 104.0).abs() < 1e-12);
+        assert!((1..N_SUN).all(|j| sun_node_deg(j) > sun_node_deg(j - 1)));
+        for k in 0..N_ALT {
+            let h = altitude_node_m(k, H);
+            assert!(
+                (altitude_coord(h, H) - k as f64).abs() < 1e-9,
+                "altitude node {k}"
+            );
+        }
+        for a in 0..N_AZ {
+            assert!((azimuth_coord(azimuth_node(a)) - a as f64).abs() < 1e-9);
+        }
+        for r in [R + 50.0, R + 3000.0, R + 60_000.0, R + H] {
+            for i in 0..N_VIEW {
+                let (theta, below) = view_node(i, r, R);
+                assert_eq!(below, i >= N_VIEW_UP);
+                let (seg, row) = view_coord(theta, r, R);
+                // The segments' shared edges (horizontal, horizon) belong to either side.
+                let ok = (row - i as f64).abs() < 1e-6
+                    || (i == N_VIEW_SKY
+                        && seg == 0
+                        && (row - (N_VIEW_SKY - 1) as f64).abs() < 1e-6)
+                    || (i == N_VIEW_UP - 1 && seg == 2 && (row - N_VIEW_UP as f64).abs() < 1e-6);
+                assert!(ok, "r {r}, row {i}: theta {theta} -> ({seg}, {row})");
+            }
+            // Horizontal and horizon where the geometry puts them.
+            assert!((view_node(N_VIEW_SKY - 1, r, R).0 - 0.5 * PI).abs() < 1e-12);
+            assert!((view_node(N_VIEW_UP - 1, r, R).0 - horizon_zenith(r, R)).abs() < 1e-9);
+            assert!((view_node(N_VIEW - 1, r, R).0 - PI).abs() < 1e-12);
+        }
+    }
+
+    #[test]
+    fn ray_lengths_are_the_geometric_ones() {
+        // Straight up from the ground: the atmosphere's thickness; down to the ground from h:
+        // h; a horizontal ray from the ground: sqrt(top² − R²).
+        assert!((ray_length(R, 1.0, R, R + H, false) - H).abs() < 1e-6);
+        assert!((ray_length(R + 5000.0, -1.0, R, R + H, true) - 5000.0).abs() < 1e-6);
+        let horizontal = ((R + H).powi(2) - R * R).sqrt();
+        assert!((ray_length(R, 0.0, R, R + H, false) - horizontal).abs() < 1e-6);
+    }
+
+    #[test]
+    fn geometric_interpolation_is_exact_for_an_exponential() {
+        let (a, b) = (3.0f64, 3.0 * (-2.0f64).exp());
+        assert!((geo_mix(a, b, 0.25) - 3.0 * (-0.5f64).exp()).abs() < 1e-12);
+        // A zero end falls back to linear.
+        assert_eq!(geo_mix(0.0, 2.0, 0.5), 1.0);
+    }
+
+    #[test]
+    fn phase_functions_round_trip_through_the_manifest() {
+        for p in [
+            Phase::CornetteShanks { g: 0.8 },
+            Phase::HenyeyGreenstein { g: 0.7 },
+            Phase::Mixture {
+                g: 0.85,
+                rayleigh_fraction: 0.05,
+            },
+            Phase::Isotropic,
+            Phase::Rayleigh,
+        ] {
+            assert_eq!(phase_from_json(&phase_json(&p)).unwrap(), p);
+        }
+        let e = phase_from_json(&json!({"kind": "cornette_shanks"})).unwrap_err();
+        assert_eq!(e.field(), "manifest");
+    }
+}
