@@ -373,9 +373,11 @@ fn irradiance_texture(
         .collect();
     let sums = irradiance_grid(
         shared,
-        &radii,
-        IRRADIANCE_WIDTH,
-        &|_, i| mu_s[i],
+        IrradianceGrid {
+            radii: &radii,
+            width: IRRADIANCE_WIDTH,
+            mu_s: &|_, i| mu_s[i],
+        },
         idx,
         e0,
         steps,
@@ -394,15 +396,21 @@ fn irradiance_texture(
     irradiance
 }
 
+/// Where [`irradiance_grid`] computes the irradiance: rows at `radii`, `width` columns, the
+/// sun zenith cosine of (row, column) `mu_s(row, column)`.
+pub(crate) struct IrradianceGrid<'a> {
+    pub radii: &'a [f64],
+    pub width: usize,
+    pub mu_s: &'a (dyn Fn(usize, usize) -> f64 + Sync),
+}
+
 /// The sky's irradiance on a horizontal surface at each radius of `radii` (rows) and the
 /// `width` sun zenith cosines `mu_s_of(row, column)`, `[row][column][channel]`: the `sun` product's hemisphere
 /// quadrature (Gauss–Legendre in cos θ × midpoints in azimuth relative to the sun) of the sky
 /// radiance, each quadrature direction's ray integrated once for all the row's suns.
 pub(crate) fn irradiance_grid(
     shared: &SharedTables,
-    radii: &[f64],
-    width: usize,
-    mu_s_of: &(dyn Fn(usize, usize) -> f64 + Sync),
+    grid: IrradianceGrid,
     idx: &[usize],
     e0: &[f64],
     steps: usize,
@@ -410,6 +418,7 @@ pub(crate) fn irradiance_grid(
 ) -> Vec<f64> {
     let m = &shared.medium;
     let n_c = idx.len();
+    let (radii, width, mu_s_of) = (grid.radii, grid.width, grid.mu_s);
     let (x, w) = gauss_legendre(SUN_PRODUCT_N_MU);
     let n_phi = SUN_PRODUCT_N_PHI;
     // One task per (row, cos θ node): that row's contributions of that direction.

@@ -369,7 +369,18 @@ pub fn build_skyview(
     let radii: Vec<f64> = (0..N_ALT)
         .map(|k| (bottom + altitude_node_m(k, thickness)).min(bottom + thickness - EVAL_OFFSET_M))
         .collect();
-    let sums = build::irradiance_grid(shared, &radii, N_SUN, &sun_mu, &idx, &e0, steps, cancelled);
+    let sums = build::irradiance_grid(
+        shared,
+        build::IrradianceGrid {
+            radii: &radii,
+            width: N_SUN,
+            mu_s: &sun_mu,
+        },
+        &idx,
+        &e0,
+        steps,
+        cancelled,
+    );
     if cancelled() {
         return Err(crate::Error::Cancelled);
     }
