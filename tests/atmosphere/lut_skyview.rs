@@ -391,3 +391,21 @@ fn skyview_files_and_manifest() {
         assert!(files.iter().any(|(n, _)| *n == file), "{t}: {file}");
     }
 }
+
+/// The layouts by name: an unknown one is refused naming `layout`; the `skyview` request has its
+/// own cache key (Bruneton's is unchanged).
+#[test]
+fn layouts_are_named_and_keyed_apart() {
+    assert_eq!(Layout::parse("skyview").unwrap(), Layout::SkyView);
+    assert_eq!(Layout::parse("bruneton2017").unwrap(), Layout::Bruneton2017);
+    let err = Layout::parse("Skyview").unwrap_err();
+    assert!(
+        matches!(&err, skybake_physics::Error::Invalid { field, .. } if field == "layout"),
+        "{err}"
+    );
+    let bruneton = LutRequest::from_params(&RequestParams::default()).unwrap();
+    let sky = bruneton.clone().with_layout(Layout::SkyView);
+    assert_ne!(bruneton.cache_key(), sky.cache_key());
+    assert!(bruneton.canonical().get("layout").is_none());
+    assert_eq!(sky.canonical()["layout"], "skyview");
+}
