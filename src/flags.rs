@@ -145,9 +145,15 @@ pub struct LutArgs {
     #[command(flatten)]
     pub flags: ProductFlags<LUT>,
     /// Directory to write the bundle to (created if missing): transmittance.exr, scattering.exr,
-    /// irradiance.exr (+ single_mie_scattering.exr in spectral form) and manifest.json.
+    /// irradiance.exr (+ single_mie_scattering.exr in spectral form) and manifest.json; with
+    /// --layout skyview: transmittance.exr, skyview_rayleigh.exr, skyview_mie.exr,
+    /// skyview_scale.exr, skyview_irradiance.exr and manifest.json.
     #[arg(short = 'o', long = "output", value_name = "DIR")]
     pub output: PathBuf,
+    /// The bundle's layout: bruneton2017 (his textures, read by his shader functions) or
+    /// skyview (skybake's sky-view layout, within the accuracy targets; docs/lut.md).
+    #[arg(long, value_name = "NAME", default_value = "bruneton2017")]
+    pub layout: String,
 }
 
 #[derive(Args, Clone)]

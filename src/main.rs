@@ -199,7 +199,7 @@ fn run(cli: Cli) -> Result<()> {
         Command::Aerial(a) => {
             product::aerial(&a.flags.params, a.output.as_ref(), a.format, &engine()?)
         }
-        Command::Lut(a) => lut::lut(&a.flags.params, &a.output, &engine()?),
+        Command::Lut(a) => lut::lut(&a.flags.params, &a.layout, &a.output, &engine()?),
         Command::LutEval { bundle, queries } => lut_eval::lut_eval(&bundle, &queries),
         Command::Plan(a) => plan::plan(&a, engine),
         Command::Atmosphere { print, list } => atmosphere::atmosphere(print.as_deref(), list),

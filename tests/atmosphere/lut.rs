@@ -20,10 +20,10 @@ use skybake_product::lut::LutRequest;
 use skybake_product::params::RequestParams;
 use std::sync::OnceLock;
 
-struct Fixture {
-    engine: Engine,
-    request: LutRequest,
-    bundle: Bundle,
+pub(crate) struct Fixture {
+    pub(crate) engine: Engine,
+    pub(crate) request: LutRequest,
+    pub(crate) bundle: Bundle,
 }
 
 fn fixture() -> &'static Fixture {
@@ -61,7 +61,7 @@ fn make_fixture(params: RequestParams) -> Fixture {
 }
 
 /// The product spec at this observer and sun.
-fn spec_at(f: &Fixture, altitude_m: f64, sun_deg: f64) -> CommonSpec {
+pub(crate) fn spec_at(f: &Fixture, altitude_m: f64, sun_deg: f64) -> CommonSpec {
     let mut s = f.request.spec.clone();
     s.observer_altitude_m = altitude_m;
     s.sun.sun_elevation_deg = sun_deg;
@@ -77,7 +77,7 @@ fn channel_index(f: &Fixture, product_nm: &[f64]) -> Vec<usize> {
         .collect()
 }
 
-fn rel(a: f64, b: f64) -> f64 {
+pub(crate) fn rel(a: f64, b: f64) -> f64 {
     if b == 0.0 {
         if a == 0.0 {
             0.0
@@ -91,7 +91,7 @@ fn rel(a: f64, b: f64) -> f64 {
 
 /// Largest error per band, printed and returned.
 #[derive(Default, Debug)]
-struct Bands {
+pub(crate) struct Bands {
     names: Vec<String>,
     max: Vec<f64>,
     count: Vec<usize>,
@@ -99,11 +99,11 @@ struct Bands {
 }
 
 impl Bands {
-    fn add(&mut self, band: &str, e: f64) {
+    pub(crate) fn add(&mut self, band: &str, e: f64) {
         self.add_case(band, e, String::new());
     }
 
-    fn add_case(&mut self, band: &str, e: f64, case: String) {
+    pub(crate) fn add_case(&mut self, band: &str, e: f64, case: String) {
         let i = match self.names.iter().position(|n| *n == band) {
             Some(i) => i,
             None => {
@@ -121,14 +121,14 @@ impl Bands {
         self.count[i] += 1;
     }
 
-    fn get(&self, band: &str) -> f64 {
+    pub(crate) fn get(&self, band: &str) -> f64 {
         self.names
             .iter()
             .position(|n| *n == band)
             .map_or(0.0, |i| self.max[i])
     }
 
-    fn print(&self, what: &str) {
+    pub(crate) fn print(&self, what: &str) {
         for (((n, m), c), w) in self
             .names
             .iter()
@@ -144,7 +144,7 @@ impl Bands {
     }
 }
 
-fn sun_band(sun_deg: f64) -> &'static str {
+pub(crate) fn sun_band(sun_deg: f64) -> &'static str {
     if sun_deg >= 5.0 {
         "sun >= 5"
     } else if sun_deg >= -6.0 {
@@ -154,7 +154,7 @@ fn sun_band(sun_deg: f64) -> &'static str {
     }
 }
 
-fn altitude_band(altitude_m: f64) -> &'static str {
+pub(crate) fn altitude_band(altitude_m: f64) -> &'static str {
     if altitude_m == 0.0 {
         "ground"
     } else if altitude_m < 20_000.0 {
@@ -164,12 +164,12 @@ fn altitude_band(altitude_m: f64) -> &'static str {
     }
 }
 
-fn sun_dir(sun_deg: f64) -> [f64; 3] {
+pub(crate) fn sun_dir(sun_deg: f64) -> [f64; 3] {
     let e = sun_deg.to_radians();
     [e.cos(), 0.0, e.sin()]
 }
 
-fn view_dir(zenith_deg: f64, azimuth_deg: f64) -> [f64; 3] {
+pub(crate) fn view_dir(zenith_deg: f64, azimuth_deg: f64) -> [f64; 3] {
     let (t, p) = (zenith_deg.to_radians(), azimuth_deg.to_radians());
     [t.sin() * p.cos(), t.sin() * p.sin(), t.cos()]
 }

@@ -10,6 +10,7 @@ mod atmosphere_twilight;
 mod atmosphere_validation;
 mod external;
 mod lut;
+mod lut_skyview;
 mod plan;
 mod report_accuracy;
 mod solar_position;

@@ -130,3 +130,22 @@ fn lut_eval_reads_a_bundle_back_and_names_bad_queries() {
         "{err}"
     );
 }
+
+/// `skybake lut --layout` refuses an unknown layout before computing anything, naming `layout`
+/// and the choices.
+#[test]
+fn lut_refuses_an_unknown_layout_by_name() {
+    let dir = std::env::temp_dir().join(format!("skybake-lut-layout-{}", std::process::id()));
+    let out = Command::new(env!("CARGO_BIN_EXE_skybake"))
+        .args(["lut", "--layout", "octahedral", "-o"])
+        .arg(&dir)
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(2), "{stderr}");
+    assert!(
+        stderr.contains("layout") && stderr.contains("bruneton2017, skyview"),
+        "{stderr}"
+    );
+    assert!(!dir.exists(), "nothing is written");
+}

@@ -67,7 +67,13 @@ pub struct Texture {
 }
 
 impl Texture {
-    fn new(width: usize, height: usize, depth: usize, channels: usize, sample: Sample) -> Self {
+    pub(crate) fn new(
+        width: usize,
+        height: usize,
+        depth: usize,
+        channels: usize,
+        sample: Sample,
+    ) -> Self {
         Self {
             width,
             height,
@@ -79,7 +85,7 @@ impl Texture {
     }
 
     /// Rounds every value to what the stored sample type holds.
-    fn round_to_sample(&mut self) {
+    pub(crate) fn round_to_sample(&mut self) {
         if self.sample == Sample::Half {
             for v in &mut self.data {
                 *v = half::f16::from_f32(*v).to_f32();
@@ -147,45 +153,9 @@ pub fn build(
     cancelled: &(dyn Fn() -> bool + Sync),
 ) -> crate::Result<Bundle> {
     let m = &shared.medium;
-    let idx: Vec<usize> = match channels {
-        Channels::Rgb => RGB_WAVELENGTHS_NM
-            .iter()
-            .map(|w| {
-                m.wavelengths_nm
-                    .iter()
-                    .position(|x| (x - w).abs() < 1e-9)
-                    .ok_or_else(|| {
-                        crate::Error::invalid(
-                            "wavelengths",
-                            format!("the RGB bundle needs {w} nm among the medium's wavelengths"),
-                        )
-                    })
-            })
-            .collect::<crate::Result<_>>()?,
-        Channels::Spectral => (0..m.len()).collect(),
-    };
+    let (idx, params) = channel_setup(m, &channels)?;
     let n_c = idx.len();
-    let g = match m.mie_phase {
-        Phase::CornetteShanks { g } | Phase::HenyeyGreenstein { g } | Phase::Mixture { g, .. } => g,
-        Phase::Isotropic | Phase::Rayleigh => 0.0,
-    };
-    let params = AtmosphereParameters {
-        solar_irradiance: idx
-            .iter()
-            .map(|&i| m.solar_irradiance[i] * UNIT_SCALE)
-            .collect(),
-        sun_angular_radius: m.sun_angular_radius_rad,
-        bottom_radius: m.bottom_radius_m,
-        top_radius: m.top_radius_m,
-        rayleigh_scattering: idx
-            .iter()
-            .map(|&i| m.rayleigh_scattering_per_m[i])
-            .collect(),
-        mie_scattering: idx.iter().map(|&i| m.mie_scattering_per_m[i]).collect(),
-        mie_phase_function_g: g,
-        mu_s_min: source_sun_zenith_limit_rad(m.bottom_radius_m, m.top_radius_m).cos(),
-        ground_albedo: idx.iter().map(|&i| m.ground_albedo[i]).collect(),
-    };
+    let g = params.mie_phase_function_g;
     let e0: Vec<f64> = params.solar_irradiance.clone();
     let tp = Instant::now();
     shared
@@ -195,33 +165,7 @@ pub fn build(
 
     // Transmittance.
     let t0 = Instant::now();
-    let mut transmittance = Texture::new(
-        TRANSMITTANCE_WIDTH,
-        TRANSMITTANCE_HEIGHT,
-        1,
-        n_c,
-        Sample::Float,
-    );
-    transmittance
-        .data
-        .par_chunks_mut(TRANSMITTANCE_WIDTH * n_c)
-        .enumerate()
-        .for_each(|(j, row)| {
-            if cancelled() {
-                return;
-            }
-            for i in 0..TRANSMITTANCE_WIDTH {
-                let (r, mu) = params.transmittance_r_mu(
-                    (i as f64 + 0.5) / TRANSMITTANCE_WIDTH as f64,
-                    (j as f64 + 0.5) / TRANSMITTANCE_HEIGHT as f64,
-                );
-                let d =
-                    density_integrals(m, r, mu, params.distance_to_top(r, mu), TRANSMITTANCE_STEPS);
-                for (c, &l) in idx.iter().enumerate() {
-                    row[i * n_c + c] = (-m.optical_depth(l, &d)).exp() as f32;
-                }
-            }
-        });
+    let transmittance = transmittance_texture(m, &params, &idx, cancelled);
     if cancelled() {
         return Err(crate::Error::Cancelled);
     }
@@ -315,6 +259,92 @@ pub fn build(
     })
 }
 
+/// Bruneton's transmittance texture: each texel's density integrals to the top of the
+/// atmosphere, integrated directly (f64), exponentiated per channel.
+pub(crate) fn transmittance_texture(
+    m: &Medium,
+    params: &AtmosphereParameters,
+    idx: &[usize],
+    cancelled: &(dyn Fn() -> bool + Sync),
+) -> Texture {
+    let n_c = idx.len();
+    let mut transmittance = Texture::new(
+        TRANSMITTANCE_WIDTH,
+        TRANSMITTANCE_HEIGHT,
+        1,
+        n_c,
+        Sample::Float,
+    );
+    transmittance
+        .data
+        .par_chunks_mut(TRANSMITTANCE_WIDTH * n_c)
+        .enumerate()
+        .for_each(|(j, row)| {
+            if cancelled() {
+                return;
+            }
+            for i in 0..TRANSMITTANCE_WIDTH {
+                let (r, mu) = params.transmittance_r_mu(
+                    (i as f64 + 0.5) / TRANSMITTANCE_WIDTH as f64,
+                    (j as f64 + 0.5) / TRANSMITTANCE_HEIGHT as f64,
+                );
+                let d =
+                    density_integrals(m, r, mu, params.distance_to_top(r, mu), TRANSMITTANCE_STEPS);
+                for (c, &l) in idx.iter().enumerate() {
+                    row[i * n_c + c] = (-m.optical_depth(l, &d)).exp() as f32;
+                }
+            }
+        });
+    transmittance
+}
+
+/// Which of the medium's wavelengths each channel is, and his `AtmosphereParameters` of those
+/// channels (radiometric values in the bundle's unit).
+pub(crate) fn channel_setup(
+    m: &Medium,
+    channels: &Channels,
+) -> crate::Result<(Vec<usize>, AtmosphereParameters)> {
+    let idx: Vec<usize> = match *channels {
+        Channels::Rgb => RGB_WAVELENGTHS_NM
+            .iter()
+            .map(|w| {
+                m.wavelengths_nm
+                    .iter()
+                    .position(|x| (x - w).abs() < 1e-9)
+                    .ok_or_else(|| {
+                        crate::Error::invalid(
+                            "wavelengths",
+                            format!("the RGB bundle needs {w} nm among the medium's wavelengths"),
+                        )
+                    })
+            })
+            .collect::<crate::Result<_>>()?,
+        Channels::Spectral => (0..m.len()).collect(),
+    };
+    let g = match m.mie_phase {
+        Phase::CornetteShanks { g } | Phase::HenyeyGreenstein { g } | Phase::Mixture { g, .. } => g,
+        Phase::Isotropic | Phase::Rayleigh => 0.0,
+    };
+    let params = AtmosphereParameters {
+        solar_irradiance: idx
+            .iter()
+            .map(|&i| m.solar_irradiance[i] * UNIT_SCALE)
+            .collect(),
+        sun_angular_radius: m.sun_angular_radius_rad,
+        bottom_radius: m.bottom_radius_m,
+        top_radius: m.top_radius_m,
+        rayleigh_scattering: idx
+            .iter()
+            .map(|&i| m.rayleigh_scattering_per_m[i])
+            .collect(),
+        mie_scattering: idx.iter().map(|&i| m.mie_scattering_per_m[i]).collect(),
+        mie_phase_function_g: g,
+        mu_s_min: source_sun_zenith_limit_rad(m.bottom_radius_m, m.top_radius_m).cos(),
+        ground_albedo: idx.iter().map(|&i| m.ground_albedo[i]).collect(),
+    };
+    Ok((idx, params))
+}
+
 /// The irradiance texture: at each row's radius, the `sun` product's hemisphere quadrature
 /// ([`hemisphere_irradiance`]: Gauss–Legendre in cos θ × midpoints in azimuth relative to the
 /// sun) of the sky radiance, each quadrature direction's ray integrated once for the row's 64
@@ -327,30 +357,88 @@ fn irradiance_texture(
     steps: usize,
     cancelled: &(dyn Fn() -> bool + Sync),
 ) -> Texture {
+    let radii: Vec<f64> = (0..IRRADIANCE_HEIGHT)
+        .map(|j| {
+            let v = (j as f64 + 0.5) / IRRADIANCE_HEIGHT as f64;
+            params.irradiance_r_mu_s(0.5 / IRRADIANCE_WIDTH as f64, v).0
+        })
+        .collect();
+    let mu_s: Vec<f64> = (0..IRRADIANCE_WIDTH)
+        .map(|i| {
+            let u = (i as f64 + 0.5) / IRRADIANCE_WIDTH as f64;
+            params
+                .irradiance_r_mu_s(u, 0.5 / IRRADIANCE_HEIGHT as f64)
+                .1
+        })
+        .collect();
+    let sums = irradiance_grid(
+        shared,
+        IrradianceGrid {
+            radii: &radii,
+            width: IRRADIANCE_WIDTH,
+            mu_s: &|_, i| mu_s[i],
+        },
+        idx,
+        e0,
+        steps,
+        cancelled,
+    );
+    let mut irradiance = Texture::new(
+        IRRADIANCE_WIDTH,
+        IRRADIANCE_HEIGHT,
+        1,
+        idx.len(),
+        Sample::Float,
+    );
+    for (o, s) in irradiance.data.iter_mut().zip(sums) {
+        *o = s as f32;
+    }
+    irradiance
+}
+
+/// Where [`irradiance_grid`] computes the irradiance: rows at `radii`, `width` columns, the
+/// sun zenith cosine of (row, column) `mu_s(row, column)`.
+pub(crate) struct IrradianceGrid<'a> {
+    pub radii: &'a [f64],
+    pub width: usize,
+    pub mu_s: &'a (dyn Fn(usize, usize) -> f64 + Sync),
+}
+
+/// The sky's irradiance on a horizontal surface at each radius of `radii` (rows) and the
+/// `width` sun zenith cosines `mu_s_of(row, column)`, `[row][column][channel]`: the `sun` product's hemisphere
+/// quadrature (Gauss–Legendre in cos θ × midpoints in azimuth relative to the sun) of the sky
+/// radiance, each quadrature direction's ray integrated once for all the row's suns.
+pub(crate) fn irradiance_grid(
+    shared: &SharedTables,
+    grid: IrradianceGrid,
+    idx: &[usize],
+    e0: &[f64],
+    steps: usize,
+    cancelled: &(dyn Fn() -> bool + Sync),
+) -> Vec<f64> {
     let m = &shared.medium;
     let n_c = idx.len();
+    let (radii, width, mu_s_of) = (grid.radii, grid.width, grid.mu_s);
     let (x, w) = gauss_legendre(SUN_PRODUCT_N_MU);
     let n_phi = SUN_PRODUCT_N_PHI;
     // One task per (row, cos θ node): that row's contributions of that direction.
-    let parts: Vec<(usize, Vec<f64>)> = (0..IRRADIANCE_HEIGHT * SUN_PRODUCT_N_MU)
+    let parts: Vec<(usize, Vec<f64>)> = (0..radii.len() * SUN_PRODUCT_N_MU)
         .into_par_iter()
         .map_init(
             || FamilyScratch::new(shared, m.len()),
             |scratch, task| {
                 let (j, a) = (task / SUN_PRODUCT_N_MU, task % SUN_PRODUCT_N_MU);
-                let v = (j as f64 + 0.5) / IRRADIANCE_HEIGHT as f64;
-                let (r, _) = params.irradiance_r_mu_s(0.5 / IRRADIANCE_WIDTH as f64, v);
+                let r = radii[j];
                 let mu = 0.5 * (x[a] + 1.0);
                 let sin_t = (1.0 - mu * mu).max(0.0).sqrt();
                 let weight = 0.5 * w[a] * mu * 2.0 * std::f64::consts::PI / n_phi as f64;
-                let mut row = vec![0.0; IRRADIANCE_WIDTH * n_c];
+                let mut row = vec![0.0; width * n_c];
                 if cancelled() {
                     return (j, row);
                 }
                 scratch.prepare(r, mu, steps);
-                for i in 0..IRRADIANCE_WIDTH {
-                    let (_, mu_s) =
-                        params.irradiance_r_mu_s((i as f64 + 0.5) / IRRADIANCE_WIDTH as f64, v);
+                for i in 0..width {
+                    let mu_s = mu_s_of(j, i);
                     let sin_s = (1.0 - mu_s * mu_s).max(0.0).sqrt();
                     for b in 0..n_phi {
                         let phi = std::f64::consts::PI * (b as f64 + 0.5) / n_phi as f64;
@@ -367,26 +455,22 @@ fn irradiance_texture(
             },
         )
         .collect();
-    let mut irradiance = Texture::new(IRRADIANCE_WIDTH, IRRADIANCE_HEIGHT, 1, n_c, Sample::Float);
-    let mut sums = vec![0.0f64; irradiance.data.len()];
+    let mut sums = vec![0.0f64; radii.len() * width * n_c];
     for (j, row) in parts {
-        let k = j * IRRADIANCE_WIDTH * n_c;
+        let k = j * width * n_c;
         for (s, v) in sums[k..k + row.len()].iter_mut().zip(row) {
             *s += v;
         }
     }
-    for (o, s) in irradiance.data.iter_mut().zip(sums) {
-        *o = s as f32;
-    }
-    irradiance
+    sums
 }
 
 /// Per-wavelength integrals of one texel's ray, per unit solar irradiance: single Rayleigh and
 /// single Mie without phase functions (m⁻¹·m), multiple scattering with its phases (sr⁻¹).
-struct TexelSums<'a> {
-    rayleigh: &'a [f64],
-    mie: &'a [f64],
-    multiple: &'a [f64],
+pub(crate) struct TexelSums<'a> {
+    pub(crate) rayleigh: &'a [f64],
+    pub(crate) mie: &'a [f64],
+    pub(crate) multiple: &'a [f64],
 }
 
 /// What every sun on one ray shares (a ray family of the texture: fixed r and μ): the products'
@@ -394,7 +478,7 @@ struct TexelSums<'a> {
 /// weights it ([`cell_weight`]: length × mean transmittance from the ray's origin, `[point][λ]`), the density table at each point's radius
 /// and the multiple-scattering table at each point's (r, μ) ([`JSlice`]). A texel then costs
 /// one sun-zenith/azimuth interpolation per point.
-struct FamilyScratch<'a> {
+pub(crate) struct FamilyScratch<'a> {
     medium: &'a Medium,
     density: &'a DensityIntegralTable,
     precise: &'a PreciseMultipleScattering,
@@ -412,7 +496,7 @@ struct FamilyScratch<'a> {
 }
 
 impl<'a> FamilyScratch<'a> {
-    fn new(shared: &'a SharedTables, n_l: usize) -> Self {
+    pub(crate) fn new(shared: &'a SharedTables, n_l: usize) -> Self {
         Self {
             medium: &shared.medium,
             density: shared.density(),
@@ -432,7 +516,7 @@ impl<'a> FamilyScratch<'a> {
     }
 
     /// The ray from radius `r` with zenith cosine `mu`, `steps` samples per segment.
-    fn prepare(&mut self, r: f64, mu: f64, steps: usize) {
+    pub(crate) fn prepare(&mut self, r: f64, mu: f64, steps: usize) {
         let m = self.medium;
         self.r = r;
         ray_points(m, r, mu, steps, &mut self.points);
@@ -458,7 +542,7 @@ impl<'a> FamilyScratch<'a> {
     }
 
     /// The integrals of the prepared ray for the sun at (μs, ν) at its origin.
-    fn texel(&mut self, mu_s: f64, nu: f64) -> TexelSums<'_> {
+    pub(crate) fn texel(&mut self, mu_s: f64, nu: f64) -> TexelSums<'_> {
         let m = self.medium;
         self.rayleigh.fill(0.0);
         self.mie.fill(0.0);

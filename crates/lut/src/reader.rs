@@ -58,6 +58,28 @@ fn sample3(t: &Texture, u: f64, v: f64, w: f64) -> Vec<f64> {
     out
 }
 
+/// His `GetTransmittanceToTopAtmosphereBoundary` on transmittance texture `t`.
+pub fn transmittance_to_top(t: &Texture, a: &AtmosphereParameters, r: f64, mu: f64) -> Vec<f64> {
+    let (u, v) = a.transmittance_uv(r, mu);
+    sample2(t, u, v)
+}
+
+/// His `GetTransmittanceToSun` on transmittance texture `t`: to the top, times the fraction of
+/// the sun's disk above the horizon (a smoothstep over its angular radius).
+pub fn transmittance_to_sun(t: &Texture, a: &AtmosphereParameters, r: f64, mu_s: f64) -> Vec<f64> {
+    let sin_h = a.bottom_radius / r;
+    let cos_h = -(1.0 - sin_h * sin_h).max(0.0).sqrt();
+    let f = smoothstep(
+        -sin_h * a.sun_angular_radius,
+        sin_h * a.sun_angular_radius,
+        mu_s - cos_h,
+    );
+    transmittance_to_top(t, a, r, mu_s)
+        .into_iter()
+        .map(|t| t * f)
+        .collect()
+}
+
 /// A bundle read with Bruneton's functions. Radiances and irradiances are in the bundle's unit
 /// (W × [`crate::build::UNIT_SCALE`]), one value per channel; positions in m from the planet's
 /// centre; directions unit vectors.
@@ -76,8 +98,7 @@ impl<'a> Reader<'a> {
 
     /// His `GetTransmittanceToTopAtmosphereBoundary`.
     pub fn transmittance_to_top(&self, r: f64, mu: f64) -> Vec<f64> {
-        let (u, v) = self.a().transmittance_uv(r, mu);
-        sample2(&self.bundle.transmittance, u, v)
+        transmittance_to_top(&self.bundle.transmittance, self.a(), r, mu)
     }
 
     /// His `GetTransmittance`: from (r, μ) over distance `d`.
@@ -107,18 +128,7 @@ impl<'a> Reader<'a> {
     /// His `GetTransmittanceToSun`: to the top, times the fraction of the sun's disk above the
     /// horizon (a smoothstep over its angular radius).
     pub fn transmittance_to_sun(&self, r: f64, mu_s: f64) -> Vec<f64> {
-        let a = self.a();
-        let sin_h = a.bottom_radius / r;
-        let cos_h = -(1.0 - sin_h * sin_h).max(0.0).sqrt();
-        let f = smoothstep(
-            -sin_h * a.sun_angular_radius,
-            sin_h * a.sun_angular_radius,
-            mu_s - cos_h,
-        );
-        self.transmittance_to_top(r, mu_s)
-            .into_iter()
-            .map(|t| t * f)
-            .collect()
+        transmittance_to_sun(&self.bundle.transmittance, self.a(), r, mu_s)
     }
 
     /// His `GetCombinedScattering` (or the two lookups of the non-combined layout): the

@@ -10,7 +10,8 @@ pub use skybake_lut::manifest::MANIFEST_FILE;
 use skybake_lut::manifest::{
     self, IRRADIANCE_FILE, SCATTERING_FILE, SINGLE_MIE_FILE, TRANSMITTANCE_FILE,
 };
-use skybake_lut::{Bundle, Channels, Sample, Texture};
+use skybake_lut::skyview;
+use skybake_lut::{Bundle, Channels, Sample, SkyViewBundle, Texture};
 use skybake_physics::atmosphere::sky::MsMethod;
 use skybake_physics::key::cache_key;
 use skybake_store::texture::{encode_texture_exr, TextureImage};
@@ -42,11 +43,38 @@ pub fn takes(name: &str) -> bool {
     PARAMETERS.iter().any(|p| p.name == name) && !NOT_FOR_LUT.contains(&name)
 }
 
+/// The bundle layouts (`--layout`, `layout=`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Layout {
+    /// Bruneton 2017's textures and parameterisation (the default).
+    Bruneton2017,
+    /// skybake's sky-view layout ([`skybake_lut::skyview`], docs/lut.md).
+    SkyView,
+}
+
+/// The layouts' names, as `--layout` takes them.
+pub const LAYOUTS: &[&str] = &["bruneton2017", skybake_lut::skyview::LAYOUT];
+
+impl Layout {
+    /// The layout named `name`; an unknown name is an error naming `layout` and the choices.
+    pub fn parse(name: &str) -> Result<Self> {
+        match name {
+            "bruneton2017" => Ok(Self::Bruneton2017),
+            n if n == skybake_lut::skyview::LAYOUT => Ok(Self::SkyView),
+            other => Err(Error::invalid(
+                "layout",
+                format!("unknown layout `{other}`: one of {}", LAYOUTS.join(", ")),
+            )),
+        }
+    }
+}
+
 /// A bundle request: the atmosphere's spec, and RGB (no `wavelengths`) or spectral form.
 #[derive(Debug, Clone)]
 pub struct LutRequest {
     pub spec: CommonSpec,
     pub channels: Channels,
+    pub layout: Layout,
 }
 
 impl LutRequest {
@@ -71,11 +99,32 @@ impl LutRequest {
         };
         let mut spec = common_spec(&p, -90.0)?;
         spec.method = MsMethod::Precise;
-        Ok(Self { spec, channels })
+        Ok(Self {
+            spec,
+            channels,
+            layout: Layout::Bruneton2017,
+        })
+    }
+
+    /// This request in another layout.
+    pub fn with_layout(self, layout: Layout) -> Self {
+        Self { layout, ..self }
     }
 
     /// The canonical request (the manifest's `request`, the cache key's text).
     pub fn canonical(&self) -> Value {
+        if self.layout == Layout::SkyView {
+            return json!({
+                "product": "lut",
+                "layout": skybake_lut::skyview::LAYOUT,
+                "form": match self.channels { Channels::Rgb => "rgb", Channels::Spectral => "spectral" },
+                "atmosphere": self.spec.atmosphere,
+                "wavelengths_nm": self.spec.wavelengths_nm,
+                "ground_albedo": self.spec.ground_albedo,
+                "quality": self.spec.quality,
+                "bundle_version": skybake_lut::skyview::SKYVIEW_VERSION,
+            });
+        }
         json!({
             "product": "lut",
             "form": match self.channels { Channels::Rgb => "rgb", Channels::Spectral => "spectral" },
@@ -121,6 +170,48 @@ impl LutRequest {
         )
     }
 
+    /// Computes the `skyview` layout's bundle on the engine's shared tables.
+    pub fn compute_skyview_unless(
+        &self,
+        engine: &Engine,
+        cancelled: &(dyn Fn() -> bool + Sync),
+    ) -> Result<SkyViewBundle> {
+        let shared = engine.shared_unless(&self.spec, cancelled)?;
+        skybake_lut::build_skyview(
+            &shared,
+            self.channels.clone(),
+            self.spec.quality.steps(),
+            cancelled,
+        )
+    }
+
+    /// The `skyview` bundle's files: (name, bytes), the manifest last.
+    pub fn skyview_files(&self, bundle: &SkyViewBundle) -> Result<Vec<(&'static str, Vec<u8>)>> {
+        let names = channel_names(&bundle.channels, &bundle.wavelengths_nm);
+        let mut scale_names: Vec<String> = names.iter().map(|n| format!("rayleigh.{n}")).collect();
+        scale_names.extend(names.iter().map(|n| format!("mie.{n}")));
+        let mut files = vec![
+            (TRANSMITTANCE_FILE, encode(&bundle.transmittance, &names)?),
+            (skyview::RAYLEIGH_FILE, encode(&bundle.rayleigh, &names)?),
+            (skyview::MIE_FILE, encode(&bundle.mie, &names)?),
+            (skyview::SCALE_FILE, encode(&bundle.scale, &scale_names)?),
+            (
+                skyview::IRRADIANCE_FILE,
+                encode(&bundle.irradiance, &names)?,
+            ),
+        ];
+        let m = skyview::manifest(
+            bundle,
+            &names,
+            &scale_names,
+            self.canonical(),
+            ENGINE_VERSION,
+        );
+        let text = serde_json::to_string_pretty(&m).map_err(|e| Error::internal("lut", e))?;
+        files.push((MANIFEST_FILE, text.into_bytes()));
+        Ok(files)
+    }
+
     /// The bundle's files: (name, bytes), the manifest last.
     pub fn files(&self, bundle: &Bundle) -> Result<Vec<(&'static str, Vec<u8>)>> {
         let names: Vec<String> = match bundle.channels {
@@ -156,4 +247,29 @@ impl LutRequest {
         files.push((MANIFEST_FILE, text.into_bytes()));
         Ok(files)
     }
+}
+
+/// The channel names of a bundle's textures: R, G, B, or the spectral layout's `L.<nm>`.
+fn channel_names(channels: &Channels, wavelengths_nm: &[f64]) -> Vec<String> {
+    match channels {
+        Channels::Rgb => vec!["R".into(), "G".into(), "B".into()],
+        Channels::Spectral => wavelengths_nm
+            .iter()
+            .map(|w| skybake_physics::image::layout::spectral_channel_name("L", *w))
+            .collect(),
+    }
+}
+
+/// A texture as a ZIP-compressed OpenEXR file, its channels named `names`.
+fn encode(t: &Texture, names: &[String]) -> Result<Vec<u8>> {
+    let channels = (0..t.channels)
+        .map(|c| (names[c].as_str(), t.plane(c)))
+        .collect();
+    encode_texture_exr(TextureImage {
+        width: t.width,
+        height: t.height * t.depth,
+        channels,
+        half: t.sample == Sample::Half,
+    })
+    .map_err(|e| Error::internal("lut", e))
 }

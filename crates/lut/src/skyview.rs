@@ -1,0 +1,836 @@
+//! The `skyview` layout: a second texture bundle, of skybake's design, for renderers that want
+//! the sky within the accuracy targets where Bruneton 2017's 4-D table (ν × μs × μ × r with
+//! linear filtering) cannot reach them (docs/lut.md, "Accuracy and cost": its error is the
+//! interpolation of that table, not its content).
+//!
+//! Where his layout's error comes from, and what this one does instead:
+//!
+//! - **ν (8 nodes, linear)**: here the angle between view and sun is replaced by the view's
+//!   azimuth from the sun (0–180°, nodes dense near the sun), and both single-scattering parts
+//!   are stored *without* their phase functions (Rayleigh single + multiple / Rayleigh phase,
+//!   and single Mie without phase, per channel), so the client multiplies by the exact phase
+//!   functions and the aureole is as sharp as the aerosol's phase function;
+//! - **μs (13 nodes by day, linear)**: the sun's elevation has its own nodes, every
+//!   [`SUN_STEP_LOW_DEG`] from [`SUN_MIN_DEG`] to [`SUN_KNEE_DEG`] (twilight and low sun) and
+//!   every [`SUN_STEP_HIGH_DEG`] above;
+//! - **r (32 nodes, linear in ρ)**: altitude nodes quadratic in the altitude (dense low);
+//! - radiance that falls by orders of magnitude between nodes (aloft, twilight): the sun and
+//!   altitude interpolation is **geometric** (linear in ln L, exact for an exponential fall),
+//!   done by the client between four bilinear fetches, as his shader interpolates ν by hand;
+//! - the view zenith is relative to the horizon of the observer's altitude (Hillaire 2020,
+//!   §5.3's sky-view parameterisation: nodes quadratic towards the horizon, from above and below),
+//!   so the horizon stays on a node at every altitude;
+//! - half floats with a per-slice scale (a float table, one value per altitude, sun and
+//!   channel), so twilight values keep half floats' full relative precision.
+//!
+//! The textures hold the sky seen from an observer inside the atmosphere (0 to the top), for
+//! every view direction (above the horizon: to the top of the atmosphere; below: to the ground,
+//! without the ground's reflection, which the client adds with the irradiance) and sun elevation
+//! from [`SUN_MIN_DEG`] to 90°. Transmittance is Bruneton's texture as it is (its error is
+//! 0.006 % by day); the sky's irradiance on a horizontal surface is a table on the same
+//! altitude × sun nodes. Every texel is computed along its own ray with the `sky` product's
+//! quadrature and sources ([`crate::build::FamilyScratch`]), so the bundle equals the products
+//! at its nodes.
+
+use rayon::prelude::*;
+use serde_json::{json, Value};
+use skybake_physics::atmosphere::geometry::horizon_mu;
+use skybake_physics::atmosphere::shared::SharedTables;
+use skybake_physics::phase::Phase;
+use std::f64::consts::PI;
+use std::time::Instant;
+
+use crate::build::{self, channel_setup, Channels, FamilyScratch, Sample, Texture};
+use crate::param::{self, AtmosphereParameters};
+
+/// The layout's name (`--layout`, the manifest's `format`).
+pub const LAYOUT: &str = "skyview";
+/// Layout version (bumped when a file or a field changes meaning).
+pub const SKYVIEW_VERSION: &str = "1";
+
+/// Altitude nodes: h_k = (top − bottom) · (k / (N − 1))².
+pub const N_ALT: usize = 28;
+/// Sun nodes, in the sun's elevation above the observer's horizon (its elevation + the
+/// horizon's dip at the node's altitude, so sunset is on the same node at every altitude):
+/// every 1° from [`SUN_MIN_DEG`] to −8°, every 0.5° to 6° (twilight and sunset), every 1° to
+/// 20° (low sun), every 4° to 104° (the zenith seen from the top of a 100 km atmosphere is
+/// 100.1° above its horizon).
+pub const SUN_MIN_DEG: f64 = -15.0;
+pub const SUN_SEGMENTS: [(f64, f64, usize); 4] = [
+    (-15.0, 1.0, 7),
+    (-8.0, 0.5, 28),
+    (6.0, 1.0, 14),
+    (20.0, 4.0, 21),
+];
+pub const N_SUN: usize = 7 + 28 + 14 + 21 + 1;
+/// View rows: from the zenith to the horizontal ([`N_VIEW_SKY`], θ = 90° (1 − (1 − x)²)),
+/// from the horizontal to the horizon ([`N_VIEW_LIMB`], uniform in the tangent altitude of the
+/// ray, from the observer's altitude to 0) and from the horizon to the nadir
+/// ([`N_VIEW_DOWN`], θ = θ_h + (π − θ_h) x²).
+pub const N_VIEW_SKY: usize = 18;
+pub const N_VIEW_LIMB: usize = 16;
+pub const N_VIEW_UP: usize = N_VIEW_SKY + N_VIEW_LIMB;
+pub const N_VIEW_DOWN: usize = 8;
+pub const N_VIEW: usize = N_VIEW_UP + N_VIEW_DOWN;
+/// Azimuth-from-the-sun nodes, φ_a = π (a / (N − 1))².
+pub const N_AZ: usize = 20;
+
+/// File names.
+pub const RAYLEIGH_FILE: &str = "skyview_rayleigh.exr";
+pub const MIE_FILE: &str = "skyview_mie.exr";
+pub const SCALE_FILE: &str = "skyview_scale.exr";
+pub const IRRADIANCE_FILE: &str = "skyview_irradiance.exr";
+
+/// Sun node `j`: the sun's elevation above the observer's horizon, degrees.
+pub fn sun_node_deg(j: usize) -> f64 {
+    let mut first = 0;
+    for (start, step, n) in SUN_SEGMENTS {
+        if j <= first + n {
+            return start + (j - first) as f64 * step;
+        }
+        first += n;
+    }
+    let (start, step, n) = SUN_SEGMENTS[SUN_SEGMENTS.len() - 1];
+    start + n as f64 * step
+}
+
+/// Continuous sun node coordinate of an elevation above the observer's horizon (degrees),
+/// clamped to the nodes.
+pub fn sun_coord(above_horizon_deg: f64) -> f64 {
+    let mut first = 0.0;
+    for (start, step, n) in SUN_SEGMENTS {
+        let end = start + n as f64 * step;
+        if above_horizon_deg <= end {
+            return first + ((above_horizon_deg - start) / step).max(0.0);
+        }
+        first += n as f64;
+    }
+    (N_SUN - 1) as f64
+}
+
+/// The horizon's dip below the horizontal at radius `r`, rad.
+pub fn dip(r: f64, bottom: f64) -> f64 {
+    (bottom / r).min(1.0).acos()
+}
+
+/// Altitude of node `k`, m, for an atmosphere `thickness` m thick.
+pub fn altitude_node_m(k: usize, thickness: f64) -> f64 {
+    let x = k as f64 / (N_ALT - 1) as f64;
+    thickness * x * x
+}
+
+/// Continuous altitude node coordinate.
+pub fn altitude_coord(h: f64, thickness: f64) -> f64 {
+    (h / thickness).clamp(0.0, 1.0).sqrt() * (N_ALT - 1) as f64
+}
+
+/// Zenith angle of the horizon seen from radius `r` (rad): π/2 + the horizon's dip.
+pub fn horizon_zenith(r: f64, bottom: f64) -> f64 {
+    PI - (bottom / r).min(1.0).asin()
+}
+
+/// View zenith angle (rad) of row `i` at radius `r` (see [`N_VIEW_SKY`]), and whether it looks
+/// below the horizon.
+pub fn view_node(i: usize, r: f64, bottom: f64) -> (f64, bool) {
+    let th = horizon_zenith(r, bottom);
+    if i < N_VIEW_SKY {
+        let x = i as f64 / (N_VIEW_SKY - 1) as f64;
+        (0.5 * PI * (1.0 - (1.0 - x) * (1.0 - x)), false)
+    } else if i < N_VIEW_UP {
+        let y = (i - N_VIEW_SKY) as f64 / (N_VIEW_LIMB - 1) as f64;
+        // Tangent radius from r (horizontal) to the ground (the horizon).
+        let r_t = r - (r - bottom) * y;
+        (0.5 * PI + (r_t / r).min(1.0).acos(), false)
+    } else {
+        let x = (i - N_VIEW_UP) as f64 / (N_VIEW_DOWN - 1) as f64;
+        (th + (PI - th) * x * x, true)
+    }
+}
+
+/// Row segment of view zenith `theta` at radius `r` (0 sky, 1 limb, 2 below the horizon) and
+/// its continuous row coordinate (the inverse of [`view_node`]).
+pub fn view_coord(theta: f64, r: f64, bottom: f64) -> (usize, f64) {
+    let th = horizon_zenith(r, bottom);
+    if theta <= 0.5 * PI {
+        let x = 1.0 - (1.0 - (theta / (0.5 * PI)).clamp(0.0, 1.0)).sqrt();
+        (0, x * (N_VIEW_SKY - 1) as f64)
+    } else if theta < th {
+        let r_t = r * (theta - 0.5 * PI).cos();
+        let y = if r > bottom {
+            ((r - r_t) / (r - bottom)).clamp(0.0, 1.0)
+        } else {
+            1.0
+        };
+        (1, N_VIEW_SKY as f64 + y * (N_VIEW_LIMB - 1) as f64)
+    } else {
+        let x = ((theta - th) / (PI - th)).clamp(0.0, 1.0).sqrt();
+        (2, N_VIEW_UP as f64 + x * (N_VIEW_DOWN - 1) as f64)
+    }
+}
+
+/// First and last row of segment `seg`.
+fn segment_rows(seg: usize) -> (usize, usize) {
+    match seg {
+        0 => (0, N_VIEW_SKY - 1),
+        1 => (N_VIEW_SKY, N_VIEW_UP - 1),
+        _ => (N_VIEW_UP, N_VIEW - 1),
+    }
+}
+
+/// Azimuth from the sun of column `a`, rad.
+pub fn azimuth_node(a: usize) -> f64 {
+    let x = a as f64 / (N_AZ - 1) as f64;
+    PI * x * x
+}
+
+/// Continuous column coordinate of azimuth `phi` ∈ [0, π].
+pub fn azimuth_coord(phi: f64) -> f64 {
+    (phi / PI).clamp(0.0, 1.0).sqrt() * (N_AZ - 1) as f64
+}
+
+/// Where a node's length is zero — rays up from the top node, rays down from the ground node —
+/// the node is evaluated this far inside the atmosphere (m): its stored value is the limit of
+/// radiance / length there.
+pub const EVAL_OFFSET_M: f64 = 10.0;
+
+/// The radius at which texel rows of altitude node `k` and view row `i` are evaluated: the
+/// node's, or [`EVAL_OFFSET_M`] inside where the node's ray has no length.
+pub fn eval_radius(k: usize, i: usize, bottom: f64, thickness: f64) -> f64 {
+    let r = bottom + altitude_node_m(k, thickness);
+    if k == N_ALT - 1 && i < N_VIEW_UP {
+        r - EVAL_OFFSET_M
+    } else if k == 0 && i >= N_VIEW_UP {
+        r + EVAL_OFFSET_M
+    } else {
+        r
+    }
+}
+
+/// Length of the ray from radius `r` with zenith cosine `mu` to the top of the atmosphere, or
+/// to the ground when `ground` (the divisor of the stored scattering: the texels hold
+/// radiance per metre of ray, which varies little with altitude and view where the radiance
+/// itself goes to zero with the ray's length).
+pub fn ray_length(r: f64, mu: f64, bottom: f64, top: f64, ground: bool) -> f64 {
+    if ground {
+        let disc = r * r * (mu * mu - 1.0) + bottom * bottom;
+        (-r * mu - disc.max(0.0).sqrt()).max(0.0)
+    } else {
+        let disc = r * r * (mu * mu - 1.0) + top * top;
+        (-r * mu + disc.max(0.0).sqrt()).max(0.0)
+    }
+}
+
+/// The computed `skyview` bundle.
+#[derive(Debug, Clone)]
+pub struct SkyViewBundle {
+    pub channels: Channels,
+    pub wavelengths_nm: Vec<f64>,
+    /// Radii, solar irradiance, coefficients (as Bruneton's; `mie_phase_function_g` is the
+    /// aerosol phase function's asymmetry parameter).
+    pub params: AtmosphereParameters,
+    /// The aerosol's phase function, applied by the client to the single Mie table.
+    pub aerosol_phase: Phase,
+    /// Bruneton's transmittance texture (his parameterisation).
+    pub transmittance: Texture,
+    /// Single Rayleigh scattering without its phase function + multiple scattering divided by
+    /// the Rayleigh phase function, per metre of the ray ([`ray_length`]), divided by the
+    /// slice's scale: width N_AZ, height N_VIEW,
+    /// depth N_ALT · N_SUN (slice = altitude · N_SUN + sun), half floats.
+    pub rayleigh: Texture,
+    /// Single Mie scattering without its phase function, per metre of ray, divided by the
+    /// slice's scale; as above.
+    pub mie: Texture,
+    /// Per-slice scales: width N_SUN, height N_ALT, 2 × channels (Rayleigh-like then Mie), floats.
+    pub scale: Texture,
+    /// Sky irradiance on a horizontal surface divided by the depth of the atmosphere above the
+    /// node (top − r; the top node evaluated [`EVAL_OFFSET_M`] below the top): width N_SUN,
+    /// height N_ALT, floats.
+    pub irradiance: Texture,
+    /// Wall-clock ms: precise table, transmittance, sky view, irradiance.
+    pub timing_ms: [f64; 4],
+}
+
+/// Computes the `skyview` bundle on `shared` (its precise table built or built here), `steps`
+/// samples per ray segment (the products' `Quality::steps`).
+pub fn build_skyview(
+    shared: &SharedTables,
+    channels: Channels,
+    steps: usize,
+    cancelled: &(dyn Fn() -> bool + Sync),
+) -> crate::Result<SkyViewBundle> {
+    let m = &shared.medium;
+    let (idx, params) = channel_setup(m, &channels)?;
+    let n_c = idx.len();
+    let e0 = params.solar_irradiance.clone();
+    let tp = Instant::now();
+    shared
+        .precise_unless(cancelled)
+        .ok_or(crate::Error::Cancelled)?;
+    let t_precise = tp.elapsed().as_secs_f64() * 1e3;
+
+    let t0 = Instant::now();
+    let transmittance = build::transmittance_texture(m, &params, &idx, cancelled);
+    if cancelled() {
+        return Err(crate::Error::Cancelled);
+    }
+    let t_transmittance = t0.elapsed().as_secs_f64() * 1e3;
+
+    // Sky view: one task per (altitude, view) ray, all its (sun, azimuth) texels.
+    let t1 = Instant::now();
+    let bottom = params.bottom_radius;
+    let thickness = params.top_radius - bottom;
+    // μs of sun node j at altitude node k.
+    let sun_mu = |k: usize, j: usize| {
+        let r = bottom + altitude_node_m(k, thickness);
+        (sun_node_deg(j).to_radians() - dip(r, bottom)).sin()
+    };
+    let per_family = N_SUN * N_AZ * n_c;
+    let families: Vec<(Vec<f64>, Vec<f64>)> = (0..N_ALT * N_VIEW)
+        .into_par_iter()
+        .map_init(
+            || FamilyScratch::new(shared, m.len()),
+            |scratch, task| {
+                let (k, i) = (task / N_VIEW, task % N_VIEW);
+                let mut s_out = vec![0.0; per_family];
+                let mut m_out = vec![0.0; per_family];
+                if cancelled() {
+                    return (s_out, m_out);
+                }
+                let r = eval_radius(k, i, bottom, thickness);
+                let (theta, ground) = view_node(i, r, bottom);
+                let mu_h = horizon_mu(r, bottom);
+                let mu = if ground {
+                    (theta.cos().min(mu_h) - 1e-9).max(-1.0)
+                } else {
+                    theta.cos().max(mu_h + 1e-9).min(1.0)
+                };
+                let sin_t = (1.0 - mu * mu).max(0.0).sqrt();
+                let d = ray_length(r, mu, bottom, bottom + thickness, ground);
+                scratch.prepare(r, mu, steps);
+                for j in 0..N_SUN {
+                    let mu_s = sun_mu(k, j);
+                    let sin_s = (1.0 - mu_s * mu_s).max(0.0).sqrt();
+                    for a in 0..N_AZ {
+                        let nu =
+                            (mu * mu_s + sin_t * sin_s * azimuth_node(a).cos()).clamp(-1.0, 1.0);
+                        let p_r = param::rayleigh_phase(nu);
+                        let s = scratch.texel(mu_s, nu);
+                        let o = (j * N_AZ + a) * n_c;
+                        for (c, &l) in idx.iter().enumerate() {
+                            s_out[o + c] = (s.rayleigh[l] + s.multiple[l] / p_r) * e0[c] / d;
+                            m_out[o + c] = s.mie[l] * e0[c] / d;
+                        }
+                    }
+                }
+                (s_out, m_out)
+            },
+        )
+        .collect();
+    if cancelled() {
+        return Err(crate::Error::Cancelled);
+    }
+    let mut rayleigh = Texture::new(N_AZ, N_VIEW, N_ALT * N_SUN, n_c, Sample::Half);
+    let mut mie = Texture::new(N_AZ, N_VIEW, N_ALT * N_SUN, n_c, Sample::Half);
+    let mut scale = Texture::new(N_SUN, N_ALT, 1, 2 * n_c, Sample::Float);
+    for k in 0..N_ALT {
+        for j in 0..N_SUN {
+            for (part, tex) in [&mut rayleigh, &mut mie].into_iter().enumerate() {
+                for c in 0..n_c {
+                    let value = |i: usize, a: usize| {
+                        let (s, mm) = &families[k * N_VIEW + i];
+                        let v = if part == 0 { s } else { mm };
+                        v[(j * N_AZ + a) * n_c + c]
+                    };
+                    let mut max = 0.0f64;
+                    for i in 0..N_VIEW {
+                        for a in 0..N_AZ {
+                            max = max.max(value(i, a));
+                        }
+                    }
+                    let sc = if max > 0.0 { max } else { 1.0 };
+                    scale.data[(k * N_SUN + j) * 2 * n_c + part * n_c + c] = sc as f32;
+                    let z = k * N_SUN + j;
+                    for i in 0..N_VIEW {
+                        for a in 0..N_AZ {
+                            let o = ((z * N_VIEW + i) * N_AZ + a) * n_c + c;
+                            tex.data[o] = (value(i, a) / sc) as f32;
+                        }
+                    }
+                }
+            }
+        }
+    }
+    rayleigh.round_to_sample();
+    mie.round_to_sample();
+    let t_view = t1.elapsed().as_secs_f64() * 1e3;
+
+    // Irradiance on the altitude × sun nodes.
+    let t2 = Instant::now();
+    let radii: Vec<f64> = (0..N_ALT)
+        .map(|k| (bottom + altitude_node_m(k, thickness)).min(bottom + thickness - EVAL_OFFSET_M))
+        .collect();
+    let sums = build::irradiance_grid(
+        shared,
+        build::IrradianceGrid {
+            radii: &radii,
+            width: N_SUN,
+            mu_s: &sun_mu,
+        },
+        &idx,
+        &e0,
+        steps,
+        cancelled,
+    );
+    if cancelled() {
+        return Err(crate::Error::Cancelled);
+    }
+    let mut irradiance = Texture::new(N_SUN, N_ALT, 1, n_c, Sample::Float);
+    for (n, (o, s)) in irradiance.data.iter_mut().zip(sums).enumerate() {
+        let depth = bottom + thickness - radii[n / (N_SUN * n_c)];
+        *o = (s / depth) as f32;
+    }
+    let t_irradiance = t2.elapsed().as_secs_f64() * 1e3;
+
+    Ok(SkyViewBundle {
+        wavelengths_nm: idx.iter().map(|&i| m.wavelengths_nm[i]).collect(),
+        channels,
+        params,
+        aerosol_phase: m.mie_phase,
+        transmittance,
+        rayleigh,
+        mie,
+        scale,
+        irradiance,
+        timing_ms: [t_precise, t_transmittance, t_view, t_irradiance],
+    })
+}
+
+type Vec3 = [f64; 3];
+
+fn dot(a: Vec3, b: Vec3) -> f64 {
+    a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
+}
+
+/// Node index and fraction of a continuous coordinate over `n` nodes.
+fn split(x: f64, n: usize) -> (usize, f64) {
+    let x = x.clamp(0.0, (n - 1) as f64);
+    let i = (x.floor() as usize).min(n - 2);
+    (i, x - i as f64)
+}
+
+/// Geometric interpolation (linear in ln) between two values, linear where one is not positive.
+fn geo_mix(a: f64, b: f64, t: f64) -> f64 {
+    if t == 0.0 {
+        a
+    } else if t == 1.0 {
+        b
+    } else if a > 0.0 && b > 0.0 {
+        a * (b / a).powf(t)
+    } else {
+        a + (b - a) * t
+    }
+}
+
+/// Reads a `skyview` bundle the way its client (a shader) does: per (altitude, sun) node pair,
+/// one bilinear fetch (clamped to the edge) in (azimuth, view) of each texture, times the
+/// slice's scale, then geometric interpolation over the sun's and the altitude's nodes.
+pub struct SkyViewReader<'a> {
+    pub bundle: &'a SkyViewBundle,
+}
+
+impl<'a> SkyViewReader<'a> {
+    pub fn new(bundle: &'a SkyViewBundle) -> Self {
+        Self { bundle }
+    }
+
+    /// Fetch of row `y` of slice `z`, linear in the continuous column `col` (a GPU's linear
+    /// filtering at v = the row's centre), times the slice's scale (part 0 = Rayleigh-like,
+    /// 1 = Mie).
+    fn fetch(&self, part: usize, z: usize, col: f64, y: usize, out: &mut [f64]) {
+        let b = self.bundle;
+        let t = if part == 0 { &b.rayleigh } else { &b.mie };
+        let n_c = t.channels;
+        let (x0, fx) = split(col, N_AZ);
+        out.fill(0.0);
+        for (xx, wx) in [(x0, 1.0 - fx), (x0 + 1, fx)] {
+            if wx == 0.0 {
+                continue;
+            }
+            for (o, v) in out.iter_mut().zip(t.texel(xx, y, z)) {
+                *o += wx * *v as f64;
+            }
+        }
+        let sc = b.scale.texel(z % N_SUN, z / N_SUN, 0);
+        for c in 0..n_c {
+            out[c] *= sc[part * n_c + c] as f64;
+        }
+    }
+
+    /// The stored sky at radius `r` (inside the atmosphere) for view zenith cosine `mu`, sun
+    /// zenith cosine `mu_s` and view–sun cosine `nu`: (Rayleigh-like, single Mie), both without
+    /// phase functions.
+    pub fn scattering(&self, r: f64, mu: f64, mu_s: f64, nu: f64) -> (Vec<f64>, Vec<f64>) {
+        let p = &self.bundle.params;
+        let n_c = self.bundle.wavelengths_nm.len();
+        let r = r.clamp(p.bottom_radius, p.top_radius);
+        let thickness = p.top_radius - p.bottom_radius;
+        let (k0, tk) = split(altitude_coord(r - p.bottom_radius, thickness), N_ALT);
+        let above_horizon = mu_s.clamp(-1.0, 1.0).asin() + dip(r, p.bottom_radius);
+        let (j0, tj) = split(sun_coord(above_horizon.to_degrees()), N_SUN);
+        let (seg, row) = view_coord(mu.clamp(-1.0, 1.0).acos(), r, p.bottom_radius);
+        let (lo, hi) = segment_rows(seg);
+        let y = row.clamp(lo as f64, hi as f64);
+        let y0 = (y.floor() as usize).min(hi - 1);
+        let ty = y - y0 as f64;
+        let den = ((1.0 - mu * mu) * (1.0 - mu_s * mu_s)).max(0.0).sqrt();
+        let cos_phi = if den > 1e-12 {
+            ((nu - mu * mu_s) / den).clamp(-1.0, 1.0)
+        } else {
+            1.0
+        };
+        let col = azimuth_coord(cos_phi.acos());
+        let d = ray_length(r, mu, p.bottom_radius, p.top_radius, seg == 2);
+        let mut out = [vec![0.0; n_c], vec![0.0; n_c]];
+        let (mut f0, mut f1) = (vec![0.0; n_c], vec![0.0; n_c]);
+        let mut by_sun = [vec![0.0; n_c], vec![0.0; n_c]];
+        let mut by_alt = [vec![0.0; n_c], vec![0.0; n_c]];
+        for part in 0..2 {
+            for (ki, k) in [k0, k0 + 1].into_iter().enumerate() {
+                for (ji, j) in [j0, j0 + 1].into_iter().enumerate() {
+                    let z = k * N_SUN + j;
+                    self.fetch(part, z, col, y0, &mut f0);
+                    self.fetch(part, z, col, y0 + 1, &mut f1);
+                    for c in 0..n_c {
+                        by_sun[ji][c] = geo_mix(f0[c], f1[c], ty);
+                    }
+                }
+                for c in 0..n_c {
+                    by_alt[ki][c] = geo_mix(by_sun[0][c], by_sun[1][c], tj);
+                }
+            }
+            for c in 0..n_c {
+                out[part][c] = geo_mix(by_alt[0][c], by_alt[1][c], tk) * d;
+            }
+        }
+        let [s, mm] = out;
+        (s, mm)
+    }
+
+    /// The sky's radiance seen from `camera` (m from the planet's centre; above the top it is
+    /// moved along the view to the top) in direction `view` with the sun towards `sun`, and the
+    /// transmittance of the view ray to the top (0 when it meets the ground), per channel, in
+    /// the bundle's unit.
+    pub fn sky_radiance(&self, camera: Vec3, view: Vec3, sun: Vec3) -> (Vec<f64>, Vec<f64>) {
+        let b = self.bundle;
+        let p = &b.params;
+        let n_c = b.wavelengths_nm.len();
+        let mut camera = camera;
+        let mut r = dot(camera, camera).sqrt();
+        let mut rmu = dot(camera, view);
+        if r > p.top_radius {
+            let disc = rmu * rmu - r * r + p.top_radius * p.top_radius;
+            let to_top = -rmu - disc.max(0.0).sqrt();
+            if disc < 0.0 || to_top < 0.0 {
+                return (vec![0.0; n_c], vec![1.0; n_c]);
+            }
+            camera = [
+                camera[0] + view[0] * to_top,
+                camera[1] + view[1] * to_top,
+                camera[2] + view[2] * to_top,
+            ];
+            r = p.top_radius;
+            rmu += to_top;
+        }
+        let mu = rmu / r;
+        let mu_s = dot(camera, sun) / r;
+        let nu = dot(view, sun);
+        let (s, mm) = self.scattering(r, mu, mu_s, nu);
+        let p_r = param::rayleigh_phase(nu);
+        let p_m = b.aerosol_phase.eval(nu);
+        let ground = p.ray_intersects_ground(r, mu);
+        let transmittance = if ground {
+            vec![0.0; n_c]
+        } else {
+            crate::reader::transmittance_to_top(&b.transmittance, p, r, mu)
+        };
+        (
+            s.iter().zip(&mm).map(|(s, m)| s * p_r + m * p_m).collect(),
+            transmittance,
+        )
+    }
+
+    /// The sun's direct irradiance on a surface with `normal` at `point` and the sky's on a
+    /// horizontal surface times Bruneton's tilt factor (1 + n·up)/2, as his
+    /// `GetSunAndSkyIrradiance`.
+    pub fn sun_and_sky_irradiance(
+        &self,
+        point: Vec3,
+        normal: Vec3,
+        sun: Vec3,
+    ) -> (Vec<f64>, Vec<f64>) {
+        let b = self.bundle;
+        let p = &b.params;
+        let n_c = b.wavelengths_nm.len();
+        let r = dot(point, point).sqrt();
+        let mu_s = dot(point, sun) / r;
+        let rc = r.clamp(p.bottom_radius, p.top_radius);
+        let (k0, tk) = split(
+            altitude_coord(rc - p.bottom_radius, p.top_radius - p.bottom_radius),
+            N_ALT,
+        );
+        let above_horizon = mu_s.clamp(-1.0, 1.0).asin() + dip(rc, p.bottom_radius);
+        let (j0, tj) = split(sun_coord(above_horizon.to_degrees()), N_SUN);
+        let e = |k: usize, j: usize, c: usize| b.irradiance.texel(j, k, 0)[c] as f64;
+        let tilt = (1.0 + dot(normal, point) / r) * 0.5;
+        let sky: Vec<f64> = (0..n_c)
+            .map(|c| {
+                let lo = geo_mix(e(k0, j0, c), e(k0, j0 + 1, c), tj);
+                let hi = geo_mix(e(k0 + 1, j0, c), e(k0 + 1, j0 + 1, c), tj);
+                geo_mix(lo, hi, tk) * tilt * (p.top_radius - rc)
+            })
+            .collect();
+        let cos = dot(normal, sun).max(0.0);
+        let t = crate::reader::transmittance_to_sun(&b.transmittance, p, r, mu_s);
+        let direct = t
+            .iter()
+            .zip(&p.solar_irradiance)
+            .map(|(t, e)| e * t * cos)
+            .collect();
+        (direct, sky)
+    }
+}
+
+/// The aerosol phase function as the manifest describes it (what the client evaluates).
+pub fn phase_json(phase: &Phase) -> Value {
+    match *phase {
+        Phase::CornetteShanks { g } => json!({"kind": "cornette_shanks", "g": g,
+            "formula": "3/(8 pi) (1 - g^2)/(2 + g^2) (1 + nu^2) / (1 + g^2 - 2 g nu)^1.5"}),
+        Phase::HenyeyGreenstein { g } => json!({"kind": "henyey_greenstein", "g": g,
+            "formula": "(1 - g^2) / (4 pi (1 + g^2 - 2 g nu)^1.5)"}),
+        Phase::Mixture {
+            g,
+            rayleigh_fraction,
+        } => json!({"kind": "mixture", "g": g, "rayleigh_fraction": rayleigh_fraction,
+            "formula": "(1 - f) cornette_shanks(g, nu) + f 3/(16 pi) (1 + nu^2)"}),
+        Phase::Isotropic => json!({"kind": "isotropic", "formula": "1/(4 pi)"}),
+        Phase::Rayleigh => json!({"kind": "rayleigh", "formula": "3/(16 pi) (1 + nu^2)"}),
+    }
+}
+
+/// The phase function a manifest's `aerosol_phase_function` describes.
+pub fn phase_from_json(v: &Value) -> crate::Result<Phase> {
+    let bad = || {
+        crate::Error::invalid(
+            "manifest",
+            "`aerosol_phase_function` is not a known phase function",
+        )
+    };
+    let g = || {
+        v.get("g")
+            .and_then(Value::as_f64)
+            .filter(|g| g.is_finite())
+            .ok_or_else(bad)
+    };
+    Ok(match v.get("kind").and_then(Value::as_str) {
+        Some("cornette_shanks") => Phase::CornetteShanks { g: g()? },
+        Some("henyey_greenstein") => Phase::HenyeyGreenstein { g: g()? },
+        Some("mixture") => Phase::Mixture {
+            g: g()?,
+            rayleigh_fraction: v
+                .get("rayleigh_fraction")
+                .and_then(Value::as_f64)
+                .filter(|f| f.is_finite())
+                .ok_or_else(bad)?,
+        },
+        Some("isotropic") => Phase::Isotropic,
+        Some("rayleigh") => Phase::Rayleigh,
+        _ => return Err(bad()),
+    })
+}
+
+/// Stated error of each table: the largest relative error of what [`SkyViewReader`] computes
+/// from it against skybake's own product, per band of the accuracy targets, measured by
+/// tests/atmosphere/lut_skyview.rs (`earth`, quality `standard`, RGB form; docs/lut.md).
+pub const STATED_ERRORS: &[(&str, &str, f64)] = &[
+    ("transmittance", "direct normal irradiance (sun product), sun >= 5 deg, 0-100 km", 0.0003),
+    ("transmittance", "direct normal irradiance (sun product), sun -6..5 deg", 0.004),
+    ("rayleigh+mie", "sky radiance (sky product), sun >= 5 deg, view > 10 deg above the horizon, ground", 0.0095),
+    ("rayleigh+mie", "sky radiance (sky product), sun >= 5 deg, view > 10 deg above the horizon, 0-20 km", 0.0081),
+    ("rayleigh+mie", "sky radiance (sky product), sun >= 5 deg, view > 10 deg above the horizon, 20-100 km", 0.014),
+    ("rayleigh+mie", "sky radiance (sky product), sun >= 5 deg, view < 10 deg above the horizon, ground", 0.017),
+    ("rayleigh+mie", "sky radiance (sky product), sun >= 5 deg, view < 10 deg above the horizon, 0-20 km", 0.047),
+    ("rayleigh+mie", "sky radiance (sky product), sun >= 5 deg, view < 10 deg above the horizon, 20-100 km", 0.10),
+    ("rayleigh+mie", "sky radiance (sky product), sun -6..5 deg, ground", 0.083),
+    ("rayleigh+mie", "sky radiance (sky product), sun -6..5 deg, 0-100 km", 0.115),
+    ("rayleigh+mie", "sky radiance (sky product), sun -12..-6 deg, ground", 0.063),
+    ("rayleigh+mie", "sky radiance (sky product), sun -12..-6 deg, 0-20 km", 0.21),
+    ("rayleigh+mie", "sky radiance (sky product), sun -12..-6 deg, 20-100 km (the limb across the earth's shadow)", 4.8),
+    ("irradiance", "diffuse horizontal irradiance (sun product), sun >= 5 deg, 0-100 km", 0.013),
+    ("irradiance", "diffuse horizontal irradiance (sun product), sun -12..5 deg, 0-100 km", 0.009),
+];
+
+fn sample_name(s: Sample) -> &'static str {
+    match s {
+        Sample::Half => "half",
+        Sample::Float => "float",
+    }
+}
+
+/// The `skyview` bundle's manifest, for the canonical request `request`; `names` are the
+/// channels of every texture but the scale's (`scale_names`).
+pub fn manifest(
+    b: &SkyViewBundle,
+    names: &[String],
+    scale_names: &[String],
+    request: Value,
+    engine_version: &str,
+) -> Value {
+    let entry = |t: &Texture, file: &str, channels: &[String], what: &str| {
+        json!({"file": file, "width": t.width, "height": t.height, "depth": t.depth,
+            "sample": sample_name(t.sample), "channels": channels, "content": what})
+    };
+    let channels: Vec<Value> = names
+        .iter()
+        .zip(&b.wavelengths_nm)
+        .map(|(n, w)| json!({"name": n, "wavelength_nm": w}))
+        .collect();
+    let sun_nodes: Vec<f64> = (0..N_SUN).map(sun_node_deg).collect();
+    let thickness = b.params.top_radius - b.params.bottom_radius;
+    let altitude_nodes: Vec<f64> = (0..N_ALT).map(|k| altitude_node_m(k, thickness)).collect();
+    json!({
+        "format": LAYOUT,
+        "bundle_version": SKYVIEW_VERSION,
+        "software": concat!("skybake ", env!("CARGO_PKG_VERSION")),
+        "engine_version": engine_version,
+        "request": request,
+        "mode": "radiance",
+        "channels": channels,
+        "channel_formation": "each channel is the spectral quantity at its wavelength, not a band average or a colour-space conversion",
+        "units": {
+            "length": "m",
+            "angle": "rad unless the name says deg",
+            "radiance": "mW m^-2 sr^-1 nm^-1",
+            "irradiance": "mW m^-2 nm^-1",
+            "texture_value_per_watt": UNIT_SCALE_REF,
+        },
+        "parameterisation": {
+            "reference": "skybake docs/lut.md, section `The skyview layout`",
+            "altitude_nodes_m": altitude_nodes,
+            "altitude_node": "h_k = (top_radius - bottom_radius) * (k / (N_ALT - 1))^2, k = 0..N_ALT-1",
+            "sun_elevation_nodes_deg": sun_nodes,
+            "sun_node": "the sun's elevation above the observer's horizon, e_j (deg) = its elevation + the horizon's dip acos(bottom_radius / r): every 1 deg from -15 to -8, every 0.5 deg to 6, every 1 deg to 20, every 4 deg to 104 (segments [start, step, intervals] in sun_segments)",
+            "sun_segments": SUN_SEGMENTS.iter().map(|(a, b, n)| json!([a, b, n])).collect::<Vec<_>>(),
+            "view_rows": format!("rows 0..{} from the zenith to the horizontal: theta = (pi/2) (1 - (1 - x)^2), x = row / {}; rows {}..{} from the horizontal to the horizon, uniform in the ray's tangent radius r_t = r - (r - bottom_radius) y, y = (row - {}) / {}, theta = pi/2 + acos(r_t / r); rows {}..{} from the horizon to the nadir: theta = theta_h + (pi - theta_h) x^2, x = (row - {}) / {}, theta_h = pi - asin(bottom_radius / r); r the observer's radius. Interpolation between the two rows around the view, within its segment, is geometric (each row fetched at its centre, the GPU filtering only the azimuth)", N_VIEW_SKY - 1, N_VIEW_SKY - 1, N_VIEW_SKY, N_VIEW_UP - 1, N_VIEW_SKY, N_VIEW_LIMB - 1, N_VIEW_UP, N_VIEW - 1, N_VIEW_UP, N_VIEW_DOWN - 1),
+            "azimuth_columns": format!("phi = pi (column / {})^2, the view's azimuth from the sun's, 0..pi", N_AZ - 1),
+            "slices": "slice = altitude_index * N_SUN + sun_index; file row = slice * N_VIEW + view_row; texture coordinates at texel centres: u = (column + 0.5) / N_AZ, v = (view_row + 0.5) / N_VIEW",
+            "sizes": {"N_ALT": N_ALT, "N_SUN": N_SUN, "N_VIEW_SKY": N_VIEW_SKY, "N_VIEW_LIMB": N_VIEW_LIMB, "N_VIEW_DOWN": N_VIEW_DOWN, "N_AZ": N_AZ},
+            "interpolation": "per (altitude, sun, view row) node triple around the query: a fetch linear in the column at the row's centre, times the slice's scale; then between the two rows, the two sun nodes and then the two altitude nodes geometrically, a^(1-t) b^t (linear where a value is not positive); t is the fraction of the continuous node coordinate (altitude: sqrt(h / thickness) (N_ALT - 1); sun: the inverse of sun_node)",
+            "radiance": "L = rayleigh * RayleighPhase(nu) + mie * aerosol_phase_function(nu), nu = cos of the angle between view and sun; RayleighPhase = 3/(16 pi) (1 + nu^2)",
+            "observer": "inside the atmosphere; above its top, move the observer along the view to the top first (a view missing the atmosphere sees nothing); views below the horizon: the in-scattered light along the ray to the ground, without the ground's reflection",
+            "transmittance_texture": [crate::param::TRANSMITTANCE_WIDTH, crate::param::TRANSMITTANCE_HEIGHT],
+            "transmittance": "Bruneton 2017's transmittance texture and GetTransmittanceTextureUvFromRMu, as in the bruneton2017 layout",
+        },
+        "atmosphere_parameters": b.params,
+        "aerosol_phase_function": phase_json(&b.aerosol_phase),
+        "sun": {
+            "angular_radius_rad": b.params.sun_angular_radius,
+            "radiance": "solar_irradiance / (pi * sun_angular_radius^2) per channel, times the transmittance to the sun, inside the disk",
+        },
+        "textures": {
+            "transmittance": entry(&b.transmittance, crate::manifest::TRANSMITTANCE_FILE, names, "transmittance to the top of the atmosphere, (u, v) = GetTransmittanceTextureUvFromRMu(r, mu) (Bruneton 2017)"),
+            "rayleigh": entry(&b.rayleigh, RAYLEIGH_FILE, names, "single Rayleigh scattering without its phase function + multiple scattering divided by RayleighPhase(nu), divided by the slice's rayleigh scale"),
+            "mie": entry(&b.mie, MIE_FILE, names, "single Mie (aerosol) scattering without its phase function, divided by the slice's mie scale"),
+            "scale": entry(&b.scale, SCALE_FILE, scale_names, "per slice (column = sun index, row = altitude index) and channel: the factor the rayleigh (rayleigh.*) and mie (mie.*) texels of that slice are multiplied by"),
+            "irradiance": entry(&b.irradiance, IRRADIANCE_FILE, names, "the sky's (indirect) irradiance on a horizontal surface at the node altitudes (rows) and sun elevations (columns), interpolated geometrically like the sky; the sun's direct irradiance is computed from the transmittance texture"),
+        },
+        "stated_error": STATED_ERRORS.iter().map(|(t, what, e)| json!({"table": t, "measure": what, "max_relative_error": e})).collect::<Vec<_>>(),
+    })
+}
+
+const UNIT_SCALE_REF: f64 = crate::build::UNIT_SCALE;
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const R: f64 = 6_360_000.0;
+    const H: f64 = 100_000.0;
+
+    #[test]
+    fn node_coordinates_invert_the_nodes() {
+        for j in 0..N_SUN {
+            assert!(
+                (sun_coord(sun_node_deg(j)) - j as f64).abs() < 1e-9,
+                "sun node {j}"
+            );
+        }
+        // Increasing, from −15° to 104°.
+        assert_eq!(sun_node_deg(0), SUN_MIN_DEG);
+        assert!((sun_node_deg(N_SUN - 1) - 104.0).abs() < 1e-12);
+        assert!((1..N_SUN).all(|j| sun_node_deg(j) > sun_node_deg(j - 1)));
+        for k in 0..N_ALT {
+            let h = altitude_node_m(k, H);
+            assert!(
+                (altitude_coord(h, H) - k as f64).abs() < 1e-9,
+                "altitude node {k}"
+            );
+        }
+        for a in 0..N_AZ {
+            assert!((azimuth_coord(azimuth_node(a)) - a as f64).abs() < 1e-9);
+        }
+        for r in [R + 50.0, R + 3000.0, R + 60_000.0, R + H] {
+            for i in 0..N_VIEW {
+                let (theta, below) = view_node(i, r, R);
+                assert_eq!(below, i >= N_VIEW_UP);
+                let (seg, row) = view_coord(theta, r, R);
+                // The segments' shared edges (horizontal, horizon) belong to either side.
+                let ok = (row - i as f64).abs() < 1e-6
+                    || (i == N_VIEW_SKY
+                        && seg == 0
+                        && (row - (N_VIEW_SKY - 1) as f64).abs() < 1e-6)
+                    || (i == N_VIEW_UP - 1 && seg == 2 && (row - N_VIEW_UP as f64).abs() < 1e-6);
+                assert!(ok, "r {r}, row {i}: theta {theta} -> ({seg}, {row})");
+            }
+            // Horizontal and horizon where the geometry puts them.
+            assert!((view_node(N_VIEW_SKY - 1, r, R).0 - 0.5 * PI).abs() < 1e-12);
+            assert!((view_node(N_VIEW_UP - 1, r, R).0 - horizon_zenith(r, R)).abs() < 1e-9);
+            assert!((view_node(N_VIEW - 1, r, R).0 - PI).abs() < 1e-12);
+        }
+    }
+
+    #[test]
+    fn ray_lengths_are_the_geometric_ones() {
+        // Straight up from the ground: the atmosphere's thickness; down to the ground from h:
+        // h; a horizontal ray from the ground: sqrt(top² − R²).
+        assert!((ray_length(R, 1.0, R, R + H, false) - H).abs() < 1e-6);
+        assert!((ray_length(R + 5000.0, -1.0, R, R + H, true) - 5000.0).abs() < 1e-6);
+        let horizontal = ((R + H).powi(2) - R * R).sqrt();
+        assert!((ray_length(R, 0.0, R, R + H, false) - horizontal).abs() < 1e-6);
+    }
+
+    #[test]
+    fn geometric_interpolation_is_exact_for_an_exponential() {
+        let (a, b) = (3.0f64, 3.0 * (-2.0f64).exp());
+        assert!((geo_mix(a, b, 0.25) - 3.0 * (-0.5f64).exp()).abs() < 1e-12);
+        // A zero end falls back to linear.
+        assert_eq!(geo_mix(0.0, 2.0, 0.5), 1.0);
+    }
+
+    #[test]
+    fn phase_functions_round_trip_through_the_manifest() {
+        for p in [
+            Phase::CornetteShanks { g: 0.8 },
+            Phase::HenyeyGreenstein { g: 0.7 },
+            Phase::Mixture {
+                g: 0.85,
+                rayleigh_fraction: 0.05,
+            },
+            Phase::Isotropic,
+            Phase::Rayleigh,
+        ] {
+            assert_eq!(phase_from_json(&phase_json(&p)).unwrap(), p);
+        }
+        let e = phase_from_json(&json!({"kind": "cornette_shanks"})).unwrap_err();
+        assert_eq!(e.field(), "manifest");
+    }
+}
