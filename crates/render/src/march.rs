@@ -116,10 +116,16 @@ impl<'a> Prepared<'a> {
         let mut lattice_paths = 0;
         if lit.per_voxel {
             vox = vec![0f32; grid.data.len() * stride];
-            for ((v, s), r) in vox.chunks_mut(stride).zip(&lit.d_sun).zip(&grid.data) {
-                v[0] = *r;
-                v[1] = *s;
-            }
+            let layer = grid.dims[0] * grid.dims[1];
+            vox.par_chunks_mut(layer * stride)
+                .zip(lit.d_sun.par_chunks(layer))
+                .zip(grid.data.par_chunks(layer))
+                .for_each(|((vs, ss), rs)| {
+                    for ((v, s), r) in vs.chunks_mut(stride).zip(ss).zip(rs) {
+                        v[0] = *r;
+                        v[1] = *s;
+                    }
+                });
             if sun_on || env_on {
                 stages.ran.push(
                     "sun optical path per voxel (cumulative, Nishita et al. 1996, §3.2)".into(),
@@ -308,6 +314,21 @@ impl<'a> Prepared<'a> {
     /// this is exact single scattering. The cloud's transmittance T_c of the background uses the
     /// true extinction. Each step integrates exactly for a density constant within it.
     pub fn march(&self, ray: &Ray, ia: &mut [f64], tc: &mut [f64]) -> Option<f64> {
+        // The usual wavelength counts get a copy of the march with their count fixed at
+        // compile time (the same operations, unrolled), the rest the general one.
+        match ia.len() {
+            1 => self.march_n::<1>(ray, ia, tc),
+            3 => self.march_n::<3>(ray, ia, tc),
+            4 => self.march_n::<4>(ray, ia, tc),
+            _ => self.march_n::<0>(ray, ia, tc),
+        }
+    }
+
+    /// [`Self::march`] for `N` wavelengths (`N` = 0: any number).
+    #[inline(always)]
+    fn march_n<const N: usize>(&self, ray: &Ray, ia: &mut [f64], tc: &mut [f64]) -> Option<f64> {
+        let n_l = if N == 0 { ia.len() } else { N };
+        let (ia, tc) = (&mut ia[..n_l], &mut tc[..n_l]);
         ia.iter_mut().for_each(|v| *v = 0.0);
         tc.iter_mut().for_each(|v| *v = 1.0);
         if self.vox.is_empty() {
@@ -323,7 +344,6 @@ impl<'a> Prepared<'a> {
         let (_, t_occ_end) = super::camera::box_interval(ray.origin_m, ray.dir, occ_lo, occ_hi)?;
         let mut tcs = [1.0f64; 64];
         let optics = &self.scene.optics;
-        let n_l = ia.len();
         let lt = self.lighting;
         let step = self.settings.step_voxels * vol.grid.voxel_size_m;
         let cos_sun = lt.sun_dir.dot(ray.dir);
@@ -347,7 +367,7 @@ impl<'a> Prepared<'a> {
             fresh[l] = l == 0 || kt[l] != kt[l - 1] || ks[l] != ks[l - 1];
         }
         let sun_on = self.lit.sun_on;
-        let stride = self.stride;
+        let stride = if N == 0 { self.stride } else { N + 2 };
         let vox = &self.vox[..];
         let mut t = t0;
         let mut front = None;
@@ -534,6 +554,8 @@ impl<'a> Prepared<'a> {
             .as_ref()
             .filter(|g| d.z < 0.0 && o.z > g.height_m)
             .map(|g| (g.height_m - o.z) / d.z);
+        // The aerial table's direction nodes, once per ray.
+        let along = lt.aerial.as_ref().map(|a| a.direction(d));
         let (mut ta, mut sa) = ([1.0f64; 64], [0.0f64; 64]);
         let (ta, sa) = (&mut ta[..n_l], &mut sa[..n_l]);
         match (t_ground, &lt.ground) {
@@ -554,8 +576,8 @@ impl<'a> Prepared<'a> {
                     b[l] = g.albedo[l] / PI
                         * (g.sun_normal_irradiance[l] * mu_s * vis + g.diffuse_horizontal[l]);
                 }
-                if let Some(a) = &lt.aerial {
-                    a.eval(d, tg, ta, sa);
+                if let (Some(a), Some(along)) = (&lt.aerial, &along) {
+                    a.eval_along(along, tg, ta, sa);
                     for l in 0..n_l {
                         b[l] = ta[l] * b[l] + sa[l];
                     }
@@ -563,14 +585,14 @@ impl<'a> Prepared<'a> {
             }
             _ => lt.background(d, b),
         }
-        let Some(aerial) = &lt.aerial else {
+        let (Some(aerial), Some(along)) = (&lt.aerial, along) else {
             for l in 0..n_l {
                 out[l] = ia[l] + tc[l] * b[l];
             }
             return;
         };
         let tx = front.or(t_ground).unwrap_or(aerial.max_distance_m());
-        aerial.eval(d, tx, ta, sa);
+        aerial.eval_along(&along, tx, ta, sa);
         // Shafts of light: air in-scattering along the ray weighted by the sun's visibility
         // through the cloud, only below the cloud base (Dobashi et al. 2000, eq 14, γ = 1 above z_c).
         let mut s_eff = [0.0f64; 64];
@@ -593,7 +615,7 @@ impl<'a> Prepared<'a> {
                 for kstep in 0..n {
                     let t_next = tx * (kstep + 1) as f64 / n as f64;
                     let t_mid = tx * (kstep as f64 + 0.5) / n as f64;
-                    aerial.eval(d, t_next, t_tmp, s_next);
+                    aerial.eval_along(&along, t_next, t_tmp, s_next);
                     let p = o + d * t_mid;
                     let path = self.sun_shadow_path(p);
                     for l in 0..n_l {
