@@ -94,6 +94,7 @@ impl PeakSpread {
     }
 
     /// p_eff/p for the row at λ = ωfτ.
+    #[inline]
     pub fn ratio(&self, row: PeakRow, lambda: f64) -> f64 {
         let t = &self.tables[row.table];
         let y = (lambda.max(0.0) / LAMBDA_MAX * (N_LAMBDA - 1) as f64).min((N_LAMBDA - 1) as f64);

@@ -141,7 +141,7 @@ impl CloudVolume {
     }
 
     /// Trilinear weights of the 8 voxels around `p` (the grid's convention); `None` outside.
-    #[inline]
+    #[inline(always)]
     pub fn weights(&self, p: DVec3) -> Option<[(usize, f64); 8]> {
         let g = &*self.grid;
         let local = (p - g.origin_m) / g.voxel_size_m;
@@ -219,7 +219,7 @@ impl CloudVolume {
     /// (computed as `o + d·t'` like `p`) stays in the same occupied block, so `empty_skip`
     /// would return `None` there too: short of the block's faces by a millionth of a voxel plus
     /// a bound on the rounding of the points (0 outside the block grid).
-    #[inline]
+    #[inline(always)]
     pub fn block_exit(&self, p: DVec3, d: DVec3) -> (bool, f64) {
         let h = self.grid.voxel_size_m * BLOCK as f64;
         let local = (p - self.lo) / h;
