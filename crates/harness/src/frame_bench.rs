@@ -110,9 +110,7 @@ pub fn time_frame(
     let lighting_warm_ms = t.elapsed().as_secs_f64() * 1e3;
     let frame = render_frame(scene, grid, &lighting, &settings, None, &|_| {}, &|| false)?;
     let warm_ms = t.elapsed().as_secs_f64() * 1e3;
-    let warm_cpu_ms = cpu0
-        .zip(crate::bench::process_cpu_ms())
-        .map(|(a, b)| b - a);
+    let warm_cpu_ms = cpu0.zip(crate::bench::process_cpu_ms()).map(|(a, b)| b - a);
     let warm_stage_shares = std::iter::once(("lighting".to_string(), lighting_warm_ms))
         .chain(frame.meta.timing_ms.iter().cloned())
         .map(|(name, ms)| (name, ms / warm_ms.max(1e-9)))

@@ -97,7 +97,9 @@ pub fn sun_density_integrals(grid: &DensityGrid, sun_dir: DVec3) -> Vec<f32> {
                             let q = p + s * step;
                             let m = p + s * (0.5 * step);
                             let seg = step / 6.0
-                                * (rho_p + 4.0 * super::volume::sample(grid, m) as f64 + super::volume::sample(grid, q) as f64);
+                                * (rho_p
+                                    + 4.0 * super::volume::sample(grid, m) as f64
+                                    + super::volume::sample(grid, q) as f64);
                             // Bilinear in the previous layer at the shifted position (voxel
                             // units); between the outermost centres and the box face, or
                             // outside, march the short rest of the way instead of clamping.
@@ -110,7 +112,10 @@ pub fn sun_density_integrals(grid: &DensityGrid, sun_dir: DVec3) -> Vec<f32> {
                             {
                                 march_to_exit(grid, q, s)
                             } else {
-                                let (b0, c0) = (super::volume::floor(fb) as usize, super::volume::floor(fc) as usize);
+                                let (b0, c0) = (
+                                    super::volume::floor(fb) as usize,
+                                    super::volume::floor(fc) as usize,
+                                );
                                 let (b1, c1) = ((b0 + 1).min(n[b] - 1), (c0 + 1).min(n[c] - 1));
                                 let (tb, tc) = (fb - b0 as f64, fc - c0 as f64);
                                 let g = |x: usize, y: usize| layer_vals[x * n[c] + y];
@@ -301,7 +306,10 @@ impl SkyElements {
     /// Table offsets and bilinear weights of the four nodes around view direction `d`.
     fn corners(&self, d: DVec3) -> [(usize, f64); 4] {
         let (u, v) = dir_to_table(d, self.n_elev, self.n_az);
-        let (r0, fr) = (super::volume::floor(u) as usize, u - super::volume::floor(u));
+        let (r0, fr) = (
+            super::volume::floor(u) as usize,
+            u - super::volume::floor(u),
+        );
         let r0 = r0.min(self.n_elev - 1);
         let r1 = (r0 + 1).min(self.n_elev - 1);
         let c0 = (super::volume::floor(v) as usize) % self.n_az;

@@ -608,7 +608,8 @@ impl<'a> Prepared<'a> {
                 path != 0.0 && (0..n_l).any(|l| self.sun_visibility(path, l) < 1.0)
             });
             if shadowed {
-                let (mut s_prev, mut s_next, mut t_tmp) = ([0.0f64; 64], [0.0f64; 64], [0.0f64; 64]);
+                let (mut s_prev, mut s_next, mut t_tmp) =
+                    ([0.0f64; 64], [0.0f64; 64], [0.0f64; 64]);
                 let (mut s_prev, mut s_next, t_tmp) =
                     (&mut s_prev[..n_l], &mut s_next[..n_l], &mut t_tmp[..n_l]);
                 s_eff.iter_mut().for_each(|v| *v = 0.0);
