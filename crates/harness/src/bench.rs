@@ -303,6 +303,7 @@ pub fn run(names: &[String], cold_runs: usize, warm_runs: usize) -> Result<Vec<B
                     runs.len(),
                     runs.iter().map(|b| b.warm_ms).collect(),
                     json!({"lighting_ms": last.lighting_warm_ms, "stages_ms": last.warm_stages_ms,
+                           "cpu_ms": runs.iter().map(|b| b.warm_cpu_ms).collect::<Vec<_>>(),
                            "image": [last.width, last.height], "voxels": last.voxels}),
                 ));
             }
@@ -316,6 +317,7 @@ pub fn run(names: &[String], cold_runs: usize, warm_runs: usize) -> Result<Vec<B
                     runs.len(),
                     runs.iter().map(|b| b.per_frame_ms).collect(),
                     json!({"frames": last.frames, "image": [last.width, last.height],
+                           "per_frame_cpu_ms": runs.iter().map(|b| b.per_frame_cpu_ms).collect::<Vec<_>>(),
                            "total_ms": last.total_ms, "first_frame_ms": last.first_frame_ms,
                            "median_later_frame_ms": last.median_later_frame_ms,
                            "stages_ms": last.stages_ms, "lit_bytes": last.lit_bytes}),

@@ -76,6 +76,8 @@ pub struct FrameBench {
     pub warm_stage_shares: Vec<(String, f64)>,
     pub lighting_cold_ms: f64,
     pub lighting_warm_ms: f64,
+    /// CPU time (user + system, all threads) of the warm run, ms (`None` without `/proc`).
+    pub warm_cpu_ms: Option<f64>,
     pub width: usize,
     pub height: usize,
     pub voxels: usize,
@@ -103,10 +105,12 @@ pub fn time_frame(
     render_frame(scene, grid, &lighting, &settings, None, &|_| {}, &|| false)?;
     let cold_ms = t.elapsed().as_secs_f64() * 1e3;
     let t = Instant::now();
+    let cpu0 = crate::bench::process_cpu_ms();
     let lighting = lighting_for(scene, grid, &engine)?;
     let lighting_warm_ms = t.elapsed().as_secs_f64() * 1e3;
     let frame = render_frame(scene, grid, &lighting, &settings, None, &|_| {}, &|| false)?;
     let warm_ms = t.elapsed().as_secs_f64() * 1e3;
+    let warm_cpu_ms = cpu0.zip(crate::bench::process_cpu_ms()).map(|(a, b)| b - a);
     let warm_stage_shares = std::iter::once(("lighting".to_string(), lighting_warm_ms))
         .chain(frame.meta.timing_ms.iter().cloned())
         .map(|(name, ms)| (name, ms / warm_ms.max(1e-9)))
@@ -118,6 +122,7 @@ pub fn time_frame(
         warm_stage_shares,
         lighting_cold_ms,
         lighting_warm_ms,
+        warm_cpu_ms,
         width,
         height,
         voxels: grid.data.len(),
@@ -199,6 +204,9 @@ pub struct SequenceBench {
     pub total_ms: f64,
     /// `total_ms / frames`.
     pub per_frame_ms: f64,
+    /// CPU time (user + system, all threads) of the whole sequence divided by `frames`, ms
+    /// (`None` without `/proc`).
+    pub per_frame_cpu_ms: Option<f64>,
     /// The first frame (it lights the cloud) and the median of the others, ms.
     pub first_frame_ms: f64,
     pub median_later_frame_ms: f64,
@@ -231,6 +239,7 @@ pub fn bench_frame_sequence(frames: usize, width: usize, height: usize) -> Resul
     let mut lit: Option<std::sync::Arc<LitVolume>> = None;
     let mut frame_ms = Vec::with_capacity(frames);
     let t_all = Instant::now();
+    let cpu0 = crate::bench::process_cpu_ms();
     for k in 0..frames {
         let t_frame = Instant::now();
         let (s, c) = (std::f64::consts::TAU * k as f64 / frames as f64).sin_cos();
@@ -268,6 +277,9 @@ pub fn bench_frame_sequence(frames: usize, width: usize, height: usize) -> Resul
         frame_ms.push(t_frame.elapsed().as_secs_f64() * 1e3);
     }
     let total_ms = t_all.elapsed().as_secs_f64() * 1e3;
+    let per_frame_cpu_ms = cpu0
+        .zip(crate::bench::process_cpu_ms())
+        .map(|(a, b)| (b - a) / frames.max(1) as f64);
     let mut later: Vec<f64> = frame_ms.iter().skip(1).cloned().collect();
     later.sort_by(f64::total_cmp);
     Ok(SequenceBench {
@@ -276,6 +288,7 @@ pub fn bench_frame_sequence(frames: usize, width: usize, height: usize) -> Resul
         height,
         total_ms,
         per_frame_ms: total_ms / frames.max(1) as f64,
+        per_frame_cpu_ms,
         first_frame_ms: frame_ms.first().copied().unwrap_or(0.0),
         median_later_frame_ms: later.get(later.len() / 2).copied().unwrap_or(0.0),
         stages_ms: stages,

@@ -97,7 +97,9 @@ pub fn sun_density_integrals(grid: &DensityGrid, sun_dir: DVec3) -> Vec<f32> {
                             let q = p + s * step;
                             let m = p + s * (0.5 * step);
                             let seg = step / 6.0
-                                * (rho_p + 4.0 * grid.sample(m) as f64 + grid.sample(q) as f64);
+                                * (rho_p
+                                    + 4.0 * super::volume::sample(grid, m) as f64
+                                    + super::volume::sample(grid, q) as f64);
                             // Bilinear in the previous layer at the shifted position (voxel
                             // units); between the outermost centres and the box face, or
                             // outside, march the short rest of the way instead of clamping.
@@ -110,7 +112,10 @@ pub fn sun_density_integrals(grid: &DensityGrid, sun_dir: DVec3) -> Vec<f32> {
                             {
                                 march_to_exit(grid, q, s)
                             } else {
-                                let (b0, c0) = (fb.floor() as usize, fc.floor() as usize);
+                                let (b0, c0) = (
+                                    super::volume::floor(fb) as usize,
+                                    super::volume::floor(fc) as usize,
+                                );
                                 let (b1, c1) = ((b0 + 1).min(n[b] - 1), (c0 + 1).min(n[c] - 1));
                                 let (tb, tc) = (fb - b0 as f64, fc - c0 as f64);
                                 let g = |x: usize, y: usize| layer_vals[x * n[c] + y];
@@ -143,7 +148,7 @@ fn march_to_exit(grid: &DensityGrid, p: DVec3, s: DVec3) -> f64 {
     let n = ((t1 - t0) / step).ceil().max(1.0) as usize;
     let dt = (t1 - t0) / n as f64;
     (0..n)
-        .map(|i| grid.sample(p + s * (t0 + (i as f64 + 0.5) * dt)) as f64 * dt)
+        .map(|i| super::volume::sample(grid, p + s * (t0 + (i as f64 + 0.5) * dt)) as f64 * dt)
         .sum()
 }
 
@@ -301,11 +306,14 @@ impl SkyElements {
     /// Table offsets and bilinear weights of the four nodes around view direction `d`.
     fn corners(&self, d: DVec3) -> [(usize, f64); 4] {
         let (u, v) = dir_to_table(d, self.n_elev, self.n_az);
-        let (r0, fr) = (u.floor() as usize, u - u.floor());
+        let (r0, fr) = (
+            super::volume::floor(u) as usize,
+            u - super::volume::floor(u),
+        );
         let r0 = r0.min(self.n_elev - 1);
         let r1 = (r0 + 1).min(self.n_elev - 1);
-        let c0 = (v.floor() as usize) % self.n_az;
-        let fc = v - v.floor();
+        let c0 = (super::volume::floor(v) as usize) % self.n_az;
+        let fc = v - super::volume::floor(v);
         let c1 = (c0 + 1) % self.n_az;
         let per = self.elements * self.n_l;
         let at = |r: usize, c: usize| (r * self.n_az + c) * per;

@@ -129,6 +129,13 @@ pub struct GroundSurface {
     pub explicit: bool,
 }
 
+/// An [`AerialTable`]'s elevation and azimuth nodes and weights for one direction.
+#[derive(Debug, Clone, Copy)]
+pub struct AerialDirection {
+    elevation: (usize, usize, f64),
+    azimuth: (usize, usize, f64),
+}
+
 /// Aerial perspective from the camera: transmittance and in-scattered radiance against distance.
 #[derive(Debug, Clone, PartialEq)]
 pub struct AerialTable {
@@ -139,13 +146,34 @@ pub struct AerialTable {
 impl AerialTable {
     /// Transmittance and in-scattered radiance from the camera to `distance_m` along `dir`.
     pub fn eval(&self, dir: DVec3, distance_m: f64, t_out: &mut [f64], s_out: &mut [f64]) {
+        self.eval_along(&self.direction(dir), distance_m, t_out, s_out);
+    }
+
+    /// The table's nodes and weights for direction `dir` (what [`Self::eval`] computes once per
+    /// direction: a ray looks up several distances along the same direction).
+    pub fn direction(&self, dir: DVec3) -> AerialDirection {
         let p = &self.product;
-        let n_l = p.wavelengths_nm.len();
         let (e, a) = elevation_azimuth_deg(dir);
         let rel = (a - self.sun_azimuth_deg).rem_euclid(360.0);
         let rel = if rel > 180.0 { 360.0 - rel } else { rel };
-        let (r0, r1, fr) = axis_lookup(&p.elevation_deg, e);
-        let (c0, c1, fc) = axis_lookup(&p.azimuth_deg, rel);
+        AerialDirection {
+            elevation: axis_lookup(&p.elevation_deg, e),
+            azimuth: axis_lookup(&p.azimuth_deg, rel),
+        }
+    }
+
+    /// [`Self::eval`] along a direction from [`Self::direction`] (the same values).
+    pub fn eval_along(
+        &self,
+        dir: &AerialDirection,
+        distance_m: f64,
+        t_out: &mut [f64],
+        s_out: &mut [f64],
+    ) {
+        let p = &self.product;
+        let n_l = p.wavelengths_nm.len();
+        let (r0, r1, fr) = dir.elevation;
+        let (c0, c1, fc) = dir.azimuth;
         let (d0, d1, fd) = axis_lookup(&p.distance_m, distance_m);
         let (na, nd) = (p.azimuth_deg.len(), p.distance_m.len());
         t_out.iter_mut().for_each(|v| *v = 0.0);

@@ -327,7 +327,10 @@ impl ShadowMap {
         {
             return 0.0;
         }
-        let (i0, j0) = (u.floor() as usize, v.floor() as usize);
+        let (i0, j0) = (
+            super::volume::floor(u) as usize,
+            super::volume::floor(v) as usize,
+        );
         let (i1, j1) = (
             (i0 + 1).min(self.dims[0] - 1),
             (j0 + 1).min(self.dims[1] - 1),

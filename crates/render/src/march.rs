@@ -32,8 +32,8 @@ pub struct Prepared<'a> {
     pub lighting: &'a Lighting,
     pub settings: RenderSettings,
     pub lit: Arc<LitVolume>,
-    /// Per voxel: `[D_sun, S_0 … S_{n-1}]` (sun density integral, m; the source per unit scaled
-    /// extinction towards the camera, S = (ω/s)·Q_sky + ω*·J*: first-order sky radiance Q_sky
+    /// Per voxel: `[ρ, D_sun, S_0 … S_{n-1}]` (the density, the sun's density integral, m; the
+    /// source per unit scaled extinction towards the camera, S = (ω/s)·Q_sky + ω*·J*: first-order sky radiance Q_sky
     /// and the orders ≥ 2 J* of the δ-M scaled problem, W m⁻² sr⁻¹ nm⁻¹; see [`Prepared::march`]).
     pub vox: Vec<f32>,
     pub stride: usize,
@@ -86,7 +86,7 @@ impl<'a> Prepared<'a> {
             ));
         }
         let n_l = scene.wavelengths.len();
-        let stride = 1 + n_l;
+        let stride = 2 + n_l;
         let grid = &*lit.inputs.grid;
         let optics = &scene.optics;
         let sw = scene.lighting;
@@ -116,9 +116,16 @@ impl<'a> Prepared<'a> {
         let mut lattice_paths = 0;
         if lit.per_voxel {
             vox = vec![0f32; grid.data.len() * stride];
-            for (v, s) in vox.chunks_mut(stride).zip(&lit.d_sun) {
-                v[0] = *s;
-            }
+            let layer = grid.dims[0] * grid.dims[1];
+            vox.par_chunks_mut(layer * stride)
+                .zip(lit.d_sun.par_chunks(layer))
+                .zip(grid.data.par_chunks(layer))
+                .for_each(|((vs, ss), rs)| {
+                    for ((v, s), r) in vs.chunks_mut(stride).zip(ss).zip(rs) {
+                        v[0] = *r;
+                        v[1] = *s;
+                    }
+                });
             if sun_on || env_on {
                 stages.ran.push(
                     "sun optical path per voxel (cumulative, Nishita et al. 1996, §3.2)".into(),
@@ -148,11 +155,13 @@ impl<'a> Prepared<'a> {
                     .zip(ms_extinction_scale)
                     .map(|(k, s)| k * s)
                     .collect();
+                let fresh: Vec<bool> = (0..n_l).map(|l| l == 0 || k[l] != k[l - 1]).collect();
                 let [nx, ny, _] = grid.dims;
                 vox.par_chunks_mut(nx * ny * stride)
                     .enumerate()
                     .for_each(|(z, slab)| {
                         let mut il = vec![0.0; elements.elements * n_l];
+                        let mut trans = vec![0.0; paths.len() + 1];
                         for (i, v) in slab.chunks_mut(stride).enumerate() {
                             let idx = z * nx * ny + i;
                             if !mask[idx] {
@@ -160,13 +169,21 @@ impl<'a> Prepared<'a> {
                             }
                             let p = grid.voxel_centre(i % nx, i / nx, z);
                             elements.lookup(view(p), &mut il);
-                            let d_sun = v[0] as f64;
+                            let d_sun = v[1] as f64;
                             for l in 0..n_l {
-                                let mut q = il[l] * (-k[l] * d_sun).exp();
-                                for (e, path) in paths.iter().enumerate() {
-                                    q += il[(e + 1) * n_l + l] * (-k[l] * path[idx] as f64).exp();
+                                // Wavelengths with the previous one's extinction share its
+                                // transmittances.
+                                if fresh[l] {
+                                    trans[0] = (-k[l] * d_sun).exp();
+                                    for (e, path) in paths.iter().enumerate() {
+                                        trans[e + 1] = (-k[l] * path[idx] as f64).exp();
+                                    }
                                 }
-                                v[1 + l] += (optics.albedo[l] / ms_extinction_scale[l] * q) as f32;
+                                let mut q = il[l] * trans[0];
+                                for e in 0..paths.len() {
+                                    q += il[(e + 1) * n_l + l] * trans[e + 1];
+                                }
+                                v[2 + l] += (optics.albedo[l] / ms_extinction_scale[l] * q) as f32;
                             }
                         }
                     });
@@ -201,7 +218,7 @@ impl<'a> Prepared<'a> {
                 )?;
                 for (v, q) in vox.chunks_mut(stride).zip(field.q.chunks(n_l)) {
                     for l in 0..n_l {
-                        v[1 + l] += q[l];
+                        v[2 + l] += q[l];
                     }
                 }
                 stages.ran.push(field.describe());
@@ -221,7 +238,7 @@ impl<'a> Prepared<'a> {
                             let p = grid.voxel_centre(i % nx, i / nx, z);
                             field.inscatter(p, view(p), &mut j);
                             for l in 0..n_l {
-                                v[1 + l] += (ms_albedo[l] * j[l]) as f32;
+                                v[2 + l] += (ms_albedo[l] * j[l]) as f32;
                             }
                         }
                     });
@@ -297,24 +314,46 @@ impl<'a> Prepared<'a> {
     /// this is exact single scattering. The cloud's transmittance T_c of the background uses the
     /// true extinction. Each step integrates exactly for a density constant within it.
     pub fn march(&self, ray: &Ray, ia: &mut [f64], tc: &mut [f64]) -> Option<f64> {
+        // The usual wavelength counts get a copy of the march with their count fixed at
+        // compile time (the same operations, unrolled), the rest the general one.
+        match ia.len() {
+            1 => self.march_n::<1>(ray, ia, tc),
+            3 => self.march_n::<3>(ray, ia, tc),
+            4 => self.march_n::<4>(ray, ia, tc),
+            _ => self.march_n::<0>(ray, ia, tc),
+        }
+    }
+
+    /// [`Self::march`] for `N` wavelengths (`N` = 0: any number).
+    #[inline(always)]
+    fn march_n<const N: usize>(&self, ray: &Ray, ia: &mut [f64], tc: &mut [f64]) -> Option<f64> {
+        let n_l = if N == 0 { ia.len() } else { N };
+        let (ia, tc) = (&mut ia[..n_l], &mut tc[..n_l]);
         ia.iter_mut().for_each(|v| *v = 0.0);
         tc.iter_mut().for_each(|v| *v = 1.0);
         if self.vox.is_empty() {
             // No per-voxel light: an empty cloud, or one the plan found outside the view.
             return None;
         }
+        let vol = &self.lit.vol;
+        let (t0, t1) = vol.interval(ray.origin_m, ray.dir)?;
+        // Every density look-up outside the occupied blocks' box returns 0: a ray that misses
+        // it is the background alone, and the march ends where the ray leaves it (the same
+        // frame: those steps add nothing).
+        let (occ_lo, occ_hi) = vol.occupied?;
+        let (_, t_occ_end) = super::camera::box_interval(ray.origin_m, ray.dir, occ_lo, occ_hi)?;
         let mut tcs = [1.0f64; 64];
-        let (t0, t1) = self.lit.vol.interval(ray.origin_m, ray.dir)?;
         let optics = &self.scene.optics;
-        let n_l = ia.len();
         let lt = self.lighting;
-        let step = self.settings.step_voxels * self.lit.vol.grid.voxel_size_m;
+        let step = self.settings.step_voxels * vol.grid.voxel_size_m;
         let cos_sun = lt.sun_dir.dot(ray.dir);
         // Per wavelength: ω/s · E_sun · p(Θ) and the scaled and true extinctions per density.
         let mut sun_src = [0.0f64; 64];
         let mut ks = [0.0f64; 64];
         let mut kt = [0.0f64; 64];
         let mut rows = [None; 64];
+        // Wavelengths whose extinctions equal the previous one's share its exponentials.
+        let mut fresh = [true; 64];
         for l in 0..n_l {
             rows[l] = self.lit.peak.as_ref().map(|p| p.row(l, cos_sun));
             let sc = self.lit.ms_extinction_scale[l];
@@ -325,64 +364,79 @@ impl<'a> Prepared<'a> {
             };
             kt[l] = optics.extinction_per_density_m[l];
             ks[l] = kt[l] * sc;
+            fresh[l] = l == 0 || kt[l] != kt[l - 1] || ks[l] != ks[l - 1];
         }
+        let sun_on = self.lit.sun_on;
+        let stride = if N == 0 { self.stride } else { N + 2 };
+        let vox = &self.vox[..];
         let mut t = t0;
         let mut front = None;
         let (o, d) = (ray.origin_m, ray.dir);
-        let data = &self.lit.vol.grid.data;
         // The sun's density integral at the current step's start (carried from the previous
-        // step's end; `None` after a skip).
+        // step's end; `None` after a skip or a step without density: then it is looked up at
+        // the same point the previous step ended at, the same value).
         let mut d_start: Option<f64> = None;
+        // The ray is inside an occupied block up to this distance (no empty-space test needed
+        // before it; see [`CloudVolume::block_exit`]).
+        let mut occupied_until = f64::NEG_INFINITY;
+        let mut src = [0.0f64; 64];
         while t < t1 {
+            if t > t_occ_end {
+                break;
+            }
             let p = o + d * t;
-            if let Some(skip) = self.lit.vol.empty_skip(p, d) {
-                t += skip + 1e-6 * step;
-                d_start = None;
-                continue;
+            if t >= occupied_until {
+                match vol.block_exit(p, d) {
+                    (true, skip) => {
+                        t += skip + 1e-6 * step;
+                        d_start = None;
+                        continue;
+                    }
+                    (false, exit) => occupied_until = t + exit,
+                }
             }
             let dt = step.min(t1 - t);
             let pm = o + d * (t + 0.5 * dt);
-            let d0 = match d_start {
-                Some(v) => v,
-                None if self.lit.sun_on => self.sun_path_at(p),
-                None => 0.0,
-            };
             t += dt;
-            let d1 = if self.lit.sun_on {
-                self.sun_path_at(o + d * t)
-            } else {
-                0.0
-            };
-            d_start = Some(d1);
-            let Some(w) = self.lit.vol.weights(pm) else {
+            let Some(w) = vol.weights(pm) else {
+                d_start = None;
                 continue;
             };
+            // Per voxel `[ρ, D_sun, S_0 … S_{n−1}]`: density and sources in one pass.
             let mut rho = 0.0;
+            src[..n_l].fill(0.0);
             for (i, wi) in w {
-                rho += wi * data[i] as f64;
-            }
-            if rho <= 0.0 {
-                continue;
-            }
-            front.get_or_insert(t - dt);
-            let mut buf = [0.0f64; 65];
-            for (i, wi) in w {
+                let v = &vox[i * stride..(i + 1) * stride];
+                rho += wi * v[0] as f64;
                 if wi == 0.0 {
                     continue;
                 }
-                let v = &self.vox[i * self.stride..(i + 1) * self.stride];
-                for (b, x) in buf.iter_mut().zip(v) {
+                for (b, x) in src[..n_l].iter_mut().zip(&v[2..]) {
                     *b += wi * *x as f64;
                 }
             }
+            if rho <= 0.0 {
+                d_start = None;
+                continue;
+            }
+            let (d0, d1) = if sun_on {
+                let d0 = match d_start {
+                    Some(v) => v,
+                    None => self.sun_path_at(p),
+                };
+                (d0, self.sun_path_at(o + d * t))
+            } else {
+                (0.0, 0.0)
+            };
+            d_start = Some(d1);
+            front.get_or_insert(t - dt);
             let mut alive = false;
-            // Wavelengths with equal extinction (grey clouds) share their exponentials.
             let (mut a, mut a_ms, mut sun_t) = (0.0, 0.0, 0.0);
             for l in 0..n_l {
-                if l == 0 || kt[l] != kt[l - 1] || ks[l] != ks[l - 1] {
+                if fresh[l] {
                     a = -(-kt[l] * rho * dt).exp_m1();
                     a_ms = -(-ks[l] * rho * dt).exp_m1();
-                    sun_t = if self.lit.sun_on {
+                    sun_t = if sun_on {
                         let (weight, d_eff) =
                             sun_step(ks[l] * rho, ks[l] * (d1 - d0), dt, ks[l] * d0);
                         let spread = match (&self.lit.peak, rows[l]) {
@@ -397,7 +451,7 @@ impl<'a> Prepared<'a> {
                         0.0
                     };
                 }
-                ia[l] += tcs[l] * (sun_src[l] * sun_t + a_ms * buf[1 + l]);
+                ia[l] += tcs[l] * (sun_src[l] * sun_t + a_ms * src[l]);
                 tc[l] *= 1.0 - a;
                 tcs[l] *= 1.0 - a_ms;
                 alive |= tcs[l] > MARCH_CUTOFF;
@@ -420,7 +474,7 @@ impl<'a> Prepared<'a> {
             .weights(p)
             .map(|w| {
                 w.iter()
-                    .map(|&(i, wi)| wi * self.vox[i * self.stride] as f64)
+                    .map(|&(i, wi)| wi * self.vox[i * self.stride + 1] as f64)
                     .sum()
             })
             .unwrap_or(0.0)
@@ -457,13 +511,25 @@ impl<'a> Prepared<'a> {
         }
     }
 
-    /// Transmittance of the sun's light from the cloud to point `p` (cloud shadows, shafts).
-    fn sun_visibility(&self, p: DVec3, l: usize) -> f64 {
-        let k = self.scene.optics.extinction_per_density_m[l];
+    /// Density integral (m) from the cloud to point `p` towards the sun (cloud shadows,
+    /// shafts): 0 above the shadow map's plane or without one. The sun's transmittance at
+    /// wavelength `l` is exp(−k_l·D), exactly 1 where D = 0.
+    #[inline]
+    fn sun_shadow_path(&self, p: DVec3) -> f64 {
         match &self.lit.shadow {
-            Some(s) if p.z <= s.z_m => (-k * s.lookup(p, self.lighting.sun_dir)).exp(),
-            _ => 1.0,
+            Some(s) if p.z <= s.z_m => s.lookup(p, self.lighting.sun_dir),
+            _ => 0.0,
         }
+    }
+
+    /// Transmittance of the sun's light from the cloud at wavelength `l` for the density
+    /// integral `path` of [`Self::sun_shadow_path`].
+    #[inline]
+    fn sun_visibility(&self, path: f64, l: usize) -> f64 {
+        if path == 0.0 && self.lit.shadow.is_none() {
+            return 1.0;
+        }
+        (-self.scene.optics.extinction_per_density_m[l] * path).exp()
     }
 
     /// Pixel radiance from the cloud terms: background or ground behind, aerial perspective and
@@ -481,67 +547,80 @@ impl<'a> Prepared<'a> {
         let lt = self.lighting;
         let sw = self.scene.lighting;
         let (o, d) = (ray.origin_m, ray.dir);
-        let mut b = vec![0.0; n_l];
+        let mut b = [0.0f64; 64];
+        let b = &mut b[..n_l];
         let t_ground = lt
             .ground
             .as_ref()
             .filter(|g| d.z < 0.0 && o.z > g.height_m)
             .map(|g| (g.height_m - o.z) / d.z);
-        let mut ta = vec![1.0; n_l];
-        let mut sa = vec![0.0; n_l];
+        // The aerial table's direction nodes, once per ray.
+        let along = lt.aerial.as_ref().map(|a| a.direction(d));
+        let (mut ta, mut sa) = ([1.0f64; 64], [0.0f64; 64]);
+        let (ta, sa) = (&mut ta[..n_l], &mut sa[..n_l]);
         match (t_ground, &lt.ground) {
             (Some(tg), Some(g)) => {
                 let p = o + d * tg;
                 let mu_s = lt.sun_dir.z.max(0.0);
+                let path = if sw.cloud_shadows {
+                    self.sun_shadow_path(p)
+                } else {
+                    0.0
+                };
                 for l in 0..n_l {
                     let vis = if sw.cloud_shadows {
-                        self.sun_visibility(p, l)
+                        self.sun_visibility(path, l)
                     } else {
                         1.0
                     };
                     b[l] = g.albedo[l] / PI
                         * (g.sun_normal_irradiance[l] * mu_s * vis + g.diffuse_horizontal[l]);
                 }
-                if let Some(a) = &lt.aerial {
-                    a.eval(d, tg, &mut ta, &mut sa);
+                if let (Some(a), Some(along)) = (&lt.aerial, &along) {
+                    a.eval_along(along, tg, ta, sa);
                     for l in 0..n_l {
                         b[l] = ta[l] * b[l] + sa[l];
                     }
                 }
             }
-            _ => lt.background(d, &mut b),
+            _ => lt.background(d, b),
         }
-        let Some(aerial) = &lt.aerial else {
+        let (Some(aerial), Some(along)) = (&lt.aerial, along) else {
             for l in 0..n_l {
                 out[l] = ia[l] + tc[l] * b[l];
             }
             return;
         };
         let tx = front.or(t_ground).unwrap_or(aerial.max_distance_m());
-        aerial.eval(d, tx, &mut ta, &mut sa);
+        aerial.eval_along(&along, tx, ta, sa);
         // Shafts of light: air in-scattering along the ray weighted by the sun's visibility
         // through the cloud, only below the cloud base (Dobashi et al. 2000, eq 14, γ = 1 above z_c).
-        let mut s_eff = sa.clone();
+        let mut s_eff = [0.0f64; 64];
+        let s_eff = &mut s_eff[..n_l];
+        s_eff.copy_from_slice(sa);
         if sw.shafts_of_light && self.lit.sun_on && self.lit.shadow.is_some() {
             let n = self.settings.shaft_steps.max(1);
-            let mut s_prev = vec![0.0; n_l];
-            let mut s_next = vec![0.0; n_l];
-            let mut t_tmp = vec![0.0; n_l];
             // Where the sun is visible along the whole ray (the usual case above the cloud base or
             // outside its shadow) S_eff = S: skip the table look-ups.
             let shadowed = (0..n).any(|kstep| {
                 let p = o + d * (tx * (kstep as f64 + 0.5) / n as f64);
-                (0..n_l).any(|l| self.sun_visibility(p, l) < 1.0)
+                let path = self.sun_shadow_path(p);
+                path != 0.0 && (0..n_l).any(|l| self.sun_visibility(path, l) < 1.0)
             });
             if shadowed {
+                let (mut s_prev, mut s_next, mut t_tmp) =
+                    ([0.0f64; 64], [0.0f64; 64], [0.0f64; 64]);
+                let (mut s_prev, mut s_next, t_tmp) =
+                    (&mut s_prev[..n_l], &mut s_next[..n_l], &mut t_tmp[..n_l]);
                 s_eff.iter_mut().for_each(|v| *v = 0.0);
                 for kstep in 0..n {
                     let t_next = tx * (kstep + 1) as f64 / n as f64;
                     let t_mid = tx * (kstep as f64 + 0.5) / n as f64;
-                    aerial.eval(d, t_next, &mut t_tmp, &mut s_next);
+                    aerial.eval_along(&along, t_next, t_tmp, s_next);
                     let p = o + d * t_mid;
+                    let path = self.sun_shadow_path(p);
                     for l in 0..n_l {
-                        s_eff[l] += self.sun_visibility(p, l) * (s_next[l] - s_prev[l]);
+                        s_eff[l] += self.sun_visibility(path, l) * (s_next[l] - s_prev[l]);
                     }
                     std::mem::swap(&mut s_prev, &mut s_next);
                 }

@@ -412,7 +412,7 @@ impl MsField {
         let mut f = [0f64; 3];
         for a in 0..3 {
             let c = local[a].clamp(0.0, (self.dims[a] - 1) as f64);
-            i0[a] = c.floor() as usize;
+            i0[a] = super::volume::floor(c) as usize;
             i1[a] = (i0[a] + 1).min(self.dims[a] - 1);
             f[a] = c - i0[a] as f64;
         }
@@ -585,7 +585,7 @@ fn fly(
     for a in 0..3 {
         let h = g.cell_m[a];
         let local = (p0[a] - lo[a]) / h;
-        cell[a] = (local.floor() as i64).clamp(0, g.dims[a] as i64 - 1);
+        cell[a] = (super::volume::floor(local) as i64).clamp(0, g.dims[a] as i64 - 1);
         if d[a] > 0.0 {
             step[a] = 1;
             t_next[a] = t0 + ((cell[a] + 1) as f64 * h + lo[a] - p0[a]) / d[a];

@@ -449,8 +449,8 @@ impl Views {
         let gx = (px / w * last).clamp(0.0, last);
         let gy = (py / h * last).clamp(0.0, last);
         let (i0, j0) = (
-            (gx.floor() as usize).min(self.n - 2),
-            (gy.floor() as usize).min(self.n - 2),
+            (super::volume::floor(gx) as usize).min(self.n - 2),
+            (super::volume::floor(gy) as usize).min(self.n - 2),
         );
         let (fx, fy) = (gx - i0 as f64, gy - j0 as f64);
         let at = |i: usize, j: usize| j * self.n + i;

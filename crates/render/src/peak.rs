@@ -85,7 +85,7 @@ impl PeakSpread {
     /// The row for wavelength `l` and the cosine of the scattering angle (sun direction · ray).
     pub fn row(&self, l: usize, cos_theta: f64) -> PeakRow {
         let x = cos_theta.clamp(-1.0, 1.0).acos().to_degrees() * 2.0;
-        let i0 = (x.floor() as usize).min(N_THETA - 2);
+        let i0 = (super::volume::floor(x) as usize).min(N_THETA - 2);
         PeakRow {
             table: self.table_of[l],
             i0,
@@ -94,10 +94,11 @@ impl PeakSpread {
     }
 
     /// p_eff/p for the row at λ = ωfτ.
+    #[inline]
     pub fn ratio(&self, row: PeakRow, lambda: f64) -> f64 {
         let t = &self.tables[row.table];
         let y = (lambda.max(0.0) / LAMBDA_MAX * (N_LAMBDA - 1) as f64).min((N_LAMBDA - 1) as f64);
-        let j0 = (y.floor() as usize).min(N_LAMBDA - 2);
+        let j0 = (super::volume::floor(y) as usize).min(N_LAMBDA - 2);
         let v = y - j0 as f64;
         let at = |i: usize, j: usize| t[i * N_LAMBDA + j] as f64;
         let a = at(row.i0, j0) * (1.0 - v) + at(row.i0, j0 + 1) * v;

@@ -9,6 +9,62 @@ use std::sync::Arc;
 /// Edge of the empty-space blocks, voxels.
 pub const BLOCK: usize = 8;
 
+/// ⌊x⌋, equal to `f64::floor` for every input, without the libm call that targets without
+/// SSE4.1 make of `floor` (a conversion to an integer and back, corrected for negative x).
+#[inline(always)]
+pub fn floor(x: f64) -> f64 {
+    if x.abs() < 4.0e15 {
+        let t = x as i64 as f64;
+        if t > x {
+            t - 1.0
+        } else {
+            t
+        }
+    } else {
+        x.floor()
+    }
+}
+
+/// The grid's density at `p`, the same value as [`DensityGrid::sample`] (same weights, same
+/// order of operations) without its `floor` calls.
+#[inline]
+pub fn sample(g: &DensityGrid, p: DVec3) -> f32 {
+    let local = (p - g.origin_m) / g.voxel_size_m;
+    let n = g.dims;
+    let mut i0 = [0usize; 3];
+    let mut i1 = [0usize; 3];
+    let mut f = [0.0f64; 3];
+    for a in 0..3 {
+        let l = local[a];
+        if !(l >= 0.0 && l <= n[a] as f64) {
+            return 0.0;
+        }
+        let c = (l - 0.5).clamp(0.0, (n[a] - 1) as f64);
+        // c ≥ 0: truncation is the floor.
+        let lo = (c as usize).min(n[a] - 1);
+        i0[a] = lo;
+        i1[a] = (lo + 1).min(n[a] - 1);
+        f[a] = c - lo as f64;
+    }
+    let d = &g.data;
+    let (sx, sy) = (1, n[0]);
+    let sz = n[0] * n[1];
+    let b = i0[2] * sz + i0[1] * sy + i0[0] * sx;
+    let (dx, dy, dz) = (
+        (i1[0] - i0[0]) * sx,
+        (i1[1] - i0[1]) * sy,
+        (i1[2] - i0[2]) * sz,
+    );
+    let v = |i: usize| d[i] as f64;
+    let c00 = v(b) * (1.0 - f[0]) + v(b + dx) * f[0];
+    let c10 = v(b + dy) * (1.0 - f[0]) + v(b + dy + dx) * f[0];
+    let c01 = v(b + dz) * (1.0 - f[0]) + v(b + dz + dx) * f[0];
+    let c11 = v(b + dz + dy) * (1.0 - f[0]) + v(b + dz + dy + dx) * f[0];
+    let c0 = c00 * (1.0 - f[1]) + c10 * f[1];
+    let c1 = c01 * (1.0 - f[1]) + c11 * f[1];
+    (c0 * (1.0 - f[2]) + c1 * f[2]) as f32
+}
+
 /// A density grid prepared for ray marching and tracking (it shares the grid, so a lit volume
 /// kept for a sequence of frames keeps it).
 pub struct CloudVolume {
@@ -19,6 +75,9 @@ pub struct CloudVolume {
     block_dims: [usize; 3],
     /// Largest density each block's trilinear support can return.
     block_max: Vec<f32>,
+    /// Corners of the box round every block whose support holds density (slightly enlarged),
+    /// m; `None` for an empty grid. Outside it every density look-up returns 0.
+    pub occupied: Option<(DVec3, DVec3)>,
 }
 
 impl CloudVolume {
@@ -46,45 +105,70 @@ impl CloudVolume {
                 }
             }
         }
+        let (mut bmin, mut bmax) = ([usize::MAX; 3], [0usize; 3]);
+        for bz in 0..bd[2] {
+            for by in 0..bd[1] {
+                for bx in 0..bd[0] {
+                    if block_max[(bz * bd[1] + by) * bd[0] + bx] > 0.0 {
+                        for (a, v) in [bx, by, bz].into_iter().enumerate() {
+                            bmin[a] = bmin[a].min(v);
+                            bmax[a] = bmax[a].max(v + 1);
+                        }
+                    }
+                }
+            }
+        }
+        let lo = grid.origin_m;
+        let hi = grid.max_corner_m();
+        let hb = grid.voxel_size_m * BLOCK as f64;
+        // Enlarged by a thousandth of a voxel so that rounding at a block face never puts a
+        // point of an occupied block outside.
+        let margin = 1e-3 * grid.voxel_size_m;
+        let occupied = (bmin[0] != usize::MAX).then(|| {
+            let a = DVec3::new(bmin[0] as f64, bmin[1] as f64, bmin[2] as f64) * hb + lo;
+            let b = DVec3::new(bmax[0] as f64, bmax[1] as f64, bmax[2] as f64) * hb + lo;
+            (a - DVec3::splat(margin), b.min(hi) + DVec3::splat(margin))
+        });
         Self {
-            lo: grid.origin_m,
-            hi: grid.max_corner_m(),
+            lo,
+            hi,
             rho_max: grid.max_density() as f64,
             block_dims: bd,
             block_max,
+            occupied,
             grid,
         }
     }
 
     /// Trilinear weights of the 8 voxels around `p` (the grid's convention); `None` outside.
-    #[inline]
+    #[inline(always)]
     pub fn weights(&self, p: DVec3) -> Option<[(usize, f64); 8]> {
         let g = &*self.grid;
         let local = (p - g.origin_m) / g.voxel_size_m;
         let n = g.dims;
         let mut i0 = [0usize; 3];
-        let mut i1 = [0usize; 3];
+        let mut di = [0usize; 3];
         let mut f = [0f64; 3];
+        let strides = [1, n[0], n[0] * n[1]];
         for a in 0..3 {
             let l = local[a];
             if !(l >= 0.0 && l <= n[a] as f64) {
                 return None;
             }
             let c = (l - 0.5).clamp(0.0, (n[a] - 1) as f64);
-            let lo = (c.floor() as usize).min(n[a] - 1);
+            // c ≥ 0: truncation is the floor.
+            let lo = (c as usize).min(n[a] - 1);
             i0[a] = lo;
-            i1[a] = (lo + 1).min(n[a] - 1);
+            di[a] = ((lo + 1).min(n[a] - 1) - lo) * strides[a];
             f[a] = c - lo as f64;
         }
+        let base = i0[2] * strides[2] + i0[1] * strides[1] + i0[0];
+        let (gx, gy, gz) = ([1.0 - f[0], f[0]], [1.0 - f[1], f[1]], [1.0 - f[2], f[2]]);
         let mut out = [(0usize, 0f64); 8];
         for (corner, o) in out.iter_mut().enumerate() {
-            let x = if corner & 1 == 0 { i0[0] } else { i1[0] };
-            let y = if corner & 2 == 0 { i0[1] } else { i1[1] };
-            let z = if corner & 4 == 0 { i0[2] } else { i1[2] };
-            let w = (if corner & 1 == 0 { 1.0 - f[0] } else { f[0] })
-                * (if corner & 2 == 0 { 1.0 - f[1] } else { f[1] })
-                * (if corner & 4 == 0 { 1.0 - f[2] } else { f[2] });
-            *o = (g.index(x, y, z), w);
+            let (bx, by, bz) = (corner & 1, (corner >> 1) & 1, corner >> 2);
+            let w = gx[bx] * gy[by] * gz[bz];
+            *o = (base + bx * di[0] + by * di[1] + bz * di[2], w);
         }
         Some(out)
     }
@@ -92,7 +176,7 @@ impl CloudVolume {
     /// Density at `p` (0 outside the box).
     #[inline]
     pub fn rho(&self, p: DVec3) -> f64 {
-        self.grid.sample(p) as f64
+        sample(&self.grid, p) as f64
     }
 
     /// Entry and exit distances of the ray with the box.
@@ -107,7 +191,7 @@ impl CloudVolume {
         let local = (p - self.lo) / h;
         let mut b = [0usize; 3];
         for a in 0..3 {
-            let v = local[a].floor();
+            let v = floor(local[a]);
             if v < 0.0 || v >= self.block_dims[a] as f64 {
                 return None;
             }
@@ -128,6 +212,53 @@ impl CloudVolume {
             }
         }
         Some(t.max(0.0))
+    }
+
+    /// [`Self::empty_skip`] and more: `(true, skip)` where it returns `Some(skip)`; otherwise
+    /// `(false, t)` with `t` a distance along `d` from `p` before which every point of the ray
+    /// (computed as `o + d·t'` like `p`) stays in the same occupied block, so `empty_skip`
+    /// would return `None` there too: short of the block's faces by a millionth of a voxel plus
+    /// a bound on the rounding of the points (0 outside the block grid).
+    #[inline(always)]
+    pub fn block_exit(&self, p: DVec3, d: DVec3) -> (bool, f64) {
+        let h = self.grid.voxel_size_m * BLOCK as f64;
+        let local = (p - self.lo) / h;
+        let mut b = [0usize; 3];
+        for a in 0..3 {
+            let v = floor(local[a]);
+            if v < 0.0 || v >= self.block_dims[a] as f64 {
+                return (false, 0.0);
+            }
+            b[a] = v as usize;
+        }
+        let idx = (b[2] * self.block_dims[1] + b[1]) * self.block_dims[0] + b[0];
+        let blo = self.lo + DVec3::new(b[0] as f64, b[1] as f64, b[2] as f64) * h;
+        let bhi = blo + DVec3::splat(h);
+        if self.block_max[idx] <= 0.0 {
+            let mut t = f64::INFINITY;
+            for a in 0..3 {
+                if d[a] > 0.0 {
+                    t = t.min((bhi[a] - p[a]) / d[a]);
+                } else if d[a] < 0.0 {
+                    t = t.min((blo[a] - p[a]) / d[a]);
+                }
+            }
+            return (true, t.max(0.0));
+        }
+        let mut t = f64::INFINITY;
+        let guard = 1e-6 * self.grid.voxel_size_m;
+        for a in 0..3 {
+            let face = if d[a] > 0.0 {
+                bhi[a]
+            } else if d[a] < 0.0 {
+                blo[a]
+            } else {
+                continue;
+            };
+            let slack = 1e-9 * (p[a].abs() + self.lo[a].abs() + h) / d[a].abs();
+            t = t.min((face - p[a]) / d[a] - guard - slack);
+        }
+        (false, t.max(0.0))
     }
 
     /// Density integral ∫ρ ds (m) from `o` along unit `d` to the box exit, midpoint rule with
