@@ -20,16 +20,7 @@ pub fn lut(flags: &RequestParams, layout: &str, dir: &Path, engine: &Engine) -> 
     let layout = Layout::parse(layout)?;
     let req = LutRequest::from_params(&request_params(flags.clone())?)?.with_layout(layout);
     let start = Instant::now();
-    let (files, timing_ms) = match layout {
-        Layout::Bruneton2017 => {
-            let bundle = req.compute(engine)?;
-            (req.files(&bundle)?, bundle.timing_ms)
-        }
-        Layout::SkyView => {
-            let bundle = req.compute_skyview_unless(engine, &|| false)?;
-            (req.skyview_files(&bundle)?, bundle.timing_ms)
-        }
-    };
+    let (files, timing_ms) = req.compute_files_unless(engine, &|| false)?;
     let compute_ms = start.elapsed().as_secs_f64() * 1e3;
     skybake_store::files::create_dir_all(dir)?;
     let mut listed = Vec::new();

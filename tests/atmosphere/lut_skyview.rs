@@ -400,7 +400,7 @@ fn layouts_are_named_and_keyed_apart() {
     assert_eq!(Layout::parse("bruneton2017").unwrap(), Layout::Bruneton2017);
     let err = Layout::parse("Skyview").unwrap_err();
     assert!(
-        matches!(&err, skybake_physics::Error::Invalid { field, .. } if field == "layout"),
+        matches!(&err, skybake_physics::Error::OutOfRange { field, .. } if field == "layout"),
         "{err}"
     );
     let bruneton = LutRequest::from_params(&RequestParams::default()).unwrap();

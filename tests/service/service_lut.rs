@@ -37,12 +37,17 @@ async fn a_bundle_is_served_as_a_manifest_with_links_to_cached_textures() {
     for (query, name, status) in [
         ("sun_elevation_deg=10", "sun_elevation_deg", 422),
         ("quality=draft&ground_albedo=2", "ground_albedo", 400),
+        ("quality=draft&layout=bruneton", "layout", 400),
     ] {
         let r = srv.get(&format!("/v1/lut?{query}")).await;
         assert_eq!(r.status, status, "{}", r.text());
         assert_eq!(r.header("content-type"), Some("application/problem+json"));
         assert_eq!(r.json()["parameter"], name, "{}", r.text());
     }
+    // `layout` is the bundle's alone: a product refuses it by name.
+    let r = srv.get("/v1/sky?layout=skyview").await;
+    assert!(r.status == 400 || r.status == 422, "{}", r.text());
+    assert_eq!(r.json()["parameter"], "layout", "{}", r.text());
     let r = srv.get("/v1/lut?quality=draft&colour=1").await;
     assert_eq!(r.status, 400, "{}", r.text());
     assert!(r.text().contains("colour"), "{}", r.text());
@@ -93,5 +98,49 @@ async fn a_bundle_is_served_as_a_manifest_with_links_to_cached_textures() {
         let r = request_with(srv.addr, url, &format!("If-None-Match: {tag}\r\n")).await;
         assert_eq!(r.status, 304, "{name}");
     }
+    srv.stop().await;
+}
+
+/// The second layout over HTTP (`layout=skyview`): its own manifest, files and cache entry.
+/// One cold sky-view build (about 30 s of CPU): ignored by the README's command, run by `.ci/run`.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+#[ignore]
+async fn the_skyview_layout_is_served_with_its_own_files() {
+    let dir = Scratch::new("lut-skyview");
+    let mut s = settings(dir.path());
+    s.server.request_timeout_s = 900.0;
+    let srv = TestServer::start(s).await;
+
+    let path = "/v1/lut?quality=draft&layout=skyview";
+    let first = srv.get(path).await;
+    assert_eq!(first.status, 200, "{}", first.text());
+    assert_eq!(first.header("x-cache"), Some("miss"));
+    let manifest = first.json();
+    assert_eq!(manifest["format"], "skyview", "{manifest}");
+    assert_eq!(manifest["request"]["layout"], "skyview");
+    let links = manifest["links"].as_object().unwrap().clone();
+    for name in [
+        "transmittance.exr",
+        "skyview_rayleigh.exr",
+        "skyview_mie.exr",
+        "skyview_scale.exr",
+        "skyview_irradiance.exr",
+    ] {
+        assert!(links.contains_key(name), "{links:?}");
+    }
+    assert!(!links.contains_key("scattering.exr"), "{links:?}");
+    for (name, url) in &links {
+        let t = srv.get(url.as_str().unwrap()).await;
+        assert_eq!(t.status, 200, "{name}: {}", t.text());
+        assert_eq!(t.body[..4], EXR_MAGIC, "{name}");
+    }
+    let again = srv.get(path).await;
+    assert_eq!(again.header("x-cache"), Some("hit"));
+    assert_eq!(again.body, first.body);
+    // Bruneton's layout is another bundle with its own key.
+    let bruneton = srv.get("/v1/lut?quality=draft").await;
+    assert_eq!(bruneton.status, 200, "{}", bruneton.text());
+    assert_ne!(bruneton.header("etag"), first.header("etag"));
+    assert_eq!(srv.state.metrics().computations("lut"), 2);
     srv.stop().await;
 }

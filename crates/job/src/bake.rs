@@ -224,8 +224,8 @@ fn bake_bundle(
     name: &str,
     cancel: &(dyn Fn() -> bool + Sync),
 ) -> Result<(), JobError> {
-    let bundle = req.compute_unless(engine, cancel)?;
-    put_linked(req.files(&bundle)?, None, out, name)
+    let (files, _) = req.compute_files_unless(engine, cancel)?;
+    put_linked(files, None, out, name)
 }
 
 /// Computes the pre-lit cloud volume `req` (files the scene names: the example scenes' only,

@@ -708,6 +708,26 @@ mod tests {
             matches!(&e, JobError::Param(p) if p.field() == "bundles[0].observer_altitude_m"),
             "{e}"
         );
+        // The layout is the item's own: skyview is another bundle, an unknown one is named.
+        let p = plan(
+            json!({"bundles": [{"quality": "draft"}, {"quality": "draft", "layout": "skyview"}]}),
+            10,
+        )
+        .unwrap();
+        let (Ok(JobItem::Bundle(a)), Ok(JobItem::Bundle(b))) =
+            (p.item_request(0, &d), p.item_request(1, &d))
+        else {
+            panic!("items 0 and 1 are bundles")
+        };
+        assert_eq!(a.layout, skybake_product::lut::Layout::Bruneton2017);
+        assert_eq!(b.layout, skybake_product::lut::Layout::SkyView);
+        assert_ne!(a.cache_key(), b.cache_key());
+        let p = plan(json!({"bundles": [{"layout": "bruneton"}]}), 10).unwrap();
+        let e = p.validate(&d).unwrap_err();
+        assert!(
+            matches!(&e, JobError::Param(p) if p.field() == "bundles[0].layout"),
+            "{e}"
+        );
     }
 
     #[test]

@@ -56,15 +56,13 @@ pub enum Layout {
 pub const LAYOUTS: &[&str] = &["bruneton2017", skybake_lut::skyview::LAYOUT];
 
 impl Layout {
-    /// The layout named `name`; an unknown name is an error naming `layout` and the choices.
+    /// The layout named `name`; an unknown name is out of range, naming `layout` and the choices
+    /// (HTTP 400, as every bad value).
     pub fn parse(name: &str) -> Result<Self> {
         match name {
             "bruneton2017" => Ok(Self::Bruneton2017),
             n if n == skybake_lut::skyview::LAYOUT => Ok(Self::SkyView),
-            other => Err(Error::invalid(
-                "layout",
-                format!("unknown layout `{other}`: one of {}", LAYOUTS.join(", ")),
-            )),
+            other => Err(Error::out_of_range("layout", other, LAYOUTS.join(", "))),
         }
     }
 }
@@ -83,9 +81,13 @@ impl LutRequest {
         if let Some(name) = NOT_FOR_LUT.iter().find(|n| p.get(n).is_some()) {
             return Err(Error::invalid(
                 name,
-                "a texture bundle holds every observer, view and sun; it takes the atmosphere's parameters only (atmosphere, visibility_km, aerosol_type, boundary_layer_top_m, ground_albedo, wavelengths, quality)",
+                "a texture bundle holds every observer, view and sun; it takes the atmosphere's parameters only (atmosphere, visibility_km, aerosol_type, boundary_layer_top_m, ground_albedo, wavelengths, quality) and layout",
             ));
         }
+        let layout = match p.layout.as_deref() {
+            Some(name) => Layout::parse(name)?,
+            None => Layout::Bruneton2017,
+        };
         let mut p = p.clone();
         let channels = if p.wavelengths.is_some() {
             Channels::Spectral
@@ -102,7 +104,7 @@ impl LutRequest {
         Ok(Self {
             spec,
             channels,
-            layout: Layout::Bruneton2017,
+            layout,
         })
     }
 
@@ -183,6 +185,26 @@ impl LutRequest {
             self.spec.quality.steps(),
             cancelled,
         )
+    }
+
+    /// Computes the bundle in its layout and encodes its files: (name, bytes), the manifest
+    /// last, and the stages' times (ms: precise table, transmittance, scattering or sky view,
+    /// irradiance).
+    pub fn compute_files_unless(
+        &self,
+        engine: &Engine,
+        cancelled: &(dyn Fn() -> bool + Sync),
+    ) -> Result<(Vec<(&'static str, Vec<u8>)>, [f64; 4])> {
+        match self.layout {
+            Layout::Bruneton2017 => {
+                let bundle = self.compute_unless(engine, cancelled)?;
+                Ok((self.files(&bundle)?, bundle.timing_ms))
+            }
+            Layout::SkyView => {
+                let bundle = self.compute_skyview_unless(engine, cancelled)?;
+                Ok((self.skyview_files(&bundle)?, bundle.timing_ms))
+            }
+        }
     }
 
     /// The `skyview` bundle's files: (name, bytes), the manifest last.

@@ -202,6 +202,9 @@ parameter_table! {
         range: Range::Text("VZ:VA pairs, view zenith 0 to 180, view azimuth -360 to 360"),
         default: "—", products: DOMES,
         doc: "Exact directions to evaluate (view zenith, view azimuth from the sun)" },
+    layout { cli: None, unit: "", range: Range::OneOf(&["bruneton2017", "skyview"]),
+        default: "bruneton2017", products: &[],
+        doc: "Texture-bundle layout (GET /v1/lut and bake-job bundles; the CLI's `skybake lut --layout`): Bruneton 2017's textures, or skybake's sky-view layout (docs/lut.md)" },
     format { cli: None, unit: "", range: Range::OneOf(&["json", "exr", "png", "png_latlong"]), default: "json",
         products: ALL, doc: "Response format: json (all), exr (sky, ground, aerial), png (fisheye preview; sky, ground), png_latlong (panorama preview; sky, ground); a PNG is RGB-only: the planner may run it at fewer wavelengths (its own cache key)" },
 }

@@ -779,10 +779,10 @@ impl AppState {
                     }
                 }
                 s.inner.metrics.computed("lut");
-                let bundle = req.compute_unless(&s.inner.engine, cancelled)?;
+                let (files, _) = req.compute_files_unless(&s.inner.engine, cancelled)?;
                 let mut links = serde_json::Map::new();
                 let mut manifest = None;
-                for (name, bytes) in req.files(&bundle)? {
+                for (name, bytes) in files {
                     if name == skybake_product::lut::MANIFEST_FILE {
                         manifest = Some(bytes);
                         continue;
