@@ -91,7 +91,9 @@ fn main() {
     p.ground_albedo = Some(Spectral::Constant(1.0));
     let wl = Wavelengths::parse("440").unwrap();
     let medium = Medium::new(&p, &wl, None).unwrap();
-    eprintln!("{s:?} product steps {product_steps} g {g} top {top} ext {ext}");
+    let (n_r_table, n_phi_table) =
+        skybake_physics::atmosphere::multiple_precise::table_radius_and_azimuth_nodes(&s, &medium);
+    eprintln!("{s:?} product steps {product_steps} g {g} top {top} ext {ext}; table n_r {n_r_table} n_phi {n_phi_table}");
     let shared = SharedTables::new(medium, fast, s);
     let t = std::time::Instant::now();
     let conv = shared.precise().convergence.clone();
@@ -116,4 +118,18 @@ fn main() {
     println!(
         "outgoing/incoming at the top {out:.5}; at the ground: down (diffuse) {down:.5}, up {up:.5}"
     );
+    // Flux profile: with no absorption over a white ground the net flux (diffuse down + direct
+    // − up) is zero at every level; where it is not, the discrete transfer gains or loses energy.
+    if std::env::var_os("FOG_PROFILE").is_some() {
+        for h in [0.0, 100.0, 300.0, 600.0, 900.0, 1200.0, 1400.0, 1500.0, 1600.0, 3000.0] {
+            let d = flux(&shared, h, true, product_steps);
+            let u = flux(&shared, h, false, product_steps);
+            let direct = skybake_physics::atmosphere::sun_transmittance::sun_transmittance(
+                &shared.medium,
+                h,
+                PI / 2.0,
+            )[0];
+            println!("h {h:6.0} m: down {d:.5} direct {direct:.5} up {u:.5} net {:+.5}", d + direct - u);
+        }
+    }
 }
