@@ -59,15 +59,14 @@ SUN_ZENITH_DEG = [0.0, 40.0, 75.0]
 CSV = os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "data", "aerosol_types_6sv.csv")
 OUT = os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "tests", "data", "disort_fog.json")
 
-# Fog-like haze: visibility 1 km in a 1.5 km boundary layer (optical depth 5.85 at 550 nm), the same
-# over a bright ground, the nearly conservative maritime type, 2 km, and visibility 1 km in a 2.5 km
-# layer (optical depth 9.7: the thickest `visibility_km` allows).
+# Fog-like haze: visibility 1 km in a 1.5 km boundary layer (optical depth 5.85 at 550 nm, about the
+# thickest `visibility_km` allows), the same over a bright ground, the nearly conservative maritime
+# type, and visibility 2 km (optical depth 2.9).
 ATMOSPHERES = [
     dict(name="fog1_continental", visibility_km=1.0, top_m=1500.0, type="continental", albedo=0.1),
     dict(name="fog1_bright", visibility_km=1.0, top_m=1500.0, type="continental", albedo=0.5),
     dict(name="fog1_maritime", visibility_km=1.0, top_m=1500.0, type="maritime", albedo=0.1),
     dict(name="haze2_continental", visibility_km=2.0, top_m=1500.0, type="continental", albedo=0.1),
-    dict(name="fog1_deep_maritime", visibility_km=1.0, top_m=2500.0, type="maritime", albedo=0.3),
 ]
 
 
