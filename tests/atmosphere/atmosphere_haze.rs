@@ -29,7 +29,7 @@ fn floats(v: &Value) -> Vec<f64> {
 #[test]
 fn fog_of_visibility_1_km_converges_and_stays_finite() {
     // Visibility 1 km in a 1.5 km boundary layer: optical depth 5.85 at 550 nm, fog-like haze
-    // (the largest `visibility_km` may give is 10: haze::MAX_BOUNDARY_LAYER_OPTICAL_DEPTH_550).
+    // (the largest `visibility_km` may give is 6: haze::MAX_BOUNDARY_LAYER_OPTICAL_DEPTH_550).
     let engine = Engine::new();
     for kind in ["continental", "urban"] {
         let v = body(

@@ -121,7 +121,9 @@ fn main() {
     // Flux profile: with no absorption over a white ground the net flux (diffuse down + direct
     // − up) is zero at every level; where it is not, the discrete transfer gains or loses energy.
     if std::env::var_os("FOG_PROFILE").is_some() {
-        for h in [0.0, 100.0, 300.0, 600.0, 900.0, 1200.0, 1400.0, 1500.0, 1600.0, 3000.0] {
+        for h in [
+            0.0, 100.0, 300.0, 600.0, 900.0, 1200.0, 1400.0, 1500.0, 1600.0, 3000.0,
+        ] {
             let d = flux(&shared, h, true, product_steps);
             let u = flux(&shared, h, false, product_steps);
             let direct = skybake_physics::atmosphere::sun_transmittance::sun_transmittance(
@@ -129,7 +131,10 @@ fn main() {
                 h,
                 PI / 2.0,
             )[0];
-            println!("h {h:6.0} m: down {d:.5} direct {direct:.5} up {u:.5} net {:+.5}", d + direct - u);
+            println!(
+                "h {h:6.0} m: down {d:.5} direct {direct:.5} up {u:.5} net {:+.5}",
+                d + direct - u
+            );
         }
     }
 }

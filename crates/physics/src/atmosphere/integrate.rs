@@ -178,7 +178,11 @@ pub fn ray_points(
         let point = |i: usize| {
             let u = (i as f64 + 0.5) / n as f64;
             if uniform {
-                let t = if dense_at_start { a + len * u } else { b - len * u };
+                let t = if dense_at_start {
+                    a + len * u
+                } else {
+                    b - len * u
+                };
                 let rr = radius_at(r0, mu, t).max(bottom);
                 return RayPoint {
                     t,
