@@ -8,6 +8,11 @@
 //! and the outgoing flux at the top per unit incoming flux (1 when energy is conserved), plus the
 //! downward and upward fluxes at the ground.
 //!
+//! With `FOG_PROFILE=1` it also prints the fluxes at altitudes 0–3000 m: the net flux (diffuse
+//! down plus direct minus up) is zero at every level when energy is conserved, so where it changes
+//! is where the discrete transfer gains or loses energy (it located the fog top's density-integral
+//! error).
+//!
 //! `cargo run --release -p skybake-harness --features probes --example fog_probe -- \
 //!    [n_r n_mu_s n_mu n_phi steps product_steps max_orders tolerance extrapolate(0|1) g top_m ext_550]`
 

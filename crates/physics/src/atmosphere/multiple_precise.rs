@@ -1808,8 +1808,10 @@ impl PreciseMultipleScattering {
 /// 4: Â_R and Â_M per constituent instead of J; 5: the view-zenith poles' azimuthal mean in the
 /// radiance passes, [`Grid::theta_corners`]; 6: radius nodes added in optically thick haze,
 /// [`radius_nodes`], the stored `n_r` counting them; 7: azimuth nodes doubled in strongly
-/// forward aerosols, [`azimuth_nodes`], the stored `n_phi` counting them.)
-pub const TABLE_FORMAT: &str = "precise-table-7";
+/// forward aerosols, [`azimuth_nodes`], the stored `n_phi` counting them; 8: a layered aerosol's
+/// boundary layer taken exactly in the density integrals and with equal ray steps inside it,
+/// `transmittance::DensityIntegralTable`, `integrate::ray_points`.)
+pub const TABLE_FORMAT: &str = "precise-table-8";
 /// Header attribute holding the stored table's description ([`StoredPrecise`] as JSON).
 const ATTR_TABLE: &str = "skybakeSharedTable";
 

@@ -388,6 +388,43 @@ mod tests {
     use crate::spectrum::Wavelengths;
 
     #[test]
+    fn table_takes_a_boundary_layer_top_exactly_in_fog() {
+        // Visibility 1 km in a 1.5 km boundary layer (optical depth 5.85 at 550 nm): the sun's
+        // transmittance through the table just under and over the layer's top, where linear
+        // interpolation across the density integral's kink read the optical depth up to 0.36 too
+        // large, against the chord (exact) plus the free troposphere integrated finely.
+        let mut a = preset("earth").unwrap();
+        crate::atmosphere::haze::Haze {
+            visibility_km: Some(1.0),
+            aerosol_type: None,
+            boundary_layer_top_m: Some(1500.0),
+        }
+        .apply(&mut a)
+        .unwrap();
+        let m = Medium::new(&a, &Wavelengths::parse("440").unwrap(), None).unwrap();
+        let table = DensityIntegralTable::new(&m, 64, 256, 500);
+        let bl = m.bottom_radius_m + 1500.0;
+        for &h in &[1100.0, 1300.0, 1400.0, 1450.0, 1499.0, 1501.0, 1600.0] {
+            let r = m.bottom_radius_m + h;
+            for &mu in &[1.0, 0.5, 0.26, 0.1] {
+                let d = distance_to_sphere_far(r, mu, m.top_radius_m).unwrap();
+                let mut exact = density_integrals(&m, r, mu, d, 100_000);
+                // The chord directly, independently of the one density_integrals adds.
+                let t_exit = distance_to_sphere_far(r, mu, bl).unwrap_or(0.0);
+                let bl_part = if r < bl { t_exit } else { 0.0 };
+                assert!((chord_inside_sphere(r, mu, bl, d) - bl_part).abs() < 1e-6);
+                exact[1] = exact[1] - chord_inside_sphere(r, mu, bl, d) + bl_part;
+                let tau_e = m.optical_depth(0, &exact);
+                let tau_g = m.optical_depth(0, &table.lookup(r, mu));
+                assert!(
+                    (tau_e - tau_g).abs() < 2e-3,
+                    "h {h} mu {mu}: {tau_e} vs {tau_g}"
+                );
+            }
+        }
+    }
+
+    #[test]
     fn table_matches_direct_integration_everywhere() {
         let m = Medium::new(
             &preset("earth").unwrap(),
