@@ -1,8 +1,8 @@
 //! Haze as users describe it (`visibility_km`, `aerosol_type`, `boundary_layer_top_m`) through the
-//! product path: the thickest haze `visibility_km` may give converges, stays finite and
-//! non-negative (fog-like haze beyond it is refused by name), and an observer above the boundary
-//! layer climbs out of it. Energy conservation of the layered profile at that optical depth is
-//! checked in atmosphere_validation.rs.
+//! product path: fog of visibility 1 km converges, stays finite and non-negative (haze beyond the
+//! largest optical depth allowed is refused by name), and an observer above the boundary layer
+//! climbs out of it. Energy conservation of the layered profile down to visibility 1 km is
+//! checked in atmosphere_validation.rs, its sky against DISORT in atmosphere_fog.rs.
 
 use serde_json::Value;
 use skybake_engine::engine::Engine;
@@ -27,16 +27,16 @@ fn floats(v: &Value) -> Vec<f64> {
 }
 
 #[test]
-fn the_thickest_haze_allowed_converges_and_stays_finite() {
-    // Visibility 3 km in a 1.5 km boundary layer: optical depth 1.94 at 550 nm, just under the
-    // largest `visibility_km` may give (2: haze::MAX_BOUNDARY_LAYER_OPTICAL_DEPTH_550).
+fn fog_of_visibility_1_km_converges_and_stays_finite() {
+    // Visibility 1 km in a 1.5 km boundary layer: optical depth 5.85 at 550 nm, fog-like haze
+    // (the largest `visibility_km` may give is 6: haze::MAX_BOUNDARY_LAYER_OPTICAL_DEPTH_550).
     let engine = Engine::new();
     for kind in ["continental", "urban"] {
         let v = body(
             &engine,
             ProductKind::Sky,
             &[
-                ("visibility_km", "3"),
+                ("visibility_km", "1"),
                 ("aerosol_type", kind),
                 ("boundary_layer_top_m", "1500"),
                 ("wavelengths", "440,550,680"),
@@ -47,11 +47,11 @@ fn the_thickest_haze_allowed_converges_and_stays_finite() {
         let e = &v["error_estimate"];
         let orders = e["scattering_orders"].as_u64().unwrap();
         let last = e["last_order_fraction"].as_f64().unwrap();
-        eprintln!("visibility 3 km, {kind}: {orders} orders, last order {last:.2e}");
+        eprintln!("visibility 1 km, {kind}: {orders} orders, last order {last:.2e}");
         // The series ends (last order or its extrapolated geometric tail under the tolerance)
         // before the cap of 60 orders.
         assert!(orders < 60, "{orders} {last}");
-        // Optical depth ≈ 2 at 550 nm: outside the validated range, and the product says so.
+        // Optical depth 5.85 at 550 nm: outside the validated range, and the product says so.
         assert_eq!(e["validated"], Value::Bool(false), "{e}");
         let radiance: Vec<f64> = v["probes"]
             .as_array()
@@ -64,8 +64,8 @@ fn the_thickest_haze_allowed_converges_and_stays_finite() {
         // The sky is lit: the zenith at 550 nm is not black under thick haze.
         assert!(v["probes"][0]["radiance_w_m2_sr_nm"][1].as_f64().unwrap() > 1e-3);
     }
-    // Fog-like haze (visibility 1 km in the same layer: optical depth 5.9) is refused by name.
-    let p = RequestParams::from_pairs([("visibility_km", "1"), ("boundary_layer_top_m", "1500")])
+    // Visibility 1 km in a 3 km layer (optical depth 11.7) is refused by name.
+    let p = RequestParams::from_pairs([("visibility_km", "1"), ("boundary_layer_top_m", "3000")])
         .unwrap();
     let err = ProductRequest::from_params(ProductKind::Sky, &p).unwrap_err();
     assert_eq!(err.field(), "visibility_km", "{err}");

@@ -2,6 +2,7 @@
 
 mod atmosphere_aerosol;
 mod atmosphere_cancel;
+mod atmosphere_fog;
 mod atmosphere_haze;
 mod atmosphere_night;
 mod atmosphere_products;

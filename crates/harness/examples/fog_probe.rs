@@ -8,6 +8,11 @@
 //! and the outgoing flux at the top per unit incoming flux (1 when energy is conserved), plus the
 //! downward and upward fluxes at the ground.
 //!
+//! With `FOG_PROFILE=1` it also prints the fluxes at altitudes 0–3000 m: the net flux (diffuse
+//! down plus direct minus up) is zero at every level when energy is conserved, so where it changes
+//! is where the discrete transfer gains or loses energy (it located the fog top's density-integral
+//! error).
+//!
 //! `cargo run --release -p skybake-harness --features probes --example fog_probe -- \
 //!    [n_r n_mu_s n_mu n_phi steps product_steps max_orders tolerance extrapolate(0|1) g top_m ext_550]`
 
@@ -91,7 +96,9 @@ fn main() {
     p.ground_albedo = Some(Spectral::Constant(1.0));
     let wl = Wavelengths::parse("440").unwrap();
     let medium = Medium::new(&p, &wl, None).unwrap();
-    eprintln!("{s:?} product steps {product_steps} g {g} top {top} ext {ext}");
+    let (n_r_table, n_phi_table) =
+        skybake_physics::atmosphere::multiple_precise::table_radius_and_azimuth_nodes(&s, &medium);
+    eprintln!("{s:?} product steps {product_steps} g {g} top {top} ext {ext}; table n_r {n_r_table} n_phi {n_phi_table}");
     let shared = SharedTables::new(medium, fast, s);
     let t = std::time::Instant::now();
     let conv = shared.precise().convergence.clone();
@@ -116,4 +123,23 @@ fn main() {
     println!(
         "outgoing/incoming at the top {out:.5}; at the ground: down (diffuse) {down:.5}, up {up:.5}"
     );
+    // Flux profile: with no absorption over a white ground the net flux (diffuse down + direct
+    // − up) is zero at every level; where it is not, the discrete transfer gains or loses energy.
+    if std::env::var_os("FOG_PROFILE").is_some() {
+        for h in [
+            0.0, 100.0, 300.0, 600.0, 900.0, 1200.0, 1400.0, 1500.0, 1600.0, 3000.0,
+        ] {
+            let d = flux(&shared, h, true, product_steps);
+            let u = flux(&shared, h, false, product_steps);
+            let direct = skybake_physics::atmosphere::sun_transmittance::sun_transmittance(
+                &shared.medium,
+                h,
+                PI / 2.0,
+            )[0];
+            println!(
+                "h {h:6.0} m: down {d:.5} direct {direct:.5} up {u:.5} net {:+.5}",
+                d + direct - u
+            );
+        }
+    }
 }

@@ -168,7 +168,7 @@ parameter_table! {
         default: "earth", products: ALL, doc: "Atmosphere preset or definition" },
     visibility_km { cli: Some("visibility-km"), unit: "km", range: Range::Real { lo: 1.0, hi: 300.0 },
         default: "the atmosphere's aerosol", products: ALL,
-        doc: "Meteorological visibility at the ground (Koschmieder, 550 nm): replaces the atmosphere's aerosol by a hazy boundary layer of this visibility over free-tropospheric (optical depth 0.02) and stratospheric (0.005) background; the largest allowed is where Rayleigh extinction alone limits the visibility, the smallest where the boundary layer's optical depth at 550 nm reaches 2 (1.95 km for a 1000 m layer; fog-like haze is refused)" },
+        doc: "Meteorological visibility at the ground (Koschmieder, 550 nm): replaces the atmosphere's aerosol by a hazy boundary layer of this visibility over free-tropospheric (optical depth 0.02) and stratospheric (0.005) background; the largest allowed is where Rayleigh extinction alone limits the visibility, the smallest where the boundary layer's optical depth at 550 nm reaches 6 (fog-like haze: 1 km for a layer up to 1540 m, 1.62 km for 2500 m, 3.23 km for 5000 m; beyond it is refused)" },
     aerosol_type { cli: Some("aerosol-type"), unit: "",
         range: Range::OneOf(skybake_physics::atmosphere::haze::AEROSOL_TYPES), default: "continental",
         products: ALL,

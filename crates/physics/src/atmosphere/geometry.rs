@@ -34,6 +34,21 @@ pub fn distance_to_sphere_far(r: f64, mu: f64, rs: f64) -> Option<f64> {
     (t >= 0.0).then_some(t)
 }
 
+/// Length of the part of the ray (r, mu), t ∈ [0, `length`], that lies inside the sphere of
+/// radius `rs` (exact: between the roots of r² + 2 r μ t + t² = rs², clipped to the segment).
+/// The discriminant is formed as (rs − r)(rs + r) + r²μ², without the cancellation of
+/// rs² − r² in a planet-sized radius.
+#[inline]
+pub fn chord_inside_sphere(r: f64, mu: f64, rs: f64, length: f64) -> f64 {
+    let disc = (rs - r) * (rs + r) + r * r * mu * mu;
+    if disc <= 0.0 || length <= 0.0 {
+        return 0.0;
+    }
+    let q = disc.sqrt();
+    let (t0, t1) = (-r * mu - q, -r * mu + q);
+    (t1.min(length) - t0.max(0.0)).max(0.0)
+}
+
 /// Distance to the near intersection with a sphere of radius `rs` when entering it from
 /// outside (or hitting it from above), or `None` if the ray misses or points away.
 #[inline]

@@ -126,7 +126,16 @@ pub struct RayPoint {
 /// the energy in conservative fog over a white ground (outgoing / incoming 0.355), 39 % at 80
 /// steps.
 ///
+/// A part inside a layer of uniform density ([`Profile::uniform_layer_top_m`]) has equal steps instead: there no end
+/// is denser, and the u² rule's widest cells lie at the part's upper end, where a descending ray
+/// enters the layer and its transmittance-weighted source is largest (in fog of visibility 1 km,
+/// optical depth 7 over 1.5 km, cells of optical depth 0.7 / μ at the layer's top, across which
+/// the sunlight's source falls by e^(−0.7/μ_s)); with them the precise method's energy over a
+/// white ground read 1.038 at 20 steps, 0.990 at 80; with equal steps 0.998 and 0.985 (1.001 with
+/// 40 radius nodes: the rest is the radius grid's).
+///
 /// [`Profile::jump_altitude_m`]: super::medium::Profile::jump_altitude_m
+/// [`Profile::uniform_layer_top_m`]: super::medium::Profile::uniform_layer_top_m
 pub fn ray_points(
     medium: &Medium,
     r: f64,
@@ -152,13 +161,36 @@ pub fn ray_points(
         }
     }
     let jumps = &jumps[..n_jumps];
+    // Radius of the top of the uniform layer at the bottom of the atmosphere, if one.
+    let uniform_below = medium
+        .profiles
+        .iter()
+        .filter_map(|p| p.uniform_layer_top_m())
+        .map(|h| bottom + h)
+        .reduce(f64::min);
     let mut push_part = |a: f64, b: f64, dense_at_start: bool, n: usize| {
         if b <= a {
             return;
         }
         let len = b - a;
+        // Inside a uniform layer: equal steps (equal optical depths), see above.
+        let uniform = uniform_below.is_some_and(|rl| radius_at(r0, mu, 0.5 * (a + b)) < rl);
         let point = |i: usize| {
             let u = (i as f64 + 0.5) / n as f64;
+            if uniform {
+                let t = if dense_at_start {
+                    a + len * u
+                } else {
+                    b - len * u
+                };
+                let rr = radius_at(r0, mu, t).max(bottom);
+                return RayPoint {
+                    t,
+                    weight: len / n as f64,
+                    r: rr,
+                    mu: clamp_cos((r0 * mu + t) / rr),
+                };
+            }
             let off = len * u * u;
             let t = if dense_at_start { a + off } else { b - off };
             let rr = radius_at(r0, mu, t).max(bottom);

@@ -88,6 +88,29 @@ impl Profile {
         }
     }
 
+    /// Top, m, of the layer of uniform relative density 1 at the bottom of a layered aerosol
+    /// (its boundary layer), or `None` for other profiles. The integral of that part along a ray
+    /// is the ray's chord through the sphere of radius bottom + top, which density integrals take
+    /// exactly (`transmittance::density_integrals`, the density-integral table's lookups); only
+    /// the rest ([`Self::density_above_uniform_layer`]) is integrated numerically and
+    /// interpolated.
+    pub fn uniform_layer_top_m(&self) -> Option<f64> {
+        match *self {
+            Profile::Layered { top_m, .. } => Some(top_m),
+            _ => None,
+        }
+    }
+
+    /// The relative density less the uniform layer of [`Self::uniform_layer_top_m`] (0 inside
+    /// that layer; the density itself above it and for other profiles).
+    #[inline]
+    pub fn density_above_uniform_layer(&self, h_m: f64) -> f64 {
+        match *self {
+            Profile::Layered { top_m, .. } if h_m <= top_m => 0.0,
+            _ => self.density(h_m),
+        }
+    }
+
     /// Vertical integral ∫₀^top ρ dh, m (exact).
     pub fn column_m(&self, top_m: f64) -> f64 {
         match *self {

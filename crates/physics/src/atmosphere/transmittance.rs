@@ -4,7 +4,9 @@
 //! d the distance to the top. Stored as density integrals (not transmittance) so that huge optical
 //! depths interpolate well and every wavelength reuses the same table (ARCHITECTURE.md, "Invariants").
 
-use super::geometry::{distance_to_sphere_far, horizon_mu, radius_at, safe_sqrt};
+use super::geometry::{
+    chord_inside_sphere, distance_to_sphere_far, horizon_mu, radius_at, safe_sqrt,
+};
 use super::kernels::exp_fast;
 use super::medium::{Medium, Profile, CONSTITUENTS};
 use crate::image::SpectralImage;
@@ -12,7 +14,8 @@ use rayon::prelude::*;
 use std::fmt::Write as _;
 
 /// Version of the stored density-table layout (part of its store key, checked on load).
-pub const DENSITY_TABLE_FORMAT: &str = "density-table-1";
+/// (2: each constituent's uniform layer taken out as an exact chord, [`DensityIntegralTable`].)
+pub const DENSITY_TABLE_FORMAT: &str = "density-table-2";
 /// Header attribute with the stored table's description ([`StoredDensity`] as JSON).
 const ATTR_DENSITY: &str = "skybakeDensityTable";
 /// Header attribute with the stored table's values (hex digits of the f64 bits).
@@ -44,7 +47,17 @@ impl StoredDensity {
     }
 }
 
-/// The table, `[i_r][i_mu]` of `[D_rayleigh, D_mie, D_ozone]`.
+/// The table, `[i_r][i_mu]` of `[D_rayleigh, D_mie, D_ozone]`, each less the ray's chord through
+/// its constituent's uniform layer where it has one ([`Profile::uniform_layer_top_m`]); lookups
+/// add that chord back exactly at the point looked up.
+///
+/// A layered aerosol's density integral has a kink where the ray's start crosses the boundary
+/// layer's top (D grows linearly below it, hardly at all above), which linear interpolation on
+/// the table's radius nodes (25 m apart at the ground, 380 m at 1.5 km) rounds off: in fog of
+/// visibility 1 km under a 1.5 km top it read the sun's optical depth 0.08–0.36 too large over
+/// the layer's top 300 m (0.3 km of sunlight-converting haze, optical depth 1.5 at 440 nm), and
+/// the single-scattered light there 10–30 % low; the precise method's energy over a white
+/// ground read 0.926 instead of 1. The chord is continuous and exact; the rest is smooth.
 #[derive(Debug, Clone)]
 pub struct DensityIntegralTable {
     n_r: usize,
@@ -53,7 +66,18 @@ pub struct DensityIntegralTable {
     steps: usize,
     bottom: f64,
     top: f64,
+    /// Per constituent, the radius of the top of its uniform layer, if it has one.
+    layer_radius: [Option<f64>; CONSTITUENTS],
     data: Vec<[f64; CONSTITUENTS]>,
+}
+
+/// Per constituent, the radius of the top of its uniform layer ([`Profile::uniform_layer_top_m`]).
+fn layer_radii(medium: &Medium) -> [Option<f64>; CONSTITUENTS] {
+    std::array::from_fn(|k| {
+        medium.profiles[k]
+            .uniform_layer_top_m()
+            .map(|top| medium.bottom_radius_m + top)
+    })
 }
 
 crate::simd_dispatch! {
@@ -61,6 +85,12 @@ crate::simd_dispatch! {
     /// rule in u with t = length·u² (dense at the start, where an upward ray is densest). Sums in
     /// f64; steps are taken in blocks so each profile's loop is branch-free and vectorises (with
     /// the polynomial `exp` of `kernels`, 1e-14 relative).
+    ///
+    /// A layered aerosol's boundary layer (relative density 1 up to its top, [`Profile::uniform_layer_top_m`])
+    /// is taken exactly, as the ray's chord through it ([`chord_inside_sphere`]); the quadrature
+    /// integrates only the rest. A midpoint rule across the layer's top (a jump from 1 to the
+    /// free troposphere's ~0.003) is off by up to half a step: ~25 m on a vertical ray from the
+    /// ground at 500 steps, an optical depth of 0.12 in fog of visibility 1 km.
     pub fn density_integrals(
         medium: &Medium,
         r: f64,
@@ -112,10 +142,11 @@ crate::simd_dispatch! {
                         }
                     }
                     layered @ Profile::Layered { .. } => {
+                        // The boundary layer's uniform part is added exactly below.
                         for c in 0..BLOCK / PARTS {
                             for q in 0..PARTS {
                                 let j = c * PARTS + q;
-                                acc[q] += layered.density(h[j]) * w[j];
+                                acc[q] += layered.density_above_uniform_layer(h[j]) * w[j];
                             }
                         }
                     }
@@ -123,6 +154,11 @@ crate::simd_dispatch! {
                 *dk += acc.iter().sum::<f64>();
             }
             i0 += n;
+        }
+        for (k, dk) in d.iter_mut().enumerate() {
+            if let Some(top) = medium.profiles[k].uniform_layer_top_m() {
+                *dk += chord_inside_sphere(r, mu, bottom + top, length);
+            }
         }
         d
     }
@@ -147,6 +183,7 @@ impl DensityIntegralTable {
         let bottom = medium.bottom_radius_m;
         let top = medium.top_radius_m;
         let h = safe_sqrt(top * top - bottom * bottom);
+        let layer_radius = layer_radii(medium);
         let data = (0..n_r * n_mu)
             .into_par_iter()
             .map(|idx| {
@@ -166,7 +203,13 @@ impl DensityIntegralTable {
                 } else {
                     ((h * h - rho * rho - d * d) / (2.0 * r * d)).clamp(-1.0, 1.0)
                 };
-                Some(density_integrals(medium, r, mu, d, steps))
+                let mut v = density_integrals(medium, r, mu, d, steps);
+                for (k, rl) in layer_radius.iter().enumerate() {
+                    if let Some(rl) = *rl {
+                        v[k] = (v[k] - chord_inside_sphere(r, mu, rl, d)).max(0.0);
+                    }
+                }
+                Some(v)
             })
             // Stops taking new entries at the first `None`.
             .collect::<Option<Vec<_>>>()?;
@@ -176,6 +219,7 @@ impl DensityIntegralTable {
             steps,
             bottom,
             top,
+            layer_radius,
             data,
         })
     }
@@ -235,6 +279,7 @@ impl DensityIntegralTable {
             steps,
             bottom: medium.bottom_radius_m,
             top: medium.top_radius_m,
+            layer_radius: layer_radii(medium),
             data,
         })
     }
@@ -320,6 +365,9 @@ impl AtRadius<'_> {
             let v0 = at(ir, im)[k] * (1.0 - am) + at(ir, im + 1)[k] * am;
             let v1 = at(ir + 1, im)[k] * (1.0 - am) + at(ir + 1, im + 1)[k] * am;
             *o = v0 * (1.0 - ar) + v1 * ar;
+            if let Some(rl) = t.layer_radius[k] {
+                *o += chord_inside_sphere(self.r, mu, rl, d);
+            }
         }
         out
     }
@@ -338,6 +386,46 @@ mod tests {
     use super::*;
     use crate::atmosphere::presets::preset;
     use crate::spectrum::Wavelengths;
+
+    #[test]
+    fn table_takes_a_boundary_layer_top_exactly_in_fog() {
+        // Visibility 1 km in a 1.5 km boundary layer (optical depth 5.85 at 550 nm): the sun's
+        // transmittance through the table just under and over the layer's top, where linear
+        // interpolation across the density integral's kink read the optical depth up to 0.36 too
+        // large, against the chord (exact) plus the free troposphere integrated finely.
+        let mut a = preset("earth").unwrap();
+        crate::atmosphere::haze::Haze {
+            visibility_km: Some(1.0),
+            aerosol_type: None,
+            boundary_layer_top_m: Some(1500.0),
+        }
+        .apply(&mut a)
+        .unwrap();
+        let m = Medium::new(&a, &Wavelengths::parse("440").unwrap(), None).unwrap();
+        let table = DensityIntegralTable::new(&m, 64, 256, 500);
+        let bl = m.bottom_radius_m + 1500.0;
+        for &h in &[1100.0, 1300.0, 1400.0, 1450.0, 1499.0, 1501.0, 1600.0] {
+            let r = m.bottom_radius_m + h;
+            for &mu in &[1.0, 0.5, 0.26, 0.1] {
+                let d = distance_to_sphere_far(r, mu, m.top_radius_m).unwrap();
+                let mut exact = density_integrals(&m, r, mu, d, 100_000);
+                // The chord directly, independently of the one density_integrals adds.
+                let t_exit = distance_to_sphere_far(r, mu, bl).unwrap_or(0.0);
+                let bl_part = if r < bl { t_exit } else { 0.0 };
+                assert!((chord_inside_sphere(r, mu, bl, d) - bl_part).abs() < 1e-6);
+                exact[1] = exact[1] - chord_inside_sphere(r, mu, bl, d) + bl_part;
+                let tau_e = m.optical_depth(0, &exact);
+                let tau_g = m.optical_depth(0, &table.lookup(r, mu));
+                // The rest interpolates to ≤ 0.005 + 0.1 %: the free troposphere's own, smaller
+                // kink at the top (relative density 0.0026 of the layer's); without the chord the
+                // error was 0.08–0.36 per unit airmass.
+                assert!(
+                    (tau_e - tau_g).abs() < 0.01 + 2e-3 * tau_e,
+                    "h {h} mu {mu}: {tau_e} vs {tau_g}"
+                );
+            }
+        }
+    }
 
     #[test]
     fn table_matches_direct_integration_everywhere() {
