@@ -10,9 +10,11 @@
 //! aerosol comparison's own check of the stated errors against them is skipped.
 
 use crate::atmosphere_aerosol::{deviations, load};
+use crate::atmosphere_fog;
 use crate::atmosphere_validation::{disort_deviation_at, EARTH_RADIUS_M};
 use serde_json::{json, Value};
 use skybake_engine::accuracy::{band_of_aerosol, band_of_sun, external, external_distance};
+use skybake_engine::engine::Engine;
 use skybake_engine::spec::Quality;
 
 /// Quality presets measured (the `reference` preset is the report's reference; its own distance
@@ -26,6 +28,13 @@ fn measure() -> Vec<Value> {
         .iter()
         .map(|a| a["name"].as_str().unwrap())
         .collect();
+    let fog = atmosphere_fog::load();
+    let fog_atmospheres = fog["header"]["inputs"]["atmospheres"].as_array().unwrap();
+    let fog_names: Vec<&str> = fog_atmospheres
+        .iter()
+        .map(|a| a["name"].as_str().unwrap())
+        .collect();
+    let engine = Engine::new();
     let mut rows = Vec::new();
     for quality in QUALITIES {
         // Rayleigh DISORT (sun zenith 0–60°, view zenith 0–60°): radiance on Earth's radius,
@@ -74,6 +83,39 @@ fn measure() -> Vec<Value> {
                 }));
             }
         }
+        // Fog (tests/data/disort_fog.json): the layered haze `visibility_km` gives, 1–2 km.
+        let points = atmosphere_fog::deviations(&engine, quality, &fog_names, &[0.0, 40.0, 75.0]);
+        for a in fog_atmospheres {
+            let name = a["name"].as_str().unwrap();
+            let tau = round(atmosphere_fog::optical_depth_550(a));
+            for sun_band in ["high", "low"] {
+                let of = || {
+                    points.iter().filter(move |p| {
+                        p.atmosphere == name
+                            && band_of_sun(90.0 - p.sun_zenith_deg) == Some(sun_band)
+                    })
+                };
+                let max = |radiance: bool| {
+                    of().filter(|p| p.from_sun_deg.is_some() == radiance)
+                        .map(|p| p.deviation.abs())
+                        .fold(0.0, f64::max)
+                };
+                let worst = of()
+                    .max_by(|a, b| a.deviation.abs().total_cmp(&b.deviation.abs()))
+                    .map(|p| p.what.clone());
+                rows.push(json!({
+                    "reference": "disort_fog",
+                    "case": name,
+                    "aerosol_optical_depth_550": tau,
+                    "aerosol_band": band_of_aerosol(tau),
+                    "sun_band": sun_band,
+                    "quality": quality,
+                    "radiance_max": round(max(true)),
+                    "irradiance_max": round(max(false)),
+                    "worst": worst,
+                }));
+            }
+        }
     }
     rows
 }
@@ -92,7 +134,7 @@ fn external_distances_are_the_committed_ones() {
     }
     if std::env::var_os("SKYBAKE_WRITE_EXTERNAL").is_some() {
         let doc = json!({
-            "source": "precise method through the product path (sky with probes, sun) against tests/data/disort_aerosol.json (pydisort, 32 streams, delta-M; view zenith <= 75 deg, >= 2 deg from the sun) and tests/data/disort_rayleigh.json (DISORT 40 streams; view zenith <= 60 deg; radiance on Earth's radius, diffuse flux plane-parallel)",
+            "source": "precise method through the product path (sky with probes, sun) against tests/data/disort_aerosol.json (pydisort, 32 streams, delta-M; view zenith <= 75 deg, >= 2 deg from the sun), tests/data/disort_fog.json (the same, for the layered haze visibility_km gives) and tests/data/disort_rayleigh.json (DISORT 40 streams; view zenith <= 60 deg; radiance on Earth's radius, diffuse flux plane-parallel)",
             "command": "SKYBAKE_WRITE_EXTERNAL=1 cargo test --release --locked --test atmosphere external_distances -- --ignored --nocapture",
             "units": "relative deviation (fraction), magnitude; radiance_max over sky radiance, irradiance_max over diffuse and global horizontal irradiance",
             "rows": rows,

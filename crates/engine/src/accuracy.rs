@@ -107,8 +107,12 @@ pub const PRESETS: [Quality; 4] = [
 pub const SUN_BANDS: [(&str, f64); 3] = [("high", 30.0), ("low", 0.0), ("twilight", -6.0)];
 /// Observer altitude bands, metres: (name, upper bound exclusive).
 pub const ALTITUDE_BANDS: [(&str, f64); 2] = [("ground", 2_000.0), ("aloft", 20_000.0)];
-/// Aerosol bands by optical depth at 550 nm: (name, upper bound inclusive).
-pub const AEROSOL_BANDS: [(&str, f64); 2] = [("clear", 0.3), ("hazy", 1.0)];
+/// Aerosol bands by optical depth at 550 nm: (name, upper bound inclusive). The report's regimes
+/// measure `clear` and `hazy`; `thick` (DISORT's optical depth 2) and `fog` (DISORT's fog of
+/// visibility 1–2 km, optical depth 2.9–5.9, the largest `visibility_km` gives) have external rows
+/// only (report/external.json).
+pub const AEROSOL_BANDS: [(&str, f64); 4] =
+    [("clear", 0.3), ("hazy", 1.0), ("thick", 2.0), ("fog", 6.0)];
 
 /// One measured regime: where in the sun/altitude/aerosol space the curves were taken.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -302,7 +306,7 @@ pub struct ExternalRow {
     /// The reference's atmosphere.
     pub case: String,
     pub aerosol_optical_depth_550: f64,
-    /// [`AEROSOL_BANDS`] name; `None` above the haziest band (optical depth above 1).
+    /// [`AEROSOL_BANDS`] name; `None` above the haziest band (optical depth above 6).
     pub aerosol_band: Option<String>,
     /// [`SUN_BANDS`] name of the compared sun positions.
     pub sun_band: String,

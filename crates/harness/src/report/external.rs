@@ -58,7 +58,7 @@ pub fn markdown(report: &Report) -> String {
             r.reference,
             r.case,
             r.aerosol_optical_depth_550,
-            r.aerosol_band.as_deref().unwrap_or("above 1"),
+            r.aerosol_band.as_deref().unwrap_or("above 6"),
             r.sun_band,
             preset_name(r.quality),
             100.0 * r.radiance_max,

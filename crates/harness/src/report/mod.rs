@@ -510,6 +510,8 @@ mod tests {
         assert_eq!(band_of_altitude(400_000.0), None);
         assert_eq!(band_of_aerosol(0.1), Some("clear"));
         assert_eq!(band_of_aerosol(1.0), Some("hazy"));
-        assert_eq!(band_of_aerosol(5.0), None);
+        assert_eq!(band_of_aerosol(1.5), Some("thick"));
+        assert_eq!(band_of_aerosol(5.0), Some("fog"));
+        assert_eq!(band_of_aerosol(7.0), None);
     }
 }
