@@ -41,7 +41,8 @@ pub fn settings_for(q: Quality) -> (FastSettings, PreciseSettings) {
             // 5 orders 10⁻³ stops at in hazy air, while the orders it stands for are more
             // diffuse; it left the low sky opposite a low sun 0.4 points dark against DISORT
             // (Cornette-Shanks g 0.7, optical depth 0.4: −1.21 % at 10⁻³, −0.88 % at 10⁻⁴, 7
-            // orders; −0.83 % without the tail, 14 orders).
+            // orders; −0.83 % without the tail, 14 orders). The planner's orders-under-budget rule
+            // may still loosen it in a measured aerosol band (skybake_engine::plan::budget).
             PreciseSettings {
                 n_r: 28,
                 n_mu_s: 36,
