@@ -562,8 +562,14 @@ const DENSE_FORWARD_GRID: PreciseSettings = PreciseSettings {
     extrapolate_tail: false,
 };
 
+/// View-zenith nodes of a preset from which [`dense_forward_settings`] applies its floor: `standard`
+/// and finer. `draft` (24) keeps its grid and cost in every aerosol: it is the coarse preset, which
+/// states ≥ 5 % in haze (the planner runs `standard` there for a retired `fast` request), and on
+/// the floor it would cost as much as `standard` does there.
+const DENSE_FORWARD_FROM_N_MU: usize = 32;
+
 /// The settings the precise table of `medium` is built with from the preset's `s`: `s` itself,
-/// or, where the aerosol scatters strongly forward (mean cosine ≥ [`FORWARD_MEAN_COSINE`]) and is
+/// or, at `standard` and finer ([`DENSE_FORWARD_FROM_N_MU`]), where the aerosol scatters strongly forward (mean cosine ≥ [`FORWARD_MEAN_COSINE`]) and is
 /// dense (vertical scattering optical depth ≥ [`DENSE_FORWARD_SCATTERING_OPTICAL_DEPTH`]), `s` with
 /// at least the radius, sun-zenith and view-zenith nodes and ray steps of [`DENSE_FORWARD_GRID`]
 /// (30, 42, 48, 28: `standard`'s 20, 28, 32, 20 × 1.5, 1.5, 1.5, 1.4; `high` gets 30, 42, 48, 28
@@ -589,7 +595,8 @@ const DENSE_FORWARD_GRID: PreciseSettings = PreciseSettings {
 /// and `earth-hazy` (Cornette-Shanks g 0.7, mean cosine 0.76) keep the settings and their cost;
 /// the table's build costs 6.2× the CPU time at `standard` (measured, 3 wavelengths).
 fn dense_forward_settings(s: PreciseSettings, medium: &Medium) -> PreciseSettings {
-    if aerosol_scattering_optical_depth(medium) >= DENSE_FORWARD_SCATTERING_OPTICAL_DEPTH
+    if s.n_mu >= DENSE_FORWARD_FROM_N_MU
+        && aerosol_scattering_optical_depth(medium) >= DENSE_FORWARD_SCATTERING_OPTICAL_DEPTH
         && medium.mie_phase.mean_cosine() >= FORWARD_MEAN_COSINE
     {
         let f = DENSE_FORWARD_GRID;
@@ -2318,8 +2325,8 @@ mod tests {
     /// (Cornette-Shanks g 0.7, scattering optical depth 1.4 at 380 nm, mean cosine 0.76: their
     /// cost is budgeted) and a strongly forward aerosol of scattering optical depth 0.43 at
     /// 380 nm, and reach at least [`DENSE_FORWARD_GRID`] for Cornette-Shanks g 0.8 (mean cosine
-    /// 0.84) of scattering optical depth 1.4, at every preset (`reference` is above it); the cost
-    /// prediction's counts are the built grid's.
+    /// 0.84) of scattering optical depth 1.4 at `standard` and `high` (`reference` is above it,
+    /// `draft` keeps its grid); the cost prediction's counts are the built grid's.
     #[test]
     fn radius_view_zenith_and_steps_grow_only_in_dense_strongly_forward_aerosols() {
         let wl = Wavelengths::parse("380,440,550,680").unwrap();
@@ -2347,6 +2354,9 @@ mod tests {
         let dense = with(&[g08]);
         assert!(aerosol_scattering_optical_depth(&forward_thin) < 0.5);
         assert!(aerosol_scattering_optical_depth(&dense) > 1.3);
+        // `draft` keeps its grid even there.
+        let (_, draft) = settings_for(Quality::Draft);
+        assert_eq!(dense_forward_settings(draft, &dense), draft);
         for q in [Quality::Draft, Quality::Standard, Quality::High] {
             let (_, s) = settings_for(q);
             for m in [&earth, &hazy, &forward_thin] {
@@ -2356,6 +2366,9 @@ mod tests {
                 // The radius grid of the settings' base count (divided in thick haze as before).
                 assert_eq!(g.n_r, radius_nodes(m, s.n_r)[s.n_r - 1] + 1, "{q:?}");
                 assert_eq!(table_zenith_nodes(&s, m), (s.n_mu_s, s.n_mu));
+            }
+            if q == Quality::Draft {
+                continue;
             }
             let g = Grid::new(s, &dense).s;
             let f = DENSE_FORWARD_GRID;
