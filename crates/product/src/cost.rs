@@ -20,7 +20,9 @@ use serde::Serialize;
 use skybake_engine::spec::ProductSpec;
 use skybake_physics::atmosphere::irradiance::{SUN_PRODUCT_N_MU, SUN_PRODUCT_N_PHI};
 use skybake_physics::atmosphere::medium::{MIE, RAYLEIGH};
-use skybake_physics::atmosphere::multiple_precise::table_radius_and_azimuth_nodes;
+use skybake_physics::atmosphere::multiple_precise::{
+    table_radius_and_azimuth_nodes, table_zenith_nodes,
+};
 use skybake_physics::atmosphere::quality::settings_for;
 use skybake_physics::atmosphere::sky::MsMethod;
 use skybake_physics::atmosphere::Medium;
@@ -98,9 +100,10 @@ pub fn estimate_in(req: &ProductRequest, m: &Medium) -> Result<Cost> {
         MsMethod::Precise => (
             {
                 // The table's own grid: more radius nodes in thick haze, more azimuth nodes for a
-                // strongly forward aerosol.
+                // strongly forward aerosol, more radius and zenith nodes for a dense one.
                 let (n_r, n_phi) = table_radius_and_azimuth_nodes(&precise, m);
-                (n_r * precise.n_mu_s * precise.n_mu * n_phi) as u64
+                let (n_mu_s, n_mu) = table_zenith_nodes(&precise, m);
+                (n_r * n_mu_s * n_mu * n_phi) as u64
             },
             expected_orders(
                 m,
