@@ -3,7 +3,7 @@
 //! (`skybake_engine::accuracy::external_distance`): a product never states a smaller error than its
 //! measured distance from DISORT in its regime.
 //!
-//! Regenerate (about 5 min of CPU):
+//! Regenerate (about 15 min of CPU):
 //! `SKYBAKE_WRITE_EXTERNAL=1 cargo test --release --locked --test atmosphere external_distances -- --ignored --nocapture`.
 //! Without the variable the same test measures again and fails if a committed row moved by more
 //! than 0.1 percentage point. Figures are rounded up to 10⁻⁵; while they are being written, the
@@ -126,7 +126,7 @@ fn round(x: f64) -> f64 {
 }
 
 #[test]
-#[ignore = "about 5 min of CPU: measures report/external.json again (see the module doc)"]
+#[ignore = "about 15 min of CPU: measures report/external.json again (see the module doc)"]
 fn external_distances_are_the_committed_ones() {
     let rows = measure();
     for r in &rows {

@@ -666,13 +666,24 @@ mod tests {
                 (Some("clear"), "low"),
                 (Some("hazy"), "high"),
                 (Some("hazy"), "low"),
-                (None, "high"),
+                (Some("thick"), "high"),
+                (Some("thick"), "low"),
+                (Some("fog"), "high"),
+                (Some("fog"), "low"),
             ] {
                 let d = external_distance(q, aerosol, Some(sun))
                     .unwrap_or_else(|| panic!("{q:?} {aerosol:?} {sun}"));
                 assert!(d.relative_error > 0.0 && d.relative_error < 1.0, "{d:?}");
             }
         }
+        // Fog states at least its measured distance: at `standard`, 1 km fog under a low sun.
+        let fog = external_distance(Quality::Standard, Some("fog"), Some("low")).unwrap();
+        assert!(fog.relative_error > 0.15, "{fog:?}");
+        // Above the fog band there is no row.
+        assert_eq!(
+            external_distance(Quality::Standard, None, Some("high")),
+            None
+        );
         // Twilight has no DISORT row (the spherical Monte Carlo's figures are the reference
         // error there).
         assert_eq!(
