@@ -67,6 +67,9 @@ impl Layout {
     }
 }
 
+/// One file of a bundle: its name and its bytes.
+pub type BundleFile = (&'static str, Vec<u8>);
+
 /// A bundle request: the atmosphere's spec, and RGB (no `wavelengths`) or spectral form.
 #[derive(Debug, Clone)]
 pub struct LutRequest {
@@ -194,7 +197,7 @@ impl LutRequest {
         &self,
         engine: &Engine,
         cancelled: &(dyn Fn() -> bool + Sync),
-    ) -> Result<(Vec<(&'static str, Vec<u8>)>, [f64; 4])> {
+    ) -> Result<(Vec<BundleFile>, [f64; 4])> {
         match self.layout {
             Layout::Bruneton2017 => {
                 let bundle = self.compute_unless(engine, cancelled)?;
