@@ -105,12 +105,14 @@ pub fn time_frame(
     render_frame(scene, grid, &lighting, &settings, None, &|_| {}, &|| false)?;
     let cold_ms = t.elapsed().as_secs_f64() * 1e3;
     let t = Instant::now();
-    let cpu0 = crate::bench::process_cpu_ms();
+    let cpu0 = crate::process::process_cpu_ms();
     let lighting = lighting_for(scene, grid, &engine)?;
     let lighting_warm_ms = t.elapsed().as_secs_f64() * 1e3;
     let frame = render_frame(scene, grid, &lighting, &settings, None, &|_| {}, &|| false)?;
     let warm_ms = t.elapsed().as_secs_f64() * 1e3;
-    let warm_cpu_ms = cpu0.zip(crate::bench::process_cpu_ms()).map(|(a, b)| b - a);
+    let warm_cpu_ms = cpu0
+        .zip(crate::process::process_cpu_ms())
+        .map(|(a, b)| b - a);
     let warm_stage_shares = std::iter::once(("lighting".to_string(), lighting_warm_ms))
         .chain(frame.meta.timing_ms.iter().cloned())
         .map(|(name, ms)| (name, ms / warm_ms.max(1e-9)))
@@ -239,7 +241,7 @@ pub fn bench_frame_sequence(frames: usize, width: usize, height: usize) -> Resul
     let mut lit: Option<std::sync::Arc<LitVolume>> = None;
     let mut frame_ms = Vec::with_capacity(frames);
     let t_all = Instant::now();
-    let cpu0 = crate::bench::process_cpu_ms();
+    let cpu0 = crate::process::process_cpu_ms();
     for k in 0..frames {
         let t_frame = Instant::now();
         let (s, c) = (std::f64::consts::TAU * k as f64 / frames as f64).sin_cos();
@@ -278,7 +280,7 @@ pub fn bench_frame_sequence(frames: usize, width: usize, height: usize) -> Resul
     }
     let total_ms = t_all.elapsed().as_secs_f64() * 1e3;
     let per_frame_cpu_ms = cpu0
-        .zip(crate::bench::process_cpu_ms())
+        .zip(crate::process::process_cpu_ms())
         .map(|(a, b)| (b - a) / frames.max(1) as f64);
     let mut later: Vec<f64> = frame_ms.iter().skip(1).cloned().collect();
     later.sort_by(f64::total_cmp);

@@ -8,6 +8,7 @@
 pub mod bench;
 pub mod frame_bench;
 pub mod physics_bench;
+pub mod process;
 pub mod report;
 pub mod store_bench;
 

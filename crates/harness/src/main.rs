@@ -135,7 +135,7 @@ fn run_planner_report(out: &Path) -> Result<()> {
     let rows = skybake_harness::report::planner::run(&|done, total| {
         eprintln!("planner report: {done}/{total}")
     })?;
-    let load = skybake_harness::bench::load_average_1min();
+    let load = skybake_harness::process::load_average_1min();
     let md = skybake_harness::report::planner::markdown(
         &rows,
         rayon::current_num_threads(),
@@ -185,7 +185,7 @@ fn run_report(
             bar.set_position(done as u64);
         }
     };
-    let load = skybake_harness::bench::load_average_1min;
+    let load = skybake_harness::process::load_average_1min;
     let report: Option<Report> = if only == Some(ReportPart::Frames) {
         read_report_part(&out.join("report.json"), "out")?
     } else {

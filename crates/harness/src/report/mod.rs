@@ -335,7 +335,7 @@ pub fn run(options: &ReportOptions, progress: &dyn Fn(usize, usize)) -> Result<R
     })
 }
 
-pub(crate) use crate::bench::process_cpu_ms;
+pub(crate) use crate::process::process_cpu_ms;
 
 /// Writes into `dir` what there is of the atmosphere part (`report.json`, one PNG per product) and
 /// of the frame part (`frames.json`, `frames-<case>.png`), and `README.md` with both.
