@@ -54,70 +54,86 @@ fn measure() -> Vec<Value> {
         let points = deviations("precise", quality, &names, 1.0, 1.0);
         for a in atmospheres {
             let name = a["name"].as_str().unwrap();
+            let compared: Vec<Compared> = points
+                .iter()
+                .filter(|p| p.atmosphere == name)
+                .map(|p| {
+                    (
+                        p.sun_zenith_deg,
+                        p.from_sun_deg.is_some(),
+                        p.deviation,
+                        p.what.as_str(),
+                    )
+                })
+                .collect();
             let aod = a["aod"].as_f64().unwrap();
-            for sun_band in ["high", "low"] {
-                let of = || {
-                    points.iter().filter(move |p| {
-                        p.atmosphere == name
-                            && band_of_sun(90.0 - p.sun_zenith_deg) == Some(sun_band)
-                    })
-                };
-                let max = |radiance: bool| {
-                    of().filter(|p| p.from_sun_deg.is_some() == radiance)
-                        .map(|p| p.deviation.abs())
-                        .fold(0.0, f64::max)
-                };
-                let worst = of()
-                    .max_by(|a, b| a.deviation.abs().total_cmp(&b.deviation.abs()))
-                    .map(|p| p.what.clone());
-                rows.push(json!({
-                    "reference": "disort_aerosol",
-                    "case": name,
-                    "aerosol_optical_depth_550": aod,
-                    "aerosol_band": band_of_aerosol(aod),
-                    "sun_band": sun_band,
-                    "quality": quality,
-                    "radiance_max": round(max(true)),
-                    "irradiance_max": round(max(false)),
-                    "worst": worst,
-                }));
-            }
+            rows.extend(band_rows("disort_aerosol", name, aod, quality, &compared));
         }
         // Fog (tests/data/disort_fog.json): the layered haze `visibility_km` gives, 1–2 km.
         let points = atmosphere_fog::deviations(&engine, quality, &fog_names, &[0.0, 40.0, 75.0]);
         for a in fog_atmospheres {
             let name = a["name"].as_str().unwrap();
+            let compared: Vec<Compared> = points
+                .iter()
+                .filter(|p| p.atmosphere == name)
+                .map(|p| {
+                    (
+                        p.sun_zenith_deg,
+                        p.from_sun_deg.is_some(),
+                        p.deviation,
+                        p.what.as_str(),
+                    )
+                })
+                .collect();
             let tau = round(atmosphere_fog::optical_depth_550(a));
-            for sun_band in ["high", "low"] {
-                let of = || {
-                    points.iter().filter(move |p| {
-                        p.atmosphere == name
-                            && band_of_sun(90.0 - p.sun_zenith_deg) == Some(sun_band)
-                    })
-                };
-                let max = |radiance: bool| {
-                    of().filter(|p| p.from_sun_deg.is_some() == radiance)
-                        .map(|p| p.deviation.abs())
-                        .fold(0.0, f64::max)
-                };
-                let worst = of()
-                    .max_by(|a, b| a.deviation.abs().total_cmp(&b.deviation.abs()))
-                    .map(|p| p.what.clone());
-                rows.push(json!({
-                    "reference": "disort_fog",
-                    "case": name,
-                    "aerosol_optical_depth_550": tau,
-                    "aerosol_band": band_of_aerosol(tau),
-                    "sun_band": sun_band,
-                    "quality": quality,
-                    "radiance_max": round(max(true)),
-                    "irradiance_max": round(max(false)),
-                    "worst": worst,
-                }));
-            }
+            rows.extend(band_rows("disort_fog", name, tau, quality, &compared));
         }
     }
     rows
+}
+
+/// One compared value of an atmosphere: sun zenith (degrees), whether it is a radiance (else an
+/// irradiance), its relative deviation from the reference, and what it is.
+type Compared<'a> = (f64, bool, f64, &'a str);
+
+/// The rows of one atmosphere, one per sun band (high, low): the largest |deviation| of its
+/// radiances and of its irradiances there, and the worst compared value.
+fn band_rows(
+    reference: &str,
+    case: &str,
+    aerosol_optical_depth_550: f64,
+    quality: &str,
+    compared: &[Compared],
+) -> Vec<Value> {
+    ["high", "low"]
+        .into_iter()
+        .map(|sun_band| {
+            let of = || {
+                compared
+                    .iter()
+                    .filter(move |c| band_of_sun(90.0 - c.0) == Some(sun_band))
+            };
+            let max = |radiance: bool| {
+                of().filter(|c| c.1 == radiance)
+                    .map(|c| c.2.abs())
+                    .fold(0.0, f64::max)
+            };
+            let worst = of()
+                .max_by(|a, b| a.2.abs().total_cmp(&b.2.abs()))
+                .map(|c| c.3.to_string());
+            json!({
+                "reference": reference,
+                "case": case,
+                "aerosol_optical_depth_550": aerosol_optical_depth_550,
+                "aerosol_band": band_of_aerosol(aerosol_optical_depth_550),
+                "sun_band": sun_band,
+                "quality": quality,
+                "radiance_max": round(max(true)),
+                "irradiance_max": round(max(false)),
+                "worst": worst,
+            })
+        })
+        .collect()
 }
 
 /// Rounded up to 10⁻⁵, so a committed figure is never below the measured one.
