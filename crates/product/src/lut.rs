@@ -12,6 +12,7 @@ use skybake_lut::manifest::{
 };
 use skybake_lut::skyview;
 use skybake_lut::{Bundle, Channels, Sample, SkyViewBundle, Texture};
+use skybake_physics::atmosphere::shared::SharedTables;
 use skybake_physics::atmosphere::sky::MsMethod;
 use skybake_physics::key::cache_key;
 use skybake_store::texture::{encode_texture_exr, TextureImage};
@@ -153,36 +154,27 @@ impl LutRequest {
         )
     }
 
-    /// Computes the bundle on the engine's shared tables (built, or loaded from its table
+    /// Computes Bruneton's layout on the engine's shared tables (built, or loaded from its table
     /// store, as for any product of this atmosphere and wavelengths).
     pub fn compute(&self, engine: &Engine) -> Result<Bundle> {
-        self.compute_unless(engine, &|| false)
+        self.build_with(engine, &|| false, skybake_lut::build)
     }
 
-    /// [`Self::compute`], stopped with [`Error::Cancelled`] inside the tables' build or at the
-    /// next texture row once `cancelled` returns true.
-    pub fn compute_unless(
+    /// Runs a layout's builder on the engine's shared tables, stopped with [`Error::Cancelled`]
+    /// inside the tables' build or at the builder's next row once `cancelled` returns true.
+    fn build_with<B>(
         &self,
         engine: &Engine,
         cancelled: &(dyn Fn() -> bool + Sync),
-    ) -> Result<Bundle> {
+        build: impl FnOnce(
+            &SharedTables,
+            Channels,
+            usize,
+            &(dyn Fn() -> bool + Sync),
+        ) -> skybake_lut::Result<B>,
+    ) -> Result<B> {
         let shared = engine.shared_unless(&self.spec, cancelled)?;
-        skybake_lut::build(
-            &shared,
-            self.channels.clone(),
-            self.spec.quality.steps(),
-            cancelled,
-        )
-    }
-
-    /// Computes the `skyview` layout's bundle on the engine's shared tables.
-    pub fn compute_skyview_unless(
-        &self,
-        engine: &Engine,
-        cancelled: &(dyn Fn() -> bool + Sync),
-    ) -> Result<SkyViewBundle> {
-        let shared = engine.shared_unless(&self.spec, cancelled)?;
-        skybake_lut::build_skyview(
+        build(
             &shared,
             self.channels.clone(),
             self.spec.quality.steps(),
@@ -200,11 +192,11 @@ impl LutRequest {
     ) -> Result<(Vec<BundleFile>, [f64; 4])> {
         match self.layout {
             Layout::Bruneton2017 => {
-                let bundle = self.compute_unless(engine, cancelled)?;
+                let bundle = self.build_with(engine, cancelled, skybake_lut::build)?;
                 Ok((self.files(&bundle)?, bundle.timing_ms))
             }
             Layout::SkyView => {
-                let bundle = self.compute_skyview_unless(engine, cancelled)?;
+                let bundle = self.build_with(engine, cancelled, skybake_lut::build_skyview)?;
                 Ok((self.skyview_files(&bundle)?, bundle.timing_ms))
             }
         }
