@@ -38,7 +38,7 @@ fn fixture() -> &'static Fixture {
             .unwrap()
             .with_layout(Layout::SkyView);
         let t = std::time::Instant::now();
-        let bundle = request.compute_skyview_unless(&engine, &|| false).unwrap();
+        let bundle = request.compute_skyview(&engine).unwrap();
         eprintln!(
             "skyview build: {:.0} ms wall; stages (precise table, transmittance, sky view, irradiance) ms {:?}",
             t.elapsed().as_secs_f64() * 1e3,

@@ -157,7 +157,22 @@ impl LutRequest {
     /// Computes Bruneton's layout on the engine's shared tables (built, or loaded from its table
     /// store, as for any product of this atmosphere and wavelengths).
     pub fn compute(&self, engine: &Engine) -> Result<Bundle> {
-        self.build_with(engine, &|| false, skybake_lut::build)
+        self.compute_unless(engine, &|| false)
+    }
+
+    /// [`Self::compute`], stopped with [`Error::Cancelled`] inside the tables' build or at the
+    /// next texture row once `cancelled` returns true.
+    pub fn compute_unless(
+        &self,
+        engine: &Engine,
+        cancelled: &(dyn Fn() -> bool + Sync),
+    ) -> Result<Bundle> {
+        self.build_with(engine, cancelled, skybake_lut::build)
+    }
+
+    /// Computes the `skyview` layout on the engine's shared tables.
+    pub fn compute_skyview(&self, engine: &Engine) -> Result<SkyViewBundle> {
+        self.build_with(engine, &|| false, skybake_lut::build_skyview)
     }
 
     /// Runs a layout's builder on the engine's shared tables, stopped with [`Error::Cancelled`]
@@ -192,7 +207,7 @@ impl LutRequest {
     ) -> Result<(Vec<BundleFile>, [f64; 4])> {
         match self.layout {
             Layout::Bruneton2017 => {
-                let bundle = self.build_with(engine, cancelled, skybake_lut::build)?;
+                let bundle = self.compute_unless(engine, cancelled)?;
                 Ok((self.files(&bundle)?, bundle.timing_ms))
             }
             Layout::SkyView => {
