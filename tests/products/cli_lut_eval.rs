@@ -252,7 +252,7 @@ fn lut_eval_reads_a_skyview_bundle() {
             "{what}: {got} against {want}\n{out}"
         )
     };
-    for c in 0..3 {
+    for (c, solar) in solar.iter().enumerate() {
         let (nu_up, nu_down) = (dot(up, sun), dot(down, sun));
         close(
             value(0, "radiance", c),
@@ -295,7 +295,7 @@ fn lut_eval_reads_a_skyview_bundle() {
         );
         close(
             value(4, "sun_irradiance", c),
-            solar[c] * 0.5 * 0.8,
+            solar * 0.5 * 0.8,
             1e-9,
             "sun irradiance",
         );
@@ -308,7 +308,7 @@ fn lut_eval_reads_a_skyview_bundle() {
         );
         close(
             value(5, "sun_irradiance", c),
-            solar[c] * 0.5 * 0.6,
+            solar * 0.5 * 0.6,
             1e-9,
             "sun irradiance, tilted",
         );

@@ -248,10 +248,7 @@ pub fn skyview_from_files(
     let (wavelengths_nm, params) = channels_and_parameters(manifest)?;
     let aerosol_phase = skyview::phase_from_json(field(manifest, "aerosol_phase_function")?)?;
     let n = wavelengths_nm.len();
-    let rgb = field(manifest, "request.form")
-        .ok()
-        .and_then(Value::as_str)
-        .map_or(false, |f| f == "rgb");
+    let rgb = field(manifest, "request.form").ok().and_then(Value::as_str) == Some("rgb");
     let transmittance = texture(manifest, "transmittance", read)?;
     let rayleigh = texture(manifest, "rayleigh", read)?;
     let mie = texture(manifest, "mie", read)?;
@@ -411,6 +408,83 @@ mod tests {
         other["bundle_version"] = "0".into();
         assert_eq!(
             from_files(&other, &mut read).unwrap_err().field(),
+            "manifest"
+        );
+    }
+
+    #[test]
+    fn a_skyview_bundle_loads_back_from_its_manifest_and_files() {
+        use crate::skyview::{self, N_ALT, N_AZ, N_SUN, N_VIEW};
+        use skybake_physics::phase::Phase;
+        let b = rgb_bundle();
+        let half = |t: Texture| Texture {
+            sample: Sample::Half,
+            ..t
+        };
+        let sv = SkyViewBundle {
+            channels: Channels::Rgb,
+            wavelengths_nm: b.wavelengths_nm.clone(),
+            params: b.params.clone(),
+            aerosol_phase: Phase::HenyeyGreenstein { g: 0.75 },
+            transmittance: b.transmittance.clone(),
+            rayleigh: half(texture(N_AZ, N_VIEW, N_ALT * N_SUN, 3, 1.0)),
+            mie: half(texture(N_AZ, N_VIEW, N_ALT * N_SUN, 3, 3.0)),
+            scale: texture(N_SUN, N_ALT, 1, 6, 5.0),
+            irradiance: texture(N_SUN, N_ALT, 1, 3, 9.0),
+            timing_ms: [0.0; 4],
+        };
+        let names = ["R", "G", "B"].map(String::from);
+        let scale_names = [
+            "rayleigh.R",
+            "rayleigh.G",
+            "rayleigh.B",
+            "mie.R",
+            "mie.G",
+            "mie.B",
+        ]
+        .map(String::from);
+        let m = skyview::manifest(
+            &sv,
+            &names,
+            &scale_names,
+            serde_json::json!({"form": "rgb"}),
+            "test",
+        );
+        let rgb = ["R", "G", "B"];
+        let mut read = |file: &str| -> Result<DecodedFile> {
+            Ok(match file {
+                "transmittance.exr" => decoded(&sv.transmittance, &rgb),
+                skyview::RAYLEIGH_FILE => decoded(&sv.rayleigh, &rgb),
+                skyview::MIE_FILE => decoded(&sv.mie, &rgb),
+                skyview::SCALE_FILE => decoded(
+                    &sv.scale,
+                    &[
+                        "rayleigh.R",
+                        "rayleigh.G",
+                        "rayleigh.B",
+                        "mie.R",
+                        "mie.G",
+                        "mie.B",
+                    ],
+                ),
+                skyview::IRRADIANCE_FILE => decoded(&sv.irradiance, &rgb),
+                other => return Err(Error::invalid("bundle", format!("no {other}"))),
+            })
+        };
+        let loaded = skyview_from_files(&m, &mut read).unwrap();
+        assert_eq!(loaded.channels, Channels::Rgb);
+        assert_eq!(loaded.aerosol_phase, sv.aerosol_phase);
+        assert_eq!(loaded.rayleigh, sv.rayleigh);
+        assert_eq!(loaded.mie, sv.mie);
+        // The scale file's channels sorted by name (mie.* first) come back in manifest order.
+        assert_eq!(loaded.scale, sv.scale);
+        assert_eq!(loaded.irradiance, sv.irradiance);
+        assert_eq!(loaded.transmittance, sv.transmittance);
+        // Bruneton's loader refuses it, and this one refuses his layout, naming the manifest.
+        assert_eq!(from_files(&m, &mut read).unwrap_err().field(), "manifest");
+        let his = manifest(&b, serde_json::json!({}), "test");
+        assert_eq!(
+            skyview_from_files(&his, &mut read).unwrap_err().field(),
             "manifest"
         );
     }
