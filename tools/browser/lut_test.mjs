@@ -333,7 +333,7 @@ async function testLayout(page, { layout, textures, bands, shaderBound }) {
     const bound = band.assert === "target" ? band.target : band.bound;
     check(`${L} (b) shader vs sky product: ${band.name}`, worstBand.err <= bound,
       `max ${(100 * worstBand.err).toFixed(2)} % (R ${(100 * perChannel[0]).toFixed(2)}, G ${(100 * perChannel[1]).toFixed(2)}, B ${(100 * perChannel[2]).toFixed(2)} %; ` +
-      `asserted ${band.assert === "target" ? "the issue's target" : "the measured bound"} ${(100 * bound).toFixed(0)} %; issue target ${(100 * band.target).toFixed(0)} %: ${worstBand.err <= band.target ? "met" : "NOT met"}; ` +
+      `asserted ${band.assert === "target" ? "the issue's target" : "the measured bound"} ${(100 * bound).toFixed(1)} %; issue target ${(100 * band.target).toFixed(0)} %: ${worstBand.err <= band.target ? "met" : "NOT met"}; ` +
       `${band.cases.length} directions; worst at h ${c.h} m, sun ${c.e}°, view zenith ${c.z}°, azimuth ${c.a}°, channel ${"RGB"[worstBand.ch]}: ` +
       `product ${worstBand.product.toExponential(4)}, shader ${worstBand.shader.toExponential(4)} W m-2 sr-1 nm-1)`);
   }
