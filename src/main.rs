@@ -55,8 +55,9 @@ enum Command {
     /// Example: skybake lut --atmosphere earth-hazy -o bundle/
     Lut(LutArgs),
     /// Evaluate a bundle written by `skybake lut` (or downloaded from GET /v1/lut) with the
-    /// reference reader (Bruneton 2017's GetSkyRadiance, GetSkyRadianceToPoint,
-    /// GetSunAndSkyIrradiance) at the queries of a JSON file; prints the values. See docs/lut.md.
+    /// reference reader of its layout (Bruneton 2017's GetSkyRadiance, GetSkyRadianceToPoint,
+    /// GetSunAndSkyIrradiance; the same three on the skyview layout) at the queries of a JSON
+    /// file; prints the values. See docs/lut.md.
     ///
     /// Example: skybake lut-eval bundle/ queries.json
     LutEval {

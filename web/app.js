@@ -388,16 +388,21 @@ function drawLive() {
 async function loadLive() {
   const p = new URLSearchParams();
   for (const k of ["atmosphere", "ground_albedo", "quality"]) p.set(k, commonParams().get(k));
+  // The skyview layout by default: it meets the accuracy targets by day (docs/lut.md); its
+  // shader draws the sky, the ground's light and the aerial perspective.
+  const layout = $("live-layout").value;
+  if (layout !== "bruneton2017") p.set("layout", layout);
   $("live-status").textContent = "Fetching the bundle…";
   $("live-load").disabled = true;
   try {
     if (!liveSky) {
-      const glsl = await fetchOk("/assets/lut-atmosphere.glsl").then((r) => r.text());
-      liveSky = new LiveSky($("live-canvas"), glsl);
+      const [glsl, skyviewGlsl] = await Promise.all(["/assets/lut-atmosphere.glsl", "/assets/lut-skyview.glsl"]
+        .map((u) => fetchOk(u).then((r) => r.text())));
+      liveSky = new LiveSky($("live-canvas"), glsl, skyviewGlsl);
     }
     const t0 = performance.now();
     const m = await liveSky.load(url("/v1/lut", p), fetchOk);
-    $("live-status").textContent = `Live sky: ${p.get("atmosphere")}, quality ${m.request.quality}, ` +
+    $("live-status").textContent = `Live sky: ${p.get("atmosphere")}, layout ${m.format}, quality ${m.request.quality}, ` +
       `bundle loaded in ${((performance.now() - t0) / 1000).toFixed(1)} s.`;
     drawLive();
   } catch (e) {

@@ -1,15 +1,17 @@
 //! `skybake lut-eval DIR QUERIES`: evaluates a texture bundle written by `skybake lut` (or
-//! downloaded from `GET /v1/lut`) with the reference reader, Bruneton 2017's `GetSkyRadiance`,
-//! `GetSkyRadianceToPoint` and `GetSunAndSkyIrradiance` (crates/lut/src/reader.rs), at the
+//! downloaded from `GET /v1/lut`) with the reference reader of its layout (the manifest's
+//! `format`): for `bruneton2017`, Bruneton 2017's `GetSkyRadiance`, `GetSkyRadianceToPoint`
+//! and `GetSunAndSkyIrradiance` (crates/lut/src/reader.rs); for `skyview`, the same three
+//! functions on skybake's second layout (`SkyViewReader`, crates/lut/src/skyview.rs); at the
 //! queries of a JSON file; prints the values. What a port of the shader is checked against
-//! (docs/lut.md; the viewer's WebGL client is, by tools/browser/lut_test.mjs).
+//! (docs/lut.md; the viewer's WebGL clients are, by tools/browser/lut_test.mjs).
 
 use std::path::Path;
 
 use serde_json::{json, Value};
-use skybake_lut::load::{from_files, DecodedFile};
+use skybake_lut::load::{self, from_files, skyview_from_files, DecodedFile};
 use skybake_lut::manifest::MANIFEST_FILE;
-use skybake_lut::Reader;
+use skybake_lut::{Bundle, Reader, SkyViewBundle, SkyViewReader};
 use skybake_physics::Error;
 
 use crate::error::{CliError, Result};
@@ -39,6 +41,44 @@ fn vector(q: &Value, i: usize, name: &str, unit: bool) -> Result<[f64; 3]> {
     Ok(v)
 }
 
+/// A bundle of either layout, loaded from its files.
+enum Loaded {
+    Bruneton(Bundle),
+    SkyView(SkyViewBundle),
+}
+
+/// Its reader: the same three functions on either layout.
+enum AnyReader<'a> {
+    Bruneton(Reader<'a>),
+    SkyView(SkyViewReader<'a>),
+}
+
+type Vec3 = [f64; 3];
+type Pair = (Vec<f64>, Vec<f64>);
+
+impl AnyReader<'_> {
+    fn sky_radiance(&self, camera: Vec3, view: Vec3, sun: Vec3) -> Pair {
+        match self {
+            Self::Bruneton(r) => r.sky_radiance(camera, view, sun),
+            Self::SkyView(r) => r.sky_radiance(camera, view, sun),
+        }
+    }
+
+    fn sky_radiance_to_point(&self, camera: Vec3, point: Vec3, sun: Vec3) -> Pair {
+        match self {
+            Self::Bruneton(r) => r.sky_radiance_to_point(camera, point, sun),
+            Self::SkyView(r) => r.sky_radiance_to_point(camera, point, sun),
+        }
+    }
+
+    fn sun_and_sky_irradiance(&self, point: Vec3, normal: Vec3, sun: Vec3) -> Pair {
+        match self {
+            Self::Bruneton(r) => r.sun_and_sky_irradiance(point, normal, sun),
+            Self::SkyView(r) => r.sun_and_sky_irradiance(point, normal, sun),
+        }
+    }
+}
+
 /// Evaluates the queries of `queries_path` on the bundle in `dir` and prints the results.
 pub fn lut_eval(dir: &Path, queries_path: &Path) -> Result<()> {
     let manifest: Value = serde_json::from_str(&read_input(&dir.join(MANIFEST_FILE), "bundle")?)
@@ -53,9 +93,28 @@ pub fn lut_eval(dir: &Path, queries_path: &Path) -> Result<()> {
         skybake_store::texture::decode_texture_exr(&bytes)
             .map_err(|e| Error::invalid("bundle", format!("{file}: {e}")))
     };
-    let bundle = match from_files(&manifest, &mut read) {
+    let loaded = match load::format(&manifest).and_then(|f| match f {
+        "bruneton2017" => from_files(&manifest, &mut read).map(Loaded::Bruneton),
+        "skyview" => skyview_from_files(&manifest, &mut read).map(Loaded::SkyView),
+        other => Err(Error::invalid(
+            "manifest",
+            format!("`format` '{other}' is not one of bruneton2017, skyview"),
+        )),
+    }) {
         Ok(b) => b,
         Err(e) => return Err(failure.unwrap_or(e.into())),
+    };
+    let (reader, params, wavelengths_nm) = match &loaded {
+        Loaded::Bruneton(b) => (
+            AnyReader::Bruneton(Reader::new(b)),
+            &b.params,
+            &b.wavelengths_nm,
+        ),
+        Loaded::SkyView(b) => (
+            AnyReader::SkyView(SkyViewReader::new(b)),
+            &b.params,
+            &b.wavelengths_nm,
+        ),
     };
     let queries: Value = serde_json::from_str(&read_input(queries_path, "queries")?)
         .map_err(|e| Error::invalid("queries", format!("not JSON: {e}")))?;
@@ -66,8 +125,7 @@ pub fn lut_eval(dir: &Path, queries_path: &Path) -> Result<()> {
     if list.len() > MAX_QUERIES {
         return Err(Error::too_large("queries", list.len(), MAX_QUERIES).into());
     }
-    let reader = Reader::new(&bundle);
-    let (bottom, top) = (bundle.params.bottom_radius, bundle.params.top_radius);
+    let (bottom, top) = (params.bottom_radius, params.top_radius);
     let mut results = Vec::with_capacity(list.len());
     for (i, q) in list.iter().enumerate() {
         let function = q.get("function").and_then(Value::as_str).unwrap_or("");
@@ -136,7 +194,8 @@ pub fn lut_eval(dir: &Path, queries_path: &Path) -> Result<()> {
         results.push(result);
     }
     print_json(&json!({
-        "wavelengths_nm": bundle.wavelengths_nm,
+        "format": load::format(&manifest)?,
+        "wavelengths_nm": wavelengths_nm,
         "units": manifest.get("units"),
         "results": results,
     }))

@@ -8,7 +8,8 @@
 // the other. Lengths in metres, radiance in the bundle's unit (mW m^-2 sr^-1 nm^-1).
 //
 // The including program defines SKY_VIEW (the viewer's panorama) or PROBES (queries read back
-// from a float framebuffer) before this file. 32-bit floats at planetary radii: where his
+// from a float framebuffer) before this file; for the `skyview` layout also SKYVIEW_LAYOUT, and
+// appends web/lut/skyview.glsl (that layout's versions of his three functions) after it. 32-bit floats at planetary radii: where his
 // expressions subtract squares of radii (r^2 - R^2) they are written as products of a difference
 // and a sum, and rho (his r coordinate) at the far end of a ray is computed from that point's
 // altitude (RhoAlong) — the same values, without the cancellation. The *Rho variants take rho.
@@ -19,8 +20,10 @@ precision highp sampler3D;
 
 // ---- the bundle: textures and his AtmosphereParameters (from the manifest) ----
 uniform sampler2D transmittance_texture;
+#ifndef SKYVIEW_LAYOUT
 uniform sampler3D scattering_texture;
 uniform sampler2D irradiance_texture;
+#endif
 uniform float bottom_radius;
 uniform float top_radius;
 uniform float mu_s_min;
@@ -136,6 +139,7 @@ float MiePhaseFunction(float g, float nu) {
   return k * (1.0 + nu * nu) / pow(max(1.0 + g * g - 2.0 * g * nu, 1e-12), 1.5);
 }
 
+#ifndef SKYVIEW_LAYOUT
 // ---- scattering ----
 vec4 GetScatteringTextureUvwzFromRRhoMuMuSNu(float r, float rho, float mu, float mu_s, float nu,
                                              bool ray_r_mu_intersects_ground) {
@@ -292,6 +296,17 @@ vec3 GetSunAndSkyIrradiance(vec3 point, vec3 normal, vec3 sun_direction,
   return solar_irradiance * GetTransmittanceToSun(r, mu_s) *
       max(dot(normal, sun_direction), 0.0);
 }
+#else
+// The skyview layout (SKYVIEW_LAYOUT): the same three functions, defined in web/lut/skyview.glsl,
+// which the including program appends after this file.
+vec3 GetSkyRadiance(vec3 camera, vec3 view_ray, vec3 sun_direction, out vec3 transmittance);
+vec3 GetSkyRadianceToPointOffset(vec3 camera, vec3 offset, vec3 sun_direction,
+                                 out vec3 transmittance);
+vec3 GetSkyRadianceToPoint(vec3 camera, vec3 point, vec3 sun_direction,
+                           out vec3 transmittance);
+vec3 GetSunAndSkyIrradiance(vec3 point, vec3 normal, vec3 sun_direction,
+                            out vec3 sky_irradiance);
+#endif
 
 // ---- the viewer's panorama: sky, sun disk, and the planet as the ground plane ----
 #ifdef SKY_VIEW

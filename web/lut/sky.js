@@ -1,13 +1,16 @@
 // skybake's live sky: the texture bundle of GET /v1/lut (docs/lut.md) fetched once, decoded
-// (lut-exr.js), uploaded as WebGL2 textures and rendered every frame by Bruneton's functions
-// (lut-atmosphere.glsl; Bruneton & Neyret 2008, Bruneton 2017) — no request per frame. Also
+// (lut-exr.js), uploaded as WebGL2 textures and rendered every frame — no request per frame — by
+// the shader of its layout (the manifest's `format`): `bruneton2017`, Bruneton's functions
+// (lut-atmosphere.glsl; Bruneton & Neyret 2008, Bruneton 2017); `skyview`, skybake's second
+// layout, the same three functions on its textures (lut-skyview.glsl appended to it). Also
 // evaluates queries into a float framebuffer (`probe`), which tools/browser/lut_test.mjs compares
 // with the reference reader and the `sky` product.
 "use strict";
 
 class LiveSky {
-  /** A renderer on `canvas` (WebGL2) with the shader source `glsl`. */
-  constructor(canvas, glsl) {
+  /** A renderer on `canvas` (WebGL2) with the shader sources `glsl` (atmosphere.glsl) and
+   *  `skyviewGlsl` (skyview.glsl; needed for `skyview` bundles only). */
+  constructor(canvas, glsl, skyviewGlsl = null) {
     const gl = canvas.getContext("webgl2", { antialias: false, preserveDrawingBuffer: true });
     if (!gl) throw new Error("WebGL2 is not available in this browser");
     this.gl = gl;
@@ -16,11 +19,12 @@ class LiveSky {
     // are uploaded as 16-bit floats, which every WebGL2 device filters.
     this.floatLinear = !!gl.getExtension("OES_texture_float_linear");
     this.floatTarget = !!gl.getExtension("EXT_color_buffer_float");
-    const vs = `#version 300 es
+    this.glsl = glsl;
+    this.skyviewGlsl = skyviewGlsl;
+    this.vs = `#version 300 es
       in vec2 position; out vec2 frag_uv;
       void main() { frag_uv = position * 0.5 + 0.5; gl_Position = vec4(position, 0.0, 1.0); }`;
-    this.skyProgram = this.program(vs, `#version 300 es\n#define SKY_VIEW\n${glsl}`);
-    this.probeProgram = this.program(vs, `#version 300 es\n#define PROBES\n${glsl}`);
+    this.programs = {};
     const quad = gl.createBuffer();
     gl.bindBuffer(gl.ARRAY_BUFFER, quad);
     gl.bufferData(gl.ARRAY_BUFFER, new Float32Array([-1, -1, 1, -1, -1, 1, 1, 1]), gl.STATIC_DRAW);
@@ -49,13 +53,46 @@ class LiveSky {
     return p;
   }
 
-  /** Fetches the manifest at `manifestUrl` and its textures (once each), and uploads them. */
+  /** The programs (panorama and probes) for the loaded bundle's layout, compiled once per layout
+   *  and node counts: `skyview` needs its sizes and sun segments as shader constants. */
+  programsFor(manifest) {
+    let defines = "";
+    let source = this.glsl;
+    if (manifest.format === "skyview") {
+      if (!this.skyviewGlsl) throw new Error("the skyview shader (lut-skyview.glsl) was not given");
+      const z = manifest.parameterisation.sizes;
+      const segments = manifest.parameterisation.sun_segments;
+      defines = "#define SKYVIEW_LAYOUT\n" +
+        ["N_ALT", "N_SUN", "N_VIEW_SKY", "N_VIEW_LIMB", "N_VIEW_DOWN", "N_AZ"]
+          .map((k) => {
+            if (!Number.isInteger(z[k]) || z[k] < 2) throw new Error(`manifest: parameterisation.sizes.${k} is not a node count`);
+            return `#define SV_${k} ${z[k]}\n`;
+          }).join("") +
+        `#define SV_N_SUN_SEGMENTS ${segments.length}\n`;
+      source = `${this.glsl}\n${this.skyviewGlsl}`;
+    }
+    if (!this.programs[defines]) {
+      this.programs[defines] = {
+        sky: this.program(this.vs, `#version 300 es\n#define SKY_VIEW\n${defines}${source}`),
+        probe: this.program(this.vs, `#version 300 es\n#define PROBES\n${defines}${source}`),
+      };
+    }
+    return this.programs[defines];
+  }
+
+  /** Fetches the manifest at `manifestUrl` and its textures (once each), and uploads them. Reads
+   *  the two layouts: `bruneton2017` in its RGB (combined) form, and `skyview` (RGB). */
   async load(manifestUrl, fetchOk = fetch) {
     const manifest = await fetchOk(manifestUrl).then((r) => r.json());
-    if (manifest.format !== "bruneton2017" || !manifest.parameterisation.combined_scattering_textures) {
-      throw new Error("the live sky reads RGB bundles (Bruneton 2017's combined layout)");
+    let names;
+    if (manifest.format === "bruneton2017" && manifest.parameterisation.combined_scattering_textures) {
+      names = ["transmittance", "scattering", "irradiance"];
+    } else if (manifest.format === "skyview" && manifest.channels.length === 3) {
+      names = ["transmittance", "rayleigh", "mie", "scale", "irradiance"];
+    } else {
+      throw new Error("the live sky reads RGB bundles: Bruneton 2017's combined layout or skyview");
     }
-    const files = await Promise.all(["transmittance", "scattering", "irradiance"].map(async (name) => {
+    const files = await Promise.all(names.map(async (name) => {
       const t = manifest.textures[name];
       const href = manifest.links[t.file];
       const exr = await decodeExr(await fetchOk(href).then((r) => r.arrayBuffer()));
@@ -64,14 +101,66 @@ class LiveSky {
       }
       return [name, { t, exr }];
     }));
+    const programs = this.programsFor(manifest);
     const gl = this.gl;
-    for (const tex of [this.transmittance, this.scattering, this.irradiance]) if (tex) gl.deleteTexture(tex);
+    for (const tex of Object.values(this.textures || {})) gl.deleteTexture(tex);
     const f = Object.fromEntries(files);
-    this.transmittance = this.texture2d(f.transmittance.t, f.transmittance.exr);
-    this.scattering = this.texture3d(f.scattering.t, f.scattering.exr);
-    this.irradiance = this.texture2d(f.irradiance.t, f.irradiance.exr);
+    if (manifest.format === "skyview") {
+      const split = (prefix) => ({ ...f.scale.t, channels: f.scale.t.channels.filter((c) => c.startsWith(prefix)) });
+      this.textures = {
+        transmittance_texture: this.texture2d(f.transmittance.t, f.transmittance.exr),
+        skyview_rayleigh: this.skyviewTiles(manifest, f.rayleigh.t, f.rayleigh.exr),
+        skyview_mie: this.skyviewTiles(manifest, f.mie.t, f.mie.exr),
+        skyview_scale_rayleigh: this.texture2d(split("rayleigh."), f.scale.exr, true),
+        skyview_scale_mie: this.texture2d(split("mie."), f.scale.exr, true),
+        skyview_irradiance: this.texture2d(f.irradiance.t, f.irradiance.exr, true),
+      };
+    } else {
+      this.textures = {
+        transmittance_texture: this.texture2d(f.transmittance.t, f.transmittance.exr),
+        scattering_texture: this.texture3d(f.scattering.t, f.scattering.exr),
+        irradiance_texture: this.texture2d(f.irradiance.t, f.irradiance.exr),
+      };
+    }
+    this.skyProgram = programs.sky;
+    this.probeProgram = programs.probe;
     this.manifest = manifest;
     return manifest;
+  }
+
+  /** A skyview texture (rayleigh or mie: N_AZ × N_VIEW per slice, slice = altitude · N_SUN + sun,
+   *  stacked in the file) as one 2-D RGBA16F texture with the slice of (altitude k, sun j) at
+   *  columns j·N_AZ… and rows k·N_VIEW… (every WebGL2 device holds 2048² 2-D textures; a 3-D
+   *  texture of 1988 slices exceeds the guaranteed 256). Read by texelFetch: exact half floats. */
+  skyviewTiles(manifest, t, exr) {
+    const gl = this.gl;
+    const z = manifest.parameterisation.sizes;
+    const nView = z.N_VIEW_SKY + z.N_VIEW_LIMB + z.N_VIEW_DOWN;
+    if (t.width !== z.N_AZ || t.height !== nView || t.depth !== z.N_ALT * z.N_SUN || t.sample !== "half") {
+      throw new Error(`${t.file}: not ${z.N_AZ}×${nView}×${z.N_ALT * z.N_SUN} half floats`);
+    }
+    const src = this.interleave(t, exr, true);
+    const width = z.N_AZ * z.N_SUN;
+    const height = nView * z.N_ALT;
+    const max = gl.getParameter(gl.MAX_TEXTURE_SIZE);
+    if (width > max || height > max) throw new Error(`${t.file}: ${width}×${height} exceeds this device's ${max}`);
+    const out = new Uint16Array(4 * width * height);
+    const rowTexels = z.N_AZ * 4;
+    for (let k = 0; k < z.N_ALT; k++) {
+      for (let j = 0; j < z.N_SUN; j++) {
+        for (let i = 0; i < nView; i++) {
+          const from = (((k * z.N_SUN + j) * nView + i) * z.N_AZ) * 4;
+          const to = ((k * nView + i) * width + j * z.N_AZ) * 4;
+          out.set(src.subarray(from, from + rowTexels), to);
+        }
+      }
+    }
+    const tex = gl.createTexture();
+    gl.bindTexture(gl.TEXTURE_2D, tex);
+    gl.pixelStorei(gl.UNPACK_ALIGNMENT, 1);
+    gl.texImage2D(gl.TEXTURE_2D, 0, gl.RGBA16F, width, height, 0, gl.RGBA, gl.HALF_FLOAT, out);
+    this.filtering(gl.TEXTURE_2D, true);
+    return tex;
   }
 
   /** RGBA texel array of `exr`'s channels in the manifest's order (missing channels 0, A 1). */
@@ -87,31 +176,33 @@ class LiveSky {
     return out;
   }
 
-  /** Texture parameters and the (format, type, data) a file uploads as. */
-  upload(t, exr) {
+  /** Texture parameters and the (format, type, data) a file uploads as; `fetched`: read by
+   *  texelFetch only (32-bit floats need no filtering extension then). */
+  upload(t, exr, fetched = false) {
     const gl = this.gl;
     if (t.sample === "half") return [gl.RGBA16F, gl.HALF_FLOAT, this.interleave(t, exr, true)];
-    if (this.floatLinear) return [gl.RGBA32F, gl.FLOAT, this.interleave(t, exr, false)];
+    if (this.floatLinear || fetched) return [gl.RGBA32F, gl.FLOAT, this.interleave(t, exr, false)];
     return [gl.RGBA16F, gl.FLOAT, this.interleave(t, exr, false)];
   }
 
-  filtering(target) {
+  filtering(target, nearest = false) {
     const gl = this.gl;
-    gl.texParameteri(target, gl.TEXTURE_MIN_FILTER, gl.LINEAR);
-    gl.texParameteri(target, gl.TEXTURE_MAG_FILTER, gl.LINEAR);
+    gl.texParameteri(target, gl.TEXTURE_MIN_FILTER, nearest ? gl.NEAREST : gl.LINEAR);
+    gl.texParameteri(target, gl.TEXTURE_MAG_FILTER, nearest ? gl.NEAREST : gl.LINEAR);
     gl.texParameteri(target, gl.TEXTURE_WRAP_S, gl.CLAMP_TO_EDGE);
     gl.texParameteri(target, gl.TEXTURE_WRAP_T, gl.CLAMP_TO_EDGE);
     gl.texParameteri(target, gl.TEXTURE_WRAP_R, gl.CLAMP_TO_EDGE);
   }
 
-  texture2d(t, exr) {
+  /** A 2-D texture; `fetched`: read by texelFetch (nearest filtering, 32-bit floats kept). */
+  texture2d(t, exr, fetched = false) {
     const gl = this.gl;
     const tex = gl.createTexture();
     gl.bindTexture(gl.TEXTURE_2D, tex);
-    const [format, type, data] = this.upload(t, exr);
+    const [format, type, data] = this.upload(t, exr, fetched);
     gl.pixelStorei(gl.UNPACK_ALIGNMENT, 1);
     gl.texImage2D(gl.TEXTURE_2D, 0, format, t.width, t.height, 0, gl.RGBA, type, data);
-    this.filtering(gl.TEXTURE_2D);
+    this.filtering(gl.TEXTURE_2D, fetched);
     return tex;
   }
 
@@ -126,17 +217,16 @@ class LiveSky {
     return tex;
   }
 
-  /** Binds the bundle's textures and his AtmosphereParameters (from the manifest) to `p`. */
+  /** Binds the bundle's textures and his AtmosphereParameters (from the manifest) to `p`; for
+   *  `skyview`, also the sun segments and the aerosol's phase function. */
   bindBundle(p) {
     const gl = this.gl;
-    const a = this.manifest.atmosphere_parameters;
+    const m = this.manifest;
+    const a = m.atmosphere_parameters;
     gl.useProgram(p);
-    const units = [[this.transmittance, gl.TEXTURE_2D, "transmittance_texture"],
-      [this.scattering, gl.TEXTURE_3D, "scattering_texture"],
-      [this.irradiance, gl.TEXTURE_2D, "irradiance_texture"]];
-    units.forEach(([tex, target, name], i) => {
+    Object.entries(this.textures).forEach(([name, tex], i) => {
       gl.activeTexture(gl.TEXTURE0 + i);
-      gl.bindTexture(target, tex);
+      gl.bindTexture(name === "scattering_texture" ? gl.TEXTURE_3D : gl.TEXTURE_2D, tex);
       gl.uniform1i(gl.getUniformLocation(p, name), i);
     });
     for (const k of ["bottom_radius", "top_radius", "mu_s_min", "sun_angular_radius", "mie_phase_function_g"]) {
@@ -144,6 +234,16 @@ class LiveSky {
     }
     for (const k of ["solar_irradiance", "rayleigh_scattering", "mie_scattering"]) {
       gl.uniform3fv(gl.getUniformLocation(p, k), a[k]);
+    }
+    if (m.format === "skyview") {
+      gl.uniform3fv(gl.getUniformLocation(p, "skyview_sun_segments"), m.parameterisation.sun_segments.flat());
+      const phase = m.aerosol_phase_function;
+      const kinds = ["cornette_shanks", "henyey_greenstein", "mixture", "isotropic", "rayleigh"];
+      const kind = kinds.indexOf(phase.kind);
+      if (kind < 0) throw new Error(`manifest: unknown aerosol_phase_function ${phase.kind}`);
+      gl.uniform1i(gl.getUniformLocation(p, "aerosol_phase_kind"), kind);
+      gl.uniform1f(gl.getUniformLocation(p, "aerosol_g"), phase.g || 0);
+      gl.uniform1f(gl.getUniformLocation(p, "aerosol_rayleigh_fraction"), phase.rayleigh_fraction || 0);
     }
   }
 
@@ -197,14 +297,14 @@ class LiveSky {
     const p = this.probeProgram;
     this.bindBundle(p);
     const qtex = gl.createTexture();
-    gl.activeTexture(gl.TEXTURE3);
+    gl.activeTexture(gl.TEXTURE8);
     gl.bindTexture(gl.TEXTURE_2D, qtex);
     gl.texImage2D(gl.TEXTURE_2D, 0, gl.RGBA32F, n, 3, 0, gl.RGBA, gl.FLOAT, data);
     gl.texParameteri(gl.TEXTURE_2D, gl.TEXTURE_MIN_FILTER, gl.NEAREST);
     gl.texParameteri(gl.TEXTURE_2D, gl.TEXTURE_MAG_FILTER, gl.NEAREST);
-    gl.uniform1i(gl.getUniformLocation(p, "queries"), 3);
+    gl.uniform1i(gl.getUniformLocation(p, "queries"), 8);
     const target = gl.createTexture();
-    gl.activeTexture(gl.TEXTURE4);
+    gl.activeTexture(gl.TEXTURE9);
     gl.bindTexture(gl.TEXTURE_2D, target);
     gl.texImage2D(gl.TEXTURE_2D, 0, gl.RGBA32F, n, 1, 0, gl.RGBA, gl.FLOAT, null);
     const fb = gl.createFramebuffer();

@@ -7,7 +7,8 @@ use serde_json::Value;
 
 use crate::build::{Bundle, Channels, Sample, Texture};
 use crate::manifest::BUNDLE_VERSION;
-use crate::param::AtmosphereParameters;
+use crate::param::{AtmosphereParameters, TRANSMITTANCE_HEIGHT, TRANSMITTANCE_WIDTH};
+use crate::skyview::{self, SkyViewBundle};
 use crate::{Error, Result};
 
 /// A decoded texture file: width, height (all stacked slices) and its channels by name.
@@ -124,19 +125,8 @@ fn texture(
     })
 }
 
-/// The bundle described by `manifest`, its textures read by `read(file name)`.
-pub fn from_files(
-    manifest: &Value,
-    read: &mut dyn FnMut(&str) -> Result<DecodedFile>,
-) -> Result<Bundle> {
-    if field(manifest, "format")?.as_str() != Some("bruneton2017")
-        || field(manifest, "bundle_version")?.as_str() != Some(BUNDLE_VERSION)
-    {
-        return Err(Error::invalid(
-            "manifest",
-            format!("is not a bruneton2017 bundle of layout version {BUNDLE_VERSION}"),
-        ));
-    }
+/// The channels' wavelengths and his `AtmosphereParameters` of a manifest (both layouts).
+fn channels_and_parameters(manifest: &Value) -> Result<(Vec<f64>, AtmosphereParameters)> {
     let wavelengths_nm: Vec<f64> = field(manifest, "channels")?
         .as_array()
         .map(|a| {
@@ -149,14 +139,6 @@ pub fn from_files(
     if n == 0 {
         return Err(Error::invalid("manifest", "`channels` lists no wavelength"));
     }
-    let combined = field(manifest, "parameterisation.combined_scattering_textures")?
-        .as_bool()
-        .unwrap_or(false);
-    let channels = if combined {
-        Channels::Rgb
-    } else {
-        Channels::Spectral
-    };
     let a = "atmosphere_parameters";
     let params = AtmosphereParameters {
         solar_irradiance: numbers(manifest, &format!("{a}.solar_irradiance"), n)?,
@@ -175,6 +157,38 @@ pub fn from_files(
             "atmosphere_parameters needs 0 < bottom_radius < top_radius",
         ));
     }
+    Ok((wavelengths_nm, params))
+}
+
+/// The bundle's layout, the manifest's `format` (`bruneton2017` or `skyview`).
+pub fn format(manifest: &Value) -> Result<&str> {
+    field(manifest, "format")?
+        .as_str()
+        .ok_or_else(|| Error::invalid("manifest", "`format` is not a string"))
+}
+
+/// The bundle described by `manifest`, its textures read by `read(file name)`.
+pub fn from_files(
+    manifest: &Value,
+    read: &mut dyn FnMut(&str) -> Result<DecodedFile>,
+) -> Result<Bundle> {
+    if format(manifest)? != "bruneton2017"
+        || field(manifest, "bundle_version")?.as_str() != Some(BUNDLE_VERSION)
+    {
+        return Err(Error::invalid(
+            "manifest",
+            format!("is not a bruneton2017 bundle of layout version {BUNDLE_VERSION}"),
+        ));
+    }
+    let (wavelengths_nm, params) = channels_and_parameters(manifest)?;
+    let combined = field(manifest, "parameterisation.combined_scattering_textures")?
+        .as_bool()
+        .unwrap_or(false);
+    let channels = if combined {
+        Channels::Rgb
+    } else {
+        Channels::Spectral
+    };
     let single_mie = if combined {
         None
     } else {
@@ -188,6 +202,106 @@ pub fn from_files(
         scattering: texture(manifest, "scattering", read)?,
         single_mie,
         irradiance: texture(manifest, "irradiance", read)?,
+        timing_ms: [0.0; 4],
+    })
+}
+
+/// The `skyview` bundle (docs/lut.md, "The `skyview` layout") described by `manifest`, its
+/// textures read by `read(file name)`: the same manifest fields as [`from_files`] plus the
+/// aerosol's phase function; the node counts of the manifest's `parameterisation.sizes` must be
+/// this version's ([`crate::skyview`]).
+pub fn skyview_from_files(
+    manifest: &Value,
+    read: &mut dyn FnMut(&str) -> Result<DecodedFile>,
+) -> Result<SkyViewBundle> {
+    if format(manifest)? != skyview::LAYOUT
+        || field(manifest, "bundle_version")?.as_str() != Some(skyview::SKYVIEW_VERSION)
+    {
+        return Err(Error::invalid(
+            "manifest",
+            format!(
+                "is not a {} bundle of layout version {}",
+                skyview::LAYOUT,
+                skyview::SKYVIEW_VERSION
+            ),
+        ));
+    }
+    let sizes = [
+        ("N_ALT", skyview::N_ALT),
+        ("N_SUN", skyview::N_SUN),
+        ("N_VIEW_SKY", skyview::N_VIEW_SKY),
+        ("N_VIEW_LIMB", skyview::N_VIEW_LIMB),
+        ("N_VIEW_DOWN", skyview::N_VIEW_DOWN),
+        ("N_AZ", skyview::N_AZ),
+    ];
+    for (name, n) in sizes {
+        if size(manifest, &format!("parameterisation.sizes.{name}"))? != n {
+            return Err(Error::invalid(
+                "manifest",
+                format!(
+                    "parameterisation.sizes.{name} must be {n} in layout version {}",
+                    skyview::SKYVIEW_VERSION
+                ),
+            ));
+        }
+    }
+    let (wavelengths_nm, params) = channels_and_parameters(manifest)?;
+    let aerosol_phase = skyview::phase_from_json(field(manifest, "aerosol_phase_function")?)?;
+    let n = wavelengths_nm.len();
+    let rgb = field(manifest, "request.form").ok().and_then(Value::as_str) == Some("rgb");
+    let transmittance = texture(manifest, "transmittance", read)?;
+    let rayleigh = texture(manifest, "rayleigh", read)?;
+    let mie = texture(manifest, "mie", read)?;
+    let scale = texture(manifest, "scale", read)?;
+    let irradiance = texture(manifest, "irradiance", read)?;
+    let view = (
+        skyview::N_AZ,
+        skyview::N_VIEW,
+        skyview::N_ALT * skyview::N_SUN,
+        n,
+    );
+    let nodes = (skyview::N_SUN, skyview::N_ALT, 1);
+    let shape = |t: &Texture| (t.width, t.height, t.depth, t.channels);
+    let checks = [
+        ("rayleigh", shape(&rayleigh), view),
+        ("mie", shape(&mie), view),
+        ("scale", shape(&scale), (nodes.0, nodes.1, nodes.2, 2 * n)),
+        (
+            "irradiance",
+            shape(&irradiance),
+            (nodes.0, nodes.1, nodes.2, n),
+        ),
+        (
+            "transmittance",
+            shape(&transmittance),
+            (TRANSMITTANCE_WIDTH, TRANSMITTANCE_HEIGHT, 1, n),
+        ),
+    ];
+    for (name, got, want) in checks {
+        if got != want {
+            return Err(Error::invalid(
+                "manifest",
+                format!(
+                    "textures.{name} is {}×{}×{} with {} channels; this layout needs {}×{}×{} with {}",
+                    got.0, got.1, got.2, got.3, want.0, want.1, want.2, want.3
+                ),
+            ));
+        }
+    }
+    Ok(SkyViewBundle {
+        channels: if rgb {
+            Channels::Rgb
+        } else {
+            Channels::Spectral
+        },
+        wavelengths_nm,
+        params,
+        aerosol_phase,
+        transmittance,
+        rayleigh,
+        mie,
+        scale,
+        irradiance,
         timing_ms: [0.0; 4],
     })
 }
@@ -294,6 +408,83 @@ mod tests {
         other["bundle_version"] = "0".into();
         assert_eq!(
             from_files(&other, &mut read).unwrap_err().field(),
+            "manifest"
+        );
+    }
+
+    #[test]
+    fn a_skyview_bundle_loads_back_from_its_manifest_and_files() {
+        use crate::skyview::{self, N_ALT, N_AZ, N_SUN, N_VIEW};
+        use skybake_physics::phase::Phase;
+        let b = rgb_bundle();
+        let half = |t: Texture| Texture {
+            sample: Sample::Half,
+            ..t
+        };
+        let sv = SkyViewBundle {
+            channels: Channels::Rgb,
+            wavelengths_nm: b.wavelengths_nm.clone(),
+            params: b.params.clone(),
+            aerosol_phase: Phase::HenyeyGreenstein { g: 0.75 },
+            transmittance: b.transmittance.clone(),
+            rayleigh: half(texture(N_AZ, N_VIEW, N_ALT * N_SUN, 3, 1.0)),
+            mie: half(texture(N_AZ, N_VIEW, N_ALT * N_SUN, 3, 3.0)),
+            scale: texture(N_SUN, N_ALT, 1, 6, 5.0),
+            irradiance: texture(N_SUN, N_ALT, 1, 3, 9.0),
+            timing_ms: [0.0; 4],
+        };
+        let names = ["R", "G", "B"].map(String::from);
+        let scale_names = [
+            "rayleigh.R",
+            "rayleigh.G",
+            "rayleigh.B",
+            "mie.R",
+            "mie.G",
+            "mie.B",
+        ]
+        .map(String::from);
+        let m = skyview::manifest(
+            &sv,
+            &names,
+            &scale_names,
+            serde_json::json!({"form": "rgb"}),
+            "test",
+        );
+        let rgb = ["R", "G", "B"];
+        let mut read = |file: &str| -> Result<DecodedFile> {
+            Ok(match file {
+                "transmittance.exr" => decoded(&sv.transmittance, &rgb),
+                skyview::RAYLEIGH_FILE => decoded(&sv.rayleigh, &rgb),
+                skyview::MIE_FILE => decoded(&sv.mie, &rgb),
+                skyview::SCALE_FILE => decoded(
+                    &sv.scale,
+                    &[
+                        "rayleigh.R",
+                        "rayleigh.G",
+                        "rayleigh.B",
+                        "mie.R",
+                        "mie.G",
+                        "mie.B",
+                    ],
+                ),
+                skyview::IRRADIANCE_FILE => decoded(&sv.irradiance, &rgb),
+                other => return Err(Error::invalid("bundle", format!("no {other}"))),
+            })
+        };
+        let loaded = skyview_from_files(&m, &mut read).unwrap();
+        assert_eq!(loaded.channels, Channels::Rgb);
+        assert_eq!(loaded.aerosol_phase, sv.aerosol_phase);
+        assert_eq!(loaded.rayleigh, sv.rayleigh);
+        assert_eq!(loaded.mie, sv.mie);
+        // The scale file's channels sorted by name (mie.* first) come back in manifest order.
+        assert_eq!(loaded.scale, sv.scale);
+        assert_eq!(loaded.irradiance, sv.irradiance);
+        assert_eq!(loaded.transmittance, sv.transmittance);
+        // Bruneton's loader refuses it, and this one refuses his layout, naming the manifest.
+        assert_eq!(from_files(&m, &mut read).unwrap_err().field(), "manifest");
+        let his = manifest(&b, serde_json::json!({}), "test");
+        assert_eq!(
+            skyview_from_files(&his, &mut read).unwrap_err().field(),
             "manifest"
         );
     }

@@ -64,6 +64,37 @@ pub fn transmittance_to_top(t: &Texture, a: &AtmosphereParameters, r: f64, mu: f
     sample2(t, u, v)
 }
 
+/// His `GetTransmittance` on transmittance texture `t`: from (r, μ) over distance `d`, the ratio
+/// of two lookups to the top (towards the ground: of the reversed ray's).
+pub fn transmittance(
+    t: &Texture,
+    a: &AtmosphereParameters,
+    r: f64,
+    mu: f64,
+    d: f64,
+    hits_ground: bool,
+) -> Vec<f64> {
+    let r_d = (d * d + 2.0 * r * mu * d + r * r)
+        .sqrt()
+        .clamp(a.bottom_radius, a.top_radius);
+    let mu_d = ((r * mu + d) / r_d).clamp(-1.0, 1.0);
+    let (num, den) = if hits_ground {
+        (
+            transmittance_to_top(t, a, r_d, -mu_d),
+            transmittance_to_top(t, a, r, -mu),
+        )
+    } else {
+        (
+            transmittance_to_top(t, a, r, mu),
+            transmittance_to_top(t, a, r_d, mu_d),
+        )
+    };
+    num.iter()
+        .zip(den)
+        .map(|(n, d)| if d > 0.0 { (n / d).min(1.0) } else { 0.0 })
+        .collect()
+}
+
 /// His `GetTransmittanceToSun` on transmittance texture `t`: to the top, times the fraction of
 /// the sun's disk above the horizon (a smoothstep over its angular radius).
 pub fn transmittance_to_sun(t: &Texture, a: &AtmosphereParameters, r: f64, mu_s: f64) -> Vec<f64> {
@@ -103,26 +134,7 @@ impl<'a> Reader<'a> {
 
     /// His `GetTransmittance`: from (r, μ) over distance `d`.
     pub fn transmittance(&self, r: f64, mu: f64, d: f64, hits_ground: bool) -> Vec<f64> {
-        let a = self.a();
-        let r_d = (d * d + 2.0 * r * mu * d + r * r)
-            .sqrt()
-            .clamp(a.bottom_radius, a.top_radius);
-        let mu_d = ((r * mu + d) / r_d).clamp(-1.0, 1.0);
-        let (num, den) = if hits_ground {
-            (
-                self.transmittance_to_top(r_d, -mu_d),
-                self.transmittance_to_top(r, -mu),
-            )
-        } else {
-            (
-                self.transmittance_to_top(r, mu),
-                self.transmittance_to_top(r_d, mu_d),
-            )
-        };
-        num.iter()
-            .zip(den)
-            .map(|(n, d)| if d > 0.0 { (n / d).min(1.0) } else { 0.0 })
-            .collect()
+        transmittance(&self.bundle.transmittance, self.a(), r, mu, d, hits_ground)
     }
 
     /// His `GetTransmittanceToSun`: to the top, times the fraction of the sun's disk above the

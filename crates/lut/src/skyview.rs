@@ -559,6 +559,63 @@ impl<'a> SkyViewReader<'a> {
         )
     }
 
+    /// The radiance scattered towards `camera` between it and `point` (the aerial perspective)
+    /// and the transmittance between them, per channel: Bruneton & Neyret's construction (2008,
+    /// §4, the in-scattering of a segment as the difference of two rays' scattering; Bruneton
+    /// 2017's `GetSkyRadianceToPoint`), L(camera, v) − T(camera → point) · L(point, v) with
+    /// v the direction from the camera to the point, both L from this layout ([`Self::sky_radiance`],
+    /// phase functions applied) and T from Bruneton's transmittance texture (his
+    /// `GetTransmittance`). For a point on the ground the second ray has no length: the result
+    /// is the first ray's in-scattering to the ground.
+    pub fn sky_radiance_to_point(
+        &self,
+        camera: Vec3,
+        point: Vec3,
+        sun: Vec3,
+    ) -> (Vec<f64>, Vec<f64>) {
+        let p = &self.bundle.params;
+        let diff = [
+            point[0] - camera[0],
+            point[1] - camera[1],
+            point[2] - camera[2],
+        ];
+        let mut d = dot(diff, diff).sqrt();
+        let view = [diff[0] / d, diff[1] / d, diff[2] / d];
+        let mut camera = camera;
+        let mut r = dot(camera, camera).sqrt();
+        let mut rmu = dot(camera, view);
+        // Above the top: start where the ray enters the atmosphere, as his function does.
+        let to_top = -rmu - (rmu * rmu - r * r + p.top_radius * p.top_radius).sqrt();
+        if to_top > 0.0 {
+            camera = [
+                camera[0] + view[0] * to_top,
+                camera[1] + view[1] * to_top,
+                camera[2] + view[2] * to_top,
+            ];
+            r = p.top_radius;
+            rmu += to_top;
+            d -= to_top;
+        }
+        let mu = rmu / r;
+        let ground = p.ray_intersects_ground(r, mu);
+        let t = crate::reader::transmittance(&self.bundle.transmittance, p, r, mu, d, ground);
+        let (l, _) = self.sky_radiance(camera, view, sun);
+        let far = [
+            camera[0] + view[0] * d,
+            camera[1] + view[1] * d,
+            camera[2] + view[2] * d,
+        ];
+        let (l_far, _) = self.sky_radiance(far, view, sun);
+        (
+            l.iter()
+                .zip(&l_far)
+                .zip(&t)
+                .map(|((l, lf), t)| l - t * lf)
+                .collect(),
+            t,
+        )
+    }
+
     /// The sun's direct irradiance on a surface with `normal` at `point` and the sky's on a
     /// horizontal surface times Bruneton's tilt factor (1 + n·up)/2, as his
     /// `GetSunAndSkyIrradiance`.

@@ -10,11 +10,12 @@ use super::problem::ApiError;
 const INDEX_HTML: &str = include_str!("../../../web/index.html");
 const APP_JS: &str = include_str!("../../../web/app.js");
 const STYLE_CSS: &str = include_str!("../../../web/style.css");
-/// The live sky's client (docs/lut.md): the bundle's OpenEXR decoder, the WebGL2 renderer and
-/// Bruneton's functions as a GLSL ES 3.0 shader.
+/// The live sky's client (docs/lut.md): the bundle's OpenEXR decoder, the WebGL2 renderer,
+/// Bruneton's functions as a GLSL ES 3.0 shader and the `skyview` layout's versions of them.
 const LUT_EXR_JS: &str = include_str!("../../../web/lut/exr.js");
 const LUT_SKY_JS: &str = include_str!("../../../web/lut/sky.js");
 const LUT_ATMOSPHERE_GLSL: &str = include_str!("../../../web/lut/atmosphere.glsl");
+const LUT_SKYVIEW_GLSL: &str = include_str!("../../../web/lut/skyview.glsl");
 
 /// `GET /`: the viewer page.
 pub async fn index() -> Response {
@@ -31,6 +32,10 @@ pub async fn asset(Path(file): Path<String>) -> Result<Response, ApiError> {
         "lut-atmosphere.glsl" => Ok(asset_response(
             "text/plain; charset=utf-8",
             LUT_ATMOSPHERE_GLSL,
+        )),
+        "lut-skyview.glsl" => Ok(asset_response(
+            "text/plain; charset=utf-8",
+            LUT_SKYVIEW_GLSL,
         )),
         _ => Err(ApiError::NotFound(format!("no asset '{file}'"))),
     }

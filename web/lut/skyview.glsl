@@ -1,0 +1,277 @@
+// skybake's `skyview` layout (docs/lut.md, "The skyview layout") in GLSL ES 3.0 (WebGL2): the
+// sky, the aerial perspective and the sun and sky light with the signatures and meaning of
+// Bruneton's GetSkyRadiance, GetSkyRadianceToPoint(Offset) and GetSunAndSkyIrradiance
+// (Bruneton 2017, functions.glsl), so a renderer switches layout without changing its calls.
+// A port of skybake_lut::SkyViewReader (crates/lut/src/skyview.rs, `skybake lut-eval`), which
+// is its specification; tools/browser/lut_test.mjs checks one against the other.
+//
+// Appended after atmosphere.glsl, compiled with SKYVIEW_LAYOUT defined: that file then leaves
+// out Bruneton's scattering and irradiance lookups and declares these three functions, and this
+// one uses its transmittance functions (Bruneton's transmittance texture, the same in both
+// layouts), its RhoAlong and SquareDifference, and the Rayleigh phase function. The including
+// program defines the node counts from the manifest's parameterisation.sizes: SV_N_ALT,
+// SV_N_SUN, SV_N_VIEW_SKY, SV_N_VIEW_LIMB, SV_N_VIEW_DOWN, SV_N_AZ, and SV_N_SUN_SEGMENTS (the
+// length of parameterisation.sun_segments).
+//
+// Per query: node coordinates in altitude (sqrt(h / thickness) (N_ALT - 1)), the sun's elevation
+// above the observer's horizon (the manifest's segments), the view row within its segment (sky,
+// limb, below the horizon; relative to the observer's horizon) and the azimuth from the sun's
+// (sqrt(phi / pi) (N_AZ - 1)); for each of the 2 x 2 x 2 (altitude, sun, row) nodes around it two
+// texelFetch, linear in the column, times the slice's scale; geometric interpolation
+// a^(1-t) b^t over the row, the sun and the altitude (linear where a value is not positive);
+// times the ray's length (the textures hold radiance per metre of ray) and the exact phase
+// functions. Fetching texels (not the GPU's filtering, whose weights many GPUs round to 8 bits)
+// makes the result the same on every device. 32-bit floats: the altitude, the horizon's dip and
+// the limb row are computed from the altitude h and rho = sqrt(h (2 R + h)), not from ratios of
+// radii near 1, and the azimuth from the horizontal components of the view and the sun (atan),
+// not from acos of a cosine near 1.
+
+// ---- the bundle's skyview textures (web/lut/sky.js uploads them) ----
+// The rayleigh and mie textures, their 28 x 71 slices tiled in one 2-D texture: slice
+// (altitude k, sun j) at columns j N_AZ .. and rows k N_VIEW .. (RGBA16F, the files' half floats).
+uniform sampler2D skyview_rayleigh;
+uniform sampler2D skyview_mie;
+// Per-slice scales (N_SUN x N_ALT, RGB) of the two parts, and the sky irradiance table
+// (N_SUN x N_ALT, RGB: irradiance on a horizontal surface / (top - r)).
+uniform sampler2D skyview_scale_rayleigh;
+uniform sampler2D skyview_scale_mie;
+uniform sampler2D skyview_irradiance;
+// parameterisation.sun_segments: (start deg, step deg, intervals).
+uniform vec3 skyview_sun_segments[SV_N_SUN_SEGMENTS];
+// aerosol_phase_function: kind 0 cornette_shanks, 1 henyey_greenstein, 2 mixture, 3 isotropic,
+// 4 rayleigh; its g and rayleigh_fraction.
+uniform int aerosol_phase_kind;
+uniform float aerosol_g;
+uniform float aerosol_rayleigh_fraction;
+
+const int SV_N_VIEW_UP = SV_N_VIEW_SKY + SV_N_VIEW_LIMB;
+const int SV_N_VIEW = SV_N_VIEW_UP + SV_N_VIEW_DOWN;
+
+float CornetteShanksPhase(float g, float nu) {
+  float d = max(1.0 + g * g - 2.0 * g * nu, 1e-12);
+  return 3.0 / (8.0 * PI) * (1.0 - g * g) * (1.0 + nu * nu) / ((2.0 + g * g) * d * sqrt(d));
+}
+
+// The aerosol's phase function, as the manifest names it (skybake's Phase::eval).
+float AerosolPhaseFunction(float nu) {
+  nu = clamp(nu, -1.0, 1.0);
+  float g = aerosol_g;
+  if (aerosol_phase_kind == 0) return CornetteShanksPhase(g, nu);
+  if (aerosol_phase_kind == 1) {
+    float d = max(1.0 + g * g - 2.0 * g * nu, 1e-12);
+    return (1.0 - g * g) / (4.0 * PI * d * sqrt(d));
+  }
+  if (aerosol_phase_kind == 2) {
+    return (1.0 - aerosol_rayleigh_fraction) * CornetteShanksPhase(g, nu) +
+        aerosol_rayleigh_fraction * RayleighPhaseFunction(nu);
+  }
+  if (aerosol_phase_kind == 3) return 1.0 / (4.0 * PI);
+  return RayleighPhaseFunction(nu);
+}
+
+// Node index (the lower of two) and fraction of the continuous node coordinate x over n nodes.
+int SkyViewSplit(float x, int n, out float t) {
+  x = clamp(x, 0.0, float(n - 1));
+  int i = min(int(floor(x)), n - 2);
+  t = x - float(i);
+  return i;
+}
+
+// Geometric interpolation a^(1-t) b^t per channel; linear where a value is not positive.
+vec3 GeoMix(vec3 a, vec3 b, float t) {
+  if (t <= 0.0) return a;
+  if (t >= 1.0) return b;
+  vec3 geometric = a * exp2(t * log2(max(b, vec3(1e-30)) / max(a, vec3(1e-30))));
+  vec3 positive = vec3(greaterThan(min(a, b), vec3(0.0)));
+  return mix(mix(a, b, t), geometric, positive);
+}
+
+// Continuous sun node coordinate of an elevation above the observer's horizon (degrees).
+float SkyViewSunCoord(float above_horizon_deg) {
+  float first = 0.0;
+  for (int s = 0; s < SV_N_SUN_SEGMENTS; ++s) {
+    vec3 seg = skyview_sun_segments[s];
+    if (above_horizon_deg <= seg.x + seg.z * seg.y) {
+      return first + max((above_horizon_deg - seg.x) / seg.y, 0.0);
+    }
+    first += seg.z;
+  }
+  return float(SV_N_SUN - 1);
+}
+
+// Altitude node k0 (and fraction tk) and sun node j0 (and tj) at altitude h with sun zenith
+// cosine mu_s; rho = sqrt(h (2 bottom + h)).
+void SkyViewAltitudeSun(float h, float rho, float mu_s, out int k0, out float tk, out int j0,
+                        out float tj) {
+  float thickness = top_radius - bottom_radius;
+  k0 = SkyViewSplit(sqrt(clamp(h / thickness, 0.0, 1.0)) * float(SV_N_ALT - 1), SV_N_ALT, tk);
+  // The sun's elevation above the observer's horizon: its elevation + the horizon's dip.
+  float dip = atan(rho, bottom_radius);
+  float above = asin(clamp(mu_s, -1.0, 1.0)) + dip;
+  j0 = SkyViewSplit(SkyViewSunCoord(degrees(above)), SV_N_SUN, tj);
+}
+
+// One part's value at slice (k, j), row y, continuous column col (linear in the column, as the
+// reader's fetch), times the slice's scale.
+vec3 SkyViewFetch(sampler2D part, sampler2D part_scale, int k, int j, int y, int x0, float fx) {
+  ivec2 origin = ivec2(j * SV_N_AZ + x0, k * SV_N_VIEW + y);
+  vec3 v = mix(texelFetch(part, origin, 0).rgb, texelFetch(part, origin + ivec2(1, 0), 0).rgb, fx);
+  return v * texelFetch(part_scale, ivec2(j, k), 0).rgb;
+}
+
+// The radiance towards an observer at altitude h (inside the atmosphere; rho as above) looking
+// along view_ray (zenith cosine mu) with the sun along sun_direction (zenith cosine mu_s);
+// `up` is the observer's unit vertical.
+vec3 SkyViewRadiance(float h, float rho, vec3 up, vec3 view_ray, vec3 sun_direction) {
+  h = clamp(h, 0.0, top_radius - bottom_radius);
+  float r = bottom_radius + h;
+  float mu = clamp(dot(view_ray, up), -1.0, 1.0);
+  float mu_s = clamp(dot(sun_direction, up), -1.0, 1.0);
+  float nu = dot(view_ray, sun_direction);
+  int k0, j0;
+  float tk, tj;
+  SkyViewAltitudeSun(h, rho, mu_s, k0, tk, j0, tj);
+  // The view row within its segment, relative to the observer's horizon (cos = -rho / r).
+  int segment;
+  float row;
+  if (mu >= 0.0) {
+    // Zenith to horizontal: theta = (pi/2) (1 - (1 - x)^2); 1 - theta / (pi/2) = asin(mu) / (pi/2).
+    segment = 0;
+    row = (1.0 - sqrt(clamp(asin(mu) / (0.5 * PI), 0.0, 1.0))) * float(SV_N_VIEW_SKY - 1);
+  } else if (mu > -rho / r) {
+    // Horizontal to horizon, uniform in the ray's tangent radius r_t = r sqrt(1 - mu^2):
+    // (r - r_t) / h, with r - r_t = r mu^2 / (1 + sqrt(1 - mu^2)).
+    segment = 1;
+    float y = h > 0.0 ? clamp(r * mu * mu / (1.0 + sqrt(1.0 - mu * mu)) / h, 0.0, 1.0) : 1.0;
+    row = float(SV_N_VIEW_SKY) + y * float(SV_N_VIEW_LIMB - 1);
+  } else {
+    // Horizon to nadir: theta = theta_h + (pi - theta_h) x^2, theta_h = pi/2 + dip.
+    segment = 2;
+    float dip = atan(rho, bottom_radius);
+    float x = sqrt(clamp((asin(-mu) - dip) / (0.5 * PI - dip), 0.0, 1.0));
+    row = float(SV_N_VIEW_UP) + x * float(SV_N_VIEW_DOWN - 1);
+  }
+  int lo = segment == 0 ? 0 : segment == 1 ? SV_N_VIEW_SKY : SV_N_VIEW_UP;
+  int hi = segment == 0 ? SV_N_VIEW_SKY - 1 : segment == 1 ? SV_N_VIEW_UP - 1 : SV_N_VIEW - 1;
+  float yc = clamp(row, float(lo), float(hi));
+  int y0 = min(int(floor(yc)), hi - 1);
+  float ty = yc - float(y0);
+  // The azimuth between the view and the sun around the vertical.
+  vec3 view_h = view_ray - mu * up;
+  vec3 sun_h = sun_direction - mu_s * up;
+  float phi = dot(view_h, view_h) * dot(sun_h, sun_h) > 1e-12 ?
+      atan(length(cross(view_h, sun_h)), dot(view_h, sun_h)) : 0.0;
+  float fx;
+  int x0 = SkyViewSplit(sqrt(clamp(phi / PI, 0.0, 1.0)) * float(SV_N_AZ - 1), SV_N_AZ, fx);
+  // The ray's length: to the ground below the horizon, else to the top (closed forms, the
+  // ground's as rho^2 / (-r mu + sqrt(...)) to avoid the cancellation near the horizon).
+  float d;
+  if (segment == 2) {
+    float disc = max(r * mu * r * mu - rho * rho, 0.0);
+    float den = -r * mu + sqrt(disc);
+    d = den > 0.0 ? rho * rho / den : 0.0;
+  } else {
+    d = DistanceToTopAtmosphereBoundary(r, mu);
+  }
+  vec3 parts[2];
+  for (int part = 0; part < 2; ++part) {
+    vec3 by_altitude[2];
+    for (int a = 0; a < 2; ++a) {
+      vec3 by_sun[2];
+      for (int s = 0; s < 2; ++s) {
+        vec3 f0, f1;
+        if (part == 0) {
+          f0 = SkyViewFetch(skyview_rayleigh, skyview_scale_rayleigh, k0 + a, j0 + s, y0, x0, fx);
+          f1 = SkyViewFetch(skyview_rayleigh, skyview_scale_rayleigh, k0 + a, j0 + s, y0 + 1, x0, fx);
+        } else {
+          f0 = SkyViewFetch(skyview_mie, skyview_scale_mie, k0 + a, j0 + s, y0, x0, fx);
+          f1 = SkyViewFetch(skyview_mie, skyview_scale_mie, k0 + a, j0 + s, y0 + 1, x0, fx);
+        }
+        by_sun[s] = GeoMix(f0, f1, ty);
+      }
+      by_altitude[a] = GeoMix(by_sun[0], by_sun[1], tj);
+    }
+    parts[part] = GeoMix(by_altitude[0], by_altitude[1], tk) * d;
+  }
+  return parts[0] * RayleighPhaseFunction(nu) + parts[1] * AerosolPhaseFunction(nu);
+}
+
+// ---- Bruneton's three rendering functions, on this layout ----
+vec3 GetSkyRadiance(vec3 camera, vec3 view_ray, vec3 sun_direction, out vec3 transmittance) {
+  float r = length(camera);
+  float rmu = dot(camera, view_ray);
+  if (r > top_radius) {
+    // Above the top: start where the view enters the atmosphere (nothing if it misses it).
+    float disc = rmu * rmu + SquareDifference(top_radius, r);
+    float to_top = -rmu - sqrt(max(disc, 0.0));
+    if (disc < 0.0 || to_top < 0.0) {
+      transmittance = vec3(1.0);
+      return vec3(0.0);
+    }
+    camera = camera + view_ray * to_top;
+    r = top_radius;
+    rmu += to_top;
+  }
+  float mu = rmu / r;
+  transmittance = RayIntersectsGround(r, mu) ? vec3(0.0) :
+      GetTransmittanceToTopAtmosphereBoundary(r, mu);
+  float h = max(r - bottom_radius, 0.0);
+  return SkyViewRadiance(h, sqrt(h * (2.0 * bottom_radius + h)), camera / r, view_ray,
+                         sun_direction);
+}
+
+// The aerial perspective between the camera and the point camera + offset (a renderer knows
+// the offset: view ray x depth) and the transmittance between them: Bruneton & Neyret's
+// construction, L(camera, v) - T(camera -> point) L(point, v) (as SkyViewReader's
+// sky_radiance_to_point), T from Bruneton's transmittance texture.
+vec3 GetSkyRadianceToPointOffset(vec3 camera, vec3 offset, vec3 sun_direction,
+                                 out vec3 transmittance) {
+  vec3 view_ray = normalize(offset);
+  float d = length(offset);
+  float r = length(camera);
+  float rmu = dot(camera, view_ray);
+  float distance_to_top_atmosphere_boundary =
+      -rmu - sqrt(rmu * rmu + SquareDifference(top_radius, r));
+  if (distance_to_top_atmosphere_boundary > 0.0) {
+    camera = camera + view_ray * distance_to_top_atmosphere_boundary;
+    r = top_radius;
+    rmu += distance_to_top_atmosphere_boundary;
+    d -= distance_to_top_atmosphere_boundary;
+  }
+  float mu = rmu / r;
+  transmittance = GetTransmittance(r, mu, d, RayIntersectsGround(r, mu));
+  float h = max(r - bottom_radius, 0.0);
+  vec3 near = SkyViewRadiance(h, sqrt(h * (2.0 * bottom_radius + h)), camera / r, view_ray,
+                              sun_direction);
+  // The far end: its altitude and rho from RhoAlong (not from its 32-bit radius).
+  float r_p;
+  float rho_p = RhoAlong(r, mu, d, r_p);
+  vec3 up_p = normalize(camera + view_ray * d);
+  vec3 far = SkyViewRadiance(r_p - bottom_radius, rho_p, up_p, view_ray, sun_direction);
+  return near - transmittance * far;
+}
+
+vec3 GetSkyRadianceToPoint(vec3 camera, vec3 point, vec3 sun_direction,
+                           out vec3 transmittance) {
+  return GetSkyRadianceToPointOffset(camera, point - camera, sun_direction, transmittance);
+}
+
+// Returns the sun's irradiance on the surface; the sky's in sky_irradiance (the table on the
+// altitude x sun nodes, interpolated like the sky, x (top - r), x his tilt factor (1 + n.up)/2).
+vec3 GetSunAndSkyIrradiance(vec3 point, vec3 normal, vec3 sun_direction,
+                            out vec3 sky_irradiance) {
+  float r = length(point);
+  float mu_s = dot(point, sun_direction) / r;
+  float h = clamp(r - bottom_radius, 0.0, top_radius - bottom_radius);
+  int k0, j0;
+  float tk, tj;
+  SkyViewAltitudeSun(h, sqrt(h * (2.0 * bottom_radius + h)), mu_s, k0, tk, j0, tj);
+  vec3 lo = GeoMix(texelFetch(skyview_irradiance, ivec2(j0, k0), 0).rgb,
+                   texelFetch(skyview_irradiance, ivec2(j0 + 1, k0), 0).rgb, tj);
+  vec3 hi = GeoMix(texelFetch(skyview_irradiance, ivec2(j0, k0 + 1), 0).rgb,
+                   texelFetch(skyview_irradiance, ivec2(j0 + 1, k0 + 1), 0).rgb, tj);
+  sky_irradiance = GeoMix(lo, hi, tk) * (top_radius - bottom_radius - h) *
+      (1.0 + dot(normal, point) / r) * 0.5;
+  return solar_irradiance * GetTransmittanceToSun(r, mu_s) *
+      max(dot(normal, sun_direction), 0.0);
+}
