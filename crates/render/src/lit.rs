@@ -153,7 +153,7 @@ impl LitVolume {
             .map(|t| settings.photons.peak_spread * t.albedo * t.fraction)
             .collect();
         let peak =
-            if sun_on && settings.method == Method::Fast && settings.photons.peak_spread > 0.0 {
+            if sun_on && settings.method == Method::Fast {
                 PeakSpread::new(&optics.phase, &trunc)
             } else {
                 None

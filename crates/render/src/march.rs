@@ -24,6 +24,19 @@ use std::time::Instant;
 /// seen through the cloud, T_c ≤ T*, at most this fraction of its radiance).
 pub const MARCH_CUTOFF: f64 = 1e-3;
 
+static EXP_SPLIT: std::sync::LazyLock<f64> = std::sync::LazyLock::new(|| {
+    std::env::var("EXP_SPLIT")
+        .ok()
+        .and_then(|v| v.parse().ok())
+        .unwrap_or(0.0)
+});
+static EXP_VIEW: std::sync::LazyLock<f64> = std::sync::LazyLock::new(|| {
+    std::env::var("EXP_VIEW")
+        .ok()
+        .and_then(|v| v.parse().ok())
+        .unwrap_or(0.0)
+});
+
 /// Everything precomputed for one scene, camera and lighting; renders any tile. The
 /// camera-independent part is a shared [`LitVolume`]; the per-voxel source towards the camera
 /// is this camera's.
@@ -367,6 +380,9 @@ impl<'a> Prepared<'a> {
             fresh[l] = l == 0 || kt[l] != kt[l - 1] || ks[l] != ks[l - 1];
         }
         let sun_on = self.lit.sun_on;
+        let view_rate: f64 = *EXP_VIEW;
+        // True optical depth along the view ray from the camera to the step's start.
+        let mut tau_v = [0.0f64; 64];
         let stride = if N == 0 { self.stride } else { N + 2 };
         let vox = &self.vox[..];
         let mut t = t0;
@@ -431,27 +447,37 @@ impl<'a> Prepared<'a> {
             d_start = Some(d1);
             front.get_or_insert(t - dt);
             let mut alive = false;
-            let (mut a, mut a_ms, mut sun_t) = (0.0, 0.0, 0.0);
+            let (mut a, mut a_ms, mut sun_t, mut sun_peak) = (0.0, 0.0, 0.0, 0.0);
             for l in 0..n_l {
                 if fresh[l] {
                     a = -(-kt[l] * rho * dt).exp_m1();
                     a_ms = -(-ks[l] * rho * dt).exp_m1();
-                    sun_t = if sun_on {
+                    (sun_t, sun_peak) = if sun_on {
                         let (weight, d_eff) =
                             sun_step(ks[l] * rho, ks[l] * (d1 - d0), dt, ks[l] * d0);
-                        let spread = match (&self.lit.peak, rows[l]) {
-                            (Some(p), Some(row)) => p.ratio(
-                                row,
-                                self.lit.peak_rate[l] * kt[l] * (d0 + (d1 - d0) * d_eff),
-                            ),
-                            _ => 1.0,
-                        };
-                        weight * spread
+                        match (&self.lit.peak, rows[l]) {
+                            (Some(p), Some(row)) => {
+                                let lambda_s = self.lit.peak_rate[l] * kt[l] * (d0 + (d1 - d0) * d_eff);
+                                if *EXP_SPLIT > 0.0 {
+                                    let lambda_v = self.lit.peak_rate[l] * view_rate * (tau_v[l] + kt[l] * rho * dt * d_eff);
+                                    let (smooth, _) = p.ratios(row, lambda_s + lambda_v);
+                                    let (_, peak) = p.ratios(row, lambda_s);
+                                    let (weight_t, _) =
+                                        sun_step(kt[l] * rho, ks[l] * (d1 - d0), dt, ks[l] * d0);
+                                    (weight * smooth, weight_t * peak * self.lit.ms_extinction_scale[l])
+                                } else {
+                                    let lambda_v = self.lit.peak_rate[l] * view_rate * (tau_v[l] + kt[l] * rho * dt * d_eff);
+                                    (weight * p.ratio(row, lambda_s + lambda_v), 0.0)
+                                }
+                            }
+                            _ => (weight, 0.0),
+                        }
                     } else {
-                        0.0
+                        (0.0, 0.0)
                     };
                 }
-                ia[l] += tcs[l] * (sun_src[l] * sun_t + a_ms * src[l]);
+                ia[l] += tcs[l] * (sun_src[l] * sun_t + a_ms * src[l]) + tc[l] * sun_src[l] * sun_peak;
+                tau_v[l] += kt[l] * rho * dt;
                 tc[l] *= 1.0 - a;
                 tcs[l] *= 1.0 - a_ms;
                 alive |= tcs[l] > MARCH_CUTOFF;
