@@ -119,8 +119,30 @@ pub fn sun_density_integrals(grid: &DensityGrid, sun_dir: DVec3) -> Vec<f32> {
                                 let (b1, c1) = ((b0 + 1).min(n[b] - 1), (c0 + 1).min(n[c] - 1));
                                 let (tb, tc) = (fb - b0 as f64, fc - c0 as f64);
                                 let g = |x: usize, y: usize| layer_vals[x * n[c] + y];
-                                (g(b0, c0) * (1.0 - tb) + g(b1, c0) * tb) * (1.0 - tc)
-                                    + (g(b0, c1) * (1.0 - tb) + g(b1, c1) * tb) * tc
+                                let bilinear = (g(b0, c0) * (1.0 - tb) + g(b1, c0) * tb)
+                                    * (1.0 - tc)
+                                    + (g(b0, c1) * (1.0 - tb) + g(b1, c1) * tb) * tc;
+                                if *EXP_CUBIC > 0.0
+                                    && b0 >= 1
+                                    && c0 >= 1
+                                    && b0 + 2 < n[b]
+                                    && c0 + 2 < n[c]
+                                {
+                                    let (wb, wc) = (catmull_rom(tb), catmull_rom(tc));
+                                    let mut v = 0.0;
+                                    for (i, wi) in wb.iter().enumerate() {
+                                        let mut row = 0.0;
+                                        for (j, wj) in wc.iter().enumerate() {
+                                            row += wj * g(b0 + i - 1, c0 + j - 1);
+                                        }
+                                        v += wi * row;
+                                    }
+                                    let lo = g(b0, c0).min(g(b1, c0)).min(g(b0, c1)).min(g(b1, c1));
+                                    let hi = g(b0, c0).max(g(b1, c0)).max(g(b0, c1)).max(g(b1, c1));
+                                    v.clamp(lo, hi)
+                                } else {
+                                    bilinear
+                                }
                             };
                             beyond + seg
                         }
@@ -136,6 +158,25 @@ pub fn sun_density_integrals(grid: &DensityGrid, sun_dir: DVec3) -> Vec<f32> {
         prev = Some(ia);
     }
     out
+}
+
+static EXP_CUBIC: std::sync::LazyLock<f64> = std::sync::LazyLock::new(|| {
+    std::env::var("EXP_CUBIC")
+        .ok()
+        .and_then(|v| v.parse().ok())
+        .unwrap_or(0.0)
+});
+
+/// Catmull-Rom weights of the nodes −1, 0, 1, 2 at fraction `t` between nodes 0 and 1.
+#[inline]
+fn catmull_rom(t: f64) -> [f64; 4] {
+    let (t2, t3) = (t * t, t * t * t);
+    [
+        0.5 * (-t3 + 2.0 * t2 - t),
+        0.5 * (3.0 * t3 - 5.0 * t2 + 2.0),
+        0.5 * (-3.0 * t3 + 4.0 * t2 + t),
+        0.5 * (t3 - t2),
+    ]
 }
 
 /// Density integral from `p` along `s` to the box exit (midpoint rule, quarter-voxel steps).
