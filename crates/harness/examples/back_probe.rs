@@ -55,7 +55,13 @@ fn report(name: &str, test: &[f32], reference: &[f32], mask: &[bool], tau: &[f32
         bands += &format!(" τ[{lo},{hi}) {:+6.1}%", 100.0 * (sf / sr.max(1e-30) - 1.0));
     }
     bands += " |";
-    for (lo, hi) in [(0.0, 12.0), (12.0, 16.0), (16.0, 20.0), (20.0, 25.0), (25.0, 180.0)] {
+    for (lo, hi) in [
+        (0.0, 12.0),
+        (12.0, 16.0),
+        (16.0, 20.0),
+        (20.0, 25.0),
+        (25.0, 180.0),
+    ] {
         let (mut sf, mut sr) = (0.0, 0.0);
         for i in 0..mask.len() {
             if mask[i] && theta[i] >= lo && theta[i] < hi {
@@ -134,11 +140,19 @@ fn main() -> skybake_physics::Result<()> {
     let theta: Vec<f64> = (0..w * h)
         .map(|i| {
             camera::primary_ray(&scene.camera, (i % w) as f64 + 0.5, (i / w) as f64 + 0.5)
-                .map_or(180.0, |r| r.dir.dot(lt.sun_dir).clamp(-1.0, 1.0).acos().to_degrees())
+                .map_or(180.0, |r| {
+                    r.dir.dot(lt.sun_dir).clamp(-1.0, 1.0).acos().to_degrees()
+                })
         })
         .collect();
     let mut counts = String::new();
-    for (lo, hi) in [(0.0, 12.0), (12.0, 16.0), (16.0, 20.0), (20.0, 25.0), (25.0, 180.0)] {
+    for (lo, hi) in [
+        (0.0, 12.0),
+        (12.0, 16.0),
+        (16.0, 20.0),
+        (20.0, 25.0),
+        (25.0, 180.0),
+    ] {
         let (mut n, mut sr) = (0, 0.0);
         for i in 0..w * h {
             if mask[i] && theta[i] >= lo && theta[i] < hi {
@@ -197,7 +211,9 @@ fn main() -> skybake_physics::Result<()> {
                 if !mask[i] {
                     return 0.0;
                 }
-                let Some(ray) = camera::primary_ray(&scene.camera, (i % w) as f64 + 0.5, (i / w) as f64 + 0.5) else {
+                let Some(ray) =
+                    camera::primary_ray(&scene.camera, (i % w) as f64 + 0.5, (i / w) as f64 + 0.5)
+                else {
                     return 0.0;
                 };
                 let Some((t0, t1)) = vol.interval(ray.origin_m, ray.dir) else {
@@ -220,7 +236,10 @@ fn main() -> skybake_physics::Result<()> {
                 sum as f32
             })
             .collect();
-        eprintln!("brute-force single scattering: {:.1} s", t.elapsed().as_secs_f64());
+        eprintln!(
+            "brute-force single scattering: {:.1} s",
+            t.elapsed().as_secs_f64()
+        );
         report("fast exact SS vs brute SS", &ss_exact, &brute, &mask, &tau);
         println!("brute SS share {:.3}", share(&brute, &mask, norm));
         // The same march with the per-voxel sun path replaced by brute-force integrals at the
@@ -240,12 +259,26 @@ fn main() -> skybake_physics::Result<()> {
             }
             v[1] = d as f32;
         }
-        println!("cumulative D / brute D − 1 at occupied voxel centres: mean {:+.2}%, max |.| {:.1}%", 100.0 * dsum / dn as f64, 100.0 * dmax);
+        println!(
+            "cumulative D / brute D − 1 at occupied voxel centres: mean {:+.2}%, max |.| {:.1}%",
+            100.0 * dsum / dn as f64,
+            100.0 * dmax
+        );
         let ss_b = march_all(&pb, &scene1);
         report("SS, brute D at centres", &ss_b, &brute, &mask, &tau);
     }
     if let Some(cspp) = env_f("CLASSES") {
-        classes(&scene, &lt, &p1, &ss_tms, &rest, &reference, &mask, &tau, cspp as usize);
+        classes(
+            &scene,
+            &lt,
+            &p1,
+            &ss_tms,
+            &rest,
+            &reference,
+            &mask,
+            &tau,
+            cspp as usize,
+        );
     }
     if spp == 0 {
         return Ok(());
@@ -285,7 +318,10 @@ fn main() -> skybake_physics::Result<()> {
                 .collect();
             let bytes: Vec<u8> = img.iter().flat_map(|v| v.to_le_bytes()).collect();
             std::fs::write(&path, bytes).ok();
-            eprintln!("path tracer orders ≤ {n}: {:.1} s", t.elapsed().as_secs_f64());
+            eprintln!(
+                "path tracer orders ≤ {n}: {:.1} s",
+                t.elapsed().as_secs_f64()
+            );
             img
         };
         let this: Vec<f32> = img.iter().zip(&prev).map(|(a, b)| a - b).collect();
@@ -338,7 +374,9 @@ fn classes(
     let e_sun = lt.sun_irradiance[0];
     let g = phase.mean_cosine();
     let f = g.powf(skybake_render::TRUNCATION_POWER);
-    let smooth = Phase::HenyeyGreenstein { g: (g - f) / (1.0 - f) };
+    let smooth = Phase::HenyeyGreenstein {
+        g: (g - f) / (1.0 - f),
+    };
     let rplus = |mu: f64| (phase.eval(mu) - (1.0 - f) * smooth.eval(mu)).max(0.0);
     let smax = k * vol.rho_max;
     let free = |o: DVec3, d: DVec3, rng: &mut rand_pcg::Pcg64| -> Option<f64> {
@@ -384,7 +422,9 @@ fn classes(
                 return acc;
             }
             let (x, y) = (i % w, i / w);
-            let mut rng = rand_pcg::Pcg64::seed_from_u64(0x5EED ^ (i as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15));
+            let mut rng = rand_pcg::Pcg64::seed_from_u64(
+                0x5EED ^ (i as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15),
+            );
             for _ in 0..spp {
                 let (jx, jy) = (rng.random::<f64>(), rng.random::<f64>());
                 let Some(ray) = camera::primary_ray(&scene.camera, x as f64 + jx, y as f64 + jy)
@@ -450,6 +490,12 @@ fn classes(
     let (fa, fb) = (split(true), split(false));
     report("fast TMS·r⁺/p vs PT n=0", &fa, &c0, mask, tau);
     report("fast TMS·s/p vs PT n=1", &fb, &c1, mask, tau);
-    report("fast TMS SS vs PT n≤1", ss_tms, &c0.iter().zip(&c1).map(|(a, b)| a + b).collect::<Vec<_>>(), mask, tau);
+    report(
+        "fast TMS SS vs PT n≤1",
+        ss_tms,
+        &c0.iter().zip(&c1).map(|(a, b)| a + b).collect::<Vec<_>>(),
+        mask,
+        tau,
+    );
     report("fast J* vs PT n≥2", field, &c2, mask, tau);
 }

@@ -24,19 +24,6 @@ use std::time::Instant;
 /// seen through the cloud, T_c ≤ T*, at most this fraction of its radiance).
 pub const MARCH_CUTOFF: f64 = 1e-3;
 
-static EXP_SPLIT: std::sync::LazyLock<f64> = std::sync::LazyLock::new(|| {
-    std::env::var("EXP_SPLIT")
-        .ok()
-        .and_then(|v| v.parse().ok())
-        .unwrap_or(0.0)
-});
-static EXP_VIEW: std::sync::LazyLock<f64> = std::sync::LazyLock::new(|| {
-    std::env::var("EXP_VIEW")
-        .ok()
-        .and_then(|v| v.parse().ok())
-        .unwrap_or(0.0)
-});
-
 /// Everything precomputed for one scene, camera and lighting; renders any tile. The
 /// camera-independent part is a shared [`LitVolume`]; the per-voxel source towards the camera
 /// is this camera's.
@@ -326,6 +313,19 @@ impl<'a> Prepared<'a> {
     /// phase function and σ_s, multiple scattering is ω*·J*. Without multiple scattering f = 0 and
     /// this is exact single scattering. The cloud's transmittance T_c of the background uses the
     /// true extinction. Each step integrates exactly for a density constant within it.
+    ///
+    /// The sun's single scattering is split by what scatters last (`peak`): the scaled beam
+    /// e^{−τ*} holds the sunlight scattered only within the truncated peak r⁺, spread over
+    /// angle (Goudsmit & Saunderson 1940). Its part scattered last by the smooth remainder
+    /// p − r⁺ keeps the TMS form, σ_s (p − r⁺)_eff e^{−τ*_sun} seen through the scaled
+    /// transmittance T*. Its part scattered last within the peak, σ_s r⁺_eff e^{−τ*_sun}, is
+    /// seen through the true transmittance T_c: a later peak scattering on the way to the
+    /// camera makes it light scattered last further along the ray, already counted there.
+    /// TMS alone, with T* for it too, counts light scattered m times within the peak m times
+    /// (Nakajima & Tanaka 1988, §3 and their IMS correction of the second order, which
+    /// DISORT applies in the aureole), so its source grows linearly with the optical depth
+    /// where the true one saturates: looking towards the sun through a cloud's edges this read
+    /// +26 % on the cloud mean against Mitsuba 3 (docs/frames.md).
     pub fn march(&self, ray: &Ray, ia: &mut [f64], tc: &mut [f64]) -> Option<f64> {
         // The usual wavelength counts get a copy of the march with their count fixed at
         // compile time (the same operations, unrolled), the rest the general one.
@@ -380,9 +380,6 @@ impl<'a> Prepared<'a> {
             fresh[l] = l == 0 || kt[l] != kt[l - 1] || ks[l] != ks[l - 1];
         }
         let sun_on = self.lit.sun_on;
-        let view_rate: f64 = *EXP_VIEW;
-        // True optical depth along the view ray from the camera to the step's start.
-        let mut tau_v = [0.0f64; 64];
         let stride = if N == 0 { self.stride } else { N + 2 };
         let vox = &self.vox[..];
         let mut t = t0;
@@ -457,18 +454,22 @@ impl<'a> Prepared<'a> {
                             sun_step(ks[l] * rho, ks[l] * (d1 - d0), dt, ks[l] * d0);
                         match (&self.lit.peak, rows[l]) {
                             (Some(p), Some(row)) => {
-                                let lambda_s = self.lit.peak_rate[l] * kt[l] * (d0 + (d1 - d0) * d_eff);
-                                if *EXP_SPLIT > 0.0 {
-                                    let lambda_v = self.lit.peak_rate[l] * view_rate * (tau_v[l] + kt[l] * rho * dt * d_eff);
-                                    let (smooth, _) = p.ratios(row, lambda_s + lambda_v);
-                                    let (_, peak) = p.ratios(row, lambda_s);
-                                    let (weight_t, _) =
+                                // The spread beam's two parts (see the doc comment above): the
+                                // smooth remainder's single scattering seen through the scaled
+                                // extinction, the peak's last scattering through the true one
+                                // (its weight times s = σ_t*/σ_t, as sun_src holds ω/s).
+                                let (smooth, peak) = p.ratios(
+                                    row,
+                                    self.lit.peak_rate[l] * kt[l] * (d0 + (d1 - d0) * d_eff),
+                                );
+                                let peak_t = if peak > 0.0 {
+                                    let (w_true, _) =
                                         sun_step(kt[l] * rho, ks[l] * (d1 - d0), dt, ks[l] * d0);
-                                    (weight * smooth, weight_t * peak * self.lit.ms_extinction_scale[l])
+                                    w_true * peak * self.lit.ms_extinction_scale[l]
                                 } else {
-                                    let lambda_v = self.lit.peak_rate[l] * view_rate * (tau_v[l] + kt[l] * rho * dt * d_eff);
-                                    (weight * p.ratio(row, lambda_s + lambda_v), 0.0)
-                                }
+                                    0.0
+                                };
+                                (weight * smooth, peak_t)
                             }
                             _ => (weight, 0.0),
                         }
@@ -476,8 +477,9 @@ impl<'a> Prepared<'a> {
                         (0.0, 0.0)
                     };
                 }
-                ia[l] += tcs[l] * (sun_src[l] * sun_t + a_ms * src[l]) + tc[l] * sun_src[l] * sun_peak;
-                tau_v[l] += kt[l] * rho * dt;
+                // The peak's part is seen through the true transmittance T_c before this step.
+                ia[l] +=
+                    tcs[l] * (sun_src[l] * sun_t + a_ms * src[l]) + tc[l] * sun_src[l] * sun_peak;
                 tc[l] *= 1.0 - a;
                 tcs[l] *= 1.0 - a_ms;
                 alive |= tcs[l] > MARCH_CUTOFF;

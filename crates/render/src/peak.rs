@@ -17,9 +17,11 @@
 //! differences of the spread beam neglected). h is the positive part of p − (1 − f)·HG(g*), the
 //! true phase function less the part the scaled problem keeps, normalised by its integral f⁺.
 //! The table holds p_eff/p over Θ and λ = ωfτ (τ the true optical depth towards the sun), both
-//! series summed to the same order, so the ratio is exactly 1 at τ = 0. The renderer looks it up
-//! at a fraction of that λ (`PEAK_SPREAD`, measured against Mitsuba 3: the full spread makes
-//! back-lit clouds read 9 % high).
+//! series summed to the same order, so the ratio is exactly 1 at τ = 0; a second table holds
+//! the part of it scattered last within the peak, r⁺_eff/p with moments r⁺_l e^{−ωf⁺τ(1 − h_l)}
+//! (r⁺ = f⁺h), which the march sees through the true extinction instead of the scaled one
+//! (`march::Prepared::march`). The renderer looks them up at `PEAK_SPREAD` times that λ (1,
+//! the full rate).
 
 use crate::multiple::Truncation;
 use skybake_physics::phase::Phase;
@@ -89,6 +91,12 @@ impl PeakSpread {
     /// [`Self::ratio`] interpolates bilinearly, λ held beyond the last).
     pub fn table(&self, l: usize) -> &[f32] {
         &self.tables[self.table_of[l]]
+    }
+
+    /// Wavelength `l`'s table of the part of p_eff/p scattered last within the truncated
+    /// peak, r⁺_eff/p (laid out as [`Self::table`]).
+    pub fn peak_table(&self, l: usize) -> &[f32] {
+        &self.peak_tables[self.table_of[l]]
     }
 
     /// The row for wavelength `l` and the cosine of the scattering angle (sun direction · ray).
@@ -238,5 +246,28 @@ mod tests {
         let at = |deg: f64, lambda: f64| s.ratio(s.row(0, deg.to_radians().cos()), lambda);
         assert!(at(0.0, 4.0) < 0.5 && at(35.0, 4.0) > 1.5);
         assert!(PeakSpread::new(&[phase], &[Truncation::new(0.85, 0.999, 0.0)]).is_none());
+        // The peak's part: at λ = 0 the truncated peak's positive part r⁺ = max(p − (1 − f)·HG(g*),
+        // 0) over p, evaluated directly here (the table sums Legendre series); never above the
+        // whole, and the two parts add up to it at every λ.
+        let smooth = Phase::HenyeyGreenstein { g: t.g_scaled };
+        for deg in [2.0f64, 10.0, 20.0, 40.0] {
+            let mu = deg.to_radians().cos();
+            let r_plus = (phase.eval(mu) - (1.0 - t.fraction) * smooth.eval(mu)).max(0.0);
+            let (rest, peak) = s.ratios(s.row(0, mu), 0.0);
+            assert!(
+                (peak - r_plus / phase.eval(mu)).abs() < 0.01,
+                "{deg}: {peak}"
+            );
+            for lambda in [0.0, 2.0, 8.0] {
+                let (rest, peak) = s.ratios(s.row(0, mu), lambda);
+                assert!(
+                    peak >= 0.0 && rest >= -1e-6,
+                    "{deg} {lambda}: {rest} {peak}"
+                );
+                let whole = s.ratio(s.row(0, mu), lambda);
+                assert!((rest + peak - whole).abs() < 1e-9);
+            }
+            assert!(rest >= 0.0);
+        }
     }
 }
