@@ -1,13 +1,19 @@
 //! Where a Mitsuba validation case's error is (the fast method against the committed Mitsuba 3
-//! image), by part and by scattering order: the fast frame's cloud radiance split into its
-//! sun single-scattering term (TMS, the per-voxel sources zeroed) and the rest, the exact single
-//! scattering (no truncation), and the path tracer's order 1 (and optionally orders ≤ N), with
-//! the bias per band of the optical depth along the pixel's ray (tests/data/cloud_mitsuba_tau*).
+//! image), by part and by scattering order: the fast frame's cloud radiance (I_a, no
+//! background) split into its sun single-scattering term (TMS, the per-voxel sources zeroed) and
+//! the field J*, the exact single scattering (no truncation), the path tracer's orders 1..=N,
+//! with the bias per band of the optical depth along the pixel's ray
+//! (tests/data/cloud_mitsuba_tau*.npy) and of the scattering angle.
 //!
-//! cargo run --release -p skybake-harness --features probes --example back_probe -- CASE [SPP [MAXORD...]]
+//! cargo run --release -p skybake-harness --features probes --example back_probe -- CASE [SPP [MAXORD]]
 //! CASE: a validation case (`sun_back20`, …); SPP: path-tracer samples per pixel for its orders
 //! (0: none); MAXORD: path-tracer orders 1..=N to render (default 1). Path-traced images are
-//! cached under $REF_DIR (default /tmp). Knobs (env): PEAK (peak spread), TPOW (truncation power).
+//! cached under $REF_DIR (default /tmp). Knobs (env): PEAK (peak spread), TPOW (truncation
+//! power); CLASSES=spp: a path tracer that classes each scattering as within the truncated peak
+//! or not and splits the sun's light by the number of smooth scatterings (0, 1, ≥ 2), against
+//! the fast method's parts; BRUTE=1: the exact single scattering by brute force (the sun's path
+//! marched from every sample) against the march's, and with the per-voxel sun path replaced by
+//! brute-force integrals at the voxel centres.
 use rayon::prelude::*;
 use skybake_render::pathtracer::PathTracer;
 use skybake_render::{camera, lighting_for, FrameScene, Method, Prepared, RenderSettings};
@@ -114,7 +120,7 @@ fn main() -> skybake_physics::Result<()> {
     let spp: usize = a.get(2).and_then(|s| s.parse().ok()).unwrap_or(0);
     let max_ord: usize = a.get(3).and_then(|s| s.parse().ok()).unwrap_or(1);
     let bytes = std::fs::read(format!("{DATA}/validation-cloud-{case}.json")).unwrap();
-    let mut scene = FrameScene::parse(&bytes)?;
+    let scene = FrameScene::parse(&bytes)?;
     let grid = scene.cloud.voxelize(&|p: &str| {
         std::fs::read(format!("{DATA}/{p}")).map_err(|e| skybake_physics::Error::invalid("path", e))
     })?;

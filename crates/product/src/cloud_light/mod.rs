@@ -505,6 +505,7 @@ impl CloudLight {
             }),
         );
         if let Some(p) = &self.peak {
+            let peak_channels = [spectral("peak"), spectral("peak_last")].concat();
             textures.insert(
                 "peak_spread".into(),
                 json!({
@@ -512,7 +513,7 @@ impl CloudLight {
                     "sample": "float",
                     "layout": format!("row r at scattering angle 180°·r/{}, column c at lambda = {}·c/{}; bilinear, lambda held beyond the last column", p.n_theta - 1, p.lambda_max, p.n_lambda - 1),
                     "width": p.n_lambda, "height": p.n_theta,
-                    "channels": [spectral("peak"), spectral("peak_last")].concat(),
+                    "channels": peak_channels,
                     "content": "peak: p_eff/p, the sun's single-scattering phase function spread by the delta-M truncated peak (Goudsmit & Saunderson 1940), at lambda = peak_rate[λ]·k[λ]·D_sun; peak_last: the part of it scattered last within the peak (seen through the true extinction, the rest through the scaled one)",
                     "unit": "1",
                 }),
