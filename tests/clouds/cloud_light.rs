@@ -126,12 +126,21 @@ fn marcher_reproduces_the_fast_frame_in_vacuum() {
             .for_each(|c| c.iter_mut().for_each(|v| *v = 0.0))
     });
     let (no_peak, _) = compare(&scene, true, &|cl| cl.peak = None);
+    // Without the peak's part (everything seen through the scaled extinction, as TMS alone).
+    let (no_last, _) = compare(&scene, true, &|cl| {
+        if let Some(p) = &mut cl.peak {
+            p.last_in_peak
+                .iter_mut()
+                .for_each(|c| c.iter_mut().for_each(|v| *v = 0.0))
+        }
+    });
     eprintln!(
-        "cloud_light back-lit without MS: block {:.3}; without the peak spread: block {:.3}",
-        no_ms.nrmse_blocks, no_peak.nrmse_blocks
+        "cloud_light back-lit without MS: block {:.3}; without the peak spread: block {:.3}; without the peak's part: block {:.3}, bias {:+.3}",
+        no_ms.nrmse_blocks, no_peak.nrmse_blocks, no_last.nrmse_blocks, no_last.mean_bias
     );
     assert!(no_ms.nrmse_blocks > 0.2, "{no_ms:?}");
     assert!(no_peak.nrmse_blocks > 0.03, "{no_peak:?}");
+    assert!(no_last.nrmse_blocks > 0.03, "{no_last:?}");
 }
 
 /// The embedded `cumulus-frame` scene (earth atmosphere, sky, ground of albedo 0.3, aerial
