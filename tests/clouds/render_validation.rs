@@ -318,7 +318,7 @@ fn cloud_matches_mitsuba() {
         .map(|&m| m > 0.0)
         .collect();
     // Fast method (whole frame, δ-M/TMS field, P2, view cap, density-weighted field): measured
-    // block NRMSE and bias, sun 5.2 % and −1.3 %, sky 7.9 % and −0.2 %; bounds are those plus a
+    // block NRMSE and bias, sun 5.0 % and −0.5 %, sky 7.9 % and −0.2 %; bounds are those plus a
     // margin for the photon noise.
     for (case, nrmse_bound, fast_block_bound, fast_bias_bound) in [
         ("sky", 0.03, 0.09, 0.025),
