@@ -69,12 +69,12 @@ pub const MAX_RENDER_VOXELS: usize = 1 << 23;
 pub const TRUNCATION_POWER: f64 = 3.5;
 
 /// Strength of the spread of the truncated peak over the scaled sun beam (`peak`): the peak's
-/// scattering rate is taken as this fraction of ωf⁺ (0: TMS with a collimated scaled beam). An
-/// empirical balance like [`TRUNCATION_POWER`]: the full spread (1) turns the back-lit Mitsuba
-/// case's −3.8 % cloud-mean bias into +8.8 % (the spread beam's longer, deflected paths are
-/// neglected), 0.3 gives +0.9 % there, −2.1 % on its thin version and −1.3 % seen from below
-/// (docs/frames.md).
-pub const PEAK_SPREAD: f64 = 0.3;
+/// scattering rate is taken as this fraction of ωf⁺ (0: TMS with a collimated scaled beam; 1:
+/// the Goudsmit & Saunderson (1940) rate itself). With the light scattered last within the
+/// peak seen through the true extinction (`march::Prepared::march`), the full rate holds the
+/// Mitsuba 3 cases (docs/frames.md); before that split, TMS counted that light once per peak
+/// scattering and only 0.3 of the rate balanced it on back-lit clouds.
+pub const PEAK_SPREAD: f64 = 1.0;
 
 /// Rendering method.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]

@@ -39,6 +39,14 @@ pub const SUN_CAP_DEG: f64 = 12.0;
 /// Density integral from each voxel centre towards the sun, m (cumulative scheme: each voxel
 /// continues from the interpolated value one layer closer to the sun along the sun's dominant
 /// axis, plus Simpson's rule over the step).
+///
+/// The previous layer is interpolated bicubically (Catmull & Rom 1974, clamped to the four
+/// nearest values so it cannot overshoot), bilinearly next to the grid's edge. Bilinear
+/// interpolation all the way diffuses the integral sideways, layer after layer, and fills
+/// the valleys where the sun shines through thin parts of the cloud: on the Mitsuba 3
+/// back-lit cloud (sun 35° behind it) the integrals at the voxel centres read +2.1 % high on
+/// average (+0.3 % bicubic), and the single scattering −10.1 % low against a brute-force
+/// march (−2.5 % bicubic; `crates/harness/examples/back_probe.rs`).
 pub fn sun_density_integrals(grid: &DensityGrid, sun_dir: DVec3) -> Vec<f32> {
     let [nx, ny, nz] = grid.dims;
     let n = [nx, ny, nz];
@@ -100,9 +108,10 @@ pub fn sun_density_integrals(grid: &DensityGrid, sun_dir: DVec3) -> Vec<f32> {
                                 * (rho_p
                                     + 4.0 * super::volume::sample(grid, m) as f64
                                     + super::volume::sample(grid, q) as f64);
-                            // Bilinear in the previous layer at the shifted position (voxel
-                            // units); between the outermost centres and the box face, or
-                            // outside, march the short rest of the way instead of clamping.
+                            // Bicubic in the previous layer at the shifted position (voxel
+                            // units; bilinear next to the edge); between the outermost centres
+                            // and the box face, or outside, march the short rest of the way
+                            // instead of clamping.
                             let fb = ib as f64 + shift_b;
                             let fc = ic as f64 + shift_c;
                             let beyond = if fb < 0.0
@@ -119,8 +128,26 @@ pub fn sun_density_integrals(grid: &DensityGrid, sun_dir: DVec3) -> Vec<f32> {
                                 let (b1, c1) = ((b0 + 1).min(n[b] - 1), (c0 + 1).min(n[c] - 1));
                                 let (tb, tc) = (fb - b0 as f64, fc - c0 as f64);
                                 let g = |x: usize, y: usize| layer_vals[x * n[c] + y];
-                                (g(b0, c0) * (1.0 - tb) + g(b1, c0) * tb) * (1.0 - tc)
-                                    + (g(b0, c1) * (1.0 - tb) + g(b1, c1) * tb) * tc
+                                if b0 >= 1 && c0 >= 1 && b0 + 2 < n[b] && c0 + 2 < n[c] {
+                                    let (wb, wc) = (catmull_rom(tb), catmull_rom(tc));
+                                    let mut v = 0.0;
+                                    for (i, wi) in wb.iter().enumerate() {
+                                        let mut row = 0.0;
+                                        for (j, wj) in wc.iter().enumerate() {
+                                            row += wj * g(b0 + i - 1, c0 + j - 1);
+                                        }
+                                        v += wi * row;
+                                    }
+                                    let (v00, v10, v01, v11) =
+                                        (g(b0, c0), g(b1, c0), g(b0, c1), g(b1, c1));
+                                    v.clamp(
+                                        v00.min(v10).min(v01).min(v11),
+                                        v00.max(v10).max(v01).max(v11),
+                                    )
+                                } else {
+                                    (g(b0, c0) * (1.0 - tb) + g(b1, c0) * tb) * (1.0 - tc)
+                                        + (g(b0, c1) * (1.0 - tb) + g(b1, c1) * tb) * tc
+                                }
                             };
                             beyond + seg
                         }
@@ -136,6 +163,18 @@ pub fn sun_density_integrals(grid: &DensityGrid, sun_dir: DVec3) -> Vec<f32> {
         prev = Some(ia);
     }
     out
+}
+
+/// Catmull-Rom weights of the nodes −1, 0, 1, 2 at fraction `t` between nodes 0 and 1.
+#[inline]
+fn catmull_rom(t: f64) -> [f64; 4] {
+    let (t2, t3) = (t * t, t * t * t);
+    [
+        0.5 * (-t3 + 2.0 * t2 - t),
+        0.5 * (3.0 * t3 - 5.0 * t2 + 2.0),
+        0.5 * (-3.0 * t3 + 4.0 * t2 + t),
+        0.5 * (t3 - t2),
+    ]
 }
 
 /// Density integral from `p` along `s` to the box exit (midpoint rule, quarter-voxel steps).

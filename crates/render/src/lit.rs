@@ -152,12 +152,11 @@ impl LitVolume {
             .iter()
             .map(|t| settings.photons.peak_spread * t.albedo * t.fraction)
             .collect();
-        let peak =
-            if sun_on && settings.method == Method::Fast && settings.photons.peak_spread > 0.0 {
-                PeakSpread::new(&optics.phase, &trunc)
-            } else {
-                None
-            };
+        let peak = if sun_on && settings.method == Method::Fast {
+            PeakSpread::new(&optics.phase, &trunc)
+        } else {
+            None
+        };
         let per_voxel =
             settings.method == Method::Fast && vol.rho_max > 0.0 && settings.cloud_in_view;
         let (mut d_sun, mut mask, mut lattice) = (Vec::new(), Vec::new(), Vec::new());

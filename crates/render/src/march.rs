@@ -313,6 +313,19 @@ impl<'a> Prepared<'a> {
     /// phase function and σ_s, multiple scattering is ω*·J*. Without multiple scattering f = 0 and
     /// this is exact single scattering. The cloud's transmittance T_c of the background uses the
     /// true extinction. Each step integrates exactly for a density constant within it.
+    ///
+    /// The sun's single scattering is split by what scatters last (`peak`): the scaled beam
+    /// e^{−τ*} holds the sunlight scattered only within the truncated peak r⁺, spread over
+    /// angle (Goudsmit & Saunderson 1940). Its part scattered last by the smooth remainder
+    /// p − r⁺ keeps the TMS form, σ_s (p − r⁺)_eff e^{−τ*_sun} seen through the scaled
+    /// transmittance T*. Its part scattered last within the peak, σ_s r⁺_eff e^{−τ*_sun}, is
+    /// seen through the true transmittance T_c: a later peak scattering on the way to the
+    /// camera makes it light scattered last further along the ray, already counted there.
+    /// TMS alone, with T* for it too, counts light scattered m times within the peak m times
+    /// (Nakajima & Tanaka 1988, §3 and their IMS correction of the second order, which
+    /// DISORT applies in the aureole), so its source grows linearly with the optical depth
+    /// where the true one saturates: looking towards the sun through a cloud's edges this read
+    /// +26 % on the cloud mean against Mitsuba 3 (docs/frames.md).
     pub fn march(&self, ray: &Ray, ia: &mut [f64], tc: &mut [f64]) -> Option<f64> {
         // The usual wavelength counts get a copy of the march with their count fixed at
         // compile time (the same operations, unrolled), the rest the general one.
@@ -431,27 +444,42 @@ impl<'a> Prepared<'a> {
             d_start = Some(d1);
             front.get_or_insert(t - dt);
             let mut alive = false;
-            let (mut a, mut a_ms, mut sun_t) = (0.0, 0.0, 0.0);
+            let (mut a, mut a_ms, mut sun_t, mut sun_peak) = (0.0, 0.0, 0.0, 0.0);
             for l in 0..n_l {
                 if fresh[l] {
                     a = -(-kt[l] * rho * dt).exp_m1();
                     a_ms = -(-ks[l] * rho * dt).exp_m1();
-                    sun_t = if sun_on {
+                    (sun_t, sun_peak) = if sun_on {
                         let (weight, d_eff) =
                             sun_step(ks[l] * rho, ks[l] * (d1 - d0), dt, ks[l] * d0);
-                        let spread = match (&self.lit.peak, rows[l]) {
-                            (Some(p), Some(row)) => p.ratio(
-                                row,
-                                self.lit.peak_rate[l] * kt[l] * (d0 + (d1 - d0) * d_eff),
-                            ),
-                            _ => 1.0,
-                        };
-                        weight * spread
+                        match (&self.lit.peak, rows[l]) {
+                            (Some(p), Some(row)) => {
+                                // The spread beam's two parts (see the doc comment above): the
+                                // smooth remainder's single scattering seen through the scaled
+                                // extinction, the peak's last scattering through the true one
+                                // (its weight times s = σ_t*/σ_t, as sun_src holds ω/s).
+                                let (smooth, peak) = p.ratios(
+                                    row,
+                                    self.lit.peak_rate[l] * kt[l] * (d0 + (d1 - d0) * d_eff),
+                                );
+                                let peak_t = if peak > 0.0 {
+                                    let (w_true, _) =
+                                        sun_step(kt[l] * rho, ks[l] * (d1 - d0), dt, ks[l] * d0);
+                                    w_true * peak * self.lit.ms_extinction_scale[l]
+                                } else {
+                                    0.0
+                                };
+                                (weight * smooth, peak_t)
+                            }
+                            _ => (weight, 0.0),
+                        }
                     } else {
-                        0.0
+                        (0.0, 0.0)
                     };
                 }
-                ia[l] += tcs[l] * (sun_src[l] * sun_t + a_ms * src[l]);
+                // The peak's part is seen through the true transmittance T_c before this step.
+                ia[l] +=
+                    tcs[l] * (sun_src[l] * sun_t + a_ms * src[l]) + tc[l] * sun_src[l] * sun_peak;
                 tc[l] *= 1.0 - a;
                 tcs[l] *= 1.0 - a_ms;
                 alive |= tcs[l] > MARCH_CUTOFF;

@@ -17,9 +17,11 @@
 //! differences of the spread beam neglected). h is the positive part of p − (1 − f)·HG(g*), the
 //! true phase function less the part the scaled problem keeps, normalised by its integral f⁺.
 //! The table holds p_eff/p over Θ and λ = ωfτ (τ the true optical depth towards the sun), both
-//! series summed to the same order, so the ratio is exactly 1 at τ = 0. The renderer looks it up
-//! at a fraction of that λ (`PEAK_SPREAD`, measured against Mitsuba 3: the full spread makes
-//! back-lit clouds read 9 % high).
+//! series summed to the same order, so the ratio is exactly 1 at τ = 0; a second table holds
+//! the part of it scattered last within the peak, r⁺_eff/p with moments r⁺_l e^{−ωf⁺τ(1 − h_l)}
+//! (r⁺ = f⁺h), which the march sees through the true extinction instead of the scaled one
+//! (`march::Prepared::march`). The renderer looks them up at `PEAK_SPREAD` times that λ (1,
+//! the full rate).
 
 use crate::multiple::Truncation;
 use skybake_physics::phase::Phase;
@@ -36,10 +38,12 @@ const L_MAX: usize = 384;
 /// Quadrature points for the moments, μ = 1 − 2u² with u uniform (resolves the peak at μ = 1).
 const N_QUAD: usize = 8192;
 
-/// p_eff/p tables, one per distinct (phase function, albedo, truncation).
+/// p_eff/p tables, one per distinct (phase function, albedo, truncation), and the truncated
+/// peak's share of them (see [`PeakSpread::ratios`]).
 pub struct PeakSpread {
     table_of: Vec<usize>,
     tables: Vec<Vec<f32>>,
+    peak_tables: Vec<Vec<f32>>,
 }
 
 /// A ray's row of the table for one wavelength: the angle's two rows and the weight of the second.
@@ -59,6 +63,7 @@ impl PeakSpread {
         }
         let mut keys: Vec<(Phase, u64, u64)> = Vec::new();
         let mut tables = Vec::new();
+        let mut peak_tables = Vec::new();
         let mut table_of = Vec::with_capacity(phases.len());
         for (p, t) in phases.iter().zip(truncation) {
             let key = (*p, t.fraction.to_bits(), t.albedo.to_bits());
@@ -66,13 +71,19 @@ impl PeakSpread {
                 Some(i) => i,
                 None => {
                     keys.push(key);
-                    tables.push(table(p, t));
+                    let (full, peak) = table(p, t);
+                    tables.push(full);
+                    peak_tables.push(peak);
                     tables.len() - 1
                 }
             };
             table_of.push(i);
         }
-        Some(Self { table_of, tables })
+        Some(Self {
+            table_of,
+            tables,
+            peak_tables,
+        })
     }
 
     /// Wavelength `l`'s table of p_eff/p, `[θ][λ]`: [`N_THETA`] scattering angles 0 to 180° in
@@ -80,6 +91,12 @@ impl PeakSpread {
     /// [`Self::ratio`] interpolates bilinearly, λ held beyond the last).
     pub fn table(&self, l: usize) -> &[f32] {
         &self.tables[self.table_of[l]]
+    }
+
+    /// Wavelength `l`'s table of the part of p_eff/p scattered last within the truncated
+    /// peak, r⁺_eff/p (laid out as [`Self::table`]).
+    pub fn peak_table(&self, l: usize) -> &[f32] {
+        &self.peak_tables[self.table_of[l]]
     }
 
     /// The row for wavelength `l` and the cosine of the scattering angle (sun direction · ray).
@@ -96,15 +113,30 @@ impl PeakSpread {
     /// p_eff/p for the row at λ = ωfτ.
     #[inline]
     pub fn ratio(&self, row: PeakRow, lambda: f64) -> f64 {
-        let t = &self.tables[row.table];
-        let y = (lambda.max(0.0) / LAMBDA_MAX * (N_LAMBDA - 1) as f64).min((N_LAMBDA - 1) as f64);
-        let j0 = (super::volume::floor(y) as usize).min(N_LAMBDA - 2);
-        let v = y - j0 as f64;
-        let at = |i: usize, j: usize| t[i * N_LAMBDA + j] as f64;
-        let a = at(row.i0, j0) * (1.0 - v) + at(row.i0, j0 + 1) * v;
-        let b = at(row.i0 + 1, j0) * (1.0 - v) + at(row.i0 + 1, j0 + 1) * v;
-        a * (1.0 - row.w1) + b * row.w1
+        lookup(&self.tables[row.table], row, lambda)
     }
+
+    /// p_eff/p for the row at λ = ωfτ split into the part scattered last by the smooth
+    /// remainder p − r⁺ and the part scattered last within the truncated peak r⁺ (their sum is
+    /// [`Self::ratio`]): (smooth, peak).
+    #[inline]
+    pub fn ratios(&self, row: PeakRow, lambda: f64) -> (f64, f64) {
+        let full = lookup(&self.tables[row.table], row, lambda);
+        let peak = lookup(&self.peak_tables[row.table], row, lambda);
+        (full - peak, peak)
+    }
+}
+
+/// Bilinear look-up of a `[θ][λ]` table.
+#[inline]
+fn lookup(t: &[f32], row: PeakRow, lambda: f64) -> f64 {
+    let y = (lambda.max(0.0) / LAMBDA_MAX * (N_LAMBDA - 1) as f64).min((N_LAMBDA - 1) as f64);
+    let j0 = (super::volume::floor(y) as usize).min(N_LAMBDA - 2);
+    let v = y - j0 as f64;
+    let at = |i: usize, j: usize| t[i * N_LAMBDA + j] as f64;
+    let a = at(row.i0, j0) * (1.0 - v) + at(row.i0, j0 + 1) * v;
+    let b = at(row.i0 + 1, j0) * (1.0 - v) + at(row.i0 + 1, j0 + 1) * v;
+    a * (1.0 - row.w1) + b * row.w1
 }
 
 /// Legendre polynomials P_0..P_{L_MAX} at `mu` into `out` (Bonnet's recurrence).
@@ -118,8 +150,9 @@ fn legendre(mu: f64, out: &mut [f64]) {
     }
 }
 
-/// The p_eff/p table `[θ][λ]` of one phase function and truncation.
-fn table(phase: &Phase, t: &Truncation) -> Vec<f32> {
+/// The p_eff/p table `[θ][λ]` of one phase function and truncation, and the same for the peak
+/// part alone, r⁺_eff/p (moments r⁺_l e^{−ωf⁺τ(1 − h_l)}).
+fn table(phase: &Phase, t: &Truncation) -> (Vec<f32>, Vec<f32>) {
     let f = t.fraction;
     let smooth = Phase::HenyeyGreenstein { g: t.g_scaled };
     // Moments 2π∫ x P_l dμ of p and of the positive remainder r⁺ = max(p − (1 − f)p*, 0).
@@ -141,8 +174,9 @@ fn table(phase: &Phase, t: &Truncation) -> Vec<f32> {
     let f_plus = h_l[0];
     let albedo = t.albedo;
     let mut out = vec![1f32; N_THETA * N_LAMBDA];
+    let mut out_peak = vec![0f32; N_THETA * N_LAMBDA];
     if f_plus <= 0.0 || f <= 0.0 || albedo <= 0.0 {
-        return out;
+        return (out, out_peak);
     }
     // λ = ωfτ; the peak's scattering rate is ωf⁺ per unit optical depth.
     let strength = f_plus / f;
@@ -160,17 +194,24 @@ fn table(phase: &Phase, t: &Truncation) -> Vec<f32> {
         let terms: Vec<f64> = (0..=L_MAX)
             .map(|l| (2 * l + 1) as f64 / (4.0 * PI) * p_l[l] * pl[l])
             .collect();
+        let peak_terms: Vec<f64> = (0..=L_MAX)
+            .map(|l| (2 * l + 1) as f64 / (4.0 * PI) * h_l[l] * pl[l])
+            .collect();
         let s0: f64 = terms.iter().sum();
         for j in 0..N_LAMBDA {
             let s: f64 = terms.iter().zip(&decay[j]).map(|(a, b)| a * b).sum();
-            out[i * N_LAMBDA + j] = if s0 > 1e-12 {
-                (s / s0).max(0.0) as f32
+            let sp: f64 = peak_terms.iter().zip(&decay[j]).map(|(a, b)| a * b).sum();
+            let (full, peak) = if s0 > 1e-12 {
+                let full = (s / s0).max(0.0);
+                (full, (sp / s0).clamp(0.0, full))
             } else {
-                1.0
+                (1.0, 0.0)
             };
+            out[i * N_LAMBDA + j] = full as f32;
+            out_peak[i * N_LAMBDA + j] = peak as f32;
         }
     }
-    out
+    (out, out_peak)
 }
 
 #[cfg(test)]
@@ -205,5 +246,28 @@ mod tests {
         let at = |deg: f64, lambda: f64| s.ratio(s.row(0, deg.to_radians().cos()), lambda);
         assert!(at(0.0, 4.0) < 0.5 && at(35.0, 4.0) > 1.5);
         assert!(PeakSpread::new(&[phase], &[Truncation::new(0.85, 0.999, 0.0)]).is_none());
+        // The peak's part: at λ = 0 the truncated peak's positive part r⁺ = max(p − (1 − f)·HG(g*),
+        // 0) over p, evaluated directly here (the table sums Legendre series); never above the
+        // whole, and the two parts add up to it at every λ.
+        let smooth = Phase::HenyeyGreenstein { g: t.g_scaled };
+        for deg in [2.0f64, 10.0, 20.0, 40.0] {
+            let mu = deg.to_radians().cos();
+            let r_plus = (phase.eval(mu) - (1.0 - t.fraction) * smooth.eval(mu)).max(0.0);
+            let (rest, peak) = s.ratios(s.row(0, mu), 0.0);
+            assert!(
+                (peak - r_plus / phase.eval(mu)).abs() < 0.01,
+                "{deg}: {peak}"
+            );
+            for lambda in [0.0, 2.0, 8.0] {
+                let (rest, peak) = s.ratios(s.row(0, mu), lambda);
+                assert!(
+                    peak >= 0.0 && rest >= -1e-6,
+                    "{deg} {lambda}: {rest} {peak}"
+                );
+                let whole = s.ratio(s.row(0, mu), lambda);
+                assert!((rest + peak - whole).abs() < 1e-9);
+            }
+            assert!(rest >= 0.0);
+        }
     }
 }

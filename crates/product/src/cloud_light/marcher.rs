@@ -152,9 +152,12 @@ impl<'a> Marcher<'a> {
 
     /// The peak spread p_eff/p of wavelength `l` at cos θ and λ (bilinear, λ held beyond the
     /// table).
-    fn spread(&self, l: usize, cos_theta: f64, lambda: f64) -> f64 {
+    /// The peak spread p_eff/p of wavelength `l` at cos θ and λ split into the part scattered
+    /// last by the smooth remainder and the part scattered last within the peak (bilinear, λ
+    /// held beyond the table): (smooth, peak).
+    fn spread(&self, l: usize, cos_theta: f64, lambda: f64) -> (f64, f64) {
         let Some(p) = &self.cl.peak else {
-            return 1.0;
+            return (1.0, 0.0);
         };
         let x = cos_theta.clamp(-1.0, 1.0).acos().to_degrees() * (p.n_theta - 1) as f64 / 180.0;
         let i0 = (x.floor() as usize).min(p.n_theta - 2);
@@ -163,11 +166,14 @@ impl<'a> Marcher<'a> {
             (lambda.max(0.0) / p.lambda_max * (p.n_lambda - 1) as f64).min((p.n_lambda - 1) as f64);
         let j0 = (y.floor() as usize).min(p.n_lambda - 2);
         let v = y - j0 as f64;
-        let t = &p.values[l];
-        let at = |i: usize, j: usize| t[i * p.n_lambda + j] as f64;
-        let a = at(i0, j0) * (1.0 - v) + at(i0, j0 + 1) * v;
-        let b = at(i0 + 1, j0) * (1.0 - v) + at(i0 + 1, j0 + 1) * v;
-        a * (1.0 - w1) + b * w1
+        let bilinear = |t: &[f32]| {
+            let at = |i: usize, j: usize| t[i * p.n_lambda + j] as f64;
+            let a = at(i0, j0) * (1.0 - v) + at(i0, j0 + 1) * v;
+            let b = at(i0 + 1, j0) * (1.0 - v) + at(i0 + 1, j0 + 1) * v;
+            a * (1.0 - w1) + b * w1
+        };
+        let (full, last) = (bilinear(&p.values[l]), bilinear(&p.last_in_peak[l]));
+        (full - last, last)
     }
 
     /// Marches the ray from `o` along unit `d` through the cloud.
@@ -233,13 +239,18 @@ impl<'a> Marcher<'a> {
                 let a = -(-k[l] * rho * dt).exp_m1();
                 let a_ms = -(-ks * rho * dt).exp_m1();
                 // Sun, single scattering with the true phase function and the spread peak.
-                let sun_t = if sun_on {
+                // The part scattered last within the peak is seen through the true
+                // extinction: its step weight with k (times s, as sun_src holds ω/s), and T_c.
+                let (sun_t, sun_peak) = if sun_on {
                     let (weight, d_eff) =
                         sun_step(ks * rho, ks * (d_end - d_start), dt, ks * d_start);
                     let lambda = cl.peak_rate[l] * k[l] * (d_start + (d_end - d_start) * d_eff);
-                    weight * self.spread(l, cos_sun, lambda)
+                    let (smooth, peak) = self.spread(l, cos_sun, lambda);
+                    let (w_true, _) =
+                        sun_step(k[l] * rho, ks * (d_end - d_start), dt, ks * d_start);
+                    (weight * smooth, w_true * peak * s[l])
                 } else {
-                    0.0
+                    (0.0, 0.0)
                 };
                 // Sky and ground light through the sun cap and the lattice elements.
                 let mut src = 0.0;
@@ -258,7 +269,7 @@ impl<'a> Marcher<'a> {
                     }
                     src += j.max(0.0);
                 }
-                ia[l] += ts[l] * (sun_src[l] * sun_t + a_ms * src);
+                ia[l] += ts[l] * (sun_src[l] * sun_t + a_ms * src) + tc[l] * sun_src[l] * sun_peak;
                 tc[l] *= 1.0 - a;
                 ts[l] *= 1.0 - a_ms;
                 alive |= ts[l] > skybake_render::march::MARCH_CUTOFF;

@@ -105,6 +105,9 @@ pub struct PeakTable {
     pub lambda_max: f64,
     /// `[λ][row·n_lambda + col]`.
     pub values: Vec<Vec<f32>>,
+    /// The part of `values` scattered last within the truncated peak (r⁺_eff/p, seen through
+    /// the true extinction instead of the scaled one), `[λ][row·n_lambda + col]`.
+    pub last_in_peak: Vec<Vec<f32>>,
 }
 
 /// The export of a lit cloud (see the module's documentation and docs/cloud-light.md).
@@ -258,6 +261,7 @@ impl CloudLight {
             n_lambda: peak::N_LAMBDA,
             lambda_max: peak::LAMBDA_MAX,
             values: (0..n_l).map(|l| p.table(l).to_vec()).collect(),
+            last_in_peak: (0..n_l).map(|l| p.peak_table(l).to_vec()).collect(),
         });
         let s = lighting.sun_dir.normalize();
         let photons = settings.photons;
@@ -386,6 +390,12 @@ impl CloudLight {
                         p.values[l].as_slice(),
                     )
                 })
+                .chain((0..n_l).map(|l| {
+                    (
+                        Self::channel("peak_last", self.wavelengths_nm[l]),
+                        p.last_in_peak[l].as_slice(),
+                    )
+                }))
                 .collect();
             files.push((PEAK_FILE, enc(p.n_lambda, p.n_theta, ch, false)?));
         }
@@ -495,6 +505,7 @@ impl CloudLight {
             }),
         );
         if let Some(p) = &self.peak {
+            let peak_channels = [spectral("peak"), spectral("peak_last")].concat();
             textures.insert(
                 "peak_spread".into(),
                 json!({
@@ -502,8 +513,8 @@ impl CloudLight {
                     "sample": "float",
                     "layout": format!("row r at scattering angle 180°·r/{}, column c at lambda = {}·c/{}; bilinear, lambda held beyond the last column", p.n_theta - 1, p.lambda_max, p.n_lambda - 1),
                     "width": p.n_lambda, "height": p.n_theta,
-                    "channels": spectral("peak"),
-                    "content": "p_eff/p: the sun's single-scattering phase function spread by the delta-M truncated peak (Goudsmit & Saunderson 1940), at lambda = peak_rate[λ]·k[λ]·D_sun",
+                    "channels": peak_channels,
+                    "content": "peak: p_eff/p, the sun's single-scattering phase function spread by the delta-M truncated peak (Goudsmit & Saunderson 1940), at lambda = peak_rate[λ]·k[λ]·D_sun; peak_last: the part of it scattered last within the peak (seen through the true extinction, the rest through the scaled one)",
                     "unit": "1",
                 }),
             );
@@ -738,13 +749,17 @@ impl CloudLight {
             "peak_spread",
             peak::N_LAMBDA,
             peak::N_THETA,
-            &spectral("peak"),
+            &[spectral("peak"), spectral("peak_last")].concat(),
         )?
-        .map(|values| PeakTable {
-            n_theta: peak::N_THETA,
-            n_lambda: peak::N_LAMBDA,
-            lambda_max: peak::LAMBDA_MAX,
-            values,
+        .map(|mut values| {
+            let last_in_peak = values.split_off(n_l);
+            PeakTable {
+                n_theta: peak::N_THETA,
+                n_lambda: peak::N_LAMBDA,
+                lambda_max: peak::LAMBDA_MAX,
+                values,
+                last_in_peak,
+            }
         });
         let out = Self {
             dims,
