@@ -310,16 +310,19 @@ impl MsField {
             if cancelled.load(std::sync::atomic::Ordering::Relaxed) {
                 return Err(crate::Error::Cancelled);
             }
-            for p in partial {
-                for c in 0..cells {
-                    for (gi, &l) in group.iter().enumerate() {
-                        for m in 0..moments {
-                            data[(c * n_l + l) * moments + m] +=
-                                p[(c * group.len() + gi) * moments + m] as f32;
+            // The lanes summed in order per cell (cells in parallel: the same sums).
+            let ng = group.len();
+            data.par_chunks_mut(n_l * moments)
+                .enumerate()
+                .for_each(|(c, cell)| {
+                    for p in &partial {
+                        for (gi, &l) in group.iter().enumerate() {
+                            for m in 0..moments {
+                                cell[l * moments + m] += p[(c * ng + gi) * moments + m] as f32;
+                            }
                         }
                     }
-                }
-            }
+                });
         }
         Ok(Self {
             dims: coarse.dims,

@@ -22,6 +22,7 @@
 //! back-lit clouds read 9 % high).
 
 use crate::multiple::Truncation;
+use rayon::prelude::*;
 use skybake_physics::phase::Phase;
 use std::f64::consts::PI;
 
@@ -154,22 +155,26 @@ fn table(phase: &Phase, t: &Truncation) -> Vec<f32> {
                 .collect()
         })
         .collect();
-    for i in 0..N_THETA {
-        let mu = (i as f64 * 0.5).to_radians().cos();
-        legendre(mu, &mut pl);
-        let terms: Vec<f64> = (0..=L_MAX)
-            .map(|l| (2 * l + 1) as f64 / (4.0 * PI) * p_l[l] * pl[l])
-            .collect();
-        let s0: f64 = terms.iter().sum();
-        for j in 0..N_LAMBDA {
-            let s: f64 = terms.iter().zip(&decay[j]).map(|(a, b)| a * b).sum();
-            out[i * N_LAMBDA + j] = if s0 > 1e-12 {
-                (s / s0).max(0.0) as f32
-            } else {
-                1.0
-            };
-        }
-    }
+    // The angles' rows in parallel (each row's sums as before).
+    out.par_chunks_mut(N_LAMBDA)
+        .enumerate()
+        .for_each(|(i, row)| {
+            let mut pl = vec![0.0; L_MAX + 1];
+            let mu = (i as f64 * 0.5).to_radians().cos();
+            legendre(mu, &mut pl);
+            let terms: Vec<f64> = (0..=L_MAX)
+                .map(|l| (2 * l + 1) as f64 / (4.0 * PI) * p_l[l] * pl[l])
+                .collect();
+            let s0: f64 = terms.iter().sum();
+            for (j, o) in row.iter_mut().enumerate() {
+                let s: f64 = terms.iter().zip(&decay[j]).map(|(a, b)| a * b).sum();
+                *o = if s0 > 1e-12 {
+                    (s / s0).max(0.0) as f32
+                } else {
+                    1.0
+                };
+            }
+        });
     out
 }
 
