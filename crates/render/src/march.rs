@@ -4,7 +4,7 @@
 //! path, plus the interpolated sky and multiple-scattering terms; background, ground with cloud
 //! shadows, aerial perspective and shafts of light (Dobashi et al. 2000, eq 13–14) in [`Prepared::composite`].
 
-use super::light::{LATTICE, VIEW_CAP_DEG, VIEW_ELEMENT, VIEW_RADIANCE};
+use super::light::{VIEW_CAP_DEG, VIEW_ELEMENT};
 use super::lighting::Lighting;
 use super::lit::{check, LitInputs, LitVolume};
 use super::pathtracer::PathTracer;
@@ -16,7 +16,6 @@ use skybake_engine::engine::Stages;
 use skybake_physics::camera::Ray;
 use skybake_physics::cloud::DensityGrid;
 use std::f64::consts::PI;
-use std::sync::atomic::{AtomicBool, AtomicU32, Ordering};
 use std::sync::Arc;
 use std::time::Instant;
 
@@ -36,12 +35,8 @@ pub struct Prepared<'a> {
     /// Per voxel: `[ρ, D_sun, S_0 … S_{n-1}]` (the density, the sun's density integral, m; the
     /// source per unit scaled extinction towards the camera, S = (ω/s)·Q_sky + ω*·J*: first-order sky radiance Q_sky
     /// and the orders ≥ 2 J* of the δ-M scaled problem, W m⁻² sr⁻¹ nm⁻¹; see [`Prepared::march`]).
-    /// f32 values as bits: the sources are written when a ray first needs them (see
-    /// [`CameraSources`]).
-    pub vox: Vec<AtomicU32>,
+    pub vox: Vec<f32>,
     pub stride: usize,
-    /// The camera's sources computed on demand (`None`: all computed, or none needed).
-    lazy: Option<CameraSources>,
     pub stages: Stages,
     /// Stage timings, ms (a stage of a shared lit volume counts 0 ms: this frame did not run it).
     pub timing_ms: Vec<(String, f64)>,
@@ -117,24 +112,18 @@ impl<'a> Prepared<'a> {
         };
         lap("volume", &mut timing_ms);
         let (sun_on, env_on) = (lit.sun_on, lit.env_on);
-        let mut vox: Vec<AtomicU32> = Vec::new();
+        let mut vox = Vec::new();
         let mut lattice_paths = 0;
-        let mut sky: Option<SkySources> = None;
-        let mut lazy = None;
         if lit.per_voxel {
+            vox = vec![0f32; grid.data.len() * stride];
             let layer = grid.dims[0] * grid.dims[1];
-            vox.par_extend(
-                (0..grid.data.len() * stride)
-                    .into_par_iter()
-                    .map(|_| AtomicU32::new(0)),
-            );
-            vox.par_chunks(layer * stride)
+            vox.par_chunks_mut(layer * stride)
                 .zip(lit.d_sun.par_chunks(layer))
                 .zip(grid.data.par_chunks(layer))
                 .for_each(|((vs, ss), rs)| {
-                    for ((v, s), r) in vs.chunks(stride).zip(ss).zip(rs) {
-                        v[0].store(r.to_bits(), Ordering::Relaxed);
-                        v[1].store(s.to_bits(), Ordering::Relaxed);
+                    for ((v, s), r) in vs.chunks_mut(stride).zip(ss).zip(rs) {
+                        v[0] = *r;
+                        v[1] = *s;
                     }
                 });
             if sun_on || env_on {
@@ -149,7 +138,13 @@ impl<'a> Prepared<'a> {
             lap("sun_paths", &mut timing_ms);
             check(cancel)?;
             let mask = &lit.mask;
-            if let (true, Some(_)) = (env_on, &lit.sky_elements) {
+            let view = |p: DVec3| -> DVec3 {
+                match scene.camera.projection {
+                    Projection::Orthographic { .. } => scene.camera.forward,
+                    _ => (p - scene.camera.position_m).normalize_or(scene.camera.forward),
+                }
+            };
+            if let (true, Some(elements)) = (env_on, &lit.sky_elements) {
                 let paths = &lit.lattice;
                 lattice_paths = paths.len();
                 let ms_extinction_scale = &lit.ms_extinction_scale;
@@ -161,8 +156,37 @@ impl<'a> Prepared<'a> {
                     .map(|(k, s)| k * s)
                     .collect();
                 let fresh: Vec<bool> = (0..n_l).map(|l| l == 0 || k[l] != k[l - 1]).collect();
-                // Per voxel when a ray first needs it ([`CameraSources`]).
-                sky = Some(SkySources { k, fresh });
+                let [nx, ny, _] = grid.dims;
+                vox.par_chunks_mut(nx * ny * stride)
+                    .enumerate()
+                    .for_each(|(z, slab)| {
+                        let mut il = vec![0.0; elements.elements * n_l];
+                        let mut trans = vec![0.0; paths.len() + 1];
+                        for (i, v) in slab.chunks_mut(stride).enumerate() {
+                            let idx = z * nx * ny + i;
+                            if !mask[idx] {
+                                continue;
+                            }
+                            let p = grid.voxel_centre(i % nx, i / nx, z);
+                            elements.lookup(view(p), &mut il);
+                            let d_sun = v[1] as f64;
+                            for l in 0..n_l {
+                                // Wavelengths with the previous one's extinction share its
+                                // transmittances.
+                                if fresh[l] {
+                                    trans[0] = (-k[l] * d_sun).exp();
+                                    for (e, path) in paths.iter().enumerate() {
+                                        trans[e + 1] = (-k[l] * path[idx] as f64).exp();
+                                    }
+                                }
+                                let mut q = il[l] * trans[0];
+                                for e in 0..paths.len() {
+                                    q += il[(e + 1) * n_l + l] * trans[e + 1];
+                                }
+                                v[2 + l] += (optics.albedo[l] / ms_extinction_scale[l] * q) as f32;
+                            }
+                        }
+                    });
                 let cloud_lighting = lit.cloud_lighting();
                 let what = match (
                     sw.sky_light && !cloud_lighting.sky.is_zero(),
@@ -183,13 +207,6 @@ impl<'a> Prepared<'a> {
             }
             lap("sky_light", &mut timing_ms);
             check(cancel)?;
-            let ms_on = !lit.pattern_on && lit.ms.is_some();
-            let sources = CameraSources {
-                sky,
-                ms: ms_on,
-                voxel_ready: Vec::new(),
-                cell_ready: Vec::new(),
-            };
             if lit.pattern_on {
                 let field = super::pattern::compute(
                     scene,
@@ -199,40 +216,43 @@ impl<'a> Prepared<'a> {
                     mask,
                     cancel,
                 )?;
-                // The sky light first, then the pattern's orders 2–3, for every voxel.
-                vox.par_chunks(stride)
-                    .zip(field.q.par_chunks(n_l))
-                    .enumerate()
-                    .for_each(|(idx, (v, q))| {
-                        let s = sources.voxel(scene, &lit, idx);
-                        for l in 0..n_l {
-                            v[2 + l].store((s[l] + q[l]).to_bits(), Ordering::Relaxed);
-                        }
-                    });
+                for (v, q) in vox.chunks_mut(stride).zip(field.q.chunks(n_l)) {
+                    for l in 0..n_l {
+                        v[2 + l] += q[l];
+                    }
+                }
                 stages.ran.push(field.describe());
                 lap("reference_pattern", &mut timing_ms);
+            } else if let Some(field) = &lit.ms {
+                lap("multiple_scattering", &mut timing_ms);
+                let ms_albedo = &lit.ms_albedo;
+                let [nx, ny, _] = grid.dims;
+                vox.par_chunks_mut(nx * ny * stride)
+                    .enumerate()
+                    .for_each(|(z, slab)| {
+                        let mut j = vec![0.0; n_l];
+                        for (i, v) in slab.chunks_mut(stride).enumerate() {
+                            if !mask[z * nx * ny + i] {
+                                continue;
+                            }
+                            let p = grid.voxel_centre(i % nx, i / nx, z);
+                            field.inscatter(p, view(p), &mut j);
+                            for l in 0..n_l {
+                                v[2 + l] += (ms_albedo[l] * j[l]) as f32;
+                            }
+                        }
+                    });
+                stages.ran.push(format!(
+                    "multiple scattering, all orders: photon transport on a {}x{}x{} grid, {}, P{} angular reconstruction",
+                    field.dims[0], field.dims[1], field.dims[2],
+                    if settings.photons.truncation_power > 0.0 { "delta-M truncated forward peak with the TMS single-scattering correction" } else { "untruncated phase function" },
+                    settings.photons.angular_order
+                ));
+                lap("ms_to_voxels", &mut timing_ms);
             } else {
-                if let Some(field) = &lit.ms {
-                    lap("multiple_scattering", &mut timing_ms);
-                    stages.ran.push(format!(
-                        "multiple scattering, all orders: photon transport on a {}x{}x{} grid, {}, P{} angular reconstruction",
-                        field.dims[0], field.dims[1], field.dims[2],
-                        if settings.photons.truncation_power > 0.0 { "delta-M truncated forward peak with the TMS single-scattering correction" } else { "untruncated phase function" },
-                        settings.photons.angular_order
-                    ));
-                    lap("ms_to_voxels", &mut timing_ms);
-                } else {
-                    stages
-                        .skipped
-                        .push("multiple scattering: switched off, albedo 0 or no light".into());
-                }
-                if sources.sky.is_some() || sources.ms {
-                    let n = grid.data.len();
-                    let mut sources = sources;
-                    sources.voxel_ready = (0..n).into_par_iter().map(|_| AtomicBool::new(false)).collect();
-                    sources.cell_ready = (0..n).into_par_iter().map(|_| AtomicBool::new(false)).collect();
-                    lazy = Some(sources);
-                }
+                stages
+                    .skipped
+                    .push("multiple scattering: switched off, albedo 0 or no light".into());
             }
         } else if settings.method == Method::Reference {
             stages.ran.push(format!(
@@ -273,29 +293,10 @@ impl<'a> Prepared<'a> {
             lit,
             vox,
             stride,
-            lazy,
             stages,
             timing_ms,
             lattice_paths,
         })
-    }
-
-    /// Stores the sources of the 8 voxels of a trilinear cell (`w` from
-    /// [`super::volume::CloudVolume::weights`]) that are not stored yet.
-    #[cold]
-    fn fill_cell(&self, lazy: &CameraSources, w: &[(usize, f64); 8]) {
-        let n_l = self.scene.wavelengths.len();
-        for &(i, _) in w {
-            if lazy.voxel_ready[i].load(Ordering::Acquire) {
-                continue;
-            }
-            let s = lazy.voxel(self.scene, &self.lit, i);
-            for l in 0..n_l {
-                self.vox[i * self.stride + 2 + l].store(s[l].to_bits(), Ordering::Relaxed);
-            }
-            lazy.voxel_ready[i].store(true, Ordering::Release);
-        }
-        lazy.cell_ready[w[0].0].store(true, Ordering::Release);
     }
 
     /// The cloud as a medium.
@@ -401,30 +402,22 @@ impl<'a> Prepared<'a> {
                 d_start = None;
                 continue;
             };
-            // Per voxel `[ρ, D_sun, S_0 … S_{n−1}]`: the density, then (where there is some)
-            // the sources, stored first if this cell's are not yet.
+            // Per voxel `[ρ, D_sun, S_0 … S_{n−1}]`: density and sources in one pass.
             let mut rho = 0.0;
+            src[..n_l].fill(0.0);
             for (i, wi) in w {
-                rho += wi * ld(&vox[i * stride]);
+                let v = &vox[i * stride..(i + 1) * stride];
+                rho += wi * v[0] as f64;
+                if wi == 0.0 {
+                    continue;
+                }
+                for (b, x) in src[..n_l].iter_mut().zip(&v[2..]) {
+                    *b += wi * *x as f64;
+                }
             }
             if rho <= 0.0 {
                 d_start = None;
                 continue;
-            }
-            if let Some(lazy) = &self.lazy {
-                if !lazy.cell_ready[w[0].0].load(Ordering::Acquire) {
-                    self.fill_cell(lazy, &w);
-                }
-            }
-            src[..n_l].fill(0.0);
-            for (i, wi) in w {
-                if wi == 0.0 {
-                    continue;
-                }
-                let v = &vox[i * stride + 2..(i + 1) * stride];
-                for (b, x) in src[..n_l].iter_mut().zip(v) {
-                    *b += wi * ld(x);
-                }
             }
             let (d0, d1) = if sun_on {
                 let d0 = match d_start {
@@ -481,7 +474,7 @@ impl<'a> Prepared<'a> {
             .weights(p)
             .map(|w| {
                 w.iter()
-                    .map(|&(i, wi)| wi * ld(&self.vox[i * self.stride + 1]))
+                    .map(|&(i, wi)| wi * self.vox[i * self.stride + 1] as f64)
                     .sum()
             })
             .unwrap_or(0.0)
@@ -706,87 +699,6 @@ impl<'a> Prepared<'a> {
             var[l] = ((sum2[l] / n - out[l] * out[l]).max(0.0)) / (n - 1.0).max(1.0);
         }
     }
-}
-
-/// The scaled extinctions on the paths to the sky (TMS: Nakajima & Tanaka 1988) per
-/// wavelength, and which wavelengths have an extinction of their own (the others share the
-/// previous one's transmittances).
-struct SkySources {
-    k: Vec<f64>,
-    fresh: Vec<bool>,
-}
-
-/// The source towards the camera per voxel, S = (ω/s)·Q_sky + ω*·J*, computed when a ray first
-/// reads a voxel (a ray stops at T* < [`MARCH_CUTOFF`], so the voxels deep in a thick cloud are
-/// never read): each voxel's value is the one a pass over every voxel would store, whichever
-/// ray or thread computes it first (two computing it at once store the same bits).
-struct CameraSources {
-    sky: Option<SkySources>,
-    /// The multiple-scattering field's reconstruction towards the camera is added.
-    ms: bool,
-    /// The voxel's sources are stored.
-    voxel_ready: Vec<AtomicBool>,
-    /// The sources of the 8 voxels round this one's trilinear cell (indexed by its first
-    /// corner) are stored.
-    cell_ready: Vec<AtomicBool>,
-}
-
-impl CameraSources {
-    /// The sources of voxel `idx` (0 outside the lit mask), per wavelength: the sky light,
-    /// then the field's orders ≥ 2 added, each rounded to f32.
-    fn voxel(&self, scene: &FrameScene, lit: &LitVolume, idx: usize) -> [f32; 64] {
-        let mut out = [0f32; 64];
-        if !lit.mask[idx] {
-            return out;
-        }
-        let grid = &*lit.inputs.grid;
-        let optics = &scene.optics;
-        let n_l = scene.wavelengths.len();
-        let [nx, ny, _] = grid.dims;
-        let p = grid.voxel_centre(idx % nx, (idx / nx) % ny, idx / (nx * ny));
-        let view = match scene.camera.projection {
-            Projection::Orthographic { .. } => scene.camera.forward,
-            _ => (p - scene.camera.position_m).normalize_or(scene.camera.forward),
-        };
-        if let (Some(sky), Some(elements)) = (&self.sky, &lit.sky_elements) {
-            let paths = &lit.lattice;
-            let ms_extinction_scale = &lit.ms_extinction_scale;
-            let mut il = [0.0f64; (VIEW_RADIANCE + 1) * 64];
-            let il = &mut il[..elements.elements * n_l];
-            let mut trans = [0.0f64; LATTICE.len() + 1];
-            elements.lookup(view, il);
-            let d_sun = lit.d_sun[idx] as f64;
-            let k = &sky.k;
-            for l in 0..n_l {
-                // Wavelengths with the previous one's extinction share its transmittances.
-                if sky.fresh[l] {
-                    trans[0] = (-k[l] * d_sun).exp();
-                    for (e, path) in paths.iter().enumerate() {
-                        trans[e + 1] = (-k[l] * path[idx] as f64).exp();
-                    }
-                }
-                let mut q = il[l] * trans[0];
-                for e in 0..paths.len() {
-                    q += il[(e + 1) * n_l + l] * trans[e + 1];
-                }
-                out[l] += (optics.albedo[l] / ms_extinction_scale[l] * q) as f32;
-            }
-        }
-        if let (true, Some(field)) = (self.ms, &lit.ms) {
-            let mut j = [0.0f64; 64];
-            field.inscatter(p, view, &mut j[..n_l]);
-            for l in 0..n_l {
-                out[l] += (lit.ms_albedo[l] * j[l]) as f32;
-            }
-        }
-        out
-    }
-}
-
-/// A stored f32 value (from its bits), as f64.
-#[inline(always)]
-fn ld(a: &AtomicU32) -> f64 {
-    f32::from_bits(a.load(Ordering::Relaxed)) as f64
 }
 
 /// One step's weight of the sun's single scattering, for a density constant over the step and
