@@ -537,7 +537,10 @@ mod tests {
             x += 2.5;
         }
         let mut late = 6;
-        assert_eq!(axis_lookup_from(&axis, 12.0, &mut late), axis_lookup(&axis, 12.0));
+        assert_eq!(
+            axis_lookup_from(&axis, 12.0, &mut late),
+            axis_lookup(&axis, 12.0)
+        );
         assert_eq!(axis_lookup_from(&[5.0], 7.0, &mut 0), (0, 0, 0.0));
     }
 }
