@@ -7,6 +7,7 @@
 //! pass serves every wavelength.
 
 use super::lighting::Lighting;
+use super::volume::CloudVolume;
 use glam::DVec3;
 use rayon::prelude::*;
 use skybake_physics::cloud::DensityGrid;
@@ -48,6 +49,16 @@ pub const SUN_CAP_DEG: f64 = 12.0;
 /// average (+0.3 % bicubic), and the single scattering −10.1 % low against a brute-force
 /// march (−2.5 % bicubic; `crates/harness/examples/back_probe.rs`).
 pub fn sun_density_integrals(grid: &DensityGrid, sun_dir: DVec3) -> Vec<f32> {
+    sun_paths(grid, sun_dir, None)
+}
+
+/// [`sun_density_integrals`] of the volume's grid, the same values: a step whose density
+/// samples lie in empty blocks (all 0) is not sampled.
+pub fn sun_density_integrals_in(vol: &CloudVolume, sun_dir: DVec3) -> Vec<f32> {
+    sun_paths(&vol.grid, sun_dir, Some(vol))
+}
+
+fn sun_paths(grid: &DensityGrid, sun_dir: DVec3, vol: Option<&CloudVolume>) -> Vec<f32> {
     let [nx, ny, nz] = grid.dims;
     let n = [nx, ny, nz];
     let h = grid.voxel_size_m;
@@ -104,10 +115,17 @@ pub fn sun_density_integrals(grid: &DensityGrid, sun_dir: DVec3) -> Vec<f32> {
                             let rho_p = grid.at(v[0], v[1], v[2]) as f64;
                             let q = p + s * step;
                             let m = p + s * (0.5 * step);
-                            let seg = step / 6.0
-                                * (rho_p
-                                    + 4.0 * super::volume::sample(grid, m) as f64
-                                    + super::volume::sample(grid, q) as f64);
+                            // Empty blocks: both samples are 0, and so is the step's integral.
+                            let empty = rho_p == 0.0
+                                && vol.is_some_and(|v| v.in_empty_block(m) && v.in_empty_block(q));
+                            let seg = if empty {
+                                0.0
+                            } else {
+                                step / 6.0
+                                    * (rho_p
+                                        + 4.0 * super::volume::sample(grid, m) as f64
+                                        + super::volume::sample(grid, q) as f64)
+                            };
                             // Bicubic in the previous layer at the shifted position (voxel
                             // units; bilinear next to the edge); between the outermost centres
                             // and the box face, or outside, march the short rest of the way
@@ -206,30 +224,27 @@ pub fn lattice_density_integrals(grid: &DensityGrid, e: [i32; 3]) -> Vec<f32> {
         }
     };
     let (zs, ys, xs) = (order(nz, e[2]), order(ny, e[1]), order(nx, e[0]));
+    let data = &grid.data[..];
     for &z in &zs {
+        let qz = z as i64 + e[2] as i64;
         for &y in &ys {
+            let qy = y as i64 + e[1] as i64;
+            let row = (z * ny + y) * nx;
+            // The row of the next voxels along `e`, if inside the box.
+            let q_row = (qz >= 0 && qy >= 0 && (qz as usize) < nz && (qy as usize) < ny)
+                .then(|| (qz as usize * ny + qy as usize) * nx);
             for &x in &xs {
-                let rho = grid.at(x, y, z) as f64;
-                let (qx, qy, qz) = (
-                    x as i64 + e[0] as i64,
-                    y as i64 + e[1] as i64,
-                    z as i64 + e[2] as i64,
-                );
-                let inside = qx >= 0
-                    && qy >= 0
-                    && qz >= 0
-                    && (qx as usize) < nx
-                    && (qy as usize) < ny
-                    && (qz as usize) < nz;
-                let d = if inside {
-                    let (qx, qy, qz) = (qx as usize, qy as usize, qz as usize);
-                    out[grid.index(qx, qy, qz)] as f64
-                        + 0.5 * len * (rho + grid.at(qx, qy, qz) as f64)
-                } else {
+                let rho = data[row + x] as f64;
+                let qx = x as i64 + e[0] as i64;
+                let d = match q_row {
+                    Some(q_row) if qx >= 0 && (qx as usize) < nx => {
+                        let q = q_row + qx as usize;
+                        out[q] as f64 + 0.5 * len * (rho + data[q] as f64)
+                    }
                     // To the box face: half a step at the clamped density.
-                    0.5 * len * rho
+                    _ => 0.5 * len * rho,
                 };
-                out[grid.index(x, y, z)] = d as f32;
+                out[row + x] = d as f32;
             }
         }
     }
@@ -306,6 +321,9 @@ impl SkyElements {
             nodes.push((w, el, rad.clone()));
         }
         let per = elements * n_l;
+        let fresh: Vec<bool> = (0..n_l)
+            .map(|l| l == 0 || phases[l] != phases[l - 1])
+            .collect();
         let mut table = vec![0f32; n_elev * n_az * per];
         table.par_chunks_mut(per).enumerate().for_each(|(k, dst)| {
             let d = table_dir(k / n_az, k % n_az, n_elev, n_az);
@@ -314,14 +332,22 @@ impl SkyElements {
             lighting.env(d, &mut l_view);
             for (w, el, r) in &nodes {
                 let mu = d.dot(*w);
+                // Wavelengths with the previous one's phase function share its value.
+                let mut f = 0.0;
                 if mu > view_cap {
                     // The smooth remainder; the peak's share is added analytically below.
                     for l in 0..n_l {
-                        acc[VIEW_ELEMENT * n_l + l] += phases[l].eval(mu) * (r[l] - l_view[l]) * dw;
+                        if fresh[l] {
+                            f = phases[l].eval(mu);
+                        }
+                        acc[VIEW_ELEMENT * n_l + l] += f * (r[l] - l_view[l]) * dw;
                     }
                 } else {
                     for l in 0..n_l {
-                        acc[el * n_l + l] += phases[l].eval(mu) * r[l] * dw;
+                        if fresh[l] {
+                            f = phases[l].eval(mu);
+                        }
+                        acc[el * n_l + l] += f * r[l] * dw;
                     }
                 }
             }

@@ -42,6 +42,32 @@ pub fn axis_lookup(axis: &[f64], x: f64) -> (usize, usize, f64) {
     (lo, hi, f)
 }
 
+/// [`axis_lookup`] (the same result) for `x` at or above the previous look-up's on the same
+/// sorted axis: the search goes on from `hint`, which it updates (0 to start).
+pub fn axis_lookup_from(axis: &[f64], x: f64, hint: &mut usize) -> (usize, usize, f64) {
+    let n = axis.len();
+    if n == 1 || x <= axis[0] {
+        return (0, 0, 0.0);
+    }
+    if x >= axis[n - 1] {
+        return (n - 1, n - 1, 0.0);
+    }
+    // The first node above x, as `partition_point` finds it.
+    let mut hi = (*hint).max(1);
+    if hi > n - 1 || axis[hi - 1] > x {
+        hi = axis.partition_point(|&a| a <= x);
+    } else {
+        while hi < n && axis[hi] <= x {
+            hi += 1;
+        }
+    }
+    *hint = hi;
+    let hi = hi.clamp(1, n - 1);
+    let lo = hi - 1;
+    let f = (x - axis[lo]) / (axis[hi] - axis[lo]).max(1e-300);
+    (lo, hi, f)
+}
+
 /// Elevation and azimuth (from +y towards +x) of a unit direction, degrees.
 pub fn elevation_azimuth_deg(dir: DVec3) -> (f64, f64) {
     let e = dir.z.clamp(-1.0, 1.0).asin().to_degrees();
@@ -170,11 +196,35 @@ impl AerialTable {
         t_out: &mut [f64],
         s_out: &mut [f64],
     ) {
+        let node = axis_lookup(&self.product.distance_m, distance_m);
+        self.eval_nodes(dir, node, t_out, s_out);
+    }
+
+    /// [`Self::eval_along`] for distances that do not decrease from one call to the next
+    /// (`hint`: 0 at the first), the same values.
+    pub fn eval_along_from(
+        &self,
+        dir: &AerialDirection,
+        distance_m: f64,
+        hint: &mut usize,
+        t_out: &mut [f64],
+        s_out: &mut [f64],
+    ) {
+        let node = axis_lookup_from(&self.product.distance_m, distance_m, hint);
+        self.eval_nodes(dir, node, t_out, s_out);
+    }
+
+    fn eval_nodes(
+        &self,
+        dir: &AerialDirection,
+        (d0, d1, fd): (usize, usize, f64),
+        t_out: &mut [f64],
+        s_out: &mut [f64],
+    ) {
         let p = &self.product;
         let n_l = p.wavelengths_nm.len();
         let (r0, r1, fr) = dir.elevation;
         let (c0, c1, fc) = dir.azimuth;
-        let (d0, d1, fd) = axis_lookup(&p.distance_m, distance_m);
         let (na, nd) = (p.azimuth_deg.len(), p.distance_m.len());
         t_out.iter_mut().for_each(|v| *v = 0.0);
         s_out.iter_mut().for_each(|v| *v = 0.0);
@@ -463,5 +513,34 @@ impl Lighting {
             aerial,
             notes,
         })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The search from a hint finds what the binary search finds, for rising values (the
+    /// shafts' distances along a ray), below, between, on and above the nodes, and for a hint
+    /// past the value (it starts again).
+    #[test]
+    fn axis_lookup_from_matches_axis_lookup() {
+        let axis = [0.0, 10.0, 25.0, 25.0, 60.0, 100.0, 400.0];
+        let mut hint = 0;
+        let mut x = -5.0;
+        while x < 450.0 {
+            assert_eq!(
+                axis_lookup_from(&axis, x, &mut hint),
+                axis_lookup(&axis, x),
+                "x {x}"
+            );
+            x += 2.5;
+        }
+        let mut late = 6;
+        assert_eq!(
+            axis_lookup_from(&axis, 12.0, &mut late),
+            axis_lookup(&axis, 12.0)
+        );
+        assert_eq!(axis_lookup_from(&[5.0], 7.0, &mut 0), (0, 0, 0.0));
     }
 }

@@ -7,7 +7,7 @@
 //! function of its [`LitInputs`] alone: a sequence reuses one where the inputs are equal, so its
 //! frames are the frames rendered alone.
 
-use super::light::{lattice_density_integrals, sun_density_integrals, SkyElements, LATTICE};
+use super::light::{lattice_density_integrals, sun_density_integrals_in, SkyElements, LATTICE};
 use super::lighting::Lighting;
 use super::multiple::{MsField, Truncation};
 use super::peak::PeakSpread;
@@ -164,7 +164,7 @@ impl LitVolume {
         if per_voxel {
             // The sky element round the sun uses the sun's path too.
             d_sun = if sun_on || env_on {
-                sun_density_integrals(grid, lighting.sun_dir)
+                sun_density_integrals_in(&vol, lighting.sun_dir)
             } else {
                 vec![0f32; grid.data.len()]
             };
@@ -341,25 +341,26 @@ impl ShadowMap {
     }
 }
 
-/// Voxels whose 3×3×3 neighbourhood holds any density (where per-voxel light is needed).
+/// Voxels whose 3×3×3 neighbourhood holds any density (where per-voxel light is needed); the
+/// z-layers in parallel, each from the three input layers round it.
 fn dilated_mask(grid: &DensityGrid) -> Vec<bool> {
     let [nx, ny, nz] = grid.dims;
     let mut m = vec![false; grid.data.len()];
-    for z in 0..nz {
-        for y in 0..ny {
-            for x in 0..nx {
-                if grid.at(x, y, z) <= 0.0 {
-                    continue;
-                }
-                for zz in z.saturating_sub(1)..=(z + 1).min(nz - 1) {
+    m.par_chunks_mut(nx * ny).enumerate().for_each(|(z, out)| {
+        for zz in z.saturating_sub(1)..=(z + 1).min(nz - 1) {
+            for y in 0..ny {
+                for x in 0..nx {
+                    if grid.at(x, y, zz) <= 0.0 {
+                        continue;
+                    }
                     for yy in y.saturating_sub(1)..=(y + 1).min(ny - 1) {
                         for xx in x.saturating_sub(1)..=(x + 1).min(nx - 1) {
-                            m[grid.index(xx, yy, zz)] = true;
+                            out[yy * nx + xx] = true;
                         }
                     }
                 }
             }
         }
-    }
+    });
     m
 }

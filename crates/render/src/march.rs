@@ -628,27 +628,52 @@ impl<'a> Prepared<'a> {
         s_eff.copy_from_slice(sa);
         if sw.shafts_of_light && self.lit.sun_on && self.lit.shadow.is_some() {
             let n = self.settings.shaft_steps.max(1);
+            // The sun's path at each step's midpoint, looked up once (at most 64 kept; the rest
+            // looked up again below).
+            let mut paths = [0.0f64; 64];
             // Where the sun is visible along the whole ray (the usual case above the cloud base or
             // outside its shadow) S_eff = S: skip the table look-ups.
-            let shadowed = (0..n).any(|kstep| {
+            let mut shadowed = false;
+            // Steps before this one have their path in `paths`.
+            let mut first_unknown = 0;
+            for kstep in 0..n {
                 let p = o + d * (tx * (kstep as f64 + 0.5) / n as f64);
                 let path = self.sun_shadow_path(p);
-                path != 0.0 && (0..n_l).any(|l| self.sun_visibility(path, l) < 1.0)
-            });
+                if kstep < paths.len() {
+                    paths[kstep] = path;
+                    first_unknown = kstep + 1;
+                }
+                if path != 0.0 && (0..n_l).any(|l| self.sun_visibility(path, l) < 1.0) {
+                    shadowed = true;
+                    break;
+                }
+            }
             if shadowed {
+                let kt = &self.scene.optics.extinction_per_density_m;
                 let (mut s_prev, mut s_next, mut t_tmp) =
                     ([0.0f64; 64], [0.0f64; 64], [0.0f64; 64]);
                 let (mut s_prev, mut s_next, t_tmp) =
                     (&mut s_prev[..n_l], &mut s_next[..n_l], &mut t_tmp[..n_l]);
                 s_eff.iter_mut().for_each(|v| *v = 0.0);
+                let mut hint = 0;
                 for kstep in 0..n {
                     let t_next = tx * (kstep + 1) as f64 / n as f64;
                     let t_mid = tx * (kstep as f64 + 0.5) / n as f64;
-                    aerial.eval_along(&along, t_next, t_tmp, s_next);
-                    let p = o + d * t_mid;
-                    let path = self.sun_shadow_path(p);
+                    aerial.eval_along_from(&along, t_next, &mut hint, t_tmp, s_next);
+                    // The test above stopped at the first shadowed step: the paths after it
+                    // were not looked up there.
+                    let path = if kstep < first_unknown {
+                        paths[kstep]
+                    } else {
+                        self.sun_shadow_path(o + d * t_mid)
+                    };
+                    // Wavelengths of equal extinction share their transmittance.
+                    let mut vis = 1.0;
                     for l in 0..n_l {
-                        s_eff[l] += self.sun_visibility(path, l) * (s_next[l] - s_prev[l]);
+                        if l == 0 || kt[l] != kt[l - 1] {
+                            vis = self.sun_visibility(path, l);
+                        }
+                        s_eff[l] += vis * (s_next[l] - s_prev[l]);
                     }
                     std::mem::swap(&mut s_prev, &mut s_next);
                 }

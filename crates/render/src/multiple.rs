@@ -310,16 +310,19 @@ impl MsField {
             if cancelled.load(std::sync::atomic::Ordering::Relaxed) {
                 return Err(crate::Error::Cancelled);
             }
-            for p in partial {
-                for c in 0..cells {
-                    for (gi, &l) in group.iter().enumerate() {
-                        for m in 0..moments {
-                            data[(c * n_l + l) * moments + m] +=
-                                p[(c * group.len() + gi) * moments + m] as f32;
+            // The lanes summed in order per cell (cells in parallel: the same sums).
+            let ng = group.len();
+            data.par_chunks_mut(n_l * moments)
+                .enumerate()
+                .for_each(|(c, cell)| {
+                    for p in &partial {
+                        for (gi, &l) in group.iter().enumerate() {
+                            for m in 0..moments {
+                                cell[l * moments + m] += p[(c * ng + gi) * moments + m] as f32;
+                            }
                         }
                     }
-                }
-            }
+                });
         }
         Ok(Self {
             dims: coarse.dims,
@@ -351,6 +354,45 @@ impl MsField {
         out.iter_mut().for_each(|o| *o = 0.0);
         let mut ylm = [0.0; (MAX_ORDER + 1) * (MAX_ORDER + 1)];
         real_sh(-d, self.angular_order, &mut ylm);
+        // The usual wavelength counts get their sums side by side (each in its own order, so
+        // the same values): one chain of additions per wavelength, not one after the other.
+        match self.n_l {
+            1 => self.inscatter_n::<1>(p, &ylm, out),
+            3 => self.inscatter_n::<3>(p, &ylm, out),
+            4 => self.inscatter_n::<4>(p, &ylm, out),
+            _ => self.inscatter_each(p, &ylm, out),
+        }
+        for o in out.iter_mut() {
+            *o = o.max(0.0);
+        }
+    }
+
+    /// [`Self::inscatter`]'s sums for `N` wavelengths side by side.
+    #[inline(always)]
+    fn inscatter_n<const N: usize>(&self, p: DVec3, ylm: &[f64], out: &mut [f64]) {
+        let n = self.moments;
+        let pm: [&[f64]; N] = std::array::from_fn(|l| &self.phase_moments[l][..]);
+        for (c, w) in self.cell_weights(p) {
+            if w == 0.0 {
+                continue;
+            }
+            let cell = &self.data[c * N * n..(c + 1) * N * n];
+            let mut sum = [0.0f64; N];
+            for order in 0..=self.angular_order {
+                for m in order * order..(order + 1) * (order + 1) {
+                    for l in 0..N {
+                        sum[l] += pm[l][order] * cell[l * n + m] as f64 * ylm[m];
+                    }
+                }
+            }
+            for l in 0..N {
+                out[l] += w * sum[l];
+            }
+        }
+    }
+
+    /// [`Self::inscatter`]'s sums one wavelength after the other (any number of wavelengths).
+    fn inscatter_each(&self, p: DVec3, ylm: &[f64], out: &mut [f64]) {
         let n = self.moments;
         for (c, w) in self.cell_weights(p) {
             if w == 0.0 {
@@ -367,9 +409,6 @@ impl MsField {
                 }
                 *o += w * sum;
             }
-        }
-        for o in out.iter_mut() {
-            *o = o.max(0.0);
         }
     }
 

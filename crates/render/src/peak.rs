@@ -24,6 +24,7 @@
 //! the full rate).
 
 use crate::multiple::Truncation;
+use rayon::prelude::*;
 use skybake_physics::phase::Phase;
 use std::f64::consts::PI;
 
@@ -188,29 +189,34 @@ fn table(phase: &Phase, t: &Truncation) -> (Vec<f32>, Vec<f32>) {
                 .collect()
         })
         .collect();
-    for i in 0..N_THETA {
-        let mu = (i as f64 * 0.5).to_radians().cos();
-        legendre(mu, &mut pl);
-        let terms: Vec<f64> = (0..=L_MAX)
-            .map(|l| (2 * l + 1) as f64 / (4.0 * PI) * p_l[l] * pl[l])
-            .collect();
-        let peak_terms: Vec<f64> = (0..=L_MAX)
-            .map(|l| (2 * l + 1) as f64 / (4.0 * PI) * h_l[l] * pl[l])
-            .collect();
-        let s0: f64 = terms.iter().sum();
-        for j in 0..N_LAMBDA {
-            let s: f64 = terms.iter().zip(&decay[j]).map(|(a, b)| a * b).sum();
-            let sp: f64 = peak_terms.iter().zip(&decay[j]).map(|(a, b)| a * b).sum();
-            let (full, peak) = if s0 > 1e-12 {
-                let full = (s / s0).max(0.0);
-                (full, (sp / s0).clamp(0.0, full))
-            } else {
-                (1.0, 0.0)
-            };
-            out[i * N_LAMBDA + j] = full as f32;
-            out_peak[i * N_LAMBDA + j] = peak as f32;
-        }
-    }
+    // The angles' rows in parallel (each row's sums as in a serial loop).
+    out.par_chunks_mut(N_LAMBDA)
+        .zip(out_peak.par_chunks_mut(N_LAMBDA))
+        .enumerate()
+        .for_each(|(i, (row, row_peak))| {
+            let mut pl = vec![0.0; L_MAX + 1];
+            let mu = (i as f64 * 0.5).to_radians().cos();
+            legendre(mu, &mut pl);
+            let terms: Vec<f64> = (0..=L_MAX)
+                .map(|l| (2 * l + 1) as f64 / (4.0 * PI) * p_l[l] * pl[l])
+                .collect();
+            let peak_terms: Vec<f64> = (0..=L_MAX)
+                .map(|l| (2 * l + 1) as f64 / (4.0 * PI) * h_l[l] * pl[l])
+                .collect();
+            let s0: f64 = terms.iter().sum();
+            for (j, (o, o_peak)) in row.iter_mut().zip(row_peak.iter_mut()).enumerate() {
+                let s: f64 = terms.iter().zip(&decay[j]).map(|(a, b)| a * b).sum();
+                let sp: f64 = peak_terms.iter().zip(&decay[j]).map(|(a, b)| a * b).sum();
+                let (full, peak) = if s0 > 1e-12 {
+                    let full = (s / s0).max(0.0);
+                    (full, (sp / s0).clamp(0.0, full))
+                } else {
+                    (1.0, 0.0)
+                };
+                *o = full as f32;
+                *o_peak = peak as f32;
+            }
+        });
     (out, out_peak)
 }
 

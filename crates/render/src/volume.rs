@@ -184,6 +184,23 @@ impl CloudVolume {
         box_interval(o, d, self.lo, self.hi)
     }
 
+    /// Whether `p` lies in an empty block of the block grid, where every density look-up
+    /// ([`sample`], [`Self::weights`]) returns 0 (false outside the block grid: not known).
+    #[inline]
+    pub fn in_empty_block(&self, p: DVec3) -> bool {
+        let h = self.grid.voxel_size_m * BLOCK as f64;
+        let local = (p - self.lo) / h;
+        let mut b = [0usize; 3];
+        for a in 0..3 {
+            let v = floor(local[a]);
+            if !(v >= 0.0 && v < self.block_dims[a] as f64) {
+                return false;
+            }
+            b[a] = v as usize;
+        }
+        self.block_max[(b[2] * self.block_dims[1] + b[1]) * self.block_dims[0] + b[0]] <= 0.0
+    }
+
     /// If the block containing `p` is empty, the distance along `d` to leave it; else `None`.
     #[inline]
     pub fn empty_skip(&self, p: DVec3, d: DVec3) -> Option<f64> {
@@ -267,13 +284,31 @@ impl CloudVolume {
         let Some((t0, t1)) = self.interval(o, d) else {
             return 0.0;
         };
+        // Every density outside the occupied blocks' box is 0: a ray that misses it sums
+        // nothing, and the steps after it leaves add 0 (the same sum).
+        let Some((occ_lo, occ_hi)) = self.occupied else {
+            return 0.0;
+        };
+        let Some((_, t_occ_end)) = box_interval(o, d, occ_lo, occ_hi) else {
+            return 0.0;
+        };
         let mut t = t0;
         let mut sum = 0.0;
+        // No empty-space test while the ray stays in an occupied block (see
+        // [`Self::block_exit`]): the steps are those of the test at every step.
+        let mut occupied_until = f64::NEG_INFINITY;
         while t < t1 {
-            let p = o + d * t;
-            if let Some(skip) = self.empty_skip(p, d) {
-                t += skip + 1e-6 * step_m;
-                continue;
+            if t > t_occ_end {
+                break;
+            }
+            if t >= occupied_until {
+                match self.block_exit(o + d * t, d) {
+                    (true, skip) => {
+                        t += skip + 1e-6 * step_m;
+                        continue;
+                    }
+                    (false, exit) => occupied_until = t + exit,
+                }
             }
             let dt = step_m.min(t1 - t);
             sum += self.rho(o + d * (t + 0.5 * dt)) * dt;
