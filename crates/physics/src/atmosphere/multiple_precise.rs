@@ -2111,6 +2111,56 @@ impl PreciseMultipleScattering {
     }
 }
 
+/// What the twilight (r, θ, φ) corners of one [`PreciseMultipleScattering::add_from_slice`]
+/// lookup share: the table, its logarithms (`ln_j_ms`) and the sun zenith's Catmull–Rom nodes and
+/// weights. A plain `#[inline(always)]` method rather than a closure: the closure was compiled
+/// on its own, without the AVX2 of the kernel around it, so its exponentials ran one lane at a
+/// time (63 % of the bundle's CPU time).
+struct TwilightCorners<'a> {
+    j_ms: &'a [f32],
+    ln_j: &'a [f64],
+    ln_from: usize,
+    per_family: usize,
+    n_mu: usize,
+    n_mu_s: usize,
+    n_phi: usize,
+    lanes: usize,
+    nodes: [usize; 4],
+    wq: [f64; 4],
+    fs: f64,
+}
+
+impl TwilightCorners<'_> {
+    /// Adds `w` × the corner (r node `ir`, θ node `im`, φ node `e`) interpolated over sun zenith
+    /// ([`twilight_lanes`]) to `a` (`[c][λ]`).
+    #[inline(always)]
+    fn add(&self, ir: usize, im: usize, e: usize, w: f64, a: &mut [f64]) {
+        if w == 0.0 {
+            return;
+        }
+        let lanes = self.lanes;
+        let family = ir * self.n_mu + im;
+        let [b0, b1, b2, b3] = self.nodes;
+        let base = |b: usize| ((family * self.n_mu_s + b) * self.n_phi + e) * lanes;
+        let ln_at = |b: usize| family * self.per_family + ((b - self.ln_from) * self.n_phi + e) * lanes;
+        let (i0, i1, i2, i3) = (base(b0), base(b1), base(b2), base(b3));
+        let (l0, l1, l2, l3) = (ln_at(b0), ln_at(b1), ln_at(b2), ln_at(b3));
+        let v = [
+            &self.j_ms[i0..i0 + lanes],
+            &self.j_ms[i1..i1 + lanes],
+            &self.j_ms[i2..i2 + lanes],
+            &self.j_ms[i3..i3 + lanes],
+        ];
+        let ln_v = [
+            &self.ln_j[l0..l0 + lanes],
+            &self.ln_j[l1..l1 + lanes],
+            &self.ln_j[l2..l2 + lanes],
+            &self.ln_j[l3..l3 + lanes],
+        ];
+        twilight_lanes(v, ln_v, self.wq, self.fs, w, a);
+    }
+}
+
 crate::simd_dispatch! {
     /// [`PreciseMultipleScattering::add_from_slice`], compiled for AVX2 where the CPU has it (the
     /// same IEEE operations in the same order: no fused multiply-adds are formed, so the values
@@ -2139,40 +2189,28 @@ crate::simd_dispatch! {
                 let (nodes, wq) = catmull_rom(is, fs, n_mu_s);
                 let (ln_from, ln_j) = table.ln_j_ms();
                 let per_family = (n_mu_s - ln_from) * n_phi * lanes;
-                let mut corner = |ir: usize, im: usize, e: usize, w: f64| {
-                    if w == 0.0 {
-                        return;
-                    }
-                    let base = |b: usize| (((ir * n_mu + im) * n_mu_s + b) * n_phi + e) * lanes;
-                    let ln_at = |b: usize| {
-                        (ir * n_mu + im) * per_family + ((b - ln_from) * n_phi + e) * lanes
-                    };
-                    // Written out: `array::map` with these closures was not inlined (a
-                    // quarter of the bundle's CPU time in calls).
-                    let [b0, b1, b2, b3] = nodes;
-                    let v = [
-                        &table.j_ms[base(b0)..][..lanes],
-                        &table.j_ms[base(b1)..][..lanes],
-                        &table.j_ms[base(b2)..][..lanes],
-                        &table.j_ms[base(b3)..][..lanes],
-                    ];
-                    let ln_v = [
-                        &ln_j[ln_at(b0)..][..lanes],
-                        &ln_j[ln_at(b1)..][..lanes],
-                        &ln_j[ln_at(b2)..][..lanes],
-                        &ln_j[ln_at(b3)..][..lanes],
-                    ];
-                    twilight_lanes(v, ln_v, wq, fs, w, a);
+                let corners = TwilightCorners {
+                    j_ms: &table.j_ms,
+                    ln_j,
+                    ln_from,
+                    per_family,
+                    n_mu,
+                    n_mu_s,
+                    n_phi,
+                    lanes,
+                    nodes,
+                    wq,
+                    fs,
                 };
                 for &(ir, im, wc, pole) in &slice.corners {
                     if pole {
                         let w = wc / n_phi as f64;
                         for e in 0..n_phi {
-                            corner(ir, im, e, w);
+                            corners.add(ir, im, e, w, a);
                         }
                     } else {
                         for (e, we) in [(ip, 1.0 - fp), (ip + 1, fp)] {
-                            corner(ir, im, e, wc * we);
+                            corners.add(ir, im, e, wc * we, a);
                         }
                     }
                 }
