@@ -2166,6 +2166,15 @@ impl TwilightCorners<'_> {
             return;
         }
         let lanes = self.lanes;
+        if lanes <= 8 {
+            if let Some((v, ln_v)) = self.rows_fixed::<8>(ir, im, e) {
+                let x = twilight_fixed(v, ln_v, self.wq, self.fs);
+                for (o, v) in a.iter_mut().zip(&x[..lanes]) {
+                    *o += w * *v;
+                }
+                return;
+            }
+        }
         let (v, ln_v) = self.rows(ir, im, e, lanes);
         twilight_lanes_f32(v, ln_v, self.wq, self.fs, w, a);
     }
@@ -2288,8 +2297,15 @@ crate::simd_dispatch! {
             if grid.twilight_cell(is) {
                 const MAX: usize = crate::spectrum::wavelengths::MAX_WAVELENGTHS;
                 let lanes = 2 * n_l;
-                let mut a = [0.0f32; 2 * MAX];
-                let a = &mut a[..lanes];
+                // Zeroing the whole 2 × MAX array per lookup was a memset call.
+                let mut small = [0.0f32; 16];
+                let mut large;
+                let a: &mut [f32] = if lanes <= small.len() {
+                    &mut small[..lanes]
+                } else {
+                    large = [0.0f32; 2 * MAX];
+                    &mut large[..lanes]
+                };
                 let (nodes, wq) = catmull_rom(is, fs, n_mu_s);
                 let wq = [wq[0] as f32, wq[1] as f32, wq[2] as f32, wq[3] as f32];
                 let (ln_from, ln_j) = table.ln_j_ms();
