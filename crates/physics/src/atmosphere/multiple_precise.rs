@@ -2056,11 +2056,7 @@ impl PreciseMultipleScattering {
             let ln = self
                 .j_ms
                 .chunks(n_mu_s * per_node)
-                .flat_map(|family| {
-                    family[from * per_node..]
-                        .iter()
-                        .map(|&v| ln_or_zero_f32(v))
-                })
+                .flat_map(|family| family[from * per_node..].iter().map(|&v| ln_or_zero_f32(v)))
                 .collect();
             (from, ln)
         });
