@@ -2153,6 +2153,9 @@ struct TwilightCorners<'a> {
     fs: f32,
 }
 
+/// The four Catmull–Rom nodes' rows of `N` lanes: values and logarithms.
+type NodeRows<'a, const N: usize> = ([&'a [f32; N]; 4], [&'a [f32; N]; 4]);
+
 impl TwilightCorners<'_> {
     /// Adds `w` × the corner (r node `ir`, θ node `im`, φ node `e`) interpolated over sun zenith
     /// ([`twilight_lanes_f32`]) to `a` (`[c][λ]`).
@@ -2215,7 +2218,7 @@ impl TwilightCorners<'_> {
         ir: usize,
         im: usize,
         e: usize,
-    ) -> Option<([&[f32; N]; 4], [&[f32; N]; 4])> {
+    ) -> Option<NodeRows<'_, N>> {
         let lanes = self.lanes;
         let family = ir * self.n_mu + im;
         let [b0, b1, b2, b3] = self.nodes;
