@@ -431,8 +431,9 @@ fn aerial_perspective_matches_the_aerial_product() {
 }
 
 /// The bundle's per-ray lookup of the multiple-scattering table ([`JSlice`]) against the
-/// products' per-sample lookup at random points, views and suns: equal to rounding, day and
-/// twilight.
+/// products' per-sample lookup at random points, views and suns: equal to rounding by day; in
+/// twilight cells the slice lookup runs the products' interpolation in f32 (as the precise
+/// table's own radiance passes), within a few 10⁻⁶.
 #[test]
 #[ignore = "builds two bundles (about 45 s of CPU): its own step of .ci/run"]
 fn the_slice_lookup_matches_the_products_lookup() {
@@ -475,9 +476,10 @@ fn the_slice_lookup_matches_the_products_lookup() {
         }
     }
     eprintln!("slice lookup vs product lookup: day {day:.2e}, twilight {dusk:.2e}");
-    // Measured 6e-16 and 4e-16: the same arithmetic (summed in another order by day).
+    // Measured 6.9e-16 by day (the same arithmetic, summed in another order) and 1.9e-6 in
+    // twilight (f32: ln J rounded to f32, |ln J| ≲ 40, and its f32 exponential).
     assert!(day < 1e-12, "day {day}");
-    assert!(dusk < 1e-12, "twilight {dusk}");
+    assert!(dusk < 4e-6, "twilight {dusk}");
 }
 
 /// Table content alone: the spectral form's texels (float, single Mie of every channel stored)

@@ -41,6 +41,13 @@ use crate::param::{self, AtmosphereParameters, *};
 /// range from noon (≈ 2·10³) to the end of nautical twilight (≈ 10⁻⁴).
 pub const UNIT_SCALE: f64 = 1.0e3;
 
+/// Revision of the texel values both layouts compute from a given atmosphere: part of the
+/// bundles' cache keys, bumped when a change of the computation changes texel values while the
+/// layouts ([`crate::manifest::BUNDLE_VERSION`], `skyview::SKYVIEW_VERSION`) stay. 2: the
+/// multiple-scattering lookup's twilight cells in f32
+/// (`PreciseMultipleScattering::add_from_slice`).
+pub const TEXEL_REVISION: &str = "2";
+
 /// Quadrature intervals of each transmittance texel's density integrals.
 const TRANSMITTANCE_STEPS: usize = 1000;
 

@@ -13,7 +13,7 @@ pub mod param;
 pub mod reader;
 pub mod skyview;
 
-pub use build::{build, Bundle, Channels, Sample, Texture, UNIT_SCALE};
+pub use build::{build, Bundle, Channels, Sample, Texture, TEXEL_REVISION, UNIT_SCALE};
 pub use reader::Reader;
 pub use skybake_physics::{Error, Result};
 pub use skyview::{build_skyview, SkyViewBundle, SkyViewReader};

@@ -143,14 +143,20 @@ impl LutRequest {
     }
 
     pub fn cache_key(&self) -> String {
-        cache_key(&self.canonical().to_string(), ENGINE_VERSION)
+        cache_key(&self.canonical().to_string(), &Self::version())
+    }
+
+    /// The engine's version and the revision of the bundles' texel values
+    /// ([`skybake_lut::TEXEL_REVISION`]): a cached bundle computed otherwise is not reused.
+    fn version() -> String {
+        format!("{ENGINE_VERSION}+texels-{}", skybake_lut::TEXEL_REVISION)
     }
 
     /// The cache key of the bundle's file `name` (a texture; the manifest's is [`Self::cache_key`]).
     pub fn file_key(&self, name: &str) -> String {
         cache_key(
             &json!({"bundle": self.canonical(), "file": name}).to_string(),
-            ENGINE_VERSION,
+            &Self::version(),
         )
     }
 

@@ -174,10 +174,10 @@ pub struct PreciseMultipleScattering {
     /// `[i_mu_s][λ]`, sky irradiance on the ground per unit solar irradiance.
     ground_sky: Vec<f64>,
     pub convergence: Convergence,
-    /// ln of `j_ms` ([`ln_or_zero`]) on the sun-zenith nodes twilight cells interpolate, taken
-    /// once on first use by [`Self::slice`] callers: `[i_r][i_mu][i_mu_s − ln_from][i_phi][c][λ]`
-    /// (see [`Self::ln_j_ms`]).
-    ln_j_ms: std::sync::OnceLock<(usize, Vec<f64>)>,
+    /// ln of `j_ms` ([`ln_or_zero_f32`]) on the sun-zenith nodes twilight cells interpolate,
+    /// taken once on first use by [`Self::slice`] callers:
+    /// `[i_r][i_mu][i_mu_s − ln_from][i_phi][c][λ]` (see [`Self::ln_j_ms`]).
+    ln_j_ms: std::sync::OnceLock<(usize, Vec<f32>)>,
 }
 
 /// The table grid. Sun zenith nodes are uniform (`n_coarse` nodes over [0, θ_s max], the
@@ -893,6 +893,27 @@ fn twilight_lanes_f32(
         let linear = v[1][i] * (1.0 - fs) + v[2][i] * fs;
         out[i] += w * if positive { exp_fast_f32(ln_j) } else { linear };
     }
+}
+
+/// [`twilight_lanes_f32`] of `N` lanes with weight 1, returned: the same values, in whole
+/// vectors (no remainder loop).
+#[inline(always)]
+fn twilight_fixed<const N: usize>(
+    v: [&[f32; N]; 4],
+    ln_v: [&[f32; N]; 4],
+    wq: [f32; 4],
+    fs: f32,
+) -> [f32; N] {
+    const MIN: f32 = f32::MIN_POSITIVE;
+    let mut out = [0.0f32; N];
+    for i in 0..N {
+        let positive = (v[0][i] >= MIN) & (v[1][i] >= MIN) & (v[2][i] >= MIN) & (v[3][i] >= MIN);
+        let ln_j =
+            wq[0] * ln_v[0][i] + wq[1] * ln_v[1][i] + wq[2] * ln_v[2][i] + wq[3] * ln_v[3][i];
+        let linear = v[1][i] * (1.0 - fs) + v[2][i] * fs;
+        out[i] = if positive { exp_fast_f32(ln_j) } else { linear };
+    }
+    out
 }
 
 /// `ln v` for normal positive `v`, 0 otherwise (masked by [`twilight_lanes_f32`]).
@@ -2017,10 +2038,11 @@ pub struct JSlice {
 
 impl PreciseMultipleScattering {
     /// `(ln_from, ln Â)`: the first sun-zenith node a twilight cell's Catmull–Rom reads (twilight
-    /// cells from `ln_from + 1` on) and [`ln_or_zero`] of every table value from that node on,
-    /// `[i_r][i_mu][i_mu_s − ln_from][i_phi][c][λ]`; computed once per table (the same logarithms
-    /// the products' twilight interpolation takes at each lookup).
-    fn ln_j_ms(&self) -> (usize, &[f64]) {
+    /// cells from `ln_from + 1` on) and [`ln_or_zero_f32`] of every table value from that node
+    /// on, `[i_r][i_mu][i_mu_s − ln_from][i_phi][c][λ]`; computed once per table (the logarithms
+    /// the products' twilight interpolation takes at each lookup, in f32 as the table's own
+    /// radiance passes take them).
+    fn ln_j_ms(&self) -> (usize, &[f32]) {
         let (from, ln) = self.ln_j_ms.get_or_init(|| {
             let grid = &self.grid;
             let n_mu_s = grid.s.n_mu_s;
@@ -2034,7 +2056,7 @@ impl PreciseMultipleScattering {
             let ln = self
                 .j_ms
                 .chunks(n_mu_s * per_node)
-                .flat_map(|family| family[from * per_node..].iter().map(|&v| ln_or_zero(v)))
+                .flat_map(|family| family[from * per_node..].iter().map(|&v| ln_or_zero_f32(v)))
                 .collect();
             (from, ln)
         });
@@ -2103,11 +2125,151 @@ impl PreciseMultipleScattering {
     /// Adds J_ms (m⁻¹ sr⁻¹ per unit solar irradiance) for the sun at zenith cosine `mu_s` and
     /// view–sun cosine `nu` at the slice's point, as [`Source::add_scattering`] computes it: by
     /// day bilinear over sun zenith and azimuth in the slice (the products' 16-corner
-    /// interpolation, summed in another order); in twilight cells the products' own arithmetic
-    /// ([`twilight_lanes`]: Catmull–Rom in ln Â_c at each (r, θ, φ) corner), with the logarithms
-    /// taken once per table (`ln_j_ms`).
+    /// interpolation, summed in another order); in twilight cells the products' interpolation
+    /// (Catmull–Rom in ln Â_c at each (r, θ, φ) corner) in f32 as the table's own radiance passes
+    /// compute it ([`twilight_lanes_f32`]: within 4·10⁻⁶ of the products' f64 [`twilight_lanes`],
+    /// at a third of the cost), with the logarithms taken once per table (`ln_j_ms`).
     pub fn add_from_slice(&self, slice: &JSlice, mu_s: f64, nu: f64, out: &mut [f64]) {
         add_from_slice_kernel(self, slice, mu_s, nu, out);
+    }
+}
+
+/// What the twilight (r, θ, φ) corners of one [`PreciseMultipleScattering::add_from_slice`]
+/// lookup share: the table, its logarithms (`ln_j_ms`) and the sun zenith's Catmull–Rom nodes and
+/// weights. A plain `#[inline(always)]` method rather than a closure: the closure was compiled
+/// on its own, without the AVX2 of the kernel around it, so its exponentials ran one lane at a
+/// time (63 % of the bundle's CPU time).
+struct TwilightCorners<'a> {
+    j_ms: &'a [f32],
+    ln_j: &'a [f32],
+    ln_from: usize,
+    per_family: usize,
+    n_mu: usize,
+    n_mu_s: usize,
+    n_phi: usize,
+    lanes: usize,
+    nodes: [usize; 4],
+    wq: [f32; 4],
+    fs: f32,
+}
+
+/// The four Catmull–Rom nodes' rows of `N` lanes: values and logarithms.
+type NodeRows<'a, const N: usize> = ([&'a [f32; N]; 4], [&'a [f32; N]; 4]);
+
+impl TwilightCorners<'_> {
+    /// Adds `w` × the corner (r node `ir`, θ node `im`, φ node `e`) interpolated over sun zenith
+    /// ([`twilight_lanes_f32`]) to `a` (`[c][λ]`).
+    #[inline(always)]
+    fn add(&self, ir: usize, im: usize, e: usize, w: f32, a: &mut [f32]) {
+        if w == 0.0 {
+            return;
+        }
+        let lanes = self.lanes;
+        if lanes <= 8 {
+            if let Some((v, ln_v)) = self.rows_fixed::<8>(ir, im, e) {
+                let x = twilight_fixed(v, ln_v, self.wq, self.fs);
+                for (o, v) in a.iter_mut().zip(&x[..lanes]) {
+                    *o += w * *v;
+                }
+                return;
+            }
+        }
+        let (v, ln_v) = self.rows(ir, im, e, lanes);
+        twilight_lanes_f32(v, ln_v, self.wq, self.fs, w, a);
+    }
+
+    /// [`Self::add`] of the azimuth nodes `e` and `e + 1` with weights `w0` and `w1`, in that
+    /// order (the same values): the two nodes' lanes are adjacent in the table, so they are
+    /// interpolated as one run of 2 × 2n_λ lanes (12 for RGB).
+    #[inline(always)]
+    fn add_pair(&self, ir: usize, im: usize, e: usize, w0: f32, w1: f32, a: &mut [f32]) {
+        const MAX: usize = crate::spectrum::wavelengths::MAX_WAVELENGTHS;
+        let lanes = self.lanes;
+        // Up to 16 lanes (RGB: 12) as two whole AVX2 vectors, reading past the two nodes'
+        // lanes into the table's next values (computed and dropped) where the table has them.
+        if 2 * lanes <= 16 {
+            if let Some((v, ln_v)) = self.rows_fixed::<16>(ir, im, e) {
+                let x = twilight_fixed(v, ln_v, self.wq, self.fs);
+                for (o, v) in a.iter_mut().zip(&x[..lanes]) {
+                    *o += w0 * *v;
+                }
+                for (o, v) in a.iter_mut().zip(&x[lanes..2 * lanes]) {
+                    *o += w1 * *v;
+                }
+                return;
+            }
+        }
+        let (v, ln_v) = self.rows(ir, im, e, 2 * lanes);
+        let mut x = [0.0f32; 4 * MAX];
+        let x = &mut x[..2 * lanes];
+        twilight_lanes_f32(v, ln_v, self.wq, self.fs, 1.0, x);
+        for (o, v) in a.iter_mut().zip(&x[..lanes]) {
+            *o += w0 * *v;
+        }
+        for (o, v) in a.iter_mut().zip(&x[lanes..]) {
+            *o += w1 * *v;
+        }
+    }
+
+    /// [`Self::rows`] of `N` lanes as arrays, if the table holds them.
+    #[inline(always)]
+    fn rows_fixed<const N: usize>(
+        &self,
+        ir: usize,
+        im: usize,
+        e: usize,
+    ) -> Option<NodeRows<'_, N>> {
+        let lanes = self.lanes;
+        let family = ir * self.n_mu + im;
+        let [b0, b1, b2, b3] = self.nodes;
+        let base = |b: usize| ((family * self.n_mu_s + b) * self.n_phi + e) * lanes;
+        let ln_at =
+            |b: usize| family * self.per_family + ((b - self.ln_from) * self.n_phi + e) * lanes;
+        fn row<const N: usize>(t: &[f32], i: usize) -> Option<&[f32; N]> {
+            t.get(i..i + N)?.try_into().ok()
+        }
+        Some((
+            [
+                row(self.j_ms, base(b0))?,
+                row(self.j_ms, base(b1))?,
+                row(self.j_ms, base(b2))?,
+                row(self.j_ms, base(b3))?,
+            ],
+            [
+                row(self.ln_j, ln_at(b0))?,
+                row(self.ln_j, ln_at(b1))?,
+                row(self.ln_j, ln_at(b2))?,
+                row(self.ln_j, ln_at(b3))?,
+            ],
+        ))
+    }
+
+    /// The four Catmull–Rom nodes' rows of `n` lanes from azimuth node `e` of the corner: values
+    /// and logarithms.
+    #[inline(always)]
+    fn rows(&self, ir: usize, im: usize, e: usize, n: usize) -> ([&[f32]; 4], [&[f32]; 4]) {
+        let lanes = self.lanes;
+        let family = ir * self.n_mu + im;
+        let [b0, b1, b2, b3] = self.nodes;
+        let base = |b: usize| ((family * self.n_mu_s + b) * self.n_phi + e) * lanes;
+        let ln_at =
+            |b: usize| family * self.per_family + ((b - self.ln_from) * self.n_phi + e) * lanes;
+        let (i0, i1, i2, i3) = (base(b0), base(b1), base(b2), base(b3));
+        let (l0, l1, l2, l3) = (ln_at(b0), ln_at(b1), ln_at(b2), ln_at(b3));
+        (
+            [
+                &self.j_ms[i0..i0 + n],
+                &self.j_ms[i1..i1 + n],
+                &self.j_ms[i2..i2 + n],
+                &self.j_ms[i3..i3 + n],
+            ],
+            [
+                &self.ln_j[l0..l0 + n],
+                &self.ln_j[l1..l1 + n],
+                &self.ln_j[l2..l2 + n],
+                &self.ln_j[l3..l3 + n],
+            ],
+        )
     }
 }
 
@@ -2134,46 +2296,41 @@ crate::simd_dispatch! {
             if grid.twilight_cell(is) {
                 const MAX: usize = crate::spectrum::wavelengths::MAX_WAVELENGTHS;
                 let lanes = 2 * n_l;
-                let mut a = [0.0f64; 2 * MAX];
-                let a = &mut a[..lanes];
+                // Zeroing the whole 2 × MAX array per lookup was a memset call.
+                let mut small = [0.0f32; 16];
+                let mut large;
+                let a: &mut [f32] = if lanes <= small.len() {
+                    &mut small[..lanes]
+                } else {
+                    large = [0.0f32; 2 * MAX];
+                    &mut large[..lanes]
+                };
                 let (nodes, wq) = catmull_rom(is, fs, n_mu_s);
+                let wq = [wq[0] as f32, wq[1] as f32, wq[2] as f32, wq[3] as f32];
                 let (ln_from, ln_j) = table.ln_j_ms();
                 let per_family = (n_mu_s - ln_from) * n_phi * lanes;
-                let mut corner = |ir: usize, im: usize, e: usize, w: f64| {
-                    if w == 0.0 {
-                        return;
-                    }
-                    let base = |b: usize| (((ir * n_mu + im) * n_mu_s + b) * n_phi + e) * lanes;
-                    let ln_at = |b: usize| {
-                        (ir * n_mu + im) * per_family + ((b - ln_from) * n_phi + e) * lanes
-                    };
-                    // Written out: `array::map` with these closures was not inlined (a
-                    // quarter of the bundle's CPU time in calls).
-                    let [b0, b1, b2, b3] = nodes;
-                    let v = [
-                        &table.j_ms[base(b0)..][..lanes],
-                        &table.j_ms[base(b1)..][..lanes],
-                        &table.j_ms[base(b2)..][..lanes],
-                        &table.j_ms[base(b3)..][..lanes],
-                    ];
-                    let ln_v = [
-                        &ln_j[ln_at(b0)..][..lanes],
-                        &ln_j[ln_at(b1)..][..lanes],
-                        &ln_j[ln_at(b2)..][..lanes],
-                        &ln_j[ln_at(b3)..][..lanes],
-                    ];
-                    twilight_lanes(v, ln_v, wq, fs, w, a);
+                let corners = TwilightCorners {
+                    j_ms: &table.j_ms,
+                    ln_j,
+                    ln_from,
+                    per_family,
+                    n_mu,
+                    n_mu_s,
+                    n_phi,
+                    lanes,
+                    nodes,
+                    wq,
+                    fs: fs as f32,
                 };
                 for &(ir, im, wc, pole) in &slice.corners {
                     if pole {
-                        let w = wc / n_phi as f64;
+                        let w = (wc / n_phi as f64) as f32;
                         for e in 0..n_phi {
-                            corner(ir, im, e, w);
+                            corners.add(ir, im, e, w, a);
                         }
                     } else {
-                        for (e, we) in [(ip, 1.0 - fp), (ip + 1, fp)] {
-                            corner(ir, im, e, wc * we);
-                        }
+                        let (w0, w1) = (wc * (1.0 - fp), wc * fp);
+                        corners.add_pair(ir, im, ip, w0 as f32, w1 as f32, a);
                     }
                 }
                 let sc = &table.scattering;
@@ -2181,8 +2338,8 @@ crate::simd_dispatch! {
                 for i in 0..n_l {
                     // Never below 0: the azimuth interpolation's even extrapolation at the
                     // mirror planes ([`Grid::phi_pos`]) has a weight of −1/8 at most.
-                    out[i] += (sc.rayleigh_per_m[i] * rho_r * a[i]
-                        + sc.mie_per_m[i] * rho_m * a[n_l + i])
+                    out[i] += (sc.rayleigh_per_m[i] * rho_r * a[i] as f64
+                        + sc.mie_per_m[i] * rho_m * a[n_l + i] as f64)
                         .max(0.0);
                 }
                 return;
