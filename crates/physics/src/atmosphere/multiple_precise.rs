@@ -954,38 +954,15 @@ crate::simd_dispatch! {
         let cos_phi = cos_azimuth(s.mu, s.mu_s, s.nu);
         let (ip, fp) = Grid::phi_pos(acos_fast(cos_phi), grid.s.n_phi);
         let (n_mu_s, n_mu, n_phi) = (grid.s.n_mu_s, grid.s.n_mu, grid.s.n_phi);
-        let twilight = grid.twilight_cell(is);
-        let mut corner = |a: usize, c: usize, e: usize, w: f64| {
-            if w == 0.0 {
-                return;
-            }
-            let base = |b: usize| (((a * n_mu + c) * n_mu_s + b) * n_phi + e) * n_l;
-            if twilight {
-                let (nodes, wq) = catmull_rom(is, fs, n_mu_s);
-                // In chunks of wavelengths, with the logarithms on the stack.
-                const CHUNK: usize = crate::spectrum::wavelengths::MAX_WAVELENGTHS;
-                let mut ln_v = [[0.0f64; CHUNK]; 4];
-                for i0 in (0..n_l).step_by(CHUNK) {
-                    let m = CHUNK.min(n_l - i0);
-                    let v = nodes.map(|b| &j[base(b) + i0..][..m]);
-                    for q in 0..4 {
-                        for (l, &x) in ln_v[q].iter_mut().zip(v[q]) {
-                            *l = ln_or_zero(x);
-                        }
-                    }
-                    twilight_lanes(v, ln_v.each_ref().map(|x| &x[..m]), wq, fs, w, &mut out[i0..][..m]);
-                }
-                return;
-            }
-            for (b, wb) in [(is, 1.0 - fs), (is + 1, fs)] {
-                let (w, base) = (w * wb, base(b));
-                if w == 0.0 {
-                    continue;
-                }
-                for i in 0..n_l {
-                    out[i] += w * j[base + i] as f64;
-                }
-            }
+        let corners = JCorners {
+            j,
+            n_l,
+            n_mu,
+            n_mu_s,
+            n_phi,
+            is,
+            fs,
+            twilight: grid.twilight_cell(is),
         };
         for (a, wa) in [(ir, 1.0 - fr), (ir + 1, fr)] {
             for (c, wc, pole) in Grid::theta_corners(theta, n_mu) {
@@ -993,13 +970,74 @@ crate::simd_dispatch! {
                     // The pole: the mean of the node's azimuths (`Grid::theta_corners`).
                     let w = wa * wc / n_phi as f64;
                     for e in 0..n_phi {
-                        corner(a, c, e, w);
+                        corners.add(a, c, e, w, out);
                     }
                 } else {
                     for (e, we) in [(ip, 1.0 - fp), (ip + 1, fp)] {
-                        corner(a, c, e, wa * wc * we);
+                        corners.add(a, c, e, wa * wc * we, out);
                     }
                 }
+            }
+        }
+    }
+}
+
+/// What the (r, θ, φ) corners of one [`lookup_j`] share: the table, its sizes and the sun
+/// zenith's node and weight. A plain `#[inline(always)]` method rather than a closure: the
+/// closure was compiled on its own, without the AVX2 of `lookup_j` around it, so a twilight
+/// corner's logarithms and exponentials ran one lane at a time (49 % of a twilight dome's CPU).
+struct JCorners<'a> {
+    j: &'a [f32],
+    n_l: usize,
+    n_mu: usize,
+    n_mu_s: usize,
+    n_phi: usize,
+    is: usize,
+    fs: f64,
+    twilight: bool,
+}
+
+impl JCorners<'_> {
+    /// Adds `w` × the corner (r node `a`, θ node `c`, φ node `e`) to `out` (`[λ]`): linear in sun
+    /// zenith by day, Catmull–Rom in ln J in a twilight cell ([`twilight_lanes`]).
+    #[inline(always)]
+    fn add(&self, a: usize, c: usize, e: usize, w: f64, out: &mut [f64]) {
+        if w == 0.0 {
+            return;
+        }
+        let (j, n_l, is, fs) = (self.j, self.n_l, self.is, self.fs);
+        let base = |b: usize| (((a * self.n_mu + c) * self.n_mu_s + b) * self.n_phi + e) * n_l;
+        if self.twilight {
+            let (nodes, wq) = catmull_rom(is, fs, self.n_mu_s);
+            // In chunks of wavelengths, with the logarithms on the stack.
+            const CHUNK: usize = crate::spectrum::wavelengths::MAX_WAVELENGTHS;
+            let mut ln_v = [[0.0f64; CHUNK]; 4];
+            for i0 in (0..n_l).step_by(CHUNK) {
+                let m = CHUNK.min(n_l - i0);
+                let v = nodes.map(|b| &j[base(b) + i0..][..m]);
+                for q in 0..4 {
+                    for (l, &x) in ln_v[q].iter_mut().zip(v[q]) {
+                        *l = ln_or_zero(x);
+                    }
+                }
+                twilight_lanes(
+                    v,
+                    ln_v.each_ref().map(|x| &x[..m]),
+                    wq,
+                    fs,
+                    w,
+                    &mut out[i0..][..m],
+                );
+            }
+            return;
+        }
+        for (b, wb) in [(is, 1.0 - fs), (is + 1, fs)] {
+            let (w, base) = (w * wb, base(b));
+            if w == 0.0 {
+                continue;
+            }
+            for i in 0..n_l {
+                out[i] += w * j[base + i] as f64;
             }
         }
     }
