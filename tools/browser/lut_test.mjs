@@ -149,6 +149,7 @@ try {
   page.on("console", (m) => { if (m.type() === "error") consoleErrors.push(m.text()); });
   page.on("pageerror", (e) => consoleErrors.push(String(e)));
   await page.goto(base + "/", { waitUntil: "load" });
+  await page.waitForSelector("#atmosphere");
   // The conditions the bundle is requested for (set without an input event: no product refresh).
   await page.evaluate(([atm, albedo, q]) => {
     document.getElementById("atmosphere").value = atm;
