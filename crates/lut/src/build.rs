@@ -550,37 +550,46 @@ impl<'a> FamilyScratch<'a> {
 
     /// The integrals of the prepared ray for the sun at (μs, ν) at its origin.
     pub(crate) fn texel(&mut self, mu_s: f64, nu: f64) -> TexelSums<'_> {
-        let m = self.medium;
-        self.rayleigh.fill(0.0);
-        self.mie.fill(0.0);
-        self.multiple.fill(0.0);
-        let n_l = self.n_l;
-        for (k, p) in self.points.iter().enumerate() {
-            let mu_s_p = ((self.r * mu_s + p.t * nu) / p.r).clamp(-1.0, 1.0);
-            let wt = &self.weighted_t[k * n_l..(k + 1) * n_l];
-            self.j.fill(0.0);
-            self.precise
-                .add_from_slice(&self.slices[k], mu_s_p, nu, &mut self.j);
-            for l in 0..n_l {
-                self.multiple[l] += wt[l] * self.j[l];
-            }
-            let at = &self.at[k];
-            let vis = at.sun_visibility(mu_s_p);
-            if vis <= 0.0 {
-                continue;
-            }
-            let d_sun = at.lookup(mu_s_p);
-            let rho = &self.rho[k];
-            for l in 0..n_l {
-                let sun = wt[l] * sun_attenuation(m, l, &d_sun, vis);
-                self.rayleigh[l] += sun * m.rayleigh_scattering_per_m[l] * rho[RAYLEIGH];
-                self.mie[l] += sun * m.mie_scattering_per_m[l] * rho[MIE];
-            }
-        }
+        texel_sums(self, mu_s, nu);
         TexelSums {
             rayleigh: &self.rayleigh,
             mie: &self.mie,
             multiple: &self.multiple,
         }
+    }
+}
+
+skybake_physics::simd_dispatch! {
+    /// [`FamilyScratch::texel`]'s sums, compiled for AVX2 like the products' kernels (its loops
+    /// over wavelengths vectorise; Rust forms no fused multiply-adds, so the values are the
+    /// baseline build's).
+    fn texel_sums(scratch: &mut FamilyScratch<'_>, mu_s: f64, nu: f64) {
+            let m = scratch.medium;
+            scratch.rayleigh.fill(0.0);
+            scratch.mie.fill(0.0);
+            scratch.multiple.fill(0.0);
+            let n_l = scratch.n_l;
+            for (k, p) in scratch.points.iter().enumerate() {
+                let mu_s_p = ((scratch.r * mu_s + p.t * nu) / p.r).clamp(-1.0, 1.0);
+                let wt = &scratch.weighted_t[k * n_l..(k + 1) * n_l];
+                scratch.j.fill(0.0);
+                scratch.precise
+                    .add_from_slice(&scratch.slices[k], mu_s_p, nu, &mut scratch.j);
+                for l in 0..n_l {
+                    scratch.multiple[l] += wt[l] * scratch.j[l];
+                }
+                let at = &scratch.at[k];
+                let vis = at.sun_visibility(mu_s_p);
+                if vis <= 0.0 {
+                    continue;
+                }
+                let d_sun = at.lookup(mu_s_p);
+                let rho = &scratch.rho[k];
+                for l in 0..n_l {
+                    let sun = wt[l] * sun_attenuation(m, l, &d_sun, vis);
+                    scratch.rayleigh[l] += sun * m.rayleigh_scattering_per_m[l] * rho[RAYLEIGH];
+                    scratch.mie[l] += sun * m.mie_scattering_per_m[l] * rho[MIE];
+                }
+            }
     }
 }
