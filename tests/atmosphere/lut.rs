@@ -347,79 +347,13 @@ fn sun_and_sky_irradiance_match_the_sun_product() {
 fn aerial_perspective_matches_the_aerial_product() {
     let f = fixture();
     let reader = Reader::new(&f.bundle);
-    let mut rng = Pcg64::seed_from_u64(72);
-    let mut inscatter = Bands::default();
-    let mut transmittance = Bands::default();
-    let bottom = f.bundle.params.bottom_radius;
-    for case in 0..8 {
-        let altitude = if case % 2 == 0 {
-            rng.random_range(0.0..3000.0f64)
-        } else {
-            rng.random_range(0.0..100_000.0f64)
-        };
-        let sun_deg = if case % 2 == 0 {
-            rng.random_range(-12.0..5.0f64)
-        } else {
-            rng.random_range(5.0..90.0f64)
-        };
-        let product = f
-            .engine
-            .aerial(
-                &spec_at(f, altitude, sun_deg),
-                DomeShape {
-                    elevation_count: 9,
-                    azimuth_count: 5,
-                },
-                5,
-                50_000.0,
-            )
-            .unwrap();
-        let idx = channel_index(f, &product.wavelengths_nm);
-        let n_l = product.wavelengths_nm.len();
-        let (n_az, n_d) = (product.azimuth_deg.len(), product.distance_m.len());
-        let camera = [0.0, 0.0, bottom + altitude];
-        for (row, &el) in product.elevation_deg.iter().enumerate() {
-            for (col, &az) in product.azimuth_deg.iter().enumerate() {
-                let v = view_dir(90.0 - el, az);
-                for (k, &d) in product.distance_m.iter().enumerate() {
-                    if d < 1000.0 {
-                        continue;
-                    }
-                    let point = [
-                        camera[0] + v[0] * d,
-                        camera[1] + v[1] * d,
-                        camera[2] + v[2] * d,
-                    ];
-                    // Points below the ground are not points a client shades.
-                    if (point[0].powi(2) + point[1].powi(2) + point[2].powi(2)).sqrt() < bottom {
-                        continue;
-                    }
-                    let (l, t) = reader.sky_radiance_to_point(camera, point, sun_dir(sun_deg));
-                    let at = ((row * n_az + col) * n_d + k) * n_l;
-                    let far = ((row * n_az + col) * n_d + n_d - 1) * n_l;
-                    for (c, &i) in idx.iter().enumerate() {
-                        let want_l = product.inscatter[at + i] as f64;
-                        // Relative to the in-scattered radiance of the whole 50 km path (the
-                        // haze a near point's error shows against), not to the tiny in-scatter
-                        // of a short path.
-                        let scale = product.inscatter[far + i] as f64;
-                        let want_t = product.transmittance[at + i] as f64;
-                        let band = format!("{}, {}", sun_band(sun_deg), altitude_band(altitude));
-                        inscatter.add_case(
-                            &band,
-                            (l[c] / UNIT_SCALE - want_l).abs() / scale,
-                            format!("(alt {altitude:.0} m, sun {sun_deg:.2}, elevation {el:.2} azimuth {az:.2}, d {d:.0} m: {:.4e} vs {want_l:.4e})", l[c] / UNIT_SCALE),
-                        );
-                        transmittance.add_case(
-                            &band,
-                            (t[c] - want_t).abs(),
-                            format!("(alt {altitude:.0} m, elevation {el:.2}, d {d:.0}: {} vs {want_t})", t[c]),
-                        );
-                    }
-                }
-            }
-        }
-    }
+    let (inscatter, transmittance) = aerial_errors(
+        &f.engine,
+        f.bundle.params.bottom_radius,
+        |altitude, sun_deg| spec_at(f, altitude, sun_deg),
+        |nm| channel_index(f, nm),
+        |camera, point, sun| reader.sky_radiance_to_point(camera, point, sun),
+    );
     inscatter.print("aerial in-scattered radiance");
     transmittance.print("aerial transmittance (absolute)");
     // Measured 0.11 % and 7.7 %.
@@ -615,4 +549,88 @@ fn haze_parameters_reach_the_bundle() {
     let p = RequestParams::from_pairs([("visibility_km", "0.2")]).unwrap();
     let err = LutRequest::from_params(&p).unwrap_err();
     assert!(err.to_string().contains("visibility_km"), "{err}");
+}
+
+/// A bundle's aerial perspective against the `aerial` product at random observers (0–3 km and
+/// 0–100 km) and suns (−12…90°), per sun and altitude band: the in-scattered radiance relative to
+/// the whole 50 km path's (the haze a near point's error shows against, not the tiny in-scatter of
+/// a short path) and the transmittance (absolute). `spec_at(altitude, sun)` is the product's
+/// request, `channels` maps the product's wavelengths to the bundle's channels, `to_point(camera,
+/// point, sun)` is the reader's `GetSkyRadianceToPoint`. Both layouts' tests use it.
+pub(crate) fn aerial_errors(
+    engine: &Engine,
+    bottom: f64,
+    spec_at: impl Fn(f64, f64) -> CommonSpec,
+    channels: impl Fn(&[f64]) -> Vec<usize>,
+    to_point: impl Fn([f64; 3], [f64; 3], [f64; 3]) -> (Vec<f64>, Vec<f64>),
+) -> (Bands, Bands) {
+    let mut rng = Pcg64::seed_from_u64(72);
+    let mut inscatter = Bands::default();
+    let mut transmittance = Bands::default();
+    for case in 0..8 {
+        let altitude = if case % 2 == 0 {
+            rng.random_range(0.0..3000.0f64)
+        } else {
+            rng.random_range(0.0..100_000.0f64)
+        };
+        let sun_deg = if case % 2 == 0 {
+            rng.random_range(-12.0..5.0f64)
+        } else {
+            rng.random_range(5.0..90.0f64)
+        };
+        let product = engine
+            .aerial(
+                &spec_at(altitude, sun_deg),
+                DomeShape {
+                    elevation_count: 9,
+                    azimuth_count: 5,
+                },
+                5,
+                50_000.0,
+            )
+            .unwrap();
+        let idx = channels(&product.wavelengths_nm);
+        let n_l = product.wavelengths_nm.len();
+        let (n_az, n_d) = (product.azimuth_deg.len(), product.distance_m.len());
+        let camera = [0.0, 0.0, bottom + altitude];
+        for (row, &el) in product.elevation_deg.iter().enumerate() {
+            for (col, &az) in product.azimuth_deg.iter().enumerate() {
+                let v = view_dir(90.0 - el, az);
+                for (k, &d) in product.distance_m.iter().enumerate() {
+                    if d < 1000.0 {
+                        continue;
+                    }
+                    let point = [
+                        camera[0] + v[0] * d,
+                        camera[1] + v[1] * d,
+                        camera[2] + v[2] * d,
+                    ];
+                    // Points below the ground are not points a client shades.
+                    if (point[0].powi(2) + point[1].powi(2) + point[2].powi(2)).sqrt() < bottom {
+                        continue;
+                    }
+                    let (l, t) = to_point(camera, point, sun_dir(sun_deg));
+                    let at = ((row * n_az + col) * n_d + k) * n_l;
+                    let far = ((row * n_az + col) * n_d + n_d - 1) * n_l;
+                    for (c, &i) in idx.iter().enumerate() {
+                        let want_l = product.inscatter[at + i] as f64;
+                        let scale = product.inscatter[far + i] as f64;
+                        let want_t = product.transmittance[at + i] as f64;
+                        let band = format!("{}, {}", sun_band(sun_deg), altitude_band(altitude));
+                        inscatter.add_case(
+                            &band,
+                            (l[c] / UNIT_SCALE - want_l).abs() / scale,
+                            format!("(alt {altitude:.0} m, sun {sun_deg:.2}, elevation {el:.2} azimuth {az:.2}, d {d:.0} m: {:.4e} vs {want_l:.4e})", l[c] / UNIT_SCALE),
+                        );
+                        transmittance.add_case(
+                            &band,
+                            (t[c] - want_t).abs(),
+                            format!("(alt {altitude:.0} m, elevation {el:.2}, d {d:.0}: {} vs {want_t})", t[c]),
+                        );
+                    }
+                }
+            }
+        }
+    }
+    (inscatter, transmittance)
 }

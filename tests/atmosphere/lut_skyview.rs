@@ -18,7 +18,7 @@ use skybake_product::lut::{Layout, LutRequest};
 use skybake_product::params::RequestParams;
 use std::sync::OnceLock;
 
-use crate::lut::{rel, sun_dir, view_dir, Bands};
+use crate::lut::{aerial_errors, rel, sun_dir, view_dir, Bands};
 
 struct Fixture {
     engine: Engine,
@@ -377,79 +377,15 @@ fn skyview_sun_and_sky_irradiance_match_the_sun_product() {
 #[test]
 #[ignore = "builds a bundle (about 10 s of CPU): run with --ignored lut_skyview::"]
 fn skyview_aerial_perspective_matches_the_aerial_product() {
-    use crate::lut::{altitude_band, sun_band};
     let f = fixture();
     let reader = SkyViewReader::new(&f.bundle);
-    let mut rng = Pcg64::seed_from_u64(72);
-    let mut inscatter = Bands::default();
-    let mut transmittance = Bands::default();
-    let bottom = f.bundle.params.bottom_radius;
-    for case in 0..8 {
-        let altitude = if case % 2 == 0 {
-            rng.random_range(0.0..3000.0f64)
-        } else {
-            rng.random_range(0.0..100_000.0f64)
-        };
-        let sun_deg = if case % 2 == 0 {
-            rng.random_range(-12.0..5.0f64)
-        } else {
-            rng.random_range(5.0..90.0f64)
-        };
-        let product = f
-            .engine
-            .aerial(
-                &spec_at(f, altitude, sun_deg),
-                DomeShape {
-                    elevation_count: 9,
-                    azimuth_count: 5,
-                },
-                5,
-                50_000.0,
-            )
-            .unwrap();
-        let idx = channel_index(f, &product.wavelengths_nm);
-        let n_l = product.wavelengths_nm.len();
-        let (n_az, n_d) = (product.azimuth_deg.len(), product.distance_m.len());
-        let camera = [0.0, 0.0, bottom + altitude];
-        for (row, &el) in product.elevation_deg.iter().enumerate() {
-            for (col, &az) in product.azimuth_deg.iter().enumerate() {
-                let v = view_dir(90.0 - el, az);
-                for (k, &d) in product.distance_m.iter().enumerate() {
-                    if d < 1000.0 {
-                        continue;
-                    }
-                    let point = [
-                        camera[0] + v[0] * d,
-                        camera[1] + v[1] * d,
-                        camera[2] + v[2] * d,
-                    ];
-                    // Points below the ground are not points a client shades.
-                    if (point[0].powi(2) + point[1].powi(2) + point[2].powi(2)).sqrt() < bottom {
-                        continue;
-                    }
-                    let (l, t) = reader.sky_radiance_to_point(camera, point, sun_dir(sun_deg));
-                    let at = ((row * n_az + col) * n_d + k) * n_l;
-                    let far = ((row * n_az + col) * n_d + n_d - 1) * n_l;
-                    for (c, &i) in idx.iter().enumerate() {
-                        let want_l = product.inscatter[at + i] as f64;
-                        let scale = product.inscatter[far + i] as f64;
-                        let want_t = product.transmittance[at + i] as f64;
-                        let band = format!("{}, {}", sun_band(sun_deg), altitude_band(altitude));
-                        inscatter.add_case(
-                            &band,
-                            (l[c] / UNIT_SCALE - want_l).abs() / scale,
-                            format!("(alt {altitude:.0} m, sun {sun_deg:.2}, elevation {el:.2} azimuth {az:.2}, d {d:.0} m: {:.4e} vs {want_l:.4e})", l[c] / UNIT_SCALE),
-                        );
-                        transmittance.add_case(
-                            &band,
-                            (t[c] - want_t).abs(),
-                            format!("(alt {altitude:.0} m, elevation {el:.2}, d {d:.0}: {} vs {want_t})", t[c]),
-                        );
-                    }
-                }
-            }
-        }
-    }
+    let (inscatter, transmittance) = aerial_errors(
+        &f.engine,
+        f.bundle.params.bottom_radius,
+        |altitude, sun_deg| spec_at(f, altitude, sun_deg),
+        |nm| channel_index(f, nm),
+        |camera, point, sun| reader.sky_radiance_to_point(camera, point, sun),
+    );
     inscatter.print("skyview aerial in-scattered radiance");
     transmittance.print("skyview aerial transmittance (absolute)");
     // Measured (2026-12-04, standard): in-scatter by day 0-20 km 3.58 % (Bruneton's layout:
