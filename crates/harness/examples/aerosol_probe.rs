@@ -48,8 +48,29 @@ fn main() {
         steps: num(4, standard.steps as f64) as usize,
         tolerance: num(7, standard.tolerance),
         extrapolate_tail: num(8, 1.0) != 0.0,
+        // `AEROSOL_PROBE_MAX_ORDERS=n`: stop the series after n orders (with `extrapolate` 0, the
+        // table's J_ms is then J_2 + … + J_n: the orders' shares, against an order-split reference).
+        max_orders: std::env::var("AEROSOL_PROBE_MAX_ORDERS")
+            .ok()
+            .and_then(|v| v.parse().ok())
+            .unwrap_or(standard.max_orders),
+        // `AEROSOL_PROBE_SUBRAYS=n`: sub-rays per cell near the horizon.
+        horizon_subrays: std::env::var("AEROSOL_PROBE_SUBRAYS")
+            .ok()
+            .and_then(|v| v.parse().ok())
+            .unwrap_or(standard.horizon_subrays),
         ..standard
     };
+    // `AEROSOL_PROBE_SINGLE=1`: single scattering only (no table).
+    let method = if std::env::var_os("AEROSOL_PROBE_SINGLE").is_some() {
+        MsMethod::None
+    } else {
+        MsMethod::Precise
+    };
+    // `AEROSOL_PROBE_DUMP=path`: every compared point as JSON lines.
+    let mut dump = std::env::var("AEROSOL_PROBE_DUMP")
+        .ok()
+        .map(|p| std::fs::File::create(p).unwrap());
     let product_steps = num(5, 32.0) as usize;
     let radius_m = num(6, 63_600_000.0);
     let only: Vec<&String> = args.iter().skip(9).collect();
@@ -73,7 +94,12 @@ fn main() {
         let (fast, _) = settings_for(Quality::Standard);
         let shared = SharedTables::new(medium, fast, s);
         let t = std::time::Instant::now();
-        let conv = shared.precise().convergence.clone();
+        let (orders, tail_fraction) = if method == MsMethod::Precise {
+            let c = &shared.precise().convergence;
+            (c.orders, c.tail_fraction)
+        } else {
+            (1, 0.0)
+        };
         let build_ms = t.elapsed().as_secs_f64() * 1e3;
         let mut rows = Vec::new();
         for (li, nm) in [440.0, 550.0, 680.0].iter().enumerate() {
@@ -84,9 +110,24 @@ fn main() {
                     continue;
                 }
                 let sza = case["sun_zenith_deg"].as_f64().unwrap();
+                // `AEROSOL_PROBE_GROUND=1`: the table's own sky irradiance on the ground (its
+                // ground term E = Σ E_n) beside DISORT's diffuse irradiance.
+                if method == MsMethod::Precise && std::env::var_os("AEROSOL_PROBE_GROUND").is_some()
+                {
+                    use skybake_physics::atmosphere::integrate::Source;
+                    let mut e = vec![0.0; 3];
+                    shared
+                        .precise()
+                        .add_ground_sky_irradiance(sza.to_radians().cos(), &mut e);
+                    println!(
+                        "  ground {name} {nm} sza {sza}: table E {:.6e} DISORT diffuse {:.6e}",
+                        e[li],
+                        case["diffuse_horizontal"].as_f64().unwrap()
+                    );
+                }
                 let ev = RadianceEvaluator::new(
                     &shared,
-                    MsMethod::Precise,
+                    method,
                     Observer {
                         altitude_m: 0.0,
                         sun_elevation_rad: (90.0 - sza).to_radians(),
@@ -109,6 +150,10 @@ fn main() {
                     let (mu, nu) = ev.direction(vz.to_radians(), raz.to_radians());
                     ev.trace(mu, nu, product_steps, &mut sc, &mut out, &mut tr, None);
                     let d = out[li] / reference - 1.0;
+                    if let Some(f) = dump.as_mut() {
+                        use std::io::Write;
+                        writeln!(f, "{}", json!({"atmosphere": name, "nm": nm, "sza": sza, "vz": vz, "az": raz, "theta": theta, "ours": out[li], "disort": reference})).unwrap();
+                    }
                     if detail.as_deref() == Some(&format!("{name},{sza},{nm}")) {
                         println!("  vz {vz:5.1} az {raz:5.1} scattering {theta:6.2}: ours {:.5e} DISORT {reference:.5e} {:+.2} %", out[li], 100.0 * d);
                     }
@@ -136,8 +181,8 @@ fn main() {
         }
         println!(
             "{name} (orders {}, tail {:.3}, build {build_ms:.0} ms): {}",
-            conv.orders,
-            conv.tail_fraction,
+            orders,
+            tail_fraction,
             rows.join("; ")
         );
     }
