@@ -18,6 +18,38 @@ fn length(a: Vec3) -> f64 {
     dot(a, a).sqrt()
 }
 
+/// The segment from `camera` to `point` as his `GetSkyRadianceToPoint` starts it: a camera above
+/// the atmosphere's top (radius `top`) moves to where the segment enters it. Returns that camera,
+/// the unit direction, r, r·μ and the length left to `point`. Both layouts' readers use it.
+pub(crate) fn segment_in_atmosphere(
+    camera: Vec3,
+    point: Vec3,
+    top: f64,
+) -> (Vec3, Vec3, f64, f64, f64) {
+    let diff = [
+        point[0] - camera[0],
+        point[1] - camera[1],
+        point[2] - camera[2],
+    ];
+    let mut d = length(diff);
+    let view = [diff[0] / d, diff[1] / d, diff[2] / d];
+    let mut camera = camera;
+    let mut r = length(camera);
+    let mut rmu = dot(camera, view);
+    let to_top = -rmu - (rmu * rmu - r * r + top * top).sqrt();
+    if to_top > 0.0 {
+        camera = [
+            camera[0] + view[0] * to_top,
+            camera[1] + view[1] * to_top,
+            camera[2] + view[2] * to_top,
+        ];
+        r = top;
+        rmu += to_top;
+        d -= to_top;
+    }
+    (camera, view, r, rmu, d)
+}
+
 fn smoothstep(e0: f64, e1: f64, x: f64) -> f64 {
     let t = ((x - e0) / (e1 - e0)).clamp(0.0, 1.0);
     t * t * (3.0 - 2.0 * t)
@@ -250,34 +282,10 @@ impl<'a> Reader<'a> {
         sun: Vec3,
     ) -> (Vec<f64>, Vec<f64>) {
         let a = self.a();
-        let diff = [
-            point[0] - camera[0],
-            point[1] - camera[1],
-            point[2] - camera[2],
-        ];
-        let dist = length(diff);
-        let view = [diff[0] / dist, diff[1] / dist, diff[2] / dist];
-        let mut camera = camera;
-        let mut r = length(camera);
-        let mut rmu = dot(camera, view);
-        let to_top = -rmu - (rmu * rmu - r * r + a.top_radius * a.top_radius).sqrt();
-        if to_top > 0.0 {
-            camera = [
-                camera[0] + view[0] * to_top,
-                camera[1] + view[1] * to_top,
-                camera[2] + view[2] * to_top,
-            ];
-            r = a.top_radius;
-            rmu += to_top;
-        }
+        let (camera, view, r, rmu, d) = segment_in_atmosphere(camera, point, a.top_radius);
         let mu = rmu / r;
         let mu_s = dot(camera, sun) / r;
         let nu = dot(view, sun);
-        let d = length([
-            point[0] - camera[0],
-            point[1] - camera[1],
-            point[2] - camera[2],
-        ]);
         let ground = a.ray_intersects_ground(r, mu);
         let transmittance = self.transmittance(r, mu, d, ground);
         let (s, mie) = self.scattering(r, mu, mu_s, nu, ground);

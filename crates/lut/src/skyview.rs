@@ -574,28 +574,8 @@ impl<'a> SkyViewReader<'a> {
         sun: Vec3,
     ) -> (Vec<f64>, Vec<f64>) {
         let p = &self.bundle.params;
-        let diff = [
-            point[0] - camera[0],
-            point[1] - camera[1],
-            point[2] - camera[2],
-        ];
-        let mut d = dot(diff, diff).sqrt();
-        let view = [diff[0] / d, diff[1] / d, diff[2] / d];
-        let mut camera = camera;
-        let mut r = dot(camera, camera).sqrt();
-        let mut rmu = dot(camera, view);
-        // Above the top: start where the ray enters the atmosphere, as his function does.
-        let to_top = -rmu - (rmu * rmu - r * r + p.top_radius * p.top_radius).sqrt();
-        if to_top > 0.0 {
-            camera = [
-                camera[0] + view[0] * to_top,
-                camera[1] + view[1] * to_top,
-                camera[2] + view[2] * to_top,
-            ];
-            r = p.top_radius;
-            rmu += to_top;
-            d -= to_top;
-        }
+        let (camera, view, r, rmu, d) =
+            crate::reader::segment_in_atmosphere(camera, point, p.top_radius);
         let mu = rmu / r;
         let ground = p.ray_intersects_ground(r, mu);
         let t = crate::reader::transmittance(&self.bundle.transmittance, p, r, mu, d, ground);
