@@ -60,6 +60,21 @@ bool RayIntersectsGround(float r, float mu) {
   return mu < 0.0 && SquareDifference(bottom_radius, r) + r * mu * r * mu >= 0.0;
 }
 
+// The start of his GetSkyRadianceToPoint: a camera above the top of the atmosphere moves to
+// where the segment along view_ray enters it (r, r mu and the length d left updated). Both
+// layouts' GetSkyRadianceToPointOffset use it.
+void EnterAtmosphere(inout vec3 camera, vec3 view_ray, inout float r, inout float rmu,
+                     inout float d) {
+  float distance_to_top_atmosphere_boundary =
+      -rmu - sqrt(rmu * rmu + SquareDifference(top_radius, r));
+  if (distance_to_top_atmosphere_boundary > 0.0) {
+    camera = camera + view_ray * distance_to_top_atmosphere_boundary;
+    r = top_radius;
+    rmu += distance_to_top_atmosphere_boundary;
+    d -= distance_to_top_atmosphere_boundary;
+  }
+}
+
 float GetTextureCoordFromUnitRange(float x, float texture_size) {
   return 0.5 / texture_size + x * (1.0 - 1.0 / texture_size);
 }
@@ -246,14 +261,7 @@ vec3 GetSkyRadianceToPointOffset(vec3 camera, vec3 offset, vec3 sun_direction,
   float d = length(offset);
   float r = length(camera);
   float rmu = dot(camera, view_ray);
-  float distance_to_top_atmosphere_boundary =
-      -rmu - sqrt(rmu * rmu + SquareDifference(top_radius, r));
-  if (distance_to_top_atmosphere_boundary > 0.0) {
-    camera = camera + view_ray * distance_to_top_atmosphere_boundary;
-    r = top_radius;
-    rmu += distance_to_top_atmosphere_boundary;
-    d -= distance_to_top_atmosphere_boundary;
-  }
+  EnterAtmosphere(camera, view_ray, r, rmu, d);
   float mu = rmu / r;
   float mu_s = dot(camera, sun_direction) / r;
   float nu = dot(view_ray, sun_direction);

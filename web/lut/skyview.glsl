@@ -230,14 +230,7 @@ vec3 GetSkyRadianceToPointOffset(vec3 camera, vec3 offset, vec3 sun_direction,
   float d = length(offset);
   float r = length(camera);
   float rmu = dot(camera, view_ray);
-  float distance_to_top_atmosphere_boundary =
-      -rmu - sqrt(rmu * rmu + SquareDifference(top_radius, r));
-  if (distance_to_top_atmosphere_boundary > 0.0) {
-    camera = camera + view_ray * distance_to_top_atmosphere_boundary;
-    r = top_radius;
-    rmu += distance_to_top_atmosphere_boundary;
-    d -= distance_to_top_atmosphere_boundary;
-  }
+  EnterAtmosphere(camera, view_ray, r, rmu, d);
   float mu = rmu / r;
   transmittance = GetTransmittance(r, mu, d, RayIntersectsGround(r, mu));
   float h = max(r - bottom_radius, 0.0);
