@@ -159,9 +159,11 @@ fn optically_thick_cloud_conserves_energy_in_the_fast_method() {
     let ratio = power_ratio(&v, &grid, Method::Fast);
     println!("τ 1000: fast method scattered power out/in = {ratio:.3}");
     assert!(ratio.is_finite() && ratio <= 1.15, "τ 1000: out/in {ratio}");
+    // Measured 0.951 (0.63 before the march's thick steps and the photon pass's diffusion
+    // jumps; 26 views do not resolve the forward lobe exactly).
     assert!(
-        ratio > 0.5,
-        "τ 1000: the fast method loses most of the light ({ratio})"
+        ratio > 0.9,
+        "τ 1000: the fast method loses light ({ratio})"
     );
 }
 
@@ -193,20 +195,6 @@ fn power_ratio_shared(v: &Value, grid: &DensityGrid, px: usize) -> f64 {
         let p = Prepared::with_lit(scene, &lighting, s, lit.clone(), true, &|| false).unwrap();
         render_tile(&p, None, &|_| {}, &|| false).unwrap()
     };
-    if std::env::var_os("PROBE_FIELD").is_some() {
-        let ms = lit.ms.as_ref().unwrap();
-        let sd = base.sun.direction();
-        let mut j = [0.0];
-        let h = grid.voxel_size_m;
-        let mut line = String::new();
-        for k in 0..24 {
-            let p = c + sd * (11.0 * h - k as f64 * 0.5 * h);
-            ms.inscatter(p, sd, &mut j);
-            let r = skybake_render::volume::sample(&grid, p);
-            line += &format!(" {:.1}:{r:.2}:{:.4}", (11.0 - 0.5 * k as f64), j[0]);
-        }
-        println!("field along the sun axis (voxels from centre: density: J): {line}");
-    }
     let n_dirs = 96;
     let mut out = 0.0;
     for i in 0..n_dirs {
@@ -226,22 +214,26 @@ fn power_ratio_shared(v: &Value, grid: &DensityGrid, px: usize) -> f64 {
 }
 
 /// Energy in voxels of many optical depths: a conservative ball of radius 300 m in voxels of
-/// 30 m, τ 1000 through the centre (51 per voxel), isotropic phase function, sun only, vacuum.
-/// Nothing is transmitted, so the scattered power out equals the power the ball intercepts.
+/// 30 m, τ 1000 through the centre (51 optical depths per voxel), sun only, vacuum, 96 views.
+/// Nothing is transmitted, so the scattered power out must equal the power the ball intercepts.
+/// Measured (draft): 1.050 with an isotropic phase function, 0.991 with Henyey-Greenstein
+/// g = 0.85 (0.453 and 0.694 before the march's thick steps and the photon pass's diffusion
+/// jumps).
 #[test]
 fn optically_thick_voxels_conserve_energy() {
     let c = DVec3::new(0.0, 0.0, 1000.0);
-    let mut v = vacuum_scene(c, 800.0);
-    let tau: f64 = std::env::var("PROBE_TAU").ok().and_then(|x| x.parse().ok()).unwrap_or(1000.0);
-    v["optics"]["extinction_per_density_m"] = json!(tau / 600.0);
-    let g: f64 = std::env::var("PROBE_G").ok().and_then(|x| x.parse().ok()).unwrap_or(0.0);
-    v["optics"]["phase"] = json!({"henyey_greenstein": {"g": g}});
-    if let Ok(q) = std::env::var("PROBE_Q") {
-        v["quality"] = json!(q);
-    }
     let grid = ball(c, 300.0, 30.0);
-    let ratio = power_ratio_shared(&v, &grid, 32);
-    println!("τ 1000 ball, g {g}: fast method scattered power out/in = {ratio:.4}");
+    for g in [0.0, 0.85] {
+        let mut v = vacuum_scene(c, 800.0);
+        v["optics"]["extinction_per_density_m"] = json!(1000.0 / 600.0);
+        v["optics"]["phase"] = json!({"henyey_greenstein": {"g": g}});
+        let ratio = power_ratio_shared(&v, &grid, 32);
+        println!("τ 1000 ball, g {g}: fast method scattered power out/in = {ratio:.4}");
+        assert!(
+            (0.97..=1.1).contains(&ratio),
+            "τ 1000 ball, g {g}: out/in {ratio}"
+        );
+    }
 }
 
 #[test]

@@ -518,3 +518,18 @@ fn block_noise(
     }
     (v / nb as f64).sqrt() / (sr / n as f64)
 }
+
+#[test]
+fn probe_slab_single() {
+    let grid = slab_grid();
+    let tau: f64 = std::env::var("PROBE_TAU").ok().and_then(|x| x.parse().ok()).unwrap_or(1000.0);
+    for vz in [0.0f64, 30.0, 60.0] {
+        let mut scene = slab_scene(tau, 1.0, 0.5, vz, 90.0, 1600.0 * vz.to_radians().cos(), 5000.0, 16);
+        scene.optics.phase = vec![skybake_physics::phase::Phase::Isotropic; 1];
+        let lighting = lighting_for(&scene, &grid, &Engine::new()).unwrap();
+        let f = render_frame(&scene, &grid, &lighting, &settings(&scene, Method::Fast, 1), None, &|_| {}, &|| false).unwrap();
+        let mu = vz.to_radians().cos();
+        let expected = 1.0 / (4.0 * std::f64::consts::PI) * 0.5 / (0.5 + mu);
+        println!("vz {vz}: {:.5} / single {expected:.5} = {:.3}", mean_radiance(&f), mean_radiance(&f) / expected);
+    }
+}

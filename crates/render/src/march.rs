@@ -403,7 +403,7 @@ impl<'a> Prepared<'a> {
         let stride = if N == 0 { self.stride } else { N + 2 };
         // Whether any step can be optically thick (else every step is one piece, as before).
         let ks_max = ks[..n_l].iter().fold(0.0f64, |m, &k| m.max(k));
-        let thick_possible = ks_max * vol.rho_max * step > THICK_STEP && std::env::var_os("PROBE_OFF").is_none();
+        let thick_possible = ks_max * vol.rho_max * step > THICK_STEP;
         let vox = &self.vox[..];
         let mut t = t0;
         let mut front = None;
@@ -658,10 +658,8 @@ impl<'a> Prepared<'a> {
                         (0.0, 0.0)
                     };
                 }
-                let part = std::env::var("PROBE_PART").unwrap_or_default();
-                let (fs, fm) = match part.as_str() { "sun" => (1.0, 0.0), "ms" => (0.0, 1.0), _ => (1.0, 1.0) };
-                ia[l] += tcs[l] * (fs * sky.sun_src[l] * sun_t + fm * a_ms * src[l])
-                    + fs * tc[l] * sky.sun_src[l] * sun_peak;
+                ia[l] += tcs[l] * (sky.sun_src[l] * sun_t + a_ms * src[l])
+                    + tc[l] * sky.sun_src[l] * sun_peak;
                 tc[l] *= 1.0 - a;
                 tcs[l] *= 1.0 - a_ms;
                 alive |= tcs[l] > MARCH_CUTOFF;
