@@ -161,10 +161,7 @@ fn optically_thick_cloud_conserves_energy_in_the_fast_method() {
     assert!(ratio.is_finite() && ratio <= 1.15, "τ 1000: out/in {ratio}");
     // Measured 0.951 (0.63 before the march's thick steps and the photon pass's diffusion
     // jumps; 26 views do not resolve the forward lobe exactly).
-    assert!(
-        ratio > 0.9,
-        "τ 1000: the fast method loses light ({ratio})"
-    );
+    assert!(ratio > 0.9, "τ 1000: the fast method loses light ({ratio})");
 }
 
 /// [`power_ratio`] with 96 views (Fibonacci) of `px`² pixels sharing one lit volume: scattered

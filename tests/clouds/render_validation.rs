@@ -261,12 +261,13 @@ fn slab_reflection_matches_disort() {
 #[test]
 fn fast_slab_every_angle_against_disort() {
     let grid = std::sync::Arc::new(slab_grid());
-    // Measured worst views: τ 1 −24.9 % (nadir), τ 8 +22.8 % (75°, away from the sun), τ 32
-    // −51.9 % (75°, towards the sun: 8 optical depths per voxel leave the lit surface unresolved).
+    // Measured worst views: τ 1 −24.5 % (nadir), τ 8 +22.9 % (75°, away from the sun), τ 32
+    // −23.7 % (75°, towards the sun; −51.5 % before the march resolved steps over voxels of
+    // many optical depths in sub-steps).
     for (tau, albedo, bound) in [
         (1.0f64, 1.0f64, 0.30f64),
         (8.0, 1.0, 0.27),
-        (32.0, 1.0, 0.57),
+        (32.0, 1.0, 0.27),
     ] {
         let mu0 = 0.5;
         let (case, views, azs) = disort_case(tau, albedo, mu0);
@@ -517,19 +518,4 @@ fn block_noise(
         }
     }
     (v / nb as f64).sqrt() / (sr / n as f64)
-}
-
-#[test]
-fn probe_slab_single() {
-    let grid = slab_grid();
-    let tau: f64 = std::env::var("PROBE_TAU").ok().and_then(|x| x.parse().ok()).unwrap_or(1000.0);
-    for vz in [0.0f64, 30.0, 60.0] {
-        let mut scene = slab_scene(tau, 1.0, 0.5, vz, 90.0, 1600.0 * vz.to_radians().cos(), 5000.0, 16);
-        scene.optics.phase = vec![skybake_physics::phase::Phase::Isotropic; 1];
-        let lighting = lighting_for(&scene, &grid, &Engine::new()).unwrap();
-        let f = render_frame(&scene, &grid, &lighting, &settings(&scene, Method::Fast, 1), None, &|_| {}, &|| false).unwrap();
-        let mu = vz.to_radians().cos();
-        let expected = 1.0 / (4.0 * std::f64::consts::PI) * 0.5 / (0.5 + mu);
-        println!("vz {vz}: {:.5} / single {expected:.5} = {:.3}", mean_radiance(&f), mean_radiance(&f) / expected);
-    }
 }

@@ -457,8 +457,18 @@ impl<'a> Prepared<'a> {
                     rows: &rows[..n_l],
                     fresh: &fresh[..n_l],
                 };
-                let alive =
-                    self.thick_step(o, d, t - dt, dt, tau_max, &sky, ia, tc, &mut tcs[..n_l], &mut front);
+                let alive = self.thick_step(
+                    o,
+                    d,
+                    t - dt,
+                    dt,
+                    tau_max,
+                    &sky,
+                    ia,
+                    tc,
+                    &mut tcs[..n_l],
+                    &mut front,
+                );
                 d_start = None;
                 if !alive {
                     break;
