@@ -580,7 +580,7 @@ enum Thick {
 impl DiffusionJump {
     fn new(coarse: &Coarse, k_scaled: f64, g: f64, albedo: f64) -> Option<Self> {
         // Conservative to rounding (ω* = ω(1 − f)/(1 − ωf) with ω = 1).
-        if albedo < 1.0 - 1e-12 || !(k_scaled > 0.0) {
+        if albedo < 1.0 - 1e-12 || k_scaled.is_nan() || k_scaled <= 0.0 {
             return None;
         }
         let transport_per_density = k_scaled * (1.0 - g);
