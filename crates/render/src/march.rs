@@ -26,8 +26,9 @@ pub const MARCH_CUTOFF: f64 = 1e-3;
 
 /// Largest scaled optical depth σ_t*·Δ (at the densest voxel round a step) over which one
 /// march step is integrated as one piece; a thicker step is resolved in sub-steps of at most
-/// this optical depth ([`Prepared::thick_step`]). Voxels of smaller optical depth (the
-/// validation clouds against Mitsuba 3) never reach it.
+/// this optical depth ([`Prepared::thick_step`]). No step of the bench frame or of the Mitsuba 3
+/// validation frames reaches it (standard quality); draft's steps of 1.5 voxels through the
+/// cumulus in voxels of 50 m do in places.
 pub const THICK_STEP: f64 = 1.0;
 
 /// Most sub-steps of one thick step.
