@@ -12,7 +12,10 @@ use skybake_physics::atmosphere::quality::Quality;
 use skybake_physics::cloud::DensityGrid;
 use skybake_render::compare::image_errors;
 use skybake_render::light::fibonacci;
-use skybake_render::{lighting_for, render_frame, Frame, FrameScene, Method, RenderSettings};
+use skybake_render::{
+    lighting_for, render_frame, render_tile, Frame, FrameScene, LitInputs, LitVolume, Method,
+    Prepared, RenderSettings,
+};
 use std::f64::consts::PI;
 
 /// Vacuum, collimated sun of normal irradiance 1, no sky, no ground.
@@ -156,10 +159,78 @@ fn optically_thick_cloud_conserves_energy_in_the_fast_method() {
     let ratio = power_ratio(&v, &grid, Method::Fast);
     println!("τ 1000: fast method scattered power out/in = {ratio:.3}");
     assert!(ratio.is_finite() && ratio <= 1.15, "τ 1000: out/in {ratio}");
-    assert!(
-        ratio > 0.5,
-        "τ 1000: the fast method loses most of the light ({ratio})"
+    // Measured 0.951 (0.63 before the march's thick steps and the photon pass's diffusion
+    // jumps; 26 views do not resolve the forward lobe exactly).
+    assert!(ratio > 0.9, "τ 1000: the fast method loses light ({ratio})");
+}
+
+/// [`power_ratio`] with 96 views (Fibonacci) of `px`² pixels sharing one lit volume: scattered
+/// power out against the power taken out of the sun's beam.
+fn power_ratio_shared(v: &Value, grid: &DensityGrid, px: usize) -> f64 {
+    let c = 0.5 * (grid.origin_m + grid.max_corner_m());
+    let extent = (grid.max_corner_m() - grid.origin_m).length() * 1.05;
+    let pixel_area = (extent / px as f64).powi(2);
+    let mut v = v.clone();
+    let ortho = |dir: DVec3| {
+        let cam = c + dir * 4.0 * extent;
+        let up = if dir.z.abs() > 0.9 {
+            [0.0, 1.0, 0.0]
+        } else {
+            [0.0, 0.0, 1.0]
+        };
+        json!({"type": "orthographic", "position_m": [cam.x, cam.y, cam.z], "look_at_m": [c.x, c.y, c.z],
+               "up": up, "view_width_m": extent, "width": px, "height": px})
+    };
+    let base = parse(&v);
+    let lighting = lighting_for(&base, grid, &Engine::new()).unwrap();
+    let s = settings(&base, Method::Fast, base.quality);
+    let grid = std::sync::Arc::new(grid.clone());
+    let lit = std::sync::Arc::new(
+        LitVolume::new(LitInputs::new(&base, grid.clone(), &lighting, s), &|| false).unwrap(),
     );
+    let frame = |scene: &FrameScene| {
+        let p = Prepared::with_lit(scene, &lighting, s, lit.clone(), true, &|| false).unwrap();
+        render_tile(&p, None, &|_| {}, &|| false).unwrap()
+    };
+    let n_dirs = 96;
+    let mut out = 0.0;
+    for i in 0..n_dirs {
+        v["camera"] = ortho(fibonacci(i, n_dirs));
+        let f = frame(&parse(&v));
+        out += f.radiance.iter().map(|&x| f64::from(x)).sum::<f64>() * pixel_area * 4.0 * PI
+            / n_dirs as f64;
+    }
+    v["camera"] = ortho(base.sun.direction());
+    let f = frame(&parse(&v));
+    let taken: f64 = f
+        .transmittance
+        .iter()
+        .map(|&t| (1.0 - f64::from(t)) * pixel_area)
+        .sum();
+    out / taken
+}
+
+/// Energy in voxels of many optical depths: a conservative ball of radius 300 m in voxels of
+/// 30 m, τ 1000 through the centre (51 optical depths per voxel), sun only, vacuum, 96 views.
+/// Nothing is transmitted, so the scattered power out must equal the power the ball intercepts.
+/// Measured (draft): 1.050 with an isotropic phase function, 0.991 with Henyey-Greenstein
+/// g = 0.85 (0.453 and 0.694 before the march's thick steps and the photon pass's diffusion
+/// jumps).
+#[test]
+fn optically_thick_voxels_conserve_energy() {
+    let c = DVec3::new(0.0, 0.0, 1000.0);
+    let grid = ball(c, 300.0, 30.0);
+    for g in [0.0, 0.85] {
+        let mut v = vacuum_scene(c, 800.0);
+        v["optics"]["extinction_per_density_m"] = json!(1000.0 / 600.0);
+        v["optics"]["phase"] = json!({"henyey_greenstein": {"g": g}});
+        let ratio = power_ratio_shared(&v, &grid, 32);
+        println!("τ 1000 ball, g {g}: fast method scattered power out/in = {ratio:.4}");
+        assert!(
+            (0.97..=1.1).contains(&ratio),
+            "τ 1000 ball, g {g}: out/in {ratio}"
+        );
+    }
 }
 
 #[test]
