@@ -21,8 +21,9 @@ use std::time::Instant;
 
 use rayon::prelude::*;
 use skybake_physics::atmosphere::geometry::horizon_mu;
-use skybake_physics::atmosphere::integrate::{cell_weight, ray_points, sun_attenuation, RayPoint};
+use skybake_physics::atmosphere::integrate::{cell_weight, ray_points, RayPoint};
 use skybake_physics::atmosphere::irradiance::{SUN_PRODUCT_N_MU, SUN_PRODUCT_N_PHI};
+use skybake_physics::atmosphere::kernels::exp_fast;
 use skybake_physics::atmosphere::medium::{Medium, CONSTITUENTS, MIE, RAYLEIGH};
 use skybake_physics::atmosphere::multiple_precise::{
     source_sun_zenith_limit_rad, JSlice, PreciseMultipleScattering,
@@ -491,9 +492,23 @@ pub(crate) fn irradiance_grid(
 /// Per-wavelength integrals of one texel's ray, per unit solar irradiance: single Rayleigh and
 /// single Mie without phase functions (m⁻¹·m), multiple scattering with its phases (sr⁻¹).
 pub(crate) struct TexelSums<'a> {
-    pub(crate) rayleigh: &'a [f64],
-    pub(crate) mie: &'a [f64],
+    pub(crate) rayleigh: Column<'a>,
+    pub(crate) mie: Column<'a>,
     pub(crate) multiple: &'a [f64],
+}
+
+/// One sun's values, indexed by wavelength, in a `[λ][sun]` array.
+pub(crate) struct Column<'a> {
+    data: &'a [f64],
+    n_t: usize,
+    t: usize,
+}
+
+impl std::ops::Index<usize> for Column<'_> {
+    type Output = f64;
+    fn index(&self, l: usize) -> &f64 {
+        &self.data[l * self.n_t + self.t]
+    }
 }
 
 /// What every sun on one ray shares (a ray family of the texture: fixed r and μ): the products'
@@ -519,11 +534,16 @@ pub(crate) struct FamilyScratch<'a> {
     nu: Vec<f64>,
     /// `[sun]`: the sun's zenith cosine at the current point.
     mu_s_p: Vec<f64>,
-    /// `[sun][λ]`: J_ms at the current point; the sums of [`TexelSums`].
+    /// `[sun]`: the visible fraction of the sun's disk at the current point and the density
+    /// integrals to the sun from there (`[constituent][sun]`).
+    vis: Vec<f64>,
+    d_sun: [Vec<f64>; CONSTITUENTS],
+    /// `[sun][λ]`: J_ms at the current point; the multiple-scattering sums of [`TexelSums`].
     j: Vec<f64>,
+    multiple: Vec<f64>,
+    /// `[λ][sun]`: the single-scattering sums of [`TexelSums`].
     rayleigh: Vec<f64>,
     mie: Vec<f64>,
-    multiple: Vec<f64>,
 }
 
 impl<'a> FamilyScratch<'a> {
@@ -542,6 +562,8 @@ impl<'a> FamilyScratch<'a> {
             mu_s: Vec::new(),
             nu: Vec::new(),
             mu_s_p: Vec::new(),
+            vis: Vec::new(),
+            d_sun: std::array::from_fn(|_| Vec::new()),
             j: Vec::new(),
             rayleigh: Vec::new(),
             mie: Vec::new(),
@@ -592,17 +614,31 @@ impl<'a> FamilyScratch<'a> {
             v.resize(n, 0.0);
         }
         self.j.resize(n, 0.0);
-        self.mu_s_p.resize(self.mu_s.len(), 0.0);
+        let n_t = self.mu_s.len();
+        for v in [&mut self.mu_s_p, &mut self.vis]
+            .into_iter()
+            .chain(&mut self.d_sun)
+        {
+            v.resize(n_t, 0.0);
+        }
         texel_sums(self);
     }
 
     /// The integrals of sun `t` (in the order pushed) of the last [`Self::integrate`].
     pub(crate) fn texel(&self, t: usize) -> TexelSums<'_> {
-        let range = t * self.n_l..(t + 1) * self.n_l;
+        let n_t = self.mu_s.len();
         TexelSums {
-            rayleigh: &self.rayleigh[range.clone()],
-            mie: &self.mie[range.clone()],
-            multiple: &self.multiple[range],
+            rayleigh: Column {
+                data: &self.rayleigh,
+                n_t,
+                t,
+            },
+            mie: Column {
+                data: &self.mie,
+                n_t,
+                t,
+            },
+            multiple: &self.multiple[t * self.n_l..(t + 1) * self.n_l],
         }
     }
 }
@@ -640,21 +676,43 @@ skybake_physics::simd_dispatch! {
                 }
                 let at = &scratch.at[k];
                 let rho = &scratch.rho[k];
+                // The sun's visibility and density integrals, then each wavelength's single
+                // scattering a vector of suns at a time (none where the sun is hidden).
+                let [d0, d1, d2] = &mut scratch.d_sun;
                 for t in 0..n_t {
                     let mu_s_p = scratch.mu_s_p[t];
                     let vis = at.sun_visibility(mu_s_p);
-                    if vis <= 0.0 {
-                        continue;
-                    }
-                    let d_sun = at.lookup(mu_s_p);
-                    let (ray, mie) = (
-                        &mut scratch.rayleigh[t * n_l..(t + 1) * n_l],
-                        &mut scratch.mie[t * n_l..(t + 1) * n_l],
+                    scratch.vis[t] = vis;
+                    let d = if vis > 0.0 { at.lookup(mu_s_p) } else { [0.0; CONSTITUENTS] };
+                    (d0[t], d1[t], d2[t]) = (d[0], d[1], d[2]);
+                }
+                for l in 0..n_l {
+                    // [`sun_attenuation`] written out over the suns, its constants hoisted (the
+                    // same operations), so the loop vectorises.
+                    let ext = [
+                        m.extinction_per_m[0][l],
+                        m.extinction_per_m[1][l],
+                        m.extinction_per_m[2][l],
+                    ];
+                    let (w, s_r, s_m) = (
+                        wt[l],
+                        m.rayleigh_scattering_per_m[l],
+                        m.mie_scattering_per_m[l],
                     );
-                    for l in 0..n_l {
-                        let sun = wt[l] * sun_attenuation(m, l, &d_sun, vis);
-                        ray[l] += sun * m.rayleigh_scattering_per_m[l] * rho[RAYLEIGH];
-                        mie[l] += sun * m.mie_scattering_per_m[l] * rho[MIE];
+                    let (rho_r, rho_m) = (rho[RAYLEIGH], rho[MIE]);
+                    let ray = &mut scratch.rayleigh[l * n_t..(l + 1) * n_t];
+                    let mie = &mut scratch.mie[l * n_t..(l + 1) * n_t];
+                    let d = d0.iter().zip(d1.iter()).zip(d2.iter());
+                    for (((ray, mie), &vis), ((&a, &b), &c)) in
+                        ray.iter_mut().zip(mie.iter_mut()).zip(&scratch.vis).zip(d)
+                    {
+                        let od = ext[0] * a + ext[1] * b + ext[2] * c;
+                        let sun = w * (exp_fast(-od) * vis);
+                        // Adding 0 where the sun is hidden leaves the sum as skipping would
+                        // (sums of non-negative terms).
+                        let on = vis > 0.0;
+                        *ray += if on { sun * s_r * rho_r } else { 0.0 };
+                        *mie += if on { sun * s_m * rho_m } else { 0.0 };
                     }
                 }
             }
