@@ -21,8 +21,9 @@ use std::time::Instant;
 
 use rayon::prelude::*;
 use skybake_physics::atmosphere::geometry::horizon_mu;
-use skybake_physics::atmosphere::integrate::{cell_weight, ray_points, sun_attenuation, RayPoint};
+use skybake_physics::atmosphere::integrate::{cell_weight, ray_points, RayPoint};
 use skybake_physics::atmosphere::irradiance::{SUN_PRODUCT_N_MU, SUN_PRODUCT_N_PHI};
+use skybake_physics::atmosphere::kernels::exp_fast;
 use skybake_physics::atmosphere::medium::{Medium, CONSTITUENTS, MIE, RAYLEIGH};
 use skybake_physics::atmosphere::multiple_precise::{
     source_sun_zenith_limit_rad, JSlice, PreciseMultipleScattering,
@@ -224,8 +225,15 @@ pub fn build(
                 for i_nu in 0..SCATTERING_NU {
                     for i_mu_s in 0..SCATTERING_MU_S {
                         let (_, _, mu_s, nu, _) = params.scattering_texel(i_nu, i_mu_s, i_mu, i_r);
-                        let s = scratch.texel(mu_s, nu);
+                        scratch.push_sun(mu_s, nu);
+                    }
+                }
+                scratch.integrate();
+                for i_nu in 0..SCATTERING_NU {
+                    for i_mu_s in 0..SCATTERING_MU_S {
+                        let (_, _, _, nu, _) = params.scattering_texel(i_nu, i_mu_s, i_mu, i_r);
                         let x = i_nu * SCATTERING_MU_S + i_mu_s;
+                        let s = scratch.texel(x);
                         let p_r = param::rayleigh_phase(nu);
                         let mie_ratio = m.mie_phase.eval(nu) / param::mie_phase(g, nu);
                         for (c, &l) in idx.iter().enumerate() {
@@ -444,14 +452,23 @@ pub(crate) fn irradiance_grid(
                     return (j, row);
                 }
                 scratch.prepare(r, mu, steps);
+                let mut nus = Vec::with_capacity(width * n_phi);
                 for i in 0..width {
                     let mu_s = mu_s_of(j, i);
                     let sin_s = (1.0 - mu_s * mu_s).max(0.0).sqrt();
                     for b in 0..n_phi {
                         let phi = std::f64::consts::PI * (b as f64 + 0.5) / n_phi as f64;
                         let nu = (mu * mu_s + sin_t * sin_s * phi.cos()).clamp(-1.0, 1.0);
+                        scratch.push_sun(mu_s, nu);
+                        nus.push(nu);
+                    }
+                }
+                scratch.integrate();
+                for i in 0..width {
+                    for b in 0..n_phi {
+                        let nu = nus[i * n_phi + b];
                         let (p_r, p_m) = (Phase::Rayleigh.eval(nu), m.mie_phase.eval(nu));
-                        let s = scratch.texel(mu_s, nu);
+                        let s = scratch.texel(i * n_phi + b);
                         for (c, &l) in idx.iter().enumerate() {
                             let radiance = s.rayleigh[l] * p_r + s.mie[l] * p_m + s.multiple[l];
                             row[i * n_c + c] += weight * radiance * e0[c];
@@ -475,16 +492,32 @@ pub(crate) fn irradiance_grid(
 /// Per-wavelength integrals of one texel's ray, per unit solar irradiance: single Rayleigh and
 /// single Mie without phase functions (m⁻¹·m), multiple scattering with its phases (sr⁻¹).
 pub(crate) struct TexelSums<'a> {
-    pub(crate) rayleigh: &'a [f64],
-    pub(crate) mie: &'a [f64],
+    pub(crate) rayleigh: Column<'a>,
+    pub(crate) mie: Column<'a>,
     pub(crate) multiple: &'a [f64],
+}
+
+/// One sun's values, indexed by wavelength, in a `[λ][sun]` array.
+pub(crate) struct Column<'a> {
+    data: &'a [f64],
+    n_t: usize,
+    t: usize,
+}
+
+impl std::ops::Index<usize> for Column<'_> {
+    type Output = f64;
+    fn index(&self, l: usize) -> &f64 {
+        &self.data[l * self.n_t + self.t]
+    }
 }
 
 /// What every sun on one ray shares (a ray family of the texture: fixed r and μ): the products'
 /// quadrature points, their densities, each point's cell weight as the products' integrator
 /// weights it ([`cell_weight`]: length × mean transmittance from the ray's origin, `[point][λ]`), the density table at each point's radius
 /// and the multiple-scattering table at each point's (r, μ) ([`JSlice`]). A texel then costs
-/// one sun-zenith/azimuth interpolation per point.
+/// one sun-zenith/azimuth interpolation per point. The suns of a ray are integrated together
+/// ([`Self::integrate`]), point by point: each point's tables are read once for all of them,
+/// and each texel's sums are formed in the same order (the same values) as one at a time.
 pub(crate) struct FamilyScratch<'a> {
     medium: &'a Medium,
     density: &'a DensityIntegralTable,
@@ -496,10 +529,21 @@ pub(crate) struct FamilyScratch<'a> {
     at: Vec<AtRadius<'a>>,
     slices: Vec<JSlice>,
     n_l: usize,
+    /// The suns ([`Self::push_sun`]): zenith cosine and view–sun cosine at the ray's origin.
+    mu_s: Vec<f64>,
+    nu: Vec<f64>,
+    /// `[sun]`: the sun's zenith cosine at the current point.
+    mu_s_p: Vec<f64>,
+    /// `[sun]`: the visible fraction of the sun's disk at the current point and the density
+    /// integrals to the sun from there (`[constituent][sun]`).
+    vis: Vec<f64>,
+    d_sun: [Vec<f64>; CONSTITUENTS],
+    /// `[sun][λ]`: J_ms at the current point; the multiple-scattering sums of [`TexelSums`].
     j: Vec<f64>,
+    multiple: Vec<f64>,
+    /// `[λ][sun]`: the single-scattering sums of [`TexelSums`].
     rayleigh: Vec<f64>,
     mie: Vec<f64>,
-    multiple: Vec<f64>,
 }
 
 impl<'a> FamilyScratch<'a> {
@@ -515,17 +559,24 @@ impl<'a> FamilyScratch<'a> {
             at: Vec::new(),
             slices: Vec::new(),
             n_l,
-            j: vec![0.0; n_l],
-            rayleigh: vec![0.0; n_l],
-            mie: vec![0.0; n_l],
-            multiple: vec![0.0; n_l],
+            mu_s: Vec::new(),
+            nu: Vec::new(),
+            mu_s_p: Vec::new(),
+            vis: Vec::new(),
+            d_sun: std::array::from_fn(|_| Vec::new()),
+            j: Vec::new(),
+            rayleigh: Vec::new(),
+            mie: Vec::new(),
+            multiple: Vec::new(),
         }
     }
 
-    /// The ray from radius `r` with zenith cosine `mu`, `steps` samples per segment.
+    /// The ray from radius `r` with zenith cosine `mu`, `steps` samples per segment; no suns yet.
     pub(crate) fn prepare(&mut self, r: f64, mu: f64, steps: usize) {
         let m = self.medium;
         self.r = r;
+        self.mu_s.clear();
+        self.nu.clear();
         ray_points(m, r, mu, steps, &mut self.points);
         self.rho.clear();
         self.weighted_t.clear();
@@ -548,47 +599,121 @@ impl<'a> FamilyScratch<'a> {
         }
     }
 
-    /// The integrals of the prepared ray for the sun at (μs, ν) at its origin.
-    pub(crate) fn texel(&mut self, mu_s: f64, nu: f64) -> TexelSums<'_> {
-        texel_sums(self, mu_s, nu);
+    /// Adds a sun at (μs, ν) at the ray's origin: texel [`Self::texel`]`(n)` of the next
+    /// [`Self::integrate`], n counting from 0 since [`Self::prepare`].
+    pub(crate) fn push_sun(&mut self, mu_s: f64, nu: f64) {
+        self.mu_s.push(mu_s);
+        self.nu.push(nu);
+    }
+
+    /// Integrates the prepared ray for every sun pushed.
+    pub(crate) fn integrate(&mut self) {
+        let n = self.mu_s.len() * self.n_l;
+        for v in [&mut self.rayleigh, &mut self.mie, &mut self.multiple] {
+            v.clear();
+            v.resize(n, 0.0);
+        }
+        self.j.resize(n, 0.0);
+        let n_t = self.mu_s.len();
+        for v in [&mut self.mu_s_p, &mut self.vis]
+            .into_iter()
+            .chain(&mut self.d_sun)
+        {
+            v.resize(n_t, 0.0);
+        }
+        texel_sums(self);
+    }
+
+    /// The integrals of sun `t` (in the order pushed) of the last [`Self::integrate`].
+    pub(crate) fn texel(&self, t: usize) -> TexelSums<'_> {
+        let n_t = self.mu_s.len();
         TexelSums {
-            rayleigh: &self.rayleigh,
-            mie: &self.mie,
-            multiple: &self.multiple,
+            rayleigh: Column {
+                data: &self.rayleigh,
+                n_t,
+                t,
+            },
+            mie: Column {
+                data: &self.mie,
+                n_t,
+                t,
+            },
+            multiple: &self.multiple[t * self.n_l..(t + 1) * self.n_l],
         }
     }
 }
 
 skybake_physics::simd_dispatch! {
-    /// [`FamilyScratch::texel`]'s sums, compiled for AVX2 like the products' kernels (its loops
-    /// over wavelengths vectorise; Rust forms no fused multiply-adds, so the values are the
-    /// baseline build's).
-    fn texel_sums(scratch: &mut FamilyScratch<'_>, mu_s: f64, nu: f64) {
+    /// [`FamilyScratch::integrate`]'s sums, point by point for all suns (each texel's sums over
+    /// the points in the ray's order), compiled for AVX2 like the products' kernels (its loops
+    /// over suns and wavelengths vectorise; Rust forms no fused multiply-adds, so the values are
+    /// the baseline build's).
+    fn texel_sums(scratch: &mut FamilyScratch<'_>) {
             let m = scratch.medium;
-            scratch.rayleigh.fill(0.0);
-            scratch.mie.fill(0.0);
-            scratch.multiple.fill(0.0);
             let n_l = scratch.n_l;
+            let r = scratch.r;
+            let n_t = scratch.mu_s.len();
             for (k, p) in scratch.points.iter().enumerate() {
-                let mu_s_p = ((scratch.r * mu_s + p.t * nu) / p.r).clamp(-1.0, 1.0);
+                for ((o, &mu_s), &nu) in scratch.mu_s_p.iter_mut().zip(&scratch.mu_s).zip(&scratch.nu) {
+                    *o = ((r * mu_s + p.t * nu) / p.r).clamp(-1.0, 1.0);
+                }
                 let wt = &scratch.weighted_t[k * n_l..(k + 1) * n_l];
                 scratch.j.fill(0.0);
-                scratch.precise
-                    .add_from_slice(&scratch.slices[k], mu_s_p, nu, &mut scratch.j);
-                for l in 0..n_l {
-                    scratch.multiple[l] += wt[l] * scratch.j[l];
+                scratch.precise.add_from_slice_many(
+                    &scratch.slices[k],
+                    &scratch.mu_s_p,
+                    &scratch.nu,
+                    &mut scratch.j,
+                );
+                for (ms, j) in scratch
+                    .multiple
+                    .chunks_exact_mut(n_l)
+                    .zip(scratch.j.chunks_exact(n_l))
+                {
+                    for l in 0..n_l {
+                        ms[l] += wt[l] * j[l];
+                    }
                 }
                 let at = &scratch.at[k];
-                let vis = at.sun_visibility(mu_s_p);
-                if vis <= 0.0 {
-                    continue;
-                }
-                let d_sun = at.lookup(mu_s_p);
                 let rho = &scratch.rho[k];
+                // The sun's visibility and density integrals, then each wavelength's single
+                // scattering a vector of suns at a time (none where the sun is hidden).
+                let [d0, d1, d2] = &mut scratch.d_sun;
+                for t in 0..n_t {
+                    let mu_s_p = scratch.mu_s_p[t];
+                    let vis = at.sun_visibility(mu_s_p);
+                    scratch.vis[t] = vis;
+                    let d = if vis > 0.0 { at.lookup(mu_s_p) } else { [0.0; CONSTITUENTS] };
+                    (d0[t], d1[t], d2[t]) = (d[0], d[1], d[2]);
+                }
                 for l in 0..n_l {
-                    let sun = wt[l] * sun_attenuation(m, l, &d_sun, vis);
-                    scratch.rayleigh[l] += sun * m.rayleigh_scattering_per_m[l] * rho[RAYLEIGH];
-                    scratch.mie[l] += sun * m.mie_scattering_per_m[l] * rho[MIE];
+                    // [`sun_attenuation`] written out over the suns, its constants hoisted (the
+                    // same operations), so the loop vectorises.
+                    let ext = [
+                        m.extinction_per_m[0][l],
+                        m.extinction_per_m[1][l],
+                        m.extinction_per_m[2][l],
+                    ];
+                    let (w, s_r, s_m) = (
+                        wt[l],
+                        m.rayleigh_scattering_per_m[l],
+                        m.mie_scattering_per_m[l],
+                    );
+                    let (rho_r, rho_m) = (rho[RAYLEIGH], rho[MIE]);
+                    let ray = &mut scratch.rayleigh[l * n_t..(l + 1) * n_t];
+                    let mie = &mut scratch.mie[l * n_t..(l + 1) * n_t];
+                    let d = d0.iter().zip(d1.iter()).zip(d2.iter());
+                    for (((ray, mie), &vis), ((&a, &b), &c)) in
+                        ray.iter_mut().zip(mie.iter_mut()).zip(&scratch.vis).zip(d)
+                    {
+                        let od = ext[0] * a + ext[1] * b + ext[2] * c;
+                        let sun = w * (exp_fast(-od) * vis);
+                        // Adding 0 where the sun is hidden leaves the sum as skipping would
+                        // (sums of non-negative terms).
+                        let on = vis > 0.0;
+                        *ray += if on { sun * s_r * rho_r } else { 0.0 };
+                        *mie += if on { sun * s_m * rho_m } else { 0.0 };
+                    }
                 }
             }
     }

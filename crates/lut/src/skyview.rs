@@ -307,14 +307,23 @@ pub fn build_skyview(
                 let sin_t = (1.0 - mu * mu).max(0.0).sqrt();
                 let d = ray_length(r, mu, bottom, bottom + thickness, ground);
                 scratch.prepare(r, mu, steps);
+                let mut nus = [0.0; N_SUN * N_AZ];
                 for j in 0..N_SUN {
                     let mu_s = sun_mu(k, j);
                     let sin_s = (1.0 - mu_s * mu_s).max(0.0).sqrt();
                     for a in 0..N_AZ {
                         let nu =
                             (mu * mu_s + sin_t * sin_s * azimuth_node(a).cos()).clamp(-1.0, 1.0);
+                        scratch.push_sun(mu_s, nu);
+                        nus[j * N_AZ + a] = nu;
+                    }
+                }
+                scratch.integrate();
+                for j in 0..N_SUN {
+                    for a in 0..N_AZ {
+                        let nu = nus[j * N_AZ + a];
                         let p_r = param::rayleigh_phase(nu);
-                        let s = scratch.texel(mu_s, nu);
+                        let s = scratch.texel(j * N_AZ + a);
                         let o = (j * N_AZ + a) * n_c;
                         for (c, &l) in idx.iter().enumerate() {
                             s_out[o + c] = (s.rayleigh[l] + s.multiple[l] / p_r) * e0[c] / d;
