@@ -511,8 +511,10 @@ impl<'a> Prepared<'a> {
                     a = -(-kt[l] * rho * dt).exp_m1();
                     a_ms = -(-ks[l] * rho * dt).exp_m1();
                     (sun_t, sun_peak) = if sun_on {
+                        // The sun's transmittance at the step's start, shared by both parts.
+                        let e_tau0 = (-(ks[l] * d0)).exp();
                         let (weight, d_eff) =
-                            sun_step(ks[l] * rho, ks[l] * (d1 - d0), dt, ks[l] * d0);
+                            sun_step_with(ks[l] * rho, ks[l] * (d1 - d0), dt, ks[l] * d0, e_tau0);
                         match (&self.lit.peak, rows[l]) {
                             (Some(p), Some(row)) => {
                                 // The spread beam's two parts (see the doc comment above): the
@@ -524,8 +526,13 @@ impl<'a> Prepared<'a> {
                                     self.lit.peak_rate[l] * kt[l] * (d0 + (d1 - d0) * d_eff),
                                 );
                                 let peak_t = if peak > 0.0 {
-                                    let (w_true, _) =
-                                        sun_step(kt[l] * rho, ks[l] * (d1 - d0), dt, ks[l] * d0);
+                                    let w_true = sun_step_weight(
+                                        kt[l] * rho,
+                                        ks[l] * (d1 - d0),
+                                        dt,
+                                        ks[l] * d0,
+                                        e_tau0,
+                                    );
                                     w_true * peak * self.lit.ms_extinction_scale[l]
                                 } else {
                                     0.0
@@ -963,18 +970,18 @@ impl<'a> Prepared<'a> {
 /// weight (where the scattering happens, for the peak spread's depth).
 #[inline]
 pub fn sun_step(a: f64, b_total: f64, dt: f64, tau0: f64) -> (f64, f64) {
+    sun_step_with(a, b_total, dt, tau0, (-tau0).exp())
+}
+
+/// [`sun_step`] given `e_tau0` = e^{−τ₀} (`(-tau0).exp()`, computed once for steps that share
+/// τ₀).
+#[inline]
+pub fn sun_step_with(a: f64, b_total: f64, dt: f64, tau0: f64, e_tau0: f64) -> (f64, f64) {
     let x = a * dt + b_total;
+    let weight = sun_step_weight(a, b_total, dt, tau0, e_tau0);
     if x.abs() < 1e-6 {
-        return ((-tau0).exp() * a * dt * (1.0 - 0.5 * x), 0.5 - x / 12.0);
+        return (weight, 0.5 - x / 12.0);
     }
-    // e^{−τ₀}·(1 − e^{−x})/x, written so neither factor overflows (τ₀ + x ≥ 0).
-    let weight = a
-        * dt
-        * if x > 0.0 {
-            (-tau0).exp() * (-(-x).exp_m1()) / x
-        } else {
-            (-tau0 - x).exp() * x.exp_m1() / x
-        };
     // Mean of u/Δ under e^{−x u/Δ} on [0, 1]: 1/x − 1/(e^x − 1).
     let mean = if x > 700.0 {
         1.0 / x
@@ -982,4 +989,20 @@ pub fn sun_step(a: f64, b_total: f64, dt: f64, tau0: f64) -> (f64, f64) {
         1.0 / x - 1.0 / x.exp_m1()
     };
     (weight, mean.clamp(0.0, 1.0))
+}
+
+/// [`sun_step_with`]'s weight alone (without the mean depth, one exponential fewer).
+#[inline]
+pub fn sun_step_weight(a: f64, b_total: f64, dt: f64, tau0: f64, e_tau0: f64) -> f64 {
+    let x = a * dt + b_total;
+    if x.abs() < 1e-6 {
+        return e_tau0 * a * dt * (1.0 - 0.5 * x);
+    }
+    // e^{−τ₀}·(1 − e^{−x})/x, written so neither factor overflows (τ₀ + x ≥ 0).
+    a * dt
+        * if x > 0.0 {
+            e_tau0 * (-(-x).exp_m1()) / x
+        } else {
+            (-tau0 - x).exp() * x.exp_m1() / x
+        }
 }

@@ -813,6 +813,16 @@ fn fly(
         };
         let t_exit = t_next[a].min(t1);
         let c = ((cell[2] as usize * g.dims[1]) + cell[1] as usize) * g.dims[0] + cell[0] as usize;
+        if ph.scattered {
+            // The next cell's accumulators are fetched while this cell's are summed (the
+            // accumulators of a lane are larger than the caches; a hint, no change in value).
+            let next = cell[a] + step[a];
+            if next >= 0 && next < g.dims[a] as i64 {
+                let stride = [1, g.dims[0], g.dims[0] * g.dims[1]][a] as i64;
+                let cn = (c as i64 + step[a] * stride) as usize;
+                prefetch(&acc[cn * ng * ylm.len()..(cn + 1) * ng * ylm.len()]);
+            }
+        }
         let sigma = k * g.rho[c] as f64;
         let len = (t_exit - t).max(0.0);
         let (used, hit) = if sigma * len >= tau && sigma > 0.0 {
@@ -846,6 +856,29 @@ fn fly(
         }
         t_next[a] += t_delta[a];
     }
+}
+
+/// Asks the processor to bring `block` into its caches (a hint: no effect on any value).
+#[inline(always)]
+fn prefetch(block: &[f64]) {
+    #[cfg(target_arch = "x86_64")]
+    {
+        use std::arch::x86_64::{_mm_prefetch, _MM_HINT_T0};
+        let p = block.as_ptr() as *const i8;
+        let bytes = std::mem::size_of_val(block);
+        let mut off = 0;
+        while off < bytes {
+            // SAFETY: a prefetch reads nothing and cannot fault; the addresses lie in `block`.
+            unsafe { _mm_prefetch::<_MM_HINT_T0>(p.add(off)) };
+            off += 64;
+        }
+        if bytes > 0 {
+            // SAFETY: as above (the block's last byte).
+            unsafe { _mm_prefetch::<_MM_HINT_T0>(p.add(bytes - 1)) };
+        }
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    let _ = block;
 }
 
 #[cfg(test)]

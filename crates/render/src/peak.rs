@@ -27,6 +27,7 @@ use crate::multiple::Truncation;
 use rayon::prelude::*;
 use skybake_physics::phase::Phase;
 use std::f64::consts::PI;
+use std::sync::{Arc, Mutex};
 
 /// Scattering angles of the table: 0 to 180° in 0.5° steps.
 pub const N_THETA: usize = 361;
@@ -43,8 +44,47 @@ const N_QUAD: usize = 8192;
 /// peak's share of them (see [`PeakSpread::ratios`]).
 pub struct PeakSpread {
     table_of: Vec<usize>,
-    tables: Vec<Vec<f32>>,
-    peak_tables: Vec<Vec<f32>>,
+    tables: Vec<Arc<Tables>>,
+}
+
+/// One phase function's and truncation's p_eff/p table and its peak part (see [`table`]).
+type Tables = (Vec<f32>, Vec<f32>);
+
+/// The tables computed so far in this process, by the bits of what [`table`] reads (the phase
+/// function, f, g* and ω): a frame rendered again (another camera, a warm service) finds its
+/// table here instead of summing the Legendre series again (30 ms of CPU per frame). The most
+/// recent [`MEMO_ENTRIES`] are kept (280 kB each).
+static MEMO: Mutex<Vec<(MemoKey, Arc<Tables>)>> = Mutex::new(Vec::new());
+const MEMO_ENTRIES: usize = 8;
+type MemoKey = (Phase, [u64; 3]);
+
+/// [`table`] of `phase` and `t`, from [`MEMO`] when it was computed before (the same values).
+fn memo_table(phase: &Phase, t: &Truncation) -> Arc<Tables> {
+    let key: MemoKey = (
+        *phase,
+        [
+            t.fraction.to_bits(),
+            t.g_scaled.to_bits(),
+            t.albedo.to_bits(),
+        ],
+    );
+    let cached = MEMO
+        .lock()
+        .ok()
+        .and_then(|m| m.iter().find(|(k, _)| *k == key).map(|(_, v)| v.clone()));
+    if let Some(v) = cached {
+        return v;
+    }
+    let v = Arc::new(table(phase, t));
+    if let Ok(mut m) = MEMO.lock() {
+        if !m.iter().any(|(k, _)| *k == key) {
+            if m.len() >= MEMO_ENTRIES {
+                m.remove(0);
+            }
+            m.push((key, v.clone()));
+        }
+    }
+    v
 }
 
 /// A ray's row of the table for one wavelength: the angle's two rows and the weight of the second.
@@ -64,7 +104,6 @@ impl PeakSpread {
         }
         let mut keys: Vec<(Phase, u64, u64)> = Vec::new();
         let mut tables = Vec::new();
-        let mut peak_tables = Vec::new();
         let mut table_of = Vec::with_capacity(phases.len());
         for (p, t) in phases.iter().zip(truncation) {
             let key = (*p, t.fraction.to_bits(), t.albedo.to_bits());
@@ -72,32 +111,26 @@ impl PeakSpread {
                 Some(i) => i,
                 None => {
                     keys.push(key);
-                    let (full, peak) = table(p, t);
-                    tables.push(full);
-                    peak_tables.push(peak);
+                    tables.push(memo_table(p, t));
                     tables.len() - 1
                 }
             };
             table_of.push(i);
         }
-        Some(Self {
-            table_of,
-            tables,
-            peak_tables,
-        })
+        Some(Self { table_of, tables })
     }
 
     /// Wavelength `l`'s table of p_eff/p, `[θ][λ]`: [`N_THETA`] scattering angles 0 to 180° in
     /// 0.5° steps by [`N_LAMBDA`] values of λ = ωfτ from 0 to [`LAMBDA_MAX`] (what
     /// [`Self::ratio`] interpolates bilinearly, λ held beyond the last).
     pub fn table(&self, l: usize) -> &[f32] {
-        &self.tables[self.table_of[l]]
+        &self.tables[self.table_of[l]].0
     }
 
     /// Wavelength `l`'s table of the part of p_eff/p scattered last within the truncated
     /// peak, r⁺_eff/p (laid out as [`Self::table`]).
     pub fn peak_table(&self, l: usize) -> &[f32] {
-        &self.peak_tables[self.table_of[l]]
+        &self.tables[self.table_of[l]].1
     }
 
     /// The row for wavelength `l` and the cosine of the scattering angle (sun direction · ray).
@@ -114,7 +147,8 @@ impl PeakSpread {
     /// p_eff/p for the row at λ = ωfτ.
     #[inline]
     pub fn ratio(&self, row: PeakRow, lambda: f64) -> f64 {
-        lookup(&self.tables[row.table], row, lambda)
+        let (at, v) = cell(row, lambda);
+        lookup_at(&self.tables[row.table].0, at, v, row.w1)
     }
 
     /// p_eff/p for the row at λ = ωfτ split into the part scattered last by the smooth
@@ -122,22 +156,31 @@ impl PeakSpread {
     /// [`Self::ratio`]): (smooth, peak).
     #[inline]
     pub fn ratios(&self, row: PeakRow, lambda: f64) -> (f64, f64) {
-        let full = lookup(&self.tables[row.table], row, lambda);
-        let peak = lookup(&self.peak_tables[row.table], row, lambda);
+        // Both tables at the same cell (its place and weights found once).
+        let (at, v) = cell(row, lambda);
+        let tables = &self.tables[row.table];
+        let full = lookup_at(&tables.0, at, v, row.w1);
+        let peak = lookup_at(&tables.1, at, v, row.w1);
         (full - peak, peak)
     }
 }
 
-/// Bilinear look-up of a `[θ][λ]` table.
-#[inline]
-fn lookup(t: &[f32], row: PeakRow, lambda: f64) -> f64 {
+/// The offset of the table cell of the row's first angle at λ = `lambda` and the weight of
+/// its second λ (λ held beyond the last).
+#[inline(always)]
+fn cell(row: PeakRow, lambda: f64) -> (usize, f64) {
     let y = (lambda.max(0.0) / LAMBDA_MAX * (N_LAMBDA - 1) as f64).min((N_LAMBDA - 1) as f64);
     let j0 = (super::volume::floor(y) as usize).min(N_LAMBDA - 2);
-    let v = y - j0 as f64;
-    let at = |i: usize, j: usize| t[i * N_LAMBDA + j] as f64;
-    let a = at(row.i0, j0) * (1.0 - v) + at(row.i0, j0 + 1) * v;
-    let b = at(row.i0 + 1, j0) * (1.0 - v) + at(row.i0 + 1, j0 + 1) * v;
-    a * (1.0 - row.w1) + b * row.w1
+    (row.i0 * N_LAMBDA + j0, y - j0 as f64)
+}
+
+/// Bilinear look-up of a `[θ][λ]` table at a [`cell`] and the angle weight `w1`.
+#[inline(always)]
+fn lookup_at(t: &[f32], at: usize, v: f64, w1: f64) -> f64 {
+    let c = &t[at..at + N_LAMBDA + 2];
+    let a = c[0] as f64 * (1.0 - v) + c[1] as f64 * v;
+    let b = c[N_LAMBDA] as f64 * (1.0 - v) + c[N_LAMBDA + 1] as f64 * v;
+    a * (1.0 - w1) + b * w1
 }
 
 /// Legendre polynomials P_0..P_{L_MAX} at `mu` into `out` (Bonnet's recurrence).
@@ -223,6 +266,34 @@ fn table(phase: &Phase, t: &Truncation) -> (Vec<f32>, Vec<f32>) {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// A table found in the memo is the one computed afresh, bit for bit, and a different
+    /// truncation gets its own.
+    #[test]
+    fn memoised_tables_are_the_computed_ones() {
+        let phase = Phase::HenyeyGreenstein { g: 0.8 };
+        let t = Truncation::new(0.8, 0.99, 3.5);
+        let first = PeakSpread::new(&[phase], &[t]).unwrap();
+        let again = PeakSpread::new(&[phase, phase], &[t, t]).unwrap();
+        let (full, peak) = table(&phase, &t);
+        for s in [&first, &again] {
+            assert!(s
+                .table(0)
+                .iter()
+                .zip(&full)
+                .all(|(a, b)| a.to_bits() == b.to_bits()));
+            assert!(s
+                .peak_table(0)
+                .iter()
+                .zip(&peak)
+                .all(|(a, b)| a.to_bits() == b.to_bits()));
+        }
+        let other = Truncation::new(0.8, 0.99, 2.0);
+        let s = PeakSpread::new(&[phase], &[other]).unwrap();
+        let (full_other, _) = table(&phase, &other);
+        assert!(s.table(0).iter().zip(&full_other).all(|(a, b)| a == b));
+        assert!(full_other.iter().zip(&full).any(|(a, b)| a != b));
+    }
 
     /// The table is 1 without peak scatterings, and the spread beam conserves energy: the ratio
     /// weighted by p over the sphere integrates to 1 at every λ (the l = 0 moment does not decay).
