@@ -9,7 +9,8 @@
 //! of smooth scatterings (n ≤ 1: what the first-order terms stand for, n ≥ 2: the field).
 //!
 //! cargo run --release -p skybake-harness --features probes --example sky_probe -- CASE [CLASSED_SPP]
-//! Knobs (env): ENV_PHOTONS, SUN_PHOTONS, COARSE (the field's cells per axis), SEED, TPOW
+//! Knobs (env): ENV_PHOTONS, SUN_PHOTONS, COARSE (the field's cells per axis), SEED, SEEDS=n (the
+//! frame's error over n photon seeds, then stop), AORDER (the field's angular order), TPOW
 //! (truncation power), EXACT=spp (the fast exact first order, no multiple scattering, against the
 //! path tracer's order 1), MAP=1 (print the 8×8 block ratio map fast / Mitsuba).
 use rayon::prelude::*;
@@ -75,7 +76,10 @@ fn report(name: &str, test: &[f32], reference: &[f32], mask: &[bool], tau: &[f32
                 sr += reference[i] as f64;
             }
         }
-        bands += &format!(" rows[{lo},{hi}) {:+6.1}%", 100.0 * (sf / sr.max(1e-30) - 1.0));
+        bands += &format!(
+            " rows[{lo},{hi}) {:+6.1}%",
+            100.0 * (sf / sr.max(1e-30) - 1.0)
+        );
     }
     println!(
         "{name:30} blocks {:5.1}% bias {:+6.1}% |{bands}",
@@ -160,6 +164,9 @@ fn main() -> skybake_physics::Result<()> {
     if let Some(v) = env_f("SEED") {
         s.photons.seed = v as u64;
     }
+    if let Some(v) = env_f("AORDER") {
+        s.photons.angular_order = v as usize;
+    }
     if let Some(v) = env_f("TPOW") {
         s.photons.truncation_power = v;
     }
@@ -170,7 +177,8 @@ fn main() -> skybake_physics::Result<()> {
         for k in 0..n as u64 {
             let mut sk = s;
             sk.photons.seed = s.photons.seed.wrapping_add(k * 7919);
-            let f = skybake_render::render_frame(&scene, &grid, &lt, &sk, None, &|_| {}, &|| false)?;
+            let f =
+                skybake_render::render_frame(&scene, &grid, &lt, &sk, None, &|_| {}, &|| false)?;
             let e = skybake_render::compare::image_errors(&f.radiance, &reference, &mask, 160, 1);
             line += &format!(" {:.1}/{:+.1}", 100.0 * e.nrmse_blocks, 100.0 * e.mean_bias);
             sb += e.nrmse_blocks;
@@ -436,14 +444,38 @@ fn classes(
         share(&part(&[4]), mask, norm),
         share(&part(&[5]), mask, norm),
     );
-    report("classed PT + fast bg vs Mitsuba", &total, reference, mask, tau);
+    report(
+        "classed PT + fast bg vs Mitsuba",
+        &total,
+        reference,
+        mask,
+        tau,
+    );
     // The fast first orders: the sky elements, the view cap and the sun's single scattering.
     let first: Vec<f32> = sky1.iter().zip(sun_ss).map(|(a, b)| a + b).collect();
-    report("fast 1st orders vs PT n≤1", &first, &part(&[0, 1, 3, 4]), mask, tau);
+    report(
+        "fast 1st orders vs PT n≤1",
+        &first,
+        &part(&[0, 1, 3, 4]),
+        mask,
+        tau,
+    );
     if sky_on && sun_on {
-        report("fast sun SS+cap vs PT sun n≤1", sun_ss, &part(&[3, 4]), mask, tau);
+        report(
+            "fast sun SS+cap vs PT sun n≤1",
+            sun_ss,
+            &part(&[3, 4]),
+            mask,
+            tau,
+        );
     }
-    report("fast J* vs PT n≥2 (sky+sun)", field, &part(&[2, 5]), mask, tau);
+    report(
+        "fast J* vs PT n≥2 (sky+sun)",
+        field,
+        &part(&[2, 5]),
+        mask,
+        tau,
+    );
     if env_f("MAP").is_some() {
         println!("field J* / PT n≥2 block map:");
         block_map(field, &part(&[2, 5]), mask);
