@@ -115,7 +115,7 @@ fn marcher_reproduces_the_fast_frame_in_vacuum() {
         assert!(e.nrmse_blocks <= 0.03, "{name}: {e:?}");
         assert!(e.nrmse_pixels <= 0.03, "{name}: {e:?}");
         assert!(e.mean_bias.abs() <= 0.02, "{name}: {e:?}");
-        assert!(cl.ms_order == Some(2) && cl.sky.is_some() && cl.peak.is_some());
+        assert!(cl.ms_order == Some(3) && cl.sky.is_some() && cl.peak.is_some());
     }
     // The comparison sees each exported term: without the multiple-scattering moments, without
     // the peak spread, or without the peak's part seen through the true extinction, the marcher
@@ -213,7 +213,7 @@ fn decode(files: &[(String, Vec<u8>)]) -> Result<CloudLight, skybake_physics::Er
 fn bad_exports_are_refused_with_the_field() {
     let files = small_export();
     let cl = decode(&files).unwrap();
-    assert_eq!(cl.ms_order, Some(2));
+    assert_eq!(cl.ms_order, Some(3));
     let manifest: Value =
         serde_json::from_slice(&files.iter().find(|(n, _)| n == MANIFEST_FILE).unwrap().1).unwrap();
     // Every file the manifest lists is there with its size.

@@ -207,7 +207,21 @@ impl MsField {
                 lighting.sun_dir.is_finite() && sun_w.iter().any(|&w| w > 0.0) && s.sun_photons > 0;
             let n_sun = if sun_on { s.sun_photons } else { 0 };
             let n_env = s.env_photons;
+            // The share of environment photons entering from the upper hemisphere (sky), in
+            // proportion to the hemispheres' power (`hemisphere_power`): a hemisphere without
+            // light gets no photons instead of half of them scoring nothing.
+            let (p_up, p_down) = hemisphere_power(lighting, &group);
+            let q_up = if p_up + p_down > 0.0 {
+                p_up / (p_up + p_down)
+            } else {
+                0.5
+            };
             let total = n_sun + n_env;
+            // Random shift of the launch sequence (Cranley & Patterson 1976), from the seed.
+            let shift: [f64; 4] = {
+                let mut r = Pcg64::seed_from_u64(s.seed ^ 0x1A_u64.wrapping_mul(l0 as u64 + 1));
+                [r.random(), r.random(), r.random(), r.random()]
+            };
             let chunk = 4096;
             let chunks = total.div_ceil(chunk);
             let lane_len = cells * group.len() * moments;
@@ -234,28 +248,45 @@ impl MsField {
                                 ^ (l0 as u64) << 56,
                         );
                         for i in ci * chunk..((ci + 1) * chunk).min(total) {
-                            let dir_in = if i < n_sun {
+                            // The environment photons' launch (direction, place on the disc)
+                            // from a low-discrepancy sequence, randomly shifted: every photon
+                            // stays an unbiased sample, and the photons cover the sky's
+                            // directions and the disc evenly instead of clumping (see
+                            // `launch_point`).
+                            let (u, dir_in) = if i < n_sun {
                                 for (x, sw) in w.iter_mut().zip(&sun_w) {
                                     *x = sw / n_sun as f64;
                                 }
-                                -lighting.sun_dir
+                                // The disc's place pseudo-random (a low-discrepancy place
+                                // on the disc measured no better for the sun's photons).
+                                ([0.0, 0.0, rng.random(), rng.random()], -lighting.sun_dir)
                             } else {
-                                // Uniform over the sphere of incoming directions.
-                                let d = uniform_sphere(rng.random(), rng.random());
+                                // Uniform within the hemisphere drawn with probability q_up
+                                // (upper) or 1 − q_up (lower), the weight divided by that
+                                // density: unbiased wherever the environment gives light.
+                                let u = launch_point(i - n_sun, &shift);
+                                let (z, q) = if u[0] < q_up {
+                                    (u[0] / q_up, q_up)
+                                } else {
+                                    (-(u[0] - q_up) / (1.0 - q_up), 1.0 - q_up)
+                                };
+                                let r = (1.0 - z * z).max(0.0).sqrt();
+                                let phi = 2.0 * PI * u[1];
+                                let d = DVec3::new(r * phi.cos(), r * phi.sin(), z);
                                 lighting.env(d, &mut env);
-                                let f = 4.0 * PI * disc_area / n_env as f64;
+                                let f = 2.0 * PI * disc_area / (q * n_env as f64);
                                 for (x, &l) in w.iter_mut().zip(group.iter()) {
                                     *x = env[l] * f;
                                 }
-                                -d
+                                (u, -d)
                             };
                             if w.iter().all(|&x| x <= 0.0) {
                                 continue;
                             }
                             // Start on the disc perpendicular to the direction, outside the box.
                             let (t, b) = orthonormal_basis(dir_in);
-                            let r = radius * rng.random::<f64>().sqrt();
-                            let phi = 2.0 * PI * rng.random::<f64>();
+                            let r = radius * u[2].sqrt();
+                            let phi = 2.0 * PI * u[3];
                             let start = centre + (t * phi.cos() + b * phi.sin()) * r
                                 - dir_in * (2.0 * radius);
                             let mut ph = Photon {
@@ -755,11 +786,52 @@ impl Truncation {
     }
 }
 
+/// A direction uniform over the unit sphere from two uniform numbers (z uniform in [−1, 1]).
 fn uniform_sphere(u1: f64, u2: f64) -> DVec3 {
     let z = 1.0 - 2.0 * u1;
     let r = (1.0 - z * z).max(0.0).sqrt();
     let phi = 2.0 * PI * u2;
     DVec3::new(r * phi.cos(), r * phi.sin(), z)
+}
+
+/// Point `i` of the launch sequence in [0, 1)⁴: the Halton sequence (radical inverses of `i` in
+/// bases 2, 3, 5, 7; Halton 1960), whose low-dimensional projections are evenly spread,
+/// shifted by `shift` mod 1 (Cranley & Patterson 1976: with a uniform random shift each point
+/// is uniform, so every estimate stays unbiased). Used for the photons' launch only; their
+/// walks stay pseudo-random.
+fn launch_point(i: usize, shift: &[f64; 4]) -> [f64; 4] {
+    let mut u = [0.0; 4];
+    for (j, base) in [2usize, 3, 5, 7].into_iter().enumerate() {
+        let (mut n, mut f, mut r) = (i, 1.0, 0.0);
+        while n > 0 {
+            f /= base as f64;
+            r += f * (n % base) as f64;
+            n /= base;
+        }
+        let x = shift[j] + r;
+        u[j] = x - x.floor();
+    }
+    u
+}
+
+/// Mean radiance summed over the wavelengths of `group`, over the upper and the lower
+/// hemisphere of the environment (sky and ground light), by a Fibonacci quadrature of 2048
+/// directions: the environment photons' split between the hemispheres.
+fn hemisphere_power(lighting: &Lighting, group: &[usize]) -> (f64, f64) {
+    let n = 2048;
+    let mut rad = vec![0.0; lighting.wavelengths_nm.len()];
+    let (mut up, mut down) = (0.0, 0.0);
+    for i in 0..n {
+        let d = super::light::fibonacci(i, n);
+        lighting.env(d, &mut rad);
+        let s: f64 = group.iter().map(|&l| rad[l].max(0.0)).sum();
+        if d.z >= 0.0 {
+            up += s;
+        } else {
+            down += s;
+        }
+    }
+    (up, down)
 }
 
 /// Moves the photon through the coarse grid until optical depth `tau` is used up (a collision:

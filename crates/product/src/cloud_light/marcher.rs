@@ -30,8 +30,9 @@ pub struct Marcher<'a> {
     hi: DVec3,
 }
 
-/// Real orthonormal spherical harmonics up to l = 2 in the manifest's order (Sloan 2008,
-/// appendix A2); higher orders are not needed by exports of angular order ≤ 2.
+/// Real orthonormal spherical harmonics up to l = 3 in the manifest's order (Sloan 2008,
+/// appendix A2, in its Cartesian forms with x² + y² + z² kept); higher orders are not needed by
+/// exports of angular order ≤ 3 (the δ-M scaled moments vanish from l = 4 on).
 fn sh(d: DVec3, out: &mut [f64; 25]) {
     let (x, y, z) = (d.x, d.y, d.z);
     out[0] = 0.282_094_791_773_878_14;
@@ -43,16 +44,24 @@ fn sh(d: DVec3, out: &mut [f64; 25]) {
     out[6] = 0.315_391_565_252_520_05 * (3.0 * z * z - 1.0);
     out[7] = 1.092_548_430_592_079_2 * x * z;
     out[8] = 0.546_274_215_296_039_6 * (x * x - y * y);
+    let (x2, y2, z2) = (x * x, y * y, z * z);
+    out[9] = 0.590_043_589_926_643_5 * y * (3.0 * x2 - y2);
+    out[10] = 2.890_611_442_640_554 * x * y * z;
+    out[11] = 0.457_045_799_464_465_8 * y * (4.0 * z2 - x2 - y2);
+    out[12] = 0.373_176_332_590_115_4 * z * (2.0 * z2 - 3.0 * x2 - 3.0 * y2);
+    out[13] = 0.457_045_799_464_465_8 * x * (4.0 * z2 - x2 - y2);
+    out[14] = 1.445_305_721_320_277 * z * (x2 - y2);
+    out[15] = 0.590_043_589_926_643_5 * x * (x2 - 3.0 * y2);
 }
 
 impl<'a> Marcher<'a> {
     /// Refuses an export whose multiple-scattering order this marcher does not evaluate.
     pub fn new(cl: &'a CloudLight) -> crate::Result<Self> {
-        if cl.ms_order.is_some_and(|o| o > 2) {
+        if cl.ms_order.is_some_and(|o| o > 3) {
             return Err(crate::Error::out_of_range(
                 "settings.angular_order",
                 cl.ms_order.unwrap_or(0),
-                "0 to 2 (the reference marcher's harmonics)",
+                "0 to 3 (the reference marcher's harmonics)",
             ));
         }
         let lo = DVec3::from_array(cl.origin_m);

@@ -46,14 +46,15 @@ pub const PHASE_NODES: usize = 2048;
 /// (15) and the environment radiance from the view direction itself (16).
 pub const SKY_ELEMENTS: usize = 17;
 /// Largest export held in memory, bytes (32-bit values: density, sun path, 14 sky paths and
-/// 9 multiple-scattering moments per wavelength, per voxel): 1 GiB, e.g. 6.2 M voxels at 3
+/// 25 multiple-scattering moments (angular order 4) per wavelength, per voxel): 1 GiB, e.g. 2.9 M voxels at 3
 /// wavelengths.
 pub const MAX_EXPORT_BYTES: usize = 1 << 30;
 
 /// Bytes an export of `voxels` voxels and `n_l` wavelengths holds in memory (see
 /// [`MAX_EXPORT_BYTES`]).
 pub fn export_bytes(voxels: usize, n_l: usize) -> usize {
-    voxels.saturating_mul(4 * (2 + LATTICE.len() + 9 * n_l))
+    let moments = (skybake_render::multiple::MAX_ORDER + 1).pow(2);
+    voxels.saturating_mul(4 * (2 + LATTICE.len() + moments * n_l))
 }
 
 /// Refuses an export larger than [`MAX_EXPORT_BYTES`] before it is computed, naming the cloud.
@@ -545,7 +546,7 @@ impl CloudLight {
             "sun": {"direction": self.sun_direction, "to": "from the cloud towards the sun (unit)"},
             "sky_caps": {"sun_cap_deg": SUN_CAP_DEG, "view_cap_deg": VIEW_CAP_DEG},
             "lattice_directions": LATTICE,
-            "spherical_harmonics": "real, orthonormal, lm = l² + l + m (m = -l..l): Y00 = 0.28209479; Y1-1 = 0.48860251·y, Y10 = 0.48860251·z, Y11 = 0.48860251·x; Y2-2 = 1.09254843·xy, Y2-1 = 1.09254843·yz, Y20 = 0.31539157·(3z²-1), Y21 = 1.09254843·xz, Y22 = 0.54627422·(x²-y²) (Sloan 2008, appendix A2)",
+            "spherical_harmonics": "real, orthonormal, lm = l² + l + m (m = -l..l): Y00 = 0.28209479; Y1-1 = 0.48860251·y, Y10 = 0.48860251·z, Y11 = 0.48860251·x; Y2-2 = 1.09254843·xy, Y2-1 = 1.09254843·yz, Y20 = 0.31539157·(3z²-1), Y21 = 1.09254843·xz, Y22 = 0.54627422·(x²-y²); Y3-3 = 0.59004359·y(3x²-y²), Y3-2 = 2.89061144·xyz, Y3-1 = 0.45704580·y(5z²-1), Y30 = 0.37317633·z(5z²-3), Y31 = 0.45704580·x(5z²-1), Y32 = 1.44530572·z(x²-y²), Y33 = 0.59004359·x(x²-3y²) (Sloan 2008, appendix A2)",
             "march": {
                 "step_voxels": self.step_voxels,
                 "cutoff_scaled_transmittance": MARCH_CUTOFF,
