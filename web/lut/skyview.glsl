@@ -86,6 +86,82 @@ vec3 GeoMix(vec3 a, vec3 b, float t) {
   return mix(mix(a, b, t), geometric, positive);
 }
 
+// Interpolation along one node axis (SkyViewReader's Stencil): the nodes first .. first + len - 1
+// (up to 4) around the continuous node coordinate y within the axis segment lo..hi, their
+// Lagrange weights w at the query's abscissa xq (the nodes' abscissas from SkyViewAbscissa), the
+// interval's lower node i0 and fraction t.
+struct SvStencil {
+  int first;
+  int len;
+  vec4 w;
+  int i0;
+  float t;
+};
+
+// Sun node j's elevation above the observer's horizon (degrees), from the manifest's segments.
+float SkyViewSunNodeDeg(int j) {
+  int first = 0;
+  for (int s = 0; s < SV_N_SUN_SEGMENTS; ++s) {
+    vec3 seg = skyview_sun_segments[s];
+    int n = int(seg.z);
+    if (j <= first + n) return seg.x + float(j - first) * seg.y;
+    first += n;
+  }
+  vec3 last = skyview_sun_segments[SV_N_SUN_SEGMENTS - 1];
+  return last.x + last.z * last.y;
+}
+
+// The stencil of y in lo..hi; sun_axis: the abscissa is the node's elevation (degrees, xq the
+// query's), else the node index (xq = y).
+SvStencil SkyViewStencil(float y, int lo, int hi, bool sun_axis, float xq) {
+  SvStencil st;
+  y = clamp(y, float(lo), float(hi));
+  st.i0 = clamp(int(floor(y)), lo, hi - 1);
+  st.t = y - float(st.i0);
+  st.first = max(st.i0 - 1, lo);
+  int last = min(st.i0 + 2, hi);
+  st.len = last - st.first + 1;
+  if (!sun_axis) xq = y;
+  float x[4];
+  for (int m = 0; m < 4; ++m) {
+    int i = min(st.first + m, last);
+    x[m] = sun_axis ? SkyViewSunNodeDeg(i) : float(i);
+  }
+  st.w = vec4(0.0);
+  if (st.t == 0.0) {
+    st.w[st.i0 - st.first] = 1.0;
+    return st;
+  }
+  for (int m = 0; m < 4; ++m) {
+    if (m >= st.len) break;
+    float w = 1.0;
+    for (int n = 0; n < 4; ++n) {
+      if (n >= st.len) break;
+      if (n != m) w *= (xq - x[n]) / (x[m] - x[n]);
+    }
+    st.w[m] = w;
+  }
+  return st;
+}
+
+// The stencil's interpolation of its node values v[0 .. len - 1], per channel: the Lagrange
+// polynomial of their logarithms, bounded by the values' range; where a value is not positive,
+// GeoMix between the interval's two nodes.
+vec3 SkyViewMix(SvStencil st, vec3 v[4]) {
+  vec3 a = v[st.i0 - st.first];
+  vec3 b = v[st.i0 - st.first + 1];
+  if (st.t == 0.0) return a;
+  vec3 lo = a, hi = a, ln = vec3(0.0);
+  for (int m = 0; m < 4; ++m) {
+    if (m >= st.len) break;
+    lo = min(lo, v[m]);
+    hi = max(hi, v[m]);
+    ln += st.w[m] * log(max(v[m], vec3(1e-30)));
+  }
+  vec3 lagrange = clamp(exp(ln), lo, hi);
+  return mix(GeoMix(a, b, st.t), lagrange, vec3(greaterThan(lo, vec3(0.0))));
+}
+
 // Continuous sun node coordinate of an elevation above the observer's horizon (degrees).
 float SkyViewSunCoord(float above_horizon_deg) {
   float first = 0.0;
@@ -100,15 +176,17 @@ float SkyViewSunCoord(float above_horizon_deg) {
 }
 
 // Altitude node k0 (and fraction tk) and sun node j0 (and tj) at altitude h with sun zenith
-// cosine mu_s; rho = sqrt(h (2 bottom + h)).
+// cosine mu_s; rho = sqrt(h (2 bottom + h)). above_deg: the sun's elevation above the
+// observer's horizon (degrees), clamped to the nodes.
 void SkyViewAltitudeSun(float h, float rho, float mu_s, out int k0, out float tk, out int j0,
-                        out float tj) {
+                        out float tj, out float above_deg) {
   float thickness = top_radius - bottom_radius;
   k0 = SkyViewSplit(sqrt(clamp(h / thickness, 0.0, 1.0)) * float(SV_N_ALT - 1), SV_N_ALT, tk);
   // The sun's elevation above the observer's horizon: its elevation + the horizon's dip.
   float dip = atan(rho, bottom_radius);
-  float above = asin(clamp(mu_s, -1.0, 1.0)) + dip;
-  j0 = SkyViewSplit(SkyViewSunCoord(degrees(above)), SV_N_SUN, tj);
+  above_deg = clamp(degrees(asin(clamp(mu_s, -1.0, 1.0)) + dip), SkyViewSunNodeDeg(0),
+                    SkyViewSunNodeDeg(SV_N_SUN - 1));
+  j0 = SkyViewSplit(SkyViewSunCoord(above_deg), SV_N_SUN, tj);
 }
 
 // One part's value at slice (k, j), row y, continuous column col (linear in the column, as the
@@ -129,8 +207,10 @@ vec3 SkyViewRadiance(float h, float rho, vec3 up, vec3 view_ray, vec3 sun_direct
   float mu_s = clamp(dot(sun_direction, up), -1.0, 1.0);
   float nu = dot(view_ray, sun_direction);
   int k0, j0;
-  float tk, tj;
-  SkyViewAltitudeSun(h, rho, mu_s, k0, tk, j0, tj);
+  float tk, tj, above_deg;
+  SkyViewAltitudeSun(h, rho, mu_s, k0, tk, j0, tj, above_deg);
+  SvStencil sa = SkyViewStencil(float(k0) + tk, 0, SV_N_ALT - 1, false, 0.0);
+  SvStencil ss = SkyViewStencil(float(j0) + tj, 0, SV_N_SUN - 1, true, above_deg);
   // The view row within its segment, relative to the observer's horizon (cos = -rho / r).
   int segment;
   float row;
@@ -153,9 +233,7 @@ vec3 SkyViewRadiance(float h, float rho, vec3 up, vec3 view_ray, vec3 sun_direct
   }
   int lo = segment == 0 ? 0 : segment == 1 ? SV_N_VIEW_SKY : SV_N_VIEW_UP;
   int hi = segment == 0 ? SV_N_VIEW_SKY - 1 : segment == 1 ? SV_N_VIEW_UP - 1 : SV_N_VIEW - 1;
-  float yc = clamp(row, float(lo), float(hi));
-  int y0 = min(int(floor(yc)), hi - 1);
-  float ty = yc - float(y0);
+  SvStencil sv = SkyViewStencil(row, lo, hi, false, 0.0);
   // The azimuth between the view and the sun around the vertical.
   vec3 view_h = view_ray - mu * up;
   vec3 sun_h = sun_direction - mu_s * up;
@@ -175,23 +253,25 @@ vec3 SkyViewRadiance(float h, float rho, vec3 up, vec3 view_ray, vec3 sun_direct
   }
   vec3 parts[2];
   for (int part = 0; part < 2; ++part) {
-    vec3 by_altitude[2];
-    for (int a = 0; a < 2; ++a) {
-      vec3 by_sun[2];
-      for (int s = 0; s < 2; ++s) {
-        vec3 f0, f1;
-        if (part == 0) {
-          f0 = SkyViewFetch(skyview_rayleigh, skyview_scale_rayleigh, k0 + a, j0 + s, y0, x0, fx);
-          f1 = SkyViewFetch(skyview_rayleigh, skyview_scale_rayleigh, k0 + a, j0 + s, y0 + 1, x0, fx);
-        } else {
-          f0 = SkyViewFetch(skyview_mie, skyview_scale_mie, k0 + a, j0 + s, y0, x0, fx);
-          f1 = SkyViewFetch(skyview_mie, skyview_scale_mie, k0 + a, j0 + s, y0 + 1, x0, fx);
+    vec3 by_altitude[4] = vec3[4](vec3(0.0), vec3(0.0), vec3(0.0), vec3(0.0));
+    for (int a = 0; a < 4; ++a) {
+      if (a >= sa.len) break;
+      vec3 by_sun[4] = vec3[4](vec3(0.0), vec3(0.0), vec3(0.0), vec3(0.0));
+      for (int s = 0; s < 4; ++s) {
+        if (s >= ss.len) break;
+        vec3 by_row[4] = vec3[4](vec3(0.0), vec3(0.0), vec3(0.0), vec3(0.0));
+        for (int v = 0; v < 4; ++v) {
+          if (v >= sv.len) break;
+          int k = sa.first + a, j = ss.first + s, y = sv.first + v;
+          by_row[v] = part == 0 ?
+              SkyViewFetch(skyview_rayleigh, skyview_scale_rayleigh, k, j, y, x0, fx) :
+              SkyViewFetch(skyview_mie, skyview_scale_mie, k, j, y, x0, fx);
         }
-        by_sun[s] = GeoMix(f0, f1, ty);
+        by_sun[s] = SkyViewMix(sv, by_row);
       }
-      by_altitude[a] = GeoMix(by_sun[0], by_sun[1], tj);
+      by_altitude[a] = SkyViewMix(ss, by_sun);
     }
-    parts[part] = GeoMix(by_altitude[0], by_altitude[1], tk) * d;
+    parts[part] = SkyViewMix(sa, by_altitude) * d;
   }
   return parts[0] * RayleighPhaseFunction(nu) + parts[1] * AerosolPhaseFunction(nu);
 }
@@ -257,8 +337,8 @@ vec3 GetSunAndSkyIrradiance(vec3 point, vec3 normal, vec3 sun_direction,
   float mu_s = dot(point, sun_direction) / r;
   float h = clamp(r - bottom_radius, 0.0, top_radius - bottom_radius);
   int k0, j0;
-  float tk, tj;
-  SkyViewAltitudeSun(h, sqrt(h * (2.0 * bottom_radius + h)), mu_s, k0, tk, j0, tj);
+  float tk, tj, above_deg;
+  SkyViewAltitudeSun(h, sqrt(h * (2.0 * bottom_radius + h)), mu_s, k0, tk, j0, tj, above_deg);
   vec3 lo = GeoMix(texelFetch(skyview_irradiance, ivec2(j0, k0), 0).rgb,
                    texelFetch(skyview_irradiance, ivec2(j0 + 1, k0), 0).rgb, tj);
   vec3 hi = GeoMix(texelFetch(skyview_irradiance, ivec2(j0, k0 + 1), 0).rgb,

@@ -431,16 +431,108 @@ fn geo_mix(a: f64, b: f64, t: f64) -> f64 {
     }
 }
 
-/// Reads a `skyview` bundle the way its client (a shader) does: per (altitude, sun) node pair,
-/// one bilinear fetch (clamped to the edge) in (azimuth, view) of each texture, times the
-/// slice's scale, then geometric interpolation over the sun's and the altitude's nodes.
+/// Interpolation weights along one node axis: the (up to) four nodes around a query, within
+/// one segment of the axis, and their Lagrange weights at the query's abscissa (cubic inside
+/// the segment, quadratic in its first and last interval, linear in a segment of two nodes).
+#[derive(Debug, Clone, Copy)]
+pub struct Stencil {
+    /// First node of the stencil.
+    pub first: usize,
+    /// Number of nodes (2 to 4).
+    pub len: usize,
+    /// Lagrange weights of the nodes first..first + len (they sum to 1).
+    pub w: [f64; 4],
+    /// The interval's lower node (first + 0 or 1) and the fraction within it (the geometric
+    /// interpolation's, where a value is not positive).
+    pub i0: usize,
+    pub t: f64,
+}
+
+impl Stencil {
+    /// The stencil of continuous node coordinate `y` in the segment of nodes `lo..=hi`, the
+    /// nodes' abscissas `x(i)` and the query's `xq` (the abscissa in which the interpolation is
+    /// polynomial; the node coordinate itself where the nodes are uniform in it).
+    pub fn new(y: f64, lo: usize, hi: usize, x: impl Fn(usize) -> f64, xq: f64) -> Self {
+        Self::with_order(y, lo, hi, x, xq, 4)
+    }
+
+    pub fn with_order(
+        y: f64,
+        lo: usize,
+        hi: usize,
+        x: impl Fn(usize) -> f64,
+        xq: f64,
+        order: usize,
+    ) -> Self {
+        let y = y.clamp(lo as f64, hi as f64);
+        let i0 = (y.floor() as usize).clamp(lo, hi - 1);
+        let t = y - i0 as f64;
+        let (first, last) = if order == 2 {
+            (i0, i0 + 1)
+        } else {
+            (i0.saturating_sub(1).max(lo), (i0 + 2).min(hi))
+        };
+        let len = last - first + 1;
+        let mut w = [0.0; 4];
+        if t == 0.0 {
+            w[i0 - first] = 1.0;
+        } else {
+            for (m, wm) in w.iter_mut().enumerate().take(len) {
+                let xm = x(first + m);
+                *wm = (0..len)
+                    .filter(|&n| n != m)
+                    .map(|n| {
+                        let xn = x(first + n);
+                        (xq - xn) / (xm - xn)
+                    })
+                    .product();
+            }
+        }
+        Self {
+            first,
+            len,
+            w,
+            i0,
+            t,
+        }
+    }
+
+    /// Interpolates `v` (the stencil's node values): the Lagrange polynomial of their
+    /// logarithms (exact for exponentials of a cubic), bounded by the values' range; where a
+    /// value is not positive, geometric between the interval's two nodes ([`geo_mix`]).
+    pub fn mix(&self, v: &[f64]) -> f64 {
+        let v = &v[..self.len];
+        let (a, b) = (v[self.i0 - self.first], v[self.i0 + 1 - self.first]);
+        if self.t == 0.0 {
+            return a;
+        }
+        if v.iter().any(|&x| x <= 0.0 || !x.is_finite()) {
+            return geo_mix(a, b, self.t);
+        }
+        let ln: f64 = v.iter().zip(&self.w).map(|(x, w)| w * x.ln()).sum();
+        let (lo, hi) = v
+            .iter()
+            .fold((f64::MAX, 0.0f64), |(l, h), &x| (l.min(x), h.max(x)));
+        ln.exp().clamp(lo, hi)
+    }
+}
+
+/// Reads a `skyview` bundle the way its client (a shader) does: per (altitude, sun, view row)
+/// node, one fetch linear in the azimuth column, times the slice's scale, then Lagrange
+/// interpolation of the logarithms ([`Stencil`]) over the view rows, the sun's and the
+/// altitude's nodes, four nodes per axis.
 pub struct SkyViewReader<'a> {
     pub bundle: &'a SkyViewBundle,
+    /// EXPERIMENT: stencil nodes per axis (altitude, sun, view).
+    pub orders: [usize; 3],
 }
 
 impl<'a> SkyViewReader<'a> {
     pub fn new(bundle: &'a SkyViewBundle) -> Self {
-        Self { bundle }
+        Self {
+            bundle,
+            orders: [4, 4, 4],
+        }
     }
 
     /// Fetch of row `y` of slice `z`, linear in the continuous column `col` (a GPU's linear
@@ -466,6 +558,28 @@ impl<'a> SkyViewReader<'a> {
         }
     }
 
+    /// The altitude and sun stencils at radius `r` (clamped to the atmosphere) and sun zenith
+    /// cosine `mu_s`.
+    fn altitude_sun_stencils(&self, r: f64, mu_s: f64) -> (Stencil, Stencil) {
+        let p = &self.bundle.params;
+        let thickness = p.top_radius - p.bottom_radius;
+        let ya = altitude_coord(r - p.bottom_radius, thickness);
+        let sa = Stencil::with_order(ya, 0, N_ALT - 1, |k| k as f64, ya, self.orders[0]);
+        let above = mu_s.clamp(-1.0, 1.0).asin() + dip(r, p.bottom_radius);
+        let deg = above
+            .to_degrees()
+            .clamp(SUN_MIN_DEG, sun_node_deg(N_SUN - 1));
+        let ss = Stencil::with_order(
+            sun_coord(deg),
+            0,
+            N_SUN - 1,
+            sun_node_deg,
+            deg,
+            self.orders[1],
+        );
+        (sa, ss)
+    }
+
     /// The stored sky at radius `r` (inside the atmosphere) for view zenith cosine `mu`, sun
     /// zenith cosine `mu_s` and view–sun cosine `nu`: (Rayleigh-like, single Mie), both without
     /// phase functions.
@@ -473,15 +587,10 @@ impl<'a> SkyViewReader<'a> {
         let p = &self.bundle.params;
         let n_c = self.bundle.wavelengths_nm.len();
         let r = r.clamp(p.bottom_radius, p.top_radius);
-        let thickness = p.top_radius - p.bottom_radius;
-        let (k0, tk) = split(altitude_coord(r - p.bottom_radius, thickness), N_ALT);
-        let above_horizon = mu_s.clamp(-1.0, 1.0).asin() + dip(r, p.bottom_radius);
-        let (j0, tj) = split(sun_coord(above_horizon.to_degrees()), N_SUN);
+        let (sa, ss) = self.altitude_sun_stencils(r, mu_s);
         let (seg, row) = view_coord(mu.clamp(-1.0, 1.0).acos(), r, p.bottom_radius);
         let (lo, hi) = segment_rows(seg);
-        let y = row.clamp(lo as f64, hi as f64);
-        let y0 = (y.floor() as usize).min(hi - 1);
-        let ty = y - y0 as f64;
+        let sv = Stencil::with_order(row, lo, hi, |i| i as f64, row, self.orders[2]);
         let den = ((1.0 - mu * mu) * (1.0 - mu_s * mu_s)).max(0.0).sqrt();
         let cos_phi = if den > 1e-12 {
             ((nu - mu * mu_s) / den).clamp(-1.0, 1.0)
@@ -491,25 +600,33 @@ impl<'a> SkyViewReader<'a> {
         let col = azimuth_coord(cos_phi.acos());
         let d = ray_length(r, mu, p.bottom_radius, p.top_radius, seg == 2);
         let mut out = [vec![0.0; n_c], vec![0.0; n_c]];
-        let (mut f0, mut f1) = (vec![0.0; n_c], vec![0.0; n_c]);
-        let mut by_sun = [vec![0.0; n_c], vec![0.0; n_c]];
-        let mut by_alt = [vec![0.0; n_c], vec![0.0; n_c]];
-        for part in 0..2 {
-            for (ki, k) in [k0, k0 + 1].into_iter().enumerate() {
-                for (ji, j) in [j0, j0 + 1].into_iter().enumerate() {
+        let mut f = vec![0.0; n_c];
+        // Node values per channel: [row][channel], then [sun][channel], then [altitude][channel].
+        let mut by_row = vec![[0.0f64; 4]; n_c];
+        let mut by_sun = vec![[0.0f64; 4]; n_c];
+        let mut by_alt = vec![[0.0f64; 4]; n_c];
+        for (part, out) in out.iter_mut().enumerate() {
+            for ka in 0..sa.len {
+                let k = sa.first + ka;
+                for js in 0..ss.len {
+                    let j = ss.first + js;
                     let z = k * N_SUN + j;
-                    self.fetch(part, z, col, y0, &mut f0);
-                    self.fetch(part, z, col, y0 + 1, &mut f1);
+                    for iv in 0..sv.len {
+                        self.fetch(part, z, col, sv.first + iv, &mut f);
+                        for c in 0..n_c {
+                            by_row[c][iv] = f[c];
+                        }
+                    }
                     for c in 0..n_c {
-                        by_sun[ji][c] = geo_mix(f0[c], f1[c], ty);
+                        by_sun[c][js] = sv.mix(&by_row[c]);
                     }
                 }
                 for c in 0..n_c {
-                    by_alt[ki][c] = geo_mix(by_sun[0][c], by_sun[1][c], tj);
+                    by_alt[c][ka] = ss.mix(&by_sun[c]);
                 }
             }
             for c in 0..n_c {
-                out[part][c] = geo_mix(by_alt[0][c], by_alt[1][c], tk) * d;
+                out[c] = sa.mix(&by_alt[c]) * d;
             }
         }
         let [s, mm] = out;
