@@ -11,7 +11,8 @@
 // layouts), its RhoAlong and SquareDifference, and the Rayleigh phase function. The including
 // program defines the node counts from the manifest's parameterisation.sizes: SV_N_ALT,
 // SV_N_SUN, SV_N_VIEW_SKY, SV_N_VIEW_LIMB, SV_N_VIEW_DOWN, SV_N_AZ, and SV_N_SUN_SEGMENTS (the
-// length of parameterisation.sun_segments).
+// length of parameterisation.sun_segments) and SV_LIMB_SHADOW_SCALE
+// (parameterisation.limb_shadow_scale_m, a float literal).
 //
 // Per query: node coordinates in altitude (sqrt(h / thickness) (N_ALT - 1)), the sun's elevation
 // above the observer's horizon (the manifest's segments), the view row within its segment (sky,
@@ -176,15 +177,14 @@ float SkyViewSunCoord(float above_horizon_deg) {
 }
 
 // Altitude node k0 (and fraction tk) and sun node j0 (and tj) at altitude h with sun zenith
-// cosine mu_s; rho = sqrt(h (2 bottom + h)). above_deg: the sun's elevation above the
-// observer's horizon (degrees), clamped to the nodes.
-void SkyViewAltitudeSun(float h, float rho, float mu_s, out int k0, out float tk, out int j0,
+// cosine mu_s; shift: the angle added to the sun's elevation to make the sun coordinate (the
+// horizon's dip atan(rho, bottom_radius), or on the limb SkyViewRadiance's shift). above_deg: the
+// sun coordinate (degrees), clamped to the nodes.
+void SkyViewAltitudeSun(float h, float shift, float mu_s, out int k0, out float tk, out int j0,
                         out float tj, out float above_deg) {
   float thickness = top_radius - bottom_radius;
   k0 = SkyViewSplit(sqrt(clamp(h / thickness, 0.0, 1.0)) * float(SV_N_ALT - 1), SV_N_ALT, tk);
-  // The sun's elevation above the observer's horizon: its elevation + the horizon's dip.
-  float dip = atan(rho, bottom_radius);
-  above_deg = clamp(degrees(asin(clamp(mu_s, -1.0, 1.0)) + dip), SkyViewSunNodeDeg(0),
+  above_deg = clamp(degrees(asin(clamp(mu_s, -1.0, 1.0)) + shift), SkyViewSunNodeDeg(0),
                     SkyViewSunNodeDeg(SV_N_SUN - 1));
   j0 = SkyViewSplit(SkyViewSunCoord(above_deg), SV_N_SUN, tj);
 }
@@ -206,14 +206,13 @@ vec3 SkyViewRadiance(float h, float rho, vec3 up, vec3 view_ray, vec3 sun_direct
   float mu = clamp(dot(view_ray, up), -1.0, 1.0);
   float mu_s = clamp(dot(sun_direction, up), -1.0, 1.0);
   float nu = dot(view_ray, sun_direction);
-  int k0, j0;
-  float tk, tj, above_deg;
-  SkyViewAltitudeSun(h, rho, mu_s, k0, tk, j0, tj, above_deg);
-  SvStencil sa = SkyViewStencil(float(k0) + tk, 0, SV_N_ALT - 1, false, 0.0);
-  SvStencil ss = SkyViewStencil(float(j0) + tj, 0, SV_N_SUN - 1, true, above_deg);
   // The view row within its segment, relative to the observer's horizon (cos = -rho / r).
   int segment;
   float row;
+  // The horizon's dip, and on the limb the angle between the observer's and the ray's tangent
+  // point's verticals (gamma) and the tangent point's horizon's dip (dip_t).
+  float dip = atan(rho, bottom_radius);
+  float gamma = 0.0, dip_t = 0.0, h_t = h;
   if (mu >= 0.0) {
     // Zenith to horizontal: theta = (pi/2) (1 - (1 - x)^2); 1 - theta / (pi/2) = asin(mu) / (pi/2).
     segment = 0;
@@ -222,12 +221,15 @@ vec3 SkyViewRadiance(float h, float rho, vec3 up, vec3 view_ray, vec3 sun_direct
     // Horizontal to horizon, uniform in the ray's tangent radius r_t = r sqrt(1 - mu^2):
     // (r - r_t) / h, with r - r_t = r mu^2 / (1 + sqrt(1 - mu^2)).
     segment = 1;
-    float y = h > 0.0 ? clamp(r * mu * mu / (1.0 + sqrt(1.0 - mu * mu)) / h, 0.0, 1.0) : 1.0;
+    float r_minus_rt = r * mu * mu / (1.0 + sqrt(1.0 - mu * mu));
+    float y = h > 0.0 ? clamp(r_minus_rt / h, 0.0, 1.0) : 1.0;
     row = float(SV_N_VIEW_SKY) + y * float(SV_N_VIEW_LIMB - 1);
+    h_t = max(h - r_minus_rt, 0.0);
+    gamma = asin(-mu);
+    dip_t = atan(sqrt(h_t * (2.0 * bottom_radius + h_t)), bottom_radius);
   } else {
     // Horizon to nadir: theta = theta_h + (pi - theta_h) x^2, theta_h = pi/2 + dip.
     segment = 2;
-    float dip = atan(rho, bottom_radius);
     float x = sqrt(clamp((asin(-mu) - dip) / (0.5 * PI - dip), 0.0, 1.0));
     row = float(SV_N_VIEW_UP) + x * float(SV_N_VIEW_DOWN - 1);
   }
@@ -241,6 +243,18 @@ vec3 SkyViewRadiance(float h, float rho, vec3 up, vec3 view_ray, vec3 sun_direct
       atan(length(cross(view_h, sun_h)), dot(view_h, sun_h)) : 0.0;
   float fx;
   int x0 = SkyViewSplit(sqrt(clamp(phi / PI, 0.0, 1.0)) * float(SV_N_AZ - 1), SV_N_AZ, fx);
+  // The sun coordinate: the sun's elevation above the observer's horizon, on the limb above the
+  // horizon of the ray's tangent point (the reader's sun_shift).
+  float shift = dip;
+  if (segment == 1) {
+    float w = 1.0 - exp(-(h - h_t) / SV_LIMB_SHADOW_SCALE);
+    shift = dip + w * (gamma * cos(phi) + dip_t - dip);
+  }
+  int k0, j0;
+  float tk, tj, above_deg;
+  SkyViewAltitudeSun(h, shift, mu_s, k0, tk, j0, tj, above_deg);
+  SvStencil sa = SkyViewStencil(float(k0) + tk, 0, SV_N_ALT - 1, false, 0.0);
+  SvStencil ss = SkyViewStencil(float(j0) + tj, 0, SV_N_SUN - 1, true, above_deg);
   // The ray's length: to the ground below the horizon, else to the top (closed forms, the
   // ground's as rho^2 / (-r mu + sqrt(...)) to avoid the cancellation near the horizon).
   float d;
@@ -338,7 +352,8 @@ vec3 GetSunAndSkyIrradiance(vec3 point, vec3 normal, vec3 sun_direction,
   float h = clamp(r - bottom_radius, 0.0, top_radius - bottom_radius);
   int k0, j0;
   float tk, tj, above_deg;
-  SkyViewAltitudeSun(h, sqrt(h * (2.0 * bottom_radius + h)), mu_s, k0, tk, j0, tj, above_deg);
+  SkyViewAltitudeSun(h, atan(sqrt(h * (2.0 * bottom_radius + h)), bottom_radius), mu_s, k0, tk,
+                     j0, tj, above_deg);
   vec3 lo = GeoMix(texelFetch(skyview_irradiance, ivec2(j0, k0), 0).rgb,
                    texelFetch(skyview_irradiance, ivec2(j0 + 1, k0), 0).rgb, tj);
   vec3 hi = GeoMix(texelFetch(skyview_irradiance, ivec2(j0, k0 + 1), 0).rgb,

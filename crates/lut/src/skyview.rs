@@ -46,7 +46,9 @@ use crate::param::{self, AtmosphereParameters};
 /// The layout's name (`--layout`, the manifest's `format`).
 pub const LAYOUT: &str = "skyview";
 /// Layout version (bumped when a file or a field changes meaning).
-pub const SKYVIEW_VERSION: &str = "1";
+/// 2: the limb rows' sun coordinate is the sun's elevation above the tangent point's horizon
+/// ([`sun_shift`]), sun nodes from −23°, Lagrange interpolation over 4 nodes per axis.
+pub const SKYVIEW_VERSION: &str = "2";
 
 /// Altitude nodes: h_k = (top − bottom) · (k / (N − 1))².
 pub const N_ALT: usize = 28;
@@ -55,14 +57,15 @@ pub const N_ALT: usize = 28;
 /// every 1° from [`SUN_MIN_DEG`] to −8°, every 0.5° to 6° (twilight and sunset), every 1° to
 /// 20° (low sun), every 4° to 104° (the zenith seen from the top of a 100 km atmosphere is
 /// 100.1° above its horizon).
-pub const SUN_MIN_DEG: f64 = -15.0;
-pub const SUN_SEGMENTS: [(f64, f64, usize); 4] = [
+pub const SUN_MIN_DEG: f64 = -23.0;
+pub const SUN_SEGMENTS: [(f64, f64, usize); 5] = [
+    (-23.0, 2.0, 4),
     (-15.0, 1.0, 7),
     (-8.0, 0.5, 28),
     (6.0, 1.0, 14),
     (20.0, 4.0, 21),
 ];
-pub const N_SUN: usize = 7 + 28 + 14 + 21 + 1;
+pub const N_SUN: usize = 4 + 7 + 28 + 14 + 21 + 1;
 /// View rows: from the zenith to the horizontal ([`N_VIEW_SKY`], θ = 90° (1 − (1 − x)²)),
 /// from the horizontal to the horizon ([`N_VIEW_LIMB`], uniform in the tangent altitude of the
 /// ray, from the observer's altitude to 0) and from the horizon to the nadir
@@ -112,6 +115,38 @@ pub fn sun_coord(above_horizon_deg: f64) -> f64 {
 pub fn dip(r: f64, bottom: f64) -> f64 {
     (bottom / r).min(1.0).acos()
 }
+
+/// The angle (rad) added to the sun's elevation to make the sun coordinate of a ray from radius
+/// `r` with view zenith angle `theta` at azimuth `cos_phi` from the sun (cosine), `limb` when the
+/// ray is in the limb rows' segment (between the horizontal and the horizon). Rays above the
+/// horizontal and below the horizon: the horizon's dip at the observer, so the coordinate is
+/// the sun's elevation above the observer's horizon (sunset on one node at every altitude).
+/// Limb rays: towards the sun's elevation above the horizon of the ray's tangent point (its
+/// lowest and densest point), γ cos φ + dip(r_t), with γ = θ − π/2 the angle between the
+/// observer's and the tangent point's verticals and r_t = r cos γ (to first order in γ the
+/// sun's elevation at the tangent point is its elevation at the observer + γ cos φ), weighted
+/// by 1 − exp(−(r − r_t) / [`LIMB_SHADOW_SCALE_M`]): the earth's shadow reaches a deep limb
+/// ray's tangent point at coordinate 0 at every altitude, row and azimuth, so the limb's fall
+/// into the shadow stays near one sun node instead of moving across the nodes with the rows.
+pub fn sun_shift(r: f64, theta: f64, cos_phi: f64, bottom: f64, limb: bool) -> f64 {
+    if limb {
+        let gamma = (theta - 0.5 * PI).max(0.0);
+        let r_t = r * gamma.cos();
+        let w = 1.0 - (-(r - r_t) / LIMB_SHADOW_SCALE_M).exp();
+        let tangent = gamma * cos_phi + dip(r_t, bottom);
+        let observer = dip(r, bottom);
+        observer + w * (tangent - observer)
+    } else {
+        dip(r, bottom)
+    }
+}
+
+/// The depth of a limb ray's tangent point below the observer (m) over which the limb rows' sun
+/// coordinate moves from the observer's horizon to the tangent point's ([`sun_shift`]): weight
+/// 1 − exp(−(r − r_t) / this). Near the horizontal the air at the observer's altitude lights the
+/// ray as much as the tangent point's; measured against 3 and 8 km (and the tangent point alone)
+/// on the twilight limb, docs/lut.md.
+pub const LIMB_SHADOW_SCALE_M: f64 = 20_000.0;
 
 /// Altitude of node `k`, m, for an atmosphere `thickness` m thick.
 pub fn altitude_node_m(k: usize, thickness: f64) -> f64 {
@@ -169,7 +204,7 @@ pub fn view_coord(theta: f64, r: f64, bottom: f64) -> (usize, f64) {
 }
 
 /// First and last row of segment `seg`.
-fn segment_rows(seg: usize) -> (usize, usize) {
+pub fn segment_rows(seg: usize) -> (usize, usize) {
     match seg {
         0 => (0, N_VIEW_SKY - 1),
         1 => (N_VIEW_SKY, N_VIEW_UP - 1),
@@ -308,9 +343,12 @@ pub fn build_skyview(
                 let d = ray_length(r, mu, bottom, bottom + thickness, ground);
                 scratch.prepare(r, mu, steps);
                 for j in 0..N_SUN {
-                    let mu_s = sun_mu(k, j);
-                    let sin_s = (1.0 - mu_s * mu_s).max(0.0).sqrt();
                     for a in 0..N_AZ {
+                        let phi = azimuth_node(a);
+                        let limb = (N_VIEW_SKY..N_VIEW_UP).contains(&i);
+                        let shift = sun_shift(r, theta, phi.cos(), bottom, limb);
+                        let mu_s = (sun_node_deg(j).to_radians() - shift).sin();
+                        let sin_s = (1.0 - mu_s * mu_s).max(0.0).sqrt();
                         let nu =
                             (mu * mu_s + sin_t * sin_s * azimuth_node(a).cos()).clamp(-1.0, 1.0);
                         let p_r = param::rayleigh_phase(nu);
@@ -453,25 +491,10 @@ impl Stencil {
     /// nodes' abscissas `x(i)` and the query's `xq` (the abscissa in which the interpolation is
     /// polynomial; the node coordinate itself where the nodes are uniform in it).
     pub fn new(y: f64, lo: usize, hi: usize, x: impl Fn(usize) -> f64, xq: f64) -> Self {
-        Self::with_order(y, lo, hi, x, xq, 4)
-    }
-
-    pub fn with_order(
-        y: f64,
-        lo: usize,
-        hi: usize,
-        x: impl Fn(usize) -> f64,
-        xq: f64,
-        order: usize,
-    ) -> Self {
         let y = y.clamp(lo as f64, hi as f64);
         let i0 = (y.floor() as usize).clamp(lo, hi - 1);
         let t = y - i0 as f64;
-        let (first, last) = if order == 2 {
-            (i0, i0 + 1)
-        } else {
-            (i0.saturating_sub(1).max(lo), (i0 + 2).min(hi))
-        };
+        let (first, last) = (i0.saturating_sub(1).max(lo), (i0 + 2).min(hi));
         let len = last - first + 1;
         let mut w = [0.0; 4];
         if t == 0.0 {
@@ -523,16 +546,11 @@ impl Stencil {
 /// altitude's nodes, four nodes per axis.
 pub struct SkyViewReader<'a> {
     pub bundle: &'a SkyViewBundle,
-    /// EXPERIMENT: stencil nodes per axis (altitude, sun, view).
-    pub orders: [usize; 3],
 }
 
 impl<'a> SkyViewReader<'a> {
     pub fn new(bundle: &'a SkyViewBundle) -> Self {
-        Self {
-            bundle,
-            orders: [4, 4, 4],
-        }
+        Self { bundle }
     }
 
     /// Fetch of row `y` of slice `z`, linear in the continuous column `col` (a GPU's linear
@@ -559,24 +577,17 @@ impl<'a> SkyViewReader<'a> {
     }
 
     /// The altitude and sun stencils at radius `r` (clamped to the atmosphere) and sun zenith
-    /// cosine `mu_s`.
-    fn altitude_sun_stencils(&self, r: f64, mu_s: f64) -> (Stencil, Stencil) {
+    /// cosine `mu_s`; `shift`: [`sun_shift`] of the query's ray.
+    fn altitude_sun_stencils(&self, r: f64, mu_s: f64, shift: f64) -> (Stencil, Stencil) {
         let p = &self.bundle.params;
         let thickness = p.top_radius - p.bottom_radius;
         let ya = altitude_coord(r - p.bottom_radius, thickness);
-        let sa = Stencil::with_order(ya, 0, N_ALT - 1, |k| k as f64, ya, self.orders[0]);
-        let above = mu_s.clamp(-1.0, 1.0).asin() + dip(r, p.bottom_radius);
+        let sa = Stencil::new(ya, 0, N_ALT - 1, |k| k as f64, ya);
+        let above = mu_s.clamp(-1.0, 1.0).asin() + shift;
         let deg = above
             .to_degrees()
             .clamp(SUN_MIN_DEG, sun_node_deg(N_SUN - 1));
-        let ss = Stencil::with_order(
-            sun_coord(deg),
-            0,
-            N_SUN - 1,
-            sun_node_deg,
-            deg,
-            self.orders[1],
-        );
+        let ss = Stencil::new(sun_coord(deg), 0, N_SUN - 1, sun_node_deg, deg);
         (sa, ss)
     }
 
@@ -587,10 +598,10 @@ impl<'a> SkyViewReader<'a> {
         let p = &self.bundle.params;
         let n_c = self.bundle.wavelengths_nm.len();
         let r = r.clamp(p.bottom_radius, p.top_radius);
-        let (sa, ss) = self.altitude_sun_stencils(r, mu_s);
-        let (seg, row) = view_coord(mu.clamp(-1.0, 1.0).acos(), r, p.bottom_radius);
+        let theta = mu.clamp(-1.0, 1.0).acos();
+        let (seg, row) = view_coord(theta, r, p.bottom_radius);
         let (lo, hi) = segment_rows(seg);
-        let sv = Stencil::with_order(row, lo, hi, |i| i as f64, row, self.orders[2]);
+        let sv = Stencil::new(row, lo, hi, |i| i as f64, row);
         let den = ((1.0 - mu * mu) * (1.0 - mu_s * mu_s)).max(0.0).sqrt();
         let cos_phi = if den > 1e-12 {
             ((nu - mu * mu_s) / den).clamp(-1.0, 1.0)
@@ -598,6 +609,8 @@ impl<'a> SkyViewReader<'a> {
             1.0
         };
         let col = azimuth_coord(cos_phi.acos());
+        let shift = sun_shift(r, theta, cos_phi, p.bottom_radius, seg == 1);
+        let (sa, ss) = self.altitude_sun_stencils(r, mu_s, shift);
         let d = ray_length(r, mu, p.bottom_radius, p.top_radius, seg == 2);
         let mut out = [vec![0.0; n_c], vec![0.0; n_c]];
         let mut f = vec![0.0; n_c];
@@ -872,13 +885,14 @@ pub fn manifest(
             "altitude_nodes_m": altitude_nodes,
             "altitude_node": "h_k = (top_radius - bottom_radius) * (k / (N_ALT - 1))^2, k = 0..N_ALT-1",
             "sun_elevation_nodes_deg": sun_nodes,
-            "sun_node": "the sun's elevation above the observer's horizon, e_j (deg) = its elevation + the horizon's dip acos(bottom_radius / r): every 1 deg from -15 to -8, every 0.5 deg to 6, every 1 deg to 20, every 4 deg to 104 (segments [start, step, intervals] in sun_segments)",
+            "sun_node": "the sun coordinate s_j (deg): every 2 deg from -23 to -15, every 1 deg to -8, every 0.5 deg to 6, every 1 deg to 20, every 4 deg to 104 (segments [start, step, intervals] in sun_segments). s = the sun's elevation + shift: for view rows above the horizontal and below the horizon (and the irradiance) shift = the horizon's dip acos(bottom_radius / r), the sun's elevation above the observer's horizon; for the limb rows (between the horizontal and the horizon) shift = dip + w (gamma cos(phi) + acos(bottom_radius / r_t) - dip), w = 1 - exp(-(r - r_t) / limb_shadow_scale_m): towards the sun's elevation above the horizon of the ray's tangent point, with dip = acos(bottom_radius / r), gamma = theta - pi/2, r_t = r cos(gamma), phi the view's azimuth from the sun; the texels of a limb row are at the sun elevations s_j - shift of their column's azimuth",
+            "limb_shadow_scale_m": LIMB_SHADOW_SCALE_M,
             "sun_segments": SUN_SEGMENTS.iter().map(|(a, b, n)| json!([a, b, n])).collect::<Vec<_>>(),
             "view_rows": format!("rows 0..{} from the zenith to the horizontal: theta = (pi/2) (1 - (1 - x)^2), x = row / {}; rows {}..{} from the horizontal to the horizon, uniform in the ray's tangent radius r_t = r - (r - bottom_radius) y, y = (row - {}) / {}, theta = pi/2 + acos(r_t / r); rows {}..{} from the horizon to the nadir: theta = theta_h + (pi - theta_h) x^2, x = (row - {}) / {}, theta_h = pi - asin(bottom_radius / r); r the observer's radius. Interpolation between the two rows around the view, within its segment, is geometric (each row fetched at its centre, the GPU filtering only the azimuth)", N_VIEW_SKY - 1, N_VIEW_SKY - 1, N_VIEW_SKY, N_VIEW_UP - 1, N_VIEW_SKY, N_VIEW_LIMB - 1, N_VIEW_UP, N_VIEW - 1, N_VIEW_UP, N_VIEW_DOWN - 1),
             "azimuth_columns": format!("phi = pi (column / {})^2, the view's azimuth from the sun's, 0..pi", N_AZ - 1),
             "slices": "slice = altitude_index * N_SUN + sun_index; file row = slice * N_VIEW + view_row; texture coordinates at texel centres: u = (column + 0.5) / N_AZ, v = (view_row + 0.5) / N_VIEW",
             "sizes": {"N_ALT": N_ALT, "N_SUN": N_SUN, "N_VIEW_SKY": N_VIEW_SKY, "N_VIEW_LIMB": N_VIEW_LIMB, "N_VIEW_DOWN": N_VIEW_DOWN, "N_AZ": N_AZ},
-            "interpolation": "per (altitude, sun, view row) node triple around the query: a fetch linear in the column at the row's centre, times the slice's scale; then between the two rows, the two sun nodes and then the two altitude nodes geometrically, a^(1-t) b^t (linear where a value is not positive); t is the fraction of the continuous node coordinate (altitude: sqrt(h / thickness) (N_ALT - 1); sun: the inverse of sun_node)",
+            "interpolation": "per (altitude, sun, view row) node triple around the query: a fetch linear in the column at the row's centre, times the slice's scale; then over the rows, the sun nodes and then the altitude nodes, each axis with up to 4 nodes around the query within its segment (the row segments: sky, limb, below the horizon; 3 nodes in a segment's first and last interval): the Lagrange polynomial through the nodes' logarithms at the query, exp'd and bounded by the nodes' range; abscissas: the node index (altitude: sqrt(h / thickness) (N_ALT - 1); rows: as view_rows), for the sun the node's s_j in degrees; where a node value is not positive, geometric between the interval's two nodes, a^(1-t) b^t, linear where a value is not positive",
             "radiance": "L = rayleigh * RayleighPhase(nu) + mie * aerosol_phase_function(nu), nu = cos of the angle between view and sun; RayleighPhase = 3/(16 pi) (1 + nu^2)",
             "observer": "inside the atmosphere; above its top, move the observer along the view to the top first (a view missing the atmosphere sees nothing); views below the horizon: the in-scattered light along the ray to the ground, without the ground's reflection",
             "transmittance_texture": [crate::param::TRANSMITTANCE_WIDTH, crate::param::TRANSMITTANCE_HEIGHT],
