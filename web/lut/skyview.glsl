@@ -17,18 +17,19 @@
 // Per query: node coordinates in altitude (sqrt(h / thickness) (N_ALT - 1)), the sun's elevation
 // above the observer's horizon (the manifest's segments), the view row within its segment (sky,
 // limb, below the horizon; relative to the observer's horizon) and the azimuth from the sun's
-// (sqrt(phi / pi) (N_AZ - 1)); for each of the 2 x 2 x 2 (altitude, sun, row) nodes around it two
-// texelFetch, linear in the column, times the slice's scale; geometric interpolation
-// a^(1-t) b^t over the row, the sun and the altitude (linear where a value is not positive);
-// times the ray's length (the textures hold radiance per metre of ray) and the exact phase
-// functions. Fetching texels (not the GPU's filtering, whose weights many GPUs round to 8 bits)
+// (sqrt(phi / pi) (N_AZ - 1)); over the 4 columns, the up to 4 rows (times the slice's scale),
+// 4 sun and 4 altitude nodes around it, the Lagrange polynomial of the values' logarithms
+// (SkyViewStencil, SkyViewMix; geometric a^(1-t) b^t between two nodes where a value is not
+// positive); on the limb rows the sun coordinate moves towards the sun's elevation above the
+// horizon of the ray's tangent point; times the ray's length (the textures hold radiance per
+// metre of ray) and the exact phase functions. Fetching texels (not the GPU's filtering, whose weights many GPUs round to 8 bits)
 // makes the result the same on every device. 32-bit floats: the altitude, the horizon's dip and
 // the limb row are computed from the altitude h and rho = sqrt(h (2 R + h)), not from ratios of
 // radii near 1, and the azimuth from the horizontal components of the view and the sun (atan),
 // not from acos of a cosine near 1.
 
 // ---- the bundle's skyview textures (web/lut/sky.js uploads them) ----
-// The rayleigh and mie textures, their 28 x 71 slices tiled in one 2-D texture: slice
+// The rayleigh and mie textures, their 28 x 75 slices tiled in one 2-D texture: slice
 // (altitude k, sun j) at columns j N_AZ .. and rows k N_VIEW .. (RGBA16F, the files' half floats).
 uniform sampler2D skyview_rayleigh;
 uniform sampler2D skyview_mie;
@@ -189,12 +190,16 @@ void SkyViewAltitudeSun(float h, float shift, float mu_s, out int k0, out float 
   j0 = SkyViewSplit(SkyViewSunCoord(above_deg), SV_N_SUN, tj);
 }
 
-// One part's value at slice (k, j), row y, continuous column col (linear in the column, as the
-// reader's fetch), times the slice's scale.
-vec3 SkyViewFetch(sampler2D part, sampler2D part_scale, int k, int j, int y, int x0, float fx) {
-  ivec2 origin = ivec2(j * SV_N_AZ + x0, k * SV_N_VIEW + y);
-  vec3 v = mix(texelFetch(part, origin, 0).rgb, texelFetch(part, origin + ivec2(1, 0), 0).rgb, fx);
-  return v * texelFetch(part_scale, ivec2(j, k), 0).rgb;
+// One part's value at slice (k, j), row y, interpolated over the azimuth columns' stencil sc
+// (as the reader's fetch), without the slice's scale.
+vec3 SkyViewFetch(sampler2D part, int k, int j, int y, SvStencil sc) {
+  ivec2 origin = ivec2(j * SV_N_AZ + sc.first, k * SV_N_VIEW + y);
+  vec3 v[4] = vec3[4](vec3(0.0), vec3(0.0), vec3(0.0), vec3(0.0));
+  for (int m = 0; m < 4; ++m) {
+    if (m >= sc.len) break;
+    v[m] = texelFetch(part, origin + ivec2(m, 0), 0).rgb;
+  }
+  return SkyViewMix(sc, v);
 }
 
 // The radiance towards an observer at altitude h (inside the atmosphere; rho as above) looking
@@ -241,8 +246,8 @@ vec3 SkyViewRadiance(float h, float rho, vec3 up, vec3 view_ray, vec3 sun_direct
   vec3 sun_h = sun_direction - mu_s * up;
   float phi = dot(view_h, view_h) * dot(sun_h, sun_h) > 1e-12 ?
       atan(length(cross(view_h, sun_h)), dot(view_h, sun_h)) : 0.0;
-  float fx;
-  int x0 = SkyViewSplit(sqrt(clamp(phi / PI, 0.0, 1.0)) * float(SV_N_AZ - 1), SV_N_AZ, fx);
+  SvStencil sc = SkyViewStencil(sqrt(clamp(phi / PI, 0.0, 1.0)) * float(SV_N_AZ - 1), 0,
+                                SV_N_AZ - 1, false, 0.0);
   // The sun coordinate: the sun's elevation above the observer's horizon, on the limb above the
   // horizon of the ray's tangent point (the reader's sun_shift).
   float shift = dip;
@@ -277,11 +282,14 @@ vec3 SkyViewRadiance(float h, float rho, vec3 up, vec3 view_ray, vec3 sun_direct
         for (int v = 0; v < 4; ++v) {
           if (v >= sv.len) break;
           int k = sa.first + a, j = ss.first + s, y = sv.first + v;
-          by_row[v] = part == 0 ?
-              SkyViewFetch(skyview_rayleigh, skyview_scale_rayleigh, k, j, y, x0, fx) :
-              SkyViewFetch(skyview_mie, skyview_scale_mie, k, j, y, x0, fx);
+          by_row[v] = part == 0 ? SkyViewFetch(skyview_rayleigh, k, j, y, sc) :
+                                  SkyViewFetch(skyview_mie, k, j, y, sc);
         }
-        by_sun[s] = SkyViewMix(sv, by_row);
+        // The slice's scale (the interpolation commutes with a common factor).
+        ivec2 slice = ivec2(ss.first + s, sa.first + a);
+        by_sun[s] = SkyViewMix(sv, by_row) * (part == 0 ?
+            texelFetch(skyview_scale_rayleigh, slice, 0).rgb :
+            texelFetch(skyview_scale_mie, slice, 0).rgb);
       }
       by_altitude[a] = SkyViewMix(ss, by_sun);
     }

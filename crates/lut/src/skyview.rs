@@ -540,10 +540,9 @@ impl Stencil {
     }
 }
 
-/// Reads a `skyview` bundle the way its client (a shader) does: per (altitude, sun, view row)
-/// node, one fetch linear in the azimuth column, times the slice's scale, then Lagrange
-/// interpolation of the logarithms ([`Stencil`]) over the view rows, the sun's and the
-/// altitude's nodes, four nodes per axis.
+/// Reads a `skyview` bundle the way its client (a shader) does: Lagrange interpolation of the
+/// logarithms ([`Stencil`]) over the azimuth columns, the view rows (times the slice's scale),
+/// the sun's and the altitude's nodes, four nodes per axis.
 pub struct SkyViewReader<'a> {
     pub bundle: &'a SkyViewBundle,
 }
@@ -553,26 +552,18 @@ impl<'a> SkyViewReader<'a> {
         Self { bundle }
     }
 
-    /// Fetch of row `y` of slice `z`, linear in the continuous column `col` (a GPU's linear
-    /// filtering at v = the row's centre), times the slice's scale (part 0 = Rayleigh-like,
-    /// 1 = Mie).
-    fn fetch(&self, part: usize, z: usize, col: f64, y: usize, out: &mut [f64]) {
+    /// Row `y` of slice `z` at the columns' stencil `sc` (the azimuth's: Lagrange interpolation
+    /// of the logarithms over 4 columns, as the other axes), without the slice's scale (part 0
+    /// = Rayleigh-like, 1 = Mie).
+    fn fetch(&self, part: usize, z: usize, sc: &Stencil, y: usize, out: &mut [f64]) {
         let b = self.bundle;
         let t = if part == 0 { &b.rayleigh } else { &b.mie };
-        let n_c = t.channels;
-        let (x0, fx) = split(col, N_AZ);
-        out.fill(0.0);
-        for (xx, wx) in [(x0, 1.0 - fx), (x0 + 1, fx)] {
-            if wx == 0.0 {
-                continue;
+        for (c, o) in out.iter_mut().enumerate() {
+            let mut v = [0.0; 4];
+            for (m, vm) in v.iter_mut().enumerate().take(sc.len) {
+                *vm = t.texel(sc.first + m, y, z)[c] as f64;
             }
-            for (o, v) in out.iter_mut().zip(t.texel(xx, y, z)) {
-                *o += wx * *v as f64;
-            }
-        }
-        let sc = b.scale.texel(z % N_SUN, z / N_SUN, 0);
-        for c in 0..n_c {
-            out[c] *= sc[part * n_c + c] as f64;
+            *o = sc.mix(&v);
         }
     }
 
@@ -609,6 +600,7 @@ impl<'a> SkyViewReader<'a> {
             1.0
         };
         let col = azimuth_coord(cos_phi.acos());
+        let sc = Stencil::new(col, 0, N_AZ - 1, |a| a as f64, col);
         let shift = sun_shift(r, theta, cos_phi, p.bottom_radius, seg == 1);
         let (sa, ss) = self.altitude_sun_stencils(r, mu_s, shift);
         let d = ray_length(r, mu, p.bottom_radius, p.top_radius, seg == 2);
@@ -625,13 +617,15 @@ impl<'a> SkyViewReader<'a> {
                     let j = ss.first + js;
                     let z = k * N_SUN + j;
                     for iv in 0..sv.len {
-                        self.fetch(part, z, col, sv.first + iv, &mut f);
+                        self.fetch(part, z, &sc, sv.first + iv, &mut f);
                         for c in 0..n_c {
                             by_row[c][iv] = f[c];
                         }
                     }
+                    // The slice's scale (the interpolation commutes with a common factor).
+                    let scale = self.bundle.scale.texel(j, k, 0);
                     for c in 0..n_c {
-                        by_sun[c][js] = sv.mix(&by_row[c]);
+                        by_sun[c][js] = sv.mix(&by_row[c]) * scale[part * n_c + c] as f64;
                     }
                 }
                 for c in 0..n_c {
