@@ -815,17 +815,17 @@ pub fn phase_from_json(v: &Value) -> crate::Result<Phase> {
 pub const STATED_ERRORS: &[(&str, &str, f64)] = &[
     ("transmittance", "direct normal irradiance (sun product), sun >= 5 deg, 0-100 km", 0.0003),
     ("transmittance", "direct normal irradiance (sun product), sun -6..5 deg", 0.004),
-    ("rayleigh+mie", "sky radiance (sky product), sun >= 5 deg, view > 10 deg above the horizon, ground", 0.0095),
-    ("rayleigh+mie", "sky radiance (sky product), sun >= 5 deg, view > 10 deg above the horizon, 0-20 km", 0.0081),
-    ("rayleigh+mie", "sky radiance (sky product), sun >= 5 deg, view > 10 deg above the horizon, 20-100 km", 0.014),
-    ("rayleigh+mie", "sky radiance (sky product), sun >= 5 deg, view < 10 deg above the horizon, ground", 0.017),
-    ("rayleigh+mie", "sky radiance (sky product), sun >= 5 deg, view < 10 deg above the horizon, 0-20 km", 0.047),
-    ("rayleigh+mie", "sky radiance (sky product), sun >= 5 deg, view < 10 deg above the horizon, 20-100 km", 0.10),
-    ("rayleigh+mie", "sky radiance (sky product), sun -6..5 deg, ground", 0.083),
-    ("rayleigh+mie", "sky radiance (sky product), sun -6..5 deg, 0-100 km", 0.115),
-    ("rayleigh+mie", "sky radiance (sky product), sun -12..-6 deg, ground", 0.063),
-    ("rayleigh+mie", "sky radiance (sky product), sun -12..-6 deg, 0-20 km", 0.21),
-    ("rayleigh+mie", "sky radiance (sky product), sun -12..-6 deg, 20-100 km (the limb across the earth's shadow)", 4.8),
+    ("rayleigh+mie", "sky radiance (sky product), sun >= 5 deg, view > 10 deg above the horizon, ground", 0.0027),
+    ("rayleigh+mie", "sky radiance (sky product), sun >= 5 deg, view > 10 deg above the horizon, 0-20 km", 0.0016),
+    ("rayleigh+mie", "sky radiance (sky product), sun >= 5 deg, view > 10 deg above the horizon, 20-100 km", 0.0075),
+    ("rayleigh+mie", "sky radiance (sky product), sun >= 5 deg, view < 10 deg above the horizon, ground", 0.0052),
+    ("rayleigh+mie", "sky radiance (sky product), sun >= 5 deg, view < 10 deg above the horizon, 0-20 km", 0.026),
+    ("rayleigh+mie", "sky radiance (sky product), sun >= 5 deg, view < 10 deg above the horizon, 20-100 km", 0.083),
+    ("rayleigh+mie", "sky radiance (sky product), sun -6..5 deg, ground", 0.042),
+    ("rayleigh+mie", "sky radiance (sky product), sun -6..5 deg, 0-100 km", 0.092),
+    ("rayleigh+mie", "sky radiance (sky product), sun -12..-6 deg, ground", 0.031),
+    ("rayleigh+mie", "sky radiance (sky product), sun -12..-6 deg, 0-20 km", 0.035),
+    ("rayleigh+mie", "sky radiance (sky product), sun -12..-6 deg, 20-100 km (the darkest sky: 5.7e-9 W m-2 sr-1 nm-1, the limb across the earth's shadow)", 1.12),
     ("irradiance", "diffuse horizontal irradiance (sun product), sun >= 5 deg, 0-100 km", 0.013),
     ("irradiance", "diffuse horizontal irradiance (sun product), sun -12..5 deg, 0-100 km", 0.009),
 ];
@@ -976,6 +976,74 @@ mod tests {
         assert!((geo_mix(a, b, 0.25) - 3.0 * (-0.5f64).exp()).abs() < 1e-12);
         // A zero end falls back to linear.
         assert_eq!(geo_mix(0.0, 2.0, 0.5), 1.0);
+    }
+
+    #[test]
+    fn the_stencil_is_exact_for_the_exponential_of_a_cubic_and_bounded() {
+        // ln f = a cubic in the abscissa: 4 non-uniform nodes reproduce it inside the segment.
+        let x = |i: usize| [0.0, 0.5, 1.5, 2.0, 3.0, 5.0][i];
+        let ln_f = |x: f64| 0.3 - 1.2 * x + 0.4 * x * x - 0.05 * x * x * x;
+        for (y, xq) in [(1.25, 0.75), (2.5, 1.75), (3.5, 4.0)] {
+            let st = Stencil::new(y, 0, 5, x, xq);
+            assert_eq!(st.len, 4);
+            assert!((st.w.iter().sum::<f64>() - 1.0).abs() < 1e-12);
+            let v: Vec<f64> = (st.first..st.first + 4).map(|i| ln_f(x(i)).exp()).collect();
+            let got = st.mix(&v);
+            assert!((got / ln_f(xq).exp() - 1.0).abs() < 1e-12, "y {y}: {got}");
+        }
+        // In a segment's first and last interval: 3 nodes (a quadratic); in a 2-node segment: 2.
+        assert_eq!(Stencil::new(0.5, 0, 5, x, 0.25).len, 3);
+        assert_eq!(Stencil::new(4.5, 0, 5, x, 4.0).len, 3);
+        assert_eq!(Stencil::new(0.5, 0, 1, |i| i as f64, 0.5).len, 2);
+        // A node returns its value; a step (the earth's shadow) does not overshoot.
+        let st = Stencil::new(2.0, 0, 5, |i| i as f64, 2.0);
+        assert_eq!(st.mix(&[1.0, 2.0, 3.0, 4.0]), 2.0);
+        let st = Stencil::new(2.5, 0, 5, |i| i as f64, 2.5);
+        let v = [1e-6, 1e-6, 1.0, 1.0];
+        let got = st.mix(&v);
+        assert!((1e-6..=1.0).contains(&got), "{got}");
+        // A value that is not positive: geometric between the interval's two nodes.
+        assert_eq!(st.mix(&[0.0, 2.0, 8.0, 1.0]), 4.0);
+    }
+
+    #[test]
+    fn the_limb_sun_shift_follows_the_tangent_point() {
+        let r = R + 60_000.0;
+        let dip_r = dip(r, R);
+        // Above the horizontal and below the horizon, and on the limb at the horizontal:
+        // the observer's horizon's dip.
+        assert_eq!(sun_shift(r, 1.0, 0.3, R, false), dip_r);
+        assert!((sun_shift(r, 0.5 * PI, -1.0, R, true) - dip_r).abs() < 1e-12);
+        // A deep limb ray (tangent point 40 km below the observer): the sun's elevation above
+        // the tangent point's horizon, from spherical geometry (sin e_t = sin e cos γ + cos e
+        // sin γ cos φ), agrees with the shift to first order in γ (γ = 6.4°: within 0.1°),
+        // weighted by 1 - exp(-40/20).
+        let r_t = R + 20_000.0;
+        let gamma = (r_t / r).acos();
+        let theta = 0.5 * PI + gamma;
+        for cos_phi in [-1.0, -0.3, 0.0, 0.6, 1.0] {
+            let e = (-8.0f64).to_radians();
+            let e_t = (e.sin() * gamma.cos() + e.cos() * gamma.sin() * cos_phi).asin();
+            let tangent = e_t + dip(r_t, R) - e;
+            let w = 1.0 - (-40_000.0 / LIMB_SHADOW_SCALE_M).exp();
+            let want = dip_r + w * (tangent - dip_r);
+            let got = sun_shift(r, theta, cos_phi, R, true);
+            assert!(
+                (got - want).abs() < 0.1f64.to_radians(),
+                "cos phi {cos_phi}: {} vs {} deg",
+                got.to_degrees(),
+                want.to_degrees()
+            );
+        }
+        // The shift never leaves the sun nodes' reach: elevation -12° at any limb ray from
+        // 100 km is above the first node.
+        let r = R + H;
+        let th = horizon_zenith(r, R);
+        for k in 0..=20 {
+            let theta = 0.5 * PI + (th - 0.5 * PI) * k as f64 / 20.0;
+            let s = -12.0 + sun_shift(r, theta, -1.0, R, true).to_degrees();
+            assert!(s >= SUN_MIN_DEG, "theta {theta}: {s}");
+        }
     }
 
     #[test]
