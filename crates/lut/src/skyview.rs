@@ -10,13 +10,15 @@
 //!   are stored *without* their phase functions (Rayleigh single + multiple / Rayleigh phase,
 //!   and single Mie without phase, per channel), so the client multiplies by the exact phase
 //!   functions and the aureole is as sharp as the aerosol's phase function;
-//! - **μs (13 nodes by day, linear)**: the sun's elevation has its own nodes, every
-//!   [`SUN_STEP_LOW_DEG`] from [`SUN_MIN_DEG`] to [`SUN_KNEE_DEG`] (twilight and low sun) and
-//!   every [`SUN_STEP_HIGH_DEG`] above;
+//! - **μs (13 nodes by day, linear)**: the sun's elevation above the observer's horizon has its
+//!   own nodes ([`SUN_SEGMENTS`], 0.5° in twilight), and on the limb rows the coordinate moves
+//!   towards the sun's elevation above the horizon of the ray's tangent point ([`sun_shift`]),
+//!   so the earth's shadow reaching a limb ray stays near one node;
 //! - **r (32 nodes, linear in ρ)**: altitude nodes quadratic in the altitude (dense low);
-//! - radiance that falls by orders of magnitude between nodes (aloft, twilight): the sun and
-//!   altitude interpolation is **geometric** (linear in ln L, exact for an exponential fall),
-//!   done by the client between four bilinear fetches, as his shader interpolates ν by hand;
+//! - radiance that falls by orders of magnitude between nodes (aloft, twilight): every axis is
+//!   interpolated in **ln L**, with the Lagrange polynomial through 4 nodes ([`Stencil`], exact
+//!   for the exponential of a cubic, bounded by the nodes' range), done by the client from
+//!   single texel fetches, as his shader interpolates ν by hand;
 //! - the view zenith is relative to the horizon of the observer's altitude (Hillaire 2020,
 //!   §5.3's sky-view parameterisation: nodes quadratic towards the horizon, from above and below),
 //!   so the horizon stays on a node at every altitude;
@@ -882,11 +884,11 @@ pub fn manifest(
             "sun_node": "the sun coordinate s_j (deg): every 2 deg from -23 to -15, every 1 deg to -8, every 0.5 deg to 6, every 1 deg to 20, every 4 deg to 104 (segments [start, step, intervals] in sun_segments). s = the sun's elevation + shift: for view rows above the horizontal and below the horizon (and the irradiance) shift = the horizon's dip acos(bottom_radius / r), the sun's elevation above the observer's horizon; for the limb rows (between the horizontal and the horizon) shift = dip + w (gamma cos(phi) + acos(bottom_radius / r_t) - dip), w = 1 - exp(-(r - r_t) / limb_shadow_scale_m): towards the sun's elevation above the horizon of the ray's tangent point, with dip = acos(bottom_radius / r), gamma = theta - pi/2, r_t = r cos(gamma), phi the view's azimuth from the sun; the texels of a limb row are at the sun elevations s_j - shift of their column's azimuth",
             "limb_shadow_scale_m": LIMB_SHADOW_SCALE_M,
             "sun_segments": SUN_SEGMENTS.iter().map(|(a, b, n)| json!([a, b, n])).collect::<Vec<_>>(),
-            "view_rows": format!("rows 0..{} from the zenith to the horizontal: theta = (pi/2) (1 - (1 - x)^2), x = row / {}; rows {}..{} from the horizontal to the horizon, uniform in the ray's tangent radius r_t = r - (r - bottom_radius) y, y = (row - {}) / {}, theta = pi/2 + acos(r_t / r); rows {}..{} from the horizon to the nadir: theta = theta_h + (pi - theta_h) x^2, x = (row - {}) / {}, theta_h = pi - asin(bottom_radius / r); r the observer's radius. Interpolation between the two rows around the view, within its segment, is geometric (each row fetched at its centre, the GPU filtering only the azimuth)", N_VIEW_SKY - 1, N_VIEW_SKY - 1, N_VIEW_SKY, N_VIEW_UP - 1, N_VIEW_SKY, N_VIEW_LIMB - 1, N_VIEW_UP, N_VIEW - 1, N_VIEW_UP, N_VIEW_DOWN - 1),
+            "view_rows": format!("rows 0..{} from the zenith to the horizontal: theta = (pi/2) (1 - (1 - x)^2), x = row / {}; rows {}..{} from the horizontal to the horizon, uniform in the ray's tangent radius r_t = r - (r - bottom_radius) y, y = (row - {}) / {}, theta = pi/2 + acos(r_t / r); rows {}..{} from the horizon to the nadir: theta = theta_h + (pi - theta_h) x^2, x = (row - {}) / {}, theta_h = pi - asin(bottom_radius / r); r the observer's radius. Interpolation over the rows around the view stays within its segment (see interpolation)", N_VIEW_SKY - 1, N_VIEW_SKY - 1, N_VIEW_SKY, N_VIEW_UP - 1, N_VIEW_SKY, N_VIEW_LIMB - 1, N_VIEW_UP, N_VIEW - 1, N_VIEW_UP, N_VIEW_DOWN - 1),
             "azimuth_columns": format!("phi = pi (column / {})^2, the view's azimuth from the sun's, 0..pi", N_AZ - 1),
             "slices": "slice = altitude_index * N_SUN + sun_index; file row = slice * N_VIEW + view_row; texture coordinates at texel centres: u = (column + 0.5) / N_AZ, v = (view_row + 0.5) / N_VIEW",
             "sizes": {"N_ALT": N_ALT, "N_SUN": N_SUN, "N_VIEW_SKY": N_VIEW_SKY, "N_VIEW_LIMB": N_VIEW_LIMB, "N_VIEW_DOWN": N_VIEW_DOWN, "N_AZ": N_AZ},
-            "interpolation": "per (altitude, sun, view row) node triple around the query: a fetch linear in the column at the row's centre, times the slice's scale; then over the rows, the sun nodes and then the altitude nodes, each axis with up to 4 nodes around the query within its segment (the row segments: sky, limb, below the horizon; 3 nodes in a segment's first and last interval): the Lagrange polynomial through the nodes' logarithms at the query, exp'd and bounded by the nodes' range; abscissas: the node index (altitude: sqrt(h / thickness) (N_ALT - 1); rows: as view_rows), for the sun the node's s_j in degrees; where a node value is not positive, geometric between the interval's two nodes, a^(1-t) b^t, linear where a value is not positive",
+            "interpolation": "per (altitude, sun, view row) node triple around the query: over the 4 azimuth columns around the query, then over the rows (times the slice's scale), the sun nodes and then the altitude nodes, each axis with up to 4 nodes around the query within its segment (the row segments: sky, limb, below the horizon; 3 nodes in a segment's first and last interval): the Lagrange polynomial through the nodes' logarithms at the query, exp'd and bounded by the nodes' range; abscissas: the node index (altitude: sqrt(h / thickness) (N_ALT - 1); rows: as view_rows; columns: sqrt(phi / pi) (N_AZ - 1)), for the sun the node's s_j in degrees; where a node value is not positive, geometric between the interval's two nodes, a^(1-t) b^t, linear where a value is not positive",
             "radiance": "L = rayleigh * RayleighPhase(nu) + mie * aerosol_phase_function(nu), nu = cos of the angle between view and sun; RayleighPhase = 3/(16 pi) (1 + nu^2)",
             "observer": "inside the atmosphere; above its top, move the observer along the view to the top first (a view missing the atmosphere sees nothing); views below the horizon: the in-scattered light along the ray to the ground, without the ground's reflection",
             "transmittance_texture": [crate::param::TRANSMITTANCE_WIDTH, crate::param::TRANSMITTANCE_HEIGHT],
