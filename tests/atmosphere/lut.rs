@@ -214,7 +214,7 @@ fn sky_radiance_of_the_spectral_form() {
 
 /// Case `case`'s observer altitude (m; every third at the ground, else 0–100 km) and sun
 /// elevation (°; even cases −12…5°, odd 5…90°).
-fn random_observer(rng: &mut Pcg64, case: usize) -> (f64, f64) {
+pub(crate) fn random_observer(rng: &mut Pcg64, case: usize) -> (f64, f64) {
     let altitude = if case % 3 == 0 {
         0.0
     } else {
@@ -228,16 +228,36 @@ fn random_observer(rng: &mut Pcg64, case: usize) -> (f64, f64) {
     (altitude, sun_deg)
 }
 
-fn sky_errors(f: &Fixture) -> Bands {
-    let reader = Reader::new(&f.bundle);
-    let mut rng = Pcg64::seed_from_u64(27);
-    let mut bands = Bands::default();
-    let bottom = f.bundle.params.bottom_radius;
-    for case in 0..24 {
+/// One view of the `sky` product at a random observer: where and what it sees, and the
+/// product's radiance in each bundle channel (W m⁻² sr⁻¹ nm⁻¹).
+pub(crate) struct SkySample {
+    pub(crate) altitude_m: f64,
+    pub(crate) sun_deg: f64,
+    pub(crate) view_zenith_deg: f64,
+    pub(crate) view_azimuth_deg: f64,
+    /// Within 10° above the observer's horizon.
+    pub(crate) near_horizon: bool,
+    pub(crate) radiance: Vec<f64>,
+}
+
+/// The `sky` product at `cases` random observers (every third at the ground, else 0–100 km;
+/// suns alternately −12…5° and 5…90°), 12 views each above the geometric horizon (the bundles
+/// leave the ground to the client), 4 of them within 10° of it. `spec_at(altitude, sun)` is the
+/// product's request, `channels` maps the product's wavelengths to the bundle's channels. Both
+/// layouts' tests compare their reader with these.
+pub(crate) fn sky_samples(
+    engine: &Engine,
+    bottom: f64,
+    seed: u64,
+    cases: usize,
+    spec_at: impl Fn(f64, f64) -> CommonSpec,
+    channels: impl Fn(&[f64]) -> Vec<usize>,
+) -> Vec<SkySample> {
+    let mut rng = Pcg64::seed_from_u64(seed);
+    let mut samples = Vec::new();
+    for case in 0..cases {
         let (altitude, sun_deg) = random_observer(&mut rng, case);
-        let spec = spec_at(f, altitude, sun_deg);
         let dip = (bottom / (bottom + altitude)).acos().to_degrees();
-        // Views above the geometric horizon (the bundle leaves the ground to the client).
         let probes: Vec<(f64, f64)> = (0..12)
             .map(|k| {
                 let elevation = if k < 4 {
@@ -248,10 +268,9 @@ fn sky_errors(f: &Fixture) -> Bands {
                 (90.0 - elevation, rng.random_range(0.0..180.0f64))
             })
             .collect();
-        let product = f
-            .engine
+        let product = engine
             .sky(
-                &spec,
+                &spec_at(altitude, sun_deg),
                 DomeShape {
                     elevation_count: 2,
                     azimuth_count: 1,
@@ -259,37 +278,64 @@ fn sky_errors(f: &Fixture) -> Bands {
                 &probes,
             )
             .unwrap();
-        let idx = channel_index(f, &product.table.wavelengths_nm);
-        let camera = [0.0, 0.0, bottom + altitude];
+        let idx = channels(&product.table.wavelengths_nm);
         for p in &product.probes {
-            let (radiance, _) = reader.sky_radiance(
-                camera,
-                view_dir(p.view_zenith_deg, p.view_azimuth_deg),
-                sun_dir(sun_deg),
+            samples.push(SkySample {
+                altitude_m: altitude,
+                sun_deg,
+                view_zenith_deg: p.view_zenith_deg,
+                view_azimuth_deg: p.view_azimuth_deg,
+                near_horizon: 90.0 - p.view_zenith_deg < -dip + 10.0,
+                radiance: idx.iter().map(|&i| p.radiance_w_m2_sr_nm[i]).collect(),
+            });
+        }
+    }
+    samples
+}
+
+/// The sample's case, for the worst-case printout.
+pub(crate) fn describe(s: &SkySample, nm: f64, got: f64, want: f64) -> String {
+    format!(
+        "(alt {:.0} m, sun {:.2}, view zenith {:.2} azimuth {:.2}, {nm} nm: {got:.4e} vs {want:.4e})",
+        s.altitude_m, s.sun_deg, s.view_zenith_deg, s.view_azimuth_deg
+    )
+}
+
+fn sky_errors(f: &Fixture) -> Bands {
+    let reader = Reader::new(&f.bundle);
+    let mut bands = Bands::default();
+    let bottom = f.bundle.params.bottom_radius;
+    let samples = sky_samples(
+        &f.engine,
+        bottom,
+        27,
+        24,
+        |altitude, sun| spec_at(f, altitude, sun),
+        |nm| channel_index(f, nm),
+    );
+    for s in &samples {
+        let (radiance, _) = reader.sky_radiance(
+            [0.0, 0.0, bottom + s.altitude_m],
+            view_dir(s.view_zenith_deg, s.view_azimuth_deg),
+            sun_dir(s.sun_deg),
+        );
+        let band = format!(
+            "{}, {}, {}",
+            sun_band(s.sun_deg),
+            if s.near_horizon {
+                "view < 10 deg above horizon"
+            } else {
+                "view > 10 deg above horizon"
+            },
+            altitude_band(s.altitude_m)
+        );
+        for (c, &want) in s.radiance.iter().enumerate() {
+            let got = radiance[c] / UNIT_SCALE;
+            bands.add_case(
+                &band,
+                rel(got, want),
+                describe(s, f.bundle.wavelengths_nm[c], got, want),
             );
-            let near_horizon = 90.0 - p.view_zenith_deg < -dip + 10.0;
-            let band = format!(
-                "{}, {}, {}",
-                sun_band(sun_deg),
-                if near_horizon {
-                    "view < 10 deg above horizon"
-                } else {
-                    "view > 10 deg above horizon"
-                },
-                altitude_band(altitude)
-            );
-            for (c, &i) in idx.iter().enumerate() {
-                let want = p.radiance_w_m2_sr_nm[i];
-                let got = radiance[c] / UNIT_SCALE;
-                bands.add_case(
-                    &band,
-                    rel(got, want),
-                    format!(
-                        "(alt {altitude:.0} m, sun {sun_deg:.2}, view zenith {:.2} azimuth {:.2}, {} nm: {got:.4e} vs {want:.4e})",
-                        p.view_zenith_deg, p.view_azimuth_deg, f.bundle.wavelengths_nm[c]
-                    ),
-                );
-            }
         }
     }
     bands.print(match f.bundle.channels {

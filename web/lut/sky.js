@@ -69,6 +69,9 @@ class LiveSky {
             return `#define SV_${k} ${z[k]}\n`;
           }).join("") +
         `#define SV_N_SUN_SEGMENTS ${segments.length}\n`;
+      const shadowScale = manifest.parameterisation.limb_shadow_scale_m;
+      if (!(shadowScale > 0)) throw new Error("manifest: parameterisation.limb_shadow_scale_m is not a length");
+      defines += `#define SV_LIMB_SHADOW_SCALE ${shadowScale.toExponential()}\n`;
       source = `${this.glsl}\n${this.skyviewGlsl}`;
     }
     if (!this.programs[defines]) {
@@ -131,7 +134,7 @@ class LiveSky {
   /** A skyview texture (rayleigh or mie: N_AZ × N_VIEW per slice, slice = altitude · N_SUN + sun,
    *  stacked in the file) as one 2-D RGBA16F texture with the slice of (altitude k, sun j) at
    *  columns j·N_AZ… and rows k·N_VIEW… (every WebGL2 device holds 2048² 2-D textures; a 3-D
-   *  texture of 1988 slices exceeds the guaranteed 256). Read by texelFetch: exact half floats. */
+   *  texture of 2100 slices exceeds the guaranteed 256). Read by texelFetch: exact half floats. */
   skyviewTiles(manifest, t, exr) {
     const gl = this.gl;
     const z = manifest.parameterisation.sizes;

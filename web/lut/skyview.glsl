@@ -11,23 +11,25 @@
 // layouts), its RhoAlong and SquareDifference, and the Rayleigh phase function. The including
 // program defines the node counts from the manifest's parameterisation.sizes: SV_N_ALT,
 // SV_N_SUN, SV_N_VIEW_SKY, SV_N_VIEW_LIMB, SV_N_VIEW_DOWN, SV_N_AZ, and SV_N_SUN_SEGMENTS (the
-// length of parameterisation.sun_segments).
+// length of parameterisation.sun_segments) and SV_LIMB_SHADOW_SCALE
+// (parameterisation.limb_shadow_scale_m, a float literal).
 //
 // Per query: node coordinates in altitude (sqrt(h / thickness) (N_ALT - 1)), the sun's elevation
 // above the observer's horizon (the manifest's segments), the view row within its segment (sky,
 // limb, below the horizon; relative to the observer's horizon) and the azimuth from the sun's
-// (sqrt(phi / pi) (N_AZ - 1)); for each of the 2 x 2 x 2 (altitude, sun, row) nodes around it two
-// texelFetch, linear in the column, times the slice's scale; geometric interpolation
-// a^(1-t) b^t over the row, the sun and the altitude (linear where a value is not positive);
-// times the ray's length (the textures hold radiance per metre of ray) and the exact phase
-// functions. Fetching texels (not the GPU's filtering, whose weights many GPUs round to 8 bits)
+// (sqrt(phi / pi) (N_AZ - 1)); over the 4 columns, the up to 4 rows (times the slice's scale),
+// 4 sun and 4 altitude nodes around it, the Lagrange polynomial of the values' logarithms
+// (SkyViewStencil, SkyViewMix; geometric a^(1-t) b^t between two nodes where a value is not
+// positive); on the limb rows the sun coordinate moves towards the sun's elevation above the
+// horizon of the ray's tangent point; times the ray's length (the textures hold radiance per
+// metre of ray) and the exact phase functions. Fetching texels (not the GPU's filtering, whose weights many GPUs round to 8 bits)
 // makes the result the same on every device. 32-bit floats: the altitude, the horizon's dip and
 // the limb row are computed from the altitude h and rho = sqrt(h (2 R + h)), not from ratios of
 // radii near 1, and the azimuth from the horizontal components of the view and the sun (atan),
 // not from acos of a cosine near 1.
 
 // ---- the bundle's skyview textures (web/lut/sky.js uploads them) ----
-// The rayleigh and mie textures, their 28 x 71 slices tiled in one 2-D texture: slice
+// The rayleigh and mie textures, their 28 x 75 slices tiled in one 2-D texture: slice
 // (altitude k, sun j) at columns j N_AZ .. and rows k N_VIEW .. (RGBA16F, the files' half floats).
 uniform sampler2D skyview_rayleigh;
 uniform sampler2D skyview_mie;
@@ -86,6 +88,82 @@ vec3 GeoMix(vec3 a, vec3 b, float t) {
   return mix(mix(a, b, t), geometric, positive);
 }
 
+// Interpolation along one node axis (SkyViewReader's Stencil): the nodes first .. first + len - 1
+// (up to 4) around the continuous node coordinate y within the axis segment lo..hi, their
+// Lagrange weights w at the query's abscissa xq (the nodes' abscissas from SkyViewAbscissa), the
+// interval's lower node i0 and fraction t.
+struct SvStencil {
+  int first;
+  int len;
+  vec4 w;
+  int i0;
+  float t;
+};
+
+// Sun node j's elevation above the observer's horizon (degrees), from the manifest's segments.
+float SkyViewSunNodeDeg(int j) {
+  int first = 0;
+  for (int s = 0; s < SV_N_SUN_SEGMENTS; ++s) {
+    vec3 seg = skyview_sun_segments[s];
+    int n = int(seg.z);
+    if (j <= first + n) return seg.x + float(j - first) * seg.y;
+    first += n;
+  }
+  vec3 last = skyview_sun_segments[SV_N_SUN_SEGMENTS - 1];
+  return last.x + last.z * last.y;
+}
+
+// The stencil of y in lo..hi; sun_axis: the abscissa is the node's elevation (degrees, xq the
+// query's), else the node index (xq = y).
+SvStencil SkyViewStencil(float y, int lo, int hi, bool sun_axis, float xq) {
+  SvStencil st;
+  y = clamp(y, float(lo), float(hi));
+  st.i0 = clamp(int(floor(y)), lo, hi - 1);
+  st.t = y - float(st.i0);
+  st.first = max(st.i0 - 1, lo);
+  int last = min(st.i0 + 2, hi);
+  st.len = last - st.first + 1;
+  if (!sun_axis) xq = y;
+  float x[4];
+  for (int m = 0; m < 4; ++m) {
+    int i = min(st.first + m, last);
+    x[m] = sun_axis ? SkyViewSunNodeDeg(i) : float(i);
+  }
+  st.w = vec4(0.0);
+  if (st.t == 0.0) {
+    st.w[st.i0 - st.first] = 1.0;
+    return st;
+  }
+  for (int m = 0; m < 4; ++m) {
+    if (m >= st.len) break;
+    float w = 1.0;
+    for (int n = 0; n < 4; ++n) {
+      if (n >= st.len) break;
+      if (n != m) w *= (xq - x[n]) / (x[m] - x[n]);
+    }
+    st.w[m] = w;
+  }
+  return st;
+}
+
+// The stencil's interpolation of its node values v[0 .. len - 1], per channel: the Lagrange
+// polynomial of their logarithms, bounded by the values' range; where a value is not positive,
+// GeoMix between the interval's two nodes.
+vec3 SkyViewMix(SvStencil st, vec3 v[4]) {
+  vec3 a = v[st.i0 - st.first];
+  vec3 b = v[st.i0 - st.first + 1];
+  if (st.t == 0.0) return a;
+  vec3 lo = a, hi = a, ln = vec3(0.0);
+  for (int m = 0; m < 4; ++m) {
+    if (m >= st.len) break;
+    lo = min(lo, v[m]);
+    hi = max(hi, v[m]);
+    ln += st.w[m] * log(max(v[m], vec3(1e-30)));
+  }
+  vec3 lagrange = clamp(exp(ln), lo, hi);
+  return mix(GeoMix(a, b, st.t), lagrange, vec3(greaterThan(lo, vec3(0.0))));
+}
+
 // Continuous sun node coordinate of an elevation above the observer's horizon (degrees).
 float SkyViewSunCoord(float above_horizon_deg) {
   float first = 0.0;
@@ -100,23 +178,28 @@ float SkyViewSunCoord(float above_horizon_deg) {
 }
 
 // Altitude node k0 (and fraction tk) and sun node j0 (and tj) at altitude h with sun zenith
-// cosine mu_s; rho = sqrt(h (2 bottom + h)).
-void SkyViewAltitudeSun(float h, float rho, float mu_s, out int k0, out float tk, out int j0,
-                        out float tj) {
+// cosine mu_s; shift: the angle added to the sun's elevation to make the sun coordinate (the
+// horizon's dip atan(rho, bottom_radius), or on the limb SkyViewRadiance's shift). above_deg: the
+// sun coordinate (degrees), clamped to the nodes.
+void SkyViewAltitudeSun(float h, float shift, float mu_s, out int k0, out float tk, out int j0,
+                        out float tj, out float above_deg) {
   float thickness = top_radius - bottom_radius;
   k0 = SkyViewSplit(sqrt(clamp(h / thickness, 0.0, 1.0)) * float(SV_N_ALT - 1), SV_N_ALT, tk);
-  // The sun's elevation above the observer's horizon: its elevation + the horizon's dip.
-  float dip = atan(rho, bottom_radius);
-  float above = asin(clamp(mu_s, -1.0, 1.0)) + dip;
-  j0 = SkyViewSplit(SkyViewSunCoord(degrees(above)), SV_N_SUN, tj);
+  above_deg = clamp(degrees(asin(clamp(mu_s, -1.0, 1.0)) + shift), SkyViewSunNodeDeg(0),
+                    SkyViewSunNodeDeg(SV_N_SUN - 1));
+  j0 = SkyViewSplit(SkyViewSunCoord(above_deg), SV_N_SUN, tj);
 }
 
-// One part's value at slice (k, j), row y, continuous column col (linear in the column, as the
-// reader's fetch), times the slice's scale.
-vec3 SkyViewFetch(sampler2D part, sampler2D part_scale, int k, int j, int y, int x0, float fx) {
-  ivec2 origin = ivec2(j * SV_N_AZ + x0, k * SV_N_VIEW + y);
-  vec3 v = mix(texelFetch(part, origin, 0).rgb, texelFetch(part, origin + ivec2(1, 0), 0).rgb, fx);
-  return v * texelFetch(part_scale, ivec2(j, k), 0).rgb;
+// One part's value at slice (k, j), row y, interpolated over the azimuth columns' stencil sc
+// (as the reader's fetch), without the slice's scale.
+vec3 SkyViewFetch(sampler2D part, int k, int j, int y, SvStencil sc) {
+  ivec2 origin = ivec2(j * SV_N_AZ + sc.first, k * SV_N_VIEW + y);
+  vec3 v[4] = vec3[4](vec3(0.0), vec3(0.0), vec3(0.0), vec3(0.0));
+  for (int m = 0; m < 4; ++m) {
+    if (m >= sc.len) break;
+    v[m] = texelFetch(part, origin + ivec2(m, 0), 0).rgb;
+  }
+  return SkyViewMix(sc, v);
 }
 
 // The radiance towards an observer at altitude h (inside the atmosphere; rho as above) looking
@@ -128,12 +211,13 @@ vec3 SkyViewRadiance(float h, float rho, vec3 up, vec3 view_ray, vec3 sun_direct
   float mu = clamp(dot(view_ray, up), -1.0, 1.0);
   float mu_s = clamp(dot(sun_direction, up), -1.0, 1.0);
   float nu = dot(view_ray, sun_direction);
-  int k0, j0;
-  float tk, tj;
-  SkyViewAltitudeSun(h, rho, mu_s, k0, tk, j0, tj);
   // The view row within its segment, relative to the observer's horizon (cos = -rho / r).
   int segment;
   float row;
+  // The horizon's dip, and on the limb the angle between the observer's and the ray's tangent
+  // point's verticals (gamma) and the tangent point's horizon's dip (dip_t).
+  float dip = atan(rho, bottom_radius);
+  float gamma = 0.0, dip_t = 0.0, h_t = h;
   if (mu >= 0.0) {
     // Zenith to horizontal: theta = (pi/2) (1 - (1 - x)^2); 1 - theta / (pi/2) = asin(mu) / (pi/2).
     segment = 0;
@@ -142,27 +226,40 @@ vec3 SkyViewRadiance(float h, float rho, vec3 up, vec3 view_ray, vec3 sun_direct
     // Horizontal to horizon, uniform in the ray's tangent radius r_t = r sqrt(1 - mu^2):
     // (r - r_t) / h, with r - r_t = r mu^2 / (1 + sqrt(1 - mu^2)).
     segment = 1;
-    float y = h > 0.0 ? clamp(r * mu * mu / (1.0 + sqrt(1.0 - mu * mu)) / h, 0.0, 1.0) : 1.0;
+    float r_minus_rt = r * mu * mu / (1.0 + sqrt(1.0 - mu * mu));
+    float y = h > 0.0 ? clamp(r_minus_rt / h, 0.0, 1.0) : 1.0;
     row = float(SV_N_VIEW_SKY) + y * float(SV_N_VIEW_LIMB - 1);
+    h_t = max(h - r_minus_rt, 0.0);
+    gamma = asin(-mu);
+    dip_t = atan(sqrt(h_t * (2.0 * bottom_radius + h_t)), bottom_radius);
   } else {
     // Horizon to nadir: theta = theta_h + (pi - theta_h) x^2, theta_h = pi/2 + dip.
     segment = 2;
-    float dip = atan(rho, bottom_radius);
     float x = sqrt(clamp((asin(-mu) - dip) / (0.5 * PI - dip), 0.0, 1.0));
     row = float(SV_N_VIEW_UP) + x * float(SV_N_VIEW_DOWN - 1);
   }
   int lo = segment == 0 ? 0 : segment == 1 ? SV_N_VIEW_SKY : SV_N_VIEW_UP;
   int hi = segment == 0 ? SV_N_VIEW_SKY - 1 : segment == 1 ? SV_N_VIEW_UP - 1 : SV_N_VIEW - 1;
-  float yc = clamp(row, float(lo), float(hi));
-  int y0 = min(int(floor(yc)), hi - 1);
-  float ty = yc - float(y0);
+  SvStencil sv = SkyViewStencil(row, lo, hi, false, 0.0);
   // The azimuth between the view and the sun around the vertical.
   vec3 view_h = view_ray - mu * up;
   vec3 sun_h = sun_direction - mu_s * up;
   float phi = dot(view_h, view_h) * dot(sun_h, sun_h) > 1e-12 ?
       atan(length(cross(view_h, sun_h)), dot(view_h, sun_h)) : 0.0;
-  float fx;
-  int x0 = SkyViewSplit(sqrt(clamp(phi / PI, 0.0, 1.0)) * float(SV_N_AZ - 1), SV_N_AZ, fx);
+  SvStencil sc = SkyViewStencil(sqrt(clamp(phi / PI, 0.0, 1.0)) * float(SV_N_AZ - 1), 0,
+                                SV_N_AZ - 1, false, 0.0);
+  // The sun coordinate: the sun's elevation above the observer's horizon, on the limb above the
+  // horizon of the ray's tangent point (the reader's sun_shift).
+  float shift = dip;
+  if (segment == 1) {
+    float w = 1.0 - exp(-(h - h_t) / SV_LIMB_SHADOW_SCALE);
+    shift = dip + w * (gamma * cos(phi) + dip_t - dip);
+  }
+  int k0, j0;
+  float tk, tj, above_deg;
+  SkyViewAltitudeSun(h, shift, mu_s, k0, tk, j0, tj, above_deg);
+  SvStencil sa = SkyViewStencil(float(k0) + tk, 0, SV_N_ALT - 1, false, 0.0);
+  SvStencil ss = SkyViewStencil(float(j0) + tj, 0, SV_N_SUN - 1, true, above_deg);
   // The ray's length: to the ground below the horizon, else to the top (closed forms, the
   // ground's as rho^2 / (-r mu + sqrt(...)) to avoid the cancellation near the horizon).
   float d;
@@ -175,23 +272,28 @@ vec3 SkyViewRadiance(float h, float rho, vec3 up, vec3 view_ray, vec3 sun_direct
   }
   vec3 parts[2];
   for (int part = 0; part < 2; ++part) {
-    vec3 by_altitude[2];
-    for (int a = 0; a < 2; ++a) {
-      vec3 by_sun[2];
-      for (int s = 0; s < 2; ++s) {
-        vec3 f0, f1;
-        if (part == 0) {
-          f0 = SkyViewFetch(skyview_rayleigh, skyview_scale_rayleigh, k0 + a, j0 + s, y0, x0, fx);
-          f1 = SkyViewFetch(skyview_rayleigh, skyview_scale_rayleigh, k0 + a, j0 + s, y0 + 1, x0, fx);
-        } else {
-          f0 = SkyViewFetch(skyview_mie, skyview_scale_mie, k0 + a, j0 + s, y0, x0, fx);
-          f1 = SkyViewFetch(skyview_mie, skyview_scale_mie, k0 + a, j0 + s, y0 + 1, x0, fx);
+    vec3 by_altitude[4] = vec3[4](vec3(0.0), vec3(0.0), vec3(0.0), vec3(0.0));
+    for (int a = 0; a < 4; ++a) {
+      if (a >= sa.len) break;
+      vec3 by_sun[4] = vec3[4](vec3(0.0), vec3(0.0), vec3(0.0), vec3(0.0));
+      for (int s = 0; s < 4; ++s) {
+        if (s >= ss.len) break;
+        vec3 by_row[4] = vec3[4](vec3(0.0), vec3(0.0), vec3(0.0), vec3(0.0));
+        for (int v = 0; v < 4; ++v) {
+          if (v >= sv.len) break;
+          int k = sa.first + a, j = ss.first + s, y = sv.first + v;
+          by_row[v] = part == 0 ? SkyViewFetch(skyview_rayleigh, k, j, y, sc) :
+                                  SkyViewFetch(skyview_mie, k, j, y, sc);
         }
-        by_sun[s] = GeoMix(f0, f1, ty);
+        // The slice's scale (the interpolation commutes with a common factor).
+        ivec2 slice = ivec2(ss.first + s, sa.first + a);
+        by_sun[s] = SkyViewMix(sv, by_row) * (part == 0 ?
+            texelFetch(skyview_scale_rayleigh, slice, 0).rgb :
+            texelFetch(skyview_scale_mie, slice, 0).rgb);
       }
-      by_altitude[a] = GeoMix(by_sun[0], by_sun[1], tj);
+      by_altitude[a] = SkyViewMix(ss, by_sun);
     }
-    parts[part] = GeoMix(by_altitude[0], by_altitude[1], tk) * d;
+    parts[part] = SkyViewMix(sa, by_altitude) * d;
   }
   return parts[0] * RayleighPhaseFunction(nu) + parts[1] * AerosolPhaseFunction(nu);
 }
@@ -257,8 +359,9 @@ vec3 GetSunAndSkyIrradiance(vec3 point, vec3 normal, vec3 sun_direction,
   float mu_s = dot(point, sun_direction) / r;
   float h = clamp(r - bottom_radius, 0.0, top_radius - bottom_radius);
   int k0, j0;
-  float tk, tj;
-  SkyViewAltitudeSun(h, sqrt(h * (2.0 * bottom_radius + h)), mu_s, k0, tk, j0, tj);
+  float tk, tj, above_deg;
+  SkyViewAltitudeSun(h, atan(sqrt(h * (2.0 * bottom_radius + h)), bottom_radius), mu_s, k0, tk,
+                     j0, tj, above_deg);
   vec3 lo = GeoMix(texelFetch(skyview_irradiance, ivec2(j0, k0), 0).rgb,
                    texelFetch(skyview_irradiance, ivec2(j0 + 1, k0), 0).rgb, tj);
   vec3 hi = GeoMix(texelFetch(skyview_irradiance, ivec2(j0, k0 + 1), 0).rgb,

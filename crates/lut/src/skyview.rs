@@ -10,13 +10,15 @@
 //!   are stored *without* their phase functions (Rayleigh single + multiple / Rayleigh phase,
 //!   and single Mie without phase, per channel), so the client multiplies by the exact phase
 //!   functions and the aureole is as sharp as the aerosol's phase function;
-//! - **μs (13 nodes by day, linear)**: the sun's elevation has its own nodes, every
-//!   [`SUN_STEP_LOW_DEG`] from [`SUN_MIN_DEG`] to [`SUN_KNEE_DEG`] (twilight and low sun) and
-//!   every [`SUN_STEP_HIGH_DEG`] above;
+//! - **μs (13 nodes by day, linear)**: the sun's elevation above the observer's horizon has its
+//!   own nodes ([`SUN_SEGMENTS`], 0.5° in twilight), and on the limb rows the coordinate moves
+//!   towards the sun's elevation above the horizon of the ray's tangent point ([`sun_shift`]),
+//!   so the earth's shadow reaching a limb ray stays near one node;
 //! - **r (32 nodes, linear in ρ)**: altitude nodes quadratic in the altitude (dense low);
-//! - radiance that falls by orders of magnitude between nodes (aloft, twilight): the sun and
-//!   altitude interpolation is **geometric** (linear in ln L, exact for an exponential fall),
-//!   done by the client between four bilinear fetches, as his shader interpolates ν by hand;
+//! - radiance that falls by orders of magnitude between nodes (aloft, twilight): every axis is
+//!   interpolated in **ln L**, with the Lagrange polynomial through 4 nodes ([`Stencil`], exact
+//!   for the exponential of a cubic, bounded by the nodes' range), done by the client from
+//!   single texel fetches, as his shader interpolates ν by hand;
 //! - the view zenith is relative to the horizon of the observer's altitude (Hillaire 2020,
 //!   §5.3's sky-view parameterisation: nodes quadratic towards the horizon, from above and below),
 //!   so the horizon stays on a node at every altitude;
@@ -46,7 +48,9 @@ use crate::param::{self, AtmosphereParameters};
 /// The layout's name (`--layout`, the manifest's `format`).
 pub const LAYOUT: &str = "skyview";
 /// Layout version (bumped when a file or a field changes meaning).
-pub const SKYVIEW_VERSION: &str = "1";
+/// 2: the limb rows' sun coordinate is the sun's elevation above the tangent point's horizon
+/// ([`sun_shift`]), sun nodes from −23°, Lagrange interpolation over 4 nodes per axis.
+pub const SKYVIEW_VERSION: &str = "2";
 
 /// Altitude nodes: h_k = (top − bottom) · (k / (N − 1))².
 pub const N_ALT: usize = 28;
@@ -55,14 +59,15 @@ pub const N_ALT: usize = 28;
 /// every 1° from [`SUN_MIN_DEG`] to −8°, every 0.5° to 6° (twilight and sunset), every 1° to
 /// 20° (low sun), every 4° to 104° (the zenith seen from the top of a 100 km atmosphere is
 /// 100.1° above its horizon).
-pub const SUN_MIN_DEG: f64 = -15.0;
-pub const SUN_SEGMENTS: [(f64, f64, usize); 4] = [
+pub const SUN_MIN_DEG: f64 = -23.0;
+pub const SUN_SEGMENTS: [(f64, f64, usize); 5] = [
+    (-23.0, 2.0, 4),
     (-15.0, 1.0, 7),
     (-8.0, 0.5, 28),
     (6.0, 1.0, 14),
     (20.0, 4.0, 21),
 ];
-pub const N_SUN: usize = 7 + 28 + 14 + 21 + 1;
+pub const N_SUN: usize = 4 + 7 + 28 + 14 + 21 + 1;
 /// View rows: from the zenith to the horizontal ([`N_VIEW_SKY`], θ = 90° (1 − (1 − x)²)),
 /// from the horizontal to the horizon ([`N_VIEW_LIMB`], uniform in the tangent altitude of the
 /// ray, from the observer's altitude to 0) and from the horizon to the nadir
@@ -112,6 +117,38 @@ pub fn sun_coord(above_horizon_deg: f64) -> f64 {
 pub fn dip(r: f64, bottom: f64) -> f64 {
     (bottom / r).min(1.0).acos()
 }
+
+/// The angle (rad) added to the sun's elevation to make the sun coordinate of a ray from radius
+/// `r` with view zenith angle `theta` at azimuth `cos_phi` from the sun (cosine), `limb` when the
+/// ray is in the limb rows' segment (between the horizontal and the horizon). Rays above the
+/// horizontal and below the horizon: the horizon's dip at the observer, so the coordinate is
+/// the sun's elevation above the observer's horizon (sunset on one node at every altitude).
+/// Limb rays: towards the sun's elevation above the horizon of the ray's tangent point (its
+/// lowest and densest point), γ cos φ + dip(r_t), with γ = θ − π/2 the angle between the
+/// observer's and the tangent point's verticals and r_t = r cos γ (to first order in γ the
+/// sun's elevation at the tangent point is its elevation at the observer + γ cos φ), weighted
+/// by 1 − exp(−(r − r_t) / [`LIMB_SHADOW_SCALE_M`]): the earth's shadow reaches a deep limb
+/// ray's tangent point at coordinate 0 at every altitude, row and azimuth, so the limb's fall
+/// into the shadow stays near one sun node instead of moving across the nodes with the rows.
+pub fn sun_shift(r: f64, theta: f64, cos_phi: f64, bottom: f64, limb: bool) -> f64 {
+    if limb {
+        let gamma = (theta - 0.5 * PI).max(0.0);
+        let r_t = r * gamma.cos();
+        let w = 1.0 - (-(r - r_t) / LIMB_SHADOW_SCALE_M).exp();
+        let tangent = gamma * cos_phi + dip(r_t, bottom);
+        let observer = dip(r, bottom);
+        observer + w * (tangent - observer)
+    } else {
+        dip(r, bottom)
+    }
+}
+
+/// The depth of a limb ray's tangent point below the observer (m) over which the limb rows' sun
+/// coordinate moves from the observer's horizon to the tangent point's ([`sun_shift`]): weight
+/// 1 − exp(−(r − r_t) / this). Near the horizontal the air at the observer's altitude lights the
+/// ray as much as the tangent point's; measured against 3 and 8 km (and the tangent point alone)
+/// on the twilight limb, docs/lut.md.
+pub const LIMB_SHADOW_SCALE_M: f64 = 20_000.0;
 
 /// Altitude of node `k`, m, for an atmosphere `thickness` m thick.
 pub fn altitude_node_m(k: usize, thickness: f64) -> f64 {
@@ -169,7 +206,7 @@ pub fn view_coord(theta: f64, r: f64, bottom: f64) -> (usize, f64) {
 }
 
 /// First and last row of segment `seg`.
-fn segment_rows(seg: usize) -> (usize, usize) {
+pub fn segment_rows(seg: usize) -> (usize, usize) {
     match seg {
         0 => (0, N_VIEW_SKY - 1),
         1 => (N_VIEW_SKY, N_VIEW_UP - 1),
@@ -309,9 +346,12 @@ pub fn build_skyview(
                 scratch.prepare(r, mu, steps);
                 let mut nus = [0.0; N_SUN * N_AZ];
                 for j in 0..N_SUN {
-                    let mu_s = sun_mu(k, j);
-                    let sin_s = (1.0 - mu_s * mu_s).max(0.0).sqrt();
                     for a in 0..N_AZ {
+                        let phi = azimuth_node(a);
+                        let limb = (N_VIEW_SKY..N_VIEW_UP).contains(&i);
+                        let shift = sun_shift(r, theta, phi.cos(), bottom, limb);
+                        let mu_s = (sun_node_deg(j).to_radians() - shift).sin();
+                        let sin_s = (1.0 - mu_s * mu_s).max(0.0).sqrt();
                         let nu =
                             (mu * mu_s + sin_t * sin_s * azimuth_node(a).cos()).clamp(-1.0, 1.0);
                         scratch.push_sun(mu_s, nu);
@@ -440,9 +480,80 @@ fn geo_mix(a: f64, b: f64, t: f64) -> f64 {
     }
 }
 
-/// Reads a `skyview` bundle the way its client (a shader) does: per (altitude, sun) node pair,
-/// one bilinear fetch (clamped to the edge) in (azimuth, view) of each texture, times the
-/// slice's scale, then geometric interpolation over the sun's and the altitude's nodes.
+/// Interpolation weights along one node axis: the (up to) four nodes around a query, within
+/// one segment of the axis, and their Lagrange weights at the query's abscissa (cubic inside
+/// the segment, quadratic in its first and last interval, linear in a segment of two nodes).
+#[derive(Debug, Clone, Copy)]
+pub struct Stencil {
+    /// First node of the stencil.
+    pub first: usize,
+    /// Number of nodes (2 to 4).
+    pub len: usize,
+    /// Lagrange weights of the nodes first..first + len (they sum to 1).
+    pub w: [f64; 4],
+    /// The interval's lower node (first + 0 or 1) and the fraction within it (the geometric
+    /// interpolation's, where a value is not positive).
+    pub i0: usize,
+    pub t: f64,
+}
+
+impl Stencil {
+    /// The stencil of continuous node coordinate `y` in the segment of nodes `lo..=hi`, the
+    /// nodes' abscissas `x(i)` and the query's `xq` (the abscissa in which the interpolation is
+    /// polynomial; the node coordinate itself where the nodes are uniform in it).
+    pub fn new(y: f64, lo: usize, hi: usize, x: impl Fn(usize) -> f64, xq: f64) -> Self {
+        let y = y.clamp(lo as f64, hi as f64);
+        let i0 = (y.floor() as usize).clamp(lo, hi - 1);
+        let t = y - i0 as f64;
+        let (first, last) = (i0.saturating_sub(1).max(lo), (i0 + 2).min(hi));
+        let len = last - first + 1;
+        let mut w = [0.0; 4];
+        if t == 0.0 {
+            w[i0 - first] = 1.0;
+        } else {
+            for (m, wm) in w.iter_mut().enumerate().take(len) {
+                let xm = x(first + m);
+                *wm = (0..len)
+                    .filter(|&n| n != m)
+                    .map(|n| {
+                        let xn = x(first + n);
+                        (xq - xn) / (xm - xn)
+                    })
+                    .product();
+            }
+        }
+        Self {
+            first,
+            len,
+            w,
+            i0,
+            t,
+        }
+    }
+
+    /// Interpolates `v` (the stencil's node values): the Lagrange polynomial of their
+    /// logarithms (exact for exponentials of a cubic), bounded by the values' range; where a
+    /// value is not positive, geometric between the interval's two nodes ([`geo_mix`]).
+    pub fn mix(&self, v: &[f64]) -> f64 {
+        let v = &v[..self.len];
+        let (a, b) = (v[self.i0 - self.first], v[self.i0 + 1 - self.first]);
+        if self.t == 0.0 {
+            return a;
+        }
+        if v.iter().any(|&x| x <= 0.0 || !x.is_finite()) {
+            return geo_mix(a, b, self.t);
+        }
+        let ln: f64 = v.iter().zip(&self.w).map(|(x, w)| w * x.ln()).sum();
+        let (lo, hi) = v
+            .iter()
+            .fold((f64::MAX, 0.0f64), |(l, h), &x| (l.min(x), h.max(x)));
+        ln.exp().clamp(lo, hi)
+    }
+}
+
+/// Reads a `skyview` bundle the way its client (a shader) does: Lagrange interpolation of the
+/// logarithms ([`Stencil`]) over the azimuth columns, the view rows (times the slice's scale),
+/// the sun's and the altitude's nodes, four nodes per axis.
 pub struct SkyViewReader<'a> {
     pub bundle: &'a SkyViewBundle,
 }
@@ -452,27 +563,34 @@ impl<'a> SkyViewReader<'a> {
         Self { bundle }
     }
 
-    /// Fetch of row `y` of slice `z`, linear in the continuous column `col` (a GPU's linear
-    /// filtering at v = the row's centre), times the slice's scale (part 0 = Rayleigh-like,
-    /// 1 = Mie).
-    fn fetch(&self, part: usize, z: usize, col: f64, y: usize, out: &mut [f64]) {
+    /// Row `y` of slice `z` at the columns' stencil `sc` (the azimuth's: Lagrange interpolation
+    /// of the logarithms over 4 columns, as the other axes), without the slice's scale (part 0
+    /// = Rayleigh-like, 1 = Mie).
+    fn fetch(&self, part: usize, z: usize, sc: &Stencil, y: usize, out: &mut [f64]) {
         let b = self.bundle;
         let t = if part == 0 { &b.rayleigh } else { &b.mie };
-        let n_c = t.channels;
-        let (x0, fx) = split(col, N_AZ);
-        out.fill(0.0);
-        for (xx, wx) in [(x0, 1.0 - fx), (x0 + 1, fx)] {
-            if wx == 0.0 {
-                continue;
+        for (c, o) in out.iter_mut().enumerate() {
+            let mut v = [0.0; 4];
+            for (m, vm) in v.iter_mut().enumerate().take(sc.len) {
+                *vm = t.texel(sc.first + m, y, z)[c] as f64;
             }
-            for (o, v) in out.iter_mut().zip(t.texel(xx, y, z)) {
-                *o += wx * *v as f64;
-            }
+            *o = sc.mix(&v);
         }
-        let sc = b.scale.texel(z % N_SUN, z / N_SUN, 0);
-        for c in 0..n_c {
-            out[c] *= sc[part * n_c + c] as f64;
-        }
+    }
+
+    /// The altitude and sun stencils at radius `r` (clamped to the atmosphere) and sun zenith
+    /// cosine `mu_s`; `shift`: [`sun_shift`] of the query's ray.
+    fn altitude_sun_stencils(&self, r: f64, mu_s: f64, shift: f64) -> (Stencil, Stencil) {
+        let p = &self.bundle.params;
+        let thickness = p.top_radius - p.bottom_radius;
+        let ya = altitude_coord(r - p.bottom_radius, thickness);
+        let sa = Stencil::new(ya, 0, N_ALT - 1, |k| k as f64, ya);
+        let above = mu_s.clamp(-1.0, 1.0).asin() + shift;
+        let deg = above
+            .to_degrees()
+            .clamp(SUN_MIN_DEG, sun_node_deg(N_SUN - 1));
+        let ss = Stencil::new(sun_coord(deg), 0, N_SUN - 1, sun_node_deg, deg);
+        (sa, ss)
     }
 
     /// The stored sky at radius `r` (inside the atmosphere) for view zenith cosine `mu`, sun
@@ -482,15 +600,10 @@ impl<'a> SkyViewReader<'a> {
         let p = &self.bundle.params;
         let n_c = self.bundle.wavelengths_nm.len();
         let r = r.clamp(p.bottom_radius, p.top_radius);
-        let thickness = p.top_radius - p.bottom_radius;
-        let (k0, tk) = split(altitude_coord(r - p.bottom_radius, thickness), N_ALT);
-        let above_horizon = mu_s.clamp(-1.0, 1.0).asin() + dip(r, p.bottom_radius);
-        let (j0, tj) = split(sun_coord(above_horizon.to_degrees()), N_SUN);
-        let (seg, row) = view_coord(mu.clamp(-1.0, 1.0).acos(), r, p.bottom_radius);
+        let theta = mu.clamp(-1.0, 1.0).acos();
+        let (seg, row) = view_coord(theta, r, p.bottom_radius);
         let (lo, hi) = segment_rows(seg);
-        let y = row.clamp(lo as f64, hi as f64);
-        let y0 = (y.floor() as usize).min(hi - 1);
-        let ty = y - y0 as f64;
+        let sv = Stencil::new(row, lo, hi, |i| i as f64, row);
         let den = ((1.0 - mu * mu) * (1.0 - mu_s * mu_s)).max(0.0).sqrt();
         let cos_phi = if den > 1e-12 {
             ((nu - mu * mu_s) / den).clamp(-1.0, 1.0)
@@ -498,27 +611,40 @@ impl<'a> SkyViewReader<'a> {
             1.0
         };
         let col = azimuth_coord(cos_phi.acos());
+        let sc = Stencil::new(col, 0, N_AZ - 1, |a| a as f64, col);
+        let shift = sun_shift(r, theta, cos_phi, p.bottom_radius, seg == 1);
+        let (sa, ss) = self.altitude_sun_stencils(r, mu_s, shift);
         let d = ray_length(r, mu, p.bottom_radius, p.top_radius, seg == 2);
         let mut out = [vec![0.0; n_c], vec![0.0; n_c]];
-        let (mut f0, mut f1) = (vec![0.0; n_c], vec![0.0; n_c]);
-        let mut by_sun = [vec![0.0; n_c], vec![0.0; n_c]];
-        let mut by_alt = [vec![0.0; n_c], vec![0.0; n_c]];
-        for part in 0..2 {
-            for (ki, k) in [k0, k0 + 1].into_iter().enumerate() {
-                for (ji, j) in [j0, j0 + 1].into_iter().enumerate() {
+        let mut f = vec![0.0; n_c];
+        // Node values per channel: [row][channel], then [sun][channel], then [altitude][channel].
+        let mut by_row = vec![[0.0f64; 4]; n_c];
+        let mut by_sun = vec![[0.0f64; 4]; n_c];
+        let mut by_alt = vec![[0.0f64; 4]; n_c];
+        for (part, out) in out.iter_mut().enumerate() {
+            for ka in 0..sa.len {
+                let k = sa.first + ka;
+                for js in 0..ss.len {
+                    let j = ss.first + js;
                     let z = k * N_SUN + j;
-                    self.fetch(part, z, col, y0, &mut f0);
-                    self.fetch(part, z, col, y0 + 1, &mut f1);
+                    for iv in 0..sv.len {
+                        self.fetch(part, z, &sc, sv.first + iv, &mut f);
+                        for c in 0..n_c {
+                            by_row[c][iv] = f[c];
+                        }
+                    }
+                    // The slice's scale (the interpolation commutes with a common factor).
+                    let scale = self.bundle.scale.texel(j, k, 0);
                     for c in 0..n_c {
-                        by_sun[ji][c] = geo_mix(f0[c], f1[c], ty);
+                        by_sun[c][js] = sv.mix(&by_row[c]) * scale[part * n_c + c] as f64;
                     }
                 }
                 for c in 0..n_c {
-                    by_alt[ki][c] = geo_mix(by_sun[0][c], by_sun[1][c], tj);
+                    by_alt[c][ka] = ss.mix(&by_sun[c]);
                 }
             }
             for c in 0..n_c {
-                out[part][c] = geo_mix(by_alt[0][c], by_alt[1][c], tk) * d;
+                out[c] = sa.mix(&by_alt[c]) * d;
             }
         }
         let [s, mm] = out;
@@ -700,17 +826,17 @@ pub fn phase_from_json(v: &Value) -> crate::Result<Phase> {
 pub const STATED_ERRORS: &[(&str, &str, f64)] = &[
     ("transmittance", "direct normal irradiance (sun product), sun >= 5 deg, 0-100 km", 0.0003),
     ("transmittance", "direct normal irradiance (sun product), sun -6..5 deg", 0.004),
-    ("rayleigh+mie", "sky radiance (sky product), sun >= 5 deg, view > 10 deg above the horizon, ground", 0.0095),
-    ("rayleigh+mie", "sky radiance (sky product), sun >= 5 deg, view > 10 deg above the horizon, 0-20 km", 0.0081),
-    ("rayleigh+mie", "sky radiance (sky product), sun >= 5 deg, view > 10 deg above the horizon, 20-100 km", 0.014),
-    ("rayleigh+mie", "sky radiance (sky product), sun >= 5 deg, view < 10 deg above the horizon, ground", 0.017),
-    ("rayleigh+mie", "sky radiance (sky product), sun >= 5 deg, view < 10 deg above the horizon, 0-20 km", 0.047),
-    ("rayleigh+mie", "sky radiance (sky product), sun >= 5 deg, view < 10 deg above the horizon, 20-100 km", 0.10),
-    ("rayleigh+mie", "sky radiance (sky product), sun -6..5 deg, ground", 0.083),
-    ("rayleigh+mie", "sky radiance (sky product), sun -6..5 deg, 0-100 km", 0.115),
-    ("rayleigh+mie", "sky radiance (sky product), sun -12..-6 deg, ground", 0.063),
-    ("rayleigh+mie", "sky radiance (sky product), sun -12..-6 deg, 0-20 km", 0.21),
-    ("rayleigh+mie", "sky radiance (sky product), sun -12..-6 deg, 20-100 km (the limb across the earth's shadow)", 4.8),
+    ("rayleigh+mie", "sky radiance (sky product), sun >= 5 deg, view > 10 deg above the horizon, ground", 0.0027),
+    ("rayleigh+mie", "sky radiance (sky product), sun >= 5 deg, view > 10 deg above the horizon, 0-20 km", 0.0016),
+    ("rayleigh+mie", "sky radiance (sky product), sun >= 5 deg, view > 10 deg above the horizon, 20-100 km", 0.0075),
+    ("rayleigh+mie", "sky radiance (sky product), sun >= 5 deg, view < 10 deg above the horizon, ground", 0.0052),
+    ("rayleigh+mie", "sky radiance (sky product), sun >= 5 deg, view < 10 deg above the horizon, 0-20 km", 0.026),
+    ("rayleigh+mie", "sky radiance (sky product), sun >= 5 deg, view < 10 deg above the horizon, 20-100 km", 0.083),
+    ("rayleigh+mie", "sky radiance (sky product), sun -6..5 deg, ground", 0.042),
+    ("rayleigh+mie", "sky radiance (sky product), sun -6..5 deg, 0-100 km", 0.092),
+    ("rayleigh+mie", "sky radiance (sky product), sun -12..-6 deg, ground", 0.031),
+    ("rayleigh+mie", "sky radiance (sky product), sun -12..-6 deg, 0-20 km", 0.035),
+    ("rayleigh+mie", "sky radiance (sky product), sun -12..-6 deg, 20-100 km (the darkest sky: 5.7e-9 W m-2 sr-1 nm-1, the limb across the earth's shadow)", 1.12),
     ("irradiance", "diffuse horizontal irradiance (sun product), sun >= 5 deg, 0-100 km", 0.013),
     ("irradiance", "diffuse horizontal irradiance (sun product), sun -12..5 deg, 0-100 km", 0.009),
 ];
@@ -764,13 +890,14 @@ pub fn manifest(
             "altitude_nodes_m": altitude_nodes,
             "altitude_node": "h_k = (top_radius - bottom_radius) * (k / (N_ALT - 1))^2, k = 0..N_ALT-1",
             "sun_elevation_nodes_deg": sun_nodes,
-            "sun_node": "the sun's elevation above the observer's horizon, e_j (deg) = its elevation + the horizon's dip acos(bottom_radius / r): every 1 deg from -15 to -8, every 0.5 deg to 6, every 1 deg to 20, every 4 deg to 104 (segments [start, step, intervals] in sun_segments)",
+            "sun_node": "the sun coordinate s_j (deg): every 2 deg from -23 to -15, every 1 deg to -8, every 0.5 deg to 6, every 1 deg to 20, every 4 deg to 104 (segments [start, step, intervals] in sun_segments). s = the sun's elevation + shift: for view rows above the horizontal and below the horizon (and the irradiance) shift = the horizon's dip acos(bottom_radius / r), the sun's elevation above the observer's horizon; for the limb rows (between the horizontal and the horizon) shift = dip + w (gamma cos(phi) + acos(bottom_radius / r_t) - dip), w = 1 - exp(-(r - r_t) / limb_shadow_scale_m): towards the sun's elevation above the horizon of the ray's tangent point, with dip = acos(bottom_radius / r), gamma = theta - pi/2, r_t = r cos(gamma), phi the view's azimuth from the sun; the texels of a limb row are at the sun elevations s_j - shift of their column's azimuth",
+            "limb_shadow_scale_m": LIMB_SHADOW_SCALE_M,
             "sun_segments": SUN_SEGMENTS.iter().map(|(a, b, n)| json!([a, b, n])).collect::<Vec<_>>(),
-            "view_rows": format!("rows 0..{} from the zenith to the horizontal: theta = (pi/2) (1 - (1 - x)^2), x = row / {}; rows {}..{} from the horizontal to the horizon, uniform in the ray's tangent radius r_t = r - (r - bottom_radius) y, y = (row - {}) / {}, theta = pi/2 + acos(r_t / r); rows {}..{} from the horizon to the nadir: theta = theta_h + (pi - theta_h) x^2, x = (row - {}) / {}, theta_h = pi - asin(bottom_radius / r); r the observer's radius. Interpolation between the two rows around the view, within its segment, is geometric (each row fetched at its centre, the GPU filtering only the azimuth)", N_VIEW_SKY - 1, N_VIEW_SKY - 1, N_VIEW_SKY, N_VIEW_UP - 1, N_VIEW_SKY, N_VIEW_LIMB - 1, N_VIEW_UP, N_VIEW - 1, N_VIEW_UP, N_VIEW_DOWN - 1),
+            "view_rows": format!("rows 0..{} from the zenith to the horizontal: theta = (pi/2) (1 - (1 - x)^2), x = row / {}; rows {}..{} from the horizontal to the horizon, uniform in the ray's tangent radius r_t = r - (r - bottom_radius) y, y = (row - {}) / {}, theta = pi/2 + acos(r_t / r); rows {}..{} from the horizon to the nadir: theta = theta_h + (pi - theta_h) x^2, x = (row - {}) / {}, theta_h = pi - asin(bottom_radius / r); r the observer's radius. Interpolation over the rows around the view stays within its segment (see interpolation)", N_VIEW_SKY - 1, N_VIEW_SKY - 1, N_VIEW_SKY, N_VIEW_UP - 1, N_VIEW_SKY, N_VIEW_LIMB - 1, N_VIEW_UP, N_VIEW - 1, N_VIEW_UP, N_VIEW_DOWN - 1),
             "azimuth_columns": format!("phi = pi (column / {})^2, the view's azimuth from the sun's, 0..pi", N_AZ - 1),
             "slices": "slice = altitude_index * N_SUN + sun_index; file row = slice * N_VIEW + view_row; texture coordinates at texel centres: u = (column + 0.5) / N_AZ, v = (view_row + 0.5) / N_VIEW",
             "sizes": {"N_ALT": N_ALT, "N_SUN": N_SUN, "N_VIEW_SKY": N_VIEW_SKY, "N_VIEW_LIMB": N_VIEW_LIMB, "N_VIEW_DOWN": N_VIEW_DOWN, "N_AZ": N_AZ},
-            "interpolation": "per (altitude, sun, view row) node triple around the query: a fetch linear in the column at the row's centre, times the slice's scale; then between the two rows, the two sun nodes and then the two altitude nodes geometrically, a^(1-t) b^t (linear where a value is not positive); t is the fraction of the continuous node coordinate (altitude: sqrt(h / thickness) (N_ALT - 1); sun: the inverse of sun_node)",
+            "interpolation": "per (altitude, sun, view row) node triple around the query: over the 4 azimuth columns around the query, then over the rows (times the slice's scale), the sun nodes and then the altitude nodes, each axis with up to 4 nodes around the query within its segment (the row segments: sky, limb, below the horizon; 3 nodes in a segment's first and last interval): the Lagrange polynomial through the nodes' logarithms at the query, exp'd and bounded by the nodes' range; abscissas: the node index (altitude: sqrt(h / thickness) (N_ALT - 1); rows: as view_rows; columns: sqrt(phi / pi) (N_AZ - 1)), for the sun the node's s_j in degrees; where a node value is not positive, geometric between the interval's two nodes, a^(1-t) b^t, linear where a value is not positive",
             "radiance": "L = rayleigh * RayleighPhase(nu) + mie * aerosol_phase_function(nu), nu = cos of the angle between view and sun; RayleighPhase = 3/(16 pi) (1 + nu^2)",
             "observer": "inside the atmosphere; above its top, move the observer along the view to the top first (a view missing the atmosphere sees nothing); views below the horizon: the in-scattered light along the ray to the ground, without the ground's reflection",
             "transmittance_texture": [crate::param::TRANSMITTANCE_WIDTH, crate::param::TRANSMITTANCE_HEIGHT],
@@ -860,6 +987,74 @@ mod tests {
         assert!((geo_mix(a, b, 0.25) - 3.0 * (-0.5f64).exp()).abs() < 1e-12);
         // A zero end falls back to linear.
         assert_eq!(geo_mix(0.0, 2.0, 0.5), 1.0);
+    }
+
+    #[test]
+    fn the_stencil_is_exact_for_the_exponential_of_a_cubic_and_bounded() {
+        // ln f = a cubic in the abscissa: 4 non-uniform nodes reproduce it inside the segment.
+        let x = |i: usize| [0.0, 0.5, 1.5, 2.0, 3.0, 5.0][i];
+        let ln_f = |x: f64| 0.3 - 1.2 * x + 0.4 * x * x - 0.05 * x * x * x;
+        for (y, xq) in [(1.25, 0.75), (2.5, 1.75), (3.5, 4.0)] {
+            let st = Stencil::new(y, 0, 5, x, xq);
+            assert_eq!(st.len, 4);
+            assert!((st.w.iter().sum::<f64>() - 1.0).abs() < 1e-12);
+            let v: Vec<f64> = (st.first..st.first + 4).map(|i| ln_f(x(i)).exp()).collect();
+            let got = st.mix(&v);
+            assert!((got / ln_f(xq).exp() - 1.0).abs() < 1e-12, "y {y}: {got}");
+        }
+        // In a segment's first and last interval: 3 nodes (a quadratic); in a 2-node segment: 2.
+        assert_eq!(Stencil::new(0.5, 0, 5, x, 0.25).len, 3);
+        assert_eq!(Stencil::new(4.5, 0, 5, x, 4.0).len, 3);
+        assert_eq!(Stencil::new(0.5, 0, 1, |i| i as f64, 0.5).len, 2);
+        // A node returns its value; a step (the earth's shadow) does not overshoot.
+        let st = Stencil::new(2.0, 0, 5, |i| i as f64, 2.0);
+        assert_eq!(st.mix(&[1.0, 2.0, 3.0, 4.0]), 2.0);
+        let st = Stencil::new(2.5, 0, 5, |i| i as f64, 2.5);
+        let v = [1e-6, 1e-6, 1.0, 1.0];
+        let got = st.mix(&v);
+        assert!((1e-6..=1.0).contains(&got), "{got}");
+        // A value that is not positive: geometric between the interval's two nodes.
+        assert_eq!(st.mix(&[0.0, 2.0, 8.0, 1.0]), 4.0);
+    }
+
+    #[test]
+    fn the_limb_sun_shift_follows_the_tangent_point() {
+        let r = R + 60_000.0;
+        let dip_r = dip(r, R);
+        // Above the horizontal and below the horizon, and on the limb at the horizontal:
+        // the observer's horizon's dip.
+        assert_eq!(sun_shift(r, 1.0, 0.3, R, false), dip_r);
+        assert!((sun_shift(r, 0.5 * PI, -1.0, R, true) - dip_r).abs() < 1e-12);
+        // A deep limb ray (tangent point 40 km below the observer): the sun's elevation above
+        // the tangent point's horizon, from spherical geometry (sin e_t = sin e cos γ + cos e
+        // sin γ cos φ), agrees with the shift to first order in γ (γ = 6.4°: within 0.1°),
+        // weighted by 1 - exp(-40/20).
+        let r_t = R + 20_000.0;
+        let gamma = (r_t / r).acos();
+        let theta = 0.5 * PI + gamma;
+        for cos_phi in [-1.0, -0.3, 0.0, 0.6, 1.0] {
+            let e = (-8.0f64).to_radians();
+            let e_t = (e.sin() * gamma.cos() + e.cos() * gamma.sin() * cos_phi).asin();
+            let tangent = e_t + dip(r_t, R) - e;
+            let w = 1.0 - (-40_000.0 / LIMB_SHADOW_SCALE_M).exp();
+            let want = dip_r + w * (tangent - dip_r);
+            let got = sun_shift(r, theta, cos_phi, R, true);
+            assert!(
+                (got - want).abs() < 0.1f64.to_radians(),
+                "cos phi {cos_phi}: {} vs {} deg",
+                got.to_degrees(),
+                want.to_degrees()
+            );
+        }
+        // The shift never leaves the sun nodes' reach: elevation -12° at any limb ray from
+        // 100 km is above the first node.
+        let r = R + H;
+        let th = horizon_zenith(r, R);
+        for k in 0..=20 {
+            let theta = 0.5 * PI + (th - 0.5 * PI) * k as f64 / 20.0;
+            let s = -12.0 + sun_shift(r, theta, -1.0, R, true).to_degrees();
+            assert!(s >= SUN_MIN_DEG, "theta {theta}: {s}");
+        }
     }
 
     #[test]
