@@ -337,14 +337,9 @@ impl MsField {
                                                 cell_volume,
                                                 &mut rng,
                                             );
-                                            thick_events += 1;
-                                            if thick_events > THICK_EVENTS {
-                                                if rng.random::<f64>() >= THICK_KEEP {
-                                                    break;
-                                                }
-                                                for x in w.iter_mut() {
-                                                    *x /= THICK_KEEP;
-                                                }
+                                            if !thick_roulette(&mut thick_events, &mut w, &mut rng)
+                                            {
+                                                break;
                                             }
                                             continue;
                                         }
@@ -358,14 +353,8 @@ impl MsField {
                                 };
                                 ph.scattered = true;
                                 if thick {
-                                    thick_events += 1;
-                                    if thick_events > THICK_EVENTS {
-                                        if rng.random::<f64>() >= THICK_KEEP {
-                                            break;
-                                        }
-                                        for x in w.iter_mut() {
-                                            *x /= THICK_KEEP;
-                                        }
+                                    if !thick_roulette(&mut thick_events, &mut w, &mut rng) {
+                                        break;
                                     }
                                     continue;
                                 }
@@ -570,6 +559,22 @@ const JUMP_MIN_MFP: f64 = 3.0;
 const THICK_EVENTS: usize = 20_000;
 /// Survival probability of that roulette per further collision.
 const THICK_KEEP: f64 = 0.99;
+
+/// Counts a collision in a thick cell and, after [`THICK_EVENTS`] of them, plays the roulette
+/// that bounds their number (survival [`THICK_KEEP`], the survivor's weights raised to keep the
+/// estimate unbiased). Returns whether the photon lives on.
+fn thick_roulette<R: Rng>(events: &mut usize, w: &mut [f64], rng: &mut R) -> bool {
+    *events += 1;
+    if *events > THICK_EVENTS {
+        if rng.random::<f64>() >= THICK_KEEP {
+            return false;
+        }
+        for x in w.iter_mut() {
+            *x /= THICK_KEEP;
+        }
+    }
+    true
+}
 
 /// Diffusion jumps of photons deep inside optically thick cells of a conservative scaled medium
 /// (ω* = 1): the random-walk-on-spheres acceleration of Monte Carlo transport in the diffusion
