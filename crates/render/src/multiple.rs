@@ -207,14 +207,17 @@ impl MsField {
                 lighting.sun_dir.is_finite() && sun_w.iter().any(|&w| w > 0.0) && s.sun_photons > 0;
             let n_sun = if sun_on { s.sun_photons } else { 0 };
             let n_env = s.env_photons;
-            // The share of environment photons entering from the upper hemisphere (sky), in
-            // proportion to the hemispheres' power (`hemisphere_power`): a hemisphere without
-            // light gets no photons instead of half of them scoring nothing.
+            // The share of environment photons entering from the upper hemisphere (sky): a
+            // hemisphere without light at any of the group's wavelengths gets no photons instead
+            // of half of them scoring nothing; otherwise each gets half. Not in proportion to the
+            // hemispheres' power: that ratio depends on which wavelengths are computed, and a
+            // wavelength's field must not (an RGB-only frame computes its kept wavelengths
+            // exactly as the spectral frame does).
             let (p_up, p_down) = hemisphere_power(lighting, &group);
-            let q_up = if p_up + p_down > 0.0 {
-                p_up / (p_up + p_down)
-            } else {
-                0.5
+            let q_up = match (p_up > 0.0, p_down > 0.0) {
+                (true, false) => 1.0,
+                (false, true) => 0.0,
+                _ => 0.5,
             };
             let total = n_sun + n_env;
             // Random shift of the launch sequence (Cranley & Patterson 1976), from the seed.
@@ -821,7 +824,7 @@ fn launch_point(i: usize, shift: &[f64; 4]) -> [f64; 4] {
 
 /// Mean radiance summed over the wavelengths of `group`, over the upper and the lower
 /// hemisphere of the environment (sky and ground light), by a Fibonacci quadrature of 2048
-/// directions: the environment photons' split between the hemispheres.
+/// directions: which hemispheres give the environment photons light.
 fn hemisphere_power(lighting: &Lighting, group: &[usize]) -> (f64, f64) {
     let n = 2048;
     let mut rad = vec![0.0; lighting.wavelengths_nm.len()];
