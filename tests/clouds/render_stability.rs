@@ -82,14 +82,19 @@ fn finite_non_negative(name: &str, f: &Frame) {
     );
 }
 
-/// Scattered power leaving the cloud (Σ over 26 orthographic views of ∫L dA · 4π/26) against the
-/// power the cloud takes out of the sun's beam (∫(1 − T) dA seen from the sun). With albedo 1 and
-/// black surroundings they are equal; the fast method must not make light (≤ 1.15, its
-/// measured excess is printed).
-fn power_ratio(v: &Value, grid: &DensityGrid, method: Method) -> f64 {
+/// Scattered power leaving the cloud (Σ over `n_dirs` orthographic views, Fibonacci directions, of
+/// ∫L dA · 4π/n_dirs) against the power the cloud takes out of the sun's beam (∫(1 − T) dA seen
+/// from the sun), each view of `px`² pixels rendered by `frame`. With albedo 1 and black
+/// surroundings they are equal.
+fn scattered_over_taken(
+    v: &Value,
+    grid: &DensityGrid,
+    px: usize,
+    n_dirs: usize,
+    frame: &dyn Fn(&FrameScene) -> Frame,
+) -> f64 {
     let c = 0.5 * (grid.origin_m + grid.max_corner_m());
     let extent = (grid.max_corner_m() - grid.origin_m).length() * 1.05;
-    let px = 16;
     let pixel_area = (extent / px as f64).powi(2);
     let mut v = v.clone();
     let ortho = |dir: DVec3| {
@@ -102,25 +107,32 @@ fn power_ratio(v: &Value, grid: &DensityGrid, method: Method) -> f64 {
         json!({"type": "orthographic", "position_m": [cam.x, cam.y, cam.z], "look_at_m": [c.x, c.y, c.z],
                "up": up, "view_width_m": extent, "width": px, "height": px})
     };
-    let base = parse(&v);
-    let lighting = lighting_for(&base, grid, &Engine::new()).unwrap();
-    let s = settings(&base, method, base.quality);
-    let n_dirs = 26;
     let mut out = 0.0;
     for i in 0..n_dirs {
         v["camera"] = ortho(fibonacci(i, n_dirs));
-        let f = render_frame(&parse(&v), grid, &lighting, &s, None, &|_| {}, &|| false).unwrap();
+        let f = frame(&parse(&v));
         out += f.radiance.iter().map(|&x| f64::from(x)).sum::<f64>() * pixel_area * 4.0 * PI
             / n_dirs as f64;
     }
-    v["camera"] = ortho(base.sun.direction());
-    let f = render_frame(&parse(&v), grid, &lighting, &s, None, &|_| {}, &|| false).unwrap();
+    v["camera"] = ortho(parse(&v).sun.direction());
+    let f = frame(&parse(&v));
     let taken: f64 = f
         .transmittance
         .iter()
         .map(|&t| (1.0 - f64::from(t)) * pixel_area)
         .sum();
     out / taken
+}
+
+/// [`scattered_over_taken`] over 26 views of 16² pixels, each frame rendered on its own: the fast
+/// method must not make light (≤ 1.15, its measured excess is printed).
+fn power_ratio(v: &Value, grid: &DensityGrid, method: Method) -> f64 {
+    let base = parse(v);
+    let lighting = lighting_for(&base, grid, &Engine::new()).unwrap();
+    let s = settings(&base, method, base.quality);
+    scattered_over_taken(v, grid, 16, 26, &|scene| {
+        render_frame(scene, grid, &lighting, &s, None, &|_| {}, &|| false).unwrap()
+    })
 }
 
 #[test]
@@ -164,50 +176,19 @@ fn optically_thick_cloud_conserves_energy_in_the_fast_method() {
     assert!(ratio > 0.9, "τ 1000: the fast method loses light ({ratio})");
 }
 
-/// [`power_ratio`] with 96 views (Fibonacci) of `px`² pixels sharing one lit volume: scattered
-/// power out against the power taken out of the sun's beam.
+/// [`scattered_over_taken`] with 96 views of `px`² pixels sharing one lit volume.
 fn power_ratio_shared(v: &Value, grid: &DensityGrid, px: usize) -> f64 {
-    let c = 0.5 * (grid.origin_m + grid.max_corner_m());
-    let extent = (grid.max_corner_m() - grid.origin_m).length() * 1.05;
-    let pixel_area = (extent / px as f64).powi(2);
-    let mut v = v.clone();
-    let ortho = |dir: DVec3| {
-        let cam = c + dir * 4.0 * extent;
-        let up = if dir.z.abs() > 0.9 {
-            [0.0, 1.0, 0.0]
-        } else {
-            [0.0, 0.0, 1.0]
-        };
-        json!({"type": "orthographic", "position_m": [cam.x, cam.y, cam.z], "look_at_m": [c.x, c.y, c.z],
-               "up": up, "view_width_m": extent, "width": px, "height": px})
-    };
-    let base = parse(&v);
+    let base = parse(v);
     let lighting = lighting_for(&base, grid, &Engine::new()).unwrap();
     let s = settings(&base, Method::Fast, base.quality);
-    let grid = std::sync::Arc::new(grid.clone());
+    let shared = std::sync::Arc::new(grid.clone());
     let lit = std::sync::Arc::new(
-        LitVolume::new(LitInputs::new(&base, grid.clone(), &lighting, s), &|| false).unwrap(),
+        LitVolume::new(LitInputs::new(&base, shared, &lighting, s), &|| false).unwrap(),
     );
-    let frame = |scene: &FrameScene| {
+    scattered_over_taken(v, grid, px, 96, &|scene| {
         let p = Prepared::with_lit(scene, &lighting, s, lit.clone(), true, &|| false).unwrap();
         render_tile(&p, None, &|_| {}, &|| false).unwrap()
-    };
-    let n_dirs = 96;
-    let mut out = 0.0;
-    for i in 0..n_dirs {
-        v["camera"] = ortho(fibonacci(i, n_dirs));
-        let f = frame(&parse(&v));
-        out += f.radiance.iter().map(|&x| f64::from(x)).sum::<f64>() * pixel_area * 4.0 * PI
-            / n_dirs as f64;
-    }
-    v["camera"] = ortho(base.sun.direction());
-    let f = frame(&parse(&v));
-    let taken: f64 = f
-        .transmittance
-        .iter()
-        .map(|&t| (1.0 - f64::from(t)) * pixel_area)
-        .sum();
-    out / taken
+    })
 }
 
 /// Energy in voxels of many optical depths: a conservative ball of radius 300 m in voxels of
