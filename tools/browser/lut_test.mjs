@@ -151,6 +151,13 @@ try {
   page.on("pageerror", (e) => consoleErrors.push(String(e)));
   await page.goto(base + "/", { waitUntil: "load" });
   await page.waitForSelector("#atmosphere");
+  // The page's own product refresh on load (a dome, a panorama, the sky and sun documents) must
+  // finish first: on a slow machine its second round of requests would otherwise land while the
+  // live sky's sliders move and be counted against them.
+  await page.waitForFunction(() => {
+    const t = document.getElementById("status").textContent;
+    return t.startsWith("Sun elevation") || t.startsWith("Error");
+  }, null, { timeout: 1800000 });
   // The conditions the bundle is requested for (set without an input event: no product refresh).
   await page.evaluate(([atm, albedo, q]) => {
     document.getElementById("atmosphere").value = atm;
