@@ -372,6 +372,10 @@ impl MsField {
                                 // roulette (unbiased) only once ω*ⁿ is low and on very long
                                 // paths.
                                 surv *= a;
+                                if surv <= 0.0 {
+                                    // ω* = 0: nothing more to score.
+                                    break;
+                                }
                                 let keep = if bounces > 20 {
                                     0.95
                                 } else if surv < WEIGHT_FLOOR {
