@@ -411,9 +411,13 @@ fn cloud_matches_mitsuba() {
 
 /// (b) continued, fast method only (whole 160×120 frames, about a second each): the Mitsuba cases
 /// thin cloud, g = 0.5, albedo 0.9 and sun + sky, with bounds = measured block NRMSE and bias plus
-/// a margin (measured: thin 3.6 % / −0.4 %, g 0.5 5.0 % / +1.0 %, albedo 0.9 7.7 % / +1.7 %,
+/// a margin (measured: thin 3.6 % / −0.4 %, g 0.5 5.0 % / +1.0 %, albedo 0.9 5.6 % / −0.7 %,
 /// sun + sky 5.8 % / −0.2 %; before the P3 field and the environment photons' launch: thin
-/// 7.3 % / −3.9 %, albedo 0.9 8.1 % / +0.5 %, sun + sky 6.5 % / +2.5 %).
+/// 7.3 % / −3.9 %, albedo 0.9 8.1 % / +0.5 %, sun + sky 6.5 % / +2.5 %; albedo 0.9 7.7 % / +1.7 %
+/// before absorption by weight in the photon pass, over 4 photon seeds 8.4 % → 6.1 %, bias
+/// −1.0…+3.9 % → −0.7…+1.2 %). g 0.5 reads +2.3 % on average over 4 seeds (+1.0 % at this seed):
+/// the field's coarse cells (2 voxels each here) raise the thin edges; with one cell per voxel
+/// −0.5 % (docs/frames.md).
 #[test]
 fn fast_cloud_matches_mitsuba_cases() {
     let mask: Vec<bool> = npy("cloud_mitsuba_mask.npy")
@@ -423,7 +427,7 @@ fn fast_cloud_matches_mitsuba_cases() {
     for (case, block_bound, bias_bound) in [
         ("sun_thin", 0.05, 0.015),
         ("sun_g05", 0.065, 0.02),
-        ("sun_albedo09", 0.095, 0.025),
+        ("sun_albedo09", 0.07, 0.02),
         ("sunsky", 0.07, 0.02),
     ] {
         let (scene, grid, reference) = validation_case(case);
