@@ -44,7 +44,8 @@ use std::f64::consts::PI;
 pub struct PhotonSettings {
     /// Photons from the sun.
     pub sun_photons: usize,
-    /// Photons from the environment (sky and ground light).
+    /// Photons from the environment (sky and ground light); a frame whose sun gives no light
+    /// traces `sun_photons` more of them (the sun's share of the budget).
     pub env_photons: usize,
     /// Largest coarse-grid dimension (blocks of whole voxels).
     pub max_coarse_dim: usize,
@@ -209,7 +210,15 @@ impl MsField {
             let sun_on =
                 lighting.sun_dir.is_finite() && sun_w.iter().any(|&w| w > 0.0) && s.sun_photons > 0;
             let n_sun = if sun_on { s.sun_photons } else { 0 };
-            let n_env = s.env_photons;
+            // Without the sun's light its photons go to the environment: the field of a sky-lit
+            // frame is photon noise for the most part (Mitsuba `sky` case, 3 seeds: block NRMSE
+            // 5.9 % with 2^18 environment photons, 5.5 % with 2^19, 4.8 % with 2^21), and the
+            // frame costs what a frame lit by both costs.
+            let n_env = if sun_on {
+                s.env_photons
+            } else {
+                s.env_photons.saturating_add(s.sun_photons)
+            };
             // The share of environment photons entering from the upper hemisphere (sky): a
             // hemisphere without light at any of the group's wavelengths gets no photons instead
             // of half of them scoring nothing; otherwise each gets half. Not in proportion to the
