@@ -294,8 +294,14 @@ impl CloudLight {
                 "scene": scene_name,
                 "method": "fast",
                 "multiple_scattering_method": "all_orders",
-                "sun_photons": photons.sun_photons,
-                "env_photons": photons.env_photons,
+                // The photons the pass traced: a scene whose sun gives no light spends the
+                // sun's share on the environment (`PhotonSettings::env_photons`).
+                "sun_photons": if lit.sun_on { photons.sun_photons } else { 0 },
+                "env_photons": if lit.sun_on {
+                    photons.env_photons
+                } else {
+                    photons.env_photons.saturating_add(photons.sun_photons)
+                },
                 "coarse_grid_max_dim": photons.max_coarse_dim,
                 "angular_order": photons.angular_order,
                 "truncation_power": photons.truncation_power,
