@@ -406,3 +406,130 @@ fn layouts_are_named_and_keyed_apart() {
     assert!(bruneton.canonical().get("layout").is_none());
     assert_eq!(sky.canonical()["layout"], "skyview");
 }
+
+/// Diagnostic (temporary): the worst samples' error decomposed by axis.
+#[test]
+#[ignore = "diagnostic"]
+fn skyview_diag() {
+    use skybake_lut::skyview::{
+        altitude_coord, altitude_node_m, azimuth_coord, azimuth_node, exact_stored, segment_rows,
+        sun_coord, sun_node_deg, sun_shift, view_coord, view_theta, Stencil, N_ALT, N_AZ, N_SUN,
+    };
+    let f = fixture();
+    let reader = SkyViewReader::new(&f.bundle);
+    let shared = f
+        .engine
+        .shared_unless(&f.request.spec, &|| false)
+        .unwrap();
+    let steps = f.request.spec.quality.steps();
+    let p = &f.bundle.params;
+    let bottom = p.bottom_radius;
+    let thickness = p.top_radius - bottom;
+    let phase_m = f.bundle.aerosol_phase;
+    let mut rows = Vec::new();
+    for s in samples(f) {
+        let (radiance, _) = reader.sky_radiance(
+            [0.0, 0.0, bottom + s.altitude_m],
+            view_dir(s.view_zenith_deg, s.view_azimuth_deg),
+            sun_dir(s.sun_deg),
+        );
+        let e = (0..3)
+            .map(|c| rel(radiance[c] / UNIT_SCALE, s.radiance[c]))
+            .fold(0.0, f64::max);
+        let band = target_band(s.sun_deg, s.near_horizon);
+        let target = if band.contains("1 %") {
+            0.01
+        } else if band.contains("10 %") {
+            0.1
+        } else {
+            0.03
+        };
+        if e > target * 0.7 {
+            rows.push((e / target, e, s));
+        }
+    }
+    rows.sort_by(|a, b| b.0.partial_cmp(&a.0).unwrap());
+    for (_, e, s) in rows.iter().take(60) {
+        let r = bottom + s.altitude_m;
+        let theta = s.view_zenith_deg.to_radians();
+        let phi = s.view_azimuth_deg.to_radians();
+        let (seg, row) = view_coord(theta, r, bottom);
+        let shift = sun_shift(r, theta, phi.cos(), bottom, seg == 1).to_degrees();
+        let sc = (s.sun_deg + shift).clamp(-23.0, 104.0);
+        let nu = {
+            let v = view_dir(s.view_zenith_deg, s.view_azimuth_deg);
+            let u = sun_dir(s.sun_deg);
+            v[0] * u[0] + v[1] * u[1] + v[2] * u[2]
+        };
+        let pr = skybake_lut::param::rayleigh_phase(nu);
+        let pm = phase_m.eval(nu);
+        let mu = theta.cos();
+        let d = skyview::ray_length(r, mu, bottom, p.top_radius, false);
+        let radiance = |v: &(Vec<f64>, Vec<f64>)| -> Vec<f64> {
+            (0..3).map(|c| (v.0[c] * pr + v.1[c] * pm) * d / UNIT_SCALE).collect()
+        };
+        let exact = exact_stored(&shared, &f.bundle.channels, steps, r, theta, &[(sc, phi)])
+            .unwrap()
+            .remove(0);
+        let l_exact = radiance(&exact);
+        let err = |v: &(Vec<f64>, Vec<f64>)| {
+            let l = radiance(v);
+            (0..3).map(|c| (l[c] / l_exact[c] - 1.0)).fold(0.0f64, |a, x| if x.abs() > a.abs() { x } else { a })
+        };
+        let mix = |st: &Stencil, vals: &[(Vec<f64>, Vec<f64>)]| -> (Vec<f64>, Vec<f64>) {
+            let g = |part: usize, c: usize| {
+                let v: Vec<f64> = vals.iter().map(|x| if part == 0 { x.0[c] } else { x.1[c] }).collect();
+                st.mix(&v)
+            };
+            ((0..3).map(|c| g(0, c)).collect(), (0..3).map(|c| g(1, c)).collect())
+        };
+        // Altitude axis.
+        let ya = altitude_coord(s.altitude_m, thickness);
+        let sa = Stencil::new(ya, 0, N_ALT - 1, |k| k as f64, ya);
+        let vals: Vec<_> = (sa.first..sa.first + sa.len)
+            .map(|k| {
+                let rk = bottom + altitude_node_m(k, thickness);
+                let (th, _) = view_theta(seg, row, rk, bottom);
+                exact_stored(&shared, &f.bundle.channels, steps, rk, th, &[(sc, phi)]).unwrap().remove(0)
+            })
+            .collect();
+        let e_alt = err(&mix(&sa, &vals));
+        // Sun axis.
+        let ss = Stencil::new(sun_coord(sc), 0, N_SUN - 1, sun_node_deg, sc);
+        let suns: Vec<(f64, f64)> = (ss.first..ss.first + ss.len).map(|j| (sun_node_deg(j), phi)).collect();
+        let vals = exact_stored(&shared, &f.bundle.channels, steps, r, theta, &suns).unwrap();
+        let e_sun = err(&mix(&ss, &vals));
+        // Row axis.
+        let (lo, hi) = segment_rows(seg);
+        let sv = Stencil::new(row, lo, hi, |i| i as f64, row);
+        let vals: Vec<_> = (sv.first..sv.first + sv.len)
+            .map(|i| {
+                let (th, _) = view_theta(seg, i as f64, r, bottom);
+                exact_stored(&shared, &f.bundle.channels, steps, r, th, &[(sc, phi)]).unwrap().remove(0)
+            })
+            .collect();
+        let e_row = err(&mix(&sv, &vals));
+        // Column axis.
+        let col = azimuth_coord(phi);
+        let sca = Stencil::new(col, 0, N_AZ - 1, |a| a as f64, col);
+        let suns: Vec<(f64, f64)> = (sca.first..sca.first + sca.len).map(|a| (sc, azimuth_node(a))).collect();
+        let vals = exact_stored(&shared, &f.bundle.channels, steps, r, theta, &suns).unwrap();
+        let e_col = err(&mix(&sca, &vals));
+        let e_ex = (0..3).map(|c| rel(l_exact[c], s.radiance[c])).fold(0.0, f64::max);
+        eprintln!(
+            "DIAG {:>6.2}% alt {:>6.0} sun {:>6.2} zen {:>6.2} elev-above-hor {:>5.2} az {:>6.1} seg {seg} row {row:>5.2} sc {sc:>6.2} L {:.2e} | exact {:.2}% alt {:+.2}% sun {:+.2}% row {:+.2}% col {:+.2}%",
+            e * 100.0,
+            s.altitude_m,
+            s.sun_deg,
+            s.view_zenith_deg,
+            90.0 - s.view_zenith_deg + (bottom / r).acos().to_degrees(),
+            s.view_azimuth_deg,
+            s.radiance[2],
+            e_ex * 100.0,
+            e_alt * 100.0,
+            e_sun * 100.0,
+            e_row * 100.0,
+            e_col * 100.0
+        );
+    }
+}

@@ -169,17 +169,30 @@ pub fn horizon_zenith(r: f64, bottom: f64) -> f64 {
 /// View zenith angle (rad) of row `i` at radius `r` (see [`N_VIEW_SKY`]), and whether it looks
 /// below the horizon.
 pub fn view_node(i: usize, r: f64, bottom: f64) -> (f64, bool) {
-    let th = horizon_zenith(r, bottom);
-    if i < N_VIEW_SKY {
-        let x = i as f64 / (N_VIEW_SKY - 1) as f64;
-        (0.5 * PI * (1.0 - (1.0 - x) * (1.0 - x)), false)
+    let seg = if i < N_VIEW_SKY {
+        0
     } else if i < N_VIEW_UP {
-        let y = (i - N_VIEW_SKY) as f64 / (N_VIEW_LIMB - 1) as f64;
+        1
+    } else {
+        2
+    };
+    view_theta(seg, i as f64, r, bottom)
+}
+
+/// View zenith angle (rad) of the continuous row coordinate `row` of segment `seg` at radius
+/// `r` (the inverse of [`view_coord`]; [`view_node`] at the rows).
+pub fn view_theta(seg: usize, row: f64, r: f64, bottom: f64) -> (f64, bool) {
+    let th = horizon_zenith(r, bottom);
+    if seg == 0 {
+        let x = row / (N_VIEW_SKY - 1) as f64;
+        (0.5 * PI * (1.0 - (1.0 - x) * (1.0 - x)), false)
+    } else if seg == 1 {
+        let y = (row - N_VIEW_SKY as f64) / (N_VIEW_LIMB - 1) as f64;
         // Tangent radius from r (horizontal) to the ground (the horizon).
         let r_t = r - (r - bottom) * y;
         (0.5 * PI + (r_t / r).min(1.0).acos(), false)
     } else {
-        let x = (i - N_VIEW_UP) as f64 / (N_VIEW_DOWN - 1) as f64;
+        let x = (row - N_VIEW_UP as f64) / (N_VIEW_DOWN - 1) as f64;
         (th + (PI - th) * x * x, true)
     }
 }
@@ -255,6 +268,69 @@ pub fn ray_length(r: f64, mu: f64, bottom: f64, top: f64, ground: bool) -> f64 {
         let disc = r * r * (mu * mu - 1.0) + top * top;
         (-r * mu + disc.max(0.0).sqrt()).max(0.0)
     }
+}
+
+/// Diagnostic: the values the bundle stores (Rayleigh-like, Mie, per channel, per metre of ray)
+/// for the ray from radius `r` at view zenith `theta` (below the horizon when `ground`) and each
+/// sun (sun coordinate s in degrees, azimuth from the sun in rad), computed exactly as the
+/// build computes a texel.
+#[doc(hidden)]
+pub fn exact_stored(
+    shared: &SharedTables,
+    channels: &Channels,
+    steps: usize,
+    r: f64,
+    theta: f64,
+    suns: &[(f64, f64)],
+) -> crate::Result<Vec<(Vec<f64>, Vec<f64>)>> {
+    let m = &shared.medium;
+    let (idx, params) = channel_setup(m, channels)?;
+    let e0 = params.solar_irradiance.clone();
+    let bottom = params.bottom_radius;
+    let top = params.top_radius;
+    let r = r.clamp(bottom, top - EVAL_OFFSET_M);
+    let (seg, _) = view_coord(theta, r, bottom);
+    let ground = seg == 2;
+    let r = if ground { r.max(bottom + EVAL_OFFSET_M) } else { r };
+    let mu_h = horizon_mu(r, bottom);
+    let mu = if ground {
+        (theta.cos().min(mu_h) - 1e-9).max(-1.0)
+    } else {
+        theta.cos().max(mu_h + 1e-9).min(1.0)
+    };
+    let sin_t = (1.0 - mu * mu).max(0.0).sqrt();
+    let d = ray_length(r, mu, bottom, top, ground);
+    let mut scratch = FamilyScratch::new(shared, m.len());
+    scratch.prepare(r, mu, steps);
+    let mut nus = Vec::new();
+    for &(s, phi) in suns {
+        let shift = sun_shift(r, theta, phi.cos(), bottom, seg == 1);
+        let mu_s = (s.to_radians() - shift).sin();
+        let sin_s = (1.0 - mu_s * mu_s).max(0.0).sqrt();
+        let nu = (mu * mu_s + sin_t * sin_s * phi.cos()).clamp(-1.0, 1.0);
+        scratch.push_sun(mu_s, nu);
+        nus.push(nu);
+    }
+    scratch.integrate();
+    Ok(nus
+        .iter()
+        .enumerate()
+        .map(|(t, &nu)| {
+            let p_r = param::rayleigh_phase(nu);
+            let x = scratch.texel(t);
+            let ray: Vec<f64> = idx
+                .iter()
+                .enumerate()
+                .map(|(c, &l)| (x.rayleigh[l] + x.multiple[l] / p_r) * e0[c] / d)
+                .collect();
+            let mie: Vec<f64> = idx
+                .iter()
+                .enumerate()
+                .map(|(c, &l)| x.mie[l] * e0[c] / d)
+                .collect();
+            (ray, mie)
+        })
+        .collect())
 }
 
 /// The computed `skyview` bundle.
