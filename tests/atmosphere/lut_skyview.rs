@@ -211,7 +211,8 @@ fn skyview_nodes_equal_the_sky_product() {
         let shift = skyview::sun_shift(r, theta, phi.cos(), bottom, limb).to_degrees();
         let sun_deg = loop {
             let j = rng.random_range(0..skyview::N_SUN);
-            let e = skyview::sun_node_deg(j) - shift;
+            let b = skyview::warp_strength(altitude, thickness);
+            let e = skyview::sun_warp(skyview::sun_node_deg(j), b) - shift;
             if (-12.0..=90.0).contains(&e) {
                 break e;
             }
@@ -413,10 +414,13 @@ fn layouts_are_named_and_keyed_apart() {
 fn skyview_diag() {
     use skybake_lut::skyview::{
         altitude_coord, altitude_node_m, azimuth_coord, azimuth_node, exact_stored, segment_rows,
-        sun_coord, sun_node_deg, sun_shift, view_coord, view_theta, Stencil, N_ALT, N_AZ, N_SUN,
+        sun_coord, sun_node_deg, sun_shift, sun_unwarp, sun_warp, view_coord, view_theta,
+        warp_strength, Stencil, N_ALT, N_AZ, N_SUN,
     };
     let f = fixture();
     let reader = SkyViewReader::new(&f.bundle);
+    let (_, by_altitude) = sky_errors(f, &reader, samples(f));
+    by_altitude.print("BAND");
     let shared = f
         .engine
         .shared_unless(&f.request.spec, &|| false)
@@ -456,6 +460,8 @@ fn skyview_diag() {
         let (seg, row) = view_coord(theta, r, bottom);
         let shift = sun_shift(r, theta, phi.cos(), bottom, seg == 1).to_degrees();
         let sc = (s.sun_deg + shift).clamp(-23.0, 104.0);
+        let bq = warp_strength(s.altitude_m, thickness);
+        let tq = sun_unwarp(sc, bq);
         let nu = {
             let v = view_dir(s.view_zenith_deg, s.view_azimuth_deg);
             let u = sun_dir(s.sun_deg);
@@ -490,13 +496,14 @@ fn skyview_diag() {
             .map(|k| {
                 let rk = bottom + altitude_node_m(k, thickness);
                 let (th, _) = view_theta(seg, row, rk, bottom);
-                exact_stored(&shared, &f.bundle.channels, steps, rk, th, &[(sc, phi)]).unwrap().remove(0)
+                let sk = sun_warp(tq, warp_strength(rk - bottom, thickness));
+                exact_stored(&shared, &f.bundle.channels, steps, rk, th, &[(sk, phi)]).unwrap().remove(0)
             })
             .collect();
         let e_alt = err(&mix(&sa, &vals));
         // Sun axis.
-        let ss = Stencil::new(sun_coord(sc), 0, N_SUN - 1, sun_node_deg, sc);
-        let suns: Vec<(f64, f64)> = (ss.first..ss.first + ss.len).map(|j| (sun_node_deg(j), phi)).collect();
+        let ss = Stencil::new(sun_coord(tq), 0, N_SUN - 1, sun_node_deg, tq);
+        let suns: Vec<(f64, f64)> = (ss.first..ss.first + ss.len).map(|j| (sun_warp(sun_node_deg(j), bq), phi)).collect();
         let vals = exact_stored(&shared, &f.bundle.channels, steps, r, theta, &suns).unwrap();
         let e_sun = err(&mix(&ss, &vals));
         // Row axis.

@@ -187,7 +187,7 @@ pub fn view_theta(seg: usize, row: f64, r: f64, bottom: f64) -> (f64, bool) {
         let x = row / (N_VIEW_SKY - 1) as f64;
         (0.5 * PI * (1.0 - (1.0 - x) * (1.0 - x)), false)
     } else if seg == 1 {
-        let y = (row - N_VIEW_SKY as f64) / (N_VIEW_LIMB - 1) as f64;
+        let y = limb_depth((row - N_VIEW_SKY as f64) / (N_VIEW_LIMB - 1) as f64);
         // Tangent radius from r (horizontal) to the ground (the horizon).
         let r_t = r - (r - bottom) * y;
         (0.5 * PI + (r_t / r).min(1.0).acos(), false)
@@ -211,12 +211,78 @@ pub fn view_coord(theta: f64, r: f64, bottom: f64) -> (usize, f64) {
         } else {
             1.0
         };
-        (1, N_VIEW_SKY as f64 + y * (N_VIEW_LIMB - 1) as f64)
+        (1, N_VIEW_SKY as f64 + limb_row(y) * (N_VIEW_LIMB - 1) as f64)
     } else {
         let x = ((theta - th) / (PI - th)).clamp(0.0, 1.0).sqrt();
         (2, N_VIEW_UP as f64 + x * (N_VIEW_DOWN - 1) as f64)
     }
 }
+
+fn exp_env(name: &str, default: f64) -> f64 {
+    std::env::var(name)
+        .ok()
+        .and_then(|v| v.parse().ok())
+        .unwrap_or(default)
+}
+
+fn exp_limb() -> f64 {
+    static V: std::sync::OnceLock<f64> = std::sync::OnceLock::new();
+    *V.get_or_init(|| exp_env("SKYVIEW_EXP_LIMB", 1.0))
+}
+
+fn exp_warp() -> f64 {
+    static V: std::sync::OnceLock<f64> = std::sync::OnceLock::new();
+    *V.get_or_init(|| exp_env("SKYVIEW_EXP_WARP", 4.0))
+}
+
+/// The limb rows' depth y = (r - r_t) / (r - bottom) at the rows' uniform coordinate x ∈ [0, 1]:
+/// y = 2x² − x³.
+pub fn limb_depth(x: f64) -> f64 {
+    if exp_limb() == 0.0 {
+        return x;
+    }
+    let x = x.clamp(0.0, 1.0);
+    x * x * (2.0 - x)
+}
+
+/// The inverse of [`limb_depth`].
+pub fn limb_row(y: f64) -> f64 {
+    if exp_limb() == 0.0 {
+        return y;
+    }
+    let y = y.clamp(0.0, 1.0);
+    let phi = (1.0 - 27.0 / 16.0 * y).clamp(-1.0, 1.0).acos();
+    (2.0 / 3.0 + 4.0 / 3.0 * (phi / 3.0 - 2.0 * PI / 3.0).cos()).clamp(0.0, 1.0)
+}
+
+/// The twilight warp's strength at altitude `h` of an atmosphere `thickness` thick.
+pub fn warp_strength(h: f64, thickness: f64) -> f64 {
+    exp_warp() * (h / thickness).clamp(0.0, 1.0).sqrt()
+}
+
+/// The sun's elevation above the observer's horizon (deg) of sun coordinate `t` (deg), warp
+/// strength `b`.
+pub fn sun_warp(t: f64, b: f64) -> f64 {
+    let (lo, hi) = (SUN_WARP_RANGE.0, SUN_WARP_RANGE.1);
+    if b < 1e-6 || t <= lo || t >= hi {
+        return t;
+    }
+    let e = if t < 0.0 { -lo } else { hi };
+    e * (b * t / e).sinh() / b.sinh()
+}
+
+/// The inverse of [`sun_warp`].
+pub fn sun_unwarp(s: f64, b: f64) -> f64 {
+    let (lo, hi) = (SUN_WARP_RANGE.0, SUN_WARP_RANGE.1);
+    if b < 1e-6 || s <= lo || s >= hi {
+        return s;
+    }
+    let e = if s < 0.0 { -lo } else { hi };
+    e * (s * b.sinh() / e).asinh() / b
+}
+
+/// The sun coordinates the twilight warp acts between (deg).
+pub const SUN_WARP_RANGE: (f64, f64) = (-8.0, 6.0);
 
 /// First and last row of segment `seg`.
 pub fn segment_rows(seg: usize) -> (usize, usize) {
@@ -394,8 +460,9 @@ pub fn build_skyview(
     let thickness = params.top_radius - bottom;
     // μs of sun node j at altitude node k.
     let sun_mu = |k: usize, j: usize| {
-        let r = bottom + altitude_node_m(k, thickness);
-        (sun_node_deg(j).to_radians() - dip(r, bottom)).sin()
+        let h = altitude_node_m(k, thickness);
+        let s = sun_warp(sun_node_deg(j), warp_strength(h, thickness));
+        (s.to_radians() - dip(bottom + h, bottom)).sin()
     };
     let per_family = N_SUN * N_AZ * n_c;
     let families: Vec<(Vec<f64>, Vec<f64>)> = (0..N_ALT * N_VIEW)
@@ -421,12 +488,14 @@ pub fn build_skyview(
                 let d = ray_length(r, mu, bottom, bottom + thickness, ground);
                 scratch.prepare(r, mu, steps);
                 let mut nus = [0.0; N_SUN * N_AZ];
+                let b = warp_strength(altitude_node_m(k, thickness), thickness);
                 for j in 0..N_SUN {
+                    let s_j = sun_warp(sun_node_deg(j), b);
                     for a in 0..N_AZ {
                         let phi = azimuth_node(a);
                         let limb = (N_VIEW_SKY..N_VIEW_UP).contains(&i);
                         let shift = sun_shift(r, theta, phi.cos(), bottom, limb);
-                        let mu_s = (sun_node_deg(j).to_radians() - shift).sin();
+                        let mu_s = (s_j.to_radians() - shift).sin();
                         let sin_s = (1.0 - mu_s * mu_s).max(0.0).sqrt();
                         let nu =
                             (mu * mu_s + sin_t * sin_s * azimuth_node(a).cos()).clamp(-1.0, 1.0);
@@ -662,8 +731,7 @@ impl<'a> SkyViewReader<'a> {
         let ya = altitude_coord(r - p.bottom_radius, thickness);
         let sa = Stencil::new(ya, 0, N_ALT - 1, |k| k as f64, ya);
         let above = mu_s.clamp(-1.0, 1.0).asin() + shift;
-        let deg = above
-            .to_degrees()
+        let deg = sun_unwarp(above.to_degrees(), warp_strength(r - p.bottom_radius, thickness))
             .clamp(SUN_MIN_DEG, sun_node_deg(N_SUN - 1));
         let ss = Stencil::new(sun_coord(deg), 0, N_SUN - 1, sun_node_deg, deg);
         (sa, ss)
@@ -827,7 +895,11 @@ impl<'a> SkyViewReader<'a> {
             N_ALT,
         );
         let above_horizon = mu_s.clamp(-1.0, 1.0).asin() + dip(rc, p.bottom_radius);
-        let (j0, tj) = split(sun_coord(above_horizon.to_degrees()), N_SUN);
+        let t = sun_unwarp(
+            above_horizon.to_degrees(),
+            warp_strength(rc - p.bottom_radius, p.top_radius - p.bottom_radius),
+        );
+        let (j0, tj) = split(sun_coord(t), N_SUN);
         let e = |k: usize, j: usize, c: usize| b.irradiance.texel(j, k, 0)[c] as f64;
         let tilt = (1.0 + dot(normal, point) / r) * 0.5;
         let sky: Vec<f64> = (0..n_c)
