@@ -421,10 +421,20 @@ fn skyview_diag() {
     let reader = SkyViewReader::new(&f.bundle);
     let (_, by_altitude) = sky_errors(f, &reader, samples(f));
     by_altitude.print("BAND");
-    let shared = f
-        .engine
-        .shared_unless(&f.request.spec, &|| false)
-        .unwrap();
+    for nodes in [
+        [2, 4, 4, 4],
+        [4, 2, 4, 4],
+        [4, 4, 2, 4],
+        [4, 4, 4, 2],
+        [2, 2, 4, 4],
+        [2, 4, 4, 2],
+    ] {
+        let mut r = SkyViewReader::new(&f.bundle);
+        r.nodes = nodes;
+        let (_, b) = sky_errors(f, &r, samples(f));
+        b.print(&format!("NODES {nodes:?}"));
+    }
+    let shared = f.engine.shared_unless(&f.request.spec, &|| false).unwrap();
     let steps = f.request.spec.quality.steps();
     let p = &f.bundle.params;
     let bottom = p.bottom_radius;
@@ -472,7 +482,9 @@ fn skyview_diag() {
         let mu = theta.cos();
         let d = skyview::ray_length(r, mu, bottom, p.top_radius, false);
         let radiance = |v: &(Vec<f64>, Vec<f64>)| -> Vec<f64> {
-            (0..3).map(|c| (v.0[c] * pr + v.1[c] * pm) * d / UNIT_SCALE).collect()
+            (0..3)
+                .map(|c| (v.0[c] * pr + v.1[c] * pm) * d / UNIT_SCALE)
+                .collect()
         };
         let exact = exact_stored(&shared, &f.bundle.channels, steps, r, theta, &[(sc, phi)])
             .unwrap()
@@ -480,14 +492,22 @@ fn skyview_diag() {
         let l_exact = radiance(&exact);
         let err = |v: &(Vec<f64>, Vec<f64>)| {
             let l = radiance(v);
-            (0..3).map(|c| (l[c] / l_exact[c] - 1.0)).fold(0.0f64, |a, x| if x.abs() > a.abs() { x } else { a })
+            (0..3)
+                .map(|c| (l[c] / l_exact[c] - 1.0))
+                .fold(0.0f64, |a, x| if x.abs() > a.abs() { x } else { a })
         };
         let mix = |st: &Stencil, vals: &[(Vec<f64>, Vec<f64>)]| -> (Vec<f64>, Vec<f64>) {
             let g = |part: usize, c: usize| {
-                let v: Vec<f64> = vals.iter().map(|x| if part == 0 { x.0[c] } else { x.1[c] }).collect();
+                let v: Vec<f64> = vals
+                    .iter()
+                    .map(|x| if part == 0 { x.0[c] } else { x.1[c] })
+                    .collect();
                 st.mix(&v)
             };
-            ((0..3).map(|c| g(0, c)).collect(), (0..3).map(|c| g(1, c)).collect())
+            (
+                (0..3).map(|c| g(0, c)).collect(),
+                (0..3).map(|c| g(1, c)).collect(),
+            )
         };
         // Altitude axis.
         let ya = altitude_coord(s.altitude_m, thickness);
@@ -497,13 +517,17 @@ fn skyview_diag() {
                 let rk = bottom + altitude_node_m(k, thickness);
                 let (th, _) = view_theta(seg, row, rk, bottom);
                 let sk = sun_warp(tq, warp_strength(rk - bottom, thickness));
-                exact_stored(&shared, &f.bundle.channels, steps, rk, th, &[(sk, phi)]).unwrap().remove(0)
+                exact_stored(&shared, &f.bundle.channels, steps, rk, th, &[(sk, phi)])
+                    .unwrap()
+                    .remove(0)
             })
             .collect();
         let e_alt = err(&mix(&sa, &vals));
         // Sun axis.
         let ss = Stencil::new(sun_coord(tq), 0, N_SUN - 1, sun_node_deg, tq);
-        let suns: Vec<(f64, f64)> = (ss.first..ss.first + ss.len).map(|j| (sun_warp(sun_node_deg(j), bq), phi)).collect();
+        let suns: Vec<(f64, f64)> = (ss.first..ss.first + ss.len)
+            .map(|j| (sun_warp(sun_node_deg(j), bq), phi))
+            .collect();
         let vals = exact_stored(&shared, &f.bundle.channels, steps, r, theta, &suns).unwrap();
         let e_sun = err(&mix(&ss, &vals));
         // Row axis.
@@ -512,17 +536,23 @@ fn skyview_diag() {
         let vals: Vec<_> = (sv.first..sv.first + sv.len)
             .map(|i| {
                 let (th, _) = view_theta(seg, i as f64, r, bottom);
-                exact_stored(&shared, &f.bundle.channels, steps, r, th, &[(sc, phi)]).unwrap().remove(0)
+                exact_stored(&shared, &f.bundle.channels, steps, r, th, &[(sc, phi)])
+                    .unwrap()
+                    .remove(0)
             })
             .collect();
         let e_row = err(&mix(&sv, &vals));
         // Column axis.
         let col = azimuth_coord(phi);
         let sca = Stencil::new(col, 0, N_AZ - 1, |a| a as f64, col);
-        let suns: Vec<(f64, f64)> = (sca.first..sca.first + sca.len).map(|a| (sc, azimuth_node(a))).collect();
+        let suns: Vec<(f64, f64)> = (sca.first..sca.first + sca.len)
+            .map(|a| (sc, azimuth_node(a)))
+            .collect();
         let vals = exact_stored(&shared, &f.bundle.channels, steps, r, theta, &suns).unwrap();
         let e_col = err(&mix(&sca, &vals));
-        let e_ex = (0..3).map(|c| rel(l_exact[c], s.radiance[c])).fold(0.0, f64::max);
+        let e_ex = (0..3)
+            .map(|c| rel(l_exact[c], s.radiance[c]))
+            .fold(0.0, f64::max);
         eprintln!(
             "DIAG {:>6.2}% alt {:>6.0} sun {:>6.2} zen {:>6.2} elev-above-hor {:>5.2} az {:>6.1} seg {seg} row {row:>5.2} sc {sc:>6.2} L {:.2e} | exact {:.2}% alt {:+.2}% sun {:+.2}% row {:+.2}% col {:+.2}%",
             e * 100.0,
