@@ -149,8 +149,9 @@ try {
   const consoleErrors = [];
   page.on("console", (m) => { if (m.type() === "error") consoleErrors.push(m.text()); });
   page.on("pageerror", (e) => consoleErrors.push(String(e)));
-  await page.goto(base + "/", { waitUntil: "load" });
-  await page.waitForSelector("#atmosphere");
+  await page.goto(base + "/", { waitUntil: "load", timeout: 300000 });
+  // A generous wait: on the shared machine under load the first page load took over 30 s.
+  await page.waitForSelector("#atmosphere", { timeout: 300000 });
   // The page's own product refresh on load (a dome, a panorama, the sky and sun documents) must
   // finish first: on a slow machine its second round of requests would otherwise land while the
   // live sky's sliders move and be counted against them.
