@@ -134,46 +134,83 @@ fn skyview_sky_radiance_matches_the_sky_product() {
     bands.print("skyview sky");
     by_altitude.print("skyview sky by altitude");
     let bands = by_altitude;
-    // Measured on 2026-12-05 (earth, standard, RGB; layout version 2: Lagrange interpolation
-    // of ln L over 4 nodes per axis, the limb's sun coordinate towards its tangent point);
-    // bounds = measured + ~12 %. Targets met: the day sky above 10° at every altitude (< 1 %),
-    // within 10° of the horizon at the ground and 0–20 km (< 3 %), and −12…−6° at the ground
-    // and 0–20 km (< 10 %); not met: the day limb from 20–100 km, −6…5° (4–9 %) and the limb
-    // across the earth's shadow at −12…−6° from 20–100 km (docs/lut.md).
-    for (band, measured) in [
+    // Measured on 2026-12-05 (earth, standard, RGB; layout version 3: the limb rows at
+    // y = 2x² − x³, the sun nodes warped towards sunset aloft, 22 sky rows). Where the issue's
+    // target is met it is asserted, and the measured bound + ~12 % (the tighter); where it is
+    // not (the twilight limb aloft, −6…5° and −12…−6° from 20–100 km: docs/lut.md), the
+    // measured bound + ~12 %.
+    for (band, measured, target) in [
         (
             "sun >= 5, view > 10 deg above horizon (target 1 %), ground",
-            0.00264,
+            0.00251,
+            Some(0.01),
         ),
         (
             "sun >= 5, view > 10 deg above horizon (target 1 %), 0-20 km",
-            0.00159,
+            0.00177,
+            Some(0.01),
         ),
         (
             "sun >= 5, view > 10 deg above horizon (target 1 %), 20-100 km",
-            0.00746,
+            0.00718,
+            Some(0.01),
         ),
         (
             "sun >= 5, view < 10 deg above horizon (target 3 %), ground",
-            0.00515,
+            0.00392,
+            Some(0.03),
         ),
         (
             "sun >= 5, view < 10 deg above horizon (target 3 %), 0-20 km",
-            0.0255,
+            0.00470,
+            Some(0.03),
         ),
         (
             "sun >= 5, view < 10 deg above horizon (target 3 %), 20-100 km",
-            0.0822,
+            0.02457,
+            Some(0.03),
         ),
-        ("sun -6..5 (target 3 %), ground", 0.0417),
-        ("sun -6..5 (target 3 %), 0-20 km", 0.0815),
-        ("sun -6..5 (target 3 %), 20-100 km", 0.0918),
-        ("sun -12..-6 (target 10 %), ground", 0.0310),
-        ("sun -12..-6 (target 10 %), 0-20 km", 0.0346),
-        ("sun -12..-6 (target 10 %), 20-100 km", 1.1164),
+        ("sun -6..5 (target 3 %), ground", 0.01337, Some(0.03)),
+        ("sun -6..5 (target 3 %), 0-20 km", 0.02590, Some(0.03)),
+        ("sun -6..5 (target 3 %), 20-100 km", 0.0887, None),
+        ("sun -12..-6 (target 10 %), ground", 0.0342, Some(0.10)),
+        ("sun -12..-6 (target 10 %), 0-20 km", 0.0315, Some(0.10)),
+        ("sun -12..-6 (target 10 %), 20-100 km", 1.111, None),
     ] {
+        let bound = target.map_or(measured * 1.12, |t: f64| t.min(measured * 1.12));
         assert!(bands.get(band) > 0.0, "no sample in {band}");
-        assert!(bands.get(band) < measured * 1.12, "{band}: {bands:?}");
+        assert!(bands.get(band) < bound, "{band}: {bands:?}");
+    }
+}
+
+/// Every axis needs its 4 nodes (the shader's 512 texel fetches per pixel): read with 2 nodes
+/// (geometric between the interval's two) on one axis, some band of the targets gets
+/// markedly worse. Measured (2026-12-05, standard): altitude — sun ≥ 5°, view > 10°, 0–20 km
+/// 0.18 → 0.86 %; sun — −6…5°, 0–20 km 2.6 → 6.0 %; view rows — −12…−6° at the ground
+/// 3.4 → 5.9 %; azimuth — −6…5° at the ground 1.3 → 3.8 % (over the 3 % target).
+#[test]
+#[ignore = "builds a bundle (about 10 s of CPU): run with --ignored lut_skyview::"]
+fn skyview_four_nodes_per_axis_are_needed() {
+    let f = fixture();
+    let (_, four) = sky_errors(f, &SkyViewReader::new(&f.bundle), samples(f));
+    for (axis, band) in [
+        (
+            0,
+            "sun >= 5, view > 10 deg above horizon (target 1 %), 0-20 km",
+        ),
+        (1, "sun -6..5 (target 3 %), 0-20 km"),
+        (2, "sun -12..-6 (target 10 %), ground"),
+        (3, "sun -6..5 (target 3 %), ground"),
+    ] {
+        let mut reader = SkyViewReader::new(&f.bundle);
+        reader.nodes[axis] = 2;
+        let (_, two) = sky_errors(f, &reader, samples(f));
+        eprintln!(
+            "skyview axis {axis} with 2 nodes: {band}: {:.3} % (4 nodes: {:.3} %)",
+            two.get(band) * 100.0,
+            four.get(band) * 100.0
+        );
+        assert!(two.get(band) > 1.5 * four.get(band), "axis {axis}: {band}");
     }
 }
 
@@ -314,8 +351,9 @@ fn skyview_sun_and_sky_irradiance_match_the_sun_product() {
     direct.print("skyview sun direct normal");
     sky.print("skyview sky diffuse horizontal");
     // Measured 0.006 %, 0.023 %, 0.041 %, 0.38 % (Bruneton's transmittance texture) and for
-    // the sky's irradiance 0.24 % (ground, sun >= 5), 1.27 % (aloft, sun >= 5), 0.34 %, 0.88 %
-    // (sun -6..5), 0.03 %, 0.73 % (sun -12..-6).
+    // the sky's irradiance 0.24 % (ground, sun >= 5), 1.27 % (aloft, sun >= 5), 0.34 %, 0.66 %
+    // (sun -6..5), 0.03 %, 1.54 % (sun -12..-6: 2e-8 W m-2 nm-1 at 63 km, on the sun nodes that
+    // the twilight warp spreads away from sunset; layout version 2: 0.73 %).
     for (band, measured) in [
         ("sun >= 5, ground", 6e-5),
         ("sun >= 5, aloft", 2.3e-4),
@@ -331,9 +369,9 @@ fn skyview_sun_and_sky_irradiance_match_the_sun_product() {
         ("sun >= 5, ground", 0.0024),
         ("sun >= 5, aloft", 0.0127),
         ("sun -6..5, ground", 0.0034),
-        ("sun -6..5, aloft", 0.0088),
+        ("sun -6..5, aloft", 0.0066),
         ("sun -12..-6, ground", 0.0004),
-        ("sun -12..-6, aloft", 0.0073),
+        ("sun -12..-6, aloft", 0.0154),
     ] {
         assert!(sky.get(band) > 0.0, "no sample in {band}");
         assert!(sky.get(band) < measured * 1.12, "{band}: {sky:?}");
@@ -406,167 +444,4 @@ fn layouts_are_named_and_keyed_apart() {
     assert_ne!(bruneton.cache_key(), sky.cache_key());
     assert!(bruneton.canonical().get("layout").is_none());
     assert_eq!(sky.canonical()["layout"], "skyview");
-}
-
-/// Diagnostic (temporary): the worst samples' error decomposed by axis.
-#[test]
-#[ignore = "diagnostic"]
-fn skyview_diag() {
-    use skybake_lut::skyview::{
-        altitude_coord, altitude_node_m, azimuth_coord, azimuth_node, exact_stored, segment_rows,
-        sun_coord, sun_node_deg, sun_shift, sun_unwarp, sun_warp, view_coord, view_theta,
-        warp_strength, Stencil, N_ALT, N_AZ, N_SUN,
-    };
-    let f = fixture();
-    let reader = SkyViewReader::new(&f.bundle);
-    let (_, by_altitude) = sky_errors(f, &reader, samples(f));
-    by_altitude.print("BAND");
-    for nodes in [
-        [2, 4, 4, 4],
-        [4, 2, 4, 4],
-        [4, 4, 2, 4],
-        [4, 4, 4, 2],
-        [2, 2, 4, 4],
-        [2, 4, 4, 2],
-    ] {
-        let mut r = SkyViewReader::new(&f.bundle);
-        r.nodes = nodes;
-        let (_, b) = sky_errors(f, &r, samples(f));
-        b.print(&format!("NODES {nodes:?}"));
-    }
-    let shared = f.engine.shared_unless(&f.request.spec, &|| false).unwrap();
-    let steps = f.request.spec.quality.steps();
-    let p = &f.bundle.params;
-    let bottom = p.bottom_radius;
-    let thickness = p.top_radius - bottom;
-    let phase_m = f.bundle.aerosol_phase;
-    let mut rows = Vec::new();
-    for s in samples(f) {
-        let (radiance, _) = reader.sky_radiance(
-            [0.0, 0.0, bottom + s.altitude_m],
-            view_dir(s.view_zenith_deg, s.view_azimuth_deg),
-            sun_dir(s.sun_deg),
-        );
-        let e = (0..3)
-            .map(|c| rel(radiance[c] / UNIT_SCALE, s.radiance[c]))
-            .fold(0.0, f64::max);
-        let band = target_band(s.sun_deg, s.near_horizon);
-        let target = if band.contains("1 %") {
-            0.01
-        } else if band.contains("10 %") {
-            0.1
-        } else {
-            0.03
-        };
-        if e > target * 0.7 {
-            rows.push((e / target, e, s));
-        }
-    }
-    rows.sort_by(|a, b| b.0.partial_cmp(&a.0).unwrap());
-    for (_, e, s) in rows.iter().take(60) {
-        let r = bottom + s.altitude_m;
-        let theta = s.view_zenith_deg.to_radians();
-        let phi = s.view_azimuth_deg.to_radians();
-        let (seg, row) = view_coord(theta, r, bottom);
-        let shift = sun_shift(r, theta, phi.cos(), bottom, seg == 1).to_degrees();
-        let sc = (s.sun_deg + shift).clamp(-23.0, 104.0);
-        let bq = warp_strength(s.altitude_m, thickness);
-        let tq = sun_unwarp(sc, bq);
-        let nu = {
-            let v = view_dir(s.view_zenith_deg, s.view_azimuth_deg);
-            let u = sun_dir(s.sun_deg);
-            v[0] * u[0] + v[1] * u[1] + v[2] * u[2]
-        };
-        let pr = skybake_lut::param::rayleigh_phase(nu);
-        let pm = phase_m.eval(nu);
-        let mu = theta.cos();
-        let d = skyview::ray_length(r, mu, bottom, p.top_radius, false);
-        let radiance = |v: &(Vec<f64>, Vec<f64>)| -> Vec<f64> {
-            (0..3)
-                .map(|c| (v.0[c] * pr + v.1[c] * pm) * d / UNIT_SCALE)
-                .collect()
-        };
-        let exact = exact_stored(&shared, &f.bundle.channels, steps, r, theta, &[(sc, phi)])
-            .unwrap()
-            .remove(0);
-        let l_exact = radiance(&exact);
-        let err = |v: &(Vec<f64>, Vec<f64>)| {
-            let l = radiance(v);
-            (0..3)
-                .map(|c| (l[c] / l_exact[c] - 1.0))
-                .fold(0.0f64, |a, x| if x.abs() > a.abs() { x } else { a })
-        };
-        let mix = |st: &Stencil, vals: &[(Vec<f64>, Vec<f64>)]| -> (Vec<f64>, Vec<f64>) {
-            let g = |part: usize, c: usize| {
-                let v: Vec<f64> = vals
-                    .iter()
-                    .map(|x| if part == 0 { x.0[c] } else { x.1[c] })
-                    .collect();
-                st.mix(&v)
-            };
-            (
-                (0..3).map(|c| g(0, c)).collect(),
-                (0..3).map(|c| g(1, c)).collect(),
-            )
-        };
-        // Altitude axis.
-        let ya = altitude_coord(s.altitude_m, thickness);
-        let sa = Stencil::new(ya, 0, N_ALT - 1, |k| k as f64, ya);
-        let vals: Vec<_> = (sa.first..sa.first + sa.len)
-            .map(|k| {
-                let rk = bottom + altitude_node_m(k, thickness);
-                let (th, _) = view_theta(seg, row, rk, bottom);
-                let sk = sun_warp(tq, warp_strength(rk - bottom, thickness));
-                exact_stored(&shared, &f.bundle.channels, steps, rk, th, &[(sk, phi)])
-                    .unwrap()
-                    .remove(0)
-            })
-            .collect();
-        let e_alt = err(&mix(&sa, &vals));
-        // Sun axis.
-        let ss = Stencil::new(sun_coord(tq), 0, N_SUN - 1, sun_node_deg, tq);
-        let suns: Vec<(f64, f64)> = (ss.first..ss.first + ss.len)
-            .map(|j| (sun_warp(sun_node_deg(j), bq), phi))
-            .collect();
-        let vals = exact_stored(&shared, &f.bundle.channels, steps, r, theta, &suns).unwrap();
-        let e_sun = err(&mix(&ss, &vals));
-        // Row axis.
-        let (lo, hi) = segment_rows(seg);
-        let sv = Stencil::new(row, lo, hi, |i| i as f64, row);
-        let vals: Vec<_> = (sv.first..sv.first + sv.len)
-            .map(|i| {
-                let (th, _) = view_theta(seg, i as f64, r, bottom);
-                exact_stored(&shared, &f.bundle.channels, steps, r, th, &[(sc, phi)])
-                    .unwrap()
-                    .remove(0)
-            })
-            .collect();
-        let e_row = err(&mix(&sv, &vals));
-        // Column axis.
-        let col = azimuth_coord(phi);
-        let sca = Stencil::new(col, 0, N_AZ - 1, |a| a as f64, col);
-        let suns: Vec<(f64, f64)> = (sca.first..sca.first + sca.len)
-            .map(|a| (sc, azimuth_node(a)))
-            .collect();
-        let vals = exact_stored(&shared, &f.bundle.channels, steps, r, theta, &suns).unwrap();
-        let e_col = err(&mix(&sca, &vals));
-        let e_ex = (0..3)
-            .map(|c| rel(l_exact[c], s.radiance[c]))
-            .fold(0.0, f64::max);
-        eprintln!(
-            "DIAG {:>6.2}% alt {:>6.0} sun {:>6.2} zen {:>6.2} elev-above-hor {:>5.2} az {:>6.1} seg {seg} row {row:>5.2} sc {sc:>6.2} L {:.2e} | exact {:.2}% alt {:+.2}% sun {:+.2}% row {:+.2}% col {:+.2}%",
-            e * 100.0,
-            s.altitude_m,
-            s.sun_deg,
-            s.view_zenith_deg,
-            90.0 - s.view_zenith_deg + (bottom / r).acos().to_degrees(),
-            s.view_azimuth_deg,
-            s.radiance[2],
-            e_ex * 100.0,
-            e_alt * 100.0,
-            e_sun * 100.0,
-            e_row * 100.0,
-            e_col * 100.0
-        );
-    }
 }

@@ -74,7 +74,7 @@ pub const N_SUN: usize = 4 + 7 + 28 + 14 + 21 + 1;
 /// from the horizontal to the horizon ([`N_VIEW_LIMB`], the ray's tangent altitude from the
 /// observer's to 0 at the depths [`limb_depth`]) and from the horizon to the nadir
 /// ([`N_VIEW_DOWN`], θ = θ_h + (π − θ_h) x²).
-pub const N_VIEW_SKY: usize = 18;
+pub const N_VIEW_SKY: usize = 22;
 pub const N_VIEW_LIMB: usize = 16;
 pub const N_VIEW_UP: usize = N_VIEW_SKY + N_VIEW_LIMB;
 pub const N_VIEW_DOWN: usize = 8;
@@ -332,73 +332,6 @@ pub fn ray_length(r: f64, mu: f64, bottom: f64, top: f64, ground: bool) -> f64 {
         let disc = r * r * (mu * mu - 1.0) + top * top;
         (-r * mu + disc.max(0.0).sqrt()).max(0.0)
     }
-}
-
-/// Diagnostic: the values the bundle stores (Rayleigh-like, Mie, per channel, per metre of ray)
-/// for the ray from radius `r` at view zenith `theta` (below the horizon when `ground`) and each
-/// sun (sun coordinate s in degrees, azimuth from the sun in rad), computed exactly as the
-/// build computes a texel.
-#[doc(hidden)]
-pub fn exact_stored(
-    shared: &SharedTables,
-    channels: &Channels,
-    steps: usize,
-    r: f64,
-    theta: f64,
-    suns: &[(f64, f64)],
-) -> crate::Result<Vec<(Vec<f64>, Vec<f64>)>> {
-    let m = &shared.medium;
-    let (idx, params) = channel_setup(m, channels)?;
-    let e0 = params.solar_irradiance.clone();
-    let bottom = params.bottom_radius;
-    let top = params.top_radius;
-    let r = r.clamp(bottom, top - EVAL_OFFSET_M);
-    let (seg, _) = view_coord(theta, r, bottom);
-    let ground = seg == 2;
-    let r = if ground {
-        r.max(bottom + EVAL_OFFSET_M)
-    } else {
-        r
-    };
-    let mu_h = horizon_mu(r, bottom);
-    let mu = if ground {
-        (theta.cos().min(mu_h) - 1e-9).max(-1.0)
-    } else {
-        theta.cos().max(mu_h + 1e-9).min(1.0)
-    };
-    let sin_t = (1.0 - mu * mu).max(0.0).sqrt();
-    let d = ray_length(r, mu, bottom, top, ground);
-    let mut scratch = FamilyScratch::new(shared, m.len());
-    scratch.prepare(r, mu, steps);
-    let mut nus = Vec::new();
-    for &(s, phi) in suns {
-        let shift = sun_shift(r, theta, phi.cos(), bottom, seg == 1);
-        let mu_s = (s.to_radians() - shift).sin();
-        let sin_s = (1.0 - mu_s * mu_s).max(0.0).sqrt();
-        let nu = (mu * mu_s + sin_t * sin_s * phi.cos()).clamp(-1.0, 1.0);
-        scratch.push_sun(mu_s, nu);
-        nus.push(nu);
-    }
-    scratch.integrate();
-    Ok(nus
-        .iter()
-        .enumerate()
-        .map(|(t, &nu)| {
-            let p_r = param::rayleigh_phase(nu);
-            let x = scratch.texel(t);
-            let ray: Vec<f64> = idx
-                .iter()
-                .enumerate()
-                .map(|(c, &l)| (x.rayleigh[l] + x.multiple[l] / p_r) * e0[c] / d)
-                .collect();
-            let mie: Vec<f64> = idx
-                .iter()
-                .enumerate()
-                .map(|(c, &l)| x.mie[l] * e0[c] / d)
-                .collect();
-            (ray, mie)
-        })
-        .collect())
 }
 
 /// The computed `skyview` bundle.
@@ -1009,19 +942,20 @@ pub fn phase_from_json(v: &Value) -> crate::Result<Phase> {
 pub const STATED_ERRORS: &[(&str, &str, f64)] = &[
     ("transmittance", "direct normal irradiance (sun product), sun >= 5 deg, 0-100 km", 0.0003),
     ("transmittance", "direct normal irradiance (sun product), sun -6..5 deg", 0.004),
-    ("rayleigh+mie", "sky radiance (sky product), sun >= 5 deg, view > 10 deg above the horizon, ground", 0.0027),
-    ("rayleigh+mie", "sky radiance (sky product), sun >= 5 deg, view > 10 deg above the horizon, 0-20 km", 0.0016),
-    ("rayleigh+mie", "sky radiance (sky product), sun >= 5 deg, view > 10 deg above the horizon, 20-100 km", 0.0075),
-    ("rayleigh+mie", "sky radiance (sky product), sun >= 5 deg, view < 10 deg above the horizon, ground", 0.0052),
-    ("rayleigh+mie", "sky radiance (sky product), sun >= 5 deg, view < 10 deg above the horizon, 0-20 km", 0.026),
-    ("rayleigh+mie", "sky radiance (sky product), sun >= 5 deg, view < 10 deg above the horizon, 20-100 km", 0.083),
-    ("rayleigh+mie", "sky radiance (sky product), sun -6..5 deg, ground", 0.042),
-    ("rayleigh+mie", "sky radiance (sky product), sun -6..5 deg, 0-100 km", 0.092),
-    ("rayleigh+mie", "sky radiance (sky product), sun -12..-6 deg, ground", 0.031),
-    ("rayleigh+mie", "sky radiance (sky product), sun -12..-6 deg, 0-20 km", 0.035),
-    ("rayleigh+mie", "sky radiance (sky product), sun -12..-6 deg, 20-100 km (the darkest sky: 5.7e-9 W m-2 sr-1 nm-1, the limb across the earth's shadow)", 1.12),
+    ("rayleigh+mie", "sky radiance (sky product), sun >= 5 deg, view > 10 deg above the horizon, ground", 0.0026),
+    ("rayleigh+mie", "sky radiance (sky product), sun >= 5 deg, view > 10 deg above the horizon, 0-20 km", 0.0018),
+    ("rayleigh+mie", "sky radiance (sky product), sun >= 5 deg, view > 10 deg above the horizon, 20-100 km", 0.0072),
+    ("rayleigh+mie", "sky radiance (sky product), sun >= 5 deg, view < 10 deg above the horizon, ground", 0.004),
+    ("rayleigh+mie", "sky radiance (sky product), sun >= 5 deg, view < 10 deg above the horizon, 0-20 km", 0.0047),
+    ("rayleigh+mie", "sky radiance (sky product), sun >= 5 deg, view < 10 deg above the horizon, 20-100 km", 0.025),
+    ("rayleigh+mie", "sky radiance (sky product), sun -6..5 deg, ground", 0.014),
+    ("rayleigh+mie", "sky radiance (sky product), sun -6..5 deg, 0-20 km", 0.026),
+    ("rayleigh+mie", "sky radiance (sky product), sun -6..5 deg, 20-100 km (the limb across the earth's shadow)", 0.089),
+    ("rayleigh+mie", "sky radiance (sky product), sun -12..-6 deg, ground", 0.035),
+    ("rayleigh+mie", "sky radiance (sky product), sun -12..-6 deg, 0-20 km", 0.032),
+    ("rayleigh+mie", "sky radiance (sky product), sun -12..-6 deg, 20-100 km (the darkest sky: 5.7e-9 W m-2 sr-1 nm-1, the sky and limb across the earth's shadow)", 1.12),
     ("irradiance", "diffuse horizontal irradiance (sun product), sun >= 5 deg, 0-100 km", 0.013),
-    ("irradiance", "diffuse horizontal irradiance (sun product), sun -12..5 deg, 0-100 km", 0.009),
+    ("irradiance", "diffuse horizontal irradiance (sun product), sun -12..5 deg, 0-100 km", 0.016),
 ];
 
 fn sample_name(s: Sample) -> &'static str {
