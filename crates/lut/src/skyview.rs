@@ -11,7 +11,8 @@
 //!   and single Mie without phase, per channel), so the client multiplies by the exact phase
 //!   functions and the aureole is as sharp as the aerosol's phase function;
 //! - **μs (13 nodes by day, linear)**: the sun's elevation above the observer's horizon has its
-//!   own nodes ([`SUN_SEGMENTS`], 0.5° in twilight), and on the limb rows the coordinate moves
+//!   own nodes ([`SUN_SEGMENTS`], 0.5° in twilight at the ground, warped towards sunset aloft,
+//!   [`sun_warp`]), and on the limb rows the coordinate moves
 //!   towards the sun's elevation above the horizon of the ray's tangent point ([`sun_shift`]),
 //!   so the earth's shadow reaching a limb ray stays near one node;
 //! - **r (32 nodes, linear in ρ)**: altitude nodes quadratic in the altitude (dense low);
@@ -21,7 +22,9 @@
 //!   single texel fetches, as his shader interpolates ν by hand;
 //! - the view zenith is relative to the horizon of the observer's altitude (Hillaire 2020,
 //!   §5.3's sky-view parameterisation: nodes quadratic towards the horizon, from above and below),
-//!   so the horizon stays on a node at every altitude;
+//!   so the horizon stays on a node at every altitude; the limb rows (between the horizontal
+//!   and the horizon) follow the square-root cusp of the limb just below the horizontal
+//!   ([`limb_depth`]);
 //! - half floats with a per-slice scale (a float table, one value per altitude, sun and
 //!   channel), so twilight values keep half floats' full relative precision.
 //!
@@ -56,11 +59,12 @@ pub const SKYVIEW_VERSION: &str = "3";
 
 /// Altitude nodes: h_k = (top − bottom) · (k / (N − 1))².
 pub const N_ALT: usize = 28;
-/// Sun nodes, in the sun's elevation above the observer's horizon (its elevation + the
-/// horizon's dip at the node's altitude, so sunset is on the same node at every altitude):
-/// every 1° from [`SUN_MIN_DEG`] to −8°, every 0.5° to 6° (twilight and sunset), every 1° to
-/// 20° (low sun), every 4° to 104° (the zenith seen from the top of a 100 km atmosphere is
-/// 100.1° above its horizon).
+/// Sun nodes, uniform in the sun node coordinate t: the sun's elevation above the observer's
+/// horizon (its elevation + the horizon's dip at the node's altitude, so sunset is on the same
+/// node at every altitude), warped towards sunset aloft between −8° and 6° ([`sun_warp`]):
+/// every 2° from [`SUN_MIN_DEG`] to −15°, every 1° to −8°, every 0.5° to 6° (twilight and
+/// sunset), every 1° to 20° (low sun), every 4° to 104° (the zenith seen from the top of a
+/// 100 km atmosphere is 100.1° above its horizon).
 pub const SUN_MIN_DEG: f64 = -23.0;
 pub const SUN_SEGMENTS: [(f64, f64, usize); 5] = [
     (-23.0, 2.0, 4),
