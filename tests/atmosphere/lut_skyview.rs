@@ -134,46 +134,83 @@ fn skyview_sky_radiance_matches_the_sky_product() {
     bands.print("skyview sky");
     by_altitude.print("skyview sky by altitude");
     let bands = by_altitude;
-    // Measured on 2026-12-05 (earth, standard, RGB; layout version 2: Lagrange interpolation
-    // of ln L over 4 nodes per axis, the limb's sun coordinate towards its tangent point);
-    // bounds = measured + ~12 %. Targets met: the day sky above 10° at every altitude (< 1 %),
-    // within 10° of the horizon at the ground and 0–20 km (< 3 %), and −12…−6° at the ground
-    // and 0–20 km (< 10 %); not met: the day limb from 20–100 km, −6…5° (4–9 %) and the limb
-    // across the earth's shadow at −12…−6° from 20–100 km (docs/lut.md).
-    for (band, measured) in [
+    // Measured on 2026-12-05 (earth, standard, RGB; layout version 3: the limb rows at
+    // y = 2x² − x³, the sun nodes warped towards sunset aloft, 22 sky rows). Where the issue's
+    // target is met it is asserted, and the measured bound + ~12 % (the tighter); where it is
+    // not (the twilight limb aloft, −6…5° and −12…−6° from 20–100 km: docs/lut.md), the
+    // measured bound + ~12 %.
+    for (band, measured, target) in [
         (
             "sun >= 5, view > 10 deg above horizon (target 1 %), ground",
-            0.00264,
+            0.00251,
+            Some(0.01),
         ),
         (
             "sun >= 5, view > 10 deg above horizon (target 1 %), 0-20 km",
-            0.00159,
+            0.00177,
+            Some(0.01),
         ),
         (
             "sun >= 5, view > 10 deg above horizon (target 1 %), 20-100 km",
-            0.00746,
+            0.00718,
+            Some(0.01),
         ),
         (
             "sun >= 5, view < 10 deg above horizon (target 3 %), ground",
-            0.00515,
+            0.00392,
+            Some(0.03),
         ),
         (
             "sun >= 5, view < 10 deg above horizon (target 3 %), 0-20 km",
-            0.0255,
+            0.00470,
+            Some(0.03),
         ),
         (
             "sun >= 5, view < 10 deg above horizon (target 3 %), 20-100 km",
-            0.0822,
+            0.02457,
+            Some(0.03),
         ),
-        ("sun -6..5 (target 3 %), ground", 0.0417),
-        ("sun -6..5 (target 3 %), 0-20 km", 0.0815),
-        ("sun -6..5 (target 3 %), 20-100 km", 0.0918),
-        ("sun -12..-6 (target 10 %), ground", 0.0310),
-        ("sun -12..-6 (target 10 %), 0-20 km", 0.0346),
-        ("sun -12..-6 (target 10 %), 20-100 km", 1.1164),
+        ("sun -6..5 (target 3 %), ground", 0.01337, Some(0.03)),
+        ("sun -6..5 (target 3 %), 0-20 km", 0.02590, Some(0.03)),
+        ("sun -6..5 (target 3 %), 20-100 km", 0.0887, None),
+        ("sun -12..-6 (target 10 %), ground", 0.0342, Some(0.10)),
+        ("sun -12..-6 (target 10 %), 0-20 km", 0.0315, Some(0.10)),
+        ("sun -12..-6 (target 10 %), 20-100 km", 1.111, None),
     ] {
+        let bound = target.map_or(measured * 1.12, |t: f64| t.min(measured * 1.12));
         assert!(bands.get(band) > 0.0, "no sample in {band}");
-        assert!(bands.get(band) < measured * 1.12, "{band}: {bands:?}");
+        assert!(bands.get(band) < bound, "{band}: {bands:?}");
+    }
+}
+
+/// Every axis needs its 4 nodes (the shader's 512 texel fetches per pixel): read with 2 nodes
+/// (geometric between the interval's two) on one axis, some band of the targets gets
+/// markedly worse. Measured (2026-12-05, standard): altitude — sun ≥ 5°, view > 10°, 0–20 km
+/// 0.18 → 0.86 %; sun — −6…5°, 0–20 km 2.6 → 6.0 %; view rows — −12…−6° at the ground
+/// 3.4 → 5.9 %; azimuth — −6…5° at the ground 1.3 → 3.8 % (over the 3 % target).
+#[test]
+#[ignore = "builds a bundle (about 10 s of CPU): run with --ignored lut_skyview::"]
+fn skyview_four_nodes_per_axis_are_needed() {
+    let f = fixture();
+    let (_, four) = sky_errors(f, &SkyViewReader::new(&f.bundle), samples(f));
+    for (axis, band) in [
+        (
+            0,
+            "sun >= 5, view > 10 deg above horizon (target 1 %), 0-20 km",
+        ),
+        (1, "sun -6..5 (target 3 %), 0-20 km"),
+        (2, "sun -12..-6 (target 10 %), ground"),
+        (3, "sun -6..5 (target 3 %), ground"),
+    ] {
+        let mut reader = SkyViewReader::new(&f.bundle);
+        reader.nodes[axis] = 2;
+        let (_, two) = sky_errors(f, &reader, samples(f));
+        eprintln!(
+            "skyview axis {axis} with 2 nodes: {band}: {:.3} % (4 nodes: {:.3} %)",
+            two.get(band) * 100.0,
+            four.get(band) * 100.0
+        );
+        assert!(two.get(band) > 1.5 * four.get(band), "axis {axis}: {band}");
     }
 }
 
@@ -211,7 +248,8 @@ fn skyview_nodes_equal_the_sky_product() {
         let shift = skyview::sun_shift(r, theta, phi.cos(), bottom, limb).to_degrees();
         let sun_deg = loop {
             let j = rng.random_range(0..skyview::N_SUN);
-            let e = skyview::sun_node_deg(j) - shift;
+            let b = skyview::warp_strength(altitude, thickness);
+            let e = skyview::sun_warp(skyview::sun_node_deg(j), b) - shift;
             if (-12.0..=90.0).contains(&e) {
                 break e;
             }
@@ -313,8 +351,9 @@ fn skyview_sun_and_sky_irradiance_match_the_sun_product() {
     direct.print("skyview sun direct normal");
     sky.print("skyview sky diffuse horizontal");
     // Measured 0.006 %, 0.023 %, 0.041 %, 0.38 % (Bruneton's transmittance texture) and for
-    // the sky's irradiance 0.24 % (ground, sun >= 5), 1.27 % (aloft, sun >= 5), 0.34 %, 0.88 %
-    // (sun -6..5), 0.03 %, 0.73 % (sun -12..-6).
+    // the sky's irradiance 0.24 % (ground, sun >= 5), 1.27 % (aloft, sun >= 5), 0.34 %, 0.66 %
+    // (sun -6..5), 0.03 %, 1.54 % (sun -12..-6: 2e-8 W m-2 nm-1 at 63 km, on the sun nodes that
+    // the twilight warp spreads away from sunset; layout version 2: 0.73 %).
     for (band, measured) in [
         ("sun >= 5, ground", 6e-5),
         ("sun >= 5, aloft", 2.3e-4),
@@ -330,9 +369,9 @@ fn skyview_sun_and_sky_irradiance_match_the_sun_product() {
         ("sun >= 5, ground", 0.0024),
         ("sun >= 5, aloft", 0.0127),
         ("sun -6..5, ground", 0.0034),
-        ("sun -6..5, aloft", 0.0088),
+        ("sun -6..5, aloft", 0.0066),
         ("sun -12..-6, ground", 0.0004),
-        ("sun -12..-6, aloft", 0.0073),
+        ("sun -12..-6, aloft", 0.0154),
     ] {
         assert!(sky.get(band) > 0.0, "no sample in {band}");
         assert!(sky.get(band) < measured * 1.12, "{band}: {sky:?}");

@@ -58,8 +58,8 @@ const BRUNETON_BANDS = [
 
 // skyview (the viewer's default): `assert: "target"` asserts the issue's target (the bands where
 // the layout meets it: by day at every altitude, the aureole included), else the measured bound
-// (measured on this bundle × 1.15, layout version 2, 2026-12-05: 4.64 % and 20.25 %; the issue's
-// target printed beside it).
+// (measured on this bundle × 1.15, layout version 3, 2026-12-05: 6.98 % and 20.72 %; version 2:
+// 4.64 % and 20.25 %; the issue's target printed beside it).
 const SKYVIEW_BANDS = [
   { name: "ground, sun >= 5 deg, view > 10 deg above the horizon", target: 0.01, assert: "target",
     cases: cross([0], [10, 30, 60], [0, 30, 60, 75], [0, 90, 180]) },
@@ -73,16 +73,18 @@ const SKYVIEW_BANDS = [
     cases: aureole([0, 2000], [10, 30], [2, 4, 6]) },
   { name: "20-100 km, sun >= 5 deg (zenith 95 deg: the limb)", target: 0.01, assert: "target",
     cases: cross([30000, 60000], [10, 40], [0, 60, 85, 95], [0, 180]) },
-  { name: "0-5 km, sun -6..5 deg, view < 10 deg above the horizon", target: 0.03, bound: 0.054,
+  { name: "0-5 km, sun -6..5 deg, view < 10 deg above the horizon", target: 0.03, bound: 0.080,
     cases: cross([0, 5000], [2, -3], [82, 87], [0, 90, 180]) },
-  { name: "0-5 km, sun -12..-6 deg", target: 0.10, bound: 0.233,
+  { name: "0-5 km, sun -12..-6 deg", target: 0.10, bound: 0.238,
     cases: cross([0, 5000], [-8, -11], [0, 60, 85], [0, 180]) },
 ];
-// (a) for skyview: measured (software WebGL) GetSkyRadiance 5.4e-6 relative (aureole included),
-// GetSkyRadianceToPoint 1.2e-6 / 2.4e-6 of the ray's in-scatter (camera 1 m / 2-10 km),
-// GetSunAndSkyIrradiance 8e-7 (sun) / 6.6e-7 (sky); transmittances 1.8e-5 absolute. The
-// skyview shader fetches texels and interpolates in 32-bit floats as the reader does in 64.
-const SKYVIEW_SHADER_BOUND = { relative: 1e-4, transmittance: 1e-4 };
+// (a) for skyview: measured (software WebGL, layout version 3) GetSkyRadiance 9.45e-5 relative
+// (version 2: 5.4e-6; version 3's limb row and sun node coordinate add 32-bit rounding where the
+// sky is steep in them), GetSkyRadianceToPoint 5.4e-5 / 2.4e-6 of the ray's in-scatter (camera
+// 1 m / 2-10 km), GetSunAndSkyIrradiance 8e-7 (sun) / 1.1e-6 (sky); transmittances 1.8e-5
+// absolute. The skyview shader fetches texels and interpolates in 32-bit floats as the reader
+// does in 64.
+const SKYVIEW_SHADER_BOUND = { relative: 2e-4, transmittance: 1e-4 };
 
 const LAYOUTS = [
   { layout: "skyview", textures: 5, bands: SKYVIEW_BANDS, shaderBound: SKYVIEW_SHADER_BOUND },
@@ -149,8 +151,9 @@ try {
   const consoleErrors = [];
   page.on("console", (m) => { if (m.type() === "error") consoleErrors.push(m.text()); });
   page.on("pageerror", (e) => consoleErrors.push(String(e)));
-  await page.goto(base + "/", { waitUntil: "load" });
-  await page.waitForSelector("#atmosphere");
+  await page.goto(base + "/", { waitUntil: "load", timeout: 300000 });
+  // A generous wait: on the shared machine under load the first page load took over 30 s.
+  await page.waitForSelector("#atmosphere", { timeout: 300000 });
   // The page's own product refresh on load (a dome, a panorama, the sky and sun documents) must
   // finish first: on a slow machine its second round of requests would otherwise land while the
   // live sky's sliders move and be counted against them.

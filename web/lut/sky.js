@@ -72,6 +72,15 @@ class LiveSky {
       const shadowScale = manifest.parameterisation.limb_shadow_scale_m;
       if (!(shadowScale > 0)) throw new Error("manifest: parameterisation.limb_shadow_scale_m is not a length");
       defines += `#define SV_LIMB_SHADOW_SCALE ${shadowScale.toExponential()}\n`;
+      const warp = manifest.parameterisation.sun_warp_strength;
+      const warpRange = manifest.parameterisation.sun_warp_range;
+      if (!(warp >= 0)) throw new Error("manifest: parameterisation.sun_warp_strength is not a strength");
+      if (!Array.isArray(warpRange) || warpRange.length !== 2 || !(warpRange[0] < 0 && warpRange[1] > 0)) {
+        throw new Error("manifest: parameterisation.sun_warp_range is not a range around 0");
+      }
+      defines += `#define SV_SUN_WARP ${warp.toExponential()}\n` +
+        `#define SV_SUN_WARP_LO ${warpRange[0].toExponential()}\n` +
+        `#define SV_SUN_WARP_HI ${warpRange[1].toExponential()}\n`;
       source = `${this.glsl}\n${this.skyviewGlsl}`;
     }
     if (!this.programs[defines]) {

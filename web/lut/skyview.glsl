@@ -11,8 +11,10 @@
 // layouts), its RhoAlong and SquareDifference, and the Rayleigh phase function. The including
 // program defines the node counts from the manifest's parameterisation.sizes: SV_N_ALT,
 // SV_N_SUN, SV_N_VIEW_SKY, SV_N_VIEW_LIMB, SV_N_VIEW_DOWN, SV_N_AZ, and SV_N_SUN_SEGMENTS (the
-// length of parameterisation.sun_segments) and SV_LIMB_SHADOW_SCALE
-// (parameterisation.limb_shadow_scale_m, a float literal).
+// length of parameterisation.sun_segments), SV_LIMB_SHADOW_SCALE
+// (parameterisation.limb_shadow_scale_m, a float literal), SV_SUN_WARP
+// (parameterisation.sun_warp_strength) and SV_SUN_WARP_LO, SV_SUN_WARP_HI
+// (parameterisation.sun_warp_range), float literals.
 //
 // Per query: node coordinates in altitude (sqrt(h / thickness) (N_ALT - 1)), the sun's elevation
 // above the observer's horizon (the manifest's segments), the view row within its segment (sky,
@@ -177,16 +179,32 @@ float SkyViewSunCoord(float above_horizon_deg) {
   return float(SV_N_SUN - 1);
 }
 
+// The limb rows' coordinate x (0 at the horizontal, 1 at the horizon) of the ray's depth
+// y = (r - r_t) / h: the root in [0, 1] of 2x^2 - x^3 = y (the reader's limb_row).
+float SkyViewLimbRow(float y) {
+  float phi = acos(clamp(1.0 - 27.0 / 16.0 * clamp(y, 0.0, 1.0), -1.0, 1.0));
+  return clamp(2.0 / 3.0 + 4.0 / 3.0 * cos(phi / 3.0 - 2.0 * PI / 3.0), 0.0, 1.0);
+}
+
+// The sun node coordinate (degrees) of the sun coordinate s (degrees) at warp strength b: the
+// inverse of the twilight warp s = e sinh(b t / e) / sinh(b) (the reader's sun_unwarp).
+float SkyViewSunUnwarp(float s, float b) {
+  if (b < 1e-6 || s <= SV_SUN_WARP_LO || s >= SV_SUN_WARP_HI) return s;
+  float e = s < 0.0 ? -SV_SUN_WARP_LO : SV_SUN_WARP_HI;
+  return e * asinh(s * sinh(b) / e) / b;
+}
+
 // Altitude node k0 (and fraction tk) and sun node j0 (and tj) at altitude h with sun zenith
 // cosine mu_s; shift: the angle added to the sun's elevation to make the sun coordinate (the
 // horizon's dip atan(rho, bottom_radius), or on the limb SkyViewRadiance's shift). above_deg: the
-// sun coordinate (degrees), clamped to the nodes.
+// sun node coordinate (degrees: the sun coordinate unwarped at h), clamped to the nodes.
 void SkyViewAltitudeSun(float h, float shift, float mu_s, out int k0, out float tk, out int j0,
                         out float tj, out float above_deg) {
   float thickness = top_radius - bottom_radius;
   k0 = SkyViewSplit(sqrt(clamp(h / thickness, 0.0, 1.0)) * float(SV_N_ALT - 1), SV_N_ALT, tk);
-  above_deg = clamp(degrees(asin(clamp(mu_s, -1.0, 1.0)) + shift), SkyViewSunNodeDeg(0),
-                    SkyViewSunNodeDeg(SV_N_SUN - 1));
+  float b = SV_SUN_WARP * sqrt(clamp(h / thickness, 0.0, 1.0));
+  above_deg = clamp(SkyViewSunUnwarp(degrees(asin(clamp(mu_s, -1.0, 1.0)) + shift), b),
+                    SkyViewSunNodeDeg(0), SkyViewSunNodeDeg(SV_N_SUN - 1));
   j0 = SkyViewSplit(SkyViewSunCoord(above_deg), SV_N_SUN, tj);
 }
 
@@ -223,12 +241,12 @@ vec3 SkyViewRadiance(float h, float rho, vec3 up, vec3 view_ray, vec3 sun_direct
     segment = 0;
     row = (1.0 - sqrt(clamp(asin(mu) / (0.5 * PI), 0.0, 1.0))) * float(SV_N_VIEW_SKY - 1);
   } else if (mu > -rho / r) {
-    // Horizontal to horizon, uniform in the ray's tangent radius r_t = r sqrt(1 - mu^2):
-    // (r - r_t) / h, with r - r_t = r mu^2 / (1 + sqrt(1 - mu^2)).
+    // Horizontal to horizon, at the depth of the ray's tangent radius r_t = r sqrt(1 - mu^2):
+    // y = (r - r_t) / h, with r - r_t = r mu^2 / (1 + sqrt(1 - mu^2)), y = 2x^2 - x^3.
     segment = 1;
     float r_minus_rt = r * mu * mu / (1.0 + sqrt(1.0 - mu * mu));
     float y = h > 0.0 ? clamp(r_minus_rt / h, 0.0, 1.0) : 1.0;
-    row = float(SV_N_VIEW_SKY) + y * float(SV_N_VIEW_LIMB - 1);
+    row = float(SV_N_VIEW_SKY) + SkyViewLimbRow(y) * float(SV_N_VIEW_LIMB - 1);
     h_t = max(h - r_minus_rt, 0.0);
     gamma = asin(-mu);
     dip_t = atan(sqrt(h_t * (2.0 * bottom_radius + h_t)), bottom_radius);

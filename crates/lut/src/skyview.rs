@@ -11,7 +11,8 @@
 //!   and single Mie without phase, per channel), so the client multiplies by the exact phase
 //!   functions and the aureole is as sharp as the aerosol's phase function;
 //! - **μs (13 nodes by day, linear)**: the sun's elevation above the observer's horizon has its
-//!   own nodes ([`SUN_SEGMENTS`], 0.5° in twilight), and on the limb rows the coordinate moves
+//!   own nodes ([`SUN_SEGMENTS`], 0.5° in twilight at the ground, warped towards sunset aloft,
+//!   [`sun_warp`]), and on the limb rows the coordinate moves
 //!   towards the sun's elevation above the horizon of the ray's tangent point ([`sun_shift`]),
 //!   so the earth's shadow reaching a limb ray stays near one node;
 //! - **r (32 nodes, linear in ρ)**: altitude nodes quadratic in the altitude (dense low);
@@ -21,7 +22,9 @@
 //!   single texel fetches, as his shader interpolates ν by hand;
 //! - the view zenith is relative to the horizon of the observer's altitude (Hillaire 2020,
 //!   §5.3's sky-view parameterisation: nodes quadratic towards the horizon, from above and below),
-//!   so the horizon stays on a node at every altitude;
+//!   so the horizon stays on a node at every altitude; the limb rows (between the horizontal
+//!   and the horizon) follow the square-root cusp of the limb just below the horizontal
+//!   ([`limb_depth`]);
 //! - half floats with a per-slice scale (a float table, one value per altitude, sun and
 //!   channel), so twilight values keep half floats' full relative precision.
 //!
@@ -50,15 +53,18 @@ pub const LAYOUT: &str = "skyview";
 /// Layout version (bumped when a file or a field changes meaning).
 /// 2: the limb rows' sun coordinate is the sun's elevation above the tangent point's horizon
 /// ([`sun_shift`]), sun nodes from −23°, Lagrange interpolation over 4 nodes per axis.
-pub const SKYVIEW_VERSION: &str = "2";
+/// 3: the limb rows at y = 2x² − x³ ([`limb_depth`]), the sun nodes warped towards s = 0
+/// with the altitude ([`sun_warp`]).
+pub const SKYVIEW_VERSION: &str = "3";
 
 /// Altitude nodes: h_k = (top − bottom) · (k / (N − 1))².
 pub const N_ALT: usize = 28;
-/// Sun nodes, in the sun's elevation above the observer's horizon (its elevation + the
-/// horizon's dip at the node's altitude, so sunset is on the same node at every altitude):
-/// every 1° from [`SUN_MIN_DEG`] to −8°, every 0.5° to 6° (twilight and sunset), every 1° to
-/// 20° (low sun), every 4° to 104° (the zenith seen from the top of a 100 km atmosphere is
-/// 100.1° above its horizon).
+/// Sun nodes, uniform in the sun node coordinate t: the sun's elevation above the observer's
+/// horizon (its elevation + the horizon's dip at the node's altitude, so sunset is on the same
+/// node at every altitude), warped towards sunset aloft between −8° and 6° ([`sun_warp`]):
+/// every 2° from [`SUN_MIN_DEG`] to −15°, every 1° to −8°, every 0.5° to 6° (twilight and
+/// sunset), every 1° to 20° (low sun), every 4° to 104° (the zenith seen from the top of a
+/// 100 km atmosphere is 100.1° above its horizon).
 pub const SUN_MIN_DEG: f64 = -23.0;
 pub const SUN_SEGMENTS: [(f64, f64, usize); 5] = [
     (-23.0, 2.0, 4),
@@ -69,10 +75,10 @@ pub const SUN_SEGMENTS: [(f64, f64, usize); 5] = [
 ];
 pub const N_SUN: usize = 4 + 7 + 28 + 14 + 21 + 1;
 /// View rows: from the zenith to the horizontal ([`N_VIEW_SKY`], θ = 90° (1 − (1 − x)²)),
-/// from the horizontal to the horizon ([`N_VIEW_LIMB`], uniform in the tangent altitude of the
-/// ray, from the observer's altitude to 0) and from the horizon to the nadir
+/// from the horizontal to the horizon ([`N_VIEW_LIMB`], the ray's tangent altitude from the
+/// observer's to 0 at the depths [`limb_depth`]) and from the horizon to the nadir
 /// ([`N_VIEW_DOWN`], θ = θ_h + (π − θ_h) x²).
-pub const N_VIEW_SKY: usize = 18;
+pub const N_VIEW_SKY: usize = 22;
 pub const N_VIEW_LIMB: usize = 16;
 pub const N_VIEW_UP: usize = N_VIEW_SKY + N_VIEW_LIMB;
 pub const N_VIEW_DOWN: usize = 8;
@@ -169,17 +175,30 @@ pub fn horizon_zenith(r: f64, bottom: f64) -> f64 {
 /// View zenith angle (rad) of row `i` at radius `r` (see [`N_VIEW_SKY`]), and whether it looks
 /// below the horizon.
 pub fn view_node(i: usize, r: f64, bottom: f64) -> (f64, bool) {
-    let th = horizon_zenith(r, bottom);
-    if i < N_VIEW_SKY {
-        let x = i as f64 / (N_VIEW_SKY - 1) as f64;
-        (0.5 * PI * (1.0 - (1.0 - x) * (1.0 - x)), false)
+    let seg = if i < N_VIEW_SKY {
+        0
     } else if i < N_VIEW_UP {
-        let y = (i - N_VIEW_SKY) as f64 / (N_VIEW_LIMB - 1) as f64;
+        1
+    } else {
+        2
+    };
+    view_theta(seg, i as f64, r, bottom)
+}
+
+/// View zenith angle (rad) of the continuous row coordinate `row` of segment `seg` at radius
+/// `r` (the inverse of [`view_coord`]; [`view_node`] at the rows).
+pub fn view_theta(seg: usize, row: f64, r: f64, bottom: f64) -> (f64, bool) {
+    let th = horizon_zenith(r, bottom);
+    if seg == 0 {
+        let x = row / (N_VIEW_SKY - 1) as f64;
+        (0.5 * PI * (1.0 - (1.0 - x) * (1.0 - x)), false)
+    } else if seg == 1 {
+        let y = limb_depth((row - N_VIEW_SKY as f64) / (N_VIEW_LIMB - 1) as f64);
         // Tangent radius from r (horizontal) to the ground (the horizon).
         let r_t = r - (r - bottom) * y;
         (0.5 * PI + (r_t / r).min(1.0).acos(), false)
     } else {
-        let x = (i - N_VIEW_UP) as f64 / (N_VIEW_DOWN - 1) as f64;
+        let x = (row - N_VIEW_UP as f64) / (N_VIEW_DOWN - 1) as f64;
         (th + (PI - th) * x * x, true)
     }
 }
@@ -198,12 +217,74 @@ pub fn view_coord(theta: f64, r: f64, bottom: f64) -> (usize, f64) {
         } else {
             1.0
         };
-        (1, N_VIEW_SKY as f64 + y * (N_VIEW_LIMB - 1) as f64)
+        (
+            1,
+            N_VIEW_SKY as f64 + limb_row(y) * (N_VIEW_LIMB - 1) as f64,
+        )
     } else {
         let x = ((theta - th) / (PI - th)).clamp(0.0, 1.0).sqrt();
         (2, N_VIEW_UP as f64 + x * (N_VIEW_DOWN - 1) as f64)
     }
 }
+
+/// The limb rows' depth y = (r − r_t) / (r − bottom) of the ray's tangent point below the
+/// observer, at the rows' uniform coordinate x ∈ [0, 1]: y = 2x² − x³. Just below the horizontal
+/// the ray gains the air behind its tangent point over a length √(2 r (r − r_t)), so the limb's
+/// radiance grows as √y there (a square-root cusp no polynomial in y follows); in x it is
+/// smooth (y ≈ 2x²), and at the horizon the rows are as dense in y as uniform ones (dy/dx = 1).
+pub fn limb_depth(x: f64) -> f64 {
+    let x = x.clamp(0.0, 1.0);
+    x * x * (2.0 - x)
+}
+
+/// The inverse of [`limb_depth`]: the root in [0, 1] of x³ − 2x² + y = 0, in the trigonometric
+/// form of the cubic's three real roots (x = 2/3 + (4/3) cos(acos(1 − 27y/16)/3 − 2π/3)).
+pub fn limb_row(y: f64) -> f64 {
+    let y = y.clamp(0.0, 1.0);
+    let phi = (1.0 - 27.0 / 16.0 * y).clamp(-1.0, 1.0).acos();
+    (2.0 / 3.0 + 4.0 / 3.0 * (phi / 3.0 - 2.0 * PI / 3.0).cos()).clamp(0.0, 1.0)
+}
+
+/// The twilight warp's strength at the top of the atmosphere ([`warp_strength`]).
+pub const SUN_WARP: f64 = 3.0;
+
+/// The twilight warp's strength b at altitude `h` of an atmosphere `thickness` thick:
+/// [`SUN_WARP`] · √(h / thickness) (∝ the horizon's distance ρ ≈ √(2 R h); 0 at the ground).
+pub fn warp_strength(h: f64, thickness: f64) -> f64 {
+    SUN_WARP * (h / thickness).clamp(0.0, 1.0).sqrt()
+}
+
+/// The sun's elevation above the observer's horizon (deg) at sun coordinate `t` (deg; the sun
+/// nodes are uniform in it), warp strength `b` ([`warp_strength`]): inside
+/// [`SUN_WARP_RANGE`] s = e sinh(b t / e) / sinh(b), e = 8° below 0 and 6° above (the range's
+/// ends stay where they are), outside s = t. Why: from an observer at altitude h the sunlight
+/// grazes the earth at the tangent altitude h_t ≈ ρ s − R s²/2 (ρ = √(r² − R²)), and the
+/// earth's shadow above it rises by about ρ |s| for s < 0; the sky's logarithm varies on the
+/// scale of the air's scale height in those altitudes, i.e. on ~0.5° of s at the ground but
+/// ~0.05° at 100 km (ρ = 1100 km). The warp makes the nodes near s = 0 b / sinh(b) times
+/// denser (0.30 at the top: 0.15°), coarser towards the range's ends where the sky aloft is
+/// either fully lit or dark.
+pub fn sun_warp(t: f64, b: f64) -> f64 {
+    let (lo, hi) = (SUN_WARP_RANGE.0, SUN_WARP_RANGE.1);
+    if b < 1e-6 || t <= lo || t >= hi {
+        return t;
+    }
+    let e = if t < 0.0 { -lo } else { hi };
+    e * (b * t / e).sinh() / b.sinh()
+}
+
+/// The inverse of [`sun_warp`].
+pub fn sun_unwarp(s: f64, b: f64) -> f64 {
+    let (lo, hi) = (SUN_WARP_RANGE.0, SUN_WARP_RANGE.1);
+    if b < 1e-6 || s <= lo || s >= hi {
+        return s;
+    }
+    let e = if s < 0.0 { -lo } else { hi };
+    e * (s * b.sinh() / e).asinh() / b
+}
+
+/// The sun coordinates the twilight warp acts between (deg).
+pub const SUN_WARP_RANGE: (f64, f64) = (-8.0, 6.0);
 
 /// First and last row of segment `seg`.
 pub fn segment_rows(seg: usize) -> (usize, usize) {
@@ -318,8 +399,9 @@ pub fn build_skyview(
     let thickness = params.top_radius - bottom;
     // μs of sun node j at altitude node k.
     let sun_mu = |k: usize, j: usize| {
-        let r = bottom + altitude_node_m(k, thickness);
-        (sun_node_deg(j).to_radians() - dip(r, bottom)).sin()
+        let h = altitude_node_m(k, thickness);
+        let s = sun_warp(sun_node_deg(j), warp_strength(h, thickness));
+        (s.to_radians() - dip(bottom + h, bottom)).sin()
     };
     let per_family = N_SUN * N_AZ * n_c;
     let families: Vec<(Vec<f64>, Vec<f64>)> = (0..N_ALT * N_VIEW)
@@ -345,12 +427,14 @@ pub fn build_skyview(
                 let d = ray_length(r, mu, bottom, bottom + thickness, ground);
                 scratch.prepare(r, mu, steps);
                 let mut nus = [0.0; N_SUN * N_AZ];
+                let b = warp_strength(altitude_node_m(k, thickness), thickness);
                 for j in 0..N_SUN {
+                    let s_j = sun_warp(sun_node_deg(j), b);
                     for a in 0..N_AZ {
                         let phi = azimuth_node(a);
                         let limb = (N_VIEW_SKY..N_VIEW_UP).contains(&i);
                         let shift = sun_shift(r, theta, phi.cos(), bottom, limb);
-                        let mu_s = (sun_node_deg(j).to_radians() - shift).sin();
+                        let mu_s = (s_j.to_radians() - shift).sin();
                         let sin_s = (1.0 - mu_s * mu_s).max(0.0).sqrt();
                         let nu =
                             (mu * mu_s + sin_t * sin_s * azimuth_node(a).cos()).clamp(-1.0, 1.0);
@@ -502,10 +586,27 @@ impl Stencil {
     /// nodes' abscissas `x(i)` and the query's `xq` (the abscissa in which the interpolation is
     /// polynomial; the node coordinate itself where the nodes are uniform in it).
     pub fn new(y: f64, lo: usize, hi: usize, x: impl Fn(usize) -> f64, xq: f64) -> Self {
+        Self::with_nodes(y, lo, hi, x, xq, 4)
+    }
+
+    /// As [`Self::new`] with at most `nodes` nodes (4: cubic; 2: the interval's two nodes,
+    /// geometric interpolation).
+    pub fn with_nodes(
+        y: f64,
+        lo: usize,
+        hi: usize,
+        x: impl Fn(usize) -> f64,
+        xq: f64,
+        nodes: usize,
+    ) -> Self {
         let y = y.clamp(lo as f64, hi as f64);
         let i0 = (y.floor() as usize).clamp(lo, hi - 1);
         let t = y - i0 as f64;
-        let (first, last) = (i0.saturating_sub(1).max(lo), (i0 + 2).min(hi));
+        let (first, last) = if nodes <= 2 {
+            (i0, i0 + 1)
+        } else {
+            (i0.saturating_sub(1).max(lo), (i0 + 2).min(hi))
+        };
         let len = last - first + 1;
         let mut w = [0.0; 4];
         if t == 0.0 {
@@ -556,11 +657,17 @@ impl Stencil {
 /// the sun's and the altitude's nodes, four nodes per axis.
 pub struct SkyViewReader<'a> {
     pub bundle: &'a SkyViewBundle,
+    /// Nodes per axis (altitude, sun, view rows, azimuth columns): 4 (the layout's reading);
+    /// 2 (geometric between the interval's nodes) to measure what the cubic gains.
+    pub nodes: [usize; 4],
 }
 
 impl<'a> SkyViewReader<'a> {
     pub fn new(bundle: &'a SkyViewBundle) -> Self {
-        Self { bundle }
+        Self {
+            bundle,
+            nodes: [4; 4],
+        }
     }
 
     /// Row `y` of slice `z` at the columns' stencil `sc` (the azimuth's: Lagrange interpolation
@@ -584,12 +691,21 @@ impl<'a> SkyViewReader<'a> {
         let p = &self.bundle.params;
         let thickness = p.top_radius - p.bottom_radius;
         let ya = altitude_coord(r - p.bottom_radius, thickness);
-        let sa = Stencil::new(ya, 0, N_ALT - 1, |k| k as f64, ya);
+        let sa = Stencil::with_nodes(ya, 0, N_ALT - 1, |k| k as f64, ya, self.nodes[0]);
         let above = mu_s.clamp(-1.0, 1.0).asin() + shift;
-        let deg = above
-            .to_degrees()
-            .clamp(SUN_MIN_DEG, sun_node_deg(N_SUN - 1));
-        let ss = Stencil::new(sun_coord(deg), 0, N_SUN - 1, sun_node_deg, deg);
+        let deg = sun_unwarp(
+            above.to_degrees(),
+            warp_strength(r - p.bottom_radius, thickness),
+        )
+        .clamp(SUN_MIN_DEG, sun_node_deg(N_SUN - 1));
+        let ss = Stencil::with_nodes(
+            sun_coord(deg),
+            0,
+            N_SUN - 1,
+            sun_node_deg,
+            deg,
+            self.nodes[1],
+        );
         (sa, ss)
     }
 
@@ -603,7 +719,7 @@ impl<'a> SkyViewReader<'a> {
         let theta = mu.clamp(-1.0, 1.0).acos();
         let (seg, row) = view_coord(theta, r, p.bottom_radius);
         let (lo, hi) = segment_rows(seg);
-        let sv = Stencil::new(row, lo, hi, |i| i as f64, row);
+        let sv = Stencil::with_nodes(row, lo, hi, |i| i as f64, row, self.nodes[2]);
         let den = ((1.0 - mu * mu) * (1.0 - mu_s * mu_s)).max(0.0).sqrt();
         let cos_phi = if den > 1e-12 {
             ((nu - mu * mu_s) / den).clamp(-1.0, 1.0)
@@ -611,7 +727,7 @@ impl<'a> SkyViewReader<'a> {
             1.0
         };
         let col = azimuth_coord(cos_phi.acos());
-        let sc = Stencil::new(col, 0, N_AZ - 1, |a| a as f64, col);
+        let sc = Stencil::with_nodes(col, 0, N_AZ - 1, |a| a as f64, col, self.nodes[3]);
         let shift = sun_shift(r, theta, cos_phi, p.bottom_radius, seg == 1);
         let (sa, ss) = self.altitude_sun_stencils(r, mu_s, shift);
         let d = ray_length(r, mu, p.bottom_radius, p.top_radius, seg == 2);
@@ -751,7 +867,11 @@ impl<'a> SkyViewReader<'a> {
             N_ALT,
         );
         let above_horizon = mu_s.clamp(-1.0, 1.0).asin() + dip(rc, p.bottom_radius);
-        let (j0, tj) = split(sun_coord(above_horizon.to_degrees()), N_SUN);
+        let t = sun_unwarp(
+            above_horizon.to_degrees(),
+            warp_strength(rc - p.bottom_radius, p.top_radius - p.bottom_radius),
+        );
+        let (j0, tj) = split(sun_coord(t), N_SUN);
         let e = |k: usize, j: usize, c: usize| b.irradiance.texel(j, k, 0)[c] as f64;
         let tilt = (1.0 + dot(normal, point) / r) * 0.5;
         let sky: Vec<f64> = (0..n_c)
@@ -826,19 +946,20 @@ pub fn phase_from_json(v: &Value) -> crate::Result<Phase> {
 pub const STATED_ERRORS: &[(&str, &str, f64)] = &[
     ("transmittance", "direct normal irradiance (sun product), sun >= 5 deg, 0-100 km", 0.0003),
     ("transmittance", "direct normal irradiance (sun product), sun -6..5 deg", 0.004),
-    ("rayleigh+mie", "sky radiance (sky product), sun >= 5 deg, view > 10 deg above the horizon, ground", 0.0027),
-    ("rayleigh+mie", "sky radiance (sky product), sun >= 5 deg, view > 10 deg above the horizon, 0-20 km", 0.0016),
-    ("rayleigh+mie", "sky radiance (sky product), sun >= 5 deg, view > 10 deg above the horizon, 20-100 km", 0.0075),
-    ("rayleigh+mie", "sky radiance (sky product), sun >= 5 deg, view < 10 deg above the horizon, ground", 0.0052),
-    ("rayleigh+mie", "sky radiance (sky product), sun >= 5 deg, view < 10 deg above the horizon, 0-20 km", 0.026),
-    ("rayleigh+mie", "sky radiance (sky product), sun >= 5 deg, view < 10 deg above the horizon, 20-100 km", 0.083),
-    ("rayleigh+mie", "sky radiance (sky product), sun -6..5 deg, ground", 0.042),
-    ("rayleigh+mie", "sky radiance (sky product), sun -6..5 deg, 0-100 km", 0.092),
-    ("rayleigh+mie", "sky radiance (sky product), sun -12..-6 deg, ground", 0.031),
-    ("rayleigh+mie", "sky radiance (sky product), sun -12..-6 deg, 0-20 km", 0.035),
-    ("rayleigh+mie", "sky radiance (sky product), sun -12..-6 deg, 20-100 km (the darkest sky: 5.7e-9 W m-2 sr-1 nm-1, the limb across the earth's shadow)", 1.12),
+    ("rayleigh+mie", "sky radiance (sky product), sun >= 5 deg, view > 10 deg above the horizon, ground", 0.0026),
+    ("rayleigh+mie", "sky radiance (sky product), sun >= 5 deg, view > 10 deg above the horizon, 0-20 km", 0.0018),
+    ("rayleigh+mie", "sky radiance (sky product), sun >= 5 deg, view > 10 deg above the horizon, 20-100 km", 0.0072),
+    ("rayleigh+mie", "sky radiance (sky product), sun >= 5 deg, view < 10 deg above the horizon, ground", 0.004),
+    ("rayleigh+mie", "sky radiance (sky product), sun >= 5 deg, view < 10 deg above the horizon, 0-20 km", 0.0047),
+    ("rayleigh+mie", "sky radiance (sky product), sun >= 5 deg, view < 10 deg above the horizon, 20-100 km", 0.025),
+    ("rayleigh+mie", "sky radiance (sky product), sun -6..5 deg, ground", 0.014),
+    ("rayleigh+mie", "sky radiance (sky product), sun -6..5 deg, 0-20 km", 0.026),
+    ("rayleigh+mie", "sky radiance (sky product), sun -6..5 deg, 20-100 km (the limb across the earth's shadow)", 0.089),
+    ("rayleigh+mie", "sky radiance (sky product), sun -12..-6 deg, ground", 0.035),
+    ("rayleigh+mie", "sky radiance (sky product), sun -12..-6 deg, 0-20 km", 0.032),
+    ("rayleigh+mie", "sky radiance (sky product), sun -12..-6 deg, 20-100 km (the darkest sky: 5.7e-9 W m-2 sr-1 nm-1, the sky and limb across the earth's shadow)", 1.12),
     ("irradiance", "diffuse horizontal irradiance (sun product), sun >= 5 deg, 0-100 km", 0.013),
-    ("irradiance", "diffuse horizontal irradiance (sun product), sun -12..5 deg, 0-100 km", 0.009),
+    ("irradiance", "diffuse horizontal irradiance (sun product), sun -12..5 deg, 0-100 km", 0.016),
 ];
 
 fn sample_name(s: Sample) -> &'static str {
@@ -890,10 +1011,12 @@ pub fn manifest(
             "altitude_nodes_m": altitude_nodes,
             "altitude_node": "h_k = (top_radius - bottom_radius) * (k / (N_ALT - 1))^2, k = 0..N_ALT-1",
             "sun_elevation_nodes_deg": sun_nodes,
-            "sun_node": "the sun coordinate s_j (deg): every 2 deg from -23 to -15, every 1 deg to -8, every 0.5 deg to 6, every 1 deg to 20, every 4 deg to 104 (segments [start, step, intervals] in sun_segments). s = the sun's elevation + shift: for view rows above the horizontal and below the horizon (and the irradiance) shift = the horizon's dip acos(bottom_radius / r), the sun's elevation above the observer's horizon; for the limb rows (between the horizontal and the horizon) shift = dip + w (gamma cos(phi) + acos(bottom_radius / r_t) - dip), w = 1 - exp(-(r - r_t) / limb_shadow_scale_m): towards the sun's elevation above the horizon of the ray's tangent point, with dip = acos(bottom_radius / r), gamma = theta - pi/2, r_t = r cos(gamma), phi the view's azimuth from the sun; the texels of a limb row are at the sun elevations s_j - shift of their column's azimuth",
+            "sun_node": "the sun node coordinate t_j (deg): every 2 deg from -23 to -15, every 1 deg to -8, every 0.5 deg to 6, every 1 deg to 20, every 4 deg to 104 (segments [start, step, intervals] in sun_segments). At altitude h the node's sun coordinate s_j = warp(t_j, b), b = sun_warp_strength * sqrt(h / (top_radius - bottom_radius)), warp(t, b) = e sinh(b t / e) / sinh(b) for sun_warp_range[0] < t < sun_warp_range[1] (e = -sun_warp_range[0] for t < 0, sun_warp_range[1] for t >= 0), t elsewhere (and where b < 1e-6); its inverse t = e asinh(s sinh(b) / e) / b gives a query's node coordinate, the interpolation's abscissa. s = the sun's elevation + shift: for view rows above the horizontal and below the horizon (and the irradiance) shift = the horizon's dip acos(bottom_radius / r), the sun's elevation above the observer's horizon; for the limb rows (between the horizontal and the horizon) shift = dip + w (gamma cos(phi) + acos(bottom_radius / r_t) - dip), w = 1 - exp(-(r - r_t) / limb_shadow_scale_m): towards the sun's elevation above the horizon of the ray's tangent point, with dip = acos(bottom_radius / r), gamma = theta - pi/2, r_t = r cos(gamma), phi the view's azimuth from the sun; the texels of a limb row are at the sun elevations s_j - shift of their column's azimuth",
+            "sun_warp_strength": SUN_WARP,
+            "sun_warp_range": [SUN_WARP_RANGE.0, SUN_WARP_RANGE.1],
             "limb_shadow_scale_m": LIMB_SHADOW_SCALE_M,
             "sun_segments": SUN_SEGMENTS.iter().map(|(a, b, n)| json!([a, b, n])).collect::<Vec<_>>(),
-            "view_rows": format!("rows 0..{} from the zenith to the horizontal: theta = (pi/2) (1 - (1 - x)^2), x = row / {}; rows {}..{} from the horizontal to the horizon, uniform in the ray's tangent radius r_t = r - (r - bottom_radius) y, y = (row - {}) / {}, theta = pi/2 + acos(r_t / r); rows {}..{} from the horizon to the nadir: theta = theta_h + (pi - theta_h) x^2, x = (row - {}) / {}, theta_h = pi - asin(bottom_radius / r); r the observer's radius. Interpolation over the rows around the view stays within its segment (see interpolation)", N_VIEW_SKY - 1, N_VIEW_SKY - 1, N_VIEW_SKY, N_VIEW_UP - 1, N_VIEW_SKY, N_VIEW_LIMB - 1, N_VIEW_UP, N_VIEW - 1, N_VIEW_UP, N_VIEW_DOWN - 1),
+            "view_rows": format!("rows 0..{} from the zenith to the horizontal: theta = (pi/2) (1 - (1 - x)^2), x = row / {}; rows {}..{} from the horizontal to the horizon: the ray's tangent radius r_t = r - (r - bottom_radius) y, y = 2 x^2 - x^3, x = (row - {}) / {} (inverse: x = 2/3 + (4/3) cos(acos(1 - 27 y / 16) / 3 - 2 pi / 3)), theta = pi/2 + acos(r_t / r); rows {}..{} from the horizon to the nadir: theta = theta_h + (pi - theta_h) x^2, x = (row - {}) / {}, theta_h = pi - asin(bottom_radius / r); r the observer's radius. Interpolation over the rows around the view stays within its segment (see interpolation)", N_VIEW_SKY - 1, N_VIEW_SKY - 1, N_VIEW_SKY, N_VIEW_UP - 1, N_VIEW_SKY, N_VIEW_LIMB - 1, N_VIEW_UP, N_VIEW - 1, N_VIEW_UP, N_VIEW_DOWN - 1),
             "azimuth_columns": format!("phi = pi (column / {})^2, the view's azimuth from the sun's, 0..pi", N_AZ - 1),
             "slices": "slice = altitude_index * N_SUN + sun_index; file row = slice * N_VIEW + view_row; texture coordinates at texel centres: u = (column + 0.5) / N_AZ, v = (view_row + 0.5) / N_VIEW",
             "sizes": {"N_ALT": N_ALT, "N_SUN": N_SUN, "N_VIEW_SKY": N_VIEW_SKY, "N_VIEW_LIMB": N_VIEW_LIMB, "N_VIEW_DOWN": N_VIEW_DOWN, "N_AZ": N_AZ},
@@ -968,6 +1091,37 @@ mod tests {
             assert!((view_node(N_VIEW_SKY - 1, r, R).0 - 0.5 * PI).abs() < 1e-12);
             assert!((view_node(N_VIEW_UP - 1, r, R).0 - horizon_zenith(r, R)).abs() < 1e-9);
             assert!((view_node(N_VIEW - 1, r, R).0 - PI).abs() < 1e-12);
+        }
+    }
+
+    #[test]
+    fn the_limb_rows_and_the_sun_warp_invert() {
+        // The cubic's root is the row: y(x) at known points, and back.
+        assert_eq!(limb_depth(0.0), 0.0);
+        assert_eq!(limb_depth(1.0), 1.0);
+        assert!((limb_depth(0.5) - 0.375).abs() < 1e-15);
+        for n in 0..=100 {
+            let x = n as f64 / 100.0;
+            assert!((limb_row(limb_depth(x)) - x).abs() < 1e-9, "x {x}");
+        }
+        // The warp: identity at the ground and outside its range, continuous at the range's
+        // ends, b / sinh(b) times denser at 0, inverted by sun_unwarp.
+        assert_eq!(sun_warp(-3.0, 0.0), -3.0);
+        assert_eq!(sun_warp(12.0, 3.0), 12.0);
+        let b = warp_strength(H, H);
+        assert_eq!(b, SUN_WARP);
+        assert!((sun_warp(SUN_WARP_RANGE.0 + 1e-9, b) - SUN_WARP_RANGE.0).abs() < 1e-6);
+        assert!((sun_warp(SUN_WARP_RANGE.1 - 1e-9, b) - SUN_WARP_RANGE.1).abs() < 1e-6);
+        let slope = sun_warp(1e-6, b) / 1e-6;
+        assert!((slope - b / b.sinh()).abs() < 1e-6, "{slope}");
+        for n in 0..=140 {
+            let t = -8.0 + n as f64 * 0.1;
+            for b in [0.0, 0.5, b] {
+                assert!(
+                    (sun_unwarp(sun_warp(t, b), b) - t).abs() < 1e-9,
+                    "t {t}, b {b}"
+                );
+            }
         }
     }
 
