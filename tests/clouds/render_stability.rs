@@ -196,7 +196,10 @@ fn power_ratio_shared(v: &Value, grid: &DensityGrid, px: usize) -> f64 {
 /// Nothing is transmitted, so the scattered power out must equal the power the ball intercepts.
 /// Measured (draft): 1.050 with an isotropic phase function, 0.991 with Henyey-Greenstein
 /// g = 0.85 (0.453 and 0.694 before the march's thick steps and the photon pass's diffusion
-/// jumps).
+/// jumps). The photon noise of one seed is about ±0.03: over the default seed and seeds 1–3,
+/// 1.024–1.079 (mean 1.054) and 0.976–0.998 (mean 0.986). The isotropic excess (+5 %) is a
+/// known error (attributed to a surface voxel's one-value field over its 51 optical depths;
+/// docs/frames.md), hence the upper bound 1.1 rather than 1 plus the noise.
 #[test]
 fn optically_thick_voxels_conserve_energy() {
     let c = DVec3::new(0.0, 0.0, 1000.0);
