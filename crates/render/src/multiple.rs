@@ -236,7 +236,7 @@ impl MsField {
             let partial: Vec<Vec<f64>> = (0..lanes)
                 .into_par_iter()
                 .map(|lane| {
-                    let mut acc = super::pages::zeroed(0f64, lane_len);
+                    let mut acc = super::pages::take_zeroed(lane_len);
                     let mut env = vec![0.0; n_l];
                     let mut w = vec![0.0; group.len()];
                     let mut ylm = [0.0; (MAX_ORDER + 1) * (MAX_ORDER + 1)];
@@ -394,6 +394,7 @@ impl MsField {
                         }
                     }
                 });
+            partial.into_iter().for_each(super::pages::give_back);
         }
         Ok(Self {
             dims: coarse.dims,
