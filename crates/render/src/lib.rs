@@ -35,6 +35,7 @@ pub mod lighting;
 pub mod lit;
 pub mod march;
 pub mod multiple;
+mod pages;
 pub mod pathtracer;
 pub mod pattern;
 pub mod peak;

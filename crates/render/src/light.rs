@@ -62,7 +62,7 @@ fn sun_paths(grid: &DensityGrid, sun_dir: DVec3, vol: Option<&CloudVolume>) -> V
     let [nx, ny, nz] = grid.dims;
     let n = [nx, ny, nz];
     let h = grid.voxel_size_m;
-    let mut out = vec![0f32; grid.data.len()];
+    let mut out = super::pages::zeroed(0f32, grid.data.len());
     let s = sun_dir.normalize();
     // Dominant axis and the other two.
     let a = if s.x.abs() >= s.y.abs() && s.x.abs() >= s.z.abs() {
@@ -94,7 +94,7 @@ fn sun_paths(grid: &DensityGrid, sun_dir: DVec3, vol: Option<&CloudVolume>) -> V
     let mut next_vals = vec![0f64; n[b] * n[c]];
     // The values layer by layer, `[a][b][c]`, put in the grid's order at the end (in parallel).
     let layer_len = n[b] * n[c];
-    let mut by_layer = vec![0f32; grid.data.len()];
+    let mut by_layer = super::pages::zeroed(0f32, grid.data.len());
     for &ia in &layers {
         // Each layer depends only on the previous one: its rows run in parallel.
         next_vals
@@ -259,7 +259,7 @@ pub fn lattice_density_integrals(grid: &DensityGrid, e: [i32; 3]) -> Vec<f32> {
     let [nx, ny, nz] = grid.dims;
     let len = DVec3::new(e[0] as f64, e[1] as f64, e[2] as f64).length() * grid.voxel_size_m;
     let half = 0.5 * len;
-    let mut out = vec![0f32; grid.data.len()];
+    let mut out = super::pages::zeroed(0f32, grid.data.len());
     let order = |n: usize, c: i32| -> Vec<usize> {
         if c > 0 {
             (0..n).rev().collect()

@@ -136,7 +136,7 @@ impl<'a> Prepared<'a> {
         let mut vox = Vec::new();
         let mut lattice_paths = 0;
         if lit.per_voxel {
-            vox = vec![0f32; grid.data.len() * stride];
+            vox = super::pages::zeroed(0f32, grid.data.len() * stride);
             let layer = grid.dims[0] * grid.dims[1];
             vox.par_chunks_mut(layer * stride)
                 .zip(lit.d_sun.par_chunks(layer))

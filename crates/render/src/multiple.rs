@@ -248,7 +248,7 @@ impl MsField {
             let partial: Vec<Vec<f64>> = (0..lanes)
                 .into_par_iter()
                 .map(|lane| {
-                    let mut acc = vec![0f64; lane_len];
+                    let mut acc = super::pages::take_zeroed(lane_len);
                     let mut env = vec![0.0; n_l];
                     let mut w = vec![0.0; group.len()];
                     let mut ylm = [0.0; (MAX_ORDER + 1) * (MAX_ORDER + 1)];
@@ -423,6 +423,7 @@ impl MsField {
                         }
                     }
                 });
+            partial.into_iter().for_each(super::pages::give_back);
         }
         Ok(Self {
             dims: coarse.dims,
@@ -922,6 +923,18 @@ fn fly(
             t_delta[a] = -h / d[a];
         }
     }
+    // A second cursor runs [`LOOKAHEAD`] cells ahead of the track along the same cells and
+    // fetches their accumulators (a lane's accumulators are larger than the caches, and a
+    // track crosses few cells: fetched one cell ahead, most of the wait remained; a hint, no
+    // change in value).
+    let block = ng * ylm.len();
+    let mut ahead = (cell, t_next);
+    let mut ahead_live = ph.scattered;
+    for _ in 0..LOOKAHEAD {
+        if ahead_live {
+            ahead_live = ahead_step(g, &mut ahead, &step, &t_delta, acc, block);
+        }
+    }
     loop {
         let a = if t_next[0] <= t_next[1] && t_next[0] <= t_next[2] {
             0
@@ -932,15 +945,8 @@ fn fly(
         };
         let t_exit = t_next[a].min(t1);
         let c = ((cell[2] as usize * g.dims[1]) + cell[1] as usize) * g.dims[0] + cell[0] as usize;
-        if ph.scattered {
-            // The next cell's accumulators are fetched while this cell's are summed (the
-            // accumulators of a lane are larger than the caches; a hint, no change in value).
-            let next = cell[a] + step[a];
-            if next >= 0 && next < g.dims[a] as i64 {
-                let stride = [1, g.dims[0], g.dims[0] * g.dims[1]][a] as i64;
-                let cn = (c as i64 + step[a] * stride) as usize;
-                prefetch(&acc[cn * ng * ylm.len()..(cn + 1) * ng * ylm.len()]);
-            }
+        if ahead_live {
+            ahead_live = ahead_step(g, &mut ahead, &step, &t_delta, acc, block);
         }
         let sigma = k * g.rho[c] as f64;
         let len = (t_exit - t).max(0.0);
@@ -975,6 +981,38 @@ fn fly(
         }
         t_next[a] += t_delta[a];
     }
+}
+
+/// Cells ahead of a scoring track whose accumulators [`fly`] fetches.
+const LOOKAHEAD: usize = 3;
+
+/// Moves [`fly`]'s look-ahead cursor (cell, next crossing distances per axis) one cell on
+/// along the track's cells (the same choice of axis as the track's) and fetches that cell's
+/// accumulators (`block` values per cell); false when it has left the grid.
+#[inline(always)]
+fn ahead_step(
+    g: &Coarse,
+    (cell, t_next): &mut ([i64; 3], [f64; 3]),
+    step: &[i64; 3],
+    t_delta: &[f64; 3],
+    acc: &[f64],
+    block: usize,
+) -> bool {
+    let a = if t_next[0] <= t_next[1] && t_next[0] <= t_next[2] {
+        0
+    } else if t_next[1] <= t_next[2] {
+        1
+    } else {
+        2
+    };
+    cell[a] += step[a];
+    if cell[a] < 0 || cell[a] >= g.dims[a] as i64 {
+        return false;
+    }
+    t_next[a] += t_delta[a];
+    let c = ((cell[2] as usize * g.dims[1]) + cell[1] as usize) * g.dims[0] + cell[0] as usize;
+    prefetch(&acc[c * block..(c + 1) * block]);
+    true
 }
 
 /// Asks the processor to bring `block` into its caches (a hint: no effect on any value).

@@ -1,0 +1,126 @@
+//! Large working buffers on transparent huge pages (Linux): a hint to the kernel, no change in
+//! any value.
+//!
+//! The photon pass scatters its track lengths over accumulators of tens of MB at random
+//! places, and the pixel march reads the per-voxel records (40 MB for a 128³ cloud) a layer of
+//! voxels apart at every step: with 4 KiB pages nearly every access misses the TLB, and every
+//! page is faulted in (and zeroed) separately, twice for an accumulator that is first read
+//! (the shared zero page, then a copy on write). Backed by 2 MiB pages (`madvise(MADV_HUGEPAGE)`
+//! on a buffer not yet touched, where the system's `transparent_hugepage` setting is `madvise`
+//! or `always`), both costs fall by the factor 512. Elsewhere, or when the kernel declines,
+//! the buffer is an ordinary one.
+
+/// Buffers smaller than this keep ordinary pages (a huge page would not be filled).
+const MIN_BYTES: usize = 4 << 20;
+
+/// `len` zeros of `T` (`zero`, the type's zero, allocated zeroed), with the buffer's whole
+/// 2 MiB pages advised to be huge pages before anything touches them.
+pub fn zeroed<T: Copy>(zero: T, len: usize) -> Vec<T> {
+    let v = vec![zero; len];
+    advise_huge(&v);
+    v
+}
+
+/// Bytes of freed accumulators [`take_zeroed`] keeps for the next frame (the photon pass of
+/// the bench's standard frame uses 100 MB).
+const POOL_BYTES: usize = 160 << 20;
+
+/// Accumulators given back by [`give_back`], for [`take_zeroed`].
+static POOL: std::sync::Mutex<Vec<Vec<f64>>> = std::sync::Mutex::new(Vec::new());
+
+/// `len` zeros, in a buffer given back earlier when one is large enough (its pages are
+/// already mapped, and zeroing them in place costs less than mapping and clearing fresh pages,
+/// a frame after frame; measured on the warm bench frame), else a new [`zeroed`] one.
+pub fn take_zeroed(len: usize) -> Vec<f64> {
+    let reused = POOL.lock().ok().and_then(|mut pool| {
+        // The smallest buffer that holds `len` values.
+        let best = pool
+            .iter()
+            .enumerate()
+            .filter(|(_, v)| v.capacity() >= len)
+            .min_by_key(|(_, v)| v.capacity())
+            .map(|(i, _)| i)?;
+        Some(pool.swap_remove(best))
+    });
+    match reused {
+        Some(mut v) => {
+            v.clear();
+            v.resize(len, 0.0);
+            v
+        }
+        None => zeroed(0f64, len),
+    }
+}
+
+/// Keeps `v` for [`take_zeroed`] while the kept buffers stay within [`POOL_BYTES`] (else it is
+/// freed); small buffers are freed.
+pub fn give_back(v: Vec<f64>) {
+    let bytes = v.capacity() * 8;
+    if bytes < MIN_BYTES {
+        return;
+    }
+    if let Ok(mut pool) = POOL.lock() {
+        let kept: usize = pool.iter().map(|b| b.capacity() * 8).sum();
+        if kept + bytes <= POOL_BYTES {
+            pool.push(v);
+        }
+    }
+}
+
+/// Asks the kernel to back `buf`'s whole 2 MiB pages with huge pages (a hint: no effect on any
+/// value; ignored where unsupported).
+fn advise_huge<T>(buf: &[T]) {
+    let bytes = std::mem::size_of_val(buf);
+    if bytes < MIN_BYTES {
+        return;
+    }
+    #[cfg(target_os = "linux")]
+    {
+        const HUGE: usize = 2 << 20;
+        let start = buf.as_ptr() as usize;
+        let first = start.next_multiple_of(HUGE);
+        let end = (start + bytes) & !(HUGE - 1);
+        if end > first {
+            // SAFETY: madvise with MADV_HUGEPAGE changes no contents and no mapping's
+            // permissions; the range [first, end) lies inside `buf`'s allocation and is
+            // page-aligned. A failure (e.g. no transparent huge page support) is ignored.
+            unsafe {
+                libc::madvise(first as *mut libc::c_void, end - first, libc::MADV_HUGEPAGE);
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A buffer given back and taken again holds zeros of the new length, whatever it held.
+    #[test]
+    fn reused_buffers_are_zero() {
+        let len = (5 << 20) / 8;
+        let mut v = take_zeroed(len);
+        v.iter_mut().for_each(|x| *x = 2.0);
+        give_back(v);
+        for n in [len - 3, len, len + 5] {
+            let w = take_zeroed(n);
+            assert_eq!(w.len(), n);
+            assert!(w.iter().all(|&x| x == 0.0));
+            give_back(w);
+        }
+    }
+
+    /// The advised buffers hold zeros of the asked length, large and small, and take writes.
+    #[test]
+    fn zeroed_buffers_are_zero() {
+        for len in [0, 3, 1 << 20, (6 << 20) / 8 + 17] {
+            let mut v = zeroed(0f64, len);
+            assert_eq!(v.len(), len);
+            assert!(v.iter().all(|&x| x == 0.0));
+            if let Some(x) = v.last_mut() {
+                *x = 1.5;
+                assert_eq!(v[len - 1], 1.5);
+            }
+        }
+    }
+}
