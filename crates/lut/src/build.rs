@@ -643,9 +643,9 @@ impl<'a> FamilyScratch<'a> {
     }
 }
 
-skybake_physics::simd_dispatch! {
+skybake_physics::simd_dispatch_avx512! {
     /// [`FamilyScratch::integrate`]'s sums, point by point for all suns (each texel's sums over
-    /// the points in the ray's order), compiled for AVX2 like the products' kernels (its loops
+    /// the points in the ray's order), compiled for AVX-512 or AVX2 where the CPU has it (its loops
     /// over suns and wavelengths vectorise; Rust forms no fused multiply-adds, so the values are
     /// the baseline build's).
     fn texel_sums(scratch: &mut FamilyScratch<'_>) {

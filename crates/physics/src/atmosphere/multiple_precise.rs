@@ -2540,19 +2540,6 @@ fn twilight_packed(
     a
 }
 
-/// Whether [`twilight_packed_avx512`] can run here.
-#[inline]
-fn has_avx512() -> bool {
-    #[cfg(target_arch = "x86_64")]
-    {
-        std::is_x86_feature_detected!("avx512f") && crate::atmosphere::kernels::has_avx2_fma()
-    }
-    #[cfg(not(target_arch = "x86_64"))]
-    {
-        false
-    }
-}
-
 /// Two node rows of [`TwilightRows::packed`] side by side in one 16-lane array: the values (or
 /// the logarithms, `part` 1) of azimuth nodes `e` and `e + 1` at record offset `o` (node `e`).
 #[inline(always)]
@@ -2571,7 +2558,7 @@ fn packed_pair(packed: &[f32], o: usize, part: usize) -> [f32; 2 * PACKED_LANES]
 /// Lane by lane the same operations, and each node's term is added to the sum in the same
 /// order (node `e`, then `e + 1`), so the values are those of [`twilight_packed`].
 #[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx512f,avx2,fma")]
+#[target_feature(enable = "avx512f,avx512dq,avx512vl,avx512bw,avx2,fma")]
 #[allow(clippy::too_many_arguments)]
 fn twilight_packed_avx512(
     rows: &TwilightRows,
@@ -2667,7 +2654,7 @@ fn twilight_packed_avx512(
 }
 
 /// [`twilight_packed`], or its AVX-512 form (the same values) where `avx512` says the CPU has it
-/// ([`has_avx512`]).
+/// ([`crate::atmosphere::kernels::has_avx512`]).
 #[inline(always)]
 #[allow(clippy::too_many_arguments)]
 fn twilight_packed_dispatch(
@@ -2685,7 +2672,8 @@ fn twilight_packed_dispatch(
 ) -> [f32; PACKED_LANES] {
     #[cfg(target_arch = "x86_64")]
     if avx512 {
-        // SAFETY: `avx512` is `has_avx512()`: the CPU has AVX-512F, AVX2 and FMA.
+        // SAFETY: `avx512` is `kernels::has_avx512()`: the CPU has AVX-512 F/DQ/VL/BW, AVX2
+        // and FMA.
         return unsafe {
             twilight_packed_avx512(rows, slice, n_mu, n_mu_s, n_phi, nodes, wq, fs, ip, fp)
         };
@@ -2695,10 +2683,10 @@ fn twilight_packed_dispatch(
     twilight_packed(rows, slice, n_mu, n_mu_s, n_phi, nodes, wq, fs, ip, fp)
 }
 
-crate::simd_dispatch! {
-    /// [`PreciseMultipleScattering::add_from_slice_many`], compiled for AVX2 where the CPU has
-    /// it (the same IEEE operations in the same order: no fused multiply-adds are formed, so the
-    /// values are those of the baseline build).
+crate::simd_dispatch_avx512! {
+    /// [`PreciseMultipleScattering::add_from_slice_many`], compiled for AVX-512 or AVX2 where the
+    /// CPU has it (the same IEEE operations in the same order: no fused multiply-adds are formed,
+    /// so the values are those of the baseline build).
     fn add_from_slice_kernel(
         table: &PreciseMultipleScattering,
         slice: &JSlice,
@@ -2712,7 +2700,7 @@ crate::simd_dispatch! {
             let grid = &table.grid;
             let (n_l, n_mu_s, n_mu, n_phi) = (table.n_l, grid.s.n_mu_s, grid.s.n_mu, grid.s.n_phi);
             let rows = table.ln_j_ms();
-            let avx512 = has_avx512();
+            let avx512 = crate::atmosphere::kernels::has_avx512();
             let lanes = 2 * n_l;
             let sc = &table.scattering;
             let (rho_r, rho_m) = slice.rho;
