@@ -508,6 +508,68 @@ mod tests {
         }
     }
 
+    crate::simd_dispatch_avx512! {
+        /// [`AtRadius::lookup_many`] compiled as the bundle's kernels compile it.
+        fn many(
+            at: &AtRadius<'_>,
+            mu_s: &[f64],
+            vis: &mut [f64],
+            d0: &mut [f64],
+            d1: &mut [f64],
+            d2: &mut [f64],
+        ) {
+            at.lookup_many(mu_s, vis, [d0, d1, d2]);
+        }
+    }
+
+    #[test]
+    fn lookups_of_many_suns_equal_the_single_lookups() {
+        // A layered aerosol (its chord added back per sun) and the plain preset, at the ground,
+        // inside and above the layer and near the top; suns from below the horizon (hidden: 0)
+        // through the horizon's disk to the zenith, more than one block of them.
+        let plain = preset("earth").unwrap();
+        let mut foggy = plain.clone();
+        crate::atmosphere::haze::Haze {
+            visibility_km: Some(2.0),
+            aerosol_type: None,
+            boundary_layer_top_m: Some(1500.0),
+        }
+        .apply(&mut foggy)
+        .unwrap();
+        let mu_s: Vec<f64> = (0..203).map(|i| -0.3 + 1.3 * i as f64 / 202.0).collect();
+        for a in [&plain, &foggy] {
+            let m = Medium::new(a, &Wavelengths::parse("550").unwrap(), None).unwrap();
+            let table = DensityIntegralTable::new(&m, 32, 128, 200);
+            for &h in &[0.0, 700.0, 1500.0, 1600.0, 30_000.0, 99_990.0] {
+                let at = table.at_radius(m.bottom_radius_m + h, m.sun_angular_radius_rad);
+                let n = mu_s.len();
+                let mut vis = vec![f64::NAN; n];
+                let mut d: [Vec<f64>; CONSTITUENTS] = std::array::from_fn(|_| vec![f64::NAN; n]);
+                let [d0, d1, d2] = &mut d;
+                many(&at, &mu_s, &mut vis, d0, d1, d2);
+                let mut hidden = 0;
+                for (t, &mu) in mu_s.iter().enumerate() {
+                    let v = at.sun_visibility(mu);
+                    let want = if v > 0.0 {
+                        at.lookup(mu)
+                    } else {
+                        hidden += 1;
+                        [0.0; CONSTITUENTS]
+                    };
+                    assert_eq!(vis[t].to_bits(), v.to_bits(), "h {h} mu_s {mu}");
+                    for k in 0..CONSTITUENTS {
+                        assert_eq!(
+                            d[k][t].to_bits(),
+                            want[k].to_bits(),
+                            "h {h} mu_s {mu} k {k}"
+                        );
+                    }
+                }
+                assert!(hidden > 0 && hidden < n, "h {h}: {hidden} hidden");
+            }
+        }
+    }
+
     #[test]
     fn table_matches_direct_integration_everywhere() {
         let m = Medium::new(
