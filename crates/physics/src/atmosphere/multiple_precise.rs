@@ -2559,6 +2559,7 @@ fn packed_pair(packed: &[f32], o: usize, part: usize) -> [f32; 2 * PACKED_LANES]
 /// order (node `e`, then `e + 1`), so the values are those of [`twilight_packed`].
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx512f,avx512dq,avx512vl,avx512bw,avx2,fma")]
+#[inline]
 #[allow(clippy::too_many_arguments)]
 fn twilight_packed_avx512(
     rows: &TwilightRows,
@@ -2707,6 +2708,18 @@ crate::simd_dispatch_avx512! {
             let n_t = mu_s.len().min(nu.len());
             let mut theta_s = [0.0f64; CHUNK];
             let mut phi = [0.0f64; CHUNK];
+            // Sun-zenith and azimuth positions ([`Grid::s_pos_f`], [`Grid::phi_pos_f`]: the values
+            // of `s_pos` and `phi_pos`) and the Catmull–Rom weights of the sun-zenith fraction.
+            let (mut is_f, mut fs_v) = ([0.0f64; CHUNK], [0.0f64; CHUNK]);
+            let (mut ip_f, mut fp_v) = ([0.0f64; CHUNK], [0.0f64; CHUNK]);
+            let mut wq_v = [[0.0f32; 4]; CHUNK];
+            // σ_c ρ_c at the point, per wavelength.
+            let mut ray_rho = [0.0f64; MAX];
+            let mut mie_rho = [0.0f64; MAX];
+            for i in 0..n_l {
+                ray_rho[i] = sc.rayleigh_per_m[i] * rho_r;
+                mie_rho[i] = sc.mie_per_m[i] * rho_m;
+            }
             for t0 in (0..n_t).step_by(CHUNK) {
                 let n = CHUNK.min(n_t - t0);
                 let (mu_s, nu) = (&mu_s[t0..t0 + n], &nu[t0..t0 + n]);
@@ -2716,16 +2729,30 @@ crate::simd_dispatch_avx512! {
                     phi[q] = acos_fast(cos_azimuth(slice.mu, mu_s[q], nu[q]));
                 }
                 for q in 0..n {
+                    (is_f[q], fs_v[q]) = grid.s_pos_f(theta_s[q]);
+                    (ip_f[q], fp_v[q]) = Grid::phi_pos_f(phi[q], n_phi);
+                    // `catmull_rom`'s weights.
+                    let f = fs_v[q];
+                    let (f2, f3) = (f * f, f * f * f);
+                    wq_v[q] = [
+                        (0.5 * (-f3 + 2.0 * f2 - f)) as f32,
+                        (0.5 * (3.0 * f3 - 5.0 * f2 + 2.0)) as f32,
+                        (0.5 * (-3.0 * f3 + 4.0 * f2 + f)) as f32,
+                        (0.5 * (f3 - f2)) as f32,
+                    ];
+                }
+                for q in 0..n {
                     if theta_s[q] > grid.theta_s_max {
                         continue;
                     }
                     let out = &mut out[(t0 + q) * n_l..][..n_l];
-                    let (is, fs) = grid.s_pos(theta_s[q]);
-                    let (ip, fp) = Grid::phi_pos(phi[q], n_phi);
+                    // Exact small non-negative integers.
+                    let (is, fs) = (is_f[q] as usize, fs_v[q]);
+                    let (ip, fp) = (ip_f[q] as usize, fp_v[q]);
                     if is >= rows.first_cell {
                         // A twilight cell (`Grid::twilight_cell`).
-                        let (nodes, wq) = catmull_rom(is, fs, n_mu_s);
-                        let wq = [wq[0] as f32, wq[1] as f32, wq[2] as f32, wq[3] as f32];
+                        let (nodes, _) = catmull_rom(is, fs, n_mu_s);
+                        let wq = wq_v[q];
                         let small;
                         let mut large;
                         let a: &[f32] = if lanes <= PACKED_LANES {
@@ -2766,8 +2793,7 @@ crate::simd_dispatch_avx512! {
                         for i in 0..n_l {
                             // Never below 0: the azimuth interpolation's even extrapolation at the
                             // mirror planes ([`Grid::phi_pos`]) has a weight of −1/8 at most.
-                            out[i] += (sc.rayleigh_per_m[i] * rho_r * a[i] as f64
-                                + sc.mie_per_m[i] * rho_m * a[n_l + i] as f64)
+                            out[i] += (ray_rho[i] * a[i] as f64 + mie_rho[i] * a[n_l + i] as f64)
                                 .max(0.0);
                         }
                         continue;
