@@ -453,9 +453,7 @@ impl AtRadius<'_> {
                     }
                 }
                 for q in 0..m {
-                    if !(vis[s0 + q] > 0.0) {
-                        dk[q] = 0.0;
-                    }
+                    dk[q] = if vis[s0 + q] > 0.0 { dk[q] } else { 0.0 };
                 }
             }
         }
