@@ -2542,6 +2542,7 @@ fn twilight_packed(
 
 /// Two node rows of [`TwilightRows::packed`] side by side in one 16-lane array: the values (or
 /// the logarithms, `part` 1) of azimuth nodes `e` and `e + 1` at record offset `o` (node `e`).
+#[cfg(target_arch = "x86_64")]
 #[inline(always)]
 fn packed_pair(packed: &[f32], o: usize, part: usize) -> [f32; 2 * PACKED_LANES] {
     const NODE: usize = 2 * PACKED_LANES;
