@@ -643,9 +643,9 @@ impl<'a> FamilyScratch<'a> {
     }
 }
 
-skybake_physics::simd_dispatch! {
+skybake_physics::simd_dispatch_avx512! {
     /// [`FamilyScratch::integrate`]'s sums, point by point for all suns (each texel's sums over
-    /// the points in the ray's order), compiled for AVX2 like the products' kernels (its loops
+    /// the points in the ray's order), compiled for AVX-512 or AVX2 where the CPU has it (its loops
     /// over suns and wavelengths vectorise; Rust forms no fused multiply-adds, so the values are
     /// the baseline build's).
     fn texel_sums(scratch: &mut FamilyScratch<'_>) {
@@ -679,13 +679,7 @@ skybake_physics::simd_dispatch! {
                 // The sun's visibility and density integrals, then each wavelength's single
                 // scattering a vector of suns at a time (none where the sun is hidden).
                 let [d0, d1, d2] = &mut scratch.d_sun;
-                for t in 0..n_t {
-                    let mu_s_p = scratch.mu_s_p[t];
-                    let vis = at.sun_visibility(mu_s_p);
-                    scratch.vis[t] = vis;
-                    let d = if vis > 0.0 { at.lookup(mu_s_p) } else { [0.0; CONSTITUENTS] };
-                    (d0[t], d1[t], d2[t]) = (d[0], d[1], d[2]);
-                }
+                at.lookup_many(&scratch.mu_s_p, &mut scratch.vis, [&mut *d0, &mut *d1, &mut *d2]);
                 for l in 0..n_l {
                     // [`sun_attenuation`] written out over the suns, its constants hoisted (the
                     // same operations), so the loop vectorises.

@@ -166,6 +166,60 @@ pub fn has_avx2_fma() -> bool {
     }
 }
 
+/// Whether the AVX-512 variants of [`simd_dispatch_avx512`] can run here (AVX-512 F, DQ, VL and
+/// BW, with AVX2 and FMA).
+#[inline]
+pub fn has_avx512() -> bool {
+    #[cfg(target_arch = "x86_64")]
+    {
+        std::is_x86_feature_detected!("avx512f")
+            && std::is_x86_feature_detected!("avx512dq")
+            && std::is_x86_feature_detected!("avx512vl")
+            && std::is_x86_feature_detected!("avx512bw")
+            && has_avx2_fma()
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    {
+        false
+    }
+}
+
+/// [`simd_dispatch`] with a third copy of the body compiled for AVX-512 ([`has_avx512`]), run
+/// where the CPU has it: loops over many independent values (suns) then run 8 × f64 / 16 × f32
+/// wide. The same IEEE operations in every copy (Rust forms no fused multiply-adds), so the
+/// same values.
+#[macro_export]
+#[doc(hidden)]
+macro_rules! simd_dispatch_avx512 {
+    ($(#[$m:meta])* $vis:vis fn $name:ident($($arg:ident : $ty:ty),* $(,)?) $(-> $ret:ty)? $body:block) => {
+        $(#[$m])*
+        #[allow(clippy::too_many_arguments)]
+        $vis fn $name($($arg: $ty),*) $(-> $ret)? {
+            #[inline(always)]
+            #[allow(clippy::too_many_arguments)]
+            fn inner($($arg: $ty),*) $(-> $ret)? $body
+            #[cfg(target_arch = "x86_64")]
+            {
+                #[target_feature(enable = "avx512f,avx512dq,avx512vl,avx512bw,avx2,fma")]
+                #[allow(clippy::too_many_arguments)]
+                fn avx512($($arg: $ty),*) $(-> $ret)? { inner($($arg),*) }
+                #[target_feature(enable = "avx2,fma")]
+                #[allow(clippy::too_many_arguments)]
+                fn avx2($($arg: $ty),*) $(-> $ret)? { inner($($arg),*) }
+                if $crate::atmosphere::kernels::has_avx512() {
+                    // SAFETY: the CPU supports AVX-512 F/DQ/VL/BW, AVX2 and FMA (checked just above).
+                    return unsafe { avx512($($arg),*) };
+                }
+                if $crate::atmosphere::kernels::has_avx2_fma() {
+                    // SAFETY: the CPU supports AVX2 and FMA (checked just above).
+                    return unsafe { avx2($($arg),*) };
+                }
+            }
+            inner($($arg),*)
+        }
+    };
+}
+
 /// Defines a function whose body is compiled twice, generically and for AVX2 + FMA, and runs
 /// the AVX2 copy when the CPU has those features: every loop the body (and what it inlines)
 /// runs over wavelengths is then vectorised 4 × f64 / 8 × f32 wide. Arguments are plain

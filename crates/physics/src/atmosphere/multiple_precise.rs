@@ -2540,10 +2540,155 @@ fn twilight_packed(
     a
 }
 
-crate::simd_dispatch! {
-    /// [`PreciseMultipleScattering::add_from_slice_many`], compiled for AVX2 where the CPU has
-    /// it (the same IEEE operations in the same order: no fused multiply-adds are formed, so the
-    /// values are those of the baseline build).
+/// Two node rows of [`TwilightRows::packed`] side by side in one 16-lane array: the values (or
+/// the logarithms, `part` 1) of azimuth nodes `e` and `e + 1` at record offset `o` (node `e`).
+#[cfg(target_arch = "x86_64")]
+#[inline(always)]
+fn packed_pair(packed: &[f32], o: usize, part: usize) -> [f32; 2 * PACKED_LANES] {
+    const NODE: usize = 2 * PACKED_LANES;
+    let mut x = [0.0f32; 2 * PACKED_LANES];
+    let (lo, hi) = x.split_at_mut(PACKED_LANES);
+    lo.copy_from_slice(&packed[o + part * PACKED_LANES..][..PACKED_LANES]);
+    hi.copy_from_slice(&packed[o + NODE + part * PACKED_LANES..][..PACKED_LANES]);
+    x
+}
+
+/// [`twilight_packed`] for CPUs with AVX-512: two azimuth nodes of a corner (`e`, `e + 1`, adjacent
+/// in [`TwilightRows::packed`]) in one 16-lane vector, so each corner's pair of nodes costs one
+/// [`twilight_fixed`] of 16 lanes instead of two of 8 (the RGB case uses 6 lanes of each node).
+/// Lane by lane the same operations, and each node's term is added to the sum in the same
+/// order (node `e`, then `e + 1`), so the values are those of [`twilight_packed`].
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx512f,avx512dq,avx512vl,avx512bw,avx2,fma")]
+#[inline]
+#[allow(clippy::too_many_arguments)]
+fn twilight_packed_avx512(
+    rows: &TwilightRows,
+    slice: &JSlice,
+    n_mu: usize,
+    n_mu_s: usize,
+    n_phi: usize,
+    nodes: [usize; 4],
+    wq: [f32; 4],
+    fs: f32,
+    ip: usize,
+    fp: f64,
+) -> [f32; PACKED_LANES] {
+    const NODE: usize = 2 * PACKED_LANES;
+    const L: usize = PACKED_LANES;
+    let n_tw = n_mu_s - rows.from;
+    let from = rows.from;
+    let (b0, b1, b2, b3) = (
+        nodes[0] - from,
+        nodes[1] - from,
+        nodes[2] - from,
+        nodes[3] - from,
+    );
+    let p = &rows.packed;
+    let mut a = [0.0f32; L];
+    for &(ir, im, wc, pole) in &slice.corners {
+        let family = (ir * n_mu + im) * n_tw;
+        // (first node of the pair, its weight, the next node's weight)
+        let (e_from, e_to, w_pole) = if pole {
+            (0, n_phi, (wc / n_phi as f64) as f32)
+        } else {
+            (ip, ip + 2, 0.0)
+        };
+        if pole && w_pole == 0.0 {
+            continue;
+        }
+        let mut e = e_from;
+        while e < e_to {
+            let (w0, w1) = if pole {
+                (w_pole, w_pole)
+            } else {
+                ((wc * (1.0 - fp)) as f32, (wc * fp) as f32)
+            };
+            let (o0, o1, o2, o3) = (
+                ((family + b0) * n_phi + e) * NODE,
+                ((family + b1) * n_phi + e) * NODE,
+                ((family + b2) * n_phi + e) * NODE,
+                ((family + b3) * n_phi + e) * NODE,
+            );
+            if e + 1 < e_to {
+                let x = twilight_fixed(
+                    [
+                        &packed_pair(p, o0, 0),
+                        &packed_pair(p, o1, 0),
+                        &packed_pair(p, o2, 0),
+                        &packed_pair(p, o3, 0),
+                    ],
+                    [
+                        &packed_pair(p, o0, 1),
+                        &packed_pair(p, o1, 1),
+                        &packed_pair(p, o2, 1),
+                        &packed_pair(p, o3, 1),
+                    ],
+                    wq,
+                    fs,
+                );
+                let mut y = [0.0f32; 2 * L];
+                for i in 0..2 * L {
+                    y[i] = if i < L { w0 } else { w1 } * x[i];
+                }
+                for i in 0..L {
+                    a[i] += y[i];
+                }
+                for i in 0..L {
+                    a[i] += y[L + i];
+                }
+                e += 2;
+            } else {
+                // An odd pole count's last node.
+                let (v0, l0) = packed_row(p, o0);
+                let (v1, l1) = packed_row(p, o1);
+                let (v2, l2) = packed_row(p, o2);
+                let (v3, l3) = packed_row(p, o3);
+                let x = twilight_fixed([v0, v1, v2, v3], [l0, l1, l2, l3], wq, fs);
+                for (o, v) in a.iter_mut().zip(&x) {
+                    *o += w0 * *v;
+                }
+                e += 1;
+            }
+        }
+    }
+    a
+}
+
+/// [`twilight_packed`], or its AVX-512 form (the same values) where `avx512` says the CPU has it
+/// ([`crate::atmosphere::kernels::has_avx512`]).
+#[inline(always)]
+#[allow(clippy::too_many_arguments)]
+fn twilight_packed_dispatch(
+    avx512: bool,
+    rows: &TwilightRows,
+    slice: &JSlice,
+    n_mu: usize,
+    n_mu_s: usize,
+    n_phi: usize,
+    nodes: [usize; 4],
+    wq: [f32; 4],
+    fs: f32,
+    ip: usize,
+    fp: f64,
+) -> [f32; PACKED_LANES] {
+    #[cfg(target_arch = "x86_64")]
+    if avx512 {
+        // SAFETY: `avx512` is `kernels::has_avx512()`: the CPU has AVX-512 F/DQ/VL/BW, AVX2
+        // and FMA.
+        return unsafe {
+            twilight_packed_avx512(rows, slice, n_mu, n_mu_s, n_phi, nodes, wq, fs, ip, fp)
+        };
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    let _ = avx512;
+    twilight_packed(rows, slice, n_mu, n_mu_s, n_phi, nodes, wq, fs, ip, fp)
+}
+
+crate::simd_dispatch_avx512! {
+    /// [`PreciseMultipleScattering::add_from_slice_many`], compiled for AVX-512 or AVX2 where the
+    /// CPU has it (the same IEEE operations in the same order: no fused multiply-adds are formed,
+    /// so the values are those of the baseline build).
     fn add_from_slice_kernel(
         table: &PreciseMultipleScattering,
         slice: &JSlice,
@@ -2557,12 +2702,25 @@ crate::simd_dispatch! {
             let grid = &table.grid;
             let (n_l, n_mu_s, n_mu, n_phi) = (table.n_l, grid.s.n_mu_s, grid.s.n_mu, grid.s.n_phi);
             let rows = table.ln_j_ms();
+            let avx512 = crate::atmosphere::kernels::has_avx512();
             let lanes = 2 * n_l;
             let sc = &table.scattering;
             let (rho_r, rho_m) = slice.rho;
             let n_t = mu_s.len().min(nu.len());
             let mut theta_s = [0.0f64; CHUNK];
             let mut phi = [0.0f64; CHUNK];
+            // Sun-zenith and azimuth positions ([`Grid::s_pos_f`], [`Grid::phi_pos_f`]: the values
+            // of `s_pos` and `phi_pos`) and the Catmull–Rom weights of the sun-zenith fraction.
+            let (mut is_f, mut fs_v) = ([0.0f64; CHUNK], [0.0f64; CHUNK]);
+            let (mut ip_f, mut fp_v) = ([0.0f64; CHUNK], [0.0f64; CHUNK]);
+            let mut wq_v = [[0.0f32; 4]; CHUNK];
+            // σ_c ρ_c at the point, per wavelength.
+            let mut ray_rho = [0.0f64; MAX];
+            let mut mie_rho = [0.0f64; MAX];
+            for i in 0..n_l {
+                ray_rho[i] = sc.rayleigh_per_m[i] * rho_r;
+                mie_rho[i] = sc.mie_per_m[i] * rho_m;
+            }
             for t0 in (0..n_t).step_by(CHUNK) {
                 let n = CHUNK.min(n_t - t0);
                 let (mu_s, nu) = (&mu_s[t0..t0 + n], &nu[t0..t0 + n]);
@@ -2572,21 +2730,36 @@ crate::simd_dispatch! {
                     phi[q] = acos_fast(cos_azimuth(slice.mu, mu_s[q], nu[q]));
                 }
                 for q in 0..n {
+                    (is_f[q], fs_v[q]) = grid.s_pos_f(theta_s[q]);
+                    (ip_f[q], fp_v[q]) = Grid::phi_pos_f(phi[q], n_phi);
+                    // `catmull_rom`'s weights.
+                    let f = fs_v[q];
+                    let (f2, f3) = (f * f, f * f * f);
+                    wq_v[q] = [
+                        (0.5 * (-f3 + 2.0 * f2 - f)) as f32,
+                        (0.5 * (3.0 * f3 - 5.0 * f2 + 2.0)) as f32,
+                        (0.5 * (-3.0 * f3 + 4.0 * f2 + f)) as f32,
+                        (0.5 * (f3 - f2)) as f32,
+                    ];
+                }
+                for q in 0..n {
                     if theta_s[q] > grid.theta_s_max {
                         continue;
                     }
                     let out = &mut out[(t0 + q) * n_l..][..n_l];
-                    let (is, fs) = grid.s_pos(theta_s[q]);
-                    let (ip, fp) = Grid::phi_pos(phi[q], n_phi);
+                    // Exact small non-negative integers.
+                    let (is, fs) = (is_f[q] as usize, fs_v[q]);
+                    let (ip, fp) = (ip_f[q] as usize, fp_v[q]);
                     if is >= rows.first_cell {
                         // A twilight cell (`Grid::twilight_cell`).
-                        let (nodes, wq) = catmull_rom(is, fs, n_mu_s);
-                        let wq = [wq[0] as f32, wq[1] as f32, wq[2] as f32, wq[3] as f32];
+                        let (nodes, _) = catmull_rom(is, fs, n_mu_s);
+                        let wq = wq_v[q];
                         let small;
                         let mut large;
                         let a: &[f32] = if lanes <= PACKED_LANES {
-                            small = twilight_packed(
-                                rows, slice, n_mu, n_mu_s, n_phi, nodes, wq, fs as f32, ip, fp,
+                            small = twilight_packed_dispatch(
+                                avx512, rows, slice, n_mu, n_mu_s, n_phi, nodes, wq, fs as f32, ip,
+                                fp,
                             );
                             &small
                         } else {
@@ -2621,8 +2794,7 @@ crate::simd_dispatch! {
                         for i in 0..n_l {
                             // Never below 0: the azimuth interpolation's even extrapolation at the
                             // mirror planes ([`Grid::phi_pos`]) has a weight of −1/8 at most.
-                            out[i] += (sc.rayleigh_per_m[i] * rho_r * a[i] as f64
-                                + sc.mie_per_m[i] * rho_m * a[n_l + i] as f64)
+                            out[i] += (ray_rho[i] * a[i] as f64 + mie_rho[i] * a[n_l + i] as f64)
                                 .max(0.0);
                         }
                         continue;

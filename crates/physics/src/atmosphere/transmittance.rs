@@ -379,6 +379,85 @@ impl AtRadius<'_> {
         let x = ((mu_s - self.mu_h_vis) / self.width * 0.5 + 0.5).clamp(0.0, 1.0);
         x * x * (3.0 - 2.0 * x)
     }
+
+    /// For each sun zenith cosine `mu_s[t]`: [`Self::sun_visibility`] into `vis[t]` and, where
+    /// it is positive, [`Self::lookup`] into `d[k][t]` (0 where the sun is hidden): the same
+    /// values as those calls one sun at a time, with the square roots, divisions and
+    /// interpolation of a block of suns computed as vectors (only the table reads stay
+    /// scalar), for loops compiled with SIMD ([`crate::simd_dispatch`]).
+    #[inline(always)]
+    pub fn lookup_many(&self, mu_s: &[f64], vis: &mut [f64], d: [&mut [f64]; CONSTITUENTS]) {
+        const BLOCK: usize = 16;
+        let t = self.table;
+        let n = mu_s.len().min(vis.len());
+        let [d0, d1, d2] = d;
+        let (d_min, d_max) = (self.d_min, self.d_max);
+        let (r, mu_h, top) = (self.r, self.mu_h, t.top);
+        let (ir, ar) = (self.ir, self.ar);
+        let last = (t.n_mu - 2) as f64;
+        let scale = (t.n_mu - 1) as f64;
+        let row0 = &t.data[ir * t.n_mu..(ir + 1) * t.n_mu];
+        let row1 = &t.data[(ir + 1) * t.n_mu..(ir + 2) * t.n_mu];
+        let mut mu = [0.0f64; BLOCK];
+        let mut dist = [0.0f64; BLOCK];
+        let mut imf = [0.0f64; BLOCK];
+        let mut am = [0.0f64; BLOCK];
+        // `[corner][constituent][sun]`: the table's four (r, μ) corners.
+        let mut c = [[[0.0f64; BLOCK]; CONSTITUENTS]; 4];
+        for s0 in (0..n).step_by(BLOCK) {
+            let m = BLOCK.min(n - s0);
+            let mu_s = &mu_s[s0..s0 + m];
+            for q in 0..m {
+                let x = ((mu_s[q] - self.mu_h_vis) / self.width * 0.5 + 0.5).clamp(0.0, 1.0);
+                vis[s0 + q] = x * x * (3.0 - 2.0 * x);
+                // `lookup`, branch-free: `distance_to_sphere_far(..).unwrap_or(0.0)`.
+                let mq = mu_s[q].max(mu_h);
+                let disc = r * r * (mq * mq - 1.0) + top * top;
+                let tq = -r * mq + disc.sqrt();
+                let dq = if disc >= 0.0 && tq >= 0.0 { tq } else { 0.0 };
+                let x_mu = if d_max > d_min {
+                    ((dq - d_min) / (d_max - d_min)).clamp(0.0, 1.0)
+                } else {
+                    0.0
+                };
+                let fm = x_mu * scale;
+                let i = fm.floor().min(last);
+                mu[q] = mq;
+                dist[q] = dq;
+                imf[q] = i;
+                am[q] = fm - i;
+            }
+            for q in 0..m {
+                // 0 ≤ imf ≤ n_mu − 2: an exact small integer.
+                let im = imf[q] as usize;
+                let (v00, v01, v10, v11) = (&row0[im], &row0[im + 1], &row1[im], &row1[im + 1]);
+                for k in 0..CONSTITUENTS {
+                    c[0][k][q] = v00[k];
+                    c[1][k][q] = v01[k];
+                    c[2][k][q] = v10[k];
+                    c[3][k][q] = v11[k];
+                }
+            }
+            for (k, dk) in [&mut *d0, &mut *d1, &mut *d2].into_iter().enumerate() {
+                let dk = &mut dk[s0..s0 + m];
+                let (c00, c01, c10, c11) = (&c[0][k], &c[1][k], &c[2][k], &c[3][k]);
+                for q in 0..m {
+                    let a = am[q];
+                    let v0 = c00[q] * (1.0 - a) + c01[q] * a;
+                    let v1 = c10[q] * (1.0 - a) + c11[q] * a;
+                    dk[q] = v0 * (1.0 - ar) + v1 * ar;
+                }
+                if let Some(rl) = t.layer_radius[k] {
+                    for q in 0..m {
+                        dk[q] += chord_inside_sphere(r, mu[q], rl, dist[q]);
+                    }
+                }
+                for q in 0..m {
+                    dk[q] = if vis[s0 + q] > 0.0 { dk[q] } else { 0.0 };
+                }
+            }
+        }
+    }
 }
 
 #[cfg(test)]
@@ -423,6 +502,68 @@ mod tests {
                     (tau_e - tau_g).abs() < 0.01 + 2e-3 * tau_e,
                     "h {h} mu {mu}: {tau_e} vs {tau_g}"
                 );
+            }
+        }
+    }
+
+    crate::simd_dispatch_avx512! {
+        /// [`AtRadius::lookup_many`] compiled as the bundle's kernels compile it.
+        fn many(
+            at: &AtRadius<'_>,
+            mu_s: &[f64],
+            vis: &mut [f64],
+            d0: &mut [f64],
+            d1: &mut [f64],
+            d2: &mut [f64],
+        ) {
+            at.lookup_many(mu_s, vis, [d0, d1, d2]);
+        }
+    }
+
+    #[test]
+    fn lookups_of_many_suns_equal_the_single_lookups() {
+        // A layered aerosol (its chord added back per sun) and the plain preset, at the ground,
+        // inside and above the layer and near the top; suns from below the horizon (hidden: 0)
+        // through the horizon's disk to the zenith, more than one block of them.
+        let plain = preset("earth").unwrap();
+        let mut foggy = plain.clone();
+        crate::atmosphere::haze::Haze {
+            visibility_km: Some(2.0),
+            aerosol_type: None,
+            boundary_layer_top_m: Some(1500.0),
+        }
+        .apply(&mut foggy)
+        .unwrap();
+        let mu_s: Vec<f64> = (0..203).map(|i| -0.3 + 1.3 * i as f64 / 202.0).collect();
+        for a in [&plain, &foggy] {
+            let m = Medium::new(a, &Wavelengths::parse("550").unwrap(), None).unwrap();
+            let table = DensityIntegralTable::new(&m, 32, 128, 200);
+            for &h in &[0.0, 700.0, 1500.0, 1600.0, 30_000.0, 99_990.0] {
+                let at = table.at_radius(m.bottom_radius_m + h, m.sun_angular_radius_rad);
+                let n = mu_s.len();
+                let mut vis = vec![f64::NAN; n];
+                let mut d: [Vec<f64>; CONSTITUENTS] = std::array::from_fn(|_| vec![f64::NAN; n]);
+                let [d0, d1, d2] = &mut d;
+                many(&at, &mu_s, &mut vis, d0, d1, d2);
+                let mut hidden = 0;
+                for (t, &mu) in mu_s.iter().enumerate() {
+                    let v = at.sun_visibility(mu);
+                    let want = if v > 0.0 {
+                        at.lookup(mu)
+                    } else {
+                        hidden += 1;
+                        [0.0; CONSTITUENTS]
+                    };
+                    assert_eq!(vis[t].to_bits(), v.to_bits(), "h {h} mu_s {mu}");
+                    for k in 0..CONSTITUENTS {
+                        assert_eq!(
+                            d[k][t].to_bits(),
+                            want[k].to_bits(),
+                            "h {h} mu_s {mu} k {k}"
+                        );
+                    }
+                }
+                assert!(hidden > 0 && hidden < n, "h {h}: {hidden} hidden");
             }
         }
     }
