@@ -177,6 +177,9 @@ fn main() -> skybake_physics::Result<()> {
     if let Some(v) = env_f("TPOW") {
         s.photons.truncation_power = v;
     }
+    if let Some(v) = env_f("STEP") {
+        s.step_voxels = v;
+    }
     let t = Instant::now();
     let mut p = Prepared::new(&scene, &grid, &lt, s, &|| false)?;
     let total = march_all(&p, &scene);
@@ -258,12 +261,12 @@ fn main() -> skybake_physics::Result<()> {
             let c = grid.voxel_centre(i % nx, (i / nx) % ny, i / (nx * ny));
             let d = vol.density_integral(c, sd, h);
             if v[0] > 0.0 && d > 1.0 {
-                let r = v[1] as f64 / d - 1.0;
+                let r = (v[1] as f64).powi(2) / d - 1.0;
                 dmax = dmax.max(r.abs());
                 dsum += r;
                 dn += 1;
             }
-            v[1] = d as f32;
+            v[1] = d.sqrt() as f32;
         }
         println!(
             "cumulative D / brute D − 1 at occupied voxel centres: mean {:+.2}%, max |.| {:.1}%",

@@ -144,7 +144,8 @@ impl<'a> Prepared<'a> {
                 .for_each(|((vs, ss), rs)| {
                     for ((v, s), r) in vs.chunks_mut(stride).zip(ss).zip(rs) {
                         v[0] = *r;
-                        v[1] = *s;
+                        // Stored as √D, interpolated in √D (see [`Self::sun_root_at`]).
+                        v[1] = s.max(0.0).sqrt();
                     }
                 });
             if sun_on || env_on {
@@ -190,7 +191,7 @@ impl<'a> Prepared<'a> {
                             }
                             let p = grid.voxel_centre(i % nx, i / nx, z);
                             elements.lookup(view(p), &mut il);
-                            let d_sun = v[1] as f64;
+                            let d_sun = (v[1] as f64).powi(2);
                             for l in 0..n_l {
                                 // Wavelengths with the previous one's extinction share its
                                 // transmittances.
@@ -409,7 +410,7 @@ impl<'a> Prepared<'a> {
         let mut t = t0;
         let mut front = None;
         let (o, d) = (ray.origin_m, ray.dir);
-        // The sun's density integral at the current step's start (carried from the previous
+        // √D of the sun's density integral at the current step's start (carried from the previous
         // step's end; `None` after a skip or a step without density: then it is looked up at
         // the same point the previous step ended at, the same value).
         let mut d_start: Option<f64> = None;
@@ -493,16 +494,17 @@ impl<'a> Prepared<'a> {
                 d_start = None;
                 continue;
             }
-            let (d0, d1) = if sun_on {
-                let d0 = match d_start {
+            let (r0, r1) = if sun_on {
+                let r0 = match d_start {
                     Some(v) => v,
-                    None => self.sun_path_at(p),
+                    None => self.sun_root_at(p),
                 };
-                (d0, self.sun_path_at(o + d * t))
+                (r0, self.sun_root_at(o + d * t))
             } else {
                 (0.0, 0.0)
             };
-            d_start = Some(d1);
+            d_start = Some(r1);
+            let (d0, d1) = (r0 * r0, r1 * r1);
             front.get_or_insert(t - dt);
             let mut alive = false;
             let (mut a, mut a_ms, mut sun_t, mut sun_peak) = (0.0, 0.0, 0.0, 0.0);
@@ -726,9 +728,28 @@ impl<'a> Prepared<'a> {
         sum * dx / 3.0 + tail
     }
 
-    /// The sun's density integral D (m) at `p`, trilinear in the per-voxel values.
+    /// The sun's density integral D (m) at `p`: the square of √D interpolated trilinearly.
     #[inline]
     fn sun_path_at(&self, p: DVec3) -> f64 {
+        self.sun_root_at(p).powi(2)
+    }
+
+    /// √D at `p`, trilinear in the per-voxel values of √D (`vox[.. + 1]`).
+    ///
+    /// The cumulative scheme (Nishita et al. 1996, §3.2) gives D at the voxel centres.
+    /// Between them D is convex wherever the density rises towards the cloud's inside: over
+    /// the density's ramp at a lit surface (the trilinear density between an empty and a full
+    /// centre) D grows quadratically with depth, so D interpolated linearly overestimates the
+    /// sun's optical depth by up to ρΔ/8 (one voxel Δ), where the single scattering is made.
+    /// √D is linear there and its interpolation exact; in uniform density (D linear) it
+    /// underestimates D by (√D₁ − √D₀)²/4, small where the sun's light still matters only
+    /// near the surface. Measured on the Mitsuba 3 `sun` case (exact single scattering, the
+    /// march against a brute-force one with the sun's path marched from every quarter-voxel
+    /// sample): D interpolated −3.4 % (−5.6 % where the view ray's τ > 8), √D −0.6 %
+    /// (−1.6 %); with D exact at every step's ends −1.1 % (the rest is D linear within the
+    /// one-voxel step).
+    #[inline]
+    fn sun_root_at(&self, p: DVec3) -> f64 {
         self.lit
             .vol
             .weights(p)
