@@ -447,7 +447,7 @@ fn layouts_are_named_and_keyed_apart() {
 }
 
 /// The twilight sky just above the horizon opposite the sun at low altitude (the earth's shadow
-/// rising, Lynch & Livingston 2001, §2.3 "Earth's shadow"): a dense grid the random samples miss.
+/// rising opposite the setting sun): a dense grid the random samples miss.
 /// Observers at 0, 1, 2.5 and 5 km, sun −6…0° in 1° steps, view zeniths from 80° down to 0.2°
 /// above the horizon in 0.25° steps, azimuths 150° and 180° from the sun. Returns the largest
 /// relative error over the grid and its case.
@@ -516,10 +516,11 @@ fn shadow_rise_errors(f: &Fixture, reader: &SkyViewReader) -> (f64, String) {
 /// within 10° of the horizon, sun down to −6°); it is NOT met: measured on 2026-12-05 (earth,
 /// standard, RGB, layout version 3) 48.1 % at 5 km, sun −2°, view zenith 88.5°, azimuth 150°,
 /// 680 nm, so the bound is the measured + ~12 %. Decomposed at the nodes (5 km, antisolar): the
-/// reddened light of the sunlight grazing the ground lights the air above the antisolar horizon
-/// in a band ~0.2–0.5° wide whose elevation moves by ~1.6° per degree of sun (docs/lut.md,
-/// "What remains"); halfway between two sky rows (1.4° apart at 3° elevation) the rows' cubic
-/// errs up to 67 %, halfway between two sun nodes (0.47° at 5 km) up to 26 %.
+/// product is matched within 0.1 % on every node, but halfway between two sky rows (1.0–1.4°
+/// apart at 2–4° elevation) the rows' interpolation errs up to 67 %, halfway between two sun
+/// nodes (0.47° apart at 5 km) up to 26 %: the sunlit band above the antisolar horizon (lit by
+/// sunlight that grazed the ground) is narrower than both spacings and rises ≈ 1.6° per degree
+/// the sun sinks (docs/lut.md, the skyview layout's accuracy).
 #[test]
 #[ignore = "builds a bundle (about 10 s of CPU): run with --ignored lut_skyview::"]
 fn skyview_the_earth_shadow_rising_at_low_altitude() {
