@@ -445,3 +445,92 @@ fn layouts_are_named_and_keyed_apart() {
     assert!(bruneton.canonical().get("layout").is_none());
     assert_eq!(sky.canonical()["layout"], "skyview");
 }
+
+/// The twilight sky just above the horizon opposite the sun at low altitude (the earth's shadow
+/// rising opposite the setting sun): a dense grid the random samples miss.
+/// Observers at 0, 1, 2.5 and 5 km, sun −6…0° in 1° steps, view zeniths from 80° down to 0.2°
+/// above the horizon in 0.25° steps, azimuths 150° and 180° from the sun. Returns the largest
+/// relative error over the grid and its case.
+fn shadow_rise_errors(f: &Fixture, reader: &SkyViewReader) -> (f64, String) {
+    let bottom = f.bundle.params.bottom_radius;
+    let mut worst = (0.0f64, String::new());
+    let verbose = std::env::var("SKYVIEW_SHADOW_VERBOSE").is_ok();
+    for altitude in [0.0, 1000.0, 2500.0, 5000.0] {
+        let dip = (bottom / (bottom + altitude)).acos().to_degrees();
+        let mut probes = Vec::new();
+        for az in [150.0, 180.0] {
+            let mut z = 80.0;
+            while z < 90.0 + dip - 0.2 {
+                probes.push((z, az));
+                z += 0.25;
+            }
+        }
+        for sun in [-6.0, -5.0, -4.0, -3.0, -2.0, -1.0, 0.0] {
+            let product = f
+                .engine
+                .sky(
+                    &spec_at(f, altitude, sun),
+                    DomeShape {
+                        elevation_count: 2,
+                        azimuth_count: 1,
+                    },
+                    &probes,
+                )
+                .unwrap();
+            let idx = channel_index(f, &product.table.wavelengths_nm);
+            for p in &product.probes {
+                let (radiance, _) = reader.sky_radiance(
+                    [0.0, 0.0, bottom + altitude],
+                    view_dir(p.view_zenith_deg, p.view_azimuth_deg),
+                    sun_dir(sun),
+                );
+                let mut line = String::new();
+                for (c, &i) in idx.iter().enumerate() {
+                    let want = p.radiance_w_m2_sr_nm[i];
+                    let got = radiance[c] / UNIT_SCALE;
+                    let e = rel(got, want);
+                    line += &format!(" {:+.2}%", 100.0 * (got - want) / want);
+                    if e > worst.0 {
+                        worst = (
+                            e,
+                            format!(
+                                "(alt {altitude:.0} m, sun {sun:.0}, view zenith {:.2} azimuth {:.0}, {} nm: {got:.4e} vs {want:.4e})",
+                                p.view_zenith_deg, p.view_azimuth_deg, f.bundle.wavelengths_nm[c]
+                            ),
+                        );
+                    }
+                }
+                if verbose {
+                    eprintln!(
+                        "shadow alt {altitude:.0} sun {sun:.0} zen {:.2} az {:.0}:{line}",
+                        p.view_zenith_deg, p.view_azimuth_deg
+                    );
+                }
+            }
+        }
+    }
+    worst
+}
+
+/// The earth's shadow rising (see [`shadow_rise_errors`]). The target is 3 % (views
+/// within 10° of the horizon, sun down to −6°); it is NOT met: measured on 2026-12-05 (earth,
+/// standard, RGB, layout version 3) 48.1 % at 5 km, sun −2°, view zenith 88.5°, azimuth 150°,
+/// 680 nm, so the bound is the measured + ~12 %. Decomposed at the nodes (5 km, antisolar): the
+/// product is matched within 0.1 % on every node, but halfway between two sky rows (1.0–1.4°
+/// apart at 2–4° elevation) the rows' interpolation errs up to 67 %, halfway between two sun
+/// nodes (0.47° apart at 5 km) up to 26 %: the sunlit band above the antisolar horizon (lit by
+/// sunlight that grazed the ground) is narrower than both spacings and rises ≈ 1.6° per degree
+/// the sun sinks (docs/lut.md, the skyview layout's accuracy).
+#[test]
+#[ignore = "builds a bundle (about 10 s of CPU): run with --ignored lut_skyview::"]
+fn skyview_the_earth_shadow_rising_at_low_altitude() {
+    let f = fixture();
+    let (worst, case) = shadow_rise_errors(f, &SkyViewReader::new(&f.bundle));
+    eprintln!(
+        "skyview earth's shadow rising, 0-5 km, sun -6..0 (target 3 %): {:.3} % {case}",
+        100.0 * worst
+    );
+    let measured = 0.481;
+    assert!(worst > 0.0, "no sample");
+    assert!(worst < measured * 1.12, "{worst} {case}");
+}
