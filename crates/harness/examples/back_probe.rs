@@ -19,31 +19,10 @@ use skybake_render::pathtracer::PathTracer;
 use skybake_render::{camera, lighting_for, FrameScene, Method, Prepared, RenderSettings};
 use std::time::Instant;
 
+mod probe_support;
+use probe_support::{env_f, npy, share, DATA};
+
 static THETA: std::sync::OnceLock<Vec<f64>> = std::sync::OnceLock::new();
-
-const DATA: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/../../tests/data");
-
-fn npy(name: &str) -> Vec<f32> {
-    let b = std::fs::read(format!("{DATA}/{name}")).unwrap();
-    let (hl, start) = if b[6] == 1 {
-        (u16::from_le_bytes([b[8], b[9]]) as usize, 10)
-    } else {
-        (u32::from_le_bytes([b[8], b[9], b[10], b[11]]) as usize, 12)
-    };
-    let header = String::from_utf8_lossy(&b[start..start + hl]).to_string();
-    let data = &b[start + hl..];
-    if header.contains("<f4") {
-        data.chunks_exact(4)
-            .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]))
-            .collect()
-    } else {
-        data.iter().map(|&v| v as f32).collect()
-    }
-}
-
-fn env_f(name: &str) -> Option<f64> {
-    std::env::var(name).ok().and_then(|v| v.parse().ok())
-}
 
 /// Block NRMSE, bias, and the bias by τ band (share of the reference, bias).
 fn report(name: &str, test: &[f32], reference: &[f32], mask: &[bool], tau: &[f32]) {
@@ -82,16 +61,6 @@ fn report(name: &str, test: &[f32], reference: &[f32], mask: &[bool], tau: &[f32
         100.0 * e.nrmse_blocks,
         100.0 * e.mean_bias
     );
-}
-
-/// Sum over the mask, relative to `norm`.
-fn share(img: &[f32], mask: &[bool], norm: f64) -> f64 {
-    img.iter()
-        .zip(mask)
-        .filter(|(_, m)| **m)
-        .map(|(v, _)| *v as f64)
-        .sum::<f64>()
-        / norm
 }
 
 fn h_px(scene: &FrameScene) -> usize {
@@ -387,40 +356,10 @@ fn classes(
         g: (g - f) / (1.0 - f),
     };
     let rplus = |mu: f64| (phase.eval(mu) - (1.0 - f) * smooth.eval(mu)).max(0.0);
-    let smax = k * vol.rho_max;
-    let free = |o: DVec3, d: DVec3, rng: &mut rand_pcg::Pcg64| -> Option<f64> {
-        let (t0, t1) = vol.interval(o, d)?;
-        let mut t = t0.max(0.0);
-        loop {
-            t -= (1.0 - rng.random::<f64>()).ln() / smax;
-            if t >= t1 {
-                return None;
-            }
-            if rng.random::<f64>() * vol.rho_max < vol.rho(o + d * t) {
-                return Some(t);
-            }
-        }
-    };
-    let trans = |o: DVec3, d: DVec3, rng: &mut rand_pcg::Pcg64| -> f64 {
-        let Some((t0, t1)) = vol.interval(o, d) else {
-            return 1.0;
-        };
-        let mut t = t0.max(0.0);
-        let mut tr = 1.0;
-        loop {
-            t -= (1.0 - rng.random::<f64>()).ln() / smax;
-            if t >= t1 {
-                return tr;
-            }
-            tr *= 1.0 - vol.rho(o + d * t) / vol.rho_max;
-            if tr < 1e-3 {
-                if rng.random::<f64>() < 0.5 {
-                    return 0.0;
-                }
-                tr *= 2.0;
-            }
-        }
-    };
+    // The path tracer's own delta and ratio tracking.
+    let tracer = PathTracer::new(vol, &scene.optics, lt, 0);
+    let free = |o: DVec3, d: DVec3, rng: &mut rand_pcg::Pcg64| tracer.free_path(o, d, k, rng);
+    let trans = |o: DVec3, d: DVec3, rng: &mut rand_pcg::Pcg64| tracer.transmittance(o, d, k, rng);
     let (w, h) = (scene.camera.width, scene.camera.height);
     let t = Instant::now();
     let img: Vec<[f64; 3]> = (0..w * h)

@@ -13,9 +13,8 @@ use skybake_harness::frame_bench::{bench_cumulus, bench_scene};
 use skybake_physics::atmosphere::quality::Quality;
 use skybake_render::{lighting_for, render_frame, CloudMsMethod, Method, RenderSettings};
 
-fn env_f(name: &str) -> Option<f64> {
-    std::env::var(name).ok().and_then(|v| v.parse().ok())
-}
+mod probe_support;
+use probe_support::env_f;
 
 fn main() -> Result<(), Box<dyn std::error::Error>> {
     let (w, h, n_l) = (160, 120, 3);

@@ -15,9 +15,8 @@ use skybake_render::pathtracer::PathTracer;
 use skybake_render::{camera, lighting_for, Method, Prepared, RenderSettings};
 use std::time::Instant;
 
-fn env_f(name: &str) -> Option<f64> {
-    std::env::var(name).ok().and_then(|v| v.parse().ok())
-}
+mod probe_support;
+use probe_support::env_f;
 
 fn main() -> skybake_physics::Result<()> {
     let a: Vec<String> = std::env::args().collect();

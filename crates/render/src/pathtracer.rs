@@ -90,8 +90,9 @@ impl<'a> PathTracer<'a> {
         }
     }
 
-    /// Delta tracking from `o` along `d` within the box: distance to a real collision, or None.
-    fn free_path(&self, o: DVec3, d: DVec3, k: f64, rng: &mut Pcg64) -> Option<f64> {
+    /// Delta tracking from `o` along `d` within the box (extinction `k` per unit density):
+    /// distance to a real collision, or None.
+    pub fn free_path(&self, o: DVec3, d: DVec3, k: f64, rng: &mut Pcg64) -> Option<f64> {
         let smax = k * self.vol.rho_max;
         if smax <= 0.0 {
             return None;
@@ -110,8 +111,9 @@ impl<'a> PathTracer<'a> {
         }
     }
 
-    /// Ratio tracking: an unbiased estimate of the transmittance from `o` along `d` to the box exit.
-    fn transmittance(&self, o: DVec3, d: DVec3, k: f64, rng: &mut Pcg64) -> f64 {
+    /// Ratio tracking: an unbiased estimate of the transmittance from `o` along `d` to the box exit
+    /// (extinction `k` per unit density).
+    pub fn transmittance(&self, o: DVec3, d: DVec3, k: f64, rng: &mut Pcg64) -> f64 {
         let smax = k * self.vol.rho_max;
         if smax <= 0.0 {
             return 1.0;
