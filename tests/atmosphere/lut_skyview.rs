@@ -62,6 +62,27 @@ fn spec_at(f: &Fixture, altitude_m: f64, sun_deg: f64) -> CommonSpec {
     s
 }
 
+/// The `sky` product's radiance in the `probes` directions (view zenith, azimuth from the sun,
+/// degrees) for an observer at `altitude_m` and the sun at `sun_deg`, through the engine as a
+/// request runs (the dome itself kept minimal).
+fn sky_probes(
+    f: &Fixture,
+    altitude_m: f64,
+    sun_deg: f64,
+    probes: &[(f64, f64)],
+) -> skybake_engine::engine::DomeProduct {
+    f.engine
+        .sky(
+            &spec_at(f, altitude_m, sun_deg),
+            DomeShape {
+                elevation_count: 2,
+                azimuth_count: 1,
+            },
+            probes,
+        )
+        .unwrap()
+}
+
 fn channel_index(f: &Fixture, product_nm: &[f64]) -> Vec<usize> {
     f.bundle
         .wavelengths_nm
@@ -261,17 +282,7 @@ fn skyview_nodes_equal_the_sky_product() {
             let (theta, _) = skyview::view_node(i, r, bottom);
             probes.push((theta.to_degrees(), skyview::azimuth_node(a).to_degrees()));
         }
-        let product = f
-            .engine
-            .sky(
-                &spec_at(f, altitude, sun_deg),
-                DomeShape {
-                    elevation_count: 2,
-                    azimuth_count: 1,
-                },
-                &probes,
-            )
-            .unwrap();
+        let product = sky_probes(f, altitude, sun_deg, &probes);
         let idx = channel_index(f, &product.table.wavelengths_nm);
         // Half floats hold a slice's values to 2^-11 relative down to 2^-14 of its largest
         // value: deviations are relative to the radiance or 10^-3 of the case's largest.
@@ -466,17 +477,7 @@ fn shadow_rise_errors(f: &Fixture, reader: &SkyViewReader) -> (f64, String) {
             }
         }
         for sun in [-6.0, -5.0, -4.0, -3.0, -2.0, -1.0, 0.0] {
-            let product = f
-                .engine
-                .sky(
-                    &spec_at(f, altitude, sun),
-                    DomeShape {
-                        elevation_count: 2,
-                        azimuth_count: 1,
-                    },
-                    &probes,
-                )
-                .unwrap();
+            let product = sky_probes(f, altitude, sun, &probes);
             let idx = channel_index(f, &product.table.wavelengths_nm);
             for p in &product.probes {
                 let (radiance, _) = reader.sky_radiance(
