@@ -260,14 +260,7 @@ pub fn lattice_density_integrals(grid: &DensityGrid, e: [i32; 3]) -> Vec<f32> {
     let len = DVec3::new(e[0] as f64, e[1] as f64, e[2] as f64).length() * grid.voxel_size_m;
     let half = 0.5 * len;
     let mut out = super::pages::zeroed(0f32, grid.data.len());
-    let order = |n: usize, c: i32| -> Vec<usize> {
-        if c > 0 {
-            (0..n).rev().collect()
-        } else {
-            (0..n).collect()
-        }
-    };
-    let (zs, ys) = (order(nz, e[2]), order(ny, e[1]));
+    let (zs, ys) = (walk_order(nz, e[2]), walk_order(ny, e[1]));
     let data = &grid.data[..];
     // Each voxel's value is the same expression as a voxel-by-voxel walk in the order above
     // (x against e[0]); the rows are walked without per-voxel branches so that the directions
@@ -338,20 +331,28 @@ pub fn lattice_density_integrals(grid: &DensityGrid, e: [i32; 3]) -> Vec<f32> {
     out
 }
 
+/// Indices 0..n in the order a walk along the lattice step component `c` visits them: the
+/// voxel a step leads to (one further along `c`) comes first, so its value is ready when the
+/// voxel before it is computed.
+fn walk_order(n: usize, c: i32) -> Vec<usize> {
+    if c > 0 {
+        (0..n).rev().collect()
+    } else {
+        (0..n).collect()
+    }
+}
+
 /// The lattice paths' voxel-by-voxel walk (the definition [`lattice_density_integrals`] keeps).
 #[cfg(test)]
 fn lattice_density_integrals_walk(grid: &DensityGrid, e: [i32; 3]) -> Vec<f32> {
     let [nx, ny, nz] = grid.dims;
     let len = DVec3::new(e[0] as f64, e[1] as f64, e[2] as f64).length() * grid.voxel_size_m;
     let mut out = vec![0f32; grid.data.len()];
-    let order = |n: usize, c: i32| -> Vec<usize> {
-        if c > 0 {
-            (0..n).rev().collect()
-        } else {
-            (0..n).collect()
-        }
-    };
-    let (zs, ys, xs) = (order(nz, e[2]), order(ny, e[1]), order(nx, e[0]));
+    let (zs, ys, xs) = (
+        walk_order(nz, e[2]),
+        walk_order(ny, e[1]),
+        walk_order(nx, e[0]),
+    );
     let data = &grid.data[..];
     for &z in &zs {
         let qz = z as i64 + e[2] as i64;
