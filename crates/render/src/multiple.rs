@@ -1090,6 +1090,42 @@ mod tests {
         }
     }
 
+    /// Each source's photon budget, and a source without light hands it to the other: a frame
+    /// lit by the sun alone (no sky, ground light zero) traces both budgets from the sun, one
+    /// without sunlight both from the environment, one lit by both each its own.
+    #[test]
+    fn a_source_without_light_hands_its_photons_to_the_other() {
+        let s = PhotonSettings {
+            sun_photons: 1000,
+            env_photons: 300,
+            max_coarse_dim: 8,
+            seed: 1,
+            angular_order: 3,
+            truncation_power: 3.5,
+            peak_spread: 0.0,
+        };
+        let lighting = |sky: Hemisphere, below: Hemisphere| Lighting {
+            wavelengths_nm: vec![550.0],
+            sun_dir: DVec3::Z,
+            sun_irradiance: vec![1.0],
+            sky,
+            below,
+            ground: None,
+            background: None,
+            aerial: None,
+            notes: Vec::new(),
+        };
+        let dark = lighting(Hemisphere::Zero, Hemisphere::Constant(vec![0.0]));
+        let sky = lighting(Hemisphere::Constant(vec![0.2]), Hemisphere::Zero);
+        let ground = lighting(Hemisphere::Zero, Hemisphere::Constant(vec![0.1]));
+        assert!(!environment_gives_light(&dark));
+        assert!(environment_gives_light(&sky) && environment_gives_light(&ground));
+        assert_eq!(photon_budget(&s, true, false), (1300, 0));
+        assert_eq!(photon_budget(&s, true, true), (1000, 300));
+        assert_eq!(photon_budget(&s, false, true), (0, 1300));
+        assert_eq!(photon_budget(&s, false, false), (0, 1300));
+    }
+
     /// The reconstruction's phase moments: the δ-M moments, never negative, and the true moments
     /// without truncation.
     #[test]
