@@ -29,7 +29,7 @@
 //!   strongly forward-peaked orders 2–5 of g = 0.85 and overestimates side-scattered light by
 //!   30 % (thick) to 180 % (thin cloud) against Mitsuba 3; with the truncation see README.
 
-use super::lighting::Lighting;
+use super::lighting::{Hemisphere, Lighting};
 use super::scene::Optics;
 use glam::DVec3;
 use rand::{Rng, SeedableRng};
@@ -42,7 +42,8 @@ use std::f64::consts::PI;
 /// Settings of the photon pass.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct PhotonSettings {
-    /// Photons from the sun.
+    /// Photons from the sun; a frame without sky and ground light traces `env_photons` more of
+    /// them (the environment's share of the budget).
     pub sun_photons: usize,
     /// Photons from the environment (sky and ground light); a frame whose sun gives no light
     /// traces `sun_photons` more of them (the sun's share of the budget).
@@ -209,16 +210,7 @@ impl MsField {
                 .collect();
             let sun_on =
                 lighting.sun_dir.is_finite() && sun_w.iter().any(|&w| w > 0.0) && s.sun_photons > 0;
-            let n_sun = if sun_on { s.sun_photons } else { 0 };
-            // Without the sun's light its photons go to the environment: the field of a sky-lit
-            // frame is photon noise for the most part (Mitsuba `sky` case, 3 seeds: block NRMSE
-            // 5.9 % with 2^18 environment photons, 5.5 % with 2^19, 4.8 % with 2^21), and the
-            // frame costs what a frame lit by both costs.
-            let n_env = if sun_on {
-                s.env_photons
-            } else {
-                s.env_photons.saturating_add(s.sun_photons)
-            };
+            let (n_sun, n_env) = photon_budget(s, sun_on, environment_gives_light(lighting));
             // The share of environment photons entering from the upper hemisphere (sky): a
             // hemisphere without light at any of the group's wavelengths gets no photons instead
             // of half of them scoring nothing; otherwise each gets half. Not in proportion to the
@@ -842,6 +834,35 @@ fn uniform_sphere(u1: f64, u2: f64) -> DVec3 {
     DVec3::new(r * phi.cos(), r * phi.sin(), z)
 }
 
+/// Whether the environment (sky above, ground light below) gives the cloud any light: false
+/// when both hemispheres are absent or constant at zero.
+fn environment_gives_light(lighting: &Lighting) -> bool {
+    let lit = |h: &Hemisphere| match h {
+        Hemisphere::Zero => false,
+        Hemisphere::Constant(v) => v.iter().any(|&x| x > 0.0),
+        Hemisphere::Table(_) => true,
+    };
+    lit(&lighting.sky) || lit(&lighting.below)
+}
+
+/// Photons from the sun and from the environment: each source's own budget, and a source that
+/// gives no light hands its budget to the other, so every frame traces the photons of a frame
+/// lit by both and none are spent on a source that scores nothing.
+///
+/// Without the sun's light its photons go to the environment: the field of a sky-lit frame is
+/// photon noise for the most part (Mitsuba `sky` case, 3 seeds: block NRMSE 5.9 % with 2^18
+/// environment photons, 5.5 % with 2^19, 4.8 % with 2^21). Without sky and ground light the
+/// environment's photons go to the sun: they were launched, found no light and ended at once,
+/// and the sun-lit frames' field is photon noise in large part (Mitsuba `sun` case, 4 seeds:
+/// block NRMSE 6.65 % with 2^18 sun photons, 5.0 % with 2^20, 4.5 % with 2^22; docs/frames.md).
+fn photon_budget(s: &PhotonSettings, sun_on: bool, env_on: bool) -> (usize, usize) {
+    match (sun_on, env_on) {
+        (true, true) => (s.sun_photons, s.env_photons),
+        (true, false) => (s.sun_photons.saturating_add(s.env_photons), 0),
+        (false, _) => (0, s.env_photons.saturating_add(s.sun_photons)),
+    }
+}
+
 /// Point `i` of the launch sequence in [0, 1)⁴: the Halton sequence (radical inverses of `i` in
 /// bases 2, 3, 5, 7; Halton 1960), whose low-dimensional projections are evenly spread,
 /// shifted by `shift` mod 1 (Cranley & Patterson 1976: with a uniform random shift each point
@@ -1067,6 +1088,42 @@ mod tests {
                 assert!((sum - expected).abs() < 1e-12, "l {l}: {sum} vs {expected}");
             }
         }
+    }
+
+    /// Each source's photon budget, and a source without light hands it to the other: a frame
+    /// lit by the sun alone (no sky, ground light zero) traces both budgets from the sun, one
+    /// without sunlight both from the environment, one lit by both each its own.
+    #[test]
+    fn a_source_without_light_hands_its_photons_to_the_other() {
+        let s = PhotonSettings {
+            sun_photons: 1000,
+            env_photons: 300,
+            max_coarse_dim: 8,
+            seed: 1,
+            angular_order: 3,
+            truncation_power: 3.5,
+            peak_spread: 0.0,
+        };
+        let lighting = |sky: Hemisphere, below: Hemisphere| Lighting {
+            wavelengths_nm: vec![550.0],
+            sun_dir: DVec3::Z,
+            sun_irradiance: vec![1.0],
+            sky,
+            below,
+            ground: None,
+            background: None,
+            aerial: None,
+            notes: Vec::new(),
+        };
+        let dark = lighting(Hemisphere::Zero, Hemisphere::Constant(vec![0.0]));
+        let sky = lighting(Hemisphere::Constant(vec![0.2]), Hemisphere::Zero);
+        let ground = lighting(Hemisphere::Zero, Hemisphere::Constant(vec![0.1]));
+        assert!(!environment_gives_light(&dark));
+        assert!(environment_gives_light(&sky) && environment_gives_light(&ground));
+        assert_eq!(photon_budget(&s, true, false), (1300, 0));
+        assert_eq!(photon_budget(&s, true, true), (1000, 300));
+        assert_eq!(photon_budget(&s, false, true), (0, 1300));
+        assert_eq!(photon_budget(&s, false, false), (0, 1300));
     }
 
     /// The reconstruction's phase moments: the δ-M moments, never negative, and the true moments
