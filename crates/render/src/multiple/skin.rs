@@ -247,3 +247,130 @@ impl MsField {
         true
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A 5×5×5 coarse grid of 10 m cells: density 1 in the 3×3×3 block at its centre, 0 round
+    /// it, except the block's top layer, whose density is `top`.
+    fn block(top: f32) -> Coarse {
+        let n = 5;
+        let mut rho = vec![0f32; n * n * n];
+        for z in 1..4 {
+            for y in 1..4 {
+                for x in 1..4 {
+                    rho[(z * n + y) * n + x] = if z == 3 { top } else { 1.0 };
+                }
+            }
+        }
+        Coarse {
+            dims: [n, n, n],
+            cell_m: DVec3::splat(10.0),
+            origin_m: DVec3::ZERO,
+            rho,
+            skin: None,
+        }
+    }
+
+    fn cell(x: usize, y: usize, z: usize) -> usize {
+        (z * 5 + y) * 5 + x
+    }
+
+    #[test]
+    fn skins_are_on_the_faces_that_border_thinner_cloud() {
+        // σ* = 0.5/m: 5 optical depths per cell, a skin of 2 m.
+        let g = block(1.0);
+        let skin = Skin::new(&g, 0.5, 10.0, 1.0).unwrap();
+        // The block's centre borders no thinner cell; its 26 others do.
+        assert_eq!(skin.index[cell(2, 2, 2)], u32::MAX);
+        assert_eq!(skin.len(), 26);
+        // The top face's centre cell: skin only above, 2 m deep.
+        let s = skin.index[cell(2, 2, 3)] as usize;
+        let [lo, hi] = skin.inner[s];
+        assert_eq!((lo.z, hi.z), (30.0, 38.0));
+        assert_eq!((lo.x, hi.x, lo.y, hi.y), (20.0, 30.0, 20.0, 30.0));
+        assert!((1.0 / skin.inv_volume[s] - 200.0).abs() < 1e-9);
+        // Voxels of less than the thick steps' optical depth: no skins at all.
+        assert!(Skin::new(&g, 0.05, 10.0, 1.0).is_none());
+        // Cells too thin for two skins along an axis get none on that axis: 1.5 optical
+        // depths per cell (voxels of 1.5) and a skin of 1 leave every face without one.
+        assert!(Skin::new(&g, 0.15, 10.0, 1.0).is_none());
+        // A top layer of a third of the density: the layer below borders thinner cloud
+        // above it, and the layer itself (σ*·10 m = 1.67) is too thin for skins.
+        let g = block(1.0 / 3.0);
+        let skin = Skin::new(&g, 0.5, 10.0, 1.0).unwrap();
+        let s = skin.index[cell(2, 2, 2)] as usize;
+        assert_eq!((skin.inner[s][0].z, skin.inner[s][1].z), (20.0, 28.0));
+        assert_eq!(skin.index[cell(2, 2, 3)], u32::MAX);
+    }
+
+    /// The skin's score of a track is its length within the skin divided by the skin's volume:
+    /// against the length measured by sampling points along random tracks and testing each
+    /// against the faces' distances directly.
+    #[test]
+    fn a_track_scores_its_length_within_the_skin() {
+        let g = block(1.0);
+        let skin = Skin::new(&g, 0.5, 10.0, 1.0).unwrap();
+        let cells = g.rho.len();
+        // The corner cell (1, 1, 3): thinner cloud at x < 10, y < 10 and z > 40 (skin depth 2).
+        let c = cell(1, 1, 3);
+        let s = skin.index[c] as usize;
+        let in_skin = |p: DVec3| p.x < 12.0 || p.y < 12.0 || p.z > 38.0;
+        let mut state = 0x2545_F491_4F6C_DD1Du64;
+        let mut next = || {
+            state ^= state << 13;
+            state ^= state >> 7;
+            state ^= state << 17;
+            (state >> 11) as f64 / (1u64 << 53) as f64
+        };
+        for _ in 0..200 {
+            let a = DVec3::new(
+                10.0 + 10.0 * next(),
+                10.0 + 10.0 * next(),
+                30.0 + 10.0 * next(),
+            );
+            let d = DVec3::new(next() - 0.5, next() - 0.5, next() - 0.5).normalize();
+            // Up to the cell's boundary.
+            let mut len = f64::INFINITY;
+            for k in 0..3 {
+                let (lo, hi) = ([10.0, 10.0, 30.0][k], [20.0, 20.0, 40.0][k]);
+                if d[k] > 0.0 {
+                    len = len.min((hi - a[k]) / d[k]);
+                } else if d[k] < 0.0 {
+                    len = len.min((lo - a[k]) / d[k]);
+                }
+            }
+            let mut acc = vec![0.0; (cells + skin.len()) * 2];
+            skin.score(c, cells, a, d, len, &[2.0], &mut acc, &[1.0, 0.5]);
+            let n = 200_000;
+            let sampled = (0..n)
+                .filter(|&i| in_skin(a + d * (len * (i as f64 + 0.5) / n as f64)))
+                .count() as f64
+                * len
+                / n as f64;
+            let scored = acc[(cells + s) * 2] / (2.0 * skin.inv_volume[s]);
+            assert!(
+                (scored - sampled).abs() < 1e-3 * len.max(1.0),
+                "{scored} vs {sampled}"
+            );
+            assert!((acc[(cells + s) * 2 + 1] - 0.5 * acc[(cells + s) * 2]).abs() < 1e-12);
+            // Nothing is scored outside the skin's accumulators.
+            assert!(acc[..cells * 2].iter().all(|&x| x == 0.0));
+        }
+        // A cell without a skin scores nothing.
+        let mut acc = vec![0.0; (cells + skin.len()) * 2];
+        let centre = DVec3::splat(25.0);
+        skin.score(
+            cell(2, 2, 2),
+            cells,
+            centre,
+            DVec3::Z,
+            5.0,
+            &[1.0],
+            &mut acc,
+            &[1.0, 1.0],
+        );
+        assert!(acc.iter().all(|&x| x == 0.0));
+    }
+}
