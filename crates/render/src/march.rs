@@ -58,6 +58,11 @@ pub struct Prepared<'a> {
     /// and the orders ≥ 2 J* of the δ-M scaled problem, W m⁻² sr⁻¹ nm⁻¹; see [`Prepared::march`]).
     pub vox: Vec<f32>,
     pub stride: usize,
+    /// Per voxel `[S_0 … S_{n−1}]` as in `vox` with the multiple-scattering field's skin
+    /// tallies in place of its cells' ([`MsField::inscatter_skin`](super::multiple::MsField::inscatter_skin)):
+    /// the source in the first [`SKIN_TAU`](super::multiple::SKIN_TAU) below an optically thick
+    /// cell's surface, which [`Self::thick_step`] uses there. Empty where no cell has a skin.
+    pub skin: Vec<f32>,
     pub stages: Stages,
     /// Stage timings, ms (a stage of a shared lit volume counts 0 ms: this frame did not run it).
     pub timing_ms: Vec<(String, f64)>,
@@ -134,6 +139,7 @@ impl<'a> Prepared<'a> {
         lap("volume", &mut timing_ms);
         let (sun_on, env_on) = (lit.sun_on, lit.env_on);
         let mut vox = Vec::new();
+        let mut skin = Vec::new();
         let mut lattice_paths = 0;
         if lit.per_voxel {
             vox = super::pages::zeroed(0f32, grid.data.len() * stride);
@@ -264,6 +270,7 @@ impl<'a> Prepared<'a> {
                             }
                         }
                     });
+                skin = skin_sources(grid, &vox, stride, mask, field, ms_albedo, &view);
                 stages.ran.push(format!(
                     "multiple scattering, all orders: photon transport on a {}x{}x{} grid, {}, P{} angular reconstruction",
                     field.dims[0], field.dims[1], field.dims[2],
@@ -315,6 +322,7 @@ impl<'a> Prepared<'a> {
             lit,
             vox,
             stride,
+            skin,
             stages,
             timing_ms,
             lattice_paths,
@@ -608,6 +616,8 @@ impl<'a> Prepared<'a> {
         let h = dt / n as f64;
         let sun_on = self.lit.sun_on;
         let mut src = [0.0f64; 64];
+        let mut src_skin = [0.0f64; 64];
+        let skin_on = !self.skin.is_empty();
         let mut d_prev: Option<f64> = None;
         for j in 0..n {
             let ts = t_start + j as f64 * h;
@@ -617,6 +627,7 @@ impl<'a> Prepared<'a> {
             };
             let mut rho = 0.0;
             src[..n_l].fill(0.0);
+            src_skin[..n_l].fill(0.0);
             for (i, wi) in w {
                 if wi == 0.0 {
                     continue;
@@ -627,6 +638,14 @@ impl<'a> Prepared<'a> {
                 for (b, x) in src[..n_l].iter_mut().zip(&v[2..]) {
                     *b += wr * *x as f64;
                 }
+                if skin_on {
+                    for (b, x) in src_skin[..n_l]
+                        .iter_mut()
+                        .zip(&self.skin[i * n_l..(i + 1) * n_l])
+                    {
+                        *b += wr * *x as f64;
+                    }
+                }
             }
             if rho <= 0.0 {
                 d_prev = None;
@@ -634,6 +653,11 @@ impl<'a> Prepared<'a> {
             }
             for b in src[..n_l].iter_mut() {
                 *b /= rho;
+            }
+            if skin_on {
+                for b in src_skin[..n_l].iter_mut() {
+                    *b /= rho;
+                }
             }
             let (d0, d1) = if sun_on {
                 let d0 = match d_prev {
@@ -678,8 +702,13 @@ impl<'a> Prepared<'a> {
                         (0.0, 0.0)
                     };
                 }
-                ia[l] += tcs[l] * (sky.sun_src[l] * sun_t + a_ms * src[l])
-                    + tc[l] * sky.sun_src[l] * sun_peak;
+                let field = if skin_on {
+                    self.skin_step(l, tcs[l], sky.ks[l] * rho * h, a_ms, src[l], src_skin[l])
+                } else {
+                    a_ms * src[l]
+                };
+                ia[l] +=
+                    tcs[l] * (sky.sun_src[l] * sun_t + field) + tc[l] * sky.sun_src[l] * sun_peak;
                 tc[l] *= 1.0 - a;
                 tcs[l] *= 1.0 - a_ms;
                 alive |= tcs[l] > MARCH_CUTOFF;
@@ -689,6 +718,24 @@ impl<'a> Prepared<'a> {
             }
         }
         true
+    }
+
+    /// The source of one thick sub-step of scaled optical depth `dtau` (`a_ms` = 1 − e^{−dtau})
+    /// times its opacity, at wavelength `l`, where the ray has come through a scaled
+    /// transmittance `tcs`: the skin's source `s_skin` over the part of the sub-step within the
+    /// skin's depth of the ray's front ([`MsField::skin_depth_tau`](super::multiple::MsField::skin_depth_tau),
+    /// counted along the ray from where its scaled optical depth begins), the cell's `s_cell`
+    /// beyond. The skin is tallied normal to the surface, so along an oblique ray the skin's
+    /// source reaches no deeper than the skin.
+    #[inline]
+    fn skin_step(&self, l: usize, tcs: f64, dtau: f64, a_ms: f64, s_cell: f64, s_skin: f64) -> f64 {
+        let depth = self.lit.ms.as_ref().map_or(0.0, |f| f.skin_depth_tau(l));
+        let left = depth + tcs.max(1e-300).ln();
+        if left <= 0.0 {
+            return a_ms * s_cell;
+        }
+        let b = -(-left.min(dtau)).exp_m1();
+        b * s_skin + (a_ms - b) * s_cell
     }
 
     /// The sun's density integral D (m) at `p` resolved within the voxels next to it: the
@@ -1026,4 +1073,46 @@ pub fn sun_step_weight(a: f64, b_total: f64, dt: f64, tau0: f64, e_tau0: f64) ->
         } else {
             (-tau0 - x).exp() * x.exp_m1() / x
         }
+}
+
+/// The per-voxel source with the multiple-scattering field's skin tallies
+/// ([`Prepared::skin`]): `vox`'s source with ω*·J* replaced by the skin's where a cell round
+/// the voxel has a skin; empty where the field has none.
+fn skin_sources(
+    grid: &DensityGrid,
+    vox: &[f32],
+    stride: usize,
+    mask: &[bool],
+    field: &super::multiple::MsField,
+    ms_albedo: &[f64],
+    view: &(dyn Fn(DVec3) -> DVec3 + Sync),
+) -> Vec<f32> {
+    if !field.has_skin() {
+        return Vec::new();
+    }
+    let n_l = stride - 2;
+    let [nx, ny, _] = grid.dims;
+    let mut skin = vec![0f32; grid.data.len() * n_l];
+    skin.par_chunks_mut(nx * ny * n_l)
+        .zip(vox.par_chunks(nx * ny * stride))
+        .enumerate()
+        .for_each(|(z, (out, slab))| {
+            let (mut j, mut js) = (vec![0.0; n_l], vec![0.0; n_l]);
+            for (i, (o, v)) in out.chunks_mut(n_l).zip(slab.chunks(stride)).enumerate() {
+                o.copy_from_slice(&v[2..]);
+                if !mask[z * nx * ny + i] {
+                    continue;
+                }
+                let p = grid.voxel_centre(i % nx, i / nx, z);
+                let d = view(p);
+                if !field.inscatter_skin(p, d, &mut js) {
+                    continue;
+                }
+                field.inscatter(p, d, &mut j);
+                for l in 0..n_l {
+                    o[l] = (v[2 + l] as f64 + ms_albedo[l] * (js[l] - j[l])) as f32;
+                }
+            }
+        });
+    skin
 }

@@ -39,6 +39,9 @@ use skybake_physics::cloud::DensityGrid;
 use skybake_physics::phase::{orthonormal_basis, Phase};
 use std::f64::consts::PI;
 
+mod skin;
+pub use skin::{SkinField, SKIN_TAU};
+
 /// Settings of the photon pass.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct PhotonSettings {
@@ -80,6 +83,8 @@ pub struct MsField {
     pub albedo_scaled: Vec<f64>,
     /// Mean density of each coarse cell (the weights of [`MsField::inscatter`]).
     rho: Vec<f32>,
+    /// The tallies of optically thick cells' skins (see [`SkinField`]), where any cell has one.
+    skin: Option<SkinField>,
     angular_order: usize,
     /// Coefficients per cell and wavelength, (L + 1)².
     moments: usize,
@@ -106,6 +111,8 @@ struct Coarse {
     cell_m: DVec3,
     origin_m: DVec3,
     rho: Vec<f32>,
+    /// The cells whose skins the photons' tracks are also scored in (see `skin`).
+    skin: Option<skin::Skin>,
 }
 
 impl Coarse {
@@ -135,6 +142,7 @@ impl Coarse {
             cell_m: DVec3::new(f[0] as f64, f[1] as f64, f[2] as f64) * grid.voxel_size_m,
             origin_m: grid.origin_m,
             rho,
+            skin: None,
         }
     }
 
@@ -158,7 +166,7 @@ struct Photon {
 impl MsField {
     /// Bytes held by the field's tables.
     pub fn bytes(&self) -> usize {
-        4 * (self.data.len() + self.rho.len())
+        4 * (self.data.len() + self.rho.len()) + self.skin.as_ref().map_or(0, SkinField::bytes)
     }
 
     /// Runs the photon pass for every group of wavelengths with identical optics; `cancel` is
@@ -171,7 +179,7 @@ impl MsField {
         cancel: &(dyn Fn() -> bool + Sync),
     ) -> crate::Result<Self> {
         let cancelled = std::sync::atomic::AtomicBool::new(false);
-        let coarse = Coarse::new(grid, s.max_coarse_dim);
+        let mut coarse = Coarse::new(grid, s.max_coarse_dim);
         let n_l = optics.albedo.len();
         let cells = coarse.rho.len();
         let order = s.angular_order.min(MAX_ORDER);
@@ -183,6 +191,8 @@ impl MsField {
             .zip(&optics.albedo)
             .map(|(p, &a)| Truncation::new(p.mean_cosine(), a, s.truncation_power))
             .collect();
+        let (skin_cells, skin_depth) = skin_setup(&mut coarse, grid, optics, &truncation);
+        let mut skin_data = vec![0f32; skin_cells * n_l * moments];
         let lo = coarse.origin_m;
         let hi = coarse.hi();
         let centre = 0.5 * (lo + hi);
@@ -231,7 +241,7 @@ impl MsField {
             };
             let chunk = 4096;
             let chunks = total.div_ceil(chunk);
-            let lane_len = cells * group.len() * moments;
+            let lane_len = (cells + skin_cells) * group.len() * moments;
             let lanes = accumulator_lanes(lane_len).min(chunks.max(1));
             // Each lane traces a fixed, interleaved set of photon chunks into its own
             // accumulator, and the lanes are summed in order: the result does not depend on
@@ -415,6 +425,19 @@ impl MsField {
                         }
                     }
                 });
+            skin_data
+                .par_chunks_mut(n_l * moments)
+                .enumerate()
+                .for_each(|(s, cell)| {
+                    for p in &partial {
+                        for (gi, &l) in group.iter().enumerate() {
+                            for m in 0..moments {
+                                cell[l * moments + m] +=
+                                    p[((cells + s) * ng + gi) * moments + m] as f32;
+                            }
+                        }
+                    }
+                });
             partial.into_iter().for_each(super::pages::give_back);
         }
         Ok(Self {
@@ -430,6 +453,9 @@ impl MsField {
             extinction_scale: truncation.iter().map(|t| t.extinction_scale).collect(),
             albedo_scaled: truncation.iter().map(|t| t.albedo_scaled).collect(),
             rho: coarse.rho,
+            skin: coarse
+                .skin
+                .map(|sk| SkinField::new(sk, skin_data, skin_depth)),
             angular_order: order,
             moments,
         })
@@ -986,6 +1012,9 @@ fn fly(
                     *a += ws * y;
                 }
             }
+            if let Some(sk) = &g.skin {
+                sk.score(c, g.rho.len(), ph.pos + d * t, d, used, w, acc, ylm);
+            }
         }
         if hit {
             ph.pos += d * (t + used);
@@ -1002,6 +1031,27 @@ fn fly(
         }
         t_next[a] += t_delta[a];
     }
+}
+
+/// The skins of the coarse grid's optically thick cells (see [`SkinField`]), at the lowest
+/// scaled extinction of the wavelengths: sets `coarse.skin` and returns the number of skin
+/// cells and the skin's depth per wavelength in scaled optical depths.
+fn skin_setup(
+    coarse: &mut Coarse,
+    grid: &DensityGrid,
+    optics: &Optics,
+    truncation: &[Truncation],
+) -> (usize, Vec<f64>) {
+    let k: Vec<f64> = optics
+        .extinction_per_density_m
+        .iter()
+        .zip(truncation)
+        .map(|(k, t)| k * t.extinction_scale)
+        .collect();
+    let k_min = k.iter().copied().fold(f64::INFINITY, f64::min);
+    coarse.skin = skin::Skin::new(coarse, k_min, grid.voxel_size_m, super::march::THICK_STEP);
+    let n = coarse.skin.as_ref().map_or(0, skin::Skin::len);
+    (n, k.iter().map(|k| SKIN_TAU * k / k_min).collect())
 }
 
 /// Cells ahead of a scoring track whose accumulators [`fly`] fetches.
