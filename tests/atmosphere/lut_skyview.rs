@@ -535,3 +535,189 @@ fn skyview_the_earth_shadow_rising_at_low_altitude() {
     assert!(worst > 0.0, "no sample");
     assert!(worst < measured * 1.12, "{worst} {case}");
 }
+
+/// Diagnostic (temporary): the worst aloft twilight samples' error decomposed by axis.
+#[test]
+#[ignore = "diagnostic"]
+fn skyview_diag() {
+    use skybake_lut::skyview::{
+        altitude_coord, altitude_node_m, azimuth_coord, azimuth_node, exact_stored, segment_rows,
+        sun_coord, sun_node_deg, sun_shift, sun_unwarp, sun_warp, view_coord, view_node,
+        view_theta, warp_strength, Stencil, N_ALT, N_AZ, N_SUN,
+    };
+    type Pair = (Vec<f64>, Vec<f64>);
+    let f = fixture();
+    let reader = SkyViewReader::new(&f.bundle);
+    let shared = f
+        .engine
+        .shared_unless(&f.request.spec, &|| false)
+        .unwrap();
+    let steps = f.request.spec.quality.steps();
+    let p = &f.bundle.params;
+    let bottom = p.bottom_radius;
+    let thickness = p.top_radius - bottom;
+    let phase_m = f.bundle.aerosol_phase;
+    let ch = &f.bundle.channels;
+    let min_alt: f64 = std::env::var("DIAG_MIN_ALT").ok().map_or(20_000.0, |v| v.parse().unwrap());
+    let mut rows = Vec::new();
+    for s in samples(f) {
+        if s.altitude_m < min_alt || s.sun_deg >= 5.0 {
+            continue;
+        }
+        let (radiance, _) = reader.sky_radiance(
+            [0.0, 0.0, bottom + s.altitude_m],
+            view_dir(s.view_zenith_deg, s.view_azimuth_deg),
+            sun_dir(s.sun_deg),
+        );
+        let e = (0..3)
+            .map(|c| rel(radiance[c] / UNIT_SCALE, s.radiance[c]))
+            .fold(0.0, f64::max);
+        let target = if s.sun_deg < -6.0 { 0.1 } else { 0.03 };
+        if e > target * 0.5 {
+            rows.push((e / target, e, s, radiance));
+        }
+    }
+    rows.sort_by(|a, b| b.0.partial_cmp(&a.0).unwrap());
+    let mix = |st: &Stencil, vals: &[Pair]| -> Pair {
+        let g = |part: usize, c: usize| {
+            let v: Vec<f64> = vals
+                .iter()
+                .map(|x| if part == 0 { x.0[c] } else { x.1[c] })
+                .collect();
+            st.mix(&v)
+        };
+        (
+            (0..3).map(|c| g(0, c)).collect(),
+            (0..3).map(|c| g(1, c)).collect(),
+        )
+    };
+    for (_, e, s, got) in rows.iter().take(40) {
+        let r = bottom + s.altitude_m;
+        let theta = s.view_zenith_deg.to_radians();
+        let phi = s.view_azimuth_deg.to_radians();
+        let (seg, row) = view_coord(theta, r, bottom);
+        let shift = sun_shift(r, theta, phi.cos(), bottom, seg == 1).to_degrees();
+        let sc = s.sun_deg + shift;
+        let b = warp_strength(s.altitude_m, thickness);
+        let t = sun_unwarp(sc, b).clamp(-23.0, 104.0);
+        let nu = {
+            let v = view_dir(s.view_zenith_deg, s.view_azimuth_deg);
+            let u = sun_dir(s.sun_deg);
+            v[0] * u[0] + v[1] * u[1] + v[2] * u[2]
+        };
+        let pr = skybake_lut::param::rayleigh_phase(nu);
+        let pm = phase_m.eval(nu);
+        let d = skyview::ray_length(r, theta.cos(), bottom, p.top_radius, false);
+        let radiance = |v: &Pair| -> Vec<f64> {
+            (0..3)
+                .map(|c| (v.0[c] * pr + v.1[c] * pm) * d / UNIT_SCALE)
+                .collect()
+        };
+        let exact = exact_stored(&shared, ch, steps, r, theta, &[(sc, phi)])
+            .unwrap()
+            .remove(0);
+        let l_exact = radiance(&exact);
+        let err = |v: &Pair| {
+            let l = radiance(v);
+            (0..3)
+                .map(|c| l[c] / l_exact[c] - 1.0)
+                .fold(0.0f64, |a, x| if x.abs() > a.abs() { x } else { a })
+        };
+        let ya = altitude_coord(s.altitude_m, thickness);
+        let sa = Stencil::new(ya, 0, N_ALT - 1, |k| k as f64, ya);
+        let ss = Stencil::new(sun_coord(t), 0, N_SUN - 1, sun_node_deg, t);
+        let (lo, hi) = segment_rows(seg);
+        let sv = Stencil::new(row, lo, hi, |i| i as f64, row);
+        let col = azimuth_coord(phi);
+        let sca = Stencil::new(col, 0, N_AZ - 1, |a| a as f64, col);
+        // Altitude axis.
+        let vals: Vec<Pair> = (sa.first..sa.first + sa.len)
+            .map(|k| {
+                let hk = altitude_node_m(k, thickness);
+                let rk = bottom + hk;
+                let (th, _) = view_theta(seg, row, rk, bottom);
+                let sk = sun_warp(t, warp_strength(hk, thickness));
+                exact_stored(&shared, ch, steps, rk, th, &[(sk, phi)])
+                    .unwrap()
+                    .remove(0)
+            })
+            .collect();
+        let e_alt = err(&mix(&sa, &vals));
+        // Sun axis.
+        let suns: Vec<(f64, f64)> = (ss.first..ss.first + ss.len)
+            .map(|j| (sun_warp(sun_node_deg(j), b), phi))
+            .collect();
+        let vals = exact_stored(&shared, ch, steps, r, theta, &suns).unwrap();
+        let e_sun = err(&mix(&ss, &vals));
+        let sun_vals: Vec<f64> = vals.iter().map(|v| radiance(v)[0]).collect();
+        // Row axis.
+        let vals: Vec<Pair> = (sv.first..sv.first + sv.len)
+            .map(|i| {
+                let (th, _) = view_theta(seg, i as f64, r, bottom);
+                exact_stored(&shared, ch, steps, r, th, &[(sc, phi)])
+                    .unwrap()
+                    .remove(0)
+            })
+            .collect();
+        let e_row = err(&mix(&sv, &vals));
+        // Column axis.
+        let suns: Vec<(f64, f64)> = (sca.first..sca.first + sca.len)
+            .map(|a| (sc, azimuth_node(a)))
+            .collect();
+        let vals = exact_stored(&shared, ch, steps, r, theta, &suns).unwrap();
+        let e_col = err(&mix(&sca, &vals));
+        // All four axes on exact node values (the reader without half floats).
+        let mut by_alt = Vec::new();
+        for k in sa.first..sa.first + sa.len {
+            let hk = altitude_node_m(k, thickness);
+            let bk = warp_strength(hk, thickness);
+            let mut by_sun: Vec<Vec<Pair>> = vec![Vec::new(); ss.len];
+            let mut by_row_sun: Vec<Vec<Pair>> = vec![Vec::new(); ss.len];
+            for i in sv.first..sv.first + sv.len {
+                let rk = skyview::eval_radius(k, i, bottom, thickness);
+                let (th, _) = view_node(i, rk, bottom);
+                let suns: Vec<(f64, f64)> = (ss.first..ss.first + ss.len)
+                    .flat_map(|j| {
+                        let sj = sun_warp(sun_node_deg(j), bk);
+                        (sca.first..sca.first + sca.len).map(move |a| (sj, azimuth_node(a)))
+                    })
+                    .collect();
+                let vals = exact_stored(&shared, ch, steps, rk, th, &suns).unwrap();
+                for js in 0..ss.len {
+                    by_row_sun[js].push(mix(&sca, &vals[js * sca.len..(js + 1) * sca.len]));
+                }
+            }
+            for js in 0..ss.len {
+                by_sun[js] = vec![mix(&sv, &by_row_sun[js])];
+            }
+            let flat: Vec<Pair> = by_sun.into_iter().map(|mut v| v.remove(0)).collect();
+            by_alt.push(mix(&ss, &flat));
+        }
+        let e_all = err(&mix(&sa, &by_alt));
+        let g: Vec<f64> = got.iter().map(|x| x / UNIT_SCALE).collect();
+        let e_read_exact = (0..3)
+            .map(|c| g[c] / l_exact[c] - 1.0)
+            .fold(0.0f64, |a, x| if x.abs() > a.abs() { x } else { a });
+        let e_ex = (0..3)
+            .map(|c| rel(l_exact[c], s.radiance[c]))
+            .fold(0.0, f64::max);
+        eprintln!(
+            "DIAG {:>7.2}% alt {:>6.0} sun {:>6.2} zen {:>6.2} el-above-hor {:>5.2} az {:>6.1} seg {seg} row {row:>5.2} sc {sc:>6.2} t {t:>6.2} L_B {:.2e} | exact-vs-product {:.2}% reader-vs-exact {:+.2}% all4-exact-nodes {:+.2}% alt {:+.2}% sun {:+.2}% row {:+.2}% col {:+.2}% | sun-node L_R {:?}",
+            e * 100.0,
+            s.altitude_m,
+            s.sun_deg,
+            s.view_zenith_deg,
+            90.0 - s.view_zenith_deg + (bottom / r).acos().to_degrees(),
+            s.view_azimuth_deg,
+            s.radiance[2],
+            e_ex * 100.0,
+            e_read_exact * 100.0,
+            e_all * 100.0,
+            e_alt * 100.0,
+            e_sun * 100.0,
+            e_row * 100.0,
+            e_col * 100.0,
+            sun_vals.iter().map(|v| format!("{v:.2e}")).collect::<Vec<_>>()
+        );
+    }
+}
