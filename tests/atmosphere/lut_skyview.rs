@@ -155,11 +155,12 @@ fn skyview_sky_radiance_matches_the_sky_product() {
     bands.print("skyview sky");
     by_altitude.print("skyview sky by altitude");
     let bands = by_altitude;
-    // Measured on 2026-12-05 (earth, standard, RGB; layout version 3: the limb rows at
-    // y = 2x² − x³, the sun nodes warped towards sunset aloft, 22 sky rows). Where the issue's
-    // target is met it is asserted, and the measured bound + ~12 % (the tighter); where it is
-    // not (the twilight limb aloft, −6…5° and −12…−6° from 20–100 km: docs/lut.md), the
-    // measured bound + ~12 %.
+    // Measured on 2026-12-05 (earth, standard, RGB; layout version 4: the limb rows at
+    // y = 2x² − x³, the sun nodes warped towards sunset aloft, 22 sky rows, the slices' largest
+    // texel stored as 2¹⁵). Where the target is met it is asserted, and the measured
+    // bound + ~12 % (the tighter); where it is not (the twilight sky and limb aloft, −6…5° and
+    // −12…−6° from 20–100 km: 8.9 % and 109 %, targets 3 % and 10 %, not met: docs/lut.md),
+    // the measured bound + ~12 %.
     for (band, measured, target) in [
         (
             "sun >= 5, view > 10 deg above horizon (target 1 %), ground",
@@ -173,7 +174,7 @@ fn skyview_sky_radiance_matches_the_sky_product() {
         ),
         (
             "sun >= 5, view > 10 deg above horizon (target 1 %), 20-100 km",
-            0.00718,
+            0.00726,
             Some(0.01),
         ),
         (
@@ -196,7 +197,7 @@ fn skyview_sky_radiance_matches_the_sky_product() {
         ("sun -6..5 (target 3 %), 20-100 km", 0.0887, None),
         ("sun -12..-6 (target 10 %), ground", 0.0342, Some(0.10)),
         ("sun -12..-6 (target 10 %), 0-20 km", 0.0315, Some(0.10)),
-        ("sun -12..-6 (target 10 %), 20-100 km", 1.111, None),
+        ("sun -12..-6 (target 10 %), 20-100 km", 1.0853, None),
     ] {
         let bound = target.map_or(measured * 1.12, |t: f64| t.min(measured * 1.12));
         assert!(bands.get(band) > 0.0, "no sample in {band}");
@@ -284,14 +285,8 @@ fn skyview_nodes_equal_the_sky_product() {
         }
         let product = sky_probes(f, altitude, sun_deg, &probes);
         let idx = channel_index(f, &product.table.wavelengths_nm);
-        // Half floats hold a slice's values to 2^-11 relative down to 2^-14 of its largest
-        // value: deviations are relative to the radiance or 10^-3 of the case's largest.
-        let floor = 1e-3
-            * product
-                .probes
-                .iter()
-                .flat_map(|p| idx.iter().map(|&i| p.radiance_w_m2_sr_nm[i]))
-                .fold(0.0f64, f64::max);
+        // Half floats hold a slice's values to 2^-11 relative down to 2^-29 of its largest
+        // value (`skyview::SLICE_PEAK`): deviations are relative to the radiance itself.
         for p in &product.probes {
             let (radiance, _) = reader.sky_radiance(
                 [0.0, 0.0, bottom + altitude],
@@ -301,7 +296,7 @@ fn skyview_nodes_equal_the_sky_product() {
             for (c, &i) in idx.iter().enumerate() {
                 let want = p.radiance_w_m2_sr_nm[i];
                 if want > 0.0 {
-                    let e = (radiance[c] / UNIT_SCALE - want).abs() / want.max(floor);
+                    let e = rel(radiance[c] / UNIT_SCALE, want);
                     assert!(
                         e < 2e-3,
                         "alt {altitude} m, sun {sun_deg}, view {:.3}/{:.3}: {} vs {want}",
@@ -315,6 +310,76 @@ fn skyview_nodes_equal_the_sky_product() {
         }
     }
     eprintln!("skyview nodes: largest relative deviation from the sky product {worst:.2e}");
+}
+
+/// The dim slices keep half floats' relative precision: aloft in deep twilight (sun −12…−6°,
+/// 60–93 km) the sky away from the lit limb is 10⁻⁶…10⁻⁷ of its slice's largest value. At
+/// nodes of those slices (every other sky row, 5 azimuths), the reader equals the `sky` product
+/// to 2·10⁻³ relative to the radiance itself (no floor). Measured (2026-12-05, standard):
+/// 4.6·10⁻⁴ with the slices' largest texel stored as 2¹⁵ ([`skyview::SLICE_PEAK`]); with it
+/// stored as 1 (version 3: the values below 2⁻¹⁴ of the largest are subnormal), 19.5 %
+/// (85.7 km, sun −11.6°, zenith 65°, antisolar: 6.8·10⁻¹¹ W m⁻² sr⁻¹ nm⁻¹).
+#[test]
+#[ignore = "builds a bundle (about 10 s of CPU): run with --ignored lut_skyview::"]
+fn skyview_dim_twilight_slices_keep_half_precision() {
+    let f = fixture();
+    let reader = SkyViewReader::new(&f.bundle);
+    let bottom = f.bundle.params.bottom_radius;
+    let thickness = f.bundle.params.top_radius - bottom;
+    let mut worst = (0.0f64, String::new());
+    for k in [20, 23, 25] {
+        let altitude = skyview::altitude_node_m(k, thickness);
+        let r = bottom + altitude;
+        let shift = skyview::dip(r, bottom).to_degrees();
+        let b = skyview::warp_strength(altitude, thickness);
+        // Two sun nodes with the sun's elevation in −12…−6° (above the horizontal the sun
+        // coordinate is the elevation + the horizon's dip at every azimuth).
+        let suns: Vec<f64> = (0..skyview::N_SUN)
+            .map(|j| skyview::sun_warp(skyview::sun_node_deg(j), b) - shift)
+            .filter(|e| (-12.0..=-6.0).contains(e))
+            .collect();
+        assert!(suns.len() >= 2, "altitude node {k}: {suns:?}");
+        for sun_deg in [suns[0], suns[suns.len() - 1]] {
+            let probes: Vec<(f64, f64)> = (0..skyview::N_VIEW_SKY - 1)
+                .step_by(2)
+                .flat_map(|i| {
+                    let theta = skyview::view_node(i, r, bottom).0.to_degrees();
+                    [0, 5, 10, 15, skyview::N_AZ - 1]
+                        .map(|a| (theta, skyview::azimuth_node(a).to_degrees()))
+                })
+                .collect();
+            let product = sky_probes(f, altitude, sun_deg, &probes);
+            let idx = channel_index(f, &product.table.wavelengths_nm);
+            for p in &product.probes {
+                let (radiance, _) = reader.sky_radiance(
+                    [0.0, 0.0, r],
+                    view_dir(p.view_zenith_deg, p.view_azimuth_deg),
+                    sun_dir(sun_deg),
+                );
+                for (c, &i) in idx.iter().enumerate() {
+                    let want = p.radiance_w_m2_sr_nm[i];
+                    assert!(want > 0.0, "no light at {altitude} m, sun {sun_deg}");
+                    let e = rel(radiance[c] / UNIT_SCALE, want);
+                    if e > worst.0 {
+                        worst = (
+                            e,
+                            format!(
+                                "alt {altitude:.0} m, sun {sun_deg:.2}, view {:.2}/{:.2}, channel {c}: {:.4e} vs {want:.4e}",
+                                p.view_zenith_deg,
+                                p.view_azimuth_deg,
+                                radiance[c] / UNIT_SCALE
+                            ),
+                        );
+                    }
+                }
+            }
+        }
+    }
+    eprintln!(
+        "skyview dim twilight nodes: largest relative deviation {:.2e} ({})",
+        worst.0, worst.1
+    );
+    assert!(worst.0 < 2e-3, "{}", worst.1);
 }
 
 #[test]
@@ -545,6 +610,7 @@ fn skyview_diag() {
         sun_coord, sun_node_deg, sun_shift, sun_unwarp, sun_warp, view_coord, view_node,
         view_theta, warp_strength, Stencil, N_ALT, N_AZ, N_SUN,
     };
+    use std::f64::consts::PI;
     type Pair = (Vec<f64>, Vec<f64>);
     let f = fixture();
     let reader = SkyViewReader::new(&f.bundle);
@@ -578,6 +644,13 @@ fn skyview_diag() {
         }
     }
     rows.sort_by(|a, b| b.0.partial_cmp(&a.0).unwrap());
+    for (band, lo, hi, target) in [("-6..5", -6.0, 5.0, 0.03), ("-12..-6", -12.0, -6.0, 0.1)] {
+        let n = rows
+            .iter()
+            .filter(|r| r.2.sun_deg >= lo && r.2.sun_deg < hi && r.1 > target)
+            .count();
+        eprintln!("DIAGCOUNT {band} from {min_alt} m: {n} samples over {target}");
+    }
     let mix = |st: &Stencil, vals: &[Pair]| -> Pair {
         let g = |part: usize, c: usize| {
             let v: Vec<f64> = vals
@@ -694,6 +767,66 @@ fn skyview_diag() {
             by_alt.push(mix(&ss, &flat));
         }
         let e_all = err(&mix(&sa, &by_alt));
+        // Refinement study: each axis alone with its node spacing divided by f (f = 2, 3).
+        let mut refine = String::new();
+        for f_ in [2usize, 3] {
+            let ff = f_ as f64;
+            // Altitude.
+            let yq = ya * ff;
+            let st = Stencil::new(yq, 0, (N_ALT - 1) * f_, |k| k as f64, yq);
+            let vals: Vec<Pair> = (st.first..st.first + st.len)
+                .map(|k| {
+                    let x = k as f64 / ff / (N_ALT - 1) as f64;
+                    let hk = (thickness * x * x).min(thickness - 10.0);
+                    let rk = bottom + hk;
+                    let (th, _) = view_theta(seg, row, rk, bottom);
+                    let sk = sun_warp(t, warp_strength(hk, thickness));
+                    exact_stored(&shared, ch, steps, rk, th, &[(sk, phi)])
+                        .unwrap()
+                        .remove(0)
+                })
+                .collect();
+            let e_a = err(&mix(&st, &vals));
+            // Sun: uniform t nodes 0.5 / f apart around t.
+            let step = 0.5 / ff;
+            let yq = (t + 23.0) / step;
+            let st = Stencil::new(yq, 0, (127.0 / step) as usize, |j| j as f64, yq);
+            let suns: Vec<(f64, f64)> = (st.first..st.first + st.len)
+                .map(|j| (sun_warp(-23.0 + j as f64 * step, b), phi))
+                .collect();
+            let vals = exact_stored(&shared, ch, steps, r, theta, &suns).unwrap();
+            let e_s = err(&mix(&st, &vals));
+            // Rows (within the segment).
+            let yq = (row - lo as f64) * ff;
+            let st = Stencil::new(yq, 0, (hi - lo) * f_, |i| i as f64, yq);
+            let vals: Vec<Pair> = (st.first..st.first + st.len)
+                .map(|i| {
+                    let (th, _) = view_theta(seg, lo as f64 + i as f64 / ff, r, bottom);
+                    exact_stored(&shared, ch, steps, r, th, &[(sc, phi)])
+                        .unwrap()
+                        .remove(0)
+                })
+                .collect();
+            let e_r = err(&mix(&st, &vals));
+            // Columns.
+            let yq = col * ff;
+            let st = Stencil::new(yq, 0, (N_AZ - 1) * f_, |a| a as f64, yq);
+            let suns: Vec<(f64, f64)> = (st.first..st.first + st.len)
+                .map(|a| {
+                    let x = a as f64 / ff / (N_AZ - 1) as f64;
+                    (sc, PI * x * x)
+                })
+                .collect();
+            let vals = exact_stored(&shared, ch, steps, r, theta, &suns).unwrap();
+            let e_c = err(&mix(&st, &vals));
+            refine += &format!(
+                " | x{f_}: alt {:+.2}% sun {:+.2}% row {:+.2}% col {:+.2}%",
+                e_a * 100.0,
+                e_s * 100.0,
+                e_r * 100.0,
+                e_c * 100.0
+            );
+        }
         let g: Vec<f64> = got.iter().map(|x| x / UNIT_SCALE).collect();
         let e_read_exact = (0..3)
             .map(|c| g[c] / l_exact[c] - 1.0)
@@ -702,7 +835,7 @@ fn skyview_diag() {
             .map(|c| rel(l_exact[c], s.radiance[c]))
             .fold(0.0, f64::max);
         eprintln!(
-            "DIAG {:>7.2}% alt {:>6.0} sun {:>6.2} zen {:>6.2} el-above-hor {:>5.2} az {:>6.1} seg {seg} row {row:>5.2} sc {sc:>6.2} t {t:>6.2} L_B {:.2e} | exact-vs-product {:.2}% reader-vs-exact {:+.2}% all4-exact-nodes {:+.2}% alt {:+.2}% sun {:+.2}% row {:+.2}% col {:+.2}% | sun-node L_R {:?}",
+            "DIAG {:>7.2}% alt {:>6.0} sun {:>6.2} zen {:>6.2} el-above-hor {:>5.2} az {:>6.1} seg {seg} row {row:>5.2} sc {sc:>6.2} t {t:>6.2} L_B {:.2e} | exact-vs-product {:.2}% reader-vs-exact {:+.2}% all4-exact-nodes {:+.2}% alt {:+.2}% sun {:+.2}% row {:+.2}% col {:+.2}% | sun-node L_R {:?}{refine}",
             e * 100.0,
             s.altitude_m,
             s.sun_deg,
