@@ -349,69 +349,6 @@ pub fn ray_length(r: f64, mu: f64, bottom: f64, top: f64, ground: bool) -> f64 {
     }
 }
 
-/// Diagnostic (temporary): the values the bundle stores (Rayleigh-like, Mie, per channel, per
-/// metre of ray, before the slice's scale and half-float rounding) for the ray from radius `r`
-/// at view zenith `theta` and each (sun coordinate s in degrees, azimuth from the sun in rad),
-/// computed exactly as the build computes a texel.
-#[doc(hidden)]
-pub fn exact_stored(
-    shared: &SharedTables,
-    channels: &Channels,
-    steps: usize,
-    r: f64,
-    theta: f64,
-    suns: &[(f64, f64)],
-) -> crate::Result<Vec<(Vec<f64>, Vec<f64>)>> {
-    let m = &shared.medium;
-    let (idx, params) = channel_setup(m, channels)?;
-    let e0 = params.solar_irradiance.clone();
-    let bottom = params.bottom_radius;
-    let top = params.top_radius;
-    let r = r.clamp(bottom, top - EVAL_OFFSET_M);
-    let (seg, _) = view_coord(theta, r, bottom);
-    let ground = seg == 2;
-    let r = if ground { r.max(bottom + EVAL_OFFSET_M) } else { r };
-    let mu_h = horizon_mu(r, bottom);
-    let mu = if ground {
-        (theta.cos().min(mu_h) - 1e-9).max(-1.0)
-    } else {
-        theta.cos().max(mu_h + 1e-9).min(1.0)
-    };
-    let sin_t = (1.0 - mu * mu).max(0.0).sqrt();
-    let d = ray_length(r, mu, bottom, top, ground);
-    let mut scratch = FamilyScratch::new(shared, m.len());
-    scratch.prepare(r, mu, steps);
-    let mut nus = Vec::new();
-    for &(s, phi) in suns {
-        let shift = sun_shift(r, theta, phi.cos(), bottom, seg == 1);
-        let mu_s = (s.to_radians() - shift).sin();
-        let sin_s = (1.0 - mu_s * mu_s).max(0.0).sqrt();
-        let nu = (mu * mu_s + sin_t * sin_s * phi.cos()).clamp(-1.0, 1.0);
-        scratch.push_sun(mu_s, nu);
-        nus.push(nu);
-    }
-    scratch.integrate();
-    Ok(nus
-        .iter()
-        .enumerate()
-        .map(|(t, &nu)| {
-            let p_r = param::rayleigh_phase(nu);
-            let x = scratch.texel(t);
-            let ray: Vec<f64> = idx
-                .iter()
-                .enumerate()
-                .map(|(c, &l)| (x.rayleigh[l] + x.multiple[l] / p_r) * e0[c] / d)
-                .collect();
-            let mie: Vec<f64> = idx
-                .iter()
-                .enumerate()
-                .map(|(c, &l)| x.mie[l] * e0[c] / d)
-                .collect();
-            (ray, mie)
-        })
-        .collect())
-}
-
 /// The computed `skyview` bundle.
 #[derive(Debug, Clone)]
 pub struct SkyViewBundle {
