@@ -313,7 +313,7 @@ fn skyview_nodes_equal_the_sky_product() {
 }
 
 /// The dim slices keep half floats' relative precision: aloft in deep twilight (sun −12…−6°,
-/// 60–93 km) the sky away from the lit limb is 10⁻⁶…10⁻⁷ of its slice's largest value. At
+/// 55–86 km) the sky away from the lit limb is 10⁻⁶…10⁻⁸ of its slice's largest value. At
 /// nodes of those slices (every other sky row, 5 azimuths), the reader equals the `sky` product
 /// to 2·10⁻³ relative to the radiance itself (no floor). Measured (2026-12-05, standard):
 /// 4.6·10⁻⁴ with the slices' largest texel stored as 2¹⁵ ([`skyview::SLICE_PEAK`]); with it
