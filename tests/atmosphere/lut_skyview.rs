@@ -155,11 +155,12 @@ fn skyview_sky_radiance_matches_the_sky_product() {
     bands.print("skyview sky");
     by_altitude.print("skyview sky by altitude");
     let bands = by_altitude;
-    // Measured on 2026-12-05 (earth, standard, RGB; layout version 3: the limb rows at
-    // y = 2x² − x³, the sun nodes warped towards sunset aloft, 22 sky rows). Where the issue's
-    // target is met it is asserted, and the measured bound + ~12 % (the tighter); where it is
-    // not (the twilight limb aloft, −6…5° and −12…−6° from 20–100 km: docs/lut.md), the
-    // measured bound + ~12 %.
+    // Measured on 2026-12-05 (earth, standard, RGB; layout version 4: the limb rows at
+    // y = 2x² − x³, the sun nodes warped towards sunset aloft, 22 sky rows, the slices' largest
+    // texel stored as 2¹⁵). Where the target is met it is asserted, and the measured
+    // bound + ~12 % (the tighter); where it is not (the twilight sky and limb aloft, −6…5° and
+    // −12…−6° from 20–100 km: 8.9 % and 109 %, targets 3 % and 10 %, not met: docs/lut.md),
+    // the measured bound + ~12 %.
     for (band, measured, target) in [
         (
             "sun >= 5, view > 10 deg above horizon (target 1 %), ground",
@@ -173,7 +174,7 @@ fn skyview_sky_radiance_matches_the_sky_product() {
         ),
         (
             "sun >= 5, view > 10 deg above horizon (target 1 %), 20-100 km",
-            0.00718,
+            0.00726,
             Some(0.01),
         ),
         (
@@ -196,7 +197,7 @@ fn skyview_sky_radiance_matches_the_sky_product() {
         ("sun -6..5 (target 3 %), 20-100 km", 0.0887, None),
         ("sun -12..-6 (target 10 %), ground", 0.0342, Some(0.10)),
         ("sun -12..-6 (target 10 %), 0-20 km", 0.0315, Some(0.10)),
-        ("sun -12..-6 (target 10 %), 20-100 km", 1.111, None),
+        ("sun -12..-6 (target 10 %), 20-100 km", 1.0853, None),
     ] {
         let bound = target.map_or(measured * 1.12, |t: f64| t.min(measured * 1.12));
         assert!(bands.get(band) > 0.0, "no sample in {band}");
@@ -284,14 +285,8 @@ fn skyview_nodes_equal_the_sky_product() {
         }
         let product = sky_probes(f, altitude, sun_deg, &probes);
         let idx = channel_index(f, &product.table.wavelengths_nm);
-        // Half floats hold a slice's values to 2^-11 relative down to 2^-14 of its largest
-        // value: deviations are relative to the radiance or 10^-3 of the case's largest.
-        let floor = 1e-3
-            * product
-                .probes
-                .iter()
-                .flat_map(|p| idx.iter().map(|&i| p.radiance_w_m2_sr_nm[i]))
-                .fold(0.0f64, f64::max);
+        // Half floats hold a slice's values to 2^-11 relative down to 2^-29 of its largest
+        // value (`skyview::SLICE_PEAK`): deviations are relative to the radiance itself.
         for p in &product.probes {
             let (radiance, _) = reader.sky_radiance(
                 [0.0, 0.0, bottom + altitude],
@@ -301,7 +296,7 @@ fn skyview_nodes_equal_the_sky_product() {
             for (c, &i) in idx.iter().enumerate() {
                 let want = p.radiance_w_m2_sr_nm[i];
                 if want > 0.0 {
-                    let e = (radiance[c] / UNIT_SCALE - want).abs() / want.max(floor);
+                    let e = rel(radiance[c] / UNIT_SCALE, want);
                     assert!(
                         e < 2e-3,
                         "alt {altitude} m, sun {sun_deg}, view {:.3}/{:.3}: {} vs {want}",
@@ -315,6 +310,76 @@ fn skyview_nodes_equal_the_sky_product() {
         }
     }
     eprintln!("skyview nodes: largest relative deviation from the sky product {worst:.2e}");
+}
+
+/// The dim slices keep half floats' relative precision: aloft in deep twilight (sun −12…−6°,
+/// 55–86 km) the sky away from the lit limb is 10⁻⁶…10⁻⁸ of its slice's largest value. At
+/// nodes of those slices (every other sky row, 5 azimuths), the reader equals the `sky` product
+/// to 2·10⁻³ relative to the radiance itself (no floor). Measured (2026-12-05, standard):
+/// 4.6·10⁻⁴ with the slices' largest texel stored as 2¹⁵ ([`skyview::SLICE_PEAK`]); with it
+/// stored as 1 (version 3: the values below 2⁻¹⁴ of the largest are subnormal), 19.5 %
+/// (85.7 km, sun −11.6°, zenith 65°, antisolar: 6.8·10⁻¹¹ W m⁻² sr⁻¹ nm⁻¹).
+#[test]
+#[ignore = "builds a bundle (about 10 s of CPU): run with --ignored lut_skyview::"]
+fn skyview_dim_twilight_slices_keep_half_precision() {
+    let f = fixture();
+    let reader = SkyViewReader::new(&f.bundle);
+    let bottom = f.bundle.params.bottom_radius;
+    let thickness = f.bundle.params.top_radius - bottom;
+    let mut worst = (0.0f64, String::new());
+    for k in [20, 23, 25] {
+        let altitude = skyview::altitude_node_m(k, thickness);
+        let r = bottom + altitude;
+        let shift = skyview::dip(r, bottom).to_degrees();
+        let b = skyview::warp_strength(altitude, thickness);
+        // Two sun nodes with the sun's elevation in −12…−6° (above the horizontal the sun
+        // coordinate is the elevation + the horizon's dip at every azimuth).
+        let suns: Vec<f64> = (0..skyview::N_SUN)
+            .map(|j| skyview::sun_warp(skyview::sun_node_deg(j), b) - shift)
+            .filter(|e| (-12.0..=-6.0).contains(e))
+            .collect();
+        assert!(suns.len() >= 2, "altitude node {k}: {suns:?}");
+        for sun_deg in [suns[0], suns[suns.len() - 1]] {
+            let probes: Vec<(f64, f64)> = (0..skyview::N_VIEW_SKY - 1)
+                .step_by(2)
+                .flat_map(|i| {
+                    let theta = skyview::view_node(i, r, bottom).0.to_degrees();
+                    [0, 5, 10, 15, skyview::N_AZ - 1]
+                        .map(|a| (theta, skyview::azimuth_node(a).to_degrees()))
+                })
+                .collect();
+            let product = sky_probes(f, altitude, sun_deg, &probes);
+            let idx = channel_index(f, &product.table.wavelengths_nm);
+            for p in &product.probes {
+                let (radiance, _) = reader.sky_radiance(
+                    [0.0, 0.0, r],
+                    view_dir(p.view_zenith_deg, p.view_azimuth_deg),
+                    sun_dir(sun_deg),
+                );
+                for (c, &i) in idx.iter().enumerate() {
+                    let want = p.radiance_w_m2_sr_nm[i];
+                    assert!(want > 0.0, "no light at {altitude} m, sun {sun_deg}");
+                    let e = rel(radiance[c] / UNIT_SCALE, want);
+                    if e > worst.0 {
+                        worst = (
+                            e,
+                            format!(
+                                "alt {altitude:.0} m, sun {sun_deg:.2}, view {:.2}/{:.2}, channel {c}: {:.4e} vs {want:.4e}",
+                                p.view_zenith_deg,
+                                p.view_azimuth_deg,
+                                radiance[c] / UNIT_SCALE
+                            ),
+                        );
+                    }
+                }
+            }
+        }
+    }
+    eprintln!(
+        "skyview dim twilight nodes: largest relative deviation {:.2e} ({})",
+        worst.0, worst.1
+    );
+    assert!(worst.0 < 2e-3, "{}", worst.1);
 }
 
 #[test]

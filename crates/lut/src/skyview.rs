@@ -55,7 +55,9 @@ pub const LAYOUT: &str = "skyview";
 /// ([`sun_shift`]), sun nodes from −23°, Lagrange interpolation over 4 nodes per axis.
 /// 3: the limb rows at y = 2x² − x³ ([`limb_depth`]), the sun nodes warped towards s = 0
 /// with the altitude ([`sun_warp`]).
-pub const SKYVIEW_VERSION: &str = "3";
+/// 4: a slice's largest texel stored as [`SLICE_PEAK`] (2¹⁵) instead of 1, its scale divided
+/// accordingly (the reader's and the shader's math unchanged).
+pub const SKYVIEW_VERSION: &str = "4";
 
 /// Altitude nodes: h_k = (top − bottom) · (k / (N − 1))².
 pub const N_ALT: usize = 28;
@@ -83,6 +85,15 @@ pub const N_VIEW_LIMB: usize = 16;
 pub const N_VIEW_UP: usize = N_VIEW_SKY + N_VIEW_LIMB;
 pub const N_VIEW_DOWN: usize = 8;
 pub const N_VIEW: usize = N_VIEW_UP + N_VIEW_DOWN;
+/// The value a slice's largest texel is stored as (its scale = that texel's value / this):
+/// 2¹⁵, so a slice spans half floats' whole normal range, 2¹⁵ down to 2⁻¹⁴ (a ratio of
+/// 5·10⁸, every value with 11 significant bits). With the largest texel at 1 (version 3) the
+/// normal range was 2¹⁴ = 1.6·10⁴: aloft in twilight (sun −12…−6°, 60–100 km) the sky away
+/// from the lit limb is 10⁻⁶…10⁻⁸ of its slice's largest value and fell into the subnormals
+/// (at the nodes of those slices the reader erred by up to 19.5 %, now 4.6·10⁻⁴;
+/// tests/atmosphere/lut_skyview.rs, `skyview_dim_twilight_slices_keep_half_precision`).
+pub const SLICE_PEAK: f64 = 32768.0;
+
 /// Azimuth-from-the-sun nodes, φ_a = π (a / (N − 1))².
 pub const N_AZ: usize = 20;
 
@@ -480,7 +491,7 @@ pub fn build_skyview(
                             max = max.max(value(i, a));
                         }
                     }
-                    let sc = if max > 0.0 { max } else { 1.0 };
+                    let sc = if max > 0.0 { max / SLICE_PEAK } else { 1.0 };
                     scale.data[(k * N_SUN + j) * 2 * n_c + part * n_c + c] = sc as f32;
                     let z = k * N_SUN + j;
                     for i in 0..N_VIEW {
@@ -948,7 +959,7 @@ pub const STATED_ERRORS: &[(&str, &str, f64)] = &[
     ("transmittance", "direct normal irradiance (sun product), sun -6..5 deg", 0.004),
     ("rayleigh+mie", "sky radiance (sky product), sun >= 5 deg, view > 10 deg above the horizon, ground", 0.0026),
     ("rayleigh+mie", "sky radiance (sky product), sun >= 5 deg, view > 10 deg above the horizon, 0-20 km", 0.0018),
-    ("rayleigh+mie", "sky radiance (sky product), sun >= 5 deg, view > 10 deg above the horizon, 20-100 km", 0.0072),
+    ("rayleigh+mie", "sky radiance (sky product), sun >= 5 deg, view > 10 deg above the horizon, 20-100 km", 0.0073),
     ("rayleigh+mie", "sky radiance (sky product), sun >= 5 deg, view < 10 deg above the horizon, ground", 0.004),
     ("rayleigh+mie", "sky radiance (sky product), sun >= 5 deg, view < 10 deg above the horizon, 0-20 km", 0.0047),
     ("rayleigh+mie", "sky radiance (sky product), sun >= 5 deg, view < 10 deg above the horizon, 20-100 km", 0.025),
@@ -957,7 +968,7 @@ pub const STATED_ERRORS: &[(&str, &str, f64)] = &[
     ("rayleigh+mie", "sky radiance (sky product), sun -6..5 deg, 20-100 km (the limb across the earth's shadow)", 0.089),
     ("rayleigh+mie", "sky radiance (sky product), sun -12..-6 deg, ground", 0.035),
     ("rayleigh+mie", "sky radiance (sky product), sun -12..-6 deg, 0-20 km", 0.032),
-    ("rayleigh+mie", "sky radiance (sky product), sun -12..-6 deg, 20-100 km (the darkest sky: 5.7e-9 W m-2 sr-1 nm-1, the sky and limb across the earth's shadow)", 1.12),
+    ("rayleigh+mie", "sky radiance (sky product), sun -12..-6 deg, 20-100 km (the darkest sky: 5.7e-9 W m-2 sr-1 nm-1, the sky and limb across the earth's shadow)", 1.09),
     ("irradiance", "diffuse horizontal irradiance (sun product), sun >= 5 deg, 0-100 km", 0.013),
     ("irradiance", "diffuse horizontal irradiance (sun product), sun -12..5 deg, 0-100 km", 0.016),
 ];
