@@ -15,12 +15,14 @@ them; their first smooth collision ends them (n = 0 light only). Printed:
 
 1. the fluence of that light per depth bin over the delta-M scaled direct beam's exp(-(1 - f) z / mu0)
    (bin means): the spread beam's longer paths;
-2. the radiance reflected towards nadir after one smooth scattering (the smooth part
+2. the radiance reflected towards the test's views after one smooth scattering (the smooth part
    min(p, (1 - f) HG(g*)) at the photon's own direction, seen through the scaled extinction
-   exp(-(1 - f) z)): the n <= 1 class of the classed path tracer with the sun's side exact and the
-   view's side as delta-M has it.
+   exp(-(1 - f) z / mu)): light of one smooth scattering with the sun's side exact and the view's
+   side as delta-M has it ("exact"), and the same with every photon advancing along the sun's
+   direction whatever its own ("straight": the Goudsmit & Saunderson picture of the fast
+   method's peak spread, crates/render/src/peak.rs, angles exact, paths straight).
 
-numpy only; about a minute of CPU. Usage: python3 tools/cloud_slab_peak_beam.py
+numpy only; a few minutes of CPU. Usage: python3 tools/cloud_slab_peak_beam.py
 """
 import math
 
@@ -54,40 +56,48 @@ def turn(d, m, rng):
     return t * (sn * np.cos(phi))[:, None] + b * (sn * np.sin(phi))[:, None] + d * m[:, None]
 
 
-def run(tau, mu0, n=200_000, bins=16, seed=1):
+def run(tau, mu0, views, n=200_000, bins=16, seed=1, straight=False):
+    """Fluence ratio by depth bin and the radiance towards each (view zenith, azimuth from the
+    sun's side) of `views` (azimuth 0: the camera on the side the sun's beam travels towards)."""
     rng = np.random.default_rng(seed)
     d = np.zeros((n, 3))
-    d[:, 2] = mu0  # z: depth, positive downwards
+    d[:, 2] = mu0  # z: depth, positive downwards; the beam travels towards +x
     d[:, 0] = math.sqrt(1 - mu0 * mu0)
+    vs = []
+    for vz, raz in views:
+        muv, sv = math.cos(math.radians(vz)), math.sin(math.radians(vz))
+        vs.append((muv, np.array([sv * math.cos(math.radians(raz)), sv * math.sin(math.radians(raz)), -muv])))
     z = np.zeros(n)
     alive = np.ones(n, bool)
     edges = np.linspace(0, tau, bins + 1)
     track = np.zeros(bins)
-    nadir = 0.0
+    rad = np.zeros(len(views))
     ks = 1 - F
     while alive.any():
         idx = np.nonzero(alive)[0]
         s = -np.log(1 - rng.random(idx.size))
         mu = d[idx, 2]
+        adv = np.full(idx.size, mu0) if straight else mu
         z0 = z[idx]
-        z1 = z0 + s * mu
+        z1 = z0 + s * adv
         esc = (z1 < 0) | (z1 > tau)
         z1 = np.clip(z1, 0, tau)
-        am = np.abs(mu) + 1e-12
+        am = np.abs(adv) + 1e-12
         lo, hi = np.minimum(z0, z1), np.maximum(z0, z1)
         for b in range(bins):
             track[b] += (np.clip(np.minimum(hi, edges[b + 1]) - np.maximum(lo, edges[b]), 0, None) / am).sum()
-        # One smooth scattering towards nadir (up: cosine -mu with the photon's direction) along
-        # the track, seen through the scaled extinction exp(-ks z).
-        c = -mu
-        smooth = np.minimum(hg(G, c), (1 - F) * hg(GS, c))
         length = np.abs(z1 - z0) / am
-        a = ks * mu
-        with np.errstate(divide="ignore", invalid="ignore"):
-            integral = np.where(
-                np.abs(a) > 1e-9, np.exp(-ks * z0) * (1 - np.exp(-a * length)) / a, np.exp(-ks * z0) * length
-            )
-        nadir += (smooth * integral).sum()
+        for j, (muv, v) in enumerate(vs):
+            c = d[idx] @ v
+            smooth = np.minimum(hg(G, c), (1 - F) * hg(GS, c))
+            a = ks * adv / muv
+            with np.errstate(divide="ignore", invalid="ignore"):
+                integral = np.where(
+                    np.abs(a) > 1e-9,
+                    np.exp(-ks * z0 / muv) * (1 - np.exp(-a * length)) / a,
+                    np.exp(-ks * z0 / muv) * length,
+                )
+            rad[j] += (smooth * integral).sum() / muv
         z[idx] = z1
         alive[idx[esc]] = False
         idx = idx[~esc]
@@ -102,12 +112,15 @@ def run(tau, mu0, n=200_000, bins=16, seed=1):
     fluence = track / (n * dz) * mu0
     k = ks / mu0
     beam = (np.exp(-k * edges[:-1]) - np.exp(-k * edges[1:])) / (k * dz)
-    return 0.5 * (edges[1:] + edges[:-1]), fluence / beam, nadir / n * mu0
+    return 0.5 * (edges[1:] + edges[:-1]), fluence / beam, rad / n * mu0
 
 
 if __name__ == "__main__":
+    views = [(0, 0), (60, 0), (60, 180), (75, 0), (75, 90), (75, 180)]
     for tau, mu0 in [(1.0, 0.5), (8.0, 0.5), (8.0, 1.0)]:
-        zc, ratio, nadir = run(tau, mu0, bins=8 if tau < 2 else 16)
+        zc, ratio, exact = run(tau, mu0, views, bins=8 if tau < 2 else 16)
+        _, _, straight = run(tau, mu0, views, bins=8, straight=True)
         print(f"tau {tau} mu0 {mu0}: peak-only fluence / scaled beam by depth: "
               + " ".join(f"{a:.2f}:{r:.2f}" for a, r in zip(zc, ratio)))
-        print(f"tau {tau} mu0 {mu0}: n <= 1 radiance towards nadir (sun's side exact, view's side delta-M): {nadir:.5f}")
+        for (vz, raz), e, st in zip(views, exact, straight):
+            print(f"tau {tau} mu0 {mu0} view [{vz} {raz}]: one smooth scattering, exact {e:.5f}, straight {st:.5f}")
