@@ -261,13 +261,16 @@ fn slab_reflection_matches_disort() {
 #[test]
 fn fast_slab_every_angle_against_disort() {
     let grid = std::sync::Arc::new(slab_grid());
-    // Measured worst views (P3 field, thick march steps): τ 1 −19.4 % (75°, towards the sun;
-    // nadir −13.9 %), τ 8 −17.9 % (75°, towards the sun), τ 32 −23.8 % (75°, towards the sun).
-    // With the P2 field and no thick steps: −24.9 %, +22.8 %, −51.9 %. At τ 1 and 8 most of the
-    // error is the TMS single scattering's (`slab_split_by_smooth_scatterings_against_disort`).
+    // Measured worst views (P3 field, thick march steps, the sun's path continued to the grid's
+    // faces): τ 1 −19.0 % (75°, towards the sun; nadir −13.5 %), τ 8 +15.7 % (75°, away from the
+    // sun; towards it −7.6 %), τ 32 −23.8 % (75°, towards the sun). With the sun's path held at
+    // the outermost voxel centres: τ 1 −19.4 %, τ 8 −17.9 % (75° towards). With the P2 field and
+    // no thick steps: −24.9 %, +22.8 %, −51.9 %. What is left at τ 1 and 8: the TMS single
+    // scattering looking towards the sun and the field
+    // (`slab_split_by_smooth_scatterings_against_disort`).
     for (tau, albedo, bound) in [
-        (1.0f64, 1.0f64, 0.23f64),
-        (8.0, 1.0, 0.22),
+        (1.0f64, 1.0f64, 0.22f64),
+        (8.0, 1.0, 0.19),
         (32.0, 1.0, 0.27),
     ] {
         let mu0 = 0.5;
