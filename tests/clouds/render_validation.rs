@@ -262,14 +262,17 @@ fn slab_reflection_matches_disort() {
 fn fast_slab_every_angle_against_disort() {
     let grid = std::sync::Arc::new(slab_grid());
     // Measured worst views (P3 field, thick march steps, the field's skin tallies in thick
-    // cells): τ 1 −19.5 % (75°, towards the sun; nadir −14.1 %), τ 8 −18.0 % (75°, towards the
-    // sun), τ 32 +16.1 % (75°, away from the sun; nadir +0.5 %; −23.8 % towards the sun and
-    // −9.5 % at nadir without the skin tallies). With the P2 field and no thick steps: −24.9 %,
-    // +22.8 %, −51.9 %.
+    // cells, the sun's path continued to the grid's faces, a sun-only frame's whole photon
+    // budget on the sun): τ 1 −19.3 % (75°, towards the sun; nadir −12.4 %), τ 8 +17.8 % (75°,
+    // away from the sun; towards it −9.2 %), τ 32 +14.3 % (75°, away; nadir +1.3 %; the photon
+    // seeds spread it by ±2 points). With the P2 field, no thick steps and no skins: −24.9 %,
+    // +22.8 %, −51.9 %. The target, 5 % at every angle, is not met; what is left at τ 1 and 8:
+    // the TMS single scattering looking towards the sun and the field
+    // (`slab_split_by_smooth_scatterings_against_disort`).
     for (tau, albedo, bound) in [
-        (1.0f64, 1.0f64, 0.23f64),
-        (8.0, 1.0, 0.22),
-        (32.0, 1.0, 0.19),
+        (1.0f64, 1.0f64, 0.22f64),
+        (8.0, 1.0, 0.20),
+        (32.0, 1.0, 0.18),
     ] {
         let mu0 = 0.5;
         let (case, views, azs) = disort_case(tau, albedo, mu0);
@@ -542,4 +545,142 @@ fn block_noise(
         }
     }
     (v / nb as f64).sqrt() / (sr / n as f64)
+}
+
+/// (a) DISORT slab, split by class (a diagnosis of `fast_slab_every_angle_against_disort`): a
+/// path tracer that classes each scattering as within the δ-M truncated peak (probability
+/// r⁺(μ)/p(μ), r⁺ = max(p − (1 − f)·HG(g*), 0), as in `crates/harness/examples/back_probe.rs`) or
+/// smooth splits the reflected radiance by the number n of smooth scatterings on its path: n ≤ 1
+/// is what the fast method's TMS single scattering (with the peak's spread and last scattering)
+/// stands for, n ≥ 2 what its field J* stands for. The classes must add up to DISORT (within 3 %
+/// plus three standard errors of the path tracer); the fast method's two parts are printed
+/// against them (docs/frames.md, "DISORT slab at every listed angle"), τ 1 and 8, view zenith 0,
+/// 60 and 75°.
+#[test]
+fn slab_split_by_smooth_scatterings_against_disort() {
+    use rand::{Rng, SeedableRng};
+    use skybake_physics::phase::Phase;
+    use skybake_render::pathtracer::PathTracer;
+    let grid = slab_grid();
+    let spp = 128usize;
+    let mut checks = Vec::new();
+    for tau in [1.0f64, 8.0] {
+        let (case, views, azs) = disort_case(tau, 1.0, 0.5);
+        for (vi, ai) in [(0usize, 0usize), (2, 0), (2, 2), (3, 0), (3, 1), (3, 2)] {
+            let expected = case["reflected_radiance_per_sr"][vi][ai].as_f64().unwrap();
+            let (vz, raz) = (views[vi], azs[ai]);
+            let scene = slab_scene(
+                tau,
+                1.0,
+                0.5,
+                vz,
+                raz,
+                1600.0 * vz.to_radians().cos(),
+                5000.0,
+                16,
+            );
+            let lt = lighting_for(&scene, &grid, &Engine::new()).unwrap();
+            let (w, h) = (scene.camera.width, scene.camera.height);
+            // The fast method's parts: the whole march, then with the per-voxel sources (the
+            // field J* and the sky light) zeroed, the TMS single scattering alone.
+            let mut fast = Prepared::new(
+                &scene,
+                &grid,
+                &lt,
+                settings(&scene, Method::Fast, 1),
+                &|| false,
+            )
+            .unwrap();
+            let march_mean = |p: &Prepared| -> f64 {
+                let mut sum = 0.0;
+                for i in 0..w * h {
+                    let (x, y) = ((i % w) as f64 + 0.5, (i / w) as f64 + 0.5);
+                    let ray = skybake_render::camera::primary_ray(&scene.camera, x, y).unwrap();
+                    let (mut ia, mut tc) = ([0.0], [0.0]);
+                    p.march(&ray, &mut ia, &mut tc);
+                    sum += ia[0];
+                }
+                sum / (w * h) as f64
+            };
+            let fast_total = march_mean(&fast);
+            let stride = fast.stride;
+            for v in fast.vox.chunks_mut(stride) {
+                v[2..].iter_mut().for_each(|x| *x = 0.0);
+            }
+            let fast_ss = march_mean(&fast);
+            // The classed path tracer (next-event estimation towards the sun at every vertex).
+            let reference = Prepared::new(
+                &scene,
+                &grid,
+                &lt,
+                settings(&scene, Method::Reference, 1),
+                &|| false,
+            )
+            .unwrap();
+            let phase = scene.optics.phase[0];
+            let k = scene.optics.extinction_per_density_m[0];
+            let g = phase.mean_cosine();
+            let f = g.powf(skybake_render::TRUNCATION_POWER);
+            let smooth = Phase::HenyeyGreenstein {
+                g: (g - f) / (1.0 - f),
+            };
+            let rplus = |mu: f64| (phase.eval(mu) - (1.0 - f) * smooth.eval(mu)).max(0.0);
+            let tracer = PathTracer::new(reference.vol(), &scene.optics, &lt, 0);
+            let (mut acc, mut sum2) = ([0.0f64; 3], 0.0f64);
+            for i in 0..w * h {
+                let mut rng = rand_pcg::Pcg64::seed_from_u64(
+                    0x5EED ^ (i as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15),
+                );
+                for _ in 0..spp {
+                    let (x, y) = (
+                        (i % w) as f64 + rng.random::<f64>(),
+                        (i / w) as f64 + rng.random::<f64>(),
+                    );
+                    let ray = skybake_render::camera::primary_ray(&scene.camera, x, y).unwrap();
+                    let (mut pos, mut dir) = (ray.origin_m, ray.dir);
+                    let (mut n, mut path) = (0usize, 0.0f64);
+                    while let Some(t) = tracer.free_path(pos, dir, k, &mut rng) {
+                        pos += dir * t;
+                        let mu = lt.sun_dir.dot(dir);
+                        let tr = tracer.transmittance(pos, lt.sun_dir, k, &mut rng);
+                        let (pk, all) = (rplus(mu), phase.eval(mu));
+                        let e = lt.sun_irradiance[0] * tr;
+                        acc[n.min(2)] += e * pk;
+                        acc[(n + 1).min(2)] += e * (all - pk);
+                        path += e * all;
+                        let mut more = || rng.random::<f64>();
+                        let (u1, u2) = (more(), more());
+                        let nd = phase.sample(dir, u1, u2, &mut more).0;
+                        let m = nd.dot(dir);
+                        if rng.random::<f64>() * phase.eval(m) >= rplus(m) {
+                            n += 1;
+                        }
+                        dir = nd;
+                    }
+                    sum2 += path * path;
+                }
+            }
+            let count = (spp * w * h) as f64;
+            let c = acc.map(|v| v / count);
+            let total: f64 = c.iter().sum();
+            let sigma = ((sum2 / count - total * total).max(0.0) / count).sqrt() / total;
+            let (lo, hi) = (c[0] + c[1], c[2]);
+            println!(
+                "tau {tau} [{vz:.0}° {raz:.0}°] DISORT {expected:.5}, classed path tracer {:+.1} % (noise {:.1} %): n ≤ 1 {lo:.5}, n ≥ 2 {hi:.5}; fast {:+.1} %: TMS single scattering {fast_ss:.5} ({:+.1} %), field {:.5} ({:+.1} %)",
+                (total / expected - 1.0) * 100.0,
+                sigma * 100.0,
+                (fast_total / expected - 1.0) * 100.0,
+                (fast_ss / lo - 1.0) * 100.0,
+                fast_total - fast_ss,
+                ((fast_total - fast_ss) / hi - 1.0) * 100.0,
+            );
+            checks.push((tau, vz, raz, total / expected - 1.0, sigma));
+        }
+    }
+    for (tau, vz, raz, r, sigma) in checks {
+        assert!(
+            r.abs() < 0.03 + 3.0 * sigma,
+            "tau {tau} [{vz} {raz}]: classed path tracer {r} (noise {sigma})"
+        );
+    }
 }

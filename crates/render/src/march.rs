@@ -797,6 +797,13 @@ impl<'a> Prepared<'a> {
     /// one-voxel step).
     #[inline]
     fn sun_root_at(&self, p: DVec3) -> f64 {
+        let r = self.root_interpolated(p);
+        self.root_beyond_edge_centres(p, r)
+    }
+
+    /// √D trilinearly between voxel centres (held at the outermost centres' values beyond them).
+    #[inline]
+    fn root_interpolated(&self, p: DVec3) -> f64 {
         self.lit
             .vol
             .weights(p)
@@ -806,6 +813,47 @@ impl<'a> Prepared<'a> {
                     .sum()
             })
             .unwrap_or(0.0)
+    }
+
+    /// √D at `p` given `r`, [`Self::root_interpolated`] there: between the outermost voxel
+    /// centres and the grid's faces the voxels' values are held, which holds the sun's path
+    /// of a cloud that fills its outer voxels at the centres' value up to the face, where
+    /// outside the grid it is 0 (or, on the far side, keeps growing). There D is continued
+    /// linearly from the outermost two centres along each axis that lies beyond them
+    /// (not below 0): exact for a uniform layer that fills the grid (the DISORT slab: the sun's
+    /// transmittance in its top half-voxel was held at its centre's, the single scattering of
+    /// a slab of 0.87 scaled optical depths per voxel 35–40 % low), and nothing changes where
+    /// the outer voxels are empty (the march skips them). `r` itself inside.
+    #[inline]
+    fn root_beyond_edge_centres(&self, p: DVec3, r: f64) -> f64 {
+        let g = &*self.lit.vol.grid;
+        let h = g.voxel_size_m;
+        let local = (p - g.origin_m) / h;
+        let beyond = |a: usize| {
+            let n = g.dims[a] as f64;
+            g.dims[a] >= 2 && (local[a] < 0.5 || local[a] > n - 0.5)
+        };
+        if !(beyond(0) || beyond(1) || beyond(2)) {
+            return r;
+        }
+        let mut d = r * r;
+        for a in 0..3 {
+            if !beyond(a) {
+                continue;
+            }
+            let n = g.dims[a] as f64;
+            let (excess, inward) = if local[a] < 0.5 {
+                (0.5 - local[a], 1.0)
+            } else {
+                (local[a] - (n - 0.5), -1.0)
+            };
+            // The next centre inwards along this axis.
+            let mut q = p;
+            q[a] += inward * (excess + 1.0) * h;
+            let ri = self.root_interpolated(q);
+            d += excess * (r * r - ri * ri);
+        }
+        d.max(0.0).sqrt()
     }
 
     /// The sky light from behind each point along the ray, whose path to the sky is the view
