@@ -263,23 +263,26 @@ fn skyview_nodes_equal_the_sky_product() {
         // the horizon's dip at every azimuth: 2 views there share the sun.
         let i = rng.random_range(0..rows);
         let a = rng.random_range(0..skyview::N_AZ);
-        let (theta, _) = skyview::view_node(i, r, bottom);
         let phi = skyview::azimuth_node(a);
         let limb = i >= skyview::N_VIEW_SKY;
-        let shift = skyview::sun_shift(r, theta, phi.cos(), bottom, limb).to_degrees();
-        let sun_deg = loop {
+        // The sky rows' elevation depends on the sun node (in low twilight,
+        // `skyview::sky_row_focus`), the limb rows' sun coordinate on the row.
+        let b = skyview::warp_strength(altitude, thickness);
+        let (theta, sun_deg, s_j) = loop {
             let j = rng.random_range(0..skyview::N_SUN);
-            let b = skyview::warp_strength(altitude, thickness);
-            let e = skyview::sun_warp(skyview::sun_node_deg(j), b) - shift;
+            let s_j = skyview::sun_warp(skyview::sun_node_deg(j), b);
+            let (theta, _) = skyview::view_node(i, r, bottom, s_j);
+            let shift = skyview::sun_shift(r, theta, phi.cos(), bottom, limb).to_degrees();
+            let e = s_j - shift;
             if (-12.0..=90.0).contains(&e) {
-                break e;
+                break (theta, e, s_j);
             }
         };
         let mut probes = vec![(theta.to_degrees(), phi.to_degrees())];
         if !limb {
             let i = rng.random_range(0..skyview::N_VIEW_SKY);
             let a = rng.random_range(0..skyview::N_AZ);
-            let (theta, _) = skyview::view_node(i, r, bottom);
+            let (theta, _) = skyview::view_node(i, r, bottom, s_j);
             probes.push((theta.to_degrees(), skyview::azimuth_node(a).to_degrees()));
         }
         let product = sky_probes(f, altitude, sun_deg, &probes);
@@ -534,4 +537,47 @@ fn skyview_the_earth_shadow_rising_at_low_altitude() {
     let measured = 0.481;
     assert!(worst > 0.0, "no sample");
     assert!(worst < measured * 1.12, "{worst} {case}");
+}
+
+// TEMP band5 probe: the product's profile across the band.
+#[test]
+#[ignore = "temp"]
+fn zz_band_profile() {
+    let engine = Engine::new();
+    let request = LutRequest::from_params(&RequestParams::default())
+        .unwrap()
+        .with_layout(Layout::SkyView);
+    let bottom = 6_360_000.0f64;
+    for altitude in [0.0, 1000.0, 2500.0, 5000.0, 10000.0] {
+        let dip = (bottom / (bottom + altitude)).acos().to_degrees();
+        let mut probes = Vec::new();
+        let mut z = 60.0;
+        while z < 90.0 + dip - 0.05 {
+            probes.push((z, 180.0));
+            z += 0.1;
+        }
+        for n in 0..=16 {
+            let sun = -8.0 + 0.5 * n as f64;
+            let mut s = request.spec.clone();
+            s.observer_altitude_m = altitude;
+            s.sun.sun_elevation_deg = sun;
+            let product = engine
+                .sky(&s, DomeShape { elevation_count: 2, azimuth_count: 1 }, &probes)
+                .unwrap();
+            let w = &product.table.wavelengths_nm;
+            let idx: Vec<usize> = [680.0, 550.0, 440.0]
+                .iter()
+                .map(|x| w.iter().position(|y| y == x).unwrap())
+                .collect();
+            for p in &product.probes {
+                eprintln!(
+                    "PROF {altitude} {sun} {:.2} {:.6e} {:.6e} {:.6e}",
+                    p.view_zenith_deg,
+                    p.radiance_w_m2_sr_nm[idx[0]],
+                    p.radiance_w_m2_sr_nm[idx[1]],
+                    p.radiance_w_m2_sr_nm[idx[2]]
+                );
+            }
+        }
+    }
 }
