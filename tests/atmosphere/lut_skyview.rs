@@ -260,7 +260,7 @@ fn skyview_nodes_equal_the_sky_product() {
         };
         // A row and a column; the sun on a node of the ray's sun coordinate (the sun's
         // elevation + `sun_shift`), between -12° and 90°. Above the horizontal the shift is
-        // the horizon's dip at every azimuth: 2 views there share the sun.
+        // the horizon's dip at every azimuth: 2 views there share the sun (and its rows).
         let i = rng.random_range(0..rows);
         let a = rng.random_range(0..skyview::N_AZ);
         let phi = skyview::azimuth_node(a);

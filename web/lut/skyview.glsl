@@ -267,11 +267,10 @@ vec3 SkyViewRadiance(float h, float rho, vec3 up, vec3 view_ray, vec3 sun_direct
   float gamma = 0.0, dip_t = 0.0, h_t = h;
   if (mu >= 0.0) {
     // Zenith to horizontal: theta = (pi/2) (1 - (1 - x)^2); 1 - theta / (pi/2) = asin(mu) / (pi/2).
-    // At low altitude in twilight the rows follow the band above the earth's shadow.
+    // (The row below: at low altitude in twilight the rows follow the band above the earth's
+    // shadow, at the ray's sun coordinate.)
     segment = 0;
-    float c, k;
-    SkyViewBandFocus(degrees(asin(mu_s) + dip), h, c, k);
-    row = SkyViewSkyRow(degrees(asin(mu)), c, k) * float(SV_N_VIEW_SKY - 1);
+    row = 0.0;
   } else if (mu > -rho / r) {
     // Horizontal to horizon, at the depth of the ray's tangent radius r_t = r sqrt(1 - mu^2):
     // y = (r - r_t) / h, with r - r_t = r mu^2 / (1 + sqrt(1 - mu^2)), y = 2x^2 - x^3.
@@ -288,9 +287,6 @@ vec3 SkyViewRadiance(float h, float rho, vec3 up, vec3 view_ray, vec3 sun_direct
     float x = sqrt(clamp((asin(-mu) - dip) / (0.5 * PI - dip), 0.0, 1.0));
     row = float(SV_N_VIEW_UP) + x * float(SV_N_VIEW_DOWN - 1);
   }
-  int lo = segment == 0 ? 0 : segment == 1 ? SV_N_VIEW_SKY : SV_N_VIEW_UP;
-  int hi = segment == 0 ? SV_N_VIEW_SKY - 1 : segment == 1 ? SV_N_VIEW_UP - 1 : SV_N_VIEW - 1;
-  SvStencil sv = SkyViewStencil(row, lo, hi, false, 0.0);
   // The azimuth between the view and the sun around the vertical.
   vec3 view_h = view_ray - mu * up;
   vec3 sun_h = sun_direction - mu_s * up;
@@ -305,6 +301,15 @@ vec3 SkyViewRadiance(float h, float rho, vec3 up, vec3 view_ray, vec3 sun_direct
     float w = 1.0 - exp(-(h - h_t) / SV_LIMB_SHADOW_SCALE);
     shift = dip + w * (gamma * cos(phi) + dip_t - dip);
   }
+  if (segment == 0) {
+    // The sky rows' focus (the reader's sky_row_focus) at the sun coordinate.
+    float c, k;
+    SkyViewBandFocus(degrees(asin(mu_s) + shift), h, c, k);
+    row = SkyViewSkyRow(degrees(asin(mu)), c, k) * float(SV_N_VIEW_SKY - 1);
+  }
+  int lo = segment == 0 ? 0 : segment == 1 ? SV_N_VIEW_SKY : SV_N_VIEW_UP;
+  int hi = segment == 0 ? SV_N_VIEW_SKY - 1 : segment == 1 ? SV_N_VIEW_UP - 1 : SV_N_VIEW - 1;
+  SvStencil sv = SkyViewStencil(row, lo, hi, false, 0.0);
   int k0, j0;
   float tk, tj, above_deg;
   SkyViewAltitudeSun(h, shift, mu_s, k0, tk, j0, tj, above_deg);

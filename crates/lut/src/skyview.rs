@@ -68,14 +68,16 @@ pub const N_ALT: usize = 28;
 /// sunset), every 1° to 20° (low sun), every 4° to 104° (the zenith seen from the top of a
 /// 100 km atmosphere is 100.1° above its horizon).
 pub const SUN_MIN_DEG: f64 = -23.0;
-pub const SUN_SEGMENTS: [(f64, f64, usize); 5] = [
+pub const SUN_SEGMENTS: [(f64, f64, usize); 7] = [
     (-23.0, 2.0, 4),
     (-15.0, 1.0, 7),
-    (-8.0, 0.5, 28),
+    (-8.0, 0.5, 14),
+    (-1.0, 0.25, 12),
+    (2.0, 0.5, 8),
     (6.0, 1.0, 14),
     (20.0, 4.0, 21),
 ];
-pub const N_SUN: usize = 4 + 7 + 28 + 14 + 21 + 1;
+pub const N_SUN: usize = 4 + 7 + 14 + 12 + 8 + 14 + 21 + 1;
 /// View rows: from the zenith to the horizontal ([`N_VIEW_SKY`], θ = 90° (1 − (1 − x)²)),
 /// from the horizontal to the horizon ([`N_VIEW_LIMB`], the ray's tangent altitude from the
 /// observer's to 0 at the depths [`limb_depth`]) and from the horizon to the nadir
@@ -258,7 +260,7 @@ pub const BAND_CENTRE: [f64; 4] = [0.49, 0.06, 0.185, 0.023];
 pub const BAND_FOCUS: f64 = 10.0;
 /// Sun coordinates (degrees) between which the focus fades in (the first two: 0 below the
 /// first, full above the second) and out (the last two).
-pub const BAND_SUN_RANGE: [f64; 4] = [-7.0, -4.0, 1.5, 3.0];
+pub const BAND_SUN_RANGE: [f64; 4] = [-7.0, -4.0, 1.0, 5.0];
 /// Altitudes (m) between which the focus fades out (full below the first, none above the
 /// second).
 pub const BAND_ALTITUDE_M: [f64; 2] = [6_000.0, 10_000.0];
@@ -818,11 +820,6 @@ impl<'a> SkyViewReader<'a> {
         let n_c = self.bundle.wavelengths_nm.len();
         let r = r.clamp(p.bottom_radius, p.top_radius);
         let theta = mu.clamp(-1.0, 1.0).acos();
-        // The sky rows' sun: its elevation above the observer's horizon (sun_shift's there).
-        let above_deg = (mu_s.clamp(-1.0, 1.0).asin() + dip(r, p.bottom_radius)).to_degrees();
-        let (seg, row) = view_coord(theta, r, p.bottom_radius, above_deg);
-        let (lo, hi) = segment_rows(seg);
-        let sv = Stencil::with_nodes(row, lo, hi, |i| i as f64, row, self.nodes[2]);
         let den = ((1.0 - mu * mu) * (1.0 - mu_s * mu_s)).max(0.0).sqrt();
         let cos_phi = if den > 1e-12 {
             ((nu - mu * mu_s) / den).clamp(-1.0, 1.0)
@@ -831,7 +828,13 @@ impl<'a> SkyViewReader<'a> {
         };
         let col = azimuth_coord(cos_phi.acos());
         let sc = Stencil::with_nodes(col, 0, N_AZ - 1, |a| a as f64, col, self.nodes[3]);
+        let (seg, _) = view_coord(theta, r, p.bottom_radius, 0.0);
         let shift = sun_shift(r, theta, cos_phi, p.bottom_radius, seg == 1);
+        // The sky rows depend on the ray's sun coordinate (the sun's elevation + shift).
+        let s_deg = (mu_s.clamp(-1.0, 1.0).asin() + shift).to_degrees();
+        let (seg, row) = view_coord(theta, r, p.bottom_radius, s_deg);
+        let (lo, hi) = segment_rows(seg);
+        let sv = Stencil::with_nodes(row, lo, hi, |i| i as f64, row, self.nodes[2]);
         let (sa, ss) = self.altitude_sun_stencils(r, mu_s, shift);
         let d = ray_length(r, mu, p.bottom_radius, p.top_radius, seg == 2);
         let mut out = [vec![0.0; n_c], vec![0.0; n_c]];
