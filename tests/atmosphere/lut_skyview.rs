@@ -155,8 +155,9 @@ fn skyview_sky_radiance_matches_the_sky_product() {
     bands.print("skyview sky");
     by_altitude.print("skyview sky by altitude");
     let bands = by_altitude;
-    // Measured on 2026-12-05 (earth, standard, RGB; layout version 3: the limb rows at
-    // y = 2x² − x³, the sun nodes warped towards sunset aloft, 22 sky rows). Where the issue's
+    // Measured on 2026-12-05 (earth, standard, RGB; layout version 4: the limb rows at
+    // y = 2x² − x³, the sun nodes warped towards sunset aloft, 22 sky rows following the band
+    // above the earth's shadow at low altitude, 81 sun nodes). Where the issue's
     // target is met it is asserted, and the measured bound + ~12 % (the tighter); where it is
     // not (the twilight limb aloft, −6…5° and −12…−6° from 20–100 km: docs/lut.md), the
     // measured bound + ~12 %.
@@ -191,8 +192,8 @@ fn skyview_sky_radiance_matches_the_sky_product() {
             0.02457,
             Some(0.03),
         ),
-        ("sun -6..5 (target 3 %), ground", 0.01337, Some(0.03)),
-        ("sun -6..5 (target 3 %), 0-20 km", 0.02590, Some(0.03)),
+        ("sun -6..5 (target 3 %), ground", 0.01489, Some(0.03)),
+        ("sun -6..5 (target 3 %), 0-20 km", 0.01362, Some(0.03)),
         ("sun -6..5 (target 3 %), 20-100 km", 0.0887, None),
         ("sun -12..-6 (target 10 %), ground", 0.0342, Some(0.10)),
         ("sun -12..-6 (target 10 %), 0-20 km", 0.0315, Some(0.10)),
@@ -517,14 +518,15 @@ fn shadow_rise_errors(f: &Fixture, reader: &SkyViewReader) -> (f64, String) {
 }
 
 /// The earth's shadow rising (see [`shadow_rise_errors`]). The target is 3 % (views
-/// within 10° of the horizon, sun down to −6°); it is NOT met: measured on 2026-12-05 (earth,
-/// standard, RGB, layout version 3) 48.1 % at 5 km, sun −2°, view zenith 88.5°, azimuth 150°,
-/// 680 nm, so the bound is the measured + ~12 %. Decomposed at the nodes (5 km, antisolar): the
-/// product is matched within 0.1 % on every node, but halfway between two sky rows (1.0–1.4°
-/// apart at 2–4° elevation) the rows' interpolation errs up to 67 %, halfway between two sun
-/// nodes (0.47° apart at 5 km) up to 26 %: the sunlit band above the antisolar horizon (lit by
-/// sunlight that grazed the ground) is narrower than both spacings and rises ≈ 1.6° per degree
-/// the sun sinks (docs/lut.md, the skyview layout's accuracy).
+/// within 10° of the horizon, sun down to −6°); it is NOT met at 2.5 and 5 km: measured on
+/// 2026-12-05 (earth, standard, RGB, layout version 4) 16.4 % at 5 km, sun −2°, view zenith
+/// 88.5°, azimuth 150°, 680 nm (5.7 % at 2.5 km, 1.9 % at 1 km, 0.8 % at the ground; version 3:
+/// 48 / 27 / 9.0 / 3.3 %), so the bound is the measured + ~12 %. The sunlit band above the
+/// antisolar horizon (lit by sunlight that grazed the ground) rises ≈ 2° per degree the sun
+/// sinks and is sharpest (a factor of 10 per degree at 5 km) just after sunset at the observer;
+/// version 4's sky rows follow its elevation opposite the sun and are denser there, and its sun
+/// nodes are 0.25° apart around sunset, but 150° from the sun the band lies lower (about 0.7 of
+/// its elevation at 180°) than the rows' focus (docs/lut.md, the skyview layout's sky rows).
 #[test]
 #[ignore = "builds a bundle (about 10 s of CPU): run with --ignored lut_skyview::"]
 fn skyview_the_earth_shadow_rising_at_low_altitude() {
@@ -534,50 +536,7 @@ fn skyview_the_earth_shadow_rising_at_low_altitude() {
         "skyview earth's shadow rising, 0-5 km, sun -6..0 (target 3 %): {:.3} % {case}",
         100.0 * worst
     );
-    let measured = 0.481;
+    let measured = 0.1643;
     assert!(worst > 0.0, "no sample");
     assert!(worst < measured * 1.12, "{worst} {case}");
-}
-
-// TEMP band5 probe: the product's profile across the band.
-#[test]
-#[ignore = "temp"]
-fn zz_band_profile() {
-    let engine = Engine::new();
-    let request = LutRequest::from_params(&RequestParams::default())
-        .unwrap()
-        .with_layout(Layout::SkyView);
-    let bottom = 6_360_000.0f64;
-    for altitude in [0.0, 1000.0, 2500.0, 5000.0, 10000.0] {
-        let dip = (bottom / (bottom + altitude)).acos().to_degrees();
-        let mut probes = Vec::new();
-        let mut z = 60.0;
-        while z < 90.0 + dip - 0.05 {
-            probes.push((z, 180.0));
-            z += 0.1;
-        }
-        for n in 0..=16 {
-            let sun = -8.0 + 0.5 * n as f64;
-            let mut s = request.spec.clone();
-            s.observer_altitude_m = altitude;
-            s.sun.sun_elevation_deg = sun;
-            let product = engine
-                .sky(&s, DomeShape { elevation_count: 2, azimuth_count: 1 }, &probes)
-                .unwrap();
-            let w = &product.table.wavelengths_nm;
-            let idx: Vec<usize> = [680.0, 550.0, 440.0]
-                .iter()
-                .map(|x| w.iter().position(|y| y == x).unwrap())
-                .collect();
-            for p in &product.probes {
-                eprintln!(
-                    "PROF {altitude} {sun} {:.2} {:.6e} {:.6e} {:.6e}",
-                    p.view_zenith_deg,
-                    p.radiance_w_m2_sr_nm[idx[0]],
-                    p.radiance_w_m2_sr_nm[idx[1]],
-                    p.radiance_w_m2_sr_nm[idx[2]]
-                );
-            }
-        }
-    }
 }

@@ -240,10 +240,12 @@ pub fn view_coord(theta: f64, r: f64, bottom: f64, sun_deg: f64) -> (usize, f64)
 /// twilight sky from the shadow's floor to the bright band above it, steepest in the red, where
 /// it is lit by sunlight that grazed the ground): its elevation
 /// (degrees, opposite the sun, where ln L rises fastest) with the sun `sun_deg` above the
-/// observer's horizon at altitude `h` (m). Fitted to the `sky` product (earth, 680 nm, 0–10 km,
-/// the sun's elevation −4.5…0°, within 0.3° where the rise is steeper than a factor 1.6 per
-/// degree): u = [`BAND_SUN_DEG`] − s, c = (a₀ + a₁ h) u + (a₂ + a₃ h) u², h in km up to 10
-/// ([`BAND_CENTRE`]).
+/// observer's horizon at altitude `h` (m): u = [`BAND_SUN_DEG`] − s, c = (a₀ + a₁ h) u +
+/// (a₂ + a₃ h) u², h in km up to 10 ([`BAND_CENTRE`]). The coefficients are 0.85 times a fit to
+/// the `sky` product opposite the sun (earth, 680 nm, 0–10 km, the sun's elevation −4.5…0°;
+/// within 0.3° where the rise is steeper than a factor 1.6 per degree): away from the antisolar
+/// azimuth the band lies lower (150° from the sun: about 0.7 of its elevation at 180°), and the
+/// rows' focus sits between the two.
 pub fn band_centre_deg(sun_deg: f64, h: f64) -> f64 {
     let u = (BAND_SUN_DEG - sun_deg).max(0.0);
     let km = (h / 1000.0).clamp(0.0, 10.0);
@@ -254,8 +256,9 @@ pub fn band_centre_deg(sun_deg: f64, h: f64) -> f64 {
 /// The sun coordinate (degrees above the observer's horizon) at which the band of
 /// [`band_centre_deg`] reaches the horizontal.
 pub const BAND_SUN_DEG: f64 = 2.0;
-/// [`band_centre_deg`]'s coefficients: a₀, a₁ (per km), a₂, a₃ (per km).
-pub const BAND_CENTRE: [f64; 4] = [0.49, 0.06, 0.185, 0.023];
+/// [`band_centre_deg`]'s coefficients: a₀, a₁ (per km), a₂, a₃ (per km) (0.85 × the fit's
+/// 0.49, 0.06, 0.185, 0.023).
+pub const BAND_CENTRE: [f64; 4] = [0.4165, 0.051, 0.157_25, 0.019_55];
 /// The sky rows' focus strength on the band ([`sky_row_focus`], [`sky_row_elevation`]).
 pub const BAND_FOCUS: f64 = 10.0;
 /// Sun coordinates (degrees) between which the focus fades in (the first two: 0 below the
@@ -277,20 +280,10 @@ fn smoothstep(a: f64, b: f64, x: f64) -> f64 {
 pub fn sky_row_focus(sun_deg: f64, h: f64) -> (f64, f64) {
     let [s0, s1, s2, s3] = BAND_SUN_RANGE;
     let [h0, h1] = BAND_ALTITUDE_M;
-    let f = smoothstep(s0, s1, sun_deg) * (1.0 - smoothstep(s2, s3, sun_deg))
+    let f = smoothstep(s0, s1, sun_deg)
+        * (1.0 - smoothstep(s2, s3, sun_deg))
         * (1.0 - smoothstep(h0, h1, h));
-    (band_centre_deg(sun_deg, h), f * tmp_width())
-}
-
-// TEMP tuning knob.
-fn tmp_width() -> f64 {
-    static W: std::sync::OnceLock<f64> = std::sync::OnceLock::new();
-    *W.get_or_init(|| {
-        std::env::var("SKYVIEW_BAND_K")
-            .ok()
-            .and_then(|v| v.parse().ok())
-            .unwrap_or(BAND_FOCUS)
-    })
+    (band_centre_deg(sun_deg, h), f * BAND_FOCUS)
 }
 
 /// Elevation (degrees) of the sky rows' coordinate x ∈ [0, 1] (0 the zenith, 1 the horizontal)
@@ -517,7 +510,8 @@ pub fn build_skyview(
                 let s_j: Vec<f64> = (0..N_SUN).map(|j| sun_warp(sun_node_deg(j), b)).collect();
                 // The rays of this row: one for the suns whose row does not move (every sun
                 // but on the sky rows in low twilight, [`sky_row_focus`]), one per other sun.
-                let focused = |j: usize| i < N_VIEW_SKY && sky_row_focus(s_j[j], r - bottom).1 > 0.0;
+                let focused =
+                    |j: usize| i < N_VIEW_SKY && sky_row_focus(s_j[j], r - bottom).1 > 0.0;
                 let mut rays: Vec<Vec<usize>> = vec![(0..N_SUN).filter(|&j| !focused(j)).collect()];
                 rays.extend((0..N_SUN).filter(|&j| focused(j)).map(|j| vec![j]));
                 for suns in rays.iter().filter(|v| !v.is_empty()) {
@@ -1058,8 +1052,9 @@ pub const STATED_ERRORS: &[(&str, &str, f64)] = &[
     ("rayleigh+mie", "sky radiance (sky product), sun >= 5 deg, view < 10 deg above the horizon, ground", 0.004),
     ("rayleigh+mie", "sky radiance (sky product), sun >= 5 deg, view < 10 deg above the horizon, 0-20 km", 0.0047),
     ("rayleigh+mie", "sky radiance (sky product), sun >= 5 deg, view < 10 deg above the horizon, 20-100 km", 0.025),
-    ("rayleigh+mie", "sky radiance (sky product), sun -6..5 deg, ground", 0.014),
-    ("rayleigh+mie", "sky radiance (sky product), sun -6..5 deg, 0-20 km", 0.026),
+    ("rayleigh+mie", "sky radiance (sky product), sun -6..5 deg, ground", 0.015),
+    ("rayleigh+mie", "sky radiance (sky product), sun -6..5 deg, 0-20 km", 0.014),
+    ("rayleigh+mie", "sky radiance (sky product), sun -6..0 deg, 0-5 km, views within 10 deg of the horizon 150-180 deg from the sun (the earth's shadow rising; 680 nm at 5 km)", 0.165),
     ("rayleigh+mie", "sky radiance (sky product), sun -6..5 deg, 20-100 km (the limb across the earth's shadow)", 0.089),
     ("rayleigh+mie", "sky radiance (sky product), sun -12..-6 deg, ground", 0.035),
     ("rayleigh+mie", "sky radiance (sky product), sun -12..-6 deg, 0-20 km", 0.032),
@@ -1202,7 +1197,10 @@ mod tests {
                         || (i == N_VIEW_UP - 1
                             && seg == 2
                             && (row - N_VIEW_UP as f64).abs() < 1e-6);
-                    assert!(ok, "r {r}, sun {sun}, row {i}: theta {theta} -> ({seg}, {row})");
+                    assert!(
+                        ok,
+                        "r {r}, sun {sun}, row {i}: theta {theta} -> ({seg}, {row})"
+                    );
                 }
                 // Zenith, horizontal and horizon where the geometry puts them.
                 assert!(view_node(0, r, R, sun).0.abs() < 1e-12);
@@ -1242,7 +1240,8 @@ mod tests {
             }
             let x_band = sky_row(c, c, k);
             let dx = 1e-4;
-            let spread = sky_row_elevation(x_band - dx, c, k) - sky_row_elevation(x_band + dx, c, k);
+            let spread =
+                sky_row_elevation(x_band - dx, c, k) - sky_row_elevation(x_band + dx, c, k);
             let base = 90.0 * ((1.0 - x_band + dx).powi(2) - (1.0 - x_band - dx).powi(2));
             assert!(spread < 0.5 * base, "sun {sun}: {spread} vs {base}");
             rows_at_band.push(x_band);
