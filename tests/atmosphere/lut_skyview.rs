@@ -207,9 +207,10 @@ fn skyview_sky_radiance_matches_the_sky_product() {
 
 /// Every axis needs its 4 nodes (the shader's 512 texel fetches per pixel): read with 2 nodes
 /// (geometric between the interval's two) on one axis, some band of the targets gets
-/// markedly worse. Measured (2026-12-05, standard): altitude — sun ≥ 5°, view > 10°, 0–20 km
-/// 0.18 → 0.86 %; sun — −6…5°, 0–20 km 2.6 → 6.0 %; view rows — −12…−6° at the ground
-/// 3.4 → 5.9 %; azimuth — −6…5° at the ground 1.3 → 3.8 % (over the 3 % target).
+/// markedly worse. Measured (2026-12-05, standard, layout version 4): altitude — sun ≥ 5°,
+/// view > 10°, 0–20 km 0.18 → 0.86 %; sun — −6…5°, 0–20 km 1.36 → 2.48 %; view rows — −12…−6°
+/// at the ground 3.4 → 5.9 %; azimuth — −6…5° at the ground 1.49 → 3.01 % (over the 3 % target).
+/// (Version 3: 0.18 → 0.86, 2.6 → 6.0, 3.4 → 5.9, 1.3 → 3.8 %.)
 #[test]
 #[ignore = "builds a bundle (about 10 s of CPU): run with --ignored lut_skyview::"]
 fn skyview_four_nodes_per_axis_are_needed() {
@@ -524,7 +525,7 @@ fn shadow_rise_errors(f: &Fixture, reader: &SkyViewReader) -> (f64, String) {
 /// 48 / 27 / 9.0 / 3.3 %), so the bound is the measured + ~12 %. The sunlit band above the
 /// antisolar horizon (lit by sunlight that grazed the ground) rises ≈ 2° per degree the sun
 /// sinks and is sharpest (a factor of 10 per degree at 5 km) just after sunset at the observer;
-/// version 4's sky rows follow its elevation opposite the sun and are denser there, and its sun
+/// version 4's sky rows are denser around its elevation opposite the sun, and its sun
 /// nodes are 0.25° apart around sunset, but 150° from the sun the band lies lower (about 0.7 of
 /// its elevation at 180°) than the rows' focus (docs/lut.md, the skyview layout's sky rows).
 #[test]

@@ -267,8 +267,8 @@ vec3 SkyViewRadiance(float h, float rho, vec3 up, vec3 view_ray, vec3 sun_direct
   float gamma = 0.0, dip_t = 0.0, h_t = h;
   if (mu >= 0.0) {
     // Zenith to horizontal: theta = (pi/2) (1 - (1 - x)^2); 1 - theta / (pi/2) = asin(mu) / (pi/2).
-    // (The row below: at low altitude in twilight the rows follow the band above the earth's
-    // shadow, at the ray's sun coordinate.)
+    // (The row below: at low altitude in twilight the rows concentrate on the band above the
+    // earth's shadow, at the ray's sun coordinate.)
     segment = 0;
     row = 0.0;
   } else if (mu > -rho / r) {
