@@ -65,8 +65,9 @@ pub const N_ALT: usize = 28;
 /// horizon (its elevation + the horizon's dip at the node's altitude, so sunset is on the same
 /// node at every altitude), warped towards sunset aloft between −8° and 6° ([`sun_warp`]):
 /// every 2° from [`SUN_MIN_DEG`] to −15°, every 1° to −8°, every 0.5° to 6° (twilight and
-/// sunset), every 1° to 20° (low sun), every 4° to 104° (the zenith seen from the top of a
-/// 100 km atmosphere is 100.1° above its horizon).
+/// sunset; every 0.25° from −1° to 2°, where the sun sets at the observer), every 1° to 20° (low
+/// sun), every 4° to 104° (the zenith seen from the top of a 100 km atmosphere is 100.1° above
+/// its horizon).
 pub const SUN_MIN_DEG: f64 = -23.0;
 pub const SUN_SEGMENTS: [(f64, f64, usize); 7] = [
     (-23.0, 2.0, 4),
@@ -1114,7 +1115,7 @@ pub fn manifest(
             "altitude_nodes_m": altitude_nodes,
             "altitude_node": "h_k = (top_radius - bottom_radius) * (k / (N_ALT - 1))^2, k = 0..N_ALT-1",
             "sun_elevation_nodes_deg": sun_nodes,
-            "sun_node": "the sun node coordinate t_j (deg): every 2 deg from -23 to -15, every 1 deg to -8, every 0.5 deg to 6, every 1 deg to 20, every 4 deg to 104 (segments [start, step, intervals] in sun_segments). At altitude h the node's sun coordinate s_j = warp(t_j, b), b = sun_warp_strength * sqrt(h / (top_radius - bottom_radius)), warp(t, b) = e sinh(b t / e) / sinh(b) for sun_warp_range[0] < t < sun_warp_range[1] (e = -sun_warp_range[0] for t < 0, sun_warp_range[1] for t >= 0), t elsewhere (and where b < 1e-6); its inverse t = e asinh(s sinh(b) / e) / b gives a query's node coordinate, the interpolation's abscissa. s = the sun's elevation + shift: for view rows above the horizontal and below the horizon (and the irradiance) shift = the horizon's dip acos(bottom_radius / r), the sun's elevation above the observer's horizon; for the limb rows (between the horizontal and the horizon) shift = dip + w (gamma cos(phi) + acos(bottom_radius / r_t) - dip), w = 1 - exp(-(r - r_t) / limb_shadow_scale_m): towards the sun's elevation above the horizon of the ray's tangent point, with dip = acos(bottom_radius / r), gamma = theta - pi/2, r_t = r cos(gamma), phi the view's azimuth from the sun; the texels of a limb row are at the sun elevations s_j - shift of their column's azimuth",
+            "sun_node": "the sun node coordinate t_j (deg): every 2 deg from -23 to -15, every 1 deg to -8, every 0.5 deg to -1, every 0.25 deg to 2, every 0.5 deg to 6, every 1 deg to 20, every 4 deg to 104 (segments [start, step, intervals] in sun_segments). At altitude h the node's sun coordinate s_j = warp(t_j, b), b = sun_warp_strength * sqrt(h / (top_radius - bottom_radius)), warp(t, b) = e sinh(b t / e) / sinh(b) for sun_warp_range[0] < t < sun_warp_range[1] (e = -sun_warp_range[0] for t < 0, sun_warp_range[1] for t >= 0), t elsewhere (and where b < 1e-6); its inverse t = e asinh(s sinh(b) / e) / b gives a query's node coordinate, the interpolation's abscissa. s = the sun's elevation + shift: for view rows above the horizontal and below the horizon (and the irradiance) shift = the horizon's dip acos(bottom_radius / r), the sun's elevation above the observer's horizon; for the limb rows (between the horizontal and the horizon) shift = dip + w (gamma cos(phi) + acos(bottom_radius / r_t) - dip), w = 1 - exp(-(r - r_t) / limb_shadow_scale_m): towards the sun's elevation above the horizon of the ray's tangent point, with dip = acos(bottom_radius / r), gamma = theta - pi/2, r_t = r cos(gamma), phi the view's azimuth from the sun; the texels of a limb row are at the sun elevations s_j - shift of their column's azimuth",
             "sun_warp_strength": SUN_WARP,
             "sun_warp_range": [SUN_WARP_RANGE.0, SUN_WARP_RANGE.1],
             "limb_shadow_scale_m": LIMB_SHADOW_SCALE_M,
