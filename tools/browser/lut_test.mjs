@@ -57,9 +57,10 @@ const BRUNETON_BANDS = [
 ];
 
 // skyview (the viewer's default): `assert: "target"` asserts the issue's target (the bands where
-// the layout meets it: by day at every altitude, the aureole included), else the measured bound
-// (measured on this bundle × 1.15, layout version 3, 2026-12-05: 6.98 % and 20.72 %; version 2:
-// 4.64 % and 20.25 %; the issue's target printed beside it).
+// the layout meets it: by day at every altitude, the aureole included, and from layout version 4
+// the twilight band at 0-5 km, sun -6..5 deg: measured 0.77 %, version 3 6.98 %), else the
+// measured bound (measured on this bundle × 1.15, 2026-12-05: 20.72 % for -12..-6 deg in
+// versions 3 and 4; version 2: 4.64 % and 20.25 %; the issue's target printed beside it).
 const SKYVIEW_BANDS = [
   { name: "ground, sun >= 5 deg, view > 10 deg above the horizon", target: 0.01, assert: "target",
     cases: cross([0], [10, 30, 60], [0, 30, 60, 75], [0, 90, 180]) },
@@ -73,7 +74,7 @@ const SKYVIEW_BANDS = [
     cases: aureole([0, 2000], [10, 30], [2, 4, 6]) },
   { name: "20-100 km, sun >= 5 deg (zenith 95 deg: the limb)", target: 0.01, assert: "target",
     cases: cross([30000, 60000], [10, 40], [0, 60, 85, 95], [0, 180]) },
-  { name: "0-5 km, sun -6..5 deg, view < 10 deg above the horizon", target: 0.03, bound: 0.080,
+  { name: "0-5 km, sun -6..5 deg, view < 10 deg above the horizon", target: 0.03, assert: "target",
     cases: cross([0, 5000], [2, -3], [82, 87], [0, 90, 180]) },
   { name: "0-5 km, sun -12..-6 deg", target: 0.10, bound: 0.238,
     cases: cross([0, 5000], [-8, -11], [0, 60, 85], [0, 180]) },

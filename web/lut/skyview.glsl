@@ -14,7 +14,9 @@
 // length of parameterisation.sun_segments), SV_LIMB_SHADOW_SCALE
 // (parameterisation.limb_shadow_scale_m, a float literal), SV_SUN_WARP
 // (parameterisation.sun_warp_strength) and SV_SUN_WARP_LO, SV_SUN_WARP_HI
-// (parameterisation.sun_warp_range), float literals.
+// (parameterisation.sun_warp_range), float literals, and from parameterisation.sky_row_band:
+// SV_BAND_SUN (sun_deg), SV_BAND_FOCUS (focus), SV_BAND_CENTRE (centre, a vec4),
+// SV_BAND_SUN_RANGE (sun_range_deg, a vec4) and SV_BAND_ALTITUDE (altitude_range_m, a vec2).
 //
 // Per query: node coordinates in altitude (sqrt(h / thickness) (N_ALT - 1)), the sun's elevation
 // above the observer's horizon (the manifest's segments), the view row within its segment (sky,
@@ -194,6 +196,33 @@ float SkyViewSunUnwarp(float s, float b) {
   return e * asinh(s * sinh(b) / e) / b;
 }
 
+// The sky rows' focus on the band above the earth's shadow (the reader's sky_row_focus): the
+// band's elevation c (degrees) and the focus strength k (per degree) with the sun sun_deg above
+// the observer's horizon at altitude h.
+void SkyViewBandFocus(float sun_deg, float h, out float c, out float k) {
+  float u = max(SV_BAND_SUN - sun_deg, 0.0);
+  float km = clamp(h / 1000.0, 0.0, 10.0);
+  c = min((SV_BAND_CENTRE.x + SV_BAND_CENTRE.y * km) * u +
+          (SV_BAND_CENTRE.z + SV_BAND_CENTRE.w * km) * u * u, 45.0);
+  float f = smoothstep(SV_BAND_SUN_RANGE.x, SV_BAND_SUN_RANGE.y, sun_deg) *
+      (1.0 - smoothstep(SV_BAND_SUN_RANGE.z, SV_BAND_SUN_RANGE.w, sun_deg)) *
+      (1.0 - smoothstep(SV_BAND_ALTITUDE.x, SV_BAND_ALTITUDE.y, h));
+  k = f * SV_BAND_FOCUS;
+}
+
+// The sky rows' coordinate x (0 at the zenith, 1 at the horizontal) of the elevation
+// elevation_deg with focus (c, k) (the reader's sky_row): x0 = 1 - sqrt(elevation / 90) (version
+// 3's coordinate, x where k = 0), x = (asinh(k (x0 - x_c)) - A) / (B - A), x_c = 1 - sqrt(c / 90),
+// A = asinh(-k x_c), B = asinh(k (1 - x_c)).
+float SkyViewSkyRow(float elevation_deg, float c, float k) {
+  float x0 = 1.0 - sqrt(clamp(elevation_deg / 90.0, 0.0, 1.0));
+  if (k < 1e-6) return x0;
+  float xc = 1.0 - sqrt(clamp(c / 90.0, 0.0, 1.0));
+  float a = asinh(-k * xc);
+  float b = asinh(k * (1.0 - xc));
+  return clamp((asinh(k * (x0 - xc)) - a) / (b - a), 0.0, 1.0);
+}
+
 // Altitude node k0 (and fraction tk) and sun node j0 (and tj) at altitude h with sun zenith
 // cosine mu_s; shift: the angle added to the sun's elevation to make the sun coordinate (the
 // horizon's dip atan(rho, bottom_radius), or on the limb SkyViewRadiance's shift). above_deg: the
@@ -238,8 +267,10 @@ vec3 SkyViewRadiance(float h, float rho, vec3 up, vec3 view_ray, vec3 sun_direct
   float gamma = 0.0, dip_t = 0.0, h_t = h;
   if (mu >= 0.0) {
     // Zenith to horizontal: theta = (pi/2) (1 - (1 - x)^2); 1 - theta / (pi/2) = asin(mu) / (pi/2).
+    // (The row below: at low altitude in twilight the rows concentrate on the band above the
+    // earth's shadow, at the ray's sun coordinate.)
     segment = 0;
-    row = (1.0 - sqrt(clamp(asin(mu) / (0.5 * PI), 0.0, 1.0))) * float(SV_N_VIEW_SKY - 1);
+    row = 0.0;
   } else if (mu > -rho / r) {
     // Horizontal to horizon, at the depth of the ray's tangent radius r_t = r sqrt(1 - mu^2):
     // y = (r - r_t) / h, with r - r_t = r mu^2 / (1 + sqrt(1 - mu^2)), y = 2x^2 - x^3.
@@ -256,9 +287,6 @@ vec3 SkyViewRadiance(float h, float rho, vec3 up, vec3 view_ray, vec3 sun_direct
     float x = sqrt(clamp((asin(-mu) - dip) / (0.5 * PI - dip), 0.0, 1.0));
     row = float(SV_N_VIEW_UP) + x * float(SV_N_VIEW_DOWN - 1);
   }
-  int lo = segment == 0 ? 0 : segment == 1 ? SV_N_VIEW_SKY : SV_N_VIEW_UP;
-  int hi = segment == 0 ? SV_N_VIEW_SKY - 1 : segment == 1 ? SV_N_VIEW_UP - 1 : SV_N_VIEW - 1;
-  SvStencil sv = SkyViewStencil(row, lo, hi, false, 0.0);
   // The azimuth between the view and the sun around the vertical.
   vec3 view_h = view_ray - mu * up;
   vec3 sun_h = sun_direction - mu_s * up;
@@ -273,6 +301,15 @@ vec3 SkyViewRadiance(float h, float rho, vec3 up, vec3 view_ray, vec3 sun_direct
     float w = 1.0 - exp(-(h - h_t) / SV_LIMB_SHADOW_SCALE);
     shift = dip + w * (gamma * cos(phi) + dip_t - dip);
   }
+  if (segment == 0) {
+    // The sky rows' focus (the reader's sky_row_focus) at the sun coordinate.
+    float c, k;
+    SkyViewBandFocus(degrees(asin(mu_s) + shift), h, c, k);
+    row = SkyViewSkyRow(degrees(asin(mu)), c, k) * float(SV_N_VIEW_SKY - 1);
+  }
+  int lo = segment == 0 ? 0 : segment == 1 ? SV_N_VIEW_SKY : SV_N_VIEW_UP;
+  int hi = segment == 0 ? SV_N_VIEW_SKY - 1 : segment == 1 ? SV_N_VIEW_UP - 1 : SV_N_VIEW - 1;
+  SvStencil sv = SkyViewStencil(row, lo, hi, false, 0.0);
   int k0, j0;
   float tk, tj, above_deg;
   SkyViewAltitudeSun(h, shift, mu_s, k0, tk, j0, tj, above_deg);

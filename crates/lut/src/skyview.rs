@@ -57,6 +57,8 @@ pub const LAYOUT: &str = "skyview";
 /// with the altitude ([`sun_warp`]).
 /// 4: a slice's largest texel stored as [`SLICE_PEAK`] (2¹⁵) instead of 1, its scale divided
 /// accordingly (the reader's and the shader's math unchanged).
+/// The sky rows concentrate on the band above the earth's shadow at low altitude in twilight
+/// ([`sky_row_focus`]); 81 sun nodes (0.25° apart from −1° to 2°).
 pub const SKYVIEW_VERSION: &str = "4";
 
 /// Altitude nodes: h_k = (top − bottom) · (k / (N − 1))².
@@ -65,17 +67,20 @@ pub const N_ALT: usize = 28;
 /// horizon (its elevation + the horizon's dip at the node's altitude, so sunset is on the same
 /// node at every altitude), warped towards sunset aloft between −8° and 6° ([`sun_warp`]):
 /// every 2° from [`SUN_MIN_DEG`] to −15°, every 1° to −8°, every 0.5° to 6° (twilight and
-/// sunset), every 1° to 20° (low sun), every 4° to 104° (the zenith seen from the top of a
-/// 100 km atmosphere is 100.1° above its horizon).
+/// sunset; every 0.25° from −1° to 2°, where the sun sets at the observer), every 1° to 20° (low
+/// sun), every 4° to 104° (the zenith seen from the top of a 100 km atmosphere is 100.1° above
+/// its horizon).
 pub const SUN_MIN_DEG: f64 = -23.0;
-pub const SUN_SEGMENTS: [(f64, f64, usize); 5] = [
+pub const SUN_SEGMENTS: [(f64, f64, usize); 7] = [
     (-23.0, 2.0, 4),
     (-15.0, 1.0, 7),
-    (-8.0, 0.5, 28),
+    (-8.0, 0.5, 14),
+    (-1.0, 0.25, 12),
+    (2.0, 0.5, 8),
     (6.0, 1.0, 14),
     (20.0, 4.0, 21),
 ];
-pub const N_SUN: usize = 4 + 7 + 28 + 14 + 21 + 1;
+pub const N_SUN: usize = 4 + 7 + 14 + 12 + 8 + 14 + 21 + 1;
 /// View rows: from the zenith to the horizontal ([`N_VIEW_SKY`], θ = 90° (1 − (1 − x)²)),
 /// from the horizontal to the horizon ([`N_VIEW_LIMB`], the ray's tangent altitude from the
 /// observer's to 0 at the depths [`limb_depth`]) and from the horizon to the nadir
@@ -184,8 +189,9 @@ pub fn horizon_zenith(r: f64, bottom: f64) -> f64 {
 }
 
 /// View zenith angle (rad) of row `i` at radius `r` (see [`N_VIEW_SKY`]), and whether it looks
-/// below the horizon.
-pub fn view_node(i: usize, r: f64, bottom: f64) -> (f64, bool) {
+/// below the horizon; `sun_deg`: the sun's elevation above the observer's horizon (degrees),
+/// on which the sky rows depend at low altitude in twilight ([`sky_row_focus`]).
+pub fn view_node(i: usize, r: f64, bottom: f64, sun_deg: f64) -> (f64, bool) {
     let seg = if i < N_VIEW_SKY {
         0
     } else if i < N_VIEW_UP {
@@ -193,16 +199,18 @@ pub fn view_node(i: usize, r: f64, bottom: f64) -> (f64, bool) {
     } else {
         2
     };
-    view_theta(seg, i as f64, r, bottom)
+    view_theta(seg, i as f64, r, bottom, sun_deg)
 }
 
 /// View zenith angle (rad) of the continuous row coordinate `row` of segment `seg` at radius
-/// `r` (the inverse of [`view_coord`]; [`view_node`] at the rows).
-pub fn view_theta(seg: usize, row: f64, r: f64, bottom: f64) -> (f64, bool) {
+/// `r` and sun `sun_deg` above the observer's horizon (the inverse of [`view_coord`];
+/// [`view_node`] at the rows).
+pub fn view_theta(seg: usize, row: f64, r: f64, bottom: f64, sun_deg: f64) -> (f64, bool) {
     let th = horizon_zenith(r, bottom);
     if seg == 0 {
         let x = row / (N_VIEW_SKY - 1) as f64;
-        (0.5 * PI * (1.0 - (1.0 - x) * (1.0 - x)), false)
+        let (c, k) = sky_row_focus(sun_deg, r - bottom);
+        (0.5 * PI - sky_row_elevation(x, c, k).to_radians(), false)
     } else if seg == 1 {
         let y = limb_depth((row - N_VIEW_SKY as f64) / (N_VIEW_LIMB - 1) as f64);
         // Tangent radius from r (horizontal) to the ground (the horizon).
@@ -215,11 +223,13 @@ pub fn view_theta(seg: usize, row: f64, r: f64, bottom: f64) -> (f64, bool) {
 }
 
 /// Row segment of view zenith `theta` at radius `r` (0 sky, 1 limb, 2 below the horizon) and
-/// its continuous row coordinate (the inverse of [`view_node`]).
-pub fn view_coord(theta: f64, r: f64, bottom: f64) -> (usize, f64) {
+/// its continuous row coordinate (the inverse of [`view_node`]), the sun `sun_deg` above the
+/// observer's horizon.
+pub fn view_coord(theta: f64, r: f64, bottom: f64, sun_deg: f64) -> (usize, f64) {
     let th = horizon_zenith(r, bottom);
     if theta <= 0.5 * PI {
-        let x = 1.0 - (1.0 - (theta / (0.5 * PI)).clamp(0.0, 1.0)).sqrt();
+        let (c, k) = sky_row_focus(sun_deg, r - bottom);
+        let x = sky_row((0.5 * PI - theta).to_degrees(), c, k);
         (0, x * (N_VIEW_SKY - 1) as f64)
     } else if theta < th {
         let r_t = r * (theta - 0.5 * PI).cos();
@@ -236,6 +246,89 @@ pub fn view_coord(theta: f64, r: f64, bottom: f64) -> (usize, f64) {
         let x = ((theta - th) / (PI - th)).clamp(0.0, 1.0).sqrt();
         (2, N_VIEW_UP as f64 + x * (N_VIEW_DOWN - 1) as f64)
     }
+}
+
+/// The sunlit band above the earth's shadow at low altitude (the rise of the antisolar
+/// twilight sky from the shadow's floor to the bright band above it, steepest in the red, where
+/// it is lit by sunlight that grazed the ground): its elevation
+/// (degrees, opposite the sun, where ln L rises fastest) with the sun `sun_deg` above the
+/// observer's horizon at altitude `h` (m): u = [`BAND_SUN_DEG`] − s, c = (a₀ + a₁ h) u +
+/// (a₂ + a₃ h) u², h in km up to 10 ([`BAND_CENTRE`]). The coefficients are 0.85 times a fit to
+/// the `sky` product opposite the sun (earth, 680 nm, 0–10 km, the sun's elevation −4.5…0°;
+/// within 0.3° where the rise is steeper than a factor 1.6 per degree): away from the antisolar
+/// azimuth the band lies lower (150° from the sun: about 0.7 of its elevation at 180°), and the
+/// rows' focus sits between the two.
+pub fn band_centre_deg(sun_deg: f64, h: f64) -> f64 {
+    let u = (BAND_SUN_DEG - sun_deg).max(0.0);
+    let km = (h / 1000.0).clamp(0.0, 10.0);
+    let [a0, a1, a2, a3] = BAND_CENTRE;
+    ((a0 + a1 * km) * u + (a2 + a3 * km) * u * u).min(45.0)
+}
+
+/// The sun coordinate (degrees above the observer's horizon) at which the band of
+/// [`band_centre_deg`] reaches the horizontal.
+pub const BAND_SUN_DEG: f64 = 2.0;
+/// [`band_centre_deg`]'s coefficients: a₀, a₁ (per km), a₂, a₃ (per km) (0.85 × the fit's
+/// 0.49, 0.06, 0.185, 0.023).
+pub const BAND_CENTRE: [f64; 4] = [0.4165, 0.051, 0.157_25, 0.019_55];
+/// The sky rows' focus strength on the band ([`sky_row_focus`], [`sky_row_elevation`]).
+pub const BAND_FOCUS: f64 = 10.0;
+/// Sun coordinates (degrees) between which the focus fades in (the first two: 0 below the
+/// first, full above the second) and out (the last two).
+pub const BAND_SUN_RANGE: [f64; 4] = [-7.0, -4.0, 1.0, 5.0];
+/// Altitudes (m) between which the focus fades out (full below the first, none above the
+/// second).
+pub const BAND_ALTITUDE_M: [f64; 2] = [6_000.0, 10_000.0];
+
+fn smoothstep(a: f64, b: f64, x: f64) -> f64 {
+    let t = ((x - a) / (b - a)).clamp(0.0, 1.0);
+    t * t * (3.0 - 2.0 * t)
+}
+
+/// The sky rows' focus at sun `sun_deg` above the observer's horizon and altitude `h` (m): the
+/// band's elevation c ([`band_centre_deg`], degrees) and the focus strength k = f
+/// [`BAND_FOCUS`] (f the fades of [`BAND_SUN_RANGE`] and [`BAND_ALTITUDE_M`], smoothsteps
+/// 3t² − 2t³; k = 0 by day, deep in twilight and aloft: the rows of version 3).
+pub fn sky_row_focus(sun_deg: f64, h: f64) -> (f64, f64) {
+    let [s0, s1, s2, s3] = BAND_SUN_RANGE;
+    let [h0, h1] = BAND_ALTITUDE_M;
+    let f = smoothstep(s0, s1, sun_deg)
+        * (1.0 - smoothstep(s2, s3, sun_deg))
+        * (1.0 - smoothstep(h0, h1, h));
+    (band_centre_deg(sun_deg, h), f * BAND_FOCUS)
+}
+
+/// Elevation (degrees) of the sky rows' coordinate x ∈ [0, 1] (0 the zenith, 1 the horizontal)
+/// with focus (c, k) ([`sky_row_focus`]). Without focus (k = 0) version 3's rows: elevation
+/// 90° (1 − x₀)², x₀ = x. With it, x₀ (the unfocused coordinate) = x_c + sinh(A + x (B − A)) / k,
+/// x_c = 1 − √(c / 90°) the band's, A = asinh(−k x_c), B = asinh(k (1 − x_c)): the rows are
+/// k / (B − A) times as dense at the band as without the focus (and sparser far from it), the
+/// focus moving with the band as the sun sets (the band's row coordinate −A / (B − A) still
+/// moves, about as much as in version 3's rows: a row coordinate fixed on the band would need a
+/// kink in the map or a focus solved by iteration).
+pub fn sky_row_elevation(x: f64, c: f64, k: f64) -> f64 {
+    let x = x.clamp(0.0, 1.0);
+    let x0 = if k < 1e-6 {
+        x
+    } else {
+        let xc = 1.0 - (c / 90.0).clamp(0.0, 1.0).sqrt();
+        let a = (-k * xc).asinh();
+        let b = (k * (1.0 - xc)).asinh();
+        (xc + (a + x * (b - a)).sinh() / k).clamp(0.0, 1.0)
+    };
+    90.0 * (1.0 - x0) * (1.0 - x0)
+}
+
+/// The inverse of [`sky_row_elevation`]: x₀ = 1 − √(ε / 90°), x = (asinh(k (x₀ − x_c)) − A) / (B − A).
+pub fn sky_row(elevation_deg: f64, c: f64, k: f64) -> f64 {
+    let x0 = 1.0 - (elevation_deg / 90.0).clamp(0.0, 1.0).sqrt();
+    if k < 1e-6 {
+        return x0;
+    }
+    let xc = 1.0 - (c / 90.0).clamp(0.0, 1.0).sqrt();
+    let a = (-k * xc).asinh();
+    let b = (k * (1.0 - xc)).asinh();
+    (((k * (x0 - xc)).asinh() - a) / (b - a)).clamp(0.0, 1.0)
 }
 
 /// The limb rows' depth y = (r − r_t) / (r − bottom) of the ray's tangent point below the
@@ -427,42 +520,49 @@ pub fn build_skyview(
                     return (s_out, m_out);
                 }
                 let r = eval_radius(k, i, bottom, thickness);
-                let (theta, ground) = view_node(i, r, bottom);
-                let mu_h = horizon_mu(r, bottom);
-                let mu = if ground {
-                    (theta.cos().min(mu_h) - 1e-9).max(-1.0)
-                } else {
-                    theta.cos().max(mu_h + 1e-9).min(1.0)
-                };
-                let sin_t = (1.0 - mu * mu).max(0.0).sqrt();
-                let d = ray_length(r, mu, bottom, bottom + thickness, ground);
-                scratch.prepare(r, mu, steps);
-                let mut nus = [0.0; N_SUN * N_AZ];
                 let b = warp_strength(altitude_node_m(k, thickness), thickness);
-                for j in 0..N_SUN {
-                    let s_j = sun_warp(sun_node_deg(j), b);
-                    for a in 0..N_AZ {
-                        let phi = azimuth_node(a);
-                        let limb = (N_VIEW_SKY..N_VIEW_UP).contains(&i);
-                        let shift = sun_shift(r, theta, phi.cos(), bottom, limb);
-                        let mu_s = (s_j.to_radians() - shift).sin();
-                        let sin_s = (1.0 - mu_s * mu_s).max(0.0).sqrt();
-                        let nu =
-                            (mu * mu_s + sin_t * sin_s * azimuth_node(a).cos()).clamp(-1.0, 1.0);
-                        scratch.push_sun(mu_s, nu);
-                        nus[j * N_AZ + a] = nu;
+                let s_j: Vec<f64> = (0..N_SUN).map(|j| sun_warp(sun_node_deg(j), b)).collect();
+                // The rays of this row: one for the suns whose row does not move (every sun
+                // but on the sky rows in low twilight, [`sky_row_focus`]), one per other sun.
+                let focused =
+                    |j: usize| i < N_VIEW_SKY && sky_row_focus(s_j[j], r - bottom).1 > 0.0;
+                let mut rays: Vec<Vec<usize>> = vec![(0..N_SUN).filter(|&j| !focused(j)).collect()];
+                rays.extend((0..N_SUN).filter(|&j| focused(j)).map(|j| vec![j]));
+                for suns in rays.iter().filter(|v| !v.is_empty()) {
+                    let (theta, ground) = view_node(i, r, bottom, s_j[suns[0]]);
+                    let mu_h = horizon_mu(r, bottom);
+                    let mu = if ground {
+                        (theta.cos().min(mu_h) - 1e-9).max(-1.0)
+                    } else {
+                        theta.cos().max(mu_h + 1e-9).min(1.0)
+                    };
+                    let sin_t = (1.0 - mu * mu).max(0.0).sqrt();
+                    let d = ray_length(r, mu, bottom, bottom + thickness, ground);
+                    scratch.prepare(r, mu, steps);
+                    let mut nus = Vec::with_capacity(suns.len() * N_AZ);
+                    for &j in suns {
+                        for a in 0..N_AZ {
+                            let phi = azimuth_node(a);
+                            let limb = (N_VIEW_SKY..N_VIEW_UP).contains(&i);
+                            let shift = sun_shift(r, theta, phi.cos(), bottom, limb);
+                            let mu_s = (s_j[j].to_radians() - shift).sin();
+                            let sin_s = (1.0 - mu_s * mu_s).max(0.0).sqrt();
+                            let nu = (mu * mu_s + sin_t * sin_s * phi.cos()).clamp(-1.0, 1.0);
+                            scratch.push_sun(mu_s, nu);
+                            nus.push(nu);
+                        }
                     }
-                }
-                scratch.integrate();
-                for j in 0..N_SUN {
-                    for a in 0..N_AZ {
-                        let nu = nus[j * N_AZ + a];
-                        let p_r = param::rayleigh_phase(nu);
-                        let s = scratch.texel(j * N_AZ + a);
-                        let o = (j * N_AZ + a) * n_c;
-                        for (c, &l) in idx.iter().enumerate() {
-                            s_out[o + c] = (s.rayleigh[l] + s.multiple[l] / p_r) * e0[c] / d;
-                            m_out[o + c] = s.mie[l] * e0[c] / d;
+                    scratch.integrate();
+                    for (n, &j) in suns.iter().enumerate() {
+                        for a in 0..N_AZ {
+                            let nu = nus[n * N_AZ + a];
+                            let p_r = param::rayleigh_phase(nu);
+                            let s = scratch.texel(n * N_AZ + a);
+                            let o = (j * N_AZ + a) * n_c;
+                            for (c, &l) in idx.iter().enumerate() {
+                                s_out[o + c] = (s.rayleigh[l] + s.multiple[l] / p_r) * e0[c] / d;
+                                m_out[o + c] = s.mie[l] * e0[c] / d;
+                            }
                         }
                     }
                 }
@@ -728,9 +828,6 @@ impl<'a> SkyViewReader<'a> {
         let n_c = self.bundle.wavelengths_nm.len();
         let r = r.clamp(p.bottom_radius, p.top_radius);
         let theta = mu.clamp(-1.0, 1.0).acos();
-        let (seg, row) = view_coord(theta, r, p.bottom_radius);
-        let (lo, hi) = segment_rows(seg);
-        let sv = Stencil::with_nodes(row, lo, hi, |i| i as f64, row, self.nodes[2]);
         let den = ((1.0 - mu * mu) * (1.0 - mu_s * mu_s)).max(0.0).sqrt();
         let cos_phi = if den > 1e-12 {
             ((nu - mu * mu_s) / den).clamp(-1.0, 1.0)
@@ -739,7 +836,13 @@ impl<'a> SkyViewReader<'a> {
         };
         let col = azimuth_coord(cos_phi.acos());
         let sc = Stencil::with_nodes(col, 0, N_AZ - 1, |a| a as f64, col, self.nodes[3]);
+        let (seg, _) = view_coord(theta, r, p.bottom_radius, 0.0);
         let shift = sun_shift(r, theta, cos_phi, p.bottom_radius, seg == 1);
+        // The sky rows depend on the ray's sun coordinate (the sun's elevation + shift).
+        let s_deg = (mu_s.clamp(-1.0, 1.0).asin() + shift).to_degrees();
+        let (seg, row) = view_coord(theta, r, p.bottom_radius, s_deg);
+        let (lo, hi) = segment_rows(seg);
+        let sv = Stencil::with_nodes(row, lo, hi, |i| i as f64, row, self.nodes[2]);
         let (sa, ss) = self.altitude_sun_stencils(r, mu_s, shift);
         let d = ray_length(r, mu, p.bottom_radius, p.top_radius, seg == 2);
         let mut out = [vec![0.0; n_c], vec![0.0; n_c]];
@@ -963,8 +1066,9 @@ pub const STATED_ERRORS: &[(&str, &str, f64)] = &[
     ("rayleigh+mie", "sky radiance (sky product), sun >= 5 deg, view < 10 deg above the horizon, ground", 0.004),
     ("rayleigh+mie", "sky radiance (sky product), sun >= 5 deg, view < 10 deg above the horizon, 0-20 km", 0.0047),
     ("rayleigh+mie", "sky radiance (sky product), sun >= 5 deg, view < 10 deg above the horizon, 20-100 km", 0.025),
-    ("rayleigh+mie", "sky radiance (sky product), sun -6..5 deg, ground", 0.014),
-    ("rayleigh+mie", "sky radiance (sky product), sun -6..5 deg, 0-20 km", 0.026),
+    ("rayleigh+mie", "sky radiance (sky product), sun -6..5 deg, ground", 0.015),
+    ("rayleigh+mie", "sky radiance (sky product), sun -6..5 deg, 0-20 km", 0.014),
+    ("rayleigh+mie", "sky radiance (sky product), sun -6..0 deg, 0-5 km, views within 10 deg of the horizon 150-180 deg from the sun (the earth's shadow rising; 680 nm at 5 km)", 0.165),
     ("rayleigh+mie", "sky radiance (sky product), sun -6..5 deg, 20-100 km (the limb across the earth's shadow)", 0.089),
     ("rayleigh+mie", "sky radiance (sky product), sun -12..-6 deg, ground", 0.035),
     ("rayleigh+mie", "sky radiance (sky product), sun -12..-6 deg, 0-20 km", 0.032),
@@ -1022,12 +1126,20 @@ pub fn manifest(
             "altitude_nodes_m": altitude_nodes,
             "altitude_node": "h_k = (top_radius - bottom_radius) * (k / (N_ALT - 1))^2, k = 0..N_ALT-1",
             "sun_elevation_nodes_deg": sun_nodes,
-            "sun_node": "the sun node coordinate t_j (deg): every 2 deg from -23 to -15, every 1 deg to -8, every 0.5 deg to 6, every 1 deg to 20, every 4 deg to 104 (segments [start, step, intervals] in sun_segments). At altitude h the node's sun coordinate s_j = warp(t_j, b), b = sun_warp_strength * sqrt(h / (top_radius - bottom_radius)), warp(t, b) = e sinh(b t / e) / sinh(b) for sun_warp_range[0] < t < sun_warp_range[1] (e = -sun_warp_range[0] for t < 0, sun_warp_range[1] for t >= 0), t elsewhere (and where b < 1e-6); its inverse t = e asinh(s sinh(b) / e) / b gives a query's node coordinate, the interpolation's abscissa. s = the sun's elevation + shift: for view rows above the horizontal and below the horizon (and the irradiance) shift = the horizon's dip acos(bottom_radius / r), the sun's elevation above the observer's horizon; for the limb rows (between the horizontal and the horizon) shift = dip + w (gamma cos(phi) + acos(bottom_radius / r_t) - dip), w = 1 - exp(-(r - r_t) / limb_shadow_scale_m): towards the sun's elevation above the horizon of the ray's tangent point, with dip = acos(bottom_radius / r), gamma = theta - pi/2, r_t = r cos(gamma), phi the view's azimuth from the sun; the texels of a limb row are at the sun elevations s_j - shift of their column's azimuth",
+            "sun_node": "the sun node coordinate t_j (deg): every 2 deg from -23 to -15, every 1 deg to -8, every 0.5 deg to -1, every 0.25 deg to 2, every 0.5 deg to 6, every 1 deg to 20, every 4 deg to 104 (segments [start, step, intervals] in sun_segments). At altitude h the node's sun coordinate s_j = warp(t_j, b), b = sun_warp_strength * sqrt(h / (top_radius - bottom_radius)), warp(t, b) = e sinh(b t / e) / sinh(b) for sun_warp_range[0] < t < sun_warp_range[1] (e = -sun_warp_range[0] for t < 0, sun_warp_range[1] for t >= 0), t elsewhere (and where b < 1e-6); its inverse t = e asinh(s sinh(b) / e) / b gives a query's node coordinate, the interpolation's abscissa. s = the sun's elevation + shift: for view rows above the horizontal and below the horizon (and the irradiance) shift = the horizon's dip acos(bottom_radius / r), the sun's elevation above the observer's horizon; for the limb rows (between the horizontal and the horizon) shift = dip + w (gamma cos(phi) + acos(bottom_radius / r_t) - dip), w = 1 - exp(-(r - r_t) / limb_shadow_scale_m): towards the sun's elevation above the horizon of the ray's tangent point, with dip = acos(bottom_radius / r), gamma = theta - pi/2, r_t = r cos(gamma), phi the view's azimuth from the sun; the texels of a limb row are at the sun elevations s_j - shift of their column's azimuth",
             "sun_warp_strength": SUN_WARP,
             "sun_warp_range": [SUN_WARP_RANGE.0, SUN_WARP_RANGE.1],
             "limb_shadow_scale_m": LIMB_SHADOW_SCALE_M,
             "sun_segments": SUN_SEGMENTS.iter().map(|(a, b, n)| json!([a, b, n])).collect::<Vec<_>>(),
-            "view_rows": format!("rows 0..{} from the zenith to the horizontal: theta = (pi/2) (1 - (1 - x)^2), x = row / {}; rows {}..{} from the horizontal to the horizon: the ray's tangent radius r_t = r - (r - bottom_radius) y, y = 2 x^2 - x^3, x = (row - {}) / {} (inverse: x = 2/3 + (4/3) cos(acos(1 - 27 y / 16) / 3 - 2 pi / 3)), theta = pi/2 + acos(r_t / r); rows {}..{} from the horizon to the nadir: theta = theta_h + (pi - theta_h) x^2, x = (row - {}) / {}, theta_h = pi - asin(bottom_radius / r); r the observer's radius. Interpolation over the rows around the view stays within its segment (see interpolation)", N_VIEW_SKY - 1, N_VIEW_SKY - 1, N_VIEW_SKY, N_VIEW_UP - 1, N_VIEW_SKY, N_VIEW_LIMB - 1, N_VIEW_UP, N_VIEW - 1, N_VIEW_UP, N_VIEW_DOWN - 1),
+            "sky_row_band": {
+                "sun_deg": BAND_SUN_DEG,
+                "centre": BAND_CENTRE,
+                "focus": BAND_FOCUS,
+                "sun_range_deg": BAND_SUN_RANGE,
+                "altitude_range_m": BAND_ALTITUDE_M,
+                "formula": "the sky rows' focus at the sun's elevation s above the observer's horizon (deg) and altitude h (m): u = max(sun_deg - s, 0), km = clamp(h / 1000, 0, 10), c = min((centre[0] + centre[1] km) u + (centre[2] + centre[3] km) u^2, 45) (deg), k = smoothstep(sun_range_deg[0], sun_range_deg[1], s) (1 - smoothstep(sun_range_deg[2], sun_range_deg[3], s)) (1 - smoothstep(altitude_range_m[0], altitude_range_m[1], h)) focus, smoothstep(a, b, x) = t^2 (3 - 2 t), t = clamp((x - a) / (b - a), 0, 1)",
+            },
+            "view_rows": format!("rows 0..{} from the zenith to the horizontal: elevation = 90 (1 - x0)^2 (deg), x0 = x_c + sinh(A + x (B - A)) / k, x = row / {}, x_c = 1 - sqrt(c / 90), A = asinh(-k x_c), B = asinh(k (1 - x_c)), (c, k) the sky rows' focus (sky_row_band) at the sun's elevation above the observer's horizon (its node's s_j for a texel, the query's own for a query) and the observer's altitude; where k < 1e-6, x0 = x; inverse: x0 = 1 - sqrt(elevation / 90), x = (asinh(k (x0 - x_c)) - A) / (B - A) (or x0); rows {}..{} from the horizontal to the horizon: the ray's tangent radius r_t = r - (r - bottom_radius) y, y = 2 x^2 - x^3, x = (row - {}) / {} (inverse: x = 2/3 + (4/3) cos(acos(1 - 27 y / 16) / 3 - 2 pi / 3)), theta = pi/2 + acos(r_t / r); rows {}..{} from the horizon to the nadir: theta = theta_h + (pi - theta_h) x^2, x = (row - {}) / {}, theta_h = pi - asin(bottom_radius / r); r the observer's radius. Interpolation over the rows around the view stays within its segment (see interpolation)", N_VIEW_SKY - 1, N_VIEW_SKY - 1, N_VIEW_SKY, N_VIEW_UP - 1, N_VIEW_SKY, N_VIEW_LIMB - 1, N_VIEW_UP, N_VIEW - 1, N_VIEW_UP, N_VIEW_DOWN - 1),
             "azimuth_columns": format!("phi = pi (column / {})^2, the view's azimuth from the sun's, 0..pi", N_AZ - 1),
             "slices": "slice = altitude_index * N_SUN + sun_index; file row = slice * N_VIEW + view_row; texture coordinates at texel centres: u = (column + 0.5) / N_AZ, v = (view_row + 0.5) / N_VIEW",
             "sizes": {"N_ALT": N_ALT, "N_SUN": N_SUN, "N_VIEW_SKY": N_VIEW_SKY, "N_VIEW_LIMB": N_VIEW_LIMB, "N_VIEW_DOWN": N_VIEW_DOWN, "N_AZ": N_AZ},
@@ -1085,23 +1197,80 @@ mod tests {
         for a in 0..N_AZ {
             assert!((azimuth_coord(azimuth_node(a)) - a as f64).abs() < 1e-9);
         }
-        for r in [R + 50.0, R + 3000.0, R + 60_000.0, R + H] {
-            for i in 0..N_VIEW {
-                let (theta, below) = view_node(i, r, R);
-                assert_eq!(below, i >= N_VIEW_UP);
-                let (seg, row) = view_coord(theta, r, R);
-                // The segments' shared edges (horizontal, horizon) belong to either side.
-                let ok = (row - i as f64).abs() < 1e-6
-                    || (i == N_VIEW_SKY
-                        && seg == 0
-                        && (row - (N_VIEW_SKY - 1) as f64).abs() < 1e-6)
-                    || (i == N_VIEW_UP - 1 && seg == 2 && (row - N_VIEW_UP as f64).abs() < 1e-6);
-                assert!(ok, "r {r}, row {i}: theta {theta} -> ({seg}, {row})");
+        for r in [R + 50.0, R + 3000.0, R + 12_000.0, R + 60_000.0, R + H] {
+            for sun in [-8.0, -5.0, -2.0, 0.0, 2.5, 10.0] {
+                for i in 0..N_VIEW {
+                    let (theta, below) = view_node(i, r, R, sun);
+                    assert_eq!(below, i >= N_VIEW_UP);
+                    let (seg, row) = view_coord(theta, r, R, sun);
+                    // The segments' shared edges (horizontal, horizon) belong to either side.
+                    let ok = (row - i as f64).abs() < 1e-6
+                        || (i == N_VIEW_SKY
+                            && seg == 0
+                            && (row - (N_VIEW_SKY - 1) as f64).abs() < 1e-6)
+                        || (i == N_VIEW_UP - 1
+                            && seg == 2
+                            && (row - N_VIEW_UP as f64).abs() < 1e-6);
+                    assert!(
+                        ok,
+                        "r {r}, sun {sun}, row {i}: theta {theta} -> ({seg}, {row})"
+                    );
+                }
+                // Zenith, horizontal and horizon where the geometry puts them.
+                assert!(view_node(0, r, R, sun).0.abs() < 1e-12);
+                assert!((view_node(N_VIEW_SKY - 1, r, R, sun).0 - 0.5 * PI).abs() < 1e-12);
+                assert!(
+                    (view_node(N_VIEW_UP - 1, r, R, sun).0 - horizon_zenith(r, R)).abs() < 1e-9
+                );
+                assert!((view_node(N_VIEW - 1, r, R, sun).0 - PI).abs() < 1e-12);
             }
-            // Horizontal and horizon where the geometry puts them.
-            assert!((view_node(N_VIEW_SKY - 1, r, R).0 - 0.5 * PI).abs() < 1e-12);
-            assert!((view_node(N_VIEW_UP - 1, r, R).0 - horizon_zenith(r, R)).abs() < 1e-9);
-            assert!((view_node(N_VIEW - 1, r, R).0 - PI).abs() < 1e-12);
+        }
+    }
+
+    #[test]
+    fn the_sky_rows_follow_the_band() {
+        // By day, deep in twilight and aloft: version 3's rows, θ = 90° (1 − (1 − x)²).
+        for (sun, h) in [(5.0, 0.0), (-8.0, 0.0), (-2.0, 30_000.0)] {
+            let (c, k) = sky_row_focus(sun, h);
+            assert_eq!(k, 0.0, "sun {sun}, h {h}");
+            for n in 0..=10 {
+                let x = n as f64 / 10.0;
+                let want = 90.0 * (1.0 - x) * (1.0 - x);
+                assert!((sky_row_elevation(x, c, k) - want).abs() < 1e-12);
+            }
+        }
+        // In low twilight the rows are more than twice as dense as version 3's at the band's
+        // elevation (which moves with the sun), sparser at the zenith; sky_row inverts
+        // sky_row_elevation.
+        let h = 5000.0;
+        for sun in [-1.0, -0.5, 0.0, 0.5] {
+            let (c, k) = sky_row_focus(sun, h);
+            assert!(k > 0.0);
+            assert!((sky_row_elevation(0.0, c, k) - 90.0).abs() < 1e-9);
+            assert!(sky_row_elevation(1.0, c, k).abs() < 1e-9);
+            for n in 0..=100 {
+                let x = n as f64 / 100.0;
+                assert!((sky_row(sky_row_elevation(x, c, k), c, k) - x).abs() < 1e-9);
+            }
+            // Degrees of elevation per unit of x at x (central difference).
+            let spacing = |x: f64| {
+                let dx = 1e-4;
+                (sky_row_elevation(x - dx, c, k) - sky_row_elevation(x + dx, c, k)) / (2.0 * dx)
+            };
+            let x_band = sky_row(c, c, k);
+            let x0 = 1.0 - (c / 90.0).sqrt();
+            let base = 180.0 * (1.0 - x0);
+            assert!(
+                spacing(x_band) < 0.5 * base,
+                "sun {sun}: {} vs {base}",
+                spacing(x_band)
+            );
+            // Sparser than version 3's far from the band (the zenith).
+            assert!(
+                spacing(0.01) > 1.5 * 180.0 * 0.99,
+                "sun {sun}: {}",
+                spacing(0.01)
+            );
         }
     }
 
