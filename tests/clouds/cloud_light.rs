@@ -4,8 +4,8 @@
 
 use glam::DVec3;
 use serde_json::{json, Value};
-use skybake_physics::cloud::DensityGrid;
 use skybake_engine::engine::Engine;
+use skybake_physics::cloud::DensityGrid;
 use skybake_product::cloud_light::marcher::Marcher;
 use skybake_product::cloud_light::{CloudLight, MANIFEST_FILE};
 use skybake_product::frame::example_scene;
@@ -111,9 +111,9 @@ fn vacuum_scene(sun_azimuth_deg: f64) -> FrameScene {
 /// The marcher of the exported volume reproduces the fast frame within 3 % block NRMSE: front-lit
 /// and back-lit (sun 25° above the horizon behind the cloud, 30° off the view) in vacuum with a
 /// constant sky, composited over the export's own environment radiance. Measured (draft, 128×96,
-/// 50 m voxels): 0.20 % / 0.12 % block NRMSE, 0.22 % / 0.24 % pixel, −0.14 % / +0.00 % bias
-/// (docs/cloud-light.md; the draft steps of 1.5 voxels are optically thick in places, which the
-/// renderer's march integrates in sub-steps and the marcher in one piece).
+/// 50 m voxels): 0.28 % / 0.77 % block NRMSE, 0.28 % / 1.20 % pixel, −0.23 % / −0.67 % bias
+/// (docs/cloud-light.md; the draft steps of 1.5 voxels are optically thick in places, which
+/// both marches take in sub-steps).
 #[test]
 fn marcher_reproduces_the_fast_frame_in_vacuum() {
     // Camera at −y looking +y: azimuth 180° puts the sun behind the camera (front-lit); 30°
@@ -132,7 +132,7 @@ fn marcher_reproduces_the_fast_frame_in_vacuum() {
     }
     // The comparison sees each exported term: without the multiple-scattering moments, without
     // the peak spread, or without the peak's part seen through the true extinction, the marcher
-    // misses the fast frame by more than the 3 % bound (measured 82 %, 4.8 % and 9.6 % block
+    // misses the fast frame by more than the 3 % bound (measured 82 %, 5.4 % and 8.8 % block
     // NRMSE).
     let scene = vacuum_scene(30.0);
     let (no_ms, _) = compare(&scene, true, &|cl| {
@@ -161,7 +161,7 @@ fn marcher_reproduces_the_fast_frame_in_vacuum() {
 /// The embedded `cumulus-frame` scene (earth atmosphere, sky, ground of albedo 0.3, aerial
 /// perspective; draft, 50 m voxels, 128×96): the marcher's cloud composited with the
 /// renderer's atmosphere and ground reproduces the fast frame within 3 % block NRMSE (measured
-/// 0.22 % block, 0.21 % pixel, −0.17 % bias).
+/// 0.27 % block, 0.27 % pixel, −0.23 % bias).
 #[test]
 fn marcher_reproduces_the_embedded_cumulus_frame() {
     let mut v: Value = serde_json::from_str(example_scene("cumulus-frame").unwrap()).unwrap();
@@ -187,8 +187,7 @@ fn marcher_reproduces_the_embedded_cumulus_frame() {
 /// cloud is given as a grid).
 fn thick_scene(centre: DVec3, distance_m: f64, k: f64, sun_azimuth_deg: f64) -> FrameScene {
     let (az, el) = (200f64.to_radians(), 20f64.to_radians());
-    let cam = centre
-        + DVec3::new(az.sin() * el.cos(), az.cos() * el.cos(), el.sin()) * distance_m;
+    let cam = centre + DVec3::new(az.sin() * el.cos(), az.cos() * el.cos(), el.sin()) * distance_m;
     let v = json!({
         "cloud": {"voxel_size_m": 50.0, "source": {"type": "metaballs",
                   "balls": [{"centre_m": [0, 0, 1000], "radius_m": 100, "density": 1.0}]}},
@@ -211,7 +210,11 @@ fn thick_scene(centre: DVec3, distance_m: f64, k: f64, sun_azimuth_deg: f64) -> 
 /// voxels (τ 32 through its 100 m, 8 per voxel) and a τ 160 ball (radius 300 m) in the tight
 /// 20³ grid of 30 m voxels round it (its face centres' voxels hold cloud), sun 40° high
 /// beside the camera and behind the cloud. The marcher of the export reproduces the frame
-/// within 3 % block NRMSE and 2 % bias (measured in docs/cloud-light.md).
+/// within 3 % block NRMSE and 2 % bias. Measured (draft, 128×96): slab beside / behind 0.09 % /
+/// 0.20 % block NRMSE, −0.09 % / +0.00 % bias; ball 0.15 % / 1.15 %, −0.13 % / −0.62 %
+/// (before the export held the skins and the marcher took thick steps and continued the sun's
+/// path to the faces: 6.2 % / 22.5 % and 19.1 % / 28.2 % block, −3.5 % to −14 % bias); the
+/// bounds are those figures with a margin. Without the skins the ball beside misses by 4.4 %.
 #[test]
 fn marcher_reproduces_grid_filling_thick_clouds() {
     let slab_origin = DVec3::new(-200.0, -200.0, 1000.0);
@@ -227,25 +230,52 @@ fn marcher_reproduces_grid_filling_thick_clouds() {
     .unwrap();
     let slab_centre = slab_origin + DVec3::new(200.0, 200.0, 50.0);
     let mut results = Vec::new();
-    for (name, grid, centre, distance, k) in [
-        ("slab τ 32", &slab, slab_centre, 1600.0, 0.32),
-        ("ball τ 160", &ball, c, 2400.0, 160.0 / 600.0),
+    // (name, grid, centre, camera distance, k, [(lighting, sun azimuth, block NRMSE bound)]).
+    for (name, grid, centre, distance, k, cases) in [
+        (
+            "slab τ 32",
+            &slab,
+            slab_centre,
+            1600.0,
+            0.32,
+            [("sun beside", 150.0, 0.005), ("sun behind", 30.0, 0.005)],
+        ),
+        (
+            "ball τ 160",
+            &ball,
+            c,
+            2400.0,
+            160.0 / 600.0,
+            [("sun beside", 150.0, 0.005), ("sun behind", 30.0, 0.02)],
+        ),
     ] {
-        for (lit, az) in [("sun beside", 150.0), ("sun behind", 30.0)] {
+        for (lit, az, bound) in cases {
             let scene = thick_scene(centre, distance, k, az);
             let (e, cl) = compare_grid(&scene, grid, true, &|_| {});
             eprintln!(
                 "cloud_light {name}, {lit}: block NRMSE {:.4}, pixel NRMSE {:.4}, bias {:+.4}, {} cloud pixels, dims {:?}",
                 e.nrmse_blocks, e.nrmse_pixels, e.mean_bias, e.cloud_pixels, cl.dims
             );
-            results.push((name, lit, e));
+            // Every cell of these clouds is thick: the export holds the skins.
+            assert!(cl.skin.is_some(), "{name}, {lit}: no skin tallies exported");
+            results.push((name, lit, bound, e));
         }
     }
-    for (name, lit, e) in results {
+    // The comparison sees the skins: without them (the cells' moments throughout) the marcher
+    // misses the frame by more than the bound.
+    let scene = thick_scene(c, 2400.0, 160.0 / 600.0, 150.0);
+    let (no_skin, _) = compare_grid(&scene, &ball, true, &|cl| cl.skin = None);
+    eprintln!(
+        "cloud_light ball τ 160, sun beside, without the skins: block NRMSE {:.4}, bias {:+.4}",
+        no_skin.nrmse_blocks, no_skin.mean_bias
+    );
+    for (name, lit, bound, e) in results {
         assert!(e.cloud_pixels > 1500, "{name}, {lit}: {e:?}");
-        assert!(e.nrmse_blocks <= 0.03, "{name}, {lit}: {e:?}");
-        assert!(e.mean_bias.abs() <= 0.02, "{name}, {lit}: {e:?}");
+        assert!(e.nrmse_blocks <= bound, "{name}, {lit}: {e:?}");
+        assert!(e.nrmse_pixels <= 0.03, "{name}, {lit}: {e:?}");
+        assert!(e.mean_bias.abs() <= 0.01, "{name}, {lit}: {e:?}");
     }
+    assert!(no_skin.nrmse_blocks > 0.03, "{no_skin:?}");
 }
 
 /// Small export for the error cases: a ball, draft.
