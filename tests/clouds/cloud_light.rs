@@ -7,7 +7,7 @@ use serde_json::{json, Value};
 use skybake_engine::engine::Engine;
 use skybake_physics::cloud::DensityGrid;
 use skybake_product::cloud_light::marcher::Marcher;
-use skybake_product::cloud_light::{CloudLight, MANIFEST_FILE};
+use skybake_product::cloud_light::{CloudLight, MANIFEST_FILE, SKIN_FILE};
 use skybake_product::frame::example_scene;
 use skybake_render::camera::primary_ray;
 use skybake_render::compare::{image_errors, ImageErrors};
@@ -264,7 +264,7 @@ fn marcher_reproduces_grid_filling_thick_clouds() {
     // The comparison sees the skins: without them (the cells' moments throughout) the marcher
     // misses the frame by more than the bound.
     let scene = thick_scene(c, 2400.0, 160.0 / 600.0, 150.0);
-    let (no_skin, _) = compare_grid(&scene, &ball, true, &|cl| cl.skin = None);
+    let (no_skin, ball_cl) = compare_grid(&scene, &ball, true, &|cl| cl.skin = None);
     eprintln!(
         "cloud_light ball τ 160, sun beside, without the skins: block NRMSE {:.4}, bias {:+.4}",
         no_skin.nrmse_blocks, no_skin.mean_bias
@@ -276,6 +276,39 @@ fn marcher_reproduces_grid_filling_thick_clouds() {
         assert!(e.mean_bias.abs() <= 0.01, "{name}, {lit}: {e:?}");
     }
     assert!(no_skin.nrmse_blocks > 0.03, "{no_skin:?}");
+    // The skins' file is listed with its depths; without the depths it is refused.
+    let mut ball_cl = ball_cl;
+    let (_, exported) = compare_grid(&scene, &ball, true, &|_| {});
+    ball_cl.skin = exported.skin;
+    let files: Vec<(String, Vec<u8>)> = ball_cl
+        .files()
+        .unwrap()
+        .into_iter()
+        .map(|(n, b)| (n.to_string(), b))
+        .collect();
+    assert!(files.iter().any(|(n, _)| n == SKIN_FILE));
+    assert_eq!(decode(&files).unwrap(), ball_cl);
+    let mut m: Value =
+        serde_json::from_slice(&files.iter().find(|(n, _)| n == MANIFEST_FILE).unwrap().1).unwrap();
+    assert_eq!(m["textures"]["multiple_scattering_skin"]["file"], SKIN_FILE);
+    m["skin"] = Value::Null;
+    let edited: Vec<_> = files
+        .iter()
+        .map(|(n, b)| {
+            let b = if n == MANIFEST_FILE {
+                serde_json::to_vec(&m).unwrap()
+            } else {
+                b.clone()
+            };
+            (n.clone(), b)
+        })
+        .collect();
+    let e = decode(&edited).unwrap_err();
+    assert_eq!(
+        e.field(),
+        "manifest.json.skin.depth_scaled_optical_depth",
+        "{e}"
+    );
 }
 
 /// Small export for the error cases: a ball, draft.

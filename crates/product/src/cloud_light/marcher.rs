@@ -3,7 +3,10 @@
 //! computation; it shares only the exact per-step weight of the sun term,
 //! [`skybake_render::march::sun_step`], a closed-form integral). Per pixel it marches the view ray through the box in steps of the export's
 //! `step_voxels`, interpolating the per-voxel textures trilinearly at each step and evaluating
-//! the source towards the camera from the direction tables; the fast frame's march
+//! the source towards the camera from the direction tables; steps over voxels of many optical
+//! depths are taken in sub-steps with the field's skin tallies (docs/cloud-light.md, "Thick
+//! steps"), and the sun's path is continued beyond the outermost voxel centres, as the fast
+//! frame does them; the fast frame's march
 //! (`skybake_render::march`, the TMS form of Nakajima & Tanaka 1988, eqs 13–15, with the δ-M
 //! scaling of Wiscombe 1977) is what it reproduces, with the sky and multiple-scattering sources
 //! evaluated at each sample rather than at voxel centres first.

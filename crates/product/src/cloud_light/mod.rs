@@ -1,7 +1,8 @@
 //! Pre-lit cloud volumes for real-time clients: what the fast cloud method computed per voxel
 //! (the renderer's [`LitVolume`]: the sun's density integral, the density integrals towards the
 //! 14 lattice directions that carry sky and ground light, and the all-order multiple-scattering
-//! field's spherical-harmonic moments), exported with the direction tables that turn them into
+//! field's spherical-harmonic moments, with those of its skin tallies of optically thick cells),
+//! exported with the direction tables that turn them into
 //! the source towards any viewer (the sky elements of Nishita et al. 1996, eq 7, the phase
 //! function, the truncated peak's spread), so a client ray-marches a lit cloud without computing
 //! any light. `docs/cloud-light.md` documents the layout; [`marcher`] is the reference client.
