@@ -821,7 +821,7 @@ impl CloudLight {
                     &m["skin"]["depth_scaled_optical_depth"],
                     "skin.depth_scaled_optical_depth",
                 )?;
-                if depth.len() != n_l || depth.iter().any(|&d| !(d > 0.0)) {
+                if depth.len() != n_l || depth.iter().any(|&d| d <= 0.0) {
                     return Err(bad(
                         "skin.depth_scaled_optical_depth",
                         &format!("must hold {n_l} positive values (one per wavelength)"),
