@@ -311,6 +311,66 @@ fn marcher_reproduces_grid_filling_thick_clouds() {
     );
 }
 
+/// The skins' moments the export writes (`MsField::convolved_skin_coefficients`) reconstruct
+/// the skin source the fast frame's thick steps use (`MsField::inscatter_skin`): at every
+/// voxel centre of the τ 160 ball where a skin applies, towards 6 directions, to rounding.
+#[test]
+fn exported_skin_moments_reconstruct_the_frame_s_skin_source() {
+    let c = DVec3::new(0.0, 0.0, 1000.0);
+    let grid = DensityGrid::from_fn([20, 20, 20], 30.0, c - DVec3::splat(300.0), |p| {
+        if (p - c).length() < 300.0 {
+            1.0
+        } else {
+            0.0
+        }
+    })
+    .unwrap();
+    let scene = thick_scene(c, 2400.0, 160.0 / 600.0, 150.0);
+    let lighting = lighting_for(&scene, &grid, &Engine::new()).unwrap();
+    let settings = RenderSettings::for_quality(scene.quality, Method::Fast);
+    let prepared = Prepared::new(&scene, &grid, &lighting, settings, &|| false).unwrap();
+    let field = prepared.lit.ms.as_ref().unwrap();
+    assert!(field.has_skin());
+    let order = field.angular_order();
+    let moments = (order + 1) * (order + 1);
+    let mut coeffs = vec![0.0; moments];
+    let (mut js, mut ylm) = (vec![0.0; 1], vec![0.0; moments]);
+    let dirs = [
+        DVec3::X,
+        -DVec3::Y,
+        DVec3::Z,
+        DVec3::new(1.0, 1.0, -1.0).normalize(),
+        DVec3::new(-0.3, 0.5, 0.8).normalize(),
+        DVec3::new(0.2, -0.9, -0.1).normalize(),
+    ];
+    let mut checked = 0;
+    for z in 0..20 {
+        for y in 0..20 {
+            for x in 0..20 {
+                let p = grid.voxel_centre(x, y, z);
+                let has = field.convolved_skin_coefficients(p, &mut coeffs);
+                assert_eq!(has, field.inscatter_skin(p, DVec3::Z, &mut js), "{p}");
+                if !has {
+                    continue;
+                }
+                for d in dirs {
+                    assert!(field.inscatter_skin(p, d, &mut js));
+                    skybake_render::multiple::real_sh(-d, order, &mut ylm);
+                    let j: f64 = coeffs.iter().zip(&ylm).map(|(c, y)| c * y).sum();
+                    let tol = 1e-9 * coeffs[0].abs().max(1e-30);
+                    assert!(
+                        (j.max(0.0) - js[0]).abs() <= tol,
+                        "{p} {d}: {j} vs {}",
+                        js[0]
+                    );
+                    checked += 1;
+                }
+            }
+        }
+    }
+    assert!(checked > 1000, "{checked}");
+}
+
 /// Small export for the error cases: a ball, draft.
 fn small_export() -> Vec<(String, Vec<u8>)> {
     let mut v: Value = serde_json::from_str(example_scene("cumulus-frame").unwrap()).unwrap();
