@@ -287,6 +287,14 @@ fn marcher_reproduces_grid_filling_thick_clouds() {
         .map(|(n, b)| (n.to_string(), b))
         .collect();
     assert!(files.iter().any(|(n, _)| n == SKIN_FILE));
+    eprintln!(
+        "cloud_light ball τ 160 export: {}",
+        files
+            .iter()
+            .map(|(n, b)| format!("{n} {} B", b.len()))
+            .collect::<Vec<_>>()
+            .join(", ")
+    );
     assert_eq!(decode(&files).unwrap(), ball_cl);
     let mut m: Value =
         serde_json::from_slice(&files.iter().find(|(n, _)| n == MANIFEST_FILE).unwrap().1).unwrap();
