@@ -2,10 +2,12 @@
 //! volume, decoded from its OpenEXR files, against the fast frame it was exported from; the
 //! round trip of the files; bad exports refused with errors naming the file and field.
 
+use glam::DVec3;
 use serde_json::{json, Value};
 use skybake_engine::engine::Engine;
+use skybake_physics::cloud::DensityGrid;
 use skybake_product::cloud_light::marcher::Marcher;
-use skybake_product::cloud_light::{CloudLight, MANIFEST_FILE};
+use skybake_product::cloud_light::{CloudLight, MANIFEST_FILE, SKIN_FILE};
 use skybake_product::frame::example_scene;
 use skybake_render::camera::primary_ray;
 use skybake_render::compare::{image_errors, ImageErrors};
@@ -44,6 +46,17 @@ fn compare(
         .cloud
         .voxelize(&|_| Err(skybake_physics::Error::invalid("path", "no files")))
         .unwrap();
+    compare_grid(scene, &grid, background_from_export, edit)
+}
+
+/// [`compare`] for the cloud `grid` in place of the scene's own.
+fn compare_grid(
+    scene: &FrameScene,
+    grid: &DensityGrid,
+    background_from_export: bool,
+    edit: &dyn Fn(&mut CloudLight),
+) -> (ImageErrors, CloudLight) {
+    let grid = grid.clone();
     let engine = Engine::new();
     let lighting = lighting_for(scene, &grid, &engine).unwrap();
     let settings = RenderSettings::for_quality(scene.quality, Method::Fast);
@@ -98,9 +111,9 @@ fn vacuum_scene(sun_azimuth_deg: f64) -> FrameScene {
 /// The marcher of the exported volume reproduces the fast frame within 3 % block NRMSE: front-lit
 /// and back-lit (sun 25° above the horizon behind the cloud, 30° off the view) in vacuum with a
 /// constant sky, composited over the export's own environment radiance. Measured (draft, 128×96,
-/// 50 m voxels): 0.20 % / 0.12 % block NRMSE, 0.22 % / 0.24 % pixel, −0.14 % / +0.00 % bias
-/// (docs/cloud-light.md; the draft steps of 1.5 voxels are optically thick in places, which the
-/// renderer's march integrates in sub-steps and the marcher in one piece).
+/// 50 m voxels): 0.28 % / 0.77 % block NRMSE, 0.28 % / 1.20 % pixel, −0.23 % / −0.67 % bias
+/// (docs/cloud-light.md; the draft steps of 1.5 voxels are optically thick in places, which
+/// both marches take in sub-steps).
 #[test]
 fn marcher_reproduces_the_fast_frame_in_vacuum() {
     // Camera at −y looking +y: azimuth 180° puts the sun behind the camera (front-lit); 30°
@@ -119,7 +132,7 @@ fn marcher_reproduces_the_fast_frame_in_vacuum() {
     }
     // The comparison sees each exported term: without the multiple-scattering moments, without
     // the peak spread, or without the peak's part seen through the true extinction, the marcher
-    // misses the fast frame by more than the 3 % bound (measured 82 %, 4.8 % and 9.6 % block
+    // misses the fast frame by more than the 3 % bound (measured 82 %, 5.4 % and 8.8 % block
     // NRMSE).
     let scene = vacuum_scene(30.0);
     let (no_ms, _) = compare(&scene, true, &|cl| {
@@ -148,7 +161,7 @@ fn marcher_reproduces_the_fast_frame_in_vacuum() {
 /// The embedded `cumulus-frame` scene (earth atmosphere, sky, ground of albedo 0.3, aerial
 /// perspective; draft, 50 m voxels, 128×96): the marcher's cloud composited with the
 /// renderer's atmosphere and ground reproduces the fast frame within 3 % block NRMSE (measured
-/// 0.22 % block, 0.21 % pixel, −0.17 % bias).
+/// 0.27 % block, 0.27 % pixel, −0.23 % bias).
 #[test]
 fn marcher_reproduces_the_embedded_cumulus_frame() {
     let mut v: Value = serde_json::from_str(example_scene("cumulus-frame").unwrap()).unwrap();
@@ -166,6 +179,204 @@ fn marcher_reproduces_the_embedded_cumulus_frame() {
     assert!(e.nrmse_blocks <= 0.03, "{e:?}");
     assert!(e.nrmse_pixels <= 0.03, "{e:?}");
     assert!(e.mean_bias.abs() <= 0.02, "{e:?}");
+}
+
+/// A vacuum scene (constant sky 0.05, the sun 40° high at azimuth `sun_azimuth_deg`, no
+/// ground, one wavelength, draft, 128×96) looking at `centre` from the south-west, 20° above it,
+/// from `distance_m`, with extinction `k` per unit density and Henyey-Greenstein g = 0.85 (the
+/// cloud is given as a grid).
+fn thick_scene(centre: DVec3, distance_m: f64, k: f64, sun_azimuth_deg: f64) -> FrameScene {
+    let (az, el) = (200f64.to_radians(), 20f64.to_radians());
+    let cam = centre + DVec3::new(az.sin() * el.cos(), az.cos() * el.cos(), el.sin()) * distance_m;
+    let v = json!({
+        "cloud": {"voxel_size_m": 50.0, "source": {"type": "metaballs",
+                  "balls": [{"centre_m": [0, 0, 1000], "radius_m": 100, "density": 1.0}]}},
+        "optics": {"extinction_per_density_m": k, "single_scattering_albedo": 1.0,
+                   "phase": {"henyey_greenstein": {"g": 0.85}}},
+        "camera": {"type": "pinhole", "position_m": [cam.x, cam.y, cam.z],
+                   "look_at_m": [centre.x, centre.y, centre.z], "up": [0, 0, 1],
+                   "fov_deg": 30, "width": 128, "height": 96},
+        "sun": {"collimated": {"elevation_deg": 40, "azimuth_deg": sun_azimuth_deg,
+                               "normal_irradiance_w_m2_nm": 1.0}},
+        "atmosphere": null, "sky": {"constant_radiance_w_m2_sr_nm": 0.05}, "ground": null,
+        "wavelengths_nm": [550], "quality": "draft"
+    });
+    FrameScene::parse(v.to_string().as_bytes()).unwrap()
+}
+
+/// Clouds that fill their grid and whose voxels hold many optical depths, where the fast
+/// frame continues the sun's path beyond the outermost voxel centres to the box's faces and
+/// resolves thick steps with the field's skin tallies: a slab filling a 16×16×4 grid of 25 m
+/// voxels (τ 32 through its 100 m, 8 per voxel) and a τ 160 ball (radius 300 m) in the tight
+/// 20³ grid of 30 m voxels round it (its face centres' voxels hold cloud), sun 40° high
+/// beside the camera and behind the cloud. The marcher of the export reproduces the frame
+/// within 3 % block NRMSE and 2 % bias. Measured (draft, 128×96): slab beside / behind 0.09 % /
+/// 0.20 % block NRMSE, −0.09 % / +0.00 % bias; ball 0.15 % / 1.15 %, −0.13 % / −0.62 %
+/// (before the export held the skins and the marcher took thick steps and continued the sun's
+/// path to the faces: 6.2 % / 22.5 % and 19.1 % / 28.2 % block, −3.5 % to −14 % bias); the
+/// bounds are those figures with a margin. Without the skins the ball beside misses by 4.4 %.
+#[test]
+fn marcher_reproduces_grid_filling_thick_clouds() {
+    let slab_origin = DVec3::new(-200.0, -200.0, 1000.0);
+    let slab = DensityGrid::from_fn([16, 16, 4], 25.0, slab_origin, |_| 1.0).unwrap();
+    let c = DVec3::new(0.0, 0.0, 1000.0);
+    let ball = DensityGrid::from_fn([20, 20, 20], 30.0, c - DVec3::splat(300.0), |p| {
+        if (p - c).length() < 300.0 {
+            1.0
+        } else {
+            0.0
+        }
+    })
+    .unwrap();
+    let slab_centre = slab_origin + DVec3::new(200.0, 200.0, 50.0);
+    let mut results = Vec::new();
+    // (name, grid, centre, camera distance, k, [(lighting, sun azimuth, block NRMSE bound)]).
+    for (name, grid, centre, distance, k, cases) in [
+        (
+            "slab τ 32",
+            &slab,
+            slab_centre,
+            1600.0,
+            0.32,
+            [("sun beside", 150.0, 0.005), ("sun behind", 30.0, 0.005)],
+        ),
+        (
+            "ball τ 160",
+            &ball,
+            c,
+            2400.0,
+            160.0 / 600.0,
+            [("sun beside", 150.0, 0.005), ("sun behind", 30.0, 0.02)],
+        ),
+    ] {
+        for (lit, az, bound) in cases {
+            let scene = thick_scene(centre, distance, k, az);
+            let (e, cl) = compare_grid(&scene, grid, true, &|_| {});
+            eprintln!(
+                "cloud_light {name}, {lit}: block NRMSE {:.4}, pixel NRMSE {:.4}, bias {:+.4}, {} cloud pixels, dims {:?}",
+                e.nrmse_blocks, e.nrmse_pixels, e.mean_bias, e.cloud_pixels, cl.dims
+            );
+            // Every cell of these clouds is thick: the export holds the skins.
+            assert!(cl.skin.is_some(), "{name}, {lit}: no skin tallies exported");
+            results.push((name, lit, bound, e));
+        }
+    }
+    // The comparison sees the skins: without them (the cells' moments throughout) the marcher
+    // misses the frame by more than the bound.
+    let scene = thick_scene(c, 2400.0, 160.0 / 600.0, 150.0);
+    let (no_skin, ball_cl) = compare_grid(&scene, &ball, true, &|cl| cl.skin = None);
+    eprintln!(
+        "cloud_light ball τ 160, sun beside, without the skins: block NRMSE {:.4}, bias {:+.4}",
+        no_skin.nrmse_blocks, no_skin.mean_bias
+    );
+    for (name, lit, bound, e) in results {
+        assert!(e.cloud_pixels > 1500, "{name}, {lit}: {e:?}");
+        assert!(e.nrmse_blocks <= bound, "{name}, {lit}: {e:?}");
+        assert!(e.nrmse_pixels <= 0.03, "{name}, {lit}: {e:?}");
+        assert!(e.mean_bias.abs() <= 0.01, "{name}, {lit}: {e:?}");
+    }
+    assert!(no_skin.nrmse_blocks > 0.03, "{no_skin:?}");
+    // The skins' file is listed with its depths; without the depths it is refused.
+    let mut ball_cl = ball_cl;
+    let (_, exported) = compare_grid(&scene, &ball, true, &|_| {});
+    ball_cl.skin = exported.skin;
+    let files: Vec<(String, Vec<u8>)> = ball_cl
+        .files()
+        .unwrap()
+        .into_iter()
+        .map(|(n, b)| (n.to_string(), b))
+        .collect();
+    assert!(files.iter().any(|(n, _)| n == SKIN_FILE));
+    eprintln!(
+        "cloud_light ball τ 160 export: {}",
+        files
+            .iter()
+            .map(|(n, b)| format!("{n} {} B", b.len()))
+            .collect::<Vec<_>>()
+            .join(", ")
+    );
+    assert_eq!(decode(&files).unwrap(), ball_cl);
+    let mut m: Value =
+        serde_json::from_slice(&files.iter().find(|(n, _)| n == MANIFEST_FILE).unwrap().1).unwrap();
+    assert_eq!(m["textures"]["multiple_scattering_skin"]["file"], SKIN_FILE);
+    m["skin"] = Value::Null;
+    let edited: Vec<_> = files
+        .iter()
+        .map(|(n, b)| {
+            let b = if n == MANIFEST_FILE {
+                serde_json::to_vec(&m).unwrap()
+            } else {
+                b.clone()
+            };
+            (n.clone(), b)
+        })
+        .collect();
+    let e = decode(&edited).unwrap_err();
+    assert_eq!(
+        e.field(),
+        "manifest.json.skin.depth_scaled_optical_depth",
+        "{e}"
+    );
+}
+
+/// The skins' moments the export writes (`MsField::convolved_skin_coefficients`) reconstruct
+/// the skin source the fast frame's thick steps use (`MsField::inscatter_skin`): at every
+/// voxel centre of the τ 160 ball where a skin applies, towards 6 directions, to rounding.
+#[test]
+fn exported_skin_moments_reconstruct_the_frame_s_skin_source() {
+    let c = DVec3::new(0.0, 0.0, 1000.0);
+    let grid = DensityGrid::from_fn([20, 20, 20], 30.0, c - DVec3::splat(300.0), |p| {
+        if (p - c).length() < 300.0 {
+            1.0
+        } else {
+            0.0
+        }
+    })
+    .unwrap();
+    let scene = thick_scene(c, 2400.0, 160.0 / 600.0, 150.0);
+    let lighting = lighting_for(&scene, &grid, &Engine::new()).unwrap();
+    let settings = RenderSettings::for_quality(scene.quality, Method::Fast);
+    let prepared = Prepared::new(&scene, &grid, &lighting, settings, &|| false).unwrap();
+    let field = prepared.lit.ms.as_ref().unwrap();
+    assert!(field.has_skin());
+    let order = field.angular_order();
+    let moments = (order + 1) * (order + 1);
+    let mut coeffs = vec![0.0; moments];
+    let (mut js, mut ylm) = (vec![0.0; 1], vec![0.0; moments]);
+    let dirs = [
+        DVec3::X,
+        -DVec3::Y,
+        DVec3::Z,
+        DVec3::new(1.0, 1.0, -1.0).normalize(),
+        DVec3::new(-0.3, 0.5, 0.8).normalize(),
+        DVec3::new(0.2, -0.9, -0.1).normalize(),
+    ];
+    let mut checked = 0;
+    for z in 0..20 {
+        for y in 0..20 {
+            for x in 0..20 {
+                let p = grid.voxel_centre(x, y, z);
+                let has = field.convolved_skin_coefficients(p, &mut coeffs);
+                assert_eq!(has, field.inscatter_skin(p, DVec3::Z, &mut js), "{p}");
+                if !has {
+                    continue;
+                }
+                for d in dirs {
+                    assert!(field.inscatter_skin(p, d, &mut js));
+                    skybake_render::multiple::real_sh(-d, order, &mut ylm);
+                    let j: f64 = coeffs.iter().zip(&ylm).map(|(c, y)| c * y).sum();
+                    let tol = 1e-9 * coeffs[0].abs().max(1e-30);
+                    assert!(
+                        (j.max(0.0) - js[0]).abs() <= tol,
+                        "{p} {d}: {j} vs {}",
+                        js[0]
+                    );
+                    checked += 1;
+                }
+            }
+        }
+    }
+    assert!(checked > 1000, "{checked}");
 }
 
 /// Small export for the error cases: a ball, draft.

@@ -3,7 +3,10 @@
 //! computation; it shares only the exact per-step weight of the sun term,
 //! [`skybake_render::march::sun_step`], a closed-form integral). Per pixel it marches the view ray through the box in steps of the export's
 //! `step_voxels`, interpolating the per-voxel textures trilinearly at each step and evaluating
-//! the source towards the camera from the direction tables; the fast frame's march
+//! the source towards the camera from the direction tables; steps over voxels of many optical
+//! depths are taken in sub-steps with the field's skin tallies (docs/cloud-light.md, "Thick
+//! steps"), and the sun's path is continued beyond the outermost voxel centres, as the fast
+//! frame does them; the fast frame's march
 //! (`skybake_render::march`, the TMS form of Nakajima & Tanaka 1988, eqs 13–15, with the δ-M
 //! scaling of Wiscombe 1977) is what it reproduces, with the sky and multiple-scattering sources
 //! evaluated at each sample rather than at voxel centres first.
@@ -12,7 +15,8 @@ use glam::DVec3;
 use skybake_render::march::sun_step;
 use std::f64::consts::PI;
 
-use super::{CloudLight, SKY_ELEMENTS};
+use super::{CloudLight, MAX_SUB_STEPS, SKY_ELEMENTS, SUN_NEAR_INTERVALS, SUN_NEAR_VOXELS};
+use skybake_render::march::{MARCH_CUTOFF, THICK_STEP};
 
 /// Where a client's ray leaves the cloud, per wavelength: the cloud's radiance I and its true
 /// transmittance T_c (the background is seen as T_c·B), and the distance of the cloud's front.
@@ -28,6 +32,29 @@ pub struct Marcher<'a> {
     cl: &'a CloudLight,
     lo: DVec3,
     hi: DVec3,
+    /// The largest density of the grid (whether any step can be thick).
+    rho_max: f64,
+}
+
+/// What every step of one ray shares (see [`Marcher::march`]).
+struct Ray<'r> {
+    o: DVec3,
+    d: DVec3,
+    cos_sun: f64,
+    sun_on: bool,
+    /// ω/s·E_sun·p(θ) per wavelength.
+    sun_src: &'r [f64],
+    /// The sky-element table at the view direction, `[entry·n_λ + λ]`.
+    sky: &'r [f64],
+    /// Y_lm(−d).
+    ylm: &'r [f64; 25],
+}
+
+/// The radiance and transmittances along one ray, per wavelength.
+struct State {
+    ia: Vec<f64>,
+    tc: Vec<f64>,
+    ts: Vec<f64>,
 }
 
 /// Real orthonormal spherical harmonics up to l = 3 in the manifest's order (Sloan 2008,
@@ -70,6 +97,7 @@ impl<'a> Marcher<'a> {
             cl,
             lo,
             hi: lo + n * cl.voxel_size_m,
+            rho_max: cl.density.iter().fold(0.0f64, |m, &r| m.max(r as f64)),
         })
     }
 
@@ -106,6 +134,81 @@ impl<'a> Marcher<'a> {
 
     fn interp(w: &[(usize, f64); 8], v: &[f32]) -> f64 {
         w.iter().map(|&(i, wi)| wi * v[i] as f64).sum()
+    }
+
+    /// The density at `p`, trilinear (0 outside the box).
+    fn rho(&self, p: DVec3) -> f64 {
+        self.weights(p)
+            .map_or(0.0, |w| Self::interp(&w, &self.cl.density))
+    }
+
+    /// D_sun at `p`: trilinear between voxel centres, and between the outermost centres and
+    /// the box's faces continued linearly from the two outermost centres along each axis that
+    /// lies beyond them (not below 0), as the fast frame does: a cloud that fills its outer
+    /// voxels keeps thinning towards the sun up to the face instead of holding the centre's
+    /// path there. 0 outside the box.
+    fn sun_path_at(&self, p: DVec3) -> f64 {
+        let cl = self.cl;
+        let Some(w) = self.weights(p) else {
+            return 0.0;
+        };
+        let d = Self::interp(&w, &cl.sun_path);
+        let h = cl.voxel_size_m;
+        let local = (p - self.lo) / h;
+        let mut out = d;
+        for a in 0..3 {
+            let n = cl.dims[a] as f64;
+            if cl.dims[a] < 2 || (local[a] >= 0.5 && local[a] <= n - 0.5) {
+                continue;
+            }
+            let (excess, inward) = if local[a] < 0.5 {
+                (0.5 - local[a], 1.0)
+            } else {
+                (local[a] - (n - 0.5), -1.0)
+            };
+            // The next centre inwards along this axis.
+            let mut q = p;
+            q[a] += inward * (excess + 1.0) * h;
+            let di = self
+                .weights(q)
+                .map_or(0.0, |w| Self::interp(&w, &cl.sun_path));
+            out += excess * (d - di);
+        }
+        out.max(0.0)
+    }
+
+    /// D_sun at `p` resolved within the voxels next to it, for thick steps: the density
+    /// integrated towards the sun over [`SUN_NEAR_VOXELS`] voxels (composite Simpson,
+    /// [`SUN_NEAR_INTERVALS`] intervals; up to the box's face if nearer) plus
+    /// [`Self::sun_path_at`] where that ends. Over a density ramp of many optical depths D
+    /// grows quadratically between the centres, which the interpolation overestimates at the
+    /// lit surface.
+    fn sun_path_near(&self, p: DVec3, sun: DVec3) -> f64 {
+        let reach = SUN_NEAR_VOXELS * self.cl.voxel_size_m;
+        let exit = box_interval(p, sun, self.lo, self.hi).map_or(0.0, |(_, t1)| t1);
+        let len = reach.min(exit);
+        if len <= 0.0 {
+            return 0.0;
+        }
+        let n = SUN_NEAR_INTERVALS;
+        let dx = len / n as f64;
+        let mut sum = 0.0;
+        for k in 0..=n {
+            let c = if k == 0 || k == n {
+                1.0
+            } else if k % 2 == 1 {
+                4.0
+            } else {
+                2.0
+            };
+            sum += c * self.rho(p + sun * (k as f64 * dx));
+        }
+        let tail = if exit > reach {
+            self.sun_path_at(p + sun * reach)
+        } else {
+            0.0
+        };
+        sum * dx / 3.0 + tail
     }
 
     /// The sky-element table at view direction `d` (bilinear; elevation clamped, azimuth
@@ -189,19 +292,20 @@ impl<'a> Marcher<'a> {
     pub fn march(&self, o: DVec3, d: DVec3) -> CloudSample {
         let cl = self.cl;
         let n_l = cl.n_l();
-        let mut ia = vec![0.0; n_l];
-        let mut tc = vec![1.0; n_l];
-        let mut ts = vec![1.0; n_l];
+        let mut st = State {
+            ia: vec![0.0; n_l],
+            tc: vec![1.0; n_l],
+            ts: vec![1.0; n_l],
+        };
         let Some((t0, t1)) = box_interval(o, d, self.lo, self.hi) else {
             return CloudSample {
-                radiance: ia,
-                transmittance: tc,
+                radiance: st.ia,
+                transmittance: st.tc,
                 front_m: None,
             };
         };
         let sun = DVec3::from_array(cl.sun_direction);
         let cos_sun = sun.dot(d);
-        let k: Vec<f64> = cl.extinction_per_density_m.clone();
         let s = &cl.extinction_scale;
         let sun_src: Vec<f64> = (0..n_l)
             .map(|l| cl.albedo[l] / s[l] * cl.sun_irradiance[l] * self.phase(l, cos_sun))
@@ -211,82 +315,67 @@ impl<'a> Marcher<'a> {
         self.sky_entries(d, &mut sky);
         let mut ylm = [0.0; 25];
         sh(-d, &mut ylm);
-        let moments = cl.ms_order.map_or(0, |o| (o + 1) * (o + 1));
-        let step = cl.step_voxels * cl.voxel_size_m;
-        let sun_path = |p: DVec3| {
-            self.weights(p)
-                .map_or(0.0, |w| Self::interp(&w, &cl.sun_path))
+        let ray = Ray {
+            o,
+            d,
+            cos_sun,
+            sun_on,
+            sun_src: &sun_src,
+            sky: &sky,
+            ylm: &ylm,
         };
+        let step = cl.step_voxels * cl.voxel_size_m;
+        // Thick steps (docs/cloud-light.md, "Thick steps") where a step can hold more than
+        // THICK_STEP scaled optical depths.
+        let ks_max = (0..n_l)
+            .map(|l| cl.extinction_per_density_m[l] * s[l])
+            .fold(0.0f64, f64::max);
+        let thick_possible = ks_max * self.rho_max * step > THICK_STEP;
         let mut t = t0;
-        let mut d0 = if sun_on { sun_path(o + d * t) } else { 0.0 };
+        let mut d0 = if sun_on {
+            self.sun_path_at(o + d * t)
+        } else {
+            0.0
+        };
         let mut front = None;
-        let mut paths = [0.0f64; 15];
         while t < t1 {
             let dt = step.min(t1 - t);
             let pm = o + d * (t + 0.5 * dt);
             t += dt;
-            let d1 = if sun_on { sun_path(o + d * t) } else { 0.0 };
-            let (d_start, d_end) = (d0, d1);
+            let d1 = if sun_on {
+                self.sun_path_at(o + d * t)
+            } else {
+                0.0
+            };
+            let d_start = d0;
             d0 = d1;
             let Some(w) = self.weights(pm) else {
                 continue;
             };
-            let rho = Self::interp(&w, &cl.density);
-            if rho <= 0.0 {
-                continue;
-            }
-            front.get_or_insert(t - dt);
-            if !cl.sky_paths.is_empty() {
-                paths[0] = Self::interp(&w, &cl.sun_path);
-                for (e, p) in cl.sky_paths.iter().enumerate() {
-                    paths[e + 1] = Self::interp(&w, p);
+            let tau_max = if thick_possible {
+                w.iter()
+                    .map(|&(i, _)| cl.density[i] as f64)
+                    .fold(0.0, f64::max)
+                    * ks_max
+                    * dt
+            } else {
+                0.0
+            };
+            let alive = if tau_max > THICK_STEP {
+                self.thick_step(&ray, t - dt, dt, tau_max, &mut st, &mut front)
+            } else {
+                let rho = Self::interp(&w, &cl.density);
+                if rho <= 0.0 {
+                    continue;
                 }
-            }
-            let mut alive = false;
-            for l in 0..n_l {
-                let ks = k[l] * s[l];
-                let a = -(-k[l] * rho * dt).exp_m1();
-                let a_ms = -(-ks * rho * dt).exp_m1();
-                // Sun, single scattering with the true phase function and the spread peak.
-                // The part scattered last within the peak is seen through the true
-                // extinction: its step weight with k (times s, as sun_src holds ω/s), and T_c.
-                let (sun_t, sun_peak) = if sun_on {
-                    let (weight, d_eff) =
-                        sun_step(ks * rho, ks * (d_end - d_start), dt, ks * d_start);
-                    let lambda = cl.peak_rate[l] * k[l] * (d_start + (d_end - d_start) * d_eff);
-                    let (smooth, peak) = self.spread(l, cos_sun, lambda);
-                    let (w_true, _) =
-                        sun_step(k[l] * rho, ks * (d_end - d_start), dt, ks * d_start);
-                    (weight * smooth, w_true * peak * s[l])
-                } else {
-                    (0.0, 0.0)
-                };
-                // Sky and ground light through the sun cap and the lattice elements.
-                let mut src = 0.0;
-                if !cl.sky_paths.is_empty() {
-                    let mut q = 0.0;
-                    for (e, &path) in paths.iter().enumerate() {
-                        q += sky[e * n_l + l] * (-ks * path).exp();
-                    }
-                    src += cl.albedo[l] / s[l] * q;
-                }
-                // Multiple scattering, all orders.
-                if moments > 0 {
-                    let mut j = 0.0;
-                    for m in 0..moments {
-                        j += Self::interp(&w, &cl.ms[l * moments + m]) * ylm[m];
-                    }
-                    src += j.max(0.0);
-                }
-                ia[l] += ts[l] * (sun_src[l] * sun_t + a_ms * src) + tc[l] * sun_src[l] * sun_peak;
-                tc[l] *= 1.0 - a;
-                ts[l] *= 1.0 - a_ms;
-                alive |= ts[l] > skybake_render::march::MARCH_CUTOFF;
-            }
+                front.get_or_insert(t - dt);
+                self.step(&ray, &w, rho, dt, (d_start, d1), false, &mut st)
+            };
             if !alive {
                 break;
             }
         }
+        let (mut ia, tc, ts) = (st.ia, st.tc, st.ts);
         // The view cap: sky light from behind each point along the view ray itself, and the
         // forward peak's share of the radiance from behind.
         if front.is_some() && cl.sky.is_some() {
@@ -305,6 +394,142 @@ impl<'a> Marcher<'a> {
             transmittance: tc,
             front_m: front,
         }
+    }
+
+    /// One step of length `dt` at density `rho`, the sun's path `(D₀, D₁)` at its ends and the
+    /// textures interpolated with the weights `w` (docs/cloud-light.md, "Marching the volume");
+    /// with `skin`, the sub-step of a thick step whose source within the skin's depth of the
+    /// ray's scaled optical depth is the skin's. Returns whether any T* is above the cutoff.
+    #[allow(clippy::too_many_arguments)]
+    fn step(
+        &self,
+        ray: &Ray<'_>,
+        w: &[(usize, f64); 8],
+        rho: f64,
+        dt: f64,
+        (d_start, d_end): (f64, f64),
+        skin: bool,
+        st: &mut State,
+    ) -> bool {
+        let cl = self.cl;
+        let n_l = cl.n_l();
+        let (k, s) = (&cl.extinction_per_density_m, &cl.extinction_scale);
+        let mut paths = [0.0f64; 15];
+        if !cl.sky_paths.is_empty() {
+            paths[0] = Self::interp(w, &cl.sun_path);
+            for (e, p) in cl.sky_paths.iter().enumerate() {
+                paths[e + 1] = Self::interp(w, p);
+            }
+        }
+        let moments = cl.ms_order.map_or(0, |o| (o + 1) * (o + 1));
+        let skin = if skin { cl.skin.as_ref() } else { None };
+        let mut alive = false;
+        for l in 0..n_l {
+            let ks = k[l] * s[l];
+            let a = -(-k[l] * rho * dt).exp_m1();
+            let a_ms = -(-ks * rho * dt).exp_m1();
+            // Sun, single scattering with the true phase function and the spread peak.
+            // The part scattered last within the peak is seen through the true
+            // extinction: its step weight with k (times s, as sun_src holds ω/s), and T_c.
+            let (sun_t, sun_peak) = if ray.sun_on {
+                let (weight, d_eff) = sun_step(ks * rho, ks * (d_end - d_start), dt, ks * d_start);
+                let lambda = cl.peak_rate[l] * k[l] * (d_start + (d_end - d_start) * d_eff);
+                let (smooth, peak) = self.spread(l, ray.cos_sun, lambda);
+                let (w_true, _) = sun_step(k[l] * rho, ks * (d_end - d_start), dt, ks * d_start);
+                (weight * smooth, w_true * peak * s[l])
+            } else {
+                (0.0, 0.0)
+            };
+            // Sky and ground light through the sun cap and the lattice elements.
+            let mut src = 0.0;
+            if !cl.sky_paths.is_empty() {
+                let mut q = 0.0;
+                for (e, &path) in paths.iter().enumerate() {
+                    q += ray.sky[e * n_l + l] * (-ks * path).exp();
+                }
+                src += cl.albedo[l] / s[l] * q;
+            }
+            // Multiple scattering, all orders (the cell's, and within the skin the skin's).
+            let (mut j, mut j_skin) = (0.0, 0.0);
+            for m in 0..moments {
+                let c = Self::interp(w, &cl.ms[l * moments + m]);
+                j += c * ray.ylm[m];
+                if let Some(sk) = skin {
+                    j_skin += (c + Self::interp(w, &sk.delta[l * moments + m])) * ray.ylm[m];
+                }
+            }
+            let field = match skin {
+                Some(sk) => {
+                    // The skin's source over the part of the sub-step within its depth of
+                    // the ray's front (counted in the ray's scaled optical depth), the
+                    // cell's beyond.
+                    let left = sk.depth_scaled_tau[l] + st.ts[l].max(1e-300).ln();
+                    if left <= 0.0 {
+                        a_ms * (src + j.max(0.0))
+                    } else {
+                        let b = -(-left.min(ks * rho * dt)).exp_m1();
+                        b * (src + j_skin.max(0.0)) + (a_ms - b) * (src + j.max(0.0))
+                    }
+                }
+                None => a_ms * (src + j.max(0.0)),
+            };
+            st.ia[l] +=
+                st.ts[l] * (ray.sun_src[l] * sun_t + field) + st.tc[l] * ray.sun_src[l] * sun_peak;
+            st.tc[l] *= 1.0 - a;
+            st.ts[l] *= 1.0 - a_ms;
+            alive |= st.ts[l] > MARCH_CUTOFF;
+        }
+        alive
+    }
+
+    /// A step over voxels of many optical depths (docs/cloud-light.md, "Thick steps"): in
+    /// sub-steps of at most [`THICK_STEP`] scaled optical depths, each with the textures
+    /// weighted by the voxels' density (the lit surface sees the cloud's voxels, not the
+    /// empty ones beside it), the sun's path integrated from the density near the point, and
+    /// the skin's source in the first optical depths along the ray (the formal solution
+    /// I = ∫ S(τ) e^{−τ} dτ, Chandrasekhar 1960 §1.8, takes its radiance from there).
+    fn thick_step(
+        &self,
+        ray: &Ray<'_>,
+        t_start: f64,
+        dt: f64,
+        tau_max: f64,
+        st: &mut State,
+        front: &mut Option<f64>,
+    ) -> bool {
+        let cl = self.cl;
+        let sun = DVec3::from_array(cl.sun_direction);
+        let n = ((tau_max / THICK_STEP).ceil() as usize).clamp(2, MAX_SUB_STEPS);
+        let h = dt / n as f64;
+        let mut d_prev: Option<f64> = None;
+        for j in 0..n {
+            let ts = t_start + j as f64 * h;
+            let Some(w) = self.weights(ray.o + ray.d * (ts + 0.5 * h)) else {
+                d_prev = None;
+                continue;
+            };
+            let rho = Self::interp(&w, &cl.density);
+            if rho <= 0.0 {
+                d_prev = None;
+                continue;
+            }
+            let wd = w.map(|(i, wi)| (i, wi * cl.density[i] as f64 / rho));
+            let (d0, d1) = if ray.sun_on {
+                let d0 = match d_prev {
+                    Some(v) => v,
+                    None => self.sun_path_near(ray.o + ray.d * ts, sun),
+                };
+                (d0, self.sun_path_near(ray.o + ray.d * (ts + h), sun))
+            } else {
+                (0.0, 0.0)
+            };
+            d_prev = Some(d1);
+            front.get_or_insert(ts);
+            if !self.step(ray, &wd, rho, h, (d0, d1), cl.skin.is_some(), st) {
+                return false;
+            }
+        }
+        true
     }
 
     /// The environment radiance L(d) of the export's sky table (zero without sky light), not

@@ -1,7 +1,8 @@
 //! Pre-lit cloud volumes for real-time clients: what the fast cloud method computed per voxel
 //! (the renderer's [`LitVolume`]: the sun's density integral, the density integrals towards the
 //! 14 lattice directions that carry sky and ground light, and the all-order multiple-scattering
-//! field's spherical-harmonic moments), exported with the direction tables that turn them into
+//! field's spherical-harmonic moments, with those of its skin tallies of optically thick cells),
+//! exported with the direction tables that turn them into
 //! the source towards any viewer (the sky elements of Nishita et al. 1996, eq 7, the phase
 //! function, the truncated peak's spread), so a client ray-marches a lit cloud without computing
 //! any light. `docs/cloud-light.md` documents the layout; [`marcher`] is the reference client.
@@ -20,7 +21,7 @@ use skybake_engine::engine::{Engine, ENGINE_VERSION};
 use skybake_physics::cloud::scene::MAX_SCENE_FILE_BYTES;
 use skybake_physics::image::layout::spectral_channel_name;
 use skybake_render::light::{LATTICE, SUN_CAP_DEG, VIEW_CAP_DEG};
-use skybake_render::march::MARCH_CUTOFF;
+use skybake_render::march::{MARCH_CUTOFF, THICK_STEP};
 use skybake_render::scene::CloudMsMethod;
 use skybake_render::{peak, FrameScene, LitInputs, LitVolume, Method, RenderSettings};
 use skybake_store::texture::{decode_texture_exr, encode_texture_exr, TextureImage};
@@ -31,30 +32,37 @@ use std::time::Instant;
 use crate::{Error, Result};
 
 /// Layout version of the export (bumped when a file, channel or field changes meaning).
-pub const LAYOUT_VERSION: &str = "2";
+pub const LAYOUT_VERSION: &str = "3";
 pub const MANIFEST_FILE: &str = "manifest.json";
 pub const DENSITY_FILE: &str = "density.exr";
 pub const SUN_PATH_FILE: &str = "sun_path.exr";
 pub const SKY_PATHS_FILE: &str = "sky_paths.exr";
 pub const MS_FILE: &str = "multiple_scattering.exr";
+pub const SKIN_FILE: &str = "multiple_scattering_skin.exr";
 pub const SKY_ELEMENTS_FILE: &str = "sky_elements.exr";
 pub const PHASE_FILE: &str = "phase.exr";
 pub const PEAK_FILE: &str = "peak_spread.exr";
+/// Most sub-steps of one thick march step (the fast frame's).
+pub const MAX_SUB_STEPS: usize = 64;
+/// A thick step's sun path is integrated from the density over this many voxels towards the sun.
+pub const SUN_NEAR_VOXELS: f64 = 2.0;
+/// ... in this many composite-Simpson intervals.
+pub const SUN_NEAR_INTERVALS: usize = 16;
 /// Nodes of the phase-function table (node i at θ = π·(i/(N − 1))², dense at the forward peak).
 pub const PHASE_NODES: usize = 2048;
 /// Sky-element table entries: the sun cap (0), the 14 lattice elements (1–14), the view cap
 /// (15) and the environment radiance from the view direction itself (16).
 pub const SKY_ELEMENTS: usize = 17;
 /// Largest export held in memory, bytes (32-bit values: density, sun path, 14 sky paths and
-/// 25 multiple-scattering moments (angular order 4) per wavelength, per voxel): 1 GiB, e.g. 2.9 M voxels at 3
-/// wavelengths.
+/// 25 multiple-scattering moments (angular order 4) per wavelength, twice (the cells' and the
+/// skins'), per voxel): 1 GiB, e.g. 1.6 M voxels at 3 wavelengths.
 pub const MAX_EXPORT_BYTES: usize = 1 << 30;
 
 /// Bytes an export of `voxels` voxels and `n_l` wavelengths holds in memory (see
 /// [`MAX_EXPORT_BYTES`]).
 pub fn export_bytes(voxels: usize, n_l: usize) -> usize {
     let moments = (skybake_render::multiple::MAX_ORDER + 1).pow(2);
-    voxels.saturating_mul(4 * (2 + LATTICE.len() + moments * n_l))
+    voxels.saturating_mul(4 * (2 + LATTICE.len() + 2 * moments * n_l))
 }
 
 /// Refuses an export larger than [`MAX_EXPORT_BYTES`] before it is computed, naming the cloud.
@@ -111,6 +119,19 @@ pub struct PeakTable {
     pub last_in_peak: Vec<Vec<f32>>,
 }
 
+/// The multiple-scattering field in the skin of optically thick cells (the first
+/// `depth_scaled_tau` of scaled optical depth below a face that borders thinner cloud or the
+/// grid's edge, tallied on its own by the photon pass): what the march's thick steps use for
+/// the first optical depths along a view ray (docs/cloud-light.md, "Thick steps").
+#[derive(Debug, Clone, PartialEq)]
+pub struct SkinMoments {
+    /// The skin's depth per wavelength, scaled optical depths along the view ray.
+    pub depth_scaled_tau: Vec<f64>,
+    /// C_skin,lm − C_lm per voxel, `[λ·(L+1)² + lm][voxel]` as [`CloudLight::ms`]: the skin's
+    /// moments minus the cell's (as stored), 0 where no coarse cell round the voxel has a skin.
+    pub delta: Vec<Vec<f32>>,
+}
+
 /// The export of a lit cloud (see the module's documentation and docs/cloud-light.md).
 #[derive(Debug, Clone, PartialEq)]
 pub struct CloudLight {
@@ -147,6 +168,8 @@ pub struct CloudLight {
     /// W m⁻² nm⁻¹ (the source of orders ≥ 2 towards a viewer looking along d is
     /// max(0, Σ C_lm Y_lm(−d)), W m⁻² sr⁻¹ nm⁻¹ per unit scaled extinction).
     pub ms: Vec<Vec<f32>>,
+    /// The field's skin tallies of optically thick cells, where any cell has one.
+    pub skin: Option<SkinMoments>,
     pub sky: Option<SkyTable>,
     /// The true phase function p(θ), sr⁻¹, `[λ][node]`, node i at θ = π·(i/(N−1))².
     pub phase: Vec<Vec<f32>>,
@@ -222,27 +245,44 @@ impl CloudLight {
             }
             _ => None,
         };
-        let (ms_order, ms) = match &lit.ms {
+        let (ms_order, ms, skin) = match &lit.ms {
             Some(f) => {
                 let order = f.angular_order();
                 let moments = (order + 1) * (order + 1);
                 let per = n_l * moments;
                 let [nx, ny, _] = grid.dims;
                 let mut planes = vec![vec![0f32; n]; per];
+                let mut skin_planes = vec![vec![0f32; if f.has_skin() { n } else { 0 }]; per];
                 let mut c = vec![0.0; per];
+                let mut c_skin = vec![0.0; per];
                 for idx in (0..n).filter(|&i| in_mask(i)) {
                     let (x, y, z) = (idx % nx, (idx / nx) % ny, idx / (nx * ny));
-                    f.convolved_coefficients(grid.voxel_centre(x, y, z), &mut c);
+                    let p = grid.voxel_centre(x, y, z);
+                    f.convolved_coefficients(p, &mut c);
                     for l in 0..n_l {
                         for m in 0..moments {
                             planes[l * moments + m][idx] =
                                 to_half((lit.ms_albedo[l] * c[l * moments + m]) as f32);
                         }
                     }
+                    if f.has_skin() && f.convolved_skin_coefficients(p, &mut c_skin) {
+                        for l in 0..n_l {
+                            for m in 0..moments {
+                                let i = l * moments + m;
+                                let cell = planes[i][idx] as f64;
+                                skin_planes[i][idx] =
+                                    to_half((lit.ms_albedo[l] * c_skin[i] - cell) as f32);
+                            }
+                        }
+                    }
                 }
-                (Some(order), planes)
+                let skin = f.has_skin().then(|| SkinMoments {
+                    depth_scaled_tau: (0..n_l).map(|l| f.skin_depth_tau(l)).collect(),
+                    delta: skin_planes,
+                });
+                (Some(order), planes, skin)
             }
-            None => (None, Vec::new()),
+            None => (None, Vec::new(), None),
         };
         let phase = inputs
             .optics
@@ -287,6 +327,7 @@ impl CloudLight {
             sky_paths,
             ms_order,
             ms,
+            skin,
             sky,
             phase,
             peak,
@@ -367,6 +408,18 @@ impl CloudLight {
                 }
             }
             files.push((MS_FILE, enc(nx, ny * nz, ch, true)?));
+            if let Some(skin) = &self.skin {
+                let mut ch = Vec::new();
+                for l in 0..n_l {
+                    for m in 0..moments {
+                        ch.push((
+                            Self::channel(&format!("dC{m:02}"), self.wavelengths_nm[l]),
+                            skin.delta[l * moments + m].as_slice(),
+                        ));
+                    }
+                }
+                files.push((SKIN_FILE, enc(nx, ny * nz, ch, true)?));
+            }
         }
         if let Some(sky) = &self.sky {
             let mut ch = Vec::new();
@@ -449,7 +502,7 @@ impl CloudLight {
             volume(
                 SUN_PATH_FILE,
                 json!(["D_sun"]),
-                "density integral from the voxel centre towards the sun to the box's face: the sun's transmittance is exp(-k·s·D_sun) (scaled) or exp(-k·D_sun) (true)",
+                "density integral from the voxel centre towards the sun to the box's face: the sun's transmittance is exp(-k·s·D_sun) (scaled) or exp(-k·D_sun) (true); between the outermost voxel centres and the box's faces continued linearly from the two outermost centres along each axis that lies beyond them (not below 0), not held (march.sun_path_beyond_edge_centres)",
                 "m",
                 false,
             ),
@@ -481,6 +534,21 @@ impl CloudLight {
                     true,
                 ),
             );
+            if self.skin.is_some() {
+                let names: Vec<String> = (0..moments)
+                    .flat_map(|m| spectral(&format!("dC{m:02}")))
+                    .collect();
+                textures.insert(
+                    "multiple_scattering_skin".into(),
+                    volume(
+                        SKIN_FILE,
+                        json!(names),
+                        "dC_lm = C_skin,lm - C_lm: the moments of the field in the skin of optically thick cells (the first skin.depth_scaled_optical_depth[λ] below a face that borders thinner cloud or the grid's edge, tallied on its own) minus the multiple_scattering texture's, as C_lm; 0 where no cell round the voxel has a skin. Used by thick steps only (march.thick_steps): the source in a sub-step's part within the skin's depth of the ray's scaled optical depth is omega/s·Σ_e E_e(d)·exp(-k·s·D_e) + max(0, Σ (C_lm + dC_lm)·Y_lm(-d))",
+                        "W m-2 nm-1",
+                        true,
+                    ),
+                );
+            }
         }
         if let Some(sky) = &self.sky {
             let names: Vec<String> = (0..SKY_ELEMENTS)
@@ -539,7 +607,7 @@ impl CloudLight {
                 "origin_m": o,
                 "max_corner_m": [o[0] + nx as f64 * h, o[1] + ny as f64 * h, o[2] + nz as f64 * h],
                 "voxel_size_m": h,
-                "voxel_to_world": "centre of voxel (i, j, k) = origin_m + voxel_size_m·(i + 0.5, j + 0.5, k + 0.5); trilinear between centres, clamped to the outermost centres inside the box, nothing outside it",
+                "voxel_to_world": "centre of voxel (i, j, k) = origin_m + voxel_size_m·(i + 0.5, j + 0.5, k + 0.5); trilinear between centres, clamped to the outermost centres inside the box (D_sun: continued beyond them, march.sun_path_beyond_edge_centres), nothing outside it",
             },
             "wavelengths_nm": self.wavelengths_nm,
             "per_wavelength": {
@@ -553,9 +621,21 @@ impl CloudLight {
             "sky_caps": {"sun_cap_deg": SUN_CAP_DEG, "view_cap_deg": VIEW_CAP_DEG},
             "lattice_directions": LATTICE,
             "spherical_harmonics": "real, orthonormal, lm = l² + l + m (m = -l..l): Y00 = 0.28209479; Y1-1 = 0.48860251·y, Y10 = 0.48860251·z, Y11 = 0.48860251·x; Y2-2 = 1.09254843·xy, Y2-1 = 1.09254843·yz, Y20 = 0.31539157·(3z²-1), Y21 = 1.09254843·xz, Y22 = 0.54627422·(x²-y²); Y3-3 = 0.59004359·y(3x²-y²), Y3-2 = 2.89061144·xyz, Y3-1 = 0.45704580·y(5z²-1), Y30 = 0.37317633·z(5z²-3), Y31 = 0.45704580·x(5z²-1), Y32 = 1.44530572·z(x²-y²), Y33 = 0.59004359·x(x²-3y²) (Sloan 2008, appendix A2)",
+            "skin": self.skin.as_ref().map(|sk| json!({
+                "depth_scaled_optical_depth": sk.depth_scaled_tau,
+                "texture": "multiple_scattering_skin",
+            })),
             "march": {
                 "step_voxels": self.step_voxels,
                 "cutoff_scaled_transmittance": MARCH_CUTOFF,
+                "sun_path_beyond_edge_centres": "D_sun(p) = D(p) + Σ_a e_a·(D(p) - D(p + i_a·(e_a + 1)·h·x_a)) over the axes a along which p lies beyond the outermost voxel centres (e_a voxels beyond, i_a = ±1 inwards, D trilinear and clamped as the other textures), not below 0",
+                "thick_steps": {
+                    "scaled_optical_depth": THICK_STEP,
+                    "max_sub_steps": MAX_SUB_STEPS,
+                    "sun_path_near_voxels": SUN_NEAR_VOXELS,
+                    "sun_path_near_intervals": SUN_NEAR_INTERVALS,
+                    "recipe": "docs/cloud-light.md, 'Thick steps': a step whose densest of the 8 voxels round its midpoint holds max_λ(k·s)·rho·dt > scaled_optical_depth is taken in n = clamp(ceil(that), 2, max_sub_steps) sub-steps, each with the density-weighted interpolation of the textures (weights w_i·rho_i/Σ w_i·rho_i), the sun's path integrated from the density over sun_path_near_voxels towards the sun (composite Simpson, sun_path_near_intervals) plus D_sun beyond, and the skin's source over the first skin.depth_scaled_optical_depth of the ray's scaled optical depth",
+                },
                 "source": "docs/cloud-light.md, 'Marching the volume': per step of length dt at density rho (midpoint), k = extinction_per_density_m, s = extinction_scale: a = 1-exp(-k·rho·dt) (true), a* = 1-exp(-k·s·rho·dt) (scaled); I += T*·(omega/s·E_sun·p(theta)·W_sun·spread + a*·S(d)); T_c *= 1-a; T* *= 1-a*, with S(d) = omega/s·Σ_e E_e(d)·exp(-k·s·D_e) + max(0, Σ C_lm·Y_lm(-d)) (D_0 = D_sun, D_1..14 = the sky paths) and W_sun the exact step integral of the sun's scaled transmittance; then the view cap; pixel = I + T_c·background",
             },
             "settings": self.settings,
@@ -723,6 +803,36 @@ impl CloudLight {
             .map(|(l, m)| Self::channel(&format!("C{m:02}"), wl[l]))
             .collect();
         let ms = load("multiple_scattering", nx, ny * nz, &ms_names)?;
+        let skin_names: Vec<String> = (0..n_l)
+            .flat_map(|l| (0..moments).map(move |m| (l, m)))
+            .map(|(l, m)| Self::channel(&format!("dC{m:02}"), wl[l]))
+            .collect();
+        let skin_delta = load("multiple_scattering_skin", nx, ny * nz, &skin_names)?;
+        let skin = match skin_delta {
+            None => None,
+            Some(_) if ms.is_none() => {
+                return Err(bad(
+                    "textures.multiple_scattering_skin",
+                    "needs the multiple_scattering texture",
+                ))
+            }
+            Some(delta) => {
+                let depth = nums(
+                    &m["skin"]["depth_scaled_optical_depth"],
+                    "skin.depth_scaled_optical_depth",
+                )?;
+                if depth.len() != n_l || depth.iter().any(|&d| d <= 0.0) {
+                    return Err(bad(
+                        "skin.depth_scaled_optical_depth",
+                        &format!("must hold {n_l} positive values (one per wavelength)"),
+                    ));
+                }
+                Some(SkinMoments {
+                    depth_scaled_tau: depth,
+                    delta,
+                })
+            }
+        };
         let sky = if textures["sky_elements"].is_null() {
             None
         } else {
@@ -785,6 +895,7 @@ impl CloudLight {
             sky_paths,
             ms_order: ms.as_ref().map(|_| ms_order),
             ms: ms.unwrap_or_default(),
+            skin,
             sky,
             phase,
             peak,

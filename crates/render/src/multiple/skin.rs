@@ -246,6 +246,45 @@ impl MsField {
         }
         true
     }
+
+    /// [`MsField::convolved_coefficients`] with each cell's skin tally in place of its whole
+    /// tally where it has one: the moments whose reconstruction is [`Self::inscatter_skin`]
+    /// (for exports of the field, `[λ·(L + 1)² + lm]`). Returns false (and `out` untouched)
+    /// where no cell round `p` has a skin.
+    pub fn convolved_skin_coefficients(&self, p: DVec3, out: &mut [f64]) -> bool {
+        let Some(skin) = &self.skin else {
+            return false;
+        };
+        let weights = self.cell_weights(p);
+        if weights
+            .iter()
+            .all(|&(c, w)| w == 0.0 || skin.index[c] == u32::MAX)
+        {
+            return false;
+        }
+        let n = self.moments;
+        out.iter_mut().for_each(|o| *o = 0.0);
+        for (c, w) in weights {
+            if w == 0.0 {
+                continue;
+            }
+            let s = skin.index[c];
+            for l in 0..self.n_l {
+                let v = if s == u32::MAX {
+                    &self.data[(c * self.n_l + l) * n..(c * self.n_l + l + 1) * n]
+                } else {
+                    let s = s as usize;
+                    &skin.data[(s * self.n_l + l) * n..(s * self.n_l + l + 1) * n]
+                };
+                for (order, p_l) in self.phase_moments[l].iter().enumerate() {
+                    for m in order * order..(order + 1) * (order + 1) {
+                        out[l * n + m] += w * p_l * v[m] as f64;
+                    }
+                }
+            }
+        }
+        true
+    }
 }
 
 #[cfg(test)]
