@@ -2188,9 +2188,10 @@ pub struct JSlice {
     mu: f64,
     /// Relative densities of the Rayleigh and aerosol scatterers there.
     rho: (f64, f64),
-    /// `[i_mu_s][i_phi][c][λ]`: Â_R and Â_M interpolated to the point.
+    /// `[i_mu_s][i_phi][c][λ]`: Â_R and Â_M interpolated to the point, on the sun-zenith rows
+    /// the day cells read (up to the first twilight cell's, [`TwilightRows::first_cell`]).
     per_constituent: Vec<f64>,
-    /// `[i_mu_s][i_phi][λ]`: J at the point (day cells only).
+    /// `[i_mu_s][i_phi][λ]`: J at the point (day cells only, the same rows).
     lin: Vec<f64>,
     /// The (r, θ) corners of the point with a non-zero weight: (r node, θ node, weight, whether
     /// it is a pole's azimuthal mean, [`Grid::theta_corners`]), in the order the products' lookup
@@ -2245,18 +2246,25 @@ impl PreciseMultipleScattering {
 
     /// The slice of the table at radius `r` and view zenith cosine `mu`: Â_R and Â_M
     /// multilinear in (r, θ) as [`Source::add_scattering`] interpolates, then weighted by the
-    /// point's scattering coefficients σ_c ρ_c(r) into J.
+    /// point's scattering coefficients σ_c ρ_c(r) into J. Only the sun-zenith rows the day
+    /// cells read (0 ..= the first twilight cell's, [`TwilightRows::first_cell`]): the twilight
+    /// cells interpolate the corners' own rows ([`twilight_packed`]), so the rows beyond are
+    /// never read.
     pub fn slice(&self, r: f64, mu: f64, out: &mut JSlice) {
-        self.ln_j_ms();
+        let first_cell = self.ln_j_ms().first_cell;
         let grid = &self.grid;
         let (n_l, n_mu_s, n_mu, n_phi) = (self.n_l, grid.s.n_mu_s, grid.s.n_mu, grid.s.n_phi);
-        let cells = n_mu_s * n_phi;
+        // The day cells `is < first_cell` read rows `is` and `is + 1`.
+        let n_day = (first_cell + 1).min(n_mu_s);
+        let cells = n_day * n_phi;
         let lanes = 2 * n_l;
-        let fam = cells * lanes;
+        // The family's rows in the table, of which the first `n_day` are read.
+        let fam = n_mu_s * n_phi * lanes;
+        let day = cells * lanes;
         out.r = r;
         out.mu = mu;
         out.per_constituent.clear();
-        out.per_constituent.resize(fam, 0.0);
+        out.per_constituent.resize(day, 0.0);
         out.corners.clear();
         let (ir, fr) = grid.r_pos(r);
         let theta = acos_fast(mu);
@@ -2268,11 +2276,11 @@ impl PreciseMultipleScattering {
                 }
                 // Family layout: (r, θ) rows of [i_mu_s][i_phi][c][λ].
                 let base = (a * n_mu + c) * fam;
-                let row = &self.j_ms[base..base + fam];
+                let row = &self.j_ms[base..base + day];
                 if pole {
                     // The mean of the node's azimuths in every azimuth (`Grid::theta_corners`).
                     let w = w / n_phi as f64;
-                    for is in 0..n_mu_s {
+                    for is in 0..n_day {
                         let block = is * n_phi * lanes;
                         for x in 0..lanes {
                             let m: f64 =
