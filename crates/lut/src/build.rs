@@ -528,6 +528,8 @@ pub(crate) struct FamilyScratch<'a> {
     weighted_t: Vec<f64>,
     at: Vec<AtRadius<'a>>,
     slices: Vec<JSlice>,
+    /// [`PreciseMultipleScattering::day_mu_s`] of the table.
+    day_mu_s: f64,
     n_l: usize,
     /// The suns ([`Self::push_sun`]): zenith cosine and view–sun cosine at the ray's origin.
     mu_s: Vec<f64>,
@@ -558,6 +560,7 @@ impl<'a> FamilyScratch<'a> {
             weighted_t: Vec::new(),
             at: Vec::new(),
             slices: Vec::new(),
+            day_mu_s: shared.precise().day_mu_s(),
             n_l,
             mu_s: Vec::new(),
             nu: Vec::new(),
@@ -595,7 +598,8 @@ impl<'a> FamilyScratch<'a> {
             self.rho.push(rho);
             self.at
                 .push(self.density.at_radius(p.r, m.sun_angular_radius_rad));
-            self.precise.slice(p.r, p.mu, slice);
+            // The day cells' rows are filled in [`texel_sums`] where a sun needs them.
+            self.precise.slice_corners(p.r, p.mu, slice);
         }
     }
 
@@ -658,6 +662,12 @@ skybake_physics::simd_dispatch_avx512! {
                     *o = ((r * mu_s + p.t * nu) / p.r).clamp(-1.0, 1.0);
                 }
                 let wt = &scratch.weighted_t[k * n_l..(k + 1) * n_l];
+                // The point's day rows, if a sun may read them (none on most points of a
+                // near-horizontal ray in twilight): the same values as filled in `prepare`.
+                let top = scratch.mu_s_p.iter().fold(f64::NEG_INFINITY, |a, &b| a.max(b));
+                if top > scratch.day_mu_s {
+                    scratch.precise.fill_day(&mut scratch.slices[k]);
+                }
                 scratch.j.fill(0.0);
                 scratch.precise.add_from_slice_many(
                     &scratch.slices[k],

@@ -2188,10 +2188,13 @@ pub struct JSlice {
     mu: f64,
     /// Relative densities of the Rayleigh and aerosol scatterers there.
     rho: (f64, f64),
-    /// `[i_mu_s][i_phi][c][λ]`: Â_R and Â_M interpolated to the point.
+    /// `[i_mu_s][i_phi][c][λ]`: Â_R and Â_M interpolated to the point, on the sun-zenith rows
+    /// the day cells read (up to the first twilight cell's, [`TwilightRows::first_cell`]).
     per_constituent: Vec<f64>,
-    /// `[i_mu_s][i_phi][λ]`: J at the point (day cells only).
+    /// `[i_mu_s][i_phi][λ]`: J at the point (day cells only, the same rows).
     lin: Vec<f64>,
+    /// Whether `per_constituent` and `lin` are filled ([`PreciseMultipleScattering::fill_day`]).
+    day: bool,
     /// The (r, θ) corners of the point with a non-zero weight: (r node, θ node, weight, whether
     /// it is a pole's azimuthal mean, [`Grid::theta_corners`]), in the order the products' lookup
     /// visits them.
@@ -2245,54 +2248,83 @@ impl PreciseMultipleScattering {
 
     /// The slice of the table at radius `r` and view zenith cosine `mu`: Â_R and Â_M
     /// multilinear in (r, θ) as [`Source::add_scattering`] interpolates, then weighted by the
-    /// point's scattering coefficients σ_c ρ_c(r) into J.
+    /// point's scattering coefficients σ_c ρ_c(r) into J ([`Self::slice_corners`], then
+    /// [`Self::fill_day`]).
     pub fn slice(&self, r: f64, mu: f64, out: &mut JSlice) {
+        self.slice_corners(r, mu, out);
+        self.fill_day(out);
+    }
+
+    /// The part of [`Self::slice`] every lookup reads: the point's (r, θ) corners and
+    /// densities. The day cells' rows are left empty until [`Self::fill_day`]; a twilight
+    /// lookup reads the corners' own rows of the table ([`twilight_packed`]), so a point whose
+    /// suns are all beyond [`Self::day_mu_s`] needs no more.
+    pub fn slice_corners(&self, r: f64, mu: f64, out: &mut JSlice) {
         self.ln_j_ms();
         let grid = &self.grid;
-        let (n_l, n_mu_s, n_mu, n_phi) = (self.n_l, grid.s.n_mu_s, grid.s.n_mu, grid.s.n_phi);
-        let cells = n_mu_s * n_phi;
-        let lanes = 2 * n_l;
-        let fam = cells * lanes;
         out.r = r;
         out.mu = mu;
         out.per_constituent.clear();
-        out.per_constituent.resize(fam, 0.0);
+        out.lin.clear();
+        out.day = false;
         out.corners.clear();
         let (ir, fr) = grid.r_pos(r);
         let theta = acos_fast(mu);
         for (a, wa) in [(ir, 1.0 - fr), (ir + 1, fr)] {
-            for (c, wc, pole) in Grid::theta_corners(theta, n_mu) {
+            for (c, wc, pole) in Grid::theta_corners(theta, grid.s.n_mu) {
                 let w = wa * wc;
                 if w == 0.0 {
                     continue;
                 }
-                // Family layout: (r, θ) rows of [i_mu_s][i_phi][c][λ].
-                let base = (a * n_mu + c) * fam;
-                let row = &self.j_ms[base..base + fam];
-                if pole {
-                    // The mean of the node's azimuths in every azimuth (`Grid::theta_corners`).
-                    let w = w / n_phi as f64;
-                    for is in 0..n_mu_s {
-                        let block = is * n_phi * lanes;
-                        for x in 0..lanes {
-                            let m: f64 =
-                                (0..n_phi).map(|l| row[block + l * lanes + x] as f64).sum();
-                            for l in 0..n_phi {
-                                out.per_constituent[block + l * lanes + x] += w * m;
-                            }
-                        }
-                    }
-                } else {
-                    for (o, v) in out.per_constituent.iter_mut().zip(row) {
-                        *o += w * *v as f64;
-                    }
-                }
                 out.corners.push((a, c, w, pole));
             }
         }
+        out.rho = self.scattering.densities(r);
+    }
+
+    /// Fills the day cells' rows of a slice from [`Self::slice_corners`] (nothing if filled):
+    /// only the sun-zenith rows the day cells read (0 ..= the first twilight cell's,
+    /// [`TwilightRows::first_cell`]), each corner added in the corners' order.
+    pub fn fill_day(&self, out: &mut JSlice) {
+        if out.day {
+            return;
+        }
+        let first_cell = self.ln_j_ms().first_cell;
+        let grid = &self.grid;
+        let (n_l, n_mu_s, n_mu, n_phi) = (self.n_l, grid.s.n_mu_s, grid.s.n_mu, grid.s.n_phi);
+        // The day cells `is < first_cell` read rows `is` and `is + 1`.
+        let n_day = (first_cell + 1).min(n_mu_s);
+        let cells = n_day * n_phi;
+        let lanes = 2 * n_l;
+        // The family's rows in the table, of which the first `n_day` are read.
+        let fam = n_mu_s * n_phi * lanes;
+        let day = cells * lanes;
+        out.per_constituent.clear();
+        out.per_constituent.resize(day, 0.0);
+        for &(a, c, w, pole) in &out.corners {
+            // Family layout: (r, θ) rows of [i_mu_s][i_phi][c][λ].
+            let base = (a * n_mu + c) * fam;
+            let row = &self.j_ms[base..base + day];
+            if pole {
+                // The mean of the node's azimuths in every azimuth (`Grid::theta_corners`).
+                let w = w / n_phi as f64;
+                for is in 0..n_day {
+                    let block = is * n_phi * lanes;
+                    for x in 0..lanes {
+                        let m: f64 = (0..n_phi).map(|l| row[block + l * lanes + x] as f64).sum();
+                        for l in 0..n_phi {
+                            out.per_constituent[block + l * lanes + x] += w * m;
+                        }
+                    }
+                }
+            } else {
+                for (o, v) in out.per_constituent.iter_mut().zip(row) {
+                    *o += w * *v as f64;
+                }
+            }
+        }
         let sc = &self.scattering;
-        let (rho_r, rho_m) = sc.densities(r);
-        out.rho = (rho_r, rho_m);
+        let (rho_r, rho_m) = out.rho;
         out.lin.clear();
         out.lin.resize(cells * n_l, 0.0);
         for (cell, j) in out.lin.chunks_exact_mut(n_l).enumerate() {
@@ -2301,6 +2333,19 @@ impl PreciseMultipleScattering {
                 j[i] = sc.rayleigh_per_m[i] * rho_r * a[i] + sc.mie_per_m[i] * rho_m * a[n_l + i];
             }
         }
+        out.day = true;
+    }
+
+    /// A sun zenith cosine above which a lookup may read a slice's day cells
+    /// ([`Self::fill_day`]): the first twilight cell's lower node less 10⁻³ rad in angle (far
+    /// beyond the error of `acos_fast` and of the node position's rounding). A slice whose
+    /// suns are all at or below it needs only [`Self::slice_corners`].
+    pub fn day_mu_s(&self) -> f64 {
+        let first_cell = self.ln_j_ms().first_cell;
+        if first_cell >= self.grid.s.n_mu_s.saturating_sub(1) {
+            return -2.0;
+        }
+        (self.grid.theta_s(first_cell) + 1e-3).cos()
     }
 
     /// Adds J_ms (m⁻¹ sr⁻¹ per unit solar irradiance) for the sun at zenith cosine `mu_s` and
@@ -2799,6 +2844,9 @@ crate::simd_dispatch_avx512! {
                         }
                         continue;
                     }
+                    // A day cell: its rows are filled ([`PreciseMultipleScattering::fill_day`];
+                    // `lin` is empty otherwise, and the indexing below would panic).
+                    debug_assert!(slice.day);
                     let row = n_phi * n_l;
                     let a = is * row + ip * n_l;
                     let (v00, v01) = (&slice.lin[a..a + n_l], &slice.lin[a + n_l..a + 2 * n_l]);
@@ -3230,6 +3278,60 @@ mod tests {
     /// between nodes and within half a step of the view-zenith poles, more suns than one pass of
     /// its angle loop: each sun equal to its own [`PreciseMultipleScattering::add_from_slice`],
     /// equal to rounding by day, within the f32 interpolation's few 10⁻⁶ in twilight.
+    #[test]
+    fn twilight_lookups_need_only_the_slice_corners() {
+        let mut params = preset("earth").unwrap();
+        params.planet_radius_m = 63_600_000.0;
+        let medium = Medium::new(&params, &Wavelengths::parse("440,680").unwrap(), None).unwrap();
+        let (fast, standard) = settings_for(Quality::Standard);
+        let s = PreciseSettings {
+            n_r: 10,
+            n_mu_s: 12,
+            n_mu: 16,
+            n_phi: 8,
+            steps: 8,
+            tolerance: 1e-2,
+            ..standard
+        };
+        let bottom = medium.bottom_radius_m;
+        let shared = SharedTables::new(medium, fast, s);
+        let table = shared.precise();
+        // Day cells end at the sun-zenith node below 80° (76.5° with these settings).
+        let day_mu_s = table.day_mu_s();
+        assert!(
+            day_mu_s < 70f64.to_radians().cos() && day_mu_s > 80f64.to_radians().cos(),
+            "{day_mu_s}"
+        );
+        let (mut full, mut lazy) = (JSlice::default(), JSlice::default());
+        let mut n_twilight = 0;
+        for h in [10.0, 3_000.0, 30_000.0] {
+            for mu in [-0.999, -0.6, -0.05, 0.02, 0.5, 0.9995] {
+                let r = bottom + h;
+                table.slice(r, mu, &mut full);
+                table.slice_corners(r, mu, &mut lazy);
+                for i in 0..200 {
+                    let m_s = -0.35 + 1.35 * i as f64 / 199.0;
+                    let sin = ((1.0 - mu * mu) * (1.0 - m_s * m_s)).max(0.0).sqrt();
+                    for cos_phi in [1.0, 0.3, -1.0] {
+                        let nu = (mu * m_s + sin * cos_phi).clamp(-1.0, 1.0);
+                        let (mut want, mut got) = ([0.0; 2], [0.0; 2]);
+                        table.add_from_slice(&full, m_s, nu, &mut want);
+                        if m_s <= day_mu_s {
+                            table.add_from_slice(&lazy, m_s, nu, &mut got);
+                            assert_eq!(got, want, "{h} {mu} {m_s}");
+                            n_twilight += 1;
+                        }
+                    }
+                }
+                // Filled afterwards: the rows of `slice`, so every sun's value.
+                table.fill_day(&mut lazy);
+                assert_eq!(lazy.per_constituent, full.per_constituent);
+                assert_eq!(lazy.lin, full.lin);
+            }
+        }
+        assert!(n_twilight > 1000, "{n_twilight}");
+    }
+
     #[test]
     fn slice_lookups_of_many_suns_match_the_products_lookup() {
         let mut params = preset("earth").unwrap();
