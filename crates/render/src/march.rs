@@ -24,12 +24,9 @@ use std::time::Instant;
 /// seen through the cloud, T_c ≤ T*, at most this fraction of its radiance).
 pub const MARCH_CUTOFF: f64 = 1e-3;
 
-/// Largest scaled optical depth σ_t*·Δ (at the densest voxel round a step) over which one
-/// march step is integrated as one piece; a thicker step is resolved in sub-steps of at most
-/// this optical depth ([`Prepared::thick_step`]). No step of the bench frame or of the Mitsuba 3
-/// validation frames reaches it (standard quality); draft's steps of 1.5 voxels through the
-/// cumulus in voxels of 50 m do in places.
-pub const THICK_STEP: f64 = 1.0;
+/// The march's thick-step threshold (defined with the photon pass, whose skin tallies use the
+/// same threshold; [`Prepared::thick_step`]).
+pub use super::multiple::THICK_STEP;
 
 /// Most sub-steps of one thick step.
 const MAX_SUB_STEPS: usize = 64;

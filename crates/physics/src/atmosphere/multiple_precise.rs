@@ -3218,12 +3218,13 @@ mod tests {
         }
     }
 
-    #[test]
-    fn multiple_scattering_source_is_continuous_at_the_zenith_in_hazy_air() {
-        let mut params = preset("earth-hazy").unwrap();
+    /// `preset`'s shared tables at `wavelengths` on a planet of 10 times the Earth's radius,
+    /// the precise table on a small grid (10 radii, 12 sun zeniths, 16 view zeniths, 8
+    /// azimuths, 8 steps), and the planet's radius.
+    fn small_tables(preset_name: &str, wavelengths: &str) -> (SharedTables, f64) {
+        let mut params = preset(preset_name).unwrap();
         params.planet_radius_m = 63_600_000.0;
-        let wl = Wavelengths::parse("440,680").unwrap();
-        let medium = Medium::new(&params, &wl, None).unwrap();
+        let medium = Medium::new(&params, &Wavelengths::parse(wavelengths).unwrap(), None).unwrap();
         let (fast, standard) = settings_for(Quality::Standard);
         let s = PreciseSettings {
             n_r: 10,
@@ -3234,8 +3235,14 @@ mod tests {
             tolerance: 1e-2,
             ..standard
         };
-        let r = medium.bottom_radius_m + 500.0;
-        let shared = SharedTables::new(medium, fast, s);
+        let bottom = medium.bottom_radius_m;
+        (SharedTables::new(medium, fast, s), bottom)
+    }
+
+    #[test]
+    fn multiple_scattering_source_is_continuous_at_the_zenith_in_hazy_air() {
+        let (shared, bottom) = small_tables("earth-hazy", "440,680");
+        let r = bottom + 500.0;
         let table = shared.precise();
         let mu_s = 40f64.to_radians().cos();
         let sin_s = (1.0 - mu_s * mu_s).sqrt();
@@ -3280,21 +3287,7 @@ mod tests {
     /// equal to rounding by day, within the f32 interpolation's few 10⁻⁶ in twilight.
     #[test]
     fn twilight_lookups_need_only_the_slice_corners() {
-        let mut params = preset("earth").unwrap();
-        params.planet_radius_m = 63_600_000.0;
-        let medium = Medium::new(&params, &Wavelengths::parse("440,680").unwrap(), None).unwrap();
-        let (fast, standard) = settings_for(Quality::Standard);
-        let s = PreciseSettings {
-            n_r: 10,
-            n_mu_s: 12,
-            n_mu: 16,
-            n_phi: 8,
-            steps: 8,
-            tolerance: 1e-2,
-            ..standard
-        };
-        let bottom = medium.bottom_radius_m;
-        let shared = SharedTables::new(medium, fast, s);
+        let (shared, bottom) = small_tables("earth", "440,680");
         let table = shared.precise();
         // Day cells end at the sun-zenith node below 80° (76.5° with these settings).
         let day_mu_s = table.day_mu_s();
@@ -3334,22 +3327,8 @@ mod tests {
 
     #[test]
     fn slice_lookups_of_many_suns_match_the_products_lookup() {
-        let mut params = preset("earth").unwrap();
-        params.planet_radius_m = 63_600_000.0;
         for (wl, n_l) in [("440,680", 2), ("400,450,500,600,700", 5)] {
-            let medium = Medium::new(&params, &Wavelengths::parse(wl).unwrap(), None).unwrap();
-            let (fast, standard) = settings_for(Quality::Standard);
-            let s = PreciseSettings {
-                n_r: 10,
-                n_mu_s: 12,
-                n_mu: 16,
-                n_phi: 8,
-                steps: 8,
-                tolerance: 1e-2,
-                ..standard
-            };
-            let bottom = medium.bottom_radius_m;
-            let shared = SharedTables::new(medium, fast, s);
+            let (shared, bottom) = small_tables("earth", wl);
             let table = shared.precise();
             let (mut day, mut dusk, mut n_dusk) = (0.0f64, 0.0f64, 0);
             let mut slice = JSlice::default();

@@ -201,36 +201,46 @@ impl MsField {
         self.skin.as_ref().map_or(0.0, |s| s.depth_tau[l])
     }
 
-    /// [`MsField::inscatter`] with each cell's skin tally in place of its whole tally where
-    /// it has one: the orders ≥ 2 a view ray sees in the first [`SKIN_TAU`] below a thick
-    /// cell's surface. Returns false (and `out` untouched) where no cell round `p` has a skin.
-    pub fn inscatter_skin(&self, p: DVec3, d: DVec3, out: &mut [f64]) -> bool {
-        let Some(skin) = &self.skin else {
-            return false;
-        };
+    /// The coarse cells round `p` with their weights, or `None` where none of them has a skin.
+    fn skin_cells(&self, p: DVec3) -> Option<(&SkinField, [(usize, f64); 8])> {
+        let skin = self.skin.as_ref()?;
         let weights = self.cell_weights(p);
         if weights
             .iter()
             .all(|&(c, w)| w == 0.0 || skin.index[c] == u32::MAX)
         {
-            return false;
+            return None;
         }
+        Some((skin, weights))
+    }
+
+    /// Cell `c`'s coefficients at wavelength `l`: its skin tally where it has one, its whole
+    /// tally otherwise.
+    fn skin_or_cell<'a>(&'a self, skin: &'a SkinField, c: usize, l: usize) -> &'a [f32] {
+        let n = self.moments;
+        let (data, i) = match skin.index[c] {
+            u32::MAX => (&self.data, c),
+            s => (&skin.data, s as usize),
+        };
+        &data[(i * self.n_l + l) * n..(i * self.n_l + l + 1) * n]
+    }
+
+    /// [`MsField::inscatter`] with each cell's skin tally in place of its whole tally where
+    /// it has one: the orders ≥ 2 a view ray sees in the first [`SKIN_TAU`] below a thick
+    /// cell's surface. Returns false (and `out` untouched) where no cell round `p` has a skin.
+    pub fn inscatter_skin(&self, p: DVec3, d: DVec3, out: &mut [f64]) -> bool {
+        let Some((skin, weights)) = self.skin_cells(p) else {
+            return false;
+        };
         let mut ylm = [0.0; (MAX_ORDER + 1) * (MAX_ORDER + 1)];
         super::real_sh(-d, self.angular_order, &mut ylm);
-        let n = self.moments;
         out.iter_mut().for_each(|o| *o = 0.0);
         for (c, w) in weights {
             if w == 0.0 {
                 continue;
             }
-            let s = skin.index[c];
             for (l, o) in out.iter_mut().enumerate() {
-                let v = if s == u32::MAX {
-                    &self.data[(c * self.n_l + l) * n..(c * self.n_l + l + 1) * n]
-                } else {
-                    let s = s as usize;
-                    &skin.data[(s * self.n_l + l) * n..(s * self.n_l + l + 1) * n]
-                };
+                let v = self.skin_or_cell(skin, c, l);
                 let pl = &self.phase_moments[l];
                 let mut sum = 0.0;
                 for (order, p_l) in pl.iter().enumerate() {
@@ -252,30 +262,17 @@ impl MsField {
     /// (for exports of the field, `[λ·(L + 1)² + lm]`). Returns false (and `out` untouched)
     /// where no cell round `p` has a skin.
     pub fn convolved_skin_coefficients(&self, p: DVec3, out: &mut [f64]) -> bool {
-        let Some(skin) = &self.skin else {
+        let Some((skin, weights)) = self.skin_cells(p) else {
             return false;
         };
-        let weights = self.cell_weights(p);
-        if weights
-            .iter()
-            .all(|&(c, w)| w == 0.0 || skin.index[c] == u32::MAX)
-        {
-            return false;
-        }
         let n = self.moments;
         out.iter_mut().for_each(|o| *o = 0.0);
         for (c, w) in weights {
             if w == 0.0 {
                 continue;
             }
-            let s = skin.index[c];
             for l in 0..self.n_l {
-                let v = if s == u32::MAX {
-                    &self.data[(c * self.n_l + l) * n..(c * self.n_l + l + 1) * n]
-                } else {
-                    let s = s as usize;
-                    &skin.data[(s * self.n_l + l) * n..(s * self.n_l + l + 1) * n]
-                };
+                let v = self.skin_or_cell(skin, c, l);
                 for (order, p_l) in self.phase_moments[l].iter().enumerate() {
                     for m in order * order..(order + 1) * (order + 1) {
                         out[l * n + m] += w * p_l * v[m] as f64;
