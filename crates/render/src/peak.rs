@@ -340,6 +340,13 @@ mod tests {
         let at = |deg: f64, lambda: f64| s.ratio(s.row(0, deg.to_radians().cos()), lambda);
         assert!(at(0.0, 4.0) < 0.5 && at(35.0, 4.0) > 1.5);
         assert!(PeakSpread::new(&[phase], &[Truncation::new(0.85, 0.999, 0.0)]).is_none());
+        // f⁺, the integral of r⁺ = max(p − (1 − f)·HG(g*), 0): 0.58163 by an independent
+        // midpoint quadrature (2·10⁵ points in μ = 1 − 2u², outside this crate), above f = 0.56620.
+        let f_plus = s.peak_fraction(0);
+        assert!(
+            (f_plus - 0.58163).abs() < 5e-4 && f_plus > t.fraction,
+            "{f_plus}"
+        );
         // The peak's part: at λ = 0 the truncated peak's positive part r⁺ = max(p − (1 − f)·HG(g*),
         // 0) over p, evaluated directly here (the table sums Legendre series); never above the
         // whole, and the two parts add up to it at every λ.
