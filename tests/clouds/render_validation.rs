@@ -263,14 +263,15 @@ fn fast_slab_every_angle_against_disort() {
     let grid = std::sync::Arc::new(slab_grid());
     // Measured worst views (P3 field, thick march steps, the field's skin tallies in thick
     // cells, the sun's path continued to the grid's faces, a sun-only frame's whole photon
-    // budget on the sun): τ 1 −19.3 % (75°, towards the sun; nadir −12.4 %), τ 8 +17.8 % (75°,
-    // away from the sun; towards it −9.2 %), τ 32 +14.3 % (75°, away; nadir +1.3 %; the photon
-    // seeds spread it by ±2 points). With the P2 field, no thick steps and no skins: −24.9 %,
+    // budget on the sun, the sun's single scattering through σ_t⁺ and spread over the view's
+    // path): τ 1 −15.8 % (75°, towards the sun; nadir −11.5 %), τ 8 +18.4 % (75°, away from the
+    // sun; towards it −5.5 %), τ 32 +14.7 % (75°, away; nadir +1.6 %; the photon seeds spread it
+    // by ±2 points). Before the σ_t⁺ attenuation: −19.3 %, +17.8 %, +14.3 %. With the P2 field, no thick steps and no skins: −24.9 %,
     // +22.8 %, −51.9 %. The target, 5 % at every angle, is not met; what is left at τ 1 and 8:
     // the TMS single scattering looking towards the sun and the field
     // (`slab_split_by_smooth_scatterings_against_disort`).
     for (tau, albedo, bound) in [
-        (1.0f64, 1.0f64, 0.22f64),
+        (1.0f64, 1.0f64, 0.19f64),
         (8.0, 1.0, 0.20),
         (32.0, 1.0, 0.18),
     ] {
@@ -324,7 +325,8 @@ fn cloud_matches_mitsuba() {
         .map(|&m| m > 0.0)
         .collect();
     // Fast method (whole frame, δ-M/TMS field, P3, 20° view cap, density-weighted field, the
-    // sun's path interpolated in √D): measured block NRMSE and bias, sun 4.0 % and +0.3 % with the
+    // sun's path interpolated in √D): measured block NRMSE and bias, sun 4.1 % and +1.4 % with the
+    // sun's single scattering through σ_t⁺ and spread over the view's path (4.0 % and +0.3 % before), with the
     // environment's photons traced from the sun in this sunlit-only frame (over 4 photon seeds
     // 5.1 % and +0.7 %; 5.0 % and +0.3 % with half the photons, +0.2 % interpolating D), sky 4.6 %
     // and +0.1 % (over 4 photon seeds 4.1 % and +0.5 %; 5.3 % and +0.7 % with the view cap's edge
@@ -432,7 +434,11 @@ fn cloud_matches_mitsuba() {
 /// average over 4 seeds and +2.6 % with 16× the photons (+2.2 % at this seed, +1.4 % with half
 /// the photons: a favourable draw of the noise): the field's coarse cells (2 voxels each here)
 /// raise the thin edges, not its photon noise; with one cell per voxel −0.5 % (docs/frames.md).
-/// Its bias bound is that measured figure plus a margin, above the 2 %.
+/// Its bias bound is that measured figure plus a margin, above the 2 %. With the sun's
+/// single scattering through σ_t⁺ and spread over the view's path too (the first orders within
+/// 0.3 % of the classed path tracer's n ≤ 1 on `sun` and `sun_albedo09`, were −9.6 / −7.2 %):
+/// thin 3.4 % / +0.5 %, g 0.5 4.3 % / +2.5 %, albedo 0.9 4.8 % / +2.1 % (the field's excess at
+/// thin edges, which the first orders' deficit offset, is left: with one cell per voxel +0.8 %).
 #[test]
 fn fast_cloud_matches_mitsuba_cases() {
     let mask: Vec<bool> = npy("cloud_mitsuba_mask.npy")
@@ -442,7 +448,7 @@ fn fast_cloud_matches_mitsuba_cases() {
     for (case, block_bound, bias_bound) in [
         ("sun_thin", 0.05, 0.015),
         ("sun_g05", 0.055, 0.03),
-        ("sun_albedo09", 0.06, 0.02),
+        ("sun_albedo09", 0.06, 0.03),
         ("sunsky", 0.055, 0.015),
     ] {
         let (scene, grid, reference) = validation_case(case);
@@ -474,14 +480,17 @@ fn fast_cloud_matches_mitsuba_every_side() {
         // environment's photons traced from the sun (5.3 % / −1.2 % with half the photons; 5.4 % / −1.5 % with
         // the sun's density integral interpolated in D rather than √D; 5.5 % / −1.6 % with
         // the P2 field; 6.1 % / +1.0 % before the peak's last scattering was seen through the
-        // true extinction).
-        ("sun_back35", "cloud_mitsuba_mask.npy", 0.065, 0.02),
+        // true extinction). With the sun's single scattering through σ_t⁺ and spread over the
+        // view's path too: 4.6 % / +1.0 % (one cell per voxel: +0.1 %).
+        ("sun_back35", "cloud_mitsuba_mask.npy", 0.06, 0.02),
         // 4.5 % / +1.2 % (half the photons: 4.6 % / +1.0 %; 4.4 % / +0.5 % interpolating D rather than √D; P2 field: 4.1 % / −0.3 %; 36.2 % / +25.8 % before: TMS counted the light scattered only within
-        // the truncated peak once per peak scattering; docs/frames.md). The target
-        // (5 %, 2 %) with a margin for the photon field.
-        ("sun_back20", "cloud_mitsuba_mask.npy", 0.05, 0.015),
-        // 2.8 % / −1.0 % (2.9 % / −0.9 % with the P2 field; 3.6 % / −2.1 % before).
-        ("sun_back35_thin", "cloud_mitsuba_mask.npy", 0.04, 0.02),
+        // the truncated peak once per peak scattering; docs/frames.md). With the sun's single
+        // scattering through σ_t⁺ and spread over the view's path too: 4.7 % / +1.6 % (one cell
+        // per voxel: +0.6 %).
+        ("sun_back20", "cloud_mitsuba_mask.npy", 0.055, 0.025),
+        // 2.8 % / −1.0 % (2.9 % / −0.9 % with the P2 field; 3.6 % / −2.1 % before); 2.3 % /
+        // +0.5 % with the sun's single scattering through σ_t⁺.
+        ("sun_back35_thin", "cloud_mitsuba_mask.npy", 0.035, 0.015),
         // 4.6 % / −0.9 % (4.2 % / −0.6 % raw over 4 photon seeds; 5.1 % / −0.4 % with the view
         // cap's edge along the view ray, 5.5 % / −0.5 % with the 25° view cap, 5.8 % / +1.8 %
         // before the P3 field and the environment photons' launch). The target (5 %, 2 %)
@@ -489,8 +498,11 @@ fn fast_cloud_matches_mitsuba_every_side() {
         ("sunsky_back35", "cloud_mitsuba_mask.npy", 0.055, 0.015),
         // 6.2 % / +0.1 % (5.8 % / −0.1 % with half the photons; over 4 photon seeds 7.9 % / +0.8 %
         // raw, 7.3 % / +1.3 % raw with 16× the photons: not photon noise. 5.9 % / −0.3 %
-        // interpolating D rather than √D; 6.0 % / +1.0 % with the P2 field).
-        ("below_sun", "cloud_mitsuba_mask_below.npy", 0.075, 0.02),
+        // interpolating D rather than √D; 6.0 % / +1.0 % with the P2 field). 5.7 % / +2.6 % with
+        // the sun's single scattering through σ_t⁺ and spread over the view's path (its first
+        // orders −10.2 → −0.3 % against the classed path tracer's n ≤ 1; the field's +3.4 % is
+        // left).
+        ("below_sun", "cloud_mitsuba_mask_below.npy", 0.065, 0.035),
         // 3.8 % / +0.1 % (4.3 % / +0.3 % raw over 3 photon seeds). 5.2 % / −0.3 % with half the
         // photons (the sun's go to the sky in a frame without sunlight) and the 25° view cap,
         // 4.7 % / −0.9 % with the photons alone; 7.6 % / +0.1 % before the environment photons'

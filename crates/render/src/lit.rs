@@ -90,6 +90,11 @@ pub struct LitVolume {
     pub ms_extinction_scale: Vec<f64>,
     pub ms_albedo: Vec<f64>,
     pub peak_rate: Vec<f64>,
+    /// s⁺ = σ_t⁺/σ_t = 1 − ωf⁺ per wavelength (f⁺ the truncated peak's integral,
+    /// [`PeakSpread::peak_fraction`]): the extinction of light that scatters only within the
+    /// peak r⁺ as it travels, through which the sun's single scattering is attenuated on both
+    /// its paths (`march`); s where no peak is spread.
+    pub first_extinction_scale: Vec<f64>,
     pub sun_on: bool,
     pub env_on: bool,
     /// Orders 2–3 by the reference pattern: computed per camera (its views are the camera's).
@@ -157,6 +162,14 @@ impl LitVolume {
         } else {
             None
         };
+        let first_extinction_scale: Vec<f64> = trunc
+            .iter()
+            .enumerate()
+            .map(|(l, t)| match &peak {
+                Some(p) if p.peak_fraction(l) > 0.0 => 1.0 - t.albedo * p.peak_fraction(l),
+                _ => t.extinction_scale,
+            })
+            .collect();
         let per_voxel =
             settings.method == Method::Fast && vol.rho_max > 0.0 && settings.cloud_in_view;
         let (mut d_sun, mut mask, mut lattice) = (Vec::new(), Vec::new(), Vec::new());
@@ -230,6 +243,7 @@ impl LitVolume {
             ms_extinction_scale,
             ms_albedo,
             peak_rate,
+            first_extinction_scale,
             sun_on,
             env_on,
             pattern_on,

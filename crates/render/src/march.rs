@@ -32,12 +32,15 @@ pub use super::multiple::THICK_STEP;
 const MAX_SUB_STEPS: usize = 64;
 
 /// What every step of one ray shares, per wavelength (see [`Prepared::march`]): ω/s·E_sun·p(Θ),
-/// the true and scaled extinctions per density, the peak table's row and whether the
-/// wavelength's extinctions differ from the previous one's.
+/// the true and scaled extinctions per density, the extinction of the sun's once-scattered light
+/// (σ_t⁺ per density, [`LitVolume::first_extinction_scale`]) and s/s⁺, the peak table's row and
+/// whether the wavelength's extinctions differ from the previous one's.
 struct Sources<'s> {
     sun_src: &'s [f64],
     kt: &'s [f64],
     ks: &'s [f64],
+    kp: &'s [f64],
+    sp: &'s [f64],
     rows: &'s [Option<super::peak::PeakRow>],
     fresh: &'s [bool],
 }
@@ -341,11 +344,16 @@ impl<'a> Prepared<'a> {
     /// this is exact single scattering. The cloud's transmittance T_c of the background uses the
     /// true extinction. Each step integrates exactly for a density constant within it.
     ///
-    /// The sun's single scattering is split by what scatters last (`peak`): the scaled beam
-    /// e^{−τ*} holds the sunlight scattered only within the truncated peak r⁺, spread over
-    /// angle (Goudsmit & Saunderson 1940). Its part scattered last by the smooth remainder
-    /// p − r⁺ keeps the TMS form, σ_s (p − r⁺)_eff e^{−τ*_sun} seen through the scaled
-    /// transmittance T*. Its part scattered last within the peak, σ_s r⁺_eff e^{−τ*_sun}, is
+    /// The sun's single scattering is split by what scatters last (`peak`): the beam holds
+    /// the sunlight scattered only within the truncated peak r⁺, spread over angle (Goudsmit &
+    /// Saunderson 1940). Its part scattered last by the smooth remainder p − r⁺ keeps the TMS
+    /// form, σ_s (p − r⁺)_eff e^{−τ⁺_sun} seen through T⁺, with τ⁺ = (1 − ωf⁺)τ: light that
+    /// scatters only within r⁺ stays in the beam, and r⁺ holds f⁺ ≥ f of every scattering
+    /// (with f, the scaled extinction, both paths lost 1.5 % of their light per optical
+    /// depth for g = 0.85); and the peak scatterings after the smooth one spread it as those
+    /// before it do, so its (p − r⁺)_eff is taken at the peak's rate over the sun's path and
+    /// the view's together (the Goudsmit-Saunderson moments of the two paths multiply). Its
+    /// part scattered last within the peak, σ_s r⁺_eff e^{−τ⁺_sun} (the sun's path alone), is
     /// seen through the true transmittance T_c: a later peak scattering on the way to the
     /// camera makes it light scattered last further along the ray, already counted there.
     /// TMS alone, with T* for it too, counts light scattered m times within the peak m times
@@ -383,6 +391,10 @@ impl<'a> Prepared<'a> {
         let (occ_lo, occ_hi) = vol.occupied?;
         let (_, t_occ_end) = super::camera::box_interval(ray.origin_m, ray.dir, occ_lo, occ_hi)?;
         let mut tcs = [1.0f64; 64];
+        // The transmittance of the sun's once-scattered light to the camera (σ_t⁺).
+        let mut tcp = [1.0f64; 64];
+        // The true optical depth from the camera to the current step's start.
+        let mut tv = [0.0f64; 64];
         let optics = &self.scene.optics;
         let lt = self.lighting;
         let step = self.settings.step_voxels * vol.grid.voxel_size_m;
@@ -391,6 +403,8 @@ impl<'a> Prepared<'a> {
         let mut sun_src = [0.0f64; 64];
         let mut ks = [0.0f64; 64];
         let mut kt = [0.0f64; 64];
+        let mut kp = [0.0f64; 64];
+        let mut sp = [1.0f64; 64];
         let mut rows = [None; 64];
         // Wavelengths whose extinctions equal the previous one's share its exponentials.
         let mut fresh = [true; 64];
@@ -404,7 +418,10 @@ impl<'a> Prepared<'a> {
             };
             kt[l] = optics.extinction_per_density_m[l];
             ks[l] = kt[l] * sc;
-            fresh[l] = l == 0 || kt[l] != kt[l - 1] || ks[l] != ks[l - 1];
+            let sc_first = self.lit.first_extinction_scale[l];
+            kp[l] = kt[l] * sc_first;
+            sp[l] = sc / sc_first;
+            fresh[l] = l == 0 || kt[l] != kt[l - 1] || ks[l] != ks[l - 1] || kp[l] != kp[l - 1];
         }
         let sun_on = self.lit.sun_on;
         let stride = if N == 0 { self.stride } else { N + 2 };
@@ -461,6 +478,8 @@ impl<'a> Prepared<'a> {
                     sun_src: &sun_src[..n_l],
                     kt: &kt[..n_l],
                     ks: &ks[..n_l],
+                    kp: &kp[..n_l],
+                    sp: &sp[..n_l],
                     rows: &rows[..n_l],
                     fresh: &fresh[..n_l],
                 };
@@ -474,6 +493,8 @@ impl<'a> Prepared<'a> {
                     ia,
                     tc,
                     &mut tcs[..n_l],
+                    &mut tcp[..n_l],
+                    &mut tv[..n_l],
                     &mut front,
                 );
                 d_start = None;
@@ -512,51 +533,57 @@ impl<'a> Prepared<'a> {
             let (d0, d1) = (r0 * r0, r1 * r1);
             front.get_or_insert(t - dt);
             let mut alive = false;
-            let (mut a, mut a_ms, mut sun_t, mut sun_peak) = (0.0, 0.0, 0.0, 0.0);
+            let (mut a, mut a_ms, mut a_p, mut sun_t, mut sun_peak) = (0.0, 0.0, 0.0, 0.0, 0.0);
             for l in 0..n_l {
                 if fresh[l] {
                     a = -(-kt[l] * rho * dt).exp_m1();
                     a_ms = -(-ks[l] * rho * dt).exp_m1();
-                    (sun_t, sun_peak) = if sun_on {
+                    (a_p, sun_t, sun_peak) = if sun_on {
+                        let a_p = -(-kp[l] * rho * dt).exp_m1();
                         // The sun's transmittance at the step's start, shared by both parts.
-                        let e_tau0 = (-(ks[l] * d0)).exp();
+                        let e_tau0 = (-(kp[l] * d0)).exp();
                         let (weight, d_eff) =
-                            sun_step_with(ks[l] * rho, ks[l] * (d1 - d0), dt, ks[l] * d0, e_tau0);
+                            sun_step_with(kp[l] * rho, kp[l] * (d1 - d0), dt, kp[l] * d0, e_tau0);
                         match (&self.lit.peak, rows[l]) {
                             (Some(p), Some(row)) => {
                                 // The spread beam's two parts (see the doc comment above): the
                                 // smooth remainder's single scattering seen through the scaled
                                 // extinction, the peak's last scattering through the true one
                                 // (its weight times s = σ_t*/σ_t, as sun_src holds ω/s).
-                                let (smooth, peak) = p.ratios(
-                                    row,
-                                    self.lit.peak_rate[l] * kt[l] * (d0 + (d1 - d0) * d_eff),
-                                );
+                                // The smooth part spread over the sun's path and the view's,
+                                // the peak's part over the sun's (see the doc comment above).
+                                let rate = self.lit.peak_rate[l];
+                                let lam_s = rate * kt[l] * (d0 + (d1 - d0) * d_eff);
+                                let lam_v = rate * (tv[l] + 0.5 * kt[l] * rho * dt);
+                                let smooth = p.ratios(row, lam_s + lam_v).0;
+                                let peak = p.last_in_peak(row, lam_s);
                                 let peak_t = if peak > 0.0 {
                                     let w_true = sun_step_weight(
                                         kt[l] * rho,
-                                        ks[l] * (d1 - d0),
+                                        kp[l] * (d1 - d0),
                                         dt,
-                                        ks[l] * d0,
+                                        kp[l] * d0,
                                         e_tau0,
                                     );
                                     w_true * peak * self.lit.ms_extinction_scale[l]
                                 } else {
                                     0.0
                                 };
-                                (weight * smooth, peak_t)
+                                (a_p, weight * smooth * sp[l], peak_t)
                             }
-                            _ => (weight, 0.0),
+                            _ => (a_p, weight * sp[l], 0.0),
                         }
                     } else {
-                        (0.0, 0.0)
+                        (0.0, 0.0, 0.0)
                     };
                 }
-                // The peak's part is seen through the true transmittance T_c before this step.
-                ia[l] +=
-                    tcs[l] * (sun_src[l] * sun_t + a_ms * src[l]) + tc[l] * sun_src[l] * sun_peak;
+                // The smooth part through T⁺, the peak's part through the true transmittance
+                // T_c, the field through T*, each before this step.
+                ia[l] += tcs[l] * a_ms * src[l] + sun_src[l] * (tcp[l] * sun_t + tc[l] * sun_peak);
                 tc[l] *= 1.0 - a;
                 tcs[l] *= 1.0 - a_ms;
+                tcp[l] *= 1.0 - a_p;
+                tv[l] += kt[l] * rho * dt;
                 alive |= tcs[l] > MARCH_CUTOFF;
             }
             if !alive {
@@ -604,6 +631,8 @@ impl<'a> Prepared<'a> {
         ia: &mut [f64],
         tc: &mut [f64],
         tcs: &mut [f64],
+        tcp: &mut [f64],
+        tv: &mut [f64],
         front: &mut Option<f64>,
     ) -> bool {
         let vol = &self.lit.vol;
@@ -668,32 +697,34 @@ impl<'a> Prepared<'a> {
             d_prev = Some(d1);
             front.get_or_insert(ts);
             let mut alive = false;
-            let (mut a, mut a_ms, mut sun_t, mut sun_peak) = (0.0, 0.0, 0.0, 0.0);
+            let (mut a, mut a_ms, mut a_p, mut sun_t, mut sun_peak) = (0.0, 0.0, 0.0, 0.0, 0.0);
             for l in 0..n_l {
-                let (kt, ks) = (sky.kt[l], sky.ks[l]);
+                let (kt, ks, kp) = (sky.kt[l], sky.ks[l], sky.kp[l]);
                 if sky.fresh[l] {
                     a = -(-kt * rho * h).exp_m1();
                     a_ms = -(-ks * rho * h).exp_m1();
+                    a_p = -(-kp * rho * h).exp_m1();
                     (sun_t, sun_peak) = if sun_on {
-                        let (weight, d_eff) = sun_step(ks * rho, ks * (d1 - d0), h, ks * d0);
+                        let (weight, d_eff) = sun_step(kp * rho, kp * (d1 - d0), h, kp * d0);
                         match (&self.lit.peak, sky.rows[l]) {
                             (Some(p), Some(row)) => {
                                 // As in [`Self::march`]: the smooth remainder through the scaled
                                 // extinction, the peak's last scattering through the true one.
-                                let (smooth, peak) = p.ratios(
-                                    row,
-                                    self.lit.peak_rate[l] * kt * (d0 + (d1 - d0) * d_eff),
-                                );
+                                let rate = self.lit.peak_rate[l];
+                                let lam_s = rate * kt * (d0 + (d1 - d0) * d_eff);
+                                let lam_v = rate * (tv[l] + 0.5 * kt * rho * h);
+                                let smooth = p.ratios(row, lam_s + lam_v).0;
+                                let peak = p.last_in_peak(row, lam_s);
                                 let peak_t = if peak > 0.0 {
                                     let (w_true, _) =
-                                        sun_step(kt * rho, ks * (d1 - d0), h, ks * d0);
+                                        sun_step(kt * rho, kp * (d1 - d0), h, kp * d0);
                                     w_true * peak * self.lit.ms_extinction_scale[l]
                                 } else {
                                     0.0
                                 };
-                                (weight * smooth, peak_t)
+                                (weight * smooth * sky.sp[l], peak_t)
                             }
-                            _ => (weight, 0.0),
+                            _ => (weight * sky.sp[l], 0.0),
                         }
                     } else {
                         (0.0, 0.0)
@@ -704,10 +735,11 @@ impl<'a> Prepared<'a> {
                 } else {
                     a_ms * src[l]
                 };
-                ia[l] +=
-                    tcs[l] * (sky.sun_src[l] * sun_t + field) + tc[l] * sky.sun_src[l] * sun_peak;
+                ia[l] += tcs[l] * field + sky.sun_src[l] * (tcp[l] * sun_t + tc[l] * sun_peak);
                 tc[l] *= 1.0 - a;
                 tcs[l] *= 1.0 - a_ms;
+                tcp[l] *= 1.0 - a_p;
+                tv[l] += kt * rho * h;
                 alive |= tcs[l] > MARCH_CUTOFF;
             }
             if !alive {

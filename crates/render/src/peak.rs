@@ -47,8 +47,9 @@ pub struct PeakSpread {
     tables: Vec<Arc<Tables>>,
 }
 
-/// One phase function's and truncation's p_eff/p table and its peak part (see [`table`]).
-type Tables = (Vec<f32>, Vec<f32>);
+/// One phase function's and truncation's p_eff/p table, its peak part and the peak's integral
+/// f⁺ (see [`table`]).
+type Tables = (Vec<f32>, Vec<f32>, f64);
 
 /// The tables computed so far in this process, by the bits of what [`table`] reads (the phase
 /// function, f, g* and ω): a frame rendered again (another camera, a warm service) finds its
@@ -133,6 +134,14 @@ impl PeakSpread {
         &self.tables[self.table_of[l]].1
     }
 
+    /// The integral f⁺ of wavelength `l`'s truncated peak r⁺ = max(p − (1 − f)·HG(g*), 0) over
+    /// the sphere (f⁺ ≥ f: (1 − f)·HG(g*) exceeds p beyond the peak, where r⁺ is 0; 0.582
+    /// against f = 0.566 for Henyey-Greenstein g = 0.85), the probability that a scattering is
+    /// one within the peak; 0 where the table is 1 (no truncation).
+    pub fn peak_fraction(&self, l: usize) -> f64 {
+        self.tables[self.table_of[l]].2
+    }
+
     /// The row for wavelength `l` and the cosine of the scattering angle (sun direction · ray).
     pub fn row(&self, l: usize, cos_theta: f64) -> PeakRow {
         let x = cos_theta.clamp(-1.0, 1.0).acos().to_degrees() * 2.0;
@@ -162,6 +171,14 @@ impl PeakSpread {
         let full = lookup_at(&tables.0, at, v, row.w1);
         let peak = lookup_at(&tables.1, at, v, row.w1);
         (full - peak, peak)
+    }
+
+    /// The part of p_eff/p scattered last within the truncated peak alone (the second of
+    /// [`Self::ratios`]), for the row at λ = ωfτ.
+    #[inline]
+    pub fn last_in_peak(&self, row: PeakRow, lambda: f64) -> f64 {
+        let (at, v) = cell(row, lambda);
+        lookup_at(&self.tables[row.table].1, at, v, row.w1)
     }
 }
 
@@ -195,8 +212,8 @@ fn legendre(mu: f64, out: &mut [f64]) {
 }
 
 /// The p_eff/p table `[θ][λ]` of one phase function and truncation, and the same for the peak
-/// part alone, r⁺_eff/p (moments r⁺_l e^{−ωf⁺τ(1 − h_l)}).
-fn table(phase: &Phase, t: &Truncation) -> (Vec<f32>, Vec<f32>) {
+/// part alone, r⁺_eff/p (moments r⁺_l e^{−ωf⁺τ(1 − h_l)}), and f⁺.
+fn table(phase: &Phase, t: &Truncation) -> Tables {
     let f = t.fraction;
     let smooth = Phase::HenyeyGreenstein { g: t.g_scaled };
     // Moments 2π∫ x P_l dμ of p and of the positive remainder r⁺ = max(p − (1 − f)p*, 0).
@@ -220,7 +237,7 @@ fn table(phase: &Phase, t: &Truncation) -> (Vec<f32>, Vec<f32>) {
     let mut out = vec![1f32; N_THETA * N_LAMBDA];
     let mut out_peak = vec![0f32; N_THETA * N_LAMBDA];
     if f_plus <= 0.0 || f <= 0.0 || albedo <= 0.0 {
-        return (out, out_peak);
+        return (out, out_peak, 0.0);
     }
     // λ = ωfτ; the peak's scattering rate is ωf⁺ per unit optical depth.
     let strength = f_plus / f;
@@ -260,7 +277,7 @@ fn table(phase: &Phase, t: &Truncation) -> (Vec<f32>, Vec<f32>) {
                 *o_peak = peak as f32;
             }
         });
-    (out, out_peak)
+    (out, out_peak, f_plus)
 }
 
 #[cfg(test)]
@@ -275,7 +292,7 @@ mod tests {
         let t = Truncation::new(0.8, 0.99, 3.5);
         let first = PeakSpread::new(&[phase], &[t]).unwrap();
         let again = PeakSpread::new(&[phase, phase], &[t, t]).unwrap();
-        let (full, peak) = table(&phase, &t);
+        let (full, peak, _) = table(&phase, &t);
         for s in [&first, &again] {
             assert!(s
                 .table(0)
@@ -290,7 +307,7 @@ mod tests {
         }
         let other = Truncation::new(0.8, 0.99, 2.0);
         let s = PeakSpread::new(&[phase], &[other]).unwrap();
-        let (full_other, _) = table(&phase, &other);
+        let (full_other, _, _) = table(&phase, &other);
         assert!(s.table(0).iter().zip(&full_other).all(|(a, b)| a == b));
         assert!(full_other.iter().zip(&full).any(|(a, b)| a != b));
     }
@@ -323,6 +340,13 @@ mod tests {
         let at = |deg: f64, lambda: f64| s.ratio(s.row(0, deg.to_radians().cos()), lambda);
         assert!(at(0.0, 4.0) < 0.5 && at(35.0, 4.0) > 1.5);
         assert!(PeakSpread::new(&[phase], &[Truncation::new(0.85, 0.999, 0.0)]).is_none());
+        // f⁺, the integral of r⁺ = max(p − (1 − f)·HG(g*), 0): 0.58163 by an independent
+        // midpoint quadrature (2·10⁵ points in μ = 1 − 2u², outside this crate), above f = 0.56620.
+        let f_plus = s.peak_fraction(0);
+        assert!(
+            (f_plus - 0.58163).abs() < 5e-4 && f_plus > t.fraction,
+            "{f_plus}"
+        );
         // The peak's part: at λ = 0 the truncated peak's positive part r⁺ = max(p − (1 − f)·HG(g*),
         // 0) over p, evaluated directly here (the table sums Legendre series); never above the
         // whole, and the two parts add up to it at every λ.

@@ -55,6 +55,10 @@ struct State {
     ia: Vec<f64>,
     tc: Vec<f64>,
     ts: Vec<f64>,
+    /// T⁺, the transmittance of the sun's once-scattered light (k·s⁺).
+    tp: Vec<f64>,
+    /// The true optical depth from the ray's start.
+    tv: Vec<f64>,
 }
 
 /// Real orthonormal spherical harmonics up to l = 3 in the manifest's order (Sloan 2008,
@@ -296,6 +300,8 @@ impl<'a> Marcher<'a> {
             ia: vec![0.0; n_l],
             tc: vec![1.0; n_l],
             ts: vec![1.0; n_l],
+            tp: vec![1.0; n_l],
+            tv: vec![0.0; n_l],
         };
         let Some((t0, t1)) = box_interval(o, d, self.lo, self.hi) else {
             return CloudSample {
@@ -428,17 +434,25 @@ impl<'a> Marcher<'a> {
             let ks = k[l] * s[l];
             let a = -(-k[l] * rho * dt).exp_m1();
             let a_ms = -(-ks * rho * dt).exp_m1();
-            // Sun, single scattering with the true phase function and the spread peak.
-            // The part scattered last within the peak is seen through the true
+            // Sun, single scattering with the true phase function and the spread peak, through
+            // k·s⁺ on both paths, the smooth part spread over the sun's and the view's true
+            // optical depths. The part scattered last within the peak is seen through the true
             // extinction: its step weight with k (times s, as sun_src holds ω/s), and T_c.
-            let (sun_t, sun_peak) = if ray.sun_on {
-                let (weight, d_eff) = sun_step(ks * rho, ks * (d_end - d_start), dt, ks * d_start);
+            let kp = k[l] * cl.first_extinction_scale[l];
+            let (a_p, sun_t, sun_peak) = if ray.sun_on {
+                let (weight, d_eff) = sun_step(kp * rho, kp * (d_end - d_start), dt, kp * d_start);
                 let lambda = cl.peak_rate[l] * k[l] * (d_start + (d_end - d_start) * d_eff);
-                let (smooth, peak) = self.spread(l, ray.cos_sun, lambda);
-                let (w_true, _) = sun_step(k[l] * rho, ks * (d_end - d_start), dt, ks * d_start);
-                (weight * smooth, w_true * peak * s[l])
+                let lambda_view = cl.peak_rate[l] * (st.tv[l] + 0.5 * k[l] * rho * dt);
+                let (smooth, _) = self.spread(l, ray.cos_sun, lambda + lambda_view);
+                let (_, peak) = self.spread(l, ray.cos_sun, lambda);
+                let (w_true, _) = sun_step(k[l] * rho, kp * (d_end - d_start), dt, kp * d_start);
+                (
+                    -(-kp * rho * dt).exp_m1(),
+                    weight * smooth * s[l] / cl.first_extinction_scale[l],
+                    w_true * peak * s[l],
+                )
             } else {
-                (0.0, 0.0)
+                (0.0, 0.0, 0.0)
             };
             // Sky and ground light through the sun cap and the lattice elements.
             let mut src = 0.0;
@@ -474,9 +488,11 @@ impl<'a> Marcher<'a> {
                 None => a_ms * (src + j.max(0.0)),
             };
             st.ia[l] +=
-                st.ts[l] * (ray.sun_src[l] * sun_t + field) + st.tc[l] * ray.sun_src[l] * sun_peak;
+                st.ts[l] * field + ray.sun_src[l] * (st.tp[l] * sun_t + st.tc[l] * sun_peak);
             st.tc[l] *= 1.0 - a;
             st.ts[l] *= 1.0 - a_ms;
+            st.tp[l] *= 1.0 - a_p;
+            st.tv[l] += k[l] * rho * dt;
             alive |= st.ts[l] > MARCH_CUTOFF;
         }
         alive

@@ -32,7 +32,7 @@ use std::time::Instant;
 use crate::{Error, Result};
 
 /// Layout version of the export (bumped when a file, channel or field changes meaning).
-pub const LAYOUT_VERSION: &str = "3";
+pub const LAYOUT_VERSION: &str = "4";
 pub const MANIFEST_FILE: &str = "manifest.json";
 pub const DENSITY_FILE: &str = "density.exr";
 pub const SUN_PATH_FILE: &str = "sun_path.exr";
@@ -149,6 +149,9 @@ pub struct CloudLight {
     pub extinction_scale: Vec<f64>,
     /// Rate of the peak spread per unit true optical depth towards the sun, per wavelength.
     pub peak_rate: Vec<f64>,
+    /// s⁺ = 1 − ωf⁺ per wavelength (f⁺ the truncated peak's integral): the extinction of the
+    /// sun's once-scattered light on its paths (s without a peak table).
+    pub first_extinction_scale: Vec<f64>,
     /// Unit vector from the cloud towards the sun.
     pub sun_direction: [f64; 3],
     /// Sun's irradiance normal to the beam at the cloud, W m⁻² nm⁻¹, per wavelength.
@@ -315,6 +318,7 @@ impl CloudLight {
             albedo: inputs.optics.albedo.clone(),
             extinction_scale: lit.ms_extinction_scale.clone(),
             peak_rate: lit.peak_rate.clone(),
+            first_extinction_scale: lit.first_extinction_scale.clone(),
             sun_direction: s.to_array(),
             sun_irradiance: if lit.sun_on {
                 lighting.sun_irradiance.clone()
@@ -615,6 +619,7 @@ impl CloudLight {
                 "single_scattering_albedo": self.albedo,
                 "extinction_scale": self.extinction_scale,
                 "peak_rate": self.peak_rate,
+                "first_extinction_scale": self.first_extinction_scale,
                 "sun_irradiance_w_m2_nm": self.sun_irradiance,
             },
             "sun": {"direction": self.sun_direction, "to": "from the cloud towards the sun (unit)"},
@@ -636,7 +641,7 @@ impl CloudLight {
                     "sun_path_near_intervals": SUN_NEAR_INTERVALS,
                     "recipe": "docs/cloud-light.md, 'Thick steps': a step whose densest of the 8 voxels round its midpoint holds max_λ(k·s)·rho·dt > scaled_optical_depth is taken in n = clamp(ceil(that), 2, max_sub_steps) sub-steps, each with the density-weighted interpolation of the textures (weights w_i·rho_i/Σ w_i·rho_i), the sun's path integrated from the density over sun_path_near_voxels towards the sun (composite Simpson, sun_path_near_intervals) plus D_sun beyond, and the skin's source over the first skin.depth_scaled_optical_depth of the ray's scaled optical depth",
                 },
-                "source": "docs/cloud-light.md, 'Marching the volume': per step of length dt at density rho (midpoint), k = extinction_per_density_m, s = extinction_scale: a = 1-exp(-k·rho·dt) (true), a* = 1-exp(-k·s·rho·dt) (scaled); I += T*·(omega/s·E_sun·p(theta)·W_sun·spread + a*·S(d)); T_c *= 1-a; T* *= 1-a*, with S(d) = omega/s·Σ_e E_e(d)·exp(-k·s·D_e) + max(0, Σ C_lm·Y_lm(-d)) (D_0 = D_sun, D_1..14 = the sky paths) and W_sun the exact step integral of the sun's scaled transmittance; then the view cap; pixel = I + T_c·background",
+                "source": "docs/cloud-light.md, 'Marching the volume': per step of length dt at density rho (midpoint), k = extinction_per_density_m, s = extinction_scale: a = 1-exp(-k·rho·dt) (true), a* = 1-exp(-k·s·rho·dt) (scaled); I += T*·a*·S(d) + T+·omega/s+·E_sun·p(theta)·W_sun·(spread - spread_last) + T_c·(the peak's part); T_c *= 1-a; T* *= 1-a*; T+ *= 1-exp(-k·s+·rho·dt) (s+ = first_extinction_scale; spread at the sun's and the view's true optical depths together, spread_last at the sun's), with S(d) = omega/s·Σ_e E_e(d)·exp(-k·s·D_e) + max(0, Σ C_lm·Y_lm(-d)) (D_0 = D_sun, D_1..14 = the sky paths) and W_sun the exact step integral of the sun's scaled transmittance; then the view cap; pixel = I + T_c·background",
             },
             "settings": self.settings,
             "textures": textures,
@@ -886,6 +891,7 @@ impl CloudLight {
             albedo: per("single_scattering_albedo")?,
             extinction_scale: per("extinction_scale")?,
             peak_rate: per("peak_rate")?,
+            first_extinction_scale: per("first_extinction_scale")?,
             sun_irradiance: per("sun_irradiance_w_m2_nm")?,
             wavelengths_nm: wl,
             sun_direction: [sun[0], sun[1], sun[2]],
@@ -903,6 +909,16 @@ impl CloudLight {
         };
         if out.extinction_scale.iter().any(|&s| !(s > 0.0 && s <= 1.0)) {
             return Err(bad("per_wavelength.extinction_scale", "must be in (0, 1]"));
+        }
+        if out
+            .first_extinction_scale
+            .iter()
+            .any(|&s| !(s > 0.0 && s <= 1.0))
+        {
+            return Err(bad(
+                "per_wavelength.first_extinction_scale",
+                "must be in (0, 1]",
+            ));
         }
         Ok(out)
     }
