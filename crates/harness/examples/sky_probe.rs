@@ -12,7 +12,9 @@
 //! Knobs (env): ENV_PHOTONS, SUN_PHOTONS, COARSE (the field's cells per axis), SEED, SEEDS=n (the
 //! frame's error over n photon seeds, then stop), AORDER (the field's angular order), TPOW
 //! (truncation power), EXACT=spp (the fast exact first order, no multiple scattering, against the
-//! path tracer's order 1), MAP=1 (print the 8×8 block ratio map fast / Mitsuba).
+//! path tracer's order 1), MAP=1 (print the 8×8 block ratio map fast / Mitsuba), PTCACHE=FILE
+//! (the classed path tracer's image read from FILE where it holds one of this size, else
+//! written there: for comparing the fast frame's variants against one path-traced image).
 use rayon::prelude::*;
 use skybake_render::pathtracer::PathTracer;
 use skybake_render::{camera, lighting_for, FrameScene, Method, Prepared, RenderSettings};
@@ -298,71 +300,92 @@ fn classes(
     let (w, h) = (scene.camera.width, scene.camera.height);
     let t = Instant::now();
     // Per pixel: [sky n=0, sky n=1, sky n≥2, sun n=0, sun n=1, sun n≥2].
-    let img: Vec<[f64; 6]> = (0..w * h)
-        .into_par_iter()
-        .map(|i| {
-            let mut acc = [0.0; 6];
-            if !mask[i] {
-                return acc;
-            }
-            let (x, y) = (i % w, i / w);
-            let mut rng = rand_pcg::Pcg64::seed_from_u64(
-                0x5EED ^ (i as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15),
-            );
-            let mut lsky = [0.0];
-            for _ in 0..spp {
-                let (jx, jy) = (rng.random::<f64>(), rng.random::<f64>());
-                let Some(ray) = camera::primary_ray(&scene.camera, x as f64 + jx, y as f64 + jy)
-                else {
-                    continue;
-                };
-                let (mut pos, mut dir) = (ray.origin_m, ray.dir);
-                let mut thr = 1.0;
-                let mut n = 0usize;
-                for _depth in 0..20000 {
-                    let Some(t) = free(pos, dir, &mut rng) else {
-                        break;
+    let cache = std::env::var("PTCACHE").unwrap_or_default();
+    let cached: Option<Vec<[f64; 6]>> = std::fs::read(&cache).ok().map(|b| {
+        b.chunks_exact(8)
+            .map(|c| f64::from_le_bytes(std::array::from_fn(|k| c[k])))
+            .collect::<Vec<f64>>()
+            .chunks_exact(6)
+            .map(|c| std::array::from_fn(|j| c[j]))
+            .collect()
+    });
+    let img: Vec<[f64; 6]> = if let Some(c) = cached.filter(|c| c.len() == w * h) {
+        c
+    } else {
+        (0..w * h)
+            .into_par_iter()
+            .map(|i| {
+                let mut acc = [0.0; 6];
+                if !mask[i] {
+                    return acc;
+                }
+                let (x, y) = (i % w, i / w);
+                let mut rng = rand_pcg::Pcg64::seed_from_u64(
+                    0x5EED ^ (i as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15),
+                );
+                let mut lsky = [0.0];
+                for _ in 0..spp {
+                    let (jx, jy) = (rng.random::<f64>(), rng.random::<f64>());
+                    let Some(ray) =
+                        camera::primary_ray(&scene.camera, x as f64 + jx, y as f64 + jy)
+                    else {
+                        continue;
                     };
-                    pos += dir * t;
-                    thr *= albedo;
-                    if sun_on {
-                        let mu = lt.sun_dir.dot(dir);
-                        let tr = trans(pos, lt.sun_dir, &mut rng);
-                        let (pk, all) = (rplus(mu), phase.eval(mu));
-                        acc[3 + n.min(2)] += thr * e_sun * pk * tr;
-                        acc[3 + (n + 1).min(2)] += thr * e_sun * (all - pk) * tr;
-                    }
-                    if sky_on {
-                        // The light arrives from −w... travelling along `dir` after scattering:
-                        // a direction w towards the sky drawn from p(w·dir).
+                    let (mut pos, mut dir) = (ray.origin_m, ray.dir);
+                    let mut thr = 1.0;
+                    let mut n = 0usize;
+                    for _depth in 0..20000 {
+                        let Some(t) = free(pos, dir, &mut rng) else {
+                            break;
+                        };
+                        pos += dir * t;
+                        thr *= albedo;
+                        if sun_on {
+                            let mu = lt.sun_dir.dot(dir);
+                            let tr = trans(pos, lt.sun_dir, &mut rng);
+                            let (pk, all) = (rplus(mu), phase.eval(mu));
+                            acc[3 + n.min(2)] += thr * e_sun * pk * tr;
+                            acc[3 + (n + 1).min(2)] += thr * e_sun * (all - pk) * tr;
+                        }
+                        if sky_on {
+                            // The light arrives from −w... travelling along `dir` after scattering:
+                            // a direction w towards the sky drawn from p(w·dir).
+                            let mut more = || rng.random::<f64>();
+                            let (u1, u2) = (more(), more());
+                            let wd = phase.sample(dir, u1, u2, &mut more).0;
+                            lt.env(wd, &mut lsky);
+                            if lsky[0] > 0.0 {
+                                let mu = wd.dot(dir);
+                                let tr = trans(pos, wd, &mut rng);
+                                let rp = rplus(mu) / phase.eval(mu);
+                                acc[n.min(2)] += thr * lsky[0] * tr * rp;
+                                acc[(n + 1).min(2)] += thr * lsky[0] * tr * (1.0 - rp);
+                            }
+                        }
                         let mut more = || rng.random::<f64>();
                         let (u1, u2) = (more(), more());
-                        let wd = phase.sample(dir, u1, u2, &mut more).0;
-                        lt.env(wd, &mut lsky);
-                        if lsky[0] > 0.0 {
-                            let mu = wd.dot(dir);
-                            let tr = trans(pos, wd, &mut rng);
-                            let rp = rplus(mu) / phase.eval(mu);
-                            acc[n.min(2)] += thr * lsky[0] * tr * rp;
-                            acc[(n + 1).min(2)] += thr * lsky[0] * tr * (1.0 - rp);
+                        let nd = phase.sample(dir, u1, u2, &mut more).0;
+                        let m = nd.dot(dir);
+                        if rng.random::<f64>() * phase.eval(m) >= rplus(m) {
+                            n += 1;
+                        }
+                        dir = nd;
+                        if thr < 1e-3 {
+                            break;
                         }
                     }
-                    let mut more = || rng.random::<f64>();
-                    let (u1, u2) = (more(), more());
-                    let nd = phase.sample(dir, u1, u2, &mut more).0;
-                    let m = nd.dot(dir);
-                    if rng.random::<f64>() * phase.eval(m) >= rplus(m) {
-                        n += 1;
-                    }
-                    dir = nd;
-                    if thr < 1e-3 {
-                        break;
-                    }
                 }
-            }
-            acc.map(|v| v / spp as f64)
-        })
-        .collect();
+                acc.map(|v| v / spp as f64)
+            })
+            .collect()
+    };
+    if !cache.is_empty() {
+        let b: Vec<u8> = img
+            .iter()
+            .flat_map(|a| a.iter().flat_map(|v| v.to_le_bytes()))
+            .collect();
+        let _ = std::fs::write(&cache, b);
+    }
     eprintln!("classed path tracer: {:.1} s", t.elapsed().as_secs_f64());
     let norm = share(reference, mask, 1.0);
     let part = |c: &[usize]| -> Vec<f32> {
