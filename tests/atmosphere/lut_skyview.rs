@@ -210,7 +210,9 @@ fn skyview_sky_radiance_matches_the_sky_product() {
 /// markedly worse. Measured (2026-12-05, standard, layout version 4): altitude — sun ≥ 5°,
 /// view > 10°, 0–20 km 0.18 → 0.86 %; sun — −6…5°, 0–20 km 1.36 → 2.48 %; view rows — −12…−6°
 /// at the ground 3.4 → 5.9 %; azimuth — −6…5° at the ground 1.49 → 3.01 % (over the 3 % target).
-/// (Version 3: 0.18 → 0.86, 2.6 → 6.0, 3.4 → 5.9, 1.3 → 3.8 %.)
+/// (Version 3: 0.18 → 0.86, 2.6 → 6.0, 3.4 → 5.9, 1.3 → 3.8 %.) Version 5 (the columns read
+/// relative to the band): the same but the azimuth, −6…5° at the ground 1.47 → 2.14 %; asserted
+/// on the grid of the earth's shadow rising instead ([`shadow_rise_errors`]: 5.06 → 8.09 %).
 #[test]
 #[ignore = "builds a bundle (about 10 s of CPU): run with --ignored lut_skyview::"]
 fn skyview_four_nodes_per_axis_are_needed() {
@@ -233,6 +235,23 @@ fn skyview_four_nodes_per_axis_are_needed() {
             two.get(band) * 100.0,
             four.get(band) * 100.0
         );
+        if axis == 3 {
+            // The azimuth: since the columns are read relative to the band (version 5), the
+            // random samples at the ground need the 4 columns less (1.47 → 2.14 %); the band on
+            // the grid of the earth's shadow rising needs them.
+            let (grid_two, _) = shadow_rise_errors(f, &reader);
+            let (grid_four, _) = shadow_rise_errors(f, &SkyViewReader::new(&f.bundle));
+            eprintln!(
+                "skyview axis 3 with 2 nodes: the earth's shadow rising: {:.3} % (4 nodes: {:.3} %)",
+                grid_two * 100.0,
+                grid_four * 100.0
+            );
+            assert!(
+                grid_two > 1.5 * grid_four,
+                "axis 3: the earth's shadow rising"
+            );
+            continue;
+        }
         assert!(two.get(band) > 1.5 * four.get(band), "axis {axis}: {band}");
     }
 }
@@ -585,15 +604,16 @@ fn shadow_rise_errors(f: &Fixture, reader: &SkyViewReader) -> (f64, String) {
 }
 
 /// The earth's shadow rising (see [`shadow_rise_errors`]). The target is 3 % (views
-/// within 10° of the horizon, sun down to −6°); it is NOT met at 2.5 and 5 km: measured on
-/// 2026-12-05 (earth, standard, RGB, layout version 4) 16.4 % at 5 km, sun −2°, view zenith
-/// 88.5°, azimuth 150°, 680 nm (5.7 % at 2.5 km, 1.9 % at 1 km, 0.8 % at the ground; version 3:
-/// 48 / 27 / 9.0 / 3.3 %), so the bound is the measured + ~12 %. The sunlit band above the
-/// antisolar horizon (lit by sunlight that grazed the ground) rises ≈ 2° per degree the sun
-/// sinks and is sharpest (a factor of 10 per degree at 5 km) just after sunset at the observer;
-/// version 4's sky rows are denser around its elevation opposite the sun, and its sun
-/// nodes are 0.25° apart around sunset, but 150° from the sun the band lies lower (about 0.7 of
-/// its elevation at 180°) than the rows' focus (docs/lut.md, the skyview layout's sky rows).
+/// within 10° of the horizon, sun down to −6°); it is NOT met at 2.5 and 5 km in the red:
+/// measured on 2026-12-05 (earth, standard, RGB, layout version 5) 5.06 % at 5 km, sun −2°,
+/// view zenith 87.75°, azimuth 180°, 680 nm (3.3 % at 2.5 km, 1.4 % at 1 km, 0.4 % at the
+/// ground; version 4: 16.4 / 5.7 / 1.9 / 0.8 %, version 3: 48 / 27 / 9.0 / 3.3 %), so the bound
+/// is the measured + ~12 %. The sunlit band above the antisolar horizon (lit by sunlight that
+/// grazed the ground) rises ≈ 2° per degree the sun sinks and is sharpest (a factor of 10 per
+/// degree at 5 km) just after sunset at the observer; the sky rows are denser around its
+/// elevation opposite the sun, the sun nodes 0.25° apart around sunset, and the azimuth
+/// columns are read each at its own elevation relative to the band, which lies lower away from
+/// the antisolar point (docs/lut.md, the skyview layout's sky rows).
 #[test]
 #[ignore = "builds a bundle (about 10 s of CPU): run with --ignored lut_skyview::"]
 fn skyview_the_earth_shadow_rising_at_low_altitude() {
@@ -603,7 +623,7 @@ fn skyview_the_earth_shadow_rising_at_low_altitude() {
         "skyview earth's shadow rising, 0-5 km, sun -6..0 (target 3 %): {:.3} % {case}",
         100.0 * worst
     );
-    let measured = 0.1643;
+    let measured = 0.0506;
     assert!(worst > 0.0, "no sample");
     assert!(worst < measured * 1.12, "{worst} {case}");
 }

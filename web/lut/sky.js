@@ -81,11 +81,14 @@ class LiveSky {
       defines += `#define SV_SUN_WARP ${warp.toExponential()}\n` +
         `#define SV_SUN_WARP_LO ${warpRange[0].toExponential()}\n` +
         `#define SV_SUN_WARP_HI ${warpRange[1].toExponential()}\n`;
-      // The sky rows' focus on the band above the earth's shadow (version 4).
+      // The sky rows' focus on the band above the earth's shadow (version 4), and the band's
+      // elevation with the azimuth (version 5).
       const band = manifest.parameterisation.sky_row_band;
       const numbers = (v, n) => Array.isArray(v) && v.length === n && v.every(Number.isFinite);
       if (!band || !(band.focus > 0) || !Number.isFinite(band.sun_deg) || !numbers(band.centre, 4) ||
-          !numbers(band.sun_range_deg, 4) || !numbers(band.altitude_range_m, 2)) {
+          !numbers(band.sun_range_deg, 4) || !numbers(band.altitude_range_m, 2) ||
+          !(band.antisolar > 0) || !(band.depth_deg_per_km >= 0) || !(band.horizon_deg > 0) ||
+          !numbers(band.antisolar_range, 2)) {
         throw new Error("manifest: parameterisation.sky_row_band is not the sky rows' band focus");
       }
       const f = (x) => x.toExponential();
@@ -93,7 +96,11 @@ class LiveSky {
         `#define SV_BAND_FOCUS ${f(band.focus)}\n` +
         `#define SV_BAND_CENTRE vec4(${band.centre.map(f).join(", ")})\n` +
         `#define SV_BAND_SUN_RANGE vec4(${band.sun_range_deg.map(f).join(", ")})\n` +
-        `#define SV_BAND_ALTITUDE vec2(${band.altitude_range_m.map(f).join(", ")})\n`;
+        `#define SV_BAND_ALTITUDE vec2(${band.altitude_range_m.map(f).join(", ")})\n` +
+        `#define SV_BAND_ANTISOLAR ${f(band.antisolar)}\n` +
+        `#define SV_BAND_DEPTH ${f(band.depth_deg_per_km)}\n` +
+        `#define SV_BAND_HORIZON ${f(band.horizon_deg)}\n` +
+        `#define SV_BAND_ANTISOLAR_RANGE vec2(${band.antisolar_range.map(f).join(", ")})\n`;
       source = `${this.glsl}\n${this.skyviewGlsl}`;
     }
     if (!this.programs[defines]) {

@@ -16,7 +16,9 @@
 // (parameterisation.sun_warp_strength) and SV_SUN_WARP_LO, SV_SUN_WARP_HI
 // (parameterisation.sun_warp_range), float literals, and from parameterisation.sky_row_band:
 // SV_BAND_SUN (sun_deg), SV_BAND_FOCUS (focus), SV_BAND_CENTRE (centre, a vec4),
-// SV_BAND_SUN_RANGE (sun_range_deg, a vec4) and SV_BAND_ALTITUDE (altitude_range_m, a vec2).
+// SV_BAND_SUN_RANGE (sun_range_deg, a vec4), SV_BAND_ALTITUDE (altitude_range_m, a vec2),
+// SV_BAND_ANTISOLAR (antisolar), SV_BAND_DEPTH (depth_deg_per_km), SV_BAND_HORIZON
+// (horizon_deg) and SV_BAND_ANTISOLAR_RANGE (antisolar_range, a vec2).
 //
 // Per query: node coordinates in altitude (sqrt(h / thickness) (N_ALT - 1)), the sun's elevation
 // above the observer's horizon (the manifest's segments), the view row within its segment (sky,
@@ -223,6 +225,24 @@ float SkyViewSkyRow(float elevation_deg, float c, float k) {
   return clamp((asinh(k * (x0 - xc)) - a) / (b - a), 0.0, 1.0);
 }
 
+// The elevation (degrees) at the column azimuth cos_phi_a (cosine) that lies where
+// elevation_deg lies at the query's azimuth cos_phi_q relative to the band above the earth's
+// shadow (the reader's band_relative_elevation): the band's elevation scales as -cos(phi) about
+// SV_BAND_DEPTH h below the horizontal; faded out above 2-4 times the band's height, below
+// SV_BAND_HORIZON (to the horizontal), with the focus (c, k) of SkyViewBandFocus and within
+// SV_BAND_ANTISOLAR_RANGE of -cos(phi) (the identity within 102 deg of the sun).
+float SkyViewBandRelative(float elevation_deg, float c, float k, float h, float cos_phi_q,
+                          float cos_phi_a) {
+  float delta = SV_BAND_DEPTH * clamp(h / 1000.0, 0.0, 10.0);
+  float w = max(c * SV_BAND_ANTISOLAR + delta, 0.5);
+  float ratio = max(-cos_phi_a, SV_BAND_ANTISOLAR_RANGE.x) /
+      max(-cos_phi_q, SV_BAND_ANTISOLAR_RANGE.x);
+  float fade = (k / SV_BAND_FOCUS) * (1.0 - smoothstep(2.0 * w, 4.0 * w, elevation_deg)) *
+      smoothstep(0.0, SV_BAND_HORIZON, elevation_deg) *
+      smoothstep(SV_BAND_ANTISOLAR_RANGE.x, SV_BAND_ANTISOLAR_RANGE.y, -cos_phi_q);
+  return elevation_deg + fade * (elevation_deg + delta) * (ratio - 1.0);
+}
+
 // Altitude node k0 (and fraction tk) and sun node j0 (and tj) at altitude h with sun zenith
 // cosine mu_s; shift: the angle added to the sun's elevation to make the sun coordinate (the
 // horizon's dip atan(rho, bottom_radius), or on the limb SkyViewRadiance's shift). above_deg: the
@@ -245,6 +265,25 @@ vec3 SkyViewFetch(sampler2D part, int k, int j, int y, SvStencil sc) {
   for (int m = 0; m < 4; ++m) {
     if (m >= sc.len) break;
     v[m] = texelFetch(part, origin + ivec2(m, 0), 0).rgb;
+  }
+  return SkyViewMix(sc, v);
+}
+
+// One part's value at slice (k, j) over the azimuth columns' stencil sc, each column m at its
+// own rows' stencil rows[m] (the sky rows in low twilight, SkyViewBandRelative): over the rows
+// within each column, then over the columns (as the reader's fetch_band), without the slice's
+// scale.
+vec3 SkyViewFetchBand(sampler2D part, int k, int j, SvStencil sc, SvStencil rows[4]) {
+  vec3 v[4] = vec3[4](vec3(0.0), vec3(0.0), vec3(0.0), vec3(0.0));
+  for (int m = 0; m < 4; ++m) {
+    if (m >= sc.len) break;
+    SvStencil sv = rows[m];
+    vec3 w[4] = vec3[4](vec3(0.0), vec3(0.0), vec3(0.0), vec3(0.0));
+    for (int n = 0; n < 4; ++n) {
+      if (n >= sv.len) break;
+      w[n] = texelFetch(part, ivec2(j * SV_N_AZ + sc.first + m, k * SV_N_VIEW + sv.first + n), 0).rgb;
+    }
+    v[m] = SkyViewMix(sv, w);
   }
   return SkyViewMix(sc, v);
 }
@@ -301,11 +340,25 @@ vec3 SkyViewRadiance(float h, float rho, vec3 up, vec3 view_ray, vec3 sun_direct
     float w = 1.0 - exp(-(h - h_t) / SV_LIMB_SHADOW_SCALE);
     shift = dip + w * (gamma * cos(phi) + dip_t - dip);
   }
+  // On the sky rows in low twilight, each azimuth column's own rows (band_rows): the query's
+  // elevation moved to where it lies relative to the band at the column's azimuth.
+  bool band = false;
+  SvStencil band_rows[4];
   if (segment == 0) {
     // The sky rows' focus (the reader's sky_row_focus) at the sun coordinate.
     float c, k;
     SkyViewBandFocus(degrees(asin(mu_s) + shift), h, c, k);
-    row = SkyViewSkyRow(degrees(asin(mu)), c, k) * float(SV_N_VIEW_SKY - 1);
+    float elevation = degrees(asin(mu));
+    row = SkyViewSkyRow(elevation, c, k) * float(SV_N_VIEW_SKY - 1);
+    if (k > 0.0) {
+      band = true;
+      for (int m = 0; m < 4; ++m) {
+        float x = float(min(sc.first + m, SV_N_AZ - 1)) / float(SV_N_AZ - 1);
+        float e = SkyViewBandRelative(elevation, c, k, h, cos(phi), cos(PI * x * x));
+        band_rows[m] = SkyViewStencil(SkyViewSkyRow(e, c, k) * float(SV_N_VIEW_SKY - 1), 0,
+                                      SV_N_VIEW_SKY - 1, false, 0.0);
+      }
+    }
   }
   int lo = segment == 0 ? 0 : segment == 1 ? SV_N_VIEW_SKY : SV_N_VIEW_UP;
   int hi = segment == 0 ? SV_N_VIEW_SKY - 1 : segment == 1 ? SV_N_VIEW_UP - 1 : SV_N_VIEW - 1;
@@ -333,16 +386,24 @@ vec3 SkyViewRadiance(float h, float rho, vec3 up, vec3 view_ray, vec3 sun_direct
       vec3 by_sun[4] = vec3[4](vec3(0.0), vec3(0.0), vec3(0.0), vec3(0.0));
       for (int s = 0; s < 4; ++s) {
         if (s >= ss.len) break;
-        vec3 by_row[4] = vec3[4](vec3(0.0), vec3(0.0), vec3(0.0), vec3(0.0));
-        for (int v = 0; v < 4; ++v) {
-          if (v >= sv.len) break;
-          int k = sa.first + a, j = ss.first + s, y = sv.first + v;
-          by_row[v] = part == 0 ? SkyViewFetch(skyview_rayleigh, k, j, y, sc) :
-                                  SkyViewFetch(skyview_mie, k, j, y, sc);
+        vec3 value;
+        if (band) {
+          int k = sa.first + a, j = ss.first + s;
+          value = part == 0 ? SkyViewFetchBand(skyview_rayleigh, k, j, sc, band_rows) :
+                              SkyViewFetchBand(skyview_mie, k, j, sc, band_rows);
+        } else {
+          vec3 by_row[4] = vec3[4](vec3(0.0), vec3(0.0), vec3(0.0), vec3(0.0));
+          for (int v = 0; v < 4; ++v) {
+            if (v >= sv.len) break;
+            int k = sa.first + a, j = ss.first + s, y = sv.first + v;
+            by_row[v] = part == 0 ? SkyViewFetch(skyview_rayleigh, k, j, y, sc) :
+                                    SkyViewFetch(skyview_mie, k, j, y, sc);
+          }
+          value = SkyViewMix(sv, by_row);
         }
         // The slice's scale (the interpolation commutes with a common factor).
         ivec2 slice = ivec2(ss.first + s, sa.first + a);
-        by_sun[s] = SkyViewMix(sv, by_row) * (part == 0 ?
+        by_sun[s] = value * (part == 0 ?
             texelFetch(skyview_scale_rayleigh, slice, 0).rgb :
             texelFetch(skyview_scale_mie, slice, 0).rgb);
       }

@@ -59,7 +59,9 @@ pub const LAYOUT: &str = "skyview";
 /// accordingly (the reader's and the shader's math unchanged).
 /// The sky rows concentrate on the band above the earth's shadow at low altitude in twilight
 /// ([`sky_row_focus`]); 81 sun nodes (0.25° apart from −1° to 2°).
-pub const SKYVIEW_VERSION: &str = "4";
+/// 5: there the azimuth columns are read each at its own elevation relative to the band
+/// ([`band_relative_elevation`]), and the rows' focus is stronger ([`BAND_FOCUS`] 14).
+pub const SKYVIEW_VERSION: &str = "5";
 
 /// Altitude nodes: h_k = (top − bottom) · (k / (N − 1))².
 pub const N_ALT: usize = 28;
@@ -272,7 +274,7 @@ pub const BAND_SUN_DEG: f64 = 2.0;
 /// 0.49, 0.06, 0.185, 0.023).
 pub const BAND_CENTRE: [f64; 4] = [0.4165, 0.051, 0.157_25, 0.019_55];
 /// The sky rows' focus strength on the band ([`sky_row_focus`], [`sky_row_elevation`]).
-pub const BAND_FOCUS: f64 = 10.0;
+pub const BAND_FOCUS: f64 = 14.0;
 /// Sun coordinates (degrees) between which the focus fades in (the first two: 0 below the
 /// first, full above the second) and out (the last two).
 pub const BAND_SUN_RANGE: [f64; 4] = [-7.0, -4.0, 1.0, 5.0];
@@ -296,6 +298,61 @@ pub fn sky_row_focus(sun_deg: f64, h: f64) -> (f64, f64) {
         * (1.0 - smoothstep(s2, s3, sun_deg))
         * (1.0 - smoothstep(h0, h1, h));
     (band_centre_deg(sun_deg, h), f * BAND_FOCUS)
+}
+
+/// The band's elevation (degrees) opposite the sun relative to [`band_centre_deg`] (the rows'
+/// focus sits at 0.85 of it, between its elevations at 150° and 180° from the sun).
+pub const BAND_ANTISOLAR: f64 = 1.0 / 0.85;
+/// How deep below the horizontal (degrees per km of the observer's altitude, up to 10 km) the
+/// point lies from which the band's elevation scales with −cos φ ([`band_relative_elevation`]).
+pub const BAND_DEPTH_PER_KM: f64 = 0.25;
+/// The −cos φ (φ the azimuth from the sun) over which [`band_relative_elevation`] fades in
+/// (smoothstep; 102° to 120°); below the first the columns' heights are held at it. Nearer 90°
+/// the band lies at or below the horizon and its height above −δ vanishes: a ratio of such
+/// heights would move an elevation of 5° at 95° from the sun to 23° at 112° (measured: 26 % at
+/// the ground with the sun at −3.4°, 95° from the sun, in the blue, with the heights held at 0.05).
+pub const BAND_ANTISOLAR_RANGE: (f64, f64) = (0.2, 0.5);
+/// The elevation (degrees) below which [`band_relative_elevation`] returns to the identity at
+/// the horizontal (smoothstep from 0), where the sky rows meet the limb rows, which have no
+/// such map: the reader is continuous across the horizontal.
+pub const BAND_HORIZON_DEG: f64 = 0.5;
+
+/// The elevation (degrees) that lies, at azimuth `cos_phi_a` (cosine) from the sun, where the
+/// elevation `eps` (degrees) lies at the query's azimuth `cos_phi_q` relative to the band above
+/// the earth's shadow, with the sun `sun_deg` above the observer's horizon at altitude `h` (m).
+/// Away from the antisolar point the band lies lower: from the earth's shadow's geometry (its
+/// edge a great circle of the sky about the antisolar point in the sky of a distant observer,
+/// whose elevation falls as −cos φ; measured on the `sky` product at 680 nm from 1–8 km, sun
+/// −3…0.5° above the observer's horizon, within 0.2° from 112° to 180°), its elevation at
+/// azimuth φ is c(φ) = (c₁₈₀ + δ)(−cos φ) − δ, δ = [`BAND_DEPTH_PER_KM`] · h, c₁₈₀ the band's
+/// elevation opposite the sun ([`BAND_ANTISOLAR`] · [`band_centre_deg`]). The map is affine
+/// about −δ, (ε + δ)·(c_a + δ)/(c_q + δ) − δ (the band onto the band), faded to the identity
+/// above 2–4 times the band's height (at least 0.5°), at the horizontal ([`BAND_HORIZON_DEG`])
+/// and with the rows' focus ([`sky_row_focus`]), and faded in with the query's −cos φ
+/// ([`BAND_ANTISOLAR_RANGE`]: the identity within 102° of the sun). The reader evaluates each azimuth column at this elevation, so
+/// the interpolation over the columns follows the band.
+pub fn band_relative_elevation(
+    eps: f64,
+    sun_deg: f64,
+    h: f64,
+    cos_phi_q: f64,
+    cos_phi_a: f64,
+) -> f64 {
+    let (c, k) = sky_row_focus(sun_deg, h);
+    if k < 1e-6 {
+        return eps;
+    }
+    let delta = BAND_DEPTH_PER_KM * (h / 1000.0).clamp(0.0, 10.0);
+    let height = c * BAND_ANTISOLAR + delta;
+    // (c_a + δ) / (c_q + δ): the band's height above −δ at the column over the query's.
+    let (lo, hi) = BAND_ANTISOLAR_RANGE;
+    let ratio = (-cos_phi_a).max(lo) / (-cos_phi_q).max(lo);
+    let w = height.max(0.5);
+    let fade = (k / BAND_FOCUS)
+        * (1.0 - smoothstep(2.0 * w, 4.0 * w, eps))
+        * smoothstep(lo, hi, -cos_phi_q);
+    let taper = smoothstep(0.0, BAND_HORIZON_DEG, eps);
+    eps + taper * fade * (eps + delta) * (ratio - 1.0)
 }
 
 /// Elevation (degrees) of the sky rows' coordinate x ∈ [0, 1] (0 the zenith, 1 the horizontal)
@@ -796,6 +853,33 @@ impl<'a> SkyViewReader<'a> {
         }
     }
 
+    /// The value of slice `z` at the columns' stencil `sc` where each column `m` has its own
+    /// row stencil `rows[m]` (the sky rows in low twilight, [`band_relative_elevation`]): over
+    /// the rows within each column, then over the columns, without the slice's scale.
+    fn fetch_band(
+        &self,
+        part: usize,
+        z: usize,
+        sc: &Stencil,
+        rows: &[Stencil; 4],
+        out: &mut [f64],
+    ) {
+        let b = self.bundle;
+        let t = if part == 0 { &b.rayleigh } else { &b.mie };
+        for (c, o) in out.iter_mut().enumerate() {
+            let mut v = [0.0; 4];
+            for (m, vm) in v.iter_mut().enumerate().take(sc.len) {
+                let sv = &rows[m];
+                let mut w = [0.0; 4];
+                for (n, wn) in w.iter_mut().enumerate().take(sv.len) {
+                    *wn = t.texel(sc.first + m, sv.first + n, z)[c] as f64;
+                }
+                *vm = sv.mix(&w);
+            }
+            *o = sc.mix(&v);
+        }
+    }
+
     /// The altitude and sun stencils at radius `r` (clamped to the atmosphere) and sun zenith
     /// cosine `mu_s`; `shift`: [`sun_shift`] of the query's ray.
     fn altitude_sun_stencils(&self, r: f64, mu_s: f64, shift: f64) -> (Stencil, Stencil) {
@@ -843,6 +927,19 @@ impl<'a> SkyViewReader<'a> {
         let (seg, row) = view_coord(theta, r, p.bottom_radius, s_deg);
         let (lo, hi) = segment_rows(seg);
         let sv = Stencil::with_nodes(row, lo, hi, |i| i as f64, row, self.nodes[2]);
+        // On the sky rows in low twilight each column's own row, relative to the band.
+        let h = r - p.bottom_radius;
+        let band_rows: Option<[Stencil; 4]> =
+            (seg == 0 && sky_row_focus(s_deg, h).1 > 0.0).then(|| {
+                let eps = 90.0 - theta.to_degrees();
+                let (c, k) = sky_row_focus(s_deg, h);
+                std::array::from_fn(|m| {
+                    let a = (sc.first + m).min(N_AZ - 1);
+                    let e = band_relative_elevation(eps, s_deg, h, cos_phi, azimuth_node(a).cos());
+                    let y = sky_row(e, c, k) * (N_VIEW_SKY - 1) as f64;
+                    Stencil::with_nodes(y, lo, hi, |i| i as f64, y, self.nodes[2])
+                })
+            });
         let (sa, ss) = self.altitude_sun_stencils(r, mu_s, shift);
         let d = ray_length(r, mu, p.bottom_radius, p.top_radius, seg == 2);
         let mut out = [vec![0.0; n_c], vec![0.0; n_c]];
@@ -857,14 +954,21 @@ impl<'a> SkyViewReader<'a> {
                 for js in 0..ss.len {
                     let j = ss.first + js;
                     let z = k * N_SUN + j;
+                    // The slice's scale (the interpolation commutes with a common factor).
+                    let scale = self.bundle.scale.texel(j, k, 0);
+                    if let Some(rows) = &band_rows {
+                        self.fetch_band(part, z, &sc, rows, &mut f);
+                        for c in 0..n_c {
+                            by_sun[c][js] = f[c] * scale[part * n_c + c] as f64;
+                        }
+                        continue;
+                    }
                     for iv in 0..sv.len {
                         self.fetch(part, z, &sc, sv.first + iv, &mut f);
                         for c in 0..n_c {
                             by_row[c][iv] = f[c];
                         }
                     }
-                    // The slice's scale (the interpolation commutes with a common factor).
-                    let scale = self.bundle.scale.texel(j, k, 0);
                     for c in 0..n_c {
                         by_sun[c][js] = sv.mix(&by_row[c]) * scale[part * n_c + c] as f64;
                     }
@@ -1068,7 +1172,7 @@ pub const STATED_ERRORS: &[(&str, &str, f64)] = &[
     ("rayleigh+mie", "sky radiance (sky product), sun >= 5 deg, view < 10 deg above the horizon, 20-100 km", 0.025),
     ("rayleigh+mie", "sky radiance (sky product), sun -6..5 deg, ground", 0.015),
     ("rayleigh+mie", "sky radiance (sky product), sun -6..5 deg, 0-20 km", 0.014),
-    ("rayleigh+mie", "sky radiance (sky product), sun -6..0 deg, 0-5 km, views within 10 deg of the horizon 150-180 deg from the sun (the earth's shadow rising; 680 nm at 5 km)", 0.165),
+    ("rayleigh+mie", "sky radiance (sky product), sun -6..0 deg, 0-5 km, views within 10 deg of the horizon 150-180 deg from the sun (the earth's shadow rising; 680 nm at 5 km)", 0.051),
     ("rayleigh+mie", "sky radiance (sky product), sun -6..5 deg, 20-100 km (the limb across the earth's shadow)", 0.089),
     ("rayleigh+mie", "sky radiance (sky product), sun -12..-6 deg, ground", 0.035),
     ("rayleigh+mie", "sky radiance (sky product), sun -12..-6 deg, 0-20 km", 0.032),
@@ -1137,13 +1241,18 @@ pub fn manifest(
                 "focus": BAND_FOCUS,
                 "sun_range_deg": BAND_SUN_RANGE,
                 "altitude_range_m": BAND_ALTITUDE_M,
+                "antisolar": BAND_ANTISOLAR,
+                "depth_deg_per_km": BAND_DEPTH_PER_KM,
+                "horizon_deg": BAND_HORIZON_DEG,
+                "antisolar_range": [BAND_ANTISOLAR_RANGE.0, BAND_ANTISOLAR_RANGE.1],
+                "azimuth": "on the sky rows where k > 0 each azimuth column a of the interpolation is read at its own elevation e_a (its own rows' stencil): delta = depth_deg_per_km clamp(h / 1000, 0, 10), w = max(c antisolar + delta, 0.5), ratio = max(-cos phi_a, antisolar_range[0]) / max(-cos phi, antisolar_range[0]), e_a = e + (k / focus) (1 - smoothstep(2 w, 4 w, e)) smoothstep(0, horizon_deg, e) smoothstep(antisolar_range[0], antisolar_range[1], -cos phi) (e + delta) (ratio - 1), e the query's elevation (deg), phi its azimuth from the sun, phi_a the column's; the band above the earth's shadow lies at (c antisolar + delta)(-cos phi) - delta",
                 "formula": "the sky rows' focus at the sun's elevation s above the observer's horizon (deg) and altitude h (m): u = max(sun_deg - s, 0), km = clamp(h / 1000, 0, 10), c = min((centre[0] + centre[1] km) u + (centre[2] + centre[3] km) u^2, 45) (deg), k = smoothstep(sun_range_deg[0], sun_range_deg[1], s) (1 - smoothstep(sun_range_deg[2], sun_range_deg[3], s)) (1 - smoothstep(altitude_range_m[0], altitude_range_m[1], h)) focus, smoothstep(a, b, x) = t^2 (3 - 2 t), t = clamp((x - a) / (b - a), 0, 1)",
             },
             "view_rows": format!("rows 0..{} from the zenith to the horizontal: elevation = 90 (1 - x0)^2 (deg), x0 = x_c + sinh(A + x (B - A)) / k, x = row / {}, x_c = 1 - sqrt(c / 90), A = asinh(-k x_c), B = asinh(k (1 - x_c)), (c, k) the sky rows' focus (sky_row_band) at the sun's elevation above the observer's horizon (its node's s_j for a texel, the query's own for a query) and the observer's altitude; where k < 1e-6, x0 = x; inverse: x0 = 1 - sqrt(elevation / 90), x = (asinh(k (x0 - x_c)) - A) / (B - A) (or x0); rows {}..{} from the horizontal to the horizon: the ray's tangent radius r_t = r - (r - bottom_radius) y, y = 2 x^2 - x^3, x = (row - {}) / {} (inverse: x = 2/3 + (4/3) cos(acos(1 - 27 y / 16) / 3 - 2 pi / 3)), theta = pi/2 + acos(r_t / r); rows {}..{} from the horizon to the nadir: theta = theta_h + (pi - theta_h) x^2, x = (row - {}) / {}, theta_h = pi - asin(bottom_radius / r); r the observer's radius. Interpolation over the rows around the view stays within its segment (see interpolation)", N_VIEW_SKY - 1, N_VIEW_SKY - 1, N_VIEW_SKY, N_VIEW_UP - 1, N_VIEW_SKY, N_VIEW_LIMB - 1, N_VIEW_UP, N_VIEW - 1, N_VIEW_UP, N_VIEW_DOWN - 1),
             "azimuth_columns": format!("phi = pi (column / {})^2, the view's azimuth from the sun's, 0..pi", N_AZ - 1),
             "slices": "slice = altitude_index * N_SUN + sun_index; file row = slice * N_VIEW + view_row; texture coordinates at texel centres: u = (column + 0.5) / N_AZ, v = (view_row + 0.5) / N_VIEW",
             "sizes": {"N_ALT": N_ALT, "N_SUN": N_SUN, "N_VIEW_SKY": N_VIEW_SKY, "N_VIEW_LIMB": N_VIEW_LIMB, "N_VIEW_DOWN": N_VIEW_DOWN, "N_AZ": N_AZ},
-            "interpolation": "per (altitude, sun, view row) node triple around the query: over the 4 azimuth columns around the query, then over the rows (times the slice's scale), the sun nodes and then the altitude nodes, each axis with up to 4 nodes around the query within its segment (the row segments: sky, limb, below the horizon; 3 nodes in a segment's first and last interval): the Lagrange polynomial through the nodes' logarithms at the query, exp'd and bounded by the nodes' range; abscissas: the node index (altitude: sqrt(h / thickness) (N_ALT - 1); rows: as view_rows; columns: sqrt(phi / pi) (N_AZ - 1)), for the sun the node's s_j in degrees; where a node value is not positive, geometric between the interval's two nodes, a^(1-t) b^t, linear where a value is not positive",
+            "interpolation": "per (altitude, sun, view row) node triple around the query: over the 4 azimuth columns around the query, then over the rows (times the slice's scale) (on the sky rows where the focus k > 0: over each column's own rows, sky_row_band.azimuth, then over the columns), the sun nodes and then the altitude nodes, each axis with up to 4 nodes around the query within its segment (the row segments: sky, limb, below the horizon; 3 nodes in a segment's first and last interval): the Lagrange polynomial through the nodes' logarithms at the query, exp'd and bounded by the nodes' range; abscissas: the node index (altitude: sqrt(h / thickness) (N_ALT - 1); rows: as view_rows; columns: sqrt(phi / pi) (N_AZ - 1)), for the sun the node's s_j in degrees; where a node value is not positive, geometric between the interval's two nodes, a^(1-t) b^t, linear where a value is not positive",
             "radiance": "L = rayleigh * RayleighPhase(nu) + mie * aerosol_phase_function(nu), nu = cos of the angle between view and sun; RayleighPhase = 3/(16 pi) (1 + nu^2)",
             "observer": "inside the atmosphere; above its top, move the observer along the view to the top first (a view missing the atmosphere sees nothing); views below the horizon: the in-scattered light along the ray to the ground, without the ground's reflection",
             "transmittance_texture": [crate::param::TRANSMITTANCE_WIDTH, crate::param::TRANSMITTANCE_HEIGHT],
@@ -1272,6 +1381,53 @@ mod tests {
                 spacing(0.01)
             );
         }
+    }
+
+    #[test]
+    fn the_columns_follow_the_band_with_the_azimuth() {
+        let cos = |deg: f64| deg.to_radians().cos();
+        // By day and aloft, at the query's own azimuth and on the sun's side: the identity.
+        assert_eq!(
+            band_relative_elevation(3.0, 8.0, 0.0, cos(150.0), cos(180.0)),
+            3.0
+        );
+        assert_eq!(
+            band_relative_elevation(3.0, -1.0, 30_000.0, cos(150.0), cos(180.0)),
+            3.0
+        );
+        assert_eq!(
+            band_relative_elevation(3.0, -1.0, 5000.0, cos(150.0), cos(150.0)),
+            3.0
+        );
+        assert_eq!(
+            band_relative_elevation(3.0, -1.0, 5000.0, cos(40.0), cos(70.0)),
+            3.0
+        );
+        // Low twilight at 5 km: the band's elevation at 150° from the sun onto its elevation
+        // at 180° and 128° (c(φ) = (c₁₈₀ + δ)(−cos φ) − δ), the horizontal onto itself, the
+        // zenith's region unchanged.
+        let (h, sun) = (5000.0, -1.0);
+        let delta = BAND_DEPTH_PER_KM * 5.0;
+        let c180 = band_centre_deg(sun, h) * BAND_ANTISOLAR;
+        let band = |phi: f64| (c180 + delta) * (-cos(phi)) - delta;
+        for phi_a in [128.0, 144.0, 161.0, 180.0] {
+            let got = band_relative_elevation(band(150.0), sun, h, cos(150.0), cos(phi_a));
+            assert!(
+                (got - band(phi_a)).abs() < 1e-9,
+                "{phi_a}: {got} vs {}",
+                band(phi_a)
+            );
+        }
+        assert_eq!(
+            band_relative_elevation(0.0, sun, h, cos(150.0), cos(180.0)),
+            0.0
+        );
+        assert_eq!(
+            band_relative_elevation(60.0, sun, h, cos(150.0), cos(180.0)),
+            60.0
+        );
+        // At the ground after sunset (no band height): finite.
+        assert!(band_relative_elevation(1.0, 3.0, 0.0, cos(150.0), cos(180.0)).is_finite());
     }
 
     #[test]
