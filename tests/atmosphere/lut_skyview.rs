@@ -265,7 +265,7 @@ fn skyview_nodes_equal_the_sky_product() {
         // the horizon's dip at every azimuth: 2 views there share the sun (and its rows).
         let i = rng.random_range(0..rows);
         let a = rng.random_range(0..skyview::N_AZ);
-        let phi = skyview::azimuth_node(a);
+        let phi = skyview::azimuth_node(a, altitude);
         let limb = i >= skyview::N_VIEW_SKY;
         // The sky rows' elevation depends on the sun node (in low twilight,
         // `skyview::sky_row_focus`), the limb rows' sun coordinate on the row.
@@ -285,7 +285,10 @@ fn skyview_nodes_equal_the_sky_product() {
             let i = rng.random_range(0..skyview::N_VIEW_SKY);
             let a = rng.random_range(0..skyview::N_AZ);
             let (theta, _) = skyview::view_node(i, r, bottom, s_j);
-            probes.push((theta.to_degrees(), skyview::azimuth_node(a).to_degrees()));
+            probes.push((
+                theta.to_degrees(),
+                skyview::azimuth_node(a, altitude).to_degrees(),
+            ));
         }
         let product = sky_probes(f, altitude, sun_deg, &probes);
         let idx = channel_index(f, &product.table.wavelengths_nm);
@@ -351,7 +354,7 @@ fn skyview_dim_twilight_slices_keep_half_precision() {
                         .0
                         .to_degrees();
                     [0, 5, 10, 15, skyview::N_AZ - 1]
-                        .map(|a| (theta, skyview::azimuth_node(a).to_degrees()))
+                        .map(|a| (theta, skyview::azimuth_node(a, altitude).to_degrees()))
                 })
                 .collect();
             let product = sky_probes(f, altitude, sun_deg, &probes);
