@@ -1280,7 +1280,10 @@ mod tests {
         // The altitude nodes: near the square root's below 10 km; the last interval 3.3 km (7.3 km).
         for k in 1..8 {
             let sqrt_map = H * (k as f64 / (N_ALT - 1) as f64).powi(2);
-            assert!((altitude_node_m(k, H) / sqrt_map - 1.0).abs() < 0.01, "node {k}");
+            assert!(
+                (altitude_node_m(k, H) / sqrt_map - 1.0).abs() < 0.01,
+                "node {k}"
+            );
         }
         let top_gap = H - altitude_node_m(N_ALT - 2, H);
         assert!((3_200.0..3_400.0).contains(&top_gap), "{top_gap}");
