@@ -572,8 +572,14 @@ pub fn build_skyview(
     let bottom = params.bottom_radius;
     let thickness = params.top_radius - bottom;
     // μs of sun node j at altitude node k.
+    // The nodes' altitudes and the columns' azimuths at each (roots of their coordinates).
+    let heights: Vec<f64> = (0..N_ALT).map(|k| altitude_node_m(k, thickness)).collect();
+    let columns: Vec<[f64; N_AZ]> = heights
+        .iter()
+        .map(|&h| std::array::from_fn(|a| azimuth_node(a, h)))
+        .collect();
     let sun_mu = |k: usize, j: usize| {
-        let h = altitude_node_m(k, thickness);
+        let h = heights[k];
         let s = sun_warp(sun_node_deg(j), warp_strength(h, thickness));
         (s.to_radians() - dip(bottom + h, bottom)).sin()
     };
@@ -590,8 +596,7 @@ pub fn build_skyview(
                     return (s_out, m_out);
                 }
                 let r = eval_radius(k, i, bottom, thickness);
-                let h_k = altitude_node_m(k, thickness);
-                let b = warp_strength(h_k, thickness);
+                let b = warp_strength(heights[k], thickness);
                 let s_j: Vec<f64> = (0..N_SUN).map(|j| sun_warp(sun_node_deg(j), b)).collect();
                 // The rays of this row: one for the suns whose row does not move (every sun
                 // but on the sky rows in low twilight, [`sky_row_focus`]), one per other sun.
@@ -613,7 +618,7 @@ pub fn build_skyview(
                     let mut nus = Vec::with_capacity(suns.len() * N_AZ);
                     for &j in suns {
                         for a in 0..N_AZ {
-                            let phi = azimuth_node(a, h_k);
+                            let phi = columns[k][a];
                             let limb = (N_VIEW_SKY..N_VIEW_UP).contains(&i);
                             let shift = sun_shift(r, theta, phi.cos(), bottom, limb);
                             let mu_s = (s_j[j].to_radians() - shift).sin();
@@ -682,7 +687,7 @@ pub fn build_skyview(
     // Irradiance on the altitude × sun nodes.
     let t2 = Instant::now();
     let radii: Vec<f64> = (0..N_ALT)
-        .map(|k| (bottom + altitude_node_m(k, thickness)).min(bottom + thickness - EVAL_OFFSET_M))
+        .map(|k| (bottom + heights[k]).min(bottom + thickness - EVAL_OFFSET_M))
         .collect();
     let sums = build::irradiance_grid(
         shared,
