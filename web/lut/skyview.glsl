@@ -20,11 +20,12 @@
 // from parameterisation.azimuth_aloft: SV_AZ_WEIGHT (weight) and SV_AZ_ALTITUDE
 // (altitude_range_m, a vec2), and SV_ALT_MAP (parameterisation.altitude_map, a vec3).
 //
-// Per query: node coordinates in altitude ((sqrt(e) + c (e^p - e^q)) (N_ALT - 1), e = h / thickness), the sun's elevation
-// above the observer's horizon (the manifest's segments), the view row within its segment (sky,
-// limb, below the horizon; relative to the observer's horizon) and the azimuth from the sun's
-// (sqrt(phi / pi) (N_AZ - 1) near the ground, blended with sin^2(phi / 2) aloft); over the 4 columns, the up to 4 rows (times the slice's scale),
-// 4 sun and 4 altitude nodes around it, the Lagrange polynomial of the values' logarithms
+// Per query: node coordinates in altitude ((sqrt(e) + c (e^p - e^q)) (N_ALT - 1),
+// e = h / thickness), the sun's elevation above the observer's horizon (the manifest's
+// segments), the view row within its segment (sky, limb, below the horizon; relative to the
+// observer's horizon) and the azimuth from the sun's (sqrt(phi / pi) (N_AZ - 1) near the
+// ground, blended with sin^2(phi / 2) aloft); over the 4 columns, the up to 4 rows (times the
+// slice's scale), 4 sun and 4 altitude nodes around it, the Lagrange polynomial of the values' logarithms
 // (SkyViewStencil, SkyViewMix; geometric a^(1-t) b^t between two nodes where a value is not
 // positive); on the limb rows the sun coordinate moves towards the sun's elevation above the
 // horizon of the ray's tangent point; times the ray's length (the textures hold radiance per
