@@ -101,6 +101,20 @@ class LiveSky {
         `#define SV_BAND_DEPTH ${f(band.depth_deg_per_km)}\n` +
         `#define SV_BAND_HORIZON ${f(band.horizon_deg)}\n` +
         `#define SV_BAND_ANTISOLAR_RANGE vec2(${band.antisolar_range.map(f).join(", ")})\n`;
+      // The azimuth columns' map aloft (version 5).
+      const az = manifest.parameterisation.azimuth_aloft;
+      if (!az || !(az.weight > 0 && az.weight <= 1) || !numbers(az.altitude_range_m, 2) ||
+          !(az.altitude_range_m[0] < az.altitude_range_m[1])) {
+        throw new Error("manifest: parameterisation.azimuth_aloft is not the columns' map aloft");
+      }
+      // The altitude nodes' map (version 5).
+      const altMap = manifest.parameterisation.altitude_map;
+      if (!numbers(altMap, 3) || !(altMap[1] > altMap[2] && altMap[2] > 0)) {
+        throw new Error("manifest: parameterisation.altitude_map is not [c, p, q]");
+      }
+      defines += `#define SV_ALT_MAP vec3(${altMap.map(f).join(", ")})\n` +
+        `#define SV_AZ_WEIGHT ${f(az.weight)}\n` +
+        `#define SV_AZ_ALTITUDE vec2(${az.altitude_range_m.map(f).join(", ")})\n`;
       source = `${this.glsl}\n${this.skyviewGlsl}`;
     }
     if (!this.programs[defines]) {

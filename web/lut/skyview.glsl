@@ -18,13 +18,16 @@
 // SV_BAND_SUN (sun_deg), SV_BAND_FOCUS (focus), SV_BAND_CENTRE (centre, a vec4),
 // SV_BAND_SUN_RANGE (sun_range_deg, a vec4), SV_BAND_ALTITUDE (altitude_range_m, a vec2),
 // SV_BAND_ANTISOLAR (antisolar), SV_BAND_DEPTH (depth_deg_per_km), SV_BAND_HORIZON
-// (horizon_deg) and SV_BAND_ANTISOLAR_RANGE (antisolar_range, a vec2).
+// (horizon_deg), SV_BAND_ANTISOLAR_RANGE (antisolar_range, a vec2);
+// from parameterisation.azimuth_aloft: SV_AZ_WEIGHT (weight) and SV_AZ_ALTITUDE
+// (altitude_range_m, a vec2), and SV_ALT_MAP (parameterisation.altitude_map, a vec3).
 //
-// Per query: node coordinates in altitude (sqrt(h / thickness) (N_ALT - 1)), the sun's elevation
-// above the observer's horizon (the manifest's segments), the view row within its segment (sky,
-// limb, below the horizon; relative to the observer's horizon) and the azimuth from the sun's
-// (sqrt(phi / pi) (N_AZ - 1)); over the 4 columns, the up to 4 rows (times the slice's scale),
-// 4 sun and 4 altitude nodes around it, the Lagrange polynomial of the values' logarithms
+// Per query: node coordinates in altitude ((sqrt(e) + c (e^p - e^q)) (N_ALT - 1),
+// e = h / thickness), the sun's elevation above the observer's horizon (the manifest's
+// segments), the view row within its segment (sky, limb, below the horizon; relative to the
+// observer's horizon) and the azimuth from the sun's (sqrt(phi / pi) (N_AZ - 1) near the
+// ground, blended with sin^2(phi / 2) aloft); over the 4 columns, the up to 4 rows (times the
+// slice's scale), 4 sun and 4 altitude nodes around it, the Lagrange polynomial of the values' logarithms
 // (SkyViewStencil, SkyViewMix; geometric a^(1-t) b^t between two nodes where a value is not
 // positive); on the limb rows the sun coordinate moves towards the sun's elevation above the
 // horizon of the ray's tangent point; times the ray's length (the textures hold radiance per
@@ -250,7 +253,10 @@ float SkyViewBandRelative(float elevation_deg, float c, float k, float h, float 
 void SkyViewAltitudeSun(float h, float shift, float mu_s, out int k0, out float tk, out int j0,
                         out float tj, out float above_deg) {
   float thickness = top_radius - bottom_radius;
-  k0 = SkyViewSplit(sqrt(clamp(h / thickness, 0.0, 1.0)) * float(SV_N_ALT - 1), SV_N_ALT, tk);
+  // The altitude coordinate: sqrt(e) + c (e^p - e^q), e = h / thickness, (c, p, q) = SV_ALT_MAP.
+  float e = clamp(h / thickness, 0.0, 1.0);
+  float x = sqrt(e) + SV_ALT_MAP.x * (pow(e, SV_ALT_MAP.y) - pow(e, SV_ALT_MAP.z));
+  k0 = SkyViewSplit(x * float(SV_N_ALT - 1), SV_N_ALT, tk);
   float b = SV_SUN_WARP * sqrt(clamp(h / thickness, 0.0, 1.0));
   above_deg = clamp(SkyViewSunUnwarp(degrees(asin(clamp(mu_s, -1.0, 1.0)) + shift), b),
                     SkyViewSunNodeDeg(0), SkyViewSunNodeDeg(SV_N_SUN - 1));
@@ -331,8 +337,12 @@ vec3 SkyViewRadiance(float h, float rho, vec3 up, vec3 view_ray, vec3 sun_direct
   vec3 sun_h = sun_direction - mu_s * up;
   float phi = dot(view_h, view_h) * dot(sun_h, sun_h) > 1e-12 ?
       atan(length(cross(view_h, sun_h)), dot(view_h, sun_h)) : 0.0;
-  SvStencil sc = SkyViewStencil(sqrt(clamp(phi / PI, 0.0, 1.0)) * float(SV_N_AZ - 1), 0,
-                                SV_N_AZ - 1, false, 0.0);
+  // Its column: (alpha sqrt(phi / pi) + (1 - alpha) sin^2(phi / 2)) (N_AZ - 1), alpha from 1
+  // near the ground to SV_AZ_WEIGHT aloft (the columns denser around 90 degrees from the sun).
+  float alpha = 1.0 - (1.0 - SV_AZ_WEIGHT) * smoothstep(SV_AZ_ALTITUDE.x, SV_AZ_ALTITUDE.y, h);
+  float half_sin = sin(0.5 * phi);
+  float column = alpha * sqrt(clamp(phi / PI, 0.0, 1.0)) + (1.0 - alpha) * half_sin * half_sin;
+  SvStencil sc = SkyViewStencil(column * float(SV_N_AZ - 1), 0, SV_N_AZ - 1, false, 0.0);
   // The sun coordinate: the sun's elevation above the observer's horizon, on the limb above the
   // horizon of the ray's tangent point (the reader's sun_shift).
   float shift = dip;

@@ -59,11 +59,14 @@ pub const LAYOUT: &str = "skyview";
 /// accordingly (the reader's and the shader's math unchanged).
 /// The sky rows concentrate on the band above the earth's shadow at low altitude in twilight
 /// ([`sky_row_focus`]); 81 sun nodes (0.25° apart from −1° to 2°).
-/// 5: there the azimuth columns are read each at its own elevation relative to the band
-/// ([`band_relative_elevation`]), and the rows' focus is stronger ([`BAND_FOCUS`] 14).
+/// 5: on the focused rows the azimuth columns are read each at its own elevation relative to the band
+/// ([`band_relative_elevation`]), and the rows' focus is stronger ([`BAND_FOCUS`] 14); and
+/// the azimuth columns depend on the altitude, denser around 90° from the sun aloft
+/// ([`azimuth_coord`]); the altitude nodes denser near the top ([`altitude_coord`]).
 pub const SKYVIEW_VERSION: &str = "5";
 
-/// Altitude nodes: h_k = (top − bottom) · (k / (N − 1))².
+/// Altitude nodes: h_k the roots of [`altitude_coord`] (about (top − bottom) · (k / (N − 1))²,
+/// denser near the top).
 pub const N_ALT: usize = 28;
 /// Sun nodes, uniform in the sun node coordinate t: the sun's elevation above the observer's
 /// horizon (its elevation + the horizon's dip at the node's altitude, so sunset is on the same
@@ -174,15 +177,43 @@ pub fn sun_shift(r: f64, theta: f64, cos_phi: f64, bottom: f64, limb: bool) -> f
 /// on the twilight limb, docs/lut.md.
 pub const LIMB_SHADOW_SCALE_M: f64 = 20_000.0;
 
-/// Altitude of node `k`, m, for an atmosphere `thickness` m thick.
+/// The altitude nodes' map aloft ([`altitude_coord`]): x = √η + c (η^p − η^q), η = h / thickness,
+/// `[c, p, q]`.
+pub const ALTITUDE_TOP: [f64; 3] = [0.12, 8.0, 2.0];
+
+/// Altitude of node `k`, m, for an atmosphere `thickness` m thick: the root of
+/// [`altitude_coord`]`(h) = k` (by bisection; the map's ends are the atmosphere's).
 pub fn altitude_node_m(k: usize, thickness: f64) -> f64 {
-    let x = k as f64 / (N_ALT - 1) as f64;
-    thickness * x * x
+    if k == 0 {
+        return 0.0;
+    }
+    if k >= N_ALT - 1 {
+        return thickness;
+    }
+    let (mut lo, mut hi) = (0.0, thickness);
+    for _ in 0..80 {
+        let mid = 0.5 * (lo + hi);
+        if altitude_coord(mid, thickness) < k as f64 {
+            lo = mid;
+        } else {
+            hi = mid;
+        }
+    }
+    0.5 * (lo + hi)
 }
 
-/// Continuous altitude node coordinate.
+/// Continuous altitude node coordinate of altitude `h` (m): x (N_ALT − 1) with
+/// x = √η + c (η^p − η^q), η = h / thickness, [c, p, q] = [`ALTITUDE_TOP`]. The square root
+/// alone (version 4) puts the nodes 7 km apart at the top; seen from there in deep twilight
+/// the lit part of a ray lies just below the top of the atmosphere and appears and vanishes
+/// between two nodes. The added term, 0 at both ends, moves nodes from the middle altitudes
+/// (16 % sparser at 50 km) to the top (1 + 2c(p − q) = 2.4 times as dense at 100 km: the last
+/// interval 3.3 km instead of 7.3 km), and moves the nodes below 10 km by less than 0.4 % of their coordinate (its
+/// slope at the ground is 0).
 pub fn altitude_coord(h: f64, thickness: f64) -> f64 {
-    (h / thickness).clamp(0.0, 1.0).sqrt() * (N_ALT - 1) as f64
+    let e = (h / thickness).clamp(0.0, 1.0);
+    let [c, p, q] = ALTITUDE_TOP;
+    (e.sqrt() + c * (e.powf(p) - e.powf(q))) * (N_ALT - 1) as f64
 }
 
 /// Zenith angle of the horizon seen from radius `r` (rad): π/2 + the horizon's dip.
@@ -456,15 +487,54 @@ pub fn segment_rows(seg: usize) -> (usize, usize) {
     }
 }
 
-/// Azimuth from the sun of column `a`, rad.
-pub fn azimuth_node(a: usize) -> f64 {
-    let x = a as f64 / (N_AZ - 1) as f64;
-    PI * x * x
+/// The weight of the columns' square-root map aloft ([`azimuth_weight`]): the rest goes to
+/// sin²(φ/2) = (1 − cos φ)/2, dense around 90° from the sun.
+pub const AZIMUTH_ALOFT_WEIGHT: f64 = 0.5;
+
+/// The altitudes (m) between which the columns' map moves from the square root (below) to its
+/// blend with (1 − cos φ)/2 (above), [`azimuth_weight`].
+pub const AZIMUTH_ALOFT_M: [f64; 2] = [15_000.0, 25_000.0];
+
+/// The weight α of the columns' square-root map at altitude `h` (m): 1 below
+/// [`AZIMUTH_ALOFT_M`], [`AZIMUTH_ALOFT_WEIGHT`] above, a smoothstep between. Seen from
+/// altitude in twilight, a ray near the horizontal crosses the earth's shadow where the sun's
+/// elevation along it, which changes by (x/R) cos φ over a distance x, meets the shadow: the
+/// edge moves fastest with the azimuth φ around 90° from the sun, where the square root's
+/// columns are 9–10° apart; near the ground the low sky's band above the shadow wants the
+/// antisolar columns dense, which the square root keeps there.
+pub fn azimuth_weight(h: f64) -> f64 {
+    let [h0, h1] = AZIMUTH_ALOFT_M;
+    1.0 - (1.0 - AZIMUTH_ALOFT_WEIGHT) * smoothstep(h0, h1, h)
 }
 
-/// Continuous column coordinate of azimuth `phi` ∈ [0, π].
-pub fn azimuth_coord(phi: f64) -> f64 {
-    (phi / PI).clamp(0.0, 1.0).sqrt() * (N_AZ - 1) as f64
+/// Azimuth from the sun of column `a` at altitude `h` (m), rad: the root of
+/// [`azimuth_coord`]`(φ, h) = a` (by bisection aloft; π (a / (N_AZ − 1))² where the map is the
+/// square root alone).
+pub fn azimuth_node(a: usize, h: f64) -> f64 {
+    let x = a as f64 / (N_AZ - 1) as f64;
+    if azimuth_weight(h) == 1.0 || a == 0 || a >= N_AZ - 1 {
+        return PI * x * x;
+    }
+    let (mut lo, mut hi) = (0.0, PI);
+    for _ in 0..64 {
+        let mid = 0.5 * (lo + hi);
+        if azimuth_coord(mid, h) < a as f64 {
+            lo = mid;
+        } else {
+            hi = mid;
+        }
+    }
+    0.5 * (lo + hi)
+}
+
+/// Continuous column coordinate of azimuth `phi` ∈ [0, π] at altitude `h` (m):
+/// (α √(φ/π) + (1 − α) sin²(φ/2))(N_AZ − 1), α = [`azimuth_weight`]`(h)` (1 near the ground:
+/// φ = π (column / (N_AZ − 1))², dense near the sun).
+pub fn azimuth_coord(phi: f64, h: f64) -> f64 {
+    let phi = phi.clamp(0.0, PI);
+    let alpha = azimuth_weight(h);
+    let u = alpha * (phi / PI).sqrt() + (1.0 - alpha) * (0.5 * phi).sin().powi(2);
+    u * (N_AZ - 1) as f64
 }
 
 /// Where a node's length is zero — rays up from the top node, rays down from the ground node —
@@ -559,8 +629,14 @@ pub fn build_skyview(
     let bottom = params.bottom_radius;
     let thickness = params.top_radius - bottom;
     // μs of sun node j at altitude node k.
+    // The nodes' altitudes and the columns' azimuths at each (roots of their coordinates).
+    let heights: Vec<f64> = (0..N_ALT).map(|k| altitude_node_m(k, thickness)).collect();
+    let columns: Vec<[f64; N_AZ]> = heights
+        .iter()
+        .map(|&h| std::array::from_fn(|a| azimuth_node(a, h)))
+        .collect();
     let sun_mu = |k: usize, j: usize| {
-        let h = altitude_node_m(k, thickness);
+        let h = heights[k];
         let s = sun_warp(sun_node_deg(j), warp_strength(h, thickness));
         (s.to_radians() - dip(bottom + h, bottom)).sin()
     };
@@ -577,7 +653,7 @@ pub fn build_skyview(
                     return (s_out, m_out);
                 }
                 let r = eval_radius(k, i, bottom, thickness);
-                let b = warp_strength(altitude_node_m(k, thickness), thickness);
+                let b = warp_strength(heights[k], thickness);
                 let s_j: Vec<f64> = (0..N_SUN).map(|j| sun_warp(sun_node_deg(j), b)).collect();
                 // The rays of this row: one for the suns whose row does not move (every sun
                 // but on the sky rows in low twilight, [`sky_row_focus`]), one per other sun.
@@ -599,7 +675,7 @@ pub fn build_skyview(
                     let mut nus = Vec::with_capacity(suns.len() * N_AZ);
                     for &j in suns {
                         for a in 0..N_AZ {
-                            let phi = azimuth_node(a);
+                            let phi = columns[k][a];
                             let limb = (N_VIEW_SKY..N_VIEW_UP).contains(&i);
                             let shift = sun_shift(r, theta, phi.cos(), bottom, limb);
                             let mu_s = (s_j[j].to_radians() - shift).sin();
@@ -668,7 +744,7 @@ pub fn build_skyview(
     // Irradiance on the altitude × sun nodes.
     let t2 = Instant::now();
     let radii: Vec<f64> = (0..N_ALT)
-        .map(|k| (bottom + altitude_node_m(k, thickness)).min(bottom + thickness - EVAL_OFFSET_M))
+        .map(|k| (bottom + heights[k]).min(bottom + thickness - EVAL_OFFSET_M))
         .collect();
     let sums = build::irradiance_grid(
         shared,
@@ -918,7 +994,7 @@ impl<'a> SkyViewReader<'a> {
         } else {
             1.0
         };
-        let col = azimuth_coord(cos_phi.acos());
+        let col = azimuth_coord(cos_phi.acos(), r - p.bottom_radius);
         let sc = Stencil::with_nodes(col, 0, N_AZ - 1, |a| a as f64, col, self.nodes[3]);
         let (seg, _) = view_coord(theta, r, p.bottom_radius, 0.0);
         let shift = sun_shift(r, theta, cos_phi, p.bottom_radius, seg == 1);
@@ -1165,19 +1241,19 @@ pub const STATED_ERRORS: &[(&str, &str, f64)] = &[
     ("transmittance", "direct normal irradiance (sun product), sun >= 5 deg, 0-100 km", 0.0003),
     ("transmittance", "direct normal irradiance (sun product), sun -6..5 deg", 0.004),
     ("rayleigh+mie", "sky radiance (sky product), sun >= 5 deg, view > 10 deg above the horizon, ground", 0.0026),
-    ("rayleigh+mie", "sky radiance (sky product), sun >= 5 deg, view > 10 deg above the horizon, 0-20 km", 0.0018),
-    ("rayleigh+mie", "sky radiance (sky product), sun >= 5 deg, view > 10 deg above the horizon, 20-100 km", 0.0073),
+    ("rayleigh+mie", "sky radiance (sky product), sun >= 5 deg, view > 10 deg above the horizon, 0-20 km", 0.0009),
+    ("rayleigh+mie", "sky radiance (sky product), sun >= 5 deg, view > 10 deg above the horizon, 20-100 km", 0.0018),
     ("rayleigh+mie", "sky radiance (sky product), sun >= 5 deg, view < 10 deg above the horizon, ground", 0.004),
-    ("rayleigh+mie", "sky radiance (sky product), sun >= 5 deg, view < 10 deg above the horizon, 0-20 km", 0.0047),
-    ("rayleigh+mie", "sky radiance (sky product), sun >= 5 deg, view < 10 deg above the horizon, 20-100 km", 0.025),
+    ("rayleigh+mie", "sky radiance (sky product), sun >= 5 deg, view < 10 deg above the horizon, 0-20 km", 0.0042),
+    ("rayleigh+mie", "sky radiance (sky product), sun >= 5 deg, view < 10 deg above the horizon, 20-100 km", 0.028),
     ("rayleigh+mie", "sky radiance (sky product), sun -6..5 deg, ground", 0.015),
     ("rayleigh+mie", "sky radiance (sky product), sun -6..5 deg, 0-20 km", 0.014),
     ("rayleigh+mie", "sky radiance (sky product), sun -6..0 deg, 0-5 km, views within 10 deg of the horizon 150-180 deg from the sun (the earth's shadow rising; 680 nm at 5 km)", 0.051),
-    ("rayleigh+mie", "sky radiance (sky product), sun -6..5 deg, 20-100 km (the limb across the earth's shadow)", 0.089),
+    ("rayleigh+mie", "sky radiance (sky product), sun -6..5 deg, 20-100 km (the limb across the earth's shadow)", 0.070),
     ("rayleigh+mie", "sky radiance (sky product), sun -12..-6 deg, ground", 0.035),
     ("rayleigh+mie", "sky radiance (sky product), sun -12..-6 deg, 0-20 km", 0.032),
-    ("rayleigh+mie", "sky radiance (sky product), sun -12..-6 deg, 20-100 km (the darkest sky: 5.7e-9 W m-2 sr-1 nm-1, the sky and limb across the earth's shadow)", 1.09),
-    ("irradiance", "diffuse horizontal irradiance (sun product), sun >= 5 deg, 0-100 km", 0.013),
+    ("rayleigh+mie", "sky radiance (sky product), sun -12..-6 deg, 20-100 km (the darkest sky: 5.7e-9 W m-2 sr-1 nm-1, the sky and limb across the earth's shadow)", 0.38),
+    ("irradiance", "diffuse horizontal irradiance (sun product), sun >= 5 deg, 0-100 km", 0.015),
     ("irradiance", "diffuse horizontal irradiance (sun product), sun -12..5 deg, 0-100 km", 0.016),
 ];
 
@@ -1228,7 +1304,8 @@ pub fn manifest(
         "parameterisation": {
             "reference": "skybake docs/lut.md, section `The skyview layout`",
             "altitude_nodes_m": altitude_nodes,
-            "altitude_node": "h_k = (top_radius - bottom_radius) * (k / (N_ALT - 1))^2, k = 0..N_ALT-1",
+            "altitude_node": "the altitude coordinate of altitude h: (sqrt(e) + c (e^p - e^q)) (N_ALT - 1), e = h / (top_radius - bottom_radius), [c, p, q] = altitude_map; node k (0..N_ALT-1, altitude_nodes_m) is the altitude whose coordinate is k",
+            "altitude_map": ALTITUDE_TOP,
             "sun_elevation_nodes_deg": sun_nodes,
             "sun_node": "the sun node coordinate t_j (deg): every 2 deg from -23 to -15, every 1 deg to -8, every 0.5 deg to -1, every 0.25 deg to 2, every 0.5 deg to 6, every 1 deg to 20, every 4 deg to 104 (segments [start, step, intervals] in sun_segments). At altitude h the node's sun coordinate s_j = warp(t_j, b), b = sun_warp_strength * sqrt(h / (top_radius - bottom_radius)), warp(t, b) = e sinh(b t / e) / sinh(b) for sun_warp_range[0] < t < sun_warp_range[1] (e = -sun_warp_range[0] for t < 0, sun_warp_range[1] for t >= 0), t elsewhere (and where b < 1e-6); its inverse t = e asinh(s sinh(b) / e) / b gives a query's node coordinate, the interpolation's abscissa. s = the sun's elevation + shift: for view rows above the horizontal and below the horizon (and the irradiance) shift = the horizon's dip acos(bottom_radius / r), the sun's elevation above the observer's horizon; for the limb rows (between the horizontal and the horizon) shift = dip + w (gamma cos(phi) + acos(bottom_radius / r_t) - dip), w = 1 - exp(-(r - r_t) / limb_shadow_scale_m): towards the sun's elevation above the horizon of the ray's tangent point, with dip = acos(bottom_radius / r), gamma = theta - pi/2, r_t = r cos(gamma), phi the view's azimuth from the sun; the texels of a limb row are at the sun elevations s_j - shift of their column's azimuth",
             "sun_warp_strength": SUN_WARP,
@@ -1249,10 +1326,14 @@ pub fn manifest(
                 "formula": "the sky rows' focus at the sun's elevation s above the observer's horizon (deg) and altitude h (m): u = max(sun_deg - s, 0), km = clamp(h / 1000, 0, 10), c = min((centre[0] + centre[1] km) u + (centre[2] + centre[3] km) u^2, 45) (deg), k = smoothstep(sun_range_deg[0], sun_range_deg[1], s) (1 - smoothstep(sun_range_deg[2], sun_range_deg[3], s)) (1 - smoothstep(altitude_range_m[0], altitude_range_m[1], h)) focus, smoothstep(a, b, x) = t^2 (3 - 2 t), t = clamp((x - a) / (b - a), 0, 1)",
             },
             "view_rows": format!("rows 0..{} from the zenith to the horizontal: elevation = 90 (1 - x0)^2 (deg), x0 = x_c + sinh(A + x (B - A)) / k, x = row / {}, x_c = 1 - sqrt(c / 90), A = asinh(-k x_c), B = asinh(k (1 - x_c)), (c, k) the sky rows' focus (sky_row_band) at the sun's elevation above the observer's horizon (its node's s_j for a texel, the query's own for a query) and the observer's altitude; where k < 1e-6, x0 = x; inverse: x0 = 1 - sqrt(elevation / 90), x = (asinh(k (x0 - x_c)) - A) / (B - A) (or x0); rows {}..{} from the horizontal to the horizon: the ray's tangent radius r_t = r - (r - bottom_radius) y, y = 2 x^2 - x^3, x = (row - {}) / {} (inverse: x = 2/3 + (4/3) cos(acos(1 - 27 y / 16) / 3 - 2 pi / 3)), theta = pi/2 + acos(r_t / r); rows {}..{} from the horizon to the nadir: theta = theta_h + (pi - theta_h) x^2, x = (row - {}) / {}, theta_h = pi - asin(bottom_radius / r); r the observer's radius. Interpolation over the rows around the view stays within its segment (see interpolation)", N_VIEW_SKY - 1, N_VIEW_SKY - 1, N_VIEW_SKY, N_VIEW_UP - 1, N_VIEW_SKY, N_VIEW_LIMB - 1, N_VIEW_UP, N_VIEW - 1, N_VIEW_UP, N_VIEW_DOWN - 1),
-            "azimuth_columns": format!("phi = pi (column / {})^2, the view's azimuth from the sun's, 0..pi", N_AZ - 1),
+            "azimuth_columns": format!("the column coordinate of the view's azimuth phi from the sun's (0..pi) at altitude h (m): column = (alpha sqrt(phi / pi) + (1 - alpha) sin(phi / 2)^2) {}, alpha = 1 - (1 - azimuth_aloft.weight) smoothstep(azimuth_aloft.altitude_range_m[0], azimuth_aloft.altitude_range_m[1], h) (smoothstep as in sky_row_band); a texel of altitude node k lies at the phi whose coordinate at h_k is its column (phi = pi (column / {})^2 where alpha = 1); a query's coordinate is taken at its own altitude", N_AZ - 1, N_AZ - 1),
+            "azimuth_aloft": {
+                "weight": AZIMUTH_ALOFT_WEIGHT,
+                "altitude_range_m": AZIMUTH_ALOFT_M,
+            },
             "slices": "slice = altitude_index * N_SUN + sun_index; file row = slice * N_VIEW + view_row; texture coordinates at texel centres: u = (column + 0.5) / N_AZ, v = (view_row + 0.5) / N_VIEW",
             "sizes": {"N_ALT": N_ALT, "N_SUN": N_SUN, "N_VIEW_SKY": N_VIEW_SKY, "N_VIEW_LIMB": N_VIEW_LIMB, "N_VIEW_DOWN": N_VIEW_DOWN, "N_AZ": N_AZ},
-            "interpolation": "per (altitude, sun, view row) node triple around the query: over the 4 azimuth columns around the query, then over the rows (times the slice's scale) (on the sky rows where the focus k > 0: over each column's own rows, sky_row_band.azimuth, then over the columns), the sun nodes and then the altitude nodes, each axis with up to 4 nodes around the query within its segment (the row segments: sky, limb, below the horizon; 3 nodes in a segment's first and last interval): the Lagrange polynomial through the nodes' logarithms at the query, exp'd and bounded by the nodes' range; abscissas: the node index (altitude: sqrt(h / thickness) (N_ALT - 1); rows: as view_rows; columns: sqrt(phi / pi) (N_AZ - 1)), for the sun the node's s_j in degrees; where a node value is not positive, geometric between the interval's two nodes, a^(1-t) b^t, linear where a value is not positive",
+            "interpolation": "per (altitude, sun, view row) node triple around the query: over the 4 azimuth columns around the query, then over the rows (times the slice's scale) (on the sky rows where the focus k > 0: over each column's own rows, sky_row_band.azimuth, then over the columns), the sun nodes and then the altitude nodes, each axis with up to 4 nodes around the query within its segment (the row segments: sky, limb, below the horizon; 3 nodes in a segment's first and last interval): the Lagrange polynomial through the nodes' logarithms at the query, exp'd and bounded by the nodes' range; abscissas: the node index (altitude: as altitude_node; rows: as view_rows; columns: as azimuth_columns), for the sun the node's s_j in degrees; where a node value is not positive, geometric between the interval's two nodes, a^(1-t) b^t, linear where a value is not positive",
             "radiance": "L = rayleigh * RayleighPhase(nu) + mie * aerosol_phase_function(nu), nu = cos of the angle between view and sun; RayleighPhase = 3/(16 pi) (1 + nu^2)",
             "observer": "inside the atmosphere; above its top, move the observer along the view to the top first (a view missing the atmosphere sees nothing); views below the horizon: the in-scattered light along the ray to the ground, without the ground's reflection",
             "transmittance_texture": [crate::param::TRANSMITTANCE_WIDTH, crate::param::TRANSMITTANCE_HEIGHT],
@@ -1303,9 +1384,30 @@ mod tests {
                 "altitude node {k}"
             );
         }
-        for a in 0..N_AZ {
-            assert!((azimuth_coord(azimuth_node(a)) - a as f64).abs() < 1e-9);
+        for h in [0.0, 15_000.0, 20_000.0, 50_000.0, H] {
+            for a in 0..N_AZ {
+                assert!((azimuth_coord(azimuth_node(a, h), h) - a as f64).abs() < 1e-9);
+            }
         }
+        // The square root's columns near the ground; aloft denser around 90°, increasing.
+        assert_eq!(azimuth_node(7, 15_000.0), PI * (7.0f64 / 19.0).powi(2));
+        // The altitude nodes: near the square root's below 10 km; the last interval 3.3 km (7.3 km).
+        for k in 1..8 {
+            let sqrt_map = H * (k as f64 / (N_ALT - 1) as f64).powi(2);
+            assert!(
+                (altitude_node_m(k, H) / sqrt_map - 1.0).abs() < 0.01,
+                "node {k}"
+            );
+        }
+        let top_gap = H - altitude_node_m(N_ALT - 2, H);
+        assert!((3_200.0..3_400.0).contains(&top_gap), "{top_gap}");
+        let gap = |a: usize, h: f64| azimuth_node(a + 1, h) - azimuth_node(a, h);
+        assert!((1..N_AZ).all(|a| azimuth_node(a, H) > azimuth_node(a - 1, H)));
+        let near_90 = (
+            azimuth_coord(0.5 * PI, H) as usize,
+            azimuth_coord(0.5 * PI, 0.0) as usize,
+        );
+        assert!(gap(near_90.0, H) < 0.7 * gap(near_90.1, 0.0));
         for r in [R + 50.0, R + 3000.0, R + 12_000.0, R + 60_000.0, R + H] {
             for sun in [-8.0, -5.0, -2.0, 0.0, 2.5, 10.0] {
                 for i in 0..N_VIEW {
