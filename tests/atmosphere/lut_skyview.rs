@@ -213,7 +213,7 @@ fn skyview_sky_radiance_matches_the_sky_product() {
 /// at the ground 3.4 → 5.9 %; azimuth — −6…5° at the ground 1.49 → 3.01 % (over the 3 % target).
 /// (Version 4: 0.18 → 0.86, 1.36 → 2.48, 3.4 → 5.9, 1.49 → 3.01 %; version 3: 0.18 → 0.86, 2.6 → 6.0, 3.4 → 5.9, 1.3 → 3.8 %.) Version 5 (the columns read
 /// relative to the band): the same but the azimuth, −6…5° at the ground 1.47 → 2.14 %; asserted
-/// on the grid of the earth's shadow rising instead ([`shadow_rise_errors`]: 5.06 → 8.09 %).
+/// on the grid of the earth's shadow rising instead ([`shadow_rise_errors`]: 5.32 → 8.32 %).
 #[test]
 #[ignore = "builds a bundle (about 10 s of CPU): run with --ignored lut_skyview::"]
 fn skyview_four_nodes_per_axis_are_needed() {
@@ -610,7 +610,7 @@ fn shadow_rise_errors(f: &Fixture, reader: &SkyViewReader) -> (f64, String) {
 
 /// The earth's shadow rising (see [`shadow_rise_errors`]). The target is 3 % (views
 /// within 10° of the horizon, sun down to −6°); it is NOT met at 2.5 and 5 km in the red:
-/// measured on 2026-12-05 (earth, standard, RGB, layout version 5) 5.06 % at 5 km, sun −2°,
+/// measured on 2026-12-05 (earth, standard, RGB, layout version 5) 5.32 % at 5 km, sun −2°,
 /// view zenith 87.75°, azimuth 180°, 680 nm (3.3 % at 2.5 km, 1.4 % at 1 km, 0.4 % at the
 /// ground; version 4: 16.4 / 5.7 / 1.9 / 0.8 %, version 3: 48 / 27 / 9.0 / 3.3 %), so the bound
 /// is the measured + ~12 %. The sunlit band above the antisolar horizon (lit by sunlight that
@@ -628,7 +628,7 @@ fn skyview_the_earth_shadow_rising_at_low_altitude() {
         "skyview earth's shadow rising, 0-5 km, sun -6..0 (target 3 %): {:.3} % {case}",
         100.0 * worst
     );
-    let measured = 0.0506;
+    let measured = 0.0532;
     assert!(worst > 0.0, "no sample");
     assert!(worst < measured * 1.12, "{worst} {case}");
 }

@@ -1011,7 +1011,8 @@ impl<'a> SkyViewReader<'a> {
                 let (c, k) = sky_row_focus(s_deg, h);
                 std::array::from_fn(|m| {
                     let a = (sc.first + m).min(N_AZ - 1);
-                    let e = band_relative_elevation(eps, s_deg, h, cos_phi, azimuth_node(a).cos());
+                    let e =
+                        band_relative_elevation(eps, s_deg, h, cos_phi, azimuth_node(a, h).cos());
                     let y = sky_row(e, c, k) * (N_VIEW_SKY - 1) as f64;
                     Stencil::with_nodes(y, lo, hi, |i| i as f64, y, self.nodes[2])
                 })
@@ -1248,7 +1249,7 @@ pub const STATED_ERRORS: &[(&str, &str, f64)] = &[
     ("rayleigh+mie", "sky radiance (sky product), sun >= 5 deg, view < 10 deg above the horizon, 20-100 km", 0.028),
     ("rayleigh+mie", "sky radiance (sky product), sun -6..5 deg, ground", 0.015),
     ("rayleigh+mie", "sky radiance (sky product), sun -6..5 deg, 0-20 km", 0.014),
-    ("rayleigh+mie", "sky radiance (sky product), sun -6..0 deg, 0-5 km, views within 10 deg of the horizon 150-180 deg from the sun (the earth's shadow rising; 680 nm at 5 km)", 0.051),
+    ("rayleigh+mie", "sky radiance (sky product), sun -6..0 deg, 0-5 km, views within 10 deg of the horizon 150-180 deg from the sun (the earth's shadow rising; 680 nm at 5 km)", 0.054),
     ("rayleigh+mie", "sky radiance (sky product), sun -6..5 deg, 20-100 km (the limb across the earth's shadow)", 0.070),
     ("rayleigh+mie", "sky radiance (sky product), sun -12..-6 deg, ground", 0.035),
     ("rayleigh+mie", "sky radiance (sky product), sun -12..-6 deg, 0-20 km", 0.032),
