@@ -190,10 +190,27 @@ pub fn altitude_node_m(k: usize, thickness: f64) -> f64 {
     if k >= N_ALT - 1 {
         return thickness;
     }
-    let (mut lo, mut hi) = (0.0, thickness);
-    for _ in 0..80 {
+    root_of_increasing(
+        |h| altitude_coord(h, thickness),
+        k as f64,
+        0.0,
+        thickness,
+        80,
+    )
+}
+
+/// The root of `f(x) = target` for `f` increasing on `[lo, hi]`, by `iterations` bisections
+/// (the inverses of the node maps).
+fn root_of_increasing(
+    f: impl Fn(f64) -> f64,
+    target: f64,
+    mut lo: f64,
+    mut hi: f64,
+    iterations: usize,
+) -> f64 {
+    for _ in 0..iterations {
         let mid = 0.5 * (lo + hi);
-        if altitude_coord(mid, thickness) < k as f64 {
+        if f(mid) < target {
             lo = mid;
         } else {
             hi = mid;
@@ -515,16 +532,7 @@ pub fn azimuth_node(a: usize, h: f64) -> f64 {
     if azimuth_weight(h) == 1.0 || a == 0 || a >= N_AZ - 1 {
         return PI * x * x;
     }
-    let (mut lo, mut hi) = (0.0, PI);
-    for _ in 0..64 {
-        let mid = 0.5 * (lo + hi);
-        if azimuth_coord(mid, h) < a as f64 {
-            lo = mid;
-        } else {
-            hi = mid;
-        }
-    }
-    0.5 * (lo + hi)
+    root_of_increasing(|phi| azimuth_coord(phi, h), a as f64, 0.0, PI, 64)
 }
 
 /// Continuous column coordinate of azimuth `phi` ∈ [0, π] at altitude `h` (m):
