@@ -69,7 +69,9 @@ def density_xyz(block=True):
 def transform(rotated=False, translation=TRANSLATION_M):
     m = np.diag([VOXEL_M, VOXEL_M, VOXEL_M, 1.0])
     if rotated:
-        c, s = np.cos(np.radians(30.0)), np.sin(np.radians(30.0))
+        # Exactly 30°, from operations rounded the same on every CPU (numpy's SIMD cos and sin
+        # differ in the last bit between AVX2 and AVX-512 machines, and the file holds the bits).
+        c, s = np.sqrt(3.0) / 2.0, 0.5
         m[:3, :3] = VOXEL_M * np.array([[c, s, 0.0], [-s, c, 0.0], [0.0, 0.0, 1.0]])
     m[3, :3] = translation
     return vdb.createLinearTransform(m)
