@@ -421,7 +421,7 @@ pub const VIEW_RADIANCE: usize = VIEW_ELEMENT + 1;
 /// truncated fraction per wavelength) of the radiance from the view direction,
 /// L(d)(P_cap − f), where P_cap is F's integral over the cap; the cap's directions add
 /// F(d·ω)[L(ω) − L(d)] dω to their own elements (see [`VIEW_CAP_DEG`]). The truncated peak
-/// f·δ is light that the scaled problem keeps in the direct beam; the final march adds it as L(d)(e^{−τ*} − e^{−τ}) (see
+/// f·δ is light that the scaled problem keeps in the direct beam; the final march adds it as L(d)(e^{−τ⁺} − e^{−τ}) (see
 /// `march::Prepared::march`), where the full F with the scaled attenuation (the TMS single
 /// scattering) would count it once more, as ω f τ L e^{−τ*}.
 pub struct SkyElements {

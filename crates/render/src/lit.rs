@@ -157,7 +157,9 @@ impl LitVolume {
             .iter()
             .map(|t| settings.photons.peak_spread * t.albedo * t.fraction)
             .collect();
-        let peak = if sun_on && settings.method == Method::Fast {
+        // The peak's tables: the sun's single scattering spreads over them; the sky's first
+        // order takes only the peak's integral f⁺ (its paths' extinction σ_t⁺).
+        let spread = if (sun_on || env_on) && settings.method == Method::Fast {
             PeakSpread::new(&optics.phase, &trunc)
         } else {
             None
@@ -165,11 +167,12 @@ impl LitVolume {
         let first_extinction_scale: Vec<f64> = trunc
             .iter()
             .enumerate()
-            .map(|(l, t)| match &peak {
+            .map(|(l, t)| match &spread {
                 Some(p) if p.peak_fraction(l) > 0.0 => 1.0 - t.albedo * p.peak_fraction(l),
                 _ => t.extinction_scale,
             })
             .collect();
+        let peak = if sun_on { spread } else { None };
         let per_voxel =
             settings.method == Method::Fast && vol.rho_max > 0.0 && settings.cloud_in_view;
         let (mut d_sun, mut mask, mut lattice) = (Vec::new(), Vec::new(), Vec::new());

@@ -381,18 +381,18 @@ impl<'a> Marcher<'a> {
                 break;
             }
         }
-        let (mut ia, tc, ts) = (st.ia, st.tc, st.ts);
+        let (mut ia, tc, tp) = (st.ia, st.tc, st.tp);
         // The view cap: sky light from behind each point along the view ray itself, and the
-        // forward peak's share of the radiance from behind.
+        // forward peak's share of the radiance from behind, both through T⁺.
         if front.is_some() && cl.sky.is_some() {
             for l in 0..n_l {
-                if ts[l] <= 0.0 {
+                if tp[l] <= 0.0 {
                     continue;
                 }
-                let tau = -ts[l].ln();
-                let cap = cl.albedo[l] / s[l] * sky[15 * n_l + l];
+                let tau = -tp[l].ln();
+                let cap = cl.albedo[l] / cl.first_extinction_scale[l] * sky[15 * n_l + l];
                 let behind = sky[16 * n_l + l];
-                ia[l] = (ia[l] + cap * tau * ts[l] + behind * (ts[l] - tc[l])).max(0.0);
+                ia[l] = (ia[l] + cap * tau * tp[l] + behind * (tp[l] - tc[l])).max(0.0);
             }
         }
         CloudSample {
@@ -452,14 +452,15 @@ impl<'a> Marcher<'a> {
                     w_true * peak * s[l],
                 )
             } else {
-                (0.0, 0.0, 0.0)
+                // T⁺ also carries the view cap's sky light (step 3).
+                (-(-kp * rho * dt).exp_m1(), 0.0, 0.0)
             };
             // Sky and ground light through the sun cap and the lattice elements.
             let mut src = 0.0;
             if !cl.sky_paths.is_empty() {
                 let mut q = 0.0;
                 for (e, &path) in paths.iter().enumerate() {
-                    q += ray.sky[e * n_l + l] * (-ks * path).exp();
+                    q += ray.sky[e * n_l + l] * (-kp * path).exp();
                 }
                 src += cl.albedo[l] / s[l] * q;
             }

@@ -32,7 +32,7 @@ use std::time::Instant;
 use crate::{Error, Result};
 
 /// Layout version of the export (bumped when a file, channel or field changes meaning).
-pub const LAYOUT_VERSION: &str = "4";
+pub const LAYOUT_VERSION: &str = "5";
 pub const MANIFEST_FILE: &str = "manifest.json";
 pub const DENSITY_FILE: &str = "density.exr";
 pub const SUN_PATH_FILE: &str = "sun_path.exr";
@@ -641,7 +641,7 @@ impl CloudLight {
                     "sun_path_near_intervals": SUN_NEAR_INTERVALS,
                     "recipe": "docs/cloud-light.md, 'Thick steps': a step whose densest of the 8 voxels round its midpoint holds max_λ(k·s)·rho·dt > scaled_optical_depth is taken in n = clamp(ceil(that), 2, max_sub_steps) sub-steps, each with the density-weighted interpolation of the textures (weights w_i·rho_i/Σ w_i·rho_i), the sun's path integrated from the density over sun_path_near_voxels towards the sun (composite Simpson, sun_path_near_intervals) plus D_sun beyond, and the skin's source over the first skin.depth_scaled_optical_depth of the ray's scaled optical depth",
                 },
-                "source": "docs/cloud-light.md, 'Marching the volume': per step of length dt at density rho (midpoint), k = extinction_per_density_m, s = extinction_scale: a = 1-exp(-k·rho·dt) (true), a* = 1-exp(-k·s·rho·dt) (scaled); I += T*·a*·S(d) + T+·omega/s+·E_sun·p(theta)·W_sun·(spread - spread_last) + T_c·(the peak's part); T_c *= 1-a; T* *= 1-a*; T+ *= 1-exp(-k·s+·rho·dt) (s+ = first_extinction_scale; spread at the sun's and the view's true optical depths together, spread_last at the sun's), with S(d) = omega/s·Σ_e E_e(d)·exp(-k·s·D_e) + max(0, Σ C_lm·Y_lm(-d)) (D_0 = D_sun, D_1..14 = the sky paths) and W_sun the exact step integral of the sun's scaled transmittance; then the view cap; pixel = I + T_c·background",
+                "source": "docs/cloud-light.md, 'Marching the volume': per step of length dt at density rho (midpoint), k = extinction_per_density_m, s = extinction_scale: a = 1-exp(-k·rho·dt) (true), a* = 1-exp(-k·s·rho·dt) (scaled); I += T*·a*·S(d) + T+·omega/s+·E_sun·p(theta)·W_sun·(spread - spread_last) + T_c·(the peak's part); T_c *= 1-a; T* *= 1-a*; T+ *= 1-exp(-k·s+·rho·dt) (s+ = first_extinction_scale; spread at the sun's and the view's true optical depths together, spread_last at the sun's), with S(d) = omega/s·Σ_e E_e(d)·exp(-k·s+·D_e) + max(0, Σ C_lm·Y_lm(-d)) (D_0 = D_sun, D_1..14 = the sky paths) and W_sun the exact step integral of the sun's scaled transmittance; then the view cap; pixel = I + T_c·background",
             },
             "settings": self.settings,
             "textures": textures,
