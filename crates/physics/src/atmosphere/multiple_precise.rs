@@ -50,6 +50,8 @@ use rayon::prelude::*;
 use std::f64::consts::PI;
 use std::sync::atomic::{AtomicUsize, Ordering};
 
+mod twilight_batch;
+
 /// Sun zenith angle, degrees, beyond which the sun-zenith nodes of the precise tables are twice as
 /// dense and J and the ground's sky irradiance are interpolated over sun zenith in ln J
 /// (Catmull–Rom, [`twilight_interp`]) instead of linearly in J (accuracy of the twilight sky).
@@ -1545,16 +1547,31 @@ crate::simd_dispatch! {
                                 let (nodes, wq) = catmull_rom(js, fs as f64, n_mu_s);
                                 let tv = &mut sc.tv[..n_j];
                                 tv.fill(0.0);
-                                for (e, we) in [(jp, 1.0 - fp), (jp + 1, fp)] {
-                                    let row = nodes.map(|b| (b * n_phi + e) * n_j);
-                                    twilight_lanes_f32(
-                                        row.map(|x| &sc.slice[x..][..n_j]),
-                                        row.map(|x| &sc.ln_slice[x..][..n_j]),
+                                if n_j <= twilight_batch::CELL_LANES {
+                                    twilight_batch::twilight_cell_pair(
+                                        &sc.slice,
+                                        &sc.ln_slice,
+                                        nodes,
+                                        n_phi,
+                                        n_j,
+                                        jp,
                                         wq.map(|w| w as f32),
                                         fs,
-                                        we,
+                                        fp,
                                         tv,
                                     );
+                                } else {
+                                    for (e, we) in [(jp, 1.0 - fp), (jp + 1, fp)] {
+                                        let row = nodes.map(|b| (b * n_phi + e) * n_j);
+                                        twilight_lanes_f32(
+                                            row.map(|x| &sc.slice[x..][..n_j]),
+                                            row.map(|x| &sc.ln_slice[x..][..n_j]),
+                                            wq.map(|w| w as f32),
+                                            fs,
+                                            we,
+                                            tv,
+                                        );
+                                    }
                                 }
                                 let o = &mut out[c * n_l..][..n_l];
                                 for i in 0..n_l {
