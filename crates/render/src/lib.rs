@@ -396,23 +396,13 @@ pub fn render_tile(
                 return;
             }
             let y = tile.y0 + row;
-            let mut ia = vec![0.0; n_l];
-            let mut tc = vec![0.0; n_l];
-            let mut out = vec![0.0; n_l];
-            let mut v = vec![0.0; n_l];
-            for col in 0..tile.width {
-                let x = tile.x0 + col;
-                match p.settings.method {
-                    Method::Fast => {
-                        let Some(ray) = camera::primary_ray(cam, x as f64 + 0.5, y as f64 + 0.5)
-                        else {
-                            continue;
-                        };
-                        let front = p.march(&ray, &mut ia, &mut tc);
-                        p.composite(&ray, &ia, &tc, front, &mut out);
-                        tr[col] = (tc.iter().sum::<f64>() / n_l as f64) as f32;
-                    }
-                    Method::Reference => {
+            match p.settings.method {
+                Method::Fast => march::fast_row(p, y, tile.x0, rad, tr),
+                Method::Reference => {
+                    let mut out = vec![0.0; n_l];
+                    let mut v = vec![0.0; n_l];
+                    for col in 0..tile.width {
+                        let x = tile.x0 + col;
                         p.path_trace_pixel(&pt, x, y, &mut out, &mut v);
                         for l in 0..n_l {
                             var[col * n_l + l] = v[l] as f32;
@@ -433,10 +423,10 @@ pub fn render_tile(
                                 .sum::<f64>()
                                 / n_l as f64) as f32;
                         }
+                        for l in 0..n_l {
+                            rad[col * n_l + l] = out[l] as f32;
+                        }
                     }
-                }
-                for l in 0..n_l {
-                    rad[col * n_l + l] = out[l] as f32;
                 }
             }
             let done = rows_done.fetch_add(1, Ordering::Relaxed) + 1;

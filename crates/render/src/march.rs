@@ -364,6 +364,7 @@ impl<'a> Prepared<'a> {
     /// DISORT applies in the aureole), so its source grows linearly with the optical depth
     /// where the true one saturates: looking towards the sun through a cloud's edges this read
     /// +26 % on the cloud mean against Mitsuba 3 (docs/frames.md).
+    #[inline(always)]
     pub fn march(&self, ray: &Ray, ia: &mut [f64], tc: &mut [f64]) -> Option<f64> {
         // The usual wavelength counts get a copy of the march with their count fixed at
         // compile time (the same operations, unrolled), the rest the general one.
@@ -828,14 +829,14 @@ impl<'a> Prepared<'a> {
     /// sample): D interpolated −3.4 % (−5.6 % where the view ray's τ > 8), √D −0.6 %
     /// (−1.6 %); with D exact at every step's ends −1.1 % (the rest is D linear within the
     /// one-voxel step).
-    #[inline]
+    #[inline(always)]
     fn sun_root_at(&self, p: DVec3) -> f64 {
         let r = self.root_interpolated(p);
         self.root_beyond_edge_centres(p, r)
     }
 
     /// √D trilinearly between voxel centres (held at the outermost centres' values beyond them).
-    #[inline]
+    #[inline(always)]
     fn root_interpolated(&self, p: DVec3) -> f64 {
         self.lit
             .vol
@@ -857,7 +858,7 @@ impl<'a> Prepared<'a> {
     /// transmittance in its top half-voxel was held at its centre's, the single scattering of
     /// a slab of 0.87 scaled optical depths per voxel 35–40 % low), and nothing changes where
     /// the outer voxels are empty (the march skips them). `r` itself inside.
-    #[inline]
+    #[inline(always)]
     fn root_beyond_edge_centres(&self, p: DVec3, r: f64) -> f64 {
         let g = &*self.lit.vol.grid;
         let h = g.voxel_size_m;
@@ -945,6 +946,7 @@ impl<'a> Prepared<'a> {
     /// Pixel radiance from the cloud terms: background or ground behind, aerial perspective and
     /// shafts in front: L = S_eff(t_a) + T(t_a)·I_a + T_c·(B − S(t_a)) (Nishita et al. 1996, eq 3 with the
     /// atmosphere between cloud and viewer; Dobashi et al. 2000, eq 14 for S_eff).
+    #[inline(always)]
     pub fn composite(
         &self,
         ray: &Ray,
@@ -1108,6 +1110,33 @@ impl<'a> Prepared<'a> {
         for l in 0..n_l {
             out[l] = sum[l] / n;
             var[l] = ((sum2[l] / n - out[l] * out[l]).max(0.0)) / (n - 1.0).max(1.0);
+        }
+    }
+}
+
+skybake_physics::simd_dispatch! {
+    /// One image row of the fast method: per pixel the camera ray, [`Prepared::march`] and
+    /// [`Prepared::composite`], writing the radiance (`n_l` values per pixel) and the mean cloud
+    /// transmittance of the row's pixels from column `x0` (pixels without a ray keep their values).
+    /// Compiled twice (generic and AVX2 + FMA, chosen once per row by the CPU's features): the
+    /// same IEEE operations in both (Rust contracts no multiply-add), so the same pixels.
+    pub(crate) fn fast_row(p: &Prepared<'_>, y: usize, x0: usize, rad: &mut [f32], tr: &mut [f32]) {
+        let cam = &p.scene.camera;
+        let n_l = p.scene.wavelengths.len();
+        let mut ia = vec![0.0; n_l];
+        let mut tc = vec![0.0; n_l];
+        let mut out = vec![0.0; n_l];
+        for (col, t) in tr.iter_mut().enumerate() {
+            let x = x0 + col;
+            let Some(ray) = super::camera::primary_ray(cam, x as f64 + 0.5, y as f64 + 0.5) else {
+                continue;
+            };
+            let front = p.march(&ray, &mut ia, &mut tc);
+            p.composite(&ray, &ia, &tc, front, &mut out);
+            *t = (tc.iter().sum::<f64>() / n_l as f64) as f32;
+            for l in 0..n_l {
+                rad[col * n_l + l] = out[l] as f32;
+            }
         }
     }
 }

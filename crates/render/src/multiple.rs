@@ -947,107 +947,111 @@ fn hemisphere_power(lighting: &Lighting, group: &[usize]) -> (f64, f64) {
     (up, down)
 }
 
-/// Moves the photon through the coarse grid until optical depth `tau` is used up (a collision:
-/// returns true) or it leaves the box (false). Scattered photons score their tracks.
-#[allow(clippy::too_many_arguments)]
-fn fly(
-    g: &Coarse,
-    lo: DVec3,
-    hi: DVec3,
-    ph: &mut Photon,
-    mut tau: f64,
-    k: f64,
-    cell_volume: f64,
-    w: &[f64],
-    acc: &mut [f64],
-    ng: usize,
-    ylm: &[f64],
-) -> bool {
-    let Some((t0, t1)) = super::camera::box_interval(ph.pos, ph.dir, lo, hi) else {
-        return false;
-    };
-    let d = ph.dir;
-    let mut t = t0;
-    // DDA through the cells.
-    let p0 = ph.pos + d * (t0 + 1e-9 * g.cell_m.min_element());
-    let mut cell = [0i64; 3];
-    let mut step = [0i64; 3];
-    let mut t_next = [f64::INFINITY; 3];
-    let mut t_delta = [f64::INFINITY; 3];
-    for a in 0..3 {
-        let h = g.cell_m[a];
-        let local = (p0[a] - lo[a]) / h;
-        cell[a] = (super::volume::floor(local) as i64).clamp(0, g.dims[a] as i64 - 1);
-        if d[a] > 0.0 {
-            step[a] = 1;
-            t_next[a] = t0 + ((cell[a] + 1) as f64 * h + lo[a] - p0[a]) / d[a];
-            t_delta[a] = h / d[a];
-        } else if d[a] < 0.0 {
-            step[a] = -1;
-            t_next[a] = t0 + (cell[a] as f64 * h + lo[a] - p0[a]) / d[a];
-            t_delta[a] = -h / d[a];
-        }
-    }
-    // A second cursor runs [`LOOKAHEAD`] cells ahead of the track along the same cells and
-    // fetches their accumulators (a lane's accumulators are larger than the caches, and a
-    // track crosses few cells: fetched one cell ahead, most of the wait remained; a hint, no
-    // change in value).
-    let block = ng * ylm.len();
-    let mut ahead = (cell, t_next);
-    let mut ahead_live = ph.scattered;
-    for _ in 0..LOOKAHEAD {
-        if ahead_live {
-            ahead_live = ahead_step(g, &mut ahead, &step, &t_delta, acc, block);
-        }
-    }
-    loop {
-        let a = if t_next[0] <= t_next[1] && t_next[0] <= t_next[2] {
-            0
-        } else if t_next[1] <= t_next[2] {
-            1
-        } else {
-            2
+skybake_physics::simd_dispatch! {
+    /// Moves the photon through the coarse grid until optical depth `tau` is used up (a
+    /// collision: returns true) or it leaves the box (false). Scattered photons score their
+    /// tracks. Compiled twice (generic and AVX2 + FMA, chosen by the CPU's features): the same
+    /// IEEE operations in both (Rust contracts no multiply-add), so the same field.
+    fn fly(
+        g: &Coarse,
+        lo: DVec3,
+        hi: DVec3,
+        ph: &mut Photon,
+        tau_in: f64,
+        k: f64,
+        cell_volume: f64,
+        w: &[f64],
+        acc: &mut [f64],
+        ng: usize,
+        ylm: &[f64],
+    ) -> bool {
+        let mut tau = tau_in;
+        let Some((t0, t1)) = super::camera::box_interval(ph.pos, ph.dir, lo, hi) else {
+            return false;
         };
-        let t_exit = t_next[a].min(t1);
-        let c = ((cell[2] as usize * g.dims[1]) + cell[1] as usize) * g.dims[0] + cell[0] as usize;
-        if ahead_live {
-            ahead_live = ahead_step(g, &mut ahead, &step, &t_delta, acc, block);
+        let d = ph.dir;
+        let mut t = t0;
+        // DDA through the cells.
+        let p0 = ph.pos + d * (t0 + 1e-9 * g.cell_m.min_element());
+        let mut cell = [0i64; 3];
+        let mut step = [0i64; 3];
+        let mut t_next = [f64::INFINITY; 3];
+        let mut t_delta = [f64::INFINITY; 3];
+        for a in 0..3 {
+            let h = g.cell_m[a];
+            let local = (p0[a] - lo[a]) / h;
+            cell[a] = (super::volume::floor(local) as i64).clamp(0, g.dims[a] as i64 - 1);
+            if d[a] > 0.0 {
+                step[a] = 1;
+                t_next[a] = t0 + ((cell[a] + 1) as f64 * h + lo[a] - p0[a]) / d[a];
+                t_delta[a] = h / d[a];
+            } else if d[a] < 0.0 {
+                step[a] = -1;
+                t_next[a] = t0 + (cell[a] as f64 * h + lo[a] - p0[a]) / d[a];
+                t_delta[a] = -h / d[a];
+            }
         }
-        let sigma = k * g.rho[c] as f64;
-        let len = (t_exit - t).max(0.0);
-        let (used, hit) = if sigma * len >= tau && sigma > 0.0 {
-            (tau / sigma, true)
-        } else {
-            (len, false)
-        };
-        if ph.scattered && used > 0.0 {
-            let s = used / cell_volume;
-            let n = ylm.len();
-            for gi in 0..ng {
-                let b = (c * ng + gi) * n;
-                let ws = w[gi] * s;
-                for (a, y) in acc[b..b + n].iter_mut().zip(ylm) {
-                    *a += ws * y;
+        // A second cursor runs [`LOOKAHEAD`] cells ahead of the track along the same cells and
+        // fetches their accumulators (a lane's accumulators are larger than the caches, and a
+        // track crosses few cells: fetched one cell ahead, most of the wait remained; a hint, no
+        // change in value).
+        let block = ng * ylm.len();
+        let mut ahead = (cell, t_next);
+        let mut ahead_live = ph.scattered;
+        for _ in 0..LOOKAHEAD {
+            if ahead_live {
+                ahead_live = ahead_step(g, &mut ahead, &step, &t_delta, acc, block);
+            }
+        }
+        loop {
+            let a = if t_next[0] <= t_next[1] && t_next[0] <= t_next[2] {
+                0
+            } else if t_next[1] <= t_next[2] {
+                1
+            } else {
+                2
+            };
+            let t_exit = t_next[a].min(t1);
+            let c = ((cell[2] as usize * g.dims[1]) + cell[1] as usize) * g.dims[0] + cell[0] as usize;
+            if ahead_live {
+                ahead_live = ahead_step(g, &mut ahead, &step, &t_delta, acc, block);
+            }
+            let sigma = k * g.rho[c] as f64;
+            let len = (t_exit - t).max(0.0);
+            let (used, hit) = if sigma * len >= tau && sigma > 0.0 {
+                (tau / sigma, true)
+            } else {
+                (len, false)
+            };
+            if ph.scattered && used > 0.0 {
+                let s = used / cell_volume;
+                let n = ylm.len();
+                for gi in 0..ng {
+                    let b = (c * ng + gi) * n;
+                    let ws = w[gi] * s;
+                    for (a, y) in acc[b..b + n].iter_mut().zip(ylm) {
+                        *a += ws * y;
+                    }
+                }
+                if let Some(sk) = &g.skin {
+                    sk.score(c, g.rho.len(), ph.pos + d * t, d, used, w, acc, ylm);
                 }
             }
-            if let Some(sk) = &g.skin {
-                sk.score(c, g.rho.len(), ph.pos + d * t, d, used, w, acc, ylm);
+            if hit {
+                ph.pos += d * (t + used);
+                return true;
             }
+            tau -= sigma * len;
+            t = t_exit;
+            if t >= t1 {
+                return false;
+            }
+            cell[a] += step[a];
+            if cell[a] < 0 || cell[a] >= g.dims[a] as i64 {
+                return false;
+            }
+            t_next[a] += t_delta[a];
         }
-        if hit {
-            ph.pos += d * (t + used);
-            return true;
-        }
-        tau -= sigma * len;
-        t = t_exit;
-        if t >= t1 {
-            return false;
-        }
-        cell[a] += step[a];
-        if cell[a] < 0 || cell[a] >= g.dims[a] as i64 {
-            return false;
-        }
-        t_next[a] += t_delta[a];
     }
 }
 

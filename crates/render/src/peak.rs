@@ -172,7 +172,7 @@ impl PeakSpread {
     /// p_eff/p for the row at λ = ωfτ split into the part scattered last by the smooth
     /// remainder p − r⁺ and the part scattered last within the truncated peak r⁺ (their sum is
     /// [`Self::ratio`]): (smooth, peak).
-    #[inline]
+    #[inline(always)]
     pub fn ratios(&self, row: PeakRow, lambda: f64) -> (f64, f64) {
         // Both tables at the same cell (its place and weights found once).
         let (at, v) = cell(row, lambda);
@@ -184,7 +184,7 @@ impl PeakSpread {
 
     /// The part of p_eff/p scattered last within the truncated peak alone (the second of
     /// [`Self::ratios`]), for the row at λ = ωfτ.
-    #[inline]
+    #[inline(always)]
     pub fn last_in_peak(&self, row: PeakRow, lambda: f64) -> f64 {
         let (at, v) = cell(row, lambda);
         lookup_at(&self.tables[row.table].1, at, v, row.w1)
