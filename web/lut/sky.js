@@ -88,8 +88,15 @@ class LiveSky {
       if (!band || !(band.focus > 0) || !Number.isFinite(band.sun_deg) || !numbers(band.centre, 4) ||
           !numbers(band.sun_range_deg, 4) || !numbers(band.altitude_range_m, 2) ||
           !(band.antisolar > 0) || !(band.depth_deg_per_km >= 0) || !(band.horizon_deg > 0) ||
-          !numbers(band.antisolar_range, 2)) {
+          !numbers(band.antisolar_range, 2) || !(band.focus_growth >= 0) ||
+          !numbers(band.focus_growth_altitude_m, 2) ||
+          !(band.focus_growth_altitude_m[0] < band.focus_growth_altitude_m[1])) {
         throw new Error("manifest: parameterisation.sky_row_band is not the sky rows' band focus");
+      }
+      // The altitude nodes, where each slice's own rows are read (version 6).
+      const altNodes = manifest.parameterisation.altitude_nodes_m;
+      if (!numbers(altNodes, z.N_ALT)) {
+        throw new Error("manifest: parameterisation.altitude_nodes_m is not N_ALT altitudes");
       }
       const f = (x) => x.toExponential();
       defines += `#define SV_BAND_SUN ${f(band.sun_deg)}\n` +
@@ -100,7 +107,10 @@ class LiveSky {
         `#define SV_BAND_ANTISOLAR ${f(band.antisolar)}\n` +
         `#define SV_BAND_DEPTH ${f(band.depth_deg_per_km)}\n` +
         `#define SV_BAND_HORIZON ${f(band.horizon_deg)}\n` +
-        `#define SV_BAND_ANTISOLAR_RANGE vec2(${band.antisolar_range.map(f).join(", ")})\n`;
+        `#define SV_BAND_ANTISOLAR_RANGE vec2(${band.antisolar_range.map(f).join(", ")})\n` +
+        `#define SV_BAND_GROWTH ${f(band.focus_growth)}\n` +
+        `#define SV_BAND_GROWTH_ALTITUDE vec2(${band.focus_growth_altitude_m.map(f).join(", ")})\n` +
+        `#define SV_ALT_NODES float[${z.N_ALT}](${altNodes.map(f).join(", ")})\n`;
       // The azimuth columns' map aloft (version 5).
       const az = manifest.parameterisation.azimuth_aloft;
       if (!az || !(az.weight > 0 && az.weight <= 1) || !numbers(az.altitude_range_m, 2) ||

@@ -18,7 +18,9 @@
 // SV_BAND_SUN (sun_deg), SV_BAND_FOCUS (focus), SV_BAND_CENTRE (centre, a vec4),
 // SV_BAND_SUN_RANGE (sun_range_deg, a vec4), SV_BAND_ALTITUDE (altitude_range_m, a vec2),
 // SV_BAND_ANTISOLAR (antisolar), SV_BAND_DEPTH (depth_deg_per_km), SV_BAND_HORIZON
-// (horizon_deg), SV_BAND_ANTISOLAR_RANGE (antisolar_range, a vec2);
+// (horizon_deg), SV_BAND_ANTISOLAR_RANGE (antisolar_range, a vec2), SV_BAND_GROWTH
+// (focus_growth), SV_BAND_GROWTH_ALTITUDE (focus_growth_altitude_m, a vec2), and SV_ALT_NODES
+// (parameterisation.altitude_nodes_m, a float[SV_N_ALT] constructor);
 // from parameterisation.azimuth_aloft: SV_AZ_WEIGHT (weight) and SV_AZ_ALTITUDE
 // (altitude_range_m, a vec2), and SV_ALT_MAP (parameterisation.altitude_map, a vec3).
 //
@@ -201,6 +203,24 @@ float SkyViewSunUnwarp(float s, float b) {
   return e * asinh(s * sinh(b) / e) / b;
 }
 
+// The altitude nodes (m).
+const float sv_alt_nodes[SV_N_ALT] = SV_ALT_NODES;
+
+// The sun coordinate s (degrees) of the sun node coordinate t (degrees) at warp strength b: the
+// twilight warp s = e sinh(b t / e) / sinh(b) (the reader's sun_warp).
+float SkyViewSunWarp(float t, float b) {
+  if (b < 1e-6 || t <= SV_SUN_WARP_LO || t >= SV_SUN_WARP_HI) return t;
+  float e = t < 0.0 ? -SV_SUN_WARP_LO : SV_SUN_WARP_HI;
+  return e * sinh(b * t / e) / sinh(b);
+}
+
+// The sky rows' full focus strength at altitude h (the reader's band_focus_strength): grows
+// by SV_BAND_GROWTH between SV_BAND_GROWTH_ALTITUDE.
+float SkyViewBandStrength(float h) {
+  return SV_BAND_FOCUS *
+      (1.0 + SV_BAND_GROWTH * smoothstep(SV_BAND_GROWTH_ALTITUDE.x, SV_BAND_GROWTH_ALTITUDE.y, h));
+}
+
 // The sky rows' focus on the band above the earth's shadow (the reader's sky_row_focus): the
 // band's elevation c (degrees) and the focus strength k (per degree) with the sun sun_deg above
 // the observer's horizon at altitude h.
@@ -212,7 +232,7 @@ void SkyViewBandFocus(float sun_deg, float h, out float c, out float k) {
   float f = smoothstep(SV_BAND_SUN_RANGE.x, SV_BAND_SUN_RANGE.y, sun_deg) *
       (1.0 - smoothstep(SV_BAND_SUN_RANGE.z, SV_BAND_SUN_RANGE.w, sun_deg)) *
       (1.0 - smoothstep(SV_BAND_ALTITUDE.x, SV_BAND_ALTITUDE.y, h));
-  k = f * SV_BAND_FOCUS;
+  k = f * SkyViewBandStrength(h);
 }
 
 // The sky rows' coordinate x (0 at the zenith, 1 at the horizontal) of the elevation
@@ -240,10 +260,28 @@ float SkyViewBandRelative(float elevation_deg, float c, float k, float h, float 
   float w = max(c * SV_BAND_ANTISOLAR + delta, 0.5);
   float ratio = max(-cos_phi_a, SV_BAND_ANTISOLAR_RANGE.x) /
       max(-cos_phi_q, SV_BAND_ANTISOLAR_RANGE.x);
-  float fade = (k / SV_BAND_FOCUS) * (1.0 - smoothstep(2.0 * w, 4.0 * w, elevation_deg)) *
+  float fade = (k / SkyViewBandStrength(h)) * (1.0 - smoothstep(2.0 * w, 4.0 * w, elevation_deg)) *
       smoothstep(0.0, SV_BAND_HORIZON, elevation_deg) *
       smoothstep(SV_BAND_ANTISOLAR_RANGE.x, SV_BAND_ANTISOLAR_RANGE.y, -cos_phi_q);
   return elevation_deg + fade * (elevation_deg + delta) * (ratio - 1.0);
+}
+
+// The elevation (degrees) at which the slice of sun coordinate s_n and altitude h_n is read for
+// a query at elevation_deg with the focus (c, k) at the sun s_q and altitude h (the reader's
+// band_slice_elevation): affine about SV_BAND_DEPTH h below the horizontal, the band onto the
+// band, faded as SkyViewBandRelative.
+float SkyViewBandSlice(float elevation_deg, float c, float k, float h, float s_n, float h_n) {
+  float delta_q = SV_BAND_DEPTH * clamp(h / 1000.0, 0.0, 10.0);
+  float delta_n = SV_BAND_DEPTH * clamp(h_n / 1000.0, 0.0, 10.0);
+  float c_n, k_n;
+  SkyViewBandFocus(s_n, h_n, c_n, k_n);
+  float height_q = max(c * SV_BAND_ANTISOLAR + delta_q, 0.1);
+  float height_n = max(c_n * SV_BAND_ANTISOLAR + delta_n, 0.1);
+  float w = max(height_q, 0.5);
+  float fade = (k / SkyViewBandStrength(h)) * (1.0 - smoothstep(2.0 * w, 4.0 * w, elevation_deg)) *
+      smoothstep(0.0, SV_BAND_HORIZON, elevation_deg);
+  float mapped = (elevation_deg + delta_q) * height_n / height_q - delta_n;
+  return elevation_deg + fade * (mapped - elevation_deg);
 }
 
 // Altitude node k0 (and fraction tk) and sun node j0 (and tj) at altitude h with sun zenith
@@ -292,6 +330,28 @@ vec3 SkyViewFetchBand(sampler2D part, int k, int j, SvStencil sc, SvStencil rows
     v[m] = SkyViewMix(sv, w);
   }
   return SkyViewMix(sc, v);
+}
+
+// On the sky rows, the rows' stencil of each column m of sc in slice (altitude node k, sun node
+// j) for a query at elevation_deg with the focus (c, k_q) at the sun s_q, altitude h and
+// azimuth cos_phi from the sun (the reader's band_rows): false where neither the query nor the
+// slice has a focus (then the slice is read at the query's row).
+bool SkyViewBandRows(float elevation_deg, float c, float k_q, float h, float cos_phi,
+                     SvStencil sc, int k, int j, out SvStencil rows[4]) {
+  float h_n = sv_alt_nodes[k];
+  float b = SV_SUN_WARP * sqrt(clamp(h_n / (top_radius - bottom_radius), 0.0, 1.0));
+  float s_n = SkyViewSunWarp(SkyViewSunNodeDeg(j), b);
+  float c_n, k_n;
+  SkyViewBandFocus(s_n, h_n, c_n, k_n);
+  if (k_q < 1e-6 && k_n < 1e-6) return false;
+  float e_n = SkyViewBandSlice(elevation_deg, c, k_q, h, s_n, h_n);
+  for (int m = 0; m < 4; ++m) {
+    float x = float(min(sc.first + m, SV_N_AZ - 1)) / float(SV_N_AZ - 1);
+    float e = SkyViewBandRelative(e_n, c_n, k_n, h_n, cos_phi, cos(PI * x * x));
+    rows[m] = SkyViewStencil(SkyViewSkyRow(e, c_n, k_n) * float(SV_N_VIEW_SKY - 1), 0,
+                             SV_N_VIEW_SKY - 1, false, 0.0);
+  }
+  return true;
 }
 
 // The radiance towards an observer at altitude h (inside the atmosphere; rho as above) looking
@@ -350,25 +410,15 @@ vec3 SkyViewRadiance(float h, float rho, vec3 up, vec3 view_ray, vec3 sun_direct
     float w = 1.0 - exp(-(h - h_t) / SV_LIMB_SHADOW_SCALE);
     shift = dip + w * (gamma * cos(phi) + dip_t - dip);
   }
-  // On the sky rows in low twilight, each azimuth column's own rows (band_rows): the query's
-  // elevation moved to where it lies relative to the band at the column's azimuth.
-  bool band = false;
-  SvStencil band_rows[4];
+  // On the sky rows in low twilight, each slice's and azimuth column's own rows
+  // (SkyViewBandRows): the query's elevation moved to where it lies relative to the band at the
+  // slice's sun and altitude and at the column's azimuth.
+  float band_c = 0.0, band_k = 0.0, elevation = 0.0;
   if (segment == 0) {
     // The sky rows' focus (the reader's sky_row_focus) at the sun coordinate.
-    float c, k;
-    SkyViewBandFocus(degrees(asin(mu_s) + shift), h, c, k);
-    float elevation = degrees(asin(mu));
-    row = SkyViewSkyRow(elevation, c, k) * float(SV_N_VIEW_SKY - 1);
-    if (k > 0.0) {
-      band = true;
-      for (int m = 0; m < 4; ++m) {
-        float x = float(min(sc.first + m, SV_N_AZ - 1)) / float(SV_N_AZ - 1);
-        float e = SkyViewBandRelative(elevation, c, k, h, cos(phi), cos(PI * x * x));
-        band_rows[m] = SkyViewStencil(SkyViewSkyRow(e, c, k) * float(SV_N_VIEW_SKY - 1), 0,
-                                      SV_N_VIEW_SKY - 1, false, 0.0);
-      }
-    }
+    SkyViewBandFocus(degrees(asin(mu_s) + shift), h, band_c, band_k);
+    elevation = degrees(asin(mu));
+    row = SkyViewSkyRow(elevation, band_c, band_k) * float(SV_N_VIEW_SKY - 1);
   }
   int lo = segment == 0 ? 0 : segment == 1 ? SV_N_VIEW_SKY : SV_N_VIEW_UP;
   int hi = segment == 0 ? SV_N_VIEW_SKY - 1 : segment == 1 ? SV_N_VIEW_UP - 1 : SV_N_VIEW - 1;
@@ -397,7 +447,9 @@ vec3 SkyViewRadiance(float h, float rho, vec3 up, vec3 view_ray, vec3 sun_direct
       for (int s = 0; s < 4; ++s) {
         if (s >= ss.len) break;
         vec3 value;
-        if (band) {
+        SvStencil band_rows[4];
+        if (segment == 0 && SkyViewBandRows(elevation, band_c, band_k, h, cos(phi), sc,
+                                            sa.first + a, ss.first + s, band_rows)) {
           int k = sa.first + a, j = ss.first + s;
           value = part == 0 ? SkyViewFetchBand(skyview_rayleigh, k, j, sc, band_rows) :
                               SkyViewFetchBand(skyview_mie, k, j, sc, band_rows);

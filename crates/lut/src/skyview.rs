@@ -63,7 +63,10 @@ pub const LAYOUT: &str = "skyview";
 /// ([`band_relative_elevation`]), and the rows' focus is stronger ([`BAND_FOCUS`] 14); and
 /// the azimuth columns depend on the altitude, denser around 90° from the sun aloft
 /// ([`azimuth_coord`]); the altitude nodes denser near the top ([`altitude_coord`]).
-pub const SKYVIEW_VERSION: &str = "5";
+/// 6: the sky rows' focus grows from 1 to 5 km ([`band_focus_strength`]), and each (altitude,
+/// sun) slice is read at the query's elevation relative to the band moved to the slice's
+/// ([`band_slice_elevation`]) on the slice's own rows, instead of at the query's row.
+pub const SKYVIEW_VERSION: &str = "6";
 
 /// Altitude nodes: h_k the roots of [`altitude_coord`] (about (top − bottom) · (k / (N − 1))²,
 /// denser near the top).
@@ -337,7 +340,7 @@ fn smoothstep(a: f64, b: f64, x: f64) -> f64 {
 
 /// The sky rows' focus at sun `sun_deg` above the observer's horizon and altitude `h` (m): the
 /// band's elevation c ([`band_centre_deg`], degrees) and the focus strength k = f
-/// [`BAND_FOCUS`] (f the fades of [`BAND_SUN_RANGE`] and [`BAND_ALTITUDE_M`], smoothsteps
+/// [`band_focus_strength`] (f the fades of [`BAND_SUN_RANGE`] and [`BAND_ALTITUDE_M`], smoothsteps
 /// 3t² − 2t³; k = 0 by day, deep in twilight and aloft: the rows of version 3).
 pub fn sky_row_focus(sun_deg: f64, h: f64) -> (f64, f64) {
     let [s0, s1, s2, s3] = BAND_SUN_RANGE;
@@ -345,7 +348,56 @@ pub fn sky_row_focus(sun_deg: f64, h: f64) -> (f64, f64) {
     let f = smoothstep(s0, s1, sun_deg)
         * (1.0 - smoothstep(s2, s3, sun_deg))
         * (1.0 - smoothstep(h0, h1, h));
-    (band_centre_deg(sun_deg, h), f * BAND_FOCUS)
+    (band_centre_deg(sun_deg, h), f * band_focus_strength(h))
+}
+
+/// How much stronger the sky rows' focus is from [`BAND_FOCUS_GROWTH_M`] up
+/// ([`band_focus_strength`]).
+pub const BAND_FOCUS_GROWTH: f64 = 0.7;
+/// The altitudes (m) between which the focus grows (smoothstep) by [`BAND_FOCUS_GROWTH`].
+pub const BAND_FOCUS_GROWTH_M: [f64; 2] = [1_000.0, 5_000.0];
+
+/// The sky rows' full focus strength at altitude `h` (m): [`BAND_FOCUS`] (1 + g smoothstep(h₀,
+/// h₁, h)), g = [`BAND_FOCUS_GROWTH`], (h₀, h₁) = [`BAND_FOCUS_GROWTH_M`]. The band above the
+/// earth's shadow sharpens with the observer's altitude (measured on the `sky` product at
+/// 680 nm, sun 0.3–0.6° above the observer's horizon: ln L rises by 0.85 per degree of
+/// elevation at 1 km, 1.8 at 2.5 km, 2.5 at 5 km), so the rows there are denser at the band.
+pub fn band_focus_strength(h: f64) -> f64 {
+    let [h0, h1] = BAND_FOCUS_GROWTH_M;
+    BAND_FOCUS * (1.0 + BAND_FOCUS_GROWTH * smoothstep(h0, h1, h))
+}
+
+/// The elevation (degrees) at which a slice of sun node `sun_n` (its sun coordinate, degrees
+/// above the observer's horizon) and altitude node `h_n` (m) is read for a query at elevation
+/// `eps` (degrees) with the sun `sun_q` above the observer's horizon at altitude `h_q`: where
+/// `eps` lies relative to the band above the earth's shadow at the query's sun and altitude,
+/// moved to the same place relative to the band at the node's. The band's height above −δ
+/// (δ = [`BAND_DEPTH_PER_KM`] · h, [`band_relative_elevation`]) at any azimuth is
+/// (C + δ)(−cos φ), C = [`BAND_ANTISOLAR`] · [`band_centre_deg`], so the map is affine about
+/// −δ, e = (ε + δ_q)(C_n + δ_n)/(C_q + δ_q) − δ_n, whatever the azimuth: the shadow's floor
+/// (anchored at the horizon) and the band's rise (which climbs about 2° per degree the sun
+/// sinks) keep their places, so the interpolation over the sun and altitude nodes follows the
+/// band instead of crossing it (Lagrange interpolation of a function along a moving feature:
+/// the coordinate relative to the feature, as for the limb's sun coordinate, [`sun_shift`]).
+/// Faded to the identity as [`band_relative_elevation`]: with the query's focus, above 2–4
+/// times the band's height and below [`BAND_HORIZON_DEG`] (the horizontal, where the sky rows
+/// meet the limb rows).
+pub fn band_slice_elevation(eps: f64, sun_q: f64, h_q: f64, sun_n: f64, h_n: f64) -> f64 {
+    let (c_q, k_q) = sky_row_focus(sun_q, h_q);
+    if k_q < 1e-6 {
+        return eps;
+    }
+    let depth = |h: f64| BAND_DEPTH_PER_KM * (h / 1000.0).clamp(0.0, 10.0);
+    let (d_q, d_n) = (depth(h_q), depth(h_n));
+    // The band's height above −δ opposite the sun (at least 0.1°: the ratio's floor).
+    let height_q = (c_q * BAND_ANTISOLAR + d_q).max(0.1);
+    let height_n = (band_centre_deg(sun_n, h_n) * BAND_ANTISOLAR + d_n).max(0.1);
+    let w = height_q.max(0.5);
+    let fade = (k_q / band_focus_strength(h_q))
+        * (1.0 - smoothstep(2.0 * w, 4.0 * w, eps))
+        * smoothstep(0.0, BAND_HORIZON_DEG, eps);
+    let mapped = (eps + d_q) * height_n / height_q - d_n;
+    eps + fade * (mapped - eps)
 }
 
 /// The band's elevation (degrees) opposite the sun relative to [`band_centre_deg`] (the rows'
@@ -353,7 +405,11 @@ pub fn sky_row_focus(sun_deg: f64, h: f64) -> (f64, f64) {
 pub const BAND_ANTISOLAR: f64 = 1.0 / 0.85;
 /// How deep below the horizontal (degrees per km of the observer's altitude, up to 10 km) the
 /// point lies from which the band's elevation scales with −cos φ ([`band_relative_elevation`]).
-pub const BAND_DEPTH_PER_KM: f64 = 0.25;
+/// Measured on the `sky` product (680 nm, the elevation where ln L rises fastest at 150° and
+/// 180° from the sun): 1.2–1.8° at 2.5 km and 1.5–3° at 5 km with the sun 0.5° below to 1.5°
+/// above the observer's horizon (where the band is sharpest), ≈ 0.25–1° at 1 km (version 5:
+/// 0.25 per km).
+pub const BAND_DEPTH_PER_KM: f64 = 0.5;
 /// The −cos φ (φ the azimuth from the sun) over which [`band_relative_elevation`] fades in
 /// (smoothstep; 102° to 120°); below the first the columns' heights are held at it. Nearer 90°
 /// the band lies at or below the horizon and its height above −δ vanishes: a ratio of such
@@ -396,7 +452,7 @@ pub fn band_relative_elevation(
     let (lo, hi) = BAND_ANTISOLAR_RANGE;
     let ratio = (-cos_phi_a).max(lo) / (-cos_phi_q).max(lo);
     let w = height.max(0.5);
-    let fade = (k / BAND_FOCUS)
+    let fade = (k / band_focus_strength(h))
         * (1.0 - smoothstep(2.0 * w, 4.0 * w, eps))
         * smoothstep(lo, hi, -cos_phi_q);
     let taper = smoothstep(0.0, BAND_HORIZON_DEG, eps);
@@ -964,6 +1020,42 @@ impl<'a> SkyViewReader<'a> {
         }
     }
 
+    /// On the sky rows, the rows' stencil of each of the 4 columns of `sc` in slice (altitude
+    /// node `k`, sun node `j`) for a query at elevation `eps` (degrees), the sun `s_deg` above
+    /// the observer's horizon at altitude `h` (m), azimuth `cos_phi` (cosine) from the sun: the
+    /// query's place relative to the band above the earth's shadow moved to the slice's
+    /// ([`band_slice_elevation`]) and to the column's azimuth ([`band_relative_elevation`]), on
+    /// the slice's own rows ([`sky_row_focus`] at the node's sun and altitude). `None` where
+    /// neither the query nor the slice has a focus (the slice is read at the query's row).
+    #[allow(clippy::too_many_arguments)]
+    fn band_rows(
+        &self,
+        eps: f64,
+        s_deg: f64,
+        h: f64,
+        cos_phi: f64,
+        sc: &Stencil,
+        k: usize,
+        j: usize,
+    ) -> Option<[Stencil; 4]> {
+        let p = &self.bundle.params;
+        let thickness = p.top_radius - p.bottom_radius;
+        let h_n = altitude_node_m(k, thickness);
+        let s_n = sun_warp(sun_node_deg(j), warp_strength(h_n, thickness));
+        let (c_n, k_n) = sky_row_focus(s_n, h_n);
+        if sky_row_focus(s_deg, h).1 < 1e-6 && k_n < 1e-6 {
+            return None;
+        }
+        let e_n = band_slice_elevation(eps, s_deg, h, s_n, h_n);
+        let (lo, hi) = segment_rows(0);
+        Some(std::array::from_fn(|m| {
+            let a = (sc.first + m).min(N_AZ - 1);
+            let e = band_relative_elevation(e_n, s_n, h_n, cos_phi, azimuth_node(a, h).cos());
+            let y = sky_row(e, c_n, k_n) * (N_VIEW_SKY - 1) as f64;
+            Stencil::with_nodes(y, lo, hi, |i| i as f64, y, self.nodes[2])
+        }))
+    }
+
     /// The altitude and sun stencils at radius `r` (clamped to the atmosphere) and sun zenith
     /// cosine `mu_s`; `shift`: [`sun_shift`] of the query's ray.
     fn altitude_sun_stencils(&self, r: f64, mu_s: f64, shift: f64) -> (Stencil, Stencil) {
@@ -1011,21 +1103,13 @@ impl<'a> SkyViewReader<'a> {
         let (seg, row) = view_coord(theta, r, p.bottom_radius, s_deg);
         let (lo, hi) = segment_rows(seg);
         let sv = Stencil::with_nodes(row, lo, hi, |i| i as f64, row, self.nodes[2]);
-        // On the sky rows in low twilight each column's own row, relative to the band.
         let h = r - p.bottom_radius;
-        let band_rows: Option<[Stencil; 4]> =
-            (seg == 0 && sky_row_focus(s_deg, h).1 > 0.0).then(|| {
-                let eps = 90.0 - theta.to_degrees();
-                let (c, k) = sky_row_focus(s_deg, h);
-                std::array::from_fn(|m| {
-                    let a = (sc.first + m).min(N_AZ - 1);
-                    let e =
-                        band_relative_elevation(eps, s_deg, h, cos_phi, azimuth_node(a, h).cos());
-                    let y = sky_row(e, c, k) * (N_VIEW_SKY - 1) as f64;
-                    Stencil::with_nodes(y, lo, hi, |i| i as f64, y, self.nodes[2])
-                })
-            });
         let (sa, ss) = self.altitude_sun_stencils(r, mu_s, shift);
+        let band_rows = |k: usize, j: usize| {
+            (seg == 0)
+                .then(|| self.band_rows(90.0 - theta.to_degrees(), s_deg, h, cos_phi, &sc, k, j))
+                .flatten()
+        };
         let d = ray_length(r, mu, p.bottom_radius, p.top_radius, seg == 2);
         let mut out = [vec![0.0; n_c], vec![0.0; n_c]];
         let mut f = vec![0.0; n_c];
@@ -1041,7 +1125,7 @@ impl<'a> SkyViewReader<'a> {
                     let z = k * N_SUN + j;
                     // The slice's scale (the interpolation commutes with a common factor).
                     let scale = self.bundle.scale.texel(j, k, 0);
-                    if let Some(rows) = &band_rows {
+                    if let Some(rows) = &band_rows(k, j) {
                         self.fetch_band(part, z, &sc, rows, &mut f);
                         for c in 0..n_c {
                             by_sun[c][js] = f[c] * scale[part * n_c + c] as f64;
@@ -1257,7 +1341,7 @@ pub const STATED_ERRORS: &[(&str, &str, f64)] = &[
     ("rayleigh+mie", "sky radiance (sky product), sun >= 5 deg, view < 10 deg above the horizon, 20-100 km", 0.028),
     ("rayleigh+mie", "sky radiance (sky product), sun -6..5 deg, ground", 0.015),
     ("rayleigh+mie", "sky radiance (sky product), sun -6..5 deg, 0-20 km", 0.014),
-    ("rayleigh+mie", "sky radiance (sky product), sun -6..0 deg, 0-5 km, views within 10 deg of the horizon 150-180 deg from the sun (the earth's shadow rising; 680 nm at 5 km)", 0.054),
+    ("rayleigh+mie", "sky radiance (sky product), sun -6..0 deg, 0-5 km, views within 10 deg of the horizon 150-180 deg from the sun (the earth's shadow rising; 680 nm at 5 km)", 0.032),
     ("rayleigh+mie", "sky radiance (sky product), sun -6..5 deg, 20-100 km (the limb across the earth's shadow)", 0.070),
     ("rayleigh+mie", "sky radiance (sky product), sun -12..-6 deg, ground", 0.035),
     ("rayleigh+mie", "sky radiance (sky product), sun -12..-6 deg, 0-20 km", 0.032),
@@ -1331,8 +1415,11 @@ pub fn manifest(
                 "depth_deg_per_km": BAND_DEPTH_PER_KM,
                 "horizon_deg": BAND_HORIZON_DEG,
                 "antisolar_range": [BAND_ANTISOLAR_RANGE.0, BAND_ANTISOLAR_RANGE.1],
-                "azimuth": "on the sky rows where k > 0 each azimuth column a of the interpolation is read at its own elevation e_a (its own rows' stencil): delta = depth_deg_per_km clamp(h / 1000, 0, 10), w = max(c antisolar + delta, 0.5), ratio = max(-cos phi_a, antisolar_range[0]) / max(-cos phi, antisolar_range[0]), e_a = e + (k / focus) (1 - smoothstep(2 w, 4 w, e)) smoothstep(0, horizon_deg, e) smoothstep(antisolar_range[0], antisolar_range[1], -cos phi) (e + delta) (ratio - 1), e the query's elevation (deg), phi its azimuth from the sun, phi_a the column's; the band above the earth's shadow lies at (c antisolar + delta)(-cos phi) - delta",
-                "formula": "the sky rows' focus at the sun's elevation s above the observer's horizon (deg) and altitude h (m): u = max(sun_deg - s, 0), km = clamp(h / 1000, 0, 10), c = min((centre[0] + centre[1] km) u + (centre[2] + centre[3] km) u^2, 45) (deg), k = smoothstep(sun_range_deg[0], sun_range_deg[1], s) (1 - smoothstep(sun_range_deg[2], sun_range_deg[3], s)) (1 - smoothstep(altitude_range_m[0], altitude_range_m[1], h)) focus, smoothstep(a, b, x) = t^2 (3 - 2 t), t = clamp((x - a) / (b - a), 0, 1)",
+                "focus_growth": BAND_FOCUS_GROWTH,
+                "focus_growth_altitude_m": BAND_FOCUS_GROWTH_M,
+                "slices": "on the sky rows, each (altitude node k, sun node j) slice of the interpolation is read on its own rows (the focus (c_n, k_n) at the node's sun coordinate s_n = the warped s_j at h_k and its altitude h_n = altitude_nodes_m[k]) where the query's or the slice's k > 0: at e_n = e + f (1 - smoothstep(2 w, 4 w, e)) smoothstep(0, horizon_deg, e) ((e + delta_q) H_n / H_q - delta_n - e), H = max(c antisolar + delta, 0.1) at the query's (c, h) and the node's (band centre c at s_n, h_n), delta = depth_deg_per_km clamp(h / 1000, 0, 10), w = max(H_q, 0.5), f = k / (focus (1 + focus_growth smoothstep(focus_growth_altitude_m[0], focus_growth_altitude_m[1], h))) the query's fade (0 where k = 0), then each column at the azimuth formula's e_a with (c_n, k_n, h_n) in place of the query's",
+                "azimuth": "on the sky rows where k > 0 each azimuth column a of the interpolation is read at its own elevation e_a (its own rows' stencil): delta = depth_deg_per_km clamp(h / 1000, 0, 10), w = max(c antisolar + delta, 0.5), ratio = max(-cos phi_a, antisolar_range[0]) / max(-cos phi, antisolar_range[0]), e_a = e + (k / (focus (1 + focus_growth smoothstep(focus_growth_altitude_m[0], focus_growth_altitude_m[1], h)))) (1 - smoothstep(2 w, 4 w, e)) smoothstep(0, horizon_deg, e) smoothstep(antisolar_range[0], antisolar_range[1], -cos phi) (e + delta) (ratio - 1), e the query's elevation (deg), phi its azimuth from the sun, phi_a the column's; the band above the earth's shadow lies at (c antisolar + delta)(-cos phi) - delta",
+                "formula": "the sky rows' focus at the sun's elevation s above the observer's horizon (deg) and altitude h (m): u = max(sun_deg - s, 0), km = clamp(h / 1000, 0, 10), c = min((centre[0] + centre[1] km) u + (centre[2] + centre[3] km) u^2, 45) (deg), k = smoothstep(sun_range_deg[0], sun_range_deg[1], s) (1 - smoothstep(sun_range_deg[2], sun_range_deg[3], s)) (1 - smoothstep(altitude_range_m[0], altitude_range_m[1], h)) focus (1 + focus_growth smoothstep(focus_growth_altitude_m[0], focus_growth_altitude_m[1], h)), smoothstep(a, b, x) = t^2 (3 - 2 t), t = clamp((x - a) / (b - a), 0, 1)",
             },
             "view_rows": format!("rows 0..{} from the zenith to the horizontal: elevation = 90 (1 - x0)^2 (deg), x0 = x_c + sinh(A + x (B - A)) / k, x = row / {}, x_c = 1 - sqrt(c / 90), A = asinh(-k x_c), B = asinh(k (1 - x_c)), (c, k) the sky rows' focus (sky_row_band) at the sun's elevation above the observer's horizon (its node's s_j for a texel, the query's own for a query) and the observer's altitude; where k < 1e-6, x0 = x; inverse: x0 = 1 - sqrt(elevation / 90), x = (asinh(k (x0 - x_c)) - A) / (B - A) (or x0); rows {}..{} from the horizontal to the horizon: the ray's tangent radius r_t = r - (r - bottom_radius) y, y = 2 x^2 - x^3, x = (row - {}) / {} (inverse: x = 2/3 + (4/3) cos(acos(1 - 27 y / 16) / 3 - 2 pi / 3)), theta = pi/2 + acos(r_t / r); rows {}..{} from the horizon to the nadir: theta = theta_h + (pi - theta_h) x^2, x = (row - {}) / {}, theta_h = pi - asin(bottom_radius / r); r the observer's radius. Interpolation over the rows around the view stays within its segment (see interpolation)", N_VIEW_SKY - 1, N_VIEW_SKY - 1, N_VIEW_SKY, N_VIEW_UP - 1, N_VIEW_SKY, N_VIEW_LIMB - 1, N_VIEW_UP, N_VIEW - 1, N_VIEW_UP, N_VIEW_DOWN - 1),
             "azimuth_columns": format!("the column coordinate of the view's azimuth phi from the sun's (0..pi) at altitude h (m): column = (alpha sqrt(phi / pi) + (1 - alpha) sin(phi / 2)^2) {}, alpha = 1 - (1 - azimuth_aloft.weight) smoothstep(azimuth_aloft.altitude_range_m[0], azimuth_aloft.altitude_range_m[1], h) (smoothstep as in sky_row_band); a texel of altitude node k lies at the phi whose coordinate at h_k is its column (phi = pi (column / {})^2 where alpha = 1); a query's coordinate is taken at its own altitude", N_AZ - 1, N_AZ - 1),
@@ -1342,7 +1429,7 @@ pub fn manifest(
             },
             "slices": "slice = altitude_index * N_SUN + sun_index; file row = slice * N_VIEW + view_row; texture coordinates at texel centres: u = (column + 0.5) / N_AZ, v = (view_row + 0.5) / N_VIEW",
             "sizes": {"N_ALT": N_ALT, "N_SUN": N_SUN, "N_VIEW_SKY": N_VIEW_SKY, "N_VIEW_LIMB": N_VIEW_LIMB, "N_VIEW_DOWN": N_VIEW_DOWN, "N_AZ": N_AZ},
-            "interpolation": "per (altitude, sun, view row) node triple around the query: over the 4 azimuth columns around the query, then over the rows (times the slice's scale) (on the sky rows where the focus k > 0: over each column's own rows, sky_row_band.azimuth, then over the columns), the sun nodes and then the altitude nodes, each axis with up to 4 nodes around the query within its segment (the row segments: sky, limb, below the horizon; 3 nodes in a segment's first and last interval): the Lagrange polynomial through the nodes' logarithms at the query, exp'd and bounded by the nodes' range; abscissas: the node index (altitude: as altitude_node; rows: as view_rows; columns: as azimuth_columns), for the sun the node's s_j in degrees; where a node value is not positive, geometric between the interval's two nodes, a^(1-t) b^t, linear where a value is not positive",
+            "interpolation": "per (altitude, sun, view row) node triple around the query: over the 4 azimuth columns around the query, then over the rows (times the slice's scale) (on the sky rows where the query's or the slice's focus k > 0: over each column's own rows in the slice, sky_row_band.slices and sky_row_band.azimuth, then over the columns), the sun nodes and then the altitude nodes, each axis with up to 4 nodes around the query within its segment (the row segments: sky, limb, below the horizon; 3 nodes in a segment's first and last interval): the Lagrange polynomial through the nodes' logarithms at the query, exp'd and bounded by the nodes' range; abscissas: the node index (altitude: as altitude_node; rows: as view_rows; columns: as azimuth_columns), for the sun the node's s_j in degrees; where a node value is not positive, geometric between the interval's two nodes, a^(1-t) b^t, linear where a value is not positive",
             "radiance": "L = rayleigh * RayleighPhase(nu) + mie * aerosol_phase_function(nu), nu = cos of the angle between view and sun; RayleighPhase = 3/(16 pi) (1 + nu^2)",
             "observer": "inside the atmosphere; above its top, move the observer along the view to the top first (a view missing the atmosphere sees nothing); views below the horizon: the in-scattered light along the ray to the ground, without the ground's reflection",
             "transmittance_texture": [crate::param::TRANSMITTANCE_WIDTH, crate::param::TRANSMITTANCE_HEIGHT],
@@ -1539,6 +1626,44 @@ mod tests {
         );
         // At the ground after sunset (no band height): finite.
         assert!(band_relative_elevation(1.0, 3.0, 0.0, cos(150.0), cos(180.0)).is_finite());
+    }
+
+    #[test]
+    fn the_slices_are_read_relative_to_the_band() {
+        // The focus grows from 1 to 5 km and no further.
+        assert_eq!(band_focus_strength(0.0), BAND_FOCUS);
+        assert_eq!(band_focus_strength(1000.0), BAND_FOCUS);
+        let full = BAND_FOCUS * (1.0 + BAND_FOCUS_GROWTH);
+        assert!((band_focus_strength(5000.0) - full).abs() < 1e-12);
+        assert!((band_focus_strength(9000.0) - full).abs() < 1e-12);
+        // By day and aloft (no focus at the query): the identity.
+        assert_eq!(band_slice_elevation(3.0, 8.0, 0.0, 7.5, 0.0), 3.0);
+        assert_eq!(
+            band_slice_elevation(3.0, -1.0, 30_000.0, -1.2, 27_000.0),
+            3.0
+        );
+        // Low twilight at 5 km: the band opposite the sun at the query's sun and altitude
+        // lands on the band at the node's (and so at any azimuth: the map does not depend on
+        // it), the horizontal on itself, the zenith's region unchanged.
+        let (h, sun) = (5000.0, 0.0);
+        let band = |s: f64, h: f64| band_centre_deg(s, h) * BAND_ANTISOLAR;
+        for (s_n, h_n) in [
+            (-0.25, 5000.0),
+            (0.25, 5000.0),
+            (0.0, 3435.0),
+            (0.2, 6750.0),
+        ] {
+            let got = band_slice_elevation(band(sun, h), sun, h, s_n, h_n);
+            assert!(
+                (got - band(s_n, h_n)).abs() < 1e-9,
+                "{s_n} {h_n}: {got} vs {}",
+                band(s_n, h_n)
+            );
+        }
+        assert_eq!(band_slice_elevation(0.0, sun, h, -1.25, 5000.0), 0.0);
+        assert_eq!(band_slice_elevation(60.0, sun, h, -1.25, 5000.0), 60.0);
+        // At the ground after sunset (no band height): finite.
+        assert!(band_slice_elevation(1.0, 3.0, 0.0, 2.5, 0.0).is_finite());
     }
 
     #[test]
