@@ -611,12 +611,11 @@ fn shadow_rise_errors(f: &Fixture, reader: &SkyViewReader) -> (f64, String) {
 }
 
 /// The earth's shadow rising (see [`shadow_rise_errors`]). The target is 3 % (views
-/// within 10° of the horizon, sun down to −6°); it is NOT met at 5 km in the red, at the
-/// horizontal 150° from the sun: measured on 2026-12-06 (earth, standard, RGB, layout version
-/// 6) 3.13 % at 5 km, sun −1°, view zenith 90°, azimuth 150°, 680 nm (every other direction at
-/// 5 km ≤ 2.2 %; 2.2 % at 2.5 km, 1.4 % at 1 km, 0.4 % at the ground; version 5: 5.32 / 3.3 /
-/// 1.4 / 0.4 %, version 4: 16.4 / 5.7 / 1.9 / 0.8 %, version 3: 48 / 27 / 9.0 / 3.3 %), so the
-/// bound is the measured + ~12 %. The sunlit band above the antisolar horizon (lit by sunlight that
+/// within 10° of the horizon, sun down to −6°), met on the grid: measured on 2026-12-06 (earth,
+/// standard, RGB, layout version 7) 2.37 % at 2.5 km, sun −1°, view zenith 89.5°, azimuth
+/// 150°, 680 nm (version 6: 3.13 % at 5 km, sun −1°, the horizontal 150° from the sun, where
+/// the columns' map relative to the band was the identity; version 5: 5.32 % at 5 km, version
+/// 4: 16.4 %, version 3: 48 %), so the bound is the measured + ~12 %. The sunlit band above the antisolar horizon (lit by sunlight that
 /// grazed the ground) rises ≈ 2° per degree the sun sinks and is sharpest (a factor of 10 per
 /// degree at 5 km) just after sunset at the observer; the sky rows are denser around its
 /// elevation opposite the sun, the sun nodes 0.25° apart around sunset, and the azimuth
@@ -631,7 +630,7 @@ fn skyview_the_earth_shadow_rising_at_low_altitude() {
         "skyview earth's shadow rising, 0-5 km, sun -6..0 (target 3 %): {:.3} % {case}",
         100.0 * worst
     );
-    let measured = 0.0313;
+    let measured = 0.0237;
     assert!(worst > 0.0, "no sample");
     assert!(worst < measured * 1.12, "{worst} {case}");
 }

@@ -261,9 +261,25 @@ float SkyViewBandRelative(float elevation_deg, float c, float k, float h, float 
   float ratio = max(-cos_phi_a, SV_BAND_ANTISOLAR_RANGE.x) /
       max(-cos_phi_q, SV_BAND_ANTISOLAR_RANGE.x);
   float fade = (k / SkyViewBandStrength(h)) * (1.0 - smoothstep(2.0 * w, 4.0 * w, elevation_deg)) *
-      smoothstep(0.0, SV_BAND_HORIZON, elevation_deg) *
       smoothstep(SV_BAND_ANTISOLAR_RANGE.x, SV_BAND_ANTISOLAR_RANGE.y, -cos_phi_q);
-  return elevation_deg + fade * (elevation_deg + delta) * (ratio - 1.0);
+  // From -delta up, through the horizontal into the limb rows (the reader's band_horizon_taper;
+  // the displacement vanishes at -delta).
+  float taper = elevation_deg >= -delta ? 1.0 : 0.0;
+  return elevation_deg + taper * fade * (elevation_deg + delta) * (ratio - 1.0);
+}
+
+// The row stencil of elevation_deg (degrees) for an observer at altitude h on rows of focus
+// (c, k) (the reader's band_row): the sky rows above the horizontal, below it the limb rows at
+// the observer's altitude (the tangent point's depth 2 r sin^2(e/2) / h).
+SvStencil SkyViewBandRowStencil(float elevation_deg, float h, float c, float k) {
+  if (elevation_deg >= 0.0 || h <= 0.0) {
+    return SkyViewStencil(SkyViewSkyRow(elevation_deg, c, k) * float(SV_N_VIEW_SKY - 1), 0,
+                          SV_N_VIEW_SKY - 1, false, 0.0);
+  }
+  float s = sin(0.5 * radians(elevation_deg));
+  float y = clamp(2.0 * (bottom_radius + h) * s * s / h, 0.0, 1.0);
+  return SkyViewStencil(float(SV_N_VIEW_SKY) + SkyViewLimbRow(y) * float(SV_N_VIEW_LIMB - 1),
+                        SV_N_VIEW_SKY, SV_N_VIEW_UP - 1, false, 0.0);
 }
 
 // The elevation (degrees) at which the slice of sun coordinate s_n and altitude h_n is read for
@@ -348,8 +364,7 @@ bool SkyViewBandRows(float elevation_deg, float c, float k_q, float h, float cos
   for (int m = 0; m < 4; ++m) {
     float x = float(min(sc.first + m, SV_N_AZ - 1)) / float(SV_N_AZ - 1);
     float e = SkyViewBandRelative(e_n, c_n, k_n, h_n, cos_phi, cos(PI * x * x));
-    rows[m] = SkyViewStencil(SkyViewSkyRow(e, c_n, k_n) * float(SV_N_VIEW_SKY - 1), 0,
-                             SV_N_VIEW_SKY - 1, false, 0.0);
+    rows[m] = SkyViewBandRowStencil(e, h, c_n, k_n);
   }
   return true;
 }
@@ -414,12 +429,12 @@ vec3 SkyViewRadiance(float h, float rho, vec3 up, vec3 view_ray, vec3 sun_direct
   // (SkyViewBandRows): the query's elevation moved to where it lies relative to the band at the
   // slice's sun and altitude and at the column's azimuth.
   float band_c = 0.0, band_k = 0.0, elevation = 0.0;
-  if (segment == 0) {
+  if (segment < 2) {
     // The sky rows' focus (the reader's sky_row_focus) at the sun coordinate.
     SkyViewBandFocus(degrees(asin(mu_s) + shift), h, band_c, band_k);
     elevation = degrees(asin(mu));
-    row = SkyViewSkyRow(elevation, band_c, band_k) * float(SV_N_VIEW_SKY - 1);
   }
+  if (segment == 0) row = SkyViewSkyRow(elevation, band_c, band_k) * float(SV_N_VIEW_SKY - 1);
   int lo = segment == 0 ? 0 : segment == 1 ? SV_N_VIEW_SKY : SV_N_VIEW_UP;
   int hi = segment == 0 ? SV_N_VIEW_SKY - 1 : segment == 1 ? SV_N_VIEW_UP - 1 : SV_N_VIEW - 1;
   SvStencil sv = SkyViewStencil(row, lo, hi, false, 0.0);
@@ -448,7 +463,7 @@ vec3 SkyViewRadiance(float h, float rho, vec3 up, vec3 view_ray, vec3 sun_direct
         if (s >= ss.len) break;
         vec3 value;
         SvStencil band_rows[4];
-        if (segment == 0 && SkyViewBandRows(elevation, band_c, band_k, h, cos(phi), sc,
+        if (segment < 2 && SkyViewBandRows(elevation, band_c, band_k, h, cos(phi), sc,
                                             sa.first + a, ss.first + s, band_rows)) {
           int k = sa.first + a, j = ss.first + s;
           value = part == 0 ? SkyViewFetchBand(skyview_rayleigh, k, j, sc, band_rows) :

@@ -66,7 +66,10 @@ pub const LAYOUT: &str = "skyview";
 /// 6: the sky rows' focus grows from 1 to 5 km ([`band_focus_strength`]), and each (altitude,
 /// sun) slice is read at the query's elevation relative to the band moved to the slice's
 /// ([`band_slice_elevation`]) on the slice's own rows, instead of at the query's row.
-pub const SKYVIEW_VERSION: &str = "6";
+/// 7: the columns' map relative to the band acts from δ below the horizontal up, through the
+/// horizontal (version 6: faded to the identity below 0.5°), a column moved across the
+/// horizontal read on the other segment's rows ([`band_horizon_taper`], [`band_row`]).
+pub const SKYVIEW_VERSION: &str = "7";
 
 /// Altitude nodes: h_k the roots of [`altitude_coord`] (about (top − bottom) · (k / (N − 1))²,
 /// denser near the top).
@@ -455,8 +458,40 @@ pub fn band_relative_elevation(
     let fade = (k / band_focus_strength(h))
         * (1.0 - smoothstep(2.0 * w, 4.0 * w, eps))
         * smoothstep(lo, hi, -cos_phi_q);
-    let taper = smoothstep(0.0, BAND_HORIZON_DEG, eps);
-    eps + taper * fade * (eps + delta) * (ratio - 1.0)
+    eps + band_horizon_taper(eps, delta) * fade * (eps + delta) * (ratio - 1.0)
+}
+
+/// Where the columns' map of [`band_relative_elevation`] acts near the horizontal: from −δ
+/// (below the horizontal, where its displacement (ε + δ)(ratio − 1) vanishes, so the map is
+/// continuous there) up, through the horizontal into the limb rows. Seen from a few km in
+/// low twilight the band's edge crosses the horizontal at the azimuth where −cos φ =
+/// δ/(c₁₈₀ + δ) (about 130° from the sun at 5 km with the sun 0.8° above the observer's
+/// horizon), a corner of ln L in the azimuth that the columns (17° apart there) cannot follow
+/// at one elevation; read relative to the band they do. Below −δ, the identity.
+pub fn band_horizon_taper(eps: f64, delta: f64) -> f64 {
+    if eps >= -delta {
+        1.0
+    } else {
+        0.0
+    }
+}
+
+/// The row segment (0 the sky rows, 1 the limb rows) and continuous row of elevation `e`
+/// (degrees) for an observer at altitude `h` (m) on rows of focus (c, k) ([`sky_row_focus`]):
+/// where the columns' map ([`band_relative_elevation`]) moves an elevation across the
+/// horizontal, a column is read on the other segment's rows (the limb's at the query's
+/// altitude, as the reader reads every altitude node's limb rows at the query's depth).
+pub fn band_row(e: f64, h: f64, bottom: f64, c: f64, k: f64) -> (usize, f64) {
+    if e >= 0.0 || h <= 0.0 {
+        return (0, sky_row(e, c, k) * (N_VIEW_SKY - 1) as f64);
+    }
+    // The ray's tangent point's depth below the observer: r − r_t = 2 r sin²(e/2).
+    let half = 0.5 * e.to_radians();
+    let y = (2.0 * (bottom + h) * half.sin() * half.sin() / h).clamp(0.0, 1.0);
+    (
+        1,
+        N_VIEW_SKY as f64 + limb_row(y) * (N_VIEW_LIMB - 1) as f64,
+    )
 }
 
 /// Elevation (degrees) of the sky rows' coordinate x ∈ [0, 1] (0 the zenith, 1 the horizontal)
@@ -1047,11 +1082,11 @@ impl<'a> SkyViewReader<'a> {
             return None;
         }
         let e_n = band_slice_elevation(eps, s_deg, h, s_n, h_n);
-        let (lo, hi) = segment_rows(0);
         Some(std::array::from_fn(|m| {
             let a = (sc.first + m).min(N_AZ - 1);
             let e = band_relative_elevation(e_n, s_n, h_n, cos_phi, azimuth_node(a, h).cos());
-            let y = sky_row(e, c_n, k_n) * (N_VIEW_SKY - 1) as f64;
+            let (seg, y) = band_row(e, h, p.bottom_radius, c_n, k_n);
+            let (lo, hi) = segment_rows(seg);
             Stencil::with_nodes(y, lo, hi, |i| i as f64, y, self.nodes[2])
         }))
     }
@@ -1106,7 +1141,7 @@ impl<'a> SkyViewReader<'a> {
         let h = r - p.bottom_radius;
         let (sa, ss) = self.altitude_sun_stencils(r, mu_s, shift);
         let band_rows = |k: usize, j: usize| {
-            (seg == 0)
+            (seg < 2)
                 .then(|| self.band_rows(90.0 - theta.to_degrees(), s_deg, h, cos_phi, &sc, k, j))
                 .flatten()
         };
@@ -1341,7 +1376,7 @@ pub const STATED_ERRORS: &[(&str, &str, f64)] = &[
     ("rayleigh+mie", "sky radiance (sky product), sun >= 5 deg, view < 10 deg above the horizon, 20-100 km", 0.028),
     ("rayleigh+mie", "sky radiance (sky product), sun -6..5 deg, ground", 0.015),
     ("rayleigh+mie", "sky radiance (sky product), sun -6..5 deg, 0-20 km", 0.014),
-    ("rayleigh+mie", "sky radiance (sky product), sun -6..0 deg, 0-5 km, views within 10 deg of the horizon 150-180 deg from the sun (the earth's shadow rising; 680 nm at 5 km)", 0.032),
+    ("rayleigh+mie", "sky radiance (sky product), sun -6..0 deg, 0-5 km, views within 10 deg of the horizon 150-180 deg from the sun (the earth's shadow rising; 680 nm at 2.5 km)", 0.024),
     ("rayleigh+mie", "sky radiance (sky product), sun -6..5 deg, 20-100 km (the limb across the earth's shadow)", 0.070),
     ("rayleigh+mie", "sky radiance (sky product), sun -12..-6 deg, ground", 0.035),
     ("rayleigh+mie", "sky radiance (sky product), sun -12..-6 deg, 0-20 km", 0.032),
@@ -1418,7 +1453,7 @@ pub fn manifest(
                 "focus_growth": BAND_FOCUS_GROWTH,
                 "focus_growth_altitude_m": BAND_FOCUS_GROWTH_M,
                 "slices": "on the sky rows, each (altitude node k, sun node j) slice of the interpolation is read on its own rows (the focus (c_n, k_n) at the node's sun coordinate s_n = the warped s_j at h_k and its altitude h_n = altitude_nodes_m[k]) where the query's or the slice's k > 0: at e_n = e + f (1 - smoothstep(2 w, 4 w, e)) smoothstep(0, horizon_deg, e) ((e + delta_q) H_n / H_q - delta_n - e), H = max(c antisolar + delta, 0.1) at the query's (c, h) and the node's (band centre c at s_n, h_n), delta = depth_deg_per_km clamp(h / 1000, 0, 10), w = max(H_q, 0.5), f = k / (focus (1 + focus_growth smoothstep(focus_growth_altitude_m[0], focus_growth_altitude_m[1], h))) the query's fade (0 where k = 0), then each column at the azimuth formula's e_a with (c_n, k_n, h_n) in place of the query's",
-                "azimuth": "on the sky rows where k > 0 each azimuth column a of the interpolation is read at its own elevation e_a (its own rows' stencil): delta = depth_deg_per_km clamp(h / 1000, 0, 10), w = max(c antisolar + delta, 0.5), ratio = max(-cos phi_a, antisolar_range[0]) / max(-cos phi, antisolar_range[0]), e_a = e + (k / (focus (1 + focus_growth smoothstep(focus_growth_altitude_m[0], focus_growth_altitude_m[1], h)))) (1 - smoothstep(2 w, 4 w, e)) smoothstep(0, horizon_deg, e) smoothstep(antisolar_range[0], antisolar_range[1], -cos phi) (e + delta) (ratio - 1), e the query's elevation (deg), phi its azimuth from the sun, phi_a the column's; the band above the earth's shadow lies at (c antisolar + delta)(-cos phi) - delta",
+                "azimuth": "on the sky rows and the limb rows where k > 0 each azimuth column a of the interpolation is read at its own elevation e_a (its own rows' stencil): delta = depth_deg_per_km clamp(h / 1000, 0, 10), w = max(c antisolar + delta, 0.5), ratio = max(-cos phi_a, antisolar_range[0]) / max(-cos phi, antisolar_range[0]), e_a = e + (k / (focus (1 + focus_growth smoothstep(focus_growth_altitude_m[0], focus_growth_altitude_m[1], h)))) (1 - smoothstep(2 w, 4 w, e)) step(-delta, e) smoothstep(antisolar_range[0], antisolar_range[1], -cos phi) (e + delta) (ratio - 1) (version 7: from -delta up through the horizontal, where version 6 had smoothstep(0, horizon_deg, e)), e the query's elevation (deg), phi its azimuth from the sun, phi_a the column's; where e_a >= 0 the column is read on the sky rows, below on the limb rows at the query's altitude h (depth y = 2 r sin^2(e_a / 2) / h); the band above the earth's shadow lies at (c antisolar + delta)(-cos phi) - delta",
                 "formula": "the sky rows' focus at the sun's elevation s above the observer's horizon (deg) and altitude h (m): u = max(sun_deg - s, 0), km = clamp(h / 1000, 0, 10), c = min((centre[0] + centre[1] km) u + (centre[2] + centre[3] km) u^2, 45) (deg), k = smoothstep(sun_range_deg[0], sun_range_deg[1], s) (1 - smoothstep(sun_range_deg[2], sun_range_deg[3], s)) (1 - smoothstep(altitude_range_m[0], altitude_range_m[1], h)) focus (1 + focus_growth smoothstep(focus_growth_altitude_m[0], focus_growth_altitude_m[1], h)), smoothstep(a, b, x) = t^2 (3 - 2 t), t = clamp((x - a) / (b - a), 0, 1)",
             },
             "view_rows": format!("rows 0..{} from the zenith to the horizontal: elevation = 90 (1 - x0)^2 (deg), x0 = x_c + sinh(A + x (B - A)) / k, x = row / {}, x_c = 1 - sqrt(c / 90), A = asinh(-k x_c), B = asinh(k (1 - x_c)), (c, k) the sky rows' focus (sky_row_band) at the sun's elevation above the observer's horizon (its node's s_j for a texel, the query's own for a query) and the observer's altitude; where k < 1e-6, x0 = x; inverse: x0 = 1 - sqrt(elevation / 90), x = (asinh(k (x0 - x_c)) - A) / (B - A) (or x0); rows {}..{} from the horizontal to the horizon: the ray's tangent radius r_t = r - (r - bottom_radius) y, y = 2 x^2 - x^3, x = (row - {}) / {} (inverse: x = 2/3 + (4/3) cos(acos(1 - 27 y / 16) / 3 - 2 pi / 3)), theta = pi/2 + acos(r_t / r); rows {}..{} from the horizon to the nadir: theta = theta_h + (pi - theta_h) x^2, x = (row - {}) / {}, theta_h = pi - asin(bottom_radius / r); r the observer's radius. Interpolation over the rows around the view stays within its segment (see interpolation)", N_VIEW_SKY - 1, N_VIEW_SKY - 1, N_VIEW_SKY, N_VIEW_UP - 1, N_VIEW_SKY, N_VIEW_LIMB - 1, N_VIEW_UP, N_VIEW - 1, N_VIEW_UP, N_VIEW_DOWN - 1),
@@ -1616,10 +1651,27 @@ mod tests {
                 band(phi_a)
             );
         }
+        // Through the horizontal down to −δ (where the band's edge crosses the horizontal);
+        // −δ onto itself, the identity below it.
+        for phi_a in [128.0, 180.0] {
+            let got = band_relative_elevation(0.0, sun, h, cos(150.0), cos(phi_a));
+            let want = delta * (-cos(phi_a) / -cos(150.0) - 1.0);
+            assert!((got - want).abs() < 1e-9, "{phi_a}: {got} vs {want}");
+        }
+        let floor = band_relative_elevation(-delta, sun, h, cos(150.0), cos(128.0));
+        assert!((floor + delta).abs() < 1e-12, "{floor}");
         assert_eq!(
-            band_relative_elevation(0.0, sun, h, cos(150.0), cos(180.0)),
-            0.0
+            band_relative_elevation(-delta - 0.1, sun, h, cos(150.0), cos(128.0)),
+            -delta - 0.1
         );
+        // A column moved below the horizontal is read on the limb rows at the query's
+        // altitude, continuously with the sky rows at the horizontal.
+        let (seg, row) = band_row(-0.5, h, R, 0.0, 0.0);
+        assert_eq!(seg, 1);
+        let (_, lr) = view_coord(0.5 * PI + 0.5f64.to_radians(), R + h, R, sun);
+        assert!((row - lr).abs() < 1e-9, "{row} vs {lr}");
+        assert_eq!(band_row(0.0, h, R, 0.0, 0.0), (0, (N_VIEW_SKY - 1) as f64));
+        assert!((band_row(-1e-9, h, R, 0.0, 0.0).1 - N_VIEW_SKY as f64).abs() < 1e-6);
         assert_eq!(
             band_relative_elevation(60.0, sun, h, cos(150.0), cos(180.0)),
             60.0
