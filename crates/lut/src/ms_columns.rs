@@ -2,8 +2,9 @@
 //!
 //! Along one view ray the texels of a sun node differ only in the sun's azimuth φ. Their
 //! single scattering carries the sharp structure (the aureole, the earth's shadow on the ray);
-//! the multiple-scattering source is smooth in φ: the precise table holds it on a few azimuth
-//! nodes, linearly interpolated (Bruneton & Neyret 2008, §4, the 4-D table J(r, μ, μs, ν)).
+//! the multiple-scattering source varies slowly with φ: the precise table holds it on a few
+//! azimuth nodes, linearly interpolated (Bruneton & Neyret 2008, §4, the 4-D table
+//! J(r, μ, μs, ν)).
 //! So its integral along the ray is computed on every [`STEP`]-th column and the last, and
 //! interpolated to the others by the Lagrange polynomial through the 4 nearest computed columns
 //! in ln J over φ (exact for the exponential of a cubic in φ; J is even in φ about the sun and
@@ -31,8 +32,7 @@ pub fn computed(a: usize, n: usize) -> bool {
 }
 
 /// How an interpolated column is formed from the computed ones: up to 4 computed columns
-/// (`nodes[..len]`) and their Lagrange weights over φ, and the two around it (`lo`, `hi`) with
-/// the linear weight `t` of `hi`.
+/// (`nodes[..len]`) and their Lagrange weights over φ, and the two around it (`lo`, `hi`).
 #[derive(Debug, Clone, Copy)]
 pub struct Stencil {
     pub nodes: [usize; 4],
@@ -40,7 +40,6 @@ pub struct Stencil {
     pub w: [f64; 4],
     pub lo: usize,
     pub hi: usize,
-    pub t: f64,
 }
 
 /// The stencils of the columns at azimuths `phis` (increasing): `None` where computed.
@@ -71,14 +70,12 @@ pub fn stencils(phis: &[f64]) -> Vec<Option<Stencil>> {
                 }
                 w[i] = p;
             }
-            let t = (x - phis[lo]) / (phis[hi] - phis[lo]);
             Some(Stencil {
                 nodes,
                 len,
                 w,
                 lo,
                 hi,
-                t,
             })
         })
         .collect()
@@ -131,6 +128,8 @@ mod tests {
             .collect();
         let f = |x: f64| (0.3 - 0.8 * x + 0.25 * x * x - 0.04 * x * x * x).exp();
         let st = stencils(&phis);
+        let st9 = st[9].expect("column 9 is interpolated");
+        let st11 = st[11].expect("column 11 is interpolated");
         let mut n = 0;
         for (a, s) in st.iter().enumerate() {
             let Some(s) = s else {
@@ -143,6 +142,13 @@ mod tests {
             assert!((y / f(phis[a]) - 1.0).abs() < 1e-12, "column {a}");
         }
         assert_eq!(n, 9);
+        // Smooth: rough only by its slope between the two columns around (< 0.3 here).
+        let (_, rough) = interpolate(&st9, |c| f(phis[c])).expect("positive");
+        assert!(rough < 0.3, "{rough}");
+        // A step of 10 % between two computed columns beyond the interval: rough.
+        let step = |c: usize| if c >= 14 { 0.9 } else { 1.0 };
+        let (_, rough) = interpolate(&st11, step).expect("positive");
+        assert!(rough > 0.15, "{rough}");
         // A node at zero: computed instead.
         let s = st[1].expect("column 1 is interpolated");
         assert!(interpolate(&s, |c| if c == 0 { 0.0 } else { 1.0 }).is_none());
