@@ -9,9 +9,9 @@
 //! interpolated to the others by the Lagrange polynomial through the 4 nearest computed columns
 //! in ln J over φ (exact for the exponential of a cubic in φ; J is even in φ about the sun and
 //! the antisun, so near either end it is nearly the exponential of a quadratic). It is not
-//! smooth everywhere: where the sun of some of the ray's points crosses the table's last sun
-//! zenith, or the limb's sun coordinate moves with φ, the integral has kinks and steps between
-//! columns. So a column is computed after all where its computed neighbours say the
+//! smooth everywhere: aloft in twilight the integral has kinks and steps between columns (a
+//! limb texel lit by multiple scattering alone falls 10× between two), likely where the sun of
+//! some of the ray's points crosses the table's last sun zenith. So a column is computed after all where its computed neighbours say the
 //! interpolation may be off ([`roughness`]: the change of ln J between the two columns around
 //! it, or twice the largest second difference of ln J over the 4, times the multiple
 //! scattering's share of the texel, above [`TOLERANCE`]), or where a node's value is not
