@@ -35,6 +35,7 @@ use skybake_physics::atmosphere::transmittance::{
 };
 use skybake_physics::phase::Phase;
 
+use crate::ms_columns;
 use crate::param::{self, AtmosphereParameters, *};
 
 /// Texture values are radiometric quantities in milliwatts (mW m⁻² sr⁻¹ nm⁻¹, mW m⁻² nm⁻¹):
@@ -392,6 +393,7 @@ fn irradiance_texture(
             radii: &radii,
             width: IRRADIANCE_WIDTH,
             mu_s: &|_, i| mu_s[i],
+            ms_columns: false,
         },
         idx,
         e0,
@@ -417,6 +419,9 @@ pub(crate) struct IrradianceGrid<'a> {
     pub radii: &'a [f64],
     pub width: usize,
     pub mu_s: &'a (dyn Fn(usize, usize) -> f64 + Sync),
+    /// Whether each direction's multiple scattering is computed on every other quadrature
+    /// azimuth and interpolated to the others where smooth ([`FamilyScratch::integrate_columns`]).
+    pub ms_columns: bool,
 }
 
 /// The sky's irradiance on a horizontal surface at each radius of `radii` (rows) and the
@@ -463,7 +468,14 @@ pub(crate) fn irradiance_grid(
                         nus.push(nu);
                     }
                 }
-                scratch.integrate();
+                if grid.ms_columns {
+                    let phis: Vec<f64> = (0..n_phi)
+                        .map(|b| std::f64::consts::PI * (b as f64 + 0.5) / n_phi as f64)
+                        .collect();
+                    scratch.integrate_columns(&phis);
+                } else {
+                    scratch.integrate();
+                }
                 for i in 0..width {
                     for b in 0..n_phi {
                         let nu = nus[i * n_phi + b];
@@ -546,6 +558,12 @@ pub(crate) struct FamilyScratch<'a> {
     /// `[λ][sun]`: the single-scattering sums of [`TexelSums`].
     rayleigh: Vec<f64>,
     mie: Vec<f64>,
+    /// The suns whose multiple scattering [`texel_sums`] computes (all when empty), and their
+    /// zenith cosines at the current point and view–sun cosines, gathered.
+    ms_suns: Vec<usize>,
+    ms_mu_s_p: Vec<f64>,
+    ms_nu: Vec<f64>,
+    ms_j: Vec<f64>,
 }
 
 impl<'a> FamilyScratch<'a> {
@@ -571,6 +589,10 @@ impl<'a> FamilyScratch<'a> {
             rayleigh: Vec::new(),
             mie: Vec::new(),
             multiple: Vec::new(),
+            ms_suns: Vec::new(),
+            ms_mu_s_p: Vec::new(),
+            ms_nu: Vec::new(),
+            ms_j: Vec::new(),
         }
     }
 
@@ -612,6 +634,73 @@ impl<'a> FamilyScratch<'a> {
 
     /// Integrates the prepared ray for every sun pushed.
     pub(crate) fn integrate(&mut self) {
+        self.ms_suns.clear();
+        self.integrate_sums();
+    }
+
+    /// [`Self::integrate`] for suns pushed as runs of `phis.len()` azimuth columns (sun `t` at
+    /// azimuth `phis[t % phis.len()]` from the sun, increasing): the multiple scattering on the
+    /// columns [`ms_columns`] computes, interpolated to the others where its roughness times
+    /// its share of the value (single Rayleigh without its phase function plus multiple
+    /// scattering over the Rayleigh phase function, as the `skyview` texels store it; of a
+    /// radiance that adds single Mie, at least its share) is within [`ms_columns::TOLERANCE`],
+    /// computed at the rest. The computed suns' sums are [`Self::integrate`]'s, bit for bit.
+    pub(crate) fn integrate_columns(&mut self, phis: &[f64]) {
+        let n_az = phis.len();
+        let n_t = self.mu_s.len();
+        if n_az < 2 * ms_columns::STEP + 2 || n_t % n_az != 0 {
+            return self.integrate();
+        }
+        self.ms_suns.clear();
+        self.ms_suns
+            .extend((0..n_t).filter(|&t| ms_columns::computed(t % n_az, n_az)));
+        self.integrate_sums();
+        let n_l = self.n_l;
+        let stencils = ms_columns::stencils(phis);
+        let mut refine = Vec::new();
+        let mut values = Vec::with_capacity(n_l);
+        for t in 0..n_t {
+            let Some(s) = &stencils[t % n_az] else {
+                continue;
+            };
+            let base = t - t % n_az;
+            let p_r = param::rayleigh_phase(self.nu[t]);
+            let mut ok = true;
+            values.clear();
+            for l in 0..n_l {
+                let ms = &self.multiple;
+                let Some((v, rough)) = ms_columns::interpolate(s, |c| ms[(base + c) * n_l + l])
+                else {
+                    ok = false;
+                    break;
+                };
+                let single = self.rayleigh[l * n_t + t];
+                let share = (v / p_r) / (single + v / p_r);
+                if rough * share > ms_columns::TOLERANCE {
+                    ok = false;
+                    break;
+                }
+                values.push(v);
+            }
+            if ok {
+                self.multiple[t * n_l..(t + 1) * n_l].copy_from_slice(&values);
+            } else {
+                refine.push(t);
+            }
+        }
+        if !refine.is_empty() {
+            self.ms_suns = refine;
+            for &t in &self.ms_suns {
+                self.multiple[t * n_l..(t + 1) * n_l].fill(0.0);
+            }
+            multiple_sums(self);
+        }
+        self.ms_suns.clear();
+    }
+
+    /// The sums of [`Self::integrate`], the multiple scattering for the suns `ms_suns` (all
+    /// when empty).
+    fn integrate_sums(&mut self) {
         let n = self.mu_s.len() * self.n_l;
         for v in [&mut self.rayleigh, &mut self.mie, &mut self.multiple] {
             v.clear();
@@ -657,31 +746,37 @@ skybake_physics::simd_dispatch_avx512! {
             let n_l = scratch.n_l;
             let r = scratch.r;
             let n_t = scratch.mu_s.len();
-            for (k, p) in scratch.points.iter().enumerate() {
+            for k in 0..scratch.points.len() {
+                let p = scratch.points[k];
                 for ((o, &mu_s), &nu) in scratch.mu_s_p.iter_mut().zip(&scratch.mu_s).zip(&scratch.nu) {
                     *o = ((r * mu_s + p.t * nu) / p.r).clamp(-1.0, 1.0);
+                }
+                if !scratch.ms_suns.is_empty() {
+                    multiple_at_point(scratch, k);
                 }
                 let wt = &scratch.weighted_t[k * n_l..(k + 1) * n_l];
                 // The point's day rows, if a sun may read them (none on most points of a
                 // near-horizontal ray in twilight): the same values as filled in `prepare`.
-                let top = scratch.mu_s_p.iter().fold(f64::NEG_INFINITY, |a, &b| a.max(b));
-                if top > scratch.day_mu_s {
-                    scratch.precise.fill_day(&mut scratch.slices[k]);
-                }
-                scratch.j.fill(0.0);
-                scratch.precise.add_from_slice_many(
-                    &scratch.slices[k],
-                    &scratch.mu_s_p,
-                    &scratch.nu,
-                    &mut scratch.j,
-                );
-                for (ms, j) in scratch
-                    .multiple
-                    .chunks_exact_mut(n_l)
-                    .zip(scratch.j.chunks_exact(n_l))
-                {
-                    for l in 0..n_l {
-                        ms[l] += wt[l] * j[l];
+                if scratch.ms_suns.is_empty() {
+                    let top = scratch.mu_s_p.iter().fold(f64::NEG_INFINITY, |a, &b| a.max(b));
+                    if top > scratch.day_mu_s {
+                        scratch.precise.fill_day(&mut scratch.slices[k]);
+                    }
+                    scratch.j.fill(0.0);
+                    scratch.precise.add_from_slice_many(
+                        &scratch.slices[k],
+                        &scratch.mu_s_p,
+                        &scratch.nu,
+                        &mut scratch.j,
+                    );
+                    for (ms, j) in scratch
+                        .multiple
+                        .chunks_exact_mut(n_l)
+                        .zip(scratch.j.chunks_exact(n_l))
+                    {
+                        for l in 0..n_l {
+                            ms[l] += wt[l] * j[l];
+                        }
                     }
                 }
                 let at = &scratch.at[k];
@@ -720,5 +815,54 @@ skybake_physics::simd_dispatch_avx512! {
                     }
                 }
             }
+    }
+}
+
+/// Adds point `k`'s multiple scattering to the sums of the suns `ms_suns` (their zenith cosines
+/// at the point in `mu_s_p`): the operations of [`texel_sums`] for those suns, in the same order.
+#[inline(always)]
+fn multiple_at_point(scratch: &mut FamilyScratch<'_>, k: usize) {
+    let n_l = scratch.n_l;
+    let wt = &scratch.weighted_t[k * n_l..(k + 1) * n_l];
+    scratch.ms_mu_s_p.clear();
+    scratch.ms_nu.clear();
+    for &t in &scratch.ms_suns {
+        scratch.ms_mu_s_p.push(scratch.mu_s_p[t]);
+        scratch.ms_nu.push(scratch.nu[t]);
+    }
+    let top = scratch
+        .ms_mu_s_p
+        .iter()
+        .fold(f64::NEG_INFINITY, |a, &b| a.max(b));
+    if top > scratch.day_mu_s {
+        scratch.precise.fill_day(&mut scratch.slices[k]);
+    }
+    scratch.ms_j.clear();
+    scratch.ms_j.resize(scratch.ms_suns.len() * n_l, 0.0);
+    scratch.precise.add_from_slice_many(
+        &scratch.slices[k],
+        &scratch.ms_mu_s_p,
+        &scratch.ms_nu,
+        &mut scratch.ms_j,
+    );
+    for (&t, j) in scratch.ms_suns.iter().zip(scratch.ms_j.chunks_exact(n_l)) {
+        let ms = &mut scratch.multiple[t * n_l..(t + 1) * n_l];
+        for l in 0..n_l {
+            ms[l] += wt[l] * j[l];
+        }
+    }
+}
+
+/// The multiple-scattering sums of the suns `ms_suns` alone (added to `multiple`), point by
+/// point as [`texel_sums`] forms them.
+fn multiple_sums(scratch: &mut FamilyScratch<'_>) {
+    let r = scratch.r;
+    for k in 0..scratch.points.len() {
+        let p = &scratch.points[k];
+        for &t in &scratch.ms_suns {
+            scratch.mu_s_p[t] =
+                ((r * scratch.mu_s[t] + p.t * scratch.nu[t]) / p.r).clamp(-1.0, 1.0);
+        }
+        multiple_at_point(scratch, k);
     }
 }

@@ -9,6 +9,7 @@
 pub mod build;
 pub mod load;
 pub mod manifest;
+mod ms_columns;
 pub mod param;
 pub mod reader;
 pub mod skyview;

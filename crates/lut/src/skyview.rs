@@ -784,7 +784,7 @@ pub fn build_skyview(
                             nus.push(nu);
                         }
                     }
-                    scratch.integrate();
+                    scratch.integrate_columns(&columns[k]);
                     for (n, &j) in suns.iter().enumerate() {
                         for a in 0..N_AZ {
                             let nu = nus[n * N_AZ + a];
@@ -851,6 +851,7 @@ pub fn build_skyview(
             radii: &radii,
             width: N_SUN,
             mu_s: &sun_mu,
+            ms_columns: true,
         },
         &idx,
         &e0,
