@@ -69,7 +69,10 @@ pub const LAYOUT: &str = "skyview";
 /// 7: the columns' map relative to the band acts from δ below the horizontal up, through the
 /// horizontal (version 6: faded to the identity below 0.5°), a column moved across the
 /// horizontal read on the other segment's rows ([`band_horizon_taper`], [`band_row`]).
-pub const SKYVIEW_VERSION: &str = "7";
+/// 8: the texels' multiple scattering computed on every other azimuth column and interpolated
+/// to the others in ln J where the computed columns show it smooth (`ms_columns`; texels
+/// within 0.7 %, the layout unchanged).
+pub const SKYVIEW_VERSION: &str = "8";
 
 /// Altitude nodes: h_k the roots of [`altitude_coord`] (about (top − bottom) · (k / (N − 1))²,
 /// denser near the top).
