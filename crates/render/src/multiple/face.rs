@@ -203,57 +203,35 @@ impl MsField {
         let mut ylm_o = [0.0; N_SH];
         real_sh(wo, self.angular_order, &mut ylm_o);
         let nodes = &quad.faces[face];
+        // Per node: its weight times p*(ω_o·ω'), and the sun's first scattering towards it
+        // per unit irradiance (Henyey-Greenstein g*); shared by the wavelengths whose phase
+        // moments are the previous one's.
+        let mut shape = vec![(0.0, 0.0); nodes.len()];
+        let mut shape_of: Option<&[f64]> = None;
+        let mut prof = [[0.0f64; 4]; 8];
+        let mut prof_of: Option<(f64, f64)> = None;
         for (l, o) in out.iter_mut().enumerate() {
             let v = &coef[l * n..(l + 1) * n];
-            let pl = &self.phase_moments[l];
+            let pl = &self.phase_moments[l][..];
             let mut j = 0.0;
             for (order, p_l) in pl.iter().enumerate() {
                 for m in order * order..(order + 1) * (order + 1) {
                     j += p_l * v[m] * ylm_o[m];
                 }
             }
-            if mv > 0.0 {
-                let ks = k_true[l] * self.extinction_scale[l];
-                let (t_v, t_c) = (ks * voxel_density_m, ks * cell_density_m);
-                if t_v < 1e-4 {
-                    *o = j.max(0.0);
-                    continue;
-                }
-                let prof: [[f64; 4]; 8] =
-                    std::array::from_fn(|i| profiles(MU_NODES[i].0, mv, mu0, t_v, t_c));
-                // The sun's first scattering in the scaled problem (Henyey-Greenstein g*), per
-                // unit scaled optical depth at the face.
+            let ks = k_true[l] * self.extinction_scale[l];
+            let (t_v, t_c) = (ks * voxel_density_m, ks * cell_density_m);
+            if mv <= 0.0 || t_v < 1e-4 {
+                *o = j.max(0.0);
+                continue;
+            }
+            if prof_of != Some((t_v, t_c)) {
+                prof = std::array::from_fn(|i| profiles(MU_NODES[i].0, mv, mu0, t_v, t_c));
+                prof_of = Some((t_v, t_c));
+            }
+            if shape_of != Some(pl) {
                 let g = pl.get(1).copied().unwrap_or(0.0);
-                let e_face = sun.map_or(0.0, |s| s.irradiance[l] * (-ks * face_density_m).exp());
-                let mut deficit = 0.0;
-                for node in nodes {
-                    let (mut radiance, mut source) = (0.0, 0.0);
-                    for (order, p_l) in pl.iter().enumerate() {
-                        let mut sum = 0.0;
-                        for m in order * order..(order + 1) * (order + 1) {
-                            sum += v[m] * node.ylm[m];
-                        }
-                        radiance += sum;
-                        source += p_l * sum;
-                    }
-                    if radiance <= 0.0 {
-                        continue;
-                    }
-                    let source = source.max(0.0);
-                    let first = match sun {
-                        Some(s) => {
-                            let c = s.travel.dot(node.dir);
-                            e_face * (1.0 - g * g)
-                                / (4.0 * PI * (1.0 + g * g - 2.0 * g * c).max(1e-12).powf(1.5))
-                        }
-                        None => 0.0,
-                    };
-                    let [u_c, u_v, e_c, e_v] = prof[node.mu];
-                    let den = source * u_c + first * e_c;
-                    if den <= 0.0 {
-                        continue;
-                    }
-                    let r = ((source * u_v + first * e_v) / den).clamp(0.0, 2.0);
+                for (sh, node) in shape.iter_mut().zip(nodes) {
                     // p*(cos θ) = Σ_l (2l + 1)/(4π) p*_l P_l(cos θ).
                     let c = wo.dot(node.dir);
                     let legendre = [
@@ -267,12 +245,42 @@ impl MsField {
                     for (order, p_l) in pl.iter().enumerate() {
                         phase += (2 * order + 1) as f64 * p_l * legendre[order];
                     }
-                    phase /= 4.0 * PI;
-                    deficit += node.weight * (1.0 - r) * phase * radiance;
+                    let first = sun.map_or(0.0, |s| {
+                        let x = (1.0 + g * g - 2.0 * g * s.travel.dot(node.dir)).max(1e-12);
+                        (1.0 - g * g) / (4.0 * PI * x * x.sqrt())
+                    });
+                    *sh = (node.weight * phase / (4.0 * PI), first);
                 }
-                j -= deficit;
+                shape_of = Some(pl);
             }
-            *o = j.max(0.0);
+            // The sun's first scattering in the scaled problem, per unit scaled optical depth
+            // at the face.
+            let e_face = sun.map_or(0.0, |s| s.irradiance[l] * (-ks * face_density_m).exp());
+            let mut deficit = 0.0;
+            for (node, &(w_phase, hg)) in nodes.iter().zip(&shape) {
+                let (mut radiance, mut source) = (0.0, 0.0);
+                for (order, p_l) in pl.iter().enumerate() {
+                    let mut sum = 0.0;
+                    for m in order * order..(order + 1) * (order + 1) {
+                        sum += v[m] * node.ylm[m];
+                    }
+                    radiance += sum;
+                    source += p_l * sum;
+                }
+                if radiance <= 0.0 {
+                    continue;
+                }
+                let source = source.max(0.0);
+                let first = e_face * hg;
+                let [u_c, u_v, e_c, e_v] = prof[node.mu];
+                let den = source * u_c + first * e_c;
+                if den <= 0.0 {
+                    continue;
+                }
+                let r = ((source * u_v + first * e_v) / den).clamp(0.0, 2.0);
+                deficit += w_phase * (1.0 - r) * radiance;
+            }
+            *o = (j - deficit).max(0.0);
         }
     }
 }
