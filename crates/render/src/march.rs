@@ -1291,6 +1291,7 @@ fn field_source(
 /// The per-voxel source with the multiple-scattering field's skin tallies
 /// ([`Prepared::skin`]): `vox`'s source with ω*·J* replaced by the skin's where a cell round
 /// the voxel has a skin; empty where the field has none.
+#[allow(clippy::too_many_arguments)]
 fn skin_sources(
     grid: &DensityGrid,
     vox: &[f32],
