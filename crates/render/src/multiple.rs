@@ -39,7 +39,9 @@ use skybake_physics::cloud::DensityGrid;
 use skybake_physics::phase::{orthonormal_basis, Phase};
 use std::f64::consts::PI;
 
+mod face;
 mod skin;
+pub use face::{FaceQuadrature, SunAtVoxel};
 pub use skin::{SkinField, SKIN_TAU};
 
 /// Settings of the photon pass.
