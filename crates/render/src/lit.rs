@@ -108,6 +108,17 @@ pub struct LitVolume {
     pub bytes: usize,
 }
 
+/// The sun's and the lattice paths go back to the working-buffer pool for the next frame's
+/// (the same sizes: [`pages::take_f32`](super::pages::take_f32)).
+impl Drop for LitVolume {
+    fn drop(&mut self) {
+        super::pages::give_back_f32(std::mem::take(&mut self.d_sun));
+        for path in std::mem::take(&mut self.lattice) {
+            super::pages::give_back_f32(path);
+        }
+    }
+}
+
 impl LitVolume {
     /// Lights the cloud of `inputs`; `cancel` is polled between stages.
     pub fn new(inputs: LitInputs, cancel: &(dyn Fn() -> bool + Sync)) -> crate::Result<Self> {

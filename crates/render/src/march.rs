@@ -71,6 +71,33 @@ pub struct Prepared<'a> {
     pub lattice_paths: usize,
 }
 
+/// The camera's voxel records `[ρ, √D_sun, 0 …]` (`stride` values per voxel, the sources 0),
+/// every value written, in a buffer from the working-buffer pool
+/// ([`pages::take_f32`](super::pages::take_f32)).
+fn voxel_records(grid: &DensityGrid, d_sun: &[f32], stride: usize) -> Vec<f32> {
+    let mut vox = super::pages::take_f32(grid.data.len() * stride);
+    let layer = grid.dims[0] * grid.dims[1];
+    vox.par_chunks_mut(layer * stride)
+        .zip(d_sun.par_chunks(layer))
+        .zip(grid.data.par_chunks(layer))
+        .for_each(|((vs, ss), rs)| {
+            for ((v, s), r) in vs.chunks_mut(stride).zip(ss).zip(rs) {
+                v[0] = *r;
+                // Stored as √D, interpolated in √D (see [`Prepared::sun_root_at`]).
+                v[1] = s.max(0.0).sqrt();
+                v[2..].iter_mut().for_each(|x| *x = 0.0);
+            }
+        });
+    vox
+}
+
+/// The voxel records go back to the working-buffer pool for the next camera's.
+impl Drop for Prepared<'_> {
+    fn drop(&mut self) {
+        super::pages::give_back_f32(std::mem::take(&mut self.vox));
+    }
+}
+
 impl<'a> Prepared<'a> {
     /// Builds the per-voxel light (fast method) or only what the path tracer needs: lights the
     /// cloud ([`LitVolume::new`], on a copy of `grid`) and adds this camera's part.
@@ -142,18 +169,7 @@ impl<'a> Prepared<'a> {
         let mut skin = Vec::new();
         let mut lattice_paths = 0;
         if lit.per_voxel {
-            vox = super::pages::zeroed(0f32, grid.data.len() * stride);
-            let layer = grid.dims[0] * grid.dims[1];
-            vox.par_chunks_mut(layer * stride)
-                .zip(lit.d_sun.par_chunks(layer))
-                .zip(grid.data.par_chunks(layer))
-                .for_each(|((vs, ss), rs)| {
-                    for ((v, s), r) in vs.chunks_mut(stride).zip(ss).zip(rs) {
-                        v[0] = *r;
-                        // Stored as √D, interpolated in √D (see [`Self::sun_root_at`]).
-                        v[1] = s.max(0.0).sqrt();
-                    }
-                });
+            vox = voxel_records(grid, &lit.d_sun, stride);
             if sun_on || env_on {
                 stages.ran.push(
                     "sun optical path per voxel (cumulative, Nishita et al. 1996, §3.2)".into(),
