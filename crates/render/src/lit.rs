@@ -101,6 +101,9 @@ pub struct LitVolume {
     pub pattern_on: bool,
     /// The per-voxel light runs (fast method, a cloud in view).
     pub per_voxel: bool,
+    /// The sky light's camera-independent transmittances per voxel, filled at the volume's first
+    /// reuse by another camera ([`super::march::SkyTransmittances`]).
+    pub sky_trans: std::sync::OnceLock<super::march::SkyTransmittances>,
     /// Stage timings of the computation, ms (volume, sun_paths, sky_light, multiple_scattering,
     /// shadow_map, peak_spread).
     pub timing_ms: Vec<(String, f64)>,
@@ -243,7 +246,13 @@ impl LitVolume {
             + 4 * lattice.iter().map(Vec::len).sum::<usize>()
             + ms.as_ref().map_or(0, MsField::bytes)
             + shadow.as_ref().map_or(0, |s| 4 * s.d.len())
-            + 4 * grid.data.len();
+            + 4 * grid.data.len()
+            + sky_trans_bytes(
+                &mask,
+                &lattice,
+                &optics.extinction_per_density_m,
+                &first_extinction_scale,
+            );
         Ok(Self {
             inputs,
             vol,
@@ -262,6 +271,7 @@ impl LitVolume {
             env_on,
             pattern_on,
             per_voxel,
+            sky_trans: std::sync::OnceLock::new(),
             timing_ms,
             bytes,
         })
@@ -279,6 +289,20 @@ impl LitVolume {
             None => std::borrow::Cow::Borrowed(&self.inputs.cloud_lighting),
         }
     }
+}
+
+/// The bytes the sky light's transmittances take once a second camera fills them
+/// ([`super::march::SkyTransmittances`]): 8 per masked voxel, path (the sun's and the lattice
+/// paths) and wavelength whose extinction differs from the previous one's.
+fn sky_trans_bytes(mask: &[bool], lattice: &[Vec<f32>], k: &[f64], scale: &[f64]) -> usize {
+    if lattice.is_empty() {
+        return 0;
+    }
+    let ks: Vec<f64> = k.iter().zip(scale).map(|(k, s)| k * s).collect();
+    let distinct = (0..ks.len())
+        .filter(|&l| l == 0 || ks[l] != ks[l - 1])
+        .count();
+    8 * mask.iter().filter(|&&m| m).count() * distinct * (lattice.len() + 1)
 }
 
 pub(crate) fn check(cancel: &(dyn Fn() -> bool + Sync)) -> crate::Result<()> {

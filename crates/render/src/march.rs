@@ -84,11 +84,96 @@ fn voxel_records(grid: &DensityGrid, d_sun: &[f32], stride: usize) -> Vec<f32> {
             for ((v, s), r) in vs.chunks_mut(stride).zip(ss).zip(rs) {
                 v[0] = *r;
                 // Stored as √D, interpolated in √D (see [`Prepared::sun_root_at`]).
-                v[1] = s.max(0.0).sqrt();
+                v[1] = sun_root(*s);
                 v[2..].iter_mut().for_each(|x| *x = 0.0);
             }
         });
     vox
+}
+
+/// √D of a sun's path as the voxel records store it.
+#[inline(always)]
+fn sun_root(d: f32) -> f32 {
+    d.max(0.0).sqrt()
+}
+
+/// The sky light's transmittances that do not depend on the camera: per voxel of the lit
+/// volume's mask, for each wavelength whose extinction differs from the previous one's,
+/// e^{−k D} of the sun's path and of the 14 lattice paths (f64, the values
+/// [`Prepared::with_lit`] computes). A camera path reads them instead of computing 15
+/// exponentials per voxel and camera; computed at the lit volume's first reuse (a single
+/// frame does not pay for them).
+pub struct SkyTransmittances {
+    /// Per z-layer, the index of its first masked voxel in the mask's order.
+    first: Vec<usize>,
+    /// Values per masked voxel: `per_voxel` = (distinct wavelengths) × (1 + paths).
+    per_voxel: usize,
+    values: Vec<f64>,
+}
+
+impl SkyTransmittances {
+    /// Bytes held.
+    pub fn bytes(&self) -> usize {
+        8 * (self.values.len() + self.first.len())
+    }
+
+    /// The values of masked voxel number `i` (in the mask's order).
+    #[inline(always)]
+    fn of(&self, i: usize) -> &[f64] {
+        &self.values[i * self.per_voxel..(i + 1) * self.per_voxel]
+    }
+}
+
+/// [`SkyTransmittances`] of `lit` for the extinctions per density `k` (`fresh`: the
+/// wavelengths whose extinction differs from the previous one's), the z-layers in parallel.
+fn sky_transmittances(lit: &LitVolume, k: &[f64], fresh: &[bool]) -> SkyTransmittances {
+    let grid = &*lit.inputs.grid;
+    let [nx, ny, _] = grid.dims;
+    let layer = nx * ny;
+    let paths = &lit.lattice;
+    let per_voxel = fresh.iter().filter(|&&f| f).count() * (paths.len() + 1);
+    let mut first = Vec::with_capacity(grid.dims[2] + 1);
+    let mut count = 0;
+    for z in 0..grid.dims[2] {
+        first.push(count);
+        count += lit.mask[z * layer..(z + 1) * layer]
+            .iter()
+            .filter(|&&m| m)
+            .count();
+    }
+    first.push(count);
+    let mut values = vec![0f64; count * per_voxel];
+    let mut slabs = Vec::with_capacity(grid.dims[2]);
+    let mut rest = &mut values[..];
+    for z in 0..grid.dims[2] {
+        let (a, b) = rest.split_at_mut((first[z + 1] - first[z]) * per_voxel);
+        slabs.push((z, a));
+        rest = b;
+    }
+    slabs.into_par_iter().for_each(|(z, slab)| {
+        let mut out = slab.chunks_mut(per_voxel);
+        for idx in z * layer..(z + 1) * layer {
+            if !lit.mask[idx] {
+                continue;
+            }
+            let Some(row) = out.next() else { break };
+            let d_sun = (sun_root(lit.d_sun[idx]) as f64).powi(2);
+            let mut row = row.chunks_mut(paths.len() + 1);
+            for l in (0..k.len()).filter(|&l| fresh[l]) {
+                if let Some(t) = row.next() {
+                    t[0] = (-k[l] * d_sun).exp();
+                    for (e, path) in paths.iter().enumerate() {
+                        t[e + 1] = (-k[l] * path[idx] as f64).exp();
+                    }
+                }
+            }
+        }
+    });
+    SkyTransmittances {
+        first,
+        per_voxel,
+        values,
+    }
 }
 
 /// The voxel records go back to the working-buffer pool for the next camera's.
@@ -203,12 +288,18 @@ impl<'a> Prepared<'a> {
                     .map(|(k, s)| k * s)
                     .collect();
                 let fresh: Vec<bool> = (0..n_l).map(|l| l == 0 || k[l] != k[l - 1]).collect();
+                // A camera after the lit volume's first reads the transmittances it shares.
+                let cached = shared.then(|| {
+                    lit.sky_trans
+                        .get_or_init(|| sky_transmittances(&lit, &k, &fresh))
+                });
                 let [nx, ny, _] = grid.dims;
                 vox.par_chunks_mut(nx * ny * stride)
                     .enumerate()
                     .for_each(|(z, slab)| {
                         let mut il = vec![0.0; elements.elements * n_l];
                         let mut trans = vec![0.0; paths.len() + 1];
+                        let mut masked = cached.map_or(0, |c| c.first[z]);
                         for (i, v) in slab.chunks_mut(stride).enumerate() {
                             let idx = z * nx * ny + i;
                             if !mask[idx] {
@@ -217,13 +308,19 @@ impl<'a> Prepared<'a> {
                             let p = grid.voxel_centre(i % nx, i / nx, z);
                             elements.lookup(view(p), &mut il);
                             let d_sun = (v[1] as f64).powi(2);
+                            let mut stored = cached.map(|c| c.of(masked).chunks(paths.len() + 1));
+                            masked += 1;
                             for l in 0..n_l {
                                 // Wavelengths with the previous one's extinction share its
                                 // transmittances.
                                 if fresh[l] {
-                                    trans[0] = (-k[l] * d_sun).exp();
-                                    for (e, path) in paths.iter().enumerate() {
-                                        trans[e + 1] = (-k[l] * path[idx] as f64).exp();
+                                    if let Some(t) = stored.as_mut().and_then(|s| s.next()) {
+                                        trans.copy_from_slice(t);
+                                    } else {
+                                        trans[0] = (-k[l] * d_sun).exp();
+                                        for (e, path) in paths.iter().enumerate() {
+                                            trans[e + 1] = (-k[l] * path[idx] as f64).exp();
+                                        }
                                     }
                                 }
                                 let mut q = il[l] * trans[0];
