@@ -6,7 +6,7 @@
 
 use super::light::{VIEW_CAP_DEG, VIEW_ELEMENT};
 use super::lighting::Lighting;
-use super::lit::{check, LitInputs, LitVolume};
+use super::lit::{check, sun_root, LitInputs, LitVolume};
 use super::pathtracer::PathTracer;
 use super::scene::{FrameScene, Projection};
 use super::{Method, RenderSettings};
@@ -89,91 +89,6 @@ fn voxel_records(grid: &DensityGrid, d_sun: &[f32], stride: usize) -> Vec<f32> {
             }
         });
     vox
-}
-
-/// √D of a sun's path as the voxel records store it.
-#[inline(always)]
-fn sun_root(d: f32) -> f32 {
-    d.max(0.0).sqrt()
-}
-
-/// The sky light's transmittances that do not depend on the camera: per voxel of the lit
-/// volume's mask, for each wavelength whose extinction differs from the previous one's,
-/// e^{−k D} of the sun's path and of the 14 lattice paths (f64, the values
-/// [`Prepared::with_lit`] computes). A camera path reads them instead of computing 15
-/// exponentials per voxel and camera; computed at the lit volume's first reuse (a single
-/// frame does not pay for them).
-pub struct SkyTransmittances {
-    /// Per z-layer, the index of its first masked voxel in the mask's order.
-    first: Vec<usize>,
-    /// Values per masked voxel: `per_voxel` = (distinct wavelengths) × (1 + paths).
-    per_voxel: usize,
-    values: Vec<f64>,
-}
-
-impl SkyTransmittances {
-    /// Bytes held.
-    pub fn bytes(&self) -> usize {
-        8 * (self.values.len() + self.first.len())
-    }
-
-    /// The values of masked voxel number `i` (in the mask's order).
-    #[inline(always)]
-    fn of(&self, i: usize) -> &[f64] {
-        &self.values[i * self.per_voxel..(i + 1) * self.per_voxel]
-    }
-}
-
-/// [`SkyTransmittances`] of `lit` for the extinctions per density `k` (`fresh`: the
-/// wavelengths whose extinction differs from the previous one's), the z-layers in parallel.
-fn sky_transmittances(lit: &LitVolume, k: &[f64], fresh: &[bool]) -> SkyTransmittances {
-    let grid = &*lit.inputs.grid;
-    let [nx, ny, _] = grid.dims;
-    let layer = nx * ny;
-    let paths = &lit.lattice;
-    let per_voxel = fresh.iter().filter(|&&f| f).count() * (paths.len() + 1);
-    let mut first = Vec::with_capacity(grid.dims[2] + 1);
-    let mut count = 0;
-    for z in 0..grid.dims[2] {
-        first.push(count);
-        count += lit.mask[z * layer..(z + 1) * layer]
-            .iter()
-            .filter(|&&m| m)
-            .count();
-    }
-    first.push(count);
-    let mut values = vec![0f64; count * per_voxel];
-    let mut slabs = Vec::with_capacity(grid.dims[2]);
-    let mut rest = &mut values[..];
-    for z in 0..grid.dims[2] {
-        let (a, b) = rest.split_at_mut((first[z + 1] - first[z]) * per_voxel);
-        slabs.push((z, a));
-        rest = b;
-    }
-    slabs.into_par_iter().for_each(|(z, slab)| {
-        let mut out = slab.chunks_mut(per_voxel);
-        for idx in z * layer..(z + 1) * layer {
-            if !lit.mask[idx] {
-                continue;
-            }
-            let Some(row) = out.next() else { break };
-            let d_sun = (sun_root(lit.d_sun[idx]) as f64).powi(2);
-            let mut row = row.chunks_mut(paths.len() + 1);
-            for l in (0..k.len()).filter(|&l| fresh[l]) {
-                if let Some(t) = row.next() {
-                    t[0] = (-k[l] * d_sun).exp();
-                    for (e, path) in paths.iter().enumerate() {
-                        t[e + 1] = (-k[l] * path[idx] as f64).exp();
-                    }
-                }
-            }
-        }
-    });
-    SkyTransmittances {
-        first,
-        per_voxel,
-        values,
-    }
 }
 
 /// The voxel records go back to the working-buffer pool for the next camera's.
@@ -291,7 +206,7 @@ impl<'a> Prepared<'a> {
                 // A camera after the lit volume's first reads the transmittances it shares.
                 let cached = shared.then(|| {
                     lit.sky_trans
-                        .get_or_init(|| sky_transmittances(&lit, &k, &fresh))
+                        .get_or_init(|| lit.sky_transmittances(&k, &fresh))
                 });
                 let [nx, ny, _] = grid.dims;
                 vox.par_chunks_mut(nx * ny * stride)
