@@ -178,6 +178,35 @@ fn optically_thick_cloud_conserves_energy_in_the_fast_method() {
     assert!(ratio > 0.9, "τ 1000: the fast method loses light ({ratio})");
 }
 
+/// A camera after a lit volume's first reads the sky light's transmittances the volume keeps
+/// (per distinct extinction): its per-voxel records are bit for bit those computed without them,
+/// here with three wavelengths of two extinctions and sky and sun light.
+#[test]
+fn a_shared_lit_volume_gives_the_same_voxel_records() {
+    let c = DVec3::new(0.0, 0.0, 1000.0);
+    let mut v = vacuum_scene(c, 800.0);
+    v["wavelengths_nm"] = json!([450, 550, 650]);
+    v["optics"]["extinction_per_density_m"] = json!({"450": 0.02, "550": 0.02, "650": 0.03});
+    v["sky"] = json!({"constant_radiance_w_m2_sr_nm": 0.1});
+    let base = parse(&v);
+    let grid = ball(c, 300.0, 30.0);
+    let lighting = lighting_for(&base, &grid, &Engine::new()).unwrap();
+    let s = settings(&base, Method::Fast, base.quality);
+    let inputs = LitInputs::new(&base, std::sync::Arc::new(grid.clone()), &lighting, s);
+    let lit = std::sync::Arc::new(LitVolume::new(inputs, &|| false).unwrap());
+    let alone = Prepared::with_lit(&base, &lighting, s, lit.clone(), false, &|| false).unwrap();
+    let shared = Prepared::with_lit(&base, &lighting, s, lit.clone(), true, &|| false).unwrap();
+    assert!(lit.sky_trans.get().is_some_and(|t| t.bytes() > 0));
+    assert!(alone.vox.iter().any(|&x| x > 0.0));
+    assert_eq!(alone.vox.len(), shared.vox.len());
+    let same = alone
+        .vox
+        .iter()
+        .zip(&shared.vox)
+        .all(|(a, b)| a.to_bits() == b.to_bits());
+    assert!(same, "the kept transmittances change the voxel records");
+}
+
 /// [`scattered_over_taken`] with 96 views of `px`² pixels sharing one lit volume.
 fn power_ratio_shared(v: &Value, grid: &DensityGrid, px: usize) -> f64 {
     let base = parse(v);

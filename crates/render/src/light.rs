@@ -62,7 +62,8 @@ fn sun_paths(grid: &DensityGrid, sun_dir: DVec3, vol: Option<&CloudVolume>) -> V
     let [nx, ny, nz] = grid.dims;
     let n = [nx, ny, nz];
     let h = grid.voxel_size_m;
-    let mut out = super::pages::zeroed(0f32, grid.data.len());
+    // Every value is written below (the final pass covers every voxel).
+    let mut out = super::pages::take_f32(grid.data.len());
     let s = sun_dir.normalize();
     // Dominant axis and the other two.
     let a = if s.x.abs() >= s.y.abs() && s.x.abs() >= s.z.abs() {
@@ -94,7 +95,8 @@ fn sun_paths(grid: &DensityGrid, sun_dir: DVec3, vol: Option<&CloudVolume>) -> V
     let mut next_vals = vec![0f64; n[b] * n[c]];
     // The values layer by layer, `[a][b][c]`, put in the grid's order at the end (in parallel).
     let layer_len = n[b] * n[c];
-    let mut by_layer = super::pages::zeroed(0f32, grid.data.len());
+    // Every layer's every row is written before the final pass reads it.
+    let mut by_layer = super::pages::take_f32(grid.data.len());
     for &ia in &layers {
         // Each layer depends only on the previous one: its rows run in parallel.
         next_vals
@@ -187,6 +189,7 @@ fn sun_paths(grid: &DensityGrid, sun_dir: DVec3, vol: Option<&CloudVolume>) -> V
             *o = by_layer[(v[a] * n[b] + v[b]) * n[c] + v[c]];
         }
     });
+    super::pages::give_back_f32(by_layer);
     out
 }
 
@@ -259,7 +262,9 @@ pub fn lattice_density_integrals(grid: &DensityGrid, e: [i32; 3]) -> Vec<f32> {
     let [nx, ny, nz] = grid.dims;
     let len = DVec3::new(e[0] as f64, e[1] as f64, e[2] as f64).length() * grid.voxel_size_m;
     let half = 0.5 * len;
-    let mut out = super::pages::zeroed(0f32, grid.data.len());
+    // Every row is written whole below (to the box face, along ±x, or the inner voxels and
+    // the edge one).
+    let mut out = super::pages::take_f32(grid.data.len());
     let (zs, ys) = (walk_order(nz, e[2]), walk_order(ny, e[1]));
     let data = &grid.data[..];
     // Each voxel's value is the same expression as a voxel-by-voxel walk in the order above

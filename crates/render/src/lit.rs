@@ -101,11 +101,112 @@ pub struct LitVolume {
     pub pattern_on: bool,
     /// The per-voxel light runs (fast method, a cloud in view).
     pub per_voxel: bool,
+    /// The sky light's camera-independent transmittances per voxel, filled at the volume's first
+    /// reuse by another camera ([`SkyTransmittances`]).
+    pub sky_trans: std::sync::OnceLock<SkyTransmittances>,
     /// Stage timings of the computation, ms (volume, sun_paths, sky_light, multiple_scattering,
     /// shadow_map, peak_spread).
     pub timing_ms: Vec<(String, f64)>,
     /// Approximate bytes held (for a cache's budget).
     pub bytes: usize,
+}
+
+/// √D of a sun's path as the voxel records store it.
+#[inline(always)]
+pub(crate) fn sun_root(d: f32) -> f32 {
+    d.max(0.0).sqrt()
+}
+
+/// The sky light's transmittances that do not depend on the camera: per voxel of the lit
+/// volume's mask, for each wavelength whose extinction differs from the previous one's,
+/// e^{−k D} of the sun's path and of the 14 lattice paths (f64, the values
+/// [`Prepared::with_lit`](super::march::Prepared::with_lit) computes). A camera path reads them instead of computing 15
+/// exponentials per voxel and camera; computed at the lit volume's first reuse (a single
+/// frame does not pay for them).
+pub struct SkyTransmittances {
+    /// Per z-layer, the index of its first masked voxel in the mask's order.
+    pub(crate) first: Vec<usize>,
+    /// Values per masked voxel: `per_voxel` = (distinct wavelengths) × (1 + paths).
+    per_voxel: usize,
+    values: Vec<f64>,
+}
+
+impl SkyTransmittances {
+    /// Bytes held.
+    pub fn bytes(&self) -> usize {
+        8 * (self.values.len() + self.first.len())
+    }
+
+    /// The values of masked voxel number `i` (in the mask's order).
+    #[inline(always)]
+    pub(crate) fn of(&self, i: usize) -> &[f64] {
+        &self.values[i * self.per_voxel..(i + 1) * self.per_voxel]
+    }
+}
+
+impl LitVolume {
+    /// [`SkyTransmittances`] of this volume for the extinctions per density `k` (`fresh`: the
+    /// wavelengths whose extinction differs from the previous one's), the z-layers in parallel.
+    pub(crate) fn sky_transmittances(&self, k: &[f64], fresh: &[bool]) -> SkyTransmittances {
+        let grid = &*self.inputs.grid;
+        let [nx, ny, _] = grid.dims;
+        let layer = nx * ny;
+        let paths = &self.lattice;
+        let per_voxel = fresh.iter().filter(|&&f| f).count() * (paths.len() + 1);
+        let mut first = Vec::with_capacity(grid.dims[2] + 1);
+        let mut count = 0;
+        for z in 0..grid.dims[2] {
+            first.push(count);
+            count += self.mask[z * layer..(z + 1) * layer]
+                .iter()
+                .filter(|&&m| m)
+                .count();
+        }
+        first.push(count);
+        let mut values = vec![0f64; count * per_voxel];
+        let mut slabs = Vec::with_capacity(grid.dims[2]);
+        let mut rest = &mut values[..];
+        for z in 0..grid.dims[2] {
+            let (a, b) = rest.split_at_mut((first[z + 1] - first[z]) * per_voxel);
+            slabs.push((z, a));
+            rest = b;
+        }
+        slabs.into_par_iter().for_each(|(z, slab)| {
+            let mut out = slab.chunks_mut(per_voxel);
+            for idx in z * layer..(z + 1) * layer {
+                if !self.mask[idx] {
+                    continue;
+                }
+                let Some(row) = out.next() else { break };
+                let d_sun = (sun_root(self.d_sun[idx]) as f64).powi(2);
+                let mut row = row.chunks_mut(paths.len() + 1);
+                for l in (0..k.len()).filter(|&l| fresh[l]) {
+                    if let Some(t) = row.next() {
+                        t[0] = (-k[l] * d_sun).exp();
+                        for (e, path) in paths.iter().enumerate() {
+                            t[e + 1] = (-k[l] * path[idx] as f64).exp();
+                        }
+                    }
+                }
+            }
+        });
+        SkyTransmittances {
+            first,
+            per_voxel,
+            values,
+        }
+    }
+}
+
+/// The sun's and the lattice paths go back to the working-buffer pool for the next frame's
+/// (the same sizes: [`pages::take_f32`](super::pages::take_f32)).
+impl Drop for LitVolume {
+    fn drop(&mut self) {
+        super::pages::give_back_f32(std::mem::take(&mut self.d_sun));
+        for path in std::mem::take(&mut self.lattice) {
+            super::pages::give_back_f32(path);
+        }
+    }
 }
 
 impl LitVolume {
@@ -232,7 +333,13 @@ impl LitVolume {
             + 4 * lattice.iter().map(Vec::len).sum::<usize>()
             + ms.as_ref().map_or(0, MsField::bytes)
             + shadow.as_ref().map_or(0, |s| 4 * s.d.len())
-            + 4 * grid.data.len();
+            + 4 * grid.data.len()
+            + sky_trans_bytes(
+                &mask,
+                &lattice,
+                &optics.extinction_per_density_m,
+                &first_extinction_scale,
+            );
         Ok(Self {
             inputs,
             vol,
@@ -251,6 +358,7 @@ impl LitVolume {
             env_on,
             pattern_on,
             per_voxel,
+            sky_trans: std::sync::OnceLock::new(),
             timing_ms,
             bytes,
         })
@@ -268,6 +376,20 @@ impl LitVolume {
             None => std::borrow::Cow::Borrowed(&self.inputs.cloud_lighting),
         }
     }
+}
+
+/// The bytes the sky light's transmittances take once a second camera fills them
+/// ([`SkyTransmittances`]): 8 per masked voxel, path (the sun's and the lattice
+/// paths) and wavelength whose extinction differs from the previous one's.
+fn sky_trans_bytes(mask: &[bool], lattice: &[Vec<f32>], k: &[f64], scale: &[f64]) -> usize {
+    if lattice.is_empty() {
+        return 0;
+    }
+    let ks: Vec<f64> = k.iter().zip(scale).map(|(k, s)| k * s).collect();
+    let distinct = (0..ks.len())
+        .filter(|&l| l == 0 || ks[l] != ks[l - 1])
+        .count();
+    8 * mask.iter().filter(|&&m| m).count() * distinct * (lattice.len() + 1)
 }
 
 pub(crate) fn check(cancel: &(dyn Fn() -> bool + Sync)) -> crate::Result<()> {

@@ -6,7 +6,7 @@
 
 use super::light::{VIEW_CAP_DEG, VIEW_ELEMENT};
 use super::lighting::Lighting;
-use super::lit::{check, LitInputs, LitVolume};
+use super::lit::{check, sun_root, LitInputs, LitVolume};
 use super::multiple::{FaceQuadrature, SunAtVoxel};
 use super::pathtracer::PathTracer;
 use super::scene::{FrameScene, Projection};
@@ -70,6 +70,33 @@ pub struct Prepared<'a> {
     /// Work counter: lattice density-integral grids computed for sky and ground light (14 when
     /// either lights the cloud, else 0).
     pub lattice_paths: usize,
+}
+
+/// The camera's voxel records `[ρ, √D_sun, 0 …]` (`stride` values per voxel, the sources 0),
+/// every value written, in a buffer from the working-buffer pool
+/// ([`pages::take_f32`](super::pages::take_f32)).
+fn voxel_records(grid: &DensityGrid, d_sun: &[f32], stride: usize) -> Vec<f32> {
+    let mut vox = super::pages::take_f32(grid.data.len() * stride);
+    let layer = grid.dims[0] * grid.dims[1];
+    vox.par_chunks_mut(layer * stride)
+        .zip(d_sun.par_chunks(layer))
+        .zip(grid.data.par_chunks(layer))
+        .for_each(|((vs, ss), rs)| {
+            for ((v, s), r) in vs.chunks_mut(stride).zip(ss).zip(rs) {
+                v[0] = *r;
+                // Stored as √D, interpolated in √D (see [`Prepared::sun_root_at`]).
+                v[1] = sun_root(*s);
+                v[2..].iter_mut().for_each(|x| *x = 0.0);
+            }
+        });
+    vox
+}
+
+/// The voxel records go back to the working-buffer pool for the next camera's.
+impl Drop for Prepared<'_> {
+    fn drop(&mut self) {
+        super::pages::give_back_f32(std::mem::take(&mut self.vox));
+    }
 }
 
 impl<'a> Prepared<'a> {
@@ -143,18 +170,7 @@ impl<'a> Prepared<'a> {
         let mut skin = Vec::new();
         let mut lattice_paths = 0;
         if lit.per_voxel {
-            vox = super::pages::zeroed(0f32, grid.data.len() * stride);
-            let layer = grid.dims[0] * grid.dims[1];
-            vox.par_chunks_mut(layer * stride)
-                .zip(lit.d_sun.par_chunks(layer))
-                .zip(grid.data.par_chunks(layer))
-                .for_each(|((vs, ss), rs)| {
-                    for ((v, s), r) in vs.chunks_mut(stride).zip(ss).zip(rs) {
-                        v[0] = *r;
-                        // Stored as √D, interpolated in √D (see [`Self::sun_root_at`]).
-                        v[1] = s.max(0.0).sqrt();
-                    }
-                });
+            vox = voxel_records(grid, &lit.d_sun, stride);
             if sun_on || env_on {
                 stages.ran.push(
                     "sun optical path per voxel (cumulative, Nishita et al. 1996, §3.2)".into(),
@@ -188,12 +204,18 @@ impl<'a> Prepared<'a> {
                     .map(|(k, s)| k * s)
                     .collect();
                 let fresh: Vec<bool> = (0..n_l).map(|l| l == 0 || k[l] != k[l - 1]).collect();
+                // A camera after the lit volume's first reads the transmittances it shares.
+                let cached = shared.then(|| {
+                    lit.sky_trans
+                        .get_or_init(|| lit.sky_transmittances(&k, &fresh))
+                });
                 let [nx, ny, _] = grid.dims;
                 vox.par_chunks_mut(nx * ny * stride)
                     .enumerate()
                     .for_each(|(z, slab)| {
                         let mut il = vec![0.0; elements.elements * n_l];
                         let mut trans = vec![0.0; paths.len() + 1];
+                        let mut masked = cached.map_or(0, |c| c.first[z]);
                         for (i, v) in slab.chunks_mut(stride).enumerate() {
                             let idx = z * nx * ny + i;
                             if !mask[idx] {
@@ -202,13 +224,19 @@ impl<'a> Prepared<'a> {
                             let p = grid.voxel_centre(i % nx, i / nx, z);
                             elements.lookup(view(p), &mut il);
                             let d_sun = (v[1] as f64).powi(2);
+                            let mut stored = cached.map(|c| c.of(masked).chunks(paths.len() + 1));
+                            masked += 1;
                             for l in 0..n_l {
                                 // Wavelengths with the previous one's extinction share its
                                 // transmittances.
                                 if fresh[l] {
-                                    trans[0] = (-k[l] * d_sun).exp();
-                                    for (e, path) in paths.iter().enumerate() {
-                                        trans[e + 1] = (-k[l] * path[idx] as f64).exp();
+                                    if let Some(t) = stored.as_mut().and_then(|s| s.next()) {
+                                        trans.copy_from_slice(t);
+                                    } else {
+                                        trans[0] = (-k[l] * d_sun).exp();
+                                        for (e, path) in paths.iter().enumerate() {
+                                            trans[e + 1] = (-k[l] * path[idx] as f64).exp();
+                                        }
                                     }
                                 }
                                 let mut q = il[l] * trans[0];

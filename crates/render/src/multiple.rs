@@ -495,23 +495,34 @@ impl MsField {
         }
     }
 
-    /// [`Self::inscatter`]'s sums for `N` wavelengths side by side.
+    /// [`Self::inscatter`]'s sums for `N` wavelengths side by side, and the 8 cells' sums side
+    /// by side too: each cell's sum per wavelength is the same chain of additions in the same
+    /// order (the same values), but the 8 × `N` chains are independent, so the additions no
+    /// longer wait on one another's latency (one chain after the other, this was 9 % of a
+    /// sequence frame's CPU). A cell of weight 0 is summed and not added, as before.
     #[inline(always)]
     fn inscatter_n<const N: usize>(&self, p: DVec3, ylm: &[f64], out: &mut [f64]) {
         let n = self.moments;
         let pm: [&[f64]; N] = std::array::from_fn(|l| &self.phase_moments[l][..]);
-        for (c, w) in self.cell_weights(p) {
-            if w == 0.0 {
-                continue;
-            }
-            let cell = &self.data[c * N * n..(c + 1) * N * n];
-            let mut sum = [0.0f64; N];
-            for order in 0..=self.angular_order {
-                for m in order * order..(order + 1) * (order + 1) {
+        let cells = self.cell_weights(p);
+        let data: [&[f32]; 8] = std::array::from_fn(|k| {
+            let c = cells[k].0;
+            &self.data[c * N * n..(c + 1) * N * n]
+        });
+        let mut sums = [[0.0f64; N]; 8];
+        for order in 0..=self.angular_order {
+            for m in order * order..(order + 1) * (order + 1) {
+                let y = ylm[m];
+                for (sum, cell) in sums.iter_mut().zip(&data) {
                     for l in 0..N {
-                        sum[l] += pm[l][order] * cell[l * n + m] as f64 * ylm[m];
+                        sum[l] += pm[l][order] * cell[l * n + m] as f64 * y;
                     }
                 }
+            }
+        }
+        for ((_, w), sum) in cells.iter().zip(&sums) {
+            if *w == 0.0 {
+                continue;
             }
             for l in 0..N {
                 out[l] += w * sum[l];

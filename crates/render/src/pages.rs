@@ -67,6 +67,58 @@ pub fn give_back(v: Vec<f64>) {
     }
 }
 
+/// Bytes of freed `f32` working buffers [`take_f32`] keeps for the next frame (the bench's
+/// standard frame: the 14 lattice paths, 112 MB, the camera's voxel records, 40 MB, the sun's
+/// paths and their layer order, 2 × 8 MB).
+const POOL_F32_BYTES: usize = 192 << 20;
+
+/// Working buffers given back by [`give_back_f32`], for [`take_f32`].
+static POOL_F32: std::sync::Mutex<Vec<Vec<f32>>> = std::sync::Mutex::new(Vec::new());
+
+/// `len` values whose contents are unspecified, for a buffer the caller fills completely
+/// before reading any of it: one given back earlier when one is large enough (its pages are
+/// mapped, and nothing is cleared: a frame's fresh buffers were mapped and zeroed by the
+/// kernel, page by page, only to be overwritten), else a new [`zeroed`] one. (In this
+/// crate's unit tests a reused buffer is filled with NaN, so a value left unwritten shows.)
+pub fn take_f32(len: usize) -> Vec<f32> {
+    let reused = POOL_F32.lock().ok().and_then(|mut pool| {
+        let best = pool
+            .iter()
+            .enumerate()
+            .filter(|(_, v)| v.capacity() >= len)
+            .min_by_key(|(_, v)| v.capacity())
+            .map(|(i, _)| i)?;
+        Some(pool.swap_remove(best))
+    });
+    match reused {
+        Some(mut v) => {
+            // Within the capacity: only a grown tail is written.
+            v.resize(len, 0.0);
+            v.truncate(len);
+            if cfg!(test) {
+                v.fill(f32::NAN);
+            }
+            v
+        }
+        None => zeroed(0f32, len),
+    }
+}
+
+/// Keeps `v` for [`take_f32`] while the kept buffers stay within [`POOL_F32_BYTES`] (else it
+/// is freed); small buffers are freed.
+pub fn give_back_f32(v: Vec<f32>) {
+    let bytes = v.capacity() * 4;
+    if bytes < MIN_BYTES {
+        return;
+    }
+    if let Ok(mut pool) = POOL_F32.lock() {
+        let kept: usize = pool.iter().map(|b| b.capacity() * 4).sum();
+        if kept + bytes <= POOL_F32_BYTES {
+            pool.push(v);
+        }
+    }
+}
+
 /// Asks the kernel to back `buf`'s whole 2 MiB pages with huge pages (a hint: no effect on any
 /// value; ignored where unsupported).
 fn advise_huge<T>(buf: &[T]) {
@@ -107,6 +159,22 @@ mod tests {
             assert_eq!(w.len(), n);
             assert!(w.iter().all(|&x| x == 0.0));
             give_back(w);
+        }
+    }
+
+    /// A working buffer given back is taken again at the asked length (contents unspecified:
+    /// NaN in these tests), and a larger request than any kept buffer gets a fresh one.
+    #[test]
+    fn reused_f32_buffers_have_the_length() {
+        let len = (5 << 20) / 4;
+        let mut v = take_f32(len);
+        v.iter_mut().for_each(|x| *x = 2.0);
+        give_back_f32(v);
+        for n in [len - 3, len, 4 * len] {
+            let w = take_f32(n);
+            assert_eq!(w.len(), n);
+            assert!(w.iter().all(|&x| x.is_nan() || x == 0.0));
+            give_back_f32(w);
         }
     }
 

@@ -13,8 +13,9 @@ use std::collections::VecDeque;
 use std::sync::{Arc, Mutex};
 
 /// Default byte budget of a [`FrameReuse`] (grids and lit volumes held between frames): the
-/// bench cumulus's lit volume (128³ voxels, sky light and multiple scattering) takes 140 MB
-/// (measured, `skybake-harness bench frame-sequence`); the largest grid the renderer accepts lit with sky light about 0.5 GB, and is then
+/// bench cumulus's lit volume (128³ voxels, sky light and multiple scattering) takes 186 MB
+/// with the sky light's transmittances its later cameras read (measured, `skybake-harness
+/// bench frame-sequence`); the largest grid the renderer accepts lit with sky light about 0.5 GB, and is then
 /// used for its frame without being kept.
 pub const DEFAULT_REUSE_BYTES: usize = 384 << 20;
 
