@@ -138,6 +138,7 @@ fn main() -> skybake_physics::Result<()> {
                 }
             });
         let fast_s = t.elapsed().as_secs_f64();
+        drop(p);
         scene.lighting.multiple_scattering = true;
         let mask: Vec<bool> = trans.iter().map(|&t| t < 0.99).collect();
         if let Ok(d) = std::env::var("DUMP") {

@@ -21,28 +21,58 @@ pub fn zeroed<T: Copy>(zero: T, len: usize) -> Vec<T> {
     v
 }
 
-/// Bytes of freed accumulators [`take_zeroed`] keeps for the next frame (the photon pass of
-/// the bench's standard frame uses 100 MB).
-const POOL_BYTES: usize = 160 << 20;
+/// Freed large buffers of one element type kept for the next frame, up to a number of bytes.
+struct Pool<T> {
+    kept: std::sync::Mutex<Vec<Vec<T>>>,
+    max_bytes: usize,
+}
 
-/// Accumulators given back by [`give_back`], for [`take_zeroed`].
-static POOL: std::sync::Mutex<Vec<Vec<f64>>> = std::sync::Mutex::new(Vec::new());
+impl<T> Pool<T> {
+    const fn new(max_bytes: usize) -> Self {
+        Self {
+            kept: std::sync::Mutex::new(Vec::new()),
+            max_bytes,
+        }
+    }
 
-/// `len` zeros, in a buffer given back earlier when one is large enough (its pages are
-/// already mapped, and zeroing them in place costs less than mapping and clearing fresh pages,
-/// a frame after frame; measured on the warm bench frame), else a new [`zeroed`] one.
-pub fn take_zeroed(len: usize) -> Vec<f64> {
-    let reused = POOL.lock().ok().and_then(|mut pool| {
-        // The smallest buffer that holds `len` values.
-        let best = pool
+    /// The smallest kept buffer that holds `len` values, taken out of the pool.
+    fn take(&self, len: usize) -> Option<Vec<T>> {
+        let mut kept = self.kept.lock().ok()?;
+        let best = kept
             .iter()
             .enumerate()
             .filter(|(_, v)| v.capacity() >= len)
             .min_by_key(|(_, v)| v.capacity())
             .map(|(i, _)| i)?;
-        Some(pool.swap_remove(best))
-    });
-    match reused {
+        Some(kept.swap_remove(best))
+    }
+
+    /// Keeps `v` while the kept buffers stay within the pool's bytes (else it is freed); small
+    /// buffers are freed.
+    fn give_back(&self, v: Vec<T>) {
+        let size = std::mem::size_of::<T>();
+        let bytes = v.capacity() * size;
+        if bytes < MIN_BYTES {
+            return;
+        }
+        if let Ok(mut kept) = self.kept.lock() {
+            let held: usize = kept.iter().map(|b| b.capacity() * size).sum();
+            if held + bytes <= self.max_bytes {
+                kept.push(v);
+            }
+        }
+    }
+}
+
+/// Freed accumulators [`take_zeroed`] reuses: up to 160 MB (the photon pass of the bench's
+/// standard frame uses 100 MB).
+static POOL: Pool<f64> = Pool::new(160 << 20);
+
+/// `len` zeros, in a buffer given back earlier when one is large enough (its pages are
+/// already mapped, and zeroing them in place costs less than mapping and clearing fresh pages,
+/// a frame after frame; measured on the warm bench frame), else a new [`zeroed`] one.
+pub fn take_zeroed(len: usize) -> Vec<f64> {
+    match POOL.take(len) {
         Some(mut v) => {
             v.clear();
             v.resize(len, 0.0);
@@ -52,28 +82,16 @@ pub fn take_zeroed(len: usize) -> Vec<f64> {
     }
 }
 
-/// Keeps `v` for [`take_zeroed`] while the kept buffers stay within [`POOL_BYTES`] (else it is
-/// freed); small buffers are freed.
+/// Keeps `v` for [`take_zeroed`] while the kept buffers stay within the pool's 160 MB (else it
+/// is freed); small buffers are freed.
 pub fn give_back(v: Vec<f64>) {
-    let bytes = v.capacity() * 8;
-    if bytes < MIN_BYTES {
-        return;
-    }
-    if let Ok(mut pool) = POOL.lock() {
-        let kept: usize = pool.iter().map(|b| b.capacity() * 8).sum();
-        if kept + bytes <= POOL_BYTES {
-            pool.push(v);
-        }
-    }
+    POOL.give_back(v);
 }
 
-/// Bytes of freed `f32` working buffers [`take_f32`] keeps for the next frame (the bench's
-/// standard frame: the 14 lattice paths, 112 MB, the camera's voxel records, 40 MB, the sun's
-/// paths and their layer order, 2 × 8 MB).
-const POOL_F32_BYTES: usize = 192 << 20;
-
-/// Working buffers given back by [`give_back_f32`], for [`take_f32`].
-static POOL_F32: std::sync::Mutex<Vec<Vec<f32>>> = std::sync::Mutex::new(Vec::new());
+/// Freed `f32` working buffers [`take_f32`] reuses: up to 192 MB (the bench's standard frame:
+/// the 14 lattice paths, 112 MB, the camera's voxel records, 40 MB, the sun's paths and their
+/// layer order, 2 × 8 MB).
+static POOL_F32: Pool<f32> = Pool::new(192 << 20);
 
 /// `len` values whose contents are unspecified, for a buffer the caller fills completely
 /// before reading any of it: one given back earlier when one is large enough (its pages are
@@ -81,16 +99,7 @@ static POOL_F32: std::sync::Mutex<Vec<Vec<f32>>> = std::sync::Mutex::new(Vec::ne
 /// kernel, page by page, only to be overwritten), else a new [`zeroed`] one. (In this
 /// crate's unit tests a reused buffer is filled with NaN, so a value left unwritten shows.)
 pub fn take_f32(len: usize) -> Vec<f32> {
-    let reused = POOL_F32.lock().ok().and_then(|mut pool| {
-        let best = pool
-            .iter()
-            .enumerate()
-            .filter(|(_, v)| v.capacity() >= len)
-            .min_by_key(|(_, v)| v.capacity())
-            .map(|(i, _)| i)?;
-        Some(pool.swap_remove(best))
-    });
-    match reused {
+    match POOL_F32.take(len) {
         Some(mut v) => {
             // Within the capacity: only a grown tail is written.
             v.resize(len, 0.0);
@@ -104,19 +113,10 @@ pub fn take_f32(len: usize) -> Vec<f32> {
     }
 }
 
-/// Keeps `v` for [`take_f32`] while the kept buffers stay within [`POOL_F32_BYTES`] (else it
-/// is freed); small buffers are freed.
+/// Keeps `v` for [`take_f32`] while the kept buffers stay within the pool's 192 MB (else it is
+/// freed); small buffers are freed.
 pub fn give_back_f32(v: Vec<f32>) {
-    let bytes = v.capacity() * 4;
-    if bytes < MIN_BYTES {
-        return;
-    }
-    if let Ok(mut pool) = POOL_F32.lock() {
-        let kept: usize = pool.iter().map(|b| b.capacity() * 4).sum();
-        if kept + bytes <= POOL_F32_BYTES {
-            pool.push(v);
-        }
-    }
+    POOL_F32.give_back(v);
 }
 
 /// Asks the kernel to back `buf`'s whole 2 MiB pages with huge pages (a hint: no effect on any
