@@ -320,18 +320,7 @@ impl<'a> Prepared<'a> {
                             }
                         }
                     });
-                skin = skin_sources(
-                    grid,
-                    &vox,
-                    stride,
-                    mask,
-                    field,
-                    ms_albedo,
-                    &view,
-                    &quad,
-                    k_true,
-                    sun_on.then(|| (-lighting.sun_dir, &lighting.sun_irradiance[..])),
-                );
+                skin = skin_sources(grid, &vox, stride, mask, field, ms_albedo, &view);
                 stages.ran.push(format!(
                     "multiple scattering, all orders: photon transport on a {}x{}x{} grid, {}, P{} angular reconstruction",
                     field.dims[0], field.dims[1], field.dims[2],
@@ -1319,7 +1308,6 @@ fn field_source(
 /// The per-voxel source with the multiple-scattering field's skin tallies
 /// ([`Prepared::skin`]): `vox`'s source with ω*·J* replaced by the skin's where a cell round
 /// the voxel has a skin; empty where the field has none.
-#[allow(clippy::too_many_arguments)]
 fn skin_sources(
     grid: &DensityGrid,
     vox: &[f32],
@@ -1328,14 +1316,10 @@ fn skin_sources(
     field: &super::multiple::MsField,
     ms_albedo: &[f64],
     view: &(dyn Fn(DVec3) -> DVec3 + Sync),
-    quad: &FaceQuadrature,
-    k_true: &[f64],
-    sun: Option<(DVec3, &[f64])>,
 ) -> Vec<f32> {
     if !field.has_skin() {
         return Vec::new();
     }
-    let sun_at = |v: &[f32]| sun.map(|(t, irr)| (t, irr, (v[1] as f64).powi(2)));
     let n_l = stride - 2;
     let [nx, ny, _] = grid.dims;
     let mut skin = vec![0f32; grid.data.len() * n_l];
@@ -1354,16 +1338,9 @@ fn skin_sources(
                 if !field.inscatter_skin(p, d, &mut js) {
                     continue;
                 }
-                field_source(
-                    grid,
-                    field,
-                    quad,
-                    k_true,
-                    [i % nx, i / nx, z],
-                    d,
-                    sun_at(v),
-                    &mut j,
-                );
+                // What `vox` holds here: `field_source` leaves a voxel with a skin to the
+                // plain field.
+                field.inscatter(p, d, &mut j);
                 for l in 0..n_l {
                     o[l] = (v[2 + l] as f64 + ms_albedo[l] * (js[l] - j[l])) as f32;
                 }
