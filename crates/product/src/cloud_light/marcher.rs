@@ -840,3 +840,52 @@ fn box_interval(o: DVec3, d: DVec3, lo: DVec3, hi: DVec3) -> Option<(f64, f64)> 
     }
     (t0 < t1).then_some((t0, t1))
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The build-up profiles' closed forms against midpoint sums over depth (the formal
+    /// solution below a face, uniform and beam-fed sources), and their limits.
+    #[test]
+    fn build_up_matches_its_depth_integrals() {
+        let (m, mv, mu0, tv, tc) = (0.41, 0.22, 0.63, 1.1, 2.4);
+        let n = 200_000;
+        let (mut uc, mut ec) = (0.0, 0.0);
+        for i in 0..n {
+            let z = tc * (i as f64 + 0.5) / n as f64;
+            uc += 1.0 - (-z / m).exp();
+            ec += mu0 / (mu0 - m) * ((-z / mu0).exp() - (-z / m).exp());
+        }
+        let (mut uv, mut ev, mut w) = (0.0, 0.0, 0.0);
+        for i in 0..n {
+            let z = tv * (i as f64 + 0.5) / n as f64;
+            let k = (-z / mv).exp();
+            uv += k * (1.0 - (-z / m).exp());
+            ev += k * mu0 / (mu0 - m) * ((-z / mu0).exp() - (-z / m).exp());
+            w += k;
+        }
+        let want = [uc / n as f64, uv / w, ec / n as f64, ev / w];
+        let got = build_up(m, mv, mu0, tv, tc);
+        for (g, x) in got.iter().zip(want) {
+            assert!((g - x).abs() < 1e-6, "{got:?} vs {want:?}");
+        }
+        // Semi-infinite, seen from the face: μ_v/(μ_v + μ') of the saturated radiance.
+        let deep = build_up(m, mv, 0.0, 1e3, 1e3);
+        assert!((deep[1] - mv / (mv + m)).abs() < 1e-9, "{deep:?}");
+        assert_eq!((deep[2], deep[3]), (0.0, 0.0));
+    }
+
+    /// Surface voxels: cloud with an empty face neighbour or on the grid's edge.
+    #[test]
+    fn surface_voxels_border_empty_space() {
+        let dims = [3, 3, 3];
+        let mut density = vec![1.0f32; 27];
+        assert!(surface_voxel(&density, dims, [0, 1, 1]));
+        assert!(!surface_voxel(&density, dims, [1, 1, 1]));
+        // Voxel (2, 1, 1) emptied.
+        density[(3 + 1) * 3 + 2] = 0.0;
+        assert!(surface_voxel(&density, dims, [1, 1, 1]));
+        assert!(!surface_voxel(&density, dims, [2, 1, 1]));
+    }
+}
