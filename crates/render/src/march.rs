@@ -320,7 +320,18 @@ impl<'a> Prepared<'a> {
                             }
                         }
                     });
-                skin = skin_sources(grid, &vox, stride, mask, field, ms_albedo, &view);
+                skin = skin_sources(
+                    grid,
+                    &vox,
+                    stride,
+                    mask,
+                    field,
+                    ms_albedo,
+                    &view,
+                    &quad,
+                    k_true,
+                    sun_on.then(|| (-lighting.sun_dir, &lighting.sun_irradiance[..])),
+                );
                 stages.ran.push(format!(
                     "multiple scattering, all orders: photon transport on a {}x{}x{} grid, {}, P{} angular reconstruction",
                     field.dims[0], field.dims[1], field.dims[2],
@@ -1235,8 +1246,9 @@ pub fn sun_step_weight(a: f64, b_total: f64, dt: f64, tau0: f64, e_tau0: f64) ->
 
 /// The field J* of voxel `ijk` towards a viewer looking along `d`: [`MsField::inscatter`], or
 /// where the voxel's neighbour on the viewer's side is empty (the view enters the cloud through
-/// that face; of several, the face the view crosses most squarely) and no cell round it has a
-/// skin, [`MsField::inscatter_face`].
+/// that face; of several, the face the view crosses most squarely),
+/// [`MsField::inscatter_face`] (also in cells with skin tallies: the thick steps' source
+/// beyond the skin's depth; [`skin_sources`] keeps the skin's own source within it).
 #[allow(clippy::too_many_arguments)]
 fn field_source(
     grid: &DensityGrid,
@@ -1277,12 +1289,6 @@ fn field_source(
             }
         }
     }
-    // Cells with skin tallies (optically thick voxels) keep their tallies as they are: the
-    // cloud-light export holds the field's moments, which a view-dependent correction would
-    // leave behind (its marcher read the grid-filling τ 32 slab 3.5–4.4 % off the frame with it).
-    if best.is_some() && field.has_skin() && field.inscatter_skin(p, d, out) {
-        best = None;
-    }
     match best {
         Some((face, _)) => {
             let sun = sun.map(|(travel, irradiance, density_m)| SunAtVoxel {
@@ -1307,7 +1313,9 @@ fn field_source(
 
 /// The per-voxel source with the multiple-scattering field's skin tallies
 /// ([`Prepared::skin`]): `vox`'s source with ω*·J* replaced by the skin's where a cell round
-/// the voxel has a skin; empty where the field has none.
+/// the voxel has a skin (the skin's tally as it is, not seen through the face: it is already
+/// the field in the first optical depth below the face); empty where the field has none.
+#[allow(clippy::too_many_arguments)]
 fn skin_sources(
     grid: &DensityGrid,
     vox: &[f32],
@@ -1316,10 +1324,14 @@ fn skin_sources(
     field: &super::multiple::MsField,
     ms_albedo: &[f64],
     view: &(dyn Fn(DVec3) -> DVec3 + Sync),
+    quad: &FaceQuadrature,
+    k_true: &[f64],
+    sun: Option<(DVec3, &[f64])>,
 ) -> Vec<f32> {
     if !field.has_skin() {
         return Vec::new();
     }
+    let sun_at = |v: &[f32]| sun.map(|(t, irr)| (t, irr, (v[1] as f64).powi(2)));
     let n_l = stride - 2;
     let [nx, ny, _] = grid.dims;
     let mut skin = vec![0f32; grid.data.len() * n_l];
@@ -1338,9 +1350,17 @@ fn skin_sources(
                 if !field.inscatter_skin(p, d, &mut js) {
                     continue;
                 }
-                // What `vox` holds here: `field_source` leaves a voxel with a skin to the
-                // plain field.
-                field.inscatter(p, d, &mut j);
+                // What `vox` holds here.
+                field_source(
+                    grid,
+                    field,
+                    quad,
+                    k_true,
+                    [i % nx, i / nx, z],
+                    d,
+                    sun_at(v),
+                    &mut j,
+                );
                 for l in 0..n_l {
                     o[l] = (v[2 + l] as f64 + ms_albedo[l] * (js[l] - j[l])) as f32;
                 }

@@ -9,13 +9,19 @@
 //! frame does them; the fast frame's march
 //! (`skybake_render::march`, the TMS form of Nakajima & Tanaka 1988, eqs 13–15, with the δ-M
 //! scaling of Wiscombe 1977) is what it reproduces, with the sky and multiple-scattering sources
-//! evaluated at each sample rather than at voxel centres first.
+//! evaluated at each sample rather than at voxel centres first. The field seen through the
+//! surface voxels' faces depends on where the camera is: [`Marcher::new`] takes the
+//! [`Viewer`] and computes it per surface voxel first, as the frame does (docs/cloud-light.md,
+//! "Faces").
 
 use glam::DVec3;
 use skybake_render::march::sun_step;
 use std::f64::consts::PI;
 
-use super::{CloudLight, MAX_SUB_STEPS, SKY_ELEMENTS, SUN_NEAR_INTERVALS, SUN_NEAR_VOXELS};
+use super::{
+    surface_voxel, CloudLight, MAX_SUB_STEPS, SKY_ELEMENTS, SUN_NEAR_INTERVALS, SUN_NEAR_VOXELS,
+};
+use skybake_physics::phase::orthonormal_basis;
 use skybake_render::march::{MARCH_CUTOFF, THICK_STEP};
 
 /// Where a client's ray leaves the cloud, per wavelength: the cloud's radiance I and its true
@@ -27,13 +33,87 @@ pub struct CloudSample {
     pub front_m: Option<f64>,
 }
 
-/// The marcher over one decoded export.
+/// Where the camera looks from: the fast frame takes each voxel's source towards the camera.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Viewer {
+    /// A camera at this point (pinhole, fisheye): voxel centre p is seen along p − point.
+    Point(DVec3),
+    /// Every voxel seen along this direction (orthographic).
+    Direction(DVec3),
+}
+
+/// The marcher over one decoded export, for one viewer.
 pub struct Marcher<'a> {
     cl: &'a CloudLight,
     lo: DVec3,
     hi: DVec3,
     /// The largest density of the grid (whether any step can be thick).
     rho_max: f64,
+    /// Per wavelength and voxel, the field's source lowered by seeing it through the voxel's
+    /// face towards the viewer, W m⁻² sr⁻¹ nm⁻¹ per unit scaled extinction (docs/cloud-light.md,
+    /// "Faces"); empty without the export's faces.
+    face: Vec<Vec<f32>>,
+}
+
+/// Gauss-Legendre nodes and weights on [0, 1] for the inward cosine μ' (8 points).
+const MU_NODES: [(f64, f64); 8] = [
+    (0.019_855_071_751_231_85, 0.050_614_268_145_188_13),
+    (0.101_666_761_293_186_6, 0.111_190_517_226_687_2),
+    (0.237_233_795_041_835_5, 0.156_853_322_938_943_6),
+    (0.408_282_678_752_175_1, 0.181_341_891_689_181),
+    (0.591_717_321_247_825, 0.181_341_891_689_181),
+    (0.762_766_204_958_164_5, 0.156_853_322_938_943_6),
+    (0.898_333_238_706_813_4, 0.111_190_517_226_687_2),
+    (0.980_144_928_248_768_1, 0.050_614_268_145_188_13),
+];
+
+/// Azimuths per inward cosine.
+const N_PHI: usize = 16;
+
+/// 1 − e^{−x}, accurate for small x.
+fn one_minus_exp(x: f64) -> f64 {
+    -(-x).exp_m1()
+}
+
+/// Mean of e^{−z/a} over z ∈ [0, t].
+fn mean_exp(a: f64, t: f64) -> f64 {
+    if t <= 1e-9 * a {
+        return 1.0 - 0.5 * t / a;
+    }
+    a / t * one_minus_exp(t / a)
+}
+
+/// Mean of e^{−z/a} over z ∈ [0, t] weighted by the view's e^{−z/v}.
+fn view_exp(a: f64, v: f64, t: f64) -> f64 {
+    if t <= 1e-9 * a.min(v) {
+        return 1.0 - 0.5 * t / a;
+    }
+    let k = 1.0 / a + 1.0 / v;
+    one_minus_exp(t * k) / k / (v * one_minus_exp(t / v))
+}
+
+/// The inward radiance's build-up below a face at inward cosine `m` (docs/cloud-light.md,
+/// "Faces"): `[uniform source: cell mean, view-weighted over the voxel; source falling as the
+/// sun's beam e^{−z/μ₀}: cell mean, view-weighted]` per unit source, for a view of cosine `mv`
+/// to the face's normal, the voxel's and the cell's scaled optical depths `tv`, `tc`.
+fn build_up(m: f64, mv: f64, mu0: f64, tv: f64, tc: f64) -> [f64; 4] {
+    let tc = tc.max(tv);
+    let (u_c, u_v) = (1.0 - mean_exp(m, tc), 1.0 - view_exp(m, mv, tv));
+    if mu0 <= 0.0 {
+        return [u_c, u_v, 0.0, 0.0];
+    }
+    let mu0 = if (mu0 - m).abs() < 1e-3 {
+        m + 1e-3
+    } else {
+        mu0
+    };
+    let c = mu0 / (mu0 - m);
+    [
+        u_c,
+        u_v,
+        c * (mean_exp(mu0, tc) - mean_exp(m, tc)),
+        c * (view_exp(mu0, mv, tv) - view_exp(m, mv, tv)),
+    ]
 }
 
 /// What every step of one ray shares (see [`Marcher::march`]).
@@ -86,8 +166,10 @@ fn sh(d: DVec3, out: &mut [f64; 25]) {
 }
 
 impl<'a> Marcher<'a> {
-    /// Refuses an export whose multiple-scattering order this marcher does not evaluate.
-    pub fn new(cl: &'a CloudLight) -> crate::Result<Self> {
+    /// The marcher of `cl` for a camera at `viewer` (the field seen through the surface
+    /// voxels' faces towards it is computed here). Refuses an export whose multiple-scattering
+    /// order this marcher does not evaluate.
+    pub fn new(cl: &'a CloudLight, viewer: Viewer) -> crate::Result<Self> {
         if cl.ms_order.is_some_and(|o| o > 3) {
             return Err(crate::Error::out_of_range(
                 "settings.angular_order",
@@ -97,12 +179,190 @@ impl<'a> Marcher<'a> {
         }
         let lo = DVec3::from_array(cl.origin_m);
         let n = DVec3::new(cl.dims[0] as f64, cl.dims[1] as f64, cl.dims[2] as f64);
-        Ok(Self {
+        let mut out = Self {
             cl,
             lo,
             hi: lo + n * cl.voxel_size_m,
             rho_max: cl.density.iter().fold(0.0f64, |m, &r| m.max(r as f64)),
-        })
+            face: Vec::new(),
+        };
+        if cl.faces.is_some() {
+            let [nx, ny, nz] = cl.dims;
+            let n_l = cl.n_l();
+            let mut face = vec![vec![0f32; nx * ny * nz]; n_l];
+            let mut low = vec![0.0; n_l];
+            for z in 0..nz {
+                for y in 0..ny {
+                    for x in 0..nx {
+                        if !surface_voxel(&cl.density, cl.dims, [x, y, z]) {
+                            continue;
+                        }
+                        let h = cl.voxel_size_m;
+                        let p = lo + DVec3::new(x as f64 + 0.5, y as f64 + 0.5, z as f64 + 0.5) * h;
+                        let d = match viewer {
+                            Viewer::Point(o) => (p - o).normalize_or(DVec3::Z),
+                            Viewer::Direction(d) => d.normalize_or(DVec3::Z),
+                        };
+                        out.face_lowering([x, y, z], d, &mut low);
+                        let idx = (z * ny + y) * nx + x;
+                        for l in 0..n_l {
+                            face[l][idx] = low[l] as f32;
+                        }
+                    }
+                }
+            }
+            out.face = face;
+        }
+        Ok(out)
+    }
+
+    /// How much seeing the field through the face of surface voxel `ijk` towards a viewer
+    /// looking along `d` lowers its source, per wavelength (docs/cloud-light.md, "Faces"): 0
+    /// where the voxel's neighbour towards the viewer holds cloud; else, through the face the
+    /// view crosses most squarely of those with an empty neighbour, the inward hemisphere's
+    /// radiance L(ω') weighted by the scaled phase function towards the viewer and by
+    /// 1 − r(μ'), r = the view-weighted build-up over the voxel's depth over the cell's mean
+    /// (the formal solution below a face, Chandrasekhar 1960 §1.8), for the scattered light
+    /// (uniform in depth) and the sun's first scattering in the scaled problem (Henyey-Greenstein
+    /// g* = p*_1, falling as the scaled beam).
+    fn face_lowering(&self, ijk: [usize; 3], d: DVec3, out: &mut [f64]) {
+        out.iter_mut().for_each(|o| *o = 0.0);
+        let cl = self.cl;
+        let Some(faces) = &cl.faces else {
+            return;
+        };
+        let Some(order) = cl.ms_order else {
+            return;
+        };
+        let dims = cl.dims;
+        let at = |q: [usize; 3]| cl.density[(q[2] * dims[1] + q[1]) * dims[0] + q[0]] as f64;
+        let idx = (ijk[2] * dims[1] + ijk[1]) * dims[0] + ijk[0];
+        let rho = at(ijk);
+        let mut best: Option<(usize, f64)> = None;
+        for a in 0..3 {
+            let up = d[a] < 0.0;
+            let mv = d[a].abs();
+            if mv <= 0.0 {
+                continue;
+            }
+            let mut q = ijk;
+            let empty = if up {
+                q[a] += 1;
+                ijk[a] + 1 >= dims[a] || at(q) <= 0.0
+            } else {
+                ijk[a] == 0 || {
+                    q[a] -= 1;
+                    at(q) <= 0.0
+                }
+            };
+            if empty && best.is_none_or(|(_, m)| mv > m) {
+                best = Some((2 * a + usize::from(up), mv));
+            }
+        }
+        let Some((face, _)) = best else {
+            return;
+        };
+        let a = face / 2;
+        let normal = {
+            let mut n = DVec3::ZERO;
+            n[a] = if face % 2 == 0 { -1.0 } else { 1.0 };
+            n
+        };
+        let moments = (order + 1) * (order + 1);
+        let wo = -d;
+        let mv = wo.dot(normal);
+        let mut ylm_o = [0.0; 25];
+        sh(wo, &mut ylm_o);
+        let travel = -DVec3::from_array(cl.sun_direction);
+        let sun_on = cl.sun_irradiance.iter().any(|&e| e > 0.0);
+        let mu0 = if sun_on { travel.dot(-normal) } else { 0.0 };
+        let sun_used = sun_on && mu0 > 0.05;
+        let h = cl.voxel_size_m;
+        let face_density_m = if sun_used {
+            (cl.sun_path[idx] as f64 - 0.5 * rho * h / mu0.max(0.05)).max(0.0)
+        } else {
+            0.0
+        };
+        let (t1, t2) = orthonormal_basis(-normal);
+        let (k, s) = (&cl.extinction_per_density_m, &cl.extinction_scale);
+        for (l, o) in out.iter_mut().enumerate() {
+            let pl = &faces.scaled_phase_moments[l];
+            let v: Vec<f64> = (0..moments)
+                .map(|m| faces.radiance[l * moments + m][idx] as f64)
+                .collect();
+            let mut j = 0.0;
+            for (ord, p_l) in pl.iter().enumerate().take(order + 1) {
+                for m in ord * ord..(ord + 1) * (ord + 1) {
+                    j += p_l * v[m] * ylm_o[m];
+                }
+            }
+            let ks = k[l] * s[l];
+            let (tv, tc) = (
+                ks * rho * h,
+                ks * faces.cell_density[idx] as f64 * faces.cell_size_m[a],
+            );
+            if mv <= 0.0 || tv < 1e-4 {
+                continue;
+            }
+            let g = pl.get(1).copied().unwrap_or(0.0);
+            let e_face = if sun_used {
+                cl.sun_irradiance[l] * (-ks * face_density_m).exp()
+            } else {
+                0.0
+            };
+            let mut deficit = 0.0;
+            let mut ylm = [0.0; 25];
+            for &(mu, w) in &MU_NODES {
+                let [u_c, u_v, e_c, e_v] = build_up(mu, mv, mu0, tv, tc);
+                let sin = (1.0 - mu * mu).max(0.0).sqrt();
+                for jphi in 0..N_PHI {
+                    let phi = 2.0 * PI * (jphi as f64 + 0.5) / N_PHI as f64;
+                    let dir = -normal * mu + (t1 * phi.cos() + t2 * phi.sin()) * sin;
+                    sh(dir, &mut ylm);
+                    let (mut radiance, mut source) = (0.0, 0.0);
+                    for (ord, p_l) in pl.iter().enumerate().take(order + 1) {
+                        let mut sum = 0.0;
+                        for m in ord * ord..(ord + 1) * (ord + 1) {
+                            sum += v[m] * ylm[m];
+                        }
+                        radiance += sum;
+                        source += p_l * sum;
+                    }
+                    if radiance <= 0.0 {
+                        continue;
+                    }
+                    let first = if sun_used {
+                        let x = (1.0 + g * g - 2.0 * g * travel.dot(dir)).max(1e-12);
+                        e_face * (1.0 - g * g) / (4.0 * PI * x * x.sqrt())
+                    } else {
+                        0.0
+                    };
+                    let source = source.max(0.0);
+                    let den = source * u_c + first * e_c;
+                    if den <= 0.0 {
+                        continue;
+                    }
+                    let r = ((source * u_v + first * e_v) / den).clamp(0.0, 2.0);
+                    // p*(cos θ) = Σ_l (2l + 1)/(4π) p*_l P_l(cos θ).
+                    let c = wo.dot(dir);
+                    let legendre = [
+                        1.0,
+                        c,
+                        0.5 * (3.0 * c * c - 1.0),
+                        0.5 * c * (5.0 * c * c - 3.0),
+                    ];
+                    let phase: f64 = pl
+                        .iter()
+                        .zip(legendre)
+                        .enumerate()
+                        .map(|(ord, (p_l, leg))| (2 * ord + 1) as f64 * p_l * leg)
+                        .sum();
+                    deficit +=
+                        w * 2.0 * PI / N_PHI as f64 * phase / (4.0 * PI) * (1.0 - r) * radiance;
+                }
+            }
+            *o = faces.scaled_albedo[l] * (j.max(0.0) - (j - deficit).max(0.0));
+        }
     }
 
     /// Trilinear weights of the 8 voxels around `p` (centres at origin + h·(i + ½); clamped to
@@ -473,6 +733,11 @@ impl<'a> Marcher<'a> {
                     j_skin += (c + Self::interp(w, &sk.delta[l * moments + m])) * ray.ylm[m];
                 }
             }
+            // The cell's field seen through the surface voxels' faces (not the skin's).
+            let j = match self.face.get(l) {
+                Some(face) => j.max(0.0) - Self::interp(w, face),
+                None => j.max(0.0),
+            };
             let field = match skin {
                 Some(sk) => {
                     // The skin's source over the part of the sub-step within its depth of
@@ -480,13 +745,13 @@ impl<'a> Marcher<'a> {
                     // cell's beyond.
                     let left = sk.depth_scaled_tau[l] + st.ts[l].max(1e-300).ln();
                     if left <= 0.0 {
-                        a_ms * (src + j.max(0.0))
+                        a_ms * (src + j)
                     } else {
                         let b = -(-left.min(ks * rho * dt)).exp_m1();
-                        b * (src + j_skin.max(0.0)) + (a_ms - b) * (src + j.max(0.0))
+                        b * (src + j_skin.max(0.0)) + (a_ms - b) * (src + j)
                     }
                 }
-                None => a_ms * (src + j.max(0.0)),
+                None => a_ms * (src + j),
             };
             st.ia[l] +=
                 st.ts[l] * field + ray.sun_src[l] * (st.tp[l] * sun_t + st.tc[l] * sun_peak);
@@ -574,4 +839,53 @@ fn box_interval(o: DVec3, d: DVec3, lo: DVec3, hi: DVec3) -> Option<(f64, f64)> 
         t1 = t1.min(ta.max(tb));
     }
     (t0 < t1).then_some((t0, t1))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The build-up profiles' closed forms against midpoint sums over depth (the formal
+    /// solution below a face, uniform and beam-fed sources), and their limits.
+    #[test]
+    fn build_up_matches_its_depth_integrals() {
+        let (m, mv, mu0, tv, tc) = (0.41, 0.22, 0.63, 1.1, 2.4);
+        let n = 200_000;
+        let (mut uc, mut ec) = (0.0, 0.0);
+        for i in 0..n {
+            let z = tc * (i as f64 + 0.5) / n as f64;
+            uc += 1.0 - (-z / m).exp();
+            ec += mu0 / (mu0 - m) * ((-z / mu0).exp() - (-z / m).exp());
+        }
+        let (mut uv, mut ev, mut w) = (0.0, 0.0, 0.0);
+        for i in 0..n {
+            let z = tv * (i as f64 + 0.5) / n as f64;
+            let k = (-z / mv).exp();
+            uv += k * (1.0 - (-z / m).exp());
+            ev += k * mu0 / (mu0 - m) * ((-z / mu0).exp() - (-z / m).exp());
+            w += k;
+        }
+        let want = [uc / n as f64, uv / w, ec / n as f64, ev / w];
+        let got = build_up(m, mv, mu0, tv, tc);
+        for (g, x) in got.iter().zip(want) {
+            assert!((g - x).abs() < 1e-6, "{got:?} vs {want:?}");
+        }
+        // Semi-infinite, seen from the face: μ_v/(μ_v + μ') of the saturated radiance.
+        let deep = build_up(m, mv, 0.0, 1e3, 1e3);
+        assert!((deep[1] - mv / (mv + m)).abs() < 1e-9, "{deep:?}");
+        assert_eq!((deep[2], deep[3]), (0.0, 0.0));
+    }
+
+    /// Surface voxels: cloud with an empty face neighbour or on the grid's edge.
+    #[test]
+    fn surface_voxels_border_empty_space() {
+        let dims = [3, 3, 3];
+        let mut density = vec![1.0f32; 27];
+        assert!(surface_voxel(&density, dims, [0, 1, 1]));
+        assert!(!surface_voxel(&density, dims, [1, 1, 1]));
+        // Voxel (2, 1, 1) emptied.
+        density[(3 + 1) * 3 + 2] = 0.0;
+        assert!(surface_voxel(&density, dims, [1, 1, 1]));
+        assert!(!surface_voxel(&density, dims, [2, 1, 1]));
+    }
 }

@@ -32,13 +32,14 @@ use std::time::Instant;
 use crate::{Error, Result};
 
 /// Layout version of the export (bumped when a file, channel or field changes meaning).
-pub const LAYOUT_VERSION: &str = "5";
+pub const LAYOUT_VERSION: &str = "6";
 pub const MANIFEST_FILE: &str = "manifest.json";
 pub const DENSITY_FILE: &str = "density.exr";
 pub const SUN_PATH_FILE: &str = "sun_path.exr";
 pub const SKY_PATHS_FILE: &str = "sky_paths.exr";
 pub const MS_FILE: &str = "multiple_scattering.exr";
 pub const SKIN_FILE: &str = "multiple_scattering_skin.exr";
+pub const FACES_FILE: &str = "multiple_scattering_faces.exr";
 pub const SKY_ELEMENTS_FILE: &str = "sky_elements.exr";
 pub const PHASE_FILE: &str = "phase.exr";
 pub const PEAK_FILE: &str = "peak_spread.exr";
@@ -53,16 +54,33 @@ pub const PHASE_NODES: usize = 2048;
 /// Sky-element table entries: the sun cap (0), the 14 lattice elements (1–14), the view cap
 /// (15) and the environment radiance from the view direction itself (16).
 pub const SKY_ELEMENTS: usize = 17;
-/// Largest export held in memory, bytes (32-bit values: density, sun path, 14 sky paths and
-/// 25 multiple-scattering moments (angular order 4) per wavelength, twice (the cells' and the
-/// skins'), per voxel): 1 GiB, e.g. 1.6 M voxels at 3 wavelengths.
+/// Largest export held in memory, bytes (32-bit values: density, sun path, 14 sky paths, the
+/// face cells' density and 25 multiple-scattering moments (angular order 4) per wavelength,
+/// three times (the cells' convolved, the skins' and the surface voxels' radiance), per voxel):
+/// 1 GiB, e.g. 1.1 M voxels at 3 wavelengths.
 pub const MAX_EXPORT_BYTES: usize = 1 << 30;
 
 /// Bytes an export of `voxels` voxels and `n_l` wavelengths holds in memory (see
 /// [`MAX_EXPORT_BYTES`]).
 pub fn export_bytes(voxels: usize, n_l: usize) -> usize {
     let moments = (skybake_render::multiple::MAX_ORDER + 1).pow(2);
-    voxels.saturating_mul(4 * (2 + LATTICE.len() + 2 * moments * n_l))
+    voxels.saturating_mul(4 * (3 + LATTICE.len() + 3 * moments * n_l))
+}
+
+/// Whether voxel `ijk` of a grid of `dims` with `density` holds cloud and borders empty space
+/// (a face neighbour of density ≤ 0, or the grid's edge): where the fast frame sees the
+/// multiple-scattering field through the voxel's face (docs/cloud-light.md, "Faces").
+pub fn surface_voxel(density: &[f32], dims: [usize; 3], ijk: [usize; 3]) -> bool {
+    let at = |q: [usize; 3]| density[(q[2] * dims[1] + q[1]) * dims[0] + q[0]];
+    if at(ijk) <= 0.0 {
+        return false;
+    }
+    (0..3).any(|a| {
+        let (mut lo, mut hi) = (ijk, ijk);
+        lo[a] = lo[a].wrapping_sub(1);
+        hi[a] += 1;
+        ijk[a] == 0 || ijk[a] + 1 >= dims[a] || at(lo) <= 0.0 || at(hi) <= 0.0
+    })
 }
 
 /// Refuses an export larger than [`MAX_EXPORT_BYTES`] before it is computed, naming the cloud.
@@ -132,6 +150,26 @@ pub struct SkinMoments {
     pub delta: Vec<Vec<f32>>,
 }
 
+/// What a client needs to see the multiple-scattering field through a surface voxel's face
+/// ([`surface_voxel`]): the inward light builds up with depth below a face bordering empty
+/// space, so a view entering there sees less of it than the coarse cell's mean (the formal
+/// solution, Chandrasekhar 1960 §1.8; docs/cloud-light.md, "Faces").
+#[derive(Debug, Clone, PartialEq)]
+pub struct FaceField {
+    /// The field's coarse cells' edges along x, y, z, m.
+    pub cell_size_m: [f64; 3],
+    /// ω*, the δ-M scaled albedo, per wavelength (C_lm = ω*·p*_l·L_lm).
+    pub scaled_albedo: Vec<f64>,
+    /// p*_l, the δ-M scaled phase function's Legendre moments (p*_0 = 1), `[λ][l]`, l = 0 … L.
+    pub scaled_phase_moments: Vec<Vec<f64>>,
+    /// ρ_cell: the mean density of the coarse cell holding the voxel's centre, at surface
+    /// voxels (0 elsewhere).
+    pub cell_density: Vec<f32>,
+    /// L_lm: the field's radiance moments (not convolved), `[λ·(L+1)² + lm][voxel]`,
+    /// W m⁻² nm⁻¹, at surface voxels (0 elsewhere).
+    pub radiance: Vec<Vec<f32>>,
+}
+
 /// The export of a lit cloud (see the module's documentation and docs/cloud-light.md).
 #[derive(Debug, Clone, PartialEq)]
 pub struct CloudLight {
@@ -173,6 +211,8 @@ pub struct CloudLight {
     pub ms: Vec<Vec<f32>>,
     /// The field's skin tallies of optically thick cells, where any cell has one.
     pub skin: Option<SkinMoments>,
+    /// The field at the surface voxels, seen through their faces (with `ms`).
+    pub faces: Option<FaceField>,
     pub sky: Option<SkyTable>,
     /// The true phase function p(θ), sr⁻¹, `[λ][node]`, node i at θ = π·(i/(N−1))².
     pub phase: Vec<Vec<f32>>,
@@ -248,7 +288,7 @@ impl CloudLight {
             }
             _ => None,
         };
-        let (ms_order, ms, skin) = match &lit.ms {
+        let (ms_order, ms, skin, faces) = match &lit.ms {
             Some(f) => {
                 let order = f.angular_order();
                 let moments = (order + 1) * (order + 1);
@@ -258,9 +298,18 @@ impl CloudLight {
                 let mut skin_planes = vec![vec![0f32; if f.has_skin() { n } else { 0 }]; per];
                 let mut c = vec![0.0; per];
                 let mut c_skin = vec![0.0; per];
+                let mut face_planes = vec![vec![0f32; n]; per];
+                let mut cell_density = vec![0f32; n];
                 for idx in (0..n).filter(|&i| in_mask(i)) {
                     let (x, y, z) = (idx % nx, (idx / nx) % ny, idx / (nx * ny));
                     let p = grid.voxel_centre(x, y, z);
+                    if surface_voxel(&grid.data, grid.dims, [x, y, z]) {
+                        f.coefficients(p, &mut c);
+                        for (plane, v) in face_planes.iter_mut().zip(&c) {
+                            plane[idx] = to_half(*v as f32);
+                        }
+                        cell_density[idx] = to_half(f.cell_density(p) as f32);
+                    }
                     f.convolved_coefficients(p, &mut c);
                     for l in 0..n_l {
                         for m in 0..moments {
@@ -283,9 +332,16 @@ impl CloudLight {
                     depth_scaled_tau: (0..n_l).map(|l| f.skin_depth_tau(l)).collect(),
                     delta: skin_planes,
                 });
-                (Some(order), planes, skin)
+                let faces = FaceField {
+                    cell_size_m: f.cell_m.to_array(),
+                    scaled_albedo: lit.ms_albedo.clone(),
+                    scaled_phase_moments: f.phase_moments.clone(),
+                    cell_density,
+                    radiance: face_planes,
+                };
+                (Some(order), planes, skin, Some(faces))
             }
-            None => (None, Vec::new(), None),
+            None => (None, Vec::new(), None, None),
         };
         let phase = inputs
             .optics
@@ -332,6 +388,7 @@ impl CloudLight {
             ms_order,
             ms,
             skin,
+            faces,
             sky,
             phase,
             peak,
@@ -423,6 +480,18 @@ impl CloudLight {
                     }
                 }
                 files.push((SKIN_FILE, enc(nx, ny * nz, ch, true)?));
+            }
+            if let Some(faces) = &self.faces {
+                let mut ch = vec![("rho_cell".to_string(), faces.cell_density.as_slice())];
+                for l in 0..n_l {
+                    for m in 0..moments {
+                        ch.push((
+                            Self::channel(&format!("L{m:02}"), self.wavelengths_nm[l]),
+                            faces.radiance[l * moments + m].as_slice(),
+                        ));
+                    }
+                }
+                files.push((FACES_FILE, enc(nx, ny * nz, ch, true)?));
             }
         }
         if let Some(sky) = &self.sky {
@@ -553,6 +622,21 @@ impl CloudLight {
                     ),
                 );
             }
+            if self.faces.is_some() {
+                let names: Vec<String> = std::iter::once("rho_cell".to_string())
+                    .chain((0..moments).flat_map(|m| spectral(&format!("L{m:02}"))))
+                    .collect();
+                textures.insert(
+                    "multiple_scattering_faces".into(),
+                    volume(
+                        FACES_FILE,
+                        json!(names),
+                        "at surface voxels (density > 0 with a face neighbour of density <= 0 or on the grid's edge; 0 elsewhere): rho_cell, the mean density of the field's coarse cell holding the voxel's centre (faces.cell_size_m its edges), and L_lm, the field's radiance moments not convolved (C_lm = omega*·p*_l·L_lm, faces.scaled_albedo and faces.scaled_phase_moments). Used to see the field through the face (march.faces)",
+                        "1 (rho_cell), W m-2 nm-1 (L_lm)",
+                        true,
+                    ),
+                );
+            }
         }
         if let Some(sky) = &self.sky {
             let names: Vec<String> = (0..SKY_ELEMENTS)
@@ -626,6 +710,12 @@ impl CloudLight {
             "sky_caps": {"sun_cap_deg": SUN_CAP_DEG, "view_cap_deg": VIEW_CAP_DEG},
             "lattice_directions": LATTICE,
             "spherical_harmonics": "real, orthonormal, lm = l² + l + m (m = -l..l): Y00 = 0.28209479; Y1-1 = 0.48860251·y, Y10 = 0.48860251·z, Y11 = 0.48860251·x; Y2-2 = 1.09254843·xy, Y2-1 = 1.09254843·yz, Y20 = 0.31539157·(3z²-1), Y21 = 1.09254843·xz, Y22 = 0.54627422·(x²-y²); Y3-3 = 0.59004359·y(3x²-y²), Y3-2 = 2.89061144·xyz, Y3-1 = 0.45704580·y(5z²-1), Y30 = 0.37317633·z(5z²-3), Y31 = 0.45704580·x(5z²-1), Y32 = 1.44530572·z(x²-y²), Y33 = 0.59004359·x(x²-3y²) (Sloan 2008, appendix A2)",
+            "faces": self.faces.as_ref().map(|f| json!({
+                "cell_size_m": f.cell_size_m,
+                "scaled_albedo": f.scaled_albedo,
+                "scaled_phase_moments": f.scaled_phase_moments,
+                "texture": "multiple_scattering_faces",
+            })),
             "skin": self.skin.as_ref().map(|sk| json!({
                 "depth_scaled_optical_depth": sk.depth_scaled_tau,
                 "texture": "multiple_scattering_skin",
@@ -641,6 +731,7 @@ impl CloudLight {
                     "sun_path_near_intervals": SUN_NEAR_INTERVALS,
                     "recipe": "docs/cloud-light.md, 'Thick steps': a step whose densest of the 8 voxels round its midpoint holds max_λ(k·s)·rho·dt > scaled_optical_depth is taken in n = clamp(ceil(that), 2, max_sub_steps) sub-steps, each with the density-weighted interpolation of the textures (weights w_i·rho_i/Σ w_i·rho_i), the sun's path integrated from the density over sun_path_near_voxels towards the sun (composite Simpson, sun_path_near_intervals) plus D_sun beyond, and the skin's source over the first skin.depth_scaled_optical_depth of the ray's scaled optical depth",
                 },
+                "faces": "docs/cloud-light.md, 'Faces': per camera, at each surface voxel whose face neighbour towards the viewer is empty (of several, the face the view crosses most squarely), the field's source is lowered by omega*·(max(0, J) - max(0, J - Δ)), J = Σ p*_l·L_lm·Y_lm(-d), Δ the inward hemisphere's radiance weighted by the scaled phase function and by 1 - r(μ'), r the view-weighted build-up below the face over the cell's mean (8-point Gauss-Legendre in μ' × 16 azimuths); the lowering is interpolated trilinearly as the textures and subtracted from S(d) outside the skin's depth",
                 "source": "docs/cloud-light.md, 'Marching the volume': per step of length dt at density rho (midpoint), k = extinction_per_density_m, s = extinction_scale: a = 1-exp(-k·rho·dt) (true), a* = 1-exp(-k·s·rho·dt) (scaled); I += T*·a*·S(d) + T+·omega/s+·E_sun·p(theta)·W_sun·(spread - spread_last) + T_c·(the peak's part); T_c *= 1-a; T* *= 1-a*; T+ *= 1-exp(-k·s+·rho·dt) (s+ = first_extinction_scale; spread at the sun's and the view's true optical depths together, spread_last at the sun's), with S(d) = omega/s·Σ_e E_e(d)·exp(-k·s+·D_e) + max(0, Σ C_lm·Y_lm(-d)) (D_0 = D_sun, D_1..14 = the sky paths) and W_sun the exact step integral of the sun's scaled transmittance; then the view cap; pixel = I + T_c·background",
             },
             "settings": self.settings,
@@ -813,6 +904,65 @@ impl CloudLight {
             .map(|(l, m)| Self::channel(&format!("dC{m:02}"), wl[l]))
             .collect();
         let skin_delta = load("multiple_scattering_skin", nx, ny * nz, &skin_names)?;
+        let face_names: Vec<String> = std::iter::once("rho_cell".to_string())
+            .chain(
+                (0..n_l)
+                    .flat_map(|l| (0..moments).map(move |m| (l, m)))
+                    .map(|(l, m)| Self::channel(&format!("L{m:02}"), wl[l])),
+            )
+            .collect();
+        let faces = match load("multiple_scattering_faces", nx, ny * nz, &face_names)? {
+            None => None,
+            Some(_) if ms.is_none() => {
+                return Err(bad(
+                    "textures.multiple_scattering_faces",
+                    "needs the multiple_scattering texture",
+                ))
+            }
+            Some(mut planes) => {
+                let f = &m["faces"];
+                let cell = nums(&f["cell_size_m"], "faces.cell_size_m")?;
+                if cell.len() != 3 || cell.iter().any(|&c| c <= 0.0) {
+                    return Err(bad("faces.cell_size_m", "must be 3 positive numbers"));
+                }
+                let albedo = nums(&f["scaled_albedo"], "faces.scaled_albedo")?;
+                if albedo.len() != n_l {
+                    return Err(bad(
+                        "faces.scaled_albedo",
+                        &format!("must hold {n_l} values (one per wavelength)"),
+                    ));
+                }
+                let moments_of = f["scaled_phase_moments"]
+                    .as_array()
+                    .filter(|a| a.len() == n_l)
+                    .ok_or_else(|| {
+                        bad(
+                            "faces.scaled_phase_moments",
+                            &format!("must hold {n_l} arrays (one per wavelength)"),
+                        )
+                    })?
+                    .iter()
+                    .map(|v| {
+                        let p = nums(v, "faces.scaled_phase_moments")?;
+                        if p.len() != ms_order + 1 {
+                            return Err(bad(
+                                "faces.scaled_phase_moments",
+                                &format!("must hold {} moments per wavelength", ms_order + 1),
+                            ));
+                        }
+                        Ok(p)
+                    })
+                    .collect::<Result<Vec<_>>>()?;
+                let radiance = planes.split_off(1);
+                Some(FaceField {
+                    cell_size_m: [cell[0], cell[1], cell[2]],
+                    scaled_albedo: albedo,
+                    scaled_phase_moments: moments_of,
+                    cell_density: planes.remove(0),
+                    radiance,
+                })
+            }
+        };
         let skin = match skin_delta {
             None => None,
             Some(_) if ms.is_none() => {
@@ -902,6 +1052,7 @@ impl CloudLight {
             ms_order: ms.as_ref().map(|_| ms_order),
             ms: ms.unwrap_or_default(),
             skin,
+            faces,
             sky,
             phase,
             peak,

@@ -152,6 +152,35 @@ pub struct SunAtVoxel<'a> {
 }
 
 impl MsField {
+    /// The radiance's coefficients L_lm at `p` with [`Self::inscatter`]'s weights (not
+    /// convolved with the phase function), `[λ][(L + 1)²]` into `out`: what
+    /// [`Self::inscatter_face`] reconstructs the inward radiance from.
+    pub fn coefficients(&self, p: DVec3, out: &mut [f64]) {
+        out.iter_mut().for_each(|o| *o = 0.0);
+        let n = self.moments;
+        for (c, w) in self.cell_weights(p) {
+            if w == 0.0 {
+                continue;
+            }
+            for (i, v) in self.data[c * self.n_l * n..(c + 1) * self.n_l * n]
+                .iter()
+                .enumerate()
+            {
+                out[i] += w * *v as f64;
+            }
+        }
+    }
+
+    /// The mean density of the coarse cell holding `p` (clamped to the grid): with the
+    /// cell's edge, the depth [`Self::inscatter_face`] takes the cell's tally as the mean over.
+    pub fn cell_density(&self, p: DVec3) -> f64 {
+        let local = (p - self.origin_m) / self.cell_m;
+        let idx: [usize; 3] = std::array::from_fn(|b| {
+            (crate::volume::floor(local[b]).max(0.0) as usize).min(self.dims[b] - 1)
+        });
+        self.rho[(idx[2] * self.dims[1] + idx[1]) * self.dims[0] + idx[0]] as f64
+    }
+
     /// [`MsField::inscatter`] at a voxel whose neighbour across face `face` (see
     /// [`face_normal`]) is empty, seen through that face: the inward radiance scaled by r(μ')
     /// (module text). `voxel_density_m` is the voxel's density times its edge along the face's
@@ -175,25 +204,9 @@ impl MsField {
         let mv = wo.dot(normal);
         // The interpolated (not convolved) coefficients.
         let mut coef = vec![0.0; self.n_l * n];
-        for (c, w) in self.cell_weights(p) {
-            if w == 0.0 {
-                continue;
-            }
-            for (i, v) in self.data[c * self.n_l * n..(c + 1) * self.n_l * n]
-                .iter()
-                .enumerate()
-            {
-                coef[i] += w * *v as f64;
-            }
-        }
+        self.coefficients(p, &mut coef);
         // The cell holding p: its mean density over its edge along the face's axis.
-        let a = face / 2;
-        let local = (p - self.origin_m) / self.cell_m;
-        let idx: [usize; 3] = std::array::from_fn(|b| {
-            (crate::volume::floor(local[b]).max(0.0) as usize).min(self.dims[b] - 1)
-        });
-        let cell = (idx[2] * self.dims[1] + idx[1]) * self.dims[0] + idx[0];
-        let cell_density_m = self.rho[cell] as f64 * self.cell_m[a];
+        let cell_density_m = self.cell_density(p) * self.cell_m[face / 2];
         // The sun's beam enters through this face (cosine to the inward normal).
         let mu0 = sun.map_or(0.0, |s| s.travel.dot(-normal));
         let sun = sun.filter(|_| mu0 > 0.05);
