@@ -84,6 +84,9 @@ fn camera_path_reuses_the_lit_cloud_and_changes_no_pixel() {
     // Six cameras, one cloud and one sun: voxelised and lit once.
     assert_eq!((counts.grids_computed, counts.grids_reused), (1, 5));
     assert_eq!((counts.lit_computed, counts.lit_reused), (1, 5));
+    // The engine's products at two camera heights (one per distance; the aerial product's
+    // reach is the ground's bound at each).
+    assert_eq!((counts.lighting_computed, counts.lighting_reused), (2, 4));
 }
 
 #[test]
@@ -94,6 +97,8 @@ fn sun_sweep_reuses_the_grid_and_changes_no_pixel() {
     // The camera varies fastest: each sun's lit cloud serves its two cameras.
     assert_eq!((counts.grids_computed, counts.grids_reused), (1, 3));
     assert_eq!((counts.lit_computed, counts.lit_reused), (2, 2));
+    // One camera height: the engine's products once per sun.
+    assert_eq!((counts.lighting_computed, counts.lighting_reused), (2, 2));
 }
 
 #[test]

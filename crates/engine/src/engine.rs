@@ -242,11 +242,29 @@ pub struct Engine {
     table_store: Option<Arc<dyn TableStore>>,
     /// Precise tables built, loaded and refused (counted where they happen, in `SharedTables`).
     table_events: Arc<TableEvents>,
+    id: EngineId,
+}
+
+/// A number no other engine of the process has (for memos of an engine's products).
+#[derive(Debug)]
+struct EngineId(u64);
+
+impl Default for EngineId {
+    fn default() -> Self {
+        static NEXT: AtomicU64 = AtomicU64::new(1);
+        Self(NEXT.fetch_add(1, Ordering::Relaxed))
+    }
 }
 
 impl Engine {
     pub fn new() -> Self {
         Self::default()
+    }
+
+    /// This engine's number, unique within the process: what an engine computes depends on
+    /// it only through its tables, which a memo keyed by this number need not compare.
+    pub fn id(&self) -> u64 {
+        self.id.0
     }
 
     /// An engine that loads precise tables from `store` when it has them and saves those it builds.

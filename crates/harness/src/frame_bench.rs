@@ -239,6 +239,9 @@ pub fn bench_frame_sequence(frames: usize, width: usize, height: usize) -> Resul
         None => stages.push((name.to_string(), ms)),
     };
     let mut lit: Option<std::sync::Arc<LitVolume>> = None;
+    // The engine's products per camera, kept for the next camera with the same inputs (as
+    // a sequence's `FrameReuse` keeps them).
+    let memo = skybake_render::LightingMemo::new();
     let mut frame_ms = Vec::with_capacity(frames);
     let t_all = Instant::now();
     let cpu0 = crate::process::process_cpu_ms();
@@ -259,7 +262,8 @@ pub fn bench_frame_sequence(frames: usize, width: usize, height: usize) -> Resul
         scene.camera.right = right;
         scene.camera.up = right.cross(fwd);
         let t = Instant::now();
-        let lighting = lighting_for(&scene, &grid, &engine)?;
+        let lighting =
+            skybake_render::lighting_for_memo_unless(&scene, &grid, &engine, &memo, &|| false)?;
         add("lighting", t.elapsed().as_secs_f64() * 1e3);
         let shared = lit.is_some();
         let l = match &lit {

@@ -32,6 +32,7 @@ pub mod camera;
 pub mod compare;
 pub mod light;
 pub mod lighting;
+pub mod lighting_memo;
 pub mod lit;
 pub mod march;
 pub mod multiple;
@@ -44,6 +45,7 @@ pub mod scene;
 pub mod volume;
 
 pub use lighting::Lighting;
+pub use lighting_memo::LightingMemo;
 pub use lit::{LitInputs, LitVolume};
 pub use march::Prepared;
 pub use multiple::PhotonSettings;
@@ -290,6 +292,29 @@ pub fn lighting_for_unless(
     engine: &Engine,
     cancelled: &(dyn Fn() -> bool + Sync),
 ) -> Result<Lighting> {
+    let (altitude, reach) = lighting_reach(scene, grid);
+    Lighting::from_scene_unless(scene, engine, altitude, reach, cancelled)
+}
+
+/// [`lighting_for_unless`] through `memo`: the lighting an earlier frame computed with the same
+/// inputs and engine (a camera path at a constant height), else computed and kept. The same
+/// values as without the memo.
+pub fn lighting_for_memo_unless(
+    scene: &FrameScene,
+    grid: &DensityGrid,
+    engine: &Engine,
+    memo: &LightingMemo,
+    cancelled: &(dyn Fn() -> bool + Sync),
+) -> Result<Lighting> {
+    let (altitude, reach) = lighting_reach(scene, grid);
+    memo.get_or(lighting_memo::key(scene, engine, altitude, reach), || {
+        Lighting::from_scene_unless(scene, engine, altitude, reach, cancelled)
+    })
+}
+
+/// The cloud's centre altitude and the farthest distance the camera needs aerial perspective
+/// for (the box's farthest corner, or the ground's bound), m.
+fn lighting_reach(scene: &FrameScene, grid: &DensityGrid) -> (f64, f64) {
     let lo = grid.origin_m;
     let hi = grid.max_corner_m();
     let centre = 0.5 * (lo + hi);
@@ -310,13 +335,7 @@ pub fn lighting_for_unless(
         .as_ref()
         .map(|g| 20.0 * (cam.z - g.height_m).max(100.0))
         .unwrap_or(0.0);
-    Lighting::from_scene_unless(
-        scene,
-        engine,
-        centre.z,
-        far.max(ground_far).max(1000.0) * 1.05,
-        cancelled,
-    )
+    (centre.z, far.max(ground_far).max(1000.0) * 1.05)
 }
 
 /// Checks the grid against the renderer's limits before anything is allocated.

@@ -214,6 +214,39 @@ impl AerialTable {
         self.eval_nodes(dir, node, t_out, s_out);
     }
 
+    /// The in-scattered radiance alone of [`Self::eval_along_from`] (the same values: the same
+    /// operations, without the transmittance's), for the shafts of light, which use only it.
+    #[inline]
+    pub fn inscatter_along_from(
+        &self,
+        dir: &AerialDirection,
+        distance_m: f64,
+        hint: &mut usize,
+        s_out: &mut [f64],
+    ) {
+        let (d0, d1, fd) = axis_lookup_from(&self.product.distance_m, distance_m, hint);
+        let p = &self.product;
+        let n_l = p.wavelengths_nm.len();
+        let (r0, r1, fr) = dir.elevation;
+        let (c0, c1, fc) = dir.azimuth;
+        let (na, nd) = (p.azimuth_deg.len(), p.distance_m.len());
+        s_out.iter_mut().for_each(|v| *v = 0.0);
+        for (r, wr) in [(r0, 1.0 - fr), (r1, fr)] {
+            for (c, wc) in [(c0, 1.0 - fc), (c1, fc)] {
+                for (d, wd) in [(d0, 1.0 - fd), (d1, fd)] {
+                    let w = wr * wc * wd;
+                    if w == 0.0 {
+                        continue;
+                    }
+                    let base = ((r * na + c) * nd + d) * n_l;
+                    for l in 0..n_l {
+                        s_out[l] += w * p.inscatter[base + l] as f64;
+                    }
+                }
+            }
+        }
+    }
+
     fn eval_nodes(
         &self,
         dir: &AerialDirection,

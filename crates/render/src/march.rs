@@ -1092,16 +1092,14 @@ impl<'a> Prepared<'a> {
             }
             if shadowed {
                 let kt = &self.scene.optics.extinction_per_density_m;
-                let (mut s_prev, mut s_next, mut t_tmp) =
-                    ([0.0f64; 64], [0.0f64; 64], [0.0f64; 64]);
-                let (mut s_prev, mut s_next, t_tmp) =
-                    (&mut s_prev[..n_l], &mut s_next[..n_l], &mut t_tmp[..n_l]);
+                let (mut s_prev, mut s_next) = ([0.0f64; 64], [0.0f64; 64]);
+                let (mut s_prev, mut s_next) = (&mut s_prev[..n_l], &mut s_next[..n_l]);
                 s_eff.iter_mut().for_each(|v| *v = 0.0);
                 let mut hint = 0;
                 for kstep in 0..n {
                     let t_next = tx * (kstep + 1) as f64 / n as f64;
                     let t_mid = tx * (kstep as f64 + 0.5) / n as f64;
-                    aerial.eval_along_from(&along, t_next, &mut hint, t_tmp, s_next);
+                    aerial.inscatter_along_from(&along, t_next, &mut hint, s_next);
                     // The test above stopped at the first shadowed step: the paths after it
                     // were not looked up there.
                     let path = if kstep < first_unknown {

@@ -585,7 +585,10 @@ impl FrameRequest {
         let mut lighting_ms = 0.0;
         let measured = if measure {
             let t = Instant::now();
-            let l = lighting_for_unless(&scene, &grid, engine, cancel)?;
+            let l = match reuse {
+                Some(reuse) => reuse.lighting(&scene, &grid, engine, cancel)?,
+                None => lighting_for_unless(&scene, &grid, engine, cancel)?,
+            };
             lighting_ms += t.elapsed().as_secs_f64() * 1e3;
             Some(l)
         } else {
@@ -622,7 +625,10 @@ impl FrameRequest {
             }
             _ => {
                 let t = Instant::now();
-                let l = lighting_for_unless(&run.scene, &grid, engine, cancel)?;
+                let l = match reuse {
+                    Some(reuse) => reuse.lighting(&run.scene, &grid, engine, cancel)?,
+                    None => lighting_for_unless(&run.scene, &grid, engine, cancel)?,
+                };
                 lighting_ms += t.elapsed().as_secs_f64() * 1e3;
                 l
             }

@@ -7,8 +7,11 @@
 //! frame_sequence.rs); the CLI's bakes, the service's renders and its job items each hold one.
 
 use crate::Result;
+use skybake_engine::engine::Engine;
 use skybake_physics::cloud::DensityGrid;
-use skybake_render::{FrameScene, Lighting, LitInputs, LitVolume, Prepared, RenderSettings};
+use skybake_render::{
+    FrameScene, Lighting, LightingMemo, LitInputs, LitVolume, Prepared, RenderSettings,
+};
 use std::collections::VecDeque;
 use std::sync::{Arc, Mutex};
 
@@ -29,6 +32,10 @@ pub struct ReuseCounts {
     pub grids_computed: u64,
     pub lit_reused: u64,
     pub lit_computed: u64,
+    /// The light from outside the cloud (the engine's products), taken from an earlier frame
+    /// with the same inputs, or computed.
+    pub lighting_reused: u64,
+    pub lighting_computed: u64,
 }
 
 #[derive(Default)]
@@ -42,6 +49,7 @@ struct State {
 pub struct FrameReuse {
     state: Mutex<State>,
     budget_bytes: usize,
+    lighting: LightingMemo,
 }
 
 impl Default for FrameReuse {
@@ -57,12 +65,30 @@ impl FrameReuse {
         Self {
             state: Mutex::new(State::default()),
             budget_bytes,
+            lighting: LightingMemo::new(),
         }
     }
 
     /// What was shared so far.
     pub fn counts(&self) -> ReuseCounts {
-        self.lock().counts
+        let (lighting_reused, lighting_computed) = self.lighting.counts();
+        ReuseCounts {
+            lighting_reused,
+            lighting_computed,
+            ..self.lock().counts
+        }
+    }
+
+    /// The light from outside the cloud for `scene`, kept from an earlier frame with the same
+    /// inputs (the engine's products are functions of them: the same values).
+    pub(super) fn lighting(
+        &self,
+        scene: &FrameScene,
+        grid: &DensityGrid,
+        engine: &Engine,
+        cancel: &(dyn Fn() -> bool + Sync),
+    ) -> Result<Lighting> {
+        skybake_render::lighting_for_memo_unless(scene, grid, engine, &self.lighting, cancel)
     }
 
     fn lock(&self) -> std::sync::MutexGuard<'_, State> {
