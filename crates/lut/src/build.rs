@@ -420,7 +420,8 @@ pub(crate) struct IrradianceGrid<'a> {
     pub width: usize,
     pub mu_s: &'a (dyn Fn(usize, usize) -> f64 + Sync),
     /// Whether each direction's multiple scattering is computed on every other quadrature
-    /// azimuth and interpolated to the others where smooth ([`FamilyScratch::integrate_columns`]).
+    /// azimuth and every other sun of the row, and interpolated to the others where smooth
+    /// ([`FamilyScratch::integrate_grid`]).
     pub ms_columns: bool,
 }
 
@@ -472,7 +473,15 @@ pub(crate) fn irradiance_grid(
                     let phis: Vec<f64> = (0..n_phi)
                         .map(|b| std::f64::consts::PI * (b as f64 + 0.5) / n_phi as f64)
                         .collect();
-                    scratch.integrate_columns(&phis);
+                    // Over the row's suns as well, by their elevation unwrapped past the
+                    // zenith (the nodes reach 104° above the horizon, where μs falls again).
+                    let mut suns = Vec::with_capacity(width);
+                    for i in 0..width {
+                        let e = mu_s_of(j, i).asin();
+                        let prev = if i == 0 { e } else { mu_s_of(j, i - 1).asin() };
+                        suns.push(suns.last().map_or(e, |&c: &f64| c + (e - prev).abs()));
+                    }
+                    scratch.integrate_grid(&phis, &suns);
                 } else {
                     scratch.integrate();
                 }
@@ -655,28 +664,84 @@ impl<'a> FamilyScratch<'a> {
         self.ms_suns
             .extend((0..n_t).filter(|&t| ms_columns::computed(t % n_az, n_az)));
         self.integrate_sums();
-        let n_l = self.n_l;
+        self.interpolate_columns(phis);
+    }
+
+    /// [`Self::integrate_columns`] for suns pushed as `suns.len()` runs of `phis.len()` azimuth
+    /// columns, run `n` at the sun node coordinate `suns[n]` (increasing; the sun's elevation,
+    /// in any unit): the multiple scattering computed on every other run as well
+    /// ([`ms_columns::computed`] over the runs), on the computed columns interpolated first over
+    /// the sun coordinate to the other runs, as over φ, where smooth (the same test), then over
+    /// φ to the other columns. With fewer than 6 runs (or coordinates not increasing),
+    /// [`Self::integrate_columns`].
+    pub(crate) fn integrate_grid(&mut self, phis: &[f64], suns: &[f64]) {
+        let (n_az, n_s) = (phis.len(), suns.len());
+        let n_t = self.mu_s.len();
+        let increasing = suns.windows(2).all(|w| w[0] < w[1]);
+        if n_s < 2 * ms_columns::STEP + 2 || n_t != n_az * n_s || !increasing {
+            return self.integrate_columns(phis);
+        }
+        if n_az < 2 * ms_columns::STEP + 2 {
+            return self.integrate();
+        }
+        self.ms_suns.clear();
+        self.ms_suns.extend((0..n_t).filter(|&t| {
+            ms_columns::computed(t % n_az, n_az) && ms_columns::computed(t / n_az, n_s)
+        }));
+        self.integrate_sums();
+        let stencils = ms_columns::stencils(suns);
+        let targets: Vec<(usize, ms_columns::Stencil, usize, usize)> = (0..n_t)
+            .filter(|&t| ms_columns::computed(t % n_az, n_az))
+            .filter_map(|t| stencils[t / n_az].map(|s| (t, s, t % n_az, n_az)))
+            .collect();
+        self.interpolate_ms(&targets, ms_columns::SUN_TOLERANCE, true);
+        self.interpolate_columns(phis);
+    }
+
+    /// The multiple scattering of the columns [`ms_columns::computed`] leaves out, from the
+    /// computed ones (whose sums are complete), over φ.
+    fn interpolate_columns(&mut self, phis: &[f64]) {
+        let n_az = phis.len();
+        let n_t = self.mu_s.len();
         let stencils = ms_columns::stencils(phis);
+        let targets: Vec<(usize, ms_columns::Stencil, usize, usize)> = (0..n_t)
+            .filter_map(|t| stencils[t % n_az].map(|s| (t, s, t - t % n_az, 1)))
+            .collect();
+        self.interpolate_ms(&targets, ms_columns::TOLERANCE, false);
+    }
+
+    /// The multiple-scattering sums of suns `t` from those of the suns `base + c · stride` at the
+    /// stencil's nodes `c`, where their roughness ([`ms_columns::interpolate`]: its
+    /// curvature part alone if `curvature_only`) times the multiple scattering's share of the
+    /// value (single Rayleigh without its phase function plus multiple scattering over the
+    /// Rayleigh phase function, as the `skyview` texels store it; of a radiance that adds single
+    /// Mie, at least its share) is within `tolerance`; computed where it is not.
+    fn interpolate_ms(
+        &mut self,
+        targets: &[(usize, ms_columns::Stencil, usize, usize)],
+        tolerance: f64,
+        curvature_only: bool,
+    ) {
+        let n_l = self.n_l;
+        let n_t = self.mu_s.len();
         let mut refine = Vec::new();
         let mut values = Vec::with_capacity(n_l);
-        for t in 0..n_t {
-            let Some(s) = &stencils[t % n_az] else {
-                continue;
-            };
-            let base = t - t % n_az;
+        for &(t, s, base, stride) in targets {
             let p_r = param::rayleigh_phase(self.nu[t]);
             let mut ok = true;
             values.clear();
             for l in 0..n_l {
                 let ms = &self.multiple;
-                let Some((v, rough)) = ms_columns::interpolate(s, |c| ms[(base + c) * n_l + l])
+                let Some((v, step, curv)) =
+                    ms_columns::interpolate(&s, |c| ms[(base + c * stride) * n_l + l])
                 else {
                     ok = false;
                     break;
                 };
+                let rough = if curvature_only { curv } else { step.max(curv) };
                 let single = self.rayleigh[l * n_t + t];
                 let share = (v / p_r) / (single + v / p_r);
-                if rough * share > ms_columns::TOLERANCE {
+                if rough * share > tolerance {
                     ok = false;
                     break;
                 }

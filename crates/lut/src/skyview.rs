@@ -787,7 +787,8 @@ pub fn build_skyview(
                             nus.push(nu);
                         }
                     }
-                    scratch.integrate_columns(&columns[k]);
+                    let sun_at: Vec<f64> = suns.iter().map(|&j| s_j[j]).collect();
+                    scratch.integrate_grid(&columns[k], &sun_at);
                     for (n, &j) in suns.iter().enumerate() {
                         for a in 0..N_AZ {
                             let nu = nus[n * N_AZ + a];
