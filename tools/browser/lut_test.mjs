@@ -78,6 +78,10 @@ const SKYVIEW_BANDS = [
     cases: cross([0, 5000], [2, -3], [82, 87], [0, 90, 180]) },
   { name: "0-5 km, sun -12..-6 deg", target: 0.10, bound: 0.238,
     cases: cross([0, 5000], [-8, -11], [0, 60, 85], [0, 180]) },
+  // The band above the earth's shadow seen aloft (layout version 9: the sky rows' focus up to
+  // 20 km, the columns aloft read at the query's altitude's azimuths in SkyViewBandRows).
+  { name: "8-20 km, sun -5..-1 deg, the band above the earth's shadow", target: 0.03, bound: 0.30,
+    cases: cross([8000, 12500, 17000], [-1, -3, -5], [84, 86, 88], [120, 150, 180]) },
 ];
 // (a) for skyview: measured (software WebGL, layout version 3) GetSkyRadiance 9.45e-5 relative
 // (version 2: 5.4e-6; version 3's limb row and sun node coordinate add 32-bit rounding where the
