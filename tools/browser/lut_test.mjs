@@ -78,14 +78,24 @@ const SKYVIEW_BANDS = [
     cases: cross([0, 5000], [2, -3], [82, 87], [0, 90, 180]) },
   { name: "0-5 km, sun -12..-6 deg", target: 0.10, bound: 0.238,
     cases: cross([0, 5000], [-8, -11], [0, 60, 85], [0, 180]) },
+  // The band above the earth's shadow seen aloft (layout version 9: the sky rows' focus up to
+  // 20 km, the columns aloft read at the query's altitude's azimuths in SkyViewBandRows);
+  // measured 2.84 % (G, 12.5 km, sun -3 deg, zenith 88 deg, 120 deg from the sun), bound x 1.15.
+  { name: "8-20 km, sun -5..-1 deg, the band above the earth's shadow", target: 0.03, bound: 0.033,
+    cases: cross([8000, 12500, 17000], [-1, -3, -5], [84, 86, 88], [120, 150, 180]) },
 ];
 // (a) for skyview: measured (software WebGL, layout version 3) GetSkyRadiance 9.45e-5 relative
 // (version 2: 5.4e-6; version 3's limb row and sun node coordinate add 32-bit rounding where the
 // sky is steep in them), GetSkyRadianceToPoint 5.4e-5 / 2.4e-6 of the ray's in-scatter (camera
 // 1 m / 2-10 km), GetSunAndSkyIrradiance 8e-7 (sun) / 1.1e-6 (sky); transmittances 1.8e-5
 // absolute. The skyview shader fetches texels and interpolates in 32-bit floats as the reader
-// does in 64.
-const SKYVIEW_SHADER_BOUND = { relative: 2e-4, transmittance: 1e-4 };
+// does in 64. Layout version 9 (2026-12-06): GetSkyRadiance 4.66e-4 on the band above the earth's
+// shadow seen aloft (8 km, sun -3 deg, zenith 86 deg, 150 deg from the sun, G; the other bands
+// within 2e-4): the camera's radius in 32-bit floats is 0.5 m coarse at the planet's radius,
+// which moves the sun coordinate (the horizon's dip, 1.8e-4 deg per m at 8 km) where ln L
+// changes by about 5 per degree of it (the band, 2.4 per degree of elevation, moves 2 deg per
+// degree of the sun): 4.5e-4; bound 5.2e-4.
+const SKYVIEW_SHADER_BOUND = { relative: 5.2e-4, transmittance: 1e-4 };
 
 const LAYOUTS = [
   { layout: "skyview", textures: 5, bands: SKYVIEW_BANDS, shaderBound: SKYVIEW_SHADER_BOUND },

@@ -82,7 +82,7 @@ class LiveSky {
         `#define SV_SUN_WARP_LO ${warpRange[0].toExponential()}\n` +
         `#define SV_SUN_WARP_HI ${warpRange[1].toExponential()}\n`;
       // The sky rows' focus on the band above the earth's shadow (version 4), and the band's
-      // elevation with the azimuth (version 5).
+      // elevation with the azimuth (version 5), its fit aloft and the depth's top (version 9).
       const band = manifest.parameterisation.sky_row_band;
       const numbers = (v, n) => Array.isArray(v) && v.length === n && v.every(Number.isFinite);
       if (!band || !(band.focus > 0) || !Number.isFinite(band.sun_deg) || !numbers(band.centre, 4) ||
@@ -90,7 +90,10 @@ class LiveSky {
           !(band.antisolar > 0) || !(band.depth_deg_per_km >= 0) || !(band.horizon_deg > 0) ||
           !numbers(band.antisolar_range, 2) || !(band.focus_growth >= 0) ||
           !numbers(band.focus_growth_altitude_m, 2) ||
-          !(band.focus_growth_altitude_m[0] < band.focus_growth_altitude_m[1])) {
+          !(band.focus_growth_altitude_m[0] < band.focus_growth_altitude_m[1]) ||
+          !Number.isFinite(band.centre_aloft_per_km) || !numbers(band.centre_aloft_altitude_m, 2) ||
+          !(band.centre_aloft_altitude_m[0] <= band.centre_aloft_altitude_m[1]) ||
+          !(band.depth_top_m >= 0)) {
         throw new Error("manifest: parameterisation.sky_row_band is not the sky rows' band focus");
       }
       // The altitude nodes, where each slice's own rows are read (version 6).
@@ -110,6 +113,9 @@ class LiveSky {
         `#define SV_BAND_ANTISOLAR_RANGE vec2(${band.antisolar_range.map(f).join(", ")})\n` +
         `#define SV_BAND_GROWTH ${f(band.focus_growth)}\n` +
         `#define SV_BAND_GROWTH_ALTITUDE vec2(${band.focus_growth_altitude_m.map(f).join(", ")})\n` +
+        `#define SV_BAND_CENTRE_ALOFT ${f(band.centre_aloft_per_km)}\n` +
+        `#define SV_BAND_CENTRE_ALOFT_ALTITUDE vec2(${band.centre_aloft_altitude_m.map(f).join(", ")})\n` +
+        `#define SV_BAND_DEPTH_TOP ${f(band.depth_top_m)}\n` +
         `#define SV_ALT_NODES float[${z.N_ALT}](${altNodes.map(f).join(", ")})\n`;
       // The azimuth columns' map aloft (version 5).
       const az = manifest.parameterisation.azimuth_aloft;

@@ -19,7 +19,9 @@
 // SV_BAND_SUN_RANGE (sun_range_deg, a vec4), SV_BAND_ALTITUDE (altitude_range_m, a vec2),
 // SV_BAND_ANTISOLAR (antisolar), SV_BAND_DEPTH (depth_deg_per_km), SV_BAND_HORIZON
 // (horizon_deg), SV_BAND_ANTISOLAR_RANGE (antisolar_range, a vec2), SV_BAND_GROWTH
-// (focus_growth), SV_BAND_GROWTH_ALTITUDE (focus_growth_altitude_m, a vec2), and SV_ALT_NODES
+// (focus_growth), SV_BAND_GROWTH_ALTITUDE (focus_growth_altitude_m, a vec2),
+// SV_BAND_CENTRE_ALOFT (centre_aloft_per_km), SV_BAND_CENTRE_ALOFT_ALTITUDE
+// (centre_aloft_altitude_m, a vec2), SV_BAND_DEPTH_TOP (depth_top_m), and SV_ALT_NODES
 // (parameterisation.altitude_nodes_m, a float[SV_N_ALT] constructor);
 // from parameterisation.azimuth_aloft: SV_AZ_WEIGHT (weight) and SV_AZ_ALTITUDE
 // (altitude_range_m, a vec2), and SV_ALT_MAP (parameterisation.altitude_map, a vec3).
@@ -226,13 +228,41 @@ float SkyViewBandStrength(float h) {
 // the observer's horizon at altitude h.
 void SkyViewBandFocus(float sun_deg, float h, out float c, out float k) {
   float u = max(SV_BAND_SUN - sun_deg, 0.0);
-  float km = clamp(h / 1000.0, 0.0, 10.0);
-  c = min((SV_BAND_CENTRE.x + SV_BAND_CENTRE.y * km) * u +
-          (SV_BAND_CENTRE.z + SV_BAND_CENTRE.w * km) * u * u, 45.0);
+  // The low fit up to SV_BAND_CENTRE_ALOFT_ALTITUDE.x, scaled by 1 + SV_BAND_CENTRE_ALOFT per km
+  // above it up to SV_BAND_CENTRE_ALOFT_ALTITUDE.y (the reader's band_centre_deg).
+  float km = clamp(h, 0.0, SV_BAND_CENTRE_ALOFT_ALTITUDE.x) / 1000.0;
+  float aloft = 1.0 + SV_BAND_CENTRE_ALOFT *
+      clamp(h - SV_BAND_CENTRE_ALOFT_ALTITUDE.x, 0.0,
+            SV_BAND_CENTRE_ALOFT_ALTITUDE.y - SV_BAND_CENTRE_ALOFT_ALTITUDE.x) / 1000.0;
+  c = min(((SV_BAND_CENTRE.x + SV_BAND_CENTRE.y * km) * u +
+           (SV_BAND_CENTRE.z + SV_BAND_CENTRE.w * km) * u * u) * aloft, 45.0);
   float f = smoothstep(SV_BAND_SUN_RANGE.x, SV_BAND_SUN_RANGE.y, sun_deg) *
       (1.0 - smoothstep(SV_BAND_SUN_RANGE.z, SV_BAND_SUN_RANGE.w, sun_deg)) *
       (1.0 - smoothstep(SV_BAND_ALTITUDE.x, SV_BAND_ALTITUDE.y, h));
   k = f * SkyViewBandStrength(h);
+}
+
+// The band's depth delta (degrees below the horizontal) at altitude h (the reader's
+// band_depth_deg): SV_BAND_DEPTH per km up to SV_BAND_DEPTH_TOP.
+float SkyViewBandDepth(float h) {
+  return SV_BAND_DEPTH * clamp(h, 0.0, SV_BAND_DEPTH_TOP) / 1000.0;
+}
+
+// The azimuth (rad) from the sun of column a at altitude h (the reader's azimuth_node): the root
+// x of alpha x + (1 - alpha) sin^2(pi x^2 / 2) = a / (N_AZ - 1), phi = pi x^2, by Newton's
+// method from x = a / (N_AZ - 1) (the root where alpha = 1, near the ground).
+float SkyViewAzimuthNode(int a, float h) {
+  float target = float(a) / float(SV_N_AZ - 1);
+  float alpha = 1.0 - (1.0 - SV_AZ_WEIGHT) * smoothstep(SV_AZ_ALTITUDE.x, SV_AZ_ALTITUDE.y, h);
+  float x = target;
+  if (alpha < 1.0 && a > 0 && a < SV_N_AZ - 1) {
+    for (int i = 0; i < 6; ++i) {
+      float s = sin(0.5 * PI * x * x);
+      float f = alpha * x + (1.0 - alpha) * s * s - target;
+      x = clamp(x - f / (alpha + (1.0 - alpha) * PI * x * sin(PI * x * x)), 0.0, 1.0);
+    }
+  }
+  return PI * x * x;
 }
 
 // The sky rows' coordinate x (0 at the zenith, 1 at the horizontal) of the elevation
@@ -256,7 +286,7 @@ float SkyViewSkyRow(float elevation_deg, float c, float k) {
 // SV_BAND_ANTISOLAR_RANGE of -cos(phi) (the identity within 102 deg of the sun).
 float SkyViewBandRelative(float elevation_deg, float c, float k, float h, float cos_phi_q,
                           float cos_phi_a) {
-  float delta = SV_BAND_DEPTH * clamp(h / 1000.0, 0.0, 10.0);
+  float delta = SkyViewBandDepth(h);
   float w = max(c * SV_BAND_ANTISOLAR + delta, 0.5);
   float ratio = max(-cos_phi_a, SV_BAND_ANTISOLAR_RANGE.x) /
       max(-cos_phi_q, SV_BAND_ANTISOLAR_RANGE.x);
@@ -287,8 +317,8 @@ SvStencil SkyViewBandRowStencil(float elevation_deg, float h, float c, float k) 
 // band_slice_elevation): affine about SV_BAND_DEPTH h below the horizontal, the band onto the
 // band, faded as SkyViewBandRelative.
 float SkyViewBandSlice(float elevation_deg, float c, float k, float h, float s_n, float h_n) {
-  float delta_q = SV_BAND_DEPTH * clamp(h / 1000.0, 0.0, 10.0);
-  float delta_n = SV_BAND_DEPTH * clamp(h_n / 1000.0, 0.0, 10.0);
+  float delta_q = SkyViewBandDepth(h);
+  float delta_n = SkyViewBandDepth(h_n);
   float c_n, k_n;
   SkyViewBandFocus(s_n, h_n, c_n, k_n);
   float height_q = max(c * SV_BAND_ANTISOLAR + delta_q, 0.1);
@@ -350,10 +380,11 @@ vec3 SkyViewFetchBand(sampler2D part, int k, int j, SvStencil sc, SvStencil rows
 
 // On the sky rows, the rows' stencil of each column m of sc in slice (altitude node k, sun node
 // j) for a query at elevation_deg with the focus (c, k_q) at the sun s_q, altitude h and
-// azimuth cos_phi from the sun (the reader's band_rows): false where neither the query nor the
-// slice has a focus (then the slice is read at the query's row).
+// azimuth cos_phi from the sun, cos_cols the cosines of the azimuths of sc's columns at h
+// (SkyViewAzimuthNode) (the reader's band_rows): false where neither the query nor the slice has
+// a focus (then the slice is read at the query's row).
 bool SkyViewBandRows(float elevation_deg, float c, float k_q, float h, float cos_phi,
-                     SvStencil sc, int k, int j, out SvStencil rows[4]) {
+                     vec4 cos_cols, int k, int j, out SvStencil rows[4]) {
   float h_n = sv_alt_nodes[k];
   float b = SV_SUN_WARP * sqrt(clamp(h_n / (top_radius - bottom_radius), 0.0, 1.0));
   float s_n = SkyViewSunWarp(SkyViewSunNodeDeg(j), b);
@@ -362,8 +393,7 @@ bool SkyViewBandRows(float elevation_deg, float c, float k_q, float h, float cos
   if (k_q < 1e-6 && k_n < 1e-6) return false;
   float e_n = SkyViewBandSlice(elevation_deg, c, k_q, h, s_n, h_n);
   for (int m = 0; m < 4; ++m) {
-    float x = float(min(sc.first + m, SV_N_AZ - 1)) / float(SV_N_AZ - 1);
-    float e = SkyViewBandRelative(e_n, c_n, k_n, h_n, cos_phi, cos(PI * x * x));
+    float e = SkyViewBandRelative(e_n, c_n, k_n, h_n, cos_phi, cos_cols[m]);
     rows[m] = SkyViewBandRowStencil(e, h, c_n, k_n);
   }
   return true;
@@ -429,10 +459,14 @@ vec3 SkyViewRadiance(float h, float rho, vec3 up, vec3 view_ray, vec3 sun_direct
   // (SkyViewBandRows): the query's elevation moved to where it lies relative to the band at the
   // slice's sun and altitude and at the column's azimuth.
   float band_c = 0.0, band_k = 0.0, elevation = 0.0;
+  vec4 cos_cols = vec4(1.0);
   if (segment < 2) {
     // The sky rows' focus (the reader's sky_row_focus) at the sun coordinate.
     SkyViewBandFocus(degrees(asin(mu_s) + shift), h, band_c, band_k);
     elevation = degrees(asin(mu));
+    for (int m = 0; m < 4; ++m) {
+      cos_cols[m] = cos(SkyViewAzimuthNode(min(sc.first + m, SV_N_AZ - 1), h));
+    }
   }
   if (segment == 0) row = SkyViewSkyRow(elevation, band_c, band_k) * float(SV_N_VIEW_SKY - 1);
   int lo = segment == 0 ? 0 : segment == 1 ? SV_N_VIEW_SKY : SV_N_VIEW_UP;
@@ -463,7 +497,7 @@ vec3 SkyViewRadiance(float h, float rho, vec3 up, vec3 view_ray, vec3 sun_direct
         if (s >= ss.len) break;
         vec3 value;
         SvStencil band_rows[4];
-        if (segment < 2 && SkyViewBandRows(elevation, band_c, band_k, h, cos(phi), sc,
+        if (segment < 2 && SkyViewBandRows(elevation, band_c, band_k, h, cos(phi), cos_cols,
                                             sa.first + a, ss.first + s, band_rows)) {
           int k = sa.first + a, j = ss.first + s;
           value = part == 0 ? SkyViewFetchBand(skyview_rayleigh, k, j, sc, band_rows) :

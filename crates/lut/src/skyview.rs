@@ -72,7 +72,10 @@ pub const LAYOUT: &str = "skyview";
 /// 8: the texels' multiple scattering computed on every other azimuth column and interpolated
 /// to the others in ln J where the computed columns show it smooth (`ms_columns`; texels
 /// within 0.7 %, the layout unchanged).
-pub const SKYVIEW_VERSION: &str = "8";
+/// 9: the sky rows' focus carried up to 20 km (fading out at 20–25 km, [`BAND_ALTITUDE_M`]) with
+/// the band's elevation fitted from 10 to 20 km ([`BAND_CENTRE_ALOFT`]) and its depth held from
+/// 5 km up ([`BAND_DEPTH_TOP_M`]).
+pub const SKYVIEW_VERSION: &str = "9";
 
 /// Altitude nodes: h_k the roots of [`altitude_coord`] (about (top − bottom) · (k / (N − 1))²,
 /// denser near the top).
@@ -307,22 +310,34 @@ pub fn view_coord(theta: f64, r: f64, bottom: f64, sun_deg: f64) -> (usize, f64)
     }
 }
 
-/// The sunlit band above the earth's shadow at low altitude (the rise of the antisolar
-/// twilight sky from the shadow's floor to the bright band above it, steepest in the red, where
-/// it is lit by sunlight that grazed the ground): its elevation
+/// The sunlit band above the earth's shadow (the rise of the antisolar twilight sky from the
+/// shadow's floor to the bright band above it, steepest in the red, where it is lit by sunlight
+/// that grazed the ground): its elevation
 /// (degrees, opposite the sun, where ln L rises fastest) with the sun `sun_deg` above the
-/// observer's horizon at altitude `h` (m): u = [`BAND_SUN_DEG`] − s, c = (a₀ + a₁ h) u +
-/// (a₂ + a₃ h) u², h in km up to 10 ([`BAND_CENTRE`]). The coefficients are 0.85 times a fit to
-/// the `sky` product opposite the sun (earth, 680 nm, 0–10 km, the sun's elevation −4.5…0°;
-/// within 0.3° where the rise is steeper than a factor 1.6 per degree): away from the antisolar
-/// azimuth the band lies lower (150° from the sun: about 0.7 of its elevation at 180°), and the
-/// rows' focus sits between the two.
+/// observer's horizon at altitude `h` (m): u = [`BAND_SUN_DEG`] − s, c = ((a₀ + a₁ h) u +
+/// (a₂ + a₃ h) u²)(1 + ρ (h − h₀)), h in km up to h₀ = 10 in the first factor
+/// ([`BAND_CENTRE`]) and from h₀ to h₁ = 20 in the second (ρ = [`BAND_CENTRE_ALOFT`],
+/// (h₀, h₁) = [`BAND_CENTRE_ALOFT_M`]). The coefficients are 0.85 times a fit to the `sky`
+/// product opposite the sun (earth, 680 nm, 0–10 km, the sun's elevation −4.5…0°; within 0.3°
+/// where the rise is steeper than a factor 1.6 per degree); ρ a fit of the same at 10–20 km
+/// (the sun 2° below to 1.6° above the observer's horizon, within 0.45°; the fit at 10 km
+/// extrapolated in h lies up to 2.3° too high at 10–20 km, held at 10 km up to 2.6° too low):
+/// away from the antisolar azimuth the band lies lower (150° from the sun: about 0.7 of its
+/// elevation at 180°), and the rows' focus sits between the two.
 pub fn band_centre_deg(sun_deg: f64, h: f64) -> f64 {
     let u = (BAND_SUN_DEG - sun_deg).max(0.0);
-    let km = (h / 1000.0).clamp(0.0, 10.0);
+    let [h0, h1] = BAND_CENTRE_ALOFT_M;
+    let km = (h / 1000.0).clamp(0.0, h0 / 1000.0);
+    let aloft = 1.0 + BAND_CENTRE_ALOFT * ((h - h0) / 1000.0).clamp(0.0, (h1 - h0) / 1000.0);
     let [a0, a1, a2, a3] = BAND_CENTRE;
-    ((a0 + a1 * km) * u + (a2 + a3 * km) * u * u).min(45.0)
+    (((a0 + a1 * km) * u + (a2 + a3 * km) * u * u) * aloft).min(45.0)
 }
+
+/// The altitudes (m) between which [`band_centre_deg`] grows by [`BAND_CENTRE_ALOFT`] per km
+/// (below the first the low fit's altitude dependence, above the second held).
+pub const BAND_CENTRE_ALOFT_M: [f64; 2] = [10_000.0, 20_000.0];
+/// [`band_centre_deg`]'s growth per km between the altitudes of [`BAND_CENTRE_ALOFT_M`].
+pub const BAND_CENTRE_ALOFT: f64 = 0.03;
 
 /// The sun coordinate (degrees above the observer's horizon) at which the band of
 /// [`band_centre_deg`] reaches the horizontal.
@@ -337,7 +352,7 @@ pub const BAND_FOCUS: f64 = 14.0;
 pub const BAND_SUN_RANGE: [f64; 4] = [-7.0, -4.0, 1.0, 5.0];
 /// Altitudes (m) between which the focus fades out (full below the first, none above the
 /// second).
-pub const BAND_ALTITUDE_M: [f64; 2] = [6_000.0, 10_000.0];
+pub const BAND_ALTITUDE_M: [f64; 2] = [20_000.0, 25_000.0];
 
 fn smoothstep(a: f64, b: f64, x: f64) -> f64 {
     let t = ((x - a) / (b - a)).clamp(0.0, 1.0);
@@ -378,7 +393,7 @@ pub fn band_focus_strength(h: f64) -> f64 {
 /// `eps` (degrees) with the sun `sun_q` above the observer's horizon at altitude `h_q`: where
 /// `eps` lies relative to the band above the earth's shadow at the query's sun and altitude,
 /// moved to the same place relative to the band at the node's. The band's height above −δ
-/// (δ = [`BAND_DEPTH_PER_KM`] · h, [`band_relative_elevation`]) at any azimuth is
+/// (δ = [`band_depth_deg`], [`band_relative_elevation`]) at any azimuth is
 /// (C + δ)(−cos φ), C = [`BAND_ANTISOLAR`] · [`band_centre_deg`], so the map is affine about
 /// −δ, e = (ε + δ_q)(C_n + δ_n)/(C_q + δ_q) − δ_n, whatever the azimuth: the shadow's floor
 /// (anchored at the horizon) and the band's rise (which climbs about 2° per degree the sun
@@ -393,8 +408,7 @@ pub fn band_slice_elevation(eps: f64, sun_q: f64, h_q: f64, sun_n: f64, h_n: f64
     if k_q < 1e-6 {
         return eps;
     }
-    let depth = |h: f64| BAND_DEPTH_PER_KM * (h / 1000.0).clamp(0.0, 10.0);
-    let (d_q, d_n) = (depth(h_q), depth(h_n));
+    let (d_q, d_n) = (band_depth_deg(h_q), band_depth_deg(h_n));
     // The band's height above −δ opposite the sun (at least 0.1°: the ratio's floor).
     let height_q = (c_q * BAND_ANTISOLAR + d_q).max(0.1);
     let height_n = (band_centre_deg(sun_n, h_n) * BAND_ANTISOLAR + d_n).max(0.1);
@@ -409,13 +423,27 @@ pub fn band_slice_elevation(eps: f64, sun_q: f64, h_q: f64, sun_n: f64, h_n: f64
 /// The band's elevation (degrees) opposite the sun relative to [`band_centre_deg`] (the rows'
 /// focus sits at 0.85 of it, between its elevations at 150° and 180° from the sun).
 pub const BAND_ANTISOLAR: f64 = 1.0 / 0.85;
-/// How deep below the horizontal (degrees per km of the observer's altitude, up to 10 km) the
-/// point lies from which the band's elevation scales with −cos φ ([`band_relative_elevation`]).
+/// How deep below the horizontal (degrees per km of the observer's altitude, up to
+/// [`BAND_DEPTH_TOP_M`]) the point lies from which the band's elevation scales with −cos φ
+/// ([`band_relative_elevation`], [`band_depth_deg`]).
 /// Measured on the `sky` product (680 nm, the elevation where ln L rises fastest at 150° and
 /// 180° from the sun): 1.2–1.8° at 2.5 km and 1.5–3° at 5 km with the sun 0.5° below to 1.5°
 /// above the observer's horizon (where the band is sharpest), ≈ 0.25–1° at 1 km (version 5:
 /// 0.25 per km).
 pub const BAND_DEPTH_PER_KM: f64 = 0.5;
+/// The altitude (m) up to which the band's depth grows ([`band_depth_deg`]). Measured on the
+/// `sky` product (680 nm, the band's elevation at 120–180° from the sun fitted as
+/// (c₁₈₀ + δ)(−cos φ) − δ, the sun 2° below to 0.2° above the observer's horizon): δ ≈ 0.9–1.4°
+/// at 6 km, 1.3–2.3° at 10–20 km, not the 5° of the depth grown to 10 km (with which the
+/// columns' map moved the band below the horizontal 100–120° from the sun aloft: 9.1 % at
+/// 14 km, 119° from the sun).
+pub const BAND_DEPTH_TOP_M: f64 = 5_000.0;
+
+/// The band's depth δ (degrees below the horizontal) at altitude `h` (m): [`BAND_DEPTH_PER_KM`]
+/// times h in km up to [`BAND_DEPTH_TOP_M`].
+pub fn band_depth_deg(h: f64) -> f64 {
+    BAND_DEPTH_PER_KM * (h / 1000.0).clamp(0.0, BAND_DEPTH_TOP_M / 1000.0)
+}
 /// The −cos φ (φ the azimuth from the sun) over which [`band_relative_elevation`] fades in
 /// (smoothstep; 102° to 120°); below the first the columns' heights are held at it. Nearer 90°
 /// the band lies at or below the horizon and its height above −δ vanishes: a ratio of such
@@ -434,7 +462,7 @@ pub const BAND_HORIZON_DEG: f64 = 0.5;
 /// edge a great circle of the sky about the antisolar point in the sky of a distant observer,
 /// whose elevation falls as −cos φ; measured on the `sky` product at 680 nm from 1–8 km, sun
 /// −3…0.5° above the observer's horizon, within 0.2° from 112° to 180°), its elevation at
-/// azimuth φ is c(φ) = (c₁₈₀ + δ)(−cos φ) − δ, δ = [`BAND_DEPTH_PER_KM`] · h, c₁₈₀ the band's
+/// azimuth φ is c(φ) = (c₁₈₀ + δ)(−cos φ) − δ, δ = [`band_depth_deg`], c₁₈₀ the band's
 /// elevation opposite the sun ([`BAND_ANTISOLAR`] · [`band_centre_deg`]). The map is affine
 /// about −δ, (ε + δ)·(c_a + δ)/(c_q + δ) − δ (the band onto the band), faded to the identity
 /// above 2–4 times the band's height (at least 0.5°), at the horizontal ([`BAND_HORIZON_DEG`])
@@ -452,7 +480,7 @@ pub fn band_relative_elevation(
     if k < 1e-6 {
         return eps;
     }
-    let delta = BAND_DEPTH_PER_KM * (h / 1000.0).clamp(0.0, 10.0);
+    let delta = band_depth_deg(h);
     let height = c * BAND_ANTISOLAR + delta;
     // (c_a + δ) / (c_q + δ): the band's height above −δ at the column over the query's.
     let (lo, hi) = BAND_ANTISOLAR_RANGE;
@@ -1381,9 +1409,9 @@ pub const STATED_ERRORS: &[(&str, &str, f64)] = &[
     ("rayleigh+mie", "sky radiance (sky product), sun >= 5 deg, view < 10 deg above the horizon, 20-100 km", 0.028),
     ("rayleigh+mie", "sky radiance (sky product), sun -6..5 deg, ground", 0.015),
     ("rayleigh+mie", "sky radiance (sky product), sun -6..5 deg, 0-5 km (4.6 % at 5 km, 0.5 deg above the horizontal 120 deg from the sun, 680 nm)", 0.046),
-    ("rayleigh+mie", "sky radiance (sky product), sun -6..5 deg, 5-8 km (the band above the earth's shadow near the antisolar horizon, 680 nm at 8 km)", 0.22),
-    ("rayleigh+mie", "sky radiance (sky product), sun -6..5 deg, 8-12.5 km (the band above the earth's shadow near the antisolar horizon, 680 nm at 11 km)", 0.74),
-    ("rayleigh+mie", "sky radiance (sky product), sun -6..5 deg, 12.5-20 km (the band above the earth's shadow near the antisolar horizon, 680 nm at 20 km)", 1.75),
+    ("rayleigh+mie", "sky radiance (sky product), sun -6..5 deg, 5-8 km (the band above the earth's shadow near the antisolar horizon, 680 nm at 8 km, 3 deg above the horizontal)", 0.098),
+    ("rayleigh+mie", "sky radiance (sky product), sun -6..5 deg, 8-12.5 km (the band above the earth's shadow near the antisolar horizon, 680 nm at 12.5 km, 3.25 deg below the horizontal)", 0.25),
+    ("rayleigh+mie", "sky radiance (sky product), sun -6..5 deg, 12.5-20 km (the band above the earth's shadow near the antisolar horizon, 680 nm at 15 km, 3.5 deg below the horizontal)", 0.46),
     ("rayleigh+mie", "sky radiance (sky product), sun -6..0 deg, 0-5 km, views within 10 deg of the horizon 150-180 deg from the sun (the earth's shadow rising; 680 nm at 2.5 km)", 0.024),
     ("rayleigh+mie", "sky radiance (sky product), sun -6..5 deg, 20-100 km (the limb across the earth's shadow)", 0.070),
     ("rayleigh+mie", "sky radiance (sky product), sun -12..-6 deg, ground", 0.035),
@@ -1456,13 +1484,16 @@ pub fn manifest(
                 "altitude_range_m": BAND_ALTITUDE_M,
                 "antisolar": BAND_ANTISOLAR,
                 "depth_deg_per_km": BAND_DEPTH_PER_KM,
+                "depth_top_m": BAND_DEPTH_TOP_M,
+                "centre_aloft_per_km": BAND_CENTRE_ALOFT,
+                "centre_aloft_altitude_m": BAND_CENTRE_ALOFT_M,
                 "horizon_deg": BAND_HORIZON_DEG,
                 "antisolar_range": [BAND_ANTISOLAR_RANGE.0, BAND_ANTISOLAR_RANGE.1],
                 "focus_growth": BAND_FOCUS_GROWTH,
                 "focus_growth_altitude_m": BAND_FOCUS_GROWTH_M,
-                "slices": "on the sky rows, each (altitude node k, sun node j) slice of the interpolation is read on its own rows (the focus (c_n, k_n) at the node's sun coordinate s_n = the warped s_j at h_k and its altitude h_n = altitude_nodes_m[k]) where the query's or the slice's k > 0: at e_n = e + f (1 - smoothstep(2 w, 4 w, e)) smoothstep(0, horizon_deg, e) ((e + delta_q) H_n / H_q - delta_n - e), H = max(c antisolar + delta, 0.1) at the query's (c, h) and the node's (band centre c at s_n, h_n), delta = depth_deg_per_km clamp(h / 1000, 0, 10), w = max(H_q, 0.5), f = k / (focus (1 + focus_growth smoothstep(focus_growth_altitude_m[0], focus_growth_altitude_m[1], h))) the query's fade (0 where k = 0), then each column at the azimuth formula's e_a with (c_n, k_n, h_n) in place of the query's",
-                "azimuth": "on the sky rows and the limb rows where k > 0 each azimuth column a of the interpolation is read at its own elevation e_a (its own rows' stencil): delta = depth_deg_per_km clamp(h / 1000, 0, 10), w = max(c antisolar + delta, 0.5), ratio = max(-cos phi_a, antisolar_range[0]) / max(-cos phi, antisolar_range[0]), e_a = e + (k / (focus (1 + focus_growth smoothstep(focus_growth_altitude_m[0], focus_growth_altitude_m[1], h)))) (1 - smoothstep(2 w, 4 w, e)) step(-delta, e) smoothstep(antisolar_range[0], antisolar_range[1], -cos phi) (e + delta) (ratio - 1) (version 7: from -delta up through the horizontal, where version 6 had smoothstep(0, horizon_deg, e)), e the query's elevation (deg), phi its azimuth from the sun, phi_a the column's; where e_a >= 0 the column is read on the sky rows, below on the limb rows at the query's altitude h (depth y = 2 r sin^2(e_a / 2) / h); the band above the earth's shadow lies at (c antisolar + delta)(-cos phi) - delta",
-                "formula": "the sky rows' focus at the sun's elevation s above the observer's horizon (deg) and altitude h (m): u = max(sun_deg - s, 0), km = clamp(h / 1000, 0, 10), c = min((centre[0] + centre[1] km) u + (centre[2] + centre[3] km) u^2, 45) (deg), k = smoothstep(sun_range_deg[0], sun_range_deg[1], s) (1 - smoothstep(sun_range_deg[2], sun_range_deg[3], s)) (1 - smoothstep(altitude_range_m[0], altitude_range_m[1], h)) focus (1 + focus_growth smoothstep(focus_growth_altitude_m[0], focus_growth_altitude_m[1], h)), smoothstep(a, b, x) = t^2 (3 - 2 t), t = clamp((x - a) / (b - a), 0, 1)",
+                "slices": "on the sky rows, each (altitude node k, sun node j) slice of the interpolation is read on its own rows (the focus (c_n, k_n) at the node's sun coordinate s_n = the warped s_j at h_k and its altitude h_n = altitude_nodes_m[k]) where the query's or the slice's k > 0: at e_n = e + f (1 - smoothstep(2 w, 4 w, e)) smoothstep(0, horizon_deg, e) ((e + delta_q) H_n / H_q - delta_n - e), H = max(c antisolar + delta, 0.1) at the query's (c, h) and the node's (band centre c at s_n, h_n), delta = depth_deg_per_km clamp(h, 0, depth_top_m) / 1000, w = max(H_q, 0.5), f = k / (focus (1 + focus_growth smoothstep(focus_growth_altitude_m[0], focus_growth_altitude_m[1], h))) the query's fade (0 where k = 0), then each column at the azimuth formula's e_a with (c_n, k_n, h_n) in place of the query's",
+                "azimuth": "on the sky rows and the limb rows where k > 0 each azimuth column a of the interpolation is read at its own elevation e_a (its own rows' stencil): delta = depth_deg_per_km clamp(h, 0, depth_top_m) / 1000, w = max(c antisolar + delta, 0.5), ratio = max(-cos phi_a, antisolar_range[0]) / max(-cos phi, antisolar_range[0]), e_a = e + (k / (focus (1 + focus_growth smoothstep(focus_growth_altitude_m[0], focus_growth_altitude_m[1], h)))) (1 - smoothstep(2 w, 4 w, e)) step(-delta, e) smoothstep(antisolar_range[0], antisolar_range[1], -cos phi) (e + delta) (ratio - 1) (version 7: from -delta up through the horizontal, where version 6 had smoothstep(0, horizon_deg, e)), e the query's elevation (deg), phi its azimuth from the sun, phi_a the column's at the query's altitude h (azimuth_columns); where e_a >= 0 the column is read on the sky rows, below on the limb rows at the query's altitude h (depth y = 2 r sin^2(e_a / 2) / h); the band above the earth's shadow lies at (c antisolar + delta)(-cos phi) - delta",
+                "formula": "the sky rows' focus at the sun's elevation s above the observer's horizon (deg) and altitude h (m): u = max(sun_deg - s, 0), km = clamp(h, 0, centre_aloft_altitude_m[0]) / 1000, c = min(((centre[0] + centre[1] km) u + (centre[2] + centre[3] km) u^2) (1 + centre_aloft_per_km clamp(h - centre_aloft_altitude_m[0], 0, centre_aloft_altitude_m[1] - centre_aloft_altitude_m[0]) / 1000), 45) (deg), k = smoothstep(sun_range_deg[0], sun_range_deg[1], s) (1 - smoothstep(sun_range_deg[2], sun_range_deg[3], s)) (1 - smoothstep(altitude_range_m[0], altitude_range_m[1], h)) focus (1 + focus_growth smoothstep(focus_growth_altitude_m[0], focus_growth_altitude_m[1], h)), smoothstep(a, b, x) = t^2 (3 - 2 t), t = clamp((x - a) / (b - a), 0, 1)",
             },
             "view_rows": format!("rows 0..{} from the zenith to the horizontal: elevation = 90 (1 - x0)^2 (deg), x0 = x_c + sinh(A + x (B - A)) / k, x = row / {}, x_c = 1 - sqrt(c / 90), A = asinh(-k x_c), B = asinh(k (1 - x_c)), (c, k) the sky rows' focus (sky_row_band) at the sun's elevation above the observer's horizon (its node's s_j for a texel, the query's own for a query) and the observer's altitude; where k < 1e-6, x0 = x; inverse: x0 = 1 - sqrt(elevation / 90), x = (asinh(k (x0 - x_c)) - A) / (B - A) (or x0); rows {}..{} from the horizontal to the horizon: the ray's tangent radius r_t = r - (r - bottom_radius) y, y = 2 x^2 - x^3, x = (row - {}) / {} (inverse: x = 2/3 + (4/3) cos(acos(1 - 27 y / 16) / 3 - 2 pi / 3)), theta = pi/2 + acos(r_t / r); rows {}..{} from the horizon to the nadir: theta = theta_h + (pi - theta_h) x^2, x = (row - {}) / {}, theta_h = pi - asin(bottom_radius / r); r the observer's radius. Interpolation over the rows around the view stays within its segment (see interpolation)", N_VIEW_SKY - 1, N_VIEW_SKY - 1, N_VIEW_SKY, N_VIEW_UP - 1, N_VIEW_SKY, N_VIEW_LIMB - 1, N_VIEW_UP, N_VIEW - 1, N_VIEW_UP, N_VIEW_DOWN - 1),
             "azimuth_columns": format!("the column coordinate of the view's azimuth phi from the sun's (0..pi) at altitude h (m): column = (alpha sqrt(phi / pi) + (1 - alpha) sin(phi / 2)^2) {}, alpha = 1 - (1 - azimuth_aloft.weight) smoothstep(azimuth_aloft.altitude_range_m[0], azimuth_aloft.altitude_range_m[1], h) (smoothstep as in sky_row_band); a texel of altitude node k lies at the phi whose coordinate at h_k is its column (phi = pi (column / {})^2 where alpha = 1); a query's coordinate is taken at its own altitude", N_AZ - 1, N_AZ - 1),
@@ -1690,6 +1721,14 @@ mod tests {
 
     #[test]
     fn the_slices_are_read_relative_to_the_band() {
+        // The band's fit aloft: continuous at 10 km, 1.3 times the 10 km fit's at 20 km, held
+        // above; its depth held from 5 km up.
+        let at = |h: f64| band_centre_deg(-1.0, h);
+        assert!((at(10_000.0) - at(9_999.999)).abs() < 1e-5);
+        assert!((at(20_000.0) / at(10_000.0) - 1.3).abs() < 1e-12);
+        assert_eq!(at(30_000.0), at(20_000.0));
+        assert_eq!(band_depth_deg(5000.0), 2.5);
+        assert_eq!(band_depth_deg(15_000.0), 2.5);
         // The focus grows from 1 to 5 km and no further.
         assert_eq!(band_focus_strength(0.0), BAND_FOCUS);
         assert_eq!(band_focus_strength(1000.0), BAND_FOCUS);
