@@ -352,7 +352,8 @@ fn skyview_nodes_equal_the_sky_product() {
 /// 55–86 km) the sky away from the lit limb is 10⁻⁶…10⁻⁸ of its slice's largest value. At
 /// nodes of those slices (every other sky row, 5 azimuths), the reader equals the `sky` product
 /// to 2·10⁻³ relative to the radiance itself (no floor). Measured (2026-12-05, standard):
-/// 4.6·10⁻⁴ with the slices' largest texel stored as 2¹⁵ ([`skyview::SLICE_PEAK`]); with it
+/// 4.6·10⁻⁴ (version 9, each node at its own sun elevation towards the sun: 5.7·10⁻⁴) with
+/// the slices' largest texel stored as 2¹⁵ ([`skyview::SLICE_PEAK`]); with it
 /// stored as 1 (version 3: the values below 2⁻¹⁴ of the largest are subnormal), 19.5 %
 /// (85.7 km, sun −11.6°, zenith 65°, antisolar: 6.8·10⁻¹¹ W m⁻² sr⁻¹ nm⁻¹).
 #[test]
