@@ -128,6 +128,12 @@ class LiveSky {
       if (!numbers(altMap, 3) || !(altMap[1] > altMap[2] && altMap[2] > 0)) {
         throw new Error("manifest: parameterisation.altitude_map is not [c, p, q]");
       }
+      // The sky rows' sun coordinate aloft (version 9).
+      const exit = manifest.parameterisation.sky_exit_altitude_m;
+      if (!numbers(exit, 2) || !(exit[0] < exit[1])) {
+        throw new Error("manifest: parameterisation.sky_exit_altitude_m is not an altitude range");
+      }
+      defines += `#define SV_SKY_EXIT_ALTITUDE vec2(${exit.map(f).join(", ")})\n`;
       defines += `#define SV_ALT_MAP vec3(${altMap.map(f).join(", ")})\n` +
         `#define SV_AZ_WEIGHT ${f(az.weight)}\n` +
         `#define SV_AZ_ALTITUDE vec2(${az.altitude_range_m.map(f).join(", ")})\n`;

@@ -24,7 +24,8 @@
 // (centre_aloft_altitude_m, a vec2), SV_BAND_DEPTH_TOP (depth_top_m), and SV_ALT_NODES
 // (parameterisation.altitude_nodes_m, a float[SV_N_ALT] constructor);
 // from parameterisation.azimuth_aloft: SV_AZ_WEIGHT (weight) and SV_AZ_ALTITUDE
-// (altitude_range_m, a vec2), and SV_ALT_MAP (parameterisation.altitude_map, a vec3).
+// (altitude_range_m, a vec2), SV_ALT_MAP (parameterisation.altitude_map, a vec3) and
+// SV_SKY_EXIT_ALTITUDE (parameterisation.sky_exit_altitude_m, a vec2).
 //
 // Per query: node coordinates in altitude ((sqrt(e) + c (e^p - e^q)) (N_ALT - 1),
 // e = h / thickness), the sun's elevation above the observer's horizon (the manifest's
@@ -454,6 +455,16 @@ vec3 SkyViewRadiance(float h, float rho, vec3 up, vec3 view_ray, vec3 sun_direct
   if (segment == 1) {
     float w = 1.0 - exp(-(h - h_t) / SV_LIMB_SHADOW_SCALE);
     shift = dip + w * (gamma * cos(phi) + dip_t - dip);
+  } else if (segment == 0) {
+    // Aloft, towards the sun: the sun's elevation at the ray's exit through the top, alpha the
+    // central angle to it (the reader's sun_shift), weighted by max(cos(phi), 0).
+    float w = smoothstep(SV_SKY_EXIT_ALTITUDE.x, SV_SKY_EXIT_ALTITUDE.y, h);
+    float toward = max(cos(phi), 0.0);
+    if (w > 0.0 && toward > 0.0) {
+      float x_top = DistanceToTopAtmosphereBoundary(r, mu);
+      float exit_angle = atan(x_top * sqrt(max(1.0 - mu * mu, 0.0)), r + x_top * mu);
+      shift = dip + w * exit_angle * toward;
+    }
   }
   // On the sky rows in low twilight, each slice's and azimuth column's own rows
   // (SkyViewBandRows): the query's elevation moved to where it lies relative to the band at the
