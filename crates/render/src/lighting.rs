@@ -224,54 +224,55 @@ impl AerialTable {
         hint: &mut usize,
         s_out: &mut [f64],
     ) {
-        let (d0, d1, fd) = axis_lookup_from(&self.product.distance_m, distance_m, hint);
-        let p = &self.product;
-        let n_l = p.wavelengths_nm.len();
-        let (r0, r1, fr) = dir.elevation;
-        let (c0, c1, fc) = dir.azimuth;
-        let (na, nd) = (p.azimuth_deg.len(), p.distance_m.len());
+        let node = axis_lookup_from(&self.product.distance_m, distance_m, hint);
+        let (p, n_l) = (&self.product, self.product.wavelengths_nm.len());
         s_out.iter_mut().for_each(|v| *v = 0.0);
-        for (r, wr) in [(r0, 1.0 - fr), (r1, fr)] {
-            for (c, wc) in [(c0, 1.0 - fc), (c1, fc)] {
-                for (d, wd) in [(d0, 1.0 - fd), (d1, fd)] {
-                    let w = wr * wc * wd;
-                    if w == 0.0 {
-                        continue;
-                    }
-                    let base = ((r * na + c) * nd + d) * n_l;
-                    for l in 0..n_l {
-                        s_out[l] += w * p.inscatter[base + l] as f64;
-                    }
-                }
+        self.for_corners(dir, node, |base, w| {
+            for l in 0..n_l {
+                s_out[l] += w * p.inscatter[base + l] as f64;
             }
-        }
+        });
     }
 
     fn eval_nodes(
         &self,
         dir: &AerialDirection,
-        (d0, d1, fd): (usize, usize, f64),
+        node: (usize, usize, f64),
         t_out: &mut [f64],
         s_out: &mut [f64],
+    ) {
+        let (p, n_l) = (&self.product, self.product.wavelengths_nm.len());
+        t_out.iter_mut().for_each(|v| *v = 0.0);
+        s_out.iter_mut().for_each(|v| *v = 0.0);
+        self.for_corners(dir, node, |base, w| {
+            for l in 0..n_l {
+                t_out[l] += w * p.transmittance[base + l] as f64;
+                s_out[l] += w * p.inscatter[base + l] as f64;
+            }
+        });
+    }
+
+    /// Calls `f` with each trilinear corner (elevation, azimuth, distance) of a look-up that
+    /// has a non-zero weight: the corner's first index into the per-wavelength arrays and its
+    /// weight.
+    #[inline(always)]
+    fn for_corners(
+        &self,
+        dir: &AerialDirection,
+        (d0, d1, fd): (usize, usize, f64),
+        mut f: impl FnMut(usize, f64),
     ) {
         let p = &self.product;
         let n_l = p.wavelengths_nm.len();
         let (r0, r1, fr) = dir.elevation;
         let (c0, c1, fc) = dir.azimuth;
         let (na, nd) = (p.azimuth_deg.len(), p.distance_m.len());
-        t_out.iter_mut().for_each(|v| *v = 0.0);
-        s_out.iter_mut().for_each(|v| *v = 0.0);
         for (r, wr) in [(r0, 1.0 - fr), (r1, fr)] {
             for (c, wc) in [(c0, 1.0 - fc), (c1, fc)] {
                 for (d, wd) in [(d0, 1.0 - fd), (d1, fd)] {
                     let w = wr * wc * wd;
-                    if w == 0.0 {
-                        continue;
-                    }
-                    let base = ((r * na + c) * nd + d) * n_l;
-                    for l in 0..n_l {
-                        t_out[l] += w * p.transmittance[base + l] as f64;
-                        s_out[l] += w * p.inscatter[base + l] as f64;
+                    if w != 0.0 {
+                        f(((r * na + c) * nd + d) * n_l, w);
                     }
                 }
             }
