@@ -41,7 +41,7 @@ use std::f64::consts::PI;
 
 mod face;
 mod skin;
-pub use face::{FaceQuadrature, SunAtVoxel};
+pub use face::{profiles as face_build_up, FaceQuadrature, SunAtVoxel};
 pub use skin::{SkinField, SKIN_TAU};
 
 /// Settings of the photon pass.

@@ -1,7 +1,8 @@
 //! The reference marcher of a pre-lit cloud volume: what a real-time client does with the
 //! export, in Rust, from the decoded [`CloudLight`] alone (no call into the renderer's light
-//! computation; it shares only the exact per-step weight of the sun term,
-//! [`skybake_render::march::sun_step`], a closed-form integral). Per pixel it marches the view ray through the box in steps of the export's
+//! computation; it shares only two closed-form integrals: the exact per-step weight of the sun
+//! term, [`skybake_render::march::sun_step`], and the field's build-up below a face,
+//! [`skybake_render::multiple::face_build_up`]). Per pixel it marches the view ray through the box in steps of the export's
 //! `step_voxels`, interpolating the per-voxel textures trilinearly at each step and evaluating
 //! the source towards the camera from the direction tables; steps over voxels of many optical
 //! depths are taken in sub-steps with the field's skin tallies (docs/cloud-light.md, "Thick
@@ -23,6 +24,7 @@ use super::{
 };
 use skybake_physics::phase::orthonormal_basis;
 use skybake_render::march::{MARCH_CUTOFF, THICK_STEP};
+use skybake_render::multiple::face_build_up;
 
 /// Where a client's ray leaves the cloud, per wavelength: the cloud's radiance I and its true
 /// transmittance T_c (the background is seen as T_c·B), and the distance of the cloud's front.
@@ -69,52 +71,6 @@ const MU_NODES: [(f64, f64); 8] = [
 
 /// Azimuths per inward cosine.
 const N_PHI: usize = 16;
-
-/// 1 − e^{−x}, accurate for small x.
-fn one_minus_exp(x: f64) -> f64 {
-    -(-x).exp_m1()
-}
-
-/// Mean of e^{−z/a} over z ∈ [0, t].
-fn mean_exp(a: f64, t: f64) -> f64 {
-    if t <= 1e-9 * a {
-        return 1.0 - 0.5 * t / a;
-    }
-    a / t * one_minus_exp(t / a)
-}
-
-/// Mean of e^{−z/a} over z ∈ [0, t] weighted by the view's e^{−z/v}.
-fn view_exp(a: f64, v: f64, t: f64) -> f64 {
-    if t <= 1e-9 * a.min(v) {
-        return 1.0 - 0.5 * t / a;
-    }
-    let k = 1.0 / a + 1.0 / v;
-    one_minus_exp(t * k) / k / (v * one_minus_exp(t / v))
-}
-
-/// The inward radiance's build-up below a face at inward cosine `m` (docs/cloud-light.md,
-/// "Faces"): `[uniform source: cell mean, view-weighted over the voxel; source falling as the
-/// sun's beam e^{−z/μ₀}: cell mean, view-weighted]` per unit source, for a view of cosine `mv`
-/// to the face's normal, the voxel's and the cell's scaled optical depths `tv`, `tc`.
-fn build_up(m: f64, mv: f64, mu0: f64, tv: f64, tc: f64) -> [f64; 4] {
-    let tc = tc.max(tv);
-    let (u_c, u_v) = (1.0 - mean_exp(m, tc), 1.0 - view_exp(m, mv, tv));
-    if mu0 <= 0.0 {
-        return [u_c, u_v, 0.0, 0.0];
-    }
-    let mu0 = if (mu0 - m).abs() < 1e-3 {
-        m + 1e-3
-    } else {
-        mu0
-    };
-    let c = mu0 / (mu0 - m);
-    [
-        u_c,
-        u_v,
-        c * (mean_exp(mu0, tc) - mean_exp(m, tc)),
-        c * (view_exp(mu0, mv, tv) - view_exp(m, mv, tv)),
-    ]
-}
 
 /// What every step of one ray shares (see [`Marcher::march`]).
 struct Ray<'r> {
@@ -313,7 +269,7 @@ impl<'a> Marcher<'a> {
             let mut deficit = 0.0;
             let mut ylm = [0.0; 25];
             for &(mu, w) in &MU_NODES {
-                let [u_c, u_v, e_c, e_v] = build_up(mu, mv, mu0, tv, tc);
+                let [u_c, u_v, e_c, e_v] = face_build_up(mu, mv, mu0, tv, tc);
                 let sin = (1.0 - mu * mu).max(0.0).sqrt();
                 for jphi in 0..N_PHI {
                     let phi = 2.0 * PI * (jphi as f64 + 0.5) / N_PHI as f64;
@@ -844,37 +800,6 @@ fn box_interval(o: DVec3, d: DVec3, lo: DVec3, hi: DVec3) -> Option<(f64, f64)> 
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    /// The build-up profiles' closed forms against midpoint sums over depth (the formal
-    /// solution below a face, uniform and beam-fed sources), and their limits.
-    #[test]
-    fn build_up_matches_its_depth_integrals() {
-        let (m, mv, mu0, tv, tc) = (0.41, 0.22, 0.63, 1.1, 2.4);
-        let n = 200_000;
-        let (mut uc, mut ec) = (0.0, 0.0);
-        for i in 0..n {
-            let z = tc * (i as f64 + 0.5) / n as f64;
-            uc += 1.0 - (-z / m).exp();
-            ec += mu0 / (mu0 - m) * ((-z / mu0).exp() - (-z / m).exp());
-        }
-        let (mut uv, mut ev, mut w) = (0.0, 0.0, 0.0);
-        for i in 0..n {
-            let z = tv * (i as f64 + 0.5) / n as f64;
-            let k = (-z / mv).exp();
-            uv += k * (1.0 - (-z / m).exp());
-            ev += k * mu0 / (mu0 - m) * ((-z / mu0).exp() - (-z / m).exp());
-            w += k;
-        }
-        let want = [uc / n as f64, uv / w, ec / n as f64, ev / w];
-        let got = build_up(m, mv, mu0, tv, tc);
-        for (g, x) in got.iter().zip(want) {
-            assert!((g - x).abs() < 1e-6, "{got:?} vs {want:?}");
-        }
-        // Semi-infinite, seen from the face: μ_v/(μ_v + μ') of the saturated radiance.
-        let deep = build_up(m, mv, 0.0, 1e3, 1e3);
-        assert!((deep[1] - mv / (mv + m)).abs() < 1e-9, "{deep:?}");
-        assert_eq!((deep[2], deep[3]), (0.0, 0.0));
-    }
 
     /// Surface voxels: cloud with an empty face neighbour or on the grid's edge.
     #[test]

@@ -120,8 +120,9 @@ fn view_exp(a: f64, v: f64, t: f64) -> f64 {
 /// The inward radiance's depth profiles at inward cosine `m`, averaged over the cell's depth
 /// `t_cell` and over the voxel's `t_voxel` as the view (cosine `mv`) weights it: `[uniform
 /// source (cell, view), source falling as the sun's beam e^{−z/μ₀} (cell, view)]`, each per
-/// unit source at the face.
-fn profiles(m: f64, mv: f64, mu0: f64, t_voxel: f64, t_cell: f64) -> [f64; 4] {
+/// unit source at the face. The cloud-light export's reference marcher applies the same
+/// profiles (docs/cloud-light.md, "Faces").
+pub fn profiles(m: f64, mv: f64, mu0: f64, t_voxel: f64, t_cell: f64) -> [f64; 4] {
     let t_cell = t_cell.max(t_voxel);
     let uniform_cell = 1.0 - mean_exp(m, t_cell);
     let uniform_view = 1.0 - view_exp(m, mv, t_voxel);
