@@ -41,7 +41,10 @@ use std::f64::consts::PI;
 
 mod face;
 mod skin;
-pub use face::{profiles as face_build_up, FaceQuadrature, SunAtVoxel};
+pub use face::{
+    profiles as face_build_up, FaceQuadrature, SunAtVoxel, MU_NODES as FACE_MU_NODES,
+    N_PHI as FACE_N_PHI,
+};
 pub use skin::{SkinField, SKIN_TAU};
 
 /// Settings of the photon pass.

@@ -2,7 +2,8 @@
 //! export, in Rust, from the decoded [`CloudLight`] alone (no call into the renderer's light
 //! computation; it shares only two closed-form integrals: the exact per-step weight of the sun
 //! term, [`skybake_render::march::sun_step`], and the field's build-up below a face,
-//! [`skybake_render::multiple::face_build_up`]). Per pixel it marches the view ray through the box in steps of the export's
+//! [`skybake_render::multiple::face_build_up`], over the frame's quadrature of the inward
+//! hemisphere). Per pixel it marches the view ray through the box in steps of the export's
 //! `step_voxels`, interpolating the per-voxel textures trilinearly at each step and evaluating
 //! the source towards the camera from the direction tables; steps over voxels of many optical
 //! depths are taken in sub-steps with the field's skin tallies (docs/cloud-light.md, "Thick
@@ -24,7 +25,7 @@ use super::{
 };
 use skybake_physics::phase::orthonormal_basis;
 use skybake_render::march::{MARCH_CUTOFF, THICK_STEP};
-use skybake_render::multiple::face_build_up;
+use skybake_render::multiple::{face_build_up, FACE_MU_NODES as MU_NODES, FACE_N_PHI as N_PHI};
 
 /// Where a client's ray leaves the cloud, per wavelength: the cloud's radiance I and its true
 /// transmittance T_c (the background is seen as T_c·B), and the distance of the cloud's front.
@@ -56,21 +57,6 @@ pub struct Marcher<'a> {
     /// "Faces"); empty without the export's faces.
     face: Vec<Vec<f32>>,
 }
-
-/// Gauss-Legendre nodes and weights on [0, 1] for the inward cosine μ' (8 points).
-const MU_NODES: [(f64, f64); 8] = [
-    (0.019_855_071_751_231_85, 0.050_614_268_145_188_13),
-    (0.101_666_761_293_186_6, 0.111_190_517_226_687_2),
-    (0.237_233_795_041_835_5, 0.156_853_322_938_943_6),
-    (0.408_282_678_752_175_1, 0.181_341_891_689_181),
-    (0.591_717_321_247_825, 0.181_341_891_689_181),
-    (0.762_766_204_958_164_5, 0.156_853_322_938_943_6),
-    (0.898_333_238_706_813_4, 0.111_190_517_226_687_2),
-    (0.980_144_928_248_768_1, 0.050_614_268_145_188_13),
-];
-
-/// Azimuths per inward cosine.
-const N_PHI: usize = 16;
 
 /// What every step of one ray shares (see [`Marcher::march`]).
 struct Ray<'r> {

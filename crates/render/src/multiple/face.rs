@@ -23,7 +23,7 @@ use skybake_physics::phase::orthonormal_basis;
 use std::f64::consts::PI;
 
 /// Gauss-Legendre nodes and weights on [0, 1] for the inward cosine μ' (8 points).
-const MU_NODES: [(f64, f64); 8] = [
+pub const MU_NODES: [(f64, f64); 8] = [
     (0.019_855_071_751_231_85, 0.050_614_268_145_188_13),
     (0.101_666_761_293_186_6, 0.111_190_517_226_687_2),
     (0.237_233_795_041_835_5, 0.156_853_322_938_943_6),
@@ -35,7 +35,7 @@ const MU_NODES: [(f64, f64); 8] = [
 ];
 
 /// Azimuths per inward cosine.
-const N_PHI: usize = 16;
+pub const N_PHI: usize = 16;
 
 const N_SH: usize = (MAX_ORDER + 1) * (MAX_ORDER + 1);
 
