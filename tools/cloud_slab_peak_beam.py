@@ -20,7 +20,10 @@ them; their first smooth collision ends them (n = 0 light only). Printed:
    exp(-(1 - f) z / mu)): light of one smooth scattering with the sun's side exact and the view's
    side as delta-M has it ("exact"), and the same with every photon advancing along the sun's
    direction whatever its own ("straight": the Goudsmit & Saunderson picture of the fast
-   method's peak spread, crates/render/src/peak.rs, angles exact, paths straight).
+   method's peak spread, crates/render/src/peak.rs, angles exact, paths straight);
+3. the same for the light scattered last within the peak (n = 0: the peak's part r+ at the
+   photon's own direction, seen through the true extinction exp(-z / mu), as the fast method's
+   march sees it), exact and straight.
 
 numpy only; a few minutes of CPU. Usage: python3 tools/cloud_slab_peak_beam.py
 """
@@ -72,6 +75,7 @@ def run(tau, mu0, views, n=200_000, bins=16, seed=1, straight=False):
     edges = np.linspace(0, tau, bins + 1)
     track = np.zeros(bins)
     rad = np.zeros(len(views))
+    rad0 = np.zeros(len(views))
     ks = 1 - F
     while alive.any():
         idx = np.nonzero(alive)[0]
@@ -98,6 +102,15 @@ def run(tau, mu0, views, n=200_000, bins=16, seed=1, straight=False):
                     np.exp(-ks * z0 / muv) * length,
                 )
             rad[j] += (smooth * integral).sum() / muv
+            # The light scattered last within the peak (n = 0), seen through the true extinction.
+            a1 = adv / muv
+            with np.errstate(divide="ignore", invalid="ignore"):
+                integral1 = np.where(
+                    np.abs(a1) > 1e-9,
+                    np.exp(-z0 / muv) * (1 - np.exp(-a1 * length)) / a1,
+                    np.exp(-z0 / muv) * length,
+                )
+            rad0[j] += (np.maximum(hg(G, c) - (1 - F) * hg(GS, c), 0) * integral1).sum() / muv
         z[idx] = z1
         alive[idx[esc]] = False
         idx = idx[~esc]
@@ -112,15 +125,16 @@ def run(tau, mu0, views, n=200_000, bins=16, seed=1, straight=False):
     fluence = track / (n * dz) * mu0
     k = ks / mu0
     beam = (np.exp(-k * edges[:-1]) - np.exp(-k * edges[1:])) / (k * dz)
-    return 0.5 * (edges[1:] + edges[:-1]), fluence / beam, rad / n * mu0
+    return 0.5 * (edges[1:] + edges[:-1]), fluence / beam, rad / n * mu0, rad0 / n * mu0
 
 
 if __name__ == "__main__":
     views = [(0, 0), (60, 0), (60, 180), (75, 0), (75, 90), (75, 180)]
     for tau, mu0 in [(1.0, 0.5), (8.0, 0.5), (8.0, 1.0)]:
-        zc, ratio, exact = run(tau, mu0, views, bins=8 if tau < 2 else 16)
-        _, _, straight = run(tau, mu0, views, bins=8, straight=True)
+        zc, ratio, exact, exact0 = run(tau, mu0, views, bins=8 if tau < 2 else 16)
+        _, _, straight, straight0 = run(tau, mu0, views, bins=8, straight=True)
         print(f"tau {tau} mu0 {mu0}: peak-only fluence / scaled beam by depth: "
               + " ".join(f"{a:.2f}:{r:.2f}" for a, r in zip(zc, ratio)))
-        for (vz, raz), e, st in zip(views, exact, straight):
-            print(f"tau {tau} mu0 {mu0} view [{vz} {raz}]: one smooth scattering, exact {e:.5f}, straight {st:.5f}")
+        for (vz, raz), e, st, e0, st0 in zip(views, exact, straight, exact0, straight0):
+            print(f"tau {tau} mu0 {mu0} view [{vz} {raz}]: one smooth scattering, exact {e:.5f}, straight {st:.5f}; "
+                  f"scattered last within the peak (n = 0), exact {e0:.5f}, straight {st0:.5f}")
