@@ -23,7 +23,10 @@ them; their first smooth collision ends them (n = 0 light only). Printed:
    method's peak spread, crates/render/src/peak.rs, angles exact, paths straight);
 3. the same for the light scattered last within the peak (n = 0: the peak's part r+ at the
    photon's own direction, seen through the true extinction exp(-z / mu), as the fast method's
-   march sees it), exact and straight.
+   march sees it), exact and straight;
+4. both again with every photon's depth its path so far times the cosine of the direction halfway
+   between the sun's and its own ("halfway": the mean direction of a small-angle random walk that
+   ends in that direction), a candidate closed form of the exact sun side.
 
 numpy only; a few minutes of CPU. Usage: python3 tools/cloud_slab_peak_beam.py
 """
@@ -59,7 +62,7 @@ def turn(d, m, rng):
     return t * (sn * np.cos(phi))[:, None] + b * (sn * np.sin(phi))[:, None] + d * m[:, None]
 
 
-def run(tau, mu0, views, n=200_000, bins=16, seed=1, straight=False):
+def run(tau, mu0, views, n=200_000, bins=16, seed=1, straight=False, halfway=False):
     """Fluence ratio by depth bin and the radiance towards each (view zenith, azimuth from the
     sun's side) of `views` (azimuth 0: the camera on the side the sun's beam travels towards)."""
     rng = np.random.default_rng(seed)
@@ -71,6 +74,7 @@ def run(tau, mu0, views, n=200_000, bins=16, seed=1, straight=False):
         muv, sv = math.cos(math.radians(vz)), math.sin(math.radians(vz))
         vs.append((muv, np.array([sv * math.cos(math.radians(raz)), sv * math.sin(math.radians(raz)), -muv])))
     z = np.zeros(n)
+    path = np.zeros(n)
     alive = np.ones(n, bool)
     edges = np.linspace(0, tau, bins + 1)
     track = np.zeros(bins)
@@ -84,6 +88,16 @@ def run(tau, mu0, views, n=200_000, bins=16, seed=1, straight=False):
         adv = np.full(idx.size, mu0) if straight else mu
         z0 = z[idx]
         z1 = z0 + s * adv
+        if halfway:
+            # The depth reached after a path s in direction d: s times the cosine of the direction
+            # halfway between the sun's and d (the mean direction of a small-angle random walk
+            # that ends at d).
+            half = d[idx] + np.array([math.sqrt(1 - mu0 * mu0), 0.0, mu0])
+            half /= np.linalg.norm(half, axis=1)[:, None]
+            adv = np.maximum(half[:, 2], 1e-3)
+            z0 = path[idx] * adv
+            z1 = z0 + s * adv
+            path[idx] += s
         esc = (z1 < 0) | (z1 > tau)
         z1 = np.clip(z1, 0, tau)
         am = np.abs(adv) + 1e-12
@@ -133,8 +147,10 @@ if __name__ == "__main__":
     for tau, mu0 in [(1.0, 0.5), (8.0, 0.5), (8.0, 1.0)]:
         zc, ratio, exact, exact0 = run(tau, mu0, views, bins=8 if tau < 2 else 16)
         _, _, straight, straight0 = run(tau, mu0, views, bins=8, straight=True)
+        _, _, half, half0 = run(tau, mu0, views, bins=8, halfway=True)
         print(f"tau {tau} mu0 {mu0}: peak-only fluence / scaled beam by depth: "
               + " ".join(f"{a:.2f}:{r:.2f}" for a, r in zip(zc, ratio)))
-        for (vz, raz), e, st, e0, st0 in zip(views, exact, straight, exact0, straight0):
-            print(f"tau {tau} mu0 {mu0} view [{vz} {raz}]: one smooth scattering, exact {e:.5f}, straight {st:.5f}; "
-                  f"scattered last within the peak (n = 0), exact {e0:.5f}, straight {st0:.5f}")
+        for (vz, raz), e, st, h, e0, st0, h0 in zip(views, exact, straight, half, exact0, straight0, half0):
+            print(f"tau {tau} mu0 {mu0} view [{vz} {raz}]: one smooth scattering, exact {e:.5f}, straight {st:.5f}, "
+                  f"halfway {h:.5f}; scattered last within the peak (n = 0), exact {e0:.5f}, straight {st0:.5f}, "
+                  f"halfway {h0:.5f}")
