@@ -677,9 +677,10 @@ fn slab_split_by_smooth_scatterings_against_disort() {
             let sigma = ((sum2 / count - total * total).max(0.0) / count).sqrt() / total;
             let (lo, hi) = (c[0] + c[1], c[2]);
             println!(
-                "tau {tau} [{vz:.0}° {raz:.0}°] DISORT {expected:.5}, classed path tracer {:+.1} % (noise {:.1} %): n ≤ 1 {lo:.5}, n ≥ 2 {hi:.5}; fast {:+.1} %: TMS single scattering {fast_ss:.5} ({:+.1} %), field {:.5} ({:+.1} %)",
+                "tau {tau} [{vz:.0}° {raz:.0}°] DISORT {expected:.5}, classed path tracer {:+.1} % (noise {:.1} %): n ≤ 1 {lo:.5} (n = 0 {:.5}), n ≥ 2 {hi:.5}; fast {:+.1} %: TMS single scattering {fast_ss:.5} ({:+.1} %), field {:.5} ({:+.1} %)",
                 (total / expected - 1.0) * 100.0,
                 sigma * 100.0,
+                c[0],
                 (fast_total / expected - 1.0) * 100.0,
                 (fast_ss / lo - 1.0) * 100.0,
                 fast_total - fast_ss,
