@@ -3401,12 +3401,14 @@ mod tests {
                     }
                 }
             }
-            // Measured: day 7.9e-16 and 1.1e-15, twilight 4.9e-6 and 4.5e-6 (f32: ln Â rounded
-            // to f32 and its f32 exponential).
+            // Measured: day 7.9e-16 and 1.1e-15, twilight 7.5e-5 and 4.5e-6 (f32: ln Â rounded
+            // to f32 and its f32 exponential; for the two wavelengths of the packed rows the
+            // cubic `twilight_bundle::exp_cubic_f32`, 7.9e-5).
             eprintln!("{wl}: day {day:.2e}, twilight {dusk:.2e} ({n_dusk} values)");
             assert!(day < 1e-12, "{wl}: day {day}");
+            let bound = if n_l <= PACKED_LANES / 2 { 9e-5 } else { 1e-5 };
             assert!(
-                n_dusk > 1000 && dusk < 1e-5,
+                n_dusk > 1000 && dusk < bound,
                 "{wl}: twilight {dusk}, {n_dusk}"
             );
         }
