@@ -1,17 +1,19 @@
 //! The texture bundles' twilight lookup ([`super::twilight_packed`]): the operations of
 //! [`super::twilight_fixed`] with a cheaper exponential, [`exp_cubic_f32`] (relative error
 //! ≤ 8·10⁻⁵, against [`super::exp_fast_f32`]'s 2·10⁻⁷), whose polynomial is the larger part of
-//! a twilight corner's arithmetic. The bundles store half floats (a relative step of 4.9·10⁻⁴),
-//! so the difference stays below their own rounding; the products and the precise table's
-//! build keep [`super::twilight_fixed`].
+//! a twilight corner's arithmetic. The RGB bundles store half floats (a relative step of
+//! 4.9·10⁻⁴), so the difference stays below their own rounding (a spectral form of up to four
+//! wavelengths, stored in floats, carries it: ≤ 2·10⁻⁵ of its texels, the exponential's error
+//! times the multiple scattering's share); the products and the precise table's build keep
+//! [`super::twilight_fixed`].
 
 /// `exp(x)` in f32 to a relative error of 7.9·10⁻⁵ for x ∈ [−87, 88] (clamped there; measured
 /// against f64 `exp` over [−87, 5] by the test below), branch-free: x log₂e = k + f with k an
-/// integer and |f| ≤ ½ (the product rounded once: ≤ 7.6·10⁻⁶ of f at |x| = 87, 5·10⁻⁶ of the
-/// result), 2^f by the cubic nearest to it in relative error on [−½, ½] (7.5·10⁻⁵; Lawson's
+/// integer and |f| ≤ ½ (the product rounded once: an error ≤ 7.5·10⁻⁶ in f at |x| = 87,
+/// 5·10⁻⁶ of the result), 2^f by the cubic nearest to it in relative error on [−½, ½] (7.5·10⁻⁵; Lawson's
 /// iteration of weighted least squares, Rice 1964, "The Approximation of Functions", vol. 1,
 /// §6-5), scaled by 2^k through the exponent bits (Cody & Waite 1980, "Software Manual for the
-/// Elementary Functions", ch. 6): 12 arithmetic operations beside the clamp, against 20 for
+/// Elementary Functions", ch. 6): 13 operations beside the clamp, against 24 for
 /// [`super::exp_fast_f32`]'s two-part reduction and degree-6 polynomial.
 #[inline(always)]
 pub(super) fn exp_cubic_f32(x: f32) -> f32 {
