@@ -456,10 +456,11 @@ fn the_slice_lookup_matches_the_products_lookup() {
         }
     }
     eprintln!("slice lookup vs product lookup: day {day:.2e}, twilight {dusk:.2e}");
-    // Measured 6.9e-16 by day (the same arithmetic, summed in another order) and 1.9e-6 in
-    // twilight (f32: ln J rounded to f32, |ln J| ≲ 40, and its f32 exponential).
+    // Measured 6.9e-16 by day (the same arithmetic, summed in another order) and 7.4e-5 in
+    // twilight (f32: ln J rounded to f32, |ln J| ≲ 40, and the bundles' cubic f32 exponential,
+    // relative error 7.9e-5; 1.9e-6 with the products' degree-6 one).
     assert!(day < 1e-12, "day {day}");
-    assert!(dusk < 4e-6, "twilight {dusk}");
+    assert!(dusk < 9e-5, "twilight {dusk}");
 }
 
 /// Table content alone: the spectral form's texels (float, single Mie of every channel stored)
@@ -525,10 +526,13 @@ fn texel_centres_match_the_sky_product() {
         }
     }
     bands.print("texel centres vs sky product");
-    // Measured 0.000 % (below 5e-6) in every band: the bundle integrates its rays with the
-    // products' cell weights and sources (skybake_physics::atmosphere::integrate::cell_weight).
+    // Measured 1.9e-5, 1.5e-5 and 1.9e-5 (sun -6..5, >= 5, -12..-6): the bundle integrates its
+    // rays with the products' cell weights and sources
+    // (skybake_physics::atmosphere::integrate::cell_weight); its twilight lookup's cubic f32
+    // exponential (7.9e-5 relative, on the multiple scattering's share) and the sun's
+    // transmittance in f32 differ (below 5e-6 with the products' exponentials).
     for band in ["sun >= 5", "sun -6..5", "sun -12..-6"] {
-        assert!(bands.get(band) < 1e-5, "{band}: {bands:?}");
+        assert!(bands.get(band) < 3e-5, "{band}: {bands:?}");
     }
 }
 
