@@ -47,8 +47,9 @@ pub const UNIT_SCALE: f64 = 1.0e3;
 /// bundles' cache keys, bumped when a change of the computation changes texel values while the
 /// layouts ([`crate::manifest::BUNDLE_VERSION`], `skyview::SKYVIEW_VERSION`) stay. 2: the
 /// multiple-scattering lookup's twilight cells in f32
-/// (`PreciseMultipleScattering::add_from_slice`).
-pub const TEXEL_REVISION: &str = "2";
+/// (`PreciseMultipleScattering::add_from_slice`); 3: the bundles' twilight lookup with a cubic
+/// exponential (relative error ≤ 7.9·10⁻⁵) and the single scattering's sun transmittance in f32.
+pub const TEXEL_REVISION: &str = "3";
 
 /// Quadrature intervals of each transmittance texel's density integrals.
 const TRANSMITTANCE_STEPS: usize = 1000;
