@@ -104,7 +104,7 @@ pub struct LitVolume {
     /// The sky light's camera-independent transmittances per voxel, filled at the volume's first
     /// reuse by another camera ([`SkyTransmittances`]).
     pub sky_trans: std::sync::OnceLock<SkyTransmittances>,
-    /// The multiple-scattering field's products p*_l·L_lm per coarse cell, filled by the first
+    /// The multiple-scattering field's coefficients laid out for the reconstruction, filled by the first
     /// camera ([`ConvolvedCells`]).
     pub ms_cells: std::sync::OnceLock<ConvolvedCells>,
     /// Stage timings of the computation, ms (volume, sun_paths, sky_light, multiple_scattering,
@@ -335,7 +335,7 @@ impl LitVolume {
             + mask.len()
             + 4 * lattice.iter().map(Vec::len).sum::<usize>()
             + ms.as_ref().map_or(0, MsField::bytes)
-            + ms.as_ref().map_or(0, |f| 8 * f.data.len())
+            + ms.as_ref().map_or(0, MsField::convolved_bytes)
             + shadow.as_ref().map_or(0, |s| 4 * s.d.len())
             + 4 * grid.data.len()
             + sky_trans_bytes(

@@ -42,7 +42,6 @@ use std::f64::consts::PI;
 mod convolved;
 mod face;
 mod skin;
-use convolved::CellTerm;
 pub use convolved::ConvolvedCells;
 pub use face::{
     profiles as face_build_up, FaceQuadrature, SunAtVoxel, MU_NODES as FACE_MU_NODES,
@@ -485,25 +484,15 @@ impl MsField {
     /// Between coarse cell centres the field is interpolated trilinearly over the cells that
     /// hold cloud ([`Self::cell_weights`]).
     pub fn inscatter(&self, p: DVec3, d: DVec3, out: &mut [f64]) {
-        self.inscatter_from(None, p, d, out)
-    }
-
-    /// [`Self::inscatter`], its products p*_l·L_lm read from `kept` where given (the
-    /// [`ConvolvedCells`] of this field, `[cell][λ][(L + 1)²]`): the same values.
-    #[inline(always)]
-    fn inscatter_from(&self, kept: Option<&[f64]>, p: DVec3, d: DVec3, out: &mut [f64]) {
         out.iter_mut().for_each(|o| *o = 0.0);
         let mut ylm = [0.0; (MAX_ORDER + 1) * (MAX_ORDER + 1)];
         real_sh(-d, self.angular_order, &mut ylm);
         // The usual wavelength counts get their sums side by side (each in its own order, so
         // the same values): one chain of additions per wavelength, not one after the other.
-        match (self.n_l, kept) {
-            (1, Some(q)) => self.inscatter_n::<1, f64>(q, p, &ylm, out),
-            (3, Some(q)) => self.inscatter_n::<3, f64>(q, p, &ylm, out),
-            (4, Some(q)) => self.inscatter_n::<4, f64>(q, p, &ylm, out),
-            (1, None) => self.inscatter_n::<1, f32>(&self.data, p, &ylm, out),
-            (3, None) => self.inscatter_n::<3, f32>(&self.data, p, &ylm, out),
-            (4, None) => self.inscatter_n::<4, f32>(&self.data, p, &ylm, out),
+        match self.n_l {
+            1 => self.inscatter_n::<1>(p, &ylm, out),
+            3 => self.inscatter_n::<3>(p, &ylm, out),
+            4 => self.inscatter_n::<4>(p, &ylm, out),
             _ => self.inscatter_each(p, &ylm, out),
         }
         for o in out.iter_mut() {
@@ -516,23 +505,14 @@ impl MsField {
     /// order (the same values), but the 8 × `N` chains are independent, so the additions no
     /// longer wait on one another's latency (one chain after the other, this was 9 % of a
     /// sequence frame's CPU). A cell of weight 0 is summed and not added, as before.
-    ///
-    /// `data` is [`Self::data`] (`f32`: each term is p*_l·L_lm·Y_lm) or the products p*_l·L_lm
-    /// kept per cell ([`ConvolvedCells`], `f64`: the same products, so the same terms).
     #[inline(always)]
-    fn inscatter_n<const N: usize, T: CellTerm>(
-        &self,
-        data: &[T],
-        p: DVec3,
-        ylm: &[f64],
-        out: &mut [f64],
-    ) {
+    fn inscatter_n<const N: usize>(&self, p: DVec3, ylm: &[f64], out: &mut [f64]) {
         let n = self.moments;
         let pm: [&[f64]; N] = std::array::from_fn(|l| &self.phase_moments[l][..]);
         let cells = self.cell_weights(p);
-        let data: [&[T]; 8] = std::array::from_fn(|k| {
+        let data: [&[f32]; 8] = std::array::from_fn(|k| {
             let c = cells[k].0;
-            &data[c * N * n..(c + 1) * N * n]
+            &self.data[c * N * n..(c + 1) * N * n]
         });
         let mut sums = [[0.0f64; N]; 8];
         for order in 0..=self.angular_order {
@@ -540,7 +520,7 @@ impl MsField {
                 let y = ylm[m];
                 for (sum, cell) in sums.iter_mut().zip(&data) {
                     for l in 0..N {
-                        sum[l] += cell[l * n + m].convolved(pm[l][order]) * y;
+                        sum[l] += pm[l][order] * cell[l * n + m] as f64 * y;
                     }
                 }
             }
