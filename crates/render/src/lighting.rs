@@ -87,8 +87,9 @@ impl DirTable {
         }
     }
 
-    fn cell(&self, dir: DVec3) -> [(usize, f64); 4] {
-        let (e, a) = elevation_azimuth_deg(dir);
+    /// The 4 nodes round a direction of [`elevation_azimuth_deg`] `(e, a)` and their weights.
+    #[inline]
+    fn cell_at(&self, (e, a): (f64, f64)) -> [(usize, f64); 4] {
         let rel = (a - self.sun_azimuth_deg).rem_euclid(360.0);
         let rel = if rel > 180.0 { 360.0 - rel } else { rel };
         let (r0, r1, fr) = axis_lookup(&self.elevation_deg, e);
@@ -104,8 +105,13 @@ impl DirTable {
 
     /// Radiance arriving from direction `dir` (unit, pointing away from the observer).
     pub fn eval(&self, dir: DVec3, out: &mut [f64]) {
+        self.eval_at(elevation_azimuth_deg(dir), out)
+    }
+
+    /// [`Self::eval`] from the direction's [`elevation_azimuth_deg`] (the same values).
+    pub fn eval_at(&self, angles: (f64, f64), out: &mut [f64]) {
         out.iter_mut().for_each(|o| *o = 0.0);
-        for (idx, w) in self.cell(dir) {
+        for (idx, w) in self.cell_at(angles) {
             let base = idx * self.n_l;
             for (l, o) in out.iter_mut().enumerate() {
                 *o += w * self.radiance[base + l] as f64;
@@ -129,6 +135,15 @@ impl Hemisphere {
             Hemisphere::Zero => out.iter_mut().for_each(|o| *o = 0.0),
             Hemisphere::Constant(v) => out.copy_from_slice(v),
             Hemisphere::Table(t) => t.eval(dir, out),
+        }
+    }
+
+    /// [`Self::eval`] with the direction's [`elevation_azimuth_deg`] known (the same values).
+    fn eval_at(&self, angles: (f64, f64), out: &mut [f64]) {
+        match self {
+            Hemisphere::Zero => out.iter_mut().for_each(|o| *o = 0.0),
+            Hemisphere::Constant(v) => out.copy_from_slice(v),
+            Hemisphere::Table(t) => t.eval_at(angles, out),
         }
     }
 
@@ -178,8 +193,12 @@ impl AerialTable {
     /// The table's nodes and weights for direction `dir` (what [`Self::eval`] computes once per
     /// direction: a ray looks up several distances along the same direction).
     pub fn direction(&self, dir: DVec3) -> AerialDirection {
+        self.direction_at(elevation_azimuth_deg(dir))
+    }
+
+    /// [`Self::direction`] from the direction's [`elevation_azimuth_deg`] (the same nodes).
+    pub fn direction_at(&self, (e, a): (f64, f64)) -> AerialDirection {
         let p = &self.product;
-        let (e, a) = elevation_azimuth_deg(dir);
         let rel = (a - self.sun_azimuth_deg).rem_euclid(360.0);
         let rel = if rel > 180.0 { 360.0 - rel } else { rel };
         AerialDirection {
@@ -338,6 +357,16 @@ impl Lighting {
         match &self.background {
             Some(t) => t.eval(dir, out),
             None => self.env(dir, out),
+        }
+    }
+
+    /// [`Self::background`] with the direction's [`elevation_azimuth_deg`] known (the same
+    /// values; the compositing has them from the aerial table's look-up).
+    pub fn background_at(&self, dir: DVec3, angles: (f64, f64), out: &mut [f64]) {
+        match &self.background {
+            Some(t) => t.eval_at(angles, out),
+            None if dir.z >= 0.0 => self.sky.eval_at(angles, out),
+            None => self.below.eval_at(angles, out),
         }
     }
 

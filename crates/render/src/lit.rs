@@ -9,7 +9,7 @@
 
 use super::light::{lattice_density_integrals, sun_density_integrals_in, SkyElements, LATTICE};
 use super::lighting::Lighting;
-use super::multiple::{MsField, Truncation};
+use super::multiple::{ConvolvedCells, MsField, Truncation};
 use super::peak::PeakSpread;
 use super::scene::{CloudMsMethod, FrameScene, LightingSwitches, Optics};
 use super::volume::CloudVolume;
@@ -104,6 +104,9 @@ pub struct LitVolume {
     /// The sky light's camera-independent transmittances per voxel, filled at the volume's first
     /// reuse by another camera ([`SkyTransmittances`]).
     pub sky_trans: std::sync::OnceLock<SkyTransmittances>,
+    /// The multiple-scattering field's coefficients laid out for the reconstruction, filled by the first
+    /// camera ([`ConvolvedCells`]).
+    pub ms_cells: std::sync::OnceLock<ConvolvedCells>,
     /// Stage timings of the computation, ms (volume, sun_paths, sky_light, multiple_scattering,
     /// shadow_map, peak_spread).
     pub timing_ms: Vec<(String, f64)>,
@@ -332,6 +335,7 @@ impl LitVolume {
             + mask.len()
             + 4 * lattice.iter().map(Vec::len).sum::<usize>()
             + ms.as_ref().map_or(0, MsField::bytes)
+            + ms.as_ref().map_or(0, MsField::convolved_bytes)
             + shadow.as_ref().map_or(0, |s| 4 * s.d.len())
             + 4 * grid.data.len()
             + sky_trans_bytes(
@@ -359,6 +363,7 @@ impl LitVolume {
             pattern_on,
             per_voxel,
             sky_trans: std::sync::OnceLock::new(),
+            ms_cells: std::sync::OnceLock::new(),
             timing_ms,
             bytes,
         })

@@ -289,6 +289,7 @@ impl<'a> Prepared<'a> {
                 let [nx, ny, _] = grid.dims;
                 let quad = FaceQuadrature::new(field.angular_order());
                 let k_true = &optics.extinction_per_density_m;
+                let cells = lit.ms_cells.get_or_init(|| field.convolved_cells());
                 vox.par_chunks_mut(nx * ny * stride)
                     .enumerate()
                     .for_each(|(z, slab)| {
@@ -308,6 +309,7 @@ impl<'a> Prepared<'a> {
                             field_source(
                                 grid,
                                 field,
+                                cells,
                                 &quad,
                                 k_true,
                                 [i % nx, i / nx, z],
@@ -326,6 +328,7 @@ impl<'a> Prepared<'a> {
                     stride,
                     mask,
                     field,
+                    cells,
                     ms_albedo,
                     &view,
                     &quad,
@@ -1024,8 +1027,17 @@ impl<'a> Prepared<'a> {
             .as_ref()
             .filter(|g| d.z < 0.0 && o.z > g.height_m)
             .map(|g| (g.height_m - o.z) / d.z);
-        // The aerial table's direction nodes, once per ray.
-        let along = lt.aerial.as_ref().map(|a| a.direction(d));
+        // The aerial table's direction nodes, once per ray; the direction's elevation and
+        // azimuth (asin, atan2) shared with the background's look-up.
+        let angles = lt
+            .aerial
+            .as_ref()
+            .map(|_| super::lighting::elevation_azimuth_deg(d));
+        let along = lt
+            .aerial
+            .as_ref()
+            .zip(angles)
+            .map(|(a, ea)| a.direction_at(ea));
         let (mut ta, mut sa) = ([1.0f64; 64], [0.0f64; 64]);
         let (ta, sa) = (&mut ta[..n_l], &mut sa[..n_l]);
         match (t_ground, &lt.ground) {
@@ -1053,7 +1065,10 @@ impl<'a> Prepared<'a> {
                     }
                 }
             }
-            _ => lt.background(d, b),
+            _ => match angles {
+                Some(ea) => lt.background_at(d, ea, b),
+                None => lt.background(d, b),
+            },
         }
         let (Some(aerial), Some(along)) = (&lt.aerial, along) else {
             for l in 0..n_l {
@@ -1251,6 +1266,7 @@ pub fn sun_step_weight(a: f64, b_total: f64, dt: f64, tau0: f64, e_tau0: f64) ->
 fn field_source(
     grid: &DensityGrid,
     field: &super::multiple::MsField,
+    cells: &super::multiple::ConvolvedCells,
     quad: &FaceQuadrature,
     k_true: &[f64],
     ijk: [usize; 3],
@@ -1305,7 +1321,7 @@ fn field_source(
                 out,
             )
         }
-        None => field.inscatter(p, d, out),
+        None => field.inscatter_convolved(cells, p, d, out),
     }
 }
 
@@ -1320,6 +1336,7 @@ fn skin_sources(
     stride: usize,
     mask: &[bool],
     field: &super::multiple::MsField,
+    cells: &super::multiple::ConvolvedCells,
     ms_albedo: &[f64],
     view: &(dyn Fn(DVec3) -> DVec3 + Sync),
     quad: &FaceQuadrature,
@@ -1352,6 +1369,7 @@ fn skin_sources(
                 field_source(
                     grid,
                     field,
+                    cells,
                     quad,
                     k_true,
                     [i % nx, i / nx, z],

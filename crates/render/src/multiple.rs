@@ -39,8 +39,10 @@ use skybake_physics::cloud::DensityGrid;
 use skybake_physics::phase::{orthonormal_basis, Phase};
 use std::f64::consts::PI;
 
+mod convolved;
 mod face;
 mod skin;
+pub use convolved::ConvolvedCells;
 pub use face::{
     profiles as face_build_up, FaceQuadrature, SunAtVoxel, MU_NODES as FACE_MU_NODES,
     N_PHI as FACE_N_PHI,
