@@ -700,22 +700,25 @@ fn skyview_the_earth_shadow_rising_at_low_altitude() {
 
 /// The band above the earth's shadow seen from 6.5–20 km (the same grid as
 /// [`shadow_grid_errors`], observers above the low-altitude grid): the band sharpens with
-/// altitude; the sky rows' extra density on it reaches 20 km (layout version 9, fitted 0–20 km)
-/// and the limb rows' sun coordinate follows the tangent point's over 50 km, but the limb rows
-/// below the horizontal have no extra density, so the 3 % target (views within 10° of
-/// the horizon, sun down to −6°) is not met from 8 km up. The bounds are per altitude, the
-/// measured worst + ~12 % (earth, standard, RGB, layout version 9, measured on 2026-12-06; all
-/// at 680 nm, in the red): 6.5 km 1.94 % (sun −3°, zenith 86.25°, 180° from the sun), 8 km
-/// 4.82 % (−3°, 86.5°, 180°), 9.5 km 7.53 % (−3°, 86.5°, 180°), 11 km 6.22 % (−3°, 88°, 150°),
-/// 12.5 km 5.70 % (−3°, 93.25°, 180°), 15 km 7.91 % (−4°, 85.5°, 180°), 20 km 15.8 % (−4°,
-/// 93.75°, 180°). (Version 8: 3.39 / 16.4 / 34.4 / 44.0 / 29.2 / 91.3 / 56.6 %.)
+/// altitude; the sky rows' extra density on it reaches 20 km (layout version 9, fitted 0–20 km),
+/// the limb rows' sun coordinate follows the tangent point's over 50 km, and from 9 to 20 km
+/// the limb rows below the horizontal concentrate on the band where it lies below the
+/// horizontal, each slice read at the query's depth relative to it (version 10); the issue's
+/// 3 % target (views within 10° of the horizon, sun down to −6°) is not met from 8 km up (the
+/// sky rows). The bounds are per altitude, the measured worst + ~12 % (earth, standard, RGB,
+/// layout version 10, measured on 2026-12-06; all at 680 nm, in the red): 6.5 km 1.97 % (sun
+/// −3°, zenith 86.25°, 180° from the sun), 8 km 4.82 % (−3°, 86.5°, 180°), 9.5 km 7.55 % (−3°,
+/// 86.5°, 180°), 11 km 6.20 % (−3°, 88°, 150°), 12.5 km 2.72 % (−3°, 88.5°, 150°), 15 km 7.90 %
+/// (−4°, 85.5°, 180°), 20 km 3.28 % (−5°, 83.25°, 180°). (Version 9: 1.94 / 4.82 / 7.53 / 6.22 /
+/// 5.70 / 7.91 / 15.8 %, 12.5 and 20 km below the horizontal; version 8: 3.39 / 16.4 / 34.4 /
+/// 44.0 / 29.2 / 91.3 / 56.6 %.)
 #[test]
 #[ignore = "builds a bundle (about 10 s of CPU): run with --ignored lut_skyview::"]
 fn skyview_the_earth_shadow_seen_aloft() {
     let f = fixture();
     let altitudes = [6500.0, 8000.0, 9500.0, 11000.0, 12500.0, 15000.0, 20000.0];
     // Measured worst per altitude (the order of `altitudes`).
-    let measured = [0.0194, 0.0482, 0.0753, 0.0622, 0.0570, 0.0791, 0.158];
+    let measured = [0.0197, 0.0482, 0.0755, 0.0620, 0.0272, 0.0790, 0.0328];
     let results = shadow_grid_errors(f, &SkyViewReader::new(&f.bundle), &altitudes);
     let mut failures = Vec::new();
     for ((alt, (worst, case)), m) in altitudes.iter().zip(&results).zip(measured) {

@@ -117,6 +117,19 @@ class LiveSky {
         `#define SV_BAND_CENTRE_ALOFT_ALTITUDE vec2(${band.centre_aloft_altitude_m.map(f).join(", ")})\n` +
         `#define SV_BAND_DEPTH_TOP ${f(band.depth_top_m)}\n` +
         `#define SV_ALT_NODES float[${z.N_ALT}](${altNodes.map(f).join(", ")})\n`;
+      // The limb rows' focus on the band above the earth's shadow seen from altitude (version 10).
+      const limb = manifest.parameterisation.limb_row_band;
+      if (!limb || !(limb.focus > 0) || !numbers(limb.depth_m, 3) || !numbers(limb.sun_range_deg, 4) ||
+          !numbers(limb.altitude_range_m, 4) || !(limb.depth_floor_m > 0) ||
+          !Number.isFinite(limb.altitude_exponent)) {
+        throw new Error("manifest: parameterisation.limb_row_band is not the limb rows' band focus");
+      }
+      defines += `#define SV_LIMB_BAND_DEPTH vec3(${limb.depth_m.map(f).join(", ")})\n` +
+        `#define SV_LIMB_BAND_FOCUS ${f(limb.focus)}\n` +
+        `#define SV_LIMB_BAND_SUN_RANGE vec4(${limb.sun_range_deg.map(f).join(", ")})\n` +
+        `#define SV_LIMB_BAND_ALTITUDE vec4(${limb.altitude_range_m.map(f).join(", ")})\n` +
+        `#define SV_LIMB_BAND_DEPTH_FLOOR ${f(limb.depth_floor_m)}\n` +
+        `#define SV_LIMB_BAND_ALTITUDE_EXPONENT ${f(limb.altitude_exponent)}\n`;
       // The azimuth columns' map aloft (version 5).
       const az = manifest.parameterisation.azimuth_aloft;
       if (!az || !(az.weight > 0 && az.weight <= 1) || !numbers(az.altitude_range_m, 2) ||

@@ -22,7 +22,11 @@
 // (focus_growth), SV_BAND_GROWTH_ALTITUDE (focus_growth_altitude_m, a vec2),
 // SV_BAND_CENTRE_ALOFT (centre_aloft_per_km), SV_BAND_CENTRE_ALOFT_ALTITUDE
 // (centre_aloft_altitude_m, a vec2), SV_BAND_DEPTH_TOP (depth_top_m), and SV_ALT_NODES
-// (parameterisation.altitude_nodes_m, a float[SV_N_ALT] constructor);
+// (parameterisation.altitude_nodes_m, a float[SV_N_ALT] constructor); from
+// parameterisation.limb_row_band: SV_LIMB_BAND_DEPTH (depth_m, a vec3), SV_LIMB_BAND_FOCUS
+// (focus), SV_LIMB_BAND_SUN_RANGE (sun_range_deg, a vec4), SV_LIMB_BAND_ALTITUDE
+// (altitude_range_m, a vec4), SV_LIMB_BAND_DEPTH_FLOOR (depth_floor_m),
+// SV_LIMB_BAND_ALTITUDE_EXPONENT (altitude_exponent);
 // from parameterisation.azimuth_aloft: SV_AZ_WEIGHT (weight) and SV_AZ_ALTITUDE
 // (altitude_range_m, a vec2), SV_ALT_MAP (parameterisation.altitude_map, a vec3) and
 // SV_SKY_EXIT_ALTITUDE (parameterisation.sky_exit_altitude_m, a vec2).
@@ -198,6 +202,40 @@ float SkyViewLimbRow(float y) {
   return clamp(2.0 / 3.0 + 4.0 / 3.0 * cos(phi / 3.0 - 2.0 * PI / 3.0), 0.0, 1.0);
 }
 
+// The limb rows' focus on the band above the earth's shadow seen from altitude (the reader's
+// limb_row_focus) at sun coordinate sun_deg and altitude h: xc = SkyViewLimbRow of the band's
+// depth (depth.x + depth.y s + depth.z s^2) / h, k = SV_LIMB_BAND_FOCUS times the fades.
+vec2 SkyViewLimbFocus(float sun_deg, float h) {
+  float f = smoothstep(SV_LIMB_BAND_SUN_RANGE.x, SV_LIMB_BAND_SUN_RANGE.y, sun_deg) *
+      (1.0 - smoothstep(SV_LIMB_BAND_SUN_RANGE.z, SV_LIMB_BAND_SUN_RANGE.w, sun_deg)) *
+      smoothstep(SV_LIMB_BAND_ALTITUDE.x, SV_LIMB_BAND_ALTITUDE.y, h) *
+      (1.0 - smoothstep(SV_LIMB_BAND_ALTITUDE.z, SV_LIMB_BAND_ALTITUDE.w, h));
+  if (f <= 0.0 || h <= 0.0) return vec2(0.0);
+  float depth = SV_LIMB_BAND_DEPTH.x + SV_LIMB_BAND_DEPTH.y * sun_deg +
+      SV_LIMB_BAND_DEPTH.z * sun_deg * sun_deg;
+  return vec2(SkyViewLimbRow(clamp(depth / h, 0.0, 1.0)), f * SV_LIMB_BAND_FOCUS);
+}
+
+// The band's depth (m) on the limb at sun coordinate sun_deg, at least SV_LIMB_BAND_DEPTH_FLOOR
+// (the reader's limb_band_depth_m).
+float SkyViewLimbBandDepth(float sun_deg) {
+  float s = clamp(sun_deg, SV_LIMB_BAND_SUN_RANGE.x - 1.0, SV_LIMB_BAND_SUN_RANGE.w);
+  return max(SV_LIMB_BAND_DEPTH.x + SV_LIMB_BAND_DEPTH.y * s + SV_LIMB_BAND_DEPTH.z * s * s,
+             SV_LIMB_BAND_DEPTH_FLOOR);
+}
+
+// The depth at which the limb rows of the slice of sun coordinate s_n and altitude h_n are read
+// for a query at depth y with sun coordinate s_q at altitude h_q (the reader's
+// limb_slice_depth): y (h_q / h_n)^SV_LIMB_BAND_ALTITUDE_EXPONENT scaled by the band's depth at
+// the slice's sun over the query's, faded with the query's focus.
+float SkyViewLimbSliceDepth(float y, float s_q, float h_q, float s_n, float h_n) {
+  float f = SkyViewLimbFocus(s_q, h_q).y / SV_LIMB_BAND_FOCUS;
+  if (f <= 0.0 || h_n <= 0.0) return y;
+  float d = y * pow(h_q / h_n, SV_LIMB_BAND_ALTITUDE_EXPONENT) * SkyViewLimbBandDepth(s_n) /
+      SkyViewLimbBandDepth(s_q);
+  return y + f * (clamp(d, 0.0, 1.0) - y);
+}
+
 // The sun node coordinate (degrees) of the sun coordinate s (degrees) at warp strength b: the
 // inverse of the twilight warp s = e sinh(b t / e) / sinh(b) (the reader's sun_unwarp).
 float SkyViewSunUnwarp(float s, float b) {
@@ -208,6 +246,16 @@ float SkyViewSunUnwarp(float s, float b) {
 
 // The altitude nodes (m).
 const float sv_alt_nodes[SV_N_ALT] = SV_ALT_NODES;
+
+// The row coordinate of the unfocused coordinate x0 on rows focused with strength k at xc (the
+// reader's focus_coord): (asinh(k (x0 - xc)) - A) / (B - A), A = asinh(-k xc),
+// B = asinh(k (1 - xc)); x0 where k = 0.
+float SkyViewFocusCoord(float x0, float xc, float k) {
+  if (k < 1e-6) return x0;
+  float a = asinh(-k * xc);
+  float b = asinh(k * (1.0 - xc));
+  return clamp((asinh(k * (x0 - xc)) - a) / (b - a), 0.0, 1.0);
+}
 
 // The sun coordinate s (degrees) of the sun node coordinate t (degrees) at warp strength b: the
 // twilight warp s = e sinh(b t / e) / sinh(b) (the reader's sun_warp).
@@ -301,15 +349,21 @@ float SkyViewBandRelative(float elevation_deg, float c, float k, float h, float 
 
 // The row stencil of elevation_deg (degrees) for an observer at altitude h on rows of focus
 // (c, k) (the reader's band_row): the sky rows above the horizontal, below it the limb rows at
-// the observer's altitude (the tangent point's depth 2 r sin^2(e/2) / h).
-SvStencil SkyViewBandRowStencil(float elevation_deg, float h, float c, float k) {
+// the observer's altitude (the tangent point's depth 2 r sin^2(e/2) / h) on the slice's limb
+// rows, limb = (the query's sun coordinate, the slice's, the slice's altitude)
+// (SkyViewLimbSliceDepth, SkyViewLimbFocus).
+SvStencil SkyViewBandRowStencil(float elevation_deg, float h, float c, float k, vec3 limb) {
   if (elevation_deg >= 0.0 || h <= 0.0) {
     return SkyViewStencil(SkyViewSkyRow(elevation_deg, c, k) * float(SV_N_VIEW_SKY - 1), 0,
                           SV_N_VIEW_SKY - 1, false, 0.0);
   }
   float s = sin(0.5 * radians(elevation_deg));
   float y = clamp(2.0 * (bottom_radius + h) * s * s / h, 0.0, 1.0);
-  return SkyViewStencil(float(SV_N_VIEW_SKY) + SkyViewLimbRow(y) * float(SV_N_VIEW_LIMB - 1),
+  vec2 focus = SkyViewLimbFocus(limb.y, limb.z);
+  float y_n = SkyViewLimbSliceDepth(y, limb.x, h, limb.y, limb.z);
+  return SkyViewStencil(float(SV_N_VIEW_SKY) +
+                            SkyViewFocusCoord(SkyViewLimbRow(y_n), focus.x, focus.y) *
+                                float(SV_N_VIEW_LIMB - 1),
                         SV_N_VIEW_SKY, SV_N_VIEW_UP - 1, false, 0.0);
 }
 
@@ -380,11 +434,11 @@ vec3 SkyViewFetchBand(sampler2D part, int k, int j, SvStencil sc, SvStencil rows
 }
 
 // On the sky rows, the rows' stencil of each column m of sc in slice (altitude node k, sun node
-// j) for a query at elevation_deg with the focus (c, k_q) at the sun s_q, altitude h and
+// j) for a query at elevation_deg with the focus (c, k_q) at the sun coordinate s_q, altitude h and
 // azimuth cos_phi from the sun, cos_cols the cosines of the azimuths of sc's columns at h
 // (SkyViewAzimuthNode) (the reader's band_rows): false where neither the query nor the slice has
 // a focus (then the slice is read at the query's row).
-bool SkyViewBandRows(float elevation_deg, float c, float k_q, float h, float cos_phi,
+bool SkyViewBandRows(float elevation_deg, float c, float k_q, float s_q, float h, float cos_phi,
                      vec4 cos_cols, int k, int j, out SvStencil rows[4]) {
   float h_n = sv_alt_nodes[k];
   float b = SV_SUN_WARP * sqrt(clamp(h_n / (top_radius - bottom_radius), 0.0, 1.0));
@@ -395,7 +449,7 @@ bool SkyViewBandRows(float elevation_deg, float c, float k_q, float h, float cos
   float e_n = SkyViewBandSlice(elevation_deg, c, k_q, h, s_n, h_n);
   for (int m = 0; m < 4; ++m) {
     float e = SkyViewBandRelative(e_n, c_n, k_n, h_n, cos_phi, cos_cols[m]);
-    rows[m] = SkyViewBandRowStencil(e, h, c_n, k_n);
+    rows[m] = SkyViewBandRowStencil(e, h, c_n, k_n, vec3(s_q, s_n, h_n));
   }
   return true;
 }
@@ -415,7 +469,7 @@ vec3 SkyViewRadiance(float h, float rho, vec3 up, vec3 view_ray, vec3 sun_direct
   // The horizon's dip, and on the limb the angle between the observer's and the ray's tangent
   // point's verticals (gamma) and the tangent point's horizon's dip (dip_t).
   float dip = atan(rho, bottom_radius);
-  float gamma = 0.0, dip_t = 0.0, h_t = h;
+  float gamma = 0.0, dip_t = 0.0, h_t = h, y_limb = 0.0;
   if (mu >= 0.0) {
     // Zenith to horizontal: theta = (pi/2) (1 - (1 - x)^2); 1 - theta / (pi/2) = asin(mu) / (pi/2).
     // (The row below: at low altitude in twilight the rows concentrate on the band above the
@@ -427,8 +481,9 @@ vec3 SkyViewRadiance(float h, float rho, vec3 up, vec3 view_ray, vec3 sun_direct
     // y = (r - r_t) / h, with r - r_t = r mu^2 / (1 + sqrt(1 - mu^2)), y = 2x^2 - x^3.
     segment = 1;
     float r_minus_rt = r * mu * mu / (1.0 + sqrt(1.0 - mu * mu));
-    float y = h > 0.0 ? clamp(r_minus_rt / h, 0.0, 1.0) : 1.0;
-    row = float(SV_N_VIEW_SKY) + SkyViewLimbRow(y) * float(SV_N_VIEW_LIMB - 1);
+    y_limb = h > 0.0 ? clamp(r_minus_rt / h, 0.0, 1.0) : 1.0;
+    // (The row: each slice's own, SkyViewLimbFocus at the slice's sun and altitude, below.)
+    row = float(SV_N_VIEW_SKY) + SkyViewLimbRow(y_limb) * float(SV_N_VIEW_LIMB - 1);
     h_t = max(h - r_minus_rt, 0.0);
     gamma = asin(-mu);
     dip_t = atan(sqrt(h_t * (2.0 * bottom_radius + h_t)), bottom_radius);
@@ -470,10 +525,11 @@ vec3 SkyViewRadiance(float h, float rho, vec3 up, vec3 view_ray, vec3 sun_direct
   // (SkyViewBandRows): the query's elevation moved to where it lies relative to the band at the
   // slice's sun and altitude and at the column's azimuth.
   float band_c = 0.0, band_k = 0.0, elevation = 0.0;
+  float s_q = degrees(asin(mu_s) + shift);
   vec4 cos_cols = vec4(1.0);
   if (segment < 2) {
     // The sky rows' focus (the reader's sky_row_focus) at the sun coordinate.
-    SkyViewBandFocus(degrees(asin(mu_s) + shift), h, band_c, band_k);
+    SkyViewBandFocus(s_q, h, band_c, band_k);
     elevation = degrees(asin(mu));
     for (int m = 0; m < 4; ++m) {
       cos_cols[m] = cos(SkyViewAzimuthNode(min(sc.first + m, SV_N_AZ - 1), h));
@@ -508,20 +564,34 @@ vec3 SkyViewRadiance(float h, float rho, vec3 up, vec3 view_ray, vec3 sun_direct
         if (s >= ss.len) break;
         vec3 value;
         SvStencil band_rows[4];
-        if (segment < 2 && SkyViewBandRows(elevation, band_c, band_k, h, cos(phi), cos_cols,
+        if (segment < 2 && SkyViewBandRows(elevation, band_c, band_k, s_q, h, cos(phi), cos_cols,
                                             sa.first + a, ss.first + s, band_rows)) {
           int k = sa.first + a, j = ss.first + s;
           value = part == 0 ? SkyViewFetchBand(skyview_rayleigh, k, j, sc, band_rows) :
                               SkyViewFetchBand(skyview_mie, k, j, sc, band_rows);
         } else {
+          // On the limb rows, the slice's own rows at the query's depth (the reader's
+          // limb_row_focused at the slice's sun and altitude).
+          SvStencil sv_n = sv;
+          if (segment == 1) {
+            float h_n = sv_alt_nodes[sa.first + a];
+            float b_n = SV_SUN_WARP * sqrt(clamp(h_n / (top_radius - bottom_radius), 0.0, 1.0));
+            float s_n = SkyViewSunWarp(SkyViewSunNodeDeg(ss.first + s), b_n);
+            vec2 limb_n = SkyViewLimbFocus(s_n, h_n);
+            float y_n = SkyViewLimbSliceDepth(y_limb, s_q, h, s_n, h_n);
+            sv_n = SkyViewStencil(float(SV_N_VIEW_SKY) +
+                                      SkyViewFocusCoord(SkyViewLimbRow(y_n), limb_n.x, limb_n.y) *
+                                          float(SV_N_VIEW_LIMB - 1),
+                                  lo, hi, false, 0.0);
+          }
           vec3 by_row[4] = vec3[4](vec3(0.0), vec3(0.0), vec3(0.0), vec3(0.0));
           for (int v = 0; v < 4; ++v) {
-            if (v >= sv.len) break;
-            int k = sa.first + a, j = ss.first + s, y = sv.first + v;
+            if (v >= sv_n.len) break;
+            int k = sa.first + a, j = ss.first + s, y = sv_n.first + v;
             by_row[v] = part == 0 ? SkyViewFetch(skyview_rayleigh, k, j, y, sc) :
                                     SkyViewFetch(skyview_mie, k, j, y, sc);
           }
-          value = SkyViewMix(sv, by_row);
+          value = SkyViewMix(sv_n, by_row);
         }
         // The slice's scale (the interpolation commutes with a common factor).
         ivec2 slice = ivec2(ss.first + s, sa.first + a);

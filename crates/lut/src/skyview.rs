@@ -78,7 +78,7 @@ pub const LAYOUT: &str = "skyview";
 /// The limb rows' sun coordinate moves towards the tangent point's over a depth of 50 km
 /// instead of 20 km ([`LIMB_SHADOW_SCALE_M`]), and aloft the sky rows' towards the sun's
 /// elevation where the ray leaves the atmosphere ([`SKY_EXIT_ALTITUDE_M`], [`sun_shift`]).
-pub const SKYVIEW_VERSION: &str = "9";
+pub const SKYVIEW_VERSION: &str = "10";
 
 /// Altitude nodes: h_k the roots of [`altitude_coord`] (about (top − bottom) · (k / (N − 1))²,
 /// denser near the top).
@@ -308,7 +308,8 @@ pub fn view_theta(seg: usize, row: f64, r: f64, bottom: f64, sun_deg: f64) -> (f
         let (c, k) = sky_row_focus(sun_deg, r - bottom);
         (0.5 * PI - sky_row_elevation(x, c, k).to_radians(), false)
     } else if seg == 1 {
-        let y = limb_depth((row - N_VIEW_SKY as f64) / (N_VIEW_LIMB - 1) as f64);
+        let x = (row - N_VIEW_SKY as f64) / (N_VIEW_LIMB - 1) as f64;
+        let y = limb_depth_focused(x, sun_deg, r - bottom);
         // Tangent radius from r (horizontal) to the ground (the horizon).
         let r_t = r - (r - bottom) * y;
         (0.5 * PI + (r_t / r).min(1.0).acos(), false)
@@ -328,15 +329,10 @@ pub fn view_coord(theta: f64, r: f64, bottom: f64, sun_deg: f64) -> (usize, f64)
         let x = sky_row((0.5 * PI - theta).to_degrees(), c, k);
         (0, x * (N_VIEW_SKY - 1) as f64)
     } else if theta < th {
-        let r_t = r * (theta - 0.5 * PI).cos();
-        let y = if r > bottom {
-            ((r - r_t) / (r - bottom)).clamp(0.0, 1.0)
-        } else {
-            1.0
-        };
+        let y = limb_depth_of(theta, r, bottom);
         (
             1,
-            N_VIEW_SKY as f64 + limb_row(y) * (N_VIEW_LIMB - 1) as f64,
+            N_VIEW_SKY as f64 + limb_row_focused(y, sun_deg, r - bottom) * (N_VIEW_LIMB - 1) as f64,
         )
     } else {
         let x = ((theta - th) / (PI - th)).clamp(0.0, 1.0).sqrt();
@@ -545,8 +541,10 @@ pub fn band_horizon_taper(eps: f64, delta: f64) -> f64 {
 /// (degrees) for an observer at altitude `h` (m) on rows of focus (c, k) ([`sky_row_focus`]):
 /// where the columns' map ([`band_relative_elevation`]) moves an elevation across the
 /// horizontal, a column is read on the other segment's rows (the limb's at the query's
-/// altitude, as the reader reads every altitude node's limb rows at the query's depth).
-pub fn band_row(e: f64, h: f64, bottom: f64, c: f64, k: f64) -> (usize, f64) {
+/// altitude, as the reader reads every altitude node's limb rows at the query's depth, on the
+/// slice's limb rows, `limb` = [the query's sun coordinate, the slice's, the slice's altitude],
+/// [`limb_slice_depth`], [`limb_row_focus`]).
+pub fn band_row(e: f64, h: f64, bottom: f64, c: f64, k: f64, limb: [f64; 3]) -> (usize, f64) {
     if e >= 0.0 || h <= 0.0 {
         return (0, sky_row(e, c, k) * (N_VIEW_SKY - 1) as f64);
     }
@@ -555,7 +553,12 @@ pub fn band_row(e: f64, h: f64, bottom: f64, c: f64, k: f64) -> (usize, f64) {
     let y = (2.0 * (bottom + h) * half.sin() * half.sin() / h).clamp(0.0, 1.0);
     (
         1,
-        N_VIEW_SKY as f64 + limb_row(y) * (N_VIEW_LIMB - 1) as f64,
+        N_VIEW_SKY as f64
+            + limb_row_focused(
+                limb_slice_depth(y, limb[0], h, limb[1], limb[2]),
+                limb[1],
+                limb[2],
+            ) * (N_VIEW_LIMB - 1) as f64,
     )
 }
 
@@ -608,6 +611,135 @@ pub fn limb_row(y: f64) -> f64 {
     let y = y.clamp(0.0, 1.0);
     let phi = (1.0 - 27.0 / 16.0 * y).clamp(-1.0, 1.0).acos();
     (2.0 / 3.0 + 4.0 / 3.0 * (phi / 3.0 - 2.0 * PI / 3.0).cos()).clamp(0.0, 1.0)
+}
+
+/// The depth y = (r − r_t) / (r − bottom) ∈ [0, 1] of the tangent point of a limb ray of zenith
+/// angle `theta` seen from radius `r` (1 at or below the ground).
+pub fn limb_depth_of(theta: f64, r: f64, bottom: f64) -> f64 {
+    if r <= bottom {
+        return 1.0;
+    }
+    let r_t = r * (theta - 0.5 * PI).cos();
+    ((r - r_t) / (r - bottom)).clamp(0.0, 1.0)
+}
+
+/// The row coordinate (∈ [0, 1]) of the unfocused coordinate `x0` ∈ [0, 1] on rows focused
+/// with strength `k` at `xc`: (asinh(k (x₀ − x_c)) − A) / (B − A), A = asinh(−k x_c),
+/// B = asinh(k (1 − x_c)) (the sky rows' focus, [`sky_row_elevation`]; k / (B − A) times as
+/// dense at x_c, sparser far from it; the identity for k = 0).
+pub fn focus_coord(x0: f64, xc: f64, k: f64) -> f64 {
+    if k < 1e-6 {
+        return x0;
+    }
+    let a = (-k * xc).asinh();
+    let b = (k * (1.0 - xc)).asinh();
+    (((k * (x0 - xc)).asinh() - a) / (b - a)).clamp(0.0, 1.0)
+}
+
+/// The inverse of [`focus_coord`]: x₀ = x_c + sinh(A + x (B − A)) / k.
+pub fn focus_inverse(x: f64, xc: f64, k: f64) -> f64 {
+    if k < 1e-6 {
+        return x;
+    }
+    let a = (-k * xc).asinh();
+    let b = (k * (1.0 - xc)).asinh();
+    (xc + (a + x.clamp(0.0, 1.0) * (b - a)).sinh() / k).clamp(0.0, 1.0)
+}
+
+/// The depth (m) below the observer of the tangent point of the limb rays where the band above
+/// the earth's shadow lies seen from altitude, D = d₀ + d₁ s + d₂ s² (s the sun's elevation above
+/// the observer's horizon in degrees, the limb rows' sun coordinate, [`sun_shift`]):
+/// `[d₀, d₁, d₂]`. Fitted on the `sky` product (earth, 680 nm, the depth where ln L per metre
+/// of ray rises fastest along the limb, 12.5–20 km, 150° and 180° from the sun, s −1.6…0.4°,
+/// where the rise is steeper than 8 per unit of the rows' coordinate: within 0.43 km rms; the
+/// depth hardly depends on the altitude (at s = 0: 8.4 km at 11–15 km, 7.3 km at 20 km), it
+/// lies 3 km deeper 120° from the sun).
+pub const LIMB_BAND_DEPTH_M: [f64; 3] = [8_200.0, -7_760.0, -900.0];
+/// The limb rows' focus strength on that band ([`limb_row_focus`]).
+pub const LIMB_BAND_FOCUS: f64 = 6.0;
+/// The sun coordinates (degrees) between which the limb rows' focus fades in (the first two)
+/// and out (the last two).
+pub const LIMB_BAND_SUN_RANGE: [f64; 4] = [-3.0, -2.0, 0.0, 0.75];
+/// The least band depth (m) in the ratio of [`limb_slice_depth`] (near the end of the focus's
+/// sun range the fit falls to 0 where the band reaches the horizontal: with 1 km and the focus
+/// fading out at s = 0.5…1.5° the ratio moved the limb 2° above the observer's horizon across
+/// the horizon's blue glow, 49 % at 15 km and 65 % at 20 km, sun −2°).
+pub const LIMB_BAND_DEPTH_FLOOR_M: f64 = 2_500.0;
+/// The exponent a of the altitudes' ratio (h_q / h_n)^a in [`limb_slice_depth`]: 1 maps the
+/// depth in metres (the band's depth hardly depends on the altitude), 0 the depth's fraction of
+/// the altitude; with 1 an altitude node below the band's depth (at 12.5 km the 8.8 km node) is
+/// read at its horizon. Measured on the grid of the earth's shadow seen aloft, 12.5 / 20 km:
+/// a = 0: 5.37 / 9.09 %, 0.5: 2.72 / 3.28 %, 1: 12.1 / 3.28 %.
+pub const LIMB_BAND_ALTITUDE_EXPONENT: f64 = 0.5;
+/// The altitudes (m) between which the limb rows' focus fades in (the first two) and out (the
+/// last two).
+pub const LIMB_BAND_ALTITUDE_M: [f64; 4] = [6_000.0, 9_000.0, 20_000.0, 25_000.0];
+
+/// The limb rows' focus at sun coordinate `sun_deg` (degrees, [`sun_shift`]) and altitude `h`
+/// (m): (x_c, k), x_c = [`limb_row`] of the band's depth D / h ([`LIMB_BAND_DEPTH_M`], clamped
+/// to [0, 1]), k = [`LIMB_BAND_FOCUS`] times the smoothsteps of [`LIMB_BAND_SUN_RANGE`] and
+/// [`LIMB_BAND_ALTITUDE_M`] (0 elsewhere: the limb rows of versions 2–9). Seen from 10–20 km
+/// with the sun just above the observer's horizon, the sky opposite the sun rises from the
+/// earth's shadow to the band above it below the horizontal, on the limb rows: ln L per metre
+/// rises by up to 27 per unit of the rows' coordinate (1.8 per row at 20 km; 680 nm), at a
+/// depth moving 7 km per degree of the sun, so the rows concentrate there as the sky rows do on
+/// the band above the horizontal ([`sky_row_focus`]).
+pub fn limb_row_focus(sun_deg: f64, h: f64) -> (f64, f64) {
+    let [s0, s1, s2, s3] = LIMB_BAND_SUN_RANGE;
+    let [h0, h1, h2, h3] = LIMB_BAND_ALTITUDE_M;
+    let f = smoothstep(s0, s1, sun_deg)
+        * (1.0 - smoothstep(s2, s3, sun_deg))
+        * smoothstep(h0, h1, h)
+        * (1.0 - smoothstep(h2, h3, h));
+    if f <= 0.0 || h <= 0.0 {
+        return (0.0, 0.0);
+    }
+    let [d0, d1, d2] = LIMB_BAND_DEPTH_M;
+    let depth = d0 + d1 * sun_deg + d2 * sun_deg * sun_deg;
+    (limb_row((depth / h).clamp(0.0, 1.0)), f * LIMB_BAND_FOCUS)
+}
+
+/// The depth (m) below the observer of the band above the earth's shadow seen on the limb at
+/// sun coordinate `sun_deg` ([`LIMB_BAND_DEPTH_M`]), at least 1 km (where the ratio of two of
+/// them is taken, [`limb_slice_depth`]).
+pub fn limb_band_depth_m(sun_deg: f64) -> f64 {
+    let [d0, d1, d2] = LIMB_BAND_DEPTH_M;
+    let s = sun_deg.clamp(LIMB_BAND_SUN_RANGE[0] - 1.0, LIMB_BAND_SUN_RANGE[3]);
+    (d0 + d1 * s + d2 * s * s).max(LIMB_BAND_DEPTH_FLOOR_M)
+}
+
+/// The depth y_n ∈ [0, 1] at which the limb rows of a slice of sun coordinate `sun_n` and
+/// altitude `h_n` (m) are read for a query at depth `y` with sun coordinate `sun_q` at altitude
+/// `h_q`: where the query lies relative to the band above the earth's shadow, moved to the same
+/// place relative to the band at the slice's sun. The band lies at a depth D(s) in metres
+/// ([`limb_band_depth_m`]) that hardly depends on the altitude, so the map is affine about the
+/// horizontal (depth 0, where the limb meets the sky rows): D_n = y h_q D(s_n) / D(s_q),
+/// y_n = D_n / h_n, faded with the query's focus ([`limb_row_focus`]'s fades); without it the
+/// interpolation over the sun and altitude nodes at one depth fraction crosses the band (it
+/// moves 7 km of depth per degree of the sun, and a fraction of different altitudes is a
+/// different depth).
+pub fn limb_slice_depth(y: f64, sun_q: f64, h_q: f64, sun_n: f64, h_n: f64) -> f64 {
+    let f = limb_row_focus(sun_q, h_q).1 / LIMB_BAND_FOCUS;
+    if f <= 0.0 || h_n <= 0.0 {
+        return y;
+    }
+    let a = LIMB_BAND_ALTITUDE_EXPONENT;
+    let d = y * (h_q / h_n).powf(a) * limb_band_depth_m(sun_n) / limb_band_depth_m(sun_q);
+    y + f * (d.clamp(0.0, 1.0) - y)
+}
+
+/// The limb rows' coordinate (∈ [0, 1]) of depth `y` (see [`limb_depth`]) on the rows of sun
+/// coordinate `sun_deg` and altitude `h` (m): [`focus_coord`] of [`limb_row`] with
+/// [`limb_row_focus`].
+pub fn limb_row_focused(y: f64, sun_deg: f64, h: f64) -> f64 {
+    let (xc, k) = limb_row_focus(sun_deg, h);
+    focus_coord(limb_row(y), xc, k)
+}
+
+/// The inverse of [`limb_row_focused`]: the depth of the limb rows' coordinate `x`.
+pub fn limb_depth_focused(x: f64, sun_deg: f64, h: f64) -> f64 {
+    let (xc, k) = limb_row_focus(sun_deg, h);
+    limb_depth(focus_inverse(x, xc, k))
 }
 
 /// The twilight warp's strength at the top of the atmosphere ([`warp_strength`]).
@@ -821,8 +953,13 @@ pub fn build_skyview(
                 let s_j: Vec<f64> = (0..N_SUN).map(|j| sun_warp(sun_node_deg(j), b)).collect();
                 // The rays of this row: one for the suns whose row does not move (every sun
                 // but on the sky rows in low twilight, [`sky_row_focus`]), one per other sun.
-                let focused =
-                    |j: usize| i < N_VIEW_SKY && sky_row_focus(s_j[j], r - bottom).1 > 0.0;
+                let focused = |j: usize| {
+                    if i < N_VIEW_SKY {
+                        sky_row_focus(s_j[j], r - bottom).1 > 0.0
+                    } else {
+                        i < N_VIEW_UP && limb_row_focus(s_j[j], r - bottom).1 > 0.0
+                    }
+                };
                 let mut rays: Vec<Vec<usize>> = vec![(0..N_SUN).filter(|&j| !focused(j)).collect()];
                 rays.extend((0..N_SUN).filter(|&j| focused(j)).map(|j| vec![j]));
                 for suns in rays.iter().filter(|v| !v.is_empty()) {
@@ -1153,7 +1290,7 @@ impl<'a> SkyViewReader<'a> {
         Some(std::array::from_fn(|m| {
             let a = (sc.first + m).min(N_AZ - 1);
             let e = band_relative_elevation(e_n, s_n, h_n, cos_phi, azimuth_node(a, h).cos());
-            let (seg, y) = band_row(e, h, p.bottom_radius, c_n, k_n);
+            let (seg, y) = band_row(e, h, p.bottom_radius, c_n, k_n, [s_deg, s_n, h_n]);
             let (lo, hi) = segment_rows(seg);
             Stencil::with_nodes(y, lo, hi, |i| i as f64, y, self.nodes[2])
         }))
@@ -1207,6 +1344,20 @@ impl<'a> SkyViewReader<'a> {
         let (lo, hi) = segment_rows(seg);
         let sv = Stencil::with_nodes(row, lo, hi, |i| i as f64, row, self.nodes[2]);
         let h = r - p.bottom_radius;
+        let thickness = p.top_radius - p.bottom_radius;
+        // On the limb rows each slice's own rows at the query's depth ([`limb_row_focus`] at
+        // the slice's sun and altitude).
+        let limb_y = limb_depth_of(theta, r, p.bottom_radius);
+        let slice_rows = |k: usize, j: usize| {
+            if seg != 1 {
+                return sv;
+            }
+            let h_n = altitude_node_m(k, thickness);
+            let s_n = sun_warp(sun_node_deg(j), warp_strength(h_n, thickness));
+            let y_n = limb_slice_depth(limb_y, s_deg, h, s_n, h_n);
+            let y = N_VIEW_SKY as f64 + limb_row_focused(y_n, s_n, h_n) * (N_VIEW_LIMB - 1) as f64;
+            Stencil::with_nodes(y, lo, hi, |i| i as f64, y, self.nodes[2])
+        };
         let (sa, ss) = self.altitude_sun_stencils(r, mu_s, shift);
         let band_rows = |k: usize, j: usize| {
             (seg < 2)
@@ -1235,6 +1386,7 @@ impl<'a> SkyViewReader<'a> {
                         }
                         continue;
                     }
+                    let sv = slice_rows(k, j);
                     for iv in 0..sv.len {
                         self.fetch(part, z, &sc, sv.first + iv, &mut f);
                         for c in 0..n_c {
@@ -1445,8 +1597,8 @@ pub const STATED_ERRORS: &[(&str, &str, f64)] = &[
     ("rayleigh+mie", "sky radiance (sky product), sun -6..5 deg, ground", 0.015),
     ("rayleigh+mie", "sky radiance (sky product), sun -6..5 deg, 0-5 km (4.6 % at 5 km, 0.5 deg above the horizontal 120 deg from the sun, 680 nm)", 0.046),
     ("rayleigh+mie", "sky radiance (sky product), sun -6..5 deg, 5-8 km (the band above the earth's shadow near the antisolar horizon, 680 nm at 8 km, 3 deg above the horizontal)", 0.098),
-    ("rayleigh+mie", "sky radiance (sky product), sun -6..5 deg, 8-12.5 km (the band above the earth's shadow near the antisolar horizon, 680 nm at 12.5 km, 0.75 deg above the horizontal 120 deg from the sun)", 0.094),
-    ("rayleigh+mie", "sky radiance (sky product), sun -6..5 deg, 12.5-20 km (the band above the earth's shadow near the antisolar horizon, 680 nm at 20 km, 4.25 deg below the horizontal)", 0.21),
+    ("rayleigh+mie", "sky radiance (sky product), sun -6..5 deg, 8-12.5 km (the band above the earth's shadow near the antisolar horizon, 680 nm at 12.5 km, 0.75 deg above the horizontal 120 deg from the sun)", 0.091),
+    ("rayleigh+mie", "sky radiance (sky product), sun -6..5 deg, 12.5-20 km (the band above the earth's shadow near the antisolar horizon, 440 nm at 20 km, 4.25 deg below the horizontal 120 deg from the sun)", 0.14),
     ("rayleigh+mie", "sky radiance (sky product), sun -6..0 deg, 0-5 km, views within 10 deg of the horizon 150-180 deg from the sun (the earth's shadow rising; 680 nm at 2.5 km)", 0.024),
     ("rayleigh+mie", "sky radiance (sky product), sun -6..5 deg, 20-100 km (the limb across the earth's shadow)", 0.035),
     ("rayleigh+mie", "sky radiance (sky product), sun -12..-6 deg, ground", 0.035),
@@ -1531,7 +1683,17 @@ pub fn manifest(
                 "azimuth": "on the sky rows and the limb rows where k > 0 each azimuth column a of the interpolation is read at its own elevation e_a (its own rows' stencil): delta = depth_deg_per_km clamp(h, 0, depth_top_m) / 1000, w = max(c antisolar + delta, 0.5), ratio = max(-cos phi_a, antisolar_range[0]) / max(-cos phi, antisolar_range[0]), e_a = e + (k / (focus (1 + focus_growth smoothstep(focus_growth_altitude_m[0], focus_growth_altitude_m[1], h)))) (1 - smoothstep(2 w, 4 w, e)) step(-delta, e) smoothstep(antisolar_range[0], antisolar_range[1], -cos phi) (e + delta) (ratio - 1) (version 7: from -delta up through the horizontal, where version 6 had smoothstep(0, horizon_deg, e)), e the query's elevation (deg), phi its azimuth from the sun, phi_a the column's at the query's altitude h (azimuth_columns); where e_a >= 0 the column is read on the sky rows, below on the limb rows at the query's altitude h (depth y = 2 r sin^2(e_a / 2) / h); the band above the earth's shadow lies at (c antisolar + delta)(-cos phi) - delta",
                 "formula": "the sky rows' focus at the sun's elevation s above the observer's horizon (deg) and altitude h (m): u = max(sun_deg - s, 0), km = clamp(h, 0, centre_aloft_altitude_m[0]) / 1000, c = min(((centre[0] + centre[1] km) u + (centre[2] + centre[3] km) u^2) (1 + centre_aloft_per_km clamp(h - centre_aloft_altitude_m[0], 0, centre_aloft_altitude_m[1] - centre_aloft_altitude_m[0]) / 1000), 45) (deg), k = smoothstep(sun_range_deg[0], sun_range_deg[1], s) (1 - smoothstep(sun_range_deg[2], sun_range_deg[3], s)) (1 - smoothstep(altitude_range_m[0], altitude_range_m[1], h)) focus (1 + focus_growth smoothstep(focus_growth_altitude_m[0], focus_growth_altitude_m[1], h)), smoothstep(a, b, x) = t^2 (3 - 2 t), t = clamp((x - a) / (b - a), 0, 1)",
             },
-            "view_rows": format!("rows 0..{} from the zenith to the horizontal: elevation = 90 (1 - x0)^2 (deg), x0 = x_c + sinh(A + x (B - A)) / k, x = row / {}, x_c = 1 - sqrt(c / 90), A = asinh(-k x_c), B = asinh(k (1 - x_c)), (c, k) the sky rows' focus (sky_row_band) at the sun's elevation above the observer's horizon (its node's s_j for a texel, the query's own for a query) and the observer's altitude; where k < 1e-6, x0 = x; inverse: x0 = 1 - sqrt(elevation / 90), x = (asinh(k (x0 - x_c)) - A) / (B - A) (or x0); rows {}..{} from the horizontal to the horizon: the ray's tangent radius r_t = r - (r - bottom_radius) y, y = 2 x^2 - x^3, x = (row - {}) / {} (inverse: x = 2/3 + (4/3) cos(acos(1 - 27 y / 16) / 3 - 2 pi / 3)), theta = pi/2 + acos(r_t / r); rows {}..{} from the horizon to the nadir: theta = theta_h + (pi - theta_h) x^2, x = (row - {}) / {}, theta_h = pi - asin(bottom_radius / r); r the observer's radius. Interpolation over the rows around the view stays within its segment (see interpolation)", N_VIEW_SKY - 1, N_VIEW_SKY - 1, N_VIEW_SKY, N_VIEW_UP - 1, N_VIEW_SKY, N_VIEW_LIMB - 1, N_VIEW_UP, N_VIEW - 1, N_VIEW_UP, N_VIEW_DOWN - 1),
+            "limb_row_band": {
+                "depth_m": LIMB_BAND_DEPTH_M,
+                "focus": LIMB_BAND_FOCUS,
+                "sun_range_deg": LIMB_BAND_SUN_RANGE,
+                "altitude_range_m": LIMB_BAND_ALTITUDE_M,
+                "depth_floor_m": LIMB_BAND_DEPTH_FLOOR_M,
+                "altitude_exponent": LIMB_BAND_ALTITUDE_EXPONENT,
+                "slices": "on the limb rows each (altitude node k, sun node j) slice is read at the depth y_n = y + f (clamp(y (h / h_n)^altitude_exponent D(s_n) / D(s), 0, 1) - y) on its own rows (formula at s_n, h_n), y the query's depth, s its sun coordinate, h its altitude, s_n and h_n the slice's (s_n = the warped s_j at h_n = altitude_nodes_m[k]), D(s) = max(depth_m[0] + depth_m[1] s' + depth_m[2] s'^2, depth_floor_m), s' = clamp(s, sun_range_deg[0] - 1, sun_range_deg[3]), f = k / focus at the query's (s, h) (y_n = y where f = 0)",
+                "formula": "the limb rows' focus (version 10) at sun coordinate s (deg; a texel's node s_j, for a query each slice's own s_n at its altitude h_n) and altitude h (m): depth D = depth_m[0] + depth_m[1] s + depth_m[2] s^2 (m), x_c = the limb coordinate of y_c = clamp(D / h, 0, 1) (x_c = 2/3 + (4/3) cos(acos(1 - 27 y_c / 16) / 3 - 2 pi / 3)), k = focus smoothstep(sun_range_deg[0], sun_range_deg[1], s) (1 - smoothstep(sun_range_deg[2], sun_range_deg[3], s)) smoothstep(altitude_range_m[0], altitude_range_m[1], h) (1 - smoothstep(altitude_range_m[2], altitude_range_m[3], h)) (0 where h <= 0); the limb row coordinate of depth y is x = (asinh(k (x0 - x_c)) - A) / (B - A), x0 = 2/3 + (4/3) cos(acos(1 - 27 y / 16) / 3 - 2 pi / 3), A = asinh(-k x_c), B = asinh(k (1 - x_c)) (x = x0 where k < 1e-6); inverse x0 = x_c + sinh(A + x (B - A)) / k, y = 2 x0^2 - x0^3. On the limb rows every (altitude node k, sun node j) slice is read on its own rows at the depth of `slices` (and a column moved below the horizontal by sky_row_band.azimuth likewise, at its depth 2 r sin^2(e_a / 2) / h)",
+            },
+            "view_rows": format!("rows 0..{} from the zenith to the horizontal: elevation = 90 (1 - x0)^2 (deg), x0 = x_c + sinh(A + x (B - A)) / k, x = row / {}, x_c = 1 - sqrt(c / 90), A = asinh(-k x_c), B = asinh(k (1 - x_c)), (c, k) the sky rows' focus (sky_row_band) at the sun's elevation above the observer's horizon (its node's s_j for a texel, the query's own for a query) and the observer's altitude; where k < 1e-6, x0 = x; inverse: x0 = 1 - sqrt(elevation / 90), x = (asinh(k (x0 - x_c)) - A) / (B - A) (or x0); rows {}..{} from the horizontal to the horizon: the ray's tangent radius r_t = r - (r - bottom_radius) y, y = 2 x0^2 - x0^3, x0 = the unfocused coordinate of x = (row - {}) / {} with the limb rows' focus (limb_row_band; x0 = x where k = 0; inverse: x0 = 2/3 + (4/3) cos(acos(1 - 27 y / 16) / 3 - 2 pi / 3)), theta = pi/2 + acos(r_t / r); rows {}..{} from the horizon to the nadir: theta = theta_h + (pi - theta_h) x^2, x = (row - {}) / {}, theta_h = pi - asin(bottom_radius / r); r the observer's radius. Interpolation over the rows around the view stays within its segment (see interpolation)", N_VIEW_SKY - 1, N_VIEW_SKY - 1, N_VIEW_SKY, N_VIEW_UP - 1, N_VIEW_SKY, N_VIEW_LIMB - 1, N_VIEW_UP, N_VIEW - 1, N_VIEW_UP, N_VIEW_DOWN - 1),
             "azimuth_columns": format!("the column coordinate of the view's azimuth phi from the sun's (0..pi) at altitude h (m): column = (alpha sqrt(phi / pi) + (1 - alpha) sin(phi / 2)^2) {}, alpha = 1 - (1 - azimuth_aloft.weight) smoothstep(azimuth_aloft.altitude_range_m[0], azimuth_aloft.altitude_range_m[1], h) (smoothstep as in sky_row_band); a texel of altitude node k lies at the phi whose coordinate at h_k is its column (phi = pi (column / {})^2 where alpha = 1); a query's coordinate is taken at its own altitude", N_AZ - 1, N_AZ - 1),
             "azimuth_aloft": {
                 "weight": AZIMUTH_ALOFT_WEIGHT,
@@ -1741,12 +1903,17 @@ mod tests {
         );
         // A column moved below the horizontal is read on the limb rows at the query's
         // altitude, continuously with the sky rows at the horizontal.
-        let (seg, row) = band_row(-0.5, h, R, 0.0, 0.0);
+        let (seg, row) = band_row(-0.5, h, R, 0.0, 0.0, [0.0, 0.0, h]);
         assert_eq!(seg, 1);
         let (_, lr) = view_coord(0.5 * PI + 0.5f64.to_radians(), R + h, R, sun);
         assert!((row - lr).abs() < 1e-9, "{row} vs {lr}");
-        assert_eq!(band_row(0.0, h, R, 0.0, 0.0), (0, (N_VIEW_SKY - 1) as f64));
-        assert!((band_row(-1e-9, h, R, 0.0, 0.0).1 - N_VIEW_SKY as f64).abs() < 1e-6);
+        assert_eq!(
+            band_row(0.0, h, R, 0.0, 0.0, [0.0, 0.0, h]),
+            (0, (N_VIEW_SKY - 1) as f64)
+        );
+        assert!(
+            (band_row(-1e-9, h, R, 0.0, 0.0, [0.0, 0.0, h]).1 - N_VIEW_SKY as f64).abs() < 1e-6
+        );
         assert_eq!(
             band_relative_elevation(60.0, sun, h, cos(150.0), cos(180.0)),
             60.0
@@ -1799,6 +1966,37 @@ mod tests {
         assert_eq!(band_slice_elevation(60.0, sun, h, -1.25, 5000.0), 60.0);
         // At the ground after sunset (no band height): finite.
         assert!(band_slice_elevation(1.0, 3.0, 0.0, 2.5, 0.0).is_finite());
+    }
+
+    #[test]
+    fn the_limb_rows_follow_the_band_aloft() {
+        // The focus and its inverse invert; the identity where the focus is off.
+        for &(xc, k) in &[(0.3, 6.0), (0.9, 6.0), (0.0, 0.0)] {
+            for n in 0..=20 {
+                let x = n as f64 / 20.0;
+                assert!((focus_coord(focus_inverse(x, xc, k), xc, k) - x).abs() < 1e-9);
+            }
+        }
+        // Off by day, at the ground and from 25 km up; on at 15 km with the sun at sunset.
+        assert_eq!(limb_row_focus(10.0, 15_000.0).1, 0.0);
+        assert_eq!(limb_row_focus(0.0, 3_000.0).1, 0.0);
+        assert_eq!(limb_row_focus(0.0, 30_000.0).1, 0.0);
+        let (xc, k) = limb_row_focus(0.0, 15_000.0);
+        assert!(k > 1.0);
+        // The focus sits at the band's depth, and the rows are denser there than without it.
+        let y_c = limb_depth(xc);
+        assert!((y_c * 15_000.0 - LIMB_BAND_DEPTH_M[0]).abs() < 1.0);
+        let dx = 1e-4;
+        let dense =
+            limb_row_focused(y_c + dx, 0.0, 15_000.0) - limb_row_focused(y_c, 0.0, 15_000.0);
+        let plain = limb_row(y_c + dx) - limb_row(y_c);
+        assert!(dense > 1.5 * plain, "{dense} {plain}");
+        // A slice's depth: the query's where the focus is off, and the band onto the band.
+        assert_eq!(limb_slice_depth(0.4, 10.0, 15_000.0, 9.0, 12_000.0), 0.4);
+        let y_q = limb_band_depth_m(-0.5) / 15_000.0;
+        let y_n = limb_slice_depth(y_q, -0.5, 15_000.0, -0.25, 15_000.0);
+        assert!((y_n * 15_000.0 - limb_band_depth_m(-0.25)).abs() < 1.0);
+        assert_eq!(limb_slice_depth(0.0, -0.5, 15_000.0, -0.25, 12_000.0), 0.0);
     }
 
     #[test]
