@@ -988,6 +988,19 @@ fn twilight_fixed<const N: usize>(
     wq: [f32; 4],
     fs: f32,
 ) -> [f32; N] {
+    twilight_fixed_with(v, ln_v, wq, fs, exp_fast_f32)
+}
+
+/// [`twilight_fixed`] with the exponential `exp` (the bundles' lookup passes a cheaper one,
+/// [`twilight_bundle::twilight_fixed_cubic`]).
+#[inline(always)]
+fn twilight_fixed_with<const N: usize>(
+    v: [&[f32; N]; 4],
+    ln_v: [&[f32; N]; 4],
+    wq: [f32; 4],
+    fs: f32,
+    exp: impl Fn(f32) -> f32,
+) -> [f32; N] {
     const MIN: f32 = f32::MIN_POSITIVE;
     let mut out = [0.0f32; N];
     for i in 0..N {
@@ -995,7 +1008,7 @@ fn twilight_fixed<const N: usize>(
         let ln_j =
             wq[0] * ln_v[0][i] + wq[1] * ln_v[1][i] + wq[2] * ln_v[2][i] + wq[3] * ln_v[3][i];
         let linear = v[1][i] * (1.0 - fs) + v[2][i] * fs;
-        out[i] = if positive { exp_fast_f32(ln_j) } else { linear };
+        out[i] = if positive { exp(ln_j) } else { linear };
     }
     out
 }

@@ -422,6 +422,25 @@ impl CloudLight {
         spectral_channel_name(layer, nm)
     }
 
+    /// One channel per (wavelength l, moment m) of `planes` (index l · `moments` + m), named
+    /// `{prefix}{m:02}` per wavelength ([`Self::channel`]).
+    fn moment_channels<'a>(
+        &self,
+        prefix: &str,
+        planes: &'a [Vec<f32>],
+        moments: usize,
+    ) -> Vec<(String, &'a [f32])> {
+        (0..self.n_l())
+            .flat_map(|l| (0..moments).map(move |m| (l, m)))
+            .map(|(l, m)| {
+                (
+                    Self::channel(&format!("{prefix}{m:02}"), self.wavelengths_nm[l]),
+                    planes[l * moments + m].as_slice(),
+                )
+            })
+            .collect()
+    }
+
     /// The files of the export: (name, bytes), the manifest last.
     pub fn files(&self) -> Result<Vec<(&'static str, Vec<u8>)>> {
         let [nx, ny, nz] = self.dims;
@@ -459,38 +478,19 @@ impl CloudLight {
         }
         if let Some(order) = self.ms_order {
             let moments = (order + 1) * (order + 1);
-            let mut ch = Vec::new();
-            for l in 0..n_l {
-                for m in 0..moments {
-                    ch.push((
-                        Self::channel(&format!("C{m:02}"), self.wavelengths_nm[l]),
-                        self.ms[l * moments + m].as_slice(),
-                    ));
-                }
-            }
-            files.push((MS_FILE, enc(nx, ny * nz, ch, true)?));
+            let moment_channels =
+                |prefix: &str, planes| self.moment_channels(prefix, planes, moments);
+            files.push((
+                MS_FILE,
+                enc(nx, ny * nz, moment_channels("C", &self.ms), true)?,
+            ));
             if let Some(skin) = &self.skin {
-                let mut ch = Vec::new();
-                for l in 0..n_l {
-                    for m in 0..moments {
-                        ch.push((
-                            Self::channel(&format!("dC{m:02}"), self.wavelengths_nm[l]),
-                            skin.delta[l * moments + m].as_slice(),
-                        ));
-                    }
-                }
+                let ch = moment_channels("dC", &skin.delta);
                 files.push((SKIN_FILE, enc(nx, ny * nz, ch, true)?));
             }
             if let Some(faces) = &self.faces {
                 let mut ch = vec![("rho_cell".to_string(), faces.cell_density.as_slice())];
-                for l in 0..n_l {
-                    for m in 0..moments {
-                        ch.push((
-                            Self::channel(&format!("L{m:02}"), self.wavelengths_nm[l]),
-                            faces.radiance[l * moments + m].as_slice(),
-                        ));
-                    }
-                }
+                ch.extend(moment_channels("L", &faces.radiance));
                 files.push((FACES_FILE, enc(nx, ny * nz, ch, true)?));
             }
         }

@@ -43,20 +43,7 @@ pub(super) fn twilight_fixed_cubic<const N: usize>(
     wq: [f32; 4],
     fs: f32,
 ) -> [f32; N] {
-    const MIN: f32 = f32::MIN_POSITIVE;
-    let mut out = [0.0f32; N];
-    for i in 0..N {
-        let positive = (v[0][i] >= MIN) & (v[1][i] >= MIN) & (v[2][i] >= MIN) & (v[3][i] >= MIN);
-        let ln_j =
-            wq[0] * ln_v[0][i] + wq[1] * ln_v[1][i] + wq[2] * ln_v[2][i] + wq[3] * ln_v[3][i];
-        let linear = v[1][i] * (1.0 - fs) + v[2][i] * fs;
-        out[i] = if positive {
-            exp_cubic_f32(ln_j)
-        } else {
-            linear
-        };
-    }
-    out
+    super::twilight_fixed_with(v, ln_v, wq, fs, exp_cubic_f32)
 }
 
 #[cfg(test)]
