@@ -8,6 +8,9 @@
 //! Usage: cargo run --release -p skybake-harness --features probes --example skyview_trace --
 //!        BUNDLE_DIR ALTITUDE_M SUN_DEG VIEW_ZENITH_DEG AZIMUTH_DEG
 
+// The trace indexes per-channel node arrays by the node, as the reader does.
+#![allow(clippy::needless_range_loop)]
+
 use std::path::Path;
 
 use serde_json::Value;
