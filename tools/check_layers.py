@@ -33,7 +33,7 @@ ALLOWED = {
     "skybake-service": {"skybake-physics", "skybake-engine", "skybake-render", "skybake-store",
                         "skybake-lut", "skybake-product", "skybake-job"},
     "skybake-harness": {"skybake-physics", "skybake-engine", "skybake-render", "skybake-store",
-                        "skybake-product"},
+                        "skybake-lut", "skybake-product"},
     "skybake": {"skybake-physics", "skybake-engine", "skybake-render", "skybake-store",
                 "skybake-lut", "skybake-product", "skybake-job", "skybake-service"},
 }

@@ -195,11 +195,48 @@ float SkyViewSunCoord(float above_horizon_deg) {
   return float(SV_N_SUN - 1);
 }
 
+// sin, cos, acos and asinh to 32-bit precision. GLSL ES leaves their precision to the device:
+// SwiftShader's (headless Chromium) are within 1.9e-4 (sin, cos) and 6.7e-5 (acos) absolute,
+// 1000 times its asin's and atan's, and its asinh errs by 5e-5 at -18 (log(x + sqrt(x^2 + 1))
+// cancels for x < 0); the limb rows' coordinate (ln L changes 27 per unit of it in twilight
+// aloft), the sky rows' focus (asinh of up to 24 times the coordinate), the sun coordinate
+// (gamma cos(phi)) and the azimuth column need them to 1e-6. sin and cos: the argument reduced
+// by multiples of pi/2 (pi/2 in two parts, Cody & Waite 1980), then the Taylor polynomials to
+// x^9 and x^10 (|x| <= pi/4: within 3e-8).
+vec2 SkyViewSinCos(float x) {
+  float n = floor(x * 0.63661977 + 0.5);
+  float r = (x - n * 1.5707963705062866) + n * 4.371139000186243e-8;
+  float r2 = r * r;
+  float s = r * (1.0 + r2 * (-1.0 / 6.0 + r2 * (1.0 / 120.0 + r2 * (-1.0 / 5040.0 +
+      r2 * (1.0 / 362880.0)))));
+  float c = 1.0 + r2 * (-0.5 + r2 * (1.0 / 24.0 + r2 * (-1.0 / 720.0 + r2 * (1.0 / 40320.0 +
+      r2 * (-1.0 / 3628800.0)))));
+  int q = int(n - 4.0 * floor(n * 0.25));
+  return q == 0 ? vec2(s, c) : q == 1 ? vec2(c, -s) : q == 2 ? vec2(-s, -c) : vec2(-c, s);
+}
+float SkyViewSin(float x) { return SkyViewSinCos(x).x; }
+float SkyViewCos(float x) { return SkyViewSinCos(x).y; }
+// acos from atan (accurate), sqrt((1 - x)(1 + x)) without cancellation near |x| = 1.
+float SkyViewAcos(float x) {
+  x = clamp(x, -1.0, 1.0);
+  return atan(sqrt(max((1.0 - x) * (1.0 + x), 0.0)), x);
+}
+// asinh, odd: of |x| (no cancellation); below 1/8 its series to x^7 (log(1 + a) would lose a's
+// digits).
+float SkyViewAsinh(float x) {
+  float a = abs(x);
+  if (a < 0.125) {
+    float x2 = x * x;
+    return x * (1.0 + x2 * (-1.0 / 6.0 + x2 * (3.0 / 40.0 + x2 * (-5.0 / 112.0))));
+  }
+  return sign(x) * log(a + sqrt(a * a + 1.0));
+}
+
 // The limb rows' coordinate x (0 at the horizontal, 1 at the horizon) of the ray's depth
 // y = (r - r_t) / h: the root in [0, 1] of 2x^2 - x^3 = y (the reader's limb_row).
 float SkyViewLimbRow(float y) {
-  float phi = acos(clamp(1.0 - 27.0 / 16.0 * clamp(y, 0.0, 1.0), -1.0, 1.0));
-  return clamp(2.0 / 3.0 + 4.0 / 3.0 * cos(phi / 3.0 - 2.0 * PI / 3.0), 0.0, 1.0);
+  float phi = SkyViewAcos(1.0 - 27.0 / 16.0 * clamp(y, 0.0, 1.0));
+  return clamp(2.0 / 3.0 + 4.0 / 3.0 * SkyViewCos(phi / 3.0 - 2.0 * PI / 3.0), 0.0, 1.0);
 }
 
 // The limb rows' focus on the band above the earth's shadow seen from altitude (the reader's
@@ -241,7 +278,7 @@ float SkyViewLimbSliceDepth(float y, float s_q, float h_q, float s_n, float h_n)
 float SkyViewSunUnwarp(float s, float b) {
   if (b < 1e-6 || s <= SV_SUN_WARP_LO || s >= SV_SUN_WARP_HI) return s;
   float e = s < 0.0 ? -SV_SUN_WARP_LO : SV_SUN_WARP_HI;
-  return e * asinh(s * sinh(b) / e) / b;
+  return e * SkyViewAsinh(s * sinh(b) / e) / b;
 }
 
 // The altitude nodes (m).
@@ -252,9 +289,9 @@ const float sv_alt_nodes[SV_N_ALT] = SV_ALT_NODES;
 // B = asinh(k (1 - xc)); x0 where k = 0.
 float SkyViewFocusCoord(float x0, float xc, float k) {
   if (k < 1e-6) return x0;
-  float a = asinh(-k * xc);
-  float b = asinh(k * (1.0 - xc));
-  return clamp((asinh(k * (x0 - xc)) - a) / (b - a), 0.0, 1.0);
+  float a = SkyViewAsinh(-k * xc);
+  float b = SkyViewAsinh(k * (1.0 - xc));
+  return clamp((SkyViewAsinh(k * (x0 - xc)) - a) / (b - a), 0.0, 1.0);
 }
 
 // The sun coordinate s (degrees) of the sun node coordinate t (degrees) at warp strength b: the
@@ -306,9 +343,9 @@ float SkyViewAzimuthNode(int a, float h) {
   float x = target;
   if (alpha < 1.0 && a > 0 && a < SV_N_AZ - 1) {
     for (int i = 0; i < 6; ++i) {
-      float s = sin(0.5 * PI * x * x);
+      float s = SkyViewSin(0.5 * PI * x * x);
       float f = alpha * x + (1.0 - alpha) * s * s - target;
-      x = clamp(x - f / (alpha + (1.0 - alpha) * PI * x * sin(PI * x * x)), 0.0, 1.0);
+      x = clamp(x - f / (alpha + (1.0 - alpha) * PI * x * SkyViewSin(PI * x * x)), 0.0, 1.0);
     }
   }
   return PI * x * x;
@@ -322,9 +359,9 @@ float SkyViewSkyRow(float elevation_deg, float c, float k) {
   float x0 = 1.0 - sqrt(clamp(elevation_deg / 90.0, 0.0, 1.0));
   if (k < 1e-6) return x0;
   float xc = 1.0 - sqrt(clamp(c / 90.0, 0.0, 1.0));
-  float a = asinh(-k * xc);
-  float b = asinh(k * (1.0 - xc));
-  return clamp((asinh(k * (x0 - xc)) - a) / (b - a), 0.0, 1.0);
+  float a = SkyViewAsinh(-k * xc);
+  float b = SkyViewAsinh(k * (1.0 - xc));
+  return clamp((SkyViewAsinh(k * (x0 - xc)) - a) / (b - a), 0.0, 1.0);
 }
 
 // The elevation (degrees) at the column azimuth cos_phi_a (cosine) that lies where
@@ -357,7 +394,7 @@ SvStencil SkyViewBandRowStencil(float elevation_deg, float h, float c, float k, 
     return SkyViewStencil(SkyViewSkyRow(elevation_deg, c, k) * float(SV_N_VIEW_SKY - 1), 0,
                           SV_N_VIEW_SKY - 1, false, 0.0);
   }
-  float s = sin(0.5 * radians(elevation_deg));
+  float s = SkyViewSin(0.5 * radians(elevation_deg));
   float y = clamp(2.0 * (bottom_radius + h) * s * s / h, 0.0, 1.0);
   vec2 focus = SkyViewLimbFocus(limb.y, limb.z);
   float y_n = SkyViewLimbSliceDepth(y, limb.x, h, limb.y, limb.z);
@@ -501,7 +538,7 @@ vec3 SkyViewRadiance(float h, float rho, vec3 up, vec3 view_ray, vec3 sun_direct
   // Its column: (alpha sqrt(phi / pi) + (1 - alpha) sin^2(phi / 2)) (N_AZ - 1), alpha from 1
   // near the ground to SV_AZ_WEIGHT aloft (the columns denser around 90 degrees from the sun).
   float alpha = 1.0 - (1.0 - SV_AZ_WEIGHT) * smoothstep(SV_AZ_ALTITUDE.x, SV_AZ_ALTITUDE.y, h);
-  float half_sin = sin(0.5 * phi);
+  float half_sin = SkyViewSin(0.5 * phi);
   float column = alpha * sqrt(clamp(phi / PI, 0.0, 1.0)) + (1.0 - alpha) * half_sin * half_sin;
   SvStencil sc = SkyViewStencil(column * float(SV_N_AZ - 1), 0, SV_N_AZ - 1, false, 0.0);
   // The sun coordinate: the sun's elevation above the observer's horizon, on the limb above the
@@ -509,12 +546,12 @@ vec3 SkyViewRadiance(float h, float rho, vec3 up, vec3 view_ray, vec3 sun_direct
   float shift = dip;
   if (segment == 1) {
     float w = 1.0 - exp(-(h - h_t) / SV_LIMB_SHADOW_SCALE);
-    shift = dip + w * (gamma * cos(phi) + dip_t - dip);
+    shift = dip + w * (gamma * SkyViewCos(phi) + dip_t - dip);
   } else if (segment == 0) {
     // Aloft, towards the sun: the sun's elevation at the ray's exit through the top, alpha the
     // central angle to it (the reader's sun_shift), weighted by max(cos(phi), 0).
     float w = smoothstep(SV_SKY_EXIT_ALTITUDE.x, SV_SKY_EXIT_ALTITUDE.y, h);
-    float toward = max(cos(phi), 0.0);
+    float toward = max(SkyViewCos(phi), 0.0);
     if (w > 0.0 && toward > 0.0) {
       float x_top = DistanceToTopAtmosphereBoundary(r, mu);
       float exit_angle = atan(x_top * sqrt(max(1.0 - mu * mu, 0.0)), r + x_top * mu);
@@ -532,7 +569,7 @@ vec3 SkyViewRadiance(float h, float rho, vec3 up, vec3 view_ray, vec3 sun_direct
     SkyViewBandFocus(s_q, h, band_c, band_k);
     elevation = degrees(asin(mu));
     for (int m = 0; m < 4; ++m) {
-      cos_cols[m] = cos(SkyViewAzimuthNode(min(sc.first + m, SV_N_AZ - 1), h));
+      cos_cols[m] = SkyViewCos(SkyViewAzimuthNode(min(sc.first + m, SV_N_AZ - 1), h));
     }
   }
   if (segment == 0) row = SkyViewSkyRow(elevation, band_c, band_k) * float(SV_N_VIEW_SKY - 1);
@@ -564,7 +601,7 @@ vec3 SkyViewRadiance(float h, float rho, vec3 up, vec3 view_ray, vec3 sun_direct
         if (s >= ss.len) break;
         vec3 value;
         SvStencil band_rows[4];
-        if (segment < 2 && SkyViewBandRows(elevation, band_c, band_k, s_q, h, cos(phi), cos_cols,
+        if (segment < 2 && SkyViewBandRows(elevation, band_c, band_k, s_q, h, SkyViewCos(phi), cos_cols,
                                             sa.first + a, ss.first + s, band_rows)) {
           int k = sa.first + a, j = ss.first + s;
           value = part == 0 ? SkyViewFetchBand(skyview_rayleigh, k, j, sc, band_rows) :
