@@ -1323,8 +1323,6 @@ fn field_source(
         }
         None => field.inscatter_convolved(cells, p, d, out),
     }
-    // The sun's once-scattered light, held apart at a higher order.
-    field.once_inscatter(p, d, out);
 }
 
 /// The per-voxel source with the multiple-scattering field's skin tallies
@@ -1367,8 +1365,6 @@ fn skin_sources(
                 if !field.inscatter_skin(p, d, &mut js) {
                     continue;
                 }
-                // The skin's tally holds no once-scattered sunlight either.
-                field.once_inscatter(p, d, &mut js);
                 // What `vox` holds here.
                 field_source(
                     grid,

@@ -41,14 +41,12 @@ use std::f64::consts::PI;
 
 mod convolved;
 mod face;
-mod once;
 mod skin;
 pub use convolved::ConvolvedCells;
 pub use face::{
     profiles as face_build_up, FaceQuadrature, SunAtVoxel, MU_NODES as FACE_MU_NODES,
     N_PHI as FACE_N_PHI,
 };
-pub use once::{real_sh_high, OnceField, ONCE_MOMENTS, ONCE_ORDER};
 pub use skin::{SkinField, SKIN_TAU};
 
 /// Settings of the photon pass.
@@ -98,9 +96,6 @@ pub struct MsField {
     angular_order: usize,
     /// Coefficients per cell and wavelength, (L + 1)².
     moments: usize,
-    /// The sun's once-scattered light in the true medium, which the field's tallies leave out
-    /// (see [`once`]); `None` without δ-M truncation or sunlight.
-    once: Option<OnceField>,
 }
 
 /// Largest scaled optical depth σ_t*·Δ (at the densest voxel round a step) over which one
@@ -187,9 +182,7 @@ struct Photon {
 impl MsField {
     /// Bytes held by the field's tables.
     pub fn bytes(&self) -> usize {
-        4 * (self.data.len() + self.rho.len())
-            + self.skin.as_ref().map_or(0, SkinField::bytes)
-            + self.once.as_ref().map_or(0, OnceField::bytes)
+        4 * (self.data.len() + self.rho.len()) + self.skin.as_ref().map_or(0, SkinField::bytes)
     }
 
     /// Runs the photon pass for every group of wavelengths with identical optics; `cancel` is
@@ -222,37 +215,7 @@ impl MsField {
         let radius = 0.5 * (hi - lo).length() * 1.001;
         let disc_area = PI * radius * radius;
         let cell_volume = coarse.cell_m.x * coarse.cell_m.y * coarse.cell_m.z;
-        let groups = optics.groups();
-        let mut group_of = vec![0; n_l];
-        for (gi, group) in groups.iter().enumerate() {
-            for &l in group {
-                group_of[l] = gi;
-            }
-        }
-        // The sun's once-scattered light apart, in the true medium, for the groups with a
-        // truncated peak (see [`once`]).
-        let once_of = |l: usize| {
-            s.truncation_power > 0.0
-                && truncation[l].fraction > 0.0
-                && lighting.sun_dir.is_finite()
-                && lighting.sun_irradiance[l] > 0.0
-                && s.sun_photons > 0
-        };
-        let mut once = (0..n_l).any(once_of).then(|| {
-            OnceField::new(
-                cells,
-                groups.len(),
-                group_of,
-                lighting.sun_irradiance.clone(),
-                optics
-                    .phase
-                    .iter()
-                    .zip(&truncation)
-                    .map(|(p, t)| once::classed_moments(p, t, ONCE_ORDER))
-                    .collect(),
-            )
-        });
-        for (gi, group) in groups.into_iter().enumerate() {
+        for group in optics.groups() {
             let l0 = group[0];
             let k = optics.extinction_per_density_m[l0];
             let tr = truncation[l0];
@@ -287,8 +250,6 @@ impl MsField {
                 _ => 0.5,
             };
             let total = n_sun + n_env;
-            // This group's sun photons leave their once-scattered light to `once`.
-            let once_here = once.is_some() && sun_on && group.iter().any(|&l| once_of(l));
             // Random shift of the launch sequence (Cranley & Patterson 1976), from the seed.
             let shift: [f64; 4] = {
                 let mut r = Pcg64::seed_from_u64(s.seed ^ 0x1A_u64.wrapping_mul(l0 as u64 + 1));
@@ -367,8 +328,6 @@ impl MsField {
                                 scattered: false,
                             };
                             let mut bounces = 0usize;
-                            let mut smooth = 0usize;
-                            let skip_once = once_here && i < n_sun;
                             let mut thick_events = 0usize;
                             let mut surv = 1.0f64;
                             loop {
@@ -426,10 +385,7 @@ impl MsField {
                                     let (u1, u2) = (more(), more());
                                     phase.sample(ph.dir, u1, u2, &mut more).0
                                 };
-                                // Scored from the first smooth scattering on, a sun photon's
-                                // from the second when `once` holds its first.
-                                smooth += 1;
-                                ph.scattered = !(skip_once && smooth == 1);
+                                ph.scattered = true;
                                 if thick {
                                     if !thick_roulette(&mut thick_events, &mut w, &mut rng) {
                                         break;
@@ -499,18 +455,6 @@ impl MsField {
                     }
                 });
             partial.into_iter().for_each(super::pages::give_back);
-            if let Some(o) = once.as_mut().filter(|_| once_here) {
-                let g = once::Group {
-                    phase: &optics.phase[l0],
-                    truncation: &tr,
-                    k,
-                    travel: -lighting.sun_dir,
-                    photons: n_sun * once::PHOTONS_PER_SUN_PHOTON,
-                    seed: s.seed ^ (l0 as u64) << 56,
-                };
-                let len = (cells + skin_cells) * once::ONCE_MOMENTS;
-                o.set_group(gi, &once::trace(&coarse, &g, accumulator_lanes(len).min(4)));
-            }
         }
         Ok(Self {
             dims: coarse.dims,
@@ -530,7 +474,6 @@ impl MsField {
                 .map(|sk| SkinField::new(sk, skin_data, skin_depth)),
             angular_order: order,
             moments,
-            once,
         })
     }
 
@@ -1248,7 +1191,6 @@ mod tests {
             max_coarse_dim: 8,
             seed: 1,
             angular_order: 3,
-            once: None,
             truncation_power: 3.5,
             peak_spread: 0.0,
         };
@@ -1291,7 +1233,6 @@ mod tests {
             rho,
             skin: None,
             angular_order: 0,
-            once: None,
             moments: 1,
         };
         // A quarter of a cell from cell 0's centre towards cell 1 along x, at the centres'

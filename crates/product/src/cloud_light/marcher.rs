@@ -25,9 +25,7 @@ use super::{
 };
 use skybake_physics::phase::orthonormal_basis;
 use skybake_render::march::{MARCH_CUTOFF, THICK_STEP};
-use skybake_render::multiple::{
-    face_build_up, FACE_MU_NODES as MU_NODES, FACE_N_PHI as N_PHI, ONCE_MOMENTS, ONCE_ORDER,
-};
+use skybake_render::multiple::{face_build_up, FACE_MU_NODES as MU_NODES, FACE_N_PHI as N_PHI};
 
 /// Where a client's ray leaves the cloud, per wavelength: the cloud's radiance I and its true
 /// transmittance T_c (the background is seen as T_c·B), and the distance of the cloud's front.
@@ -72,8 +70,6 @@ struct Ray<'r> {
     sky: &'r [f64],
     /// Y_lm(−d).
     ylm: &'r [f64; 25],
-    /// Y_lm(−d) to the once-scattered light's order (empty without it).
-    ylm_once: &'r [f64],
 }
 
 /// The radiance and transmittances along one ray, per wavelength.
@@ -527,12 +523,6 @@ impl<'a> Marcher<'a> {
         self.sky_entries(d, &mut sky);
         let mut ylm = [0.0; 25];
         sh(-d, &mut ylm);
-        // The once-scattered light's harmonics to order 8 (the renderer's, in the manifest's
-        // convention).
-        let mut ylm_once = vec![0.0; if cl.once.is_empty() { 0 } else { ONCE_MOMENTS }];
-        if !ylm_once.is_empty() {
-            skybake_render::multiple::real_sh_high(-d, ONCE_ORDER, &mut ylm_once);
-        }
         let ray = Ray {
             o,
             d,
@@ -541,7 +531,6 @@ impl<'a> Marcher<'a> {
             sun_src: &sun_src,
             sky: &sky,
             ylm: &ylm,
-            ylm_once: &ylm_once,
         };
         let step = cl.step_voxels * cl.voxel_size_m;
         // Thick steps (docs/cloud-light.md, "Thick steps") where a step can hold more than
@@ -686,17 +675,11 @@ impl<'a> Marcher<'a> {
                     j_skin += (c + Self::interp(w, &sk.delta[l * moments + m])) * ray.ylm[m];
                 }
             }
-            // The sun's once-scattered light, added to the cell's and the skin's.
-            let mut j1 = 0.0;
-            for (m, y) in ray.ylm_once.iter().enumerate() {
-                j1 += Self::interp(w, &cl.once[l * ONCE_MOMENTS + m]) * y;
-            }
-            let j1 = j1.max(0.0);
             // The cell's field seen through the surface voxels' faces (not the skin's).
             let j = match self.face.get(l) {
                 Some(face) => j.max(0.0) - Self::interp(w, face),
                 None => j.max(0.0),
-            } + j1;
+            };
             let field = match skin {
                 Some(sk) => {
                     // The skin's source over the part of the sub-step within its depth of
@@ -707,7 +690,7 @@ impl<'a> Marcher<'a> {
                         a_ms * (src + j)
                     } else {
                         let b = -(-left.min(ks * rho * dt)).exp_m1();
-                        b * (src + j_skin.max(0.0) + j1) + (a_ms - b) * (src + j)
+                        b * (src + j_skin.max(0.0)) + (a_ms - b) * (src + j)
                     }
                 }
                 None => a_ms * (src + j),
