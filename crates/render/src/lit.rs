@@ -508,7 +508,8 @@ impl ShadowMap {
             lo = lo.max(ta.min(tb));
             hi = hi.min(ta.max(tb));
         }
-        !(lo > hi)
+        // Not `lo > hi` (a NaN bound leaves it true: unsure).
+        lo <= hi || lo.is_nan() || hi.is_nan()
     }
 
     /// Density integral towards the sun from `p` below the plane (bilinear).
@@ -553,14 +554,12 @@ fn nonzero_bounds(d: &[f32], dims: [usize; 2]) -> Option<[f64; 4]> {
             }
         }
     }
-    (i_lo <= i_hi).then(|| {
-        [
-            i_lo as f64 - 1.0,
-            i_hi as f64 + 1.0,
-            j_lo as f64 - 1.0,
-            j_hi as f64 + 1.0,
-        ]
-    })
+    (i_lo <= i_hi).then_some([
+        i_lo as f64 - 1.0,
+        i_hi as f64 + 1.0,
+        j_lo as f64 - 1.0,
+        j_hi as f64 + 1.0,
+    ])
 }
 
 /// Voxels whose 3×3×3 neighbourhood holds any density (where per-voxel light is needed); the

@@ -202,7 +202,10 @@ skybake_physics::simd_dispatch! {
                 let den = source * u_c[l] + first * e_c[l];
                 let r = ((source * u_v[l] + first * e_v[l]) / den).clamp(0.0, 2.0);
                 let term = deficit[l] + w_phase[l] * (1.0 - r) * radiance[l];
-                let keep = lanes.active[l] && !(radiance[l] <= 0.0) && !(den <= 0.0);
+                // The scalar function's `radiance <= 0.0` and `den <= 0.0` skips (NaN not skipped).
+                let keep = lanes.active[l]
+                    && (radiance[l] > 0.0 || radiance[l].is_nan())
+                    && (den > 0.0 || den.is_nan());
                 deficit[l] = if keep { term } else { deficit[l] };
             }
         }
