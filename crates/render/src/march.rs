@@ -1093,7 +1093,14 @@ impl<'a> Prepared<'a> {
             let mut shadowed = false;
             // Steps before this one have their path in `paths`.
             let mut first_unknown = 0;
-            for kstep in 0..n {
+            // A ray whose part below the map's plane passes beside the cloud's shadow reads 0
+            // at every step: not shadowed, as the steps would find.
+            let may_shade = self
+                .lit
+                .shadow
+                .as_ref()
+                .is_some_and(|s| s.may_shade(o, d, 0.0, tx, lt.sun_dir));
+            for kstep in (0..n).take_while(|_| may_shade) {
                 let p = o + d * (tx * (kstep as f64 + 0.5) / n as f64);
                 let path = self.sun_shadow_path(p);
                 if kstep < paths.len() {
@@ -1310,7 +1317,7 @@ fn field_source(
                 irradiance,
                 density_m,
             });
-            field.inscatter_face(
+            field.inscatter_face_lanes(
                 quad,
                 p,
                 d,

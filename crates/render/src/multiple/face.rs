@@ -22,6 +22,8 @@ use glam::DVec3;
 use skybake_physics::phase::orthonormal_basis;
 use std::f64::consts::PI;
 
+mod lanes;
+
 /// Gauss-Legendre nodes and weights on [0, 1] for the inward cosine μ' (8 points).
 pub const MU_NODES: [(f64, f64); 8] = [
     (0.019_855_071_751_231_85, 0.050_614_268_145_188_13),
