@@ -20,6 +20,8 @@ use std::f64::consts::PI;
 use std::sync::Arc;
 use std::time::Instant;
 
+mod turned;
+
 /// The march stops where the scaled transmittance T* of every wavelength is below this: the rest
 /// of the ray adds at most this fraction of the brightest source behind it (and the background
 /// seen through the cloud, T_c ≤ T*, at most this fraction of its radiance).
@@ -596,6 +598,8 @@ impl<'a> Prepared<'a> {
             };
             d_start = Some(r1);
             let (d0, d1) = (r0 * r0, r1 * r1);
+            // The peak's gathering path, looked up where the peak's part is first needed.
+            let mut turned_at = None;
             front.get_or_insert(t - dt);
             let mut alive = false;
             let (mut a, mut a_ms, mut a_p, mut sun_t, mut sun_peak) = (0.0, 0.0, 0.0, 0.0, 0.0);
@@ -621,7 +625,13 @@ impl<'a> Prepared<'a> {
                                 let lam_s = rate * kt[l] * (d0 + (d1 - d0) * d_eff);
                                 let lam_v = rate * (tv[l] + 0.5 * kt[l] * rho * dt);
                                 let smooth = p.ratios(row, lam_s + lam_v).0;
-                                let peak = p.last_in_peak(row, lam_s);
+                                let peak = if p.last_in_peak(row, lam_s) > 0.0 {
+                                    let tp =
+                                        turned_at.get_or_insert_with(|| self.turned_path(pm, d));
+                                    self.peak_turned(p, row, l, lam_s, tp, kt[l], kp[l])
+                                } else {
+                                    0.0
+                                };
                                 let peak_t = if peak > 0.0 {
                                     let w_true = sun_step_weight(
                                         kt[l] * rho,
@@ -762,6 +772,7 @@ impl<'a> Prepared<'a> {
             };
             d_prev = Some(d1);
             front.get_or_insert(ts);
+            let mut turned_at = None;
             let mut alive = false;
             let (mut a, mut a_ms, mut a_p, mut sun_t, mut sun_peak) = (0.0, 0.0, 0.0, 0.0, 0.0);
             for l in 0..n_l {
@@ -780,7 +791,14 @@ impl<'a> Prepared<'a> {
                                 let lam_s = rate * kt * (d0 + (d1 - d0) * d_eff);
                                 let lam_v = rate * (tv[l] + 0.5 * kt * rho * h);
                                 let smooth = p.ratios(row, lam_s + lam_v).0;
-                                let peak = p.last_in_peak(row, lam_s);
+                                let peak = if p.last_in_peak(row, lam_s) > 0.0 {
+                                    let tp = turned_at.get_or_insert_with(|| {
+                                        self.turned_path(o + d * (ts + 0.5 * h), d)
+                                    });
+                                    self.peak_turned(p, row, l, lam_s, tp, kt, kp)
+                                } else {
+                                    0.0
+                                };
                                 let peak_t = if peak > 0.0 {
                                     let (w_true, _) =
                                         sun_step(kt * rho, kp * (d1 - d0), h, kp * d0);
