@@ -494,18 +494,36 @@ impl<'a> Marcher<'a> {
         (full - last, last)
     }
 
+    /// The density and D_sun of the voxel holding `y` (0 outside the box).
+    fn nearest(&self, y: DVec3) -> (f64, f64) {
+        let cl = self.cl;
+        let local = (y - self.lo) / cl.voxel_size_m;
+        let (mut idx, mut stride) = (0usize, 1usize);
+        for a in 0..3 {
+            let v = local[a];
+            if !(v >= 0.0 && v < cl.dims[a] as f64) {
+                return (0.0, 0.0);
+            }
+            idx += (v as usize).min(cl.dims[a] - 1) * stride;
+            stride *= cl.dims[a];
+        }
+        (cl.density[idx] as f64, cl.sun_path[idx] as f64)
+    }
+
     /// The part of the spread scattered last within the peak at λ, wavelength `l`, for the
     /// step centred on `x` (as the fast frame's `march/turned.rs`; docs/cloud-light.md,
     /// "Marching the volume"): its turned part T = r⁺_eff(λ) − e^{−ωf⁺τ_s}·r⁺_eff(0) gathered
     /// along b = normalize(s + d) through the density and D_sun (bins of 1, 1, 2, 4, … 32
-    /// voxels, each at its middle, up to the box's face) instead of the straight line to the
+    /// voxels, each at its middle: trilinear in the first two, the nearest voxel beyond; up to
+    /// the box's face; one path per thick step, at its middle; views within 90° of the sun
+    /// only) instead of the straight line to the
     /// sun: r⁺_eff(λ) + (G − 1)·T, G = Σ ρᵢwᵢ·e^{−k⁺(D(yᵢ) + ∫ρ)} / (D·e^{−k⁺D}), T/D at a
     /// lit surface the table's slope at λ = 10⁻³.
     fn peak_turned(&self, ray: &Ray<'_>, x: DVec3, l: usize, lambda: f64, kp: f64) -> f64 {
         let cl = self.cl;
         let (_, now) = self.spread(l, ray.cos_sun, lambda);
         let (rate, k) = (cl.peak_rate[l], cl.extinction_per_density_m[l]);
-        if now <= 0.0 || rate <= 0.0 || k <= 0.0 {
+        if ray.cos_sun <= 0.0 || now <= 0.0 || rate <= 0.0 || k <= 0.0 {
             return now;
         }
         let b = DVec3::from_array(cl.sun_direction) + ray.d;
@@ -524,8 +542,12 @@ impl<'a> Marcher<'a> {
                 let hi = (lo + width).min(exit);
                 let w = hi - lo;
                 let y = x + b * (lo + 0.5 * w);
-                let rho = self.rho(y);
-                let path = self.sun_path_at(y) + cum + 0.5 * rho * w;
+                let (rho, d_sun) = if bin < 2 {
+                    (self.rho(y), self.sun_path_at(y))
+                } else {
+                    self.nearest(y)
+                };
+                let path = d_sun + cum + 0.5 * rho * w;
                 gathered += rho * w * (-kp * (path - d_s)).min(600.0).exp();
                 cum += rho * w;
                 lo = hi;
@@ -802,7 +824,7 @@ impl<'a> Marcher<'a> {
             };
             d_prev = Some(d1);
             front.get_or_insert(ts);
-            let at = ray.o + ray.d * (ts + 0.5 * h);
+            let at = ray.o + ray.d * (t_start + 0.5 * dt);
             if !self.step(ray, &wd, rho, h, (d0, d1), cl.skin.is_some(), at, st) {
                 return false;
             }

@@ -19,7 +19,10 @@
 //! scales the turned part of the peak's table (all of it but the unturned e^{−ωf⁺τ_s}·r⁺/p).
 //! A thin edge or a face the sun lights from behind has little density along b, so the
 //! photons that leave are not gathered; in a laterally infinite slab the gain is largest
-//! near the top, towards the horizontal.
+//! near the top, towards the horizontal. Only views within 90° of the sun (cos Θ > 0) gather:
+//! beyond, r⁺ (which ends at 50.7° for g = 0.85) reaches them only through several peak
+//! turns, and the straight line is kept. One path serves a whole thick step (its sub-steps
+//! each take their own D, `Prepared::peak_turned`).
 
 use super::Prepared;
 use crate::camera::box_interval;
@@ -27,7 +30,7 @@ use crate::peak::{PeakRow, PeakSpread};
 use glam::DVec3;
 
 /// Bins along −b of widths 1, 1, 2, 4, … voxels (64 voxels in all), each sampled at its
-/// middle.
+/// middle (trilinear in the first two, the nearest voxel beyond).
 const TURN_BINS: usize = 7;
 
 /// The gathering path of one sample: per bin, the density times its width (m) and the
@@ -68,9 +71,15 @@ impl Prepared<'_> {
             let hi = (lo + width).min(exit);
             let w = hi - lo;
             let y = x + b * (lo + 0.5 * w);
-            let rho = vol.rho(y);
+            // Trilinear within two voxels of x, the nearest voxel's record beyond (bins of two
+            // voxels and more).
+            let (rho, d_sun) = if k < 2 {
+                (vol.rho(y), self.sun_path_at(y))
+            } else {
+                self.nearest_record(y)
+            };
             out.mass[k] = rho * w;
-            out.path[k] = self.sun_path_at(y) + cum + 0.5 * rho * w;
+            out.path[k] = d_sun + cum + 0.5 * rho * w;
             cum += rho * w;
             out.n = k + 1;
             lo = hi;
@@ -79,6 +88,25 @@ impl Prepared<'_> {
             }
         }
         out
+    }
+
+    /// The density and D_sun of the voxel holding `y` (0 outside the grid).
+    #[inline]
+    fn nearest_record(&self, y: DVec3) -> (f64, f64) {
+        let g = &*self.lit.vol.grid;
+        let local = (y - g.origin_m) / g.voxel_size_m;
+        let mut idx = 0usize;
+        let mut stride = 1usize;
+        for a in 0..3 {
+            let v = local[a];
+            if !(v >= 0.0 && v < g.dims[a] as f64) {
+                return (0.0, 0.0);
+            }
+            idx += (v as usize).min(g.dims[a] - 1) * stride;
+            stride *= g.dims[a];
+        }
+        let r = &self.vox[idx * self.stride..idx * self.stride + 2];
+        (r[0] as f64, (r[1] as f64).powi(2))
     }
 
     /// The peak's part r⁺_eff/p of wavelength `l` (the second of [`PeakSpread::ratios`]) at
