@@ -20,6 +20,8 @@ use std::f64::consts::PI;
 use std::sync::Arc;
 use std::time::Instant;
 
+mod turned;
+
 /// The march stops where the scaled transmittance T* of every wavelength is below this: the rest
 /// of the ray adds at most this fraction of the brightest source behind it (and the background
 /// seen through the cloud, T_c ≤ T*, at most this fraction of its radiance).
@@ -44,6 +46,7 @@ struct Sources<'s> {
     sp: &'s [f64],
     rows: &'s [Option<super::peak::PeakRow>],
     fresh: &'s [bool],
+    cos_sun: f64,
 }
 
 /// Everything precomputed for one scene, camera and lighting; renders any tile. The
@@ -547,6 +550,7 @@ impl<'a> Prepared<'a> {
                     sp: &sp[..n_l],
                     rows: &rows[..n_l],
                     fresh: &fresh[..n_l],
+                    cos_sun,
                 };
                 let alive = self.thick_step(
                     o,
@@ -596,6 +600,8 @@ impl<'a> Prepared<'a> {
             };
             d_start = Some(r1);
             let (d0, d1) = (r0 * r0, r1 * r1);
+            // The peak's gathering path, looked up where the peak's part is first needed.
+            let mut turned_at = None;
             front.get_or_insert(t - dt);
             let mut alive = false;
             let (mut a, mut a_ms, mut a_p, mut sun_t, mut sun_peak) = (0.0, 0.0, 0.0, 0.0, 0.0);
@@ -621,7 +627,16 @@ impl<'a> Prepared<'a> {
                                 let lam_s = rate * kt[l] * (d0 + (d1 - d0) * d_eff);
                                 let lam_v = rate * (tv[l] + 0.5 * kt[l] * rho * dt);
                                 let smooth = p.ratios(row, lam_s + lam_v).0;
-                                let peak = p.last_in_peak(row, lam_s);
+                                // The peak's part gathered along its turned direction
+                                // (`turned`), within 90° of the sun.
+                                let straight = p.last_in_peak(row, lam_s);
+                                let peak = if cos_sun > 0.0 && straight > 0.0 {
+                                    let tp =
+                                        turned_at.get_or_insert_with(|| self.turned_path(pm, d));
+                                    self.peak_turned(p, row, l, lam_s, tp, kt[l], kp[l])
+                                } else {
+                                    straight
+                                };
                                 let peak_t = if peak > 0.0 {
                                     let w_true = sun_step_weight(
                                         kt[l] * rho,
@@ -711,6 +726,8 @@ impl<'a> Prepared<'a> {
         let mut src_skin = [0.0f64; 64];
         let skin_on = !self.skin.is_empty();
         let mut d_prev: Option<f64> = None;
+        // The peak's gathering path, one for the whole step (`turned`).
+        let mut turned_at = None;
         for j in 0..n {
             let ts = t_start + j as f64 * h;
             let Some(w) = vol.weights(o + d * (ts + 0.5 * h)) else {
@@ -780,7 +797,15 @@ impl<'a> Prepared<'a> {
                                 let lam_s = rate * kt * (d0 + (d1 - d0) * d_eff);
                                 let lam_v = rate * (tv[l] + 0.5 * kt * rho * h);
                                 let smooth = p.ratios(row, lam_s + lam_v).0;
-                                let peak = p.last_in_peak(row, lam_s);
+                                let straight = p.last_in_peak(row, lam_s);
+                                let peak = if sky.cos_sun > 0.0 && straight > 0.0 {
+                                    let tp = turned_at.get_or_insert_with(|| {
+                                        self.turned_path(o + d * (t_start + 0.5 * dt), d)
+                                    });
+                                    self.peak_turned(p, row, l, lam_s, tp, kt, kp)
+                                } else {
+                                    straight
+                                };
                                 let peak_t = if peak > 0.0 {
                                     let (w_true, _) =
                                         sun_step(kt * rho, kp * (d1 - d0), h, kp * d0);

@@ -494,6 +494,80 @@ impl<'a> Marcher<'a> {
         (full - last, last)
     }
 
+    /// The density and D_sun of the voxel holding `y` (0 outside the box).
+    fn nearest(&self, y: DVec3) -> (f64, f64) {
+        let cl = self.cl;
+        let local = (y - self.lo) / cl.voxel_size_m;
+        let (mut idx, mut stride) = (0usize, 1usize);
+        for a in 0..3 {
+            let v = local[a];
+            if !(v >= 0.0 && v < cl.dims[a] as f64) {
+                return (0.0, 0.0);
+            }
+            idx += (v as usize).min(cl.dims[a] - 1) * stride;
+            stride *= cl.dims[a];
+        }
+        (cl.density[idx] as f64, cl.sun_path[idx] as f64)
+    }
+
+    /// The part of the spread scattered last within the peak at λ, wavelength `l`, for the
+    /// step centred on `x` (as the fast frame's `march/turned.rs`; docs/cloud-light.md,
+    /// "Marching the volume"): its turned part T = r⁺_eff(λ) − e^{−ωf⁺τ_s}·r⁺_eff(0) gathered
+    /// along b = normalize(s + d) through the density and D_sun (bins of 1, 1, 2, 4, … 32
+    /// voxels, each at its middle: trilinear in the first two, the nearest voxel beyond; up to
+    /// the box's face; one path per thick step, at its middle; views within 90° of the sun
+    /// only) instead of the straight line to the
+    /// sun: r⁺_eff(λ) + (G − 1)·T, G = Σ ρᵢwᵢ·e^{−k⁺(D(yᵢ) + ∫ρ)} / (D·e^{−k⁺D}), T/D at a
+    /// lit surface the table's slope at λ = 10⁻³.
+    fn peak_turned(&self, ray: &Ray<'_>, x: DVec3, l: usize, lambda: f64, kp: f64) -> f64 {
+        let cl = self.cl;
+        let (_, now) = self.spread(l, ray.cos_sun, lambda);
+        let (rate, k) = (cl.peak_rate[l], cl.extinction_per_density_m[l]);
+        if ray.cos_sun <= 0.0 || now <= 0.0 || rate <= 0.0 || k <= 0.0 {
+            return now;
+        }
+        let b = DVec3::from_array(cl.sun_direction) + ray.d;
+        let len = b.length();
+        let mut gathered = 0.0;
+        let d_s = lambda / (rate * k);
+        if len >= 1e-6 {
+            let b = b / len;
+            let exit = box_interval(x, b, self.lo, self.hi).map_or(0.0, |(_, t1)| t1);
+            let h = cl.voxel_size_m;
+            let (mut lo, mut width, mut cum) = (0.0, h, 0.0);
+            for bin in 0..7 {
+                if lo >= exit {
+                    break;
+                }
+                let hi = (lo + width).min(exit);
+                let w = hi - lo;
+                let y = x + b * (lo + 0.5 * w);
+                let (rho, d_sun) = if bin < 2 {
+                    (self.rho(y), self.sun_path_at(y))
+                } else {
+                    self.nearest(y)
+                };
+                let path = d_sun + cum + 0.5 * rho * w;
+                gathered += rho * w * (-kp * (path - d_s)).min(600.0).exp();
+                cum += rho * w;
+                lo = hi;
+                if bin > 0 {
+                    width *= 2.0;
+                }
+            }
+        }
+        let (_, first) = self.spread(l, ray.cos_sun, 0.0);
+        let per_lambda = (1.0 - cl.first_extinction_scale[l]) / rate;
+        let turned_at = |lam: f64, v: f64| v - (-lam * per_lambda).exp() * first;
+        let lam_e = lambda.max(1e-3);
+        let slope = if lam_e > lambda {
+            turned_at(lam_e, self.spread(l, ray.cos_sun, lam_e).1)
+        } else {
+            turned_at(lambda, now)
+        } / (lam_e / (rate * k));
+        (now + gathered * slope - turned_at(lambda, now)).max(0.0)
+    }
+
     /// Marches the ray from `o` along unit `d` through the cloud.
     pub fn march(&self, o: DVec3, d: DVec3) -> CloudSample {
         let cl = self.cl;
@@ -577,7 +651,7 @@ impl<'a> Marcher<'a> {
                     continue;
                 }
                 front.get_or_insert(t - dt);
-                self.step(&ray, &w, rho, dt, (d_start, d1), false, &mut st)
+                self.step(&ray, &w, rho, dt, (d_start, d1), false, pm, &mut st)
             };
             if !alive {
                 break;
@@ -617,6 +691,7 @@ impl<'a> Marcher<'a> {
         dt: f64,
         (d_start, d_end): (f64, f64),
         skin: bool,
+        at: DVec3,
         st: &mut State,
     ) -> bool {
         let cl = self.cl;
@@ -646,7 +721,7 @@ impl<'a> Marcher<'a> {
                 let lambda = cl.peak_rate[l] * k[l] * (d_start + (d_end - d_start) * d_eff);
                 let lambda_view = cl.peak_rate[l] * (st.tv[l] + 0.5 * k[l] * rho * dt);
                 let (smooth, _) = self.spread(l, ray.cos_sun, lambda + lambda_view);
-                let (_, peak) = self.spread(l, ray.cos_sun, lambda);
+                let peak = self.peak_turned(ray, at, l, lambda, kp);
                 let (w_true, _) = sun_step(k[l] * rho, kp * (d_end - d_start), dt, kp * d_start);
                 (
                     -(-kp * rho * dt).exp_m1(),
@@ -749,7 +824,8 @@ impl<'a> Marcher<'a> {
             };
             d_prev = Some(d1);
             front.get_or_insert(ts);
-            if !self.step(ray, &wd, rho, h, (d0, d1), cl.skin.is_some(), st) {
+            let at = ray.o + ray.d * (t_start + 0.5 * dt);
+            if !self.step(ray, &wd, rho, h, (d0, d1), cl.skin.is_some(), at, st) {
                 return false;
             }
         }
