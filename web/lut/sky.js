@@ -82,7 +82,8 @@ class LiveSky {
         `#define SV_SUN_WARP_LO ${warpRange[0].toExponential()}\n` +
         `#define SV_SUN_WARP_HI ${warpRange[1].toExponential()}\n`;
       // The sky rows' focus on the band above the earth's shadow (version 4), and the band's
-      // elevation with the azimuth (version 5), its fit aloft and the depth's top (version 9).
+      // elevation with the azimuth (version 5), its fit aloft and the depth's top (version 9), the
+      // focus's growth aloft (version 11).
       const band = manifest.parameterisation.sky_row_band;
       const numbers = (v, n) => Array.isArray(v) && v.length === n && v.every(Number.isFinite);
       if (!band || !(band.focus > 0) || !Number.isFinite(band.sun_deg) || !numbers(band.centre, 4) ||
@@ -93,7 +94,9 @@ class LiveSky {
           !(band.focus_growth_altitude_m[0] < band.focus_growth_altitude_m[1]) ||
           !Number.isFinite(band.centre_aloft_per_km) || !numbers(band.centre_aloft_altitude_m, 2) ||
           !(band.centre_aloft_altitude_m[0] <= band.centre_aloft_altitude_m[1]) ||
-          !(band.depth_top_m >= 0)) {
+          !(band.depth_top_m >= 0) || !(band.focus_aloft >= 0) ||
+          !numbers(band.focus_aloft_altitude_m, 2) ||
+          !(band.focus_aloft_altitude_m[0] < band.focus_aloft_altitude_m[1])) {
         throw new Error("manifest: parameterisation.sky_row_band is not the sky rows' band focus");
       }
       // The altitude nodes, where each slice's own rows are read (version 6).
@@ -116,12 +119,17 @@ class LiveSky {
         `#define SV_BAND_CENTRE_ALOFT ${f(band.centre_aloft_per_km)}\n` +
         `#define SV_BAND_CENTRE_ALOFT_ALTITUDE vec2(${band.centre_aloft_altitude_m.map(f).join(", ")})\n` +
         `#define SV_BAND_DEPTH_TOP ${f(band.depth_top_m)}\n` +
+        `#define SV_BAND_FOCUS_ALOFT ${f(band.focus_aloft)}\n` +
+        `#define SV_BAND_FOCUS_ALOFT_ALTITUDE vec2(${band.focus_aloft_altitude_m.map(f).join(", ")})\n` +
         `#define SV_ALT_NODES float[${z.N_ALT}](${altNodes.map(f).join(", ")})\n`;
-      // The limb rows' focus on the band above the earth's shadow seen from altitude (version 10).
+      // The limb rows' focus on the band above the earth's shadow seen from altitude (version 10;
+      // the slices' two-piece depth map, version 11).
       const limb = manifest.parameterisation.limb_row_band;
       if (!limb || !(limb.focus > 0) || !numbers(limb.depth_m, 3) || !numbers(limb.sun_range_deg, 4) ||
           !numbers(limb.altitude_range_m, 4) || !(limb.depth_floor_m > 0) ||
-          !Number.isFinite(limb.altitude_exponent)) {
+          !Number.isFinite(limb.altitude_exponent) ||
+          !(limb.max_fraction > 0 && limb.max_fraction < 1) || !numbers(limb.horizon_held, 2) ||
+          !(limb.horizon_held[0] < limb.horizon_held[1])) {
         throw new Error("manifest: parameterisation.limb_row_band is not the limb rows' band focus");
       }
       defines += `#define SV_LIMB_BAND_DEPTH vec3(${limb.depth_m.map(f).join(", ")})\n` +
@@ -129,7 +137,9 @@ class LiveSky {
         `#define SV_LIMB_BAND_SUN_RANGE vec4(${limb.sun_range_deg.map(f).join(", ")})\n` +
         `#define SV_LIMB_BAND_ALTITUDE vec4(${limb.altitude_range_m.map(f).join(", ")})\n` +
         `#define SV_LIMB_BAND_DEPTH_FLOOR ${f(limb.depth_floor_m)}\n` +
-        `#define SV_LIMB_BAND_ALTITUDE_EXPONENT ${f(limb.altitude_exponent)}\n`;
+        `#define SV_LIMB_BAND_ALTITUDE_EXPONENT ${f(limb.altitude_exponent)}\n` +
+        `#define SV_LIMB_BAND_MAX_FRACTION ${f(limb.max_fraction)}\n` +
+        `#define SV_LIMB_BAND_HORIZON_HELD vec2(${limb.horizon_held.map(f).join(", ")})\n`;
       // The azimuth columns' map aloft (version 5).
       const az = manifest.parameterisation.azimuth_aloft;
       if (!az || !(az.weight > 0 && az.weight <= 1) || !numbers(az.altitude_range_m, 2) ||

@@ -21,12 +21,14 @@
 // (horizon_deg), SV_BAND_ANTISOLAR_RANGE (antisolar_range, a vec2), SV_BAND_GROWTH
 // (focus_growth), SV_BAND_GROWTH_ALTITUDE (focus_growth_altitude_m, a vec2),
 // SV_BAND_CENTRE_ALOFT (centre_aloft_per_km), SV_BAND_CENTRE_ALOFT_ALTITUDE
-// (centre_aloft_altitude_m, a vec2), SV_BAND_DEPTH_TOP (depth_top_m), and SV_ALT_NODES
+// (centre_aloft_altitude_m, a vec2), SV_BAND_DEPTH_TOP (depth_top_m), SV_BAND_FOCUS_ALOFT
+// (focus_aloft), SV_BAND_FOCUS_ALOFT_ALTITUDE (focus_aloft_altitude_m, a vec2), and SV_ALT_NODES
 // (parameterisation.altitude_nodes_m, a float[SV_N_ALT] constructor); from
 // parameterisation.limb_row_band: SV_LIMB_BAND_DEPTH (depth_m, a vec3), SV_LIMB_BAND_FOCUS
 // (focus), SV_LIMB_BAND_SUN_RANGE (sun_range_deg, a vec4), SV_LIMB_BAND_ALTITUDE
 // (altitude_range_m, a vec4), SV_LIMB_BAND_DEPTH_FLOOR (depth_floor_m),
-// SV_LIMB_BAND_ALTITUDE_EXPONENT (altitude_exponent);
+// SV_LIMB_BAND_ALTITUDE_EXPONENT (altitude_exponent), SV_LIMB_BAND_MAX_FRACTION (max_fraction),
+// SV_LIMB_BAND_HORIZON_HELD (horizon_held, a vec2);
 // from parameterisation.azimuth_aloft: SV_AZ_WEIGHT (weight) and SV_AZ_ALTITUDE
 // (altitude_range_m, a vec2), SV_ALT_MAP (parameterisation.altitude_map, a vec3) and
 // SV_SKY_EXIT_ALTITUDE (parameterisation.sky_exit_altitude_m, a vec2).
@@ -263,13 +265,21 @@ float SkyViewLimbBandDepth(float sun_deg) {
 
 // The depth at which the limb rows of the slice of sun coordinate s_n and altitude h_n are read
 // for a query at depth y with sun coordinate s_q at altitude h_q (the reader's
-// limb_slice_depth): y (h_q / h_n)^SV_LIMB_BAND_ALTITUDE_EXPONENT scaled by the band's depth at
-// the slice's sun over the query's, faded with the query's focus.
+// limb_slice_depth): two pieces, the horizontal and the horizon fixed, the band's depth fraction
+// yb = min(D(s_q) / h_q, SV_LIMB_BAND_MAX_FRACTION) moved to ybn = min(yb rho,
+// SV_LIMB_BAND_MAX_FRACTION), rho = (h_q / h_n)^SV_LIMB_BAND_ALTITUDE_EXPONENT D(s_n) / D(s_q),
+// the second piece faded to y rho by 1 - smoothstep(SV_LIMB_BAND_HORIZON_HELD, yb); faded with
+// the query's focus.
 float SkyViewLimbSliceDepth(float y, float s_q, float h_q, float s_n, float h_n) {
   float f = SkyViewLimbFocus(s_q, h_q).y / SV_LIMB_BAND_FOCUS;
   if (f <= 0.0 || h_n <= 0.0) return y;
-  float d = y * pow(h_q / h_n, SV_LIMB_BAND_ALTITUDE_EXPONENT) * SkyViewLimbBandDepth(s_n) /
-      SkyViewLimbBandDepth(s_q);
+  float dq = SkyViewLimbBandDepth(s_q);
+  float rho = pow(h_q / h_n, SV_LIMB_BAND_ALTITUDE_EXPONENT) * SkyViewLimbBandDepth(s_n) / dq;
+  float yb = min(dq / h_q, SV_LIMB_BAND_MAX_FRACTION);
+  float ybn = min(yb * rho, SV_LIMB_BAND_MAX_FRACTION);
+  float w = 1.0 - smoothstep(SV_LIMB_BAND_HORIZON_HELD.x, SV_LIMB_BAND_HORIZON_HELD.y, yb);
+  float d = y <= yb ? y * rho
+                    : y * rho + w * (ybn + (y - yb) * (1.0 - ybn) / (1.0 - yb) - y * rho);
   return y + f * (clamp(d, 0.0, 1.0) - y);
 }
 
@@ -303,10 +313,13 @@ float SkyViewSunWarp(float t, float b) {
 }
 
 // The sky rows' full focus strength at altitude h (the reader's band_focus_strength): grows
-// by SV_BAND_GROWTH between SV_BAND_GROWTH_ALTITUDE.
+// by SV_BAND_GROWTH between SV_BAND_GROWTH_ALTITUDE, and by SV_BAND_FOCUS_ALOFT between
+// SV_BAND_FOCUS_ALOFT_ALTITUDE.
 float SkyViewBandStrength(float h) {
   return SV_BAND_FOCUS *
-      (1.0 + SV_BAND_GROWTH * smoothstep(SV_BAND_GROWTH_ALTITUDE.x, SV_BAND_GROWTH_ALTITUDE.y, h));
+      (1.0 + SV_BAND_GROWTH * smoothstep(SV_BAND_GROWTH_ALTITUDE.x, SV_BAND_GROWTH_ALTITUDE.y, h)) *
+      (1.0 + SV_BAND_FOCUS_ALOFT *
+                 smoothstep(SV_BAND_FOCUS_ALOFT_ALTITUDE.x, SV_BAND_FOCUS_ALOFT_ALTITUDE.y, h));
 }
 
 // The sky rows' focus on the band above the earth's shadow (the reader's sky_row_focus): the

@@ -78,7 +78,12 @@ pub const LAYOUT: &str = "skyview";
 /// The limb rows' sun coordinate moves towards the tangent point's over a depth of 50 km
 /// instead of 20 km ([`LIMB_SHADOW_SCALE_M`]), and aloft the sky rows' towards the sun's
 /// elevation where the ray leaves the atmosphere ([`SKY_EXIT_ALTITUDE_M`], [`sun_shift`]).
-pub const SKYVIEW_VERSION: &str = "10";
+/// 10: the limb rows concentrate on the band below the horizontal seen from 6–25 km
+/// ([`limb_row_focus`]), each slice read at the query's depth relative to it
+/// ([`limb_slice_depth`]).
+/// 11: the sky rows' focus grows again from 5 to 8 km ([`BAND_FOCUS_ALOFT`]); the limb slices'
+/// depth map in two pieces, the horizon fixed ([`LIMB_BAND_MAX_FRACTION`]).
+pub const SKYVIEW_VERSION: &str = "11";
 
 /// Altitude nodes: h_k the roots of [`altitude_coord`] (about (top − bottom) · (k / (N − 1))²,
 /// denser near the top).
@@ -408,14 +413,27 @@ pub const BAND_FOCUS_GROWTH: f64 = 0.7;
 /// The altitudes (m) between which the focus grows (smoothstep) by [`BAND_FOCUS_GROWTH`].
 pub const BAND_FOCUS_GROWTH_M: [f64; 2] = [1_000.0, 5_000.0];
 
+/// How much stronger again the sky rows' focus is from [`BAND_FOCUS_ALOFT_M`] up
+/// ([`band_focus_strength`]).
+pub const BAND_FOCUS_ALOFT: f64 = 0.6;
+/// The altitudes (m) between which the focus grows (smoothstep) by [`BAND_FOCUS_ALOFT`].
+pub const BAND_FOCUS_ALOFT_M: [f64; 2] = [5_000.0, 8_000.0];
+
 /// The sky rows' full focus strength at altitude `h` (m): [`BAND_FOCUS`] (1 + g smoothstep(h₀,
-/// h₁, h)), g = [`BAND_FOCUS_GROWTH`], (h₀, h₁) = [`BAND_FOCUS_GROWTH_M`]. The band above the
-/// earth's shadow sharpens with the observer's altitude (measured on the `sky` product at
-/// 680 nm, sun 0.3–0.6° above the observer's horizon: ln L rises by 0.85 per degree of
-/// elevation at 1 km, 1.8 at 2.5 km, 2.5 at 5 km), so the rows there are denser at the band.
+/// h₁, h)) (1 + g' smoothstep(h₂, h₃, h)), g = [`BAND_FOCUS_GROWTH`], (h₀, h₁) =
+/// [`BAND_FOCUS_GROWTH_M`], g' = [`BAND_FOCUS_ALOFT`], (h₂, h₃) = [`BAND_FOCUS_ALOFT_M`]. The
+/// band above the earth's shadow sharpens with the observer's altitude (measured on the `sky`
+/// product at 680 nm, sun 0.3–0.6° above the observer's horizon: ln L rises by 0.85 per degree
+/// of elevation at 1 km, 1.8 at 2.5 km, 2.5 at 5 km), so the rows there are denser at the band;
+/// from 8 km up the rows alone (4-node Lagrange over the focused rows, the `sky` product at the
+/// rows' elevations) still erred by 9.8 % at 8 km and 16 % at 20 km opposite the sun, at the
+/// band (0.3–1 % with rows twice as dense), 1.5 % with g' = 0.6.
 pub fn band_focus_strength(h: f64) -> f64 {
     let [h0, h1] = BAND_FOCUS_GROWTH_M;
-    BAND_FOCUS * (1.0 + BAND_FOCUS_GROWTH * smoothstep(h0, h1, h))
+    let [h2, h3] = BAND_FOCUS_ALOFT_M;
+    BAND_FOCUS
+        * (1.0 + BAND_FOCUS_GROWTH * smoothstep(h0, h1, h))
+        * (1.0 + BAND_FOCUS_ALOFT * smoothstep(h2, h3, h))
 }
 
 /// The elevation (degrees) at which a slice of sun node `sun_n` (its sun coordinate, degrees
@@ -671,6 +689,14 @@ pub const LIMB_BAND_DEPTH_FLOOR_M: f64 = 2_500.0;
 /// read at its horizon. Measured on the grid of the earth's shadow seen aloft, 12.5 / 20 km:
 /// a = 0: 5.37 / 9.09 %, 0.5: 2.72 / 3.28 %, 1: 12.1 / 3.28 %.
 pub const LIMB_BAND_ALTITUDE_EXPONENT: f64 = 0.5;
+/// The largest depth fraction of the band (D / h) in [`limb_slice_depth`]'s two-piece map (the
+/// band's depth at or below the ground would make the map's second piece singular).
+pub const LIMB_BAND_MAX_FRACTION: f64 = 0.95;
+/// The band's depth fractions (D / h) between which [`limb_slice_depth`]'s second piece (the
+/// horizon held) fades out (smoothstep) to version 10's map affine about the horizontal: where
+/// the band nears the horizon the second piece is squeezed (measured at 20 km, sun −4°, 150°
+/// from the sun, 0.3° above the horizon, D/h = 0.87: +4.1 % held, +2.7 % affine).
+pub const LIMB_BAND_HORIZON_HELD: [f64; 2] = [0.5, 0.8];
 /// The altitudes (m) between which the limb rows' focus fades in (the first two) and out (the
 /// last two).
 pub const LIMB_BAND_ALTITUDE_M: [f64; 4] = [6_000.0, 9_000.0, 20_000.0, 25_000.0];
@@ -712,19 +738,35 @@ pub fn limb_band_depth_m(sun_deg: f64) -> f64 {
 /// altitude `h_n` (m) are read for a query at depth `y` with sun coordinate `sun_q` at altitude
 /// `h_q`: where the query lies relative to the band above the earth's shadow, moved to the same
 /// place relative to the band at the slice's sun. The band lies at a depth D(s) in metres
-/// ([`limb_band_depth_m`]) that hardly depends on the altitude, so the map is affine about the
-/// horizontal (depth 0, where the limb meets the sky rows): D_n = y h_q D(s_n) / D(s_q),
-/// y_n = D_n / h_n, faded with the query's focus ([`limb_row_focus`]'s fades); without it the
-/// interpolation over the sun and altitude nodes at one depth fraction crosses the band (it
-/// moves 7 km of depth per degree of the sun, and a fraction of different altitudes is a
-/// different depth).
+/// ([`limb_band_depth_m`]) that hardly depends on the altitude: its depth fraction
+/// y_b = D(s_q)/h_q at the query's is moved to y_b ρ, ρ = (h_q/h_n)^a D(s_n)/D(s_q)
+/// (a = [`LIMB_BAND_ALTITUDE_EXPONENT`]; both fractions at most [`LIMB_BAND_MAX_FRACTION`]),
+/// linearly from the horizontal (depth 0, where the limb meets the sky rows) to the band and
+/// from the band to the horizon (depth 1), both ends fixed (the second piece faded to y ρ where
+/// the band nears the horizon, [`LIMB_BAND_HORIZON_HELD`]); faded with the query's focus
+/// ([`limb_row_focus`]'s fades). Without it the interpolation over the sun and altitude nodes at
+/// one depth fraction crosses the band (it moves 7 km of depth per degree of the sun, and a
+/// fraction of different altitudes is a different depth); with the map affine about the
+/// horizontal alone (version 10) the slices of a query near the horizon were read up to a
+/// quarter of the depth away, across the horizon's glow (the sun axis alone +8.5 % at 20 km,
+/// 120° from the sun, 440 nm, 0.29° above the horizon).
 pub fn limb_slice_depth(y: f64, sun_q: f64, h_q: f64, sun_n: f64, h_n: f64) -> f64 {
     let f = limb_row_focus(sun_q, h_q).1 / LIMB_BAND_FOCUS;
     if f <= 0.0 || h_n <= 0.0 {
         return y;
     }
-    let a = LIMB_BAND_ALTITUDE_EXPONENT;
-    let d = y * (h_q / h_n).powf(a) * limb_band_depth_m(sun_n) / limb_band_depth_m(sun_q);
+    let dq = limb_band_depth_m(sun_q);
+    let rho = (h_q / h_n).powf(LIMB_BAND_ALTITUDE_EXPONENT) * limb_band_depth_m(sun_n) / dq;
+    let yb = (dq / h_q).min(LIMB_BAND_MAX_FRACTION);
+    let ybn = (yb * rho).min(LIMB_BAND_MAX_FRACTION);
+    let d = if y <= yb {
+        y * rho
+    } else {
+        // The horizon held where the band lies well above it (w = 1), not where it nears it.
+        let [w0, w1] = LIMB_BAND_HORIZON_HELD;
+        let w = 1.0 - smoothstep(w0, w1, yb);
+        y * rho + w * (ybn + (y - yb) * (1.0 - ybn) / (1.0 - yb) - y * rho)
+    };
     y + f * (d.clamp(0.0, 1.0) - y)
 }
 
@@ -1596,9 +1638,9 @@ pub const STATED_ERRORS: &[(&str, &str, f64)] = &[
     ("rayleigh+mie", "sky radiance (sky product), sun >= 5 deg, view < 10 deg above the horizon, 20-100 km", 0.025),
     ("rayleigh+mie", "sky radiance (sky product), sun -6..5 deg, ground", 0.015),
     ("rayleigh+mie", "sky radiance (sky product), sun -6..5 deg, 0-5 km (4.6 % at 5 km, 0.5 deg above the horizontal 120 deg from the sun, 680 nm)", 0.046),
-    ("rayleigh+mie", "sky radiance (sky product), sun -6..5 deg, 5-8 km (the band above the earth's shadow near the antisolar horizon, 680 nm at 8 km, 3 deg above the horizontal)", 0.098),
-    ("rayleigh+mie", "sky radiance (sky product), sun -6..5 deg, 8-12.5 km (the band above the earth's shadow near the antisolar horizon, 680 nm at 12.5 km, 0.75 deg above the horizontal 120 deg from the sun)", 0.091),
-    ("rayleigh+mie", "sky radiance (sky product), sun -6..5 deg, 12.5-20 km (the band above the earth's shadow near the antisolar horizon, 440 nm at 20 km, 4.25 deg below the horizontal 120 deg from the sun)", 0.14),
+    ("rayleigh+mie", "sky radiance (sky product), sun -6..5 deg, 5-8 km (the band above the earth's shadow near the antisolar horizon, 680 nm at 8 km, 1.75 deg above the horizontal 150 deg from the sun)", 0.073),
+    ("rayleigh+mie", "sky radiance (sky product), sun -6..5 deg, 8-12.5 km (the band above the earth's shadow near the antisolar horizon, 680 nm at 12.5 km, 0.75 deg above the horizontal 120 deg from the sun)", 0.093),
+    ("rayleigh+mie", "sky radiance (sky product), sun -6..5 deg, 12.5-20 km (the band above the earth's shadow near the antisolar horizon, 680 nm at 20 km, 3.75 deg above the horizontal 165 deg from the sun)", 0.113),
     ("rayleigh+mie", "sky radiance (sky product), sun -6..0 deg, 0-5 km, views within 10 deg of the horizon 150-180 deg from the sun (the earth's shadow rising; 680 nm at 2.5 km)", 0.024),
     ("rayleigh+mie", "sky radiance (sky product), sun -6..5 deg, 20-100 km (the limb across the earth's shadow)", 0.035),
     ("rayleigh+mie", "sky radiance (sky product), sun -12..-6 deg, ground", 0.035),
@@ -1679,9 +1721,11 @@ pub fn manifest(
                 "antisolar_range": [BAND_ANTISOLAR_RANGE.0, BAND_ANTISOLAR_RANGE.1],
                 "focus_growth": BAND_FOCUS_GROWTH,
                 "focus_growth_altitude_m": BAND_FOCUS_GROWTH_M,
-                "slices": "on the sky rows, each (altitude node k, sun node j) slice of the interpolation is read on its own rows (the focus (c_n, k_n) at the node's sun coordinate s_n = the warped s_j at h_k and its altitude h_n = altitude_nodes_m[k]) where the query's or the slice's k > 0: at e_n = e + f (1 - smoothstep(2 w, 4 w, e)) smoothstep(0, horizon_deg, e) ((e + delta_q) H_n / H_q - delta_n - e), H = max(c antisolar + delta, 0.1) at the query's (c, h) and the node's (band centre c at s_n, h_n), delta = depth_deg_per_km clamp(h, 0, depth_top_m) / 1000, w = max(H_q, 0.5), f = k / (focus (1 + focus_growth smoothstep(focus_growth_altitude_m[0], focus_growth_altitude_m[1], h))) the query's fade (0 where k = 0), then each column at the azimuth formula's e_a with (c_n, k_n, h_n) in place of the query's",
-                "azimuth": "on the sky rows and the limb rows where k > 0 each azimuth column a of the interpolation is read at its own elevation e_a (its own rows' stencil): delta = depth_deg_per_km clamp(h, 0, depth_top_m) / 1000, w = max(c antisolar + delta, 0.5), ratio = max(-cos phi_a, antisolar_range[0]) / max(-cos phi, antisolar_range[0]), e_a = e + (k / (focus (1 + focus_growth smoothstep(focus_growth_altitude_m[0], focus_growth_altitude_m[1], h)))) (1 - smoothstep(2 w, 4 w, e)) step(-delta, e) smoothstep(antisolar_range[0], antisolar_range[1], -cos phi) (e + delta) (ratio - 1) (version 7: from -delta up through the horizontal, where version 6 had smoothstep(0, horizon_deg, e)), e the query's elevation (deg), phi its azimuth from the sun, phi_a the column's at the query's altitude h (azimuth_columns); where e_a >= 0 the column is read on the sky rows, below on the limb rows at the query's altitude h (depth y = 2 r sin^2(e_a / 2) / h); the band above the earth's shadow lies at (c antisolar + delta)(-cos phi) - delta",
-                "formula": "the sky rows' focus at the sun's elevation s above the observer's horizon (deg) and altitude h (m): u = max(sun_deg - s, 0), km = clamp(h, 0, centre_aloft_altitude_m[0]) / 1000, c = min(((centre[0] + centre[1] km) u + (centre[2] + centre[3] km) u^2) (1 + centre_aloft_per_km clamp(h - centre_aloft_altitude_m[0], 0, centre_aloft_altitude_m[1] - centre_aloft_altitude_m[0]) / 1000), 45) (deg), k = smoothstep(sun_range_deg[0], sun_range_deg[1], s) (1 - smoothstep(sun_range_deg[2], sun_range_deg[3], s)) (1 - smoothstep(altitude_range_m[0], altitude_range_m[1], h)) focus (1 + focus_growth smoothstep(focus_growth_altitude_m[0], focus_growth_altitude_m[1], h)), smoothstep(a, b, x) = t^2 (3 - 2 t), t = clamp((x - a) / (b - a), 0, 1)",
+                "focus_aloft": BAND_FOCUS_ALOFT,
+                "focus_aloft_altitude_m": BAND_FOCUS_ALOFT_M,
+                "slices": "on the sky rows, each (altitude node k, sun node j) slice of the interpolation is read on its own rows (the focus (c_n, k_n) at the node's sun coordinate s_n = the warped s_j at h_k and its altitude h_n = altitude_nodes_m[k]) where the query's or the slice's k > 0: at e_n = e + f (1 - smoothstep(2 w, 4 w, e)) smoothstep(0, horizon_deg, e) ((e + delta_q) H_n / H_q - delta_n - e), H = max(c antisolar + delta, 0.1) at the query's (c, h) and the node's (band centre c at s_n, h_n), delta = depth_deg_per_km clamp(h, 0, depth_top_m) / 1000, w = max(H_q, 0.5), f = k / (focus (1 + focus_growth smoothstep(focus_growth_altitude_m[0], focus_growth_altitude_m[1], h)) (1 + focus_aloft smoothstep(focus_aloft_altitude_m[0], focus_aloft_altitude_m[1], h))) the query's fade (0 where k = 0), then each column at the azimuth formula's e_a with (c_n, k_n, h_n) in place of the query's",
+                "azimuth": "on the sky rows and the limb rows where k > 0 each azimuth column a of the interpolation is read at its own elevation e_a (its own rows' stencil): delta = depth_deg_per_km clamp(h, 0, depth_top_m) / 1000, w = max(c antisolar + delta, 0.5), ratio = max(-cos phi_a, antisolar_range[0]) / max(-cos phi, antisolar_range[0]), e_a = e + (k / (focus (1 + focus_growth smoothstep(focus_growth_altitude_m[0], focus_growth_altitude_m[1], h)) (1 + focus_aloft smoothstep(focus_aloft_altitude_m[0], focus_aloft_altitude_m[1], h)))) (1 - smoothstep(2 w, 4 w, e)) step(-delta, e) smoothstep(antisolar_range[0], antisolar_range[1], -cos phi) (e + delta) (ratio - 1) (version 7: from -delta up through the horizontal, where version 6 had smoothstep(0, horizon_deg, e)), e the query's elevation (deg), phi its azimuth from the sun, phi_a the column's at the query's altitude h (azimuth_columns); where e_a >= 0 the column is read on the sky rows, below on the limb rows at the query's altitude h (depth y = 2 r sin^2(e_a / 2) / h); the band above the earth's shadow lies at (c antisolar + delta)(-cos phi) - delta",
+                "formula": "the sky rows' focus at the sun's elevation s above the observer's horizon (deg) and altitude h (m): u = max(sun_deg - s, 0), km = clamp(h, 0, centre_aloft_altitude_m[0]) / 1000, c = min(((centre[0] + centre[1] km) u + (centre[2] + centre[3] km) u^2) (1 + centre_aloft_per_km clamp(h - centre_aloft_altitude_m[0], 0, centre_aloft_altitude_m[1] - centre_aloft_altitude_m[0]) / 1000), 45) (deg), k = smoothstep(sun_range_deg[0], sun_range_deg[1], s) (1 - smoothstep(sun_range_deg[2], sun_range_deg[3], s)) (1 - smoothstep(altitude_range_m[0], altitude_range_m[1], h)) focus (1 + focus_growth smoothstep(focus_growth_altitude_m[0], focus_growth_altitude_m[1], h)) (1 + focus_aloft smoothstep(focus_aloft_altitude_m[0], focus_aloft_altitude_m[1], h)), smoothstep(a, b, x) = t^2 (3 - 2 t), t = clamp((x - a) / (b - a), 0, 1)",
             },
             "limb_row_band": {
                 "depth_m": LIMB_BAND_DEPTH_M,
@@ -1690,7 +1734,9 @@ pub fn manifest(
                 "altitude_range_m": LIMB_BAND_ALTITUDE_M,
                 "depth_floor_m": LIMB_BAND_DEPTH_FLOOR_M,
                 "altitude_exponent": LIMB_BAND_ALTITUDE_EXPONENT,
-                "slices": "on the limb rows each (altitude node k, sun node j) slice is read at the depth y_n = y + f (clamp(y (h / h_n)^altitude_exponent D(s_n) / D(s), 0, 1) - y) on its own rows (formula at s_n, h_n), y the query's depth, s its sun coordinate, h its altitude, s_n and h_n the slice's (s_n = the warped s_j at h_n = altitude_nodes_m[k]), D(s) = max(depth_m[0] + depth_m[1] s' + depth_m[2] s'^2, depth_floor_m), s' = clamp(s, sun_range_deg[0] - 1, sun_range_deg[3]), f = k / focus at the query's (s, h) (y_n = y where f = 0)",
+                "max_fraction": LIMB_BAND_MAX_FRACTION,
+                "horizon_held": LIMB_BAND_HORIZON_HELD,
+                "slices": "on the limb rows each (altitude node k, sun node j) slice is read at the depth y_n = y + f (clamp(m, 0, 1) - y) on its own rows, m = y rho where y <= yb, else y rho + w (ybn + (y - yb) (1 - ybn) / (1 - yb) - y rho), w = 1 - smoothstep(horizon_held[0], horizon_held[1], yb), rho = (h / h_n)^altitude_exponent D(s_n) / D(s), yb = min(D(s) / h, max_fraction), ybn = min(yb rho, max_fraction) (formula at s_n, h_n), y the query's depth, s its sun coordinate, h its altitude, s_n and h_n the slice's (s_n = the warped s_j at h_n = altitude_nodes_m[k]), D(s) = max(depth_m[0] + depth_m[1] s' + depth_m[2] s'^2, depth_floor_m), s' = clamp(s, sun_range_deg[0] - 1, sun_range_deg[3]), f = k / focus at the query's (s, h) (y_n = y where f = 0)",
                 "formula": "the limb rows' focus (version 10) at sun coordinate s (deg; a texel's node s_j, for a query each slice's own s_n at its altitude h_n) and altitude h (m): depth D = depth_m[0] + depth_m[1] s + depth_m[2] s^2 (m), x_c = the limb coordinate of y_c = clamp(D / h, 0, 1) (x_c = 2/3 + (4/3) cos(acos(1 - 27 y_c / 16) / 3 - 2 pi / 3)), k = focus smoothstep(sun_range_deg[0], sun_range_deg[1], s) (1 - smoothstep(sun_range_deg[2], sun_range_deg[3], s)) smoothstep(altitude_range_m[0], altitude_range_m[1], h) (1 - smoothstep(altitude_range_m[2], altitude_range_m[3], h)) (0 where h <= 0); the limb row coordinate of depth y is x = (asinh(k (x0 - x_c)) - A) / (B - A), x0 = 2/3 + (4/3) cos(acos(1 - 27 y / 16) / 3 - 2 pi / 3), A = asinh(-k x_c), B = asinh(k (1 - x_c)) (x = x0 where k < 1e-6); inverse x0 = x_c + sinh(A + x (B - A)) / k, y = 2 x0^2 - x0^3. On the limb rows every (altitude node k, sun node j) slice is read on its own rows at the depth of `slices` (and a column moved below the horizontal by sky_row_band.azimuth likewise, at its depth 2 r sin^2(e_a / 2) / h)",
             },
             "view_rows": format!("rows 0..{} from the zenith to the horizontal: elevation = 90 (1 - x0)^2 (deg), x0 = x_c + sinh(A + x (B - A)) / k, x = row / {}, x_c = 1 - sqrt(c / 90), A = asinh(-k x_c), B = asinh(k (1 - x_c)), (c, k) the sky rows' focus (sky_row_band) at the sun's elevation above the observer's horizon (its node's s_j for a texel, the query's own for a query) and the observer's altitude; where k < 1e-6, x0 = x; inverse: x0 = 1 - sqrt(elevation / 90), x = (asinh(k (x0 - x_c)) - A) / (B - A) (or x0); rows {}..{} from the horizontal to the horizon: the ray's tangent radius r_t = r - (r - bottom_radius) y, y = 2 x0^2 - x0^3, x0 = the unfocused coordinate of x = (row - {}) / {} with the limb rows' focus (limb_row_band; x0 = x where k = 0; inverse: x0 = 2/3 + (4/3) cos(acos(1 - 27 y / 16) / 3 - 2 pi / 3)), theta = pi/2 + acos(r_t / r); rows {}..{} from the horizon to the nadir: theta = theta_h + (pi - theta_h) x^2, x = (row - {}) / {}, theta_h = pi - asin(bottom_radius / r); r the observer's radius. Interpolation over the rows around the view stays within its segment (see interpolation)", N_VIEW_SKY - 1, N_VIEW_SKY - 1, N_VIEW_SKY, N_VIEW_UP - 1, N_VIEW_SKY, N_VIEW_LIMB - 1, N_VIEW_UP, N_VIEW - 1, N_VIEW_UP, N_VIEW_DOWN - 1),
@@ -1932,12 +1978,14 @@ mod tests {
         assert_eq!(at(30_000.0), at(20_000.0));
         assert_eq!(band_depth_deg(5000.0), 2.5);
         assert_eq!(band_depth_deg(15_000.0), 2.5);
-        // The focus grows from 1 to 5 km and no further.
+        // The focus grows from 1 to 5 km, again from 5 to 8 km, and no further.
         assert_eq!(band_focus_strength(0.0), BAND_FOCUS);
         assert_eq!(band_focus_strength(1000.0), BAND_FOCUS);
-        let full = BAND_FOCUS * (1.0 + BAND_FOCUS_GROWTH);
-        assert!((band_focus_strength(5000.0) - full).abs() < 1e-12);
-        assert!((band_focus_strength(9000.0) - full).abs() < 1e-12);
+        let low = BAND_FOCUS * (1.0 + BAND_FOCUS_GROWTH);
+        assert!((band_focus_strength(5000.0) - low).abs() < 1e-12);
+        let full = low * (1.0 + BAND_FOCUS_ALOFT);
+        assert!((band_focus_strength(8000.0) - full).abs() < 1e-12);
+        assert!((band_focus_strength(15_000.0) - full).abs() < 1e-12);
         // By day and aloft (no focus at the query): the identity.
         assert_eq!(band_slice_elevation(3.0, 8.0, 0.0, 7.5, 0.0), 3.0);
         assert_eq!(
@@ -1997,6 +2045,18 @@ mod tests {
         let y_n = limb_slice_depth(y_q, -0.5, 15_000.0, -0.25, 15_000.0);
         assert!((y_n * 15_000.0 - limb_band_depth_m(-0.25)).abs() < 1.0);
         assert_eq!(limb_slice_depth(0.0, -0.5, 15_000.0, -0.25, 12_000.0), 0.0);
+        // Where the band lies well above the horizon (20 km, s = 0: D/h = 0.41) the horizon
+        // stays where it is, and the map is continuous at the band.
+        assert!((limb_slice_depth(1.0, 0.0, 20_000.0, 0.25, 17_000.0) - 1.0).abs() < 1e-12);
+        let yb = limb_band_depth_m(0.0) / 20_000.0;
+        let below = limb_slice_depth(yb - 1e-9, 0.0, 20_000.0, 0.25, 17_000.0);
+        let above = limb_slice_depth(yb + 1e-9, 0.0, 20_000.0, 0.25, 17_000.0);
+        assert!((below - above).abs() < 1e-6, "{below} {above}");
+        // Near the horizon (D/h ≥ 0.8) version 10's map, affine about the horizontal.
+        let y_q = 0.9;
+        let deep = limb_slice_depth(y_q, -0.5, 12_000.0, -0.25, 12_000.0);
+        let affine = y_q * limb_band_depth_m(-0.25) / limb_band_depth_m(-0.5);
+        assert!((deep - affine).abs() < 1e-12, "{deep} {affine}");
     }
 
     #[test]
