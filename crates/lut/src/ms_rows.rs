@@ -1,0 +1,42 @@
+//! The multiple-scattering part of a view row's texels from the rows around it.
+//!
+//! The `skyview` rows of one altitude node are rays from one point at view zenith angles the
+//! rows' maps place so that the stored radiance per metre of ray varies smoothly from row to
+//! row (the reader interpolates it linearly over the row coordinate). The multiple scattering
+//! along those rays varies more slowly still (its source is the precise table's J, smooth in
+//! the view direction: Bruneton & Neyret 2008, §4). So in each segment of rows (sky, limb,
+//! ground) the multiple scattering per metre of ray is computed on every other row and the
+//! last ([`computed`]), and on the others interpolated by the Lagrange cubic in ln over the row
+//! coordinate through the 4 nearest computed rows, as [`crate::ms_columns`] does over φ and
+//! the sun's elevation; it is computed after all where the neighbours say the interpolation
+//! may be off (the same roughness test, [`TOLERANCE`]), where a neighbour row has no value for
+//! that sun (the sun's own ray there: the focused sky and limb rows in twilight), or where a
+//! value is not positive. Only the suns a row would compute itself are taken from the rows
+//! around (every other sun node and column, [`crate::ms_columns`]); the others are then
+//! interpolated from them within the row as before.
+
+use crate::ms_columns::{self, Stencil};
+
+/// The largest roughness times the multiple scattering's share of the texel for which a row's
+/// value is interpolated from the rows around it.
+pub const TOLERANCE: f64 = 0.05;
+
+/// Whether row `i` of the segment of rows `first ..= last` is computed.
+pub fn computed(i: usize, first: usize, last: usize) -> bool {
+    ms_columns::computed(i - first, last - first + 1)
+}
+
+/// The stencils of the rows `first ..= last` over the row coordinate, `None` where computed;
+/// their nodes count from `first`.
+pub fn stencils(first: usize, last: usize) -> Vec<Option<Stencil>> {
+    let coords: Vec<f64> = (first..=last).map(|i| i as f64).collect();
+    ms_columns::stencils(&coords)
+}
+
+/// The interpolated value at stencil `s` from the computed rows' values `v(node)` (NaN where a
+/// row has none), and its roughness (the larger of [`ms_columns::interpolate`]'s two parts, as
+/// the columns' test takes it); `None` where a node's value is not positive or missing.
+pub fn guess(s: &Stencil, v: impl Fn(usize) -> f64) -> Option<(f64, f64)> {
+    let (y, step, curv) = ms_columns::interpolate(s, v)?;
+    Some((y, step.max(curv)))
+}
