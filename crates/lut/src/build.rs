@@ -737,7 +737,9 @@ impl<'a> FamilyScratch<'a> {
                 };
                 let single = self.rayleigh[l * n_t + t];
                 let share = (v / p_r) / (single + v / p_r);
-                if !(rough * share <= tolerance) {
+                // A NaN (a share of 0 / 0) is not within it either.
+                let off = rough * share;
+                if off > tolerance || off.is_nan() {
                     break;
                 }
                 values.push(v);

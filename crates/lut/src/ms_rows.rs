@@ -40,3 +40,42 @@ pub fn guess(s: &Stencil, v: impl Fn(usize) -> f64) -> Option<(f64, f64)> {
     let (y, step, curv) = ms_columns::interpolate(s, v)?;
     Some((y, step.max(curv)))
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn rows_between_are_interpolated_from_the_segments_computed_rows() {
+        // A segment of rows 22..=37 (the limb's 16): 9 computed, 7 between.
+        let (first, last) = (22, 37);
+        let st = stencils(first, last);
+        assert_eq!(st.iter().filter(|s| s.is_none()).count(), 9);
+        for (c, s) in st.iter().enumerate() {
+            assert_eq!(
+                s.is_none(),
+                computed(first + c, first, last),
+                "row {}",
+                first + c
+            );
+        }
+        assert!(computed(last, first, last) && !computed(last - 2, first, last));
+        // The exponential of a cubic in the row index: exact, and smooth enough to keep.
+        let f = |c: usize| {
+            let x = c as f64 / 15.0;
+            (-2.0 + 0.5 * x - 0.3 * x * x + 0.1 * x * x * x).exp()
+        };
+        for (c, s) in st.iter().enumerate() {
+            let Some(s) = s else { continue };
+            let (y, rough) = guess(s, f).expect("positive");
+            assert!((y / f(c) - 1.0).abs() < 1e-12, "row {c}");
+            assert!(rough < TOLERANCE, "{rough}");
+        }
+        // A computed row without a value for the sun (its own ray there): no guess.
+        let s = st[3].expect("row 25 is between");
+        assert!(guess(&s, |c| if c == s.nodes[0] { f64::NAN } else { f(c) }).is_none());
+        // A step of a factor 2 between the two rows around: rough beyond the tolerance.
+        let (_, rough) = guess(&s, |c| if c > 3 { 0.5 * f(c) } else { f(c) }).expect("positive");
+        assert!(rough > 0.5, "{rough}");
+    }
+}
