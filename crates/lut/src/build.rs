@@ -574,6 +574,8 @@ pub(crate) struct FamilyScratch<'a> {
     ms_mu_s_p: Vec<f64>,
     ms_nu: Vec<f64>,
     ms_j: Vec<f64>,
+    /// [`texel_sums`] forms no multiple scattering at all ([`Self::integrate_grid_guessed`]).
+    ms_skip: bool,
 }
 
 impl<'a> FamilyScratch<'a> {
@@ -603,6 +605,7 @@ impl<'a> FamilyScratch<'a> {
             ms_mu_s_p: Vec::new(),
             ms_nu: Vec::new(),
             ms_j: Vec::new(),
+            ms_skip: false,
         }
     }
 
@@ -665,7 +668,7 @@ impl<'a> FamilyScratch<'a> {
         self.ms_suns
             .extend((0..n_t).filter(|&t| ms_columns::computed(t % n_az, n_az)));
         self.integrate_sums();
-        self.interpolate_columns(phis);
+        self.interpolate_columns(phis, &[]);
     }
 
     /// [`Self::integrate_columns`] for suns pushed as `suns.len()` runs of `phis.len()` azimuth
@@ -690,22 +693,96 @@ impl<'a> FamilyScratch<'a> {
             ms_columns::computed(t % n_az, n_az) && ms_columns::computed(t / n_az, n_s)
         }));
         self.integrate_sums();
+        self.interpolate_grid(phis, suns, &[]);
+    }
+
+    /// [`Self::integrate_grid`] where the multiple scattering may come from elsewhere:
+    /// `guess(t, l)`, wavelength `l` of sun `t`'s sums and their roughness (as
+    /// [`ms_columns::interpolate`]'s), is taken where its roughness times the multiple
+    /// scattering's share of the value is within `tolerance` (as [`Self::interpolate_ms`]
+    /// tests); the other suns are [`Self::integrate_grid`]'s: computed on every other sun node
+    /// and column, interpolated from them (from guessed values too) or computed elsewhere.
+    /// Where [`Self::integrate_grid`] would not interpolate over the sun, it is called instead
+    /// (`guess` unused).
+    pub(crate) fn integrate_grid_guessed(
+        &mut self,
+        phis: &[f64],
+        suns: &[f64],
+        tolerance: f64,
+        guess: impl Fn(usize, usize) -> Option<(f64, f64)>,
+    ) {
+        let (n_az, n_s) = (phis.len(), suns.len());
+        let n_t = self.mu_s.len();
+        let increasing = suns.windows(2).all(|w| w[0] < w[1]);
+        if n_s < 2 * ms_columns::STEP + 2
+            || n_t != n_az * n_s
+            || !increasing
+            || n_az < 2 * ms_columns::STEP + 2
+        {
+            return self.integrate_grid(phis, suns);
+        }
+        let n_l = self.n_l;
+        self.ms_suns.clear();
+        self.ms_skip = true;
+        self.integrate_sums();
+        self.ms_skip = false;
+        let mut known = vec![false; n_t];
+        let mut values = Vec::with_capacity(n_l);
+        for t in 0..n_t {
+            let p_r = param::rayleigh_phase(self.nu[t]);
+            values.clear();
+            for l in 0..n_l {
+                let Some((v, rough)) = guess(t, l) else {
+                    break;
+                };
+                let single = self.rayleigh[l * n_t + t];
+                let share = (v / p_r) / (single + v / p_r);
+                // A NaN (a share of 0 / 0) is not within it either.
+                let off = rough * share;
+                if off > tolerance || off.is_nan() {
+                    break;
+                }
+                values.push(v);
+            }
+            if values.len() == n_l {
+                self.multiple[t * n_l..(t + 1) * n_l].copy_from_slice(&values);
+                known[t] = true;
+            }
+        }
+        self.ms_suns.clear();
+        self.ms_suns.extend((0..n_t).filter(|&t| {
+            !known[t] && ms_columns::computed(t % n_az, n_az) && ms_columns::computed(t / n_az, n_s)
+        }));
+        if !self.ms_suns.is_empty() {
+            multiple_sums(self);
+            self.ms_suns.clear();
+        }
+        self.interpolate_grid(phis, suns, &known);
+    }
+
+    /// The rest of [`Self::integrate_grid`] once the multiple scattering of every other sun
+    /// node and column is in: over the sun coordinate, then over φ, but for the suns `known`
+    /// (none where empty).
+    fn interpolate_grid(&mut self, phis: &[f64], suns: &[f64], known: &[bool]) {
+        let (n_az, n_t) = (phis.len(), self.mu_s.len());
         let stencils = ms_columns::stencils(suns);
         let targets: Vec<(usize, ms_columns::Stencil, usize, usize)> = (0..n_t)
-            .filter(|&t| ms_columns::computed(t % n_az, n_az))
+            .filter(|&t| ms_columns::computed(t % n_az, n_az) && !known.get(t).is_some_and(|&k| k))
             .filter_map(|t| stencils[t / n_az].map(|s| (t, s, t % n_az, n_az)))
             .collect();
         self.interpolate_ms(&targets, ms_columns::SUN_TOLERANCE, true);
-        self.interpolate_columns(phis);
+        self.interpolate_columns(phis, known);
     }
 
     /// The multiple scattering of the columns [`ms_columns::computed`] leaves out, from the
-    /// computed ones (whose sums are complete), over φ.
-    fn interpolate_columns(&mut self, phis: &[f64]) {
+    /// computed ones (whose sums are complete), over φ, but for the suns `known` (none where
+    /// empty).
+    fn interpolate_columns(&mut self, phis: &[f64], known: &[bool]) {
         let n_az = phis.len();
         let n_t = self.mu_s.len();
         let stencils = ms_columns::stencils(phis);
         let targets: Vec<(usize, ms_columns::Stencil, usize, usize)> = (0..n_t)
+            .filter(|&t| !known.get(t).is_some_and(|&k| k))
             .filter_map(|t| stencils[t % n_az].map(|s| (t, s, t - t % n_az, 1)))
             .collect();
         self.interpolate_ms(&targets, ms_columns::TOLERANCE, false);
@@ -823,7 +900,7 @@ skybake_physics::simd_dispatch_avx512! {
                 let wt = &scratch.weighted_t[k * n_l..(k + 1) * n_l];
                 // The point's day rows, if a sun may read them (none on most points of a
                 // near-horizontal ray in twilight): the same values as filled in `prepare`.
-                if scratch.ms_suns.is_empty() {
+                if scratch.ms_suns.is_empty() && !scratch.ms_skip {
                     let top = scratch.mu_s_p.iter().fold(f64::NEG_INFINITY, |a, &b| a.max(b));
                     if top > scratch.day_mu_s {
                         scratch.precise.fill_day(&mut scratch.slices[k]);

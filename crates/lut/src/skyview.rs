@@ -46,6 +46,7 @@ use std::f64::consts::PI;
 use std::time::Instant;
 
 use crate::build::{self, channel_setup, Channels, FamilyScratch, Sample, Texture};
+use crate::ms_rows;
 use crate::param::{self, AtmosphereParameters};
 
 /// The layout's name (`--layout`, the manifest's `format`).
@@ -979,16 +980,29 @@ pub fn build_skyview(
         (s.to_radians() - dip(bottom + h, bottom)).sin()
     };
     let per_family = N_SUN * N_AZ * n_c;
-    let families: Vec<(Vec<f64>, Vec<f64>)> = (0..N_ALT * N_VIEW)
-        .into_par_iter()
-        .map_init(
-            || FamilyScratch::new(shared, m.len()),
-            |scratch, task| {
+    let n_l = m.len();
+    // The multiple scattering of every other view row first, then the rows between from them
+    // where smooth ([`ms_rows`]): `known` holds the first pass's per metre, by task.
+    let segment = |i: usize| {
+        segment_rows(if i < N_VIEW_SKY {
+            0
+        } else if i < N_VIEW_UP {
+            1
+        } else {
+            2
+        })
+    };
+    let row_computed = |i: usize| {
+        let (first, last) = segment(i);
+        ms_rows::computed(i, first, last)
+    };
+    let ray_task = |scratch: &mut FamilyScratch<'_>, task: usize, known: &[Option<Vec<f64>>]| {
                 let (k, i) = (task / N_VIEW, task % N_VIEW);
                 let mut s_out = vec![0.0; per_family];
                 let mut m_out = vec![0.0; per_family];
+        let mut record = None;
                 if cancelled() {
-                    return (s_out, m_out);
+            return ((s_out, m_out), record);
                 }
                 let r = eval_radius(k, i, bottom, thickness);
                 let b = warp_strength(heights[k], thickness);
@@ -1004,7 +1018,7 @@ pub fn build_skyview(
                 };
                 let mut rays: Vec<Vec<usize>> = vec![(0..N_SUN).filter(|&j| !focused(j)).collect()];
                 rays.extend((0..N_SUN).filter(|&j| focused(j)).map(|j| vec![j]));
-                for suns in rays.iter().filter(|v| !v.is_empty()) {
+        for (g, suns) in rays.iter().enumerate().filter(|(_, v)| !v.is_empty()) {
                     let (theta, ground) = view_node(i, r, bottom, s_j[suns[0]]);
                     let mu_h = horizon_mu(r, bottom);
                     let mu = if ground {
@@ -1020,8 +1034,7 @@ pub fn build_skyview(
                         for a in 0..N_AZ {
                             let phi = columns[k][a];
                             let limb = (N_VIEW_SKY..N_VIEW_UP).contains(&i);
-                            let shift =
-                                sun_shift(r, theta, phi.cos(), bottom, bottom + thickness, limb);
+                    let shift = sun_shift(r, theta, phi.cos(), bottom, bottom + thickness, limb);
                             let mu_s = (s_j[j].to_radians() - shift).sin();
                             let sin_s = (1.0 - mu_s * mu_s).max(0.0).sqrt();
                             let nu = (mu * mu_s + sin_t * sin_s * phi.cos()).clamp(-1.0, 1.0);
@@ -1030,7 +1043,38 @@ pub fn build_skyview(
                         }
                     }
                     let sun_at: Vec<f64> = suns.iter().map(|&j| s_j[j]).collect();
-                    scratch.integrate_grid(&columns[k], &sun_at);
+            let (first, last) = segment(i);
+            let stencil = ms_rows::stencils(first, last)[i - first];
+            match stencil {
+                Some(st) if g == 0 && !known.is_empty() => {
+                    let entry = |t: usize, l: usize| (suns[t / N_AZ] * N_AZ + t % N_AZ) * n_l + l;
+                    let row = |c: usize| known[k * N_VIEW + first + c].as_deref();
+                    scratch.integrate_grid_guessed(
+                        &columns[k],
+                        &sun_at,
+                        ms_rows::TOLERANCE,
+                        |t, l| {
+                            let e = entry(t, l);
+                            let (y, rough) =
+                                ms_rows::guess(&st, |c| row(c).map_or(f64::NAN, |r| r[e]))?;
+                            Some((y * d, rough))
+                        },
+                    );
+                }
+                _ => scratch.integrate_grid(&columns[k], &sun_at),
+            }
+            if g == 0 && stencil.is_none() {
+                let mut per_m = vec![f64::NAN; N_SUN * N_AZ * n_l];
+                for (n, &j) in suns.iter().enumerate() {
+                    for a in 0..N_AZ {
+                        let ms = scratch.texel(n * N_AZ + a).multiple;
+                        for l in 0..n_l {
+                            per_m[(j * N_AZ + a) * n_l + l] = ms[l] / d;
+                        }
+                    }
+                }
+                record = Some(per_m);
+            }
                     for (n, &j) in suns.iter().enumerate() {
                         for a in 0..N_AZ {
                             let nu = nus[n * N_AZ + a];
@@ -1044,10 +1088,29 @@ pub fn build_skyview(
                         }
                     }
                 }
-                (s_out, m_out)
-            },
+        ((s_out, m_out), record)
+    };
+    let pass = |tasks: Vec<usize>, known: &[Option<Vec<f64>>]| -> Vec<_> {
+        tasks
+            .into_par_iter()
+            .map_init(
+                || FamilyScratch::new(shared, m.len()),
+                |scratch, task| (task, ray_task(scratch, task, known)),
         )
-        .collect();
+            .collect()
+    };
+    let (first_tasks, other_tasks): (Vec<usize>, Vec<usize>) =
+        (0..N_ALT * N_VIEW).partition(|&task| row_computed(task % N_VIEW));
+    let mut families = vec![(Vec::new(), Vec::new()); N_ALT * N_VIEW];
+    let mut known: Vec<Option<Vec<f64>>> = vec![None; N_ALT * N_VIEW];
+    for (task, (family, record)) in pass(first_tasks, &[]) {
+        families[task] = family;
+        known[task] = record;
+    }
+    for (task, (family, _)) in pass(other_tasks, &known) {
+        families[task] = family;
+    }
+    drop(known);
     if cancelled() {
         return Err(crate::Error::Cancelled);
     }
