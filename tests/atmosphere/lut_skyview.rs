@@ -161,9 +161,10 @@ fn skyview_sky_radiance_matches_the_sky_product() {
     // as 2¹⁵, the columns denser around 90° from the sun aloft, the altitude nodes denser near
     // the top, each slice read relative to the band and the focus growing to 5 km; version 9:
     // the limb's sun coordinate towards the tangent point's over 50 km, the sky rows' aloft
-    // towards the exit point's). Where the target is met it is asserted, and the measured bound + ~12 %
-    // (the tighter); where it is not (the twilight sky and limb aloft, −6…5° and −12…−6° from
-    // 20–100 km, targets 3 % and 10 %, not met: docs/lut.md), the measured bound + ~12 %.
+    // towards the exit point's; version 11: aloft away from the sun the deep limb rows' back
+    // towards the observer's horizon). Where the target is met it is asserted, and the
+    // measured bound + ~12 % (the tighter); where it is not (the twilight sky aloft, −12…−6°
+    // from 20–100 km, target 10 %, not met: docs/lut.md), the measured bound + ~12 %.
     for (band, measured, target) in [
         (
             "sun >= 5, view > 10 deg above horizon (target 1 %), ground",
@@ -192,15 +193,15 @@ fn skyview_sky_radiance_matches_the_sky_product() {
         ),
         (
             "sun >= 5, view < 10 deg above horizon (target 3 %), 20-100 km",
-            0.02413,
+            0.02251,
             Some(0.03),
         ),
         ("sun -6..5 (target 3 %), ground", 0.01272, Some(0.03)),
         ("sun -6..5 (target 3 %), 0-20 km", 0.01747, Some(0.03)),
-        ("sun -6..5 (target 3 %), 20-100 km", 0.03451, None),
+        ("sun -6..5 (target 3 %), 20-100 km", 0.02960, Some(0.03)),
         ("sun -12..-6 (target 10 %), ground", 0.0342, Some(0.10)),
         ("sun -12..-6 (target 10 %), 0-20 km", 0.03833, Some(0.10)),
-        ("sun -12..-6 (target 10 %), 20-100 km", 0.1448, None),
+        ("sun -12..-6 (target 10 %), 20-100 km", 0.1376, None),
     ] {
         let bound = target.map_or(measured * 1.12, |t: f64| t.min(measured * 1.12));
         assert!(bands.get(band) > 0.0, "no sample in {band}");
@@ -709,7 +710,7 @@ fn skyview_the_earth_shadow_rising_at_low_altitude() {
 /// layout version 10, measured on 2026-12-06; all at 680 nm, in the red): 6.5 km 1.97 % (sun
 /// −3°, zenith 86.25°, 180° from the sun), 8 km 4.82 % (−3°, 86.5°, 180°), 9.5 km 7.55 % (−3°,
 /// 86.5°, 180°), 11 km 6.20 % (−3°, 88°, 150°), 12.5 km 2.72 % (−3°, 88.5°, 150°), 15 km 7.90 %
-/// (−4°, 85.5°, 180°), 20 km 3.28 % (−5°, 83.25°, 180°). (Version 9: 1.94 / 4.82 / 7.53 / 6.22 /
+/// (−4°, 85.5°, 180°), 20 km 3.28 % (−5°, 83.25°, 180°; version 11: 3.31 %). (Version 9: 1.94 / 4.82 / 7.53 / 6.22 /
 /// 5.70 / 7.91 / 15.8 %, 12.5 and 20 km below the horizontal; version 8: 3.39 / 16.4 / 34.4 /
 /// 44.0 / 29.2 / 91.3 / 56.6 %.)
 #[test]
@@ -718,7 +719,7 @@ fn skyview_the_earth_shadow_seen_aloft() {
     let f = fixture();
     let altitudes = [6500.0, 8000.0, 9500.0, 11000.0, 12500.0, 15000.0, 20000.0];
     // Measured worst per altitude (the order of `altitudes`).
-    let measured = [0.0197, 0.0482, 0.0755, 0.0620, 0.0272, 0.0790, 0.0328];
+    let measured = [0.0197, 0.0482, 0.0755, 0.0620, 0.0272, 0.0790, 0.0331];
     let results = shadow_grid_errors(f, &SkyViewReader::new(&f.bundle), &altitudes);
     let mut failures = Vec::new();
     for ((alt, (worst, case)), m) in altitudes.iter().zip(&results).zip(measured) {
