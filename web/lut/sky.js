@@ -122,6 +122,18 @@ class LiveSky {
         `#define SV_BAND_FOCUS_ALOFT ${f(band.focus_aloft)}\n` +
         `#define SV_BAND_FOCUS_ALOFT_ALTITUDE vec2(${band.focus_aloft_altitude_m.map(f).join(", ")})\n` +
         `#define SV_ALT_NODES float[${z.N_ALT}](${altNodes.map(f).join(", ")})\n`;
+      // The limb's sun coordinate back towards the observer's horizon aloft away from the sun
+      // (version 11).
+      const nearEnd = manifest.parameterisation.limb_near_end;
+      if (!nearEnd || !numbers(nearEnd.azimuth_cos, 2) || !numbers(nearEnd.depth_m, 2) ||
+          !numbers(nearEnd.altitude_range_m, 2) || !(nearEnd.azimuth_cos[0] < nearEnd.azimuth_cos[1]) ||
+          !(nearEnd.depth_m[0] < nearEnd.depth_m[1]) ||
+          !(nearEnd.altitude_range_m[0] < nearEnd.altitude_range_m[1])) {
+        throw new Error("manifest: parameterisation.limb_near_end is not the limb's near-end weight");
+      }
+      defines += `#define SV_LIMB_NEAR_END_AZIMUTH vec2(${nearEnd.azimuth_cos.map(f).join(", ")})\n` +
+        `#define SV_LIMB_NEAR_END_DEPTH vec2(${nearEnd.depth_m.map(f).join(", ")})\n` +
+        `#define SV_LIMB_NEAR_END_ALTITUDE vec2(${nearEnd.altitude_range_m.map(f).join(", ")})\n`;
       // The limb rows' focus on the band above the earth's shadow seen from altitude (version 10;
       // the slices' two-piece depth map, version 11).
       const limb = manifest.parameterisation.limb_row_band;

@@ -31,7 +31,9 @@
 // SV_LIMB_BAND_HORIZON_HELD (horizon_held, a vec2);
 // from parameterisation.azimuth_aloft: SV_AZ_WEIGHT (weight) and SV_AZ_ALTITUDE
 // (altitude_range_m, a vec2), SV_ALT_MAP (parameterisation.altitude_map, a vec3) and
-// SV_SKY_EXIT_ALTITUDE (parameterisation.sky_exit_altitude_m, a vec2).
+// SV_SKY_EXIT_ALTITUDE (parameterisation.sky_exit_altitude_m, a vec2); from
+// parameterisation.limb_near_end: SV_LIMB_NEAR_END_AZIMUTH (azimuth_cos, a vec2),
+// SV_LIMB_NEAR_END_DEPTH (depth_m, a vec2), SV_LIMB_NEAR_END_ALTITUDE (altitude_range_m, a vec2).
 //
 // Per query: node coordinates in altitude ((sqrt(e) + c (e^p - e^q)) (N_ALT - 1),
 // e = h / thickness), the sun's elevation above the observer's horizon (the manifest's
@@ -558,7 +560,12 @@ vec3 SkyViewRadiance(float h, float rho, vec3 up, vec3 view_ray, vec3 sun_direct
   // horizon of the ray's tangent point (the reader's sun_shift).
   float shift = dip;
   if (segment == 1) {
-    float w = 1.0 - exp(-(h - h_t) / SV_LIMB_SHADOW_SCALE);
+    // Aloft away from the sun back towards the observer's horizon (the reader's limb_near_end).
+    float near_end =
+        (1.0 - smoothstep(SV_LIMB_NEAR_END_AZIMUTH.x, SV_LIMB_NEAR_END_AZIMUTH.y, SkyViewCos(phi))) *
+        smoothstep(SV_LIMB_NEAR_END_DEPTH.x, SV_LIMB_NEAR_END_DEPTH.y, h - h_t) *
+        smoothstep(SV_LIMB_NEAR_END_ALTITUDE.x, SV_LIMB_NEAR_END_ALTITUDE.y, h);
+    float w = (1.0 - exp(-(h - h_t) / SV_LIMB_SHADOW_SCALE)) * (1.0 - near_end);
     shift = dip + w * (gamma * SkyViewCos(phi) + dip_t - dip);
   } else if (segment == 0) {
     // Aloft, towards the sun: the sun's elevation at the ray's exit through the top, alpha the

@@ -83,7 +83,8 @@ pub const LAYOUT: &str = "skyview";
 /// ([`limb_row_focus`]), each slice read at the query's depth relative to it
 /// ([`limb_slice_depth`]).
 /// 11: the sky rows' focus grows again from 5 to 8 km ([`BAND_FOCUS_ALOFT`]); the limb slices'
-/// depth map in two pieces, the horizon fixed ([`LIMB_BAND_MAX_FRACTION`]).
+/// depth map in two pieces, the horizon fixed ([`LIMB_BAND_MAX_FRACTION`]); aloft away from the
+/// sun the deep limb rows' sun coordinate goes back to the observer's horizon ([`limb_near_end`]).
 pub const SKYVIEW_VERSION: &str = "11";
 
 /// Altitude nodes: h_k the roots of [`altitude_coord`] (about (top − bottom) · (k / (N − 1))²,
@@ -177,7 +178,8 @@ pub fn dip(r: f64, bottom: f64) -> f64 {
 /// lowest and densest point), γ cos φ + dip(r_t), with γ = θ − π/2 the angle between the
 /// observer's and the tangent point's verticals and r_t = r cos γ (to first order in γ the
 /// sun's elevation at the tangent point is its elevation at the observer + γ cos φ), weighted
-/// by 1 − exp(−(r − r_t) / [`LIMB_SHADOW_SCALE_M`]): the earth's shadow reaches a deep limb
+/// by 1 − exp(−(r − r_t) / [`LIMB_SHADOW_SCALE_M`]) (aloft away from the sun times
+/// 1 − [`limb_near_end`]): the earth's shadow reaches a deep limb
 /// ray's tangent point at coordinate 0 at every altitude, row and azimuth, so the limb's fall
 /// into the shadow stays near one sun node instead of moving across the nodes with the rows.
 /// Sky rays (above the horizontal) aloft, looking towards the sun: the sun's elevation at the
@@ -193,7 +195,8 @@ pub fn sun_shift(r: f64, theta: f64, cos_phi: f64, bottom: f64, top: f64, limb: 
     if limb {
         let gamma = (theta - 0.5 * PI).max(0.0);
         let r_t = r * gamma.cos();
-        let w = 1.0 - (-(r - r_t) / LIMB_SHADOW_SCALE_M).exp();
+        let w = (1.0 - (-(r - r_t) / LIMB_SHADOW_SCALE_M).exp())
+            * (1.0 - limb_near_end(cos_phi, r - bottom, r - r_t));
         let tangent = gamma * cos_phi + dip(r_t, bottom);
         let observer = dip(r, bottom);
         observer + w * (tangent - observer)
@@ -212,6 +215,40 @@ pub fn sun_shift(r: f64, theta: f64, cos_phi: f64, bottom: f64, top: f64, limb: 
         dip(r, bottom)
     }
 }
+
+/// The share of a limb ray's weight towards the tangent point's sun coordinate ([`sun_shift`])
+/// given back to the observer's horizon, at azimuth `cos_phi` (cosine) from the sun, altitude
+/// `h` (m) and depth `depth` (m) of the ray's tangent point below the observer:
+/// (1 − smoothstep(c₀, c₁, cos φ)) smoothstep(d₀, d₁, depth) smoothstep(h₀, h₁, h)
+/// ([`LIMB_NEAR_END_AZIMUTH`], [`LIMB_NEAR_END_DEPTH_M`], [`LIMB_NEAR_END_ALTITUDE_M`]). Seen
+/// from altitude away from the sun, every limb row brightens steepest with the sun's elevation
+/// (ln L by 4–9 per degree; earth, 22–90 km, 100–180° from the sun) where the sun clears the
+/// observer's own horizon, 0.4–0.9° above it on every row: a constant coordinate with the
+/// observer's horizon, spread over 1–13° across the rows with the tangent point's weight
+/// 1 − exp(−(r − r_t) / 50 km), which put that edge between sun nodes on a diagonal across
+/// the rows and columns. Towards the sun the tangent point's weight stays.
+pub fn limb_near_end(cos_phi: f64, h: f64, depth: f64) -> f64 {
+    let [c0, c1] = LIMB_NEAR_END_AZIMUTH;
+    let [d0, d1] = LIMB_NEAR_END_DEPTH_M;
+    let [h0, h1] = LIMB_NEAR_END_ALTITUDE_M;
+    (1.0 - smoothstep(c0, c1, cos_phi)) * smoothstep(d0, d1, depth) * smoothstep(h0, h1, h)
+}
+
+/// The azimuths (cosine from the sun) between which [`limb_near_end`] fades out (1 below the
+/// first, 0 above the second). Measured (docs/lut.md; version 10: 3.45 / 14.5 %), the sky from
+/// 20–100 km with the sun −6…5° / −12…−6°, on every limb row (no depth fade): (−0.5, 0.1)
+/// 3.78 / 13.8 %, (−0.3, 0) 5.49 / 13.8 %, (−0.7, 0.2) 3.74 / 13.7 % (a shallow limb ray at
+/// 43 km, the sun 6.4° above the observer's horizon, worse with the observer's horizon);
+/// from 8–16 km of depth: 2.96 / 13.8 %.
+pub const LIMB_NEAR_END_AZIMUTH: [f64; 2] = [-0.5, 0.1];
+/// The tangent point's depths (m) below the observer between which [`limb_near_end`] fades in.
+pub const LIMB_NEAR_END_DEPTH_M: [f64; 2] = [8_000.0, 16_000.0];
+/// The altitudes (m) between which [`limb_near_end`] fades in (below, the limb rows' coordinate
+/// of version 10, on which the limb rows' focus is fitted). A query reads the altitude nodes
+/// around it at its own coordinate, so the fade starts above the nodes a 20 km query reads
+/// (up to 26.9 km): faded in from 20 to 25 km, the earth's shadow seen from 20 km went 3.28 →
+/// 7.05 % (`skyview_the_earth_shadow_seen_aloft`).
+pub const LIMB_NEAR_END_ALTITUDE_M: [f64; 2] = [26_000.0, 40_000.0];
 
 /// The depth of a limb ray's tangent point below the observer (m) over which the limb rows' sun
 /// coordinate moves from the observer's horizon to the tangent point's ([`sun_shift`]): weight
@@ -1698,17 +1735,17 @@ pub const STATED_ERRORS: &[(&str, &str, f64)] = &[
     ("rayleigh+mie", "sky radiance (sky product), sun >= 5 deg, view > 10 deg above the horizon, 20-100 km", 0.0018),
     ("rayleigh+mie", "sky radiance (sky product), sun >= 5 deg, view < 10 deg above the horizon, ground", 0.004),
     ("rayleigh+mie", "sky radiance (sky product), sun >= 5 deg, view < 10 deg above the horizon, 0-20 km", 0.0042),
-    ("rayleigh+mie", "sky radiance (sky product), sun >= 5 deg, view < 10 deg above the horizon, 20-100 km", 0.025),
+    ("rayleigh+mie", "sky radiance (sky product), sun >= 5 deg, view < 10 deg above the horizon, 20-100 km", 0.023),
     ("rayleigh+mie", "sky radiance (sky product), sun -6..5 deg, ground", 0.015),
     ("rayleigh+mie", "sky radiance (sky product), sun -6..5 deg, 0-5 km (4.6 % at 5 km, 0.5 deg above the horizontal 120 deg from the sun, 680 nm)", 0.046),
     ("rayleigh+mie", "sky radiance (sky product), sun -6..5 deg, 5-8 km (the band above the earth's shadow near the antisolar horizon, 680 nm at 8 km, 1.75 deg above the horizontal 150 deg from the sun)", 0.073),
     ("rayleigh+mie", "sky radiance (sky product), sun -6..5 deg, 8-12.5 km (the band above the earth's shadow near the antisolar horizon, 680 nm at 12.5 km, 0.75 deg above the horizontal 120 deg from the sun)", 0.093),
     ("rayleigh+mie", "sky radiance (sky product), sun -6..5 deg, 12.5-20 km (the band above the earth's shadow near the antisolar horizon, 680 nm at 20 km, 3.75 deg above the horizontal 165 deg from the sun)", 0.113),
     ("rayleigh+mie", "sky radiance (sky product), sun -6..0 deg, 0-5 km, views within 10 deg of the horizon 150-180 deg from the sun (the earth's shadow rising; 680 nm at 2.5 km)", 0.024),
-    ("rayleigh+mie", "sky radiance (sky product), sun -6..5 deg, 20-100 km (the limb across the earth's shadow)", 0.035),
+    ("rayleigh+mie", "sky radiance (sky product), sun -6..5 deg, 20-100 km (the sky just above the horizontal at 30 km, 440 nm)", 0.030),
     ("rayleigh+mie", "sky radiance (sky product), sun -12..-6 deg, ground", 0.035),
     ("rayleigh+mie", "sky radiance (sky product), sun -12..-6 deg, 0-20 km", 0.039),
-    ("rayleigh+mie", "sky radiance (sky product), sun -12..-6 deg, 20-100 km (the limb across the earth's shadow, 680 nm at 68 km)", 0.145),
+    ("rayleigh+mie", "sky radiance (sky product), sun -12..-6 deg, 20-100 km (the sky 2.8 deg above the horizontal 109 deg from the sun, 440 nm at 79.5 km)", 0.138),
     ("irradiance", "diffuse horizontal irradiance (sun product), sun >= 5 deg, 0-100 km", 0.015),
     ("irradiance", "diffuse horizontal irradiance (sun product), sun -12..5 deg, 0-100 km", 0.016),
 ];
@@ -1763,11 +1800,16 @@ pub fn manifest(
             "altitude_node": "the altitude coordinate of altitude h: (sqrt(e) + c (e^p - e^q)) (N_ALT - 1), e = h / (top_radius - bottom_radius), [c, p, q] = altitude_map; node k (0..N_ALT-1, altitude_nodes_m) is the altitude whose coordinate is k",
             "altitude_map": ALTITUDE_TOP,
             "sun_elevation_nodes_deg": sun_nodes,
-            "sun_node": "the sun node coordinate t_j (deg): every 2 deg from -23 to -15, every 1 deg to -8, every 0.5 deg to -1, every 0.25 deg to 2, every 0.5 deg to 6, every 1 deg to 20, every 4 deg to 104 (segments [start, step, intervals] in sun_segments). At altitude h the node's sun coordinate s_j = warp(t_j, b), b = sun_warp_strength * sqrt(h / (top_radius - bottom_radius)), warp(t, b) = e sinh(b t / e) / sinh(b) for sun_warp_range[0] < t < sun_warp_range[1] (e = -sun_warp_range[0] for t < 0, sun_warp_range[1] for t >= 0), t elsewhere (and where b < 1e-6); its inverse t = e asinh(s sinh(b) / e) / b gives a query's node coordinate, the interpolation's abscissa. s = the sun's elevation + shift: for view rows below the horizon (and the irradiance, and the sky rows below sky_exit_altitude_m[0] or away from the sun) shift = the horizon's dip acos(bottom_radius / r), the sun's elevation above the observer's horizon; for the limb rows (between the horizontal and the horizon) shift = dip + w (gamma cos(phi) + acos(bottom_radius / r_t) - dip), w = 1 - exp(-(r - r_t) / limb_shadow_scale_m): towards the sun's elevation above the horizon of the ray's tangent point, with dip = acos(bottom_radius / r), gamma = theta - pi/2, r_t = r cos(gamma), phi the view's azimuth from the sun; for the sky rows (above the horizontal) shift = dip + smoothstep(sky_exit_altitude_m[0], sky_exit_altitude_m[1], h) max(cos(phi), 0) alpha, alpha = atan2(x sin(theta), r + x cos(theta)), x the ray's length to the top (the central angle to where the ray leaves the atmosphere; smoothstep as in sky_row_band); the texels of a limb or sky row are at the sun elevations s_j - shift of their column's azimuth",
+            "sun_node": "the sun node coordinate t_j (deg): every 2 deg from -23 to -15, every 1 deg to -8, every 0.5 deg to -1, every 0.25 deg to 2, every 0.5 deg to 6, every 1 deg to 20, every 4 deg to 104 (segments [start, step, intervals] in sun_segments). At altitude h the node's sun coordinate s_j = warp(t_j, b), b = sun_warp_strength * sqrt(h / (top_radius - bottom_radius)), warp(t, b) = e sinh(b t / e) / sinh(b) for sun_warp_range[0] < t < sun_warp_range[1] (e = -sun_warp_range[0] for t < 0, sun_warp_range[1] for t >= 0), t elsewhere (and where b < 1e-6); its inverse t = e asinh(s sinh(b) / e) / b gives a query's node coordinate, the interpolation's abscissa. s = the sun's elevation + shift: for view rows below the horizon (and the irradiance, and the sky rows below sky_exit_altitude_m[0] or away from the sun) shift = the horizon's dip acos(bottom_radius / r), the sun's elevation above the observer's horizon; for the limb rows (between the horizontal and the horizon) shift = dip + w (gamma cos(phi) + acos(bottom_radius / r_t) - dip), w = (1 - exp(-(r - r_t) / limb_shadow_scale_m)) (1 - n), n = (1 - smoothstep(limb_near_end.azimuth_cos[0], limb_near_end.azimuth_cos[1], cos(phi))) smoothstep(limb_near_end.depth_m[0], limb_near_end.depth_m[1], r - r_t) smoothstep(limb_near_end.altitude_range_m[0], limb_near_end.altitude_range_m[1], h) (version 11: aloft away from the sun back towards the observer's horizon): towards the sun's elevation above the horizon of the ray's tangent point, with dip = acos(bottom_radius / r), gamma = theta - pi/2, r_t = r cos(gamma), phi the view's azimuth from the sun; for the sky rows (above the horizontal) shift = dip + smoothstep(sky_exit_altitude_m[0], sky_exit_altitude_m[1], h) max(cos(phi), 0) alpha, alpha = atan2(x sin(theta), r + x cos(theta)), x the ray's length to the top (the central angle to where the ray leaves the atmosphere; smoothstep as in sky_row_band); the texels of a limb or sky row are at the sun elevations s_j - shift of their column's azimuth",
             "sun_warp_strength": SUN_WARP,
             "sun_warp_range": [SUN_WARP_RANGE.0, SUN_WARP_RANGE.1],
             "limb_shadow_scale_m": LIMB_SHADOW_SCALE_M,
             "sky_exit_altitude_m": SKY_EXIT_ALTITUDE_M,
+            "limb_near_end": {
+                "azimuth_cos": LIMB_NEAR_END_AZIMUTH,
+                "depth_m": LIMB_NEAR_END_DEPTH_M,
+                "altitude_range_m": LIMB_NEAR_END_ALTITUDE_M,
+            },
             "sun_segments": SUN_SEGMENTS.iter().map(|(a, b, n)| json!([a, b, n])).collect::<Vec<_>>(),
             "sky_row_band": {
                 "sun_deg": BAND_SUN_DEG,
@@ -2235,7 +2277,8 @@ mod tests {
             let e = (-8.0f64).to_radians();
             let e_t = (e.sin() * gamma.cos() + e.cos() * gamma.sin() * cos_phi).asin();
             let tangent = e_t + dip(r_t, R) - e;
-            let w = 1.0 - (-40_000.0 / LIMB_SHADOW_SCALE_M).exp();
+            let w = (1.0 - (-40_000.0 / LIMB_SHADOW_SCALE_M).exp())
+                * (1.0 - limb_near_end(cos_phi, 60_000.0, 40_000.0));
             let want = dip_r + w * (tangent - dip_r);
             let got = sun_shift(r, theta, cos_phi, R, R + 100_000.0, true);
             assert!(
@@ -2245,6 +2288,13 @@ mod tests {
                 want.to_degrees()
             );
         }
+        // Aloft away from the sun a deep limb ray keeps the observer's horizon, towards the sun
+        // the tangent point's weight (limb_near_end).
+        assert_eq!(limb_near_end(-1.0, 60_000.0, 40_000.0), 1.0);
+        assert_eq!(limb_near_end(0.5, 60_000.0, 40_000.0), 0.0);
+        assert_eq!(limb_near_end(-1.0, 15_000.0, 40_000.0), 0.0);
+        assert_eq!(limb_near_end(-1.0, 60_000.0, 2_000.0), 0.0);
+        assert!((sun_shift(r, theta, -1.0, R, R + 100_000.0, true) - dip_r).abs() < 1e-12);
         // The shift never leaves the sun nodes' reach: elevation -12° at any limb ray from
         // 100 km is above the first node.
         let r = R + H;
