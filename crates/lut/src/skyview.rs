@@ -1034,52 +1034,52 @@ pub fn build_skyview(
         ms_rows::computed(i, first, last)
     };
     let ray_task = |scratch: &mut FamilyScratch<'_>, task: usize, known: &[Option<Vec<f64>>]| {
-                let (k, i) = (task / N_VIEW, task % N_VIEW);
-                let mut s_out = vec![0.0; per_family];
-                let mut m_out = vec![0.0; per_family];
+        let (k, i) = (task / N_VIEW, task % N_VIEW);
+        let mut s_out = vec![0.0; per_family];
+        let mut m_out = vec![0.0; per_family];
         let mut record = None;
-                if cancelled() {
+        if cancelled() {
             return ((s_out, m_out), record);
-                }
-                let r = eval_radius(k, i, bottom, thickness);
-                let b = warp_strength(heights[k], thickness);
-                let s_j: Vec<f64> = (0..N_SUN).map(|j| sun_warp(sun_node_deg(j), b)).collect();
-                // The rays of this row: one for the suns whose row does not move (every sun
-                // but on the sky rows in low twilight, [`sky_row_focus`]), one per other sun.
-                let focused = |j: usize| {
-                    if i < N_VIEW_SKY {
-                        sky_row_focus(s_j[j], r - bottom).1 > 0.0
-                    } else {
-                        i < N_VIEW_UP && limb_row_focus(s_j[j], r - bottom).1 > 0.0
-                    }
-                };
-                let mut rays: Vec<Vec<usize>> = vec![(0..N_SUN).filter(|&j| !focused(j)).collect()];
-                rays.extend((0..N_SUN).filter(|&j| focused(j)).map(|j| vec![j]));
+        }
+        let r = eval_radius(k, i, bottom, thickness);
+        let b = warp_strength(heights[k], thickness);
+        let s_j: Vec<f64> = (0..N_SUN).map(|j| sun_warp(sun_node_deg(j), b)).collect();
+        // The rays of this row: one for the suns whose row does not move (every sun
+        // but on the sky rows in low twilight, [`sky_row_focus`]), one per other sun.
+        let focused = |j: usize| {
+            if i < N_VIEW_SKY {
+                sky_row_focus(s_j[j], r - bottom).1 > 0.0
+            } else {
+                i < N_VIEW_UP && limb_row_focus(s_j[j], r - bottom).1 > 0.0
+            }
+        };
+        let mut rays: Vec<Vec<usize>> = vec![(0..N_SUN).filter(|&j| !focused(j)).collect()];
+        rays.extend((0..N_SUN).filter(|&j| focused(j)).map(|j| vec![j]));
         for (g, suns) in rays.iter().enumerate().filter(|(_, v)| !v.is_empty()) {
-                    let (theta, ground) = view_node(i, r, bottom, s_j[suns[0]]);
-                    let mu_h = horizon_mu(r, bottom);
-                    let mu = if ground {
-                        (theta.cos().min(mu_h) - 1e-9).max(-1.0)
-                    } else {
-                        theta.cos().max(mu_h + 1e-9).min(1.0)
-                    };
-                    let sin_t = (1.0 - mu * mu).max(0.0).sqrt();
-                    let d = ray_length(r, mu, bottom, bottom + thickness, ground);
-                    scratch.prepare(r, mu, steps);
-                    let mut nus = Vec::with_capacity(suns.len() * N_AZ);
-                    for &j in suns {
-                        for a in 0..N_AZ {
-                            let phi = columns[k][a];
-                            let limb = (N_VIEW_SKY..N_VIEW_UP).contains(&i);
+            let (theta, ground) = view_node(i, r, bottom, s_j[suns[0]]);
+            let mu_h = horizon_mu(r, bottom);
+            let mu = if ground {
+                (theta.cos().min(mu_h) - 1e-9).max(-1.0)
+            } else {
+                theta.cos().max(mu_h + 1e-9).min(1.0)
+            };
+            let sin_t = (1.0 - mu * mu).max(0.0).sqrt();
+            let d = ray_length(r, mu, bottom, bottom + thickness, ground);
+            scratch.prepare(r, mu, steps);
+            let mut nus = Vec::with_capacity(suns.len() * N_AZ);
+            for &j in suns {
+                for a in 0..N_AZ {
+                    let phi = columns[k][a];
+                    let limb = (N_VIEW_SKY..N_VIEW_UP).contains(&i);
                     let shift = sun_shift(r, theta, phi.cos(), bottom, bottom + thickness, limb);
-                            let mu_s = (s_j[j].to_radians() - shift).sin();
-                            let sin_s = (1.0 - mu_s * mu_s).max(0.0).sqrt();
-                            let nu = (mu * mu_s + sin_t * sin_s * phi.cos()).clamp(-1.0, 1.0);
-                            scratch.push_sun(mu_s, nu);
-                            nus.push(nu);
-                        }
-                    }
-                    let sun_at: Vec<f64> = suns.iter().map(|&j| s_j[j]).collect();
+                    let mu_s = (s_j[j].to_radians() - shift).sin();
+                    let sin_s = (1.0 - mu_s * mu_s).max(0.0).sqrt();
+                    let nu = (mu * mu_s + sin_t * sin_s * phi.cos()).clamp(-1.0, 1.0);
+                    scratch.push_sun(mu_s, nu);
+                    nus.push(nu);
+                }
+            }
+            let sun_at: Vec<f64> = suns.iter().map(|&j| s_j[j]).collect();
             let (first, last) = segment(i);
             let stencil = ms_rows::stencils(first, last)[i - first];
             match stencil {
@@ -1112,19 +1112,19 @@ pub fn build_skyview(
                 }
                 record = Some(per_m);
             }
-                    for (n, &j) in suns.iter().enumerate() {
-                        for a in 0..N_AZ {
-                            let nu = nus[n * N_AZ + a];
-                            let p_r = param::rayleigh_phase(nu);
-                            let s = scratch.texel(n * N_AZ + a);
-                            let o = (j * N_AZ + a) * n_c;
-                            for (c, &l) in idx.iter().enumerate() {
-                                s_out[o + c] = (s.rayleigh[l] + s.multiple[l] / p_r) * e0[c] / d;
-                                m_out[o + c] = s.mie[l] * e0[c] / d;
-                            }
-                        }
+            for (n, &j) in suns.iter().enumerate() {
+                for a in 0..N_AZ {
+                    let nu = nus[n * N_AZ + a];
+                    let p_r = param::rayleigh_phase(nu);
+                    let s = scratch.texel(n * N_AZ + a);
+                    let o = (j * N_AZ + a) * n_c;
+                    for (c, &l) in idx.iter().enumerate() {
+                        s_out[o + c] = (s.rayleigh[l] + s.multiple[l] / p_r) * e0[c] / d;
+                        m_out[o + c] = s.mie[l] * e0[c] / d;
                     }
                 }
+            }
+        }
         ((s_out, m_out), record)
     };
     let pass = |tasks: Vec<usize>, known: &[Option<Vec<f64>>]| -> Vec<_> {
@@ -1133,7 +1133,7 @@ pub fn build_skyview(
             .map_init(
                 || FamilyScratch::new(shared, m.len()),
                 |scratch, task| (task, ray_task(scratch, task, known)),
-        )
+            )
             .collect()
     };
     let (first_tasks, other_tasks): (Vec<usize>, Vec<usize>) =
