@@ -1778,6 +1778,28 @@ pub fn manifest(
     let sun_nodes: Vec<f64> = (0..N_SUN).map(sun_node_deg).collect();
     let thickness = b.params.top_radius - b.params.bottom_radius;
     let altitude_nodes: Vec<f64> = (0..N_ALT).map(|k| altitude_node_m(k, thickness)).collect();
+    // Its own value: the whole manifest in one `json!` exceeds the macro's recursion limit.
+    let sky_row_band = json!({
+        "sun_deg": BAND_SUN_DEG,
+        "centre": BAND_CENTRE,
+        "focus": BAND_FOCUS,
+        "sun_range_deg": BAND_SUN_RANGE,
+        "altitude_range_m": BAND_ALTITUDE_M,
+        "antisolar": BAND_ANTISOLAR,
+        "depth_deg_per_km": BAND_DEPTH_PER_KM,
+        "depth_top_m": BAND_DEPTH_TOP_M,
+        "centre_aloft_per_km": BAND_CENTRE_ALOFT,
+        "centre_aloft_altitude_m": BAND_CENTRE_ALOFT_M,
+        "horizon_deg": BAND_HORIZON_DEG,
+        "antisolar_range": [BAND_ANTISOLAR_RANGE.0, BAND_ANTISOLAR_RANGE.1],
+        "focus_growth": BAND_FOCUS_GROWTH,
+        "focus_growth_altitude_m": BAND_FOCUS_GROWTH_M,
+        "focus_aloft": BAND_FOCUS_ALOFT,
+        "focus_aloft_altitude_m": BAND_FOCUS_ALOFT_M,
+        "slices": "on the sky rows, each (altitude node k, sun node j) slice of the interpolation is read on its own rows (the focus (c_n, k_n) at the node's sun coordinate s_n = the warped s_j at h_k and its altitude h_n = altitude_nodes_m[k]) where the query's or the slice's k > 0: at e_n = e + f (1 - smoothstep(2 w, 4 w, e)) smoothstep(0, horizon_deg, e) ((e + delta_q) H_n / H_q - delta_n - e), H = max(c antisolar + delta, 0.1) at the query's (c, h) and the node's (band centre c at s_n, h_n), delta = depth_deg_per_km clamp(h, 0, depth_top_m) / 1000, w = max(H_q, 0.5), f = k / (focus (1 + focus_growth smoothstep(focus_growth_altitude_m[0], focus_growth_altitude_m[1], h)) (1 + focus_aloft smoothstep(focus_aloft_altitude_m[0], focus_aloft_altitude_m[1], h))) the query's fade (0 where k = 0), then each column at the azimuth formula's e_a with (c_n, k_n, h_n) in place of the query's",
+        "azimuth": "on the sky rows and the limb rows where k > 0 each azimuth column a of the interpolation is read at its own elevation e_a (its own rows' stencil): delta = depth_deg_per_km clamp(h, 0, depth_top_m) / 1000, w = max(c antisolar + delta, 0.5), ratio = max(-cos phi_a, antisolar_range[0]) / max(-cos phi, antisolar_range[0]), e_a = e + (k / (focus (1 + focus_growth smoothstep(focus_growth_altitude_m[0], focus_growth_altitude_m[1], h)) (1 + focus_aloft smoothstep(focus_aloft_altitude_m[0], focus_aloft_altitude_m[1], h)))) (1 - smoothstep(2 w, 4 w, e)) step(-delta, e) smoothstep(antisolar_range[0], antisolar_range[1], -cos phi) (e + delta) (ratio - 1) (version 7: from -delta up through the horizontal, where version 6 had smoothstep(0, horizon_deg, e)), e the query's elevation (deg), phi its azimuth from the sun, phi_a the column's at the query's altitude h (azimuth_columns); where e_a >= 0 the column is read on the sky rows, below on the limb rows at the query's altitude h (depth y = 2 r sin^2(e_a / 2) / h); the band above the earth's shadow lies at (c antisolar + delta)(-cos phi) - delta",
+        "formula": "the sky rows' focus at the sun's elevation s above the observer's horizon (deg) and altitude h (m): u = max(sun_deg - s, 0), km = clamp(h, 0, centre_aloft_altitude_m[0]) / 1000, c = min(((centre[0] + centre[1] km) u + (centre[2] + centre[3] km) u^2) (1 + centre_aloft_per_km clamp(h - centre_aloft_altitude_m[0], 0, centre_aloft_altitude_m[1] - centre_aloft_altitude_m[0]) / 1000), 45) (deg), k = smoothstep(sun_range_deg[0], sun_range_deg[1], s) (1 - smoothstep(sun_range_deg[2], sun_range_deg[3], s)) (1 - smoothstep(altitude_range_m[0], altitude_range_m[1], h)) focus (1 + focus_growth smoothstep(focus_growth_altitude_m[0], focus_growth_altitude_m[1], h)) (1 + focus_aloft smoothstep(focus_aloft_altitude_m[0], focus_aloft_altitude_m[1], h)), smoothstep(a, b, x) = t^2 (3 - 2 t), t = clamp((x - a) / (b - a), 0, 1)",
+    });
     json!({
         "format": LAYOUT,
         "bundle_version": SKYVIEW_VERSION,
@@ -1811,27 +1833,7 @@ pub fn manifest(
                 "altitude_range_m": LIMB_NEAR_END_ALTITUDE_M,
             },
             "sun_segments": SUN_SEGMENTS.iter().map(|(a, b, n)| json!([a, b, n])).collect::<Vec<_>>(),
-            "sky_row_band": {
-                "sun_deg": BAND_SUN_DEG,
-                "centre": BAND_CENTRE,
-                "focus": BAND_FOCUS,
-                "sun_range_deg": BAND_SUN_RANGE,
-                "altitude_range_m": BAND_ALTITUDE_M,
-                "antisolar": BAND_ANTISOLAR,
-                "depth_deg_per_km": BAND_DEPTH_PER_KM,
-                "depth_top_m": BAND_DEPTH_TOP_M,
-                "centre_aloft_per_km": BAND_CENTRE_ALOFT,
-                "centre_aloft_altitude_m": BAND_CENTRE_ALOFT_M,
-                "horizon_deg": BAND_HORIZON_DEG,
-                "antisolar_range": [BAND_ANTISOLAR_RANGE.0, BAND_ANTISOLAR_RANGE.1],
-                "focus_growth": BAND_FOCUS_GROWTH,
-                "focus_growth_altitude_m": BAND_FOCUS_GROWTH_M,
-                "focus_aloft": BAND_FOCUS_ALOFT,
-                "focus_aloft_altitude_m": BAND_FOCUS_ALOFT_M,
-                "slices": "on the sky rows, each (altitude node k, sun node j) slice of the interpolation is read on its own rows (the focus (c_n, k_n) at the node's sun coordinate s_n = the warped s_j at h_k and its altitude h_n = altitude_nodes_m[k]) where the query's or the slice's k > 0: at e_n = e + f (1 - smoothstep(2 w, 4 w, e)) smoothstep(0, horizon_deg, e) ((e + delta_q) H_n / H_q - delta_n - e), H = max(c antisolar + delta, 0.1) at the query's (c, h) and the node's (band centre c at s_n, h_n), delta = depth_deg_per_km clamp(h, 0, depth_top_m) / 1000, w = max(H_q, 0.5), f = k / (focus (1 + focus_growth smoothstep(focus_growth_altitude_m[0], focus_growth_altitude_m[1], h)) (1 + focus_aloft smoothstep(focus_aloft_altitude_m[0], focus_aloft_altitude_m[1], h))) the query's fade (0 where k = 0), then each column at the azimuth formula's e_a with (c_n, k_n, h_n) in place of the query's",
-                "azimuth": "on the sky rows and the limb rows where k > 0 each azimuth column a of the interpolation is read at its own elevation e_a (its own rows' stencil): delta = depth_deg_per_km clamp(h, 0, depth_top_m) / 1000, w = max(c antisolar + delta, 0.5), ratio = max(-cos phi_a, antisolar_range[0]) / max(-cos phi, antisolar_range[0]), e_a = e + (k / (focus (1 + focus_growth smoothstep(focus_growth_altitude_m[0], focus_growth_altitude_m[1], h)) (1 + focus_aloft smoothstep(focus_aloft_altitude_m[0], focus_aloft_altitude_m[1], h)))) (1 - smoothstep(2 w, 4 w, e)) step(-delta, e) smoothstep(antisolar_range[0], antisolar_range[1], -cos phi) (e + delta) (ratio - 1) (version 7: from -delta up through the horizontal, where version 6 had smoothstep(0, horizon_deg, e)), e the query's elevation (deg), phi its azimuth from the sun, phi_a the column's at the query's altitude h (azimuth_columns); where e_a >= 0 the column is read on the sky rows, below on the limb rows at the query's altitude h (depth y = 2 r sin^2(e_a / 2) / h); the band above the earth's shadow lies at (c antisolar + delta)(-cos phi) - delta",
-                "formula": "the sky rows' focus at the sun's elevation s above the observer's horizon (deg) and altitude h (m): u = max(sun_deg - s, 0), km = clamp(h, 0, centre_aloft_altitude_m[0]) / 1000, c = min(((centre[0] + centre[1] km) u + (centre[2] + centre[3] km) u^2) (1 + centre_aloft_per_km clamp(h - centre_aloft_altitude_m[0], 0, centre_aloft_altitude_m[1] - centre_aloft_altitude_m[0]) / 1000), 45) (deg), k = smoothstep(sun_range_deg[0], sun_range_deg[1], s) (1 - smoothstep(sun_range_deg[2], sun_range_deg[3], s)) (1 - smoothstep(altitude_range_m[0], altitude_range_m[1], h)) focus (1 + focus_growth smoothstep(focus_growth_altitude_m[0], focus_growth_altitude_m[1], h)) (1 + focus_aloft smoothstep(focus_aloft_altitude_m[0], focus_aloft_altitude_m[1], h)), smoothstep(a, b, x) = t^2 (3 - 2 t), t = clamp((x - a) / (b - a), 0, 1)",
-            },
+            "sky_row_band": sky_row_band,
             "limb_row_band": {
                 "depth_m": LIMB_BAND_DEPTH_M,
                 "focus": LIMB_BAND_FOCUS,
