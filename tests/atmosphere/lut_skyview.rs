@@ -460,6 +460,89 @@ fn skyview_dim_twilight_slices_keep_half_precision() {
     assert!(worst.0 < 2e-3, "{}", worst.1);
 }
 
+/// The twilight glow above the sun's azimuth in deep twilight (sun −12…−6°) from the ground to
+/// 20 km: a dense grid the random samples miss (they read 3.8 % at most in this band).
+/// Observers at 0, 2.5, 5, 10, 15 and 20 km; the sun at −12…−6° in 1° steps; views from 60° to
+/// 0.25° above the horizon in 1° steps (0.25° steps in the lowest 5°) at 0°, 30°, 60° and 90°
+/// from the sun's azimuth. Returns the largest relative error over the grid and its case.
+fn twilight_glow_errors(f: &Fixture, reader: &SkyViewReader) -> (f64, String) {
+    let bottom = f.bundle.params.bottom_radius;
+    let verbose = std::env::var("SKYVIEW_GLOW_VERBOSE").is_ok();
+    let mut worst = (0.0f64, String::new());
+    let mut zeniths = Vec::new();
+    let mut z = 30.0;
+    while z <= 85.0 {
+        zeniths.push(z);
+        z += 1.0;
+    }
+    let mut z = 85.25;
+    while z <= 89.75 {
+        zeniths.push(z);
+        z += 0.25;
+    }
+    let probes: Vec<(f64, f64)> = [0.0, 30.0, 60.0, 90.0]
+        .iter()
+        .flat_map(|&az| zeniths.iter().map(move |&z| (z, az)))
+        .collect();
+    for altitude in [0.0, 2500.0, 5000.0, 10000.0, 15000.0, 20000.0] {
+        for sun in [-12.0, -11.0, -10.0, -9.0, -8.0, -7.0, -6.0] {
+            let product = sky_probes(f, altitude, sun, &probes);
+            let idx = channel_index(f, &product.table.wavelengths_nm);
+            for p in &product.probes {
+                let (radiance, _) = reader.sky_radiance(
+                    [0.0, 0.0, bottom + altitude],
+                    view_dir(p.view_zenith_deg, p.view_azimuth_deg),
+                    sun_dir(sun),
+                );
+                for (c, &i) in idx.iter().enumerate() {
+                    let want = p.radiance_w_m2_sr_nm[i];
+                    let got = radiance[c] / UNIT_SCALE;
+                    let e = rel(got, want);
+                    if verbose && e > 0.03 {
+                        eprintln!(
+                            "glow alt {altitude:.0} sun {sun:.0} zen {:.2} az {:.0} {} nm {:+.2}%",
+                            p.view_zenith_deg,
+                            p.view_azimuth_deg,
+                            f.bundle.wavelengths_nm[c],
+                            100.0 * (got - want) / want
+                        );
+                    }
+                    if e > worst.0 {
+                        worst = (
+                            e,
+                            format!(
+                                "(alt {altitude:.0} m, sun {sun:.0}, view zenith {:.2} azimuth {:.0}, {} nm: {got:.4e} vs {want:.4e})",
+                                p.view_zenith_deg, p.view_azimuth_deg, f.bundle.wavelengths_nm[c]
+                            ),
+                        );
+                    }
+                }
+            }
+        }
+    }
+    worst
+}
+
+/// The twilight glow in deep twilight, 0–20 km (see [`twilight_glow_errors`]); the issue's
+/// target is 10 % (sun down to −12°), not met: measured on 2026-12-06 (earth, standard, RGB,
+/// layout version 11) 17.8 % at 5 km, sun −7°, 0.25° above the horizon towards the sun, 440 nm
+/// (too bright); 39 of the grid's 4 956 values over 10 %, all within 4° of the horizon, at 5 km
+/// (sun −8…−6°, too bright), 15 km (−12…−9°, too dark) and 20 km (−9°, too dark); 6.8 % at the
+/// ground, 8.0 % at 2.5 km, 8.9 % at 10 km. The bound is the measured + ~12 %.
+#[test]
+#[ignore = "builds a bundle (about 10 s of CPU): run with --ignored lut_skyview::"]
+fn skyview_the_twilight_glow_in_deep_twilight() {
+    let f = fixture();
+    let (worst, case) = twilight_glow_errors(f, &SkyViewReader::new(&f.bundle));
+    eprintln!(
+        "skyview twilight glow, 0-20 km, sun -12..-6 (target 10 %): {:.3} % {case}",
+        100.0 * worst
+    );
+    let measured = 0.178;
+    assert!(worst > 0.0, "no sample");
+    assert!(worst < measured * 1.12, "{worst} {case}");
+}
+
 #[test]
 #[ignore = "builds a bundle (about 10 s of CPU): run with --ignored lut_skyview::"]
 fn skyview_sun_and_sky_irradiance_match_the_sun_product() {

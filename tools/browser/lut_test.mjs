@@ -33,7 +33,12 @@ if (shots) mkdirSync(shots, { recursive: true });
 // The bundle and the products compared with it.
 const ATMOSPHERE = "earth";
 const ALBEDO = "0.1";
-const QUALITY = "draft";
+// The viewer's default quality (and the service's): the comparisons (b) then measure the layouts
+// against the sky product a user gets by default. At `draft` the sky product itself is up to 22 %
+// off in deep twilight (its stated error there is 17 %): at 5 km, sun -11 deg, 5 deg above the
+// horizon towards the sun the draft `skyview` bundle reads 5.4 % from the standard sky product
+// but 20.7 % from the draft one, which was this test's figure until 2026-12-06.
+const QUALITY = "standard";
 
 // (a) shader vs reader: largest deviation relative to the reader's value (radiance, irradiance;
 // for GetSkyRadianceToPoint relative to the whole ray's in-scatter, as it is a difference of two
@@ -42,25 +47,27 @@ const QUALITY = "draft";
 // 2-10 km), GetSunAndSkyIrradiance 1.4e-6; transmittances 1.8e-5 absolute. skyview: SKYVIEW_SHADER.
 const SHADER_BOUND = { relative: 2e-3, transmittance: 1e-4 };
 // (b) shader vs the sky product, largest relative error per band over R, G, B (680, 550, 440 nm).
-// Bounds: measured on this bundle (earth, albedo 0.1, draft) × 1.15; targets from the issue.
+// Bounds: measured on this bundle (earth, albedo 0.1, standard; 2026-12-06, the reader on these
+// cases: 16.95 / 21.90 / 21.08 / 66.30 / 61.83 %) × 1.15; targets from the issue.
 const BRUNETON_BANDS = [
-  { name: "ground, sun >= 5 deg, view > 10 deg above the horizon", target: 0.01, bound: 0.21,
+  { name: "ground, sun >= 5 deg, view > 10 deg above the horizon", target: 0.01, bound: 0.195,
     cases: cross([0], [10, 30, 60], [0, 30, 60, 75], [0, 90, 180]) },
-  { name: "ground, sun >= 5 deg, view < 10 deg above the horizon", target: 0.03, bound: 0.23,
+  { name: "ground, sun >= 5 deg, view < 10 deg above the horizon", target: 0.03, bound: 0.252,
     cases: cross([0], [10, 30, 60], [82, 87, 89.5], [0, 90, 180]) },
-  { name: "0-20 km, sun >= 5 deg", target: 0.01, bound: 0.24,
+  { name: "0-20 km, sun >= 5 deg", target: 0.01, bound: 0.243,
     cases: cross([2000, 10000], [10, 40], [0, 45, 75, 88], [0, 90, 180]) },
-  { name: "0-5 km, sun -6..5 deg, view < 10 deg above the horizon", target: 0.03, bound: 0.77,
+  { name: "0-5 km, sun -6..5 deg, view < 10 deg above the horizon", target: 0.03, bound: 0.763,
     cases: cross([0, 5000], [2, -3], [82, 87], [0, 90, 180]) },
-  { name: "0-5 km, sun -12..-6 deg", target: 0.10, bound: 0.79,
+  { name: "0-5 km, sun -12..-6 deg", target: 0.10, bound: 0.711,
     cases: cross([0, 5000], [-8, -11], [0, 60, 85], [0, 180]) },
 ];
 
-// skyview (the viewer's default): `assert: "target"` asserts the issue's target (the bands where
-// the layout meets it: by day at every altitude, the aureole included, and from layout version 4
-// the twilight band at 0-5 km, sun -6..5 deg: measured 0.77 %, version 3 6.98 %), else the
-// measured bound (measured on this bundle × 1.15, 2026-12-05: 20.72 % for -12..-6 deg in
-// versions 3 and 4; version 2: 4.64 % and 20.25 %; the issue's target printed beside it).
+// skyview (the viewer's default): `assert: "target"` asserts the issue's target; every band meets
+// it at `standard` (layout version 11, 2026-12-06, the reader on these cases: 0.47 / 0.75 / 0.39 /
+// 0.56 / 0.06 / 0.41 / 0.57 %, -12..-6 deg 6.13 % (5 km, sun -11 deg, 5 deg above the horizon
+// towards the sun, R; at `draft` 20.7 %, the draft sky product's own error), the band above the
+// earth's shadow 2.79 % (G, 12.5 km, sun -3 deg, zenith 88 deg, 120 deg from the sun), below the
+// horizontal 2.34 % (R, 12.5 km, sun -3 deg, zenith 93.25 deg, 150 deg)).
 const SKYVIEW_BANDS = [
   { name: "ground, sun >= 5 deg, view > 10 deg above the horizon", target: 0.01, assert: "target",
     cases: cross([0], [10, 30, 60], [0, 30, 60, 75], [0, 90, 180]) },
@@ -76,18 +83,15 @@ const SKYVIEW_BANDS = [
     cases: cross([30000, 60000], [10, 40], [0, 60, 85, 95], [0, 180]) },
   { name: "0-5 km, sun -6..5 deg, view < 10 deg above the horizon", target: 0.03, assert: "target",
     cases: cross([0, 5000], [2, -3], [82, 87], [0, 90, 180]) },
-  { name: "0-5 km, sun -12..-6 deg", target: 0.10, bound: 0.238,
+  { name: "0-5 km, sun -12..-6 deg", target: 0.10, assert: "target",
     cases: cross([0, 5000], [-8, -11], [0, 60, 85], [0, 180]) },
   // The band above the earth's shadow seen aloft (layout version 9: the sky rows' focus up to
-  // 20 km, the columns aloft read at the query's altitude's azimuths in SkyViewBandRows);
-  // measured 2.84 % (G, 12.5 km, sun -3 deg, zenith 88 deg, 120 deg from the sun), bound x 1.15.
-  { name: "8-20 km, sun -5..-1 deg, the band above the earth's shadow", target: 0.03, bound: 0.033,
+  // 20 km, the columns aloft read at the query's altitude's azimuths in SkyViewBandRows).
+  { name: "8-20 km, sun -5..-1 deg, the band above the earth's shadow", target: 0.03, assert: "target",
     cases: cross([8000, 12500, 17000], [-1, -3, -5], [84, 86, 88], [120, 150, 180]) },
   // Below the horizontal (layout version 10: the limb rows' focus on the band and each slice read
-  // at the query's depth relative to it, SkyViewLimbFocus, SkyViewLimbSliceDepth); the reader's
-  // error on these cases (standard) 2.34 % (12.5 km, sun -3 deg, zenith 93.25 deg, 150 deg, R);
-  // the shader's (draft) 3.04 % (R, 20 km, sun -4 deg, zenith 93.25 deg, 180 deg), bound x 1.15.
-  { name: "12.5-20 km, sun -5..-3 deg, the band below the horizontal", target: 0.03, bound: 0.035,
+  // at the query's depth relative to it, SkyViewLimbFocus, SkyViewLimbSliceDepth).
+  { name: "12.5-20 km, sun -5..-3 deg, the band below the horizontal", target: 0.03, assert: "target",
     cases: cross([12500, 17000, 20000], [-3, -4, -5], [91.5, 92.5, 93.25], [150, 180]) },
 ];
 // (a) for skyview, per band (every sky query grouped by its band): the skyview shader fetches
