@@ -527,9 +527,9 @@ fn twilight_glow_errors(f: &Fixture, reader: &SkyViewReader) -> (f64, String) {
 /// target is 10 % (sun down to −12°), not met: measured on 2026-12-06 (earth, standard, RGB,
 /// layout version 11) 17.8 % at 5 km, sun −7°, 0.25° above the horizon towards the sun, 440 nm
 /// (too bright); 39 of the grid's 37 800 values (12 600 views × 3 channels) over 10 %, all
-/// within 4° of the horizon, at 5 km
-/// (sun −8…−6°, too bright), 15 km (−12…−9°, too dark) and 20 km (−9°, too dark); 6.8 % at the
-/// ground, 8.0 % at 2.5 km, 8.9 % at 10 km. The bound is the measured + ~12 %.
+/// within 4° of the horizon, at 5 km (sun −8…−6°, too bright), 15 km (−12…−9°, too dark) and
+/// 20 km (−9°, too dark); 6.8 % at the ground, 8.0 % at 2.5 km, 8.9 % at 10 km. The bound is
+/// the measured + ~12 %.
 #[test]
 #[ignore = "builds a bundle (about 10 s of CPU): run with --ignored lut_skyview::"]
 fn skyview_the_twilight_glow_in_deep_twilight() {
