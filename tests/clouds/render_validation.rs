@@ -709,4 +709,3 @@ fn slab_split_by_smooth_scatterings_against_disort() {
         );
     }
 }
-
