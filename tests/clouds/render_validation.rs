@@ -644,7 +644,9 @@ fn slab_split_by_smooth_scatterings_against_disort() {
             };
             let rplus = |mu: f64| (phase.eval(mu) - (1.0 - f) * smooth.eval(mu)).max(0.0);
             let tracer = PathTracer::new(reference.vol(), &scene.optics, &lt, 0);
-            let (mut acc, mut sum2) = ([0.0f64; 3], 0.0f64);
+            // Classes n = 0, 1, 2, 3, 4–5, ≥ 6.
+            let class = |n: usize| n.min(4) + usize::from(n >= 6);
+            let (mut acc, mut sum2) = ([0.0f64; 6], 0.0f64);
             for i in 0..w * h {
                 let mut rng = rand_pcg::Pcg64::seed_from_u64(
                     0x5EED ^ (i as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15),
@@ -663,8 +665,8 @@ fn slab_split_by_smooth_scatterings_against_disort() {
                         let tr = tracer.transmittance(pos, lt.sun_dir, k, &mut rng);
                         let (pk, all) = (rplus(mu), phase.eval(mu));
                         let e = lt.sun_irradiance[0] * tr;
-                        acc[n.min(2)] += e * pk;
-                        acc[(n + 1).min(2)] += e * (all - pk);
+                        acc[class(n)] += e * pk;
+                        acc[class(n + 1)] += e * (all - pk);
                         path += e * all;
                         let mut more = || rng.random::<f64>();
                         let (u1, u2) = (more(), more());
@@ -682,12 +684,16 @@ fn slab_split_by_smooth_scatterings_against_disort() {
             let c = acc.map(|v| v / count);
             let total: f64 = c.iter().sum();
             let sigma = ((sum2 / count - total * total).max(0.0) / count).sqrt() / total;
-            let (lo, hi) = (c[0] + c[1], c[2]);
+            let (lo, hi) = (c[0] + c[1], c[2..].iter().sum::<f64>());
             println!(
-                "tau {tau} [{vz:.0}° {raz:.0}°] DISORT {expected:.5}, classed path tracer {:+.1} % (noise {:.1} %): n ≤ 1 {lo:.5} (n = 0 {:.5}), n ≥ 2 {hi:.5}; fast {:+.1} %: TMS single scattering {fast_ss:.5} ({:+.1} %), field {:.5} ({:+.1} %)",
+                "tau {tau} [{vz:.0}° {raz:.0}°] DISORT {expected:.5}, classed path tracer {:+.1} % (noise {:.1} %): n ≤ 1 {lo:.5} (n = 0 {:.5}), n ≥ 2 {hi:.5} (n = 2 / 3 / 4–5 / ≥ 6: {:.5} / {:.5} / {:.5} / {:.5}); fast {:+.1} %: TMS single scattering {fast_ss:.5} ({:+.1} %), field {:.5} ({:+.1} %)",
                 (total / expected - 1.0) * 100.0,
                 sigma * 100.0,
                 c[0],
+                c[2],
+                c[3],
+                c[4],
+                c[5],
                 (fast_total / expected - 1.0) * 100.0,
                 (fast_ss / lo - 1.0) * 100.0,
                 fast_total - fast_ss,
