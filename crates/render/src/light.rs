@@ -97,6 +97,8 @@ fn sun_paths(grid: &DensityGrid, sun_dir: DVec3, vol: Option<&CloudVolume>) -> V
     let layer_len = n[b] * n[c];
     // Every layer's every row is written before the final pass reads it.
     let mut by_layer = super::pages::take_f32(grid.data.len());
+    // Index steps of the grid's axes (x, y, z), as `DensityGrid::index`.
+    let strides = [1, nx, nx * ny];
     for &ia in &layers {
         // Each layer depends only on the previous one: its rows run in parallel.
         next_vals
@@ -105,6 +107,35 @@ fn sun_paths(grid: &DensityGrid, sun_dir: DVec3, vol: Option<&CloudVolume>) -> V
             .enumerate()
             .for_each(|(ib, (row, row_out))| {
                 for (ic, slot) in row.iter_mut().enumerate() {
+                    // The usual voxel, away from the cloud and its light: no density within
+                    // two voxels and the previous layer's four nearest values 0 (both cases
+                    // below), so its path is 0, found without the voxel's position.
+                    if let (Some(_), Some(near)) = (prev, &near) {
+                        let at = ia * strides[a] + ib * strides[b] + ic * strides[c];
+                        let (fb, fc) = (ib as f64 + shift_b, ic as f64 + shift_c);
+                        if grid.data[at] == 0.0
+                            && !near[at]
+                            && fb >= 0.0
+                            && fc >= 0.0
+                            && fb <= (n[b] - 1) as f64
+                            && fc <= (n[c] - 1) as f64
+                        {
+                            let (b0, c0) = (
+                                super::volume::floor(fb) as usize,
+                                super::volume::floor(fc) as usize,
+                            );
+                            let (b1, c1) = ((b0 + 1).min(n[b] - 1), (c0 + 1).min(n[c] - 1));
+                            let g = |x: usize, y: usize| layer_vals[x * n[c] + y];
+                            if g(b0, c0) == 0.0
+                                && g(b1, c0) == 0.0
+                                && g(b0, c1) == 0.0
+                                && g(b1, c1) == 0.0
+                            {
+                                *slot = 0.0;
+                                continue;
+                            }
+                        }
+                    }
                     let mut v = [0usize; 3];
                     v[a] = ia;
                     v[b] = ib;
@@ -150,7 +181,21 @@ fn sun_paths(grid: &DensityGrid, sun_dir: DVec3, vol: Option<&CloudVolume>) -> V
                                 let (b1, c1) = ((b0 + 1).min(n[b] - 1), (c0 + 1).min(n[c] - 1));
                                 let (tb, tc) = (fb - b0 as f64, fc - c0 as f64);
                                 let g = |x: usize, y: usize| layer_vals[x * n[c] + y];
-                                if b0 >= 1 && c0 >= 1 && b0 + 2 < n[b] && c0 + 2 < n[c] {
+                                let (v00, v10, v01, v11) =
+                                    (g(b0, c0), g(b1, c0), g(b0, c1), g(b1, c1));
+                                if near.is_some()
+                                    && v00 == 0.0
+                                    && v10 == 0.0
+                                    && v01 == 0.0
+                                    && v11 == 0.0
+                                {
+                                    // Both interpolations are 0 here (the bicubic one is
+                                    // clamped to these four, the bilinear one weighs them):
+                                    // the sun's side of the cloud and the light that passes
+                                    // it by, most of the grid. Only where a volume is given,
+                                    // as the skipped density samples above.
+                                    0.0
+                                } else if b0 >= 1 && c0 >= 1 && b0 + 2 < n[b] && c0 + 2 < n[c] {
                                     let (wb, wc) = (catmull_rom(tb), catmull_rom(tc));
                                     let mut v = 0.0;
                                     for (i, wi) in wb.iter().enumerate() {
@@ -160,8 +205,6 @@ fn sun_paths(grid: &DensityGrid, sun_dir: DVec3, vol: Option<&CloudVolume>) -> V
                                         }
                                         v += wi * row;
                                     }
-                                    let (v00, v10, v01, v11) =
-                                        (g(b0, c0), g(b1, c0), g(b0, c1), g(b1, c1));
                                     v.clamp(
                                         v00.min(v10).min(v01).min(v11),
                                         v00.max(v10).max(v01).max(v11),
@@ -462,12 +505,18 @@ impl SkyElements {
         let view_cap = VIEW_CAP_DEG.to_radians().cos();
         let cap_share: Vec<f64> = phases.iter().map(|p| cap_integral(p, view_cap)).collect();
         let dw = 4.0 * PI / quad_points as f64;
-        // Quadrature nodes with their element outside the view cap and radiance.
-        let mut nodes: Vec<(DVec3, usize, Vec<f64>)> = Vec::new();
-        let mut rad = vec![0.0; n_l];
-        for i in 0..quad_points {
+        // Quadrature nodes: directions, their element outside the view cap, and radiances
+        // (`n_l` per node).
+        let mut node_dirs: Vec<DVec3> = Vec::with_capacity(quad_points);
+        let mut node_el: Vec<usize> = Vec::with_capacity(quad_points);
+        let mut node_rad = vec![0.0; quad_points * n_l];
+        for (i, rad) in node_rad
+            .chunks_mut(n_l.max(1))
+            .enumerate()
+            .take(quad_points)
+        {
             let w = fibonacci(i, quad_points);
-            lighting.env(w, &mut rad);
+            lighting.env(w, rad);
             let el = if lighting.sun_dir.dot(w) > cap {
                 0
             } else {
@@ -475,36 +524,54 @@ impl SkyElements {
                     .max_by(|&a, &b| dirs[a].dot(w).total_cmp(&dirs[b].dot(w)))
                     .unwrap_or(0)
             };
-            nodes.push((w, el, rad.clone()));
+            node_dirs.push(w);
+            node_el.push(el);
         }
+        let n_nodes = node_dirs.len();
         let per = elements * n_l;
         let fresh: Vec<bool> = (0..n_l)
             .map(|l| l == 0 || phases[l] != phases[l - 1])
             .collect();
+        let n_fresh = fresh.iter().filter(|&&f| f).count();
         let mut table = vec![0f32; n_elev * n_az * per];
         table.par_chunks_mut(per).enumerate().for_each(|(k, dst)| {
             let d = table_dir(k / n_az, k % n_az, n_elev, n_az);
             let mut acc = vec![0.0f64; per];
             let mut l_view = vec![0.0; n_l];
             lighting.env(d, &mut l_view);
-            for (w, el, r) in &nodes {
-                let mu = d.dot(*w);
-                // Wavelengths with the previous one's phase function share its value.
+            // The phase function's value at every node, once per distinct phase function
+            // (wavelengths with the previous one's share its values).
+            let mut mus = vec![0.0; n_nodes];
+            for (m, w) in mus.iter_mut().zip(&node_dirs) {
+                *m = d.dot(*w);
+            }
+            let mut values = vec![0.0; n_fresh * n_nodes];
+            for (l, out) in (0..n_l)
+                .filter(|&l| fresh[l])
+                .zip(values.chunks_mut(n_nodes.max(1)))
+            {
+                phase_values(&phases[l], &mus, out);
+            }
+            for (i, (&el, &mu)) in node_el.iter().zip(&mus).enumerate() {
+                let r = &node_rad[i * n_l..(i + 1) * n_l];
                 let mut f = 0.0;
+                let mut slot = 0;
                 if mu > view_cap {
                     // Within the cap: the radiance's departure from the view direction's
                     // along this direction's own element's path; the cap's uniform part, with
                     // the peak's share taken out, is added analytically below.
                     for l in 0..n_l {
                         if fresh[l] {
-                            f = phases[l].eval(mu);
+                            f = values[slot * n_nodes + i];
+                            slot += 1;
                         }
                         acc[el * n_l + l] += f * (r[l] - l_view[l]) * dw;
                     }
                 } else {
                     for l in 0..n_l {
                         if fresh[l] {
-                            f = phases[l].eval(mu);
+                            f = values[slot * n_nodes + i];
+                            slot += 1;
                         }
                         acc[el * n_l + l] += f * r[l] * dw;
                     }
@@ -575,6 +642,34 @@ impl SkyElements {
     }
 }
 
+/// `phase.eval(μ)` for every μ of `mus` into `out`: the Henyey-Greenstein function as
+/// [`Phase::eval`] computes it (the same operations, so the same values), several nodes at
+/// once; any other phase function through [`Phase::eval`].
+fn phase_values(phase: &Phase, mus: &[f64], out: &mut [f64]) {
+    match *phase {
+        Phase::HenyeyGreenstein { g } => henyey_greenstein_values(g, mus, out),
+        _ => {
+            for (o, &mu) in out.iter_mut().zip(mus) {
+                *o = phase.eval(mu);
+            }
+        }
+    }
+}
+
+skybake_physics::simd_dispatch! {
+    /// [`Phase::eval`] of `Phase::HenyeyGreenstein { g }` (Henyey & Greenstein 1941) at every
+    /// μ of `mus`, with its operations in its order (the square root and the division are
+    /// correctly rounded in either copy, and Rust contracts no multiply-add): compiled a second
+    /// time for AVX2 so that four nodes share each square root and division.
+    fn henyey_greenstein_values(g: f64, mus: &[f64], out: &mut [f64]) {
+        for (o, &cos_theta) in out.iter_mut().zip(mus) {
+            let mu = cos_theta.clamp(-1.0, 1.0);
+            let d = (1.0 + g * g - 2.0 * g * mu).max(1e-12);
+            *o = (1.0 - g * g) / (4.0 * PI * d * d.sqrt());
+        }
+    }
+}
+
 /// ∫ F(μ) dω over the cap μ ≥ `mu0` around the forward direction: 2π ∫_{μ0}^{1} F dμ on a
 /// grid geometric in 1 − μ (strongly forward phase functions peak within 10⁻⁴ of μ = 1).
 fn cap_integral(phase: &Phase, mu0: f64) -> f64 {
@@ -635,8 +730,9 @@ mod tests {
         .expect("grid")
     }
 
-    /// The sun's paths skipping steps with no density near them are bit for bit the paths
-    /// sampling every step, for suns along each axis's two senses and oblique.
+    /// The sun's paths skipping steps with no density near them, and the interpolation where
+    /// the previous layer's four nearest values are 0, are bit for bit the paths sampling and
+    /// interpolating at every step, for suns along each axis's two senses and oblique.
     #[test]
     fn sun_paths_skipping_empty_space_are_unchanged() {
         let grid = DensityGrid::from_fn([20, 17, 15], 10.0, DVec3::new(0.0, 0.0, 500.0), |p| {
@@ -767,6 +863,38 @@ mod tests {
                 .zip(&walk)
                 .all(|(a, b)| a.to_bits() == b.to_bits());
             assert!(same, "direction {e:?}");
+        }
+    }
+
+    /// The sky elements' phase values several nodes at a time are [`Phase::eval`]'s, bit for
+    /// bit, for Henyey-Greenstein at several asymmetries (cosines on the whole range, beyond
+    /// it and next to the forward peak) and for the other phase functions.
+    #[test]
+    fn phase_values_are_the_phase_function_s() {
+        let mut mus: Vec<f64> = (0..=4001).map(|i| -1.0 + 2.0 * i as f64 / 4001.0).collect();
+        mus.extend([
+            1.0,
+            1.0 - 1e-12,
+            1.0 - 1e-7,
+            -1.0,
+            1.0 + 1e-9,
+            -1.0 - 1e-9,
+            0.0,
+            -0.0,
+        ]);
+        for phase in [
+            Phase::HenyeyGreenstein { g: 0.85 },
+            Phase::HenyeyGreenstein { g: -0.3 },
+            Phase::HenyeyGreenstein { g: 0.0 },
+            Phase::HenyeyGreenstein { g: 0.999 },
+            Phase::CornetteShanks { g: 0.8 },
+            Phase::Rayleigh,
+        ] {
+            let mut out = vec![f64::NAN; mus.len()];
+            phase_values(&phase, &mus, &mut out);
+            for (&mu, &v) in mus.iter().zip(&out) {
+                assert_eq!(v.to_bits(), phase.eval(mu).to_bits(), "{phase:?} at {mu}");
+            }
         }
     }
 }
