@@ -35,8 +35,8 @@ use skybake_physics::atmosphere::transmittance::{
 };
 use skybake_physics::phase::Phase;
 
-use crate::ms_columns;
 use crate::param::{self, AtmosphereParameters, *};
+use crate::{ms_columns, ms_directions, ms_rows};
 
 /// Texture values are radiometric quantities in milliwatts (mW m⁻² sr⁻¹ nm⁻¹, mW m⁻² nm⁻¹):
 /// texture value = value in W × this. Keeps the half-float scattering texture in its normal
@@ -440,69 +440,131 @@ pub(crate) fn irradiance_grid(
 ) -> Vec<f64> {
     let m = &shared.medium;
     let n_c = idx.len();
+    let n_l = m.len();
     let (radii, width, mu_s_of) = (grid.radii, grid.width, grid.mu_s);
     let (x, w) = gauss_legendre(SUN_PRODUCT_N_MU);
     let n_phi = SUN_PRODUCT_N_PHI;
+    // With `ms_columns`, the multiple scattering of every other direction first, then the
+    // directions between from them where smooth ([`ms_directions`]): `known` holds the first
+    // pass's per metre of ray, by task.
+    let elevations: Vec<f64> = x.iter().map(|&x| (0.5 * (x + 1.0)).asin()).collect();
+    let dir_stencils = ms_directions::stencils(&elevations);
     // One task per (row, cos θ node): that row's contributions of that direction.
-    let parts: Vec<(usize, Vec<f64>)> = (0..radii.len() * SUN_PRODUCT_N_MU)
-        .into_par_iter()
-        .map_init(
-            || FamilyScratch::new(shared, m.len()),
-            |scratch, task| {
-                let (j, a) = (task / SUN_PRODUCT_N_MU, task % SUN_PRODUCT_N_MU);
-                let r = radii[j];
-                let mu = 0.5 * (x[a] + 1.0);
-                let sin_t = (1.0 - mu * mu).max(0.0).sqrt();
-                let weight = 0.5 * w[a] * mu * 2.0 * std::f64::consts::PI / n_phi as f64;
-                let mut row = vec![0.0; width * n_c];
-                if cancelled() {
-                    return (j, row);
+    let dir_task = |scratch: &mut FamilyScratch<'_>,
+                    task: usize,
+                    known: &[Option<Vec<f64>>]|
+     -> ((usize, Vec<f64>), Option<Vec<f64>>) {
+        let (j, a) = (task / SUN_PRODUCT_N_MU, task % SUN_PRODUCT_N_MU);
+        let r = radii[j];
+        let mu = 0.5 * (x[a] + 1.0);
+        let sin_t = (1.0 - mu * mu).max(0.0).sqrt();
+        let weight = 0.5 * w[a] * mu * 2.0 * std::f64::consts::PI / n_phi as f64;
+        let mut row = vec![0.0; width * n_c];
+        if cancelled() {
+            return ((j, row), None);
+        }
+        scratch.prepare(r, mu, steps);
+        let mut nus = Vec::with_capacity(width * n_phi);
+        for i in 0..width {
+            let mu_s = mu_s_of(j, i);
+            let sin_s = (1.0 - mu_s * mu_s).max(0.0).sqrt();
+            for b in 0..n_phi {
+                let phi = std::f64::consts::PI * (b as f64 + 0.5) / n_phi as f64;
+                let nu = (mu * mu_s + sin_t * sin_s * phi.cos()).clamp(-1.0, 1.0);
+                scratch.push_sun(mu_s, nu);
+                nus.push(nu);
+            }
+        }
+        let mut record = None;
+        if grid.ms_columns {
+            let phis: Vec<f64> = (0..n_phi)
+                .map(|b| std::f64::consts::PI * (b as f64 + 0.5) / n_phi as f64)
+                .collect();
+            // Over the row's suns as well, by their elevation unwrapped past the
+            // zenith (the nodes reach 104° above the horizon, where μs falls again).
+            let mut suns = Vec::with_capacity(width);
+            for i in 0..width {
+                let e = mu_s_of(j, i).asin();
+                let prev = if i == 0 { e } else { mu_s_of(j, i - 1).asin() };
+                suns.push(suns.last().map_or(e, |&c: &f64| c + (e - prev).abs()));
+            }
+            // The ray's length to the top of the atmosphere (upward: μ > 0).
+            let top = m.top_radius_m;
+            let d = ((r * r * (mu * mu - 1.0) + top * top).max(0.0).sqrt() - r * mu).max(1.0);
+            match dir_stencils[a] {
+                Some(st) if !known.is_empty() => {
+                    let row_of = |c: usize| known[j * SUN_PRODUCT_N_MU + c].as_deref();
+                    scratch.integrate_grid_guessed(&phis, &suns, ms_rows::TOLERANCE, |t, l| {
+                        let (y, rough) = ms_rows::guess(&st, |c| {
+                            row_of(c).map_or(f64::NAN, |v| v[t * n_l + l])
+                        })?;
+                        Some((y * d, rough))
+                    });
                 }
-                scratch.prepare(r, mu, steps);
-                let mut nus = Vec::with_capacity(width * n_phi);
-                for i in 0..width {
-                    let mu_s = mu_s_of(j, i);
-                    let sin_s = (1.0 - mu_s * mu_s).max(0.0).sqrt();
-                    for b in 0..n_phi {
-                        let phi = std::f64::consts::PI * (b as f64 + 0.5) / n_phi as f64;
-                        let nu = (mu * mu_s + sin_t * sin_s * phi.cos()).clamp(-1.0, 1.0);
-                        scratch.push_sun(mu_s, nu);
-                        nus.push(nu);
+                _ => scratch.integrate_grid(&phis, &suns),
+            }
+            if dir_stencils[a].is_none() {
+                let n_t = width * n_phi;
+                let mut per_m = vec![f64::NAN; n_t * n_l];
+                for t in 0..n_t {
+                    let ms = scratch.texel(t).multiple;
+                    for l in 0..n_l {
+                        per_m[t * n_l + l] = ms[l] / d;
                     }
                 }
-                if grid.ms_columns {
-                    let phis: Vec<f64> = (0..n_phi)
-                        .map(|b| std::f64::consts::PI * (b as f64 + 0.5) / n_phi as f64)
-                        .collect();
-                    // Over the row's suns as well, by their elevation unwrapped past the
-                    // zenith (the nodes reach 104° above the horizon, where μs falls again).
-                    let mut suns = Vec::with_capacity(width);
-                    for i in 0..width {
-                        let e = mu_s_of(j, i).asin();
-                        let prev = if i == 0 { e } else { mu_s_of(j, i - 1).asin() };
-                        suns.push(suns.last().map_or(e, |&c: &f64| c + (e - prev).abs()));
-                    }
-                    scratch.integrate_grid(&phis, &suns);
-                } else {
-                    scratch.integrate();
+                record = Some(per_m);
+            }
+        } else {
+            scratch.integrate();
+        }
+        for i in 0..width {
+            for b in 0..n_phi {
+                let nu = nus[i * n_phi + b];
+                let (p_r, p_m) = (Phase::Rayleigh.eval(nu), m.mie_phase.eval(nu));
+                let s = scratch.texel(i * n_phi + b);
+                for (c, &l) in idx.iter().enumerate() {
+                    let radiance = s.rayleigh[l] * p_r + s.mie[l] * p_m + s.multiple[l];
+                    row[i * n_c + c] += weight * radiance * e0[c];
                 }
-                for i in 0..width {
-                    for b in 0..n_phi {
-                        let nu = nus[i * n_phi + b];
-                        let (p_r, p_m) = (Phase::Rayleigh.eval(nu), m.mie_phase.eval(nu));
-                        let s = scratch.texel(i * n_phi + b);
-                        for (c, &l) in idx.iter().enumerate() {
-                            let radiance = s.rayleigh[l] * p_r + s.mie[l] * p_m + s.multiple[l];
-                            row[i * n_c + c] += weight * radiance * e0[c];
-                        }
-                    }
-                }
-                (j, row)
-            },
-        )
-        .collect();
+            }
+        }
+        ((j, row), record)
+    };
+    let pass = |tasks: Vec<usize>, known: &[Option<Vec<f64>>]| -> Vec<_> {
+        tasks
+            .into_par_iter()
+            .map_init(
+                || FamilyScratch::new(shared, m.len()),
+                |scratch, task| (task, dir_task(scratch, task, known)),
+            )
+            .collect()
+    };
+    let all = 0..radii.len() * SUN_PRODUCT_N_MU;
+    let mut parts = Vec::with_capacity(all.len());
+    if grid.ms_columns {
+        let (first, others): (Vec<usize>, Vec<usize>) =
+            all.partition(|&task| dir_stencils[task % SUN_PRODUCT_N_MU].is_none());
+        let mut known: Vec<Option<Vec<f64>>> = vec![None; radii.len() * SUN_PRODUCT_N_MU];
+        for (task, (part, record)) in pass(first, &[]) {
+            known[task] = record;
+            parts.push((task, part));
+        }
+        parts.extend(
+            pass(others, &known)
+                .into_iter()
+                .map(|(task, (part, _))| (task, part)),
+        );
+        // Summed in the directions' order, as one pass gives them.
+        parts.sort_by_key(|&(task, _)| task);
+    } else {
+        parts.extend(
+            pass(all.collect(), &[])
+                .into_iter()
+                .map(|(task, (part, _))| (task, part)),
+        );
+    }
     let mut sums = vec![0.0f64; radii.len() * width * n_c];
-    for (j, row) in parts {
+    for (_, (j, row)) in parts {
         let k = j * width * n_c;
         for (s, v) in sums[k..k + row.len()].iter_mut().zip(row) {
             *s += v;

@@ -10,6 +10,7 @@ pub mod build;
 pub mod load;
 pub mod manifest;
 mod ms_columns;
+mod ms_directions;
 mod ms_rows;
 pub mod param;
 pub mod reader;
