@@ -48,7 +48,7 @@ pub use face::{
     profiles as face_build_up, FaceQuadrature, SunAtVoxel, MU_NODES as FACE_MU_NODES,
     N_PHI as FACE_N_PHI,
 };
-pub use once::{real_sh_high, OnceField, ONCE_MOMENTS, ONCE_ORDER};
+pub use once::{OnceField, ONCE_MOMENTS, ONCE_ORDER};
 pub use skin::{SkinField, SKIN_TAU};
 
 /// Settings of the photon pass.
@@ -246,12 +246,6 @@ impl MsField {
                 groups.len(),
                 group_of,
                 lighting.sun_irradiance.clone(),
-                optics
-                    .phase
-                    .iter()
-                    .zip(&truncation)
-                    .map(|(p, t)| once::classed_moments(p, t, ONCE_ORDER))
-                    .collect(),
             )
         });
         for (gi, group) in groups.into_iter().enumerate() {
@@ -402,6 +396,7 @@ impl MsField {
                                     target,
                                     group.len(),
                                     &ylm[..moments],
+                                    false,
                                 ) {
                                     break;
                                 }
@@ -421,15 +416,14 @@ impl MsField {
                                                 &mut ph,
                                                 (c, r, sigma_tr),
                                                 &w,
-                                                if sun_once && smooth == 1 {
-                                                    &mut acc_once
-                                                } else {
-                                                    &mut acc
-                                                },
+                                                &mut acc,
                                                 moments,
                                                 cell_volume,
                                                 &mut rng,
                                             );
+                                            // The walk stands for many scatterings: no
+                                            // longer once-scattered light.
+                                            smooth = smooth.max(2);
                                             if !thick_roulette(&mut thick_events, &mut w, &mut rng)
                                             {
                                                 break;
@@ -543,7 +537,7 @@ impl MsField {
             .map(|t| scaled_moments(t, order))
             .collect();
         if let Some(o) = once.as_mut() {
-            o.finish(&once_dm, moments, &phase_moments);
+            o.finish(&once_dm, moments, &phase_moments, &coarse.rho);
         }
         Ok(Self {
             dims: coarse.dims,
@@ -1069,6 +1063,7 @@ skybake_physics::simd_dispatch! {
         acc: &mut [f64],
         ng: usize,
         ylm: &[f64],
+        cloud_only: bool,
     ) -> bool {
         let mut tau = tau_in;
         let Some((t0, t1)) = super::camera::box_interval(ph.pos, ph.dir, lo, hi) else {
@@ -1128,7 +1123,7 @@ skybake_physics::simd_dispatch! {
             } else {
                 (len, false)
             };
-            if ph.scattered && used > 0.0 {
+            if ph.scattered && used > 0.0 && (!cloud_only || g.rho[c] > 0.0) {
                 let s = used / cell_volume;
                 let n = ylm.len();
                 for gi in 0..ng {

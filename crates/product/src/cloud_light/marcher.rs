@@ -26,8 +26,7 @@ use super::{
 use skybake_physics::phase::orthonormal_basis;
 use skybake_render::march::{MARCH_CUTOFF, THICK_STEP};
 use skybake_render::multiple::{
-    face_build_up, real_sh_high, FACE_MU_NODES as MU_NODES, FACE_N_PHI as N_PHI, ONCE_MOMENTS,
-    ONCE_ORDER,
+    face_build_up, FACE_MU_NODES as MU_NODES, FACE_N_PHI as N_PHI, ONCE_MOMENTS,
 };
 
 /// Where a client's ray leaves the cloud, per wavelength: the cloud's radiance I and its true
@@ -144,7 +143,7 @@ impl<'a> Marcher<'a> {
             let [nx, ny, nz] = cl.dims;
             let n_l = cl.n_l();
             let mut once = vec![vec![0f32; nx * ny * nz]; n_l];
-            let mut ylm = [0.0; ONCE_MOMENTS];
+            let mut ylm = [0.0; 25];
             for z in 0..nz {
                 for y in 0..ny {
                     for x in 0..nx {
@@ -158,7 +157,7 @@ impl<'a> Marcher<'a> {
                         if out.view_face([x, y, z], d).is_some() {
                             continue;
                         }
-                        real_sh_high(-d, ONCE_ORDER, &mut ylm);
+                        sh(-d, &mut ylm);
                         for (l, o) in once.iter_mut().enumerate() {
                             o[idx] = (0..ONCE_MOMENTS)
                                 .map(|m| cl.once[l * ONCE_MOMENTS + m][idx] as f64 * ylm[m])
