@@ -1273,7 +1273,6 @@ mod tests {
             max_coarse_dim: 8,
             seed: 1,
             angular_order: 3,
-            once: None,
             truncation_power: 3.5,
             peak_spread: 0.0,
         };
