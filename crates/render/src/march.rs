@@ -293,6 +293,7 @@ impl<'a> Prepared<'a> {
                 let quad = FaceQuadrature::new(field.angular_order());
                 let k_true = &optics.extinction_per_density_m;
                 let cells = lit.ms_cells.get_or_init(|| field.convolved_cells());
+                let once = field.once_towards(&view);
                 vox.par_chunks_mut(nx * ny * stride)
                     .enumerate()
                     .for_each(|(z, slab)| {
@@ -313,6 +314,7 @@ impl<'a> Prepared<'a> {
                                 grid,
                                 field,
                                 cells,
+                                &once,
                                 &quad,
                                 k_true,
                                 [i % nx, i / nx, z],
@@ -332,6 +334,7 @@ impl<'a> Prepared<'a> {
                     mask,
                     field,
                     cells,
+                    &once,
                     ms_albedo,
                     &view,
                     &quad,
@@ -1299,6 +1302,7 @@ fn field_source(
     grid: &DensityGrid,
     field: &super::multiple::MsField,
     cells: &super::multiple::ConvolvedCells,
+    once: &[f32],
     quad: &FaceQuadrature,
     k_true: &[f64],
     ijk: [usize; 3],
@@ -1353,7 +1357,11 @@ fn field_source(
                 out,
             )
         }
-        None => field.inscatter_convolved(cells, p, d, out),
+        None => {
+            field.inscatter_convolved(cells, p, d, out);
+            // The sun's once-scattered light in place of the field's (not through a face).
+            field.once_add(once, p, out);
+        }
     }
 }
 
@@ -1369,6 +1377,7 @@ fn skin_sources(
     mask: &[bool],
     field: &super::multiple::MsField,
     cells: &super::multiple::ConvolvedCells,
+    once: &[f32],
     ms_albedo: &[f64],
     view: &(dyn Fn(DVec3) -> DVec3 + Sync),
     quad: &FaceQuadrature,
@@ -1402,6 +1411,7 @@ fn skin_sources(
                     grid,
                     field,
                     cells,
+                    once,
                     quad,
                     k_true,
                     [i % nx, i / nx, z],

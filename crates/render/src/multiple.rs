@@ -41,12 +41,14 @@ use std::f64::consts::PI;
 
 mod convolved;
 mod face;
+mod once;
 mod skin;
 pub use convolved::ConvolvedCells;
 pub use face::{
     profiles as face_build_up, FaceQuadrature, SunAtVoxel, MU_NODES as FACE_MU_NODES,
     N_PHI as FACE_N_PHI,
 };
+pub use once::{OnceField, ONCE_MOMENTS, ONCE_ORDER};
 pub use skin::{SkinField, SKIN_TAU};
 
 /// Settings of the photon pass.
@@ -96,6 +98,9 @@ pub struct MsField {
     angular_order: usize,
     /// Coefficients per cell and wavelength, (L + 1)².
     moments: usize,
+    /// The sun's once-scattered light in the true medium, which the field's tallies leave out
+    /// (see [`once`]); `None` without δ-M truncation or sunlight.
+    once: Option<OnceField>,
 }
 
 /// Largest scaled optical depth σ_t*·Δ (at the densest voxel round a step) over which one
@@ -182,7 +187,9 @@ struct Photon {
 impl MsField {
     /// Bytes held by the field's tables.
     pub fn bytes(&self) -> usize {
-        4 * (self.data.len() + self.rho.len()) + self.skin.as_ref().map_or(0, SkinField::bytes)
+        4 * (self.data.len() + self.rho.len())
+            + self.skin.as_ref().map_or(0, SkinField::bytes)
+            + self.once.as_ref().map_or(0, OnceField::bytes)
     }
 
     /// Runs the photon pass for every group of wavelengths with identical optics; `cancel` is
@@ -208,6 +215,8 @@ impl MsField {
             .map(|(p, &a)| Truncation::new(p.mean_cosine(), a, s.truncation_power))
             .collect();
         let (skin_cells, skin_depth) = skin_setup(&mut coarse, grid, optics, &truncation);
+        // The δ-M once-scattered sunlight's part of `data` (cells only).
+        let mut once_dm = vec![0f32; cells * n_l * moments];
         let mut skin_data = vec![0f32; skin_cells * n_l * moments];
         let lo = coarse.origin_m;
         let hi = coarse.hi();
@@ -215,7 +224,31 @@ impl MsField {
         let radius = 0.5 * (hi - lo).length() * 1.001;
         let disc_area = PI * radius * radius;
         let cell_volume = coarse.cell_m.x * coarse.cell_m.y * coarse.cell_m.z;
-        for group in optics.groups() {
+        let groups = optics.groups();
+        let mut group_of = vec![0; n_l];
+        for (gi, group) in groups.iter().enumerate() {
+            for &l in group {
+                group_of[l] = gi;
+            }
+        }
+        // The sun's once-scattered light apart, in the true medium, for the groups with a
+        // truncated peak (see [`once`]).
+        let once_of = |l: usize| {
+            s.truncation_power > 0.0
+                && truncation[l].fraction > 0.0
+                && lighting.sun_dir.is_finite()
+                && lighting.sun_irradiance[l] > 0.0
+                && s.sun_photons > 0
+        };
+        let mut once = (0..n_l).any(once_of).then(|| {
+            OnceField::new(
+                cells,
+                groups.len(),
+                group_of,
+                lighting.sun_irradiance.clone(),
+            )
+        });
+        for (gi, group) in groups.into_iter().enumerate() {
             let l0 = group[0];
             let k = optics.extinction_per_density_m[l0];
             let tr = truncation[l0];
@@ -250,6 +283,8 @@ impl MsField {
                 _ => 0.5,
             };
             let total = n_sun + n_env;
+            // This group's sun photons leave their once-scattered light to `once`.
+            let once_here = once.is_some() && sun_on && group.iter().any(|&l| once_of(l));
             // Random shift of the launch sequence (Cranley & Patterson 1976), from the seed.
             let shift: [f64; 4] = {
                 let mut r = Pcg64::seed_from_u64(s.seed ^ 0x1A_u64.wrapping_mul(l0 as u64 + 1));
@@ -263,10 +298,17 @@ impl MsField {
             // accumulator, and the lanes are summed in order: the result does not depend on
             // the thread count or on scheduling (a resumed frame is bit-identical), and only
             // `lanes` accumulators are ever allocated.
-            let partial: Vec<Vec<f64>> = (0..lanes)
+            let partial: Vec<(Vec<f64>, Vec<f64>)> = (0..lanes)
                 .into_par_iter()
                 .map(|lane| {
                     let mut acc = super::pages::take_zeroed(lane_len);
+                    // The sun photons' tracks between their first and second scattering (the
+                    // δ-M once-scattered light), apart: `once` replaces it in the interior.
+                    let mut acc_once = if once_here {
+                        super::pages::take_zeroed(lane_len)
+                    } else {
+                        Vec::new()
+                    };
                     let mut env = vec![0.0; n_l];
                     let mut w = vec![0.0; group.len()];
                     let mut ylm = [0.0; (MAX_ORDER + 1) * (MAX_ORDER + 1)];
@@ -328,6 +370,8 @@ impl MsField {
                                 scattered: false,
                             };
                             let mut bounces = 0usize;
+                            let mut smooth = 0usize;
+                            let sun_once = once_here && i < n_sun;
                             let mut thick_events = 0usize;
                             let mut surv = 1.0f64;
                             loop {
@@ -335,6 +379,11 @@ impl MsField {
                                 if ph.scattered {
                                     real_sh(ph.dir, order, &mut ylm);
                                 }
+                                let target = if sun_once && smooth == 1 {
+                                    &mut acc_once
+                                } else {
+                                    &mut acc
+                                };
                                 if !fly(
                                     &coarse,
                                     lo,
@@ -344,9 +393,10 @@ impl MsField {
                                     k * scale,
                                     cell_volume,
                                     &w,
-                                    &mut acc,
+                                    target,
                                     group.len(),
                                     &ylm[..moments],
+                                    false,
                                 ) {
                                     break;
                                 }
@@ -371,6 +421,9 @@ impl MsField {
                                                 cell_volume,
                                                 &mut rng,
                                             );
+                                            // The walk stands for many scatterings: no
+                                            // longer once-scattered light.
+                                            smooth = smooth.max(2);
                                             if !thick_roulette(&mut thick_events, &mut w, &mut rng)
                                             {
                                                 break;
@@ -385,6 +438,7 @@ impl MsField {
                                     let (u1, u2) = (more(), more());
                                     phase.sample(ph.dir, u1, u2, &mut more).0
                                 };
+                                smooth += 1;
                                 ph.scattered = true;
                                 if thick {
                                     if !thick_roulette(&mut thick_events, &mut w, &mut rng) {
@@ -422,7 +476,7 @@ impl MsField {
                             }
                         }
                     }
-                    acc
+                    (acc, acc_once)
                 })
                 .collect();
             if cancelled.load(std::sync::atomic::Ordering::Relaxed) {
@@ -431,12 +485,16 @@ impl MsField {
             // The lanes summed in order per cell (cells in parallel: the same sums).
             let ng = group.len();
             data.par_chunks_mut(n_l * moments)
+                .zip(once_dm.par_chunks_mut(n_l * moments))
                 .enumerate()
-                .for_each(|(c, cell)| {
-                    for p in &partial {
+                .for_each(|(c, (cell, dm))| {
+                    for (p, q) in &partial {
                         for (gi, &l) in group.iter().enumerate() {
                             for m in 0..moments {
-                                cell[l * moments + m] += p[(c * ng + gi) * moments + m] as f32;
+                                let i = (c * ng + gi) * moments + m;
+                                let o = q.get(i).copied().unwrap_or(0.0);
+                                cell[l * moments + m] += (p[i] + o) as f32;
+                                dm[l * moments + m] += o as f32;
                             }
                         }
                     }
@@ -445,16 +503,41 @@ impl MsField {
                 .par_chunks_mut(n_l * moments)
                 .enumerate()
                 .for_each(|(s, cell)| {
-                    for p in &partial {
+                    for (p, q) in &partial {
                         for (gi, &l) in group.iter().enumerate() {
                             for m in 0..moments {
+                                let i = ((cells + s) * ng + gi) * moments + m;
                                 cell[l * moments + m] +=
-                                    p[((cells + s) * ng + gi) * moments + m] as f32;
+                                    (p[i] + q.get(i).copied().unwrap_or(0.0)) as f32;
                             }
                         }
                     }
                 });
-            partial.into_iter().for_each(super::pages::give_back);
+            for (p, q) in partial {
+                super::pages::give_back(p);
+                if !q.is_empty() {
+                    super::pages::give_back(q);
+                }
+            }
+            if let Some(o) = once.as_mut().filter(|_| once_here) {
+                let g = once::Group {
+                    phase: &optics.phase[l0],
+                    truncation: &tr,
+                    k,
+                    travel: -lighting.sun_dir,
+                    photons: n_sun * once::PHOTONS_PER_SUN_PHOTON,
+                    seed: s.seed ^ (l0 as u64) << 56,
+                };
+                let len = (cells + skin_cells) * once::ONCE_MOMENTS;
+                o.set_group(gi, &once::trace(&coarse, &g, accumulator_lanes(len).min(4)));
+            }
+        }
+        let phase_moments: Vec<Vec<f64>> = truncation
+            .iter()
+            .map(|t| scaled_moments(t, order))
+            .collect();
+        if let Some(o) = once.as_mut() {
+            o.finish(&once_dm, moments, &phase_moments, &coarse.rho);
         }
         Ok(Self {
             dims: coarse.dims,
@@ -462,10 +545,7 @@ impl MsField {
             origin_m: coarse.origin_m,
             n_l,
             data,
-            phase_moments: truncation
-                .iter()
-                .map(|t| scaled_moments(t, order))
-                .collect(),
+            phase_moments,
             extinction_scale: truncation.iter().map(|t| t.extinction_scale).collect(),
             albedo_scaled: truncation.iter().map(|t| t.albedo_scaled).collect(),
             rho: coarse.rho,
@@ -474,6 +554,7 @@ impl MsField {
                 .map(|sk| SkinField::new(sk, skin_data, skin_depth)),
             angular_order: order,
             moments,
+            once,
         })
     }
 
@@ -982,6 +1063,7 @@ skybake_physics::simd_dispatch! {
         acc: &mut [f64],
         ng: usize,
         ylm: &[f64],
+        cloud_only: bool,
     ) -> bool {
         let mut tau = tau_in;
         let Some((t0, t1)) = super::camera::box_interval(ph.pos, ph.dir, lo, hi) else {
@@ -1041,7 +1123,7 @@ skybake_physics::simd_dispatch! {
             } else {
                 (len, false)
             };
-            if ph.scattered && used > 0.0 {
+            if ph.scattered && used > 0.0 && (!cloud_only || g.rho[c] > 0.0) {
                 let s = used / cell_volume;
                 let n = ylm.len();
                 for gi in 0..ng {
@@ -1233,6 +1315,7 @@ mod tests {
             rho,
             skin: None,
             angular_order: 0,
+            once: None,
             moments: 1,
         };
         // A quarter of a cell from cell 0's centre towards cell 1 along x, at the centres'

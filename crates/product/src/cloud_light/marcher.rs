@@ -25,7 +25,9 @@ use super::{
 };
 use skybake_physics::phase::orthonormal_basis;
 use skybake_render::march::{MARCH_CUTOFF, THICK_STEP};
-use skybake_render::multiple::{face_build_up, FACE_MU_NODES as MU_NODES, FACE_N_PHI as N_PHI};
+use skybake_render::multiple::{
+    face_build_up, FACE_MU_NODES as MU_NODES, FACE_N_PHI as N_PHI, ONCE_MOMENTS,
+};
 
 /// Where a client's ray leaves the cloud, per wavelength: the cloud's radiance I and its true
 /// transmittance T_c (the background is seen as T_c·B), and the distance of the cloud's front.
@@ -56,6 +58,10 @@ pub struct Marcher<'a> {
     /// face towards the viewer, W m⁻² sr⁻¹ nm⁻¹ per unit scaled extinction (docs/cloud-light.md,
     /// "Faces"); empty without the export's faces.
     face: Vec<Vec<f32>>,
+    /// Per wavelength and voxel, the sun's once-scattered light's change of the field's
+    /// source towards the viewer, max(…) of Σ_lm K_lm·Y_lm(−d) at voxels not seen through a
+    /// face, 0 at those that are (docs/cloud-light.md); empty without `once_scattered.exr`.
+    once: Vec<Vec<f32>>,
 }
 
 /// What every step of one ray shares (see [`Marcher::march`]).
@@ -127,7 +133,41 @@ impl<'a> Marcher<'a> {
             hi: lo + n * cl.voxel_size_m,
             rho_max: cl.density.iter().fold(0.0f64, |m, &r| m.max(r as f64)),
             face: Vec::new(),
+            once: Vec::new(),
         };
+        let dir_at = |p: DVec3| match viewer {
+            Viewer::Point(o) => (p - o).normalize_or(DVec3::Z),
+            Viewer::Direction(d) => d.normalize_or(DVec3::Z),
+        };
+        if !cl.once.is_empty() {
+            let [nx, ny, nz] = cl.dims;
+            let n_l = cl.n_l();
+            let mut once = vec![vec![0f32; nx * ny * nz]; n_l];
+            let mut ylm = [0.0; 25];
+            for z in 0..nz {
+                for y in 0..ny {
+                    for x in 0..nx {
+                        let idx = (z * ny + y) * nx + x;
+                        if (0..n_l * ONCE_MOMENTS).all(|i| cl.once[i][idx] == 0.0) {
+                            continue;
+                        }
+                        let h = cl.voxel_size_m;
+                        let p = lo + DVec3::new(x as f64 + 0.5, y as f64 + 0.5, z as f64 + 0.5) * h;
+                        let d = dir_at(p);
+                        if out.view_face([x, y, z], d).is_some() {
+                            continue;
+                        }
+                        sh(-d, &mut ylm);
+                        for (l, o) in once.iter_mut().enumerate() {
+                            o[idx] = (0..ONCE_MOMENTS)
+                                .map(|m| cl.once[l * ONCE_MOMENTS + m][idx] as f64 * ylm[m])
+                                .sum::<f64>() as f32;
+                        }
+                    }
+                }
+            }
+            out.once = once;
+        }
         if cl.faces.is_some() {
             let [nx, ny, nz] = cl.dims;
             let n_l = cl.n_l();
@@ -141,10 +181,7 @@ impl<'a> Marcher<'a> {
                         }
                         let h = cl.voxel_size_m;
                         let p = lo + DVec3::new(x as f64 + 0.5, y as f64 + 0.5, z as f64 + 0.5) * h;
-                        let d = match viewer {
-                            Viewer::Point(o) => (p - o).normalize_or(DVec3::Z),
-                            Viewer::Direction(d) => d.normalize_or(DVec3::Z),
-                        };
+                        let d = dir_at(p);
                         out.face_lowering([x, y, z], d, &mut low);
                         let idx = (z * ny + y) * nx + x;
                         for l in 0..n_l {
@@ -158,28 +195,16 @@ impl<'a> Marcher<'a> {
         Ok(out)
     }
 
-    /// How much seeing the field through the face of surface voxel `ijk` towards a viewer
-    /// looking along `d` lowers its source, per wavelength (docs/cloud-light.md, "Faces"): 0
-    /// where the voxel's neighbour towards the viewer holds cloud; else, through the face the
-    /// view crosses most squarely of those with an empty neighbour, the inward hemisphere's
-    /// radiance L(ω') weighted by the scaled phase function towards the viewer and by
-    /// 1 − r(μ'), r = the view-weighted build-up over the voxel's depth over the cell's mean
-    /// (the formal solution below a face, Chandrasekhar 1960 §1.8), for the scattered light
-    /// (uniform in depth) and the sun's first scattering in the scaled problem (Henyey-Greenstein
-    /// g* = p*_1, falling as the scaled beam).
-    fn face_lowering(&self, ijk: [usize; 3], d: DVec3, out: &mut [f64]) {
-        out.iter_mut().for_each(|o| *o = 0.0);
+    /// The face of voxel `ijk` a viewer looking along `d` sees it through, as the frame takes
+    /// it: of the faces towards the viewer whose neighbour is empty (or beyond the grid), the one
+    /// the view crosses most squarely, with its |cos|; `None` for an empty voxel or none.
+    fn view_face(&self, ijk: [usize; 3], d: DVec3) -> Option<(usize, f64)> {
         let cl = self.cl;
-        let Some(faces) = &cl.faces else {
-            return;
-        };
-        let Some(order) = cl.ms_order else {
-            return;
-        };
         let dims = cl.dims;
         let at = |q: [usize; 3]| cl.density[(q[2] * dims[1] + q[1]) * dims[0] + q[0]] as f64;
-        let idx = (ijk[2] * dims[1] + ijk[1]) * dims[0] + ijk[0];
-        let rho = at(ijk);
+        if at(ijk) <= 0.0 {
+            return None;
+        }
         let mut best: Option<(usize, f64)> = None;
         for a in 0..3 {
             let up = d[a] < 0.0;
@@ -201,7 +226,31 @@ impl<'a> Marcher<'a> {
                 best = Some((2 * a + usize::from(up), mv));
             }
         }
-        let Some((face, _)) = best else {
+        best
+    }
+
+    /// How much seeing the field through the face of surface voxel `ijk` towards a viewer
+    /// looking along `d` lowers its source, per wavelength (docs/cloud-light.md, "Faces"): 0
+    /// where the voxel's neighbour towards the viewer holds cloud; else, through the face the
+    /// view crosses most squarely of those with an empty neighbour, the inward hemisphere's
+    /// radiance L(ω') weighted by the scaled phase function towards the viewer and by
+    /// 1 − r(μ'), r = the view-weighted build-up over the voxel's depth over the cell's mean
+    /// (the formal solution below a face, Chandrasekhar 1960 §1.8), for the scattered light
+    /// (uniform in depth) and the sun's first scattering in the scaled problem (Henyey-Greenstein
+    /// g* = p*_1, falling as the scaled beam).
+    fn face_lowering(&self, ijk: [usize; 3], d: DVec3, out: &mut [f64]) {
+        out.iter_mut().for_each(|o| *o = 0.0);
+        let cl = self.cl;
+        let Some(faces) = &cl.faces else {
+            return;
+        };
+        let Some(order) = cl.ms_order else {
+            return;
+        };
+        let dims = cl.dims;
+        let idx = (ijk[2] * dims[1] + ijk[1]) * dims[0] + ijk[0];
+        let rho = cl.density[idx] as f64;
+        let Some((face, _)) = self.view_face(ijk, d) else {
             return;
         };
         let a = face / 2;
@@ -750,10 +799,15 @@ impl<'a> Marcher<'a> {
                     j_skin += (c + Self::interp(w, &sk.delta[l * moments + m])) * ray.ylm[m];
                 }
             }
-            // The cell's field seen through the surface voxels' faces (not the skin's).
+            // The cell's field seen through the surface voxels' faces (not the skin's), and the
+            // sun's once-scattered light in place of the field's where it is not.
             let j = match self.face.get(l) {
                 Some(face) => j.max(0.0) - Self::interp(w, face),
                 None => j.max(0.0),
+            };
+            let j = match self.once.get(l) {
+                Some(once) => (j + Self::interp(w, once)).max(0.0),
+                None => j,
             };
             let field = match skin {
                 Some(sk) => {

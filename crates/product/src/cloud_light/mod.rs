@@ -32,7 +32,7 @@ use std::time::Instant;
 use crate::{Error, Result};
 
 /// Layout version of the export (bumped when a file, channel or field changes meaning).
-pub const LAYOUT_VERSION: &str = "6";
+pub const LAYOUT_VERSION: &str = "7";
 pub const MANIFEST_FILE: &str = "manifest.json";
 pub const DENSITY_FILE: &str = "density.exr";
 pub const SUN_PATH_FILE: &str = "sun_path.exr";
@@ -40,6 +40,7 @@ pub const SKY_PATHS_FILE: &str = "sky_paths.exr";
 pub const MS_FILE: &str = "multiple_scattering.exr";
 pub const SKIN_FILE: &str = "multiple_scattering_skin.exr";
 pub const FACES_FILE: &str = "multiple_scattering_faces.exr";
+pub const ONCE_FILE: &str = "once_scattered.exr";
 pub const SKY_ELEMENTS_FILE: &str = "sky_elements.exr";
 pub const PHASE_FILE: &str = "phase.exr";
 pub const PEAK_FILE: &str = "peak_spread.exr";
@@ -64,7 +65,8 @@ pub const MAX_EXPORT_BYTES: usize = 1 << 30;
 /// [`MAX_EXPORT_BYTES`]).
 pub fn export_bytes(voxels: usize, n_l: usize) -> usize {
     let moments = (skybake_render::multiple::MAX_ORDER + 1).pow(2);
-    voxels.saturating_mul(4 * (3 + LATTICE.len() + 3 * moments * n_l))
+    let once = skybake_render::multiple::ONCE_MOMENTS;
+    voxels.saturating_mul(4 * (3 + LATTICE.len() + (3 * moments + once) * n_l))
 }
 
 /// Whether voxel `ijk` of a grid of `dims` with `density` holds cloud and borders empty space
@@ -213,6 +215,11 @@ pub struct CloudLight {
     pub skin: Option<SkinMoments>,
     /// The field at the surface voxels, seen through their faces (with `ms`).
     pub faces: Option<FaceField>,
+    /// The sun's once-scattered light in place of the field's, K_lm = ω*·p*_l·(E_sun·L₁,lm −
+    /// L*₁,lm) per voxel to order [`ONCE_ORDER`](skybake_render::multiple::ONCE_ORDER),
+    /// `[λ·(L₁+1)² + lm][voxel]`, W m⁻² nm⁻¹: Σ K_lm Y_lm(−d) is added to the field's source
+    /// where the voxel is not seen through a face (docs/cloud-light.md); empty without it.
+    pub once: Vec<Vec<f32>>,
     pub sky: Option<SkyTable>,
     /// The true phase function p(θ), sr⁻¹, `[λ][node]`, node i at θ = π·(i/(N−1))².
     pub phase: Vec<Vec<f32>>,
@@ -288,7 +295,7 @@ impl CloudLight {
             }
             _ => None,
         };
-        let (ms_order, ms, skin, faces) = match &lit.ms {
+        let (ms_order, ms, skin, faces, once) = match &lit.ms {
             Some(f) => {
                 let order = f.angular_order();
                 let moments = (order + 1) * (order + 1);
@@ -300,6 +307,13 @@ impl CloudLight {
                 let mut c_skin = vec![0.0; per];
                 let mut face_planes = vec![vec![0f32; n]; per];
                 let mut cell_density = vec![0f32; n];
+                let once_per = if f.has_once() {
+                    n_l * skybake_render::multiple::ONCE_MOMENTS
+                } else {
+                    0
+                };
+                let mut once_planes = vec![vec![0f32; n]; once_per];
+                let mut k1 = vec![0.0; once_per];
                 for idx in (0..n).filter(|&i| in_mask(i)) {
                     let (x, y, z) = (idx % nx, (idx / nx) % ny, idx / (nx * ny));
                     let p = grid.voxel_centre(x, y, z);
@@ -309,6 +323,13 @@ impl CloudLight {
                             plane[idx] = to_half(*v as f32);
                         }
                         cell_density[idx] = to_half(f.cell_density(p) as f32);
+                    }
+                    if once_per > 0 {
+                        f.once_coefficients(p, &mut k1);
+                        let per = skybake_render::multiple::ONCE_MOMENTS;
+                        for (i, (plane, v)) in once_planes.iter_mut().zip(&k1).enumerate() {
+                            plane[idx] = to_half((lit.ms_albedo[i / per] * v) as f32);
+                        }
                     }
                     f.convolved_coefficients(p, &mut c);
                     for l in 0..n_l {
@@ -339,9 +360,9 @@ impl CloudLight {
                     cell_density,
                     radiance: face_planes,
                 };
-                (Some(order), planes, skin, Some(faces))
+                (Some(order), planes, skin, Some(faces), once_planes)
             }
-            None => (None, Vec::new(), None, None),
+            None => (None, Vec::new(), None, None, Vec::new()),
         };
         let phase = inputs
             .optics
@@ -389,6 +410,7 @@ impl CloudLight {
             ms,
             skin,
             faces,
+            once,
             sky,
             phase,
             peak,
@@ -492,6 +514,11 @@ impl CloudLight {
                 let mut ch = vec![("rho_cell".to_string(), faces.cell_density.as_slice())];
                 ch.extend(moment_channels("L", &faces.radiance));
                 files.push((FACES_FILE, enc(nx, ny * nz, ch, true)?));
+            }
+            if !self.once.is_empty() {
+                let ch =
+                    self.moment_channels("K", &self.once, skybake_render::multiple::ONCE_MOMENTS);
+                files.push((ONCE_FILE, enc(nx, ny * nz, ch, true)?));
             }
         }
         if let Some(sky) = &self.sky {
@@ -633,6 +660,21 @@ impl CloudLight {
                         json!(names),
                         "at surface voxels (density > 0 with a face neighbour of density <= 0 or on the grid's edge; 0 elsewhere): rho_cell, the mean density of the field's coarse cell holding the voxel's centre (faces.cell_size_m its edges), and L_lm, the field's radiance moments not convolved (C_lm = omega*·p*_l·L_lm, faces.scaled_albedo and faces.scaled_phase_moments). Used to see the field through the face (march.faces)",
                         "1 (rho_cell), W m-2 nm-1 (L_lm)",
+                        true,
+                    ),
+                );
+            }
+            if !self.once.is_empty() {
+                let names: Vec<String> = (0..skybake_render::multiple::ONCE_MOMENTS)
+                    .flat_map(|m| spectral(&format!("K{m:02}")))
+                    .collect();
+                textures.insert(
+                    "once_scattered".into(),
+                    volume(
+                        ONCE_FILE,
+                        json!(names),
+                        "K_lm = omega*·p*_l·(E_sun·L1_lm - L1*_lm): the sun's once-scattered light L1 (transported in the true medium, every collision classed as within the truncated peak r+ = max(p - (1 - f)·HG(g*), 0) or smooth; tallied after exactly one smooth scattering) in real spherical harmonics to the field's order per unit sun irradiance times E_sun, less the field's own once-scattered light L1* (its sun photons' tracks between their first and second scattering, which C_lm hold), convolved with the scaled phase moments p*_l; 0 in coarse cells without cloud. Where a voxel is not seen through a face (see faces), its source towards a viewer looking along d adds Σ K_lm·Y_lm(-d) to the field's (kept ≥ 0); at voxels seen through a face, and in the skins, the field's alone",
+                        "W m-2 nm-1",
                         true,
                     ),
                 );
@@ -904,6 +946,19 @@ impl CloudLight {
             .map(|(l, m)| Self::channel(&format!("dC{m:02}"), wl[l]))
             .collect();
         let skin_delta = load("multiple_scattering_skin", nx, ny * nz, &skin_names)?;
+        let once_names: Vec<String> = (0..n_l)
+            .flat_map(|l| (0..skybake_render::multiple::ONCE_MOMENTS).map(move |m| (l, m)))
+            .map(|(l, m)| Self::channel(&format!("K{m:02}"), wl[l]))
+            .collect();
+        let once = match load("once_scattered", nx, ny * nz, &once_names)? {
+            Some(_) if ms.is_none() => {
+                return Err(bad(
+                    "textures.once_scattered",
+                    "needs the multiple_scattering texture",
+                ))
+            }
+            o => o.unwrap_or_default(),
+        };
         let face_names: Vec<String> = std::iter::once("rho_cell".to_string())
             .chain(
                 (0..n_l)
@@ -1053,6 +1108,7 @@ impl CloudLight {
             ms: ms.unwrap_or_default(),
             skin,
             faces,
+            once,
             sky,
             phase,
             peak,

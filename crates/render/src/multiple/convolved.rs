@@ -163,6 +163,7 @@ mod tests {
                     .collect(),
                 skin: None,
                 angular_order: order,
+                once: None,
                 moments: n,
             };
             let kept = field.convolved_cells();

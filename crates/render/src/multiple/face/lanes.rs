@@ -253,6 +253,7 @@ mod tests {
                 skin: None,
                 angular_order: order,
                 moments: n,
+                once: None,
             };
             let irradiance: Vec<f64> = (0..n_l).map(|l| 1.5 + l as f64).collect();
             let k_true: Vec<f64> = (0..n_l).map(|l| 0.04 + 0.01 * (l / 2) as f64).collect();
