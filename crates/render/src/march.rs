@@ -631,7 +631,8 @@ impl<'a> Prepared<'a> {
                                 let lam_v = rate * (tv[l] + 0.5 * kt[l] * rho * dt);
                                 let smooth = p.ratios(row, lam_s + lam_v).0;
                                 // The peak's part gathered along its turned direction
-                                // (`turned`), within 90° of the sun.
+                                // (`turned`), within 90° of the sun, where the camera still
+                                // sees the step.
                                 let straight = p.last_in_peak(row, lam_s);
                                 let peak = if cos_sun > 0.0
                                     && straight > 0.0
