@@ -47,6 +47,7 @@ struct Sources<'s> {
     rows: &'s [Option<super::peak::PeakRow>],
     fresh: &'s [bool],
     cos_sun: f64,
+    turn: &'s turned::TurnedRay,
 }
 
 /// Everything precomputed for one scene, camera and lighting; renders any tile. The
@@ -470,6 +471,7 @@ impl<'a> Prepared<'a> {
         let lt = self.lighting;
         let step = self.settings.step_voxels * vol.grid.voxel_size_m;
         let cos_sun = lt.sun_dir.dot(ray.dir);
+        let turn = self.turned_ray(ray.dir);
         // Per wavelength: ω/s · E_sun · p(Θ) and the scaled and true extinctions per density.
         let mut sun_src = [0.0f64; 64];
         let mut ks = [0.0f64; 64];
@@ -554,6 +556,7 @@ impl<'a> Prepared<'a> {
                     rows: &rows[..n_l],
                     fresh: &fresh[..n_l],
                     cos_sun,
+                    turn: &turn,
                 };
                 let alive = self.thick_step(
                     o,
@@ -631,11 +634,15 @@ impl<'a> Prepared<'a> {
                                 let lam_v = rate * (tv[l] + 0.5 * kt[l] * rho * dt);
                                 let smooth = p.ratios(row, lam_s + lam_v).0;
                                 // The peak's part gathered along its turned direction
-                                // (`turned`), within 90° of the sun.
+                                // (`turned`), within 90° of the sun, where the camera still
+                                // sees the step.
                                 let straight = p.last_in_peak(row, lam_s);
-                                let peak = if cos_sun > 0.0 && straight > 0.0 {
-                                    let tp =
-                                        turned_at.get_or_insert_with(|| self.turned_path(pm, d));
+                                let peak = if cos_sun > 0.0
+                                    && straight > 0.0
+                                    && tc[l] > turned::TURNED_SEEN
+                                {
+                                    let tp = turned_at
+                                        .get_or_insert_with(|| self.turned_path(pm, &turn));
                                     self.peak_turned(p, row, l, lam_s, tp, kt[l], kp[l])
                                 } else {
                                     straight
@@ -801,9 +808,12 @@ impl<'a> Prepared<'a> {
                                 let lam_v = rate * (tv[l] + 0.5 * kt * rho * h);
                                 let smooth = p.ratios(row, lam_s + lam_v).0;
                                 let straight = p.last_in_peak(row, lam_s);
-                                let peak = if sky.cos_sun > 0.0 && straight > 0.0 {
+                                let peak = if sky.cos_sun > 0.0
+                                    && straight > 0.0
+                                    && tc[l] > turned::TURNED_SEEN
+                                {
                                     let tp = turned_at.get_or_insert_with(|| {
-                                        self.turned_path(o + d * (t_start + 0.5 * dt), d)
+                                        self.turned_path(o + d * (t_start + 0.5 * dt), sky.turn)
                                     });
                                     self.peak_turned(p, row, l, lam_s, tp, kt, kp)
                                 } else {

@@ -22,12 +22,18 @@
 //! near the top, towards the horizontal. Only views within 90° of the sun (cos Θ > 0) gather:
 //! beyond, r⁺ (which ends at 50.7° for g = 0.85) reaches them only through several peak
 //! turns, and the straight line is kept. One path serves a whole thick step (its sub-steps
-//! each take their own D, `Prepared::peak_turned`).
+//! each take their own D, `Prepared::peak_turned`). Where the camera's true transmittance
+//! before a step is below [`TURNED_SEEN`] the straight line is kept too: the step adds at most
+//! that fraction of what it would at the cloud's face (measured: pixels within 0.2 %).
 
 use super::Prepared;
-use crate::camera::box_interval;
 use crate::peak::{PeakRow, PeakSpread};
 use glam::DVec3;
+
+/// The camera's true transmittance below which a step keeps the straight line's peak part
+/// (its turned light is not gathered): the step's share of the pixel is below this fraction
+/// of what the same source would give at the cloud's face.
+pub(super) const TURNED_SEEN: f64 = 5e-2;
 
 /// Bins along −b of widths 1, 1, 2, 4, … voxels (64 voxels in all), each sampled at its
 /// middle (trilinear in the first two, the nearest voxel beyond).
@@ -42,27 +48,62 @@ pub(super) struct TurnedPath {
     path: [f64; TURN_BINS],
 }
 
+/// What the gathering paths of one view ray share: the mean turned direction b and what the
+/// box's exit along it needs (per axis the face b leaves through and 1/b).
+#[derive(Debug, Clone, Copy)]
+pub(super) struct TurnedRay {
+    b: DVec3,
+    face: DVec3,
+    inv: DVec3,
+}
+
 impl Prepared<'_> {
-    /// The gathering path behind the sample `x` of a ray along `d` (see the module's
-    /// documentation): [`TURN_BINS`] look-ups of the density and of D_sun along
-    /// b = normalize(s + d), up to the box's face. Empty where b is undefined (d = −s: the
-    /// sun straight behind the camera, where the peak's part is 0).
+    /// The mean turned direction b = normalize(s + d) of a view ray along `d` (see the
+    /// module's documentation; s where b is undefined, d = −s, where cos Θ = −1 and nothing is
+    /// gathered).
+    pub(super) fn turned_ray(&self, d: DVec3) -> TurnedRay {
+        let b = self.lighting.sun_dir + d;
+        let len = b.length();
+        let b = if len < 1e-6 {
+            self.lighting.sun_dir
+        } else {
+            b / len
+        };
+        let vol = &self.lit.vol;
+        let mut face = DVec3::ZERO;
+        let mut inv = DVec3::ZERO;
+        for a in 0..3 {
+            // An axis b does not move along never limits the path (`box_interval`).
+            if b[a].abs() >= 1e-300 {
+                inv[a] = 1.0 / b[a];
+                face[a] = if b[a] > 0.0 { vol.hi[a] } else { vol.lo[a] };
+            }
+        }
+        TurnedRay { b, face, inv }
+    }
+
+    /// The gathering path behind the sample `x` of a view ray (see the module's
+    /// documentation): [`TURN_BINS`] look-ups of the density and of D_sun along the ray's b,
+    /// up to the box's face.
     #[inline(never)]
-    pub(super) fn turned_path(&self, x: DVec3, d: DVec3) -> TurnedPath {
+    pub(super) fn turned_path(&self, x: DVec3, ray: &TurnedRay) -> TurnedPath {
         let mut out = TurnedPath {
             n: 0,
             mass: [0.0; TURN_BINS],
             path: [0.0; TURN_BINS],
         };
-        let b = self.lighting.sun_dir + d;
-        let len = b.length();
-        if len < 1e-6 {
-            return out;
+        let g = &*self.lit.vol.grid;
+        let h = g.voxel_size_m;
+        let inv_h = 1.0 / h;
+        // The distance to the box's face along b (x is inside the box).
+        let mut exit = f64::INFINITY;
+        for a in 0..3 {
+            if ray.inv[a] != 0.0 {
+                exit = exit.min((ray.face[a] - x[a]) * ray.inv[a]);
+            }
         }
-        let b = b / len;
-        let vol = &self.lit.vol;
-        let exit = box_interval(x, b, vol.lo, vol.hi).map_or(0.0, |(_, t1)| t1);
-        let h = vol.grid.voxel_size_m;
+        // Positions in voxel units from the grid's origin, b in voxels per voxel.
+        let xl = (x - g.origin_m) * inv_h;
         let (mut lo, mut width, mut cum) = (0.0, h, 0.0);
         for k in 0..TURN_BINS {
             if lo >= exit {
@@ -70,13 +111,13 @@ impl Prepared<'_> {
             }
             let hi = (lo + width).min(exit);
             let w = hi - lo;
-            let y = x + b * (lo + 0.5 * w);
+            let yl = xl + ray.b * ((lo + 0.5 * w) * inv_h);
             // Trilinear within two voxels of x, the nearest voxel's record beyond (bins of two
             // voxels and more).
             let (rho, d_sun) = if k < 2 {
-                (vol.rho(y), self.sun_path_at(y))
+                self.near_record(yl)
             } else {
-                self.nearest_record(y)
+                self.nearest_record(yl)
             };
             out.mass[k] = rho * w;
             out.path[k] = d_sun + cum + 0.5 * rho * w;
@@ -90,11 +131,79 @@ impl Prepared<'_> {
         out
     }
 
-    /// The density and D_sun of the voxel holding `y` (0 outside the grid).
+    /// The density and D_sun at `local` (voxel units from the grid's origin) trilinear, with
+    /// the weights and order of operations of [`CloudVolume::rho`] and `Prepared::sun_path_at`,
+    /// from one pass over the 8 corners' voxel records `[ρ, √D, …]`.
+    ///
+    /// [`CloudVolume::rho`]: crate::volume::CloudVolume::rho
     #[inline]
-    fn nearest_record(&self, y: DVec3) -> (f64, f64) {
+    fn near_record(&self, local: DVec3) -> (f64, f64) {
         let g = &*self.lit.vol.grid;
-        let local = (y - g.origin_m) / g.voxel_size_m;
+        let n = g.dims;
+        let strides = [1, n[0], n[0] * n[1]];
+        let mut i0 = [0usize; 3];
+        let mut di = [0usize; 3];
+        let mut f = [0f64; 3];
+        for a in 0..3 {
+            let l = local[a];
+            if !(l >= 0.0 && l <= n[a] as f64) {
+                return (0.0, 0.0);
+            }
+            let c = (l - 0.5).clamp(0.0, (n[a] - 1) as f64);
+            // c ≥ 0: truncation is the floor.
+            let lo = (c as usize).min(n[a] - 1);
+            i0[a] = lo;
+            di[a] = ((lo + 1).min(n[a] - 1) - lo) * strides[a];
+            f[a] = c - lo as f64;
+        }
+        let base = i0[2] * strides[2] + i0[1] * strides[1] + i0[0];
+        let s = self.stride;
+        let rec = |i: usize| {
+            let r = &self.vox[i * s..i * s + 2];
+            (r[0] as f64, r[1] as f64)
+        };
+        // Corners in the order of `CloudVolume::weights` (x fastest).
+        let c = [
+            rec(base),
+            rec(base + di[0]),
+            rec(base + di[1]),
+            rec(base + di[1] + di[0]),
+            rec(base + di[2]),
+            rec(base + di[2] + di[0]),
+            rec(base + di[2] + di[1]),
+            rec(base + di[2] + di[1] + di[0]),
+        ];
+        // The density as `volume::sample` combines it (x, then y, then z; rounded to f32).
+        let (gx0, gx1) = (1.0 - f[0], f[0]);
+        let c00 = c[0].0 * gx0 + c[1].0 * gx1;
+        let c10 = c[2].0 * gx0 + c[3].0 * gx1;
+        let c01 = c[4].0 * gx0 + c[5].0 * gx1;
+        let c11 = c[6].0 * gx0 + c[7].0 * gx1;
+        let c0 = c00 * (1.0 - f[1]) + c10 * f[1];
+        let c1 = c01 * (1.0 - f[1]) + c11 * f[1];
+        let rho = ((c0 * (1.0 - f[2]) + c1 * f[2]) as f32) as f64;
+        // √D as `Prepared::root_interpolated` sums it (the corners' weight products in order).
+        let (gx, gy, gz) = ([gx0, gx1], [1.0 - f[1], f[1]], [1.0 - f[2], f[2]]);
+        let mut r = 0.0;
+        for (corner, v) in c.iter().enumerate() {
+            let (bx, by, bz) = (corner & 1, (corner >> 1) & 1, corner >> 2);
+            r += gx[bx] * gy[by] * gz[bz] * v.1;
+        }
+        // Beyond the outermost centres D is continued as `Prepared::sun_root_at` does it.
+        let inner = (0..3).all(|a| n[a] < 2 || (local[a] >= 0.5 && local[a] <= n[a] as f64 - 0.5));
+        if inner {
+            (rho, r * r)
+        } else {
+            let y = g.origin_m + local * g.voxel_size_m;
+            (rho, self.root_beyond_edge_centres(y, r).powi(2))
+        }
+    }
+
+    /// The density and D_sun of the voxel holding `local` (voxel units from the grid's
+    /// origin; 0 outside the grid).
+    #[inline]
+    fn nearest_record(&self, local: DVec3) -> (f64, f64) {
+        let g = &*self.lit.vol.grid;
         let mut idx = 0usize;
         let mut stride = 1usize;
         for a in 0..3 {
