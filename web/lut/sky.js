@@ -83,7 +83,7 @@ class LiveSky {
         `#define SV_SUN_WARP_HI ${warpRange[1].toExponential()}\n`;
       // The sky rows' focus on the band above the earth's shadow (version 4), and the band's
       // elevation with the azimuth (version 5), its fit aloft and the depth's top (version 9), the
-      // focus's growth aloft (version 11).
+      // focus's growth aloft (version 11), the columns' depth aloft (version 12).
       const band = manifest.parameterisation.sky_row_band;
       const numbers = (v, n) => Array.isArray(v) && v.length === n && v.every(Number.isFinite);
       if (!band || !(band.focus > 0) || !Number.isFinite(band.sun_deg) || !numbers(band.centre, 4) ||
@@ -96,7 +96,9 @@ class LiveSky {
           !(band.centre_aloft_altitude_m[0] <= band.centre_aloft_altitude_m[1]) ||
           !(band.depth_top_m >= 0) || !(band.focus_aloft >= 0) ||
           !numbers(band.focus_aloft_altitude_m, 2) ||
-          !(band.focus_aloft_altitude_m[0] < band.focus_aloft_altitude_m[1])) {
+          !(band.focus_aloft_altitude_m[0] < band.focus_aloft_altitude_m[1]) ||
+          !(band.azimuth_depth_aloft_deg >= 0) || !numbers(band.azimuth_depth_aloft_altitude_m, 2) ||
+          !(band.azimuth_depth_aloft_altitude_m[0] < band.azimuth_depth_aloft_altitude_m[1])) {
         throw new Error("manifest: parameterisation.sky_row_band is not the sky rows' band focus");
       }
       // The altitude nodes, where each slice's own rows are read (version 6).
@@ -121,6 +123,8 @@ class LiveSky {
         `#define SV_BAND_DEPTH_TOP ${f(band.depth_top_m)}\n` +
         `#define SV_BAND_FOCUS_ALOFT ${f(band.focus_aloft)}\n` +
         `#define SV_BAND_FOCUS_ALOFT_ALTITUDE vec2(${band.focus_aloft_altitude_m.map(f).join(", ")})\n` +
+        `#define SV_BAND_AZIMUTH_DEPTH_ALOFT ${f(band.azimuth_depth_aloft_deg)}\n` +
+        `#define SV_BAND_AZIMUTH_DEPTH_ALTITUDE vec2(${band.azimuth_depth_aloft_altitude_m.map(f).join(", ")})\n` +
         `#define SV_ALT_NODES float[${z.N_ALT}](${altNodes.map(f).join(", ")})\n`;
       // The limb's sun coordinate back towards the observer's horizon aloft away from the sun
       // (version 11).

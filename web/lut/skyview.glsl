@@ -22,7 +22,9 @@
 // (focus_growth), SV_BAND_GROWTH_ALTITUDE (focus_growth_altitude_m, a vec2),
 // SV_BAND_CENTRE_ALOFT (centre_aloft_per_km), SV_BAND_CENTRE_ALOFT_ALTITUDE
 // (centre_aloft_altitude_m, a vec2), SV_BAND_DEPTH_TOP (depth_top_m), SV_BAND_FOCUS_ALOFT
-// (focus_aloft), SV_BAND_FOCUS_ALOFT_ALTITUDE (focus_aloft_altitude_m, a vec2), and SV_ALT_NODES
+// (focus_aloft), SV_BAND_FOCUS_ALOFT_ALTITUDE (focus_aloft_altitude_m, a vec2),
+// SV_BAND_AZIMUTH_DEPTH_ALOFT (azimuth_depth_aloft_deg), SV_BAND_AZIMUTH_DEPTH_ALTITUDE
+// (azimuth_depth_aloft_altitude_m, a vec2), and SV_ALT_NODES
 // (parameterisation.altitude_nodes_m, a float[SV_N_ALT] constructor); from
 // parameterisation.limb_row_band: SV_LIMB_BAND_DEPTH (depth_m, a vec3), SV_LIMB_BAND_FOCUS
 // (focus), SV_LIMB_BAND_SUN_RANGE (sun_range_deg, a vec4), SV_LIMB_BAND_ALTITUDE
@@ -349,6 +351,15 @@ float SkyViewBandDepth(float h) {
   return SV_BAND_DEPTH * clamp(h, 0.0, SV_BAND_DEPTH_TOP) / 1000.0;
 }
 
+// The band's depth (degrees) in the columns' map at altitude h (the reader's
+// band_azimuth_depth_deg): SkyViewBandDepth moved to SV_BAND_AZIMUTH_DEPTH_ALOFT between
+// SV_BAND_AZIMUTH_DEPTH_ALTITUDE.
+float SkyViewBandAzimuthDepth(float h) {
+  float d = SkyViewBandDepth(h);
+  return d + (SV_BAND_AZIMUTH_DEPTH_ALOFT - d) *
+      smoothstep(SV_BAND_AZIMUTH_DEPTH_ALTITUDE.x, SV_BAND_AZIMUTH_DEPTH_ALTITUDE.y, h);
+}
+
 // The azimuth (rad) from the sun of column a at altitude h (the reader's azimuth_node): the root
 // x of alpha x + (1 - alpha) sin^2(pi x^2 / 2) = a / (N_AZ - 1), phi = pi x^2, by Newton's
 // method from x = a / (N_AZ - 1) (the root where alpha = 1, near the ground).
@@ -382,12 +393,12 @@ float SkyViewSkyRow(float elevation_deg, float c, float k) {
 // The elevation (degrees) at the column azimuth cos_phi_a (cosine) that lies where
 // elevation_deg lies at the query's azimuth cos_phi_q relative to the band above the earth's
 // shadow (the reader's band_relative_elevation): the band's elevation scales as -cos(phi) about
-// SV_BAND_DEPTH h below the horizontal; faded out above 2-4 times the band's height, below
+// SkyViewBandAzimuthDepth(h) below the horizontal; faded out above 2-4 times the band's height, below
 // SV_BAND_HORIZON (to the horizontal), with the focus (c, k) of SkyViewBandFocus and within
 // SV_BAND_ANTISOLAR_RANGE of -cos(phi) (the identity within 102 deg of the sun).
 float SkyViewBandRelative(float elevation_deg, float c, float k, float h, float cos_phi_q,
                           float cos_phi_a) {
-  float delta = SkyViewBandDepth(h);
+  float delta = SkyViewBandAzimuthDepth(h);
   float w = max(c * SV_BAND_ANTISOLAR + delta, 0.5);
   float ratio = max(-cos_phi_a, SV_BAND_ANTISOLAR_RANGE.x) /
       max(-cos_phi_q, SV_BAND_ANTISOLAR_RANGE.x);

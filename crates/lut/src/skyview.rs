@@ -85,7 +85,9 @@ pub const LAYOUT: &str = "skyview";
 /// 11: the sky rows' focus grows again from 5 to 8 km ([`BAND_FOCUS_ALOFT`]); the limb slices'
 /// depth map in two pieces, the horizon fixed ([`LIMB_BAND_MAX_FRACTION`]); aloft away from the
 /// sun the deep limb rows' sun coordinate goes back to the observer's horizon ([`limb_near_end`]).
-pub const SKYVIEW_VERSION: &str = "11";
+/// 12: the columns' map relative to the band with the band's depth measured aloft, 1.8° from
+/// 12.5–17 km up ([`band_azimuth_depth_deg`]; the reader only, the texels unchanged).
+pub const SKYVIEW_VERSION: &str = "12";
 
 /// Altitude nodes: h_k the roots of [`altitude_coord`] (about (top − bottom) · (k / (N − 1))²,
 /// denser near the top).
@@ -530,6 +532,30 @@ pub const BAND_DEPTH_TOP_M: f64 = 5_000.0;
 pub fn band_depth_deg(h: f64) -> f64 {
     BAND_DEPTH_PER_KM * (h / 1000.0).clamp(0.0, BAND_DEPTH_TOP_M / 1000.0)
 }
+/// The band's depth (degrees) in the columns' map ([`band_relative_elevation`]) from
+/// [`BAND_AZIMUTH_DEPTH_ALOFT_M`] up ([`band_azimuth_depth_deg`]). Measured on the `sky` product
+/// (680 nm, the elevation where ln L rises fastest at 120–180° from the sun, fitted as
+/// (c₁₈₀ + δ)(−cos φ) − δ, within 0.1°; the sun 0.75° below to 0.75° above the observer's
+/// horizon): δ = 1.4–2.2° at 6.5–20 km (1.5–1.8° where the band is sharpest), not
+/// [`band_depth_deg`]'s 2.5°. On the dense check of the band seen aloft (sun every 0.25°, 120–180°
+/// every 15°; 6.5 / 8 / 9.5 / 11 / 12.5 / 15 / 20 km) 1.8° from 12.5–17 km took 5.72 / 7.28 /
+/// 5.66 / 6.91 / 9.25 / 7.57 / 11.27 % to 5.72 / 7.28 / 5.69 / 6.95 / 8.63 / 5.97 / 10.37 %; from
+/// 5–8 km (1.6° / 2°) it was worse at 11–12.5 km (8.40 / 11.50 %; 6.99 / 9.84 %): the slices'
+/// map keeps δ = 2.5° (1.6° there: 8 km 7.28 → 8.35 %).
+pub const BAND_AZIMUTH_DEPTH_ALOFT: f64 = 1.8;
+/// The altitudes (m) between which the columns' map's depth moves (smoothstep) from
+/// [`band_depth_deg`] to [`BAND_AZIMUTH_DEPTH_ALOFT`].
+pub const BAND_AZIMUTH_DEPTH_ALOFT_M: [f64; 2] = [12_500.0, 17_000.0];
+
+/// The band's depth δ (degrees) in the columns' map at altitude `h` (m): [`band_depth_deg`]
+/// moved to [`BAND_AZIMUTH_DEPTH_ALOFT`] by smoothstep(h₀, h₁, h), (h₀, h₁) =
+/// [`BAND_AZIMUTH_DEPTH_ALOFT_M`].
+pub fn band_azimuth_depth_deg(h: f64) -> f64 {
+    let [h0, h1] = BAND_AZIMUTH_DEPTH_ALOFT_M;
+    let d = band_depth_deg(h);
+    d + (BAND_AZIMUTH_DEPTH_ALOFT - d) * smoothstep(h0, h1, h)
+}
+
 /// The −cos φ (φ the azimuth from the sun) over which [`band_relative_elevation`] fades in
 /// (smoothstep; 102° to 120°); below the first the columns' heights are held at it. Nearer 90°
 /// the band lies at or below the horizon and its height above −δ vanishes: a ratio of such
@@ -548,7 +574,7 @@ pub const BAND_HORIZON_DEG: f64 = 0.5;
 /// edge a great circle of the sky about the antisolar point in the sky of a distant observer,
 /// whose elevation falls as −cos φ; measured on the `sky` product at 680 nm from 1–8 km, sun
 /// −3…0.5° above the observer's horizon, within 0.2° from 112° to 180°), its elevation at
-/// azimuth φ is c(φ) = (c₁₈₀ + δ)(−cos φ) − δ, δ = [`band_depth_deg`], c₁₈₀ the band's
+/// azimuth φ is c(φ) = (c₁₈₀ + δ)(−cos φ) − δ, δ = [`band_azimuth_depth_deg`], c₁₈₀ the band's
 /// elevation opposite the sun ([`BAND_ANTISOLAR`] · [`band_centre_deg`]). The map is affine
 /// about −δ, (ε + δ)·(c_a + δ)/(c_q + δ) − δ (the band onto the band), faded to the identity
 /// above 2–4 times the band's height (at least 0.5°), at the horizontal ([`BAND_HORIZON_DEG`])
@@ -566,7 +592,7 @@ pub fn band_relative_elevation(
     if k < 1e-6 {
         return eps;
     }
-    let delta = band_depth_deg(h);
+    let delta = band_azimuth_depth_deg(h);
     let height = c * BAND_ANTISOLAR + delta;
     // (c_a + δ) / (c_q + δ): the band's height above −δ at the column over the query's.
     let (lo, hi) = BAND_ANTISOLAR_RANGE;
@@ -1739,8 +1765,8 @@ pub const STATED_ERRORS: &[(&str, &str, f64)] = &[
     ("rayleigh+mie", "sky radiance (sky product), sun -6..5 deg, ground", 0.015),
     ("rayleigh+mie", "sky radiance (sky product), sun -6..5 deg, 0-5 km (4.6 % at 5 km, 0.5 deg above the horizontal 120 deg from the sun, 680 nm)", 0.046),
     ("rayleigh+mie", "sky radiance (sky product), sun -6..5 deg, 5-8 km (the band above the earth's shadow near the antisolar horizon, 680 nm at 8 km, 1.75 deg above the horizontal 150 deg from the sun)", 0.073),
-    ("rayleigh+mie", "sky radiance (sky product), sun -6..5 deg, 8-12.5 km (the band above the earth's shadow near the antisolar horizon, 680 nm at 12.5 km, 0.75 deg above the horizontal 120 deg from the sun)", 0.093),
-    ("rayleigh+mie", "sky radiance (sky product), sun -6..5 deg, 12.5-20 km (the band above the earth's shadow near the antisolar horizon, 680 nm at 20 km, 3.75 deg above the horizontal 165 deg from the sun)", 0.113),
+    ("rayleigh+mie", "sky radiance (sky product), sun -6..5 deg, 8-12.5 km (the band above the earth's shadow near the antisolar horizon, 680 nm at 12.5 km, 1.5 deg above the horizontal 135 deg from the sun)", 0.087),
+    ("rayleigh+mie", "sky radiance (sky product), sun -6..5 deg, 12.5-20 km (the band above the earth's shadow near the antisolar horizon, 680 nm at 20 km, the horizontal 120 deg from the sun)", 0.104),
     ("rayleigh+mie", "sky radiance (sky product), sun -6..0 deg, 0-5 km, views within 10 deg of the horizon 150-180 deg from the sun (the earth's shadow rising; 680 nm at 2.5 km)", 0.024),
     ("rayleigh+mie", "sky radiance (sky product), sun -6..5 deg, 20-100 km (the sky just above the horizontal at 30 km, 440 nm)", 0.030),
     ("rayleigh+mie", "sky radiance (sky product), sun -12..-6 deg, ground", 0.035),
@@ -1796,8 +1822,10 @@ pub fn manifest(
         "focus_growth_altitude_m": BAND_FOCUS_GROWTH_M,
         "focus_aloft": BAND_FOCUS_ALOFT,
         "focus_aloft_altitude_m": BAND_FOCUS_ALOFT_M,
+        "azimuth_depth_aloft_deg": BAND_AZIMUTH_DEPTH_ALOFT,
+        "azimuth_depth_aloft_altitude_m": BAND_AZIMUTH_DEPTH_ALOFT_M,
         "slices": "on the sky rows, each (altitude node k, sun node j) slice of the interpolation is read on its own rows (the focus (c_n, k_n) at the node's sun coordinate s_n = the warped s_j at h_k and its altitude h_n = altitude_nodes_m[k]) where the query's or the slice's k > 0: at e_n = e + f (1 - smoothstep(2 w, 4 w, e)) smoothstep(0, horizon_deg, e) ((e + delta_q) H_n / H_q - delta_n - e), H = max(c antisolar + delta, 0.1) at the query's (c, h) and the node's (band centre c at s_n, h_n), delta = depth_deg_per_km clamp(h, 0, depth_top_m) / 1000, w = max(H_q, 0.5), f = k / (focus (1 + focus_growth smoothstep(focus_growth_altitude_m[0], focus_growth_altitude_m[1], h)) (1 + focus_aloft smoothstep(focus_aloft_altitude_m[0], focus_aloft_altitude_m[1], h))) the query's fade (0 where k = 0), then each column at the azimuth formula's e_a with (c_n, k_n, h_n) in place of the query's",
-        "azimuth": "on the sky rows and the limb rows where k > 0 each azimuth column a of the interpolation is read at its own elevation e_a (its own rows' stencil): delta = depth_deg_per_km clamp(h, 0, depth_top_m) / 1000, w = max(c antisolar + delta, 0.5), ratio = max(-cos phi_a, antisolar_range[0]) / max(-cos phi, antisolar_range[0]), e_a = e + (k / (focus (1 + focus_growth smoothstep(focus_growth_altitude_m[0], focus_growth_altitude_m[1], h)) (1 + focus_aloft smoothstep(focus_aloft_altitude_m[0], focus_aloft_altitude_m[1], h)))) (1 - smoothstep(2 w, 4 w, e)) step(-delta, e) smoothstep(antisolar_range[0], antisolar_range[1], -cos phi) (e + delta) (ratio - 1) (version 7: from -delta up through the horizontal, where version 6 had smoothstep(0, horizon_deg, e)), e the query's elevation (deg), phi its azimuth from the sun, phi_a the column's at the query's altitude h (azimuth_columns); where e_a >= 0 the column is read on the sky rows, below on the limb rows at the query's altitude h (depth y = 2 r sin^2(e_a / 2) / h); the band above the earth's shadow lies at (c antisolar + delta)(-cos phi) - delta",
+        "azimuth": "on the sky rows and the limb rows where k > 0 each azimuth column a of the interpolation is read at its own elevation e_a (its own rows' stencil): d = depth_deg_per_km clamp(h, 0, depth_top_m) / 1000, delta = d + (azimuth_depth_aloft_deg - d) smoothstep(azimuth_depth_aloft_altitude_m[0], azimuth_depth_aloft_altitude_m[1], h) (version 12), w = max(c antisolar + delta, 0.5), ratio = max(-cos phi_a, antisolar_range[0]) / max(-cos phi, antisolar_range[0]), e_a = e + (k / (focus (1 + focus_growth smoothstep(focus_growth_altitude_m[0], focus_growth_altitude_m[1], h)) (1 + focus_aloft smoothstep(focus_aloft_altitude_m[0], focus_aloft_altitude_m[1], h)))) (1 - smoothstep(2 w, 4 w, e)) step(-delta, e) smoothstep(antisolar_range[0], antisolar_range[1], -cos phi) (e + delta) (ratio - 1) (version 7: from -delta up through the horizontal, where version 6 had smoothstep(0, horizon_deg, e)), e the query's elevation (deg), phi its azimuth from the sun, phi_a the column's at the query's altitude h (azimuth_columns); where e_a >= 0 the column is read on the sky rows, below on the limb rows at the query's altitude h (depth y = 2 r sin^2(e_a / 2) / h); the band above the earth's shadow lies at (c antisolar + delta)(-cos phi) - delta",
         "formula": "the sky rows' focus at the sun's elevation s above the observer's horizon (deg) and altitude h (m): u = max(sun_deg - s, 0), km = clamp(h, 0, centre_aloft_altitude_m[0]) / 1000, c = min(((centre[0] + centre[1] km) u + (centre[2] + centre[3] km) u^2) (1 + centre_aloft_per_km clamp(h - centre_aloft_altitude_m[0], 0, centre_aloft_altitude_m[1] - centre_aloft_altitude_m[0]) / 1000), 45) (deg), k = smoothstep(sun_range_deg[0], sun_range_deg[1], s) (1 - smoothstep(sun_range_deg[2], sun_range_deg[3], s)) (1 - smoothstep(altitude_range_m[0], altitude_range_m[1], h)) focus (1 + focus_growth smoothstep(focus_growth_altitude_m[0], focus_growth_altitude_m[1], h)) (1 + focus_aloft smoothstep(focus_aloft_altitude_m[0], focus_aloft_altitude_m[1], h)), smoothstep(a, b, x) = t^2 (3 - 2 t), t = clamp((x - a) / (b - a), 0, 1)",
     });
     json!({
@@ -2073,6 +2101,25 @@ mod tests {
         );
         // At the ground after sunset (no band height): finite.
         assert!(band_relative_elevation(1.0, 3.0, 0.0, cos(150.0), cos(180.0)).is_finite());
+        // Aloft the columns' depth moves to the measured one (the slices' stays): the band at
+        // 20 km with δ = BAND_AZIMUTH_DEPTH_ALOFT onto itself at every column.
+        assert_eq!(band_azimuth_depth_deg(5000.0), band_depth_deg(5000.0));
+        assert_eq!(band_azimuth_depth_deg(12_500.0), band_depth_deg(12_500.0));
+        assert_eq!(band_azimuth_depth_deg(17_000.0), BAND_AZIMUTH_DEPTH_ALOFT);
+        let mid = band_azimuth_depth_deg(14_750.0);
+        assert!((mid - 0.5 * (band_depth_deg(14_750.0) + BAND_AZIMUTH_DEPTH_ALOFT)).abs() < 1e-12);
+        let (h, sun) = (20_000.0, -1.0);
+        let delta = BAND_AZIMUTH_DEPTH_ALOFT;
+        let c180 = band_centre_deg(sun, h) * BAND_ANTISOLAR;
+        let band = |phi: f64| (c180 + delta) * (-cos(phi)) - delta;
+        for phi_a in [128.0, 144.0, 161.0, 180.0] {
+            let got = band_relative_elevation(band(135.0), sun, h, cos(135.0), cos(phi_a));
+            assert!(
+                (got - band(phi_a)).abs() < 1e-9,
+                "{phi_a}: {got} vs {}",
+                band(phi_a)
+            );
+        }
     }
 
     #[test]
