@@ -86,7 +86,9 @@ pub const LAYOUT: &str = "skyview";
 /// depth map in two pieces, the horizon fixed ([`LIMB_BAND_MAX_FRACTION`]); aloft away from the
 /// sun the deep limb rows' sun coordinate goes back to the observer's horizon ([`limb_near_end`]).
 /// 12: the columns' map relative to the band with the band's depth measured aloft, 1.8° from
-/// 12.5–17 km up ([`band_azimuth_depth_deg`]; the reader only, the texels unchanged).
+/// 12.5–17 km up ([`band_azimuth_depth_deg`]; the reader only); the irradiance texels' multiple
+/// scattering on every other direction, interpolated where smooth (`ms_directions`; within
+/// 4.1·10⁻⁴).
 pub const SKYVIEW_VERSION: &str = "12";
 
 /// Altitude nodes: h_k the roots of [`altitude_coord`] (about (top − bottom) · (k / (N − 1))²,
