@@ -88,7 +88,8 @@ pub const LAYOUT: &str = "skyview";
 /// 12: the columns' map relative to the band with the band's depth measured aloft, 1.8° from
 /// 12.5–17 km up ([`band_azimuth_depth_deg`]; the reader only); the irradiance texels' multiple
 /// scattering on every other direction, interpolated where smooth (`ms_directions`; within
-/// 4.1·10⁻⁴).
+/// 4.1·10⁻⁴); the sky rows' band focus fades in from a sun at −5…−3° (was −7…−4°,
+/// [`BAND_SUN_RANGE`]): the rows near the horizontal towards the sun in deep twilight.
 pub const SKYVIEW_VERSION: &str = "12";
 
 /// Altitude nodes: h_k the roots of [`altitude_coord`] (about (top − bottom) · (k / (N − 1))²,
@@ -425,8 +426,15 @@ pub const BAND_CENTRE: [f64; 4] = [0.4165, 0.051, 0.157_25, 0.019_55];
 /// The sky rows' focus strength on the band ([`sky_row_focus`], [`sky_row_elevation`]).
 pub const BAND_FOCUS: f64 = 14.0;
 /// Sun coordinates (degrees) between which the focus fades in (the first two: 0 below the
-/// first, full above the second) and out (the last two).
-pub const BAND_SUN_RANGE: [f64; 4] = [-7.0, -4.0, 1.0, 5.0];
+/// first, full above the second) and out (the last two). The focus draws the rows towards the
+/// band (12–45° high with the sun 4–8° below the observer's horizon) and away from the
+/// horizontal, where towards the sun in deep twilight the glow brightens steeply: with the
+/// fade-in from −7° to −4° (version 11) the rows alone erred by +17 % at 5 km (sun −7°, 0.25°
+/// above the horizontal towards the sun, 440 nm; 0.7 % with rows twice as dense) and −11.5 %
+/// at 20 km (sun −9°); from −5° to −3° the grid of that glow (0–20 km, sun −12…−6°) reads
+/// 9.6 % at 5 km and 8.4 % at 20 km (−6°…−3.5°: 12.9 / 10.2 %), and the grids of the band
+/// itself (the earth's shadow rising and seen aloft) are unchanged.
+pub const BAND_SUN_RANGE: [f64; 4] = [-5.0, -3.0, 1.0, 5.0];
 /// Altitudes (m) between which the focus fades out (full below the first, none above the
 /// second).
 pub const BAND_ALTITUDE_M: [f64; 2] = [20_000.0, 25_000.0];
@@ -1765,14 +1773,14 @@ pub const STATED_ERRORS: &[(&str, &str, f64)] = &[
     ("rayleigh+mie", "sky radiance (sky product), sun >= 5 deg, view < 10 deg above the horizon, 0-20 km", 0.0042),
     ("rayleigh+mie", "sky radiance (sky product), sun >= 5 deg, view < 10 deg above the horizon, 20-100 km", 0.023),
     ("rayleigh+mie", "sky radiance (sky product), sun -6..5 deg, ground", 0.015),
-    ("rayleigh+mie", "sky radiance (sky product), sun -6..5 deg, 0-5 km (4.6 % at 5 km, 0.5 deg above the horizontal 120 deg from the sun, 680 nm)", 0.046),
+    ("rayleigh+mie", "sky radiance (sky product), sun -6..5 deg, 0-5 km (9.65 % at 5 km, sun -6 deg, 0.25 deg above the horizontal towards the sun, 440 nm: the twilight glow)", 0.097),
     ("rayleigh+mie", "sky radiance (sky product), sun -6..5 deg, 5-8 km (the band above the earth's shadow near the antisolar horizon, 680 nm at 8 km, 1.75 deg above the horizontal 150 deg from the sun)", 0.073),
-    ("rayleigh+mie", "sky radiance (sky product), sun -6..5 deg, 8-12.5 km (the band above the earth's shadow near the antisolar horizon, 680 nm at 12.5 km, 1.5 deg above the horizontal 135 deg from the sun)", 0.087),
+    ("rayleigh+mie", "sky radiance (sky product), sun -6..5 deg, 8-12.5 km (the band above the earth's shadow near the antisolar horizon, 680 nm at 12.5 km, 1.5 deg above the horizontal 135 deg from the sun, 8.7 %; the twilight glow towards the sun at 10 km at most 9.65 %)", 0.097),
     ("rayleigh+mie", "sky radiance (sky product), sun -6..5 deg, 12.5-20 km (the band above the earth's shadow near the antisolar horizon, 680 nm at 20 km, the horizontal 120 deg from the sun)", 0.104),
     ("rayleigh+mie", "sky radiance (sky product), sun -6..0 deg, 0-5 km, views within 10 deg of the horizon 150-180 deg from the sun (the earth's shadow rising; 680 nm at 2.5 km)", 0.024),
     ("rayleigh+mie", "sky radiance (sky product), sun -6..5 deg, 20-100 km (the sky just above the horizontal at 30 km, 440 nm)", 0.030),
     ("rayleigh+mie", "sky radiance (sky product), sun -12..-6 deg, ground", 0.035),
-    ("rayleigh+mie", "sky radiance (sky product), sun -12..-6 deg, 0-20 km", 0.039),
+    ("rayleigh+mie", "sky radiance (sky product), sun -12..-6 deg, 0-20 km (the twilight glow towards the sun near the horizontal: 14.4 % at 15 km, sun -12 deg, 1 deg above the horizontal 60 deg from the sun, 680 nm)", 0.145),
     ("rayleigh+mie", "sky radiance (sky product), sun -12..-6 deg, 20-100 km (the sky 2.8 deg above the horizontal 109 deg from the sun, 440 nm at 79.5 km)", 0.138),
     ("irradiance", "diffuse horizontal irradiance (sun product), sun >= 5 deg, 0-100 km", 0.015),
     ("irradiance", "diffuse horizontal irradiance (sun product), sun -12..5 deg, 0-100 km", 0.016),
@@ -1992,7 +2000,9 @@ mod tests {
     #[test]
     fn the_sky_rows_follow_the_band() {
         // By day, deep in twilight and aloft: version 3's rows, θ = 90° (1 − (1 − x)²).
-        for (sun, h) in [(5.0, 0.0), (-8.0, 0.0), (-2.0, 30_000.0)] {
+        // (Deep in twilight, −5°, the band 15–20° high: the horizontal kept dense for the glow
+        // towards the sun, version 12.)
+        for (sun, h) in [(5.0, 0.0), (-8.0, 0.0), (-5.0, 5000.0), (-2.0, 30_000.0)] {
             let (c, k) = sky_row_focus(sun, h);
             assert_eq!(k, 0.0, "sun {sun}, h {h}");
             for n in 0..=10 {
