@@ -145,24 +145,7 @@ impl CloudVolume {
     pub fn weights(&self, p: DVec3) -> Option<[(usize, f64); 8]> {
         let g = &*self.grid;
         let local = (p - g.origin_m) / g.voxel_size_m;
-        let n = g.dims;
-        let mut i0 = [0usize; 3];
-        let mut di = [0usize; 3];
-        let mut f = [0f64; 3];
-        let strides = [1, n[0], n[0] * n[1]];
-        for a in 0..3 {
-            let l = local[a];
-            if !(l >= 0.0 && l <= n[a] as f64) {
-                return None;
-            }
-            let c = (l - 0.5).clamp(0.0, (n[a] - 1) as f64);
-            // c ≥ 0: truncation is the floor.
-            let lo = (c as usize).min(n[a] - 1);
-            i0[a] = lo;
-            di[a] = ((lo + 1).min(n[a] - 1) - lo) * strides[a];
-            f[a] = c - lo as f64;
-        }
-        let base = i0[2] * strides[2] + i0[1] * strides[1] + i0[0];
+        let (base, di, f) = trilinear_stencil(local, g.dims)?;
         let (gx, gy, gz) = ([1.0 - f[0], f[0]], [1.0 - f[1], f[1]], [1.0 - f[2], f[2]]);
         let mut out = [(0usize, 0f64); 8];
         for (corner, o) in out.iter_mut().enumerate() {
@@ -336,4 +319,33 @@ impl CloudVolume {
         }
         None
     }
+}
+
+/// The trilinear stencil of the grid's convention at `local` (voxel units from the grid's
+/// origin, voxel centres at half-integers) in a grid of `n` voxels (x fastest): the lower
+/// corner's index, the index steps to the upper corner along x, y, z (0 at the last voxel: the
+/// edge value continues beyond the outermost centres) and the fractions; `None` outside the
+/// box.
+#[inline(always)]
+pub(crate) fn trilinear_stencil(
+    local: DVec3,
+    n: [usize; 3],
+) -> Option<(usize, [usize; 3], [f64; 3])> {
+    let strides = [1, n[0], n[0] * n[1]];
+    let mut i0 = [0usize; 3];
+    let mut di = [0usize; 3];
+    let mut f = [0f64; 3];
+    for a in 0..3 {
+        let l = local[a];
+        if !(l >= 0.0 && l <= n[a] as f64) {
+            return None;
+        }
+        let c = (l - 0.5).clamp(0.0, (n[a] - 1) as f64);
+        // c ≥ 0: truncation is the floor.
+        let lo = (c as usize).min(n[a] - 1);
+        i0[a] = lo;
+        di[a] = ((lo + 1).min(n[a] - 1) - lo) * strides[a];
+        f[a] = c - lo as f64;
+    }
+    Some((i0[2] * strides[2] + i0[1] * strides[1] + i0[0], di, f))
 }

@@ -28,6 +28,7 @@
 
 use super::Prepared;
 use crate::peak::{PeakRow, PeakSpread};
+use crate::volume::trilinear_stencil;
 use glam::DVec3;
 
 /// The camera's true transmittance below which a step keeps the straight line's peak part
@@ -140,23 +141,9 @@ impl Prepared<'_> {
     fn near_record(&self, local: DVec3) -> (f64, f64) {
         let g = &*self.lit.vol.grid;
         let n = g.dims;
-        let strides = [1, n[0], n[0] * n[1]];
-        let mut i0 = [0usize; 3];
-        let mut di = [0usize; 3];
-        let mut f = [0f64; 3];
-        for a in 0..3 {
-            let l = local[a];
-            if !(l >= 0.0 && l <= n[a] as f64) {
-                return (0.0, 0.0);
-            }
-            let c = (l - 0.5).clamp(0.0, (n[a] - 1) as f64);
-            // c ≥ 0: truncation is the floor.
-            let lo = (c as usize).min(n[a] - 1);
-            i0[a] = lo;
-            di[a] = ((lo + 1).min(n[a] - 1) - lo) * strides[a];
-            f[a] = c - lo as f64;
-        }
-        let base = i0[2] * strides[2] + i0[1] * strides[1] + i0[0];
+        let Some((base, di, f)) = trilinear_stencil(local, n) else {
+            return (0.0, 0.0);
+        };
         let s = self.stride;
         let rec = |i: usize| {
             let r = &self.vox[i * s..i * s + 2];
