@@ -30,31 +30,10 @@ pub fn floor(x: f64) -> f64 {
 #[inline]
 pub fn sample(g: &DensityGrid, p: DVec3) -> f32 {
     let local = (p - g.origin_m) / g.voxel_size_m;
-    let n = g.dims;
-    let mut i0 = [0usize; 3];
-    let mut i1 = [0usize; 3];
-    let mut f = [0.0f64; 3];
-    for a in 0..3 {
-        let l = local[a];
-        if !(l >= 0.0 && l <= n[a] as f64) {
-            return 0.0;
-        }
-        let c = (l - 0.5).clamp(0.0, (n[a] - 1) as f64);
-        // c ≥ 0: truncation is the floor.
-        let lo = (c as usize).min(n[a] - 1);
-        i0[a] = lo;
-        i1[a] = (lo + 1).min(n[a] - 1);
-        f[a] = c - lo as f64;
-    }
+    let Some((b, [dx, dy, dz], f)) = trilinear_stencil(local, g.dims) else {
+        return 0.0;
+    };
     let d = &g.data;
-    let (sx, sy) = (1, n[0]);
-    let sz = n[0] * n[1];
-    let b = i0[2] * sz + i0[1] * sy + i0[0] * sx;
-    let (dx, dy, dz) = (
-        (i1[0] - i0[0]) * sx,
-        (i1[1] - i0[1]) * sy,
-        (i1[2] - i0[2]) * sz,
-    );
     let v = |i: usize| d[i] as f64;
     let c00 = v(b) * (1.0 - f[0]) + v(b + dx) * f[0];
     let c10 = v(b + dy) * (1.0 - f[0]) + v(b + dy + dx) * f[0];
