@@ -624,6 +624,9 @@ pub(crate) struct FamilyScratch<'a> {
     /// integrals to the sun from there (`[constituent][sun]`).
     vis: Vec<f64>,
     d_sun: [Vec<f64>; CONSTITUENTS],
+    /// `[λ][sun]`: the sun's transmittance to the current point ([`texel_sums`]), first the
+    /// optical depth's negative rounded to f32, then its exponential.
+    sun_t: Vec<f32>,
     /// `[sun][λ]`: J_ms at the current point; the multiple-scattering sums of [`TexelSums`].
     j: Vec<f64>,
     multiple: Vec<f64>,
@@ -659,6 +662,7 @@ impl<'a> FamilyScratch<'a> {
             mu_s_p: Vec::new(),
             vis: Vec::new(),
             d_sun: std::array::from_fn(|_| Vec::new()),
+            sun_t: Vec::new(),
             j: Vec::new(),
             rayleigh: Vec::new(),
             mie: Vec::new(),
@@ -990,16 +994,30 @@ skybake_physics::simd_dispatch_avx512! {
                 // scattering a vector of suns at a time (none where the sun is hidden).
                 let [d0, d1, d2] = &mut scratch.d_sun;
                 at.lookup_many(&scratch.mu_s_p, &mut scratch.vis, [&mut *d0, &mut *d1, &mut *d2]);
+                // [`sun_attenuation`] written out over the suns, its constants hoisted, so the
+                // loops vectorise; the transmittance in f32 ([`exp_fast_f32`]: 2·10⁻⁷, plus the
+                // optical depth's rounding, |τ| × 6·10⁻⁸, of the texels' half floats'
+                // 4.9·10⁻⁴), half the polynomial of `exp_fast`'s 10⁻¹⁴. The optical depths of
+                // every wavelength first (f64, 4 lanes), then their exponentials in one run
+                // of f32 (8 lanes), then the sums: each value's operations as in one loop.
+                scratch.sun_t.resize(n_l * n_t, 0.0);
                 for l in 0..n_l {
-                    // [`sun_attenuation`] written out over the suns, its constants hoisted, so
-                    // the loop vectorises; the transmittance in f32 ([`exp_fast_f32`]: 2·10⁻⁷,
-                    // plus the optical depth's rounding, |τ| × 6·10⁻⁸, of the texels' half
-                    // floats' 4.9·10⁻⁴), half the polynomial of `exp_fast`'s 10⁻¹⁴.
                     let ext = [
                         m.extinction_per_m[0][l],
                         m.extinction_per_m[1][l],
                         m.extinction_per_m[2][l],
                     ];
+                    let x = &mut scratch.sun_t[l * n_t..(l + 1) * n_t];
+                    let d = d0.iter().zip(d1.iter()).zip(d2.iter());
+                    for (x, ((&a, &b), &c)) in x.iter_mut().zip(d) {
+                        let od = ext[0] * a + ext[1] * b + ext[2] * c;
+                        *x = -od as f32;
+                    }
+                }
+                for x in scratch.sun_t.iter_mut() {
+                    *x = exp_fast_f32(*x);
+                }
+                for l in 0..n_l {
                     let (w, s_r, s_m) = (
                         wt[l],
                         m.rayleigh_scattering_per_m[l],
@@ -1008,12 +1026,11 @@ skybake_physics::simd_dispatch_avx512! {
                     let (k_r, k_m) = (w * (s_r * rho[RAYLEIGH]), w * (s_m * rho[MIE]));
                     let ray = &mut scratch.rayleigh[l * n_t..(l + 1) * n_t];
                     let mie = &mut scratch.mie[l * n_t..(l + 1) * n_t];
-                    let d = d0.iter().zip(d1.iter()).zip(d2.iter());
-                    for (((ray, mie), &vis), ((&a, &b), &c)) in
-                        ray.iter_mut().zip(mie.iter_mut()).zip(&scratch.vis).zip(d)
+                    let t = &scratch.sun_t[l * n_t..(l + 1) * n_t];
+                    for (((ray, mie), &vis), &t) in
+                        ray.iter_mut().zip(mie.iter_mut()).zip(&scratch.vis).zip(t)
                     {
-                        let od = ext[0] * a + ext[1] * b + ext[2] * c;
-                        let sun = exp_fast_f32(-od as f32) as f64 * vis;
+                        let sun = t as f64 * vis;
                         // Adding 0 where the sun is hidden leaves the sum as skipping would
                         // (sums of non-negative terms).
                         let on = vis > 0.0;

@@ -2589,22 +2589,29 @@ fn twilight_packed(
     let mut a = [0.0f32; PACKED_LANES];
     for &(ir, im, wc, pole) in &slice.corners {
         let family = (ir * n_mu + im) * n_tw;
-        let (e_from, e_to, w_pole) = if pole {
-            (0, n_phi, (wc / n_phi as f64) as f32)
-        } else {
-            (ip, ip + 2, 0.0)
-        };
-        for e in e_from..e_to {
-            let w = if pole {
-                if w_pole == 0.0 {
-                    continue;
-                }
-                w_pole
-            } else if e == ip {
-                (wc * (1.0 - fp)) as f32
-            } else {
-                (wc * fp) as f32
-            };
+        if !pole {
+            // Azimuth nodes `ip` and `ip + 1`, adjacent: each sun-zenith node's pair of rows
+            // read as one slice ([`twilight_bundle::pair_rows`]).
+            let o = |b: usize| ((family + b) * n_phi + ip) * NODE;
+            twilight_bundle::add_pair(
+                [
+                    twilight_bundle::pair_rows(&rows.packed, o(b0)),
+                    twilight_bundle::pair_rows(&rows.packed, o(b1)),
+                    twilight_bundle::pair_rows(&rows.packed, o(b2)),
+                    twilight_bundle::pair_rows(&rows.packed, o(b3)),
+                ],
+                [(wc * (1.0 - fp)) as f32, (wc * fp) as f32],
+                wq,
+                fs,
+                &mut a,
+            );
+            continue;
+        }
+        let w = (wc / n_phi as f64) as f32;
+        if w == 0.0 {
+            continue;
+        }
+        for e in 0..n_phi {
             let (v0, l0) = packed_row(&rows.packed, ((family + b0) * n_phi + e) * NODE);
             let (v1, l1) = packed_row(&rows.packed, ((family + b1) * n_phi + e) * NODE);
             let (v2, l2) = packed_row(&rows.packed, ((family + b2) * n_phi + e) * NODE);
