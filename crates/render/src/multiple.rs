@@ -45,8 +45,9 @@ mod once;
 mod skin;
 pub use convolved::ConvolvedCells;
 pub use face::{
+    outward_profiles as face_outward_profiles, outward_ratio as face_outward_ratio,
     profiles as face_build_up, FaceQuadrature, SunAtVoxel, MU_NODES as FACE_MU_NODES,
-    N_PHI as FACE_N_PHI,
+    N_PHI as FACE_N_PHI, OUTWARD_MAX_DEPTH as FACE_OUTWARD_MAX_DEPTH,
 };
 pub use once::{OnceField, ONCE_MOMENTS, ONCE_ORDER};
 pub use skin::{SkinField, SKIN_TAU};

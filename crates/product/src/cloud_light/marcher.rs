@@ -26,7 +26,8 @@ use super::{
 use skybake_physics::phase::orthonormal_basis;
 use skybake_render::march::{MARCH_CUTOFF, THICK_STEP};
 use skybake_render::multiple::{
-    face_build_up, FACE_MU_NODES as MU_NODES, FACE_N_PHI as N_PHI, ONCE_MOMENTS,
+    face_build_up, face_outward_profiles, face_outward_ratio, FACE_MU_NODES as MU_NODES,
+    FACE_N_PHI as N_PHI, FACE_OUTWARD_MAX_DEPTH, ONCE_MOMENTS,
 };
 
 /// Where a client's ray leaves the cloud, per wavelength: the cloud's radiance I and its true
@@ -351,6 +352,20 @@ impl<'a> Marcher<'a> {
                     deficit +=
                         w * 2.0 * PI / N_PHI as f64 * phase / (4.0 * PI) * (1.0 - r) * radiance;
                 }
+            }
+            if tv < FACE_OUTWARD_MAX_DEPTH {
+                deficit += outward_lowering(OutwardFace {
+                    normal,
+                    basis: (t1, t2),
+                    wo,
+                    mv,
+                    tv,
+                    tc,
+                    pl,
+                    v: &v,
+                    order,
+                    sun: sun_used.then_some((travel, mu0, e_face)),
+                });
             }
             *o = faces.scaled_albedo[l] * (j.max(0.0) - (j - deficit).max(0.0));
         }
@@ -894,6 +909,74 @@ impl<'a> Marcher<'a> {
         self.sky_entries_split(d, true, &mut sky);
         out.copy_from_slice(&sky[16 * n_l..17 * n_l]);
     }
+}
+
+/// What [`outward_lowering`] reads of one surface voxel, face and wavelength.
+struct OutwardFace<'v> {
+    /// The face's outward normal and an orthonormal basis of its plane.
+    normal: DVec3,
+    basis: (DVec3, DVec3),
+    /// Towards the viewer, and its cosine to the normal.
+    wo: DVec3,
+    mv: f64,
+    /// Scaled optical depths of the voxel and the cell along the face's axis.
+    tv: f64,
+    tc: f64,
+    /// p*_l and the radiance moments L_lm.
+    pl: &'v [f64],
+    v: &'v [f64],
+    order: usize,
+    /// The sun's direction of travel, μ₀ and E_f, where it enters through this face.
+    sun: Option<(DVec3, f64, f64)>,
+}
+
+/// The outward hemisphere's part of a face's lowering (docs/cloud-light.md, "Faces", step 4b):
+/// over the mirror images ω = μn + √(1 − μ²)(cos φ t₁ + sin φ t₂) of the inward nodes, the
+/// radiance R = Σ_lm L_lm Y_lm(ω) (skip R ≤ 0) weighted by the scaled phase function towards the
+/// viewer and by 1 − r, r the view's share of R over the cell's with R's diffuse part following
+/// the diffusion (Milne) profile (Chandrasekhar 1960, ch. IV) and the sun's first scattering the
+/// beam ([`face_outward_profiles`], [`face_outward_ratio`]).
+fn outward_lowering(f: OutwardFace) -> f64 {
+    let g = f.pl.get(1).copied().unwrap_or(0.0);
+    let (t1, t2) = f.basis;
+    let mu0 = f.sun.map_or(0.0, |s| s.1);
+    let mut ylm = [0.0; 25];
+    let mut deficit = 0.0;
+    for &(mu, w) in &MU_NODES {
+        let prof = face_outward_profiles(mu, f.mv, mu0, g, f.tv, f.tc);
+        let sin = (1.0 - mu * mu).max(0.0).sqrt();
+        for jphi in 0..N_PHI {
+            let phi = 2.0 * PI * (jphi as f64 + 0.5) / N_PHI as f64;
+            let dir = f.normal * mu + (t1 * phi.cos() + t2 * phi.sin()) * sin;
+            sh(dir, &mut ylm);
+            let radiance: f64 = (0..(f.order + 1) * (f.order + 1))
+                .map(|m| f.v[m] * ylm[m])
+                .sum();
+            if radiance <= 0.0 {
+                continue;
+            }
+            let first = f.sun.map_or(0.0, |(travel, _, e_face)| {
+                let x = (1.0 + g * g - 2.0 * g * travel.dot(dir)).max(1e-12);
+                e_face * (1.0 - g * g) / (4.0 * PI * x * x.sqrt())
+            });
+            let r = face_outward_ratio(radiance, first, prof);
+            let c = f.wo.dot(dir);
+            let legendre = [
+                1.0,
+                c,
+                0.5 * (3.0 * c * c - 1.0),
+                0.5 * c * (5.0 * c * c - 3.0),
+            ];
+            let phase: f64 =
+                f.pl.iter()
+                    .zip(legendre)
+                    .enumerate()
+                    .map(|(ord, (p_l, leg))| (2 * ord + 1) as f64 * p_l * leg)
+                    .sum();
+            deficit += w * 2.0 * PI / N_PHI as f64 * phase / (4.0 * PI) * (1.0 - r) * radiance;
+        }
+    }
+    deficit
 }
 
 /// Entry and exit distances (≥ 0) of the ray with the box (slab method).

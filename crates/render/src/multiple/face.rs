@@ -14,8 +14,16 @@
 //! (small μ'): the forward-scattered light a grazing view collects near a lit face.
 //!
 //! [`MsField::inscatter_face`] takes J* = ∫ p*(ω_o·ω') L(ω') dω' with the inward hemisphere's
-//! L scaled by r, the rest as [`MsField::inscatter`] has it (the outward light, from below the
-//! point, is left as the cell's).
+//! L scaled by r, the rest as [`MsField::inscatter`] has it.
+//!
+//! The outward light, from below the point, also varies with depth: near a face of a thick
+//! cloud it follows the diffusion (Milne) profile L(τ, μ) ∝ τ_tr + 0.7104 + μ, τ_tr the
+//! transport optical depth τ(1 − g*) below the face and 0.7104 the extrapolation length
+//! (Chandrasekhar 1960, ch. IV, §§ 28–29), lower at the top of the voxel a grazing view sees than
+//! the cell's mean. In voxels of less than [`OUTWARD_MAX_DEPTH`] scaled optical depths the outward
+//! hemisphere's radiance is scaled by the ratio of that profile at the view-weighted mean depth
+//! over the voxel to the profile at the cell's mean depth ([`outward_profile`]); thicker voxels'
+//! cells have skins (see `skin`), whose tallies hold the light near the face already.
 
 use super::{real_sh, MsField, MAX_ORDER};
 use glam::DVec3;
@@ -39,6 +47,10 @@ pub const MU_NODES: [(f64, f64); 8] = [
 /// Azimuths per inward cosine.
 pub const N_PHI: usize = 16;
 
+/// Voxels of a scaled optical depth below this along the face's axis have their outward
+/// hemisphere scaled by [`outward_profile`] (the module text); thicker ones have skins.
+pub const OUTWARD_MAX_DEPTH: f64 = super::THICK_STEP;
+
 const N_SH: usize = (MAX_ORDER + 1) * (MAX_ORDER + 1);
 
 /// One quadrature direction of a face's inward hemisphere.
@@ -49,6 +61,10 @@ struct Node {
     /// Solid-angle weight, sr.
     weight: f64,
     ylm: [f64; N_SH],
+    /// The mirror image of `dir` in the face (outward, the same cosine to the normal).
+    out_dir: DVec3,
+    /// Y_lm of `out_dir`.
+    ylm_out: [f64; N_SH],
 }
 
 /// The inward hemispheres of the 6 axis faces (outward normals −x, +x, −y, +y, −z, +z).
@@ -72,11 +88,16 @@ impl FaceQuadrature {
                         let dir = -n * mu + (t1 * phi.cos() + t2 * phi.sin()) * s;
                         let mut ylm = [0.0; N_SH];
                         real_sh(dir, order, &mut ylm);
+                        let out_dir = dir + n * (2.0 * mu);
+                        let mut ylm_out = [0.0; N_SH];
+                        real_sh(out_dir, order, &mut ylm_out);
                         nodes.push(Node {
                             dir,
                             mu: i,
                             weight: w * 2.0 * PI / N_PHI as f64,
                             ylm,
+                            out_dir,
+                            ylm_out,
                         });
                     }
                 }
@@ -144,6 +165,74 @@ pub fn profiles(m: f64, mv: f64, mu0: f64, t_voxel: f64, t_cell: f64) -> [f64; 4
         c * (mean_exp(mu0, t_cell) - mean_exp(m, t_cell)),
         c * (view_exp(mu0, mv, t_voxel) - view_exp(m, mv, t_voxel)),
     ]
+}
+
+/// The outward radiance's depth profiles at outward cosine `m`: `[diffuse, sun (cell), sun
+/// (view)]`. The diffuse part follows the diffusion (Milne) profile τ_tr + 0.7104 + μ
+/// (Chandrasekhar 1960, ch. IV), τ_tr = z(1 − `g`) with z the scaled optical depth below the face:
+/// its ratio at the mean depth over the voxel's `t_voxel` as a view of cosine `mv` weights it
+/// (e^{−z/μ_v}) over the ratio at the mean depth of the cell's `t_cell`. The sun's first
+/// scattering towards the outward direction, per unit source at the face, falls as the beam:
+/// L₁(z) = (μ₀/(μ₀ + μ)) e^{−z/μ₀} below a deep face, averaged over the cell and, as the view
+/// weights it, over the voxel (0 when `mu0` ≤ 0). The cloud-light export's reference marcher
+/// applies the same profiles (docs/cloud-light.md, "Faces").
+pub fn outward_profiles(m: f64, mv: f64, mu0: f64, g: f64, t_voxel: f64, t_cell: f64) -> [f64; 3] {
+    let x = t_voxel / mv;
+    // ∫₀ᵗ z e^{−z/μ_v} dz / ∫₀ᵗ e^{−z/μ_v} dz = μ_v − t/(e^{t/μ_v} − 1).
+    let z_view = if x < 1e-6 {
+        0.5 * t_voxel
+    } else {
+        mv - t_voxel / x.exp_m1()
+    };
+    let t_cell = t_cell.max(t_voxel);
+    let a = 1.0 - g;
+    let diffuse =
+        (z_view * a + MILNE_EXTRAPOLATION + m) / (0.5 * t_cell * a + MILNE_EXTRAPOLATION + m);
+    if mu0 <= 0.0 {
+        return [diffuse, 0.0, 0.0];
+    }
+    let c = mu0 / (mu0 + m);
+    [
+        diffuse,
+        c * mean_exp(mu0, t_cell),
+        c * view_exp(mu0, mv, t_voxel),
+    ]
+}
+
+/// The ratio of the outward radiance a view sees through the voxel to the cell's `radiance`
+/// (> 0), of which the sun's first scattering holds `first`·`sun[1]` (at most all of it) and
+/// the rest is diffuse (`sun` from [`outward_profiles`]), clamped to [0, 2].
+#[inline(always)]
+pub fn outward_ratio(radiance: f64, first: f64, sun: [f64; 3]) -> f64 {
+    let [diffuse, sun_c, sun_v] = sun;
+    let p_c = first * sun_c;
+    let (p_c, p_v) = if p_c > radiance {
+        (radiance, first * sun_v * (radiance / p_c))
+    } else {
+        (p_c, first * sun_v)
+    };
+    (((radiance - p_c) * diffuse + p_v) / radiance).clamp(0.0, 2.0)
+}
+
+/// The Milne problem's extrapolation length q(∞) (Chandrasekhar 1960, ch. IV, Table VI).
+const MILNE_EXTRAPOLATION: f64 = 0.710_446;
+
+/// Node weight times the scaled phase function towards `wo` from `dir`, / 4π:
+/// p*(cos θ) = Σ_l (2l + 1) p*_l P_l(cos θ) (shared by the scalar and side-by-side paths).
+fn phase_weight(weight: f64, wo: DVec3, dir: DVec3, pl: &[f64]) -> f64 {
+    let c = wo.dot(dir);
+    let legendre = [
+        1.0,
+        c,
+        0.5 * (3.0 * c * c - 1.0),
+        0.5 * c * (5.0 * c * c - 3.0),
+        0.125 * (35.0 * c.powi(4) - 30.0 * c * c + 3.0),
+    ];
+    let mut phase = 0.0;
+    for (order, p_l) in pl.iter().enumerate() {
+        phase += (2 * order + 1) as f64 * p_l * legendre[order];
+    }
+    weight * phase / (4.0 * PI)
 }
 
 /// The sun's light at a surface voxel: its direction of travel, its irradiance per
@@ -226,6 +315,10 @@ impl MsField {
         let mut shape_of: Option<&[f64]> = None;
         let mut prof = [[0.0f64; 4]; 8];
         let mut prof_of: Option<(f64, f64)> = None;
+        // The outward hemisphere's phase weights towards the viewer and its profile ratios.
+        let mut out_shape = vec![(0.0, 0.0); nodes.len()];
+        let mut out_prof = [[0.0f64; 3]; 8];
+        let mut out_of: Option<(&[f64], f64, f64)> = None;
         for (l, o) in out.iter_mut().enumerate() {
             let v = &coef[l * n..(l + 1) * n];
             let pl = &self.phase_moments[l][..];
@@ -248,24 +341,11 @@ impl MsField {
             if shape_of != Some(pl) {
                 let g = pl.get(1).copied().unwrap_or(0.0);
                 for (sh, node) in shape.iter_mut().zip(nodes) {
-                    // p*(cos θ) = Σ_l (2l + 1)/(4π) p*_l P_l(cos θ).
-                    let c = wo.dot(node.dir);
-                    let legendre = [
-                        1.0,
-                        c,
-                        0.5 * (3.0 * c * c - 1.0),
-                        0.5 * c * (5.0 * c * c - 3.0),
-                        0.125 * (35.0 * c.powi(4) - 30.0 * c * c + 3.0),
-                    ];
-                    let mut phase = 0.0;
-                    for (order, p_l) in pl.iter().enumerate() {
-                        phase += (2 * order + 1) as f64 * p_l * legendre[order];
-                    }
                     let first = sun.map_or(0.0, |s| {
                         let x = (1.0 + g * g - 2.0 * g * s.travel.dot(node.dir)).max(1e-12);
                         (1.0 - g * g) / (4.0 * PI * x * x.sqrt())
                     });
-                    *sh = (node.weight * phase / (4.0 * PI), first);
+                    *sh = (phase_weight(node.weight, wo, node.dir, pl), first);
                 }
                 shape_of = Some(pl);
             }
@@ -296,9 +376,58 @@ impl MsField {
                 let r = ((source * u_v + first * e_v) / den).clamp(0.0, 2.0);
                 deficit += w_phase * (1.0 - r) * radiance;
             }
+            if t_v < OUTWARD_MAX_DEPTH {
+                if out_of != Some((pl, t_v, t_c)) {
+                    let g = pl.get(1).copied().unwrap_or(0.0);
+                    for (i, r) in out_prof.iter_mut().enumerate() {
+                        *r = outward_profiles(MU_NODES[i].0, mv, mu0, g, t_v, t_c);
+                    }
+                    for (w, node) in out_shape.iter_mut().zip(nodes) {
+                        let first = sun.map_or(0.0, |s| {
+                            let x = (1.0 + g * g - 2.0 * g * s.travel.dot(node.out_dir)).max(1e-12);
+                            (1.0 - g * g) / (4.0 * PI * x * x.sqrt())
+                        });
+                        *w = (phase_weight(node.weight, wo, node.out_dir, pl), first);
+                    }
+                    out_of = Some((pl, t_v, t_c));
+                }
+                deficit += outward_deficit(nodes, v, pl.len(), e_face, &out_shape, &out_prof);
+            }
             *o = (j - deficit).max(0.0);
         }
     }
+}
+
+/// The outward hemisphere's part of the face's deficit: Σ_nodes w·(1 − r)·L(ω_out) over the
+/// mirror images of the inward nodes, L from the coefficients `v` up to order `orders` − 1
+/// (nodes of non-positive radiance skipped), `shape` the nodes' [`phase_weight`]s towards the
+/// viewer and the sun's first scattering towards ω_out per unit irradiance, `e_face` that
+/// irradiance at the face, r the [`outward_ratio`] with the [`outward_profiles`] per cosine node.
+fn outward_deficit(
+    nodes: &[Node],
+    v: &[f64],
+    orders: usize,
+    e_face: f64,
+    shape: &[(f64, f64)],
+    prof: &[[f64; 3]; 8],
+) -> f64 {
+    let mut deficit = 0.0;
+    for (node, &(w_phase, hg)) in nodes.iter().zip(shape) {
+        let mut radiance = 0.0;
+        for order in 0..orders {
+            let mut sum = 0.0;
+            for m in order * order..(order + 1) * (order + 1) {
+                sum += v[m] * node.ylm_out[m];
+            }
+            radiance += sum;
+        }
+        if radiance <= 0.0 {
+            continue;
+        }
+        let r = outward_ratio(radiance, e_face * hg, prof[node.mu]);
+        deficit += w_phase * (1.0 - r) * radiance;
+    }
+    deficit
 }
 
 #[cfg(test)]
@@ -337,6 +466,47 @@ mod tests {
         let thin = profiles(m, mv, mu0, 1e-6, 1e-6);
         assert!((thin[1] / thin[0] - 1.0).abs() < 1e-3, "{thin:?}");
         assert!((thin[3] / thin[2] - 1.0).abs() < 1e-3, "{thin:?}");
+    }
+
+    /// The outward profiles' view-weighted means against midpoint sums, and their limits: 1
+    /// for an optically thin voxel, the profile at the face over the cell's middle for a thick
+    /// one seen at a grazing angle.
+    #[test]
+    fn outward_profiles_match_their_depth_means() {
+        let (m, mv, mu0, g, tv, tc) = (0.4, 0.26, 0.5, 0.45, 0.87, 1.3);
+        let n = 200_000;
+        let (mut zw, mut ew, mut w) = (0.0, 0.0, 0.0);
+        for i in 0..n {
+            let z = tv * (i as f64 + 0.5) / n as f64;
+            let e = (-z / mv).exp();
+            zw += z * e;
+            ew += e * (-z / mu0).exp();
+            w += e;
+        }
+        let mut ec = 0.0;
+        for i in 0..n {
+            ec += (-(tc * (i as f64 + 0.5) / n as f64) / mu0).exp();
+        }
+        let q = MILNE_EXTRAPOLATION;
+        let c = mu0 / (mu0 + m);
+        let want = [
+            (zw / w * (1.0 - g) + q + m) / (0.5 * tc * (1.0 - g) + q + m),
+            c * ec / n as f64,
+            c * ew / w,
+        ];
+        let got = outward_profiles(m, mv, mu0, g, tv, tc);
+        for (a, b) in got.iter().zip(want) {
+            assert!((a - b).abs() < 1e-6, "{got:?} vs {want:?}");
+        }
+        let thin = outward_profiles(m, mv, mu0, g, 1e-9, 1e-9);
+        assert!((thin[0] - 1.0).abs() < 1e-9 && (thin[2] / thin[1] - 1.0).abs() < 1e-6);
+        let deep = outward_profiles(m, 1e-3, 0.0, g, 50.0, 50.0);
+        let face = (q + m) / (25.0 * (1.0 - g) + q + m);
+        assert!((deep[0] - face).abs() < 1e-3, "{deep:?} vs {face}");
+        // All of the radiance the sun's first scattering: the view sees the beam's profile.
+        let p = outward_profiles(m, mv, mu0, g, tv, tc);
+        let r = outward_ratio(2.0, 2.0 / p[1], p);
+        assert!((r - p[2] / p[1]).abs() < 1e-12, "{r}");
     }
 
     /// Each face's inward quadrature integrates the hemisphere's solid angle and the inward

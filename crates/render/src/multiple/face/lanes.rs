@@ -10,7 +10,10 @@
 //! multiply-adds).
 
 use super::super::{real_sh, MsField};
-use super::{face_normal, profiles, FaceQuadrature, SunAtVoxel, MU_NODES, N_PHI, N_SH};
+use super::{
+    face_normal, outward_profiles, outward_ratio, phase_weight, profiles, FaceQuadrature,
+    SunAtVoxel, MU_NODES, N_PHI, N_SH, OUTWARD_MAX_DEPTH,
+};
 use glam::DVec3;
 use std::f64::consts::PI;
 
@@ -36,6 +39,14 @@ struct FaceLanes {
     e_face: [f64; LANES],
     /// Lanes whose wavelength runs the node loop.
     active: [bool; LANES],
+    /// Per node: its weight times p*(ω_o·ω_out) / 4π for the outward mirror image, and the
+    /// sun's first scattering towards ω_out per unit irradiance, `[node][lane]`.
+    w_out: [[f64; LANES]; NODES],
+    hg_out: [[f64; LANES]; NODES],
+    /// The outward profiles per cosine node, `[μ][profile][lane]`.
+    prof_out: [[[f64; LANES]; 3]; MU_NODES.len()],
+    /// Lanes whose wavelength's voxel is thin enough for the outward profile.
+    outward: [bool; LANES],
 }
 
 impl MsField {
@@ -83,6 +94,10 @@ impl MsField {
             prof: [[[0.0; LANES]; 4]; MU_NODES.len()],
             e_face: [0.0; LANES],
             active: [false; LANES],
+            w_out: [[0.0; LANES]; NODES],
+            hg_out: [[0.0; LANES]; NODES],
+            prof_out: [[[0.0; LANES]; 3]; MU_NODES.len()],
+            outward: [false; LANES],
         };
         // Per wavelength what does not depend on the node; the profiles and the node shapes
         // computed once for the wavelengths that share them (as the scalar function does).
@@ -90,6 +105,9 @@ impl MsField {
         let mut prof_of: Option<(f64, f64)> = None;
         let mut shape = [(0.0f64, 0.0f64); NODES];
         let mut shape_of: Option<&[f64]> = None;
+        let mut out_shape = [(0.0f64, 0.0f64); NODES];
+        let mut out_prof = [[0.0f64; 3]; MU_NODES.len()];
+        let mut out_of: Option<(&[f64], f64, f64)> = None;
         for l in 0..n_l {
             let pl = &self.phase_moments[l][..];
             for m in 0..n {
@@ -116,23 +134,11 @@ impl MsField {
             if shape_of != Some(pl) {
                 let g = pl.get(1).copied().unwrap_or(0.0);
                 for (sh, node) in shape.iter_mut().zip(nodes) {
-                    let c = wo.dot(node.dir);
-                    let legendre = [
-                        1.0,
-                        c,
-                        0.5 * (3.0 * c * c - 1.0),
-                        0.5 * c * (5.0 * c * c - 3.0),
-                        0.125 * (35.0 * c.powi(4) - 30.0 * c * c + 3.0),
-                    ];
-                    let mut phase = 0.0;
-                    for (order, p_l) in pl.iter().enumerate() {
-                        phase += (2 * order + 1) as f64 * p_l * legendre[order];
-                    }
                     let first = sun.map_or(0.0, |s| {
                         let x = (1.0 + g * g - 2.0 * g * s.travel.dot(node.dir)).max(1e-12);
                         (1.0 - g * g) / (4.0 * PI * x * x.sqrt())
                     });
-                    *sh = (node.weight * phase / (4.0 * PI), first);
+                    *sh = (phase_weight(node.weight, wo, node.dir, pl), first);
                 }
                 shape_of = Some(pl);
             }
@@ -141,10 +147,45 @@ impl MsField {
                 lanes.hg[k][l] = h;
             }
             lanes.e_face[l] = sun.map_or(0.0, |s| s.irradiance[l] * (-ks * face_density_m).exp());
+            if t_v < OUTWARD_MAX_DEPTH {
+                lanes.outward[l] = true;
+                if out_of != Some((pl, t_v, t_c)) {
+                    let g = pl.get(1).copied().unwrap_or(0.0);
+                    for (i, r) in out_prof.iter_mut().enumerate() {
+                        *r = outward_profiles(MU_NODES[i].0, mv, mu0, g, t_v, t_c);
+                    }
+                    for (w, node) in out_shape.iter_mut().zip(nodes) {
+                        let first = sun.map_or(0.0, |s| {
+                            let x = (1.0 + g * g - 2.0 * g * s.travel.dot(node.out_dir)).max(1e-12);
+                            (1.0 - g * g) / (4.0 * PI * x * x.sqrt())
+                        });
+                        *w = (phase_weight(node.weight, wo, node.out_dir, pl), first);
+                    }
+                    out_of = Some((pl, t_v, t_c));
+                }
+                for (k, &(w, h)) in out_shape.iter().enumerate() {
+                    lanes.w_out[k][l] = w;
+                    lanes.hg_out[k][l] = h;
+                }
+                for (i, pr) in out_prof.iter().enumerate() {
+                    for (q, &v) in pr.iter().enumerate() {
+                        lanes.prof_out[i][q][l] = v;
+                    }
+                }
+            }
         }
         let node_ylm: [&[f64; N_SH]; NODES] = std::array::from_fn(|k| &nodes[k].ylm);
         let node_mu: [usize; NODES] = std::array::from_fn(|k| nodes[k].mu);
-        let (j, deficit) = face_sums(&lanes, &ylm_o, &node_ylm, &node_mu, self.angular_order);
+        let (j, mut deficit) = face_sums(&lanes, &ylm_o, &node_ylm, &node_mu, self.angular_order);
+        if lanes.outward.iter().any(|&o| o) {
+            let node_ylm_out: [&[f64; N_SH]; NODES] = std::array::from_fn(|k| &nodes[k].ylm_out);
+            let out = outward_sums(&lanes, &node_ylm_out, &node_mu, self.angular_order);
+            for l in 0..LANES {
+                if lanes.outward[l] {
+                    deficit[l] += out[l];
+                }
+            }
+        }
         for (l, o) in out.iter_mut().enumerate().take(n_l) {
             *o = if lanes.active[l] {
                 (j[l] - deficit[l]).max(0.0)
@@ -210,6 +251,45 @@ skybake_physics::simd_dispatch! {
             }
         }
         (j, deficit)
+    }
+}
+
+skybake_physics::simd_dispatch! {
+    /// The lanes' outward part of the deficit, Σ_nodes w_out·(1 − r)·L(ω_out) (see
+    /// `face::outward_deficit`), each lane's terms in the scalar function's order.
+    fn outward_sums(
+        lanes: &FaceLanes,
+        node_ylm: &[&[f64; N_SH]; NODES],
+        node_mu: &[usize; NODES],
+        order_max: usize,
+    ) -> [f64; LANES] {
+        let mut deficit = [0.0f64; LANES];
+        for k in 0..NODES {
+            let ylm = node_ylm[k];
+            let mut radiance = [0.0f64; LANES];
+            for order in 0..=order_max {
+                let mut sum = [0.0f64; LANES];
+                for m in order * order..(order + 1) * (order + 1) {
+                    let (c, y) = (&lanes.coef[m], ylm[m]);
+                    for l in 0..LANES {
+                        sum[l] += c[l] * y;
+                    }
+                }
+                for l in 0..LANES {
+                    radiance[l] += sum[l];
+                }
+            }
+            let (w, hg, pr) = (&lanes.w_out[k], &lanes.hg_out[k], &lanes.prof_out[node_mu[k]]);
+            for l in 0..LANES {
+                let first = lanes.e_face[l] * hg[l];
+                let r = outward_ratio(radiance[l], first, [pr[0][l], pr[1][l], pr[2][l]]);
+                let term = deficit[l] + w[l] * (1.0 - r) * radiance[l];
+                // The scalar function's `radiance <= 0.0` skip (NaN not skipped).
+                let keep = lanes.outward[l] && (radiance[l] > 0.0 || radiance[l].is_nan());
+                deficit[l] = if keep { term } else { deficit[l] };
+            }
+        }
+        deficit
     }
 }
 
@@ -288,7 +368,7 @@ mod tests {
                 let voxel_density_m = if i % 5 == 0 {
                     1e-4
                 } else {
-                    rng.random_range(0.0..40.0)
+                    rng.random_range(0.0..80.0)
                 };
                 field.inscatter_face(&quad, p, d, face, voxel_density_m, &k_true, sun, &mut a);
                 field.inscatter_face_lanes(
