@@ -622,36 +622,14 @@ impl<'a> Prepared<'a> {
             let (mut a, mut a_ms, mut a_p, mut sun_t, mut sun_peak) = (0.0, 0.0, 0.0, 0.0, 0.0);
             for l in 0..n_l {
                 if fresh[l] {
-                    // The step's exponentials side by side (`exp_4`): the three attenuations
-                    // and, with the sun, the sun's step weights through σ_t⁺ and the true σ_t,
-                    // the mean depth's e^x − 1 and the sun's transmittance at the step's start.
-                    let b_sun = kp[l] * (d1 - d0);
-                    let x_p = kp[l] * rho * dt + b_sun;
-                    let [em_t, em_s, em_p, em_xp] = exp_4(
-                        [
-                            -kt[l] * rho * dt,
-                            -ks[l] * rho * dt,
-                            -kp[l] * rho * dt,
-                            -x_p,
-                        ],
-                        [1.0; 4],
-                    );
-                    a = -em_t;
-                    a_ms = -em_s;
+                    a = -(-kt[l] * rho * dt).exp_m1();
+                    a_ms = -(-ks[l] * rho * dt).exp_m1();
                     (a_p, sun_t, sun_peak) = if sun_on {
-                        let a_p = -em_p;
-                        let x_t = kt[l] * rho * dt + b_sun;
+                        let a_p = -(-kp[l] * rho * dt).exp_m1();
                         // The sun's transmittance at the step's start, shared by both parts.
-                        let [e_tau0, em_xt, ep_xp, _] =
-                            exp_4([-(kp[l] * d0), -x_t, x_p, 0.0], [0.0, 1.0, 1.0, 1.0]);
-                        let (weight, d_eff) = sun_step_given(
-                            kp[l] * rho,
-                            x_p,
-                            dt,
-                            kp[l] * d0,
-                            e_tau0,
-                            [em_xp, ep_xp],
-                        );
+                        let e_tau0 = (-(kp[l] * d0)).exp();
+                        let (weight, d_eff) =
+                            sun_step_with(kp[l] * rho, kp[l] * (d1 - d0), dt, kp[l] * d0, e_tau0);
                         match (&self.lit.peak, rows[l]) {
                             (Some(p), Some(row)) => {
                                 // The spread beam's two parts (see the doc comment above): the
@@ -679,13 +657,12 @@ impl<'a> Prepared<'a> {
                                     straight
                                 };
                                 let peak_t = if peak > 0.0 {
-                                    let w_true = sun_weight_given(
+                                    let w_true = sun_step_weight(
                                         kt[l] * rho,
-                                        x_t,
+                                        kp[l] * (d1 - d0),
                                         dt,
                                         kp[l] * d0,
                                         e_tau0,
-                                        em_xt,
                                     );
                                     w_true * peak * self.lit.ms_extinction_scale[l]
                                 } else {
@@ -697,7 +674,7 @@ impl<'a> Prepared<'a> {
                         }
                     } else {
                         // T⁺ also carries the view cap's sky light (`add_view_cap`).
-                        (-em_p, 0.0, 0.0)
+                        (-(-kp[l] * rho * dt).exp_m1(), 0.0, 0.0)
                     };
                 }
                 // The smooth part through T⁺, the peak's part through the true transmittance
@@ -1334,86 +1311,6 @@ pub fn sun_step_weight(a: f64, b_total: f64, dt: f64, tau0: f64, e_tau0: f64) ->
         }
 }
 
-/// [`sun_step_with`] given x = a·Δ + b_total and e^{−x} − 1, e^x − 1 (`em`), computed
-/// elsewhere (by [`exp_4`], with the step's other exponentials).
-#[inline(always)]
-fn sun_step_given(a: f64, x: f64, dt: f64, tau0: f64, e_tau0: f64, em: [f64; 2]) -> (f64, f64) {
-    let weight = sun_weight_given(a, x, dt, tau0, e_tau0, em[0]);
-    if x.abs() < 1e-6 {
-        return (weight, 0.5 - x / 12.0);
-    }
-    let mean = if x > 700.0 {
-        1.0 / x
-    } else {
-        1.0 / x - 1.0 / em[1]
-    };
-    (weight, mean.clamp(0.0, 1.0))
-}
-
-/// [`sun_step_weight`] given x = a·Δ + b_total and `em_neg` = e^{−x} − 1.
-#[inline(always)]
-fn sun_weight_given(a: f64, x: f64, dt: f64, tau0: f64, e_tau0: f64, em_neg: f64) -> f64 {
-    if x.abs() < 1e-6 {
-        return e_tau0 * a * dt * (1.0 - 0.5 * x);
-    }
-    a * dt
-        * if x > 0.0 {
-            e_tau0 * (-em_neg) / x
-        } else {
-            (-tau0 - x).exp() * x.exp_m1() / x
-        }
-}
-
-/// e^x − 1 (where `minus_one` is 1) or e^x (where it is 0) of four arguments side by side, the
-/// same operations per lane without a branch (vectorised where the caller is compiled for
-/// AVX2): the reduction x = k·ln 2 + r, |r| ≤ ln 2 / 2, with ln 2 in two parts (Cody & Waite
-/// 1980, "Software Manual for the Elementary Functions", ch. 6), e^r − 1 by its Taylor series
-/// to r¹³ (the rest below 2⁻⁵⁵ of it), then 2^k·(e^r − 1) + (2^k − 1). Arguments are clamped to
-/// [−708, 709] (below, e^x is under 10⁻³⁰⁷ and e^x − 1 is −1 to the last bit). Within 2 ulp of
-/// the C library's `expm1` and `exp` (unit test).
-#[inline(always)]
-pub(crate) fn exp_4(x: [f64; 4], minus_one: [f64; 4]) -> [f64; 4] {
-    const LN2_HI: f64 = 6.931_471_803_691_238_164_90e-1;
-    const LN2_LO: f64 = 1.908_214_929_270_587_700_02e-10;
-    // 1.5·2⁵²: adding and subtracting it rounds to an integer, held in the low mantissa bits.
-    const ROUND: f64 = 6_755_399_441_055_744.0;
-    // 1/n! for n = 13 down to 2.
-    const C: [f64; 12] = [
-        1.0 / 6_227_020_800.0,
-        1.0 / 479_001_600.0,
-        1.0 / 39_916_800.0,
-        1.0 / 3_628_800.0,
-        1.0 / 362_880.0,
-        1.0 / 40_320.0,
-        1.0 / 5_040.0,
-        1.0 / 720.0,
-        1.0 / 120.0,
-        1.0 / 24.0,
-        1.0 / 6.0,
-        0.5,
-    ];
-    let mut out = [0.0; 4];
-    for i in 0..4 {
-        let v = x[i].clamp(-708.0, 709.0);
-        let t = v * std::f64::consts::LOG2_E + ROUND;
-        let k = t - ROUND;
-        let r = (v - k * LN2_HI) - k * LN2_LO;
-        let mut p = C[0];
-        for c in &C[1..] {
-            p = p * r + c;
-        }
-        let em = r + (r * r) * p;
-        // 2^k from k's bits in t (k + 1023 in the exponent field).
-        let s = f64::from_bits(
-            (t.to_bits().wrapping_sub(ROUND.to_bits()))
-                .wrapping_add(1023)
-                .wrapping_shl(52),
-        );
-        out[i] = s * em + (s - minus_one[i]);
-    }
-    out
-}
-
 /// The field J* of voxel `ijk` towards a viewer looking along `d`: [`MsField::inscatter`], or
 /// where the voxel's neighbour on the viewer's side is empty (the view enters the cloud through
 /// that face; of several, the face the view crosses most squarely),
@@ -1547,48 +1444,4 @@ fn skin_sources(
             }
         });
     skin
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    /// Distance in units in the last place between two finite doubles of the same sign.
-    fn ulps(a: f64, b: f64) -> u64 {
-        if a == b {
-            return 0;
-        }
-        (a.to_bits() as i64 - b.to_bits() as i64).unsigned_abs()
-    }
-
-    /// The step's side-by-side exponentials against the C library's `expm1` and `exp`: within
-    /// 2 ulp from −708 to 709 (uneven steps, and densely round 0 where e^x − 1 is small),
-    /// e^x − 1 exactly −1 far below 0, and the lanes independent of one another.
-    #[test]
-    fn side_by_side_exponentials_match_the_c_library() {
-        let mut worst = (0u64, 0u64);
-        let mut xs: Vec<f64> = (0..400_000)
-            .map(|i| -708.0 + 1417.0 * (i as f64 + 0.37) / 400_000.0)
-            .collect();
-        xs.extend((0..200_000).map(|i| (i as f64 - 100_000.0) * 1.3e-5));
-        xs.extend((0..2000).map(|i| 10f64.powf(-300.0 + 0.149 * i as f64)));
-        xs.extend((0..2000).map(|i| -(10f64.powf(-300.0 + 0.149 * i as f64))));
-        xs.extend([0.0, -0.0, 1e-6, -1e-6, 0.5f64.ln(), 2f64.ln()]);
-        for c in xs.chunks(4) {
-            let mut x = [0.25; 4];
-            x[..c.len()].copy_from_slice(c);
-            let m = exp_4(x, [1.0; 4]);
-            let e = exp_4(x, [0.0; 4]);
-            for i in 0..4 {
-                worst.0 = worst.0.max(ulps(m[i], x[i].exp_m1()));
-                worst.1 = worst.1.max(ulps(e[i], x[i].exp()));
-            }
-        }
-        assert!(worst.0 <= 2 && worst.1 <= 2, "{worst:?}");
-        let far = exp_4([-800.0, -60.0, -1e5, -708.0], [1.0; 4]);
-        assert!(far.iter().all(|&v| v == -1.0), "{far:?}");
-        let mixed = exp_4([1.0, 1.0, -3.0, 0.0], [1.0, 0.0, 0.0, 1.0]);
-        assert!(ulps(mixed[0], 1f64.exp_m1()) <= 2 && ulps(mixed[1], 1f64.exp()) <= 2);
-        assert!(ulps(mixed[2], (-3f64).exp()) <= 2 && mixed[3] == 0.0);
-    }
 }

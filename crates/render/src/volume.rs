@@ -163,25 +163,6 @@ impl CloudVolume {
         self.block_max[(b[2] * self.block_dims[1] + b[1]) * self.block_dims[0] + b[0]] <= 0.0
     }
 
-    /// Whether the voxel holding `local` (voxel units from the grid's origin) lies in an empty
-    /// block: then that voxel's density is 0, and so is every trilinear look-up at `local`
-    /// (its corners lie within one voxel of that voxel, and a voxel's value reaches one voxel
-    /// into its neighbours' blocks). False outside the grid (not known).
-    #[inline(always)]
-    pub fn in_empty_block_voxels(&self, local: DVec3) -> bool {
-        let n = self.grid.dims;
-        let (mut idx, mut stride) = (0usize, 1usize);
-        for a in 0..3 {
-            let v = local[a];
-            if !(v >= 0.0 && v < n[a] as f64) {
-                return false;
-            }
-            idx += (v as usize).min(n[a] - 1) / BLOCK * stride;
-            stride *= self.block_dims[a];
-        }
-        self.block_max[idx] <= 0.0
-    }
-
     /// If the block containing `p` is empty, the distance along `d` to leave it; else `None`.
     #[inline]
     pub fn empty_skip(&self, p: DVec3, d: DVec3) -> Option<f64> {

@@ -93,8 +93,7 @@ impl Prepared<'_> {
             mass: [0.0; TURN_BINS],
             path: [0.0; TURN_BINS],
         };
-        let vol = &self.lit.vol;
-        let g = &*vol.grid;
+        let g = &*self.lit.vol.grid;
         let h = g.voxel_size_m;
         let inv_h = 1.0 / h;
         // The distance to the box's face along b (x is inside the box).
@@ -115,12 +114,8 @@ impl Prepared<'_> {
             let w = hi - lo;
             let yl = xl + ray.b * ((lo + 0.5 * w) * inv_h);
             // Trilinear within two voxels of x, the nearest voxel's record beyond (bins of two
-            // voxels and more). In an empty block the density is 0 and the bin gathers nothing
-            // whatever its D_sun ([`Self::peak_turned`] skips it): its record is not read (the
-            // records of empty space are the ones the march never brings into the caches).
-            let (rho, d_sun) = if vol.in_empty_block_voxels(yl) {
-                (0.0, 0.0)
-            } else if k < 2 {
+            // voxels and more).
+            let (rho, d_sun) = if k < 2 {
                 self.near_record(yl)
             } else {
                 self.nearest_record(yl)
@@ -234,14 +229,10 @@ impl Prepared<'_> {
         }
         let d_s = lam_s / (rate * kt);
         // Σ ρw·e^{−kp·path} relative to the straight line's e^{−kp·D} (the exponent bounded:
-        // where the straight line is in deep shadow the product with it stays finite, so a bin
-        // without density adds exactly 0 and is skipped).
-        let mut gathered = 0.0f64;
-        for i in 0..tp.n {
-            if tp.mass[i] != 0.0 {
-                gathered += tp.mass[i] * (-kp * (tp.path[i] - d_s)).min(600.0).exp();
-            }
-        }
+        // where the straight line is in deep shadow the product with it stays finite).
+        let gathered: f64 = (0..tp.n)
+            .map(|i| tp.mass[i] * (-kp * (tp.path[i] - d_s)).min(600.0).exp())
+            .sum();
         let first = p.last_in_peak(row, 0.0);
         // ωf⁺·kt per unit λ·kt/rate (λ = ωf·kt·D·spread).
         let per_lambda = (1.0 - self.lit.first_extinction_scale[l]) / rate;
