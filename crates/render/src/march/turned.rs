@@ -105,26 +105,6 @@ impl Prepared<'_> {
         }
         // Positions in voxel units from the grid's origin, b in voxels per voxel.
         let xl = (x - g.origin_m) * inv_h;
-        // The far bins' records fetched first (a hint: their places do not depend on any value
-        // read, and their loads, a voxel record each 2–64 voxels away, mostly miss the caches),
-        // so that they arrive while the near bins' trilinear look-ups run.
-        let (mut lo, mut width) = (0.0, h);
-        for k in 0..TURN_BINS {
-            if lo >= exit {
-                break;
-            }
-            let hi = (lo + width).min(exit);
-            if k >= 2 {
-                let yl = xl + ray.b * ((lo + 0.5 * (hi - lo)) * inv_h);
-                if let Some(idx) = nearest_index(g.dims, yl) {
-                    prefetch(&self.vox[idx * self.stride..]);
-                }
-            }
-            lo = hi;
-            if k > 0 {
-                width *= 2.0;
-            }
-        }
         let (mut lo, mut width, mut cum) = (0.0, h, 0.0);
         for k in 0..TURN_BINS {
             if lo >= exit {
@@ -210,9 +190,17 @@ impl Prepared<'_> {
     /// origin; 0 outside the grid).
     #[inline]
     fn nearest_record(&self, local: DVec3) -> (f64, f64) {
-        let Some(idx) = nearest_index(self.lit.vol.grid.dims, local) else {
-            return (0.0, 0.0);
-        };
+        let g = &*self.lit.vol.grid;
+        let mut idx = 0usize;
+        let mut stride = 1usize;
+        for a in 0..3 {
+            let v = local[a];
+            if !(v >= 0.0 && v < g.dims[a] as f64) {
+                return (0.0, 0.0);
+            }
+            idx += (v as usize).min(g.dims[a] - 1) * stride;
+            stride *= g.dims[a];
+        }
         let r = &self.vox[idx * self.stride..idx * self.stride + 2];
         (r[0] as f64, (r[1] as f64).powi(2))
     }
@@ -257,35 +245,4 @@ impl Prepared<'_> {
         } / (lam_e / (rate * kt));
         (now + gathered * slope - turned_at(lam_s, now)).max(0.0)
     }
-}
-
-/// The index of the voxel holding `local` (voxel units from the grid's origin) in a grid of
-/// `dims`; `None` outside the grid.
-#[inline(always)]
-fn nearest_index(dims: [usize; 3], local: DVec3) -> Option<usize> {
-    let mut idx = 0usize;
-    let mut stride = 1usize;
-    for a in 0..3 {
-        let v = local[a];
-        if !(v >= 0.0 && v < dims[a] as f64) {
-            return None;
-        }
-        idx += (v as usize).min(dims[a] - 1) * stride;
-        stride *= dims[a];
-    }
-    Some(idx)
-}
-
-/// Asks the processor to bring the cache line at the start of `data` into its caches (a hint:
-/// no effect on any value).
-#[inline(always)]
-fn prefetch(data: &[f32]) {
-    #[cfg(target_arch = "x86_64")]
-    {
-        use std::arch::x86_64::{_mm_prefetch, _MM_HINT_T0};
-        // SAFETY: a prefetch reads nothing and cannot fault; the address lies in `data`.
-        unsafe { _mm_prefetch::<_MM_HINT_T0>(data.as_ptr() as *const i8) };
-    }
-    #[cfg(not(target_arch = "x86_64"))]
-    let _ = data;
 }
