@@ -291,7 +291,16 @@ impl<'a> Prepared<'a> {
                 lap("multiple_scattering", &mut timing_ms);
                 let ms_albedo = &lit.ms_albedo;
                 let [nx, ny, _] = grid.dims;
+                // The sun's first scattering towards the faces' nodes, kept for the frame.
                 let quad = FaceQuadrature::new(field.angular_order());
+                let quad = if sun_on {
+                    let gs: Vec<f64> = (field.phase_moments.iter())
+                        .map(|pl| pl.get(1).copied().unwrap_or(0.0))
+                        .collect();
+                    quad.with_sun(-lighting.sun_dir, &gs)
+                } else {
+                    quad
+                };
                 let k_true = &optics.extinction_per_density_m;
                 let cells = lit.ms_cells.get_or_init(|| field.convolved_cells());
                 let once = field.once_towards(&view);

@@ -299,14 +299,16 @@ impl MsField {
             // accumulator, and the lanes are summed in order: the result does not depend on
             // the thread count or on scheduling (a resumed frame is bit-identical), and only
             // `lanes` accumulators are ever allocated.
-            let partial: Vec<(Vec<f64>, Vec<f64>)> = (0..lanes)
+            // The lanes hold f32 (half the memory of f64 for the tracks' scattered writes;
+            // each score is added in f64 and rounded once, and the field is stored in f32).
+            let partial: Vec<(Vec<f32>, Vec<f32>)> = (0..lanes)
                 .into_par_iter()
                 .map(|lane| {
-                    let mut acc = super::pages::take_zeroed(lane_len);
+                    let mut acc = super::pages::take_zeroed_f32(lane_len);
                     // The sun photons' tracks between their first and second scattering (the
                     // δ-M once-scattered light), apart: `once` replaces it in the interior.
                     let mut acc_once = if once_here {
-                        super::pages::take_zeroed(lane_len)
+                        super::pages::take_zeroed_f32(lane_len)
                     } else {
                         Vec::new()
                     };
@@ -385,7 +387,7 @@ impl MsField {
                                 } else {
                                     &mut acc
                                 };
-                                if !fly(
+                                if !fly_f32(
                                     &coarse,
                                     lo,
                                     hi,
@@ -493,8 +495,8 @@ impl MsField {
                         for (gi, &l) in group.iter().enumerate() {
                             for m in 0..moments {
                                 let i = (c * ng + gi) * moments + m;
-                                let o = q.get(i).copied().unwrap_or(0.0);
-                                cell[l * moments + m] += (p[i] + o) as f32;
+                                let o = q.get(i).map_or(0.0, |&o| o as f64);
+                                cell[l * moments + m] += (p[i] as f64 + o) as f32;
                                 dm[l * moments + m] += o as f32;
                             }
                         }
@@ -509,15 +511,15 @@ impl MsField {
                             for m in 0..moments {
                                 let i = ((cells + s) * ng + gi) * moments + m;
                                 cell[l * moments + m] +=
-                                    (p[i] + q.get(i).copied().unwrap_or(0.0)) as f32;
+                                    (p[i] as f64 + q.get(i).map_or(0.0, |&o| o as f64)) as f32;
                             }
                         }
                     }
                 });
             for (p, q) in partial {
-                super::pages::give_back(p);
+                super::pages::give_back_f32(p);
                 if !q.is_empty() {
-                    super::pages::give_back(q);
+                    super::pages::give_back_f32(q);
                 }
             }
             if let Some(o) = once.as_mut().filter(|_| once_here) {
@@ -848,7 +850,7 @@ impl DiffusionJump {
         ph: &mut Photon,
         (c, r, sigma_tr): (usize, f64, f64),
         w: &[f64],
-        acc: &mut [f64],
+        acc: &mut [impl Tally],
         moments: usize,
         cell_volume: f64,
         rng: &mut Pcg64,
@@ -860,7 +862,7 @@ impl DiffusionJump {
         let y00 = 0.282_094_791_773_878_14;
         let s = path * y00 / cell_volume;
         for (gi, wi) in w.iter().enumerate() {
-            acc[(c * ng + gi) * moments] += wi * s;
+            acc[(c * ng + gi) * moments].add(wi * s);
         }
         ph.pos += uniform_sphere(rng.random(), rng.random()) * r;
         ph.dir = uniform_sphere(rng.random(), rng.random());
@@ -1050,8 +1052,9 @@ fn hemisphere_power(lighting: &Lighting, group: &[usize]) -> (f64, f64) {
 skybake_physics::simd_dispatch! {
     /// Moves the photon through the coarse grid until optical depth `tau` is used up (a
     /// collision: returns true) or it leaves the box (false). Scattered photons score their
-    /// tracks. Compiled twice (generic and AVX2 + FMA, chosen by the CPU's features): the same
-    /// IEEE operations in both (Rust contracts no multiply-add), so the same field.
+    /// tracks into `acc` (f64; [`fly_f32`]: the same into `f32` accumulators). Compiled twice
+    /// (generic and AVX2 + FMA, chosen by the CPU's features): the same IEEE operations in both
+    /// (Rust contracts no multiply-add), so the same field.
     fn fly(
         g: &Coarse,
         lo: DVec3,
@@ -1066,93 +1069,155 @@ skybake_physics::simd_dispatch! {
         ylm: &[f64],
         cloud_only: bool,
     ) -> bool {
-        let mut tau = tau_in;
-        let Some((t0, t1)) = super::camera::box_interval(ph.pos, ph.dir, lo, hi) else {
-            return false;
+        fly_in(g, lo, hi, ph, tau_in, k, cell_volume, w, acc, ng, ylm, cloud_only)
+    }
+}
+
+skybake_physics::simd_dispatch! {
+    /// [`fly`] scoring into `f32` accumulators (each score added in f64 and rounded once).
+    fn fly_f32(
+        g: &Coarse,
+        lo: DVec3,
+        hi: DVec3,
+        ph: &mut Photon,
+        tau_in: f64,
+        k: f64,
+        cell_volume: f64,
+        w: &[f64],
+        acc: &mut [f32],
+        ng: usize,
+        ylm: &[f64],
+        cloud_only: bool,
+    ) -> bool {
+        fly_in(g, lo, hi, ph, tau_in, k, cell_volume, w, acc, ng, ylm, cloud_only)
+    }
+}
+
+/// The body of [`fly`] and [`fly_f32`], for accumulators of either precision.
+#[allow(clippy::too_many_arguments)]
+#[inline(always)]
+fn fly_in<T: Tally>(
+    g: &Coarse,
+    lo: DVec3,
+    hi: DVec3,
+    ph: &mut Photon,
+    tau_in: f64,
+    k: f64,
+    cell_volume: f64,
+    w: &[f64],
+    acc: &mut [T],
+    ng: usize,
+    ylm: &[f64],
+    cloud_only: bool,
+) -> bool {
+    let mut tau = tau_in;
+    let Some((t0, t1)) = super::camera::box_interval(ph.pos, ph.dir, lo, hi) else {
+        return false;
+    };
+    let d = ph.dir;
+    let mut t = t0;
+    // DDA through the cells.
+    let p0 = ph.pos + d * (t0 + 1e-9 * g.cell_m.min_element());
+    let mut cell = [0i64; 3];
+    let mut step = [0i64; 3];
+    let mut t_next = [f64::INFINITY; 3];
+    let mut t_delta = [f64::INFINITY; 3];
+    for a in 0..3 {
+        let h = g.cell_m[a];
+        let local = (p0[a] - lo[a]) / h;
+        cell[a] = (super::volume::floor(local) as i64).clamp(0, g.dims[a] as i64 - 1);
+        if d[a] > 0.0 {
+            step[a] = 1;
+            t_next[a] = t0 + ((cell[a] + 1) as f64 * h + lo[a] - p0[a]) / d[a];
+            t_delta[a] = h / d[a];
+        } else if d[a] < 0.0 {
+            step[a] = -1;
+            t_next[a] = t0 + (cell[a] as f64 * h + lo[a] - p0[a]) / d[a];
+            t_delta[a] = -h / d[a];
+        }
+    }
+    // A second cursor runs [`LOOKAHEAD`] cells ahead of the track along the same cells and
+    // fetches their accumulators (a lane's accumulators are larger than the caches, and a
+    // track crosses few cells: fetched one cell ahead, most of the wait remained; a hint, no
+    // change in value).
+    let block = ng * ylm.len();
+    let mut ahead = (cell, t_next);
+    let mut ahead_live = ph.scattered;
+    for _ in 0..LOOKAHEAD {
+        if ahead_live {
+            ahead_live = ahead_step(g, &mut ahead, &step, &t_delta, acc, block);
+        }
+    }
+    loop {
+        let a = if t_next[0] <= t_next[1] && t_next[0] <= t_next[2] {
+            0
+        } else if t_next[1] <= t_next[2] {
+            1
+        } else {
+            2
         };
-        let d = ph.dir;
-        let mut t = t0;
-        // DDA through the cells.
-        let p0 = ph.pos + d * (t0 + 1e-9 * g.cell_m.min_element());
-        let mut cell = [0i64; 3];
-        let mut step = [0i64; 3];
-        let mut t_next = [f64::INFINITY; 3];
-        let mut t_delta = [f64::INFINITY; 3];
-        for a in 0..3 {
-            let h = g.cell_m[a];
-            let local = (p0[a] - lo[a]) / h;
-            cell[a] = (super::volume::floor(local) as i64).clamp(0, g.dims[a] as i64 - 1);
-            if d[a] > 0.0 {
-                step[a] = 1;
-                t_next[a] = t0 + ((cell[a] + 1) as f64 * h + lo[a] - p0[a]) / d[a];
-                t_delta[a] = h / d[a];
-            } else if d[a] < 0.0 {
-                step[a] = -1;
-                t_next[a] = t0 + (cell[a] as f64 * h + lo[a] - p0[a]) / d[a];
-                t_delta[a] = -h / d[a];
-            }
+        let t_exit = t_next[a].min(t1);
+        let c = ((cell[2] as usize * g.dims[1]) + cell[1] as usize) * g.dims[0] + cell[0] as usize;
+        if ahead_live {
+            ahead_live = ahead_step(g, &mut ahead, &step, &t_delta, acc, block);
         }
-        // A second cursor runs [`LOOKAHEAD`] cells ahead of the track along the same cells and
-        // fetches their accumulators (a lane's accumulators are larger than the caches, and a
-        // track crosses few cells: fetched one cell ahead, most of the wait remained; a hint, no
-        // change in value).
-        let block = ng * ylm.len();
-        let mut ahead = (cell, t_next);
-        let mut ahead_live = ph.scattered;
-        for _ in 0..LOOKAHEAD {
-            if ahead_live {
-                ahead_live = ahead_step(g, &mut ahead, &step, &t_delta, acc, block);
-            }
-        }
-        loop {
-            let a = if t_next[0] <= t_next[1] && t_next[0] <= t_next[2] {
-                0
-            } else if t_next[1] <= t_next[2] {
-                1
-            } else {
-                2
-            };
-            let t_exit = t_next[a].min(t1);
-            let c = ((cell[2] as usize * g.dims[1]) + cell[1] as usize) * g.dims[0] + cell[0] as usize;
-            if ahead_live {
-                ahead_live = ahead_step(g, &mut ahead, &step, &t_delta, acc, block);
-            }
-            let sigma = k * g.rho[c] as f64;
-            let len = (t_exit - t).max(0.0);
-            let (used, hit) = if sigma * len >= tau && sigma > 0.0 {
-                (tau / sigma, true)
-            } else {
-                (len, false)
-            };
-            if ph.scattered && used > 0.0 && (!cloud_only || g.rho[c] > 0.0) {
-                let s = used / cell_volume;
-                let n = ylm.len();
-                for gi in 0..ng {
-                    let b = (c * ng + gi) * n;
-                    let ws = w[gi] * s;
-                    for (a, y) in acc[b..b + n].iter_mut().zip(ylm) {
-                        *a += ws * y;
-                    }
-                }
-                if let Some(sk) = &g.skin {
-                    sk.score(c, g.rho.len(), ph.pos + d * t, d, used, w, acc, ylm);
+        let sigma = k * g.rho[c] as f64;
+        let len = (t_exit - t).max(0.0);
+        let (used, hit) = if sigma * len >= tau && sigma > 0.0 {
+            (tau / sigma, true)
+        } else {
+            (len, false)
+        };
+        if ph.scattered && used > 0.0 && (!cloud_only || g.rho[c] > 0.0) {
+            let s = used / cell_volume;
+            let n = ylm.len();
+            for gi in 0..ng {
+                let b = (c * ng + gi) * n;
+                let ws = w[gi] * s;
+                for (a, y) in acc[b..b + n].iter_mut().zip(ylm) {
+                    a.add(ws * y);
                 }
             }
-            if hit {
-                ph.pos += d * (t + used);
-                return true;
+            if let Some(sk) = &g.skin {
+                sk.score(c, g.rho.len(), ph.pos + d * t, d, used, w, acc, ylm);
             }
-            tau -= sigma * len;
-            t = t_exit;
-            if t >= t1 {
-                return false;
-            }
-            cell[a] += step[a];
-            if cell[a] < 0 || cell[a] >= g.dims[a] as i64 {
-                return false;
-            }
-            t_next[a] += t_delta[a];
         }
+        if hit {
+            ph.pos += d * (t + used);
+            return true;
+        }
+        tau -= sigma * len;
+        t = t_exit;
+        if t >= t1 {
+            return false;
+        }
+        cell[a] += step[a];
+        if cell[a] < 0 || cell[a] >= g.dims[a] as i64 {
+            return false;
+        }
+        t_next[a] += t_delta[a];
+    }
+}
+
+/// An accumulator of the photon pass: [`fly`] adds each track's scores to one (f64, or f32
+/// for the field's lanes, [`fly_f32`]).
+pub(super) trait Tally: Copy {
+    /// Adds `v` (computed in f64).
+    fn add(&mut self, v: f64);
+}
+
+impl Tally for f64 {
+    #[inline(always)]
+    fn add(&mut self, v: f64) {
+        *self += v;
+    }
+}
+
+impl Tally for f32 {
+    /// The sum in f64, rounded once to f32.
+    #[inline(always)]
+    fn add(&mut self, v: f64) {
+        *self = (*self as f64 + v) as f32;
     }
 }
 
@@ -1184,12 +1249,12 @@ const LOOKAHEAD: usize = 3;
 /// along the track's cells (the same choice of axis as the track's) and fetches that cell's
 /// accumulators (`block` values per cell); false when it has left the grid.
 #[inline(always)]
-fn ahead_step(
+fn ahead_step<T>(
     g: &Coarse,
     (cell, t_next): &mut ([i64; 3], [f64; 3]),
     step: &[i64; 3],
     t_delta: &[f64; 3],
-    acc: &[f64],
+    acc: &[T],
     block: usize,
 ) -> bool {
     let a = if t_next[0] <= t_next[1] && t_next[0] <= t_next[2] {
@@ -1211,7 +1276,7 @@ fn ahead_step(
 
 /// Asks the processor to bring `block` into its caches (a hint: no effect on any value).
 #[inline(always)]
-fn prefetch(block: &[f64]) {
+fn prefetch<T>(block: &[T]) {
     #[cfg(target_arch = "x86_64")]
     {
         use std::arch::x86_64::{_mm_prefetch, _MM_HINT_T0};

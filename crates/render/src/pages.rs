@@ -64,9 +64,9 @@ impl<T> Pool<T> {
     }
 }
 
-/// Freed accumulators [`take_zeroed`] reuses: up to 160 MB (the photon pass of the bench's
-/// standard frame uses 100 MB).
-static POOL: Pool<f64> = Pool::new(160 << 20);
+/// Freed accumulators [`take_zeroed`] reuses: up to 64 MB (the once-scattered light's
+/// tallies; the field's lanes are `f32`, [`take_zeroed_f32`]).
+static POOL: Pool<f64> = Pool::new(64 << 20);
 
 /// `len` zeros, in a buffer given back earlier when one is large enough (its pages are
 /// already mapped, and zeroing them in place costs less than mapping and clearing fresh pages,
@@ -82,16 +82,16 @@ pub fn take_zeroed(len: usize) -> Vec<f64> {
     }
 }
 
-/// Keeps `v` for [`take_zeroed`] while the kept buffers stay within the pool's 160 MB (else it
+/// Keeps `v` for [`take_zeroed`] while the kept buffers stay within the pool's 64 MB (else it
 /// is freed); small buffers are freed.
 pub fn give_back(v: Vec<f64>) {
     POOL.give_back(v);
 }
 
-/// Freed `f32` working buffers [`take_f32`] reuses: up to 192 MB (the bench's standard frame:
-/// the 14 lattice paths, 112 MB, the camera's voxel records, 40 MB, the sun's paths and their
-/// layer order, 2 × 8 MB).
-static POOL_F32: Pool<f32> = Pool::new(192 << 20);
+/// Freed `f32` working buffers [`take_f32`] and [`take_zeroed_f32`] reuse: up to 288 MB (the
+/// bench's standard frame: the 14 lattice paths, 112 MB, the camera's voxel records, 40 MB, the
+/// sun's paths and their layer order, 2 × 8 MB, the photon pass's lanes, 16 × 6.3 MB).
+static POOL_F32: Pool<f32> = Pool::new(288 << 20);
 
 /// `len` values whose contents are unspecified, for a buffer the caller fills completely
 /// before reading any of it: one given back earlier when one is large enough (its pages are
@@ -113,8 +113,21 @@ pub fn take_f32(len: usize) -> Vec<f32> {
     }
 }
 
-/// Keeps `v` for [`take_f32`] while the kept buffers stay within the pool's 192 MB (else it is
-/// freed); small buffers are freed.
+/// `len` zeros of `f32`, as [`take_zeroed`] gives `f64` ones (a buffer of [`take_f32`]'s pool
+/// zeroed in place when one is large enough).
+pub fn take_zeroed_f32(len: usize) -> Vec<f32> {
+    match POOL_F32.take(len) {
+        Some(mut v) => {
+            v.clear();
+            v.resize(len, 0.0);
+            v
+        }
+        None => zeroed(0f32, len),
+    }
+}
+
+/// Keeps `v` for [`take_f32`] and [`take_zeroed_f32`] while the kept buffers stay within the
+/// pool's 288 MB (else it is freed); small buffers are freed.
 pub fn give_back_f32(v: Vec<f32>) {
     POOL_F32.give_back(v);
 }
@@ -159,6 +172,21 @@ mod tests {
             assert_eq!(w.len(), n);
             assert!(w.iter().all(|&x| x == 0.0));
             give_back(w);
+        }
+    }
+
+    /// A zeroed `f32` buffer given back and taken again holds zeros of the new length.
+    #[test]
+    fn reused_zeroed_f32_buffers_are_zero() {
+        let len = (5 << 20) / 4;
+        let mut v = take_zeroed_f32(len);
+        v.iter_mut().for_each(|x| *x = 2.0);
+        give_back_f32(v);
+        for n in [len - 3, len, len + 5] {
+            let w = take_zeroed_f32(n);
+            assert_eq!(w.len(), n);
+            assert!(w.iter().all(|&x| x == 0.0));
+            give_back_f32(w);
         }
     }
 

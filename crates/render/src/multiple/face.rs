@@ -70,6 +70,28 @@ struct Node {
 /// The inward hemispheres of the 6 axis faces (outward normals −x, +x, −y, +y, −z, +z).
 pub struct FaceQuadrature {
     faces: Vec<Vec<Node>>,
+    /// Per face, the nodes' directions (x, y, z) and weights as arrays, for the node loops
+    /// that run over all nodes at once.
+    pub(super) arrays: Vec<[Vec<f64>; 4]>,
+    /// The sun's first scattering towards every node, per face, for one direction of the
+    /// sun's travel and the frame's asymmetries (see [`Self::with_sun`]).
+    sun_first: Vec<SunFirst>,
+}
+
+/// [`sun_first_scattering`] at every node of every face for one sun and one asymmetry g.
+struct SunFirst {
+    travel: DVec3,
+    g: f64,
+    faces: Vec<Vec<f64>>,
+}
+
+/// The sun's first scattering towards `dir` per unit irradiance, Henyey-Greenstein of
+/// asymmetry `g`, for light travelling along `travel` (what [`MsField::inscatter_face`] weighs
+/// the build-up profile of the sun's beam with).
+#[inline]
+pub(super) fn sun_first_scattering(g: f64, travel: DVec3, dir: DVec3) -> f64 {
+    let x = (1.0 + g * g - 2.0 * g * travel.dot(dir)).max(1e-12);
+    (1.0 - g * g) / (4.0 * PI * x * x.sqrt())
 }
 
 impl FaceQuadrature {
@@ -103,8 +125,56 @@ impl FaceQuadrature {
                 }
                 nodes
             })
+            .collect::<Vec<Vec<Node>>>();
+        let arrays = faces
+            .iter()
+            .map(|nodes| {
+                [
+                    nodes.iter().map(|n| n.dir.x).collect(),
+                    nodes.iter().map(|n| n.dir.y).collect(),
+                    nodes.iter().map(|n| n.dir.z).collect(),
+                    nodes.iter().map(|n| n.weight).collect(),
+                ]
+            })
             .collect();
-        Self { faces }
+        Self {
+            faces,
+            arrays,
+            sun_first: Vec::new(),
+        }
+    }
+
+    /// The quadrature with the sun's first scattering towards every node kept per face, for
+    /// light travelling along `travel` and each asymmetry of `gs` (the first phase moments p*₁
+    /// of the field's wavelengths): it depends on neither the voxel nor the view, and
+    /// [`MsField::inscatter_face_lanes`] reads it instead of computing it per voxel (the same
+    /// values).
+    pub fn with_sun(mut self, travel: DVec3, gs: &[f64]) -> Self {
+        for &g in gs {
+            if self.sun_first.iter().any(|s| s.g == g) {
+                continue;
+            }
+            let faces = self
+                .faces
+                .iter()
+                .map(|nodes| {
+                    nodes
+                        .iter()
+                        .map(|n| sun_first_scattering(g, travel, n.dir))
+                        .collect()
+                })
+                .collect();
+            self.sun_first.push(SunFirst { travel, g, faces });
+        }
+        self
+    }
+
+    /// The kept first scattering at face `face`'s nodes for `travel` and `g`, if kept.
+    pub(super) fn sun_first(&self, face: usize, travel: DVec3, g: f64) -> Option<&[f64]> {
+        self.sun_first
+            .iter()
+            .find(|s| s.g == g && s.travel == travel)
+            .map(|s| &s.faces[face][..])
     }
 }
 
@@ -341,10 +411,7 @@ impl MsField {
             if shape_of != Some(pl) {
                 let g = pl.get(1).copied().unwrap_or(0.0);
                 for (sh, node) in shape.iter_mut().zip(nodes) {
-                    let first = sun.map_or(0.0, |s| {
-                        let x = (1.0 + g * g - 2.0 * g * s.travel.dot(node.dir)).max(1e-12);
-                        (1.0 - g * g) / (4.0 * PI * x * x.sqrt())
-                    });
+                    let first = sun.map_or(0.0, |s| sun_first_scattering(g, s.travel, node.dir));
                     *sh = (phase_weight(node.weight, wo, node.dir, pl), first);
                 }
                 shape_of = Some(pl);
@@ -383,10 +450,8 @@ impl MsField {
                         *r = outward_profiles(MU_NODES[i].0, mv, mu0, g, t_v, t_c);
                     }
                     for (w, node) in out_shape.iter_mut().zip(nodes) {
-                        let first = sun.map_or(0.0, |s| {
-                            let x = (1.0 + g * g - 2.0 * g * s.travel.dot(node.out_dir)).max(1e-12);
-                            (1.0 - g * g) / (4.0 * PI * x * x.sqrt())
-                        });
+                        let first =
+                            sun.map_or(0.0, |s| sun_first_scattering(g, s.travel, node.out_dir));
                         *w = (phase_weight(node.weight, wo, node.out_dir, pl), first);
                     }
                     out_of = Some((pl, t_v, t_c));

@@ -127,7 +127,7 @@ impl Skin {
         d: DVec3,
         len: f64,
         w: &[f64],
-        acc: &mut [f64],
+        acc: &mut [impl super::Tally],
         ylm: &[f64],
     ) {
         let s = self.index[c];
@@ -160,7 +160,7 @@ impl Skin {
             let b = ((cells + s) * ng + gi) * n;
             let ws = wi * f;
             for (x, y) in acc[b..b + n].iter_mut().zip(ylm) {
-                *x += ws * y;
+                x.add(ws * y);
             }
         }
     }

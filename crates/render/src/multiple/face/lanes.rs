@@ -11,8 +11,8 @@
 
 use super::super::{real_sh, MsField};
 use super::{
-    face_normal, outward_profiles, outward_ratio, phase_weight, profiles, FaceQuadrature,
-    SunAtVoxel, MU_NODES, N_PHI, N_SH, OUTWARD_MAX_DEPTH,
+    face_normal, outward_profiles, outward_ratio, phase_weight, profiles, sun_first_scattering,
+    FaceQuadrature, SunAtVoxel, MU_NODES, N_PHI, N_SH, OUTWARD_MAX_DEPTH,
 };
 use glam::DVec3;
 use std::f64::consts::PI;
@@ -103,7 +103,8 @@ impl MsField {
         // computed once for the wavelengths that share them (as the scalar function does).
         let mut prof = [[0.0f64; 4]; 8];
         let mut prof_of: Option<(f64, f64)> = None;
-        let mut shape = [(0.0f64, 0.0f64); NODES];
+        let mut w_phase = [0.0f64; NODES];
+        let mut first = [0.0f64; NODES];
         let mut shape_of: Option<&[f64]> = None;
         let mut out_shape = [(0.0f64, 0.0f64); NODES];
         let mut out_prof = [[0.0f64; 3]; MU_NODES.len()];
@@ -132,19 +133,27 @@ impl MsField {
                 }
             }
             if shape_of != Some(pl) {
+                // The nodes' p*(ω_o·ω') all at once (the scalar function's operations per
+                // node); the sun's first scattering, which depends on neither the voxel nor the
+                // view, from the quadrature where it keeps it for this sun and g.
+                node_phases(wo, &quad.arrays[face], pl, &mut w_phase);
                 let g = pl.get(1).copied().unwrap_or(0.0);
-                for (sh, node) in shape.iter_mut().zip(nodes) {
-                    let first = sun.map_or(0.0, |s| {
-                        let x = (1.0 + g * g - 2.0 * g * s.travel.dot(node.dir)).max(1e-12);
-                        (1.0 - g * g) / (4.0 * PI * x * x.sqrt())
-                    });
-                    *sh = (phase_weight(node.weight, wo, node.dir, pl), first);
+                match sun {
+                    Some(s) => match quad.sun_first(face, s.travel, g) {
+                        Some(kept) => first.copy_from_slice(kept),
+                        None => {
+                            for (f, node) in first.iter_mut().zip(nodes) {
+                                *f = sun_first_scattering(g, s.travel, node.dir);
+                            }
+                        }
+                    },
+                    None => first.fill(0.0),
                 }
                 shape_of = Some(pl);
             }
-            for (k, &(w, h)) in shape.iter().enumerate() {
-                lanes.w_phase[k][l] = w;
-                lanes.hg[k][l] = h;
+            for k in 0..NODES {
+                lanes.w_phase[k][l] = w_phase[k];
+                lanes.hg[k][l] = first[k];
             }
             lanes.e_face[l] = sun.map_or(0.0, |s| s.irradiance[l] * (-ks * face_density_m).exp());
             if t_v < OUTWARD_MAX_DEPTH {
@@ -155,10 +164,8 @@ impl MsField {
                         *r = outward_profiles(MU_NODES[i].0, mv, mu0, g, t_v, t_c);
                     }
                     for (w, node) in out_shape.iter_mut().zip(nodes) {
-                        let first = sun.map_or(0.0, |s| {
-                            let x = (1.0 + g * g - 2.0 * g * s.travel.dot(node.out_dir)).max(1e-12);
-                            (1.0 - g * g) / (4.0 * PI * x * x.sqrt())
-                        });
+                        let first =
+                            sun.map_or(0.0, |s| sun_first_scattering(g, s.travel, node.out_dir));
                         *w = (phase_weight(node.weight, wo, node.out_dir, pl), first);
                     }
                     out_of = Some((pl, t_v, t_c));
@@ -192,6 +199,58 @@ impl MsField {
             } else {
                 j[l].max(0.0)
             };
+        }
+    }
+}
+
+skybake_physics::simd_dispatch! {
+    /// Per node of a face, its weight times p*(ω_o·ω')/4π, p*(cos θ) = Σ_l (2l + 1) p*_l
+    /// P_l(cos θ) (`pl` the p*_l, at most 5), into `out`: the operations of
+    /// [`MsField::inscatter_face`] per node, the nodes side by side (`arrays`: the nodes'
+    /// x, y, z and weights).
+    fn node_phases(wo: DVec3, arrays: &[Vec<f64>; 4], pl: &[f64], out: &mut [f64; NODES]) {
+        let (x, y, z, w) = (
+            &arrays[0][..NODES],
+            &arrays[1][..NODES],
+            &arrays[2][..NODES],
+            &arrays[3][..NODES],
+        );
+        let mut c = [0.0f64; NODES];
+        for k in 0..NODES {
+            c[k] = (wo.x * x[k]) + (wo.y * y[k]) + (wo.z * z[k]);
+        }
+        let mut phase = [0.0f64; NODES];
+        for (order, p_l) in pl.iter().enumerate() {
+            let f = (2 * order + 1) as f64 * p_l;
+            match order {
+                0 => phase.iter_mut().for_each(|v| *v += f * 1.0),
+                1 => {
+                    for k in 0..NODES {
+                        phase[k] += f * c[k];
+                    }
+                }
+                2 => {
+                    for k in 0..NODES {
+                        let c = c[k];
+                        phase[k] += f * (0.5 * (3.0 * c * c - 1.0));
+                    }
+                }
+                3 => {
+                    for k in 0..NODES {
+                        let c = c[k];
+                        phase[k] += f * (0.5 * c * (5.0 * c * c - 3.0));
+                    }
+                }
+                _ => {
+                    for k in 0..NODES {
+                        let c = c[k];
+                        phase[k] += f * (0.125 * (35.0 * c.powi(4) - 30.0 * c * c + 3.0));
+                    }
+                }
+            }
+        }
+        for k in 0..NODES {
+            out[k] = w[k] * phase[k] / (4.0 * PI);
         }
     }
 }
@@ -300,8 +359,9 @@ mod tests {
 
     /// The side-by-side reconstruction through a face gives [`MsField::inscatter_face`]'s
     /// values bit for bit: every face, views from all sides (those along the face included),
-    /// with and without the sun, voxels thin and thick, 1, 3 and 4 wavelengths of different
-    /// phase moments and extinctions.
+    /// with and without the sun (a third of the cases with the sun whose first scattering the
+    /// quadrature keeps), voxels thin and thick, 1, 3 and 4 wavelengths of different phase
+    /// moments and extinctions.
     #[test]
     fn the_side_by_side_face_is_the_field_s() {
         let mut rng = rand_pcg::Pcg64::seed_from_u64(11);
@@ -337,6 +397,10 @@ mod tests {
             };
             let irradiance: Vec<f64> = (0..n_l).map(|l| 1.5 + l as f64).collect();
             let k_true: Vec<f64> = (0..n_l).map(|l| 0.04 + 0.01 * (l / 2) as f64).collect();
+            // A third of the cases with the sun the quadrature keeps the first scattering for.
+            let kept_travel = DVec3::new(0.3, -0.5, -0.8).normalize();
+            let gs: Vec<f64> = field.phase_moments.iter().map(|pl| pl[1]).collect();
+            let quad_sun = FaceQuadrature::new(3).with_sun(kept_travel, &gs);
             let (mut a, mut b) = (vec![0.0; n_l], vec![0.0; n_l]);
             let (mut positive, mut clamped, mut cases) = (0, 0, 0);
             for i in 0..1500 {
@@ -359,6 +423,7 @@ mod tests {
                     rng.random_range(-1.0..1.0),
                 )
                 .normalize_or(-DVec3::Z);
+                let travel = if i % 3 == 0 { kept_travel } else { travel };
                 let s = SunAtVoxel {
                     travel,
                     irradiance: &irradiance,
@@ -372,7 +437,7 @@ mod tests {
                 };
                 field.inscatter_face(&quad, p, d, face, voxel_density_m, &k_true, sun, &mut a);
                 field.inscatter_face_lanes(
-                    &quad,
+                    &quad_sun,
                     p,
                     d,
                     face,
