@@ -14,10 +14,17 @@
 //! estimator, as the field's) per unit sun irradiance, and the photons end at their second
 //! smooth scattering. The field tallies its own L*₁ (its sun photons' tracks between their first
 //! and second scattering) apart too; in the cloud's interior the source
-//! Σ_l p*_l Σ_m (E_sun·L₁,lm − L*₁,lm) Y_lm(−d) is added to the field's, the same δ-M phase series
-//! the field is seen through. At a voxel seen through the cloud's face the field is kept whole:
-//! its build-up below the face (module `face`, the formal solution of Chandrasekhar 1960 §1.8)
-//! models the once-scattered light's depth profile there. The change is evaluated per coarse
+//! Σ_l Σ_m (k_l·E_sun·L₁,lm − p*_l·L*₁,lm) Y_lm(−d) is added to the field's: the field's own
+//! once-scattered light seen through its δ-M phase series p*_l taken out, the true medium's seen
+//! through k_l. The view scattering of light scattered once smoothly is itself smooth, with the
+//! kernel p − r⁺ = min(p, (1 − f)·HG(g*)); its Legendre moments κ_l (per 1 − f; g 0.85: 0.964,
+//! 0.657, 0.435, 0.283) exceed the δ-M moments (1, 0.654, 0.360, 0.110) at l = 2, 3. Truncated at
+//! order 3, a once-scattered lobe seen through p*_l reads 7–33 % high 66° from the sun and
+//! through κ_l 4–24 % low 98° from it (lobes of mean cosine 0.55–0.8 against the whole series);
+//! k_l = (p*_l + κ_l)/2 halves both (against Mitsuba 3, docs/frames.md). At a voxel seen through
+//! the cloud's face the field is kept whole: its build-up below the face (module `face`, the
+//! formal solution of Chandrasekhar 1960 §1.8) models the once-scattered light's depth profile
+//! there. The change is evaluated per coarse
 //! cell towards the camera and interpolated to the voxels.
 
 use super::{fly, real_sh, Coarse, MsField, Photon, Truncation};
@@ -28,14 +35,15 @@ use rayon::prelude::*;
 use skybake_physics::phase::{orthonormal_basis, Phase};
 use std::f64::consts::PI;
 
-/// Angular order of the once-scattered light: the field's (the δ-M phase function's P3 series
-/// it is seen through; a tally to order 8 seen through the Legendre moments of p − r⁺ took the
-/// back-lit case 22° from the sun to +2.3 % bias against Mitsuba 3, docs/frames.md).
+/// Angular order of the once-scattered light: the field's (a tally to order 8 seen through the
+/// Legendre moments of p − r⁺ took the back-lit case 22° from the sun to +2.3 % bias against
+/// Mitsuba 3, docs/frames.md).
 pub const ONCE_ORDER: usize = 3;
 /// Harmonics per wavelength group, (L + 1)².
 pub const ONCE_MOMENTS: usize = (ONCE_ORDER + 1) * (ONCE_ORDER + 1);
-/// Photons per sun photon of the field.
-pub const PHOTONS_PER_SUN_PHOTON: usize = 1;
+/// The field's sun photons per photon traced here (half as many: the tally's photon noise is
+/// small against the field's, docs/frames.md).
+pub const SUN_PHOTONS_PER_PHOTON: usize = 2;
 /// A photon's collisions before its second smooth scattering are bounded by this (a chain of
 /// peak scatterings in a conservative medium is geometric with ratio f⁺ ≈ 0.6).
 const MAX_EVENTS: usize = 4096;
@@ -50,11 +58,13 @@ pub struct OnceField {
     group_of: Vec<usize>,
     /// Per wavelength: the sun's irradiance (W m⁻² nm⁻¹).
     irradiance: Vec<f64>,
-    /// `[cell][λ][ONCE_MOMENTS]`: p*_l·(E_sun·L₁,lm − L*₁,lm), the once-scattered light's
+    /// `[cell][λ][ONCE_MOMENTS]`: k_l·E_sun·L₁,lm − p*_l·L*₁,lm, the once-scattered light's
     /// source in place of the δ-M field's (L*₁ the field's tracks between the sun photons'
-    /// first and second scattering), W m⁻² nm⁻¹.
+    /// first and second scattering; k_l module text), W m⁻² nm⁻¹.
     delta: Vec<f32>,
     n_l: usize,
+    /// Per group: the Legendre moments κ_l of p − r⁺ per 1 − f ([`kernel_moments`]).
+    kernel: Vec<[f64; ONCE_ORDER + 1]>,
 }
 
 impl OnceField {
@@ -96,7 +106,6 @@ pub(super) fn trace(coarse: &Coarse, g: &Group, lanes: usize) -> Vec<f64> {
     let hg = Phase::HenyeyGreenstein {
         g: g.truncation.g_scaled,
     };
-    let rplus = |mu: f64| (g.phase.eval(mu) - (1.0 - f) * hg.eval(mu)).max(0.0);
     let (tb, bb) = orthonormal_basis(g.travel);
     let chunk = 4096usize;
     let chunks = g.photons.div_ceil(chunk);
@@ -150,7 +159,9 @@ pub(super) fn trace(coarse: &Coarse, g: &Group, lanes: usize) -> Vec<f64> {
                             g.phase.sample(ph.dir, u1, u2, &mut more).0
                         };
                         let mu = nd.dot(ph.dir);
-                        let peak = rng.random::<f64>() * g.phase.eval(mu) < rplus(mu);
+                        // Within the peak with probability r⁺(μ)/p(μ).
+                        let p = g.phase.eval(mu);
+                        let peak = rng.random::<f64>() * p < (p - (1.0 - f) * hg.eval(mu)).max(0.0);
                         if !peak && ph.scattered {
                             break;
                         }
@@ -179,6 +190,29 @@ pub(super) fn trace(coarse: &Coarse, g: &Group, lanes: usize) -> Vec<f64> {
     out
 }
 
+/// Legendre moments k_l = 2π ∫ (p − r⁺)(μ) P_l(μ) dμ / (1 − f), l ≤ [`ONCE_ORDER`], of the
+/// kernel a smooth scattering stands for (p − r⁺ = min(p, (1 − f)·HG(g*))), by the midpoint rule.
+fn kernel_moments(phase: &Phase, t: &Truncation) -> [f64; ONCE_ORDER + 1] {
+    let hg = Phase::HenyeyGreenstein { g: t.g_scaled };
+    let f = t.fraction;
+    let n = 8192;
+    let mut k = [0.0; ONCE_ORDER + 1];
+    for i in 0..n {
+        let mu = -1.0 + (i as f64 + 0.5) * 2.0 / n as f64;
+        let v = phase.eval(mu).min((1.0 - f) * hg.eval(mu)) * 2.0 * PI * 2.0 / n as f64;
+        let (mut p0, mut p1) = (1.0, mu);
+        k[0] += v;
+        k[1] += v * mu;
+        for (l, kl) in k.iter_mut().enumerate().skip(2) {
+            let p2 = ((2 * l - 1) as f64 * mu * p1 - (l - 1) as f64 * p0) / l as f64;
+            *kl += v * p2;
+            p0 = p1;
+            p1 = p2;
+        }
+    }
+    k.map(|x| x / (1.0 - f))
+}
+
 impl OnceField {
     /// An empty field for `n_l` wavelengths in `groups` groups.
     pub(super) fn new(
@@ -194,11 +228,13 @@ impl OnceField {
             irradiance,
             delta: Vec::new(),
             n_l: 0,
+            kernel: vec![[0.0; ONCE_ORDER + 1]; groups],
         }
     }
 
-    /// Stores group `gi`'s [`trace`].
-    pub(super) fn set_group(&mut self, gi: usize, acc: &[f64]) {
+    /// Stores group `gi`'s [`trace`] and its kernel's moments.
+    pub(super) fn set_group(&mut self, gi: usize, g: &Group, acc: &[f64]) {
+        self.kernel[gi] = kernel_moments(g.phase, g.truncation);
         for (c, cell) in acc.chunks_exact(ONCE_MOMENTS).enumerate() {
             let b = (c * self.groups + gi) * ONCE_MOMENTS;
             for (d, v) in self.data[b..b + ONCE_MOMENTS].iter_mut().zip(cell) {
@@ -223,10 +259,14 @@ impl OnceField {
                 let b = (c * self.groups + self.group_of[l]) * ONCE_MOMENTS;
                 let v = &self.data[b..b + ONCE_MOMENTS];
                 let o = &mut out[l * ONCE_MOMENTS..(l + 1) * ONCE_MOMENTS];
+                let kern = &self.kernel[self.group_of[l]];
                 for (order, p) in pm[l].iter().enumerate().take(ONCE_ORDER + 1) {
+                    // L₁'s view kernel: halfway between the δ-M moments and the true kernel's
+                    // (module text).
+                    let k = 0.5 * (p + kern[order]);
                     for m in order * order..(order + 1) * (order + 1) {
                         let d = dm[(c * n_l + l) * moments + m] as f64;
-                        o[m] = (p * (self.irradiance[l] * v[m] as f64 - d)) as f32;
+                        o[m] = (k * self.irradiance[l] * v[m] as f64 - p * d) as f32;
                     }
                 }
             }
@@ -264,7 +304,7 @@ impl MsField {
     }
 
     /// Per coarse cell that holds cloud, the once-scattered light's change of the source
-    /// towards a camera, Σ_lm p*_l·(E_sun·L₁,lm − L*₁,lm)·Y_lm(−d) with d = `view` of the
+    /// towards a camera, Σ_lm (k_l·E_sun·L₁,lm − p*_l·L*₁,lm)·Y_lm(−d) with d = `view` of the
     /// cell's centre, `[cell][λ]` (empty without it): evaluated per cell, not per voxel, and
     /// interpolated by [`Self::once_add`].
     pub fn once_towards(&self, view: &(dyn Fn(DVec3) -> DVec3 + Sync)) -> Vec<f32> {
