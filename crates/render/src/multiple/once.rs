@@ -27,7 +27,7 @@
 //! there. The change is evaluated per coarse
 //! cell towards the camera and interpolated to the voxels.
 
-use super::{fly, real_sh, Coarse, MsField, Photon, Truncation};
+use super::{real_sh, Coarse, MsField, Photon, Truncation};
 use glam::DVec3;
 use rand::{Rng, SeedableRng};
 use rand_pcg::Pcg64;
@@ -98,10 +98,8 @@ pub(super) fn trace(coarse: &Coarse, g: &Group, lanes: usize) -> Vec<f64> {
     // Per photon, of unit irradiance over the disc.
     let w = [PI * radius * radius / g.photons as f64];
     let cell_volume = coarse.cell_m.x * coarse.cell_m.y * coarse.cell_m.z;
-    let skin = coarse.skin.as_ref().map_or(0, super::skin::Skin::len);
     let cells = coarse.rho.len();
-    let nm = ONCE_MOMENTS;
-    let len = (cells + skin) * nm;
+    let len = cells * ONCE_MOMENTS;
     let f = g.truncation.fraction;
     let hg = Phase::HenyeyGreenstein {
         g: g.truncation.g_scaled,
@@ -110,10 +108,11 @@ pub(super) fn trace(coarse: &Coarse, g: &Group, lanes: usize) -> Vec<f64> {
     let chunk = 4096usize;
     let chunks = g.photons.div_ceil(chunk);
     let lanes = lanes.clamp(1, chunks.max(1));
-    let parts: Vec<Vec<f64>> = (0..lanes)
+    let parts: Vec<Vec<f32>> = (0..lanes)
         .into_par_iter()
         .map(|lane| {
-            let mut acc = super::super::pages::take_zeroed(len);
+            let mut acc = crate::pages::take_f32(len);
+            acc.fill(0.0);
             let mut ylm = [0.0; ONCE_MOMENTS];
             let mut w = w;
             for ci in (lane..chunks).step_by(lanes) {
@@ -139,13 +138,9 @@ pub(super) fn trace(coarse: &Coarse, g: &Group, lanes: usize) -> Vec<f64> {
                             &mut ph,
                             tau,
                             g.k,
-                            cell_volume,
-                            &w,
+                            w[0] / cell_volume,
                             &mut acc,
-                            1,
-                            &ylm[..nm],
-                            // Only the cells that hold cloud are ever read.
-                            true,
+                            &ylm,
                         ) {
                             break;
                         }
@@ -180,14 +175,97 @@ pub(super) fn trace(coarse: &Coarse, g: &Group, lanes: usize) -> Vec<f64> {
         .collect();
     let mut out = vec![0.0; cells * ONCE_MOMENTS];
     for p in parts {
-        for (o, v) in out.chunks_exact_mut(ONCE_MOMENTS).zip(p.chunks_exact(nm)) {
-            for (o, v) in o.iter_mut().zip(v) {
-                *o += v;
-            }
+        for (o, v) in out.iter_mut().zip(&p) {
+            *o += *v as f64;
         }
-        super::super::pages::give_back(p);
+        crate::pages::give_back_f32(p);
     }
     out
+}
+
+/// Flies `ph` `tau` true optical depths through the coarse cells (extinction `k` per density)
+/// and returns whether it collided within the grid (its place moved there) or left it. While
+/// it has scattered (smoothly) it scores the track-length estimator `ws`·length·Y_lm (`ws` its
+/// weight per cell volume) in the cells that hold cloud (the only ones read), in `f32`: the
+/// DDA of the field's photons (module `multiple`), without its skins or look-ahead (a once
+/// photon's flights in the true medium cross a cell or two).
+#[allow(clippy::too_many_arguments)]
+fn fly(
+    g: &Coarse,
+    lo: DVec3,
+    hi: DVec3,
+    ph: &mut Photon,
+    tau_in: f64,
+    k: f64,
+    ws: f64,
+    acc: &mut [f32],
+    ylm: &[f64; ONCE_MOMENTS],
+) -> bool {
+    let mut tau = tau_in;
+    let Some((t0, t1)) = crate::camera::box_interval(ph.pos, ph.dir, lo, hi) else {
+        return false;
+    };
+    let d = ph.dir;
+    let mut t = t0;
+    let p0 = ph.pos + d * (t0 + 1e-9 * g.cell_m.min_element());
+    let mut cell = [0i64; 3];
+    let mut step = [0i64; 3];
+    let mut t_next = [f64::INFINITY; 3];
+    let mut t_delta = [f64::INFINITY; 3];
+    for a in 0..3 {
+        let h = g.cell_m[a];
+        let local = (p0[a] - lo[a]) / h;
+        cell[a] = (crate::volume::floor(local) as i64).clamp(0, g.dims[a] as i64 - 1);
+        if d[a] > 0.0 {
+            step[a] = 1;
+            t_next[a] = t0 + ((cell[a] + 1) as f64 * h + lo[a] - p0[a]) / d[a];
+            t_delta[a] = h / d[a];
+        } else if d[a] < 0.0 {
+            step[a] = -1;
+            t_next[a] = t0 + (cell[a] as f64 * h + lo[a] - p0[a]) / d[a];
+            t_delta[a] = -h / d[a];
+        }
+    }
+    loop {
+        let a = if t_next[0] <= t_next[1] && t_next[0] <= t_next[2] {
+            0
+        } else if t_next[1] <= t_next[2] {
+            1
+        } else {
+            2
+        };
+        let t_exit = t_next[a].min(t1);
+        let c = ((cell[2] as usize * g.dims[1]) + cell[1] as usize) * g.dims[0] + cell[0] as usize;
+        let rho = g.rho[c];
+        let sigma = k * rho as f64;
+        let len = (t_exit - t).max(0.0);
+        let (used, hit) = if sigma * len >= tau && sigma > 0.0 {
+            (tau / sigma, true)
+        } else {
+            (len, false)
+        };
+        if ph.scattered && used > 0.0 && rho > 0.0 {
+            let s = ws * used;
+            let b = c * ONCE_MOMENTS;
+            for (a, y) in acc[b..b + ONCE_MOMENTS].iter_mut().zip(ylm) {
+                *a += (s * y) as f32;
+            }
+        }
+        if hit {
+            ph.pos += d * (t + used);
+            return true;
+        }
+        tau -= sigma * len;
+        t = t_exit;
+        if t >= t1 {
+            return false;
+        }
+        cell[a] += step[a];
+        if cell[a] < 0 || cell[a] >= g.dims[a] as i64 {
+            return false;
+        }
+        t_next[a] += t_delta[a];
+    }
 }
 
 /// Legendre moments k_l = 2π ∫ (p − r⁺)(μ) P_l(μ) dμ / (1 − f), l ≤ [`ONCE_ORDER`], of the
