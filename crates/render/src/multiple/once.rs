@@ -93,20 +93,50 @@ pub(super) struct Group<'a> {
 pub(super) fn trace(coarse: &Coarse, g: &Group, lanes: usize) -> Vec<f64> {
     let lo = coarse.origin_m;
     let hi = coarse.hi();
-    let centre = 0.5 * (lo + hi);
-    let radius = 0.5 * (hi - lo).length() * 1.001;
-    // Per photon, of unit irradiance over the disc.
-    let w = [PI * radius * radius / g.photons as f64];
-    let cell_volume = coarse.cell_m.x * coarse.cell_m.y * coarse.cell_m.z;
+    let grid_radius = 0.5 * (hi - lo).length() * 1.001;
     let cells = coarse.rho.len();
     let len = cells * ONCE_MOMENTS;
+    // The photons are launched over the disc of the sphere round the cells that hold cloud
+    // (the centre of their box, the radius to the farthest corner of one): a photon beside it
+    // meets no cloud and scores nothing. As many per unit area as over the grid's disc (the
+    // same noise), so fewer where the grid's corners are empty.
+    let [nx, ny, _] = coarse.dims;
+    let corners = |c: usize| -> [DVec3; 2] {
+        let ijk = DVec3::new(
+            (c % nx) as f64,
+            ((c / nx) % ny) as f64,
+            (c / (nx * ny)) as f64,
+        );
+        let a = lo + ijk * coarse.cell_m;
+        [a, a + coarse.cell_m]
+    };
+    let (mut bmin, mut bmax) = (DVec3::splat(f64::INFINITY), DVec3::splat(f64::NEG_INFINITY));
+    for c in (0..cells).filter(|&c| coarse.rho[c] > 0.0) {
+        let [a, b] = corners(c);
+        bmin = bmin.min(a);
+        bmax = bmax.max(b);
+    }
+    if bmin.x > bmax.x {
+        return vec![0.0; len];
+    }
+    let centre = 0.5 * (bmin + bmax);
+    let mut radius = 0.0f64;
+    for c in (0..cells).filter(|&c| coarse.rho[c] > 0.0) {
+        let [a, b] = corners(c);
+        radius = radius.max((a - centre).abs().max((b - centre).abs()).length());
+    }
+    let radius = (radius * 1.001).min(grid_radius);
+    let photons = ((g.photons as f64 * (radius / grid_radius).powi(2)).ceil() as usize).max(1);
+    // Per photon, of unit irradiance over the disc.
+    let w = [PI * radius * radius / photons as f64];
+    let cell_volume = coarse.cell_m.x * coarse.cell_m.y * coarse.cell_m.z;
     let f = g.truncation.fraction;
     let hg = Phase::HenyeyGreenstein {
         g: g.truncation.g_scaled,
     };
     let (tb, bb) = orthonormal_basis(g.travel);
     let chunk = 4096usize;
-    let chunks = g.photons.div_ceil(chunk);
+    let chunks = photons.div_ceil(chunk);
     let lanes = lanes.clamp(1, chunks.max(1));
     let parts: Vec<Vec<f32>> = (0..lanes)
         .into_par_iter()
@@ -119,13 +149,14 @@ pub(super) fn trace(coarse: &Coarse, g: &Group, lanes: usize) -> Vec<f64> {
                 let mut rng = Pcg64::seed_from_u64(
                     g.seed ^ 0x0_4CE5_CA77 ^ (ci as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15),
                 );
-                for _ in ci * chunk..((ci + 1) * chunk).min(g.photons) {
-                    w[0] = PI * radius * radius / g.photons as f64;
+                for _ in ci * chunk..((ci + 1) * chunk).min(photons) {
+                    w[0] = PI * radius * radius / photons as f64;
                     let r = radius * rng.random::<f64>().sqrt();
                     let phi = 2.0 * PI * rng.random::<f64>();
                     let mut ph = Photon {
                         pos: centre + (tb * phi.cos() + bb * phi.sin()) * r
-                            - g.travel * (2.0 * radius),
+                            // Outside the grid's box (the centre is within it).
+                            - g.travel * (4.0 * grid_radius),
                         dir: g.travel,
                         scattered: false,
                     };
