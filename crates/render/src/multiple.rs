@@ -528,11 +528,15 @@ impl MsField {
                     truncation: &tr,
                     k,
                     travel: -lighting.sun_dir,
-                    photons: n_sun * once::PHOTONS_PER_SUN_PHOTON,
+                    photons: n_sun.div_ceil(once::SUN_PHOTONS_PER_PHOTON),
                     seed: s.seed ^ (l0 as u64) << 56,
                 };
                 let len = (cells + skin_cells) * once::ONCE_MOMENTS;
-                o.set_group(gi, &once::trace(&coarse, &g, accumulator_lanes(len).min(4)));
+                o.set_group(
+                    gi,
+                    &g,
+                    &once::trace(&coarse, &g, accumulator_lanes(len).min(4)),
+                );
             }
         }
         let phase_moments: Vec<Vec<f64>> = truncation

@@ -215,8 +215,8 @@ pub struct CloudLight {
     pub skin: Option<SkinMoments>,
     /// The field at the surface voxels, seen through their faces (with `ms`).
     pub faces: Option<FaceField>,
-    /// The sun's once-scattered light in place of the field's, K_lm = ω*·p*_l·(E_sun·L₁,lm −
-    /// L*₁,lm) per voxel to order [`ONCE_ORDER`](skybake_render::multiple::ONCE_ORDER),
+    /// The sun's once-scattered light in place of the field's, K_lm = ω*·(k_l·E_sun·L₁,lm −
+    /// p*_l·L*₁,lm) per voxel to order [`ONCE_ORDER`](skybake_render::multiple::ONCE_ORDER),
     /// `[λ·(L₁+1)² + lm][voxel]`, W m⁻² nm⁻¹: Σ K_lm Y_lm(−d) is added to the field's source
     /// where the voxel is not seen through a face (docs/cloud-light.md); empty without it.
     pub once: Vec<Vec<f32>>,
@@ -673,7 +673,7 @@ impl CloudLight {
                     volume(
                         ONCE_FILE,
                         json!(names),
-                        "K_lm = omega*·p*_l·(E_sun·L1_lm - L1*_lm): the sun's once-scattered light L1 (transported in the true medium, every collision classed as within the truncated peak r+ = max(p - (1 - f)·HG(g*), 0) or smooth; tallied after exactly one smooth scattering) in real spherical harmonics to the field's order per unit sun irradiance times E_sun, less the field's own once-scattered light L1* (its sun photons' tracks between their first and second scattering, which C_lm hold), convolved with the scaled phase moments p*_l; 0 in coarse cells without cloud. Where a voxel is not seen through a face (see faces), its source towards a viewer looking along d adds Σ K_lm·Y_lm(-d) to the field's (kept ≥ 0); at voxels seen through a face, and in the skins, the field's alone",
+                        "K_lm = omega*·(k_l·E_sun·L1_lm - p*_l·L1*_lm), k_l = (p*_l + kappa_l)/2 with kappa_l the Legendre moments of p - r+ per 1 - f: the sun's once-scattered light L1 (transported in the true medium, every collision classed as within the truncated peak r+ = max(p - (1 - f)·HG(g*), 0) or smooth; tallied after exactly one smooth scattering) in real spherical harmonics to the field's order per unit sun irradiance times E_sun, less the field's own once-scattered light L1* (its sun photons' tracks between their first and second scattering, which C_lm hold, convolved with the scaled phase moments p*_l); 0 in coarse cells without cloud. Where a voxel is not seen through a face (see faces), its source towards a viewer looking along d adds Σ K_lm·Y_lm(-d) to the field's (kept ≥ 0); at voxels seen through a face, and in the skins, the field's alone",
                         "W m-2 nm-1",
                         true,
                     ),
