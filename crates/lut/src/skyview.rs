@@ -109,7 +109,7 @@ pub const N_ALT: usize = 28;
 /// elevation rises 0.6 per unit of t below t ≈ 0.25 and 4 above t ≈ 0.45; `sky` product, 680 nm,
 /// 8 / 12.5 / 20 km, 120–150° from the sun): with 0.25° the sun axis alone erred by +4.1 / +5.9
 /// / +7.2 % there, with 0.125° by +0.3 % (12.5 km). The two nodes come from 1°–2° (0.5° apart),
-/// so the node count, the texels and the build's rays stay (nodes moved from 20°–104° instead
+/// so the node count and the texels stay, the build's rays +2 % (nodes moved from 20°–104° instead
 /// made the texels 279 kB larger and the day sky at the ground near the horizon worse).
 pub const SUN_MIN_DEG: f64 = -23.0;
 pub const SUN_SEGMENTS: [(f64, f64, usize); 10] = [
