@@ -90,7 +90,9 @@ pub const LAYOUT: &str = "skyview";
 /// scattering on every other direction, interpolated where smooth (`ms_directions`; within
 /// 4.1·10⁻⁴); the sky rows' band focus fades in from a sun at −5…−3° (was −7…−4°,
 /// [`BAND_SUN_RANGE`]): the rows near the horizontal towards the sun in deep twilight.
-pub const SKYVIEW_VERSION: &str = "12";
+/// 13: sun nodes every 0.125° from 0° to 0.5° (where the air around an observer 6–20 km up comes
+/// into the sunlight) and every 0.5° from 1° to 2°, the same number ([`SUN_SEGMENTS`]).
+pub const SKYVIEW_VERSION: &str = "13";
 
 /// Altitude nodes: h_k the roots of [`altitude_coord`] (about (top − bottom) · (k / (N − 1))²,
 /// denser near the top).
@@ -99,20 +101,30 @@ pub const N_ALT: usize = 28;
 /// horizon (its elevation + the horizon's dip at the node's altitude, so sunset is on the same
 /// node at every altitude), warped towards sunset aloft between −8° and 6° ([`sun_warp`]):
 /// every 2° from [`SUN_MIN_DEG`] to −15°, every 1° to −8°, every 0.5° to 6° (twilight and
-/// sunset; every 0.25° from −1° to 2°, where the sun sets at the observer), every 1° to 20° (low
-/// sun), every 4° to 104° (the zenith seen from the top of a 100 km atmosphere is 100.1° above
-/// its horizon).
+/// sunset; every 0.25° from −1° to 0°, where the sun sets at the observer, 0.125° to 0.5°, 0.25°
+/// to 1°), every 1° to 20° (low sun), every 4° to 104° (the zenith seen from the top of a 100 km
+/// atmosphere is 100.1° above its horizon). Why 0.125° from 0° to 0.5°: seen from 6–20 km in low
+/// twilight opposite the sun, the sky near the horizontal brightens steeply once the sunlight
+/// that reaches the air around the observer stops grazing the lowest few km (ln L at the band's
+/// elevation rises 0.6 per unit of t below t ≈ 0.25 and 4 above t ≈ 0.45; `sky` product, 680 nm,
+/// 8 / 12.5 / 20 km, 120–150° from the sun): with 0.25° the sun axis alone erred by +4.1 / +5.9
+/// / +7.2 % there, with 0.125° by +0.3 % (12.5 km). The two nodes come from 1°–2° (0.5° apart),
+/// so the node count and the texels stay, the build's rays +2 % (nodes moved from 20°–104° instead
+/// made the texels 279 kB larger and the day sky at the ground near the horizon worse).
 pub const SUN_MIN_DEG: f64 = -23.0;
-pub const SUN_SEGMENTS: [(f64, f64, usize); 7] = [
+pub const SUN_SEGMENTS: [(f64, f64, usize); 10] = [
     (-23.0, 2.0, 4),
     (-15.0, 1.0, 7),
     (-8.0, 0.5, 14),
-    (-1.0, 0.25, 12),
+    (-1.0, 0.25, 4),
+    (0.0, 0.125, 4),
+    (0.5, 0.25, 2),
+    (1.0, 0.5, 2),
     (2.0, 0.5, 8),
     (6.0, 1.0, 14),
     (20.0, 4.0, 21),
 ];
-pub const N_SUN: usize = 4 + 7 + 14 + 12 + 8 + 14 + 21 + 1;
+pub const N_SUN: usize = 4 + 7 + 14 + 4 + 4 + 2 + 2 + 8 + 14 + 21 + 1;
 /// View rows: from the zenith to the horizontal ([`N_VIEW_SKY`], θ = 90° (1 − (1 − x)²)),
 /// from the horizontal to the horizon ([`N_VIEW_LIMB`], the ray's tangent altitude from the
 /// observer's to 0 at the depths [`limb_depth`]) and from the horizon to the nadir
@@ -1774,9 +1786,9 @@ pub const STATED_ERRORS: &[(&str, &str, f64)] = &[
     ("rayleigh+mie", "sky radiance (sky product), sun >= 5 deg, view < 10 deg above the horizon, 20-100 km", 0.023),
     ("rayleigh+mie", "sky radiance (sky product), sun -6..5 deg, ground", 0.015),
     ("rayleigh+mie", "sky radiance (sky product), sun -6..5 deg, 0-5 km (9.65 % at 5 km, sun -6 deg, 0.25 deg above the horizontal towards the sun, 440 nm: the twilight glow)", 0.097),
-    ("rayleigh+mie", "sky radiance (sky product), sun -6..5 deg, 5-8 km (the band above the earth's shadow near the antisolar horizon, 680 nm at 8 km, 1.75 deg above the horizontal 150 deg from the sun)", 0.073),
-    ("rayleigh+mie", "sky radiance (sky product), sun -6..5 deg, 8-12.5 km (the band above the earth's shadow near the antisolar horizon, 680 nm at 12.5 km, 1.5 deg above the horizontal 135 deg from the sun, 8.7 %; the twilight glow towards the sun at 10 km at most 9.65 %)", 0.097),
-    ("rayleigh+mie", "sky radiance (sky product), sun -6..5 deg, 12.5-20 km (the band above the earth's shadow near the antisolar horizon, 680 nm at 20 km, the horizontal 120 deg from the sun)", 0.104),
+    ("rayleigh+mie", "sky radiance (sky product), sun -6..5 deg, 5-8 km (the band above the earth's shadow near the antisolar horizon, 680 nm at 6.5 km, 1 deg above the horizontal 120 deg from the sun)", 0.048),
+    ("rayleigh+mie", "sky radiance (sky product), sun -6..5 deg, 8-12.5 km (the band above the earth's shadow near the antisolar horizon, 680 nm at 11 km, 3.5 deg above the horizontal opposite the sun, 6.2 %; the twilight glow towards the sun at 10 km at most 9.65 %)", 0.097),
+    ("rayleigh+mie", "sky radiance (sky product), sun -6..5 deg, 12.5-20 km (the band above the earth's shadow near the antisolar horizon, 680 nm at 20 km, 5.25 deg above the horizontal opposite the sun)", 0.100),
     ("rayleigh+mie", "sky radiance (sky product), sun -6..0 deg, 0-5 km, views within 10 deg of the horizon 150-180 deg from the sun (the earth's shadow rising; 680 nm at 2.5 km)", 0.024),
     ("rayleigh+mie", "sky radiance (sky product), sun -6..5 deg, 20-100 km (the sky just above the horizontal at 30 km, 440 nm)", 0.030),
     ("rayleigh+mie", "sky radiance (sky product), sun -12..-6 deg, ground", 0.035),
@@ -1860,7 +1872,7 @@ pub fn manifest(
             "altitude_node": "the altitude coordinate of altitude h: (sqrt(e) + c (e^p - e^q)) (N_ALT - 1), e = h / (top_radius - bottom_radius), [c, p, q] = altitude_map; node k (0..N_ALT-1, altitude_nodes_m) is the altitude whose coordinate is k",
             "altitude_map": ALTITUDE_TOP,
             "sun_elevation_nodes_deg": sun_nodes,
-            "sun_node": "the sun node coordinate t_j (deg): every 2 deg from -23 to -15, every 1 deg to -8, every 0.5 deg to -1, every 0.25 deg to 2, every 0.5 deg to 6, every 1 deg to 20, every 4 deg to 104 (segments [start, step, intervals] in sun_segments). At altitude h the node's sun coordinate s_j = warp(t_j, b), b = sun_warp_strength * sqrt(h / (top_radius - bottom_radius)), warp(t, b) = e sinh(b t / e) / sinh(b) for sun_warp_range[0] < t < sun_warp_range[1] (e = -sun_warp_range[0] for t < 0, sun_warp_range[1] for t >= 0), t elsewhere (and where b < 1e-6); its inverse t = e asinh(s sinh(b) / e) / b gives a query's node coordinate, the interpolation's abscissa. s = the sun's elevation + shift: for view rows below the horizon (and the irradiance, and the sky rows below sky_exit_altitude_m[0] or away from the sun) shift = the horizon's dip acos(bottom_radius / r), the sun's elevation above the observer's horizon; for the limb rows (between the horizontal and the horizon) shift = dip + w (gamma cos(phi) + acos(bottom_radius / r_t) - dip), w = (1 - exp(-(r - r_t) / limb_shadow_scale_m)) (1 - n), n = (1 - smoothstep(limb_near_end.azimuth_cos[0], limb_near_end.azimuth_cos[1], cos(phi))) smoothstep(limb_near_end.depth_m[0], limb_near_end.depth_m[1], r - r_t) smoothstep(limb_near_end.altitude_range_m[0], limb_near_end.altitude_range_m[1], h) (version 11: aloft away from the sun back towards the observer's horizon): towards the sun's elevation above the horizon of the ray's tangent point, with dip = acos(bottom_radius / r), gamma = theta - pi/2, r_t = r cos(gamma), phi the view's azimuth from the sun; for the sky rows (above the horizontal) shift = dip + smoothstep(sky_exit_altitude_m[0], sky_exit_altitude_m[1], h) max(cos(phi), 0) alpha, alpha = atan2(x sin(theta), r + x cos(theta)), x the ray's length to the top (the central angle to where the ray leaves the atmosphere; smoothstep as in sky_row_band); the texels of a limb or sky row are at the sun elevations s_j - shift of their column's azimuth",
+            "sun_node": "the sun node coordinate t_j (deg): every 2 deg from -23 to -15, every 1 deg to -8, every 0.5 deg to -1, every 0.25 deg to 0, every 0.125 deg to 0.5, every 0.25 deg to 1, every 0.5 deg to 6, every 1 deg to 20, every 4 deg to 104 (segments [start, step, intervals] in sun_segments). At altitude h the node's sun coordinate s_j = warp(t_j, b), b = sun_warp_strength * sqrt(h / (top_radius - bottom_radius)), warp(t, b) = e sinh(b t / e) / sinh(b) for sun_warp_range[0] < t < sun_warp_range[1] (e = -sun_warp_range[0] for t < 0, sun_warp_range[1] for t >= 0), t elsewhere (and where b < 1e-6); its inverse t = e asinh(s sinh(b) / e) / b gives a query's node coordinate, the interpolation's abscissa. s = the sun's elevation + shift: for view rows below the horizon (and the irradiance, and the sky rows below sky_exit_altitude_m[0] or away from the sun) shift = the horizon's dip acos(bottom_radius / r), the sun's elevation above the observer's horizon; for the limb rows (between the horizontal and the horizon) shift = dip + w (gamma cos(phi) + acos(bottom_radius / r_t) - dip), w = (1 - exp(-(r - r_t) / limb_shadow_scale_m)) (1 - n), n = (1 - smoothstep(limb_near_end.azimuth_cos[0], limb_near_end.azimuth_cos[1], cos(phi))) smoothstep(limb_near_end.depth_m[0], limb_near_end.depth_m[1], r - r_t) smoothstep(limb_near_end.altitude_range_m[0], limb_near_end.altitude_range_m[1], h) (version 11: aloft away from the sun back towards the observer's horizon): towards the sun's elevation above the horizon of the ray's tangent point, with dip = acos(bottom_radius / r), gamma = theta - pi/2, r_t = r cos(gamma), phi the view's azimuth from the sun; for the sky rows (above the horizontal) shift = dip + smoothstep(sky_exit_altitude_m[0], sky_exit_altitude_m[1], h) max(cos(phi), 0) alpha, alpha = atan2(x sin(theta), r + x cos(theta)), x the ray's length to the top (the central angle to where the ray leaves the atmosphere; smoothstep as in sky_row_band); the texels of a limb or sky row are at the sun elevations s_j - shift of their column's azimuth",
             "sun_warp_strength": SUN_WARP,
             "sun_warp_range": [SUN_WARP_RANGE.0, SUN_WARP_RANGE.1],
             "limb_shadow_scale_m": LIMB_SHADOW_SCALE_M,
