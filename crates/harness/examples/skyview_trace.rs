@@ -96,10 +96,10 @@ fn main() {
     } else {
         1.0
     };
-    let col = azimuth_coord(cos_phi.acos(), h);
-    print("phi_column", &[cos_phi.acos(), col]);
-    let sc = Stencil::new(col, 0, N_AZ - 1, |a| a as f64, col);
-    stencil("azimuth_stencil", &sc);
+    // (The column at the query's altitude; each altitude node's own below.)
+    let phi = cos_phi.acos();
+    let col = azimuth_coord(phi, h);
+    print("phi_column", &[phi, col]);
     let (seg, _) = view_coord(theta, r, bottom, 0.0);
     let shift = sun_shift(r, theta, cos_phi, bottom, top, seg == 1);
     let s_deg = (mu_s.clamp(-1.0, 1.0).asin() + shift).to_degrees();
@@ -145,6 +145,11 @@ fn main() {
         for ka in 0..sa.len {
             let k = sa.first + ka;
             let h_n = altitude_node_m(k, thickness);
+            // The node's columns (from the query's coordinate to the node's own map).
+            let col_n = skybake_lut::skyview::node_column(phi, col, h, k, thickness);
+            let sc = Stencil::new(col_n, 0, N_AZ - 1, |a| a as f64, col_n);
+            print(&format!("p{part}_k{k}_column"), &[col_n]);
+            stencil(&format!("p{part}_k{k}_azimuth_stencil"), &sc);
             let mut by_sun = vec![[0.0f64; 4]; n_c];
             for js in 0..ss.len {
                 let j = ss.first + js;
@@ -166,7 +171,7 @@ fn main() {
                             s_n,
                             h_n,
                             cos_phi,
-                            skybake_lut::skyview::azimuth_node(a, h).cos(),
+                            skybake_lut::skyview::azimuth_node(a, h_n).cos(),
                         );
                         let (sg, y) = band_row(e, h, bottom, c_n, k_n, [s_deg, s_n, h_n]);
                         let (lo, hi) = segment_rows(sg);
