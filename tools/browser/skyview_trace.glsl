@@ -139,7 +139,11 @@ void main() {
       TS(sc);
       vec4 cos_cols;
       for (int m = 0; m < 4; ++m) {
-        cos_cols[m] = sv_az_node_cos[(sa.first + a) * SV_N_AZ + min(sc.first + m, SV_N_AZ - 1)];
+        int col = min(sc.first + m, SV_N_AZ - 1);
+        float cos_n = sv_az_node_cos[(sa.first + a) * SV_N_AZ + col];
+        cos_cols[m] = node_read >= 1.0 || segment == 2 ? cos_n :
+            node_read > 0.0 ? (1.0 - node_read) * SkyViewCos(SkyViewAzimuthNode(col, h)) + node_read * cos_n :
+            SkyViewCos(SkyViewAzimuthNode(col, h));
       }
       for (int s = 0; s < 4; ++s) {
         if (s >= ss.len) break;

@@ -397,6 +397,23 @@ float SkyViewAzimuthColumn(float phi, float h) {
       float(SV_N_AZ - 1);
 }
 
+// The azimuth (rad) from the sun of column a at altitude h below SV_AZ_FOCUS_ALTITUDE.x (the
+// reader's azimuth_node): the root x of alpha x + (1 - alpha) sin^2(pi x^2 / 2) = a / (N_AZ - 1),
+// phi = pi x^2, by Newton's method from x = a / (N_AZ - 1) (the root where alpha = 1).
+float SkyViewAzimuthNode(int a, float h) {
+  float target = float(a) / float(SV_N_AZ - 1);
+  float alpha = 1.0 - (1.0 - SV_AZ_WEIGHT) * smoothstep(SV_AZ_ALTITUDE.x, SV_AZ_ALTITUDE.y, h);
+  float x = target;
+  if (alpha < 1.0 && a > 0 && a < SV_N_AZ - 1) {
+    for (int i = 0; i < 6; ++i) {
+      float s = SkyViewSin(0.5 * PI * x * x);
+      float f = alpha * x + (1.0 - alpha) * s * s - target;
+      x = clamp(x - f / (alpha + (1.0 - alpha) * PI * x * SkyViewSin(PI * x * x)), 0.0, 1.0);
+    }
+  }
+  return PI * x * x;
+}
+
 // The cosines of the columns' azimuths from the sun at each altitude node (the reader's
 // azimuth_node at the node's altitude): column a of altitude node k at k * SV_N_AZ + a.
 const float sv_az_node_cos[SV_N_ALT * SV_N_AZ] = SV_AZ_NODE_COS;
@@ -641,7 +658,13 @@ vec3 SkyViewRadiance(float h, float rho, vec3 up, vec3 view_ray, vec3 sun_direct
         column_q + node_read * (SkyViewAzimuthColumn(phi, sv_alt_nodes[k]) - column_q) : column_q;
     sc_n[a] = SkyViewStencil(column, 0, SV_N_AZ - 1, false, 0.0);
     for (int m = 0; m < 4; ++m) {
-      cos_cols[a][m] = sv_az_node_cos[k * SV_N_AZ + min(sc_n[a].first + m, SV_N_AZ - 1)];
+      int col = min(sc_n[a].first + m, SV_N_AZ - 1);
+      float cos_n = sv_az_node_cos[k * SV_N_AZ + col];
+      // Below SV_AZ_NODE_READ.y blended from the column's azimuth at the query's altitude (the
+      // reader's band_rows; there the map has no focus, SkyViewAzimuthNode).
+      cos_cols[a][m] = node_read >= 1.0 || segment == 2 ? cos_n :
+          node_read > 0.0 ? (1.0 - node_read) * SkyViewCos(SkyViewAzimuthNode(col, h)) + node_read * cos_n :
+          SkyViewCos(SkyViewAzimuthNode(col, h));
     }
   }
   // The ray's length: to the ground below the horizon, else to the top (closed forms, the

@@ -166,13 +166,18 @@ fn main() {
                     print(&format!("{tag}_en"), &[e_n]);
                     std::array::from_fn(|m| {
                         let a = (sc.first + m).min(N_AZ - 1);
-                        let e = band_relative_elevation(
-                            e_n,
-                            s_n,
-                            h_n,
-                            cos_phi,
-                            skybake_lut::skyview::azimuth_node(a, h_n).cos(),
-                        );
+                        let e = band_relative_elevation(e_n, s_n, h_n, cos_phi, {
+                            let [l0, l1] = skybake_lut::skyview::AZIMUTH_NODE_READ_M;
+                            let t = ((h - l0) / (l1 - l0)).clamp(0.0, 1.0);
+                            let lambda = t * t * (3.0 - 2.0 * t);
+                            let q = skybake_lut::skyview::azimuth_node(a, h).cos();
+                            if lambda > 0.0 {
+                                (1.0 - lambda) * q
+                                    + lambda * skybake_lut::skyview::azimuth_node(a, h_n).cos()
+                            } else {
+                                q
+                            }
+                        });
                         let (sg, y) = band_row(e, h, bottom, c_n, k_n, [s_deg, s_n, h_n]);
                         let (lo, hi) = segment_rows(sg);
                         Stencil::new(y, lo, hi, |i| i as f64, y)

@@ -1500,7 +1500,8 @@ impl<'a> SkyViewReader<'a> {
     /// the observer's horizon at altitude `h` (m), azimuth `cos_phi` (cosine) from the sun: the
     /// query's place relative to the band above the earth's shadow moved to the slice's
     /// ([`band_slice_elevation`]) and to the column's azimuth in the slice
-    /// ([`band_relative_elevation`]; the column's at the node's altitude, version 12: at `h`), on
+    /// ([`band_relative_elevation`]; the column's azimuth at `h` blended to the node's altitude's
+    /// as [`node_column`] blends the coordinates), on
     /// the slice's own rows ([`sky_row_focus`] at the node's sun and altitude). `None` where
     /// neither the query nor the slice has a focus (the slice is read at the query's row).
     #[allow(clippy::too_many_arguments)]
@@ -1525,7 +1526,15 @@ impl<'a> SkyViewReader<'a> {
         let e_n = band_slice_elevation(eps, s_deg, h, s_n, h_n);
         Some(std::array::from_fn(|m| {
             let a = (sc.first + m).min(N_AZ - 1);
-            let e = band_relative_elevation(e_n, s_n, h_n, cos_phi, azimuth_node(a, h_n).cos());
+            // The column's azimuth: the query's altitude's where the node is read at the
+            // query's column coordinate (version 12), the node's where at its own.
+            let lambda = smoothstep(AZIMUTH_NODE_READ_M[0], AZIMUTH_NODE_READ_M[1], h);
+            let cos_a = if lambda > 0.0 {
+                (1.0 - lambda) * azimuth_node(a, h).cos() + lambda * azimuth_node(a, h_n).cos()
+            } else {
+                azimuth_node(a, h).cos()
+            };
+            let e = band_relative_elevation(e_n, s_n, h_n, cos_phi, cos_a);
             let (seg, y) = band_row(e, h, p.bottom_radius, c_n, k_n, [s_deg, s_n, h_n]);
             let (lo, hi) = segment_rows(seg);
             Stencil::with_nodes(y, lo, hi, |i| i as f64, y, self.nodes[2])
