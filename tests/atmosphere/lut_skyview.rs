@@ -198,7 +198,7 @@ fn skyview_sky_radiance_matches_the_sky_product() {
             Some(0.03),
         ),
         ("sun -6..5 (target 3 %), ground", 0.01272, Some(0.03)),
-        ("sun -6..5 (target 3 %), 0-20 km", 0.01525, Some(0.03)),
+        ("sun -6..5 (target 3 %), 0-20 km", 0.01573, Some(0.03)),
         ("sun -6..5 (target 3 %), 20-100 km", 0.02912, Some(0.03)),
         ("sun -12..-6 (target 10 %), ground", 0.0342, Some(0.10)),
         ("sun -12..-6 (target 10 %), 0-20 km", 0.03833, Some(0.10)),
@@ -821,13 +821,13 @@ fn skyview_the_earth_shadow_rising_at_low_altitude() {
 /// bounds are per altitude, the measured worst + ~12 % (earth, standard, RGB, layout version 13,
 /// measured on 2026-12-06; 680 nm but at 15 km on the grid). Grid: 6.5 km 1.68 % (sun −2°,
 /// zenith 88.5°, 150° from the sun), 8 km 2.18 % (−3°, 86.5°, 180°), 9.5 km 5.00 % (−3°, 86.5°,
-/// 180°), 11 km 5.23 % (−3°, 88°, 180°), 12.5 km 2.61 % (−3°, 88.5°, 150°), 15 km 4.90 % (−2°,
+/// 180°), 11 km 5.23 % (−3°, 88°, 180°), 12.5 km 2.65 % (−3°, 88.5°, 150°), 15 km 4.90 % (−2°,
 /// 87.5°, 180°, 440 nm), 20 km 2.77 % (−5°, 83.25°, 180°) (version 10: 1.97 / 4.82 / 7.55 / 6.20
 /// / 2.72 / 7.90 / 3.28 %; version 9: 1.94 / 4.82 / 7.53 / 6.22 / 5.70 / 7.91 / 15.8 %; version
 /// 8: 3.39 / 16.4 / 34.4 / 44.0 / 29.2 / 91.3 / 56.6 %). Dense: 5.72 % (−2.25°, 87.75°, 180°),
-/// 7.28 % (−2.5°, 88.25°, 150°), 5.69 % (−2.75°, 88.5°, 120°), 6.95 % (−3°, 88.5°, 135°), 8.49 %
+/// 7.28 % (−2.5°, 88.25°, 150°), 5.69 % (−2.75°, 88.5°, 120°), 6.95 % (−3°, 88.5°, 135°), 8.63 %
 /// (−3.25°, 88.5°, 135°), 5.97 % (−1.75°, 92°, 120°: below the horizontal), 10.43 % (−4.25°,
-/// 86.25°, 165°) (version 12: 12.5 km 2.65 / 8.63 %, 20 km 10.37 % (−4.25°, 90°, 120°); version
+/// 86.25°, 165°) (version 12: 20 km 10.37 % (−4.25°, 90°, 120°); version
 /// 11: 5.72 / 7.28 / 5.66 / 6.91 / 9.25 / 7.57 / 11.27 %).
 #[test]
 #[ignore = "builds a bundle (about 10 s of CPU): run with --ignored lut_skyview::"]
@@ -835,8 +835,8 @@ fn skyview_the_earth_shadow_seen_aloft() {
     let f = fixture();
     let altitudes = [6500.0, 8000.0, 9500.0, 11000.0, 12500.0, 15000.0, 20000.0];
     // Measured worst per altitude (the order of `altitudes`): the grid, the dense check.
-    let measured = [0.0168, 0.0218, 0.0500, 0.0523, 0.0261, 0.0490, 0.0277];
-    let measured_dense = [0.0572, 0.0728, 0.0569, 0.0695, 0.0849, 0.0597, 0.1043];
+    let measured = [0.0168, 0.0218, 0.0500, 0.0523, 0.0265, 0.0490, 0.0277];
+    let measured_dense = [0.0572, 0.0728, 0.0569, 0.0695, 0.0863, 0.0597, 0.1043];
     let t = std::time::Instant::now();
     let results = shadow_aloft_errors(f, &SkyViewReader::new(&f.bundle), &altitudes);
     eprintln!(
