@@ -66,12 +66,7 @@ void main() {
   vec3 sun_h = sun_direction - mu_s * up;
   float phi = dot(view_h, view_h) * dot(sun_h, sun_h) > 1e-12 ?
       atan(length(cross(view_h, sun_h)), dot(view_h, sun_h)) : 0.0;
-  float alpha = 1.0 - (1.0 - SV_AZ_WEIGHT) * smoothstep(SV_AZ_ALTITUDE.x, SV_AZ_ALTITUDE.y, h);
-  float half_sin = SkyViewSin(0.5 * phi);
-  float column = alpha * sqrt(clamp(phi / PI, 0.0, 1.0)) + (1.0 - alpha) * half_sin * half_sin;
-  T(phi); T(column * float(SV_N_AZ - 1));
-  SvStencil sc = SkyViewStencil(column * float(SV_N_AZ - 1), 0, SV_N_AZ - 1, false, 0.0);
-  TS(sc);
+  T(phi); T(SkyViewAzimuthColumn(phi, h));
   float shift = dip;
   if (segment == 1) {
     float near_end =
@@ -92,13 +87,9 @@ void main() {
   float band_c = 0.0, band_k = 0.0, elevation = 0.0;
   float s_q = degrees(asin(mu_s) + shift);
   T(float(segment)); T(y_limb); T(shift); T(s_q);
-  vec4 cos_cols = vec4(1.0);
   if (segment < 2) {
     SkyViewBandFocus(s_q, h, band_c, band_k);
     elevation = degrees(asin(mu));
-    for (int m = 0; m < 4; ++m) {
-      cos_cols[m] = SkyViewCos(SkyViewAzimuthNode(min(sc.first + m, SV_N_AZ - 1), h));
-    }
   }
   T(band_c); T(band_k);
   if (segment == 0) row = SkyViewSkyRow(elevation, band_c, band_k) * float(SV_N_VIEW_SKY - 1);
@@ -138,6 +129,22 @@ void main() {
     for (int a = 0; a < 4; ++a) {
       if (a >= sa.len) break;
       vec3 by_sun[4] = vec3[4](vec3(0.0), vec3(0.0), vec3(0.0), vec3(0.0));
+      float column_q = SkyViewAzimuthColumn(phi, h);
+      float node_read = smoothstep(SV_AZ_NODE_READ.x, SV_AZ_NODE_READ.y, h);
+      float column = node_read > 0.0 ?
+          column_q + node_read * (SkyViewAzimuthColumn(phi, sv_alt_nodes[sa.first + a]) - column_q) :
+          column_q;
+      SvStencil sc = SkyViewStencil(column, 0, SV_N_AZ - 1, false, 0.0);
+      T(column);
+      TS(sc);
+      vec4 cos_cols;
+      for (int m = 0; m < 4; ++m) {
+        int col = min(sc.first + m, SV_N_AZ - 1);
+        float cos_n = sv_az_node_cos[(sa.first + a) * SV_N_AZ + col];
+        cos_cols[m] = node_read >= 1.0 || segment == 2 ? cos_n :
+            node_read > 0.0 ? (1.0 - node_read) * SkyViewCos(SkyViewAzimuthNode(col, h)) + node_read * cos_n :
+            SkyViewCos(SkyViewAzimuthNode(col, h));
+      }
       for (int s = 0; s < 4; ++s) {
         if (s >= ss.len) break;
         int k = sa.first + a, j = ss.first + s;

@@ -162,6 +162,20 @@ class LiveSky {
           !(az.altitude_range_m[0] < az.altitude_range_m[1])) {
         throw new Error("manifest: parameterisation.azimuth_aloft is not the columns' map aloft");
       }
+      // The columns' focus aloft and every altitude node's column azimuths (version 13: each
+      // altitude node's columns read in its own map).
+      const azFocus = manifest.parameterisation.azimuth_focus;
+      if (!azFocus || !(azFocus.weight >= 0 && azFocus.weight < 1) || !(azFocus.width_deg > 0) ||
+          !Number.isFinite(azFocus.centre_deg) || !numbers(azFocus.altitude_range_m, 2) ||
+          !(azFocus.altitude_range_m[0] < azFocus.altitude_range_m[1]) ||
+          !numbers(azFocus.node_read_altitude_m, 2) ||
+          !(azFocus.node_read_altitude_m[0] < azFocus.node_read_altitude_m[1])) {
+        throw new Error("manifest: parameterisation.azimuth_focus is not the columns' focus aloft");
+      }
+      const azNodes = manifest.parameterisation.azimuth_nodes_rad;
+      if (!Array.isArray(azNodes) || azNodes.length !== z.N_ALT || !azNodes.every((v) => numbers(v, z.N_AZ))) {
+        throw new Error("manifest: parameterisation.azimuth_nodes_rad is not N_ALT x N_AZ azimuths");
+      }
       // The altitude nodes' map (version 5).
       const altMap = manifest.parameterisation.altitude_map;
       if (!numbers(altMap, 3) || !(altMap[1] > altMap[2] && altMap[2] > 0)) {
@@ -175,7 +189,11 @@ class LiveSky {
       defines += `#define SV_SKY_EXIT_ALTITUDE vec2(${exit.map(f).join(", ")})\n`;
       defines += `#define SV_ALT_MAP vec3(${altMap.map(f).join(", ")})\n` +
         `#define SV_AZ_WEIGHT ${f(az.weight)}\n` +
-        `#define SV_AZ_ALTITUDE vec2(${az.altitude_range_m.map(f).join(", ")})\n`;
+        `#define SV_AZ_ALTITUDE vec2(${az.altitude_range_m.map(f).join(", ")})\n` +
+        `#define SV_AZ_FOCUS vec3(${[azFocus.weight, azFocus.centre_deg, azFocus.width_deg].map(f).join(", ")})\n` +
+        `#define SV_AZ_FOCUS_ALTITUDE vec2(${azFocus.altitude_range_m.map(f).join(", ")})\n` +
+        `#define SV_AZ_NODE_READ vec2(${azFocus.node_read_altitude_m.map(f).join(", ")})\n` +
+        `#define SV_AZ_NODE_COS float[${z.N_ALT * z.N_AZ}](${azNodes.flat().map((x) => f(Math.cos(x))).join(", ")})\n`;
       source = `${this.glsl}\n${this.skyviewGlsl}`;
     }
     if (!this.programs[defines]) {

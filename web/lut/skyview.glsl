@@ -32,7 +32,11 @@
 // SV_LIMB_BAND_ALTITUDE_EXPONENT (altitude_exponent), SV_LIMB_BAND_MAX_FRACTION (max_fraction),
 // SV_LIMB_BAND_HORIZON_HELD (horizon_held, a vec2);
 // from parameterisation.azimuth_aloft: SV_AZ_WEIGHT (weight) and SV_AZ_ALTITUDE
-// (altitude_range_m, a vec2), SV_ALT_MAP (parameterisation.altitude_map, a vec3) and
+// (altitude_range_m, a vec2); from parameterisation.azimuth_focus: SV_AZ_FOCUS (vec3(weight,
+// centre_deg, width_deg)), SV_AZ_FOCUS_ALTITUDE (altitude_range_m, a vec2) and SV_AZ_NODE_READ
+// (node_read_altitude_m, a vec2); SV_AZ_NODE_COS
+// (the cosines of parameterisation.azimuth_nodes_rad, a float[SV_N_ALT * SV_N_AZ] constructor,
+// altitude node k's columns at k * SV_N_AZ ..), SV_ALT_MAP (parameterisation.altitude_map, a vec3) and
 // SV_SKY_EXIT_ALTITUDE (parameterisation.sky_exit_altitude_m, a vec2); from
 // parameterisation.limb_near_end: SV_LIMB_NEAR_END_AZIMUTH (azimuth_cos, a vec2),
 // SV_LIMB_NEAR_END_DEPTH (depth_m, a vec2), SV_LIMB_NEAR_END_ALTITUDE (altitude_range_m, a vec2).
@@ -40,8 +44,9 @@
 // Per query: node coordinates in altitude ((sqrt(e) + c (e^p - e^q)) (N_ALT - 1),
 // e = h / thickness), the sun's elevation above the observer's horizon (the manifest's
 // segments), the view row within its segment (sky, limb, below the horizon; relative to the
-// observer's horizon) and the azimuth from the sun's (sqrt(phi / pi) (N_AZ - 1) near the
-// ground, blended with sin^2(phi / 2) aloft); over the 4 columns, the up to 4 rows (times the
+// observer's horizon) and the azimuth from the sun's, at each altitude node in the node's own
+// map (sqrt(phi / pi) (N_AZ - 1) near the ground, blended with sin^2(phi / 2) and a focus at
+// 110 degrees aloft); over the 4 columns, the up to 4 rows (times the
 // slice's scale), 4 sun and 4 altitude nodes around it, the Lagrange polynomial of the values' logarithms
 // (SkyViewStencil, SkyViewMix; geometric a^(1-t) b^t between two nodes where a value is not
 // positive); on the limb rows the sun coordinate moves towards the sun's elevation above the
@@ -360,9 +365,41 @@ float SkyViewBandAzimuthDepth(float h) {
       smoothstep(SV_BAND_AZIMUTH_DEPTH_ALTITUDE.x, SV_BAND_AZIMUTH_DEPTH_ALTITUDE.y, h);
 }
 
-// The azimuth (rad) from the sun of column a at altitude h (the reader's azimuth_node): the root
-// x of alpha x + (1 - alpha) sin^2(pi x^2 / 2) = a / (N_AZ - 1), phi = pi x^2, by Newton's
-// method from x = a / (N_AZ - 1) (the root where alpha = 1, near the ground).
+// tanh from exp (odd: of |x|).
+float SkyViewTanh(float x) {
+  float e = exp(-2.0 * abs(x));
+  return sign(x) * (1.0 - e) / (1.0 + e);
+}
+
+// The columns' focus aloft at azimuth phi (rad) and altitude h (the reader's azimuth_focus):
+// (beta, G(phi)), beta = SV_AZ_FOCUS.x smoothstep(SV_AZ_FOCUS_ALTITUDE, h), G(phi) =
+// (tanh((phi - c) / w) - tanh(-c / w)) / (tanh((pi - c) / w) - tanh(-c / w)), (c, w) =
+// SV_AZ_FOCUS.yz (degrees).
+vec2 SkyViewAzimuthFocus(float phi, float h) {
+  float beta = SV_AZ_FOCUS.x * smoothstep(SV_AZ_FOCUS_ALTITUDE.x, SV_AZ_FOCUS_ALTITUDE.y, h);
+  if (beta <= 0.0) return vec2(0.0);
+  float c = radians(SV_AZ_FOCUS.y);
+  float w = radians(SV_AZ_FOCUS.z);
+  float g0 = SkyViewTanh(-c / w);
+  return vec2(beta, (SkyViewTanh((phi - c) / w) - g0) / (SkyViewTanh((PI - c) / w) - g0));
+}
+
+// The column coordinate of azimuth phi (rad) at altitude h (the reader's azimuth_coord):
+// (alpha sqrt(phi / pi) + (1 - alpha - beta) sin^2(phi / 2) + beta G(phi)) (N_AZ - 1), alpha
+// from 1 near the ground to SV_AZ_WEIGHT aloft (the columns denser around 90 degrees from the
+// sun), (beta, G) = SkyViewAzimuthFocus (0 below SV_AZ_FOCUS_ALTITUDE.x).
+float SkyViewAzimuthColumn(float phi, float h) {
+  float alpha = 1.0 - (1.0 - SV_AZ_WEIGHT) * smoothstep(SV_AZ_ALTITUDE.x, SV_AZ_ALTITUDE.y, h);
+  vec2 focus = SkyViewAzimuthFocus(phi, h);
+  float half_sin = SkyViewSin(0.5 * phi);
+  return (alpha * sqrt(clamp(phi / PI, 0.0, 1.0)) +
+          (1.0 - alpha - focus.x) * half_sin * half_sin + focus.x * focus.y) *
+      float(SV_N_AZ - 1);
+}
+
+// The azimuth (rad) from the sun of column a at altitude h below SV_AZ_FOCUS_ALTITUDE.x (the
+// reader's azimuth_node): the root x of alpha x + (1 - alpha) sin^2(pi x^2 / 2) = a / (N_AZ - 1),
+// phi = pi x^2, by Newton's method from x = a / (N_AZ - 1) (the root where alpha = 1).
 float SkyViewAzimuthNode(int a, float h) {
   float target = float(a) / float(SV_N_AZ - 1);
   float alpha = 1.0 - (1.0 - SV_AZ_WEIGHT) * smoothstep(SV_AZ_ALTITUDE.x, SV_AZ_ALTITUDE.y, h);
@@ -376,6 +413,10 @@ float SkyViewAzimuthNode(int a, float h) {
   }
   return PI * x * x;
 }
+
+// The cosines of the columns' azimuths from the sun at each altitude node (the reader's
+// azimuth_node at the node's altitude): column a of altitude node k at k * SV_N_AZ + a.
+const float sv_az_node_cos[SV_N_ALT * SV_N_AZ] = SV_AZ_NODE_COS;
 
 // The sky rows' coordinate x (0 at the zenith, 1 at the horizontal) of the elevation
 // elevation_deg with focus (c, k) (the reader's sky_row): x0 = 1 - sqrt(elevation / 90) (version
@@ -498,9 +539,9 @@ vec3 SkyViewFetchBand(sampler2D part, int k, int j, SvStencil sc, SvStencil rows
 
 // On the sky rows, the rows' stencil of each column m of sc in slice (altitude node k, sun node
 // j) for a query at elevation_deg with the focus (c, k_q) at the sun coordinate s_q, altitude h and
-// azimuth cos_phi from the sun, cos_cols the cosines of the azimuths of sc's columns at h
-// (SkyViewAzimuthNode) (the reader's band_rows): false where neither the query nor the slice has
-// a focus (then the slice is read at the query's row).
+// azimuth cos_phi from the sun, cos_cols the cosines of the azimuths of the slice's columns in
+// the stencil sc (sv_az_node_cos) (the reader's band_rows): false where neither the query nor
+// the slice has a focus (then the slice is read at the query's row).
 bool SkyViewBandRows(float elevation_deg, float c, float k_q, float s_q, float h, float cos_phi,
                      vec4 cos_cols, int k, int j, out SvStencil rows[4]) {
   float h_n = sv_alt_nodes[k];
@@ -561,12 +602,6 @@ vec3 SkyViewRadiance(float h, float rho, vec3 up, vec3 view_ray, vec3 sun_direct
   vec3 sun_h = sun_direction - mu_s * up;
   float phi = dot(view_h, view_h) * dot(sun_h, sun_h) > 1e-12 ?
       atan(length(cross(view_h, sun_h)), dot(view_h, sun_h)) : 0.0;
-  // Its column: (alpha sqrt(phi / pi) + (1 - alpha) sin^2(phi / 2)) (N_AZ - 1), alpha from 1
-  // near the ground to SV_AZ_WEIGHT aloft (the columns denser around 90 degrees from the sun).
-  float alpha = 1.0 - (1.0 - SV_AZ_WEIGHT) * smoothstep(SV_AZ_ALTITUDE.x, SV_AZ_ALTITUDE.y, h);
-  float half_sin = SkyViewSin(0.5 * phi);
-  float column = alpha * sqrt(clamp(phi / PI, 0.0, 1.0)) + (1.0 - alpha) * half_sin * half_sin;
-  SvStencil sc = SkyViewStencil(column * float(SV_N_AZ - 1), 0, SV_N_AZ - 1, false, 0.0);
   // The sun coordinate: the sun's elevation above the observer's horizon, on the limb above the
   // horizon of the ray's tangent point (the reader's sun_shift).
   float shift = dip;
@@ -594,14 +629,10 @@ vec3 SkyViewRadiance(float h, float rho, vec3 up, vec3 view_ray, vec3 sun_direct
   // slice's sun and altitude and at the column's azimuth.
   float band_c = 0.0, band_k = 0.0, elevation = 0.0;
   float s_q = degrees(asin(mu_s) + shift);
-  vec4 cos_cols = vec4(1.0);
   if (segment < 2) {
     // The sky rows' focus (the reader's sky_row_focus) at the sun coordinate.
     SkyViewBandFocus(s_q, h, band_c, band_k);
     elevation = degrees(asin(mu));
-    for (int m = 0; m < 4; ++m) {
-      cos_cols[m] = SkyViewCos(SkyViewAzimuthNode(min(sc.first + m, SV_N_AZ - 1), h));
-    }
   }
   if (segment == 0) row = SkyViewSkyRow(elevation, band_c, band_k) * float(SV_N_VIEW_SKY - 1);
   int lo = segment == 0 ? 0 : segment == 1 ? SV_N_VIEW_SKY : SV_N_VIEW_UP;
@@ -612,6 +643,30 @@ vec3 SkyViewRadiance(float h, float rho, vec3 up, vec3 view_ray, vec3 sun_direct
   SkyViewAltitudeSun(h, shift, mu_s, k0, tk, j0, tj, above_deg);
   SvStencil sa = SkyViewStencil(float(k0) + tk, 0, SV_N_ALT - 1, false, 0.0);
   SvStencil ss = SkyViewStencil(float(j0) + tj, 0, SV_N_SUN - 1, true, above_deg);
+  // Each altitude node's columns (the reader's node_column): from the query's column coordinate
+  // (below SV_AZ_NODE_READ.x) to the azimuth's coordinate in the node's own map (above
+  // SV_AZ_NODE_READ.y; SkyViewAzimuthColumn at the node's altitude), and the cosines of the
+  // azimuths of its stencil's columns (for SkyViewBandRows).
+  float column_q = SkyViewAzimuthColumn(phi, h);
+  float node_read = smoothstep(SV_AZ_NODE_READ.x, SV_AZ_NODE_READ.y, h);
+  SvStencil sc_n[4];
+  vec4 cos_cols[4];
+  for (int a = 0; a < 4; ++a) {
+    if (a >= sa.len) break;
+    int k = sa.first + a;
+    float column = node_read > 0.0 ?
+        column_q + node_read * (SkyViewAzimuthColumn(phi, sv_alt_nodes[k]) - column_q) : column_q;
+    sc_n[a] = SkyViewStencil(column, 0, SV_N_AZ - 1, false, 0.0);
+    for (int m = 0; m < 4; ++m) {
+      int col = min(sc_n[a].first + m, SV_N_AZ - 1);
+      float cos_n = sv_az_node_cos[k * SV_N_AZ + col];
+      // Below SV_AZ_NODE_READ.y blended from the column's azimuth at the query's altitude (the
+      // reader's band_rows; there the map has no focus, SkyViewAzimuthNode).
+      cos_cols[a][m] = node_read >= 1.0 || segment == 2 ? cos_n :
+          node_read > 0.0 ? (1.0 - node_read) * SkyViewCos(SkyViewAzimuthNode(col, h)) + node_read * cos_n :
+          SkyViewCos(SkyViewAzimuthNode(col, h));
+    }
+  }
   // The ray's length: to the ground below the horizon, else to the top (closed forms, the
   // ground's as rho^2 / (-r mu + sqrt(...)) to avoid the cancellation near the horizon).
   float d;
@@ -628,12 +683,13 @@ vec3 SkyViewRadiance(float h, float rho, vec3 up, vec3 view_ray, vec3 sun_direct
     for (int a = 0; a < 4; ++a) {
       if (a >= sa.len) break;
       vec3 by_sun[4] = vec3[4](vec3(0.0), vec3(0.0), vec3(0.0), vec3(0.0));
+      SvStencil sc = sc_n[a];
       for (int s = 0; s < 4; ++s) {
         if (s >= ss.len) break;
         vec3 value;
         SvStencil band_rows[4];
-        if (segment < 2 && SkyViewBandRows(elevation, band_c, band_k, s_q, h, SkyViewCos(phi), cos_cols,
-                                            sa.first + a, ss.first + s, band_rows)) {
+        if (segment < 2 && SkyViewBandRows(elevation, band_c, band_k, s_q, h, SkyViewCos(phi),
+                                            cos_cols[a], sa.first + a, ss.first + s, band_rows)) {
           int k = sa.first + a, j = ss.first + s;
           value = part == 0 ? SkyViewFetchBand(skyview_rayleigh, k, j, sc, band_rows) :
                               SkyViewFetchBand(skyview_mie, k, j, sc, band_rows);

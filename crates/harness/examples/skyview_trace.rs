@@ -96,10 +96,10 @@ fn main() {
     } else {
         1.0
     };
-    let col = azimuth_coord(cos_phi.acos(), h);
-    print("phi_column", &[cos_phi.acos(), col]);
-    let sc = Stencil::new(col, 0, N_AZ - 1, |a| a as f64, col);
-    stencil("azimuth_stencil", &sc);
+    // (The column at the query's altitude; each altitude node's own below.)
+    let phi = cos_phi.acos();
+    let col = azimuth_coord(phi, h);
+    print("phi_column", &[phi, col]);
     let (seg, _) = view_coord(theta, r, bottom, 0.0);
     let shift = sun_shift(r, theta, cos_phi, bottom, top, seg == 1);
     let s_deg = (mu_s.clamp(-1.0, 1.0).asin() + shift).to_degrees();
@@ -145,6 +145,11 @@ fn main() {
         for ka in 0..sa.len {
             let k = sa.first + ka;
             let h_n = altitude_node_m(k, thickness);
+            // The node's columns (from the query's coordinate to the node's own map).
+            let col_n = skybake_lut::skyview::node_column(phi, col, h, k, thickness);
+            let sc = Stencil::new(col_n, 0, N_AZ - 1, |a| a as f64, col_n);
+            print(&format!("p{part}_k{k}_column"), &[col_n]);
+            stencil(&format!("p{part}_k{k}_azimuth_stencil"), &sc);
             let mut by_sun = vec![[0.0f64; 4]; n_c];
             for js in 0..ss.len {
                 let j = ss.first + js;
@@ -161,13 +166,18 @@ fn main() {
                     print(&format!("{tag}_en"), &[e_n]);
                     std::array::from_fn(|m| {
                         let a = (sc.first + m).min(N_AZ - 1);
-                        let e = band_relative_elevation(
-                            e_n,
-                            s_n,
-                            h_n,
-                            cos_phi,
-                            skybake_lut::skyview::azimuth_node(a, h).cos(),
-                        );
+                        let e = band_relative_elevation(e_n, s_n, h_n, cos_phi, {
+                            let [l0, l1] = skybake_lut::skyview::AZIMUTH_NODE_READ_M;
+                            let t = ((h - l0) / (l1 - l0)).clamp(0.0, 1.0);
+                            let lambda = t * t * (3.0 - 2.0 * t);
+                            let q = skybake_lut::skyview::azimuth_node(a, h).cos();
+                            if lambda > 0.0 {
+                                (1.0 - lambda) * q
+                                    + lambda * skybake_lut::skyview::azimuth_node(a, h_n).cos()
+                            } else {
+                                q
+                            }
+                        });
                         let (sg, y) = band_row(e, h, bottom, c_n, k_n, [s_deg, s_n, h_n]);
                         let (lo, hi) = segment_rows(sg);
                         Stencil::new(y, lo, hi, |i| i as f64, y)
