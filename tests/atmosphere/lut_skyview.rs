@@ -524,9 +524,9 @@ fn twilight_glow_errors(f: &Fixture, reader: &SkyViewReader, suns: &[f64]) -> (f
 
 /// The twilight glow in deep twilight, 0–20 km (see [`twilight_glow_errors`]); the issue's
 /// target is 10 % (sun down to −12°), not met: measured on 2026-12-06 (earth, standard, RGB,
-/// layout version 12) 14.4 % at 15 km, sun −12°, 1° above the horizontal 60° from the sun,
-/// 680 nm (too dark: the altitude nodes); per altitude 6.8 / 7.5 / 9.6 / 7.8 / 14.4 / 8.4 % at
-/// 0 / 2.5 / 5 / 10 / 15 / 20 km. (Version 11: 17.8 % at 5 km, sun −7°, 0.25° above the
+/// layout version 13) 14.4 % at 15 km, sun −12°, 1° above the horizontal 60° from the sun,
+/// 680 nm (too dark: the altitude nodes); per altitude 6.8 / 7.5 / 8.7 / 6.4 / 14.4 / 7.4 % at
+/// 0 / 2.5 / 5 / 10 / 15 / 20 km (version 12: 6.8 / 7.5 / 9.6 / 7.8 / 14.4 / 8.4 %). (Version 11: 17.8 % at 5 km, sun −7°, 0.25° above the
 /// horizontal towards the sun, 440 nm, too bright: the sky rows, drawn towards the band above
 /// the earth's shadow opposite the sun; the focus now fades in from −5° to −3° of the sun's
 /// elevation above the observer's horizon.) The bound is the measured + ~12 %.
@@ -546,11 +546,13 @@ fn skyview_the_twilight_glow_in_deep_twilight() {
 }
 
 /// The same grid as [`twilight_glow_errors`] with the sun at −6…5° in 1° steps (the issue's
-/// target 3 %; the random samples read 1.74 % at 0–20 km): measured on 2026-12-06 (earth,
-/// standard, RGB, layout version 12) 9.65 % at 5 km, sun −6°, 0.25° above the horizontal towards
-/// the sun, 440 nm (too bright: the sky rows, drawn towards the band above the earth's shadow
-/// opposite the sun; the same view as the deep grid's worst at 5 km). The bound is the
-/// measured + ~12 %.
+/// target 3 %; the random samples read 1.57 % at 0–20 km): measured on 2026-12-06 (earth,
+/// standard, RGB, layout version 13) 9.54 % at 15 km, sun −6°, 0.75° above the horizontal 90°
+/// from the sun, 680 nm (too dark: the azimuth columns −5.1 %, the altitude nodes −4.3 %); over
+/// 3 % only there and at 10 km (4.50 %, 90° from the sun), ≤ 3 % at 0, 2.5, 5 and 20 km.
+/// (Version 12: 9.65 % at 5 km, sun −6°, 0.25° above the horizontal towards the sun, 440 nm, too
+/// bright: the sky rows, drawn towards the band above the earth's shadow, 9–12° high; their
+/// focus now fades out as the band rises from 6° to 9°.) The bound is the measured + ~12 %.
 #[test]
 #[ignore = "builds a bundle (about 10 s of CPU): run with --ignored lut_skyview::"]
 fn skyview_the_twilight_glow_at_sunset() {
@@ -561,7 +563,7 @@ fn skyview_the_twilight_glow_at_sunset() {
         "skyview twilight glow, 0-20 km, sun -6..5 (target 3 %): {:.3} % {case}",
         100.0 * worst
     );
-    let measured = 0.0965;
+    let measured = 0.0954;
     assert!(worst > 0.0, "no sample");
     assert!(worst < measured * 1.12, "{worst} {case}");
 }
@@ -816,24 +818,27 @@ fn skyview_the_earth_shadow_rising_at_low_altitude() {
 /// takes the band's depth measured aloft from 12.5–17 km up (version 12). The 3 % target
 /// (views within 10° of the horizon, sun down to −6°) is not met at 9.5–15 km on the grid nor
 /// at any of these altitudes on the dense check (the sky rows, the sun and azimuth axes). The
-/// bounds are per altitude, the measured worst + ~12 % (earth, standard, RGB, layout version 12,
-/// measured on 2026-12-06; 680 nm but at 15 km on the grid). Grid: 6.5 km 1.68 % (sun −2°,
-/// zenith 88.5°, 150° from the sun), 8 km 2.18 % (−3°, 86.5°, 180°), 9.5 km 5.00 % (−3°, 86.5°,
+/// bounds are per altitude, the measured worst + ~12 % (earth, standard, RGB, layout version 13,
+/// measured on 2026-12-06; 680 nm but at 15 km on the grid). Grid: 6.5 km 1.72 % (sun −5°,
+/// zenith 80.5°, 180° from the sun), 8 km 2.53 % (−5°, 81.75°, 180°), 9.5 km 5.00 % (−3°, 86.5°,
 /// 180°), 11 km 5.23 % (−3°, 88°, 180°), 12.5 km 2.65 % (−3°, 88.5°, 150°), 15 km 4.90 % (−2°,
-/// 87.5°, 180°, 440 nm), 20 km 2.77 % (−5°, 83.25°, 180°) (version 10: 1.97 / 4.82 / 7.55 / 6.20
+/// 87.5°, 180°, 440 nm), 20 km 3.08 % (−6°, 82°, 150°) (version 13's rows without focus under
+/// a band 9° or more high; version 12: 1.68 / 2.18 / 5.00 / 5.23 / 2.65 / 4.90 / 2.77 %;
+/// version 10: 1.97 / 4.82 / 7.55 / 6.20
 /// / 2.72 / 7.90 / 3.28 %; version 9: 1.94 / 4.82 / 7.53 / 6.22 / 5.70 / 7.91 / 15.8 %; version
 /// 8: 3.39 / 16.4 / 34.4 / 44.0 / 29.2 / 91.3 / 56.6 %). Dense: 5.72 % (−2.25°, 87.75°, 180°),
 /// 7.28 % (−2.5°, 88.25°, 150°), 5.69 % (−2.75°, 88.5°, 120°), 6.95 % (−3°, 88.5°, 135°), 8.63 %
-/// (−3.25°, 88.5°, 135°), 5.97 % (−1.75°, 92°, 120°: below the horizontal), 10.37 % (−4.25°,
-/// 90°, 120°) (version 11: 5.72 / 7.28 / 5.66 / 6.91 / 9.25 / 7.57 / 11.27 %).
+/// (−3.25°, 88.5°, 135°), 7.28 % (−5.5°, 81.5°, 165°; version 12: 5.97 %, −1.75°, 92°, 120°,
+/// below the horizontal), 10.37 % (−4.25°, 90°, 120°) (version 11: 5.72 / 7.28 / 5.66 / 6.91 /
+/// 9.25 / 7.57 / 11.27 %).
 #[test]
 #[ignore = "builds a bundle (about 10 s of CPU): run with --ignored lut_skyview::"]
 fn skyview_the_earth_shadow_seen_aloft() {
     let f = fixture();
     let altitudes = [6500.0, 8000.0, 9500.0, 11000.0, 12500.0, 15000.0, 20000.0];
     // Measured worst per altitude (the order of `altitudes`): the grid, the dense check.
-    let measured = [0.0168, 0.0218, 0.0500, 0.0523, 0.0265, 0.0490, 0.0277];
-    let measured_dense = [0.0572, 0.0728, 0.0569, 0.0695, 0.0863, 0.0597, 0.1037];
+    let measured = [0.0172, 0.0253, 0.0500, 0.0523, 0.0265, 0.0490, 0.0308];
+    let measured_dense = [0.0572, 0.0728, 0.0569, 0.0695, 0.0863, 0.0728, 0.1037];
     let t = std::time::Instant::now();
     let results = shadow_aloft_errors(f, &SkyViewReader::new(&f.bundle), &altitudes);
     eprintln!(
