@@ -327,9 +327,6 @@ float SkyViewBandStrength(float h) {
                  smoothstep(SV_BAND_FOCUS_ALOFT_ALTITUDE.x, SV_BAND_FOCUS_ALOFT_ALTITUDE.y, h));
 }
 
-// The sky rows' focus on the band above the earth's shadow (the reader's sky_row_focus): the
-// band's elevation c (degrees) and the focus strength k (per degree) with the sun sun_deg above
-// the observer's horizon at altitude h.
 // The weight (0..1) of the maps relative to the band (SkyViewBandSlice, SkyViewBandRelative) at
 // the sun coordinate sun_deg and altitude h (the reader's band_map_weight): the focus's fades in
 // the sun and the altitude, without its fade in the band's elevation.
@@ -339,6 +336,9 @@ float SkyViewBandWeight(float sun_deg, float h) {
       (1.0 - smoothstep(SV_BAND_ALTITUDE.x, SV_BAND_ALTITUDE.y, h));
 }
 
+// The sky rows' focus on the band above the earth's shadow (the reader's sky_row_focus): the
+// band's elevation c (degrees) and the focus strength k (per degree) with the sun sun_deg above
+// the observer's horizon at altitude h (faded out as c rises through SV_BAND_CENTRE_RANGE).
 void SkyViewBandFocus(float sun_deg, float h, out float c, out float k) {
   float u = max(SV_BAND_SUN - sun_deg, 0.0);
   // The low fit up to SV_BAND_CENTRE_ALOFT_ALTITUDE.x, scaled by 1 + SV_BAND_CENTRE_ALOFT per km
