@@ -505,9 +505,9 @@ fn twilight_glow_errors(f: &Fixture, reader: &SkyViewReader, suns: &[f64]) -> (f
 
 /// The twilight glow in deep twilight, 0–20 km (see [`twilight_glow_errors`]); the issue's
 /// target is 10 % (sun down to −12°), not met: measured on 2026-12-06 (earth, standard, RGB,
-/// layout version 12) 14.4 % at 15 km, sun −12°, 1° above the horizontal 60° from the sun,
-/// 680 nm (too dark: the altitude nodes); per altitude 6.8 / 7.5 / 9.6 / 7.8 / 14.4 / 8.4 % at
-/// 0 / 2.5 / 5 / 10 / 15 / 20 km. (Version 11: 17.8 % at 5 km, sun −7°, 0.25° above the
+/// layout version 13) 14.4 % at 15 km, sun −12°, 1° above the horizontal 60° from the sun,
+/// 680 nm (too dark: the altitude nodes); per altitude 6.8 / 7.5 / 8.7 / 6.4 / 14.4 / 7.4 % at
+/// 0 / 2.5 / 5 / 10 / 15 / 20 km (version 12: 6.8 / 7.5 / 9.6 / 7.8 / 14.4 / 8.4 %). (Version 11: 17.8 % at 5 km, sun −7°, 0.25° above the
 /// horizontal towards the sun, 440 nm, too bright: the sky rows, drawn towards the band above
 /// the earth's shadow opposite the sun; the focus now fades in from −5° to −3° of the sun's
 /// elevation above the observer's horizon.) The bound is the measured + ~12 %.
@@ -527,11 +527,13 @@ fn skyview_the_twilight_glow_in_deep_twilight() {
 }
 
 /// The same grid as [`twilight_glow_errors`] with the sun at −6…5° in 1° steps (the issue's
-/// target 3 %; the random samples read 1.74 % at 0–20 km): measured on 2026-12-06 (earth,
-/// standard, RGB, layout version 12) 9.65 % at 5 km, sun −6°, 0.25° above the horizontal towards
-/// the sun, 440 nm (too bright: the sky rows, drawn towards the band above the earth's shadow
-/// opposite the sun; the same view as the deep grid's worst at 5 km). The bound is the
-/// measured + ~12 %.
+/// target 3 %; the random samples read 1.57 % at 0–20 km): measured on 2026-12-06 (earth,
+/// standard, RGB, layout version 13) 9.54 % at 15 km, sun −6°, 0.75° above the horizontal 90°
+/// from the sun, 680 nm (too dark: the azimuth columns −5.1 %, the altitude nodes −4.3 %); over
+/// 3 % only there and at 10 km (4.50 %, 90° from the sun), ≤ 3 % at 0, 2.5, 5 and 20 km.
+/// (Version 12: 9.65 % at 5 km, sun −6°, 0.25° above the horizontal towards the sun, 440 nm, too
+/// bright: the sky rows, drawn towards the band above the earth's shadow, 9–12° high; their
+/// focus now fades out as the band rises from 6° to 9°.) The bound is the measured + ~12 %.
 #[test]
 #[ignore = "builds a bundle (about 10 s of CPU): run with --ignored lut_skyview::"]
 fn skyview_the_twilight_glow_at_sunset() {
@@ -542,7 +544,7 @@ fn skyview_the_twilight_glow_at_sunset() {
         "skyview twilight glow, 0-20 km, sun -6..5 (target 3 %): {:.3} % {case}",
         100.0 * worst
     );
-    let measured = 0.0965;
+    let measured = 0.0954;
     assert!(worst > 0.0, "no sample");
     assert!(worst < measured * 1.12, "{worst} {case}");
 }
@@ -815,8 +817,8 @@ fn skyview_the_earth_shadow_seen_aloft() {
     let f = fixture();
     let altitudes = [6500.0, 8000.0, 9500.0, 11000.0, 12500.0, 15000.0, 20000.0];
     // Measured worst per altitude (the order of `altitudes`): the grid, the dense check.
-    let measured = [0.0194, 0.0248, 0.0605, 0.0523, 0.0265, 0.0497, 0.0277];
-    let measured_dense = [0.0572, 0.0728, 0.0605, 0.0695, 0.0863, 0.0601, 0.1043];
+    let measured = [0.0194, 0.0253, 0.0605, 0.0523, 0.0265, 0.0497, 0.0308];
+    let measured_dense = [0.0572, 0.0728, 0.0605, 0.0695, 0.0863, 0.0728, 0.1043];
     let t = std::time::Instant::now();
     let results = shadow_aloft_errors(f, &SkyViewReader::new(&f.bundle), &altitudes);
     eprintln!(

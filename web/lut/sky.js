@@ -83,7 +83,8 @@ class LiveSky {
         `#define SV_SUN_WARP_HI ${warpRange[1].toExponential()}\n`;
       // The sky rows' focus on the band above the earth's shadow (version 4), and the band's
       // elevation with the azimuth (version 5), its fit aloft and the depth's top (version 9), the
-      // focus's growth aloft (version 11), the columns' depth aloft (version 12).
+      // focus's growth aloft (version 11), the columns' depth aloft (version 12), the focus's fade
+      // with the band's elevation (version 13).
       const band = manifest.parameterisation.sky_row_band;
       const numbers = (v, n) => Array.isArray(v) && v.length === n && v.every(Number.isFinite);
       if (!band || !(band.focus > 0) || !Number.isFinite(band.sun_deg) || !numbers(band.centre, 4) ||
@@ -98,7 +99,8 @@ class LiveSky {
           !numbers(band.focus_aloft_altitude_m, 2) ||
           !(band.focus_aloft_altitude_m[0] < band.focus_aloft_altitude_m[1]) ||
           !(band.azimuth_depth_aloft_deg >= 0) || !numbers(band.azimuth_depth_aloft_altitude_m, 2) ||
-          !(band.azimuth_depth_aloft_altitude_m[0] < band.azimuth_depth_aloft_altitude_m[1])) {
+          !(band.azimuth_depth_aloft_altitude_m[0] < band.azimuth_depth_aloft_altitude_m[1]) ||
+          !numbers(band.centre_range_deg, 2) || !(band.centre_range_deg[0] < band.centre_range_deg[1])) {
         throw new Error("manifest: parameterisation.sky_row_band is not the sky rows' band focus");
       }
       // The altitude nodes, where each slice's own rows are read (version 6).
@@ -112,6 +114,7 @@ class LiveSky {
         `#define SV_BAND_CENTRE vec4(${band.centre.map(f).join(", ")})\n` +
         `#define SV_BAND_SUN_RANGE vec4(${band.sun_range_deg.map(f).join(", ")})\n` +
         `#define SV_BAND_ALTITUDE vec2(${band.altitude_range_m.map(f).join(", ")})\n` +
+        `#define SV_BAND_CENTRE_RANGE vec2(${band.centre_range_deg.map(f).join(", ")})\n` +
         `#define SV_BAND_ANTISOLAR ${f(band.antisolar)}\n` +
         `#define SV_BAND_DEPTH ${f(band.depth_deg_per_km)}\n` +
         `#define SV_BAND_HORIZON ${f(band.horizon_deg)}\n` +

@@ -17,6 +17,7 @@
 // (parameterisation.sun_warp_range), float literals, and from parameterisation.sky_row_band:
 // SV_BAND_SUN (sun_deg), SV_BAND_FOCUS (focus), SV_BAND_CENTRE (centre, a vec4),
 // SV_BAND_SUN_RANGE (sun_range_deg, a vec4), SV_BAND_ALTITUDE (altitude_range_m, a vec2),
+// SV_BAND_CENTRE_RANGE (centre_range_deg, a vec2),
 // SV_BAND_ANTISOLAR (antisolar), SV_BAND_DEPTH (depth_deg_per_km), SV_BAND_HORIZON
 // (horizon_deg), SV_BAND_ANTISOLAR_RANGE (antisolar_range, a vec2), SV_BAND_GROWTH
 // (focus_growth), SV_BAND_GROWTH_ALTITUDE (focus_growth_altitude_m, a vec2),
@@ -331,9 +332,18 @@ float SkyViewBandStrength(float h) {
                  smoothstep(SV_BAND_FOCUS_ALOFT_ALTITUDE.x, SV_BAND_FOCUS_ALOFT_ALTITUDE.y, h));
 }
 
+// The weight (0..1) of the maps relative to the band (SkyViewBandSlice, SkyViewBandRelative) at
+// the sun coordinate sun_deg and altitude h (the reader's band_map_weight): the focus's fades in
+// the sun and the altitude, without its fade in the band's elevation.
+float SkyViewBandWeight(float sun_deg, float h) {
+  return smoothstep(SV_BAND_SUN_RANGE.x, SV_BAND_SUN_RANGE.y, sun_deg) *
+      (1.0 - smoothstep(SV_BAND_SUN_RANGE.z, SV_BAND_SUN_RANGE.w, sun_deg)) *
+      (1.0 - smoothstep(SV_BAND_ALTITUDE.x, SV_BAND_ALTITUDE.y, h));
+}
+
 // The sky rows' focus on the band above the earth's shadow (the reader's sky_row_focus): the
 // band's elevation c (degrees) and the focus strength k (per degree) with the sun sun_deg above
-// the observer's horizon at altitude h.
+// the observer's horizon at altitude h (faded out as c rises through SV_BAND_CENTRE_RANGE).
 void SkyViewBandFocus(float sun_deg, float h, out float c, out float k) {
   float u = max(SV_BAND_SUN - sun_deg, 0.0);
   // The low fit up to SV_BAND_CENTRE_ALOFT_ALTITUDE.x, scaled by 1 + SV_BAND_CENTRE_ALOFT per km
@@ -344,9 +354,8 @@ void SkyViewBandFocus(float sun_deg, float h, out float c, out float k) {
             SV_BAND_CENTRE_ALOFT_ALTITUDE.y - SV_BAND_CENTRE_ALOFT_ALTITUDE.x) / 1000.0;
   c = min(((SV_BAND_CENTRE.x + SV_BAND_CENTRE.y * km) * u +
            (SV_BAND_CENTRE.z + SV_BAND_CENTRE.w * km) * u * u) * aloft, 45.0);
-  float f = smoothstep(SV_BAND_SUN_RANGE.x, SV_BAND_SUN_RANGE.y, sun_deg) *
-      (1.0 - smoothstep(SV_BAND_SUN_RANGE.z, SV_BAND_SUN_RANGE.w, sun_deg)) *
-      (1.0 - smoothstep(SV_BAND_ALTITUDE.x, SV_BAND_ALTITUDE.y, h));
+  float f = SkyViewBandWeight(sun_deg, h) *
+      (1.0 - smoothstep(SV_BAND_CENTRE_RANGE.x, SV_BAND_CENTRE_RANGE.y, c));
   k = f * SkyViewBandStrength(h);
 }
 
@@ -435,15 +444,16 @@ float SkyViewSkyRow(float elevation_deg, float c, float k) {
 // elevation_deg lies at the query's azimuth cos_phi_q relative to the band above the earth's
 // shadow (the reader's band_relative_elevation): the band's elevation scales as -cos(phi) about
 // SkyViewBandAzimuthDepth(h) below the horizontal; faded out above 2-4 times the band's height, below
-// SV_BAND_HORIZON (to the horizontal), with the focus (c, k) of SkyViewBandFocus and within
-// SV_BAND_ANTISOLAR_RANGE of -cos(phi) (the identity within 102 deg of the sun).
-float SkyViewBandRelative(float elevation_deg, float c, float k, float h, float cos_phi_q,
+// SV_BAND_HORIZON (to the horizontal), with the band's elevation c of SkyViewBandFocus and the
+// maps' weight of SkyViewBandWeight, and within SV_BAND_ANTISOLAR_RANGE of -cos(phi) (the
+// identity within 102 deg of the sun).
+float SkyViewBandRelative(float elevation_deg, float c, float weight, float h, float cos_phi_q,
                           float cos_phi_a) {
   float delta = SkyViewBandAzimuthDepth(h);
   float w = max(c * SV_BAND_ANTISOLAR + delta, 0.5);
   float ratio = max(-cos_phi_a, SV_BAND_ANTISOLAR_RANGE.x) /
       max(-cos_phi_q, SV_BAND_ANTISOLAR_RANGE.x);
-  float fade = (k / SkyViewBandStrength(h)) * (1.0 - smoothstep(2.0 * w, 4.0 * w, elevation_deg)) *
+  float fade = weight * (1.0 - smoothstep(2.0 * w, 4.0 * w, elevation_deg)) *
       smoothstep(SV_BAND_ANTISOLAR_RANGE.x, SV_BAND_ANTISOLAR_RANGE.y, -cos_phi_q);
   // From -delta up, through the horizontal into the limb rows (the reader's band_horizon_taper;
   // the displacement vanishes at -delta).
@@ -472,10 +482,11 @@ SvStencil SkyViewBandRowStencil(float elevation_deg, float h, float c, float k, 
 }
 
 // The elevation (degrees) at which the slice of sun coordinate s_n and altitude h_n is read for
-// a query at elevation_deg with the focus (c, k) at the sun s_q and altitude h (the reader's
-// band_slice_elevation): affine about SV_BAND_DEPTH h below the horizontal, the band onto the
-// band, faded as SkyViewBandRelative.
-float SkyViewBandSlice(float elevation_deg, float c, float k, float h, float s_n, float h_n) {
+// a query at elevation_deg with the band's elevation c and the maps' weight w_q
+// (SkyViewBandWeight) at the sun s_q and altitude h (the reader's band_slice_elevation): affine
+// about SV_BAND_DEPTH h below the horizontal, the band onto the band, faded as
+// SkyViewBandRelative.
+float SkyViewBandSlice(float elevation_deg, float c, float w_q, float h, float s_n, float h_n) {
   float delta_q = SkyViewBandDepth(h);
   float delta_n = SkyViewBandDepth(h_n);
   float c_n, k_n;
@@ -483,7 +494,7 @@ float SkyViewBandSlice(float elevation_deg, float c, float k, float h, float s_n
   float height_q = max(c * SV_BAND_ANTISOLAR + delta_q, 0.1);
   float height_n = max(c_n * SV_BAND_ANTISOLAR + delta_n, 0.1);
   float w = max(height_q, 0.5);
-  float fade = (k / SkyViewBandStrength(h)) * (1.0 - smoothstep(2.0 * w, 4.0 * w, elevation_deg)) *
+  float fade = w_q * (1.0 - smoothstep(2.0 * w, 4.0 * w, elevation_deg)) *
       smoothstep(0.0, SV_BAND_HORIZON, elevation_deg);
   float mapped = (elevation_deg + delta_q) * height_n / height_q - delta_n;
   return elevation_deg + fade * (mapped - elevation_deg);
@@ -540,8 +551,9 @@ vec3 SkyViewFetchBand(sampler2D part, int k, int j, SvStencil sc, SvStencil rows
 // On the sky rows, the rows' stencil of each column m of sc in slice (altitude node k, sun node
 // j) for a query at elevation_deg with the focus (c, k_q) at the sun coordinate s_q, altitude h and
 // azimuth cos_phi from the sun, cos_cols the cosines of the azimuths of the slice's columns in
-// the stencil sc (sv_az_node_cos) (the reader's band_rows): false where neither the query nor
-// the slice has a focus (then the slice is read at the query's row).
+// the stencil sc (sv_az_node_cos) (the reader's band_rows): false where neither the query's nor
+// the slice's maps' weight (SkyViewBandWeight) is positive (then the slice is read at the query's
+// row).
 bool SkyViewBandRows(float elevation_deg, float c, float k_q, float s_q, float h, float cos_phi,
                      vec4 cos_cols, int k, int j, out SvStencil rows[4]) {
   float h_n = sv_alt_nodes[k];
@@ -549,10 +561,11 @@ bool SkyViewBandRows(float elevation_deg, float c, float k_q, float s_q, float h
   float s_n = SkyViewSunWarp(SkyViewSunNodeDeg(j), b);
   float c_n, k_n;
   SkyViewBandFocus(s_n, h_n, c_n, k_n);
-  if (k_q < 1e-6 && k_n < 1e-6) return false;
-  float e_n = SkyViewBandSlice(elevation_deg, c, k_q, h, s_n, h_n);
+  float w_q = SkyViewBandWeight(s_q, h), w_n = SkyViewBandWeight(s_n, h_n);
+  if (w_q < 1e-6 && w_n < 1e-6) return false;
+  float e_n = SkyViewBandSlice(elevation_deg, c, w_q, h, s_n, h_n);
   for (int m = 0; m < 4; ++m) {
-    float e = SkyViewBandRelative(e_n, c_n, k_n, h_n, cos_phi, cos_cols[m]);
+    float e = SkyViewBandRelative(e_n, c_n, w_n, h_n, cos_phi, cos_cols[m]);
     rows[m] = SkyViewBandRowStencil(e, h, c_n, k_n, vec3(s_q, s_n, h_n));
   }
   return true;

@@ -17,8 +17,8 @@ use serde_json::Value;
 use skybake_lut::load::{skyview_from_files, DecodedFile};
 use skybake_lut::manifest::MANIFEST_FILE;
 use skybake_lut::skyview::{
-    altitude_coord, altitude_node_m, azimuth_coord, band_relative_elevation, band_row,
-    band_slice_elevation, limb_depth_of, limb_row_focused, limb_slice_depth, ray_length,
+    altitude_coord, altitude_node_m, azimuth_coord, band_map_weight, band_relative_elevation,
+    band_row, band_slice_elevation, limb_depth_of, limb_row_focused, limb_slice_depth, ray_length,
     segment_rows, sky_row_focus, sun_coord, sun_node_deg, sun_shift, sun_unwarp, sun_warp,
     view_coord, warp_strength, Stencil, N_ALT, N_AZ, N_SUN, N_VIEW_LIMB, N_VIEW_SKY, SUN_MIN_DEG,
 };
@@ -156,7 +156,8 @@ fn main() {
                 let zs = k * N_SUN + j;
                 let s_n = sun_warp(sun_node_deg(j), warp_strength(h_n, thickness));
                 let (c_n, k_n) = sky_row_focus(s_n, h_n);
-                let band = seg < 2 && !(band_k < 1e-6 && k_n < 1e-6);
+                let band = seg < 2
+                    && !(band_map_weight(s_deg, h) < 1e-6 && band_map_weight(s_n, h_n) < 1e-6);
                 let tag = format!("p{part}_k{k}_j{j}");
                 print(&format!("{tag}_hn_sn_band"), &[h_n, s_n, band as u8 as f64]);
                 let scale = bundle.scale.texel(j, k, 0);

@@ -95,7 +95,9 @@ pub const LAYOUT: &str = "skyview";
 /// each altitude node's columns read at the query's azimuth's coordinate in the node's own
 /// map (version 12: every node at the query's altitude's coordinate), and the columns focused at
 /// 110° from the sun from 20–30 km up ([`azimuth_focus`]); the manifest lists every node's
-/// column azimuths (`azimuth_nodes_rad`).
+/// column azimuths (`azimuth_nodes_rad`);
+/// the sky rows' band focus fades out as the band rises from 6° to 9°
+/// ([`BAND_CENTRE_RANGE_DEG`]): the rows near the horizontal towards the sun at sunset.
 pub const SKYVIEW_VERSION: &str = "13";
 
 /// Altitude nodes: h_k the roots of [`altitude_coord`] (about (top − bottom) · (k / (N − 1))²,
@@ -454,6 +456,17 @@ pub const BAND_SUN_RANGE: [f64; 4] = [-5.0, -3.0, 1.0, 5.0];
 /// Altitudes (m) between which the focus fades out (full below the first, none above the
 /// second).
 pub const BAND_ALTITUDE_M: [f64; 2] = [20_000.0, 25_000.0];
+/// The band's elevations (degrees, [`band_centre_deg`]) between which the focus fades out
+/// (full below the first, none above the second). The focus draws the rows towards the band
+/// and away from the horizontal (the last sky row 0.5–1.2° up instead of 0.2° with the band
+/// 9–12° high), where towards the sun the twilight glow brightens steeply: the rows alone erred
+/// by +9.2 % at 5 km (sun −6°, 0.25° above the horizontal towards the sun, 440 nm; +0.7 % with
+/// a quarter of the focus), +6.8 % at 10 km (sun −6°). With the band this high its rise lies
+/// above the views near the horizon, and the rows without focus follow it (10 km, sun −6°,
+/// 8° up opposite the sun: −0.7 %), but not a band 5.7° high at 20 km (+31 % without focus).
+/// The maps relative to the band keep their weight ([`band_map_weight`]): with them faded too,
+/// the band seen from 20 km (sun −6°, 150° from the sun, 8.5° up) read 7.1 % instead of 3.1 %.
+pub const BAND_CENTRE_RANGE_DEG: [f64; 2] = [6.0, 9.0];
 
 fn smoothstep(a: f64, b: f64, x: f64) -> f64 {
     let t = ((x - a) / (b - a)).clamp(0.0, 1.0);
@@ -462,15 +475,27 @@ fn smoothstep(a: f64, b: f64, x: f64) -> f64 {
 
 /// The sky rows' focus at sun `sun_deg` above the observer's horizon and altitude `h` (m): the
 /// band's elevation c ([`band_centre_deg`], degrees) and the focus strength k = f
-/// [`band_focus_strength`] (f the fades of [`BAND_SUN_RANGE`] and [`BAND_ALTITUDE_M`], smoothsteps
-/// 3t² − 2t³; k = 0 by day, deep in twilight and aloft: the rows of version 3).
+/// [`band_focus_strength`] (f the fades of [`BAND_SUN_RANGE`], [`BAND_ALTITUDE_M`] and, in the
+/// band's elevation c, [`BAND_CENTRE_RANGE_DEG`], smoothsteps 3t² − 2t³; k = 0 by day, deep in
+/// twilight and aloft: the rows of version 3).
 pub fn sky_row_focus(sun_deg: f64, h: f64) -> (f64, f64) {
+    let [c0, c1] = BAND_CENTRE_RANGE_DEG;
+    let c = band_centre_deg(sun_deg, h);
+    let f = band_map_weight(sun_deg, h) * (1.0 - smoothstep(c0, c1, c));
+    (c, f * band_focus_strength(h))
+}
+
+/// The weight (0…1) of the maps relative to the band ([`band_slice_elevation`],
+/// [`band_relative_elevation`]) at sun `sun_deg` above the observer's horizon and altitude `h`
+/// (m): the fades of [`BAND_SUN_RANGE`] and [`BAND_ALTITUDE_M`], the sky rows' focus without its
+/// fade in the band's elevation ([`BAND_CENTRE_RANGE_DEG`]): a band too high for the rows'
+/// focus is still read relative to its place across the sun, altitude and azimuth nodes.
+pub fn band_map_weight(sun_deg: f64, h: f64) -> f64 {
     let [s0, s1, s2, s3] = BAND_SUN_RANGE;
     let [h0, h1] = BAND_ALTITUDE_M;
-    let f = smoothstep(s0, s1, sun_deg)
+    smoothstep(s0, s1, sun_deg)
         * (1.0 - smoothstep(s2, s3, sun_deg))
-        * (1.0 - smoothstep(h0, h1, h));
-    (band_centre_deg(sun_deg, h), f * band_focus_strength(h))
+        * (1.0 - smoothstep(h0, h1, h))
 }
 
 /// How much stronger the sky rows' focus is from [`BAND_FOCUS_GROWTH_M`] up
@@ -514,12 +539,13 @@ pub fn band_focus_strength(h: f64) -> f64 {
 /// sinks) keep their places, so the interpolation over the sun and altitude nodes follows the
 /// band instead of crossing it (Lagrange interpolation of a function along a moving feature:
 /// the coordinate relative to the feature, as for the limb's sun coordinate, [`sun_shift`]).
-/// Faded to the identity as [`band_relative_elevation`]: with the query's focus, above 2–4
+/// Faded to the identity as [`band_relative_elevation`]: with the query's [`band_map_weight`], above 2–4
 /// times the band's height and below [`BAND_HORIZON_DEG`] (the horizontal, where the sky rows
 /// meet the limb rows).
 pub fn band_slice_elevation(eps: f64, sun_q: f64, h_q: f64, sun_n: f64, h_n: f64) -> f64 {
-    let (c_q, k_q) = sky_row_focus(sun_q, h_q);
-    if k_q < 1e-6 {
+    let c_q = band_centre_deg(sun_q, h_q);
+    let w_q = band_map_weight(sun_q, h_q);
+    if w_q < 1e-6 {
         return eps;
     }
     let (d_q, d_n) = (band_depth_deg(h_q), band_depth_deg(h_n));
@@ -527,9 +553,8 @@ pub fn band_slice_elevation(eps: f64, sun_q: f64, h_q: f64, sun_n: f64, h_n: f64
     let height_q = (c_q * BAND_ANTISOLAR + d_q).max(0.1);
     let height_n = (band_centre_deg(sun_n, h_n) * BAND_ANTISOLAR + d_n).max(0.1);
     let w = height_q.max(0.5);
-    let fade = (k_q / band_focus_strength(h_q))
-        * (1.0 - smoothstep(2.0 * w, 4.0 * w, eps))
-        * smoothstep(0.0, BAND_HORIZON_DEG, eps);
+    let fade =
+        w_q * (1.0 - smoothstep(2.0 * w, 4.0 * w, eps)) * smoothstep(0.0, BAND_HORIZON_DEG, eps);
     let mapped = (eps + d_q) * height_n / height_q - d_n;
     eps + fade * (mapped - eps)
 }
@@ -604,7 +629,7 @@ pub const BAND_HORIZON_DEG: f64 = 0.5;
 /// elevation opposite the sun ([`BAND_ANTISOLAR`] · [`band_centre_deg`]). The map is affine
 /// about −δ, (ε + δ)·(c_a + δ)/(c_q + δ) − δ (the band onto the band), faded to the identity
 /// above 2–4 times the band's height (at least 0.5°), at the horizontal ([`BAND_HORIZON_DEG`])
-/// and with the rows' focus ([`sky_row_focus`]), and faded in with the query's −cos φ
+/// and with the maps' weight ([`band_map_weight`]), and faded in with the query's −cos φ
 /// ([`BAND_ANTISOLAR_RANGE`]: the identity within 102° of the sun). The reader evaluates each azimuth column at this elevation, so
 /// the interpolation over the columns follows the band.
 pub fn band_relative_elevation(
@@ -614,8 +639,9 @@ pub fn band_relative_elevation(
     cos_phi_q: f64,
     cos_phi_a: f64,
 ) -> f64 {
-    let (c, k) = sky_row_focus(sun_deg, h);
-    if k < 1e-6 {
+    let c = band_centre_deg(sun_deg, h);
+    let weight = band_map_weight(sun_deg, h);
+    if weight < 1e-6 {
         return eps;
     }
     let delta = band_azimuth_depth_deg(h);
@@ -624,9 +650,7 @@ pub fn band_relative_elevation(
     let (lo, hi) = BAND_ANTISOLAR_RANGE;
     let ratio = (-cos_phi_a).max(lo) / (-cos_phi_q).max(lo);
     let w = height.max(0.5);
-    let fade = (k / band_focus_strength(h))
-        * (1.0 - smoothstep(2.0 * w, 4.0 * w, eps))
-        * smoothstep(lo, hi, -cos_phi_q);
+    let fade = weight * (1.0 - smoothstep(2.0 * w, 4.0 * w, eps)) * smoothstep(lo, hi, -cos_phi_q);
     eps + band_horizon_taper(eps, delta) * fade * (eps + delta) * (ratio - 1.0)
 }
 
@@ -1532,7 +1556,7 @@ impl<'a> SkyViewReader<'a> {
         let h_n = altitude_node_m(k, thickness);
         let s_n = sun_warp(sun_node_deg(j), warp_strength(h_n, thickness));
         let (c_n, k_n) = sky_row_focus(s_n, h_n);
-        if sky_row_focus(s_deg, h).1 < 1e-6 && k_n < 1e-6 {
+        if band_map_weight(s_deg, h) < 1e-6 && band_map_weight(s_n, h_n) < 1e-6 {
             return None;
         }
         let e_n = band_slice_elevation(eps, s_deg, h, s_n, h_n);
@@ -1858,7 +1882,7 @@ pub const STATED_ERRORS: &[(&str, &str, f64)] = &[
     ("rayleigh+mie", "sky radiance (sky product), sun >= 5 deg, view < 10 deg above the horizon, 0-20 km", 0.0042),
     ("rayleigh+mie", "sky radiance (sky product), sun >= 5 deg, view < 10 deg above the horizon, 20-100 km", 0.021),
     ("rayleigh+mie", "sky radiance (sky product), sun -6..5 deg, ground", 0.015),
-    ("rayleigh+mie", "sky radiance (sky product), sun -6..5 deg, 0-5 km (9.65 % at 5 km, sun -6 deg, 0.25 deg above the horizontal towards the sun, 440 nm: the twilight glow)", 0.097),
+    ("rayleigh+mie", "sky radiance (sky product), sun -6..5 deg, 0-5 km (the band above the earth's shadow 120 deg from the sun, 680 nm at 5 km, 0.5 deg above the horizontal; the twilight glow towards the sun at most 3 %)", 0.046),
     ("rayleigh+mie", "sky radiance (sky product), sun -6..5 deg, 5-8 km (the band above the earth's shadow near the antisolar horizon, 680 nm at 6.5 km, 1 deg above the horizontal 120 deg from the sun)", 0.048),
     ("rayleigh+mie", "sky radiance (sky product), sun -6..5 deg, 8-12.5 km (the band above the earth's shadow near the antisolar horizon, 680 nm at 11 km, 3.5 deg above the horizontal opposite the sun, 6.2 %; the twilight glow towards the sun at 10 km at most 9.65 %)", 0.097),
     ("rayleigh+mie", "sky radiance (sky product), sun -6..5 deg, 12.5-20 km (the band above the earth's shadow near the antisolar horizon, 680 nm at 20 km, 5.25 deg above the horizontal opposite the sun)", 0.100),
@@ -1909,6 +1933,7 @@ pub fn manifest(
         "centre": BAND_CENTRE,
         "focus": BAND_FOCUS,
         "sun_range_deg": BAND_SUN_RANGE,
+        "centre_range_deg": BAND_CENTRE_RANGE_DEG,
         "altitude_range_m": BAND_ALTITUDE_M,
         "antisolar": BAND_ANTISOLAR,
         "depth_deg_per_km": BAND_DEPTH_PER_KM,
@@ -1925,7 +1950,7 @@ pub fn manifest(
         "azimuth_depth_aloft_altitude_m": BAND_AZIMUTH_DEPTH_ALOFT_M,
         "slices": "on the sky rows, each (altitude node k, sun node j) slice of the interpolation is read on its own rows (the focus (c_n, k_n) at the node's sun coordinate s_n = the warped s_j at h_k and its altitude h_n = altitude_nodes_m[k]) where the query's or the slice's k > 0: at e_n = e + f (1 - smoothstep(2 w, 4 w, e)) smoothstep(0, horizon_deg, e) ((e + delta_q) H_n / H_q - delta_n - e), H = max(c antisolar + delta, 0.1) at the query's (c, h) and the node's (band centre c at s_n, h_n), delta = depth_deg_per_km clamp(h, 0, depth_top_m) / 1000, w = max(H_q, 0.5), f = k / (focus (1 + focus_growth smoothstep(focus_growth_altitude_m[0], focus_growth_altitude_m[1], h)) (1 + focus_aloft smoothstep(focus_aloft_altitude_m[0], focus_aloft_altitude_m[1], h))) the query's fade (0 where k = 0), then each column at the azimuth formula's e_a with (c_n, k_n, h_n) in place of the query's",
         "azimuth": "on the sky rows and the limb rows where k > 0 each azimuth column a of the interpolation is read at its own elevation e_a (its own rows' stencil): d = depth_deg_per_km clamp(h, 0, depth_top_m) / 1000, delta = d + (azimuth_depth_aloft_deg - d) smoothstep(azimuth_depth_aloft_altitude_m[0], azimuth_depth_aloft_altitude_m[1], h) (version 12), w = max(c antisolar + delta, 0.5), ratio = max(-cos phi_a, antisolar_range[0]) / max(-cos phi, antisolar_range[0]), e_a = e + (k / (focus (1 + focus_growth smoothstep(focus_growth_altitude_m[0], focus_growth_altitude_m[1], h)) (1 + focus_aloft smoothstep(focus_aloft_altitude_m[0], focus_aloft_altitude_m[1], h)))) (1 - smoothstep(2 w, 4 w, e)) step(-delta, e) smoothstep(antisolar_range[0], antisolar_range[1], -cos phi) (e + delta) (ratio - 1) (version 7: from -delta up through the horizontal, where version 6 had smoothstep(0, horizon_deg, e)), e the query's elevation (deg), phi its azimuth from the sun, phi_a the column's in the slice (azimuth_nodes_rad[k][a], the slice's altitude node k; version 12: at the query's altitude h); where e_a >= 0 the column is read on the sky rows, below on the limb rows at the query's altitude h (depth y = 2 r sin^2(e_a / 2) / h); the band above the earth's shadow lies at (c antisolar + delta)(-cos phi) - delta",
-        "formula": "the sky rows' focus at the sun's elevation s above the observer's horizon (deg) and altitude h (m): u = max(sun_deg - s, 0), km = clamp(h, 0, centre_aloft_altitude_m[0]) / 1000, c = min(((centre[0] + centre[1] km) u + (centre[2] + centre[3] km) u^2) (1 + centre_aloft_per_km clamp(h - centre_aloft_altitude_m[0], 0, centre_aloft_altitude_m[1] - centre_aloft_altitude_m[0]) / 1000), 45) (deg), k = smoothstep(sun_range_deg[0], sun_range_deg[1], s) (1 - smoothstep(sun_range_deg[2], sun_range_deg[3], s)) (1 - smoothstep(altitude_range_m[0], altitude_range_m[1], h)) focus (1 + focus_growth smoothstep(focus_growth_altitude_m[0], focus_growth_altitude_m[1], h)) (1 + focus_aloft smoothstep(focus_aloft_altitude_m[0], focus_aloft_altitude_m[1], h)), smoothstep(a, b, x) = t^2 (3 - 2 t), t = clamp((x - a) / (b - a), 0, 1)",
+        "formula": "the sky rows' focus at the sun's elevation s above the observer's horizon (deg) and altitude h (m): u = max(sun_deg - s, 0), km = clamp(h, 0, centre_aloft_altitude_m[0]) / 1000, c = min(((centre[0] + centre[1] km) u + (centre[2] + centre[3] km) u^2) (1 + centre_aloft_per_km clamp(h - centre_aloft_altitude_m[0], 0, centre_aloft_altitude_m[1] - centre_aloft_altitude_m[0]) / 1000), 45) (deg), k = smoothstep(sun_range_deg[0], sun_range_deg[1], s) (1 - smoothstep(sun_range_deg[2], sun_range_deg[3], s)) (1 - smoothstep(altitude_range_m[0], altitude_range_m[1], h)) (1 - smoothstep(centre_range_deg[0], centre_range_deg[1], c)) focus (1 + focus_growth smoothstep(focus_growth_altitude_m[0], focus_growth_altitude_m[1], h)) (1 + focus_aloft smoothstep(focus_aloft_altitude_m[0], focus_aloft_altitude_m[1], h)), smoothstep(a, b, x) = t^2 (3 - 2 t), t = clamp((x - a) / (b - a), 0, 1)",
     });
     json!({
         "format": LAYOUT,
@@ -2124,8 +2149,15 @@ mod tests {
     fn the_sky_rows_follow_the_band() {
         // By day, deep in twilight and aloft: version 3's rows, θ = 90° (1 − (1 − x)²).
         // (Deep in twilight, −5°, the band 15–20° high: the horizontal kept dense for the glow
-        // towards the sun, version 12.)
-        for (sun, h) in [(5.0, 0.0), (-8.0, 0.0), (-5.0, 5000.0), (-2.0, 30_000.0)] {
+        // towards the sun, version 12; at 10 km with the sun −3° above the observer's horizon
+        // the band 13° high, past the fade in its elevation, version 13.)
+        for (sun, h) in [
+            (5.0, 0.0),
+            (-8.0, 0.0),
+            (-5.0, 5000.0),
+            (-3.0, 10_000.0),
+            (-2.0, 30_000.0),
+        ] {
             let (c, k) = sky_row_focus(sun, h);
             assert_eq!(k, 0.0, "sun {sun}, h {h}");
             for n in 0..=10 {
