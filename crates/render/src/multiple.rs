@@ -1056,29 +1056,9 @@ fn hemisphere_power(lighting: &Lighting, group: &[usize]) -> (f64, f64) {
 skybake_physics::simd_dispatch! {
     /// Moves the photon through the coarse grid until optical depth `tau` is used up (a
     /// collision: returns true) or it leaves the box (false). Scattered photons score their
-    /// tracks into `acc` (f64; [`fly_f32`]: the same into `f32` accumulators). Compiled twice
-    /// (generic and AVX2 + FMA, chosen by the CPU's features): the same IEEE operations in both
-    /// (Rust contracts no multiply-add), so the same field.
-    fn fly(
-        g: &Coarse,
-        lo: DVec3,
-        hi: DVec3,
-        ph: &mut Photon,
-        tau_in: f64,
-        k: f64,
-        cell_volume: f64,
-        w: &[f64],
-        acc: &mut [f64],
-        ng: usize,
-        ylm: &[f64],
-        cloud_only: bool,
-    ) -> bool {
-        fly_in(g, lo, hi, ph, tau_in, k, cell_volume, w, acc, ng, ylm, cloud_only)
-    }
-}
-
-skybake_physics::simd_dispatch! {
-    /// [`fly`] scoring into `f32` accumulators (each score added in f64 and rounded once).
+    /// tracks into the `f32` accumulators `acc` (each score added in f64 and rounded once).
+    /// Compiled twice (generic and AVX2 + FMA, chosen by the CPU's features): the same IEEE
+    /// operations in both (Rust contracts no multiply-add), so the same field.
     fn fly_f32(
         g: &Coarse,
         lo: DVec3,
@@ -1097,7 +1077,7 @@ skybake_physics::simd_dispatch! {
     }
 }
 
-/// The body of [`fly`] and [`fly_f32`], for accumulators of either precision.
+/// The body of [`fly_f32`], generic over the accumulators' precision.
 #[allow(clippy::too_many_arguments)]
 #[inline(always)]
 fn fly_in<T: Tally>(
@@ -1203,8 +1183,8 @@ fn fly_in<T: Tally>(
     }
 }
 
-/// An accumulator of the photon pass: [`fly`] adds each track's scores to one (f64, or f32
-/// for the field's lanes, [`fly_f32`]).
+/// An accumulator of the photon pass: [`fly_f32`] adds each track's scores to one (`f32`;
+/// `f64` where a unit test sums a track exactly).
 pub(super) trait Tally: Copy {
     /// Adds `v` (computed in f64).
     fn add(&mut self, v: f64);
@@ -1246,10 +1226,10 @@ fn skin_setup(
     (n, k.iter().map(|k| SKIN_TAU * k / k_min).collect())
 }
 
-/// Cells ahead of a scoring track whose accumulators [`fly`] fetches.
+/// Cells ahead of a scoring track whose accumulators [`fly_f32`] fetches.
 const LOOKAHEAD: usize = 3;
 
-/// Moves [`fly`]'s look-ahead cursor (cell, next crossing distances per axis) one cell on
+/// Moves [`fly_f32`]'s look-ahead cursor (cell, next crossing distances per axis) one cell on
 /// along the track's cells (the same choice of axis as the track's) and fetches that cell's
 /// accumulators (`block` values per cell); false when it has left the grid.
 #[inline(always)]

@@ -64,33 +64,10 @@ impl<T> Pool<T> {
     }
 }
 
-/// Freed accumulators [`take_zeroed`] reuses: up to 64 MB (the once-scattered light's
-/// tallies; the field's lanes are `f32`, [`take_zeroed_f32`]).
-static POOL: Pool<f64> = Pool::new(64 << 20);
-
-/// `len` zeros, in a buffer given back earlier when one is large enough (its pages are
-/// already mapped, and zeroing them in place costs less than mapping and clearing fresh pages,
-/// a frame after frame; measured on the warm bench frame), else a new [`zeroed`] one.
-pub fn take_zeroed(len: usize) -> Vec<f64> {
-    match POOL.take(len) {
-        Some(mut v) => {
-            v.clear();
-            v.resize(len, 0.0);
-            v
-        }
-        None => zeroed(0f64, len),
-    }
-}
-
-/// Keeps `v` for [`take_zeroed`] while the kept buffers stay within the pool's 64 MB (else it
-/// is freed); small buffers are freed.
-pub fn give_back(v: Vec<f64>) {
-    POOL.give_back(v);
-}
-
 /// Freed `f32` working buffers [`take_f32`] and [`take_zeroed_f32`] reuse: up to 288 MB (the
 /// bench's standard frame: the 14 lattice paths, 112 MB, the camera's voxel records, 40 MB, the
-/// sun's paths and their layer order, 2 × 8 MB, the photon pass's lanes, 16 × 6.3 MB).
+/// sun's paths and their layer order, 2 × 8 MB, the photon pass's lanes, 16 × 6.3 MB, the
+/// once-scattered light's tallies).
 static POOL_F32: Pool<f32> = Pool::new(288 << 20);
 
 /// `len` values whose contents are unspecified, for a buffer the caller fills completely
@@ -113,8 +90,10 @@ pub fn take_f32(len: usize) -> Vec<f32> {
     }
 }
 
-/// `len` zeros of `f32`, as [`take_zeroed`] gives `f64` ones (a buffer of [`take_f32`]'s pool
-/// zeroed in place when one is large enough).
+/// `len` zeros of `f32`: a buffer of [`take_f32`]'s pool zeroed in place when one is large
+/// enough (its pages are already mapped, and zeroing them in place costs less than mapping and
+/// clearing fresh pages, frame after frame; measured on the warm bench frame), else a new
+/// [`zeroed`] one.
 pub fn take_zeroed_f32(len: usize) -> Vec<f32> {
     match POOL_F32.take(len) {
         Some(mut v) => {
@@ -159,21 +138,6 @@ fn advise_huge<T>(buf: &[T]) {
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    /// A buffer given back and taken again holds zeros of the new length, whatever it held.
-    #[test]
-    fn reused_buffers_are_zero() {
-        let len = (5 << 20) / 8;
-        let mut v = take_zeroed(len);
-        v.iter_mut().for_each(|x| *x = 2.0);
-        give_back(v);
-        for n in [len - 3, len, len + 5] {
-            let w = take_zeroed(n);
-            assert_eq!(w.len(), n);
-            assert!(w.iter().all(|&x| x == 0.0));
-            give_back(w);
-        }
-    }
 
     /// A zeroed `f32` buffer given back and taken again holds zeros of the new length.
     #[test]
