@@ -161,7 +161,8 @@ class LiveSky {
         `#define SV_LIMB_BAND_HORIZON_HELD vec2(${limb.horizon_held.map(f).join(", ")})\n`;
       // The azimuth columns' map aloft (version 5).
       const az = manifest.parameterisation.azimuth_aloft;
-      if (!az || !(az.weight > 0 && az.weight <= 1) || !numbers(az.altitude_range_m, 2) ||
+      if (!az || !(az.weight > 0 && az.weight <= 1) || !(az.ground_weight > 0 && az.ground_weight <= 1) ||
+          !numbers(az.altitude_range_m, 2) ||
           !(az.altitude_range_m[0] < az.altitude_range_m[1])) {
         throw new Error("manifest: parameterisation.azimuth_aloft is not the columns' map aloft");
       }
@@ -192,6 +193,7 @@ class LiveSky {
       defines += `#define SV_SKY_EXIT_ALTITUDE vec2(${exit.map(f).join(", ")})\n`;
       defines += `#define SV_ALT_MAP vec3(${altMap.map(f).join(", ")})\n` +
         `#define SV_AZ_WEIGHT ${f(az.weight)}\n` +
+        `#define SV_AZ_GROUND_WEIGHT ${f(az.ground_weight)}\n` +
         `#define SV_AZ_ALTITUDE vec2(${az.altitude_range_m.map(f).join(", ")})\n` +
         `#define SV_AZ_FOCUS vec3(${[azFocus.weight, azFocus.centre_deg, azFocus.width_deg].map(f).join(", ")})\n` +
         `#define SV_AZ_FOCUS_ALTITUDE vec2(${azFocus.altitude_range_m.map(f).join(", ")})\n` +

@@ -952,24 +952,33 @@ pub fn segment_rows(seg: usize) -> (usize, usize) {
 /// sin²(φ/2) = (1 − cos φ)/2, dense around 90° from the sun.
 pub const AZIMUTH_ALOFT_WEIGHT: f64 = 0.5;
 
+/// The weight of the columns' square-root map below [`AZIMUTH_ALOFT_M`] ([`azimuth_weight`];
+/// version 13: 1, the square root alone). In low twilight the glow 90° from the sun and the band
+/// above the earth's shadow 120–135° from the sun vary fastest with the azimuth, where the square
+/// root's columns are 13–16° apart (9–11° with 0.65). The columns' axis alone (Lagrange over the
+/// `sky` product at the columns, 680 nm, sun −6…5°, 5–15 km): 90° from the sun 2.6 / 3.9 / 5.1 %
+/// at 5 / 10 / 15 km with 1, 1.1 / 0.8 / 0.7 % with 0.65; 120–180° at 0–15 km up to 6.3 % with 1,
+/// 2.2 % with 0.65; by day (sun 5–50°, 0–12 km) 0.67 → 0.54 %.
+pub const AZIMUTH_GROUND_WEIGHT: f64 = 0.65;
+
 /// The altitudes (m) between which the columns' map moves from the square root (below) to its
 /// blend with (1 − cos φ)/2 (above), [`azimuth_weight`].
 pub const AZIMUTH_ALOFT_M: [f64; 2] = [15_000.0, 25_000.0];
 
-/// The weight α of the columns' square-root map at altitude `h` (m): 1 below
-/// [`AZIMUTH_ALOFT_M`], [`AZIMUTH_ALOFT_WEIGHT`] above, a smoothstep between. Seen from
+/// The weight α of the columns' square-root map at altitude `h` (m): [`AZIMUTH_GROUND_WEIGHT`]
+/// below [`AZIMUTH_ALOFT_M`], [`AZIMUTH_ALOFT_WEIGHT`] above, a smoothstep between. Seen from
 /// altitude in twilight, a ray near the horizontal crosses the earth's shadow where the sun's
 /// elevation along it, which changes by (x/R) cos φ over a distance x, meets the shadow: the
 /// edge moves fastest with the azimuth φ around 90° from the sun, where the square root's
 /// columns are 9–10° apart; near the ground the low sky's band above the shadow wants the
-/// antisolar columns dense, which the square root keeps there.
+/// antisolar columns dense, which the square root's share keeps there.
 pub fn azimuth_weight(h: f64) -> f64 {
     let [h0, h1] = AZIMUTH_ALOFT_M;
-    1.0 - (1.0 - AZIMUTH_ALOFT_WEIGHT) * smoothstep(h0, h1, h)
+    AZIMUTH_GROUND_WEIGHT - (AZIMUTH_GROUND_WEIGHT - AZIMUTH_ALOFT_WEIGHT) * smoothstep(h0, h1, h)
 }
 
 /// Azimuth from the sun of column `a` at altitude `h` (m), rad: the root of
-/// [`azimuth_coord`]`(φ, h) = a` (by bisection aloft; π (a / (N_AZ − 1))² where the map is the
+/// [`azimuth_coord`]`(φ, h) = a` (by bisection; π (a / (N_AZ − 1))² where the map is the
 /// square root alone).
 pub fn azimuth_node(a: usize, h: f64) -> f64 {
     let x = a as f64 / (N_AZ - 1) as f64;
@@ -1008,8 +1017,8 @@ pub fn azimuth_focus(phi: f64, h: f64) -> (f64, f64) {
 }
 
 /// Continuous column coordinate of azimuth `phi` ∈ [0, π] at altitude `h` (m):
-/// (α √(φ/π) + (1 − α − β) sin²(φ/2) + β G(φ))(N_AZ − 1), α = [`azimuth_weight`]`(h)` (1 near
-/// the ground: φ = π (column / (N_AZ − 1))², dense near the sun), (β, G) = [`azimuth_focus`]
+/// (α √(φ/π) + (1 − α − β) sin²(φ/2) + β G(φ))(N_AZ − 1), α = [`azimuth_weight`]`(h)` (the
+/// square root dense near the sun, sin²(φ/2) around 90° from it), (β, G) = [`azimuth_focus`]
 /// (0 below 20 km).
 pub fn azimuth_coord(phi: f64, h: f64) -> f64 {
     let phi = phi.clamp(0.0, PI);
@@ -1999,9 +2008,10 @@ pub fn manifest(
                 "formula": "the limb rows' focus (version 10) at sun coordinate s (deg; a texel's node s_j, for a query each slice's own s_n at its altitude h_n) and altitude h (m): depth D = depth_m[0] + depth_m[1] s + depth_m[2] s^2 (m), x_c = the limb coordinate of y_c = clamp(D / h, 0, 1) (x_c = 2/3 + (4/3) cos(acos(1 - 27 y_c / 16) / 3 - 2 pi / 3)), k = focus smoothstep(sun_range_deg[0], sun_range_deg[1], s) (1 - smoothstep(sun_range_deg[2], sun_range_deg[3], s)) smoothstep(altitude_range_m[0], altitude_range_m[1], h) (1 - smoothstep(altitude_range_m[2], altitude_range_m[3], h)) (0 where h <= 0); the limb row coordinate of depth y is x = (asinh(k (x0 - x_c)) - A) / (B - A), x0 = 2/3 + (4/3) cos(acos(1 - 27 y / 16) / 3 - 2 pi / 3), A = asinh(-k x_c), B = asinh(k (1 - x_c)) (x = x0 where k < 1e-6); inverse x0 = x_c + sinh(A + x (B - A)) / k, y = 2 x0^2 - x0^3. On the limb rows every (altitude node k, sun node j) slice is read on its own rows at the depth of `slices` (and a column moved below the horizontal by sky_row_band.azimuth likewise, at its depth 2 r sin^2(e_a / 2) / h)",
             },
             "view_rows": format!("rows 0..{} from the zenith to the horizontal: elevation = 90 (1 - x0)^2 (deg), x0 = x_c + sinh(A + x (B - A)) / k, x = row / {}, x_c = 1 - sqrt(c / 90), A = asinh(-k x_c), B = asinh(k (1 - x_c)), (c, k) the sky rows' focus (sky_row_band) at the sun's elevation above the observer's horizon (its node's s_j for a texel, the query's own for a query) and the observer's altitude; where k < 1e-6, x0 = x; inverse: x0 = 1 - sqrt(elevation / 90), x = (asinh(k (x0 - x_c)) - A) / (B - A) (or x0); rows {}..{} from the horizontal to the horizon: the ray's tangent radius r_t = r - (r - bottom_radius) y, y = 2 x0^2 - x0^3, x0 = the unfocused coordinate of x = (row - {}) / {} with the limb rows' focus (limb_row_band; x0 = x where k = 0; inverse: x0 = 2/3 + (4/3) cos(acos(1 - 27 y / 16) / 3 - 2 pi / 3)), theta = pi/2 + acos(r_t / r); rows {}..{} from the horizon to the nadir: theta = theta_h + (pi - theta_h) x^2, x = (row - {}) / {}, theta_h = pi - asin(bottom_radius / r); r the observer's radius. Interpolation over the rows around the view stays within its segment (see interpolation)", N_VIEW_SKY - 1, N_VIEW_SKY - 1, N_VIEW_SKY, N_VIEW_UP - 1, N_VIEW_SKY, N_VIEW_LIMB - 1, N_VIEW_UP, N_VIEW - 1, N_VIEW_UP, N_VIEW_DOWN - 1),
-            "azimuth_columns": format!("the column coordinate of the view's azimuth phi from the sun's (0..pi) at altitude h (m): column = (alpha sqrt(phi / pi) + (1 - alpha - beta) sin(phi / 2)^2 + beta G(phi)) {}, alpha = 1 - (1 - azimuth_aloft.weight) smoothstep(azimuth_aloft.altitude_range_m[0], azimuth_aloft.altitude_range_m[1], h), beta = azimuth_focus.weight smoothstep(azimuth_focus.altitude_range_m[0], azimuth_focus.altitude_range_m[1], h), G(phi) = (tanh((phi - c) / w) - tanh(-c / w)) / (tanh((pi - c) / w) - tanh(-c / w)), c = azimuth_focus.centre_deg, w = azimuth_focus.width_deg (in rad; smoothstep as in sky_row_band); a texel of altitude node k lies at the phi whose coordinate at h_k is its column (azimuth_nodes_rad[k][column]; phi = pi (column / {})^2 where alpha = 1 and beta = 0); a query at altitude h reads altitude node k at column coordinate c_q + lambda (c_k - c_q), c_q its azimuth's coordinate at h, c_k at h_k (the node's own map), lambda = smoothstep(azimuth_focus.node_read_altitude_m[0], azimuth_focus.node_read_altitude_m[1], h) (version 13; version 12: c_q), and azimuth_nodes_rad[k] are the columns' azimuths in sky_row_band.azimuth", N_AZ - 1, N_AZ - 1),
+            "azimuth_columns": format!("the column coordinate of the view's azimuth phi from the sun's (0..pi) at altitude h (m): column = (alpha sqrt(phi / pi) + (1 - alpha - beta) sin(phi / 2)^2 + beta G(phi)) {}, alpha = azimuth_aloft.ground_weight - (azimuth_aloft.ground_weight - azimuth_aloft.weight) smoothstep(azimuth_aloft.altitude_range_m[0], azimuth_aloft.altitude_range_m[1], h) (version 14; version 13: ground_weight 1), beta = azimuth_focus.weight smoothstep(azimuth_focus.altitude_range_m[0], azimuth_focus.altitude_range_m[1], h), G(phi) = (tanh((phi - c) / w) - tanh(-c / w)) / (tanh((pi - c) / w) - tanh(-c / w)), c = azimuth_focus.centre_deg, w = azimuth_focus.width_deg (in rad; smoothstep as in sky_row_band); a texel of altitude node k lies at the phi whose coordinate at h_k is its column (azimuth_nodes_rad[k][column]); a query at altitude h reads altitude node k at column coordinate c_q + lambda (c_k - c_q), c_q its azimuth's coordinate at h, c_k at h_k (the node's own map), lambda = smoothstep(azimuth_focus.node_read_altitude_m[0], azimuth_focus.node_read_altitude_m[1], h) (version 13; version 12: c_q), and azimuth_nodes_rad[k] are the columns' azimuths in sky_row_band.azimuth", N_AZ - 1),
             "azimuth_aloft": {
                 "weight": AZIMUTH_ALOFT_WEIGHT,
+                "ground_weight": AZIMUTH_GROUND_WEIGHT,
                 "altitude_range_m": AZIMUTH_ALOFT_M,
             },
             "azimuth_focus": {
@@ -2070,8 +2080,9 @@ mod tests {
                 assert!((azimuth_coord(azimuth_node(a, h), h) - a as f64).abs() < 1e-9);
             }
         }
-        // The square root's columns near the ground; aloft denser around 90°, increasing.
-        assert_eq!(azimuth_node(7, 15_000.0), PI * (7.0f64 / 19.0).powi(2));
+        // The square root alone would put column 7 at π (7/19)²; with sin²(φ/2)'s share the
+        // columns near the ground are sparser near the sun, denser around 90° from it.
+        assert!(azimuth_node(7, 15_000.0) > PI * (7.0f64 / 19.0).powi(2));
         // The altitude nodes: near the square root's below 10 km; the last interval 3.3 km (7.3 km).
         for k in 1..8 {
             let sqrt_map = H * (k as f64 / (N_ALT - 1) as f64).powi(2);
@@ -2088,7 +2099,10 @@ mod tests {
             azimuth_coord(0.5 * PI, H) as usize,
             azimuth_coord(0.5 * PI, 0.0) as usize,
         );
-        assert!(gap(near_90.0, H) < 0.7 * gap(near_90.1, 0.0));
+        assert!(gap(near_90.0, H) < 0.9 * gap(near_90.1, 0.0));
+        let sqrt_gap =
+            PI * ((near_90.1 + 1) as f64 / 19.0).powi(2) - PI * (near_90.1 as f64 / 19.0).powi(2);
+        assert!(gap(near_90.1, 0.0) < 0.8 * sqrt_gap);
         for r in [R + 50.0, R + 3000.0, R + 12_000.0, R + 60_000.0, R + H] {
             for sun in [-8.0, -5.0, -2.0, 0.0, 2.5, 10.0] {
                 for i in 0..N_VIEW {
