@@ -100,7 +100,8 @@ class LiveSky {
           !(band.focus_aloft_altitude_m[0] < band.focus_aloft_altitude_m[1]) ||
           !(band.azimuth_depth_aloft_deg >= 0) || !numbers(band.azimuth_depth_aloft_altitude_m, 2) ||
           !(band.azimuth_depth_aloft_altitude_m[0] < band.azimuth_depth_aloft_altitude_m[1]) ||
-          !numbers(band.centre_range_deg, 2) || !(band.centre_range_deg[0] < band.centre_range_deg[1])) {
+          !numbers(band.centre_range_deg, 2) || !(band.centre_range_deg[0] < band.centre_range_deg[1]) ||
+          !(band.centre_floor >= 0 && band.centre_floor <= 1)) {
         throw new Error("manifest: parameterisation.sky_row_band is not the sky rows' band focus");
       }
       // The altitude nodes, where each slice's own rows are read (version 6).
@@ -115,6 +116,7 @@ class LiveSky {
         `#define SV_BAND_SUN_RANGE vec4(${band.sun_range_deg.map(f).join(", ")})\n` +
         `#define SV_BAND_ALTITUDE vec2(${band.altitude_range_m.map(f).join(", ")})\n` +
         `#define SV_BAND_CENTRE_RANGE vec2(${band.centre_range_deg.map(f).join(", ")})\n` +
+        `#define SV_BAND_CENTRE_FLOOR ${f(band.centre_floor)}\n` +
         `#define SV_BAND_ANTISOLAR ${f(band.antisolar)}\n` +
         `#define SV_BAND_DEPTH ${f(band.depth_deg_per_km)}\n` +
         `#define SV_BAND_HORIZON ${f(band.horizon_deg)}\n` +

@@ -17,7 +17,7 @@
 // (parameterisation.sun_warp_range), float literals, and from parameterisation.sky_row_band:
 // SV_BAND_SUN (sun_deg), SV_BAND_FOCUS (focus), SV_BAND_CENTRE (centre, a vec4),
 // SV_BAND_SUN_RANGE (sun_range_deg, a vec4), SV_BAND_ALTITUDE (altitude_range_m, a vec2),
-// SV_BAND_CENTRE_RANGE (centre_range_deg, a vec2),
+// SV_BAND_CENTRE_RANGE (centre_range_deg, a vec2), SV_BAND_CENTRE_FLOOR (centre_floor),
 // SV_BAND_ANTISOLAR (antisolar), SV_BAND_DEPTH (depth_deg_per_km), SV_BAND_HORIZON
 // (horizon_deg), SV_BAND_ANTISOLAR_RANGE (antisolar_range, a vec2), SV_BAND_GROWTH
 // (focus_growth), SV_BAND_GROWTH_ALTITUDE (focus_growth_altitude_m, a vec2),
@@ -355,7 +355,8 @@ void SkyViewBandFocus(float sun_deg, float h, out float c, out float k) {
   c = min(((SV_BAND_CENTRE.x + SV_BAND_CENTRE.y * km) * u +
            (SV_BAND_CENTRE.z + SV_BAND_CENTRE.w * km) * u * u) * aloft, 45.0);
   float f = SkyViewBandWeight(sun_deg, h) *
-      (1.0 - smoothstep(SV_BAND_CENTRE_RANGE.x, SV_BAND_CENTRE_RANGE.y, c));
+      (1.0 - (1.0 - SV_BAND_CENTRE_FLOOR) *
+                 smoothstep(SV_BAND_CENTRE_RANGE.x, SV_BAND_CENTRE_RANGE.y, c));
   k = f * SkyViewBandStrength(h);
 }
 
