@@ -163,13 +163,15 @@ fn skyview_sky_radiance_matches_the_sky_product() {
     // the limb's sun coordinate towards the tangent point's over 50 km, the sky rows' aloft
     // towards the exit point's; version 11: aloft away from the sun the deep limb rows' back
     // towards the observer's horizon; version 13: the columns focused at 110° from 20–30 km up,
-    // each altitude node read at its own column coordinate from 15–20 km up). Where the target is met it is asserted, and the
+    // each altitude node read at its own column coordinate from 15–20 km up; version 14: the
+    // columns' square-root weight 0.65 below 15 km, a quarter of the sky rows' focus kept under
+    // a high band). Where the target is met it is asserted, and the
     // measured bound + ~12 % (the tighter); where it is not (the twilight sky aloft, −12…−6°
     // from 20–100 km, target 10 %, not met: docs/lut.md), the measured bound + ~12 %.
     for (band, measured, target) in [
         (
             "sun >= 5, view > 10 deg above horizon (target 1 %), ground",
-            0.00251,
+            0.00248,
             Some(0.01),
         ),
         (
@@ -184,12 +186,12 @@ fn skyview_sky_radiance_matches_the_sky_product() {
         ),
         (
             "sun >= 5, view < 10 deg above horizon (target 3 %), ground",
-            0.00392,
+            0.0053,
             Some(0.03),
         ),
         (
             "sun >= 5, view < 10 deg above horizon (target 3 %), 0-20 km",
-            0.00410,
+            0.00421,
             Some(0.03),
         ),
         (
@@ -197,11 +199,11 @@ fn skyview_sky_radiance_matches_the_sky_product() {
             0.02082,
             Some(0.03),
         ),
-        ("sun -6..5 (target 3 %), ground", 0.01272, Some(0.03)),
-        ("sun -6..5 (target 3 %), 0-20 km", 0.01573, Some(0.03)),
+        ("sun -6..5 (target 3 %), ground", 0.01051, Some(0.03)),
+        ("sun -6..5 (target 3 %), 0-20 km", 0.01358, Some(0.03)),
         ("sun -6..5 (target 3 %), 20-100 km", 0.02912, Some(0.03)),
-        ("sun -12..-6 (target 10 %), ground", 0.0342, Some(0.10)),
-        ("sun -12..-6 (target 10 %), 0-20 km", 0.03833, Some(0.10)),
+        ("sun -12..-6 (target 10 %), ground", 0.02518, Some(0.10)),
+        ("sun -12..-6 (target 10 %), 0-20 km", 0.02828, Some(0.10)),
         ("sun -12..-6 (target 10 %), 20-100 km", 0.1298, None),
     ] {
         let bound = target.map_or(measured * 1.12, |t: f64| t.min(measured * 1.12));
@@ -221,6 +223,9 @@ fn skyview_sky_radiance_matches_the_sky_product() {
 /// Version 6 (2026-12-06, each slice read relative to the band): the same but −6…5° at the
 /// ground 1.27 → 2.14 % with 2 columns, and the grid 3.13 → 6.92 %. Version 9 (the focus up
 /// to 20 km): the sun axis asserted on the grid seen aloft at 8–11 km instead (5.23 → 10.0 %).
+/// Version 14 (the columns' square-root weight 0.65 below 15 km, denser 90–135° from the sun):
+/// the azimuth asserted on −6…5° at the ground again (1.05 → 1.74 %; the earth's shadow rising
+/// 2.16 → 3.08 %, the twilight glow at sunset 2.99 → 3.58 %).
 #[test]
 #[ignore = "builds a bundle (about 10 s of CPU): run with --ignored lut_skyview::"]
 fn skyview_four_nodes_per_axis_are_needed() {
@@ -247,23 +252,6 @@ fn skyview_four_nodes_per_axis_are_needed() {
             two.get(band) * 100.0,
             four.get(band) * 100.0
         );
-        if axis == 3 {
-            // The azimuth: since the columns are read relative to the band (version 5), the
-            // random samples at the ground need the 4 columns less (1.47 → 2.14 %); the band on
-            // the grid of the earth's shadow rising needs them.
-            let (grid_two, _) = shadow_rise_errors(f, &reader);
-            let (grid_four, _) = shadow_rise_errors(f, &SkyViewReader::new(&f.bundle));
-            eprintln!(
-                "skyview axis 3 with 2 nodes: the earth's shadow rising: {:.3} % (4 nodes: {:.3} %)",
-                grid_two * 100.0,
-                grid_four * 100.0
-            );
-            assert!(
-                grid_two > 1.5 * grid_four,
-                "axis 3: the earth's shadow rising"
-            );
-            continue;
-        }
         assert!(two.get(band) > 1.5 * four.get(band), "axis {axis}: {band}");
     }
 }
@@ -505,9 +493,10 @@ fn twilight_glow_errors(f: &Fixture, reader: &SkyViewReader, suns: &[f64]) -> (f
 
 /// The twilight glow in deep twilight, 0–20 km (see [`twilight_glow_errors`]); the issue's
 /// target is 10 % (sun down to −12°), not met: measured on 2026-12-06 (earth, standard, RGB,
-/// layout version 13) 14.4 % at 15 km, sun −12°, 1° above the horizontal 60° from the sun,
-/// 680 nm (too dark: the altitude nodes); per altitude 6.8 / 7.5 / 8.7 / 6.4 / 14.4 / 7.4 % at
-/// 0 / 2.5 / 5 / 10 / 15 / 20 km (version 12: 6.8 / 7.5 / 9.6 / 7.8 / 14.4 / 8.4 %). (Version 11: 17.8 % at 5 km, sun −7°, 0.25° above the
+/// layout version 14, the columns' square-root weight 0.65 below 15 km) 10.17 % at 5 km, sun
+/// −12°, 0.25° above the horizontal 60° from the sun, 680 nm (version 13: 14.4 % at 15 km, sun
+/// −12°, 1° above the horizontal 60° from the sun, 680 nm, too dark: the altitude nodes; per altitude 6.8 / 7.5 / 8.7 / 6.4 / 14.4 / 7.4 % at
+/// 0 / 2.5 / 5 / 10 / 15 / 20 km; version 12: 6.8 / 7.5 / 9.6 / 7.8 / 14.4 / 8.4 %). (Version 11: 17.8 % at 5 km, sun −7°, 0.25° above the
 /// horizontal towards the sun, 440 nm, too bright: the sky rows, drawn towards the band above
 /// the earth's shadow opposite the sun; the focus now fades in from −5° to −3° of the sun's
 /// elevation above the observer's horizon.) The bound is the measured + ~12 %.
@@ -521,19 +510,21 @@ fn skyview_the_twilight_glow_in_deep_twilight() {
         "skyview twilight glow, 0-20 km, sun -12..-6 (target 10 %): {:.3} % {case}",
         100.0 * worst
     );
-    let measured = 0.1442;
+    let measured = 0.1017;
     assert!(worst > 0.0, "no sample");
     assert!(worst < measured * 1.12, "{worst} {case}");
 }
 
 /// The same grid as [`twilight_glow_errors`] with the sun at −6…5° in 1° steps (the issue's
-/// target 3 %; the random samples read 1.57 % at 0–20 km): measured on 2026-12-06 (earth,
-/// standard, RGB, layout version 13) 9.54 % at 15 km, sun −6°, 0.75° above the horizontal 90°
-/// from the sun, 680 nm (too dark: the azimuth columns −5.1 %, the altitude nodes −4.3 %); over
-/// 3 % only there and at 10 km (4.50 %, 90° from the sun), ≤ 3 % at 0, 2.5, 5 and 20 km.
+/// target 3 %; the random samples read 1.36 % at 0–20 km), met: measured on 2026-12-06 (earth,
+/// standard, RGB, layout version 14) 2.99 % at 15 km, sun −6°, 1° above the horizontal 30°
+/// from the sun, 440 nm (version 13: 9.54 % at 15 km, sun −6°, 0.75° above the horizontal 90°
+/// from the sun, 680 nm, too dark: the azimuth columns −5.1 %, the altitude nodes −4.3 %; 10 km
+/// 4.50 %, 90° from the sun; the columns' square-root weight 0.65 below 15 km took the grid to
+/// 2.94 %). The target is asserted, and the measured + ~12 % (the tighter).
 /// (Version 12: 9.65 % at 5 km, sun −6°, 0.25° above the horizontal towards the sun, 440 nm, too
 /// bright: the sky rows, drawn towards the band above the earth's shadow, 9–12° high; their
-/// focus now fades out as the band rises from 6° to 9°.) The bound is the measured + ~12 %.
+/// focus now fades out to a quarter as the band rises from 6° to 9°.)
 #[test]
 #[ignore = "builds a bundle (about 10 s of CPU): run with --ignored lut_skyview::"]
 fn skyview_the_twilight_glow_at_sunset() {
@@ -544,9 +535,9 @@ fn skyview_the_twilight_glow_at_sunset() {
         "skyview twilight glow, 0-20 km, sun -6..5 (target 3 %): {:.3} % {case}",
         100.0 * worst
     );
-    let measured = 0.0954;
+    let measured = 0.0299;
     assert!(worst > 0.0, "no sample");
-    assert!(worst < measured * 1.12, "{worst} {case}");
+    assert!(worst < (measured * 1.12f64).min(0.03), "{worst} {case}");
 }
 
 #[test]
@@ -765,8 +756,8 @@ fn shadow_rise_errors(f: &Fixture, reader: &SkyViewReader) -> (f64, String) {
 
 /// The earth's shadow rising (see [`shadow_rise_errors`]). The target is 3 % (views
 /// within 10° of the horizon, sun down to −6°), met on the grid: measured on 2026-12-06 (earth,
-/// standard, RGB, layout version 7) 2.37 % at 2.5 km, sun −1°, view zenith 89.5°, azimuth
-/// 150°, 680 nm (version 6: 3.13 % at 5 km, sun −1°, the horizontal 150° from the sun, where
+/// standard, RGB, layout version 14) 2.16 % at 2.5 km, sun 0°, view zenith 86.75°, azimuth
+/// 150°, 680 nm (version 7: 2.37 % at 2.5 km, sun −1°, zenith 89.5°, 150°; version 6: 3.13 % at 5 km, sun −1°, the horizontal 150° from the sun, where
 /// the columns' map relative to the band was the identity; version 5: 5.32 % at 5 km, version
 /// 4: 16.4 %, version 3: 48 %), so the bound is the measured + ~12 %. The sunlit band above the antisolar horizon (lit by sunlight that
 /// grazed the ground) rises ≈ 2° per degree the sun sinks and is sharpest (a factor of 10 per
@@ -783,7 +774,7 @@ fn skyview_the_earth_shadow_rising_at_low_altitude() {
         "skyview earth's shadow rising, 0-5 km, sun -6..0 (target 3 %): {:.3} % {case}",
         100.0 * worst
     );
-    let measured = 0.0237;
+    let measured = 0.0216;
     assert!(worst > 0.0, "no sample");
     assert!(worst < measured * 1.12, "{worst} {case}");
 }
@@ -799,27 +790,29 @@ fn skyview_the_earth_shadow_rising_at_low_altitude() {
 /// takes the band's depth measured aloft from 12.5–17 km up (version 12); the sun nodes are
 /// 0.125° apart from 0° to 0.5° (version 13), and from 15–20 km up each altitude node is read at its
 /// own column coordinate (version 13), and the sky rows' focus fades out under a band 6–9° high
-/// (version 13). The 3 % target (views within 10° of the horizon, sun down to −6°) is
-/// not met at 9.5, 15 and 20 km on the grid nor at any of these altitudes on the dense check
-/// (the altitude axis, the sky rows, the columns). The bounds are per altitude, the measured
-/// worst + ~12 % (earth, standard, RGB, layout version 13, measured on 2026-12-06 on the merged
-/// version 13; 680 nm but at 15 km on the grid). Grid: 6.5 km 1.94 % (sun −1°, zenith 90.25°,
-/// 150° from the sun), 8 km 2.53 % (−5°, 81.75°, 180°), 9.5 km 6.05 % (−3°, 86.5°, 180°), 11 km
-/// 2.87 % (−3°, 87.5°, 150°), 12.5 km 2.42 % (−5°, 82.5°, 180°), 15 km 4.97 % (−2°, 87.5°,
-/// 180°, 440 nm), 20 km 3.03 % (−6°, 82°, 150°) (version 12: 1.68 / 2.18 / 5.00 / 5.23 / 2.65
-/// / 4.90 / 2.77 %; version 10: 1.97 / 4.82 / 7.55 / 6.20 / 2.72 / 7.90 / 3.28 %; version 8:
-/// 3.39 / 16.4 / 34.4 / 44.0 / 29.2 / 91.3 / 56.6 %). Dense: 4.77 % (−2°, 89°, 120°), 4.75 %
-/// (−2.25°, 89°, 120°), 6.05 % (the grid's), 6.23 % (−3.25°, 86.5°, 180°), 6.52 % (−5.25°,
-/// 82°, 165°), 7.28 % (−5.5°, 81.5°, 165°), 9.95 % (−4.5°, 84.75°, 180°) (version 12: 5.72 /
-/// 7.28 / 5.69 / 6.95 / 8.63 / 5.97 / 10.37 %).
+/// (version 13); the columns' square-root weight is 0.65 below 15 km and a quarter of the rows'
+/// focus is kept under a high band (version 14). The 3 % target (views within 10° of the horizon, sun down to −6°) is
+/// not met at 9.5, 15 and 20 km on the grid nor from 6.5 km up on the dense check (the
+/// altitude axis, the sky rows). The bounds are per altitude, the measured worst + ~12 %
+/// (earth, standard, RGB, layout version 14, measured on 2026-12-06; 680 nm but at 6.5 and
+/// 15 km). Grid: 6.5 km 1.87 % (sun −1°, zenith 90.25°, 150° from the sun), 8 km 2.48 % (−3°,
+/// 86.5°, 180°), 9.5 km 6.05 % (−3°, 86.5°, 180°), 11 km 2.53 % (−3°, 86.75°, 180°), 12.5 km
+/// 2.57 % (−3°, 93.25°, 150°), 15 km 4.96 % (−2°, 87.5°, 180°, 440 nm), 20 km 3.35 % (−4°,
+/// 94.25°, 150°). Dense: 3.22 % (−0.5°, 87.75°, 180°, 440 nm), 4.50 % (−2.75°, 87°, 180°),
+/// 6.05 % (the grid's), 6.23 % (−3.25°, 86.5°, 180°), 4.86 % (−3.5°, 86.25°, 180°), 4.96 % (the
+/// grid's), 9.95 % (−4.5°, 84.75°, 180°). (Version 13: grid 1.94 / 2.53 / 6.05 / 2.87 / 2.42 /
+/// 4.97 / 3.03 %, dense 4.77 / 4.75 / 6.05 / 6.23 / 6.52 / 7.28 / 9.95 %; version 12: grid 1.68 /
+/// 2.18 / 5.00 / 5.23 / 2.65 / 4.90 / 2.77 %, dense 5.72 / 7.28 / 5.69 / 6.95 / 8.63 / 5.97 /
+/// 10.37 %; version 10: grid 1.97 / 4.82 / 7.55 / 6.20 / 2.72 / 7.90 / 3.28 %; version 8: 3.39 /
+/// 16.4 / 34.4 / 44.0 / 29.2 / 91.3 / 56.6 %.)
 #[test]
 #[ignore = "builds a bundle (about 10 s of CPU): run with --ignored lut_skyview::"]
 fn skyview_the_earth_shadow_seen_aloft() {
     let f = fixture();
     let altitudes = [6500.0, 8000.0, 9500.0, 11000.0, 12500.0, 15000.0, 20000.0];
     // Measured worst per altitude (the order of `altitudes`): the grid, the dense check.
-    let measured = [0.0194, 0.0253, 0.0605, 0.0287, 0.0242, 0.0497, 0.0303];
-    let measured_dense = [0.0477, 0.0475, 0.0605, 0.0623, 0.0652, 0.0728, 0.0995];
+    let measured = [0.0187, 0.0248, 0.0605, 0.0253, 0.0257, 0.0496, 0.0335];
+    let measured_dense = [0.0322, 0.0450, 0.0605, 0.0623, 0.0486, 0.0496, 0.0995];
     let t = std::time::Instant::now();
     let results = shadow_aloft_errors(f, &SkyViewReader::new(&f.bundle), &altitudes);
     eprintln!(

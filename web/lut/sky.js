@@ -100,7 +100,8 @@ class LiveSky {
           !(band.focus_aloft_altitude_m[0] < band.focus_aloft_altitude_m[1]) ||
           !(band.azimuth_depth_aloft_deg >= 0) || !numbers(band.azimuth_depth_aloft_altitude_m, 2) ||
           !(band.azimuth_depth_aloft_altitude_m[0] < band.azimuth_depth_aloft_altitude_m[1]) ||
-          !numbers(band.centre_range_deg, 2) || !(band.centre_range_deg[0] < band.centre_range_deg[1])) {
+          !numbers(band.centre_range_deg, 2) || !(band.centre_range_deg[0] < band.centre_range_deg[1]) ||
+          !(band.centre_floor >= 0 && band.centre_floor <= 1)) {
         throw new Error("manifest: parameterisation.sky_row_band is not the sky rows' band focus");
       }
       // The altitude nodes, where each slice's own rows are read (version 6).
@@ -115,6 +116,7 @@ class LiveSky {
         `#define SV_BAND_SUN_RANGE vec4(${band.sun_range_deg.map(f).join(", ")})\n` +
         `#define SV_BAND_ALTITUDE vec2(${band.altitude_range_m.map(f).join(", ")})\n` +
         `#define SV_BAND_CENTRE_RANGE vec2(${band.centre_range_deg.map(f).join(", ")})\n` +
+        `#define SV_BAND_CENTRE_FLOOR ${f(band.centre_floor)}\n` +
         `#define SV_BAND_ANTISOLAR ${f(band.antisolar)}\n` +
         `#define SV_BAND_DEPTH ${f(band.depth_deg_per_km)}\n` +
         `#define SV_BAND_HORIZON ${f(band.horizon_deg)}\n` +
@@ -161,7 +163,8 @@ class LiveSky {
         `#define SV_LIMB_BAND_HORIZON_HELD vec2(${limb.horizon_held.map(f).join(", ")})\n`;
       // The azimuth columns' map aloft (version 5).
       const az = manifest.parameterisation.azimuth_aloft;
-      if (!az || !(az.weight > 0 && az.weight <= 1) || !numbers(az.altitude_range_m, 2) ||
+      if (!az || !(az.weight > 0 && az.weight <= 1) || !(az.ground_weight > 0 && az.ground_weight <= 1) ||
+          !numbers(az.altitude_range_m, 2) ||
           !(az.altitude_range_m[0] < az.altitude_range_m[1])) {
         throw new Error("manifest: parameterisation.azimuth_aloft is not the columns' map aloft");
       }
@@ -192,6 +195,7 @@ class LiveSky {
       defines += `#define SV_SKY_EXIT_ALTITUDE vec2(${exit.map(f).join(", ")})\n`;
       defines += `#define SV_ALT_MAP vec3(${altMap.map(f).join(", ")})\n` +
         `#define SV_AZ_WEIGHT ${f(az.weight)}\n` +
+        `#define SV_AZ_GROUND_WEIGHT ${f(az.ground_weight)}\n` +
         `#define SV_AZ_ALTITUDE vec2(${az.altitude_range_m.map(f).join(", ")})\n` +
         `#define SV_AZ_FOCUS vec3(${[azFocus.weight, azFocus.centre_deg, azFocus.width_deg].map(f).join(", ")})\n` +
         `#define SV_AZ_FOCUS_ALTITUDE vec2(${azFocus.altitude_range_m.map(f).join(", ")})\n` +

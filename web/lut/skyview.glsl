@@ -17,7 +17,7 @@
 // (parameterisation.sun_warp_range), float literals, and from parameterisation.sky_row_band:
 // SV_BAND_SUN (sun_deg), SV_BAND_FOCUS (focus), SV_BAND_CENTRE (centre, a vec4),
 // SV_BAND_SUN_RANGE (sun_range_deg, a vec4), SV_BAND_ALTITUDE (altitude_range_m, a vec2),
-// SV_BAND_CENTRE_RANGE (centre_range_deg, a vec2),
+// SV_BAND_CENTRE_RANGE (centre_range_deg, a vec2), SV_BAND_CENTRE_FLOOR (centre_floor),
 // SV_BAND_ANTISOLAR (antisolar), SV_BAND_DEPTH (depth_deg_per_km), SV_BAND_HORIZON
 // (horizon_deg), SV_BAND_ANTISOLAR_RANGE (antisolar_range, a vec2), SV_BAND_GROWTH
 // (focus_growth), SV_BAND_GROWTH_ALTITUDE (focus_growth_altitude_m, a vec2),
@@ -32,8 +32,8 @@
 // (altitude_range_m, a vec4), SV_LIMB_BAND_DEPTH_FLOOR (depth_floor_m),
 // SV_LIMB_BAND_ALTITUDE_EXPONENT (altitude_exponent), SV_LIMB_BAND_MAX_FRACTION (max_fraction),
 // SV_LIMB_BAND_HORIZON_HELD (horizon_held, a vec2);
-// from parameterisation.azimuth_aloft: SV_AZ_WEIGHT (weight) and SV_AZ_ALTITUDE
-// (altitude_range_m, a vec2); from parameterisation.azimuth_focus: SV_AZ_FOCUS (vec3(weight,
+// from parameterisation.azimuth_aloft: SV_AZ_WEIGHT (weight), SV_AZ_GROUND_WEIGHT
+// (ground_weight) and SV_AZ_ALTITUDE (altitude_range_m, a vec2); from parameterisation.azimuth_focus: SV_AZ_FOCUS (vec3(weight,
 // centre_deg, width_deg)), SV_AZ_FOCUS_ALTITUDE (altitude_range_m, a vec2) and SV_AZ_NODE_READ
 // (node_read_altitude_m, a vec2); SV_AZ_NODE_COS
 // (the cosines of parameterisation.azimuth_nodes_rad, a float[SV_N_ALT * SV_N_AZ] constructor,
@@ -355,7 +355,8 @@ void SkyViewBandFocus(float sun_deg, float h, out float c, out float k) {
   c = min(((SV_BAND_CENTRE.x + SV_BAND_CENTRE.y * km) * u +
            (SV_BAND_CENTRE.z + SV_BAND_CENTRE.w * km) * u * u) * aloft, 45.0);
   float f = SkyViewBandWeight(sun_deg, h) *
-      (1.0 - smoothstep(SV_BAND_CENTRE_RANGE.x, SV_BAND_CENTRE_RANGE.y, c));
+      (1.0 - (1.0 - SV_BAND_CENTRE_FLOOR) *
+                 smoothstep(SV_BAND_CENTRE_RANGE.x, SV_BAND_CENTRE_RANGE.y, c));
   k = f * SkyViewBandStrength(h);
 }
 
@@ -393,12 +394,19 @@ vec2 SkyViewAzimuthFocus(float phi, float h) {
   return vec2(beta, (SkyViewTanh((phi - c) / w) - g0) / (SkyViewTanh((PI - c) / w) - g0));
 }
 
+// The weight of the columns' square-root map at altitude h (the reader's azimuth_weight): from
+// SV_AZ_GROUND_WEIGHT below SV_AZ_ALTITUDE.x to SV_AZ_WEIGHT above SV_AZ_ALTITUDE.y.
+float SkyViewAzimuthWeight(float h) {
+  return SV_AZ_GROUND_WEIGHT -
+      (SV_AZ_GROUND_WEIGHT - SV_AZ_WEIGHT) * smoothstep(SV_AZ_ALTITUDE.x, SV_AZ_ALTITUDE.y, h);
+}
+
 // The column coordinate of azimuth phi (rad) at altitude h (the reader's azimuth_coord):
 // (alpha sqrt(phi / pi) + (1 - alpha - beta) sin^2(phi / 2) + beta G(phi)) (N_AZ - 1), alpha
-// from 1 near the ground to SV_AZ_WEIGHT aloft (the columns denser around 90 degrees from the
-// sun), (beta, G) = SkyViewAzimuthFocus (0 below SV_AZ_FOCUS_ALTITUDE.x).
+// = SkyViewAzimuthWeight (the columns denser around 90 degrees from the sun aloft),
+// (beta, G) = SkyViewAzimuthFocus (0 below SV_AZ_FOCUS_ALTITUDE.x).
 float SkyViewAzimuthColumn(float phi, float h) {
-  float alpha = 1.0 - (1.0 - SV_AZ_WEIGHT) * smoothstep(SV_AZ_ALTITUDE.x, SV_AZ_ALTITUDE.y, h);
+  float alpha = SkyViewAzimuthWeight(h);
   vec2 focus = SkyViewAzimuthFocus(phi, h);
   float half_sin = SkyViewSin(0.5 * phi);
   return (alpha * sqrt(clamp(phi / PI, 0.0, 1.0)) +
@@ -408,10 +416,10 @@ float SkyViewAzimuthColumn(float phi, float h) {
 
 // The azimuth (rad) from the sun of column a at altitude h below SV_AZ_FOCUS_ALTITUDE.x (the
 // reader's azimuth_node): the root x of alpha x + (1 - alpha) sin^2(pi x^2 / 2) = a / (N_AZ - 1),
-// phi = pi x^2, by Newton's method from x = a / (N_AZ - 1) (the root where alpha = 1).
+// phi = pi x^2, by Newton's method from x = a / (N_AZ - 1) (the root where alpha = 1; 6 steps).
 float SkyViewAzimuthNode(int a, float h) {
   float target = float(a) / float(SV_N_AZ - 1);
-  float alpha = 1.0 - (1.0 - SV_AZ_WEIGHT) * smoothstep(SV_AZ_ALTITUDE.x, SV_AZ_ALTITUDE.y, h);
+  float alpha = SkyViewAzimuthWeight(h);
   float x = target;
   if (alpha < 1.0 && a > 0 && a < SV_N_AZ - 1) {
     for (int i = 0; i < 6; ++i) {

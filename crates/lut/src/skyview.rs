@@ -467,6 +467,15 @@ pub const BAND_ALTITUDE_M: [f64; 2] = [20_000.0, 25_000.0];
 /// The maps relative to the band keep their weight ([`band_map_weight`]): with them faded too,
 /// the band seen from 20 km (sun −6°, 150° from the sun, 8.5° up) read 7.1 % instead of 3.1 %.
 pub const BAND_CENTRE_RANGE_DEG: [f64; 2] = [6.0, 9.0];
+/// The share of the sky rows' focus kept above [`BAND_CENTRE_RANGE_DEG`] (version 13: 0). Seen
+/// from 6.5–20 km with the sun 5–6° below the horizontal the band is 8.5–10° high, and the
+/// unfocused rows (2–3° apart there) miss its rise: the rows alone (4-node Lagrange over the
+/// rows, the `sky` product at the rows' elevations, 680 nm, 150–180° from the sun) erred by
+/// 5.9 / 7.7 / 8.1 / 9.4 / 10.7 % at 6.5 / 9.5 / 12.5 / 15 / 20 km, with a quarter of the focus
+/// 1.0 / 2.2 / 4.0 % at 6.5 / 9.5 / 12.5 km; the glow towards the sun near the horizontal (the
+/// reason for the fade) 2.1 → 2.3 % at 0–15 km (0.15 / 0.4 of the focus: 3.1 / 1.6 % at 9.5 km,
+/// 2.1 / 3.8 % on the glow).
+pub const BAND_CENTRE_FLOOR: f64 = 0.25;
 
 fn smoothstep(a: f64, b: f64, x: f64) -> f64 {
     let t = ((x - a) / (b - a)).clamp(0.0, 1.0);
@@ -476,12 +485,14 @@ fn smoothstep(a: f64, b: f64, x: f64) -> f64 {
 /// The sky rows' focus at sun `sun_deg` above the observer's horizon and altitude `h` (m): the
 /// band's elevation c ([`band_centre_deg`], degrees) and the focus strength k = f
 /// [`band_focus_strength`] (f the fades of [`BAND_SUN_RANGE`], [`BAND_ALTITUDE_M`] and, in the
-/// band's elevation c, [`BAND_CENTRE_RANGE_DEG`], smoothsteps 3t² − 2t³; k = 0 by day, deep in
+/// band's elevation c, [`BAND_CENTRE_RANGE_DEG`] down to [`BAND_CENTRE_FLOOR`], smoothsteps
+/// 3t² − 2t³; k = 0 by day, deep in
 /// twilight and aloft: the rows of version 3).
 pub fn sky_row_focus(sun_deg: f64, h: f64) -> (f64, f64) {
     let [c0, c1] = BAND_CENTRE_RANGE_DEG;
     let c = band_centre_deg(sun_deg, h);
-    let f = band_map_weight(sun_deg, h) * (1.0 - smoothstep(c0, c1, c));
+    let high = smoothstep(c0, c1, c);
+    let f = band_map_weight(sun_deg, h) * (1.0 - (1.0 - BAND_CENTRE_FLOOR) * high);
     (c, f * band_focus_strength(h))
 }
 
@@ -952,24 +963,33 @@ pub fn segment_rows(seg: usize) -> (usize, usize) {
 /// sin²(φ/2) = (1 − cos φ)/2, dense around 90° from the sun.
 pub const AZIMUTH_ALOFT_WEIGHT: f64 = 0.5;
 
+/// The weight of the columns' square-root map below [`AZIMUTH_ALOFT_M`] ([`azimuth_weight`];
+/// version 13: 1, the square root alone). In low twilight the glow 90° from the sun and the band
+/// above the earth's shadow 120–135° from the sun vary fastest with the azimuth, where the square
+/// root's columns are 13–16° apart (9–11° with 0.65). The columns' axis alone (Lagrange over the
+/// `sky` product at the columns, 680 nm, sun −6…5°, 5–15 km): 90° from the sun 2.6 / 3.9 / 5.1 %
+/// at 5 / 10 / 15 km with 1, 1.1 / 0.8 / 0.7 % with 0.65; 120–180° at 0–15 km up to 6.3 % with 1,
+/// 2.2 % with 0.65; by day (sun 5–50°, 0–12 km) 0.67 → 0.54 %.
+pub const AZIMUTH_GROUND_WEIGHT: f64 = 0.65;
+
 /// The altitudes (m) between which the columns' map moves from the square root (below) to its
 /// blend with (1 − cos φ)/2 (above), [`azimuth_weight`].
 pub const AZIMUTH_ALOFT_M: [f64; 2] = [15_000.0, 25_000.0];
 
-/// The weight α of the columns' square-root map at altitude `h` (m): 1 below
-/// [`AZIMUTH_ALOFT_M`], [`AZIMUTH_ALOFT_WEIGHT`] above, a smoothstep between. Seen from
+/// The weight α of the columns' square-root map at altitude `h` (m): [`AZIMUTH_GROUND_WEIGHT`]
+/// below [`AZIMUTH_ALOFT_M`], [`AZIMUTH_ALOFT_WEIGHT`] above, a smoothstep between. Seen from
 /// altitude in twilight, a ray near the horizontal crosses the earth's shadow where the sun's
 /// elevation along it, which changes by (x/R) cos φ over a distance x, meets the shadow: the
 /// edge moves fastest with the azimuth φ around 90° from the sun, where the square root's
 /// columns are 9–10° apart; near the ground the low sky's band above the shadow wants the
-/// antisolar columns dense, which the square root keeps there.
+/// antisolar columns dense, which the square root's share keeps there.
 pub fn azimuth_weight(h: f64) -> f64 {
     let [h0, h1] = AZIMUTH_ALOFT_M;
-    1.0 - (1.0 - AZIMUTH_ALOFT_WEIGHT) * smoothstep(h0, h1, h)
+    AZIMUTH_GROUND_WEIGHT - (AZIMUTH_GROUND_WEIGHT - AZIMUTH_ALOFT_WEIGHT) * smoothstep(h0, h1, h)
 }
 
 /// Azimuth from the sun of column `a` at altitude `h` (m), rad: the root of
-/// [`azimuth_coord`]`(φ, h) = a` (by bisection aloft; π (a / (N_AZ − 1))² where the map is the
+/// [`azimuth_coord`]`(φ, h) = a` (by bisection; π (a / (N_AZ − 1))² where the map is the
 /// square root alone).
 pub fn azimuth_node(a: usize, h: f64) -> f64 {
     let x = a as f64 / (N_AZ - 1) as f64;
@@ -1008,8 +1028,8 @@ pub fn azimuth_focus(phi: f64, h: f64) -> (f64, f64) {
 }
 
 /// Continuous column coordinate of azimuth `phi` ∈ [0, π] at altitude `h` (m):
-/// (α √(φ/π) + (1 − α − β) sin²(φ/2) + β G(φ))(N_AZ − 1), α = [`azimuth_weight`]`(h)` (1 near
-/// the ground: φ = π (column / (N_AZ − 1))², dense near the sun), (β, G) = [`azimuth_focus`]
+/// (α √(φ/π) + (1 − α − β) sin²(φ/2) + β G(φ))(N_AZ − 1), α = [`azimuth_weight`]`(h)` (the
+/// square root dense near the sun, sin²(φ/2) around 90° from it), (β, G) = [`azimuth_focus`]
 /// (0 below 20 km).
 pub fn azimuth_coord(phi: f64, h: f64) -> f64 {
     let phi = phi.clamp(0.0, PI);
@@ -1878,18 +1898,18 @@ pub const STATED_ERRORS: &[(&str, &str, f64)] = &[
     ("rayleigh+mie", "sky radiance (sky product), sun >= 5 deg, view > 10 deg above the horizon, ground", 0.0026),
     ("rayleigh+mie", "sky radiance (sky product), sun >= 5 deg, view > 10 deg above the horizon, 0-20 km", 0.0009),
     ("rayleigh+mie", "sky radiance (sky product), sun >= 5 deg, view > 10 deg above the horizon, 20-100 km", 0.0019),
-    ("rayleigh+mie", "sky radiance (sky product), sun >= 5 deg, view < 10 deg above the horizon, ground", 0.004),
+    ("rayleigh+mie", "sky radiance (sky product), sun >= 5 deg, view < 10 deg above the horizon, ground", 0.0054),
     ("rayleigh+mie", "sky radiance (sky product), sun >= 5 deg, view < 10 deg above the horizon, 0-20 km", 0.0042),
     ("rayleigh+mie", "sky radiance (sky product), sun >= 5 deg, view < 10 deg above the horizon, 20-100 km", 0.021),
-    ("rayleigh+mie", "sky radiance (sky product), sun -6..5 deg, ground", 0.015),
+    ("rayleigh+mie", "sky radiance (sky product), sun -6..5 deg, ground", 0.011),
     ("rayleigh+mie", "sky radiance (sky product), sun -6..5 deg, 0-5 km (the band above the earth's shadow 120 deg from the sun, 680 nm at 5 km, 0.5 deg above the horizontal; the twilight glow towards the sun at most 3 %)", 0.046),
-    ("rayleigh+mie", "sky radiance (sky product), sun -6..5 deg, 5-8 km (the band above the earth's shadow near the antisolar horizon, 680 nm at 6.5 km, 1 deg above the horizontal 120 deg from the sun)", 0.048),
-    ("rayleigh+mie", "sky radiance (sky product), sun -6..5 deg, 8-12.5 km (the band above the earth's shadow near the antisolar horizon, 680 nm at 12.5 km, 8 deg above the horizontal 165 deg from the sun, sun -5.25 deg; the twilight glow towards the sun at 10 km at most 4.5 %)", 0.066),
-    ("rayleigh+mie", "sky radiance (sky product), sun -6..5 deg, 12.5-20 km (the band above the earth's shadow near the antisolar horizon, 680 nm at 20 km, 5.25 deg above the horizontal opposite the sun; the twilight glow 90 deg from the sun at 15 km 9.5 %)", 0.100),
-    ("rayleigh+mie", "sky radiance (sky product), sun -6..0 deg, 0-5 km, views within 10 deg of the horizon 150-180 deg from the sun (the earth's shadow rising; 680 nm at 2.5 km)", 0.024),
+    ("rayleigh+mie", "sky radiance (sky product), sun -6..5 deg, 5-8 km (the band above the earth's shadow near the antisolar horizon, 680 nm at 8 km, 3 deg above the horizontal opposite the sun)", 0.045),
+    ("rayleigh+mie", "sky radiance (sky product), sun -6..5 deg, 8-12.5 km (the band above the earth's shadow near the antisolar horizon, 680 nm at 11 km, 3.5 deg above the horizontal opposite the sun, sun -3.25 deg; the twilight glow towards the sun at most 3 %)", 0.063),
+    ("rayleigh+mie", "sky radiance (sky product), sun -6..5 deg, 12.5-20 km (the band above the earth's shadow near the antisolar horizon, 680 nm at 20 km, 5.25 deg above the horizontal opposite the sun; the twilight glow towards the sun at most 3 %)", 0.100),
+    ("rayleigh+mie", "sky radiance (sky product), sun -6..0 deg, 0-5 km, views within 10 deg of the horizon 150-180 deg from the sun (the earth's shadow rising; 680 nm at 2.5 km)", 0.022),
     ("rayleigh+mie", "sky radiance (sky product), sun -6..5 deg, 20-100 km (the sky just above the horizontal at 30 km, 440 nm)", 0.030),
-    ("rayleigh+mie", "sky radiance (sky product), sun -12..-6 deg, ground", 0.035),
-    ("rayleigh+mie", "sky radiance (sky product), sun -12..-6 deg, 0-20 km (the twilight glow towards the sun near the horizontal: 14.4 % at 15 km, sun -12 deg, 1 deg above the horizontal 60 deg from the sun, 680 nm)", 0.145),
+    ("rayleigh+mie", "sky radiance (sky product), sun -12..-6 deg, ground", 0.026),
+    ("rayleigh+mie", "sky radiance (sky product), sun -12..-6 deg, 0-20 km (the twilight glow towards the sun near the horizontal: 10.2 % at 5 km, sun -12 deg, 0.25 deg above the horizontal 60 deg from the sun, 680 nm)", 0.102),
     ("rayleigh+mie", "sky radiance (sky product), sun -12..-6 deg, 20-100 km (the sky 62 deg up 16 deg from the sun, 680 nm at 59.2 km: the sun nodes)", 0.130),
     ("irradiance", "diffuse horizontal irradiance (sun product), sun >= 5 deg, 0-100 km", 0.015),
     ("irradiance", "diffuse horizontal irradiance (sun product), sun -12..5 deg, 0-100 km", 0.016),
@@ -1934,6 +1954,7 @@ pub fn manifest(
         "focus": BAND_FOCUS,
         "sun_range_deg": BAND_SUN_RANGE,
         "centre_range_deg": BAND_CENTRE_RANGE_DEG,
+        "centre_floor": BAND_CENTRE_FLOOR,
         "altitude_range_m": BAND_ALTITUDE_M,
         "antisolar": BAND_ANTISOLAR,
         "depth_deg_per_km": BAND_DEPTH_PER_KM,
@@ -1950,7 +1971,7 @@ pub fn manifest(
         "azimuth_depth_aloft_altitude_m": BAND_AZIMUTH_DEPTH_ALOFT_M,
         "slices": "on the sky rows, each (altitude node k, sun node j) slice of the interpolation is read on its own rows (the focus (c_n, k_n) at the node's sun coordinate s_n = the warped s_j at h_k and its altitude h_n = altitude_nodes_m[k]) where the query's or the slice's k > 0: at e_n = e + f (1 - smoothstep(2 w, 4 w, e)) smoothstep(0, horizon_deg, e) ((e + delta_q) H_n / H_q - delta_n - e), H = max(c antisolar + delta, 0.1) at the query's (c, h) and the node's (band centre c at s_n, h_n), delta = depth_deg_per_km clamp(h, 0, depth_top_m) / 1000, w = max(H_q, 0.5), f = k / (focus (1 + focus_growth smoothstep(focus_growth_altitude_m[0], focus_growth_altitude_m[1], h)) (1 + focus_aloft smoothstep(focus_aloft_altitude_m[0], focus_aloft_altitude_m[1], h))) the query's fade (0 where k = 0), then each column at the azimuth formula's e_a with (c_n, k_n, h_n) in place of the query's",
         "azimuth": "on the sky rows and the limb rows where k > 0 each azimuth column a of the interpolation is read at its own elevation e_a (its own rows' stencil): d = depth_deg_per_km clamp(h, 0, depth_top_m) / 1000, delta = d + (azimuth_depth_aloft_deg - d) smoothstep(azimuth_depth_aloft_altitude_m[0], azimuth_depth_aloft_altitude_m[1], h) (version 12), w = max(c antisolar + delta, 0.5), ratio = max(-cos phi_a, antisolar_range[0]) / max(-cos phi, antisolar_range[0]), e_a = e + (k / (focus (1 + focus_growth smoothstep(focus_growth_altitude_m[0], focus_growth_altitude_m[1], h)) (1 + focus_aloft smoothstep(focus_aloft_altitude_m[0], focus_aloft_altitude_m[1], h)))) (1 - smoothstep(2 w, 4 w, e)) step(-delta, e) smoothstep(antisolar_range[0], antisolar_range[1], -cos phi) (e + delta) (ratio - 1) (version 7: from -delta up through the horizontal, where version 6 had smoothstep(0, horizon_deg, e)), e the query's elevation (deg), phi its azimuth from the sun, phi_a the column's in the slice (azimuth_nodes_rad[k][a], the slice's altitude node k; version 12: at the query's altitude h); where e_a >= 0 the column is read on the sky rows, below on the limb rows at the query's altitude h (depth y = 2 r sin^2(e_a / 2) / h); the band above the earth's shadow lies at (c antisolar + delta)(-cos phi) - delta",
-        "formula": "the sky rows' focus at the sun's elevation s above the observer's horizon (deg) and altitude h (m): u = max(sun_deg - s, 0), km = clamp(h, 0, centre_aloft_altitude_m[0]) / 1000, c = min(((centre[0] + centre[1] km) u + (centre[2] + centre[3] km) u^2) (1 + centre_aloft_per_km clamp(h - centre_aloft_altitude_m[0], 0, centre_aloft_altitude_m[1] - centre_aloft_altitude_m[0]) / 1000), 45) (deg), k = smoothstep(sun_range_deg[0], sun_range_deg[1], s) (1 - smoothstep(sun_range_deg[2], sun_range_deg[3], s)) (1 - smoothstep(altitude_range_m[0], altitude_range_m[1], h)) (1 - smoothstep(centre_range_deg[0], centre_range_deg[1], c)) focus (1 + focus_growth smoothstep(focus_growth_altitude_m[0], focus_growth_altitude_m[1], h)) (1 + focus_aloft smoothstep(focus_aloft_altitude_m[0], focus_aloft_altitude_m[1], h)), smoothstep(a, b, x) = t^2 (3 - 2 t), t = clamp((x - a) / (b - a), 0, 1)",
+        "formula": "the sky rows' focus at the sun's elevation s above the observer's horizon (deg) and altitude h (m): u = max(sun_deg - s, 0), km = clamp(h, 0, centre_aloft_altitude_m[0]) / 1000, c = min(((centre[0] + centre[1] km) u + (centre[2] + centre[3] km) u^2) (1 + centre_aloft_per_km clamp(h - centre_aloft_altitude_m[0], 0, centre_aloft_altitude_m[1] - centre_aloft_altitude_m[0]) / 1000), 45) (deg), k = smoothstep(sun_range_deg[0], sun_range_deg[1], s) (1 - smoothstep(sun_range_deg[2], sun_range_deg[3], s)) (1 - smoothstep(altitude_range_m[0], altitude_range_m[1], h)) (1 - (1 - centre_floor) smoothstep(centre_range_deg[0], centre_range_deg[1], c)) focus (1 + focus_growth smoothstep(focus_growth_altitude_m[0], focus_growth_altitude_m[1], h)) (1 + focus_aloft smoothstep(focus_aloft_altitude_m[0], focus_aloft_altitude_m[1], h)), smoothstep(a, b, x) = t^2 (3 - 2 t), t = clamp((x - a) / (b - a), 0, 1)",
     });
     json!({
         "format": LAYOUT,
@@ -1999,9 +2020,10 @@ pub fn manifest(
                 "formula": "the limb rows' focus (version 10) at sun coordinate s (deg; a texel's node s_j, for a query each slice's own s_n at its altitude h_n) and altitude h (m): depth D = depth_m[0] + depth_m[1] s + depth_m[2] s^2 (m), x_c = the limb coordinate of y_c = clamp(D / h, 0, 1) (x_c = 2/3 + (4/3) cos(acos(1 - 27 y_c / 16) / 3 - 2 pi / 3)), k = focus smoothstep(sun_range_deg[0], sun_range_deg[1], s) (1 - smoothstep(sun_range_deg[2], sun_range_deg[3], s)) smoothstep(altitude_range_m[0], altitude_range_m[1], h) (1 - smoothstep(altitude_range_m[2], altitude_range_m[3], h)) (0 where h <= 0); the limb row coordinate of depth y is x = (asinh(k (x0 - x_c)) - A) / (B - A), x0 = 2/3 + (4/3) cos(acos(1 - 27 y / 16) / 3 - 2 pi / 3), A = asinh(-k x_c), B = asinh(k (1 - x_c)) (x = x0 where k < 1e-6); inverse x0 = x_c + sinh(A + x (B - A)) / k, y = 2 x0^2 - x0^3. On the limb rows every (altitude node k, sun node j) slice is read on its own rows at the depth of `slices` (and a column moved below the horizontal by sky_row_band.azimuth likewise, at its depth 2 r sin^2(e_a / 2) / h)",
             },
             "view_rows": format!("rows 0..{} from the zenith to the horizontal: elevation = 90 (1 - x0)^2 (deg), x0 = x_c + sinh(A + x (B - A)) / k, x = row / {}, x_c = 1 - sqrt(c / 90), A = asinh(-k x_c), B = asinh(k (1 - x_c)), (c, k) the sky rows' focus (sky_row_band) at the sun's elevation above the observer's horizon (its node's s_j for a texel, the query's own for a query) and the observer's altitude; where k < 1e-6, x0 = x; inverse: x0 = 1 - sqrt(elevation / 90), x = (asinh(k (x0 - x_c)) - A) / (B - A) (or x0); rows {}..{} from the horizontal to the horizon: the ray's tangent radius r_t = r - (r - bottom_radius) y, y = 2 x0^2 - x0^3, x0 = the unfocused coordinate of x = (row - {}) / {} with the limb rows' focus (limb_row_band; x0 = x where k = 0; inverse: x0 = 2/3 + (4/3) cos(acos(1 - 27 y / 16) / 3 - 2 pi / 3)), theta = pi/2 + acos(r_t / r); rows {}..{} from the horizon to the nadir: theta = theta_h + (pi - theta_h) x^2, x = (row - {}) / {}, theta_h = pi - asin(bottom_radius / r); r the observer's radius. Interpolation over the rows around the view stays within its segment (see interpolation)", N_VIEW_SKY - 1, N_VIEW_SKY - 1, N_VIEW_SKY, N_VIEW_UP - 1, N_VIEW_SKY, N_VIEW_LIMB - 1, N_VIEW_UP, N_VIEW - 1, N_VIEW_UP, N_VIEW_DOWN - 1),
-            "azimuth_columns": format!("the column coordinate of the view's azimuth phi from the sun's (0..pi) at altitude h (m): column = (alpha sqrt(phi / pi) + (1 - alpha - beta) sin(phi / 2)^2 + beta G(phi)) {}, alpha = 1 - (1 - azimuth_aloft.weight) smoothstep(azimuth_aloft.altitude_range_m[0], azimuth_aloft.altitude_range_m[1], h), beta = azimuth_focus.weight smoothstep(azimuth_focus.altitude_range_m[0], azimuth_focus.altitude_range_m[1], h), G(phi) = (tanh((phi - c) / w) - tanh(-c / w)) / (tanh((pi - c) / w) - tanh(-c / w)), c = azimuth_focus.centre_deg, w = azimuth_focus.width_deg (in rad; smoothstep as in sky_row_band); a texel of altitude node k lies at the phi whose coordinate at h_k is its column (azimuth_nodes_rad[k][column]; phi = pi (column / {})^2 where alpha = 1 and beta = 0); a query at altitude h reads altitude node k at column coordinate c_q + lambda (c_k - c_q), c_q its azimuth's coordinate at h, c_k at h_k (the node's own map), lambda = smoothstep(azimuth_focus.node_read_altitude_m[0], azimuth_focus.node_read_altitude_m[1], h) (version 13; version 12: c_q), and azimuth_nodes_rad[k] are the columns' azimuths in sky_row_band.azimuth", N_AZ - 1, N_AZ - 1),
+            "azimuth_columns": format!("the column coordinate of the view's azimuth phi from the sun's (0..pi) at altitude h (m): column = (alpha sqrt(phi / pi) + (1 - alpha - beta) sin(phi / 2)^2 + beta G(phi)) {}, alpha = azimuth_aloft.ground_weight - (azimuth_aloft.ground_weight - azimuth_aloft.weight) smoothstep(azimuth_aloft.altitude_range_m[0], azimuth_aloft.altitude_range_m[1], h) (version 14; version 13: ground_weight 1), beta = azimuth_focus.weight smoothstep(azimuth_focus.altitude_range_m[0], azimuth_focus.altitude_range_m[1], h), G(phi) = (tanh((phi - c) / w) - tanh(-c / w)) / (tanh((pi - c) / w) - tanh(-c / w)), c = azimuth_focus.centre_deg, w = azimuth_focus.width_deg (in rad; smoothstep as in sky_row_band); a texel of altitude node k lies at the phi whose coordinate at h_k is its column (azimuth_nodes_rad[k][column]); a query at altitude h reads altitude node k at column coordinate c_q + lambda (c_k - c_q), c_q its azimuth's coordinate at h, c_k at h_k (the node's own map), lambda = smoothstep(azimuth_focus.node_read_altitude_m[0], azimuth_focus.node_read_altitude_m[1], h) (version 13; version 12: c_q), and azimuth_nodes_rad[k] are the columns' azimuths in sky_row_band.azimuth", N_AZ - 1),
             "azimuth_aloft": {
                 "weight": AZIMUTH_ALOFT_WEIGHT,
+                "ground_weight": AZIMUTH_GROUND_WEIGHT,
                 "altitude_range_m": AZIMUTH_ALOFT_M,
             },
             "azimuth_focus": {
@@ -2070,8 +2092,9 @@ mod tests {
                 assert!((azimuth_coord(azimuth_node(a, h), h) - a as f64).abs() < 1e-9);
             }
         }
-        // The square root's columns near the ground; aloft denser around 90°, increasing.
-        assert_eq!(azimuth_node(7, 15_000.0), PI * (7.0f64 / 19.0).powi(2));
+        // The square root alone would put column 7 at π (7/19)²; with sin²(φ/2)'s share the
+        // columns near the ground are sparser near the sun, denser around 90° from it.
+        assert!(azimuth_node(7, 15_000.0) > PI * (7.0f64 / 19.0).powi(2));
         // The altitude nodes: near the square root's below 10 km; the last interval 3.3 km (7.3 km).
         for k in 1..8 {
             let sqrt_map = H * (k as f64 / (N_ALT - 1) as f64).powi(2);
@@ -2088,7 +2111,10 @@ mod tests {
             azimuth_coord(0.5 * PI, H) as usize,
             azimuth_coord(0.5 * PI, 0.0) as usize,
         );
-        assert!(gap(near_90.0, H) < 0.7 * gap(near_90.1, 0.0));
+        assert!(gap(near_90.0, H) < 0.9 * gap(near_90.1, 0.0));
+        let sqrt_gap =
+            PI * ((near_90.1 + 1) as f64 / 19.0).powi(2) - PI * (near_90.1 as f64 / 19.0).powi(2);
+        assert!(gap(near_90.1, 0.0) < 0.8 * sqrt_gap);
         for r in [R + 50.0, R + 3000.0, R + 12_000.0, R + 60_000.0, R + H] {
             for sun in [-8.0, -5.0, -2.0, 0.0, 2.5, 10.0] {
                 for i in 0..N_VIEW {
@@ -2149,15 +2175,8 @@ mod tests {
     fn the_sky_rows_follow_the_band() {
         // By day, deep in twilight and aloft: version 3's rows, θ = 90° (1 − (1 − x)²).
         // (Deep in twilight, −5°, the band 15–20° high: the horizontal kept dense for the glow
-        // towards the sun, version 12; at 10 km with the sun −3° above the observer's horizon
-        // the band 13° high, past the fade in its elevation, version 13.)
-        for (sun, h) in [
-            (5.0, 0.0),
-            (-8.0, 0.0),
-            (-5.0, 5000.0),
-            (-3.0, 10_000.0),
-            (-2.0, 30_000.0),
-        ] {
+        // towards the sun, version 12.)
+        for (sun, h) in [(5.0, 0.0), (-8.0, 0.0), (-5.0, 5000.0), (-2.0, 30_000.0)] {
             let (c, k) = sky_row_focus(sun, h);
             assert_eq!(k, 0.0, "sun {sun}, h {h}");
             for n in 0..=10 {
@@ -2166,6 +2185,10 @@ mod tests {
                 assert!((sky_row_elevation(x, c, k) - want).abs() < 1e-12);
             }
         }
+        // At 10 km with the sun −3° above the observer's horizon the band is 13° high, past the
+        // fade in its elevation: a quarter of the focus is kept (version 13: none).
+        let (_, k) = sky_row_focus(-3.0, 10_000.0);
+        assert!((k - BAND_CENTRE_FLOOR * band_focus_strength(10_000.0)).abs() < 1e-9);
         // In low twilight the rows are more than twice as dense as version 3's at the band's
         // elevation (which moves with the sun), sparser at the zenith; sky_row inverts
         // sky_row_elevation.
