@@ -540,11 +540,6 @@ impl<'a> Prepared<'a> {
             let dt = step.min(t1 - t);
             let pm = o + d * (t + 0.5 * dt);
             t += dt;
-            // The next step's gathering path, where one may be needed: its far records asked
-            // for now (a hint; `turned`).
-            if cos_sun > 0.0 && tc[0] > turned::TURNED_SEEN {
-                self.prefetch_turned(pm + d * step, &turn);
-            }
             let Some(w) = vol.weights(pm) else {
                 d_start = None;
                 continue;

@@ -132,34 +132,6 @@ impl Prepared<'_> {
         out
     }
 
-    /// Asks the processor for the voxel records of the far bins (nearest look-ups, 3–48 voxels
-    /// along b) of the gathering path behind `x`, which [`Self::turned_path`] reads there: the
-    /// march calls it one step ahead, so the records arrive while the step before computes (a
-    /// hint: no effect on any value).
-    #[inline]
-    pub(super) fn prefetch_turned(&self, x: DVec3, ray: &TurnedRay) {
-        let g = &*self.lit.vol.grid;
-        let xl = (x - g.origin_m) * (1.0 / g.voxel_size_m);
-        // The bins' middles beyond the first two, in voxels from x (widths 2, 4, …, 32).
-        let mut mid = 3.0;
-        for _ in 2..TURN_BINS {
-            let yl = xl + ray.b * mid;
-            mid *= 2.0;
-            let mut idx = 0usize;
-            let mut stride = 1usize;
-            for a in 0..3 {
-                let v = yl[a];
-                if !(v >= 0.0 && v < g.dims[a] as f64) {
-                    // Outside the grid; so are the farther bins.
-                    return;
-                }
-                idx += (v as usize).min(g.dims[a] - 1) * stride;
-                stride *= g.dims[a];
-            }
-            prefetch(&self.vox[idx * self.stride..idx * self.stride + 2]);
-        }
-    }
-
     /// The density and D_sun at `local` (voxel units from the grid's origin) trilinear, with
     /// the weights and order of operations of [`CloudVolume::rho`] and `Prepared::sun_path_at`,
     /// from one pass over the 8 corners' voxel records `[ρ, √D, …]`.
@@ -273,18 +245,4 @@ impl Prepared<'_> {
         } / (lam_e / (rate * kt));
         (now + gathered * slope - turned_at(lam_s, now)).max(0.0)
     }
-}
-
-/// Asks the processor to bring the cache line holding `rec`'s first value into its caches (a
-/// hint: no effect on any value).
-#[inline(always)]
-fn prefetch(rec: &[f32]) {
-    #[cfg(target_arch = "x86_64")]
-    {
-        use std::arch::x86_64::{_mm_prefetch, _MM_HINT_T0};
-        // SAFETY: a prefetch reads nothing and cannot fault; the address lies in `rec`.
-        unsafe { _mm_prefetch::<_MM_HINT_T0>(rec.as_ptr() as *const i8) };
-    }
-    #[cfg(not(target_arch = "x86_64"))]
-    let _ = rec;
 }
