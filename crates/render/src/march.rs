@@ -1282,23 +1282,17 @@ pub fn sun_step(a: f64, b_total: f64, dt: f64, tau0: f64) -> (f64, f64) {
 #[inline]
 pub fn sun_step_with(a: f64, b_total: f64, dt: f64, tau0: f64, e_tau0: f64) -> (f64, f64) {
     let x = a * dt + b_total;
+    let weight = sun_step_weight(a, b_total, dt, tau0, e_tau0);
     if x.abs() < 1e-6 {
-        let weight = sun_step_weight(a, b_total, dt, tau0, e_tau0);
         return (weight, 0.5 - x / 12.0);
     }
     // Mean of u/Δ under e^{−x u/Δ} on [0, 1]: 1/x − 1/(e^x − 1).
-    let mean = if x > 0.0 {
-        // The weight's e^{−x} − 1 serves both: 1/(e^x − 1) = −e^{−x}/(e^{−x} − 1).
-        let em = (-x).exp_m1();
-        let weight = a * dt * (e_tau0 * -em / x);
-        return (weight, (1.0 / x + (1.0 + em) / em).clamp(0.0, 1.0));
+    let mean = if x > 700.0 {
+        1.0 / x
     } else {
         1.0 / x - 1.0 / x.exp_m1()
     };
-    (
-        sun_step_weight(a, b_total, dt, tau0, e_tau0),
-        mean.clamp(0.0, 1.0),
-    )
+    (weight, mean.clamp(0.0, 1.0))
 }
 
 /// [`sun_step_with`]'s weight alone (without the mean depth, one exponential fewer).
