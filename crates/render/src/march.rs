@@ -63,10 +63,6 @@ pub struct Prepared<'a> {
     /// and the orders ≥ 2 J* of the δ-M scaled problem, W m⁻² sr⁻¹ nm⁻¹; see [`Prepared::march`]).
     pub vox: Vec<f32>,
     pub stride: usize,
-    /// Per voxel `[ρ, √D_sun]`, the first two values of `vox` alone: the turned light's
-    /// gathering reads them far from the march's records (`turned`), 8 bytes a voxel instead of
-    /// `vox`'s 4·`stride`.
-    rd: Vec<f32>,
     /// Per voxel `[S_0 … S_{n−1}]` as in `vox` with the multiple-scattering field's skin
     /// tallies in place of its cells' ([`MsField::inscatter_skin`](super::multiple::MsField::inscatter_skin)):
     /// the source in the first [`SKIN_TAU`](super::multiple::SKIN_TAU) below an optically thick
@@ -80,35 +76,30 @@ pub struct Prepared<'a> {
     pub lattice_paths: usize,
 }
 
-/// The camera's voxel records `[ρ, √D_sun, 0 …]` (`stride` values per voxel, the sources 0) and
-/// their first two values alone (`[ρ, √D_sun]`, [`Prepared::rd`]), every value written, in
-/// buffers from the working-buffer pool ([`pages::take_f32`](super::pages::take_f32)).
-fn voxel_records(grid: &DensityGrid, d_sun: &[f32], stride: usize) -> (Vec<f32>, Vec<f32>) {
+/// The camera's voxel records `[ρ, √D_sun, 0 …]` (`stride` values per voxel, the sources 0),
+/// every value written, in a buffer from the working-buffer pool
+/// ([`pages::take_f32`](super::pages::take_f32)).
+fn voxel_records(grid: &DensityGrid, d_sun: &[f32], stride: usize) -> Vec<f32> {
     let mut vox = super::pages::take_f32(grid.data.len() * stride);
-    let mut rd = super::pages::take_f32(grid.data.len() * 2);
     let layer = grid.dims[0] * grid.dims[1];
     vox.par_chunks_mut(layer * stride)
-        .zip(rd.par_chunks_mut(layer * 2))
         .zip(d_sun.par_chunks(layer))
         .zip(grid.data.par_chunks(layer))
-        .for_each(|(((vs, ps), ss), rs)| {
-            for (((v, pair), s), r) in vs.chunks_mut(stride).zip(ps.chunks_mut(2)).zip(ss).zip(rs) {
+        .for_each(|((vs, ss), rs)| {
+            for ((v, s), r) in vs.chunks_mut(stride).zip(ss).zip(rs) {
                 v[0] = *r;
                 // Stored as √D, interpolated in √D (see [`Prepared::sun_root_at`]).
                 v[1] = sun_root(*s);
                 v[2..].iter_mut().for_each(|x| *x = 0.0);
-                pair[0] = v[0];
-                pair[1] = v[1];
             }
         });
-    (vox, rd)
+    vox
 }
 
 /// The voxel records go back to the working-buffer pool for the next camera's.
 impl Drop for Prepared<'_> {
     fn drop(&mut self) {
         super::pages::give_back_f32(std::mem::take(&mut self.vox));
-        super::pages::give_back_f32(std::mem::take(&mut self.rd));
     }
 }
 
@@ -180,11 +171,10 @@ impl<'a> Prepared<'a> {
         lap("volume", &mut timing_ms);
         let (sun_on, env_on) = (lit.sun_on, lit.env_on);
         let mut vox = Vec::new();
-        let mut rd = Vec::new();
         let mut skin = Vec::new();
         let mut lattice_paths = 0;
         if lit.per_voxel {
-            (vox, rd) = voxel_records(grid, &lit.d_sun, stride);
+            vox = voxel_records(grid, &lit.d_sun, stride);
             if sun_on || env_on {
                 stages.ran.push(
                     "sun optical path per voxel (cumulative, Nishita et al. 1996, §3.2)".into(),
@@ -412,7 +402,6 @@ impl<'a> Prepared<'a> {
             lit,
             vox,
             stride,
-            rd,
             skin,
             stages,
             timing_ms,

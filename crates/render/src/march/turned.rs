@@ -134,7 +134,7 @@ impl Prepared<'_> {
 
     /// The density and D_sun at `local` (voxel units from the grid's origin) trilinear, with
     /// the weights and order of operations of [`CloudVolume::rho`] and `Prepared::sun_path_at`,
-    /// from one pass over the 8 corners' `[ρ, √D]` ([`Prepared::rd`]).
+    /// from one pass over the 8 corners' voxel records `[ρ, √D, …]`.
     ///
     /// [`CloudVolume::rho`]: crate::volume::CloudVolume::rho
     #[inline]
@@ -144,8 +144,9 @@ impl Prepared<'_> {
         let Some((base, di, f)) = trilinear_stencil(local, n) else {
             return (0.0, 0.0);
         };
+        let s = self.stride;
         let rec = |i: usize| {
-            let r = &self.rd[2 * i..2 * i + 2];
+            let r = &self.vox[i * s..i * s + 2];
             (r[0] as f64, r[1] as f64)
         };
         // Corners in the order of `CloudVolume::weights` (x fastest).
@@ -200,7 +201,7 @@ impl Prepared<'_> {
             idx += (v as usize).min(g.dims[a] - 1) * stride;
             stride *= g.dims[a];
         }
-        let r = &self.rd[2 * idx..2 * idx + 2];
+        let r = &self.vox[idx * self.stride..idx * self.stride + 2];
         (r[0] as f64, (r[1] as f64).powi(2))
     }
 
