@@ -20,6 +20,10 @@ n = 0, 1, 2, 3, 4-5, 6-9, >= 10; the last scattering's part classed as the path 
   a forward delta);
 - scaledPD: as scaledP, and the peak's deflections (a Poisson number, mean f+/(1 - f+) per scaled
   free path, each drawn from r+) applied at the end of each free path, without displacement.
+- scaledM: the photon pass's transport (`multiple/turns.rs`): the scaled collisions (extinction
+  (1 - f)) scatter with (p - r+ + (f+ - f) r+/f+)/(1 - f), and the peak's delta part turns the photon
+  between them (each event of the true medium a turn with probability f, drawn from r+/f+, at its
+  place); the last scattering with HG(g*) at the scaled collisions, as the field's reconstruction.
 
 numpy only. Usage: python3 tools/cloud_slab_field_orders.py TAU PHOTONS MODE [SEED]
 (tau 8: 200000 photons, a few minutes; tau 32 true: 60000, about ten).
@@ -52,6 +56,8 @@ acc = np.zeros((len(views), NC))
 FP = 0.582
 if mode in ('scaled', 'scaledK'):
     T = tau*(1 - F); gph = GS
+elif mode == 'scaledM':
+    T = tau*(1 - F); gph = None
 elif mode in ('scaledP', 'scaledPD'):
     T = tau*(1 - FP); gph = None
 else:
@@ -61,10 +67,24 @@ for it in range(100000):
     idx = np.nonzero(alive)[0]
     if len(idx) == 0: break
     dd = d[idx]; t = -np.log(1 - rng.random(len(idx)))
+    if mode == 'scaledM':
+        # once scattered, every event of the true medium: free paths (1 - f) scaled on average
+        t = np.where(n[idx] > 0, t*(1 - F), t)
+        isturn = (n[idx] > 0) & (rng.random(len(idx)) < F)
     z1 = z[idx] - dd[:, 2]*t
     inside = (z1 >= 0) & (z1 <= T)
     alive[idx[~inside]] = False
     ii = idx[inside]; z[ii] = z1[inside]; dn = d[ii]; zz = z[ii]; nn = n[ii]
+    if mode == 'scaledM':
+        tt = isturn[inside]; ti = ii[tt]
+        if len(ti):
+            c = np.empty(len(ti)); todo = np.arange(len(ti))
+            while len(todo):
+                cc = sample_hg(G, rng.random(len(todo)))
+                ok = rng.random(len(todo))*hg(G, cc) <= rplus(cc)
+                c[todo[ok]] = cc[ok]; todo = todo[~ok]
+            d[ti] = turn(d[ti], c)
+        ii = ii[~tt]; dn = d[ii]; zz = z[ii]; nn = n[ii]
     if mode == 'scaledPD':
         # peak deflections over the flight just ended (no displacement): Poisson(f+/(1-f+) t)
         k = rng.poisson(FP/(1 - FP)*t[inside])
@@ -81,7 +101,7 @@ for it in range(100000):
         if mode == 'true':
             pk = rplus(m); allp = hg(G, m)
             np.add.at(acc[vi], cls(nn), pk*att); np.add.at(acc[vi], cls(nn + 1), (allp - pk)*att)
-        elif mode == 'scaled':
+        elif mode in ('scaled', 'scaledM'):
             np.add.at(acc[vi], cls(nn + 1), hg(GS, m)*att)
         elif mode == 'scaledK':
             np.add.at(acc[vi], cls(nn + 1), np.minimum(hg(G, m), (1 - F)*hg(GS, m))/(1 - F)*att)
@@ -93,6 +113,15 @@ for it in range(100000):
         while len(todo):
             c = sample_hg(GS, rng.random(len(todo)))
             ok = rng.random(len(todo))*(1 - F)*hg(GS, c) <= np.minimum(hg(G, c), (1 - F)*hg(GS, c))
+            m[todo[ok]] = c[ok]; todo = todo[~ok]
+        d[ii] = turn(dn, m); n[ii] += 1
+    elif mode == 'scaledM':
+        # p drawn, classed by r+/p; a peak draw kept with (f+ - f)/f+, else drawn again
+        m = np.empty(len(ii)); todo = np.arange(len(ii))
+        while len(todo):
+            c = sample_hg(G, rng.random(len(todo)))
+            pk = rng.random(len(todo))*hg(G, c) < rplus(c)
+            ok = ~pk | (rng.random(len(todo)) < (FP - F)/FP)
             m[todo[ok]] = c[ok]; todo = todo[~ok]
         d[ii] = turn(dn, m); n[ii] += 1
     else:
