@@ -163,7 +163,11 @@ impl Span {
             if r <= 0.0 {
                 continue;
             }
-            let ijk = [c % dims[0], (c / dims[0]) % dims[1], c / (dims[0] * dims[1])];
+            let ijk = [
+                c % dims[0],
+                (c / dims[0]) % dims[1],
+                c / (dims[0] * dims[1]),
+            ];
             for a in 0..3 {
                 lo[a] = lo[a].min(ijk[a] as i64);
                 hi[a] = hi[a].max(ijk[a] as i64);
@@ -1527,10 +1531,22 @@ mod tests {
             real_sh(dir, 2, &mut ylm);
             let tau = -(1.0 - r.random::<f64>()).ln() * 3.0;
             let w = [1.5];
-            let mut a = Photon { pos, dir, scattered };
-            let mut b = Photon { pos, dir, scattered };
-            let ha = fly_in(&coarse, lo, hi, &mut a, tau, 0.1, 1.0, &w, &mut acc_a, 1, &ylm);
-            let hb = fly_in(&whole, lo, hi, &mut b, tau, 0.1, 1.0, &w, &mut acc_b, 1, &ylm);
+            let mut a = Photon {
+                pos,
+                dir,
+                scattered,
+            };
+            let mut b = Photon {
+                pos,
+                dir,
+                scattered,
+            };
+            let ha = fly_in(
+                &coarse, lo, hi, &mut a, tau, 0.1, 1.0, &w, &mut acc_a, 1, &ylm,
+            );
+            let hb = fly_in(
+                &whole, lo, hi, &mut b, tau, 0.1, 1.0, &w, &mut acc_b, 1, &ylm,
+            );
             assert_eq!(ha, hb, "photon {i}");
             if ha {
                 assert_eq!(a.pos, b.pos, "photon {i}");
@@ -1542,7 +1558,10 @@ mod tests {
         assert!(hits > 500 && misses > 500, "{hits} {misses}");
         let mut scored = 0;
         for (c, &density) in rho.iter().enumerate() {
-            let (a, b) = (&acc_a[c * moments..][..moments], &acc_b[c * moments..][..moments]);
+            let (a, b) = (
+                &acc_a[c * moments..][..moments],
+                &acc_b[c * moments..][..moments],
+            );
             if density > 0.0 {
                 assert_eq!(a, b, "cell {c}");
                 scored += usize::from(a[0] > 0.0);
