@@ -13,6 +13,7 @@ use rayon::prelude::*;
 use skybake_physics::cloud::DensityGrid;
 use skybake_physics::phase::Phase;
 use std::f64::consts::PI;
+use std::sync::{Arc, Mutex};
 
 /// The 14 lattice directions of the sky elements: the 6 axes and the 8 cube diagonals
 /// (Nishita et al. 1996, §3.5: "the principal and diagonal axes of the voxel").
@@ -472,6 +473,7 @@ pub const VIEW_RADIANCE: usize = VIEW_ELEMENT + 1;
 /// f·δ is light that the scaled problem keeps in the direct beam; the final march adds it as L(d)(e^{−τ⁺} − e^{−τ}) (see
 /// `march::Prepared::march`), where the full F with the scaled attenuation (the TMS single
 /// scattering) would count it once more, as ω f τ L e^{−τ*}.
+#[derive(Debug, Clone, PartialEq)]
 pub struct SkyElements {
     pub n_elev: usize,
     pub n_az: usize,
@@ -481,7 +483,60 @@ pub struct SkyElements {
     pub elements: usize,
 }
 
+/// The sky elements' tables computed so far in this process, by everything
+/// [`SkyElements::new`] reads: a cloud lit again under the same light (a warm service, another
+/// cloud or grid) finds its table here instead of computing its 2048 view directions × 2048
+/// quadrature nodes again (as the peak's tables, `peak`). The most recent [`MEMO_ENTRIES`]
+/// are kept (0.4 MB each at `standard`).
+static MEMO: Mutex<Vec<(MemoKey, Arc<SkyElements>)>> = Mutex::new(Vec::new());
+const MEMO_ENTRIES: usize = 4;
+
+/// What [`SkyElements::new`] reads: the light, the phase functions, the truncated fractions'
+/// bits and the quadrature's and table's sizes.
+#[derive(PartialEq)]
+struct MemoKey {
+    lighting: Lighting,
+    phases: Vec<Phase>,
+    truncated: Vec<u64>,
+    sizes: [usize; 3],
+}
+
 impl SkyElements {
+    /// [`Self::new`], from [`MEMO`] when it was computed before for the same arguments (the
+    /// same values).
+    pub fn kept(
+        lighting: &Lighting,
+        phases: &[Phase],
+        truncated: &[f64],
+        quad_points: usize,
+        n_elev: usize,
+        n_az: usize,
+    ) -> Self {
+        let key = MemoKey {
+            lighting: lighting.clone(),
+            phases: phases.to_vec(),
+            truncated: truncated.iter().map(|f| f.to_bits()).collect(),
+            sizes: [quad_points, n_elev, n_az],
+        };
+        let cached = MEMO
+            .lock()
+            .ok()
+            .and_then(|m| m.iter().find(|(k, _)| *k == key).map(|(_, v)| v.clone()));
+        if let Some(v) = cached {
+            return (*v).clone();
+        }
+        let v = Self::new(lighting, phases, truncated, quad_points, n_elev, n_az);
+        if let Ok(mut m) = MEMO.lock() {
+            if !m.iter().any(|(k, _)| *k == key) {
+                if m.len() >= MEMO_ENTRIES {
+                    m.remove(0);
+                }
+                m.push((key, Arc::new(v.clone())));
+            }
+        }
+        v
+    }
+
     /// Quadrature over `quad_points` Fibonacci directions; each belongs to the sun cap if within
     /// [`SUN_CAP_DEG`] of the sun, else to the nearest lattice direction, and within
     /// [`VIEW_CAP_DEG`] of the view direction gives its element only its radiance's departure
@@ -799,6 +854,43 @@ mod tests {
     /// 0), the sky's edge within the cap goes to the lattice elements, and the elements sum to
     /// ∫F·L dω − f·L(d) over the sphere, the same as with the edge in the cap. Looking 10° above
     /// the horizon the cap holds L(d)(P_cap − f).
+    /// The kept tables ([`SkyElements::kept`]) are the ones [`SkyElements::new`] computes for
+    /// the same light, phase functions and sizes, and another light is not served the table
+    /// kept for the first.
+    #[test]
+    fn kept_sky_elements_are_the_computed_ones() {
+        use super::super::lighting::Hemisphere;
+        let lighting = |sky: f64| Lighting {
+            wavelengths_nm: vec![450.0, 650.0],
+            sun_dir: DVec3::new(0.3, 0.2, 0.9).normalize(),
+            sun_irradiance: vec![1.0, 0.8],
+            sky: Hemisphere::Constant(vec![sky, 0.5 * sky]),
+            below: Hemisphere::Constant(vec![0.1, 0.1]),
+            ground: None,
+            background: None,
+            aerial: None,
+            notes: Vec::new(),
+        };
+        let phases = [
+            Phase::HenyeyGreenstein { g: 0.85 },
+            Phase::HenyeyGreenstein { g: 0.6 },
+        ];
+        let f = [0.57, 0.17];
+        let tables: Vec<SkyElements> = [1.0, 2.0, 1.0]
+            .iter()
+            .map(|&sky| {
+                let kept = SkyElements::kept(&lighting(sky), &phases, &f, 512, 9, 8);
+                assert_eq!(
+                    kept,
+                    SkyElements::new(&lighting(sky), &phases, &f, 512, 9, 8)
+                );
+                kept
+            })
+            .collect();
+        assert_ne!(tables[0], tables[1]);
+        assert_eq!(tables[0], tables[2]);
+    }
+
     #[test]
     fn the_view_caps_edge_takes_the_lattice_paths() {
         use super::super::lighting::Hemisphere;

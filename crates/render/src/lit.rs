@@ -293,7 +293,7 @@ impl LitVolume {
             mask = dilated_mask(grid);
             if env_on {
                 let truncated: Vec<f64> = trunc.iter().map(|t| t.fraction).collect();
-                sky_elements = Some(SkyElements::new(
+                sky_elements = Some(SkyElements::kept(
                     cloud_lighting,
                     &optics.phase,
                     &truncated,

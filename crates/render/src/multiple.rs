@@ -135,6 +135,66 @@ struct Coarse {
     rho: Vec<f32>,
     /// The cells whose skins the photons' tracks are also scored in (see `skin`).
     skin: Option<skin::Skin>,
+    /// The range of the cells that hold cloud.
+    span: Span,
+}
+
+/// The cells that hold cloud: their index range per axis and the box round them. Outside it
+/// the coarse density is 0, so a photon there does not collide, and its tracks would score
+/// only empty cells, which no reconstruction reads: [`MsField::cell_weights`] gives an empty
+/// cell no weight where a cell round the point holds cloud, as at every voxel within a voxel of
+/// the cloud (the lit volume's mask). The photons' flights end where they leave it, and
+/// score the cells that hold cloud only: the cells that hold cloud get the same scores in the
+/// same order (the same field there).
+#[derive(Debug, Clone, Copy)]
+struct Span {
+    /// Lowest and highest cell index per axis (lo > hi when no cell holds cloud).
+    lo: [i64; 3],
+    hi: [i64; 3],
+    /// The box round those cells, m, widened by a hundredth of a cell.
+    box_lo: DVec3,
+    box_hi: DVec3,
+}
+
+impl Span {
+    fn new(dims: [usize; 3], rho: &[f32], cell_m: DVec3, origin_m: DVec3) -> Self {
+        let (mut lo, mut hi) = ([i64::MAX; 3], [i64::MIN; 3]);
+        for (c, &r) in rho.iter().enumerate() {
+            if r <= 0.0 {
+                continue;
+            }
+            let ijk = [
+                c % dims[0],
+                (c / dims[0]) % dims[1],
+                c / (dims[0] * dims[1]),
+            ];
+            for a in 0..3 {
+                lo[a] = lo[a].min(ijk[a] as i64);
+                hi[a] = hi[a].max(ijk[a] as i64);
+            }
+        }
+        let corner = |i: [i64; 3]| DVec3::new(i[0] as f64, i[1] as f64, i[2] as f64) * cell_m;
+        let margin = 0.01 * cell_m;
+        Self {
+            lo,
+            hi,
+            box_lo: origin_m + corner(lo) - margin,
+            box_hi: origin_m + corner(hi.map(|h| h.saturating_add(1))) + margin,
+        }
+    }
+
+    /// Whether the line through `p` along `d` meets the box round the cells that hold cloud.
+    fn meets(&self, p: DVec3, d: DVec3) -> bool {
+        self.lo[0] <= self.hi[0]
+            && super::camera::box_interval(p, d, self.box_lo, self.box_hi).is_some()
+    }
+
+    /// Whether a track that has stepped (`step` ±1) to cell index `i` along axis `a` has left
+    /// the cells that hold cloud for good.
+    #[inline(always)]
+    fn passed(&self, a: usize, i: i64, step: i64) -> bool {
+        (step > 0 && i > self.hi[a]) || (step < 0 && i < self.lo[a])
+    }
 }
 
 impl Coarse {
@@ -154,15 +214,17 @@ impl Coarse {
         }
         // Cells past the grid's edge (when f does not divide it) keep the mean of the voxels
         // they cover: the coarse box is slightly larger than the grid's.
-        let rho = sum
+        let rho: Vec<f32> = sum
             .iter()
             .zip(&cnt)
             .map(|(s, &c)| if c > 0 { (s / c as f64) as f32 } else { 0.0 })
             .collect();
+        let cell_m = DVec3::new(f[0] as f64, f[1] as f64, f[2] as f64) * grid.voxel_size_m;
         Self {
             dims,
-            cell_m: DVec3::new(f[0] as f64, f[1] as f64, f[2] as f64) * grid.voxel_size_m,
+            cell_m,
             origin_m: grid.origin_m,
+            span: Span::new(dims, &rho, cell_m, grid.origin_m),
             rho,
             skin: None,
         }
@@ -399,7 +461,6 @@ impl MsField {
                                     target,
                                     group.len(),
                                     &ylm[..moments],
-                                    false,
                                 ) {
                                     break;
                                 }
@@ -490,7 +551,9 @@ impl MsField {
             data.par_chunks_mut(n_l * moments)
                 .zip(once_dm.par_chunks_mut(n_l * moments))
                 .enumerate()
+                .filter(|(c, _)| coarse.rho[*c] > 0.0)
                 .for_each(|(c, (cell, dm))| {
+                    // Empty cells are not scored: their lanes hold 0.
                     for (p, q) in &partial {
                         for (gi, &l) in group.iter().enumerate() {
                             for m in 0..moments {
@@ -1055,8 +1118,9 @@ fn hemisphere_power(lighting: &Lighting, group: &[usize]) -> (f64, f64) {
 
 skybake_physics::simd_dispatch! {
     /// Moves the photon through the coarse grid until optical depth `tau` is used up (a
-    /// collision: returns true) or it leaves the box (false). Scattered photons score their
-    /// tracks into the `f32` accumulators `acc` (each score added in f64 and rounded once).
+    /// collision: returns true) or it leaves the cells that hold cloud ([`Span`]: false).
+    /// Scattered photons score their tracks in the cells that hold cloud into the `f32`
+    /// accumulators `acc` (each score added in f64 and rounded once).
     /// Compiled twice (generic and AVX2 + FMA, chosen by the CPU's features): the same IEEE
     /// operations in both (Rust contracts no multiply-add), so the same field.
     fn fly_f32(
@@ -1071,9 +1135,8 @@ skybake_physics::simd_dispatch! {
         acc: &mut [f32],
         ng: usize,
         ylm: &[f64],
-        cloud_only: bool,
     ) -> bool {
-        fly_in(g, lo, hi, ph, tau_in, k, cell_volume, w, acc, ng, ylm, cloud_only)
+        fly_in(g, lo, hi, ph, tau_in, k, cell_volume, w, acc, ng, ylm)
     }
 }
 
@@ -1092,9 +1155,12 @@ fn fly_in<T: Tally>(
     acc: &mut [T],
     ng: usize,
     ylm: &[f64],
-    cloud_only: bool,
 ) -> bool {
     let mut tau = tau_in;
+    // A photon from outside whose line misses the cells that hold cloud meets nothing.
+    if !ph.scattered && !g.span.meets(ph.pos, ph.dir) {
+        return false;
+    }
     let Some((t0, t1)) = super::camera::box_interval(ph.pos, ph.dir, lo, hi) else {
         return false;
     };
@@ -1152,7 +1218,7 @@ fn fly_in<T: Tally>(
         } else {
             (len, false)
         };
-        if ph.scattered && used > 0.0 && (!cloud_only || g.rho[c] > 0.0) {
+        if ph.scattered && used > 0.0 && g.rho[c] > 0.0 {
             let s = used / cell_volume;
             let n = ylm.len();
             for gi in 0..ng {
@@ -1176,7 +1242,7 @@ fn fly_in<T: Tally>(
             return false;
         }
         cell[a] += step[a];
-        if cell[a] < 0 || cell[a] >= g.dims[a] as i64 {
+        if cell[a] < 0 || cell[a] >= g.dims[a] as i64 || g.span.passed(a, cell[a], step[a]) {
             return false;
         }
         t_next[a] += t_delta[a];
@@ -1249,12 +1315,15 @@ fn ahead_step<T>(
         2
     };
     cell[a] += step[a];
-    if cell[a] < 0 || cell[a] >= g.dims[a] as i64 {
+    if cell[a] < 0 || cell[a] >= g.dims[a] as i64 || g.span.passed(a, cell[a], step[a]) {
         return false;
     }
     t_next[a] += t_delta[a];
     let c = ((cell[2] as usize * g.dims[1]) + cell[1] as usize) * g.dims[0] + cell[0] as usize;
-    prefetch(&acc[c * block..(c + 1) * block]);
+    // Only the cells that hold cloud are scored.
+    if g.rho[c] > 0.0 {
+        prefetch(&acc[c * block..(c + 1) * block]);
+    }
     true
 }
 
@@ -1394,6 +1463,113 @@ mod tests {
         // No cloud round the point: plain trilinear.
         let f = field(vec![0.0; 8]);
         assert!((weight(&f, 0) - 0.75).abs() < 1e-12 && (weight(&f, 1) - 0.25).abs() < 1e-12);
+    }
+
+    /// Flights that end where they leave the cells that hold cloud ([`Span`]) against flights
+    /// through the whole grid (a span of every cell): the same collisions (places, bit for
+    /// bit) and the same scores in every cell that holds cloud, for photons from outside (most
+    /// of them missing the cloud) and scattered photons inside it, in every direction.
+    #[test]
+    fn flights_within_the_cloud_s_span_are_the_whole_grid_s() {
+        let n = [12usize, 10, 9];
+        let mut rho = vec![0f32; n[0] * n[1] * n[2]];
+        let mut r = Pcg64::seed_from_u64(7);
+        for z in 3..7 {
+            for y in 2..6 {
+                for x in 4..9 {
+                    if r.random::<f64>() < 0.8 {
+                        rho[(z * n[1] + y) * n[0] + x] = r.random::<f32>() * 2.0;
+                    }
+                }
+            }
+        }
+        let cell_m = DVec3::new(10.0, 12.0, 8.0);
+        let origin_m = DVec3::new(-40.0, 5.0, 100.0);
+        let coarse = Coarse {
+            dims: n,
+            cell_m,
+            origin_m,
+            span: Span::new(n, &rho, cell_m, origin_m),
+            rho: rho.clone(),
+            skin: None,
+        };
+        assert_eq!((coarse.span.lo, coarse.span.hi), ([4, 2, 3], [8, 5, 6]));
+        let whole = Coarse {
+            span: Span {
+                lo: [0; 3],
+                hi: [n[0] as i64 - 1, n[1] as i64 - 1, n[2] as i64 - 1],
+                box_lo: DVec3::splat(-1e9),
+                box_hi: DVec3::splat(1e9),
+            },
+            rho: rho.clone(),
+            skin: None,
+            ..coarse
+        };
+        let (lo, hi) = (coarse.origin_m, coarse.hi());
+        let centre = 0.5 * (lo + hi);
+        let moments = 9;
+        let len = rho.len() * moments;
+        let (mut acc_a, mut acc_b) = (vec![0f32; len], vec![0f32; len]);
+        let mut ylm = [0.0; 9];
+        let (mut hits, mut misses) = (0, 0);
+        for i in 0..4000 {
+            let dir = uniform_sphere(r.random(), r.random());
+            let scattered = i % 2 == 1;
+            let pos = if scattered {
+                // Inside the cloud's box.
+                origin_m
+                    + DVec3::new(
+                        (4.0 + 5.0 * r.random::<f64>()) * cell_m.x,
+                        (2.0 + 4.0 * r.random::<f64>()) * cell_m.y,
+                        (3.0 + 4.0 * r.random::<f64>()) * cell_m.z,
+                    )
+            } else {
+                // Outside the grid, aimed anywhere across it.
+                let off = DVec3::new(r.random(), r.random(), r.random()) - DVec3::splat(0.5);
+                centre + off * 150.0 - dir * 400.0
+            };
+            real_sh(dir, 2, &mut ylm);
+            let tau = -(1.0 - r.random::<f64>()).ln() * 3.0;
+            let w = [1.5];
+            let mut a = Photon {
+                pos,
+                dir,
+                scattered,
+            };
+            let mut b = Photon {
+                pos,
+                dir,
+                scattered,
+            };
+            let ha = fly_in(
+                &coarse, lo, hi, &mut a, tau, 0.1, 1.0, &w, &mut acc_a, 1, &ylm,
+            );
+            let hb = fly_in(
+                &whole, lo, hi, &mut b, tau, 0.1, 1.0, &w, &mut acc_b, 1, &ylm,
+            );
+            assert_eq!(ha, hb, "photon {i}");
+            if ha {
+                assert_eq!(a.pos, b.pos, "photon {i}");
+                hits += 1;
+            } else {
+                misses += 1;
+            }
+        }
+        assert!(hits > 500 && misses > 500, "{hits} {misses}");
+        let mut scored = 0;
+        for (c, &density) in rho.iter().enumerate() {
+            let (a, b) = (
+                &acc_a[c * moments..][..moments],
+                &acc_b[c * moments..][..moments],
+            );
+            if density > 0.0 {
+                assert_eq!(a, b, "cell {c}");
+                scored += usize::from(a[0] > 0.0);
+            } else {
+                assert!(a.iter().chain(b).all(|&v| v == 0.0), "cell {c}");
+            }
+        }
+        assert!(scored > 50, "{scored}");
     }
 
     /// The reconstruction's phase moments: the δ-M moments, never negative, and the true moments

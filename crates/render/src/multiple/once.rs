@@ -233,6 +233,11 @@ fn fly(
     ylm: &[f64; ONCE_MOMENTS],
 ) -> bool {
     let mut tau = tau_in;
+    // As the field's flights: a photon from outside whose line misses the cells that hold
+    // cloud meets nothing, and a flight ends where it leaves them (`Span`).
+    if !ph.scattered && !g.span.meets(ph.pos, ph.dir) {
+        return false;
+    }
     let Some((t0, t1)) = crate::camera::box_interval(ph.pos, ph.dir, lo, hi) else {
         return false;
     };
@@ -292,7 +297,7 @@ fn fly(
             return false;
         }
         cell[a] += step[a];
-        if cell[a] < 0 || cell[a] >= g.dims[a] as i64 {
+        if cell[a] < 0 || cell[a] >= g.dims[a] as i64 || g.span.passed(a, cell[a], step[a]) {
             return false;
         }
         t_next[a] += t_delta[a];

@@ -304,6 +304,7 @@ mod tests {
             dims: [n, n, n],
             cell_m: DVec3::splat(10.0),
             origin_m: DVec3::ZERO,
+            span: super::super::Span::new([n, n, n], &rho, DVec3::splat(10.0), DVec3::ZERO),
             rho,
             skin: None,
         }
