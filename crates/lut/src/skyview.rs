@@ -103,13 +103,15 @@ pub const SKYVIEW_VERSION: &str = "13";
 /// Altitude nodes of the base map ([`altitude_abscissa`], about (top − bottom) · (x / 27)²,
 /// denser near the top): its integers 0..=27.
 pub const N_ALT_BASE: usize = 28;
-/// Altitude nodes added halfway between base nodes, at these base abscissas: 8.5–11.5 (9.8,
-/// 12.5, 15.3, 18.5 km; the base nodes 8.8 / 11.2 / 13.9 / 16.9 / 20.2 km), where deep in
-/// twilight the glow towards the sun (15 km, sun −12°: the altitude axis alone −13.4 %, +0.7 %
-/// with the nodes twice as dense) and the earth's shadow seen from 9.5 km (−4.85 %) need them,
-/// and 18.5–19.5 (51.3, 57.9 km; base 48.2 / 54.5 / 61.4 km), the sky deep in twilight at
-/// 56.8 km (+7.0 %). Every other base node stays where it was, and a query whose 4 altitude
-/// nodes are all base nodes reads them with the same weights.
+/// Altitude nodes added halfway between base nodes, at these base abscissas: 10.5 and 11.5
+/// (15.3 and 18.5 km, between the base nodes 13.9 / 16.9 / 20.2 km), where deep in twilight
+/// the glow towards the sun needs them (15 km, sun −12°, 1° up 60° from the sun: the altitude
+/// axis alone −13.4 %, +0.7 % with the nodes twice as dense), and 18.5 and 19.5 (51.3 and
+/// 57.9 km; base 48.2 / 54.5 / 61.4 km), the sky deep in twilight at 55–60 km (56.8 km, 141°
+/// from the sun: +7.0 %). The base nodes stay where they were; a query whose 4 altitude nodes
+/// are all base nodes reads them with the same weights. (Also at 8.5 and 9.5, 9.8 and 12.5 km:
+/// the earth's shadow seen from 9.5 / 12.5 km went 6.05 → 7.26 % and 2.42 → 3.42 %, docs/lut.md,
+/// "Tried and not kept".)
 pub const ALTITUDE_INSERTED: [f64; 4] = [10.5, 11.5, 18.5, 19.5];
 /// Altitude nodes: the base nodes and the inserted ones, in increasing altitude.
 pub const N_ALT: usize = N_ALT_BASE + ALTITUDE_INSERTED.len();
@@ -1933,22 +1935,22 @@ pub fn phase_from_json(v: &Value) -> crate::Result<Phase> {
 pub const STATED_ERRORS: &[(&str, &str, f64)] = &[
     ("transmittance", "direct normal irradiance (sun product), sun >= 5 deg, 0-100 km", 0.0003),
     ("transmittance", "direct normal irradiance (sun product), sun -6..5 deg", 0.004),
-    ("rayleigh+mie", "sky radiance (sky product), sun >= 5 deg, view > 10 deg above the horizon, ground", 0.0026),
-    ("rayleigh+mie", "sky radiance (sky product), sun >= 5 deg, view > 10 deg above the horizon, 0-20 km", 0.0009),
-    ("rayleigh+mie", "sky radiance (sky product), sun >= 5 deg, view > 10 deg above the horizon, 20-100 km", 0.0019),
-    ("rayleigh+mie", "sky radiance (sky product), sun >= 5 deg, view < 10 deg above the horizon, ground", 0.004),
+    ("rayleigh+mie", "sky radiance (sky product), sun >= 5 deg, view > 10 deg above the horizon, ground", 0.0028),
+    ("rayleigh+mie", "sky radiance (sky product), sun >= 5 deg, view > 10 deg above the horizon, 0-20 km", 0.0017),
+    ("rayleigh+mie", "sky radiance (sky product), sun >= 5 deg, view > 10 deg above the horizon, 20-100 km", 0.0029),
+    ("rayleigh+mie", "sky radiance (sky product), sun >= 5 deg, view < 10 deg above the horizon, ground", 0.0044),
     ("rayleigh+mie", "sky radiance (sky product), sun >= 5 deg, view < 10 deg above the horizon, 0-20 km", 0.0042),
     ("rayleigh+mie", "sky radiance (sky product), sun >= 5 deg, view < 10 deg above the horizon, 20-100 km", 0.021),
     ("rayleigh+mie", "sky radiance (sky product), sun -6..5 deg, ground", 0.015),
     ("rayleigh+mie", "sky radiance (sky product), sun -6..5 deg, 0-5 km (the band above the earth's shadow 120 deg from the sun, 680 nm at 5 km, 0.5 deg above the horizontal; the twilight glow towards the sun at most 3 %)", 0.046),
     ("rayleigh+mie", "sky radiance (sky product), sun -6..5 deg, 5-8 km (the band above the earth's shadow near the antisolar horizon, 680 nm at 6.5 km, 1 deg above the horizontal 120 deg from the sun)", 0.048),
-    ("rayleigh+mie", "sky radiance (sky product), sun -6..5 deg, 8-12.5 km (the band above the earth's shadow near the antisolar horizon, 680 nm at 12.5 km, 8 deg above the horizontal 165 deg from the sun, sun -5.25 deg; the twilight glow towards the sun at 10 km at most 4.5 %)", 0.066),
-    ("rayleigh+mie", "sky radiance (sky product), sun -6..5 deg, 12.5-20 km (the band above the earth's shadow near the antisolar horizon, 680 nm at 20 km, 5.25 deg above the horizontal opposite the sun; the twilight glow 90 deg from the sun at 15 km 9.5 %)", 0.100),
+    ("rayleigh+mie", "sky radiance (sky product), sun -6..5 deg, 8-12.5 km (the band above the earth's shadow near the antisolar horizon, 680 nm at 12.5 km, 8 deg above the horizontal 165 deg from the sun, sun -5.25 deg; the twilight glow towards the sun at 10 km at most 4.4 %)", 0.066),
+    ("rayleigh+mie", "sky radiance (sky product), sun -6..5 deg, 12.5-20 km (the band above the earth's shadow near the antisolar horizon, 680 nm at 20 km, 5.25 deg above the horizontal opposite the sun; the twilight glow 90 deg from the sun at 15 km 4.6 %)", 0.100),
     ("rayleigh+mie", "sky radiance (sky product), sun -6..0 deg, 0-5 km, views within 10 deg of the horizon 150-180 deg from the sun (the earth's shadow rising; 680 nm at 2.5 km)", 0.024),
     ("rayleigh+mie", "sky radiance (sky product), sun -6..5 deg, 20-100 km (the sky just above the horizontal at 30 km, 440 nm)", 0.030),
     ("rayleigh+mie", "sky radiance (sky product), sun -12..-6 deg, ground", 0.035),
-    ("rayleigh+mie", "sky radiance (sky product), sun -12..-6 deg, 0-20 km (the twilight glow towards the sun near the horizontal: 14.4 % at 15 km, sun -12 deg, 1 deg above the horizontal 60 deg from the sun, 680 nm)", 0.145),
-    ("rayleigh+mie", "sky radiance (sky product), sun -12..-6 deg, 20-100 km (the sky 62 deg up 16 deg from the sun, 680 nm at 59.2 km: the sun nodes)", 0.130),
+    ("rayleigh+mie", "sky radiance (sky product), sun -12..-6 deg, 0-20 km (the twilight glow towards the sun near the horizontal: 9.0 % at 15 km, sun -11 deg, 1.75 deg above the horizontal 60 deg from the sun, 680 nm)", 0.090),
+    ("rayleigh+mie", "sky radiance (sky product), sun -12..-6 deg, 20-100 km (the limb 5.7 deg below the horizontal 94 deg from the sun, 680 nm at 79.5 km)", 0.125),
     ("irradiance", "diffuse horizontal irradiance (sun product), sun >= 5 deg, 0-100 km", 0.015),
     ("irradiance", "diffuse horizontal irradiance (sun product), sun -12..5 deg, 0-100 km", 0.016),
 ];
