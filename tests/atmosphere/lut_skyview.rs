@@ -171,17 +171,17 @@ fn skyview_sky_radiance_matches_the_sky_product() {
     for (band, measured, target) in [
         (
             "sun >= 5, view > 10 deg above horizon (target 1 %), ground",
-            0.00248,
+            0.00270,
             Some(0.01),
         ),
         (
             "sun >= 5, view > 10 deg above horizon (target 1 %), 0-20 km",
-            0.00083,
+            0.00162,
             Some(0.01),
         ),
         (
             "sun >= 5, view > 10 deg above horizon (target 1 %), 20-100 km",
-            0.00189,
+            0.00280,
             Some(0.01),
         ),
         (
@@ -196,14 +196,14 @@ fn skyview_sky_radiance_matches_the_sky_product() {
         ),
         (
             "sun >= 5, view < 10 deg above horizon (target 3 %), 20-100 km",
-            0.02082,
+            0.02035,
             Some(0.03),
         ),
-        ("sun -6..5 (target 3 %), ground", 0.01051, Some(0.03)),
-        ("sun -6..5 (target 3 %), 0-20 km", 0.01358, Some(0.03)),
+        ("sun -6..5 (target 3 %), ground", 0.01299, Some(0.03)),
+        ("sun -6..5 (target 3 %), 0-20 km", 0.01546, Some(0.03)),
         ("sun -6..5 (target 3 %), 20-100 km", 0.02912, Some(0.03)),
-        ("sun -12..-6 (target 10 %), ground", 0.02518, Some(0.10)),
-        ("sun -12..-6 (target 10 %), 0-20 km", 0.02828, Some(0.10)),
+        ("sun -12..-6 (target 10 %), ground", 0.03462, Some(0.10)),
+        ("sun -12..-6 (target 10 %), 0-20 km", 0.03827, Some(0.10)),
         ("sun -12..-6 (target 10 %), 20-100 km", 0.1298, None),
     ] {
         let bound = target.map_or(measured * 1.12, |t: f64| t.min(measured * 1.12));
@@ -334,18 +334,21 @@ fn skyview_nodes_equal_the_sky_product() {
         }
     }
     eprintln!("skyview nodes: largest relative deviation from the sky product {worst:.2e}");
-    // Half floats' rounding (≤ 4.9·10⁻⁴ at every other node) but one: 549 m, sun −7.74°,
-    // zenith 8.4°, 112° from the sun, 3.24·10⁻³ in one channel (layout version 12, 2026-12-06): since
-    // the sky rows' focus fades in from −5° (not −7°), that slice (sun coordinate −6.99°) shares
-    // its row's ray with the other unfocused suns, whose multiple scattering the build
-    // interpolates between sun nodes where smooth (docs/lut.md, "Cost"). Bound: measured + ~12 %.
-    assert!(worst < 3.6e-3, "{worst}");
+    // The texels' rounding to 8 mantissa bits (≤ 2⁻⁹ = 1.95·10⁻³, [`skyview::HALF_MANTISSA_BITS`])
+    // and the multiple scattering the build interpolates between sun nodes where smooth
+    // (docs/lut.md, "Cost"): 2.50·10⁻³ (32 altitude nodes, 2026-12-06; with 10 bits and 28
+    // nodes 3.24·10⁻³ at 549 m, sun −7.74°, zenith 8.4°, 112° from the sun, that slice sharing
+    // its row's ray with the unfocused suns). Bound: measured + ~12 %.
+    assert!(worst < 2.8e-3, "{worst}");
 }
 
 /// The dim slices keep half floats' relative precision: aloft in deep twilight (sun −12…−6°,
 /// 55–86 km) the sky away from the lit limb is 10⁻⁶…10⁻⁸ of its slice's largest value. At
 /// nodes of those slices (every other sky row, 5 azimuths), the reader equals the `sky` product
-/// to 2·10⁻³ relative to the radiance itself (no floor). Measured (2026-12-05, standard):
+/// to 2.2·10⁻³ relative to the radiance itself (no floor): the texels' rounding to 8 mantissa
+/// bits, ≤ 2⁻⁹ = 1.95·10⁻³ ([`skyview::HALF_MANTISSA_BITS`]; measured 1.89·10⁻³, 2026-12-06,
+/// 68.6 km, sun −11.96°, zenith 44°, antisolar; with 10 bits 7.8·10⁻⁴, bound 2·10⁻³).
+/// Measured (2026-12-05, standard, 10 bits):
 /// 4.6·10⁻⁴ (version 9, each node at its own sun elevation towards the sun: 5.7·10⁻⁴) with
 /// the slices' largest texel stored as 2¹⁵ ([`skyview::SLICE_PEAK`]); with it
 /// stored as 1 (version 3: the values below 2⁻¹⁴ of the largest are subnormal), 19.5 %
@@ -425,7 +428,7 @@ fn skyview_dim_twilight_slices_keep_half_precision() {
         "skyview dim twilight nodes: largest relative deviation {:.2e} ({})",
         worst.0, worst.1
     );
-    assert!(worst.0 < 2e-3, "{}", worst.1);
+    assert!(worst.0 < 2.2e-3, "{}", worst.1);
 }
 
 /// The twilight glow above the sun's azimuth in deep twilight (sun −12…−6°) from the ground to
@@ -535,7 +538,7 @@ fn skyview_the_twilight_glow_at_sunset() {
         "skyview twilight glow, 0-20 km, sun -6..5 (target 3 %): {:.3} % {case}",
         100.0 * worst
     );
-    let measured = 0.0299;
+    let measured = 0.0462;
     assert!(worst > 0.0, "no sample");
     assert!(worst < (measured * 1.12f64).min(0.03), "{worst} {case}");
 }
@@ -811,8 +814,8 @@ fn skyview_the_earth_shadow_seen_aloft() {
     let f = fixture();
     let altitudes = [6500.0, 8000.0, 9500.0, 11000.0, 12500.0, 15000.0, 20000.0];
     // Measured worst per altitude (the order of `altitudes`): the grid, the dense check.
-    let measured = [0.0187, 0.0248, 0.0605, 0.0253, 0.0257, 0.0496, 0.0335];
-    let measured_dense = [0.0322, 0.0450, 0.0605, 0.0623, 0.0486, 0.0496, 0.0995];
+    let measured = [0.0198, 0.0251, 0.0605, 0.0288, 0.0257, 0.0505, 0.0335];
+    let measured_dense = [0.0475, 0.0477, 0.0605, 0.0625, 0.0651, 0.0752, 0.0995];
     let t = std::time::Instant::now();
     let results = shadow_aloft_errors(f, &SkyViewReader::new(&f.bundle), &altitudes);
     eprintln!(

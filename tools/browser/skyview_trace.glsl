@@ -109,7 +109,7 @@ void main() {
   int k0, j0;
   float tk, tj, above_deg;
   SkyViewAltitudeSun(h, shift, mu_s, k0, tk, j0, tj, above_deg);
-  SvStencil sa = SkyViewStencil(float(k0) + tk, 0, SV_N_ALT - 1, false, 0.0);
+  SvStencil sa = SkyViewAltitudeStencil(float(k0) + tk);
   SvStencil ss = SkyViewStencil(float(j0) + tj, 0, SV_N_SUN - 1, true, above_deg);
   T(float(k0) + tk); T(above_deg); T(float(j0) + tj);
   TS(sa);

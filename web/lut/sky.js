@@ -109,6 +109,10 @@ class LiveSky {
       if (!numbers(altNodes, z.N_ALT)) {
         throw new Error("manifest: parameterisation.altitude_nodes_m is not N_ALT altitudes");
       }
+      const altX = manifest.parameterisation.altitude_node_abscissas;
+      if (!numbers(altX, z.N_ALT) || !altX.every((x, k) => k === 0 || x > altX[k - 1])) {
+        throw new Error("manifest: parameterisation.altitude_node_abscissas is not N_ALT increasing abscissas");
+      }
       const f = (x) => x.toExponential();
       defines += `#define SV_BAND_SUN ${f(band.sun_deg)}\n` +
         `#define SV_BAND_FOCUS ${f(band.focus)}\n` +
@@ -130,7 +134,8 @@ class LiveSky {
         `#define SV_BAND_FOCUS_ALOFT_ALTITUDE vec2(${band.focus_aloft_altitude_m.map(f).join(", ")})\n` +
         `#define SV_BAND_AZIMUTH_DEPTH_ALOFT ${f(band.azimuth_depth_aloft_deg)}\n` +
         `#define SV_BAND_AZIMUTH_DEPTH_ALTITUDE vec2(${band.azimuth_depth_aloft_altitude_m.map(f).join(", ")})\n` +
-        `#define SV_ALT_NODES float[${z.N_ALT}](${altNodes.map(f).join(", ")})\n`;
+        `#define SV_ALT_NODES float[${z.N_ALT}](${altNodes.map(f).join(", ")})\n` +
+        `#define SV_ALT_X float[${z.N_ALT}](${altX.map(f).join(", ")})\n`;
       // The limb's sun coordinate back towards the observer's horizon aloft away from the sun
       // (version 11).
       const nearEnd = manifest.parameterisation.limb_near_end;

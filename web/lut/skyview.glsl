@@ -26,7 +26,8 @@
 // (focus_aloft), SV_BAND_FOCUS_ALOFT_ALTITUDE (focus_aloft_altitude_m, a vec2),
 // SV_BAND_AZIMUTH_DEPTH_ALOFT (azimuth_depth_aloft_deg), SV_BAND_AZIMUTH_DEPTH_ALTITUDE
 // (azimuth_depth_aloft_altitude_m, a vec2), and SV_ALT_NODES
-// (parameterisation.altitude_nodes_m, a float[SV_N_ALT] constructor); from
+// (parameterisation.altitude_nodes_m, a float[SV_N_ALT] constructor), SV_ALT_X
+// (parameterisation.altitude_node_abscissas, a float[SV_N_ALT] constructor); from
 // parameterisation.limb_row_band: SV_LIMB_BAND_DEPTH (depth_m, a vec3), SV_LIMB_BAND_FOCUS
 // (focus), SV_LIMB_BAND_SUN_RANGE (sun_range_deg, a vec4), SV_LIMB_BAND_ALTITUDE
 // (altitude_range_m, a vec4), SV_LIMB_BAND_DEPTH_FLOOR (depth_floor_m),
@@ -42,7 +43,8 @@
 // parameterisation.limb_near_end: SV_LIMB_NEAR_END_AZIMUTH (azimuth_cos, a vec2),
 // SV_LIMB_NEAR_END_DEPTH (depth_m, a vec2), SV_LIMB_NEAR_END_ALTITUDE (altitude_range_m, a vec2).
 //
-// Per query: node coordinates in altitude ((sqrt(e) + c (e^p - e^q)) (N_ALT - 1),
+// Per query: node coordinates in altitude (the base abscissa (sqrt(e) + c (e^p - e^q)) x_last
+// within the nodes' abscissas SV_ALT_X,
 // e = h / thickness), the sun's elevation above the observer's horizon (the manifest's
 // segments), the view row within its segment (sky, limb, below the horizon; relative to the
 // observer's horizon) and the azimuth from the sun's, at each altitude node in the node's own
@@ -301,8 +303,30 @@ float SkyViewSunUnwarp(float s, float b) {
   return e * SkyViewAsinh(s * sinh(b) / e) / b;
 }
 
-// The altitude nodes (m).
+// The altitude nodes (m) and their base abscissas (the altitude axis's Lagrange abscissas: the
+// integers of the base map and the halves inserted between some of them).
 const float sv_alt_nodes[SV_N_ALT] = SV_ALT_NODES;
+const float sv_alt_x[SV_N_ALT] = SV_ALT_X;
+
+// The altitude axis's stencil at node coordinate y (SkyViewAltitudeSun's k0 + tk): the
+// Lagrange weights at the query's base abscissa over the nodes' (the reader's altitude stencil).
+SvStencil SkyViewAltitudeStencil(float y) {
+  SvStencil st = SkyViewStencil(y, 0, SV_N_ALT - 1, false, 0.0);
+  if (st.t == 0.0) return st;
+  float xq = mix(sv_alt_x[st.i0], sv_alt_x[st.i0 + 1], st.t);
+  float x[4];
+  for (int m = 0; m < 4; ++m) x[m] = sv_alt_x[min(st.first + m, SV_N_ALT - 1)];
+  for (int m = 0; m < 4; ++m) {
+    if (m >= st.len) break;
+    float w = 1.0;
+    for (int n = 0; n < 4; ++n) {
+      if (n >= st.len) break;
+      if (n != m) w *= (xq - x[n]) / (x[m] - x[n]);
+    }
+    st.w[m] = w;
+  }
+  return st;
+}
 
 // The row coordinate of the unfocused coordinate x0 on rows focused with strength k at xc (the
 // reader's focus_coord): (asinh(k (x0 - xc)) - A) / (B - A), A = asinh(-k xc),
@@ -515,10 +539,16 @@ float SkyViewBandSlice(float elevation_deg, float c, float w_q, float h, float s
 void SkyViewAltitudeSun(float h, float shift, float mu_s, out int k0, out float tk, out int j0,
                         out float tj, out float above_deg) {
   float thickness = top_radius - bottom_radius;
-  // The altitude coordinate: sqrt(e) + c (e^p - e^q), e = h / thickness, (c, p, q) = SV_ALT_MAP.
+  // The altitude's base abscissa: (sqrt(e) + c (e^p - e^q)) times the last node's, e = h /
+  // thickness, (c, p, q) = SV_ALT_MAP; k0 the node interval holding it (sv_alt_x).
   float e = clamp(h / thickness, 0.0, 1.0);
-  float x = sqrt(e) + SV_ALT_MAP.x * (pow(e, SV_ALT_MAP.y) - pow(e, SV_ALT_MAP.z));
-  k0 = SkyViewSplit(x * float(SV_N_ALT - 1), SV_N_ALT, tk);
+  float x = (sqrt(e) + SV_ALT_MAP.x * (pow(e, SV_ALT_MAP.y) - pow(e, SV_ALT_MAP.z))) *
+      sv_alt_x[SV_N_ALT - 1];
+  k0 = 0;
+  for (int k = 1; k < SV_N_ALT - 1; ++k) {
+    if (sv_alt_x[k] <= x) k0 = k;
+  }
+  tk = clamp((x - sv_alt_x[k0]) / (sv_alt_x[k0 + 1] - sv_alt_x[k0]), 0.0, 1.0);
   float b = SV_SUN_WARP * sqrt(clamp(h / thickness, 0.0, 1.0));
   above_deg = clamp(SkyViewSunUnwarp(degrees(asin(clamp(mu_s, -1.0, 1.0)) + shift), b),
                     SkyViewSunNodeDeg(0), SkyViewSunNodeDeg(SV_N_SUN - 1));
@@ -662,7 +692,7 @@ vec3 SkyViewRadiance(float h, float rho, vec3 up, vec3 view_ray, vec3 sun_direct
   int k0, j0;
   float tk, tj, above_deg;
   SkyViewAltitudeSun(h, shift, mu_s, k0, tk, j0, tj, above_deg);
-  SvStencil sa = SkyViewStencil(float(k0) + tk, 0, SV_N_ALT - 1, false, 0.0);
+  SvStencil sa = SkyViewAltitudeStencil(float(k0) + tk);
   SvStencil ss = SkyViewStencil(float(j0) + tj, 0, SV_N_SUN - 1, true, above_deg);
   // Each altitude node's columns (the reader's node_column): from the query's column coordinate
   // (below SV_AZ_NODE_READ.x) to the azimuth's coordinate in the node's own map (above

@@ -17,10 +17,11 @@ use serde_json::Value;
 use skybake_lut::load::{skyview_from_files, DecodedFile};
 use skybake_lut::manifest::MANIFEST_FILE;
 use skybake_lut::skyview::{
-    altitude_coord, altitude_node_m, azimuth_coord, band_map_weight, band_relative_elevation,
-    band_row, band_slice_elevation, limb_depth_of, limb_row_focused, limb_slice_depth, ray_length,
-    segment_rows, sky_row_focus, sun_coord, sun_node_deg, sun_shift, sun_unwarp, sun_warp,
-    view_coord, warp_strength, Stencil, N_ALT, N_AZ, N_SUN, N_VIEW_LIMB, N_VIEW_SKY, SUN_MIN_DEG,
+    altitude_abscissa, altitude_coord, altitude_node_m, altitude_node_x, azimuth_coord,
+    band_map_weight, band_relative_elevation, band_row, band_slice_elevation, limb_depth_of,
+    limb_row_focused, limb_slice_depth, ray_length, segment_rows, sky_row_focus, sun_coord,
+    sun_node_deg, sun_shift, sun_unwarp, sun_warp, view_coord, warp_strength, Stencil, N_ALT, N_AZ,
+    N_SUN, N_VIEW_LIMB, N_VIEW_SKY, SUN_MIN_DEG,
 };
 use skybake_lut::{SkyViewBundle, SkyViewReader};
 
@@ -118,7 +119,13 @@ fn main() {
     print("row", &[row]);
     stencil("row_stencil", &sv);
     let ya = altitude_coord(h, thickness);
-    let sa = Stencil::new(ya, 0, N_ALT - 1, |k| k as f64, ya);
+    let sa = Stencil::new(
+        ya,
+        0,
+        N_ALT - 1,
+        altitude_node_x,
+        altitude_abscissa(h, thickness),
+    );
     let above = mu_s.clamp(-1.0, 1.0).asin() + shift;
     let deg = sun_unwarp(above.to_degrees(), warp_strength(h, thickness))
         .clamp(SUN_MIN_DEG, sun_node_deg(N_SUN - 1));

@@ -100,9 +100,21 @@ pub const LAYOUT: &str = "skyview";
 /// ([`BAND_CENTRE_RANGE_DEG`]): the rows near the horizontal towards the sun at sunset.
 pub const SKYVIEW_VERSION: &str = "13";
 
-/// Altitude nodes: h_k the roots of [`altitude_coord`] (about (top − bottom) · (k / (N − 1))²,
-/// denser near the top).
-pub const N_ALT: usize = 28;
+/// Altitude nodes of the base map ([`altitude_abscissa`], about (top − bottom) · (x / 27)²,
+/// denser near the top): its integers 0..=27.
+pub const N_ALT_BASE: usize = 28;
+/// Altitude nodes added halfway between base nodes, at these base abscissas: 10.5 and 11.5
+/// (15.3 and 18.5 km, between the base nodes 13.9 / 16.9 / 20.2 km), where deep in twilight
+/// the glow towards the sun needs them (15 km, sun −12°, 1° up 60° from the sun: the altitude
+/// axis alone −13.4 %, +0.7 % with the nodes twice as dense), and 18.5 and 19.5 (51.3 and
+/// 57.9 km; base 48.2 / 54.5 / 61.4 km), the sky deep in twilight at 55–60 km (56.8 km, 141°
+/// from the sun: +7.0 %). The base nodes stay where they were; a query whose 4 altitude nodes
+/// are all base nodes reads them with the same weights. (Also at 8.5 and 9.5, 9.8 and 12.5 km:
+/// the earth's shadow seen from 9.5 / 12.5 km went 6.05 → 7.26 % and 2.42 → 3.42 %, docs/lut.md,
+/// "Tried and not kept".)
+pub const ALTITUDE_INSERTED: [f64; 4] = [10.5, 11.5, 18.5, 19.5];
+/// Altitude nodes: the base nodes and the inserted ones, in increasing altitude.
+pub const N_ALT: usize = N_ALT_BASE + ALTITUDE_INSERTED.len();
 /// Sun nodes, uniform in the sun node coordinate t: the sun's elevation above the observer's
 /// horizon (its elevation + the horizon's dip at the node's altitude, so sunset is on the same
 /// node at every altitude), warped towards sunset aloft between −8° and 6° ([`sun_warp`]):
@@ -148,6 +160,12 @@ pub const N_VIEW: usize = N_VIEW_UP + N_VIEW_DOWN;
 /// (at the nodes of those slices the reader erred by up to 19.5 %, now 4.6·10⁻⁴;
 /// tests/atmosphere/lut_skyview.rs, `skyview_dim_twilight_slices_keep_half_precision`).
 pub const SLICE_PEAK: f64 = 32768.0;
+
+/// Mantissa bits kept of the texels' half floats (of 10): rounded to nearest, at most
+/// 2⁻⁹ = 0.2 % relative; the two lowest bits zero deflate to almost nothing (the two texture
+/// files 9.52 → 7.7 MB at the same nodes), which pays for the altitude nodes
+/// [`ALTITUDE_INSERTED`].
+pub const HALF_MANTISSA_BITS: u32 = 8;
 
 /// Azimuth-from-the-sun nodes, φ_a = π (a / (N − 1))².
 pub const N_AZ: usize = 20;
@@ -293,8 +311,30 @@ pub const SKY_EXIT_ALTITUDE_M: [f64; 2] = [20_000.0, 40_000.0];
 /// `[c, p, q]`.
 pub const ALTITUDE_TOP: [f64; 3] = [0.12, 8.0, 2.0];
 
+/// Base abscissa of altitude node `k` ([`altitude_abscissa`] at its altitude): the integers
+/// 0..=27 merged with [`ALTITUDE_INSERTED`], in increasing order.
+pub fn altitude_node_x(k: usize) -> f64 {
+    let mut x = 0.0;
+    let mut inserted = ALTITUDE_INSERTED.iter().peekable();
+    let mut next_base = 1.0;
+    for _ in 0..k.min(N_ALT - 1) {
+        match inserted.peek() {
+            Some(&&i) if i < next_base => {
+                x = i;
+                inserted.next();
+            }
+            _ => {
+                x = next_base;
+                next_base += 1.0;
+            }
+        }
+    }
+    x
+}
+
 /// Altitude of node `k`, m, for an atmosphere `thickness` m thick: the root of
-/// [`altitude_coord`]`(h) = k` (by bisection; the map's ends are the atmosphere's).
+/// [`altitude_abscissa`]`(h) =` [`altitude_node_x`]`(k)` (by bisection; the map's ends are the
+/// atmosphere's).
 pub fn altitude_node_m(k: usize, thickness: f64) -> f64 {
     if k == 0 {
         return 0.0;
@@ -303,8 +343,8 @@ pub fn altitude_node_m(k: usize, thickness: f64) -> f64 {
         return thickness;
     }
     root_of_increasing(
-        |h| altitude_coord(h, thickness),
-        k as f64,
+        |h| altitude_abscissa(h, thickness),
+        altitude_node_x(k),
         0.0,
         thickness,
         80,
@@ -331,18 +371,31 @@ fn root_of_increasing(
     0.5 * (lo + hi)
 }
 
-/// Continuous altitude node coordinate of altitude `h` (m): x (N_ALT − 1) with
-/// x = √η + c (η^p − η^q), η = h / thickness, [c, p, q] = [`ALTITUDE_TOP`]. The square root
+/// Base altitude abscissa of altitude `h` (m): x (N_ALT_BASE − 1) with
+/// x = √η + c (η^p − η^q), η = h / thickness, [c, p, q] = [`ALTITUDE_TOP`], the abscissa of the
+/// altitude axis's Lagrange interpolation. The square root
 /// alone (version 4) puts the nodes 7 km apart at the top; seen from there in deep twilight
 /// the lit part of a ray lies just below the top of the atmosphere and appears and vanishes
 /// between two nodes. The added term, 0 at both ends, moves nodes from the middle altitudes
 /// (16 % sparser at 50 km) to the top (1 + 2c(p − q) = 2.4 times as dense at 100 km: the last
 /// interval 3.3 km instead of 7.3 km), and moves the nodes below 10 km by less than 0.4 % of their coordinate (its
 /// slope at the ground is 0).
-pub fn altitude_coord(h: f64, thickness: f64) -> f64 {
+pub fn altitude_abscissa(h: f64, thickness: f64) -> f64 {
     let e = (h / thickness).clamp(0.0, 1.0);
     let [c, p, q] = ALTITUDE_TOP;
-    (e.sqrt() + c * (e.powf(p) - e.powf(q))) * (N_ALT - 1) as f64
+    (e.sqrt() + c * (e.powf(p) - e.powf(q))) * (N_ALT_BASE - 1) as f64
+}
+
+/// Continuous altitude node coordinate of altitude `h` (m): the node k below it plus the
+/// fraction of the way to node k + 1 in [`altitude_abscissa`].
+pub fn altitude_coord(h: f64, thickness: f64) -> f64 {
+    let x = altitude_abscissa(h, thickness);
+    let mut k = 0;
+    while k + 2 < N_ALT && altitude_node_x(k + 1) <= x {
+        k += 1;
+    }
+    let (x0, x1) = (altitude_node_x(k), altitude_node_x(k + 1));
+    k as f64 + ((x - x0) / (x1 - x0)).clamp(0.0, 1.0)
 }
 
 /// Zenith angle of the horizon seen from radius `r` (rad): π/2 + the horizon's dip.
@@ -1331,8 +1384,8 @@ pub fn build_skyview(
             }
         }
     }
-    rayleigh.round_to_sample();
-    mie.round_to_sample();
+    rayleigh.round_to_half_bits(HALF_MANTISSA_BITS);
+    mie.round_to_half_bits(HALF_MANTISSA_BITS);
     let t_view = t1.elapsed().as_secs_f64() * 1e3;
 
     // Irradiance on the altitude × sun nodes.
@@ -1603,7 +1656,14 @@ impl<'a> SkyViewReader<'a> {
         let p = &self.bundle.params;
         let thickness = p.top_radius - p.bottom_radius;
         let ya = altitude_coord(r - p.bottom_radius, thickness);
-        let sa = Stencil::with_nodes(ya, 0, N_ALT - 1, |k| k as f64, ya, self.nodes[0]);
+        let sa = Stencil::with_nodes(
+            ya,
+            0,
+            N_ALT - 1,
+            altitude_node_x,
+            altitude_abscissa(r - p.bottom_radius, thickness),
+            self.nodes[0],
+        );
         let above = mu_s.clamp(-1.0, 1.0).asin() + shift;
         let deg = sun_unwarp(
             above.to_degrees(),
@@ -1895,22 +1955,22 @@ pub fn phase_from_json(v: &Value) -> crate::Result<Phase> {
 pub const STATED_ERRORS: &[(&str, &str, f64)] = &[
     ("transmittance", "direct normal irradiance (sun product), sun >= 5 deg, 0-100 km", 0.0003),
     ("transmittance", "direct normal irradiance (sun product), sun -6..5 deg", 0.004),
-    ("rayleigh+mie", "sky radiance (sky product), sun >= 5 deg, view > 10 deg above the horizon, ground", 0.0026),
-    ("rayleigh+mie", "sky radiance (sky product), sun >= 5 deg, view > 10 deg above the horizon, 0-20 km", 0.0009),
-    ("rayleigh+mie", "sky radiance (sky product), sun >= 5 deg, view > 10 deg above the horizon, 20-100 km", 0.0019),
+    ("rayleigh+mie", "sky radiance (sky product), sun >= 5 deg, view > 10 deg above the horizon, ground", 0.0028),
+    ("rayleigh+mie", "sky radiance (sky product), sun >= 5 deg, view > 10 deg above the horizon, 0-20 km", 0.0017),
+    ("rayleigh+mie", "sky radiance (sky product), sun >= 5 deg, view > 10 deg above the horizon, 20-100 km", 0.0029),
     ("rayleigh+mie", "sky radiance (sky product), sun >= 5 deg, view < 10 deg above the horizon, ground", 0.0054),
     ("rayleigh+mie", "sky radiance (sky product), sun >= 5 deg, view < 10 deg above the horizon, 0-20 km", 0.0042),
     ("rayleigh+mie", "sky radiance (sky product), sun >= 5 deg, view < 10 deg above the horizon, 20-100 km", 0.021),
     ("rayleigh+mie", "sky radiance (sky product), sun -6..5 deg, ground", 0.011),
     ("rayleigh+mie", "sky radiance (sky product), sun -6..5 deg, 0-5 km (the band above the earth's shadow 120 deg from the sun, 680 nm at 5 km, 0.5 deg above the horizontal; the twilight glow towards the sun at most 3 %)", 0.046),
-    ("rayleigh+mie", "sky radiance (sky product), sun -6..5 deg, 5-8 km (the band above the earth's shadow near the antisolar horizon, 680 nm at 8 km, 3 deg above the horizontal opposite the sun)", 0.045),
-    ("rayleigh+mie", "sky radiance (sky product), sun -6..5 deg, 8-12.5 km (the band above the earth's shadow near the antisolar horizon, 680 nm at 11 km, 3.5 deg above the horizontal opposite the sun, sun -3.25 deg; the twilight glow towards the sun at most 3 %)", 0.063),
-    ("rayleigh+mie", "sky radiance (sky product), sun -6..5 deg, 12.5-20 km (the band above the earth's shadow near the antisolar horizon, 680 nm at 20 km, 5.25 deg above the horizontal opposite the sun; the twilight glow towards the sun at most 3 %)", 0.100),
-    ("rayleigh+mie", "sky radiance (sky product), sun -6..0 deg, 0-5 km, views within 10 deg of the horizon 150-180 deg from the sun (the earth's shadow rising; 680 nm at 2.5 km)", 0.022),
+    ("rayleigh+mie", "sky radiance (sky product), sun -6..5 deg, 5-8 km (the band above the earth's shadow near the antisolar horizon, 680 nm at 6.5 km, 1 deg above the horizontal 120 deg from the sun)", 0.048),
+    ("rayleigh+mie", "sky radiance (sky product), sun -6..5 deg, 8-12.5 km (the band above the earth's shadow near the antisolar horizon, 680 nm at 12.5 km, 8 deg above the horizontal 165 deg from the sun, sun -5.25 deg; the twilight glow towards the sun at 10 km at most 4.4 %)", 0.066),
+    ("rayleigh+mie", "sky radiance (sky product), sun -6..5 deg, 12.5-20 km (the band above the earth's shadow near the antisolar horizon, 680 nm at 20 km, 5.25 deg above the horizontal opposite the sun; the twilight glow 90 deg from the sun at 15 km 4.6 %)", 0.100),
+    ("rayleigh+mie", "sky radiance (sky product), sun -6..0 deg, 0-5 km, views within 10 deg of the horizon 150-180 deg from the sun (the earth's shadow rising; 680 nm at 2.5 km)", 0.024),
     ("rayleigh+mie", "sky radiance (sky product), sun -6..5 deg, 20-100 km (the sky just above the horizontal at 30 km, 440 nm)", 0.030),
-    ("rayleigh+mie", "sky radiance (sky product), sun -12..-6 deg, ground", 0.026),
-    ("rayleigh+mie", "sky radiance (sky product), sun -12..-6 deg, 0-20 km (the twilight glow towards the sun near the horizontal: 10.2 % at 5 km, sun -12 deg, 0.25 deg above the horizontal 60 deg from the sun, 680 nm)", 0.102),
-    ("rayleigh+mie", "sky radiance (sky product), sun -12..-6 deg, 20-100 km (the sky 62 deg up 16 deg from the sun, 680 nm at 59.2 km: the sun nodes)", 0.130),
+    ("rayleigh+mie", "sky radiance (sky product), sun -12..-6 deg, ground", 0.035),
+    ("rayleigh+mie", "sky radiance (sky product), sun -12..-6 deg, 0-20 km (the twilight glow towards the sun near the horizontal: 9.0 % at 15 km, sun -11 deg, 1.75 deg above the horizontal 60 deg from the sun, 680 nm)", 0.090),
+    ("rayleigh+mie", "sky radiance (sky product), sun -12..-6 deg, 20-100 km (the limb 5.7 deg below the horizontal 94 deg from the sun, 680 nm at 79.5 km)", 0.125),
     ("irradiance", "diffuse horizontal irradiance (sun product), sun >= 5 deg, 0-100 km", 0.015),
     ("irradiance", "diffuse horizontal irradiance (sun product), sun -12..5 deg, 0-100 km", 0.016),
 ];
@@ -1992,8 +2052,10 @@ pub fn manifest(
         "parameterisation": {
             "reference": "skybake docs/lut.md, section `The skyview layout`",
             "altitude_nodes_m": altitude_nodes,
-            "altitude_node": "the altitude coordinate of altitude h: (sqrt(e) + c (e^p - e^q)) (N_ALT - 1), e = h / (top_radius - bottom_radius), [c, p, q] = altitude_map; node k (0..N_ALT-1, altitude_nodes_m) is the altitude whose coordinate is k",
+            "altitude_node": format!("the altitude abscissa of altitude h: x = (sqrt(e) + c (e^p - e^q)) {}, e = h / (top_radius - bottom_radius), [c, p, q] = altitude_map; node k (0..N_ALT-1, altitude_nodes_m) is the altitude whose abscissa is altitude_node_abscissas[k] (the integers 0..{} and the halves between some of them, increasing); a query's node interval is the k with altitude_node_abscissas[k] <= x < altitude_node_abscissas[k + 1]", N_ALT_BASE - 1, N_ALT_BASE - 1),
             "altitude_map": ALTITUDE_TOP,
+            "altitude_node_abscissas": (0..N_ALT).map(altitude_node_x).collect::<Vec<_>>(),
+            "texel_mantissa_bits": HALF_MANTISSA_BITS,
             "sun_elevation_nodes_deg": sun_nodes,
             "sun_node": "the sun node coordinate t_j (deg): every 2 deg from -23 to -15, every 1 deg to -8, every 0.5 deg to -1, every 0.25 deg to 0, every 0.125 deg to 0.5, every 0.25 deg to 1, every 0.5 deg to 6, every 1 deg to 20, every 4 deg to 104 (segments [start, step, intervals] in sun_segments). At altitude h the node's sun coordinate s_j = warp(t_j, b), b = sun_warp_strength * sqrt(h / (top_radius - bottom_radius)), warp(t, b) = e sinh(b t / e) / sinh(b) for sun_warp_range[0] < t < sun_warp_range[1] (e = -sun_warp_range[0] for t < 0, sun_warp_range[1] for t >= 0), t elsewhere (and where b < 1e-6); its inverse t = e asinh(s sinh(b) / e) / b gives a query's node coordinate, the interpolation's abscissa. s = the sun's elevation + shift: for view rows below the horizon (and the irradiance, and the sky rows below sky_exit_altitude_m[0] or away from the sun) shift = the horizon's dip acos(bottom_radius / r), the sun's elevation above the observer's horizon; for the limb rows (between the horizontal and the horizon) shift = dip + w (gamma cos(phi) + acos(bottom_radius / r_t) - dip), w = (1 - exp(-(r - r_t) / limb_shadow_scale_m)) (1 - n), n = (1 - smoothstep(limb_near_end.azimuth_cos[0], limb_near_end.azimuth_cos[1], cos(phi))) smoothstep(limb_near_end.depth_m[0], limb_near_end.depth_m[1], r - r_t) smoothstep(limb_near_end.altitude_range_m[0], limb_near_end.altitude_range_m[1], h) (version 11: aloft away from the sun back towards the observer's horizon): towards the sun's elevation above the horizon of the ray's tangent point, with dip = acos(bottom_radius / r), gamma = theta - pi/2, r_t = r cos(gamma), phi the view's azimuth from the sun; for the sky rows (above the horizontal) shift = dip + smoothstep(sky_exit_altitude_m[0], sky_exit_altitude_m[1], h) max(cos(phi), 0) alpha, alpha = atan2(x sin(theta), r + x cos(theta)), x the ray's length to the top (the central angle to where the ray leaves the atmosphere; smoothstep as in sky_row_band); the texels of a limb or sky row are at the sun elevations s_j - shift of their column's azimuth",
             "sun_warp_strength": SUN_WARP,
@@ -2036,7 +2098,7 @@ pub fn manifest(
             "azimuth_nodes_rad": azimuth_nodes,
             "slices": "slice = altitude_index * N_SUN + sun_index; file row = slice * N_VIEW + view_row; texture coordinates at texel centres: u = (column + 0.5) / N_AZ, v = (view_row + 0.5) / N_VIEW",
             "sizes": {"N_ALT": N_ALT, "N_SUN": N_SUN, "N_VIEW_SKY": N_VIEW_SKY, "N_VIEW_LIMB": N_VIEW_LIMB, "N_VIEW_DOWN": N_VIEW_DOWN, "N_AZ": N_AZ},
-            "interpolation": "per (altitude, sun, view row) node triple around the query: over the 4 azimuth columns around the query, then over the rows (times the slice's scale) (on the sky rows where the query's or the slice's focus k > 0: over each column's own rows in the slice, sky_row_band.slices and sky_row_band.azimuth, then over the columns), the sun nodes and then the altitude nodes, each axis with up to 4 nodes around the query within its segment (the row segments: sky, limb, below the horizon; 3 nodes in a segment's first and last interval): the Lagrange polynomial through the nodes' logarithms at the query, exp'd and bounded by the nodes' range; abscissas: the node index (altitude: as altitude_node; rows: as view_rows; columns: as azimuth_columns), for the sun the node's s_j in degrees; where a node value is not positive, geometric between the interval's two nodes, a^(1-t) b^t, linear where a value is not positive",
+            "interpolation": "per (altitude, sun, view row) node triple around the query: over the 4 azimuth columns around the query, then over the rows (times the slice's scale) (on the sky rows where the query's or the slice's focus k > 0: over each column's own rows in the slice, sky_row_band.slices and sky_row_band.azimuth, then over the columns), the sun nodes and then the altitude nodes, each axis with up to 4 nodes around the query within its segment (the row segments: sky, limb, below the horizon; 3 nodes in a segment's first and last interval): the Lagrange polynomial through the nodes' logarithms at the query, exp'd and bounded by the nodes' range; abscissas: for the altitude the nodes' altitude_node_abscissas and the query's x (altitude_node), else the node index (rows: as view_rows; columns: as azimuth_columns), for the sun the node's s_j in degrees; where a node value is not positive, geometric between the interval's two nodes, a^(1-t) b^t, linear where a value is not positive",
             "radiance": "L = rayleigh * RayleighPhase(nu) + mie * aerosol_phase_function(nu), nu = cos of the angle between view and sun; RayleighPhase = 3/(16 pi) (1 + nu^2)",
             "observer": "inside the atmosphere; above its top, move the observer along the view to the top first (a view missing the atmosphere sees nothing); views below the horizon: the in-scattered light along the ray to the ground, without the ground's reflection",
             "transmittance_texture": [crate::param::TRANSMITTANCE_WIDTH, crate::param::TRANSMITTANCE_HEIGHT],
@@ -2097,12 +2159,20 @@ mod tests {
         assert!(azimuth_node(7, 15_000.0) > PI * (7.0f64 / 19.0).powi(2));
         // The altitude nodes: near the square root's below 10 km; the last interval 3.3 km (7.3 km).
         for k in 1..8 {
-            let sqrt_map = H * (k as f64 / (N_ALT - 1) as f64).powi(2);
+            let sqrt_map = H * (k as f64 / (N_ALT_BASE - 1) as f64).powi(2);
             assert!(
                 (altitude_node_m(k, H) / sqrt_map - 1.0).abs() < 0.01,
                 "node {k}"
             );
         }
+        // The base nodes and the inserted halves, increasing; the halves halfway between.
+        assert_eq!(altitude_node_x(N_ALT - 1), (N_ALT_BASE - 1) as f64);
+        assert!((1..N_ALT).all(|k| altitude_node_x(k) > altitude_node_x(k - 1)));
+        let halves: Vec<f64> = (0..N_ALT)
+            .map(altitude_node_x)
+            .filter(|x| x.fract() != 0.0)
+            .collect();
+        assert_eq!(halves, ALTITUDE_INSERTED);
         let top_gap = H - altitude_node_m(N_ALT - 2, H);
         assert!((3_200.0..3_400.0).contains(&top_gap), "{top_gap}");
         let gap = |a: usize, h: f64| azimuth_node(a + 1, h) - azimuth_node(a, h);
