@@ -98,7 +98,11 @@ pub const LAYOUT: &str = "skyview";
 /// column azimuths (`azimuth_nodes_rad`);
 /// the sky rows' band focus fades out as the band rises from 6° to 9°
 /// ([`BAND_CENTRE_RANGE_DEG`]): the rows near the horizontal towards the sun at sunset.
-pub const SKYVIEW_VERSION: &str = "13";
+/// 14: the columns' square-root weight 0.65 below 15 km ([`AZIMUTH_GROUND_WEIGHT`]) and a
+/// quarter of the sky rows' band focus kept above the fade ([`BAND_CENTRE_FLOOR`]); four altitude
+/// nodes inserted halfway (15.3, 18.5, 51.3, 57.9 km, [`ALTITUDE_INSERTED`]); the half texels
+/// rounded to 8 mantissa bits ([`HALF_MANTISSA_BITS`]) and the ZIP blocks deflated at level 6.
+pub const SKYVIEW_VERSION: &str = "14";
 
 /// Altitude nodes of the base map ([`altitude_abscissa`], about (top − bottom) · (x / 27)²,
 /// denser near the top): its integers 0..=27.
