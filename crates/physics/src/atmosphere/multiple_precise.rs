@@ -2853,20 +2853,7 @@ crate::simd_dispatch_avx512! {
                                 avx512, rows, slice, n_mu, n_mu_s, n_phi, nodes, wq, fs as f32, ip,
                                 fp,
                             );
-                            // Up to 4 wavelengths as one vector of 4 lanes (lanes past n_λ
-                            // computed and dropped; the padding keeps `small[n_l + 3]` in the
-                            // row): the loop below, with the same values, ran one lane at a time.
-                            const W: usize = PACKED_LANES / 2;
-                            let mut x = [0.0f64; W];
-                            for i in 0..W {
-                                x[i] = (ray_rho[i] * small[i] as f64
-                                    + mie_rho[i] * small[n_l + i] as f64)
-                                    .max(0.0);
-                            }
-                            for (o, x) in out.iter_mut().zip(&x[..n_l]) {
-                                *o += *x;
-                            }
-                            continue;
+                            &small
                         } else {
                             large = [0.0f32; 2 * MAX];
                             let a = &mut large[..lanes];
