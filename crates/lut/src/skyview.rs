@@ -1116,26 +1116,23 @@ pub fn build_skyview(
     let (idx, params) = channel_setup(m, &channels)?;
     let n_c = idx.len();
     let e0 = params.solar_irradiance.clone();
-    // The precise table and the transmittance texture (independent) side by side, then the
-    // sky view and the irradiance (both read the table): the cores stay busy across each
-    // stage's last tasks and the sky view's serial assembly.
-    let ((precise, t_precise), (transmittance, t_transmittance)) = rayon::join(
-        || {
-            let tp = Instant::now();
-            let p = shared.precise_unless(cancelled);
-            (p, tp.elapsed().as_secs_f64() * 1e3)
-        },
-        || {
-            let t0 = Instant::now();
-            let t = build::transmittance_texture(m, &params, &idx, cancelled);
-            (t, t0.elapsed().as_secs_f64() * 1e3)
-        },
-    );
-    precise.ok_or(crate::Error::Cancelled)?;
+    let tp = Instant::now();
+    shared
+        .precise_unless(cancelled)
+        .ok_or(crate::Error::Cancelled)?;
+    let t_precise = tp.elapsed().as_secs_f64() * 1e3;
+
+    let t0 = Instant::now();
+    let transmittance = build::transmittance_texture(m, &params, &idx, cancelled);
     if cancelled() {
         return Err(crate::Error::Cancelled);
     }
+    let t_transmittance = t0.elapsed().as_secs_f64() * 1e3;
 
+    // The sky view and the irradiance side by side (both read the table, built above on this
+    // thread: a rayon task must not wait on the table's `OnceLock` while its own thread may be
+    // the one building it): the cores stay busy across each stage's last tasks and the sky
+    // view's serial assembly.
     let bottom = params.bottom_radius;
     let thickness = params.top_radius - bottom;
     // μs of sun node j at altitude node k.
