@@ -1206,8 +1206,10 @@ pub fn build_skyview(
     }
     let t_transmittance = t0.elapsed().as_secs_f64() * 1e3;
 
-    // Sky view: one task per (altitude, view) ray, all its (sun, azimuth) texels.
-    let t1 = Instant::now();
+    // The sky view and the irradiance side by side (both read the table, built above on this
+    // thread: a rayon task must not wait on the table's `OnceLock` while its own thread may be
+    // the one building it): the cores stay busy across each stage's last tasks and the sky
+    // view's serial assembly.
     let bottom = params.bottom_radius;
     let thickness = params.top_radius - bottom;
     // μs of sun node j at altitude node k.
@@ -1222,203 +1224,215 @@ pub fn build_skyview(
         let s = sun_warp(sun_node_deg(j), warp_strength(h, thickness));
         (s.to_radians() - dip(bottom + h, bottom)).sin()
     };
-    let per_family = N_SUN * N_AZ * n_c;
-    let n_l = m.len();
-    // The multiple scattering of every other view row first, then the rows between from them
-    // where smooth ([`ms_rows`]): `known` holds the first pass's per metre, by task.
-    let segment = |i: usize| {
-        segment_rows(if i < N_VIEW_SKY {
-            0
-        } else if i < N_VIEW_UP {
-            1
-        } else {
-            2
-        })
-    };
-    let row_computed = |i: usize| {
-        let (first, last) = segment(i);
-        ms_rows::computed(i, first, last)
-    };
-    let ray_task = |scratch: &mut FamilyScratch<'_>, task: usize, known: &[Option<Vec<f64>>]| {
-        let (k, i) = (task / N_VIEW, task % N_VIEW);
-        let mut s_out = vec![0.0; per_family];
-        let mut m_out = vec![0.0; per_family];
-        let mut record = None;
-        if cancelled() {
-            return ((s_out, m_out), record);
-        }
-        let r = eval_radius(k, i, bottom, thickness);
-        let b = warp_strength(heights[k], thickness);
-        let s_j: Vec<f64> = (0..N_SUN).map(|j| sun_warp(sun_node_deg(j), b)).collect();
-        // The rays of this row: one for the suns whose row does not move (every sun
-        // but on the sky rows in low twilight, [`sky_row_focus`]), one per other sun.
-        let focused = |j: usize| {
-            if i < N_VIEW_SKY {
-                sky_row_focus(s_j[j], r - bottom).1 > 0.0
+    // Sky view: one task per (altitude, view) ray, all its (sun, azimuth) texels.
+    let sky_view = || -> crate::Result<(Texture, Texture, Texture, f64)> {
+        let t1 = Instant::now();
+        let per_family = N_SUN * N_AZ * n_c;
+        let n_l = m.len();
+        // The multiple scattering of every other view row first, then the rows between from them
+        // where smooth ([`ms_rows`]): `known` holds the first pass's per metre, by task.
+        let segment = |i: usize| {
+            segment_rows(if i < N_VIEW_SKY {
+                0
+            } else if i < N_VIEW_UP {
+                1
             } else {
-                i < N_VIEW_UP && limb_row_focus(s_j[j], r - bottom).1 > 0.0
-            }
+                2
+            })
         };
-        let mut rays: Vec<Vec<usize>> = vec![(0..N_SUN).filter(|&j| !focused(j)).collect()];
-        rays.extend((0..N_SUN).filter(|&j| focused(j)).map(|j| vec![j]));
-        for (g, suns) in rays.iter().enumerate().filter(|(_, v)| !v.is_empty()) {
-            let (theta, ground) = view_node(i, r, bottom, s_j[suns[0]]);
-            let mu_h = horizon_mu(r, bottom);
-            let mu = if ground {
-                (theta.cos().min(mu_h) - 1e-9).max(-1.0)
-            } else {
-                theta.cos().max(mu_h + 1e-9).min(1.0)
-            };
-            let sin_t = (1.0 - mu * mu).max(0.0).sqrt();
-            let d = ray_length(r, mu, bottom, bottom + thickness, ground);
-            scratch.prepare(r, mu, steps);
-            let mut nus = Vec::with_capacity(suns.len() * N_AZ);
-            for &j in suns {
-                for a in 0..N_AZ {
-                    let phi = columns[k][a];
-                    let limb = (N_VIEW_SKY..N_VIEW_UP).contains(&i);
-                    let shift = sun_shift(r, theta, phi.cos(), bottom, bottom + thickness, limb);
-                    let mu_s = (s_j[j].to_radians() - shift).sin();
-                    let sin_s = (1.0 - mu_s * mu_s).max(0.0).sqrt();
-                    let nu = (mu * mu_s + sin_t * sin_s * phi.cos()).clamp(-1.0, 1.0);
-                    scratch.push_sun(mu_s, nu);
-                    nus.push(nu);
-                }
-            }
-            let sun_at: Vec<f64> = suns.iter().map(|&j| s_j[j]).collect();
+        let row_computed = |i: usize| {
             let (first, last) = segment(i);
-            let stencil = ms_rows::stencils(first, last)[i - first];
-            match stencil {
-                Some(st) if g == 0 && !known.is_empty() => {
-                    let entry = |t: usize, l: usize| (suns[t / N_AZ] * N_AZ + t % N_AZ) * n_l + l;
-                    let row = |c: usize| known[k * N_VIEW + first + c].as_deref();
-                    scratch.integrate_grid_guessed(
-                        &columns[k],
-                        &sun_at,
-                        ms_rows::TOLERANCE,
-                        |t, l| {
-                            let e = entry(t, l);
-                            let (y, rough) =
-                                ms_rows::guess(&st, |c| row(c).map_or(f64::NAN, |r| r[e]))?;
-                            Some((y * d, rough))
-                        },
-                    );
+            ms_rows::computed(i, first, last)
+        };
+        let ray_task =
+            |scratch: &mut FamilyScratch<'_>, task: usize, known: &[Option<Vec<f64>>]| {
+                let (k, i) = (task / N_VIEW, task % N_VIEW);
+                let mut s_out = vec![0.0; per_family];
+                let mut m_out = vec![0.0; per_family];
+                let mut record = None;
+                if cancelled() {
+                    return ((s_out, m_out), record);
                 }
-                _ => scratch.integrate_grid(&columns[k], &sun_at),
-            }
-            if g == 0 && stencil.is_none() {
-                let mut per_m = vec![f64::NAN; N_SUN * N_AZ * n_l];
-                for (n, &j) in suns.iter().enumerate() {
-                    for a in 0..N_AZ {
-                        let ms = scratch.texel(n * N_AZ + a).multiple;
-                        for l in 0..n_l {
-                            per_m[(j * N_AZ + a) * n_l + l] = ms[l] / d;
-                        }
+                let r = eval_radius(k, i, bottom, thickness);
+                let b = warp_strength(heights[k], thickness);
+                let s_j: Vec<f64> = (0..N_SUN).map(|j| sun_warp(sun_node_deg(j), b)).collect();
+                // The rays of this row: one for the suns whose row does not move (every sun
+                // but on the sky rows in low twilight, [`sky_row_focus`]), one per other sun.
+                let focused = |j: usize| {
+                    if i < N_VIEW_SKY {
+                        sky_row_focus(s_j[j], r - bottom).1 > 0.0
+                    } else {
+                        i < N_VIEW_UP && limb_row_focus(s_j[j], r - bottom).1 > 0.0
                     }
-                }
-                record = Some(per_m);
-            }
-            for (n, &j) in suns.iter().enumerate() {
-                for a in 0..N_AZ {
-                    let nu = nus[n * N_AZ + a];
-                    let p_r = param::rayleigh_phase(nu);
-                    let s = scratch.texel(n * N_AZ + a);
-                    let o = (j * N_AZ + a) * n_c;
-                    for (c, &l) in idx.iter().enumerate() {
-                        s_out[o + c] = (s.rayleigh[l] + s.multiple[l] / p_r) * e0[c] / d;
-                        m_out[o + c] = s.mie[l] * e0[c] / d;
-                    }
-                }
-            }
-        }
-        ((s_out, m_out), record)
-    };
-    let pass = |tasks: Vec<usize>, known: &[Option<Vec<f64>>]| -> Vec<_> {
-        tasks
-            .into_par_iter()
-            .map_init(
-                || FamilyScratch::new(shared, m.len()),
-                |scratch, task| (task, ray_task(scratch, task, known)),
-            )
-            .collect()
-    };
-    let (first_tasks, other_tasks): (Vec<usize>, Vec<usize>) =
-        (0..N_ALT * N_VIEW).partition(|&task| row_computed(task % N_VIEW));
-    let mut families = vec![(Vec::new(), Vec::new()); N_ALT * N_VIEW];
-    let mut known: Vec<Option<Vec<f64>>> = vec![None; N_ALT * N_VIEW];
-    for (task, (family, record)) in pass(first_tasks, &[]) {
-        families[task] = family;
-        known[task] = record;
-    }
-    for (task, (family, _)) in pass(other_tasks, &known) {
-        families[task] = family;
-    }
-    drop(known);
-    if cancelled() {
-        return Err(crate::Error::Cancelled);
-    }
-    let mut rayleigh = Texture::new(N_AZ, N_VIEW, N_ALT * N_SUN, n_c, Sample::Half);
-    let mut mie = Texture::new(N_AZ, N_VIEW, N_ALT * N_SUN, n_c, Sample::Half);
-    let mut scale = Texture::new(N_SUN, N_ALT, 1, 2 * n_c, Sample::Float);
-    for k in 0..N_ALT {
-        for j in 0..N_SUN {
-            for (part, tex) in [&mut rayleigh, &mut mie].into_iter().enumerate() {
-                for c in 0..n_c {
-                    let value = |i: usize, a: usize| {
-                        let (s, mm) = &families[k * N_VIEW + i];
-                        let v = if part == 0 { s } else { mm };
-                        v[(j * N_AZ + a) * n_c + c]
+                };
+                let mut rays: Vec<Vec<usize>> = vec![(0..N_SUN).filter(|&j| !focused(j)).collect()];
+                rays.extend((0..N_SUN).filter(|&j| focused(j)).map(|j| vec![j]));
+                for (g, suns) in rays.iter().enumerate().filter(|(_, v)| !v.is_empty()) {
+                    let (theta, ground) = view_node(i, r, bottom, s_j[suns[0]]);
+                    let mu_h = horizon_mu(r, bottom);
+                    let mu = if ground {
+                        (theta.cos().min(mu_h) - 1e-9).max(-1.0)
+                    } else {
+                        theta.cos().max(mu_h + 1e-9).min(1.0)
                     };
-                    let mut max = 0.0f64;
-                    for i in 0..N_VIEW {
+                    let sin_t = (1.0 - mu * mu).max(0.0).sqrt();
+                    let d = ray_length(r, mu, bottom, bottom + thickness, ground);
+                    scratch.prepare(r, mu, steps);
+                    let mut nus = Vec::with_capacity(suns.len() * N_AZ);
+                    for &j in suns {
                         for a in 0..N_AZ {
-                            max = max.max(value(i, a));
+                            let phi = columns[k][a];
+                            let limb = (N_VIEW_SKY..N_VIEW_UP).contains(&i);
+                            let shift =
+                                sun_shift(r, theta, phi.cos(), bottom, bottom + thickness, limb);
+                            let mu_s = (s_j[j].to_radians() - shift).sin();
+                            let sin_s = (1.0 - mu_s * mu_s).max(0.0).sqrt();
+                            let nu = (mu * mu_s + sin_t * sin_s * phi.cos()).clamp(-1.0, 1.0);
+                            scratch.push_sun(mu_s, nu);
+                            nus.push(nu);
                         }
                     }
-                    let sc = if max > 0.0 { max / SLICE_PEAK } else { 1.0 };
-                    scale.data[(k * N_SUN + j) * 2 * n_c + part * n_c + c] = sc as f32;
-                    let z = k * N_SUN + j;
-                    for i in 0..N_VIEW {
+                    let sun_at: Vec<f64> = suns.iter().map(|&j| s_j[j]).collect();
+                    let (first, last) = segment(i);
+                    let stencil = ms_rows::stencils(first, last)[i - first];
+                    match stencil {
+                        Some(st) if g == 0 && !known.is_empty() => {
+                            let entry =
+                                |t: usize, l: usize| (suns[t / N_AZ] * N_AZ + t % N_AZ) * n_l + l;
+                            let row = |c: usize| known[k * N_VIEW + first + c].as_deref();
+                            scratch.integrate_grid_guessed(
+                                &columns[k],
+                                &sun_at,
+                                ms_rows::TOLERANCE,
+                                |t, l| {
+                                    let e = entry(t, l);
+                                    let (y, rough) =
+                                        ms_rows::guess(&st, |c| row(c).map_or(f64::NAN, |r| r[e]))?;
+                                    Some((y * d, rough))
+                                },
+                            );
+                        }
+                        _ => scratch.integrate_grid(&columns[k], &sun_at),
+                    }
+                    if g == 0 && stencil.is_none() {
+                        let mut per_m = vec![f64::NAN; N_SUN * N_AZ * n_l];
+                        for (n, &j) in suns.iter().enumerate() {
+                            for a in 0..N_AZ {
+                                let ms = scratch.texel(n * N_AZ + a).multiple;
+                                for l in 0..n_l {
+                                    per_m[(j * N_AZ + a) * n_l + l] = ms[l] / d;
+                                }
+                            }
+                        }
+                        record = Some(per_m);
+                    }
+                    for (n, &j) in suns.iter().enumerate() {
                         for a in 0..N_AZ {
-                            let o = ((z * N_VIEW + i) * N_AZ + a) * n_c + c;
-                            tex.data[o] = (value(i, a) / sc) as f32;
+                            let nu = nus[n * N_AZ + a];
+                            let p_r = param::rayleigh_phase(nu);
+                            let s = scratch.texel(n * N_AZ + a);
+                            let o = (j * N_AZ + a) * n_c;
+                            for (c, &l) in idx.iter().enumerate() {
+                                s_out[o + c] = (s.rayleigh[l] + s.multiple[l] / p_r) * e0[c] / d;
+                                m_out[o + c] = s.mie[l] * e0[c] / d;
+                            }
+                        }
+                    }
+                }
+                ((s_out, m_out), record)
+            };
+        let pass = |tasks: Vec<usize>, known: &[Option<Vec<f64>>]| -> Vec<_> {
+            tasks
+                .into_par_iter()
+                .map_init(
+                    || FamilyScratch::new(shared, m.len()),
+                    |scratch, task| (task, ray_task(scratch, task, known)),
+                )
+                .collect()
+        };
+        let (first_tasks, other_tasks): (Vec<usize>, Vec<usize>) =
+            (0..N_ALT * N_VIEW).partition(|&task| row_computed(task % N_VIEW));
+        let mut families = vec![(Vec::new(), Vec::new()); N_ALT * N_VIEW];
+        let mut known: Vec<Option<Vec<f64>>> = vec![None; N_ALT * N_VIEW];
+        for (task, (family, record)) in pass(first_tasks, &[]) {
+            families[task] = family;
+            known[task] = record;
+        }
+        for (task, (family, _)) in pass(other_tasks, &known) {
+            families[task] = family;
+        }
+        drop(known);
+        if cancelled() {
+            return Err(crate::Error::Cancelled);
+        }
+        let mut rayleigh = Texture::new(N_AZ, N_VIEW, N_ALT * N_SUN, n_c, Sample::Half);
+        let mut mie = Texture::new(N_AZ, N_VIEW, N_ALT * N_SUN, n_c, Sample::Half);
+        let mut scale = Texture::new(N_SUN, N_ALT, 1, 2 * n_c, Sample::Float);
+        for k in 0..N_ALT {
+            for j in 0..N_SUN {
+                for (part, tex) in [&mut rayleigh, &mut mie].into_iter().enumerate() {
+                    for c in 0..n_c {
+                        let value = |i: usize, a: usize| {
+                            let (s, mm) = &families[k * N_VIEW + i];
+                            let v = if part == 0 { s } else { mm };
+                            v[(j * N_AZ + a) * n_c + c]
+                        };
+                        let mut max = 0.0f64;
+                        for i in 0..N_VIEW {
+                            for a in 0..N_AZ {
+                                max = max.max(value(i, a));
+                            }
+                        }
+                        let sc = if max > 0.0 { max / SLICE_PEAK } else { 1.0 };
+                        scale.data[(k * N_SUN + j) * 2 * n_c + part * n_c + c] = sc as f32;
+                        let z = k * N_SUN + j;
+                        for i in 0..N_VIEW {
+                            for a in 0..N_AZ {
+                                let o = ((z * N_VIEW + i) * N_AZ + a) * n_c + c;
+                                tex.data[o] = (value(i, a) / sc) as f32;
+                            }
                         }
                     }
                 }
             }
         }
-    }
-    rayleigh.round_to_half_bits(HALF_MANTISSA_BITS);
-    mie.round_to_half_bits(HALF_MANTISSA_BITS);
-    let t_view = t1.elapsed().as_secs_f64() * 1e3;
+        rayleigh.round_to_half_bits(HALF_MANTISSA_BITS);
+        mie.round_to_half_bits(HALF_MANTISSA_BITS);
+        Ok((rayleigh, mie, scale, t1.elapsed().as_secs_f64() * 1e3))
+    };
 
     // Irradiance on the altitude × sun nodes.
-    let t2 = Instant::now();
-    let radii: Vec<f64> = (0..N_ALT)
-        .map(|k| (bottom + heights[k]).min(bottom + thickness - EVAL_OFFSET_M))
-        .collect();
-    let sums = build::irradiance_grid(
-        shared,
-        build::IrradianceGrid {
-            radii: &radii,
-            width: N_SUN,
-            mu_s: &sun_mu,
-            ms_columns: true,
-        },
-        &idx,
-        &e0,
-        steps,
-        cancelled,
-    );
-    if cancelled() {
-        return Err(crate::Error::Cancelled);
-    }
-    let mut irradiance = Texture::new(N_SUN, N_ALT, 1, n_c, Sample::Float);
-    for (n, (o, s)) in irradiance.data.iter_mut().zip(sums).enumerate() {
-        let depth = bottom + thickness - radii[n / (N_SUN * n_c)];
-        *o = (s / depth) as f32;
-    }
-    let t_irradiance = t2.elapsed().as_secs_f64() * 1e3;
+    let irradiance = || -> crate::Result<(Texture, f64)> {
+        let t2 = Instant::now();
+        let radii: Vec<f64> = (0..N_ALT)
+            .map(|k| (bottom + heights[k]).min(bottom + thickness - EVAL_OFFSET_M))
+            .collect();
+        let sums = build::irradiance_grid(
+            shared,
+            build::IrradianceGrid {
+                radii: &radii,
+                width: N_SUN,
+                mu_s: &sun_mu,
+                ms_columns: true,
+            },
+            &idx,
+            &e0,
+            steps,
+            cancelled,
+        );
+        if cancelled() {
+            return Err(crate::Error::Cancelled);
+        }
+        let mut irradiance = Texture::new(N_SUN, N_ALT, 1, n_c, Sample::Float);
+        for (n, (o, s)) in irradiance.data.iter_mut().zip(sums).enumerate() {
+            let depth = bottom + thickness - radii[n / (N_SUN * n_c)];
+            *o = (s / depth) as f32;
+        }
+        Ok((irradiance, t2.elapsed().as_secs_f64() * 1e3))
+    };
+    let (view, irradiance) = rayon::join(sky_view, irradiance);
+    let (rayleigh, mie, scale, t_view) = view?;
+    let (irradiance, t_irradiance) = irradiance?;
 
     Ok(SkyViewBundle {
         wavelengths_nm: idx.iter().map(|&i| m.wavelengths_nm[i]).collect(),

@@ -3,6 +3,7 @@
 //! engine's shared tables (so the precise table is the one every product uses, stored and
 //! reused as theirs), and its files (OpenEXR textures + `manifest.json`, through the store).
 
+use rayon::prelude::*;
 use serde_json::{json, Value};
 use skybake_engine::engine::{Engine, ENGINE_VERSION};
 use skybake_engine::spec::CommonSpec;
@@ -228,16 +229,22 @@ impl LutRequest {
         let names = channel_names(&bundle.channels, &bundle.wavelengths_nm);
         let mut scale_names: Vec<String> = names.iter().map(|n| format!("rayleigh.{n}")).collect();
         scale_names.extend(names.iter().map(|n| format!("mie.{n}")));
-        let mut files = vec![
-            (TRANSMITTANCE_FILE, encode(&bundle.transmittance, &names)?),
-            (skyview::RAYLEIGH_FILE, encode(&bundle.rayleigh, &names)?),
-            (skyview::MIE_FILE, encode(&bundle.mie, &names)?),
-            (skyview::SCALE_FILE, encode(&bundle.scale, &scale_names)?),
-            (
-                skyview::IRRADIANCE_FILE,
-                encode(&bundle.irradiance, &names)?,
-            ),
+        // Encoded side by side (the largest first), each file's bytes as encoded alone.
+        let textures = vec![
+            (skyview::RAYLEIGH_FILE, &bundle.rayleigh, &names),
+            (skyview::MIE_FILE, &bundle.mie, &names),
+            (TRANSMITTANCE_FILE, &bundle.transmittance, &names),
+            (skyview::SCALE_FILE, &bundle.scale, &scale_names),
+            (skyview::IRRADIANCE_FILE, &bundle.irradiance, &names),
         ];
+        let mut encoded: Vec<(&'static str, Vec<u8>)> = textures
+            .into_par_iter()
+            .map(|(name, t, n)| Ok((name, encode(t, n)?)))
+            .collect::<Result<_>>()?;
+        // The files in the bundle's order: transmittance, rayleigh, mie, scale, irradiance.
+        encoded.swap(0, 2);
+        encoded.swap(1, 2);
+        let mut files = encoded;
         let m = skyview::manifest(
             bundle,
             &names,

@@ -1348,7 +1348,7 @@ fn single_subrays(grid: &Grid, r: f64, k: usize) -> Vec<(f64, f64)> {
         .collect()
 }
 
-crate::simd_dispatch! {
+crate::simd_dispatch_avx512! {
     /// Radiance of one order for the ray family (r index `ir`, θ index `k`): writes `out`,
     /// `[i_mu_s][i_phi][λ]` (zeroed here).
     fn family_pass(
@@ -1677,7 +1677,7 @@ impl JScratch {
     }
 }
 
-crate::simd_dispatch! {
+crate::simd_dispatch_avx512! {
     /// Â_R and Â_M of the next order for every cell of radius index `ir` (`out`:
     /// `[i_mu][i_mu_s][i_phi][c][λ]`, see [`PreciseMultipleScattering`]) from one order's radiance
     /// there (`l`: `[i_mu][i_mu_s][i_phi][λ]`), in azimuthal cosine space ([`AzimuthalPhase`]): the

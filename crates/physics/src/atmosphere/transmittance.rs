@@ -80,7 +80,7 @@ fn layer_radii(medium: &Medium) -> [Option<f64>; CONSTITUENTS] {
     })
 }
 
-crate::simd_dispatch! {
+crate::simd_dispatch_avx512! {
     /// Integrates ρ_k along the ray (r, mu) over `[0, length]` with `steps` intervals, midpoint
     /// rule in u with t = length·u² (dense at the start, where an upward ray is densest). Sums in
     /// f64; steps are taken in blocks so each profile's loop is branch-free and vectorises (with
@@ -404,22 +404,23 @@ impl AtRadius<'_> {
         let mut am = [0.0f64; BLOCK];
         // `[corner][constituent][sun]`: the table's four (r, μ) corners.
         let mut c = [[[0.0f64; BLOCK]; CONSTITUENTS]; 4];
+        // Whether the row's distances span an interval (else every x_μ is 0), hoisted so the
+        // loop below is branch-free and vectorises (the same operations per sun).
+        let spans = d_max > d_min;
         for s0 in (0..n).step_by(BLOCK) {
             let m = BLOCK.min(n - s0);
             let mu_s = &mu_s[s0..s0 + m];
+            let vis_b = &mut vis[s0..s0 + m];
             for q in 0..m {
                 let x = ((mu_s[q] - self.mu_h_vis) / self.width * 0.5 + 0.5).clamp(0.0, 1.0);
-                vis[s0 + q] = x * x * (3.0 - 2.0 * x);
+                vis_b[q] = x * x * (3.0 - 2.0 * x);
                 // `lookup`, branch-free: `distance_to_sphere_far(..).unwrap_or(0.0)`.
                 let mq = mu_s[q].max(mu_h);
                 let disc = r * r * (mq * mq - 1.0) + top * top;
                 let tq = -r * mq + disc.sqrt();
                 let dq = if disc >= 0.0 && tq >= 0.0 { tq } else { 0.0 };
-                let x_mu = if d_max > d_min {
-                    ((dq - d_min) / (d_max - d_min)).clamp(0.0, 1.0)
-                } else {
-                    0.0
-                };
+                let x_in = ((dq - d_min) / (d_max - d_min)).clamp(0.0, 1.0);
+                let x_mu = if spans { x_in } else { 0.0 };
                 let fm = x_mu * scale;
                 let i = fm.floor().min(last);
                 mu[q] = mq;
