@@ -164,19 +164,19 @@ fn skyview_sky_radiance_matches_the_sky_product() {
     // towards the exit point's; version 11: aloft away from the sun the deep limb rows' back
     // towards the observer's horizon; version 13: the columns focused at 110° from 20–30 km up,
     // each altitude node read at its own column coordinate from 15–20 km up; version 14: the
-    // columns' square-root weight 0.65 below 15 km, a quarter of the sky rows' focus kept under
+    // columns' square-root weight 0.72 below 15 km, a quarter of the sky rows' focus kept under
     // a high band). Where the target is met it is asserted, and the
     // measured bound + ~12 % (the tighter); where it is not (the twilight sky aloft, −12…−6°
     // from 20–100 km, target 10 %, not met: docs/lut.md), the measured bound + ~12 %.
     for (band, measured, target) in [
         (
             "sun >= 5, view > 10 deg above horizon (target 1 %), ground",
-            0.00270,
+            0.00269,
             Some(0.01),
         ),
         (
             "sun >= 5, view > 10 deg above horizon (target 1 %), 0-20 km",
-            0.00162,
+            0.00168,
             Some(0.01),
         ),
         (
@@ -186,12 +186,12 @@ fn skyview_sky_radiance_matches_the_sky_product() {
         ),
         (
             "sun >= 5, view < 10 deg above horizon (target 3 %), ground",
-            0.0053,
+            0.00449,
             Some(0.03),
         ),
         (
             "sun >= 5, view < 10 deg above horizon (target 3 %), 0-20 km",
-            0.00421,
+            0.00484,
             Some(0.03),
         ),
         (
@@ -199,12 +199,12 @@ fn skyview_sky_radiance_matches_the_sky_product() {
             0.02035,
             Some(0.03),
         ),
-        ("sun -6..5 (target 3 %), ground", 0.01299, Some(0.03)),
-        ("sun -6..5 (target 3 %), 0-20 km", 0.01546, Some(0.03)),
-        ("sun -6..5 (target 3 %), 20-100 km", 0.02912, Some(0.03)),
-        ("sun -12..-6 (target 10 %), ground", 0.03462, Some(0.10)),
-        ("sun -12..-6 (target 10 %), 0-20 km", 0.03827, Some(0.10)),
-        ("sun -12..-6 (target 10 %), 20-100 km", 0.1298, None),
+        ("sun -6..5 (target 3 %), ground", 0.01194, Some(0.03)),
+        ("sun -6..5 (target 3 %), 0-20 km", 0.01441, Some(0.03)),
+        ("sun -6..5 (target 3 %), 20-100 km", 0.02905, Some(0.03)),
+        ("sun -12..-6 (target 10 %), ground", 0.03319, Some(0.10)),
+        ("sun -12..-6 (target 10 %), 0-20 km", 0.04724, Some(0.10)),
+        ("sun -12..-6 (target 10 %), 20-100 km", 0.12423, None),
     ] {
         let bound = target.map_or(measured * 1.12, |t: f64| t.min(measured * 1.12));
         assert!(bands.get(band) > 0.0, "no sample in {band}");
@@ -223,8 +223,8 @@ fn skyview_sky_radiance_matches_the_sky_product() {
 /// Version 6 (2026-12-06, each slice read relative to the band): the same but −6…5° at the
 /// ground 1.27 → 2.14 % with 2 columns, and the grid 3.13 → 6.92 %. Version 9 (the focus up
 /// to 20 km): the sun axis asserted on the grid seen aloft at 8–11 km instead (5.23 → 10.0 %).
-/// Version 14 (the columns' square-root weight 0.65 below 15 km, denser 90–135° from the sun):
-/// the azimuth asserted on −6…5° at the ground again (1.05 → 1.74 %; the earth's shadow rising
+/// Version 14 (the columns' square-root weight 0.72 below 15 km, denser 90–135° from the sun):
+/// the azimuth asserted on −6…5° at the ground again (1.19 → 1.93 %; the earth's shadow rising
 /// 2.16 → 3.08 %, the twilight glow at sunset 2.99 → 3.58 %).
 #[test]
 #[ignore = "builds a bundle (about 10 s of CPU): run with --ignored lut_skyview::"]
@@ -336,10 +336,10 @@ fn skyview_nodes_equal_the_sky_product() {
     eprintln!("skyview nodes: largest relative deviation from the sky product {worst:.2e}");
     // The texels' rounding to 8 mantissa bits (≤ 2⁻⁹ = 1.95·10⁻³, [`skyview::HALF_MANTISSA_BITS`])
     // and the multiple scattering the build interpolates between sun nodes where smooth
-    // (docs/lut.md, "Cost"): 2.50·10⁻³ (32 altitude nodes, 2026-12-06; with 10 bits and 28
+    // (docs/lut.md, "Cost"): 4.48·10⁻³ (layout version 14; 2.50·10⁻³ with 32 altitude nodes and the columns of version 13, 2026-12-06; with 10 bits and 28
     // nodes 3.24·10⁻³ at 549 m, sun −7.74°, zenith 8.4°, 112° from the sun, that slice sharing
     // its row's ray with the unfocused suns). Bound: measured + ~12 %.
-    assert!(worst < 2.8e-3, "{worst}");
+    assert!(worst < 5.0e-3, "{worst}");
 }
 
 /// The dim slices keep half floats' relative precision: aloft in deep twilight (sun −12…−6°,
@@ -495,14 +495,16 @@ fn twilight_glow_errors(f: &Fixture, reader: &SkyViewReader, suns: &[f64]) -> (f
 }
 
 /// The twilight glow in deep twilight, 0–20 km (see [`twilight_glow_errors`]); the issue's
-/// target is 10 % (sun down to −12°), not met: measured on 2026-12-06 (earth, standard, RGB,
-/// layout version 14, the columns' square-root weight 0.65 below 15 km) 10.17 % at 5 km, sun
-/// −12°, 0.25° above the horizontal 60° from the sun, 680 nm (version 13: 14.4 % at 15 km, sun
-/// −12°, 1° above the horizontal 60° from the sun, 680 nm, too dark: the altitude nodes; per altitude 6.8 / 7.5 / 8.7 / 6.4 / 14.4 / 7.4 % at
+/// target is 10 % (sun down to −12°), met since layout version 14: measured on 2026-12-06 (earth,
+/// standard, RGB) 9.21 % at 5 km, sun −12°, 0.25° above the horizontal 30° from the sun, 680 nm
+/// (the altitude nodes inserted at 15.3 and 18.5 km alone: 9.00 % at 15 km; the columns'
+/// square-root weight at 0.65 instead of 0.72: 10.16 % at 5 km, 60° from the sun). Version 13:
+/// 14.4 % at 15 km, sun −12°, 1° above the horizontal 60° from the sun, 680 nm, too dark: the
+/// altitude nodes; per altitude 6.8 / 7.5 / 8.7 / 6.4 / 14.4 / 7.4 % at
 /// 0 / 2.5 / 5 / 10 / 15 / 20 km; version 12: 6.8 / 7.5 / 9.6 / 7.8 / 14.4 / 8.4 %). (Version 11: 17.8 % at 5 km, sun −7°, 0.25° above the
 /// horizontal towards the sun, 440 nm, too bright: the sky rows, drawn towards the band above
 /// the earth's shadow opposite the sun; the focus now fades in from −5° to −3° of the sun's
-/// elevation above the observer's horizon.) The bound is the measured + ~12 %.
+/// elevation above the observer's horizon.) The target is asserted, and the measured + ~12 %.
 #[test]
 #[ignore = "builds a bundle (about 10 s of CPU): run with --ignored lut_skyview::"]
 fn skyview_the_twilight_glow_in_deep_twilight() {
@@ -513,9 +515,9 @@ fn skyview_the_twilight_glow_in_deep_twilight() {
         "skyview twilight glow, 0-20 km, sun -12..-6 (target 10 %): {:.3} % {case}",
         100.0 * worst
     );
-    let measured = 0.1017;
+    let measured = 0.0921;
     assert!(worst > 0.0, "no sample");
-    assert!(worst < measured * 1.12, "{worst} {case}");
+    assert!(worst < (measured * 1.12f64).min(0.10), "{worst} {case}");
 }
 
 /// The same grid as [`twilight_glow_errors`] with the sun at −6…5° in 1° steps (the issue's
@@ -538,7 +540,7 @@ fn skyview_the_twilight_glow_at_sunset() {
         "skyview twilight glow, 0-20 km, sun -6..5 (target 3 %): {:.3} % {case}",
         100.0 * worst
     );
-    let measured = 0.0462;
+    let measured = 0.0294;
     assert!(worst > 0.0, "no sample");
     assert!(worst < (measured * 1.12f64).min(0.03), "{worst} {case}");
 }
@@ -777,7 +779,7 @@ fn skyview_the_earth_shadow_rising_at_low_altitude() {
         "skyview earth's shadow rising, 0-5 km, sun -6..0 (target 3 %): {:.3} % {case}",
         100.0 * worst
     );
-    let measured = 0.0216;
+    let measured = 0.0218;
     assert!(worst > 0.0, "no sample");
     assert!(worst < measured * 1.12, "{worst} {case}");
 }
@@ -793,7 +795,7 @@ fn skyview_the_earth_shadow_rising_at_low_altitude() {
 /// takes the band's depth measured aloft from 12.5–17 km up (version 12); the sun nodes are
 /// 0.125° apart from 0° to 0.5° (version 13), and from 15–20 km up each altitude node is read at its
 /// own column coordinate (version 13), and the sky rows' focus fades out under a band 6–9° high
-/// (version 13); the columns' square-root weight is 0.65 below 15 km and a quarter of the rows'
+/// (version 13); the columns' square-root weight is 0.72 below 15 km and a quarter of the rows'
 /// focus is kept under a high band (version 14). The 3 % target (views within 10° of the horizon, sun down to −6°) is
 /// not met at 9.5, 15 and 20 km on the grid nor from 6.5 km up on the dense check (the
 /// altitude axis, the sky rows). The bounds are per altitude, the measured worst + ~12 %
@@ -814,8 +816,8 @@ fn skyview_the_earth_shadow_seen_aloft() {
     let f = fixture();
     let altitudes = [6500.0, 8000.0, 9500.0, 11000.0, 12500.0, 15000.0, 20000.0];
     // Measured worst per altitude (the order of `altitudes`): the grid, the dense check.
-    let measured = [0.0198, 0.0251, 0.0605, 0.0288, 0.0257, 0.0505, 0.0335];
-    let measured_dense = [0.0475, 0.0477, 0.0605, 0.0625, 0.0651, 0.0752, 0.0995];
+    let measured = [0.0186, 0.0250, 0.0603, 0.0260, 0.0255, 0.0510, 0.0292];
+    let measured_dense = [0.0322, 0.0455, 0.0603, 0.0625, 0.0454, 0.0510, 0.0990];
     let t = std::time::Instant::now();
     let results = shadow_aloft_errors(f, &SkyViewReader::new(&f.bundle), &altitudes);
     eprintln!(

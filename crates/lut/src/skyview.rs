@@ -98,7 +98,7 @@ pub const LAYOUT: &str = "skyview";
 /// column azimuths (`azimuth_nodes_rad`);
 /// the sky rows' band focus fades out as the band rises from 6° to 9°
 /// ([`BAND_CENTRE_RANGE_DEG`]): the rows near the horizontal towards the sun at sunset.
-/// 14: the columns' square-root weight 0.65 below 15 km ([`AZIMUTH_GROUND_WEIGHT`]) and a
+/// 14: the columns' square-root weight 0.72 below 15 km ([`AZIMUTH_GROUND_WEIGHT`]) and a
 /// quarter of the sky rows' band focus kept above the fade ([`BAND_CENTRE_FLOOR`]); four altitude
 /// nodes inserted halfway (15.3, 18.5, 51.3, 57.9 km, [`ALTITUDE_INSERTED`]); the half texels
 /// rounded to 8 mantissa bits ([`HALF_MANTISSA_BITS`]) and the ZIP blocks deflated at level 6.
@@ -1026,8 +1026,10 @@ pub const AZIMUTH_ALOFT_WEIGHT: f64 = 0.5;
 /// root's columns are 13–16° apart (9–11° with 0.65). The columns' axis alone (Lagrange over the
 /// `sky` product at the columns, 680 nm, sun −6…5°, 5–15 km): 90° from the sun 2.6 / 3.9 / 5.1 %
 /// at 5 / 10 / 15 km with 1, 1.1 / 0.8 / 0.7 % with 0.65; 120–180° at 0–15 km up to 6.3 % with 1,
-/// 2.2 % with 0.65; by day (sun 5–50°, 0–12 km) 0.67 → 0.54 %.
-pub const AZIMUTH_GROUND_WEIGHT: f64 = 0.65;
+/// 2.2 % with 0.65; by day (sun 5–50°, 0–12 km) 0.67 → 0.54 %. With the altitude nodes
+/// inserted at 15.3 and 18.5 km, 0.72 reads the deep-twilight glow at 5 km within 10 % (0.65:
+/// 10.16 %), the sunset glow within 3 % either way.
+pub const AZIMUTH_GROUND_WEIGHT: f64 = 0.72;
 
 /// The altitudes (m) between which the columns' map moves from the square root (below) to its
 /// blend with (1 − cos φ)/2 (above), [`azimuth_weight`].
@@ -1973,21 +1975,21 @@ pub fn phase_from_json(v: &Value) -> crate::Result<Phase> {
 pub const STATED_ERRORS: &[(&str, &str, f64)] = &[
     ("transmittance", "direct normal irradiance (sun product), sun >= 5 deg, 0-100 km", 0.0003),
     ("transmittance", "direct normal irradiance (sun product), sun -6..5 deg", 0.004),
-    ("rayleigh+mie", "sky radiance (sky product), sun >= 5 deg, view > 10 deg above the horizon, ground", 0.0028),
+    ("rayleigh+mie", "sky radiance (sky product), sun >= 5 deg, view > 10 deg above the horizon, ground", 0.0027),
     ("rayleigh+mie", "sky radiance (sky product), sun >= 5 deg, view > 10 deg above the horizon, 0-20 km", 0.0017),
-    ("rayleigh+mie", "sky radiance (sky product), sun >= 5 deg, view > 10 deg above the horizon, 20-100 km", 0.0029),
-    ("rayleigh+mie", "sky radiance (sky product), sun >= 5 deg, view < 10 deg above the horizon, ground", 0.0054),
-    ("rayleigh+mie", "sky radiance (sky product), sun >= 5 deg, view < 10 deg above the horizon, 0-20 km", 0.0042),
+    ("rayleigh+mie", "sky radiance (sky product), sun >= 5 deg, view > 10 deg above the horizon, 20-100 km", 0.0028),
+    ("rayleigh+mie", "sky radiance (sky product), sun >= 5 deg, view < 10 deg above the horizon, ground", 0.0045),
+    ("rayleigh+mie", "sky radiance (sky product), sun >= 5 deg, view < 10 deg above the horizon, 0-20 km", 0.0048),
     ("rayleigh+mie", "sky radiance (sky product), sun >= 5 deg, view < 10 deg above the horizon, 20-100 km", 0.021),
-    ("rayleigh+mie", "sky radiance (sky product), sun -6..5 deg, ground", 0.011),
+    ("rayleigh+mie", "sky radiance (sky product), sun -6..5 deg, ground", 0.012),
     ("rayleigh+mie", "sky radiance (sky product), sun -6..5 deg, 0-5 km (the band above the earth's shadow 120 deg from the sun, 680 nm at 5 km, 0.5 deg above the horizontal; the twilight glow towards the sun at most 3 %)", 0.046),
-    ("rayleigh+mie", "sky radiance (sky product), sun -6..5 deg, 5-8 km (the band above the earth's shadow near the antisolar horizon, 680 nm at 6.5 km, 1 deg above the horizontal 120 deg from the sun)", 0.048),
-    ("rayleigh+mie", "sky radiance (sky product), sun -6..5 deg, 8-12.5 km (the band above the earth's shadow near the antisolar horizon, 680 nm at 12.5 km, 8 deg above the horizontal 165 deg from the sun, sun -5.25 deg; the twilight glow towards the sun at 10 km at most 4.4 %)", 0.066),
-    ("rayleigh+mie", "sky radiance (sky product), sun -6..5 deg, 12.5-20 km (the band above the earth's shadow near the antisolar horizon, 680 nm at 20 km, 5.25 deg above the horizontal opposite the sun; the twilight glow 90 deg from the sun at 15 km 4.6 %)", 0.100),
-    ("rayleigh+mie", "sky radiance (sky product), sun -6..0 deg, 0-5 km, views within 10 deg of the horizon 150-180 deg from the sun (the earth's shadow rising; 680 nm at 2.5 km)", 0.024),
+    ("rayleigh+mie", "sky radiance (sky product), sun -6..5 deg, 5-8 km (the band above the earth's shadow near the antisolar horizon, 680 nm at 8 km, 3 deg above the horizontal opposite the sun, sun -2.75 deg)", 0.046),
+    ("rayleigh+mie", "sky radiance (sky product), sun -6..5 deg, 8-12.5 km (the band above the earth's shadow near the antisolar horizon, 680 nm at 11 km, 3.5 deg above the horizontal opposite the sun, sun -3.25 deg; the twilight glow towards the sun at most 3 %)", 0.063),
+    ("rayleigh+mie", "sky radiance (sky product), sun -6..5 deg, 12.5-20 km (the band above the earth's shadow near the antisolar horizon, 680 nm at 20 km, 5.25 deg above the horizontal opposite the sun, sun -4.5 deg; the twilight glow towards the sun at most 3 %)", 0.099),
+    ("rayleigh+mie", "sky radiance (sky product), sun -6..0 deg, 0-5 km, views within 10 deg of the horizon 150-180 deg from the sun (the earth's shadow rising; 680 nm at 2.5 km)", 0.022),
     ("rayleigh+mie", "sky radiance (sky product), sun -6..5 deg, 20-100 km (the sky just above the horizontal at 30 km, 440 nm)", 0.030),
-    ("rayleigh+mie", "sky radiance (sky product), sun -12..-6 deg, ground", 0.035),
-    ("rayleigh+mie", "sky radiance (sky product), sun -12..-6 deg, 0-20 km (the twilight glow towards the sun near the horizontal: 9.0 % at 15 km, sun -11 deg, 1.75 deg above the horizontal 60 deg from the sun, 680 nm)", 0.090),
+    ("rayleigh+mie", "sky radiance (sky product), sun -12..-6 deg, ground", 0.033),
+    ("rayleigh+mie", "sky radiance (sky product), sun -12..-6 deg, 0-20 km (the twilight glow towards the sun near the horizontal: 9.2 % at 5 km, sun -12 deg, 0.25 deg above the horizontal 30 deg from the sun, 680 nm)", 0.092),
     ("rayleigh+mie", "sky radiance (sky product), sun -12..-6 deg, 20-100 km (the limb 5.7 deg below the horizontal 94 deg from the sun, 680 nm at 79.5 km)", 0.125),
     ("irradiance", "diffuse horizontal irradiance (sun product), sun >= 5 deg, 0-100 km", 0.015),
     ("irradiance", "diffuse horizontal irradiance (sun product), sun -12..5 deg, 0-100 km", 0.016),
