@@ -1,4 +1,4 @@
-#!/usr/bin/python3
+#!/usr/bin/python3 -s
 """OpenVDB test fixtures written by the reference OpenVDB library (Debian's python3-openvdb).
 
 Writes into tests/data (or --out DIR):
@@ -23,8 +23,8 @@ grid without the constant block, centred over the origin at about 1.5 km).
 
 Run with Debian's interpreter (the package installs for it):
     apt-get install -y python3-openvdb
-    /usr/bin/python3 tools/vdb_fixtures.py            # writes tests/data and the example
-    /usr/bin/python3 tools/vdb_fixtures.py --check    # rewrites into a temporary directory and
+    /usr/bin/python3 -s tools/vdb_fixtures.py            # writes tests/data and the example
+    /usr/bin/python3 -s tools/vdb_fixtures.py --check    # rewrites into a temporary directory and
                                                       # compares with the committed files
 A .vdb file carries a random UUID (bytes 21..57 of the header); --check compares everything else
 byte for byte.
