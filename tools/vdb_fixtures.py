@@ -25,7 +25,7 @@ Run with Debian's interpreter (the package installs for it):
     apt-get install -y python3-openvdb
     /usr/bin/python3 -s tools/vdb_fixtures.py            # writes tests/data and the example
     /usr/bin/python3 -s tools/vdb_fixtures.py --check    # rewrites into a temporary directory and
-                                                      # compares with the committed files
+                                                         # compares with the committed files
 A .vdb file carries a random UUID (bytes 21..57 of the header); --check compares everything else
 byte for byte.
 """
