@@ -145,6 +145,21 @@ float SkyViewSunNodeDeg(int j) {
   return last.x + last.z * last.y;
 }
 
+// Lagrange weights at xq over the nodes x[0..len) (0 beyond len).
+vec4 SkyViewLagrange(float xq, float x[4], int len) {
+  vec4 w = vec4(0.0);
+  for (int m = 0; m < 4; ++m) {
+    if (m >= len) break;
+    float p = 1.0;
+    for (int n = 0; n < 4; ++n) {
+      if (n >= len) break;
+      if (n != m) p *= (xq - x[n]) / (x[m] - x[n]);
+    }
+    w[m] = p;
+  }
+  return w;
+}
+
 // The stencil of y in lo..hi; sun_axis: the abscissa is the node's elevation (degrees, xq the
 // query's), else the node index (xq = y).
 SvStencil SkyViewStencil(float y, int lo, int hi, bool sun_axis, float xq) {
@@ -166,15 +181,7 @@ SvStencil SkyViewStencil(float y, int lo, int hi, bool sun_axis, float xq) {
     st.w[st.i0 - st.first] = 1.0;
     return st;
   }
-  for (int m = 0; m < 4; ++m) {
-    if (m >= st.len) break;
-    float w = 1.0;
-    for (int n = 0; n < 4; ++n) {
-      if (n >= st.len) break;
-      if (n != m) w *= (xq - x[n]) / (x[m] - x[n]);
-    }
-    st.w[m] = w;
-  }
+  st.w = SkyViewLagrange(xq, x, st.len);
   return st;
 }
 
@@ -316,15 +323,7 @@ SvStencil SkyViewAltitudeStencil(float y) {
   float xq = mix(sv_alt_x[st.i0], sv_alt_x[st.i0 + 1], st.t);
   float x[4];
   for (int m = 0; m < 4; ++m) x[m] = sv_alt_x[min(st.first + m, SV_N_ALT - 1)];
-  for (int m = 0; m < 4; ++m) {
-    if (m >= st.len) break;
-    float w = 1.0;
-    for (int n = 0; n < 4; ++n) {
-      if (n >= st.len) break;
-      if (n != m) w *= (xq - x[n]) / (x[m] - x[n]);
-    }
-    st.w[m] = w;
-  }
+  st.w = SkyViewLagrange(xq, x, st.len);
   return st;
 }
 
