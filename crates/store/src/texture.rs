@@ -103,18 +103,15 @@ const ZIP_LEVEL: u32 = 6;
 /// OpenEXR write them: per block of 16 lines, each line's channels in the header's order,
 /// little-endian; the bytes split into the even and odd ones, a byte-delta predictor, zlib),
 /// deflated at [`ZIP_LEVEL`]; a block stored raw where that is not smaller. (y, bytes) per
-/// block, in increasing y; blocks are compressed on the available cores, each thread with one
-/// encoder reset between its blocks (the bytes of a new encoder's: `ZlibEncoder::reset` resets
-/// the compressor entirely; a new one per block allocated and zeroed its ~300 kB of tables and
-/// buffers for 2 kB of input, 5 % of the `skyview` bundle's build in page faults and memset).
+/// block, in increasing y; blocks are compressed on the available cores.
 fn zip_blocks(
     channels: &[AnyChannel<FlatSamples>],
     width: usize,
     height: usize,
 ) -> Vec<(usize, Vec<u8>)> {
-    let block = |y0: usize, z: &mut ZlibEncoder<Vec<u8>>, raw: &mut Vec<u8>| -> (usize, Vec<u8>) {
+    let block = |y0: usize| -> (usize, Vec<u8>) {
         let y1 = (y0 + ZIP_LINES).min(height);
-        raw.clear();
+        let mut raw = Vec::new();
         for y in y0..y1 {
             for c in channels {
                 let line = y * width..(y + 1) * width;
@@ -136,17 +133,20 @@ fn zip_blocks(
         for i in (1..split.len()).rev() {
             split[i] = split[i].wrapping_sub(split[i - 1]).wrapping_add(128);
         }
-        // `reset` finishes the stream, hands back its bytes and starts the next one afresh.
+        let mut z = ZlibEncoder::new(
+            Vec::with_capacity(raw.len()),
+            flate2::Compression::new(ZIP_LEVEL),
+        );
         let compressed = z
             .write_all(&split)
-            .and_then(|()| z.reset(Vec::with_capacity(raw.len())))
+            .and_then(|()| z.finish())
             .unwrap_or_default();
         (
             y0,
             if !compressed.is_empty() && compressed.len() < raw.len() {
                 compressed
             } else {
-                raw.clone()
+                raw
             },
         )
     };
@@ -158,15 +158,7 @@ fn zip_blocks(
     std::thread::scope(|s| {
         let handles: Vec<_> = starts
             .chunks(per)
-            .map(|part| {
-                s.spawn(|| {
-                    let mut z = ZlibEncoder::new(Vec::new(), flate2::Compression::new(ZIP_LEVEL));
-                    let mut raw = Vec::new();
-                    part.iter()
-                        .map(|&y| block(y, &mut z, &mut raw))
-                        .collect::<Vec<_>>()
-                })
-            })
+            .map(|part| s.spawn(|| part.iter().map(|&y| block(y)).collect::<Vec<_>>()))
             .collect();
         handles
             .into_iter()
