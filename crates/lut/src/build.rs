@@ -103,21 +103,6 @@ impl Texture {
         }
     }
 
-    /// Rounds every value of a half-float texture to `bits` (≤ 10) mantissa bits, to nearest
-    /// (ties to even), a relative rounding of at most 2^−(bits + 1) for normal half floats: the
-    /// lowest bits of the 10 are zeros, which deflate compresses (docs/lut.md, "The `skyview`
-    /// layout", Size).
-    pub(crate) fn round_to_half_bits(&mut self, bits: u32) {
-        debug_assert!(self.sample == Sample::Half && bits <= 10);
-        let drop = 23 - bits;
-        for v in &mut self.data {
-            let b = v.to_bits();
-            let lsb = (b >> drop) & 1;
-            let rounded = (b + (1 << (drop - 1)) - 1 + lsb) & !((1u32 << drop) - 1);
-            *v = half::f16::from_f32(f32::from_bits(rounded)).to_f32();
-        }
-    }
-
     /// Texel (x, y, z), all channels.
     pub fn texel(&self, x: usize, y: usize, z: usize) -> &[f32] {
         let i = ((z * self.height + y) * self.width + x) * self.channels;
@@ -1103,5 +1088,20 @@ fn multiple_sums(scratch: &mut FamilyScratch<'_>) {
                 ((r * scratch.mu_s[t] + p.t * scratch.nu[t]) / p.r).clamp(-1.0, 1.0);
         }
         multiple_at_point(scratch, k);
+    }
+}
+
+/// Rounds values of a half-float texture to `bits` (≤ 10) mantissa bits, to nearest
+/// (ties to even), a relative rounding of at most 2^−(bits + 1) for normal half floats: the
+/// lowest bits of the 10 are zeros, which deflate compresses (docs/lut.md, "The `skyview`
+/// layout", Size).
+pub(crate) fn round_to_half_bits(values: &mut [f32], bits: u32) {
+    debug_assert!(bits <= 10);
+    let drop = 23 - bits;
+    for v in values {
+        let b = v.to_bits();
+        let lsb = (b >> drop) & 1;
+        let rounded = (b + (1 << (drop - 1)) - 1 + lsb) & !((1u32 << drop) - 1);
+        *v = half::f16::from_f32(f32::from_bits(rounded)).to_f32();
     }
 }

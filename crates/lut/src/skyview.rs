@@ -1348,19 +1348,40 @@ pub fn build_skyview(
                 .into_par_iter()
                 .map_init(
                     || FamilyScratch::new(shared, m.len()),
-                    |scratch, task| (task, ray_task(scratch, task, known)),
+                    |scratch, task| {
+                        let t = Instant::now();
+                        let out = ray_task(scratch, task, known);
+                        (task, out, t.elapsed())
+                    },
                 )
                 .collect()
         };
-        let (first_tasks, other_tasks): (Vec<usize>, Vec<usize>) =
+        let (first_tasks, mut other_tasks): (Vec<usize>, Vec<usize>) =
             (0..N_ALT * N_VIEW).partition(|&task| row_computed(task % N_VIEW));
         let mut families = vec![(Vec::new(), Vec::new()); N_ALT * N_VIEW];
         let mut known: Vec<Option<Vec<f64>>> = vec![None; N_ALT * N_VIEW];
-        for (task, (family, record)) in pass(first_tasks, &[]) {
+        let mut took = vec![std::time::Duration::ZERO; N_ALT * N_VIEW];
+        for (task, (family, record), dt) in pass(first_tasks, &[]) {
             families[task] = family;
             known[task] = record;
+            took[task] = dt;
         }
-        for (task, (family, _)) in pass(other_tasks, &known) {
+        // The rows between in the order of the longest of their two neighbours' times in the
+        // first pass (a row costs about what the rows around it cost: its suns' refinements), so
+        // that the pass does not end on one long task with the other core idle; the tasks'
+        // results are placed by their index, whatever the order.
+        let around = |task: usize| {
+            let i = task % N_VIEW;
+            let before = if i > 0 { took[task - 1] } else { took[task] };
+            let after = if i + 1 < N_VIEW {
+                took[task + 1]
+            } else {
+                took[task]
+            };
+            before.max(after)
+        };
+        other_tasks.sort_by_key(|&task| std::cmp::Reverse(around(task)));
+        for (task, (family, _), _) in pass(other_tasks, &known) {
             families[task] = family;
         }
         drop(known);
@@ -1370,9 +1391,17 @@ pub fn build_skyview(
         let mut rayleigh = Texture::new(N_AZ, N_VIEW, N_ALT * N_SUN, n_c, Sample::Half);
         let mut mie = Texture::new(N_AZ, N_VIEW, N_ALT * N_SUN, n_c, Sample::Half);
         let mut scale = Texture::new(N_SUN, N_ALT, 1, 2 * n_c, Sample::Float);
-        for k in 0..N_ALT {
-            for j in 0..N_SUN {
-                for (part, tex) in [&mut rayleigh, &mut mie].into_iter().enumerate() {
+        // Each (altitude, sun) slice scaled to its peak and rounded, the slices on the cores
+        // (the irradiance's tasks are done by then: serial, this left a core idle).
+        let slab = N_VIEW * N_AZ * n_c;
+        for (part, tex) in [&mut rayleigh, &mut mie].into_iter().enumerate() {
+            let scales: Vec<Vec<f32>> = tex
+                .data
+                .par_chunks_mut(slab)
+                .enumerate()
+                .map(|(z, out)| {
+                    let (k, j) = (z / N_SUN, z % N_SUN);
+                    let mut scales = vec![0.0f32; n_c];
                     for c in 0..n_c {
                         let value = |i: usize, a: usize| {
                             let (s, mm) = &families[k * N_VIEW + i];
@@ -1386,20 +1415,22 @@ pub fn build_skyview(
                             }
                         }
                         let sc = if max > 0.0 { max / SLICE_PEAK } else { 1.0 };
-                        scale.data[(k * N_SUN + j) * 2 * n_c + part * n_c + c] = sc as f32;
-                        let z = k * N_SUN + j;
+                        scales[c] = sc as f32;
                         for i in 0..N_VIEW {
                             for a in 0..N_AZ {
-                                let o = ((z * N_VIEW + i) * N_AZ + a) * n_c + c;
-                                tex.data[o] = (value(i, a) / sc) as f32;
+                                out[(i * N_AZ + a) * n_c + c] = (value(i, a) / sc) as f32;
                             }
                         }
                     }
-                }
+                    build::round_to_half_bits(out, HALF_MANTISSA_BITS);
+                    scales
+                })
+                .collect();
+            for (z, sc) in scales.iter().enumerate() {
+                let o = z * 2 * n_c + part * n_c;
+                scale.data[o..o + n_c].copy_from_slice(sc);
             }
         }
-        rayleigh.round_to_half_bits(HALF_MANTISSA_BITS);
-        mie.round_to_half_bits(HALF_MANTISSA_BITS);
         Ok((rayleigh, mie, scale, t1.elapsed().as_secs_f64() * 1e3))
     };
 
