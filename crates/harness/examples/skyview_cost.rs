@@ -1,11 +1,11 @@
 //! The `skyview` bundle's build cost and how far its texels are from a reference bundle's: builds
 //! the bundle as `skybake lut --layout skyview` does (`earth`, RGB, `standard`), prints the
-//! multiple-scattering table's point × sun lookups (`skybake_lut::build::LOOKUPS`) and the
-//! refined suns (`REFINED`), the build's
-//! wall time, and, given the directory of another build of the same bundle (e.g. one written by
-//! another binary), the relative differences of the rayleigh, mie and irradiance texels (their
-//! scale applied): the largest, where, and percentiles, over texels above 10⁻⁶ of their slice's
-//! peak.
+//! multiple-scattering table's point × sun lookups (`skybake_lut::build::LOOKUPS`, sky view and
+//! irradiance), the interpolated suns refined (`REFINED`) and the build's wall time, and, given
+//! the directory of another build of the same bundle (e.g. one written by another binary), the
+//! relative differences of the rayleigh, mie and irradiance texels (their scale applied, after
+//! the half floats' rounding): the largest, where, and percentiles, over texels above 10⁻⁶ of
+//! their slice's peak.
 //!
 //! `cargo run --release -p skybake-harness --features probes --example skyview_cost -- [REF_DIR]`
 
@@ -58,12 +58,10 @@ fn main() {
     let b = request.compute_skyview(&engine).expect("bundle");
     let wall = t.elapsed().as_secs_f64();
     let lookups = skybake_lut::build::LOOKUPS.load(Ordering::Relaxed) - before;
-    let refined = skybake_lut::build::REFINED
-        .each_ref()
-        .map(|c| c.load(Ordering::Relaxed));
+    let refined = skybake_lut::build::REFINED.load(Ordering::Relaxed);
     println!(
-        "lookups {lookups}; refined along the whole ray {}, point by point {} ({} points); build {wall:.2} s wall; stages ms {:?}",
-        refined[0], refined[1], refined[2], b.timing_ms
+        "lookups {lookups}; interpolated suns refined {refined}; build {wall:.2} s wall; stages ms {:?}",
+        b.timing_ms
     );
     let Some(dir) = std::env::args().nth(1) else {
         return;

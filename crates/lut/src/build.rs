@@ -23,7 +23,7 @@ use rayon::prelude::*;
 use skybake_physics::atmosphere::geometry::horizon_mu;
 use skybake_physics::atmosphere::integrate::{cell_weight, ray_points, RayPoint};
 use skybake_physics::atmosphere::irradiance::{SUN_PRODUCT_N_MU, SUN_PRODUCT_N_PHI};
-use skybake_physics::atmosphere::kernels::{exp_fast, exp_fast_f32, ln_fast};
+use skybake_physics::atmosphere::kernels::exp_fast_f32;
 use skybake_physics::atmosphere::medium::{Medium, CONSTITUENTS, MIE, RAYLEIGH};
 use skybake_physics::atmosphere::multiple_precise::{
     source_sun_zenith_limit_rad, JSlice, PreciseMultipleScattering,
@@ -656,26 +656,6 @@ pub(crate) struct FamilyScratch<'a> {
     ms_j: Vec<f64>,
     /// [`texel_sums`] forms no multiple scattering at all ([`Self::integrate_grid_guessed`]).
     ms_skip: bool,
-    /// `[sun][point][λ]`: J_ms at each point of the ray of the suns whose [`PointJ`] says so
-    /// (its value, or its logarithm, `-∞` where not positive): what a refined sun interpolates
-    /// point by point ([`Self::refine_points`]).
-    pj: Vec<f64>,
-    pj_state: Vec<PointJ>,
-    /// `[sun][point][λ]`: ln of `pj` (−∞ where not positive), where [`PointJ::Ln`].
-    pl: Vec<f64>,
-    /// `[point]`: the suns whose J_ms [`Self::refine_points`] computes there.
-    point_suns: Vec<Vec<usize>>,
-}
-
-/// What [`FamilyScratch`]'s `pj` holds of one sun.
-#[derive(Debug, Clone, Copy)]
-enum PointJ {
-    /// Nothing (its multiple scattering was not computed point by point here).
-    None,
-    /// J_ms per point.
-    Value,
-    /// J_ms per point, and its logarithm in `pl`.
-    Ln,
 }
 
 impl<'a> FamilyScratch<'a> {
@@ -707,10 +687,6 @@ impl<'a> FamilyScratch<'a> {
             ms_nu: Vec::new(),
             ms_j: Vec::new(),
             ms_skip: false,
-            pj: Vec::new(),
-            pj_state: Vec::new(),
-            pl: Vec::new(),
-            point_suns: Vec::new(),
         }
     }
 
@@ -860,9 +836,6 @@ impl<'a> FamilyScratch<'a> {
         }));
         if !self.ms_suns.is_empty() {
             multiple_sums(self);
-            for &t in &self.ms_suns {
-                self.pj_state[t] = PointJ::Value;
-            }
             self.ms_suns.clear();
         }
         self.interpolate_grid(phis, suns, &known);
@@ -901,9 +874,7 @@ impl<'a> FamilyScratch<'a> {
     /// curvature part alone if `curvature_only`) times the multiple scattering's share of the
     /// value (single Rayleigh without its phase function plus multiple scattering over the
     /// Rayleigh phase function, as the `skyview` texels store it; of a radiance that adds single
-    /// Mie, at least its share) is within `tolerance`; refined where it is not: point by point
-    /// where the stencil's suns have their J_ms per point ([`Self::refine_points`]), else
-    /// computed along the whole ray.
+    /// Mie, at least its share) is within `tolerance`; computed where it is not.
     fn interpolate_ms(
         &mut self,
         targets: &[(usize, ms_columns::Stencil, usize, usize)],
@@ -912,8 +883,7 @@ impl<'a> FamilyScratch<'a> {
     ) {
         let n_l = self.n_l;
         let n_t = self.mu_s.len();
-        let mut whole = Vec::new();
-        let mut by_point = Vec::new();
+        let mut refine = Vec::new();
         let mut values = Vec::with_capacity(n_l);
         for &(t, s, base, stride) in targets {
             let p_r = param::rayleigh_phase(self.nu[t]);
@@ -938,176 +908,20 @@ impl<'a> FamilyScratch<'a> {
             }
             if ok {
                 self.multiple[t * n_l..(t + 1) * n_l].copy_from_slice(&values);
-            } else if knob("SKYBAKE_WHOLE_RAYS", 0.0) == 0.0
-                && (0..s.len).all(|i| self.point_ln(base + s.nodes[i] * stride))
-            {
-                by_point.push((t, s, base, stride));
             } else {
-                whole.push(t);
+                refine.push(t);
             }
         }
-        self.refine_points(&whole, &by_point, tolerance, curvature_only);
-    }
-
-    /// Whether sun `t`'s ln J_ms per point is in `pl` (formed from `pj` if not yet).
-    fn point_ln(&mut self, t: usize) -> bool {
-        let block = self.points.len() * self.n_l;
-        match self.pj_state[t] {
-            PointJ::Ln => true,
-            PointJ::None => false,
-            PointJ::Value => {
-                let range = t * block..(t + 1) * block;
-                ln_of(&self.pj[range.clone()], &mut self.pl[range]);
-                self.pj_state[t] = PointJ::Ln;
-                true
-            }
-        }
-    }
-
-    /// The multiple-scattering sums of the suns `whole` computed at every point of the ray, and
-    /// of the suns `by_point` (target, stencil, base, stride; the stencil's suns with their ln
-    /// J_ms per point in `pj`) at some: at each point J_ms is the Lagrange polynomial in ln
-    /// through the stencil's suns' (as [`ms_columns::interpolate`] over the integrals; bounded
-    /// by their range), and its roughness there (as the integral's) times the point's share of
-    /// the value (its weighted J_ms over the Rayleigh phase function, over the value with the
-    /// interpolated points' J_ms) is summed over the points; the points with the largest are
-    /// computed until the sum of the rest is within `tolerance` for every wavelength, and
-    /// every point where a stencil sun's J_ms is not positive. Knees and steps of the integral
-    /// (where the sun of some points of the ray crosses the terminator or the table's last sun
-    /// zenith) sit at a few points of a ray.
-    fn refine_points(
-        &mut self,
-        whole: &[usize],
-        by_point: &[(usize, ms_columns::Stencil, usize, usize)],
-        tolerance: f64,
-        curvature_only: bool,
-    ) {
-        if whole.is_empty() && by_point.is_empty() {
-            return;
-        }
-        let tolerance = tolerance * knob("SKYBAKE_PT_TOL", 1.0);
-        let n_l = self.n_l;
-        let n_t = self.mu_s.len();
-        let np = self.points.len();
-        let block = np * n_l;
         #[cfg(feature = "lookup-counter")]
-        {
-            use std::sync::atomic::Ordering::Relaxed;
-            REFINED[0].fetch_add(whole.len() as u64, Relaxed);
-            REFINED[1].fetch_add(by_point.len() as u64, Relaxed);
-        }
-        let mut lists = std::mem::take(&mut self.point_suns);
-        lists.resize_with(np, Vec::new);
-        for list in &mut lists[..np] {
-            list.clear();
-            list.extend_from_slice(whole);
-        }
-        let mut j = vec![0.0f64; block];
-        let mut contrib = vec![0.0f64; block];
-        let mut forced = vec![false; np];
-        let mut inv = vec![0.0f64; n_l];
-        let mut left = vec![0.0f64; n_l];
-        let mut order: Vec<(f64, usize)> = Vec::with_capacity(np);
-        for &(t, s, base, stride) in by_point {
-            let node = |i: usize| (base + s.nodes[i.min(s.len - 1)] * stride) * block;
-            let at = |c: usize| s.nodes.iter().position(|&n| n == c).unwrap_or(0);
-            let nodes: [usize; 4] = std::array::from_fn(node);
-            let (pj, pl) = (&self.pj, &self.pl);
-            point_interpolation(
-                nodes.map(|o| &pl[o..o + block]),
-                nodes.map(|o| &pj[o..o + block]),
-                s.len,
-                s.w,
-                [nodes[at(s.lo)], nodes[at(s.hi)]].map(|o| &pl[o..o + block]),
-                curvature_only,
-                &self.weighted_t[..block],
-                &mut j,
-                &mut contrib,
-            );
-            // The value's multiple scattering with the interpolated points (0 where forced).
-            inv.fill(0.0);
-            for (wt, j) in self.weighted_t[..block]
-                .chunks_exact(n_l)
-                .zip(j.chunks_exact(n_l))
-            {
-                for l in 0..n_l {
-                    inv[l] += wt[l] * j[l];
-                }
-            }
-            // 1 / (p_r × the value): single + multiple scattering over the Rayleigh phase.
-            let p_r = param::rayleigh_phase(self.nu[t]);
-            let mut ok = true;
-            for l in 0..n_l {
-                let value = p_r * self.rayleigh[l * n_t + t] + inv[l];
-                ok &= value > 0.0 && value.is_finite();
-                inv[l] = 1.0 / value;
-            }
-            left.fill(0.0);
-            order.clear();
-            // A point is computed where a stencil sun's J_ms is not positive (∞ there).
-            for (k, c) in contrib.chunks_exact(n_l).enumerate() {
-                forced[k] = c.iter().any(|c| c.is_infinite());
-                if forced[k] {
-                    continue;
-                }
-                let mut m = 0.0f64;
-                for l in 0..n_l {
-                    let c = c[l] * inv[l];
-                    left[l] += c;
-                    m = m.max(c);
-                }
-                order.push((m, k));
-            }
-            // The points with the largest contributions, until the rest's are within.
-            if ok && left.iter().any(|&e| e > tolerance) {
-                order.sort_unstable_by(|a, b| b.0.total_cmp(&a.0));
-                for &(_, k) in &order {
-                    for l in 0..n_l {
-                        left[l] -= contrib[k * n_l + l] * inv[l];
-                    }
-                    forced[k] = true;
-                    if left.iter().all(|&e| e <= tolerance) {
-                        break;
-                    }
-                }
-            }
-            for (k, list) in lists[..np].iter_mut().enumerate() {
-                if forced[k] || !ok {
-                    list.push(t);
-                    #[cfg(feature = "lookup-counter")]
-                    REFINED[2].fetch_add(1, std::sync::atomic::Ordering::Relaxed);
-                }
-            }
-            self.pj[t * block..(t + 1) * block].copy_from_slice(&j);
-        }
-        let r = self.r;
-        for (k, list) in lists[..np].iter_mut().enumerate() {
-            if list.is_empty() {
-                continue;
-            }
-            std::mem::swap(&mut self.ms_suns, list);
-            let p = &self.points[k];
+        REFINED.fetch_add(refine.len() as u64, std::sync::atomic::Ordering::Relaxed);
+        if !refine.is_empty() {
+            self.ms_suns = refine;
             for &t in &self.ms_suns {
-                self.mu_s_p[t] = ((r * self.mu_s[t] + p.t * self.nu[t]) / p.r).clamp(-1.0, 1.0);
+                self.multiple[t * n_l..(t + 1) * n_l].fill(0.0);
             }
-            lookup_at_point(self, k);
-            std::mem::swap(&mut self.ms_suns, list);
+            multiple_sums(self);
         }
-        self.point_suns = lists;
         self.ms_suns.clear();
-        for t in whole.iter().copied().chain(by_point.iter().map(|p| p.0)) {
-            let ms = &mut self.multiple[t * n_l..(t + 1) * n_l];
-            ms.fill(0.0);
-            for (wt, j) in self.weighted_t[..block]
-                .chunks_exact(n_l)
-                .zip(self.pj[t * block..(t + 1) * block].chunks_exact(n_l))
-            {
-                for l in 0..n_l {
-                    ms[l] += wt[l] * j[l];
-                }
-            }
-            self.pj_state[t] = PointJ::Value;
-        }
     }
 
     /// The sums of [`Self::integrate`], the multiple scattering for the suns `ms_suns` (all
@@ -1126,14 +940,7 @@ impl<'a> FamilyScratch<'a> {
         {
             v.resize(n_t, 0.0);
         }
-        self.pj.resize(n * self.points.len(), 0.0);
-        self.pl.resize(n * self.points.len(), 0.0);
-        self.pj_state.clear();
-        self.pj_state.resize(n_t, PointJ::None);
         texel_sums(self);
-        for &t in &self.ms_suns {
-            self.pj_state[t] = PointJ::Value;
-        }
     }
 
     /// The integrals of sun `t` (in the order pushed) of the last [`Self::integrate`].
@@ -1254,11 +1061,12 @@ skybake_physics::simd_dispatch_avx512! {
     }
 }
 
-/// Point `k`'s J_ms of the suns `ms_suns` (their zenith cosines at the point in `mu_s_p`) in
-/// `ms_j` (`[sun][λ]`) and in `pj`.
+/// Adds point `k`'s multiple scattering to the sums of the suns `ms_suns` (their zenith cosines
+/// at the point in `mu_s_p`): the operations of [`texel_sums`] for those suns, in the same order.
 #[inline(always)]
-fn lookup_at_point(scratch: &mut FamilyScratch<'_>, k: usize) {
+fn multiple_at_point(scratch: &mut FamilyScratch<'_>, k: usize) {
     let n_l = scratch.n_l;
+    let wt = &scratch.weighted_t[k * n_l..(k + 1) * n_l];
     scratch.ms_mu_s_p.clear();
     scratch.ms_nu.clear();
     for &t in &scratch.ms_suns {
@@ -1285,20 +1093,6 @@ fn lookup_at_point(scratch: &mut FamilyScratch<'_>, k: usize) {
         scratch.ms_suns.len() as u64,
         std::sync::atomic::Ordering::Relaxed,
     );
-    let block = scratch.points.len() * n_l;
-    for (&t, j) in scratch.ms_suns.iter().zip(scratch.ms_j.chunks_exact(n_l)) {
-        let o = t * block + k * n_l;
-        scratch.pj[o..o + n_l].copy_from_slice(j);
-    }
-}
-
-/// Adds point `k`'s multiple scattering to the sums of the suns `ms_suns` (their zenith cosines
-/// at the point in `mu_s_p`): the operations of [`texel_sums`] for those suns, in the same order.
-#[inline(always)]
-fn multiple_at_point(scratch: &mut FamilyScratch<'_>, k: usize) {
-    let n_l = scratch.n_l;
-    lookup_at_point(scratch, k);
-    let wt = &scratch.weighted_t[k * n_l..(k + 1) * n_l];
     for (&t, j) in scratch.ms_suns.iter().zip(scratch.ms_j.chunks_exact(n_l)) {
         let ms = &mut scratch.multiple[t * n_l..(t + 1) * n_l];
         for l in 0..n_l {
@@ -1308,105 +1102,14 @@ fn multiple_at_point(scratch: &mut FamilyScratch<'_>, k: usize) {
 }
 
 /// The point × sun lookups of the multiple-scattering table made by [`FamilyScratch`] since the
-/// process started (a measurement of the refinements' cost).
+/// process started (what the smoothness tests' refinements cost: `skyview_cost` probe).
 #[cfg(feature = "lookup-counter")]
 pub static LOOKUPS: std::sync::atomic::AtomicU64 = std::sync::atomic::AtomicU64::new(0);
 
-/// [`FamilyScratch::refine_points`]' suns refined along the whole ray, refined point by point,
-/// and the points computed for the latter, since the process started.
+/// The suns whose multiple scattering [`FamilyScratch`] interpolated, found not smooth and
+/// computed after all, since the process started.
 #[cfg(feature = "lookup-counter")]
-pub static REFINED: [std::sync::atomic::AtomicU64; 3] = [
-    std::sync::atomic::AtomicU64::new(0),
-    std::sync::atomic::AtomicU64::new(0),
-    std::sync::atomic::AtomicU64::new(0),
-];
-
-skybake_physics::simd_dispatch_avx512! {
-    /// [`FamilyScratch::refine_points`]' interpolation of a sun's J_ms at every point (`j`)
-    /// from the stencil's suns' ln J_ms (`ln_nodes`; `nodes` their J_ms; `len` of them,
-    /// Lagrange weights `w`; `around`: ln J_ms of the two around the sun), and each value's
-    /// roughness (as [`ms_columns::interpolate`]'s) times its weight (`weighted_t`) times the
-    /// largest of the nodes' J_ms there (what the interpolation may miss) in `contrib`: ∞ (and
-    /// `j` 0) where a node's J_ms is not positive. Branch-free, so its loop over points and
-    /// wavelengths vectorises.
-    fn point_interpolation(
-        ln_nodes: [&[f64]; 4],
-        nodes: [&[f64]; 4],
-        len: usize,
-        w: [f64; 4],
-        around: [&[f64]; 2],
-        curvature_only: bool,
-        weighted_t: &[f64],
-        j: &mut [f64],
-        contrib: &mut [f64],
-    ) {
-        let n = j.len();
-        let [x0, x1, x2, x3] = ln_nodes.map(|x| &x[..n]);
-        let [v0, v1, v2, v3] = nodes.map(|x| &x[..n]);
-        let [lo, hi] = around.map(|x| &x[..n]);
-        let (wt, contrib) = (&weighted_t[..n], &mut contrib[..n]);
-        // Weights beyond `len` are 0 (their node repeats the last one).
-        let w: [f64; 4] = std::array::from_fn(|i| if i < len { w[i] } else { 0.0 });
-        let c1 = if len >= 3 { 1.0 } else { 0.0 };
-        let c2 = if len >= 4 { 1.0 } else { 0.0 };
-        let step = if curvature_only { 0.0 } else { 1.0 };
-        for o in 0..n {
-            let x = [x0[o], x1[o], x2[o], x3[o]];
-            let ln = w[0] * x[0] + w[1] * x[1] + w[2] * x[2] + w[3] * x[3];
-            let min = x[0].min(x[1]).min(x[2].min(x[3]));
-            let max = x[0].max(x[1]).max(x[2].max(x[3]));
-            let ln = ln.max(min).min(max);
-            let d1 = c1 * (x[0] - 2.0 * x[1] + x[2]).abs();
-            let d2 = c2 * (x[1] - 2.0 * x[2] + x[3]).abs();
-            let rough = (2.0 * d1.max(d2)).max(step * (hi[o] - lo[o]).abs());
-            let finite = min > f64::NEG_INFINITY;
-            let top = v0[o].max(v1[o]).max(v2[o].max(v3[o]));
-            j[o] = if finite { exp_fast(ln) } else { 0.0 };
-            contrib[o] = if finite {
-                rough * wt[o] * top
-            } else {
-                f64::INFINITY
-            };
-        }
-    }
-}
-
-skybake_physics::simd_dispatch_avx512! {
-    /// `out` = ln `x` where `x` ≥ the smallest normal f64, else −∞ ([`FamilyScratch::point_ln`]).
-    fn ln_of(x: &[f64], out: &mut [f64]) {
-        for (o, &v) in out.iter_mut().zip(x) {
-            *o = if v >= f64::MIN_POSITIVE {
-                ln_fast(v)
-            } else {
-                f64::NEG_INFINITY
-            };
-        }
-    }
-}
-
-/// An experiment's knob (temporary).
-fn knob(name: &str, default: f64) -> f64 {
-    static KNOBS: std::sync::OnceLock<[f64; 3]> = std::sync::OnceLock::new();
-    let k = KNOBS.get_or_init(|| {
-        let get = |n: &str, d: f64| {
-            std::env::var(n)
-                .ok()
-                .and_then(|v| v.parse().ok())
-                .unwrap_or(d)
-        };
-        [
-            get("SKYBAKE_PT_TOL", 1.0),
-            get("SKYBAKE_PT_NOSTENCIL", 0.0),
-            get("SKYBAKE_WHOLE_RAYS", 0.0),
-        ]
-    });
-    match name {
-        "SKYBAKE_PT_TOL" => k[0],
-        "SKYBAKE_PT_NOSTENCIL" => k[1],
-        "SKYBAKE_WHOLE_RAYS" => k[2],
-        _ => default,
-    }
-}
+pub static REFINED: std::sync::atomic::AtomicU64 = std::sync::atomic::AtomicU64::new(0);
 
 /// The multiple-scattering sums of the suns `ms_suns` alone (added to `multiple`), point by
 /// point as [`texel_sums`] forms them.
@@ -1419,94 +1122,5 @@ fn multiple_sums(scratch: &mut FamilyScratch<'_>) {
                 ((r * scratch.mu_s[t] + p.t * scratch.nu[t]) / p.r).clamp(-1.0, 1.0);
         }
         multiple_at_point(scratch, k);
-    }
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    /// Each point's J_ms is interpolated as the integrals are: exactly where ln J is a cubic in
-    /// the stencil's coordinate; a point where a node's J is not positive is flagged (∞) and
-    /// the others are not; the roughness is the curvature's alone on the sun axis, so a steep
-    /// but smooth (exponential) point has none there, and a kink at one point weighs most.
-    #[test]
-    fn points_are_interpolated_and_flagged_one_by_one() {
-        let xs = [0.0, 1.0, 2.0, 3.0];
-        let xq = 1.4;
-        let w: [f64; 4] = std::array::from_fn(|i| {
-            (0..4)
-                .filter(|&j| j != i)
-                .map(|j| (xq - xs[j]) / (xs[i] - xs[j]))
-                .product()
-        });
-        // 4 points × 2 wavelengths: ln J = a + b x + c x² + d x³ per value.
-        let coef = |o: usize| {
-            let o = o as f64;
-            (-3.0 - 0.5 * o, -2.0 + 0.1 * o, 0.05 * o, -0.01 * o)
-        };
-        let ln_j = |o: usize, x: f64| {
-            let (a, b, c, d) = coef(o);
-            a + b * x + c * x * x + d * x * x * x
-        };
-        let n = 8;
-        let mut nodes: Vec<Vec<f64>> = xs
-            .iter()
-            .map(|&x| (0..n).map(|o| ln_j(o, x)).collect())
-            .collect();
-        // Point 2, wavelength 1 (value 5): a node not positive there.
-        nodes[3][5] = f64::NEG_INFINITY;
-        let weighted_t = vec![1.0; n];
-        let (mut j, mut contrib) = (vec![0.0; n], vec![0.0; n]);
-        let run = |nodes: &Vec<Vec<f64>>, curvature_only, j: &mut Vec<f64>, c: &mut Vec<f64>| {
-            let values: Vec<Vec<f64>> = nodes
-                .iter()
-                .map(|v| v.iter().map(|x| x.exp()).collect())
-                .collect();
-            point_interpolation(
-                [&nodes[0], &nodes[1], &nodes[2], &nodes[3]].map(|v| v.as_slice()),
-                [&values[0], &values[1], &values[2], &values[3]].map(|v| v.as_slice()),
-                4,
-                w,
-                [&nodes[1], &nodes[2]].map(|v| v.as_slice()),
-                curvature_only,
-                &weighted_t,
-                j,
-                c,
-            )
-        };
-        run(&nodes, true, &mut j, &mut contrib);
-        for o in 0..n {
-            if o == 5 {
-                assert!(contrib[o] == f64::INFINITY && j[o] == 0.0, "value {o}");
-                continue;
-            }
-            let want = ln_j(o, xq).exp();
-            assert!(
-                (j[o] / want - 1.0).abs() < 1e-12,
-                "value {o}: {} vs {want}",
-                j[o]
-            );
-            assert!(contrib[o].is_finite() && contrib[o] >= 0.0, "value {o}");
-        }
-        // Value 0 is ln J linear in x (an exponential): no curvature, so nothing on the sun
-        // axis, its step on the columns'.
-        assert_eq!(contrib[0], 0.0);
-        run(&nodes, false, &mut j, &mut contrib);
-        let max_j = ln_j(0, 0.0).exp();
-        assert!(
-            (contrib[0] / (2.0 * max_j) - 1.0).abs() < 1e-12,
-            "{}",
-            contrib[0]
-        );
-        // A kink at point 1 (values 2, 3) between the nodes 1 and 2: the largest contribution.
-        let mut kinked = nodes.clone();
-        kinked[2][2] = kinked[1][2] + 3.0;
-        kinked[2][3] = kinked[1][3] + 3.0;
-        run(&kinked, true, &mut j, &mut contrib);
-        let top = (0..n)
-            .filter(|&o| contrib[o].is_finite())
-            .max_by(|&a, &b| contrib[a].total_cmp(&contrib[b]));
-        assert!(matches!(top, Some(2 | 3)), "{top:?}: {contrib:?}");
     }
 }
