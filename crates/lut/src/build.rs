@@ -897,6 +897,8 @@ impl<'a> FamilyScratch<'a> {
                 refine.push(t);
             }
         }
+        #[cfg(feature = "lookup-counter")]
+        REFINED.fetch_add(refine.len() as u64, std::sync::atomic::Ordering::Relaxed);
         if !refine.is_empty() {
             self.ms_suns = refine;
             for &t in &self.ms_suns {
@@ -978,6 +980,8 @@ skybake_physics::simd_dispatch_avx512! {
                         &scratch.nu,
                         &mut scratch.j,
                     );
+                    #[cfg(feature = "lookup-counter")]
+                    LOOKUPS.fetch_add(n_t as u64, std::sync::atomic::Ordering::Relaxed);
                     for (ms, j) in scratch
                         .multiple
                         .chunks_exact_mut(n_l)
@@ -1069,6 +1073,11 @@ fn multiple_at_point(scratch: &mut FamilyScratch<'_>, k: usize) {
         &scratch.ms_nu,
         &mut scratch.ms_j,
     );
+    #[cfg(feature = "lookup-counter")]
+    LOOKUPS.fetch_add(
+        scratch.ms_suns.len() as u64,
+        std::sync::atomic::Ordering::Relaxed,
+    );
     for (&t, j) in scratch.ms_suns.iter().zip(scratch.ms_j.chunks_exact(n_l)) {
         let ms = &mut scratch.multiple[t * n_l..(t + 1) * n_l];
         for l in 0..n_l {
@@ -1076,6 +1085,16 @@ fn multiple_at_point(scratch: &mut FamilyScratch<'_>, k: usize) {
         }
     }
 }
+
+/// The point × sun lookups of the multiple-scattering table made by [`FamilyScratch`] since the
+/// process started (what the smoothness tests' refinements cost: `skyview_cost` probe).
+#[cfg(feature = "lookup-counter")]
+pub static LOOKUPS: std::sync::atomic::AtomicU64 = std::sync::atomic::AtomicU64::new(0);
+
+/// The suns whose multiple scattering [`FamilyScratch`] interpolated, found not smooth and
+/// computed after all, since the process started.
+#[cfg(feature = "lookup-counter")]
+pub static REFINED: std::sync::atomic::AtomicU64 = std::sync::atomic::AtomicU64::new(0);
 
 /// The multiple-scattering sums of the suns `ms_suns` alone (added to `multiple`), point by
 /// point as [`texel_sums`] forms them.
