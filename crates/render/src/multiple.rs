@@ -137,6 +137,11 @@ struct Coarse {
     skin: Option<skin::Skin>,
     /// The range of the cells that hold cloud.
     span: Span,
+    /// Per cell: its index among the cells that hold cloud (their accumulators'), or
+    /// `u32::MAX` for an empty cell (never scored).
+    compact: Vec<u32>,
+    /// Number of cells that hold cloud.
+    cloud_cells: usize,
 }
 
 /// The cells that hold cloud: their index range per axis and the box round them. Outside it
@@ -201,17 +206,30 @@ impl Coarse {
     fn new(grid: &DensityGrid, max_dim: usize) -> Self {
         let f: [usize; 3] = std::array::from_fn(|a| grid.dims[a].div_ceil(max_dim.max(1)).max(1));
         let dims: [usize; 3] = std::array::from_fn(|a| grid.dims[a].div_ceil(f[a]));
-        let mut sum = vec![0f64; dims[0] * dims[1] * dims[2]];
+        let [nx, ny, nz] = grid.dims;
+        // Each layer of cells sums its voxels in parallel (every cell's voxels added in the
+        // grid's order, z, y, x, as one pass would).
+        let layer = dims[0] * dims[1];
+        let mut sum = vec![0f64; layer * dims[2]];
         let mut cnt = vec![0u32; sum.len()];
-        for z in 0..grid.dims[2] {
-            for y in 0..grid.dims[1] {
-                for x in 0..grid.dims[0] {
-                    let c = ((z / f[2]) * dims[1] + y / f[1]) * dims[0] + x / f[0];
-                    sum[c] += grid.at(x, y, z) as f64;
-                    cnt[c] += 1;
+        sum.par_chunks_mut(layer)
+            .zip(cnt.par_chunks_mut(layer))
+            .enumerate()
+            .for_each(|(cz, (sum, cnt))| {
+                for z in cz * f[2]..((cz + 1) * f[2]).min(nz) {
+                    for y in 0..ny {
+                        let row = &grid.data[(z * ny + y) * nx..][..nx];
+                        let cells = (y / f[1]) * dims[0];
+                        for (cx, run) in row.chunks(f[0]).enumerate() {
+                            let (s, c) = (&mut sum[cells + cx], &mut cnt[cells + cx]);
+                            for &v in run {
+                                *s += v as f64;
+                            }
+                            *c += run.len() as u32;
+                        }
+                    }
                 }
-            }
-        }
+            });
         // Cells past the grid's edge (when f does not divide it) keep the mean of the voxels
         // they cover: the coarse box is slightly larger than the grid's.
         let rho: Vec<f32> = sum
@@ -220,13 +238,33 @@ impl Coarse {
             .map(|(s, &c)| if c > 0 { (s / c as f64) as f32 } else { 0.0 })
             .collect();
         let cell_m = DVec3::new(f[0] as f64, f[1] as f64, f[2] as f64) * grid.voxel_size_m;
+        Self::from_cells(dims, cell_m, grid.origin_m, rho)
+    }
+
+    /// The coarse grid of `dims` cells of edges `cell_m` from `origin_m` with densities `rho`
+    /// (x fastest), without skins.
+    fn from_cells(dims: [usize; 3], cell_m: DVec3, origin_m: DVec3, rho: Vec<f32>) -> Self {
+        let mut cloud_cells = 0;
+        let compact = rho
+            .iter()
+            .map(|&r| {
+                if r > 0.0 {
+                    cloud_cells += 1;
+                    cloud_cells as u32 - 1
+                } else {
+                    u32::MAX
+                }
+            })
+            .collect();
         Self {
             dims,
             cell_m,
-            origin_m: grid.origin_m,
-            span: Span::new(dims, &rho, cell_m, grid.origin_m),
+            origin_m,
+            span: Span::new(dims, &rho, cell_m, origin_m),
             rho,
             skin: None,
+            compact,
+            cloud_cells,
         }
     }
 
@@ -355,8 +393,11 @@ impl MsField {
             };
             let chunk = 4096;
             let chunks = total.div_ceil(chunk);
-            let lane_len = (cells + skin_cells) * group.len() * moments;
-            let lanes = accumulator_lanes(lane_len).min(chunks.max(1));
+            // Accumulators for the cells that hold cloud only (the only ones scored), then
+            // the skins'; as many lanes as for the whole grid's (the same sums at any size).
+            let lane_len = (coarse.cloud_cells + skin_cells) * group.len() * moments;
+            let lanes =
+                accumulator_lanes((cells + skin_cells) * group.len() * moments).min(chunks.max(1));
             // Each lane traces a fixed, interleaved set of photon chunks into its own
             // accumulator, and the lanes are summed in order: the result does not depend on
             // the thread count or on scheduling (a resumed frame is bit-identical), and only
@@ -553,11 +594,12 @@ impl MsField {
                 .enumerate()
                 .filter(|(c, _)| coarse.rho[*c] > 0.0)
                 .for_each(|(c, (cell, dm))| {
-                    // Empty cells are not scored: their lanes hold 0.
+                    // Empty cells are not scored: they have no accumulators.
+                    let k = coarse.compact[c] as usize;
                     for (p, q) in &partial {
                         for (gi, &l) in group.iter().enumerate() {
                             for m in 0..moments {
-                                let i = (c * ng + gi) * moments + m;
+                                let i = (k * ng + gi) * moments + m;
                                 let o = q.get(i).map_or(0.0, |&o| o as f64);
                                 cell[l * moments + m] += (p[i] as f64 + o) as f32;
                                 dm[l * moments + m] += o as f32;
@@ -572,7 +614,7 @@ impl MsField {
                     for (p, q) in &partial {
                         for (gi, &l) in group.iter().enumerate() {
                             for m in 0..moments {
-                                let i = ((cells + s) * ng + gi) * moments + m;
+                                let i = ((coarse.cloud_cells + s) * ng + gi) * moments + m;
                                 cell[l * moments + m] +=
                                     (p[i] as f64 + q.get(i).map_or(0.0, |&o| o as f64)) as f32;
                             }
@@ -857,7 +899,7 @@ enum Thick {
     No,
     /// In a thick cell, too near its faces for a jump.
     Near,
-    /// Deep in a thick cell: its index, the distance to its nearest face (m) and σ*(1 − g*) (1/m).
+    /// Deep in a thick cell: its index among the cells that hold cloud, the distance to its nearest face (m) and σ*(1 − g*) (1/m).
     Deep(usize, f64, f64),
 }
 
@@ -904,7 +946,8 @@ impl DiffusionJump {
         }
         let sigma_tr = self.transport_per_density * rho;
         if dist * sigma_tr >= JUMP_MIN_MFP {
-            Thick::Deep(c, dist, sigma_tr)
+            // A thick cell holds cloud: it has accumulators.
+            Thick::Deep(g.compact[c] as usize, dist, sigma_tr)
         } else {
             Thick::Near
         }
@@ -1221,15 +1264,16 @@ fn fly_in<T: Tally>(
         if ph.scattered && used > 0.0 && g.rho[c] > 0.0 {
             let s = used / cell_volume;
             let n = ylm.len();
+            let k = g.compact[c] as usize;
             for gi in 0..ng {
-                let b = (c * ng + gi) * n;
+                let b = (k * ng + gi) * n;
                 let ws = w[gi] * s;
                 for (a, y) in acc[b..b + n].iter_mut().zip(ylm) {
                     a.add(ws * y);
                 }
             }
             if let Some(sk) = &g.skin {
-                sk.score(c, g.rho.len(), ph.pos + d * t, d, used, w, acc, ylm);
+                sk.score(c, g.cloud_cells, ph.pos + d * t, d, used, w, acc, ylm);
             }
         }
         if hit {
@@ -1250,7 +1294,8 @@ fn fly_in<T: Tally>(
 }
 
 /// An accumulator of the photon pass: [`fly_f32`] adds each track's scores to one (`f32`;
-/// `f64` where a unit test sums a track exactly).
+/// `f64` where a unit test sums a track exactly). A lane holds the accumulators of the cells
+/// that hold cloud only, in their [`Coarse::compact`] order, then the skins'.
 pub(super) trait Tally: Copy {
     /// Adds `v` (computed in f64).
     fn add(&mut self, v: f64);
@@ -1322,7 +1367,8 @@ fn ahead_step<T>(
     let c = ((cell[2] as usize * g.dims[1]) + cell[1] as usize) * g.dims[0] + cell[0] as usize;
     // Only the cells that hold cloud are scored.
     if g.rho[c] > 0.0 {
-        prefetch(&acc[c * block..(c + 1) * block]);
+        let k = g.compact[c] as usize;
+        prefetch(&acc[k * block..(k + 1) * block]);
     }
     true
 }
@@ -1465,10 +1511,12 @@ mod tests {
         assert!((weight(&f, 0) - 0.75).abs() < 1e-12 && (weight(&f, 1) - 0.25).abs() < 1e-12);
     }
 
-    /// Flights that end where they leave the cells that hold cloud ([`Span`]) against flights
-    /// through the whole grid (a span of every cell): the same collisions (places, bit for
-    /// bit) and the same scores in every cell that holds cloud, for photons from outside (most
-    /// of them missing the cloud) and scattered photons inside it, in every direction.
+    /// Flights that end where they leave the cells that hold cloud ([`Span`]) and score into
+    /// accumulators for those cells only ([`Coarse::compact`]) against flights through the
+    /// whole grid (a span of every cell) scoring into accumulators for every cell: the same
+    /// collisions (places, bit for bit) and the same scores in every cell that holds cloud, for
+    /// photons from outside (most of them missing the cloud) and scattered photons inside it,
+    /// in every direction.
     #[test]
     fn flights_within_the_cloud_s_span_are_the_whole_grid_s() {
         let n = [12usize, 10, 9];
@@ -1485,15 +1533,11 @@ mod tests {
         }
         let cell_m = DVec3::new(10.0, 12.0, 8.0);
         let origin_m = DVec3::new(-40.0, 5.0, 100.0);
-        let coarse = Coarse {
-            dims: n,
-            cell_m,
-            origin_m,
-            span: Span::new(n, &rho, cell_m, origin_m),
-            rho: rho.clone(),
-            skin: None,
-        };
+        let coarse = Coarse::from_cells(n, cell_m, origin_m, rho.clone());
         assert_eq!((coarse.span.lo, coarse.span.hi), ([4, 2, 3], [8, 5, 6]));
+        let cloud = rho.iter().filter(|&&r| r > 0.0).count();
+        assert_eq!(coarse.cloud_cells, cloud);
+        // Every cell scored, with accumulators for every cell of the grid in its order.
         let whole = Coarse {
             span: Span {
                 lo: [0; 3],
@@ -1503,13 +1547,14 @@ mod tests {
             },
             rho: rho.clone(),
             skin: None,
+            compact: (0..rho.len() as u32).collect(),
+            cloud_cells: rho.len(),
             ..coarse
         };
         let (lo, hi) = (coarse.origin_m, coarse.hi());
         let centre = 0.5 * (lo + hi);
         let moments = 9;
-        let len = rho.len() * moments;
-        let (mut acc_a, mut acc_b) = (vec![0f32; len], vec![0f32; len]);
+        let (mut acc_a, mut acc_b) = (vec![0f32; cloud * moments], vec![0f32; rho.len() * moments]);
         let mut ylm = [0.0; 9];
         let (mut hits, mut misses) = (0, 0);
         for i in 0..4000 {
@@ -1557,16 +1602,18 @@ mod tests {
         }
         assert!(hits > 500 && misses > 500, "{hits} {misses}");
         let mut scored = 0;
+        let mut k = 0;
         for (c, &density) in rho.iter().enumerate() {
-            let (a, b) = (
-                &acc_a[c * moments..][..moments],
-                &acc_b[c * moments..][..moments],
-            );
+            let b = &acc_b[c * moments..][..moments];
             if density > 0.0 {
-                assert_eq!(a, b, "cell {c}");
-                scored += usize::from(a[0] > 0.0);
+                // The cells that hold cloud have their accumulators in the grid's order.
+                assert_eq!(coarse.compact[c] as usize, k, "cell {c}");
+                assert_eq!(&acc_a[k * moments..][..moments], b, "cell {c}");
+                scored += usize::from(b[0] > 0.0);
+                k += 1;
             } else {
-                assert!(a.iter().chain(b).all(|&v| v == 0.0), "cell {c}");
+                assert_eq!(coarse.compact[c], u32::MAX, "cell {c}");
+                assert!(b.iter().all(|&v| v == 0.0), "cell {c}");
             }
         }
         assert!(scored > 50, "{scored}");

@@ -66,8 +66,8 @@ impl<T> Pool<T> {
 
 /// Freed `f32` working buffers [`take_f32`] and [`take_zeroed_f32`] reuse: up to 288 MB (the
 /// bench's standard frame: the 14 lattice paths, 112 MB, the camera's voxel records, 40 MB, the
-/// sun's paths and their layer order, 2 × 8 MB, the photon pass's lanes, 16 × 6.3 MB, the
-/// once-scattered light's tallies).
+/// sun's paths and their layer order, 2 × 8 MB; the photon pass's 16 lanes, for the cells that
+/// hold cloud only, 1.1 MB each there, are below the kept size).
 static POOL_F32: Pool<f32> = Pool::new(288 << 20);
 
 /// `len` values whose contents are unspecified, for a buffer the caller fills completely

@@ -3,6 +3,7 @@
 
 use super::camera::box_interval;
 use glam::DVec3;
+use rayon::prelude::*;
 use skybake_physics::cloud::DensityGrid;
 use std::sync::Arc;
 
@@ -64,26 +65,33 @@ impl CloudVolume {
         let [nx, ny, nz] = grid.dims;
         let bd = [nx.div_ceil(BLOCK), ny.div_ceil(BLOCK), nz.div_ceil(BLOCK)];
         let mut block_max = vec![0f32; bd[0] * bd[1] * bd[2]];
-        for z in 0..nz {
-            for y in 0..ny {
-                for x in 0..nx {
-                    let v = grid.at(x, y, z);
-                    if v <= 0.0 {
-                        continue;
-                    }
-                    // A voxel's value reaches one voxel into its neighbours' blocks.
-                    for bz in (z.saturating_sub(1) / BLOCK)..=((z + 1).min(nz - 1) / BLOCK) {
-                        for by in (y.saturating_sub(1) / BLOCK)..=((y + 1).min(ny - 1) / BLOCK) {
-                            for bx in (x.saturating_sub(1) / BLOCK)..=((x + 1).min(nx - 1) / BLOCK)
+        // Each layer of blocks from the voxel layers that reach it (in parallel: a maximum,
+        // the same in any order).
+        block_max
+            .par_chunks_mut(bd[0] * bd[1])
+            .enumerate()
+            .for_each(|(bz, layer)| {
+                for z in (bz * BLOCK).saturating_sub(1)..((bz + 1) * BLOCK + 1).min(nz) {
+                    for y in 0..ny {
+                        for x in 0..nx {
+                            let v = grid.at(x, y, z);
+                            if v <= 0.0 {
+                                continue;
+                            }
+                            // A voxel's value reaches one voxel into its neighbours' blocks.
+                            for by in (y.saturating_sub(1) / BLOCK)..=((y + 1).min(ny - 1) / BLOCK)
                             {
-                                let b = (bz * bd[1] + by) * bd[0] + bx;
-                                block_max[b] = block_max[b].max(v);
+                                for bx in
+                                    (x.saturating_sub(1) / BLOCK)..=((x + 1).min(nx - 1) / BLOCK)
+                                {
+                                    let b = by * bd[0] + bx;
+                                    layer[b] = layer[b].max(v);
+                                }
                             }
                         }
                     }
                 }
-            }
-        }
+            });
         let (mut bmin, mut bmax) = ([usize::MAX; 3], [0usize; 3]);
         for bz in 0..bd[2] {
             for by in 0..bd[1] {

@@ -95,7 +95,8 @@ pub(super) fn trace(coarse: &Coarse, g: &Group, lanes: usize) -> Vec<f64> {
     let hi = coarse.hi();
     let grid_radius = 0.5 * (hi - lo).length() * 1.001;
     let cells = coarse.rho.len();
-    let len = cells * ONCE_MOMENTS;
+    // Accumulators for the cells that hold cloud only (the only ones scored).
+    let len = coarse.cloud_cells * ONCE_MOMENTS;
     // The photons are launched over the disc of the sphere round the cells that hold cloud
     // (the centre of their box, the radius to the farthest corner of one): a photon beside it
     // meets no cloud and scores nothing. As many per unit area as over the grid's disc (the
@@ -117,7 +118,7 @@ pub(super) fn trace(coarse: &Coarse, g: &Group, lanes: usize) -> Vec<f64> {
         bmax = bmax.max(b);
     }
     if bmin.x > bmax.x {
-        return vec![0.0; len];
+        return vec![0.0; cells * ONCE_MOMENTS];
     }
     let centre = 0.5 * (bmin + bmax);
     let mut radius = 0.0f64;
@@ -206,8 +207,14 @@ pub(super) fn trace(coarse: &Coarse, g: &Group, lanes: usize) -> Vec<f64> {
         .collect();
     let mut out = vec![0.0; cells * ONCE_MOMENTS];
     for p in parts {
-        for (o, v) in out.iter_mut().zip(&p) {
-            *o += *v as f64;
+        for (o, c) in out.chunks_exact_mut(ONCE_MOMENTS).zip(&coarse.compact) {
+            if *c == u32::MAX {
+                continue;
+            }
+            let k = *c as usize * ONCE_MOMENTS;
+            for (o, v) in o.iter_mut().zip(&p[k..k + ONCE_MOMENTS]) {
+                *o += *v as f64;
+            }
         }
         crate::pages::give_back_f32(p);
     }
@@ -217,9 +224,10 @@ pub(super) fn trace(coarse: &Coarse, g: &Group, lanes: usize) -> Vec<f64> {
 /// Flies `ph` `tau` true optical depths through the coarse cells (extinction `k` per density)
 /// and returns whether it collided within the grid (its place moved there) or left it. While
 /// it has scattered (smoothly) it scores the track-length estimator `ws`·length·Y_lm (`ws` its
-/// weight per cell volume) in the cells that hold cloud (the only ones read), in `f32`: the
-/// DDA of the field's photons (module `multiple`), without its skins or look-ahead (a once
-/// photon's flights in the true medium cross a cell or two).
+/// weight per cell volume) in the cells that hold cloud (the only ones read; `acc` in their
+/// [`Coarse::compact`] order), in `f32`: the DDA of the field's photons (module `multiple`),
+/// without its skins or look-ahead (a once photon's flights in the true medium cross a cell or
+/// two).
 #[allow(clippy::too_many_arguments)]
 fn fly(
     g: &Coarse,
@@ -282,7 +290,7 @@ fn fly(
         };
         if ph.scattered && used > 0.0 && rho > 0.0 {
             let s = ws * used;
-            let b = c * ONCE_MOMENTS;
+            let b = g.compact[c] as usize * ONCE_MOMENTS;
             for (a, y) in acc[b..b + ONCE_MOMENTS].iter_mut().zip(ylm) {
                 *a += (s * y) as f32;
             }
@@ -365,26 +373,30 @@ impl OnceField {
         let n_l = self.group_of.len();
         let cells = self.data.len() / (self.groups * ONCE_MOMENTS);
         let mut delta = vec![0f32; cells * n_l * ONCE_MOMENTS];
-        for (c, out) in delta.chunks_exact_mut(n_l * ONCE_MOMENTS).enumerate() {
-            if rho[c] <= 0.0 {
-                continue;
-            }
-            for l in 0..n_l {
-                let b = (c * self.groups + self.group_of[l]) * ONCE_MOMENTS;
-                let v = &self.data[b..b + ONCE_MOMENTS];
-                let o = &mut out[l * ONCE_MOMENTS..(l + 1) * ONCE_MOMENTS];
-                let kern = &self.kernel[self.group_of[l]];
-                for (order, p) in pm[l].iter().enumerate().take(ONCE_ORDER + 1) {
-                    // L₁'s view kernel: halfway between the δ-M moments and the true kernel's
-                    // (module text).
-                    let k = 0.5 * (p + kern[order]);
-                    for m in order * order..(order + 1) * (order + 1) {
-                        let d = dm[(c * n_l + l) * moments + m] as f64;
-                        o[m] = (k * self.irradiance[l] * v[m] as f64 - p * d) as f32;
+        // Cells in parallel.
+        delta
+            .par_chunks_exact_mut(n_l * ONCE_MOMENTS)
+            .enumerate()
+            .for_each(|(c, out)| {
+                if rho[c] <= 0.0 {
+                    return;
+                }
+                for l in 0..n_l {
+                    let b = (c * self.groups + self.group_of[l]) * ONCE_MOMENTS;
+                    let v = &self.data[b..b + ONCE_MOMENTS];
+                    let o = &mut out[l * ONCE_MOMENTS..(l + 1) * ONCE_MOMENTS];
+                    let kern = &self.kernel[self.group_of[l]];
+                    for (order, p) in pm[l].iter().enumerate().take(ONCE_ORDER + 1) {
+                        // L₁'s view kernel: halfway between the δ-M moments and the true kernel's
+                        // (module text).
+                        let k = 0.5 * (p + kern[order]);
+                        for m in order * order..(order + 1) * (order + 1) {
+                            let d = dm[(c * n_l + l) * moments + m] as f64;
+                            o[m] = (k * self.irradiance[l] * v[m] as f64 - p * d) as f32;
+                        }
                     }
                 }
-            }
-        }
+            });
         self.delta = delta;
         self.n_l = n_l;
         self.data = Vec::new();

@@ -116,7 +116,8 @@ impl Skin {
 
     /// Scores a scattered photon's track in cell `c` (from `a` along `d`, length `len`, weights
     /// `w`, the harmonics `ylm` of its direction) over the part of it in the cell's skin, into
-    /// the skin's accumulators after the `cells` cells' ones in `acc`.
+    /// the skin's accumulators after the first `cells` cells' ones in `acc` (those of the cells
+    /// that hold cloud).
     #[allow(clippy::too_many_arguments)]
     #[inline]
     pub(super) fn score(
@@ -300,14 +301,7 @@ mod tests {
                 }
             }
         }
-        Coarse {
-            dims: [n, n, n],
-            cell_m: DVec3::splat(10.0),
-            origin_m: DVec3::ZERO,
-            span: super::super::Span::new([n, n, n], &rho, DVec3::splat(10.0), DVec3::ZERO),
-            rho,
-            skin: None,
-        }
+        Coarse::from_cells([n, n, n], DVec3::splat(10.0), DVec3::ZERO, rho)
     }
 
     fn cell(x: usize, y: usize, z: usize) -> usize {
