@@ -352,7 +352,7 @@ mod tests {
         }
         let other = Truncation::new(0.8, 0.99, 2.0);
         let s = PeakSpread::new(&[phase], &[other]).unwrap();
-        let (full_other, _, _) = table(&phase, &other);
+        let (full_other, ..) = table(&phase, &other);
         assert!(s.table(0).iter().zip(&full_other).all(|(a, b)| a == b));
         assert!(full_other.iter().zip(&full).any(|(a, b)| a != b));
     }

@@ -452,6 +452,41 @@ impl<'a> Marcher<'a> {
         out.max(0.0)
     }
 
+    /// D_sun at `p` as the fast frame's gathering paths read it (`march/turned.rs`): trilinear
+    /// in √D between voxel centres (squared), continued as [`Self::sun_path_at`] beyond the
+    /// outermost centres. 0 outside the box.
+    fn sun_path_root_at(&self, p: DVec3) -> f64 {
+        let cl = self.cl;
+        let root = |w: &[(usize, f64); 8]| -> f64 {
+            w.iter()
+                .map(|&(i, wi)| wi * (cl.sun_path[i] as f64).max(0.0).sqrt())
+                .sum()
+        };
+        let Some(w) = self.weights(p) else {
+            return 0.0;
+        };
+        let r = root(&w);
+        let h = cl.voxel_size_m;
+        let local = (p - self.lo) / h;
+        let mut out = r * r;
+        for a in 0..3 {
+            let n = cl.dims[a] as f64;
+            if cl.dims[a] < 2 || (local[a] >= 0.5 && local[a] <= n - 0.5) {
+                continue;
+            }
+            let (excess, inward) = if local[a] < 0.5 {
+                (0.5 - local[a], 1.0)
+            } else {
+                (local[a] - (n - 0.5), -1.0)
+            };
+            let mut q = p;
+            q[a] += inward * (excess + 1.0) * h;
+            let ri = self.weights(q).map_or(0.0, |w| root(&w));
+            out += excess * (r * r - ri * ri);
+        }
+        out.max(0.0)
+    }
+
     /// D_sun at `p` resolved within the voxels next to it, for thick steps: the density
     /// integrated towards the sun over [`SUN_NEAR_VOXELS`] voxels (composite Simpson,
     /// [`SUN_NEAR_INTERVALS`] intervals; up to the box's face if nearer) plus
@@ -631,7 +666,7 @@ impl<'a> Marcher<'a> {
             let w = hi - lo;
             let y = x + b * (lo + 0.5 * w);
             let (rho, d_sun) = if bin < 2 {
-                (self.rho(y), self.sun_path_at(y))
+                (self.rho(y), self.sun_path_root_at(y))
             } else {
                 self.nearest(y)
             };
@@ -893,7 +928,13 @@ impl<'a> Marcher<'a> {
                 let (weight, d_eff) = sun_step(kp * rho, kp * (d_end - d_start), dt, kp * d_start);
                 let lambda = cl.peak_rate[l] * k[l] * (d_start + (d_end - d_start) * d_eff);
                 let lambda_view = cl.peak_rate[l] * (st.tv[l] + 0.5 * k[l] * rho * dt);
-                let smooth = self.smooth_turned(ray, at_smooth, l, lambda, lambda_view, kp);
+                // The smooth part's turned light where the camera's T⁺ before the step is above
+                // 5 % (the frame's `TURNED_SEEN`).
+                let smooth = if st.tp[l] > 0.05 {
+                    self.smooth_turned(ray, at_smooth, l, lambda, lambda_view, kp)
+                } else {
+                    self.spread(l, ray.cos_sun, lambda + lambda_view).0
+                };
                 let peak = self.peak_turned(ray, at, l, lambda, kp);
                 let (w_true, _) = sun_step(k[l] * rho, kp * (d_end - d_start), dt, kp * d_start);
                 (
