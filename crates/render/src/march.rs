@@ -45,8 +45,6 @@ struct Sources<'s> {
     kp: &'s [f64],
     sp: &'s [f64],
     rows: &'s [Option<super::peak::PeakRow>],
-    /// The peak's part at λ = 0 of each row ([`PeakSpread::last_in_peak`](super::peak::PeakSpread::last_in_peak)), for `peak_turned`.
-    firsts: &'s [f64],
     fresh: &'s [bool],
     cos_sun: f64,
     turn: &'s turned::TurnedRay,
@@ -490,14 +488,10 @@ impl<'a> Prepared<'a> {
         let mut kp = [0.0f64; 64];
         let mut sp = [1.0f64; 64];
         let mut rows = [None; 64];
-        let mut firsts = [0.0f64; 64];
         // Wavelengths whose extinctions equal the previous one's share its exponentials.
         let mut fresh = [true; 64];
         for l in 0..n_l {
             rows[l] = self.lit.peak.as_ref().map(|p| p.row(l, cos_sun));
-            if let (Some(p), Some(row)) = (&self.lit.peak, rows[l]) {
-                firsts[l] = p.last_in_peak(row, 0.0);
-            }
             let sc = self.lit.ms_extinction_scale[l];
             sun_src[l] = if self.lit.sun_on {
                 optics.albedo[l] / sc * lt.sun_irradiance[l] * optics.phase[l].eval(cos_sun)
@@ -569,7 +563,6 @@ impl<'a> Prepared<'a> {
                     kp: &kp[..n_l],
                     sp: &sp[..n_l],
                     rows: &rows[..n_l],
-                    firsts: &firsts[..n_l],
                     fresh: &fresh[..n_l],
                     cos_sun,
                     turn: &turn,
@@ -659,9 +652,7 @@ impl<'a> Prepared<'a> {
                                 {
                                     let tp = turned_at
                                         .get_or_insert_with(|| self.turned_path(pm, &turn));
-                                    self.peak_turned(
-                                        p, row, l, lam_s, straight, firsts[l], tp, kt[l], kp[l],
-                                    )
+                                    self.peak_turned(p, row, l, lam_s, tp, kt[l], kp[l])
                                 } else {
                                     straight
                                 };
@@ -833,17 +824,7 @@ impl<'a> Prepared<'a> {
                                     let tp = turned_at.get_or_insert_with(|| {
                                         self.turned_path(o + d * (t_start + 0.5 * dt), sky.turn)
                                     });
-                                    self.peak_turned(
-                                        p,
-                                        row,
-                                        l,
-                                        lam_s,
-                                        straight,
-                                        sky.firsts[l],
-                                        tp,
-                                        kt,
-                                        kp,
-                                    )
+                                    self.peak_turned(p, row, l, lam_s, tp, kt, kp)
                                 } else {
                                     straight
                                 };
@@ -958,46 +939,8 @@ impl<'a> Prepared<'a> {
     /// one-voxel step).
     #[inline(always)]
     fn sun_root_at(&self, p: DVec3) -> f64 {
-        // The voxel coordinates once for the interpolation and the test beyond the centres
-        // (the same values both compute from `p`).
-        let g = &*self.lit.vol.grid;
-        let local = (p - g.origin_m) / g.voxel_size_m;
-        let r = self.root_interpolated_local(local);
-        if self.beyond_edge_centres(local) {
-            self.root_beyond_edge_centres(p, r)
-        } else {
-            r
-        }
-    }
-
-    /// [`Self::root_interpolated`] at `local` = (p − origin)/Δ (voxel units): the weights and
-    /// order of operations of [`CloudVolume::weights`](super::volume::CloudVolume::weights).
-    #[inline(always)]
-    fn root_interpolated_local(&self, local: DVec3) -> f64 {
-        let g = &*self.lit.vol.grid;
-        let Some((base, di, f)) = super::volume::trilinear_stencil(local, g.dims) else {
-            return 0.0;
-        };
-        let (gx, gy, gz) = ([1.0 - f[0], f[0]], [1.0 - f[1], f[1]], [1.0 - f[2], f[2]]);
-        (0..8)
-            .map(|corner| {
-                let (bx, by, bz) = (corner & 1, (corner >> 1) & 1, corner >> 2);
-                let w = gx[bx] * gy[by] * gz[bz];
-                let i = base + bx * di[0] + by * di[1] + bz * di[2];
-                w * self.vox[i * self.stride + 1] as f64
-            })
-            .sum()
-    }
-
-    /// Whether `local` (voxel units) lies beyond the outermost voxel centres along an axis
-    /// of at least two voxels (where [`Self::root_beyond_edge_centres`] continues D).
-    #[inline(always)]
-    fn beyond_edge_centres(&self, local: DVec3) -> bool {
-        let g = &*self.lit.vol.grid;
-        (0..3).any(|a| {
-            let n = g.dims[a] as f64;
-            g.dims[a] >= 2 && (local[a] < 0.5 || local[a] > n - 0.5)
-        })
+        let r = self.root_interpolated(p);
+        self.root_beyond_edge_centres(p, r)
     }
 
     /// √D trilinearly between voxel centres (held at the outermost centres' values beyond them).

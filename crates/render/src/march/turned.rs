@@ -208,10 +208,8 @@ impl Prepared<'_> {
     /// The peak's part r⁺_eff/p of wavelength `l` (the second of [`PeakSpread::ratios`]) at
     /// λ = `lam_s` with its turned part gathered along `tp` instead of the straight line:
     /// r⁺_eff(λ) + (G − 1)·T(λ), T = r⁺_eff(λ) − e^{−ωf⁺τ_s}·r⁺_eff(0) the turned part and G
-    /// the gathered first order over the straight line's. `now` and `first` are r⁺_eff(λ)
-    /// and r⁺_eff(0) ([`PeakSpread::last_in_peak`] at `lam_s` and 0, which the march has);
-    /// `kt`, `kp` the true extinction and σ_t⁺ per density. At a lit surface (D → 0) T/D is
-    /// the table's slope at λ = 10⁻³.
+    /// the gathered first order over the straight line's. `kt`, `kp` are the true extinction
+    /// and σ_t⁺ per density. At a lit surface (D → 0) T/D is the table's slope at λ = 10⁻³.
     #[allow(clippy::too_many_arguments)]
     #[inline(never)]
     pub(super) fn peak_turned(
@@ -220,12 +218,11 @@ impl Prepared<'_> {
         row: PeakRow,
         l: usize,
         lam_s: f64,
-        now: f64,
-        first: f64,
         tp: &TurnedPath,
         kt: f64,
         kp: f64,
     ) -> f64 {
+        let now = p.last_in_peak(row, lam_s);
         let rate = self.lit.peak_rate[l];
         if rate <= 0.0 || kt <= 0.0 {
             return now;
@@ -236,6 +233,7 @@ impl Prepared<'_> {
         let gathered: f64 = (0..tp.n)
             .map(|i| tp.mass[i] * (-kp * (tp.path[i] - d_s)).min(600.0).exp())
             .sum();
+        let first = p.last_in_peak(row, 0.0);
         // ωf⁺·kt per unit λ·kt/rate (λ = ωf·kt·D·spread).
         let per_lambda = (1.0 - self.lit.first_extinction_scale[l]) / rate;
         let turned_at = |lam: f64, at: f64| at - (-lam * per_lambda).exp() * first;
