@@ -50,6 +50,36 @@ struct Sources<'s> {
     turn: &'s turned::TurnedRay,
 }
 
+/// One view ray's march between steps (see [`Prepared::march_begin`]): the ray, its
+/// per-wavelength constants as [`Prepared::march_n`] sets them up, and the running state.
+struct RayMarch {
+    o: DVec3,
+    d: DVec3,
+    t: f64,
+    t1: f64,
+    t_occ_end: f64,
+    step: f64,
+    cos_sun: f64,
+    turn: turned::TurnedRay,
+    sun_src: [f64; 64],
+    ks: [f64; 64],
+    kt: [f64; 64],
+    kp: [f64; 64],
+    sp: [f64; 64],
+    rows: [Option<super::peak::PeakRow>; 64],
+    fresh: [bool; 64],
+    ks_max: f64,
+    thick_possible: bool,
+    front: Option<f64>,
+    d_start: Option<f64>,
+    occupied_until: f64,
+    ia: [f64; 64],
+    tc: [f64; 64],
+    tcs: [f64; 64],
+    tcp: [f64; 64],
+    tv: [f64; 64],
+}
+
 /// Everything precomputed for one scene, camera and lighting; renders any tile. The
 /// camera-independent part is a shared [`LitVolume`]; the per-voxel source towards the camera
 /// is this camera's.
@@ -696,6 +726,287 @@ impl<'a> Prepared<'a> {
         front
     }
 
+    /// The march state of one view ray between steps ([`Self::march_begin`],
+    /// [`Self::march_step`], [`Self::march_end`]): what [`Self::march_n`] keeps across its
+    /// loop, for marching several rays of a row in turn.
+    #[inline(always)]
+    fn march_begin<const N: usize>(&self, ray: &Ray, n_l: usize) -> Option<RayMarch> {
+        let n_l = if N == 0 { n_l } else { N };
+        if self.vox.is_empty() {
+            return None;
+        }
+        let vol = &self.lit.vol;
+        let (t0, t1) = vol.interval(ray.origin_m, ray.dir)?;
+        let (occ_lo, occ_hi) = vol.occupied?;
+        let (_, t_occ_end) = super::camera::box_interval(ray.origin_m, ray.dir, occ_lo, occ_hi)?;
+        let optics = &self.scene.optics;
+        let lt = self.lighting;
+        let step = self.settings.step_voxels * vol.grid.voxel_size_m;
+        let cos_sun = lt.sun_dir.dot(ray.dir);
+        let turn = self.turned_ray(ray.dir);
+        let mut m = RayMarch {
+            o: ray.origin_m,
+            d: ray.dir,
+            t: t0,
+            t1,
+            t_occ_end,
+            step,
+            cos_sun,
+            turn,
+            sun_src: [0.0; 64],
+            ks: [0.0; 64],
+            kt: [0.0; 64],
+            kp: [0.0; 64],
+            sp: [1.0; 64],
+            rows: [None; 64],
+            fresh: [true; 64],
+            ks_max: 0.0,
+            thick_possible: false,
+            front: None,
+            d_start: None,
+            occupied_until: f64::NEG_INFINITY,
+            ia: [0.0; 64],
+            tc: [1.0; 64],
+            tcs: [1.0; 64],
+            tcp: [1.0; 64],
+            tv: [0.0; 64],
+        };
+        for l in 0..n_l {
+            m.rows[l] = self.lit.peak.as_ref().map(|p| p.row(l, cos_sun));
+            let sc = self.lit.ms_extinction_scale[l];
+            m.sun_src[l] = if self.lit.sun_on {
+                optics.albedo[l] / sc * lt.sun_irradiance[l] * optics.phase[l].eval(cos_sun)
+            } else {
+                0.0
+            };
+            m.kt[l] = optics.extinction_per_density_m[l];
+            m.ks[l] = m.kt[l] * sc;
+            let sc_first = self.lit.first_extinction_scale[l];
+            m.kp[l] = m.kt[l] * sc_first;
+            m.sp[l] = sc / sc_first;
+            m.fresh[l] = l == 0
+                || m.kt[l] != m.kt[l - 1]
+                || m.ks[l] != m.ks[l - 1]
+                || m.kp[l] != m.kp[l - 1];
+        }
+        m.ks_max = m.ks[..n_l].iter().fold(0.0f64, |a, &k| a.max(k));
+        m.thick_possible = m.ks_max * vol.rho_max * step > THICK_STEP;
+        Some(m)
+    }
+
+    /// One step of [`Self::march_n`]'s loop on `m`; false when the ray's march has ended.
+    #[inline(always)]
+    fn march_step<const N: usize>(&self, m: &mut RayMarch, n_l: usize) -> bool {
+        let n_l = if N == 0 { n_l } else { N };
+        if m.t >= m.t1 {
+            return false;
+        }
+        let vol = &self.lit.vol;
+        let sun_on = self.lit.sun_on;
+        let stride = if N == 0 { self.stride } else { N + 2 };
+        let vox = &self.vox[..];
+        let (o, d, t1, t_occ_end, step) = (m.o, m.d, m.t1, m.t_occ_end, m.step);
+        let (cos_sun, turn, ks_max, thick_possible) =
+            (m.cos_sun, m.turn, m.ks_max, m.thick_possible);
+        let (sun_src, ks, kt, kp, sp, rows, fresh) =
+            (&m.sun_src, &m.ks, &m.kt, &m.kp, &m.sp, &m.rows, &m.fresh);
+        let (ia, tc) = (&mut m.ia[..n_l], &mut m.tc[..n_l]);
+        let (tcs, tcp, tv) = (&mut m.tcs, &mut m.tcp, &mut m.tv);
+        let mut t = m.t;
+        let mut front = m.front;
+        let mut d_start = m.d_start;
+        let mut occupied_until = m.occupied_until;
+        let mut src = [0.0f64; 64];
+        let go = 'body: {
+            if t > t_occ_end {
+                break 'body false;
+            }
+            let p = o + d * t;
+            if t >= occupied_until {
+                match vol.block_exit(p, d) {
+                    (true, skip) => {
+                        t += skip + 1e-6 * step;
+                        d_start = None;
+                        break 'body true;
+                    }
+                    (false, exit) => occupied_until = t + exit,
+                }
+            }
+            let dt = step.min(t1 - t);
+            let pm = o + d * (t + 0.5 * dt);
+            t += dt;
+            let Some(w) = vol.weights(pm) else {
+                d_start = None;
+                break 'body true;
+            };
+            // A step over voxels of many optical depths: resolved in sub-steps (see
+            // [`Self::thick_step`]); elsewhere one piece, as below.
+            let tau_max = if thick_possible {
+                w.iter()
+                    .map(|&(i, _)| vox[i * stride] as f64)
+                    .fold(0.0, f64::max)
+                    * ks_max
+                    * dt
+            } else {
+                0.0
+            };
+            if tau_max > THICK_STEP {
+                let sky = Sources {
+                    sun_src: &sun_src[..n_l],
+                    kt: &kt[..n_l],
+                    ks: &ks[..n_l],
+                    kp: &kp[..n_l],
+                    sp: &sp[..n_l],
+                    rows: &rows[..n_l],
+                    fresh: &fresh[..n_l],
+                    cos_sun,
+                    turn: &turn,
+                };
+                let alive = self.thick_step(
+                    o,
+                    d,
+                    t - dt,
+                    dt,
+                    tau_max,
+                    &sky,
+                    ia,
+                    tc,
+                    &mut tcs[..n_l],
+                    &mut tcp[..n_l],
+                    &mut tv[..n_l],
+                    &mut front,
+                );
+                d_start = None;
+                if !alive {
+                    break 'body false;
+                }
+                break 'body true;
+            }
+            // Per voxel `[ρ, D_sun, S_0 … S_{n−1}]`: density and sources in one pass.
+            let mut rho = 0.0;
+            src[..n_l].fill(0.0);
+            for (i, wi) in w {
+                let v = &vox[i * stride..(i + 1) * stride];
+                rho += wi * v[0] as f64;
+                if wi == 0.0 {
+                    continue;
+                }
+                for (b, x) in src[..n_l].iter_mut().zip(&v[2..]) {
+                    *b += wi * *x as f64;
+                }
+            }
+            if rho <= 0.0 {
+                d_start = None;
+                break 'body true;
+            }
+            let (r0, r1) = if sun_on {
+                let r0 = match d_start {
+                    Some(v) => v,
+                    None => self.sun_root_at(p),
+                };
+                (r0, self.sun_root_at(o + d * t))
+            } else {
+                (0.0, 0.0)
+            };
+            d_start = Some(r1);
+            let (d0, d1) = (r0 * r0, r1 * r1);
+            // The peak's gathering path, looked up where the peak's part is first needed.
+            let mut turned_at = None;
+            front.get_or_insert(t - dt);
+            let mut alive = false;
+            let (mut a, mut a_ms, mut a_p, mut sun_t, mut sun_peak) = (0.0, 0.0, 0.0, 0.0, 0.0);
+            for l in 0..n_l {
+                if fresh[l] {
+                    a = -(-kt[l] * rho * dt).exp_m1();
+                    a_ms = -(-ks[l] * rho * dt).exp_m1();
+                    (a_p, sun_t, sun_peak) = if sun_on {
+                        let a_p = -(-kp[l] * rho * dt).exp_m1();
+                        // The sun's transmittance at the step's start, shared by both parts.
+                        let e_tau0 = (-(kp[l] * d0)).exp();
+                        let (weight, d_eff) =
+                            sun_step_with(kp[l] * rho, kp[l] * (d1 - d0), dt, kp[l] * d0, e_tau0);
+                        match (&self.lit.peak, rows[l]) {
+                            (Some(p), Some(row)) => {
+                                // The spread beam's two parts (see the doc comment above): the
+                                // smooth remainder's single scattering seen through the scaled
+                                // extinction, the peak's last scattering through the true one
+                                // (its weight times s = σ_t*/σ_t, as sun_src holds ω/s).
+                                // The smooth part spread over the sun's path and the view's,
+                                // the peak's part over the sun's (see the doc comment above).
+                                let rate = self.lit.peak_rate[l];
+                                let lam_s = rate * kt[l] * (d0 + (d1 - d0) * d_eff);
+                                let lam_v = rate * (tv[l] + 0.5 * kt[l] * rho * dt);
+                                let smooth = p.ratios(row, lam_s + lam_v).0;
+                                // The peak's part gathered along its turned direction
+                                // (`turned`), within 90° of the sun, where the camera still
+                                // sees the step.
+                                let straight = p.last_in_peak(row, lam_s);
+                                let peak = if cos_sun > 0.0
+                                    && straight > 0.0
+                                    && tc[l] > turned::TURNED_SEEN
+                                {
+                                    let tp = turned_at
+                                        .get_or_insert_with(|| self.turned_path(pm, &turn));
+                                    self.peak_turned(p, row, l, lam_s, tp, kt[l], kp[l])
+                                } else {
+                                    straight
+                                };
+                                let peak_t = if peak > 0.0 {
+                                    let w_true = sun_step_weight(
+                                        kt[l] * rho,
+                                        kp[l] * (d1 - d0),
+                                        dt,
+                                        kp[l] * d0,
+                                        e_tau0,
+                                    );
+                                    w_true * peak * self.lit.ms_extinction_scale[l]
+                                } else {
+                                    0.0
+                                };
+                                (a_p, weight * smooth * sp[l], peak_t)
+                            }
+                            _ => (a_p, weight * sp[l], 0.0),
+                        }
+                    } else {
+                        // T⁺ also carries the view cap's sky light (`add_view_cap`).
+                        (-(-kp[l] * rho * dt).exp_m1(), 0.0, 0.0)
+                    };
+                }
+                // The smooth part through T⁺, the peak's part through the true transmittance
+                // T_c, the field through T*, each before this step.
+                ia[l] += tcs[l] * a_ms * src[l] + sun_src[l] * (tcp[l] * sun_t + tc[l] * sun_peak);
+                tc[l] *= 1.0 - a;
+                tcs[l] *= 1.0 - a_ms;
+                tcp[l] *= 1.0 - a_p;
+                tv[l] += kt[l] * rho * dt;
+                alive |= tcs[l] > MARCH_CUTOFF;
+            }
+            if !alive {
+                break 'body false;
+            }
+
+            true
+        };
+        m.t = t;
+        m.front = front;
+        m.d_start = d_start;
+        m.occupied_until = occupied_until;
+        go && m.t < m.t1
+    }
+
+    /// The end of [`Self::march_n`] for a state `m` of [`Self::march_begin`]: the view cap,
+    /// then the radiance and transmittance into `ia`, `tc`; the front's distance.
+    #[inline(always)]
+    fn march_end(&self, m: &mut RayMarch, ia: &mut [f64], tc: &mut [f64]) -> Option<f64> {
+        let n_l = ia.len();
+        if m.front.is_some() {
+            self.add_view_cap(m.d, &mut m.ia[..n_l], &m.tc[..n_l], &m.tcp[..n_l]);
+        }
+        ia.copy_from_slice(&m.ia[..n_l]);
+        tc.copy_from_slice(&m.tc[..n_l]);
+        m.front
+    }
+
     /// One march step over voxels of many optical depths (σ_t*·Δ above [`THICK_STEP`] at the
     /// densest voxel round it), in sub-steps of at most that optical depth. Where a voxel holds
     /// many optical depths, the cloud's lit surface (the first optical depth, where the
@@ -1251,17 +1562,62 @@ skybake_physics::simd_dispatch! {
         let mut ia = vec![0.0; n_l];
         let mut tc = vec![0.0; n_l];
         let mut out = vec![0.0; n_l];
-        for (col, t) in tr.iter_mut().enumerate() {
-            let x = x0 + col;
-            let Some(ray) = super::camera::primary_ray(cam, x as f64 + 0.5, y as f64 + 0.5) else {
-                continue;
-            };
-            let front = p.march(&ray, &mut ia, &mut tc);
-            p.composite(&ray, &ia, &tc, front, &mut out);
-            *t = (tc.iter().sum::<f64>() / n_l as f64) as f32;
-            for l in 0..n_l {
-                rad[col * n_l + l] = out[l] as f32;
+        // Four rays of the row marched step by step in turn (each ray's operations as
+        // `Prepared::march` does them: the same pixels).
+        const LANES: usize = 4;
+        let width = tr.len();
+        let mut c0 = 0;
+        while c0 < width {
+            let k = LANES.min(width - c0);
+            let rays: [Option<Ray>; LANES] = std::array::from_fn(|j| {
+                (j < k)
+                    .then(|| {
+                        let x = x0 + c0 + j;
+                        super::camera::primary_ray(cam, x as f64 + 0.5, y as f64 + 0.5)
+                    })
+                    .flatten()
+            });
+            let mut lanes: [Option<RayMarch>; LANES] = std::array::from_fn(|j| {
+                rays[j].as_ref().and_then(|r| match n_l {
+                    1 => p.march_begin::<1>(r, n_l),
+                    3 => p.march_begin::<3>(r, n_l),
+                    4 => p.march_begin::<4>(r, n_l),
+                    _ => p.march_begin::<0>(r, n_l),
+                })
+            });
+            let mut live: [bool; LANES] = std::array::from_fn(|j| lanes[j].is_some());
+            while live.iter().any(|&l| l) {
+                for j in 0..LANES {
+                    if let (true, Some(m)) = (live[j], lanes[j].as_mut()) {
+                        live[j] = match n_l {
+                            1 => p.march_step::<1>(m, n_l),
+                            3 => p.march_step::<3>(m, n_l),
+                            4 => p.march_step::<4>(m, n_l),
+                            _ => p.march_step::<0>(m, n_l),
+                        };
+                    }
+                }
             }
+            for j in 0..k {
+                let Some(ray) = &rays[j] else {
+                    continue;
+                };
+                let front = match lanes[j].as_mut() {
+                    Some(m) => p.march_end(m, &mut ia, &mut tc),
+                    None => {
+                        ia.iter_mut().for_each(|v| *v = 0.0);
+                        tc.iter_mut().for_each(|v| *v = 1.0);
+                        None
+                    }
+                };
+                p.composite(ray, &ia, &tc, front, &mut out);
+                let col = c0 + j;
+                tr[col] = (tc.iter().sum::<f64>() / n_l as f64) as f32;
+                for l in 0..n_l {
+                    rad[col * n_l + l] = out[l] as f32;
+                }
+            }
+            c0 += k;
         }
     }
 }
