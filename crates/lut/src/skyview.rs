@@ -2602,6 +2602,41 @@ mod tests {
                 );
             }
         }
+        // Centred at c: the ends still fixed, b / sinh(b) times denser at c (on both sides),
+        // inverted by sun_unwarp.
+        for c in [-2.3, -1.0, 0.5] {
+            assert!((sun_warp(SUN_WARP_RANGE.0 + 1e-9, b, c) - SUN_WARP_RANGE.0).abs() < 1e-6);
+            assert!((sun_warp(SUN_WARP_RANGE.1 - 1e-9, b, c) - SUN_WARP_RANGE.1).abs() < 1e-6);
+            assert!((sun_warp(c, b, c) - c).abs() < 1e-12);
+            for dt in [-1e-6, 1e-6] {
+                let slope = (sun_warp(c + dt, b, c) - c) / dt;
+                assert!((slope - b / b.sinh()).abs() < 1e-6, "c {c}: {slope}");
+            }
+            for n in 0..=140 {
+                let t = -8.0 + n as f64 * 0.1;
+                let s = sun_warp(t, b, c);
+                assert!((sun_unwarp(s, b, c) - t).abs() < 1e-9, "t {t}, c {c}");
+            }
+        }
+    }
+
+    #[test]
+    fn the_sun_warp_centres_on_the_sky_rows_towards_the_sun_aloft() {
+        // The sky rows towards the sun from 60 km up: dip(r) − dip(top) (≈ −2.2° at 60 km, where
+        // sunlight grazing the ground starts to reach the top above the observer), weighted by
+        // cos² φ; 0 away from the sun, below 40 km, on the limb and ground rows.
+        let (bottom, top) = (R, R + H);
+        let dip_deg = |h: f64| ((R / (R + h)).acos()).to_degrees();
+        let c = sun_warp_centre(60_000.0, bottom, top, 0, 1.0);
+        assert!((c - (dip_deg(60_000.0) - dip_deg(H))).abs() < 1e-9, "{c}");
+        assert!((-2.4..-2.1).contains(&c), "{c}");
+        let half = sun_warp_centre(60_000.0, bottom, top, 0, 0.5_f64.sqrt());
+        assert!((half - 0.5 * c).abs() < 1e-9);
+        assert_eq!(sun_warp_centre(59_000.0, bottom, top, 0, -0.2), 0.0);
+        assert_eq!(sun_warp_centre(39_000.0, bottom, top, 0, 1.0), 0.0);
+        assert_eq!(sun_warp_centre(59_000.0, bottom, top, 1, 1.0), 0.0);
+        assert_eq!(sun_warp_centre(59_000.0, bottom, top, 2, 1.0), 0.0);
+        assert_eq!(sun_warp_centre(H, bottom, top, 0, 1.0), 0.0);
     }
 
     #[test]
