@@ -51,7 +51,7 @@
 // segments), the view row within its segment (sky, limb, below the horizon; relative to the
 // observer's horizon) and the azimuth from the sun's, at each altitude node in the node's own
 // map (sqrt(phi / pi) (N_AZ - 1) near the ground, blended with sin^2(phi / 2) and a focus at
-// 110 degrees aloft); over the 4 columns, the up to 4 rows (times the
+// 115 degrees aloft); over the 4 columns, the up to 4 rows (times the
 // slice's scale), 4 sun and 4 altitude nodes around it, the Lagrange polynomial of the values' logarithms
 // (SkyViewStencil, SkyViewMix; geometric a^(1-t) b^t between two nodes where a value is not
 // positive); on the limb rows the sun coordinate moves towards the sun's elevation above the

@@ -1039,7 +1039,7 @@ pub const SUN_WARP_CENTRE: f64 = 1.0;
 /// The altitudes (m) between which the twilight warp's centre fades in ([`sun_warp_centre`]):
 /// above those where the sky rows' and the limb rows' band maps act (below 25 km, whose slices
 /// then keep the warp centred at 0), and above the nodes a query at 30 km reads (from
-/// 30–50 km the sky 30 km up 58° from the sun, sun −3.6°, went 2.91 → 2.95 %).
+/// 30–50 km the sky 30 km up 58° from the sun, sun −3.6°, went 2.91 → 2.93 %).
 pub const SUN_WARP_CENTRE_ALTITUDE_M: [f64; 2] = [40_000.0, 60_000.0];
 
 /// The sun coordinates the twilight warp acts between (deg).
@@ -1113,7 +1113,7 @@ pub const AZIMUTH_FOCUS_ALTITUDE_M: [f64; 2] = [20_000.0, 30_000.0];
 /// central angle): the lit far end is cut off between 90° and 130° from the sun, where ln L
 /// falls by 3.3 within 30° (1.4 per column without the focus, 79.5 km, 440 nm). Centred at 115°
 /// since version 15 (with 110° the 79.5 km sky 109° from the sun, sun −8.75°, erred by 9.8 %,
-/// 7.9 % with 115°; 105°: the limb 94° from the sun 13.6 %).
+/// 7.2 % with 115°; 105°: the limb 94° from the sun 13.6 %).
 pub fn azimuth_focus(phi: f64, h: f64) -> (f64, f64) {
     let [b, c, w] = AZIMUTH_FOCUS;
     let [h0, h1] = AZIMUTH_FOCUS_ALTITUDE_M;
@@ -2322,8 +2322,8 @@ mod tests {
     }
 
     #[test]
-    fn the_columns_focus_near_110_degrees_aloft() {
-        // No focus below 20 km; from 30 km up the columns 1.7 times as dense at 110° as
+    fn the_columns_focus_near_115_degrees_aloft() {
+        // No focus below 20 km; from 30 km up the columns 1.7 times as dense at 115° as
         // without it (the square root and sin²(φ/2) blend alone), and still increasing.
         for phi in [0.3, 1.5, 1.92, 3.0] {
             assert_eq!(azimuth_focus(phi, 19_999.0), (0.0, 0.0));
@@ -2339,7 +2339,7 @@ mod tests {
         let plain = |phi: f64| {
             (alpha * 0.5 / (phi * PI).sqrt() + (1.0 - alpha) * 0.5 * phi.sin()) * (N_AZ - 1) as f64
         };
-        let at = 110f64.to_radians();
+        let at = AZIMUTH_FOCUS[1].to_radians();
         let gain = slope(at, 50_000.0) / plain(at);
         assert!((1.6..1.8).contains(&gain), "{gain}");
         for h in [25_000.0, 30_000.0, H] {
