@@ -1349,13 +1349,7 @@ pub fn build_skyview(
                             nus.push(nu);
                         }
                     }
-                    // The sun nodes' abscissa of the multiple scattering's interpolation: their
-                    // sun coordinate, or where the warp's centre moves with the column
-                    // ([`sun_warp_centre`]) the node coordinate t_j, uniform in every column.
-                    let sun_at: Vec<f64> = suns
-                        .iter()
-                        .map(|&j| if c != 0.0 { sun_node_deg(j) } else { s_j[j] })
-                        .collect();
+                    let sun_at: Vec<f64> = suns.iter().map(|&j| s_j[j]).collect();
                     let (first, last) = segment(i);
                     let stencil = ms_rows::stencils(first, last)[i - first];
                     match stencil {
