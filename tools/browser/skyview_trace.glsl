@@ -108,7 +108,8 @@ void main() {
   TS(SkyViewStencil(row_q, lo, hi, false, 0.0));
   int k0, j0;
   float tk, tj, above_deg;
-  SkyViewAltitudeSun(h, shift, mu_s, k0, tk, j0, tj, above_deg);
+  SkyViewAltitudeSun(h, shift, SkyViewSunWarpCentre(h, segment, SkyViewCos(phi)), mu_s, k0, tk,
+                     j0, tj, above_deg);
   SvStencil sa = SkyViewAltitudeStencil(float(k0) + tk);
   SvStencil ss = SkyViewStencil(float(j0) + tj, 0, SV_N_SUN - 1, true, above_deg);
   T(float(k0) + tk); T(above_deg); T(float(j0) + tj);

@@ -198,6 +198,14 @@ class LiveSky {
         throw new Error("manifest: parameterisation.sky_exit_altitude_m is not an altitude range");
       }
       defines += `#define SV_SKY_EXIT_ALTITUDE vec2(${exit.map(f).join(", ")})\n`;
+      // The twilight warp's centre on the sky rows towards the sun aloft (version 15).
+      const centre = manifest.parameterisation.sun_warp_centre;
+      if (!centre || !Number.isFinite(centre.weight) || !numbers(centre.altitude_range_m, 2) ||
+          !(centre.altitude_range_m[0] < centre.altitude_range_m[1])) {
+        throw new Error("manifest: parameterisation.sun_warp_centre is not a weight and an altitude range");
+      }
+      defines += `#define SV_SUN_WARP_CENTRE ${f(centre.weight)}\n` +
+        `#define SV_SUN_WARP_CENTRE_ALTITUDE vec2(${centre.altitude_range_m.map(f).join(", ")})\n`;
       defines += `#define SV_ALT_MAP vec3(${altMap.map(f).join(", ")})\n` +
         `#define SV_AZ_WEIGHT ${f(az.weight)}\n` +
         `#define SV_AZ_GROUND_WEIGHT ${f(az.ground_weight)}\n` +

@@ -39,7 +39,9 @@
 // (node_read_altitude_m, a vec2); SV_AZ_NODE_COS
 // (the cosines of parameterisation.azimuth_nodes_rad, a float[SV_N_ALT * SV_N_AZ] constructor,
 // altitude node k's columns at k * SV_N_AZ ..), SV_ALT_MAP (parameterisation.altitude_map, a vec3) and
-// SV_SKY_EXIT_ALTITUDE (parameterisation.sky_exit_altitude_m, a vec2); from
+// SV_SKY_EXIT_ALTITUDE (parameterisation.sky_exit_altitude_m, a vec2); SV_SUN_WARP_CENTRE and
+// SV_SUN_WARP_CENTRE_ALTITUDE (parameterisation.sun_warp_centre: weight, altitude_range_m, a
+// vec2); from
 // parameterisation.limb_near_end: SV_LIMB_NEAR_END_AZIMUTH (azimuth_cos, a vec2),
 // SV_LIMB_NEAR_END_DEPTH (depth_m, a vec2), SV_LIMB_NEAR_END_ALTITUDE (altitude_range_m, a vec2).
 //
@@ -49,7 +51,7 @@
 // segments), the view row within its segment (sky, limb, below the horizon; relative to the
 // observer's horizon) and the azimuth from the sun's, at each altitude node in the node's own
 // map (sqrt(phi / pi) (N_AZ - 1) near the ground, blended with sin^2(phi / 2) and a focus at
-// 110 degrees aloft); over the 4 columns, the up to 4 rows (times the
+// 115 degrees aloft); over the 4 columns, the up to 4 rows (times the
 // slice's scale), 4 sun and 4 altitude nodes around it, the Lagrange polynomial of the values' logarithms
 // (SkyViewStencil, SkyViewMix; geometric a^(1-t) b^t between two nodes where a value is not
 // positive); on the limb rows the sun coordinate moves towards the sun's elevation above the
@@ -302,12 +304,27 @@ float SkyViewLimbSliceDepth(float y, float s_q, float h_q, float s_n, float h_n)
   return y + f * (clamp(d, 0.0, 1.0) - y);
 }
 
-// The sun node coordinate (degrees) of the sun coordinate s (degrees) at warp strength b: the
-// inverse of the twilight warp s = e sinh(b t / e) / sinh(b) (the reader's sun_unwarp).
-float SkyViewSunUnwarp(float s, float b) {
+// The sun node coordinate (degrees) of the sun coordinate s (degrees) at warp strength b and
+// centre c (degrees): the inverse of the twilight warp s = c + e sinh(b (t - c) / e) / sinh(b),
+// e = c - SV_SUN_WARP_LO below c, SV_SUN_WARP_HI - c above (the reader's sun_unwarp).
+float SkyViewSunUnwarp(float s, float b, float c) {
   if (b < 1e-6 || s <= SV_SUN_WARP_LO || s >= SV_SUN_WARP_HI) return s;
-  float e = s < 0.0 ? -SV_SUN_WARP_LO : SV_SUN_WARP_HI;
-  return e * SkyViewAsinh(s * sinh(b) / e) / b;
+  float e = s < c ? c - SV_SUN_WARP_LO : SV_SUN_WARP_HI - c;
+  return c + e * SkyViewAsinh((s - c) * sinh(b) / e) / b;
+}
+
+// The twilight warp's centre (degrees) of a query at altitude h in view segment `segment`, its
+// azimuth's cosine cos_phi from the sun (the reader's sun_warp_centre): on the sky rows towards
+// the sun SV_SUN_WARP_CENTRE max(cos_phi, 0)^2 smoothstep(SV_SUN_WARP_CENTRE_ALTITUDE, h)
+// (dip(r) - dip(top)), where the sunlight grazing the ground starts to reach the top above the
+// observer; 0 elsewhere. The dips from rho, atan(rho, bottom_radius).
+float SkyViewSunWarpCentre(float h, int segment, float cos_phi) {
+  float w = smoothstep(SV_SUN_WARP_CENTRE_ALTITUDE.x, SV_SUN_WARP_CENTRE_ALTITUDE.y, h);
+  if (segment != 0 || cos_phi <= 0.0 || w <= 0.0) return 0.0;
+  float top = top_radius - bottom_radius;
+  float dip = atan(sqrt(h * (2.0 * bottom_radius + h)), bottom_radius);
+  float dip_top = atan(sqrt(top * (2.0 * bottom_radius + top)), bottom_radius);
+  return SV_SUN_WARP_CENTRE * cos_phi * cos_phi * w * degrees(dip - dip_top);
 }
 
 // The altitude nodes (m) and their base abscissas (the altitude axis's Lagrange abscissas: the
@@ -337,8 +354,9 @@ float SkyViewFocusCoord(float x0, float xc, float k) {
   return clamp((SkyViewAsinh(k * (x0 - xc)) - a) / (b - a), 0.0, 1.0);
 }
 
-// The sun coordinate s (degrees) of the sun node coordinate t (degrees) at warp strength b: the
-// twilight warp s = e sinh(b t / e) / sinh(b) (the reader's sun_warp).
+// The sun coordinate s (degrees) of the sun node coordinate t (degrees) at warp strength b,
+// centred at 0 (the reader's sun_warp with c = 0: the band and limb maps' slices, below 25 km,
+// where the centre is 0): s = e sinh(b t / e) / sinh(b).
 float SkyViewSunWarp(float t, float b) {
   if (b < 1e-6 || t <= SV_SUN_WARP_LO || t >= SV_SUN_WARP_HI) return t;
   float e = t < 0.0 ? -SV_SUN_WARP_LO : SV_SUN_WARP_HI;
@@ -533,10 +551,11 @@ float SkyViewBandSlice(float elevation_deg, float c, float w_q, float h, float s
 
 // Altitude node k0 (and fraction tk) and sun node j0 (and tj) at altitude h with sun zenith
 // cosine mu_s; shift: the angle added to the sun's elevation to make the sun coordinate (the
-// horizon's dip atan(rho, bottom_radius), or on the limb SkyViewRadiance's shift). above_deg: the
-// sun node coordinate (degrees: the sun coordinate unwarped at h), clamped to the nodes.
-void SkyViewAltitudeSun(float h, float shift, float mu_s, out int k0, out float tk, out int j0,
-                        out float tj, out float above_deg) {
+// horizon's dip atan(rho, bottom_radius), or on the limb SkyViewRadiance's shift); c: the
+// warp's centre (SkyViewSunWarpCentre). above_deg: the sun node coordinate (degrees: the sun
+// coordinate unwarped at h), clamped to the nodes.
+void SkyViewAltitudeSun(float h, float shift, float c, float mu_s, out int k0, out float tk,
+                        out int j0, out float tj, out float above_deg) {
   float thickness = top_radius - bottom_radius;
   // The altitude's base abscissa: (sqrt(e) + c (e^p - e^q)) times the last node's, e = h /
   // thickness, (c, p, q) = SV_ALT_MAP; k0 the node interval holding it (sv_alt_x).
@@ -549,7 +568,7 @@ void SkyViewAltitudeSun(float h, float shift, float mu_s, out int k0, out float 
   }
   tk = clamp((x - sv_alt_x[k0]) / (sv_alt_x[k0 + 1] - sv_alt_x[k0]), 0.0, 1.0);
   float b = SV_SUN_WARP * sqrt(clamp(h / thickness, 0.0, 1.0));
-  above_deg = clamp(SkyViewSunUnwarp(degrees(asin(clamp(mu_s, -1.0, 1.0)) + shift), b),
+  above_deg = clamp(SkyViewSunUnwarp(degrees(asin(clamp(mu_s, -1.0, 1.0)) + shift), b, c),
                     SkyViewSunNodeDeg(0), SkyViewSunNodeDeg(SV_N_SUN - 1));
   j0 = SkyViewSplit(SkyViewSunCoord(above_deg), SV_N_SUN, tj);
 }
@@ -690,7 +709,8 @@ vec3 SkyViewRadiance(float h, float rho, vec3 up, vec3 view_ray, vec3 sun_direct
   SvStencil sv = SkyViewStencil(row, lo, hi, false, 0.0);
   int k0, j0;
   float tk, tj, above_deg;
-  SkyViewAltitudeSun(h, shift, mu_s, k0, tk, j0, tj, above_deg);
+  SkyViewAltitudeSun(h, shift, SkyViewSunWarpCentre(h, segment, SkyViewCos(phi)), mu_s, k0, tk,
+                     j0, tj, above_deg);
   SvStencil sa = SkyViewAltitudeStencil(float(k0) + tk);
   SvStencil ss = SkyViewStencil(float(j0) + tj, 0, SV_N_SUN - 1, true, above_deg);
   // Each altitude node's columns (the reader's node_column): from the query's column coordinate
@@ -842,8 +862,8 @@ vec3 GetSunAndSkyIrradiance(vec3 point, vec3 normal, vec3 sun_direction,
   float h = clamp(r - bottom_radius, 0.0, top_radius - bottom_radius);
   int k0, j0;
   float tk, tj, above_deg;
-  SkyViewAltitudeSun(h, atan(sqrt(h * (2.0 * bottom_radius + h)), bottom_radius), mu_s, k0, tk,
-                     j0, tj, above_deg);
+  SkyViewAltitudeSun(h, atan(sqrt(h * (2.0 * bottom_radius + h)), bottom_radius), 0.0, mu_s, k0,
+                     tk, j0, tj, above_deg);
   vec3 lo = GeoMix(texelFetch(skyview_irradiance, ivec2(j0, k0), 0).rgb,
                    texelFetch(skyview_irradiance, ivec2(j0 + 1, k0), 0).rgb, tj);
   vec3 hi = GeoMix(texelFetch(skyview_irradiance, ivec2(j0, k0 + 1), 0).rgb,

@@ -20,8 +20,8 @@ use skybake_lut::skyview::{
     altitude_abscissa, altitude_coord, altitude_node_m, altitude_node_x, azimuth_coord,
     band_map_weight, band_relative_elevation, band_row, band_slice_elevation, limb_depth_of,
     limb_row_focused, limb_slice_depth, ray_length, segment_rows, sky_row_focus, sun_coord,
-    sun_node_deg, sun_shift, sun_unwarp, sun_warp, view_coord, warp_strength, Stencil, N_ALT, N_AZ,
-    N_SUN, N_VIEW_LIMB, N_VIEW_SKY, SUN_MIN_DEG,
+    sun_node_deg, sun_shift, sun_unwarp, sun_warp, sun_warp_centre, view_coord, warp_strength,
+    Stencil, N_ALT, N_AZ, N_SUN, N_VIEW_LIMB, N_VIEW_SKY, SUN_MIN_DEG,
 };
 use skybake_lut::{SkyViewBundle, SkyViewReader};
 
@@ -127,7 +127,8 @@ fn main() {
         altitude_abscissa(h, thickness),
     );
     let above = mu_s.clamp(-1.0, 1.0).asin() + shift;
-    let deg = sun_unwarp(above.to_degrees(), warp_strength(h, thickness))
+    let centre = sun_warp_centre(h, bottom, top, seg, cos_phi);
+    let deg = sun_unwarp(above.to_degrees(), warp_strength(h, thickness), centre)
         .clamp(SUN_MIN_DEG, sun_node_deg(N_SUN - 1));
     let ss = Stencil::new(sun_coord(deg), 0, N_SUN - 1, sun_node_deg, deg);
     print(
@@ -161,7 +162,7 @@ fn main() {
             for js in 0..ss.len {
                 let j = ss.first + js;
                 let zs = k * N_SUN + j;
-                let s_n = sun_warp(sun_node_deg(j), warp_strength(h_n, thickness));
+                let s_n = sun_warp(sun_node_deg(j), warp_strength(h_n, thickness), 0.0);
                 let (c_n, k_n) = sky_row_focus(s_n, h_n);
                 let band = seg < 2
                     && !(band_map_weight(s_deg, h) < 1e-6 && band_map_weight(s_n, h_n) < 1e-6);

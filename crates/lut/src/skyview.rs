@@ -284,8 +284,12 @@ pub fn limb_near_end(cos_phi: f64, h: f64, depth: f64) -> f64 {
 /// 20–100 km with the sun −6…5° / −12…−6°, on every limb row (no depth fade): (−0.5, 0.1)
 /// 3.78 / 13.8 %, (−0.3, 0) 5.49 / 13.8 %, (−0.7, 0.2) 3.74 / 13.7 % (a shallow limb ray at
 /// 43 km, the sun 6.4° above the observer's horizon, worse with the observer's horizon);
-/// from 8–16 km of depth: 2.96 / 13.8 %.
-pub const LIMB_NEAR_END_AZIMUTH: [f64; 2] = [-0.5, 0.1];
+/// from 8–16 km of depth: 2.96 / 13.8 %. Version 15: (−0.5, 0.1) → (−0.6, 0.4), a wider fade
+/// (66–127° from the sun): seen from 79.5 km, sun −8.75°, a limb ray 94° from the sun, 32 km deep,
+/// is lit at its near end, and with (−0.5, 0.1) its coordinate moved by ~1.2° of sun within
+/// 36° of azimuth (every axis erred by several %, the reader +12.42 %); (−0.6, 0.4): 9.67 %, the
+/// sky from 20–100 km with the sun −6…5° 2.91 % either way.
+pub const LIMB_NEAR_END_AZIMUTH: [f64; 2] = [-0.6, 0.4];
 /// The tangent point's depths (m) below the observer between which [`limb_near_end`] fades in.
 pub const LIMB_NEAR_END_DEPTH_M: [f64; 2] = [8_000.0, 16_000.0];
 /// The altitudes (m) between which [`limb_near_end`] fades in (below, the limb rows' coordinate
@@ -976,33 +980,67 @@ pub fn warp_strength(h: f64, thickness: f64) -> f64 {
 }
 
 /// The sun's elevation above the observer's horizon (deg) at sun coordinate `t` (deg; the sun
-/// nodes are uniform in it), warp strength `b` ([`warp_strength`]): inside
-/// [`SUN_WARP_RANGE`] s = e sinh(b t / e) / sinh(b), e = 8° below 0 and 6° above (the range's
+/// nodes are uniform in it), warp strength `b` ([`warp_strength`]) and centre `c` (deg,
+/// [`sun_warp_centre`]; 0 but on the sky rows towards the sun aloft): inside [`SUN_WARP_RANGE`]
+/// s = c + e sinh(b (t − c) / e) / sinh(b), e = c + 8° below c and 6° − c above (the range's
 /// ends stay where they are), outside s = t. Why: from an observer at altitude h the sunlight
 /// grazes the earth at the tangent altitude h_t ≈ ρ s − R s²/2 (ρ = √(r² − R²)), and the
 /// earth's shadow above it rises by about ρ |s| for s < 0; the sky's logarithm varies on the
 /// scale of the air's scale height in those altitudes, i.e. on ~0.5° of s at the ground but
-/// ~0.05° at 100 km (ρ = 1100 km). The warp makes the nodes near s = 0 b / sinh(b) times
+/// ~0.05° at 100 km (ρ = 1100 km). The warp makes the nodes near s = c b / sinh(b) times
 /// denser (0.30 at the top: 0.15°), coarser towards the range's ends where the sky aloft is
 /// either fully lit or dark.
-pub fn sun_warp(t: f64, b: f64) -> f64 {
+pub fn sun_warp(t: f64, b: f64, c: f64) -> f64 {
     let (lo, hi) = (SUN_WARP_RANGE.0, SUN_WARP_RANGE.1);
     if b < 1e-6 || t <= lo || t >= hi {
         return t;
     }
-    let e = if t < 0.0 { -lo } else { hi };
-    e * (b * t / e).sinh() / b.sinh()
+    let e = if t < c { c - lo } else { hi - c };
+    c + e * (b * (t - c) / e).sinh() / b.sinh()
 }
 
 /// The inverse of [`sun_warp`].
-pub fn sun_unwarp(s: f64, b: f64) -> f64 {
+pub fn sun_unwarp(s: f64, b: f64, c: f64) -> f64 {
     let (lo, hi) = (SUN_WARP_RANGE.0, SUN_WARP_RANGE.1);
     if b < 1e-6 || s <= lo || s >= hi {
         return s;
     }
-    let e = if s < 0.0 { -lo } else { hi };
-    e * (s * b.sinh() / e).asinh() / b
+    let e = if s < c { c - lo } else { hi - c };
+    c + e * ((s - c) * b.sinh() / e).asinh() / b
 }
+
+/// The twilight warp's centre c (deg; [`sun_warp`]) at altitude `h` (m) on the view rows'
+/// segment `seg` (0 sky, 1 limb, 2 below the horizon), `cos_phi` the azimuth's cosine from the
+/// sun, in an atmosphere from `bottom` to `top` (radii, m): on the sky rows towards the sun
+/// [`SUN_WARP_CENTRE`] max(cos φ, 0)² smoothstep([`SUN_WARP_CENTRE_ALTITUDE_M`], h)
+/// (dip(r) − dip(top)), 0 elsewhere. Seen from 50–100 km in deep twilight a steep sky ray towards
+/// the sun brightens sharply where sunlight grazing the ground starts to reach the top of the
+/// atmosphere above the observer: the sun dip(top) below the observer's horizontal, i.e.
+/// s = dip(r) − dip(top) (−2.3° at 59 km, where the warp centred at 0 had its nodes 0.35° apart;
+/// 0.23° centred there). Away from the sun (the sky rows near the horizontal) and on the limb
+/// rows the sky's steepest edge stays where the sun clears the observer's own horizon and the
+/// tangent point's, at s ≈ 0, and the centre with it.
+pub fn sun_warp_centre(h: f64, bottom: f64, top: f64, seg: usize, cos_phi: f64) -> f64 {
+    let [h0, h1] = SUN_WARP_CENTRE_ALTITUDE_M;
+    let w = smoothstep(h0, h1, h);
+    if seg != 0 || cos_phi <= 0.0 || w <= 0.0 {
+        return 0.0;
+    }
+    SUN_WARP_CENTRE
+        * cos_phi
+        * cos_phi
+        * w
+        * (dip(bottom + h, bottom) - dip(top, bottom)).to_degrees()
+}
+
+/// The weight of the twilight warp's centre on the sky rows towards the sun ([`sun_warp_centre`]).
+pub const SUN_WARP_CENTRE: f64 = 1.0;
+
+/// The altitudes (m) between which the twilight warp's centre fades in ([`sun_warp_centre`]):
+/// above those where the sky rows' and the limb rows' band maps act (below 25 km, whose slices
+/// then keep the warp centred at 0), and above the nodes a query at 30 km reads (from
+/// 30–50 km the sky 30 km up 58° from the sun, sun −3.6°, went 2.91 → 2.93 %).
+pub const SUN_WARP_CENTRE_ALTITUDE_M: [f64; 2] = [40_000.0, 60_000.0];
 
 /// The sun coordinates the twilight warp acts between (deg).
 pub const SUN_WARP_RANGE: (f64, f64) = (-8.0, 6.0);
@@ -1060,7 +1098,7 @@ pub fn azimuth_node(a: usize, h: f64) -> f64 {
 
 /// The columns' focus aloft ([`azimuth_focus`]): its weight β at the top of
 /// [`AZIMUTH_FOCUS_ALTITUDE_M`], its centre φ_c and width w (degrees).
-pub const AZIMUTH_FOCUS: [f64; 3] = [0.25, 110.0, 20.0];
+pub const AZIMUTH_FOCUS: [f64; 3] = [0.25, 115.0, 20.0];
 
 /// The altitudes (m) between which the columns' focus ([`azimuth_focus`]) fades in (smoothstep).
 pub const AZIMUTH_FOCUS_ALTITUDE_M: [f64; 2] = [20_000.0, 30_000.0];
@@ -1073,7 +1111,9 @@ pub const AZIMUTH_FOCUS_ALTITUDE_M: [f64; 2] = [20_000.0, 30_000.0];
 /// cos φ = −sin ε / sin d (ε its elevation, d the central angle to its exit; along the ray the
 /// sun's elevation above the local horizon changes by cos φ + sin ε / sin d per radian of
 /// central angle): the lit far end is cut off between 90° and 130° from the sun, where ln L
-/// falls by 3.3 within 30° (1.4 per column without the focus, 79.5 km, 440 nm).
+/// falls by 3.3 within 30° (1.4 per column without the focus, 79.5 km, 440 nm). Centred at 115°
+/// since version 15 (with 110° the 79.5 km sky 109° from the sun, sun −8.75°, erred by 9.8 %,
+/// 7.2 % with 115°; 105°: the limb 94° from the sun 13.6 %).
 pub fn azimuth_focus(phi: f64, h: f64) -> (f64, f64) {
     let [b, c, w] = AZIMUTH_FOCUS;
     let [h0, h1] = AZIMUTH_FOCUS_ALTITUDE_M;
@@ -1223,7 +1263,7 @@ pub fn build_skyview(
         .collect();
     let sun_mu = |k: usize, j: usize| {
         let h = heights[k];
-        let s = sun_warp(sun_node_deg(j), warp_strength(h, thickness));
+        let s = sun_warp(sun_node_deg(j), warp_strength(h, thickness), 0.0);
         (s.to_radians() - dip(bottom + h, bottom)).sin()
     };
     // Sky view: one task per (altitude, view) ray, all its (sun, azimuth) texels.
@@ -1257,7 +1297,21 @@ pub fn build_skyview(
                 }
                 let r = eval_radius(k, i, bottom, thickness);
                 let b = warp_strength(heights[k], thickness);
-                let s_j: Vec<f64> = (0..N_SUN).map(|j| sun_warp(sun_node_deg(j), b)).collect();
+                let seg = if i < N_VIEW_SKY {
+                    0
+                } else if i < N_VIEW_UP {
+                    1
+                } else {
+                    2
+                };
+                let centre = |cos_phi: f64| {
+                    sun_warp_centre(heights[k], bottom, bottom + thickness, seg, cos_phi)
+                };
+                let c = centre(1.0);
+                let s_j: Vec<f64> = (0..N_SUN)
+                    .map(|j| sun_warp(sun_node_deg(j), b, c))
+                    .collect();
+                let c_a: [f64; N_AZ] = std::array::from_fn(|a| centre(columns[k][a].cos()));
                 // The rays of this row: one for the suns whose row does not move (every sun
                 // but on the sky rows in low twilight, [`sky_row_focus`]), one per other sun.
                 let focused = |j: usize| {
@@ -1287,7 +1341,8 @@ pub fn build_skyview(
                             let limb = (N_VIEW_SKY..N_VIEW_UP).contains(&i);
                             let shift =
                                 sun_shift(r, theta, phi.cos(), bottom, bottom + thickness, limb);
-                            let mu_s = (s_j[j].to_radians() - shift).sin();
+                            let s_ja = sun_warp(sun_node_deg(j), b, c_a[a]);
+                            let mu_s = (s_ja.to_radians() - shift).sin();
                             let sin_s = (1.0 - mu_s * mu_s).max(0.0).sqrt();
                             let nu = (mu * mu_s + sin_t * sin_s * phi.cos()).clamp(-1.0, 1.0);
                             scratch.push_sun(mu_s, nu);
@@ -1678,7 +1733,8 @@ impl<'a> SkyViewReader<'a> {
         let p = &self.bundle.params;
         let thickness = p.top_radius - p.bottom_radius;
         let h_n = altitude_node_m(k, thickness);
-        let s_n = sun_warp(sun_node_deg(j), warp_strength(h_n, thickness));
+        // (The band maps act below 25 km, where the warp's centre is 0.)
+        let s_n = sun_warp(sun_node_deg(j), warp_strength(h_n, thickness), 0.0);
         let (c_n, k_n) = sky_row_focus(s_n, h_n);
         if band_map_weight(s_deg, h) < 1e-6 && band_map_weight(s_n, h_n) < 1e-6 {
             return None;
@@ -1703,7 +1759,14 @@ impl<'a> SkyViewReader<'a> {
 
     /// The altitude and sun stencils at radius `r` (clamped to the atmosphere) and sun zenith
     /// cosine `mu_s`; `shift`: [`sun_shift`] of the query's ray.
-    fn altitude_sun_stencils(&self, r: f64, mu_s: f64, shift: f64) -> (Stencil, Stencil) {
+    fn altitude_sun_stencils(
+        &self,
+        r: f64,
+        mu_s: f64,
+        shift: f64,
+        seg: usize,
+        cos_phi: f64,
+    ) -> (Stencil, Stencil) {
         let p = &self.bundle.params;
         let thickness = p.top_radius - p.bottom_radius;
         let ya = altitude_coord(r - p.bottom_radius, thickness);
@@ -1719,6 +1782,13 @@ impl<'a> SkyViewReader<'a> {
         let deg = sun_unwarp(
             above.to_degrees(),
             warp_strength(r - p.bottom_radius, thickness),
+            sun_warp_centre(
+                r - p.bottom_radius,
+                p.bottom_radius,
+                p.top_radius,
+                seg,
+                cos_phi,
+            ),
         )
         .clamp(SUN_MIN_DEG, sun_node_deg(N_SUN - 1));
         let ss = Stencil::with_nodes(
@@ -1770,12 +1840,13 @@ impl<'a> SkyViewReader<'a> {
                 return sv;
             }
             let h_n = altitude_node_m(k, thickness);
-            let s_n = sun_warp(sun_node_deg(j), warp_strength(h_n, thickness));
+            // (The limb rows' warp is centred at 0.)
+            let s_n = sun_warp(sun_node_deg(j), warp_strength(h_n, thickness), 0.0);
             let y_n = limb_slice_depth(limb_y, s_deg, h, s_n, h_n);
             let y = N_VIEW_SKY as f64 + limb_row_focused(y_n, s_n, h_n) * (N_VIEW_LIMB - 1) as f64;
             Stencil::with_nodes(y, lo, hi, |i| i as f64, y, self.nodes[2])
         };
-        let (sa, ss) = self.altitude_sun_stencils(r, mu_s, shift);
+        let (sa, ss) = self.altitude_sun_stencils(r, mu_s, shift, seg, cos_phi);
         let band_rows = |k: usize, j: usize, sc: &Stencil| {
             (seg < 2)
                 .then(|| self.band_rows(90.0 - theta.to_degrees(), s_deg, h, cos_phi, sc, k, j))
@@ -1930,6 +2001,7 @@ impl<'a> SkyViewReader<'a> {
         let t = sun_unwarp(
             above_horizon.to_degrees(),
             warp_strength(rc - p.bottom_radius, p.top_radius - p.bottom_radius),
+            0.0,
         );
         let (j0, tj) = split(sun_coord(t), N_SUN);
         let e = |k: usize, j: usize, c: usize| b.irradiance.texel(j, k, 0)[c] as f64;
@@ -2008,7 +2080,7 @@ pub const STATED_ERRORS: &[(&str, &str, f64)] = &[
     ("transmittance", "direct normal irradiance (sun product), sun -6..5 deg", 0.004),
     ("rayleigh+mie", "sky radiance (sky product), sun >= 5 deg, view > 10 deg above the horizon, ground", 0.0027),
     ("rayleigh+mie", "sky radiance (sky product), sun >= 5 deg, view > 10 deg above the horizon, 0-20 km", 0.0017),
-    ("rayleigh+mie", "sky radiance (sky product), sun >= 5 deg, view > 10 deg above the horizon, 20-100 km", 0.0028),
+    ("rayleigh+mie", "sky radiance (sky product), sun >= 5 deg, view > 10 deg above the horizon, 20-100 km", 0.0026),
     ("rayleigh+mie", "sky radiance (sky product), sun >= 5 deg, view < 10 deg above the horizon, ground", 0.0045),
     ("rayleigh+mie", "sky radiance (sky product), sun >= 5 deg, view < 10 deg above the horizon, 0-20 km", 0.0048),
     ("rayleigh+mie", "sky radiance (sky product), sun >= 5 deg, view < 10 deg above the horizon, 20-100 km", 0.021),
@@ -2021,7 +2093,7 @@ pub const STATED_ERRORS: &[(&str, &str, f64)] = &[
     ("rayleigh+mie", "sky radiance (sky product), sun -6..5 deg, 20-100 km (the sky just above the horizontal at 30 km, 440 nm)", 0.030),
     ("rayleigh+mie", "sky radiance (sky product), sun -12..-6 deg, ground", 0.033),
     ("rayleigh+mie", "sky radiance (sky product), sun -12..-6 deg, 0-20 km (the twilight glow towards the sun near the horizontal: 9.2 % at 5 km, sun -12 deg, 0.25 deg above the horizontal 30 deg from the sun, 680 nm)", 0.092),
-    ("rayleigh+mie", "sky radiance (sky product), sun -12..-6 deg, 20-100 km (the limb 5.7 deg below the horizontal 94 deg from the sun, 680 nm at 79.5 km)", 0.125),
+    ("rayleigh+mie", "sky radiance (sky product), sun -12..-6 deg, 20-100 km (the sky 4.3 deg above the horizontal 88 deg from the sun, 680 nm at 30.8 km)", 0.088),
     ("irradiance", "diffuse horizontal irradiance (sun product), sun >= 5 deg, 0-100 km", 0.015),
     ("irradiance", "diffuse horizontal irradiance (sun product), sun -12..5 deg, 0-100 km", 0.016),
 ];
@@ -2108,9 +2180,13 @@ pub fn manifest(
             "altitude_node_abscissas": (0..N_ALT).map(altitude_node_x).collect::<Vec<_>>(),
             "texel_mantissa_bits": HALF_MANTISSA_BITS,
             "sun_elevation_nodes_deg": sun_nodes,
-            "sun_node": "the sun node coordinate t_j (deg): every 2 deg from -23 to -15, every 1 deg to -8, every 0.5 deg to -1, every 0.25 deg to 0, every 0.125 deg to 0.5, every 0.25 deg to 1, every 0.5 deg to 6, every 1 deg to 20, every 4 deg to 104 (segments [start, step, intervals] in sun_segments). At altitude h the node's sun coordinate s_j = warp(t_j, b), b = sun_warp_strength * sqrt(h / (top_radius - bottom_radius)), warp(t, b) = e sinh(b t / e) / sinh(b) for sun_warp_range[0] < t < sun_warp_range[1] (e = -sun_warp_range[0] for t < 0, sun_warp_range[1] for t >= 0), t elsewhere (and where b < 1e-6); its inverse t = e asinh(s sinh(b) / e) / b gives a query's node coordinate, the interpolation's abscissa. s = the sun's elevation + shift: for view rows below the horizon (and the irradiance, and the sky rows below sky_exit_altitude_m[0] or away from the sun) shift = the horizon's dip acos(bottom_radius / r), the sun's elevation above the observer's horizon; for the limb rows (between the horizontal and the horizon) shift = dip + w (gamma cos(phi) + acos(bottom_radius / r_t) - dip), w = (1 - exp(-(r - r_t) / limb_shadow_scale_m)) (1 - n), n = (1 - smoothstep(limb_near_end.azimuth_cos[0], limb_near_end.azimuth_cos[1], cos(phi))) smoothstep(limb_near_end.depth_m[0], limb_near_end.depth_m[1], r - r_t) smoothstep(limb_near_end.altitude_range_m[0], limb_near_end.altitude_range_m[1], h) (version 11: aloft away from the sun back towards the observer's horizon): towards the sun's elevation above the horizon of the ray's tangent point, with dip = acos(bottom_radius / r), gamma = theta - pi/2, r_t = r cos(gamma), phi the view's azimuth from the sun; for the sky rows (above the horizontal) shift = dip + smoothstep(sky_exit_altitude_m[0], sky_exit_altitude_m[1], h) max(cos(phi), 0) alpha, alpha = atan2(x sin(theta), r + x cos(theta)), x the ray's length to the top (the central angle to where the ray leaves the atmosphere; smoothstep as in sky_row_band); the texels of a limb or sky row are at the sun elevations s_j - shift of their column's azimuth",
+            "sun_node": "the sun node coordinate t_j (deg): every 2 deg from -23 to -15, every 1 deg to -8, every 0.5 deg to -1, every 0.25 deg to 0, every 0.125 deg to 0.5, every 0.25 deg to 1, every 0.5 deg to 6, every 1 deg to 20, every 4 deg to 104 (segments [start, step, intervals] in sun_segments). At altitude h the node's sun coordinate s_j = warp(t_j, b, c), b = sun_warp_strength * sqrt(h / (top_radius - bottom_radius)), warp(t, b, c) = c + e sinh(b (t - c) / e) / sinh(b) for sun_warp_range[0] < t < sun_warp_range[1] (e = c - sun_warp_range[0] for t < c, sun_warp_range[1] - c for t >= c), t elsewhere (and where b < 1e-6); its inverse t = c + e asinh((s - c) sinh(b) / e) / b gives a query's node coordinate, the interpolation's abscissa. The centre c (deg) = 0 but on the sky rows towards the sun (version 15): c = sun_warp_centre.weight max(cos(phi), 0)^2 smoothstep(sun_warp_centre.altitude_range_m[0], sun_warp_centre.altitude_range_m[1], h) (acos(bottom_radius / r) - acos(bottom_radius / top_radius)) in degrees, phi the view's (for a texel its column's) azimuth from the sun, h and r the query's (the node's) altitude and radius. s = the sun's elevation + shift: for view rows below the horizon (and the irradiance, and the sky rows below sky_exit_altitude_m[0] or away from the sun) shift = the horizon's dip acos(bottom_radius / r), the sun's elevation above the observer's horizon; for the limb rows (between the horizontal and the horizon) shift = dip + w (gamma cos(phi) + acos(bottom_radius / r_t) - dip), w = (1 - exp(-(r - r_t) / limb_shadow_scale_m)) (1 - n), n = (1 - smoothstep(limb_near_end.azimuth_cos[0], limb_near_end.azimuth_cos[1], cos(phi))) smoothstep(limb_near_end.depth_m[0], limb_near_end.depth_m[1], r - r_t) smoothstep(limb_near_end.altitude_range_m[0], limb_near_end.altitude_range_m[1], h) (version 11: aloft away from the sun back towards the observer's horizon): towards the sun's elevation above the horizon of the ray's tangent point, with dip = acos(bottom_radius / r), gamma = theta - pi/2, r_t = r cos(gamma), phi the view's azimuth from the sun; for the sky rows (above the horizontal) shift = dip + smoothstep(sky_exit_altitude_m[0], sky_exit_altitude_m[1], h) max(cos(phi), 0) alpha, alpha = atan2(x sin(theta), r + x cos(theta)), x the ray's length to the top (the central angle to where the ray leaves the atmosphere; smoothstep as in sky_row_band); the texels of a limb or sky row are at the sun elevations s_j - shift of their column's azimuth",
             "sun_warp_strength": SUN_WARP,
             "sun_warp_range": [SUN_WARP_RANGE.0, SUN_WARP_RANGE.1],
+            "sun_warp_centre": {
+                "weight": SUN_WARP_CENTRE,
+                "altitude_range_m": SUN_WARP_CENTRE_ALTITUDE_M,
+            },
             "limb_shadow_scale_m": LIMB_SHADOW_SCALE_M,
             "sky_exit_altitude_m": SKY_EXIT_ALTITUDE_M,
             "limb_near_end": {
@@ -2271,8 +2347,8 @@ mod tests {
     }
 
     #[test]
-    fn the_columns_focus_near_110_degrees_aloft() {
-        // No focus below 20 km; from 30 km up the columns 1.7 times as dense at 110° as
+    fn the_columns_focus_near_115_degrees_aloft() {
+        // No focus below 20 km; from 30 km up the columns 1.7 times as dense at 115° as
         // without it (the square root and sin²(φ/2) blend alone), and still increasing.
         for phi in [0.3, 1.5, 1.92, 3.0] {
             assert_eq!(azimuth_focus(phi, 19_999.0), (0.0, 0.0));
@@ -2288,7 +2364,7 @@ mod tests {
         let plain = |phi: f64| {
             (alpha * 0.5 / (phi * PI).sqrt() + (1.0 - alpha) * 0.5 * phi.sin()) * (N_AZ - 1) as f64
         };
-        let at = 110f64.to_radians();
+        let at = AZIMUTH_FOCUS[1].to_radians();
         let gain = slope(at, 50_000.0) / plain(at);
         assert!((1.6..1.8).contains(&gain), "{gain}");
         for h in [25_000.0, 30_000.0, H] {
@@ -2540,23 +2616,58 @@ mod tests {
         }
         // The warp: identity at the ground and outside its range, continuous at the range's
         // ends, b / sinh(b) times denser at 0, inverted by sun_unwarp.
-        assert_eq!(sun_warp(-3.0, 0.0), -3.0);
-        assert_eq!(sun_warp(12.0, 3.0), 12.0);
+        assert_eq!(sun_warp(-3.0, 0.0, 0.0), -3.0);
+        assert_eq!(sun_warp(12.0, 3.0, 0.0), 12.0);
         let b = warp_strength(H, H);
         assert_eq!(b, SUN_WARP);
-        assert!((sun_warp(SUN_WARP_RANGE.0 + 1e-9, b) - SUN_WARP_RANGE.0).abs() < 1e-6);
-        assert!((sun_warp(SUN_WARP_RANGE.1 - 1e-9, b) - SUN_WARP_RANGE.1).abs() < 1e-6);
-        let slope = sun_warp(1e-6, b) / 1e-6;
+        assert!((sun_warp(SUN_WARP_RANGE.0 + 1e-9, b, 0.0) - SUN_WARP_RANGE.0).abs() < 1e-6);
+        assert!((sun_warp(SUN_WARP_RANGE.1 - 1e-9, b, 0.0) - SUN_WARP_RANGE.1).abs() < 1e-6);
+        let slope = sun_warp(1e-6, b, 0.0) / 1e-6;
         assert!((slope - b / b.sinh()).abs() < 1e-6, "{slope}");
         for n in 0..=140 {
             let t = -8.0 + n as f64 * 0.1;
             for b in [0.0, 0.5, b] {
                 assert!(
-                    (sun_unwarp(sun_warp(t, b), b) - t).abs() < 1e-9,
+                    (sun_unwarp(sun_warp(t, b, 0.0), b, 0.0) - t).abs() < 1e-9,
                     "t {t}, b {b}"
                 );
             }
         }
+        // Centred at c: the ends still fixed, b / sinh(b) times denser at c (on both sides),
+        // inverted by sun_unwarp.
+        for c in [-2.3, -1.0, 0.5] {
+            assert!((sun_warp(SUN_WARP_RANGE.0 + 1e-9, b, c) - SUN_WARP_RANGE.0).abs() < 1e-6);
+            assert!((sun_warp(SUN_WARP_RANGE.1 - 1e-9, b, c) - SUN_WARP_RANGE.1).abs() < 1e-6);
+            assert!((sun_warp(c, b, c) - c).abs() < 1e-12);
+            for dt in [-1e-6, 1e-6] {
+                let slope = (sun_warp(c + dt, b, c) - c) / dt;
+                assert!((slope - b / b.sinh()).abs() < 1e-6, "c {c}: {slope}");
+            }
+            for n in 0..=140 {
+                let t = -8.0 + n as f64 * 0.1;
+                let s = sun_warp(t, b, c);
+                assert!((sun_unwarp(s, b, c) - t).abs() < 1e-9, "t {t}, c {c}");
+            }
+        }
+    }
+
+    #[test]
+    fn the_sun_warp_centres_on_the_sky_rows_towards_the_sun_aloft() {
+        // The sky rows towards the sun from 60 km up: dip(r) − dip(top) (≈ −2.2° at 60 km, where
+        // sunlight grazing the ground starts to reach the top above the observer), weighted by
+        // cos² φ; 0 away from the sun, below 40 km, on the limb and ground rows.
+        let (bottom, top) = (R, R + H);
+        let dip_deg = |h: f64| ((R / (R + h)).acos()).to_degrees();
+        let c = sun_warp_centre(60_000.0, bottom, top, 0, 1.0);
+        assert!((c - (dip_deg(60_000.0) - dip_deg(H))).abs() < 1e-9, "{c}");
+        assert!((-2.4..-2.1).contains(&c), "{c}");
+        let half = sun_warp_centre(60_000.0, bottom, top, 0, 0.5_f64.sqrt());
+        assert!((half - 0.5 * c).abs() < 1e-9);
+        assert_eq!(sun_warp_centre(59_000.0, bottom, top, 0, -0.2), 0.0);
+        assert_eq!(sun_warp_centre(39_000.0, bottom, top, 0, 1.0), 0.0);
+        assert_eq!(sun_warp_centre(59_000.0, bottom, top, 1, 1.0), 0.0);
+        assert_eq!(sun_warp_centre(59_000.0, bottom, top, 2, 1.0), 0.0);
+        assert_eq!(sun_warp_centre(H, bottom, top, 0, 1.0), 0.0);
     }
 
     #[test]
