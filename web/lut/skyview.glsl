@@ -24,6 +24,8 @@
 // SV_BAND_CENTRE_ALOFT (centre_aloft_per_km), SV_BAND_CENTRE_ALOFT_ALTITUDE
 // (centre_aloft_altitude_m, a vec2), SV_BAND_DEPTH_TOP (depth_top_m), SV_BAND_FOCUS_ALOFT
 // (focus_aloft), SV_BAND_FOCUS_ALOFT_ALTITUDE (focus_aloft_altitude_m, a vec2),
+// SV_BAND_FOCUS_PLACE_ALOFT (focus_place_aloft), SV_BAND_FOCUS_PLACE_ALTITUDE
+// (focus_place_altitude_m, a vec2), SV_BAND_FOCUS_HIGH (focus_high),
 // SV_BAND_AZIMUTH_DEPTH_ALOFT (azimuth_depth_aloft_deg), SV_BAND_AZIMUTH_DEPTH_ALTITUDE
 // (azimuth_depth_aloft_altitude_m, a vec2), and SV_ALT_NODES
 // (parameterisation.altitude_nodes_m, a float[SV_N_ALT] constructor), SV_ALT_X
@@ -346,13 +348,23 @@ float SkyViewSunWarp(float t, float b) {
 }
 
 // The sky rows' full focus strength at altitude h (the reader's band_focus_strength): grows
-// by SV_BAND_GROWTH between SV_BAND_GROWTH_ALTITUDE, and by SV_BAND_FOCUS_ALOFT between
-// SV_BAND_FOCUS_ALOFT_ALTITUDE.
+// by SV_BAND_GROWTH between SV_BAND_GROWTH_ALTITUDE, by SV_BAND_FOCUS_ALOFT between
+// SV_BAND_FOCUS_ALOFT_ALTITUDE and by SV_BAND_FOCUS_HIGH between SV_BAND_FOCUS_PLACE_ALTITUDE.
 float SkyViewBandStrength(float h) {
   return SV_BAND_FOCUS *
       (1.0 + SV_BAND_GROWTH * smoothstep(SV_BAND_GROWTH_ALTITUDE.x, SV_BAND_GROWTH_ALTITUDE.y, h)) *
       (1.0 + SV_BAND_FOCUS_ALOFT *
-                 smoothstep(SV_BAND_FOCUS_ALOFT_ALTITUDE.x, SV_BAND_FOCUS_ALOFT_ALTITUDE.y, h));
+                 smoothstep(SV_BAND_FOCUS_ALOFT_ALTITUDE.x, SV_BAND_FOCUS_ALOFT_ALTITUDE.y, h)) *
+      (1.0 + SV_BAND_FOCUS_HIGH *
+                 smoothstep(SV_BAND_FOCUS_PLACE_ALTITUDE.x, SV_BAND_FOCUS_PLACE_ALTITUDE.y, h));
+}
+
+// The sky rows' focus's elevation over the band's (SkyViewBandFocus's c) at altitude h (the
+// reader's band_focus_place): 1 below SV_BAND_FOCUS_PLACE_ALTITUDE, SV_BAND_FOCUS_PLACE_ALOFT of
+// the band opposite the sun (times SV_BAND_ANTISOLAR) above it.
+float SkyViewFocusPlace(float h) {
+  return 1.0 + (SV_BAND_FOCUS_PLACE_ALOFT * SV_BAND_ANTISOLAR - 1.0) *
+      smoothstep(SV_BAND_FOCUS_PLACE_ALTITUDE.x, SV_BAND_FOCUS_PLACE_ALTITUDE.y, h);
 }
 
 // The weight (0..1) of the maps relative to the band (SkyViewBandSlice, SkyViewBandRelative) at
@@ -492,15 +504,17 @@ float SkyViewBandRelative(float elevation_deg, float c, float weight, float h, f
   return elevation_deg + taper * fade * (elevation_deg + delta) * (ratio - 1.0);
 }
 
-// The row stencil of elevation_deg (degrees) for an observer at altitude h on rows of focus
-// (c, k) (the reader's band_row): the sky rows above the horizontal, below it the limb rows at
+// The row stencil of elevation_deg (degrees) for an observer at altitude h on the slice's rows
+// of band elevation c and focus k (the reader's band_row; the focus at c SkyViewFocusPlace of
+// the slice's altitude limb.z): the sky rows above the horizontal, below it the limb rows at
 // the observer's altitude (the tangent point's depth 2 r sin^2(e/2) / h) on the slice's limb
 // rows, limb = (the query's sun coordinate, the slice's, the slice's altitude)
 // (SkyViewLimbSliceDepth, SkyViewLimbFocus).
 SvStencil SkyViewBandRowStencil(float elevation_deg, float h, float c, float k, vec3 limb) {
   if (elevation_deg >= 0.0 || h <= 0.0) {
-    return SkyViewStencil(SkyViewSkyRow(elevation_deg, c, k) * float(SV_N_VIEW_SKY - 1), 0,
-                          SV_N_VIEW_SKY - 1, false, 0.0);
+    return SkyViewStencil(
+        SkyViewSkyRow(elevation_deg, c * SkyViewFocusPlace(limb.z), k) * float(SV_N_VIEW_SKY - 1),
+        0, SV_N_VIEW_SKY - 1, false, 0.0);
   }
   float s = SkyViewSin(0.5 * radians(elevation_deg));
   float y = clamp(2.0 * (bottom_radius + h) * s * s / h, 0.0, 1.0);
@@ -684,7 +698,10 @@ vec3 SkyViewRadiance(float h, float rho, vec3 up, vec3 view_ray, vec3 sun_direct
     SkyViewBandFocus(s_q, h, band_c, band_k);
     elevation = degrees(asin(mu));
   }
-  if (segment == 0) row = SkyViewSkyRow(elevation, band_c, band_k) * float(SV_N_VIEW_SKY - 1);
+  if (segment == 0) {
+    row = SkyViewSkyRow(elevation, band_c * SkyViewFocusPlace(h), band_k) *
+        float(SV_N_VIEW_SKY - 1);
+  }
   int lo = segment == 0 ? 0 : segment == 1 ? SV_N_VIEW_SKY : SV_N_VIEW_UP;
   int hi = segment == 0 ? SV_N_VIEW_SKY - 1 : segment == 1 ? SV_N_VIEW_UP - 1 : SV_N_VIEW - 1;
   SvStencil sv = SkyViewStencil(row, lo, hi, false, 0.0);

@@ -540,7 +540,8 @@ fn smoothstep(a: f64, b: f64, x: f64) -> f64 {
 }
 
 /// The sky rows' focus at sun `sun_deg` above the observer's horizon and altitude `h` (m): the
-/// band's elevation c ([`band_centre_deg`], degrees) and the focus strength k = f
+/// focus's elevation c [`band_focus_place`] (c the band's, [`band_centre_deg`], degrees) and the
+/// focus strength k = f
 /// [`band_focus_strength`] (f the fades of [`BAND_SUN_RANGE`], [`BAND_ALTITUDE_M`] and, in the
 /// band's elevation c, [`BAND_CENTRE_RANGE_DEG`] down to [`BAND_CENTRE_FLOOR`], smoothsteps
 /// 3t² − 2t³; k = 0 by day, deep in
@@ -550,7 +551,33 @@ pub fn sky_row_focus(sun_deg: f64, h: f64) -> (f64, f64) {
     let c = band_centre_deg(sun_deg, h);
     let high = smoothstep(c0, c1, c);
     let f = band_map_weight(sun_deg, h) * (1.0 - (1.0 - BAND_CENTRE_FLOOR) * high);
-    (c, f * band_focus_strength(h))
+    (c * band_focus_place(h), f * band_focus_strength(h))
+}
+
+/// The sky rows' focus's elevation aloft as a fraction of the band's elevation opposite the sun
+/// ([`BAND_ANTISOLAR`] · [`band_centre_deg`]; below [`BAND_FOCUS_PLACE_M`] 1 / [`BAND_ANTISOLAR`]
+/// = 0.85 of it, between its elevations 150° and 180° from the sun). Seen from 8–20 km the rows
+/// alone (the `sky` product at the rows, Lagrange over their logarithms, 680 nm) erred by
+/// +4.3 / +7.2 / +4.0 / −5.2 % at 8 / 11 / 12.5 / 20 km 3–5° up opposite the sun, at the band
+/// there, above the focus at 0.85 of it; with 0.92 and [`BAND_FOCUS_HIGH`] from 6–12 km the
+/// earth's shadow seen aloft (the reader, sun every 0.25°, 120–180° from the sun) 4.55 / 6.25 /
+/// 4.54 / 9.90 → 4.05 / 4.13 / 4.18 / 7.70 % there (docs/lut.md, version 15's scan: 1 or 0.85 of
+/// it worse at 12.5 or 20 km).
+pub const BAND_FOCUS_PLACE_ALOFT: f64 = 0.92;
+/// The altitudes (m) between which the focus's place moves (smoothstep) to
+/// [`BAND_FOCUS_PLACE_ALOFT`] of the antisolar band and its strength grows by
+/// [`BAND_FOCUS_HIGH`] ([`band_focus_place`], [`band_focus_strength`]).
+pub const BAND_FOCUS_PLACE_M: [f64; 2] = [6_000.0, 12_000.0];
+/// How much stronger again the sky rows' focus is from [`BAND_FOCUS_PLACE_M`] up
+/// ([`band_focus_strength`]).
+pub const BAND_FOCUS_HIGH: f64 = 0.3;
+
+/// The sky rows' focus's elevation over [`band_centre_deg`] at altitude `h` (m): 1 below
+/// [`BAND_FOCUS_PLACE_M`], [`BAND_FOCUS_PLACE_ALOFT`] · [`BAND_ANTISOLAR`] above, a smoothstep
+/// between.
+pub fn band_focus_place(h: f64) -> f64 {
+    let [h0, h1] = BAND_FOCUS_PLACE_M;
+    1.0 + (BAND_FOCUS_PLACE_ALOFT * BAND_ANTISOLAR - 1.0) * smoothstep(h0, h1, h)
 }
 
 /// The weight (0…1) of the maps relative to the band ([`band_slice_elevation`],
@@ -590,9 +617,11 @@ pub const BAND_FOCUS_ALOFT_M: [f64; 2] = [5_000.0, 8_000.0];
 pub fn band_focus_strength(h: f64) -> f64 {
     let [h0, h1] = BAND_FOCUS_GROWTH_M;
     let [h2, h3] = BAND_FOCUS_ALOFT_M;
+    let [h4, h5] = BAND_FOCUS_PLACE_M;
     BAND_FOCUS
         * (1.0 + BAND_FOCUS_GROWTH * smoothstep(h0, h1, h))
         * (1.0 + BAND_FOCUS_ALOFT * smoothstep(h2, h3, h))
+        * (1.0 + BAND_FOCUS_HIGH * smoothstep(h4, h5, h))
 }
 
 /// The elevation (degrees) at which a slice of sun node `sun_n` (its sun coordinate, degrees
@@ -2047,11 +2076,14 @@ pub fn manifest(
         "focus_growth_altitude_m": BAND_FOCUS_GROWTH_M,
         "focus_aloft": BAND_FOCUS_ALOFT,
         "focus_aloft_altitude_m": BAND_FOCUS_ALOFT_M,
+        "focus_place_aloft": BAND_FOCUS_PLACE_ALOFT,
+        "focus_place_altitude_m": BAND_FOCUS_PLACE_M,
+        "focus_high": BAND_FOCUS_HIGH,
         "azimuth_depth_aloft_deg": BAND_AZIMUTH_DEPTH_ALOFT,
         "azimuth_depth_aloft_altitude_m": BAND_AZIMUTH_DEPTH_ALOFT_M,
-        "slices": "on the sky rows, each (altitude node k, sun node j) slice of the interpolation is read on its own rows (the focus (c_n, k_n) at the node's sun coordinate s_n = the warped s_j at h_k and its altitude h_n = altitude_nodes_m[k]) where the query's or the slice's k > 0: at e_n = e + f (1 - smoothstep(2 w, 4 w, e)) smoothstep(0, horizon_deg, e) ((e + delta_q) H_n / H_q - delta_n - e), H = max(c antisolar + delta, 0.1) at the query's (c, h) and the node's (band centre c at s_n, h_n), delta = depth_deg_per_km clamp(h, 0, depth_top_m) / 1000, w = max(H_q, 0.5), f = k / (focus (1 + focus_growth smoothstep(focus_growth_altitude_m[0], focus_growth_altitude_m[1], h)) (1 + focus_aloft smoothstep(focus_aloft_altitude_m[0], focus_aloft_altitude_m[1], h))) the query's fade (0 where k = 0), then each column at the azimuth formula's e_a with (c_n, k_n, h_n) in place of the query's",
-        "azimuth": "on the sky rows and the limb rows where k > 0 each azimuth column a of the interpolation is read at its own elevation e_a (its own rows' stencil): d = depth_deg_per_km clamp(h, 0, depth_top_m) / 1000, delta = d + (azimuth_depth_aloft_deg - d) smoothstep(azimuth_depth_aloft_altitude_m[0], azimuth_depth_aloft_altitude_m[1], h) (version 12), w = max(c antisolar + delta, 0.5), ratio = max(-cos phi_a, antisolar_range[0]) / max(-cos phi, antisolar_range[0]), e_a = e + (k / (focus (1 + focus_growth smoothstep(focus_growth_altitude_m[0], focus_growth_altitude_m[1], h)) (1 + focus_aloft smoothstep(focus_aloft_altitude_m[0], focus_aloft_altitude_m[1], h)))) (1 - smoothstep(2 w, 4 w, e)) step(-delta, e) smoothstep(antisolar_range[0], antisolar_range[1], -cos phi) (e + delta) (ratio - 1) (version 7: from -delta up through the horizontal, where version 6 had smoothstep(0, horizon_deg, e)), e the query's elevation (deg), phi its azimuth from the sun, phi_a the column's in the slice (azimuth_nodes_rad[k][a], the slice's altitude node k; version 12: at the query's altitude h); where e_a >= 0 the column is read on the sky rows, below on the limb rows at the query's altitude h (depth y = 2 r sin^2(e_a / 2) / h); the band above the earth's shadow lies at (c antisolar + delta)(-cos phi) - delta",
-        "formula": "the sky rows' focus at the sun's elevation s above the observer's horizon (deg) and altitude h (m): u = max(sun_deg - s, 0), km = clamp(h, 0, centre_aloft_altitude_m[0]) / 1000, c = min(((centre[0] + centre[1] km) u + (centre[2] + centre[3] km) u^2) (1 + centre_aloft_per_km clamp(h - centre_aloft_altitude_m[0], 0, centre_aloft_altitude_m[1] - centre_aloft_altitude_m[0]) / 1000), 45) (deg), k = smoothstep(sun_range_deg[0], sun_range_deg[1], s) (1 - smoothstep(sun_range_deg[2], sun_range_deg[3], s)) (1 - smoothstep(altitude_range_m[0], altitude_range_m[1], h)) (1 - (1 - centre_floor) smoothstep(centre_range_deg[0], centre_range_deg[1], c)) focus (1 + focus_growth smoothstep(focus_growth_altitude_m[0], focus_growth_altitude_m[1], h)) (1 + focus_aloft smoothstep(focus_aloft_altitude_m[0], focus_aloft_altitude_m[1], h)), smoothstep(a, b, x) = t^2 (3 - 2 t), t = clamp((x - a) / (b - a), 0, 1)",
+        "slices": "on the sky rows, each (altitude node k, sun node j) slice of the interpolation is read on its own rows (the focus (c_n, k_n) at the node's sun coordinate s_n = the warped s_j at h_k and its altitude h_n = altitude_nodes_m[k]) where the query's or the slice's k > 0: at e_n = e + f (1 - smoothstep(2 w, 4 w, e)) smoothstep(0, horizon_deg, e) ((e + delta_q) H_n / H_q - delta_n - e), H = max(c antisolar + delta, 0.1) at the query's (c, h) and the node's (band centre c at s_n, h_n), delta = depth_deg_per_km clamp(h, 0, depth_top_m) / 1000, w = max(H_q, 0.5), f = k / (focus (1 + focus_growth smoothstep(focus_growth_altitude_m[0], focus_growth_altitude_m[1], h)) (1 + focus_aloft smoothstep(focus_aloft_altitude_m[0], focus_aloft_altitude_m[1], h)) (1 + focus_high smoothstep(focus_place_altitude_m[0], focus_place_altitude_m[1], h))) the query's fade (0 where k = 0), then each column at the azimuth formula's e_a with (c_n, k_n, h_n) in place of the query's",
+        "azimuth": "on the sky rows and the limb rows where k > 0 each azimuth column a of the interpolation is read at its own elevation e_a (its own rows' stencil): d = depth_deg_per_km clamp(h, 0, depth_top_m) / 1000, delta = d + (azimuth_depth_aloft_deg - d) smoothstep(azimuth_depth_aloft_altitude_m[0], azimuth_depth_aloft_altitude_m[1], h) (version 12), w = max(c antisolar + delta, 0.5), ratio = max(-cos phi_a, antisolar_range[0]) / max(-cos phi, antisolar_range[0]), e_a = e + (k / (focus (1 + focus_growth smoothstep(focus_growth_altitude_m[0], focus_growth_altitude_m[1], h)) (1 + focus_aloft smoothstep(focus_aloft_altitude_m[0], focus_aloft_altitude_m[1], h)) (1 + focus_high smoothstep(focus_place_altitude_m[0], focus_place_altitude_m[1], h)))) (1 - smoothstep(2 w, 4 w, e)) step(-delta, e) smoothstep(antisolar_range[0], antisolar_range[1], -cos phi) (e + delta) (ratio - 1) (version 7: from -delta up through the horizontal, where version 6 had smoothstep(0, horizon_deg, e)), e the query's elevation (deg), phi its azimuth from the sun, phi_a the column's in the slice (azimuth_nodes_rad[k][a], the slice's altitude node k; version 12: at the query's altitude h); where e_a >= 0 the column is read on the sky rows, below on the limb rows at the query's altitude h (depth y = 2 r sin^2(e_a / 2) / h); the band above the earth's shadow lies at (c antisolar + delta)(-cos phi) - delta",
+        "formula": "the sky rows' focus at the sun's elevation s above the observer's horizon (deg) and altitude h (m): u = max(sun_deg - s, 0), km = clamp(h, 0, centre_aloft_altitude_m[0]) / 1000, c = min(((centre[0] + centre[1] km) u + (centre[2] + centre[3] km) u^2) (1 + centre_aloft_per_km clamp(h - centre_aloft_altitude_m[0], 0, centre_aloft_altitude_m[1] - centre_aloft_altitude_m[0]) / 1000), 45) (deg, the band's elevation: the maps' c), the rows' focus at c_f = c (1 + (focus_place_aloft antisolar - 1) smoothstep(focus_place_altitude_m[0], focus_place_altitude_m[1], h)) (x_c = 1 - sqrt(c_f / 90); version 15), k = smoothstep(sun_range_deg[0], sun_range_deg[1], s) (1 - smoothstep(sun_range_deg[2], sun_range_deg[3], s)) (1 - smoothstep(altitude_range_m[0], altitude_range_m[1], h)) (1 - (1 - centre_floor) smoothstep(centre_range_deg[0], centre_range_deg[1], c)) focus (1 + focus_growth smoothstep(focus_growth_altitude_m[0], focus_growth_altitude_m[1], h)) (1 + focus_aloft smoothstep(focus_aloft_altitude_m[0], focus_aloft_altitude_m[1], h)) (1 + focus_high smoothstep(focus_place_altitude_m[0], focus_place_altitude_m[1], h)), smoothstep(a, b, x) = t^2 (3 - 2 t), t = clamp((x - a) / (b - a), 0, 1)",
     });
     json!({
         "format": LAYOUT,
@@ -2416,14 +2448,26 @@ mod tests {
         assert_eq!(at(30_000.0), at(20_000.0));
         assert_eq!(band_depth_deg(5000.0), 2.5);
         assert_eq!(band_depth_deg(15_000.0), 2.5);
-        // The focus grows from 1 to 5 km, again from 5 to 8 km, and no further.
+        // The focus grows from 1 to 5 km, again from 5 to 8 km and from 6 to 12 km, and no
+        // further.
         assert_eq!(band_focus_strength(0.0), BAND_FOCUS);
         assert_eq!(band_focus_strength(1000.0), BAND_FOCUS);
         let low = BAND_FOCUS * (1.0 + BAND_FOCUS_GROWTH);
         assert!((band_focus_strength(5000.0) - low).abs() < 1e-12);
-        let full = low * (1.0 + BAND_FOCUS_ALOFT);
-        assert!((band_focus_strength(8000.0) - full).abs() < 1e-12);
+        let full = low * (1.0 + BAND_FOCUS_ALOFT) * (1.0 + BAND_FOCUS_HIGH);
+        assert!(band_focus_strength(8000.0) < full);
+        assert!((band_focus_strength(12_000.0) - full).abs() < 1e-12);
         assert!((band_focus_strength(15_000.0) - full).abs() < 1e-12);
+        // The focus's place: 0.85 of the antisolar band below 6 km, 0.92 from 12 km up.
+        assert_eq!(band_focus_place(5000.0), 1.0);
+        for h in [12_000.0, 15_000.0] {
+            let (c, _) = sky_row_focus(0.0, h);
+            let antisolar = BAND_ANTISOLAR * band_centre_deg(0.0, h);
+            assert!(
+                (c - 0.92 * antisolar).abs() < 1e-9,
+                "{h}: {c} vs {antisolar}"
+            );
+        }
         // By day and aloft (no focus at the query): the identity.
         assert_eq!(band_slice_elevation(3.0, 8.0, 0.0, 7.5, 0.0), 3.0);
         assert_eq!(
