@@ -25,7 +25,8 @@
 // (centre_aloft_altitude_m, a vec2), SV_BAND_DEPTH_TOP (depth_top_m), SV_BAND_FOCUS_ALOFT
 // (focus_aloft), SV_BAND_FOCUS_ALOFT_ALTITUDE (focus_aloft_altitude_m, a vec2),
 // SV_BAND_FOCUS_PLACE_ALOFT (focus_place_aloft), SV_BAND_FOCUS_PLACE_ALTITUDE
-// (focus_place_altitude_m, a vec2), SV_BAND_FOCUS_HIGH (focus_high),
+// (focus_place_altitude_m, a vec2), SV_BAND_FOCUS_HIGH (focus_high), SV_BAND_SUN_SOFT
+// (sun_soft_deg),
 // SV_BAND_AZIMUTH_DEPTH_ALOFT (azimuth_depth_aloft_deg), SV_BAND_AZIMUTH_DEPTH_ALTITUDE
 // (azimuth_depth_aloft_altitude_m, a vec2), and SV_ALT_NODES
 // (parameterisation.altitude_nodes_m, a float[SV_N_ALT] constructor), SV_ALT_X
@@ -348,23 +349,28 @@ float SkyViewSunWarp(float t, float b) {
 }
 
 // The sky rows' full focus strength at altitude h (the reader's band_focus_strength): grows
-// by SV_BAND_GROWTH between SV_BAND_GROWTH_ALTITUDE, by SV_BAND_FOCUS_ALOFT between
-// SV_BAND_FOCUS_ALOFT_ALTITUDE and by SV_BAND_FOCUS_HIGH between SV_BAND_FOCUS_PLACE_ALTITUDE.
+// by SV_BAND_GROWTH between SV_BAND_GROWTH_ALTITUDE, and by SV_BAND_FOCUS_ALOFT between
+// SV_BAND_FOCUS_ALOFT_ALTITUDE.
 float SkyViewBandStrength(float h) {
   return SV_BAND_FOCUS *
       (1.0 + SV_BAND_GROWTH * smoothstep(SV_BAND_GROWTH_ALTITUDE.x, SV_BAND_GROWTH_ALTITUDE.y, h)) *
       (1.0 + SV_BAND_FOCUS_ALOFT *
-                 smoothstep(SV_BAND_FOCUS_ALOFT_ALTITUDE.x, SV_BAND_FOCUS_ALOFT_ALTITUDE.y, h)) *
-      (1.0 + SV_BAND_FOCUS_HIGH *
-                 smoothstep(SV_BAND_FOCUS_PLACE_ALTITUDE.x, SV_BAND_FOCUS_PLACE_ALTITUDE.y, h));
+                 smoothstep(SV_BAND_FOCUS_ALOFT_ALTITUDE.x, SV_BAND_FOCUS_ALOFT_ALTITUDE.y, h));
 }
 
-// The sky rows' focus's elevation over the band's (SkyViewBandFocus's c) at altitude h (the
-// reader's band_focus_place): 1 below SV_BAND_FOCUS_PLACE_ALTITUDE, SV_BAND_FOCUS_PLACE_ALOFT of
-// the band opposite the sun (times SV_BAND_ANTISOLAR) above it.
-float SkyViewFocusPlace(float h) {
-  return 1.0 + (SV_BAND_FOCUS_PLACE_ALOFT * SV_BAND_ANTISOLAR - 1.0) *
-      smoothstep(SV_BAND_FOCUS_PLACE_ALTITUDE.x, SV_BAND_FOCUS_PLACE_ALTITUDE.y, h);
+// The share of the sky rows' focus that moves and grows aloft at the band's elevation c and
+// altitude h (the reader's sky_row_focus): under a low band (1 - smoothstep over
+// SV_BAND_CENTRE_RANGE of c) from SV_BAND_FOCUS_PLACE_ALTITUDE up.
+float SkyViewFocusAloft(float c, float h) {
+  return smoothstep(SV_BAND_FOCUS_PLACE_ALTITUDE.x, SV_BAND_FOCUS_PLACE_ALTITUDE.y, h) *
+      (1.0 - smoothstep(SV_BAND_CENTRE_RANGE.x, SV_BAND_CENTRE_RANGE.y, c));
+}
+
+// The sky rows' focus's elevation over the band's c at altitude h (the reader's sky_row_focus):
+// SV_BAND_FOCUS_PLACE_ALOFT of the band opposite the sun (c SV_BAND_ANTISOLAR) aloft under a low
+// band, 1 elsewhere.
+float SkyViewFocusPlace(float c, float h) {
+  return 1.0 + (SV_BAND_FOCUS_PLACE_ALOFT * SV_BAND_ANTISOLAR - 1.0) * SkyViewFocusAloft(c, h);
 }
 
 // The weight (0..1) of the maps relative to the band (SkyViewBandSlice, SkyViewBandRelative) at
@@ -380,7 +386,9 @@ float SkyViewBandWeight(float sun_deg, float h) {
 // band's elevation c (degrees) and the focus strength k (per degree) with the sun sun_deg above
 // the observer's horizon at altitude h (faded out as c rises through SV_BAND_CENTRE_RANGE).
 void SkyViewBandFocus(float sun_deg, float h, out float c, out float k) {
-  float u = max(SV_BAND_SUN - sun_deg, 0.0);
+  // u = SV_BAND_SUN - sun_deg turned smoothly to 0 over SV_BAND_SUN_SOFT: w ln(1 + e^x).
+  float x = (SV_BAND_SUN - sun_deg) / SV_BAND_SUN_SOFT;
+  float u = SV_BAND_SUN_SOFT * (max(x, 0.0) + log(1.0 + exp(-abs(x))));
   // The low fit up to SV_BAND_CENTRE_ALOFT_ALTITUDE.x, scaled by 1 + SV_BAND_CENTRE_ALOFT per km
   // above it up to SV_BAND_CENTRE_ALOFT_ALTITUDE.y (the reader's band_centre_deg).
   float km = clamp(h, 0.0, SV_BAND_CENTRE_ALOFT_ALTITUDE.x) / 1000.0;
@@ -389,9 +397,10 @@ void SkyViewBandFocus(float sun_deg, float h, out float c, out float k) {
             SV_BAND_CENTRE_ALOFT_ALTITUDE.y - SV_BAND_CENTRE_ALOFT_ALTITUDE.x) / 1000.0;
   c = min(((SV_BAND_CENTRE.x + SV_BAND_CENTRE.y * km) * u +
            (SV_BAND_CENTRE.z + SV_BAND_CENTRE.w * km) * u * u) * aloft, 45.0);
+  float low = 1.0 - smoothstep(SV_BAND_CENTRE_RANGE.x, SV_BAND_CENTRE_RANGE.y, c);
   float f = SkyViewBandWeight(sun_deg, h) *
-      (1.0 - (1.0 - SV_BAND_CENTRE_FLOOR) *
-                 smoothstep(SV_BAND_CENTRE_RANGE.x, SV_BAND_CENTRE_RANGE.y, c));
+      (low * (1.0 + SV_BAND_FOCUS_HIGH * SkyViewFocusAloft(c, h)) +
+       SV_BAND_CENTRE_FLOOR * (1.0 - low));
   k = f * SkyViewBandStrength(h);
 }
 
@@ -505,7 +514,7 @@ float SkyViewBandRelative(float elevation_deg, float c, float weight, float h, f
 }
 
 // The row stencil of elevation_deg (degrees) for an observer at altitude h on the slice's rows
-// of band elevation c and focus k (the reader's band_row; the focus at c SkyViewFocusPlace of
+// of band elevation c and focus k (the reader's band_row; the focus at c SkyViewFocusPlace at
 // the slice's altitude limb.z): the sky rows above the horizontal, below it the limb rows at
 // the observer's altitude (the tangent point's depth 2 r sin^2(e/2) / h) on the slice's limb
 // rows, limb = (the query's sun coordinate, the slice's, the slice's altitude)
@@ -513,7 +522,7 @@ float SkyViewBandRelative(float elevation_deg, float c, float weight, float h, f
 SvStencil SkyViewBandRowStencil(float elevation_deg, float h, float c, float k, vec3 limb) {
   if (elevation_deg >= 0.0 || h <= 0.0) {
     return SkyViewStencil(
-        SkyViewSkyRow(elevation_deg, c * SkyViewFocusPlace(limb.z), k) * float(SV_N_VIEW_SKY - 1),
+        SkyViewSkyRow(elevation_deg, c * SkyViewFocusPlace(c, limb.z), k) * float(SV_N_VIEW_SKY - 1),
         0, SV_N_VIEW_SKY - 1, false, 0.0);
   }
   float s = SkyViewSin(0.5 * radians(elevation_deg));
@@ -699,7 +708,7 @@ vec3 SkyViewRadiance(float h, float rho, vec3 up, vec3 view_ray, vec3 sun_direct
     elevation = degrees(asin(mu));
   }
   if (segment == 0) {
-    row = SkyViewSkyRow(elevation, band_c * SkyViewFocusPlace(h), band_k) *
+    row = SkyViewSkyRow(elevation, band_c * SkyViewFocusPlace(band_c, h), band_k) *
         float(SV_N_VIEW_SKY - 1);
   }
   int lo = segment == 0 ? 0 : segment == 1 ? SV_N_VIEW_SKY : SV_N_VIEW_UP;
