@@ -521,9 +521,8 @@ float SkyViewBandRelative(float elevation_deg, float c, float weight, float h, f
 // (SkyViewLimbSliceDepth, SkyViewLimbFocus).
 SvStencil SkyViewBandRowStencil(float elevation_deg, float h, float c, float k, vec3 limb) {
   if (elevation_deg >= 0.0 || h <= 0.0) {
-    return SkyViewStencil(
-        SkyViewSkyRow(elevation_deg, c * SkyViewFocusPlace(c, limb.z), k) * float(SV_N_VIEW_SKY - 1),
-        0, SV_N_VIEW_SKY - 1, false, 0.0);
+    float x = SkyViewSkyRow(elevation_deg, c * SkyViewFocusPlace(c, limb.z), k);
+    return SkyViewStencil(x * float(SV_N_VIEW_SKY - 1), 0, SV_N_VIEW_SKY - 1, false, 0.0);
   }
   float s = SkyViewSin(0.5 * radians(elevation_deg));
   float y = clamp(2.0 * (bottom_radius + h) * s * s / h, 0.0, 1.0);
