@@ -577,10 +577,10 @@ pub fn sky_row_focus(sun_deg: f64, h: f64) -> (f64, f64) {
 /// = 0.85 of it, between its elevations 150° and 180° from the sun). Seen from 8–20 km the rows
 /// alone (the `sky` product at the rows, Lagrange over their logarithms, 680 nm) erred by
 /// +4.3 / +7.2 / +4.0 / −5.2 % at 8 / 11 / 12.5 / 20 km 3–5° up opposite the sun, at the band
-/// there, above the focus at 0.85 of it; with 0.92 and [`BAND_FOCUS_HIGH`] from 6–12 km the
-/// earth's shadow seen aloft (the reader, sun every 0.25°, 120–180° from the sun) 4.55 / 6.25 /
-/// 4.54 / 9.90 → 4.05 / 4.13 / 4.18 / 7.70 % there (docs/lut.md, version 15's scan: 1 or 0.85 of
-/// it worse at 12.5 or 20 km).
+/// there, above the focus at 0.85 of it; with 0.92 and [`BAND_FOCUS_HIGH`] from 6–12 km (and
+/// [`BAND_SUN_SOFT_DEG`]) the earth's shadow seen aloft (the reader, sun every 0.25°, 120–180°
+/// from the sun) 4.55 / 6.25 / 4.54 / 9.90 → 3.78 / 3.82 / 4.16 / 7.70 % there (docs/lut.md,
+/// version 15's scan: 1 or 0.85 of it worse at 12.5 or 20 km).
 pub const BAND_FOCUS_PLACE_ALOFT: f64 = 0.92;
 /// The altitudes (m) between which the focus's place moves (smoothstep) to
 /// [`BAND_FOCUS_PLACE_ALOFT`] of the antisolar band and its strength grows by
