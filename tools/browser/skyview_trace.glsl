@@ -92,7 +92,10 @@ void main() {
     elevation = degrees(asin(mu));
   }
   T(band_c); T(band_k);
-  if (segment == 0) row = SkyViewSkyRow(elevation, band_c, band_k) * float(SV_N_VIEW_SKY - 1);
+  if (segment == 0) {
+    row = SkyViewSkyRow(elevation, band_c * SkyViewFocusPlace(band_c, h), band_k) *
+        float(SV_N_VIEW_SKY - 1);
+  }
   int lo = segment == 0 ? 0 : segment == 1 ? SV_N_VIEW_SKY : SV_N_VIEW_UP;
   int hi = segment == 0 ? SV_N_VIEW_SKY - 1 : segment == 1 ? SV_N_VIEW_UP - 1 : SV_N_VIEW - 1;
   SvStencil sv = SkyViewStencil(row, lo, hi, false, 0.0);

@@ -84,7 +84,8 @@ class LiveSky {
       // The sky rows' focus on the band above the earth's shadow (version 4), and the band's
       // elevation with the azimuth (version 5), its fit aloft and the depth's top (version 9), the
       // focus's growth aloft (version 11), the columns' depth aloft (version 12), the focus's fade
-      // with the band's elevation (version 13).
+      // with the band's elevation (version 13), the focus's place and strength from 6-12 km
+      // under a low band, the band's sun term turned smoothly to 0 (version 15).
       const band = manifest.parameterisation.sky_row_band;
       const numbers = (v, n) => Array.isArray(v) && v.length === n && v.every(Number.isFinite);
       if (!band || !(band.focus > 0) || !Number.isFinite(band.sun_deg) || !numbers(band.centre, 4) ||
@@ -98,6 +99,9 @@ class LiveSky {
           !(band.depth_top_m >= 0) || !(band.focus_aloft >= 0) ||
           !numbers(band.focus_aloft_altitude_m, 2) ||
           !(band.focus_aloft_altitude_m[0] < band.focus_aloft_altitude_m[1]) ||
+          !(band.focus_place_aloft > 0) || !numbers(band.focus_place_altitude_m, 2) ||
+          !(band.focus_place_altitude_m[0] < band.focus_place_altitude_m[1]) ||
+          !(band.focus_high >= 0) || !(band.sun_soft_deg > 0) ||
           !(band.azimuth_depth_aloft_deg >= 0) || !numbers(band.azimuth_depth_aloft_altitude_m, 2) ||
           !(band.azimuth_depth_aloft_altitude_m[0] < band.azimuth_depth_aloft_altitude_m[1]) ||
           !numbers(band.centre_range_deg, 2) || !(band.centre_range_deg[0] < band.centre_range_deg[1]) ||
@@ -132,6 +136,10 @@ class LiveSky {
         `#define SV_BAND_DEPTH_TOP ${f(band.depth_top_m)}\n` +
         `#define SV_BAND_FOCUS_ALOFT ${f(band.focus_aloft)}\n` +
         `#define SV_BAND_FOCUS_ALOFT_ALTITUDE vec2(${band.focus_aloft_altitude_m.map(f).join(", ")})\n` +
+        `#define SV_BAND_FOCUS_PLACE_ALOFT ${f(band.focus_place_aloft)}\n` +
+        `#define SV_BAND_FOCUS_PLACE_ALTITUDE vec2(${band.focus_place_altitude_m.map(f).join(", ")})\n` +
+        `#define SV_BAND_FOCUS_HIGH ${f(band.focus_high)}\n` +
+        `#define SV_BAND_SUN_SOFT ${f(band.sun_soft_deg)}\n` +
         `#define SV_BAND_AZIMUTH_DEPTH_ALOFT ${f(band.azimuth_depth_aloft_deg)}\n` +
         `#define SV_BAND_AZIMUTH_DEPTH_ALTITUDE vec2(${band.azimuth_depth_aloft_altitude_m.map(f).join(", ")})\n` +
         `#define SV_ALT_NODES float[${z.N_ALT}](${altNodes.map(f).join(", ")})\n` +

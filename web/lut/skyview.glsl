@@ -24,6 +24,9 @@
 // SV_BAND_CENTRE_ALOFT (centre_aloft_per_km), SV_BAND_CENTRE_ALOFT_ALTITUDE
 // (centre_aloft_altitude_m, a vec2), SV_BAND_DEPTH_TOP (depth_top_m), SV_BAND_FOCUS_ALOFT
 // (focus_aloft), SV_BAND_FOCUS_ALOFT_ALTITUDE (focus_aloft_altitude_m, a vec2),
+// SV_BAND_FOCUS_PLACE_ALOFT (focus_place_aloft), SV_BAND_FOCUS_PLACE_ALTITUDE
+// (focus_place_altitude_m, a vec2), SV_BAND_FOCUS_HIGH (focus_high), SV_BAND_SUN_SOFT
+// (sun_soft_deg),
 // SV_BAND_AZIMUTH_DEPTH_ALOFT (azimuth_depth_aloft_deg), SV_BAND_AZIMUTH_DEPTH_ALTITUDE
 // (azimuth_depth_aloft_altitude_m, a vec2), and SV_ALT_NODES
 // (parameterisation.altitude_nodes_m, a float[SV_N_ALT] constructor), SV_ALT_X
@@ -373,6 +376,21 @@ float SkyViewBandStrength(float h) {
                  smoothstep(SV_BAND_FOCUS_ALOFT_ALTITUDE.x, SV_BAND_FOCUS_ALOFT_ALTITUDE.y, h));
 }
 
+// The share of the sky rows' focus that moves and grows aloft at the band's elevation c and
+// altitude h (the reader's sky_row_focus): under a low band (1 - smoothstep over
+// SV_BAND_CENTRE_RANGE of c) from SV_BAND_FOCUS_PLACE_ALTITUDE up.
+float SkyViewFocusAloft(float c, float h) {
+  return smoothstep(SV_BAND_FOCUS_PLACE_ALTITUDE.x, SV_BAND_FOCUS_PLACE_ALTITUDE.y, h) *
+      (1.0 - smoothstep(SV_BAND_CENTRE_RANGE.x, SV_BAND_CENTRE_RANGE.y, c));
+}
+
+// The sky rows' focus's elevation over the band's c at altitude h (the reader's sky_row_focus):
+// SV_BAND_FOCUS_PLACE_ALOFT of the band opposite the sun (c SV_BAND_ANTISOLAR) aloft under a low
+// band, 1 elsewhere.
+float SkyViewFocusPlace(float c, float h) {
+  return 1.0 + (SV_BAND_FOCUS_PLACE_ALOFT * SV_BAND_ANTISOLAR - 1.0) * SkyViewFocusAloft(c, h);
+}
+
 // The weight (0..1) of the maps relative to the band (SkyViewBandSlice, SkyViewBandRelative) at
 // the sun coordinate sun_deg and altitude h (the reader's band_map_weight): the focus's fades in
 // the sun and the altitude, without its fade in the band's elevation.
@@ -386,7 +404,9 @@ float SkyViewBandWeight(float sun_deg, float h) {
 // band's elevation c (degrees) and the focus strength k (per degree) with the sun sun_deg above
 // the observer's horizon at altitude h (faded out as c rises through SV_BAND_CENTRE_RANGE).
 void SkyViewBandFocus(float sun_deg, float h, out float c, out float k) {
-  float u = max(SV_BAND_SUN - sun_deg, 0.0);
+  // u = SV_BAND_SUN - sun_deg turned smoothly to 0 over SV_BAND_SUN_SOFT: w ln(1 + e^x).
+  float x = (SV_BAND_SUN - sun_deg) / SV_BAND_SUN_SOFT;
+  float u = SV_BAND_SUN_SOFT * (max(x, 0.0) + log(1.0 + exp(-abs(x))));
   // The low fit up to SV_BAND_CENTRE_ALOFT_ALTITUDE.x, scaled by 1 + SV_BAND_CENTRE_ALOFT per km
   // above it up to SV_BAND_CENTRE_ALOFT_ALTITUDE.y (the reader's band_centre_deg).
   float km = clamp(h, 0.0, SV_BAND_CENTRE_ALOFT_ALTITUDE.x) / 1000.0;
@@ -395,9 +415,10 @@ void SkyViewBandFocus(float sun_deg, float h, out float c, out float k) {
             SV_BAND_CENTRE_ALOFT_ALTITUDE.y - SV_BAND_CENTRE_ALOFT_ALTITUDE.x) / 1000.0;
   c = min(((SV_BAND_CENTRE.x + SV_BAND_CENTRE.y * km) * u +
            (SV_BAND_CENTRE.z + SV_BAND_CENTRE.w * km) * u * u) * aloft, 45.0);
+  float low = 1.0 - smoothstep(SV_BAND_CENTRE_RANGE.x, SV_BAND_CENTRE_RANGE.y, c);
   float f = SkyViewBandWeight(sun_deg, h) *
-      (1.0 - (1.0 - SV_BAND_CENTRE_FLOOR) *
-                 smoothstep(SV_BAND_CENTRE_RANGE.x, SV_BAND_CENTRE_RANGE.y, c));
+      (low * (1.0 + SV_BAND_FOCUS_HIGH * SkyViewFocusAloft(c, h)) +
+       SV_BAND_CENTRE_FLOOR * (1.0 - low));
   k = f * SkyViewBandStrength(h);
 }
 
@@ -510,15 +531,16 @@ float SkyViewBandRelative(float elevation_deg, float c, float weight, float h, f
   return elevation_deg + taper * fade * (elevation_deg + delta) * (ratio - 1.0);
 }
 
-// The row stencil of elevation_deg (degrees) for an observer at altitude h on rows of focus
-// (c, k) (the reader's band_row): the sky rows above the horizontal, below it the limb rows at
+// The row stencil of elevation_deg (degrees) for an observer at altitude h on the slice's rows
+// of band elevation c and focus k (the reader's band_row; the focus at c SkyViewFocusPlace at
+// the slice's altitude limb.z): the sky rows above the horizontal, below it the limb rows at
 // the observer's altitude (the tangent point's depth 2 r sin^2(e/2) / h) on the slice's limb
 // rows, limb = (the query's sun coordinate, the slice's, the slice's altitude)
 // (SkyViewLimbSliceDepth, SkyViewLimbFocus).
 SvStencil SkyViewBandRowStencil(float elevation_deg, float h, float c, float k, vec3 limb) {
   if (elevation_deg >= 0.0 || h <= 0.0) {
-    return SkyViewStencil(SkyViewSkyRow(elevation_deg, c, k) * float(SV_N_VIEW_SKY - 1), 0,
-                          SV_N_VIEW_SKY - 1, false, 0.0);
+    float x = SkyViewSkyRow(elevation_deg, c * SkyViewFocusPlace(c, limb.z), k);
+    return SkyViewStencil(x * float(SV_N_VIEW_SKY - 1), 0, SV_N_VIEW_SKY - 1, false, 0.0);
   }
   float s = SkyViewSin(0.5 * radians(elevation_deg));
   float y = clamp(2.0 * (bottom_radius + h) * s * s / h, 0.0, 1.0);
@@ -703,7 +725,10 @@ vec3 SkyViewRadiance(float h, float rho, vec3 up, vec3 view_ray, vec3 sun_direct
     SkyViewBandFocus(s_q, h, band_c, band_k);
     elevation = degrees(asin(mu));
   }
-  if (segment == 0) row = SkyViewSkyRow(elevation, band_c, band_k) * float(SV_N_VIEW_SKY - 1);
+  if (segment == 0) {
+    row = SkyViewSkyRow(elevation, band_c * SkyViewFocusPlace(band_c, h), band_k) *
+        float(SV_N_VIEW_SKY - 1);
+  }
   int lo = segment == 0 ? 0 : segment == 1 ? SV_N_VIEW_SKY : SV_N_VIEW_UP;
   int hi = segment == 0 ? SV_N_VIEW_SKY - 1 : segment == 1 ? SV_N_VIEW_UP - 1 : SV_N_VIEW - 1;
   SvStencil sv = SkyViewStencil(row, lo, hi, false, 0.0);

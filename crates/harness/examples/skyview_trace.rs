@@ -18,10 +18,10 @@ use skybake_lut::load::{skyview_from_files, DecodedFile};
 use skybake_lut::manifest::MANIFEST_FILE;
 use skybake_lut::skyview::{
     altitude_abscissa, altitude_coord, altitude_node_m, altitude_node_x, azimuth_coord,
-    band_map_weight, band_relative_elevation, band_row, band_slice_elevation, limb_depth_of,
-    limb_row_focused, limb_slice_depth, ray_length, segment_rows, sky_row_focus, sun_coord,
-    sun_node_deg, sun_shift, sun_unwarp, sun_warp, sun_warp_centre, view_coord, warp_strength,
-    Stencil, N_ALT, N_AZ, N_SUN, N_VIEW_LIMB, N_VIEW_SKY, SUN_MIN_DEG,
+    band_centre_deg, band_map_weight, band_relative_elevation, band_row, band_slice_elevation,
+    limb_depth_of, limb_row_focused, limb_slice_depth, ray_length, segment_rows, sky_row_focus,
+    sun_coord, sun_node_deg, sun_shift, sun_unwarp, sun_warp, sun_warp_centre, view_coord,
+    warp_strength, Stencil, N_ALT, N_AZ, N_SUN, N_VIEW_LIMB, N_VIEW_SKY, SUN_MIN_DEG,
 };
 use skybake_lut::{SkyViewBundle, SkyViewReader};
 
@@ -111,8 +111,10 @@ fn main() {
         "segment_limby_shift_sq",
         &[seg as f64, limb_y_traced, shift, s_deg],
     );
-    let (band_c, band_k) = sky_row_focus(s_deg, h);
-    print("band_c_k", &[band_c, band_k]);
+    // The band's elevation (the shader's band_c; the rows' focus sits at band_focus_place times
+    // it) and the focus strength.
+    let (_, band_k) = sky_row_focus(s_deg, h);
+    print("band_c_k", &[band_centre_deg(s_deg, h), band_k]);
     let (seg, row) = view_coord(theta, r, bottom, s_deg);
     let (lo, hi) = segment_rows(seg);
     let sv = Stencil::new(row, lo, hi, |i| i as f64, row);

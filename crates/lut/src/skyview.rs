@@ -102,7 +102,12 @@ pub const LAYOUT: &str = "skyview";
 /// quarter of the sky rows' band focus kept above the fade ([`BAND_CENTRE_FLOOR`]); four altitude
 /// nodes inserted halfway (15.3, 18.5, 51.3, 57.9 km, [`ALTITUDE_INSERTED`]); the half texels
 /// rounded to 8 mantissa bits ([`HALF_MANTISSA_BITS`]) and the ZIP blocks deflated at level 6.
-pub const SKYVIEW_VERSION: &str = "14";
+/// 15: aloft in deep twilight the limb rows' near end fades in over 66–127° from the sun
+/// ([`LIMB_NEAR_END_AZIMUTH`]), the columns' focus centred at 115°, and the sun warp centred on
+/// the terminator's kink on the sky rows towards the sun from 40–60 km up ([`SUN_WARP_CENTRE`]);
+/// from 6–12 km up the sky rows' focus under a low band at [`BAND_FOCUS_PLACE_ALOFT`] of the
+/// antisolar band and stronger, and the band's sun term turned smoothly ([`BAND_SUN_SOFT_DEG`]).
+pub const SKYVIEW_VERSION: &str = "15";
 
 /// Altitude nodes of the base map ([`altitude_abscissa`], about (top − bottom) · (x / 27)²,
 /// denser near the top): its integers 0..=27.
@@ -471,7 +476,8 @@ pub fn view_coord(theta: f64, r: f64, bottom: f64, sun_deg: f64) -> (usize, f64)
 /// shadow's floor to the bright band above it, steepest in the red, where it is lit by sunlight
 /// that grazed the ground): its elevation
 /// (degrees, opposite the sun, where ln L rises fastest) with the sun `sun_deg` above the
-/// observer's horizon at altitude `h` (m): u = [`BAND_SUN_DEG`] − s, c = ((a₀ + a₁ h) u +
+/// observer's horizon at altitude `h` (m): u = [`BAND_SUN_DEG`] − s turned smoothly to 0
+/// over [`BAND_SUN_SOFT_DEG`], c = ((a₀ + a₁ h) u +
 /// (a₂ + a₃ h) u²)(1 + ρ (h − h₀)), h in km up to h₀ = 10 in the first factor
 /// ([`BAND_CENTRE`]) and from h₀ to h₁ = 20 in the second (ρ = [`BAND_CENTRE_ALOFT`],
 /// (h₀, h₁) = [`BAND_CENTRE_ALOFT_M`]). The coefficients are 0.85 times a fit to the `sky`
@@ -482,7 +488,10 @@ pub fn view_coord(theta: f64, r: f64, bottom: f64, sun_deg: f64) -> (usize, f64)
 /// away from the antisolar azimuth the band lies lower (150° from the sun: about 0.7 of its
 /// elevation at 180°), and the rows' focus sits between the two.
 pub fn band_centre_deg(sun_deg: f64, h: f64) -> f64 {
-    let u = (BAND_SUN_DEG - sun_deg).max(0.0);
+    let w = BAND_SUN_SOFT_DEG;
+    let x = (BAND_SUN_DEG - sun_deg) / w;
+    // w ln(1 + eˣ), written to keep eˣ finite.
+    let u = w * (x.max(0.0) + (-x.abs()).exp().ln_1p());
     let [h0, h1] = BAND_CENTRE_ALOFT_M;
     let km = (h / 1000.0).clamp(0.0, h0 / 1000.0);
     let aloft = 1.0 + BAND_CENTRE_ALOFT * ((h - h0) / 1000.0).clamp(0.0, (h1 - h0) / 1000.0);
@@ -499,6 +508,15 @@ pub const BAND_CENTRE_ALOFT: f64 = 0.03;
 /// The sun coordinate (degrees above the observer's horizon) at which the band of
 /// [`band_centre_deg`] reaches the horizontal.
 pub const BAND_SUN_DEG: f64 = 2.0;
+/// The width (degrees) over which [`band_centre_deg`]'s u = [`BAND_SUN_DEG`] − s turns to 0: u =
+/// w ln(1 + exp((2° − s)/w)) (version 14: max(2° − s, 0), whose corner at s = 2° the slices' map
+/// [`band_slice_elevation`] carried into the sun nodes: seen from 6.5–15 km with the sun 1.9°
+/// above the observer's horizon, 2–2.5° up opposite the sun in the blue, where no sharp band
+/// lies, the nodes at 1.5° and 2° were read 1.2° apart. The sun axis alone (the `sky` product at
+/// the nodes at the mapped elevations, 440 nm) erred +2.6 / +2.0 / +3.2 / +4.3 % at 6.5 / 8 / 11 /
+/// 15 km with the corner, 0.1 % with w = 0.5°, 0.2–0.4 % with 0.25°; the band's own cases at
+/// s ≈ 0.1° unchanged).
+pub const BAND_SUN_SOFT_DEG: f64 = 0.5;
 /// [`band_centre_deg`]'s coefficients: a₀, a₁ (per km), a₂, a₃ (per km) (0.85 × the fit's
 /// 0.49, 0.06, 0.185, 0.023).
 pub const BAND_CENTRE: [f64; 4] = [0.4165, 0.051, 0.157_25, 0.019_55];
@@ -544,18 +562,45 @@ fn smoothstep(a: f64, b: f64, x: f64) -> f64 {
 }
 
 /// The sky rows' focus at sun `sun_deg` above the observer's horizon and altitude `h` (m): the
-/// band's elevation c ([`band_centre_deg`], degrees) and the focus strength k = f
-/// [`band_focus_strength`] (f the fades of [`BAND_SUN_RANGE`], [`BAND_ALTITUDE_M`] and, in the
-/// band's elevation c, [`BAND_CENTRE_RANGE_DEG`] down to [`BAND_CENTRE_FLOOR`], smoothsteps
-/// 3t² − 2t³; k = 0 by day, deep in
-/// twilight and aloft: the rows of version 3).
+/// focus's elevation c (1 + (P [`BAND_ANTISOLAR`] − 1) a) (c the band's, [`band_centre_deg`],
+/// degrees; P = [`BAND_FOCUS_PLACE_ALOFT`]) and the focus strength k = W (l (1 + G a) + F (1 − l))
+/// [`band_focus_strength`]: W the fades of [`BAND_SUN_RANGE`] and [`BAND_ALTITUDE_M`]
+/// ([`band_map_weight`]), l = 1 − smoothstep over [`BAND_CENTRE_RANGE_DEG`] of c, F =
+/// [`BAND_CENTRE_FLOOR`], G = [`BAND_FOCUS_HIGH`], a = l smoothstep over [`BAND_FOCUS_PLACE_M`]
+/// of h (smoothsteps 3t² − 2t³); k = 0 by day, deep in twilight and aloft: the rows of version 3.
 pub fn sky_row_focus(sun_deg: f64, h: f64) -> (f64, f64) {
     let [c0, c1] = BAND_CENTRE_RANGE_DEG;
+    let [h0, h1] = BAND_FOCUS_PLACE_M;
     let c = band_centre_deg(sun_deg, h);
-    let high = smoothstep(c0, c1, c);
-    let f = band_map_weight(sun_deg, h) * (1.0 - (1.0 - BAND_CENTRE_FLOOR) * high);
-    (c, f * band_focus_strength(h))
+    // The share of the focus under a low band (1 − high), where it moves and grows aloft.
+    let low = 1.0 - smoothstep(c0, c1, c);
+    let aloft = smoothstep(h0, h1, h) * low;
+    let f = band_map_weight(sun_deg, h)
+        * (low * (1.0 + BAND_FOCUS_HIGH * aloft) + BAND_CENTRE_FLOOR * (1.0 - low));
+    let place = 1.0 + (BAND_FOCUS_PLACE_ALOFT * BAND_ANTISOLAR - 1.0) * aloft;
+    (c * place, f * band_focus_strength(h))
 }
+
+/// The sky rows' focus's elevation aloft as a fraction of the band's elevation opposite the sun
+/// ([`BAND_ANTISOLAR`] · [`band_centre_deg`]; below [`BAND_FOCUS_PLACE_M`] 1 / [`BAND_ANTISOLAR`]
+/// = 0.85 of it, between its elevations 150° and 180° from the sun). Seen from 8–20 km the rows
+/// alone (the `sky` product at the rows, Lagrange over their logarithms, 680 nm) erred by
+/// +4.3 / +7.2 / +4.0 / −5.2 % at 8 / 11 / 12.5 / 20 km 3–5° up opposite the sun, at the band
+/// there, above the focus at 0.85 of it; with 0.92 and [`BAND_FOCUS_HIGH`] from 6–12 km (and
+/// [`BAND_SUN_SOFT_DEG`]) the earth's shadow seen aloft (the reader, sun every 0.25°, 120–180°
+/// from the sun) 4.55 / 6.25 / 4.54 / 9.90 → 3.78 / 3.82 / 4.16 / 7.70 % there (docs/lut.md,
+/// version 15's scan: 1 or 0.85 of it worse at 12.5 or 20 km).
+pub const BAND_FOCUS_PLACE_ALOFT: f64 = 0.92;
+/// The altitudes (m) between which the focus's place moves (smoothstep) to
+/// [`BAND_FOCUS_PLACE_ALOFT`] of the antisolar band and its strength grows by
+/// [`BAND_FOCUS_HIGH`] ([`sky_row_focus`]), both under a low band only (faded out with
+/// [`BAND_CENTRE_RANGE_DEG`]: the share [`BAND_CENTRE_FLOOR`] kept under a high band is version
+/// 14's, for the glow towards the sun near the horizontal, which with both there read 3.26 %
+/// at 10 km, sun −6°, 0.25° up towards the sun, 440 nm, against 2.94 % at the ground).
+pub const BAND_FOCUS_PLACE_M: [f64; 2] = [6_000.0, 12_000.0];
+/// How much stronger the sky rows' focus is under a low band from [`BAND_FOCUS_PLACE_M`] up
+/// ([`sky_row_focus`]).
+pub const BAND_FOCUS_HIGH: f64 = 0.3;
 
 /// The weight (0…1) of the maps relative to the band ([`band_slice_elevation`],
 /// [`band_relative_elevation`]) at sun `sun_deg` above the observer's horizon and altitude `h`
@@ -2086,9 +2131,9 @@ pub const STATED_ERRORS: &[(&str, &str, f64)] = &[
     ("rayleigh+mie", "sky radiance (sky product), sun >= 5 deg, view < 10 deg above the horizon, 20-100 km", 0.021),
     ("rayleigh+mie", "sky radiance (sky product), sun -6..5 deg, ground", 0.012),
     ("rayleigh+mie", "sky radiance (sky product), sun -6..5 deg, 0-5 km (the band above the earth's shadow 120 deg from the sun, 680 nm at 5 km, 0.5 deg above the horizontal; the twilight glow towards the sun at most 3 %)", 0.046),
-    ("rayleigh+mie", "sky radiance (sky product), sun -6..5 deg, 5-8 km (the band above the earth's shadow near the antisolar horizon, 680 nm at 8 km, 3 deg above the horizontal opposite the sun, sun -2.75 deg)", 0.046),
-    ("rayleigh+mie", "sky radiance (sky product), sun -6..5 deg, 8-12.5 km (the band above the earth's shadow near the antisolar horizon, 680 nm at 11 km, 3.5 deg above the horizontal opposite the sun, sun -3.25 deg; the twilight glow towards the sun at most 3 %)", 0.063),
-    ("rayleigh+mie", "sky radiance (sky product), sun -6..5 deg, 12.5-20 km (the band above the earth's shadow near the antisolar horizon, 680 nm at 20 km, 5.25 deg above the horizontal opposite the sun, sun -4.5 deg; the twilight glow towards the sun at most 3 %)", 0.099),
+    ("rayleigh+mie", "sky radiance (sky product), sun -6..5 deg, 5-8 km (the band above the earth's shadow, 680 nm at 8 km, 1.75 deg above the horizontal 150 deg from the sun, sun -2.5 deg)", 0.038),
+    ("rayleigh+mie", "sky radiance (sky product), sun -6..5 deg, 8-12.5 km (the band above the earth's shadow near the antisolar horizon, 680 nm at 9.5 km, 3.5 deg above the horizontal 165 deg from the sun, sun -3 deg; the twilight glow towards the sun at most 3 %)", 0.052),
+    ("rayleigh+mie", "sky radiance (sky product), sun -6..5 deg, 12.5-20 km (the limb 0.3 deg above the horizon 135 deg from the sun, 680 nm at 20 km, sun -4 deg; the twilight glow towards the sun at most 3 %)", 0.077),
     ("rayleigh+mie", "sky radiance (sky product), sun -6..0 deg, 0-5 km, views within 10 deg of the horizon 150-180 deg from the sun (the earth's shadow rising; 680 nm at 2.5 km)", 0.022),
     ("rayleigh+mie", "sky radiance (sky product), sun -6..5 deg, 20-100 km (the sky just above the horizontal at 30 km, 440 nm)", 0.030),
     ("rayleigh+mie", "sky radiance (sky product), sun -12..-6 deg, ground", 0.033),
@@ -2150,11 +2195,15 @@ pub fn manifest(
         "focus_growth_altitude_m": BAND_FOCUS_GROWTH_M,
         "focus_aloft": BAND_FOCUS_ALOFT,
         "focus_aloft_altitude_m": BAND_FOCUS_ALOFT_M,
+        "focus_place_aloft": BAND_FOCUS_PLACE_ALOFT,
+        "focus_place_altitude_m": BAND_FOCUS_PLACE_M,
+        "focus_high": BAND_FOCUS_HIGH,
+        "sun_soft_deg": BAND_SUN_SOFT_DEG,
         "azimuth_depth_aloft_deg": BAND_AZIMUTH_DEPTH_ALOFT,
         "azimuth_depth_aloft_altitude_m": BAND_AZIMUTH_DEPTH_ALOFT_M,
         "slices": "on the sky rows, each (altitude node k, sun node j) slice of the interpolation is read on its own rows (the focus (c_n, k_n) at the node's sun coordinate s_n = the warped s_j at h_k and its altitude h_n = altitude_nodes_m[k]) where the query's or the slice's k > 0: at e_n = e + f (1 - smoothstep(2 w, 4 w, e)) smoothstep(0, horizon_deg, e) ((e + delta_q) H_n / H_q - delta_n - e), H = max(c antisolar + delta, 0.1) at the query's (c, h) and the node's (band centre c at s_n, h_n), delta = depth_deg_per_km clamp(h, 0, depth_top_m) / 1000, w = max(H_q, 0.5), f = k / (focus (1 + focus_growth smoothstep(focus_growth_altitude_m[0], focus_growth_altitude_m[1], h)) (1 + focus_aloft smoothstep(focus_aloft_altitude_m[0], focus_aloft_altitude_m[1], h))) the query's fade (0 where k = 0), then each column at the azimuth formula's e_a with (c_n, k_n, h_n) in place of the query's",
         "azimuth": "on the sky rows and the limb rows where k > 0 each azimuth column a of the interpolation is read at its own elevation e_a (its own rows' stencil): d = depth_deg_per_km clamp(h, 0, depth_top_m) / 1000, delta = d + (azimuth_depth_aloft_deg - d) smoothstep(azimuth_depth_aloft_altitude_m[0], azimuth_depth_aloft_altitude_m[1], h) (version 12), w = max(c antisolar + delta, 0.5), ratio = max(-cos phi_a, antisolar_range[0]) / max(-cos phi, antisolar_range[0]), e_a = e + (k / (focus (1 + focus_growth smoothstep(focus_growth_altitude_m[0], focus_growth_altitude_m[1], h)) (1 + focus_aloft smoothstep(focus_aloft_altitude_m[0], focus_aloft_altitude_m[1], h)))) (1 - smoothstep(2 w, 4 w, e)) step(-delta, e) smoothstep(antisolar_range[0], antisolar_range[1], -cos phi) (e + delta) (ratio - 1) (version 7: from -delta up through the horizontal, where version 6 had smoothstep(0, horizon_deg, e)), e the query's elevation (deg), phi its azimuth from the sun, phi_a the column's in the slice (azimuth_nodes_rad[k][a], the slice's altitude node k; version 12: at the query's altitude h); where e_a >= 0 the column is read on the sky rows, below on the limb rows at the query's altitude h (depth y = 2 r sin^2(e_a / 2) / h); the band above the earth's shadow lies at (c antisolar + delta)(-cos phi) - delta",
-        "formula": "the sky rows' focus at the sun's elevation s above the observer's horizon (deg) and altitude h (m): u = max(sun_deg - s, 0), km = clamp(h, 0, centre_aloft_altitude_m[0]) / 1000, c = min(((centre[0] + centre[1] km) u + (centre[2] + centre[3] km) u^2) (1 + centre_aloft_per_km clamp(h - centre_aloft_altitude_m[0], 0, centre_aloft_altitude_m[1] - centre_aloft_altitude_m[0]) / 1000), 45) (deg), k = smoothstep(sun_range_deg[0], sun_range_deg[1], s) (1 - smoothstep(sun_range_deg[2], sun_range_deg[3], s)) (1 - smoothstep(altitude_range_m[0], altitude_range_m[1], h)) (1 - (1 - centre_floor) smoothstep(centre_range_deg[0], centre_range_deg[1], c)) focus (1 + focus_growth smoothstep(focus_growth_altitude_m[0], focus_growth_altitude_m[1], h)) (1 + focus_aloft smoothstep(focus_aloft_altitude_m[0], focus_aloft_altitude_m[1], h)), smoothstep(a, b, x) = t^2 (3 - 2 t), t = clamp((x - a) / (b - a), 0, 1)",
+        "formula": "the sky rows' focus at the sun's elevation s above the observer's horizon (deg) and altitude h (m): u = sun_soft_deg ln(1 + exp((sun_deg - s) / sun_soft_deg)) (version 14: max(sun_deg - s, 0)), km = clamp(h, 0, centre_aloft_altitude_m[0]) / 1000, c = min(((centre[0] + centre[1] km) u + (centre[2] + centre[3] km) u^2) (1 + centre_aloft_per_km clamp(h - centre_aloft_altitude_m[0], 0, centre_aloft_altitude_m[1] - centre_aloft_altitude_m[0]) / 1000), 45) (deg, the band's elevation: the maps' c), the rows' focus at c_f = c (1 + (focus_place_aloft antisolar - 1) a) (x_c = 1 - sqrt(c_f / 90); version 15), l = 1 - smoothstep(centre_range_deg[0], centre_range_deg[1], c), a = l smoothstep(focus_place_altitude_m[0], focus_place_altitude_m[1], h), k = smoothstep(sun_range_deg[0], sun_range_deg[1], s) (1 - smoothstep(sun_range_deg[2], sun_range_deg[3], s)) (1 - smoothstep(altitude_range_m[0], altitude_range_m[1], h)) (l (1 + focus_high a) + centre_floor (1 - l)) focus (1 + focus_growth smoothstep(focus_growth_altitude_m[0], focus_growth_altitude_m[1], h)) (1 + focus_aloft smoothstep(focus_aloft_altitude_m[0], focus_aloft_altitude_m[1], h)), smoothstep(a, b, x) = t^2 (3 - 2 t), t = clamp((x - a) / (b - a), 0, 1)",
     });
     json!({
         "format": LAYOUT,
@@ -2531,6 +2580,25 @@ mod tests {
         let full = low * (1.0 + BAND_FOCUS_ALOFT);
         assert!((band_focus_strength(8000.0) - full).abs() < 1e-12);
         assert!((band_focus_strength(15_000.0) - full).abs() < 1e-12);
+        // Under a low band the focus sits at 0.85 of the antisolar band below 6 km, at 0.92 of
+        // it and 1.3 times as strong from 12 km up; under a high band (c > 9°) as below 6 km.
+        let (c, k) = sky_row_focus(0.0, 5000.0);
+        assert_eq!(c, band_centre_deg(0.0, 5000.0));
+        assert!((k - band_focus_strength(5000.0)).abs() < 1e-9);
+        for h in [12_000.0, 15_000.0] {
+            let (c, k) = sky_row_focus(0.0, h);
+            let antisolar = BAND_ANTISOLAR * band_centre_deg(0.0, h);
+            assert!(antisolar < 6.0);
+            assert!(
+                (c - 0.92 * antisolar).abs() < 1e-9,
+                "{h}: {c} vs {antisolar}"
+            );
+            assert!((k - 1.3 * full).abs() < 1e-9, "{h}: {k}");
+            let (c, k) = sky_row_focus(-3.0, h);
+            assert!(band_centre_deg(-3.0, h) > 9.0);
+            assert_eq!(c, band_centre_deg(-3.0, h));
+            assert!((k - BAND_CENTRE_FLOOR * full).abs() < 1e-9, "{h}: {k}");
+        }
         // By day and aloft (no focus at the query): the identity.
         assert_eq!(band_slice_elevation(3.0, 8.0, 0.0, 7.5, 0.0), 3.0);
         assert_eq!(
