@@ -171,9 +171,7 @@ fn optically_thick_cloud_conserves_energy_in_the_fast_method() {
     let ratio = power_ratio(&v, &grid, Method::Fast);
     println!("τ 1000: fast method scattered power out/in = {ratio:.3}");
     assert!(ratio.is_finite() && ratio <= 1.15, "τ 1000: out/in {ratio}");
-    // Measured 0.946 with the smooth part's turned light gathered round the peak's mean turn
-    // (docs/frames.md, "δ-M truncation and TMS", item 10), 0.959 before; 0.959 with the field
-    // seen through the face in the skins' cells too (0.968
+    // Measured 0.959 with the field seen through the face in the skins' cells too (0.968
     // without; 0.951 before the sun's single scattering was attenuated through σ_t⁺,
     // 0.63 before the march's thick steps and the photon pass's diffusion jumps; 26 views do not
     // resolve the forward lobe exactly).
@@ -238,8 +236,7 @@ fn power_ratio_shared(v: &Value, grid: &DensityGrid, px: usize) -> f64 {
 /// attenuated through σ_t⁺ (docs/frames.md, "δ-M truncation and TMS", item 6), this test reads
 /// 1.026 / 1.005 (τ 1000, isotropic / g = 0.85) and 1.068 / 0.928 (τ 160); with the field
 /// seen through the face towards the camera (docs/frames.md, "fast"), also in these cells (all
-/// have skins) beyond the skin's depth, 0.979 / 0.996 and 1.029 / 0.921; with the smooth part's
-/// turned light gathered (item 10) 0.979 / 0.980 and 1.029 / 0.911.
+/// have skins) beyond the skin's depth, 0.979 / 0.996 and 1.029 / 0.921.
 #[test]
 fn optically_thick_voxels_conserve_energy() {
     let c = DVec3::new(0.0, 0.0, 1000.0);

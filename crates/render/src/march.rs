@@ -48,7 +48,6 @@ struct Sources<'s> {
     fresh: &'s [bool],
     cos_sun: f64,
     turn: &'s turned::TurnedRay,
-    smooth_turn: &'s [turned::TurnedRay; turned::SMOOTH_RAYS],
 }
 
 /// Everything precomputed for one scene, camera and lighting; renders any tile. The
@@ -482,7 +481,6 @@ impl<'a> Prepared<'a> {
         let step = self.settings.step_voxels * vol.grid.voxel_size_m;
         let cos_sun = lt.sun_dir.dot(ray.dir);
         let turn = self.turned_ray(ray.dir);
-        let smooth_turn = self.smooth_rays(ray.dir);
         // Per wavelength: ω/s · E_sun · p(Θ) and the scaled and true extinctions per density.
         let mut sun_src = [0.0f64; 64];
         let mut ks = [0.0f64; 64];
@@ -568,7 +566,6 @@ impl<'a> Prepared<'a> {
                     fresh: &fresh[..n_l],
                     cos_sun,
                     turn: &turn,
-                    smooth_turn: &smooth_turn,
                 };
                 let alive = self.thick_step(
                     o,
@@ -620,7 +617,6 @@ impl<'a> Prepared<'a> {
             let (d0, d1) = (r0 * r0, r1 * r1);
             // The peak's gathering path, looked up where the peak's part is first needed.
             let mut turned_at = None;
-            let mut smooth_at = None;
             front.get_or_insert(t - dt);
             let mut alive = false;
             let (mut a, mut a_ms, mut a_p, mut sun_t, mut sun_peak) = (0.0, 0.0, 0.0, 0.0, 0.0);
@@ -645,16 +641,7 @@ impl<'a> Prepared<'a> {
                                 let rate = self.lit.peak_rate[l];
                                 let lam_s = rate * kt[l] * (d0 + (d1 - d0) * d_eff);
                                 let lam_v = rate * (tv[l] + 0.5 * kt[l] * rho * dt);
-                                // The smooth part's turned light gathered along the
-                                // peak's turns (`turned`), where the camera still sees it.
-                                let smooth = if tcp[l] > turned::TURNED_SEEN {
-                                    let tps = smooth_at.get_or_insert_with(|| {
-                                        smooth_turn.map(|r| self.turned_path(pm, &r))
-                                    });
-                                    self.smooth_turned(p, row, l, lam_s, lam_v, tps, kt[l], kp[l])
-                                } else {
-                                    p.ratios(row, lam_s + lam_v).0
-                                };
+                                let smooth = p.ratios(row, lam_s + lam_v).0;
                                 // The peak's part gathered along its turned direction
                                 // (`turned`), within 90° of the sun, where the camera still
                                 // sees the step.
@@ -761,9 +748,6 @@ impl<'a> Prepared<'a> {
         // The peak's gathering path, one for the whole step (`turned`).
         let mut turned_at = None;
         for j in 0..n {
-            // The smooth part's gathering paths, one per sub-step (its light is made within
-            // the sub-steps' first optical depths, the peak's over the camera's true one).
-            let mut smooth_at = None;
             let ts = t_start + j as f64 * h;
             let Some(w) = vol.weights(o + d * (ts + 0.5 * h)) else {
                 d_prev = None;
@@ -831,15 +815,7 @@ impl<'a> Prepared<'a> {
                                 let rate = self.lit.peak_rate[l];
                                 let lam_s = rate * kt * (d0 + (d1 - d0) * d_eff);
                                 let lam_v = rate * (tv[l] + 0.5 * kt * rho * h);
-                                let smooth = if tcp[l] > turned::TURNED_SEEN {
-                                    let tps = smooth_at.get_or_insert_with(|| {
-                                        let x = o + d * (ts + 0.5 * h);
-                                        sky.smooth_turn.map(|r| self.turned_path(x, &r))
-                                    });
-                                    self.smooth_turned(p, row, l, lam_s, lam_v, tps, kt, kp)
-                                } else {
-                                    p.ratios(row, lam_s + lam_v).0
-                                };
+                                let smooth = p.ratios(row, lam_s + lam_v).0;
                                 let straight = p.last_in_peak(row, lam_s);
                                 let peak = if sky.cos_sun > 0.0
                                     && straight > 0.0

@@ -63,9 +63,6 @@ pub struct Marcher<'a> {
     /// source towards the viewer, max(…) of Σ_lm K_lm·Y_lm(−d) at voxels not seen through a
     /// face, 0 at those that are (docs/cloud-light.md); empty without `once_scattered.exr`.
     once: Vec<Vec<f32>>,
-    /// The first wavelength's truncated peak: its normalised mean cosine h₁ and the scaled
-    /// phase function's g* (see [`Marcher::smooth_turned`]); (1, 0) without a peak.
-    turns: (f64, f64),
 }
 
 /// What every step of one ray shares (see [`Marcher::march`]).
@@ -138,9 +135,7 @@ impl<'a> Marcher<'a> {
             rho_max: cl.density.iter().fold(0.0f64, |m, &r| m.max(r as f64)),
             face: Vec::new(),
             once: Vec::new(),
-            turns: (1.0, 0.0),
         };
-        out.turns = out.peak_turns();
         let dir_at = |p: DVec3| match viewer {
             Viewer::Point(o) => (p - o).normalize_or(DVec3::Z),
             Viewer::Direction(d) => d.normalize_or(DVec3::Z),
@@ -452,41 +447,6 @@ impl<'a> Marcher<'a> {
         out.max(0.0)
     }
 
-    /// D_sun at `p` as the fast frame's gathering paths read it (`march/turned.rs`): trilinear
-    /// in √D between voxel centres (squared), continued as [`Self::sun_path_at`] beyond the
-    /// outermost centres. 0 outside the box.
-    fn sun_path_root_at(&self, p: DVec3) -> f64 {
-        let cl = self.cl;
-        let root = |w: &[(usize, f64); 8]| -> f64 {
-            w.iter()
-                .map(|&(i, wi)| wi * (cl.sun_path[i] as f64).max(0.0).sqrt())
-                .sum()
-        };
-        let Some(w) = self.weights(p) else {
-            return 0.0;
-        };
-        let r = root(&w);
-        let h = cl.voxel_size_m;
-        let local = (p - self.lo) / h;
-        let mut out = r * r;
-        for a in 0..3 {
-            let n = cl.dims[a] as f64;
-            if cl.dims[a] < 2 || (local[a] >= 0.5 && local[a] <= n - 0.5) {
-                continue;
-            }
-            let (excess, inward) = if local[a] < 0.5 {
-                (0.5 - local[a], 1.0)
-            } else {
-                (local[a] - (n - 0.5), -1.0)
-            };
-            let mut q = p;
-            q[a] += inward * (excess + 1.0) * h;
-            let ri = self.weights(q).map_or(0.0, |w| root(&w));
-            out += excess * (r * r - ri * ri);
-        }
-        out.max(0.0)
-    }
-
     /// D_sun at `p` resolved within the voxels next to it, for thick steps: the density
     /// integrated towards the sun over [`SUN_NEAR_VOXELS`] voxels (composite Simpson,
     /// [`SUN_NEAR_INTERVALS`] intervals; up to the box's face if nearer) plus
@@ -632,144 +592,40 @@ impl<'a> Marcher<'a> {
         }
         let b = DVec3::from_array(cl.sun_direction) + ray.d;
         let len = b.length();
+        let mut gathered = 0.0;
         let d_s = lambda / (rate * k);
-        let gathered = if len >= 1e-6 {
-            self.gathered(x, b / len, d_s, kp)
-        } else {
-            0.0
-        };
+        if len >= 1e-6 {
+            let b = b / len;
+            let exit = box_interval(x, b, self.lo, self.hi).map_or(0.0, |(_, t1)| t1);
+            let h = cl.voxel_size_m;
+            let (mut lo, mut width, mut cum) = (0.0, h, 0.0);
+            for bin in 0..7 {
+                if lo >= exit {
+                    break;
+                }
+                let hi = (lo + width).min(exit);
+                let w = hi - lo;
+                let y = x + b * (lo + 0.5 * w);
+                let (rho, d_sun) = if bin < 2 {
+                    (self.rho(y), self.sun_path_at(y))
+                } else {
+                    self.nearest(y)
+                };
+                let path = d_sun + cum + 0.5 * rho * w;
+                gathered += rho * w * (-kp * (path - d_s)).min(600.0).exp();
+                cum += rho * w;
+                lo = hi;
+                if bin > 0 {
+                    width *= 2.0;
+                }
+            }
+        }
         let (_, first) = self.spread(l, ray.cos_sun, 0.0);
         let per_lambda = (1.0 - cl.first_extinction_scale[l]) / rate;
         let turned_at = |lam: f64, v: f64| v - (-lam * per_lambda).exp() * first;
         let lam_e = lambda.max(1e-3);
         let slope = if lam_e > lambda {
             turned_at(lam_e, self.spread(l, ray.cos_sun, lam_e).1)
-        } else {
-            turned_at(lambda, now)
-        } / (lam_e / (rate * k));
-        (now + gathered * slope - turned_at(lambda, now)).max(0.0)
-    }
-
-    /// The first-order turned light gathered along `b` from `x` (bins of 1, 1, 2, 4, … 32
-    /// voxels, each at its middle: trilinear in the first two, the nearest voxel beyond; up to
-    /// the box's face): Σ ρᵢwᵢ·e^{−k⁺(D(yᵢ) + ∫ρ − D_s)}.
-    fn gathered(&self, x: DVec3, b: DVec3, d_s: f64, kp: f64) -> f64 {
-        let cl = self.cl;
-        let exit = box_interval(x, b, self.lo, self.hi).map_or(0.0, |(_, t1)| t1);
-        let h = cl.voxel_size_m;
-        let (mut lo, mut width, mut cum, mut gathered) = (0.0, h, 0.0, 0.0);
-        for bin in 0..7 {
-            if lo >= exit {
-                break;
-            }
-            let hi = (lo + width).min(exit);
-            let w = hi - lo;
-            let y = x + b * (lo + 0.5 * w);
-            let (rho, d_sun) = if bin < 2 {
-                (self.rho(y), self.sun_path_root_at(y))
-            } else {
-                self.nearest(y)
-            };
-            let path = d_sun + cum + 0.5 * rho * w;
-            gathered += rho * w * (-kp * (path - d_s)).min(600.0).exp();
-            cum += rho * w;
-            lo = hi;
-            if bin > 0 {
-                width *= 2.0;
-            }
-        }
-        gathered
-    }
-
-    /// The first wavelength's truncated peak from the exported phase function and
-    /// extinction scale (f = (1 − s)/ω, g* = (g₁ − f)/(1 − f), r⁺ = max(p − (1 − f)·HG(g*), 0)):
-    /// (h₁, g*), h₁ = ∫r⁺μ / ∫r⁺ (as the fast frame's `peak::table`).
-    fn peak_turns(&self) -> (f64, f64) {
-        let cl = self.cl;
-        if cl.peak.is_none() || cl.n_l() == 0 || cl.albedo[0] <= 0.0 {
-            return (1.0, 0.0);
-        }
-        let f = (1.0 - cl.extinction_scale[0]) / cl.albedo[0];
-        if f <= 0.0 || f >= 1.0 {
-            return (1.0, 0.0);
-        }
-        // μ = 1 − 2u², u uniform: resolves the peak at μ = 1.
-        let n = 8192;
-        let quad = |fun: &dyn Fn(f64) -> f64| -> f64 {
-            (0..n)
-                .map(|k| {
-                    let u = (k as f64 + 0.5) / n as f64;
-                    let mu = 1.0 - 2.0 * u * u;
-                    2.0 * PI * fun(mu) * 4.0 * u / n as f64
-                })
-                .sum()
-        };
-        let g1 = quad(&|mu| self.phase(0, mu) * mu) / quad(&|mu| self.phase(0, mu));
-        let gs = (g1 - f) / (1.0 - f);
-        let hg = |mu: f64| (1.0 - gs * gs) / (4.0 * PI * (1.0 + gs * gs - 2.0 * gs * mu).powf(1.5));
-        let r = |mu: f64| (self.phase(0, mu) - (1.0 - f) * hg(mu)).max(0.0);
-        let f_plus = quad(&r);
-        if f_plus <= 0.0 {
-            return (1.0, gs);
-        }
-        (quad(&|mu| r(mu) * mu) / f_plus, gs)
-    }
-
-    /// The smooth part of the spread at λ (sun) + `lambda_view`, wavelength `l`, with the part
-    /// the peak turned before the smooth scattering gathered round the mean turned direction
-    /// (as the fast frame's `march/turned.rs`, `smooth_rays` and `smooth_turned`; one path per
-    /// thick sub-step, at its middle): (p − r⁺)_eff + (G − 1)·T, T = (p − r⁺)_eff(λ + λ_v) −
-    /// e^{−ωf⁺τ_s}·(p − r⁺)_eff(λ_v), G the mean over three directions at the single turn's
-    /// RMS angle √(2(1 − h₁)) round the sun's direction tilted towards the view by
-    /// (1 − h₁)·3g*·sin Θ / (1 + g*² − 2g*·cos Θ) (held below Θ), at azimuths 0, 120, 240°.
-    fn smooth_turned(
-        &self,
-        ray: &Ray<'_>,
-        x: DVec3,
-        l: usize,
-        lambda: f64,
-        lambda_view: f64,
-        kp: f64,
-    ) -> f64 {
-        let cl = self.cl;
-        let (now, _) = self.spread(l, ray.cos_sun, lambda + lambda_view);
-        let (rate, k) = (cl.peak_rate[l], cl.extinction_per_density_m[l]);
-        if rate <= 0.0 || k <= 0.0 {
-            return now;
-        }
-        let s = DVec3::from_array(cl.sun_direction);
-        let c = s.dot(ray.d);
-        let e = ray.d - s * c;
-        let len = e.length();
-        let e = if len < 1e-6 {
-            s.any_orthonormal_vector()
-        } else {
-            e / len
-        };
-        let (h1, gs) = self.turns;
-        let cc = c.clamp(-1.0, 1.0);
-        let tilt = ((1.0 - h1) * 3.0 * gs * (1.0 - cc * cc).sqrt()
-            / (1.0 + gs * gs - 2.0 * gs * cc))
-            .min(cc.acos());
-        let radius = (2.0 * (1.0 - h1)).max(0.0).sqrt();
-        let m = s * tilt.cos() + e * tilt.sin();
-        let u = e * tilt.cos() - s * tilt.sin();
-        let w = s.cross(e);
-        let d_s = lambda / (rate * k);
-        let gathered: f64 = (0..3)
-            .map(|j| {
-                let phi = std::f64::consts::TAU * j as f64 / 3.0;
-                let b = m * radius.cos() + (u * phi.cos() + w * phi.sin()) * radius.sin();
-                self.gathered(x, b, d_s, kp)
-            })
-            .sum::<f64>()
-            / 3.0;
-        let (view_only, _) = self.spread(l, ray.cos_sun, lambda_view);
-        let per_lambda = (1.0 - cl.first_extinction_scale[l]) / rate;
-        let turned_at = |lam: f64, v: f64| v - (-lam * per_lambda).exp() * view_only;
-        let lam_e = lambda.max(1e-3);
-        let slope = if lam_e > lambda {
-            turned_at(lam_e, self.spread(l, ray.cos_sun, lam_e + lambda_view).0)
         } else {
             turned_at(lambda, now)
         } / (lam_e / (rate * k));
@@ -859,7 +715,7 @@ impl<'a> Marcher<'a> {
                     continue;
                 }
                 front.get_or_insert(t - dt);
-                self.step(&ray, &w, rho, dt, (d_start, d1), false, (pm, pm), &mut st)
+                self.step(&ray, &w, rho, dt, (d_start, d1), false, pm, &mut st)
             };
             if !alive {
                 break;
@@ -899,7 +755,7 @@ impl<'a> Marcher<'a> {
         dt: f64,
         (d_start, d_end): (f64, f64),
         skin: bool,
-        (at, at_smooth): (DVec3, DVec3),
+        at: DVec3,
         st: &mut State,
     ) -> bool {
         let cl = self.cl;
@@ -928,13 +784,7 @@ impl<'a> Marcher<'a> {
                 let (weight, d_eff) = sun_step(kp * rho, kp * (d_end - d_start), dt, kp * d_start);
                 let lambda = cl.peak_rate[l] * k[l] * (d_start + (d_end - d_start) * d_eff);
                 let lambda_view = cl.peak_rate[l] * (st.tv[l] + 0.5 * k[l] * rho * dt);
-                // The smooth part's turned light where the camera's T⁺ before the step is above
-                // 5 % (the frame's `TURNED_SEEN`).
-                let smooth = if st.tp[l] > 0.05 {
-                    self.smooth_turned(ray, at_smooth, l, lambda, lambda_view, kp)
-                } else {
-                    self.spread(l, ray.cos_sun, lambda + lambda_view).0
-                };
+                let (smooth, _) = self.spread(l, ray.cos_sun, lambda + lambda_view);
                 let peak = self.peak_turned(ray, at, l, lambda, kp);
                 let (w_true, _) = sun_step(k[l] * rho, kp * (d_end - d_start), dt, kp * d_start);
                 (
@@ -1043,11 +893,7 @@ impl<'a> Marcher<'a> {
             };
             d_prev = Some(d1);
             front.get_or_insert(ts);
-            // The peak's gathering from the step's middle, the smooth part's from the sub-step's.
-            let at = (
-                ray.o + ray.d * (t_start + 0.5 * dt),
-                ray.o + ray.d * (ts + 0.5 * h),
-            );
+            let at = ray.o + ray.d * (t_start + 0.5 * dt);
             if !self.step(ray, &wd, rho, h, (d0, d1), cl.skin.is_some(), at, st) {
                 return false;
             }

@@ -36,11 +36,6 @@ use glam::DVec3;
 /// of what the same source would give at the cloud's face.
 pub(super) const TURNED_SEEN: f64 = 5e-2;
 
-/// The smooth part's turned light (see [`Prepared::smooth_turned`]) is gathered along
-/// [`SMOOTH_RAYS`] directions, equally weighted: a ring at the single turn's RMS angle round the
-/// mean turned direction, at azimuths 0 (towards the view), 120 and 240°.
-pub(super) const SMOOTH_RAYS: usize = 3;
-
 /// Bins along −b of widths 1, 1, 2, 4, … voxels (64 voxels in all), each sampled at its
 /// middle (trilinear in the first two, the nearest voxel beyond).
 const TURN_BINS: usize = 7;
@@ -64,36 +59,6 @@ pub(super) struct TurnedRay {
 }
 
 impl Prepared<'_> {
-    /// The smooth part's gathering rays of a view ray along `d` (a unit vector): round the sun's
-    /// direction s turned towards d by the mean turn's tilt, at the single turn's RMS angle
-    /// ([`PeakSpread::smooth_turns`] of the first wavelength), [`SMOOTH_RAYS`] directions
-    /// equally spaced in azimuth from d's side. In the scattering plane the turns that the
-    /// smooth phase function favours are the ones towards d; round it, a low sun's photons
-    /// turned towards the horizontal stay near the lit surface, and the gathered light is
-    /// convex in the turn: the ring keeps the turns' spread, not only their mean.
-    pub(super) fn smooth_rays(&self, d: DVec3) -> [TurnedRay; SMOOTH_RAYS] {
-        let s = self.lighting.sun_dir;
-        let cos = s.dot(d);
-        let e = d - s * cos;
-        let len = e.length();
-        let e = if len < 1e-6 {
-            s.any_orthonormal_vector()
-        } else {
-            e / len
-        };
-        let (tilt, radius) = match &self.lit.peak {
-            Some(p) => p.smooth_turns(0, cos),
-            None => (0.0, 0.0),
-        };
-        let m = s * tilt.cos() + e * tilt.sin();
-        let u = e * tilt.cos() - s * tilt.sin();
-        let w = s.cross(e);
-        std::array::from_fn(|k| {
-            let phi = std::f64::consts::TAU * k as f64 / SMOOTH_RAYS as f64;
-            self.ray_along(m * radius.cos() + (u * phi.cos() + w * phi.sin()) * radius.sin())
-        })
-    }
-
     /// The mean turned direction b = normalize(s + d) of a view ray along `d` (see the
     /// module's documentation; s where b is undefined, d = −s, where cos Θ = −1 and nothing is
     /// gathered).
@@ -105,11 +70,6 @@ impl Prepared<'_> {
         } else {
             b / len
         };
-        self.ray_along(b)
-    }
-
-    /// What the gathering paths along `b` (a unit vector) share.
-    fn ray_along(&self, b: DVec3) -> TurnedRay {
         let vol = &self.lit.vol;
         let mut face = DVec3::ZERO;
         let mut inv = DVec3::ZERO;
@@ -280,54 +240,6 @@ impl Prepared<'_> {
         let lam_e = lam_s.max(1e-3);
         let slope = if lam_e > lam_s {
             turned_at(lam_e, p.last_in_peak(row, lam_e))
-        } else {
-            turned_at(lam_s, now)
-        } / (lam_e / (rate * kt));
-        (now + gathered * slope - turned_at(lam_s, now)).max(0.0)
-    }
-
-    /// The smooth part (p − r⁺)_eff/p of wavelength `l` (the first of [`PeakSpread::ratios`])
-    /// at λ = `lam_s` + `lam_v` with the part the peak turned before the smooth scattering
-    /// gathered along `tps` (the rays of [`Self::smooth_rays`], equally weighted)
-    /// instead of the straight line, as [`Self::peak_turned`] does for the peak's part:
-    /// T = (p − r⁺)_eff(λ_s + λ_v) − e^{−ωf⁺τ_s}·(p − r⁺)_eff(λ_v), scaled by the gathered first
-    /// order over the straight line's. A photon the peak turns towards the view's side of the
-    /// sun's direction is the one the smooth phase function, steep at 30–60°, scatters most
-    /// towards the camera; under a low sun it is the one that stays near the lit surface.
-    #[allow(clippy::too_many_arguments)]
-    #[inline(never)]
-    pub(super) fn smooth_turned(
-        &self,
-        p: &PeakSpread,
-        row: PeakRow,
-        l: usize,
-        lam_s: f64,
-        lam_v: f64,
-        tps: &[TurnedPath; SMOOTH_RAYS],
-        kt: f64,
-        kp: f64,
-    ) -> f64 {
-        let now = p.ratios(row, lam_s + lam_v).0;
-        let rate = self.lit.peak_rate[l];
-        if rate <= 0.0 || kt <= 0.0 {
-            return now;
-        }
-        let d_s = lam_s / (rate * kt);
-        let gathered: f64 = tps
-            .iter()
-            .map(|tp| {
-                (0..tp.n)
-                    .map(|i| tp.mass[i] * (-kp * (tp.path[i] - d_s)).min(600.0).exp())
-                    .sum::<f64>()
-            })
-            .sum::<f64>()
-            / SMOOTH_RAYS as f64;
-        let view_only = p.ratios(row, lam_v).0;
-        let per_lambda = (1.0 - self.lit.first_extinction_scale[l]) / rate;
-        let turned_at = |lam: f64, at: f64| at - (-lam * per_lambda).exp() * view_only;
-        let lam_e = lam_s.max(1e-3);
-        let slope = if lam_e > lam_s {
-            turned_at(lam_e, p.ratios(row, lam_e + lam_v).0)
         } else {
             turned_at(lam_s, now)
         } / (lam_e / (rate * kt));
