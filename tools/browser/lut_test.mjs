@@ -93,6 +93,10 @@ const SKYVIEW_BANDS = [
   // at the query's depth relative to it, SkyViewLimbFocus, SkyViewLimbSliceDepth).
   { name: "12.5-20 km, sun -5..-3 deg, the band below the horizontal", target: 0.03, assert: "target",
     cases: cross([12500, 17000, 20000], [-3, -4, -5], [91.5, 92.5, 93.25], [150, 180]) },
+  // Aloft in deep twilight towards the sun (layout version 15: the sun warp centred on the
+  // terminator's kink from 40-60 km up, SkyViewSunWarpCentre).
+  { name: "45-55 km, sun -11..-8 deg, towards the sun", target: 0.10, assert: "target",
+    cases: cross([45000, 55000], [-8, -11], [20, 60, 85], [0, 45]) },
 ];
 // (a) for skyview, per band (every sky query grouped by its band): the skyview shader fetches
 // texels and interpolates in 32-bit floats as the reader does in 64. Layout version 10
