@@ -420,14 +420,19 @@ pub fn horizon_zenith(r: f64, bottom: f64) -> f64 {
 /// below the horizon; `sun_deg`: the sun's elevation above the observer's horizon (degrees),
 /// on which the sky rows depend at low altitude in twilight ([`sky_row_focus`]).
 pub fn view_node(i: usize, r: f64, bottom: f64, sun_deg: f64) -> (f64, bool) {
-    let seg = if i < N_VIEW_SKY {
+    view_theta(row_segment(i), i as f64, r, bottom, sun_deg)
+}
+
+/// The view segment of row `i`: 0 the sky rows, 1 the limb rows, 2 the rows below the horizon
+/// (see [`N_VIEW_SKY`], [`N_VIEW_UP`]).
+pub fn row_segment(i: usize) -> usize {
+    if i < N_VIEW_SKY {
         0
     } else if i < N_VIEW_UP {
         1
     } else {
         2
-    };
-    view_theta(seg, i as f64, r, bottom, sun_deg)
+    }
 }
 
 /// View zenith angle (rad) of the continuous row coordinate `row` of segment `seg` at radius
@@ -1318,15 +1323,7 @@ pub fn build_skyview(
         let n_l = m.len();
         // The multiple scattering of every other view row first, then the rows between from them
         // where smooth ([`ms_rows`]): `known` holds the first pass's per metre, by task.
-        let segment = |i: usize| {
-            segment_rows(if i < N_VIEW_SKY {
-                0
-            } else if i < N_VIEW_UP {
-                1
-            } else {
-                2
-            })
-        };
+        let segment = |i: usize| segment_rows(row_segment(i));
         let row_computed = |i: usize| {
             let (first, last) = segment(i);
             ms_rows::computed(i, first, last)
@@ -1342,13 +1339,7 @@ pub fn build_skyview(
                 }
                 let r = eval_radius(k, i, bottom, thickness);
                 let b = warp_strength(heights[k], thickness);
-                let seg = if i < N_VIEW_SKY {
-                    0
-                } else if i < N_VIEW_UP {
-                    1
-                } else {
-                    2
-                };
+                let seg = row_segment(i);
                 let centre = |cos_phi: f64| {
                     sun_warp_centre(heights[k], bottom, bottom + thickness, seg, cos_phi)
                 };
