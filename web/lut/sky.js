@@ -85,7 +85,8 @@ class LiveSky {
       // elevation with the azimuth (version 5), its fit aloft and the depth's top (version 9), the
       // focus's growth aloft (version 11), the columns' depth aloft (version 12), the focus's fade
       // with the band's elevation (version 13), the focus's place and strength from 6-12 km
-      // under a low band, the band's sun term turned smoothly to 0 (version 15).
+      // under a low band, the band's sun term turned smoothly to 0 (version 15), the band's
+      // growth aloft in the slices' map (version 16).
       const band = manifest.parameterisation.sky_row_band;
       const numbers = (v, n) => Array.isArray(v) && v.length === n && v.every(Number.isFinite);
       if (!band || !(band.focus > 0) || !Number.isFinite(band.sun_deg) || !numbers(band.centre, 4) ||
@@ -96,6 +97,7 @@ class LiveSky {
           !(band.focus_growth_altitude_m[0] < band.focus_growth_altitude_m[1]) ||
           !Number.isFinite(band.centre_aloft_per_km) || !numbers(band.centre_aloft_altitude_m, 2) ||
           !(band.centre_aloft_altitude_m[0] <= band.centre_aloft_altitude_m[1]) ||
+          !numbers(band.slices_aloft_per_km, 2) ||
           !(band.depth_top_m >= 0) || !(band.focus_aloft >= 0) ||
           !numbers(band.focus_aloft_altitude_m, 2) ||
           !(band.focus_aloft_altitude_m[0] < band.focus_aloft_altitude_m[1]) ||
@@ -133,6 +135,7 @@ class LiveSky {
         `#define SV_BAND_GROWTH_ALTITUDE vec2(${band.focus_growth_altitude_m.map(f).join(", ")})\n` +
         `#define SV_BAND_CENTRE_ALOFT ${f(band.centre_aloft_per_km)}\n` +
         `#define SV_BAND_CENTRE_ALOFT_ALTITUDE vec2(${band.centre_aloft_altitude_m.map(f).join(", ")})\n` +
+        `#define SV_BAND_SLICE_ALOFT vec2(${band.slices_aloft_per_km.map(f).join(", ")})\n` +
         `#define SV_BAND_DEPTH_TOP ${f(band.depth_top_m)}\n` +
         `#define SV_BAND_FOCUS_ALOFT ${f(band.focus_aloft)}\n` +
         `#define SV_BAND_FOCUS_ALOFT_ALTITUDE vec2(${band.focus_aloft_altitude_m.map(f).join(", ")})\n` +

@@ -22,7 +22,7 @@
 // (horizon_deg), SV_BAND_ANTISOLAR_RANGE (antisolar_range, a vec2), SV_BAND_GROWTH
 // (focus_growth), SV_BAND_GROWTH_ALTITUDE (focus_growth_altitude_m, a vec2),
 // SV_BAND_CENTRE_ALOFT (centre_aloft_per_km), SV_BAND_CENTRE_ALOFT_ALTITUDE
-// (centre_aloft_altitude_m, a vec2), SV_BAND_DEPTH_TOP (depth_top_m), SV_BAND_FOCUS_ALOFT
+// (centre_aloft_altitude_m, a vec2), SV_BAND_SLICE_ALOFT (slices_aloft_per_km, a vec2), SV_BAND_DEPTH_TOP (depth_top_m), SV_BAND_FOCUS_ALOFT
 // (focus_aloft), SV_BAND_FOCUS_ALOFT_ALTITUDE (focus_aloft_altitude_m, a vec2),
 // SV_BAND_FOCUS_PLACE_ALOFT (focus_place_aloft), SV_BAND_FOCUS_PLACE_ALTITUDE
 // (focus_place_altitude_m, a vec2), SV_BAND_FOCUS_HIGH (focus_high), SV_BAND_SUN_SOFT
@@ -552,16 +552,32 @@ SvStencil SkyViewBandRowStencil(float elevation_deg, float h, float c, float k, 
                         SV_N_VIEW_SKY, SV_N_VIEW_UP - 1, false, 0.0);
 }
 
+// The band's elevation (degrees, over SV_BAND_ANTISOLAR) in the slices' map at the sun
+// coordinate sun_deg and altitude h (the reader's band_slice_centre_deg): SkyViewBandFocus's low
+// fit at min(h, SV_BAND_CENTRE_ALOFT_ALTITUDE.x) times 1 + a x + (b - a) x^2 / (2 L), x the km
+// above SV_BAND_CENTRE_ALOFT_ALTITUDE.x up to L, its span, (a, b) = SV_BAND_SLICE_ALOFT.
+float SkyViewBandSliceCentre(float sun_deg, float h) {
+  float x = (SV_BAND_SUN - sun_deg) / SV_BAND_SUN_SOFT;
+  float u = SV_BAND_SUN_SOFT * (max(x, 0.0) + log(1.0 + exp(-abs(x))));
+  float km = clamp(h, 0.0, SV_BAND_CENTRE_ALOFT_ALTITUDE.x) / 1000.0;
+  float low = min((SV_BAND_CENTRE.x + SV_BAND_CENTRE.y * km) * u +
+                      (SV_BAND_CENTRE.z + SV_BAND_CENTRE.w * km) * u * u, 45.0);
+  float l = max((SV_BAND_CENTRE_ALOFT_ALTITUDE.y - SV_BAND_CENTRE_ALOFT_ALTITUDE.x) / 1000.0, 1e-3);
+  float a = clamp((h - SV_BAND_CENTRE_ALOFT_ALTITUDE.x) / 1000.0, 0.0, l);
+  float g = 1.0 + SV_BAND_SLICE_ALOFT.x * a +
+      (SV_BAND_SLICE_ALOFT.y - SV_BAND_SLICE_ALOFT.x) * a * a / (2.0 * l);
+  return min(low * g, 45.0);
+}
+
 // The elevation (degrees) at which the slice of sun coordinate s_n and altitude h_n is read for
-// a query at elevation_deg with the band's elevation c and the maps' weight w_q
-// (SkyViewBandWeight) at the sun s_q and altitude h (the reader's band_slice_elevation): affine
-// about SV_BAND_DEPTH h below the horizontal, the band onto the band, faded as
-// SkyViewBandRelative.
-float SkyViewBandSlice(float elevation_deg, float c, float w_q, float h, float s_n, float h_n) {
+// a query at elevation_deg with the sun s_q and the maps' weight w_q (SkyViewBandWeight) at
+// altitude h (the reader's band_slice_elevation): affine about SV_BAND_DEPTH h below the
+// horizontal, the band (SkyViewBandSliceCentre) onto the band, faded as SkyViewBandRelative.
+float SkyViewBandSlice(float elevation_deg, float s_q, float w_q, float h, float s_n, float h_n) {
   float delta_q = SkyViewBandDepth(h);
   float delta_n = SkyViewBandDepth(h_n);
-  float c_n, k_n;
-  SkyViewBandFocus(s_n, h_n, c_n, k_n);
+  float c = SkyViewBandSliceCentre(s_q, h);
+  float c_n = SkyViewBandSliceCentre(s_n, h_n);
   float height_q = max(c * SV_BAND_ANTISOLAR + delta_q, 0.1);
   float height_n = max(c_n * SV_BAND_ANTISOLAR + delta_n, 0.1);
   float w = max(height_q, 0.5);
@@ -641,7 +657,7 @@ bool SkyViewBandRows(float elevation_deg, float c, float k_q, float s_q, float h
   SkyViewBandFocus(s_n, h_n, c_n, k_n);
   float w_q = SkyViewBandWeight(s_q, h), w_n = SkyViewBandWeight(s_n, h_n);
   if (w_q < 1e-6 && w_n < 1e-6) return false;
-  float e_n = SkyViewBandSlice(elevation_deg, c, w_q, h, s_n, h_n);
+  float e_n = SkyViewBandSlice(elevation_deg, s_q, w_q, h, s_n, h_n);
   for (int m = 0; m < 4; ++m) {
     float e = SkyViewBandRelative(e_n, c_n, w_n, h_n, cos_phi, cos_cols[m]);
     rows[m] = SkyViewBandRowStencil(e, h, c_n, k_n, vec3(s_q, s_n, h_n));

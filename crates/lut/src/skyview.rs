@@ -649,6 +649,38 @@ pub fn band_focus_strength(h: f64) -> f64 {
         * (1.0 + BAND_FOCUS_ALOFT * smoothstep(h2, h3, h))
 }
 
+/// The band's growth per km aloft in the slices' map ([`band_slice_centre_deg`]) at the first
+/// and the second altitude of [`BAND_CENTRE_ALOFT_M`] (linear between them, held above).
+/// Measured on the `sky` product (680 nm, 180° from the sun, the sun 0.13° above the observer's
+/// horizon, the elevation where ln L rises fastest, every 0.05°): the band at the altitude nodes
+/// 8.8 / 11.2 / 13.9 / 15.3 / 16.9 / 18.5 / 20.2 km lies 3.35 / 3.70 / 4.05 / 4.25 / 4.40 / 4.60 /
+/// 4.80° up; [`band_centre_deg`] (growth 0.03 per km) puts it at 3.29 / 3.65 / 3.93 / 4.09 /
+/// 4.25 / 4.42 / 4.58°, this growth at 3.29 / 3.71 / 4.06 / 4.22 / 4.36 / 4.49 / 4.58°. On the
+/// earth's shadow seen from 8 / 9.5 / 11 km (the grid, [`band_slice_elevation`] alone changed)
+/// 1.92 / 4.82 / 2.33 % → 1.14 / 2.32 / 1.85 %; a growth of 0.045 throughout: 20 km 2.94 →
+/// 3.99 %; 0.04 to 0.02: 9.5 km 3.18 %; 0.06 to 0: 9.5 km 2.61 % (docs/lut.md).
+pub const BAND_SLICE_ALOFT: [f64; 2] = [0.045, 0.015];
+
+/// The band's elevation (degrees) opposite the sun over [`BAND_ANTISOLAR`] in the slices' map
+/// ([`band_slice_elevation`]) with the sun `sun_deg` above the observer's horizon at altitude
+/// `h` (m): [`band_centre_deg`]'s low fit at min(h, h₀) times
+/// g = 1 + a x + (b − a) x² / (2 L), x = h − h₀ in km up to L = h₁ − h₀
+/// ((h₀, h₁) = [`BAND_CENTRE_ALOFT_M`], (a, b) = [`BAND_SLICE_ALOFT`]): the growth per km a at
+/// h₀ falling linearly to b at h₁, where g = 1.3 as in [`band_centre_deg`]. From 10 to 15 km
+/// the band seen opposite the sun rises faster with the observer's altitude than that fit's
+/// growth of 0.03 per km (within 0.05° of this growth); from 17 km up it lies up to 0.2° above
+/// both, but the altitude nodes read there with a faster growth err more at 20 km
+/// ([`BAND_SLICE_ALOFT`]). The sky rows' focus and the columns' map keep [`band_centre_deg`]
+/// (the texels do not depend on this map).
+pub fn band_slice_centre_deg(sun_deg: f64, h: f64) -> f64 {
+    let [h0, h1] = BAND_CENTRE_ALOFT_M;
+    let [a, b] = BAND_SLICE_ALOFT;
+    let l = ((h1 - h0) / 1000.0).max(1e-3);
+    let x = ((h - h0) / 1000.0).clamp(0.0, l);
+    let g = 1.0 + a * x + (b - a) * x * x / (2.0 * l);
+    (band_centre_deg(sun_deg, h.min(h0)) * g).min(45.0)
+}
+
 /// The elevation (degrees) at which a slice of sun node `sun_n` (its sun coordinate, degrees
 /// above the observer's horizon) and altitude node `h_n` (m) is read for a query at elevation
 /// `eps` (degrees) with the sun `sun_q` above the observer's horizon at altitude `h_q`: where
@@ -665,7 +697,7 @@ pub fn band_focus_strength(h: f64) -> f64 {
 /// times the band's height and below [`BAND_HORIZON_DEG`] (the horizontal, where the sky rows
 /// meet the limb rows).
 pub fn band_slice_elevation(eps: f64, sun_q: f64, h_q: f64, sun_n: f64, h_n: f64) -> f64 {
-    let c_q = band_centre_deg(sun_q, h_q);
+    let c_q = band_slice_centre_deg(sun_q, h_q);
     let w_q = band_map_weight(sun_q, h_q);
     if w_q < 1e-6 {
         return eps;
@@ -673,7 +705,7 @@ pub fn band_slice_elevation(eps: f64, sun_q: f64, h_q: f64, sun_n: f64, h_n: f64
     let (d_q, d_n) = (band_depth_deg(h_q), band_depth_deg(h_n));
     // The band's height above −δ opposite the sun (at least 0.1°: the ratio's floor).
     let height_q = (c_q * BAND_ANTISOLAR + d_q).max(0.1);
-    let height_n = (band_centre_deg(sun_n, h_n) * BAND_ANTISOLAR + d_n).max(0.1);
+    let height_n = (band_slice_centre_deg(sun_n, h_n) * BAND_ANTISOLAR + d_n).max(0.1);
     let w = height_q.max(0.5);
     let fade =
         w_q * (1.0 - smoothstep(2.0 * w, 4.0 * w, eps)) * smoothstep(0.0, BAND_HORIZON_DEG, eps);
@@ -2180,6 +2212,7 @@ pub fn manifest(
         "depth_top_m": BAND_DEPTH_TOP_M,
         "centre_aloft_per_km": BAND_CENTRE_ALOFT,
         "centre_aloft_altitude_m": BAND_CENTRE_ALOFT_M,
+        "slices_aloft_per_km": BAND_SLICE_ALOFT,
         "horizon_deg": BAND_HORIZON_DEG,
         "antisolar_range": [BAND_ANTISOLAR_RANGE.0, BAND_ANTISOLAR_RANGE.1],
         "focus_growth": BAND_FOCUS_GROWTH,
@@ -2192,7 +2225,7 @@ pub fn manifest(
         "sun_soft_deg": BAND_SUN_SOFT_DEG,
         "azimuth_depth_aloft_deg": BAND_AZIMUTH_DEPTH_ALOFT,
         "azimuth_depth_aloft_altitude_m": BAND_AZIMUTH_DEPTH_ALOFT_M,
-        "slices": "on the sky rows, each (altitude node k, sun node j) slice of the interpolation is read on its own rows (the focus (c_n, k_n) at the node's sun coordinate s_n = the warped s_j at h_k and its altitude h_n = altitude_nodes_m[k]) where the query's or the slice's k > 0: at e_n = e + f (1 - smoothstep(2 w, 4 w, e)) smoothstep(0, horizon_deg, e) ((e + delta_q) H_n / H_q - delta_n - e), H = max(c antisolar + delta, 0.1) at the query's (c, h) and the node's (band centre c at s_n, h_n), delta = depth_deg_per_km clamp(h, 0, depth_top_m) / 1000, w = max(H_q, 0.5), f = k / (focus (1 + focus_growth smoothstep(focus_growth_altitude_m[0], focus_growth_altitude_m[1], h)) (1 + focus_aloft smoothstep(focus_aloft_altitude_m[0], focus_aloft_altitude_m[1], h))) the query's fade (0 where k = 0), then each column at the azimuth formula's e_a with (c_n, k_n, h_n) in place of the query's",
+        "slices": "on the sky rows, each (altitude node k, sun node j) slice of the interpolation is read on its own rows (the focus (c_n, k_n) at the node's sun coordinate s_n = the warped s_j at h_k and its altitude h_n = altitude_nodes_m[k]) where the query's or the slice's k > 0: at e_n = e + f (1 - smoothstep(2 w, 4 w, e)) smoothstep(0, horizon_deg, e) ((e + delta_q) H_n / H_q - delta_n - e), H = max(c_s antisolar + delta, 0.1) at the query's (s, h) and the node's (s_n, h_n), c_s the formula's c with its factor aloft replaced by 1 + a x + (b - a) x^2 / (2 L), x = clamp(h - centre_aloft_altitude_m[0], 0, L) / 1000, L = max((centre_aloft_altitude_m[1] - centre_aloft_altitude_m[0]) / 1000, 1e-3), [a, b] = slices_aloft_per_km (version 16), delta = depth_deg_per_km clamp(h, 0, depth_top_m) / 1000, w = max(H_q, 0.5), f = k / (focus (1 + focus_growth smoothstep(focus_growth_altitude_m[0], focus_growth_altitude_m[1], h)) (1 + focus_aloft smoothstep(focus_aloft_altitude_m[0], focus_aloft_altitude_m[1], h))) the query's fade (0 where k = 0), then each column at the azimuth formula's e_a with (c_n, k_n, h_n) in place of the query's",
         "azimuth": "on the sky rows and the limb rows where k > 0 each azimuth column a of the interpolation is read at its own elevation e_a (its own rows' stencil): d = depth_deg_per_km clamp(h, 0, depth_top_m) / 1000, delta = d + (azimuth_depth_aloft_deg - d) smoothstep(azimuth_depth_aloft_altitude_m[0], azimuth_depth_aloft_altitude_m[1], h) (version 12), w = max(c antisolar + delta, 0.5), ratio = max(-cos phi_a, antisolar_range[0]) / max(-cos phi, antisolar_range[0]), e_a = e + (k / (focus (1 + focus_growth smoothstep(focus_growth_altitude_m[0], focus_growth_altitude_m[1], h)) (1 + focus_aloft smoothstep(focus_aloft_altitude_m[0], focus_aloft_altitude_m[1], h)))) (1 - smoothstep(2 w, 4 w, e)) step(-delta, e) smoothstep(antisolar_range[0], antisolar_range[1], -cos phi) (e + delta) (ratio - 1) (version 7: from -delta up through the horizontal, where version 6 had smoothstep(0, horizon_deg, e)), e the query's elevation (deg), phi its azimuth from the sun, phi_a the column's in the slice (azimuth_nodes_rad[k][a], the slice's altitude node k; version 12: at the query's altitude h); where e_a >= 0 the column is read on the sky rows, below on the limb rows at the query's altitude h (depth y = 2 r sin^2(e_a / 2) / h); the band above the earth's shadow lies at (c antisolar + delta)(-cos phi) - delta",
         "formula": "the sky rows' focus at the sun's elevation s above the observer's horizon (deg) and altitude h (m): u = sun_soft_deg ln(1 + exp((sun_deg - s) / sun_soft_deg)) (version 14: max(sun_deg - s, 0)), km = clamp(h, 0, centre_aloft_altitude_m[0]) / 1000, c = min(((centre[0] + centre[1] km) u + (centre[2] + centre[3] km) u^2) (1 + centre_aloft_per_km clamp(h - centre_aloft_altitude_m[0], 0, centre_aloft_altitude_m[1] - centre_aloft_altitude_m[0]) / 1000), 45) (deg, the band's elevation: the maps' c), the rows' focus at c_f = c (1 + (focus_place_aloft antisolar - 1) a) (x_c = 1 - sqrt(c_f / 90); version 15), l = 1 - smoothstep(centre_range_deg[0], centre_range_deg[1], c), a = l smoothstep(focus_place_altitude_m[0], focus_place_altitude_m[1], h), k = smoothstep(sun_range_deg[0], sun_range_deg[1], s) (1 - smoothstep(sun_range_deg[2], sun_range_deg[3], s)) (1 - smoothstep(altitude_range_m[0], altitude_range_m[1], h)) (l (1 + focus_high a) + centre_floor (1 - l)) focus (1 + focus_growth smoothstep(focus_growth_altitude_m[0], focus_growth_altitude_m[1], h)) (1 + focus_aloft smoothstep(focus_aloft_altitude_m[0], focus_aloft_altitude_m[1], h)), smoothstep(a, b, x) = t^2 (3 - 2 t), t = clamp((x - a) / (b - a), 0, 1)",
     });
@@ -2561,6 +2594,14 @@ mod tests {
         assert!((at(10_000.0) - at(9_999.999)).abs() < 1e-5);
         assert!((at(20_000.0) / at(10_000.0) - 1.3).abs() < 1e-12);
         assert_eq!(at(30_000.0), at(20_000.0));
+        // The slices' map's band: the same up to 10 km, growing by 0.045 per km at 10 km and
+        // 0.015 at 20 km (1.1875 times the 10 km fit's at 15 km, 1.3 at 20 km), held above.
+        let slice = |h: f64| band_slice_centre_deg(-1.0, h);
+        assert_eq!(slice(8000.0), at(8000.0));
+        assert_eq!(slice(10_000.0), at(10_000.0));
+        assert!((slice(15_000.0) / slice(10_000.0) - 1.1875).abs() < 1e-12);
+        assert!((slice(20_000.0) / slice(10_000.0) - 1.3).abs() < 1e-12);
+        assert_eq!(slice(30_000.0), slice(20_000.0));
         assert_eq!(band_depth_deg(5000.0), 2.5);
         assert_eq!(band_depth_deg(15_000.0), 2.5);
         // The focus grows from 1 to 5 km, again from 5 to 8 km, and no further.
@@ -2614,6 +2655,11 @@ mod tests {
                 band(s_n, h_n)
             );
         }
+        // Aloft the slices' band ([`band_slice_centre_deg`]) lands on the node's.
+        let band_s = |s: f64, h: f64| band_slice_centre_deg(s, h) * BAND_ANTISOLAR;
+        let got = band_slice_elevation(band_s(0.1, 12_000.0), 0.1, 12_000.0, 0.1, 15_340.0);
+        assert!((got - band_s(0.1, 15_340.0)).abs() < 1e-9, "{got}");
+        assert!((band_s(0.1, 15_340.0) - band(0.1, 15_340.0)).abs() > 0.1);
         assert_eq!(band_slice_elevation(0.0, sun, h, -1.25, 5000.0), 0.0);
         assert_eq!(band_slice_elevation(60.0, sun, h, -1.25, 5000.0), 60.0);
         // At the ground after sunset (no band height): finite.
