@@ -22,7 +22,8 @@
 // (horizon_deg), SV_BAND_ANTISOLAR_RANGE (antisolar_range, a vec2), SV_BAND_GROWTH
 // (focus_growth), SV_BAND_GROWTH_ALTITUDE (focus_growth_altitude_m, a vec2),
 // SV_BAND_CENTRE_ALOFT (centre_aloft_per_km), SV_BAND_CENTRE_ALOFT_ALTITUDE
-// (centre_aloft_altitude_m, a vec2), SV_BAND_SLICE_ALOFT (slices_aloft_per_km, a vec2), SV_BAND_DEPTH_TOP (depth_top_m), SV_BAND_FOCUS_ALOFT
+// (centre_aloft_altitude_m, a vec2), SV_BAND_SLICE_ALOFT (slices_aloft_per_km, a vec2),
+// SV_BAND_SLICE_THROUGH (slices_through_altitude_m, a vec2), SV_BAND_DEPTH_TOP (depth_top_m), SV_BAND_FOCUS_ALOFT
 // (focus_aloft), SV_BAND_FOCUS_ALOFT_ALTITUDE (focus_aloft_altitude_m, a vec2),
 // SV_BAND_FOCUS_PLACE_ALOFT (focus_place_aloft), SV_BAND_FOCUS_PLACE_ALTITUDE
 // (focus_place_altitude_m, a vec2), SV_BAND_FOCUS_HIGH (focus_high), SV_BAND_SUN_SOFT
@@ -581,8 +582,11 @@ float SkyViewBandSlice(float elevation_deg, float s_q, float w_q, float h, float
   float height_q = max(c * SV_BAND_ANTISOLAR + delta_q, 0.1);
   float height_n = max(c_n * SV_BAND_ANTISOLAR + delta_n, 0.1);
   float w = max(height_q, 0.5);
-  float fade = w_q * (1.0 - smoothstep(2.0 * w, 4.0 * w, elevation_deg)) *
-      smoothstep(0.0, SV_BAND_HORIZON, elevation_deg);
+  // Aloft from -delta up through the horizontal (SV_BAND_SLICE_THROUGH).
+  float through = smoothstep(SV_BAND_SLICE_THROUGH.x, SV_BAND_SLICE_THROUGH.y, h);
+  float horizon = smoothstep(0.0, SV_BAND_HORIZON, elevation_deg) * (1.0 - through) +
+      (elevation_deg >= -delta_q ? through : 0.0);
+  float fade = w_q * (1.0 - smoothstep(2.0 * w, 4.0 * w, elevation_deg)) * horizon;
   float mapped = (elevation_deg + delta_q) * height_n / height_q - delta_n;
   return elevation_deg + fade * (mapped - elevation_deg);
 }

@@ -681,6 +681,14 @@ pub fn band_slice_centre_deg(sun_deg: f64, h: f64) -> f64 {
     (band_centre_deg(sun_deg, h.min(h0)) * g).min(45.0)
 }
 
+/// The query's altitudes (m) between which the slices' map ([`band_slice_elevation`]) comes to
+/// act from −δ up through the horizontal instead of from the horizontal up (smoothstep; a slice
+/// moved below the horizontal is read on the limb rows, as the columns' map reads a column,
+/// [`band_row`]). Seen from 8–15 km, 120° from the sun, the band lies at the horizontal with the
+/// sun 1.1–1.3° above the observer's horizon, between sun nodes 0.5° apart, where the map was
+/// the identity (the sun nodes alone −2.7…−4.3 %).
+pub const BAND_SLICE_THROUGH_M: [f64; 2] = [5_000.0, 8_000.0];
+
 /// The elevation (degrees) at which a slice of sun node `sun_n` (its sun coordinate, degrees
 /// above the observer's horizon) and altitude node `h_n` (m) is read for a query at elevation
 /// `eps` (degrees) with the sun `sun_q` above the observer's horizon at altitude `h_q`: where
@@ -695,7 +703,7 @@ pub fn band_slice_centre_deg(sun_deg: f64, h: f64) -> f64 {
 /// the coordinate relative to the feature, as for the limb's sun coordinate, [`sun_shift`]).
 /// Faded to the identity as [`band_relative_elevation`]: with the query's [`band_map_weight`], above 2–4
 /// times the band's height and below [`BAND_HORIZON_DEG`] (the horizontal, where the sky rows
-/// meet the limb rows).
+/// meet the limb rows), or aloft below −δ ([`BAND_SLICE_THROUGH_M`]).
 pub fn band_slice_elevation(eps: f64, sun_q: f64, h_q: f64, sun_n: f64, h_n: f64) -> f64 {
     let c_q = band_slice_centre_deg(sun_q, h_q);
     let w_q = band_map_weight(sun_q, h_q);
@@ -707,8 +715,12 @@ pub fn band_slice_elevation(eps: f64, sun_q: f64, h_q: f64, sun_n: f64, h_n: f64
     let height_q = (c_q * BAND_ANTISOLAR + d_q).max(0.1);
     let height_n = (band_slice_centre_deg(sun_n, h_n) * BAND_ANTISOLAR + d_n).max(0.1);
     let w = height_q.max(0.5);
-    let fade =
-        w_q * (1.0 - smoothstep(2.0 * w, 4.0 * w, eps)) * smoothstep(0.0, BAND_HORIZON_DEG, eps);
+    // Aloft from −δ up through the horizontal ([`BAND_SLICE_THROUGH_M`]).
+    let [a0, a1] = BAND_SLICE_THROUGH_M;
+    let through = smoothstep(a0, a1, h_q);
+    let horizon = smoothstep(0.0, BAND_HORIZON_DEG, eps) * (1.0 - through)
+        + band_horizon_taper(eps, d_q) * through;
+    let fade = w_q * (1.0 - smoothstep(2.0 * w, 4.0 * w, eps)) * horizon;
     let mapped = (eps + d_q) * height_n / height_q - d_n;
     eps + fade * (mapped - eps)
 }
@@ -2155,7 +2167,7 @@ pub const STATED_ERRORS: &[(&str, &str, f64)] = &[
     ("rayleigh+mie", "sky radiance (sky product), sun -6..5 deg, ground", 0.012),
     ("rayleigh+mie", "sky radiance (sky product), sun -6..5 deg, 0-5 km (the band above the earth's shadow 120 deg from the sun, 680 nm at 5 km, 0.5 deg above the horizontal; the twilight glow towards the sun at most 3 %)", 0.046),
     ("rayleigh+mie", "sky radiance (sky product), sun -6..5 deg, 5-8 km (the band above the earth's shadow, 680 nm at 6.5 km, 2.25 deg above the horizontal opposite the sun, sun -2.25 deg)", 0.035),
-    ("rayleigh+mie", "sky radiance (sky product), sun -6..5 deg, 8-12.5 km (the sky at the horizontal 120 deg from the sun, 680 nm at 12.5 km, sun -2.5 deg; 3.8 % at 11 km; the twilight glow towards the sun at most 3 %)", 0.042),
+    ("rayleigh+mie", "sky radiance (sky product), sun -6..5 deg, 8-12.5 km (the band above the earth's shadow, 680 nm at 11 km, 1.25 deg above the horizontal 135 deg from the sun, sun -3 deg; the twilight glow towards the sun at most 3 %)", 0.037),
     ("rayleigh+mie", "sky radiance (sky product), sun -6..5 deg, 12.5-20 km (the limb 0.3 deg above the horizon 135 deg from the sun, 680 nm at 20 km, sun -4 deg; the twilight glow towards the sun at most 3 %)", 0.077),
     ("rayleigh+mie", "sky radiance (sky product), sun -6..0 deg, 0-5 km, views within 10 deg of the horizon 150-180 deg from the sun (the earth's shadow rising; 680 nm at 2.5 km)", 0.022),
     ("rayleigh+mie", "sky radiance (sky product), sun -6..5 deg, 20-100 km (the sky just above the horizontal at 30 km, 440 nm)", 0.030),
@@ -2213,6 +2225,7 @@ pub fn manifest(
         "centre_aloft_per_km": BAND_CENTRE_ALOFT,
         "centre_aloft_altitude_m": BAND_CENTRE_ALOFT_M,
         "slices_aloft_per_km": BAND_SLICE_ALOFT,
+        "slices_through_altitude_m": BAND_SLICE_THROUGH_M,
         "horizon_deg": BAND_HORIZON_DEG,
         "antisolar_range": [BAND_ANTISOLAR_RANGE.0, BAND_ANTISOLAR_RANGE.1],
         "focus_growth": BAND_FOCUS_GROWTH,
@@ -2225,7 +2238,7 @@ pub fn manifest(
         "sun_soft_deg": BAND_SUN_SOFT_DEG,
         "azimuth_depth_aloft_deg": BAND_AZIMUTH_DEPTH_ALOFT,
         "azimuth_depth_aloft_altitude_m": BAND_AZIMUTH_DEPTH_ALOFT_M,
-        "slices": "on the sky rows, each (altitude node k, sun node j) slice of the interpolation is read on its own rows (the focus (c_n, k_n) at the node's sun coordinate s_n = the warped s_j at h_k and its altitude h_n = altitude_nodes_m[k]) where the query's or the slice's k > 0: at e_n = e + f (1 - smoothstep(2 w, 4 w, e)) smoothstep(0, horizon_deg, e) ((e + delta_q) H_n / H_q - delta_n - e), H = max(c_s antisolar + delta, 0.1) at the query's (s, h) and the node's (s_n, h_n), c_s the formula's c with its factor aloft replaced by 1 + a x + (b - a) x^2 / (2 L), x = clamp(h - centre_aloft_altitude_m[0], 0, L) / 1000, L = max((centre_aloft_altitude_m[1] - centre_aloft_altitude_m[0]) / 1000, 1e-3), [a, b] = slices_aloft_per_km (version 16), delta = depth_deg_per_km clamp(h, 0, depth_top_m) / 1000, w = max(H_q, 0.5), f = k / (focus (1 + focus_growth smoothstep(focus_growth_altitude_m[0], focus_growth_altitude_m[1], h)) (1 + focus_aloft smoothstep(focus_aloft_altitude_m[0], focus_aloft_altitude_m[1], h))) the query's fade (0 where k = 0), then each column at the azimuth formula's e_a with (c_n, k_n, h_n) in place of the query's",
+        "slices": "on the sky rows, each (altitude node k, sun node j) slice of the interpolation is read on its own rows (the focus (c_n, k_n) at the node's sun coordinate s_n = the warped s_j at h_k and its altitude h_n = altitude_nodes_m[k]) where the query's or the slice's k > 0: at e_n = e + f (1 - smoothstep(2 w, 4 w, e)) (smoothstep(0, horizon_deg, e) (1 - t) + step(-delta_q, e) t) ((e + delta_q) H_n / H_q - delta_n - e), t = smoothstep(slices_through_altitude_m[0], slices_through_altitude_m[1], h) (version 16; an e_n below 0 read on the limb rows as the azimuth formula's e_a), H = max(c_s antisolar + delta, 0.1) at the query's (s, h) and the node's (s_n, h_n), c_s the formula's c with its factor aloft replaced by 1 + a x + (b - a) x^2 / (2 L), x = clamp(h - centre_aloft_altitude_m[0], 0, L) / 1000, L = max((centre_aloft_altitude_m[1] - centre_aloft_altitude_m[0]) / 1000, 1e-3), [a, b] = slices_aloft_per_km (version 16), delta = depth_deg_per_km clamp(h, 0, depth_top_m) / 1000, w = max(H_q, 0.5), f = k / (focus (1 + focus_growth smoothstep(focus_growth_altitude_m[0], focus_growth_altitude_m[1], h)) (1 + focus_aloft smoothstep(focus_aloft_altitude_m[0], focus_aloft_altitude_m[1], h))) the query's fade (0 where k = 0), then each column at the azimuth formula's e_a with (c_n, k_n, h_n) in place of the query's",
         "azimuth": "on the sky rows and the limb rows where k > 0 each azimuth column a of the interpolation is read at its own elevation e_a (its own rows' stencil): d = depth_deg_per_km clamp(h, 0, depth_top_m) / 1000, delta = d + (azimuth_depth_aloft_deg - d) smoothstep(azimuth_depth_aloft_altitude_m[0], azimuth_depth_aloft_altitude_m[1], h) (version 12), w = max(c antisolar + delta, 0.5), ratio = max(-cos phi_a, antisolar_range[0]) / max(-cos phi, antisolar_range[0]), e_a = e + (k / (focus (1 + focus_growth smoothstep(focus_growth_altitude_m[0], focus_growth_altitude_m[1], h)) (1 + focus_aloft smoothstep(focus_aloft_altitude_m[0], focus_aloft_altitude_m[1], h)))) (1 - smoothstep(2 w, 4 w, e)) step(-delta, e) smoothstep(antisolar_range[0], antisolar_range[1], -cos phi) (e + delta) (ratio - 1) (version 7: from -delta up through the horizontal, where version 6 had smoothstep(0, horizon_deg, e)), e the query's elevation (deg), phi its azimuth from the sun, phi_a the column's in the slice (azimuth_nodes_rad[k][a], the slice's altitude node k; version 12: at the query's altitude h); where e_a >= 0 the column is read on the sky rows, below on the limb rows at the query's altitude h (depth y = 2 r sin^2(e_a / 2) / h); the band above the earth's shadow lies at (c antisolar + delta)(-cos phi) - delta",
         "formula": "the sky rows' focus at the sun's elevation s above the observer's horizon (deg) and altitude h (m): u = sun_soft_deg ln(1 + exp((sun_deg - s) / sun_soft_deg)) (version 14: max(sun_deg - s, 0)), km = clamp(h, 0, centre_aloft_altitude_m[0]) / 1000, c = min(((centre[0] + centre[1] km) u + (centre[2] + centre[3] km) u^2) (1 + centre_aloft_per_km clamp(h - centre_aloft_altitude_m[0], 0, centre_aloft_altitude_m[1] - centre_aloft_altitude_m[0]) / 1000), 45) (deg, the band's elevation: the maps' c), the rows' focus at c_f = c (1 + (focus_place_aloft antisolar - 1) a) (x_c = 1 - sqrt(c_f / 90); version 15), l = 1 - smoothstep(centre_range_deg[0], centre_range_deg[1], c), a = l smoothstep(focus_place_altitude_m[0], focus_place_altitude_m[1], h), k = smoothstep(sun_range_deg[0], sun_range_deg[1], s) (1 - smoothstep(sun_range_deg[2], sun_range_deg[3], s)) (1 - smoothstep(altitude_range_m[0], altitude_range_m[1], h)) (l (1 + focus_high a) + centre_floor (1 - l)) focus (1 + focus_growth smoothstep(focus_growth_altitude_m[0], focus_growth_altitude_m[1], h)) (1 + focus_aloft smoothstep(focus_aloft_altitude_m[0], focus_aloft_altitude_m[1], h)), smoothstep(a, b, x) = t^2 (3 - 2 t), t = clamp((x - a) / (b - a), 0, 1)",
     });
@@ -2661,6 +2674,13 @@ mod tests {
         assert!((got - band_s(0.1, 15_340.0)).abs() < 1e-9, "{got}");
         assert!((band_s(0.1, 15_340.0) - band(0.1, 15_340.0)).abs() > 0.1);
         assert_eq!(band_slice_elevation(0.0, sun, h, -1.25, 5000.0), 0.0);
+        // From 8 km up the map acts from −δ (2.5°) up through the horizontal.
+        assert!(band_slice_elevation(0.0, 0.5, 15_000.0, 0.75, 15_000.0).abs() > 0.1);
+        assert!((band_slice_elevation(-2.5, 0.5, 15_000.0, 0.75, 15_000.0) + 2.5).abs() < 1e-12);
+        assert_eq!(
+            band_slice_elevation(-2.6, 0.5, 15_000.0, 0.75, 15_000.0),
+            -2.6
+        );
         assert_eq!(band_slice_elevation(60.0, sun, h, -1.25, 5000.0), 60.0);
         // At the ground after sunset (no band height): finite.
         assert!(band_slice_elevation(1.0, 3.0, 0.0, 2.5, 0.0).is_finite());
