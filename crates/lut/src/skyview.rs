@@ -107,7 +107,9 @@ pub const LAYOUT: &str = "skyview";
 /// the terminator's kink on the sky rows towards the sun from 40–60 km up ([`SUN_WARP_CENTRE`]);
 /// from 6–12 km up the sky rows' focus under a low band at [`BAND_FOCUS_PLACE_ALOFT`] of the
 /// antisolar band and stronger, and the band's sun term turned smoothly ([`BAND_SUN_SOFT_DEG`]).
-pub const SKYVIEW_VERSION: &str = "15";
+/// 16: the same texels; the slices' map aloft grows the band curved (0.045 per km at 10 km to
+/// 0.015 at 20 km) and acts through the horizontal from 5–8 km up ([`BAND_SLICE_THROUGH_M`]).
+pub const SKYVIEW_VERSION: &str = "16";
 
 /// Altitude nodes of the base map ([`altitude_abscissa`], about (top − bottom) · (x / 27)²,
 /// denser near the top): its integers 0..=27.
