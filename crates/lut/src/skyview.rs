@@ -44,7 +44,7 @@ use skybake_physics::atmosphere::shared::SharedTables;
 use skybake_physics::phase::Phase;
 use std::f64::consts::PI;
 use std::sync::atomic::{AtomicUsize, Ordering};
-use std::sync::OnceLock;
+use std::sync::{Mutex, OnceLock};
 use std::time::Instant;
 
 use crate::build::{self, channel_setup, Channels, FamilyScratch, Sample, Texture};
@@ -1465,19 +1465,30 @@ pub fn build_skyview_into(
             };
         // Every task its own rayon job (`with_max_len(1)`): rayon's adaptive split otherwise
         // leaves runs of tens of tasks that a thread works through alone, and a pass could end
-        // on one of them with the other core idle.
+        // on one of them with the other core idle. The tasks' scratch buffers are kept in a
+        // pool between them (a job's own would be allocated again for every task).
+        let pool: Mutex<Vec<FamilyScratch<'_>>> = Mutex::new(Vec::new());
+        let with_scratch = |task: usize, known: &[Option<Vec<f64>>]| {
+            let mut scratch = pool
+                .lock()
+                .ok()
+                .and_then(|mut p| p.pop())
+                .unwrap_or_else(|| FamilyScratch::new(shared, m.len()));
+            let out = ray_task(&mut scratch, task, known);
+            if let Ok(mut p) = pool.lock() {
+                p.push(scratch);
+            }
+            out
+        };
         let pass = |tasks: Vec<usize>, known: &[Option<Vec<f64>>]| -> Vec<_> {
             tasks
                 .into_par_iter()
                 .with_max_len(1)
-                .map_init(
-                    || FamilyScratch::new(shared, m.len()),
-                    |scratch, task| {
-                        let t = Instant::now();
-                        let out = ray_task(scratch, task, known);
-                        (task, out, t.elapsed())
-                    },
-                )
+                .map(|task| {
+                    let t = Instant::now();
+                    let out = with_scratch(task, known);
+                    (task, out, t.elapsed())
+                })
                 .collect()
         };
         let (first_tasks, mut other_tasks): (Vec<usize>, Vec<usize>) =
@@ -1568,17 +1579,17 @@ pub fn build_skyview_into(
             .into_par_iter()
             .filter(|&k| pending[k].load(Ordering::Acquire) == 0)
             .for_each(finish);
-        other_tasks.into_par_iter().with_max_len(1).for_each_init(
-            || FamilyScratch::new(shared, m.len()),
-            |scratch, task| {
-                let (family, _) = ray_task(scratch, task, &known);
+        other_tasks
+            .into_par_iter()
+            .with_max_len(1)
+            .for_each(|task| {
+                let (family, _) = with_scratch(task, &known);
                 let _ = later[task].set(family);
                 let k = task / N_VIEW;
                 if pending[k].fetch_sub(1, Ordering::AcqRel) == 1 && !cancelled() {
                     finish(k);
                 }
-            },
-        );
+            });
         drop(known);
         if cancelled() {
             return Err(crate::Error::Cancelled);

@@ -372,6 +372,9 @@ fn encode(t: &Texture, names: &[String]) -> Result<Vec<u8>> {
     .map_err(|e| Error::internal("lut", e))
 }
 
+/// An altitude node's slices of the Rayleigh-like and the Mie texture.
+type NodeSlices = Arc<[Vec<f32>; 2]>;
+
 /// The `skyview` bundle's Rayleigh-like and Mie files ([`skyview::RAYLEIGH_FILE`],
 /// [`skyview::MIE_FILE`]) compressed while the bundle is built: each ZIP block as soon as the
 /// altitude nodes whose slices it covers are final (`skybake_lut::build_skyview_into`), the
@@ -381,7 +384,7 @@ struct SliceEncoder {
     names: Vec<String>,
     files: [TextureFile; 2],
     /// Per altitude node, its two textures' slices once final.
-    nodes: Mutex<Vec<Option<Arc<[Vec<f32>; 2]>>>>,
+    nodes: Mutex<Vec<Option<NodeSlices>>>,
     /// Per file, its blocks once compressed.
     blocks: Mutex<[Vec<Option<Vec<u8>>>; 2]>,
 }

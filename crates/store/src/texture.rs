@@ -113,7 +113,7 @@ impl TextureFile {
         let order = sorted
             .list
             .iter()
-            .map(|c| names.iter().position(|n| c.name.eq(*n)).unwrap_or(0))
+            .map(|c| names.iter().position(|n| c.name.eq(n)).unwrap_or(0))
             .collect();
         let layer = Layer::new(Vec2(width, height), attributes, encoding, sorted);
         let image = Image::from_layer(layer);
