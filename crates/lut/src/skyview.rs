@@ -1463,8 +1463,10 @@ pub fn build_skyview_into(
                 }
                 ((s_out, m_out), record)
             };
-        // The tasks' scratch buffers, kept in a pool between them (the second pass's one-task
-        // jobs would otherwise allocate theirs for every task).
+        // Every task its own rayon job (`with_max_len(1)`): rayon's adaptive split otherwise
+        // leaves runs of tens of tasks that a thread works through alone, and a pass could end
+        // on one of them with the other core idle. The tasks' scratch buffers are kept in a
+        // pool between them (a job's own would be allocated again for every task).
         let pool: Mutex<Vec<FamilyScratch<'_>>> = Mutex::new(Vec::new());
         let with_scratch = |task: usize, known: &[Option<Vec<f64>>]| {
             let mut scratch = pool
@@ -1481,6 +1483,7 @@ pub fn build_skyview_into(
         let pass = |tasks: Vec<usize>, known: &[Option<Vec<f64>>]| -> Vec<_> {
             tasks
                 .into_par_iter()
+                .with_max_len(1)
                 .map(|task| {
                     let t = Instant::now();
                     let out = with_scratch(task, known);
@@ -1576,11 +1579,6 @@ pub fn build_skyview_into(
             .into_par_iter()
             .filter(|&k| pending[k].load(Ordering::Acquire) == 0)
             .for_each(finish);
-        // Every task of this pass its own rayon job (`with_max_len(1)`): rayon's adaptive split
-        // otherwise leaves runs of tens of tasks that a thread works through alone, and the pass
-        // could end on one with the other core idle. (Not the first pass, in the rows' order: on
-        // one-task jobs its lookups took 9 % more CPU, in `perf` samples against the unchanged
-        // precise table's build.)
         other_tasks
             .into_par_iter()
             .with_max_len(1)
