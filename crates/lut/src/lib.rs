@@ -19,4 +19,4 @@ pub mod skyview;
 pub use build::{build, Bundle, Channels, Sample, Texture, TEXEL_REVISION, UNIT_SCALE};
 pub use reader::Reader;
 pub use skybake_physics::{Error, Result};
-pub use skyview::{build_skyview, SkyViewBundle, SkyViewReader};
+pub use skyview::{build_skyview, build_skyview_into, SkyViewBundle, SkyViewReader};

@@ -43,6 +43,8 @@ use skybake_physics::atmosphere::geometry::horizon_mu;
 use skybake_physics::atmosphere::shared::SharedTables;
 use skybake_physics::phase::Phase;
 use std::f64::consts::PI;
+use std::sync::atomic::{AtomicUsize, Ordering};
+use std::sync::{Mutex, OnceLock};
 use std::time::Instant;
 
 use crate::build::{self, channel_setup, Channels, FamilyScratch, Sample, Texture};
@@ -1319,6 +1321,15 @@ pub struct SkyViewBundle {
     pub timing_ms: [f64; 4],
 }
 
+/// An altitude node's part of the sky view's textures, once final: N_SUN slices of
+/// [`SkyViewBundle::rayleigh`] and of [`SkyViewBundle::mie`], and their scales
+/// (`[sun][Rayleigh-like | Mie][channel]`, [`SkyViewBundle::scale`]'s row).
+struct AltitudeSlices {
+    rayleigh: Vec<f32>,
+    mie: Vec<f32>,
+    scales: Vec<f32>,
+}
+
 /// Computes the `skyview` bundle on `shared` (its precise table built or built here), `steps`
 /// samples per ray segment (the products' `Quality::steps`).
 pub fn build_skyview(
@@ -1326,6 +1337,24 @@ pub fn build_skyview(
     channels: Channels,
     steps: usize,
     cancelled: &(dyn Fn() -> bool + Sync),
+) -> crate::Result<SkyViewBundle> {
+    build_skyview_into(shared, channels, steps, cancelled, &|_, _, _| {})
+}
+
+/// An altitude node's final slices: (node k, its Rayleigh-like and its Mie values, N_SUN
+/// slices as in [`SkyViewBundle::rayleigh`] and [`SkyViewBundle::mie`]: scaled, rounded,
+/// `[sun][view][azimuth][channel]`).
+pub type AltitudeSink<'a> = dyn Fn(usize, &[f32], &[f32]) + Sync + 'a;
+
+/// [`build_skyview`], handing each altitude node's slices to `finished` as soon as they are
+/// final, while the other nodes' rows are still computed (on the thread that completed the
+/// node: a caller can encode them there, on a core the build's last rows leave idle).
+pub fn build_skyview_into(
+    shared: &SharedTables,
+    channels: Channels,
+    steps: usize,
+    cancelled: &(dyn Fn() -> bool + Sync),
+    finished: &AltitudeSink<'_>,
 ) -> crate::Result<SkyViewBundle> {
     let m = &shared.medium;
     let (idx, params) = channel_setup(m, &channels)?;
@@ -1480,17 +1509,32 @@ pub fn build_skyview(
                 }
                 ((s_out, m_out), record)
             };
+        // Every task its own rayon job (`with_max_len(1)`): rayon's adaptive split otherwise
+        // leaves runs of tens of tasks that a thread works through alone, and a pass could end
+        // on one of them with the other core idle. The tasks' scratch buffers are kept in a
+        // pool between them (a job's own would be allocated again for every task).
+        let pool: Mutex<Vec<FamilyScratch<'_>>> = Mutex::new(Vec::new());
+        let with_scratch = |task: usize, known: &[Option<Vec<f64>>]| {
+            let mut scratch = pool
+                .lock()
+                .ok()
+                .and_then(|mut p| p.pop())
+                .unwrap_or_else(|| FamilyScratch::new(shared, m.len()));
+            let out = ray_task(&mut scratch, task, known);
+            if let Ok(mut p) = pool.lock() {
+                p.push(scratch);
+            }
+            out
+        };
         let pass = |tasks: Vec<usize>, known: &[Option<Vec<f64>>]| -> Vec<_> {
             tasks
                 .into_par_iter()
-                .map_init(
-                    || FamilyScratch::new(shared, m.len()),
-                    |scratch, task| {
-                        let t = Instant::now();
-                        let out = ray_task(scratch, task, known);
-                        (task, out, t.elapsed())
-                    },
-                )
+                .with_max_len(1)
+                .map(|task| {
+                    let t = Instant::now();
+                    let out = with_scratch(task, known);
+                    (task, out, t.elapsed())
+                })
                 .collect()
         };
         let (first_tasks, mut other_tasks): (Vec<usize>, Vec<usize>) =
@@ -1518,9 +1562,80 @@ pub fn build_skyview(
             before.max(after)
         };
         other_tasks.sort_by_key(|&task| std::cmp::Reverse(around(task)));
-        for (task, (family, _), _) in pass(other_tasks, &known) {
-            families[task] = family;
-        }
+        // The rows between land in `later`; the task that completes an altitude node's rows
+        // assembles its slices there and then (each (altitude, sun) slice scaled to its peak
+        // and rounded, the slices on the cores) and hands them to `finished`, so that the
+        // node's encoding overlaps the pass's last tasks.
+        let later: Vec<OnceLock<(Vec<f64>, Vec<f64>)>> =
+            (0..N_ALT * N_VIEW).map(|_| OnceLock::new()).collect();
+        let pending: Vec<AtomicUsize> = (0..N_ALT)
+            .map(|k| AtomicUsize::new(other_tasks.iter().filter(|&&t| t / N_VIEW == k).count()))
+            .collect();
+        let nodes: Vec<OnceLock<AltitudeSlices>> = (0..N_ALT).map(|_| OnceLock::new()).collect();
+        let slab = N_VIEW * N_AZ * n_c;
+        let finish = |k: usize| {
+            let family = |task: usize| later[task].get().unwrap_or(&families[task]);
+            let mut parts = [vec![0.0f32; N_SUN * slab], vec![0.0f32; N_SUN * slab]];
+            let mut scales = vec![0.0f32; N_SUN * 2 * n_c];
+            for (part, data) in parts.iter_mut().enumerate() {
+                let per_slice: Vec<Vec<f32>> = data
+                    .par_chunks_mut(slab)
+                    .enumerate()
+                    .map(|(j, out)| {
+                        let mut scales = vec![0.0f32; n_c];
+                        for c in 0..n_c {
+                            let value = |i: usize, a: usize| {
+                                let (s, mm) = family(k * N_VIEW + i);
+                                let v = if part == 0 { s } else { mm };
+                                v[(j * N_AZ + a) * n_c + c]
+                            };
+                            let mut max = 0.0f64;
+                            for i in 0..N_VIEW {
+                                for a in 0..N_AZ {
+                                    max = max.max(value(i, a));
+                                }
+                            }
+                            let sc = if max > 0.0 { max / SLICE_PEAK } else { 1.0 };
+                            scales[c] = sc as f32;
+                            for i in 0..N_VIEW {
+                                for a in 0..N_AZ {
+                                    out[(i * N_AZ + a) * n_c + c] = (value(i, a) / sc) as f32;
+                                }
+                            }
+                        }
+                        build::round_to_half_bits(out, HALF_MANTISSA_BITS);
+                        scales
+                    })
+                    .collect();
+                for (j, sc) in per_slice.iter().enumerate() {
+                    let o = j * 2 * n_c + part * n_c;
+                    scales[o..o + n_c].copy_from_slice(sc);
+                }
+            }
+            let [rayleigh, mie] = parts;
+            finished(k, &rayleigh, &mie);
+            let _ = nodes[k].set(AltitudeSlices {
+                rayleigh,
+                mie,
+                scales,
+            });
+        };
+        // (Every node has rows between; one without would be final now.)
+        (0..N_ALT)
+            .into_par_iter()
+            .filter(|&k| pending[k].load(Ordering::Acquire) == 0)
+            .for_each(finish);
+        other_tasks
+            .into_par_iter()
+            .with_max_len(1)
+            .for_each(|task| {
+                let (family, _) = with_scratch(task, &known);
+                let _ = later[task].set(family);
+                let k = task / N_VIEW;
+                if pending[k].fetch_sub(1, Ordering::AcqRel) == 1 && !cancelled() {
+                    finish(k);
+                }
+            });
         drop(known);
         if cancelled() {
             return Err(crate::Error::Cancelled);
@@ -1528,45 +1643,13 @@ pub fn build_skyview(
         let mut rayleigh = Texture::new(N_AZ, N_VIEW, N_ALT * N_SUN, n_c, Sample::Half);
         let mut mie = Texture::new(N_AZ, N_VIEW, N_ALT * N_SUN, n_c, Sample::Half);
         let mut scale = Texture::new(N_SUN, N_ALT, 1, 2 * n_c, Sample::Float);
-        // Each (altitude, sun) slice scaled to its peak and rounded, the slices on the cores
-        // (the irradiance's tasks are done by then: serial, this left a core idle).
-        let slab = N_VIEW * N_AZ * n_c;
-        for (part, tex) in [&mut rayleigh, &mut mie].into_iter().enumerate() {
-            let scales: Vec<Vec<f32>> = tex
-                .data
-                .par_chunks_mut(slab)
-                .enumerate()
-                .map(|(z, out)| {
-                    let (k, j) = (z / N_SUN, z % N_SUN);
-                    let mut scales = vec![0.0f32; n_c];
-                    for c in 0..n_c {
-                        let value = |i: usize, a: usize| {
-                            let (s, mm) = &families[k * N_VIEW + i];
-                            let v = if part == 0 { s } else { mm };
-                            v[(j * N_AZ + a) * n_c + c]
-                        };
-                        let mut max = 0.0f64;
-                        for i in 0..N_VIEW {
-                            for a in 0..N_AZ {
-                                max = max.max(value(i, a));
-                            }
-                        }
-                        let sc = if max > 0.0 { max / SLICE_PEAK } else { 1.0 };
-                        scales[c] = sc as f32;
-                        for i in 0..N_VIEW {
-                            for a in 0..N_AZ {
-                                out[(i * N_AZ + a) * n_c + c] = (value(i, a) / sc) as f32;
-                            }
-                        }
-                    }
-                    build::round_to_half_bits(out, HALF_MANTISSA_BITS);
-                    scales
-                })
-                .collect();
-            for (z, sc) in scales.iter().enumerate() {
-                let o = z * 2 * n_c + part * n_c;
-                scale.data[o..o + n_c].copy_from_slice(sc);
-            }
+        let per_node = N_SUN * slab;
+        for (k, node) in nodes.into_iter().enumerate() {
+            let node = node.into_inner().ok_or(crate::Error::Cancelled)?;
+            rayleigh.data[k * per_node..][..per_node].copy_from_slice(&node.rayleigh);
+            mie.data[k * per_node..][..per_node].copy_from_slice(&node.mie);
+            let n = N_SUN * 2 * n_c;
+            scale.data[k * n..][..n].copy_from_slice(&node.scales);
         }
         Ok((rayleigh, mie, scale, t1.elapsed().as_secs_f64() * 1e3))
     };

@@ -3,6 +3,8 @@
 //! engine's shared tables (so the precise table is the one every product uses, stored and
 //! reused as theirs), and its files (OpenEXR textures + `manifest.json`, through the store).
 
+use std::sync::{Arc, Mutex, OnceLock};
+
 use rayon::prelude::*;
 use serde_json::{json, Value};
 use skybake_engine::engine::{Engine, ENGINE_VERSION};
@@ -16,7 +18,7 @@ use skybake_lut::{Bundle, Channels, Sample, SkyViewBundle, Texture};
 use skybake_physics::atmosphere::shared::SharedTables;
 use skybake_physics::atmosphere::sky::MsMethod;
 use skybake_physics::key::cache_key;
-use skybake_store::texture::{encode_texture_exr, TextureImage};
+use skybake_store::texture::{encode_texture_exr, TextureFile, TextureImage};
 
 use crate::params::{common_spec, RequestParams, PARAMETERS};
 use crate::{Error, Result};
@@ -218,28 +220,79 @@ impl LutRequest {
                 Ok((self.files(&bundle)?, bundle.timing_ms))
             }
             Layout::SkyView => {
-                let bundle = self.build_with(engine, cancelled, skybake_lut::build_skyview)?;
-                Ok((self.skyview_files(&bundle)?, bundle.timing_ms))
+                // The Rayleigh-like and Mie files, nine tenths of the bundle's bytes, compressed
+                // altitude node by node while the build's last rows are computed.
+                let encoder = OnceLock::new();
+                let bundle = self.build_with(engine, cancelled, |shared, channels, steps, c| {
+                    let names = channel_names(&channels, &shared.medium.wavelengths_nm);
+                    let encoder = encoder.get_or_init(|| SliceEncoder::new(&names));
+                    skybake_lut::build_skyview_into(shared, channels, steps, c, &|k, r, m| {
+                        encoder.altitude(k, [r, m])
+                    })
+                })?;
+                let names = channel_names(&bundle.channels, &bundle.wavelengths_nm);
+                let streamed = encoder
+                    .into_inner()
+                    .filter(|e| e.names == names)
+                    .and_then(SliceEncoder::finish);
+                Ok((
+                    self.skyview_files_with(&bundle, streamed)?,
+                    bundle.timing_ms,
+                ))
             }
         }
     }
 
     /// The `skyview` bundle's files: (name, bytes), the manifest last.
     pub fn skyview_files(&self, bundle: &SkyViewBundle) -> Result<Vec<(&'static str, Vec<u8>)>> {
+        self.skyview_files_with(bundle, None)
+    }
+
+    /// [`Self::skyview_files`], the Rayleigh-like and Mie files' ZIP blocks already compressed
+    /// where `streamed` holds them ([`SliceEncoder::finish`]).
+    fn skyview_files_with(
+        &self,
+        bundle: &SkyViewBundle,
+        streamed: Option<[(TextureFile, Vec<Vec<u8>>); 2]>,
+    ) -> Result<Vec<(&'static str, Vec<u8>)>> {
         let names = channel_names(&bundle.channels, &bundle.wavelengths_nm);
         let mut scale_names: Vec<String> = names.iter().map(|n| format!("rayleigh.{n}")).collect();
         scale_names.extend(names.iter().map(|n| format!("mie.{n}")));
+        let streamed = streamed.filter(|_| {
+            [&bundle.rayleigh, &bundle.mie].iter().all(|t| {
+                (t.width, t.height, t.depth, t.channels, t.sample)
+                    == (
+                        skyview::N_AZ,
+                        skyview::N_VIEW,
+                        skyview::N_ALT * skyview::N_SUN,
+                        names.len(),
+                        Sample::Half,
+                    )
+            })
+        });
+        let (rayleigh, mie) = match streamed {
+            Some([r, m]) => (Some(r), Some(m)),
+            None => (None, None),
+        };
         // Encoded side by side (the largest first), each file's bytes as encoded alone.
         let textures = vec![
-            (skyview::RAYLEIGH_FILE, &bundle.rayleigh, &names),
-            (skyview::MIE_FILE, &bundle.mie, &names),
-            (TRANSMITTANCE_FILE, &bundle.transmittance, &names),
-            (skyview::SCALE_FILE, &bundle.scale, &scale_names),
-            (skyview::IRRADIANCE_FILE, &bundle.irradiance, &names),
+            (skyview::RAYLEIGH_FILE, &bundle.rayleigh, &names, rayleigh),
+            (skyview::MIE_FILE, &bundle.mie, &names, mie),
+            (TRANSMITTANCE_FILE, &bundle.transmittance, &names, None),
+            (skyview::SCALE_FILE, &bundle.scale, &scale_names, None),
+            (skyview::IRRADIANCE_FILE, &bundle.irradiance, &names, None),
         ];
         let mut encoded: Vec<(&'static str, Vec<u8>)> = textures
             .into_par_iter()
-            .map(|(name, t, n)| Ok((name, encode(t, n)?)))
+            .map(|(name, t, n, blocks)| {
+                let bytes = match blocks {
+                    Some((file, blocks)) => {
+                        file.write(blocks).map_err(|e| Error::internal("lut", e))?
+                    }
+                    None => encode(t, n)?,
+                };
+                Ok((name, bytes))
+            })
             .collect::<Result<_>>()?;
         // The files in the bundle's order: transmittance, rayleigh, mie, scale, irradiance.
         encoded.swap(0, 2);
@@ -317,4 +370,88 @@ fn encode(t: &Texture, names: &[String]) -> Result<Vec<u8>> {
         half: t.sample == Sample::Half,
     })
     .map_err(|e| Error::internal("lut", e))
+}
+
+/// An altitude node's slices of the Rayleigh-like and the Mie texture.
+type NodeSlices = Arc<[Vec<f32>; 2]>;
+
+/// The `skyview` bundle's Rayleigh-like and Mie files ([`skyview::RAYLEIGH_FILE`],
+/// [`skyview::MIE_FILE`]) compressed while the bundle is built: each ZIP block as soon as the
+/// altitude nodes whose slices it covers are final (`skybake_lut::build_skyview_into`), the
+/// bytes of the files encoded from the finished textures.
+struct SliceEncoder {
+    /// The textures' channel names (the bundle's, [`channel_names`]).
+    names: Vec<String>,
+    files: [TextureFile; 2],
+    /// Per altitude node, its two textures' slices once final.
+    nodes: Mutex<Vec<Option<NodeSlices>>>,
+    /// Per file, its blocks once compressed.
+    blocks: Mutex<[Vec<Option<Vec<u8>>>; 2]>,
+}
+
+impl SliceEncoder {
+    /// Lines of the textures per altitude node (its N_SUN slices of N_VIEW rows).
+    const NODE_LINES: usize = skyview::N_SUN * skyview::N_VIEW;
+
+    fn new(names: &[String]) -> Self {
+        let refs: Vec<&str> = names.iter().map(String::as_str).collect();
+        let height = skyview::N_ALT * Self::NODE_LINES;
+        let file = || TextureFile::new(skyview::N_AZ, height, &refs, true);
+        let files = [file(), file()];
+        let count = files[0].blocks();
+        Self {
+            names: names.to_vec(),
+            files,
+            nodes: Mutex::new(vec![None; skyview::N_ALT]),
+            blocks: Mutex::new([vec![None; count], vec![None; count]]),
+        }
+    }
+
+    /// Altitude node `k`'s slices ([`skyview::AltitudeSink`]): keeps them, then compresses
+    /// every block of both files that they complete (on the cores).
+    fn altitude(&self, k: usize, slices: [&[f32]; 2]) {
+        let n_c = self.names.len();
+        let node_of = |y: usize| y / Self::NODE_LINES;
+        let file = &self.files[0];
+        let (ready, nodes) = {
+            let Ok(mut nodes) = self.nodes.lock() else {
+                return;
+            };
+            nodes[k] = Some(Arc::new(slices.map(<[f32]>::to_vec)));
+            let first = k * Self::NODE_LINES / file.block_lines(0).len();
+            let ready: Vec<usize> = (first..file.blocks())
+                .take_while(|&b| node_of(file.block_lines(b).start) <= k)
+                .filter(|&b| {
+                    let lines = file.block_lines(b);
+                    (node_of(lines.start)..=node_of(lines.end - 1)).all(|n| nodes[n].is_some())
+                })
+                .collect();
+            (ready, nodes.clone())
+        };
+        let value = |part: usize| {
+            let nodes = &nodes;
+            move |c: usize, y: usize, x: usize| match &nodes[node_of(y)] {
+                Some(node) => node[part][((y % Self::NODE_LINES) * skyview::N_AZ + x) * n_c + c],
+                None => f32::NAN,
+            }
+        };
+        let compressed: Vec<(usize, usize, Vec<u8>)> = ready
+            .par_iter()
+            .flat_map_iter(|&b| (0..2).map(move |part| (part, b)))
+            .map(|(part, b)| (part, b, self.files[part].zip_block(b, value(part))))
+            .collect();
+        if let Ok(mut blocks) = self.blocks.lock() {
+            for (part, b, bytes) in compressed {
+                blocks[part][b] = Some(bytes);
+            }
+        }
+    }
+
+    /// The two files' layouts and blocks, if every block was compressed.
+    fn finish(self) -> Option<[(TextureFile, Vec<Vec<u8>>); 2]> {
+        let [r, m] = self.blocks.into_inner().ok()?;
+        let all = |b: Vec<Option<Vec<u8>>>| b.into_iter().collect::<Option<Vec<_>>>();
+        let [fr, fm] = self.files;
+        Some([(fr, all(r)?), (fm, all(m)?)])
+    }
 }
