@@ -5,7 +5,9 @@
 //! the directory of another build of the same bundle (e.g. one written by another binary), the
 //! relative differences of the rayleigh, mie and irradiance texels (their scale applied, after
 //! the half floats' rounding): the largest, where, and percentiles, over texels above 10⁻⁶ of
-//! their slice's peak.
+//! their slice's peak, over all and by the sun node's elevation above the observer's horizon
+//! (below −12°, −12…−6°, −6…5°, from 5°); and the refined suns by the sun's elevation at the
+//! ray's origin (`REFINED_BY`).
 //!
 //! `cargo run --release -p skybake-harness --features probes --example skyview_cost -- [REF_DIR]`
 
@@ -16,7 +18,7 @@ use serde_json::Value;
 use skybake_engine::engine::Engine;
 use skybake_lut::load::{skyview_from_files, DecodedFile};
 use skybake_lut::manifest::MANIFEST_FILE;
-use skybake_lut::skyview::{N_ALT, N_AZ, N_SUN, N_VIEW, SLICE_PEAK};
+use skybake_lut::skyview::{sun_node_deg, N_ALT, N_AZ, N_SUN, N_VIEW, SLICE_PEAK};
 use skybake_lut::SkyViewBundle;
 use skybake_product::lut::{Layout, LutRequest};
 use skybake_product::params::RequestParams;
@@ -63,6 +65,15 @@ fn main() {
         "lookups {lookups}; interpolated suns refined {refined}; build {wall:.2} s wall; stages ms {:?}",
         b.timing_ms
     );
+    let by: Vec<u64> = skybake_lut::build::REFINED_BY
+        .iter()
+        .map(|c| c.load(Ordering::Relaxed))
+        .collect();
+    println!(
+        "refined by sun (<-12, -12..-6, -6..0, 0..5, 5..20, >20): sun axis {:?}, columns {:?}",
+        &by[..6],
+        &by[6..]
+    );
     let Some(dir) = std::env::args().nth(1) else {
         return;
     };
@@ -75,6 +86,7 @@ fn main() {
             (&b.mie, &r.mie)
         };
         let mut diffs = Vec::new();
+        let mut bands: Vec<Vec<(f64, String)>> = vec![Vec::new(); 4];
         for k in 0..N_ALT {
             for j in 0..N_SUN {
                 let z = k * N_SUN + j;
@@ -89,13 +101,21 @@ fn main() {
                                 continue;
                             }
                             let d = (x / y - 1.0).abs();
-                            diffs.push((d, format!("alt {k} sun {j} view {i} col {a} ch {c}")));
+                            let at = format!("alt {k} sun {j} view {i} col {a} ch {c}");
+                            let e = sun_node_deg(j);
+                            let band = [-12.0, -6.0, 5.0].iter().filter(|&&x| e >= x).count();
+                            bands[band].push((d, at.clone()));
+                            diffs.push((d, at));
                         }
                     }
                 }
             }
         }
         report(name, &mut diffs);
+        for (n, band) in bands.iter_mut().enumerate() {
+            let label = ["< -12", "-12..-6", "-6..5", ">= 5"][n];
+            report(&format!("  {name} sun {label}"), band);
+        }
     }
     let mut diffs: Vec<(f64, String)> = b
         .irradiance

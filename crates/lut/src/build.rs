@@ -899,6 +899,16 @@ impl<'a> FamilyScratch<'a> {
         }
         #[cfg(feature = "lookup-counter")]
         REFINED.fetch_add(refine.len() as u64, std::sync::atomic::Ordering::Relaxed);
+        #[cfg(feature = "lookup-counter")]
+        for &t in &refine {
+            let e = self.mu_s[t].asin().to_degrees();
+            let b = [-12.0, -6.0, 0.0, 5.0, 20.0]
+                .iter()
+                .filter(|&&x| e >= x)
+                .count();
+            let b = b + if curvature_only { 0 } else { 6 };
+            REFINED_BY[b].fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+        }
         if !refine.is_empty() {
             self.ms_suns = refine;
             for &t in &self.ms_suns {
@@ -1095,6 +1105,12 @@ pub static LOOKUPS: std::sync::atomic::AtomicU64 = std::sync::atomic::AtomicU64:
 /// computed after all, since the process started.
 #[cfg(feature = "lookup-counter")]
 pub static REFINED: std::sync::atomic::AtomicU64 = std::sync::atomic::AtomicU64::new(0);
+
+/// [`REFINED`] by the sun's elevation at the ray's origin (below −12°, −6°, 0°, 5°, 20°, above),
+/// over the sun axis then over the columns.
+#[cfg(feature = "lookup-counter")]
+pub static REFINED_BY: [std::sync::atomic::AtomicU64; 12] =
+    [const { std::sync::atomic::AtomicU64::new(0) }; 12];
 
 /// The multiple-scattering sums of the suns `ms_suns` alone (added to `multiple`), point by
 /// point as [`texel_sums`] forms them.
