@@ -27,30 +27,6 @@ mod turned;
 /// seen through the cloud, T_c ≤ T*, at most this fraction of its radiance).
 pub const MARCH_CUTOFF: f64 = 1e-3;
 
-/// Where every transmittance through which a step's light reaches the camera is below this
-/// (the true T_c, the scaled T* and the T⁺ of the sun's once-scattered light, at every
-/// wavelength), the march takes steps twice as long (four times below [`FAINT_DEEPER`]): what
-/// the rest of the ray adds is at most this fraction of what its sources would add at the
-/// cloud's face, and a longer step changes only how the density and the source between voxel
-/// centres are sampled (each step stays integrated exactly for a density constant within it).
-pub const FAINT_SEEN: f64 = 0.05;
-
-/// Below this transmittance (as for [`FAINT_SEEN`]) the march's steps are four times as long.
-pub const FAINT_DEEPER: f64 = 0.01;
-
-/// The march's step where `seen` is the largest transmittance through which the step's light
-/// reaches the camera ([`FAINT_SEEN`], [`FAINT_DEEPER`]).
-#[inline(always)]
-fn faint_step(step: f64, seen: f64) -> f64 {
-    if seen < FAINT_DEEPER {
-        4.0 * step
-    } else if seen < FAINT_SEEN {
-        2.0 * step
-    } else {
-        step
-    }
-}
-
 /// The march's thick-step threshold (defined with the photon pass, whose skin tallies use the
 /// same threshold; [`Prepared::thick_step`]).
 pub use super::multiple::THICK_STEP;
@@ -534,11 +510,6 @@ impl<'a> Prepared<'a> {
         // Whether any step can be optically thick (else every step is one piece, as before).
         let ks_max = ks[..n_l].iter().fold(0.0f64, |m, &k| m.max(k));
         let thick_possible = ks_max * vol.rho_max * step > THICK_STEP;
-        // The longer steps where the ray is faint ([`FAINT_SEEN`]) stay one piece where the
-        // one-voxel steps are: at most [`THICK_STEP`] at the densest voxel.
-        let longest = (THICK_STEP / (ks_max * vol.rho_max)).max(step);
-        // The largest transmittance through which the next step's light reaches the camera.
-        let mut seen = 1.0f64;
         let vox = &self.vox[..];
         let mut t = t0;
         let mut front = None;
@@ -566,7 +537,7 @@ impl<'a> Prepared<'a> {
                     (false, exit) => occupied_until = t + exit,
                 }
             }
-            let dt = faint_step(step, seen).min(longest).min(t1 - t);
+            let dt = step.min(t1 - t);
             let pm = o + d * (t + 0.5 * dt);
             t += dt;
             let Some(w) = vol.weights(pm) else {
@@ -614,7 +585,6 @@ impl<'a> Prepared<'a> {
                 if !alive {
                     break;
                 }
-                seen = (0..n_l).fold(0.0f64, |m, l| m.max(tc[l]).max(tcs[l]).max(tcp[l]));
                 continue;
             }
             // Per voxel `[ρ, D_sun, S_0 … S_{n−1}]`: density and sources in one pass.
@@ -719,7 +689,6 @@ impl<'a> Prepared<'a> {
             if !alive {
                 break;
             }
-            seen = (0..n_l).fold(0.0f64, |m, l| m.max(tc[l]).max(tcs[l]).max(tcp[l]));
         }
         if front.is_some() {
             self.add_view_cap(ray.dir, ia, tc, &tcp[..n_l]);
