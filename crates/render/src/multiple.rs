@@ -43,6 +43,7 @@ mod convolved;
 mod face;
 mod once;
 mod skin;
+mod turns;
 pub use convolved::ConvolvedCells;
 pub use face::{
     outward_profiles as face_outward_profiles, outward_ratio as face_outward_ratio,
@@ -360,6 +361,13 @@ impl MsField {
             };
             let scale = tr.extinction_scale;
             let albedo_scaled = tr.albedo_scaled;
+            // The scaled collisions with the true phase function less its δ part, and the δ
+            // part's turns between them (see [`turns`]).
+            let peak_turns = if s.truncation_power > 0.0 {
+                turns::PeakTurns::new(&optics.phase[l0], &tr)
+            } else {
+                None
+            };
             // Diffusion jumps in optically thick cells of a conservative medium (see
             // [`DiffusionJump`]); none where no cell is thick enough (the same photons as
             // without them).
@@ -481,7 +489,17 @@ impl MsField {
                             let mut thick_events = 0usize;
                             let mut surv = 1.0f64;
                             loop {
-                                let tau = -(1.0 - rng.random::<f64>()).ln();
+                                let mut tau = -(1.0 - rng.random::<f64>()).ln();
+                                // Once scattered, every event of the true medium: the next is
+                                // the δ part's turn with probability ωf, the free paths
+                                // (1 − ωf) scaled optical depths on average.
+                                let turn = match &peak_turns {
+                                    Some(pt) if ph.scattered => {
+                                        tau *= 1.0 - pt.delta_share();
+                                        rng.random::<f64>() < pt.delta_share()
+                                    }
+                                    _ => false,
+                                };
                                 if ph.scattered {
                                     real_sh(ph.dir, order, &mut ylm);
                                 }
@@ -504,6 +522,12 @@ impl MsField {
                                     &ylm[..moments],
                                 ) {
                                     break;
+                                }
+                                if turn {
+                                    if let Some(pt) = &peak_turns {
+                                        ph.dir = pt.turn(ph.dir, &mut rng);
+                                    }
+                                    continue;
                                 }
                                 let a = albedo_scaled;
                                 for x in w.iter_mut() {
@@ -538,12 +562,20 @@ impl MsField {
                                     },
                                     None => false,
                                 };
-                                ph.dir = {
-                                    let mut more = || rng.random::<f64>();
-                                    let (u1, u2) = (more(), more());
-                                    phase.sample(ph.dir, u1, u2, &mut more).0
+                                let (dir, in_peak) = match &peak_turns {
+                                    Some(pt) => pt.scatter(ph.dir, &mut rng),
+                                    None => {
+                                        let mut more = || rng.random::<f64>();
+                                        let (u1, u2) = (more(), more());
+                                        (phase.sample(ph.dir, u1, u2, &mut more).0, false)
+                                    }
                                 };
-                                smooth += 1;
+                                ph.dir = dir;
+                                // A turn within the peak leaves the once-scattered class as
+                                // `once` classes it (its L₁ takes any number of them).
+                                if !in_peak {
+                                    smooth += 1;
+                                }
                                 ph.scattered = true;
                                 if thick {
                                     if !thick_roulette(&mut thick_events, &mut w, &mut rng) {
