@@ -43,7 +43,6 @@ mod convolved;
 mod face;
 mod once;
 mod skin;
-mod turns;
 pub use convolved::ConvolvedCells;
 pub use face::{
     outward_profiles as face_outward_profiles, outward_ratio as face_outward_ratio,
@@ -361,16 +360,6 @@ impl MsField {
             };
             let scale = tr.extinction_scale;
             let albedo_scaled = tr.albedo_scaled;
-            // The scaled collisions with the true phase function less its δ part, and the δ
-            // part's turns between them (see [`turns`]).
-            #[allow(non_snake_case)]
-            let RESOLVED_FROM = knob("I29_FROM", 2);
-            let undisplaced = knob("I29_UNDISP", 0) == 1;
-            let peak_turns = if s.truncation_power > 0.0 && RESOLVED_FROM < 99 {
-                turns::PeakTurns::new(&optics.phase[l0], &tr)
-            } else {
-                None
-            };
             // Diffusion jumps in optically thick cells of a conservative medium (see
             // [`DiffusionJump`]); none where no cell is thick enough (the same photons as
             // without them).
@@ -492,17 +481,7 @@ impl MsField {
                             let mut thick_events = 0usize;
                             let mut surv = 1.0f64;
                             loop {
-                                let mut tau = -(1.0 - rng.random::<f64>()).ln();
-                                // Once scattered, every event of the true medium: the next is
-                                // the δ part's turn with probability ωf, the free paths
-                                // (1 − ωf) scaled optical depths on average.
-                                let turn = match &peak_turns {
-                                    Some(pt) if smooth >= RESOLVED_FROM && !undisplaced => {
-                                        tau *= 1.0 - pt.delta_share();
-                                        rng.random::<f64>() < pt.delta_share()
-                                    }
-                                    _ => false,
-                                };
+                                let tau = -(1.0 - rng.random::<f64>()).ln();
                                 if ph.scattered {
                                     real_sh(ph.dir, order, &mut ylm);
                                 }
@@ -525,12 +504,6 @@ impl MsField {
                                     &ylm[..moments],
                                 ) {
                                     break;
-                                }
-                                if turn {
-                                    if let Some(pt) = &peak_turns {
-                                        ph.dir = pt.turn(ph.dir, &mut rng);
-                                    }
-                                    continue;
                                 }
                                 let a = albedo_scaled;
                                 for x in w.iter_mut() {
@@ -565,25 +538,12 @@ impl MsField {
                                     },
                                     None => false,
                                 };
-                                let (dir, _) = match &peak_turns {
-                                    Some(pt) if smooth + 1 >= RESOLVED_FROM => {
-                                        pt.scatter(ph.dir, &mut rng)
-                                    }
-                                    _ => {
-                                        let mut more = || rng.random::<f64>();
-                                        let (u1, u2) = (more(), more());
-                                        (phase.sample(ph.dir, u1, u2, &mut more).0, false)
-                                    }
+                                ph.dir = {
+                                    let mut more = || rng.random::<f64>();
+                                    let (u1, u2) = (more(), more());
+                                    phase.sample(ph.dir, u1, u2, &mut more).0
                                 };
-                                ph.dir = dir;
                                 smooth += 1;
-                                if undisplaced && smooth >= RESOLVED_FROM {
-                                    if let Some(pt) = &peak_turns {
-                                        while rng.random::<f64>() < pt.delta_share() {
-                                            ph.dir = pt.turn(ph.dir, &mut rng);
-                                        }
-                                    }
-                                }
                                 ph.scattered = true;
                                 if thick {
                                     if !thick_roulette(&mut thick_events, &mut w, &mut rng) {
@@ -684,27 +644,9 @@ impl MsField {
                 );
             }
         }
-        let clx = std::env::var("I29_CLX")
-            .ok()
-            .and_then(|v| v.parse::<f64>().ok())
-            .unwrap_or(0.0)
-            / 100.0;
         let phase_moments: Vec<Vec<f64>> = truncation
             .iter()
-            .map(|t| {
-                let mut pm = scaled_moments(t, order);
-                if clx != 0.0 && t.fraction > 0.0 {
-                    let mut c = 1.0;
-                    for l in 2..pm.len() {
-                        let gs = t.g_scaled.powi(l as i32);
-                        if pm[l] < 1.0 {
-                            c *= (1.0 - gs) / (1.0 - pm[l]);
-                        }
-                        pm[l] *= c.powf(clx);
-                    }
-                }
-                pm
-            })
+            .map(|t| scaled_moments(t, order))
             .collect();
         if let Some(o) = once.as_mut() {
             o.finish(&once_dm, moments, &phase_moments, &coarse.rho);
@@ -898,11 +840,6 @@ pub const MAX_ORDER: usize = 4;
 /// Mitsuba cloud with ω = 0.9 (ω* 0.80), block NRMSE over 4 photon seeds 8.4 → 6.1 %, the bias's
 /// spread over the seeds −1.0…+3.9 → −0.7…+1.2 %, for about +10 % of that frame's CPU.
 const WEIGHT_FLOOR: f64 = 0.1;
-
-/// EXPERIMENT knobs (temporary).
-fn knob(name: &str, default: usize) -> usize {
-    std::env::var(name).ok().and_then(|v| v.parse().ok()).unwrap_or(default)
-}
 /// Survival probability of that roulette.
 const WEIGHT_KEEP: f64 = 0.5;
 
