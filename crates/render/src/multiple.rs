@@ -137,9 +137,9 @@ struct Coarse {
     skin: Option<skin::Skin>,
     /// The range of the cells that hold cloud.
     span: Span,
-    /// Per cell: its density and its index among the cells that hold cloud (their
-    /// accumulators'), side by side, so a track's step reads both from one cache line.
-    cells: Vec<CellRef>,
+    /// Per cell: its index among the cells that hold cloud (their accumulators'), or
+    /// `u32::MAX` for an empty cell (never scored).
+    compact: Vec<u32>,
     /// Number of cells that hold cloud.
     cloud_cells: usize,
 }
@@ -245,16 +245,15 @@ impl Coarse {
     /// (x fastest), without skins.
     fn from_cells(dims: [usize; 3], cell_m: DVec3, origin_m: DVec3, rho: Vec<f32>) -> Self {
         let mut cloud_cells = 0;
-        let cells = rho
+        let compact = rho
             .iter()
-            .map(|&rho| {
-                let compact = if rho > 0.0 {
+            .map(|&r| {
+                if r > 0.0 {
                     cloud_cells += 1;
                     cloud_cells as u32 - 1
                 } else {
                     u32::MAX
-                };
-                CellRef { rho, compact }
+                }
             })
             .collect();
         Self {
@@ -264,7 +263,7 @@ impl Coarse {
             span: Span::new(dims, &rho, cell_m, origin_m),
             rho,
             skin: None,
-            cells,
+            compact,
             cloud_cells,
         }
     }
@@ -277,15 +276,6 @@ impl Coarse {
                 self.dims[2] as f64,
             ) * self.cell_m
     }
-}
-
-/// A coarse cell as the photons' tracks read it: its density and its index among the cells
-/// that hold cloud, `u32::MAX` for an empty cell (never scored).
-#[derive(Debug, Clone, Copy, PartialEq)]
-#[repr(C, align(8))]
-struct CellRef {
-    rho: f32,
-    compact: u32,
 }
 
 /// One photon's state.
@@ -605,7 +595,7 @@ impl MsField {
                 .filter(|(c, _)| coarse.rho[*c] > 0.0)
                 .for_each(|(c, (cell, dm))| {
                     // Empty cells are not scored: they have no accumulators.
-                    let k = coarse.cells[c].compact as usize;
+                    let k = coarse.compact[c] as usize;
                     for (p, q) in &partial {
                         for (gi, &l) in group.iter().enumerate() {
                             for m in 0..moments {
@@ -957,7 +947,7 @@ impl DiffusionJump {
         let sigma_tr = self.transport_per_density * rho;
         if dist * sigma_tr >= JUMP_MIN_MFP {
             // A thick cell holds cloud: it has accumulators.
-            Thick::Deep(g.cells[c].compact as usize, dist, sigma_tr)
+            Thick::Deep(g.compact[c] as usize, dist, sigma_tr)
         } else {
             Thick::Near
         }
@@ -1264,18 +1254,17 @@ fn fly_in<T: Tally>(
         if ahead_live {
             ahead_live = ahead_step(g, &mut ahead, &step, &t_delta, acc, block);
         }
-        let here = g.cells[c];
-        let sigma = k * here.rho as f64;
+        let sigma = k * g.rho[c] as f64;
         let len = (t_exit - t).max(0.0);
         let (used, hit) = if sigma * len >= tau && sigma > 0.0 {
             (tau / sigma, true)
         } else {
             (len, false)
         };
-        if ph.scattered && used > 0.0 && here.rho > 0.0 {
+        if ph.scattered && used > 0.0 && g.rho[c] > 0.0 {
             let s = used / cell_volume;
             let n = ylm.len();
-            let k = here.compact as usize;
+            let k = g.compact[c] as usize;
             for gi in 0..ng {
                 let b = (k * ng + gi) * n;
                 let ws = w[gi] * s;
@@ -1377,9 +1366,8 @@ fn ahead_step<T>(
     t_next[a] += t_delta[a];
     let c = ((cell[2] as usize * g.dims[1]) + cell[1] as usize) * g.dims[0] + cell[0] as usize;
     // Only the cells that hold cloud are scored.
-    let ahead = g.cells[c];
-    if ahead.rho > 0.0 {
-        let k = ahead.compact as usize;
+    if g.rho[c] > 0.0 {
+        let k = g.compact[c] as usize;
         prefetch(&acc[k * block..(k + 1) * block]);
     }
     true
@@ -1559,9 +1547,7 @@ mod tests {
             },
             rho: rho.clone(),
             skin: None,
-            cells: (rho.iter().zip(0u32..))
-                .map(|(&rho, compact)| CellRef { rho, compact })
-                .collect(),
+            compact: (0..rho.len() as u32).collect(),
             cloud_cells: rho.len(),
             ..coarse
         };
@@ -1621,26 +1607,12 @@ mod tests {
             let b = &acc_b[c * moments..][..moments];
             if density > 0.0 {
                 // The cells that hold cloud have their accumulators in the grid's order.
-                assert_eq!(
-                    coarse.cells[c],
-                    CellRef {
-                        rho: density,
-                        compact: k as u32
-                    },
-                    "cell {c}"
-                );
+                assert_eq!(coarse.compact[c] as usize, k, "cell {c}");
                 assert_eq!(&acc_a[k * moments..][..moments], b, "cell {c}");
                 scored += usize::from(b[0] > 0.0);
                 k += 1;
             } else {
-                assert_eq!(
-                    coarse.cells[c],
-                    CellRef {
-                        rho: density,
-                        compact: u32::MAX
-                    },
-                    "cell {c}"
-                );
+                assert_eq!(coarse.compact[c], u32::MAX, "cell {c}");
                 assert!(b.iter().all(|&v| v == 0.0), "cell {c}");
             }
         }

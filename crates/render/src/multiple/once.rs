@@ -207,11 +207,11 @@ pub(super) fn trace(coarse: &Coarse, g: &Group, lanes: usize) -> Vec<f64> {
         .collect();
     let mut out = vec![0.0; cells * ONCE_MOMENTS];
     for p in parts {
-        for (o, c) in out.chunks_exact_mut(ONCE_MOMENTS).zip(&coarse.cells) {
-            if c.compact == u32::MAX {
+        for (o, c) in out.chunks_exact_mut(ONCE_MOMENTS).zip(&coarse.compact) {
+            if *c == u32::MAX {
                 continue;
             }
-            let k = c.compact as usize * ONCE_MOMENTS;
+            let k = *c as usize * ONCE_MOMENTS;
             for (o, v) in o.iter_mut().zip(&p[k..k + ONCE_MOMENTS]) {
                 *o += *v as f64;
             }
@@ -280,8 +280,7 @@ fn fly(
         };
         let t_exit = t_next[a].min(t1);
         let c = ((cell[2] as usize * g.dims[1]) + cell[1] as usize) * g.dims[0] + cell[0] as usize;
-        let here = g.cells[c];
-        let rho = here.rho;
+        let rho = g.rho[c];
         let sigma = k * rho as f64;
         let len = (t_exit - t).max(0.0);
         let (used, hit) = if sigma * len >= tau && sigma > 0.0 {
@@ -291,7 +290,7 @@ fn fly(
         };
         if ph.scattered && used > 0.0 && rho > 0.0 {
             let s = ws * used;
-            let b = here.compact as usize * ONCE_MOMENTS;
+            let b = g.compact[c] as usize * ONCE_MOMENTS;
             for (a, y) in acc[b..b + ONCE_MOMENTS].iter_mut().zip(ylm) {
                 *a += (s * y) as f32;
             }
