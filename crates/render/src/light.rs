@@ -891,7 +891,7 @@ mod tests {
         .expect("grid");
         for sun in [
             DVec3::new(0.8, 0.3, 0.4),
-            DVec3::new(-0.7, 0.2, -0.5),
+            DVec3::new(0.7, 0.2, -0.5),
             DVec3::new(0.3, 0.9, 0.2),
             DVec3::new(0.1, -0.8, 0.6),
         ] {
@@ -912,10 +912,10 @@ mod tests {
                     }
                 }
             }
-            assert!(
-                checked.iter().filter(|&&c| c).count() > 2 * Z_RUN,
-                "sun {sun:?}"
-            );
+            // Values off 0 in every run, the last (shorter) one included.
+            for run in checked.chunks(Z_RUN) {
+                assert!(run.iter().any(|&c| c), "sun {sun:?}");
+            }
         }
     }
 
