@@ -227,36 +227,15 @@ fn sun_paths(grid: &DensityGrid, sun_dir: DVec3, vol: Option<&CloudVolume>) -> V
         prev = Some(ia);
     }
     let layer = nx * ny;
-    if c == 2 {
-        // z runs fastest in `by_layer`: [`Z_RUN`] z-layers at a time, each voxel's run read
-        // from one cache line (one voxel per line otherwise, every line read again per layer).
-        out.par_chunks_mut(layer * Z_RUN)
-            .enumerate()
-            .for_each(|(zr, slabs)| {
-                let z0 = zr * Z_RUN;
-                let nz_run = slabs.len() / layer;
-                for i in 0..layer {
-                    let v = [i % nx, i / nx];
-                    let from = (v[a] * n[b] + v[b]) * n[c] + z0;
-                    for (dz, &d) in by_layer[from..from + nz_run].iter().enumerate() {
-                        slabs[dz * layer + i] = d;
-                    }
-                }
-            });
-    } else {
-        out.par_chunks_mut(layer).enumerate().for_each(|(z, slab)| {
-            for (i, o) in slab.iter_mut().enumerate() {
-                let v = [i % nx, i / nx, z];
-                *o = by_layer[(v[a] * n[b] + v[b]) * n[c] + v[c]];
-            }
-        });
-    }
+    out.par_chunks_mut(layer).enumerate().for_each(|(z, slab)| {
+        for (i, o) in slab.iter_mut().enumerate() {
+            let v = [i % nx, i / nx, z];
+            *o = by_layer[(v[a] * n[b] + v[b]) * n[c] + v[c]];
+        }
+    });
     super::pages::give_back_f32(by_layer);
     out
 }
-
-/// z-layers [`sun_paths`] puts in the grid's order together (16 f32: a cache line).
-const Z_RUN: usize = 16;
 
 /// Voxels with density within two voxels along every axis (a 5×5×5 neighbourhood), by
 /// three separable passes; the z-layers in parallel.
@@ -867,55 +846,6 @@ mod tests {
                 }
             }
             assert!(checked > 3, "sun {sun:?}");
-        }
-    }
-
-    /// The paths put back in the grid's order several z-layers at a time (suns dominant
-    /// along x or y, a grid taller than one run of [`Z_RUN`] layers and not a multiple of
-    /// it): each value of the layer nearest the sun, marched directly, in its voxel's place.
-    #[test]
-    fn sun_paths_in_the_grid_s_order_over_z_runs() {
-        let grid = DensityGrid::from_fn(
-            [7, 6, 2 * Z_RUN + 5],
-            10.0,
-            DVec3::new(-40.0, 5.0, 100.0),
-            |p| {
-                let v = ((p.x * 0.37).sin() + (p.y * 0.21).cos() * (p.z * 0.13).sin()) as f32;
-                if v > 0.2 {
-                    v * 1.7
-                } else {
-                    0.0
-                }
-            },
-        )
-        .expect("grid");
-        for sun in [
-            DVec3::new(0.8, 0.3, 0.4),
-            DVec3::new(0.7, 0.2, -0.5),
-            DVec3::new(0.3, 0.9, 0.2),
-            DVec3::new(0.1, -0.8, 0.6),
-        ] {
-            let sun = sun.normalize();
-            let all = sun_density_integrals(&grid, sun);
-            let a = if sun.x.abs() > sun.y.abs() { 0 } else { 1 };
-            let first = if sun[a] > 0.0 { grid.dims[a] - 1 } else { 0 };
-            let mut checked = [false; 2 * Z_RUN + 5];
-            for z in 0..grid.dims[2] {
-                for y in 0..grid.dims[1] {
-                    for x in 0..grid.dims[0] {
-                        if [x, y, z][a] == first {
-                            let p = grid.voxel_centre(x, y, z);
-                            let direct = march_to_exit(&grid, p, sun) as f32;
-                            assert_eq!(all[grid.index(x, y, z)], direct, "sun {sun:?}");
-                            checked[z] |= direct > 0.0;
-                        }
-                    }
-                }
-            }
-            // Values off 0 in every run, the last (shorter) one included.
-            for run in checked.chunks(Z_RUN) {
-                assert!(run.iter().any(|&c| c), "sun {sun:?}");
-            }
         }
     }
 
