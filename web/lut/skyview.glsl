@@ -401,21 +401,28 @@ float SkyViewBandWeight(float sun_deg, float h) {
       (1.0 - smoothstep(SV_BAND_ALTITUDE.x, SV_BAND_ALTITUDE.y, h));
 }
 
-// The sky rows' focus on the band above the earth's shadow (the reader's sky_row_focus): the
-// band's elevation c (degrees) and the focus strength k (per degree) with the sun sun_deg above
-// the observer's horizon at altitude h (faded out as c rises through SV_BAND_CENTRE_RANGE).
-void SkyViewBandFocus(float sun_deg, float h, out float c, out float k) {
+// The band's elevation (degrees) opposite the sun with the sun sun_deg above the observer's
+// horizon at altitude h (the reader's band_centre_deg).
+float SkyViewBandCentre(float sun_deg, float h) {
   // u = SV_BAND_SUN - sun_deg turned smoothly to 0 over SV_BAND_SUN_SOFT: w ln(1 + e^x).
   float x = (SV_BAND_SUN - sun_deg) / SV_BAND_SUN_SOFT;
   float u = SV_BAND_SUN_SOFT * (max(x, 0.0) + log(1.0 + exp(-abs(x))));
   // The low fit up to SV_BAND_CENTRE_ALOFT_ALTITUDE.x, scaled by 1 + SV_BAND_CENTRE_ALOFT per km
-  // above it up to SV_BAND_CENTRE_ALOFT_ALTITUDE.y (the reader's band_centre_deg).
+  // above it up to SV_BAND_CENTRE_ALOFT_ALTITUDE.y.
   float km = clamp(h, 0.0, SV_BAND_CENTRE_ALOFT_ALTITUDE.x) / 1000.0;
   float aloft = 1.0 + SV_BAND_CENTRE_ALOFT *
       clamp(h - SV_BAND_CENTRE_ALOFT_ALTITUDE.x, 0.0,
             SV_BAND_CENTRE_ALOFT_ALTITUDE.y - SV_BAND_CENTRE_ALOFT_ALTITUDE.x) / 1000.0;
-  c = min(((SV_BAND_CENTRE.x + SV_BAND_CENTRE.y * km) * u +
-           (SV_BAND_CENTRE.z + SV_BAND_CENTRE.w * km) * u * u) * aloft, 45.0);
+  return min(((SV_BAND_CENTRE.x + SV_BAND_CENTRE.y * km) * u +
+              (SV_BAND_CENTRE.z + SV_BAND_CENTRE.w * km) * u * u) * aloft, 45.0);
+}
+
+// The sky rows' focus on the band above the earth's shadow (the reader's sky_row_focus): the
+// band's elevation c (degrees, SkyViewBandCentre) and the focus strength k (per degree) with the
+// sun sun_deg above the observer's horizon at altitude h (faded out as c rises through
+// SV_BAND_CENTRE_RANGE).
+void SkyViewBandFocus(float sun_deg, float h, out float c, out float k) {
+  c = SkyViewBandCentre(sun_deg, h);
   float low = 1.0 - smoothstep(SV_BAND_CENTRE_RANGE.x, SV_BAND_CENTRE_RANGE.y, c);
   float f = SkyViewBandWeight(sun_deg, h) *
       (low * (1.0 + SV_BAND_FOCUS_HIGH * SkyViewFocusAloft(c, h)) +
@@ -554,15 +561,11 @@ SvStencil SkyViewBandRowStencil(float elevation_deg, float h, float c, float k, 
 }
 
 // The band's elevation (degrees, over SV_BAND_ANTISOLAR) in the slices' map at the sun
-// coordinate sun_deg and altitude h (the reader's band_slice_centre_deg): SkyViewBandFocus's low
+// coordinate sun_deg and altitude h (the reader's band_slice_centre_deg): SkyViewBandCentre's low
 // fit at min(h, SV_BAND_CENTRE_ALOFT_ALTITUDE.x) times 1 + a x + (b - a) x^2 / (2 L), x the km
 // above SV_BAND_CENTRE_ALOFT_ALTITUDE.x up to L, its span, (a, b) = SV_BAND_SLICE_ALOFT.
 float SkyViewBandSliceCentre(float sun_deg, float h) {
-  float x = (SV_BAND_SUN - sun_deg) / SV_BAND_SUN_SOFT;
-  float u = SV_BAND_SUN_SOFT * (max(x, 0.0) + log(1.0 + exp(-abs(x))));
-  float km = clamp(h, 0.0, SV_BAND_CENTRE_ALOFT_ALTITUDE.x) / 1000.0;
-  float low = min((SV_BAND_CENTRE.x + SV_BAND_CENTRE.y * km) * u +
-                      (SV_BAND_CENTRE.z + SV_BAND_CENTRE.w * km) * u * u, 45.0);
+  float low = SkyViewBandCentre(sun_deg, min(h, SV_BAND_CENTRE_ALOFT_ALTITUDE.x));
   float l = max((SV_BAND_CENTRE_ALOFT_ALTITUDE.y - SV_BAND_CENTRE_ALOFT_ALTITUDE.x) / 1000.0, 1e-3);
   float a = clamp((h - SV_BAND_CENTRE_ALOFT_ALTITUDE.x) / 1000.0, 0.0, l);
   float g = 1.0 + SV_BAND_SLICE_ALOFT.x * a +
