@@ -191,9 +191,10 @@ struct TwilightRows {
     from: usize,
     /// The first twilight cell ([`Grid::twilight_cell`] holds from there on).
     first_cell: usize,
-    /// 2 n_λ ≤ [`PACKED_LANES`]: `[i_r][i_mu][i_mu_s − from][i_phi][v | ln v]`, each node's
-    /// 2 n_λ lanes of `j_ms` and their [`ln_or_zero_f32`], each padded with zeros to
-    /// [`PACKED_LANES`]; empty otherwise.
+    /// 2 n_λ ≤ [`PACKED_LANES`]: `[i_r][i_mu][i_mu_s − from][v | ln v][i_phi]`, each
+    /// azimuth node's 2 n_λ lanes of `j_ms` (then their [`ln_or_zero_f32`]) padded with zeros to
+    /// [`PACKED_LANES`]: two adjacent azimuth nodes' values (or logarithms) are one run of
+    /// 2 [`PACKED_LANES`] lanes ([`packed_run`]); empty otherwise.
     packed: Vec<f32>,
     /// 2 n_λ > [`PACKED_LANES`]: [`ln_or_zero_f32`] of `j_ms`,
     /// `[i_r][i_mu][i_mu_s − from][i_phi][c][λ]`; empty otherwise.
@@ -2260,11 +2261,15 @@ impl PreciseMultipleScattering {
                     self.j_ms.len() / lanes * (n_mu_s - from) / n_mu_s * 2 * PACKED_LANES,
                 );
                 for family in families {
-                    for node in family[from * per_node..].chunks(lanes) {
-                        packed.extend_from_slice(node);
-                        packed.extend((lanes..PACKED_LANES).map(|_| 0.0));
-                        packed.extend(node.iter().map(|&v| ln_or_zero_f32(v)));
-                        packed.extend((lanes..PACKED_LANES).map(|_| 0.0));
+                    for node in family[from * per_node..].chunks(per_node) {
+                        for az in node.chunks(lanes) {
+                            packed.extend_from_slice(az);
+                            packed.extend((lanes..PACKED_LANES).map(|_| 0.0));
+                        }
+                        for az in node.chunks(lanes) {
+                            packed.extend(az.iter().map(|&v| ln_or_zero_f32(v)));
+                            packed.extend((lanes..PACKED_LANES).map(|_| 0.0));
+                        }
                     }
                 }
                 rows.packed = packed;
@@ -2544,13 +2549,14 @@ impl TwilightCorners<'_> {
     }
 }
 
-/// One node row of [`TwilightRows::packed`]: its values and their logarithms.
+/// `N` lanes of [`TwilightRows::packed`] from offset `o`: one azimuth node's values (or
+/// logarithms), `N` = [`PACKED_LANES`], or two adjacent nodes', 2 [`PACKED_LANES`]; one bounds
+/// check.
 #[inline(always)]
-fn packed_row(packed: &[f32], o: usize) -> (&[f32; PACKED_LANES], &[f32; PACKED_LANES]) {
-    let (v, ln) = packed[o..o + 2 * PACKED_LANES].split_at(PACKED_LANES);
-    match (v.try_into(), ln.try_into()) {
-        (Ok(v), Ok(ln)) => (v, ln),
-        _ => unreachable!("split into two rows of PACKED_LANES"),
+fn packed_run<const N: usize>(packed: &[f32], o: usize) -> &[f32; N] {
+    match packed[o..o + N].try_into() {
+        Ok(p) => p,
+        Err(_) => unreachable!("a slice of N lanes"),
     }
 }
 
@@ -2575,8 +2581,10 @@ fn twilight_packed(
     ip: usize,
     fp: f64,
 ) -> [f32; PACKED_LANES] {
-    const NODE: usize = 2 * PACKED_LANES;
+    const L: usize = PACKED_LANES;
     let n_tw = n_mu_s - rows.from;
+    // One sun-zenith node's record: its azimuth nodes' values, then their logarithms.
+    let (block, ln_at) = (2 * n_phi * L, n_phi * L);
     // Written out rather than closures or `array::map`, which were not always inlined into the
     // AVX2 kernel.
     let from = rows.from;
@@ -2586,19 +2594,31 @@ fn twilight_packed(
         nodes[2] - from,
         nodes[3] - from,
     );
-    let mut a = [0.0f32; PACKED_LANES];
+    let p = &rows.packed;
+    let mut a = [0.0f32; L];
     for &(ir, im, wc, pole) in &slice.corners {
         let family = (ir * n_mu + im) * n_tw;
         if !pole {
-            // Azimuth nodes `ip` and `ip + 1`, adjacent: each sun-zenith node's pair of rows
-            // read as one slice ([`twilight_bundle::pair_rows`]).
-            let o = |b: usize| ((family + b) * n_phi + ip) * NODE;
+            // Azimuth nodes `ip` and `ip + 1`, adjacent: each sun-zenith node's pair of values
+            // (and of logarithms) read as one run.
+            let (o0, o1, o2, o3) = (
+                (family + b0) * block + ip * L,
+                (family + b1) * block + ip * L,
+                (family + b2) * block + ip * L,
+                (family + b3) * block + ip * L,
+            );
             twilight_bundle::add_pair(
                 [
-                    twilight_bundle::pair_rows(&rows.packed, o(b0)),
-                    twilight_bundle::pair_rows(&rows.packed, o(b1)),
-                    twilight_bundle::pair_rows(&rows.packed, o(b2)),
-                    twilight_bundle::pair_rows(&rows.packed, o(b3)),
+                    packed_run(p, o0),
+                    packed_run(p, o1),
+                    packed_run(p, o2),
+                    packed_run(p, o3),
+                ],
+                [
+                    packed_run(p, o0 + ln_at),
+                    packed_run(p, o1 + ln_at),
+                    packed_run(p, o2 + ln_at),
+                    packed_run(p, o3 + ln_at),
                 ],
                 [(wc * (1.0 - fp)) as f32, (wc * fp) as f32],
                 wq,
@@ -2612,12 +2632,28 @@ fn twilight_packed(
             continue;
         }
         for e in 0..n_phi {
-            let (v0, l0) = packed_row(&rows.packed, ((family + b0) * n_phi + e) * NODE);
-            let (v1, l1) = packed_row(&rows.packed, ((family + b1) * n_phi + e) * NODE);
-            let (v2, l2) = packed_row(&rows.packed, ((family + b2) * n_phi + e) * NODE);
-            let (v3, l3) = packed_row(&rows.packed, ((family + b3) * n_phi + e) * NODE);
-            let x =
-                twilight_bundle::twilight_fixed_cubic([v0, v1, v2, v3], [l0, l1, l2, l3], wq, fs);
+            let (o0, o1, o2, o3) = (
+                (family + b0) * block + e * L,
+                (family + b1) * block + e * L,
+                (family + b2) * block + e * L,
+                (family + b3) * block + e * L,
+            );
+            let x = twilight_bundle::twilight_fixed_cubic::<L>(
+                [
+                    packed_run(p, o0),
+                    packed_run(p, o1),
+                    packed_run(p, o2),
+                    packed_run(p, o3),
+                ],
+                [
+                    packed_run(p, o0 + ln_at),
+                    packed_run(p, o1 + ln_at),
+                    packed_run(p, o2 + ln_at),
+                    packed_run(p, o3 + ln_at),
+                ],
+                wq,
+                fs,
+            );
             for (o, v) in a.iter_mut().zip(&x) {
                 *o += w * *v;
             }
@@ -2626,23 +2662,10 @@ fn twilight_packed(
     a
 }
 
-/// Two node rows of [`TwilightRows::packed`] side by side in one 16-lane array: the values (or
-/// the logarithms, `part` 1) of azimuth nodes `e` and `e + 1` at record offset `o` (node `e`).
-#[cfg(target_arch = "x86_64")]
-#[inline(always)]
-fn packed_pair(packed: &[f32], o: usize, part: usize) -> [f32; 2 * PACKED_LANES] {
-    const NODE: usize = 2 * PACKED_LANES;
-    let mut x = [0.0f32; 2 * PACKED_LANES];
-    let (lo, hi) = x.split_at_mut(PACKED_LANES);
-    lo.copy_from_slice(&packed[o + part * PACKED_LANES..][..PACKED_LANES]);
-    hi.copy_from_slice(&packed[o + NODE + part * PACKED_LANES..][..PACKED_LANES]);
-    x
-}
-
-/// [`twilight_packed`] for CPUs with AVX-512: two azimuth nodes of a corner (`e`, `e + 1`, adjacent
-/// in [`TwilightRows::packed`]) in one 16-lane vector, so each corner's pair of nodes costs one
-/// [`twilight_bundle::twilight_fixed_cubic`] of 16 lanes instead of two of 8 (the RGB case uses
-/// 6 lanes of each node).
+/// [`twilight_packed`] for CPUs with AVX-512: two azimuth nodes of a corner (`e`, `e + 1`, one
+/// run of [`TwilightRows::packed`]) in one 16-lane vector, so each corner's pair of nodes costs
+/// one [`twilight_bundle::twilight_fixed_cubic`] of 16 lanes instead of two of 8 (the RGB case
+/// uses 6 lanes of each node).
 /// Lane by lane the same operations, and each node's term is added to the sum in the same
 /// order (node `e`, then `e + 1`), so the values are those of [`twilight_packed`].
 #[cfg(target_arch = "x86_64")]
@@ -2661,9 +2684,9 @@ fn twilight_packed_avx512(
     ip: usize,
     fp: f64,
 ) -> [f32; PACKED_LANES] {
-    const NODE: usize = 2 * PACKED_LANES;
     const L: usize = PACKED_LANES;
     let n_tw = n_mu_s - rows.from;
+    let (block, ln_at) = (2 * n_phi * L, n_phi * L);
     let from = rows.from;
     let (b0, b1, b2, b3) = (
         nodes[0] - from,
@@ -2692,24 +2715,24 @@ fn twilight_packed_avx512(
                 ((wc * (1.0 - fp)) as f32, (wc * fp) as f32)
             };
             let (o0, o1, o2, o3) = (
-                ((family + b0) * n_phi + e) * NODE,
-                ((family + b1) * n_phi + e) * NODE,
-                ((family + b2) * n_phi + e) * NODE,
-                ((family + b3) * n_phi + e) * NODE,
+                (family + b0) * block + e * L,
+                (family + b1) * block + e * L,
+                (family + b2) * block + e * L,
+                (family + b3) * block + e * L,
             );
             if e + 1 < e_to {
-                let x = twilight_bundle::twilight_fixed_cubic(
+                let x = twilight_bundle::twilight_fixed_cubic::<{ 2 * L }>(
                     [
-                        &packed_pair(p, o0, 0),
-                        &packed_pair(p, o1, 0),
-                        &packed_pair(p, o2, 0),
-                        &packed_pair(p, o3, 0),
+                        packed_run(p, o0),
+                        packed_run(p, o1),
+                        packed_run(p, o2),
+                        packed_run(p, o3),
                     ],
                     [
-                        &packed_pair(p, o0, 1),
-                        &packed_pair(p, o1, 1),
-                        &packed_pair(p, o2, 1),
-                        &packed_pair(p, o3, 1),
+                        packed_run(p, o0 + ln_at),
+                        packed_run(p, o1 + ln_at),
+                        packed_run(p, o2 + ln_at),
+                        packed_run(p, o3 + ln_at),
                     ],
                     wq,
                     fs,
@@ -2727,13 +2750,19 @@ fn twilight_packed_avx512(
                 e += 2;
             } else {
                 // An odd pole count's last node.
-                let (v0, l0) = packed_row(p, o0);
-                let (v1, l1) = packed_row(p, o1);
-                let (v2, l2) = packed_row(p, o2);
-                let (v3, l3) = packed_row(p, o3);
-                let x = twilight_bundle::twilight_fixed_cubic(
-                    [v0, v1, v2, v3],
-                    [l0, l1, l2, l3],
+                let x = twilight_bundle::twilight_fixed_cubic::<L>(
+                    [
+                        packed_run(p, o0),
+                        packed_run(p, o1),
+                        packed_run(p, o2),
+                        packed_run(p, o3),
+                    ],
+                    [
+                        packed_run(p, o0 + ln_at),
+                        packed_run(p, o1 + ln_at),
+                        packed_run(p, o2 + ln_at),
+                        packed_run(p, o3 + ln_at),
+                    ],
                     wq,
                     fs,
                 );
