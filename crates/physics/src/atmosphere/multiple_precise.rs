@@ -2560,168 +2560,92 @@ fn packed_run<const N: usize>(packed: &[f32], o: usize) -> &[f32; N] {
     }
 }
 
-/// The twilight interpolation of [`add_from_slice_kernel`] from [`TwilightRows::packed`]
-/// (2 n_λ ≤ [`PACKED_LANES`]): Â_c (`[c][λ]`, padded) summed over the slice's (r, θ) corners
-/// and the azimuth nodes `ip`, `ip + 1` (weights 1 − `fp`, `fp`), each corner and node
-/// interpolated over sun zenith on the Catmull–Rom `nodes` and weights `wq`, `fs`: lane by lane
-/// the operations of [`TwilightCorners`] in the same order, each node in one whole vector, but
-/// the exponential the cubic [`twilight_bundle::exp_cubic_f32`] (relative error ≤ 8·10⁻⁵, below
-/// the bundles' half floats) instead of [`exp_fast_f32`].
-#[inline(always)]
-#[allow(clippy::too_many_arguments)]
-fn twilight_packed(
-    rows: &TwilightRows,
-    slice: &JSlice,
-    n_mu: usize,
-    n_mu_s: usize,
+/// What the twilight lookups of one point share in [`TwilightRows::packed`] (2 n_λ ≤
+/// [`PACKED_LANES`]), taken once for all its suns ([`add_from_slice_kernel`]): each (r, θ)
+/// corner's first record, weight and whether it is a pole's azimuthal mean. Its methods are
+/// `#[inline(always)]`, so they are compiled into each copy of the kernel (AVX-512, AVX2) with no
+/// call per sun.
+struct PackedPoint<'a> {
+    packed: &'a [f32],
+    from: usize,
     n_phi: usize,
-    nodes: [usize; 4],
-    wq: [f32; 4],
-    fs: f32,
-    ip: usize,
-    fp: f64,
-) -> [f32; PACKED_LANES] {
-    const L: usize = PACKED_LANES;
-    let n_tw = n_mu_s - rows.from;
-    // One sun-zenith node's record: its azimuth nodes' values, then their logarithms.
-    let (block, ln_at) = (2 * n_phi * L, n_phi * L);
-    // Written out rather than closures or `array::map`, which were not always inlined into the
-    // AVX2 kernel.
-    let from = rows.from;
-    let (b0, b1, b2, b3) = (
-        nodes[0] - from,
-        nodes[1] - from,
-        nodes[2] - from,
-        nodes[3] - from,
-    );
-    let p = &rows.packed;
-    let mut a = [0.0f32; L];
-    for &(ir, im, wc, pole) in &slice.corners {
-        let family = (ir * n_mu + im) * n_tw;
-        if !pole {
-            // Azimuth nodes `ip` and `ip + 1`, adjacent: each sun-zenith node's pair of values
-            // (and of logarithms) read as one run.
-            let (o0, o1, o2, o3) = (
-                (family + b0) * block + ip * L,
-                (family + b1) * block + ip * L,
-                (family + b2) * block + ip * L,
-                (family + b3) * block + ip * L,
-            );
-            twilight_bundle::add_pair(
-                [
-                    packed_run(p, o0),
-                    packed_run(p, o1),
-                    packed_run(p, o2),
-                    packed_run(p, o3),
-                ],
-                [
-                    packed_run(p, o0 + ln_at),
-                    packed_run(p, o1 + ln_at),
-                    packed_run(p, o2 + ln_at),
-                    packed_run(p, o3 + ln_at),
-                ],
-                [(wc * (1.0 - fp)) as f32, (wc * fp) as f32],
-                wq,
-                fs,
-                &mut a,
-            );
-            continue;
-        }
-        let w = (wc / n_phi as f64) as f32;
-        if w == 0.0 {
-            continue;
-        }
-        for e in 0..n_phi {
-            let (o0, o1, o2, o3) = (
-                (family + b0) * block + e * L,
-                (family + b1) * block + e * L,
-                (family + b2) * block + e * L,
-                (family + b3) * block + e * L,
-            );
-            let x = twilight_bundle::twilight_fixed_cubic::<L>(
-                [
-                    packed_run(p, o0),
-                    packed_run(p, o1),
-                    packed_run(p, o2),
-                    packed_run(p, o3),
-                ],
-                [
-                    packed_run(p, o0 + ln_at),
-                    packed_run(p, o1 + ln_at),
-                    packed_run(p, o2 + ln_at),
-                    packed_run(p, o3 + ln_at),
-                ],
-                wq,
-                fs,
-            );
-            for (o, v) in a.iter_mut().zip(&x) {
-                *o += w * *v;
-            }
-        }
-    }
-    a
+    /// Lanes of one sun-zenith node's record (its azimuth nodes' values, then their
+    /// logarithms), and the logarithms' offset in it.
+    block: usize,
+    ln_at: usize,
+    /// The slice's corners ([`JSlice::corners`]): the offset of the record of sun-zenith node
+    /// `from`, the weight, whether a pole's mean; the first `n` are set.
+    corners: [(usize, f64, bool); 4],
+    n: usize,
 }
 
-/// [`twilight_packed`] for CPUs with AVX-512: two azimuth nodes of a corner (`e`, `e + 1`, one
-/// run of [`TwilightRows::packed`]) in one 16-lane vector, so each corner's pair of nodes costs
-/// one [`twilight_bundle::twilight_fixed_cubic`] of 16 lanes instead of two of 8 (the RGB case
-/// uses 6 lanes of each node).
-/// Lane by lane the same operations, and each node's term is added to the sum in the same
-/// order (node `e`, then `e + 1`), so the values are those of [`twilight_packed`].
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx512f,avx512dq,avx512vl,avx512bw,avx2,fma")]
-#[inline]
-#[allow(clippy::too_many_arguments)]
-fn twilight_packed_avx512(
-    rows: &TwilightRows,
-    slice: &JSlice,
-    n_mu: usize,
-    n_mu_s: usize,
-    n_phi: usize,
-    nodes: [usize; 4],
-    wq: [f32; 4],
-    fs: f32,
-    ip: usize,
-    fp: f64,
-) -> [f32; PACKED_LANES] {
-    const L: usize = PACKED_LANES;
-    let n_tw = n_mu_s - rows.from;
-    let (block, ln_at) = (2 * n_phi * L, n_phi * L);
-    let from = rows.from;
-    let (b0, b1, b2, b3) = (
-        nodes[0] - from,
-        nodes[1] - from,
-        nodes[2] - from,
-        nodes[3] - from,
-    );
-    let p = &rows.packed;
-    let mut a = [0.0f32; L];
-    for &(ir, im, wc, pole) in &slice.corners {
-        let family = (ir * n_mu + im) * n_tw;
-        // (first node of the pair, its weight, the next node's weight)
-        let (e_from, e_to, w_pole) = if pole {
-            (0, n_phi, (wc / n_phi as f64) as f32)
-        } else {
-            (ip, ip + 2, 0.0)
-        };
-        if pole && w_pole == 0.0 {
-            continue;
+impl<'a> PackedPoint<'a> {
+    #[inline(always)]
+    fn new(
+        rows: &'a TwilightRows,
+        slice: &JSlice,
+        n_mu: usize,
+        n_mu_s: usize,
+        n_phi: usize,
+    ) -> Self {
+        let block = 2 * n_phi * PACKED_LANES;
+        let n_tw = n_mu_s - rows.from;
+        let mut corners = [(0, 0.0, false); 4];
+        // Two radius nodes × two view-zenith nodes at most ([`Grid::theta_corners`]).
+        assert!(slice.corners.len() <= corners.len());
+        for (c, &(ir, im, wc, pole)) in corners.iter_mut().zip(&slice.corners) {
+            *c = ((ir * n_mu + im) * n_tw * block, wc, pole);
         }
-        let mut e = e_from;
-        while e < e_to {
-            let (w0, w1) = if pole {
-                (w_pole, w_pole)
-            } else {
-                ((wc * (1.0 - fp)) as f32, (wc * fp) as f32)
-            };
-            let (o0, o1, o2, o3) = (
-                (family + b0) * block + e * L,
-                (family + b1) * block + e * L,
-                (family + b2) * block + e * L,
-                (family + b3) * block + e * L,
-            );
-            if e + 1 < e_to {
-                let x = twilight_bundle::twilight_fixed_cubic::<{ 2 * L }>(
+        Self {
+            packed: &rows.packed,
+            from: rows.from,
+            n_phi,
+            block,
+            ln_at: n_phi * PACKED_LANES,
+            corners,
+            n: slice.corners.len(),
+        }
+    }
+
+    /// The offsets of the Catmull–Rom `nodes`' records from a corner's first.
+    #[inline(always)]
+    fn node_offsets(&self, nodes: [usize; 4]) -> [usize; 4] {
+        let (from, block) = (self.from, self.block);
+        [
+            (nodes[0] - from) * block,
+            (nodes[1] - from) * block,
+            (nodes[2] - from) * block,
+            (nodes[3] - from) * block,
+        ]
+    }
+
+    /// The twilight interpolation of [`add_from_slice_kernel`]: Â_c (`[c][λ]`, padded) summed
+    /// over the point's (r, θ) corners and the azimuth nodes `ip`, `ip + 1` (weights 1 − `fp`,
+    /// `fp`), each corner and node interpolated over sun zenith on the Catmull–Rom `nodes` and
+    /// weights `wq`, `fs`: lane by lane the operations of [`TwilightCorners`] in the same order,
+    /// each node in one whole vector, but the exponential the cubic
+    /// [`twilight_bundle::exp_cubic_f32`] (relative error ≤ 8·10⁻⁵, below the bundles' half
+    /// floats) instead of [`exp_fast_f32`].
+    #[inline(always)]
+    fn interp(
+        &self,
+        nodes: [usize; 4],
+        wq: [f32; 4],
+        fs: f32,
+        ip: usize,
+        fp: f64,
+    ) -> [f32; PACKED_LANES] {
+        const L: usize = PACKED_LANES;
+        let (p, ln_at, n_phi) = (self.packed, self.ln_at, self.n_phi);
+        let [b0, b1, b2, b3] = self.node_offsets(nodes);
+        let mut a = [0.0f32; L];
+        for &(base, wc, pole) in &self.corners[..self.n] {
+            if !pole {
+                // Azimuth nodes `ip` and `ip + 1`, adjacent: each sun-zenith node's pair of
+                // values (and of logarithms) read as one run.
+                let o = base + ip * L;
+                let (o0, o1, o2, o3) = (o + b0, o + b1, o + b2, o + b3);
+                twilight_bundle::add_pair(
                     [
                         packed_run(p, o0),
                         packed_run(p, o1),
@@ -2734,22 +2658,20 @@ fn twilight_packed_avx512(
                         packed_run(p, o2 + ln_at),
                         packed_run(p, o3 + ln_at),
                     ],
+                    [(wc * (1.0 - fp)) as f32, (wc * fp) as f32],
                     wq,
                     fs,
+                    &mut a,
                 );
-                let mut y = [0.0f32; 2 * L];
-                for i in 0..2 * L {
-                    y[i] = if i < L { w0 } else { w1 } * x[i];
-                }
-                for i in 0..L {
-                    a[i] += y[i];
-                }
-                for i in 0..L {
-                    a[i] += y[L + i];
-                }
-                e += 2;
-            } else {
-                // An odd pole count's last node.
+                continue;
+            }
+            let w = (wc / n_phi as f64) as f32;
+            if w == 0.0 {
+                continue;
+            }
+            for e in 0..n_phi {
+                let o = base + e * L;
+                let (o0, o1, o2, o3) = (o + b0, o + b1, o + b2, o + b3);
                 let x = twilight_bundle::twilight_fixed_cubic::<L>(
                     [
                         packed_run(p, o0),
@@ -2767,43 +2689,106 @@ fn twilight_packed_avx512(
                     fs,
                 );
                 for (o, v) in a.iter_mut().zip(&x) {
-                    *o += w0 * *v;
+                    *o += w * *v;
                 }
-                e += 1;
             }
         }
+        a
     }
-    a
-}
 
-/// [`twilight_packed`], or its AVX-512 form (the same values) where `avx512` says the CPU has it
-/// ([`crate::atmosphere::kernels::has_avx512`]).
-#[inline(always)]
-#[allow(clippy::too_many_arguments)]
-fn twilight_packed_dispatch(
-    avx512: bool,
-    rows: &TwilightRows,
-    slice: &JSlice,
-    n_mu: usize,
-    n_mu_s: usize,
-    n_phi: usize,
-    nodes: [usize; 4],
-    wq: [f32; 4],
-    fs: f32,
-    ip: usize,
-    fp: f64,
-) -> [f32; PACKED_LANES] {
-    #[cfg(target_arch = "x86_64")]
-    if avx512 {
-        // SAFETY: `avx512` is `kernels::has_avx512()`: the CPU has AVX-512 F/DQ/VL/BW, AVX2
-        // and FMA.
-        return unsafe {
-            twilight_packed_avx512(rows, slice, n_mu, n_mu_s, n_phi, nodes, wq, fs, ip, fp)
-        };
+    /// [`Self::interp`] for the AVX-512 copy of the kernel: two azimuth nodes of a corner (`e`,
+    /// `e + 1`, one run of [`TwilightRows::packed`]) in one 16-lane vector, so each corner's pair
+    /// of nodes costs one [`twilight_bundle::twilight_fixed_cubic`] of 16 lanes instead of two of
+    /// 8 (the RGB case uses 6 lanes of each node). Lane by lane the same operations, and each
+    /// node's term is added to the sum in the same order (node `e`, then `e + 1`), so the values
+    /// are those of [`Self::interp`].
+    #[inline(always)]
+    fn interp_wide(
+        &self,
+        nodes: [usize; 4],
+        wq: [f32; 4],
+        fs: f32,
+        ip: usize,
+        fp: f64,
+    ) -> [f32; PACKED_LANES] {
+        const L: usize = PACKED_LANES;
+        let (p, ln_at, n_phi) = (self.packed, self.ln_at, self.n_phi);
+        let [b0, b1, b2, b3] = self.node_offsets(nodes);
+        let mut a = [0.0f32; L];
+        for &(base, wc, pole) in &self.corners[..self.n] {
+            // (first node of the pair, its weight, the next node's weight)
+            let (e_from, e_to, w_pole) = if pole {
+                (0, n_phi, (wc / n_phi as f64) as f32)
+            } else {
+                (ip, ip + 2, 0.0)
+            };
+            if pole && w_pole == 0.0 {
+                continue;
+            }
+            let (w0, w1) = if pole {
+                (w_pole, w_pole)
+            } else {
+                ((wc * (1.0 - fp)) as f32, (wc * fp) as f32)
+            };
+            let mut e = e_from;
+            while e < e_to {
+                let o = base + e * L;
+                let (o0, o1, o2, o3) = (o + b0, o + b1, o + b2, o + b3);
+                if e + 1 < e_to {
+                    let x = twilight_bundle::twilight_fixed_cubic::<{ 2 * L }>(
+                        [
+                            packed_run(p, o0),
+                            packed_run(p, o1),
+                            packed_run(p, o2),
+                            packed_run(p, o3),
+                        ],
+                        [
+                            packed_run(p, o0 + ln_at),
+                            packed_run(p, o1 + ln_at),
+                            packed_run(p, o2 + ln_at),
+                            packed_run(p, o3 + ln_at),
+                        ],
+                        wq,
+                        fs,
+                    );
+                    let mut y = [0.0f32; 2 * L];
+                    for i in 0..2 * L {
+                        y[i] = if i < L { w0 } else { w1 } * x[i];
+                    }
+                    for i in 0..L {
+                        a[i] += y[i];
+                    }
+                    for i in 0..L {
+                        a[i] += y[L + i];
+                    }
+                    e += 2;
+                } else {
+                    // An odd pole count's last node.
+                    let x = twilight_bundle::twilight_fixed_cubic::<L>(
+                        [
+                            packed_run(p, o0),
+                            packed_run(p, o1),
+                            packed_run(p, o2),
+                            packed_run(p, o3),
+                        ],
+                        [
+                            packed_run(p, o0 + ln_at),
+                            packed_run(p, o1 + ln_at),
+                            packed_run(p, o2 + ln_at),
+                            packed_run(p, o3 + ln_at),
+                        ],
+                        wq,
+                        fs,
+                    );
+                    for (o, v) in a.iter_mut().zip(&x) {
+                        *o += w0 * *v;
+                    }
+                    e += 1;
+                }
+            }
+        }
+        a
     }
-    #[cfg(not(target_arch = "x86_64"))]
-    let _ = avx512;
-    twilight_packed(rows, slice, n_mu, n_mu_s, n_phi, nodes, wq, fs, ip, fp)
 }
 
 crate::simd_dispatch_avx512! {
@@ -2825,6 +2810,8 @@ crate::simd_dispatch_avx512! {
             let rows = table.ln_j_ms();
             let avx512 = crate::atmosphere::kernels::has_avx512();
             let lanes = 2 * n_l;
+            let packed = (lanes <= PACKED_LANES)
+                .then(|| PackedPoint::new(rows, slice, n_mu, n_mu_s, n_phi));
             let sc = &table.scattering;
             let (rho_r, rho_m) = slice.rho;
             let n_t = mu_s.len().min(nu.len());
@@ -2875,15 +2862,26 @@ crate::simd_dispatch_avx512! {
                         // A twilight cell (`Grid::twilight_cell`).
                         let (nodes, _) = catmull_rom(is, fs, n_mu_s);
                         let wq = wq_v[q];
-                        let small;
                         let mut large;
-                        let a: &[f32] = if lanes <= PACKED_LANES {
-                            small = twilight_packed_dispatch(
-                                avx512, rows, slice, n_mu, n_mu_s, n_phi, nodes, wq, fs as f32, ip,
-                                fp,
-                            );
-                            &small
-                        } else {
+                        if let Some(point) = &packed {
+                            let a = if avx512 {
+                                point.interp_wide(nodes, wq, fs as f32, ip, fp)
+                            } else {
+                                point.interp(nodes, wq, fs as f32, ip, fp)
+                            };
+                            // Four wavelengths at once (2 n_λ ≤ 8): lane i < n_λ as below.
+                            let mie_a = &a[n_l..n_l + 4];
+                            let mut y = [0.0f64; 4];
+                            for i in 0..4 {
+                                y[i] = (ray_rho[i] * a[i] as f64 + mie_rho[i] * mie_a[i] as f64)
+                                    .max(0.0);
+                            }
+                            for i in 0..n_l {
+                                out[i] += y[i];
+                            }
+                            continue;
+                        }
+                        let a: &[f32] = {
                             large = [0.0f32; 2 * MAX];
                             let a = &mut large[..lanes];
                             let corners = TwilightCorners {
