@@ -2293,7 +2293,7 @@ impl PreciseMultipleScattering {
 
     /// The part of [`Self::slice`] every lookup reads: the point's (r, θ) corners and
     /// densities. The day cells' rows are left empty until [`Self::fill_day`]; a twilight
-    /// lookup reads the corners' own rows of the table ([`twilight_packed`]), so a point whose
+    /// lookup reads the corners' own rows of the table ([`PackedPoint`]), so a point whose
     /// suns are all beyond [`Self::day_mu_s`] needs no more.
     pub fn slice_corners(&self, r: f64, mu: f64, out: &mut JSlice) {
         self.ln_j_ms();
@@ -2391,7 +2391,7 @@ impl PreciseMultipleScattering {
     /// (Catmull–Rom in ln Â_c at each (r, θ, φ) corner) in f32 as the table's own radiance passes
     /// compute it ([`twilight_lanes_f32`]: within 4·10⁻⁶ of the products' f64 [`twilight_lanes`],
     /// at a third of the cost; for up to four wavelengths with a cubic exponential,
-    /// [`twilight_packed`]: within 8·10⁻⁵), with the logarithms taken once per table (`ln_j_ms`).
+    /// [`PackedPoint`]: within 8·10⁻⁵), with the logarithms taken once per table (`ln_j_ms`).
     pub fn add_from_slice(&self, slice: &JSlice, mu_s: f64, nu: f64, out: &mut [f64]) {
         add_from_slice_kernel(
             self,
@@ -3397,6 +3397,47 @@ mod tests {
             }
         }
         assert!(n_twilight > 1000, "{n_twilight}");
+    }
+
+    /// The packed rows' twilight interpolation in 8 lanes (the AVX2 and generic copies of
+    /// [`add_from_slice_kernel`]) and in 16 (its AVX-512 copy) are the same operations lane by
+    /// lane in the same order: the same bits, at points between nodes and within half a step of
+    /// the view-zenith poles (every azimuth node read), for every twilight cell and azimuth cell.
+    #[test]
+    fn packed_twilight_lookup_is_the_same_in_8_and_16_lanes() {
+        let (shared, bottom) = small_tables("earth", "440,550,680");
+        let table = shared.precise();
+        let rows = table.ln_j_ms();
+        let (n_mu_s, n_mu, n_phi) = (table.grid.s.n_mu_s, table.grid.s.n_mu, table.grid.s.n_phi);
+        assert!(!rows.packed.is_empty() && rows.first_cell + 1 < n_mu_s);
+        let mut slice = JSlice::default();
+        let (mut n, mut poles) = (0, 0);
+        for h in [10.0, 3_000.0, 30_000.0] {
+            for mu in [-0.999, -0.6, -0.05, 0.02, 0.5, 0.9995] {
+                table.slice_corners(bottom + h, mu, &mut slice);
+                poles += slice.corners.iter().filter(|c| c.3).count();
+                let point = PackedPoint::new(rows, &slice, n_mu, n_mu_s, n_phi);
+                for is in rows.first_cell..n_mu_s - 1 {
+                    for fs in [0.0, 0.37, 0.999] {
+                        let (nodes, w) = catmull_rom(is, fs, n_mu_s);
+                        let wq = w.map(|x| x as f32);
+                        for ip in 0..n_phi - 1 {
+                            for fp in [0.0, 0.61, -0.12] {
+                                let narrow = point.interp(nodes, wq, fs as f32, ip, fp);
+                                let wide = point.interp_wide(nodes, wq, fs as f32, ip, fp);
+                                assert_eq!(
+                                    narrow.map(f32::to_bits),
+                                    wide.map(f32::to_bits),
+                                    "{h} {mu} {is} {fs} {ip} {fp}"
+                                );
+                                n += 1;
+                            }
+                        }
+                    }
+                }
+            }
+        }
+        assert!(n > 1000 && poles > 0, "{n} {poles}");
     }
 
     #[test]

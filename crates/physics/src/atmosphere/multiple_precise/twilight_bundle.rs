@@ -1,4 +1,4 @@
-//! The texture bundles' twilight lookup ([`super::twilight_packed`]): the operations of
+//! The texture bundles' twilight lookup ([`super::PackedPoint`]): the operations of
 //! [`super::twilight_fixed`] with a cheaper exponential, [`exp_cubic_f32`] (relative error
 //! ≤ 8·10⁻⁵, against [`super::exp_fast_f32`]'s 2·10⁻⁷), whose polynomial is the larger part of
 //! a twilight corner's arithmetic. The RGB bundles store half floats (a relative step of
