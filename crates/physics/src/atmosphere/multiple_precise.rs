@@ -191,9 +191,10 @@ struct TwilightRows {
     from: usize,
     /// The first twilight cell ([`Grid::twilight_cell`] holds from there on).
     first_cell: usize,
-    /// 2 n_λ ≤ [`PACKED_LANES`]: `[i_r][i_mu][i_mu_s − from][i_phi][v | ln v]`, each node's
-    /// 2 n_λ lanes of `j_ms` and their [`ln_or_zero_f32`], each padded with zeros to
-    /// [`PACKED_LANES`]; empty otherwise.
+    /// 2 n_λ ≤ [`PACKED_LANES`]: `[i_r][i_mu][i_mu_s − from][v | ln v][i_phi]`, each
+    /// azimuth node's 2 n_λ lanes of `j_ms` (then their [`ln_or_zero_f32`]) padded with zeros to
+    /// [`PACKED_LANES`]: two adjacent azimuth nodes' values (or logarithms) are one run of
+    /// 2 [`PACKED_LANES`] lanes ([`packed_run`]); empty otherwise.
     packed: Vec<f32>,
     /// 2 n_λ > [`PACKED_LANES`]: [`ln_or_zero_f32`] of `j_ms`,
     /// `[i_r][i_mu][i_mu_s − from][i_phi][c][λ]`; empty otherwise.
@@ -2260,11 +2261,15 @@ impl PreciseMultipleScattering {
                     self.j_ms.len() / lanes * (n_mu_s - from) / n_mu_s * 2 * PACKED_LANES,
                 );
                 for family in families {
-                    for node in family[from * per_node..].chunks(lanes) {
-                        packed.extend_from_slice(node);
-                        packed.extend((lanes..PACKED_LANES).map(|_| 0.0));
-                        packed.extend(node.iter().map(|&v| ln_or_zero_f32(v)));
-                        packed.extend((lanes..PACKED_LANES).map(|_| 0.0));
+                    for node in family[from * per_node..].chunks(per_node) {
+                        for az in node.chunks(lanes) {
+                            packed.extend_from_slice(az);
+                            packed.extend((lanes..PACKED_LANES).map(|_| 0.0));
+                        }
+                        for az in node.chunks(lanes) {
+                            packed.extend(az.iter().map(|&v| ln_or_zero_f32(v)));
+                            packed.extend((lanes..PACKED_LANES).map(|_| 0.0));
+                        }
                     }
                 }
                 rows.packed = packed;
@@ -2288,7 +2293,7 @@ impl PreciseMultipleScattering {
 
     /// The part of [`Self::slice`] every lookup reads: the point's (r, θ) corners and
     /// densities. The day cells' rows are left empty until [`Self::fill_day`]; a twilight
-    /// lookup reads the corners' own rows of the table ([`twilight_packed`]), so a point whose
+    /// lookup reads the corners' own rows of the table ([`PackedPoint`]), so a point whose
     /// suns are all beyond [`Self::day_mu_s`] needs no more.
     pub fn slice_corners(&self, r: f64, mu: f64, out: &mut JSlice) {
         self.ln_j_ms();
@@ -2386,7 +2391,7 @@ impl PreciseMultipleScattering {
     /// (Catmull–Rom in ln Â_c at each (r, θ, φ) corner) in f32 as the table's own radiance passes
     /// compute it ([`twilight_lanes_f32`]: within 4·10⁻⁶ of the products' f64 [`twilight_lanes`],
     /// at a third of the cost; for up to four wavelengths with a cubic exponential,
-    /// [`twilight_packed`]: within 8·10⁻⁵), with the logarithms taken once per table (`ln_j_ms`).
+    /// [`PackedPoint`]: within 8·10⁻⁵), with the logarithms taken once per table (`ln_j_ms`).
     pub fn add_from_slice(&self, slice: &JSlice, mu_s: f64, nu: f64, out: &mut [f64]) {
         add_from_slice_kernel(
             self,
@@ -2544,237 +2549,246 @@ impl TwilightCorners<'_> {
     }
 }
 
-/// One node row of [`TwilightRows::packed`]: its values and their logarithms.
+/// `N` lanes of [`TwilightRows::packed`] from offset `o`: one azimuth node's values (or
+/// logarithms), `N` = [`PACKED_LANES`], or two adjacent nodes', 2 [`PACKED_LANES`]; one bounds
+/// check.
 #[inline(always)]
-fn packed_row(packed: &[f32], o: usize) -> (&[f32; PACKED_LANES], &[f32; PACKED_LANES]) {
-    let (v, ln) = packed[o..o + 2 * PACKED_LANES].split_at(PACKED_LANES);
-    match (v.try_into(), ln.try_into()) {
-        (Ok(v), Ok(ln)) => (v, ln),
-        _ => unreachable!("split into two rows of PACKED_LANES"),
+fn packed_run<const N: usize>(packed: &[f32], o: usize) -> &[f32; N] {
+    match packed[o..o + N].try_into() {
+        Ok(p) => p,
+        Err(_) => unreachable!("a slice of N lanes"),
     }
 }
 
-/// The twilight interpolation of [`add_from_slice_kernel`] from [`TwilightRows::packed`]
-/// (2 n_λ ≤ [`PACKED_LANES`]): Â_c (`[c][λ]`, padded) summed over the slice's (r, θ) corners
-/// and the azimuth nodes `ip`, `ip + 1` (weights 1 − `fp`, `fp`), each corner and node
-/// interpolated over sun zenith on the Catmull–Rom `nodes` and weights `wq`, `fs`: lane by lane
-/// the operations of [`TwilightCorners`] in the same order, each node in one whole vector, but
-/// the exponential the cubic [`twilight_bundle::exp_cubic_f32`] (relative error ≤ 8·10⁻⁵, below
-/// the bundles' half floats) instead of [`exp_fast_f32`].
-#[inline(always)]
-#[allow(clippy::too_many_arguments)]
-fn twilight_packed(
-    rows: &TwilightRows,
-    slice: &JSlice,
-    n_mu: usize,
-    n_mu_s: usize,
+/// What the twilight lookups of one point share in [`TwilightRows::packed`] (2 n_λ ≤
+/// [`PACKED_LANES`]), taken once for all its suns ([`add_from_slice_kernel`]): each (r, θ)
+/// corner's first record, weight and whether it is a pole's azimuthal mean. Its methods are
+/// `#[inline(always)]`, so they are compiled into each copy of the kernel (AVX-512, AVX2) with no
+/// call per sun.
+struct PackedPoint<'a> {
+    packed: &'a [f32],
+    from: usize,
     n_phi: usize,
-    nodes: [usize; 4],
-    wq: [f32; 4],
-    fs: f32,
-    ip: usize,
-    fp: f64,
-) -> [f32; PACKED_LANES] {
-    const NODE: usize = 2 * PACKED_LANES;
-    let n_tw = n_mu_s - rows.from;
-    // Written out rather than closures or `array::map`, which were not always inlined into the
-    // AVX2 kernel.
-    let from = rows.from;
-    let (b0, b1, b2, b3) = (
-        nodes[0] - from,
-        nodes[1] - from,
-        nodes[2] - from,
-        nodes[3] - from,
-    );
-    let mut a = [0.0f32; PACKED_LANES];
-    for &(ir, im, wc, pole) in &slice.corners {
-        let family = (ir * n_mu + im) * n_tw;
-        if !pole {
-            // Azimuth nodes `ip` and `ip + 1`, adjacent: each sun-zenith node's pair of rows
-            // read as one slice ([`twilight_bundle::pair_rows`]).
-            let o = |b: usize| ((family + b) * n_phi + ip) * NODE;
-            twilight_bundle::add_pair(
-                [
-                    twilight_bundle::pair_rows(&rows.packed, o(b0)),
-                    twilight_bundle::pair_rows(&rows.packed, o(b1)),
-                    twilight_bundle::pair_rows(&rows.packed, o(b2)),
-                    twilight_bundle::pair_rows(&rows.packed, o(b3)),
-                ],
-                [(wc * (1.0 - fp)) as f32, (wc * fp) as f32],
-                wq,
-                fs,
-                &mut a,
-            );
-            continue;
+    /// Lanes of one sun-zenith node's record (its azimuth nodes' values, then their
+    /// logarithms), and the logarithms' offset in it.
+    block: usize,
+    ln_at: usize,
+    /// The slice's corners ([`JSlice::corners`]): the offset of the record of sun-zenith node
+    /// `from`, the weight, whether a pole's mean; the first `n` are set.
+    corners: [(usize, f64, bool); 4],
+    n: usize,
+}
+
+impl<'a> PackedPoint<'a> {
+    #[inline(always)]
+    fn new(
+        rows: &'a TwilightRows,
+        slice: &JSlice,
+        n_mu: usize,
+        n_mu_s: usize,
+        n_phi: usize,
+    ) -> Self {
+        let block = 2 * n_phi * PACKED_LANES;
+        let n_tw = n_mu_s - rows.from;
+        let mut corners = [(0, 0.0, false); 4];
+        // Two radius nodes × two view-zenith nodes at most ([`Grid::theta_corners`]).
+        assert!(slice.corners.len() <= corners.len());
+        for (c, &(ir, im, wc, pole)) in corners.iter_mut().zip(&slice.corners) {
+            *c = ((ir * n_mu + im) * n_tw * block, wc, pole);
         }
-        let w = (wc / n_phi as f64) as f32;
-        if w == 0.0 {
-            continue;
+        Self {
+            packed: &rows.packed,
+            from: rows.from,
+            n_phi,
+            block,
+            ln_at: n_phi * PACKED_LANES,
+            corners,
+            n: slice.corners.len(),
         }
-        for e in 0..n_phi {
-            let (v0, l0) = packed_row(&rows.packed, ((family + b0) * n_phi + e) * NODE);
-            let (v1, l1) = packed_row(&rows.packed, ((family + b1) * n_phi + e) * NODE);
-            let (v2, l2) = packed_row(&rows.packed, ((family + b2) * n_phi + e) * NODE);
-            let (v3, l3) = packed_row(&rows.packed, ((family + b3) * n_phi + e) * NODE);
-            let x =
-                twilight_bundle::twilight_fixed_cubic([v0, v1, v2, v3], [l0, l1, l2, l3], wq, fs);
-            for (o, v) in a.iter_mut().zip(&x) {
-                *o += w * *v;
+    }
+
+    /// The offsets of the Catmull–Rom `nodes`' records from a corner's first.
+    #[inline(always)]
+    fn node_offsets(&self, nodes: [usize; 4]) -> [usize; 4] {
+        let (from, block) = (self.from, self.block);
+        [
+            (nodes[0] - from) * block,
+            (nodes[1] - from) * block,
+            (nodes[2] - from) * block,
+            (nodes[3] - from) * block,
+        ]
+    }
+
+    /// The twilight interpolation of [`add_from_slice_kernel`]: Â_c (`[c][λ]`, padded) summed
+    /// over the point's (r, θ) corners and the azimuth nodes `ip`, `ip + 1` (weights 1 − `fp`,
+    /// `fp`), each corner and node interpolated over sun zenith on the Catmull–Rom `nodes` and
+    /// weights `wq`, `fs`: lane by lane the operations of [`TwilightCorners`] in the same order,
+    /// each node in one whole vector, but the exponential the cubic
+    /// [`twilight_bundle::exp_cubic_f32`] (relative error ≤ 8·10⁻⁵, below the bundles' half
+    /// floats) instead of [`exp_fast_f32`].
+    #[inline(always)]
+    fn interp(
+        &self,
+        nodes: [usize; 4],
+        wq: [f32; 4],
+        fs: f32,
+        ip: usize,
+        fp: f64,
+    ) -> [f32; PACKED_LANES] {
+        const L: usize = PACKED_LANES;
+        let (p, ln_at, n_phi) = (self.packed, self.ln_at, self.n_phi);
+        let [b0, b1, b2, b3] = self.node_offsets(nodes);
+        let mut a = [0.0f32; L];
+        for &(base, wc, pole) in &self.corners[..self.n] {
+            if !pole {
+                // Azimuth nodes `ip` and `ip + 1`, adjacent: each sun-zenith node's pair of
+                // values (and of logarithms) read as one run.
+                let o = base + ip * L;
+                let (o0, o1, o2, o3) = (o + b0, o + b1, o + b2, o + b3);
+                twilight_bundle::add_pair(
+                    [
+                        packed_run(p, o0),
+                        packed_run(p, o1),
+                        packed_run(p, o2),
+                        packed_run(p, o3),
+                    ],
+                    [
+                        packed_run(p, o0 + ln_at),
+                        packed_run(p, o1 + ln_at),
+                        packed_run(p, o2 + ln_at),
+                        packed_run(p, o3 + ln_at),
+                    ],
+                    [(wc * (1.0 - fp)) as f32, (wc * fp) as f32],
+                    wq,
+                    fs,
+                    &mut a,
+                );
+                continue;
+            }
+            let w = (wc / n_phi as f64) as f32;
+            if w == 0.0 {
+                continue;
+            }
+            for e in 0..n_phi {
+                let o = base + e * L;
+                let (o0, o1, o2, o3) = (o + b0, o + b1, o + b2, o + b3);
+                let x = twilight_bundle::twilight_fixed_cubic::<L>(
+                    [
+                        packed_run(p, o0),
+                        packed_run(p, o1),
+                        packed_run(p, o2),
+                        packed_run(p, o3),
+                    ],
+                    [
+                        packed_run(p, o0 + ln_at),
+                        packed_run(p, o1 + ln_at),
+                        packed_run(p, o2 + ln_at),
+                        packed_run(p, o3 + ln_at),
+                    ],
+                    wq,
+                    fs,
+                );
+                for (o, v) in a.iter_mut().zip(&x) {
+                    *o += w * *v;
+                }
             }
         }
+        a
     }
-    a
-}
 
-/// Two node rows of [`TwilightRows::packed`] side by side in one 16-lane array: the values (or
-/// the logarithms, `part` 1) of azimuth nodes `e` and `e + 1` at record offset `o` (node `e`).
-#[cfg(target_arch = "x86_64")]
-#[inline(always)]
-fn packed_pair(packed: &[f32], o: usize, part: usize) -> [f32; 2 * PACKED_LANES] {
-    const NODE: usize = 2 * PACKED_LANES;
-    let mut x = [0.0f32; 2 * PACKED_LANES];
-    let (lo, hi) = x.split_at_mut(PACKED_LANES);
-    lo.copy_from_slice(&packed[o + part * PACKED_LANES..][..PACKED_LANES]);
-    hi.copy_from_slice(&packed[o + NODE + part * PACKED_LANES..][..PACKED_LANES]);
-    x
-}
-
-/// [`twilight_packed`] for CPUs with AVX-512: two azimuth nodes of a corner (`e`, `e + 1`, adjacent
-/// in [`TwilightRows::packed`]) in one 16-lane vector, so each corner's pair of nodes costs one
-/// [`twilight_bundle::twilight_fixed_cubic`] of 16 lanes instead of two of 8 (the RGB case uses
-/// 6 lanes of each node).
-/// Lane by lane the same operations, and each node's term is added to the sum in the same
-/// order (node `e`, then `e + 1`), so the values are those of [`twilight_packed`].
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx512f,avx512dq,avx512vl,avx512bw,avx2,fma")]
-#[inline]
-#[allow(clippy::too_many_arguments)]
-fn twilight_packed_avx512(
-    rows: &TwilightRows,
-    slice: &JSlice,
-    n_mu: usize,
-    n_mu_s: usize,
-    n_phi: usize,
-    nodes: [usize; 4],
-    wq: [f32; 4],
-    fs: f32,
-    ip: usize,
-    fp: f64,
-) -> [f32; PACKED_LANES] {
-    const NODE: usize = 2 * PACKED_LANES;
-    const L: usize = PACKED_LANES;
-    let n_tw = n_mu_s - rows.from;
-    let from = rows.from;
-    let (b0, b1, b2, b3) = (
-        nodes[0] - from,
-        nodes[1] - from,
-        nodes[2] - from,
-        nodes[3] - from,
-    );
-    let p = &rows.packed;
-    let mut a = [0.0f32; L];
-    for &(ir, im, wc, pole) in &slice.corners {
-        let family = (ir * n_mu + im) * n_tw;
-        // (first node of the pair, its weight, the next node's weight)
-        let (e_from, e_to, w_pole) = if pole {
-            (0, n_phi, (wc / n_phi as f64) as f32)
-        } else {
-            (ip, ip + 2, 0.0)
-        };
-        if pole && w_pole == 0.0 {
-            continue;
-        }
-        let mut e = e_from;
-        while e < e_to {
+    /// [`Self::interp`] for the AVX-512 copy of the kernel: two azimuth nodes of a corner (`e`,
+    /// `e + 1`, one run of [`TwilightRows::packed`]) in one 16-lane vector, so each corner's pair
+    /// of nodes costs one [`twilight_bundle::twilight_fixed_cubic`] of 16 lanes instead of two of
+    /// 8 (the RGB case uses 6 lanes of each node). Lane by lane the same operations, and each
+    /// node's term is added to the sum in the same order (node `e`, then `e + 1`), so the values
+    /// are those of [`Self::interp`].
+    #[inline(always)]
+    fn interp_wide(
+        &self,
+        nodes: [usize; 4],
+        wq: [f32; 4],
+        fs: f32,
+        ip: usize,
+        fp: f64,
+    ) -> [f32; PACKED_LANES] {
+        const L: usize = PACKED_LANES;
+        let (p, ln_at, n_phi) = (self.packed, self.ln_at, self.n_phi);
+        let [b0, b1, b2, b3] = self.node_offsets(nodes);
+        let mut a = [0.0f32; L];
+        for &(base, wc, pole) in &self.corners[..self.n] {
+            // (first node of the pair, its weight, the next node's weight)
+            let (e_from, e_to, w_pole) = if pole {
+                (0, n_phi, (wc / n_phi as f64) as f32)
+            } else {
+                (ip, ip + 2, 0.0)
+            };
+            if pole && w_pole == 0.0 {
+                continue;
+            }
             let (w0, w1) = if pole {
                 (w_pole, w_pole)
             } else {
                 ((wc * (1.0 - fp)) as f32, (wc * fp) as f32)
             };
-            let (o0, o1, o2, o3) = (
-                ((family + b0) * n_phi + e) * NODE,
-                ((family + b1) * n_phi + e) * NODE,
-                ((family + b2) * n_phi + e) * NODE,
-                ((family + b3) * n_phi + e) * NODE,
-            );
-            if e + 1 < e_to {
-                let x = twilight_bundle::twilight_fixed_cubic(
-                    [
-                        &packed_pair(p, o0, 0),
-                        &packed_pair(p, o1, 0),
-                        &packed_pair(p, o2, 0),
-                        &packed_pair(p, o3, 0),
-                    ],
-                    [
-                        &packed_pair(p, o0, 1),
-                        &packed_pair(p, o1, 1),
-                        &packed_pair(p, o2, 1),
-                        &packed_pair(p, o3, 1),
-                    ],
-                    wq,
-                    fs,
-                );
-                let mut y = [0.0f32; 2 * L];
-                for i in 0..2 * L {
-                    y[i] = if i < L { w0 } else { w1 } * x[i];
+            let mut e = e_from;
+            while e < e_to {
+                let o = base + e * L;
+                let (o0, o1, o2, o3) = (o + b0, o + b1, o + b2, o + b3);
+                if e + 1 < e_to {
+                    let x = twilight_bundle::twilight_fixed_cubic::<{ 2 * L }>(
+                        [
+                            packed_run(p, o0),
+                            packed_run(p, o1),
+                            packed_run(p, o2),
+                            packed_run(p, o3),
+                        ],
+                        [
+                            packed_run(p, o0 + ln_at),
+                            packed_run(p, o1 + ln_at),
+                            packed_run(p, o2 + ln_at),
+                            packed_run(p, o3 + ln_at),
+                        ],
+                        wq,
+                        fs,
+                    );
+                    let mut y = [0.0f32; 2 * L];
+                    for i in 0..2 * L {
+                        y[i] = if i < L { w0 } else { w1 } * x[i];
+                    }
+                    for i in 0..L {
+                        a[i] += y[i];
+                    }
+                    for i in 0..L {
+                        a[i] += y[L + i];
+                    }
+                    e += 2;
+                } else {
+                    // An odd pole count's last node.
+                    let x = twilight_bundle::twilight_fixed_cubic::<L>(
+                        [
+                            packed_run(p, o0),
+                            packed_run(p, o1),
+                            packed_run(p, o2),
+                            packed_run(p, o3),
+                        ],
+                        [
+                            packed_run(p, o0 + ln_at),
+                            packed_run(p, o1 + ln_at),
+                            packed_run(p, o2 + ln_at),
+                            packed_run(p, o3 + ln_at),
+                        ],
+                        wq,
+                        fs,
+                    );
+                    for (o, v) in a.iter_mut().zip(&x) {
+                        *o += w0 * *v;
+                    }
+                    e += 1;
                 }
-                for i in 0..L {
-                    a[i] += y[i];
-                }
-                for i in 0..L {
-                    a[i] += y[L + i];
-                }
-                e += 2;
-            } else {
-                // An odd pole count's last node.
-                let (v0, l0) = packed_row(p, o0);
-                let (v1, l1) = packed_row(p, o1);
-                let (v2, l2) = packed_row(p, o2);
-                let (v3, l3) = packed_row(p, o3);
-                let x = twilight_bundle::twilight_fixed_cubic(
-                    [v0, v1, v2, v3],
-                    [l0, l1, l2, l3],
-                    wq,
-                    fs,
-                );
-                for (o, v) in a.iter_mut().zip(&x) {
-                    *o += w0 * *v;
-                }
-                e += 1;
             }
         }
+        a
     }
-    a
-}
-
-/// [`twilight_packed`], or its AVX-512 form (the same values) where `avx512` says the CPU has it
-/// ([`crate::atmosphere::kernels::has_avx512`]).
-#[inline(always)]
-#[allow(clippy::too_many_arguments)]
-fn twilight_packed_dispatch(
-    avx512: bool,
-    rows: &TwilightRows,
-    slice: &JSlice,
-    n_mu: usize,
-    n_mu_s: usize,
-    n_phi: usize,
-    nodes: [usize; 4],
-    wq: [f32; 4],
-    fs: f32,
-    ip: usize,
-    fp: f64,
-) -> [f32; PACKED_LANES] {
-    #[cfg(target_arch = "x86_64")]
-    if avx512 {
-        // SAFETY: `avx512` is `kernels::has_avx512()`: the CPU has AVX-512 F/DQ/VL/BW, AVX2
-        // and FMA.
-        return unsafe {
-            twilight_packed_avx512(rows, slice, n_mu, n_mu_s, n_phi, nodes, wq, fs, ip, fp)
-        };
-    }
-    #[cfg(not(target_arch = "x86_64"))]
-    let _ = avx512;
-    twilight_packed(rows, slice, n_mu, n_mu_s, n_phi, nodes, wq, fs, ip, fp)
 }
 
 crate::simd_dispatch_avx512! {
@@ -2796,6 +2810,8 @@ crate::simd_dispatch_avx512! {
             let rows = table.ln_j_ms();
             let avx512 = crate::atmosphere::kernels::has_avx512();
             let lanes = 2 * n_l;
+            let packed = (lanes <= PACKED_LANES)
+                .then(|| PackedPoint::new(rows, slice, n_mu, n_mu_s, n_phi));
             let sc = &table.scattering;
             let (rho_r, rho_m) = slice.rho;
             let n_t = mu_s.len().min(nu.len());
@@ -2846,15 +2862,26 @@ crate::simd_dispatch_avx512! {
                         // A twilight cell (`Grid::twilight_cell`).
                         let (nodes, _) = catmull_rom(is, fs, n_mu_s);
                         let wq = wq_v[q];
-                        let small;
                         let mut large;
-                        let a: &[f32] = if lanes <= PACKED_LANES {
-                            small = twilight_packed_dispatch(
-                                avx512, rows, slice, n_mu, n_mu_s, n_phi, nodes, wq, fs as f32, ip,
-                                fp,
-                            );
-                            &small
-                        } else {
+                        if let Some(point) = &packed {
+                            let a = if avx512 {
+                                point.interp_wide(nodes, wq, fs as f32, ip, fp)
+                            } else {
+                                point.interp(nodes, wq, fs as f32, ip, fp)
+                            };
+                            // Four wavelengths at once (2 n_λ ≤ 8): lane i < n_λ as below.
+                            let mie_a = &a[n_l..n_l + 4];
+                            let mut y = [0.0f64; 4];
+                            for i in 0..4 {
+                                y[i] = (ray_rho[i] * a[i] as f64 + mie_rho[i] * mie_a[i] as f64)
+                                    .max(0.0);
+                            }
+                            for i in 0..n_l {
+                                out[i] += y[i];
+                            }
+                            continue;
+                        }
+                        let a: &[f32] = {
                             large = [0.0f32; 2 * MAX];
                             let a = &mut large[..lanes];
                             let corners = TwilightCorners {
@@ -3370,6 +3397,47 @@ mod tests {
             }
         }
         assert!(n_twilight > 1000, "{n_twilight}");
+    }
+
+    /// The packed rows' twilight interpolation in 8 lanes (the AVX2 and generic copies of
+    /// [`add_from_slice_kernel`]) and in 16 (its AVX-512 copy) are the same operations lane by
+    /// lane in the same order: the same bits, at points between nodes and within half a step of
+    /// the view-zenith poles (every azimuth node read), for every twilight cell and azimuth cell.
+    #[test]
+    fn packed_twilight_lookup_is_the_same_in_8_and_16_lanes() {
+        let (shared, bottom) = small_tables("earth", "440,550,680");
+        let table = shared.precise();
+        let rows = table.ln_j_ms();
+        let (n_mu_s, n_mu, n_phi) = (table.grid.s.n_mu_s, table.grid.s.n_mu, table.grid.s.n_phi);
+        assert!(!rows.packed.is_empty() && rows.first_cell + 1 < n_mu_s);
+        let mut slice = JSlice::default();
+        let (mut n, mut poles) = (0, 0);
+        for h in [10.0, 3_000.0, 30_000.0] {
+            for mu in [-0.999, -0.6, -0.05, 0.02, 0.5, 0.9995] {
+                table.slice_corners(bottom + h, mu, &mut slice);
+                poles += slice.corners.iter().filter(|c| c.3).count();
+                let point = PackedPoint::new(rows, &slice, n_mu, n_mu_s, n_phi);
+                for is in rows.first_cell..n_mu_s - 1 {
+                    for fs in [0.0, 0.37, 0.999] {
+                        let (nodes, w) = catmull_rom(is, fs, n_mu_s);
+                        let wq = w.map(|x| x as f32);
+                        for ip in 0..n_phi - 1 {
+                            for fp in [0.0, 0.61, -0.12] {
+                                let narrow = point.interp(nodes, wq, fs as f32, ip, fp);
+                                let wide = point.interp_wide(nodes, wq, fs as f32, ip, fp);
+                                assert_eq!(
+                                    narrow.map(f32::to_bits),
+                                    wide.map(f32::to_bits),
+                                    "{h} {mu} {is} {fs} {ip} {fp}"
+                                );
+                                n += 1;
+                            }
+                        }
+                    }
+                }
+            }
+        }
+        assert!(n > 1000 && poles > 0, "{n} {poles}");
     }
 
     #[test]

@@ -1,4 +1,4 @@
-//! The texture bundles' twilight lookup ([`super::twilight_packed`]): the operations of
+//! The texture bundles' twilight lookup ([`super::PackedPoint`]): the operations of
 //! [`super::twilight_fixed`] with a cheaper exponential, [`exp_cubic_f32`] (relative error
 //! ≤ 8·10⁻⁵, against [`super::exp_fast_f32`]'s 2·10⁻⁷), whose polynomial is the larger part of
 //! a twilight corner's arithmetic. The RGB bundles store half floats (a relative step of
@@ -46,25 +46,14 @@ pub(super) fn twilight_fixed_cubic<const N: usize>(
     super::twilight_fixed_with(v, ln_v, wq, fs, exp_cubic_f32)
 }
 
-/// Lanes of one node row: [`super::PACKED_LANES`] values, then as many logarithms.
-const NODE: usize = 2 * super::PACKED_LANES;
-
-/// The rows of two adjacent azimuth nodes at offset `o` of [`super::TwilightRows::packed`]
-/// (node `e` at `o`, `e + 1` right after it), one bounds check for both.
-#[inline(always)]
-pub(super) fn pair_rows(packed: &[f32], o: usize) -> &[f32; 2 * NODE] {
-    match packed[o..o + 2 * NODE].try_into() {
-        Ok(p) => p,
-        Err(_) => unreachable!("a slice of 2 NODE lanes"),
-    }
-}
-
 /// Adds to `a` the [`twilight_fixed_cubic`] of the first azimuth node of the four sun-zenith
-/// nodes' [`pair_rows`] `p` times `w[0]`, then that of the second times `w[1]`: the operations
-/// of one node at a time, in the same order.
+/// nodes' runs of two adjacent azimuth nodes (values `v`, logarithms `ln`,
+/// [`super::packed_run`]) times `w[0]`, then that of the second times `w[1]`: the operations of
+/// one node at a time, in the same order.
 #[inline(always)]
 pub(super) fn add_pair(
-    p: [&[f32; 2 * NODE]; 4],
+    v: [&[f32; 2 * super::PACKED_LANES]; 4],
+    ln: [&[f32; 2 * super::PACKED_LANES]; 4],
     w: [f32; 2],
     wq: [f32; 4],
     fs: f32,
@@ -72,13 +61,13 @@ pub(super) fn add_pair(
 ) {
     const L: usize = super::PACKED_LANES;
     for (e, &w) in w.iter().enumerate() {
-        let row = |q: &[f32; 2 * NODE], part: usize| -> [f32; L] {
+        let row = |q: &[f32; 2 * L]| -> [f32; L] {
             let mut x = [0.0f32; L];
-            x.copy_from_slice(&q[e * NODE + part * L..][..L]);
+            x.copy_from_slice(&q[e * L..][..L]);
             x
         };
-        let v = [row(p[0], 0), row(p[1], 0), row(p[2], 0), row(p[3], 0)];
-        let ln = [row(p[0], 1), row(p[1], 1), row(p[2], 1), row(p[3], 1)];
+        let v = [row(v[0]), row(v[1]), row(v[2]), row(v[3])];
+        let ln = [row(ln[0]), row(ln[1]), row(ln[2]), row(ln[3])];
         let x = twilight_fixed_cubic(
             [&v[0], &v[1], &v[2], &v[3]],
             [&ln[0], &ln[1], &ln[2], &ln[3]],
