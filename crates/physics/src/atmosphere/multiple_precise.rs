@@ -1474,10 +1474,12 @@ crate::simd_dispatch_avx512! {
                         at.lookup_many(&mu_c[lit.clone()], vis, [&mut *d0, &mut *d1, &mut *d2]);
                         let n = lit.len();
                         for i in 0..n_l {
+                            let (e0, e1, e2) = (ext[0][i], ext[1][i], ext[2][i]);
                             let e = &mut sc.sun_e[i * fc..][..n];
-                            for q in 0..n {
-                                let tau = ext[0][i] * d0[q] + ext[1][i] * d1[q] + ext[2][i] * d2[q];
-                                e[q] = exp_fast_f32(-tau as f32);
+                            let d = d0.iter().zip(d1.iter()).zip(d2.iter());
+                            for (e, ((&a, &b), &c)) in e.iter_mut().zip(d) {
+                                let tau = e0 * a + e1 * b + e2 * c;
+                                *e = exp_fast_f32(-tau as f32);
                             }
                         }
                         for q in 0..n {
