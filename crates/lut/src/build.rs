@@ -31,7 +31,7 @@ use skybake_physics::atmosphere::multiple_precise::{
 use skybake_physics::atmosphere::quadrature::gauss_legendre;
 use skybake_physics::atmosphere::shared::SharedTables;
 use skybake_physics::atmosphere::transmittance::{
-    density_integrals, AtRadius, DensityIntegralTable,
+    density_integrals, AtRadius, DensityIntegralTable, OpticalDepthScratch,
 };
 use skybake_physics::phase::Phase;
 
@@ -627,6 +627,10 @@ pub(crate) struct FamilyScratch<'a> {
     /// `[λ][sun]`: the sun's transmittance to the current point ([`texel_sums`]), first the
     /// optical depth's negative rounded to f32, then its exponential.
     sun_t: Vec<f32>,
+    /// `[λ][constituent]`: the medium's extinction, and the buffers of the sun's optical depths
+    /// ([`AtRadius::neg_optical_depths_many`]).
+    ext: Vec<[f64; CONSTITUENTS]>,
+    od: OpticalDepthScratch,
     /// `[sun][λ]`: J_ms at the current point; the multiple-scattering sums of [`TexelSums`].
     j: Vec<f64>,
     multiple: Vec<f64>,
@@ -663,6 +667,10 @@ impl<'a> FamilyScratch<'a> {
             vis: Vec::new(),
             d_sun: std::array::from_fn(|_| Vec::new()),
             sun_t: Vec::new(),
+            ext: (0..n_l)
+                .map(|l| std::array::from_fn(|k| shared.medium.extinction_per_m[k][l]))
+                .collect(),
+            od: OpticalDepthScratch::default(),
             j: Vec::new(),
             rayleigh: Vec::new(),
             mie: Vec::new(),
@@ -1004,32 +1012,49 @@ skybake_physics::simd_dispatch_avx512! {
                 }
                 let at = &scratch.at[k];
                 let rho = &scratch.rho[k];
-                // The sun's visibility and density integrals, then each wavelength's single
-                // scattering a vector of suns at a time (none where the sun is hidden).
-                let [d0, d1, d2] = &mut scratch.d_sun;
-                at.lookup_many(&scratch.mu_s_p, &mut scratch.vis, [&mut *d0, &mut *d1, &mut *d2]);
-                // [`sun_attenuation`] written out over the suns, its constants hoisted, so the
-                // loops vectorise; the transmittance in f32 ([`exp_fast_f32`]: 2·10⁻⁷, plus the
-                // optical depth's rounding, |τ| × 6·10⁻⁸, of the texels' half floats'
-                // 4.9·10⁻⁴), half the polynomial of `exp_fast`'s 10⁻¹⁴. The optical depths of
-                // every wavelength first (f64, 4 lanes), then their exponentials in one run
-                // of f32 (8 lanes), then the sums: each value's operations as in one loop.
+                // Each wavelength's single scattering a vector of suns at a time, only for the
+                // suns from the first to the last visible (the others would add 0): the sun's
+                // visibility and optical depths (f64, negated and rounded to f32), then their
+                // exponentials in one run of f32 (8 lanes), then the sums. [`sun_attenuation`]
+                // written out over the suns, its constants hoisted, so the loops vectorise;
+                // the transmittance in f32 ([`exp_fast_f32`]: 2·10⁻⁷, plus the optical depth's
+                // rounding, |τ| × 6·10⁻⁸, of the texels' half floats' 4.9·10⁻⁴), half the
+                // polynomial of `exp_fast`'s 10⁻¹⁴.
+                let on = at.visible_range(&scratch.mu_s_p);
                 scratch.sun_t.resize(n_l * n_t, 0.0);
-                for l in 0..n_l {
-                    let ext = [
-                        m.extinction_per_m[0][l],
-                        m.extinction_per_m[1][l],
-                        m.extinction_per_m[2][l],
-                    ];
-                    let x = &mut scratch.sun_t[l * n_t..(l + 1) * n_t];
-                    let d = d0.iter().zip(d1.iter()).zip(d2.iter());
-                    for (x, ((&a, &b), &c)) in x.iter_mut().zip(d) {
-                        let od = ext[0] * a + ext[1] * b + ext[2] * c;
-                        *x = -od as f32;
+                if at.has_layers() {
+                    let [d0, d1, d2] = &mut scratch.d_sun;
+                    at.lookup_many(
+                        &scratch.mu_s_p[on.clone()],
+                        &mut scratch.vis[on.clone()],
+                        [&mut d0[on.clone()], &mut d1[on.clone()], &mut d2[on.clone()]],
+                    );
+                    for l in 0..n_l {
+                        let ext = scratch.ext[l];
+                        let x = &mut scratch.sun_t[l * n_t..(l + 1) * n_t][on.clone()];
+                        let d = d0[on.clone()].iter().zip(&d1[on.clone()]).zip(&d2[on.clone()]);
+                        for (x, ((&a, &b), &c)) in x.iter_mut().zip(d) {
+                            let od = ext[0] * a + ext[1] * b + ext[2] * c;
+                            *x = -od as f32;
+                        }
                     }
+                } else {
+                    // The optical depths from the table's rows turned into optical depths
+                    // once per point (the same interpolation, summed in another order).
+                    at.neg_optical_depths_many(
+                        &scratch.mu_s_p[on.clone()],
+                        &scratch.ext,
+                        &mut scratch.vis[on.clone()],
+                        &mut scratch.sun_t[on.start..],
+                        n_t,
+                        &mut scratch.od,
+                    );
                 }
-                for x in scratch.sun_t.iter_mut() {
-                    *x = exp_fast_f32(*x);
+                let vis = &scratch.vis[on.clone()];
+                for l in 0..n_l {
+                    for x in &mut scratch.sun_t[l * n_t..(l + 1) * n_t][on.clone()] {
+                        *x = exp_fast_f32(*x);
+                    }
                 }
                 for l in 0..n_l {
                     let (w, s_r, s_m) = (
@@ -1038,11 +1063,11 @@ skybake_physics::simd_dispatch_avx512! {
                         m.mie_scattering_per_m[l],
                     );
                     let (k_r, k_m) = (w * (s_r * rho[RAYLEIGH]), w * (s_m * rho[MIE]));
-                    let ray = &mut scratch.rayleigh[l * n_t..(l + 1) * n_t];
-                    let mie = &mut scratch.mie[l * n_t..(l + 1) * n_t];
-                    let t = &scratch.sun_t[l * n_t..(l + 1) * n_t];
+                    let ray = &mut scratch.rayleigh[l * n_t..(l + 1) * n_t][on.clone()];
+                    let mie = &mut scratch.mie[l * n_t..(l + 1) * n_t][on.clone()];
+                    let t = &scratch.sun_t[l * n_t..(l + 1) * n_t][on.clone()];
                     for (((ray, mie), &vis), &t) in
-                        ray.iter_mut().zip(mie.iter_mut()).zip(&scratch.vis).zip(t)
+                        ray.iter_mut().zip(mie.iter_mut()).zip(vis).zip(t)
                     {
                         let sun = t as f64 * vis;
                         // Adding 0 where the sun is hidden leaves the sum as skipping would

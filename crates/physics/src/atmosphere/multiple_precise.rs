@@ -1192,6 +1192,12 @@ struct FamilyScratch {
     /// `[λ]`: transmittance of the whole ray, a ground irradiance.
     t_total: Vec<f64>,
     e: Vec<f64>,
+    /// Order 1 at one point: `[cell]` the sun's zenith cosine, visibility and density integrals
+    /// (`[constituent][cell]`); `[λ][cell]` its transmittance.
+    sun_mu: Vec<f64>,
+    sun_vis: Vec<f64>,
+    sun_d: [Vec<f64>; CONSTITUENTS],
+    sun_e: Vec<f32>,
 }
 
 impl FamilyScratch {
@@ -1219,6 +1225,10 @@ impl FamilyScratch {
             cell_phase: vec![[0.0; 2]; fc],
             t_total: vec![0.0; n_l],
             e: vec![0.0; n_l],
+            sun_mu: vec![0.0; fc],
+            sun_vis: vec![0.0; fc],
+            sun_d: std::array::from_fn(|_| vec![0.0; fc]),
+            sun_e: vec![0.0; n_l * fc],
         }
     }
 }
@@ -1447,22 +1457,44 @@ crate::simd_dispatch_avx512! {
                     PassInput::Single => {
                         let rho = sc.rho[pi];
                         let at = ctx.table.at_radius(p.r, medium.sun_angular_radius_rad);
+                        // Every cell's sun zenith at the point, then the table's values for the
+                        // cells from the first to the last the sun lights
+                        // ([`AtRadius::lookup_many`]: `lookup`'s values, as vectors), then each
+                        // wavelength's transmittance (f32 exponentials, 16 lanes), then the sums:
+                        // each cell's operations as one cell at a time.
+                        let mu_c = &mut sc.sun_mu[..fc];
                         for c in 0..fc {
-                            let mu_s = ((r0 * sc.cell_mu_s[c] + p.t * sc.cell_nu[c]) / p.r)
+                            mu_c[c] = ((r0 * sc.cell_mu_s[c] + p.t * sc.cell_nu[c]) / p.r)
                                 .clamp(-1.0, 1.0);
-                            let vis = at.sun_visibility(mu_s);
+                        }
+                        let lit = at.visible_range(mu_c);
+                        let [d0, d1, d2] = &mut sc.sun_d;
+                        let vis = &mut sc.sun_vis[lit.clone()];
+                        let (d0, d1, d2) =
+                            (&mut d0[lit.clone()], &mut d1[lit.clone()], &mut d2[lit.clone()]);
+                        at.lookup_many(&mu_c[lit.clone()], vis, [&mut *d0, &mut *d1, &mut *d2]);
+                        let n = lit.len();
+                        for i in 0..n_l {
+                            let (e0, e1, e2) = (ext[0][i], ext[1][i], ext[2][i]);
+                            let e = &mut sc.sun_e[i * fc..][..n];
+                            let d = d0.iter().zip(d1.iter()).zip(d2.iter());
+                            for (e, ((&a, &b), &c)) in e.iter_mut().zip(d) {
+                                let tau = e0 * a + e1 * b + e2 * c;
+                                *e = exp_fast_f32(-tau as f32);
+                            }
+                        }
+                        for q in 0..n {
+                            let vis = vis[q];
                             if vis <= 0.0 {
                                 continue;
                             }
-                            let d = at.lookup(mu_s);
+                            let c = lit.start + q;
                             let [ph_r, ph_m] = sc.cell_phase[c];
                             let (ar, am) = (rho[RAYLEIGH] * ph_r * vis, rho[MIE] * ph_m * vis);
                             let o = &mut out[c * n_l..][..n_l];
-                            // Optical depth in f64, its exponential in f32 (8 lanes).
                             for i in 0..n_l {
-                                let tau = ext[0][i] * d[0] + ext[1][i] * d[1] + ext[2][i] * d[2];
                                 let single = (sig_r[i] * ar + sig_m[i] * am) as f32;
-                                o[i] += tw[i] * single * exp_fast_f32(-tau as f32);
+                                o[i] += tw[i] * single * sc.sun_e[i * fc + q];
                             }
                         }
                     }
@@ -1560,10 +1592,8 @@ crate::simd_dispatch_avx512! {
                             if grid.twilight_cell(js) {
                                 // In ln J over sun zenith (`twilight_interp`), linear in azimuth.
                                 let (nodes, wq) = catmull_rom(js, fs as f64, n_mu_s);
-                                let tv = &mut sc.tv[..n_j];
-                                tv.fill(0.0);
                                 if n_j <= twilight_batch::CELL_LANES {
-                                    twilight_batch::twilight_cell_pair(
+                                    twilight_batch::twilight_cell_pair_add(
                                         &sc.slice,
                                         &sc.ln_slice,
                                         nodes,
@@ -1573,9 +1603,14 @@ crate::simd_dispatch_avx512! {
                                         wq.map(|w| w as f32),
                                         fs,
                                         fp,
-                                        tv,
+                                        tw,
+                                        &mut out[c * n_l..][..n_l],
                                     );
-                                } else {
+                                    continue;
+                                }
+                                let tv = &mut sc.tv[..n_j];
+                                tv.fill(0.0);
+                                {
                                     for (e, we) in [(jp, 1.0 - fp), (jp + 1, fp)] {
                                         let row = nodes.map(|b| (b * n_phi + e) * n_j);
                                         twilight_lanes_f32(
@@ -1596,6 +1631,18 @@ crate::simd_dispatch_avx512! {
                             }
                             let (c00, c01, c10, c11) =
                                 ((1.0 - fs) * (1.0 - fp), (1.0 - fs) * fp, fs * (1.0 - fp), fs * fp);
+                            if n_j <= twilight_batch::CELL_LANES {
+                                twilight_batch::day_cell_add(
+                                    &sc.slice,
+                                    (js * n_phi + jp) * n_j,
+                                    ((js + 1) * n_phi + jp) * n_j,
+                                    n_j,
+                                    [c00, c01, c10, c11],
+                                    tw,
+                                    &mut out[c * n_l..][..n_l],
+                                );
+                                continue;
+                            }
                             let (s00, s01) =
                                 sc.slice[(js * n_phi + jp) * n_j..][..2 * n_j].split_at(n_j);
                             let (s10, s11) =

@@ -324,6 +324,46 @@ impl DensityIntegralTable {
     }
 }
 
+/// [`AtRadius::neg_optical_depths_many`]'s last step: for each sun `q`, the rows' (`[node][λ]`,
+/// `n_l` wavelengths, from node `lo`) node `imf[q]` and the next interpolated with weight
+/// `am[q]`, negated, as f32 into `out[l * stride + q]` (0 where `vis[q]` is 0): each sun's two
+/// rows read once for all its wavelengths.
+#[inline(always)]
+#[allow(clippy::too_many_arguments)]
+fn gather_depths(
+    n_l: usize,
+    rows: &[f64],
+    lo: usize,
+    imf: &[f64],
+    am: &[f64],
+    vis: &[f64],
+    out: &mut [f32],
+    stride: usize,
+) {
+    let n = vis.len().min(imf.len()).min(am.len());
+    for q in 0..n {
+        // lo ≤ imf ≤ hi: an exact small integer.
+        let j = (imf[q] as usize - lo) * n_l;
+        let r = &rows[j..j + 2 * n_l];
+        let a = am[q];
+        let on = vis[q] > 0.0;
+        for l in 0..n_l {
+            let od = r[l] * (1.0 - a) + r[n_l + l] * a;
+            out[l * stride + q] = if on { -od as f32 } else { 0.0 };
+        }
+    }
+}
+
+/// Buffers of [`AtRadius::neg_optical_depths_many`], kept between calls.
+#[derive(Default)]
+pub struct OpticalDepthScratch {
+    /// Per sun: the μ node below and the weight of the one above.
+    imf: Vec<f64>,
+    am: Vec<f64>,
+    /// `[node][λ]`: the optical depths of the nodes the suns read.
+    rows: Vec<f64>,
+}
+
 /// The density table at one radius ([`DensityIntegralTable::at_radius`]).
 pub struct AtRadius<'a> {
     table: &'a DensityIntegralTable,
@@ -378,6 +418,95 @@ impl AtRadius<'_> {
     pub fn sun_visibility(&self, mu_s: f64) -> f64 {
         let x = ((mu_s - self.mu_h_vis) / self.width * 0.5 + 0.5).clamp(0.0, 1.0);
         x * x * (3.0 - 2.0 * x)
+    }
+
+    /// Whether a constituent has a uniform layer (its chord is added per direction), where
+    /// [`Self::neg_optical_depths_many`] does not apply.
+    #[inline]
+    pub fn has_layers(&self) -> bool {
+        self.table.layer_radius.iter().any(Option::is_some)
+    }
+
+    /// For each sun zenith cosine `mu_s[t]`: [`Self::sun_visibility`] into `vis[t]` and, for
+    /// each wavelength `l`, the sun's optical depth from here, `ext[l] · `[`Self::lookup`]`(μs)`
+    /// (0 where the sun is hidden), negated and rounded to f32, into `out[l * stride + t]`.
+    /// The table's two radius rows are interpolated in r and turned into optical depths once
+    /// for the μ nodes the suns read, so each sun interpolates one row of `ext.len()` values
+    /// in μ instead of four corners of every constituent: the same linear interpolation as
+    /// [`Self::lookup_many`]'s (its sums in another order: a few units in the last place of the
+    /// f64 optical depth). Not for tables with uniform layers ([`Self::has_layers`]).
+    #[inline(always)]
+    pub fn neg_optical_depths_many(
+        &self,
+        mu_s: &[f64],
+        ext: &[[f64; CONSTITUENTS]],
+        vis: &mut [f64],
+        out: &mut [f32],
+        stride: usize,
+        scratch: &mut OpticalDepthScratch,
+    ) {
+        debug_assert!(!self.has_layers());
+        let t = self.table;
+        let n = mu_s.len().min(vis.len());
+        let n_l = ext.len();
+        let (d_min, d_max) = (self.d_min, self.d_max);
+        let (r, mu_h, top) = (self.r, self.mu_h, t.top);
+        let ar = self.ar;
+        let last = (t.n_mu - 2) as f64;
+        let scale = (t.n_mu - 1) as f64;
+        let spans = d_max > d_min;
+        let OpticalDepthScratch { imf, am, rows } = scratch;
+        imf.resize(n, 0.0);
+        am.resize(n, 0.0);
+        let (imf, am) = (&mut imf[..n], &mut am[..n]);
+        // `lookup_many`'s first loop: visibility and interpolation position, branch-free.
+        for q in 0..n {
+            let x = ((mu_s[q] - self.mu_h_vis) / self.width * 0.5 + 0.5).clamp(0.0, 1.0);
+            vis[q] = x * x * (3.0 - 2.0 * x);
+            let mq = mu_s[q].max(mu_h);
+            let disc = r * r * (mq * mq - 1.0) + top * top;
+            let tq = -r * mq + disc.sqrt();
+            let dq = if disc >= 0.0 && tq >= 0.0 { tq } else { 0.0 };
+            let x_in = ((dq - d_min) / (d_max - d_min)).clamp(0.0, 1.0);
+            let x_mu = if spans { x_in } else { 0.0 };
+            let fm = x_mu * scale;
+            let i = fm.floor().min(last);
+            imf[q] = i;
+            am[q] = fm - i;
+        }
+        if n == 0 {
+            return;
+        }
+        let lo = imf.iter().fold(f64::INFINITY, |a, &b| a.min(b)) as usize;
+        let hi = imf.iter().fold(0.0f64, |a, &b| a.max(b)) as usize;
+        // The optical depths of the μ nodes lo..=hi + 1 at this radius, `[node][λ]`.
+        let row0 = &t.data[self.ir * t.n_mu..][..t.n_mu];
+        let row1 = &t.data[(self.ir + 1) * t.n_mu..][..t.n_mu];
+        rows.clear();
+        for j in lo..=hi + 1 {
+            let d: [f64; CONSTITUENTS] =
+                std::array::from_fn(|k| row0[j][k] * (1.0 - ar) + row1[j][k] * ar);
+            rows.extend(ext.iter().map(|e| e[0] * d[0] + e[1] * d[1] + e[2] * d[2]));
+        }
+        let (rows, vis) = (&rows[..], &vis[..n]);
+        // RGB written out (the loop over wavelengths unrolled).
+        if n_l == 3 {
+            gather_depths(3, rows, lo, imf, am, vis, out, stride);
+        } else {
+            gather_depths(n_l, rows, lo, imf, am, vis, out, stride);
+        }
+    }
+
+    /// The suns of `mu_s` from the first to the last whose [`Self::sun_visibility`] is positive
+    /// (empty where none is): the others' single scattering is 0, so loops over suns may skip
+    /// them. Scans from both ends, so it costs what the hidden suns at the ends do.
+    #[inline(always)]
+    pub fn visible_range(&self, mu_s: &[f64]) -> std::ops::Range<usize> {
+        let seen = |&m: &f64| self.sun_visibility(m) > 0.0;
+        match mu_s.iter().position(seen) {
+            Some(first) => first..mu_s.len() - mu_s.iter().rev().position(seen).unwrap_or(0),
+            None => 0..0,
+        }
     }
 
     /// For each sun zenith cosine `mu_s[t]`: [`Self::sun_visibility`] into `vis[t]` and, where
@@ -565,6 +694,97 @@ mod tests {
                     }
                 }
                 assert!(hidden > 0 && hidden < n, "h {h}: {hidden} hidden");
+            }
+        }
+    }
+
+    #[test]
+    fn visible_range_holds_every_lit_sun() {
+        // Suns from below the horizon to the zenith, both ways round, and all hidden: the
+        // range holds every sun `sun_visibility` lights and starts and ends on lit ones.
+        let m = Medium::new(
+            &preset("earth").unwrap(),
+            &Wavelengths::parse("550").unwrap(),
+            None,
+        )
+        .unwrap();
+        let table = DensityIntegralTable::new(&m, 16, 64, 50);
+        let up: Vec<f64> = (0..203).map(|i| -0.3 + 1.3 * i as f64 / 202.0).collect();
+        let down: Vec<f64> = up.iter().rev().copied().collect();
+        let dark: Vec<f64> = up.iter().map(|&mu| mu.min(-0.2)).collect();
+        for &h in &[0.0, 1500.0, 30_000.0, 99_990.0] {
+            let at = table.at_radius(m.bottom_radius_m + h, m.sun_angular_radius_rad);
+            for mu_s in [&up, &down, &dark] {
+                let range = at.visible_range(mu_s);
+                let lit: Vec<usize> = (0..mu_s.len())
+                    .filter(|&t| at.sun_visibility(mu_s[t]) > 0.0)
+                    .collect();
+                match (lit.first(), lit.last()) {
+                    (Some(&a), Some(&b)) => assert_eq!(range, a..b + 1, "h {h}"),
+                    _ => assert!(range.is_empty(), "h {h}"),
+                }
+            }
+            assert!(at.visible_range(&dark).is_empty());
+            assert!(at.visible_range(&up).len() < up.len());
+        }
+    }
+
+    crate::simd_dispatch_avx512! {
+        /// [`AtRadius::neg_optical_depths_many`] compiled as the bundle's kernels compile it.
+        fn depths(
+            at: &AtRadius<'_>,
+            mu_s: &[f64],
+            ext: &[[f64; CONSTITUENTS]],
+            vis: &mut [f64],
+            out: &mut [f32],
+            stride: usize,
+            scratch: &mut OpticalDepthScratch,
+        ) {
+            at.neg_optical_depths_many(mu_s, ext, vis, out, stride, scratch);
+        }
+    }
+
+    #[test]
+    fn optical_depths_of_many_suns_equal_the_single_lookups() {
+        // Against `lookup` one sun at a time, the extinction applied after: the same
+        // interpolation summed in another order, so within a few units in the last place of
+        // the f64 optical depth, one of the f32 it is rounded to; the visibility bit for bit.
+        let m = Medium::new(
+            &preset("earth").unwrap(),
+            &Wavelengths::parse("440,550,680").unwrap(),
+            None,
+        )
+        .unwrap();
+        let table = DensityIntegralTable::new(&m, 32, 128, 200);
+        let ext: Vec<[f64; CONSTITUENTS]> = (0..m.len())
+            .map(|l| std::array::from_fn(|k| m.extinction_per_m[k][l]))
+            .collect();
+        let mu_s: Vec<f64> = (0..203).map(|i| -0.3 + 1.3 * i as f64 / 202.0).collect();
+        let n = mu_s.len();
+        let mut scratch = OpticalDepthScratch::default();
+        for &h in &[0.0, 700.0, 30_000.0, 99_990.0] {
+            let at = table.at_radius(m.bottom_radius_m + h, m.sun_angular_radius_rad);
+            assert!(!at.has_layers());
+            let stride = n + 5;
+            let mut vis = vec![f64::NAN; n];
+            let mut out = vec![f32::NAN; ext.len() * stride];
+            depths(&at, &mu_s, &ext, &mut vis, &mut out, stride, &mut scratch);
+            for (t, &mu) in mu_s.iter().enumerate() {
+                let v = at.sun_visibility(mu);
+                assert_eq!(vis[t].to_bits(), v.to_bits(), "h {h} mu_s {mu}");
+                let d = if v > 0.0 {
+                    at.lookup(mu)
+                } else {
+                    [0.0; CONSTITUENTS]
+                };
+                for (l, e) in ext.iter().enumerate() {
+                    let want = -(e[0] * d[0] + e[1] * d[1] + e[2] * d[2]);
+                    let got = out[l * stride + t] as f64;
+                    assert!(
+                        (got - want).abs() <= 1e-7 * want.abs(),
+                        "h {h} mu_s {mu} l {l}: {got} vs {want}"
+                    );
+                }
             }
         }
     }
