@@ -1039,19 +1039,66 @@ pub fn limb_slice_depth(y: f64, sun_q: f64, h_q: f64, sun_n: f64, h_n: f64) -> f
     if f <= 0.0 || h_n <= 0.0 {
         return y;
     }
+    let d = limb_slice_map(y, sun_q, h_q, sun_n, h_n);
+    y + f * (d.clamp(0.0, 1.0) - y)
+}
+
+/// [`limb_slice_depth`]'s map before its fade and clamp: the depth fraction in the slice of
+/// sun coordinate `sun_n` and altitude `h_n` (m) of the depth `y` of a query with sun coordinate
+/// `sun_q` at altitude `h_q` (m), above 1 where it lies past the slice's horizon.
+pub fn limb_slice_map(y: f64, sun_q: f64, h_q: f64, sun_n: f64, h_n: f64) -> f64 {
     let dq = limb_band_depth_m(sun_q);
     let rho = (h_q / h_n).powf(LIMB_BAND_ALTITUDE_EXPONENT) * limb_band_depth_m(sun_n) / dq;
     let yb = (dq / h_q).min(LIMB_BAND_MAX_FRACTION);
     let ybn = (yb * rho).min(LIMB_BAND_MAX_FRACTION);
-    let d = if y <= yb {
+    if y <= yb {
         y * rho
     } else {
         // The horizon held where the band lies well above it (w = 1), not where it nears it.
         let [w0, w1] = LIMB_BAND_HORIZON_HELD;
         let w = 1.0 - smoothstep(w0, w1, yb);
         y * rho + w * (ybn + (y - yb) * (1.0 - ybn) / (1.0 - yb) - y * rho)
-    };
-    y + f * (d.clamp(0.0, 1.0) - y)
+    }
+}
+
+/// Whether [`limb_slice_depth`] reads the slice of sun coordinate `sun_n` and altitude `h_n`
+/// (m) past its horizon for a query at depth `y` with sun coordinate `sun_q` at altitude `h_q`
+/// (m): y + f (m − y) > 1, m = [`limb_slice_map`], f the query's focus fade (the depth is then
+/// clamped towards the horizon). Where the band lies near the horizon (20 km up, the sun 1–2°
+/// below the tangent point's horizon) the band of the next lower sun node lies past it, and a
+/// query just past its own band would read that slice at its horizon, across the band.
+pub fn limb_slice_past_horizon(y: f64, sun_q: f64, h_q: f64, sun_n: f64, h_n: f64) -> bool {
+    let f = limb_row_focus(sun_q, h_q).1 / LIMB_BAND_FOCUS;
+    if f <= 0.0 || h_n <= 0.0 {
+        return false;
+    }
+    y + f * (limb_slice_map(y, sun_q, h_q, sun_n, h_n) - y) > 1.0
+}
+
+/// The lowest sun node the limb rows of altitude node `h_n` (m) read for a query at depth `y`
+/// with sun coordinate `sun_q` at altitude `h_q` (m) whose sun stencil starts at node `first`
+/// and whose interval starts at `i0`: the first node from `first` to `i0` whose slice
+/// ([`sun_warp`] of its node at `h_n`) is not read past its horizon
+/// ([`limb_slice_past_horizon`]), at most `i0` (the interval's nodes are kept). The sun
+/// stencil of that altitude node starts there (quadratic through the interval and the node
+/// above it instead of cubic through a node read at its horizon).
+pub fn limb_sun_lowest(
+    y: f64,
+    sun_q: f64,
+    h_q: f64,
+    h_n: f64,
+    thickness: f64,
+    first: usize,
+    i0: usize,
+) -> usize {
+    let b = warp_strength(h_n, thickness);
+    let mut lo = first;
+    for j in first..i0 {
+        if limb_slice_past_horizon(y, sun_q, h_q, sun_warp(sun_node_deg(j), b, 0.0), h_n) {
+            lo = j + 1;
+        }
+    }
+    lo
 }
 
 /// The limb rows' coordinate (∈ [0, 1]) of depth `y` (see [`limb_depth`]) on the rows of sun
@@ -1931,7 +1978,7 @@ impl<'a> SkyViewReader<'a> {
         shift: f64,
         seg: usize,
         cos_phi: f64,
-    ) -> (Stencil, Stencil) {
+    ) -> (Stencil, Stencil, f64) {
         let p = &self.bundle.params;
         let thickness = p.top_radius - p.bottom_radius;
         let ya = altitude_coord(r - p.bottom_radius, thickness);
@@ -1964,7 +2011,7 @@ impl<'a> SkyViewReader<'a> {
             deg,
             self.nodes[1],
         );
-        (sa, ss)
+        (sa, ss, deg)
     }
 
     /// The stored sky at radius `r` (inside the atmosphere) for view zenith cosine `mu`, sun
@@ -2011,7 +2058,21 @@ impl<'a> SkyViewReader<'a> {
             let y = N_VIEW_SKY as f64 + limb_row_focused(y_n, s_n, h_n) * (N_VIEW_LIMB - 1) as f64;
             Stencil::with_nodes(y, lo, hi, |i| i as f64, y, self.nodes[2])
         };
-        let (sa, ss) = self.altitude_sun_stencils(r, mu_s, shift, seg, cos_phi);
+        let (sa, ss, deg_q) = self.altitude_sun_stencils(r, mu_s, shift, seg, cos_phi);
+        // On the limb rows, each altitude node's sun stencil without the nodes read past the
+        // slice's horizon ([`limb_sun_lowest`]).
+        let sun_stencil = |k: usize| -> Stencil {
+            if seg != 1 || ss.i0 == ss.first {
+                return ss;
+            }
+            let h_n = altitude_node_m(k, thickness);
+            let lo = limb_sun_lowest(limb_y, s_deg, h, h_n, thickness, ss.first, ss.i0);
+            if lo == ss.first {
+                return ss;
+            }
+            let y = ss.i0 as f64 + ss.t;
+            Stencil::with_nodes(y, lo, N_SUN - 1, sun_node_deg, deg_q, self.nodes[1])
+        };
         let band_rows = |k: usize, j: usize, sc: &Stencil| {
             (seg < 2)
                 .then(|| self.band_rows(90.0 - theta.to_degrees(), s_deg, h, cos_phi, sc, k, j))
@@ -2028,6 +2089,7 @@ impl<'a> SkyViewReader<'a> {
             for ka in 0..sa.len {
                 let k = sa.first + ka;
                 let sc = columns(k);
+                let ss = sun_stencil(k);
                 for js in 0..ss.len {
                     let j = ss.first + js;
                     let z = k * N_SUN + j;
@@ -2812,6 +2874,27 @@ mod tests {
         let deep = limb_slice_depth(y_q, -0.5, 12_000.0, -0.25, 12_000.0);
         let affine = y_q * limb_band_depth_m(-0.25) / limb_band_depth_m(-0.5);
         assert!((deep - affine).abs() < 1e-12, "{deep} {affine}");
+        // Seen from 20 km, 0.3° above the horizon (y = 0.877) at s = −1.223°: the band at
+        // D(−1.223°) = 8.2 + 7.76 · 1.223 − 0.9 · 1.223² = 16.34 km; the slice at s = −1.938°
+        // has its band at 19.86 km, so y ρ = 0.877 · 19.86 / 16.34 = 1.066, past its horizon,
+        // and its sun node is left out of the stencil; the slice at −1.534° (17.99 km, 0.966)
+        // is kept.
+        let m = limb_slice_map(0.877, -1.223, 20_000.0, -1.938, 20_000.0);
+        assert!((m - 1.066).abs() < 2e-3, "{m}");
+        assert!(limb_slice_past_horizon(0.877, -1.223, 20_000.0, -1.938, 20_000.0));
+        assert!(!limb_slice_past_horizon(0.877, -1.223, 20_000.0, -1.534, 20_000.0));
+        let thickness = 100_000.0;
+        let b = warp_strength(20_000.0, thickness);
+        let y = sun_coord(sun_unwarp(-1.223, b, 0.0));
+        let i0 = y.floor() as usize;
+        assert!((sun_warp(sun_node_deg(i0 - 1), b, 0.0) + 1.938).abs() < 0.01);
+        let lowest = limb_sun_lowest(0.877, -1.223, 20_000.0, 20_000.0, thickness, i0 - 1, i0);
+        assert_eq!(lowest, i0);
+        // Where the band lies well above the horizon every node is kept.
+        assert_eq!(
+            limb_sun_lowest(0.5, -1.223, 20_000.0, 20_000.0, thickness, i0 - 1, i0),
+            i0 - 1
+        );
     }
 
     #[test]
