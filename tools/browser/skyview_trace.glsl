@@ -114,10 +114,10 @@ void main() {
   SkyViewAltitudeSun(h, shift, SkyViewSunWarpCentre(h, segment, SkyViewCos(phi)), mu_s, k0, tk,
                      j0, tj, above_deg);
   SvStencil sa = SkyViewAltitudeStencil(float(k0) + tk);
-  SvStencil ss = SkyViewStencil(float(j0) + tj, 0, SV_N_SUN - 1, true, above_deg);
+  SvStencil ss_q = SkyViewStencil(float(j0) + tj, 0, SV_N_SUN - 1, true, above_deg);
   T(float(k0) + tk); T(above_deg); T(float(j0) + tj);
   TS(sa);
-  TS(ss);
+  TS(ss_q);
   float d;
   if (segment == 2) {
     float disc = max(r * mu * r * mu - rho * rho, 0.0);
@@ -141,6 +141,15 @@ void main() {
       SvStencil sc = SkyViewStencil(column, 0, SV_N_AZ - 1, false, 0.0);
       T(column);
       TS(sc);
+      // On the limb rows, without the sun nodes whose slice is read past its horizon.
+      SvStencil ss = ss_q;
+      if (segment == 1 && ss_q.i0 > ss_q.first) {
+        int lowest = SkyViewLimbSunLowest(y_limb, s_q, h, sv_alt_nodes[sa.first + a], ss_q);
+        if (lowest > ss_q.first) {
+          ss = SkyViewStencil(float(ss_q.i0) + ss_q.t, lowest, SV_N_SUN - 1, true, above_deg);
+        }
+      }
+      TS(ss);
       vec4 cos_cols;
       for (int m = 0; m < 4; ++m) {
         int col = min(sc.first + m, SV_N_AZ - 1);

@@ -293,19 +293,22 @@ float SkyViewLimbBandDepth(float sun_deg) {
 // limb_slice_depth): two pieces, the horizontal and the horizon fixed, the band's depth fraction
 // yb = min(D(s_q) / h_q, SV_LIMB_BAND_MAX_FRACTION) moved to ybn = min(yb rho,
 // SV_LIMB_BAND_MAX_FRACTION), rho = (h_q / h_n)^SV_LIMB_BAND_ALTITUDE_EXPONENT D(s_n) / D(s_q),
-// the second piece faded to y rho by 1 - smoothstep(SV_LIMB_BAND_HORIZON_HELD, yb); faded with
-// the query's focus.
-float SkyViewLimbSliceDepth(float y, float s_q, float h_q, float s_n, float h_n) {
-  float f = SkyViewLimbFocus(s_q, h_q).y / SV_LIMB_BAND_FOCUS;
-  if (f <= 0.0 || h_n <= 0.0) return y;
+// the second piece faded to y rho by 1 - smoothstep(SV_LIMB_BAND_HORIZON_HELD, yb) (the reader's
+// limb_slice_map); faded with the query's focus.
+float SkyViewLimbSliceMap(float y, float s_q, float h_q, float s_n, float h_n) {
   float dq = SkyViewLimbBandDepth(s_q);
   float rho = pow(h_q / h_n, SV_LIMB_BAND_ALTITUDE_EXPONENT) * SkyViewLimbBandDepth(s_n) / dq;
   float yb = min(dq / h_q, SV_LIMB_BAND_MAX_FRACTION);
   float ybn = min(yb * rho, SV_LIMB_BAND_MAX_FRACTION);
   float w = 1.0 - smoothstep(SV_LIMB_BAND_HORIZON_HELD.x, SV_LIMB_BAND_HORIZON_HELD.y, yb);
-  float d = y <= yb ? y * rho
-                    : y * rho + w * (ybn + (y - yb) * (1.0 - ybn) / (1.0 - yb) - y * rho);
-  return y + f * (clamp(d, 0.0, 1.0) - y);
+  return y <= yb ? y * rho
+                 : y * rho + w * (ybn + (y - yb) * (1.0 - ybn) / (1.0 - yb) - y * rho);
+}
+
+float SkyViewLimbSliceDepth(float y, float s_q, float h_q, float s_n, float h_n) {
+  float f = SkyViewLimbFocus(s_q, h_q).y / SV_LIMB_BAND_FOCUS;
+  if (f <= 0.0 || h_n <= 0.0) return y;
+  return y + f * (clamp(SkyViewLimbSliceMap(y, s_q, h_q, s_n, h_n), 0.0, 1.0) - y);
 }
 
 // The sun node coordinate (degrees) of the sun coordinate s (degrees) at warp strength b and
@@ -365,6 +368,22 @@ float SkyViewSunWarp(float t, float b) {
   if (b < 1e-6 || t <= SV_SUN_WARP_LO || t >= SV_SUN_WARP_HI) return t;
   float e = t < 0.0 ? -SV_SUN_WARP_LO : SV_SUN_WARP_HI;
   return e * sinh(b * t / e) / sinh(b);
+}
+
+// The lowest sun node the limb rows of the altitude node h_n read for a query at depth y with
+// sun coordinate s_q at altitude h_q, whose sun stencil is ss (the reader's limb_sun_lowest):
+// from ss.first up to ss.i0, the first whose slice (its node warped at h_n) is not read past its
+// horizon, y + f (SkyViewLimbSliceMap - y) > 1, f the query's focus fade.
+int SkyViewLimbSunLowest(float y, float s_q, float h_q, float h_n, SvStencil ss) {
+  float f = SkyViewLimbFocus(s_q, h_q).y / SV_LIMB_BAND_FOCUS;
+  if (f <= 0.0 || h_n <= 0.0) return ss.first;
+  float b_n = SV_SUN_WARP * sqrt(clamp(h_n / (top_radius - bottom_radius), 0.0, 1.0));
+  int lo = ss.first;
+  for (int j = ss.first; j < ss.i0; ++j) {
+    float s_n = SkyViewSunWarp(SkyViewSunNodeDeg(j), b_n);
+    if (y + f * (SkyViewLimbSliceMap(y, s_q, h_q, s_n, h_n) - y) > 1.0) lo = j + 1;
+  }
+  return lo;
 }
 
 // The sky rows' full focus strength at altitude h (the reader's band_focus_strength): grows
@@ -760,7 +779,7 @@ vec3 SkyViewRadiance(float h, float rho, vec3 up, vec3 view_ray, vec3 sun_direct
   SkyViewAltitudeSun(h, shift, SkyViewSunWarpCentre(h, segment, SkyViewCos(phi)), mu_s, k0, tk,
                      j0, tj, above_deg);
   SvStencil sa = SkyViewAltitudeStencil(float(k0) + tk);
-  SvStencil ss = SkyViewStencil(float(j0) + tj, 0, SV_N_SUN - 1, true, above_deg);
+  SvStencil ss_q = SkyViewStencil(float(j0) + tj, 0, SV_N_SUN - 1, true, above_deg);
   // Each altitude node's columns (the reader's node_column): from the query's column coordinate
   // (below SV_AZ_NODE_READ.x) to the azimuth's coordinate in the node's own map (above
   // SV_AZ_NODE_READ.y; SkyViewAzimuthColumn at the node's altitude), and the cosines of the
@@ -802,6 +821,14 @@ vec3 SkyViewRadiance(float h, float rho, vec3 up, vec3 view_ray, vec3 sun_direct
       if (a >= sa.len) break;
       vec3 by_sun[4] = vec3[4](vec3(0.0), vec3(0.0), vec3(0.0), vec3(0.0));
       SvStencil sc = sc_n[a];
+      // On the limb rows, without the sun nodes whose slice is read past its horizon.
+      SvStencil ss = ss_q;
+      if (segment == 1 && ss_q.i0 > ss_q.first) {
+        int lowest = SkyViewLimbSunLowest(y_limb, s_q, h, sv_alt_nodes[sa.first + a], ss_q);
+        if (lowest > ss_q.first) {
+          ss = SkyViewStencil(float(ss_q.i0) + ss_q.t, lowest, SV_N_SUN - 1, true, above_deg);
+        }
+      }
       for (int s = 0; s < 4; ++s) {
         if (s >= ss.len) break;
         vec3 value;

@@ -19,9 +19,9 @@ use skybake_lut::manifest::MANIFEST_FILE;
 use skybake_lut::skyview::{
     altitude_abscissa, altitude_coord, altitude_node_m, altitude_node_x, azimuth_coord,
     band_centre_deg, band_map_weight, band_relative_elevation, band_row, band_slice_elevation,
-    limb_depth_of, limb_row_focused, limb_slice_depth, ray_length, segment_rows, sky_row_focus,
-    sun_coord, sun_node_deg, sun_shift, sun_unwarp, sun_warp, sun_warp_centre, view_coord,
-    warp_strength, Stencil, N_ALT, N_AZ, N_SUN, N_VIEW_LIMB, N_VIEW_SKY, SUN_MIN_DEG,
+    limb_depth_of, limb_row_focused, limb_slice_depth, limb_sun_lowest, ray_length, segment_rows,
+    sky_row_focus, sun_coord, sun_node_deg, sun_shift, sun_unwarp, sun_warp, sun_warp_centre,
+    view_coord, warp_strength, Stencil, N_ALT, N_AZ, N_SUN, N_VIEW_LIMB, N_VIEW_SKY, SUN_MIN_DEG,
 };
 use skybake_lut::{SkyViewBundle, SkyViewReader};
 
@@ -132,13 +132,13 @@ fn main() {
     let centre = sun_warp_centre(h, bottom, top, seg, cos_phi);
     let deg = sun_unwarp(above.to_degrees(), warp_strength(h, thickness), centre)
         .clamp(SUN_MIN_DEG, sun_node_deg(N_SUN - 1));
-    let ss = Stencil::new(sun_coord(deg), 0, N_SUN - 1, sun_node_deg, deg);
+    let ss_q = Stencil::new(sun_coord(deg), 0, N_SUN - 1, sun_node_deg, deg);
     print(
         "altitude_coord_sun_node_deg_sun_coord",
         &[ya, deg, sun_coord(deg)],
     );
     stencil("altitude_stencil", &sa);
-    stencil("sun_stencil", &ss);
+    stencil("sun_stencil", &ss_q);
     let d = ray_length(r, mu, bottom, top, seg == 2);
     print("ray_length", &[d]);
 
@@ -160,6 +160,19 @@ fn main() {
             let sc = Stencil::new(col_n, 0, N_AZ - 1, |a| a as f64, col_n);
             print(&format!("p{part}_k{k}_column"), &[col_n]);
             stencil(&format!("p{part}_k{k}_azimuth_stencil"), &sc);
+            // On the limb rows, without the sun nodes whose slice is read past its horizon.
+            let lowest = if seg == 1 && ss_q.i0 > ss_q.first {
+                limb_sun_lowest(limb_y, s_deg, h, h_n, thickness, ss_q.first, ss_q.i0)
+            } else {
+                ss_q.first
+            };
+            let ss = if lowest > ss_q.first {
+                let y = ss_q.i0 as f64 + ss_q.t;
+                Stencil::new(y, lowest, N_SUN - 1, sun_node_deg, deg)
+            } else {
+                ss_q
+            };
+            stencil(&format!("p{part}_k{k}_sun_stencil"), &ss);
             let mut by_sun = vec![[0.0f64; 4]; n_c];
             for js in 0..ss.len {
                 let j = ss.first + js;

@@ -111,7 +111,10 @@ pub const LAYOUT: &str = "skyview";
 /// antisolar band and stronger, and the band's sun term turned smoothly ([`BAND_SUN_SOFT_DEG`]).
 /// 16: the same texels; the slices' map aloft grows the band curved (0.045 per km at 10 km to
 /// 0.015 at 20 km) and acts through the horizontal from 5–8 km up ([`BAND_SLICE_THROUGH_M`]).
-pub const SKYVIEW_VERSION: &str = "16";
+/// 17: the sky rows' focus moves and grows aloft from 4–10 km ([`BAND_FOCUS_PLACE_M`]; texels
+/// change); on the limb rows the sun nodes whose slice would be read past its horizon are left
+/// out of the sun stencil (`limb_sun_lowest`).
+pub const SKYVIEW_VERSION: &str = "17";
 
 /// Altitude nodes of the base map ([`altitude_abscissa`], about (top − bottom) · (x / 27)²,
 /// denser near the top): its integers 0..=27.
@@ -1045,19 +1048,66 @@ pub fn limb_slice_depth(y: f64, sun_q: f64, h_q: f64, sun_n: f64, h_n: f64) -> f
     if f <= 0.0 || h_n <= 0.0 {
         return y;
     }
+    let d = limb_slice_map(y, sun_q, h_q, sun_n, h_n);
+    y + f * (d.clamp(0.0, 1.0) - y)
+}
+
+/// [`limb_slice_depth`]'s map before its fade and clamp: the depth fraction in the slice of
+/// sun coordinate `sun_n` and altitude `h_n` (m) of the depth `y` of a query with sun coordinate
+/// `sun_q` at altitude `h_q` (m), above 1 where it lies past the slice's horizon.
+pub fn limb_slice_map(y: f64, sun_q: f64, h_q: f64, sun_n: f64, h_n: f64) -> f64 {
     let dq = limb_band_depth_m(sun_q);
     let rho = (h_q / h_n).powf(LIMB_BAND_ALTITUDE_EXPONENT) * limb_band_depth_m(sun_n) / dq;
     let yb = (dq / h_q).min(LIMB_BAND_MAX_FRACTION);
     let ybn = (yb * rho).min(LIMB_BAND_MAX_FRACTION);
-    let d = if y <= yb {
+    if y <= yb {
         y * rho
     } else {
         // The horizon held where the band lies well above it (w = 1), not where it nears it.
         let [w0, w1] = LIMB_BAND_HORIZON_HELD;
         let w = 1.0 - smoothstep(w0, w1, yb);
         y * rho + w * (ybn + (y - yb) * (1.0 - ybn) / (1.0 - yb) - y * rho)
-    };
-    y + f * (d.clamp(0.0, 1.0) - y)
+    }
+}
+
+/// Whether [`limb_slice_depth`] reads the slice of sun coordinate `sun_n` and altitude `h_n`
+/// (m) past its horizon for a query at depth `y` with sun coordinate `sun_q` at altitude `h_q`
+/// (m): y + f (m − y) > 1, m = [`limb_slice_map`], f the query's focus fade (the depth is then
+/// clamped towards the horizon). Where the band lies near the horizon (20 km up, the sun 1–2°
+/// below the tangent point's horizon) the band of the next lower sun node lies past it, and a
+/// query just past its own band would read that slice at its horizon, across the band.
+pub fn limb_slice_past_horizon(y: f64, sun_q: f64, h_q: f64, sun_n: f64, h_n: f64) -> bool {
+    let f = limb_row_focus(sun_q, h_q).1 / LIMB_BAND_FOCUS;
+    if f <= 0.0 || h_n <= 0.0 {
+        return false;
+    }
+    y + f * (limb_slice_map(y, sun_q, h_q, sun_n, h_n) - y) > 1.0
+}
+
+/// The lowest sun node the limb rows of altitude node `h_n` (m) read for a query at depth `y`
+/// with sun coordinate `sun_q` at altitude `h_q` (m) whose sun stencil starts at node `first`
+/// and whose interval starts at `i0`: the first node from `first` to `i0` whose slice
+/// ([`sun_warp`] of its node at `h_n`) is not read past its horizon
+/// ([`limb_slice_past_horizon`]), at most `i0` (the interval's nodes are kept). The sun
+/// stencil of that altitude node starts there (quadratic through the interval and the node
+/// above it instead of cubic through a node read at its horizon).
+pub fn limb_sun_lowest(
+    y: f64,
+    sun_q: f64,
+    h_q: f64,
+    h_n: f64,
+    thickness: f64,
+    first: usize,
+    i0: usize,
+) -> usize {
+    let b = warp_strength(h_n, thickness);
+    let mut lo = first;
+    for j in first..i0 {
+        if limb_slice_past_horizon(y, sun_q, h_q, sun_warp(sun_node_deg(j), b, 0.0), h_n) {
+            lo = j + 1;
+        }
+    }
+    lo
 }
 
 /// The limb rows' coordinate (∈ [0, 1]) of depth `y` (see [`limb_depth`]) on the rows of sun
@@ -1937,7 +1987,7 @@ impl<'a> SkyViewReader<'a> {
         shift: f64,
         seg: usize,
         cos_phi: f64,
-    ) -> (Stencil, Stencil) {
+    ) -> (Stencil, Stencil, f64) {
         let p = &self.bundle.params;
         let thickness = p.top_radius - p.bottom_radius;
         let ya = altitude_coord(r - p.bottom_radius, thickness);
@@ -1970,7 +2020,7 @@ impl<'a> SkyViewReader<'a> {
             deg,
             self.nodes[1],
         );
-        (sa, ss)
+        (sa, ss, deg)
     }
 
     /// The stored sky at radius `r` (inside the atmosphere) for view zenith cosine `mu`, sun
@@ -2017,7 +2067,21 @@ impl<'a> SkyViewReader<'a> {
             let y = N_VIEW_SKY as f64 + limb_row_focused(y_n, s_n, h_n) * (N_VIEW_LIMB - 1) as f64;
             Stencil::with_nodes(y, lo, hi, |i| i as f64, y, self.nodes[2])
         };
-        let (sa, ss) = self.altitude_sun_stencils(r, mu_s, shift, seg, cos_phi);
+        let (sa, ss, deg_q) = self.altitude_sun_stencils(r, mu_s, shift, seg, cos_phi);
+        // On the limb rows, each altitude node's sun stencil without the nodes read past the
+        // slice's horizon ([`limb_sun_lowest`]).
+        let sun_stencil = |k: usize| -> Stencil {
+            if seg != 1 || ss.i0 == ss.first {
+                return ss;
+            }
+            let h_n = altitude_node_m(k, thickness);
+            let lo = limb_sun_lowest(limb_y, s_deg, h, h_n, thickness, ss.first, ss.i0);
+            if lo == ss.first {
+                return ss;
+            }
+            let y = ss.i0 as f64 + ss.t;
+            Stencil::with_nodes(y, lo, N_SUN - 1, sun_node_deg, deg_q, self.nodes[1])
+        };
         let band_rows = |k: usize, j: usize, sc: &Stencil| {
             (seg < 2)
                 .then(|| self.band_rows(90.0 - theta.to_degrees(), s_deg, h, cos_phi, sc, k, j))
@@ -2034,6 +2098,7 @@ impl<'a> SkyViewReader<'a> {
             for ka in 0..sa.len {
                 let k = sa.first + ka;
                 let sc = columns(k);
+                let ss = sun_stencil(k);
                 for js in 0..ss.len {
                     let j = ss.first + js;
                     let z = k * N_SUN + j;
@@ -2259,9 +2324,9 @@ pub const STATED_ERRORS: &[(&str, &str, f64)] = &[
     ("rayleigh+mie", "sky radiance (sky product), sun -6..5 deg, 0-5 km (the band above the earth's shadow 120 deg from the sun, 680 nm at 5 km, 0.5 deg above the horizontal; the twilight glow towards the sun at most 3 %)", 0.046),
     ("rayleigh+mie", "sky radiance (sky product), sun -6..5 deg, 5-8 km (the band above the earth's shadow, 680 nm at 8 km, 1.75 deg above the horizontal 150 deg from the sun, sun -2.5 deg)", 0.035),
     ("rayleigh+mie", "sky radiance (sky product), sun -6..5 deg, 8-12.5 km (the band above the earth's shadow, 680 nm at 11 km, 1.25 deg above the horizontal 135 deg from the sun, sun -3 deg; the twilight glow towards the sun at most 3 %)", 0.037),
-    ("rayleigh+mie", "sky radiance (sky product), sun -6..5 deg, 12.5-20 km (the limb 0.3 deg above the horizon 135 deg from the sun, 680 nm at 20 km, sun -4 deg; the twilight glow towards the sun at most 3 %)", 0.077),
+    ("rayleigh+mie", "sky radiance (sky product), sun -6..5 deg, 12.5-20 km (the limb 0.5 deg above the horizon 165 deg from the sun, 680 nm at 17.5 km, sun -3.75 deg; 4.5 % at 20 km; the twilight glow towards the sun at most 3 %)", 0.064),
     ("rayleigh+mie", "sky radiance (sky product), sun -6..0 deg, 0-5 km, views within 10 deg of the horizon 150-180 deg from the sun (the earth's shadow rising; 680 nm at 2.5 km)", 0.022),
-    ("rayleigh+mie", "sky radiance (sky product), sun -6..5 deg, 20-100 km (the sky just above the horizontal at 30 km, 440 nm)", 0.030),
+    ("rayleigh+mie", "sky radiance (sky product), sun -6..5 deg, 20-100 km (random samples: 3.0 %, the sky just above the horizontal at 30 km, 440 nm; but the band above the earth's shadow seen from 20-25 km, about 5 deg above the horizontal 165-180 deg from the sun, up to 70 %: 25 km, sun -5 deg, 680 nm; 46 % at 22.5 km; not measured above 25 km)", 0.70),
     ("rayleigh+mie", "sky radiance (sky product), sun -12..-6 deg, ground", 0.033),
     ("rayleigh+mie", "sky radiance (sky product), sun -12..-6 deg, 0-20 km (the twilight glow towards the sun near the horizontal: 9.2 % at 5 km, sun -12 deg, 0.25 deg above the horizontal 30 deg from the sun, 680 nm)", 0.092),
     ("rayleigh+mie", "sky radiance (sky product), sun -12..-6 deg, 20-100 km (the sky 4.3 deg above the horizontal 88 deg from the sun, 680 nm at 30.8 km)", 0.088),
@@ -2382,7 +2447,7 @@ pub fn manifest(
                 "altitude_exponent": LIMB_BAND_ALTITUDE_EXPONENT,
                 "max_fraction": LIMB_BAND_MAX_FRACTION,
                 "horizon_held": LIMB_BAND_HORIZON_HELD,
-                "slices": "on the limb rows each (altitude node k, sun node j) slice is read at the depth y_n = y + f (clamp(m, 0, 1) - y) on its own rows, m = y rho where y <= yb, else y rho + w (ybn + (y - yb) (1 - ybn) / (1 - yb) - y rho), w = 1 - smoothstep(horizon_held[0], horizon_held[1], yb), rho = (h / h_n)^altitude_exponent D(s_n) / D(s), yb = min(D(s) / h, max_fraction), ybn = min(yb rho, max_fraction) (formula at s_n, h_n), y the query's depth, s its sun coordinate, h its altitude, s_n and h_n the slice's (s_n = the warped s_j at h_n = altitude_nodes_m[k]), D(s) = max(depth_m[0] + depth_m[1] s' + depth_m[2] s'^2, depth_floor_m), s' = clamp(s, sun_range_deg[0] - 1, sun_range_deg[3]), f = k / focus at the query's (s, h) (y_n = y where f = 0)",
+                "slices": "on the limb rows each (altitude node k, sun node j) slice is read at the depth y_n = y + f (clamp(m, 0, 1) - y) on its own rows, m = y rho where y <= yb, else y rho + w (ybn + (y - yb) (1 - ybn) / (1 - yb) - y rho), w = 1 - smoothstep(horizon_held[0], horizon_held[1], yb), rho = (h / h_n)^altitude_exponent D(s_n) / D(s), yb = min(D(s) / h, max_fraction), ybn = min(yb rho, max_fraction) (formula at s_n, h_n), y the query's depth, s its sun coordinate, h its altitude, s_n and h_n the slice's (s_n = the warped s_j at h_n = altitude_nodes_m[k]), D(s) = max(depth_m[0] + depth_m[1] s' + depth_m[2] s'^2, depth_floor_m), s' = clamp(s, sun_range_deg[0] - 1, sun_range_deg[3]), f = k / focus at the query's (s, h) (y_n = y where f = 0); on the limb rows the sun stencil of altitude node k starts at the first node from the stencil's first up to its interval's lower node whose slice is not read past its horizon, y + f (m - y) <= 1, m = the map before its clamp (the stencil's polynomial through the remaining nodes)",
                 "formula": "the limb rows' focus (version 10) at sun coordinate s (deg; a texel's node s_j, for a query each slice's own s_n at its altitude h_n) and altitude h (m): depth D = depth_m[0] + depth_m[1] s + depth_m[2] s^2 (m), x_c = the limb coordinate of y_c = clamp(D / h, 0, 1) (x_c = 2/3 + (4/3) cos(acos(1 - 27 y_c / 16) / 3 - 2 pi / 3)), k = focus smoothstep(sun_range_deg[0], sun_range_deg[1], s) (1 - smoothstep(sun_range_deg[2], sun_range_deg[3], s)) smoothstep(altitude_range_m[0], altitude_range_m[1], h) (1 - smoothstep(altitude_range_m[2], altitude_range_m[3], h)) (0 where h <= 0); the limb row coordinate of depth y is x = (asinh(k (x0 - x_c)) - A) / (B - A), x0 = 2/3 + (4/3) cos(acos(1 - 27 y / 16) / 3 - 2 pi / 3), A = asinh(-k x_c), B = asinh(k (1 - x_c)) (x = x0 where k < 1e-6); inverse x0 = x_c + sinh(A + x (B - A)) / k, y = 2 x0^2 - x0^3. On the limb rows every (altitude node k, sun node j) slice is read on its own rows at the depth of `slices` (and a column moved below the horizontal by sky_row_band.azimuth likewise, at its depth 2 r sin^2(e_a / 2) / h)",
             },
             "view_rows": format!("rows 0..{} from the zenith to the horizontal: elevation = 90 (1 - x0)^2 (deg), x0 = x_c + sinh(A + x (B - A)) / k, x = row / {}, x_c = 1 - sqrt(c / 90), A = asinh(-k x_c), B = asinh(k (1 - x_c)), (c, k) the sky rows' focus (sky_row_band) at the sun's elevation above the observer's horizon (its node's s_j for a texel, the query's own for a query) and the observer's altitude; where k < 1e-6, x0 = x; inverse: x0 = 1 - sqrt(elevation / 90), x = (asinh(k (x0 - x_c)) - A) / (B - A) (or x0); rows {}..{} from the horizontal to the horizon: the ray's tangent radius r_t = r - (r - bottom_radius) y, y = 2 x0^2 - x0^3, x0 = the unfocused coordinate of x = (row - {}) / {} with the limb rows' focus (limb_row_band; x0 = x where k = 0; inverse: x0 = 2/3 + (4/3) cos(acos(1 - 27 y / 16) / 3 - 2 pi / 3)), theta = pi/2 + acos(r_t / r); rows {}..{} from the horizon to the nadir: theta = theta_h + (pi - theta_h) x^2, x = (row - {}) / {}, theta_h = pi - asin(bottom_radius / r); r the observer's radius. Interpolation over the rows around the view stays within its segment (see interpolation)", N_VIEW_SKY - 1, N_VIEW_SKY - 1, N_VIEW_SKY, N_VIEW_UP - 1, N_VIEW_SKY, N_VIEW_LIMB - 1, N_VIEW_UP, N_VIEW - 1, N_VIEW_UP, N_VIEW_DOWN - 1),
@@ -2818,6 +2883,31 @@ mod tests {
         let deep = limb_slice_depth(y_q, -0.5, 12_000.0, -0.25, 12_000.0);
         let affine = y_q * limb_band_depth_m(-0.25) / limb_band_depth_m(-0.5);
         assert!((deep - affine).abs() < 1e-12, "{deep} {affine}");
+        // Seen from 20 km, 0.3° above the horizon (y = 0.877) at s = −1.223°: the band at
+        // D(−1.223°) = 8.2 + 7.76 · 1.223 − 0.9 · 1.223² = 16.34 km; the slice at s = −1.938°
+        // has its band at 19.86 km, so y ρ = 0.877 · 19.86 / 16.34 = 1.066, past its horizon,
+        // and its sun node is left out of the stencil; the slice at −1.534° (17.99 km, 0.966)
+        // is kept.
+        let m = limb_slice_map(0.877, -1.223, 20_000.0, -1.938, 20_000.0);
+        assert!((m - 1.066).abs() < 2e-3, "{m}");
+        assert!(limb_slice_past_horizon(
+            0.877, -1.223, 20_000.0, -1.938, 20_000.0
+        ));
+        assert!(!limb_slice_past_horizon(
+            0.877, -1.223, 20_000.0, -1.534, 20_000.0
+        ));
+        let thickness = 100_000.0;
+        let b = warp_strength(20_000.0, thickness);
+        let y = sun_coord(sun_unwarp(-1.223, b, 0.0));
+        let i0 = y.floor() as usize;
+        assert!((sun_warp(sun_node_deg(i0 - 1), b, 0.0) + 1.938).abs() < 0.01);
+        let lowest = limb_sun_lowest(0.877, -1.223, 20_000.0, 20_000.0, thickness, i0 - 1, i0);
+        assert_eq!(lowest, i0);
+        // Where the band lies well above the horizon every node is kept.
+        assert_eq!(
+            limb_sun_lowest(0.5, -1.223, 20_000.0, 20_000.0, thickness, i0 - 1, i0),
+            i0 - 1
+        );
     }
 
     #[test]
