@@ -27,7 +27,7 @@
 //! there. The change is evaluated per coarse
 //! cell towards the camera and interpolated to the voxels.
 
-use super::{real_sh, Coarse, MsField, Photon, Truncation};
+use super::{real_sh, sobol, Coarse, MsField, Photon, Truncation};
 use glam::DVec3;
 use rand::{Rng, SeedableRng};
 use rand_pcg::Pcg64;
@@ -139,6 +139,13 @@ pub(super) fn trace(coarse: &Coarse, g: &Group, lanes: usize) -> Vec<f64> {
     let chunk = 4096usize;
     let chunks = photons.div_ceil(chunk);
     let lanes = lanes.clamp(1, chunks.max(1));
+    // The photons' first steps from Owen-scrambled Sobol' points (module `sobol`), scrambled
+    // from the seed: `sun_thin` (whose light is mostly L₁) over 5 photon seeds, block NRMSE
+    // 3.61 → 3.11 % (worst 3.87 → 3.38 %), its bias's spread −0.48…−1.31 → −0.97…−1.22 %.
+    let sobol = {
+        let mut r = Pcg64::seed_from_u64(g.seed ^ 0x50B0_1F1E_1D00);
+        sobol::Sobol::new(std::array::from_fn(|_| r.random()))
+    };
     let parts: Vec<Vec<f32>> = (0..lanes)
         .into_par_iter()
         .map(|lane| {
@@ -150,10 +157,13 @@ pub(super) fn trace(coarse: &Coarse, g: &Group, lanes: usize) -> Vec<f64> {
                 let mut rng = Pcg64::seed_from_u64(
                     g.seed ^ 0x0_4CE5_CA77 ^ (ci as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15),
                 );
-                for _ in ci * chunk..((ci + 1) * chunk).min(photons) {
+                for i in ci * chunk..((ci + 1) * chunk).min(photons) {
                     w[0] = PI * radius * radius / photons as f64;
-                    let r = radius * rng.random::<f64>().sqrt();
-                    let phi = 2.0 * PI * rng.random::<f64>();
+                    // The photon's first dimensions (disc, first flight, first collision's
+                    // direction and class, second flight) from the scrambled Sobol' points.
+                    let q: [f64; 7] = std::array::from_fn(|d| sobol.get(i as u32, d));
+                    let r = radius * q[0].sqrt();
+                    let phi = 2.0 * PI * q[1];
                     let mut ph = Photon {
                         pos: centre + (tb * phi.cos() + bb * phi.sin()) * r
                             // Outside the grid's box (the centre is within it).
@@ -161,8 +171,13 @@ pub(super) fn trace(coarse: &Coarse, g: &Group, lanes: usize) -> Vec<f64> {
                         dir: g.travel,
                         scattered: false,
                     };
-                    for _ in 0..MAX_EVENTS {
-                        let tau = -(1.0 - rng.random::<f64>()).ln();
+                    for e in 0..MAX_EVENTS {
+                        let u = match e {
+                            0 => q[2],
+                            1 => q[6],
+                            _ => rng.random::<f64>(),
+                        };
+                        let tau = -(1.0 - u).ln();
                         if !fly(
                             coarse,
                             lo,
@@ -180,15 +195,20 @@ pub(super) fn trace(coarse: &Coarse, g: &Group, lanes: usize) -> Vec<f64> {
                         if w[0] <= 0.0 {
                             break;
                         }
-                        let nd = {
+                        let (nd, uc) = {
+                            let (u1, u2) = if e == 0 {
+                                (q[3], q[4])
+                            } else {
+                                (rng.random(), rng.random())
+                            };
                             let mut more = || rng.random::<f64>();
-                            let (u1, u2) = (more(), more());
-                            g.phase.sample(ph.dir, u1, u2, &mut more).0
+                            let nd = g.phase.sample(ph.dir, u1, u2, &mut more).0;
+                            (nd, if e == 0 { q[5] } else { rng.random::<f64>() })
                         };
                         let mu = nd.dot(ph.dir);
                         // Within the peak with probability r⁺(μ)/p(μ).
                         let p = g.phase.eval(mu);
-                        let peak = rng.random::<f64>() * p < (p - (1.0 - f) * hg.eval(mu)).max(0.0);
+                        let peak = uc * p < (p - (1.0 - f) * hg.eval(mu)).max(0.0);
                         if !peak && ph.scattered {
                             break;
                         }
