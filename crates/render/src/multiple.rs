@@ -387,17 +387,10 @@ impl MsField {
             let total = n_sun + n_env;
             // This group's sun photons leave their once-scattered light to `once`.
             let once_here = once.is_some() && sun_on && group.iter().any(|&l| once_of(l));
-            // The environment photons' launch (direction, place on the disc), first flight, first
-            // direction and second flight from Owen-scrambled Sobol' points (module `sobol`),
-            // scrambled from the seed: each photon stays uniform, so every estimate unbiased, and
-            // the photons cover the sky's directions, the disc and their first collisions evenly.
-            // Against the shifted Halton launch (bases 2, 3, 5, 7; Halton 1960; Cranley &
-            // Patterson 1976), over 6 photon seeds (block NRMSE mean / worst): `sky` 4.26 / 4.52
-            // → 4.07 / 4.59 %, `sunsky` 4.73 / 5.95 → 4.37 / 4.76 %, `sunsky_back35` 4.05 / 4.94
-            // → 3.83 / 4.09 %, `below_sky` 4.01 / 4.29 → 4.24 / 4.58 % (docs/frames.md).
-            let launch = {
-                let mut r = Pcg64::seed_from_u64(s.seed ^ 0x50B0_1F1E_1D02 ^ (l0 as u64) << 48);
-                sobol::Sobol::new(std::array::from_fn(|_| r.random()))
+            // Random shift of the launch sequence (Cranley & Patterson 1976), from the seed.
+            let shift: [f64; 4] = {
+                let mut r = Pcg64::seed_from_u64(s.seed ^ 0x1A_u64.wrapping_mul(l0 as u64 + 1));
+                [r.random(), r.random(), r.random(), r.random()]
             };
             let chunk = 4096;
             let chunks = total.div_ceil(chunk);
@@ -426,8 +419,6 @@ impl MsField {
                     let mut env = vec![0.0; n_l];
                     let mut w = vec![0.0; group.len()];
                     let mut ylm = [0.0; (MAX_ORDER + 1) * (MAX_ORDER + 1)];
-                    // An environment photon's first flight, first direction and second flight.
-                    let mut walk = [0.0; 4];
                     for ci in (lane..chunks).step_by(lanes) {
                         if cancelled.load(std::sync::atomic::Ordering::Relaxed) || cancel() {
                             cancelled.store(true, std::sync::atomic::Ordering::Relaxed);
@@ -440,24 +431,22 @@ impl MsField {
                         );
                         for i in ci * chunk..((ci + 1) * chunk).min(total) {
                             // The environment photons' launch (direction, place on the disc)
-                            // from the scrambled Sobol' points (see `launch`).
+                            // from a low-discrepancy sequence, randomly shifted: every photon
+                            // stays an unbiased sample, and the photons cover the sky's
+                            // directions and the disc evenly instead of clumping (see
+                            // `launch_point`).
                             let (u, dir_in) = if i < n_sun {
                                 for (x, sw) in w.iter_mut().zip(&sun_w) {
                                     *x = sw / n_sun as f64;
                                 }
                                 // The disc's place pseudo-random (a low-discrepancy place
                                 // on the disc measured no better for the sun's photons).
-                                // (So were the Sobol' points of the place, first flight and
-                                // first two directions, `Tried and not kept`, docs/frames.md.)
                                 ([0.0, 0.0, rng.random(), rng.random()], -lighting.sun_dir)
                             } else {
                                 // Uniform within the hemisphere drawn with probability q_up
                                 // (upper) or 1 − q_up (lower), the weight divided by that
                                 // density: unbiased wherever the environment gives light.
-                                let q: [f64; sobol::DIMS] =
-                                    std::array::from_fn(|d| launch.get((i - n_sun) as u32, d));
-                                walk = [q[4], q[5], q[6], q[7]];
-                                let u = [q[0], q[1], q[2], q[3]];
+                                let u = launch_point(i - n_sun, &shift);
                                 let (z, q) = if u[0] < q_up {
                                     (u[0] / q_up, q_up)
                                 } else {
@@ -492,16 +481,8 @@ impl MsField {
                             let sun_once = once_here && i < n_sun;
                             let mut thick_events = 0usize;
                             let mut surv = 1.0f64;
-                            // Events so far (the environment photons' first from `walk`).
-                            let qe = i >= n_sun;
-                            let mut e = 0usize;
                             loop {
-                                let uf = match e {
-                                    0 if qe => walk[0],
-                                    1 if qe => walk[3],
-                                    _ => rng.random::<f64>(),
-                                };
-                                let tau = -(1.0 - uf).ln();
+                                let tau = -(1.0 - rng.random::<f64>()).ln();
                                 if ph.scattered {
                                     real_sh(ph.dir, order, &mut ylm);
                                 }
@@ -549,7 +530,6 @@ impl MsField {
                                             // The walk stands for many scatterings: no
                                             // longer once-scattered light.
                                             smooth = smooth.max(2);
-                                            e += 1;
                                             if !thick_roulette(&mut thick_events, &mut w, &mut rng)
                                             {
                                                 break;
@@ -560,15 +540,10 @@ impl MsField {
                                     None => false,
                                 };
                                 ph.dir = {
-                                    let (u1, u2) = if e == 0 && qe {
-                                        (walk[1], walk[2])
-                                    } else {
-                                        (rng.random(), rng.random())
-                                    };
                                     let mut more = || rng.random::<f64>();
+                                    let (u1, u2) = (more(), more());
                                     phase.sample(ph.dir, u1, u2, &mut more).0
                                 };
-                                e += 1;
                                 smooth += 1;
                                 ph.scattered = true;
                                 if thick {
@@ -1143,6 +1118,26 @@ fn photon_budget(s: &PhotonSettings, sun_on: bool, env_on: bool) -> (usize, usiz
         (true, false) => (s.sun_photons.saturating_add(s.env_photons), 0),
         (false, _) => (0, s.env_photons.saturating_add(s.sun_photons)),
     }
+}
+
+/// Point `i` of the launch sequence in [0, 1)⁴: the Halton sequence (radical inverses of `i` in
+/// bases 2, 3, 5, 7; Halton 1960), whose low-dimensional projections are evenly spread,
+/// shifted by `shift` mod 1 (Cranley & Patterson 1976: with a uniform random shift each point
+/// is uniform, so every estimate stays unbiased). Used for the photons' launch only; their
+/// walks stay pseudo-random.
+fn launch_point(i: usize, shift: &[f64; 4]) -> [f64; 4] {
+    let mut u = [0.0; 4];
+    for (j, base) in [2usize, 3, 5, 7].into_iter().enumerate() {
+        let (mut n, mut f, mut r) = (i, 1.0, 0.0);
+        while n > 0 {
+            f /= base as f64;
+            r += f * (n % base) as f64;
+            n /= base;
+        }
+        let x = shift[j] + r;
+        u[j] = x - x.floor();
+    }
+    u
 }
 
 /// Mean radiance summed over the wavelengths of `group`, over the upper and the lower

@@ -153,6 +153,7 @@ pub(super) fn trace(coarse: &Coarse, g: &Group, lanes: usize) -> Vec<f64> {
             acc.fill(0.0);
             let mut ylm = [0.0; ONCE_MOMENTS];
             let mut w = w;
+            let mut raw = [0u32; 7];
             for ci in (lane..chunks).step_by(lanes) {
                 let mut rng = Pcg64::seed_from_u64(
                     g.seed ^ 0x0_4CE5_CA77 ^ (ci as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15),
@@ -160,8 +161,16 @@ pub(super) fn trace(coarse: &Coarse, g: &Group, lanes: usize) -> Vec<f64> {
                 for i in ci * chunk..((ci + 1) * chunk).min(photons) {
                     w[0] = PI * radius * radius / photons as f64;
                     // The photon's first dimensions (disc, first flight, first collision's
-                    // direction and class, second flight) from the scrambled Sobol' points.
-                    let q: [f64; 7] = std::array::from_fn(|d| sobol.get(i as u32, d));
+                    // direction and class, second flight) from the scrambled Sobol' points,
+                    // each from the one before within the chunk.
+                    for (d, x) in raw.iter_mut().enumerate() {
+                        *x = if i == ci * chunk {
+                            sobol.raw(i as u32, d)
+                        } else {
+                            sobol.next_raw(*x, i as u32, d)
+                        };
+                    }
+                    let q: [f64; 7] = std::array::from_fn(|d| sobol.scramble(raw[d], d));
                     let r = radius * q[0].sqrt();
                     let phi = 2.0 * PI * q[1];
                     let mut ph = Photon {

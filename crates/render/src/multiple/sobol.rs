@@ -57,11 +57,12 @@ impl Sobol {
         Self { v, seeds }
     }
 
-    /// Point `i`'s coordinate in dimension `d` (< [`DIMS`]), in [0, 1).
+    /// The unscrambled point `i` in Gray-code order (Antonov & Saleev 1979: the first 2^m
+    /// points are the sequence's first 2^m), dimension `d` (< [`DIMS`]).
     #[inline]
-    pub fn get(&self, i: u32, d: usize) -> f64 {
+    pub fn raw(&self, i: u32, d: usize) -> u32 {
         let mut x = 0u32;
-        let mut n = i;
+        let mut n = i ^ (i >> 1);
         let mut k = 0;
         while n != 0 {
             if n & 1 == 1 {
@@ -70,10 +71,28 @@ impl Sobol {
             n >>= 1;
             k += 1;
         }
+        x
+    }
+
+    /// Point `i` from point `i − 1` (`raw`, Gray-code order): one direction number.
+    #[inline]
+    pub fn next_raw(&self, raw: u32, i: u32, d: usize) -> u32 {
+        raw ^ self.v[d][i.trailing_zeros() as usize]
+    }
+
+    /// The scrambled coordinate of a `raw` value in dimension `d`, in (0, 1).
+    #[inline]
+    pub fn scramble(&self, raw: u32, d: usize) -> f64 {
         // Owen scrambling by the Laine-Karras hash on the bit-reversed value (Burley 2020).
-        let y = laine_karras(x.reverse_bits(), self.seeds[d]).reverse_bits();
-        // The 32-bit value's centre, within (0, 1).
+        let y = laine_karras(raw.reverse_bits(), self.seeds[d]).reverse_bits();
+        // The 32-bit value's centre.
         (y as f64 + 0.5) * (1.0 / 4_294_967_296.0)
+    }
+
+    /// Point `i`'s coordinate in dimension `d` (Gray-code order), in (0, 1).
+    #[inline]
+    pub fn get(&self, i: u32, d: usize) -> f64 {
+        self.scramble(self.raw(i, d), d)
     }
 }
 
@@ -128,6 +147,18 @@ mod tests {
                     let t = t_value(&s, a, b, 10);
                     assert!(t <= 4, "dims {a}, {b}: t = {t}");
                 }
+            }
+        }
+    }
+
+    #[test]
+    fn the_points_follow_one_another_by_one_direction_number() {
+        let s = Sobol::new([5; DIMS]);
+        for d in 0..DIMS {
+            let mut x = s.raw(1000, d);
+            for i in 1001..1200 {
+                x = s.next_raw(x, i, d);
+                assert_eq!(x, s.raw(i, d));
             }
         }
     }
