@@ -90,7 +90,7 @@ impl Sobol {
     }
 
     /// Point `i`'s coordinate in dimension `d` (Gray-code order), in (0, 1).
-    #[inline]
+    #[cfg(test)]
     pub fn get(&self, i: u32, d: usize) -> f64 {
         self.scramble(self.raw(i, d), d)
     }
