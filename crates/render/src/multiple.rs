@@ -43,7 +43,6 @@ mod convolved;
 mod face;
 mod once;
 mod skin;
-mod sobol;
 pub use convolved::ConvolvedCells;
 pub use face::{
     outward_profiles as face_outward_profiles, outward_ratio as face_outward_ratio,
