@@ -354,6 +354,15 @@ fn gather_depths(
     }
 }
 
+/// One sun's place in the transmittance table ([`AtRadius::sun_position`]).
+struct SunPosition {
+    vis: f64,
+    mu: f64,
+    dist: f64,
+    node: f64,
+    frac: f64,
+}
+
 /// Buffers of [`AtRadius::neg_optical_depths_many`], kept between calls.
 #[derive(Default)]
 pub struct OpticalDepthScratch {
@@ -427,6 +436,32 @@ impl AtRadius<'_> {
         self.table.layer_radius.iter().any(Option::is_some)
     }
 
+    /// One sun's place in the table, branch-free (so the loops of [`Self::lookup_many`] and
+    /// [`Self::neg_optical_depths_many`] vectorise): [`Self::sun_visibility`], μs raised to the
+    /// horizon's, [`Self::lookup`]'s `distance_to_sphere_far(..).unwrap_or(0.0)`, and the μ node
+    /// and fraction of the row (`spans`: whether the row's distances span an interval, else
+    /// every x_μ is 0; `scale` = n_μ − 1, `last` = n_μ − 2).
+    #[inline(always)]
+    fn sun_position(&self, mu_s: f64, spans: bool, scale: f64, last: f64) -> SunPosition {
+        let (r, top, d_min, d_max) = (self.r, self.table.top, self.d_min, self.d_max);
+        let x = ((mu_s - self.mu_h_vis) / self.width * 0.5 + 0.5).clamp(0.0, 1.0);
+        let mu = mu_s.max(self.mu_h);
+        let disc = r * r * (mu * mu - 1.0) + top * top;
+        let tq = -r * mu + disc.sqrt();
+        let dist = if disc >= 0.0 && tq >= 0.0 { tq } else { 0.0 };
+        let x_in = ((dist - d_min) / (d_max - d_min)).clamp(0.0, 1.0);
+        let x_mu = if spans { x_in } else { 0.0 };
+        let fm = x_mu * scale;
+        let node = fm.floor().min(last);
+        SunPosition {
+            vis: x * x * (3.0 - 2.0 * x),
+            mu,
+            dist,
+            node,
+            frac: fm - node,
+        }
+    }
+
     /// For each sun zenith cosine `mu_s[t]`: [`Self::sun_visibility`] into `vis[t]` and, for
     /// each wavelength `l`, the sun's optical depth from here, `ext[l] · `[`Self::lookup`]`(μs)`
     /// (0 where the sun is hidden), negated and rounded to f32, into `out[l * stride + t]`.
@@ -450,7 +485,6 @@ impl AtRadius<'_> {
         let n = mu_s.len().min(vis.len());
         let n_l = ext.len();
         let (d_min, d_max) = (self.d_min, self.d_max);
-        let (r, mu_h, top) = (self.r, self.mu_h, t.top);
         let ar = self.ar;
         let last = (t.n_mu - 2) as f64;
         let scale = (t.n_mu - 1) as f64;
@@ -461,18 +495,10 @@ impl AtRadius<'_> {
         let (imf, am) = (&mut imf[..n], &mut am[..n]);
         // `lookup_many`'s first loop: visibility and interpolation position, branch-free.
         for q in 0..n {
-            let x = ((mu_s[q] - self.mu_h_vis) / self.width * 0.5 + 0.5).clamp(0.0, 1.0);
-            vis[q] = x * x * (3.0 - 2.0 * x);
-            let mq = mu_s[q].max(mu_h);
-            let disc = r * r * (mq * mq - 1.0) + top * top;
-            let tq = -r * mq + disc.sqrt();
-            let dq = if disc >= 0.0 && tq >= 0.0 { tq } else { 0.0 };
-            let x_in = ((dq - d_min) / (d_max - d_min)).clamp(0.0, 1.0);
-            let x_mu = if spans { x_in } else { 0.0 };
-            let fm = x_mu * scale;
-            let i = fm.floor().min(last);
-            imf[q] = i;
-            am[q] = fm - i;
+            let p = self.sun_position(mu_s[q], spans, scale, last);
+            vis[q] = p.vis;
+            imf[q] = p.node;
+            am[q] = p.frac;
         }
         if n == 0 {
             return;
@@ -521,7 +547,7 @@ impl AtRadius<'_> {
         let n = mu_s.len().min(vis.len());
         let [d0, d1, d2] = d;
         let (d_min, d_max) = (self.d_min, self.d_max);
-        let (r, mu_h, top) = (self.r, self.mu_h, t.top);
+        let r = self.r;
         let (ir, ar) = (self.ir, self.ar);
         let last = (t.n_mu - 2) as f64;
         let scale = (t.n_mu - 1) as f64;
@@ -541,21 +567,12 @@ impl AtRadius<'_> {
             let mu_s = &mu_s[s0..s0 + m];
             let vis_b = &mut vis[s0..s0 + m];
             for q in 0..m {
-                let x = ((mu_s[q] - self.mu_h_vis) / self.width * 0.5 + 0.5).clamp(0.0, 1.0);
-                vis_b[q] = x * x * (3.0 - 2.0 * x);
-                // `lookup`, branch-free: `distance_to_sphere_far(..).unwrap_or(0.0)`.
-                let mq = mu_s[q].max(mu_h);
-                let disc = r * r * (mq * mq - 1.0) + top * top;
-                let tq = -r * mq + disc.sqrt();
-                let dq = if disc >= 0.0 && tq >= 0.0 { tq } else { 0.0 };
-                let x_in = ((dq - d_min) / (d_max - d_min)).clamp(0.0, 1.0);
-                let x_mu = if spans { x_in } else { 0.0 };
-                let fm = x_mu * scale;
-                let i = fm.floor().min(last);
-                mu[q] = mq;
-                dist[q] = dq;
-                imf[q] = i;
-                am[q] = fm - i;
+                let p = self.sun_position(mu_s[q], spans, scale, last);
+                vis_b[q] = p.vis;
+                mu[q] = p.mu;
+                dist[q] = p.dist;
+                imf[q] = p.node;
+                am[q] = p.frac;
             }
             for q in 0..m {
                 // 0 ≤ imf ≤ n_mu − 2: an exact small integer.
