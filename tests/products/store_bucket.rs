@@ -2,7 +2,8 @@
 //! skipped with a printed reason without one): a product stored by one cache is found by another
 //! process's cache; corrupt, truncated and mis-keyed objects are detected, counted, deleted and
 //! never served; a bucket that stops answering is `Unavailable` after the retries, and serves
-//! again when it is back; leases exclude a second holder until they expire.
+//! again when it is back; leases exclude a second holder until they expire, and of contenders
+//! racing for one lease exactly one holds it.
 
 use std::sync::Arc;
 use std::time::Duration;
@@ -178,6 +179,48 @@ fn tiles_in_a_bucket_are_verified_and_bound_to_their_place() {
     assert_eq!(store.prune(Duration::from_secs(3600)).unwrap(), 0);
     tiles.remove_all().unwrap();
     assert_eq!(tiles.count(), 0);
+}
+
+/// Contenders racing for the same lease at the same instant: exactly one holds it. This is the
+/// server's conditional create (`If-None-Match: *`) being atomic with the write, as S3's is; a
+/// server that checks and then writes in two steps lets two replicas compute the same product.
+#[test]
+fn contenders_racing_for_one_lease_leave_exactly_one_holder() {
+    let Some(endpoint) = s3::endpoint("contenders_racing_for_one_lease") else {
+        return;
+    };
+    let bucket = s3::open(
+        &s3::fresh_url("lease-race"),
+        &endpoint,
+        RetryPolicy::default(),
+    );
+    const CONTENDERS: usize = 6;
+    for round in 0..25 {
+        let name = format!("leases/race-{round}");
+        let start = std::sync::Barrier::new(CONTENDERS);
+        let held = std::thread::scope(|scope| {
+            let tries: Vec<_> = (0..CONTENDERS)
+                .map(|i| {
+                    let (bucket, name, start) = (&bucket, &name, &start);
+                    scope.spawn(move || {
+                        start.wait();
+                        Lease::try_acquire(bucket, name, &format!("c{i}"), Duration::from_secs(30))
+                            .unwrap()
+                    })
+                })
+                .collect();
+            // Joined before any lease is dropped, so a winner cannot release it for a later one.
+            let outcomes: Vec<Acquired> = tries.into_iter().map(|t| t.join().unwrap()).collect();
+            outcomes
+                .iter()
+                .filter(|o| matches!(o, Acquired::Held(_)))
+                .count()
+        });
+        assert_eq!(
+            held, 1,
+            "round {round}: {held} of {CONTENDERS} contenders hold the lease"
+        );
+    }
 }
 
 #[test]
