@@ -383,8 +383,23 @@ fn gather_depths_rgb(
     }
 }
 
-/// The optical depths (`ext[l]` · the density integrals, `[node][λ]`) of the μ nodes
-/// `lo..=hi` of the two radius rows interpolated with weight `ar`, into `rows`.
+/// The optical depth of each wavelength (`ext[l]` · the density integrals) at a μ node of the
+/// table's two radius rows (`v0`, `v1`) interpolated in r with weight `ar`, into `out`.
+#[inline(always)]
+fn node_depth(
+    ext: &[[f64; CONSTITUENTS]],
+    v0: &[f64; CONSTITUENTS],
+    v1: &[f64; CONSTITUENTS],
+    ar: f64,
+    out: &mut [f64],
+) {
+    let d: [f64; CONSTITUENTS] = std::array::from_fn(|k| v0[k] * (1.0 - ar) + v1[k] * ar);
+    for (o, e) in out.iter_mut().zip(ext) {
+        *o = e[0] * d[0] + e[1] * d[1] + e[2] * d[2];
+    }
+}
+
+/// [`node_depth`] of the μ nodes `nodes` of the rows, `[node][λ]`, into `rows`.
 #[inline(always)]
 fn node_depths(
     ext: &[[f64; CONSTITUENTS]],
@@ -395,11 +410,38 @@ fn node_depths(
     rows: &mut [f64],
 ) {
     let n_l = ext.len();
-    for (j, o) in nodes.zip(rows.chunks_exact_mut(n_l)) {
-        let d: [f64; CONSTITUENTS] =
-            std::array::from_fn(|k| row0[j][k] * (1.0 - ar) + row1[j][k] * ar);
-        for (o, e) in o.iter_mut().zip(ext) {
-            *o = e[0] * d[0] + e[1] * d[1] + e[2] * d[2];
+    let (row0, row1) = (&row0[nodes.clone()], &row1[nodes]);
+    for (o, (v0, v1)) in rows.chunks_exact_mut(n_l).zip(row0.iter().zip(row1)) {
+        node_depth(ext, v0, v1, ar, o);
+    }
+}
+
+/// [`node_depths`] and [`gather_depths`] sun by sun, each sun's two nodes formed where it reads
+/// them (for fewer suns than the nodes they span): the same operations, so the same values.
+#[inline(always)]
+#[allow(clippy::too_many_arguments)]
+fn direct_depths<const N: usize>(
+    ext: &[[f64; CONSTITUENTS]; N],
+    row0: &[[f64; CONSTITUENTS]],
+    row1: &[[f64; CONSTITUENTS]],
+    ar: f64,
+    node: &[u32],
+    am: &[f64],
+    vis: &[f64],
+    out: &mut [f32],
+    stride: usize,
+) {
+    let n = vis.len().min(node.len()).min(am.len());
+    for q in 0..n {
+        let j = node[q] as usize;
+        let (mut r0, mut r1) = ([0.0; N], [0.0; N]);
+        node_depth(ext, &row0[j], &row1[j], ar, &mut r0);
+        node_depth(ext, &row0[j + 1], &row1[j + 1], ar, &mut r1);
+        let a = am[q];
+        let on = vis[q] > 0.0;
+        for l in 0..N {
+            let od = r0[l] * (1.0 - a) + r1[l] * a;
+            out[l * stride + q] = if on { -od as f32 } else { 0.0 };
         }
     }
 }
@@ -559,6 +601,11 @@ impl AtRadius<'_> {
         // The optical depths of the μ nodes lo..=hi + 1 at this radius, `[node][λ]`.
         let row0 = &t.data[self.ir * t.n_mu..][..t.n_mu];
         let row1 = &t.data[(self.ir + 1) * t.n_mu..][..t.n_mu];
+        // Fewer suns than the nodes they span (a focused ray's few suns): each sun's own two.
+        if let (Ok(ext), true) = (<&[_; 3]>::try_from(ext), 2 * n < hi + 2 - lo) {
+            direct_depths(ext, row0, row1, ar, node, am, vis, out, stride);
+            return;
+        }
         rows.clear();
         rows.resize((hi + 2 - lo) * n_l, 0.0);
         // RGB written out (the loops over wavelengths unrolled).
