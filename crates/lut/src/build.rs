@@ -640,6 +640,8 @@ pub(crate) struct FamilyScratch<'a> {
     /// The suns whose multiple scattering [`texel_sums`] computes (all when empty), and their
     /// zenith cosines at the current point and view–sun cosines, gathered.
     ms_suns: Vec<usize>,
+    /// [`multiple_sums`]: the suns' zenith cosines at the ray's origin, gathered.
+    ms_mu_s: Vec<f64>,
     ms_mu_s_p: Vec<f64>,
     ms_nu: Vec<f64>,
     ms_j: Vec<f64>,
@@ -676,6 +678,7 @@ impl<'a> FamilyScratch<'a> {
             mie: Vec::new(),
             multiple: Vec::new(),
             ms_suns: Vec::new(),
+            ms_mu_s: Vec::new(),
             ms_mu_s_p: Vec::new(),
             ms_nu: Vec::new(),
             ms_j: Vec::new(),
@@ -1085,14 +1088,21 @@ skybake_physics::simd_dispatch_avx512! {
 /// at the point in `mu_s_p`): the operations of [`texel_sums`] for those suns, in the same order.
 #[inline(always)]
 fn multiple_at_point(scratch: &mut FamilyScratch<'_>, k: usize) {
-    let n_l = scratch.n_l;
-    let wt = &scratch.weighted_t[k * n_l..(k + 1) * n_l];
     scratch.ms_mu_s_p.clear();
     scratch.ms_nu.clear();
     for &t in &scratch.ms_suns {
         scratch.ms_mu_s_p.push(scratch.mu_s_p[t]);
         scratch.ms_nu.push(scratch.nu[t]);
     }
+    multiple_at_point_gathered(scratch, k);
+}
+
+/// [`multiple_at_point`] with the suns' zenith cosines at the point and view–sun cosines
+/// already gathered into `ms_mu_s_p` and `ms_nu`.
+#[inline(always)]
+fn multiple_at_point_gathered(scratch: &mut FamilyScratch<'_>, k: usize) {
+    let n_l = scratch.n_l;
+    let wt = &scratch.weighted_t[k * n_l..(k + 1) * n_l];
     let top = scratch
         .ms_mu_s_p
         .iter()
@@ -1138,16 +1148,24 @@ pub static REFINED_BY: [std::sync::atomic::AtomicU64; 12] =
     [const { std::sync::atomic::AtomicU64::new(0) }; 12];
 
 /// The multiple-scattering sums of the suns `ms_suns` alone (added to `multiple`), point by
-/// point as [`texel_sums`] forms them.
+/// point as [`texel_sums`] forms them (the suns' cosines gathered once for all points).
 fn multiple_sums(scratch: &mut FamilyScratch<'_>) {
     let r = scratch.r;
+    scratch.ms_mu_s.clear();
+    scratch.ms_nu.clear();
+    for &t in &scratch.ms_suns {
+        scratch.ms_mu_s.push(scratch.mu_s[t]);
+        scratch.ms_nu.push(scratch.nu[t]);
+    }
+    let n = scratch.ms_suns.len();
+    scratch.ms_mu_s_p.resize(n, 0.0);
     for k in 0..scratch.points.len() {
-        let p = &scratch.points[k];
-        for &t in &scratch.ms_suns {
-            scratch.mu_s_p[t] =
-                ((r * scratch.mu_s[t] + p.t * scratch.nu[t]) / p.r).clamp(-1.0, 1.0);
+        let p = scratch.points[k];
+        let (mu_s, nu) = (&scratch.ms_mu_s[..n], &scratch.ms_nu[..n]);
+        for (o, (&mu_s, &nu)) in scratch.ms_mu_s_p[..n].iter_mut().zip(mu_s.iter().zip(nu)) {
+            *o = ((r * mu_s + p.t * nu) / p.r).clamp(-1.0, 1.0);
         }
-        multiple_at_point(scratch, k);
+        multiple_at_point_gathered(scratch, k);
     }
 }
 

@@ -290,15 +290,17 @@ impl Grid {
     /// the same values.
     #[inline(always)]
     fn s_pos_f(&self, theta_s: f64) -> (f64, f64) {
-        let f = (theta_s / self.theta_s_max).clamp(0.0, 1.0) * (self.n_coarse - 1) as f64;
-        let jf = self.j_fine as f64;
-        let i_day = f.floor().min(self.n_coarse.saturating_sub(2) as f64);
-        let g = jf + 2.0 * (f - jf);
-        let i_dusk = g.floor().min(self.s.n_mu_s.saturating_sub(2) as f64);
-        if f < jf {
-            (i_day, f - i_day)
-        } else {
-            (i_dusk, g - i_dusk)
+        self.sun_nodes().pos_f(theta_s)
+    }
+    /// The sun-zenith nodes' parameters, copied out of the grid (for loops that must not
+    /// reload them through a pointer).
+    #[inline(always)]
+    fn sun_nodes(&self) -> SunZenithNodes {
+        SunZenithNodes {
+            theta_s_max: self.theta_s_max,
+            n_coarse: self.n_coarse,
+            j_fine: self.j_fine,
+            n_mu_s: self.s.n_mu_s,
         }
     }
     fn dirs(&self) -> usize {
@@ -425,6 +427,33 @@ impl Grid {
         let f = (angle / PI * n as f64 - 0.5).clamp(0.0, (n - 1) as f64);
         let i = (f.floor() as usize).min(n.saturating_sub(2));
         (i, f - i as f64)
+    }
+}
+
+/// The sun-zenith nodes of a [`Grid`] ([`Grid::sun_nodes`]).
+#[derive(Debug, Clone, Copy)]
+struct SunZenithNodes {
+    theta_s_max: f64,
+    n_coarse: usize,
+    j_fine: usize,
+    n_mu_s: usize,
+}
+
+impl SunZenithNodes {
+    /// [`Grid::s_pos`] with the node index as a float, branch-free (for loops that vectorise);
+    /// the same values.
+    #[inline(always)]
+    fn pos_f(&self, theta_s: f64) -> (f64, f64) {
+        let f = (theta_s / self.theta_s_max).clamp(0.0, 1.0) * (self.n_coarse - 1) as f64;
+        let jf = self.j_fine as f64;
+        let i_day = f.floor().min(self.n_coarse.saturating_sub(2) as f64);
+        let g = jf + 2.0 * (f - jf);
+        let i_dusk = g.floor().min(self.n_mu_s.saturating_sub(2) as f64);
+        if f < jf {
+            (i_day, f - i_day)
+        } else {
+            (i_dusk, g - i_dusk)
+        }
     }
 }
 
@@ -1163,7 +1192,8 @@ struct PassCtx<'a> {
 struct FamilyScratch {
     points: Vec<RayPoint>,
     /// `[point][λ]`: sub-ray weight × quadrature weight × transmittance viewer → point (order 1);
-    /// `[point][c][λ]`: the same times σ_c ρ_c at the point (orders ≥ 2).
+    /// `[point][c][λ]`: the same times σ_c ρ_c at the point (orders ≥ 2), each point's lanes
+    /// padded with zeros to [`twilight_batch::CELL_LANES`] where they fit in it.
     tw: Vec<f32>,
     /// `[point]`: relative densities (order 1).
     rho: Vec<[f64; CONSTITUENTS]>,
@@ -1173,6 +1203,8 @@ struct FamilyScratch {
     /// the nodes of twilight cells ([`Grid::twilight_cell`]).
     ln_slice: Vec<f32>,
     ln_from: usize,
+    /// `[i_mu_s]`: [`Grid::twilight_cell`] of each sun-zenith node.
+    twilight: Vec<bool>,
     /// `[c][λ]`: one twilight cell's interpolated Â.
     tv: Vec<f32>,
     /// `[cell]`: interpolation positions at one point (sun-zenith node, −1 for none, and
@@ -1213,6 +1245,9 @@ impl FamilyScratch {
                 .find(|&is| grid.twilight_cell(is))
                 .unwrap_or(grid.s.n_mu_s)
                 .saturating_sub(1),
+            twilight: (0..grid.s.n_mu_s)
+                .map(|is| is + 1 < grid.s.n_mu_s && grid.twilight_cell(is))
+                .collect(),
             tv: vec![0.0; 2 * n_l],
             pos_s: vec![0.0; fc],
             pos_fs: vec![0.0; fc],
@@ -1426,6 +1461,11 @@ crate::simd_dispatch_avx512! {
             // itself (`2 n_l` lanes per point), order 1 only the transmittance (`n_l`).
             let order = matches!(input, PassInput::Order { .. });
             let n_tw = if order { n_j } else { n_l };
+            let tw_stride = if order && n_j <= twilight_batch::CELL_LANES {
+                twilight_batch::CELL_LANES
+            } else {
+                n_tw
+            };
             let mut d_view = [0.0f64; CONSTITUENTS];
             for p in &sc.points {
                 let rho = medium.densities(p.r);
@@ -1438,6 +1478,7 @@ crate::simd_dispatch_avx512! {
                 if order {
                     sc.tw.extend((0..n_l).map(|i| (tw_at(i) * sig_r[i] * rho[RAYLEIGH]) as f32));
                     sc.tw.extend((0..n_l).map(|i| (tw_at(i) * sig_m[i] * rho[MIE]) as f32));
+                    sc.tw.extend(std::iter::repeat_n(0.0, tw_stride - n_tw));
                 } else {
                     sc.tw.extend((0..n_l).map(|i| tw_at(i) as f32));
                 }
@@ -1451,7 +1492,9 @@ crate::simd_dispatch_avx512! {
                 t_total[i] = exp_fast(-tau);
             }
             for (pi, p) in sc.points.iter().enumerate() {
-                let tw = &sc.tw[pi * n_tw..][..n_tw];
+                let tw = &sc.tw[pi * tw_stride..][..tw_stride];
+                // The padded lanes of the cells added in whole vectors (`n_j` ≤ CELL_LANES).
+                let tw_lanes: Option<&[f32; twilight_batch::CELL_LANES]> = tw.try_into().ok();
                 let sin_mu = safe_sqrt(1.0 - p.mu * p.mu);
                 match input {
                     PassInput::Single => {
@@ -1545,32 +1588,39 @@ crate::simd_dispatch_avx512! {
                         // branch-free loop over cells that vectorises: sun-zenith node and
                         // weight, azimuth node and weight (node −1: the sun is beyond the
                         // tables' last node, no source there); or recorded by an earlier order.
+                        // The arrays sliced to the cells and the grid copied first, so that
+                        // the loop holds no bounds check and no reload through `sc`.
                         let ready = cache.state == CacheState::Ready;
-                        for c in 0..if ready { 0 } else { fc } {
-                            let mu_s = ((r0 * sc.cell_mu_s[c] + p.t * sc.cell_nu[c]) / p.r)
-                                .clamp(-1.0, 1.0);
-                            let theta_s = acos_fast(mu_s);
-                            let (js, fs) = grid.s_pos_f(theta_s);
-                            let denom = sin_mu * safe_sqrt(1.0 - mu_s * mu_s);
-                            let cos_phi = if denom > 1e-9 {
-                                ((sc.cell_nu[c] - p.mu * mu_s) / denom).clamp(-1.0, 1.0)
-                            } else {
-                                1.0
-                            };
-                            let (jp, fp) = Grid::phi_pos_f(acos_fast(cos_phi), n_phi);
-                            sc.pos_s[c] = if theta_s > grid.theta_s_max { -1.0 } else { js };
-                            sc.pos_fs[c] = fs;
-                            sc.pos_p[c] = jp;
-                            sc.pos_fp[c] = fp;
-                        }
                         if !ready {
+                            let g = grid.sun_nodes();
+                            let (cell_mu_s, cell_nu) = (&sc.cell_mu_s[..fc], &sc.cell_nu[..fc]);
+                            let (pos_s, pos_fs) = (&mut sc.pos_s[..fc], &mut sc.pos_fs[..fc]);
+                            let (pos_p, pos_fp) = (&mut sc.pos_p[..fc], &mut sc.pos_fp[..fc]);
                             for c in 0..fc {
-                                sc.q_idx[c] = if sc.pos_s[c] < 0.0 {
+                                let mu_s =
+                                    ((r0 * cell_mu_s[c] + p.t * cell_nu[c]) / p.r).clamp(-1.0, 1.0);
+                                let theta_s = acos_fast(mu_s);
+                                let (js, fs) = g.pos_f(theta_s);
+                                let denom = sin_mu * safe_sqrt(1.0 - mu_s * mu_s);
+                                let cos_phi = if denom > 1e-9 {
+                                    ((cell_nu[c] - p.mu * mu_s) / denom).clamp(-1.0, 1.0)
+                                } else {
+                                    1.0
+                                };
+                                let (jp, fp) = Grid::phi_pos_f(acos_fast(cos_phi), n_phi);
+                                pos_s[c] = if theta_s > g.theta_s_max { -1.0 } else { js };
+                                pos_fs[c] = fs;
+                                pos_p[c] = jp;
+                                pos_fp[c] = fp;
+                            }
+                            let (q_idx, q_w) = (&mut sc.q_idx[..fc], &mut sc.q_w[..fc]);
+                            for c in 0..fc {
+                                q_idx[c] = if pos_s[c] < 0.0 {
                                     [NO_NODE, 0]
                                 } else {
-                                    [sc.pos_s[c] as u16, sc.pos_p[c] as u16]
+                                    [pos_s[c] as u16, pos_p[c] as u16]
                                 };
-                                sc.q_w[c] = [sc.pos_fs[c] as f32, sc.pos_fp[c] as f32];
+                                q_w[c] = [pos_fs[c] as f32, pos_fp[c] as f32];
                             }
                             if cache.state == CacheState::Recording {
                                 cache.record(&sc.q_idx, &sc.q_w, cache_left);
@@ -1589,10 +1639,10 @@ crate::simd_dispatch_avx512! {
                             }
                             let (js, jp) = (js as usize, jp as usize);
                             let [fs, fp] = q_w[c];
-                            if grid.twilight_cell(js) {
+                            if sc.twilight[js] {
                                 // In ln J over sun zenith (`twilight_interp`), linear in azimuth.
                                 let (nodes, wq) = catmull_rom(js, fs as f64, n_mu_s);
-                                if n_j <= twilight_batch::CELL_LANES {
+                                if let Some(tw) = tw_lanes {
                                     twilight_batch::twilight_cell_pair_add(
                                         &sc.slice,
                                         &sc.ln_slice,
@@ -1631,7 +1681,7 @@ crate::simd_dispatch_avx512! {
                             }
                             let (c00, c01, c10, c11) =
                                 ((1.0 - fs) * (1.0 - fp), (1.0 - fs) * fp, fs * (1.0 - fp), fs * fp);
-                            if n_j <= twilight_batch::CELL_LANES {
+                            if let Some(tw) = tw_lanes {
                                 twilight_batch::day_cell_add(
                                     &sc.slice,
                                     (js * n_phi + jp) * n_j,

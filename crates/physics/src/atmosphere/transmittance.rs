@@ -325,7 +325,7 @@ impl DensityIntegralTable {
 }
 
 /// [`AtRadius::neg_optical_depths_many`]'s last step: for each sun `q`, the rows' (`[node][λ]`,
-/// `n_l` wavelengths, from node `lo`) node `imf[q]` and the next interpolated with weight
+/// `n_l` wavelengths, from node `lo`) node `node[q]` and the next interpolated with weight
 /// `am[q]`, negated, as f32 into `out[l * stride + q]` (0 where `vis[q]` is 0): each sun's two
 /// rows read once for all its wavelengths.
 #[inline(always)]
@@ -334,21 +334,113 @@ fn gather_depths(
     n_l: usize,
     rows: &[f64],
     lo: usize,
-    imf: &[f64],
+    node: &[u32],
     am: &[f64],
     vis: &[f64],
     out: &mut [f32],
     stride: usize,
 ) {
-    let n = vis.len().min(imf.len()).min(am.len());
+    let n = vis.len().min(node.len()).min(am.len());
     for q in 0..n {
-        // lo ≤ imf ≤ hi: an exact small integer.
-        let j = (imf[q] as usize - lo) * n_l;
+        let j = (node[q] as usize - lo) * n_l;
         let r = &rows[j..j + 2 * n_l];
         let a = am[q];
         let on = vis[q] > 0.0;
         for l in 0..n_l {
             let od = r[l] * (1.0 - a) + r[n_l + l] * a;
+            out[l * stride + q] = if on { -od as f32 } else { 0.0 };
+        }
+    }
+}
+
+/// [`gather_depths`] for three wavelengths, the output's three rows sliced first (no bounds
+/// check or index arithmetic per wavelength): the same values.
+#[inline(always)]
+#[allow(clippy::too_many_arguments)]
+fn gather_depths_rgb(
+    rows: &[f64],
+    lo: usize,
+    node: &[u32],
+    am: &[f64],
+    vis: &[f64],
+    out: &mut [f32],
+    stride: usize,
+) {
+    let n = vis.len().min(node.len()).min(am.len());
+    let (o0, rest) = out.split_at_mut(stride);
+    let (o1, o2) = rest.split_at_mut(stride);
+    let (o0, o1, o2) = (&mut o0[..n], &mut o1[..n], &mut o2[..n]);
+    let (node, am, vis) = (&node[..n], &am[..n], &vis[..n]);
+    for q in 0..n {
+        let j = (node[q] as usize - lo) * 3;
+        let r: &[f64; 6] = rows[j..j + 6].try_into().unwrap();
+        let a = am[q];
+        let on = vis[q] > 0.0;
+        let od = |l: usize| -(r[l] * (1.0 - a) + r[3 + l] * a) as f32;
+        o0[q] = if on { od(0) } else { 0.0 };
+        o1[q] = if on { od(1) } else { 0.0 };
+        o2[q] = if on { od(2) } else { 0.0 };
+    }
+}
+
+/// The optical depth of each wavelength (`ext[l]` · the density integrals) at a μ node of the
+/// table's two radius rows (`v0`, `v1`) interpolated in r with weight `ar`, into `out`.
+#[inline(always)]
+fn node_depth(
+    ext: &[[f64; CONSTITUENTS]],
+    v0: &[f64; CONSTITUENTS],
+    v1: &[f64; CONSTITUENTS],
+    ar: f64,
+    out: &mut [f64],
+) {
+    let d: [f64; CONSTITUENTS] = std::array::from_fn(|k| v0[k] * (1.0 - ar) + v1[k] * ar);
+    for (o, e) in out.iter_mut().zip(ext) {
+        *o = e[0] * d[0] + e[1] * d[1] + e[2] * d[2];
+    }
+}
+
+/// [`node_depth`] of the μ nodes `nodes` of the rows, `[node][λ]`, into `rows`.
+#[inline(always)]
+fn node_depths(
+    ext: &[[f64; CONSTITUENTS]],
+    row0: &[[f64; CONSTITUENTS]],
+    row1: &[[f64; CONSTITUENTS]],
+    ar: f64,
+    nodes: std::ops::RangeInclusive<usize>,
+    rows: &mut [f64],
+) {
+    let n_l = ext.len();
+    let (row0, row1) = (&row0[nodes.clone()], &row1[nodes]);
+    for (o, (v0, v1)) in rows.chunks_exact_mut(n_l).zip(row0.iter().zip(row1)) {
+        node_depth(ext, v0, v1, ar, o);
+    }
+}
+
+/// [`node_depths`] and [`gather_depths`] sun by sun, each sun's two nodes formed where it reads
+/// them (for fewer suns than the nodes they span): the same operations, so the same values.
+#[inline(always)]
+#[allow(clippy::too_many_arguments)]
+fn direct_depths<const N: usize>(
+    ext: &[[f64; CONSTITUENTS]; N],
+    row0: &[[f64; CONSTITUENTS]],
+    row1: &[[f64; CONSTITUENTS]],
+    ar: f64,
+    node: &[u32],
+    am: &[f64],
+    vis: &[f64],
+    out: &mut [f32],
+    stride: usize,
+) {
+    let n = vis.len().min(node.len()).min(am.len());
+    for q in 0..n {
+        let j = node[q] as usize;
+        let (mut r0, mut r1) = ([0.0; N], [0.0; N]);
+        node_depth(ext, &row0[j], &row1[j], ar, &mut r0);
+        node_depth(ext, &row0[j + 1], &row1[j + 1], ar, &mut r1);
+        let a = am[q];
+        let on = vis[q] > 0.0;
+        for l in 0..N {
+            let od = r0[l] * (1.0 - a) + r1[l] * a;
             out[l * stride + q] = if on { -od as f32 } else { 0.0 };
         }
     }
@@ -367,7 +459,7 @@ struct SunPosition {
 #[derive(Default)]
 pub struct OpticalDepthScratch {
     /// Per sun: the μ node below and the weight of the one above.
-    imf: Vec<f64>,
+    node: Vec<u32>,
     am: Vec<f64>,
     /// `[node][λ]`: the optical depths of the nodes the suns read.
     rows: Vec<f64>,
@@ -489,37 +581,40 @@ impl AtRadius<'_> {
         let last = (t.n_mu - 2) as f64;
         let scale = (t.n_mu - 1) as f64;
         let spans = d_max > d_min;
-        let OpticalDepthScratch { imf, am, rows } = scratch;
-        imf.resize(n, 0.0);
+        let OpticalDepthScratch { node, am, rows } = scratch;
+        node.resize(n, 0);
         am.resize(n, 0.0);
-        let (imf, am) = (&mut imf[..n], &mut am[..n]);
-        // `lookup_many`'s first loop: visibility and interpolation position, branch-free.
+        let (node, am, vis) = (&mut node[..n], &mut am[..n], &mut vis[..n]);
+        // `lookup_many`'s first loop: visibility and interpolation position, branch-free; the
+        // node (an exact integer, 0 ≤ node ≤ n_μ − 2) as an integer.
         for q in 0..n {
             let p = self.sun_position(mu_s[q], spans, scale, last);
             vis[q] = p.vis;
-            imf[q] = p.node;
+            node[q] = p.node as u32;
             am[q] = p.frac;
         }
         if n == 0 {
             return;
         }
-        let lo = imf.iter().fold(f64::INFINITY, |a, &b| a.min(b)) as usize;
-        let hi = imf.iter().fold(0.0f64, |a, &b| a.max(b)) as usize;
+        let lo = node.iter().fold(u32::MAX, |a, &b| a.min(b)) as usize;
+        let hi = node.iter().fold(0, |a, &b| a.max(b)) as usize;
         // The optical depths of the μ nodes lo..=hi + 1 at this radius, `[node][λ]`.
         let row0 = &t.data[self.ir * t.n_mu..][..t.n_mu];
         let row1 = &t.data[(self.ir + 1) * t.n_mu..][..t.n_mu];
-        rows.clear();
-        for j in lo..=hi + 1 {
-            let d: [f64; CONSTITUENTS] =
-                std::array::from_fn(|k| row0[j][k] * (1.0 - ar) + row1[j][k] * ar);
-            rows.extend(ext.iter().map(|e| e[0] * d[0] + e[1] * d[1] + e[2] * d[2]));
+        // Fewer suns than the nodes they span (a focused ray's few suns): each sun's own two.
+        if let (Ok(ext), true) = (<&[_; 3]>::try_from(ext), 2 * n < hi + 2 - lo) {
+            direct_depths(ext, row0, row1, ar, node, am, vis, out, stride);
+            return;
         }
-        let (rows, vis) = (&rows[..], &vis[..n]);
-        // RGB written out (the loop over wavelengths unrolled).
+        rows.clear();
+        rows.resize((hi + 2 - lo) * n_l, 0.0);
+        // RGB written out (the loops over wavelengths unrolled).
         if n_l == 3 {
-            gather_depths(3, rows, lo, imf, am, vis, out, stride);
+            node_depths(&ext[..3], row0, row1, ar, lo..=hi + 1, rows);
+            gather_depths_rgb(rows, lo, node, am, vis, out, stride);
         } else {
-            gather_depths(n_l, rows, lo, imf, am, vis, out, stride);
+            node_depths(ext, row0, row1, ar, lo..=hi + 1, rows);
+            gather_depths(n_l, rows, lo, node, am, vis, out, stride);
         }
     }
 
@@ -528,7 +623,10 @@ impl AtRadius<'_> {
     /// them. Scans from both ends, so it costs what the hidden suns at the ends do.
     #[inline(always)]
     pub fn visible_range(&self, mu_s: &[f64]) -> std::ops::Range<usize> {
-        let seen = |&m: &f64| self.sun_visibility(m) > 0.0;
+        // A sun at or below `below` is hidden (its smoothstep argument before the clamp is
+        // below −0.5): one comparison per sun, the division only for the suns above it.
+        let below = self.mu_h_vis - 2.0 * self.width - 1e-12 * (1.0 + self.mu_h_vis.abs());
+        let seen = |&m: &f64| m > below && self.sun_visibility(m) > 0.0;
         match mu_s.iter().position(seen) {
             Some(first) => first..mu_s.len() - mu_s.iter().rev().position(seen).unwrap_or(0),
             None => 0..0,

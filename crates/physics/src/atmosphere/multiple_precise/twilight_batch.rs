@@ -56,7 +56,9 @@ pub(super) fn twilight_cell_pair(
 /// [`twilight_cell_pair`] into a zeroed `tv`, then `o[i] += tw[i] tv[i] + tw[n + i] tv[n + i]`
 /// (n = `n_j` / 2, the Rayleigh-like and Mie halves): the table build's twilight cell added to
 /// its output, `tv` kept in one vector instead of written and read back lane by lane; the same
-/// operations on every lane, so the same values.
+/// operations on every lane, so the same values. `tw` holds the point's `n_j` weights padded to
+/// a whole vector (read as one load: a copy of `n_j` lanes compiled to a `memcpy` whose small
+/// stores the vector load then waited on).
 #[inline(always)]
 #[allow(clippy::too_many_arguments)]
 pub(super) fn twilight_cell_pair_add(
@@ -69,7 +71,7 @@ pub(super) fn twilight_cell_pair_add(
     wq: [f32; 4],
     fs: f32,
     fp: f32,
-    tw: &[f32],
+    tw: &[f32; CELL_LANES],
     o: &mut [f32],
 ) {
     const L: usize = 2 * CELL_LANES;
@@ -94,9 +96,7 @@ pub(super) fn twilight_cell_pair_add(
             *o += we * *x;
         }
     }
-    let mut twv = [0.0f32; CELL_LANES];
-    twv[..n_j].copy_from_slice(&tw[..n_j]);
-    let p: [f32; CELL_LANES] = std::array::from_fn(|i| twv[i] * tv[i]);
+    let p: [f32; CELL_LANES] = std::array::from_fn(|i| tw[i] * tv[i]);
     let n = n_j / 2;
     for (i, o) in o[..n].iter_mut().enumerate() {
         *o += p[i] + p[n + i];
@@ -107,7 +107,7 @@ pub(super) fn twilight_cell_pair_add(
 /// `o[i] += tw[i] v[i] + tw[n + i] v[n + i]` (n = `n_j` / 2), v the bilinear interpolation with
 /// weights `c` of the slice's rows from `x0` (sun-zenith node, azimuth nodes `jp` and `jp + 1`)
 /// and `x1` (the next sun-zenith node), in whole vectors instead of lane by lane; the same
-/// operations on every lane, so the same values.
+/// operations on every lane, so the same values. `tw` padded as for [`twilight_cell_pair_add`].
 #[inline(always)]
 pub(super) fn day_cell_add(
     slice: &[f32],
@@ -115,17 +115,15 @@ pub(super) fn day_cell_add(
     x1: usize,
     n_j: usize,
     c: [f32; 4],
-    tw: &[f32],
+    tw: &[f32; CELL_LANES],
     o: &mut [f32],
 ) {
     let mut s = [[0.0f32; CELL_LANES]; 4];
     for (s, x) in s.iter_mut().zip([x0, x0 + n_j, x1, x1 + n_j]) {
         load_lanes(s, slice, x, n_j);
     }
-    let mut twv = [0.0f32; CELL_LANES];
-    twv[..n_j].copy_from_slice(&tw[..n_j]);
     let p: [f32; CELL_LANES] = std::array::from_fn(|i| {
-        twv[i] * (c[0] * s[0][i] + c[1] * s[1][i] + c[2] * s[2][i] + c[3] * s[3][i])
+        tw[i] * (c[0] * s[0][i] + c[1] * s[1][i] + c[2] * s[2][i] + c[3] * s[3][i])
     });
     let n = n_j / 2;
     for (i, o) in o[..n].iter_mut().enumerate() {
@@ -158,6 +156,13 @@ mod tests {
             1 => 1e-39,
             _ => 10f32.powf(rng.random_range(-30.0..2.0)),
         }
+    }
+
+    /// `tw` padded with zeros to a whole vector, as `family_pass` stores it.
+    fn padded(tw: &[f32]) -> [f32; CELL_LANES] {
+        let mut p = [0.0; CELL_LANES];
+        p[..tw.len()].copy_from_slice(tw);
+        p
     }
 
     /// Bit for bit `family_pass`'s day cell written lane by lane, for every even lane count,
@@ -202,7 +207,7 @@ mod tests {
                     want[i] += tw[i] * v(i) + tw[half + i] * v(half + i);
                 }
                 let mut got = start.clone();
-                day_cell_add(&slice, x0, x1, n_j, c, &tw, &mut got);
+                day_cell_add(&slice, x0, x1, n_j, c, &padded(&tw), &mut got);
                 let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
                 assert_eq!(bits(&want), bits(&got), "{n_j}");
             }
@@ -257,7 +262,17 @@ mod tests {
                     }
                     let mut got_o = start.clone();
                     twilight_cell_pair_add(
-                        &slice, &ln_slice, nodes, n_phi, n_j, jp, wq, fs, fp, &tw, &mut got_o,
+                        &slice,
+                        &ln_slice,
+                        nodes,
+                        n_phi,
+                        n_j,
+                        jp,
+                        wq,
+                        fs,
+                        fp,
+                        &padded(&tw),
+                        &mut got_o,
                     );
                     assert_eq!(bits(&want_o), bits(&got_o), "{n_j}");
                 }
