@@ -2662,6 +2662,9 @@ struct PackedPoint<'a> {
     /// `from`, the weight, whether a pole's mean; the first `n` are set.
     corners: [(usize, f64, bool); 4],
     n: usize,
+    /// Four corners, none a pole's (the case of almost every point): the corners' loop then
+    /// has a fixed count and no branch.
+    plain: bool,
 }
 
 impl<'a> PackedPoint<'a> {
@@ -2689,6 +2692,7 @@ impl<'a> PackedPoint<'a> {
             ln_at: n_phi * PACKED_LANES,
             corners,
             n: slice.corners.len(),
+            plain: slice.corners.len() == 4 && slice.corners.iter().all(|c| !c.3),
         }
     }
 
@@ -2757,6 +2761,33 @@ impl<'a> PackedPoint<'a> {
         a
     }
 
+    /// Adds to `a` the terms of two adjacent azimuth nodes (one run of 2 [`PACKED_LANES`] from
+    /// offset `o` of a corner's records, the Catmull–Rom nodes at `b` from it) with weights `w`:
+    /// one [`twilight_bundle::twilight_fixed_cubic`] of 16 lanes, then the first node's term and
+    /// the second's added in that order.
+    #[inline(always)]
+    fn add_pair_wide(
+        &self,
+        a: &mut [f32; PACKED_LANES],
+        o: usize,
+        b: [usize; 4],
+        w: [f32; 2],
+        wq: [f32; 4],
+        fs: f32,
+    ) {
+        const L: usize = PACKED_LANES;
+        let o = [o + b[0], o + b[1], o + b[2], o + b[3]];
+        let (v, ln) = packed_runs::<{ 2 * L }>(self.packed, o, self.ln_at);
+        let x = twilight_bundle::twilight_fixed_cubic(v, ln, wq, fs);
+        let (lo, hi) = x.split_at(L);
+        for i in 0..L {
+            a[i] += w[0] * lo[i];
+        }
+        for i in 0..L {
+            a[i] += w[1] * hi[i];
+        }
+    }
+
     /// [`Self::interp`] for the AVX-512 copy of the kernel: two azimuth nodes of a corner (`e`,
     /// `e + 1`, one run of [`TwilightRows::packed`]) in one 16-lane vector, so each corner's pair
     /// of nodes costs one [`twilight_bundle::twilight_fixed_cubic`] of 16 lanes instead of two of
@@ -2774,8 +2805,17 @@ impl<'a> PackedPoint<'a> {
     ) -> [f32; PACKED_LANES] {
         const L: usize = PACKED_LANES;
         let (p, ln_at, n_phi) = (self.packed, self.ln_at, self.n_phi);
-        let [b0, b1, b2, b3] = self.node_offsets(nodes);
+        let b = self.node_offsets(nodes);
+        let [b0, b1, b2, b3] = b;
         let mut a = [0.0f32; L];
+        if self.plain {
+            // A fixed count, no branch: the usual case, where the four corners' work overlaps.
+            for &(base, wc, _) in &self.corners {
+                let w = [(wc * (1.0 - fp)) as f32, (wc * fp) as f32];
+                self.add_pair_wide(&mut a, base + ip * L, b, w, wq, fs);
+            }
+            return a;
+        }
         for &(base, wc, pole) in &self.corners[..self.n] {
             // (first node of the pair, its weight, the next node's weight)
             let (e_from, e_to, w_pole) = if pole {
@@ -2794,21 +2834,12 @@ impl<'a> PackedPoint<'a> {
             let mut e = e_from;
             while e < e_to {
                 let o = base + e * L;
-                let o = [o + b0, o + b1, o + b2, o + b3];
                 if e + 1 < e_to {
-                    let (v, ln) = packed_runs::<{ 2 * L }>(p, o, ln_at);
-                    let x = twilight_bundle::twilight_fixed_cubic(v, ln, wq, fs);
-                    let (lo, hi) = x.split_at(L);
-                    for i in 0..L {
-                        a[i] += w0 * lo[i];
-                    }
-                    for i in 0..L {
-                        a[i] += w1 * hi[i];
-                    }
+                    self.add_pair_wide(&mut a, o, b, [w0, w1], wq, fs);
                     e += 2;
                 } else {
                     // An odd pole count's last node.
-                    let (v, ln) = packed_runs::<L>(p, o, ln_at);
+                    let (v, ln) = packed_runs::<L>(p, [o + b0, o + b1, o + b2, o + b3], ln_at);
                     let x = twilight_bundle::twilight_fixed_cubic(v, ln, wq, fs);
                     for (o, v) in a.iter_mut().zip(&x) {
                         *o += w0 * *v;
