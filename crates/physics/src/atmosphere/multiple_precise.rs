@@ -192,9 +192,10 @@ struct TwilightRows {
     /// The first twilight cell ([`Grid::twilight_cell`] holds from there on).
     first_cell: usize,
     /// 2 n_λ ≤ [`PACKED_LANES`]: `[i_r][i_mu][i_mu_s − from][v | ln v][i_phi]`, each
-    /// azimuth node's 2 n_λ lanes of `j_ms` (then their [`ln_or_zero_f32`]) padded with zeros to
-    /// [`PACKED_LANES`]: two adjacent azimuth nodes' values (or logarithms) are one run of
-    /// 2 [`PACKED_LANES`] lanes ([`packed_run`]); empty otherwise.
+    /// azimuth node's lanes of `j_ms` (then their [`ln_or_zero_f32`]) as Â_R's n_λ lanes padded
+    /// with zeros to [`PACKED_HALF`], then Â_M's likewise (so Â_M is always the upper half of a
+    /// node's vector): two adjacent azimuth nodes' values (or logarithms) are one run of
+    /// 2 [`PACKED_LANES`] lanes ([`packed_runs`]); empty otherwise.
     packed: Vec<f32>,
     /// 2 n_λ > [`PACKED_LANES`]: [`ln_or_zero_f32`] of `j_ms`,
     /// `[i_r][i_mu][i_mu_s − from][i_phi][c][λ]`; empty otherwise.
@@ -203,6 +204,9 @@ struct TwilightRows {
 
 /// Lanes of one node in [`TwilightRows::packed`]: one AVX2 vector of f32.
 const PACKED_LANES: usize = 8;
+/// Lanes of one constituent in a node of [`TwilightRows::packed`] (Â_R in the lower half, Â_M
+/// in the upper).
+const PACKED_HALF: usize = PACKED_LANES / 2;
 
 /// The table grid. Sun zenith nodes are uniform (`n_coarse` nodes over [0, θ_s max], the
 /// settings' `n_mu_s`) up to the last node before [`TWILIGHT_INTERP_FROM_DEG`], then twice as dense
@@ -2357,15 +2361,17 @@ impl PreciseMultipleScattering {
                 let mut packed = Vec::with_capacity(
                     self.j_ms.len() / lanes * (n_mu_s - from) / n_mu_s * 2 * PACKED_LANES,
                 );
+                // Each constituent's n_λ lanes (`[c][λ]` in `j_ms`) padded to its half.
+                let pad = PACKED_HALF - self.n_l;
                 for family in families {
                     for node in family[from * per_node..].chunks(per_node) {
-                        for az in node.chunks(lanes) {
-                            packed.extend_from_slice(az);
-                            packed.extend((lanes..PACKED_LANES).map(|_| 0.0));
+                        for c in node.chunks(self.n_l) {
+                            packed.extend_from_slice(c);
+                            packed.extend((0..pad).map(|_| 0.0));
                         }
-                        for az in node.chunks(lanes) {
-                            packed.extend(az.iter().map(|&v| ln_or_zero_f32(v)));
-                            packed.extend((lanes..PACKED_LANES).map(|_| 0.0));
+                        for c in node.chunks(self.n_l) {
+                            packed.extend(c.iter().map(|&v| ln_or_zero_f32(v)));
+                            packed.extend((0..pad).map(|_| 0.0));
                         }
                     }
                 }
@@ -2646,14 +2652,46 @@ impl TwilightCorners<'_> {
     }
 }
 
-/// `N` lanes of [`TwilightRows::packed`] from offset `o`: one azimuth node's values (or
-/// logarithms), `N` = [`PACKED_LANES`], or two adjacent nodes', 2 [`PACKED_LANES`]; one bounds
-/// check.
+/// The four Catmull–Rom nodes' runs of `N` lanes of [`TwilightRows::packed`] at offsets `o`
+/// (values) and `o + ln_at` (logarithms): one azimuth node's, `N` = [`PACKED_LANES`], or two
+/// adjacent nodes', 2 [`PACKED_LANES`]. One bounds check for the eight runs instead of one each
+/// (two compares and branches a run).
 #[inline(always)]
-fn packed_run<const N: usize>(packed: &[f32], o: usize) -> &[f32; N] {
-    match packed[o..o + N].try_into() {
-        Ok(p) => p,
-        Err(_) => unreachable!("a slice of N lanes"),
+fn packed_runs<const N: usize>(
+    packed: &[f32],
+    o: [usize; 4],
+    ln_at: usize,
+) -> ([&[f32; N]; 4], [&[f32; N]; 4]) {
+    /// # Safety
+    /// `o + N ≤ packed.len()`.
+    #[inline(always)]
+    unsafe fn run<const N: usize>(packed: &[f32], o: usize) -> &[f32; N] {
+        // SAFETY: the N lanes from `o` are inside the slice (the caller's contract), and
+        // [f32; N] has the alignment of f32.
+        unsafe { &*packed.as_ptr().add(o).cast::<[f32; N]>() }
+    }
+    let hi = o[0].max(o[1]).max(o[2]).max(o[3]);
+    assert!(
+        hi <= packed.len() && packed.len() - hi >= ln_at + N,
+        "twilight rows out of range"
+    );
+    // SAFETY: every run ends at or before hi + ln_at + N ≤ packed.len() (asserted just above,
+    // without overflow).
+    unsafe {
+        (
+            [
+                run(packed, o[0]),
+                run(packed, o[1]),
+                run(packed, o[2]),
+                run(packed, o[3]),
+            ],
+            [
+                run(packed, o[0] + ln_at),
+                run(packed, o[1] + ln_at),
+                run(packed, o[2] + ln_at),
+                run(packed, o[3] + ln_at),
+            ],
+        )
     }
 }
 
@@ -2674,6 +2712,9 @@ struct PackedPoint<'a> {
     /// `from`, the weight, whether a pole's mean; the first `n` are set.
     corners: [(usize, f64, bool); 4],
     n: usize,
+    /// Four corners, none a pole's (the case of almost every point): the corners' loop then
+    /// has a fixed count and no branch.
+    plain: bool,
 }
 
 impl<'a> PackedPoint<'a> {
@@ -2701,6 +2742,7 @@ impl<'a> PackedPoint<'a> {
             ln_at: n_phi * PACKED_LANES,
             corners,
             n: slice.corners.len(),
+            plain: slice.corners.len() == 4 && slice.corners.iter().all(|c| !c.3),
         }
     }
 
@@ -2716,7 +2758,8 @@ impl<'a> PackedPoint<'a> {
         ]
     }
 
-    /// The twilight interpolation of [`add_from_slice_kernel`]: Â_c (`[c][λ]`, padded) summed
+    /// The twilight interpolation of [`add_from_slice_kernel`]: Â_R and Â_M (each n_λ lanes of
+    /// its half, [`TwilightRows::packed`]) summed
     /// over the point's (r, θ) corners and the azimuth nodes `ip`, `ip + 1` (weights 1 − `fp`,
     /// `fp`), each corner and node interpolated over sun zenith on the Catmull–Rom `nodes` and
     /// weights `wq`, `fs`: lane by lane the operations of [`TwilightCorners`] in the same order,
@@ -2741,20 +2784,10 @@ impl<'a> PackedPoint<'a> {
                 // Azimuth nodes `ip` and `ip + 1`, adjacent: each sun-zenith node's pair of
                 // values (and of logarithms) read as one run.
                 let o = base + ip * L;
-                let (o0, o1, o2, o3) = (o + b0, o + b1, o + b2, o + b3);
+                let (v, ln) = packed_runs(p, [o + b0, o + b1, o + b2, o + b3], ln_at);
                 twilight_bundle::add_pair(
-                    [
-                        packed_run(p, o0),
-                        packed_run(p, o1),
-                        packed_run(p, o2),
-                        packed_run(p, o3),
-                    ],
-                    [
-                        packed_run(p, o0 + ln_at),
-                        packed_run(p, o1 + ln_at),
-                        packed_run(p, o2 + ln_at),
-                        packed_run(p, o3 + ln_at),
-                    ],
+                    v,
+                    ln,
                     [(wc * (1.0 - fp)) as f32, (wc * fp) as f32],
                     wq,
                     fs,
@@ -2768,29 +2801,41 @@ impl<'a> PackedPoint<'a> {
             }
             for e in 0..n_phi {
                 let o = base + e * L;
-                let (o0, o1, o2, o3) = (o + b0, o + b1, o + b2, o + b3);
-                let x = twilight_bundle::twilight_fixed_cubic::<L>(
-                    [
-                        packed_run(p, o0),
-                        packed_run(p, o1),
-                        packed_run(p, o2),
-                        packed_run(p, o3),
-                    ],
-                    [
-                        packed_run(p, o0 + ln_at),
-                        packed_run(p, o1 + ln_at),
-                        packed_run(p, o2 + ln_at),
-                        packed_run(p, o3 + ln_at),
-                    ],
-                    wq,
-                    fs,
-                );
+                let (v, ln) = packed_runs::<L>(p, [o + b0, o + b1, o + b2, o + b3], ln_at);
+                let x = twilight_bundle::twilight_fixed_cubic(v, ln, wq, fs);
                 for (o, v) in a.iter_mut().zip(&x) {
                     *o += w * *v;
                 }
             }
         }
         a
+    }
+
+    /// Adds to `a` the terms of two adjacent azimuth nodes (one run of 2 [`PACKED_LANES`] from
+    /// offset `o` of a corner's records, the Catmull–Rom nodes at `b` from it) with weights `w`:
+    /// one [`twilight_bundle::twilight_fixed_cubic`] of 16 lanes, then the first node's term and
+    /// the second's added in that order.
+    #[inline(always)]
+    fn add_pair_wide(
+        &self,
+        a: &mut [f32; PACKED_LANES],
+        o: usize,
+        b: [usize; 4],
+        w: [f32; 2],
+        wq: [f32; 4],
+        fs: f32,
+    ) {
+        const L: usize = PACKED_LANES;
+        let o = [o + b[0], o + b[1], o + b[2], o + b[3]];
+        let (v, ln) = packed_runs::<{ 2 * L }>(self.packed, o, self.ln_at);
+        let x = twilight_bundle::twilight_fixed_cubic(v, ln, wq, fs);
+        let (lo, hi) = x.split_at(L);
+        for i in 0..L {
+            a[i] += w[0] * lo[i];
+        }
+        for i in 0..L {
+            a[i] += w[1] * hi[i];
+        }
     }
 
     /// [`Self::interp`] for the AVX-512 copy of the kernel: two azimuth nodes of a corner (`e`,
@@ -2810,8 +2855,17 @@ impl<'a> PackedPoint<'a> {
     ) -> [f32; PACKED_LANES] {
         const L: usize = PACKED_LANES;
         let (p, ln_at, n_phi) = (self.packed, self.ln_at, self.n_phi);
-        let [b0, b1, b2, b3] = self.node_offsets(nodes);
+        let b = self.node_offsets(nodes);
+        let [b0, b1, b2, b3] = b;
         let mut a = [0.0f32; L];
+        if self.plain {
+            // A fixed count, no branch: the usual case, where the four corners' work overlaps.
+            for &(base, wc, _) in &self.corners {
+                let w = [(wc * (1.0 - fp)) as f32, (wc * fp) as f32];
+                self.add_pair_wide(&mut a, base + ip * L, b, w, wq, fs);
+            }
+            return a;
+        }
         for &(base, wc, pole) in &self.corners[..self.n] {
             // (first node of the pair, its weight, the next node's weight)
             let (e_from, e_to, w_pole) = if pole {
@@ -2830,53 +2884,13 @@ impl<'a> PackedPoint<'a> {
             let mut e = e_from;
             while e < e_to {
                 let o = base + e * L;
-                let (o0, o1, o2, o3) = (o + b0, o + b1, o + b2, o + b3);
                 if e + 1 < e_to {
-                    let x = twilight_bundle::twilight_fixed_cubic::<{ 2 * L }>(
-                        [
-                            packed_run(p, o0),
-                            packed_run(p, o1),
-                            packed_run(p, o2),
-                            packed_run(p, o3),
-                        ],
-                        [
-                            packed_run(p, o0 + ln_at),
-                            packed_run(p, o1 + ln_at),
-                            packed_run(p, o2 + ln_at),
-                            packed_run(p, o3 + ln_at),
-                        ],
-                        wq,
-                        fs,
-                    );
-                    let mut y = [0.0f32; 2 * L];
-                    for i in 0..2 * L {
-                        y[i] = if i < L { w0 } else { w1 } * x[i];
-                    }
-                    for i in 0..L {
-                        a[i] += y[i];
-                    }
-                    for i in 0..L {
-                        a[i] += y[L + i];
-                    }
+                    self.add_pair_wide(&mut a, o, b, [w0, w1], wq, fs);
                     e += 2;
                 } else {
                     // An odd pole count's last node.
-                    let x = twilight_bundle::twilight_fixed_cubic::<L>(
-                        [
-                            packed_run(p, o0),
-                            packed_run(p, o1),
-                            packed_run(p, o2),
-                            packed_run(p, o3),
-                        ],
-                        [
-                            packed_run(p, o0 + ln_at),
-                            packed_run(p, o1 + ln_at),
-                            packed_run(p, o2 + ln_at),
-                            packed_run(p, o3 + ln_at),
-                        ],
-                        wq,
-                        fs,
-                    );
+                    let (v, ln) = packed_runs::<L>(p, [o + b0, o + b1, o + b2, o + b3], ln_at);
+                    let x = twilight_bundle::twilight_fixed_cubic(v, ln, wq, fs);
                     for (o, v) in a.iter_mut().zip(&x) {
                         *o += w0 * *v;
                     }
@@ -2966,11 +2980,15 @@ crate::simd_dispatch_avx512! {
                             } else {
                                 point.interp(nodes, wq, fs as f32, ip, fp)
                             };
-                            // Four wavelengths at once (2 n_λ ≤ 8): lane i < n_λ as below.
-                            let mie_a = &a[n_l..n_l + 4];
-                            let mut y = [0.0f64; 4];
-                            for i in 0..4 {
-                                y[i] = (ray_rho[i] * a[i] as f64 + mie_rho[i] * mie_a[i] as f64)
+                            // Four wavelengths at once (n_λ ≤ 4): lane i < n_λ as below, Â_M
+                            // in the upper half ([`TwilightRows::packed`]), so both halves are
+                            // read from the registers (an offset n_λ read them back from memory
+                            // across two stores, which stalled each sun by its store forwarding).
+                            let (ray_a, mie_a) = a.split_at(PACKED_HALF);
+                            let mut y = [0.0f64; PACKED_HALF];
+                            for i in 0..PACKED_HALF {
+                                y[i] = (ray_rho[i] * ray_a[i] as f64
+                                    + mie_rho[i] * mie_a[i] as f64)
                                     .max(0.0);
                             }
                             for i in 0..n_l {

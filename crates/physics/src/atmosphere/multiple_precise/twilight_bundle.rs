@@ -48,7 +48,7 @@ pub(super) fn twilight_fixed_cubic<const N: usize>(
 
 /// Adds to `a` the [`twilight_fixed_cubic`] of the first azimuth node of the four sun-zenith
 /// nodes' runs of two adjacent azimuth nodes (values `v`, logarithms `ln`,
-/// [`super::packed_run`]) times `w[0]`, then that of the second times `w[1]`: the operations of
+/// [`super::packed_runs`]) times `w[0]`, then that of the second times `w[1]`: the operations of
 /// one node at a time, in the same order.
 #[inline(always)]
 pub(super) fn add_pair(
