@@ -68,13 +68,17 @@ pub struct CloudVolume {
     /// stencil holds a non-zero density, capped at [`EMPTY_CAP`] (0: the cell holds density;
     /// see [`occupancy`]).
     empty: Vec<u8>,
+    /// A bit per voxel, set where its density is not 0 (x along the bits of 64-bit words,
+    /// `dense_row` words a row; [`Self::voxel_dense`]).
+    dense: Vec<u64>,
+    dense_row: usize,
 }
 
 impl CloudVolume {
     pub fn new(grid: Arc<DensityGrid>) -> Self {
         let [nx, ny, nz] = grid.dims;
         let bd = [nx.div_ceil(BLOCK), ny.div_ceil(BLOCK), nz.div_ceil(BLOCK)];
-        let (block_occupied, empty) = occupancy(&grid, bd);
+        let (block_occupied, empty, dense) = occupancy(&grid, bd);
         let (mut bmin, mut bmax) = ([usize::MAX; 3], [0usize; 3]);
         for bz in 0..bd[2] {
             for by in 0..bd[1] {
@@ -107,6 +111,8 @@ impl CloudVolume {
             block_occupied,
             occupied,
             empty,
+            dense,
+            dense_row: nx.div_ceil(64),
             grid,
         }
     }
@@ -127,6 +133,14 @@ impl CloudVolume {
     #[inline(always)]
     pub fn empty_cells(&self) -> &[u8] {
         &self.empty
+    }
+
+    /// Whether voxel `(x, y, z)` (inside the grid) holds a non-zero density: one bit of a
+    /// plane of 1/32 of the densities' size, which stays in cache where they do not.
+    #[inline(always)]
+    pub fn voxel_dense(&self, x: usize, y: usize, z: usize) -> bool {
+        let word = (z * self.grid.dims[1] + y) * self.dense_row + x / 64;
+        (self.dense[word] >> (x % 64)) & 1 != 0
     }
 
     /// Trilinear weights of the 8 voxels around `p` (the grid's convention); `None` outside.
@@ -437,7 +451,8 @@ impl Planes {
 
 /// The block grid's occupancy ([`CloudVolume::in_empty_block`]: a block whose support, its
 /// voxels and one more round them, holds a density above 0) and the empty cells' distances
-/// ([`CloudVolume::empty_cells`]), both from bit planes of the voxels with density.
+/// ([`CloudVolume::empty_cells`]), both from bit planes of the voxels with density, and the
+/// plane of the voxels with a non-zero density ([`CloudVolume::voxel_dense`]).
 ///
 /// The distances: 0 at the cells whose stencil (the voxel and its neighbours one up along
 /// each axis, clamped at the last) holds a non-zero density, elsewhere the Chebyshev distance
@@ -445,15 +460,16 @@ impl Planes {
 /// maxₐ |xₐ − yₐ|. The cells within k of them are their set dilated k times by the 3×3×3
 /// cube (separable by axes, Rosenfeld & Pfaltz 1968, §4), so d counts the dilations
 /// 0 … cap − 1 that miss the cell. Exact everywhere.
-fn occupancy(grid: &DensityGrid, bd: [usize; 3]) -> (Vec<bool>, Vec<u8>) {
+fn occupancy(grid: &DensityGrid, bd: [usize; 3]) -> (Vec<bool>, Vec<u8>, Vec<u64>) {
     let [nx, ny, nz] = grid.dims;
     let len = nx * ny * nz;
     if len == 0 {
-        return (vec![false; bd[0] * bd[1] * bd[2]], Vec::new());
+        return (vec![false; bd[0] * bd[1] * bd[2]], Vec::new(), Vec::new());
     }
     let pl = Planes::new(grid.dims);
     let (w, lw) = (pl.w, pl.lw);
-    let (mut a, positive) = pl.of_grid(grid);
+    let (dense, positive) = pl.of_grid(grid);
+    let mut a = dense.clone();
     let mut tmp = pl.zeros();
     // Blocks: the voxels with density dilated by one, then any bit within the block's own
     // voxels (64 = 8 blocks of 8 bits a word).
@@ -547,7 +563,7 @@ fn occupancy(grid: &DensityGrid, bd: [usize; 3]) -> (Vec<bool>, Vec<u8>) {
                 }
             }
         });
-    (block_occupied, empty)
+    (block_occupied, empty, dense)
 }
 
 /// The trilinear stencil of the grid's convention at `local` (voxel units from the grid's

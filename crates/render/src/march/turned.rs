@@ -187,20 +187,25 @@ impl Prepared<'_> {
     }
 
     /// The density and D_sun of the voxel holding `local` (voxel units from the grid's
-    /// origin; 0 outside the grid).
+    /// origin; both 0 outside the grid and where the density is 0).
     #[inline]
     fn nearest_record(&self, local: DVec3) -> (f64, f64) {
-        let g = &*self.lit.vol.grid;
-        let mut idx = 0usize;
-        let mut stride = 1usize;
+        let vol = &self.lit.vol;
+        let g = &*vol.grid;
+        let mut ijk = [0usize; 3];
         for a in 0..3 {
             let v = local[a];
             if !(v >= 0.0 && v < g.dims[a] as f64) {
                 return (0.0, 0.0);
             }
-            idx += (v as usize).min(g.dims[a] - 1) * stride;
-            stride *= g.dims[a];
+            ijk[a] = (v as usize).min(g.dims[a] - 1);
         }
+        // A voxel without density gathers nothing (its D_sun is never used): its record, far
+        // from the step's and seldom in cache, is not read.
+        if !vol.voxel_dense(ijk[0], ijk[1], ijk[2]) {
+            return (0.0, 0.0);
+        }
+        let idx = (ijk[2] * g.dims[1] + ijk[1]) * g.dims[0] + ijk[0];
         let r = &self.vox[idx * self.stride..idx * self.stride + 2];
         (r[0] as f64, (r[1] as f64).powi(2))
     }
@@ -230,7 +235,9 @@ impl Prepared<'_> {
         let d_s = lam_s / (rate * kt);
         // Σ ρw·e^{−kp·path} relative to the straight line's e^{−kp·D} (the exponent bounded:
         // where the straight line is in deep shadow the product with it stays finite).
+        // Bins without density add 0 whatever their path: their exponential is not taken.
         let gathered: f64 = (0..tp.n)
+            .filter(|&i| tp.mass[i] != 0.0)
             .map(|i| tp.mass[i] * (-kp * (tp.path[i] - d_s)).min(600.0).exp())
             .sum();
         let first = p.last_in_peak(row, 0.0);
