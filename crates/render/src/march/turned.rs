@@ -134,7 +134,8 @@ impl Prepared<'_> {
 
     /// The density and D_sun at `local` (voxel units from the grid's origin) trilinear, with
     /// the weights and order of operations of [`CloudVolume::rho`] and `Prepared::sun_path_at`,
-    /// from one pass over the 8 corners' voxel records `[ρ, √D, …]`.
+    /// from one pass over the 8 corners' voxel records `[ρ, √D, …]`; both 0 where no corner
+    /// holds density.
     ///
     /// [`CloudVolume::rho`]: crate::volume::CloudVolume::rho
     #[inline]
@@ -144,6 +145,10 @@ impl Prepared<'_> {
         let Some((base, di, f)) = trilinear_stencil(local, n) else {
             return (0.0, 0.0);
         };
+        // No density at any corner: nothing gathered, D_sun never used (`nearest_record`).
+        if self.lit.vol.empty_cells()[base] > 0 {
+            return (0.0, 0.0);
+        }
         let s = self.stride;
         let rec = |i: usize| {
             let r = &self.vox[i * s..i * s + 2];
