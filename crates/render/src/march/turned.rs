@@ -216,7 +216,8 @@ impl Prepared<'_> {
     }
 
     /// The peak's part r⁺_eff/p of wavelength `l` (the second of [`PeakSpread::ratios`]) at
-    /// λ = `lam_s` with its turned part gathered along `tp` instead of the straight line:
+    /// λ = `lam_s` (`now`: the table's r⁺_eff/p there, [`PeakSpread::last_in_peak`]) with its
+    /// turned part gathered along `tp` instead of the straight line:
     /// r⁺_eff(λ) + (G − 1)·T(λ), T = r⁺_eff(λ) − e^{−ωf⁺τ_s}·r⁺_eff(0) the turned part and G
     /// the gathered first order over the straight line's. `kt`, `kp` are the true extinction
     /// and σ_t⁺ per density. At a lit surface (D → 0) T/D is the table's slope at λ = 10⁻³.
@@ -228,11 +229,11 @@ impl Prepared<'_> {
         row: PeakRow,
         l: usize,
         lam_s: f64,
+        now: f64,
         tp: &TurnedPath,
         kt: f64,
         kp: f64,
     ) -> f64 {
-        let now = p.last_in_peak(row, lam_s);
         let rate = self.lit.peak_rate[l];
         if rate <= 0.0 || kt <= 0.0 {
             return now;
@@ -250,11 +251,12 @@ impl Prepared<'_> {
         let per_lambda = (1.0 - self.lit.first_extinction_scale[l]) / rate;
         let turned_at = |lam: f64, at: f64| at - (-lam * per_lambda).exp() * first;
         let lam_e = lam_s.max(1e-3);
+        let turned_now = turned_at(lam_s, now);
         let slope = if lam_e > lam_s {
             turned_at(lam_e, p.last_in_peak(row, lam_e))
         } else {
-            turned_at(lam_s, now)
+            turned_now
         } / (lam_e / (rate * kt));
-        (now + gathered * slope - turned_at(lam_s, now)).max(0.0)
+        (now + gathered * slope - turned_now).max(0.0)
     }
 }
