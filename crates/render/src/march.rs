@@ -680,7 +680,7 @@ impl<'a> Prepared<'a> {
                                 {
                                     let tp = turned_at
                                         .get_or_insert_with(|| self.turned_path(pm, &turn));
-                                    self.peak_turned(p, row, l, lam_s, tp, kt[l], kp[l])
+                                    self.peak_turned(p, row, l, lam_s, straight, tp, kt[l], kp[l])
                                 } else {
                                     straight
                                 };
@@ -852,7 +852,7 @@ impl<'a> Prepared<'a> {
                                     let tp = turned_at.get_or_insert_with(|| {
                                         self.turned_path(o + d * (t_start + 0.5 * dt), sky.turn)
                                     });
-                                    self.peak_turned(p, row, l, lam_s, tp, kt, kp)
+                                    self.peak_turned(p, row, l, lam_s, straight, tp, kt, kp)
                                 } else {
                                     straight
                                 };

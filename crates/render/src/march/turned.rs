@@ -134,7 +134,8 @@ impl Prepared<'_> {
 
     /// The density and D_sun at `local` (voxel units from the grid's origin) trilinear, with
     /// the weights and order of operations of [`CloudVolume::rho`] and `Prepared::sun_path_at`,
-    /// from one pass over the 8 corners' voxel records `[ρ, √D, …]`.
+    /// from one pass over the 8 corners' voxel records `[ρ, √D, …]`; both 0 where no corner
+    /// holds density.
     ///
     /// [`CloudVolume::rho`]: crate::volume::CloudVolume::rho
     #[inline]
@@ -144,6 +145,10 @@ impl Prepared<'_> {
         let Some((base, di, f)) = trilinear_stencil(local, n) else {
             return (0.0, 0.0);
         };
+        // No density at any corner: nothing gathered, D_sun never used (`nearest_record`).
+        if self.lit.vol.empty_cells()[base] > 0 {
+            return (0.0, 0.0);
+        }
         let s = self.stride;
         let rec = |i: usize| {
             let r = &self.vox[i * s..i * s + 2];
@@ -187,26 +192,32 @@ impl Prepared<'_> {
     }
 
     /// The density and D_sun of the voxel holding `local` (voxel units from the grid's
-    /// origin; 0 outside the grid).
+    /// origin; both 0 outside the grid and where the density is 0).
     #[inline]
     fn nearest_record(&self, local: DVec3) -> (f64, f64) {
-        let g = &*self.lit.vol.grid;
-        let mut idx = 0usize;
-        let mut stride = 1usize;
+        let vol = &self.lit.vol;
+        let g = &*vol.grid;
+        let mut ijk = [0usize; 3];
         for a in 0..3 {
             let v = local[a];
             if !(v >= 0.0 && v < g.dims[a] as f64) {
                 return (0.0, 0.0);
             }
-            idx += (v as usize).min(g.dims[a] - 1) * stride;
-            stride *= g.dims[a];
+            ijk[a] = (v as usize).min(g.dims[a] - 1);
         }
+        // A voxel without density gathers nothing (its D_sun is never used): its record, far
+        // from the step's and seldom in cache, is not read.
+        if !vol.voxel_dense(ijk[0], ijk[1], ijk[2]) {
+            return (0.0, 0.0);
+        }
+        let idx = (ijk[2] * g.dims[1] + ijk[1]) * g.dims[0] + ijk[0];
         let r = &self.vox[idx * self.stride..idx * self.stride + 2];
         (r[0] as f64, (r[1] as f64).powi(2))
     }
 
     /// The peak's part r⁺_eff/p of wavelength `l` (the second of [`PeakSpread::ratios`]) at
-    /// λ = `lam_s` with its turned part gathered along `tp` instead of the straight line:
+    /// λ = `lam_s` (`now`: the table's r⁺_eff/p there, [`PeakSpread::last_in_peak`]) with its
+    /// turned part gathered along `tp` instead of the straight line:
     /// r⁺_eff(λ) + (G − 1)·T(λ), T = r⁺_eff(λ) − e^{−ωf⁺τ_s}·r⁺_eff(0) the turned part and G
     /// the gathered first order over the straight line's. `kt`, `kp` are the true extinction
     /// and σ_t⁺ per density. At a lit surface (D → 0) T/D is the table's slope at λ = 10⁻³.
@@ -218,11 +229,11 @@ impl Prepared<'_> {
         row: PeakRow,
         l: usize,
         lam_s: f64,
+        now: f64,
         tp: &TurnedPath,
         kt: f64,
         kp: f64,
     ) -> f64 {
-        let now = p.last_in_peak(row, lam_s);
         let rate = self.lit.peak_rate[l];
         if rate <= 0.0 || kt <= 0.0 {
             return now;
@@ -230,7 +241,9 @@ impl Prepared<'_> {
         let d_s = lam_s / (rate * kt);
         // Σ ρw·e^{−kp·path} relative to the straight line's e^{−kp·D} (the exponent bounded:
         // where the straight line is in deep shadow the product with it stays finite).
+        // Bins without density add 0 whatever their path: their exponential is not taken.
         let gathered: f64 = (0..tp.n)
+            .filter(|&i| tp.mass[i] != 0.0)
             .map(|i| tp.mass[i] * (-kp * (tp.path[i] - d_s)).min(600.0).exp())
             .sum();
         let first = p.last_in_peak(row, 0.0);
@@ -238,11 +251,12 @@ impl Prepared<'_> {
         let per_lambda = (1.0 - self.lit.first_extinction_scale[l]) / rate;
         let turned_at = |lam: f64, at: f64| at - (-lam * per_lambda).exp() * first;
         let lam_e = lam_s.max(1e-3);
+        let turned_now = turned_at(lam_s, now);
         let slope = if lam_e > lam_s {
             turned_at(lam_e, p.last_in_peak(row, lam_e))
         } else {
-            turned_at(lam_s, now)
+            turned_now
         } / (lam_e / (rate * kt));
-        (now + gathered * slope - turned_at(lam_s, now)).max(0.0)
+        (now + gathered * slope - turned_now).max(0.0)
     }
 }
