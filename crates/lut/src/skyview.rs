@@ -574,17 +574,17 @@ fn smoothstep(a: f64, b: f64, x: f64) -> f64 {
 }
 
 /// The sky rows' focus at sun `sun_deg` above the observer's horizon and altitude `h` (m): the
-/// focus's elevation c_f = c p, p = q + (P [`BAND_ANTISOLAR`] − q) v, q = 1 + (P [`BAND_ANTISOLAR`] − 1) a (c the band's, [`band_centre_deg`],
-/// degrees; P = [`BAND_FOCUS_PLACE_ALOFT`]), the focus strength k = W (l (1 + G a) + F (1 − l))
-/// (1 + V v) [`band_focus_strength`] and the focus's width w (in x₀, [`sky_row_elevation`]): W
-/// the fades of [`BAND_SUN_RANGE`] and [`BAND_ALTITUDE_M`] ([`band_map_weight`]), l = 1 −
-/// smoothstep over [`BAND_CENTRE_RANGE_DEG`] of c, F = [`BAND_CENTRE_FLOOR`], G =
-/// [`BAND_FOCUS_HIGH`], a = l smoothstep over [`BAND_FOCUS_PLACE_M`] of h, V =
-/// [`BAND_FOCUS_WIDE`], v = l times the fades of [`BAND_FOCUS_WIDTH_M`] (smoothsteps 3t² − 2t³),
-/// w = v max(x₀(e_w) − x₀(c_f), 0), c_f the focus's elevation, e_w = max((c [`BAND_ANTISOLAR`]
-/// + δ) R − δ, [`BAND_FOCUS_WIDTH_FLOOR_DEG`]) the band's elevation at −cos φ = R =
-/// [`BAND_FOCUS_WIDTH_AZIMUTH`] ([`band_relative_elevation`], δ = [`band_azimuth_depth_deg`]);
-/// k = 0 by day, deep in twilight and aloft: the rows of version 3.
+/// focus's elevation c_f = c p, p = q + (P [`BAND_ANTISOLAR`] − q) v, q = 1 + (P
+/// [`BAND_ANTISOLAR`] − 1) a (c the band's, [`band_centre_deg`], degrees; P =
+/// [`BAND_FOCUS_PLACE_ALOFT`]), the focus strength k = W (l (1 + G a) + F (1 − l)) (1 + V v)
+/// [`band_focus_strength`] and the focus's width w (in x₀, [`sky_row_elevation`]): W the fades
+/// of [`BAND_SUN_RANGE`] and [`BAND_ALTITUDE_M`] ([`band_map_weight`]), l = 1 − smoothstep over
+/// [`BAND_CENTRE_RANGE_DEG`] of c, F = [`BAND_CENTRE_FLOOR`], G = [`BAND_FOCUS_HIGH`], a = l
+/// smoothstep over [`BAND_FOCUS_PLACE_M`] of h, V = [`BAND_FOCUS_WIDE`], v = l times the fades
+/// of [`BAND_FOCUS_WIDTH_M`] (smoothsteps 3t² − 2t³), w = v max(x₀(e_w) − x₀(c_f), 0), e_w =
+/// max((c [`BAND_ANTISOLAR`] + δ) R − δ, [`BAND_FOCUS_WIDTH_FLOOR_DEG`]) the band's elevation
+/// at −cos φ = R = [`BAND_FOCUS_WIDTH_AZIMUTH`] ([`band_relative_elevation`], δ =
+/// [`band_azimuth_depth_deg`]); k = 0 by day, deep in twilight and aloft: the rows of version 3.
 pub fn sky_row_focus(sun_deg: f64, h: f64) -> (f64, f64, f64) {
     let [c0, c1] = BAND_CENTRE_RANGE_DEG;
     let [h0, h1] = BAND_FOCUS_PLACE_M;
