@@ -849,17 +849,19 @@ fn skyview_the_earth_shadow_rising_at_low_altitude() {
 /// 10 km falling to 0.015 at 20 km, and from 5–8 km up acts from −δ up through the horizontal
 /// (version 16), and the sky rows' focus moves and grows aloft from 4–10 km instead of 6–12 km
 /// and on the limb rows the sun nodes whose slice would be read past its horizon are left out of
-/// the sun stencil (version 17). The 3 % target (views within 10° of the horizon, sun down
-/// to −6°) is met on the grid at every altitude, and on the dense check at 6.5, 9.5, 12.5 and
-/// 15 km, not at 8 and 11 km (3.5–3.6 %: the sky rows and the columns within the slices, 135–150°
-/// from the sun) nor at 20 km (4.53 %, the limb 165° from the sun). The bounds are per altitude,
-/// the measured worst + ~12 % (earth, standard, RGB, layout version 17, measured on 2026-12-07,
-/// 680 nm). Grid: 6.5 km 1.68 % (sun −2°, zenith 88.5°, 180° from the sun), 8 km 1.05 % (−3°,
-/// 86.5°, 180°), 9.5 km 1.96 % (−3°, 86.25°, 180°), 11 km 2.06 % (−3°, 87.5°, 150°), 12.5 km
-/// 2.11 % (−3°, 93.25°, 150°), 15 km 2.19 % (−4°, 85.5°, 180°), 20 km 1.96 % (−4°, 91°, 180°).
-/// Dense: 2.52 % (−2.25°, 87.75°, 180°), 3.49 % (−2.5°, 88.25°, 150°), 2.78 % (−2.75°, 87.5°,
-/// 165°), 3.63 % (−3°, 88.75°, 135°), 2.90 % (−3.25°, 88.5°, 135°), 2.96 % (−3.75°, 86.25°,
-/// 180°), 4.53 % (−4°, 94°, 165°). (Version 16: grid 1.69 / 1.14 / 2.32 / 1.85 / 2.55 / 2.19 /
+/// the sun stencil (version 17), and the sky rows' focus is wide from the antisolar band down to
+/// the band 140° from the sun and 1.5 times as strong from 6.5–8 km up to 11–12.5 km (version 18).
+/// The 3 % target (views within 10° of the horizon, sun down to −6°) is met on the grid
+/// at every altitude, and on the dense check from 6.5 to 15 km, not at 20 km (4.53 %, the limb
+/// 165° from the sun). The bounds are per altitude, the measured worst + ~12 % (earth, standard,
+/// RGB, layout version 18, measured on 2026-12-07; 680 nm unless noted). Grid: 6.5 km 1.53 %
+/// (sun −2°, zenith 88.5°, 180° from the sun), 8 km 1.56 % (−2°, 85.75°, 180°, 440 nm), 9.5 km
+/// 2.41 % (−2°, 83.5°, 180°, 440 nm), 11 km 2.42 % (−2°, 86.5°, 180°, 440 nm), 12.5 km 2.11 %
+/// (−3°, 93.25°, 150°), 15 km 2.19 % (−4°, 85.5°, 180°), 20 km 1.96 % (−4°, 91°, 180°). Dense:
+/// 2.47 % (−2.25°, 87.75°, 180°), 2.61 % (−2.5°, 88.25°, 150°), 2.87 % (−2.75°, 87.25°, 165°),
+/// 2.52 % (−2.75°, 89.75°, 120°), 2.39 % (−0.5°, 92°, 135°), 2.96 % (−3.75°, 86.25°, 180°),
+/// 4.53 % (−4°, 94°, 165°). (Version 17: grid 1.68 / 1.05 / 1.96 / 2.06 / 2.11 / 2.19 / 1.96 %,
+/// dense 2.52 / 3.49 / 2.78 / 3.63 / 2.90 / 2.96 / 4.53 %; version 16: grid 1.69 / 1.14 / 2.32 / 1.85 / 2.55 / 2.19 /
 /// 2.78 %, dense 3.49 / 3.40 / 2.86 / 3.63 / 2.84 / 2.96 / 7.68 %; version 15:
 /// grid 1.86 / 1.92 / 4.82 / 2.33 / 2.55 / 2.18 / 2.94 %, dense 3.49 / 3.78 / 5.15 / 3.82 / 4.16 /
 /// 3.90 / 7.68 %; version 14: grid 1.87 / 2.48 / 6.05 / 2.53 / 2.57 / 4.96 / 3.35 %, dense 3.22 /
@@ -874,8 +876,8 @@ fn skyview_the_earth_shadow_seen_aloft() {
     let f = fixture();
     let altitudes = [6500.0, 8000.0, 9500.0, 11000.0, 12500.0, 15000.0, 20000.0];
     // Measured worst per altitude (the order of `altitudes`): the grid, the dense check.
-    let measured = [0.0168, 0.0105, 0.0196, 0.0206, 0.0211, 0.0219, 0.0196];
-    let measured_dense = [0.0252, 0.0349, 0.0278, 0.0363, 0.0290, 0.0296, 0.0453];
+    let measured = [0.0153, 0.0156, 0.0241, 0.0242, 0.0211, 0.0219, 0.0196];
+    let measured_dense = [0.0247, 0.0261, 0.0287, 0.0252, 0.0239, 0.0296, 0.0453];
     let t = std::time::Instant::now();
     let results = shadow_aloft_errors(f, &SkyViewReader::new(&f.bundle), &altitudes);
     eprintln!(

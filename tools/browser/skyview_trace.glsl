@@ -93,7 +93,8 @@ void main() {
   }
   T(band_c); T(band_k);
   if (segment == 0) {
-    row = SkyViewSkyRow(elevation, band_c * SkyViewFocusPlace(band_c, h), band_k) *
+    row = SkyViewSkyRow(elevation, band_c * SkyViewFocusPlace(band_c, h), band_k,
+                        SkyViewFocusWidth(band_c, h)) *
         float(SV_N_VIEW_SKY - 1);
   }
   int lo = segment == 0 ? 0 : segment == 1 ? SV_N_VIEW_SKY : SV_N_VIEW_UP;

@@ -86,7 +86,7 @@ class LiveSky {
       // focus's growth aloft (version 11), the columns' depth aloft (version 12), the focus's fade
       // with the band's elevation (version 13), the focus's place and strength from 6-12 km
       // under a low band, the band's sun term turned smoothly to 0 (version 15), the band's
-      // growth aloft in the slices' map (version 16).
+      // growth aloft in the slices' map (version 16), the focus's width (version 18).
       const band = manifest.parameterisation.sky_row_band;
       const numbers = (v, n) => Array.isArray(v) && v.length === n && v.every(Number.isFinite);
       if (!band || !(band.focus > 0) || !Number.isFinite(band.sun_deg) || !numbers(band.centre, 4) ||
@@ -105,6 +105,11 @@ class LiveSky {
           !(band.focus_place_aloft > 0) || !numbers(band.focus_place_altitude_m, 2) ||
           !(band.focus_place_altitude_m[0] < band.focus_place_altitude_m[1]) ||
           !(band.focus_high >= 0) || !(band.sun_soft_deg > 0) ||
+          !(band.focus_width_azimuth_cos >= 0) || !(band.focus_width_floor_deg >= 0) ||
+          !numbers(band.focus_width_altitude_m, 4) ||
+          !(band.focus_width_altitude_m[0] < band.focus_width_altitude_m[1]) ||
+          !(band.focus_width_altitude_m[2] < band.focus_width_altitude_m[3]) ||
+          !(band.focus_wide >= 0) ||
           !(band.azimuth_depth_aloft_deg >= 0) || !numbers(band.azimuth_depth_aloft_altitude_m, 2) ||
           !(band.azimuth_depth_aloft_altitude_m[0] < band.azimuth_depth_aloft_altitude_m[1]) ||
           !numbers(band.centre_range_deg, 2) || !(band.centre_range_deg[0] < band.centre_range_deg[1]) ||
@@ -144,6 +149,10 @@ class LiveSky {
         `#define SV_BAND_FOCUS_PLACE_ALOFT ${f(band.focus_place_aloft)}\n` +
         `#define SV_BAND_FOCUS_PLACE_ALTITUDE vec2(${band.focus_place_altitude_m.map(f).join(", ")})\n` +
         `#define SV_BAND_FOCUS_HIGH ${f(band.focus_high)}\n` +
+        `#define SV_BAND_FOCUS_WIDTH_AZIMUTH ${f(band.focus_width_azimuth_cos)}\n` +
+        `#define SV_BAND_FOCUS_WIDTH_FLOOR ${f(band.focus_width_floor_deg)}\n` +
+        `#define SV_BAND_FOCUS_WIDTH_ALTITUDE vec4(${band.focus_width_altitude_m.map(f).join(", ")})\n` +
+        `#define SV_BAND_FOCUS_WIDE ${f(band.focus_wide)}\n` +
         `#define SV_BAND_SUN_SOFT ${f(band.sun_soft_deg)}\n` +
         `#define SV_BAND_AZIMUTH_DEPTH_ALOFT ${f(band.azimuth_depth_aloft_deg)}\n` +
         `#define SV_BAND_AZIMUTH_DEPTH_ALTITUDE vec2(${band.azimuth_depth_aloft_altitude_m.map(f).join(", ")})\n` +

@@ -26,8 +26,10 @@
 // SV_BAND_SLICE_THROUGH (slices_through_altitude_m, a vec2), SV_BAND_DEPTH_TOP (depth_top_m), SV_BAND_FOCUS_ALOFT
 // (focus_aloft), SV_BAND_FOCUS_ALOFT_ALTITUDE (focus_aloft_altitude_m, a vec2),
 // SV_BAND_FOCUS_PLACE_ALOFT (focus_place_aloft), SV_BAND_FOCUS_PLACE_ALTITUDE
-// (focus_place_altitude_m, a vec2), SV_BAND_FOCUS_HIGH (focus_high), SV_BAND_SUN_SOFT
-// (sun_soft_deg),
+// (focus_place_altitude_m, a vec2), SV_BAND_FOCUS_HIGH (focus_high), SV_BAND_FOCUS_WIDTH_AZIMUTH
+// (focus_width_azimuth_cos), SV_BAND_FOCUS_WIDTH_FLOOR (focus_width_floor_deg),
+// SV_BAND_FOCUS_WIDTH_ALTITUDE (focus_width_altitude_m, a vec4), SV_BAND_FOCUS_WIDE (focus_wide),
+// SV_BAND_SUN_SOFT (sun_soft_deg),
 // SV_BAND_AZIMUTH_DEPTH_ALOFT (azimuth_depth_aloft_deg), SV_BAND_AZIMUTH_DEPTH_ALTITUDE
 // (azimuth_depth_aloft_altitude_m, a vec2), and SV_ALT_NODES
 // (parameterisation.altitude_nodes_m, a float[SV_N_ALT] constructor), SV_ALT_X
@@ -404,11 +406,22 @@ float SkyViewFocusAloft(float c, float h) {
       (1.0 - smoothstep(SV_BAND_CENTRE_RANGE.x, SV_BAND_CENTRE_RANGE.y, c));
 }
 
+// The share (0..1) of the sky rows' focus's width at the band's elevation c and altitude h (the
+// reader's sky_row_focus): under a low band (1 - smoothstep over SV_BAND_CENTRE_RANGE of c) in
+// from SV_BAND_FOCUS_WIDTH_ALTITUDE.xy, out from .zw.
+float SkyViewFocusWide(float c, float h) {
+  return smoothstep(SV_BAND_FOCUS_WIDTH_ALTITUDE.x, SV_BAND_FOCUS_WIDTH_ALTITUDE.y, h) *
+      (1.0 - smoothstep(SV_BAND_FOCUS_WIDTH_ALTITUDE.z, SV_BAND_FOCUS_WIDTH_ALTITUDE.w, h)) *
+      (1.0 - smoothstep(SV_BAND_CENTRE_RANGE.x, SV_BAND_CENTRE_RANGE.y, c));
+}
+
 // The sky rows' focus's elevation over the band's c at altitude h (the reader's sky_row_focus):
 // SV_BAND_FOCUS_PLACE_ALOFT of the band opposite the sun (c SV_BAND_ANTISOLAR) aloft under a low
-// band, 1 elsewhere.
+// band (and where the focus is wide, SkyViewFocusWide), 1 elsewhere.
 float SkyViewFocusPlace(float c, float h) {
-  return 1.0 + (SV_BAND_FOCUS_PLACE_ALOFT * SV_BAND_ANTISOLAR - 1.0) * SkyViewFocusAloft(c, h);
+  float aloft = SV_BAND_FOCUS_PLACE_ALOFT * SV_BAND_ANTISOLAR;
+  float place = 1.0 + (aloft - 1.0) * SkyViewFocusAloft(c, h);
+  return place + (aloft - place) * SkyViewFocusWide(c, h);
 }
 
 // The weight (0..1) of the maps relative to the band (SkyViewBandSlice, SkyViewBandRelative) at
@@ -446,7 +459,7 @@ void SkyViewBandFocus(float sun_deg, float h, out float c, out float k) {
   float f = SkyViewBandWeight(sun_deg, h) *
       (low * (1.0 + SV_BAND_FOCUS_HIGH * SkyViewFocusAloft(c, h)) +
        SV_BAND_CENTRE_FLOOR * (1.0 - low));
-  k = f * SkyViewBandStrength(h);
+  k = f * SkyViewBandStrength(h) * (1.0 + SV_BAND_FOCUS_WIDE * SkyViewFocusWide(c, h));
 }
 
 // The band's depth delta (degrees below the horizontal) at altitude h (the reader's
@@ -524,17 +537,41 @@ float SkyViewAzimuthNode(int a, float h) {
 // azimuth_node at the node's altitude): column a of altitude node k at k * SV_N_AZ + a.
 const float sv_az_node_cos[SV_N_ALT * SV_N_AZ] = SV_AZ_NODE_COS;
 
+// The focused coordinate G(x0) of a focus of strength k over [xc, xc + w] (the reader's
+// focus_warp): asinh(k (x0 - xc)) below xc, k (x0 - xc) across the focus, k w + asinh(k (x0 - xc -
+// w)) past it.
+float SkyViewFocusWarp(float x0, float xc, float k, float w) {
+  if (x0 < xc) return SkyViewAsinh(k * (x0 - xc));
+  if (x0 <= xc + w) return k * (x0 - xc);
+  return k * w + SkyViewAsinh(k * (x0 - xc - w));
+}
+
 // The sky rows' coordinate x (0 at the zenith, 1 at the horizontal) of the elevation
 // elevation_deg with focus (c, k) (the reader's sky_row): x0 = 1 - sqrt(elevation / 90) (version
 // 3's coordinate, x where k = 0), x = (asinh(k (x0 - x_c)) - A) / (B - A), x_c = 1 - sqrt(c / 90),
 // A = asinh(-k x_c), B = asinh(k (1 - x_c)).
-float SkyViewSkyRow(float elevation_deg, float c, float k) {
+float SkyViewSkyRow(float elevation_deg, float c, float k, float w) {
   float x0 = 1.0 - sqrt(clamp(elevation_deg / 90.0, 0.0, 1.0));
   if (k < 1e-6) return x0;
   float xc = 1.0 - sqrt(clamp(c / 90.0, 0.0, 1.0));
-  float a = SkyViewAsinh(-k * xc);
-  float b = SkyViewAsinh(k * (1.0 - xc));
-  return clamp((SkyViewAsinh(k * (x0 - xc)) - a) / (b - a), 0.0, 1.0);
+  float a = SkyViewFocusWarp(0.0, xc, k, w);
+  float b = SkyViewFocusWarp(1.0, xc, k, w);
+  return clamp((SkyViewFocusWarp(x0, xc, k, w) - a) / (b - a), 0.0, 1.0);
+}
+
+// The sky rows' focus's width (in x0) at the band's elevation c and altitude h (the reader's
+// sky_row_focus): from the focus's elevation c SkyViewFocusPlace(c, h) down to the band's
+// elevation (c SV_BAND_ANTISOLAR + delta) SV_BAND_FOCUS_WIDTH_AZIMUTH - delta (at least
+// SV_BAND_FOCUS_WIDTH_FLOOR), delta = SkyViewBandAzimuthDepth(h), times SkyViewFocusWide(c, h).
+float SkyViewFocusWidth(float c, float h) {
+  float wide = SkyViewFocusWide(c, h);
+  if (wide <= 0.0) return 0.0;
+  float delta = SkyViewBandAzimuthDepth(h);
+  float e_lo = max((c * SV_BAND_ANTISOLAR + delta) * SV_BAND_FOCUS_WIDTH_AZIMUTH - delta,
+                   SV_BAND_FOCUS_WIDTH_FLOOR);
+  float x_lo = 1.0 - sqrt(clamp(e_lo / 90.0, 0.0, 1.0));
+  float x_hi = 1.0 - sqrt(clamp(c * SkyViewFocusPlace(c, h) / 90.0, 0.0, 1.0));
+  return max(x_lo - x_hi, 0.0) * wide;
 }
 
 // The elevation (degrees) at the column azimuth cos_phi_a (cosine) that lies where
@@ -566,7 +603,8 @@ float SkyViewBandRelative(float elevation_deg, float c, float weight, float h, f
 // (SkyViewLimbSliceDepth, SkyViewLimbFocus).
 SvStencil SkyViewBandRowStencil(float elevation_deg, float h, float c, float k, vec3 limb) {
   if (elevation_deg >= 0.0 || h <= 0.0) {
-    float x = SkyViewSkyRow(elevation_deg, c * SkyViewFocusPlace(c, limb.z), k);
+    float x = SkyViewSkyRow(elevation_deg, c * SkyViewFocusPlace(c, limb.z), k,
+                            SkyViewFocusWidth(c, limb.z));
     return SkyViewStencil(x * float(SV_N_VIEW_SKY - 1), 0, SV_N_VIEW_SKY - 1, false, 0.0);
   }
   float s = SkyViewSin(0.5 * radians(elevation_deg));
@@ -768,7 +806,8 @@ vec3 SkyViewRadiance(float h, float rho, vec3 up, vec3 view_ray, vec3 sun_direct
     elevation = degrees(asin(mu));
   }
   if (segment == 0) {
-    row = SkyViewSkyRow(elevation, band_c * SkyViewFocusPlace(band_c, h), band_k) *
+    row = SkyViewSkyRow(elevation, band_c * SkyViewFocusPlace(band_c, h), band_k,
+                        SkyViewFocusWidth(band_c, h)) *
         float(SV_N_VIEW_SKY - 1);
   }
   int lo = segment == 0 ? 0 : segment == 1 ? SV_N_VIEW_SKY : SV_N_VIEW_UP;

@@ -113,7 +113,7 @@ fn main() {
     );
     // The band's elevation (the shader's band_c; the rows' focus sits at band_focus_place times
     // it) and the focus strength.
-    let (_, band_k) = sky_row_focus(s_deg, h);
+    let (_, band_k, _) = sky_row_focus(s_deg, h);
     print("band_c_k", &[band_centre_deg(s_deg, h), band_k]);
     let (seg, row) = view_coord(theta, r, bottom, s_deg);
     let (lo, hi) = segment_rows(seg);
@@ -178,7 +178,7 @@ fn main() {
                 let j = ss.first + js;
                 let zs = k * N_SUN + j;
                 let s_n = sun_warp(sun_node_deg(j), warp_strength(h_n, thickness), 0.0);
-                let (c_n, k_n) = sky_row_focus(s_n, h_n);
+                let focus_n = sky_row_focus(s_n, h_n);
                 let band = seg < 2
                     && !(band_map_weight(s_deg, h) < 1e-6 && band_map_weight(s_n, h_n) < 1e-6);
                 let tag = format!("p{part}_k{k}_j{j}");
@@ -202,7 +202,7 @@ fn main() {
                                 q
                             }
                         });
-                        let (sg, y) = band_row(e, h, bottom, c_n, k_n, [s_deg, s_n, h_n]);
+                        let (sg, y) = band_row(e, h, bottom, focus_n, [s_deg, s_n, h_n]);
                         let (lo, hi) = segment_rows(sg);
                         Stencil::new(y, lo, hi, |i| i as f64, y)
                     })

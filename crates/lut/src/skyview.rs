@@ -449,8 +449,8 @@ pub fn view_theta(seg: usize, row: f64, r: f64, bottom: f64, sun_deg: f64) -> (f
     let th = horizon_zenith(r, bottom);
     if seg == 0 {
         let x = row / (N_VIEW_SKY - 1) as f64;
-        let (c, k) = sky_row_focus(sun_deg, r - bottom);
-        (0.5 * PI - sky_row_elevation(x, c, k).to_radians(), false)
+        let (c, k, w) = sky_row_focus(sun_deg, r - bottom);
+        (0.5 * PI - sky_row_elevation(x, c, k, w).to_radians(), false)
     } else if seg == 1 {
         let x = (row - N_VIEW_SKY as f64) / (N_VIEW_LIMB - 1) as f64;
         let y = limb_depth_focused(x, sun_deg, r - bottom);
@@ -469,8 +469,8 @@ pub fn view_theta(seg: usize, row: f64, r: f64, bottom: f64, sun_deg: f64) -> (f
 pub fn view_coord(theta: f64, r: f64, bottom: f64, sun_deg: f64) -> (usize, f64) {
     let th = horizon_zenith(r, bottom);
     if theta <= 0.5 * PI {
-        let (c, k) = sky_row_focus(sun_deg, r - bottom);
-        let x = sky_row((0.5 * PI - theta).to_degrees(), c, k);
+        let (c, k, w) = sky_row_focus(sun_deg, r - bottom);
+        let x = sky_row((0.5 * PI - theta).to_degrees(), c, k, w);
         (0, x * (N_VIEW_SKY - 1) as f64)
     } else if theta < th {
         let y = limb_depth_of(theta, r, bottom);
@@ -574,23 +574,40 @@ fn smoothstep(a: f64, b: f64, x: f64) -> f64 {
 }
 
 /// The sky rows' focus at sun `sun_deg` above the observer's horizon and altitude `h` (m): the
-/// focus's elevation c (1 + (P [`BAND_ANTISOLAR`] − 1) a) (c the band's, [`band_centre_deg`],
-/// degrees; P = [`BAND_FOCUS_PLACE_ALOFT`]) and the focus strength k = W (l (1 + G a) + F (1 − l))
-/// [`band_focus_strength`]: W the fades of [`BAND_SUN_RANGE`] and [`BAND_ALTITUDE_M`]
-/// ([`band_map_weight`]), l = 1 − smoothstep over [`BAND_CENTRE_RANGE_DEG`] of c, F =
-/// [`BAND_CENTRE_FLOOR`], G = [`BAND_FOCUS_HIGH`], a = l smoothstep over [`BAND_FOCUS_PLACE_M`]
-/// of h (smoothsteps 3t² − 2t³); k = 0 by day, deep in twilight and aloft: the rows of version 3.
-pub fn sky_row_focus(sun_deg: f64, h: f64) -> (f64, f64) {
+/// focus's elevation c_f = c p, p = q + (P [`BAND_ANTISOLAR`] − q) v, q = 1 + (P
+/// [`BAND_ANTISOLAR`] − 1) a (c the band's, [`band_centre_deg`], degrees; P =
+/// [`BAND_FOCUS_PLACE_ALOFT`]), the focus strength k = W (l (1 + G a) + F (1 − l)) (1 + V v)
+/// [`band_focus_strength`] and the focus's width w (in x₀, [`sky_row_elevation`]): W the fades
+/// of [`BAND_SUN_RANGE`] and [`BAND_ALTITUDE_M`] ([`band_map_weight`]), l = 1 − smoothstep over
+/// [`BAND_CENTRE_RANGE_DEG`] of c, F = [`BAND_CENTRE_FLOOR`], G = [`BAND_FOCUS_HIGH`], a = l
+/// smoothstep over [`BAND_FOCUS_PLACE_M`] of h, V = [`BAND_FOCUS_WIDE`], v = l times the fades
+/// of [`BAND_FOCUS_WIDTH_M`] (smoothsteps 3t² − 2t³), w = v max(x₀(e_w) − x₀(c_f), 0), e_w =
+/// max((c [`BAND_ANTISOLAR`] + δ) R − δ, [`BAND_FOCUS_WIDTH_FLOOR_DEG`]) the band's elevation
+/// at −cos φ = R = [`BAND_FOCUS_WIDTH_AZIMUTH`] ([`band_relative_elevation`], δ =
+/// [`band_azimuth_depth_deg`]); k = 0 by day, deep in twilight and aloft: the rows of version 3.
+pub fn sky_row_focus(sun_deg: f64, h: f64) -> (f64, f64, f64) {
     let [c0, c1] = BAND_CENTRE_RANGE_DEG;
     let [h0, h1] = BAND_FOCUS_PLACE_M;
+    let [w0, w1, w2, w3] = BAND_FOCUS_WIDTH_M;
     let c = band_centre_deg(sun_deg, h);
     // The share of the focus under a low band (1 − high), where it moves and grows aloft.
     let low = 1.0 - smoothstep(c0, c1, c);
     let aloft = smoothstep(h0, h1, h) * low;
+    let wide = smoothstep(w0, w1, h) * (1.0 - smoothstep(w2, w3, h)) * low;
     let f = band_map_weight(sun_deg, h)
         * (low * (1.0 + BAND_FOCUS_HIGH * aloft) + BAND_CENTRE_FLOOR * (1.0 - low));
     let place = 1.0 + (BAND_FOCUS_PLACE_ALOFT * BAND_ANTISOLAR - 1.0) * aloft;
-    (c * place, f * band_focus_strength(h))
+    // Where the focus is wide its upper end sits at P of the antisolar band.
+    let place = place + (BAND_FOCUS_PLACE_ALOFT * BAND_ANTISOLAR - place) * wide;
+    let k = f * band_focus_strength(h) * (1.0 + BAND_FOCUS_WIDE * wide);
+    if wide <= 0.0 {
+        return (c * place, k, 0.0);
+    }
+    let delta = band_azimuth_depth_deg(h);
+    let e_w = ((c * BAND_ANTISOLAR + delta) * BAND_FOCUS_WIDTH_AZIMUTH - delta)
+        .max(BAND_FOCUS_WIDTH_FLOOR_DEG);
+    let x0 = |e: f64| 1.0 - (e / 90.0).clamp(0.0, 1.0).sqrt();
+    (c * place, k, (x0(e_w) - x0(c * place)).max(0.0) * wide)
 }
 
 /// The sky rows' focus's elevation aloft as a fraction of the band's elevation opposite the sun
@@ -619,6 +636,23 @@ pub const BAND_FOCUS_PLACE_M: [f64; 2] = [4_000.0, 10_000.0];
 /// How much stronger the sky rows' focus is under a low band from [`BAND_FOCUS_PLACE_M`] up
 /// ([`sky_row_focus`]).
 pub const BAND_FOCUS_HIGH: f64 = 0.3;
+/// The −cos φ (φ the azimuth from the sun; 140°) down to whose band elevation the sky rows'
+/// focus is wide under a low band within [`BAND_FOCUS_WIDTH_M`] ([`sky_row_focus`]). The reader
+/// reads each azimuth column at its own elevation relative to the band
+/// ([`band_relative_elevation`]), lower than the antisolar band away from 180°, while a slice's
+/// rows have one focus: seen from 8 and 11 km the rows within the columns 130–160° from the sun,
+/// 0.8–2° below the focus, erred by +2.1 to +4.0 % (680 nm). Version 18.
+pub const BAND_FOCUS_WIDTH_AZIMUTH: f64 = 0.766;
+/// The lowest elevation (degrees) of the wide focus's lower end ([`BAND_FOCUS_WIDTH_AZIMUTH`]).
+pub const BAND_FOCUS_WIDTH_FLOOR_DEG: f64 = 0.25;
+/// The altitudes (m) between which the focus's width fades in (the first two, smoothstep) and
+/// out (the last two).
+pub const BAND_FOCUS_WIDTH_M: [f64; 4] = [6_500.0, 8_000.0, 11_000.0, 12_500.0];
+/// How much stronger the sky rows' focus is where it is wide ([`sky_row_focus`]): the wide
+/// focus alone (×1) spreads the rows over the width, 6.97 / 8.17 % seen from 11 / 12.5 km
+/// without the fades in altitude, 2.79 / 3.46 % at 11 / 9.5 km with them; ×1.5 the earth's shadow
+/// seen aloft within 3 % (docs/lut.md, version 18).
+pub const BAND_FOCUS_WIDE: f64 = 0.5;
 
 /// The weight (0…1) of the maps relative to the band ([`band_slice_elevation`],
 /// [`band_relative_elevation`]) at sun `sun_deg` above the observer's horizon and altitude `h`
@@ -855,9 +889,16 @@ pub fn band_horizon_taper(eps: f64, delta: f64) -> f64 {
 /// altitude, as the reader reads every altitude node's limb rows at the query's depth, on the
 /// slice's limb rows, `limb` = [the query's sun coordinate, the slice's, the slice's altitude],
 /// [`limb_slice_depth`], [`limb_row_focus`]).
-pub fn band_row(e: f64, h: f64, bottom: f64, c: f64, k: f64, limb: [f64; 3]) -> (usize, f64) {
+pub fn band_row(
+    e: f64,
+    h: f64,
+    bottom: f64,
+    focus: (f64, f64, f64),
+    limb: [f64; 3],
+) -> (usize, f64) {
     if e >= 0.0 || h <= 0.0 {
-        return (0, sky_row(e, c, k) * (N_VIEW_SKY - 1) as f64);
+        let (c, k, w) = focus;
+        return (0, sky_row(e, c, k, w) * (N_VIEW_SKY - 1) as f64);
     }
     // The ray's tangent point's depth below the observer: r − r_t = 2 r sin²(e/2).
     let half = 0.5 * e.to_radians();
@@ -880,30 +921,58 @@ pub fn band_row(e: f64, h: f64, bottom: f64, c: f64, k: f64, limb: [f64; 3]) -> 
 /// k / (B − A) times as dense at the band as without the focus (and sparser far from it), the
 /// focus moving with the band as the sun sets (the band's row coordinate −A / (B − A) still
 /// moves, about as much as in version 3's rows: a row coordinate fixed on the band would need a
-/// kink in the map or a focus solved by iteration).
-pub fn sky_row_elevation(x: f64, c: f64, k: f64) -> f64 {
+/// kink in the map or a focus solved by iteration). A focus of width w > 0 ([`sky_row_focus`]):
+/// x₀ = G⁻¹(A + x (B − A)), G = [`focus_warp`] (as dense as at x_c over [x_c, x_c + w]); w = 0
+/// the same.
+pub fn sky_row_elevation(x: f64, c: f64, k: f64, w: f64) -> f64 {
     let x = x.clamp(0.0, 1.0);
     let x0 = if k < 1e-6 {
         x
     } else {
         let xc = 1.0 - (c / 90.0).clamp(0.0, 1.0).sqrt();
-        let a = (-k * xc).asinh();
-        let b = (k * (1.0 - xc)).asinh();
-        (xc + (a + x * (b - a)).sinh() / k).clamp(0.0, 1.0)
+        let (a, b) = focus_ends(xc, k, w);
+        focus_unwarp(a + x * (b - a), xc, k, w).clamp(0.0, 1.0)
     };
     90.0 * (1.0 - x0) * (1.0 - x0)
 }
 
-/// The inverse of [`sky_row_elevation`]: x₀ = 1 − √(ε / 90°), x = (asinh(k (x₀ − x_c)) − A) / (B − A).
-pub fn sky_row(elevation_deg: f64, c: f64, k: f64) -> f64 {
+/// The inverse of [`sky_row_elevation`]: x₀ = 1 − √(ε / 90°), x = (G(x₀) − A) / (B − A).
+pub fn sky_row(elevation_deg: f64, c: f64, k: f64, w: f64) -> f64 {
     let x0 = 1.0 - (elevation_deg / 90.0).clamp(0.0, 1.0).sqrt();
     if k < 1e-6 {
         return x0;
     }
     let xc = 1.0 - (c / 90.0).clamp(0.0, 1.0).sqrt();
-    let a = (-k * xc).asinh();
-    let b = (k * (1.0 - xc)).asinh();
-    (((k * (x0 - xc)).asinh() - a) / (b - a)).clamp(0.0, 1.0)
+    let (a, b) = focus_ends(xc, k, w);
+    ((focus_warp(x0, xc, k, w) - a) / (b - a)).clamp(0.0, 1.0)
+}
+
+/// The focused coordinate G(x₀) of a focus of strength `k` over [x_c, x_c + w]: asinh(k (x₀ −
+/// x_c)) below x_c, k (x₀ − x_c) across the focus, k w + asinh(k (x₀ − x_c − w)) past it.
+pub fn focus_warp(x0: f64, xc: f64, k: f64, w: f64) -> f64 {
+    if x0 < xc {
+        (k * (x0 - xc)).asinh()
+    } else if x0 <= xc + w {
+        k * (x0 - xc)
+    } else {
+        k * w + (k * (x0 - xc - w)).asinh()
+    }
+}
+
+/// The inverse of [`focus_warp`].
+pub fn focus_unwarp(g: f64, xc: f64, k: f64, w: f64) -> f64 {
+    if g < 0.0 {
+        xc + g.sinh() / k
+    } else if g <= k * w {
+        xc + g / k
+    } else {
+        xc + w + (g - k * w).sinh() / k
+    }
+}
+
+/// A = G(0), B = G(1) of [`focus_warp`].
+pub fn focus_ends(xc: f64, k: f64, w: f64) -> (f64, f64) {
+    (focus_warp(0.0, xc, k, w), focus_warp(1.0, xc, k, w))
 }
 
 /// The limb rows' depth y = (r − r_t) / (r − bottom) of the ray's tangent point below the
@@ -1956,7 +2025,7 @@ impl<'a> SkyViewReader<'a> {
         let h_n = altitude_node_m(k, thickness);
         // (The band maps act below 25 km, where the warp's centre is 0.)
         let s_n = sun_warp(sun_node_deg(j), warp_strength(h_n, thickness), 0.0);
-        let (c_n, k_n) = sky_row_focus(s_n, h_n);
+        let focus_n = sky_row_focus(s_n, h_n);
         if band_map_weight(s_deg, h) < 1e-6 && band_map_weight(s_n, h_n) < 1e-6 {
             return None;
         }
@@ -1972,7 +2041,7 @@ impl<'a> SkyViewReader<'a> {
                 azimuth_node(a, h).cos()
             };
             let e = band_relative_elevation(e_n, s_n, h_n, cos_phi, cos_a);
-            let (seg, y) = band_row(e, h, p.bottom_radius, c_n, k_n, [s_deg, s_n, h_n]);
+            let (seg, y) = band_row(e, h, p.bottom_radius, focus_n, [s_deg, s_n, h_n]);
             let (lo, hi) = segment_rows(seg);
             Stencil::with_nodes(y, lo, hi, |i| i as f64, y, self.nodes[2])
         }))
@@ -2322,9 +2391,9 @@ pub const STATED_ERRORS: &[(&str, &str, f64)] = &[
     ("rayleigh+mie", "sky radiance (sky product), sun >= 5 deg, view < 10 deg above the horizon, 20-100 km", 0.021),
     ("rayleigh+mie", "sky radiance (sky product), sun -6..5 deg, ground", 0.012),
     ("rayleigh+mie", "sky radiance (sky product), sun -6..5 deg, 0-5 km (the band above the earth's shadow 120 deg from the sun, 680 nm at 5 km, 0.5 deg above the horizontal; the twilight glow towards the sun at most 3 %)", 0.046),
-    ("rayleigh+mie", "sky radiance (sky product), sun -6..5 deg, 5-8 km (the band above the earth's shadow, 680 nm at 8 km, 1.75 deg above the horizontal 150 deg from the sun, sun -2.5 deg)", 0.035),
-    ("rayleigh+mie", "sky radiance (sky product), sun -6..5 deg, 8-12.5 km (the band above the earth's shadow, 680 nm at 11 km, 1.25 deg above the horizontal 135 deg from the sun, sun -3 deg; the twilight glow towards the sun at most 3 %)", 0.037),
-    ("rayleigh+mie", "sky radiance (sky product), sun -6..5 deg, 12.5-20 km (the limb 0.5 deg above the horizon 165 deg from the sun, 680 nm at 17.5 km, sun -3.75 deg; 4.5 % at 20 km; the twilight glow towards the sun at most 3 %)", 0.064),
+    ("rayleigh+mie", "sky radiance (sky product), sun -6..5 deg, 5-8 km (the band above the earth's shadow, 680 nm at 8 km, 2.1 deg above the horizontal 172.5 deg from the sun, sun -2.375 deg, between the dense check's samples; on them 2.6 %)", 0.031),
+    ("rayleigh+mie", "sky radiance (sky product), sun -6..5 deg, 8-12.5 km (the limb 0.2 deg above the horizon 157.5 deg from the sun, 680 nm at 12.5 km, sun -2.625 deg, between the dense check's samples; on them 2.9 % at 9.5 km; the twilight glow towards the sun at most 3 %)", 0.048),
+    ("rayleigh+mie", "sky radiance (sky product), sun -6..5 deg, 12.5-20 km (the limb 0.4 deg above the horizon 172.5 deg from the sun, 680 nm at 20 km, sun -3.875 deg, between the dense check's samples; 6.4 % at 17.5 km, 4.5 % on the dense check at 20 km; the twilight glow towards the sun at most 3 %)", 0.068),
     ("rayleigh+mie", "sky radiance (sky product), sun -6..0 deg, 0-5 km, views within 10 deg of the horizon 150-180 deg from the sun (the earth's shadow rising; 680 nm at 2.5 km)", 0.022),
     ("rayleigh+mie", "sky radiance (sky product), sun -6..5 deg, 20-100 km (random samples: 3.0 %, the sky just above the horizontal at 30 km, 440 nm; but the band above the earth's shadow seen from 20-25 km, about 5 deg above the horizontal 165-180 deg from the sun, up to 70 %: 25 km, sun -5 deg, 680 nm; 46 % at 22.5 km; not measured above 25 km)", 0.70),
     ("rayleigh+mie", "sky radiance (sky product), sun -12..-6 deg, ground", 0.033),
@@ -2391,12 +2460,16 @@ pub fn manifest(
         "focus_place_aloft": BAND_FOCUS_PLACE_ALOFT,
         "focus_place_altitude_m": BAND_FOCUS_PLACE_M,
         "focus_high": BAND_FOCUS_HIGH,
+        "focus_width_azimuth_cos": BAND_FOCUS_WIDTH_AZIMUTH,
+        "focus_width_floor_deg": BAND_FOCUS_WIDTH_FLOOR_DEG,
+        "focus_width_altitude_m": BAND_FOCUS_WIDTH_M,
+        "focus_wide": BAND_FOCUS_WIDE,
         "sun_soft_deg": BAND_SUN_SOFT_DEG,
         "azimuth_depth_aloft_deg": BAND_AZIMUTH_DEPTH_ALOFT,
         "azimuth_depth_aloft_altitude_m": BAND_AZIMUTH_DEPTH_ALOFT_M,
         "slices": "on the sky rows, each (altitude node k, sun node j) slice of the interpolation is read on its own rows (the focus (c_n, k_n) at the node's sun coordinate s_n = the warped s_j at h_k and its altitude h_n = altitude_nodes_m[k]) where the query's or the slice's k > 0: at e_n = e + f (1 - smoothstep(2 w, 4 w, e)) (smoothstep(0, horizon_deg, e) (1 - t) + step(-delta_q, e) t) ((e + delta_q) H_n / H_q - delta_n - e), t = smoothstep(slices_through_altitude_m[0], slices_through_altitude_m[1], h) (version 16; an e_n below 0 read on the limb rows as the azimuth formula's e_a), H = max(c_s antisolar + delta, 0.1) at the query's (s, h) and the node's (s_n, h_n), c_s the formula's c with its factor aloft replaced by 1 + a x + (b - a) x^2 / (2 L), x = clamp(h - centre_aloft_altitude_m[0], 0, L) / 1000, L = max((centre_aloft_altitude_m[1] - centre_aloft_altitude_m[0]) / 1000, 1e-3), [a, b] = slices_aloft_per_km (version 16), delta = depth_deg_per_km clamp(h, 0, depth_top_m) / 1000, w = max(H_q, 0.5), f = k / (focus (1 + focus_growth smoothstep(focus_growth_altitude_m[0], focus_growth_altitude_m[1], h)) (1 + focus_aloft smoothstep(focus_aloft_altitude_m[0], focus_aloft_altitude_m[1], h))) the query's fade (0 where k = 0), then each column at the azimuth formula's e_a with (c_n, k_n, h_n) in place of the query's",
         "azimuth": "on the sky rows and the limb rows where k > 0 each azimuth column a of the interpolation is read at its own elevation e_a (its own rows' stencil): d = depth_deg_per_km clamp(h, 0, depth_top_m) / 1000, delta = d + (azimuth_depth_aloft_deg - d) smoothstep(azimuth_depth_aloft_altitude_m[0], azimuth_depth_aloft_altitude_m[1], h) (version 12), w = max(c antisolar + delta, 0.5), ratio = max(-cos phi_a, antisolar_range[0]) / max(-cos phi, antisolar_range[0]), e_a = e + (k / (focus (1 + focus_growth smoothstep(focus_growth_altitude_m[0], focus_growth_altitude_m[1], h)) (1 + focus_aloft smoothstep(focus_aloft_altitude_m[0], focus_aloft_altitude_m[1], h)))) (1 - smoothstep(2 w, 4 w, e)) step(-delta, e) smoothstep(antisolar_range[0], antisolar_range[1], -cos phi) (e + delta) (ratio - 1) (version 7: from -delta up through the horizontal, where version 6 had smoothstep(0, horizon_deg, e)), e the query's elevation (deg), phi its azimuth from the sun, phi_a the column's in the slice (azimuth_nodes_rad[k][a], the slice's altitude node k; version 12: at the query's altitude h); where e_a >= 0 the column is read on the sky rows, below on the limb rows at the query's altitude h (depth y = 2 r sin^2(e_a / 2) / h); the band above the earth's shadow lies at (c antisolar + delta)(-cos phi) - delta",
-        "formula": "the sky rows' focus at the sun's elevation s above the observer's horizon (deg) and altitude h (m): u = sun_soft_deg ln(1 + exp((sun_deg - s) / sun_soft_deg)) (version 14: max(sun_deg - s, 0)), km = clamp(h, 0, centre_aloft_altitude_m[0]) / 1000, c = min(((centre[0] + centre[1] km) u + (centre[2] + centre[3] km) u^2) (1 + centre_aloft_per_km clamp(h - centre_aloft_altitude_m[0], 0, centre_aloft_altitude_m[1] - centre_aloft_altitude_m[0]) / 1000), 45) (deg, the band's elevation: the maps' c), the rows' focus at c_f = c (1 + (focus_place_aloft antisolar - 1) a) (x_c = 1 - sqrt(c_f / 90); version 15), l = 1 - smoothstep(centre_range_deg[0], centre_range_deg[1], c), a = l smoothstep(focus_place_altitude_m[0], focus_place_altitude_m[1], h), k = smoothstep(sun_range_deg[0], sun_range_deg[1], s) (1 - smoothstep(sun_range_deg[2], sun_range_deg[3], s)) (1 - smoothstep(altitude_range_m[0], altitude_range_m[1], h)) (l (1 + focus_high a) + centre_floor (1 - l)) focus (1 + focus_growth smoothstep(focus_growth_altitude_m[0], focus_growth_altitude_m[1], h)) (1 + focus_aloft smoothstep(focus_aloft_altitude_m[0], focus_aloft_altitude_m[1], h)), smoothstep(a, b, x) = t^2 (3 - 2 t), t = clamp((x - a) / (b - a), 0, 1)",
+        "formula": "the sky rows' focus at the sun's elevation s above the observer's horizon (deg) and altitude h (m): u = sun_soft_deg ln(1 + exp((sun_deg - s) / sun_soft_deg)) (version 14: max(sun_deg - s, 0)), km = clamp(h, 0, centre_aloft_altitude_m[0]) / 1000, c = min(((centre[0] + centre[1] km) u + (centre[2] + centre[3] km) u^2) (1 + centre_aloft_per_km clamp(h - centre_aloft_altitude_m[0], 0, centre_aloft_altitude_m[1] - centre_aloft_altitude_m[0]) / 1000), 45) (deg, the band's elevation: the maps' c), the rows' focus at c_f = c (q + (focus_place_aloft antisolar - q) v), q = 1 + (focus_place_aloft antisolar - 1) a (x_c = 1 - sqrt(c_f / 90); version 15), l = 1 - smoothstep(centre_range_deg[0], centre_range_deg[1], c), a = l smoothstep(focus_place_altitude_m[0], focus_place_altitude_m[1], h), v = l smoothstep(focus_width_altitude_m[0], focus_width_altitude_m[1], h) (1 - smoothstep(focus_width_altitude_m[2], focus_width_altitude_m[3], h)) (version 18), k = smoothstep(sun_range_deg[0], sun_range_deg[1], s) (1 - smoothstep(sun_range_deg[2], sun_range_deg[3], s)) (1 - smoothstep(altitude_range_m[0], altitude_range_m[1], h)) (l (1 + focus_high a) + centre_floor (1 - l)) focus (1 + focus_growth smoothstep(focus_growth_altitude_m[0], focus_growth_altitude_m[1], h)) (1 + focus_aloft smoothstep(focus_aloft_altitude_m[0], focus_aloft_altitude_m[1], h)) (1 + focus_wide v), the focus's width w = v max(x0(e_w) - x_c, 0) (x0(e) = 1 - sqrt(e / 90), e_w = max((c antisolar + delta) focus_width_azimuth_cos - delta, focus_width_floor_deg), delta the azimuth formula's; version 18), smoothstep(a, b, x) = t^2 (3 - 2 t), t = clamp((x - a) / (b - a), 0, 1)",
     });
     json!({
         "format": LAYOUT,
@@ -2450,7 +2523,7 @@ pub fn manifest(
                 "slices": "on the limb rows each (altitude node k, sun node j) slice is read at the depth y_n = y + f (clamp(m, 0, 1) - y) on its own rows, m = y rho where y <= yb, else y rho + w (ybn + (y - yb) (1 - ybn) / (1 - yb) - y rho), w = 1 - smoothstep(horizon_held[0], horizon_held[1], yb), rho = (h / h_n)^altitude_exponent D(s_n) / D(s), yb = min(D(s) / h, max_fraction), ybn = min(yb rho, max_fraction) (formula at s_n, h_n), y the query's depth, s its sun coordinate, h its altitude, s_n and h_n the slice's (s_n = the warped s_j at h_n = altitude_nodes_m[k]), D(s) = max(depth_m[0] + depth_m[1] s' + depth_m[2] s'^2, depth_floor_m), s' = clamp(s, sun_range_deg[0] - 1, sun_range_deg[3]), f = k / focus at the query's (s, h) (y_n = y where f = 0); on the limb rows the sun stencil of altitude node k starts at the first node from the stencil's first up to its interval's lower node whose slice is not read past its horizon, y + f (m - y) <= 1, m = the map before its clamp (the stencil's polynomial through the remaining nodes)",
                 "formula": "the limb rows' focus (version 10) at sun coordinate s (deg; a texel's node s_j, for a query each slice's own s_n at its altitude h_n) and altitude h (m): depth D = depth_m[0] + depth_m[1] s + depth_m[2] s^2 (m), x_c = the limb coordinate of y_c = clamp(D / h, 0, 1) (x_c = 2/3 + (4/3) cos(acos(1 - 27 y_c / 16) / 3 - 2 pi / 3)), k = focus smoothstep(sun_range_deg[0], sun_range_deg[1], s) (1 - smoothstep(sun_range_deg[2], sun_range_deg[3], s)) smoothstep(altitude_range_m[0], altitude_range_m[1], h) (1 - smoothstep(altitude_range_m[2], altitude_range_m[3], h)) (0 where h <= 0); the limb row coordinate of depth y is x = (asinh(k (x0 - x_c)) - A) / (B - A), x0 = 2/3 + (4/3) cos(acos(1 - 27 y / 16) / 3 - 2 pi / 3), A = asinh(-k x_c), B = asinh(k (1 - x_c)) (x = x0 where k < 1e-6); inverse x0 = x_c + sinh(A + x (B - A)) / k, y = 2 x0^2 - x0^3. On the limb rows every (altitude node k, sun node j) slice is read on its own rows at the depth of `slices` (and a column moved below the horizontal by sky_row_band.azimuth likewise, at its depth 2 r sin^2(e_a / 2) / h)",
             },
-            "view_rows": format!("rows 0..{} from the zenith to the horizontal: elevation = 90 (1 - x0)^2 (deg), x0 = x_c + sinh(A + x (B - A)) / k, x = row / {}, x_c = 1 - sqrt(c / 90), A = asinh(-k x_c), B = asinh(k (1 - x_c)), (c, k) the sky rows' focus (sky_row_band) at the sun's elevation above the observer's horizon (its node's s_j for a texel, the query's own for a query) and the observer's altitude; where k < 1e-6, x0 = x; inverse: x0 = 1 - sqrt(elevation / 90), x = (asinh(k (x0 - x_c)) - A) / (B - A) (or x0); rows {}..{} from the horizontal to the horizon: the ray's tangent radius r_t = r - (r - bottom_radius) y, y = 2 x0^2 - x0^3, x0 = the unfocused coordinate of x = (row - {}) / {} with the limb rows' focus (limb_row_band; x0 = x where k = 0; inverse: x0 = 2/3 + (4/3) cos(acos(1 - 27 y / 16) / 3 - 2 pi / 3)), theta = pi/2 + acos(r_t / r); rows {}..{} from the horizon to the nadir: theta = theta_h + (pi - theta_h) x^2, x = (row - {}) / {}, theta_h = pi - asin(bottom_radius / r); r the observer's radius. Interpolation over the rows around the view stays within its segment (see interpolation)", N_VIEW_SKY - 1, N_VIEW_SKY - 1, N_VIEW_SKY, N_VIEW_UP - 1, N_VIEW_SKY, N_VIEW_LIMB - 1, N_VIEW_UP, N_VIEW - 1, N_VIEW_UP, N_VIEW_DOWN - 1),
+            "view_rows": format!("rows 0..{} from the zenith to the horizontal: elevation = 90 (1 - x0)^2 (deg), x0 = G^-1(A + x (B - A)), x = row / {}, x_c = 1 - sqrt(c_f / 90), G(x0) = asinh(k (x0 - x_c)) for x0 < x_c, k (x0 - x_c) for x_c <= x0 <= x_c + w, k w + asinh(k (x0 - x_c - w)) above (version 18; w = 0 before), A = G(0), B = G(1), (c_f, k, w) the sky rows' focus (sky_row_band) at the sun's elevation above the observer's horizon (its node's s_j for a texel, the query's own for a query) and the observer's altitude; where k < 1e-6, x0 = x; inverse: x0 = 1 - sqrt(elevation / 90), x = (G(x0) - A) / (B - A) (or x0); rows {}..{} from the horizontal to the horizon: the ray's tangent radius r_t = r - (r - bottom_radius) y, y = 2 x0^2 - x0^3, x0 = the unfocused coordinate of x = (row - {}) / {} with the limb rows' focus (limb_row_band; x0 = x where k = 0; inverse: x0 = 2/3 + (4/3) cos(acos(1 - 27 y / 16) / 3 - 2 pi / 3)), theta = pi/2 + acos(r_t / r); rows {}..{} from the horizon to the nadir: theta = theta_h + (pi - theta_h) x^2, x = (row - {}) / {}, theta_h = pi - asin(bottom_radius / r); r the observer's radius. Interpolation over the rows around the view stays within its segment (see interpolation)", N_VIEW_SKY - 1, N_VIEW_SKY - 1, N_VIEW_SKY, N_VIEW_UP - 1, N_VIEW_SKY, N_VIEW_LIMB - 1, N_VIEW_UP, N_VIEW - 1, N_VIEW_UP, N_VIEW_DOWN - 1),
             "azimuth_columns": format!("the column coordinate of the view's azimuth phi from the sun's (0..pi) at altitude h (m): column = (alpha sqrt(phi / pi) + (1 - alpha - beta) sin(phi / 2)^2 + beta G(phi)) {}, alpha = azimuth_aloft.ground_weight - (azimuth_aloft.ground_weight - azimuth_aloft.weight) smoothstep(azimuth_aloft.altitude_range_m[0], azimuth_aloft.altitude_range_m[1], h) (version 14; version 13: ground_weight 1), beta = azimuth_focus.weight smoothstep(azimuth_focus.altitude_range_m[0], azimuth_focus.altitude_range_m[1], h), G(phi) = (tanh((phi - c) / w) - tanh(-c / w)) / (tanh((pi - c) / w) - tanh(-c / w)), c = azimuth_focus.centre_deg, w = azimuth_focus.width_deg (in rad; smoothstep as in sky_row_band); a texel of altitude node k lies at the phi whose coordinate at h_k is its column (azimuth_nodes_rad[k][column]); a query at altitude h reads altitude node k at column coordinate c_q + lambda (c_k - c_q), c_q its azimuth's coordinate at h, c_k at h_k (the node's own map), lambda = smoothstep(azimuth_focus.node_read_altitude_m[0], azimuth_focus.node_read_altitude_m[1], h) (version 13; version 12: c_q), and azimuth_nodes_rad[k] are the columns' azimuths in sky_row_band.azimuth", N_AZ - 1),
             "azimuth_aloft": {
                 "weight": AZIMUTH_ALOFT_WEIGHT,
@@ -2615,42 +2688,86 @@ mod tests {
     }
 
     #[test]
+    fn the_wide_focus_spans_the_band_from_140_to_180_degrees() {
+        // Outside the width's altitudes (and under a high band) no width: the focus of version 17.
+        for (sun, h) in [
+            (0.5, 6000.0),
+            (0.5, 13_000.0),
+            (-3.0, 9500.0),
+            (0.5, 30_000.0),
+        ] {
+            assert_eq!(sky_row_focus(sun, h).2, 0.0, "sun {sun}, h {h}");
+        }
+        // At 10 km with the sun 0.5° above the observer's horizon: full width, from the focus
+        // at 0.92 of the antisolar band down to the band 140° from the sun, 1.5 times as strong.
+        let (h, sun) = (10_000.0, 0.5);
+        let (c, k, w) = sky_row_focus(sun, h);
+        let band = band_centre_deg(sun, h);
+        assert!(band < 6.0);
+        assert!((c - 0.92 * BAND_ANTISOLAR * band).abs() < 1e-9);
+        let k_full = band_focus_strength(h) * (1.0 + BAND_FOCUS_HIGH);
+        assert!((k - 1.5 * k_full).abs() < 1e-9, "{k} vs {k_full}");
+        let delta = band_azimuth_depth_deg(h);
+        let e_w = (BAND_ANTISOLAR * band + delta) * (140.0f64).to_radians().cos().abs() - delta;
+        assert!(e_w > 0.25 && e_w < c, "{e_w} {c}");
+        let x0 = |e: f64| 1.0 - (e / 90.0f64).sqrt();
+        assert!((w - (x0(e_w) - x0(c))).abs() < 1e-3, "{w}");
+        // The rows invert, and are as dense across the width as at its upper end (in x0),
+        // denser than outside it.
+        for n in 0..=200 {
+            let x = n as f64 / 200.0;
+            assert!((sky_row(sky_row_elevation(x, c, k, w), c, k, w) - x).abs() < 1e-9);
+        }
+        let dx0 = |e: f64| {
+            let d = 1e-5;
+            let x = |e: f64| sky_row(e, c, k, w);
+            // x0 per unit of x at elevation e.
+            (x0(e - d) - x0(e + d)) / (x(e - d) - x(e + d))
+        };
+        let (top, bottom) = (dx0(c - 1e-3), dx0(e_w + 1e-3));
+        assert!((top / bottom - 1.0).abs() < 1e-3, "{top} {bottom}");
+        assert!(dx0(0.5 * (c + e_w)) < 1.001 * top);
+        assert!(dx0(2.0 * c) > 2.0 * top && dx0(0.1) > 1.2 * top);
+    }
+
+    #[test]
     fn the_sky_rows_follow_the_band() {
         // By day, deep in twilight and aloft: version 3's rows, θ = 90° (1 − (1 − x)²).
         // (Deep in twilight, −5°, the band 15–20° high: the horizontal kept dense for the glow
         // towards the sun, version 12.)
         for (sun, h) in [(5.0, 0.0), (-8.0, 0.0), (-5.0, 5000.0), (-2.0, 30_000.0)] {
-            let (c, k) = sky_row_focus(sun, h);
+            let (c, k, w) = sky_row_focus(sun, h);
             assert_eq!(k, 0.0, "sun {sun}, h {h}");
             for n in 0..=10 {
                 let x = n as f64 / 10.0;
                 let want = 90.0 * (1.0 - x) * (1.0 - x);
-                assert!((sky_row_elevation(x, c, k) - want).abs() < 1e-12);
+                assert!((sky_row_elevation(x, c, k, w) - want).abs() < 1e-12);
             }
         }
         // At 10 km with the sun −3° above the observer's horizon the band is 13° high, past the
         // fade in its elevation: a quarter of the focus is kept (version 13: none).
-        let (_, k) = sky_row_focus(-3.0, 10_000.0);
+        let (_, k, _) = sky_row_focus(-3.0, 10_000.0);
         assert!((k - BAND_CENTRE_FLOOR * band_focus_strength(10_000.0)).abs() < 1e-9);
         // In low twilight the rows are more than twice as dense as version 3's at the band's
         // elevation (which moves with the sun), sparser at the zenith; sky_row inverts
         // sky_row_elevation.
         let h = 5000.0;
         for sun in [-1.0, -0.5, 0.0, 0.5] {
-            let (c, k) = sky_row_focus(sun, h);
+            let (c, k, w) = sky_row_focus(sun, h);
             assert!(k > 0.0);
-            assert!((sky_row_elevation(0.0, c, k) - 90.0).abs() < 1e-9);
-            assert!(sky_row_elevation(1.0, c, k).abs() < 1e-9);
+            assert!((sky_row_elevation(0.0, c, k, w) - 90.0).abs() < 1e-9);
+            assert!(sky_row_elevation(1.0, c, k, w).abs() < 1e-9);
             for n in 0..=100 {
                 let x = n as f64 / 100.0;
-                assert!((sky_row(sky_row_elevation(x, c, k), c, k) - x).abs() < 1e-9);
+                assert!((sky_row(sky_row_elevation(x, c, k, w), c, k, w) - x).abs() < 1e-9);
             }
             // Degrees of elevation per unit of x at x (central difference).
             let spacing = |x: f64| {
                 let dx = 1e-4;
-                (sky_row_elevation(x - dx, c, k) - sky_row_elevation(x + dx, c, k)) / (2.0 * dx)
+                (sky_row_elevation(x - dx, c, k, w) - sky_row_elevation(x + dx, c, k, w))
+                    / (2.0 * dx)
             };
-            let x_band = sky_row(c, c, k);
+            let x_band = sky_row(c, c, k, w);
             let x0 = 1.0 - (c / 90.0).sqrt();
             let base = 180.0 * (1.0 - x0);
             assert!(
@@ -2717,16 +2834,17 @@ mod tests {
         );
         // A column moved below the horizontal is read on the limb rows at the query's
         // altitude, continuously with the sky rows at the horizontal.
-        let (seg, row) = band_row(-0.5, h, R, 0.0, 0.0, [0.0, 0.0, h]);
+        let (seg, row) = band_row(-0.5, h, R, (0.0, 0.0, 0.0), [0.0, 0.0, h]);
         assert_eq!(seg, 1);
         let (_, lr) = view_coord(0.5 * PI + 0.5f64.to_radians(), R + h, R, sun);
         assert!((row - lr).abs() < 1e-9, "{row} vs {lr}");
         assert_eq!(
-            band_row(0.0, h, R, 0.0, 0.0, [0.0, 0.0, h]),
+            band_row(0.0, h, R, (0.0, 0.0, 0.0), [0.0, 0.0, h]),
             (0, (N_VIEW_SKY - 1) as f64)
         );
         assert!(
-            (band_row(-1e-9, h, R, 0.0, 0.0, [0.0, 0.0, h]).1 - N_VIEW_SKY as f64).abs() < 1e-6
+            (band_row(-1e-9, h, R, (0.0, 0.0, 0.0), [0.0, 0.0, h]).1 - N_VIEW_SKY as f64).abs()
+                < 1e-6
         );
         assert_eq!(
             band_relative_elevation(60.0, sun, h, cos(150.0), cos(180.0)),
@@ -2782,20 +2900,25 @@ mod tests {
         assert!((band_focus_strength(8000.0) - full).abs() < 1e-12);
         assert!((band_focus_strength(15_000.0) - full).abs() < 1e-12);
         // Under a low band the focus sits at 0.85 of the antisolar band below 4 km, at 0.92 of
-        // it and 1.3 times as strong from 10 km up; under a high band (c > 9°) as below 4 km.
-        let (c, k) = sky_row_focus(0.0, 4000.0);
+        // it and 1.3 times as strong from 10 km up, and 1.5 times that again where it is wide
+        // (full up to 11 km, 7/27 at 12 km, none from 12.5 km); under a high band (c > 9°) as
+        // below 4 km.
+        let (c, k, _) = sky_row_focus(0.0, 4000.0);
         assert_eq!(c, band_centre_deg(0.0, 4000.0));
         assert!((k - band_focus_strength(4000.0)).abs() < 1e-9);
-        for h in [10_000.0, 12_000.0, 15_000.0] {
-            let (c, k) = sky_row_focus(0.0, h);
+        for (h, wide) in [(10_000.0, 1.0), (12_000.0, 7.0 / 27.0), (15_000.0, 0.0)] {
+            let (c, k, _) = sky_row_focus(0.0, h);
             let antisolar = BAND_ANTISOLAR * band_centre_deg(0.0, h);
             assert!(antisolar < 6.0);
             assert!(
                 (c - 0.92 * antisolar).abs() < 1e-9,
                 "{h}: {c} vs {antisolar}"
             );
-            assert!((k - 1.3 * full).abs() < 1e-9, "{h}: {k}");
-            let (c, k) = sky_row_focus(-3.0, h);
+            assert!(
+                (k - 1.3 * full * (1.0 + 0.5 * wide)).abs() < 1e-9,
+                "{h}: {k}"
+            );
+            let (c, k, _) = sky_row_focus(-3.0, h);
             assert!(band_centre_deg(-3.0, h) > 9.0);
             assert_eq!(c, band_centre_deg(-3.0, h));
             assert!((k - BAND_CENTRE_FLOOR * full).abs() < 1e-9, "{h}: {k}");
