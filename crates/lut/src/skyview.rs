@@ -506,35 +506,16 @@ pub fn band_centre_deg(sun_deg: f64, h: f64) -> f64 {
     let u = w * (x.max(0.0) + (-x.abs()).exp().ln_1p());
     let [h0, h1] = BAND_CENTRE_ALOFT_M;
     let km = (h / 1000.0).clamp(0.0, h0 / 1000.0);
-    let aloft = 1.0
-        + BAND_CENTRE_ALOFT * ((h - h0) / 1000.0).clamp(0.0, (h1 - h0) / 1000.0)
-        + band_centre_top(h);
+    let aloft = 1.0 + BAND_CENTRE_ALOFT * ((h - h0) / 1000.0).clamp(0.0, (h1 - h0) / 1000.0);
     let [a0, a1, a2, a3] = BAND_CENTRE;
     (((a0 + a1 * km) * u + (a2 + a3 * km) * u * u) * aloft).min(45.0)
 }
 
 /// The altitudes (m) between which [`band_centre_deg`] grows by [`BAND_CENTRE_ALOFT`] per km
-/// (below the first the low fit's altitude dependence, above the second by [`BAND_CENTRE_TOP`]).
+/// (below the first the low fit's altitude dependence, above the second held).
 pub const BAND_CENTRE_ALOFT_M: [f64; 2] = [10_000.0, 20_000.0];
 /// [`band_centre_deg`]'s growth per km between the altitudes of [`BAND_CENTRE_ALOFT_M`].
 pub const BAND_CENTRE_ALOFT: f64 = 0.03;
-/// The band's growth per km above the second altitude of [`BAND_CENTRE_ALOFT_M`] up to
-/// [`BAND_CENTRE_TOP_M`] (held above), in [`band_centre_deg`] and [`band_slice_centre_deg`] alike
-/// ([`band_centre_top`]). Measured on the `sky` product (680 nm, the elevation where ln L per
-/// metre rises fastest 180° from the sun, the sun at the observer's horizon): 5.2 / 5.5 / 5.8 /
-/// 6.3 / 6.7 / 7.2° seen from 20 / 22.5 / 25 / 30 / 35 / 40 km, about 0.025 per km of the fit's
-/// 1.3 at 20 km (held at 20 km: 5.0°).
-pub const BAND_CENTRE_TOP: f64 = 0.015;
-/// The altitude (m) up to which the band grows by [`BAND_CENTRE_TOP`] per km.
-pub const BAND_CENTRE_TOP_M: f64 = 40_000.0;
-
-/// The band's growth above the second altitude of [`BAND_CENTRE_ALOFT_M`] at altitude `h` (m):
-/// [`BAND_CENTRE_TOP`] per km up to [`BAND_CENTRE_TOP_M`], added to the factors of
-/// [`band_centre_deg`] and [`band_slice_centre_deg`] (both 1.3 at 20 km).
-pub fn band_centre_top(h: f64) -> f64 {
-    let h1 = BAND_CENTRE_ALOFT_M[1];
-    BAND_CENTRE_TOP * ((h - h1) / 1000.0).clamp(0.0, (BAND_CENTRE_TOP_M - h1).max(0.0) / 1000.0)
-}
 
 /// The sun coordinate (degrees above the observer's horizon) at which the band of
 /// [`band_centre_deg`] reaches the horizontal.
@@ -563,14 +544,9 @@ pub const BAND_FOCUS: f64 = 14.0;
 /// 9.6 % at 5 km and 8.4 % at 20 km (−6°…−3.5°: 12.9 / 10.2 %), and the grids of the band
 /// itself (the earth's shadow rising and seen aloft) are unchanged.
 pub const BAND_SUN_RANGE: [f64; 4] = [-5.0, -3.0, 1.0, 5.0];
-/// Altitudes (m) between which the focus and the maps relative to the band fade out (full below
-/// the first, none above the second). Version 18: from 35–40 km (20–25 km before):
-/// seen from 20–40 km the band is as sharp as from 20 km (ln L per metre rises by 2.5–2.8 per
-/// degree of elevation 180° from the sun, the sun at the observer's horizon, 680 nm), and with
-/// the fade at 20–25 km the reader erred by up to 46.5 / 69.6 / 118 % seen from 22.5 / 25 /
-/// 30 km (the sky about 5–6° up 165–180° from the sun; at 22.5 km the rows +22 % alone, the
-/// 23.8 km node's rows +50 %, the altitude axis +11 %; at 25 km the columns +61 % alone).
-pub const BAND_ALTITUDE_M: [f64; 2] = [35_000.0, 40_000.0];
+/// Altitudes (m) between which the focus fades out (full below the first, none above the
+/// second).
+pub const BAND_ALTITUDE_M: [f64; 2] = [20_000.0, 25_000.0];
 /// The band's elevations (degrees, [`band_centre_deg`]) between which the focus fades out
 /// (full below the first, none above the second). The focus draws the rows towards the band
 /// and away from the horizontal (the last sky row 0.5–1.2° up instead of 0.2° with the band
@@ -703,8 +679,7 @@ pub const BAND_SLICE_ALOFT: [f64; 2] = [0.045, 0.015];
 /// `h` (m): [`band_centre_deg`]'s low fit at min(h, h₀) times
 /// g = 1 + a x + (b − a) x² / (2 L), x = h − h₀ in km up to L = h₁ − h₀
 /// ((h₀, h₁) = [`BAND_CENTRE_ALOFT_M`], (a, b) = [`BAND_SLICE_ALOFT`]): the growth per km a at
-/// h₀ falling linearly to b at h₁, where g = 1.3 as in [`band_centre_deg`], and above h₁
-/// [`band_centre_top`] (as in [`band_centre_deg`]). From 10 to 15 km
+/// h₀ falling linearly to b at h₁, where g = 1.3 as in [`band_centre_deg`]. From 10 to 15 km
 /// the band seen opposite the sun rises faster with the observer's altitude than that fit's
 /// growth of 0.03 per km (within 0.05° of this growth); from 17 km up it lies up to 0.2° above
 /// both, but the altitude nodes read there with a faster growth err more at 20 km
@@ -715,7 +690,7 @@ pub fn band_slice_centre_deg(sun_deg: f64, h: f64) -> f64 {
     let [a, b] = BAND_SLICE_ALOFT;
     let l = ((h1 - h0) / 1000.0).max(1e-3);
     let x = ((h - h0) / 1000.0).clamp(0.0, l);
-    let g = 1.0 + a * x + (b - a) * x * x / (2.0 * l) + band_centre_top(h);
+    let g = 1.0 + a * x + (b - a) * x * x / (2.0 * l);
     (band_centre_deg(sun_deg, h.min(h0)) * g).min(45.0)
 }
 
@@ -1016,10 +991,7 @@ pub const LIMB_BAND_MAX_FRACTION: f64 = 0.95;
 /// from the sun, 0.3° above the horizon, D/h = 0.87: +4.1 % held, +2.7 % affine).
 pub const LIMB_BAND_HORIZON_HELD: [f64; 2] = [0.5, 0.8];
 /// The altitudes (m) between which the limb rows' focus fades in (the first two) and out (the
-/// last two). (Out from 25–30 km instead: the limb seen from 22.5 / 25 / 30 km on the dense
-/// check of the earth's shadow 25.6 / 38.2 / 54.8 → 7.7 / 23.8 / 54.6 %, but the random samples
-/// of the sun −6…5° from 20–100 km 2.94 → 19.6 %: 23.3 km, sun −5.19°, 0.08° below the
-/// horizontal 29° from the sun, 550 nm; docs/lut.md, "Tried and not kept".)
+/// last two).
 pub const LIMB_BAND_ALTITUDE_M: [f64; 4] = [6_000.0, 9_000.0, 20_000.0, 25_000.0];
 
 /// The limb rows' focus at sun coordinate `sun_deg` (degrees, [`sun_shift`]) and altitude `h`
@@ -1219,7 +1191,7 @@ pub fn sun_warp_centre(h: f64, bottom: f64, top: f64, seg: usize, cos_phi: f64) 
 pub const SUN_WARP_CENTRE: f64 = 1.0;
 
 /// The altitudes (m) between which the twilight warp's centre fades in ([`sun_warp_centre`]):
-/// above those where the sky rows' and the limb rows' band maps act (below 40 km, whose slices
+/// above those where the sky rows' and the limb rows' band maps act (below 25 km, whose slices
 /// then keep the warp centred at 0), and above the nodes a query at 30 km reads (from
 /// 30–50 km the sky 30 km up 58° from the sun, sun −3.6°, went 2.91 → 2.93 %).
 pub const SUN_WARP_CENTRE_ALTITUDE_M: [f64; 2] = [40_000.0, 60_000.0];
@@ -1982,7 +1954,7 @@ impl<'a> SkyViewReader<'a> {
         let p = &self.bundle.params;
         let thickness = p.top_radius - p.bottom_radius;
         let h_n = altitude_node_m(k, thickness);
-        // (The band maps act below 40 km, where the warp's centre is 0.)
+        // (The band maps act below 25 km, where the warp's centre is 0.)
         let s_n = sun_warp(sun_node_deg(j), warp_strength(h_n, thickness), 0.0);
         let (c_n, k_n) = sky_row_focus(s_n, h_n);
         if band_map_weight(s_deg, h) < 1e-6 && band_map_weight(s_n, h_n) < 1e-6 {
@@ -2354,8 +2326,7 @@ pub const STATED_ERRORS: &[(&str, &str, f64)] = &[
     ("rayleigh+mie", "sky radiance (sky product), sun -6..5 deg, 8-12.5 km (the band above the earth's shadow, 680 nm at 11 km, 1.25 deg above the horizontal 135 deg from the sun, sun -3 deg; the twilight glow towards the sun at most 3 %)", 0.037),
     ("rayleigh+mie", "sky radiance (sky product), sun -6..5 deg, 12.5-20 km (the limb 0.5 deg above the horizon 165 deg from the sun, 680 nm at 17.5 km, sun -3.75 deg; 4.5 % at 20 km; the twilight glow towards the sun at most 3 %)", 0.064),
     ("rayleigh+mie", "sky radiance (sky product), sun -6..0 deg, 0-5 km, views within 10 deg of the horizon 150-180 deg from the sun (the earth's shadow rising; 680 nm at 2.5 km)", 0.022),
-    ("rayleigh+mie", "sky radiance (sky product), sun -6..5 deg, 20-30 km (the band above the earth's shadow seen aloft: the limb 0.6 deg above the horizon 165 deg from the sun, 680 nm at 25 km, sun -4.5 deg; 7.7 % at 22.5 km; the random samples 3.0 %)", 0.27),
-    ("rayleigh+mie", "sky radiance (sky product), sun -6..5 deg, 30-100 km (the limb just above the horizon 150-180 deg from the sun seen from 30-40 km, sun -6..-4.5 deg: 55 % at 30 km, 166 % at 35 km, 148 % at 40 km, 680 nm; the random samples 3.0 %, the sky just above the horizontal at 30 km, 440 nm)", 1.9),
+    ("rayleigh+mie", "sky radiance (sky product), sun -6..5 deg, 20-100 km (random samples: 3.0 %, the sky just above the horizontal at 30 km, 440 nm; but the band above the earth's shadow seen from 20-40 km, 5-6.5 deg above the horizontal 165-180 deg from the sun and the limb just above the horizon opposite the sun, up to 197 %: 35 km, sun -6 deg, 6.5 deg up opposite the sun, 680 nm; 148 % at 40 km, 118 % at 30 km, 70 % at 25 km, 46 % at 22.5 km)", 2.2),
     ("rayleigh+mie", "sky radiance (sky product), sun -12..-6 deg, ground", 0.033),
     ("rayleigh+mie", "sky radiance (sky product), sun -12..-6 deg, 0-20 km (the twilight glow towards the sun near the horizontal: 9.2 % at 5 km, sun -12 deg, 0.25 deg above the horizontal 30 deg from the sun, 680 nm)", 0.092),
     ("rayleigh+mie", "sky radiance (sky product), sun -12..-6 deg, 20-100 km (the sky 4.3 deg above the horizontal 88 deg from the sun, 680 nm at 30.8 km)", 0.088),
@@ -2409,8 +2380,6 @@ pub fn manifest(
         "depth_top_m": BAND_DEPTH_TOP_M,
         "centre_aloft_per_km": BAND_CENTRE_ALOFT,
         "centre_aloft_altitude_m": BAND_CENTRE_ALOFT_M,
-        "centre_top_per_km": BAND_CENTRE_TOP,
-        "centre_top_altitude_m": BAND_CENTRE_TOP_M,
         "slices_aloft_per_km": BAND_SLICE_ALOFT,
         "slices_through_altitude_m": BAND_SLICE_THROUGH_M,
         "horizon_deg": BAND_HORIZON_DEG,
