@@ -870,14 +870,25 @@ fn skyview_the_earth_shadow_rising_at_low_altitude() {
 /// 2.18 / 5.00 / 5.23 / 2.65 / 4.90 / 2.77 %, dense 5.72 / 7.28 / 5.69 / 6.95 / 8.63 / 5.97 /
 /// 10.37 %; version 10: grid 1.97 / 4.82 / 7.55 / 6.20 / 2.72 / 7.90 / 3.28 %; version 8: 3.39 /
 /// 16.4 / 34.4 / 44.0 / 29.2 / 91.3 / 56.6 %.)
+///
+/// Seen from 22.5 and 25 km (above the sky rows' focus and the band maps, which fade out from
+/// 20–25 km, while the band 5–6° up opposite the sun is still sharp) far from the target, bounded
+/// at the measured + ~12 % (version 17): grid 14.11 % (sun −5°, zenith 85.5°, 150°), 47.42 % (−5°, 84.75°, 180°),
+/// dense 46.51 % (−4.75°, 85°, 180°), 69.62 % (−5°, 85°, 165°), 680 nm.
 #[test]
 #[ignore = "builds a bundle (about 10 s of CPU): run with --ignored lut_skyview::"]
 fn skyview_the_earth_shadow_seen_aloft() {
     let f = fixture();
-    let altitudes = [6500.0, 8000.0, 9500.0, 11000.0, 12500.0, 15000.0, 20000.0];
+    let altitudes = [
+        6500.0, 8000.0, 9500.0, 11000.0, 12500.0, 15000.0, 20000.0, 22500.0, 25000.0,
+    ];
     // Measured worst per altitude (the order of `altitudes`): the grid, the dense check.
-    let measured = [0.0153, 0.0156, 0.0241, 0.0242, 0.0211, 0.0219, 0.0196];
-    let measured_dense = [0.0247, 0.0261, 0.0287, 0.0252, 0.0239, 0.0296, 0.0453];
+    let measured = [
+        0.0153, 0.0156, 0.0241, 0.0242, 0.0211, 0.0219, 0.0196, 0.1411, 0.4742,
+    ];
+    let measured_dense = [
+        0.0247, 0.0261, 0.0287, 0.0252, 0.0239, 0.0296, 0.0453, 0.4651, 0.6962,
+    ];
     let t = std::time::Instant::now();
     let results = shadow_aloft_errors(f, &SkyViewReader::new(&f.bundle), &altitudes);
     eprintln!(

@@ -114,7 +114,9 @@ pub const LAYOUT: &str = "skyview";
 /// 17: the sky rows' focus moves and grows aloft from 4–10 km ([`BAND_FOCUS_PLACE_M`]; texels
 /// change); on the limb rows the sun nodes whose slice would be read past its horizon are left
 /// out of the sun stencil (`limb_sun_lowest`).
-pub const SKYVIEW_VERSION: &str = "17";
+/// 18: from 6.5–8 km up to 11–12.5 km the sky rows' focus is wide, from the antisolar band down to
+/// the band 140° from the sun, and 1.5 times as strong ([`sky_row_focus`]; texels change).
+pub const SKYVIEW_VERSION: &str = "18";
 
 /// Altitude nodes of the base map ([`altitude_abscissa`], about (top − bottom) · (x / 27)²,
 /// denser near the top): its integers 0..=27.
@@ -2395,7 +2397,7 @@ pub const STATED_ERRORS: &[(&str, &str, f64)] = &[
     ("rayleigh+mie", "sky radiance (sky product), sun -6..5 deg, 8-12.5 km (the limb 0.2 deg above the horizon 157.5 deg from the sun, 680 nm at 12.5 km, sun -2.625 deg, between the dense check's samples; on them 2.9 % at 9.5 km; the twilight glow towards the sun at most 3 %)", 0.048),
     ("rayleigh+mie", "sky radiance (sky product), sun -6..5 deg, 12.5-20 km (the limb 0.4 deg above the horizon 172.5 deg from the sun, 680 nm at 20 km, sun -3.875 deg, between the dense check's samples; 6.4 % at 17.5 km, 4.5 % on the dense check at 20 km; the twilight glow towards the sun at most 3 %)", 0.068),
     ("rayleigh+mie", "sky radiance (sky product), sun -6..0 deg, 0-5 km, views within 10 deg of the horizon 150-180 deg from the sun (the earth's shadow rising; 680 nm at 2.5 km)", 0.022),
-    ("rayleigh+mie", "sky radiance (sky product), sun -6..5 deg, 20-100 km (random samples: 3.0 %, the sky just above the horizontal at 30 km, 440 nm; but the band above the earth's shadow seen from 20-25 km, about 5 deg above the horizontal 165-180 deg from the sun, up to 70 %: 25 km, sun -5 deg, 680 nm; 46 % at 22.5 km; not measured above 25 km)", 0.70),
+    ("rayleigh+mie", "sky radiance (sky product), sun -6..5 deg, 20-100 km (random samples: 3.0 %, the sky just above the horizontal at 30 km, 440 nm; but the band above the earth's shadow seen from 20-40 km, 5-6.5 deg above the horizontal 165-180 deg from the sun and the limb just above the horizon opposite the sun, up to 197 %: 35 km, sun -6 deg, 6.5 deg up opposite the sun, 680 nm; 148 % at 40 km, 118 % at 30 km, 70 % at 25 km, 46 % at 22.5 km)", 2.2),
     ("rayleigh+mie", "sky radiance (sky product), sun -12..-6 deg, ground", 0.033),
     ("rayleigh+mie", "sky radiance (sky product), sun -12..-6 deg, 0-20 km (the twilight glow towards the sun near the horizontal: 9.2 % at 5 km, sun -12 deg, 0.25 deg above the horizontal 30 deg from the sun, 680 nm)", 0.092),
     ("rayleigh+mie", "sky radiance (sky product), sun -12..-6 deg, 20-100 km (the sky 4.3 deg above the horizontal 88 deg from the sun, 680 nm at 30.8 km)", 0.088),
