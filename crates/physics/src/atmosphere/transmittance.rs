@@ -864,41 +864,48 @@ mod tests {
         // Against `lookup` one sun at a time, the extinction applied after: the same
         // interpolation summed in another order, so within a few units in the last place of
         // the f64 optical depth, one of the f32 it is rounded to; the visibility bit for bit.
-        let m = Medium::new(
-            &preset("earth").unwrap(),
-            &Wavelengths::parse("440,550,680").unwrap(),
-            None,
-        )
-        .unwrap();
-        let table = DensityIntegralTable::new(&m, 32, 128, 200);
-        let ext: Vec<[f64; CONSTITUENTS]> = (0..m.len())
-            .map(|l| std::array::from_fn(|k| m.extinction_per_m[k][l]))
-            .collect();
-        let mu_s: Vec<f64> = (0..203).map(|i| -0.3 + 1.3 * i as f64 / 202.0).collect();
-        let n = mu_s.len();
-        let mut scratch = OpticalDepthScratch::default();
-        for &h in &[0.0, 700.0, 30_000.0, 99_990.0] {
-            let at = table.at_radius(m.bottom_radius_m + h, m.sun_angular_radius_rad);
-            assert!(!at.has_layers());
-            let stride = n + 5;
-            let mut vis = vec![f64::NAN; n];
-            let mut out = vec![f32::NAN; ext.len() * stride];
-            depths(&at, &mu_s, &ext, &mut vis, &mut out, stride, &mut scratch);
-            for (t, &mu) in mu_s.iter().enumerate() {
-                let v = at.sun_visibility(mu);
-                assert_eq!(vis[t].to_bits(), v.to_bits(), "h {h} mu_s {mu}");
-                let d = if v > 0.0 {
-                    at.lookup(mu)
-                } else {
-                    [0.0; CONSTITUENTS]
-                };
-                for (l, e) in ext.iter().enumerate() {
-                    let want = -(e[0] * d[0] + e[1] * d[1] + e[2] * d[2]);
-                    let got = out[l * stride + t] as f64;
-                    assert!(
-                        (got - want).abs() <= 1e-7 * want.abs(),
-                        "h {h} mu_s {mu} l {l}: {got} vs {want}"
-                    );
+        // Each of its paths: RGB and other wavelength counts, many suns (the nodes' depths
+        // gathered) and a few far apart (each sun's own two nodes).
+        let many: Vec<f64> = (0..203).map(|i| -0.3 + 1.3 * i as f64 / 202.0).collect();
+        let few = vec![-0.21, 0.05, 0.62, 0.97];
+        for wavelengths in ["440,550,680", "450,520,600,680,750"] {
+            let m = Medium::new(
+                &preset("earth").unwrap(),
+                &Wavelengths::parse(wavelengths).unwrap(),
+                None,
+            )
+            .unwrap();
+            let table = DensityIntegralTable::new(&m, 32, 128, 200);
+            let ext: Vec<[f64; CONSTITUENTS]> = (0..m.len())
+                .map(|l| std::array::from_fn(|k| m.extinction_per_m[k][l]))
+                .collect();
+            let mut scratch = OpticalDepthScratch::default();
+            for mu_s in [&many, &few] {
+                let n = mu_s.len();
+                for &h in &[0.0, 700.0, 30_000.0, 99_990.0] {
+                    let at = table.at_radius(m.bottom_radius_m + h, m.sun_angular_radius_rad);
+                    assert!(!at.has_layers());
+                    let stride = n + 5;
+                    let mut vis = vec![f64::NAN; n];
+                    let mut out = vec![f32::NAN; ext.len() * stride];
+                    depths(&at, mu_s, &ext, &mut vis, &mut out, stride, &mut scratch);
+                    for (t, &mu) in mu_s.iter().enumerate() {
+                        let v = at.sun_visibility(mu);
+                        assert_eq!(vis[t].to_bits(), v.to_bits(), "h {h} mu_s {mu}");
+                        let d = if v > 0.0 {
+                            at.lookup(mu)
+                        } else {
+                            [0.0; CONSTITUENTS]
+                        };
+                        for (l, e) in ext.iter().enumerate() {
+                            let want = -(e[0] * d[0] + e[1] * d[1] + e[2] * d[2]);
+                            let got = out[l * stride + t] as f64;
+                            assert!(
+                                (got - want).abs() <= 1e-7 * want.abs(),
+                                "{wavelengths} h {h} mu_s {mu} l {l}: {got} vs {want}"
+                            );
+                        }
+                    }
                 }
             }
         }
