@@ -63,8 +63,6 @@ fn sun_paths(grid: &DensityGrid, sun_dir: DVec3, vol: Option<&CloudVolume>) -> V
     let [nx, ny, nz] = grid.dims;
     let n = [nx, ny, nz];
     let h = grid.voxel_size_m;
-    // Every value is written below (the final pass covers every voxel).
-    let mut out = super::pages::take_f32(grid.data.len());
     let s = sun_dir.normalize();
     // Dominant axis and the other two.
     let a = if s.x.abs() >= s.y.abs() && s.x.abs() >= s.z.abs() {
@@ -92,9 +90,11 @@ fn sun_paths(grid: &DensityGrid, sun_dir: DVec3, vol: Option<&CloudVolume>) -> V
     // sums 0).
     let near = vol.map(|_| density_within_two(grid));
     let mut prev: Option<usize> = None;
+    // A layer's values `[c][b]` (rows along b, the other axis with the smaller index step in
+    // the grid, so that a row walks the grid's memory in order or nearly).
     let mut layer_vals = vec![0f64; n[b] * n[c]];
     let mut next_vals = vec![0f64; n[b] * n[c]];
-    // The values layer by layer, `[a][b][c]`, put in the grid's order at the end (in parallel).
+    // The values layer by layer, `[a][c][b]`, put in the grid's order at the end (in parallel).
     let layer_len = n[b] * n[c];
     // Every layer's every row is written before the final pass reads it.
     let mut by_layer = super::pages::take_f32(grid.data.len());
@@ -103,11 +103,11 @@ fn sun_paths(grid: &DensityGrid, sun_dir: DVec3, vol: Option<&CloudVolume>) -> V
     for &ia in &layers {
         // Each layer depends only on the previous one: its rows run in parallel.
         next_vals
-            .par_chunks_mut(n[c])
-            .zip(by_layer[ia * layer_len..(ia + 1) * layer_len].par_chunks_mut(n[c]))
+            .par_chunks_mut(n[b])
+            .zip(by_layer[ia * layer_len..(ia + 1) * layer_len].par_chunks_mut(n[b]))
             .enumerate()
-            .for_each(|(ib, (row, row_out))| {
-                for (ic, slot) in row.iter_mut().enumerate() {
+            .for_each(|(ic, (row, row_out))| {
+                for (ib, slot) in row.iter_mut().enumerate() {
                     // The usual voxel, away from the cloud and its light: no density within
                     // two voxels and the previous layer's four nearest values 0 (both cases
                     // below), so its path is 0, found without the voxel's position.
@@ -126,7 +126,7 @@ fn sun_paths(grid: &DensityGrid, sun_dir: DVec3, vol: Option<&CloudVolume>) -> V
                                 super::volume::floor(fc) as usize,
                             );
                             let (b1, c1) = ((b0 + 1).min(n[b] - 1), (c0 + 1).min(n[c] - 1));
-                            let g = |x: usize, y: usize| layer_vals[x * n[c] + y];
+                            let g = |x: usize, y: usize| layer_vals[y * n[b] + x];
                             if g(b0, c0) == 0.0
                                 && g(b1, c0) == 0.0
                                 && g(b0, c1) == 0.0
@@ -181,7 +181,7 @@ fn sun_paths(grid: &DensityGrid, sun_dir: DVec3, vol: Option<&CloudVolume>) -> V
                                 );
                                 let (b1, c1) = ((b0 + 1).min(n[b] - 1), (c0 + 1).min(n[c] - 1));
                                 let (tb, tc) = (fb - b0 as f64, fc - c0 as f64);
-                                let g = |x: usize, y: usize| layer_vals[x * n[c] + y];
+                                let g = |x: usize, y: usize| layer_vals[y * n[b] + x];
                                 let (v00, v10, v01, v11) =
                                     (g(b0, c0), g(b1, c0), g(b0, c1), g(b1, c1));
                                 if near.is_some()
@@ -226,11 +226,17 @@ fn sun_paths(grid: &DensityGrid, sun_dir: DVec3, vol: Option<&CloudVolume>) -> V
         std::mem::swap(&mut layer_vals, &mut next_vals);
         prev = Some(ia);
     }
+    if a == 2 {
+        // `[z][y][x]`: the grid's order already.
+        return by_layer;
+    }
+    // Every value is written below (the final pass covers every voxel).
+    let mut out = super::pages::take_f32(grid.data.len());
     let layer = nx * ny;
     out.par_chunks_mut(layer).enumerate().for_each(|(z, slab)| {
         for (i, o) in slab.iter_mut().enumerate() {
             let v = [i % nx, i / nx, z];
-            *o = by_layer[(v[a] * n[b] + v[b]) * n[c] + v[c]];
+            *o = by_layer[(v[a] * n[c] + v[c]) * n[b] + v[b]];
         }
     });
     super::pages::give_back_f32(by_layer);
