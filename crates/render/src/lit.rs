@@ -279,58 +279,74 @@ impl LitVolume {
         let peak = if sun_on { spread } else { None };
         let per_voxel =
             settings.method == Method::Fast && vol.rho_max > 0.0 && settings.cloud_in_view;
-        let (mut d_sun, mut mask, mut lattice) = (Vec::new(), Vec::new(), Vec::new());
-        let (mut sky_elements, mut ms) = (None, None);
-        if per_voxel {
-            // The sky element round the sun uses the sun's path too.
-            d_sun = if sun_on || env_on {
-                sun_density_integrals_in(&vol, lighting.sun_dir)
-            } else {
-                vec![0f32; grid.data.len()]
-            };
-            lap("sun_paths", &mut timing_ms);
-            check(cancel)?;
-            mask = dilated_mask(grid);
-            if env_on {
-                let truncated: Vec<f64> = trunc.iter().map(|t| t.fraction).collect();
-                sky_elements = Some(SkyElements::kept(
-                    cloud_lighting,
-                    &optics.phase,
-                    &truncated,
-                    settings.sky_quadrature,
-                    settings.sky_table[0],
-                    settings.sky_table[1],
-                ));
-                lattice = LATTICE
-                    .par_iter()
-                    .map(|e| lattice_density_integrals(grid, *e))
-                    .collect();
-            }
-            lap("sky_light", &mut timing_ms);
-            check(cancel)?;
-            if ms_on {
-                ms = Some(MsField::compute(
-                    grid,
-                    optics,
-                    cloud_lighting,
-                    &settings.photons,
-                    cancel,
-                )?);
-                lap("multiple_scattering", &mut timing_ms);
-                check(cancel)?;
-            }
-        }
         let needs_shadow = sun_on
             && vol.rho_max > 0.0
             && ((sw.cloud_shadows && lighting.ground.is_some())
                 || (sw.shafts_of_light && inputs.has_aerial));
-        let shadow = if needs_shadow {
-            ShadowMap::new(&vol, lighting.sun_dir, grid.voxel_size_m)
-        } else {
-            None
-        };
-        lap("shadow_map", &mut timing_ms);
         lap("peak_spread", &mut timing_ms);
+        // The sun's paths, the sky light's paths, the photon pass and the shadow map read the
+        // volume and the light, not each other: they run side by side (rayon's joins), so a
+        // core that one of them leaves idle (the sun's paths wait for every layer's rows, the
+        // photon pass for its last lanes) takes work from another. Each stage's time is its
+        // own wall time, overlapping the others'.
+        let sun_stage = || {
+            if !per_voxel {
+                Vec::new()
+            } else if sun_on || env_on {
+                // The sky element round the sun uses the sun's path too.
+                sun_density_integrals_in(&vol, lighting.sun_dir)
+            } else {
+                vec![0f32; grid.data.len()]
+            }
+        };
+        let sky_stage = || {
+            if !per_voxel {
+                return (Vec::new(), None, Vec::new());
+            }
+            let mask = dilated_mask(grid);
+            if !env_on {
+                return (mask, None, Vec::new());
+            }
+            let truncated: Vec<f64> = trunc.iter().map(|t| t.fraction).collect();
+            let elements = SkyElements::kept(
+                cloud_lighting,
+                &optics.phase,
+                &truncated,
+                settings.sky_quadrature,
+                settings.sky_table[0],
+                settings.sky_table[1],
+            );
+            let lattice: Vec<Vec<f32>> = LATTICE
+                .par_iter()
+                .map(|e| lattice_density_integrals(grid, *e))
+                .collect();
+            (mask, Some(elements), lattice)
+        };
+        let ms_stage = || {
+            (per_voxel && ms_on)
+                .then(|| MsField::compute(grid, optics, cloud_lighting, &settings.photons, cancel))
+                .transpose()
+        };
+        let shadow_stage = || {
+            needs_shadow
+                .then(|| ShadowMap::new(&vol, lighting.sun_dir, grid.voxel_size_m))
+                .flatten()
+        };
+        let (((d_sun, t_sun), (shadow, t_shadow)), ((sky, t_sky), (ms, t_ms))) = rayon::join(
+            || rayon::join(|| timed(sun_stage), || timed(shadow_stage)),
+            || rayon::join(|| timed(sky_stage), || timed(ms_stage)),
+        );
+        let (mask, sky_elements, lattice) = sky;
+        let ms = ms?;
+        check(cancel)?;
+        if per_voxel {
+            timing_ms.push(("sun_paths".into(), t_sun));
+            timing_ms.push(("sky_light".into(), t_sky));
+            if ms.is_some() {
+                timing_ms.push(("multiple_scattering".into(), t_ms));
+            }
+        }
+        timing_ms.push(("shadow_map".into(), t_shadow));
         let bytes = 4 * d_sun.len()
             + mask.len()
             + 4 * lattice.iter().map(Vec::len).sum::<usize>()
@@ -381,6 +397,13 @@ impl LitVolume {
             None => std::borrow::Cow::Borrowed(&self.inputs.cloud_lighting),
         }
     }
+}
+
+/// `f()` and its wall time, ms.
+fn timed<T>(f: impl FnOnce() -> T) -> (T, f64) {
+    let t = Instant::now();
+    let v = f();
+    (v, t.elapsed().as_secs_f64() * 1e3)
 }
 
 /// The bytes the sky light's transmittances take once a second camera fills them
