@@ -72,7 +72,8 @@ pub struct FrameBench {
     /// Warm-run stage timings, ms.
     pub warm_stages_ms: Vec<(String, f64)>,
     /// Warm-run stage shares of the frame's time (the engine's lighting tables included as
-    /// `lighting`), fractions summing to ≈ 1.
+    /// `lighting`), fractions summing to ≈ 1 but for the lit volume's stages that run side by
+    /// side (sun paths, sky light, multiple scattering, shadow map: each its own wall time).
     pub warm_stage_shares: Vec<(String, f64)>,
     pub lighting_cold_ms: f64,
     pub lighting_warm_ms: f64,

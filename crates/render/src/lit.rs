@@ -107,8 +107,8 @@ pub struct LitVolume {
     /// The multiple-scattering field's coefficients laid out for the reconstruction, filled by the first
     /// camera ([`ConvolvedCells`]).
     pub ms_cells: std::sync::OnceLock<ConvolvedCells>,
-    /// Stage timings of the computation, ms (volume, sun_paths, sky_light, multiple_scattering,
-    /// shadow_map, peak_spread).
+    /// Stage timings of the computation, ms (volume, peak_spread, then sun_paths, sky_light,
+    /// multiple_scattering and shadow_map, which run side by side: each its own wall time).
     pub timing_ms: Vec<(String, f64)>,
     /// Approximate bytes held (for a cache's budget).
     pub bytes: usize,
