@@ -5,7 +5,8 @@
 //!
 //! cargo run --release -p skybake-harness --example seed_probe -- [CASE…]
 //! Knobs (env): SEEDS (comma-separated photon seeds; default 24301 (0x5EED, the tests'),1,2,3,4,5),
-//! PHOTONS_X (multiplies both photon budgets).
+//! PHOTONS_X (multiplies both photon budgets), MAP (prints the seeds' mean frame's error per 8×8
+//! block, % of Mitsuba's).
 use skybake_render::{lighting_for, FrameScene, Method, RenderSettings};
 
 mod probe_support;
@@ -190,6 +191,24 @@ fn main() -> skybake_physics::Result<()> {
             / nb as f64)
             .sqrt()
             / mean_ref;
+        if std::env::var("MAP").is_ok() {
+            // The mean frame's error per 8×8 block, % of Mitsuba's block (rows top down).
+            let mut k = 0;
+            for by in 0..15 {
+                let mut row = String::new();
+                for bx in 0..20 {
+                    let inside = (0..64).all(|q| mask[(by * 8 + q / 8) * 160 + bx * 8 + q % 8]);
+                    if inside {
+                        let e = 100.0 * (mean_blocks[k] / ref_blocks[k] - 1.0);
+                        row += &format!("{e:+4.0}");
+                        k += 1;
+                    } else {
+                        row += "   .";
+                    }
+                }
+                println!("{case:16} map {by:2} {row}");
+            }
+        }
         println!(
             "{case:16} seed noise {:.2} % | mean frame block NRMSE {:.2} % (raw)",
             100.0 * (var / nb as f64).sqrt() / mean_ref,

@@ -3,10 +3,11 @@
 //! fast frame (the whole composited radiance, as the tests compare it) against the committed
 //! Mitsuba 3 image, its block-ratio map, and its parts: the transmitted background, the sky's
 //! first order through the 16 sky elements (TMS: scaled paths, the view cap), the sun's single
-//! scattering, and the multiple-scattering field J*. Against a path tracer that classes each
-//! scattering as within the truncated peak or not (as `back_probe`'s, with next-event estimates
-//! towards the sky by sampling the phase function, and towards the sun), split by the number n
-//! of smooth scatterings (n ≤ 1: what the first-order terms stand for, n ≥ 2: the field).
+//! scattering, and the multiple-scattering field J* (with the sun's once-scattered change where
+//! the march adds it). Against a path tracer that classes each scattering as within the truncated
+//! peak or not (as `back_probe`'s, with next-event estimates towards the sky by sampling the phase
+//! function, and towards the sun), split by the number n of smooth scatterings (n ≤ 1: what the
+//! first-order terms stand for, n ≥ 2: the field).
 //!
 //! cargo run --release -p skybake-harness --features probes --example sky_probe -- CASE [CLASSED_SPP]
 //! Knobs (env): ENV_PHOTONS, SUN_PHOTONS, COARSE (the field's cells per axis), SEED, SEEDS=n (the
@@ -175,21 +176,46 @@ fn main() -> skybake_physics::Result<()> {
     }
     let mut p = Prepared::new(&scene, &grid, &lt, s, &|| false)?;
     let ia = march_ia(&p, &scene);
-    // The field's part: the per-voxel sources less ω*·J* (the sky's first order and the view
-    // cap remain), then the sun's single scattering (sources zeroed).
+    // The field's part: the per-voxel sources less ω*·J* and the sun's once-scattered change
+    // where the march adds it (voxels not seen through a face; the sky's first order and the
+    // view cap remain), then the sun's single scattering (sources zeroed).
     if let Some(field) = p.lit.ms.as_ref() {
-        let [nx, ny, _] = grid.dims;
+        let [nx, ny, nz] = grid.dims;
         let stride = p.stride;
         let albedo = p.lit.ms_albedo[0];
         let cam = scene.camera.position_m;
+        let once = field.once_towards(&|c: glam::DVec3| (c - cam).normalize());
         let mut vox = p.vox.clone();
         for (i, v) in vox.chunks_mut(stride).enumerate() {
             if v[0] <= 0.0 && v[2] == 0.0 {
                 continue;
             }
-            let c = grid.voxel_centre(i % nx, (i / nx) % ny, i / (nx * ny));
+            let ijk = [i % nx, (i / nx) % ny, i / (nx * ny)];
+            let c = grid.voxel_centre(ijk[0], ijk[1], ijk[2]);
+            let d = (c - cam).normalize();
             let mut j = [0.0];
-            field.inscatter(c, (c - cam).normalize(), &mut j);
+            field.inscatter(c, d, &mut j);
+            // As the march's `field_source`: a voxel whose neighbour towards the viewer is empty
+            // is seen through that face, and takes no once-scattered change.
+            let dims = [nx, ny, nz];
+            let face = grid.at(ijk[0], ijk[1], ijk[2]) > 0.0
+                && (0..3).any(|a| {
+                    let mut q = ijk;
+                    if d[a] < 0.0 {
+                        q[a] += 1;
+                        q[a] >= dims[a] || grid.at(q[0], q[1], q[2]) <= 0.0
+                    } else if d[a] > 0.0 {
+                        q[a] == 0 || {
+                            q[a] -= 1;
+                            grid.at(q[0], q[1], q[2]) <= 0.0
+                        }
+                    } else {
+                        false
+                    }
+                });
+            if !face {
+                field.once_add(&once, c, &mut j);
+            }
             v[2] -= (albedo * j[0]) as f32;
         }
         std::mem::swap(&mut p.vox, &mut vox);
