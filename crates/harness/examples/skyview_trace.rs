@@ -21,7 +21,7 @@ use skybake_lut::skyview::{
     band_centre_deg, band_map_weight, band_relative_elevation, band_row, band_slice_elevation,
     limb_depth_of, limb_row_focused, limb_slice_depth, limb_sun_lowest, ray_length, segment_rows,
     sky_row_focus, sun_coord, sun_node_deg, sun_shift, sun_unwarp, sun_warp, sun_warp_centre,
-    view_coord, warp_strength, Stencil, N_ALT, N_AZ, N_SUN, N_VIEW_LIMB, N_VIEW_SKY, SUN_MIN_DEG,
+    view_coord, warp_strength, Stencil, N_ALT, N_SUN, N_VIEW_LIMB, N_VIEW_SKY, SUN_MIN_DEG,
 };
 use skybake_lut::{SkyViewBundle, SkyViewReader};
 
