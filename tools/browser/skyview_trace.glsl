@@ -139,7 +139,7 @@ void main() {
       float column = node_read > 0.0 ?
           column_q + node_read * (SkyViewAzimuthColumn(phi, sv_alt_nodes[sa.first + a]) - column_q) :
           column_q;
-      SvStencil sc = SkyViewStencil(column, 0, SV_N_AZ - 1, false, 0.0);
+      SvStencil sc = SkyViewColumnStencil(column);
       T(column);
       TS(sc);
       // On the limb rows, without the sun nodes whose slice is read past its horizon.
@@ -153,7 +153,7 @@ void main() {
       TS(ss);
       vec4 cos_cols;
       for (int m = 0; m < 4; ++m) {
-        int col = min(sc.first + m, SV_N_AZ - 1);
+        int col = SkyViewColumnTexel(sc.first + m);
         float cos_n = sv_az_node_cos[(sa.first + a) * SV_N_AZ + col];
         cos_cols[m] = node_read >= 1.0 || segment == 2 ? cos_n :
             node_read > 0.0 ? (1.0 - node_read) * SkyViewCos(SkyViewAzimuthNode(col, h)) + node_read * cos_n :

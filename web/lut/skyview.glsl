@@ -193,6 +193,20 @@ SvStencil SkyViewStencil(float y, int lo, int hi, bool sun_axis, float xq) {
   return st;
 }
 
+// The columns' stencil at column coordinate `column` (the reader's column_stencil): over the
+// columns continued by their mirror images past the sun and the antisolar point (the sky is
+// symmetric about the sun's vertical plane), node v being column v - 1 (SkyViewColumnTexel), so
+// a query in the first or last column interval gets a cubic centred on its interval.
+SvStencil SkyViewColumnStencil(float column) {
+  return SkyViewStencil(column + 1.0, 0, SV_N_AZ + 1, false, 0.0);
+}
+
+// The texel column of node v of SkyViewColumnStencil: v - 1 reflected into 0 .. SV_N_AZ - 1.
+int SkyViewColumnTexel(int v) {
+  int a = v - 1;
+  return a < 0 ? -a : a > SV_N_AZ - 1 ? max(2 * (SV_N_AZ - 1) - a, 0) : a;
+}
+
 // The stencil's interpolation of its node values v[0 .. len - 1], per channel: the Lagrange
 // polynomial of their logarithms, bounded by the values' range; where a value is not positive,
 // GeoMix between the interval's two nodes.
@@ -678,11 +692,11 @@ void SkyViewAltitudeSun(float h, float shift, float c, float mu_s, out int k0, o
 // One part's value at slice (k, j), row y, interpolated over the azimuth columns' stencil sc
 // (as the reader's fetch), without the slice's scale.
 vec3 SkyViewFetch(sampler2D part, int k, int j, int y, SvStencil sc) {
-  ivec2 origin = ivec2(j * SV_N_AZ + sc.first, k * SV_N_VIEW + y);
   vec3 v[4] = vec3[4](vec3(0.0), vec3(0.0), vec3(0.0), vec3(0.0));
   for (int m = 0; m < 4; ++m) {
     if (m >= sc.len) break;
-    v[m] = texelFetch(part, origin + ivec2(m, 0), 0).rgb;
+    v[m] = texelFetch(part, ivec2(j * SV_N_AZ + SkyViewColumnTexel(sc.first + m), k * SV_N_VIEW + y),
+                      0).rgb;
   }
   return SkyViewMix(sc, v);
 }
@@ -699,7 +713,8 @@ vec3 SkyViewFetchBand(sampler2D part, int k, int j, SvStencil sc, SvStencil rows
     vec3 w[4] = vec3[4](vec3(0.0), vec3(0.0), vec3(0.0), vec3(0.0));
     for (int n = 0; n < 4; ++n) {
       if (n >= sv.len) break;
-      w[n] = texelFetch(part, ivec2(j * SV_N_AZ + sc.first + m, k * SV_N_VIEW + sv.first + n), 0).rgb;
+      w[n] = texelFetch(part, ivec2(j * SV_N_AZ + SkyViewColumnTexel(sc.first + m),
+                                    k * SV_N_VIEW + sv.first + n), 0).rgb;
     }
     v[m] = SkyViewMix(sv, w);
   }
@@ -832,9 +847,9 @@ vec3 SkyViewRadiance(float h, float rho, vec3 up, vec3 view_ray, vec3 sun_direct
     int k = sa.first + a;
     float column = node_read > 0.0 ?
         column_q + node_read * (SkyViewAzimuthColumn(phi, sv_alt_nodes[k]) - column_q) : column_q;
-    sc_n[a] = SkyViewStencil(column, 0, SV_N_AZ - 1, false, 0.0);
+    sc_n[a] = SkyViewColumnStencil(column);
     for (int m = 0; m < 4; ++m) {
-      int col = min(sc_n[a].first + m, SV_N_AZ - 1);
+      int col = SkyViewColumnTexel(sc_n[a].first + m);
       float cos_n = sv_az_node_cos[k * SV_N_AZ + col];
       // Below SV_AZ_NODE_READ.y blended from the column's azimuth at the query's altitude (the
       // reader's band_rows; there the map has no focus, SkyViewAzimuthNode).

@@ -21,7 +21,7 @@ use skybake_lut::skyview::{
     band_centre_deg, band_map_weight, band_relative_elevation, band_row, band_slice_elevation,
     limb_depth_of, limb_row_focused, limb_slice_depth, limb_sun_lowest, ray_length, segment_rows,
     sky_row_focus, sun_coord, sun_node_deg, sun_shift, sun_unwarp, sun_warp, sun_warp_centre,
-    view_coord, warp_strength, Stencil, N_ALT, N_AZ, N_SUN, N_VIEW_LIMB, N_VIEW_SKY, SUN_MIN_DEG,
+    view_coord, warp_strength, Stencil, N_ALT, N_SUN, N_VIEW_LIMB, N_VIEW_SKY, SUN_MIN_DEG,
 };
 use skybake_lut::{SkyViewBundle, SkyViewReader};
 
@@ -157,7 +157,7 @@ fn main() {
             let h_n = altitude_node_m(k, thickness);
             // The node's columns (from the query's coordinate to the node's own map).
             let col_n = skybake_lut::skyview::node_column(phi, col, h, k, thickness);
-            let sc = Stencil::new(col_n, 0, N_AZ - 1, |a| a as f64, col_n);
+            let sc = skybake_lut::skyview::column_stencil(col_n, 4);
             print(&format!("p{part}_k{k}_column"), &[col_n]);
             stencil(&format!("p{part}_k{k}_azimuth_stencil"), &sc);
             // On the limb rows, without the sun nodes whose slice is read past its horizon.
@@ -189,7 +189,7 @@ fn main() {
                     let e_n = band_slice_elevation(eps, s_deg, h, s_n, h_n);
                     print(&format!("{tag}_en"), &[e_n]);
                     std::array::from_fn(|m| {
-                        let a = (sc.first + m).min(N_AZ - 1);
+                        let a = skybake_lut::skyview::column_texel(sc.first + m);
                         let e = band_relative_elevation(e_n, s_n, h_n, cos_phi, {
                             let [l0, l1] = skybake_lut::skyview::AZIMUTH_NODE_READ_M;
                             let t = ((h - l0) / (l1 - l0)).clamp(0.0, 1.0);
@@ -223,7 +223,9 @@ fn main() {
                 }
                 let mut value = vec![0.0; n_c];
                 for (c, vc) in value.iter_mut().enumerate() {
-                    let texel = |m: usize, y: usize| tex.texel(sc.first + m, y, zs)[c] as f64;
+                    let texel = |m: usize, y: usize| {
+                        tex.texel(skybake_lut::skyview::column_texel(sc.first + m), y, zs)[c] as f64
+                    };
                     if band {
                         // Over the rows within each column, then over the columns (fetch_band).
                         let mut v = [0.0; 4];

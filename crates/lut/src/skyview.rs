@@ -1059,8 +1059,12 @@ pub const LIMB_BAND_MAX_FRACTION: f64 = 0.95;
 /// The band's depth fractions (D / h) between which [`limb_slice_depth`]'s second piece (the
 /// horizon held) fades out (smoothstep) to version 10's map affine about the horizontal: where
 /// the band nears the horizon the second piece is squeezed (measured at 20 km, sun −4°, 150°
-/// from the sun, 0.3° above the horizon, D/h = 0.87: +4.1 % held, +2.7 % affine).
-pub const LIMB_BAND_HORIZON_HELD: [f64; 2] = [0.5, 0.8];
+/// from the sun, 0.3° above the horizon, D/h = 0.87: +4.1 % held, +2.7 % affine). Version 19:
+/// (0.5, 0.8) → (0.65, 0.9); seen from 12.5 km, sun −2.625°, the limb 0.2° above the horizon
+/// 157.5° from the sun (D/h = 0.73) the slices of the sun nodes below were read at depth
+/// 0.97–0.99, on their sparse rows near the horizon (the reader +4.79 %, 3.42 % held longer; the
+/// shadow seen from 15–20 km unchanged, 17.5 km 8.72 % either way).
+pub const LIMB_BAND_HORIZON_HELD: [f64; 2] = [0.65, 0.9];
 /// The altitudes (m) between which the limb rows' focus fades in (the first two) and out (the
 /// last two).
 pub const LIMB_BAND_ALTITUDE_M: [f64; 4] = [6_000.0, 9_000.0, 20_000.0, 25_000.0];
@@ -1384,6 +1388,30 @@ pub fn node_column(phi: f64, col_q: f64, h: f64, k: usize, thickness: f64) -> f6
         return col_q;
     }
     col_q + lambda * (azimuth_coord(phi, altitude_node_m(k, thickness)) - col_q)
+}
+
+/// The columns' stencil at column coordinate `col` with at most `nodes` nodes ([`Stencil`]), over
+/// the columns continued by mirror images past the sun (φ = 0) and the antisolar point (φ = π):
+/// its node v is column v − 1 ([`column_texel`]; the nodes −1 and N_AZ are columns 1 and
+/// N_AZ − 2). The sky is symmetric about the sun's vertical plane, so the mirror images are the
+/// sky at −φ and 2π − φ, and a query in the first or last column interval gets a cubic centred
+/// on its interval instead of the quadratic over the three nodes on one side. The columns near
+/// 180° are 15–24° apart (the last interval 158–180° at 20 km): the limb seen from 20 km 165°
+/// from the sun, sun −4°, 0.54° above the horizon, the columns' axis alone −5.09 % → −0.79 %
+/// (680 nm, the `sky` product at the columns).
+pub fn column_stencil(col: f64, nodes: usize) -> Stencil {
+    let v = col + 1.0;
+    Stencil::with_nodes(v, 0, N_AZ + 1, |a| a as f64, v, nodes)
+}
+
+/// The texel column of node `v` of [`column_stencil`]: v − 1 reflected into 0..N_AZ − 1.
+pub fn column_texel(v: usize) -> usize {
+    let last = N_AZ - 1;
+    match v {
+        0 => 1,
+        v if v - 1 > last => (2 * last).saturating_sub(v - 1),
+        v => v - 1,
+    }
 }
 
 /// Where a node's length is zero — rays up from the top node, rays down from the ground node —
@@ -1969,7 +1997,7 @@ impl<'a> SkyViewReader<'a> {
         for (c, o) in out.iter_mut().enumerate() {
             let mut v = [0.0; 4];
             for (m, vm) in v.iter_mut().enumerate().take(sc.len) {
-                *vm = t.texel(sc.first + m, y, z)[c] as f64;
+                *vm = t.texel(column_texel(sc.first + m), y, z)[c] as f64;
             }
             *o = sc.mix(&v);
         }
@@ -1994,7 +2022,7 @@ impl<'a> SkyViewReader<'a> {
                 let sv = &rows[m];
                 let mut w = [0.0; 4];
                 for (n, wn) in w.iter_mut().enumerate().take(sv.len) {
-                    *wn = t.texel(sc.first + m, sv.first + n, z)[c] as f64;
+                    *wn = t.texel(column_texel(sc.first + m), sv.first + n, z)[c] as f64;
                 }
                 *vm = sv.mix(&w);
             }
@@ -2033,7 +2061,7 @@ impl<'a> SkyViewReader<'a> {
         }
         let e_n = band_slice_elevation(eps, s_deg, h, s_n, h_n);
         Some(std::array::from_fn(|m| {
-            let a = (sc.first + m).min(N_AZ - 1);
+            let a = column_texel(sc.first + m);
             // The column's azimuth: the query's altitude's where the node is read at the
             // query's column coordinate (version 12), the node's where at its own.
             let lambda = smoothstep(AZIMUTH_NODE_READ_M[0], AZIMUTH_NODE_READ_M[1], h);
@@ -2113,8 +2141,10 @@ impl<'a> SkyViewReader<'a> {
         // Each altitude node's columns ([`node_column`]).
         let col_q = azimuth_coord(phi, r - p.bottom_radius);
         let columns = |k: usize| {
-            let col = node_column(phi, col_q, r - p.bottom_radius, k, thickness);
-            Stencil::with_nodes(col, 0, N_AZ - 1, |a| a as f64, col, self.nodes[3])
+            column_stencil(
+                node_column(phi, col_q, r - p.bottom_radius, k, thickness),
+                self.nodes[3],
+            )
         };
         let (seg, _) = view_coord(theta, r, p.bottom_radius, 0.0);
         let shift = sun_shift(r, theta, cos_phi, p.bottom_radius, p.top_radius, seg == 1);
@@ -2393,9 +2423,9 @@ pub const STATED_ERRORS: &[(&str, &str, f64)] = &[
     ("rayleigh+mie", "sky radiance (sky product), sun >= 5 deg, view < 10 deg above the horizon, 20-100 km", 0.021),
     ("rayleigh+mie", "sky radiance (sky product), sun -6..5 deg, ground", 0.012),
     ("rayleigh+mie", "sky radiance (sky product), sun -6..5 deg, 0-5 km (the band above the earth's shadow 120 deg from the sun, 680 nm at 5 km, 0.5 deg above the horizontal; the twilight glow towards the sun at most 3 %)", 0.046),
-    ("rayleigh+mie", "sky radiance (sky product), sun -6..5 deg, 5-8 km (the band above the earth's shadow, 680 nm at 8 km, 2.1 deg above the horizontal 172.5 deg from the sun, sun -2.375 deg, between the dense check's samples; on them 2.6 %)", 0.031),
-    ("rayleigh+mie", "sky radiance (sky product), sun -6..5 deg, 8-12.5 km (the limb 0.2 deg above the horizon 157.5 deg from the sun, 680 nm at 12.5 km, sun -2.625 deg, between the dense check's samples; on them 2.9 % at 9.5 km; the twilight glow towards the sun at most 3 %)", 0.048),
-    ("rayleigh+mie", "sky radiance (sky product), sun -6..5 deg, 12.5-20 km (the limb 0.4 deg above the horizon 172.5 deg from the sun, 680 nm at 20 km, sun -3.875 deg, between the dense check's samples; 6.4 % at 17.5 km, 4.5 % on the dense check at 20 km; the twilight glow towards the sun at most 3 %)", 0.068),
+    ("rayleigh+mie", "sky radiance (sky product), sun -6..5 deg, 5-8 km (the band above the earth's shadow, 680 nm at 8 km, 1.75 deg above the horizontal 150 deg from the sun, sun -2.5 deg, the dense check; between its samples 2.5 %)", 0.027),
+    ("rayleigh+mie", "sky radiance (sky product), sun -6..5 deg, 8-12.5 km (the limb 0.2 deg above the horizon 142.5 deg from the sun, 680 nm at 12.5 km, sun -3.125 deg, between the dense check's samples; on them 2.5 % at 11 km, 3.1 % between them at 9.5 km; the twilight glow towards the sun at most 3 %)", 0.035),
+    ("rayleigh+mie", "sky radiance (sky product), sun -6..5 deg, 12.5-20 km (the limb 0.5 deg above the horizon 165 deg from the sun, 680 nm at 17.5 km, sun -3.75 deg, the dense check; at 20 km 4.0 % on the dense check, 5.2 % between its samples; the twilight glow towards the sun at most 3 %)", 0.088),
     ("rayleigh+mie", "sky radiance (sky product), sun -6..0 deg, 0-5 km, views within 10 deg of the horizon 150-180 deg from the sun (the earth's shadow rising; 680 nm at 2.5 km)", 0.022),
     ("rayleigh+mie", "sky radiance (sky product), sun -6..5 deg, 20-100 km (random samples: 3.0 %, the sky just above the horizontal at 30 km, 440 nm; but the band above the earth's shadow seen from 20-40 km, 5-6.5 deg above the horizontal 165-180 deg from the sun and the limb just above the horizon opposite the sun, up to 197 %: 35 km, sun -6 deg, 6.5 deg up opposite the sun, 680 nm; 148 % at 40 km, 118 % at 30 km, 70 % at 25 km, 46 % at 22.5 km)", 2.2),
     ("rayleigh+mie", "sky radiance (sky product), sun -12..-6 deg, ground", 0.033),
@@ -2542,7 +2572,7 @@ pub fn manifest(
             "azimuth_nodes_rad": azimuth_nodes,
             "slices": "slice = altitude_index * N_SUN + sun_index; file row = slice * N_VIEW + view_row; texture coordinates at texel centres: u = (column + 0.5) / N_AZ, v = (view_row + 0.5) / N_VIEW",
             "sizes": {"N_ALT": N_ALT, "N_SUN": N_SUN, "N_VIEW_SKY": N_VIEW_SKY, "N_VIEW_LIMB": N_VIEW_LIMB, "N_VIEW_DOWN": N_VIEW_DOWN, "N_AZ": N_AZ},
-            "interpolation": "per (altitude, sun, view row) node triple around the query: over the 4 azimuth columns around the query, then over the rows (times the slice's scale) (on the sky rows where the query's or the slice's focus k > 0: over each column's own rows in the slice, sky_row_band.slices and sky_row_band.azimuth, then over the columns), the sun nodes and then the altitude nodes, each axis with up to 4 nodes around the query within its segment (the row segments: sky, limb, below the horizon; 3 nodes in a segment's first and last interval): the Lagrange polynomial through the nodes' logarithms at the query, exp'd and bounded by the nodes' range; abscissas: for the altitude the nodes' altitude_node_abscissas and the query's x (altitude_node), else the node index (rows: as view_rows; columns: as azimuth_columns), for the sun the node's s_j in degrees; where a node value is not positive, geometric between the interval's two nodes, a^(1-t) b^t, linear where a value is not positive",
+            "interpolation": "per (altitude, sun, view row) node triple around the query: over the 4 azimuth columns around the query, then over the rows (times the slice's scale) (on the sky rows where the query's or the slice's focus k > 0: over each column's own rows in the slice, sky_row_band.slices and sky_row_band.azimuth, then over the columns), the sun nodes and then the altitude nodes, each axis with up to 4 nodes around the query within its segment (the row segments: sky, limb, below the horizon; 3 nodes in a segment's first and last interval; the columns continued by their mirror images, column -1 = column 1 and column N_AZ = column N_AZ - 2 (the sky at -phi and 2 pi - phi; version 19), so 4 columns in the first and last interval too): the Lagrange polynomial through the nodes' logarithms at the query, exp'd and bounded by the nodes' range; abscissas: for the altitude the nodes' altitude_node_abscissas and the query's x (altitude_node), else the node index (rows: as view_rows; columns: as azimuth_columns), for the sun the node's s_j in degrees; where a node value is not positive, geometric between the interval's two nodes, a^(1-t) b^t, linear where a value is not positive",
             "radiance": "L = rayleigh * RayleighPhase(nu) + mie * aerosol_phase_function(nu), nu = cos of the angle between view and sun; RayleighPhase = 3/(16 pi) (1 + nu^2)",
             "observer": "inside the atmosphere; above its top, move the observer along the view to the top first (a view missing the atmosphere sees nothing); views below the horizon: the in-scattered light along the ray to the ground, without the ground's reflection",
             "transmittance_texture": [crate::param::TRANSMITTANCE_WIDTH, crate::param::TRANSMITTANCE_HEIGHT],
@@ -2573,6 +2603,43 @@ mod tests {
 
     const R: f64 = 6_360_000.0;
     const H: f64 = 100_000.0;
+
+    /// The columns' stencil continued by mirror images: hand values. Its nodes past the ends
+    /// are columns 1 and N_AZ − 2, a query in the last interval gets the centred cubic's weights
+    /// (−1, 9, 9, −1)/16 at its middle, which are exact for a parabola even about φ = π.
+    #[test]
+    fn the_columns_are_mirrored_past_the_sun_and_the_antisolar_point() {
+        assert_eq!(column_texel(0), 1);
+        assert_eq!(column_texel(1), 0);
+        assert_eq!(column_texel(N_AZ), N_AZ - 1);
+        assert_eq!(column_texel(N_AZ + 1), N_AZ - 2);
+        let last = (N_AZ - 1) as f64;
+        let st = column_stencil(last - 0.5, 4);
+        assert_eq!((st.first, st.len), (N_AZ - 2, 4));
+        let cols: Vec<usize> = (0..4).map(|m| column_texel(st.first + m)).collect();
+        assert_eq!(cols, vec![N_AZ - 3, N_AZ - 2, N_AZ - 1, N_AZ - 2]);
+        for (w, want) in st.w.iter().zip([-1.0, 9.0, 9.0, -1.0]) {
+            assert!((w - want / 16.0).abs() < 1e-12, "{:?}", st.w);
+        }
+        // f = (column − last)²: 4, 1, 0, 1 at the nodes, 0.25 at the query.
+        let f: f64 = cols
+            .iter()
+            .zip(&st.w)
+            .map(|(&a, w)| w * (a as f64 - last).powi(2))
+            .sum();
+        assert!((f - 0.25).abs() < 1e-12, "{f}");
+        // Near the sun: the first interval reads column 1 on both sides of column 0.
+        let st = column_stencil(0.5, 4);
+        assert_eq!((st.first, st.len), (0, 4));
+        let cols: Vec<usize> = (0..4).map(|m| column_texel(st.first + m)).collect();
+        assert_eq!(cols, vec![1, 0, 1, 2]);
+        // Inside, the same nodes as the unmirrored stencil.
+        let st = column_stencil(7.25, 4);
+        assert_eq!((column_texel(st.first), st.len), (6, 4));
+        // Two nodes: the interval's.
+        let st = column_stencil(last - 0.5, 2);
+        assert_eq!((column_texel(st.first), st.len), (N_AZ - 2, 2));
+    }
 
     #[test]
     fn node_coordinates_invert_the_nodes() {
@@ -3003,18 +3070,22 @@ mod tests {
         let below = limb_slice_depth(yb - 1e-9, 0.0, 20_000.0, 0.25, 17_000.0);
         let above = limb_slice_depth(yb + 1e-9, 0.0, 20_000.0, 0.25, 17_000.0);
         assert!((below - above).abs() < 1e-6, "{below} {above}");
-        // Near the horizon (D/h ≥ 0.8) version 10's map, affine about the horizontal.
+        // Near the horizon (D/h ≥ 0.9) version 10's map, affine about the horizontal.
         let y_q = 0.9;
         let deep = limb_slice_depth(y_q, -0.5, 12_000.0, -0.25, 12_000.0);
         let affine = y_q * limb_band_depth_m(-0.25) / limb_band_depth_m(-0.5);
         assert!((deep - affine).abs() < 1e-12, "{deep} {affine}");
         // Seen from 20 km, 0.3° above the horizon (y = 0.877) at s = −1.223°: the band at
-        // D(−1.223°) = 8.2 + 7.76 · 1.223 − 0.9 · 1.223² = 16.34 km; the slice at s = −1.938°
-        // has its band at 19.86 km, so y ρ = 0.877 · 19.86 / 16.34 = 1.066, past its horizon,
-        // and its sun node is left out of the stencil; the slice at −1.534° (17.99 km, 0.966)
-        // is kept.
+        // D(−1.223°) = 8.2 + 7.76 · 1.223 − 0.9 · 1.223² = 16.34 km (y_b = 0.817); the slice at
+        // s = −1.938° has its band at 19.86 km, so y ρ = 0.877 · 19.86 / 16.34 = 1.066, the
+        // horizon held 0.95 + 0.060 · 0.05 / 0.183 = 0.966 with the weight
+        // 1 − smoothstep(0.65, 0.9, 0.817) = 0.256: 1.066 − 0.256 · 0.099 = 1.040, past its
+        // horizon, and its sun node is left out of the stencil; the slice at −1.534° (17.99 km,
+        // y ρ = 0.965, held 0.932: 0.957) is kept.
         let m = limb_slice_map(0.877, -1.223, 20_000.0, -1.938, 20_000.0);
-        assert!((m - 1.066).abs() < 2e-3, "{m}");
+        assert!((m - 1.040).abs() < 2e-3, "{m}");
+        let m = limb_slice_map(0.877, -1.223, 20_000.0, -1.534, 20_000.0);
+        assert!((m - 0.957).abs() < 2e-3, "{m}");
         assert!(limb_slice_past_horizon(
             0.877, -1.223, 20_000.0, -1.938, 20_000.0
         ));
