@@ -22,7 +22,8 @@
 // (horizon_deg), SV_BAND_ANTISOLAR_RANGE (antisolar_range, a vec2), SV_BAND_GROWTH
 // (focus_growth), SV_BAND_GROWTH_ALTITUDE (focus_growth_altitude_m, a vec2),
 // SV_BAND_CENTRE_ALOFT (centre_aloft_per_km), SV_BAND_CENTRE_ALOFT_ALTITUDE
-// (centre_aloft_altitude_m, a vec2), SV_BAND_SLICE_ALOFT (slices_aloft_per_km, a vec2),
+// (centre_aloft_altitude_m, a vec2), SV_BAND_CENTRE_TOP (vec2(centre_top_altitude_m,
+// centre_top_per_km)), SV_BAND_SLICE_ALOFT (slices_aloft_per_km, a vec2),
 // SV_BAND_SLICE_THROUGH (slices_through_altitude_m, a vec2), SV_BAND_DEPTH_TOP (depth_top_m), SV_BAND_FOCUS_ALOFT
 // (focus_aloft), SV_BAND_FOCUS_ALOFT_ALTITUDE (focus_aloft_altitude_m, a vec2),
 // SV_BAND_FOCUS_PLACE_ALOFT (focus_place_aloft), SV_BAND_FOCUS_PLACE_ALTITUDE
@@ -433,6 +434,14 @@ float SkyViewBandWeight(float sun_deg, float h) {
       (1.0 - smoothstep(SV_BAND_ALTITUDE.x, SV_BAND_ALTITUDE.y, h));
 }
 
+// The band's further growth above SV_BAND_CENTRE_ALOFT_ALTITUDE.y (the reader's band_centre_top):
+// SV_BAND_CENTRE_TOP.y per km up to SV_BAND_CENTRE_TOP.x.
+float SkyViewBandCentreTop(float h) {
+  return SV_BAND_CENTRE_TOP.y *
+      clamp(h - SV_BAND_CENTRE_ALOFT_ALTITUDE.y, 0.0,
+            max(SV_BAND_CENTRE_TOP.x - SV_BAND_CENTRE_ALOFT_ALTITUDE.y, 0.0)) / 1000.0;
+}
+
 // The band's elevation (degrees) opposite the sun with the sun sun_deg above the observer's
 // horizon at altitude h (the reader's band_centre_deg).
 float SkyViewBandCentre(float sun_deg, float h) {
@@ -440,11 +449,13 @@ float SkyViewBandCentre(float sun_deg, float h) {
   float x = (SV_BAND_SUN - sun_deg) / SV_BAND_SUN_SOFT;
   float u = SV_BAND_SUN_SOFT * (max(x, 0.0) + log(1.0 + exp(-abs(x))));
   // The low fit up to SV_BAND_CENTRE_ALOFT_ALTITUDE.x, scaled by 1 + SV_BAND_CENTRE_ALOFT per km
-  // above it up to SV_BAND_CENTRE_ALOFT_ALTITUDE.y.
+  // above it up to SV_BAND_CENTRE_ALOFT_ALTITUDE.y, + SV_BAND_CENTRE_TOP.y per km above that up to
+  // SV_BAND_CENTRE_TOP.x.
   float km = clamp(h, 0.0, SV_BAND_CENTRE_ALOFT_ALTITUDE.x) / 1000.0;
   float aloft = 1.0 + SV_BAND_CENTRE_ALOFT *
       clamp(h - SV_BAND_CENTRE_ALOFT_ALTITUDE.x, 0.0,
-            SV_BAND_CENTRE_ALOFT_ALTITUDE.y - SV_BAND_CENTRE_ALOFT_ALTITUDE.x) / 1000.0;
+            SV_BAND_CENTRE_ALOFT_ALTITUDE.y - SV_BAND_CENTRE_ALOFT_ALTITUDE.x) / 1000.0 +
+      SkyViewBandCentreTop(h);
   return min(((SV_BAND_CENTRE.x + SV_BAND_CENTRE.y * km) * u +
               (SV_BAND_CENTRE.z + SV_BAND_CENTRE.w * km) * u * u) * aloft, 45.0);
 }
@@ -620,13 +631,14 @@ SvStencil SkyViewBandRowStencil(float elevation_deg, float h, float c, float k, 
 // The band's elevation (degrees, over SV_BAND_ANTISOLAR) in the slices' map at the sun
 // coordinate sun_deg and altitude h (the reader's band_slice_centre_deg): SkyViewBandCentre's low
 // fit at min(h, SV_BAND_CENTRE_ALOFT_ALTITUDE.x) times 1 + a x + (b - a) x^2 / (2 L), x the km
-// above SV_BAND_CENTRE_ALOFT_ALTITUDE.x up to L, its span, (a, b) = SV_BAND_SLICE_ALOFT.
+// above SV_BAND_CENTRE_ALOFT_ALTITUDE.x up to L, its span, (a, b) = SV_BAND_SLICE_ALOFT, +
+// SkyViewBandCentreTop.
 float SkyViewBandSliceCentre(float sun_deg, float h) {
   float low = SkyViewBandCentre(sun_deg, min(h, SV_BAND_CENTRE_ALOFT_ALTITUDE.x));
   float l = max((SV_BAND_CENTRE_ALOFT_ALTITUDE.y - SV_BAND_CENTRE_ALOFT_ALTITUDE.x) / 1000.0, 1e-3);
   float a = clamp((h - SV_BAND_CENTRE_ALOFT_ALTITUDE.x) / 1000.0, 0.0, l);
   float g = 1.0 + SV_BAND_SLICE_ALOFT.x * a +
-      (SV_BAND_SLICE_ALOFT.y - SV_BAND_SLICE_ALOFT.x) * a * a / (2.0 * l);
+      (SV_BAND_SLICE_ALOFT.y - SV_BAND_SLICE_ALOFT.x) * a * a / (2.0 * l) + SkyViewBandCentreTop(h);
   return min(low * g, 45.0);
 }
 

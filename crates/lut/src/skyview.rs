@@ -508,16 +508,35 @@ pub fn band_centre_deg(sun_deg: f64, h: f64) -> f64 {
     let u = w * (x.max(0.0) + (-x.abs()).exp().ln_1p());
     let [h0, h1] = BAND_CENTRE_ALOFT_M;
     let km = (h / 1000.0).clamp(0.0, h0 / 1000.0);
-    let aloft = 1.0 + BAND_CENTRE_ALOFT * ((h - h0) / 1000.0).clamp(0.0, (h1 - h0) / 1000.0);
+    let aloft = 1.0
+        + BAND_CENTRE_ALOFT * ((h - h0) / 1000.0).clamp(0.0, (h1 - h0) / 1000.0)
+        + band_centre_top(h);
     let [a0, a1, a2, a3] = BAND_CENTRE;
     (((a0 + a1 * km) * u + (a2 + a3 * km) * u * u) * aloft).min(45.0)
 }
 
 /// The altitudes (m) between which [`band_centre_deg`] grows by [`BAND_CENTRE_ALOFT`] per km
-/// (below the first the low fit's altitude dependence, above the second held).
+/// (below the first the low fit's altitude dependence, above the second by [`BAND_CENTRE_TOP`]).
 pub const BAND_CENTRE_ALOFT_M: [f64; 2] = [10_000.0, 20_000.0];
 /// [`band_centre_deg`]'s growth per km between the altitudes of [`BAND_CENTRE_ALOFT_M`].
 pub const BAND_CENTRE_ALOFT: f64 = 0.03;
+/// The band's growth per km above the second altitude of [`BAND_CENTRE_ALOFT_M`] up to
+/// [`BAND_CENTRE_TOP_M`] (held above), in [`band_centre_deg`] and [`band_slice_centre_deg`] alike
+/// ([`band_centre_top`]). Measured on the `sky` product (680 nm, the elevation where ln L per
+/// metre rises fastest 180° from the sun, the sun at the observer's horizon): 5.2 / 5.5 / 5.8 /
+/// 6.3 / 6.7 / 7.2° seen from 20 / 22.5 / 25 / 30 / 35 / 40 km, about 0.025 per km of the fit's
+/// 1.3 at 20 km (held at 20 km: 5.0°).
+pub const BAND_CENTRE_TOP: f64 = 0.015;
+/// The altitude (m) up to which the band grows by [`BAND_CENTRE_TOP`] per km.
+pub const BAND_CENTRE_TOP_M: f64 = 40_000.0;
+
+/// The band's growth above the second altitude of [`BAND_CENTRE_ALOFT_M`] at altitude `h` (m):
+/// [`BAND_CENTRE_TOP`] per km up to [`BAND_CENTRE_TOP_M`], added to the factors of
+/// [`band_centre_deg`] and [`band_slice_centre_deg`] (both 1.3 at 20 km).
+pub fn band_centre_top(h: f64) -> f64 {
+    let h1 = BAND_CENTRE_ALOFT_M[1];
+    BAND_CENTRE_TOP * ((h - h1) / 1000.0).clamp(0.0, (BAND_CENTRE_TOP_M - h1).max(0.0) / 1000.0)
+}
 
 /// The sun coordinate (degrees above the observer's horizon) at which the band of
 /// [`band_centre_deg`] reaches the horizontal.
@@ -546,9 +565,14 @@ pub const BAND_FOCUS: f64 = 14.0;
 /// 9.6 % at 5 km and 8.4 % at 20 km (−6°…−3.5°: 12.9 / 10.2 %), and the grids of the band
 /// itself (the earth's shadow rising and seen aloft) are unchanged.
 pub const BAND_SUN_RANGE: [f64; 4] = [-5.0, -3.0, 1.0, 5.0];
-/// Altitudes (m) between which the focus fades out (full below the first, none above the
-/// second).
-pub const BAND_ALTITUDE_M: [f64; 2] = [20_000.0, 25_000.0];
+/// Altitudes (m) between which the focus and the maps relative to the band fade out (full below
+/// the first, none above the second). Version 18: from 35–40 km (20–25 km before):
+/// seen from 20–40 km the band is as sharp as from 20 km (ln L per metre rises by 2.5–2.8 per
+/// degree of elevation 180° from the sun, the sun at the observer's horizon, 680 nm), and with
+/// the fade at 20–25 km the reader erred by up to 46.5 / 69.6 / 118 % seen from 22.5 / 25 /
+/// 30 km (the sky about 5–6° up 165–180° from the sun; at 22.5 km the rows +22 % alone, the
+/// 23.8 km node's rows +50 %, the altitude axis +11 %; at 25 km the columns +61 % alone).
+pub const BAND_ALTITUDE_M: [f64; 2] = [35_000.0, 40_000.0];
 /// The band's elevations (degrees, [`band_centre_deg`]) between which the focus fades out
 /// (full below the first, none above the second). The focus draws the rows towards the band
 /// and away from the horizontal (the last sky row 0.5–1.2° up instead of 0.2° with the band
@@ -715,7 +739,8 @@ pub const BAND_SLICE_ALOFT: [f64; 2] = [0.045, 0.015];
 /// `h` (m): [`band_centre_deg`]'s low fit at min(h, h₀) times
 /// g = 1 + a x + (b − a) x² / (2 L), x = h − h₀ in km up to L = h₁ − h₀
 /// ((h₀, h₁) = [`BAND_CENTRE_ALOFT_M`], (a, b) = [`BAND_SLICE_ALOFT`]): the growth per km a at
-/// h₀ falling linearly to b at h₁, where g = 1.3 as in [`band_centre_deg`]. From 10 to 15 km
+/// h₀ falling linearly to b at h₁, where g = 1.3 as in [`band_centre_deg`], and above h₁
+/// [`band_centre_top`] (as in [`band_centre_deg`]). From 10 to 15 km
 /// the band seen opposite the sun rises faster with the observer's altitude than that fit's
 /// growth of 0.03 per km (within 0.05° of this growth); from 17 km up it lies up to 0.2° above
 /// both, but the altitude nodes read there with a faster growth err more at 20 km
@@ -726,7 +751,7 @@ pub fn band_slice_centre_deg(sun_deg: f64, h: f64) -> f64 {
     let [a, b] = BAND_SLICE_ALOFT;
     let l = ((h1 - h0) / 1000.0).max(1e-3);
     let x = ((h - h0) / 1000.0).clamp(0.0, l);
-    let g = 1.0 + a * x + (b - a) * x * x / (2.0 * l);
+    let g = 1.0 + a * x + (b - a) * x * x / (2.0 * l) + band_centre_top(h);
     (band_centre_deg(sun_deg, h.min(h0)) * g).min(45.0)
 }
 
@@ -1062,8 +1087,9 @@ pub const LIMB_BAND_MAX_FRACTION: f64 = 0.95;
 /// from the sun, 0.3° above the horizon, D/h = 0.87: +4.1 % held, +2.7 % affine).
 pub const LIMB_BAND_HORIZON_HELD: [f64; 2] = [0.5, 0.8];
 /// The altitudes (m) between which the limb rows' focus fades in (the first two) and out (the
-/// last two).
-pub const LIMB_BAND_ALTITUDE_M: [f64; 4] = [6_000.0, 9_000.0, 20_000.0, 25_000.0];
+/// last two). Version 18: out from 25–30 km (20–25 km before; from 35–40 km the
+/// limb seen from 30 km read 80 % instead of 55 %, from 30–35 km 80 %).
+pub const LIMB_BAND_ALTITUDE_M: [f64; 4] = [6_000.0, 9_000.0, 25_000.0, 30_000.0];
 
 /// The limb rows' focus at sun coordinate `sun_deg` (degrees, [`sun_shift`]) and altitude `h`
 /// (m): (x_c, k), x_c = [`limb_row`] of the band's depth D / h ([`LIMB_BAND_DEPTH_M`], clamped
@@ -2025,7 +2051,7 @@ impl<'a> SkyViewReader<'a> {
         let p = &self.bundle.params;
         let thickness = p.top_radius - p.bottom_radius;
         let h_n = altitude_node_m(k, thickness);
-        // (The band maps act below 25 km, where the warp's centre is 0.)
+        // (The band maps act below 40 km, where the warp's centre is 0.)
         let s_n = sun_warp(sun_node_deg(j), warp_strength(h_n, thickness), 0.0);
         let focus_n = sky_row_focus(s_n, h_n);
         if band_map_weight(s_deg, h) < 1e-6 && band_map_weight(s_n, h_n) < 1e-6 {
@@ -2451,6 +2477,8 @@ pub fn manifest(
         "depth_top_m": BAND_DEPTH_TOP_M,
         "centre_aloft_per_km": BAND_CENTRE_ALOFT,
         "centre_aloft_altitude_m": BAND_CENTRE_ALOFT_M,
+        "centre_top_per_km": BAND_CENTRE_TOP,
+        "centre_top_altitude_m": BAND_CENTRE_TOP_M,
         "slices_aloft_per_km": BAND_SLICE_ALOFT,
         "slices_through_altitude_m": BAND_SLICE_THROUGH_M,
         "horizon_deg": BAND_HORIZON_DEG,
