@@ -1087,9 +1087,11 @@ pub const LIMB_BAND_MAX_FRACTION: f64 = 0.95;
 /// from the sun, 0.3° above the horizon, D/h = 0.87: +4.1 % held, +2.7 % affine).
 pub const LIMB_BAND_HORIZON_HELD: [f64; 2] = [0.5, 0.8];
 /// The altitudes (m) between which the limb rows' focus fades in (the first two) and out (the
-/// last two). Version 18: out from 25–30 km (20–25 km before; from 35–40 km the
-/// limb seen from 30 km read 80 % instead of 55 %, from 30–35 km 80 %).
-pub const LIMB_BAND_ALTITUDE_M: [f64; 4] = [6_000.0, 9_000.0, 25_000.0, 30_000.0];
+/// last two). (Out from 25–30 km instead: the limb seen from 22.5 / 25 / 30 km on the dense
+/// check of the earth's shadow 25.6 / 38.2 / 54.8 → 7.7 / 23.8 / 54.6 %, but the random samples
+/// of the sun −6…5° from 20–100 km 2.94 → 19.6 %: 23.3 km, sun −5.19°, 0.08° below the
+/// horizontal 29° from the sun, 550 nm; docs/lut.md, "Tried and not kept".)
+pub const LIMB_BAND_ALTITUDE_M: [f64; 4] = [6_000.0, 9_000.0, 20_000.0, 25_000.0];
 
 /// The limb rows' focus at sun coordinate `sun_deg` (degrees, [`sun_shift`]) and altitude `h`
 /// (m): (x_c, k), x_c = [`limb_row`] of the band's depth D / h ([`LIMB_BAND_DEPTH_M`], clamped
@@ -1288,7 +1290,7 @@ pub fn sun_warp_centre(h: f64, bottom: f64, top: f64, seg: usize, cos_phi: f64) 
 pub const SUN_WARP_CENTRE: f64 = 1.0;
 
 /// The altitudes (m) between which the twilight warp's centre fades in ([`sun_warp_centre`]):
-/// above those where the sky rows' and the limb rows' band maps act (below 25 km, whose slices
+/// above those where the sky rows' and the limb rows' band maps act (below 40 km, whose slices
 /// then keep the warp centred at 0), and above the nodes a query at 30 km reads (from
 /// 30–50 km the sky 30 km up 58° from the sun, sun −3.6°, went 2.91 → 2.93 %).
 pub const SUN_WARP_CENTRE_ALTITUDE_M: [f64; 2] = [40_000.0, 60_000.0];
