@@ -510,7 +510,7 @@ pub fn band_centre_deg(sun_deg: f64, h: f64) -> f64 {
     let km = (h / 1000.0).clamp(0.0, h0 / 1000.0);
     let aloft = 1.0
         + BAND_CENTRE_ALOFT * ((h - h0) / 1000.0).clamp(0.0, (h1 - h0) / 1000.0)
-        + band_centre_top(h);
+        + band_centre_top(h, BAND_CENTRE_TOP);
     let [a0, a1, a2, a3] = BAND_CENTRE;
     (((a0 + a1 * km) * u + (a2 + a3 * km) * u * u) * aloft).min(45.0)
 }
@@ -526,16 +526,17 @@ pub const BAND_CENTRE_ALOFT: f64 = 0.03;
 /// metre rises fastest 180° from the sun, the sun at the observer's horizon): 5.2 / 5.5 / 5.8 /
 /// 6.3 / 6.7 / 7.2° seen from 20 / 22.5 / 25 / 30 / 35 / 40 km, about 0.025 per km of the fit's
 /// 1.3 at 20 km (held at 20 km: 5.0°).
-pub const BAND_CENTRE_TOP: f64 = 0.015;
+pub const BAND_CENTRE_TOP: f64 = 0.025;
 /// The altitude (m) up to which the band grows by [`BAND_CENTRE_TOP`] per km.
 pub const BAND_CENTRE_TOP_M: f64 = 40_000.0;
 
 /// The band's growth above the second altitude of [`BAND_CENTRE_ALOFT_M`] at altitude `h` (m):
-/// [`BAND_CENTRE_TOP`] per km up to [`BAND_CENTRE_TOP_M`], added to the factors of
-/// [`band_centre_deg`] and [`band_slice_centre_deg`] (both 1.3 at 20 km).
-pub fn band_centre_top(h: f64) -> f64 {
+/// `rate` per km ([`BAND_CENTRE_TOP`] in [`band_centre_deg`], [`BAND_SLICE_TOP`] in
+/// [`band_slice_centre_deg`]) up to [`BAND_CENTRE_TOP_M`], added to their factors (both 1.3 at
+/// 20 km).
+pub fn band_centre_top(h: f64, rate: f64) -> f64 {
     let h1 = BAND_CENTRE_ALOFT_M[1];
-    BAND_CENTRE_TOP * ((h - h1) / 1000.0).clamp(0.0, (BAND_CENTRE_TOP_M - h1).max(0.0) / 1000.0)
+    rate * ((h - h1) / 1000.0).clamp(0.0, (BAND_CENTRE_TOP_M - h1).max(0.0) / 1000.0)
 }
 
 /// The sun coordinate (degrees above the observer's horizon) at which the band of
@@ -751,7 +752,7 @@ pub fn band_slice_centre_deg(sun_deg: f64, h: f64) -> f64 {
     let [a, b] = BAND_SLICE_ALOFT;
     let l = ((h1 - h0) / 1000.0).max(1e-3);
     let x = ((h - h0) / 1000.0).clamp(0.0, l);
-    let g = 1.0 + a * x + (b - a) * x * x / (2.0 * l) + band_centre_top(h);
+    let g = 1.0 + a * x + (b - a) * x * x / (2.0 * l) + band_centre_top(h, BAND_SLICE_TOP);
     (band_centre_deg(sun_deg, h.min(h0)) * g).min(45.0)
 }
 
@@ -762,6 +763,16 @@ pub fn band_slice_centre_deg(sun_deg: f64, h: f64) -> f64 {
 /// sun 1.1–1.3° above the observer's horizon, between sun nodes 0.5° apart, where the map was
 /// the identity (the sun nodes alone −2.7…−4.3 %).
 pub const BAND_SLICE_THROUGH_M: [f64; 2] = [5_000.0, 8_000.0];
+
+/// The band's growth per km in the slices' map ([`band_slice_centre_deg`]) above the second
+/// altitude of [`BAND_CENTRE_ALOFT_M`] up to [`BAND_CENTRE_TOP_M`] (the sky rows' focus and the
+/// columns' map: [`BAND_CENTRE_TOP`]).
+pub const BAND_SLICE_TOP: f64 = 0.015;
+
+/// The query's altitudes (m) between which the slices' map ([`band_slice_elevation`]) comes to
+/// be faded in with the query's −cos φ over [`BAND_ANTISOLAR_RANGE`], as the columns' map
+/// ([`band_relative_elevation`]; below them it acts at every azimuth).
+pub const BAND_SLICE_AZIMUTH_M: [f64; 2] = [20_000.0, 25_000.0];
 
 /// The elevation (degrees) at which a slice of sun node `sun_n` (its sun coordinate, degrees
 /// above the observer's horizon) and altitude node `h_n` (m) is read for a query at elevation
@@ -778,7 +789,14 @@ pub const BAND_SLICE_THROUGH_M: [f64; 2] = [5_000.0, 8_000.0];
 /// Faded to the identity as [`band_relative_elevation`]: with the query's [`band_map_weight`], above 2–4
 /// times the band's height and below [`BAND_HORIZON_DEG`] (the horizontal, where the sky rows
 /// meet the limb rows), or aloft below −δ ([`BAND_SLICE_THROUGH_M`]).
-pub fn band_slice_elevation(eps: f64, sun_q: f64, h_q: f64, sun_n: f64, h_n: f64) -> f64 {
+pub fn band_slice_elevation(
+    eps: f64,
+    sun_q: f64,
+    h_q: f64,
+    sun_n: f64,
+    h_n: f64,
+    cos_phi: f64,
+) -> f64 {
     let c_q = band_slice_centre_deg(sun_q, h_q);
     let w_q = band_map_weight(sun_q, h_q);
     if w_q < 1e-6 {
@@ -794,7 +812,11 @@ pub fn band_slice_elevation(eps: f64, sun_q: f64, h_q: f64, sun_n: f64, h_n: f64
     let through = smoothstep(a0, a1, h_q);
     let horizon = smoothstep(0.0, BAND_HORIZON_DEG, eps) * (1.0 - through)
         + band_horizon_taper(eps, d_q) * through;
-    let fade = w_q * (1.0 - smoothstep(2.0 * w, 4.0 * w, eps)) * horizon;
+    // Aloft faded in with the query's −cos φ, as the columns' map ([`BAND_SLICE_AZIMUTH_M`]).
+    let (lo, hi) = BAND_ANTISOLAR_RANGE;
+    let [z0, z1] = BAND_SLICE_AZIMUTH_M;
+    let azimuth = 1.0 - smoothstep(z0, z1, h_q) * (1.0 - smoothstep(lo, hi, -cos_phi));
+    let fade = w_q * (1.0 - smoothstep(2.0 * w, 4.0 * w, eps)) * horizon * azimuth;
     let mapped = (eps + d_q) * height_n / height_q - d_n;
     eps + fade * (mapped - eps)
 }
@@ -2059,7 +2081,7 @@ impl<'a> SkyViewReader<'a> {
         if band_map_weight(s_deg, h) < 1e-6 && band_map_weight(s_n, h_n) < 1e-6 {
             return None;
         }
-        let e_n = band_slice_elevation(eps, s_deg, h, s_n, h_n);
+        let e_n = band_slice_elevation(eps, s_deg, h, s_n, h_n, cos_phi);
         Some(std::array::from_fn(|m| {
             let a = (sc.first + m).min(N_AZ - 1);
             // The column's azimuth: the query's altitude's where the node is read at the
@@ -2483,6 +2505,8 @@ pub fn manifest(
         "centre_top_altitude_m": BAND_CENTRE_TOP_M,
         "slices_aloft_per_km": BAND_SLICE_ALOFT,
         "slices_through_altitude_m": BAND_SLICE_THROUGH_M,
+        "slices_top_per_km": BAND_SLICE_TOP,
+        "slices_azimuth_altitude_m": BAND_SLICE_AZIMUTH_M,
         "horizon_deg": BAND_HORIZON_DEG,
         "antisolar_range": [BAND_ANTISOLAR_RANGE.0, BAND_ANTISOLAR_RANGE.1],
         "focus_growth": BAND_FOCUS_GROWTH,
@@ -2499,9 +2523,9 @@ pub fn manifest(
         "sun_soft_deg": BAND_SUN_SOFT_DEG,
         "azimuth_depth_aloft_deg": BAND_AZIMUTH_DEPTH_ALOFT,
         "azimuth_depth_aloft_altitude_m": BAND_AZIMUTH_DEPTH_ALOFT_M,
-        "slices": "on the sky rows, each (altitude node k, sun node j) slice of the interpolation is read on its own rows (the focus (c_n, k_n) at the node's sun coordinate s_n = the warped s_j at h_k and its altitude h_n = altitude_nodes_m[k]) where the query's or the slice's k > 0: at e_n = e + f (1 - smoothstep(2 w, 4 w, e)) (smoothstep(0, horizon_deg, e) (1 - t) + step(-delta_q, e) t) ((e + delta_q) H_n / H_q - delta_n - e), t = smoothstep(slices_through_altitude_m[0], slices_through_altitude_m[1], h) (version 16; an e_n below 0 read on the limb rows as the azimuth formula's e_a), H = max(c_s antisolar + delta, 0.1) at the query's (s, h) and the node's (s_n, h_n), c_s the formula's c with its factor aloft replaced by 1 + a x + (b - a) x^2 / (2 L), x = clamp(h - centre_aloft_altitude_m[0], 0, L) / 1000, L = max((centre_aloft_altitude_m[1] - centre_aloft_altitude_m[0]) / 1000, 1e-3), [a, b] = slices_aloft_per_km (version 16), delta = depth_deg_per_km clamp(h, 0, depth_top_m) / 1000, w = max(H_q, 0.5), f = k / (focus (1 + focus_growth smoothstep(focus_growth_altitude_m[0], focus_growth_altitude_m[1], h)) (1 + focus_aloft smoothstep(focus_aloft_altitude_m[0], focus_aloft_altitude_m[1], h))) the query's fade (0 where k = 0), then each column at the azimuth formula's e_a with (c_n, k_n, h_n) in place of the query's",
+        "slices": "on the sky rows, each (altitude node k, sun node j) slice of the interpolation is read on its own rows (the focus (c_n, k_n) at the node's sun coordinate s_n = the warped s_j at h_k and its altitude h_n = altitude_nodes_m[k]) where the query's or the slice's k > 0: at e_n = e + f (1 - smoothstep(2 w, 4 w, e)) (smoothstep(0, horizon_deg, e) (1 - t) + step(-delta_q, e) t) ((e + delta_q) H_n / H_q - delta_n - e) (1 - smoothstep(slices_azimuth_altitude_m[0], slices_azimuth_altitude_m[1], h) (1 - smoothstep(antisolar_range[0], antisolar_range[1], -cos phi))) (version 19: faded in with -cos phi aloft), t = smoothstep(slices_through_altitude_m[0], slices_through_altitude_m[1], h) (version 16; an e_n below 0 read on the limb rows as the azimuth formula's e_a), H = max(c_s antisolar + delta, 0.1) at the query's (s, h) and the node's (s_n, h_n), c_s the formula's c with its factor aloft replaced by 1 + a x + (b - a) x^2 / (2 L) + slices_top_per_km T (T as in the formula; version 19), x = clamp(h - centre_aloft_altitude_m[0], 0, L) / 1000, L = max((centre_aloft_altitude_m[1] - centre_aloft_altitude_m[0]) / 1000, 1e-3), [a, b] = slices_aloft_per_km (version 16), delta = depth_deg_per_km clamp(h, 0, depth_top_m) / 1000, w = max(H_q, 0.5), f = k / (focus (1 + focus_growth smoothstep(focus_growth_altitude_m[0], focus_growth_altitude_m[1], h)) (1 + focus_aloft smoothstep(focus_aloft_altitude_m[0], focus_aloft_altitude_m[1], h))) the query's fade (0 where k = 0), then each column at the azimuth formula's e_a with (c_n, k_n, h_n) in place of the query's",
         "azimuth": "on the sky rows and the limb rows where k > 0 each azimuth column a of the interpolation is read at its own elevation e_a (its own rows' stencil): d = depth_deg_per_km clamp(h, 0, depth_top_m) / 1000, delta = d + (azimuth_depth_aloft_deg - d) smoothstep(azimuth_depth_aloft_altitude_m[0], azimuth_depth_aloft_altitude_m[1], h) (version 12), w = max(c antisolar + delta, 0.5), ratio = max(-cos phi_a, antisolar_range[0]) / max(-cos phi, antisolar_range[0]), e_a = e + (k / (focus (1 + focus_growth smoothstep(focus_growth_altitude_m[0], focus_growth_altitude_m[1], h)) (1 + focus_aloft smoothstep(focus_aloft_altitude_m[0], focus_aloft_altitude_m[1], h)))) (1 - smoothstep(2 w, 4 w, e)) step(-delta, e) smoothstep(antisolar_range[0], antisolar_range[1], -cos phi) (e + delta) (ratio - 1) (version 7: from -delta up through the horizontal, where version 6 had smoothstep(0, horizon_deg, e)), e the query's elevation (deg), phi its azimuth from the sun, phi_a the column's in the slice (azimuth_nodes_rad[k][a], the slice's altitude node k; version 12: at the query's altitude h); where e_a >= 0 the column is read on the sky rows, below on the limb rows at the query's altitude h (depth y = 2 r sin^2(e_a / 2) / h); the band above the earth's shadow lies at (c antisolar + delta)(-cos phi) - delta",
-        "formula": "the sky rows' focus at the sun's elevation s above the observer's horizon (deg) and altitude h (m): u = sun_soft_deg ln(1 + exp((sun_deg - s) / sun_soft_deg)) (version 14: max(sun_deg - s, 0)), km = clamp(h, 0, centre_aloft_altitude_m[0]) / 1000, c = min(((centre[0] + centre[1] km) u + (centre[2] + centre[3] km) u^2) (1 + centre_aloft_per_km clamp(h - centre_aloft_altitude_m[0], 0, centre_aloft_altitude_m[1] - centre_aloft_altitude_m[0]) / 1000), 45) (deg, the band's elevation: the maps' c), the rows' focus at c_f = c (q + (focus_place_aloft antisolar - q) v), q = 1 + (focus_place_aloft antisolar - 1) a (x_c = 1 - sqrt(c_f / 90); version 15), l = 1 - smoothstep(centre_range_deg[0], centre_range_deg[1], c), a = l smoothstep(focus_place_altitude_m[0], focus_place_altitude_m[1], h), v = l smoothstep(focus_width_altitude_m[0], focus_width_altitude_m[1], h) (1 - smoothstep(focus_width_altitude_m[2], focus_width_altitude_m[3], h)) (version 18), k = smoothstep(sun_range_deg[0], sun_range_deg[1], s) (1 - smoothstep(sun_range_deg[2], sun_range_deg[3], s)) (1 - smoothstep(altitude_range_m[0], altitude_range_m[1], h)) (l (1 + focus_high a) + centre_floor (1 - l)) focus (1 + focus_growth smoothstep(focus_growth_altitude_m[0], focus_growth_altitude_m[1], h)) (1 + focus_aloft smoothstep(focus_aloft_altitude_m[0], focus_aloft_altitude_m[1], h)) (1 + focus_wide v), the focus's width w = v max(x0(e_w) - x_c, 0) (x0(e) = 1 - sqrt(e / 90), e_w = max((c antisolar + delta) focus_width_azimuth_cos - delta, focus_width_floor_deg), delta the azimuth formula's; version 18), smoothstep(a, b, x) = t^2 (3 - 2 t), t = clamp((x - a) / (b - a), 0, 1)",
+        "formula": "the sky rows' focus at the sun's elevation s above the observer's horizon (deg) and altitude h (m): u = sun_soft_deg ln(1 + exp((sun_deg - s) / sun_soft_deg)) (version 14: max(sun_deg - s, 0)), km = clamp(h, 0, centre_aloft_altitude_m[0]) / 1000, c = min(((centre[0] + centre[1] km) u + (centre[2] + centre[3] km) u^2) (1 + centre_aloft_per_km clamp(h - centre_aloft_altitude_m[0], 0, centre_aloft_altitude_m[1] - centre_aloft_altitude_m[0]) / 1000 + centre_top_per_km T), 45), T = clamp(h - centre_aloft_altitude_m[1], 0, max(centre_top_altitude_m - centre_aloft_altitude_m[1], 0)) / 1000 (version 19) (deg, the band's elevation: the maps' c), the rows' focus at c_f = c (q + (focus_place_aloft antisolar - q) v), q = 1 + (focus_place_aloft antisolar - 1) a (x_c = 1 - sqrt(c_f / 90); version 15), l = 1 - smoothstep(centre_range_deg[0], centre_range_deg[1], c), a = l smoothstep(focus_place_altitude_m[0], focus_place_altitude_m[1], h), v = l smoothstep(focus_width_altitude_m[0], focus_width_altitude_m[1], h) (1 - smoothstep(focus_width_altitude_m[2], focus_width_altitude_m[3], h)) (version 18), k = smoothstep(sun_range_deg[0], sun_range_deg[1], s) (1 - smoothstep(sun_range_deg[2], sun_range_deg[3], s)) (1 - smoothstep(altitude_range_m[0], altitude_range_m[1], h)) (l (1 + focus_high a) + centre_floor (1 - l)) focus (1 + focus_growth smoothstep(focus_growth_altitude_m[0], focus_growth_altitude_m[1], h)) (1 + focus_aloft smoothstep(focus_aloft_altitude_m[0], focus_aloft_altitude_m[1], h)) (1 + focus_wide v), the focus's width w = v max(x0(e_w) - x_c, 0) (x0(e) = 1 - sqrt(e / 90), e_w = max((c antisolar + delta) focus_width_azimuth_cos - delta, focus_width_floor_deg), delta the azimuth formula's; version 18), smoothstep(a, b, x) = t^2 (3 - 2 t), t = clamp((x - a) / (b - a), 0, 1)",
     });
     json!({
         "format": LAYOUT,
@@ -2956,9 +2980,9 @@ mod tests {
             assert!((k - BAND_CENTRE_FLOOR * full).abs() < 1e-9, "{h}: {k}");
         }
         // By day and aloft (no focus at the query): the identity.
-        assert_eq!(band_slice_elevation(3.0, 8.0, 0.0, 7.5, 0.0), 3.0);
+        assert_eq!(band_slice_elevation(3.0, 8.0, 0.0, 7.5, 0.0, -1.0), 3.0);
         assert_eq!(
-            band_slice_elevation(3.0, -1.0, 30_000.0, -1.2, 27_000.0),
+            band_slice_elevation(3.0, -1.0, 30_000.0, -1.2, 27_000.0, -1.0),
             3.0
         );
         // Low twilight at 5 km: the band opposite the sun at the query's sun and altitude
@@ -2972,7 +2996,7 @@ mod tests {
             (0.0, 3435.0),
             (0.2, 6750.0),
         ] {
-            let got = band_slice_elevation(band(sun, h), sun, h, s_n, h_n);
+            let got = band_slice_elevation(band(sun, h), sun, h, s_n, h_n, -1.0);
             assert!(
                 (got - band(s_n, h_n)).abs() < 1e-9,
                 "{s_n} {h_n}: {got} vs {}",
@@ -2981,20 +3005,33 @@ mod tests {
         }
         // Aloft the slices' band ([`band_slice_centre_deg`]) lands on the node's.
         let band_s = |s: f64, h: f64| band_slice_centre_deg(s, h) * BAND_ANTISOLAR;
-        let got = band_slice_elevation(band_s(0.1, 12_000.0), 0.1, 12_000.0, 0.1, 15_340.0);
+        let got = band_slice_elevation(band_s(0.1, 12_000.0), 0.1, 12_000.0, 0.1, 15_340.0, -1.0);
         assert!((got - band_s(0.1, 15_340.0)).abs() < 1e-9, "{got}");
         assert!((band_s(0.1, 15_340.0) - band(0.1, 15_340.0)).abs() > 0.1);
-        assert_eq!(band_slice_elevation(0.0, sun, h, -1.25, 5000.0), 0.0);
+        assert_eq!(band_slice_elevation(0.0, sun, h, -1.25, 5000.0, -1.0), 0.0);
         // From 8 km up the map acts from −δ (2.5°) up through the horizontal.
-        assert!(band_slice_elevation(0.0, 0.5, 15_000.0, 0.75, 15_000.0).abs() > 0.1);
-        assert!((band_slice_elevation(-2.5, 0.5, 15_000.0, 0.75, 15_000.0) + 2.5).abs() < 1e-12);
+        assert!(band_slice_elevation(0.0, 0.5, 15_000.0, 0.75, 15_000.0, -1.0).abs() > 0.1);
+        assert!(
+            (band_slice_elevation(-2.5, 0.5, 15_000.0, 0.75, 15_000.0, -1.0) + 2.5).abs() < 1e-12
+        );
         assert_eq!(
-            band_slice_elevation(-2.6, 0.5, 15_000.0, 0.75, 15_000.0),
+            band_slice_elevation(-2.6, 0.5, 15_000.0, 0.75, 15_000.0, -1.0),
             -2.6
         );
-        assert_eq!(band_slice_elevation(60.0, sun, h, -1.25, 5000.0), 60.0);
+        assert_eq!(
+            band_slice_elevation(60.0, sun, h, -1.25, 5000.0, -1.0),
+            60.0
+        );
         // At the ground after sunset (no band height): finite.
-        assert!(band_slice_elevation(1.0, 3.0, 0.0, 2.5, 0.0).is_finite());
+        assert!(band_slice_elevation(1.0, 3.0, 0.0, 2.5, 0.0, -1.0).is_finite());
+        // From 20–25 km up faded in with −cos φ as the columns' map: towards the sun the
+        // identity, opposite it and below 20 km at every azimuth not.
+        let map = |h: f64, h_n: f64, cos_phi: f64| {
+            band_slice_elevation(3.0, 0.2, h, 0.4, h_n, cos_phi) - 3.0
+        };
+        assert_eq!(map(25_000.0, 23_840.0, 0.9), 0.0);
+        assert!(map(25_000.0, 23_840.0, -1.0).abs() > 0.01);
+        assert!(map(15_000.0, 15_340.0, 0.9).abs() > 0.01);
     }
 
     #[test]
