@@ -2791,7 +2791,7 @@ mod tests {
         // By day, deep in twilight and aloft: version 3's rows, θ = 90° (1 − (1 − x)²).
         // (Deep in twilight, −5°, the band 15–20° high: the horizontal kept dense for the glow
         // towards the sun, version 12.)
-        for (sun, h) in [(5.0, 0.0), (-8.0, 0.0), (-5.0, 5000.0), (-2.0, 30_000.0)] {
+        for (sun, h) in [(5.0, 0.0), (-8.0, 0.0), (-5.0, 5000.0), (-2.0, 45_000.0)] {
             let (c, k, w) = sky_row_focus(sun, h);
             assert_eq!(k, 0.0, "sun {sun}, h {h}");
             for n in 0..=10 {
@@ -2849,7 +2849,7 @@ mod tests {
             3.0
         );
         assert_eq!(
-            band_relative_elevation(3.0, -1.0, 30_000.0, cos(150.0), cos(180.0)),
+            band_relative_elevation(3.0, -1.0, 45_000.0, cos(150.0), cos(180.0)),
             3.0
         );
         assert_eq!(
@@ -2931,20 +2931,23 @@ mod tests {
 
     #[test]
     fn the_slices_are_read_relative_to_the_band() {
-        // The band's fit aloft: continuous at 10 km, 1.3 times the 10 km fit's at 20 km, held
-        // above; its depth held from 5 km up.
+        // The band's fit aloft: continuous at 10 km, 1.3 times the 10 km fit's at 20 km, growing
+        // by 0.025 of it per km to 40 km, held above; its depth held from 5 km up.
         let at = |h: f64| band_centre_deg(-1.0, h);
         assert!((at(10_000.0) - at(9_999.999)).abs() < 1e-5);
         assert!((at(20_000.0) / at(10_000.0) - 1.3).abs() < 1e-12);
-        assert_eq!(at(30_000.0), at(20_000.0));
+        assert!((at(30_000.0) / at(10_000.0) - 1.55).abs() < 1e-12);
+        assert_eq!(at(50_000.0), at(40_000.0));
         // The slices' map's band: the same up to 10 km, growing by 0.045 per km at 10 km and
-        // 0.015 at 20 km (1.1875 times the 10 km fit's at 15 km, 1.3 at 20 km), held above.
+        // 0.015 at 20 km (1.1875 times the 10 km fit's at 15 km, 1.3 at 20 km), by 0.015 to
+        // 40 km, held above.
         let slice = |h: f64| band_slice_centre_deg(-1.0, h);
         assert_eq!(slice(8000.0), at(8000.0));
         assert_eq!(slice(10_000.0), at(10_000.0));
         assert!((slice(15_000.0) / slice(10_000.0) - 1.1875).abs() < 1e-12);
         assert!((slice(20_000.0) / slice(10_000.0) - 1.3).abs() < 1e-12);
-        assert_eq!(slice(30_000.0), slice(20_000.0));
+        assert!((slice(30_000.0) / slice(10_000.0) - 1.45).abs() < 1e-12);
+        assert_eq!(slice(50_000.0), slice(40_000.0));
         assert_eq!(band_depth_deg(5000.0), 2.5);
         assert_eq!(band_depth_deg(15_000.0), 2.5);
         // The focus grows from 1 to 5 km, again from 5 to 8 km, and no further.
@@ -2982,7 +2985,7 @@ mod tests {
         // By day and aloft (no focus at the query): the identity.
         assert_eq!(band_slice_elevation(3.0, 8.0, 0.0, 7.5, 0.0, -1.0), 3.0);
         assert_eq!(
-            band_slice_elevation(3.0, -1.0, 30_000.0, -1.2, 27_000.0, -1.0),
+            band_slice_elevation(3.0, -1.0, 45_000.0, -1.2, 42_000.0, -1.0),
             3.0
         );
         // Low twilight at 5 km: the band opposite the sun at the query's sun and altitude
