@@ -25,8 +25,8 @@
 // (centre_aloft_altitude_m, a vec2), SV_BAND_CENTRE_TOP (vec2(centre_top_altitude_m,
 // centre_top_per_km)), SV_BAND_SLICE_ALOFT (slices_aloft_per_km, a vec2),
 // SV_BAND_SLICE_TOP (slices_top_per_km), SV_BAND_SLICE_THROUGH (slices_through_altitude_m, a
-// vec2), SV_BAND_SLICE_AZIMUTH
-// (slices_azimuth_altitude_m, a vec2), SV_BAND_DEPTH_TOP (depth_top_m), SV_BAND_FOCUS_ALOFT
+// vec2), SV_BAND_SLICE_AZIMUTH (slices_azimuth_altitude_m, a vec2), SV_BAND_DEPTH_TOP
+// (depth_top_m), SV_BAND_FOCUS_ALOFT
 // (focus_aloft), SV_BAND_FOCUS_ALOFT_ALTITUDE (focus_aloft_altitude_m, a vec2),
 // SV_BAND_FOCUS_PLACE_ALOFT (focus_place_aloft), SV_BAND_FOCUS_PLACE_ALTITUDE
 // (focus_place_altitude_m, a vec2), SV_BAND_FOCUS_HIGH (focus_high), SV_BAND_FOCUS_WIDTH_AZIMUTH
