@@ -877,23 +877,34 @@ fn skyview_the_earth_shadow_rising_at_low_altitude() {
 /// 10.37 %; version 10: grid 1.97 / 4.82 / 7.55 / 6.20 / 2.72 / 7.90 / 3.28 %; version 8: 3.39 /
 /// 16.4 / 34.4 / 44.0 / 29.2 / 91.3 / 56.6 %.)
 ///
-/// Seen from 22.5 and 25 km (above the sky rows' focus and the band maps, which fade out from
-/// 20–25 km, while the band 5–6° up opposite the sun is still sharp) far from the target, bounded
-/// at the measured + ~12 % (version 17): grid 14.11 % (sun −5°, zenith 85.5°, 150°), 47.42 % (−5°, 84.75°, 180°),
-/// dense 46.51 % (−4.75°, 85°, 180°), 69.62 % (−5°, 85°, 165°), 680 nm.
+/// Seen from 22.5, 25 and 30 km the sky rows' focus and the band maps reach 35–40 km, the band
+/// growing 0.025 per km (0.015 in the slices' map) from 20 to 40 km, and from 20–25 km up the
+/// slices' map fades in with −cos φ as the columns' map (version 19); bounded at the measured +
+/// ~12 %, and the dense check above the horizontal alone (the band; below it the limb, not yet
+/// followed there): grid 12.40 % (sun −4°, zenith 94.5°, 180°), 9.56 % (−4°, 94.75°, 180°),
+/// 40.49 % (−5°, 93.75°, 180°), dense 25.62 % (−4.5°, 94.5°, 165°), 38.17 % (−4.75°, 94.75°,
+/// 165°), 54.80 % (−4.75°, 95.25°, 165°), the limb; above the horizontal 3.52 % (−4.5°, 87.25°,
+/// 135°), 4.67 % (−4.75°, 88.25°, 120°), 6.28 % (−5.25°, 88.25°, 120°), 680 nm; 20 km grid / dense
+/// 1.99 / 4.55 % (the dense the sky 2.25° up 135° from the sun, sun −4.25°; 6.5–15 km unchanged).
+/// (Version 17 and 18, the focus and maps fading out from 20–25 km: 22.5 / 25 km grid 14.11 /
+/// 47.42 %, dense 46.51 / 69.62 %, the sky about 5° up 165–180° from the sun.)
 #[test]
 #[ignore = "builds a bundle (about 10 s of CPU): run with --ignored lut_skyview::"]
 fn skyview_the_earth_shadow_seen_aloft() {
     let f = fixture();
     let altitudes = [
-        6500.0, 8000.0, 9500.0, 11000.0, 12500.0, 15000.0, 20000.0, 22500.0, 25000.0,
+        6500.0, 8000.0, 9500.0, 11000.0, 12500.0, 15000.0, 20000.0, 22500.0, 25000.0, 30000.0,
     ];
-    // Measured worst per altitude (the order of `altitudes`): the grid, the dense check.
+    // Measured worst per altitude (the order of `altitudes`): the grid, the dense check, and the
+    // dense check above the horizontal alone (the band itself; below it the limb).
     let measured = [
-        0.0153, 0.0156, 0.0241, 0.0242, 0.0211, 0.0219, 0.0196, 0.1411, 0.4742,
+        0.0153, 0.0156, 0.0241, 0.0242, 0.0211, 0.0219, 0.0199, 0.1240, 0.0956, 0.4049,
     ];
     let measured_dense = [
-        0.0247, 0.0261, 0.0242, 0.0252, 0.0239, 0.0296, 0.0403, 0.4651, 0.5775,
+        0.0247, 0.0261, 0.0287, 0.0252, 0.0239, 0.0296, 0.0455, 0.4651, 0.5775, 0.5480,
+    ];
+    let measured_sky = [
+        0.0247, 0.0261, 0.0287, 0.0252, 0.0221, 0.0296, 0.0455, 0.0352, 0.0467, 0.0628,
     ];
     // Between the dense check's samples, 6.5–20 km (the order of `altitudes`).
     let measured_between = [0.0165, 0.0253, 0.0306, 0.0263, 0.0342, 0.0293, 0.0523];
@@ -906,21 +917,30 @@ fn skyview_the_earth_shadow_seen_aloft() {
         t.elapsed().as_secs_f64()
     );
     let mut failures = Vec::new();
-    for (((alt, (grid, dense)), m), md) in altitudes
+    for ((((alt, (grid, dense, sky)), m), md), ms) in altitudes
         .iter()
         .zip(&results)
         .zip(measured)
         .zip(measured_dense)
+        .zip(measured_sky)
     {
         eprintln!(
-            "skyview earth's shadow seen aloft, {:.1} km, sun -6..0 (target 3 %): grid {:.3} % {}; dense {:.3} % {}",
+            "skyview earth's shadow seen aloft, {:.1} km, sun -6..0 (target 3 %): grid {:.3} % {}; dense {:.3} % {}; above the horizontal {:.3} % {}",
             alt / 1e3,
             100.0 * grid.0,
             grid.1,
             100.0 * dense.0,
-            dense.1
+            dense.1,
+            100.0 * sky.0,
+            sky.1
         );
-        assert!(grid.0 > 0.0 && dense.0 > 0.0, "no sample at {alt} m");
+        assert!(
+            grid.0 > 0.0 && dense.0 > 0.0 && sky.0 > 0.0,
+            "no sample at {alt} m"
+        );
+        if sky.0 >= ms * 1.12 {
+            failures.push(format!("above the horizontal {alt} m: {} {}", sky.0, sky.1));
+        }
         if grid.0 >= m * 1.12 {
             failures.push(format!("grid {alt} m: {} {}", grid.0, grid.1));
         }
@@ -998,17 +1018,19 @@ fn shadow_between_errors(
 /// The earth's shadow seen aloft on [`shadow_grid_errors`]'s grid (sun −6…0° every 1°, 150° and
 /// 180° from the sun) and on the dense check around it (sun every 0.25°, 120–180° from the sun
 /// every 15°; the grid is a subset, so one `sky` product per altitude and sun serves both):
-/// per altitude the largest relative error and its case on each.
+/// per altitude the largest relative error and its case on each, and on the dense check above
+/// the horizontal.
 #[allow(clippy::type_complexity)]
 fn shadow_aloft_errors(
     f: &Fixture,
     reader: &SkyViewReader,
     altitudes_m: &[f64],
-) -> Vec<((f64, String), (f64, String))> {
+) -> Vec<((f64, String), (f64, String), (f64, String))> {
     let bottom = f.bundle.params.bottom_radius;
     let mut per_altitude = Vec::new();
     for &altitude in altitudes_m {
         let (mut grid, mut dense) = ((0.0f64, String::new()), (0.0f64, String::new()));
+        let mut sky = (0.0f64, String::new());
         let dip = (bottom / (bottom + altitude)).acos().to_degrees();
         let mut probes = Vec::new();
         for az in [120.0, 135.0, 150.0, 165.0, 180.0] {
@@ -1043,13 +1065,16 @@ fn shadow_aloft_errors(
                     if e > dense.0 {
                         dense = (e, case());
                     }
+                    if p.view_zenith_deg <= 90.0 && e > sky.0 {
+                        sky = (e, case());
+                    }
                     if on_grid && grid_az && e > grid.0 {
                         grid = (e, case());
                     }
                 }
             }
         }
-        per_altitude.push((grid, dense));
+        per_altitude.push((grid, dense, sky));
     }
     per_altitude
 }

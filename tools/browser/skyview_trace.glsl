@@ -171,7 +171,8 @@ void main() {
                                                    cos_cols, k, j, band_rows);
         T(h_n); T(s_n); T(band ? 1.0 : 0.0);
         if (band) {
-          T(SkyViewBandSlice(elevation, s_q, SkyViewBandWeight(s_q, h), h, s_n, h_n));
+          T(SkyViewBandSlice(elevation, s_q, SkyViewBandWeight(s_q, h), h, s_n, h_n,
+                             SkyViewCos(phi)));
           for (int m = 0; m < 4; ++m) {
             if (m >= sc.len) break;
             TS(band_rows[m]);

@@ -97,8 +97,11 @@ class LiveSky {
           !(band.focus_growth_altitude_m[0] < band.focus_growth_altitude_m[1]) ||
           !Number.isFinite(band.centre_aloft_per_km) || !numbers(band.centre_aloft_altitude_m, 2) ||
           !(band.centre_aloft_altitude_m[0] <= band.centre_aloft_altitude_m[1]) ||
+          !Number.isFinite(band.centre_top_per_km) || !Number.isFinite(band.centre_top_altitude_m) ||
           !numbers(band.slices_aloft_per_km, 2) || !numbers(band.slices_through_altitude_m, 2) ||
           !(band.slices_through_altitude_m[0] < band.slices_through_altitude_m[1]) ||
+          !numbers(band.slices_azimuth_altitude_m, 2) || !Number.isFinite(band.slices_top_per_km) ||
+          !(band.slices_azimuth_altitude_m[0] < band.slices_azimuth_altitude_m[1]) ||
           !(band.depth_top_m >= 0) || !(band.focus_aloft >= 0) ||
           !numbers(band.focus_aloft_altitude_m, 2) ||
           !(band.focus_aloft_altitude_m[0] < band.focus_aloft_altitude_m[1]) ||
@@ -141,8 +144,11 @@ class LiveSky {
         `#define SV_BAND_GROWTH_ALTITUDE vec2(${band.focus_growth_altitude_m.map(f).join(", ")})\n` +
         `#define SV_BAND_CENTRE_ALOFT ${f(band.centre_aloft_per_km)}\n` +
         `#define SV_BAND_CENTRE_ALOFT_ALTITUDE vec2(${band.centre_aloft_altitude_m.map(f).join(", ")})\n` +
+        `#define SV_BAND_CENTRE_TOP vec2(${f(band.centre_top_altitude_m)}, ${f(band.centre_top_per_km)})\n` +
         `#define SV_BAND_SLICE_ALOFT vec2(${band.slices_aloft_per_km.map(f).join(", ")})\n` +
         `#define SV_BAND_SLICE_THROUGH vec2(${band.slices_through_altitude_m.map(f).join(", ")})\n` +
+        `#define SV_BAND_SLICE_TOP ${f(band.slices_top_per_km)}\n` +
+        `#define SV_BAND_SLICE_AZIMUTH vec2(${band.slices_azimuth_altitude_m.map(f).join(", ")})\n` +
         `#define SV_BAND_DEPTH_TOP ${f(band.depth_top_m)}\n` +
         `#define SV_BAND_FOCUS_ALOFT ${f(band.focus_aloft)}\n` +
         `#define SV_BAND_FOCUS_ALOFT_ALTITUDE vec2(${band.focus_aloft_altitude_m.map(f).join(", ")})\n` +

@@ -22,8 +22,11 @@
 // (horizon_deg), SV_BAND_ANTISOLAR_RANGE (antisolar_range, a vec2), SV_BAND_GROWTH
 // (focus_growth), SV_BAND_GROWTH_ALTITUDE (focus_growth_altitude_m, a vec2),
 // SV_BAND_CENTRE_ALOFT (centre_aloft_per_km), SV_BAND_CENTRE_ALOFT_ALTITUDE
-// (centre_aloft_altitude_m, a vec2), SV_BAND_SLICE_ALOFT (slices_aloft_per_km, a vec2),
-// SV_BAND_SLICE_THROUGH (slices_through_altitude_m, a vec2), SV_BAND_DEPTH_TOP (depth_top_m), SV_BAND_FOCUS_ALOFT
+// (centre_aloft_altitude_m, a vec2), SV_BAND_CENTRE_TOP (vec2(centre_top_altitude_m,
+// centre_top_per_km)), SV_BAND_SLICE_ALOFT (slices_aloft_per_km, a vec2),
+// SV_BAND_SLICE_TOP (slices_top_per_km), SV_BAND_SLICE_THROUGH (slices_through_altitude_m, a
+// vec2), SV_BAND_SLICE_AZIMUTH (slices_azimuth_altitude_m, a vec2), SV_BAND_DEPTH_TOP
+// (depth_top_m), SV_BAND_FOCUS_ALOFT
 // (focus_aloft), SV_BAND_FOCUS_ALOFT_ALTITUDE (focus_aloft_altitude_m, a vec2),
 // SV_BAND_FOCUS_PLACE_ALOFT (focus_place_aloft), SV_BAND_FOCUS_PLACE_ALTITUDE
 // (focus_place_altitude_m, a vec2), SV_BAND_FOCUS_HIGH (focus_high), SV_BAND_FOCUS_WIDTH_AZIMUTH
@@ -447,6 +450,15 @@ float SkyViewBandWeight(float sun_deg, float h) {
       (1.0 - smoothstep(SV_BAND_ALTITUDE.x, SV_BAND_ALTITUDE.y, h));
 }
 
+// The band's further growth above SV_BAND_CENTRE_ALOFT_ALTITUDE.y (the reader's band_centre_top):
+// rate per km up to SV_BAND_CENTRE_TOP.x (rate SV_BAND_CENTRE_TOP.y, in the slices' map
+// SV_BAND_SLICE_TOP).
+float SkyViewBandCentreTop(float h, float rate) {
+  return rate *
+      clamp(h - SV_BAND_CENTRE_ALOFT_ALTITUDE.y, 0.0,
+            max(SV_BAND_CENTRE_TOP.x - SV_BAND_CENTRE_ALOFT_ALTITUDE.y, 0.0)) / 1000.0;
+}
+
 // The band's elevation (degrees) opposite the sun with the sun sun_deg above the observer's
 // horizon at altitude h (the reader's band_centre_deg).
 float SkyViewBandCentre(float sun_deg, float h) {
@@ -454,11 +466,13 @@ float SkyViewBandCentre(float sun_deg, float h) {
   float x = (SV_BAND_SUN - sun_deg) / SV_BAND_SUN_SOFT;
   float u = SV_BAND_SUN_SOFT * (max(x, 0.0) + log(1.0 + exp(-abs(x))));
   // The low fit up to SV_BAND_CENTRE_ALOFT_ALTITUDE.x, scaled by 1 + SV_BAND_CENTRE_ALOFT per km
-  // above it up to SV_BAND_CENTRE_ALOFT_ALTITUDE.y.
+  // above it up to SV_BAND_CENTRE_ALOFT_ALTITUDE.y, + SV_BAND_CENTRE_TOP.y per km above that up to
+  // SV_BAND_CENTRE_TOP.x.
   float km = clamp(h, 0.0, SV_BAND_CENTRE_ALOFT_ALTITUDE.x) / 1000.0;
   float aloft = 1.0 + SV_BAND_CENTRE_ALOFT *
       clamp(h - SV_BAND_CENTRE_ALOFT_ALTITUDE.x, 0.0,
-            SV_BAND_CENTRE_ALOFT_ALTITUDE.y - SV_BAND_CENTRE_ALOFT_ALTITUDE.x) / 1000.0;
+            SV_BAND_CENTRE_ALOFT_ALTITUDE.y - SV_BAND_CENTRE_ALOFT_ALTITUDE.x) / 1000.0 +
+      SkyViewBandCentreTop(h, SV_BAND_CENTRE_TOP.y);
   return min(((SV_BAND_CENTRE.x + SV_BAND_CENTRE.y * km) * u +
               (SV_BAND_CENTRE.z + SV_BAND_CENTRE.w * km) * u * u) * aloft, 45.0);
 }
@@ -634,21 +648,25 @@ SvStencil SkyViewBandRowStencil(float elevation_deg, float h, float c, float k, 
 // The band's elevation (degrees, over SV_BAND_ANTISOLAR) in the slices' map at the sun
 // coordinate sun_deg and altitude h (the reader's band_slice_centre_deg): SkyViewBandCentre's low
 // fit at min(h, SV_BAND_CENTRE_ALOFT_ALTITUDE.x) times 1 + a x + (b - a) x^2 / (2 L), x the km
-// above SV_BAND_CENTRE_ALOFT_ALTITUDE.x up to L, its span, (a, b) = SV_BAND_SLICE_ALOFT.
+// above SV_BAND_CENTRE_ALOFT_ALTITUDE.x up to L, its span, (a, b) = SV_BAND_SLICE_ALOFT, +
+// SkyViewBandCentreTop at SV_BAND_SLICE_TOP.
 float SkyViewBandSliceCentre(float sun_deg, float h) {
   float low = SkyViewBandCentre(sun_deg, min(h, SV_BAND_CENTRE_ALOFT_ALTITUDE.x));
   float l = max((SV_BAND_CENTRE_ALOFT_ALTITUDE.y - SV_BAND_CENTRE_ALOFT_ALTITUDE.x) / 1000.0, 1e-3);
   float a = clamp((h - SV_BAND_CENTRE_ALOFT_ALTITUDE.x) / 1000.0, 0.0, l);
   float g = 1.0 + SV_BAND_SLICE_ALOFT.x * a +
-      (SV_BAND_SLICE_ALOFT.y - SV_BAND_SLICE_ALOFT.x) * a * a / (2.0 * l);
+      (SV_BAND_SLICE_ALOFT.y - SV_BAND_SLICE_ALOFT.x) * a * a / (2.0 * l) +
+      SkyViewBandCentreTop(h, SV_BAND_SLICE_TOP);
   return min(low * g, 45.0);
 }
 
 // The elevation (degrees) at which the slice of sun coordinate s_n and altitude h_n is read for
 // a query at elevation_deg with the sun s_q and the maps' weight w_q (SkyViewBandWeight) at
-// altitude h (the reader's band_slice_elevation): affine about SV_BAND_DEPTH h below the
-// horizontal, the band (SkyViewBandSliceCentre) onto the band, faded as SkyViewBandRelative.
-float SkyViewBandSlice(float elevation_deg, float s_q, float w_q, float h, float s_n, float h_n) {
+// altitude h, azimuth cos_phi from the sun (the reader's band_slice_elevation): affine about
+// SV_BAND_DEPTH h below the horizontal, the band (SkyViewBandSliceCentre) onto the band, faded as
+// SkyViewBandRelative (aloft, SV_BAND_SLICE_AZIMUTH, also with -cos_phi).
+float SkyViewBandSlice(float elevation_deg, float s_q, float w_q, float h, float s_n, float h_n,
+                       float cos_phi) {
   float delta_q = SkyViewBandDepth(h);
   float delta_n = SkyViewBandDepth(h_n);
   float c = SkyViewBandSliceCentre(s_q, h);
@@ -660,7 +678,11 @@ float SkyViewBandSlice(float elevation_deg, float s_q, float w_q, float h, float
   float through = smoothstep(SV_BAND_SLICE_THROUGH.x, SV_BAND_SLICE_THROUGH.y, h);
   float horizon = smoothstep(0.0, SV_BAND_HORIZON, elevation_deg) * (1.0 - through) +
       (elevation_deg >= -delta_q ? through : 0.0);
-  float fade = w_q * (1.0 - smoothstep(2.0 * w, 4.0 * w, elevation_deg)) * horizon;
+  // Aloft faded in with -cos_phi over SV_BAND_ANTISOLAR_RANGE, as the columns' map.
+  float aloft = smoothstep(SV_BAND_SLICE_AZIMUTH.x, SV_BAND_SLICE_AZIMUTH.y, h);
+  float azimuth = 1.0 - aloft * (1.0 - smoothstep(SV_BAND_ANTISOLAR_RANGE.x,
+                                                  SV_BAND_ANTISOLAR_RANGE.y, -cos_phi));
+  float fade = w_q * (1.0 - smoothstep(2.0 * w, 4.0 * w, elevation_deg)) * horizon * azimuth;
   float mapped = (elevation_deg + delta_q) * height_n / height_q - delta_n;
   return elevation_deg + fade * (mapped - elevation_deg);
 }
@@ -736,7 +758,7 @@ bool SkyViewBandRows(float elevation_deg, float c, float k_q, float s_q, float h
   SkyViewBandFocus(s_n, h_n, c_n, k_n);
   float w_q = SkyViewBandWeight(s_q, h), w_n = SkyViewBandWeight(s_n, h_n);
   if (w_q < 1e-6 && w_n < 1e-6) return false;
-  float e_n = SkyViewBandSlice(elevation_deg, s_q, w_q, h, s_n, h_n);
+  float e_n = SkyViewBandSlice(elevation_deg, s_q, w_q, h, s_n, h_n, cos_phi);
   for (int m = 0; m < 4; ++m) {
     float e = SkyViewBandRelative(e_n, c_n, w_n, h_n, cos_phi, cos_cols[m]);
     rows[m] = SkyViewBandRowStencil(e, h, c_n, k_n, vec3(s_q, s_n, h_n));

@@ -186,7 +186,7 @@ fn main() {
                 let scale = bundle.scale.texel(j, k, 0);
                 // Per column m, the rows' stencil (the band's or the slice's limb rows).
                 let rows: [Stencil; 4] = if band {
-                    let e_n = band_slice_elevation(eps, s_deg, h, s_n, h_n);
+                    let e_n = band_slice_elevation(eps, s_deg, h, s_n, h_n, cos_phi);
                     print(&format!("{tag}_en"), &[e_n]);
                     std::array::from_fn(|m| {
                         let a = skybake_lut::skyview::column_texel(sc.first + m);

@@ -116,7 +116,10 @@ pub const LAYOUT: &str = "skyview";
 /// out of the sun stencil (`limb_sun_lowest`).
 /// 18: from 6.5–8 km up to 11–12.5 km the sky rows' focus is wide, from the antisolar band down to
 /// the band 140° from the sun, and 1.5 times as strong ([`sky_row_focus`]; texels change).
-pub const SKYVIEW_VERSION: &str = "18";
+/// 19: the sky rows' focus and the band maps kept up to 35–40 km, the band rising aloft, the
+/// slices' map faded in with the azimuth aloft (texels change); the columns continued by mirror
+/// images past the sun and the antisolar point, and the limb slices' horizon held longer.
+pub const SKYVIEW_VERSION: &str = "19";
 
 /// Altitude nodes of the base map ([`altitude_abscissa`], about (top − bottom) · (x / 27)²,
 /// denser near the top): its integers 0..=27.
@@ -508,16 +511,36 @@ pub fn band_centre_deg(sun_deg: f64, h: f64) -> f64 {
     let u = w * (x.max(0.0) + (-x.abs()).exp().ln_1p());
     let [h0, h1] = BAND_CENTRE_ALOFT_M;
     let km = (h / 1000.0).clamp(0.0, h0 / 1000.0);
-    let aloft = 1.0 + BAND_CENTRE_ALOFT * ((h - h0) / 1000.0).clamp(0.0, (h1 - h0) / 1000.0);
+    let aloft = 1.0
+        + BAND_CENTRE_ALOFT * ((h - h0) / 1000.0).clamp(0.0, (h1 - h0) / 1000.0)
+        + band_centre_top(h, BAND_CENTRE_TOP);
     let [a0, a1, a2, a3] = BAND_CENTRE;
     (((a0 + a1 * km) * u + (a2 + a3 * km) * u * u) * aloft).min(45.0)
 }
 
 /// The altitudes (m) between which [`band_centre_deg`] grows by [`BAND_CENTRE_ALOFT`] per km
-/// (below the first the low fit's altitude dependence, above the second held).
+/// (below the first the low fit's altitude dependence, above the second by [`BAND_CENTRE_TOP`]).
 pub const BAND_CENTRE_ALOFT_M: [f64; 2] = [10_000.0, 20_000.0];
 /// [`band_centre_deg`]'s growth per km between the altitudes of [`BAND_CENTRE_ALOFT_M`].
 pub const BAND_CENTRE_ALOFT: f64 = 0.03;
+/// The band's growth per km above the second altitude of [`BAND_CENTRE_ALOFT_M`] up to
+/// [`BAND_CENTRE_TOP_M`] (held above), in [`band_centre_deg`] and [`band_slice_centre_deg`] alike
+/// ([`band_centre_top`]). Measured on the `sky` product (680 nm, the elevation where ln L per
+/// metre rises fastest 180° from the sun, the sun at the observer's horizon): 5.2 / 5.5 / 5.8 /
+/// 6.3 / 6.7 / 7.2° seen from 20 / 22.5 / 25 / 30 / 35 / 40 km, about 0.025 per km of the fit's
+/// 1.3 at 20 km (held at 20 km: 5.0°).
+pub const BAND_CENTRE_TOP: f64 = 0.025;
+/// The altitude (m) up to which the band grows by [`BAND_CENTRE_TOP`] per km.
+pub const BAND_CENTRE_TOP_M: f64 = 40_000.0;
+
+/// The band's growth above the second altitude of [`BAND_CENTRE_ALOFT_M`] at altitude `h` (m):
+/// `rate` per km ([`BAND_CENTRE_TOP`] in [`band_centre_deg`], [`BAND_SLICE_TOP`] in
+/// [`band_slice_centre_deg`]) up to [`BAND_CENTRE_TOP_M`], added to their factors (both 1.3 at
+/// 20 km).
+pub fn band_centre_top(h: f64, rate: f64) -> f64 {
+    let h1 = BAND_CENTRE_ALOFT_M[1];
+    rate * ((h - h1) / 1000.0).clamp(0.0, (BAND_CENTRE_TOP_M - h1).max(0.0) / 1000.0)
+}
 
 /// The sun coordinate (degrees above the observer's horizon) at which the band of
 /// [`band_centre_deg`] reaches the horizontal.
@@ -546,9 +569,14 @@ pub const BAND_FOCUS: f64 = 14.0;
 /// 9.6 % at 5 km and 8.4 % at 20 km (−6°…−3.5°: 12.9 / 10.2 %), and the grids of the band
 /// itself (the earth's shadow rising and seen aloft) are unchanged.
 pub const BAND_SUN_RANGE: [f64; 4] = [-5.0, -3.0, 1.0, 5.0];
-/// Altitudes (m) between which the focus fades out (full below the first, none above the
-/// second).
-pub const BAND_ALTITUDE_M: [f64; 2] = [20_000.0, 25_000.0];
+/// Altitudes (m) between which the focus and the maps relative to the band fade out (full below
+/// the first, none above the second). Version 18: from 35–40 km (20–25 km before):
+/// seen from 20–40 km the band is as sharp as from 20 km (ln L per metre rises by 2.5–2.8 per
+/// degree of elevation 180° from the sun, the sun at the observer's horizon, 680 nm), and with
+/// the fade at 20–25 km the reader erred by up to 46.5 / 69.6 / 118 % seen from 22.5 / 25 /
+/// 30 km (the sky about 5–6° up 165–180° from the sun; at 22.5 km the rows +22 % alone, the
+/// 23.8 km node's rows +50 %, the altitude axis +11 %; at 25 km the columns +61 % alone).
+pub const BAND_ALTITUDE_M: [f64; 2] = [35_000.0, 40_000.0];
 /// The band's elevations (degrees, [`band_centre_deg`]) between which the focus fades out
 /// (full below the first, none above the second). The focus draws the rows towards the band
 /// and away from the horizontal (the last sky row 0.5–1.2° up instead of 0.2° with the band
@@ -715,7 +743,8 @@ pub const BAND_SLICE_ALOFT: [f64; 2] = [0.045, 0.015];
 /// `h` (m): [`band_centre_deg`]'s low fit at min(h, h₀) times
 /// g = 1 + a x + (b − a) x² / (2 L), x = h − h₀ in km up to L = h₁ − h₀
 /// ((h₀, h₁) = [`BAND_CENTRE_ALOFT_M`], (a, b) = [`BAND_SLICE_ALOFT`]): the growth per km a at
-/// h₀ falling linearly to b at h₁, where g = 1.3 as in [`band_centre_deg`]. From 10 to 15 km
+/// h₀ falling linearly to b at h₁, where g = 1.3 as in [`band_centre_deg`], and above h₁
+/// [`band_centre_top`] (as in [`band_centre_deg`]). From 10 to 15 km
 /// the band seen opposite the sun rises faster with the observer's altitude than that fit's
 /// growth of 0.03 per km (within 0.05° of this growth); from 17 km up it lies up to 0.2° above
 /// both, but the altitude nodes read there with a faster growth err more at 20 km
@@ -726,7 +755,7 @@ pub fn band_slice_centre_deg(sun_deg: f64, h: f64) -> f64 {
     let [a, b] = BAND_SLICE_ALOFT;
     let l = ((h1 - h0) / 1000.0).max(1e-3);
     let x = ((h - h0) / 1000.0).clamp(0.0, l);
-    let g = 1.0 + a * x + (b - a) * x * x / (2.0 * l);
+    let g = 1.0 + a * x + (b - a) * x * x / (2.0 * l) + band_centre_top(h, BAND_SLICE_TOP);
     (band_centre_deg(sun_deg, h.min(h0)) * g).min(45.0)
 }
 
@@ -737,6 +766,16 @@ pub fn band_slice_centre_deg(sun_deg: f64, h: f64) -> f64 {
 /// sun 1.1–1.3° above the observer's horizon, between sun nodes 0.5° apart, where the map was
 /// the identity (the sun nodes alone −2.7…−4.3 %).
 pub const BAND_SLICE_THROUGH_M: [f64; 2] = [5_000.0, 8_000.0];
+
+/// The band's growth per km in the slices' map ([`band_slice_centre_deg`]) above the second
+/// altitude of [`BAND_CENTRE_ALOFT_M`] up to [`BAND_CENTRE_TOP_M`] (the sky rows' focus and the
+/// columns' map: [`BAND_CENTRE_TOP`]).
+pub const BAND_SLICE_TOP: f64 = 0.015;
+
+/// The query's altitudes (m) between which the slices' map ([`band_slice_elevation`]) comes to
+/// be faded in with the query's −cos φ over [`BAND_ANTISOLAR_RANGE`], as the columns' map
+/// ([`band_relative_elevation`]; below them it acts at every azimuth).
+pub const BAND_SLICE_AZIMUTH_M: [f64; 2] = [20_000.0, 25_000.0];
 
 /// The elevation (degrees) at which a slice of sun node `sun_n` (its sun coordinate, degrees
 /// above the observer's horizon) and altitude node `h_n` (m) is read for a query at elevation
@@ -753,7 +792,14 @@ pub const BAND_SLICE_THROUGH_M: [f64; 2] = [5_000.0, 8_000.0];
 /// Faded to the identity as [`band_relative_elevation`]: with the query's [`band_map_weight`], above 2–4
 /// times the band's height and below [`BAND_HORIZON_DEG`] (the horizontal, where the sky rows
 /// meet the limb rows), or aloft below −δ ([`BAND_SLICE_THROUGH_M`]).
-pub fn band_slice_elevation(eps: f64, sun_q: f64, h_q: f64, sun_n: f64, h_n: f64) -> f64 {
+pub fn band_slice_elevation(
+    eps: f64,
+    sun_q: f64,
+    h_q: f64,
+    sun_n: f64,
+    h_n: f64,
+    cos_phi: f64,
+) -> f64 {
     let c_q = band_slice_centre_deg(sun_q, h_q);
     let w_q = band_map_weight(sun_q, h_q);
     if w_q < 1e-6 {
@@ -769,7 +815,11 @@ pub fn band_slice_elevation(eps: f64, sun_q: f64, h_q: f64, sun_n: f64, h_n: f64
     let through = smoothstep(a0, a1, h_q);
     let horizon = smoothstep(0.0, BAND_HORIZON_DEG, eps) * (1.0 - through)
         + band_horizon_taper(eps, d_q) * through;
-    let fade = w_q * (1.0 - smoothstep(2.0 * w, 4.0 * w, eps)) * horizon;
+    // Aloft faded in with the query's −cos φ, as the columns' map ([`BAND_SLICE_AZIMUTH_M`]).
+    let (lo, hi) = BAND_ANTISOLAR_RANGE;
+    let [z0, z1] = BAND_SLICE_AZIMUTH_M;
+    let azimuth = 1.0 - smoothstep(z0, z1, h_q) * (1.0 - smoothstep(lo, hi, -cos_phi));
+    let fade = w_q * (1.0 - smoothstep(2.0 * w, 4.0 * w, eps)) * horizon * azimuth;
     let mapped = (eps + d_q) * height_n / height_q - d_n;
     eps + fade * (mapped - eps)
 }
@@ -1066,7 +1116,10 @@ pub const LIMB_BAND_MAX_FRACTION: f64 = 0.95;
 /// shadow seen from 15–20 km unchanged, 17.5 km 8.72 % either way).
 pub const LIMB_BAND_HORIZON_HELD: [f64; 2] = [0.65, 0.9];
 /// The altitudes (m) between which the limb rows' focus fades in (the first two) and out (the
-/// last two).
+/// last two). (Out from 25–30 km instead: the limb seen from 22.5 / 25 / 30 km on the dense
+/// check of the earth's shadow 25.6 / 38.2 / 54.8 → 7.7 / 23.8 / 54.6 %, but the random samples
+/// of the sun −6…5° from 20–100 km 2.94 → 19.6 %: 23.3 km, sun −5.19°, 0.08° below the
+/// horizontal 29° from the sun, 550 nm; docs/lut.md, "Tried and not kept".)
 pub const LIMB_BAND_ALTITUDE_M: [f64; 4] = [6_000.0, 9_000.0, 20_000.0, 25_000.0];
 
 /// The limb rows' focus at sun coordinate `sun_deg` (degrees, [`sun_shift`]) and altitude `h`
@@ -1266,7 +1319,7 @@ pub fn sun_warp_centre(h: f64, bottom: f64, top: f64, seg: usize, cos_phi: f64) 
 pub const SUN_WARP_CENTRE: f64 = 1.0;
 
 /// The altitudes (m) between which the twilight warp's centre fades in ([`sun_warp_centre`]):
-/// above those where the sky rows' and the limb rows' band maps act (below 25 km, whose slices
+/// above those where the sky rows' and the limb rows' band maps act (below 40 km, whose slices
 /// then keep the warp centred at 0), and above the nodes a query at 30 km reads (from
 /// 30–50 km the sky 30 km up 58° from the sun, sun −3.6°, went 2.91 → 2.93 %).
 pub const SUN_WARP_CENTRE_ALTITUDE_M: [f64; 2] = [40_000.0, 60_000.0];
@@ -2053,13 +2106,13 @@ impl<'a> SkyViewReader<'a> {
         let p = &self.bundle.params;
         let thickness = p.top_radius - p.bottom_radius;
         let h_n = altitude_node_m(k, thickness);
-        // (The band maps act below 25 km, where the warp's centre is 0.)
+        // (The band maps act below 40 km, where the warp's centre is 0.)
         let s_n = sun_warp(sun_node_deg(j), warp_strength(h_n, thickness), 0.0);
         let focus_n = sky_row_focus(s_n, h_n);
         if band_map_weight(s_deg, h) < 1e-6 && band_map_weight(s_n, h_n) < 1e-6 {
             return None;
         }
-        let e_n = band_slice_elevation(eps, s_deg, h, s_n, h_n);
+        let e_n = band_slice_elevation(eps, s_deg, h, s_n, h_n, cos_phi);
         Some(std::array::from_fn(|m| {
             let a = column_texel(sc.first + m);
             // The column's azimuth: the query's altitude's where the node is read at the
@@ -2427,7 +2480,7 @@ pub const STATED_ERRORS: &[(&str, &str, f64)] = &[
     ("rayleigh+mie", "sky radiance (sky product), sun -6..5 deg, 8-12.5 km (the limb 0.2 deg above the horizon 142.5 deg from the sun, 680 nm at 12.5 km, sun -3.125 deg, between the dense check's samples; on them 2.5 % at 11 km, 3.1 % between them at 9.5 km; the twilight glow towards the sun at most 3 %)", 0.035),
     ("rayleigh+mie", "sky radiance (sky product), sun -6..5 deg, 12.5-20 km (the limb 0.5 deg above the horizon 165 deg from the sun, 680 nm at 17.5 km, sun -3.75 deg, the dense check; at 20 km 4.0 % on the dense check, 5.2 % between its samples; the twilight glow towards the sun at most 3 %)", 0.088),
     ("rayleigh+mie", "sky radiance (sky product), sun -6..0 deg, 0-5 km, views within 10 deg of the horizon 150-180 deg from the sun (the earth's shadow rising; 680 nm at 2.5 km)", 0.022),
-    ("rayleigh+mie", "sky radiance (sky product), sun -6..5 deg, 20-100 km (random samples: 3.0 %, the sky just above the horizontal at 30 km, 440 nm; but the band above the earth's shadow seen from 20-40 km, 5-6.5 deg above the horizontal 165-180 deg from the sun and the limb just above the horizon opposite the sun, up to 197 %: 35 km, sun -6 deg, 6.5 deg up opposite the sun, 680 nm; 148 % at 40 km, 118 % at 30 km, 70 % at 25 km, 46 % at 22.5 km)", 2.2),
+    ("rayleigh+mie", "sky radiance (sky product), sun -6..5 deg, 20-100 km (random samples: 2.9 %, the limb at 48 km, 680 nm; but the limb just above the horizon 150-180 deg from the sun seen from 22.5-40 km, up to 166 %: 35 km, sun -5.5 deg, 0.25 deg above the horizon opposite the sun, 680 nm; 148 % at 40 km, 55 % at 30 km, 38 % at 25 km, 26 % at 22.5 km; the band above the earth's shadow above the horizontal at most 9.2 %: 40 km, 7.7 % at 35 km, 6.3 % at 30 km, 4.7 % at 25 km, 3.5 % at 22.5 km)", 1.8),
     ("rayleigh+mie", "sky radiance (sky product), sun -12..-6 deg, ground", 0.033),
     ("rayleigh+mie", "sky radiance (sky product), sun -12..-6 deg, 0-20 km (the twilight glow towards the sun near the horizontal: 9.2 % at 5 km, sun -12 deg, 0.25 deg above the horizontal 30 deg from the sun, 680 nm)", 0.092),
     ("rayleigh+mie", "sky radiance (sky product), sun -12..-6 deg, 20-100 km (the sky 4.3 deg above the horizontal 88 deg from the sun, 680 nm at 30.8 km)", 0.088),
@@ -2481,8 +2534,12 @@ pub fn manifest(
         "depth_top_m": BAND_DEPTH_TOP_M,
         "centre_aloft_per_km": BAND_CENTRE_ALOFT,
         "centre_aloft_altitude_m": BAND_CENTRE_ALOFT_M,
+        "centre_top_per_km": BAND_CENTRE_TOP,
+        "centre_top_altitude_m": BAND_CENTRE_TOP_M,
         "slices_aloft_per_km": BAND_SLICE_ALOFT,
         "slices_through_altitude_m": BAND_SLICE_THROUGH_M,
+        "slices_top_per_km": BAND_SLICE_TOP,
+        "slices_azimuth_altitude_m": BAND_SLICE_AZIMUTH_M,
         "horizon_deg": BAND_HORIZON_DEG,
         "antisolar_range": [BAND_ANTISOLAR_RANGE.0, BAND_ANTISOLAR_RANGE.1],
         "focus_growth": BAND_FOCUS_GROWTH,
@@ -2499,9 +2556,9 @@ pub fn manifest(
         "sun_soft_deg": BAND_SUN_SOFT_DEG,
         "azimuth_depth_aloft_deg": BAND_AZIMUTH_DEPTH_ALOFT,
         "azimuth_depth_aloft_altitude_m": BAND_AZIMUTH_DEPTH_ALOFT_M,
-        "slices": "on the sky rows, each (altitude node k, sun node j) slice of the interpolation is read on its own rows (the focus (c_n, k_n) at the node's sun coordinate s_n = the warped s_j at h_k and its altitude h_n = altitude_nodes_m[k]) where the query's or the slice's k > 0: at e_n = e + f (1 - smoothstep(2 w, 4 w, e)) (smoothstep(0, horizon_deg, e) (1 - t) + step(-delta_q, e) t) ((e + delta_q) H_n / H_q - delta_n - e), t = smoothstep(slices_through_altitude_m[0], slices_through_altitude_m[1], h) (version 16; an e_n below 0 read on the limb rows as the azimuth formula's e_a), H = max(c_s antisolar + delta, 0.1) at the query's (s, h) and the node's (s_n, h_n), c_s the formula's c with its factor aloft replaced by 1 + a x + (b - a) x^2 / (2 L), x = clamp(h - centre_aloft_altitude_m[0], 0, L) / 1000, L = max((centre_aloft_altitude_m[1] - centre_aloft_altitude_m[0]) / 1000, 1e-3), [a, b] = slices_aloft_per_km (version 16), delta = depth_deg_per_km clamp(h, 0, depth_top_m) / 1000, w = max(H_q, 0.5), f = k / (focus (1 + focus_growth smoothstep(focus_growth_altitude_m[0], focus_growth_altitude_m[1], h)) (1 + focus_aloft smoothstep(focus_aloft_altitude_m[0], focus_aloft_altitude_m[1], h))) the query's fade (0 where k = 0), then each column at the azimuth formula's e_a with (c_n, k_n, h_n) in place of the query's",
+        "slices": "on the sky rows, each (altitude node k, sun node j) slice of the interpolation is read on its own rows (the focus (c_n, k_n) at the node's sun coordinate s_n = the warped s_j at h_k and its altitude h_n = altitude_nodes_m[k]) where the query's or the slice's k > 0: at e_n = e + f (1 - smoothstep(2 w, 4 w, e)) (smoothstep(0, horizon_deg, e) (1 - t) + step(-delta_q, e) t) ((e + delta_q) H_n / H_q - delta_n - e) (1 - smoothstep(slices_azimuth_altitude_m[0], slices_azimuth_altitude_m[1], h) (1 - smoothstep(antisolar_range[0], antisolar_range[1], -cos phi))) (version 19: faded in with -cos phi aloft), t = smoothstep(slices_through_altitude_m[0], slices_through_altitude_m[1], h) (version 16; an e_n below 0 read on the limb rows as the azimuth formula's e_a), H = max(c_s antisolar + delta, 0.1) at the query's (s, h) and the node's (s_n, h_n), c_s the formula's c with its factor aloft replaced by 1 + a x + (b - a) x^2 / (2 L) + slices_top_per_km T (T as in the formula; version 19), x = clamp(h - centre_aloft_altitude_m[0], 0, L) / 1000, L = max((centre_aloft_altitude_m[1] - centre_aloft_altitude_m[0]) / 1000, 1e-3), [a, b] = slices_aloft_per_km (version 16), delta = depth_deg_per_km clamp(h, 0, depth_top_m) / 1000, w = max(H_q, 0.5), f = k / (focus (1 + focus_growth smoothstep(focus_growth_altitude_m[0], focus_growth_altitude_m[1], h)) (1 + focus_aloft smoothstep(focus_aloft_altitude_m[0], focus_aloft_altitude_m[1], h))) the query's fade (0 where k = 0), then each column at the azimuth formula's e_a with (c_n, k_n, h_n) in place of the query's",
         "azimuth": "on the sky rows and the limb rows where k > 0 each azimuth column a of the interpolation is read at its own elevation e_a (its own rows' stencil): d = depth_deg_per_km clamp(h, 0, depth_top_m) / 1000, delta = d + (azimuth_depth_aloft_deg - d) smoothstep(azimuth_depth_aloft_altitude_m[0], azimuth_depth_aloft_altitude_m[1], h) (version 12), w = max(c antisolar + delta, 0.5), ratio = max(-cos phi_a, antisolar_range[0]) / max(-cos phi, antisolar_range[0]), e_a = e + (k / (focus (1 + focus_growth smoothstep(focus_growth_altitude_m[0], focus_growth_altitude_m[1], h)) (1 + focus_aloft smoothstep(focus_aloft_altitude_m[0], focus_aloft_altitude_m[1], h)))) (1 - smoothstep(2 w, 4 w, e)) step(-delta, e) smoothstep(antisolar_range[0], antisolar_range[1], -cos phi) (e + delta) (ratio - 1) (version 7: from -delta up through the horizontal, where version 6 had smoothstep(0, horizon_deg, e)), e the query's elevation (deg), phi its azimuth from the sun, phi_a the column's in the slice (azimuth_nodes_rad[k][a], the slice's altitude node k; version 12: at the query's altitude h); where e_a >= 0 the column is read on the sky rows, below on the limb rows at the query's altitude h (depth y = 2 r sin^2(e_a / 2) / h); the band above the earth's shadow lies at (c antisolar + delta)(-cos phi) - delta",
-        "formula": "the sky rows' focus at the sun's elevation s above the observer's horizon (deg) and altitude h (m): u = sun_soft_deg ln(1 + exp((sun_deg - s) / sun_soft_deg)) (version 14: max(sun_deg - s, 0)), km = clamp(h, 0, centre_aloft_altitude_m[0]) / 1000, c = min(((centre[0] + centre[1] km) u + (centre[2] + centre[3] km) u^2) (1 + centre_aloft_per_km clamp(h - centre_aloft_altitude_m[0], 0, centre_aloft_altitude_m[1] - centre_aloft_altitude_m[0]) / 1000), 45) (deg, the band's elevation: the maps' c), the rows' focus at c_f = c (q + (focus_place_aloft antisolar - q) v), q = 1 + (focus_place_aloft antisolar - 1) a (x_c = 1 - sqrt(c_f / 90); version 15), l = 1 - smoothstep(centre_range_deg[0], centre_range_deg[1], c), a = l smoothstep(focus_place_altitude_m[0], focus_place_altitude_m[1], h), v = l smoothstep(focus_width_altitude_m[0], focus_width_altitude_m[1], h) (1 - smoothstep(focus_width_altitude_m[2], focus_width_altitude_m[3], h)) (version 18), k = smoothstep(sun_range_deg[0], sun_range_deg[1], s) (1 - smoothstep(sun_range_deg[2], sun_range_deg[3], s)) (1 - smoothstep(altitude_range_m[0], altitude_range_m[1], h)) (l (1 + focus_high a) + centre_floor (1 - l)) focus (1 + focus_growth smoothstep(focus_growth_altitude_m[0], focus_growth_altitude_m[1], h)) (1 + focus_aloft smoothstep(focus_aloft_altitude_m[0], focus_aloft_altitude_m[1], h)) (1 + focus_wide v), the focus's width w = v max(x0(e_w) - x_c, 0) (x0(e) = 1 - sqrt(e / 90), e_w = max((c antisolar + delta) focus_width_azimuth_cos - delta, focus_width_floor_deg), delta the azimuth formula's; version 18), smoothstep(a, b, x) = t^2 (3 - 2 t), t = clamp((x - a) / (b - a), 0, 1)",
+        "formula": "the sky rows' focus at the sun's elevation s above the observer's horizon (deg) and altitude h (m): u = sun_soft_deg ln(1 + exp((sun_deg - s) / sun_soft_deg)) (version 14: max(sun_deg - s, 0)), km = clamp(h, 0, centre_aloft_altitude_m[0]) / 1000, c = min(((centre[0] + centre[1] km) u + (centre[2] + centre[3] km) u^2) (1 + centre_aloft_per_km clamp(h - centre_aloft_altitude_m[0], 0, centre_aloft_altitude_m[1] - centre_aloft_altitude_m[0]) / 1000 + centre_top_per_km T), 45), T = clamp(h - centre_aloft_altitude_m[1], 0, max(centre_top_altitude_m - centre_aloft_altitude_m[1], 0)) / 1000 (version 19) (deg, the band's elevation: the maps' c), the rows' focus at c_f = c (q + (focus_place_aloft antisolar - q) v), q = 1 + (focus_place_aloft antisolar - 1) a (x_c = 1 - sqrt(c_f / 90); version 15), l = 1 - smoothstep(centre_range_deg[0], centre_range_deg[1], c), a = l smoothstep(focus_place_altitude_m[0], focus_place_altitude_m[1], h), v = l smoothstep(focus_width_altitude_m[0], focus_width_altitude_m[1], h) (1 - smoothstep(focus_width_altitude_m[2], focus_width_altitude_m[3], h)) (version 18), k = smoothstep(sun_range_deg[0], sun_range_deg[1], s) (1 - smoothstep(sun_range_deg[2], sun_range_deg[3], s)) (1 - smoothstep(altitude_range_m[0], altitude_range_m[1], h)) (l (1 + focus_high a) + centre_floor (1 - l)) focus (1 + focus_growth smoothstep(focus_growth_altitude_m[0], focus_growth_altitude_m[1], h)) (1 + focus_aloft smoothstep(focus_aloft_altitude_m[0], focus_aloft_altitude_m[1], h)) (1 + focus_wide v), the focus's width w = v max(x0(e_w) - x_c, 0) (x0(e) = 1 - sqrt(e / 90), e_w = max((c antisolar + delta) focus_width_azimuth_cos - delta, focus_width_floor_deg), delta the azimuth formula's; version 18), smoothstep(a, b, x) = t^2 (3 - 2 t), t = clamp((x - a) / (b - a), 0, 1)",
     });
     json!({
         "format": LAYOUT,
@@ -2804,7 +2861,7 @@ mod tests {
         // By day, deep in twilight and aloft: version 3's rows, θ = 90° (1 − (1 − x)²).
         // (Deep in twilight, −5°, the band 15–20° high: the horizontal kept dense for the glow
         // towards the sun, version 12.)
-        for (sun, h) in [(5.0, 0.0), (-8.0, 0.0), (-5.0, 5000.0), (-2.0, 30_000.0)] {
+        for (sun, h) in [(5.0, 0.0), (-8.0, 0.0), (-5.0, 5000.0), (-2.0, 45_000.0)] {
             let (c, k, w) = sky_row_focus(sun, h);
             assert_eq!(k, 0.0, "sun {sun}, h {h}");
             for n in 0..=10 {
@@ -2862,7 +2919,7 @@ mod tests {
             3.0
         );
         assert_eq!(
-            band_relative_elevation(3.0, -1.0, 30_000.0, cos(150.0), cos(180.0)),
+            band_relative_elevation(3.0, -1.0, 45_000.0, cos(150.0), cos(180.0)),
             3.0
         );
         assert_eq!(
@@ -2944,20 +3001,23 @@ mod tests {
 
     #[test]
     fn the_slices_are_read_relative_to_the_band() {
-        // The band's fit aloft: continuous at 10 km, 1.3 times the 10 km fit's at 20 km, held
-        // above; its depth held from 5 km up.
+        // The band's fit aloft: continuous at 10 km, 1.3 times the 10 km fit's at 20 km, growing
+        // by 0.025 of it per km to 40 km, held above; its depth held from 5 km up.
         let at = |h: f64| band_centre_deg(-1.0, h);
         assert!((at(10_000.0) - at(9_999.999)).abs() < 1e-5);
         assert!((at(20_000.0) / at(10_000.0) - 1.3).abs() < 1e-12);
-        assert_eq!(at(30_000.0), at(20_000.0));
+        assert!((at(30_000.0) / at(10_000.0) - 1.55).abs() < 1e-12);
+        assert_eq!(at(50_000.0), at(40_000.0));
         // The slices' map's band: the same up to 10 km, growing by 0.045 per km at 10 km and
-        // 0.015 at 20 km (1.1875 times the 10 km fit's at 15 km, 1.3 at 20 km), held above.
+        // 0.015 at 20 km (1.1875 times the 10 km fit's at 15 km, 1.3 at 20 km), by 0.015 to
+        // 40 km, held above.
         let slice = |h: f64| band_slice_centre_deg(-1.0, h);
         assert_eq!(slice(8000.0), at(8000.0));
         assert_eq!(slice(10_000.0), at(10_000.0));
         assert!((slice(15_000.0) / slice(10_000.0) - 1.1875).abs() < 1e-12);
         assert!((slice(20_000.0) / slice(10_000.0) - 1.3).abs() < 1e-12);
-        assert_eq!(slice(30_000.0), slice(20_000.0));
+        assert!((slice(30_000.0) / slice(10_000.0) - 1.45).abs() < 1e-12);
+        assert_eq!(slice(50_000.0), slice(40_000.0));
         assert_eq!(band_depth_deg(5000.0), 2.5);
         assert_eq!(band_depth_deg(15_000.0), 2.5);
         // The focus grows from 1 to 5 km, again from 5 to 8 km, and no further.
@@ -2993,9 +3053,9 @@ mod tests {
             assert!((k - BAND_CENTRE_FLOOR * full).abs() < 1e-9, "{h}: {k}");
         }
         // By day and aloft (no focus at the query): the identity.
-        assert_eq!(band_slice_elevation(3.0, 8.0, 0.0, 7.5, 0.0), 3.0);
+        assert_eq!(band_slice_elevation(3.0, 8.0, 0.0, 7.5, 0.0, -1.0), 3.0);
         assert_eq!(
-            band_slice_elevation(3.0, -1.0, 30_000.0, -1.2, 27_000.0),
+            band_slice_elevation(3.0, -1.0, 45_000.0, -1.2, 42_000.0, -1.0),
             3.0
         );
         // Low twilight at 5 km: the band opposite the sun at the query's sun and altitude
@@ -3009,7 +3069,7 @@ mod tests {
             (0.0, 3435.0),
             (0.2, 6750.0),
         ] {
-            let got = band_slice_elevation(band(sun, h), sun, h, s_n, h_n);
+            let got = band_slice_elevation(band(sun, h), sun, h, s_n, h_n, -1.0);
             assert!(
                 (got - band(s_n, h_n)).abs() < 1e-9,
                 "{s_n} {h_n}: {got} vs {}",
@@ -3018,20 +3078,33 @@ mod tests {
         }
         // Aloft the slices' band ([`band_slice_centre_deg`]) lands on the node's.
         let band_s = |s: f64, h: f64| band_slice_centre_deg(s, h) * BAND_ANTISOLAR;
-        let got = band_slice_elevation(band_s(0.1, 12_000.0), 0.1, 12_000.0, 0.1, 15_340.0);
+        let got = band_slice_elevation(band_s(0.1, 12_000.0), 0.1, 12_000.0, 0.1, 15_340.0, -1.0);
         assert!((got - band_s(0.1, 15_340.0)).abs() < 1e-9, "{got}");
         assert!((band_s(0.1, 15_340.0) - band(0.1, 15_340.0)).abs() > 0.1);
-        assert_eq!(band_slice_elevation(0.0, sun, h, -1.25, 5000.0), 0.0);
+        assert_eq!(band_slice_elevation(0.0, sun, h, -1.25, 5000.0, -1.0), 0.0);
         // From 8 km up the map acts from −δ (2.5°) up through the horizontal.
-        assert!(band_slice_elevation(0.0, 0.5, 15_000.0, 0.75, 15_000.0).abs() > 0.1);
-        assert!((band_slice_elevation(-2.5, 0.5, 15_000.0, 0.75, 15_000.0) + 2.5).abs() < 1e-12);
+        assert!(band_slice_elevation(0.0, 0.5, 15_000.0, 0.75, 15_000.0, -1.0).abs() > 0.1);
+        assert!(
+            (band_slice_elevation(-2.5, 0.5, 15_000.0, 0.75, 15_000.0, -1.0) + 2.5).abs() < 1e-12
+        );
         assert_eq!(
-            band_slice_elevation(-2.6, 0.5, 15_000.0, 0.75, 15_000.0),
+            band_slice_elevation(-2.6, 0.5, 15_000.0, 0.75, 15_000.0, -1.0),
             -2.6
         );
-        assert_eq!(band_slice_elevation(60.0, sun, h, -1.25, 5000.0), 60.0);
+        assert_eq!(
+            band_slice_elevation(60.0, sun, h, -1.25, 5000.0, -1.0),
+            60.0
+        );
         // At the ground after sunset (no band height): finite.
-        assert!(band_slice_elevation(1.0, 3.0, 0.0, 2.5, 0.0).is_finite());
+        assert!(band_slice_elevation(1.0, 3.0, 0.0, 2.5, 0.0, -1.0).is_finite());
+        // From 20–25 km up faded in with −cos φ as the columns' map: towards the sun the
+        // identity, opposite it and below 20 km at every azimuth not.
+        let map = |h: f64, h_n: f64, cos_phi: f64| {
+            band_slice_elevation(3.0, 0.2, h, 0.4, h_n, cos_phi) - 3.0
+        };
+        assert_eq!(map(25_000.0, 23_840.0, 0.9), 0.0);
+        assert!(map(25_000.0, 23_840.0, -1.0).abs() > 0.01);
+        assert!(map(15_000.0, 15_340.0, 0.9).abs() > 0.01);
     }
 
     #[test]
