@@ -487,14 +487,16 @@ fn fast_cloud_matches_mitsuba_every_side() {
         // field alone 5.3 % / −2.4 % (4.9 % / −1.1 % with the cells weighted by their
         // densities, whose thin edges' excess offset the first orders' deficit; 6.1 % / +1.0 %
         // before the peak's last scattering was seen through the true extinction).
-        // 3.87 % / +0.32 % with the peak's turned light gathered (`march/turned.rs`).
+        // 3.87 % / +0.32 % with the peak's turned light gathered (`march/turned.rs`); 3.46 % /
+        // −0.62 % with the spread beam's longer paths taken out (`peak`; over 8 photon seeds −0.59 %).
         ("sun_back35", "cloud_mitsuba_mask.npy", 0.05, 0.015),
         // 4.5 % / +0.6 % (the field alone 4.3 % / +0.2 %; 4.5 % / +1.2 % density-weighted; 36.2 % / +25.8 % before: TMS counted the light scattered only within
         // the truncated peak once per peak scattering; docs/frames.md). The target
         // (5 %, 2 %) with a margin for the photon field.
         // 4.16 % / +1.27 % with the peak's turned light gathered; 3.51 % / +0.83 % with the
         // sun's once-scattered light through the true medium; 3.54 % / +1.32 % seen through the
-        // halfway kernel (over 4 photon seeds +1.16 %, raw).
+        // halfway kernel (over 4 photon seeds +1.16 %, raw); 3.00 % / +0.02 % with the spread
+        // beam's longer paths taken out (`peak`; over 8 photon seeds 2.70 % / −0.40 %, worst −0.94 %).
         ("sun_back20", "cloud_mitsuba_mask.npy", 0.055, 0.02),
         // 2.3 % / +0.4 % (the field alone 2.8 % / −1.1 %; 2.8 % / −1.0 % density-weighted; 3.6 % / −2.1 % before the peak's part).
         // 1.11 % / +0.20 % with the peak's turned light gathered.
@@ -511,7 +513,8 @@ fn fast_cloud_matches_mitsuba_every_side() {
         // 5.18 % / +1.12 % with the peak's turned light gathered; 4.70 % / +1.67 % with the
         // sun's once-scattered light through the true medium (`multiple/once.rs`); 3.90 % / +0.30 %
         // seen through the halfway kernel (over 4 photon seeds 6.07 % / +1.21 % raw, seeds up to
-        // +1.7 %; +2.19 % through p*_l).
+        // +1.7 %; +2.19 % through p*_l); 3.96 % / +0.04 % with the spread beam's longer paths
+        // taken out (over 8 photon seeds +1.22 %, worst +2.13 %).
         ("below_sun", "cloud_mitsuba_mask_below.npy", 0.05, 0.02),
         // 4.3 % / −1.4 % (sun-free: the first orders' change does not reach it; 3.8 % / +0.1 % density-weighted; 7.6 % / +0.1 % before the environment
         // photons' launch and the P3 field). The target (5 %, 2 %).
