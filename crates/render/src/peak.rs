@@ -377,7 +377,7 @@ mod tests {
     /// peak's part) and 1/cosh(0.4κλ) (the smooth part's) at every λ (the l = 0 moment does
     /// not decay).
     #[test]
-    fn ratio_is_one_at_zero_depth_and_conserves_energy() {
+    fn ratio_is_one_at_zero_depth_and_keeps_what_the_longer_paths_leave() {
         let phase = Phase::HenyeyGreenstein { g: 0.85 };
         let t = Truncation::new(0.85, 0.999, 3.5);
         let s = PeakSpread::new(&[phase], &[t]).unwrap();
