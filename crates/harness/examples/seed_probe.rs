@@ -5,8 +5,8 @@
 //!
 //! cargo run --release -p skybake-harness --example seed_probe -- [CASE…]
 //! Knobs (env): SEEDS (comma-separated photon seeds; default 24301 (0x5EED, the tests'),1,2,3,4,5),
-//! PHOTONS_X (multiplies both photon budgets), MAP (prints the seeds' mean frame's error per 8×8
-//! block, % of Mitsuba's).
+//! PHOTONS_X (multiplies both photon budgets), MAP (set: also print per 8×8 block the spread
+//! between the seeds and the seeds' mean frame's error, in % of Mitsuba's cloud mean and of its block).
 use skybake_render::{lighting_for, FrameScene, Method, RenderSettings};
 
 mod probe_support;
@@ -192,22 +192,38 @@ fn main() -> skybake_physics::Result<()> {
             .sqrt()
             / mean_ref;
         if std::env::var("MAP").is_ok() {
-            // The mean frame's error per 8×8 block, % of Mitsuba's block (rows top down).
+            // Per block of the 20×15 grid: seed std / mean-frame error, % of Mitsuba's mean.
             let mut k = 0;
+            let (mut sd_map, mut err_map, mut rel_map) =
+                (String::new(), String::new(), String::new());
             for by in 0..15 {
-                let mut row = String::new();
                 for bx in 0..20 {
                     let inside = (0..64).all(|q| mask[(by * 8 + q / 8) * 160 + bx * 8 + q % 8]);
                     if inside {
-                        let e = 100.0 * (mean_blocks[k] / ref_blocks[k] - 1.0);
-                        row += &format!("{e:+4.0}");
+                        let m = mean_blocks[k];
+                        let sd = (blocks_per_seed
+                            .iter()
+                            .map(|v| (v[k] - m).powi(2))
+                            .sum::<f64>()
+                            / (n - 1.0))
+                            .sqrt();
+                        sd_map += &format!("{:5.1}", 100.0 * sd / mean_ref);
+                        err_map += &format!("{:+6.1}", 100.0 * (m - ref_blocks[k]) / mean_ref);
+                        rel_map += &format!("{:+6.1}", 100.0 * (m / ref_blocks[k] - 1.0));
                         k += 1;
                     } else {
-                        row += "   .";
+                        sd_map += "    .";
+                        err_map += "     .";
+                        rel_map += "     .";
                     }
                 }
-                println!("{case:16} map {by:2} {row}");
+                sd_map += "\n";
+                err_map += "\n";
+                rel_map += "\n";
             }
+            println!("{case} seed std per block (% of mean):\n{sd_map}");
+            println!("{case} mean-frame error per block (% of mean):\n{err_map}");
+            println!("{case} mean-frame error per block (% of Mitsuba's block):\n{rel_map}");
         }
         println!(
             "{case:16} seed noise {:.2} % | mean frame block NRMSE {:.2} % (raw)",

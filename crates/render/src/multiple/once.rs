@@ -44,6 +44,15 @@ pub const ONCE_MOMENTS: usize = (ONCE_ORDER + 1) * (ONCE_ORDER + 1);
 /// The field's sun photons per photon traced here (half as many took the side-lit thin Mitsuba
 /// cloud's block NRMSE from 3.4 to 4.7 %, docs/frames.md).
 pub const SUN_PHOTONS_PER_PHOTON: usize = 1;
+/// A photon's first collision is forced onto its line (the forced collision, e.g. Lux &
+/// Koblinger 1991, "Monte Carlo particle transport methods") where the line's true optical
+/// depth is below this: every photon that crosses thin cloud scatters there, at the weight of
+/// the chance that it would (photons passing a thin cloud unscattered scored nothing). On the
+/// thin side-lit Mitsuba 3 cloud each block's spread between 16 photon seeds 2.59 → 1.92 %
+/// (docs/frames.md). Above it the line is not followed further and the first flight is drawn as
+/// any other (the photon passes with probability below e^{−2}): either way unbiased. 2 instead
+/// of 4: the same spread in every case measured (8 seeds), 1–2 % less CPU on the sunlit frames.
+const FORCE_DEPTH: f64 = 2.0;
 /// A photon's collisions before its second smooth scattering are bounded by this (a chain of
 /// peak scatterings in a conservative medium is geometric with ratio f⁺ ≈ 0.6).
 const MAX_EVENTS: usize = 4096;
@@ -161,8 +170,24 @@ pub(super) fn trace(coarse: &Coarse, g: &Group, lanes: usize) -> Vec<f64> {
                         dir: g.travel,
                         scattered: false,
                     };
-                    for _ in 0..MAX_EVENTS {
-                        let tau = -(1.0 - rng.random::<f64>()).ln();
+                    for event in 0..MAX_EVENTS {
+                        let mut tau = -(1.0 - rng.random::<f64>()).ln();
+                        if event == 0 {
+                            // The first collision forced onto the line where it crosses
+                            // less than FORCE_DEPTH: the depth drawn from the exponential
+                            // truncated at the line's optical depth τ_l, the weight times
+                            // 1 − e^{−τ_l}.
+                            match line_depth(coarse, lo, hi, &ph, g.k, FORCE_DEPTH) {
+                                Some(line) if line <= 0.0 => break,
+                                Some(line) => {
+                                    let p = -(-line).exp_m1();
+                                    let u = -(-tau).exp_m1();
+                                    tau = (-(-(u * p)).ln_1p()).min(line * (1.0 - 1e-9));
+                                    w[0] *= p;
+                                }
+                                None => {}
+                            }
+                        }
                         if !fly(
                             coarse,
                             lo,
@@ -221,6 +246,111 @@ pub(super) fn trace(coarse: &Coarse, g: &Group, lanes: usize) -> Vec<f64> {
     out
 }
 
+/// Optical depth of the line from `ph` along its direction through the cells that hold cloud
+/// (extinction `k` per density), or `None` once it reaches `cap`.
+fn line_depth(g: &Coarse, lo: DVec3, hi: DVec3, ph: &Photon, k: f64, cap: f64) -> Option<f64> {
+    if !g.span.meets(ph.pos, ph.dir) {
+        return Some(0.0);
+    }
+    let mut depth = 0.0;
+    for (c, t, t_exit) in CellWalk::new(g, lo, hi, ph.pos, ph.dir)
+        .into_iter()
+        .flatten()
+    {
+        depth += k * g.rho[c] as f64 * (t_exit - t).max(0.0);
+        if depth >= cap {
+            return None;
+        }
+    }
+    Some(depth)
+}
+
+/// The cells of the coarse grid a line crosses, in order (the DDA of Amanatides & Woo 1987):
+/// each cell's index and the line's parameters where it enters and leaves the cell, until the
+/// line leaves the grid or the cells that hold cloud (`Span`).
+struct CellWalk<'a> {
+    g: &'a Coarse,
+    t: f64,
+    t1: f64,
+    cell: [i64; 3],
+    step: [i64; 3],
+    t_next: [f64; 3],
+    t_delta: [f64; 3],
+    done: bool,
+}
+
+impl<'a> CellWalk<'a> {
+    /// The walk from `pos` along `d` (unit), or `None` where the line misses the grid's box.
+    fn new(g: &'a Coarse, lo: DVec3, hi: DVec3, pos: DVec3, d: DVec3) -> Option<Self> {
+        let (t0, t1) = crate::camera::box_interval(pos, d, lo, hi)?;
+        let p0 = pos + d * (t0 + 1e-9 * g.cell_m.min_element());
+        let mut cell = [0i64; 3];
+        let mut step = [0i64; 3];
+        let mut t_next = [f64::INFINITY; 3];
+        let mut t_delta = [f64::INFINITY; 3];
+        for a in 0..3 {
+            let h = g.cell_m[a];
+            let local = (p0[a] - lo[a]) / h;
+            cell[a] = (crate::volume::floor(local) as i64).clamp(0, g.dims[a] as i64 - 1);
+            if d[a] > 0.0 {
+                step[a] = 1;
+                t_next[a] = t0 + ((cell[a] + 1) as f64 * h + lo[a] - p0[a]) / d[a];
+                t_delta[a] = h / d[a];
+            } else if d[a] < 0.0 {
+                step[a] = -1;
+                t_next[a] = t0 + (cell[a] as f64 * h + lo[a] - p0[a]) / d[a];
+                t_delta[a] = -h / d[a];
+            }
+        }
+        Some(Self {
+            g,
+            t: t0,
+            t1,
+            cell,
+            step,
+            t_next,
+            t_delta,
+            done: false,
+        })
+    }
+}
+
+impl Iterator for CellWalk<'_> {
+    /// The cell's index, the line's parameter where it enters and where it leaves the cell.
+    type Item = (usize, f64, f64);
+
+    fn next(&mut self) -> Option<Self::Item> {
+        if self.done {
+            return None;
+        }
+        let (g, cell) = (self.g, &mut self.cell);
+        let t_next = &self.t_next;
+        let a = if t_next[0] <= t_next[1] && t_next[0] <= t_next[2] {
+            0
+        } else if t_next[1] <= t_next[2] {
+            1
+        } else {
+            2
+        };
+        let t_exit = t_next[a].min(self.t1);
+        let c = ((cell[2] as usize * g.dims[1]) + cell[1] as usize) * g.dims[0] + cell[0] as usize;
+        let entry = self.t;
+        self.t = t_exit;
+        if t_exit >= self.t1 {
+            self.done = true;
+        } else {
+            cell[a] += self.step[a];
+            if cell[a] < 0 || cell[a] >= g.dims[a] as i64 || g.span.passed(a, cell[a], self.step[a])
+            {
+                self.done = true;
+            } else {
+                self.t_next[a] += self.t_delta[a];
+            }
+        }
+        Some((c, entry, t_exit))
+    }
+}
+
 /// Flies `ph` `tau` true optical depths through the coarse cells (extinction `k` per density)
 /// and returns whether it collided within the grid (its place moved there) or left it. While
 /// it has scattered (smoothly) it scores the track-length estimator `ws`·length·Y_lm (`ws` its
@@ -246,40 +376,11 @@ fn fly(
     if !ph.scattered && !g.span.meets(ph.pos, ph.dir) {
         return false;
     }
-    let Some((t0, t1)) = crate::camera::box_interval(ph.pos, ph.dir, lo, hi) else {
+    let Some(walk) = CellWalk::new(g, lo, hi, ph.pos, ph.dir) else {
         return false;
     };
     let d = ph.dir;
-    let mut t = t0;
-    let p0 = ph.pos + d * (t0 + 1e-9 * g.cell_m.min_element());
-    let mut cell = [0i64; 3];
-    let mut step = [0i64; 3];
-    let mut t_next = [f64::INFINITY; 3];
-    let mut t_delta = [f64::INFINITY; 3];
-    for a in 0..3 {
-        let h = g.cell_m[a];
-        let local = (p0[a] - lo[a]) / h;
-        cell[a] = (crate::volume::floor(local) as i64).clamp(0, g.dims[a] as i64 - 1);
-        if d[a] > 0.0 {
-            step[a] = 1;
-            t_next[a] = t0 + ((cell[a] + 1) as f64 * h + lo[a] - p0[a]) / d[a];
-            t_delta[a] = h / d[a];
-        } else if d[a] < 0.0 {
-            step[a] = -1;
-            t_next[a] = t0 + (cell[a] as f64 * h + lo[a] - p0[a]) / d[a];
-            t_delta[a] = -h / d[a];
-        }
-    }
-    loop {
-        let a = if t_next[0] <= t_next[1] && t_next[0] <= t_next[2] {
-            0
-        } else if t_next[1] <= t_next[2] {
-            1
-        } else {
-            2
-        };
-        let t_exit = t_next[a].min(t1);
-        let c = ((cell[2] as usize * g.dims[1]) + cell[1] as usize) * g.dims[0] + cell[0] as usize;
+    for (c, t, t_exit) in walk {
         let rho = g.rho[c];
         let sigma = k * rho as f64;
         let len = (t_exit - t).max(0.0);
@@ -300,16 +401,8 @@ fn fly(
             return true;
         }
         tau -= sigma * len;
-        t = t_exit;
-        if t >= t1 {
-            return false;
-        }
-        cell[a] += step[a];
-        if cell[a] < 0 || cell[a] >= g.dims[a] as i64 || g.span.passed(a, cell[a], step[a]) {
-            return false;
-        }
-        t_next[a] += t_delta[a];
     }
+    false
 }
 
 /// Legendre moments k_l = 2π ∫ (p − r⁺)(μ) P_l(μ) dμ / (1 − f), l ≤ [`ONCE_ORDER`], of the
