@@ -98,8 +98,6 @@ class LiveSky {
           !Number.isFinite(band.centre_aloft_per_km) || !numbers(band.centre_aloft_altitude_m, 2) ||
           !(band.centre_aloft_altitude_m[0] <= band.centre_aloft_altitude_m[1]) ||
           !Number.isFinite(band.centre_top_per_km) || !Number.isFinite(band.centre_top_altitude_m) ||
-          !Number.isFinite(band.centre_step) || !numbers(band.centre_step_altitude_m, 2) ||
-          !(band.centre_step_altitude_m[0] < band.centre_step_altitude_m[1]) ||
           !numbers(band.slices_aloft_per_km, 2) || !numbers(band.slices_through_altitude_m, 2) ||
           !(band.slices_through_altitude_m[0] < band.slices_through_altitude_m[1]) ||
           !numbers(band.slices_azimuth_altitude_m, 2) || !Number.isFinite(band.slices_top_per_km) ||
@@ -147,7 +145,6 @@ class LiveSky {
         `#define SV_BAND_CENTRE_ALOFT ${f(band.centre_aloft_per_km)}\n` +
         `#define SV_BAND_CENTRE_ALOFT_ALTITUDE vec2(${band.centre_aloft_altitude_m.map(f).join(", ")})\n` +
         `#define SV_BAND_CENTRE_TOP vec2(${f(band.centre_top_altitude_m)}, ${f(band.centre_top_per_km)})\n` +
-        `#define SV_BAND_CENTRE_STEP vec3(${f(band.centre_step)}, ${band.centre_step_altitude_m.map(f).join(", ")})\n` +
         `#define SV_BAND_SLICE_ALOFT vec2(${band.slices_aloft_per_km.map(f).join(", ")})\n` +
         `#define SV_BAND_SLICE_THROUGH vec2(${band.slices_through_altitude_m.map(f).join(", ")})\n` +
         `#define SV_BAND_SLICE_TOP ${f(band.slices_top_per_km)}\n` +

@@ -23,8 +23,7 @@
 // (focus_growth), SV_BAND_GROWTH_ALTITUDE (focus_growth_altitude_m, a vec2),
 // SV_BAND_CENTRE_ALOFT (centre_aloft_per_km), SV_BAND_CENTRE_ALOFT_ALTITUDE
 // (centre_aloft_altitude_m, a vec2), SV_BAND_CENTRE_TOP (vec2(centre_top_altitude_m,
-// centre_top_per_km)), SV_BAND_CENTRE_STEP (vec3(centre_step, centre_step_altitude_m)),
-// SV_BAND_SLICE_ALOFT (slices_aloft_per_km, a vec2),
+// centre_top_per_km)), SV_BAND_SLICE_ALOFT (slices_aloft_per_km, a vec2),
 // SV_BAND_SLICE_TOP (slices_top_per_km), SV_BAND_SLICE_THROUGH (slices_through_altitude_m, a
 // vec2), SV_BAND_SLICE_AZIMUTH (slices_azimuth_altitude_m, a vec2), SV_BAND_DEPTH_TOP
 // (depth_top_m), SV_BAND_FOCUS_ALOFT
@@ -468,13 +467,12 @@ float SkyViewBandCentre(float sun_deg, float h) {
   float u = SV_BAND_SUN_SOFT * (max(x, 0.0) + log(1.0 + exp(-abs(x))));
   // The low fit up to SV_BAND_CENTRE_ALOFT_ALTITUDE.x, scaled by 1 + SV_BAND_CENTRE_ALOFT per km
   // above it up to SV_BAND_CENTRE_ALOFT_ALTITUDE.y, + SV_BAND_CENTRE_TOP.y per km above that up to
-  // SV_BAND_CENTRE_TOP.x, + SV_BAND_CENTRE_STEP.x from SV_BAND_CENTRE_STEP.y to .z (smoothstep).
+  // SV_BAND_CENTRE_TOP.x.
   float km = clamp(h, 0.0, SV_BAND_CENTRE_ALOFT_ALTITUDE.x) / 1000.0;
   float aloft = 1.0 + SV_BAND_CENTRE_ALOFT *
       clamp(h - SV_BAND_CENTRE_ALOFT_ALTITUDE.x, 0.0,
             SV_BAND_CENTRE_ALOFT_ALTITUDE.y - SV_BAND_CENTRE_ALOFT_ALTITUDE.x) / 1000.0 +
-      SkyViewBandCentreTop(h, SV_BAND_CENTRE_TOP.y) +
-      SV_BAND_CENTRE_STEP.x * smoothstep(SV_BAND_CENTRE_STEP.y, SV_BAND_CENTRE_STEP.z, h);
+      SkyViewBandCentreTop(h, SV_BAND_CENTRE_TOP.y);
   return min(((SV_BAND_CENTRE.x + SV_BAND_CENTRE.y * km) * u +
               (SV_BAND_CENTRE.z + SV_BAND_CENTRE.w * km) * u * u) * aloft, 45.0);
 }

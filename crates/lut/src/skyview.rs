@@ -513,8 +513,7 @@ pub fn band_centre_deg(sun_deg: f64, h: f64) -> f64 {
     let km = (h / 1000.0).clamp(0.0, h0 / 1000.0);
     let aloft = 1.0
         + BAND_CENTRE_ALOFT * ((h - h0) / 1000.0).clamp(0.0, (h1 - h0) / 1000.0)
-        + band_centre_top(h, BAND_CENTRE_TOP)
-        + BAND_CENTRE_STEP * smoothstep(BAND_CENTRE_STEP_M[0], BAND_CENTRE_STEP_M[1], h);
+        + band_centre_top(h, BAND_CENTRE_TOP);
     let [a0, a1, a2, a3] = BAND_CENTRE;
     (((a0 + a1 * km) * u + (a2 + a3 * km) * u * u) * aloft).min(45.0)
 }
@@ -529,21 +528,8 @@ pub const BAND_CENTRE_ALOFT: f64 = 0.03;
 /// ([`band_centre_top`]). Measured on the `sky` product (680 nm, the elevation where ln L per
 /// metre rises fastest 180° from the sun, the sun at the observer's horizon): 5.2 / 5.5 / 5.8 /
 /// 6.3 / 6.7 / 7.2° seen from 20 / 22.5 / 25 / 30 / 35 / 40 km, about 0.025 per km of the fit's
-/// 1.3 at 20 km (held at 20 km: 5.0°). Version 20: 0.022 with [`BAND_CENTRE_STEP`] (the same
-/// factor 1.55 at 30 km).
-pub const BAND_CENTRE_TOP: f64 = 0.022;
-/// A step in [`band_centre_deg`]'s factor from the first to the second altitude of
-/// [`BAND_CENTRE_STEP_M`] (smoothstep; the sky rows' focus and the columns' map, not the slices'
-/// map): the band measured on the `sky` product (above, [`BAND_CENTRE_TOP`]) lies 0.18° above
-/// the fit at 20 km and 0.2–0.26° above it at 22.5–40 km, a factor 0.045–0.067 of the fit's
-/// low part. The reader's dense check of the earth's shadow seen aloft above the horizontal
-/// (sun every 0.25°, 120–180° from the sun, 680 nm), whose worst lies 120–135° from the sun
-/// below the rows' focus: 4.55 / 3.52 / 4.67 / 6.28 / 7.74 % at 20 / 22.5 / 25 / 30 / 35 km
-/// with no step and 0.025 per km, 3.78 / 3.59 / 4.63 / 6.22 / 6.16 % with 0.03 and 0.022; the
-/// whole measured offset (0.06 from 17.5–22.5 km) 3.52 / 5.05 / 6.15 / 7.24 % (docs/lut.md).
-pub const BAND_CENTRE_STEP: f64 = 0.03;
-/// The altitudes (m) between which [`BAND_CENTRE_STEP`] comes in.
-pub const BAND_CENTRE_STEP_M: [f64; 2] = [17_500.0, 20_000.0];
+/// 1.3 at 20 km (held at 20 km: 5.0°).
+pub const BAND_CENTRE_TOP: f64 = 0.025;
 /// The altitude (m) up to which the band grows by [`BAND_CENTRE_TOP`] per km.
 pub const BAND_CENTRE_TOP_M: f64 = 40_000.0;
 
@@ -2550,8 +2536,6 @@ pub fn manifest(
         "centre_aloft_altitude_m": BAND_CENTRE_ALOFT_M,
         "centre_top_per_km": BAND_CENTRE_TOP,
         "centre_top_altitude_m": BAND_CENTRE_TOP_M,
-        "centre_step": BAND_CENTRE_STEP,
-        "centre_step_altitude_m": BAND_CENTRE_STEP_M,
         "slices_aloft_per_km": BAND_SLICE_ALOFT,
         "slices_through_altitude_m": BAND_SLICE_THROUGH_M,
         "slices_top_per_km": BAND_SLICE_TOP,
@@ -2574,7 +2558,7 @@ pub fn manifest(
         "azimuth_depth_aloft_altitude_m": BAND_AZIMUTH_DEPTH_ALOFT_M,
         "slices": "on the sky rows, each (altitude node k, sun node j) slice of the interpolation is read on its own rows (the focus (c_n, k_n) at the node's sun coordinate s_n = the warped s_j at h_k and its altitude h_n = altitude_nodes_m[k]) where the query's or the slice's k > 0: at e_n = e + f (1 - smoothstep(2 w, 4 w, e)) (smoothstep(0, horizon_deg, e) (1 - t) + step(-delta_q, e) t) ((e + delta_q) H_n / H_q - delta_n - e) (1 - smoothstep(slices_azimuth_altitude_m[0], slices_azimuth_altitude_m[1], h) (1 - smoothstep(antisolar_range[0], antisolar_range[1], -cos phi))) (version 19: faded in with -cos phi aloft), t = smoothstep(slices_through_altitude_m[0], slices_through_altitude_m[1], h) (version 16; an e_n below 0 read on the limb rows as the azimuth formula's e_a), H = max(c_s antisolar + delta, 0.1) at the query's (s, h) and the node's (s_n, h_n), c_s the formula's c with its factor aloft replaced by 1 + a x + (b - a) x^2 / (2 L) + slices_top_per_km T (T as in the formula; version 19), x = clamp(h - centre_aloft_altitude_m[0], 0, L) / 1000, L = max((centre_aloft_altitude_m[1] - centre_aloft_altitude_m[0]) / 1000, 1e-3), [a, b] = slices_aloft_per_km (version 16), delta = depth_deg_per_km clamp(h, 0, depth_top_m) / 1000, w = max(H_q, 0.5), f = k / (focus (1 + focus_growth smoothstep(focus_growth_altitude_m[0], focus_growth_altitude_m[1], h)) (1 + focus_aloft smoothstep(focus_aloft_altitude_m[0], focus_aloft_altitude_m[1], h))) the query's fade (0 where k = 0), then each column at the azimuth formula's e_a with (c_n, k_n, h_n) in place of the query's",
         "azimuth": "on the sky rows and the limb rows where k > 0 each azimuth column a of the interpolation is read at its own elevation e_a (its own rows' stencil): d = depth_deg_per_km clamp(h, 0, depth_top_m) / 1000, delta = d + (azimuth_depth_aloft_deg - d) smoothstep(azimuth_depth_aloft_altitude_m[0], azimuth_depth_aloft_altitude_m[1], h) (version 12), w = max(c antisolar + delta, 0.5), ratio = max(-cos phi_a, antisolar_range[0]) / max(-cos phi, antisolar_range[0]), e_a = e + (k / (focus (1 + focus_growth smoothstep(focus_growth_altitude_m[0], focus_growth_altitude_m[1], h)) (1 + focus_aloft smoothstep(focus_aloft_altitude_m[0], focus_aloft_altitude_m[1], h)))) (1 - smoothstep(2 w, 4 w, e)) step(-delta, e) smoothstep(antisolar_range[0], antisolar_range[1], -cos phi) (e + delta) (ratio - 1) (version 7: from -delta up through the horizontal, where version 6 had smoothstep(0, horizon_deg, e)), e the query's elevation (deg), phi its azimuth from the sun, phi_a the column's in the slice (azimuth_nodes_rad[k][a], the slice's altitude node k; version 12: at the query's altitude h); where e_a >= 0 the column is read on the sky rows, below on the limb rows at the query's altitude h (depth y = 2 r sin^2(e_a / 2) / h); the band above the earth's shadow lies at (c antisolar + delta)(-cos phi) - delta",
-        "formula": "the sky rows' focus at the sun's elevation s above the observer's horizon (deg) and altitude h (m): u = sun_soft_deg ln(1 + exp((sun_deg - s) / sun_soft_deg)) (version 14: max(sun_deg - s, 0)), km = clamp(h, 0, centre_aloft_altitude_m[0]) / 1000, c = min(((centre[0] + centre[1] km) u + (centre[2] + centre[3] km) u^2) (1 + centre_aloft_per_km clamp(h - centre_aloft_altitude_m[0], 0, centre_aloft_altitude_m[1] - centre_aloft_altitude_m[0]) / 1000 + centre_top_per_km T + centre_step smoothstep(centre_step_altitude_m[0], centre_step_altitude_m[1], h)), 45), T = clamp(h - centre_aloft_altitude_m[1], 0, max(centre_top_altitude_m - centre_aloft_altitude_m[1], 0)) / 1000 (version 19; centre_step version 20) (deg, the band's elevation: the maps' c), the rows' focus at c_f = c (q + (focus_place_aloft antisolar - q) v), q = 1 + (focus_place_aloft antisolar - 1) a (x_c = 1 - sqrt(c_f / 90); version 15), l = 1 - smoothstep(centre_range_deg[0], centre_range_deg[1], c), a = l smoothstep(focus_place_altitude_m[0], focus_place_altitude_m[1], h), v = l smoothstep(focus_width_altitude_m[0], focus_width_altitude_m[1], h) (1 - smoothstep(focus_width_altitude_m[2], focus_width_altitude_m[3], h)) (version 18), k = smoothstep(sun_range_deg[0], sun_range_deg[1], s) (1 - smoothstep(sun_range_deg[2], sun_range_deg[3], s)) (1 - smoothstep(altitude_range_m[0], altitude_range_m[1], h)) (l (1 + focus_high a) + centre_floor (1 - l)) focus (1 + focus_growth smoothstep(focus_growth_altitude_m[0], focus_growth_altitude_m[1], h)) (1 + focus_aloft smoothstep(focus_aloft_altitude_m[0], focus_aloft_altitude_m[1], h)) (1 + focus_wide v), the focus's width w = v max(x0(e_w) - x_c, 0) (x0(e) = 1 - sqrt(e / 90), e_w = max((c antisolar + delta) focus_width_azimuth_cos - delta, focus_width_floor_deg), delta the azimuth formula's; version 18), smoothstep(a, b, x) = t^2 (3 - 2 t), t = clamp((x - a) / (b - a), 0, 1)",
+        "formula": "the sky rows' focus at the sun's elevation s above the observer's horizon (deg) and altitude h (m): u = sun_soft_deg ln(1 + exp((sun_deg - s) / sun_soft_deg)) (version 14: max(sun_deg - s, 0)), km = clamp(h, 0, centre_aloft_altitude_m[0]) / 1000, c = min(((centre[0] + centre[1] km) u + (centre[2] + centre[3] km) u^2) (1 + centre_aloft_per_km clamp(h - centre_aloft_altitude_m[0], 0, centre_aloft_altitude_m[1] - centre_aloft_altitude_m[0]) / 1000 + centre_top_per_km T), 45), T = clamp(h - centre_aloft_altitude_m[1], 0, max(centre_top_altitude_m - centre_aloft_altitude_m[1], 0)) / 1000 (version 19) (deg, the band's elevation: the maps' c), the rows' focus at c_f = c (q + (focus_place_aloft antisolar - q) v), q = 1 + (focus_place_aloft antisolar - 1) a (x_c = 1 - sqrt(c_f / 90); version 15), l = 1 - smoothstep(centre_range_deg[0], centre_range_deg[1], c), a = l smoothstep(focus_place_altitude_m[0], focus_place_altitude_m[1], h), v = l smoothstep(focus_width_altitude_m[0], focus_width_altitude_m[1], h) (1 - smoothstep(focus_width_altitude_m[2], focus_width_altitude_m[3], h)) (version 18), k = smoothstep(sun_range_deg[0], sun_range_deg[1], s) (1 - smoothstep(sun_range_deg[2], sun_range_deg[3], s)) (1 - smoothstep(altitude_range_m[0], altitude_range_m[1], h)) (l (1 + focus_high a) + centre_floor (1 - l)) focus (1 + focus_growth smoothstep(focus_growth_altitude_m[0], focus_growth_altitude_m[1], h)) (1 + focus_aloft smoothstep(focus_aloft_altitude_m[0], focus_aloft_altitude_m[1], h)) (1 + focus_wide v), the focus's width w = v max(x0(e_w) - x_c, 0) (x0(e) = 1 - sqrt(e / 90), e_w = max((c antisolar + delta) focus_width_azimuth_cos - delta, focus_width_floor_deg), delta the azimuth formula's; version 18), smoothstep(a, b, x) = t^2 (3 - 2 t), t = clamp((x - a) / (b - a), 0, 1)",
     });
     json!({
         "format": LAYOUT,
@@ -3017,16 +3001,12 @@ mod tests {
 
     #[test]
     fn the_slices_are_read_relative_to_the_band() {
-        // The band's fit aloft: continuous at 10 km, 1.225 times the 10 km fit's at 17.5 km, a
-        // step of 0.03 to 20 km (1.33; half of it at 18.75 km), growing by 0.022 of it per km to
-        // 40 km (1.55 at 30 km), held above; its depth held from 5 km up.
+        // The band's fit aloft: continuous at 10 km, 1.3 times the 10 km fit's at 20 km, growing
+        // by 0.025 of it per km to 40 km, held above; its depth held from 5 km up.
         let at = |h: f64| band_centre_deg(-1.0, h);
         assert!((at(10_000.0) - at(9_999.999)).abs() < 1e-5);
-        assert!((at(17_500.0) / at(10_000.0) - 1.225).abs() < 1e-12);
-        assert!((at(18_750.0) / at(10_000.0) - (1.2625 + 0.015)).abs() < 1e-12);
-        assert!((at(20_000.0) / at(10_000.0) - 1.33).abs() < 1e-12);
+        assert!((at(20_000.0) / at(10_000.0) - 1.3).abs() < 1e-12);
         assert!((at(30_000.0) / at(10_000.0) - 1.55).abs() < 1e-12);
-        assert!((at(40_000.0) / at(10_000.0) - 1.77).abs() < 1e-12);
         assert_eq!(at(50_000.0), at(40_000.0));
         // The slices' map's band: the same up to 10 km, growing by 0.045 per km at 10 km and
         // 0.015 at 20 km (1.1875 times the 10 km fit's at 15 km, 1.3 at 20 km), by 0.015 to
