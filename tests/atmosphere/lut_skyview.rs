@@ -1041,4 +1041,3 @@ fn shadow_aloft_errors(
     }
     per_altitude
 }
-
