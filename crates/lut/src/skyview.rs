@@ -1116,11 +1116,13 @@ pub const LIMB_BAND_MAX_FRACTION: f64 = 0.95;
 /// shadow seen from 15–20 km unchanged, 17.5 km 8.72 % either way).
 pub const LIMB_BAND_HORIZON_HELD: [f64; 2] = [0.65, 0.9];
 /// The altitudes (m) between which the limb rows' focus fades in (the first two) and out (the
-/// last two). (Out from 25–30 km instead: the limb seen from 22.5 / 25 / 30 km on the dense
-/// check of the earth's shadow 25.6 / 38.2 / 54.8 → 7.7 / 23.8 / 54.6 %, but the random samples
-/// of the sun −6…5° from 20–100 km 2.94 → 19.6 %: 23.3 km, sun −5.19°, 0.08° below the
-/// horizontal 29° from the sun, 550 nm; docs/lut.md, "Tried and not kept".)
-pub const LIMB_BAND_ALTITUDE_M: [f64; 4] = [6_000.0, 9_000.0, 20_000.0, 25_000.0];
+/// last two). Version 20: out from 25–30 km (20–25 km before): the limb just above the horizon
+/// 165–180° from the sun seen from 22.5 / 25 km on the dense check of the earth's shadow 26.9 /
+/// 39.5 → 5.7 / 23.0 % (30 km 54.5 → 54.6 %), the random samples of the sun −6…5° from 20–100 km
+/// 2.89 % either way (version 18's 19.6 % with it was the slices' band map, since faded in with
+/// the azimuth aloft). Out from 30–35 km: 5.1 / 18.7 / **61.7** %; from 35–40 km: 5.1 / 18.7 /
+/// 61.7 %, 35 km 166 → 175 % (docs/lut.md, "Tried and not kept").
+pub const LIMB_BAND_ALTITUDE_M: [f64; 4] = [6_000.0, 9_000.0, 25_000.0, 30_000.0];
 
 /// The limb rows' focus at sun coordinate `sun_deg` (degrees, [`sun_shift`]) and altitude `h`
 /// (m): (x_c, k), x_c = [`limb_row`] of the band's depth D / h ([`LIMB_BAND_DEPTH_M`], clamped
@@ -2480,7 +2482,7 @@ pub const STATED_ERRORS: &[(&str, &str, f64)] = &[
     ("rayleigh+mie", "sky radiance (sky product), sun -6..5 deg, 8-12.5 km (the limb 0.2 deg above the horizon 142.5 deg from the sun, 680 nm at 12.5 km, sun -3.125 deg, between the dense check's samples; on them 2.5 % at 11 km, 3.1 % between them at 9.5 km; the twilight glow towards the sun at most 3 %)", 0.035),
     ("rayleigh+mie", "sky radiance (sky product), sun -6..5 deg, 12.5-20 km (the limb 0.5 deg above the horizon 165 deg from the sun, 680 nm at 17.5 km, sun -3.75 deg, the dense check; at 20 km 4.5 % on the dense check (the sky 2.25 deg up 135 deg from the sun), 5.2 % between its samples; the twilight glow towards the sun at most 3 %)", 0.088),
     ("rayleigh+mie", "sky radiance (sky product), sun -6..0 deg, 0-5 km, views within 10 deg of the horizon 150-180 deg from the sun (the earth's shadow rising; 680 nm at 2.5 km)", 0.022),
-    ("rayleigh+mie", "sky radiance (sky product), sun -6..5 deg, 20-100 km (random samples: 2.9 %, the limb at 48 km, 680 nm; but the limb just above the horizon 150-180 deg from the sun seen from 22.5-40 km, up to 166 %: 35 km, sun -5.5 deg, 0.25 deg above the horizon opposite the sun, 680 nm; 148 % at 40 km, 54 % at 30 km, 39 % at 25 km, 27 % at 22.5 km; the band above the earth's shadow above the horizontal at most 9.2 %: 40 km, 7.7 % at 35 km, 6.3 % at 30 km, 4.7 % at 25 km, 3.5 % at 22.5 km)", 1.8),
+    ("rayleigh+mie", "sky radiance (sky product), sun -6..5 deg, 20-100 km (random samples: 2.9 %, the limb at 48 km, 680 nm; but the limb just above the horizon 150-180 deg from the sun seen from 22.5-40 km, up to 166 %: 35 km, sun -5.5 deg, 0.25 deg above the horizon opposite the sun, 680 nm; 148 % at 40 km, 55 % at 30 km, 23 % at 25 km, 5.7 % at 22.5 km; the band above the earth's shadow above the horizontal at most 9.2 %: 40 km, 7.7 % at 35 km, 6.3 % at 30 km, 4.7 % at 25 km, 3.5 % at 22.5 km)", 1.8),
     ("rayleigh+mie", "sky radiance (sky product), sun -12..-6 deg, ground", 0.033),
     ("rayleigh+mie", "sky radiance (sky product), sun -12..-6 deg, 0-20 km (the twilight glow towards the sun near the horizontal: 9.2 % at 5 km, sun -12 deg, 0.25 deg above the horizontal 30 deg from the sun, 680 nm)", 0.092),
     ("rayleigh+mie", "sky radiance (sky product), sun -12..-6 deg, 20-100 km (the sky 4.3 deg above the horizontal 88 deg from the sun, 680 nm at 30.8 km)", 0.088),
@@ -3116,10 +3118,12 @@ mod tests {
                 assert!((focus_coord(focus_inverse(x, xc, k), xc, k) - x).abs() < 1e-9);
             }
         }
-        // Off by day, at the ground and from 25 km up; on at 15 km with the sun at sunset.
+        // Off by day, at the ground and from 30 km up; on at 15 km with the sun at sunset.
         assert_eq!(limb_row_focus(10.0, 15_000.0).1, 0.0);
         assert_eq!(limb_row_focus(0.0, 3_000.0).1, 0.0);
         assert_eq!(limb_row_focus(0.0, 30_000.0).1, 0.0);
+        // Still on at 25 km (version 20): the limb seen from 22.5–25 km reads it.
+        assert_eq!(limb_row_focus(-1.0, 25_000.0).1, LIMB_BAND_FOCUS);
         let (xc, k) = limb_row_focus(0.0, 15_000.0);
         assert!(k > 1.0);
         // The focus sits at the band's depth, and the rows are denser there than without it.
