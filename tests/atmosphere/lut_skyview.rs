@@ -838,13 +838,16 @@ fn skyview_the_earth_shadow_rising_at_low_altitude() {
 /// band sharpens with altitude and rises from 20 to 40 km; the sky rows' focus, the slices' and the
 /// columns' band maps follow it (docs/lut.md, "The earth's shadow seen aloft").
 ///
-/// Each bound is the measured worst + ~12 % (earth, standard, RGB, layout version 19, measured on
-/// 2026-12-07 with the merged version 19; 680 nm unless noted). The 3 % target (views within
-/// 10° of the horizon, sun down to −6°) holds on the grid from 6.5 to 20 km and on the dense check
-/// from 6.5 to 15 km; not at:
+/// Each bound is the measured worst + ~12 % (earth, standard, RGB, layout version 20, measured on
+/// 2026-12-07; 680 nm unless noted). The 3 % target (views within 10° of the horizon, sun
+/// down to −6°) holds on the grid from 6.5 to 15 km and at 20 km and on the dense check from 6.5
+/// to 15 km; not at:
+/// - 17.5 km (asserted since version 20): grid 4.94 % (the sky 3° up 150° from the sun, sun −4°),
+///   dense 6.49 % (the limb 0.5° above the horizon 135° from the sun, sun −3.75°; version 19
+///   8.72 %, 165°, before the interval's lower sun node read deeper than 0.97 was left out);
 /// - 20 km dense 4.55 % (the sky 2.25° up 135° from the sun, sun −4.25°), between the samples
-///   5.23 % (the limb 0.9° above the horizon 172.5° from the sun, sun −4.125°); 9.5 / 12.5 km
-///   between the samples 3.06 / 3.42 % (12.5 km the limb 142.5° from the sun);
+///   5.23 % (the limb 0.9° above the horizon 172.5° from the sun, sun −4.125°); 9.5 km between
+///   the samples 3.06 % (the sky 2.1° up 172.5° from the sun; 12.5 km 2.66 %, version 19 3.42 %);
 /// - 22.5 / 25 / 30 km: grid 13.39 / 9.56 / 40.49 %, dense 26.88 / 39.45 / 54.48 %, all on the
 ///   limb just above the horizon 165–180° from the sun; above the horizontal alone (the band
 ///   itself) 3.52 / 4.67 / 6.28 % (120–135° from the sun).
