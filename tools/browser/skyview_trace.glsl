@@ -143,8 +143,10 @@ void main() {
       T(column);
       TS(sc);
       // On the limb rows, without the sun nodes read too deep.
-      SvStencil ss = segment == 1 ?
-          SkyViewLimbSunStencil(ss_q, y_limb, s_q, h, sv_alt_nodes[sa.first + a], above_deg) : ss_q;
+      SvStencil ss = ss_q;
+      if (segment == 1) {
+        ss = SkyViewLimbSunStencil(ss_q, y_limb, s_q, h, sv_alt_nodes[sa.first + a], above_deg);
+      }
       TS(ss);
       vec4 cos_cols;
       for (int m = 0; m < 4; ++m) {

@@ -926,8 +926,10 @@ vec3 SkyViewRadiance(float h, float rho, vec3 up, vec3 view_ray, vec3 sun_direct
       vec3 by_sun[4] = vec3[4](vec3(0.0), vec3(0.0), vec3(0.0), vec3(0.0));
       SvStencil sc = sc_n[a];
       // On the limb rows, without the sun nodes read too deep.
-      SvStencil ss = segment == 1 ?
-          SkyViewLimbSunStencil(ss_q, y_limb, s_q, h, sv_alt_nodes[sa.first + a], above_deg) : ss_q;
+      SvStencil ss = ss_q;
+      if (segment == 1) {
+        ss = SkyViewLimbSunStencil(ss_q, y_limb, s_q, h, sv_alt_nodes[sa.first + a], above_deg);
+      }
       for (int s = 0; s < 4; ++s) {
         if (s >= ss.len) break;
         vec3 value;
