@@ -142,13 +142,10 @@ void main() {
       SvStencil sc = SkyViewColumnStencil(column);
       T(column);
       TS(sc);
-      // On the limb rows, without the sun nodes whose slice is read past its horizon.
+      // On the limb rows, without the sun nodes read too deep.
       SvStencil ss = ss_q;
-      if (segment == 1 && ss_q.i0 > ss_q.first) {
-        int lowest = SkyViewLimbSunLowest(y_limb, s_q, h, sv_alt_nodes[sa.first + a], ss_q);
-        if (lowest > ss_q.first) {
-          ss = SkyViewStencil(float(ss_q.i0) + ss_q.t, lowest, SV_N_SUN - 1, true, above_deg);
-        }
+      if (segment == 1) {
+        ss = SkyViewLimbSunStencil(ss_q, y_limb, s_q, h, sv_alt_nodes[sa.first + a], above_deg);
       }
       TS(ss);
       vec4 cos_cols;

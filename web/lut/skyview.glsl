@@ -41,7 +41,7 @@
 // (focus), SV_LIMB_BAND_SUN_RANGE (sun_range_deg, a vec4), SV_LIMB_BAND_ALTITUDE
 // (altitude_range_m, a vec4), SV_LIMB_BAND_DEPTH_FLOOR (depth_floor_m),
 // SV_LIMB_BAND_ALTITUDE_EXPONENT (altitude_exponent), SV_LIMB_BAND_MAX_FRACTION (max_fraction),
-// SV_LIMB_BAND_HORIZON_HELD (horizon_held, a vec2);
+// SV_LIMB_BAND_HORIZON_HELD (horizon_held, a vec2), SV_LIMB_BAND_DEEPEST (deepest);
 // from parameterisation.azimuth_aloft: SV_AZ_WEIGHT (weight), SV_AZ_GROUND_WEIGHT
 // (ground_weight) and SV_AZ_ALTITUDE (altitude_range_m, a vec2); from parameterisation.azimuth_focus: SV_AZ_FOCUS (vec3(weight,
 // centre_deg, width_deg)), SV_AZ_FOCUS_ALTITUDE (altitude_range_m, a vec2) and SV_AZ_NODE_READ
@@ -224,7 +224,7 @@ vec3 SkyViewMix(SvStencil st, vec3 v[4]) {
     hi = max(hi, v[m]);
     ln += st.w[m] * log(max(v[m], vec3(1e-30)));
   }
-  vec3 lagrange = clamp(exp(ln), lo, hi);
+  vec3 lagrange = st.t < 0.0 ? exp(ln) : clamp(exp(ln), lo, hi);
   return mix(GeoMix(a, b, st.t), lagrange, vec3(greaterThan(lo, vec3(0.0))));
 }
 
@@ -403,6 +403,34 @@ int SkyViewLimbSunLowest(float y, float s_q, float h_q, float h_n, SvStencil ss)
     if (y + f * (SkyViewLimbSliceMap(y, s_q, h_q, s_n, h_n) - y) > 1.0) lo = j + 1;
   }
   return lo;
+}
+
+// Altitude node h_n's sun stencil on the limb rows (the reader's limb_sun_stencil): where the
+// sun interval's lower node's slice would be read deeper than SV_LIMB_BAND_DEEPEST, the line
+// through the two nodes above it, extrapolated to above_deg (t < 0, not bounded: SkyViewMix);
+// else without the lower nodes read past the horizon (SkyViewLimbSunLowest).
+SvStencil SkyViewLimbSunStencil(SvStencil ss, float y, float s_q, float h_q, float h_n,
+                                float above_deg) {
+  if (ss.len <= 2) return ss;
+  float f = SkyViewLimbFocus(s_q, h_q).y / SV_LIMB_BAND_FOCUS;
+  if (f > 0.0 && h_n > 0.0 && ss.t > 0.0 && ss.i0 + 2 < SV_N_SUN) {
+    float b_n = SV_SUN_WARP * sqrt(clamp(h_n / (top_radius - bottom_radius), 0.0, 1.0));
+    float s_n = SkyViewSunWarp(SkyViewSunNodeDeg(ss.i0), b_n);
+    if (y + f * (SkyViewLimbSliceMap(y, s_q, h_q, s_n, h_n) - y) > SV_LIMB_BAND_DEEPEST) {
+      SvStencil st;
+      st.first = ss.i0 + 1;
+      st.i0 = st.first;
+      st.len = 2;
+      float x0 = SkyViewSunNodeDeg(st.first);
+      st.t = min((above_deg - x0) / (SkyViewSunNodeDeg(st.first + 1) - x0), 0.0);
+      st.w = vec4(1.0 - st.t, st.t, 0.0, 0.0);
+      return st;
+    }
+  }
+  if (ss.i0 == ss.first) return ss;
+  int lowest = SkyViewLimbSunLowest(y, s_q, h_q, h_n, ss);
+  if (lowest == ss.first) return ss;
+  return SkyViewStencil(float(ss.i0) + ss.t, lowest, SV_N_SUN - 1, true, above_deg);
 }
 
 // The sky rows' full focus strength at altitude h (the reader's band_focus_strength): grows
@@ -897,13 +925,10 @@ vec3 SkyViewRadiance(float h, float rho, vec3 up, vec3 view_ray, vec3 sun_direct
       if (a >= sa.len) break;
       vec3 by_sun[4] = vec3[4](vec3(0.0), vec3(0.0), vec3(0.0), vec3(0.0));
       SvStencil sc = sc_n[a];
-      // On the limb rows, without the sun nodes whose slice is read past its horizon.
+      // On the limb rows, without the sun nodes read too deep.
       SvStencil ss = ss_q;
-      if (segment == 1 && ss_q.i0 > ss_q.first) {
-        int lowest = SkyViewLimbSunLowest(y_limb, s_q, h, sv_alt_nodes[sa.first + a], ss_q);
-        if (lowest > ss_q.first) {
-          ss = SkyViewStencil(float(ss_q.i0) + ss_q.t, lowest, SV_N_SUN - 1, true, above_deg);
-        }
+      if (segment == 1) {
+        ss = SkyViewLimbSunStencil(ss_q, y_limb, s_q, h, sv_alt_nodes[sa.first + a], above_deg);
       }
       for (int s = 0; s < 4; ++s) {
         if (s >= ss.len) break;

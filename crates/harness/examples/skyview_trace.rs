@@ -19,7 +19,7 @@ use skybake_lut::manifest::MANIFEST_FILE;
 use skybake_lut::skyview::{
     altitude_abscissa, altitude_coord, altitude_node_m, altitude_node_x, azimuth_coord,
     band_centre_deg, band_map_weight, band_relative_elevation, band_row, band_slice_elevation,
-    limb_depth_of, limb_row_focused, limb_slice_depth, limb_sun_lowest, ray_length, segment_rows,
+    limb_depth_of, limb_row_focused, limb_slice_depth, limb_sun_stencil, ray_length, segment_rows,
     sky_row_focus, sun_coord, sun_node_deg, sun_shift, sun_unwarp, sun_warp, sun_warp_centre,
     view_coord, warp_strength, Stencil, N_ALT, N_SUN, N_VIEW_LIMB, N_VIEW_SKY, SUN_MIN_DEG,
 };
@@ -160,15 +160,9 @@ fn main() {
             let sc = skybake_lut::skyview::column_stencil(col_n, 4);
             print(&format!("p{part}_k{k}_column"), &[col_n]);
             stencil(&format!("p{part}_k{k}_azimuth_stencil"), &sc);
-            // On the limb rows, without the sun nodes whose slice is read past its horizon.
-            let lowest = if seg == 1 && ss_q.i0 > ss_q.first {
-                limb_sun_lowest(limb_y, s_deg, h, h_n, thickness, ss_q.first, ss_q.i0)
-            } else {
-                ss_q.first
-            };
-            let ss = if lowest > ss_q.first {
-                let y = ss_q.i0 as f64 + ss_q.t;
-                Stencil::new(y, lowest, N_SUN - 1, sun_node_deg, deg)
+            // On the limb rows, without the sun nodes read too deep.
+            let ss = if seg == 1 {
+                limb_sun_stencil(ss_q, limb_y, s_deg, h, h_n, thickness, deg, 4)
             } else {
                 ss_q
             };

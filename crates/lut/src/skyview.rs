@@ -119,7 +119,7 @@ pub const LAYOUT: &str = "skyview";
 /// 19: the sky rows' focus and the band maps kept up to 35–40 km, the band rising aloft, the
 /// slices' map faded in with the azimuth aloft (texels change); the columns continued by mirror
 /// images past the sun and the antisolar point, and the limb slices' horizon held longer.
-pub const SKYVIEW_VERSION: &str = "19";
+pub const SKYVIEW_VERSION: &str = "20";
 
 /// Altitude nodes of the base map ([`altitude_abscissa`], about (top − bottom) · (x / 27)²,
 /// denser near the top): its integers 0..=27.
@@ -1200,18 +1200,80 @@ pub fn limb_slice_map(y: f64, sun_q: f64, h_q: f64, sun_n: f64, h_n: f64) -> f64
     }
 }
 
-/// Whether [`limb_slice_depth`] reads the slice of sun coordinate `sun_n` and altitude `h_n`
-/// (m) past its horizon for a query at depth `y` with sun coordinate `sun_q` at altitude `h_q`
-/// (m): y + f (m − y) > 1, m = [`limb_slice_map`], f the query's focus fade (the depth is then
-/// clamped towards the horizon). Where the band lies near the horizon (20 km up, the sun 1–2°
-/// below the tangent point's horizon) the band of the next lower sun node lies past it, and a
-/// query just past its own band would read that slice at its horizon, across the band.
-pub fn limb_slice_past_horizon(y: f64, sun_q: f64, h_q: f64, sun_n: f64, h_n: f64) -> bool {
+/// [`limb_slice_depth`] before its clamp: y + f (m − y), m = [`limb_slice_map`], f the query's
+/// focus fade (y where f = 0): the depth at which the slice of sun coordinate `sun_n` and
+/// altitude `h_n` (m) is read for a query at depth `y` with sun coordinate `sun_q` at altitude
+/// `h_q` (m), above 1 past the slice's horizon.
+pub fn limb_slice_reach(y: f64, sun_q: f64, h_q: f64, sun_n: f64, h_n: f64) -> f64 {
     let f = limb_row_focus(sun_q, h_q).1 / LIMB_BAND_FOCUS;
     if f <= 0.0 || h_n <= 0.0 {
-        return false;
+        return y;
     }
-    y + f * (limb_slice_map(y, sun_q, h_q, sun_n, h_n) - y) > 1.0
+    y + f * (limb_slice_map(y, sun_q, h_q, sun_n, h_n) - y)
+}
+
+/// Whether [`limb_slice_depth`] reads the slice of sun coordinate `sun_n` and altitude `h_n`
+/// (m) past its horizon for a query at depth `y` with sun coordinate `sun_q` at altitude `h_q`
+/// (m): [`limb_slice_reach`] > 1 (the depth is then clamped towards the horizon). Where the
+/// band lies near the horizon (20 km up, the sun 1–2° below the tangent point's horizon) the
+/// band of the next lower sun node lies past it, and a query just past its own band would read
+/// that slice at its horizon, across the band.
+pub fn limb_slice_past_horizon(y: f64, sun_q: f64, h_q: f64, sun_n: f64, h_n: f64) -> bool {
+    limb_slice_reach(y, sun_q, h_q, sun_n, h_n) > 1.0
+}
+
+/// The deepest depth (a fraction of the altitude) at which the limb rows read the slice of the
+/// sun interval's lower node ([`limb_sun_stencil`]). Seen from 17.5 km, sun −3.75°, the limb
+/// 0.5° above the horizon 165° from the sun (the band at D/h = 0.955, at the horizon), the
+/// 16.88 km slice of the lower node read at 0.989 on its sparse rows near the horizon (rows
+/// +11.8 %, the sun and altitude nodes over exact slices +6.27 %, 680 nm). Scan (the earth's
+/// shadow seen from 12.5 / 17.5 km, between the dense check's samples / dense): 1 (none left
+/// out) 3.42 / 8.72 %, 0.97 2.66 / 6.49 %.
+pub const LIMB_BAND_DEEPEST: f64 = 0.97;
+
+/// Altitude node `h_n`'s (m) sun stencil on the limb rows for a query at depth `y` with sun
+/// coordinate `sun_q` at altitude `h_q` (m) whose sun stencil is `ss` (at node coordinate
+/// `deg_q`, degrees; `nodes` as [`Stencil::with_nodes`]): where the interval's lower node's
+/// slice would be read deeper than [`LIMB_BAND_DEEPEST`] ([`limb_slice_reach`]) the line
+/// through the two nodes above it, extrapolated ([`Stencil::below`]); else without the lower
+/// nodes read past the horizon ([`limb_sun_lowest`]). Two-node stencils as they are.
+#[allow(clippy::too_many_arguments)]
+pub fn limb_sun_stencil(
+    ss: Stencil,
+    y: f64,
+    sun_q: f64,
+    h_q: f64,
+    h_n: f64,
+    thickness: f64,
+    deg_q: f64,
+    nodes: usize,
+) -> Stencil {
+    if nodes <= 2 || ss.len <= 2 {
+        return ss;
+    }
+    let b = warp_strength(h_n, thickness);
+    let focused = limb_row_focus(sun_q, h_q).1 > 0.0 && h_n > 0.0;
+    if focused && ss.t > 0.0 && ss.i0 + 2 < N_SUN {
+        let s_i0 = sun_warp(sun_node_deg(ss.i0), b, 0.0);
+        if limb_slice_reach(y, sun_q, h_q, s_i0, h_n) > LIMB_BAND_DEEPEST {
+            return Stencil::below(ss.i0 + 1, sun_node_deg, deg_q);
+        }
+    }
+    if ss.i0 == ss.first {
+        return ss;
+    }
+    let lo = limb_sun_lowest(y, sun_q, h_q, h_n, thickness, ss.first, ss.i0);
+    if lo == ss.first {
+        return ss;
+    }
+    Stencil::with_nodes(
+        ss.i0 as f64 + ss.t,
+        lo,
+        N_SUN - 1,
+        sun_node_deg,
+        deg_q,
+        nodes,
+    )
 }
 
 /// The lowest sun node the limb rows of altitude node `h_n` (m) read for a query at depth `y`
@@ -2005,9 +2067,25 @@ impl Stencil {
         }
     }
 
+    /// The stencil of `xq` below node `first`'s abscissa (`x` as in [`Self::new`]): the line
+    /// through nodes `first` and `first + 1`, extrapolated (t = (xq − x₀)/(x₁ − x₀) < 0; not
+    /// bounded by the values' range, [`Self::mix`]).
+    pub fn below(first: usize, x: impl Fn(usize) -> f64, xq: f64) -> Self {
+        let (x0, x1) = (x(first), x(first + 1));
+        let t = ((xq - x0) / (x1 - x0)).min(0.0);
+        Self {
+            first,
+            len: 2,
+            w: [1.0 - t, t, 0.0, 0.0],
+            i0: first,
+            t,
+        }
+    }
+
     /// Interpolates `v` (the stencil's node values): the Lagrange polynomial of their
-    /// logarithms (exact for exponentials of a cubic), bounded by the values' range; where a
-    /// value is not positive, geometric between the interval's two nodes ([`geo_mix`]).
+    /// logarithms (exact for exponentials of a cubic), bounded by the values' range (not where
+    /// extrapolating, t < 0: [`Self::below`]); where a value is not positive, geometric between
+    /// the interval's two nodes ([`geo_mix`]).
     pub fn mix(&self, v: &[f64]) -> f64 {
         let v = &v[..self.len];
         let (a, b) = (v[self.i0 - self.first], v[self.i0 + 1 - self.first]);
@@ -2015,9 +2093,17 @@ impl Stencil {
             return a;
         }
         if v.iter().any(|&x| x <= 0.0 || !x.is_finite()) {
-            return geo_mix(a, b, self.t);
+            // Extrapolating (t < 0): the first node's value.
+            return if self.t < 0.0 {
+                a
+            } else {
+                geo_mix(a, b, self.t)
+            };
         }
         let ln: f64 = v.iter().zip(&self.w).map(|(x, w)| w * x.ln()).sum();
+        if self.t < 0.0 {
+            return ln.exp();
+        }
         let (lo, hi) = v
             .iter()
             .fold((f64::MAX, 0.0f64), |(l, h), &x| (l.min(x), h.max(x)));
@@ -2224,19 +2310,14 @@ impl<'a> SkyViewReader<'a> {
             Stencil::with_nodes(y, lo, hi, |i| i as f64, y, self.nodes[2])
         };
         let (sa, ss, deg_q) = self.altitude_sun_stencils(r, mu_s, shift, seg, cos_phi);
-        // On the limb rows, each altitude node's sun stencil without the nodes read past the
-        // slice's horizon ([`limb_sun_lowest`]).
+        // On the limb rows, each altitude node's sun stencil without the nodes read too deep
+        // ([`limb_sun_stencil`]).
         let sun_stencil = |k: usize| -> Stencil {
-            if seg != 1 || ss.i0 == ss.first {
+            if seg != 1 {
                 return ss;
             }
             let h_n = altitude_node_m(k, thickness);
-            let lo = limb_sun_lowest(limb_y, s_deg, h, h_n, thickness, ss.first, ss.i0);
-            if lo == ss.first {
-                return ss;
-            }
-            let y = ss.i0 as f64 + ss.t;
-            Stencil::with_nodes(y, lo, N_SUN - 1, sun_node_deg, deg_q, self.nodes[1])
+            limb_sun_stencil(ss, limb_y, s_deg, h, h_n, thickness, deg_q, self.nodes[1])
         };
         let band_rows = |k: usize, j: usize, sc: &Stencil| {
             (seg < 2)
@@ -2479,8 +2560,8 @@ pub const STATED_ERRORS: &[(&str, &str, f64)] = &[
     ("rayleigh+mie", "sky radiance (sky product), sun -6..5 deg, ground", 0.012),
     ("rayleigh+mie", "sky radiance (sky product), sun -6..5 deg, 0-5 km (the band above the earth's shadow 120 deg from the sun, 680 nm at 5 km, 0.5 deg above the horizontal; the twilight glow towards the sun at most 3 %)", 0.046),
     ("rayleigh+mie", "sky radiance (sky product), sun -6..5 deg, 5-8 km (the band above the earth's shadow, 680 nm at 8 km, 1.75 deg above the horizontal 150 deg from the sun, sun -2.5 deg, the dense check; between its samples 2.5 %)", 0.027),
-    ("rayleigh+mie", "sky radiance (sky product), sun -6..5 deg, 8-12.5 km (the limb 0.2 deg above the horizon 142.5 deg from the sun, 680 nm at 12.5 km, sun -3.125 deg, between the dense check's samples; on them 2.5 % at 11 km, 3.1 % between them at 9.5 km; the twilight glow towards the sun at most 3 %)", 0.035),
-    ("rayleigh+mie", "sky radiance (sky product), sun -6..5 deg, 12.5-20 km (the limb 0.5 deg above the horizon 165 deg from the sun, 680 nm at 17.5 km, sun -3.75 deg, the dense check; at 20 km 4.5 % on the dense check (the sky 2.25 deg up 135 deg from the sun), 5.2 % between its samples; the twilight glow towards the sun at most 3 %)", 0.088),
+    ("rayleigh+mie", "sky radiance (sky product), sun -6..5 deg, 8-12.5 km (the sky 2.1 deg up 172.5 deg from the sun, 680 nm at 9.5 km, sun -2.625 deg, between the dense check's samples; on them 2.5 % at 11 km; at 12.5 km 2.7 % between them, the limb 142.5 deg from the sun; the twilight glow towards the sun at most 3 %)", 0.031),
+    ("rayleigh+mie", "sky radiance (sky product), sun -6..5 deg, 12.5-20 km (the limb 0.5 deg above the horizon 135 deg from the sun, 680 nm at 17.5 km, sun -3.75 deg, the dense check; at 17.5 km 4.9 % on its grid, the sky 3 deg up 150 deg from the sun, sun -4 deg; at 20 km 5.2 % between the dense check's samples, the limb 0.9 deg above the horizon 172.5 deg from the sun, and 4.5 % on them, the sky 2.25 deg up 135 deg from the sun; the twilight glow towards the sun at most 3 %)", 0.065),
     ("rayleigh+mie", "sky radiance (sky product), sun -6..0 deg, 0-5 km, views within 10 deg of the horizon 150-180 deg from the sun (the earth's shadow rising; 680 nm at 2.5 km)", 0.022),
     ("rayleigh+mie", "sky radiance (sky product), sun -6..5 deg, 20-100 km (random samples: 2.9 %, the limb at 48 km, 680 nm; but the limb just above the horizon 150-180 deg from the sun seen from 22.5-40 km, up to 166 %: 35 km, sun -5.5 deg, 0.25 deg above the horizon opposite the sun, 680 nm; 148 % at 40 km, 55 % at 30 km, 23 % at 25 km, 5.7 % at 22.5 km; the band above the earth's shadow above the horizontal at most 9.2 %: 40 km, 7.7 % at 35 km, 6.3 % at 30 km, 4.7 % at 25 km, 3.5 % at 22.5 km)", 1.8),
     ("rayleigh+mie", "sky radiance (sky product), sun -12..-6 deg, ground", 0.033),
@@ -2611,7 +2692,8 @@ pub fn manifest(
                 "altitude_exponent": LIMB_BAND_ALTITUDE_EXPONENT,
                 "max_fraction": LIMB_BAND_MAX_FRACTION,
                 "horizon_held": LIMB_BAND_HORIZON_HELD,
-                "slices": "on the limb rows each (altitude node k, sun node j) slice is read at the depth y_n = y + f (clamp(m, 0, 1) - y) on its own rows, m = y rho where y <= yb, else y rho + w (ybn + (y - yb) (1 - ybn) / (1 - yb) - y rho), w = 1 - smoothstep(horizon_held[0], horizon_held[1], yb), rho = (h / h_n)^altitude_exponent D(s_n) / D(s), yb = min(D(s) / h, max_fraction), ybn = min(yb rho, max_fraction) (formula at s_n, h_n), y the query's depth, s its sun coordinate, h its altitude, s_n and h_n the slice's (s_n = the warped s_j at h_n = altitude_nodes_m[k]), D(s) = max(depth_m[0] + depth_m[1] s' + depth_m[2] s'^2, depth_floor_m), s' = clamp(s, sun_range_deg[0] - 1, sun_range_deg[3]), f = k / focus at the query's (s, h) (y_n = y where f = 0); on the limb rows the sun stencil of altitude node k starts at the first node from the stencil's first up to its interval's lower node whose slice is not read past its horizon, y + f (m - y) <= 1, m = the map before its clamp (the stencil's polynomial through the remaining nodes)",
+                "deepest": LIMB_BAND_DEEPEST,
+                "slices": "on the limb rows each (altitude node k, sun node j) slice is read at the depth y_n = y + f (clamp(m, 0, 1) - y) on its own rows, m = y rho where y <= yb, else y rho + w (ybn + (y - yb) (1 - ybn) / (1 - yb) - y rho), w = 1 - smoothstep(horizon_held[0], horizon_held[1], yb), rho = (h / h_n)^altitude_exponent D(s_n) / D(s), yb = min(D(s) / h, max_fraction), ybn = min(yb rho, max_fraction) (formula at s_n, h_n), y the query's depth, s its sun coordinate, h its altitude, s_n and h_n the slice's (s_n = the warped s_j at h_n = altitude_nodes_m[k]), D(s) = max(depth_m[0] + depth_m[1] s' + depth_m[2] s'^2, depth_floor_m), s' = clamp(s, sun_range_deg[0] - 1, sun_range_deg[3]), f = k / focus at the query's (s, h) (y_n = y where f = 0); on the limb rows the sun stencil of altitude node k starts at the first node from the stencil's first up to its interval's lower node whose slice is not read past its horizon, y + f (m - y) <= 1, m = the map before its clamp (the stencil's polynomial through the remaining nodes); but where the focus acts (k > 0 at the query's s, h) and the interval's lower node i0's slice would be read deeper than deepest, y + f (m - y) > deepest (version 20), the stencil is the line in the logarithms through nodes i0 + 1 and i0 + 2, extrapolated to the query's node coordinate (weights 1 - t, t, t = (x - x_{i0+1}) / (x_{i0+2} - x_{i0+1}) < 0 in the sun node coordinates t_j, not bounded by the two values)",
                 "formula": "the limb rows' focus (version 10) at sun coordinate s (deg; a texel's node s_j, for a query each slice's own s_n at its altitude h_n) and altitude h (m): depth D = depth_m[0] + depth_m[1] s + depth_m[2] s^2 (m), x_c = the limb coordinate of y_c = clamp(D / h, 0, 1) (x_c = 2/3 + (4/3) cos(acos(1 - 27 y_c / 16) / 3 - 2 pi / 3)), k = focus smoothstep(sun_range_deg[0], sun_range_deg[1], s) (1 - smoothstep(sun_range_deg[2], sun_range_deg[3], s)) smoothstep(altitude_range_m[0], altitude_range_m[1], h) (1 - smoothstep(altitude_range_m[2], altitude_range_m[3], h)) (0 where h <= 0); the limb row coordinate of depth y is x = (asinh(k (x0 - x_c)) - A) / (B - A), x0 = 2/3 + (4/3) cos(acos(1 - 27 y / 16) / 3 - 2 pi / 3), A = asinh(-k x_c), B = asinh(k (1 - x_c)) (x = x0 where k < 1e-6); inverse x0 = x_c + sinh(A + x (B - A)) / k, y = 2 x0^2 - x0^3. On the limb rows every (altitude node k, sun node j) slice is read on its own rows at the depth of `slices` (and a column moved below the horizontal by sky_row_band.azimuth likewise, at its depth 2 r sin^2(e_a / 2) / h)",
             },
             "view_rows": format!("rows 0..{} from the zenith to the horizontal: elevation = 90 (1 - x0)^2 (deg), x0 = G^-1(A + x (B - A)), x = row / {}, x_c = 1 - sqrt(c_f / 90), G(x0) = asinh(k (x0 - x_c)) for x0 < x_c, k (x0 - x_c) for x_c <= x0 <= x_c + w, k w + asinh(k (x0 - x_c - w)) above (version 18; w = 0 before), A = G(0), B = G(1), (c_f, k, w) the sky rows' focus (sky_row_band) at the sun's elevation above the observer's horizon (its node's s_j for a texel, the query's own for a query) and the observer's altitude; where k < 1e-6, x0 = x; inverse: x0 = 1 - sqrt(elevation / 90), x = (G(x0) - A) / (B - A) (or x0); rows {}..{} from the horizontal to the horizon: the ray's tangent radius r_t = r - (r - bottom_radius) y, y = 2 x0^2 - x0^3, x0 = the unfocused coordinate of x = (row - {}) / {} with the limb rows' focus (limb_row_band; x0 = x where k = 0; inverse: x0 = 2/3 + (4/3) cos(acos(1 - 27 y / 16) / 3 - 2 pi / 3)), theta = pi/2 + acos(r_t / r); rows {}..{} from the horizon to the nadir: theta = theta_h + (pi - theta_h) x^2, x = (row - {}) / {}, theta_h = pi - asin(bottom_radius / r); r the observer's radius. Interpolation over the rows around the view stays within its segment (see interpolation)", N_VIEW_SKY - 1, N_VIEW_SKY - 1, N_VIEW_SKY, N_VIEW_UP - 1, N_VIEW_SKY, N_VIEW_LIMB - 1, N_VIEW_UP, N_VIEW - 1, N_VIEW_UP, N_VIEW_DOWN - 1),
@@ -3181,6 +3263,39 @@ mod tests {
             limb_sun_lowest(0.5, -1.223, 20_000.0, 20_000.0, thickness, i0 - 1, i0),
             i0 - 1
         );
+        // The interval's lower node (−1.534°) at y = 0.877 is read at 0.957, kept: the stencil
+        // starts there. At y = 0.9 it would be read at y ρ = 0.990 held to 0.945: 0.990 − 0.256 ·
+        // 0.046 = 0.979, deeper than 0.97: the line through the two nodes above, extrapolated.
+        let deg = sun_unwarp(-1.223, b, 0.0);
+        let ss = Stencil::new(y, 0, N_SUN - 1, sun_node_deg, deg);
+        assert_eq!((ss.first, ss.i0), (i0 - 1, i0));
+        let kept = limb_sun_stencil(ss, 0.877, -1.223, 20_000.0, 20_000.0, thickness, deg, 4);
+        assert_eq!((kept.first, kept.len), (i0, 3));
+        let m = limb_slice_reach(0.9, -1.223, 20_000.0, -1.534, 20_000.0);
+        assert!((m - 0.979).abs() < 2e-3, "{m}");
+        let deep = limb_sun_stencil(ss, 0.9, -1.223, 20_000.0, 20_000.0, thickness, deg, 4);
+        assert_eq!((deep.first, deep.len, deep.i0), (i0 + 1, 2, i0 + 1));
+        let t = (deg - sun_node_deg(i0 + 1)) / (sun_node_deg(i0 + 2) - sun_node_deg(i0 + 1));
+        assert!(t < 0.0 && t > -2.0 && (deep.t - t).abs() < 1e-12, "{t}");
+        assert_eq!(deep.w, [1.0 - t, t, 0.0, 0.0]);
+        // Two-node stencils (the sun axis's two-node check) as they are.
+        let two = Stencil::with_nodes(y, 0, N_SUN - 1, sun_node_deg, deg, 2);
+        let same = limb_sun_stencil(two, 0.9, -1.223, 20_000.0, 20_000.0, thickness, deg, 2);
+        assert_eq!((same.first, same.len), (two.first, two.len));
+    }
+
+    #[test]
+    fn the_stencil_below_its_first_node_extrapolates_unbounded() {
+        // Nodes at x = 5, 6 holding e¹, e²; at x = 4.5 the line in the logarithms gives e^0.5,
+        // below both values (a bounded stencil would return e¹).
+        let st = Stencil::below(5, |i| i as f64, 4.5);
+        assert_eq!((st.first, st.len, st.i0), (5, 2, 5));
+        assert_eq!(st.t, -0.5);
+        let e = std::f64::consts::E;
+        assert!((st.mix(&[e, e * e]) - 0.5f64.exp()).abs() < 1e-12);
+        // A value not positive: the first node's value (the shader's GeoMix at t ≤ 0).
+        assert_eq!(st.mix(&[e, 0.0]), e);
+        assert_eq!(st.mix(&[0.0, e]), 0.0);
     }
 
     #[test]
