@@ -202,7 +202,47 @@ impl Span {
     }
 }
 
+/// Where the DDA of Amanatides & Woo (1987) starts a line through the coarse cells: the cell
+/// it enters at parameter `t0`, the step per axis, the parameters of the next cell boundary per
+/// axis and their spacing.
+struct DdaStart {
+    cell: [i64; 3],
+    step: [i64; 3],
+    t_next: [f64; 3],
+    t_delta: [f64; 3],
+}
+
 impl Coarse {
+    /// The DDA's start for the line `pos + t·d` (`d` unit) entering the box from `lo` at `t0`.
+    #[inline(always)]
+    fn dda_start(&self, lo: DVec3, pos: DVec3, d: DVec3, t0: f64) -> DdaStart {
+        let p0 = pos + d * (t0 + 1e-9 * self.cell_m.min_element());
+        let mut cell = [0i64; 3];
+        let mut step = [0i64; 3];
+        let mut t_next = [f64::INFINITY; 3];
+        let mut t_delta = [f64::INFINITY; 3];
+        for a in 0..3 {
+            let h = self.cell_m[a];
+            let local = (p0[a] - lo[a]) / h;
+            cell[a] = (super::volume::floor(local) as i64).clamp(0, self.dims[a] as i64 - 1);
+            if d[a] > 0.0 {
+                step[a] = 1;
+                t_next[a] = t0 + ((cell[a] + 1) as f64 * h + lo[a] - p0[a]) / d[a];
+                t_delta[a] = h / d[a];
+            } else if d[a] < 0.0 {
+                step[a] = -1;
+                t_next[a] = t0 + (cell[a] as f64 * h + lo[a] - p0[a]) / d[a];
+                t_delta[a] = -h / d[a];
+            }
+        }
+        DdaStart {
+            cell,
+            step,
+            t_next,
+            t_delta,
+        }
+    }
+
     fn new(grid: &DensityGrid, max_dim: usize) -> Self {
         let f: [usize; 3] = std::array::from_fn(|a| grid.dims[a].div_ceil(max_dim.max(1)).max(1));
         let dims: [usize; 3] = std::array::from_fn(|a| grid.dims[a].div_ceil(f[a]));
@@ -1221,25 +1261,12 @@ fn fly_in<T: Tally>(
     let d = ph.dir;
     let mut t = t0;
     // DDA through the cells.
-    let p0 = ph.pos + d * (t0 + 1e-9 * g.cell_m.min_element());
-    let mut cell = [0i64; 3];
-    let mut step = [0i64; 3];
-    let mut t_next = [f64::INFINITY; 3];
-    let mut t_delta = [f64::INFINITY; 3];
-    for a in 0..3 {
-        let h = g.cell_m[a];
-        let local = (p0[a] - lo[a]) / h;
-        cell[a] = (super::volume::floor(local) as i64).clamp(0, g.dims[a] as i64 - 1);
-        if d[a] > 0.0 {
-            step[a] = 1;
-            t_next[a] = t0 + ((cell[a] + 1) as f64 * h + lo[a] - p0[a]) / d[a];
-            t_delta[a] = h / d[a];
-        } else if d[a] < 0.0 {
-            step[a] = -1;
-            t_next[a] = t0 + (cell[a] as f64 * h + lo[a] - p0[a]) / d[a];
-            t_delta[a] = -h / d[a];
-        }
-    }
+    let DdaStart {
+        mut cell,
+        step,
+        mut t_next,
+        t_delta,
+    } = g.dda_start(lo, ph.pos, d, t0);
     // A second cursor runs [`LOOKAHEAD`] cells ahead of the track along the same cells and
     // fetches their accumulators (a lane's accumulators are larger than the caches, and a
     // track crosses few cells: fetched one cell ahead, most of the wait remained; a hint, no

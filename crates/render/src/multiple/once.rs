@@ -27,7 +27,7 @@
 //! there. The change is evaluated per coarse
 //! cell towards the camera and interpolated to the voxels.
 
-use super::{real_sh, Coarse, MsField, Photon, Truncation};
+use super::{real_sh, Coarse, DdaStart, MsField, Photon, Truncation};
 use glam::DVec3;
 use rand::{Rng, SeedableRng};
 use rand_pcg::Pcg64;
@@ -283,25 +283,12 @@ impl<'a> CellWalk<'a> {
     /// The walk from `pos` along `d` (unit), or `None` where the line misses the grid's box.
     fn new(g: &'a Coarse, lo: DVec3, hi: DVec3, pos: DVec3, d: DVec3) -> Option<Self> {
         let (t0, t1) = crate::camera::box_interval(pos, d, lo, hi)?;
-        let p0 = pos + d * (t0 + 1e-9 * g.cell_m.min_element());
-        let mut cell = [0i64; 3];
-        let mut step = [0i64; 3];
-        let mut t_next = [f64::INFINITY; 3];
-        let mut t_delta = [f64::INFINITY; 3];
-        for a in 0..3 {
-            let h = g.cell_m[a];
-            let local = (p0[a] - lo[a]) / h;
-            cell[a] = (crate::volume::floor(local) as i64).clamp(0, g.dims[a] as i64 - 1);
-            if d[a] > 0.0 {
-                step[a] = 1;
-                t_next[a] = t0 + ((cell[a] + 1) as f64 * h + lo[a] - p0[a]) / d[a];
-                t_delta[a] = h / d[a];
-            } else if d[a] < 0.0 {
-                step[a] = -1;
-                t_next[a] = t0 + (cell[a] as f64 * h + lo[a] - p0[a]) / d[a];
-                t_delta[a] = -h / d[a];
-            }
-        }
+        let DdaStart {
+            cell,
+            step,
+            t_next,
+            t_delta,
+        } = g.dda_start(lo, pos, d, t0);
         Some(Self {
             g,
             t: t0,
