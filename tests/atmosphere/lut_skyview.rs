@@ -91,6 +91,39 @@ fn channel_index(f: &Fixture, product_nm: &[f64]) -> Vec<usize> {
         .collect()
 }
 
+/// The reader's sky radiance against the `sky` product's ([`sky_probes`]) for an observer at
+/// `altitude_m` and the sun at `sun_deg`: per probe direction (view zenith, azimuth from the sun,
+/// degrees), the (reader, product) radiance of each of the bundle's channels, W m⁻² sr⁻¹ nm⁻¹.
+#[allow(clippy::type_complexity)]
+fn reader_against_product(
+    f: &Fixture,
+    reader: &SkyViewReader,
+    altitude_m: f64,
+    sun_deg: f64,
+    probes: &[(f64, f64)],
+) -> Vec<((f64, f64), Vec<(f64, f64)>)> {
+    let bottom = f.bundle.params.bottom_radius;
+    let product = sky_probes(f, altitude_m, sun_deg, probes);
+    let idx = channel_index(f, &product.table.wavelengths_nm);
+    product
+        .probes
+        .iter()
+        .map(|p| {
+            let (radiance, _) = reader.sky_radiance(
+                [0.0, 0.0, bottom + altitude_m],
+                view_dir(p.view_zenith_deg, p.view_azimuth_deg),
+                sun_dir(sun_deg),
+            );
+            let channels = idx
+                .iter()
+                .enumerate()
+                .map(|(c, &i)| (radiance[c] / UNIT_SCALE, p.radiance_w_m2_sr_nm[i]))
+                .collect();
+            ((p.view_zenith_deg, p.view_azimuth_deg), channels)
+        })
+        .collect()
+}
+
 /// The band of the targets a sky sample falls in.
 fn target_band(sun_deg: f64, near_horizon: bool) -> &'static str {
     if sun_deg >= 5.0 {
@@ -473,7 +506,6 @@ fn skyview_dim_twilight_slices_keep_half_precision() {
 /// 0.25° above the horizon in 1° steps (0.25° steps in the lowest 5°) at 0°, 30°, 60° and 90°
 /// from the sun's azimuth. Returns the largest relative error over the grid and its case.
 fn twilight_glow_errors(f: &Fixture, reader: &SkyViewReader, suns: &[f64]) -> (f64, String) {
-    let bottom = f.bundle.params.bottom_radius;
     let verbose = std::env::var("SKYVIEW_GLOW_VERBOSE").is_ok();
     let mut worst = (0.0f64, String::new());
     let mut zeniths = Vec::new();
@@ -493,23 +525,16 @@ fn twilight_glow_errors(f: &Fixture, reader: &SkyViewReader, suns: &[f64]) -> (f
         .collect();
     for altitude in [0.0, 2500.0, 5000.0, 10000.0, 15000.0, 20000.0] {
         for &sun in suns {
-            let product = sky_probes(f, altitude, sun, &probes);
-            let idx = channel_index(f, &product.table.wavelengths_nm);
-            for p in &product.probes {
-                let (radiance, _) = reader.sky_radiance(
-                    [0.0, 0.0, bottom + altitude],
-                    view_dir(p.view_zenith_deg, p.view_azimuth_deg),
-                    sun_dir(sun),
-                );
-                for (c, &i) in idx.iter().enumerate() {
-                    let want = p.radiance_w_m2_sr_nm[i];
-                    let got = radiance[c] / UNIT_SCALE;
+            for ((view_zenith_deg, view_azimuth_deg), channels) in
+                reader_against_product(f, reader, altitude, sun, &probes)
+            {
+                for (c, &(got, want)) in channels.iter().enumerate() {
                     let e = rel(got, want);
                     if verbose && e > 0.03 {
                         eprintln!(
                             "glow alt {altitude:.0} sun {sun:.0} zen {:.2} az {:.0} {} nm {:+.2}%",
-                            p.view_zenith_deg,
-                            p.view_azimuth_deg,
+                            view_zenith_deg,
+                            view_azimuth_deg,
                             f.bundle.wavelengths_nm[c],
                             100.0 * (got - want) / want
                         );
@@ -519,7 +544,7 @@ fn twilight_glow_errors(f: &Fixture, reader: &SkyViewReader, suns: &[f64]) -> (f
                             e,
                             format!(
                                 "(alt {altitude:.0} m, sun {sun:.0}, view zenith {:.2} azimuth {:.0}, {} nm: {got:.4e} vs {want:.4e})",
-                                p.view_zenith_deg, p.view_azimuth_deg, f.bundle.wavelengths_nm[c]
+                                view_zenith_deg, view_azimuth_deg, f.bundle.wavelengths_nm[c]
                             ),
                         );
                     }
@@ -758,18 +783,11 @@ fn shadow_grid_errors(
             }
         }
         for sun in [-6.0, -5.0, -4.0, -3.0, -2.0, -1.0, 0.0] {
-            let product = sky_probes(f, altitude, sun, &probes);
-            let idx = channel_index(f, &product.table.wavelengths_nm);
-            for p in &product.probes {
-                let (radiance, _) = reader.sky_radiance(
-                    [0.0, 0.0, bottom + altitude],
-                    view_dir(p.view_zenith_deg, p.view_azimuth_deg),
-                    sun_dir(sun),
-                );
+            for ((view_zenith_deg, view_azimuth_deg), channels) in
+                reader_against_product(f, reader, altitude, sun, &probes)
+            {
                 let mut line = String::new();
-                for (c, &i) in idx.iter().enumerate() {
-                    let want = p.radiance_w_m2_sr_nm[i];
-                    let got = radiance[c] / UNIT_SCALE;
+                for (c, &(got, want)) in channels.iter().enumerate() {
                     let e = rel(got, want);
                     line += &format!(" {:+.2}%", 100.0 * (got - want) / want);
                     if e > worst.0 {
@@ -777,7 +795,7 @@ fn shadow_grid_errors(
                             e,
                             format!(
                                 "(alt {altitude:.0} m, sun {sun:.0}, view zenith {:.2} azimuth {:.0}, {} nm: {got:.4e} vs {want:.4e})",
-                                p.view_zenith_deg, p.view_azimuth_deg, f.bundle.wavelengths_nm[c]
+                                view_zenith_deg, view_azimuth_deg, f.bundle.wavelengths_nm[c]
                             ),
                         );
                     }
@@ -785,7 +803,7 @@ fn shadow_grid_errors(
                 if verbose {
                     eprintln!(
                         "shadow alt {altitude:.0} sun {sun:.0} zen {:.2} az {:.0}:{line}",
-                        p.view_zenith_deg, p.view_azimuth_deg
+                        view_zenith_deg, view_azimuth_deg
                     );
                 }
             }
@@ -958,24 +976,17 @@ fn shadow_between_errors(
         }
         for i in 0..24 {
             let sun = -5.875 + 0.25 * i as f64;
-            let product = sky_probes(f, altitude, sun, &probes);
-            let idx = channel_index(f, &product.table.wavelengths_nm);
-            for p in &product.probes {
-                let (radiance, _) = reader.sky_radiance(
-                    [0.0, 0.0, bottom + altitude],
-                    view_dir(p.view_zenith_deg, p.view_azimuth_deg),
-                    sun_dir(sun),
-                );
-                for (c, &i) in idx.iter().enumerate() {
-                    let want = p.radiance_w_m2_sr_nm[i];
-                    let got = radiance[c] / UNIT_SCALE;
+            for ((view_zenith_deg, view_azimuth_deg), channels) in
+                reader_against_product(f, reader, altitude, sun, &probes)
+            {
+                for (c, &(got, want)) in channels.iter().enumerate() {
                     let e = rel(got, want);
                     if e > worst.0 {
                         worst = (
                             e,
                             format!(
                                 "(alt {altitude:.0} m, sun {sun:.3}, view zenith {:.3} azimuth {:.1}, {} nm: {got:.4e} vs {want:.4e})",
-                                p.view_zenith_deg, p.view_azimuth_deg, f.bundle.wavelengths_nm[c]
+                                view_zenith_deg, view_azimuth_deg, f.bundle.wavelengths_nm[c]
                             ),
                         );
                     }
@@ -1015,29 +1026,22 @@ fn shadow_aloft_errors(
         for i in 0..=24 {
             let sun = -6.0 + 0.25 * i as f64;
             let on_grid = i % 4 == 0;
-            let product = sky_probes(f, altitude, sun, &probes);
-            let idx = channel_index(f, &product.table.wavelengths_nm);
-            for p in &product.probes {
-                let (radiance, _) = reader.sky_radiance(
-                    [0.0, 0.0, bottom + altitude],
-                    view_dir(p.view_zenith_deg, p.view_azimuth_deg),
-                    sun_dir(sun),
-                );
-                let grid_az = p.view_azimuth_deg == 150.0 || p.view_azimuth_deg == 180.0;
-                for (c, &i) in idx.iter().enumerate() {
-                    let want = p.radiance_w_m2_sr_nm[i];
-                    let got = radiance[c] / UNIT_SCALE;
+            for ((view_zenith_deg, view_azimuth_deg), channels) in
+                reader_against_product(f, reader, altitude, sun, &probes)
+            {
+                let grid_az = view_azimuth_deg == 150.0 || view_azimuth_deg == 180.0;
+                for (c, &(got, want)) in channels.iter().enumerate() {
                     let e = rel(got, want);
                     let case = || {
                         format!(
                             "(alt {altitude:.0} m, sun {sun:.2}, view zenith {:.2} azimuth {:.0}, {} nm: {got:.4e} vs {want:.4e})",
-                            p.view_zenith_deg, p.view_azimuth_deg, f.bundle.wavelengths_nm[c]
+                            view_zenith_deg, view_azimuth_deg, f.bundle.wavelengths_nm[c]
                         )
                     };
                     if e > dense.0 {
                         dense = (e, case());
                     }
-                    if p.view_zenith_deg <= 90.0 && e > sky.0 {
+                    if view_zenith_deg <= 90.0 && e > sky.0 {
                         sky = (e, case());
                     }
                     if on_grid && grid_az && e > grid.0 {
