@@ -1119,9 +1119,10 @@ pub const LIMB_BAND_HORIZON_HELD: [f64; 2] = [0.65, 0.9];
 /// last two). Version 20: out from 25–30 km (20–25 km before): the limb just above the horizon
 /// 165–180° from the sun seen from 22.5 / 25 km on the dense check of the earth's shadow 26.9 /
 /// 39.5 → 5.7 / 23.0 % (30 km 54.5 → 54.6 %; 22.5 km 6.8 % with [`LIMB_BAND_DEEPEST`]), the
-/// random samples of the sun −6…5° from 20–100 km 2.89 % either way (version 18's 19.6 % with it was the slices' band map, since faded in with
-/// the azimuth aloft). Out from 30–35 km: 5.1 / 18.7 / **61.7** %; from 35–40 km: 5.1 / 18.7 /
-/// 61.7 %, 35 km 166 → 175 % (docs/lut.md, "Tried and not kept").
+/// random samples of the sun −6…5° from 20–100 km 2.89 % either way (version 18's 19.6 % with
+/// it was the slices' band map, since faded in with the azimuth aloft). Out from 30–35 km: 5.1 /
+/// 18.7 / **61.7** %; from 35–40 km: 5.1 / 18.7 / 61.7 %, 35 km 166 → 175 % (docs/lut.md, "Tried
+/// and not kept").
 pub const LIMB_BAND_ALTITUDE_M: [f64; 4] = [6_000.0, 9_000.0, 25_000.0, 30_000.0];
 
 /// The limb rows' focus at sun coordinate `sun_deg` (degrees, [`sun_shift`]) and altitude `h`
