@@ -160,7 +160,7 @@ void main() {
         if (s >= ss.len) break;
         int k = sa.first + a, j = ss.first + s;
         float h_n = sv_alt_nodes[k];
-        float b_n = SV_SUN_WARP * sqrt(clamp(h_n / (top_radius - bottom_radius), 0.0, 1.0));
+        float b_n = SkyViewWarpStrength(h_n);
         float s_n = SkyViewSunWarp(SkyViewSunNodeDeg(j), b_n);
         vec3 value;
         SvStencil band_rows[4];

@@ -389,6 +389,12 @@ float SkyViewSunWarp(float t, float b) {
   return e * sinh(b * t / e) / sinh(b);
 }
 
+// The sun axis's warp strength at altitude h (m) (the reader's warp_strength): b = SV_SUN_WARP
+// sqrt(h / thickness), h clamped to the atmosphere.
+float SkyViewWarpStrength(float h) {
+  return SV_SUN_WARP * sqrt(clamp(h / (top_radius - bottom_radius), 0.0, 1.0));
+}
+
 // The lowest sun node the limb rows of the altitude node h_n read for a query at depth y with
 // sun coordinate s_q at altitude h_q, whose sun stencil is ss (the reader's limb_sun_lowest):
 // from ss.first up to ss.i0, the first whose slice (its node warped at h_n) is not read past its
@@ -396,7 +402,7 @@ float SkyViewSunWarp(float t, float b) {
 int SkyViewLimbSunLowest(float y, float s_q, float h_q, float h_n, SvStencil ss) {
   float f = SkyViewLimbFocus(s_q, h_q).y / SV_LIMB_BAND_FOCUS;
   if (f <= 0.0 || h_n <= 0.0) return ss.first;
-  float b_n = SV_SUN_WARP * sqrt(clamp(h_n / (top_radius - bottom_radius), 0.0, 1.0));
+  float b_n = SkyViewWarpStrength(h_n);
   int lo = ss.first;
   for (int j = ss.first; j < ss.i0; ++j) {
     float s_n = SkyViewSunWarp(SkyViewSunNodeDeg(j), b_n);
@@ -414,7 +420,7 @@ SvStencil SkyViewLimbSunStencil(SvStencil ss, float y, float s_q, float h_q, flo
   if (ss.len <= 2) return ss;
   float f = SkyViewLimbFocus(s_q, h_q).y / SV_LIMB_BAND_FOCUS;
   if (f > 0.0 && h_n > 0.0 && ss.t > 0.0 && ss.i0 + 2 < SV_N_SUN) {
-    float b_n = SV_SUN_WARP * sqrt(clamp(h_n / (top_radius - bottom_radius), 0.0, 1.0));
+    float b_n = SkyViewWarpStrength(h_n);
     float s_n = SkyViewSunWarp(SkyViewSunNodeDeg(ss.i0), b_n);
     if (y + f * (SkyViewLimbSliceMap(y, s_q, h_q, s_n, h_n) - y) > SV_LIMB_BAND_DEEPEST) {
       SvStencil st;
@@ -733,7 +739,7 @@ void SkyViewAltitudeSun(float h, float shift, float c, float mu_s, out int k0, o
     if (sv_alt_x[k] <= x) k0 = k;
   }
   tk = clamp((x - sv_alt_x[k0]) / (sv_alt_x[k0 + 1] - sv_alt_x[k0]), 0.0, 1.0);
-  float b = SV_SUN_WARP * sqrt(clamp(h / thickness, 0.0, 1.0));
+  float b = SkyViewWarpStrength(h);
   above_deg = clamp(SkyViewSunUnwarp(degrees(asin(clamp(mu_s, -1.0, 1.0)) + shift), b, c),
                     SkyViewSunNodeDeg(0), SkyViewSunNodeDeg(SV_N_SUN - 1));
   j0 = SkyViewSplit(SkyViewSunCoord(above_deg), SV_N_SUN, tj);
@@ -780,7 +786,7 @@ vec3 SkyViewFetchBand(sampler2D part, int k, int j, SvStencil sc, SvStencil rows
 bool SkyViewBandRows(float elevation_deg, float c, float k_q, float s_q, float h, float cos_phi,
                      vec4 cos_cols, int k, int j, out SvStencil rows[4]) {
   float h_n = sv_alt_nodes[k];
-  float b = SV_SUN_WARP * sqrt(clamp(h_n / (top_radius - bottom_radius), 0.0, 1.0));
+  float b = SkyViewWarpStrength(h_n);
   float s_n = SkyViewSunWarp(SkyViewSunNodeDeg(j), b);
   float c_n, k_n;
   SkyViewBandFocus(s_n, h_n, c_n, k_n);
@@ -945,7 +951,7 @@ vec3 SkyViewRadiance(float h, float rho, vec3 up, vec3 view_ray, vec3 sun_direct
           SvStencil sv_n = sv;
           if (segment == 1) {
             float h_n = sv_alt_nodes[sa.first + a];
-            float b_n = SV_SUN_WARP * sqrt(clamp(h_n / (top_radius - bottom_radius), 0.0, 1.0));
+            float b_n = SkyViewWarpStrength(h_n);
             float s_n = SkyViewSunWarp(SkyViewSunNodeDeg(ss.first + s), b_n);
             vec2 limb_n = SkyViewLimbFocus(s_n, h_n);
             float y_n = SkyViewLimbSliceDepth(y_limb, s_q, h, s_n, h_n);
