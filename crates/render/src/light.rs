@@ -677,7 +677,8 @@ impl SkyElements {
         ]
     }
 
-    /// Bilinear lookup for view direction `d` (camera → point): `[element][λ]` into `out`.
+    /// Bilinear lookup for view direction `d` (camera → point): `[element][λ]` into `out`,
+    /// the first `out.len()` values of the `[element][λ]` row (all elements, or the first few).
     pub fn lookup(&self, d: DVec3, out: &mut [f64]) {
         let per = self.elements * self.n_l;
         out.iter_mut().for_each(|o| *o = 0.0);

@@ -217,7 +217,9 @@ impl<'a> Prepared<'a> {
                 vox.par_chunks_mut(nx * ny * stride)
                     .enumerate()
                     .for_each(|(z, slab)| {
-                        let mut il = vec![0.0; elements.elements * n_l];
+                        // The sun's cap and the lattice elements only (the view cap's two
+                        // are the march's, `SkyElements::lookup_view`).
+                        let mut il = vec![0.0; (paths.len() + 1) * n_l];
                         let mut trans = vec![0.0; paths.len() + 1];
                         let mut masked = cached.map_or(0, |c| c.first[z]);
                         for (i, v) in slab.chunks_mut(stride).enumerate() {
@@ -304,53 +306,61 @@ impl<'a> Prepared<'a> {
                 let k_true = &optics.extinction_per_density_m;
                 let cells = lit.ms_cells.get_or_init(|| field.convolved_cells());
                 let once = field.once_towards(&view);
-                vox.par_chunks_mut(nx * ny * stride)
-                    .enumerate()
-                    .for_each(|(z, slab)| {
-                        let mut j = vec![0.0; n_l];
-                        for (i, v) in slab.chunks_mut(stride).enumerate() {
-                            if !mask[z * nx * ny + i] {
-                                continue;
+                let sun_at = |v: &[f32]| {
+                    sun_on.then(|| {
+                        (
+                            -lighting.sun_dir,
+                            &lighting.sun_irradiance[..],
+                            (v[1] as f64).powi(2),
+                        )
+                    })
+                };
+                // Each slab's sources towards the camera, and with them the skin's records
+                // (`out`, where the field has skin tallies): in one pass, so the field's source,
+                // which the skin's record replaces, is computed once per voxel.
+                let slab_sources = |z: usize, slab: &mut [f32], mut out: Option<&mut [f32]>| {
+                    let (mut j, mut js) = (vec![0.0; n_l], vec![0.0; n_l]);
+                    for (i, v) in slab.chunks_mut(stride).enumerate() {
+                        let o = out.as_deref_mut().map(|o| &mut o[i * n_l..(i + 1) * n_l]);
+                        if !mask[z * nx * ny + i] {
+                            if let Some(o) = o {
+                                o.copy_from_slice(&v[2..]);
                             }
-                            let p = grid.voxel_centre(i % nx, i / nx, z);
-                            let sun = sun_on.then(|| {
-                                (
-                                    -lighting.sun_dir,
-                                    &lighting.sun_irradiance[..],
-                                    (v[1] as f64).powi(2),
-                                )
-                            });
-                            field_source(
-                                grid,
-                                field,
-                                cells,
-                                &once,
-                                &quad,
-                                k_true,
-                                [i % nx, i / nx, z],
-                                view(p),
-                                sun,
-                                &mut j,
-                            );
-                            for l in 0..n_l {
-                                v[2 + l] += (ms_albedo[l] * j[l]) as f32;
-                            }
+                            continue;
                         }
-                    });
-                skin = skin_sources(
-                    grid,
-                    &vox,
-                    stride,
-                    mask,
-                    field,
-                    cells,
-                    &once,
-                    ms_albedo,
-                    &view,
-                    &quad,
-                    k_true,
-                    sun_on.then(|| (-lighting.sun_dir, &lighting.sun_irradiance[..])),
-                );
+                        let p = grid.voxel_centre(i % nx, i / nx, z);
+                        let d = view(p);
+                        field_source(
+                            grid,
+                            field,
+                            cells,
+                            &once,
+                            &quad,
+                            k_true,
+                            [i % nx, i / nx, z],
+                            d,
+                            sun_at(v),
+                            &mut j,
+                        );
+                        for l in 0..n_l {
+                            v[2 + l] += (ms_albedo[l] * j[l]) as f32;
+                        }
+                        if let Some(o) = o {
+                            skin_record(field, p, d, v, &j, &mut js, ms_albedo, o);
+                        }
+                    }
+                };
+                if field.has_skin() {
+                    skin = vec![0f32; grid.data.len() * n_l];
+                    vox.par_chunks_mut(nx * ny * stride)
+                        .zip(skin.par_chunks_mut(nx * ny * n_l))
+                        .enumerate()
+                        .for_each(|(z, (slab, out))| slab_sources(z, slab, Some(out)));
+                } else {
+                    vox.par_chunks_mut(nx * ny * stride)
+                        .enumerate()
+                        .for_each(|(z, slab)| slab_sources(z, slab, None));
+                }
                 stages.ran.push(format!(
                     "multiple scattering, all orders: photon transport on a {}x{}x{} grid, {}, P{} angular reconstruction",
                     field.dims[0], field.dims[1], field.dims[2],
@@ -1405,71 +1415,35 @@ fn field_source(
             )
         }
         None => {
-            field.inscatter_convolved(cells, p, d, out);
+            // The cells' weights round `p` once for both tallies.
+            let weights = field.cell_weights(p);
+            field.inscatter_convolved_weighted(cells, p, &weights, d, out);
             // The sun's once-scattered light in place of the field's (not through a face).
-            field.once_add(once, p, out);
+            field.once_add_weighted(once, &weights, out);
         }
     }
 }
 
-/// The per-voxel source with the multiple-scattering field's skin tallies
-/// ([`Prepared::skin`]): `vox`'s source with ω*·J* replaced by the skin's where a cell round
-/// the voxel has a skin (the skin's tally as it is, not seen through the face: it is already
-/// the field in the first optical depth below the face); empty where the field has none.
+/// A voxel's record with the multiple-scattering field's skin tallies
+/// ([`Prepared::skin`]): its source `v[2..]` (which holds ω*·J*, `j` the field's J* there)
+/// with ω*·J* replaced by the skin's where a cell round the voxel has a skin (the skin's tally
+/// as it is, not seen through the face: it is already the field in the first optical depth
+/// below the face), else `v[2..]` as it is; into `out`.
 #[allow(clippy::too_many_arguments)]
-fn skin_sources(
-    grid: &DensityGrid,
-    vox: &[f32],
-    stride: usize,
-    mask: &[bool],
+fn skin_record(
     field: &super::multiple::MsField,
-    cells: &super::multiple::ConvolvedCells,
-    once: &[f32],
+    p: DVec3,
+    d: DVec3,
+    v: &[f32],
+    j: &[f64],
+    js: &mut [f64],
     ms_albedo: &[f64],
-    view: &(dyn Fn(DVec3) -> DVec3 + Sync),
-    quad: &FaceQuadrature,
-    k_true: &[f64],
-    sun: Option<(DVec3, &[f64])>,
-) -> Vec<f32> {
-    if !field.has_skin() {
-        return Vec::new();
+    out: &mut [f32],
+) {
+    out.copy_from_slice(&v[2..]);
+    if field.inscatter_skin(p, d, js) {
+        for (l, o) in out.iter_mut().enumerate() {
+            *o = (v[2 + l] as f64 + ms_albedo[l] * (js[l] - j[l])) as f32;
+        }
     }
-    let sun_at = |v: &[f32]| sun.map(|(t, irr)| (t, irr, (v[1] as f64).powi(2)));
-    let n_l = stride - 2;
-    let [nx, ny, _] = grid.dims;
-    let mut skin = vec![0f32; grid.data.len() * n_l];
-    skin.par_chunks_mut(nx * ny * n_l)
-        .zip(vox.par_chunks(nx * ny * stride))
-        .enumerate()
-        .for_each(|(z, (out, slab))| {
-            let (mut j, mut js) = (vec![0.0; n_l], vec![0.0; n_l]);
-            for (i, (o, v)) in out.chunks_mut(n_l).zip(slab.chunks(stride)).enumerate() {
-                o.copy_from_slice(&v[2..]);
-                if !mask[z * nx * ny + i] {
-                    continue;
-                }
-                let p = grid.voxel_centre(i % nx, i / nx, z);
-                let d = view(p);
-                if !field.inscatter_skin(p, d, &mut js) {
-                    continue;
-                }
-                // What `vox` holds here.
-                field_source(
-                    grid,
-                    field,
-                    cells,
-                    once,
-                    quad,
-                    k_true,
-                    [i % nx, i / nx, z],
-                    d,
-                    sun_at(v),
-                    &mut j,
-                );
-                for l in 0..n_l {
-                    o[l] = (v[2 + l] as f64 + ms_albedo[l] * (js[l] - j[l])) as f32;
-                }
-            }
-        });
-    skin
 }

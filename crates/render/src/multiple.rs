@@ -826,7 +826,7 @@ impl MsField {
     /// edge towards the denser interior cells, whose fluence is higher than the edge's (where
     /// light escapes), and the field read +16…+27 % against a path tracer's orders ≥ 2 where
     /// the view ray's optical depth is 1–2 on the Mitsuba 3 cumulus (docs/frames.md, "Accuracy").
-    fn cell_weights(&self, p: DVec3) -> [(usize, f64); 8] {
+    pub fn cell_weights(&self, p: DVec3) -> [(usize, f64); 8] {
         let local = (p - self.origin_m) / self.cell_m - DVec3::splat(0.5);
         let mut i0 = [0usize; 3];
         let mut i1 = [0usize; 3];
@@ -854,19 +854,15 @@ impl MsField {
                 sum_cloud += w;
             }
         }
+        // One divisor for all 8 (the same quotients as dividing by either sum per corner), so
+        // the divisions need no branch per corner.
         let in_cloud = sum_cloud > 0.0;
-        cells.map(|(c, w, cloud)| {
-            let w = if in_cloud {
-                if cloud {
-                    w / sum_cloud
-                } else {
-                    0.0
-                }
-            } else {
-                w / sum_w.max(1e-300)
-            };
-            (c, w)
-        })
+        let sum = if in_cloud {
+            sum_cloud
+        } else {
+            sum_w.max(1e-300)
+        };
+        cells.map(|(c, w, cloud)| (c, if in_cloud && !cloud { 0.0 } else { w / sum }))
     }
 }
 

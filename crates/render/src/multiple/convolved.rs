@@ -63,6 +63,20 @@ impl MsField {
     /// [`Self::inscatter`] with the coefficients read from `cells` (this field's
     /// [`Self::convolved_cells`]): the same values.
     pub fn inscatter_convolved(&self, cells: &ConvolvedCells, p: DVec3, d: DVec3, out: &mut [f64]) {
+        self.inscatter_convolved_weighted(cells, p, &self.cell_weights(p), d, out);
+    }
+
+    /// [`Self::inscatter_convolved`] with the cells' weights round `p` given (`weights`, this
+    /// field's [`Self::cell_weights`] at `p`, which a caller that reads other tallies at `p`
+    /// computes once): the same values.
+    pub fn inscatter_convolved_weighted(
+        &self,
+        cells: &ConvolvedCells,
+        p: DVec3,
+        weights: &[(usize, f64); 8],
+        d: DVec3,
+        out: &mut [f64],
+    ) {
         let n_l = self.n_l;
         if !matches!(n_l, 3 | 4) || cells.values.len() != self.data.len() / n_l * LANES {
             return self.inscatter(p, d, out);
@@ -70,7 +84,6 @@ impl MsField {
         out.iter_mut().for_each(|o| *o = 0.0);
         let mut ylm = [0.0; (MAX_ORDER + 1) * (MAX_ORDER + 1)];
         super::real_sh(-d, self.angular_order, &mut ylm);
-        let weights = self.cell_weights(p);
         // p*_l per order, the wavelengths side by side (the padding lane's 0).
         let mut pm = [[0.0f64; LANES]; MAX_ORDER + 1];
         for (order, row) in pm.iter_mut().enumerate().take(self.angular_order + 1) {
@@ -78,7 +91,7 @@ impl MsField {
                 row[l] = self.phase_moments[l][order];
             }
         }
-        let sums = cell_sums(&cells.values, &weights, &ylm, &pm, self.angular_order);
+        let sums = cell_sums(&cells.values, weights, &ylm, &pm, self.angular_order);
         for ((_, w), sum) in weights.iter().zip(&sums) {
             if *w == 0.0 {
                 continue;

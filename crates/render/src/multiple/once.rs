@@ -549,8 +549,17 @@ impl MsField {
         if cells.is_empty() {
             return;
         }
+        self.once_add_weighted(cells, &self.cell_weights(p), out);
+    }
+
+    /// [`Self::once_add`] with the cells' weights round the point given (`weights`, this
+    /// field's [`Self::cell_weights`] there): the same values.
+    pub fn once_add_weighted(&self, cells: &[f32], weights: &[(usize, f64); 8], out: &mut [f64]) {
+        if cells.is_empty() {
+            return;
+        }
         let n_l = out.len();
-        for (c, w) in self.cell_weights(p) {
+        for &(c, w) in weights {
             if w == 0.0 {
                 continue;
             }
