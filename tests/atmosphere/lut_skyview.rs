@@ -849,7 +849,7 @@ fn skyview_the_earth_shadow_rising_at_low_altitude() {
     assert!(worst < measured * 1.12, "{worst} {case}");
 }
 
-/// The band above the earth's shadow seen from 6.5–30 km: the same grid as
+/// The band above the earth's shadow seen from 6.5–40 km: the same grid as
 /// [`shadow_grid_errors`] for observers above the low-altitude grid, the dense check around it
 /// ([`shadow_aloft_errors`]: the sun every 0.25°, 120–180° from the sun every 15°), and from 6.5 to
 /// 20 km the points halfway between the dense check's samples ([`shadow_between_errors`]). The
@@ -866,11 +866,14 @@ fn skyview_the_earth_shadow_rising_at_low_altitude() {
 /// - 20 km dense 4.56 % (the sky 2.25° up 135° from the sun, sun −4.25°), between the samples
 ///   5.19 % (the limb 0.7° above the horizon 172.5° from the sun, sun −4.125°); 9.5 km between
 ///   the samples 3.06 % (the sky 2.1° up 172.5° from the sun; 12.5 km 2.66 %, version 19 3.42 %);
-/// - 22.5 / 25 / 30 km: grid 2.90 / 8.76 / 37.69 %, dense 6.82 / 23.01 / 54.58 %, all on the
-///   limb just above the horizon 150–180° from the sun (the limb rows' focus kept up to 25–30 km;
-///   from 30 km up the altitude nodes, the limb's near end fading in over 26–40 km); above the
-///   horizontal alone (the band itself) 3.51 / 4.66 / 6.27 % (120–135° from the sun). Seen from
-///   35 / 40 km (not asserted) 166 / 148 %.
+/// - 22.5 / 25 / 30 / 35 / 40 km: grid 2.90 / 8.76 / 25.78 / 31.33 / 26.55 %, dense 6.82 /
+///   23.01 / 41.38 / 44.96 / 26.55 %, all on the limb just above the horizon 150–180° from the
+///   sun (the limb rows' focus kept up to 25–30 km; from 30 km up the altitude nodes, the limb's
+///   near end fading in over 26–40 km); above the horizontal alone (the band itself) 3.51 / 4.66
+///   / 6.27 / 6.04 / 9.11 % (120–180° from the sun). 35 / 40 km asserted since each altitude
+///   node is read at the query's limb coordinate formed with its own near-end weight
+///   (`skyview::limb_node_shift`); before, 30 / 35 / 40 km grid 37.69 / 129.7 / 147.6 %, dense
+///   54.58 / 166.4 / 147.6 %.
 ///
 /// Version 19: 22.5 / 25 km dense 26.9 / 39.5 %. Version 18 (before the band's maps were kept
 /// aloft and the columns mirrored): 20 km dense 4.53 %, between the samples 6.80 % (12.5 km
@@ -881,18 +884,21 @@ fn skyview_the_earth_shadow_seen_aloft() {
     let f = fixture();
     let altitudes = [
         6500.0, 8000.0, 9500.0, 11000.0, 12500.0, 15000.0, 17500.0, 20000.0, 22500.0, 25000.0,
-        30000.0,
+        30000.0, 35000.0, 40000.0,
     ];
     // Measured worst per altitude (the order of `altitudes`): the grid, the dense check, and the
     // dense check above the horizontal alone (the band itself; below it the limb).
     let measured = [
-        0.0153, 0.0156, 0.0241, 0.0242, 0.0211, 0.0219, 0.0494, 0.0197, 0.0290, 0.0876, 0.3769,
+        0.0153, 0.0156, 0.0241, 0.0242, 0.0211, 0.0219, 0.0494, 0.0197, 0.0290, 0.0876, 0.2578,
+        0.3133, 0.2655,
     ];
     let measured_dense = [
-        0.0247, 0.0261, 0.0242, 0.0252, 0.0239, 0.0296, 0.0649, 0.0456, 0.0682, 0.2301, 0.5458,
+        0.0247, 0.0261, 0.0242, 0.0252, 0.0239, 0.0296, 0.0649, 0.0456, 0.0682, 0.2301, 0.4138,
+        0.4496, 0.2655,
     ];
     let measured_sky = [
         0.0247, 0.0261, 0.0242, 0.0252, 0.0221, 0.0296, 0.0494, 0.0456, 0.0351, 0.0466, 0.0627,
+        0.0604, 0.0911,
     ];
     // Between the dense check's samples, 6.5–20 km (the order of `altitudes`).
     let measured_between = [
