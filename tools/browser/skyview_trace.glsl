@@ -143,7 +143,7 @@ void main() {
       T(column);
       TS(sc);
       // On the limb rows, the node read at the query's sun coordinate formed with the node's
-      // near-end weight, without the sun nodes read too deep.
+      // tangent-point weight, without the sun nodes read too deep.
       SvStencil ss = ss_q;
       float s_k = s_q;
       if (segment == 1) {
@@ -153,7 +153,7 @@ void main() {
             (1.0 - smoothstep(SV_LIMB_NEAR_END_AZIMUTH.x, SV_LIMB_NEAR_END_AZIMUTH.y, cos_phi)) *
             smoothstep(SV_LIMB_NEAR_END_DEPTH.x, SV_LIMB_NEAR_END_DEPTH.y, y_limb * h_n) *
             smoothstep(SV_LIMB_NEAR_END_ALTITUDE.x, SV_LIMB_NEAR_END_ALTITUDE.y, h_n);
-        float w_n = (1.0 - exp(-(h - h_t) / SV_LIMB_SHADOW_SCALE)) * (1.0 - near_end_n);
+        float w_n = (1.0 - exp(-y_limb * h_n / SV_LIMB_SHADOW_SCALE)) * (1.0 - near_end_n);
         float shift_n = dip + w_n * (gamma * cos_phi + dip_t - dip);
         s_k = degrees(asin(mu_s) + shift_n);
         float above_n = SkyViewSunAbove(h, shift_n, SkyViewSunWarpCentre(h, segment, cos_phi), mu_s);

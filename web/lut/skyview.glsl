@@ -939,8 +939,8 @@ vec3 SkyViewRadiance(float h, float rho, vec3 up, vec3 view_ray, vec3 sun_direct
       vec3 by_sun[4] = vec3[4](vec3(0.0), vec3(0.0), vec3(0.0), vec3(0.0));
       SvStencil sc = sc_n[a];
       // On the limb rows, the node read at the query's sun coordinate formed with the node's
-      // near-end weight (the reader's limb_node_shift: at the node's altitude h_n and the depth
-      // y_limb h_n), without the sun nodes read too deep.
+      // tangent-point weight (the reader's limb_node_shift: at the node's altitude h_n and the
+      // depth y_limb h_n), without the sun nodes read too deep.
       SvStencil ss = ss_q;
       float s_k = s_q;
       if (segment == 1) {
@@ -950,7 +950,7 @@ vec3 SkyViewRadiance(float h, float rho, vec3 up, vec3 view_ray, vec3 sun_direct
             (1.0 - smoothstep(SV_LIMB_NEAR_END_AZIMUTH.x, SV_LIMB_NEAR_END_AZIMUTH.y, cos_phi)) *
             smoothstep(SV_LIMB_NEAR_END_DEPTH.x, SV_LIMB_NEAR_END_DEPTH.y, y_limb * h_n) *
             smoothstep(SV_LIMB_NEAR_END_ALTITUDE.x, SV_LIMB_NEAR_END_ALTITUDE.y, h_n);
-        float w_n = (1.0 - exp(-(h - h_t) / SV_LIMB_SHADOW_SCALE)) * (1.0 - near_end_n);
+        float w_n = (1.0 - exp(-y_limb * h_n / SV_LIMB_SHADOW_SCALE)) * (1.0 - near_end_n);
         float shift_n = dip + w_n * (gamma * cos_phi + dip_t - dip);
         s_k = degrees(asin(mu_s) + shift_n);
         float above_n = SkyViewSunAbove(h, shift_n, SkyViewSunWarpCentre(h, segment, cos_phi), mu_s);

@@ -162,7 +162,7 @@ fn main() {
             print(&format!("p{part}_k{k}_column"), &[col_n]);
             stencil(&format!("p{part}_k{k}_azimuth_stencil"), &sc);
             // On the limb rows, the node read at the query's sun coordinate formed with the
-            // node's near-end weight (limb_node_shift), without the sun nodes read too deep.
+            // node's tangent-point weight (limb_node_shift), without the sun nodes read too deep.
             let (ss, s_k) = if seg == 1 {
                 let shift_k = limb_node_shift(r, theta, cos_phi, bottom, h_n);
                 let s_k = (mu_s.clamp(-1.0, 1.0).asin() + shift_k).to_degrees();

@@ -261,7 +261,7 @@ pub fn sun_shift(r: f64, theta: f64, cos_phi: f64, bottom: f64, top: f64, limb: 
             theta,
             cos_phi,
             bottom,
-            limb_near_end(cos_phi, r - bottom, r - r_t),
+            limb_tangent_weight(cos_phi, r - bottom, r - r_t),
         )
     } else if theta <= 0.5 * PI {
         let [h0, h1] = SKY_EXIT_ALTITUDE_M;
@@ -280,28 +280,34 @@ pub fn sun_shift(r: f64, theta: f64, cos_phi: f64, bottom: f64, top: f64, limb: 
 }
 
 /// [`sun_shift`] of a limb ray (from radius `r` at zenith `theta`, azimuth `cos_phi` from the
-/// sun) with the near-end weight `n` given ([`limb_near_end`]'s at the ray's own altitude in
-/// [`sun_shift`]): dip + w (γ cos φ + dip(r_t) − dip), w = (1 − exp(−(r − r_t) / 50 km)) (1 − n).
-pub fn limb_shift_with(r: f64, theta: f64, cos_phi: f64, bottom: f64, n: f64) -> f64 {
+/// sun) with the tangent point's weight `w` given: dip + w (γ cos φ + dip(r_t) − dip)
+/// ([`sun_shift`]: w = (1 − exp(−(r − r_t) / 50 km)) (1 − n), n = [`limb_near_end`]).
+pub fn limb_shift_with(r: f64, theta: f64, cos_phi: f64, bottom: f64, w: f64) -> f64 {
     let gamma = (theta - 0.5 * PI).max(0.0);
     let r_t = r * gamma.cos();
-    let w = (1.0 - (-(r - r_t) / LIMB_SHADOW_SCALE_M).exp()) * (1.0 - n);
     let tangent = gamma * cos_phi + dip(r_t, bottom);
     let observer = dip(r, bottom);
     observer + w * (tangent - observer)
 }
 
+/// The tangent point's weight w of a limb ray at altitude `h` (m) whose tangent point lies
+/// `depth` (m) below it, azimuth `cos_phi` from the sun ([`sun_shift`]):
+/// (1 − exp(−depth / [`LIMB_SHADOW_SCALE_M`])) (1 − [`limb_near_end`]).
+pub fn limb_tangent_weight(cos_phi: f64, h: f64, depth: f64) -> f64 {
+    (1.0 - (-depth / LIMB_SHADOW_SCALE_M).exp()) * (1.0 - limb_near_end(cos_phi, h, depth))
+}
+
 /// The sun coordinate's shift (rad) at which altitude node `h_n` (m) is read for a limb query
 /// (from radius `r` at zenith `theta`, azimuth `cos_phi` from the sun): [`limb_shift_with`] of
-/// the query's ray with the node's near-end weight n(h_n) ([`limb_near_end`] at the node's
-/// altitude and the depth y h_n of the query's depth fraction y = (r − r_t) / (r − R) there)
-/// instead of the query's n(h). The node's texel at sun node s_j holds its ray at the sun's
-/// elevation s_j − dip(r_n) − w_n (T_n − dip(r_n)) (T = γ cos φ + dip(r_t)); read at the
-/// query's coordinate formed with the node's weight, that is the query's ray moved by
-/// (1 − w) (dip(r) − dip(r_n)) + w (T − T_n) with one w on both sides (the exponential's depth
-/// aside), one consistent equivalence between the observer's horizon (the near end's edge) and
-/// the tangent point's, instead of the query's w against the node's (seen from 35 km the nodes
-/// 27.9–42.4 km, n from 0.02 to 1, held the query's limb ray at sun elevations 4–5° apart).
+/// the query's ray with the node's tangent-point weight w_n ([`limb_tangent_weight`] at the
+/// node's altitude and the depth y h_n of the query's depth fraction y = (r − r_t) / (r − R)
+/// there, the node's ray the query reads) instead of the query's own w. The node's texel at sun
+/// node s_j holds its ray at the sun's elevation s_j − dip(r_n) − w_n (T_n − dip(r_n))
+/// (T = γ cos φ + dip(r_t)); read at the query's coordinate formed with w_n, that is the query's
+/// ray moved by (1 − w_n) (dip(r) − dip(r_n)) + w_n (T − T_n): one equivalence per node, between
+/// the observer's horizon (the near end's edge) and the tangent point's, instead of the
+/// query's w against the node's (seen from 35 km the nodes 27.9–42.4 km, n from 0.02 to 1,
+/// held the query's limb ray at sun elevations 4–5° apart).
 pub fn limb_node_shift(r: f64, theta: f64, cos_phi: f64, bottom: f64, h_n: f64) -> f64 {
     let r_t = r * (theta - 0.5 * PI).max(0.0).cos();
     let y = if r > bottom {
@@ -314,7 +320,7 @@ pub fn limb_node_shift(r: f64, theta: f64, cos_phi: f64, bottom: f64, h_n: f64) 
         theta,
         cos_phi,
         bottom,
-        limb_near_end(cos_phi, h_n, y * h_n),
+        limb_tangent_weight(cos_phi, h_n, y * h_n),
     )
 }
 
@@ -3552,17 +3558,22 @@ mod tests {
             .abs()
                 < 1e-12
         );
-        // At a node below the near end's fade (26 km), the tangent point's weight whole (n = 0);
-        // at a node above it (40 km), the observer's horizon (n = 1, w = 0).
-        assert_eq!(
-            limb_node_shift(r, theta, -1.0, R, 20_000.0),
-            limb_shift_with(r, theta, -1.0, R, 0.0)
+        // At a node below the near end's fade (26 km), the tangent point's weight at the node's
+        // depth, n = 0; at a node above it (40 km), the observer's horizon (n = 1, w = 0).
+        let y = (r - r * (theta - 0.5 * PI).cos()) / 35_000.0;
+        let w = 1.0 - (-(y * 20_000.0) / LIMB_SHADOW_SCALE_M).exp();
+        assert!(
+            (limb_node_shift(r, theta, -1.0, R, 20_000.0) - limb_shift_with(r, theta, -1.0, R, w))
+                .abs()
+                < 1e-12
         );
         assert_eq!(limb_node_shift(r, theta, -1.0, R, 45_000.0), dip(r, R));
         // Towards the sun no node gives its weight back.
-        assert_eq!(
-            limb_node_shift(r, theta, 1.0, R, 45_000.0),
-            limb_shift_with(r, theta, 1.0, R, 0.0)
+        let w = 1.0 - (-(y * 45_000.0) / LIMB_SHADOW_SCALE_M).exp();
+        assert!(
+            (limb_node_shift(r, theta, 1.0, R, 45_000.0) - limb_shift_with(r, theta, 1.0, R, w))
+                .abs()
+                < 1e-12
         );
     }
 
