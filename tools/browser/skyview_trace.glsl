@@ -142,11 +142,25 @@ void main() {
       SvStencil sc = SkyViewColumnStencil(column);
       T(column);
       TS(sc);
-      // On the limb rows, without the sun nodes read too deep.
+      // On the limb rows, the node read at the query's sun coordinate formed with the node's
+      // tangent-point weight, without the sun nodes read too deep.
       SvStencil ss = ss_q;
+      float s_k = s_q;
       if (segment == 1) {
-        ss = SkyViewLimbSunStencil(ss_q, y_limb, s_q, h, sv_alt_nodes[sa.first + a], above_deg);
+        float h_n = sv_alt_nodes[sa.first + a];
+        float cos_phi = SkyViewCos(phi);
+        float near_end_n =
+            (1.0 - smoothstep(SV_LIMB_NEAR_END_AZIMUTH.x, SV_LIMB_NEAR_END_AZIMUTH.y, cos_phi)) *
+            smoothstep(SV_LIMB_NEAR_END_DEPTH.x, SV_LIMB_NEAR_END_DEPTH.y, y_limb * h_n) *
+            smoothstep(SV_LIMB_NEAR_END_ALTITUDE.x, SV_LIMB_NEAR_END_ALTITUDE.y, h_n);
+        float w_n = (1.0 - exp(-y_limb * h_n / SV_LIMB_SHADOW_SCALE)) * (1.0 - near_end_n);
+        float shift_n = dip + w_n * (gamma * cos_phi + dip_t - dip);
+        s_k = degrees(asin(mu_s) + shift_n);
+        float above_n = SkyViewSunAbove(h, shift_n, SkyViewSunWarpCentre(h, segment, cos_phi), mu_s);
+        SvStencil ss_n = SkyViewStencil(SkyViewSunCoord(above_n), 0, SV_N_SUN - 1, true, above_n);
+        ss = SkyViewLimbSunStencil(ss_n, y_limb, s_k, h, h_n, above_n);
       }
+      T(s_k);
       TS(ss);
       vec4 cos_cols;
       for (int m = 0; m < 4; ++m) {
@@ -180,7 +194,7 @@ void main() {
           SvStencil sv_n = sv;
           if (segment == 1) {
             vec2 limb_n = SkyViewLimbFocus(s_n, h_n);
-            float y_n = SkyViewLimbSliceDepth(y_limb, s_q, h, s_n, h_n);
+            float y_n = SkyViewLimbSliceDepth(y_limb, s_k, h, s_n, h_n);
             float yr = float(SV_N_VIEW_SKY) +
                 SkyViewFocusCoord(SkyViewLimbRow(y_n), limb_n.x, limb_n.y) *
                     float(SV_N_VIEW_LIMB - 1);

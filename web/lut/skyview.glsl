@@ -721,6 +721,15 @@ float SkyViewBandSlice(float elevation_deg, float s_q, float w_q, float h, float
   return elevation_deg + fade * (mapped - elevation_deg);
 }
 
+// The sun node coordinate (degrees: the sun coordinate unwarped at h, clamped to the nodes) of
+// the sun zenith cosine mu_s, the shift added to the sun's elevation and the warp's centre c (as
+// SkyViewAltitudeSun; on the limb rows per altitude node, SkyViewRadiance).
+float SkyViewSunAbove(float h, float shift, float c, float mu_s) {
+  float s = degrees(asin(clamp(mu_s, -1.0, 1.0)) + shift);
+  return clamp(SkyViewSunUnwarp(s, SkyViewWarpStrength(h), c), SkyViewSunNodeDeg(0),
+               SkyViewSunNodeDeg(SV_N_SUN - 1));
+}
+
 // Altitude node k0 (and fraction tk) and sun node j0 (and tj) at altitude h with sun zenith
 // cosine mu_s; shift: the angle added to the sun's elevation to make the sun coordinate (the
 // horizon's dip atan(rho, bottom_radius), or on the limb SkyViewRadiance's shift); c: the
@@ -739,9 +748,7 @@ void SkyViewAltitudeSun(float h, float shift, float c, float mu_s, out int k0, o
     if (sv_alt_x[k] <= x) k0 = k;
   }
   tk = clamp((x - sv_alt_x[k0]) / (sv_alt_x[k0 + 1] - sv_alt_x[k0]), 0.0, 1.0);
-  float b = SkyViewWarpStrength(h);
-  above_deg = clamp(SkyViewSunUnwarp(degrees(asin(clamp(mu_s, -1.0, 1.0)) + shift), b, c),
-                    SkyViewSunNodeDeg(0), SkyViewSunNodeDeg(SV_N_SUN - 1));
+  above_deg = SkyViewSunAbove(h, shift, c, mu_s);
   j0 = SkyViewSplit(SkyViewSunCoord(above_deg), SV_N_SUN, tj);
 }
 
@@ -931,10 +938,24 @@ vec3 SkyViewRadiance(float h, float rho, vec3 up, vec3 view_ray, vec3 sun_direct
       if (a >= sa.len) break;
       vec3 by_sun[4] = vec3[4](vec3(0.0), vec3(0.0), vec3(0.0), vec3(0.0));
       SvStencil sc = sc_n[a];
-      // On the limb rows, without the sun nodes read too deep.
+      // On the limb rows, the node read at the query's sun coordinate formed with the node's
+      // tangent-point weight (the reader's limb_node_shift: at the node's altitude h_n and the
+      // depth y_limb h_n), without the sun nodes read too deep.
       SvStencil ss = ss_q;
+      float s_k = s_q;
       if (segment == 1) {
-        ss = SkyViewLimbSunStencil(ss_q, y_limb, s_q, h, sv_alt_nodes[sa.first + a], above_deg);
+        float h_n = sv_alt_nodes[sa.first + a];
+        float cos_phi = SkyViewCos(phi);
+        float near_end_n =
+            (1.0 - smoothstep(SV_LIMB_NEAR_END_AZIMUTH.x, SV_LIMB_NEAR_END_AZIMUTH.y, cos_phi)) *
+            smoothstep(SV_LIMB_NEAR_END_DEPTH.x, SV_LIMB_NEAR_END_DEPTH.y, y_limb * h_n) *
+            smoothstep(SV_LIMB_NEAR_END_ALTITUDE.x, SV_LIMB_NEAR_END_ALTITUDE.y, h_n);
+        float w_n = (1.0 - exp(-y_limb * h_n / SV_LIMB_SHADOW_SCALE)) * (1.0 - near_end_n);
+        float shift_n = dip + w_n * (gamma * cos_phi + dip_t - dip);
+        s_k = degrees(asin(mu_s) + shift_n);
+        float above_n = SkyViewSunAbove(h, shift_n, SkyViewSunWarpCentre(h, segment, cos_phi), mu_s);
+        SvStencil ss_n = SkyViewStencil(SkyViewSunCoord(above_n), 0, SV_N_SUN - 1, true, above_n);
+        ss = SkyViewLimbSunStencil(ss_n, y_limb, s_k, h, h_n, above_n);
       }
       for (int s = 0; s < 4; ++s) {
         if (s >= ss.len) break;
@@ -954,7 +975,7 @@ vec3 SkyViewRadiance(float h, float rho, vec3 up, vec3 view_ray, vec3 sun_direct
             float b_n = SkyViewWarpStrength(h_n);
             float s_n = SkyViewSunWarp(SkyViewSunNodeDeg(ss.first + s), b_n);
             vec2 limb_n = SkyViewLimbFocus(s_n, h_n);
-            float y_n = SkyViewLimbSliceDepth(y_limb, s_q, h, s_n, h_n);
+            float y_n = SkyViewLimbSliceDepth(y_limb, s_k, h, s_n, h_n);
             sv_n = SkyViewStencil(float(SV_N_VIEW_SKY) +
                                       SkyViewFocusCoord(SkyViewLimbRow(y_n), limb_n.x, limb_n.y) *
                                           float(SV_N_VIEW_LIMB - 1),

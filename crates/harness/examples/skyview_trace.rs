@@ -19,9 +19,10 @@ use skybake_lut::manifest::MANIFEST_FILE;
 use skybake_lut::skyview::{
     altitude_abscissa, altitude_coord, altitude_node_m, altitude_node_x, azimuth_coord,
     band_centre_deg, band_map_weight, band_relative_elevation, band_row, band_slice_elevation,
-    limb_depth_of, limb_row_focused, limb_slice_depth, limb_sun_stencil, ray_length, segment_rows,
-    sky_row_focus, sun_coord, sun_node_deg, sun_shift, sun_unwarp, sun_warp, sun_warp_centre,
-    view_coord, warp_strength, Stencil, N_ALT, N_SUN, N_VIEW_LIMB, N_VIEW_SKY, SUN_MIN_DEG,
+    limb_depth_of, limb_node_shift, limb_row_focused, limb_slice_depth, limb_sun_stencil,
+    ray_length, segment_rows, sky_row_focus, sun_coord, sun_node_deg, sun_shift, sun_unwarp,
+    sun_warp, sun_warp_centre, view_coord, warp_strength, Stencil, N_ALT, N_SUN, N_VIEW_LIMB,
+    N_VIEW_SKY, SUN_MIN_DEG,
 };
 use skybake_lut::{SkyViewBundle, SkyViewReader};
 
@@ -160,12 +161,22 @@ fn main() {
             let sc = skybake_lut::skyview::column_stencil(col_n, 4);
             print(&format!("p{part}_k{k}_column"), &[col_n]);
             stencil(&format!("p{part}_k{k}_azimuth_stencil"), &sc);
-            // On the limb rows, without the sun nodes read too deep.
-            let ss = if seg == 1 {
-                limb_sun_stencil(ss_q, limb_y, s_deg, h, h_n, thickness, deg, 4)
+            // On the limb rows, the node read at the query's sun coordinate formed with the
+            // node's tangent-point weight (limb_node_shift), without the sun nodes read too deep.
+            let (ss, s_k) = if seg == 1 {
+                let shift_k = limb_node_shift(r, theta, cos_phi, bottom, h_n);
+                let s_k = (mu_s.clamp(-1.0, 1.0).asin() + shift_k).to_degrees();
+                let deg_k = sun_unwarp(s_k, warp_strength(h, thickness), centre)
+                    .clamp(SUN_MIN_DEG, sun_node_deg(N_SUN - 1));
+                let ss_k = Stencil::new(sun_coord(deg_k), 0, N_SUN - 1, sun_node_deg, deg_k);
+                (
+                    limb_sun_stencil(ss_k, limb_y, s_k, h, h_n, thickness, deg_k, 4),
+                    s_k,
+                )
             } else {
-                ss_q
+                (ss_q, s_deg)
             };
+            print(&format!("p{part}_k{k}_sun_coordinate"), &[s_k]);
             stencil(&format!("p{part}_k{k}_sun_stencil"), &ss);
             let mut by_sun = vec![[0.0f64; 4]; n_c];
             for js in 0..ss.len {
@@ -202,7 +213,7 @@ fn main() {
                     })
                 } else {
                     let sv_n = if seg == 1 {
-                        let y_n = limb_slice_depth(limb_y, s_deg, h, s_n, h_n);
+                        let y_n = limb_slice_depth(limb_y, s_k, h, s_n, h_n);
                         let y = N_VIEW_SKY as f64
                             + limb_row_focused(y_n, s_n, h_n) * (N_VIEW_LIMB - 1) as f64;
                         print(&format!("{tag}_yn_row"), &[y_n, y]);

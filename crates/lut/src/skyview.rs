@@ -255,13 +255,14 @@ pub fn dip(r: f64, bottom: f64) -> f64 {
 /// the sun the ray's near end is the lit one, and the observer's horizon stays (the weight 0).
 pub fn sun_shift(r: f64, theta: f64, cos_phi: f64, bottom: f64, top: f64, limb: bool) -> f64 {
     if limb {
-        let gamma = (theta - 0.5 * PI).max(0.0);
-        let r_t = r * gamma.cos();
-        let w = (1.0 - (-(r - r_t) / LIMB_SHADOW_SCALE_M).exp())
-            * (1.0 - limb_near_end(cos_phi, r - bottom, r - r_t));
-        let tangent = gamma * cos_phi + dip(r_t, bottom);
-        let observer = dip(r, bottom);
-        observer + w * (tangent - observer)
+        let r_t = r * (theta - 0.5 * PI).max(0.0).cos();
+        limb_shift_with(
+            r,
+            theta,
+            cos_phi,
+            bottom,
+            limb_tangent_weight(cos_phi, r - bottom, r - r_t),
+        )
     } else if theta <= 0.5 * PI {
         let [h0, h1] = SKY_EXIT_ALTITUDE_M;
         let w = smoothstep(h0, h1, r - bottom) * cos_phi.max(0.0);
@@ -276,6 +277,51 @@ pub fn sun_shift(r: f64, theta: f64, cos_phi: f64, bottom: f64, top: f64, limb: 
     } else {
         dip(r, bottom)
     }
+}
+
+/// [`sun_shift`] of a limb ray (from radius `r` at zenith `theta`, azimuth `cos_phi` from the
+/// sun) with the tangent point's weight `w` given: dip + w (γ cos φ + dip(r_t) − dip)
+/// ([`sun_shift`]: w = (1 − exp(−(r − r_t) / 50 km)) (1 − n), n = [`limb_near_end`]).
+pub fn limb_shift_with(r: f64, theta: f64, cos_phi: f64, bottom: f64, w: f64) -> f64 {
+    let gamma = (theta - 0.5 * PI).max(0.0);
+    let r_t = r * gamma.cos();
+    let tangent = gamma * cos_phi + dip(r_t, bottom);
+    let observer = dip(r, bottom);
+    observer + w * (tangent - observer)
+}
+
+/// The tangent point's weight w of a limb ray at altitude `h` (m) whose tangent point lies
+/// `depth` (m) below it, azimuth `cos_phi` from the sun ([`sun_shift`]):
+/// (1 − exp(−depth / [`LIMB_SHADOW_SCALE_M`])) (1 − [`limb_near_end`]).
+pub fn limb_tangent_weight(cos_phi: f64, h: f64, depth: f64) -> f64 {
+    (1.0 - (-depth / LIMB_SHADOW_SCALE_M).exp()) * (1.0 - limb_near_end(cos_phi, h, depth))
+}
+
+/// The sun coordinate's shift (rad) at which altitude node `h_n` (m) is read for a limb query
+/// (from radius `r` at zenith `theta`, azimuth `cos_phi` from the sun): [`limb_shift_with`] of
+/// the query's ray with the node's tangent-point weight w_n ([`limb_tangent_weight`] at the
+/// node's altitude and the depth y h_n of the query's depth fraction y = (r − r_t) / (r − R)
+/// there, the node's ray the query reads) instead of the query's own w. The node's texel at sun
+/// node s_j holds its ray at the sun's elevation s_j − dip(r_n) − w_n (T_n − dip(r_n))
+/// (T = γ cos φ + dip(r_t)); read at the query's coordinate formed with w_n, that is the query's
+/// ray moved by (1 − w_n) (dip(r) − dip(r_n)) + w_n (T − T_n): one equivalence per node, between
+/// the observer's horizon (the near end's edge) and the tangent point's, instead of the
+/// query's w against the node's (seen from 35 km the nodes 27.9–42.4 km, n from 0.02 to 1,
+/// held the query's limb ray at sun elevations 4–5° apart).
+pub fn limb_node_shift(r: f64, theta: f64, cos_phi: f64, bottom: f64, h_n: f64) -> f64 {
+    let r_t = r * (theta - 0.5 * PI).max(0.0).cos();
+    let y = if r > bottom {
+        ((r - r_t) / (r - bottom)).clamp(0.0, 1.0)
+    } else {
+        0.0
+    };
+    limb_shift_with(
+        r,
+        theta,
+        cos_phi,
+        bottom,
+        limb_tangent_weight(cos_phi, h_n, y * h_n),
+    )
 }
 
 /// The share of a limb ray's weight towards the tangent point's sun coordinate ([`sun_shift`])
@@ -2240,6 +2286,23 @@ impl<'a> SkyViewReader<'a> {
             altitude_abscissa(r - p.bottom_radius, thickness),
             self.nodes[0],
         );
+        let (ss, deg) = self.sun_stencil_at(r, mu_s, shift, seg, cos_phi);
+        (sa, ss, deg)
+    }
+
+    /// The sun stencil at radius `r` (clamped to the atmosphere) and sun zenith cosine `mu_s`
+    /// for the sun coordinate's shift `shift` ([`sun_shift`], or [`limb_node_shift`] for one
+    /// altitude node), and the query's node coordinate (degrees).
+    fn sun_stencil_at(
+        &self,
+        r: f64,
+        mu_s: f64,
+        shift: f64,
+        seg: usize,
+        cos_phi: f64,
+    ) -> (Stencil, f64) {
+        let p = &self.bundle.params;
+        let thickness = p.top_radius - p.bottom_radius;
         let above = mu_s.clamp(-1.0, 1.0).asin() + shift;
         let deg = sun_unwarp(
             above.to_degrees(),
@@ -2261,7 +2324,7 @@ impl<'a> SkyViewReader<'a> {
             deg,
             self.nodes[1],
         );
-        (sa, ss, deg)
+        (ss, deg)
     }
 
     /// The stored sky at radius `r` (inside the atmosphere) for view zenith cosine `mu`, sun
@@ -2299,26 +2362,31 @@ impl<'a> SkyViewReader<'a> {
         // On the limb rows each slice's own rows at the query's depth ([`limb_row_focus`] at
         // the slice's sun and altitude).
         let limb_y = limb_depth_of(theta, r, p.bottom_radius);
-        let slice_rows = |k: usize, j: usize| {
+        let slice_rows = |k: usize, j: usize, s_k: f64| {
             if seg != 1 {
                 return sv;
             }
             let h_n = altitude_node_m(k, thickness);
             // (The limb rows' warp is centred at 0.)
             let s_n = sun_warp(sun_node_deg(j), warp_strength(h_n, thickness), 0.0);
-            let y_n = limb_slice_depth(limb_y, s_deg, h, s_n, h_n);
+            let y_n = limb_slice_depth(limb_y, s_k, h, s_n, h_n);
             let y = N_VIEW_SKY as f64 + limb_row_focused(y_n, s_n, h_n) * (N_VIEW_LIMB - 1) as f64;
             Stencil::with_nodes(y, lo, hi, |i| i as f64, y, self.nodes[2])
         };
-        let (sa, ss, deg_q) = self.altitude_sun_stencils(r, mu_s, shift, seg, cos_phi);
-        // On the limb rows, each altitude node's sun stencil without the nodes read too deep
-        // ([`limb_sun_stencil`]).
-        let sun_stencil = |k: usize| -> Stencil {
+        let (sa, ss, _) = self.altitude_sun_stencils(r, mu_s, shift, seg, cos_phi);
+        // On the limb rows, each altitude node read at the query's sun coordinate formed with
+        // the node's near-end weight ([`limb_node_shift`]), its sun stencil without the nodes
+        // read too deep ([`limb_sun_stencil`]); with that coordinate (degrees).
+        let sun_stencil = |k: usize| -> (Stencil, f64) {
             if seg != 1 {
-                return ss;
+                return (ss, s_deg);
             }
             let h_n = altitude_node_m(k, thickness);
-            limb_sun_stencil(ss, limb_y, s_deg, h, h_n, thickness, deg_q, self.nodes[1])
+            let shift_k = limb_node_shift(r, theta, cos_phi, p.bottom_radius, h_n);
+            let s_k = (mu_s.clamp(-1.0, 1.0).asin() + shift_k).to_degrees();
+            let (ss_k, deg_k) = self.sun_stencil_at(r, mu_s, shift_k, seg, cos_phi);
+            let ss_k = limb_sun_stencil(ss_k, limb_y, s_k, h, h_n, thickness, deg_k, self.nodes[1]);
+            (ss_k, s_k)
         };
         let band_rows = |k: usize, j: usize, sc: &Stencil| {
             (seg < 2)
@@ -2336,7 +2404,7 @@ impl<'a> SkyViewReader<'a> {
             for ka in 0..sa.len {
                 let k = sa.first + ka;
                 let sc = columns(k);
-                let ss = sun_stencil(k);
+                let (ss, s_k) = sun_stencil(k);
                 for js in 0..ss.len {
                     let j = ss.first + js;
                     let z = k * N_SUN + j;
@@ -2349,7 +2417,7 @@ impl<'a> SkyViewReader<'a> {
                         }
                         continue;
                     }
-                    let sv = slice_rows(k, j);
+                    let sv = slice_rows(k, j, s_k);
                     for iv in 0..sv.len {
                         self.fetch(part, z, &sc, sv.first + iv, &mut f);
                         for c in 0..n_c {
@@ -3474,6 +3542,39 @@ mod tests {
             let s = -12.0 + sun_shift(r, theta, -1.0, R, R + 100_000.0, true).to_degrees();
             assert!(s >= SUN_MIN_DEG, "theta {theta}: {s}");
         }
+    }
+
+    #[test]
+    fn each_altitude_node_reads_the_limb_at_its_own_near_end_weight() {
+        // A limb ray seen from 35 km opposite the sun, 0.25° above the horizon (deep: r − r_t
+        // near the observer's altitude).
+        let r = R + 35_000.0;
+        let theta = horizon_zenith(r, R) - 0.25f64.to_radians();
+        let top = R + 100_000.0;
+        // At the query's own altitude, the query's coordinate (sun_shift).
+        assert!(
+            (limb_node_shift(r, theta, -1.0, R, 35_000.0)
+                - sun_shift(r, theta, -1.0, R, top, true))
+            .abs()
+                < 1e-12
+        );
+        // At a node below the near end's fade (26 km), the tangent point's weight at the node's
+        // depth, n = 0; at a node above it (40 km), the observer's horizon (n = 1, w = 0).
+        let y = (r - r * (theta - 0.5 * PI).cos()) / 35_000.0;
+        let w = 1.0 - (-(y * 20_000.0) / LIMB_SHADOW_SCALE_M).exp();
+        assert!(
+            (limb_node_shift(r, theta, -1.0, R, 20_000.0) - limb_shift_with(r, theta, -1.0, R, w))
+                .abs()
+                < 1e-12
+        );
+        assert_eq!(limb_node_shift(r, theta, -1.0, R, 45_000.0), dip(r, R));
+        // Towards the sun no node gives its weight back.
+        let w = 1.0 - (-(y * 45_000.0) / LIMB_SHADOW_SCALE_M).exp();
+        assert!(
+            (limb_node_shift(r, theta, 1.0, R, 45_000.0) - limb_shift_with(r, theta, 1.0, R, w))
+                .abs()
+                < 1e-12
+        );
     }
 
     #[test]
