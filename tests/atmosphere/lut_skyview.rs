@@ -1113,13 +1113,17 @@ fn side_aloft_errors(
 /// 22.5 km 4.94 % (the same, sun −6°), 25 km 5.26 % (the sky 0.75° up 90° from the sun, sun
 /// −5°), 30 / 35 / 40 km 22.4 / 34.1 / 37.9 % (the sky 0.25° up exactly 90° from the sun, sun
 /// −5.5 / −6 / −6°, too dark; 82.5° and 97.5° from the sun read within 10 %): the 3 %
-/// target not met.
+/// target not met. The sky rows' exit shift without its kink at 90° from the sun
+/// ([`skyview::sky_exit_azimuth`], after version 20): 5.76 / 4.85 / 5.46 / 9.88 / 18.68 / 22.95 %
+/// (25 km the sky 0.25° up 112.5° from the sun, sun −4.5°; 30 km 37.5° from the sun, sun −5°;
+/// 35 / 40 km still 0.25° up 90° from the sun, sun −5.5 / −6°, 680 nm: the exit shift itself,
+/// the columns alone −18.5 %, docs/lut.md), asserted; the target not met from 20 km up.
 #[test]
 #[ignore = "builds a bundle (about 10 s of CPU): run with --ignored lut_skyview::"]
 fn skyview_the_sky_beside_the_sun_aloft() {
     let f = fixture();
     let altitudes = [20000.0, 22500.0, 25000.0, 30000.0, 35000.0, 40000.0];
-    let measured = [0.0576, 0.0494, 0.0526, 0.2238, 0.3406, 0.3789];
+    let measured = [0.0576, 0.0485, 0.0546, 0.0988, 0.1868, 0.2295];
     let t = std::time::Instant::now();
     let results = side_aloft_errors(f, &SkyViewReader::new(&f.bundle), &altitudes);
     eprintln!(
