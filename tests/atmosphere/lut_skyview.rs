@@ -201,7 +201,9 @@ fn skyview_sky_radiance_matches_the_sky_product() {
     // a high band; version 15: aloft the limb's near-end fade over 66–127° from the sun, the
     // columns' focus at 115°, the sun warp centred on the sky rows towards the sun). Where the
     // issue's target is met it is asserted, and the measured bound + ~12 % (the tighter): in every
-    // band since version 15 (−12…−6° from 20–100 km: 12.42 → 8.79 %).
+    // band since version 15 (−12…−6° from 20–100 km: 12.42 → 8.79 %). After version 20 (the sky
+    // rows' exit shift without its kink at 90° from the sun, `skyview::sky_exit_azimuth`):
+    // 20–100 km, −12…−6° 8.79 → 8.05 %, −6…5° 2.94 → 2.89 %, sun ≥ 5° above 10° 0.253 → 0.250 %.
     for (band, measured, target) in [
         (
             "sun >= 5, view > 10 deg above horizon (target 1 %), ground",
@@ -215,7 +217,7 @@ fn skyview_sky_radiance_matches_the_sky_product() {
         ),
         (
             "sun >= 5, view > 10 deg above horizon (target 1 %), 20-100 km",
-            0.00253,
+            0.00250,
             Some(0.01),
         ),
         (
@@ -235,10 +237,10 @@ fn skyview_sky_radiance_matches_the_sky_product() {
         ),
         ("sun -6..5 (target 3 %), ground", 0.01194, Some(0.03)),
         ("sun -6..5 (target 3 %), 0-20 km", 0.01440, Some(0.03)),
-        ("sun -6..5 (target 3 %), 20-100 km", 0.02939, Some(0.03)),
+        ("sun -6..5 (target 3 %), 20-100 km", 0.02889, Some(0.03)),
         ("sun -12..-6 (target 10 %), ground", 0.03319, Some(0.10)),
         ("sun -12..-6 (target 10 %), 0-20 km", 0.04724, Some(0.10)),
-        ("sun -12..-6 (target 10 %), 20-100 km", 0.08785, Some(0.10)),
+        ("sun -12..-6 (target 10 %), 20-100 km", 0.08053, Some(0.10)),
     ] {
         let bound = target.map_or(measured * 1.12, |t: f64| t.min(measured * 1.12));
         assert!(bands.get(band) > 0.0, "no sample in {band}");
@@ -1114,7 +1116,7 @@ fn side_aloft_errors(
 /// −5°), 30 / 35 / 40 km 22.4 / 34.1 / 37.9 % (the sky 0.25° up exactly 90° from the sun, sun
 /// −5.5 / −6 / −6°, too dark; 82.5° and 97.5° from the sun read within 10 %): the 3 %
 /// target not met. The sky rows' exit shift without its kink at 90° from the sun
-/// ([`skyview::sky_exit_azimuth`], after version 20): 5.76 / 4.85 / 5.46 / 9.88 / 18.68 / 22.95 %
+/// ([`skyview::sky_exit_azimuth`], after version 20): 5.78 / 4.85 / 5.46 / 9.88 / 18.68 / 22.95 %
 /// (25 km the sky 0.25° up 112.5° from the sun, sun −4.5°; 30 km 37.5° from the sun, sun −5°;
 /// 35 / 40 km still 0.25° up 90° from the sun, sun −5.5 / −6°, 680 nm: the exit shift itself,
 /// the columns alone −18.5 %, docs/lut.md), asserted; the target not met from 20 km up.
@@ -1123,7 +1125,7 @@ fn side_aloft_errors(
 fn skyview_the_sky_beside_the_sun_aloft() {
     let f = fixture();
     let altitudes = [20000.0, 22500.0, 25000.0, 30000.0, 35000.0, 40000.0];
-    let measured = [0.0576, 0.0485, 0.0546, 0.0988, 0.1868, 0.2295];
+    let measured = [0.0578, 0.0485, 0.0546, 0.0988, 0.1868, 0.2295];
     let t = std::time::Instant::now();
     let results = side_aloft_errors(f, &SkyViewReader::new(&f.bundle), &altitudes);
     eprintln!(
