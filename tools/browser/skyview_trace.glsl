@@ -77,8 +77,8 @@ void main() {
     shift = dip + w * (gamma * SkyViewCos(phi) + dip_t - dip);
   } else if (segment == 0) {
     float w = smoothstep(SV_SKY_EXIT_ALTITUDE.x, SV_SKY_EXIT_ALTITUDE.y, h);
-    float toward = max(SkyViewCos(phi), 0.0);
-    if (w > 0.0 && toward > 0.0) {
+    float toward = SkyViewExitAzimuth(SkyViewCos(phi));
+    if (w > 0.0 && toward != 0.0) {
       float x_top = DistanceToTopAtmosphereBoundary(r, mu);
       float exit_angle = atan(x_top * sqrt(max(1.0 - mu * mu, 0.0)), r + x_top * mu);
       shift = dip + w * exit_angle * toward;

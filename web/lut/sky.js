@@ -228,6 +228,12 @@ class LiveSky {
         throw new Error("manifest: parameterisation.sky_exit_altitude_m is not an altitude range");
       }
       defines += `#define SV_SKY_EXIT_ALTITUDE vec2(${exit.map(f).join(", ")})\n`;
+      // Its azimuth weight's fade away from the sun (after layout version 20).
+      const exitFade = manifest.parameterisation.sky_exit_azimuth_fade;
+      if (!Number.isFinite(exitFade) || !(exitFade > 0 && exitFade <= 1)) {
+        throw new Error("manifest: parameterisation.sky_exit_azimuth_fade is not a cosine in (0, 1]");
+      }
+      defines += `#define SV_SKY_EXIT_AZIMUTH_FADE ${f(exitFade)}\n`;
       // The twilight warp's centre on the sky rows towards the sun aloft (version 15).
       const centre = manifest.parameterisation.sun_warp_centre;
       if (!centre || !Number.isFinite(centre.weight) || !numbers(centre.altitude_range_m, 2) ||

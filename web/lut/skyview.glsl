@@ -48,7 +48,8 @@
 // (node_read_altitude_m, a vec2); SV_AZ_NODE_COS
 // (the cosines of parameterisation.azimuth_nodes_rad, a float[SV_N_ALT * SV_N_AZ] constructor,
 // altitude node k's columns at k * SV_N_AZ ..), SV_ALT_MAP (parameterisation.altitude_map, a vec3) and
-// SV_SKY_EXIT_ALTITUDE (parameterisation.sky_exit_altitude_m, a vec2); SV_SUN_WARP_CENTRE and
+// SV_SKY_EXIT_ALTITUDE (parameterisation.sky_exit_altitude_m, a vec2), SV_SKY_EXIT_AZIMUTH_FADE
+// (parameterisation.sky_exit_azimuth_fade); SV_SUN_WARP_CENTRE and
 // SV_SUN_WARP_CENTRE_ALTITUDE (parameterisation.sun_warp_centre: weight, altitude_range_m, a
 // vec2); from
 // parameterisation.limb_near_end: SV_LIMB_NEAR_END_AZIMUTH (azimuth_cos, a vec2),
@@ -344,6 +345,15 @@ float SkyViewSunUnwarp(float s, float b, float c) {
 // the sun SV_SUN_WARP_CENTRE max(cos_phi, 0)^2 smoothstep(SV_SUN_WARP_CENTRE_ALTITUDE, h)
 // (dip(r) - dip(top)), where the sunlight grazing the ground starts to reach the top above the
 // observer; 0 elsewhere. The dips from rho, atan(rho, bottom_radius).
+// The azimuth weight of the sky rows' exit shift (the reader's sky_exit_azimuth): cos_phi
+// towards the sun, cos_phi (1 + cos_phi / f)^2 down to -f away from it, 0 beyond.
+float SkyViewExitAzimuth(float cos_phi) {
+  float f = SV_SKY_EXIT_AZIMUTH_FADE;
+  if (cos_phi >= 0.0) return cos_phi;
+  if (cos_phi > -f) return cos_phi * (1.0 + cos_phi / f) * (1.0 + cos_phi / f);
+  return 0.0;
+}
+
 float SkyViewSunWarpCentre(float h, int segment, float cos_phi) {
   float w = smoothstep(SV_SUN_WARP_CENTRE_ALTITUDE.x, SV_SUN_WARP_CENTRE_ALTITUDE.y, h);
   if (segment != 0 || cos_phi <= 0.0 || w <= 0.0) return 0.0;
@@ -864,10 +874,10 @@ vec3 SkyViewRadiance(float h, float rho, vec3 up, vec3 view_ray, vec3 sun_direct
     shift = dip + w * (gamma * SkyViewCos(phi) + dip_t - dip);
   } else if (segment == 0) {
     // Aloft, towards the sun: the sun's elevation at the ray's exit through the top, alpha the
-    // central angle to it (the reader's sun_shift), weighted by max(cos(phi), 0).
+    // central angle to it (the reader's sun_shift), weighted by SkyViewExitAzimuth(cos(phi)).
     float w = smoothstep(SV_SKY_EXIT_ALTITUDE.x, SV_SKY_EXIT_ALTITUDE.y, h);
-    float toward = max(SkyViewCos(phi), 0.0);
-    if (w > 0.0 && toward > 0.0) {
+    float toward = SkyViewExitAzimuth(SkyViewCos(phi));
+    if (w > 0.0 && toward != 0.0) {
       float x_top = DistanceToTopAtmosphereBoundary(r, mu);
       float exit_angle = atan(x_top * sqrt(max(1.0 - mu * mu, 0.0)), r + x_top * mu);
       shift = dip + w * exit_angle * toward;

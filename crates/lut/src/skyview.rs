@@ -247,7 +247,8 @@ pub fn dip(r: f64, bottom: f64) -> f64 {
 /// Sky rays (above the horizontal) aloft, looking towards the sun: the sun's elevation at the
 /// ray's exit through the top, α max(cos φ, 0) higher (α the central angle from the observer to
 /// the exit point, at distance x = the ray's length to the top `top`: α = atan2(x sin θ,
-/// r + x cos θ)), weighted by a smoothstep over [`SKY_EXIT_ALTITUDE_M`]. Seen from altitude in
+/// r + x cos θ)), weighted by a smoothstep over [`SKY_EXIT_ALTITUDE_M`] and by
+/// [`sky_exit_azimuth`] (cos φ towards the sun, faded to 0 away from it). Seen from altitude in
 /// deep twilight such a ray reaches the sunlit air only near its far end, so the sky brightens
 /// (e.g. 88.5 km, 440 nm: 10-fold within a row) where the sun at the exit point clears the
 /// earth's shadow: at a nearly constant coordinate on every row with the shift (within ±0.15° from
@@ -265,8 +266,8 @@ pub fn sun_shift(r: f64, theta: f64, cos_phi: f64, bottom: f64, top: f64, limb: 
         )
     } else if theta <= 0.5 * PI {
         let [h0, h1] = SKY_EXIT_ALTITUDE_M;
-        let w = smoothstep(h0, h1, r - bottom) * cos_phi.max(0.0);
-        if w <= 0.0 {
+        let w = smoothstep(h0, h1, r - bottom) * sky_exit_azimuth(cos_phi);
+        if w == 0.0 {
             return dip(r, bottom);
         }
         // The ray's exit through the top, x along it, and the central angle to it.
@@ -377,6 +378,29 @@ pub const LIMB_SHADOW_SCALE_M: f64 = 50_000.0;
 /// The altitudes (m) between which the sky rows' sun coordinate moves (smoothstep) from the
 /// observer's horizon to the exit point's ([`sun_shift`]); below the first, the observer's.
 pub const SKY_EXIT_ALTITUDE_M: [f64; 2] = [20_000.0, 40_000.0];
+
+/// The azimuth weight of the sky rows' exit shift ([`sun_shift`]) at `cos_phi` (cosine of the
+/// view's azimuth from the sun): cos φ towards the sun, and away from it cos φ (1 + cos φ / f)²
+/// down to cos φ = −f ([`SKY_EXIT_AZIMUTH_FADE`]), 0 beyond: continuous with its slope at 90°
+/// from the sun and at −f. The exit point's sun elevation is α cos φ above the observer's to
+/// first order on both sides of 90°; with max(cos φ, 0) (layout version ≤ 20) the coordinate had
+/// a kink at 90°, where the sky near the horizontal aloft falls steeply with the azimuth, and the
+/// columns' cubic across it read the sky 1° up 90° from the sun, sun −6°, 37 % too dark at 40 km.
+pub fn sky_exit_azimuth(cos_phi: f64) -> f64 {
+    let f = SKY_EXIT_AZIMUTH_FADE;
+    if cos_phi >= 0.0 {
+        cos_phi
+    } else if cos_phi > -f {
+        cos_phi * (1.0 + cos_phi / f).powi(2)
+    } else {
+        0.0
+    }
+}
+
+/// The cosine of the azimuth from the sun (negated) over which [`sky_exit_azimuth`] fades out
+/// away from the sun (0.5: 120° from the sun, where the band maps above the earth's shadow fade
+/// in).
+pub const SKY_EXIT_AZIMUTH_FADE: f64 = 0.5;
 
 /// The altitude nodes' map aloft ([`altitude_coord`]): x = √η + c (η^p − η^q), η = h / thickness,
 /// `[c, p, q]`.
@@ -2736,7 +2760,7 @@ pub fn manifest(
             "altitude_node_abscissas": (0..N_ALT).map(altitude_node_x).collect::<Vec<_>>(),
             "texel_mantissa_bits": HALF_MANTISSA_BITS,
             "sun_elevation_nodes_deg": sun_nodes,
-            "sun_node": "the sun node coordinate t_j (deg): every 2 deg from -23 to -15, every 1 deg to -8, every 0.5 deg to -1, every 0.25 deg to 0, every 0.125 deg to 0.5, every 0.25 deg to 1, every 0.5 deg to 6, every 1 deg to 20, every 4 deg to 104 (segments [start, step, intervals] in sun_segments). At altitude h the node's sun coordinate s_j = warp(t_j, b, c), b = sun_warp_strength * sqrt(h / (top_radius - bottom_radius)), warp(t, b, c) = c + e sinh(b (t - c) / e) / sinh(b) for sun_warp_range[0] < t < sun_warp_range[1] (e = c - sun_warp_range[0] for t < c, sun_warp_range[1] - c for t >= c), t elsewhere (and where b < 1e-6); its inverse t = c + e asinh((s - c) sinh(b) / e) / b gives a query's node coordinate, the interpolation's abscissa. The centre c (deg) = 0 but on the sky rows towards the sun (version 15): c = sun_warp_centre.weight max(cos(phi), 0)^2 smoothstep(sun_warp_centre.altitude_range_m[0], sun_warp_centre.altitude_range_m[1], h) (acos(bottom_radius / r) - acos(bottom_radius / top_radius)) in degrees, phi the view's (for a texel its column's) azimuth from the sun, h and r the query's (the node's) altitude and radius. s = the sun's elevation + shift: for view rows below the horizon (and the irradiance, and the sky rows below sky_exit_altitude_m[0] or away from the sun) shift = the horizon's dip acos(bottom_radius / r), the sun's elevation above the observer's horizon; for the limb rows (between the horizontal and the horizon) shift = dip + w (gamma cos(phi) + acos(bottom_radius / r_t) - dip), w = (1 - exp(-(r - r_t) / limb_shadow_scale_m)) (1 - n), n = (1 - smoothstep(limb_near_end.azimuth_cos[0], limb_near_end.azimuth_cos[1], cos(phi))) smoothstep(limb_near_end.depth_m[0], limb_near_end.depth_m[1], r - r_t) smoothstep(limb_near_end.altitude_range_m[0], limb_near_end.altitude_range_m[1], h) (version 11: aloft away from the sun back towards the observer's horizon): towards the sun's elevation above the horizon of the ray's tangent point, with dip = acos(bottom_radius / r), gamma = theta - pi/2, r_t = r cos(gamma), phi the view's azimuth from the sun; for the sky rows (above the horizontal) shift = dip + smoothstep(sky_exit_altitude_m[0], sky_exit_altitude_m[1], h) max(cos(phi), 0) alpha, alpha = atan2(x sin(theta), r + x cos(theta)), x the ray's length to the top (the central angle to where the ray leaves the atmosphere; smoothstep as in sky_row_band); the texels of a limb or sky row are at the sun elevations s_j - shift of their column's azimuth",
+            "sun_node": "the sun node coordinate t_j (deg): every 2 deg from -23 to -15, every 1 deg to -8, every 0.5 deg to -1, every 0.25 deg to 0, every 0.125 deg to 0.5, every 0.25 deg to 1, every 0.5 deg to 6, every 1 deg to 20, every 4 deg to 104 (segments [start, step, intervals] in sun_segments). At altitude h the node's sun coordinate s_j = warp(t_j, b, c), b = sun_warp_strength * sqrt(h / (top_radius - bottom_radius)), warp(t, b, c) = c + e sinh(b (t - c) / e) / sinh(b) for sun_warp_range[0] < t < sun_warp_range[1] (e = c - sun_warp_range[0] for t < c, sun_warp_range[1] - c for t >= c), t elsewhere (and where b < 1e-6); its inverse t = c + e asinh((s - c) sinh(b) / e) / b gives a query's node coordinate, the interpolation's abscissa. The centre c (deg) = 0 but on the sky rows towards the sun (version 15): c = sun_warp_centre.weight max(cos(phi), 0)^2 smoothstep(sun_warp_centre.altitude_range_m[0], sun_warp_centre.altitude_range_m[1], h) (acos(bottom_radius / r) - acos(bottom_radius / top_radius)) in degrees, phi the view's (for a texel its column's) azimuth from the sun, h and r the query's (the node's) altitude and radius. s = the sun's elevation + shift: for view rows below the horizon (and the irradiance, and the sky rows below sky_exit_altitude_m[0] or more than acos(-sky_exit_azimuth_fade) from the sun) shift = the horizon's dip acos(bottom_radius / r), the sun's elevation above the observer's horizon; for the limb rows (between the horizontal and the horizon) shift = dip + w (gamma cos(phi) + acos(bottom_radius / r_t) - dip), w = (1 - exp(-(r - r_t) / limb_shadow_scale_m)) (1 - n), n = (1 - smoothstep(limb_near_end.azimuth_cos[0], limb_near_end.azimuth_cos[1], cos(phi))) smoothstep(limb_near_end.depth_m[0], limb_near_end.depth_m[1], r - r_t) smoothstep(limb_near_end.altitude_range_m[0], limb_near_end.altitude_range_m[1], h) (version 11: aloft away from the sun back towards the observer's horizon): towards the sun's elevation above the horizon of the ray's tangent point, with dip = acos(bottom_radius / r), gamma = theta - pi/2, r_t = r cos(gamma), phi the view's azimuth from the sun; for the sky rows (above the horizontal) shift = dip + smoothstep(sky_exit_altitude_m[0], sky_exit_altitude_m[1], h) g(cos(phi)) alpha, g(c) = c for c >= 0, c (1 + c / f)^2 for -f < c < 0, 0 below (f = sky_exit_azimuth_fade), alpha = atan2(x sin(theta), r + x cos(theta)), x the ray's length to the top (the central angle to where the ray leaves the atmosphere; smoothstep as in sky_row_band); the texels of a limb or sky row are at the sun elevations s_j - shift of their column's azimuth",
             "sun_warp_strength": SUN_WARP,
             "sun_warp_range": [SUN_WARP_RANGE.0, SUN_WARP_RANGE.1],
             "sun_warp_centre": {
@@ -2745,6 +2769,7 @@ pub fn manifest(
             },
             "limb_shadow_scale_m": LIMB_SHADOW_SCALE_M,
             "sky_exit_altitude_m": SKY_EXIT_ALTITUDE_M,
+            "sky_exit_azimuth_fade": SKY_EXIT_AZIMUTH_FADE,
             "limb_near_end": {
                 "azimuth_cos": LIMB_NEAR_END_AZIMUTH,
                 "depth_m": LIMB_NEAR_END_DEPTH_M,
@@ -3485,7 +3510,16 @@ mod tests {
         let dip_r = dip(r, R);
         // Above the horizontal away from the sun, below the horizon, and on the limb at the
         // horizontal: the observer's horizon's dip.
-        assert_eq!(sun_shift(r, 1.0, -0.3, R, R + 100_000.0, false), dip_r);
+        assert_eq!(
+            sun_shift(r, 1.0, -SKY_EXIT_AZIMUTH_FADE, R, R + 100_000.0, false),
+            dip_r
+        );
+        // The azimuth weight: continuous with its slope at 90° from the sun and at the fade's end.
+        let g = sky_exit_azimuth;
+        let f = SKY_EXIT_AZIMUTH_FADE;
+        assert_eq!(g(0.3), 0.3);
+        assert!(g(-1e-9).abs() < 2e-9 && ((g(1e-6) - g(-1e-6)) / 2e-6 - 1.0).abs() < 1e-5);
+        assert!(g(-0.5 * f) < 0.0 && g(-f + 1e-6).abs() < 1e-11);
         assert_eq!(sun_shift(r, 2.0, 0.3, R, R + 100_000.0, false), dip_r);
         assert_eq!(
             sun_shift(R + 15_000.0, 1.0, 0.3, R, R + 100_000.0, false),
