@@ -119,7 +119,13 @@ pub const LAYOUT: &str = "skyview";
 /// 19: the sky rows' focus and the band maps kept up to 35–40 km, the band rising aloft, the
 /// slices' map faded in with the azimuth aloft (texels change); the columns continued by mirror
 /// images past the sun and the antisolar point, and the limb slices' horizon held longer.
-pub const SKYVIEW_VERSION: &str = "20";
+/// 20: the limb rows' focus kept up to 25–30 km; on the limb rows the interval's lower sun node
+/// is left out where its slice would be read deeper than [`LIMB_BAND_DEEPEST`] of the way to its
+/// horizon.
+/// 21: the sky rows' exit shift faded out over 90–120° from the sun ([`sky_exit_azimuth`];
+/// texels change); on the limb rows each altitude node is read at the query's sun coordinate
+/// formed with that node's own tangent-point weight ([`limb_node_shift`]; reader and shader).
+pub const SKYVIEW_VERSION: &str = "21";
 
 /// Altitude nodes of the base map ([`altitude_abscissa`], about (top − bottom) · (x / 27)²,
 /// denser near the top): its integers 0..=27.
