@@ -2405,8 +2405,8 @@ impl<'a> SkyViewReader<'a> {
         };
         let (sa, ss, _) = self.altitude_sun_stencils(r, mu_s, shift, seg, cos_phi);
         // On the limb rows, each altitude node read at the query's sun coordinate formed with
-        // the node's near-end weight ([`limb_node_shift`]), its sun stencil without the nodes
-        // read too deep ([`limb_sun_stencil`]); with that coordinate (degrees).
+        // the node's own tangent-point weight ([`limb_node_shift`]), its sun stencil without the
+        // nodes read too deep ([`limb_sun_stencil`]); with that coordinate (degrees).
         let sun_stencil = |k: usize| -> (Stencil, f64) {
             if seg != 1 {
                 return (ss, s_deg);
@@ -3585,7 +3585,7 @@ mod tests {
     }
 
     #[test]
-    fn each_altitude_node_reads_the_limb_at_its_own_near_end_weight() {
+    fn each_altitude_node_reads_the_limb_at_its_own_tangent_point_weight() {
         // A limb ray seen from 35 km opposite the sun, 0.25° above the horizon (deep: r − r_t
         // near the observer's altitude).
         let r = R + 35_000.0;
