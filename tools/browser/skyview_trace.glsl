@@ -69,11 +69,7 @@ void main() {
   T(phi); T(SkyViewAzimuthColumn(phi, h));
   float shift = dip;
   if (segment == 1) {
-    float near_end =
-        (1.0 - smoothstep(SV_LIMB_NEAR_END_AZIMUTH.x, SV_LIMB_NEAR_END_AZIMUTH.y, SkyViewCos(phi))) *
-        smoothstep(SV_LIMB_NEAR_END_DEPTH.x, SV_LIMB_NEAR_END_DEPTH.y, h - h_t) *
-        smoothstep(SV_LIMB_NEAR_END_ALTITUDE.x, SV_LIMB_NEAR_END_ALTITUDE.y, h);
-    float w = (1.0 - exp(-(h - h_t) / SV_LIMB_SHADOW_SCALE)) * (1.0 - near_end);
+    float w = SkyViewLimbTangentWeight(SkyViewCos(phi), h, h - h_t);
     shift = dip + w * (gamma * SkyViewCos(phi) + dip_t - dip);
   } else if (segment == 0) {
     float w = smoothstep(SV_SKY_EXIT_ALTITUDE.x, SV_SKY_EXIT_ALTITUDE.y, h);
@@ -149,11 +145,7 @@ void main() {
       if (segment == 1) {
         float h_n = sv_alt_nodes[sa.first + a];
         float cos_phi = SkyViewCos(phi);
-        float near_end_n =
-            (1.0 - smoothstep(SV_LIMB_NEAR_END_AZIMUTH.x, SV_LIMB_NEAR_END_AZIMUTH.y, cos_phi)) *
-            smoothstep(SV_LIMB_NEAR_END_DEPTH.x, SV_LIMB_NEAR_END_DEPTH.y, y_limb * h_n) *
-            smoothstep(SV_LIMB_NEAR_END_ALTITUDE.x, SV_LIMB_NEAR_END_ALTITUDE.y, h_n);
-        float w_n = (1.0 - exp(-y_limb * h_n / SV_LIMB_SHADOW_SCALE)) * (1.0 - near_end_n);
+        float w_n = SkyViewLimbTangentWeight(cos_phi, h_n, y_limb * h_n);
         float shift_n = dip + w_n * (gamma * cos_phi + dip_t - dip);
         s_k = degrees(asin(mu_s) + shift_n);
         float above_n = SkyViewSunAbove(h, shift_n, SkyViewSunWarpCentre(h, segment, cos_phi), mu_s);

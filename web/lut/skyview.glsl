@@ -300,6 +300,18 @@ vec2 SkyViewLimbFocus(float sun_deg, float h) {
   return vec2(SkyViewLimbRow(clamp(depth / h, 0.0, 1.0)), f * SV_LIMB_BAND_FOCUS);
 }
 
+// The tangent point's weight of a limb ray at altitude h (m) whose tangent point lies depth (m)
+// below it, cos_phi the cosine of its azimuth from the sun (the reader's limb_tangent_weight):
+// (1 - exp(-depth / SV_LIMB_SHADOW_SCALE)) (1 - n), n the near end's share aloft away from the sun
+// (the reader's limb_near_end).
+float SkyViewLimbTangentWeight(float cos_phi, float h, float depth) {
+  float near_end =
+      (1.0 - smoothstep(SV_LIMB_NEAR_END_AZIMUTH.x, SV_LIMB_NEAR_END_AZIMUTH.y, cos_phi)) *
+      smoothstep(SV_LIMB_NEAR_END_DEPTH.x, SV_LIMB_NEAR_END_DEPTH.y, depth) *
+      smoothstep(SV_LIMB_NEAR_END_ALTITUDE.x, SV_LIMB_NEAR_END_ALTITUDE.y, h);
+  return (1.0 - exp(-depth / SV_LIMB_SHADOW_SCALE)) * (1.0 - near_end);
+}
+
 // The band's depth (m) on the limb at sun coordinate sun_deg, at least SV_LIMB_BAND_DEPTH_FLOOR
 // (the reader's limb_band_depth_m).
 float SkyViewLimbBandDepth(float sun_deg) {
@@ -866,11 +878,7 @@ vec3 SkyViewRadiance(float h, float rho, vec3 up, vec3 view_ray, vec3 sun_direct
   float shift = dip;
   if (segment == 1) {
     // Aloft away from the sun back towards the observer's horizon (the reader's limb_near_end).
-    float near_end =
-        (1.0 - smoothstep(SV_LIMB_NEAR_END_AZIMUTH.x, SV_LIMB_NEAR_END_AZIMUTH.y, SkyViewCos(phi))) *
-        smoothstep(SV_LIMB_NEAR_END_DEPTH.x, SV_LIMB_NEAR_END_DEPTH.y, h - h_t) *
-        smoothstep(SV_LIMB_NEAR_END_ALTITUDE.x, SV_LIMB_NEAR_END_ALTITUDE.y, h);
-    float w = (1.0 - exp(-(h - h_t) / SV_LIMB_SHADOW_SCALE)) * (1.0 - near_end);
+    float w = SkyViewLimbTangentWeight(SkyViewCos(phi), h, h - h_t);
     shift = dip + w * (gamma * SkyViewCos(phi) + dip_t - dip);
   } else if (segment == 0) {
     // Aloft, towards the sun: the sun's elevation at the ray's exit through the top, alpha the
@@ -956,11 +964,7 @@ vec3 SkyViewRadiance(float h, float rho, vec3 up, vec3 view_ray, vec3 sun_direct
       if (segment == 1) {
         float h_n = sv_alt_nodes[sa.first + a];
         float cos_phi = SkyViewCos(phi);
-        float near_end_n =
-            (1.0 - smoothstep(SV_LIMB_NEAR_END_AZIMUTH.x, SV_LIMB_NEAR_END_AZIMUTH.y, cos_phi)) *
-            smoothstep(SV_LIMB_NEAR_END_DEPTH.x, SV_LIMB_NEAR_END_DEPTH.y, y_limb * h_n) *
-            smoothstep(SV_LIMB_NEAR_END_ALTITUDE.x, SV_LIMB_NEAR_END_ALTITUDE.y, h_n);
-        float w_n = (1.0 - exp(-y_limb * h_n / SV_LIMB_SHADOW_SCALE)) * (1.0 - near_end_n);
+        float w_n = SkyViewLimbTangentWeight(cos_phi, h_n, y_limb * h_n);
         float shift_n = dip + w_n * (gamma * cos_phi + dip_t - dip);
         s_k = degrees(asin(mu_s) + shift_n);
         float above_n = SkyViewSunAbove(h, shift_n, SkyViewSunWarpCentre(h, segment, cos_phi), mu_s);
