@@ -133,6 +133,9 @@ fn main() -> skybake_physics::Result<()> {
         let mut s = RenderSettings::for_quality(scene.quality, Method::Fast);
         s.photons.sun_photons = (s.photons.sun_photons as f64 * x) as usize;
         s.photons.env_photons = (s.photons.env_photons as f64 * x) as usize;
+        if let Some(c) = env_f("COARSE") {
+            s.photons.max_coarse_dim = c as usize;
+        }
         let (mut sb, mut sbias, mut wb, mut wbias) = (0.0, 0.0, 0.0f64, 0.0f64);
         let mut line = String::new();
         // Per seed, the frame's 8×8 block means over the blocks inside the mask.
