@@ -154,6 +154,7 @@ impl RenderSettings {
                 sun_photons: sun,
                 env_photons: env,
                 max_coarse_dim: coarse,
+                transport_cells: true,
                 seed: 0x5EED,
                 // Order 3: every non-zero Legendre moment of the δ-M scaled phase function.
                 // Its moments (g^l − f)/(1 − f) (Wiscombe 1977) with f = g^3.5 are negative from

@@ -63,6 +63,10 @@ pub struct PhotonSettings {
     pub env_photons: usize,
     /// Largest coarse-grid dimension (blocks of whole voxels).
     pub max_coarse_dim: usize,
+    /// Whether each axis's block of voxels is made smaller where it is wider than
+    /// [`CELL_TRANSPORT_FRACTION`] of the transport mean free path (see [`Coarse::new`]); the
+    /// frame planner turns it off where it coarsens the field on purpose.
+    pub transport_cells: bool,
     /// Seed of the random streams.
     pub seed: u64,
     /// Angular order L of the field's spherical harmonics (0 isotropic, 1 fluence and flux, … 4).
@@ -243,20 +247,23 @@ impl Coarse {
         }
     }
 
-    /// The coarse grid of at most `max_dim` cells per axis (blocks of whole voxels), each
-    /// axis's block then made smaller, down to half its size, while it is wider than
-    /// [`CELL_TRANSPORT_FRACTION`] of `transport_m`, the transport mean free path at the
-    /// cloud's mean density ([`transport_mean_free_path`]).
-    fn new(grid: &DensityGrid, max_dim: usize, transport_m: f64) -> Self {
+    /// The coarse grid of at most `max_dim` cells per axis (blocks of whole voxels). Where an
+    /// axis's block is wider than [`CELL_TRANSPORT_FRACTION`] of `transport_m` (the transport
+    /// mean free path at the cloud's mean density, [`transport_mean_free_path`]; `None`: kept)
+    /// and a block of at least half its voxels would not be, the block becomes the widest such;
+    /// where not even one voxel is within it (the voxels themselves too thick: the skins hold
+    /// the lit surface there), the block is kept.
+    fn new(grid: &DensityGrid, max_dim: usize, transport_m: Option<f64>) -> Self {
         let f: [usize; 3] = std::array::from_fn(|a| {
             let cap = grid.dims[a].div_ceil(max_dim.max(1)).max(1);
-            let mut f = cap;
-            while f > cap.div_ceil(2)
-                && f as f64 * grid.voxel_size_m > CELL_TRANSPORT_FRACTION * transport_m
-            {
-                f -= 1;
-            }
-            f
+            let Some(tr) = transport_m else {
+                return cap;
+            };
+            let fits = |f: usize| f as f64 * grid.voxel_size_m <= CELL_TRANSPORT_FRACTION * tr;
+            (cap.div_ceil(2)..=cap)
+                .rev()
+                .find(|&f| fits(f))
+                .unwrap_or(cap)
         });
         let dims: [usize; 3] = std::array::from_fn(|a| grid.dims[a].div_ceil(f[a]));
         let [nx, ny, nz] = grid.dims;
@@ -359,7 +366,8 @@ impl MsField {
         let mut coarse = Coarse::new(
             grid,
             s.max_coarse_dim,
-            transport_mean_free_path(grid, optics),
+            s.transport_cells
+                .then(|| transport_mean_free_path(grid, optics)),
         );
         let n_l = optics.albedo.len();
         let cells = coarse.rho.len();
@@ -887,7 +895,8 @@ impl MsField {
 pub const MAX_ORDER: usize = 4;
 
 /// Largest coarse cell, in transport mean free paths at the cloud's mean density, before
-/// [`Coarse::new`] makes the cells smaller (down to half the edge `max_coarse_dim` gives).
+/// [`Coarse::new`] makes the cells smaller (down to half the edge `max_coarse_dim` gives,
+/// where one voxel is within it).
 /// Below a lit face the diffuse radiance builds up and falls over a few transport mean free
 /// paths ℓ_tr = 1/(σ_t(1 − ωg)) (the Milne problem, Chandrasekhar 1960 ch. IV), and the
 /// field's cells, interpolated trilinearly, smooth that profile over about two cells. With
@@ -1524,6 +1533,7 @@ mod tests {
             sun_photons: 1000,
             env_photons: 300,
             max_coarse_dim: 8,
+            transport_cells: true,
             seed: 1,
             angular_order: 3,
             truncation_power: 3.5,

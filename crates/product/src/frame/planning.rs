@@ -414,6 +414,8 @@ pub fn execute_plan(
     if k > 1 {
         settings.photons.max_coarse_dim =
             (settings.photons.max_coarse_dim / k).max(skybake_engine::plan::MIN_MS_GRID_DIM);
+        // The planner's cells, as its cost rule measured them (not made smaller again).
+        settings.photons.transport_cells = false;
     }
     let factor = plan.coarsening();
     let grid = if factor > 1 {
