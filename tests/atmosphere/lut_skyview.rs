@@ -340,8 +340,16 @@ fn skyview_nodes_equal_the_sky_product() {
             let j = rng.random_range(0..skyview::N_SUN);
             let s_j = skyview::sun_warp(skyview::sun_node_deg(j), b, c);
             let (theta, _) = skyview::view_node(i, r, bottom, s_j);
-            let shift = skyview::sun_shift(r, theta, phi.cos(), bottom, bottom + thickness, limb)
-                .to_degrees();
+            let shift = skyview::sun_shift(
+                r,
+                theta,
+                phi.cos(),
+                bottom,
+                bottom + thickness,
+                limb,
+                s_j.to_radians(),
+            )
+            .to_degrees();
             let e = s_j - shift;
             if (-12.0..=90.0).contains(&e) {
                 break (theta, e, s_j, j);
@@ -357,9 +365,17 @@ fn skyview_nodes_equal_the_sky_product() {
             // Aloft towards the sun the sky rows' shift and the warp's centre depend on the
             // view: a second view shares the sun (is a node) only where its sun coordinate less
             // its shift is the first's.
-            let shift = skyview::sun_shift(r, theta, phi.cos(), bottom, bottom + thickness, false);
             let c = skyview::sun_warp_centre(altitude, bottom, bottom + thickness, 0, phi.cos());
             let s_a = skyview::sun_warp(skyview::sun_node_deg(j), b, c);
+            let shift = skyview::sun_shift(
+                r,
+                theta,
+                phi.cos(),
+                bottom,
+                bottom + thickness,
+                false,
+                s_a.to_radians(),
+            );
             if (s_a - shift.to_degrees() - sun_deg).abs() < 1e-9 {
                 probes.push((theta.to_degrees(), phi.to_degrees()));
             }
@@ -460,6 +476,7 @@ fn skyview_dim_twilight_slices_keep_half_precision() {
                             bottom,
                             bottom + thickness,
                             false,
+                            s_j.to_radians(),
                         )
                         .to_degrees();
                     let product = sky_probes(
