@@ -2776,7 +2776,7 @@ pub const STATED_ERRORS: &[(&str, &str, f64)] = &[
     ("rayleigh+mie", "sky radiance (sky product), sun -6..5 deg, 20-100 km (random samples: 2.9 %, the sky at 30 km 58 deg from the sun, 440 nm; but the limb just above the horizon 150-180 deg from the sun seen from 22.5-40 km, up to 35 %: 30 km, sun -4.75 deg, 5.25 deg below the horizontal opposite the sun, 680 nm; 29 % at 40 km, 28 % at 35 km, 18 % at 25 km, 5.4 % at 22.5 km; the sky just above the horizontal 30-120 deg from the sun with the sun at -6..-3 deg up to 23 % at 40 km, 19 % at 35 km, 9.9 % at 30 km, 5.5 % at 25 km, 4.9 % at 22.5 km, 5.8 % at 20 km; the band above the earth's shadow above the horizontal at most 9.1 %: 40 km, 6.5 % at 30 km, 4.9 % at 25 km, 4.0 % at 22.5 km)", 0.35),
     ("rayleigh+mie", "sky radiance (sky product), sun -12..-6 deg, ground", 0.033),
     ("rayleigh+mie", "sky radiance (sky product), sun -12..-6 deg, 0-20 km (the twilight glow towards the sun near the horizontal: 9.2 % at 5 km, sun -12 deg, 0.25 deg above the horizontal 30 deg from the sun, 680 nm)", 0.092),
-    ("rayleigh+mie", "sky radiance (sky product), sun -12..-6 deg, 20-100 km (the sky 2.8 deg above the horizontal 109 deg from the sun, 440 nm at 79.5 km, sun -8.75 deg)", 0.081),
+    ("rayleigh+mie", "sky radiance (sky product), sun -12..-6 deg, 20-100 km (the sky 4.8 deg above the horizontal 2 deg from the sun, 550 nm at 59.2 km, sun -9.77 deg)", 0.094),
     ("irradiance", "diffuse horizontal irradiance (sun product), sun >= 5 deg, 0-100 km", 0.015),
     ("irradiance", "diffuse horizontal irradiance (sun product), sun -12..5 deg, 0-100 km", 0.016),
 ];
