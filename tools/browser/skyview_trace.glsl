@@ -141,14 +141,14 @@ void main() {
       T(column);
       TS(sc);
       // On the limb rows, the node read at the query's sun coordinate formed with the node's
-      // tangent-point weight, without the sun nodes read too deep.
+      // tangent-point weight, aloft with the query's (SkyViewLimbNodeShift), without the sun
+      // nodes read too deep.
       SvStencil ss = ss_q;
       float s_k = s_q;
       if (segment == 1) {
         float h_n = sv_alt_nodes[sa.first + a];
         float cos_phi = SkyViewCos(phi);
-        float w_n = SkyViewLimbTangentWeight(cos_phi, h_n, y_limb * h_n);
-        float shift_n = dip + w_n * (gamma * cos_phi + dip_t - dip);
+        float shift_n = SkyViewLimbNodeShift(h, h_n, y_limb, cos_phi, gamma, dip, dip_t, h_t);
         s_k = degrees(asin(mu_s) + shift_n);
         float above_n = SkyViewSunAbove(h, shift_n, SkyViewSunWarpCentre(h, segment, cos_phi), mu_s);
         SvStencil ss_n = SkyViewStencil(SkyViewSunCoord(above_n), 0, SV_N_SUN - 1, true, above_n);

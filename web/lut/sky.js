@@ -170,12 +170,15 @@ class LiveSky {
       if (!nearEnd || !numbers(nearEnd.azimuth_cos, 2) || !numbers(nearEnd.depth_m, 2) ||
           !numbers(nearEnd.altitude_range_m, 2) || !(nearEnd.azimuth_cos[0] < nearEnd.azimuth_cos[1]) ||
           !(nearEnd.depth_m[0] < nearEnd.depth_m[1]) ||
-          !(nearEnd.altitude_range_m[0] < nearEnd.altitude_range_m[1])) {
+          !(nearEnd.altitude_range_m[0] < nearEnd.altitude_range_m[1]) ||
+          !numbers(nearEnd.node_query_weight_altitude_m, 2) ||
+          !(nearEnd.node_query_weight_altitude_m[0] < nearEnd.node_query_weight_altitude_m[1])) {
         throw new Error("manifest: parameterisation.limb_near_end is not the limb's near-end weight");
       }
       defines += `#define SV_LIMB_NEAR_END_AZIMUTH vec2(${nearEnd.azimuth_cos.map(f).join(", ")})\n` +
         `#define SV_LIMB_NEAR_END_DEPTH vec2(${nearEnd.depth_m.map(f).join(", ")})\n` +
-        `#define SV_LIMB_NEAR_END_ALTITUDE vec2(${nearEnd.altitude_range_m.map(f).join(", ")})\n`;
+        `#define SV_LIMB_NEAR_END_ALTITUDE vec2(${nearEnd.altitude_range_m.map(f).join(", ")})\n` +
+        `#define SV_LIMB_NODE_QUERY_WEIGHT vec2(${nearEnd.node_query_weight_altitude_m.map(f).join(", ")})\n`;
       // The limb rows' focus on the band above the earth's shadow seen from altitude (version 10;
       // the slices' two-piece depth map, version 11).
       const limb = manifest.parameterisation.limb_row_band;

@@ -55,7 +55,8 @@
 // SV_SUN_WARP_CENTRE_ALTITUDE (parameterisation.sun_warp_centre: weight, altitude_range_m, a
 // vec2); from
 // parameterisation.limb_near_end: SV_LIMB_NEAR_END_AZIMUTH (azimuth_cos, a vec2),
-// SV_LIMB_NEAR_END_DEPTH (depth_m, a vec2), SV_LIMB_NEAR_END_ALTITUDE (altitude_range_m, a vec2).
+// SV_LIMB_NEAR_END_DEPTH (depth_m, a vec2), SV_LIMB_NEAR_END_ALTITUDE (altitude_range_m, a vec2),
+// SV_LIMB_NODE_QUERY_WEIGHT (node_query_weight_altitude_m, a vec2).
 //
 // Per query: node coordinates in altitude (the base abscissa (sqrt(e) + c (e^p - e^q)) x_last
 // within the nodes' abscissas SV_ALT_X,
@@ -312,6 +313,30 @@ float SkyViewLimbTangentWeight(float cos_phi, float h, float depth) {
       smoothstep(SV_LIMB_NEAR_END_DEPTH.x, SV_LIMB_NEAR_END_DEPTH.y, depth) *
       smoothstep(SV_LIMB_NEAR_END_ALTITUDE.x, SV_LIMB_NEAR_END_ALTITUDE.y, h);
   return (1.0 - exp(-depth / SV_LIMB_SHADOW_SCALE)) * (1.0 - near_end);
+}
+
+// The sun coordinate's shift at which altitude node h_n (m) is read for a limb query at altitude
+// h (the reader's limb_node_shift): the node's ray at the query's depth fraction y_limb read
+// w_n t_n + omega (t - t_n) above the observer's horizon, t = gamma cos_phi + dip_t - dip the
+// query's tangent point's horizon relative to its own (t_n the node's ray's), w_n the node's
+// tangent-point weight; omega = w_n, moved to the query's weight w over SV_LIMB_NODE_QUERY_WEIGHT
+// (smoothstep in h).
+float SkyViewLimbNodeShift(float h, float h_n, float y_limb, float cos_phi, float gamma,
+                           float dip, float dip_t, float h_t) {
+  float w_n = SkyViewLimbTangentWeight(cos_phi, h_n, y_limb * h_n);
+  float t = gamma * cos_phi + dip_t - dip;
+  float lambda = smoothstep(SV_LIMB_NODE_QUERY_WEIGHT.x, SV_LIMB_NODE_QUERY_WEIGHT.y, h);
+  if (lambda <= 0.0) return dip + w_n * t;
+  // The node's ray: 1 - cos(gamma_n) = y_limb h_n / r_n.
+  float depth_n = y_limb * h_n;
+  float gamma_n = 2.0 * asin(min(sqrt(0.5 * depth_n / (bottom_radius + h_n)), 1.0));
+  float h_tn = max(h_n - depth_n, 0.0);
+  float dip_n = atan(sqrt(h_n * (2.0 * bottom_radius + h_n)), bottom_radius);
+  float dip_tn = atan(sqrt(h_tn * (2.0 * bottom_radius + h_tn)), bottom_radius);
+  float t_n = gamma_n * cos_phi + dip_tn - dip_n;
+  float w = SkyViewLimbTangentWeight(cos_phi, h, h - h_t);
+  float omega = w_n + lambda * (w - w_n);
+  return dip + w_n * t_n + omega * (t - t_n);
 }
 
 // The band's depth (m) on the limb at sun coordinate sun_deg, at least SV_LIMB_BAND_DEPTH_FLOOR
@@ -989,15 +1014,15 @@ vec3 SkyViewRadiance(float h, float rho, vec3 up, vec3 view_ray, vec3 sun_direct
       vec3 by_sun[4] = vec3[4](vec3(0.0), vec3(0.0), vec3(0.0), vec3(0.0));
       SvStencil sc = sc_n[a];
       // On the limb rows, the node read at the query's sun coordinate formed with the node's
-      // tangent-point weight (the reader's limb_node_shift: at the node's altitude h_n and the
-      // depth y_limb h_n), without the sun nodes read too deep.
+      // tangent-point weight (at the node's altitude h_n and the depth y_limb h_n), aloft with the
+      // query's (SkyViewLimbNodeShift, the reader's limb_node_shift), without the sun nodes read
+      // too deep.
       SvStencil ss = ss_q;
       float s_k = s_q;
       if (segment == 1) {
         float h_n = sv_alt_nodes[sa.first + a];
         float cos_phi = SkyViewCos(phi);
-        float w_n = SkyViewLimbTangentWeight(cos_phi, h_n, y_limb * h_n);
-        float shift_n = dip + w_n * (gamma * cos_phi + dip_t - dip);
+        float shift_n = SkyViewLimbNodeShift(h, h_n, y_limb, cos_phi, gamma, dip, dip_t, h_t);
         s_k = degrees(asin(mu_s) + shift_n);
         float above_n = SkyViewSunAbove(h, shift_n, SkyViewSunWarpCentre(h, segment, cos_phi), mu_s);
         SvStencil ss_n = SkyViewStencil(SkyViewSunCoord(above_n), 0, SV_N_SUN - 1, true, above_n);

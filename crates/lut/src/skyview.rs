@@ -401,31 +401,50 @@ pub fn limb_tangent_weight(cos_phi: f64, h: f64, depth: f64) -> f64 {
 }
 
 /// The sun coordinate's shift (rad) at which altitude node `h_n` (m) is read for a limb query
-/// (from radius `r` at zenith `theta`, azimuth `cos_phi` from the sun): [`limb_shift_with`] of
-/// the query's ray with the node's tangent-point weight w_n ([`limb_tangent_weight`] at the
-/// node's altitude and the depth y h_n of the query's depth fraction y = (r − r_t) / (r − R)
-/// there, the node's ray the query reads) instead of the query's own w. The node's texel at sun
-/// node s_j holds its ray at the sun's elevation s_j − dip(r_n) − w_n (T_n − dip(r_n))
-/// (T = γ cos φ + dip(r_t)); read at the query's coordinate formed with w_n, that is the query's
-/// ray moved by (1 − w_n) (dip(r) − dip(r_n)) + w_n (T − T_n): one equivalence per node, between
-/// the observer's horizon (the near end's edge) and the tangent point's, instead of the
-/// query's w against the node's (seen from 35 km the nodes 27.9–42.4 km, n from 0.02 to 1,
-/// held the query's limb ray at sun elevations 4–5° apart).
+/// (from radius `r` at zenith `theta`, azimuth `cos_phi` from the sun). The node's texel at sun
+/// node s_j holds its ray (the query's depth fraction y = (r − r_t) / (r − R) at the node,
+/// depth y h_n) at the sun's elevation above the node's horizon s_j − w_n t_n, t = γ cos φ +
+/// dip(r_t) − dip(r) (the tangent point's horizon relative to the observer's), w_n =
+/// [`limb_tangent_weight`] at the node's altitude and depth. Read at w_n t_n + ω (t − t_n) above
+/// the query's coordinate, it holds the query's ray with the sun ω (t − t_n) higher above the
+/// observer's horizon and (1 − ω)(t_n − t) higher above the tangent point's: ω weighs the two
+/// edges of the limb's radiance (where the sun clears the observer's own air, the near end, and
+/// where it clears the tangent point). Version 21: ω = w_n, each node its own weight (seen from
+/// 35 km the nodes 27.9–42.4 km, n from 0.02 to 1, held the query's limb ray at sun elevations
+/// 4–5° apart with the query's w everywhere). Above [`LIMB_NODE_QUERY_WEIGHT_M`] (smoothstep in
+/// the query's altitude) ω moves to the query's own w, one equivalence for every node a query
+/// reads: seen from 30 / 35 km, sun −4.75 / −5.25°, the limb 0.3 / 0.25° above the horizon
+/// opposite the sun (680 nm), the altitude nodes alone over exact slices erred by −16.7 /
+/// −26.5 % with ω = w_n (docs/lut.md).
 pub fn limb_node_shift(r: f64, theta: f64, cos_phi: f64, bottom: f64, h_n: f64) -> f64 {
-    let r_t = r * (theta - 0.5 * PI).max(0.0).cos();
+    let gamma = (theta - 0.5 * PI).max(0.0);
+    let r_t = r * gamma.cos();
+    let h = r - bottom;
     let y = if r > bottom {
-        ((r - r_t) / (r - bottom)).clamp(0.0, 1.0)
+        ((r - r_t) / h).clamp(0.0, 1.0)
     } else {
         0.0
     };
-    limb_shift_with(
-        r,
-        theta,
-        cos_phi,
-        bottom,
-        limb_tangent_weight(cos_phi, h_n, y * h_n),
-    )
+    let w_n = limb_tangent_weight(cos_phi, h_n, y * h_n);
+    let [h0, h1] = LIMB_NODE_QUERY_WEIGHT_M;
+    let lambda = smoothstep(h0, h1, h);
+    if lambda <= 0.0 {
+        return limb_shift_with(r, theta, cos_phi, bottom, w_n);
+    }
+    let observer = dip(r, bottom);
+    let t = gamma * cos_phi + dip(r_t, bottom) - observer;
+    // The node's ray at the query's depth fraction (its γ from 1 − cos γ = y h_n / r_n).
+    let r_n = bottom + h_n;
+    let gamma_n = 2.0 * (0.5 * y * h_n / r_n).sqrt().min(1.0).asin();
+    let t_n = gamma_n * cos_phi + dip(r_n - y * h_n, bottom) - dip(r_n, bottom);
+    let w = limb_tangent_weight(cos_phi, h, r - r_t);
+    let omega = w_n + lambda * (w - w_n);
+    observer + w_n * t_n + omega * (t - t_n)
 }
+
+/// The query altitudes (m) between which [`limb_node_shift`]'s ω moves (smoothstep) from each
+/// altitude node's own tangent-point weight to the query's.
+pub const LIMB_NODE_QUERY_WEIGHT_M: [f64; 2] = [25_000.0, 29_000.0];
 
 /// The share of a limb ray's weight towards the tangent point's sun coordinate ([`sun_shift`])
 /// given back to the observer's horizon, at azimuth `cos_phi` (cosine) from the sun, altitude
@@ -2891,6 +2910,7 @@ pub fn manifest(
                 "azimuth_cos": LIMB_NEAR_END_AZIMUTH,
                 "depth_m": LIMB_NEAR_END_DEPTH_M,
                 "altitude_range_m": LIMB_NEAR_END_ALTITUDE_M,
+                "node_query_weight_altitude_m": LIMB_NODE_QUERY_WEIGHT_M,
             },
             "sun_segments": SUN_SEGMENTS.iter().map(|(a, b, n)| json!([a, b, n])).collect::<Vec<_>>(),
             "sky_row_band": sky_row_band,
@@ -3758,7 +3778,7 @@ mod tests {
     }
 
     #[test]
-    fn each_altitude_node_reads_the_limb_at_its_own_tangent_point_weight() {
+    fn each_altitude_node_reads_the_limb_at_its_tangent_point_weight() {
         // A limb ray seen from 35 km opposite the sun, 0.25° above the horizon (deep: r − r_t
         // near the observer's altitude).
         let r = R + 35_000.0;
@@ -3771,23 +3791,32 @@ mod tests {
             .abs()
                 < 1e-12
         );
-        // At a node below the near end's fade (26 km), the tangent point's weight at the node's
-        // depth, n = 0; at a node above it (40 km), the observer's horizon (n = 1, w = 0).
-        let y = (r - r * (theta - 0.5 * PI).cos()) / 35_000.0;
-        let w = 1.0 - (-(y * 20_000.0) / LIMB_SHADOW_SCALE_M).exp();
-        assert!(
-            (limb_node_shift(r, theta, -1.0, R, 20_000.0) - limb_shift_with(r, theta, -1.0, R, w))
-                .abs()
-                < 1e-12
-        );
-        assert_eq!(limb_node_shift(r, theta, -1.0, R, 45_000.0), dip(r, R));
-        // Towards the sun no node gives its weight back.
-        let w = 1.0 - (-(y * 45_000.0) / LIMB_SHADOW_SCALE_M).exp();
-        assert!(
-            (limb_node_shift(r, theta, 1.0, R, 45_000.0) - limb_shift_with(r, theta, 1.0, R, w))
-                .abs()
-                < 1e-12
-        );
+        // Above LIMB_NODE_QUERY_WEIGHT_M the query's weight w for every node: node n (its ray at
+        // the query's depth fraction y) read w_n t_n + w (t − t_n) above the observer's horizon,
+        // t = γ cos φ + dip(r_t) − dip(r); at 45 km w_n = 0 (n = 1).
+        let gamma = theta - 0.5 * PI;
+        let r_t = r * gamma.cos();
+        let y = (r - r_t) / 35_000.0;
+        let w = limb_tangent_weight(-1.0, 35_000.0, r - r_t);
+        let t = -gamma + dip(r_t, R) - dip(r, R);
+        let r_n = R + 45_000.0;
+        let r_tn = r_n - y * 45_000.0;
+        let t_n = -(r_tn / r_n).acos() + dip(r_tn, R) - dip(r_n, R);
+        assert_eq!(limb_tangent_weight(-1.0, 45_000.0, y * 45_000.0), 0.0);
+        let got = limb_node_shift(r, theta, -1.0, R, 45_000.0);
+        assert!((got - (dip(r, R) + w * (t - t_n))).abs() < 1e-9, "{got}");
+        // Below it (a query at 20 km), each node its own weight at its depth (version 21).
+        let r = R + 20_000.0;
+        let theta = horizon_zenith(r, R) - 0.25f64.to_radians();
+        let y = (r - r * (theta - 0.5 * PI).cos()) / 20_000.0;
+        for h_n in [16_880.0, 23_800.0] {
+            let w_n = limb_tangent_weight(-1.0, h_n, y * h_n);
+            assert!(
+                (limb_node_shift(r, theta, -1.0, R, h_n) - limb_shift_with(r, theta, -1.0, R, w_n))
+                    .abs()
+                    < 1e-12
+            );
+        }
     }
 
     #[test]
