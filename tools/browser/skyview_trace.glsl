@@ -145,7 +145,7 @@ void main() {
       if (segment == 1) {
         float h_n = sv_alt_nodes[sa.first + a];
         float cos_phi = SkyViewCos(phi);
-        float w_n = SkyViewLimbTangentWeight(cos_phi, h_n, y_limb * h_n);
+        float w_n = SkyViewLimbNodeWeight(cos_phi, h, h - h_t, h_n, y_limb);
         float shift_n = dip + w_n * (gamma * cos_phi + dip_t - dip);
         s_k = degrees(asin(mu_s) + shift_n);
         float above_n = SkyViewSunAbove(h, shift_n, SkyViewSunWarpCentre(h, segment, cos_phi), mu_s);

@@ -53,7 +53,8 @@
 // SV_SUN_WARP_CENTRE_ALTITUDE (parameterisation.sun_warp_centre: weight, altitude_range_m, a
 // vec2); from
 // parameterisation.limb_near_end: SV_LIMB_NEAR_END_AZIMUTH (azimuth_cos, a vec2),
-// SV_LIMB_NEAR_END_DEPTH (depth_m, a vec2), SV_LIMB_NEAR_END_ALTITUDE (altitude_range_m, a vec2).
+// SV_LIMB_NEAR_END_DEPTH (depth_m, a vec2), SV_LIMB_NEAR_END_ALTITUDE (altitude_range_m, a vec2);
+// SV_LIMB_NODE_WEIGHT_ALTITUDE (limb_near_end.node_weight_altitude_m, a vec2).
 //
 // Per query: node coordinates in altitude (the base abscissa (sqrt(e) + c (e^p - e^q)) x_last
 // within the nodes' abscissas SV_ALT_X,
@@ -300,16 +301,32 @@ vec2 SkyViewLimbFocus(float sun_deg, float h) {
   return vec2(SkyViewLimbRow(clamp(depth / h, 0.0, 1.0)), f * SV_LIMB_BAND_FOCUS);
 }
 
-// The tangent point's weight of a limb ray at altitude h (m) whose tangent point lies depth (m)
-// below it, cos_phi the cosine of its azimuth from the sun (the reader's limb_tangent_weight):
-// (1 - exp(-depth / SV_LIMB_SHADOW_SCALE)) (1 - n), n the near end's share aloft away from the sun
-// (the reader's limb_near_end).
-float SkyViewLimbTangentWeight(float cos_phi, float h, float depth) {
-  float near_end =
-      (1.0 - smoothstep(SV_LIMB_NEAR_END_AZIMUTH.x, SV_LIMB_NEAR_END_AZIMUTH.y, cos_phi)) *
+// The near end's share n of a limb ray's weight aloft away from the sun (the reader's
+// limb_near_end), at altitude h (m), its tangent point depth (m) below it, cos_phi the cosine of
+// its azimuth from the sun.
+float SkyViewLimbNearEnd(float cos_phi, float h, float depth) {
+  return (1.0 - smoothstep(SV_LIMB_NEAR_END_AZIMUTH.x, SV_LIMB_NEAR_END_AZIMUTH.y, cos_phi)) *
       smoothstep(SV_LIMB_NEAR_END_DEPTH.x, SV_LIMB_NEAR_END_DEPTH.y, depth) *
       smoothstep(SV_LIMB_NEAR_END_ALTITUDE.x, SV_LIMB_NEAR_END_ALTITUDE.y, h);
-  return (1.0 - exp(-depth / SV_LIMB_SHADOW_SCALE)) * (1.0 - near_end);
+}
+
+// The tangent point's weight of a limb ray at altitude h (m) whose tangent point lies depth (m)
+// below it, cos_phi the cosine of its azimuth from the sun (the reader's limb_tangent_weight):
+// (1 - exp(-depth / SV_LIMB_SHADOW_SCALE)) (1 - n).
+float SkyViewLimbTangentWeight(float cos_phi, float h, float depth) {
+  return (1.0 - exp(-depth / SV_LIMB_SHADOW_SCALE)) * (1.0 - SkyViewLimbNearEnd(cos_phi, h, depth));
+}
+
+// The tangent point's weight at which altitude node h_n (m) is read on the limb by a query at
+// altitude h whose tangent point lies depth (m) below it, y_limb = depth / h (the reader's
+// limb_node_shift): (e_q + b (e_n - e_q)) (1 - n(h_n, y_limb h_n)), e the exponential of the
+// query's depth and of the node's y_limb h_n, b the smoothstep of h over
+// SV_LIMB_NODE_WEIGHT_ALTITUDE (the node's whole weight aloft, the query's exponential below).
+float SkyViewLimbNodeWeight(float cos_phi, float h, float depth, float h_n, float y_limb) {
+  float b = smoothstep(SV_LIMB_NODE_WEIGHT_ALTITUDE.x, SV_LIMB_NODE_WEIGHT_ALTITUDE.y, h);
+  float e_q = 1.0 - exp(-depth / SV_LIMB_SHADOW_SCALE);
+  float e_n = 1.0 - exp(-y_limb * h_n / SV_LIMB_SHADOW_SCALE);
+  return (e_q + b * (e_n - e_q)) * (1.0 - SkyViewLimbNearEnd(cos_phi, h_n, y_limb * h_n));
 }
 
 // The band's depth (m) on the limb at sun coordinate sun_deg, at least SV_LIMB_BAND_DEPTH_FLOOR
@@ -958,13 +975,14 @@ vec3 SkyViewRadiance(float h, float rho, vec3 up, vec3 view_ray, vec3 sun_direct
       SvStencil sc = sc_n[a];
       // On the limb rows, the node read at the query's sun coordinate formed with the node's
       // tangent-point weight (the reader's limb_node_shift: at the node's altitude h_n and the
-      // depth y_limb h_n), without the sun nodes read too deep.
+      // depth y_limb h_n aloft, the query's exponential below), without the sun nodes read too
+      // deep.
       SvStencil ss = ss_q;
       float s_k = s_q;
       if (segment == 1) {
         float h_n = sv_alt_nodes[sa.first + a];
         float cos_phi = SkyViewCos(phi);
-        float w_n = SkyViewLimbTangentWeight(cos_phi, h_n, y_limb * h_n);
+        float w_n = SkyViewLimbNodeWeight(cos_phi, h, h - h_t, h_n, y_limb);
         float shift_n = dip + w_n * (gamma * cos_phi + dip_t - dip);
         s_k = degrees(asin(mu_s) + shift_n);
         float above_n = SkyViewSunAbove(h, shift_n, SkyViewSunWarpCentre(h, segment, cos_phi), mu_s);

@@ -306,15 +306,21 @@ pub fn limb_tangent_weight(cos_phi: f64, h: f64, depth: f64) -> f64 {
 
 /// The sun coordinate's shift (rad) at which altitude node `h_n` (m) is read for a limb query
 /// (from radius `r` at zenith `theta`, azimuth `cos_phi` from the sun): [`limb_shift_with`] of
-/// the query's ray with the node's tangent-point weight w_n ([`limb_tangent_weight`] at the
-/// node's altitude and the depth y h_n of the query's depth fraction y = (r − r_t) / (r − R)
-/// there, the node's ray the query reads) instead of the query's own w. The node's texel at sun
-/// node s_j holds its ray at the sun's elevation s_j − dip(r_n) − w_n (T_n − dip(r_n))
-/// (T = γ cos φ + dip(r_t)); read at the query's coordinate formed with w_n, that is the query's
-/// ray moved by (1 − w_n) (dip(r) − dip(r_n)) + w_n (T − T_n): one equivalence per node, between
-/// the observer's horizon (the near end's edge) and the tangent point's, instead of the
-/// query's w against the node's (seen from 35 km the nodes 27.9–42.4 km, n from 0.02 to 1,
-/// held the query's limb ray at sun elevations 4–5° apart).
+/// the query's ray with the node's tangent-point weight w_n instead of the query's own w.
+/// Aloft ([`LIMB_NODE_WEIGHT_ALTITUDE_M`]) w_n is the node's whole weight
+/// ([`limb_tangent_weight`] at the node's altitude and the depth y h_n of the query's depth
+/// fraction y = (r − r_t) / (r − R) there, the node's ray the query reads); below, the query's
+/// exponential 1 − exp(−(r − r_t) / [`LIMB_SHADOW_SCALE_M`]) times the node's 1 − n
+/// ([`limb_near_end`], 0 there), blended by a smoothstep over the query's altitude (so nothing
+/// jumps). The node's
+/// texel at sun node s_j holds its ray at the sun's elevation s_j − dip(r_n) − w_n (T_n − dip(r_n))
+/// (T = γ cos φ + dip(r_t)); read at the query's coordinate formed with the node's whole
+/// weight, that is the query's ray moved by (1 − w_n) (dip(r) − dip(r_n)) + w_n (T − T_n): one
+/// equivalence per node, between the observer's horizon (the near end's edge) and the tangent
+/// point's, instead of the query's w against the node's (seen from 35 km the nodes 27.9–42.4
+/// km, n from 0.02 to 1, held the query's limb ray at sun elevations 4–5° apart). Below, where
+/// n = 0 on every node a query reads, the query's exponential keeps the coordinate the limb
+/// rows' focus was fitted in ([`LIMB_BAND_DEPTH_M`]).
 pub fn limb_node_shift(r: f64, theta: f64, cos_phi: f64, bottom: f64, h_n: f64) -> f64 {
     let r_t = r * (theta - 0.5 * PI).max(0.0).cos();
     let y = if r > bottom {
@@ -322,14 +328,23 @@ pub fn limb_node_shift(r: f64, theta: f64, cos_phi: f64, bottom: f64, h_n: f64) 
     } else {
         0.0
     };
-    limb_shift_with(
-        r,
-        theta,
-        cos_phi,
-        bottom,
-        limb_tangent_weight(cos_phi, h_n, y * h_n),
-    )
+    let [h0, h1] = LIMB_NODE_WEIGHT_ALTITUDE_M;
+    let b = smoothstep(h0, h1, r - bottom);
+    let e_q = 1.0 - (-(r - r_t) / LIMB_SHADOW_SCALE_M).exp();
+    let e_n = 1.0 - (-(y * h_n) / LIMB_SHADOW_SCALE_M).exp();
+    let w = (e_q + b * (e_n - e_q)) * (1.0 - limb_near_end(cos_phi, h_n, y * h_n));
+    limb_shift_with(r, theta, cos_phi, bottom, w)
 }
+
+/// The query altitudes (m) over which [`limb_node_shift`] goes from the query's exponential
+/// (below) to each node's whole tangent-point weight (above). Measured on the earth's shadow
+/// seen aloft (grid / dense / between the dense check's samples, %; docs/lut.md): the node's
+/// whole weight everywhere (version 21) 9.5 km 2.41 / 2.83 / 3.06, 12.5 km 2.89 / 2.89 / 2.29,
+/// 17.5 km 4.94 / 6.67 / 2.62, off the asserted altitudes 16.25 km 4.17 / 4.17 / 3.37;
+/// (11 km, 20 km): 2.41 / 2.42 / 3.06, **1.87 / 2.39 / 2.42**, **4.94 / 4.94** / 2.62, 16.25 km
+/// 4.17 / 4.17 / 4.05; (12.5 km, 20 km) 12.5 km 2.11 / 2.39 / 2.66, 16.25 km between 3.89 %;
+/// (15 km, 20 km) the same at 12.5 km, 16.25 km between 4.66 %; 20–40 km unchanged by each.
+pub const LIMB_NODE_WEIGHT_ALTITUDE_M: [f64; 2] = [11_000.0, 20_000.0];
 
 /// The share of a limb ray's weight towards the tangent point's sun coordinate ([`sun_shift`])
 /// given back to the observer's horizon, at azimuth `cos_phi` (cosine) from the sun, altitude
@@ -2405,8 +2420,9 @@ impl<'a> SkyViewReader<'a> {
         };
         let (sa, ss, _) = self.altitude_sun_stencils(r, mu_s, shift, seg, cos_phi);
         // On the limb rows, each altitude node read at the query's sun coordinate formed with
-        // the node's own tangent-point weight ([`limb_node_shift`]), its sun stencil without the
-        // nodes read too deep ([`limb_sun_stencil`]); with that coordinate (degrees).
+        // the node's own tangent-point weight aloft, the query's exponential below 11–20 km
+        // ([`limb_node_shift`]), its sun stencil without the nodes read too deep
+        // ([`limb_sun_stencil`]); with that coordinate (degrees).
         let sun_stencil = |k: usize| -> (Stencil, f64) {
             if seg != 1 {
                 return (ss, s_deg);
@@ -2703,6 +2719,13 @@ pub fn manifest(
         .map(|&h| (0..N_AZ).map(|a| azimuth_node(a, h)).collect())
         .collect();
     // Its own value: the whole manifest in one `json!` exceeds the macro's recursion limit.
+    // (Apart from the document below, whose json! would pass the macro's recursion limit.)
+    let limb_near_end = json!({
+        "azimuth_cos": LIMB_NEAR_END_AZIMUTH,
+        "depth_m": LIMB_NEAR_END_DEPTH_M,
+        "altitude_range_m": LIMB_NEAR_END_ALTITUDE_M,
+        "node_weight_altitude_m": LIMB_NODE_WEIGHT_ALTITUDE_M,
+    });
     let sky_row_band = json!({
         "sun_deg": BAND_SUN_DEG,
         "centre": BAND_CENTRE,
@@ -2776,11 +2799,7 @@ pub fn manifest(
             "limb_shadow_scale_m": LIMB_SHADOW_SCALE_M,
             "sky_exit_altitude_m": SKY_EXIT_ALTITUDE_M,
             "sky_exit_azimuth_fade": SKY_EXIT_AZIMUTH_FADE,
-            "limb_near_end": {
-                "azimuth_cos": LIMB_NEAR_END_AZIMUTH,
-                "depth_m": LIMB_NEAR_END_DEPTH_M,
-                "altitude_range_m": LIMB_NEAR_END_ALTITUDE_M,
-            },
+            "limb_near_end": limb_near_end,
             "sun_segments": SUN_SEGMENTS.iter().map(|(a, b, n)| json!([a, b, n])).collect::<Vec<_>>(),
             "sky_row_band": sky_row_band,
             "limb_row_band": {
@@ -3608,6 +3627,14 @@ mod tests {
                 < 1e-12
         );
         assert_eq!(limb_node_shift(r, theta, -1.0, R, 45_000.0), dip(r, R));
+        // Below LIMB_NODE_WEIGHT_ALTITUDE_M every node a query reads (n = 0) at the query's own
+        // coordinate: seen from 10 km, nodes at 7.5 and 12.5 km.
+        let r_low = R + 10_000.0;
+        let theta_low = horizon_zenith(r_low, R) - 0.25f64.to_radians();
+        let own = sun_shift(r_low, theta_low, -1.0, R, top, true);
+        for h_n in [7_500.0, 12_500.0] {
+            assert!((limb_node_shift(r_low, theta_low, -1.0, R, h_n) - own).abs() < 1e-12);
+        }
         // Towards the sun no node gives its weight back.
         let w = 1.0 - (-(y * 45_000.0) / LIMB_SHADOW_SCALE_M).exp();
         assert!(
