@@ -179,6 +179,13 @@ class LiveSky {
         `#define SV_LIMB_NEAR_END_DEPTH vec2(${nearEnd.depth_m.map(f).join(", ")})\n` +
         `#define SV_LIMB_NEAR_END_ALTITUDE vec2(${nearEnd.altitude_range_m.map(f).join(", ")})\n` +
         `#define SV_LIMB_NODE_QUERY_WEIGHT vec2(${nearEnd.node_query_weight_altitude_m.map(f).join(", ")})\n`;
+      // The altitudes over which the limb's altitude nodes go from the query's exponential to
+      // their own tangent-point weight (the reader's limb_node_shift).
+      const nodeWeight = nearEnd.node_weight_altitude_m;
+      if (!numbers(nodeWeight, 2) || !(nodeWeight[0] < nodeWeight[1])) {
+        throw new Error("manifest: parameterisation.limb_near_end.node_weight_altitude_m is not an altitude range");
+      }
+      defines += `#define SV_LIMB_NODE_WEIGHT_ALTITUDE vec2(${nodeWeight.map(f).join(", ")})\n`;
       // The limb rows' focus on the band above the earth's shadow seen from altitude (version 10;
       // the slices' two-piece depth map, version 11).
       const limb = manifest.parameterisation.limb_row_band;

@@ -56,7 +56,8 @@
 // vec2); from
 // parameterisation.limb_near_end: SV_LIMB_NEAR_END_AZIMUTH (azimuth_cos, a vec2),
 // SV_LIMB_NEAR_END_DEPTH (depth_m, a vec2), SV_LIMB_NEAR_END_ALTITUDE (altitude_range_m, a vec2),
-// SV_LIMB_NODE_QUERY_WEIGHT (node_query_weight_altitude_m, a vec2).
+// SV_LIMB_NODE_WEIGHT_ALTITUDE (node_weight_altitude_m, a vec2), SV_LIMB_NODE_QUERY_WEIGHT
+// (node_query_weight_altitude_m, a vec2).
 //
 // Per query: node coordinates in altitude (the base abscissa (sqrt(e) + c (e^p - e^q)) x_last
 // within the nodes' abscissas SV_ALT_X,
@@ -303,27 +304,43 @@ vec2 SkyViewLimbFocus(float sun_deg, float h) {
   return vec2(SkyViewLimbRow(clamp(depth / h, 0.0, 1.0)), f * SV_LIMB_BAND_FOCUS);
 }
 
-// The tangent point's weight of a limb ray at altitude h (m) whose tangent point lies depth (m)
-// below it, cos_phi the cosine of its azimuth from the sun (the reader's limb_tangent_weight):
-// (1 - exp(-depth / SV_LIMB_SHADOW_SCALE)) (1 - n), n the near end's share aloft away from the sun
-// (the reader's limb_near_end).
-float SkyViewLimbTangentWeight(float cos_phi, float h, float depth) {
-  float near_end =
-      (1.0 - smoothstep(SV_LIMB_NEAR_END_AZIMUTH.x, SV_LIMB_NEAR_END_AZIMUTH.y, cos_phi)) *
+// The near end's share n of a limb ray's weight aloft away from the sun (the reader's
+// limb_near_end), at altitude h (m), its tangent point depth (m) below it, cos_phi the cosine of
+// its azimuth from the sun.
+float SkyViewLimbNearEnd(float cos_phi, float h, float depth) {
+  return (1.0 - smoothstep(SV_LIMB_NEAR_END_AZIMUTH.x, SV_LIMB_NEAR_END_AZIMUTH.y, cos_phi)) *
       smoothstep(SV_LIMB_NEAR_END_DEPTH.x, SV_LIMB_NEAR_END_DEPTH.y, depth) *
       smoothstep(SV_LIMB_NEAR_END_ALTITUDE.x, SV_LIMB_NEAR_END_ALTITUDE.y, h);
-  return (1.0 - exp(-depth / SV_LIMB_SHADOW_SCALE)) * (1.0 - near_end);
+}
+
+// The tangent point's weight of a limb ray at altitude h (m) whose tangent point lies depth (m)
+// below it, cos_phi the cosine of its azimuth from the sun (the reader's limb_tangent_weight):
+// (1 - exp(-depth / SV_LIMB_SHADOW_SCALE)) (1 - n).
+float SkyViewLimbTangentWeight(float cos_phi, float h, float depth) {
+  return (1.0 - exp(-depth / SV_LIMB_SHADOW_SCALE)) * (1.0 - SkyViewLimbNearEnd(cos_phi, h, depth));
+}
+
+// The tangent point's weight at which altitude node h_n (m) is read on the limb by a query at
+// altitude h whose tangent point lies depth (m) below it, y_limb = depth / h (the reader's
+// limb_node_shift): (e_q + b (e_n - e_q)) (1 - n(h_n, y_limb h_n)), e the exponential of the
+// query's depth and of the node's y_limb h_n, b the smoothstep of h over
+// SV_LIMB_NODE_WEIGHT_ALTITUDE (the node's whole weight aloft, the query's exponential below).
+float SkyViewLimbNodeWeight(float cos_phi, float h, float depth, float h_n, float y_limb) {
+  float b = smoothstep(SV_LIMB_NODE_WEIGHT_ALTITUDE.x, SV_LIMB_NODE_WEIGHT_ALTITUDE.y, h);
+  float e_q = 1.0 - exp(-depth / SV_LIMB_SHADOW_SCALE);
+  float e_n = 1.0 - exp(-y_limb * h_n / SV_LIMB_SHADOW_SCALE);
+  return (e_q + b * (e_n - e_q)) * (1.0 - SkyViewLimbNearEnd(cos_phi, h_n, y_limb * h_n));
 }
 
 // The sun coordinate's shift at which altitude node h_n (m) is read for a limb query at altitude
 // h (the reader's limb_node_shift): the node's ray at the query's depth fraction y_limb read
 // w_n t_n + omega (t - t_n) above the observer's horizon, t = gamma cos_phi + dip_t - dip the
 // query's tangent point's horizon relative to its own (t_n the node's ray's), w_n the node's
-// tangent-point weight; omega = w_n, moved to the query's weight w over SV_LIMB_NODE_QUERY_WEIGHT
-// (smoothstep in h).
+// weight (SkyViewLimbNodeWeight); omega = w_n, moved to the query's weight w over
+// SV_LIMB_NODE_QUERY_WEIGHT (smoothstep in h).
 float SkyViewLimbNodeShift(float h, float h_n, float y_limb, float cos_phi, float gamma,
                            float dip, float dip_t, float h_t) {
-  float w_n = SkyViewLimbTangentWeight(cos_phi, h_n, y_limb * h_n);
+  float w_n = SkyViewLimbNodeWeight(cos_phi, h, h - h_t, h_n, y_limb);
   float t = gamma * cos_phi + dip_t - dip;
   float lambda = smoothstep(SV_LIMB_NODE_QUERY_WEIGHT.x, SV_LIMB_NODE_QUERY_WEIGHT.y, h);
   if (lambda <= 0.0) return dip + w_n * t;
@@ -1014,9 +1031,9 @@ vec3 SkyViewRadiance(float h, float rho, vec3 up, vec3 view_ray, vec3 sun_direct
       vec3 by_sun[4] = vec3[4](vec3(0.0), vec3(0.0), vec3(0.0), vec3(0.0));
       SvStencil sc = sc_n[a];
       // On the limb rows, the node read at the query's sun coordinate formed with the node's
-      // tangent-point weight (at the node's altitude h_n and the depth y_limb h_n), aloft with the
-      // query's (SkyViewLimbNodeShift, the reader's limb_node_shift), without the sun nodes read
-      // too deep.
+      // tangent-point weight (the reader's limb_node_shift: at the node's altitude h_n and the
+      // depth y_limb h_n aloft, the query's exponential below, the query's weight higher up),
+      // without the sun nodes read too deep.
       SvStencil ss = ss_q;
       float s_k = s_q;
       if (segment == 1) {

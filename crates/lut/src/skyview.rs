@@ -409,13 +409,19 @@ pub fn limb_tangent_weight(cos_phi: f64, h: f64, depth: f64) -> f64 {
 /// the query's coordinate, it holds the query's ray with the sun ω (t − t_n) higher above the
 /// observer's horizon and (1 − ω)(t_n − t) higher above the tangent point's: ω weighs the two
 /// edges of the limb's radiance (where the sun clears the observer's own air, the near end, and
-/// where it clears the tangent point). Version 21: ω = w_n, each node its own weight (seen from
-/// 35 km the nodes 27.9–42.4 km, n from 0.02 to 1, held the query's limb ray at sun elevations
-/// 4–5° apart with the query's w everywhere). Above [`LIMB_NODE_QUERY_WEIGHT_M`] (smoothstep in
-/// the query's altitude) ω moves to the query's own w, one equivalence for every node a query
-/// reads: seen from 30 / 35 km, sun −4.75 / −5.25°, the limb 0.3 / 0.25° above the horizon
-/// opposite the sun (680 nm), the altitude nodes alone over exact slices erred by −16.7 /
-/// −26.5 % with ω = w_n (docs/lut.md).
+/// where it clears the tangent point). Three altitude ranges of the query, blended by
+/// smoothsteps so nothing jumps:
+/// - below [`LIMB_NODE_WEIGHT_ALTITUDE_M`] (11–20 km) the query's exponential
+///   1 − exp(−(r − r_t) / [`LIMB_SHADOW_SCALE_M`]) times the node's 1 − n ([`limb_near_end`],
+///   0 there) in place of w_n, ω = w_n: the coordinate the limb rows' focus was fitted in
+///   ([`LIMB_BAND_DEPTH_M`]);
+/// - above it ω = w_n, each node its own whole weight (seen from 35 km the nodes 27.9–42.4 km,
+///   n from 0.02 to 1, held the query's limb ray at sun elevations 4–5° apart with the query's w
+///   everywhere);
+/// - above [`LIMB_NODE_QUERY_WEIGHT_M`] (25–29 km) ω moves to the query's own w, one
+///   equivalence for every node a query reads: seen from 30 / 35 km, sun −4.75 / −5.25°, the
+///   limb 0.3 / 0.25° above the horizon opposite the sun (680 nm), the altitude nodes alone over
+///   exact slices erred by −16.7 / −26.5 % with ω = w_n (docs/lut.md).
 pub fn limb_node_shift(r: f64, theta: f64, cos_phi: f64, bottom: f64, h_n: f64) -> f64 {
     let gamma = (theta - 0.5 * PI).max(0.0);
     let r_t = r * gamma.cos();
@@ -425,7 +431,13 @@ pub fn limb_node_shift(r: f64, theta: f64, cos_phi: f64, bottom: f64, h_n: f64) 
     } else {
         0.0
     };
-    let w_n = limb_tangent_weight(cos_phi, h_n, y * h_n);
+    // The node's weight: the query's exponential below LIMB_NODE_WEIGHT_ALTITUDE_M, the node's
+    // own above (both times the node's 1 − n).
+    let [b0, b1] = LIMB_NODE_WEIGHT_ALTITUDE_M;
+    let b = smoothstep(b0, b1, h);
+    let e_q = 1.0 - (-(r - r_t) / LIMB_SHADOW_SCALE_M).exp();
+    let e_n = 1.0 - (-(y * h_n) / LIMB_SHADOW_SCALE_M).exp();
+    let w_n = (e_q + b * (e_n - e_q)) * (1.0 - limb_near_end(cos_phi, h_n, y * h_n));
     let [h0, h1] = LIMB_NODE_QUERY_WEIGHT_M;
     let lambda = smoothstep(h0, h1, h);
     if lambda <= 0.0 {
@@ -445,6 +457,16 @@ pub fn limb_node_shift(r: f64, theta: f64, cos_phi: f64, bottom: f64, h_n: f64) 
 /// The query altitudes (m) between which [`limb_node_shift`]'s ω moves (smoothstep) from each
 /// altitude node's own tangent-point weight to the query's.
 pub const LIMB_NODE_QUERY_WEIGHT_M: [f64; 2] = [25_000.0, 29_000.0];
+
+/// The query altitudes (m) over which [`limb_node_shift`] goes from the query's exponential
+/// (below) to each node's whole tangent-point weight (above). Measured on the earth's shadow
+/// seen aloft (grid / dense / between the dense check's samples, %; docs/lut.md): the node's
+/// whole weight everywhere (version 21) 9.5 km 2.41 / 2.83 / 3.06, 12.5 km 2.89 / 2.89 / 2.29,
+/// 17.5 km 4.94 / 6.67 / 2.62, off the asserted altitudes 16.25 km 4.17 / 4.17 / 3.37;
+/// (11 km, 20 km): 2.41 / 2.42 / 3.06, **1.87 / 2.39 / 2.42**, **4.94 / 4.94** / 2.62, 16.25 km
+/// 4.17 / 4.17 / 4.05; (12.5 km, 20 km) 12.5 km 2.11 / 2.39 / 2.66, 16.25 km between 3.89 %;
+/// (15 km, 20 km) the same at 12.5 km, 16.25 km between 4.66 %; 20–40 km unchanged by each.
+pub const LIMB_NODE_WEIGHT_ALTITUDE_M: [f64; 2] = [11_000.0, 20_000.0];
 
 /// The share of a limb ray's weight towards the tangent point's sun coordinate ([`sun_shift`])
 /// given back to the observer's horizon, at azimuth `cos_phi` (cosine) from the sun, altitude
@@ -2535,8 +2557,9 @@ impl<'a> SkyViewReader<'a> {
         };
         let (sa, ss, _) = self.altitude_sun_stencils(r, mu_s, shift, seg, cos_phi);
         // On the limb rows, each altitude node read at the query's sun coordinate formed with
-        // the node's own tangent-point weight ([`limb_node_shift`]), its sun stencil without the
-        // nodes read too deep ([`limb_sun_stencil`]); with that coordinate (degrees).
+        // the node's own tangent-point weight aloft, the query's exponential below 11–20 km
+        // ([`limb_node_shift`]), its sun stencil without the nodes read too deep
+        // ([`limb_sun_stencil`]); with that coordinate (degrees).
         let sun_stencil = |k: usize| -> (Stencil, f64) {
             if seg != 1 {
                 return (ss, s_deg);
@@ -2789,8 +2812,8 @@ pub const STATED_ERRORS: &[(&str, &str, f64)] = &[
     ("rayleigh+mie", "sky radiance (sky product), sun -6..5 deg, ground", 0.012),
     ("rayleigh+mie", "sky radiance (sky product), sun -6..5 deg, 0-5 km (the band above the earth's shadow 120 deg from the sun, 680 nm at 5 km, 0.5 deg above the horizontal; the twilight glow towards the sun at most 3 %)", 0.046),
     ("rayleigh+mie", "sky radiance (sky product), sun -6..5 deg, 5-8 km (the band above the earth's shadow, 680 nm at 8 km, 1.75 deg above the horizontal 150 deg from the sun, sun -2.5 deg, the dense check; between its samples 2.5 %)", 0.027),
-    ("rayleigh+mie", "sky radiance (sky product), sun -6..5 deg, 8-12.5 km (the sky 2.1 deg up 172.5 deg from the sun, 680 nm at 9.5 km, sun -2.625 deg, between the dense check's samples; on them 2.9 % at 12.5 km, the limb 3 deg below the horizontal 150 deg from the sun, and 2.8 % at 9.5 km; at 12.5 km 2.3 % between them; the twilight glow towards the sun at most 3 %)", 0.031),
-    ("rayleigh+mie", "sky radiance (sky product), sun -6..5 deg, 12.5-20 km (the limb 4 deg below the horizontal 165 deg from the sun, 680 nm at 17.5 km, sun -3.5 deg, the dense check; at 17.5 km 4.9 % on its grid, the sky 3 deg up 150 deg from the sun, sun -4 deg; at 20 km 5.2 % between the dense check's samples, the limb 0.9 deg above the horizon 172.5 deg from the sun, and 4.6 % on them, the sky 2.25 deg up 135 deg from the sun; the twilight glow towards the sun at most 3 %)", 0.067),
+    ("rayleigh+mie", "sky radiance (sky product), sun -6..5 deg, 8-12.5 km (the sky 2.1 deg up 172.5 deg from the sun, 680 nm at 9.5 km, sun -2.625 deg, between the dense check's samples; on them 2.4 % at 9.5 km, the sky 3.5 deg up 180 deg from the sun, 440 nm, and at 12.5 km, the limb 2 deg below the horizontal 135 deg from the sun; at 12.5 km 2.4 % between them; the twilight glow towards the sun at most 3 %)", 0.031),
+    ("rayleigh+mie", "sky radiance (sky product), sun -6..5 deg, 12.5-20 km (the limb 0.9 deg above the horizon 172.5 deg from the sun, 680 nm at 20 km, sun -4.125 deg, between the dense check's samples; on them 4.6 % at 20 km, the sky 2.25 deg up 135 deg from the sun, and 4.9 % at 17.5 km, the sky 3 deg up 150 deg from the sun, sun -4 deg; the twilight glow towards the sun at most 3 %)", 0.052),
     ("rayleigh+mie", "sky radiance (sky product), sun -6..0 deg, 0-5 km, views within 10 deg of the horizon 150-180 deg from the sun (the earth's shadow rising; 680 nm at 2.5 km)", 0.022),
     ("rayleigh+mie", "sky radiance (sky product), sun -6..5 deg, 20-100 km (random samples: 2.9 %, the sky at 30 km 58 deg from the sun, 440 nm; but the limb just above the horizon 150-180 deg from the sun seen from 22.5-40 km, up to 35 %: 30 km, sun -4.75 deg, 5.25 deg below the horizontal opposite the sun, 680 nm; 29 % at 40 km, 28 % at 35 km, 18 % at 25 km, 5.4 % at 22.5 km; the sky just above the horizontal 30-120 deg from the sun with the sun at -6..-3 deg up to 23 % at 40 km, 19 % at 35 km, 9.9 % at 30 km, 5.5 % at 25 km, 4.9 % at 22.5 km, 5.8 % at 20 km; the band above the earth's shadow above the horizontal at most 9.1 %: 40 km, 6.5 % at 30 km, 4.9 % at 25 km, 4.0 % at 22.5 km)", 0.35),
     ("rayleigh+mie", "sky radiance (sky product), sun -12..-6 deg, ground", 0.033),
@@ -2833,6 +2856,13 @@ pub fn manifest(
         .map(|&h| (0..N_AZ).map(|a| azimuth_node(a, h)).collect())
         .collect();
     // Its own value: the whole manifest in one `json!` exceeds the macro's recursion limit.
+    let limb_near_end = json!({
+        "azimuth_cos": LIMB_NEAR_END_AZIMUTH,
+        "depth_m": LIMB_NEAR_END_DEPTH_M,
+        "altitude_range_m": LIMB_NEAR_END_ALTITUDE_M,
+        "node_weight_altitude_m": LIMB_NODE_WEIGHT_ALTITUDE_M,
+        "node_query_weight_altitude_m": LIMB_NODE_QUERY_WEIGHT_M,
+    });
     let sky_row_band = json!({
         "sun_deg": BAND_SUN_DEG,
         "centre": BAND_CENTRE,
@@ -2906,12 +2936,7 @@ pub fn manifest(
             "limb_shadow_scale_m": LIMB_SHADOW_SCALE_M,
             "sky_exit_altitude_m": SKY_EXIT_ALTITUDE_M,
             "sky_exit_azimuth_fade": SKY_EXIT_AZIMUTH_FADE,
-            "limb_near_end": {
-                "azimuth_cos": LIMB_NEAR_END_AZIMUTH,
-                "depth_m": LIMB_NEAR_END_DEPTH_M,
-                "altitude_range_m": LIMB_NEAR_END_ALTITUDE_M,
-                "node_query_weight_altitude_m": LIMB_NODE_QUERY_WEIGHT_M,
-            },
+            "limb_near_end": limb_near_end,
             "sun_segments": SUN_SEGMENTS.iter().map(|(a, b, n)| json!([a, b, n])).collect::<Vec<_>>(),
             "sky_row_band": sky_row_band,
             "limb_row_band": {
@@ -3816,6 +3841,14 @@ mod tests {
                     .abs()
                     < 1e-12
             );
+        }
+        // Below LIMB_NODE_WEIGHT_ALTITUDE_M every node a query reads (n = 0) at the query's own
+        // coordinate: seen from 10 km, nodes at 7.5 and 12.5 km.
+        let r_low = R + 10_000.0;
+        let theta_low = horizon_zenith(r_low, R) - 0.25f64.to_radians();
+        let own = sun_shift(r_low, theta_low, -1.0, R, top, true, DEEP_RAD);
+        for h_n in [7_500.0, 12_500.0] {
+            assert!((limb_node_shift(r_low, theta_low, -1.0, R, h_n) - own).abs() < 1e-12);
         }
     }
 
