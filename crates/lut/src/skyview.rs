@@ -125,10 +125,11 @@ pub const LAYOUT: &str = "skyview";
 /// 21: the sky rows' exit shift faded out over 90–120° from the sun ([`sky_exit_azimuth`];
 /// texels change); on the limb rows each altitude node is read at the query's sun coordinate
 /// formed with that node's own tangent-point weight ([`limb_node_shift`]; reader and shader).
-/// After 21 (the lead sets the version at merge): the sky rows' exit shift faded out with the
-/// sun coordinate from −1° to 0° ([`sky_exit_sun_fade`]; texels change, reader and shader solve
-/// a query's coordinate, [`query_sun_shift`]).
-pub const SKYVIEW_VERSION: &str = "21";
+/// 22: the sky rows' exit shift faded out with the sun coordinate from −1° to 0°
+/// ([`sky_exit_sun_fade`]; texels change, reader and shader solve a query's coordinate,
+/// [`query_sun_shift`]); on the limb rows each altitude node read with the query's exponential
+/// below 11–20 km and with the query's weight ω above 25–29 km ([`limb_node_shift`]).
+pub const SKYVIEW_VERSION: &str = "22";
 
 /// Altitude nodes of the base map ([`altitude_abscissa`], about (top − bottom) · (x / 27)²,
 /// denser near the top): its integers 0..=27.
