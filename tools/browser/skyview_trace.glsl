@@ -77,9 +77,7 @@ void main() {
     if (w > 0.0 && toward != 0.0) {
       float x_top = DistanceToTopAtmosphereBoundary(r, mu);
       float exit_angle = atan(x_top * sqrt(max(1.0 - mu * mu, 0.0)), r + x_top * mu);
-      float sun_elevation = asin(mu_s);
-      shift = SkyViewExitCoordinate(sun_elevation + dip, w * exit_angle * toward, h) -
-          sun_elevation;
+      shift = dip + w * exit_angle * toward;
     }
   }
   float band_c = 0.0, band_k = 0.0, elevation = 0.0;

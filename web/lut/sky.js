@@ -244,18 +244,6 @@ class LiveSky {
         throw new Error("manifest: parameterisation.sky_exit_azimuth_fade is not a cosine in (0, 1]");
       }
       defines += `#define SV_SKY_EXIT_AZIMUTH_FADE ${f(exitFade)}\n`;
-      // Its fade with the sun coordinate where the observer's own air is lit (after layout
-      // version 21).
-      const exitSun = manifest.parameterisation.sky_exit_sun_fade_deg;
-      if (!numbers(exitSun, 2) || !(exitSun[0] < exitSun[1])) {
-        throw new Error("manifest: parameterisation.sky_exit_sun_fade_deg is not a range of degrees");
-      }
-      defines += `#define SV_SKY_EXIT_SUN_FADE vec2(${exitSun.map(f).join(", ")})\n`;
-      const exitSunAlt = manifest.parameterisation.sky_exit_sun_fade_altitude_m;
-      if (!numbers(exitSunAlt, 2) || !(exitSunAlt[0] < exitSunAlt[1])) {
-        throw new Error("manifest: parameterisation.sky_exit_sun_fade_altitude_m is not an altitude range");
-      }
-      defines += `#define SV_SKY_EXIT_SUN_FADE_ALTITUDE vec2(${exitSunAlt.map(f).join(", ")})\n`;
       // The twilight warp's centre on the sky rows towards the sun aloft (version 15).
       const centre = manifest.parameterisation.sun_warp_centre;
       if (!centre || !Number.isFinite(centre.weight) || !numbers(centre.altitude_range_m, 2) ||

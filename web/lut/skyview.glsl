@@ -49,9 +49,7 @@
 // (the cosines of parameterisation.azimuth_nodes_rad, a float[SV_N_ALT * SV_N_AZ] constructor,
 // altitude node k's columns at k * SV_N_AZ ..), SV_ALT_MAP (parameterisation.altitude_map, a vec3) and
 // SV_SKY_EXIT_ALTITUDE (parameterisation.sky_exit_altitude_m, a vec2), SV_SKY_EXIT_AZIMUTH_FADE
-// (parameterisation.sky_exit_azimuth_fade), SV_SKY_EXIT_SUN_FADE and
-// SV_SKY_EXIT_SUN_FADE_ALTITUDE (parameterisation.sky_exit_sun_fade_deg and
-// sky_exit_sun_fade_altitude_m, vec2s); SV_SUN_WARP_CENTRE and
+// (parameterisation.sky_exit_azimuth_fade); SV_SUN_WARP_CENTRE and
 // SV_SUN_WARP_CENTRE_ALTITUDE (parameterisation.sun_warp_centre: weight, altitude_range_m, a
 // vec2); from
 // parameterisation.limb_near_end: SV_LIMB_NEAR_END_AZIMUTH (azimuth_cos, a vec2),
@@ -408,33 +406,6 @@ float SkyViewExitAzimuth(float cos_phi) {
   if (cos_phi >= 0.0) return cos_phi;
   if (cos_phi > -f) return cos_phi * (1.0 + cos_phi / f) * (1.0 + cos_phi / f);
   return 0.0;
-}
-
-// The sky rows' exit shift's weight by the sun coordinate s_deg (degrees) at altitude h (the
-// reader's sky_exit_sun_fade): 1 - smoothstep(SV_SKY_EXIT_SUN_FADE.x, .y, s_deg)
-// (1 - smoothstep(SV_SKY_EXIT_SUN_FADE_ALTITUDE.x, .y, h)), so below 50-60 km the shift is whole
-// in deep twilight and 0 where the observer's own air is lit.
-float SkyViewExitSunFade(float s_deg, float h) {
-  return 1.0 - smoothstep(SV_SKY_EXIT_SUN_FADE.x, SV_SKY_EXIT_SUN_FADE.y, s_deg) *
-      (1.0 - smoothstep(SV_SKY_EXIT_SUN_FADE_ALTITUDE.x, SV_SKY_EXIT_SUN_FADE_ALTITUDE.y, h));
-}
-
-// The sun coordinate s (rad) of a sky-row query at altitude h whose sun is sigma (rad) above the
-// observer's horizon, the exit shift exit_shift (rad) without its sun fade (the reader's
-// query_sun_shift): s - SkyViewExitSunFade(s, h) exit_shift = sigma, by bisection between sigma
-// and sigma + exit_shift (the left side increases with s).
-float SkyViewExitCoordinate(float sigma, float exit_shift, float h) {
-  float lo = sigma + min(exit_shift, 0.0);
-  float hi = sigma + max(exit_shift, 0.0);
-  for (int i = 0; i < 24; ++i) {
-    float mid = 0.5 * (lo + hi);
-    if (mid - SkyViewExitSunFade(degrees(mid), h) * exit_shift < sigma) {
-      lo = mid;
-    } else {
-      hi = mid;
-    }
-  }
-  return 0.5 * (lo + hi);
 }
 
 float SkyViewSunWarpCentre(float h, int segment, float cos_phi) {
@@ -953,16 +924,13 @@ vec3 SkyViewRadiance(float h, float rho, vec3 up, vec3 view_ray, vec3 sun_direct
     shift = dip + w * (gamma * SkyViewCos(phi) + dip_t - dip);
   } else if (segment == 0) {
     // Aloft, towards the sun: the sun's elevation at the ray's exit through the top, alpha the
-    // central angle to it (the reader's sun_shift), weighted by SkyViewExitAzimuth(cos(phi))
-    // and, at the query's own coordinate, by SkyViewExitSunFade (the reader's query_sun_shift).
+    // central angle to it (the reader's sun_shift), weighted by SkyViewExitAzimuth(cos(phi)).
     float w = smoothstep(SV_SKY_EXIT_ALTITUDE.x, SV_SKY_EXIT_ALTITUDE.y, h);
     float toward = SkyViewExitAzimuth(SkyViewCos(phi));
     if (w > 0.0 && toward != 0.0) {
       float x_top = DistanceToTopAtmosphereBoundary(r, mu);
       float exit_angle = atan(x_top * sqrt(max(1.0 - mu * mu, 0.0)), r + x_top * mu);
-      float sun_elevation = asin(mu_s);
-      shift = SkyViewExitCoordinate(sun_elevation + dip, w * exit_angle * toward, h) -
-          sun_elevation;
+      shift = dip + w * exit_angle * toward;
     }
   }
   // On the sky rows in low twilight, each slice's and azimuth column's own rows

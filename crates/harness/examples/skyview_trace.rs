@@ -20,7 +20,7 @@ use skybake_lut::skyview::{
     altitude_abscissa, altitude_coord, altitude_node_m, altitude_node_x, azimuth_coord,
     band_centre_deg, band_map_weight, band_relative_elevation, band_row, band_slice_elevation,
     limb_depth_of, limb_node_shift, limb_row_focused, limb_slice_depth, limb_sun_stencil,
-    query_sun_shift, ray_length, segment_rows, sky_row_focus, sun_coord, sun_node_deg, sun_unwarp,
+    ray_length, segment_rows, sky_row_focus, sun_coord, sun_node_deg, sun_shift, sun_unwarp,
     sun_warp, sun_warp_centre, view_coord, warp_strength, Stencil, N_ALT, N_SUN, N_VIEW_LIMB,
     N_VIEW_SKY, SUN_MIN_DEG,
 };
@@ -103,15 +103,7 @@ fn main() {
     let col = azimuth_coord(phi, h);
     print("phi_column", &[phi, col]);
     let (seg, _) = view_coord(theta, r, bottom, 0.0);
-    let shift = query_sun_shift(
-        r,
-        theta,
-        cos_phi,
-        bottom,
-        top,
-        seg == 1,
-        mu_s.clamp(-1.0, 1.0).asin(),
-    );
+    let shift = sun_shift(r, theta, cos_phi, bottom, top, seg == 1);
     let s_deg = (mu_s.clamp(-1.0, 1.0).asin() + shift).to_degrees();
     let limb_y = limb_depth_of(theta, r, bottom);
     // (The shader forms the limb depth on the limb rows only.)

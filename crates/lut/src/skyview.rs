@@ -125,10 +125,9 @@ pub const LAYOUT: &str = "skyview";
 /// 21: the sky rows' exit shift faded out over 90–120° from the sun ([`sky_exit_azimuth`];
 /// texels change); on the limb rows each altitude node is read at the query's sun coordinate
 /// formed with that node's own tangent-point weight ([`limb_node_shift`]; reader and shader).
-/// 22: the sky rows' exit shift faded out with the sun coordinate from −1° to 0°
-/// ([`sky_exit_sun_fade`]; texels change, reader and shader solve a query's coordinate,
-/// [`query_sun_shift`]); on the limb rows each altitude node read with the query's exponential
-/// below 11–20 km and with the query's weight ω above 25–29 km ([`limb_node_shift`]).
+/// 22: on the limb rows each altitude node read with the query's exponential below 11–20 km and
+/// with the query's weight ω above 25–29 km ([`limb_node_shift`]; reader and shader, texels as
+/// version 21's).
 pub const SKYVIEW_VERSION: &str = "22";
 
 /// Altitude nodes of the base map ([`altitude_abscissa`], about (top − bottom) · (x / 27)²,
@@ -264,21 +263,7 @@ pub fn dip(r: f64, bottom: f64) -> f64 {
 /// earth's shadow: at a nearly constant coordinate on every row with the shift (within ±0.15° from
 /// 0.5° to 16° of elevation), on a diagonal across the rows and sun nodes without it. Away from
 /// the sun the ray's near end is the lit one, and the observer's horizon stays (the weight 0).
-/// `s_rad` is the ray's sun coordinate (rad; for a texel its sun node's): the sky rows' exit
-/// shift is weighted by [`sky_exit_sun_fade`] of it, whole in deep twilight and 0 where the sun
-/// is above the observer's own horizon (aloft the observer's air is then lit and the sky near the
-/// horizontal follows the sun's elevation there, not at the exit point). A texel at sun node s_j
-/// holds its ray at the sun's elevation s_j − `sun_shift`(s_j); a query finds its s from its
-/// sun's elevation with [`query_sun_shift`].
-pub fn sun_shift(
-    r: f64,
-    theta: f64,
-    cos_phi: f64,
-    bottom: f64,
-    top: f64,
-    limb: bool,
-    s_rad: f64,
-) -> f64 {
+pub fn sun_shift(r: f64, theta: f64, cos_phi: f64, bottom: f64, top: f64, limb: bool) -> f64 {
     if limb {
         let r_t = r * (theta - 0.5 * PI).max(0.0).cos();
         limb_shift_with(
@@ -289,99 +274,20 @@ pub fn sun_shift(
             limb_tangent_weight(cos_phi, r - bottom, r - r_t),
         )
     } else if theta <= 0.5 * PI {
-        dip(r, bottom)
-            + sky_exit_sun_fade(s_rad, r - bottom) * sky_exit_angle(r, theta, cos_phi, bottom, top)
-    } else {
-        dip(r, bottom)
-    }
-}
-
-/// [`sun_shift`] of a query whose sun is `sun_rad` (rad) above the horizontal: the shift
-/// s − `sun_rad` of the sun coordinate s that [`sun_shift`] maps to that elevation. On the sky
-/// rows aloft s solves s − u(s) E = σ (σ = `sun_rad` + dip, E = [`sky_exit_angle`],
-/// u = [`sky_exit_sun_fade`]), by bisection between σ and σ + E (u within [0, 1] brackets the
-/// root; the left side increases with s, for E < 0 since the fade is wider than 1.5 |E|,
-/// [`SKY_EXIT_SUN_FADE_DEG`]).
-pub fn query_sun_shift(
-    r: f64,
-    theta: f64,
-    cos_phi: f64,
-    bottom: f64,
-    top: f64,
-    limb: bool,
-    sun_rad: f64,
-) -> f64 {
-    if limb || theta > 0.5 * PI {
-        return sun_shift(r, theta, cos_phi, bottom, top, limb, 0.0);
-    }
-    let e = sky_exit_angle(r, theta, cos_phi, bottom, top);
-    let sigma = sun_rad + dip(r, bottom);
-    if e == 0.0 {
-        return dip(r, bottom);
-    }
-    let (mut lo, mut hi) = if e > 0.0 {
-        (sigma, sigma + e)
-    } else {
-        (sigma + e, sigma)
-    };
-    for _ in 0..SKY_EXIT_BISECTIONS {
-        let mid = 0.5 * (lo + hi);
-        if mid - sky_exit_sun_fade(mid, r - bottom) * e < sigma {
-            lo = mid;
-        } else {
-            hi = mid;
+        let [h0, h1] = SKY_EXIT_ALTITUDE_M;
+        let w = smoothstep(h0, h1, r - bottom) * sky_exit_azimuth(cos_phi);
+        if w == 0.0 {
+            return dip(r, bottom);
         }
+        // The ray's exit through the top, x along it, and the central angle to it.
+        let mu = theta.cos();
+        let x = ray_length(r, mu, bottom, top, false);
+        let alpha = (x * theta.sin()).atan2(r + x * mu);
+        dip(r, bottom) + w * alpha
+    } else {
+        dip(r, bottom)
     }
-    0.5 * (lo + hi) - sun_rad
 }
-
-/// The bisections of [`query_sun_shift`] (the bracket |E| ≤ 0.14 rad to 2·10⁻¹¹ rad).
-pub const SKY_EXIT_BISECTIONS: usize = 32;
-
-/// The sky rows' exit shift less the dip, w α (rad, [`sun_shift`]): α = atan2(x sin θ,
-/// r + x cos θ) the central angle from the observer at radius `r` to where its ray at zenith
-/// `theta` leaves the atmosphere (`top`), w = smoothstep over [`SKY_EXIT_ALTITUDE_M`] times
-/// [`sky_exit_azimuth`] of `cos_phi`.
-pub fn sky_exit_angle(r: f64, theta: f64, cos_phi: f64, bottom: f64, top: f64) -> f64 {
-    let [h0, h1] = SKY_EXIT_ALTITUDE_M;
-    let w = smoothstep(h0, h1, r - bottom) * sky_exit_azimuth(cos_phi);
-    if w == 0.0 {
-        return 0.0;
-    }
-    // The ray's exit through the top, x along it, and the central angle to it.
-    let mu = theta.cos();
-    let x = ray_length(r, mu, bottom, top, false);
-    let alpha = (x * theta.sin()).atan2(r + x * mu);
-    w * alpha
-}
-
-/// The sky rows' exit shift's weight by the sun coordinate `s_rad` (rad) at altitude `h` (m):
-/// 1 − smoothstep(s₀, s₁, s) (1 − smoothstep(h₀, h₁, h)) ([`SKY_EXIT_SUN_FADE_DEG`],
-/// [`SKY_EXIT_SUN_FADE_ALTITUDE_M`]).
-pub fn sky_exit_sun_fade(s_rad: f64, h: f64) -> f64 {
-    let [s0, s1] = SKY_EXIT_SUN_FADE_DEG;
-    let [h0, h1] = SKY_EXIT_SUN_FADE_ALTITUDE_M;
-    1.0 - smoothstep(s0, s1, s_rad.to_degrees()) * (1.0 - smoothstep(h0, h1, h))
-}
-
-/// The altitudes (m) over which [`sky_exit_sun_fade`] ends (whole below the first, none above
-/// the second): seen from higher up the air around the observer is as thin as the exit point's
-/// and the deep-twilight shift holds to s ≈ 0 (with the fade at every altitude the sky from
-/// 20–100 km with the sun −12…−6° went 8.05 → 18.46 %: 88.5 km, sun −10.75°, 1.1° above the
-/// horizontal 67° from the sun, s ≈ −0.05°); above the nodes a 40 km query reads.
-pub const SKY_EXIT_SUN_FADE_ALTITUDE_M: [f64; 2] = [50_000.0, 60_000.0];
-
-/// The sun coordinates (degrees) over which the sky rows' exit shift fades out
-/// ([`sky_exit_sun_fade`]): whole below −1°, 0 from 0° up, where the sun is above the observer's
-/// own horizon and lights the air around it, so the sky near the horizontal follows the sun's
-/// elevation at the observer rather than at the exit point (seen from 40 km, sun −6°, 0.25° above
-/// the horizontal 75–90° from the sun, the observer's coordinate +0.41°: the columns 75° from
-/// the sun held the sun 1.9° lower than the query's, the columns alone −18.5 %). Measured on the
-/// sky beside the sun aloft (`skyview_the_sky_beside_the_sun_aloft`, 30 / 35 / 40 km; docs/lut.md):
-/// no fade 9.88 / 18.68 / 22.95 %, (−1°, 0°) 6.27 / 5.36 / 7.53 %. The fade is at least 1° wide
-/// so the coordinate s − u(s) E increases with s for the azimuth weight's negative lobe
-/// (|E| ≤ 0.074 α, α ≤ 8°: 1.5 |E| < 1°).
-pub const SKY_EXIT_SUN_FADE_DEG: [f64; 2] = [-1.0, 0.0];
 
 /// [`sun_shift`] of a limb ray (from radius `r` at zenith `theta`, azimuth `cos_phi` from the
 /// sun) with the tangent point's weight `w` given: dip + w (γ cos φ + dip(r_t) − dip)
@@ -1937,16 +1843,9 @@ pub fn build_skyview_into(
                         for a in 0..N_AZ {
                             let phi = columns[k][a];
                             let limb = (N_VIEW_SKY..N_VIEW_UP).contains(&i);
+                            let shift =
+                                sun_shift(r, theta, phi.cos(), bottom, bottom + thickness, limb);
                             let s_ja = sun_warp(sun_node_deg(j), b, c_a[a]);
-                            let shift = sun_shift(
-                                r,
-                                theta,
-                                phi.cos(),
-                                bottom,
-                                bottom + thickness,
-                                limb,
-                                s_ja.to_radians(),
-                            );
                             let mu_s = (s_ja.to_radians() - shift).sin();
                             let sin_s = (1.0 - mu_s * mu_s).max(0.0).sqrt();
                             let nu = (mu * mu_s + sin_t * sin_s * phi.cos()).clamp(-1.0, 1.0);
@@ -2527,15 +2426,7 @@ impl<'a> SkyViewReader<'a> {
             )
         };
         let (seg, _) = view_coord(theta, r, p.bottom_radius, 0.0);
-        let shift = query_sun_shift(
-            r,
-            theta,
-            cos_phi,
-            p.bottom_radius,
-            p.top_radius,
-            seg == 1,
-            mu_s.clamp(-1.0, 1.0).asin(),
-        );
+        let shift = sun_shift(r, theta, cos_phi, p.bottom_radius, p.top_radius, seg == 1);
         // The sky rows depend on the ray's sun coordinate (the sun's elevation + shift).
         let s_deg = (mu_s.clamp(-1.0, 1.0).asin() + shift).to_degrees();
         let (seg, row) = view_coord(theta, r, p.bottom_radius, s_deg);
@@ -2816,10 +2707,10 @@ pub const STATED_ERRORS: &[(&str, &str, f64)] = &[
     ("rayleigh+mie", "sky radiance (sky product), sun -6..5 deg, 8-12.5 km (the sky 2.1 deg up 172.5 deg from the sun, 680 nm at 9.5 km, sun -2.625 deg, between the dense check's samples; on them 2.4 % at 9.5 km, the sky 3.5 deg up 180 deg from the sun, 440 nm, and at 12.5 km, the limb 2 deg below the horizontal 135 deg from the sun; at 12.5 km 2.4 % between them; the twilight glow towards the sun at most 3 %)", 0.031),
     ("rayleigh+mie", "sky radiance (sky product), sun -6..5 deg, 12.5-20 km (the limb 0.9 deg above the horizon 172.5 deg from the sun, 680 nm at 20 km, sun -4.125 deg, between the dense check's samples; on them 4.6 % at 20 km, the sky 2.25 deg up 135 deg from the sun, and 4.9 % at 17.5 km, the sky 3 deg up 150 deg from the sun, sun -4 deg; the twilight glow towards the sun at most 3 %)", 0.052),
     ("rayleigh+mie", "sky radiance (sky product), sun -6..0 deg, 0-5 km, views within 10 deg of the horizon 150-180 deg from the sun (the earth's shadow rising; 680 nm at 2.5 km)", 0.022),
-    ("rayleigh+mie", "sky radiance (sky product), sun -6..5 deg, 20-100 km (random samples: 2.8 %; but the limb just above the horizon 150-180 deg from the sun seen from 22.5-40 km, up to 32 %: 30 km, sun -4.75 deg, 5.25 deg below the horizontal opposite the sun, 680 nm; 30 % at 40 km, 25 % at 35 km, 18 % at 25 km, 5.4 % at 22.5 km; the sky just above the horizontal 30-120 deg from the sun with the sun at -6..-3 deg up to 7.5 % at 40 km, 5.4 % at 35 km, 6.3 % at 30 km, 4.7 % at 25 km, 4.9 % at 22.5 km, 5.8 % at 20 km; the band above the earth's shadow above the horizontal at most 9.1 %: 40 km, 6.3 % at 30 km, 4.7 % at 25 km, 3.5 % at 22.5 km)", 0.32),
+    ("rayleigh+mie", "sky radiance (sky product), sun -6..5 deg, 20-100 km (random samples: 2.9 %; but the limb just above the horizon 150-180 deg from the sun seen from 22.5-40 km, up to 32 %: 30 km, sun -4.75 deg, 5.25 deg below the horizontal opposite the sun, 680 nm; 30 % at 40 km, 25 % at 35 km, 18 % at 25 km, 5.4 % at 22.5 km; the sky just above the horizontal 30-120 deg from the sun with the sun at -6..-3 deg up to 23 % at 40 km, 19 % at 35 km, 9.9 % at 30 km, 5.5 % at 25 km, 4.9 % at 22.5 km, 5.8 % at 20 km; the band above the earth's shadow above the horizontal at most 9.1 %: 40 km, 6.5 % at 30 km, 4.9 % at 25 km, 4.0 % at 22.5 km)", 0.32),
     ("rayleigh+mie", "sky radiance (sky product), sun -12..-6 deg, ground", 0.033),
     ("rayleigh+mie", "sky radiance (sky product), sun -12..-6 deg, 0-20 km (the twilight glow towards the sun near the horizontal: 9.2 % at 5 km, sun -12 deg, 0.25 deg above the horizontal 30 deg from the sun, 680 nm)", 0.092),
-    ("rayleigh+mie", "sky radiance (sky product), sun -12..-6 deg, 20-100 km (the sky 4.8 deg above the horizontal 2 deg from the sun, 550 nm at 59.2 km, sun -9.77 deg)", 0.094),
+    ("rayleigh+mie", "sky radiance (sky product), sun -12..-6 deg, 20-100 km (the sky 2.8 deg above the horizontal 109 deg from the sun, 440 nm at 79.5 km, sun -8.75 deg)", 0.081),
     ("irradiance", "diffuse horizontal irradiance (sun product), sun >= 5 deg, 0-100 km", 0.015),
     ("irradiance", "diffuse horizontal irradiance (sun product), sun -12..5 deg, 0-100 km", 0.016),
 ];
@@ -2903,7 +2794,7 @@ pub fn manifest(
         "azimuth": "on the sky rows and the limb rows where k > 0 each azimuth column a of the interpolation is read at its own elevation e_a (its own rows' stencil): d = depth_deg_per_km clamp(h, 0, depth_top_m) / 1000, delta = d + (azimuth_depth_aloft_deg - d) smoothstep(azimuth_depth_aloft_altitude_m[0], azimuth_depth_aloft_altitude_m[1], h) (version 12), w = max(c antisolar + delta, 0.5), ratio = max(-cos phi_a, antisolar_range[0]) / max(-cos phi, antisolar_range[0]), e_a = e + (k / (focus (1 + focus_growth smoothstep(focus_growth_altitude_m[0], focus_growth_altitude_m[1], h)) (1 + focus_aloft smoothstep(focus_aloft_altitude_m[0], focus_aloft_altitude_m[1], h)))) (1 - smoothstep(2 w, 4 w, e)) step(-delta, e) smoothstep(antisolar_range[0], antisolar_range[1], -cos phi) (e + delta) (ratio - 1) (version 7: from -delta up through the horizontal, where version 6 had smoothstep(0, horizon_deg, e)), e the query's elevation (deg), phi its azimuth from the sun, phi_a the column's in the slice (azimuth_nodes_rad[k][a], the slice's altitude node k; version 12: at the query's altitude h); where e_a >= 0 the column is read on the sky rows, below on the limb rows at the query's altitude h (depth y = 2 r sin^2(e_a / 2) / h); the band above the earth's shadow lies at (c antisolar + delta)(-cos phi) - delta",
         "formula": "the sky rows' focus at the sun's elevation s above the observer's horizon (deg) and altitude h (m): u = sun_soft_deg ln(1 + exp((sun_deg - s) / sun_soft_deg)) (version 14: max(sun_deg - s, 0)), km = clamp(h, 0, centre_aloft_altitude_m[0]) / 1000, c = min(((centre[0] + centre[1] km) u + (centre[2] + centre[3] km) u^2) (1 + centre_aloft_per_km clamp(h - centre_aloft_altitude_m[0], 0, centre_aloft_altitude_m[1] - centre_aloft_altitude_m[0]) / 1000 + centre_top_per_km T), 45), T = clamp(h - centre_aloft_altitude_m[1], 0, max(centre_top_altitude_m - centre_aloft_altitude_m[1], 0)) / 1000 (version 19) (deg, the band's elevation: the maps' c), the rows' focus at c_f = c (q + (focus_place_aloft antisolar - q) v), q = 1 + (focus_place_aloft antisolar - 1) a (x_c = 1 - sqrt(c_f / 90); version 15), l = 1 - smoothstep(centre_range_deg[0], centre_range_deg[1], c), a = l smoothstep(focus_place_altitude_m[0], focus_place_altitude_m[1], h), v = l smoothstep(focus_width_altitude_m[0], focus_width_altitude_m[1], h) (1 - smoothstep(focus_width_altitude_m[2], focus_width_altitude_m[3], h)) (version 18), k = smoothstep(sun_range_deg[0], sun_range_deg[1], s) (1 - smoothstep(sun_range_deg[2], sun_range_deg[3], s)) (1 - smoothstep(altitude_range_m[0], altitude_range_m[1], h)) (l (1 + focus_high a) + centre_floor (1 - l)) focus (1 + focus_growth smoothstep(focus_growth_altitude_m[0], focus_growth_altitude_m[1], h)) (1 + focus_aloft smoothstep(focus_aloft_altitude_m[0], focus_aloft_altitude_m[1], h)) (1 + focus_wide v), the focus's width w = v max(x0(e_w) - x_c, 0) (x0(e) = 1 - sqrt(e / 90), e_w = max((c antisolar + delta) focus_width_azimuth_cos - delta, focus_width_floor_deg), delta the azimuth formula's; version 18), smoothstep(a, b, x) = t^2 (3 - 2 t), t = clamp((x - a) / (b - a), 0, 1)",
     });
-    let mut manifest = json!({
+    json!({
         "format": LAYOUT,
         "bundle_version": SKYVIEW_VERSION,
         "software": concat!("skybake ", env!("CARGO_PKG_VERSION")),
@@ -2927,7 +2818,7 @@ pub fn manifest(
             "altitude_node_abscissas": (0..N_ALT).map(altitude_node_x).collect::<Vec<_>>(),
             "texel_mantissa_bits": HALF_MANTISSA_BITS,
             "sun_elevation_nodes_deg": sun_nodes,
-            "sun_node": "the sun node coordinate t_j (deg): every 2 deg from -23 to -15, every 1 deg to -8, every 0.5 deg to -1, every 0.25 deg to 0, every 0.125 deg to 0.5, every 0.25 deg to 1, every 0.5 deg to 6, every 1 deg to 20, every 4 deg to 104 (segments [start, step, intervals] in sun_segments). At altitude h the node's sun coordinate s_j = warp(t_j, b, c), b = sun_warp_strength * sqrt(h / (top_radius - bottom_radius)), warp(t, b, c) = c + e sinh(b (t - c) / e) / sinh(b) for sun_warp_range[0] < t < sun_warp_range[1] (e = c - sun_warp_range[0] for t < c, sun_warp_range[1] - c for t >= c), t elsewhere (and where b < 1e-6); its inverse t = c + e asinh((s - c) sinh(b) / e) / b gives a query's node coordinate, the interpolation's abscissa. The centre c (deg) = 0 but on the sky rows towards the sun (version 15): c = sun_warp_centre.weight max(cos(phi), 0)^2 smoothstep(sun_warp_centre.altitude_range_m[0], sun_warp_centre.altitude_range_m[1], h) (acos(bottom_radius / r) - acos(bottom_radius / top_radius)) in degrees, phi the view's (for a texel its column's) azimuth from the sun, h and r the query's (the node's) altitude and radius. s = the sun's elevation + shift: for view rows below the horizon (and the irradiance, and the sky rows below sky_exit_altitude_m[0] or more than acos(-sky_exit_azimuth_fade) from the sun) shift = the horizon's dip acos(bottom_radius / r), the sun's elevation above the observer's horizon; for the limb rows (between the horizontal and the horizon) shift = dip + w (gamma cos(phi) + acos(bottom_radius / r_t) - dip), w = (1 - exp(-(r - r_t) / limb_shadow_scale_m)) (1 - n), n = (1 - smoothstep(limb_near_end.azimuth_cos[0], limb_near_end.azimuth_cos[1], cos(phi))) smoothstep(limb_near_end.depth_m[0], limb_near_end.depth_m[1], r - r_t) smoothstep(limb_near_end.altitude_range_m[0], limb_near_end.altitude_range_m[1], h) (version 11: aloft away from the sun back towards the observer's horizon): towards the sun's elevation above the horizon of the ray's tangent point, with dip = acos(bottom_radius / r), gamma = theta - pi/2, r_t = r cos(gamma), phi the view's azimuth from the sun; for the sky rows (above the horizontal) shift = dip + u(s) smoothstep(sky_exit_altitude_m[0], sky_exit_altitude_m[1], h) g(cos(phi)) alpha, u(s) = 1 - smoothstep(sky_exit_sun_fade_deg[0], sky_exit_sun_fade_deg[1], s) (1 - smoothstep(sky_exit_sun_fade_altitude_m[0], sky_exit_sun_fade_altitude_m[1], h)) (s the sun coordinate in degrees: a texel's is its node's, a query's solves s = its sun's elevation + shift(s), by bisection between the elevation + dip and the elevation + dip + the shift without u), g(c) = c for c >= 0, c (1 + c / f)^2 for -f < c < 0, 0 below (f = sky_exit_azimuth_fade), alpha = atan2(x sin(theta), r + x cos(theta)), x the ray's length to the top (the central angle to where the ray leaves the atmosphere; smoothstep as in sky_row_band); the texels of a limb or sky row are at the sun elevations s_j - shift of their column's azimuth",
+            "sun_node": "the sun node coordinate t_j (deg): every 2 deg from -23 to -15, every 1 deg to -8, every 0.5 deg to -1, every 0.25 deg to 0, every 0.125 deg to 0.5, every 0.25 deg to 1, every 0.5 deg to 6, every 1 deg to 20, every 4 deg to 104 (segments [start, step, intervals] in sun_segments). At altitude h the node's sun coordinate s_j = warp(t_j, b, c), b = sun_warp_strength * sqrt(h / (top_radius - bottom_radius)), warp(t, b, c) = c + e sinh(b (t - c) / e) / sinh(b) for sun_warp_range[0] < t < sun_warp_range[1] (e = c - sun_warp_range[0] for t < c, sun_warp_range[1] - c for t >= c), t elsewhere (and where b < 1e-6); its inverse t = c + e asinh((s - c) sinh(b) / e) / b gives a query's node coordinate, the interpolation's abscissa. The centre c (deg) = 0 but on the sky rows towards the sun (version 15): c = sun_warp_centre.weight max(cos(phi), 0)^2 smoothstep(sun_warp_centre.altitude_range_m[0], sun_warp_centre.altitude_range_m[1], h) (acos(bottom_radius / r) - acos(bottom_radius / top_radius)) in degrees, phi the view's (for a texel its column's) azimuth from the sun, h and r the query's (the node's) altitude and radius. s = the sun's elevation + shift: for view rows below the horizon (and the irradiance, and the sky rows below sky_exit_altitude_m[0] or more than acos(-sky_exit_azimuth_fade) from the sun) shift = the horizon's dip acos(bottom_radius / r), the sun's elevation above the observer's horizon; for the limb rows (between the horizontal and the horizon) shift = dip + w (gamma cos(phi) + acos(bottom_radius / r_t) - dip), w = (1 - exp(-(r - r_t) / limb_shadow_scale_m)) (1 - n), n = (1 - smoothstep(limb_near_end.azimuth_cos[0], limb_near_end.azimuth_cos[1], cos(phi))) smoothstep(limb_near_end.depth_m[0], limb_near_end.depth_m[1], r - r_t) smoothstep(limb_near_end.altitude_range_m[0], limb_near_end.altitude_range_m[1], h) (version 11: aloft away from the sun back towards the observer's horizon): towards the sun's elevation above the horizon of the ray's tangent point, with dip = acos(bottom_radius / r), gamma = theta - pi/2, r_t = r cos(gamma), phi the view's azimuth from the sun; for the sky rows (above the horizontal) shift = dip + smoothstep(sky_exit_altitude_m[0], sky_exit_altitude_m[1], h) g(cos(phi)) alpha, g(c) = c for c >= 0, c (1 + c / f)^2 for -f < c < 0, 0 below (f = sky_exit_azimuth_fade), alpha = atan2(x sin(theta), r + x cos(theta)), x the ray's length to the top (the central angle to where the ray leaves the atmosphere; smoothstep as in sky_row_band); the texels of a limb or sky row are at the sun elevations s_j - shift of their column's azimuth",
             "sun_warp_strength": SUN_WARP,
             "sun_warp_range": [SUN_WARP_RANGE.0, SUN_WARP_RANGE.1],
             "sun_warp_centre": {
@@ -2990,12 +2881,7 @@ pub fn manifest(
             "irradiance": entry(&b.irradiance, IRRADIANCE_FILE, names, "the sky's (indirect) irradiance on a horizontal surface at the node altitudes (rows) and sun elevations (columns), interpolated geometrically like the sky; the sun's direct irradiance is computed from the transmittance texture"),
         },
         "stated_error": STATED_ERRORS.iter().map(|(t, what, e)| json!({"table": t, "measure": what, "max_relative_error": e})).collect::<Vec<_>>(),
-    });
-    // (Set apart: one more entry above exceeds `json!`'s recursion limit.)
-    manifest["parameterisation"]["sky_exit_sun_fade_deg"] = json!(SKY_EXIT_SUN_FADE_DEG);
-    manifest["parameterisation"]["sky_exit_sun_fade_altitude_m"] =
-        json!(SKY_EXIT_SUN_FADE_ALTITUDE_M);
-    manifest
+    })
 }
 
 const UNIT_SCALE_REF: f64 = crate::build::UNIT_SCALE;
@@ -3672,10 +3558,6 @@ mod tests {
         assert_eq!(st.mix(&[0.0, 2.0, 8.0, 1.0]), 4.0);
     }
 
-    /// A sun coordinate in deep twilight (rad, −11.5°), where the sky rows' exit shift is whole
-    /// ([`sky_exit_sun_fade`] 1).
-    const DEEP_RAD: f64 = -0.2;
-
     #[test]
     fn the_limb_sun_shift_follows_the_tangent_point() {
         let r = R + 60_000.0;
@@ -3683,15 +3565,7 @@ mod tests {
         // Above the horizontal away from the sun, below the horizon, and on the limb at the
         // horizontal: the observer's horizon's dip.
         assert_eq!(
-            sun_shift(
-                r,
-                1.0,
-                -SKY_EXIT_AZIMUTH_FADE,
-                R,
-                R + 100_000.0,
-                false,
-                DEEP_RAD
-            ),
+            sun_shift(r, 1.0, -SKY_EXIT_AZIMUTH_FADE, R, R + 100_000.0, false),
             dip_r
         );
         // The azimuth weight: continuous with its slope at 90° from the sun and at the fade's end.
@@ -3700,12 +3574,9 @@ mod tests {
         assert_eq!(g(0.3), 0.3);
         assert!(g(-1e-9).abs() < 2e-9 && ((g(1e-6) - g(-1e-6)) / 2e-6 - 1.0).abs() < 1e-5);
         assert!(g(-0.5 * f) < 0.0 && g(-f + 1e-6).abs() < 1e-11);
+        assert_eq!(sun_shift(r, 2.0, 0.3, R, R + 100_000.0, false), dip_r);
         assert_eq!(
-            sun_shift(r, 2.0, 0.3, R, R + 100_000.0, false, DEEP_RAD),
-            dip_r
-        );
-        assert_eq!(
-            sun_shift(R + 15_000.0, 1.0, 0.3, R, R + 100_000.0, false, DEEP_RAD),
+            sun_shift(R + 15_000.0, 1.0, 0.3, R, R + 100_000.0, false),
             dip(R + 15_000.0, R)
         );
         // Above the horizontal towards the sun from 40 km up: + max(cos φ, 0) times the central
@@ -3714,15 +3585,13 @@ mod tests {
         for theta in [0.2f64, 1.0, 1.5, 0.5 * PI] {
             let x = -r * theta.cos() + (top * top - r * r * theta.sin().powi(2)).sqrt();
             let alpha = (x * theta.sin() / top).asin();
-            let got = sun_shift(r, theta, 0.6, R, top, false, DEEP_RAD);
+            let got = sun_shift(r, theta, 0.6, R, top, false);
             assert!(
                 (got - dip_r - 0.6 * alpha).abs() < 1e-9,
                 "theta {theta}: {got}"
             );
         }
-        assert!(
-            (sun_shift(r, 0.5 * PI, -1.0, R, R + 100_000.0, true, DEEP_RAD) - dip_r).abs() < 1e-12
-        );
+        assert!((sun_shift(r, 0.5 * PI, -1.0, R, R + 100_000.0, true) - dip_r).abs() < 1e-12);
         // A deep limb ray (tangent point 40 km below the observer): the sun's elevation above
         // the tangent point's horizon, from spherical geometry (sin e_t = sin e cos γ + cos e
         // sin γ cos φ), agrees with the shift to first order in γ (γ = 6.4°: within 0.1°),
@@ -3737,7 +3606,7 @@ mod tests {
             let w = (1.0 - (-40_000.0 / LIMB_SHADOW_SCALE_M).exp())
                 * (1.0 - limb_near_end(cos_phi, 60_000.0, 40_000.0));
             let want = dip_r + w * (tangent - dip_r);
-            let got = sun_shift(r, theta, cos_phi, R, R + 100_000.0, true, DEEP_RAD);
+            let got = sun_shift(r, theta, cos_phi, R, R + 100_000.0, true);
             assert!(
                 (got - want).abs() < 0.1f64.to_radians(),
                 "cos phi {cos_phi}: {} vs {} deg",
@@ -3751,56 +3620,16 @@ mod tests {
         assert_eq!(limb_near_end(0.5, 60_000.0, 40_000.0), 0.0);
         assert_eq!(limb_near_end(-1.0, 15_000.0, 40_000.0), 0.0);
         assert_eq!(limb_near_end(-1.0, 60_000.0, 2_000.0), 0.0);
-        assert!(
-            (sun_shift(r, theta, -1.0, R, R + 100_000.0, true, DEEP_RAD) - dip_r).abs() < 1e-12
-        );
+        assert!((sun_shift(r, theta, -1.0, R, R + 100_000.0, true) - dip_r).abs() < 1e-12);
         // The shift never leaves the sun nodes' reach: elevation -12° at any limb ray from
         // 100 km is above the first node.
         let r = R + H;
         let th = horizon_zenith(r, R);
         for k in 0..=20 {
             let theta = 0.5 * PI + (th - 0.5 * PI) * k as f64 / 20.0;
-            let s =
-                -12.0 + sun_shift(r, theta, -1.0, R, R + 100_000.0, true, DEEP_RAD).to_degrees();
+            let s = -12.0 + sun_shift(r, theta, -1.0, R, R + 100_000.0, true).to_degrees();
             assert!(s >= SUN_MIN_DEG, "theta {theta}: {s}");
         }
-    }
-
-    #[test]
-    fn the_sky_exit_shift_fades_out_where_the_observer_is_lit() {
-        let top = R + 100_000.0;
-        let r = R + 40_000.0;
-        let theta = 89.75f64.to_radians();
-        let dip_r = dip(r, R);
-        // Seen from 40 km towards the sun near the horizontal: the whole shift in deep twilight
-        // (coordinate −1.5°), none from 0° up.
-        let e = sky_exit_angle(r, theta, 0.8, R, top);
-        assert!(e > 5f64.to_radians(), "{e}");
-        let deep = sun_shift(r, theta, 0.8, R, top, false, (-1.5f64).to_radians());
-        assert!((deep - dip_r - e).abs() < 1e-15);
-        assert_eq!(sun_shift(r, theta, 0.8, R, top, false, 0.0), dip_r);
-        // A query's coordinate is the texels': the elevation its shift gives back, at every
-        // azimuth (the azimuth weight's negative lobe too) and sun; and it grows with the sun.
-        for cos_phi in [1.0, 0.8, 0.3, 0.0, -0.1, -0.2, -0.4, -0.6] {
-            let mut last = f64::NEG_INFINITY;
-            for i in 0..=80 {
-                let sun = (-14.0 + 0.125 * f64::from(i)).to_radians();
-                let shift = query_sun_shift(r, theta, cos_phi, R, top, false, sun);
-                let back = sun_shift(r, theta, cos_phi, R, top, false, sun + shift);
-                assert!(
-                    (shift - back).abs() < 1e-9,
-                    "cos phi {cos_phi}, sun {sun}: {shift} vs {back}"
-                );
-                assert!(sun + shift > last, "cos phi {cos_phi}, sun {sun}");
-                last = sun + shift;
-            }
-        }
-        // Below the horizontal and on the limb the query's shift is the texels'.
-        let limb = horizon_zenith(r, R) - 0.01;
-        assert_eq!(
-            query_sun_shift(r, limb, 0.8, R, top, true, -0.1),
-            sun_shift(r, limb, 0.8, R, top, true, 0.3)
-        );
     }
 
     #[test]
@@ -3813,7 +3642,7 @@ mod tests {
         // At the query's own altitude, the query's coordinate (sun_shift).
         assert!(
             (limb_node_shift(r, theta, -1.0, R, 35_000.0)
-                - sun_shift(r, theta, -1.0, R, top, true, DEEP_RAD))
+                - sun_shift(r, theta, -1.0, R, top, true))
             .abs()
                 < 1e-12
         );
@@ -3847,7 +3676,7 @@ mod tests {
         // coordinate: seen from 10 km, nodes at 7.5 and 12.5 km.
         let r_low = R + 10_000.0;
         let theta_low = horizon_zenith(r_low, R) - 0.25f64.to_radians();
-        let own = sun_shift(r_low, theta_low, -1.0, R, top, true, DEEP_RAD);
+        let own = sun_shift(r_low, theta_low, -1.0, R, top, true);
         for h_n in [7_500.0, 12_500.0] {
             assert!((limb_node_shift(r_low, theta_low, -1.0, R, h_n) - own).abs() < 1e-12);
         }
