@@ -9,7 +9,7 @@
 //! radiance), REF (file prefix: compare each frame with the one saved there), CG_WAIT (see below).
 use glam::DVec3;
 use skybake_engine::engine::Engine;
-use skybake_harness::frame_bench::{bench_cumulus, bench_scene};
+use skybake_harness::frame_bench::{bench_cumulus, bench_scene, fly_around_camera};
 use skybake_harness::process::process_cpu_ms;
 use skybake_render::{
     lighting_for, render_tile, LitInputs, LitVolume, Method, Prepared, RenderSettings,
@@ -50,20 +50,7 @@ fn main() -> skybake_physics::Result<()> {
     let mut total = 0.0;
     let (mut all_d, mut all_r) = (0.0, 0.0);
     for &k in &frames {
-        let (s, c) = (std::f64::consts::TAU * k as f64 / 60.0).sin_cos();
-        let p = target
-            + DVec3::new(
-                start.x * c + start.y * s,
-                start.y * c - start.x * s,
-                start.z,
-            );
-        let mut scene = base.clone();
-        let fwd = (target - p).normalize();
-        let right = fwd.cross(DVec3::Z).normalize();
-        scene.camera.position_m = p;
-        scene.camera.forward = fwd;
-        scene.camera.right = right;
-        scene.camera.up = right.cross(fwd);
+        let scene = fly_around_camera(&base, target, start, k, 60);
         let mut cpu = Vec::new();
         let mut frame = None;
         for _ in 0..reps {

@@ -47,6 +47,33 @@ pub fn bench_cumulus() -> Result<DensityGrid> {
 }
 
 /// The benchmark scene (earth atmosphere, sun at 35°, ground albedo 0.3, HG 0.85).
+/// Camera `k` of an `n`-camera fly-around: `base` with its camera turned about the vertical
+/// through `target` by k/n of a turn from `start` (the camera's offset from `target`), looking at
+/// `target`.
+pub fn fly_around_camera(
+    base: &FrameScene,
+    target: DVec3,
+    start: DVec3,
+    k: usize,
+    n: usize,
+) -> FrameScene {
+    let (s, c) = (std::f64::consts::TAU * k as f64 / n as f64).sin_cos();
+    let p = target
+        + DVec3::new(
+            start.x * c + start.y * s,
+            start.y * c - start.x * s,
+            start.z,
+        );
+    let mut scene = base.clone();
+    let fwd = (target - p).normalize();
+    let right = fwd.cross(DVec3::Z).normalize();
+    scene.camera.position_m = p;
+    scene.camera.forward = fwd;
+    scene.camera.right = right;
+    scene.camera.up = right.cross(fwd);
+    scene
+}
+
 pub fn bench_scene(width: usize, height: usize) -> Result<FrameScene> {
     let json = serde_json::json!({
         "name": "bench-cumulus",
@@ -248,20 +275,7 @@ pub fn bench_frame_sequence(frames: usize, width: usize, height: usize) -> Resul
     let cpu0 = crate::process::process_cpu_ms();
     for k in 0..frames {
         let t_frame = Instant::now();
-        let (s, c) = (std::f64::consts::TAU * k as f64 / frames as f64).sin_cos();
-        let p = target
-            + DVec3::new(
-                start.x * c + start.y * s,
-                start.y * c - start.x * s,
-                start.z,
-            );
-        let mut scene = base.clone();
-        let fwd = (target - p).normalize();
-        let right = fwd.cross(DVec3::Z).normalize();
-        scene.camera.position_m = p;
-        scene.camera.forward = fwd;
-        scene.camera.right = right;
-        scene.camera.up = right.cross(fwd);
+        let scene = fly_around_camera(&base, target, start, k, frames);
         let t = Instant::now();
         let lighting =
             skybake_render::lighting_for_memo_unless(&scene, &grid, &engine, &memo, &|| false)?;
