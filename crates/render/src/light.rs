@@ -100,6 +100,11 @@ fn sun_paths(grid: &DensityGrid, sun_dir: DVec3, vol: Option<&CloudVolume>) -> V
     let mut by_layer = super::pages::take_f32(grid.data.len());
     // Index steps of the grid's axes (x, y, z), as `DensityGrid::index`.
     let strides = [1, nx, nx * ny];
+    // Where each row and each voxel of a row reads the previous layer: the same in every
+    // layer (the shift per layer is constant), so found once per row index along b and c
+    // instead of per voxel (the same values).
+    let ups_b: Vec<Upwind> = (0..n[b]).map(|i| Upwind::new(i, shift_b, n[b])).collect();
+    let ups_c: Vec<Upwind> = (0..n[c]).map(|i| Upwind::new(i, shift_c, n[c])).collect();
     for &ia in &layers {
         // Each layer depends only on the previous one: its rows run in parallel.
         next_vals
@@ -107,26 +112,17 @@ fn sun_paths(grid: &DensityGrid, sun_dir: DVec3, vol: Option<&CloudVolume>) -> V
             .zip(by_layer[ia * layer_len..(ia + 1) * layer_len].par_chunks_mut(n[b]))
             .enumerate()
             .for_each(|(ic, (row, row_out))| {
-                for (ib, slot) in row.iter_mut().enumerate() {
+                let uc = &ups_c[ic];
+                for ((ib, slot), ub) in row.iter_mut().enumerate().zip(&ups_b) {
+                    let inside = ub.inside && uc.inside;
+                    let g = |x: usize, y: usize| layer_vals[y * n[b] + x];
                     // The usual voxel, away from the cloud and its light: no density within
                     // two voxels and the previous layer's four nearest values 0 (both cases
                     // below), so its path is 0, found without the voxel's position.
                     if let (Some(_), Some(near)) = (prev, &near) {
                         let at = ia * strides[a] + ib * strides[b] + ic * strides[c];
-                        let (fb, fc) = (ib as f64 + shift_b, ic as f64 + shift_c);
-                        if grid.data[at] == 0.0
-                            && !near[at]
-                            && fb >= 0.0
-                            && fc >= 0.0
-                            && fb <= (n[b] - 1) as f64
-                            && fc <= (n[c] - 1) as f64
-                        {
-                            let (b0, c0) = (
-                                super::volume::floor(fb) as usize,
-                                super::volume::floor(fc) as usize,
-                            );
-                            let (b1, c1) = ((b0 + 1).min(n[b] - 1), (c0 + 1).min(n[c] - 1));
-                            let g = |x: usize, y: usize| layer_vals[y * n[b] + x];
+                        if grid.data[at] == 0.0 && !near[at] && inside {
+                            let (b0, c0, b1, c1) = (ub.i0, uc.i0, ub.i1, uc.i1);
                             if g(b0, c0) == 0.0
                                 && g(b1, c0) == 0.0
                                 && g(b0, c1) == 0.0
@@ -166,22 +162,11 @@ fn sun_paths(grid: &DensityGrid, sun_dir: DVec3, vol: Option<&CloudVolume>) -> V
                             // units; bilinear next to the edge); between the outermost centres
                             // and the box face, or outside, march the short rest of the way
                             // instead of clamping.
-                            let fb = ib as f64 + shift_b;
-                            let fc = ic as f64 + shift_c;
-                            let beyond = if fb < 0.0
-                                || fc < 0.0
-                                || fb > (n[b] - 1) as f64
-                                || fc > (n[c] - 1) as f64
-                            {
+                            let beyond = if !inside {
                                 march_to_exit(grid, q, s)
                             } else {
-                                let (b0, c0) = (
-                                    super::volume::floor(fb) as usize,
-                                    super::volume::floor(fc) as usize,
-                                );
-                                let (b1, c1) = ((b0 + 1).min(n[b] - 1), (c0 + 1).min(n[c] - 1));
-                                let (tb, tc) = (fb - b0 as f64, fc - c0 as f64);
-                                let g = |x: usize, y: usize| layer_vals[y * n[b] + x];
+                                let (b0, c0, b1, c1) = (ub.i0, uc.i0, ub.i1, uc.i1);
+                                let (tb, tc) = (ub.t, uc.t);
                                 let (v00, v10, v01, v11) =
                                     (g(b0, c0), g(b1, c0), g(b0, c1), g(b1, c1));
                                 if near.is_some()
@@ -196,8 +181,8 @@ fn sun_paths(grid: &DensityGrid, sun_dir: DVec3, vol: Option<&CloudVolume>) -> V
                                     // it by, most of the grid. Only where a volume is given,
                                     // as the skipped density samples above.
                                     0.0
-                                } else if b0 >= 1 && c0 >= 1 && b0 + 2 < n[b] && c0 + 2 < n[c] {
-                                    let (wb, wc) = (catmull_rom(tb), catmull_rom(tc));
+                                } else if ub.cubic && uc.cubic {
+                                    let (wb, wc) = (ub.w, uc.w);
                                     let mut v = 0.0;
                                     for (i, wi) in wb.iter().enumerate() {
                                         let mut row = 0.0;
@@ -241,6 +226,41 @@ fn sun_paths(grid: &DensityGrid, sun_dir: DVec3, vol: Option<&CloudVolume>) -> V
     });
     super::pages::give_back_f32(by_layer);
     out
+}
+
+/// Where a voxel's upwind point (one layer closer to the sun) falls in the previous layer along
+/// one of the layer's axes, for the voxel's index `i` there: the fractional index `i + shift`,
+/// whether it lies within the outermost centres, its two nearest nodes, the fraction between
+/// them, their Catmull-Rom weights and whether the four nodes round it are all inside.
+#[derive(Clone, Copy)]
+struct Upwind {
+    inside: bool,
+    i0: usize,
+    i1: usize,
+    t: f64,
+    w: [f64; 4],
+    cubic: bool,
+}
+
+impl Upwind {
+    fn new(i: usize, shift: f64, n: usize) -> Self {
+        let f = i as f64 + shift;
+        let inside = f >= 0.0 && f <= (n - 1) as f64;
+        let i0 = if inside {
+            super::volume::floor(f) as usize
+        } else {
+            0
+        };
+        let t = f - i0 as f64;
+        Self {
+            inside,
+            i0,
+            i1: (i0 + 1).min(n - 1),
+            t,
+            w: catmull_rom(t),
+            cubic: i0 >= 1 && i0 + 2 < n,
+        }
+    }
 }
 
 /// Voxels with density within two voxels along every axis (a 5×5×5 neighbourhood), by
@@ -317,6 +337,16 @@ pub fn lattice_density_integrals(grid: &DensityGrid, e: [i32; 3]) -> Vec<f32> {
     let mut out = super::pages::take_f32(grid.data.len());
     let (zs, ys) = (walk_order(nz, e[2]), walk_order(ny, e[1]));
     let data = &grid.data[..];
+    // Per row (z, y): `empty`, no density (+0 only: a row holding −0 keeps the expression's
+    // signed zeros); `zero`, its values found all 0 as the rows are walked. A row without
+    // density whose next voxels lie outside the box, in the row itself (±x) or in a row without
+    // density and all 0 is all 0 (each value the same expression of zeros): it is written
+    // without reading those rows.
+    let empty: Vec<bool> = data
+        .chunks_exact(nx)
+        .map(|r| r.iter().all(|&v| v.to_bits() == 0))
+        .collect();
+    let mut zero = vec![false; nz * ny];
     // Each voxel's value is the same expression as a voxel-by-voxel walk in the order above
     // (x against e[0]); the rows are walked without per-voxel branches so that the directions
     // whose next voxel lies in another row (all but ±x) vectorise.
@@ -329,6 +359,12 @@ pub fn lattice_density_integrals(grid: &DensityGrid, e: [i32; 3]) -> Vec<f32> {
             // The row of the next voxels along `e`, if inside the box.
             let q_row = (qz >= 0 && qy >= 0 && (qz as usize) < nz && (qy as usize) < ny)
                 .then(|| (qz as usize * ny + qy as usize) * nx);
+            let ri = z * ny + y;
+            if empty[ri] && q_row.is_none_or(|q| q == row || (empty[q / nx] && zero[q / nx])) {
+                out[row..row + nx].fill(0.0);
+                zero[ri] = true;
+                continue;
+            }
             let Some(q_row) = q_row else {
                 // To the box face: half a step at the clamped density.
                 for (o, &r) in out[row..row + nx].iter_mut().zip(rho_row) {

@@ -13,6 +13,15 @@
 /// Buffers smaller than this keep ordinary pages (a huge page would not be filled).
 const MIN_BYTES: usize = 4 << 20;
 
+/// Freed buffers smaller than this are not kept for the next frame.
+const MIN_KEEP_BYTES: usize = 256 << 10;
+
+/// A kept buffer is handed out only for a request of at least this fraction of its capacity:
+/// a small request (the photon pass's lanes, 1.1 MB on the bench cumulus) given a large kept
+/// buffer (a lattice path's 8 MB) left the large request that came next to map and clear fresh
+/// pages, frame after frame.
+const MIN_FILL: usize = 2;
+
 /// `len` zeros of `T` (`zero`, the type's zero, allocated zeroed), with the buffer's whole
 /// 2 MiB pages advised to be huge pages before anything touches them.
 pub fn zeroed<T: Copy>(zero: T, len: usize) -> Vec<T> {
@@ -35,13 +44,14 @@ impl<T> Pool<T> {
         }
     }
 
-    /// The smallest kept buffer that holds `len` values, taken out of the pool.
+    /// The smallest kept buffer that holds `len` values and no more than [`MIN_FILL`] times
+    /// as many, taken out of the pool.
     fn take(&self, len: usize) -> Option<Vec<T>> {
         let mut kept = self.kept.lock().ok()?;
         let best = kept
             .iter()
             .enumerate()
-            .filter(|(_, v)| v.capacity() >= len)
+            .filter(|(_, v)| v.capacity() >= len && v.capacity() / MIN_FILL <= len)
             .min_by_key(|(_, v)| v.capacity())
             .map(|(i, _)| i)?;
         Some(kept.swap_remove(best))
@@ -52,7 +62,7 @@ impl<T> Pool<T> {
     fn give_back(&self, v: Vec<T>) {
         let size = std::mem::size_of::<T>();
         let bytes = v.capacity() * size;
-        if bytes < MIN_BYTES {
+        if bytes < MIN_KEEP_BYTES {
             return;
         }
         if let Ok(mut kept) = self.kept.lock() {
@@ -66,8 +76,8 @@ impl<T> Pool<T> {
 
 /// Freed `f32` working buffers [`take_f32`] and [`take_zeroed_f32`] reuse: up to 288 MB (the
 /// bench's standard frame: the 14 lattice paths, 112 MB, the camera's voxel records, 40 MB, the
-/// sun's paths and their layer order, 2 × 8 MB; the photon pass's 16 lanes, for the cells that
-/// hold cloud only, 1.1 MB each there, are below the kept size).
+/// sun's paths and their layer order, 2 × 8 MB, the photon pass's 16 lanes, for the cells that
+/// hold cloud only, 1.1 MB each there, and the once-scattered tally's, 0.4 MB each).
 static POOL_F32: Pool<f32> = Pool::new(288 << 20);
 
 /// `len` values whose contents are unspecified, for a buffer the caller fills completely
