@@ -1165,3 +1165,105 @@ fn skyview_the_sky_beside_the_sun_aloft() {
     }
     assert!(failures.is_empty(), "{failures:?}");
 }
+
+/// The sky seen from 45–55 km towards the sun in deep twilight (sun −11…−8°): the reader against
+/// the `sky` product, the largest relative error over the bundle's channels (with
+/// `SKYVIEW_GLOW_VERBOSE` every case over 3 %). Two sets: the browser test's band
+/// (tools/browser/lut_test.mjs, "45-55 km, sun -11..-8 deg, towards the sun": 45 and 55 km, sun
+/// −8 and −11°, view zenith 20, 60, 85°, azimuth 0 and 45° from the sun, views within 8° of the
+/// sun left out) and a denser set near the horizontal within 30° of the sun's azimuth (45, 47.5,
+/// 50, 52.5, 55 km, sun −11, −10, −9, −8°, zenith 80–89.75°, azimuth 0, 10, 20, 30°).
+fn toward_sun_deep_errors(f: &Fixture, reader: &SkyViewReader, dense: bool) -> (f64, String) {
+    let verbose = std::env::var("SKYVIEW_GLOW_VERBOSE").is_ok();
+    let (altitudes, suns, zeniths, azimuths): (&[f64], &[f64], &[f64], &[f64]) = if dense {
+        (
+            &[45000.0, 47500.0, 50000.0, 52500.0, 55000.0],
+            &[-11.0, -10.0, -9.0, -8.0],
+            &[
+                80.0, 82.0, 84.0, 85.0, 86.0, 87.0, 88.0, 88.5, 89.0, 89.5, 89.75,
+            ],
+            &[0.0, 10.0, 20.0, 30.0],
+        )
+    } else {
+        (
+            &[45000.0, 55000.0],
+            &[-8.0, -11.0],
+            &[20.0, 60.0, 85.0],
+            &[0.0, 45.0],
+        )
+    };
+    let mut worst = (0.0f64, String::new());
+    for &altitude in altitudes {
+        for &sun in suns {
+            // Away from the sun's disk and aureole, as the browser test's `cross`.
+            let s = sun_dir(sun);
+            let probes: Vec<(f64, f64)> = zeniths
+                .iter()
+                .flat_map(|&z| azimuths.iter().map(move |&a| (z, a)))
+                .filter(|&(z, a)| {
+                    let v = view_dir(z, a);
+                    v[0] * s[0] + v[1] * s[1] + v[2] * s[2] <= 8f64.to_radians().cos()
+                })
+                .collect();
+            for ((view_zenith_deg, view_azimuth_deg), channels) in
+                reader_against_product(f, reader, altitude, sun, &probes)
+            {
+                for (c, &(got, want)) in channels.iter().enumerate() {
+                    let e = rel(got, want);
+                    if verbose && e > 0.03 {
+                        eprintln!(
+                            "toward alt {altitude:.0} sun {sun:.2} zen {view_zenith_deg:.2} az {view_azimuth_deg:.1} {} nm {:+.2}%",
+                            f.bundle.wavelengths_nm[c],
+                            100.0 * (got - want) / want
+                        );
+                    }
+                    if e > worst.0 {
+                        worst = (
+                            e,
+                            format!(
+                                "(alt {altitude:.0} m, sun {sun:.2}, view zenith {view_zenith_deg:.2} azimuth {view_azimuth_deg:.1}, {} nm: {got:.4e} vs {want:.4e})",
+                                f.bundle.wavelengths_nm[c]
+                            ),
+                        );
+                    }
+                }
+            }
+        }
+    }
+    worst
+}
+
+/// The sky seen from 45–55 km towards the sun, sun −11…−8° (see [`toward_sun_deep_errors`]):
+/// the browser test's band, which no Rust check covered (the i27-exit23 change took it 3.85 →
+/// 19.5 % in the browser, 45 km, sun −8°, zenith 85°, 680 nm), and the denser set near the
+/// horizontal. Each bound is the measured worst + ~12 % (earth, standard, RGB, layout version 22,
+/// measured on 2026-12-08): the browser band's samples 3.85 % (45 km, sun −11°, zenith 85°, 45°
+/// from the sun, 680 nm; the browser's own figure 3.85 %), the dense set 10.30 % (45 km, sun
+/// −11°, zenith 80° towards the sun, 440 nm, too dark): the 10 % target met on the
+/// browser's samples, not quite on the dense set.
+#[test]
+#[ignore = "builds a bundle (about 10 s of CPU): run with --ignored lut_skyview::"]
+fn skyview_the_sky_towards_the_sun_in_deep_twilight_aloft() {
+    let f = fixture();
+    let reader = SkyViewReader::new(&f.bundle);
+    // [browser band's samples, dense set]
+    let measured = [0.0385, 0.1030];
+    let mut failures = Vec::new();
+    for (dense, m) in [false, true].into_iter().zip(measured) {
+        let (e, case) = toward_sun_deep_errors(f, &reader, dense);
+        eprintln!(
+            "skyview sky towards the sun in deep twilight, 45-55 km, sun -11..-8, {} (target 10 %): {:.3} % {case}",
+            if dense {
+                "zenith 80-89.75 deg, 0-30 deg from the sun"
+            } else {
+                "the browser band's samples"
+            },
+            100.0 * e
+        );
+        assert!(e > 0.0, "no sample");
+        if e >= m * 1.12 {
+            failures.push(format!("dense {dense}: {e} {case}"));
+        }
+    }
+    assert!(failures.is_empty(), "{failures:?}");
+}
