@@ -61,7 +61,6 @@ struct Sources<'s> {
     fresh: &'s [bool],
     cos_sun: f64,
     turn: &'s turned::TurnedRay,
-    smooth_turn: &'s [turned::TurnedRay; turned::SMOOTH_RAYS],
 }
 
 /// Everything precomputed for one scene, camera and lighting; renders any tile. The
@@ -505,7 +504,6 @@ impl<'a> Prepared<'a> {
         let step = self.settings.step_voxels * vol.grid.voxel_size_m;
         let cos_sun = lt.sun_dir.dot(ray.dir);
         let turn = self.turned_ray(ray.dir);
-        let smooth_turn = self.smooth_rays(ray.dir);
         // Per wavelength: ω/s · E_sun · p(Θ) and the scaled and true extinctions per density.
         let mut sun_src = [0.0f64; 64];
         let mut ks = [0.0f64; 64];
@@ -545,11 +543,6 @@ impl<'a> Prepared<'a> {
         let mut e_end = [0.0f64; 64];
         let mut t = t0;
         let mut front = None;
-        // The smooth part's gathering paths of the ray's one-piece steps and where along the
-        // ray they were taken: one set serves the steps up to [`turned::SMOOTH_REUSE_VOXELS`]
-        // beyond it (`Prepared::smooth_turned`'s depth form).
-        let reuse_len = turned::SMOOTH_REUSE_VOXELS * vol.grid.voxel_size_m;
-        let mut ray_gather: Option<(f64, turned::SmoothGather)> = None;
         let (o, d) = (ray.origin_m, ray.dir);
         // √D of the sun's density integral at the current step's start (carried from the previous
         // step's end; `None` after a skip or a step without density: then it is looked up at
@@ -662,7 +655,6 @@ impl<'a> Prepared<'a> {
                     fresh: &fresh[..n_l],
                     cos_sun,
                     turn: &turn,
-                    smooth_turn: &smooth_turn,
                 };
                 let alive = self.thick_step(
                     o,
@@ -715,7 +707,6 @@ impl<'a> Prepared<'a> {
             let (d0, d1) = (r0 * r0, r1 * r1);
             // The peak's gathering path, looked up where the peak's part is first needed.
             let mut turned_at = None;
-            let mut step_gather = false;
             front.get_or_insert(t - dt);
             let mut alive = false;
             let (mut a, mut a_ms, mut a_p, mut sun_t, mut sun_peak) = (0.0, 0.0, 0.0, 0.0, 0.0);
@@ -754,30 +745,7 @@ impl<'a> Prepared<'a> {
                                 let rate = self.lit.peak_rate[l];
                                 let lam_s = rate * kt[l] * (d0 + (d1 - d0) * d_eff);
                                 let lam_v = rate * (tv[l] + 0.5 * kt[l] * rho * dt);
-                                // The smooth part's turned light gathered along the
-                                // peak's turns (`turned`), within 90° of the sun, where the
-                                // camera still sees the step.
-                                let smooth = if cos_sun > 0.0 && tcp[l] > turned::TURNED_SEEN {
-                                    if !step_gather {
-                                        step_gather = true;
-                                        let fresh_set = match &ray_gather {
-                                            Some((tg, _)) => s_mid - *tg > reuse_len,
-                                            None => true,
-                                        };
-                                        if fresh_set {
-                                            let sg = self.smooth_gather(pm, &smooth_turn, true);
-                                            ray_gather = Some((s_mid, sg));
-                                        }
-                                    }
-                                    match &mut ray_gather {
-                                        Some((_, sg)) => self.smooth_turned(
-                                            p, row, l, lam_s, lam_v, sg, kt[l], kp[l],
-                                        ),
-                                        None => p.ratios(row, lam_s + lam_v).0,
-                                    }
-                                } else {
-                                    p.ratios(row, lam_s + lam_v).0
-                                };
+                                let smooth = p.ratios(row, lam_s + lam_v).0;
                                 // The peak's part gathered along its turned direction
                                 // (`turned`), within 90° of the sun, where the camera still
                                 // sees the step.
@@ -883,10 +851,6 @@ impl<'a> Prepared<'a> {
         let mut d_prev: Option<f64> = None;
         // The peak's gathering path, one for the whole step (`turned`).
         let mut turned_at = None;
-        // The smooth part's gathering paths, one set for the whole step from the first
-        // sub-step that needs them (the lit surface the camera sees; its later sub-steps take
-        // their own D_s, `Prepared::smooth_turned`).
-        let mut smooth_at = None;
         for j in 0..n {
             let ts = t_start + j as f64 * h;
             let Some(w) = vol.weights(o + d * (ts + 0.5 * h)) else {
@@ -955,15 +919,7 @@ impl<'a> Prepared<'a> {
                                 let rate = self.lit.peak_rate[l];
                                 let lam_s = rate * kt * (d0 + (d1 - d0) * d_eff);
                                 let lam_v = rate * (tv[l] + 0.5 * kt * rho * h);
-                                let smooth = if sky.cos_sun > 0.0 && tcp[l] > turned::TURNED_SEEN {
-                                    let sg = smooth_at.get_or_insert_with(|| {
-                                        let x = o + d * (ts + 0.5 * h);
-                                        self.smooth_gather(x, sky.smooth_turn, false)
-                                    });
-                                    self.smooth_turned(p, row, l, lam_s, lam_v, sg, kt, kp)
-                                } else {
-                                    p.ratios(row, lam_s + lam_v).0
-                                };
+                                let smooth = p.ratios(row, lam_s + lam_v).0;
                                 let straight = p.last_in_peak(row, lam_s);
                                 let peak = if sky.cos_sun > 0.0
                                     && straight > 0.0

@@ -56,9 +56,9 @@ pub struct PeakSpread {
     tables: Vec<Arc<Tables>>,
 }
 
-/// One phase function's and truncation's p_eff/p table, its peak part, the peak's integral
-/// f⁺, the normalised peak's mean cosine h₁ and the scaled phase function's g* (see [`table`]).
-type Tables = (Vec<f32>, Vec<f32>, f64, f64, f64);
+/// One phase function's and truncation's p_eff/p table, its peak part and the peak's integral
+/// f⁺ (see [`table`]).
+type Tables = (Vec<f32>, Vec<f32>, f64);
 
 /// The tables computed so far in this process, by the bits of what [`table`] reads (the phase
 /// function, f, g* and ω): a frame rendered again (another camera, a warm service) finds its
@@ -149,21 +149,6 @@ impl PeakSpread {
     /// one within the peak; 0 where the table is 1 (no truncation).
     pub fn peak_fraction(&self, l: usize) -> f64 {
         self.tables[self.table_of[l]].2
-    }
-
-    /// The turns of wavelength `l`'s peak that the smooth part's single scattering at the
-    /// scattering angle of cosine `cos_theta` selects, in radians: the mean turn's tilt towards
-    /// the scattered direction and the single turn's RMS angle √(2(1 − h₁)) (h₁ the peak's
-    /// normalised mean cosine; 13.7° for g = 0.85). The tilt is the first order of the smooth
-    /// part's slope over the turns' spread, (1 − h₁)·|d ln HG(g*)/dΘ| = (1 − h₁)·3g*·sin Θ /
-    /// (1 + g*² − 2g*·cos Θ) (5.0° at Θ = 45°, 0.6° at 150°), held below Θ.
-    pub fn smooth_turns(&self, l: usize, cos_theta: f64) -> (f64, f64) {
-        let t = &self.tables[self.table_of[l]];
-        let (h1, gs) = (t.3, t.4);
-        let c = cos_theta.clamp(-1.0, 1.0);
-        let sin = (1.0 - c * c).sqrt();
-        let tilt = (1.0 - h1) * 3.0 * gs * sin / (1.0 + gs * gs - 2.0 * gs * c);
-        (tilt.min(c.acos()), (2.0 * (1.0 - h1)).max(0.0).sqrt())
     }
 
     /// The row for wavelength `l` and the cosine of the scattering angle (sun direction · ray).
@@ -286,7 +271,7 @@ fn table(phase: &Phase, t: &Truncation) -> Tables {
     let mut out = vec![1f32; N_THETA * N_LAMBDA];
     let mut out_peak = vec![0f32; N_THETA * N_LAMBDA];
     if f_plus <= 0.0 || f <= 0.0 || albedo <= 0.0 {
-        return (out, out_peak, 0.0, 1.0, t.g_scaled);
+        return (out, out_peak, 0.0);
     }
     // λ = ωfτ; the peak's scattering rate is ωf⁺ per unit optical depth.
     let strength = f_plus / f;
@@ -352,7 +337,7 @@ fn table(phase: &Phase, t: &Truncation) -> Tables {
                 *o_peak = peak as f32;
             }
         });
-    (out, out_peak, f_plus, h_l[1] / f_plus, t.g_scaled)
+    (out, out_peak, f_plus)
 }
 
 #[cfg(test)]
@@ -367,7 +352,7 @@ mod tests {
         let t = Truncation::new(0.8, 0.99, 3.5);
         let first = PeakSpread::new(&[phase], &[t]).unwrap();
         let again = PeakSpread::new(&[phase, phase], &[t, t]).unwrap();
-        let (full, peak, ..) = table(&phase, &t);
+        let (full, peak, _) = table(&phase, &t);
         for s in [&first, &again] {
             assert!(s
                 .table(0)
@@ -382,7 +367,7 @@ mod tests {
         }
         let other = Truncation::new(0.8, 0.99, 2.0);
         let s = PeakSpread::new(&[phase], &[other]).unwrap();
-        let (full_other, ..) = table(&phase, &other);
+        let (full_other, _, _) = table(&phase, &other);
         assert!(s.table(0).iter().zip(&full_other).all(|(a, b)| a == b));
         assert!(full_other.iter().zip(&full).any(|(a, b)| a != b));
     }

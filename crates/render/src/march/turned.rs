@@ -36,46 +36,6 @@ use glam::DVec3;
 /// of what the same source would give at the cloud's face.
 pub(super) const TURNED_SEEN: f64 = 5e-2;
 
-/// The smooth part's turned light (see [`Prepared::smooth_turned`]) is gathered along
-/// [`SMOOTH_RAYS`] directions: a ring at the single turn's RMS angle round the mean turned
-/// direction, at azimuths 0 (towards the view, in the scattering plane), 120 and 240°, the
-/// in-plane one weighted up to 1 where the cloud reaches across the scattering plane
-/// ([`Prepared::smooth_gather`]); only for views within 90° of the sun (cos Θ > 0), as the
-/// peak's part (beyond, the straight line is kept: gathered there it read the DISORT slab's
-/// backward views up to 7 points higher and cost every frame the paths per step).
-pub(super) const SMOOTH_RAYS: usize = 3;
-
-/// How far to either side of the scattering plane (voxels, along s × d) the smooth part's
-/// gathering looks for the cloud's extent across it ([`Prepared::smooth_gather`]): `below_sun`
-/// (the cloud beside the sun's line) reads +1.58 / +1.30 / +1.11 % bias at 2 / 3 / 5 voxels
-/// (+1.13 % with the ring alone, +2.69 % with the in-plane path alone); the slab, as wide as
-/// the frame, takes the in-plane path at any of them.
-pub(super) const SMOOTH_ACROSS_VOXELS: f64 = 5.0;
-
-/// What one step's smooth-part gathering shares over its sub-steps and wavelengths: the
-/// paths and their weights ([`Prepared::smooth_gather`]), and per wavelength the weighted
-/// Σ ρw·e^{−k⁺(path − D_ref)} at its D_ref (NaN: not yet taken).
-pub(super) struct SmoothGather {
-    paths: [TurnedPath; SMOOTH_RAYS],
-    weights: [f64; SMOOTH_RAYS],
-    sum: [f64; 64],
-    d_ref: [f64; 64],
-    /// The depth form ([`Prepared::smooth_turned`]): the one-piece steps' set, reused along
-    /// the ray; else a thick step's, shifted by e^{k⁺(D_s − D_ref)} over its sub-steps.
-    depth_form: bool,
-    /// D_sun at the gathering point (the depth form's reference).
-    d_x: f64,
-}
-
-/// How far along the view ray (voxels) one set of the smooth part's gathering paths serves
-/// the ray's one-piece steps ([`Prepared::smooth_turned`]'s depth form): the paths cost the
-/// fly-around +27 % CPU per frame taken every 4 voxels (+47 % every step, i29-ring23's form),
-/// +12 % every 8, +4 % every 16, +0 % once per ray (`march_probe`, 8 cameras, alternated;
-/// measured with the depth form read beyond D_x as well, the same paths). Held at G_x beyond
-/// D_x, the slab's τ 1 75° towards the sun reads −4.0 / −8.4 / −11.1 % reused over 4 / 8 / the
-/// whole ray.
-pub(super) const SMOOTH_REUSE_VOXELS: f64 = 8.0;
-
 /// Bins along −b of widths 1, 1, 2, 4, … voxels (64 voxels in all), each sampled at its
 /// middle (trilinear in the first two, the nearest voxel beyond).
 const TURN_BINS: usize = 7;
@@ -99,36 +59,6 @@ pub(super) struct TurnedRay {
 }
 
 impl Prepared<'_> {
-    /// The smooth part's gathering rays of a view ray along `d` (a unit vector): round the sun's
-    /// direction s turned towards d by the mean turn's tilt, at the single turn's RMS angle
-    /// ([`PeakSpread::smooth_turns`] of the first wavelength), [`SMOOTH_RAYS`] directions
-    /// equally spaced in azimuth from d's side. In the scattering plane the turns that the
-    /// smooth phase function favours are the ones towards d; round it, a low sun's photons
-    /// turned towards the horizontal stay near the lit surface, and the gathered light is
-    /// convex in the turn: the ring keeps the turns' spread, not only their mean.
-    pub(super) fn smooth_rays(&self, d: DVec3) -> [TurnedRay; SMOOTH_RAYS] {
-        let s = self.lighting.sun_dir;
-        let cos = s.dot(d);
-        let e = d - s * cos;
-        let len = e.length();
-        let e = if len < 1e-6 {
-            s.any_orthonormal_vector()
-        } else {
-            e / len
-        };
-        let (tilt, radius) = match &self.lit.peak {
-            Some(p) => p.smooth_turns(0, cos),
-            None => (0.0, 0.0),
-        };
-        let m = s * tilt.cos() + e * tilt.sin();
-        let u = e * tilt.cos() - s * tilt.sin();
-        let w = s.cross(e);
-        std::array::from_fn(|k| {
-            let phi = std::f64::consts::TAU * k as f64 / SMOOTH_RAYS as f64;
-            self.ray_along(m * radius.cos() + (u * phi.cos() + w * phi.sin()) * radius.sin())
-        })
-    }
-
     /// The mean turned direction b = normalize(s + d) of a view ray along `d` (see the
     /// module's documentation; s where b is undefined, d = −s, where cos Θ = −1 and nothing is
     /// gathered).
@@ -140,11 +70,6 @@ impl Prepared<'_> {
         } else {
             b / len
         };
-        self.ray_along(b)
-    }
-
-    /// What the gathering paths along `b` (a unit vector) share.
-    fn ray_along(&self, b: DVec3) -> TurnedRay {
         let vol = &self.lit.vol;
         let mut face = DVec3::ZERO;
         let mut inv = DVec3::ZERO;
@@ -333,137 +258,5 @@ impl Prepared<'_> {
             turned_now
         } / (lam_e / (rate * kt));
         (now + gathered * slope - turned_now).max(0.0)
-    }
-
-    /// The smooth part's gathering paths from `x` along `rays` ([`Self::smooth_rays`]) and
-    /// their weights: the in-plane ray's w = 1/3 + 2/3·a, the out-of-plane ones' (1 − w)/2 each,
-    /// a ∈ [0, 1] how far the cloud reaches across the scattering plane at `x` (the nearest
-    /// voxels' density [`SMOOTH_ACROSS_VOXELS`] to either side along s × d, the lesser over
-    /// the density at `x`). Where a = 1 (the cloud as wide as a slab there) the out-of-plane
-    /// paths are not taken: the ring's three paths are the flank's form (the cloud beside the
-    /// sun's line, where the in-plane path alone reads `below_sun` +2.69 %), the in-plane path
-    /// the layer's (DISORT slab τ 32 60° / 75° towards −3.8 / +2.9 % against the ring's −7.3 /
-    /// −3.9 %).
-    pub(super) fn smooth_gather(
-        &self,
-        x: DVec3,
-        rays: &[TurnedRay; SMOOTH_RAYS],
-        depth_form: bool,
-    ) -> SmoothGather {
-        let g = &*self.lit.vol.grid;
-        let side = rays[1].b - rays[2].b;
-        let len = side.length();
-        let at = |y: DVec3| self.nearest_record((y - g.origin_m) / g.voxel_size_m).0;
-        let r0 = at(x);
-        let across = if len > 1e-9 && r0 > 0.0 {
-            let side = side / len * (SMOOTH_ACROSS_VOXELS * g.voxel_size_m);
-            (at(x + side).min(at(x - side)) / r0).clamp(0.0, 1.0)
-        } else {
-            0.0
-        };
-        let w_in = 1.0 / 3.0 + (1.0 - 1.0 / 3.0) * across;
-        let weights = [w_in, 0.5 * (1.0 - w_in), 0.5 * (1.0 - w_in)];
-        let paths = std::array::from_fn(|j| {
-            if weights[j] > 0.0 {
-                self.turned_path(x, &rays[j])
-            } else {
-                TurnedPath {
-                    n: 0,
-                    mass: [0.0; TURN_BINS],
-                    path: [0.0; TURN_BINS],
-                }
-            }
-        });
-        SmoothGather {
-            paths,
-            weights,
-            sum: [0.0; 64],
-            d_ref: [f64::NAN; 64],
-            depth_form,
-            d_x: if depth_form && self.lit.sun_on {
-                self.sun_root_at(x).powi(2)
-            } else {
-                0.0
-            },
-        }
-    }
-
-    /// The smooth part (p − r⁺)_eff/p of wavelength `l` (the first of [`PeakSpread::ratios`])
-    /// at λ = `lam_s` + `lam_v` with the part the peak turned before the smooth scattering
-    /// gathered along `sg`'s paths (the rays of [`Self::smooth_rays`])
-    /// instead of the straight line, as [`Self::peak_turned`] does for the peak's part:
-    /// T = (p − r⁺)_eff(λ_s + λ_v) − e^{−ωf⁺τ_s}·(p − r⁺)_eff(λ_v), scaled by the gathered first
-    /// order over the straight line's. A photon the peak turns towards the view's side of the
-    /// sun's direction is the one the smooth phase function, steep at 30–60°, scatters most
-    /// towards the camera; under a low sun it is the one that stays near the lit surface.
-    ///
-    /// The depth form (a one-piece step's set, [`SMOOTH_REUSE_VOXELS`] along the ray): the set
-    /// taken at x (D_sun = D_x) gives G_x = Σ ρw·e^{−k⁺(path − D_x)}; a sample nearer the sun
-    /// (D_s < D_x) takes G_x·(1 − e^{−k⁺D_s})/(1 − e^{−k⁺D_x}), one farther G_x. In a
-    /// plane-parallel layer the in-plane path at cosine μ_b under a sun at μ₀ gathers
-    /// G(D) = g₀·(1 − e^{−cD})/c, g₀ = μ₀/μ_b, c = k⁺(g₀ − 1): the gain G/D constant near the
-    /// lit surface, G constant deep inside (c ≈ k⁺). Beyond D_x the form is held at G_x: read
-    /// there (or shifted by e^{k⁺(D_s − D_x)}), a set taken where D_x ≈ 0 sent `below_sun`'s
-    /// bias past 10⁶ % and `sun_back35`'s to +95 %. (Taken at the step's midpoint and read at
-    /// its effective depth, as a thick step's set is, 4-voxel steps read the DISORT slab τ 1
-    /// 30° towards the sun +10.7 %; with the depth form +8.5 %.)
-    #[allow(clippy::too_many_arguments)]
-    #[inline(never)]
-    pub(super) fn smooth_turned(
-        &self,
-        p: &PeakSpread,
-        row: PeakRow,
-        l: usize,
-        lam_s: f64,
-        lam_v: f64,
-        sg: &mut SmoothGather,
-        kt: f64,
-        kp: f64,
-    ) -> f64 {
-        let now = p.ratios(row, lam_s + lam_v).0;
-        let rate = self.lit.peak_rate[l];
-        if rate <= 0.0 || kt <= 0.0 {
-            return now;
-        }
-        let d_s = lam_s / (rate * kt);
-        // Σ ρw·e^{−k⁺(path − D_ref)} once per wavelength (D_ref the first D_s asked), then
-        // scaled to this D_s: the paths' exponentials are taken once per step.
-        if sg.d_ref[l].is_nan() {
-            let d_s = if sg.depth_form { sg.d_x } else { d_s };
-            sg.sum[l] = sg
-                .paths
-                .iter()
-                .zip(sg.weights)
-                .filter(|(_, wj)| *wj > 0.0)
-                .map(|(tp, wj)| {
-                    wj * (0..tp.n)
-                        .filter(|&i| tp.mass[i] != 0.0)
-                        .map(|i| tp.mass[i] * (-kp * (tp.path[i] - d_s)).min(600.0).exp())
-                        .sum::<f64>()
-                })
-                .sum::<f64>();
-            sg.d_ref[l] = d_s;
-        }
-        let gathered = if sg.depth_form {
-            if d_s < sg.d_x {
-                sg.sum[l] * ((-kp * d_s).exp_m1() / (-kp * sg.d_x).exp_m1())
-            } else {
-                sg.sum[l]
-            }
-        } else if d_s == sg.d_ref[l] {
-            sg.sum[l]
-        } else {
-            sg.sum[l] * (kp * (d_s - sg.d_ref[l])).min(600.0).exp()
-        };
-        let view_only = p.ratios(row, lam_v).0;
-        let per_lambda = (1.0 - self.lit.first_extinction_scale[l]) / rate;
-        let turned_at = |lam: f64, at: f64| at - (-lam * per_lambda).exp() * view_only;
-        let lam_e = lam_s.max(1e-3);
-        let slope = if lam_e > lam_s {
-            turned_at(lam_e, p.ratios(row, lam_e + lam_v).0)
-        } else {
-            turned_at(lam_s, now)
-        } / (lam_e / (rate * kt));
-        (now + gathered * slope - turned_at(lam_s, now)).max(0.0)
     }
 }
