@@ -893,6 +893,9 @@ fn skyview_the_earth_shadow_rising_at_low_altitude() {
 /// Version 19: 22.5 / 25 km dense 26.9 / 39.5 %. Version 18 (before the band's maps were kept
 /// aloft and the columns mirrored): 20 km dense 4.53 %, between the samples 6.80 % (12.5 km
 /// 4.79 %); 22.5 / 25 km dense 46.5 / 69.6 %.
+/// The limb rows' focus on the shadow's edge aloft (`skyview::limb_edge_focus`): 40 km 29.55 →
+/// 16.24 %, 35 km dense 25.07 → 24.05 %, 30 km grid 22.64 → 22.59 %; loosened to the measured:
+/// 30 km dense 31.86 → 31.88 %, 35 km above the horizontal 6.04 → 6.11 %.
 #[test]
 #[ignore = "builds a bundle (about 10 s of CPU): run with --ignored lut_skyview::"]
 fn skyview_the_earth_shadow_seen_aloft() {
@@ -904,16 +907,16 @@ fn skyview_the_earth_shadow_seen_aloft() {
     // Measured worst per altitude (the order of `altitudes`): the grid, the dense check, and the
     // dense check above the horizontal alone (the band itself; below it the limb).
     let measured = [
-        0.0153, 0.0156, 0.0241, 0.0242, 0.0187, 0.0219, 0.0494, 0.0197, 0.0223, 0.0567, 0.2264,
-        0.0777, 0.2955,
+        0.0153, 0.0156, 0.0241, 0.0242, 0.0187, 0.0219, 0.0494, 0.0197, 0.0223, 0.0567, 0.2259,
+        0.0777, 0.1624,
     ];
     let measured_dense = [
-        0.0247, 0.0261, 0.0242, 0.0252, 0.0239, 0.0296, 0.0494, 0.0456, 0.0541, 0.1815, 0.3186,
-        0.2507, 0.2955,
+        0.0247, 0.0261, 0.0242, 0.0252, 0.0239, 0.0296, 0.0494, 0.0456, 0.0541, 0.1815, 0.3188,
+        0.2405, 0.1624,
     ];
     let measured_sky = [
         0.0247, 0.0261, 0.0242, 0.0252, 0.0221, 0.0296, 0.0494, 0.0456, 0.0403, 0.0487, 0.0645,
-        0.0604, 0.0911,
+        0.0611, 0.0905,
     ];
     // Between the dense check's samples, 6.5–20 km (the order of `altitudes`).
     let measured_between = [
@@ -1144,7 +1147,7 @@ fn side_aloft_errors(
 fn skyview_the_sky_beside_the_sun_aloft() {
     let f = fixture();
     let altitudes = [20000.0, 22500.0, 25000.0, 30000.0, 35000.0, 40000.0];
-    let measured = [0.0578, 0.0485, 0.0546, 0.0988, 0.1868, 0.2295];
+    let measured = [0.0578, 0.0485, 0.0546, 0.0988, 0.1874, 0.2296];
     let t = std::time::Instant::now();
     let results = side_aloft_errors(f, &SkyViewReader::new(&f.bundle), &altitudes);
     eprintln!(

@@ -194,7 +194,9 @@ class LiveSky {
           !Number.isFinite(limb.altitude_exponent) ||
           !(limb.max_fraction > 0 && limb.max_fraction < 1) || !numbers(limb.horizon_held, 2) ||
           !(limb.horizon_held[0] < limb.horizon_held[1]) ||
-          !(limb.deepest > 0 && limb.deepest <= 1)) {
+          !(limb.deepest > 0 && limb.deepest <= 1) || !numbers(limb.edge_depth_m, 2) ||
+          !(limb.edge_focus >= 0) || !numbers(limb.edge_sun_range_deg, 4) ||
+          !numbers(limb.edge_altitude_range_m, 4)) {
         throw new Error("manifest: parameterisation.limb_row_band is not the limb rows' band focus");
       }
       defines += `#define SV_LIMB_BAND_DEPTH vec3(${limb.depth_m.map(f).join(", ")})\n` +
@@ -205,7 +207,11 @@ class LiveSky {
         `#define SV_LIMB_BAND_ALTITUDE_EXPONENT ${f(limb.altitude_exponent)}\n` +
         `#define SV_LIMB_BAND_MAX_FRACTION ${f(limb.max_fraction)}\n` +
         `#define SV_LIMB_BAND_HORIZON_HELD vec2(${limb.horizon_held.map(f).join(", ")})\n` +
-        `#define SV_LIMB_BAND_DEEPEST ${f(limb.deepest)}\n`;
+        `#define SV_LIMB_BAND_DEEPEST ${f(limb.deepest)}\n` +
+        `#define SV_LIMB_EDGE_DEPTH vec2(${limb.edge_depth_m.map(f).join(", ")})\n` +
+        `#define SV_LIMB_EDGE_FOCUS ${f(limb.edge_focus)}\n` +
+        `#define SV_LIMB_EDGE_SUN_RANGE vec4(${limb.edge_sun_range_deg.map(f).join(", ")})\n` +
+        `#define SV_LIMB_EDGE_ALTITUDE vec4(${limb.edge_altitude_range_m.map(f).join(", ")})\n`;
       // The azimuth columns' map aloft (version 5).
       const az = manifest.parameterisation.azimuth_aloft;
       if (!az || !(az.weight > 0 && az.weight <= 1) || !(az.ground_weight > 0 && az.ground_weight <= 1) ||

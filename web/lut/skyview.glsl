@@ -41,7 +41,10 @@
 // (focus), SV_LIMB_BAND_SUN_RANGE (sun_range_deg, a vec4), SV_LIMB_BAND_ALTITUDE
 // (altitude_range_m, a vec4), SV_LIMB_BAND_DEPTH_FLOOR (depth_floor_m),
 // SV_LIMB_BAND_ALTITUDE_EXPONENT (altitude_exponent), SV_LIMB_BAND_MAX_FRACTION (max_fraction),
-// SV_LIMB_BAND_HORIZON_HELD (horizon_held, a vec2), SV_LIMB_BAND_DEEPEST (deepest);
+// SV_LIMB_BAND_HORIZON_HELD (horizon_held, a vec2), SV_LIMB_BAND_DEEPEST (deepest),
+// SV_LIMB_EDGE_DEPTH (edge_depth_m, a vec2), SV_LIMB_EDGE_FOCUS (edge_focus),
+// SV_LIMB_EDGE_SUN_RANGE (edge_sun_range_deg, a vec4), SV_LIMB_EDGE_ALTITUDE
+// (edge_altitude_range_m, a vec4);
 // from parameterisation.azimuth_aloft: SV_AZ_WEIGHT (weight), SV_AZ_GROUND_WEIGHT
 // (ground_weight) and SV_AZ_ALTITUDE (altitude_range_m, a vec2); from parameterisation.azimuth_focus: SV_AZ_FOCUS (vec3(weight,
 // centre_deg, width_deg)), SV_AZ_FOCUS_ALTITUDE (altitude_range_m, a vec2) and SV_AZ_NODE_READ
@@ -291,12 +294,30 @@ float SkyViewLimbRow(float y) {
 // The limb rows' focus on the band above the earth's shadow seen from altitude (the reader's
 // limb_row_focus) at sun coordinate sun_deg and altitude h: xc = SkyViewLimbRow of the band's
 // depth (depth.x + depth.y s + depth.z s^2) / h, k = SV_LIMB_BAND_FOCUS times the fades.
-vec2 SkyViewLimbFocus(float sun_deg, float h) {
-  float f = smoothstep(SV_LIMB_BAND_SUN_RANGE.x, SV_LIMB_BAND_SUN_RANGE.y, sun_deg) *
+// The band focus's fade (the reader's limb_band_fade): the slices' depth map and the limb's sun
+// stencil act with it.
+float SkyViewLimbBandFade(float sun_deg, float h) {
+  if (h <= 0.0) return 0.0;
+  return smoothstep(SV_LIMB_BAND_SUN_RANGE.x, SV_LIMB_BAND_SUN_RANGE.y, sun_deg) *
       (1.0 - smoothstep(SV_LIMB_BAND_SUN_RANGE.z, SV_LIMB_BAND_SUN_RANGE.w, sun_deg)) *
       smoothstep(SV_LIMB_BAND_ALTITUDE.x, SV_LIMB_BAND_ALTITUDE.y, h) *
       (1.0 - smoothstep(SV_LIMB_BAND_ALTITUDE.z, SV_LIMB_BAND_ALTITUDE.w, h));
-  if (f <= 0.0 || h <= 0.0) return vec2(0.0);
+}
+
+// Where the band's focus is off, the focus on the earth's shadow's edge seen from 35-45 km (the
+// reader's limb_edge_focus): depth SV_LIMB_EDGE_DEPTH.x + SV_LIMB_EDGE_DEPTH.y s, strength
+// SV_LIMB_EDGE_FOCUS times the smoothsteps of SV_LIMB_EDGE_SUN_RANGE and SV_LIMB_EDGE_ALTITUDE.
+vec2 SkyViewLimbFocus(float sun_deg, float h) {
+  float f = SkyViewLimbBandFade(sun_deg, h);
+  if (f <= 0.0 || h <= 0.0) {
+    float g = smoothstep(SV_LIMB_EDGE_SUN_RANGE.x, SV_LIMB_EDGE_SUN_RANGE.y, sun_deg) *
+        (1.0 - smoothstep(SV_LIMB_EDGE_SUN_RANGE.z, SV_LIMB_EDGE_SUN_RANGE.w, sun_deg)) *
+        smoothstep(SV_LIMB_EDGE_ALTITUDE.x, SV_LIMB_EDGE_ALTITUDE.y, h) *
+        (1.0 - smoothstep(SV_LIMB_EDGE_ALTITUDE.z, SV_LIMB_EDGE_ALTITUDE.w, h));
+    if (g <= 0.0 || h <= 0.0) return vec2(0.0);
+    float edge = SV_LIMB_EDGE_DEPTH.x + SV_LIMB_EDGE_DEPTH.y * sun_deg;
+    return vec2(SkyViewLimbRow(clamp(edge / h, 0.0, 1.0)), g * SV_LIMB_EDGE_FOCUS);
+  }
   float depth = SV_LIMB_BAND_DEPTH.x + SV_LIMB_BAND_DEPTH.y * sun_deg +
       SV_LIMB_BAND_DEPTH.z * sun_deg * sun_deg;
   return vec2(SkyViewLimbRow(clamp(depth / h, 0.0, 1.0)), f * SV_LIMB_BAND_FOCUS);
@@ -380,7 +401,7 @@ float SkyViewLimbSliceMap(float y, float s_q, float h_q, float s_n, float h_n) {
 }
 
 float SkyViewLimbSliceDepth(float y, float s_q, float h_q, float s_n, float h_n) {
-  float f = SkyViewLimbFocus(s_q, h_q).y / SV_LIMB_BAND_FOCUS;
+  float f = SkyViewLimbBandFade(s_q, h_q);
   if (f <= 0.0 || h_n <= 0.0) return y;
   return y + f * (clamp(SkyViewLimbSliceMap(y, s_q, h_q, s_n, h_n), 0.0, 1.0) - y);
 }
@@ -464,7 +485,7 @@ float SkyViewWarpStrength(float h) {
 // from ss.first up to ss.i0, the first whose slice (its node warped at h_n) is not read past its
 // horizon, y + f (SkyViewLimbSliceMap - y) > 1, f the query's focus fade.
 int SkyViewLimbSunLowest(float y, float s_q, float h_q, float h_n, SvStencil ss) {
-  float f = SkyViewLimbFocus(s_q, h_q).y / SV_LIMB_BAND_FOCUS;
+  float f = SkyViewLimbBandFade(s_q, h_q);
   if (f <= 0.0 || h_n <= 0.0) return ss.first;
   float b_n = SkyViewWarpStrength(h_n);
   int lo = ss.first;
@@ -482,7 +503,7 @@ int SkyViewLimbSunLowest(float y, float s_q, float h_q, float h_n, SvStencil ss)
 SvStencil SkyViewLimbSunStencil(SvStencil ss, float y, float s_q, float h_q, float h_n,
                                 float above_deg) {
   if (ss.len <= 2) return ss;
-  float f = SkyViewLimbFocus(s_q, h_q).y / SV_LIMB_BAND_FOCUS;
+  float f = SkyViewLimbBandFade(s_q, h_q);
   if (f > 0.0 && h_n > 0.0 && ss.t > 0.0 && ss.i0 + 2 < SV_N_SUN) {
     float b_n = SkyViewWarpStrength(h_n);
     float s_n = SkyViewSunWarp(SkyViewSunNodeDeg(ss.i0), b_n);

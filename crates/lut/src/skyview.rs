@@ -1255,8 +1255,60 @@ pub const LIMB_BAND_ALTITUDE_M: [f64; 4] = [6_000.0, 9_000.0, 25_000.0, 30_000.0
 /// depth moving 7 km per degree of the sun, so the rows concentrate there as the sky rows do on
 /// the band above the horizontal ([`sky_row_focus`]).
 pub fn limb_row_focus(sun_deg: f64, h: f64) -> (f64, f64) {
+    let f = limb_band_fade(sun_deg, h);
+    if f <= 0.0 || h <= 0.0 {
+        return limb_edge_focus(sun_deg, h);
+    }
+    let [d0, d1, d2] = LIMB_BAND_DEPTH_M;
+    let depth = d0 + d1 * sun_deg + d2 * sun_deg * sun_deg;
+    (limb_row((depth / h).clamp(0.0, 1.0)), f * LIMB_BAND_FOCUS)
+}
+
+/// The fade ∈ [0, 1] of the limb rows' focus on the band ([`limb_row_focus`] below 30 km): the
+/// smoothsteps of [`LIMB_BAND_SUN_RANGE`] and [`LIMB_BAND_ALTITUDE_M`]; the slices' depth map
+/// ([`limb_slice_depth`]) and the limb's sun stencil ([`limb_sun_stencil`]) act with it (not
+/// with the focus on the shadow's edge aloft, [`limb_edge_focus`]).
+pub fn limb_band_fade(sun_deg: f64, h: f64) -> f64 {
     let [s0, s1, s2, s3] = LIMB_BAND_SUN_RANGE;
     let [h0, h1, h2, h3] = LIMB_BAND_ALTITUDE_M;
+    if h <= 0.0 {
+        return 0.0;
+    }
+    smoothstep(s0, s1, sun_deg)
+        * (1.0 - smoothstep(s2, s3, sun_deg))
+        * smoothstep(h0, h1, h)
+        * (1.0 - smoothstep(h2, h3, h))
+}
+
+/// The depth (m) below the observer of the earth's shadow's edge on the limb seen from 35–45 km,
+/// D = d₀ + d₁ s (s the limb rows' sun coordinate, degrees): `[d₀, d₁]`. Measured on the `sky`
+/// product (earth, 680 nm, the depth where ln L per metre of ray falls fastest along the limb,
+/// 150° and 180° from the sun): 37.1 km 13.4 / 12.5 km at s = 0, 14.4 km at s = 0.30°; 42.4 km
+/// 12.2 km at s = 0, 14.3 km at s = 0.28° (ln L falling by 36–53 per unit of depth fraction,
+/// 2.5–4 per limb row without a focus); at s ≤ −0.6° no edge there (ln L within 4 per unit).
+/// The focus 1.2 km below the fit (d₀ 12.8 → 14 km) took the earth's shadow seen from 35 / 40 km
+/// (dense) from 25.2 / 21.1 to 24.0 / 16.2 % (docs/lut.md).
+pub const LIMB_EDGE_DEPTH_M: [f64; 2] = [14_000.0, 6_000.0];
+/// The limb rows' focus strength on that edge ([`limb_edge_focus`]). 10 instead of 6: 40 km
+/// 10.4–11.4 % but the limb 0.25° above the horizon seen from 35 km 29–31 % (the rows near the
+/// horizon sparser).
+pub const LIMB_EDGE_FOCUS: f64 = 6.0;
+/// The sun coordinates (degrees) between which the focus on the edge fades in (the first two)
+/// and out (the last two).
+pub const LIMB_EDGE_SUN_RANGE: [f64; 4] = [-0.75, -0.25, 0.5, 1.0];
+/// The altitudes (m) between which the focus on the edge fades in (the first two) and out (the
+/// last two): above the band's focus ([`LIMB_BAND_ALTITUDE_M`], out by 30 km).
+pub const LIMB_EDGE_ALTITUDE_M: [f64; 4] = [33_000.0, 36_000.0, 45_000.0, 50_000.0];
+
+/// The limb rows' focus on the earth's shadow's edge seen from 35–45 km at sun coordinate
+/// `sun_deg` (degrees) and altitude `h` (m): (x_c, k), x_c = [`limb_row`] of
+/// [`LIMB_EDGE_DEPTH_M`]'s depth / h, k = [`LIMB_EDGE_FOCUS`] times the smoothsteps of
+/// [`LIMB_EDGE_SUN_RANGE`] and [`LIMB_EDGE_ALTITUDE_M`]. From 35 km up, with the sun just
+/// above the observer's horizon, the edge crosses the limb 12–15 km below the observer, deeper
+/// than the band's focus ([`LIMB_BAND_DEPTH_M`], 5.8 km at s = 0.3°), which is off there.
+pub fn limb_edge_focus(sun_deg: f64, h: f64) -> (f64, f64) {
+    let [s0, s1, s2, s3] = LIMB_EDGE_SUN_RANGE;
+    let [h0, h1, h2, h3] = LIMB_EDGE_ALTITUDE_M;
     let f = smoothstep(s0, s1, sun_deg)
         * (1.0 - smoothstep(s2, s3, sun_deg))
         * smoothstep(h0, h1, h)
@@ -1264,9 +1316,11 @@ pub fn limb_row_focus(sun_deg: f64, h: f64) -> (f64, f64) {
     if f <= 0.0 || h <= 0.0 {
         return (0.0, 0.0);
     }
-    let [d0, d1, d2] = LIMB_BAND_DEPTH_M;
-    let depth = d0 + d1 * sun_deg + d2 * sun_deg * sun_deg;
-    (limb_row((depth / h).clamp(0.0, 1.0)), f * LIMB_BAND_FOCUS)
+    let [d0, d1] = LIMB_EDGE_DEPTH_M;
+    (
+        limb_row(((d0 + d1 * sun_deg) / h).clamp(0.0, 1.0)),
+        f * LIMB_EDGE_FOCUS,
+    )
 }
 
 /// The depth (m) below the observer of the band above the earth's shadow seen on the limb at
@@ -1295,7 +1349,7 @@ pub fn limb_band_depth_m(sun_deg: f64) -> f64 {
 /// quarter of the depth away, across the horizon's glow (the sun axis alone +8.5 % at 20 km,
 /// 120° from the sun, 440 nm, 0.29° above the horizon).
 pub fn limb_slice_depth(y: f64, sun_q: f64, h_q: f64, sun_n: f64, h_n: f64) -> f64 {
-    let f = limb_row_focus(sun_q, h_q).1 / LIMB_BAND_FOCUS;
+    let f = limb_band_fade(sun_q, h_q);
     if f <= 0.0 || h_n <= 0.0 {
         return y;
     }
@@ -1326,7 +1380,7 @@ pub fn limb_slice_map(y: f64, sun_q: f64, h_q: f64, sun_n: f64, h_n: f64) -> f64
 /// altitude `h_n` (m) is read for a query at depth `y` with sun coordinate `sun_q` at altitude
 /// `h_q` (m), above 1 past the slice's horizon.
 pub fn limb_slice_reach(y: f64, sun_q: f64, h_q: f64, sun_n: f64, h_n: f64) -> f64 {
-    let f = limb_row_focus(sun_q, h_q).1 / LIMB_BAND_FOCUS;
+    let f = limb_band_fade(sun_q, h_q);
     if f <= 0.0 || h_n <= 0.0 {
         return y;
     }
@@ -1373,7 +1427,7 @@ pub fn limb_sun_stencil(
         return ss;
     }
     let b = warp_strength(h_n, thickness);
-    let focused = limb_row_focus(sun_q, h_q).1 > 0.0 && h_n > 0.0;
+    let focused = limb_band_fade(sun_q, h_q) > 0.0 && h_n > 0.0;
     if focused && ss.t > 0.0 && ss.i0 + 2 < N_SUN {
         let s_i0 = sun_warp(sun_node_deg(ss.i0), b, 0.0);
         if limb_slice_reach(y, sun_q, h_q, s_i0, h_n) > LIMB_BAND_DEEPEST {
@@ -2794,6 +2848,23 @@ pub fn manifest(
         "azimuth": "on the sky rows and the limb rows where k > 0 each azimuth column a of the interpolation is read at its own elevation e_a (its own rows' stencil): d = depth_deg_per_km clamp(h, 0, depth_top_m) / 1000, delta = d + (azimuth_depth_aloft_deg - d) smoothstep(azimuth_depth_aloft_altitude_m[0], azimuth_depth_aloft_altitude_m[1], h) (version 12), w = max(c antisolar + delta, 0.5), ratio = max(-cos phi_a, antisolar_range[0]) / max(-cos phi, antisolar_range[0]), e_a = e + (k / (focus (1 + focus_growth smoothstep(focus_growth_altitude_m[0], focus_growth_altitude_m[1], h)) (1 + focus_aloft smoothstep(focus_aloft_altitude_m[0], focus_aloft_altitude_m[1], h)))) (1 - smoothstep(2 w, 4 w, e)) step(-delta, e) smoothstep(antisolar_range[0], antisolar_range[1], -cos phi) (e + delta) (ratio - 1) (version 7: from -delta up through the horizontal, where version 6 had smoothstep(0, horizon_deg, e)), e the query's elevation (deg), phi its azimuth from the sun, phi_a the column's in the slice (azimuth_nodes_rad[k][a], the slice's altitude node k; version 12: at the query's altitude h); where e_a >= 0 the column is read on the sky rows, below on the limb rows at the query's altitude h (depth y = 2 r sin^2(e_a / 2) / h); the band above the earth's shadow lies at (c antisolar + delta)(-cos phi) - delta",
         "formula": "the sky rows' focus at the sun's elevation s above the observer's horizon (deg) and altitude h (m): u = sun_soft_deg ln(1 + exp((sun_deg - s) / sun_soft_deg)) (version 14: max(sun_deg - s, 0)), km = clamp(h, 0, centre_aloft_altitude_m[0]) / 1000, c = min(((centre[0] + centre[1] km) u + (centre[2] + centre[3] km) u^2) (1 + centre_aloft_per_km clamp(h - centre_aloft_altitude_m[0], 0, centre_aloft_altitude_m[1] - centre_aloft_altitude_m[0]) / 1000 + centre_top_per_km T), 45), T = clamp(h - centre_aloft_altitude_m[1], 0, max(centre_top_altitude_m - centre_aloft_altitude_m[1], 0)) / 1000 (version 19) (deg, the band's elevation: the maps' c), the rows' focus at c_f = c (q + (focus_place_aloft antisolar - q) v), q = 1 + (focus_place_aloft antisolar - 1) a (x_c = 1 - sqrt(c_f / 90); version 15), l = 1 - smoothstep(centre_range_deg[0], centre_range_deg[1], c), a = l smoothstep(focus_place_altitude_m[0], focus_place_altitude_m[1], h), v = l smoothstep(focus_width_altitude_m[0], focus_width_altitude_m[1], h) (1 - smoothstep(focus_width_altitude_m[2], focus_width_altitude_m[3], h)) (version 18), k = smoothstep(sun_range_deg[0], sun_range_deg[1], s) (1 - smoothstep(sun_range_deg[2], sun_range_deg[3], s)) (1 - smoothstep(altitude_range_m[0], altitude_range_m[1], h)) (l (1 + focus_high a) + centre_floor (1 - l)) focus (1 + focus_growth smoothstep(focus_growth_altitude_m[0], focus_growth_altitude_m[1], h)) (1 + focus_aloft smoothstep(focus_aloft_altitude_m[0], focus_aloft_altitude_m[1], h)) (1 + focus_wide v), the focus's width w = v max(x0(e_w) - x_c, 0) (x0(e) = 1 - sqrt(e / 90), e_w = max((c antisolar + delta) focus_width_azimuth_cos - delta, focus_width_floor_deg), delta the azimuth formula's; version 18), smoothstep(a, b, x) = t^2 (3 - 2 t), t = clamp((x - a) / (b - a), 0, 1)",
     });
+    let limb_row_band = json!({
+        "depth_m": LIMB_BAND_DEPTH_M,
+        "focus": LIMB_BAND_FOCUS,
+        "sun_range_deg": LIMB_BAND_SUN_RANGE,
+        "altitude_range_m": LIMB_BAND_ALTITUDE_M,
+        "depth_floor_m": LIMB_BAND_DEPTH_FLOOR_M,
+        "altitude_exponent": LIMB_BAND_ALTITUDE_EXPONENT,
+        "max_fraction": LIMB_BAND_MAX_FRACTION,
+        "horizon_held": LIMB_BAND_HORIZON_HELD,
+        "deepest": LIMB_BAND_DEEPEST,
+        "edge_depth_m": LIMB_EDGE_DEPTH_M,
+        "edge_focus": LIMB_EDGE_FOCUS,
+        "edge_sun_range_deg": LIMB_EDGE_SUN_RANGE,
+        "edge_altitude_range_m": LIMB_EDGE_ALTITUDE_M,
+        "slices": "on the limb rows each (altitude node k, sun node j) slice is read at the depth y_n = y + f (clamp(m, 0, 1) - y) on its own rows, m = y rho where y <= yb, else y rho + w (ybn + (y - yb) (1 - ybn) / (1 - yb) - y rho), w = 1 - smoothstep(horizon_held[0], horizon_held[1], yb), rho = (h / h_n)^altitude_exponent D(s_n) / D(s), yb = min(D(s) / h, max_fraction), ybn = min(yb rho, max_fraction) (formula at s_n, h_n), y the query's depth, s its sun coordinate, h its altitude, s_n and h_n the slice's (s_n = the warped s_j at h_n = altitude_nodes_m[k]), D(s) = max(depth_m[0] + depth_m[1] s' + depth_m[2] s'^2, depth_floor_m), s' = clamp(s, sun_range_deg[0] - 1, sun_range_deg[3]), f = k / focus at the query's (s, h) (y_n = y where f = 0); on the limb rows the sun stencil of altitude node k starts at the first node from the stencil's first up to its interval's lower node whose slice is not read past its horizon, y + f (m - y) <= 1, m = the map before its clamp (the stencil's polynomial through the remaining nodes); but where the focus acts (k > 0 at the query's s, h) and the interval's lower node i0's slice would be read deeper than deepest, y + f (m - y) > deepest (version 20), the stencil is the line in the logarithms through nodes i0 + 1 and i0 + 2, extrapolated to the query's node coordinate (weights 1 - t, t, t = (x - x_{i0+1}) / (x_{i0+2} - x_{i0+1}) < 0 in the sun node coordinates t_j, not bounded by the two values)",
+        "formula": "the limb rows' focus (version 10) at sun coordinate s (deg; a texel's node s_j, for a query each slice's own s_n at its altitude h_n) and altitude h (m): depth D = depth_m[0] + depth_m[1] s + depth_m[2] s^2 (m), x_c = the limb coordinate of y_c = clamp(D / h, 0, 1) (x_c = 2/3 + (4/3) cos(acos(1 - 27 y_c / 16) / 3 - 2 pi / 3)), k = focus smoothstep(sun_range_deg[0], sun_range_deg[1], s) (1 - smoothstep(sun_range_deg[2], sun_range_deg[3], s)) smoothstep(altitude_range_m[0], altitude_range_m[1], h) (1 - smoothstep(altitude_range_m[2], altitude_range_m[3], h)) (0 where h <= 0); the limb row coordinate of depth y is x = (asinh(k (x0 - x_c)) - A) / (B - A), x0 = 2/3 + (4/3) cos(acos(1 - 27 y / 16) / 3 - 2 pi / 3), A = asinh(-k x_c), B = asinh(k (1 - x_c)) (x = x0 where k < 1e-6); inverse x0 = x_c + sinh(A + x (B - A)) / k, y = 2 x0^2 - x0^3. Where that k is 0 (the band's focus off, from 30 km up), the focus on the earth's shadow's edge aloft instead: D = edge_depth_m[0] + edge_depth_m[1] s, k = edge_focus smoothstep(edge_sun_range_deg[0], edge_sun_range_deg[1], s) (1 - smoothstep(edge_sun_range_deg[2], edge_sun_range_deg[3], s)) smoothstep(edge_altitude_range_m[0], edge_altitude_range_m[1], h) (1 - smoothstep(edge_altitude_range_m[2], edge_altitude_range_m[3], h)), the same x_c and rows; the slices' map's f and the sun stencil take the band's k alone. On the limb rows every (altitude node k, sun node j) slice is read on its own rows at the depth of `slices` (and a column moved below the horizontal by sky_row_band.azimuth likewise, at its depth 2 r sin^2(e_a / 2) / h)",
+    });
     json!({
         "format": LAYOUT,
         "bundle_version": SKYVIEW_VERSION,
@@ -2831,19 +2902,7 @@ pub fn manifest(
             "limb_near_end": limb_near_end,
             "sun_segments": SUN_SEGMENTS.iter().map(|(a, b, n)| json!([a, b, n])).collect::<Vec<_>>(),
             "sky_row_band": sky_row_band,
-            "limb_row_band": {
-                "depth_m": LIMB_BAND_DEPTH_M,
-                "focus": LIMB_BAND_FOCUS,
-                "sun_range_deg": LIMB_BAND_SUN_RANGE,
-                "altitude_range_m": LIMB_BAND_ALTITUDE_M,
-                "depth_floor_m": LIMB_BAND_DEPTH_FLOOR_M,
-                "altitude_exponent": LIMB_BAND_ALTITUDE_EXPONENT,
-                "max_fraction": LIMB_BAND_MAX_FRACTION,
-                "horizon_held": LIMB_BAND_HORIZON_HELD,
-                "deepest": LIMB_BAND_DEEPEST,
-                "slices": "on the limb rows each (altitude node k, sun node j) slice is read at the depth y_n = y + f (clamp(m, 0, 1) - y) on its own rows, m = y rho where y <= yb, else y rho + w (ybn + (y - yb) (1 - ybn) / (1 - yb) - y rho), w = 1 - smoothstep(horizon_held[0], horizon_held[1], yb), rho = (h / h_n)^altitude_exponent D(s_n) / D(s), yb = min(D(s) / h, max_fraction), ybn = min(yb rho, max_fraction) (formula at s_n, h_n), y the query's depth, s its sun coordinate, h its altitude, s_n and h_n the slice's (s_n = the warped s_j at h_n = altitude_nodes_m[k]), D(s) = max(depth_m[0] + depth_m[1] s' + depth_m[2] s'^2, depth_floor_m), s' = clamp(s, sun_range_deg[0] - 1, sun_range_deg[3]), f = k / focus at the query's (s, h) (y_n = y where f = 0); on the limb rows the sun stencil of altitude node k starts at the first node from the stencil's first up to its interval's lower node whose slice is not read past its horizon, y + f (m - y) <= 1, m = the map before its clamp (the stencil's polynomial through the remaining nodes); but where the focus acts (k > 0 at the query's s, h) and the interval's lower node i0's slice would be read deeper than deepest, y + f (m - y) > deepest (version 20), the stencil is the line in the logarithms through nodes i0 + 1 and i0 + 2, extrapolated to the query's node coordinate (weights 1 - t, t, t = (x - x_{i0+1}) / (x_{i0+2} - x_{i0+1}) < 0 in the sun node coordinates t_j, not bounded by the two values)",
-                "formula": "the limb rows' focus (version 10) at sun coordinate s (deg; a texel's node s_j, for a query each slice's own s_n at its altitude h_n) and altitude h (m): depth D = depth_m[0] + depth_m[1] s + depth_m[2] s^2 (m), x_c = the limb coordinate of y_c = clamp(D / h, 0, 1) (x_c = 2/3 + (4/3) cos(acos(1 - 27 y_c / 16) / 3 - 2 pi / 3)), k = focus smoothstep(sun_range_deg[0], sun_range_deg[1], s) (1 - smoothstep(sun_range_deg[2], sun_range_deg[3], s)) smoothstep(altitude_range_m[0], altitude_range_m[1], h) (1 - smoothstep(altitude_range_m[2], altitude_range_m[3], h)) (0 where h <= 0); the limb row coordinate of depth y is x = (asinh(k (x0 - x_c)) - A) / (B - A), x0 = 2/3 + (4/3) cos(acos(1 - 27 y / 16) / 3 - 2 pi / 3), A = asinh(-k x_c), B = asinh(k (1 - x_c)) (x = x0 where k < 1e-6); inverse x0 = x_c + sinh(A + x (B - A)) / k, y = 2 x0^2 - x0^3. On the limb rows every (altitude node k, sun node j) slice is read on its own rows at the depth of `slices` (and a column moved below the horizontal by sky_row_band.azimuth likewise, at its depth 2 r sin^2(e_a / 2) / h)",
-            },
+            "limb_row_band": limb_row_band,
             "view_rows": format!("rows 0..{} from the zenith to the horizontal: elevation = 90 (1 - x0)^2 (deg), x0 = G^-1(A + x (B - A)), x = row / {}, x_c = 1 - sqrt(c_f / 90), G(x0) = asinh(k (x0 - x_c)) for x0 < x_c, k (x0 - x_c) for x_c <= x0 <= x_c + w, k w + asinh(k (x0 - x_c - w)) above (version 18; w = 0 before), A = G(0), B = G(1), (c_f, k, w) the sky rows' focus (sky_row_band) at the sun's elevation above the observer's horizon (its node's s_j for a texel, the query's own for a query) and the observer's altitude; where k < 1e-6, x0 = x; inverse: x0 = 1 - sqrt(elevation / 90), x = (G(x0) - A) / (B - A) (or x0); rows {}..{} from the horizontal to the horizon: the ray's tangent radius r_t = r - (r - bottom_radius) y, y = 2 x0^2 - x0^3, x0 = the unfocused coordinate of x = (row - {}) / {} with the limb rows' focus (limb_row_band; x0 = x where k = 0; inverse: x0 = 2/3 + (4/3) cos(acos(1 - 27 y / 16) / 3 - 2 pi / 3)), theta = pi/2 + acos(r_t / r); rows {}..{} from the horizon to the nadir: theta = theta_h + (pi - theta_h) x^2, x = (row - {}) / {}, theta_h = pi - asin(bottom_radius / r); r the observer's radius. Interpolation over the rows around the view stays within its segment (see interpolation)", N_VIEW_SKY - 1, N_VIEW_SKY - 1, N_VIEW_SKY, N_VIEW_UP - 1, N_VIEW_SKY, N_VIEW_LIMB - 1, N_VIEW_UP, N_VIEW - 1, N_VIEW_UP, N_VIEW_DOWN - 1),
             "azimuth_columns": format!("the column coordinate of the view's azimuth phi from the sun's (0..pi) at altitude h (m): column = (alpha sqrt(phi / pi) + (1 - alpha - beta) sin(phi / 2)^2 + beta G(phi)) {}, alpha = azimuth_aloft.ground_weight - (azimuth_aloft.ground_weight - azimuth_aloft.weight) smoothstep(azimuth_aloft.altitude_range_m[0], azimuth_aloft.altitude_range_m[1], h) (version 14; version 13: ground_weight 1), beta = azimuth_focus.weight smoothstep(azimuth_focus.altitude_range_m[0], azimuth_focus.altitude_range_m[1], h), G(phi) = (tanh((phi - c) / w) - tanh(-c / w)) / (tanh((pi - c) / w) - tanh(-c / w)), c = azimuth_focus.centre_deg, w = azimuth_focus.width_deg (in rad; smoothstep as in sky_row_band); a texel of altitude node k lies at the phi whose coordinate at h_k is its column (azimuth_nodes_rad[k][column]); a query at altitude h reads altitude node k at column coordinate c_q + lambda (c_k - c_q), c_q its azimuth's coordinate at h, c_k at h_k (the node's own map), lambda = smoothstep(azimuth_focus.node_read_altitude_m[0], azimuth_focus.node_read_altitude_m[1], h) (version 13; version 12: c_q), and azimuth_nodes_rad[k] are the columns' azimuths in sky_row_band.azimuth", N_AZ - 1),
             "azimuth_aloft": {
@@ -3348,10 +3407,18 @@ mod tests {
                 assert!((focus_coord(focus_inverse(x, xc, k), xc, k) - x).abs() < 1e-9);
             }
         }
-        // Off by day, at the ground and from 30 km up; on at 15 km with the sun at sunset.
+        // Off by day, at the ground and at 30 km; on at 15 km with the sun at sunset.
         assert_eq!(limb_row_focus(10.0, 15_000.0).1, 0.0);
         assert_eq!(limb_row_focus(0.0, 3_000.0).1, 0.0);
         assert_eq!(limb_row_focus(0.0, 30_000.0).1, 0.0);
+        // From 35 km up on the shadow's edge (12–15 km deep), off by day and from 50 km up; the
+        // slices' depth map stays off there.
+        let (xc, k) = limb_row_focus(0.0, 40_000.0);
+        assert_eq!(k, LIMB_EDGE_FOCUS);
+        assert!((limb_depth(xc) * 40_000.0 - LIMB_EDGE_DEPTH_M[0]).abs() < 1.0);
+        assert_eq!(limb_row_focus(5.0, 40_000.0).1, 0.0);
+        assert_eq!(limb_row_focus(0.0, 55_000.0).1, 0.0);
+        assert_eq!(limb_slice_depth(0.3, 0.0, 40_000.0, 0.25, 42_000.0), 0.3);
         // Still on at 25 km (version 20): the limb seen from 22.5–25 km reads it.
         assert_eq!(limb_row_focus(-1.0, 25_000.0).1, LIMB_BAND_FOCUS);
         let (xc, k) = limb_row_focus(0.0, 15_000.0);
