@@ -128,7 +128,10 @@ pub const LAYOUT: &str = "skyview";
 /// 22: on the limb rows each altitude node read with the query's exponential below 11–20 km and
 /// with the query's weight ω above 25–29 km ([`limb_node_shift`]; reader and shader, texels as
 /// version 21's).
-pub const SKYVIEW_VERSION: &str = "22";
+/// 23: from 33–36 km up to 45–50 km, sun coordinate −0.75…1°, the limb rows focused on the
+/// earth's shadow's edge 14 km + 6 km per degree below the observer ([`limb_edge_focus`]; texels,
+/// reader, shader and manifest).
+pub const SKYVIEW_VERSION: &str = "23";
 
 /// Altitude nodes of the base map ([`altitude_abscissa`], about (top − bottom) · (x / 27)²,
 /// denser near the top): its integers 0..=27.
