@@ -466,13 +466,16 @@ fn fast_cloud_matches_mitsuba_cases() {
         // engine17 (the spread beam's longer paths too) 4.02 % / +0.26 %. With the cells at most
         // ¼ of the transport mean free path (one voxel per cell here) 3.50 % / −0.55 %; over 16
         // photon seeds 4.08 / −0.69 % mean, 4.69 / −1.64 % worst (before 5.18 / −0.31 %, 6.16 /
-        // −1.46 %): bound 5 → 4.5 %.
+        // −1.46 %): bound 5 → 4.5 %. With 3× the photons where the cells are made finer
+        // (`multiple::REFINED_PHOTONS`) 2.90 % / −1.45 % (16 seeds not measured).
         ("sun_g05", 0.045, 0.015),
         // 4.32 % / −0.52 % with the once-scattered sunlight seen through the halfway kernel (4.14 %
         // / +0.85 % through p*_l; over 4 photon seeds 4.75 % / +0.07 %, 4.87 % / +1.53 %).
         // 4.19 % / −0.57 % with the roulette at 60 and the forced once collision; over 16 photon
         // seeds 5.09 / −0.06 % mean, 6.23 / −1.06 % worst. 4.19 % / −0.54 % forced under 2
         // optical depths, not 4; engine17 (the spread beam's longer paths too) 4.30 % / −0.72 %.
+        // Cells within 0.1 ℓ_tr (30 m) and 3× the photons: 3.34 % / −0.64 %; over 16 photon seeds
+        // 3.76 / −0.25 % mean, 4.41 / −0.91 % worst (engine18 5.42 / −0.28 %, 6.61 / −1.25 %).
         ("sun_albedo09", 0.05, 0.015),
         // 4.7 % / −1.2 % with the sky's first order through σ_t⁺ (5.1 % / −2.1 % before;
         // over 4 photon seeds 4.5 % / −0.9 %, raw). 3.84 % / −0.84 % with the roulette at 60 and
@@ -549,7 +552,9 @@ fn fast_cloud_matches_mitsuba_every_side() {
         // taken out (over 8 photon seeds +1.22 %, worst +2.13 %). 4.36 % / +1.38 % with the
         // roulette at 60 and the forced once collision instead (over 16 photon seeds 5.61 / +1.62 %
         // mean, 6.66 / +2.35 % worst); 4.44 % / +1.43 % forced under 2 optical depths, not 4.
-        // Both: 4.48 % / +1.15 % (engine17).
+        // Both: 4.48 % / +1.15 % (engine17). Cells within 0.1 ℓ_tr (30 m) and 3× the photons:
+        // 4.26 % / +1.22 %; over 16 photon seeds 4.00 / +0.93 % mean, 4.66 / +2.17 % worst
+        // (engine18 5.64 / +0.97 %, 6.50 / +1.80 %).
         ("below_sun", "cloud_mitsuba_mask_below.npy", 0.05, 0.02),
         // 4.3 % / −1.4 % (sun-free: the first orders' change does not reach it; 3.8 % / +0.1 % density-weighted; 7.6 % / +0.1 % before the environment
         // photons' launch and the P3 field). The target (5 %, 2 %).

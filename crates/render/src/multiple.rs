@@ -146,6 +146,10 @@ struct Coarse {
     compact: Vec<u32>,
     /// Number of cells that hold cloud.
     cloud_cells: usize,
+    /// Whether [`Coarse::new`] made an axis's cells smaller than `max_coarse_dim` gives (the
+    /// transport mean free path's rule): the photon pass then traces [`REFINED_PHOTONS`]× the
+    /// budget.
+    refined: bool,
 }
 
 /// The cells that hold cloud: their index range per axis and the box round them. Outside it
@@ -254,17 +258,20 @@ impl Coarse {
     /// where not even one voxel is within it (the voxels themselves too thick: the skins hold
     /// the lit surface there), the block is kept.
     fn new(grid: &DensityGrid, max_dim: usize, transport_m: Option<f64>) -> Self {
+        let cap: [usize; 3] = std::array::from_fn(|a| grid.dims[a].div_ceil(max_dim.max(1)).max(1));
         let f: [usize; 3] = std::array::from_fn(|a| {
-            let cap = grid.dims[a].div_ceil(max_dim.max(1)).max(1);
             let Some(tr) = transport_m else {
-                return cap;
+                return cap[a];
             };
-            let fits = |f: usize| f as f64 * grid.voxel_size_m <= CELL_TRANSPORT_FRACTION * tr;
-            (cap.div_ceil(2)..=cap)
-                .rev()
-                .find(|&f| fits(f))
-                .unwrap_or(cap)
+            let fits = |f: usize, frac: f64| f as f64 * grid.voxel_size_m <= frac * tr;
+            // Within 0.1 ℓ_tr where a block can be; else within ¼ ℓ_tr (the g 0.5 cloud's
+            // 30 m voxels are 0.19 ℓ_tr); else kept.
+            [CELL_TRANSPORT_FRACTION, CELL_TRANSPORT_FRACTION_COARSE]
+                .into_iter()
+                .find_map(|frac| (cap[a].div_ceil(2)..=cap[a]).rev().find(|&f| fits(f, frac)))
+                .unwrap_or(cap[a])
         });
+        let refined = f != cap;
         let dims: [usize; 3] = std::array::from_fn(|a| grid.dims[a].div_ceil(f[a]));
         let [nx, ny, nz] = grid.dims;
         // Each layer of cells sums its voxels in parallel (every cell's voxels added in the
@@ -298,7 +305,10 @@ impl Coarse {
             .map(|(s, &c)| if c > 0 { (s / c as f64) as f32 } else { 0.0 })
             .collect();
         let cell_m = DVec3::new(f[0] as f64, f[1] as f64, f[2] as f64) * grid.voxel_size_m;
-        Self::from_cells(dims, cell_m, grid.origin_m, rho)
+        Self {
+            refined,
+            ..Self::from_cells(dims, cell_m, grid.origin_m, rho)
+        }
     }
 
     /// The coarse grid of `dims` cells of edges `cell_m` from `origin_m` with densities `rho`
@@ -325,6 +335,7 @@ impl Coarse {
             skin: None,
             compact,
             cloud_cells,
+            refined: false,
         }
     }
 
@@ -369,6 +380,19 @@ impl MsField {
             s.transport_cells
                 .then(|| transport_mean_free_path(grid, optics)),
         );
+        // Finer cells hold fewer of the photons' tracks each: the refined field traces more
+        // photons (see [`REFINED_PHOTONS`]).
+        let refined_settings;
+        let s = if coarse.refined {
+            refined_settings = PhotonSettings {
+                sun_photons: s.sun_photons.saturating_mul(REFINED_PHOTONS),
+                env_photons: s.env_photons.saturating_mul(REFINED_PHOTONS),
+                ..*s
+            };
+            &refined_settings
+        } else {
+            s
+        };
         let n_l = optics.albedo.len();
         let cells = coarse.rho.len();
         let order = s.angular_order.min(MAX_ORDER);
@@ -903,8 +927,25 @@ pub const MAX_ORDER: usize = 4;
 /// `standard`'s 32 cells per axis the Mitsuba 3 cloud's cells are 60 m: 0.11 ℓ_tr for g 0.85
 /// but 0.38 ℓ_tr for g 0.5, whose 8-seed mean frame read the sunlit limb −8…−10 % of the
 /// cloud's mean and the middle +3…+6 % (block NRMSE 4.08 % raw); with 30 m cells 2.38 %
-/// (docs/frames.md, "Accuracy").
-pub const CELL_TRANSPORT_FRACTION: f64 = 0.25;
+/// (docs/frames.md, "Accuracy"). The g 0.85 cases' 0.11 ℓ_tr (0.18 with albedo 0.9) were the
+/// largest part of their mean frames' error too (see [`REFINED_PHOTONS`]), so the cells are
+/// held within 0.1 ℓ_tr (the bench cumulus's 48 m cells, 0.086 ℓ_tr, are kept).
+pub const CELL_TRANSPORT_FRACTION: f64 = 0.1;
+
+/// Where not even one voxel is within [`CELL_TRANSPORT_FRACTION`] of ℓ_tr, the widest block
+/// within this fraction (engine18's rule: the Mitsuba 3 g 0.5 cloud, 30 m voxels, 0.19 ℓ_tr).
+pub const CELL_TRANSPORT_FRACTION_COARSE: f64 = 0.25;
+
+/// Photon budget factor of a field whose cells [`Coarse::new`] made smaller than
+/// `max_coarse_dim` gives ([`CELL_TRANSPORT_FRACTION`]): halving a cell's edge leaves each cell
+/// ⅛ of the tracks, and the finer cells' smaller error (the Mitsuba 3 g 0.85 cloud's 16-seed
+/// mean frames, 60 → 30 m cells: `below_sun` 5.68 → 4.41 %, `sun_albedo09` 4.34 → 3.09 %,
+/// `sun` 3.93 → 2.43 % block NRMSE) is lost in the photon noise at the same budget (seed noise
+/// 3.32 → 4.86 %, `below_sun` worst of 16 seeds unchanged at 6.50 %). With 2× the photons the
+/// worst of 16 seeds read `below_sun` 5.18 %, `sun_albedo09` 5.32 % (2 seeds each past 5 %),
+/// with 3× 4.66 and 4.41 % (none; 6.50 and 6.61 % before), for about 4× that frame's CPU
+/// (docs/frames.md, "Photon seeds").
+pub const REFINED_PHOTONS: usize = 3;
 
 /// The transport mean free path 1/(σ_t(1 − ωg)) at the mean density of the voxels that hold
 /// cloud, m, the shortest over the wavelengths (∞ for an empty grid).
