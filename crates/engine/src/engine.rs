@@ -28,7 +28,7 @@ use std::time::Instant;
 pub use crate::spec::DomeShape;
 
 /// Engine version: part of every cache key, bumped when results change.
-pub const ENGINE_VERSION: &str = concat!("skybake-", env!("CARGO_PKG_VERSION"), "-engine18");
+pub const ENGINE_VERSION: &str = concat!("skybake-", env!("CARGO_PKG_VERSION"), "-engine19");
 
 /// A cooperative cancellation check: true once nobody wants the result (every waiting client has gone). The engine
 /// asks it at stage boundaries (after the density table, between orders of scattering of the
