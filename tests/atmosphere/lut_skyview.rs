@@ -91,6 +91,44 @@ fn channel_index(f: &Fixture, product_nm: &[f64]) -> Vec<usize> {
         .collect()
 }
 
+/// One probe's (view zenith, azimuth from the sun) and its (reader, `sky` product) radiance per
+/// bundle channel.
+type ProbeResult = ((f64, f64), Vec<(f64, f64)>);
+
+/// Folds one observer's and sun's [`reader_against_product`] results into `worst` (the largest
+/// relative deviation of the reader from the `sky` product and its case); with `verbose`, every
+/// deviation over 3 % printed, tagged `tag`.
+fn fold_worst(
+    f: &Fixture,
+    tag: &str,
+    altitude_m: f64,
+    sun_deg: f64,
+    results: &[ProbeResult],
+    verbose: bool,
+    worst: &mut (f64, String),
+) {
+    for &((view_zenith_deg, view_azimuth_deg), ref channels) in results {
+        for (c, &(got, want)) in channels.iter().enumerate() {
+            let e = rel(got, want);
+            let nm = f.bundle.wavelengths_nm[c];
+            if verbose && e > 0.03 {
+                eprintln!(
+                    "{tag} alt {altitude_m:.0} sun {sun_deg:.2} zen {view_zenith_deg:.2} az {view_azimuth_deg:.1} {nm} nm {:+.2}%",
+                    100.0 * (got - want) / want
+                );
+            }
+            if e > worst.0 {
+                *worst = (
+                    e,
+                    format!(
+                        "(alt {altitude_m:.0} m, sun {sun_deg:.2}, view zenith {view_zenith_deg:.2} azimuth {view_azimuth_deg:.1}, {nm} nm: {got:.4e} vs {want:.4e})"
+                    ),
+                );
+            }
+        }
+    }
+}
+
 /// The reader's sky radiance against the `sky` product's ([`sky_probes`]) for an observer at
 /// `altitude_m` and the sun at `sun_deg`: per probe direction (view zenith, azimuth from the sun,
 /// degrees), the (reader, product) radiance of each of the bundle's channels, W m⁻² sr⁻¹ nm⁻¹.
@@ -101,7 +139,7 @@ fn reader_against_product(
     altitude_m: f64,
     sun_deg: f64,
     probes: &[(f64, f64)],
-) -> Vec<((f64, f64), Vec<(f64, f64)>)> {
+) -> Vec<ProbeResult> {
     let bottom = f.bundle.params.bottom_radius;
     let product = sky_probes(f, altitude_m, sun_deg, probes);
     let idx = channel_index(f, &product.table.wavelengths_nm);
@@ -527,31 +565,8 @@ fn twilight_glow_errors(f: &Fixture, reader: &SkyViewReader, suns: &[f64]) -> (f
         .collect();
     for altitude in [0.0, 2500.0, 5000.0, 10000.0, 15000.0, 20000.0] {
         for &sun in suns {
-            for ((view_zenith_deg, view_azimuth_deg), channels) in
-                reader_against_product(f, reader, altitude, sun, &probes)
-            {
-                for (c, &(got, want)) in channels.iter().enumerate() {
-                    let e = rel(got, want);
-                    if verbose && e > 0.03 {
-                        eprintln!(
-                            "glow alt {altitude:.0} sun {sun:.0} zen {:.2} az {:.0} {} nm {:+.2}%",
-                            view_zenith_deg,
-                            view_azimuth_deg,
-                            f.bundle.wavelengths_nm[c],
-                            100.0 * (got - want) / want
-                        );
-                    }
-                    if e > worst.0 {
-                        worst = (
-                            e,
-                            format!(
-                                "(alt {altitude:.0} m, sun {sun:.0}, view zenith {:.2} azimuth {:.0}, {} nm: {got:.4e} vs {want:.4e})",
-                                view_zenith_deg, view_azimuth_deg, f.bundle.wavelengths_nm[c]
-                            ),
-                        );
-                    }
-                }
-            }
+            let results = reader_against_product(f, reader, altitude, sun, &probes);
+            fold_worst(f, "glow", altitude, sun, &results, verbose, &mut worst);
         }
     }
     worst
@@ -1102,29 +1117,8 @@ fn side_aloft_errors(
         let mut worst = (0.0f64, String::new());
         for i in 0..=12 {
             let sun = -6.0 + 0.25 * f64::from(i);
-            for ((view_zenith_deg, view_azimuth_deg), channels) in
-                reader_against_product(f, reader, altitude, sun, &probes)
-            {
-                for (c, &(got, want)) in channels.iter().enumerate() {
-                    let e = rel(got, want);
-                    if verbose && e > 0.03 {
-                        eprintln!(
-                            "side alt {altitude:.0} sun {sun:.2} zen {view_zenith_deg:.2} az {view_azimuth_deg:.1} {} nm {:+.2}%",
-                            f.bundle.wavelengths_nm[c],
-                            100.0 * (got - want) / want
-                        );
-                    }
-                    if e > worst.0 {
-                        worst = (
-                            e,
-                            format!(
-                                "(alt {altitude:.0} m, sun {sun:.2}, view zenith {view_zenith_deg:.2} azimuth {view_azimuth_deg:.1}, {} nm: {got:.4e} vs {want:.4e})",
-                                f.bundle.wavelengths_nm[c]
-                            ),
-                        );
-                    }
-                }
-            }
+            let results = reader_against_product(f, reader, altitude, sun, &probes);
+            fold_worst(f, "side", altitude, sun, &results, verbose, &mut worst);
         }
         per_altitude.push(worst);
     }
@@ -1208,29 +1202,8 @@ fn toward_sun_deep_errors(f: &Fixture, reader: &SkyViewReader, dense: bool) -> (
                     v[0] * s[0] + v[1] * s[1] + v[2] * s[2] <= 8f64.to_radians().cos()
                 })
                 .collect();
-            for ((view_zenith_deg, view_azimuth_deg), channels) in
-                reader_against_product(f, reader, altitude, sun, &probes)
-            {
-                for (c, &(got, want)) in channels.iter().enumerate() {
-                    let e = rel(got, want);
-                    if verbose && e > 0.03 {
-                        eprintln!(
-                            "toward alt {altitude:.0} sun {sun:.2} zen {view_zenith_deg:.2} az {view_azimuth_deg:.1} {} nm {:+.2}%",
-                            f.bundle.wavelengths_nm[c],
-                            100.0 * (got - want) / want
-                        );
-                    }
-                    if e > worst.0 {
-                        worst = (
-                            e,
-                            format!(
-                                "(alt {altitude:.0} m, sun {sun:.2}, view zenith {view_zenith_deg:.2} azimuth {view_azimuth_deg:.1}, {} nm: {got:.4e} vs {want:.4e})",
-                                f.bundle.wavelengths_nm[c]
-                            ),
-                        );
-                    }
-                }
-            }
+            let results = reader_against_product(f, reader, altitude, sun, &probes);
+            fold_worst(f, "toward", altitude, sun, &results, verbose, &mut worst);
         }
     }
     worst
